@@ -1,0 +1,1 @@
+//! Haptic rendering: primitives, the exact proxy solver and the paper's baselines.

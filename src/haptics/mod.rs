@@ -1,1 +1,16 @@
 //! Haptic rendering: primitives, the exact proxy solver and the paper's baselines.
+//!
+//! Data flow within a tick: modes (later, `modes`) sample volumes at the proxy and emit [`primitive::Primitive`]s;
+//! [`solver::Solver`] finds the proxy position that balances them against the coupling `k (proxy - probe)` and
+//! certifies it; the coupling force goes to the device. [`baselines`] holds the methods the exact solver is
+//! compared with, and [`reference`] a slow independent minimiser used to validate it. [`scene`] reads the JSON
+//! scene files of `voxhap solve`.
+
+pub mod baselines;
+pub mod primitive;
+pub mod reference;
+pub mod scene;
+pub mod solver;
+
+pub use primitive::{Primitive, PrimitiveError, PrimitiveKind};
+pub use solver::{Problem, SolveError, SolveStatus, Solution, Solver, SolverConfig};

@@ -1,0 +1,292 @@
+//! The active-set finish of the exact solver (DESIGN.md section 2, "Hard cases").
+//!
+//! Plain dual sweeps converge slowly when constraints are nearly parallel (a 1 degree wedge of planes behaves like
+//! alternating projections). This step guesses the answer's combinatorial structure instead and solves for it:
+//!
+//! 1. Give every primitive a status from the current primal/dual pair: a point or line is at its kink or off it; a
+//!    plane is off (not pushing), on (the proxy lies on it, pushing with some force in `[0, s]`) or full (pushing
+//!    with all of `s`). Zero-strength primitives are inactive.
+//! 2. The kinks define an affine set `{x : P_i (x - x_i) = 0}` with `P_i` = I (point), `I - q q^T` (line) or
+//!    `q q^T` (plane on). Project onto it (least squares through the pseudo-inverse of `M = sum P_i`).
+//! 3. Minimise the smooth model (coupling, off points and lines as distances, full planes as linear terms) on that
+//!    set with Newton steps restricted to the null space of `M` (x is in R^3, so a 3x3 solve), with Armijo
+//!    backtracking. A step that carries an off primitive across its kink, or a plane to the wrong side, is a
+//!    primal violation: all of them flip to "kink/on" at once and the round restarts.
+//! 4. Recover the kink multipliers by least squares, `u_i = P_i M^+ (-g)` (the minimum-norm split of the force the
+//!    kinks must supply). A multiplier outside its bound is a dual violation: the worst one flips (point/line off,
+//!    plane off or full) and the round restarts.
+//!
+//! On success the caller gets the point and a feasible dual, and accepts them only if the duality gap certifies
+//! them (the guess can be wrong; the verification is not optional). Everything is allocation-free once the
+//! workspace has grown to the scene size.
+
+use super::linalg::{outer, psd_pseudo_inverse};
+use super::{project, Item};
+use crate::haptics::primitive::PrimitiveKind;
+use glam::{DMat3, DVec3};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Status {
+    /// Zero strength: exerts nothing.
+    Inactive,
+    /// At the kink: on the point, on the line, or on the plane with a force in `[0, s]`.
+    Kink,
+    /// Off the kink: a point or line pulling with all of `s`, or a plane not pushing.
+    Off,
+    /// A plane pushing with all of `s` (the proxy is behind it).
+    Full,
+}
+
+/// Per-primitive statuses, kept between solves so that no allocation happens on the servo path.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Workspace {
+    status: Vec<Status>,
+}
+
+/// Relative tolerance when deciding a dual variable is strictly inside its bound.
+const STATUS_SLACK: f64 = 1e-9;
+/// Relative eigenvalue threshold for the rank of `M`.
+const RANK_TOLERANCE: f64 = 1e-11;
+const MAX_NEWTON_STEPS: usize = 40;
+
+impl Workspace {
+    pub fn with_capacity(n: usize) -> Self {
+        Self { status: Vec::with_capacity(n) }
+    }
+
+    /// One active-set attempt from `x_start`. On success writes a feasible dual into `dual` and returns the point.
+    pub fn solve(
+        &mut self,
+        items: &[Item],
+        y: DVec3,
+        k: f64,
+        x_start: DVec3,
+        max_flips: u32,
+        dual: &mut [DVec3],
+    ) -> Option<DVec3> {
+        self.status.clear();
+        self.status.extend(items.iter().zip(dual.iter()).map(|(item, &u)| guess_status(item, x_start, u)));
+        let mut x = x_start;
+        let scale = 1.0 + x.abs().max_element();
+        for _ in 0..=max_flips {
+            // 2. The affine set of the kinks.
+            let (m, b) = self.kink_system(items);
+            let (pinv, null, rank) = psd_pseudo_inverse(m, RANK_TOLERANCE);
+            if rank > 0 {
+                x += pinv * (b - m * x);
+            }
+            let consistent = items.iter().zip(&self.status).all(|(item, status)| {
+                *status != Status::Kink || (kink_projector(item) * (x - item.position_m)).length() <= 1e-12 * scale
+            });
+            if !consistent {
+                return None;
+            }
+
+            // 3. Newton on the smooth model, restricted to the affine set.
+            let mut violated = false;
+            for _ in 0..MAX_NEWTON_STEPS {
+                let (g, h) = self.smooth_model(items, y, k, x);
+                let g_null = null * g;
+                if g_null.length() <= 1e-14 * k * scale {
+                    break;
+                }
+                let reduced = null * h * null + (DMat3::IDENTITY - null);
+                let d = -(reduced.inverse() * g_null);
+                if !d.is_finite() {
+                    return None;
+                }
+                if self.flip_crossings(items, x, x + d) {
+                    violated = true;
+                    break;
+                }
+                let f0 = self.model_energy(items, y, k, x);
+                let slope = g.dot(d);
+                let mut t = 1.0;
+                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope && t > 1e-12 {
+                    t *= 0.5;
+                }
+                x += t * d;
+                if (t * d).length() <= 1e-17 * scale {
+                    break;
+                }
+            }
+            if violated {
+                continue;
+            }
+
+            // 4. Kink multipliers: the minimum-norm split of the force the kinks must supply.
+            let (g, _) = self.smooth_model(items, y, k, x);
+            let w = pinv * (-g);
+            let mut worst: Option<(usize, f64, Status, DVec3)> = None;
+            for (i, (item, status)) in items.iter().zip(&self.status).enumerate() {
+                if *status != Status::Kink {
+                    continue;
+                }
+                let u = kink_projector(item) * w;
+                let s = item.strength_n;
+                let (violation, flip_to) = match item.kind {
+                    PrimitiveKind::Plane => {
+                        let t = -item.direction.dot(u);
+                        if t < 0.0 {
+                            (-t, Status::Off)
+                        } else {
+                            (t - s, Status::Full)
+                        }
+                    }
+                    _ => (u.length() - s, Status::Off),
+                };
+                let relative = violation / s.max(f64::MIN_POSITIVE);
+                if violation > STATUS_SLACK * s && worst.is_none_or(|(_, v, _, _)| relative > v) {
+                    worst = Some((i, relative, flip_to, u));
+                }
+            }
+            if let Some((i, _, flip_to, u)) = worst {
+                self.status[i] = flip_to;
+                let item = &items[i];
+                if flip_to == Status::Off && item.kind != PrimitiveKind::Plane {
+                    // Leave the kink in the direction the excess force pushes, so the distance term is smooth.
+                    let excess = u.length() - item.strength_n;
+                    x += u.normalize_or_zero() * (excess / k).max(1e-9 * scale);
+                }
+                continue;
+            }
+
+            for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+                *u = match status {
+                    Status::Inactive => DVec3::ZERO,
+                    Status::Kink => project(item, kink_projector(item) * w),
+                    Status::Off => match item.kind {
+                        PrimitiveKind::Plane => DVec3::ZERO,
+                        _ => project(item, perpendicular(item, x - item.position_m).normalize_or_zero() * item.strength_n),
+                    },
+                    Status::Full => -item.strength_n * item.direction,
+                };
+            }
+            return Some(x);
+        }
+        None
+    }
+
+    /// `M = sum P_i` and `b = sum P_i x_i` over the kinks.
+    fn kink_system(&self, items: &[Item]) -> (DMat3, DVec3) {
+        let mut m = DMat3::ZERO;
+        let mut b = DVec3::ZERO;
+        for (item, status) in items.iter().zip(&self.status) {
+            if *status == Status::Kink {
+                let p = kink_projector(item);
+                m += p;
+                b += p * item.position_m;
+            }
+        }
+        (m, b)
+    }
+
+    /// Gradient and Hessian of the smooth model at `x`.
+    fn smooth_model(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> (DVec3, DMat3) {
+        let mut g = k * (x - y);
+        let mut h = DMat3::from_diagonal(DVec3::splat(k));
+        for (item, status) in items.iter().zip(&self.status) {
+            match (status, item.kind) {
+                (Status::Off, PrimitiveKind::Point | PrimitiveKind::Line) => {
+                    let r = perpendicular(item, x - item.position_m);
+                    let rho = r.length();
+                    if rho > 0.0 {
+                        let n = r / rho;
+                        g += item.strength_n * n;
+                        let tangent = kink_projector(item) - outer(n, n);
+                        h += tangent * (item.strength_n / rho);
+                    }
+                }
+                (Status::Full, _) => g -= item.strength_n * item.direction,
+                _ => {}
+            }
+        }
+        (g, h)
+    }
+
+    /// The smooth model's energy (the kink terms are zero on the affine set).
+    fn model_energy(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> f64 {
+        let mut e = 0.5 * k * (x - y).length_squared();
+        for (item, status) in items.iter().zip(&self.status) {
+            match (status, item.kind) {
+                (Status::Off, PrimitiveKind::Point | PrimitiveKind::Line) => {
+                    e += item.strength_n * perpendicular(item, x - item.position_m).length();
+                }
+                (Status::Full, _) => e -= item.strength_n * item.direction.dot(x - item.position_m),
+                _ => {}
+            }
+        }
+        e
+    }
+
+    /// Flips to "kink" every off or full primitive that the step `from -> to` carries across its kink.
+    fn flip_crossings(&mut self, items: &[Item], from: DVec3, to: DVec3) -> bool {
+        let mut any = false;
+        for (item, status) in items.iter().zip(self.status.iter_mut()) {
+            let crossed = match (*status, item.kind) {
+                (Status::Off, PrimitiveKind::Plane) => item.direction.dot(to - item.position_m) < 0.0,
+                (Status::Full, _) => item.direction.dot(to - item.position_m) > 0.0,
+                (Status::Off, _) => {
+                    let before = perpendicular(item, from - item.position_m);
+                    let after = perpendicular(item, to - item.position_m);
+                    before.dot(after) <= 0.0
+                }
+                _ => false,
+            };
+            if crossed {
+                *status = Status::Kink;
+                any = true;
+            }
+        }
+        any
+    }
+}
+
+/// The status suggested by a primal point and a dual variable.
+fn guess_status(item: &Item, x: DVec3, u: DVec3) -> Status {
+    let s = item.strength_n;
+    if s == 0.0 {
+        return Status::Inactive;
+    }
+    let r = x - item.position_m;
+    match item.kind {
+        PrimitiveKind::Plane => {
+            let t = -item.direction.dot(u);
+            let sigma = item.direction.dot(r);
+            if t <= STATUS_SLACK * s && sigma > 0.0 {
+                Status::Off
+            } else if t >= (1.0 - STATUS_SLACK) * s && sigma < 0.0 {
+                Status::Full
+            } else {
+                Status::Kink
+            }
+        }
+        _ => {
+            if perpendicular(item, u).length() < (1.0 - STATUS_SLACK) * s {
+                Status::Kink
+            } else {
+                Status::Off
+            }
+        }
+    }
+}
+
+/// The part of `v` that the kink constrains: all of it (point), its part orthogonal to the line, or its part
+/// along the plane normal.
+fn kink_projector(item: &Item) -> DMat3 {
+    let q = item.direction;
+    match item.kind {
+        PrimitiveKind::Point => DMat3::IDENTITY,
+        PrimitiveKind::Line => DMat3::IDENTITY - outer(q, q),
+        PrimitiveKind::Plane => outer(q, q),
+        PrimitiveKind::Directed => DMat3::ZERO,
+    }
+}
+
+/// `v` itself for a point, its part orthogonal to the line for a line.
+fn perpendicular(item: &Item, v: DVec3) -> DVec3 {
+    match item.kind {
+        PrimitiveKind::Line => v - item.direction * item.direction.dot(v),
+        _ => v,
+    }
+}

@@ -1,0 +1,143 @@
+//! Small dense linear algebra for the active-set step: the eigen-decomposition of a symmetric 3x3 matrix
+//! (cyclic Jacobi rotations), from which the solver builds pseudo-inverses and null-space projectors.
+//!
+//! Jacobi is chosen over a closed-form cubic because it stays accurate for nearly repeated eigenvalues,
+//! which is exactly the case of near-parallel planes (a 1 degree wedge gives eigenvalues about 2 and 1.5e-4).
+
+use glam::{DMat3, DVec3};
+
+/// Eigenvalues and orthonormal eigenvectors (the columns of `vectors`) of a symmetric matrix.
+#[derive(Debug, Clone, Copy)]
+pub struct SymmetricEigen3 {
+    pub values: DVec3,
+    pub vectors: DMat3,
+}
+
+/// Eigen-decomposition of the symmetric matrix `m` (only its upper triangle is read).
+pub fn symmetric_eigen3(m: DMat3) -> SymmetricEigen3 {
+    // a[row][col]
+    let mut a = [
+        [m.x_axis.x, m.y_axis.x, m.z_axis.x],
+        [m.x_axis.y, m.y_axis.y, m.z_axis.y],
+        [m.x_axis.z, m.y_axis.z, m.z_axis.z],
+    ];
+    // Symmetrise from the upper triangle.
+    for (r, c) in [(1usize, 0usize), (2, 0), (2, 1)] {
+        a[r][c] = a[c][r];
+    }
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _sweep in 0..32 {
+        let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+        let diag = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2];
+        if off <= 1e-36 * diag || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let apq = a[p][q];
+            if apq == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+            // f64::signum(+0.0) is 1.0, so theta == 0 gives t = 1 (a 45 degree rotation), as it should.
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            for row in a.iter_mut() {
+                let (akp, akq) = (row[p], row[q]);
+                row[p] = c * akp - s * akq;
+                row[q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let (apk, aqk) = (a[p][k], a[q][k]);
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in v.iter_mut() {
+                let (vkp, vkq) = (row[p], row[q]);
+                row[p] = c * vkp - s * vkq;
+                row[q] = s * vkp + c * vkq;
+            }
+        }
+    }
+    SymmetricEigen3 {
+        values: DVec3::new(a[0][0], a[1][1], a[2][2]),
+        vectors: DMat3::from_cols(
+            DVec3::new(v[0][0], v[1][0], v[2][0]),
+            DVec3::new(v[0][1], v[1][1], v[2][1]),
+            DVec3::new(v[0][2], v[1][2], v[2][2]),
+        ),
+    }
+}
+
+/// The pseudo-inverse of a symmetric positive semi-definite matrix and the projector onto its null space,
+/// treating eigenvalues below `relative_tolerance * max eigenvalue` as zero. Returns `(pinv, null_projector, rank)`.
+pub fn psd_pseudo_inverse(m: DMat3, relative_tolerance: f64) -> (DMat3, DMat3, usize) {
+    let eig = symmetric_eigen3(m);
+    let max = eig.values.max_element().max(0.0);
+    let mut pinv = DMat3::ZERO;
+    let mut range = DMat3::ZERO;
+    let mut rank = 0;
+    if max > 0.0 {
+        for i in 0..3 {
+            let lambda = eig.values[i];
+            if lambda > relative_tolerance * max {
+                let e = eig.vectors.col(i);
+                let outer = outer(e, e);
+                pinv += outer * (1.0 / lambda);
+                range += outer;
+                rank += 1;
+            }
+        }
+    }
+    (pinv, DMat3::IDENTITY - range, rank)
+}
+
+/// The outer product `a b^T`.
+pub fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eigen_reconstructs_the_matrix() {
+        let m = DMat3::from_cols(
+            DVec3::new(4.0, 1.0, -2.0),
+            DVec3::new(1.0, 3.0, 0.5),
+            DVec3::new(-2.0, 0.5, 1.0),
+        );
+        let e = symmetric_eigen3(m);
+        let d = DMat3::from_diagonal(e.values);
+        let back = e.vectors * d * e.vectors.transpose();
+        assert!((back - m).to_cols_array().iter().all(|x| x.abs() < 1e-12), "{back:?}");
+        let vtv = e.vectors.transpose() * e.vectors;
+        assert!((vtv - DMat3::IDENTITY).to_cols_array().iter().all(|x| x.abs() < 1e-12));
+    }
+
+    #[test]
+    fn near_parallel_planes_keep_their_small_eigenvalue() {
+        let angle = 1f64.to_radians();
+        let q1 = DVec3::Z;
+        let q2 = DVec3::new(angle.sin(), 0.0, angle.cos());
+        let m = outer(q1, q1) + outer(q2, q2);
+        let e = symmetric_eigen3(m);
+        let mut values = e.values.to_array();
+        values.sort_by(f64::total_cmp);
+        assert!(values[0].abs() < 1e-15);
+        assert!((values[1] - (1.0 - angle.cos())).abs() < 1e-12, "{values:?}");
+        assert!((values[2] - (1.0 + angle.cos())).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pseudo_inverse_of_a_rank_one_matrix() {
+        let q = DVec3::new(1.0, 2.0, 2.0) / 3.0;
+        let (pinv, null, rank) = psd_pseudo_inverse(outer(q, q), 1e-12);
+        assert_eq!(rank, 1);
+        assert!((pinv * q - q).length() < 1e-12);
+        assert!((null * q).length() < 1e-12);
+        let t = q.any_orthonormal_vector();
+        assert!((null * t - t).length() < 1e-12);
+    }
+}

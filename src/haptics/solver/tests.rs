@@ -1,0 +1,314 @@
+//! Unit tests of the exact solver: closed-form cases, the hard cases of DESIGN.md section 2, and warm starts.
+
+use super::*;
+use crate::haptics::primitive::total_energy_j;
+use crate::haptics::reference;
+
+const K: f64 = 500.0;
+
+fn solve(probe: DVec3, primitives: &[Primitive]) -> Solution {
+    let mut solver = Solver::default();
+    let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives };
+    solver.solve(&problem).unwrap()
+}
+
+fn assert_certified_near(sol: &Solution, expected: DVec3) {
+    assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
+    let err = (sol.proxy_m - expected).length();
+    assert!(err <= sol.error_bound_m + 1e-15, "error {err:e} > bound {:e}: {sol:?}", sol.error_bound_m);
+    assert!(sol.error_bound_m <= 1e-12, "{sol:?}");
+}
+
+#[test]
+fn no_primitives_puts_the_proxy_on_the_probe() {
+    let probe = DVec3::new(0.01, -0.02, 0.03);
+    let sol = solve(probe, &[]);
+    assert_certified_near(&sol, probe);
+    assert_eq!(sol.force_n, DVec3::ZERO);
+}
+
+#[test]
+fn one_point_is_solved_by_one_update() {
+    let probe = DVec3::new(0.01, 0.0, 0.0);
+    let prims = [Primitive::point(DVec3::ZERO, 2.0).unwrap()];
+    let sol = solve(probe, &prims);
+    // k |probe - point| = 5 N > 2 N: the point holds the proxy s/k = 4 mm back from the probe.
+    assert_certified_near(&sol, DVec3::new(0.006, 0.0, 0.0));
+    assert_eq!(sol.sweeps, 1);
+    assert!((sol.force_n - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
+}
+
+#[test]
+fn directed_force_shifts_the_proxy() {
+    let prims = [Primitive::directed(DVec3::Y, 1.0).unwrap()];
+    let sol = solve(DVec3::ZERO, &prims);
+    assert_certified_near(&sol, DVec3::new(0.0, 0.002, 0.0));
+    assert!((sol.force_n - DVec3::new(0.0, 1.0, 0.0)).length() < 1e-12);
+}
+
+/// Paper Figure 6: a plane holds the proxy until the probe is s/k deep, then yields; the separation never exceeds
+/// s/k.
+#[test]
+fn plane_separation_is_at_most_s_over_k() {
+    let s = 2.0;
+    let prims = [Primitive::plane(DVec3::ZERO, DVec3::Z, s).unwrap()];
+    let mut max_separation: f64 = 0.0;
+    for step in 0..=200 {
+        let depth = step as f64 * 5e-5; // 0 to 10 mm
+        let probe = DVec3::new(0.001, 0.0, -depth);
+        let sol = solve(probe, &prims);
+        let expected_z = if depth * K <= s { 0.0 } else { -depth + s / K };
+        assert_certified_near(&sol, DVec3::new(0.001, 0.0, expected_z));
+        max_separation = max_separation.max((sol.proxy_m - probe).length());
+    }
+    assert!((max_separation - s / K).abs() < 1e-12, "max separation {max_separation}");
+}
+
+/// Paper Figure 4: a plane and a point balance; the weaker one gives way.
+#[test]
+fn plane_balances_a_point() {
+    let probe = DVec3::new(0.0, 0.0, 0.001);
+    let point_below = DVec3::new(0.0, 0.0, -0.01);
+    // Point 1 N pulls down, plane 2 N holds: the proxy rests on the plane, which pushes with 0.5 N.
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),
+        Primitive::point(point_below, 1.0).unwrap(),
+    ];
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, DVec3::ZERO);
+    assert!((sol.force_n - DVec3::new(0.0, 0.0, -0.5)).length() < 1e-9);
+    // Point 3 N beats the plane's 2 N: the proxy goes through, to where k (z - probe) balances 3 - 2 N.
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),
+        Primitive::point(point_below, 3.0).unwrap(),
+    ];
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, DVec3::new(0.0, 0.0, 0.001 - 1.0 / K));
+}
+
+/// A thin wedge: the region `|z| <= x tan(angle/2)` between two planes at `angle` to each other, edge along y,
+/// as two stiff (50 N) planes. This is the hard case for sweeps (like alternating projections).
+fn thin_wedge(angle_deg: f64) -> [Primitive; 2] {
+    let half = angle_deg.to_radians() / 2.0;
+    let upper = DVec3::new(half.sin(), 0.0, -half.cos());
+    let lower = DVec3::new(half.sin(), 0.0, half.cos());
+    [Primitive::plane(DVec3::ZERO, upper, 50.0).unwrap(), Primitive::plane(DVec3::ZERO, lower, 50.0).unwrap()]
+}
+
+#[test]
+fn thin_wedges_are_solved_exactly() {
+    for angle in [1.0, 5.0, 30.0] {
+        // A probe just behind the edge: the answer is the edge point at the probe's y. (From further back the
+        // coupling would beat the planes, whose push along x is only (t1 + t2) sin(angle/2).)
+        let probe = DVec3::new(-0.0002, 0.002, 0.00001);
+        let sol = solve(probe, &thin_wedge(angle));
+        assert_certified_near(&sol, DVec3::new(0.0, 0.002, 0.0));
+        assert!(sol.sweeps <= 40, "{angle} degrees took {} sweeps", sol.sweeps);
+    }
+}
+
+#[test]
+fn thin_wedge_probe_above_one_face_lands_on_that_face() {
+    let prims = thin_wedge(5.0);
+    let upper = prims[0].direction();
+    let probe = DVec3::new(0.01, -0.001, 0.001);
+    let expected = probe - upper * upper.dot(probe);
+    assert!(prims[1].direction().dot(expected) > 0.0, "test set-up: the lower face must not be touched");
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, expected);
+}
+
+#[test]
+fn near_parallel_planes_meeting_in_a_valley() {
+    for angle in [1.0f64, 5.0] {
+        // Normals 1 or 5 degrees apart: the region above both is a wide valley z >= |x| tan(angle/2).
+        let half = angle.to_radians() / 2.0;
+        let prims = [
+            Primitive::plane(DVec3::ZERO, DVec3::new(half.sin(), 0.0, half.cos()), 50.0).unwrap(),
+            Primitive::plane(DVec3::ZERO, DVec3::new(-half.sin(), 0.0, half.cos()), 50.0).unwrap(),
+        ];
+        // Pushed straight down just off the valley floor: the answer is the floor line.
+        let probe = DVec3::new(1e-6, 0.004, -0.003);
+        let sol = solve(probe, &prims);
+        assert_certified_near(&sol, DVec3::new(0.0, 0.004, 0.0));
+    }
+}
+
+#[test]
+fn coincident_points_share_the_load() {
+    let probe = DVec3::new(0.004, 0.0, 0.0);
+    // Needed force 2 N; strengths 0.1 and 5 N at the same place: the proxy stays on them.
+    let prims = [Primitive::point(DVec3::ZERO, 0.1).unwrap(), Primitive::point(DVec3::ZERO, 5.0).unwrap()];
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, DVec3::ZERO);
+    // Together 1.5 N < 2 N: they give way, and hold the proxy 1.5/500 = 3 mm back from the probe.
+    let prims = [Primitive::point(DVec3::ZERO, 0.5).unwrap(), Primitive::point(DVec3::ZERO, 1.0).unwrap()];
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, DVec3::new(0.001, 0.0, 0.0));
+}
+
+#[test]
+fn probe_exactly_on_a_kink() {
+    // Probe on the plane, on the line and on the point at once.
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 1.0).unwrap(),
+        Primitive::line(DVec3::ZERO, DVec3::X, 1.0).unwrap(),
+        Primitive::point(DVec3::ZERO, 1.0).unwrap(),
+    ];
+    let sol = solve(DVec3::ZERO, &prims);
+    assert_certified_near(&sol, DVec3::ZERO);
+    assert_eq!(sol.force_n, DVec3::ZERO);
+    // Probe on the plane but a directed force pushes into it.
+    let prims = [Primitive::plane(DVec3::ZERO, DVec3::Z, 1.0).unwrap(), Primitive::directed(-DVec3::Z, 0.7).unwrap()];
+    let sol = solve(DVec3::ZERO, &prims);
+    assert_certified_near(&sol, DVec3::ZERO);
+}
+
+#[test]
+fn zero_strengths_exert_nothing() {
+    let probe = DVec3::new(0.003, -0.002, -0.004);
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 0.0).unwrap(),
+        Primitive::plane(DVec3::ZERO, DVec3::new(0.1, 0.0, 1.0), 0.0).unwrap(),
+        Primitive::point(DVec3::ONE, 0.0).unwrap(),
+        Primitive::line(DVec3::ZERO, DVec3::Y, 0.0).unwrap(),
+        Primitive::directed(DVec3::X, 0.0).unwrap(),
+    ];
+    let sol = solve(probe, &prims);
+    assert_certified_near(&sol, probe);
+}
+
+/// A deterministic pseudo-random generator for tests (no dependency, same numbers everywhere).
+pub(crate) struct SplitMix(pub u64);
+
+impl SplitMix {
+    pub fn next_f64(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.next_f64()
+    }
+
+    pub fn vec(&mut self, half: f64) -> DVec3 {
+        DVec3::new(self.range(-half, half), self.range(-half, half), self.range(-half, half))
+    }
+}
+
+pub(crate) fn random_primitives(rng: &mut SplitMix, n: usize) -> Vec<Primitive> {
+    (0..n)
+        .map(|i| {
+            let position = rng.vec(0.01);
+            let direction = rng.vec(1.0) + DVec3::new(0.0, 0.0, 0.01);
+            let strength = rng.range(0.0, 2.0);
+            match i % 4 {
+                0 => Primitive::point(position, strength),
+                1 => Primitive::line(position, direction, strength),
+                2 => Primitive::plane(position, direction, strength),
+                _ => Primitive::directed(direction, strength * 0.2),
+            }
+            .unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn thousand_primitives_are_certified() {
+    let mut rng = SplitMix(7);
+    let prims = random_primitives(&mut rng, 1000);
+    let probe = rng.vec(0.02);
+    let mut solver = Solver::with_capacity(SolverConfig::default(), 1000);
+    let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives: &prims };
+    let sol = solver.solve(&problem).unwrap();
+    assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
+    assert!(sol.error_bound_m <= 1e-12);
+    let reference = reference::minimise(K, probe, &prims);
+    let err = (sol.proxy_m - reference.proxy_m).length();
+    assert!(err <= sol.error_bound_m + reference.error_bound_m, "{err:e} {sol:?} {reference:?}");
+}
+
+#[test]
+fn random_scenes_agree_with_the_reference() {
+    let mut rng = SplitMix(42);
+    for n in [2usize, 3, 5, 8, 13, 30] {
+        for _ in 0..20 {
+            let prims = random_primitives(&mut rng, n);
+            let probe = rng.vec(0.02);
+            let sol = solve(probe, &prims);
+            assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
+            let reference = reference::minimise(K, probe, &prims);
+            let err = (sol.proxy_m - reference.proxy_m).length();
+            assert!(err <= sol.error_bound_m + reference.error_bound_m, "n={n}: {err:e} {sol:?} {reference:?}");
+            let e_exact = total_energy_j(K, probe, &prims, sol.proxy_m);
+            let e_ref = total_energy_j(K, probe, &prims, reference.proxy_m);
+            assert!(e_exact <= e_ref + 1e-15, "exact energy {e_exact} above reference {e_ref}");
+        }
+    }
+}
+
+#[test]
+fn warm_start_from_previous_tick_needs_few_sweeps() {
+    let mut solver = Solver::default();
+    let plane = Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap();
+    let mut proxy = DVec3::ZERO;
+    let mut total_sweeps = 0;
+    let ticks = 500;
+    for tick in 0..ticks {
+        let t = tick as f64 * 1e-3;
+        let probe = DVec3::new(0.02 * t, 0.01 * (6.0 * t).sin(), -0.002 - 0.001 * (3.0 * t).cos());
+        let prims = [plane, Primitive::point(proxy, 0.5).unwrap()];
+        let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: Some(proxy), primitives: &prims };
+        let sol = solver.solve(&problem).unwrap();
+        assert_eq!(sol.status, SolveStatus::Certified);
+        total_sweeps += sol.sweeps;
+        proxy = sol.proxy_m;
+    }
+    let mean = total_sweeps as f64 / ticks as f64;
+    assert!(mean <= 4.0, "mean sweeps per tick {mean}");
+}
+
+#[test]
+fn budget_exhaustion_reports_an_honest_bound() {
+    let prims = thin_wedge(1.0);
+    let expected = DVec3::new(0.0, 0.002, 0.0);
+    let mut solver = Solver::new(SolverConfig { max_sweeps: 1, sweeps_per_round: 1, ..SolverConfig::default() });
+    let problem =
+        Problem { stiffness_n_per_m: K, probe_m: DVec3::new(-0.0002, 0.002, 0.00001), previous_proxy_m: None, primitives: &prims };
+    let sol = solver.solve(&problem).unwrap();
+    assert_eq!(sol.status, SolveStatus::BudgetExhausted);
+    let err = (sol.proxy_m - expected).length();
+    assert!(err > 1e-6, "one sweep should not solve a 1 degree wedge");
+    assert!(err <= sol.error_bound_m, "bound {:e} does not cover error {err:e}", sol.error_bound_m);
+}
+
+#[test]
+fn time_budget_is_enforced_with_a_clock() {
+    use crate::clock::MockClock;
+    let clock = MockClock::new(0);
+    let prims = thin_wedge(1.0);
+    let mut solver = Solver::new(SolverConfig { max_time_ns: 0, ..SolverConfig::default() });
+    let problem =
+        Problem { stiffness_n_per_m: K, probe_m: DVec3::new(0.0005, 0.002, -0.003), previous_proxy_m: None, primitives: &prims };
+    let sol = solver.solve_with_clock(&problem, &clock).unwrap();
+    assert_eq!(sol.status, SolveStatus::BudgetExhausted);
+    assert_eq!(sol.sweeps, 0);
+}
+
+#[test]
+fn bad_coupling_is_refused() {
+    let mut solver = Solver::default();
+    let mut problem = Problem { stiffness_n_per_m: 0.0, probe_m: DVec3::ZERO, previous_proxy_m: None, primitives: &[] };
+    assert_eq!(solver.solve(&problem), Err(SolveError::BadStiffness(0.0)));
+    problem.stiffness_n_per_m = K;
+    problem.probe_m = DVec3::new(f64::NAN, 0.0, 0.0);
+    assert!(matches!(solver.solve(&problem), Err(SolveError::BadProbe(_))));
+    problem.probe_m = DVec3::ZERO;
+    problem.previous_proxy_m = Some(DVec3::splat(f64::INFINITY));
+    assert!(matches!(solver.solve(&problem), Err(SolveError::BadPreviousProxy(_))));
+}
+

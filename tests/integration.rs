@@ -1,1 +1,14 @@
-//! Integration tests, one binary (ripgrep style).
+//! Integration tests, compiled into one binary (ripgrep style) with a shared `util` module.
+//!
+//! The binary installs a counting global allocator (util::alloc) so that any test can prove a code path
+//! allocates nothing.
+
+mod util;
+
+mod cli_solve;
+mod paper;
+mod solver_alloc;
+mod solver_props;
+
+#[global_allocator]
+static ALLOCATOR: util::alloc::CountingAllocator = util::alloc::CountingAllocator;

@@ -1,5 +1,11 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
+//!
+//! `voxhap` with no subcommand runs the default job: until `voxhap serve` exists, it solves the README's
+//! example scene (sims/scenes/plane_point.json, built into the binary) with the exact solver.
 
+pub mod solve;
+
+use crate::haptics::scene::Scene;
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -12,7 +18,13 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Solve one proxy problem from a JSON scene file.
+    Solve(solve::SolveArgs),
+}
+
+/// The README's example scene, built into the binary for the default run.
+pub const EXAMPLE_SCENE: &str = include_str!("../../sims/scenes/plane_point.json");
 
 /// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code.
 pub fn main() -> ExitCode {
@@ -28,6 +40,13 @@ pub fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        None => Ok(()),
+        Some(Command::Solve(args)) => solve::run(&args),
+        None => {
+            println!("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).");
+            println!("See `voxhap --help` for the other commands.\n");
+            let scene = Scene::parse(EXAMPLE_SCENE, "sims/scenes/plane_point.json")?;
+            println!("{}", solve::report(&scene, solve::SolverChoice::Exact, false)?);
+            Ok(())
+        }
     }
 }

@@ -3,10 +3,11 @@
 //! Data flow within a tick: modes (later, `modes`) sample volumes at the proxy and emit [`primitive::Primitive`]s;
 //! [`solver::Solver`] finds the proxy position that balances them against the coupling `k (proxy - probe)` and
 //! certifies it; the coupling force goes to the device. [`baselines`] holds the methods the exact solver is
-//! compared with, and [`reference`] a slow independent minimiser used to validate it. [`scene`] reads the JSON
+//! compared with, [`bench_scenes`] the deterministic scenes of tests and benchmarks, and [`reference`] a slow independent minimiser used to validate it. [`scene`] reads the JSON
 //! scene files of `voxhap solve`.
 
 pub mod baselines;
+pub mod bench_scenes;
 pub mod primitive;
 pub mod reference;
 pub mod scene;

@@ -10,8 +10,10 @@
 //!    `q q^T` (plane on). Project onto it (least squares through the pseudo-inverse of `M = sum P_i`).
 //! 3. Minimise the smooth model (coupling, off points and lines as distances, full planes as linear terms) on that
 //!    set with Newton steps restricted to the null space of `M` (x is in R^3, so a 3x3 solve), with Armijo
-//!    backtracking. A step that carries an off primitive across its kink, or a plane to the wrong side, is a
-//!    primal violation: all of them flip to "kink/on" at once and the round restarts.
+//!    backtracking. A step that would carry an off primitive across its kink, or a full plane out of its
+//!    half-space, is a primal violation: the step stops where the first one is crossed, that primitive joins
+//!    the kinks, and the round goes on (a classical primal active-set step; flipping every violation at once
+//!    makes the kink set inconsistent in crowded scenes).
 //! 4. Recover the kink multipliers by least squares, `u_i = P_i M^+ (-g)` (the minimum-norm split of the force the
 //!    kinks must supply). A multiplier outside its bound is a dual violation: the worst one flips (point/line off,
 //!    plane off or full) and the round restarts.
@@ -48,6 +50,7 @@ const STATUS_SLACK: f64 = 1e-9;
 /// Relative eigenvalue threshold for the rank of `M`.
 const RANK_TOLERANCE: f64 = 1e-11;
 const MAX_NEWTON_STEPS: usize = 40;
+const MAX_SPLIT_SWEEPS: usize = 64;
 
 impl Workspace {
     pub fn with_capacity(n: usize) -> Self {
@@ -67,7 +70,12 @@ impl Workspace {
         self.status.clear();
         self.status.extend(items.iter().zip(dual.iter()).map(|(item, &u)| guess_status(item, x_start, u)));
         let mut x = x_start;
-        let scale = 1.0 + x.abs().max_element();
+        let scale = 1.0 + x.abs().max_element() + y.abs().max_element();
+        let strength_sum: f64 = items.iter().map(|item| item.strength_n).sum();
+        // Below this the gradient is rounding noise: 8 ulps of its largest contributions.
+        let gradient_floor = 8.0 * f64::EPSILON * (k * scale + strength_sum);
+        // The primitive the last Newton step stopped at, to catch a dual flip that undoes it at once.
+        let mut last_blocked: Option<usize> = None;
         for _ in 0..=max_flips {
             // 2. The affine set of the kinks.
             let (m, b) = self.kink_system(items);
@@ -81,13 +89,15 @@ impl Workspace {
             if !consistent {
                 return None;
             }
+            self.match_plane_sides(items, x);
 
-            // 3. Newton on the smooth model, restricted to the affine set.
-            let mut violated = false;
+            // 3. Newton on the smooth model, restricted to the affine set; a step stops at the first kink it
+            //    would cross, and that primitive joins the kinks.
+            let mut blocked = false;
             for _ in 0..MAX_NEWTON_STEPS {
                 let (g, h) = self.smooth_model(items, y, k, x);
                 let g_null = null * g;
-                if g_null.length() <= 1e-14 * k * scale {
+                if g_null.length() <= gradient_floor {
                     break;
                 }
                 let reduced = null * h * null + (DMat3::IDENTITY - null);
@@ -95,26 +105,37 @@ impl Workspace {
                 if !d.is_finite() {
                     return None;
                 }
-                if self.flip_crossings(items, x, x + d) {
-                    violated = true;
+                if d.length() <= 4.0 * f64::EPSILON * scale {
+                    break;
+                }
+                if let Some((i, tau)) = self.first_crossing(items, x, d) {
+                    x += tau * d;
+                    self.status[i] = Status::Kink;
+                    last_blocked = Some(i);
+                    blocked = true;
                     break;
                 }
                 let f0 = self.model_energy(items, y, k, x);
                 let slope = g.dot(d);
                 let mut t = 1.0;
-                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope && t > 1e-12 {
+                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope {
                     t *= 0.5;
+                    if t < 1e-10 {
+                        break;
+                    }
                 }
-                x += t * d;
-                if (t * d).length() <= 1e-17 * scale {
+                if t < 1e-10 {
                     break;
                 }
+                x += t * d;
             }
-            if violated {
+            if blocked {
                 continue;
             }
 
-            // 4. Kink multipliers: the minimum-norm split of the force the kinks must supply.
+            // 4. Kink multipliers: the minimum-norm split of the force the kinks must supply. When kinks are
+            //    linearly dependent the split is not unique, so before calling a bound violated, look for a
+            //    feasible split by projected sweeps over the kinks alone (the same block update as the solver's).
             let (g, _) = self.smooth_model(items, y, k, x);
             let w = pinv * (-g);
             let mut worst: Option<(usize, f64, Status, DVec3)> = None;
@@ -123,6 +144,7 @@ impl Workspace {
                     continue;
                 }
                 let u = kink_projector(item) * w;
+                dual[i] = u;
                 let s = item.strength_n;
                 let (violation, flip_to) = match item.kind {
                     PrimitiveKind::Plane => {
@@ -140,7 +162,14 @@ impl Workspace {
                     worst = Some((i, relative, flip_to, u));
                 }
             }
+            if worst.is_some() && self.feasible_split(items, g, gradient_floor, dual) {
+                worst = None;
+            }
             if let Some((i, _, flip_to, u)) = worst {
+                if last_blocked == Some(i) {
+                    // The step that just made i a kink is being undone: the guess cycles. Give up this round.
+                    return None;
+                }
                 self.status[i] = flip_to;
                 let item = &items[i];
                 if flip_to == Status::Off && item.kind != PrimitiveKind::Plane {
@@ -154,7 +183,7 @@ impl Workspace {
             for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
                 *u = match status {
                     Status::Inactive => DVec3::ZERO,
-                    Status::Kink => project(item, kink_projector(item) * w),
+                    Status::Kink => project(item, *u),
                     Status::Off => match item.kind {
                         PrimitiveKind::Plane => DVec3::ZERO,
                         _ => project(item, perpendicular(item, x - item.position_m).normalize_or_zero() * item.strength_n),
@@ -165,6 +194,31 @@ impl Workspace {
             return Some(x);
         }
         None
+    }
+
+    /// Looks for kink forces `u_i` in their sets `U_i` that sum to `-g`, starting from the values in `dual`,
+    /// by projected block sweeps over the kinks. Returns true (with the split in `dual`) when it finds one.
+    fn feasible_split(&self, items: &[Item], g: DVec3, tolerance: f64, dual: &mut [DVec3]) -> bool {
+        let mut sum = DVec3::ZERO;
+        for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+            if *status == Status::Kink {
+                *u = project(item, *u);
+                sum += *u;
+            }
+        }
+        for _ in 0..MAX_SPLIT_SWEEPS {
+            if (sum + g).length() <= tolerance {
+                return true;
+            }
+            for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+                if *status == Status::Kink {
+                    let others = sum - *u;
+                    *u = project(item, -g - others);
+                    sum = others + *u;
+                }
+            }
+        }
+        (sum + g).length() <= tolerance
     }
 
     /// `M = sum P_i` and `b = sum P_i x_i` over the kinks.
@@ -219,26 +273,51 @@ impl Workspace {
         e
     }
 
-    /// Flips to "kink" every off or full primitive that the step `from -> to` carries across its kink.
-    fn flip_crossings(&mut self, items: &[Item], from: DVec3, to: DVec3) -> bool {
-        let mut any = false;
-        for (item, status) in items.iter().zip(self.status.iter_mut()) {
-            let crossed = match (*status, item.kind) {
-                (Status::Off, PrimitiveKind::Plane) => item.direction.dot(to - item.position_m) < 0.0,
-                (Status::Full, _) => item.direction.dot(to - item.position_m) > 0.0,
-                (Status::Off, _) => {
-                    let before = perpendicular(item, from - item.position_m);
-                    let after = perpendicular(item, to - item.position_m);
-                    before.dot(after) <= 0.0
+    /// The first off or full primitive that the step `x -> x + d` carries across its kink, with the step
+    /// fraction at which it does: a plane's signed distance changing sign, or a point or line passed by (its
+    /// offset turning round), where the fraction is the closest approach.
+    fn first_crossing(&self, items: &[Item], x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+        let mut first: Option<(usize, f64)> = None;
+        for (i, (item, status)) in items.iter().zip(&self.status).enumerate() {
+            let tau = match (*status, item.kind) {
+                (Status::Off, PrimitiveKind::Plane) | (Status::Full, PrimitiveKind::Plane) => {
+                    let before = item.direction.dot(x - item.position_m);
+                    let after = item.direction.dot(x + d - item.position_m);
+                    let crosses = if *status == Status::Off { after < 0.0 } else { after > 0.0 };
+                    if !crosses {
+                        continue;
+                    }
+                    (before / (before - after)).clamp(0.0, 1.0)
                 }
-                _ => false,
+                (Status::Off, _) => {
+                    let before = perpendicular(item, x - item.position_m);
+                    let step = perpendicular(item, d);
+                    if before.dot(before + step) > 0.0 {
+                        continue;
+                    }
+                    (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0)
+                }
+                _ => continue,
             };
-            if crossed {
-                *status = Status::Kink;
-                any = true;
+            if first.is_none_or(|(_, best)| tau < best) {
+                first = Some((i, tau));
             }
         }
-        any
+        first
+    }
+
+    /// Re-labels off and full planes by the side of them `x` is on (the smooth model must match `x`).
+    fn match_plane_sides(&mut self, items: &[Item], x: DVec3) {
+        for (item, status) in items.iter().zip(self.status.iter_mut()) {
+            if item.kind == PrimitiveKind::Plane && matches!(*status, Status::Off | Status::Full) {
+                let sigma = item.direction.dot(x - item.position_m);
+                if sigma > 0.0 {
+                    *status = Status::Off;
+                } else if sigma < 0.0 {
+                    *status = Status::Full;
+                }
+            }
+        }
     }
 }
 
@@ -253,12 +332,12 @@ fn guess_status(item: &Item, x: DVec3, u: DVec3) -> Status {
         PrimitiveKind::Plane => {
             let t = -item.direction.dot(u);
             let sigma = item.direction.dot(r);
-            if t <= STATUS_SLACK * s && sigma > 0.0 {
-                Status::Off
-            } else if t >= (1.0 - STATUS_SLACK) * s && sigma < 0.0 {
-                Status::Full
-            } else {
+            if t > STATUS_SLACK * s && t < (1.0 - STATUS_SLACK) * s || sigma == 0.0 {
                 Status::Kink
+            } else if sigma > 0.0 {
+                Status::Off
+            } else {
+                Status::Full
             }
         }
         _ => {

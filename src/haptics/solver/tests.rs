@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::haptics::primitive::total_energy_j;
+use crate::haptics::bench_scenes::{random_primitives, thin_wedge, SplitMix};
 use crate::haptics::reference;
 
 const K: f64 = 500.0;
@@ -86,15 +87,6 @@ fn plane_balances_a_point() {
     assert_certified_near(&sol, DVec3::new(0.0, 0.0, 0.001 - 1.0 / K));
 }
 
-/// A thin wedge: the region `|z| <= x tan(angle/2)` between two planes at `angle` to each other, edge along y,
-/// as two stiff (50 N) planes. This is the hard case for sweeps (like alternating projections).
-fn thin_wedge(angle_deg: f64) -> [Primitive; 2] {
-    let half = angle_deg.to_radians() / 2.0;
-    let upper = DVec3::new(half.sin(), 0.0, -half.cos());
-    let lower = DVec3::new(half.sin(), 0.0, half.cos());
-    [Primitive::plane(DVec3::ZERO, upper, 50.0).unwrap(), Primitive::plane(DVec3::ZERO, lower, 50.0).unwrap()]
-}
-
 #[test]
 fn thin_wedges_are_solved_exactly() {
     for angle in [1.0, 5.0, 30.0] {
@@ -176,45 +168,6 @@ fn zero_strengths_exert_nothing() {
     ];
     let sol = solve(probe, &prims);
     assert_certified_near(&sol, probe);
-}
-
-/// A deterministic pseudo-random generator for tests (no dependency, same numbers everywhere).
-pub(crate) struct SplitMix(pub u64);
-
-impl SplitMix {
-    pub fn next_f64(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next_f64()
-    }
-
-    pub fn vec(&mut self, half: f64) -> DVec3 {
-        DVec3::new(self.range(-half, half), self.range(-half, half), self.range(-half, half))
-    }
-}
-
-pub(crate) fn random_primitives(rng: &mut SplitMix, n: usize) -> Vec<Primitive> {
-    (0..n)
-        .map(|i| {
-            let position = rng.vec(0.01);
-            let direction = rng.vec(1.0) + DVec3::new(0.0, 0.0, 0.01);
-            let strength = rng.range(0.0, 2.0);
-            match i % 4 {
-                0 => Primitive::point(position, strength),
-                1 => Primitive::line(position, direction, strength),
-                2 => Primitive::plane(position, direction, strength),
-                _ => Primitive::directed(direction, strength * 0.2),
-            }
-            .unwrap()
-        })
-        .collect()
 }
 
 #[test]

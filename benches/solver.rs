@@ -43,9 +43,18 @@ fn exploration_path() -> Vec<Tick> {
         let probe = exploration_probe(i);
         let primitives = exploration_primitives(proxy, FRICTION_MU * normal_force).to_vec();
         let sol = solver
-            .solve(&Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: Some(proxy), primitives: &primitives })
+            .solve(&Problem {
+                stiffness_n_per_m: K,
+                probe_m: probe,
+                previous_proxy_m: Some(proxy),
+                primitives: &primitives,
+            })
             .expect("valid problem");
-        ticks.push(Tick { probe, previous_proxy: proxy, primitives });
+        ticks.push(Tick {
+            probe,
+            previous_proxy: proxy,
+            primitives,
+        });
         normal_force = sol.force_n.z.abs();
         proxy = sol.proxy_m;
     }
@@ -53,9 +62,17 @@ fn exploration_path() -> Vec<Tick> {
 }
 
 fn reference(tick: &Tick) -> (DVec3, f64) {
-    let mut solver = Solver::new(SolverConfig { tolerance_m: 1e-14, ..SolverConfig::default() });
+    let mut solver = Solver::new(SolverConfig {
+        tolerance_m: 1e-14,
+        ..SolverConfig::default()
+    });
     let sol = solver
-        .solve(&Problem { stiffness_n_per_m: K, probe_m: tick.probe, previous_proxy_m: None, primitives: &tick.primitives })
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: tick.probe,
+            previous_proxy_m: None,
+            primitives: &tick.primitives,
+        })
         .expect("valid problem");
     (sol.proxy_m, sol.error_bound_m)
 }
@@ -83,7 +100,16 @@ fn exact_path(solver: &mut Solver, ticks: &[Tick]) -> (Vec<DVec3>, f64) {
 fn euler_path(ticks: &[Tick]) -> Vec<DVec3> {
     ticks
         .iter()
-        .map(|t| euler::solve(K, t.probe, t.previous_proxy, &t.primitives, &EulerConfig::default()).proxy_m)
+        .map(|t| {
+            euler::solve(
+                K,
+                t.probe,
+                t.previous_proxy,
+                &t.primitives,
+                &EulerConfig::default(),
+            )
+            .proxy_m
+        })
         .collect()
 }
 
@@ -112,10 +138,25 @@ struct Row {
     reference_bound_m: f64,
 }
 
-fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], c: &mut Criterion, rows: &mut Vec<Row>) {
-    let tick = Tick { probe, previous_proxy: probe, primitives: primitives.to_vec() };
+fn single_case(
+    name: &str,
+    probe: DVec3,
+    primitives: &[Primitive],
+    c: &mut Criterion,
+    rows: &mut Vec<Row>,
+) {
+    let tick = Tick {
+        probe,
+        previous_proxy: probe,
+        primitives: primitives.to_vec(),
+    };
     let (reference_proxy, reference_bound) = reference(&tick);
-    let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives };
+    let problem = Problem {
+        stiffness_n_per_m: K,
+        probe_m: probe,
+        previous_proxy_m: None,
+        primitives,
+    };
     let mut solver = Solver::with_capacity(SolverConfig::default(), primitives.len());
     let mut group = c.benchmark_group(name);
     group.bench_function("exact", |b| {
@@ -125,7 +166,15 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], c: &mut Crite
         })
     });
     group.bench_function("euler", |b| {
-        b.iter(|| black_box(euler::solve(K, black_box(probe), probe, primitives, &EulerConfig::default())))
+        b.iter(|| {
+            black_box(euler::solve(
+                K,
+                black_box(probe),
+                probe,
+                primitives,
+                &EulerConfig::default(),
+            ))
+        })
     });
     group.finish();
 
@@ -138,9 +187,19 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], c: &mut Crite
         black_box(solver.solve(black_box(&problem)).expect("valid"));
     });
     let euler_ns = median_ns(batch, || {
-        black_box(euler::solve(K, black_box(probe), probe, primitives, &EulerConfig::default()));
+        black_box(euler::solve(
+            K,
+            black_box(probe),
+            probe,
+            primitives,
+            &EulerConfig::default(),
+        ));
     });
-    assert_ne!(exact.status, SolveStatus::BudgetExhausted, "{name}: {exact:?}");
+    assert_ne!(
+        exact.status,
+        SolveStatus::BudgetExhausted,
+        "{name}: {exact:?}"
+    );
     rows.push(Row {
         case: name.to_string(),
         exact_ns,
@@ -172,7 +231,11 @@ fn benches(c: &mut Criterion) {
     let (exact_answers, exact_bound) = exact_path(&mut solver, &ticks);
     let euler_answers = euler_path(&ticks);
     let max_error = |answers: &[DVec3]| {
-        answers.iter().zip(&references).map(|(a, (r, _))| (*a - *r).length()).fold(0.0, f64::max)
+        answers
+            .iter()
+            .zip(&references)
+            .map(|(a, (r, _))| (*a - *r).length())
+            .fold(0.0, f64::max)
     };
     let exact_ns = median_ns(3, || {
         let mut solver = Solver::with_capacity(SolverConfig::default(), 2);
@@ -204,14 +267,27 @@ fn benches(c: &mut Criterion) {
         let mut rng = SplitMix(n as u64);
         let primitives = random_primitives(&mut rng, n);
         let probe = rng.vec(0.02);
-        single_case(&format!("random_{n}_primitives"), probe, &primitives, c, &mut rows);
+        single_case(
+            &format!("random_{n}_primitives"),
+            probe,
+            &primitives,
+            c,
+            &mut rows,
+        );
     }
 
     println!();
     println!("Summary (median ns per solve, measured side by side in this run; errors in metres against the reference)");
     println!(
         "{:<42} {:>11} {:>11} {:>8} {:>11} {:>11} {:>11} {:>11}",
-        "case", "exact ns", "euler ns", "speedup", "exact err", "exact bound", "euler err", "ref bound"
+        "case",
+        "exact ns",
+        "euler ns",
+        "speedup",
+        "exact err",
+        "exact bound",
+        "euler err",
+        "ref bound"
     );
     for r in &rows {
         println!(

@@ -12,7 +12,14 @@ fn main() {
     for i in 0..2000 {
         let probe = exploration_probe(i);
         let prims = exploration_primitives(proxy, 0.4 * nf);
-        let sol = solver.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: Some(proxy), primitives: &prims }).unwrap();
+        let sol = solver
+            .solve(&Problem {
+                stiffness_n_per_m: 500.0,
+                probe_m: probe,
+                previous_proxy_m: Some(proxy),
+                primitives: &prims,
+            })
+            .unwrap();
         ticks.push((probe, proxy, prims));
         nf = sol.force_n.z.abs();
         proxy = sol.proxy_m;
@@ -22,8 +29,21 @@ fn main() {
     for _ in 0..10 {
         for (probe, prev, prims) in &ticks {
             acc += match which.as_str() {
-                "exact" => solver.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: *probe, previous_proxy_m: Some(*prev), primitives: prims }).unwrap().proxy_m,
-                "euler" => euler::solve(500.0, *probe, *prev, prims, &euler::EulerConfig::default()).proxy_m,
+                "exact" => {
+                    solver
+                        .solve(&Problem {
+                            stiffness_n_per_m: 500.0,
+                            probe_m: *probe,
+                            previous_proxy_m: Some(*prev),
+                            primitives: prims,
+                        })
+                        .unwrap()
+                        .proxy_m
+                }
+                "euler" => {
+                    euler::solve(500.0, *probe, *prev, prims, &euler::EulerConfig::default())
+                        .proxy_m
+                }
                 _ => glam::DVec3::ZERO,
             };
         }

@@ -17,7 +17,9 @@ pub struct MonotonicClock {
 
 impl MonotonicClock {
     pub fn new() -> Self {
-        Self { origin: Instant::now() }
+        Self {
+            origin: Instant::now(),
+        }
     }
 }
 
@@ -41,7 +43,9 @@ pub struct MockClock {
 
 impl MockClock {
     pub fn new(start_ns: u64) -> Self {
-        Self { now_ns: AtomicU64::new(start_ns) }
+        Self {
+            now_ns: AtomicU64::new(start_ns),
+        }
     }
 
     pub fn advance_ns(&self, delta_ns: u64) {

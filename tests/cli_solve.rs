@@ -3,22 +3,38 @@
 use std::process::Command;
 
 fn voxhap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_voxhap")).args(args).output().expect("run voxhap")
+    Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args(args)
+        .output()
+        .expect("run voxhap")
 }
 
 fn example() -> String {
-    format!("{}/sims/scenes/plane_point.json", env!("CARGO_MANIFEST_DIR"))
+    format!(
+        "{}/sims/scenes/plane_point.json",
+        env!("CARGO_MANIFEST_DIR")
+    )
 }
 
 #[test]
 fn solve_prints_json_with_the_documented_keys() {
     let out = voxhap(&["solve", "--scene", &example(), "--json"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let proxy: Vec<f64> = serde_json::from_value(v["proxy"].clone()).unwrap();
     let force: Vec<f64> = serde_json::from_value(v["force"].clone()).unwrap();
-    assert!((proxy[0] - 0.002).abs() < 1e-12 && proxy[1].abs() < 1e-12 && proxy[2].abs() < 1e-12, "{proxy:?}");
-    assert!((force[0] + 0.5).abs() < 1e-9 && (force[2] - 1.0).abs() < 1e-9, "{force:?}");
+    assert!(
+        (proxy[0] - 0.002).abs() < 1e-12 && proxy[1].abs() < 1e-12 && proxy[2].abs() < 1e-12,
+        "{proxy:?}"
+    );
+    assert!(
+        (force[0] + 0.5).abs() < 1e-9 && (force[2] - 1.0).abs() < 1e-9,
+        "{force:?}"
+    );
     assert!(v["iterations"].as_u64().unwrap() >= 1);
     assert!(v["time_ns"].as_u64().unwrap() > 0);
     assert!(v["gap"].as_f64().unwrap() >= 0.0);
@@ -43,7 +59,10 @@ fn default_run_solves_the_example() {
     let out = voxhap(&[]);
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("proxy        [+2.000000000e-3, +0.000000000e0, +0.000000000e0] m"), "{text}");
+    assert!(
+        text.contains("proxy        [+2.000000000e-3, +0.000000000e0, +0.000000000e0] m"),
+        "{text}"
+    );
     assert!(text.contains("(certified)"), "{text}");
 }
 
@@ -56,10 +75,19 @@ fn malformed_scenes_name_the_field() {
     let out = voxhap(&["solve", "--scene", path.to_str().unwrap()]);
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
-    assert!(err.contains("bad.json: primitives[0].strength: invalid type"), "{err}");
+    assert!(
+        err.contains("bad.json: primitives[0].strength: invalid type"),
+        "{err}"
+    );
 
-    let out = voxhap(&["solve", "--scene", dir.join("missing.json").to_str().unwrap()]);
+    let out = voxhap(&[
+        "solve",
+        "--scene",
+        dir.join("missing.json").to_str().unwrap(),
+    ]);
     assert!(!out.status.success());
-    assert!(String::from_utf8(out.stderr).unwrap().contains("cannot read scene file"));
+    assert!(String::from_utf8(out.stderr)
+        .unwrap()
+        .contains("cannot read scene file"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

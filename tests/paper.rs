@@ -26,12 +26,24 @@ fn zero_strength_non_orthogonal_constraints() {
     let shortfall = (probe - constrained.proxy_m).length();
     // Eq. 7: the movement along d is (1 - cos 45deg) |d| = 0.29 |d|, so the proxy is 1.41 mm short.
     let expected_shortfall = 0.002 * angle.cos();
-    assert!((shortfall - expected_shortfall).abs() < 1e-12, "shortfall {shortfall}");
-    assert!(constrained.force_n.length() > 0.7, "the user feels {} N from nothing", constrained.force_n.length());
+    assert!(
+        (shortfall - expected_shortfall).abs() < 1e-12,
+        "shortfall {shortfall}"
+    );
+    assert!(
+        constrained.force_n.length() > 0.7,
+        "the user feels {} N from nothing",
+        constrained.force_n.length()
+    );
 
     let mut solver = Solver::default();
     let exact = solver
-        .solve(&Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: Some(previous), primitives: &prims })
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: Some(previous),
+            primitives: &prims,
+        })
         .unwrap();
     assert!((exact.proxy_m - probe).length() <= exact.error_bound_m);
     assert!(exact.force_n.length() < 1e-9);
@@ -51,24 +63,46 @@ fn orthogonal_constraints_agree() {
     let constrained = constraint::solve(K, probe, DVec3::ZERO, &prims);
     let mut solver = Solver::default();
     let exact = solver
-        .solve(&Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives: &prims })
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: None,
+            primitives: &prims,
+        })
         .unwrap();
-    assert!((constrained.proxy_m - exact.proxy_m).length() <= 1e-12, "{constrained:?} vs {exact:?}");
+    assert!(
+        (constrained.proxy_m - exact.proxy_m).length() <= 1e-12,
+        "{constrained:?} vs {exact:?}"
+    );
 }
 
 /// DESIGN.md section 2: the paper's Euler solver stalls at a kink and misplaces the proxy; the exact solver
 /// needs one projection. k = 500 N/m, a plane (2 N) and a point (0.5 N) at the previous proxy.
 #[test]
 fn euler_stalls_where_the_exact_solver_does_not() {
-    let prims = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(), Primitive::point(DVec3::ZERO, 0.5).unwrap()];
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),
+        Primitive::point(DVec3::ZERO, 0.5).unwrap(),
+    ];
     let probe = DVec3::new(0.003, 0.0, -0.002);
     let mut solver = Solver::default();
     let exact = solver
-        .solve(&Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: Some(DVec3::ZERO), primitives: &prims })
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: Some(DVec3::ZERO),
+            primitives: &prims,
+        })
         .unwrap();
     // On the plane, held back by the point: x = 3 mm - 0.5/500 = 2 mm.
     assert!((exact.proxy_m - DVec3::new(0.002, 0.0, 0.0)).length() <= exact.error_bound_m);
-    let stalled = euler::solve(K, probe, DVec3::ZERO, &prims, &euler::EulerConfig::default());
+    let stalled = euler::solve(
+        K,
+        probe,
+        DVec3::ZERO,
+        &prims,
+        &euler::EulerConfig::default(),
+    );
     let euler_error = (stalled.proxy_m - exact.proxy_m).length();
     assert!(euler_error > 1e-4, "Euler error {euler_error}");
     assert!(stalled.iterations >= 30, "{stalled:?}");

@@ -32,9 +32,17 @@ fn solving_allocates_nothing_after_warm_up() {
         let mut proxy = DVec3::ZERO;
         for (tick, prims) in scenes.iter().enumerate() {
             let t = tick as f64 * 1e-3;
-            let probe = DVec3::new(0.01 * (3.0 * t).sin(), 0.004 * t, -0.002 + 0.003 * (5.0 * t).cos());
-            let problem =
-                Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: Some(proxy), primitives: prims };
+            let probe = DVec3::new(
+                0.01 * (3.0 * t).sin(),
+                0.004 * t,
+                -0.002 + 0.003 * (5.0 * t).cos(),
+            );
+            let problem = Problem {
+                stiffness_n_per_m: 500.0,
+                probe_m: probe,
+                previous_proxy_m: Some(proxy),
+                primitives: prims,
+            };
             let sol = solver.solve(&problem).unwrap();
             proxy = sol.proxy_m;
             results.push(sol.status);
@@ -42,5 +50,8 @@ fn solving_allocates_nothing_after_warm_up() {
     });
     assert_eq!(events, 0, "the solver allocated on the servo path");
     assert_eq!(results.len(), 200);
-    assert!(results.iter().all(|s| *s == SolveStatus::Certified), "{results:?}");
+    assert!(
+        results.iter().all(|s| *s == SolveStatus::Certified),
+        "{results:?}"
+    );
 }

@@ -34,11 +34,13 @@ fn strength() -> impl Strategy<Value = f64> {
 }
 
 fn primitive() -> impl Strategy<Value = Primitive> {
-    (0u8..4, vector(), direction(), strength()).prop_map(|(kind, position, direction, strength)| match kind {
-        0 => Primitive::point(position, strength).unwrap(),
-        1 => Primitive::line(position, direction, strength).unwrap(),
-        2 => Primitive::plane(position, direction, strength).unwrap(),
-        _ => Primitive::directed(direction, strength * 0.3).unwrap(),
+    (0u8..4, vector(), direction(), strength()).prop_map(|(kind, position, direction, strength)| {
+        match kind {
+            0 => Primitive::point(position, strength).unwrap(),
+            1 => Primitive::line(position, direction, strength).unwrap(),
+            2 => Primitive::plane(position, direction, strength).unwrap(),
+            _ => Primitive::directed(direction, strength * 0.3).unwrap(),
+        }
     })
 }
 

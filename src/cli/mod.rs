@@ -45,7 +45,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).");
             println!("See `voxhap --help` for the other commands.\n");
             let scene = Scene::parse(EXAMPLE_SCENE, "sims/scenes/plane_point.json")?;
-            println!("{}", solve::report(&scene, solve::SolverChoice::Exact, false)?);
+            println!(
+                "{}",
+                solve::report(&scene, solve::SolverChoice::Exact, false)?
+            );
             Ok(())
         }
     }

@@ -64,9 +64,12 @@ fn solve_once(scene: &Scene, choice: SolverChoice, solver: &mut Solver) -> anyho
             &scene.primitives,
             &euler::EulerConfig::default(),
         )),
-        SolverChoice::Constraint => {
-            Answer::Baseline(constraint::solve(scene.stiffness_n_per_m, scene.probe_m, start, &scene.primitives))
-        }
+        SolverChoice::Constraint => Answer::Baseline(constraint::solve(
+            scene.stiffness_n_per_m,
+            scene.probe_m,
+            start,
+            &scene.primitives,
+        )),
     })
 }
 
@@ -127,14 +130,20 @@ pub fn report(scene: &Scene, choice: SolverChoice, as_json: bool) -> anyhow::Res
     match answer {
         Answer::Exact(sol) => {
             out.push_str(&format!("proxy        {} m\n", v3(sol.proxy_m)));
-            out.push_str(&format!("force        {} N (|f| = {:.6} N)\n", v3(sol.force_n), sol.force_n.length()));
+            out.push_str(&format!(
+                "force        {} N (|f| = {:.6} N)\n",
+                v3(sol.force_n),
+                sol.force_n.length()
+            ));
             out.push_str(&format!(
                 "iterations   {} ({} sweeps, {} active-set rounds)\n",
                 sol.sweeps + sol.active_set_rounds,
                 sol.sweeps,
                 sol.active_set_rounds
             ));
-            out.push_str(&format!("time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"));
+            out.push_str(&format!(
+                "time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"
+            ));
             out.push_str(&format!("gap          {:.3e} J\n", sol.gap_j));
             let status = serde_json::to_value(sol.status)?;
             out.push_str(&format!(
@@ -145,10 +154,19 @@ pub fn report(scene: &Scene, choice: SolverChoice, as_json: bool) -> anyhow::Res
         }
         Answer::Baseline(sol) => {
             out.push_str(&format!("proxy        {} m\n", v3(sol.proxy_m)));
-            out.push_str(&format!("force        {} N (|f| = {:.6} N)\n", v3(sol.force_n), sol.force_n.length()));
+            out.push_str(&format!(
+                "force        {} N (|f| = {:.6} N)\n",
+                v3(sol.force_n),
+                sol.force_n.length()
+            ));
             out.push_str(&format!("iterations   {}\n", sol.iterations));
-            out.push_str(&format!("time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"));
-            out.push_str(&format!("residual     {:.3e} N (|f_res| at the answer; no certificate)", sol.residual_n));
+            out.push_str(&format!(
+                "time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"
+            ));
+            out.push_str(&format!(
+                "residual     {:.3e} N (|f_res| at the answer; no certificate)",
+                sol.residual_n
+            ));
         }
     }
     Ok(out)

@@ -30,7 +30,11 @@ impl SplitMix {
 
     /// A vector with each coordinate uniform in [-half, half).
     pub fn vec(&mut self, half: f64) -> DVec3 {
-        DVec3::new(self.range(-half, half), self.range(-half, half), self.range(-half, half))
+        DVec3::new(
+            self.range(-half, half),
+            self.range(-half, half),
+            self.range(-half, half),
+        )
     }
 }
 

@@ -14,4 +14,4 @@ pub mod scene;
 pub mod solver;
 
 pub use primitive::{Primitive, PrimitiveError, PrimitiveKind};
-pub use solver::{Problem, SolveError, SolveStatus, Solution, Solver, SolverConfig};
+pub use solver::{Problem, Solution, SolveError, SolveStatus, Solver, SolverConfig};

@@ -91,7 +91,7 @@ fn check_direction(direction: DVec3) -> Result<DVec3, PrimitiveError> {
         return Err(PrimitiveError::BadDirection(direction.to_array()));
     }
     let length = direction.length();
-    if !(length >= MIN_DIRECTION_LENGTH) || !length.is_finite() {
+    if length.is_nan() || length < MIN_DIRECTION_LENGTH || !length.is_finite() {
         return Err(PrimitiveError::ZeroDirection(length));
     }
     Ok(direction / length)
@@ -119,7 +119,11 @@ impl Primitive {
     }
 
     /// A line through `position_m` along `direction` that pulls the proxy onto it (paper eq. 11-12).
-    pub fn line(position_m: DVec3, direction: DVec3, strength_n: f64) -> Result<Self, PrimitiveError> {
+    pub fn line(
+        position_m: DVec3,
+        direction: DVec3,
+        strength_n: f64,
+    ) -> Result<Self, PrimitiveError> {
         Ok(Self {
             kind: PrimitiveKind::Line,
             position_m: check_position(position_m)?,
@@ -130,7 +134,11 @@ impl Primitive {
 
     /// A plane through `position_m` with normal `normal`; it pushes a proxy that is behind it
     /// (`(x - x_i).q < 0`) along `q` with `strength_n` (paper eq. 13).
-    pub fn plane(position_m: DVec3, normal: DVec3, strength_n: f64) -> Result<Self, PrimitiveError> {
+    pub fn plane(
+        position_m: DVec3,
+        normal: DVec3,
+        strength_n: f64,
+    ) -> Result<Self, PrimitiveError> {
         Ok(Self {
             kind: PrimitiveKind::Plane,
             position_m: check_position(position_m)?,
@@ -214,13 +222,23 @@ impl Primitive {
 }
 
 /// Total energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` (DESIGN.md section 2), in joules.
-pub fn total_energy_j(stiffness_n_per_m: f64, probe_m: DVec3, primitives: &[Primitive], x: DVec3) -> f64 {
+pub fn total_energy_j(
+    stiffness_n_per_m: f64,
+    probe_m: DVec3,
+    primitives: &[Primitive],
+    x: DVec3,
+) -> f64 {
     0.5 * stiffness_n_per_m * (x - probe_m).length_squared()
         + primitives.iter().map(|p| p.energy_j(x)).sum::<f64>()
 }
 
 /// Resultant force on the proxy, `f_res(x) = -k (x - probe) + sum_i f_i(x)` (paper eq. 14).
-pub fn resultant_force_n(stiffness_n_per_m: f64, probe_m: DVec3, primitives: &[Primitive], x: DVec3) -> DVec3 {
+pub fn resultant_force_n(
+    stiffness_n_per_m: f64,
+    probe_m: DVec3,
+    primitives: &[Primitive],
+    x: DVec3,
+) -> DVec3 {
     -stiffness_n_per_m * (x - probe_m) + primitives.iter().map(|p| p.force_n(x)).sum::<DVec3>()
 }
 
@@ -240,19 +258,34 @@ mod tests {
 
     #[test]
     fn constructors_reject_bad_values() {
-        assert_eq!(Primitive::point(DVec3::ZERO, -1.0), Err(PrimitiveError::BadStrength(-1.0)));
-        assert!(matches!(Primitive::point(DVec3::ZERO, f64::NAN), Err(PrimitiveError::BadStrength(_))));
-        assert!(matches!(Primitive::point(DVec3::ZERO, f64::INFINITY), Err(PrimitiveError::BadStrength(_))));
+        assert_eq!(
+            Primitive::point(DVec3::ZERO, -1.0),
+            Err(PrimitiveError::BadStrength(-1.0))
+        );
+        assert!(matches!(
+            Primitive::point(DVec3::ZERO, f64::NAN),
+            Err(PrimitiveError::BadStrength(_))
+        ));
+        assert!(matches!(
+            Primitive::point(DVec3::ZERO, f64::INFINITY),
+            Err(PrimitiveError::BadStrength(_))
+        ));
         assert!(matches!(
             Primitive::point(DVec3::new(f64::NAN, 0.0, 0.0), 1.0),
             Err(PrimitiveError::BadPosition(_))
         ));
-        assert!(matches!(Primitive::plane(DVec3::ZERO, DVec3::ZERO, 1.0), Err(PrimitiveError::ZeroDirection(_))));
+        assert!(matches!(
+            Primitive::plane(DVec3::ZERO, DVec3::ZERO, 1.0),
+            Err(PrimitiveError::ZeroDirection(_))
+        ));
         assert!(matches!(
             Primitive::line(DVec3::ZERO, DVec3::new(0.0, f64::INFINITY, 0.0), 1.0),
             Err(PrimitiveError::BadDirection(_))
         ));
-        assert!(matches!(Primitive::directed(DVec3::splat(1e-300), 1.0), Err(PrimitiveError::ZeroDirection(_))));
+        assert!(matches!(
+            Primitive::directed(DVec3::splat(1e-300), 1.0),
+            Err(PrimitiveError::ZeroDirection(_))
+        ));
         // Zero strength is allowed: a primitive that exerts no force.
         assert!(Primitive::plane(DVec3::ZERO, DVec3::Z, 0.0).is_ok());
     }
@@ -275,7 +308,10 @@ mod tests {
         assert_eq!(line.force_n(DVec3::new(0.0, 0.0, 4.0)), DVec3::ZERO);
 
         let plane = Primitive::plane(DVec3::ZERO, DVec3::Z, 1.5).unwrap();
-        assert_eq!(plane.force_n(DVec3::new(0.3, 0.2, -0.01)), DVec3::new(0.0, 0.0, 1.5));
+        assert_eq!(
+            plane.force_n(DVec3::new(0.3, 0.2, -0.01)),
+            DVec3::new(0.0, 0.0, 1.5)
+        );
         assert_eq!(plane.force_n(DVec3::new(0.3, 0.2, 0.01)), DVec3::ZERO);
         assert_eq!(plane.force_n(DVec3::new(0.3, 0.2, 0.0)), DVec3::ZERO);
 
@@ -294,7 +330,13 @@ mod tests {
         ];
         for p in &prims {
             let g = numeric_gradient(p, x);
-            assert!((p.force_n(x) + g).length() < 1e-6, "{:?}: force {} vs -grad {}", p.kind(), p.force_n(x), -g);
+            assert!(
+                (p.force_n(x) + g).length() < 1e-6,
+                "{:?}: force {} vs -grad {}",
+                p.kind(),
+                p.force_n(x),
+                -g
+            );
         }
     }
 }

@@ -21,7 +21,13 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-fn smoothed(k: f64, probe: DVec3, primitives: &[Primitive], x: DVec3, eps: f64) -> (f64, DVec3, DMat3) {
+fn smoothed(
+    k: f64,
+    probe: DVec3,
+    primitives: &[Primitive],
+    x: DVec3,
+    eps: f64,
+) -> (f64, DVec3, DMat3) {
     let mut e = 0.5 * k * (x - probe).length_squared();
     let mut g = k * (x - probe);
     let mut h = DMat3::from_diagonal(DVec3::splat(k));
@@ -58,7 +64,11 @@ fn smoothed(k: f64, probe: DVec3, primitives: &[Primitive], x: DVec3, eps: f64) 
 }
 
 /// Minimises `E` for the given scene (see the module docs). Slow: hundreds of Newton steps.
-pub fn minimise(stiffness_n_per_m: f64, probe_m: DVec3, primitives: &[Primitive]) -> ReferenceSolution {
+pub fn minimise(
+    stiffness_n_per_m: f64,
+    probe_m: DVec3,
+    primitives: &[Primitive],
+) -> ReferenceSolution {
     let k = stiffness_n_per_m;
     let mut x = probe_m;
     let mut eps = 1e-2;
@@ -71,7 +81,9 @@ pub fn minimise(stiffness_n_per_m: f64, probe_m: DVec3, primitives: &[Primitive]
                 break;
             }
             let mut t = 1.0;
-            while smoothed(k, probe_m, primitives, x + t * d, eps).0 > e0 + 1e-4 * t * g.dot(d) && t > 1e-20 {
+            while smoothed(k, probe_m, primitives, x + t * d, eps).0 > e0 + 1e-4 * t * g.dot(d)
+                && t > 1e-20
+            {
                 t *= 0.5;
             }
             x += t * d;
@@ -84,7 +96,16 @@ pub fn minimise(stiffness_n_per_m: f64, probe_m: DVec3, primitives: &[Primitive]
         }
         eps = (eps * 0.1).max(final_eps);
     }
-    let n = primitives.iter().filter(|p| p.kind() != PrimitiveKind::Directed).count() as f64;
-    let s_max = primitives.iter().map(|p| p.strength_n()).fold(0.0, f64::max);
-    ReferenceSolution { proxy_m: x, error_bound_m: (2.0 * n * s_max * final_eps / k).sqrt() }
+    let n = primitives
+        .iter()
+        .filter(|p| p.kind() != PrimitiveKind::Directed)
+        .count() as f64;
+    let s_max = primitives
+        .iter()
+        .map(|p| p.strength_n())
+        .fold(0.0, f64::max);
+    ReferenceSolution {
+        proxy_m: x,
+        error_bound_m: (2.0 * n * s_max * final_eps / k).sqrt(),
+    }
 }

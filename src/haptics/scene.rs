@@ -34,9 +34,16 @@ pub struct Scene {
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("cannot read scene file {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{origin}: {field}: {message}")]
-    Invalid { origin: String, field: String, message: String },
+    Invalid {
+        origin: String,
+        field: String,
+        message: String,
+    },
 }
 
 #[derive(Debug, Deserialize)]
@@ -73,22 +80,35 @@ struct PrimitiveSpec {
 impl Scene {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SceneError::Io { path: path.display().to_string(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
         Self::parse(&text, &path.display().to_string())
     }
 
     /// Parses and validates scene JSON; `origin` names the source in error messages.
     pub fn parse(text: &str, origin: &str) -> Result<Scene, SceneError> {
-        let invalid = |field: String, message: String| SceneError::Invalid { origin: origin.to_string(), field, message };
+        let invalid = |field: String, message: String| SceneError::Invalid {
+            origin: origin.to_string(),
+            field,
+            message,
+        };
         let deserializer = &mut serde_json::Deserializer::from_str(text);
         let file: SceneFile = serde_path_to_error::deserialize(deserializer).map_err(|err| {
             let path = err.path().to_string();
-            let field = if path == "." { "scene".to_string() } else { path };
+            let field = if path == "." {
+                "scene".to_string()
+            } else {
+                path
+            };
             invalid(field, err.into_inner().to_string())
         })?;
         if !(file.k.is_finite() && file.k > 0.0) {
-            return Err(invalid("k".into(), format!("stiffness must be a finite number > 0 N/m, got {}", file.k)));
+            return Err(invalid(
+                "k".into(),
+                format!("stiffness must be a finite number > 0 N/m, got {}", file.k),
+            ));
         }
         let probe = DVec3::from_array(file.probe);
         let previous_proxy = file.previous_proxy.map(DVec3::from_array);
@@ -96,10 +116,15 @@ impl Scene {
         for (i, spec) in file.primitives.iter().enumerate() {
             let field = |name: &str| format!("primitives[{i}].{name}");
             let require = |value: Option<[f64; 3]>, name: &str, kind: &str| {
-                value.map(DVec3::from_array).ok_or_else(|| invalid(field(name), format!("required for a {kind}")))
+                value
+                    .map(DVec3::from_array)
+                    .ok_or_else(|| invalid(field(name), format!("required for a {kind}")))
             };
             let forbid = |value: Option<[f64; 3]>, name: &str, kind: &str| match value {
-                Some(_) => Err(invalid(field(name), format!("a {kind} has no {name}; remove it"))),
+                Some(_) => Err(invalid(
+                    field(name),
+                    format!("a {kind} has no {name}; remove it"),
+                )),
                 None => Ok(()),
             };
             let built = match spec.kind {
@@ -119,20 +144,30 @@ impl Scene {
                 ),
                 SpecKind::Directed => {
                     forbid(spec.position, "position", "directed force")?;
-                    Primitive::directed(require(spec.direction, "direction", "directed force")?, spec.strength)
+                    Primitive::directed(
+                        require(spec.direction, "direction", "directed force")?,
+                        spec.strength,
+                    )
                 }
             };
             let primitive = built.map_err(|err| {
                 let name = match err {
                     PrimitiveError::BadStrength(_) => "strength",
                     PrimitiveError::BadPosition(_) => "position",
-                    PrimitiveError::BadDirection(_) | PrimitiveError::ZeroDirection(_) => "direction",
+                    PrimitiveError::BadDirection(_) | PrimitiveError::ZeroDirection(_) => {
+                        "direction"
+                    }
                 };
                 invalid(field(name), err.to_string())
             })?;
             primitives.push(primitive);
         }
-        Ok(Scene { stiffness_n_per_m: file.k, probe_m: probe, previous_proxy_m: previous_proxy, primitives })
+        Ok(Scene {
+            stiffness_n_per_m: file.k,
+            probe_m: probe,
+            previous_proxy_m: previous_proxy,
+            primitives,
+        })
     }
 
     /// The scene as a solver problem.
@@ -156,7 +191,11 @@ mod tests {
 
     #[test]
     fn reads_the_readme_example() {
-        let scene = Scene::parse(include_str!("../../sims/scenes/plane_point.json"), "example").unwrap();
+        let scene = Scene::parse(
+            include_str!("../../sims/scenes/plane_point.json"),
+            "example",
+        )
+        .unwrap();
         assert_eq!(scene.stiffness_n_per_m, 500.0);
         assert_eq!(scene.primitives.len(), 2);
         assert_eq!(scene.previous_proxy_m, Some(DVec3::ZERO));
@@ -165,26 +204,44 @@ mod tests {
     #[test]
     fn errors_name_the_field() {
         assert!(error_of(r#"{"probe":[0,0,0],"primitives":[]}"#).contains("missing field `k`"));
-        assert!(error_of(r#"{"k":-5,"probe":[0,0,0],"primitives":[]}"#).contains("test.json: k: stiffness"));
-        assert!(error_of(r#"{"k":"a","probe":[0,0,0],"primitives":[]}"#).starts_with("test.json: k: invalid type"));
+        assert!(error_of(r#"{"k":-5,"probe":[0,0,0],"primitives":[]}"#)
+            .contains("test.json: k: stiffness"));
+        assert!(error_of(r#"{"k":"a","probe":[0,0,0],"primitives":[]}"#)
+            .starts_with("test.json: k: invalid type"));
         assert!(error_of(r#"{"k":1,"probe":[0,0],"primitives":[]}"#).contains("probe"));
         let e = error_of(
             r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"point","position":[0,0,0],"strength":1},
                 {"type":"plane","position":[0,0,0],"direction":[0,0,1],"strength":-1}]}"#,
         );
         assert!(e.contains("primitives[1].strength"), "{e}");
-        let e = error_of(r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"plane","position":[0,0,0],"strength":1}]}"#);
-        assert!(e.contains("primitives[0].direction: required for a plane"), "{e}");
+        let e = error_of(
+            r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"plane","position":[0,0,0],"strength":1}]}"#,
+        );
+        assert!(
+            e.contains("primitives[0].direction: required for a plane"),
+            "{e}"
+        );
         let e = error_of(
             r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"line","position":[0,0,0],"direction":[0,0,0],"strength":1}]}"#,
         );
-        assert!(e.contains("primitives[0].direction: direction must not be zero"), "{e}");
+        assert!(
+            e.contains("primitives[0].direction: direction must not be zero"),
+            "{e}"
+        );
         let e = error_of(r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"cube","strength":1}]}"#);
-        assert!(e.contains("primitives[0].type") && e.contains("unknown variant `cube`"), "{e}");
+        assert!(
+            e.contains("primitives[0].type") && e.contains("unknown variant `cube`"),
+            "{e}"
+        );
         let e = error_of(r#"{"k":1,"probe":[0,0,0],"primitives":[],"extra":1}"#);
         assert!(e.contains("unknown field `extra`"), "{e}");
-        let e = error_of(r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"point","position":[0,0,0],"direction":[1,0,0],"strength":1}]}"#);
-        assert!(e.contains("primitives[0].direction: a point has no direction"), "{e}");
+        let e = error_of(
+            r#"{"k":1,"probe":[0,0,0],"primitives":[{"type":"point","position":[0,0,0],"direction":[1,0,0],"strength":1}]}"#,
+        );
+        assert!(
+            e.contains("primitives[0].direction: a point has no direction"),
+            "{e}"
+        );
         let e = error_of(r#"{"k":1e999,"probe":[0,0,0],"primitives":[]}"#);
         assert!(e.contains("k"), "{e}");
     }

@@ -33,7 +33,12 @@ fn constrained_projector(p: &Primitive) -> DMat3 {
 }
 
 /// One update of the constraint approach from the previous proxy position.
-pub fn solve(stiffness_n_per_m: f64, probe_m: DVec3, previous_proxy_m: DVec3, primitives: &[Primitive]) -> BaselineSolution {
+pub fn solve(
+    stiffness_n_per_m: f64,
+    probe_m: DVec3,
+    previous_proxy_m: DVec3,
+    primitives: &[Primitive],
+) -> BaselineSolution {
     let k = stiffness_n_per_m;
     let d = probe_m - previous_proxy_m;
     let mut span = DMat3::ZERO;
@@ -79,7 +84,10 @@ mod tests {
         let probe = DVec3::new(-0.004, 0.01, -0.001);
         let sol = solve(k, probe, DVec3::ZERO, &prims);
         // z: 0.5 N < 2 N holds (proxy stays at 0); x: 2 N > 1 N yields to -0.004 + 1/k = -0.002; y free.
-        assert!((sol.proxy_m - DVec3::new(-0.002, 0.01, 0.0)).length() < 1e-15, "{sol:?}");
+        assert!(
+            (sol.proxy_m - DVec3::new(-0.002, 0.01, 0.0)).length() < 1e-15,
+            "{sol:?}"
+        );
     }
 
     #[test]

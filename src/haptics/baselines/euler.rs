@@ -21,7 +21,10 @@ pub struct EulerConfig {
 
 impl Default for EulerConfig {
     fn default() -> Self {
-        Self { max_iterations: 100, force_tolerance_n: 1e-3 }
+        Self {
+            max_iterations: 100,
+            force_tolerance_n: 1e-3,
+        }
     }
 }
 
@@ -40,7 +43,10 @@ pub fn solve(
     let mut f = resultant_force_n(k, probe_m, primitives, x);
     let mut residual = f.length();
     let mut iterations = 0;
-    while iterations < config.max_iterations && residual > config.force_tolerance_n && h > 1e-9 * h_max {
+    while iterations < config.max_iterations
+        && residual > config.force_tolerance_n
+        && h > 1e-9 * h_max
+    {
         iterations += 1;
         let candidate = x + h * f;
         let f_candidate = resultant_force_n(k, probe_m, primitives, candidate);
@@ -54,7 +60,12 @@ pub fn solve(
             h *= 0.5;
         }
     }
-    BaselineSolution { proxy_m: x, force_n: k * (x - probe_m), iterations, residual_n: residual }
+    BaselineSolution {
+        proxy_m: x,
+        force_n: k * (x - probe_m),
+        iterations,
+        residual_n: residual,
+    }
 }
 
 #[cfg(test)]

@@ -10,7 +10,12 @@ use glam::DVec3;
 /// The sum of the primitives' forces at the probe.
 pub fn solve(probe_m: DVec3, primitives: &[Primitive]) -> BaselineSolution {
     let force: DVec3 = primitives.iter().map(|p| p.force_n(probe_m)).sum();
-    BaselineSolution { proxy_m: probe_m, force_n: force, iterations: 0, residual_n: 0.0 }
+    BaselineSolution {
+        proxy_m: probe_m,
+        force_n: force,
+        iterations: 0,
+        residual_n: 0.0,
+    }
 }
 
 #[cfg(test)]
@@ -20,8 +25,17 @@ mod tests {
     #[test]
     fn a_plane_pushes_a_constant_force_behind_it() {
         let prims = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap()];
-        assert_eq!(solve(DVec3::new(0.0, 0.0, -0.001), &prims).force_n, DVec3::new(0.0, 0.0, 2.0));
-        assert_eq!(solve(DVec3::new(0.0, 0.0, -0.05), &prims).force_n, DVec3::new(0.0, 0.0, 2.0));
-        assert_eq!(solve(DVec3::new(0.0, 0.0, 0.001), &prims).force_n, DVec3::ZERO);
+        assert_eq!(
+            solve(DVec3::new(0.0, 0.0, -0.001), &prims).force_n,
+            DVec3::new(0.0, 0.0, 2.0)
+        );
+        assert_eq!(
+            solve(DVec3::new(0.0, 0.0, -0.05), &prims).force_n,
+            DVec3::new(0.0, 0.0, 2.0)
+        );
+        assert_eq!(
+            solve(DVec3::new(0.0, 0.0, 0.001), &prims).force_n,
+            DVec3::ZERO
+        );
     }
 }

@@ -54,7 +54,9 @@ const MAX_SPLIT_SWEEPS: usize = 64;
 
 impl Workspace {
     pub fn with_capacity(n: usize) -> Self {
-        Self { status: Vec::with_capacity(n) }
+        Self {
+            status: Vec::with_capacity(n),
+        }
     }
 
     /// One active-set attempt from `x_start`. On success writes a feasible dual into `dual` and returns the point.
@@ -68,7 +70,12 @@ impl Workspace {
         dual: &mut [DVec3],
     ) -> Option<DVec3> {
         self.status.clear();
-        self.status.extend(items.iter().zip(dual.iter()).map(|(item, &u)| guess_status(item, x_start, u)));
+        self.status.extend(
+            items
+                .iter()
+                .zip(dual.iter())
+                .map(|(item, &u)| guess_status(item, x_start, u)),
+        );
         let mut x = x_start;
         let scale = 1.0 + x.abs().max_element() + y.abs().max_element();
         let strength_sum: f64 = items.iter().map(|item| item.strength_n).sum();
@@ -84,7 +91,8 @@ impl Workspace {
                 x += pinv * (b - m * x);
             }
             let consistent = items.iter().zip(&self.status).all(|(item, status)| {
-                *status != Status::Kink || (kink_projector(item) * (x - item.position_m)).length() <= 1e-12 * scale
+                *status != Status::Kink
+                    || (kink_projector(item) * (x - item.position_m)).length() <= 1e-12 * scale
             });
             if !consistent {
                 return None;
@@ -186,7 +194,11 @@ impl Workspace {
                     Status::Kink => project(item, *u),
                     Status::Off => match item.kind {
                         PrimitiveKind::Plane => DVec3::ZERO,
-                        _ => project(item, perpendicular(item, x - item.position_m).normalize_or_zero() * item.strength_n),
+                        _ => project(
+                            item,
+                            perpendicular(item, x - item.position_m).normalize_or_zero()
+                                * item.strength_n,
+                        ),
                     },
                     Status::Full => -item.strength_n * item.direction,
                 };
@@ -283,7 +295,11 @@ impl Workspace {
                 (Status::Off, PrimitiveKind::Plane) | (Status::Full, PrimitiveKind::Plane) => {
                     let before = item.direction.dot(x - item.position_m);
                     let after = item.direction.dot(x + d - item.position_m);
-                    let crosses = if *status == Status::Off { after < 0.0 } else { after > 0.0 };
+                    let crosses = if *status == Status::Off {
+                        after < 0.0
+                    } else {
+                        after > 0.0
+                    };
                     if !crosses {
                         continue;
                     }

@@ -47,10 +47,10 @@ pub fn symmetric_eigen3(m: DMat3) -> SymmetricEigen3 {
                 row[p] = c * akp - s * akq;
                 row[q] = s * akp + c * akq;
             }
-            for k in 0..3 {
-                let (apk, aqk) = (a[p][k], a[q][k]);
-                a[p][k] = c * apk - s * aqk;
-                a[q][k] = s * apk + c * aqk;
+            let (row_p, row_q) = (a[p], a[q]);
+            for col in 0..3 {
+                a[p][col] = c * row_p[col] - s * row_q[col];
+                a[q][col] = s * row_p[col] + c * row_q[col];
             }
             for row in v.iter_mut() {
                 let (vkp, vkq) = (row[p], row[q]);
@@ -111,9 +111,15 @@ mod tests {
         let e = symmetric_eigen3(m);
         let d = DMat3::from_diagonal(e.values);
         let back = e.vectors * d * e.vectors.transpose();
-        assert!((back - m).to_cols_array().iter().all(|x| x.abs() < 1e-12), "{back:?}");
+        assert!(
+            (back - m).to_cols_array().iter().all(|x| x.abs() < 1e-12),
+            "{back:?}"
+        );
         let vtv = e.vectors.transpose() * e.vectors;
-        assert!((vtv - DMat3::IDENTITY).to_cols_array().iter().all(|x| x.abs() < 1e-12));
+        assert!((vtv - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .all(|x| x.abs() < 1e-12));
     }
 
     #[test]
@@ -126,7 +132,10 @@ mod tests {
         let mut values = e.values.to_array();
         values.sort_by(f64::total_cmp);
         assert!(values[0].abs() < 1e-15);
-        assert!((values[1] - (1.0 - angle.cos())).abs() < 1e-12, "{values:?}");
+        assert!(
+            (values[1] - (1.0 - angle.cos())).abs() < 1e-12,
+            "{values:?}"
+        );
         assert!((values[2] - (1.0 + angle.cos())).abs() < 1e-12);
     }
 

@@ -146,6 +146,8 @@ pub(crate) struct Item {
     pub position_m: DVec3,
     pub direction: DVec3,
     pub strength_n: f64,
+    /// The rounding floor of this item's own coordinates (see [`position_floor_m`]).
+    pub floor_m: f64,
 }
 
 /// The solver and its workspace (STYLE.md item 3: allocate up front, `clear()` instead of rebuild).
@@ -156,7 +158,8 @@ pub struct Solver {
     dual: Vec<DVec3>,
     /// The active-set attempt writes here; it replaces `dual` only if it certifies a better point.
     candidate_dual: Vec<DVec3>,
-    previous_kinds: Vec<PrimitiveKind>,
+    /// Whether `items` and `dual` hold the previous solve's values (false after `reset`).
+    has_previous_dual: bool,
     active_set: active_set::Workspace,
 }
 
@@ -199,7 +202,7 @@ impl Solver {
             items: Vec::with_capacity(max_primitives),
             dual: Vec::with_capacity(max_primitives),
             candidate_dual: Vec::with_capacity(max_primitives),
-            previous_kinds: Vec::with_capacity(max_primitives),
+            has_previous_dual: false,
             active_set: active_set::Workspace::with_capacity(max_primitives),
         }
     }
@@ -214,7 +217,7 @@ impl Solver {
 
     /// Forget the previous dual (the next solve starts cold or from `previous_proxy_m`).
     pub fn reset(&mut self) {
-        self.previous_kinds.clear();
+        self.has_previous_dual = false;
     }
 
     /// Solves with the sweep budget only (deterministic).
@@ -223,11 +226,20 @@ impl Solver {
     }
 
     /// Solves with the sweep budget and the time budget `config.max_time_ns`, measured on `clock`.
-    pub fn solve_with_clock(&mut self, problem: &Problem, clock: &dyn Clock) -> Result<Solution, SolveError> {
+    pub fn solve_with_clock(
+        &mut self,
+        problem: &Problem,
+        clock: &dyn Clock,
+    ) -> Result<Solution, SolveError> {
         self.solve_inner(problem, clock, true)
     }
 
-    fn solve_inner(&mut self, problem: &Problem, clock: &dyn Clock, timed: bool) -> Result<Solution, SolveError> {
+    fn solve_inner(
+        &mut self,
+        problem: &Problem,
+        clock: &dyn Clock,
+        timed: bool,
+    ) -> Result<Solution, SolveError> {
         let k = problem.stiffness_n_per_m;
         if !(k.is_finite() && k > 0.0) {
             return Err(SolveError::BadStiffness(k));
@@ -245,21 +257,52 @@ impl Solver {
 
         // y = probe + (sum of directed forces) / k; the rest become items.
         let mut directed = DVec3::ZERO;
-        self.items.clear();
+        // Build the items in place; the previous dual is reused when the kinds match one for one.
+        let mut count = 0;
+        let mut same_structure = self.config.warm_start_dual && self.has_previous_dual;
+        let mut strength_sum = 0.0;
         for p in problem.primitives {
             if p.kind() == PrimitiveKind::Directed {
                 directed += p.strength_n() * p.direction();
+                continue;
+            }
+            let item = Item {
+                kind: p.kind(),
+                position_m: p.position_m(),
+                direction: p.direction(),
+                strength_n: p.strength_n(),
+                floor_m: ROUNDING_SLACK * p.position_m().abs().max_element(),
+            };
+            strength_sum += item.strength_n;
+            if count < self.items.len() {
+                same_structure &= self.items[count].kind == item.kind;
+                self.items[count] = item;
             } else {
-                self.items.push(Item {
-                    kind: p.kind(),
-                    position_m: p.position_m(),
-                    direction: p.direction(),
-                    strength_n: p.strength_n(),
-                });
+                same_structure = false;
+                self.items.push(item);
+            }
+            count += 1;
+        }
+        same_structure &= count == self.items.len() && count == self.dual.len();
+        self.items.truncate(count);
+        let y = problem.probe_m + directed / k;
+        if same_structure {
+            for (u, item) in self.dual.iter_mut().zip(&self.items) {
+                *u = project(item, *u);
+            }
+        } else {
+            self.dual.clear();
+            for item in &self.items {
+                self.dual.push(
+                    problem
+                        .previous_proxy_m
+                        .map_or(DVec3::ZERO, |x| subgradient(item, x)),
+                );
             }
         }
-        let y = problem.probe_m + directed / k;
-        self.warm_start(problem.previous_proxy_m, k);
+        self.has_previous_dual = true;
+        // sum |u_i| <= sum s_i, so this bounds the rounding of x = y - U/k (see position_floor_m).
+        let force_floor_m = ROUNDING_SLACK * strength_sum / k;
 
         let mut sweeps = 0u32;
         let mut rounds = 0u32;
@@ -267,9 +310,13 @@ impl Solver {
         // With primitives, at least one sweep always runs, so the warm start is not certified separately
         // (it saves a gap evaluation per tick; warm starts are rarely exact because primitives move).
         let mut best = if self.items.is_empty() {
-            self.certify_dual(y, k, total)
+            self.certify_dual(y, k, total, force_floor_m)
         } else {
-            Candidate { x: y - total / k, gap_j: f64::INFINITY, bound_m: f64::INFINITY }
+            Candidate {
+                x: y - total / k,
+                gap_j: f64::INFINITY,
+                bound_m: f64::INFINITY,
+            }
         };
         let mut best_at_sweep = 0u32;
         let finish = |best: Candidate, sweeps, rounds, status| Solution {
@@ -282,7 +329,8 @@ impl Solver {
             status,
         };
         let over_budget = |sweeps: u32| {
-            sweeps >= config.max_sweeps || (timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns)
+            sweeps >= config.max_sweeps
+                || (timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns)
         };
         loop {
             if best.bound_m <= config.tolerance_m {
@@ -290,7 +338,7 @@ impl Solver {
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
-                    best = self.certify_dual(y, k, total);
+                    best = self.certify_dual(y, k, total, force_floor_m);
                 }
                 return Ok(finish(best, sweeps, rounds, SolveStatus::BudgetExhausted));
             }
@@ -300,7 +348,7 @@ impl Solver {
             for _ in 0..config.sweeps_per_round.max(1) {
                 total = self.sweep(y, k, total, sweeps % 2 == 1);
                 sweeps += 1;
-                let candidate = self.certify_dual(y, k, total);
+                let candidate = self.certify_dual(y, k, total, force_floor_m);
                 if candidate.bound_m < best.bound_m {
                     if candidate.bound_m < 0.5 * best.bound_m {
                         best_at_sweep = sweeps;
@@ -327,42 +375,29 @@ impl Solver {
             );
             if let Some(x) = attempt {
                 let candidate_total = self.candidate_dual.iter().copied().sum::<DVec3>();
-                let (gap, bound) = certificate(&self.items, &self.candidate_dual, y, k, x, candidate_total);
+                let (gap, bound) = certificate(
+                    &self.items,
+                    &self.candidate_dual,
+                    y,
+                    k,
+                    x,
+                    candidate_total,
+                    force_floor_m,
+                );
                 if bound < best.bound_m {
                     if bound < 0.5 * best.bound_m {
                         best_at_sweep = sweeps;
                     }
-                    best = Candidate { x, gap_j: gap, bound_m: bound };
+                    best = Candidate {
+                        x,
+                        gap_j: gap,
+                        bound_m: bound,
+                    };
                     std::mem::swap(&mut self.dual, &mut self.candidate_dual);
                     total = candidate_total;
                 }
             }
         }
-    }
-
-    /// Sets `self.dual` to a feasible starting point: the previous dual when the structure matches, else the
-    /// subgradients at the previous proxy, else zero.
-    fn warm_start(&mut self, previous_proxy_m: Option<DVec3>, _k: f64) {
-        let same_structure = self.config.warm_start_dual
-            && self.previous_kinds.len() == self.items.len()
-            && self.previous_kinds.iter().zip(&self.items).all(|(kind, item)| *kind == item.kind)
-            && self.dual.len() == self.items.len();
-        if same_structure {
-            for (u, item) in self.dual.iter_mut().zip(&self.items) {
-                *u = project(item, *u);
-            }
-        } else {
-            self.dual.clear();
-            for item in &self.items {
-                let u = match previous_proxy_m {
-                    Some(x) => subgradient(item, x),
-                    None => DVec3::ZERO,
-                };
-                self.dual.push(u);
-            }
-        }
-        self.previous_kinds.clear();
-        self.previous_kinds.extend(self.items.iter().map(|item| item.kind));
     }
 
     /// One block-coordinate sweep over the dual; returns the new `U = sum u_i` (recomputed exactly).
@@ -380,9 +415,9 @@ impl Solver {
     }
 
     /// The primal point of the current dual and its certificate.
-    fn certify_dual(&self, y: DVec3, k: f64, total: DVec3) -> Candidate {
+    fn certify_dual(&self, y: DVec3, k: f64, total: DVec3, force_floor_m: f64) -> Candidate {
         let x = y - total / k;
-        let (gap_j, bound_m) = certificate(&self.items, &self.dual, y, k, x, total);
+        let (gap_j, bound_m) = certificate(&self.items, &self.dual, y, k, x, total, force_floor_m);
         Candidate { x, gap_j, bound_m }
     }
 }
@@ -445,13 +480,13 @@ pub(crate) fn subgradient(item: &Item, x: DVec3) -> DVec3 {
 const ROUNDING_SLACK: f64 = 8.0 * f64::EPSILON;
 
 /// The rounding floor of a position computed as `x = y - (sum_i u_i)/k`: 8 machine epsilons of `|x|`, `|y|`
-/// and `sum_i |u_i| / k` (the sum of many forces loses that much). A distance to a kink below this floor (plus
+/// and `sum_i |u_i| / k` (the sum of many forces loses that much; `force_floor_m` bounds the last with
+/// `sum_i s_i`). A distance to a kink below this floor (plus
 /// the kink's own coordinates) is representation error, not solver error: the gap counts it as zero and
 /// [`error_bound_m`] adds the floor to the bound instead (the square root would otherwise turn 1e-19 m of
 /// rounding into a claimed 1e-11 m).
-pub(crate) fn position_floor_m(x: DVec3, y: DVec3, dual: &[DVec3], k: f64) -> f64 {
-    let force_sum: f64 = dual.iter().map(|u| u.abs().max_element()).sum();
-    ROUNDING_SLACK * (x.abs().max_element() + y.abs().max_element() + force_sum / k)
+pub(crate) fn position_floor_m(x: DVec3, y: DVec3, force_floor_m: f64) -> f64 {
+    ROUNDING_SLACK * (x.abs().max_element() + y.abs().max_element()) + force_floor_m
 }
 
 /// The certified distance bound: `sqrt(2 gap / k)` plus the rounding floor of the position.
@@ -460,15 +495,25 @@ pub(crate) fn error_bound_m(gap_j: f64, k: f64, floor_m: f64) -> f64 {
 }
 
 /// `s dist(x, C) - u.(x - c)` for a ball or disc, written as two non-negative terms so that nothing cancels:
-/// `(s - |u|) |r| + |u| |r| (1 - cos)`, with `1 - cos = |u/|u| - r/|r||^2 / 2`.
+/// `(s - |u|) |r| + (|u| |r| - u.r)`.
 fn ball_gap(s: f64, u: DVec3, r: DVec3, floor_m: f64) -> f64 {
-    let a = u.length();
     let rho = r.length();
     if rho <= floor_m {
         return 0.0;
     }
-    let slack = if (s - a) <= ROUNDING_SLACK * s { 0.0 } else { s - a };
-    let angle_term = if a > 0.0 { 0.5 * a * rho * (u / a - r / rho).length_squared() } else { 0.0 };
+    let a = u.length();
+    let slack = if (s - a) <= ROUNDING_SLACK * s {
+        0.0
+    } else {
+        s - a
+    };
+    // |u||r| - u.r, without cancellation: |u x r|^2 / (|u||r| + u.r) when u.r > 0.
+    let dot = u.dot(r);
+    let angle_term = if dot > 0.0 {
+        u.cross(r).length_squared() / (a * rho + dot)
+    } else {
+        a * rho - dot
+    };
     slack * rho + angle_term
 }
 
@@ -476,7 +521,7 @@ fn ball_gap(s: f64, u: DVec3, r: DVec3, floor_m: f64) -> f64 {
 pub(crate) fn item_gap_j(item: &Item, u: DVec3, x: DVec3, position_floor_m: f64) -> f64 {
     let r = x - item.position_m;
     let s = item.strength_n;
-    let floor_m = position_floor_m + ROUNDING_SLACK * item.position_m.abs().max_element();
+    let floor_m = position_floor_m + item.floor_m;
     match item.kind {
         PrimitiveKind::Point => ball_gap(s, u, r, floor_m),
         PrimitiveKind::Line => {
@@ -508,9 +553,21 @@ pub(crate) fn item_gap_j(item: &Item, u: DVec3, x: DVec3, position_floor_m: f64)
 
 /// The duality gap of the pair `(x, u)` (module docs), in joules, and the bound it certifies, in metres.
 /// `total` must be `sum u_i`.
-pub(crate) fn certificate(items: &[Item], dual: &[DVec3], y: DVec3, k: f64, x: DVec3, total: DVec3) -> (f64, f64) {
-    let position_floor = position_floor_m(x, y, dual, k);
-    let mut gap: f64 = items.iter().zip(dual).map(|(item, &u)| item_gap_j(item, u, x, position_floor)).sum();
+pub(crate) fn certificate(
+    items: &[Item],
+    dual: &[DVec3],
+    y: DVec3,
+    k: f64,
+    x: DVec3,
+    total: DVec3,
+    force_floor_m: f64,
+) -> (f64, f64) {
+    let position_floor = position_floor_m(x, y, force_floor_m);
+    let mut gap: f64 = items
+        .iter()
+        .zip(dual)
+        .map(|(item, &u)| item_gap_j(item, u, x, position_floor))
+        .sum();
     gap += (k * (x - y) + total).length_squared() / (2.0 * k);
     (gap, error_bound_m(gap, k, position_floor))
 }

@@ -1,22 +1,31 @@
 //! Unit tests of the exact solver: closed-form cases, the hard cases of DESIGN.md section 2, and warm starts.
 
 use super::*;
-use crate::haptics::primitive::total_energy_j;
 use crate::haptics::bench_scenes::{random_primitives, thin_wedge, SplitMix};
+use crate::haptics::primitive::total_energy_j;
 use crate::haptics::reference;
 
 const K: f64 = 500.0;
 
 fn solve(probe: DVec3, primitives: &[Primitive]) -> Solution {
     let mut solver = Solver::default();
-    let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives };
+    let problem = Problem {
+        stiffness_n_per_m: K,
+        probe_m: probe,
+        previous_proxy_m: None,
+        primitives,
+    };
     solver.solve(&problem).unwrap()
 }
 
 fn assert_certified_near(sol: &Solution, expected: DVec3) {
     assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
     let err = (sol.proxy_m - expected).length();
-    assert!(err <= sol.error_bound_m + 1e-15, "error {err:e} > bound {:e}: {sol:?}", sol.error_bound_m);
+    assert!(
+        err <= sol.error_bound_m + 1e-15,
+        "error {err:e} > bound {:e}: {sol:?}",
+        sol.error_bound_m
+    );
     assert!(sol.error_bound_m <= 1e-12, "{sol:?}");
 }
 
@@ -62,7 +71,10 @@ fn plane_separation_is_at_most_s_over_k() {
         assert_certified_near(&sol, DVec3::new(0.001, 0.0, expected_z));
         max_separation = max_separation.max((sol.proxy_m - probe).length());
     }
-    assert!((max_separation - s / K).abs() < 1e-12, "max separation {max_separation}");
+    assert!(
+        (max_separation - s / K).abs() < 1e-12,
+        "max separation {max_separation}"
+    );
 }
 
 /// Paper Figure 4: a plane and a point balance; the weaker one gives way.
@@ -95,7 +107,11 @@ fn thin_wedges_are_solved_exactly() {
         let probe = DVec3::new(-0.0002, 0.002, 0.00001);
         let sol = solve(probe, &thin_wedge(angle));
         assert_certified_near(&sol, DVec3::new(0.0, 0.002, 0.0));
-        assert!(sol.sweeps <= 40, "{angle} degrees took {} sweeps", sol.sweeps);
+        assert!(
+            sol.sweeps <= 40,
+            "{angle} degrees took {} sweeps",
+            sol.sweeps
+        );
     }
 }
 
@@ -105,7 +121,10 @@ fn thin_wedge_probe_above_one_face_lands_on_that_face() {
     let upper = prims[0].direction();
     let probe = DVec3::new(0.01, -0.001, 0.001);
     let expected = probe - upper * upper.dot(probe);
-    assert!(prims[1].direction().dot(expected) > 0.0, "test set-up: the lower face must not be touched");
+    assert!(
+        prims[1].direction().dot(expected) > 0.0,
+        "test set-up: the lower face must not be touched"
+    );
     let sol = solve(probe, &prims);
     assert_certified_near(&sol, expected);
 }
@@ -130,11 +149,17 @@ fn near_parallel_planes_meeting_in_a_valley() {
 fn coincident_points_share_the_load() {
     let probe = DVec3::new(0.004, 0.0, 0.0);
     // Needed force 2 N; strengths 0.1 and 5 N at the same place: the proxy stays on them.
-    let prims = [Primitive::point(DVec3::ZERO, 0.1).unwrap(), Primitive::point(DVec3::ZERO, 5.0).unwrap()];
+    let prims = [
+        Primitive::point(DVec3::ZERO, 0.1).unwrap(),
+        Primitive::point(DVec3::ZERO, 5.0).unwrap(),
+    ];
     let sol = solve(probe, &prims);
     assert_certified_near(&sol, DVec3::ZERO);
     // Together 1.5 N < 2 N: they give way, and hold the proxy 1.5/500 = 3 mm back from the probe.
-    let prims = [Primitive::point(DVec3::ZERO, 0.5).unwrap(), Primitive::point(DVec3::ZERO, 1.0).unwrap()];
+    let prims = [
+        Primitive::point(DVec3::ZERO, 0.5).unwrap(),
+        Primitive::point(DVec3::ZERO, 1.0).unwrap(),
+    ];
     let sol = solve(probe, &prims);
     assert_certified_near(&sol, DVec3::new(0.001, 0.0, 0.0));
 }
@@ -151,7 +176,10 @@ fn probe_exactly_on_a_kink() {
     assert_certified_near(&sol, DVec3::ZERO);
     assert_eq!(sol.force_n, DVec3::ZERO);
     // Probe on the plane but a directed force pushes into it.
-    let prims = [Primitive::plane(DVec3::ZERO, DVec3::Z, 1.0).unwrap(), Primitive::directed(-DVec3::Z, 0.7).unwrap()];
+    let prims = [
+        Primitive::plane(DVec3::ZERO, DVec3::Z, 1.0).unwrap(),
+        Primitive::directed(-DVec3::Z, 0.7).unwrap(),
+    ];
     let sol = solve(DVec3::ZERO, &prims);
     assert_certified_near(&sol, DVec3::ZERO);
 }
@@ -176,13 +204,21 @@ fn thousand_primitives_are_certified() {
     let prims = random_primitives(&mut rng, 1000);
     let probe = rng.vec(0.02);
     let mut solver = Solver::with_capacity(SolverConfig::default(), 1000);
-    let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: None, primitives: &prims };
+    let problem = Problem {
+        stiffness_n_per_m: K,
+        probe_m: probe,
+        previous_proxy_m: None,
+        primitives: &prims,
+    };
     let sol = solver.solve(&problem).unwrap();
     assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
     assert!(sol.error_bound_m <= 1e-12);
     let reference = reference::minimise(K, probe, &prims);
     let err = (sol.proxy_m - reference.proxy_m).length();
-    assert!(err <= sol.error_bound_m + reference.error_bound_m, "{err:e} {sol:?} {reference:?}");
+    assert!(
+        err <= sol.error_bound_m + reference.error_bound_m,
+        "{err:e} {sol:?} {reference:?}"
+    );
 }
 
 #[test]
@@ -196,10 +232,16 @@ fn random_scenes_agree_with_the_reference() {
             assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
             let reference = reference::minimise(K, probe, &prims);
             let err = (sol.proxy_m - reference.proxy_m).length();
-            assert!(err <= sol.error_bound_m + reference.error_bound_m, "n={n}: {err:e} {sol:?} {reference:?}");
+            assert!(
+                err <= sol.error_bound_m + reference.error_bound_m,
+                "n={n}: {err:e} {sol:?} {reference:?}"
+            );
             let e_exact = total_energy_j(K, probe, &prims, sol.proxy_m);
             let e_ref = total_energy_j(K, probe, &prims, reference.proxy_m);
-            assert!(e_exact <= e_ref + 1e-15, "exact energy {e_exact} above reference {e_ref}");
+            assert!(
+                e_exact <= e_ref + 1e-15,
+                "exact energy {e_exact} above reference {e_ref}"
+            );
         }
     }
 }
@@ -213,9 +255,18 @@ fn warm_start_from_previous_tick_needs_few_sweeps() {
     let ticks = 500;
     for tick in 0..ticks {
         let t = tick as f64 * 1e-3;
-        let probe = DVec3::new(0.02 * t, 0.01 * (6.0 * t).sin(), -0.002 - 0.001 * (3.0 * t).cos());
+        let probe = DVec3::new(
+            0.02 * t,
+            0.01 * (6.0 * t).sin(),
+            -0.002 - 0.001 * (3.0 * t).cos(),
+        );
         let prims = [plane, Primitive::point(proxy, 0.5).unwrap()];
-        let problem = Problem { stiffness_n_per_m: K, probe_m: probe, previous_proxy_m: Some(proxy), primitives: &prims };
+        let problem = Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: Some(proxy),
+            primitives: &prims,
+        };
         let sol = solver.solve(&problem).unwrap();
         assert_eq!(sol.status, SolveStatus::Certified);
         total_sweeps += sol.sweeps;
@@ -229,14 +280,26 @@ fn warm_start_from_previous_tick_needs_few_sweeps() {
 fn budget_exhaustion_reports_an_honest_bound() {
     let prims = thin_wedge(1.0);
     let expected = DVec3::new(0.0, 0.002, 0.0);
-    let mut solver = Solver::new(SolverConfig { max_sweeps: 1, sweeps_per_round: 1, ..SolverConfig::default() });
-    let problem =
-        Problem { stiffness_n_per_m: K, probe_m: DVec3::new(-0.0002, 0.002, 0.00001), previous_proxy_m: None, primitives: &prims };
+    let mut solver = Solver::new(SolverConfig {
+        max_sweeps: 1,
+        sweeps_per_round: 1,
+        ..SolverConfig::default()
+    });
+    let problem = Problem {
+        stiffness_n_per_m: K,
+        probe_m: DVec3::new(-0.0002, 0.002, 0.00001),
+        previous_proxy_m: None,
+        primitives: &prims,
+    };
     let sol = solver.solve(&problem).unwrap();
     assert_eq!(sol.status, SolveStatus::BudgetExhausted);
     let err = (sol.proxy_m - expected).length();
     assert!(err > 1e-6, "one sweep should not solve a 1 degree wedge");
-    assert!(err <= sol.error_bound_m, "bound {:e} does not cover error {err:e}", sol.error_bound_m);
+    assert!(
+        err <= sol.error_bound_m,
+        "bound {:e} does not cover error {err:e}",
+        sol.error_bound_m
+    );
 }
 
 #[test]
@@ -244,9 +307,16 @@ fn time_budget_is_enforced_with_a_clock() {
     use crate::clock::MockClock;
     let clock = MockClock::new(0);
     let prims = thin_wedge(1.0);
-    let mut solver = Solver::new(SolverConfig { max_time_ns: 0, ..SolverConfig::default() });
-    let problem =
-        Problem { stiffness_n_per_m: K, probe_m: DVec3::new(0.0005, 0.002, -0.003), previous_proxy_m: None, primitives: &prims };
+    let mut solver = Solver::new(SolverConfig {
+        max_time_ns: 0,
+        ..SolverConfig::default()
+    });
+    let problem = Problem {
+        stiffness_n_per_m: K,
+        probe_m: DVec3::new(0.0005, 0.002, -0.003),
+        previous_proxy_m: None,
+        primitives: &prims,
+    };
     let sol = solver.solve_with_clock(&problem, &clock).unwrap();
     assert_eq!(sol.status, SolveStatus::BudgetExhausted);
     assert_eq!(sol.sweeps, 0);
@@ -255,13 +325,23 @@ fn time_budget_is_enforced_with_a_clock() {
 #[test]
 fn bad_coupling_is_refused() {
     let mut solver = Solver::default();
-    let mut problem = Problem { stiffness_n_per_m: 0.0, probe_m: DVec3::ZERO, previous_proxy_m: None, primitives: &[] };
+    let mut problem = Problem {
+        stiffness_n_per_m: 0.0,
+        probe_m: DVec3::ZERO,
+        previous_proxy_m: None,
+        primitives: &[],
+    };
     assert_eq!(solver.solve(&problem), Err(SolveError::BadStiffness(0.0)));
     problem.stiffness_n_per_m = K;
     problem.probe_m = DVec3::new(f64::NAN, 0.0, 0.0);
-    assert!(matches!(solver.solve(&problem), Err(SolveError::BadProbe(_))));
+    assert!(matches!(
+        solver.solve(&problem),
+        Err(SolveError::BadProbe(_))
+    ));
     problem.probe_m = DVec3::ZERO;
     problem.previous_proxy_m = Some(DVec3::splat(f64::INFINITY));
-    assert!(matches!(solver.solve(&problem), Err(SolveError::BadPreviousProxy(_))));
+    assert!(matches!(
+        solver.solve(&problem),
+        Err(SolveError::BadPreviousProxy(_))
+    ));
 }
-

@@ -26,6 +26,17 @@ pub enum Command {
 /// The README's example scene, built into the binary for the default run.
 pub const EXAMPLE_SCENE: &str = include_str!("../../sims/scenes/plane_point.json");
 
+/// Prints `text` and a newline to stdout. A closed pipe (`voxhap ... | head`) ends the output quietly instead of
+/// panicking as `println!` would.
+pub fn print_out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|()| out.flush()) {
+        Err(err) if err.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
+
 /// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();

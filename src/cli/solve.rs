@@ -91,9 +91,7 @@ fn solve_timed(scene: &Scene, choice: SolverChoice) -> anyhow::Result<(Answer, u
 
 pub fn run(args: &SolveArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
-    let text = report(&scene, args.solver, args.json)?;
-    println!("{text}");
-    Ok(())
+    super::print_out(&report(&scene, args.solver, args.json)?)
 }
 
 /// Solves `scene` and formats the report (text, or one JSON object).

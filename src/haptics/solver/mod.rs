@@ -286,11 +286,9 @@ impl Solver {
         same_structure &= count == self.items.len() && count == self.dual.len();
         self.items.truncate(count);
         let y = problem.probe_m + directed / k;
-        if same_structure {
-            for (u, item) in self.dual.iter_mut().zip(&self.items) {
-                *u = project(item, *u);
-            }
-        } else {
+        // The previous dual need not be projected onto this tick's sets: the first sweep replaces every u_i by a
+        // projection before any certificate is taken.
+        if !same_structure {
             self.dual.clear();
             for item in &self.items {
                 self.dual.push(
@@ -301,8 +299,7 @@ impl Solver {
             }
         }
         self.has_previous_dual = true;
-        // sum |u_i| <= sum s_i, so this bounds the rounding of x = y - U/k (see position_floor_m).
-        let force_floor_m = ROUNDING_SLACK * strength_sum / k;
+        let position_floor = position_floor_m(y, strength_sum, k);
 
         let mut sweeps = 0u32;
         let mut rounds = 0u32;
@@ -310,7 +307,7 @@ impl Solver {
         // With primitives, at least one sweep always runs, so the warm start is not certified separately
         // (it saves a gap evaluation per tick; warm starts are rarely exact because primitives move).
         let mut best = if self.items.is_empty() {
-            self.certify_dual(y, k, total, force_floor_m)
+            self.certify_dual(y, k, total, position_floor)
         } else {
             Candidate {
                 x: y - total / k,
@@ -338,7 +335,7 @@ impl Solver {
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
-                    best = self.certify_dual(y, k, total, force_floor_m);
+                    best = self.certify_dual(y, k, total, position_floor);
                 }
                 return Ok(finish(best, sweeps, rounds, SolveStatus::BudgetExhausted));
             }
@@ -348,7 +345,7 @@ impl Solver {
             for _ in 0..config.sweeps_per_round.max(1) {
                 total = self.sweep(y, k, total, sweeps % 2 == 1);
                 sweeps += 1;
-                let candidate = self.certify_dual(y, k, total, force_floor_m);
+                let candidate = self.certify_dual(y, k, total, position_floor);
                 if candidate.bound_m < best.bound_m {
                     if candidate.bound_m < 0.5 * best.bound_m {
                         best_at_sweep = sweeps;
@@ -382,7 +379,7 @@ impl Solver {
                     k,
                     x,
                     candidate_total,
-                    force_floor_m,
+                    position_floor,
                 );
                 if bound < best.bound_m {
                     if bound < 0.5 * best.bound_m {
@@ -415,9 +412,9 @@ impl Solver {
     }
 
     /// The primal point of the current dual and its certificate.
-    fn certify_dual(&self, y: DVec3, k: f64, total: DVec3, force_floor_m: f64) -> Candidate {
+    fn certify_dual(&self, y: DVec3, k: f64, total: DVec3, position_floor: f64) -> Candidate {
         let x = y - total / k;
-        let (gap_j, bound_m) = certificate(&self.items, &self.dual, y, k, x, total, force_floor_m);
+        let (gap_j, bound_m) = certificate(&self.items, &self.dual, y, k, x, total, position_floor);
         Candidate { x, gap_j, bound_m }
     }
 }
@@ -433,7 +430,7 @@ pub(crate) fn project(item: &Item, v: DVec3) -> DVec3 {
         }
         PrimitiveKind::Plane => {
             let q = item.direction;
-            let t = (-q.dot(v)).clamp(0.0, s);
+            let t = (-q.dot(v)).max(0.0).min(s);
             -t * q
         }
         PrimitiveKind::Directed => DVec3::ZERO,
@@ -480,13 +477,13 @@ pub(crate) fn subgradient(item: &Item, x: DVec3) -> DVec3 {
 const ROUNDING_SLACK: f64 = 8.0 * f64::EPSILON;
 
 /// The rounding floor of a position computed as `x = y - (sum_i u_i)/k`: 8 machine epsilons of `|x|`, `|y|`
-/// and `sum_i |u_i| / k` (the sum of many forces loses that much; `force_floor_m` bounds the last with
-/// `sum_i s_i`). A distance to a kink below this floor (plus
-/// the kink's own coordinates) is representation error, not solver error: the gap counts it as zero and
-/// [`error_bound_m`] adds the floor to the bound instead (the square root would otherwise turn 1e-19 m of
-/// rounding into a claimed 1e-11 m).
-pub(crate) fn position_floor_m(x: DVec3, y: DVec3, force_floor_m: f64) -> f64 {
-    ROUNDING_SLACK * (x.abs().max_element() + y.abs().max_element()) + force_floor_m
+/// and `sum_i |u_i| / k` (the sum of many forces loses that much). Since `|u_i| <= s_i`, both `|x|` and the sum
+/// are bounded by `|y| + sum_i s_i / k`, so the floor is fixed for a solve: `8 eps (2 |y| + 2 sum_i s_i / k)`.
+/// A distance to a kink below this floor (plus the kink's own coordinates) is representation error, not solver
+/// error: the gap counts it as zero and [`error_bound_m`] adds the floor to the bound instead (the square root
+/// would otherwise turn 1e-19 m of rounding into a claimed 1e-11 m).
+pub(crate) fn position_floor_m(y: DVec3, strength_sum_n: f64, k: f64) -> f64 {
+    2.0 * ROUNDING_SLACK * (y.abs().max_element() + strength_sum_n / k)
 }
 
 /// The certified distance bound: `sqrt(2 gap / k)` plus the rounding floor of the position.
@@ -532,7 +529,7 @@ pub(crate) fn item_gap_j(item: &Item, u: DVec3, x: DVec3, position_floor_m: f64)
             let q = item.direction;
             let sigma = q.dot(r);
             // u = -t q; recovering t from u is exact only to a few ulps, like |u| for a ball.
-            let t = (-q.dot(u)).clamp(0.0, s);
+            let t = (-q.dot(u)).max(0.0).min(s);
             if sigma.abs() <= floor_m {
                 0.0
             } else if sigma > 0.0 {
@@ -560,9 +557,8 @@ pub(crate) fn certificate(
     k: f64,
     x: DVec3,
     total: DVec3,
-    force_floor_m: f64,
+    position_floor: f64,
 ) -> (f64, f64) {
-    let position_floor = position_floor_m(x, y, force_floor_m);
     let mut gap: f64 = items
         .iter()
         .zip(dual)

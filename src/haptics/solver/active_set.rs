@@ -37,12 +37,16 @@ pub(crate) enum Status {
     Off,
     /// A plane pushing with all of `s` (the proxy is behind it).
     Full,
+    /// A guessed kink not yet checked against the others (only inside `keep_consistent_kinks`).
+    Candidate,
 }
 
 /// Per-primitive statuses, kept between solves so that no allocation happens on the servo path.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Workspace {
     status: Vec<Status>,
+    /// Dual flips of each primitive in the current attempt (cycle guard).
+    flips: Vec<u8>,
 }
 
 /// Relative tolerance when deciding a dual variable is strictly inside its bound.
@@ -51,11 +55,14 @@ const STATUS_SLACK: f64 = 1e-9;
 const RANK_TOLERANCE: f64 = 1e-11;
 const MAX_NEWTON_STEPS: usize = 40;
 const MAX_SPLIT_SWEEPS: usize = 64;
+/// Dual flips one primitive may make in one attempt before the attempt is abandoned as cycling.
+const MAX_FLIPS_PER_PRIMITIVE: u8 = 2;
 
 impl Workspace {
     pub fn with_capacity(n: usize) -> Self {
         Self {
             status: Vec::with_capacity(n),
+            flips: Vec::with_capacity(n),
         }
     }
 
@@ -69,6 +76,8 @@ impl Workspace {
         max_flips: u32,
         dual: &mut [DVec3],
     ) -> Option<DVec3> {
+        self.flips.clear();
+        self.flips.resize(items.len(), 0);
         self.status.clear();
         self.status.extend(
             items
@@ -81,9 +90,8 @@ impl Workspace {
         let strength_sum: f64 = items.iter().map(|item| item.strength_n).sum();
         // Below this the gradient is rounding noise: 8 ulps of its largest contributions.
         let gradient_floor = 8.0 * f64::EPSILON * (k * scale + strength_sum);
-        // The primitive the last Newton step stopped at, to catch a dual flip that undoes it at once.
-        let mut last_blocked: Option<usize> = None;
-        for _ in 0..=max_flips {
+        self.keep_consistent_kinks(items, x, scale);
+        for flip in 0..=max_flips {
             // 2. The affine set of the kinks.
             let (m, b) = self.kink_system(items);
             let (pinv, null, rank) = psd_pseudo_inverse(m, RANK_TOLERANCE);
@@ -97,17 +105,33 @@ impl Workspace {
             if !consistent {
                 return None;
             }
-            self.match_plane_sides(items, x);
+            if flip == 0 {
+                // Afterwards the labels stay true by construction: steps stop at plane crossings, and a plane
+                // released from its kink is labelled by the way its multiplier says it goes.
+                self.match_plane_sides(items, x, 8.0 * f64::EPSILON * scale);
+            }
 
             // 3. Newton on the smooth model, restricted to the affine set; a step stops at the first kink it
             //    would cross, and that primitive joins the kinks.
             let mut blocked = false;
+            let mut previous_gradient = f64::INFINITY;
+            let mut slow_steps = 0;
             for _ in 0..MAX_NEWTON_STEPS {
                 let (g, h) = self.smooth_model(items, y, k, x);
                 let g_null = null * g;
-                if g_null.length() <= gradient_floor {
+                let gradient = g_null.length();
+                // Newton converges quadratically near the answer: three steps in a row that do not halve the
+                // gradient mean it has stalled (rounding, or a distance term nearly at its kink). Stop there and
+                // let the multiplier check and the certificate judge the point.
+                slow_steps = if gradient > 0.5 * previous_gradient {
+                    slow_steps + 1
+                } else {
+                    0
+                };
+                if gradient <= gradient_floor || slow_steps >= 3 {
                     break;
                 }
+                previous_gradient = gradient;
                 let reduced = null * h * null + (DMat3::IDENTITY - null);
                 let d = -(reduced.inverse() * g_null);
                 if !d.is_finite() {
@@ -119,14 +143,17 @@ impl Workspace {
                 if let Some((i, tau)) = self.first_crossing(items, x, d) {
                     x += tau * d;
                     self.status[i] = Status::Kink;
-                    last_blocked = Some(i);
                     blocked = true;
                     break;
                 }
                 let f0 = self.model_energy(items, y, k, x);
                 let slope = g.dot(d);
+                // Near the answer the decrease (~ g.d) falls below the rounding of the energy itself; without
+                // this slack the line search would reject good Newton steps and stall.
+                let rounding_j = 16.0 * f64::EPSILON * self.model_energy_scale(items, y, k, x);
                 let mut t = 1.0;
-                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope {
+                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope + rounding_j
+                {
                     t *= 0.5;
                     if t < 1e-10 {
                         break;
@@ -174,8 +201,9 @@ impl Workspace {
                 worst = None;
             }
             if let Some((i, _, flip_to, u)) = worst {
-                if last_blocked == Some(i) {
-                    // The step that just made i a kink is being undone: the guess cycles. Give up this round.
+                self.flips[i] = self.flips[i].saturating_add(1);
+                if self.flips[i] > MAX_FLIPS_PER_PRIMITIVE {
+                    // The same primitive keeps changing its mind: the guess cycles. Give up this round.
                     return None;
                 }
                 self.status[i] = flip_to;
@@ -190,7 +218,7 @@ impl Workspace {
 
             for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
                 *u = match status {
-                    Status::Inactive => DVec3::ZERO,
+                    Status::Inactive | Status::Candidate => DVec3::ZERO,
                     Status::Kink => project(item, *u),
                     Status::Off => match item.kind {
                         PrimitiveKind::Plane => DVec3::ZERO,
@@ -231,6 +259,50 @@ impl Workspace {
             }
         }
         (sum + g).length() <= tolerance
+    }
+
+    /// Trims the guessed kinks to a set whose affine constraints can all hold at once. A guess taken from an
+    /// unconverged dual can name more kinks than R^3 has room for (four planes through no common point). The
+    /// kinks nearest `x` are kept first; one that would make the set inconsistent is labelled by side instead.
+    fn keep_consistent_kinks(&mut self, items: &[Item], x: DVec3, scale: f64) {
+        for status in self.status.iter_mut() {
+            if *status == Status::Kink {
+                *status = Status::Candidate;
+            }
+        }
+        let mut m = DMat3::ZERO;
+        let mut b = DVec3::ZERO;
+        loop {
+            let nearest = items
+                .iter()
+                .zip(&self.status)
+                .enumerate()
+                .filter(|(_, (_, status))| **status == Status::Candidate)
+                .map(|(i, (item, _))| (i, (kink_projector(item) * (x - item.position_m)).length()))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            let Some((i, _)) = nearest else { break };
+            let item = &items[i];
+            let p = kink_projector(item);
+            let (m_try, b_try) = (m + p, b + p * item.position_m);
+            let (pinv, _, _) = psd_pseudo_inverse(m_try, RANK_TOLERANCE);
+            let projected = x + pinv * (b_try - m_try * x);
+            self.status[i] = Status::Kink;
+            let consistent = items.iter().zip(&self.status).all(|(item, status)| {
+                *status != Status::Kink
+                    || (kink_projector(item) * (projected - item.position_m)).length()
+                        <= 1e-12 * scale
+            });
+            if consistent {
+                (m, b) = (m_try, b_try);
+            } else {
+                self.status[i] = match item.kind {
+                    PrimitiveKind::Plane if item.direction.dot(x - item.position_m) < 0.0 => {
+                        Status::Full
+                    }
+                    _ => Status::Off,
+                };
+            }
+        }
     }
 
     /// `M = sum P_i` and `b = sum P_i x_i` over the kinks.
@@ -285,6 +357,17 @@ impl Workspace {
         e
     }
 
+    /// The sum of the magnitudes of the smooth model's terms: the scale of its rounding error.
+    fn model_energy_scale(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> f64 {
+        let mut e = 0.5 * k * (x - y).length_squared();
+        for (item, status) in items.iter().zip(&self.status) {
+            if matches!(status, Status::Off | Status::Full) {
+                e += item.strength_n * (x - item.position_m).abs().max_element();
+            }
+        }
+        e
+    }
+
     /// The first off or full primitive that the step `x -> x + d` carries across its kink, with the step
     /// fraction at which it does: a plane's signed distance changing sign, or a point or line passed by (its
     /// offset turning round), where the fraction is the closest approach.
@@ -306,12 +389,19 @@ impl Workspace {
                     (before / (before - after)).clamp(0.0, 1.0)
                 }
                 (Status::Off, _) => {
+                    // Passing a point or line at a distance is not crossing it: only a step that turns the offset
+                    // round and comes within a tenth of the starting distance is blocked (Newton's overshoot
+                    // through a kink the answer sits on). Other near passes are left to the line search.
                     let before = perpendicular(item, x - item.position_m);
                     let step = perpendicular(item, d);
                     if before.dot(before + step) > 0.0 {
                         continue;
                     }
-                    (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0)
+                    let tau = (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0);
+                    if (before + tau * step).length() > 0.1 * before.length() {
+                        continue;
+                    }
+                    tau
                 }
                 _ => continue,
             };
@@ -322,14 +412,16 @@ impl Workspace {
         first
     }
 
-    /// Re-labels off and full planes by the side of them `x` is on (the smooth model must match `x`).
-    fn match_plane_sides(&mut self, items: &[Item], x: DVec3) {
+    /// Re-labels off and full planes by the side of them `x` is on (the smooth model must match `x`). A plane
+    /// that `x` lies on, to within `tolerance_m`, keeps its label: it was just released from its kink, and the
+    /// label says which way.
+    fn match_plane_sides(&mut self, items: &[Item], x: DVec3, tolerance_m: f64) {
         for (item, status) in items.iter().zip(self.status.iter_mut()) {
             if item.kind == PrimitiveKind::Plane && matches!(*status, Status::Off | Status::Full) {
                 let sigma = item.direction.dot(x - item.position_m);
-                if sigma > 0.0 {
+                if sigma > tolerance_m {
                     *status = Status::Off;
-                } else if sigma < 0.0 {
+                } else if sigma < -tolerance_m {
                     *status = Status::Full;
                 }
             }

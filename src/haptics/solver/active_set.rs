@@ -116,10 +116,9 @@ impl Workspace {
             let mut blocked = false;
             let mut previous_gradient = f64::INFINITY;
             let mut slow_steps = 0;
+            let (mut g, mut h) = self.smooth_model(items, y, k, x);
             for _ in 0..MAX_NEWTON_STEPS {
-                let (g, h) = self.smooth_model(items, y, k, x);
-                let g_null = null * g;
-                let gradient = g_null.length();
+                let gradient = (null * g).length();
                 // Newton converges quadratically near the answer: three steps in a row that do not halve the
                 // gradient mean it has stalled (rounding, or a distance term nearly at its kink). Stop there and
                 // let the multiplier check and the certificate judge the point.
@@ -133,7 +132,7 @@ impl Workspace {
                 }
                 previous_gradient = gradient;
                 let reduced = null * h * null + (DMat3::IDENTITY - null);
-                let d = -(reduced.inverse() * g_null);
+                let d = -(reduced.inverse() * (null * g));
                 if !d.is_finite() {
                     return None;
                 }
@@ -146,14 +145,18 @@ impl Workspace {
                     blocked = true;
                     break;
                 }
+                // Take the full Newton step when it reduces the gradient (cheap, and immune to the energy's
+                // rounding near the answer); otherwise backtrack on the energy (Armijo).
+                let (g_full, h_full) = self.smooth_model(items, y, k, x + d);
+                if (null * g_full).length() < gradient {
+                    x += d;
+                    (g, h) = (g_full, h_full);
+                    continue;
+                }
                 let f0 = self.model_energy(items, y, k, x);
                 let slope = g.dot(d);
-                // Near the answer the decrease (~ g.d) falls below the rounding of the energy itself; without
-                // this slack the line search would reject good Newton steps and stall.
-                let rounding_j = 16.0 * f64::EPSILON * self.model_energy_scale(items, y, k, x);
-                let mut t = 1.0;
-                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope + rounding_j
-                {
+                let mut t = 0.5;
+                while self.model_energy(items, y, k, x + t * d) > f0 + 1e-4 * t * slope {
                     t *= 0.5;
                     if t < 1e-10 {
                         break;
@@ -163,6 +166,7 @@ impl Workspace {
                     break;
                 }
                 x += t * d;
+                (g, h) = self.smooth_model(items, y, k, x);
             }
             if blocked {
                 continue;
@@ -352,17 +356,6 @@ impl Workspace {
                 }
                 (Status::Full, _) => e -= item.strength_n * item.direction.dot(x - item.position_m),
                 _ => {}
-            }
-        }
-        e
-    }
-
-    /// The sum of the magnitudes of the smooth model's terms: the scale of its rounding error.
-    fn model_energy_scale(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> f64 {
-        let mut e = 0.5 * k * (x - y).length_squared();
-        for (item, status) in items.iter().zip(&self.status) {
-            if matches!(status, Status::Off | Status::Full) {
-                e += item.strength_n * (x - item.position_m).abs().max_element();
             }
         }
         e

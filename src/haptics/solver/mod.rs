@@ -80,7 +80,7 @@ impl Default for SolverConfig {
             tolerance_m: 1e-12,
             max_sweeps: 100_000,
             max_time_ns: u64::MAX,
-            sweeps_per_round: 4,
+            sweeps_per_round: 6,
             max_flips_per_round: 48,
             warm_start_dual: true,
         }

@@ -1,1 +1,3 @@
 //! Integration tests, one binary (ripgrep style).
+
+mod volume_io;

@@ -1,5 +1,7 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 
+pub mod info;
+
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -12,7 +14,10 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Print what the loader reads from a volume file (or builtin:NAME).
+    Info(info::InfoArgs),
+}
 
 /// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code.
 pub fn main() -> ExitCode {
@@ -29,5 +34,6 @@ pub fn main() -> ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         None => Ok(()),
+        Some(Command::Info(args)) => info::run(&args),
     }
 }

@@ -127,11 +127,7 @@ impl Grid {
     /// each column of the linear part and the direction is the normalised column.
     pub fn from_affine(dims: [usize; 3], affine: DMat4) -> Result<Grid, VolumeError> {
         let column = |a: usize| affine.col(a).truncate();
-        let spacing_m = DVec3::new(
-            column(0).length(),
-            column(1).length(),
-            column(2).length(),
-        );
+        let spacing_m = DVec3::new(column(0).length(), column(1).length(), column(2).length());
         if !spacing_m.is_finite() || spacing_m.min_element() <= 0.0 {
             return Err(VolumeError::BadSpacing { spacing_m });
         }

@@ -206,7 +206,13 @@ pub fn density_and_flow(
     let core_radius_m = 0.15 * half_extent_m;
     // Peak swirl ~0.1 m/s at the core edge for a 5 cm half extent.
     let circulation_m2_per_s = 2.0 * PI * core_radius_m * 0.16;
-    let flow = burgers_vortex(core_radius_m, circulation_m2_per_s, 1.0, dims, half_extent_m)?;
+    let flow = burgers_vortex(
+        core_radius_m,
+        circulation_m2_per_s,
+        1.0,
+        dims,
+        half_extent_m,
+    )?;
     Ok((density, flow))
 }
 
@@ -314,7 +320,10 @@ mod tests {
         let pitch = 0.04 / 3.0;
         for n in 1..=3 {
             assert!(along(pitch * n as f64) > 0.9, "shell {n}");
-            assert!(along(pitch * (n as f64 - 0.5)) < 0.1, "gap before shell {n}");
+            assert!(
+                along(pitch * (n as f64 - 0.5)) < 0.1,
+                "gap before shell {n}"
+            );
         }
         assert!(along(0.048) < 0.1);
     }
@@ -325,7 +334,10 @@ mod tests {
         let circulation = 0.02;
         let volume = rankine_vortex(core, circulation, DIMS, HALF).unwrap();
         let expected_core_curl = circulation / (PI * core * core);
-        for p in [DVec3::new(0.003, -0.002, 0.01), DVec3::new(-0.005, 0.0, -0.02)] {
+        for p in [
+            DVec3::new(0.003, -0.002, 0.01),
+            DVec3::new(-0.005, 0.0, -0.02),
+        ] {
             let curl = volume.curl(p);
             assert!(
                 (curl.z - expected_core_curl).abs() < 0.03 * expected_core_curl,
@@ -333,7 +345,10 @@ mod tests {
             );
             assert!(curl.truncate().length() < 1e-3 * expected_core_curl);
         }
-        for p in [DVec3::new(0.03, 0.01, 0.0), DVec3::new(-0.025, -0.025, 0.02)] {
+        for p in [
+            DVec3::new(0.03, 0.01, 0.0),
+            DVec3::new(-0.025, -0.025, 0.02),
+        ] {
             let curl = volume.curl(p);
             assert!(
                 curl.length() < 0.05 * expected_core_curl,
@@ -371,10 +386,16 @@ mod tests {
         let volume = burgers_vortex(core, circulation, 1.0, DIMS, HALF).unwrap();
         let on_axis = volume.curl(DVec3::new(0.0, 0.0, 0.01)).z;
         let expected = circulation / (PI * core * core);
-        assert!((on_axis - expected).abs() < 0.05 * expected, "{on_axis} vs {expected}");
+        assert!(
+            (on_axis - expected).abs() < 0.05 * expected,
+            "{on_axis} vs {expected}"
+        );
         let off_axis = volume.curl(DVec3::new(0.02, 0.0, 0.01)).z;
         let expected_off = expected * (-4.0f64).exp();
-        assert!((off_axis - expected_off).abs() < 0.2 * expected, "{off_axis}");
+        assert!(
+            (off_axis - expected_off).abs() < 0.2 * expected,
+            "{off_axis}"
+        );
     }
 
     #[test]

@@ -76,7 +76,10 @@ pub(crate) fn locate(grid: &Grid, p_world: DVec3) -> Option<Cell> {
 
 /// Trilinear interpolation of `fetch(i, j, k)` over the cell.
 #[inline]
-pub(crate) fn trilinear<T: Interpolate>(cell: &Cell, fetch: impl Fn(usize, usize, usize) -> T) -> T {
+pub(crate) fn trilinear<T: Interpolate>(
+    cell: &Cell,
+    fetch: impl Fn(usize, usize, usize) -> T,
+) -> T {
     let [i0, j0, k0] = cell.lower;
     let [i1, j1, k1] = cell.upper;
     let [tx, ty, tz] = cell.fraction;

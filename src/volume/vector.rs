@@ -55,7 +55,10 @@ impl VectorVolume {
     }
 
     /// Samples `field(p_world)` at every voxel centre.
-    pub fn from_fn(grid: Grid, field: impl Fn(DVec3) -> DVec3) -> Result<VectorVolume, VolumeError> {
+    pub fn from_fn(
+        grid: Grid,
+        field: impl Fn(DVec3) -> DVec3,
+    ) -> Result<VectorVolume, VolumeError> {
         let [nx, ny, nz] = grid.dims();
         let mut data = Vec::with_capacity(grid.voxel_count());
         for k in 0..nz {

@@ -99,9 +99,9 @@ pub fn decode_samples(
     scale: Option<(f64, f64)>,
 ) -> Result<Decoded, LoadProblem> {
     let size = scalar_type.size_bytes();
-    let expected_bytes = count
-        .checked_mul(size)
-        .ok_or(LoadProblem::TooLarge { voxels: count as u128 })?;
+    let expected_bytes = count.checked_mul(size).ok_or(LoadProblem::TooLarge {
+        voxels: count as u128,
+    })?;
     match bytes.len().cmp(&expected_bytes) {
         std::cmp::Ordering::Less => {
             return Err(LoadProblem::Truncated {
@@ -201,14 +201,54 @@ mod tests {
         let cases: [(ScalarType, Vec<u8>, Vec<u8>, f32); 10] = [
             (ScalarType::U8, vec![200], vec![200], 200.0),
             (ScalarType::I8, vec![0xfe], vec![0xfe], -2.0),
-            (ScalarType::U16, 60000u16.to_le_bytes().into(), 60000u16.to_be_bytes().into(), 60000.0),
-            (ScalarType::I16, (-300i16).to_le_bytes().into(), (-300i16).to_be_bytes().into(), -300.0),
-            (ScalarType::U32, 70000u32.to_le_bytes().into(), 70000u32.to_be_bytes().into(), 70000.0),
-            (ScalarType::I32, (-7i32).to_le_bytes().into(), (-7i32).to_be_bytes().into(), -7.0),
-            (ScalarType::U64, 1u64.to_le_bytes().into(), 1u64.to_be_bytes().into(), 1.0),
-            (ScalarType::I64, (-9i64).to_le_bytes().into(), (-9i64).to_be_bytes().into(), -9.0),
-            (ScalarType::F32, 1.5f32.to_le_bytes().into(), 1.5f32.to_be_bytes().into(), 1.5),
-            (ScalarType::F64, (-0.25f64).to_le_bytes().into(), (-0.25f64).to_be_bytes().into(), -0.25),
+            (
+                ScalarType::U16,
+                60000u16.to_le_bytes().into(),
+                60000u16.to_be_bytes().into(),
+                60000.0,
+            ),
+            (
+                ScalarType::I16,
+                (-300i16).to_le_bytes().into(),
+                (-300i16).to_be_bytes().into(),
+                -300.0,
+            ),
+            (
+                ScalarType::U32,
+                70000u32.to_le_bytes().into(),
+                70000u32.to_be_bytes().into(),
+                70000.0,
+            ),
+            (
+                ScalarType::I32,
+                (-7i32).to_le_bytes().into(),
+                (-7i32).to_be_bytes().into(),
+                -7.0,
+            ),
+            (
+                ScalarType::U64,
+                1u64.to_le_bytes().into(),
+                1u64.to_be_bytes().into(),
+                1.0,
+            ),
+            (
+                ScalarType::I64,
+                (-9i64).to_le_bytes().into(),
+                (-9i64).to_be_bytes().into(),
+                -9.0,
+            ),
+            (
+                ScalarType::F32,
+                1.5f32.to_le_bytes().into(),
+                1.5f32.to_be_bytes().into(),
+                1.5,
+            ),
+            (
+                ScalarType::F64,
+                (-0.25f64).to_le_bytes().into(),
+                (-0.25f64).to_be_bytes().into(),
+                -0.25,
+            ),
         ];
         for (scalar_type, little, big, expected) in cases {
             for (bytes, endian) in [(little, Endian::Little), (big, Endian::Big)] {
@@ -264,7 +304,10 @@ mod tests {
         let gz = encoder.finish().unwrap();
         assert_eq!(inflate(&gz, 10).unwrap().len(), 11);
         assert_eq!(inflate(&gz, 5000).unwrap().len(), 1000);
-        assert!(matches!(inflate(&gz[..20], 5000), Err(LoadProblem::Decompress(_))));
+        assert!(matches!(
+            inflate(&gz[..20], 5000),
+            Err(LoadProblem::Decompress(_))
+        ));
     }
 
     proptest! {

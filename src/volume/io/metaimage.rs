@@ -100,10 +100,13 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
         inflated = inflate(data, expected_bytes)?;
         &inflated[..]
     } else if header.data_file.is_some() && header.header_size == -1 {
-        let start = data.len().checked_sub(expected_bytes).ok_or(LoadProblem::Truncated {
-            expected_bytes,
-            actual_bytes: data.len(),
-        })?;
+        let start = data
+            .len()
+            .checked_sub(expected_bytes)
+            .ok_or(LoadProblem::Truncated {
+                expected_bytes,
+                actual_bytes: data.len(),
+            })?;
         &data[start..]
     } else if header.data_file.is_some() {
         let skip = usize::try_from(header.header_size)
@@ -304,7 +307,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const TINY: &[u8] = b"ObjectType = Image\nNDims = 3\nDimSize = 2 1 1\nElementType = MET_SHORT\n\
+    const TINY: &[u8] =
+        b"ObjectType = Image\nNDims = 3\nDimSize = 2 1 1\nElementType = MET_SHORT\n\
 ElementSpacing = 2 3 4\nOffset = 10 20 30\nTransformMatrix = 0 1 0 -1 0 0 0 0 1\n\
 ElementByteOrderMSB = True\nElementDataFile = LOCAL\n\x00\x05\xff\xfe";
 
@@ -322,11 +326,16 @@ ElementByteOrderMSB = True\nElementDataFile = LOCAL\n\x00\x05\xff\xfe";
 
     #[test]
     fn header_errors_are_specific() {
-        let message = parse(b"NDims = 3\nDimSize = 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n", Path::new("x.mha"))
+        let message = parse(
+            b"NDims = 3\nDimSize = 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n",
+            Path::new("x.mha"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(message.contains("DimSize"), "{message}");
+        let message = parse(b"NDims = 3\n", Path::new("x.mha"))
             .unwrap_err()
             .to_string();
-        assert!(message.contains("DimSize"), "{message}");
-        let message = parse(b"NDims = 3\n", Path::new("x.mha")).unwrap_err().to_string();
         assert!(message.contains("ElementDataFile"), "{message}");
     }
 

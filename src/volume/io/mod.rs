@@ -129,7 +129,9 @@ pub enum LoadProblem {
         expected_bytes: usize,
         actual_bytes: usize,
     },
-    #[error("data is longer than the header describes ({expected_bytes} bytes expected, more found)")]
+    #[error(
+        "data is longer than the header describes ({expected_bytes} bytes expected, more found)"
+    )]
     TrailingData { expected_bytes: usize },
     #[error("compressed data is corrupt: {0}")]
     Decompress(std::io::Error),
@@ -162,7 +164,8 @@ impl LoadProblem {
 /// Loads a volume file, choosing the loader by extension (`.nii`, `.nii.gz`, `.nrrd`, `.nhdr`, `.mha`,
 /// `.mhd`, `.toml`).
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadError> {
-    let format = FileFormat::from_path(path).ok_or_else(|| LoadProblem::UnknownExtension.at(path))?;
+    let format =
+        FileFormat::from_path(path).ok_or_else(|| LoadProblem::UnknownExtension.at(path))?;
     let result = match format {
         FileFormat::Nifti => nifti::load(path),
         FileFormat::Nrrd => nrrd::load(path),
@@ -176,7 +179,9 @@ pub fn load(path: &Path) -> Result<LoadedVolume, LoadError> {
 pub(crate) fn checked_voxel_count(dims: [u64; 3], components: u64) -> Result<usize, LoadProblem> {
     let voxels = u128::from(dims[0]) * u128::from(dims[1]) * u128::from(dims[2]);
     if voxels == 0 {
-        return Err(LoadProblem::header(format!("dimensions {dims:?} contain a zero")));
+        return Err(LoadProblem::header(format!(
+            "dimensions {dims:?} contain a zero"
+        )));
     }
     if voxels * u128::from(components) > MAX_VOXELS as u128 {
         return Err(LoadProblem::TooLarge { voxels });

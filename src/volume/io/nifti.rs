@@ -16,7 +16,9 @@
 //! Not supported (clear errors): NIfTI-2, `.hdr`/`.img` pairs, complex and RGB types, 4-D series.
 
 use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::{assemble, checked_voxel_count, read_file, FileFormat, Layout, LoadProblem, LoadedVolume};
+use super::{
+    assemble, checked_voxel_count, read_file, FileFormat, Layout, LoadProblem, LoadedVolume,
+};
 use crate::volume::Grid;
 use glam::{DMat3, DMat4, DVec3};
 use nifti::{NiftiHeader, NiftiType};
@@ -42,7 +44,10 @@ pub fn parse(bytes: &[u8], gzipped: bool, path: &Path) -> Result<LoadedVolume, L
     let header_bytes = if gzipped {
         inflate_prefix(bytes, HEADER_BYTES)?
     } else {
-        bytes.get(..HEADER_BYTES.min(bytes.len())).unwrap_or_default().to_vec()
+        bytes
+            .get(..HEADER_BYTES.min(bytes.len()))
+            .unwrap_or_default()
+            .to_vec()
     };
     if header_bytes.len() < HEADER_BYTES {
         return Err(LoadProblem::Truncated {
@@ -101,7 +106,12 @@ pub fn parse_header(header_bytes: &[u8]) -> Result<NiftiHeader, LoadProblem> {
         .get(..4)
         .map(|b| [b[0], b[1], b[2], b[3]])
         .unwrap_or_default();
-    if [i32::from_le_bytes(sizeof_hdr), i32::from_be_bytes(sizeof_hdr)].contains(&540) {
+    if [
+        i32::from_le_bytes(sizeof_hdr),
+        i32::from_be_bytes(sizeof_hdr),
+    ]
+    .contains(&540)
+    {
         return Err(LoadProblem::unsupported("NIfTI-2 files"));
     }
     let header = NiftiHeader::from_reader(header_bytes)
@@ -135,7 +145,9 @@ struct Plan {
 fn plan(header: &NiftiHeader) -> Result<Plan, LoadProblem> {
     let rank = usize::from(header.dim[0]);
     if !(1..=7).contains(&rank) {
-        return Err(LoadProblem::header(format!("dim[0] = {rank} is not in 1..=7")));
+        return Err(LoadProblem::header(format!(
+            "dim[0] = {rank} is not in 1..=7"
+        )));
     }
     let dim = |axis: usize| if axis <= rank { header.dim[axis] } else { 1 };
     let vector = header.intent_code == INTENT_VECTOR;
@@ -174,7 +186,14 @@ fn plan(header: &NiftiHeader) -> Result<Plan, LoadProblem> {
     let slope = f64::from(header.scl_slope);
     let intercept = f64::from(header.scl_inter);
     let scale = (slope.is_finite() && slope != 0.0 && !(slope == 1.0 && intercept == 0.0))
-        .then_some((slope, if intercept.is_finite() { intercept } else { 0.0 }));
+        .then_some((
+            slope,
+            if intercept.is_finite() {
+                intercept
+            } else {
+                0.0
+            },
+        ));
     let metres = metres_per_unit(header)?;
     let affine = affine_in_file_units(header)?;
     let affine_m = DMat4::from_cols(
@@ -226,7 +245,9 @@ fn metres_per_unit(header: &NiftiHeader) -> Result<f64, LoadProblem> {
         0 | 2 => Ok(1e-3), // unknown: millimetres, as every neuroimaging tool assumes
         1 => Ok(1.0),
         3 => Ok(1e-6),
-        code => Err(LoadProblem::header(format!("unknown spatial unit code {code}"))),
+        code => Err(LoadProblem::header(format!(
+            "unknown spatial unit code {code}"
+        ))),
     }
 }
 
@@ -252,7 +273,11 @@ pub fn affine_in_file_units(header: &NiftiHeader) -> Result<DMat4, LoadProblem> 
         )));
     }
     if header.qform_code > 0 {
-        let (mut b, mut c, mut d) = (f(header.quatern_b), f(header.quatern_c), f(header.quatern_d));
+        let (mut b, mut c, mut d) = (
+            f(header.quatern_b),
+            f(header.quatern_c),
+            f(header.quatern_d),
+        );
         if !(b.is_finite() && c.is_finite() && d.is_finite()) {
             return Err(LoadProblem::header("qform quaternion is not finite"));
         }
@@ -269,13 +294,29 @@ pub fn affine_in_file_units(header: &NiftiHeader) -> Result<DMat4, LoadProblem> 
             a = a.sqrt();
         }
         let rotation = DMat3::from_cols(
-            DVec3::new(a * a + b * b - c * c - d * d, 2.0 * (b * c + a * d), 2.0 * (b * d - a * c)),
-            DVec3::new(2.0 * (b * c - a * d), a * a + c * c - b * b - d * d, 2.0 * (c * d + a * b)),
-            DVec3::new(2.0 * (b * d + a * c), 2.0 * (c * d - a * b), a * a + d * d - c * c - b * b),
+            DVec3::new(
+                a * a + b * b - c * c - d * d,
+                2.0 * (b * c + a * d),
+                2.0 * (b * d - a * c),
+            ),
+            DVec3::new(
+                2.0 * (b * c - a * d),
+                a * a + c * c - b * b - d * d,
+                2.0 * (c * d + a * b),
+            ),
+            DVec3::new(
+                2.0 * (b * d + a * c),
+                2.0 * (c * d - a * b),
+                a * a + d * d - c * c - b * b,
+            ),
         );
         let qfac = if header.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
         let linear = rotation * DMat3::from_diagonal(spacing * DVec3::new(1.0, 1.0, qfac));
-        let offset = DVec3::new(f(header.quatern_x), f(header.quatern_y), f(header.quatern_z));
+        let offset = DVec3::new(
+            f(header.quatern_x),
+            f(header.quatern_y),
+            f(header.quatern_z),
+        );
         return Ok(DMat4::from_cols(
             linear.x_axis.extend(0.0),
             linear.y_axis.extend(0.0),
@@ -306,9 +347,13 @@ mod tests {
         h[108..112].copy_from_slice(&352f32.to_le_bytes());
         h[123] = 2;
         h[254..256].copy_from_slice(&1i16.to_le_bytes());
-        for (row, values) in [[2.0f32, 0.0, 0.0, -1.0], [0.0, 2.0, 0.0, -2.0], [0.0, 0.0, 2.0, -3.0]]
-            .iter()
-            .enumerate()
+        for (row, values) in [
+            [2.0f32, 0.0, 0.0, -1.0],
+            [0.0, 2.0, 0.0, -2.0],
+            [0.0, 0.0, 2.0, -3.0],
+        ]
+        .iter()
+        .enumerate()
         {
             for (c, v) in values.iter().enumerate() {
                 let at = 280 + 16 * row + 4 * c;

@@ -70,13 +70,11 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
     let (components, domain_sizes) = match (dimension, header.sizes.as_slice()) {
         (3, sizes) => (1, sizes),
         (4, [3, rest @ ..]) => (3, rest),
-        _ => {
-            return Err(LoadProblem::unsupported(format!(
-                "dimension {dimension} with sizes {:?}: only 3-D scalar volumes or 4-D volumes with \
+        _ => return Err(LoadProblem::unsupported(format!(
+            "dimension {dimension} with sizes {:?}: only 3-D scalar volumes or 4-D volumes with \
                  a leading 3-component axis are read",
-                header.sizes
-            )))
-        }
+            header.sizes
+        ))),
     };
     let dims = [domain_sizes[0], domain_sizes[1], domain_sizes[2]];
     let voxels = checked_voxel_count(dims, components as u64)?;
@@ -141,10 +139,13 @@ fn decode(
     match encoding {
         Encoding::Raw => {
             let data = if header.byte_skip == -1 {
-                let start = data.len().checked_sub(expected_bytes).ok_or(LoadProblem::Truncated {
-                    expected_bytes,
-                    actual_bytes: data.len(),
-                })?;
+                let start =
+                    data.len()
+                        .checked_sub(expected_bytes)
+                        .ok_or(LoadProblem::Truncated {
+                            expected_bytes,
+                            actual_bytes: data.len(),
+                        })?;
                 &data[start..]
             } else {
                 &skip(data)?
@@ -177,9 +178,9 @@ fn decode_text(data: &[u8], scalar_type: ScalarType, count: usize) -> Result<Dec
                 expected_bytes: count,
             });
         }
-        let value: f64 = token
-            .parse()
-            .map_err(|_| LoadProblem::header(format!("ascii data value {token:?} is not a number")))?;
+        let value: f64 = token.parse().map_err(|_| {
+            LoadProblem::header(format!("ascii data value {token:?} is not a number"))
+        })?;
         let is_integer_type = !matches!(scalar_type, ScalarType::F32 | ScalarType::F64);
         if is_integer_type && value.fract() != 0.0 {
             return Err(LoadProblem::header(format!(
@@ -209,10 +210,9 @@ fn decode_text(data: &[u8], scalar_type: ScalarType, count: usize) -> Result<Dec
 fn skip_lines(data: &[u8], lines: usize) -> Result<&[u8], LoadProblem> {
     let mut rest = data;
     for _ in 0..lines {
-        let end = rest
-            .iter()
-            .position(|&b| b == b'\n')
-            .ok_or_else(|| LoadProblem::header(format!("line skip {lines} passes the end of the data")))?;
+        let end = rest.iter().position(|&b| b == b'\n').ok_or_else(|| {
+            LoadProblem::header(format!("line skip {lines} passes the end of the data"))
+        })?;
         rest = &rest[end + 1..];
     }
     Ok(rest)
@@ -226,7 +226,9 @@ fn grid(header: &NrrdHeader, components: usize, dims: [u64; 3]) -> Result<Grid, 
         Some(units) => {
             let first = units.first().map(String::as_str).unwrap_or("mm");
             if units.iter().any(|u| u != first) {
-                return Err(LoadProblem::unsupported(format!("mixed space units {units:?}")));
+                return Err(LoadProblem::unsupported(format!(
+                    "mixed space units {units:?}"
+                )));
             }
             metres_per_unit(first)
                 .ok_or_else(|| LoadProblem::unsupported(format!("space unit {first:?}")))?
@@ -258,7 +260,9 @@ fn grid(header: &NrrdHeader, components: usize, dims: [u64; 3]) -> Result<Grid, 
             let spacings = match &header.spacings {
                 Some(spacings) => {
                     if spacings.len() != header.sizes.len() {
-                        return Err(LoadProblem::header("spacings has the wrong number of entries"));
+                        return Err(LoadProblem::header(
+                            "spacings has the wrong number of entries",
+                        ));
                     }
                     [0, 1, 2].map(|a| spacings[first_domain_axis + a])
                 }
@@ -303,7 +307,9 @@ pub fn parse_header(bytes: &[u8]) -> Result<NrrdHeader, LoadProblem> {
             .map_err(|_| LoadProblem::header(format!("line {line_number} is not text")))?
             .trim_end_matches('\r');
         if line_number == 1 {
-            let version = line.strip_prefix("NRRD000").and_then(|v| v.parse::<u8>().ok());
+            let version = line
+                .strip_prefix("NRRD000")
+                .and_then(|v| v.parse::<u8>().ok());
             if !matches!(version, Some(1..=5)) || line.len() != 8 {
                 return Err(LoadProblem::header(format!(
                     "first line {line:?} is not a NRRD magic (NRRD0001 to NRRD0005)"
@@ -329,8 +335,9 @@ pub fn parse_header(bytes: &[u8]) -> Result<NrrdHeader, LoadProblem> {
             )));
         };
         let (key, value) = (&line[..field_at], line[field_at + 2..].trim());
-        parse_field(&mut header, &key.to_ascii_lowercase(), value)
-            .map_err(|message| LoadProblem::header(format!("line {line_number} ({key}): {message}")))?;
+        parse_field(&mut header, &key.to_ascii_lowercase(), value).map_err(|message| {
+            LoadProblem::header(format!("line {line_number} ({key}): {message}"))
+        })?;
     }
     Ok(header)
 }
@@ -350,7 +357,11 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
                 "raw" => Encoding::Raw,
                 "gzip" | "gz" => Encoding::Gzip,
                 "ascii" | "text" | "txt" => Encoding::Ascii,
-                other => return Err(format!("encoding {other:?} is not supported (raw, gzip, ascii)")),
+                other => {
+                    return Err(format!(
+                        "encoding {other:?} is not supported (raw, gzip, ascii)"
+                    ))
+                }
             })
         }
         "endian" => {
@@ -460,7 +471,10 @@ fn parse_vectors(value: &str) -> Result<Vec<Option<Vec<f64>>>, String> {
                 .collect::<Result<Vec<f64>, _>>()?;
             vectors.push(Some(numbers));
             rest = inner[close + 1..].trim_start();
-        } else if rest.get(..4).is_some_and(|word| word.eq_ignore_ascii_case("none")) {
+        } else if rest
+            .get(..4)
+            .is_some_and(|word| word.eq_ignore_ascii_case("none"))
+        {
             vectors.push(None);
             rest = rest[4..].trim_start();
         } else {
@@ -472,7 +486,9 @@ fn parse_vectors(value: &str) -> Result<Vec<Option<Vec<f64>>>, String> {
 
 fn parse_space(value: &str) -> Result<[f64; 3], String> {
     match value.to_ascii_lowercase().as_str() {
-        "right-anterior-superior" | "ras" | "scanner-xyz" | "3d-right-handed" => Ok([1.0, 1.0, 1.0]),
+        "right-anterior-superior" | "ras" | "scanner-xyz" | "3d-right-handed" => {
+            Ok([1.0, 1.0, 1.0])
+        }
         "left-anterior-superior" | "las" => Ok([-1.0, 1.0, 1.0]),
         "left-posterior-superior" | "lps" => Ok([-1.0, -1.0, 1.0]),
         other => Err(format!(
@@ -482,7 +498,11 @@ fn parse_space(value: &str) -> Result<[f64; 3], String> {
 }
 
 fn parse_type(value: &str) -> Result<ScalarType, String> {
-    let normalised = value.split_whitespace().collect::<Vec<_>>().join(" ").to_ascii_lowercase();
+    let normalised = value
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
+        .to_ascii_lowercase();
     Ok(match normalised.as_str() {
         "signed char" | "int8" | "int8_t" => ScalarType::I8,
         "uchar" | "unsigned char" | "uint8" | "uint8_t" => ScalarType::U8,
@@ -494,8 +514,13 @@ fn parse_type(value: &str) -> Result<ScalarType, String> {
         }
         "int" | "signed int" | "int32" | "int32_t" => ScalarType::I32,
         "uint" | "unsigned int" | "uint32" | "uint32_t" => ScalarType::U32,
-        "longlong" | "long long" | "long long int" | "signed long long" | "signed long long int"
-        | "int64" | "int64_t" => ScalarType::I64,
+        "longlong"
+        | "long long"
+        | "long long int"
+        | "signed long long"
+        | "signed long long int"
+        | "int64"
+        | "int64_t" => ScalarType::I64,
         "ulonglong" | "unsigned long long" | "unsigned long long int" | "uint64" | "uint64_t" => {
             ScalarType::U64
         }
@@ -510,7 +535,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const TINY: &[u8] = b"NRRD0004\n# comment\ntype: short\ndimension: 3\nspace: left-posterior-superior\n\
+    const TINY: &[u8] =
+        b"NRRD0004\n# comment\ntype: short\ndimension: 3\nspace: left-posterior-superior\n\
 sizes: 2 1 1\nspace directions: (2,0,0) (0,3,0) (0,0,4)\nendian: big\nencoding: raw\n\
 space origin: (10,20,30)\nkey:=value\n\n\x00\x05\xff\xfe";
 

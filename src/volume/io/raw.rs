@@ -63,7 +63,8 @@ pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
 
 /// Parses the TOML header.
 pub fn parse_header(text: &[u8]) -> Result<RawHeader, LoadProblem> {
-    let text = std::str::from_utf8(text).map_err(|_| LoadProblem::header("the header is not UTF-8 text"))?;
+    let text = std::str::from_utf8(text)
+        .map_err(|_| LoadProblem::header("the header is not UTF-8 text"))?;
     toml::from_str(text).map_err(|err| LoadProblem::header(err.to_string().trim_end().to_owned()))
 }
 
@@ -83,7 +84,11 @@ pub fn decode_with_header(
         Some("little") => Endian::Little,
         Some("big") => Endian::Big,
         None if scalar_type.size_bytes() == 1 => Endian::Little,
-        None => return Err(LoadProblem::header("endianness is required for multi-byte types")),
+        None => {
+            return Err(LoadProblem::header(
+                "endianness is required for multi-byte types",
+            ))
+        }
         Some(other) => {
             return Err(LoadProblem::header(format!(
                 "endianness {other:?} is not \"little\" or \"big\""
@@ -110,10 +115,12 @@ pub fn decode_with_header(
         direction,
         DVec3::from_array(header.origin) * metres,
     )?;
-    let data = data.get(header.header_bytes..).ok_or(LoadProblem::Truncated {
-        expected_bytes: header.header_bytes,
-        actual_bytes: data.len(),
-    })?;
+    let data = data
+        .get(header.header_bytes..)
+        .ok_or(LoadProblem::Truncated {
+            expected_bytes: header.header_bytes,
+            actual_bytes: data.len(),
+        })?;
     let expected_bytes = count * scalar_type.size_bytes();
     let inflated;
     let data = match header.compression.as_deref() {

@@ -35,6 +35,10 @@ pub struct Grid {
     linear_inverse: DMat3,
     /// `L⁻ᵀ`: maps index-space gradients to world-space gradients.
     gradient_to_world: DMat3,
+    /// `(nx - 1, ny - 1, nz - 1)` as floats, for the samplers' clamping.
+    last_index: DVec3,
+    /// Data-array strides of the index axes: `(1, nx, nx·ny)`.
+    strides: [usize; 3],
 }
 
 impl Grid {
@@ -97,6 +101,12 @@ impl Grid {
             linear,
             linear_inverse,
             gradient_to_world: linear_inverse.transpose(),
+            last_index: DVec3::new(
+                (dims[0] - 1) as f64,
+                (dims[1] - 1) as f64,
+                (dims[2] - 1) as f64,
+            ),
+            strides: [1, dims[0], dims[0] * dims[1]],
         })
     }
 
@@ -179,6 +189,18 @@ impl Grid {
         self.linear_inverse
     }
 
+    /// `(nx - 1, ny - 1, nz - 1)`: the largest index on each axis.
+    #[inline]
+    pub fn last_index(&self) -> DVec3 {
+        self.last_index
+    }
+
+    /// Data-array strides of the index axes, `(1, nx, nx·ny)`.
+    #[inline]
+    pub fn strides(&self) -> [usize; 3] {
+        self.strides
+    }
+
     /// Continuous index -> world position (metres).
     #[inline]
     pub fn index_to_world(&self, index: DVec3) -> DVec3 {
@@ -204,11 +226,7 @@ impl Grid {
 
     /// The axis-aligned world box `(min, max)` that holds every voxel centre (the 8 corner voxels).
     pub fn bounds_world(&self) -> (DVec3, DVec3) {
-        let last = DVec3::new(
-            (self.dims[0] - 1) as f64,
-            (self.dims[1] - 1) as f64,
-            (self.dims[2] - 1) as f64,
-        );
+        let last = self.last_index;
         let mut min = DVec3::splat(f64::INFINITY);
         let mut max = DVec3::splat(f64::NEG_INFINITY);
         for corner in 0..8 {
@@ -227,7 +245,7 @@ impl Grid {
     /// Linear offset of voxel `(i, j, k)` in the data array: `i + nx·(j + ny·k)` (x fastest).
     #[inline]
     pub fn offset(&self, i: usize, j: usize, k: usize) -> usize {
-        i + self.dims[0] * (j + self.dims[1] * k)
+        i + self.strides[1] * j + self.strides[2] * k
     }
 }
 

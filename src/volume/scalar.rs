@@ -87,15 +87,15 @@ impl ScalarVolume {
     }
 
     #[inline]
-    fn fetch(&self, i: usize, j: usize, k: usize) -> f64 {
-        f64::from(self.data[self.grid.offset(i, j, k)])
+    fn fetch(&self, offset: usize) -> f64 {
+        f64::from(self.data[offset])
     }
 
     /// Trilinear value at a world position (metres). Clamp-to-edge outside; 0 for non-finite input.
     #[inline]
     pub fn sample(&self, p_world: DVec3) -> f64 {
         match locate(&self.grid, p_world) {
-            Some(cell) => trilinear(&cell, |i, j, k| self.fetch(i, j, k)),
+            Some(cell) => trilinear(&cell, |offset| self.fetch(offset)),
             None => 0.0,
         }
     }
@@ -106,7 +106,7 @@ impl ScalarVolume {
     pub fn gradient(&self, p_world: DVec3) -> DVec3 {
         match locate(&self.grid, p_world) {
             Some(cell) => {
-                let d = index_derivatives(&self.grid, &cell, |i, j, k| self.fetch(i, j, k));
+                let d = index_derivatives(&cell, |offset| self.fetch(offset));
                 self.grid.gradient_to_world() * DVec3::from_array(d)
             }
             None => DVec3::ZERO,
@@ -118,9 +118,9 @@ impl ScalarVolume {
     pub fn sample_with_gradient(&self, p_world: DVec3) -> (f64, DVec3) {
         match locate(&self.grid, p_world) {
             Some(cell) => {
-                let fetch = |i, j, k| self.fetch(i, j, k);
+                let fetch = |offset| self.fetch(offset);
                 let value = trilinear(&cell, fetch);
-                let d = index_derivatives(&self.grid, &cell, fetch);
+                let d = index_derivatives(&cell, fetch);
                 (value, self.grid.gradient_to_world() * DVec3::from_array(d))
             }
             None => (0.0, DVec3::ZERO),

@@ -99,8 +99,8 @@ impl VectorVolume {
     }
 
     #[inline]
-    fn fetch(&self, i: usize, j: usize, k: usize) -> DVec3 {
-        let [x, y, z] = self.data[self.grid.offset(i, j, k)];
+    fn fetch(&self, offset: usize) -> DVec3 {
+        let [x, y, z] = self.data[offset];
         DVec3::new(x.into(), y.into(), z.into())
     }
 
@@ -108,7 +108,7 @@ impl VectorVolume {
     #[inline]
     pub fn sample(&self, p_world: DVec3) -> DVec3 {
         match locate(&self.grid, p_world) {
-            Some(cell) => trilinear(&cell, |i, j, k| self.fetch(i, j, k)),
+            Some(cell) => trilinear(&cell, |offset| self.fetch(offset)),
             None => DVec3::ZERO,
         }
     }
@@ -119,8 +119,7 @@ impl VectorVolume {
     pub fn jacobian(&self, p_world: DVec3) -> DMat3 {
         match locate(&self.grid, p_world) {
             Some(cell) => {
-                let [d_di, d_dj, d_dk] =
-                    index_derivatives(&self.grid, &cell, |i, j, k| self.fetch(i, j, k));
+                let [d_di, d_dj, d_dk] = index_derivatives(&cell, |offset| self.fetch(offset));
                 DMat3::from_cols(d_di, d_dj, d_dk) * self.grid.linear_inverse()
             }
             None => DMat3::ZERO,

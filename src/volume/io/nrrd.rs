@@ -70,11 +70,13 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
     let (components, domain_sizes) = match (dimension, header.sizes.as_slice()) {
         (3, sizes) => (1, sizes),
         (4, [3, rest @ ..]) => (3, rest),
-        _ => return Err(LoadProblem::unsupported(format!(
+        _ => {
+            return Err(LoadProblem::unsupported(format!(
             "dimension {dimension} with sizes {:?}: only 3-D scalar volumes or 4-D volumes with \
                  a leading 3-component axis are read",
             header.sizes
-        ))),
+        )))
+        }
     };
     let dims = [domain_sizes[0], domain_sizes[1], domain_sizes[2]];
     let voxels = checked_voxel_count(dims, components as u64)?;

@@ -431,6 +431,22 @@ mod tests {
         }
 
         #[test]
+        fn mutated_gzip_streams_never_panic(
+            edits in proptest::collection::vec((0usize..64, any::<u8>()), 1..4),
+        ) {
+            use std::io::Write;
+            let mut encoder =
+                flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+            encoder.write_all(&tiny_nii()).unwrap();
+            let mut gz = encoder.finish().unwrap();
+            let len = gz.len();
+            for (at, value) in edits {
+                gz[at % len] = value;
+            }
+            let _ = parse(&gz, true, Path::new("x.nii.gz"));
+        }
+
+        #[test]
         fn mutated_headers_never_panic(
             edits in proptest::collection::vec((0usize..368, any::<u8>()), 1..8),
         ) {

@@ -9,6 +9,7 @@ mod cli_solve;
 mod paper;
 mod solver_alloc;
 mod solver_props;
+mod volume_io;
 
 #[global_allocator]
 static ALLOCATOR: util::alloc::CountingAllocator = util::alloc::CountingAllocator;

@@ -3,6 +3,7 @@
 //! `voxhap` with no subcommand runs the default job: until `voxhap serve` exists, it solves the README's
 //! example scene (sims/scenes/plane_point.json, built into the binary) with the exact solver.
 
+pub mod info;
 pub mod solve;
 
 use crate::haptics::scene::Scene;
@@ -21,6 +22,8 @@ pub struct Cli {
 pub enum Command {
     /// Solve one proxy problem from a JSON scene file.
     Solve(solve::SolveArgs),
+    /// Print what the loader reads from a volume file (or builtin:NAME).
+    Info(info::InfoArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -52,15 +55,12 @@ pub fn main() -> ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Some(Command::Solve(args)) => solve::run(&args),
+        Some(Command::Info(args)) => info::run(&args),
         None => {
-            println!("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).");
-            println!("See `voxhap --help` for the other commands.\n");
+            print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
+            print_out("See `voxhap --help` for the other commands.\n")?;
             let scene = Scene::parse(EXAMPLE_SCENE, "sims/scenes/plane_point.json")?;
-            println!(
-                "{}",
-                solve::report(&scene, solve::SolverChoice::Exact, false)?
-            );
-            Ok(())
+            print_out(&solve::report(&scene, solve::SolverChoice::Exact, false)?)
         }
     }
 }

@@ -1,0 +1,330 @@
+//! Element decoding shared by every loader: scalar types, byte order, gzip/zlib inflation with a
+//! size limit, and conversion of stored values to `f32` with NaN/infinity quarantine.
+
+use super::LoadProblem;
+use std::io::Read;
+
+/// The element type stored in a file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ScalarType {
+    U8,
+    I8,
+    U16,
+    I16,
+    U32,
+    I32,
+    U64,
+    I64,
+    F32,
+    F64,
+}
+
+impl ScalarType {
+    /// Every type, smallest first.
+    pub const ALL: [ScalarType; 10] = [
+        ScalarType::U8,
+        ScalarType::I8,
+        ScalarType::U16,
+        ScalarType::I16,
+        ScalarType::U32,
+        ScalarType::I32,
+        ScalarType::U64,
+        ScalarType::I64,
+        ScalarType::F32,
+        ScalarType::F64,
+    ];
+
+    /// Bytes per element.
+    pub fn size_bytes(self) -> usize {
+        match self {
+            ScalarType::U8 | ScalarType::I8 => 1,
+            ScalarType::U16 | ScalarType::I16 => 2,
+            ScalarType::U32 | ScalarType::I32 | ScalarType::F32 => 4,
+            ScalarType::U64 | ScalarType::I64 | ScalarType::F64 => 8,
+        }
+    }
+
+    /// The Rust-style name: `u8`, `i16`, `f32`, ...
+    pub fn name(self) -> &'static str {
+        match self {
+            ScalarType::U8 => "u8",
+            ScalarType::I8 => "i8",
+            ScalarType::U16 => "u16",
+            ScalarType::I16 => "i16",
+            ScalarType::U32 => "u32",
+            ScalarType::I32 => "i32",
+            ScalarType::U64 => "u64",
+            ScalarType::I64 => "i64",
+            ScalarType::F32 => "f32",
+            ScalarType::F64 => "f64",
+        }
+    }
+
+    /// Parses a Rust-style name (`u8` ... `f64`).
+    pub fn from_name(name: &str) -> Option<ScalarType> {
+        ScalarType::ALL.into_iter().find(|t| t.name() == name)
+    }
+}
+
+impl std::fmt::Display for ScalarType {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Byte order of multi-byte elements.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Endian {
+    Little,
+    Big,
+}
+
+/// Values read from a file, converted to `f32`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Decoded {
+    pub values: Vec<f32>,
+    /// NaN or infinite values (after scaling) replaced by 0.
+    pub non_finite_replaced: usize,
+    /// Values that `f32` cannot hold exactly and were rounded.
+    pub rounded_values: usize,
+}
+
+/// Decodes exactly `count` elements of `scalar_type` from `bytes` (which must hold exactly
+/// `count · size` bytes), applying `value · slope + intercept` when `scale` is given.
+pub fn decode_samples(
+    bytes: &[u8],
+    scalar_type: ScalarType,
+    endian: Endian,
+    count: usize,
+    scale: Option<(f64, f64)>,
+) -> Result<Decoded, LoadProblem> {
+    let size = scalar_type.size_bytes();
+    let expected_bytes = count.checked_mul(size).ok_or(LoadProblem::TooLarge {
+        voxels: count as u128,
+    })?;
+    match bytes.len().cmp(&expected_bytes) {
+        std::cmp::Ordering::Less => {
+            return Err(LoadProblem::Truncated {
+                expected_bytes,
+                actual_bytes: bytes.len(),
+            })
+        }
+        std::cmp::Ordering::Greater => return Err(LoadProblem::TrailingData { expected_bytes }),
+        std::cmp::Ordering::Equal => {}
+    }
+    let mut decoded = Decoded {
+        values: Vec::with_capacity(count),
+        ..Decoded::default()
+    };
+    for chunk in bytes.chunks_exact(size) {
+        let mut raw = [0u8; 8];
+        raw[..size].copy_from_slice(chunk);
+        if endian == Endian::Big {
+            raw[..size].reverse();
+        }
+        // `raw` now holds the element little-endian in its first `size` bytes.
+        let value: f64 = match scalar_type {
+            ScalarType::U8 => f64::from(raw[0]),
+            ScalarType::I8 => f64::from(raw[0] as i8),
+            ScalarType::U16 => f64::from(u16::from_le_bytes([raw[0], raw[1]])),
+            ScalarType::I16 => f64::from(i16::from_le_bytes([raw[0], raw[1]])),
+            ScalarType::U32 => f64::from(u32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
+            ScalarType::I32 => f64::from(i32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
+            ScalarType::F32 => f64::from(f32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
+            ScalarType::U64 => {
+                let v = u64::from_le_bytes(raw);
+                if v as f32 as u64 != v {
+                    decoded.rounded_values += 1;
+                }
+                push(&mut decoded, v as f32, scale, f64::from(v as f32));
+                continue;
+            }
+            ScalarType::I64 => {
+                let v = i64::from_le_bytes(raw);
+                if v as f32 as i64 != v {
+                    decoded.rounded_values += 1;
+                }
+                push(&mut decoded, v as f32, scale, f64::from(v as f32));
+                continue;
+            }
+            ScalarType::F64 => f64::from_le_bytes(raw),
+        };
+        let stored = value as f32;
+        if value.is_finite() && f64::from(stored) != value {
+            decoded.rounded_values += 1;
+        }
+        push(&mut decoded, stored, scale, value);
+    }
+    Ok(decoded)
+}
+
+/// Appends one value, scaled, with non-finite values replaced by zero.
+#[inline]
+fn push(decoded: &mut Decoded, stored: f32, scale: Option<(f64, f64)>, exact: f64) {
+    let value = match scale {
+        Some((slope, intercept)) => (exact * slope + intercept) as f32,
+        None => stored,
+    };
+    if value.is_finite() {
+        decoded.values.push(value);
+    } else {
+        decoded.non_finite_replaced += 1;
+        decoded.values.push(0.0);
+    }
+}
+
+/// Inflates gzip (magic `1f 8b`, multi-member allowed) or zlib data, reading at most
+/// `expected_bytes + 1` bytes so a lying header cannot make it allocate without bound.
+pub(crate) fn inflate(compressed: &[u8], expected_bytes: usize) -> Result<Vec<u8>, LoadProblem> {
+    let limit = expected_bytes as u64 + 1;
+    let mut out = Vec::new();
+    let result = if compressed.starts_with(&[0x1f, 0x8b]) {
+        flate2::read::MultiGzDecoder::new(compressed)
+            .take(limit)
+            .read_to_end(&mut out)
+    } else {
+        flate2::read::ZlibDecoder::new(compressed)
+            .take(limit)
+            .read_to_end(&mut out)
+    };
+    result.map_err(LoadProblem::Decompress)?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn decodes_both_endians_of_every_type() {
+        let cases: [(ScalarType, Vec<u8>, Vec<u8>, f32); 10] = [
+            (ScalarType::U8, vec![200], vec![200], 200.0),
+            (ScalarType::I8, vec![0xfe], vec![0xfe], -2.0),
+            (
+                ScalarType::U16,
+                60000u16.to_le_bytes().into(),
+                60000u16.to_be_bytes().into(),
+                60000.0,
+            ),
+            (
+                ScalarType::I16,
+                (-300i16).to_le_bytes().into(),
+                (-300i16).to_be_bytes().into(),
+                -300.0,
+            ),
+            (
+                ScalarType::U32,
+                70000u32.to_le_bytes().into(),
+                70000u32.to_be_bytes().into(),
+                70000.0,
+            ),
+            (
+                ScalarType::I32,
+                (-7i32).to_le_bytes().into(),
+                (-7i32).to_be_bytes().into(),
+                -7.0,
+            ),
+            (
+                ScalarType::U64,
+                1u64.to_le_bytes().into(),
+                1u64.to_be_bytes().into(),
+                1.0,
+            ),
+            (
+                ScalarType::I64,
+                (-9i64).to_le_bytes().into(),
+                (-9i64).to_be_bytes().into(),
+                -9.0,
+            ),
+            (
+                ScalarType::F32,
+                1.5f32.to_le_bytes().into(),
+                1.5f32.to_be_bytes().into(),
+                1.5,
+            ),
+            (
+                ScalarType::F64,
+                (-0.25f64).to_le_bytes().into(),
+                (-0.25f64).to_be_bytes().into(),
+                -0.25,
+            ),
+        ];
+        for (scalar_type, little, big, expected) in cases {
+            for (bytes, endian) in [(little, Endian::Little), (big, Endian::Big)] {
+                let decoded = decode_samples(&bytes, scalar_type, endian, 1, None).unwrap();
+                assert_eq!(decoded.values, vec![expected], "{scalar_type} {endian:?}");
+                assert_eq!(decoded.rounded_values, 0);
+            }
+        }
+    }
+
+    #[test]
+    fn counts_rounding_and_replaces_non_finite_values() {
+        let bytes: Vec<u8> = [16_777_217i32, 3]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let decoded = decode_samples(&bytes, ScalarType::I32, Endian::Little, 2, None).unwrap();
+        assert_eq!(decoded.rounded_values, 1);
+        let bytes: Vec<u8> = [f32::NAN, 1.0, f32::NEG_INFINITY]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        let decoded = decode_samples(&bytes, ScalarType::F32, Endian::Big, 3, None).unwrap();
+        assert_eq!(decoded.values, vec![0.0, 1.0, 0.0]);
+        assert_eq!(decoded.non_finite_replaced, 2);
+        // Scaling that overflows f32 is caught too.
+        let decoded =
+            decode_samples(&[255], ScalarType::U8, Endian::Little, 1, Some((1e38, 0.0))).unwrap();
+        assert_eq!(decoded.values, vec![0.0]);
+        assert_eq!(decoded.non_finite_replaced, 1);
+    }
+
+    #[test]
+    fn wrong_lengths_are_errors() {
+        assert!(matches!(
+            decode_samples(&[0; 5], ScalarType::U16, Endian::Little, 3, None),
+            Err(LoadProblem::Truncated {
+                expected_bytes: 6,
+                actual_bytes: 5
+            })
+        ));
+        assert!(matches!(
+            decode_samples(&[0; 7], ScalarType::U16, Endian::Little, 3, None),
+            Err(LoadProblem::TrailingData { expected_bytes: 6 })
+        ));
+    }
+
+    #[test]
+    fn inflate_stops_at_the_limit() {
+        use std::io::Write;
+        let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        encoder.write_all(&[7u8; 1000]).unwrap();
+        let gz = encoder.finish().unwrap();
+        assert_eq!(inflate(&gz, 10).unwrap().len(), 11);
+        assert_eq!(inflate(&gz, 5000).unwrap().len(), 1000);
+        assert!(matches!(
+            inflate(&gz[..20], 5000),
+            Err(LoadProblem::Decompress(_))
+        ));
+    }
+
+    proptest! {
+        #[test]
+        fn decode_and_inflate_never_panic(
+            bytes in proptest::collection::vec(any::<u8>(), 0..64),
+            type_index in 0usize..10,
+            big in any::<bool>(),
+            count in 0usize..40,
+        ) {
+            let endian = if big { Endian::Big } else { Endian::Little };
+            let scalar_type = ScalarType::ALL[type_index];
+            if let Ok(decoded) = decode_samples(&bytes, scalar_type, endian, count, Some((2.0, 1.0))) {
+                prop_assert_eq!(decoded.values.len(), count);
+                prop_assert!(decoded.values.iter().all(|v| v.is_finite()));
+            }
+            let _ = inflate(&bytes, count);
+        }
+    }
+}

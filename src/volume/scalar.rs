@@ -1,0 +1,253 @@
+//! Scalar volumes (densities, intensities): storage and the per-tick samplers.
+//!
+//! The surface, viscosity and gradient-force modes call [`ScalarVolume::sample`] and
+//! [`ScalarVolume::sample_with_gradient`] at the proxy every servo tick; both are allocation-free and
+//! defined for every input (rules in the [`crate::volume`] header: trilinear values, interpolated
+//! central-difference gradient mapped to world axes by `L⁻ᵀ`, clamp-to-edge outside, 0 for
+//! non-finite positions).
+
+use super::sampling::{index_derivatives, locate, trilinear};
+use super::{Grid, VolumeError};
+use glam::DVec3;
+
+/// A scalar field on a regular grid, stored as `f32`, `data[i + nx·(j + ny·k)]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScalarVolume {
+    grid: Grid,
+    data: Vec<f32>,
+    value_range: (f32, f32),
+}
+
+impl ScalarVolume {
+    /// Wraps `data` (x fastest) on `grid`. Rejects a length other than the voxel count and any
+    /// non-finite value.
+    pub fn new(grid: Grid, data: Vec<f32>) -> Result<ScalarVolume, VolumeError> {
+        let expected = grid.voxel_count();
+        if data.len() != expected {
+            return Err(VolumeError::DataLength {
+                expected,
+                actual: data.len(),
+            });
+        }
+        let mut min = f32::INFINITY;
+        let mut max = f32::NEG_INFINITY;
+        for (index, &value) in data.iter().enumerate() {
+            if !value.is_finite() {
+                return Err(VolumeError::NonFiniteValue { index });
+            }
+            min = min.min(value);
+            max = max.max(value);
+        }
+        Ok(ScalarVolume {
+            grid,
+            data,
+            value_range: (min, max),
+        })
+    }
+
+    /// Samples `field(p_world)` at every voxel centre.
+    pub fn from_fn(grid: Grid, field: impl Fn(DVec3) -> f64) -> Result<ScalarVolume, VolumeError> {
+        let [nx, ny, nz] = grid.dims();
+        let mut data = Vec::with_capacity(grid.voxel_count());
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    let p = grid.index_to_world(DVec3::new(i as f64, j as f64, k as f64));
+                    data.push(field(p) as f32);
+                }
+            }
+        }
+        ScalarVolume::new(grid, data)
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The stored values, x fastest.
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// Gives the grid and data back.
+    pub fn into_parts(self) -> (Grid, Vec<f32>) {
+        (self.grid, self.data)
+    }
+
+    /// Smallest and largest stored value.
+    pub fn value_range(&self) -> (f32, f32) {
+        self.value_range
+    }
+
+    /// The stored value of voxel `(i, j, k)`, `None` outside the grid.
+    pub fn voxel(&self, i: usize, j: usize, k: usize) -> Option<f32> {
+        let [nx, ny, nz] = self.grid.dims();
+        (i < nx && j < ny && k < nz).then(|| self.data[self.grid.offset(i, j, k)])
+    }
+
+    #[inline]
+    fn fetch(&self, offset: usize) -> f64 {
+        f64::from(self.data[offset])
+    }
+
+    /// Trilinear value at a world position (metres). Clamp-to-edge outside; 0 for non-finite input.
+    #[inline]
+    pub fn sample(&self, p_world: DVec3) -> f64 {
+        match locate(&self.grid, p_world) {
+            Some(cell) => trilinear(&cell, |offset| self.fetch(offset)),
+            None => 0.0,
+        }
+    }
+
+    /// Gradient (value per metre, world axes): central differences at the voxels, interpolated
+    /// trilinearly. Zero along axes where the position is outside the grid, zero for non-finite input.
+    #[inline]
+    pub fn gradient(&self, p_world: DVec3) -> DVec3 {
+        match locate(&self.grid, p_world) {
+            Some(cell) => {
+                let d = index_derivatives(&cell, |offset| self.fetch(offset));
+                self.grid.gradient_to_world() * DVec3::from_array(d)
+            }
+            None => DVec3::ZERO,
+        }
+    }
+
+    /// [`sample`](Self::sample) and [`gradient`](Self::gradient) together, locating the cell once.
+    #[inline]
+    pub fn sample_with_gradient(&self, p_world: DVec3) -> (f64, DVec3) {
+        match locate(&self.grid, p_world) {
+            Some(cell) => {
+                let fetch = |offset| self.fetch(offset);
+                let value = trilinear(&cell, fetch);
+                let d = index_derivatives(&cell, fetch);
+                (value, self.grid.gradient_to_world() * DVec3::from_array(d))
+            }
+            None => (0.0, DVec3::ZERO),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DMat3;
+    use proptest::prelude::*;
+
+    /// A rotated, anisotropic grid holding the linear field `f(p) = c + a·p`.
+    fn linear_field() -> (ScalarVolume, DVec3, f64) {
+        let direction = DMat3::from_rotation_y(0.7) * DMat3::from_rotation_z(-0.3);
+        let grid = Grid::new(
+            [6, 5, 4],
+            DVec3::new(0.002, 0.003, 0.005),
+            direction,
+            DVec3::new(-0.01, 0.02, 0.0),
+        )
+        .unwrap();
+        let slope = DVec3::new(120.0, -40.0, 75.0);
+        let constant = 2.5;
+        let volume = ScalarVolume::from_fn(grid, |p| constant + slope.dot(p)).unwrap();
+        (volume, slope, constant)
+    }
+
+    #[test]
+    fn rejects_wrong_length_and_non_finite_data() {
+        let grid = Grid::axis_aligned([2, 2, 2], DVec3::ONE, DVec3::ZERO).unwrap();
+        assert_eq!(
+            ScalarVolume::new(grid.clone(), vec![0.0; 7]),
+            Err(VolumeError::DataLength {
+                expected: 8,
+                actual: 7
+            })
+        );
+        let mut data = vec![0.0; 8];
+        data[5] = f32::NAN;
+        assert_eq!(
+            ScalarVolume::new(grid, data),
+            Err(VolumeError::NonFiniteValue { index: 5 })
+        );
+    }
+
+    #[test]
+    fn voxel_values_are_at_voxel_centres_x_fastest() {
+        let grid = Grid::axis_aligned([3, 2, 2], DVec3::splat(0.5), DVec3::ZERO).unwrap();
+        let data: Vec<f32> = (0..12).map(|v| v as f32).collect();
+        let volume = ScalarVolume::new(grid, data).unwrap();
+        assert_eq!(volume.voxel(2, 1, 1), Some(11.0));
+        assert_eq!(volume.voxel(3, 0, 0), None);
+        // Voxel (1, 1, 0) = offset 1 + 3·1 = 4, at world (0.5, 0.5, 0).
+        assert_eq!(volume.sample(DVec3::new(0.5, 0.5, 0.0)), 4.0);
+        assert_eq!(volume.value_range(), (0.0, 11.0));
+    }
+
+    #[test]
+    fn outside_rule_is_clamp_to_edge_with_vanishing_normal_gradient() {
+        let (volume, slope, _) = linear_field();
+        let grid = volume.grid().clone();
+        // A point beyond the +i face: index (7.5, 2, 1.5) clamps to (5, 2, 1.5).
+        let outside = grid.index_to_world(DVec3::new(7.5, 2.0, 1.5));
+        let edge = grid.index_to_world(DVec3::new(5.0, 2.0, 1.5));
+        assert!((volume.sample(outside) - volume.sample(edge)).abs() < 1e-9);
+        // The gradient has no component along the clamped index axis (in index space)...
+        let gradient = volume.gradient(outside);
+        let index_gradient = grid.linear().transpose() * gradient;
+        assert!(index_gradient.x.abs() < 1e-9, "{index_gradient}");
+        // ...and keeps the others.
+        let full = grid.linear().transpose() * slope;
+        assert!((index_gradient.y - full.y).abs() < 1e-6);
+        assert!((index_gradient.z - full.z).abs() < 1e-6);
+    }
+
+    #[test]
+    fn non_finite_positions_sample_zero() {
+        let (volume, _, _) = linear_field();
+        for p in [
+            DVec3::new(f64::NAN, 0.0, 0.0),
+            DVec3::new(0.0, f64::INFINITY, 0.0),
+            DVec3::splat(f64::NEG_INFINITY),
+            DVec3::splat(f64::MAX),
+        ] {
+            assert_eq!(volume.sample(p), 0.0);
+            assert_eq!(volume.gradient(p), DVec3::ZERO);
+            assert_eq!(volume.sample_with_gradient(p), (0.0, DVec3::ZERO));
+        }
+    }
+
+    #[test]
+    fn single_voxel_axes_are_constant() {
+        let grid = Grid::axis_aligned([1, 3, 1], DVec3::ONE, DVec3::ZERO).unwrap();
+        let volume = ScalarVolume::new(grid, vec![1.0, 2.0, 4.0]).unwrap();
+        assert_eq!(volume.sample(DVec3::new(3.0, 1.5, -2.0)), 3.0);
+        assert_eq!(volume.gradient(DVec3::new(3.0, 1.5, -2.0)).x, 0.0);
+        // One-sided difference at voxel 0 (1), central at voxel 1 (1.5), interpolated half way.
+        assert_eq!(volume.gradient(DVec3::new(0.0, 0.5, 0.0)).y, 1.25);
+    }
+
+    proptest! {
+        #[test]
+        fn trilinear_and_gradient_reproduce_a_linear_field_exactly(
+            i in 0.0..5.0f64, j in 0.0..4.0f64, k in 0.0..3.0f64,
+        ) {
+            let (volume, slope, constant) = linear_field();
+            let p = volume.grid().index_to_world(DVec3::new(i, j, k));
+            let (value, gradient) = volume.sample_with_gradient(p);
+            let exact = constant + slope.dot(p);
+            // f32 storage: relative error ~1e-7 of the largest value.
+            prop_assert!((value - exact).abs() < 1e-5, "{value} vs {exact}");
+            prop_assert!((gradient - slope).length() < 1e-3 * slope.length(),
+                "{gradient} vs {slope}");
+            prop_assert_eq!(value, volume.sample(p));
+            prop_assert_eq!(gradient, volume.gradient(p));
+        }
+
+        #[test]
+        fn samplers_never_panic_or_return_nan(
+            x in proptest::num::f64::ANY, y in proptest::num::f64::ANY, z in proptest::num::f64::ANY,
+        ) {
+            let (volume, _, _) = linear_field();
+            let (value, gradient) = volume.sample_with_gradient(DVec3::new(x, y, z));
+            prop_assert!(value.is_finite());
+            prop_assert!(gradient.is_finite());
+        }
+    }
+}

@@ -716,7 +716,14 @@ fn info_on_builtins_and_errors() {
     assert_eq!(json["kind"], "vector");
     assert_eq!(json["type"], "f32");
     let output = info(&["builtin:density-flow", "--json"]);
-    assert_eq!(String::from_utf8(output.stdout).unwrap().lines().count(), 2);
+    let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let kinds: Vec<&str> = json
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["kind"].as_str().unwrap())
+        .collect();
+    assert_eq!(kinds, ["scalar", "vector"]);
     let output = info(&["/nonexistent/brain.nrrd"]);
     assert!(!output.status.success());
     let stderr = String::from_utf8(output.stderr).unwrap();

@@ -6,5 +6,6 @@
 //! the coupling force goes back to the device.
 
 pub mod cli;
+pub mod device;
 pub mod haptics;
 pub mod volume;

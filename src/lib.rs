@@ -8,4 +8,5 @@
 pub mod cli;
 pub mod device;
 pub mod haptics;
+pub mod record;
 pub mod volume;

@@ -1,5 +1,7 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 
+pub mod plot;
+
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -12,7 +14,10 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Plot a recorded force trace (CSV or MCAP) to a PNG or SVG image.
+    Plot(plot::PlotArgs),
+}
 
 /// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code.
 pub fn main() -> ExitCode {
@@ -29,5 +34,6 @@ pub fn main() -> ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         None => Ok(()),
+        Some(Command::Plot(args)) => plot::run(args),
     }
 }

@@ -376,7 +376,7 @@ where
         .configure_secondary_axes()
         .y_desc("certificate bound (m, log)")
         .label_style((FONT, 12))
-        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .y_label_formatter(&decade_label)
         .draw()
         .map_err(err)?;
     chart
@@ -397,6 +397,35 @@ where
         .border_style(BLACK.mix(0.4))
         .draw()
         .map_err(err)
+}
+
+/// Labels powers of ten only (`1e-12`), leaving the log axis's intermediate ticks unlabelled.
+fn decade_label(value: &f64) -> String {
+    let exponent = value.log10().round();
+    if value.is_finite() && *value > 0.0 && (value / 10f64.powf(exponent) - 1.0).abs() < 1e-6 {
+        format!("1e{exponent}")
+    } else {
+        String::new()
+    }
+}
+
+/// Drops points closer than `min_step` to the last kept one (sub-pixel segments draw badly), keeping
+/// the last point.
+fn thin_path(points: Vec<(f64, f64)>, min_step: f64) -> Vec<(f64, f64)> {
+    let mut kept: Vec<(f64, f64)> = Vec::with_capacity(points.len());
+    let last = points.last().copied();
+    for p in points {
+        match kept.last() {
+            Some(k) if (p.0 - k.0).hypot(p.1 - k.1) < min_step => {}
+            _ => kept.push(p),
+        }
+    }
+    if let (Some(last), Some(k)) = (last, kept.last()) {
+        if *k != last {
+            kept.push(last);
+        }
+    }
+    kept
 }
 
 /// Every n-th point of the probe and proxy paths in mm, at most `MAX_PATH_POINTS` each.
@@ -462,6 +491,10 @@ where
         f64::from(width_px.saturating_sub(64 + 16)).max(1.0),
         f64::from(height_px.saturating_sub(32 + 16 + 24)).max(1.0),
     );
+    let min_step_mm =
+        1.5 * (x.end - x.start) / f64::from(width_px.saturating_sub(64 + 16)).max(1.0);
+    let probe = thin_path(probe, min_step_mm);
+    let proxy = thin_path(proxy, min_step_mm);
     let mut chart = ChartBuilder::on(area)
         .caption(caption, (FONT, 16))
         .margin(8)
@@ -478,12 +511,12 @@ where
         .draw()
         .map_err(err)?;
     chart
-        .draw_series(LineSeries::new(probe, PROBE_COLOR.stroke_width(2)))
+        .draw_series(LineSeries::new(probe, PROBE_COLOR.stroke_width(3)))
         .map_err(err)?
         .label("probe")
         .legend(legend_line(PROBE_COLOR));
     chart
-        .draw_series(LineSeries::new(proxy, PROXY_COLOR.stroke_width(2)))
+        .draw_series(LineSeries::new(proxy, PROXY_COLOR.stroke_width(1)))
         .map_err(err)?
         .label("proxy")
         .legend(legend_line(PROXY_COLOR));
@@ -572,6 +605,17 @@ mod tests {
         assert!(points.len() <= 2 * MAX_BUCKETS);
         assert!(points.iter().any(|p| p.1 == 99.0));
         assert!(points.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    #[test]
+    fn decade_labels_and_path_thinning() {
+        assert_eq!(decade_label(&1e-12), "1e-12");
+        assert_eq!(decade_label(&3e-12), "");
+        let points: Vec<(f64, f64)> = (0..100).map(|i| (f64::from(i) * 0.1, 0.0)).collect();
+        let thinned = thin_path(points, 1.0);
+        assert!(thinned.len() <= 12, "{}", thinned.len());
+        assert_eq!(thinned.last(), Some(&(9.9, 0.0)));
+        assert!(thinned.windows(2).all(|w| w[1].0 > w[0].0));
     }
 
     #[test]

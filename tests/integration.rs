@@ -1,2 +1,3 @@
 //! Integration tests, one binary (ripgrep style).
 mod record;
+mod util;

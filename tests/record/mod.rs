@@ -272,3 +272,52 @@ fn voxhap_plot_draws_csv_and_mcap_traces() {
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("no-such-trace.csv"));
 }
+
+#[test]
+fn sim_arm_step_does_not_allocate() {
+    // Every path kind, including waypoints (a Vec walked in place) and a force profile.
+    let paths = [
+        scenario().path,
+        HandPath::Waypoints {
+            points_m: vec![
+                DVec3::ZERO,
+                DVec3::new(0.01, 0.0, 0.0),
+                DVec3::new(0.01, 0.01, 0.0),
+            ],
+            speed_m_per_s: 0.02,
+        },
+        HandPath::Raster {
+            origin_m: DVec3::ZERO,
+            sweep_m: DVec3::new(0.02, 0.0, 0.0),
+            step_m: DVec3::new(0.0, 0.02, 0.0),
+            lines: 5,
+            speed_m_per_s: 0.05,
+        },
+        HandPath::Force {
+            profile: voxhap::device::sim::ForceProfile::Sine {
+                offset_n: DVec3::ZERO,
+                amplitude_n: DVec3::X,
+                frequency_hz: 3.0,
+            },
+        },
+    ];
+    for path in paths {
+        let mut config = scenario();
+        config.path = path;
+        let mut arm = SimArm::new(config, DVec3::ZERO).unwrap();
+        let allocations = crate::util::count_allocations(|| {
+            for tick in 0..500u64 {
+                let force = if tick % 97 == 0 {
+                    DVec3::NAN
+                } else {
+                    DVec3::new(0.0, 0.0, 0.5)
+                };
+                arm.step(tick as f64 * 1e-3, 1e-3, force).unwrap();
+            }
+        });
+        assert_eq!(allocations, 0, "SimArm::step allocated");
+        assert!(arm.position_m().is_finite());
+    }
+    // The counter does see allocations (so the zero above means something).
+    assert!(crate::util::count_allocations(|| drop(std::hint::black_box(vec![1u8; 16]))) > 0);
+}

@@ -28,8 +28,8 @@ pub struct PlotArgs {
 
 /// Reads the trace and writes the plot.
 pub fn run(args: PlotArgs) -> anyhow::Result<()> {
-    let trace = read_trace(&args.trace)
-        .with_context(|| format!("cannot read the trace {}", args.trace.display()))?;
+    // The reader's errors name the file (and the line and column).
+    let trace = read_trace(&args.trace)?;
     let title = args
         .title
         .clone()

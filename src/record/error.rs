@@ -1,5 +1,7 @@
 //! Errors of the trace writers ([`TraceError`]) and readers ([`TraceReadError`]). Each names what went
-//! wrong and where: the tick for a bad sample, the file, line and column for a bad trace.
+//! wrong and where: the tick for a bad sample, the file, line and column for a bad trace. Errors that
+//! wrap a lower-level error (I/O, MCAP, JSON) chain it as `source()` rather than repeating it in their
+//! message; print them with `{:#}` (anyhow) or walk the chain.
 
 use std::path::PathBuf;
 
@@ -7,7 +9,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum TraceError {
     /// Creating, writing or flushing a file failed.
-    #[error("trace file {path}: {source}")]
+    #[error("cannot write the trace file {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -15,7 +17,7 @@ pub enum TraceError {
         source: std::io::Error,
     },
     /// The MCAP library refused a record.
-    #[error("MCAP trace {path}: {source}")]
+    #[error("cannot write the MCAP trace {path}")]
     Mcap {
         /// The file.
         path: PathBuf,
@@ -76,7 +78,7 @@ pub enum TraceError {
 #[derive(Debug, thiserror::Error)]
 pub enum TraceReadError {
     /// Opening or reading the file failed.
-    #[error("{path}: {source}")]
+    #[error("cannot read {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -127,7 +129,7 @@ pub enum TraceReadError {
         line: usize,
     },
     /// The sidecar `TRACE.json` exists but does not parse.
-    #[error("trace sidecar {path}: {source}")]
+    #[error("cannot parse the trace sidecar {path}")]
     Sidecar {
         /// The sidecar file.
         path: PathBuf,

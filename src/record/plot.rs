@@ -172,6 +172,10 @@ pub fn plot_trace(
 }
 
 type DrawResult = Result<(), String>;
+/// A polyline in chart coordinates.
+type Points = Vec<(f64, f64)>;
+/// A force series: legend name, colour and the value it plots.
+type ForceSeries = (&'static str, RGBColor, fn(&TraceSample) -> f64);
 
 fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, trace: &Trace, title: &str) -> DrawResult
 where
@@ -279,7 +283,7 @@ where
     DB::ErrorType: 'static,
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    let components: [(&str, RGBColor, fn(&TraceSample) -> f64); 4] = [
+    let components: [ForceSeries; 4] = [
         ("|F|", BLACK, |s| s.force_n.length()),
         ("Fx", X_COLOR, |s| s.force_n.x),
         ("Fy", Y_COLOR, |s| s.force_n.y),
@@ -429,10 +433,7 @@ fn thin_path(points: Vec<(f64, f64)>, min_step: f64) -> Vec<(f64, f64)> {
 }
 
 /// Every n-th point of the probe and proxy paths in mm, at most `MAX_PATH_POINTS` each.
-fn path_points(
-    samples: &[TraceSample],
-    vertical: impl Fn(glam::DVec3) -> f64,
-) -> (Vec<(f64, f64)>, Vec<(f64, f64)>) {
+fn path_points(samples: &[TraceSample], vertical: impl Fn(glam::DVec3) -> f64) -> (Points, Points) {
     let stride = samples.len().div_ceil(MAX_PATH_POINTS).max(1);
     let pick = |v: glam::DVec3| (v.x * 1e3, vertical(v) * 1e3);
     let mut probe: Vec<_> = samples

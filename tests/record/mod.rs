@@ -202,7 +202,9 @@ fn pandas_reads_the_csv_exactly() {
     let script = r#"
 import json, sys
 import pandas as pd
-df = pd.read_csv(sys.argv[1], float_precision="round_trip")
+# pandas 3 parses floats exactly by default; older versions need round_trip.
+exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+df = pd.read_csv(sys.argv[1], **exact)
 print(json.dumps({"rows": len(df), "columns": list(df.columns),
                   "min_probe_z_m": float(df["probe_z_m"].min()),
                   "contacts": int(df["primitives_surface"].sum())}))
@@ -259,8 +261,11 @@ fn voxhap_plot_draws_csv_and_mcap_traces() {
         );
         let bytes = std::fs::read(&image).unwrap();
         assert!(bytes.len() > 1000);
-        if let Ok(dir) = std::env::var("VOXHAP_KEEP_PLOTS") {
-            std::fs::copy(&image, Path::new(&dir).join(image_name)).unwrap();
+        // Set VOXHAP_KEEP_OUTPUT=DIR to keep the traces and images for a look.
+        if let Ok(keep) = std::env::var("VOXHAP_KEEP_OUTPUT") {
+            for file in [image.clone(), trace.clone(), sidecar_path(&trace)] {
+                std::fs::copy(&file, Path::new(&keep).join(file.file_name().unwrap())).unwrap();
+            }
         }
     }
     // A missing trace is an error naming the file, not a panic.

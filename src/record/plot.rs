@@ -12,8 +12,9 @@
 //!    axes so shapes are not distorted.
 //!
 //! Long traces are thinned for drawing: time series keep the minimum and maximum of each of at most
-//! [`MAX_BUCKETS`] time buckets (so spikes survive), paths keep every n-th point. Text uses DejaVu Sans
-//! embedded in the binary (the `dejavu` crate), so no system font library is needed.
+//! [`MAX_BUCKETS`] time buckets (so spikes survive), paths keep every n-th point and drop sub-pixel
+//! steps. Text uses DejaVu Sans embedded in the binary (the `dejavu` crate; licence in
+//! `assets/fonts/DejaVu-LICENSE.txt`), so no system font library is needed.
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -121,7 +122,6 @@ fn register_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
         plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-            && plotters::style::register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok()
     });
     if ok {
         Ok(())
@@ -188,7 +188,7 @@ where
     root.draw(&Text::new(
         title.to_string(),
         (12, 8),
-        (FONT, 20).into_font().style(FontStyle::Bold).color(&BLACK),
+        (FONT, 20).into_font().color(&BLACK),
     ))
     .map_err(err)?;
     let area = |r: PanelRect| {
@@ -271,6 +271,20 @@ fn time_range(samples: &[TraceSample]) -> Range<f64> {
     }
 }
 
+/// A thick polyline as separate two-point segments: plotters joins thick polylines with mitres that
+/// shoot far outside the chart at sharp reversals (min/max envelopes, raster turns).
+fn thick_segments(
+    points: Vec<(f64, f64)>,
+    style: ShapeStyle,
+) -> impl Iterator<Item = PathElement<(f64, f64)>> {
+    let single = (points.len() == 1).then(|| PathElement::new(vec![points[0], points[0]], style));
+    let pairs: Vec<_> = points.windows(2).map(|w| (w[0], w[1])).collect();
+    pairs
+        .into_iter()
+        .map(move |(a, b)| PathElement::new(vec![a, b], style))
+        .chain(single)
+}
+
 fn legend_line(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
     move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
 }
@@ -310,14 +324,12 @@ where
         .draw()
         .map_err(err)?;
     for (name, color, points) in series {
-        chart
-            .draw_series(LineSeries::new(
-                points,
-                color.stroke_width(if name == "|F|" { 2 } else { 1 }),
-            ))
-            .map_err(err)?
-            .label(name)
-            .legend(legend_line(color));
+        let drawn = if name == "|F|" {
+            chart.draw_series(thick_segments(points, color.stroke_width(2)))
+        } else {
+            chart.draw_series(LineSeries::new(points, color.stroke_width(1)))
+        };
+        drawn.map_err(err)?.label(name).legend(legend_line(color));
     }
     chart
         .configure_series_labels()
@@ -346,18 +358,29 @@ where
     let (low, high) = positive_bounds.fold((f64::INFINITY, 0.0f64), |(lo, hi), b| {
         (lo.min(b), hi.max(b))
     });
-    let (bound_low, bound_high) = if low.is_finite() {
-        (low / 3.0, (high * 3.0).max(low * 30.0))
+    // The bound axis is linear in log10(bound) with whole decades labelled; plotters' own log axis
+    // labels too few decades to read.
+    let (log_low, log_high) = if low.is_finite() {
+        (
+            (low.log10() - 0.3).floor(),
+            (high.log10() + 0.3).ceil().max(low.log10() + 1.0),
+        )
     } else {
-        (1e-18, 1e-15)
+        (-18.0, -15.0)
     };
-    // Finite bounds only; 0 drawn at the bottom of the log axis.
+    // Finite bounds only; 0 drawn at the bottom of the axis.
     let finite: Vec<TraceSample> = samples
         .iter()
         .filter(|s| s.error_bound_m.is_finite())
         .copied()
         .collect();
-    let bounds = envelope(&finite, |s| s.error_bound_m.max(bound_low));
+    let bounds = envelope(&finite, |s| {
+        if s.error_bound_m > 0.0 {
+            s.error_bound_m.log10().max(log_low)
+        } else {
+            log_low
+        }
+    });
 
     let mut chart = ChartBuilder::on(area)
         .caption("Solver effort", (FONT, 16))
@@ -367,7 +390,7 @@ where
         .right_y_label_area_size(72)
         .build_cartesian_2d(time_range(samples), 0.0..max_sweeps * 1.1)
         .map_err(err)?
-        .set_secondary_coord(time_range(samples), (bound_low..bound_high).log_scale());
+        .set_secondary_coord(time_range(samples), log_low..log_high);
     chart
         .configure_mesh()
         .x_desc("t (s)")
@@ -380,19 +403,21 @@ where
         .configure_secondary_axes()
         .y_desc("certificate bound (m, log)")
         .label_style((FONT, 12))
+        .y_labels(((log_high - log_low) as usize + 1).min(20))
         .y_label_formatter(&decade_label)
         .draw()
         .map_err(err)?;
-    chart
-        .draw_series(LineSeries::new(sweeps, BLACK.stroke_width(1)))
-        .map_err(err)?
-        .label("sweeps")
-        .legend(legend_line(BLACK));
+    // The bound first, so the sweeps stay visible on top of a dense bound band.
     chart
         .draw_secondary_series(LineSeries::new(bounds, BOUND_COLOR.stroke_width(1)))
         .map_err(err)?
         .label("error bound (right)")
         .legend(legend_line(BOUND_COLOR));
+    chart
+        .draw_series(LineSeries::new(sweeps, BLACK.stroke_width(1)))
+        .map_err(err)?
+        .label("sweeps")
+        .legend(legend_line(BLACK));
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -403,10 +428,10 @@ where
         .map_err(err)
 }
 
-/// Labels powers of ten only (`1e-12`), leaving the log axis's intermediate ticks unlabelled.
-fn decade_label(value: &f64) -> String {
-    let exponent = value.log10().round();
-    if value.is_finite() && *value > 0.0 && (value / 10f64.powf(exponent) - 1.0).abs() < 1e-6 {
+/// Labels a log10 axis at whole decades (`-12` -> `1e-12`), leaving other ticks unlabelled.
+fn decade_label(log10_value: &f64) -> String {
+    let exponent = log10_value.round();
+    if (log10_value - exponent).abs() < 1e-9 {
         format!("1e{exponent}")
     } else {
         String::new()
@@ -512,7 +537,7 @@ where
         .draw()
         .map_err(err)?;
     chart
-        .draw_series(LineSeries::new(probe, PROBE_COLOR.stroke_width(3)))
+        .draw_series(thick_segments(probe, PROBE_COLOR.stroke_width(3)))
         .map_err(err)?
         .label("probe")
         .legend(legend_line(PROBE_COLOR));
@@ -610,8 +635,8 @@ mod tests {
 
     #[test]
     fn decade_labels_and_path_thinning() {
-        assert_eq!(decade_label(&1e-12), "1e-12");
-        assert_eq!(decade_label(&3e-12), "");
+        assert_eq!(decade_label(&-12.0), "1e-12");
+        assert_eq!(decade_label(&-11.5), "");
         let points: Vec<(f64, f64)> = (0..100).map(|i| (f64::from(i) * 0.1, 0.0)).collect();
         let thinned = thin_path(points, 1.0);
         assert!(thinned.len() <= 12, "{}", thinned.len());

@@ -12,7 +12,8 @@
 //!   the ones that are not strings).
 //!
 //! The writer library string is `voxhap <version>` and the profile is empty. Numbers are written by
-//! serde_json (shortest round-trip), so the reader recovers the exact bits.
+//! serde_json (shortest round-trip) and parsed with its `float_roundtrip` feature, so the reader
+//! recovers the exact bits.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -341,8 +342,21 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
         path: path.to_path_buf(),
         problem,
     };
-    let mode_names = read_mode_names(&bytes).map_err(problem)?;
-    let samples = read_samples(&bytes, &mode_names).map_err(problem)?;
+    // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
+    // chunk, found by the proptest below); a damaged file must be an error, not a crash.
+    let parsed = std::panic::catch_unwind(|| {
+        let mode_names = read_mode_names(&bytes)?;
+        let samples = read_samples(&bytes, &mode_names)?;
+        Ok::<_, String>((mode_names, samples))
+    });
+    let (mode_names, samples) = match parsed {
+        Ok(result) => result.map_err(problem)?,
+        Err(_) => {
+            return Err(problem(
+                "damaged file: the MCAP library failed while parsing it".to_string(),
+            ))
+        }
+    };
     Ok(Trace {
         mode_names,
         samples,
@@ -516,6 +530,20 @@ mod tests {
         let empty = dir.path().join("empty.mcap");
         std::fs::write(&empty, mcap::MAGIC).unwrap();
         assert!(read_mcap_trace(&empty).is_err());
+    }
+
+    /// Regression: a record inside an uncompressed chunk claiming more bytes than the chunk holds made
+    /// the mcap crate panic (subtract overflow); it must be an error.
+    #[test]
+    fn record_longer_than_its_chunk_is_an_error_not_a_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.mcap");
+        write_mcap(&path, &["surface"], &samples(8, 1));
+        let mut bytes = std::fs::read(&path).unwrap();
+        let at = 47876 % bytes.len();
+        bytes[at] = 118;
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(read_mcap_trace(&path).is_err());
     }
 
     proptest::proptest! {

@@ -624,6 +624,32 @@ mod tests {
     }
 
     #[test]
+    fn degenerate_traces_still_plot() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("d.png");
+        // One sample; all zero; no certificates at all; a huge jump.
+        plot_trace(&trace(1), "one", &out, 640, 480).unwrap();
+        let mut zeros = trace(20);
+        for s in &mut zeros.samples {
+            *s = TraceSample {
+                tick: s.tick,
+                t_s: s.t_s,
+                ..TraceSample::zeroed(1)
+            };
+        }
+        plot_trace(&zeros, "zeros", &out, 640, 480).unwrap();
+        let mut no_bounds = trace(20);
+        for s in &mut no_bounds.samples {
+            s.error_bound_m = f64::INFINITY;
+        }
+        plot_trace(&no_bounds, "inf", &out, 640, 480).unwrap();
+        let mut jump = trace(20);
+        jump.samples[10].probe_m.x = 1e6;
+        jump.samples[11].force_n.z = -1e9;
+        plot_trace(&jump, "jump", &out, 640, 480).unwrap();
+    }
+
+    #[test]
     fn envelope_keeps_spikes_and_time_order() {
         let mut data = samples(10_000, 1);
         data[5_555].force_n.x = 99.0;

@@ -7,6 +7,7 @@ mod util;
 
 mod cli_solve;
 mod paper;
+mod record;
 mod solver_alloc;
 mod solver_props;
 mod volume_io;

@@ -401,3 +401,44 @@ fn sqrt(x: f64) -> f64 {
     }
     y
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn sqrt_matches_std(x in 1e-300f64..1e300) {
+            let ours = sqrt(x);
+            let reference = std::primitive::f64::sqrt(x);
+            prop_assert!((ours - reference).abs() <= reference * 1e-15, "{ours} vs {reference}");
+        }
+
+        #[test]
+        fn clamp_keeps_direction_and_bounds_magnitude(
+            force_n in proptest::array::uniform3(-1e30f32..1e30),
+            max_n in 0.0f32..100.0,
+        ) {
+            let (clamped, was_clamped) = clamp_magnitude(force_n, max_n);
+            let norm = |v: [f32; 3]| v.iter().map(|&f| f64::from(f) * f64::from(f)).sum::<f64>().sqrt();
+            prop_assert!(norm(clamped) <= f64::from(max_n) * (1.0 + 1e-6) + 1e-30);
+            if was_clamped {
+                // Same direction: the cross product vanishes relative to the magnitudes.
+                let (a, b) = (force_n.map(f64::from), clamped.map(f64::from));
+                let cross = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+                prop_assert!(norm(cross.map(|c| c as f32)) <= 1e-5 * norm(force_n) * f64::from(max_n) + 1e-30);
+            } else {
+                prop_assert_eq!(clamped, force_n);
+            }
+        }
+    }
+
+    #[test]
+    fn sqrt_edge_cases() {
+        assert_eq!(sqrt(0.0), 0.0);
+        assert_eq!(sqrt(4.0), 2.0);
+        assert_eq!(sqrt(-1.0), 0.0);
+    }
+}

@@ -351,3 +351,13 @@ fn host_numbers_forces_and_tracks_acknowledgements() {
     host.on_message(&state(3, 5));
     assert_eq!(host.forces_in_flight(), 0);
 }
+
+/// Firmware budgets: the decoder and the session must fit comfortably in a small microcontroller's RAM.
+#[test]
+fn firmware_footprint_is_small() {
+    let decoder = std::mem::size_of::<voxhap_protocol::FrameDecoder<HostToDevice>>();
+    let session = std::mem::size_of::<DeviceSession>();
+    println!("FrameDecoder<HostToDevice>: {decoder} bytes, DeviceSession: {session} bytes");
+    assert!(decoder <= 256, "decoder is {decoder} bytes");
+    assert!(session <= 1024, "session is {session} bytes");
+}

@@ -76,7 +76,7 @@ proptest! {
         }
         // Apply edits back to front on positions in the clean stream so that indices stay meaningful.
         let mut positions: Vec<_> = edits.iter().map(|&(at, value, kind)| (at % clean.len(), value, kind)).collect();
-        positions.sort_by(|a, b| b.0.cmp(&a.0));
+        positions.sort_by_key(|p| std::cmp::Reverse(p.0));
         positions.dedup_by_key(|p| p.0);
         for (at, value, kind) in positions {
             // An edit at a delimiter can merge this frame with the next one.

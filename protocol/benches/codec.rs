@@ -7,8 +7,8 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use voxhap_protocol::{
-    decode_report, encode_frame, encode_report, hid, DeviceToHost, FaultFlags, ForceFlags, FrameDecoder, HostToDevice,
-    SetForce, State, StatusFlags, MAX_WIRE_FRAME_LEN,
+    decode_report, encode_frame, encode_report, hid, DeviceToHost, FaultFlags, ForceFlags,
+    FrameDecoder, HostToDevice, SetForce, State, StatusFlags, MAX_WIRE_FRAME_LEN,
 };
 
 fn state() -> DeviceToHost {
@@ -25,7 +25,11 @@ fn state() -> DeviceToHost {
 }
 
 fn set_force() -> HostToDevice {
-    HostToDevice::SetForce(SetForce { sequence: 123_401, force_n: [0.5, -1.25, 2.0], flags: ForceFlags::EMPTY })
+    HostToDevice::SetForce(SetForce {
+        sequence: 123_401,
+        force_n: [0.5, -1.25, 2.0],
+        flags: ForceFlags::EMPTY,
+    })
 }
 
 fn bench_serial(c: &mut Criterion) {
@@ -74,5 +78,28 @@ fn bench_hid(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_serial, bench_hid);
+/// The parts of the state round trip, to see where the time goes.
+fn bench_parts(c: &mut Criterion) {
+    let mut group = c.benchmark_group("state_parts");
+    let message = state();
+    let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
+    let len = encode_frame(&message, &mut buf).expect("state encodes");
+    group.bench_function("crc16_49_bytes", |b| {
+        b.iter(|| voxhap_protocol::crc::crc16(black_box(&buf[..49])))
+    });
+    group.bench_function("encode_frame", |b| {
+        b.iter(|| encode_frame(black_box(&message), black_box(&mut buf)).expect("state encodes"))
+    });
+    let frame = buf;
+    let mut decoder = FrameDecoder::<DeviceToHost>::new();
+    group.bench_function("decode_frame_streaming", |b| {
+        b.iter(|| decoder.feed(black_box(&frame[..len])).next())
+    });
+    group.bench_function("decode_frame_slice", |b| {
+        b.iter(|| voxhap_protocol::decode_frame::<DeviceToHost>(black_box(&frame[..len])))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_serial, bench_hid, bench_parts);
 criterion_main!(benches);

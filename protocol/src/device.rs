@@ -15,7 +15,8 @@
 
 use crate::fields::{FaultCode, FaultFlags, ForceFlags, RejectReason, StatusFlags};
 use crate::message::{
-    message_type, DeviceInfo, DeviceToHost, Fault, HeartbeatReply, HostToDevice, Rejected, SetForce, State,
+    message_type, DeviceInfo, DeviceToHost, Fault, HeartbeatReply, HostToDevice, Rejected,
+    SetForce, State,
 };
 
 /// Watchdog timeout when enable asks for 0 (the default), microseconds.
@@ -72,7 +73,11 @@ struct Outbox {
 
 impl Outbox {
     const fn new() -> Self {
-        Self { slots: [None; OUTBOX_CAPACITY], head: 0, len: 0 }
+        Self {
+            slots: [None; OUTBOX_CAPACITY],
+            head: 0,
+            len: 0,
+        }
     }
 
     fn push(&mut self, message: DeviceToHost) -> bool {
@@ -204,7 +209,10 @@ impl DeviceSession {
     }
 
     fn reject(&mut self, message_type: u8, reason: RejectReason) {
-        self.send(DeviceToHost::Rejected(Rejected { message_type, reason }));
+        self.send(DeviceToHost::Rejected(Rejected {
+            message_type,
+            reason,
+        }));
     }
 
     fn go_idle(&mut self) {
@@ -230,8 +238,11 @@ impl DeviceSession {
                 return;
             }
             HostToDevice::Heartbeat(heartbeat) => {
-                let reply =
-                    HeartbeatReply { counter: heartbeat.counter, device_time_us: now_us, status: self.status() };
+                let reply = HeartbeatReply {
+                    counter: heartbeat.counter,
+                    device_time_us: now_us,
+                    status: self.status(),
+                };
                 self.send(DeviceToHost::Heartbeat(reply));
                 return;
             }
@@ -242,7 +253,10 @@ impl DeviceSession {
             if let HostToDevice::SetForce(_) = message {
                 self.stats.forces_ignored = self.stats.forces_ignored.wrapping_add(1);
             } else {
-                self.reject(crate::Message::message_type(message), RejectReason::NO_SESSION);
+                self.reject(
+                    crate::Message::message_type(message),
+                    RejectReason::NO_SESSION,
+                );
             }
             return;
         }
@@ -306,7 +320,11 @@ impl DeviceSession {
     /// force and stays `Faulted` until clear-fault; [`FaultCode::WATCHDOG_EXPIRED`] only drops to idle. Codes above
     /// 15 are reported as [`FaultCode::INTERNAL`].
     pub fn raise_fault(&mut self, code: FaultCode, now_us: u64) {
-        let code = if code.0 > FaultCode::MAX { FaultCode::INTERNAL } else { code };
+        let code = if code.0 > FaultCode::MAX {
+            FaultCode::INTERNAL
+        } else {
+            code
+        };
         if code.is_latching() {
             self.faults = self.faults | FaultFlags::of(code);
             self.drive = DriveState::Faulted;
@@ -315,7 +333,11 @@ impl DeviceSession {
             self.watchdog_tripped = true;
             self.go_idle();
         }
-        let fault = Fault { code, active_faults: self.faults, device_time_us: now_us };
+        let fault = Fault {
+            code,
+            active_faults: self.faults,
+            device_time_us: now_us,
+        };
         self.send(DeviceToHost::Fault(fault));
     }
 
@@ -330,8 +352,11 @@ impl DeviceSession {
             self.stats.watchdog_trips = self.stats.watchdog_trips.wrapping_add(1);
             self.raise_fault(FaultCode::WATCHDOG_EXPIRED, now_us);
         }
-        let sample_finite =
-            sample.position_m.iter().chain(&sample.velocity_m_per_s).all(|v| v.is_finite());
+        let sample_finite = sample
+            .position_m
+            .iter()
+            .chain(&sample.velocity_m_per_s)
+            .all(|v| v.is_finite());
         if !sample_finite {
             if !self.faults.contains(FaultFlags::of(FaultCode::ENCODER)) {
                 self.raise_fault(FaultCode::ENCODER, now_us);
@@ -382,11 +407,15 @@ fn clamp_magnitude(force_n: [f32; 3], max_n: f32) -> ([f32; 3], bool) {
         return (force_n, false);
     }
     // Scale in f64 so that forces near f32::MAX (whose square overflows f32) still clamp exactly.
-    let norm = sqrt(force_n.iter().map(|&f| f64::from(f) * f64::from(f)).sum::<f64>());
+    let norm = sqrt(
+        force_n
+            .iter()
+            .map(|&f| f64::from(f) * f64::from(f))
+            .sum::<f64>(),
+    );
     let scale = f64::from(max_n) / norm;
     (force_n.map(|f| (f64::from(f) * scale) as f32), true)
 }
-
 
 /// Square root for positive finite `x` without `std` (core has no `sqrt` on stable): a bit-level first guess
 /// (halved exponent, error below 6 %), then Newton steps `y <- (y + x/y)/2`, each of which squares the relative error;

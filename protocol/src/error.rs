@@ -9,7 +9,9 @@ pub enum PayloadError {
     #[error("unknown message type 0x{0:02x}")]
     UnknownType(u8),
     /// The payload is not exactly the size of its message type's layout.
-    #[error("message type 0x{message_type:02x} needs a {expected}-byte payload, got {actual} bytes")]
+    #[error(
+        "message type 0x{message_type:02x} needs a {expected}-byte payload, got {actual} bytes"
+    )]
     BadLength {
         /// The message type byte.
         message_type: u8,

@@ -162,12 +162,19 @@ impl RateSet {
 
     /// True if `rate_hz` is in the set.
     pub fn contains_hz(self, rate_hz: u16) -> bool {
-        Self::RATES_HZ.iter().enumerate().any(|(bit, &rate)| rate == rate_hz && self.0 & (1 << bit) != 0)
+        Self::RATES_HZ
+            .iter()
+            .enumerate()
+            .any(|(bit, &rate)| rate == rate_hz && self.0 & (1 << bit) != 0)
     }
 
     /// The rates in the set, slowest first.
     pub fn iter_hz(self) -> impl Iterator<Item = u16> {
-        Self::RATES_HZ.into_iter().enumerate().filter(move |(bit, _)| self.0 & (1 << bit) != 0).map(|(_, r)| r)
+        Self::RATES_HZ
+            .into_iter()
+            .enumerate()
+            .filter(move |(bit, _)| self.0 & (1 << bit) != 0)
+            .map(|(_, r)| r)
     }
 }
 
@@ -245,12 +252,27 @@ mod tests {
 
     #[test]
     fn label_accepts_printable_ascii_and_refuses_the_rest() {
-        assert_eq!(Label::new("Falcon 3").map(|l| l.as_str() == "Falcon 3"), Ok(true));
-        assert_eq!(Label::new("thirteen byte"), Err(LabelError::TooLong { len: 13 }));
-        assert_eq!(Label::new("tab\t"), Err(LabelError::NotPrintable { byte: b'\t' }));
+        assert_eq!(
+            Label::new("Falcon 3").map(|l| l.as_str() == "Falcon 3"),
+            Ok(true)
+        );
+        assert_eq!(
+            Label::new("thirteen byte"),
+            Err(LabelError::TooLong { len: 13 })
+        );
+        assert_eq!(
+            Label::new("tab\t"),
+            Err(LabelError::NotPrintable { byte: b'\t' })
+        );
         assert!(Label::from_bytes(*b"abc\0\0\0\0\0\0\0\0\0").is_some());
-        assert!(Label::from_bytes(*b"abc\0x\0\0\0\0\0\0\0").is_none(), "text after padding");
-        assert!(Label::from_bytes(*b"ab\xffc\0\0\0\0\0\0\0\0").is_none(), "non-ASCII byte");
+        assert!(
+            Label::from_bytes(*b"abc\0x\0\0\0\0\0\0\0").is_none(),
+            "text after padding"
+        );
+        assert!(
+            Label::from_bytes(*b"ab\xffc\0\0\0\0\0\0\0\0").is_none(),
+            "non-ASCII byte"
+        );
     }
 
     #[test]

@@ -37,7 +37,10 @@ pub const REPORT_DESCRIPTOR: [u8; 29] = [
 /// Fills `out` with the report for `message` (zero padded) and returns [`REPORT_LEN`].
 ///
 /// Refuses a message whose fields its decoder would reject with [`EncodeError::Invalid`].
-pub fn encode_report<M: Message>(message: &M, out: &mut [u8; REPORT_LEN]) -> Result<usize, EncodeError> {
+pub fn encode_report<M: Message>(
+    message: &M,
+    out: &mut [u8; REPORT_LEN],
+) -> Result<usize, EncodeError> {
     message.validate()?;
     *out = [0; REPORT_LEN];
     out[0] = M::HID_REPORT_ID;
@@ -60,10 +63,16 @@ pub fn decode_report<M: Message>(report: &[u8]) -> Result<M, ReportError> {
         return Err(ReportError::BadLength { len });
     }
     if report_id != M::HID_REPORT_ID {
-        return Err(ReportError::WrongReportId { expected: M::HID_REPORT_ID, actual: report_id });
+        return Err(ReportError::WrongReportId {
+            expected: M::HID_REPORT_ID,
+            actual: report_id,
+        });
     }
-    let payload_len =
-        M::payload_len(message_type).ok_or(ReportError::Payload(crate::PayloadError::UnknownType(message_type)))?;
-    let payload = rest.get(..payload_len).ok_or(ReportError::BadLength { len })?;
+    let payload_len = M::payload_len(message_type).ok_or(ReportError::Payload(
+        crate::PayloadError::UnknownType(message_type),
+    ))?;
+    let payload = rest
+        .get(..payload_len)
+        .ok_or(ReportError::BadLength { len })?;
     Ok(M::read_payload(message_type, payload)?)
 }

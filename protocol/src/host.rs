@@ -12,8 +12,8 @@
 
 use crate::fields::{ForceFlags, PROTOCOL_VERSION};
 use crate::message::{
-    DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello, HostToDevice, Rejected, SetForce,
-    SetStateRate, State,
+    DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello, HostToDevice,
+    Rejected, SetForce, SetStateRate, State,
 };
 
 /// Where the handshake stands.
@@ -123,12 +123,16 @@ impl HostSession {
     pub fn hello(&mut self) -> HostToDevice {
         self.phase = HostPhase::AwaitingInfo;
         self.last_state_sequence = None;
-        HostToDevice::Hello(Hello { version: PROTOCOL_VERSION })
+        HostToDevice::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        })
     }
 
     /// Enable with a watchdog timeout in microseconds (0 = the device default, 50 ms).
     pub fn enable(&self, watchdog_timeout_us: u32) -> HostToDevice {
-        HostToDevice::Enable(Enable { watchdog_timeout_us })
+        HostToDevice::Enable(Enable {
+            watchdog_timeout_us,
+        })
     }
 
     /// Choose the state rate (0 = lockstep).
@@ -140,18 +144,25 @@ impl HostSession {
     /// NaN); the host's safety pipeline has already clamped it.
     pub fn set_force(&mut self, force_n: [f32; 3], flags: ForceFlags) -> HostToDevice {
         self.last_force_sequence = self.last_force_sequence.wrapping_add(1);
-        HostToDevice::SetForce(SetForce { sequence: self.last_force_sequence, force_n, flags })
+        HostToDevice::SetForce(SetForce {
+            sequence: self.last_force_sequence,
+            force_n,
+            flags,
+        })
     }
 
     /// The next heartbeat, with a fresh counter.
     pub fn heartbeat(&mut self) -> HostToDevice {
         self.last_heartbeat = self.last_heartbeat.wrapping_add(1);
-        HostToDevice::Heartbeat(Heartbeat { counter: self.last_heartbeat })
+        HostToDevice::Heartbeat(Heartbeat {
+            counter: self.last_heartbeat,
+        })
     }
 
     /// Set-forces sent that no state frame has acknowledged yet (the link's depth in frames).
     pub fn forces_in_flight(&self) -> u32 {
-        self.last_force_sequence.wrapping_sub(self.acknowledged_force_sequence)
+        self.last_force_sequence
+            .wrapping_sub(self.acknowledged_force_sequence)
     }
 
     /// Classifies one message from the device and updates the bookkeeping.
@@ -194,7 +205,9 @@ impl HostSession {
         };
         self.last_state_sequence = Some(state.sequence);
         // Only move the acknowledgement forward (modulo 2^32), and never past what was sent.
-        let echoed_ahead = state.last_force_sequence.wrapping_sub(self.acknowledged_force_sequence);
+        let echoed_ahead = state
+            .last_force_sequence
+            .wrapping_sub(self.acknowledged_force_sequence);
         if echoed_ahead <= self.forces_in_flight() {
             self.acknowledged_force_sequence = state.last_force_sequence;
         }

@@ -27,18 +27,20 @@ pub mod message;
 pub mod serial;
 
 pub use device::{
-    DeviceSample, DeviceSession, DeviceStats, DriveState, DEFAULT_WATCHDOG_TIMEOUT_US, MAX_WATCHDOG_TIMEOUT_US,
-    MIN_WATCHDOG_TIMEOUT_US,
+    DeviceSample, DeviceSession, DeviceStats, DriveState, DEFAULT_WATCHDOG_TIMEOUT_US,
+    MAX_WATCHDOG_TIMEOUT_US, MIN_WATCHDOG_TIMEOUT_US,
 };
 pub use error::{EncodeError, FrameError, PayloadError, ReportError};
 pub use fields::{
-    FaultCode, FaultFlags, ForceFlags, Label, LabelError, RateSet, RejectReason, StatusFlags, Version,
-    PROTOCOL_VERSION,
+    FaultCode, FaultFlags, ForceFlags, Label, LabelError, RateSet, RejectReason, StatusFlags,
+    Version, PROTOCOL_VERSION,
 };
 pub use hid::{decode_report, encode_report};
 pub use host::{HostEvent, HostPhase, HostSession, HostStats};
 pub use message::{
-    message_type, DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello, HostToDevice, Message,
-    Rejected, SetForce, SetStateRate, State, MAX_PAYLOAD_LEN,
+    message_type, DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello,
+    HostToDevice, Message, Rejected, SetForce, SetStateRate, State, MAX_PAYLOAD_LEN,
 };
-pub use serial::{decode_frame, encode_frame, DecoderStats, FrameDecoder, SliceError, MAX_WIRE_FRAME_LEN};
+pub use serial::{
+    decode_frame, encode_frame, DecoderStats, FrameDecoder, SliceError, MAX_WIRE_FRAME_LEN,
+};

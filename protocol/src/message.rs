@@ -8,7 +8,8 @@
 
 use crate::error::PayloadError;
 use crate::fields::{
-    FaultCode, FaultFlags, ForceFlags, Label, RateSet, RejectReason, StatusFlags, Version, LABEL_LEN,
+    FaultCode, FaultFlags, ForceFlags, Label, RateSet, RejectReason, StatusFlags, Version,
+    LABEL_LEN,
 };
 
 /// Largest payload of any message: it fills a 64-byte HID report after the report id and type bytes.
@@ -293,10 +294,18 @@ impl<'a> Reader<'a> {
     }
 }
 
-fn check_length(message_type: u8, expected: Option<usize>, actual: usize) -> Result<(), PayloadError> {
+fn check_length(
+    message_type: u8,
+    expected: Option<usize>,
+    actual: usize,
+) -> Result<(), PayloadError> {
     match expected {
         None => Err(PayloadError::UnknownType(message_type)),
-        Some(expected) if expected != actual => Err(PayloadError::BadLength { message_type, expected, actual }),
+        Some(expected) if expected != actual => Err(PayloadError::BadLength {
+            message_type,
+            expected,
+            actual,
+        }),
         Some(_) => Ok(()),
     }
 }
@@ -305,7 +314,10 @@ fn finite(message_type: u8, field: &'static str, values: &[f32]) -> Result<(), P
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(PayloadError::NonFinite { message_type, field })
+        Err(PayloadError::NonFinite {
+            message_type,
+            field,
+        })
     }
 }
 
@@ -313,7 +325,10 @@ fn in_range(message_type: u8, field: &'static str, ok: bool) -> Result<(), Paylo
     if ok {
         Ok(())
     } else {
-        Err(PayloadError::InvalidValue { message_type, field })
+        Err(PayloadError::InvalidValue {
+            message_type,
+            field,
+        })
     }
 }
 
@@ -378,8 +393,15 @@ impl Message for HostToDevice {
         check_length(message_type, Self::payload_len(message_type), payload.len())?;
         let mut r = Reader::new(payload);
         let message = match message_type {
-            ty::HELLO => HostToDevice::Hello(Hello { version: Version { major: r.u8(), minor: r.u8() } }),
-            ty::ENABLE => HostToDevice::Enable(Enable { watchdog_timeout_us: r.u32() }),
+            ty::HELLO => HostToDevice::Hello(Hello {
+                version: Version {
+                    major: r.u8(),
+                    minor: r.u8(),
+                },
+            }),
+            ty::ENABLE => HostToDevice::Enable(Enable {
+                watchdog_timeout_us: r.u32(),
+            }),
             ty::DISABLE => HostToDevice::Disable,
             ty::SET_FORCE => HostToDevice::SetForce(SetForce {
                 sequence: r.u32(),
@@ -388,7 +410,9 @@ impl Message for HostToDevice {
             }),
             ty::HEARTBEAT => HostToDevice::Heartbeat(Heartbeat { counter: r.u32() }),
             ty::CLEAR_FAULT => HostToDevice::ClearFault,
-            ty::SET_STATE_RATE => HostToDevice::SetStateRate(SetStateRate { state_rate_hz: r.u16() }),
+            ty::SET_STATE_RATE => HostToDevice::SetStateRate(SetStateRate {
+                state_rate_hz: r.u16(),
+            }),
             _ => return Err(PayloadError::UnknownType(message_type)),
         };
         message.validate()?;
@@ -406,12 +430,20 @@ impl DeviceInfo {
         in_range(t, "button_count", self.button_count <= 16)?;
         finite(t, "workspace_min_m", &self.workspace_min_m)?;
         finite(t, "workspace_max_m", &self.workspace_max_m)?;
-        let ordered = self.workspace_min_m.iter().zip(&self.workspace_max_m).all(|(lo, hi)| lo <= hi);
+        let ordered = self
+            .workspace_min_m
+            .iter()
+            .zip(&self.workspace_max_m)
+            .all(|(lo, hi)| lo <= hi);
         in_range(t, "workspace_max_m", ordered)?;
         finite(t, "max_force_n", &[self.max_force_n])?;
         in_range(t, "max_force_n", self.max_force_n >= 0.0)?;
         finite(t, "max_stiffness_n_per_m", &[self.max_stiffness_n_per_m])?;
-        in_range(t, "max_stiffness_n_per_m", self.max_stiffness_n_per_m >= 0.0)
+        in_range(
+            t,
+            "max_stiffness_n_per_m",
+            self.max_stiffness_n_per_m >= 0.0,
+        )
     }
 }
 
@@ -501,9 +533,15 @@ impl Message for DeviceToHost {
         let mut r = Reader::new(payload);
         let message = match message_type {
             ty::DEVICE_INFO => {
-                let version = Version { major: r.u8(), minor: r.u8() };
+                let version = Version {
+                    major: r.u8(),
+                    minor: r.u8(),
+                };
                 let label = |bytes: [u8; LABEL_LEN], field| {
-                    Label::from_bytes(bytes).ok_or(PayloadError::InvalidValue { message_type, field })
+                    Label::from_bytes(bytes).ok_or(PayloadError::InvalidValue {
+                        message_type,
+                        field,
+                    })
                 };
                 let model = label(r.bytes(), "model")?;
                 let serial_number = label(r.bytes(), "serial_number")?;
@@ -541,7 +579,10 @@ impl Message for DeviceToHost {
                 active_faults: FaultFlags(r.u16()),
                 device_time_us: r.u64(),
             }),
-            ty::REJECTED => DeviceToHost::Rejected(Rejected { message_type: r.u8(), reason: RejectReason(r.u8()) }),
+            ty::REJECTED => DeviceToHost::Rejected(Rejected {
+                message_type: r.u8(),
+                reason: RejectReason(r.u8()),
+            }),
             _ => return Err(PayloadError::UnknownType(message_type)),
         };
         message.validate()?;

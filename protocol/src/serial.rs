@@ -23,8 +23,10 @@ use crate::message::{Message, MAX_PAYLOAD_LEN};
 pub const DELIMITER: u8 = 0x00;
 /// Largest unstuffed frame: type byte, largest payload, CRC.
 pub const MAX_FRAME_LEN: usize = 1 + MAX_PAYLOAD_LEN + 2;
+/// Largest stuffed frame (without the delimiter).
+const MAX_STUFFED_LEN: usize = max_encoded_len(MAX_FRAME_LEN);
 /// Largest frame on the wire: stuffed bytes plus the delimiter. An output buffer this big fits any message.
-pub const MAX_WIRE_FRAME_LEN: usize = max_encoded_len(MAX_FRAME_LEN) + 1;
+pub const MAX_WIRE_FRAME_LEN: usize = MAX_STUFFED_LEN + 1;
 
 /// Encodes `message` as one serial frame, delimiter included, into `out`; returns the number of bytes written.
 ///
@@ -43,9 +45,15 @@ pub fn encode_frame<M: Message>(message: &M, out: &mut [u8]) -> Result<usize, En
     let raw = &raw[..crc_at + 2];
     let needed = max_encoded_len(raw.len()) + 1;
     if out.len() < needed {
-        return Err(EncodeError::BufferTooSmall { needed, available: out.len() });
+        return Err(EncodeError::BufferTooSmall {
+            needed,
+            available: out.len(),
+        });
     }
-    let stuffed = cobs::encode(raw, out).ok_or(EncodeError::BufferTooSmall { needed, available: out.len() })?;
+    let stuffed = cobs::encode(raw, out).ok_or(EncodeError::BufferTooSmall {
+        needed,
+        available: out.len(),
+    })?;
     out[stuffed] = DELIMITER;
     Ok(stuffed + 1)
 }
@@ -106,7 +114,9 @@ impl DecoderStats {
         let counter = match error {
             PayloadError::UnknownType(_) => &mut self.unknown_type,
             PayloadError::BadLength { .. } => &mut self.bad_length,
-            PayloadError::NonFinite { .. } | PayloadError::InvalidValue { .. } => &mut self.invalid_value,
+            PayloadError::NonFinite { .. } | PayloadError::InvalidValue { .. } => {
+                &mut self.invalid_value
+            }
         };
         *counter = counter.wrapping_add(1);
     }
@@ -128,7 +138,9 @@ impl DecoderStats {
     pub fn count_report<M>(&mut self, result: &Result<M, ReportError>) {
         let counter = match result {
             Ok(_) => &mut self.frames_ok,
-            Err(ReportError::BadLength { .. } | ReportError::WrongReportId { .. }) => &mut self.bad_reports,
+            Err(ReportError::BadLength { .. } | ReportError::WrongReportId { .. }) => {
+                &mut self.bad_reports
+            }
             Err(ReportError::Payload(error)) => return self.count_payload(error),
         };
         *counter = counter.wrapping_add(1);
@@ -136,10 +148,10 @@ impl DecoderStats {
 }
 
 /// Streaming serial decoder for messages of type `M` ([`crate::HostToDevice`] on a device,
-/// [`crate::DeviceToHost`] on a host). Holds one frame's worth of bytes (65), allocates nothing.
+/// [`crate::DeviceToHost`] on a host). Holds one frame's worth of bytes (66 stuffed), allocates nothing.
 #[derive(Debug, Clone)]
 pub struct FrameDecoder<M> {
-    unstuffer: Unstuffer<MAX_FRAME_LEN>,
+    unstuffer: Unstuffer<MAX_STUFFED_LEN>,
     stats: DecoderStats,
     message: PhantomData<fn() -> M>,
 }
@@ -153,14 +165,24 @@ impl<M: Message> Default for FrameDecoder<M> {
 impl<M: Message> FrameDecoder<M> {
     /// A decoder waiting for the start of a frame.
     pub const fn new() -> Self {
-        Self { unstuffer: Unstuffer::new(), stats: DecoderStats::EMPTY, message: PhantomData }
+        Self {
+            unstuffer: Unstuffer::new(),
+            stats: DecoderStats::EMPTY,
+            message: PhantomData,
+        }
     }
 
     /// Takes one byte. Returns `Some` when the byte was a delimiter that closed a non-empty frame: the message, or
     /// why the frame was dropped (already counted in [`Self::stats`]).
     #[inline]
     pub fn push(&mut self, byte: u8) -> Option<Result<M, FrameError>> {
-        let result = match self.unstuffer.push(byte) {
+        let step = self.unstuffer.push(byte);
+        self.finish(step)
+    }
+
+    /// Turns a closing step into a counted result.
+    fn finish(&mut self, step: Step) -> Option<Result<M, FrameError>> {
+        let result = match step {
             Step::Continue | Step::Empty => return None,
             Step::Frame(len) => parse_frame(self.unstuffer.frame(len)),
             Step::Oversize => Err(FrameError::Oversize),
@@ -173,7 +195,10 @@ impl<M: Message> FrameDecoder<M> {
     /// Iterates over the frames that `input` completes; bytes of an unfinished frame stay buffered for the next
     /// call. Dropping the iterator early leaves the unread bytes unread (they are not lost from `input`'s owner).
     pub fn feed<'d, 'i>(&'d mut self, input: &'i [u8]) -> Feed<'d, 'i, M> {
-        Feed { decoder: self, input }
+        Feed {
+            decoder: self,
+            input,
+        }
     }
 
     /// What this decoder has accepted and dropped so far.
@@ -220,9 +245,10 @@ impl<M: Message> Iterator for Feed<'_, '_, M> {
     type Item = Result<M, FrameError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        while let Some((&byte, rest)) = self.input.split_first() {
-            self.input = rest;
-            if let Some(result) = self.decoder.push(byte) {
+        while !self.input.is_empty() {
+            let (consumed, step) = self.decoder.unstuffer.push_slice(self.input);
+            self.input = &self.input[consumed..];
+            if let Some(result) = self.decoder.finish(step) {
                 return Some(result);
             }
         }
@@ -249,20 +275,17 @@ pub enum SliceError {
 /// Decodes the first frame of a byte slice without keeping state between calls: `Ok((message, consumed))`, or
 /// [`SliceError::Incomplete`] when no delimiter has arrived yet, or [`SliceError::Invalid`] with the bytes to skip.
 ///
-/// Leading delimiters are skipped. If more bytes than the longest frame arrive with no delimiter, the run is
-/// reported as [`FrameError::Oversize`] with `consumed` = the whole slice. For a byte stream, prefer
+/// Leading delimiters are skipped. If a run with no delimiter outgrows the longest frame, it is reported as
+/// [`FrameError::Oversize`] with `consumed` = the whole slice (so a caller's buffer never fills with garbage). For a byte stream, prefer
 /// [`FrameDecoder`], which does not rescan.
 pub fn decode_frame<M: Message>(input: &[u8]) -> Result<(M, usize), SliceError> {
-    let mut unstuffer = Unstuffer::<MAX_FRAME_LEN>::new();
-    let mut frame_bytes = 0usize;
-    for (index, &byte) in input.iter().enumerate() {
-        let consumed = index + 1;
-        let error = match unstuffer.push(byte) {
-            Step::Continue => {
-                frame_bytes += 1;
-                continue;
-            }
-            Step::Empty => continue,
+    let mut unstuffer = Unstuffer::<MAX_STUFFED_LEN>::new();
+    let mut consumed = 0;
+    while consumed < input.len() {
+        let (used, step) = unstuffer.push_slice(&input[consumed..]);
+        consumed += used;
+        let error = match step {
+            Step::Continue | Step::Empty => continue,
             Step::Frame(len) => match parse_frame(unstuffer.frame(len)) {
                 Ok(message) => return Ok((message, consumed)),
                 Err(error) => error,
@@ -272,8 +295,11 @@ pub fn decode_frame<M: Message>(input: &[u8]) -> Result<(M, usize), SliceError> 
         };
         return Err(SliceError::Invalid { consumed, error });
     }
-    if frame_bytes >= MAX_WIRE_FRAME_LEN {
-        Err(SliceError::Invalid { consumed: input.len(), error: FrameError::Oversize })
+    if unstuffer.is_overflowing() {
+        Err(SliceError::Invalid {
+            consumed: input.len(),
+            error: FrameError::Oversize,
+        })
     } else {
         Err(SliceError::Incomplete)
     }

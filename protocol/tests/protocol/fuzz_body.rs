@@ -7,9 +7,9 @@
 //! driven by the decoded messages never command a force that is non-finite or above the device maximum.
 
 use voxhap_protocol::{
-    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceInfo, DeviceSample, DeviceSession,
-    DeviceToHost, FrameDecoder, FrameError, HostSession, HostToDevice, Label, Message, RateSet, SliceError,
-    PROTOCOL_VERSION, MAX_WIRE_FRAME_LEN,
+    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceInfo, DeviceSample,
+    DeviceSession, DeviceToHost, FrameDecoder, FrameError, HostSession, HostToDevice, Label,
+    Message, RateSet, SliceError, MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
 };
 
 /// Runs every decoder over `data` and panics if an invariant breaks.
@@ -21,7 +21,10 @@ pub fn run(data: &[u8]) {
 
     for message in &host_messages {
         if let HostToDevice::SetForce(set_force) = message {
-            assert!(set_force.force_n.iter().all(|f| f.is_finite()), "decoder let a non-finite force through");
+            assert!(
+                set_force.force_n.iter().all(|f| f.is_finite()),
+                "decoder let a non-finite force through"
+            );
         }
     }
 
@@ -34,7 +37,10 @@ pub fn run(data: &[u8]) {
         device.on_message(message, now_us);
         let force_n = device.poll(now_us, &DeviceSample::default());
         let norm = force_n.iter().map(|f| f * f).sum::<f32>().sqrt();
-        assert!(norm.is_finite() && norm <= info.max_force_n * (1.0 + 1e-6), "force {force_n:?} escaped the clamp");
+        assert!(
+            norm.is_finite() && norm <= info.max_force_n * (1.0 + 1e-6),
+            "force {force_n:?} escaped the clamp"
+        );
         while let Some(reply) = device.poll_transmit() {
             let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
             encode_frame(&reply, &mut buf).expect("the device session only queues valid messages");
@@ -75,14 +81,19 @@ fn check_stream<M: Message>(data: &[u8]) -> Vec<M> {
     chunked_results.extend(chunked.feed(&data[split..]));
     assert_eq!(whole_results, chunked_results, "results depend on chunking");
     let mut bytewise = FrameDecoder::<M>::new();
-    let bytewise_results: Vec<Result<M, FrameError>> = data.iter().filter_map(|&b| bytewise.push(b)).collect();
+    let bytewise_results: Vec<Result<M, FrameError>> =
+        data.iter().filter_map(|&b| bytewise.push(b)).collect();
     assert_eq!(whole_results, bytewise_results, "feed and push disagree");
 
     // Every closed frame is counted exactly once.
     let stats = whole.stats();
     let ok = whole_results.iter().filter(|r| r.is_ok()).count() as u64;
     assert_eq!(stats.frames_ok, ok);
-    assert_eq!(stats.frames_ok + stats.dropped(), whole_results.len() as u64, "a frame went uncounted");
+    assert_eq!(
+        stats.frames_ok + stats.dropped(),
+        whole_results.len() as u64,
+        "a frame went uncounted"
+    );
     assert_eq!(stats, chunked.stats());
 
     // What decodes, re-encodes and decodes to the same message.
@@ -90,7 +101,8 @@ fn check_stream<M: Message>(data: &[u8]) -> Vec<M> {
     for message in &messages {
         let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
         let len = encode_frame(message, &mut buf).expect("a decoded message re-encodes");
-        let (again, consumed) = decode_frame::<M>(&buf[..len]).expect("a re-encoded message decodes");
+        let (again, consumed) =
+            decode_frame::<M>(&buf[..len]).expect("a re-encoded message decodes");
         assert_eq!((again, consumed), (*message, len));
     }
 
@@ -111,7 +123,10 @@ fn check_stream<M: Message>(data: &[u8]) -> Vec<M> {
             Err(SliceError::Incomplete) => break,
         }
     }
-    assert_eq!(slice_messages, messages, "slice and streaming decoders disagree");
+    assert_eq!(
+        slice_messages, messages,
+        "slice and streaming decoders disagree"
+    );
     messages
 }
 
@@ -122,6 +137,10 @@ fn check_report<M: Message>(data: &[u8]) {
         encode_report(&message, &mut report).expect("a decoded message re-encodes");
         assert_eq!(decode_report::<M>(&report), Ok(message));
         let used = 2 + M::payload_len(message.message_type()).expect("known type");
-        assert_eq!(&report[..used], &data[..used], "report bytes do not round-trip");
+        assert_eq!(
+            &report[..used],
+            &data[..used],
+            "report bytes do not round-trip"
+        );
     }
 }

@@ -3,8 +3,8 @@
 
 use proptest::prelude::*;
 use voxhap_protocol::{
-    cobs, crc::crc16, decode_report, encode_frame, hid, DecoderStats, DeviceToHost, FrameDecoder, FrameError,
-    HostToDevice, PayloadError, ReportError, MAX_WIRE_FRAME_LEN,
+    cobs, crc::crc16, decode_report, encode_frame, hid, DecoderStats, DeviceToHost, FrameDecoder,
+    FrameError, HostToDevice, PayloadError, ReportError, MAX_WIRE_FRAME_LEN,
 };
 
 use crate::fuzz_body;
@@ -150,16 +150,31 @@ fn each_drop_reason_has_its_counter() {
     assert_eq!(results[1], Err(FrameError::Cobs));
     assert_eq!(results[2], Err(FrameError::TooShort { len: 1 }));
     assert_eq!(results[3], Err(FrameError::Oversize));
-    assert_eq!(results[4], Err(FrameError::Payload(PayloadError::UnknownType(0x7E))));
+    assert_eq!(
+        results[4],
+        Err(FrameError::Payload(PayloadError::UnknownType(0x7E)))
+    );
     assert_eq!(
         results[5],
-        Err(FrameError::Payload(PayloadError::BadLength { message_type: 0x05, expected: 4, actual: 3 }))
+        Err(FrameError::Payload(PayloadError::BadLength {
+            message_type: 0x05,
+            expected: 4,
+            actual: 3
+        }))
     );
     assert_eq!(
         results[6],
-        Err(FrameError::Payload(PayloadError::NonFinite { message_type: 0x04, field: "force_n" }))
+        Err(FrameError::Payload(PayloadError::NonFinite {
+            message_type: 0x04,
+            field: "force_n"
+        }))
     );
-    assert_eq!(results[7], Ok(HostToDevice::Heartbeat(voxhap_protocol::Heartbeat { counter: 42 })));
+    assert_eq!(
+        results[7],
+        Ok(HostToDevice::Heartbeat(voxhap_protocol::Heartbeat {
+            counter: 42
+        }))
+    );
     let expected = DecoderStats {
         frames_ok: 1,
         cobs_errors: 1,
@@ -188,13 +203,19 @@ fn device_info_values_are_checked() {
     let results: Vec<_> = decoder.feed(&raw_frame(0x81, &payload, false)).collect();
     assert_eq!(
         results,
-        vec![Err(FrameError::Payload(PayloadError::InvalidValue { message_type: 0x81, field: "workspace_max_m" }))]
+        vec![Err(FrameError::Payload(PayloadError::InvalidValue {
+            message_type: 0x81,
+            field: "workspace_max_m"
+        }))]
     );
     // Fixed, it decodes.
     payload[30..34].copy_from_slice(&(-0.1f32).to_le_bytes());
     payload[42..46].copy_from_slice(&0.1f32.to_le_bytes());
     let results: Vec<_> = decoder.feed(&raw_frame(0x81, &payload, false)).collect();
-    assert!(matches!(results[..], [Ok(DeviceToHost::DeviceInfo(_))]), "{results:?}");
+    assert!(
+        matches!(results[..], [Ok(DeviceToHost::DeviceInfo(_))]),
+        "{results:?}"
+    );
 }
 
 #[test]
@@ -205,11 +226,23 @@ fn hid_reports_are_checked() {
     assert!(decode_report::<HostToDevice>(&report).is_ok());
     assert_eq!(
         decode_report::<DeviceToHost>(&report),
-        Err(ReportError::WrongReportId { expected: 2, actual: 1 })
+        Err(ReportError::WrongReportId {
+            expected: 2,
+            actual: 1
+        })
     );
-    assert_eq!(decode_report::<HostToDevice>(&report[..5]), Err(ReportError::BadLength { len: 5 }));
-    assert_eq!(decode_report::<HostToDevice>(&[1]), Err(ReportError::BadLength { len: 1 }));
-    assert_eq!(decode_report::<HostToDevice>(&[0u8; 65]), Err(ReportError::BadLength { len: 65 }));
+    assert_eq!(
+        decode_report::<HostToDevice>(&report[..5]),
+        Err(ReportError::BadLength { len: 5 })
+    );
+    assert_eq!(
+        decode_report::<HostToDevice>(&[1]),
+        Err(ReportError::BadLength { len: 1 })
+    );
+    assert_eq!(
+        decode_report::<HostToDevice>(&[0u8; 65]),
+        Err(ReportError::BadLength { len: 65 })
+    );
     report[1] = 0x66;
     assert_eq!(
         decode_report::<HostToDevice>(&report),
@@ -218,5 +251,8 @@ fn hid_reports_are_checked() {
     let mut stats = DecoderStats::default();
     stats.count_report(&decode_report::<HostToDevice>(&report));
     stats.count_report(&decode_report::<HostToDevice>(&[1]));
-    assert_eq!((stats.unknown_type, stats.bad_reports, stats.dropped()), (1, 1, 2));
+    assert_eq!(
+        (stats.unknown_type, stats.bad_reports, stats.dropped()),
+        (1, 1, 2)
+    );
 }

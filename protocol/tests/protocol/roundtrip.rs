@@ -3,8 +3,8 @@
 
 use proptest::prelude::*;
 use voxhap_protocol::{
-    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceToHost, EncodeError, ForceFlags,
-    HostToDevice, Message, PayloadError, SetForce, MAX_PAYLOAD_LEN, MAX_WIRE_FRAME_LEN,
+    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceToHost, EncodeError,
+    ForceFlags, HostToDevice, Message, PayloadError, SetForce, MAX_PAYLOAD_LEN, MAX_WIRE_FRAME_LEN,
 };
 
 use crate::strategies::{device_to_host, host_to_device};
@@ -20,7 +20,10 @@ fn serial_round_trip<M: Message>(message: &M) -> Result<(), TestCaseError> {
     prop_assert_eq!(buf[len - 1], 0);
     prop_assert_eq!(decode_frame::<M>(&buf[..len]), Ok((*message, len)));
     // One byte short of the delimiter is incomplete, never an error.
-    prop_assert_eq!(decode_frame::<M>(&buf[..len - 1]).err(), Some(voxhap_protocol::SliceError::Incomplete));
+    prop_assert_eq!(
+        decode_frame::<M>(&buf[..len - 1]).err(),
+        Some(voxhap_protocol::SliceError::Incomplete)
+    );
     Ok(())
 }
 
@@ -81,7 +84,13 @@ fn small_output_buffer_is_an_error_not_a_truncation() {
         reason: voxhap_protocol::RejectReason::FAULTED,
     });
     let mut buf = [0u8; 6];
-    assert_eq!(encode_frame(&message, &mut buf), Err(EncodeError::BufferTooSmall { needed: 7, available: 6 }));
+    assert_eq!(
+        encode_frame(&message, &mut buf),
+        Err(EncodeError::BufferTooSmall {
+            needed: 7,
+            available: 6
+        })
+    );
     let mut buf = [0u8; 7];
     assert_eq!(encode_frame(&message, &mut buf), Ok(7));
 }

@@ -2,10 +2,10 @@
 //! bookkeeping (handshake, sequence numbers, lost and stale states), message by message with a hand-advanced clock.
 
 use voxhap_protocol::{
-    message_type, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, DriveState, Enable, Fault, FaultCode,
-    FaultFlags, ForceFlags, Heartbeat, Hello, HostEvent, HostPhase, HostSession, HostToDevice, Label, RateSet,
-    RejectReason, Rejected, SetForce, SetStateRate, State, StatusFlags, Version, DEFAULT_WATCHDOG_TIMEOUT_US,
-    PROTOCOL_VERSION,
+    message_type, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, DriveState, Enable, Fault,
+    FaultCode, FaultFlags, ForceFlags, Heartbeat, Hello, HostEvent, HostPhase, HostSession,
+    HostToDevice, Label, RateSet, RejectReason, Rejected, SetForce, SetStateRate, State,
+    StatusFlags, Version, DEFAULT_WATCHDOG_TIMEOUT_US, PROTOCOL_VERSION,
 };
 
 const MAX_FORCE_N: f32 = 4.0;
@@ -31,15 +31,23 @@ fn drain(device: &mut DeviceSession) -> Vec<DeviceToHost> {
 }
 
 fn force(sequence: u32, force_n: [f32; 3]) -> HostToDevice {
-    HostToDevice::SetForce(SetForce { sequence, force_n, flags: ForceFlags::EMPTY })
+    HostToDevice::SetForce(SetForce {
+        sequence,
+        force_n,
+        flags: ForceFlags::EMPTY,
+    })
 }
 
 fn hello() -> HostToDevice {
-    HostToDevice::Hello(Hello { version: PROTOCOL_VERSION })
+    HostToDevice::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    })
 }
 
 fn enable(watchdog_timeout_us: u32) -> HostToDevice {
-    HostToDevice::Enable(Enable { watchdog_timeout_us })
+    HostToDevice::Enable(Enable {
+        watchdog_timeout_us,
+    })
 }
 
 /// A device after hello and enable at t = 0, outbox drained.
@@ -52,7 +60,10 @@ fn enabled_device() -> DeviceSession {
 }
 
 fn rejected(message_type: u8, reason: RejectReason) -> DeviceToHost {
-    DeviceToHost::Rejected(Rejected { message_type, reason })
+    DeviceToHost::Rejected(Rejected {
+        message_type,
+        reason,
+    })
 }
 
 #[test]
@@ -67,16 +78,30 @@ fn hello_answers_with_info_and_opens_the_session() {
 #[test]
 fn hello_with_another_major_version_is_answered_and_refused() {
     let mut device = DeviceSession::new(info());
-    let newer = Version { major: PROTOCOL_VERSION.major + 1, minor: 0 };
+    let newer = Version {
+        major: PROTOCOL_VERSION.major + 1,
+        minor: 0,
+    };
     device.on_message(&HostToDevice::Hello(Hello { version: newer }), 10);
     assert!(!device.is_session_open());
     assert_eq!(
         drain(&mut device),
-        vec![DeviceToHost::DeviceInfo(info()), rejected(message_type::HELLO, RejectReason::VERSION_MISMATCH)]
+        vec![
+            DeviceToHost::DeviceInfo(info()),
+            rejected(message_type::HELLO, RejectReason::VERSION_MISMATCH)
+        ]
     );
     // A newer minor version is fine.
-    let newer_minor = Version { major: PROTOCOL_VERSION.major, minor: PROTOCOL_VERSION.minor + 3 };
-    device.on_message(&HostToDevice::Hello(Hello { version: newer_minor }), 20);
+    let newer_minor = Version {
+        major: PROTOCOL_VERSION.major,
+        minor: PROTOCOL_VERSION.minor + 3,
+    };
+    device.on_message(
+        &HostToDevice::Hello(Hello {
+            version: newer_minor,
+        }),
+        20,
+    );
     assert!(device.is_session_open());
 }
 
@@ -87,9 +112,16 @@ fn messages_before_hello_are_refused_and_forces_ignored() {
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 0);
     device.on_message(&HostToDevice::Heartbeat(Heartbeat { counter: 5 }), 0);
     let sent = drain(&mut device);
-    assert_eq!(sent[0], rejected(message_type::ENABLE, RejectReason::NO_SESSION));
+    assert_eq!(
+        sent[0],
+        rejected(message_type::ENABLE, RejectReason::NO_SESSION)
+    );
     assert!(matches!(sent[1], DeviceToHost::Heartbeat(reply) if reply.counter == 5));
-    assert_eq!(sent.len(), 2, "set-force before hello is counted, not answered");
+    assert_eq!(
+        sent.len(),
+        2,
+        "set-force before hello is counted, not answered"
+    );
     assert_eq!(device.stats().forces_ignored, 1);
     assert_eq!(device.poll(1, &DeviceSample::default()), [0.0; 3]);
     assert_eq!(device.drive_state(), DriveState::Idle);
@@ -99,15 +131,23 @@ fn messages_before_hello_are_refused_and_forces_ignored() {
 fn enabled_device_applies_forces_and_answers_in_lockstep() {
     let mut device = enabled_device();
     device.on_message(&force(1, [1.0, -2.0, 0.5]), 100);
-    let sample = DeviceSample { position_m: [0.01, 0.02, 0.03], velocity_m_per_s: [0.0; 3], buttons: 1 };
+    let sample = DeviceSample {
+        position_m: [0.01, 0.02, 0.03],
+        velocity_m_per_s: [0.0; 3],
+        buttons: 1,
+    };
     assert_eq!(device.poll(150, &sample), [1.0, -2.0, 0.5]);
     let sent = drain(&mut device);
-    let [DeviceToHost::State(state)] = sent[..] else { panic!("expected one state, got {sent:?}") };
+    let [DeviceToHost::State(state)] = sent[..] else {
+        panic!("expected one state, got {sent:?}")
+    };
     assert_eq!(state.last_force_sequence, 1);
     assert_eq!(state.position_m, sample.position_m);
     assert_eq!(state.device_time_us, 150);
     assert_eq!(state.buttons, 1);
-    assert!(state.status.contains(StatusFlags::ENABLED | StatusFlags::SESSION_OPEN | StatusFlags::LOCKSTEP));
+    assert!(state
+        .status
+        .contains(StatusFlags::ENABLED | StatusFlags::SESSION_OPEN | StatusFlags::LOCKSTEP));
     // No set-force, no state in lockstep.
     device.poll(1_000, &sample);
     assert!(drain(&mut device).is_empty());
@@ -119,9 +159,17 @@ fn watchdog_drops_force_after_the_timeout_and_reports_once() {
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 10_000);
     let sample = DeviceSample::default();
     let deadline_us = 10_000 + u64::from(DEFAULT_WATCHDOG_TIMEOUT_US);
-    assert_eq!(device.poll(deadline_us, &sample), [1.0, 0.0, 0.0], "exactly at the timeout still holds");
+    assert_eq!(
+        device.poll(deadline_us, &sample),
+        [1.0, 0.0, 0.0],
+        "exactly at the timeout still holds"
+    );
     drain(&mut device);
-    assert_eq!(device.poll(deadline_us + 1, &sample), [0.0; 3], "one microsecond later it drops");
+    assert_eq!(
+        device.poll(deadline_us + 1, &sample),
+        [0.0; 3],
+        "one microsecond later it drops"
+    );
     assert_eq!(device.drive_state(), DriveState::Idle);
     assert!(device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
     assert_eq!(
@@ -136,7 +184,12 @@ fn watchdog_drops_force_after_the_timeout_and_reports_once() {
     // Late set-forces are not applied: the host must enable again.
     device.on_message(&force(2, [1.0, 0.0, 0.0]), deadline_us + 2);
     assert_eq!(device.poll(deadline_us + 3, &sample), [0.0; 3]);
-    assert!(drain(&mut device).iter().all(|m| !matches!(m, DeviceToHost::Fault(_))), "reported once");
+    assert!(
+        drain(&mut device)
+            .iter()
+            .all(|m| !matches!(m, DeviceToHost::Fault(_))),
+        "reported once"
+    );
     device.on_message(&enable(0), deadline_us + 4);
     assert!(!device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
     device.on_message(&force(3, [0.0, 1.0, 0.0]), deadline_us + 5);
@@ -153,7 +206,11 @@ fn watchdog_starts_at_enable_and_its_timeout_is_configurable() {
     device.poll(6_000, &sample);
     assert_eq!(device.drive_state(), DriveState::Enabled);
     device.poll(6_001, &sample);
-    assert_eq!(device.drive_state(), DriveState::Idle, "no set-force within 5 ms of enable");
+    assert_eq!(
+        device.drive_state(),
+        DriveState::Idle,
+        "no set-force within 5 ms of enable"
+    );
 }
 
 #[test]
@@ -163,7 +220,13 @@ fn out_of_range_watchdog_timeouts_are_refused() {
         device.on_message(&hello(), 0);
         drain(&mut device);
         device.on_message(&enable(timeout_us), 0);
-        assert_eq!(drain(&mut device), vec![rejected(message_type::ENABLE, RejectReason::INVALID_ARGUMENT)]);
+        assert_eq!(
+            drain(&mut device),
+            vec![rejected(
+                message_type::ENABLE,
+                RejectReason::INVALID_ARGUMENT
+            )]
+        );
         assert_eq!(device.drive_state(), DriveState::Idle);
     }
 }
@@ -175,12 +238,18 @@ fn forces_above_the_maximum_are_scaled_keeping_direction() {
     let applied = device.poll(20, &DeviceSample::default());
     let norm = applied.iter().map(|f| f * f).sum::<f32>().sqrt();
     assert!((norm - MAX_FORCE_N).abs() < 1e-5, "norm {norm}");
-    assert!((applied[0] / applied[1] - 0.75).abs() < 1e-6, "direction changed: {applied:?}");
+    assert!(
+        (applied[0] / applied[1] - 0.75).abs() < 1e-6,
+        "direction changed: {applied:?}"
+    );
     assert!(device.status().contains(StatusFlags::FORCE_CLAMPED));
     device.on_message(&force(2, [f32::MAX, -f32::MAX, f32::MAX]), 30);
     let applied = device.poll(40, &DeviceSample::default());
     let norm = applied.iter().map(|f| f * f).sum::<f32>().sqrt();
-    assert!((norm - MAX_FORCE_N).abs() < 1e-5, "huge forces clamp too: {applied:?}");
+    assert!(
+        (norm - MAX_FORCE_N).abs() < 1e-5,
+        "huge forces clamp too: {applied:?}"
+    );
     device.on_message(&force(3, [1.0, 0.0, 0.0]), 50);
     assert_eq!(device.poll(60, &DeviceSample::default()), [1.0, 0.0, 0.0]);
     assert!(!device.status().contains(StatusFlags::FORCE_CLAMPED));
@@ -210,11 +279,21 @@ fn latched_faults_hold_until_cleared() {
         device_time_us: 20
     })));
     device.on_message(&enable(0), 40);
-    assert_eq!(drain(&mut device), vec![rejected(message_type::ENABLE, RejectReason::FAULTED)]);
+    assert_eq!(
+        drain(&mut device),
+        vec![rejected(message_type::ENABLE, RejectReason::FAULTED)]
+    );
     device.on_message(&HostToDevice::Disable, 45);
-    assert_eq!(device.drive_state(), DriveState::Faulted, "disable does not clear a fault");
+    assert_eq!(
+        device.drive_state(),
+        DriveState::Faulted,
+        "disable does not clear a fault"
+    );
     device.on_message(&HostToDevice::ClearFault, 50);
-    assert_eq!((device.drive_state(), device.faults()), (DriveState::Idle, FaultFlags::EMPTY));
+    assert_eq!(
+        (device.drive_state(), device.faults()),
+        (DriveState::Idle, FaultFlags::EMPTY)
+    );
     device.on_message(&enable(0), 60);
     assert_eq!(device.drive_state(), DriveState::Enabled);
 }
@@ -223,18 +302,38 @@ fn latched_faults_hold_until_cleared() {
 fn non_finite_samples_raise_an_encoder_fault_instead_of_a_state() {
     let mut device = enabled_device();
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 10);
-    let bad = DeviceSample { position_m: [f32::NAN, 0.0, 0.0], ..DeviceSample::default() };
+    let bad = DeviceSample {
+        position_m: [f32::NAN, 0.0, 0.0],
+        ..DeviceSample::default()
+    };
     assert_eq!(device.poll(20, &bad), [0.0; 3]);
     let sent = drain(&mut device);
-    assert!(matches!(sent[..], [DeviceToHost::Fault(Fault { code: FaultCode::ENCODER, .. })]), "{sent:?}");
+    assert!(
+        matches!(
+            sent[..],
+            [DeviceToHost::Fault(Fault {
+                code: FaultCode::ENCODER,
+                ..
+            })]
+        ),
+        "{sent:?}"
+    );
     device.poll(30, &bad);
-    assert!(drain(&mut device).is_empty(), "the same fault is not reported every cycle");
+    assert!(
+        drain(&mut device).is_empty(),
+        "the same fault is not reported every cycle"
+    );
 }
 
 #[test]
 fn streaming_rate_sends_states_on_schedule_without_bursts() {
     let mut device = enabled_device();
-    device.on_message(&HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 1000 }), 0);
+    device.on_message(
+        &HostToDevice::SetStateRate(SetStateRate {
+            state_rate_hz: 1000,
+        }),
+        0,
+    );
     assert!(drain(&mut device).is_empty());
     let sample = DeviceSample::default();
     let mut states = 0;
@@ -242,7 +341,10 @@ fn streaming_rate_sends_states_on_schedule_without_bursts() {
         let now_us = tick * 250;
         device.on_message(&force(tick as u32 + 1, [0.0; 3]), now_us);
         device.poll(now_us, &sample);
-        states += drain(&mut device).iter().filter(|m| matches!(m, DeviceToHost::State(_))).count();
+        states += drain(&mut device)
+            .iter()
+            .filter(|m| matches!(m, DeviceToHost::State(_)))
+            .count();
     }
     assert_eq!(states, 10, "one state per millisecond over 0..10 ms");
     assert!(!device.status().contains(StatusFlags::LOCKSTEP));
@@ -255,7 +357,11 @@ fn streaming_rate_sends_states_on_schedule_without_bursts() {
     device.poll(31_000, &sample);
     assert_eq!(drain(&mut device).len(), 1);
     // REQUEST_STATE asks for one more in between.
-    let request = SetForce { sequence: 101, force_n: [0.0; 3], flags: ForceFlags::REQUEST_STATE };
+    let request = SetForce {
+        sequence: 101,
+        force_n: [0.0; 3],
+        flags: ForceFlags::REQUEST_STATE,
+    };
     device.on_message(&HostToDevice::SetForce(request), 31_100);
     device.poll(31_100, &sample);
     assert_eq!(drain(&mut device).len(), 1);
@@ -264,15 +370,27 @@ fn streaming_rate_sends_states_on_schedule_without_bursts() {
 #[test]
 fn unsupported_state_rates_are_refused() {
     let mut device = enabled_device();
-    device.on_message(&HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 250 }), 0);
-    assert_eq!(drain(&mut device), vec![rejected(message_type::SET_STATE_RATE, RejectReason::INVALID_ARGUMENT)]);
+    device.on_message(
+        &HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 250 }),
+        0,
+    );
+    assert_eq!(
+        drain(&mut device),
+        vec![rejected(
+            message_type::SET_STATE_RATE,
+            RejectReason::INVALID_ARGUMENT
+        )]
+    );
     assert_eq!(device.state_rate_hz(), 0);
 }
 
 #[test]
 fn a_new_hello_disables_and_resets_the_session() {
     let mut device = enabled_device();
-    device.on_message(&HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 500 }), 0);
+    device.on_message(
+        &HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 500 }),
+        0,
+    );
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 10);
     device.on_message(&hello(), 20);
     assert_eq!(device.drive_state(), DriveState::Idle);
@@ -288,7 +406,10 @@ fn a_full_outbox_drops_and_counts() {
     }
     let sent = drain(&mut device);
     assert_eq!(sent.len(), voxhap_protocol::device::OUTBOX_CAPACITY);
-    assert!(matches!(sent[0], DeviceToHost::Heartbeat(reply) if reply.counter == 0), "oldest kept first");
+    assert!(
+        matches!(sent[0], DeviceToHost::Heartbeat(reply) if reply.counter == 0),
+        "oldest kept first"
+    );
     assert_eq!(device.stats().outbox_overflows, 20 - sent.len() as u64);
 }
 
@@ -310,10 +431,19 @@ fn host_handshake_tracks_compatibility() {
     let mut host = HostSession::new();
     assert_eq!(host.hello(), hello());
     assert_eq!(host.phase(), HostPhase::AwaitingInfo);
-    assert_eq!(host.on_message(&DeviceToHost::DeviceInfo(info())), HostEvent::Connected(info()));
+    assert_eq!(
+        host.on_message(&DeviceToHost::DeviceInfo(info())),
+        HostEvent::Connected(info())
+    );
     assert_eq!(host.phase(), HostPhase::Ready);
-    let other = DeviceInfo { version: Version { major: 9, minor: 0 }, ..info() };
-    assert_eq!(host.on_message(&DeviceToHost::DeviceInfo(other)), HostEvent::Incompatible(other));
+    let other = DeviceInfo {
+        version: Version { major: 9, minor: 0 },
+        ..info()
+    };
+    assert_eq!(
+        host.on_message(&DeviceToHost::DeviceInfo(other)),
+        HostEvent::Incompatible(other)
+    );
     assert_eq!(host.phase(), HostPhase::Incompatible);
 }
 
@@ -326,12 +456,25 @@ fn host_counts_lost_and_stale_states_across_wrap_around() {
     };
     assert_eq!(lost_of(host.on_message(&state(u32::MAX - 1, 0))), Some(0));
     assert_eq!(lost_of(host.on_message(&state(u32::MAX, 0))), Some(0));
-    assert_eq!(lost_of(host.on_message(&state(2, 0))), Some(2), "0 and 1 lost across the wrap");
-    assert!(matches!(host.on_message(&state(1, 0)), HostEvent::StaleState(_)));
-    assert!(matches!(host.on_message(&state(2, 0)), HostEvent::StaleState(_)), "duplicate");
+    assert_eq!(
+        lost_of(host.on_message(&state(2, 0))),
+        Some(2),
+        "0 and 1 lost across the wrap"
+    );
+    assert!(matches!(
+        host.on_message(&state(1, 0)),
+        HostEvent::StaleState(_)
+    ));
+    assert!(
+        matches!(host.on_message(&state(2, 0)), HostEvent::StaleState(_)),
+        "duplicate"
+    );
     assert_eq!(lost_of(host.on_message(&state(3, 0))), Some(0));
     let stats = host.stats();
-    assert_eq!((stats.states_received, stats.states_lost, stats.states_stale), (4, 2, 2));
+    assert_eq!(
+        (stats.states_received, stats.states_lost, stats.states_stale),
+        (4, 2, 2)
+    );
 }
 
 #[test]

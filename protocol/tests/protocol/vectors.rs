@@ -5,9 +5,10 @@
 use std::path::{Path, PathBuf};
 
 use voxhap_protocol::{
-    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceInfo, DeviceToHost, Enable, Fault,
-    FaultCode, FaultFlags, ForceFlags, FrameDecoder, Heartbeat, HeartbeatReply, Hello, HostToDevice, Label, Message,
-    RateSet, RejectReason, Rejected, SetForce, SetStateRate, State, StatusFlags, Version, MAX_WIRE_FRAME_LEN,
+    decode_frame, decode_report, encode_frame, encode_report, hid, DeviceInfo, DeviceToHost,
+    Enable, Fault, FaultCode, FaultFlags, ForceFlags, FrameDecoder, Heartbeat, HeartbeatReply,
+    Hello, HostToDevice, Label, Message, RateSet, RejectReason, Rejected, SetForce, SetStateRate,
+    State, StatusFlags, Version, MAX_WIRE_FRAME_LEN,
 };
 
 enum Expected {
@@ -19,8 +20,18 @@ fn expected_vectors() -> Vec<(&'static str, Expected)> {
     use Expected::{Device, Host};
     let label = |text| Label::new(text).expect("valid label");
     vec![
-        ("hello", Host(HostToDevice::Hello(Hello { version: Version { major: 1, minor: 0 } }))),
-        ("enable", Host(HostToDevice::Enable(Enable { watchdog_timeout_us: 50_000 }))),
+        (
+            "hello",
+            Host(HostToDevice::Hello(Hello {
+                version: Version { major: 1, minor: 0 },
+            })),
+        ),
+        (
+            "enable",
+            Host(HostToDevice::Enable(Enable {
+                watchdog_timeout_us: 50_000,
+            })),
+        ),
         ("disable", Host(HostToDevice::Disable)),
         (
             "set_force",
@@ -30,9 +41,17 @@ fn expected_vectors() -> Vec<(&'static str, Expected)> {
                 flags: ForceFlags::REQUEST_STATE,
             })),
         ),
-        ("heartbeat", Host(HostToDevice::Heartbeat(Heartbeat { counter: 42 }))),
+        (
+            "heartbeat",
+            Host(HostToDevice::Heartbeat(Heartbeat { counter: 42 })),
+        ),
         ("clear_fault", Host(HostToDevice::ClearFault)),
-        ("set_state_rate", Host(HostToDevice::SetStateRate(SetStateRate { state_rate_hz: 1000 }))),
+        (
+            "set_state_rate",
+            Host(HostToDevice::SetStateRate(SetStateRate {
+                state_rate_hz: 1000,
+            })),
+        ),
         (
             "device_info",
             Device(DeviceToHost::DeviceInfo(DeviceInfo {
@@ -82,13 +101,17 @@ fn expected_vectors() -> Vec<(&'static str, Expected)> {
             "fault_over_current",
             Device(DeviceToHost::Fault(Fault {
                 code: FaultCode::OVER_CURRENT,
-                active_faults: FaultFlags::of(FaultCode::OVER_CURRENT) | FaultFlags::of(FaultCode::EMERGENCY_STOP),
+                active_faults: FaultFlags::of(FaultCode::OVER_CURRENT)
+                    | FaultFlags::of(FaultCode::EMERGENCY_STOP),
                 device_time_us: 2_000_000,
             })),
         ),
         (
             "rejected",
-            Device(DeviceToHost::Rejected(Rejected { message_type: 0x02, reason: RejectReason::FAULTED })),
+            Device(DeviceToHost::Rejected(Rejected {
+                message_type: 0x02,
+                reason: RejectReason::FAULTED,
+            })),
         ),
     ]
 }
@@ -104,7 +127,9 @@ struct VectorFile {
 
 fn parse_hex(text: &str, what: &str) -> Vec<u8> {
     text.split_whitespace()
-        .map(|pair| u8::from_str_radix(pair, 16).unwrap_or_else(|_| panic!("{what}: bad hex byte {pair:?}")))
+        .map(|pair| {
+            u8::from_str_radix(pair, 16).unwrap_or_else(|_| panic!("{what}: bad hex byte {pair:?}"))
+        })
         .collect()
 }
 
@@ -112,7 +137,10 @@ fn read_vector(name: &str) -> VectorFile {
     let path = vectors_dir().join(format!("{name}.hex"));
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut lines = text.lines();
-    assert!(lines.next().is_some_and(|l| l.starts_with("# ")), "{name}: first line must be a # comment");
+    assert!(
+        lines.next().is_some_and(|l| l.starts_with("# ")),
+        "{name}: first line must be a # comment"
+    );
     let mut serial = None;
     let mut hid = None;
     for line in lines.filter(|l| !l.trim().is_empty()) {
@@ -132,12 +160,24 @@ fn read_vector(name: &str) -> VectorFile {
 
 fn check_both_ways<M: Message>(name: &str, expected: &M, file: &VectorFile) {
     // Bytes -> message, stateless and streaming.
-    assert_eq!(decode_frame::<M>(&file.serial), Ok((*expected, file.serial.len())), "{name}: serial decode");
+    assert_eq!(
+        decode_frame::<M>(&file.serial),
+        Ok((*expected, file.serial.len())),
+        "{name}: serial decode"
+    );
     let mut decoder = FrameDecoder::<M>::new();
     let decoded: Vec<_> = decoder.feed(&file.serial).collect();
     assert_eq!(decoded, vec![Ok(*expected)], "{name}: streaming decode");
-    assert_eq!(file.hid.len(), hid::REPORT_LEN, "{name}: HID vector must be a full report");
-    assert_eq!(decode_report::<M>(&file.hid), Ok(*expected), "{name}: HID decode");
+    assert_eq!(
+        file.hid.len(),
+        hid::REPORT_LEN,
+        "{name}: HID vector must be a full report"
+    );
+    assert_eq!(
+        decode_report::<M>(&file.hid),
+        Ok(*expected),
+        "{name}: HID decode"
+    );
     // Message -> bytes.
     let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
     let len = encode_frame(expected, &mut buf).expect("vector messages are valid");
@@ -165,8 +205,16 @@ fn every_vector_file_is_checked() {
     for entry in std::fs::read_dir(vectors_dir()).expect("protocol/vectors exists") {
         let path = entry.expect("readable directory").path();
         if path.extension().is_some_and(|e| e == "hex") {
-            let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_owned();
-            assert!(listed.contains(&stem.as_str()), "{} has no expected message in vectors.rs", path.display());
+            let stem = path
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .unwrap_or_default()
+                .to_owned();
+            assert!(
+                listed.contains(&stem.as_str()),
+                "{} has no expected message in vectors.rs",
+                path.display()
+            );
             found += 1;
         }
     }
@@ -185,10 +233,16 @@ fn every_message_type_has_a_vector() {
     }
     for message_type in 0..=255u8 {
         if HostToDevice::payload_len(message_type).is_some() {
-            assert!(host_types.contains(&message_type), "no vector for host type 0x{message_type:02x}");
+            assert!(
+                host_types.contains(&message_type),
+                "no vector for host type 0x{message_type:02x}"
+            );
         }
         if DeviceToHost::payload_len(message_type).is_some() {
-            assert!(device_types.contains(&message_type), "no vector for device type 0x{message_type:02x}");
+            assert!(
+                device_types.contains(&message_type),
+                "no vector for device type 0x{message_type:02x}"
+            );
         }
     }
 }

@@ -73,6 +73,40 @@ fn encode_short(input: &[u8], out: &mut [u8]) -> usize {
     end
 }
 
+/// Stuffs a short frame (under 254 bytes) that the caller owns: the zeros of `frame` are overwritten with their
+/// codes, and the first code is returned; the stuffed frame is then `first code ‖ frame`. Used by the serial
+/// encoder so that its output buffer is written by one plain copy: patching code bytes into the output instead
+/// leaves byte-sized stores in flight that a reader of the fresh frame (the decoder, in a loopback) would load as
+/// words, which stalls store forwarding.
+pub(crate) fn stuff_in_place_short(frame: &mut [u8]) -> u8 {
+    debug_assert!(frame.len() < 254);
+    let end = frame.len() + 1;
+    let mut first_code = 0u8;
+    let mut slot = 0usize;
+    for segment_index in 0..frame.len().div_ceil(64) {
+        let segment_start = segment_index * 64;
+        let segment = &frame[segment_start..frame.len().min(segment_start + 64)];
+        let mut zeros = zero_mask(segment);
+        while zeros != 0 {
+            let next_slot = segment_start + zeros.trailing_zeros() as usize + 1;
+            // next_slot - slot <= 254 for frames shorter than 254 bytes.
+            let code = (next_slot - slot) as u8;
+            match slot.checked_sub(1) {
+                Some(at) => frame[at] = code,
+                None => first_code = code,
+            }
+            slot = next_slot;
+            zeros &= zeros - 1;
+        }
+    }
+    let code = (end - slot) as u8;
+    match slot.checked_sub(1) {
+        Some(at) => frame[at] = code,
+        None => first_code = code,
+    }
+    first_code
+}
+
 /// Bit `i` set where `segment[i] == 0`, for a segment of at most 64 bytes, eight bytes at a time without branches:
 /// `((v & 0x7F..) + 0x7F..) | v` has the top bit of each byte set exactly when the byte is non-zero (no carry crosses
 /// a byte), and multiplying the inverted top bits (moved to bit 0 of each byte) by 0x0102040810204080 gathers them
@@ -393,6 +427,16 @@ mod tests {
         #[test]
         fn oversize_is_reported_not_truncated(input in proptest::collection::vec(any::<u8>(), 16..100)) {
             prop_assert_eq!(unstuff::<16>(&stuff(&input)), Err(Step::Oversize));
+        }
+
+        #[test]
+        fn in_place_stuffing_matches_encode(input in proptest::collection::vec(
+            prop_oneof![Just(0u8), any::<u8>()], 0..254)) {
+            let mut frame = input.clone();
+            let first_code = stuff_in_place_short(&mut frame);
+            let mut stuffed = vec![first_code];
+            stuffed.extend_from_slice(&frame);
+            prop_assert_eq!(stuffed, stuff(&input));
         }
 
         #[test]

@@ -15,6 +15,11 @@
 use core::marker::PhantomData;
 
 use crate::cobs::{self, max_encoded_len, Step, Unstuffer};
+
+const _: () = assert!(
+    MAX_FRAME_LEN < 254,
+    "stuff_in_place_short needs frames under 254 bytes"
+);
 use crate::crc::crc16;
 use crate::error::{EncodeError, FrameError, PayloadError, ReportError};
 use crate::message::{Message, MAX_PAYLOAD_LEN};
@@ -33,29 +38,30 @@ pub const MAX_WIRE_FRAME_LEN: usize = MAX_STUFFED_LEN + 1;
 /// Refuses a message whose fields its decoder would reject (a NaN force, say) with [`EncodeError::Invalid`].
 pub fn encode_frame<M: Message>(message: &M, out: &mut [u8]) -> Result<usize, EncodeError> {
     message.validate()?;
-    let mut raw = [0u8; MAX_FRAME_LEN];
-    raw[0] = message.message_type();
-    let payload_len = match raw[1..].first_chunk_mut::<MAX_PAYLOAD_LEN>() {
+    // The whole wire frame is built on the stack, [first code][type][payload][CRC][0x00], and copied out at once
+    // (see `cobs::stuff_in_place_short` for why the output is written by one copy).
+    let mut wire = [0u8; MAX_WIRE_FRAME_LEN];
+    wire[1] = message.message_type();
+    let payload_len = match wire[2..].first_chunk_mut::<MAX_PAYLOAD_LEN>() {
         Some(payload) => message.write_payload(payload),
-        None => unreachable!("MAX_FRAME_LEN leaves room for the largest payload"),
+        None => unreachable!("MAX_WIRE_FRAME_LEN leaves room for the largest payload"),
     };
-    let crc_at = 1 + payload_len;
-    let crc = crc16(&raw[..crc_at]);
-    raw[crc_at..crc_at + 2].copy_from_slice(&crc.to_le_bytes());
-    let raw = &raw[..crc_at + 2];
-    let needed = max_encoded_len(raw.len()) + 1;
-    if out.len() < needed {
+    let crc_at = 2 + payload_len;
+    let crc = crc16(&wire[1..crc_at]);
+    wire[crc_at..crc_at + 2].copy_from_slice(&crc.to_le_bytes());
+    let frame_end = crc_at + 2;
+    // COBS adds exactly one byte (the first code) to frames this short; then the delimiter.
+    let needed = frame_end + 1;
+    let Some(out) = out.get_mut(..needed) else {
         return Err(EncodeError::BufferTooSmall {
             needed,
             available: out.len(),
         });
-    }
-    let stuffed = cobs::encode(raw, out).ok_or(EncodeError::BufferTooSmall {
-        needed,
-        available: out.len(),
-    })?;
-    out[stuffed] = DELIMITER;
-    Ok(stuffed + 1)
+    };
+    wire[0] = cobs::stuff_in_place_short(&mut wire[1..frame_end]);
+    wire[frame_end] = DELIMITER;
+    out.copy_from_slice(&wire[..needed]);
+    Ok(needed)
 }
 
 /// Checks the CRC of an unstuffed frame and parses its message.

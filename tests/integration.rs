@@ -5,10 +5,10 @@
 
 mod util;
 
+mod alloc_free;
 mod cli_solve;
 mod paper;
 mod record;
-mod solver_alloc;
 mod solver_props;
 mod volume_io;
 

@@ -6,6 +6,9 @@
 mod util;
 
 mod cli_solve;
+mod device_drivers;
+mod device_pty;
+mod device_safety;
 mod paper;
 mod record;
 mod solver_alloc;

@@ -28,9 +28,13 @@ impl Recognised {
     pub fn describe(self) -> &'static str {
         match self {
             Recognised::WoodenHaptics => "WoodenHaptics 1.5 (driver: woodenhaptics)",
-            Recognised::Haply2Diy => "probably a Haply 2DIY (Arduino Due native port; driver: haply-2diy)",
+            Recognised::Haply2Diy => {
+                "probably a Haply 2DIY (Arduino Due native port; driver: haply-2diy)"
+            }
             Recognised::NovintFalcon => "Novint Falcon (no driver yet)",
-            Recognised::VoxhapProtocol => "voxhap protocol firmware (driver: voxhap-serial / voxhap-hid)",
+            Recognised::VoxhapProtocol => {
+                "voxhap protocol firmware (driver: voxhap-serial / voxhap-hid)"
+            }
             Recognised::Unknown => "not recognised",
         }
     }
@@ -112,7 +116,11 @@ pub fn hid_devices() -> Result<Vec<HidEntry>, String> {
             product_id: device.product_id(),
             product: device.product_string().map(str::to_string),
             manufacturer: device.manufacturer_string().map(str::to_string),
-            recognised: recognise_usb(device.vendor_id(), device.product_id(), device.product_string()),
+            recognised: recognise_usb(
+                device.vendor_id(),
+                device.product_id(),
+                device.product_string(),
+            ),
         })
         .collect())
 }
@@ -123,10 +131,22 @@ mod tests {
 
     #[test]
     fn recognises_known_usb_ids_and_voxhap_product_names() {
-        assert_eq!(recognise_usb(0x1234, 0x0006, None), Recognised::WoodenHaptics);
-        assert_eq!(recognise_usb(0x0403, 0xcb48, None), Recognised::NovintFalcon);
+        assert_eq!(
+            recognise_usb(0x1234, 0x0006, None),
+            Recognised::WoodenHaptics
+        );
+        assert_eq!(
+            recognise_usb(0x0403, 0xcb48, None),
+            Recognised::NovintFalcon
+        );
         assert_eq!(recognise_usb(0x2341, 0x003d, None), Recognised::Haply2Diy);
-        assert_eq!(recognise_usb(0x1209, 0x0001, Some("Voxhap arm")), Recognised::VoxhapProtocol);
-        assert_eq!(recognise_usb(0x1209, 0x0001, Some("keyboard")), Recognised::Unknown);
+        assert_eq!(
+            recognise_usb(0x1209, 0x0001, Some("Voxhap arm")),
+            Recognised::VoxhapProtocol
+        );
+        assert_eq!(
+            recognise_usb(0x1209, 0x0001, Some("keyboard")),
+            Recognised::Unknown
+        );
     }
 }

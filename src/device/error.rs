@@ -160,10 +160,19 @@ mod tests {
     #[test]
     fn hang_ups_are_disconnects_and_other_io_errors_are_not() {
         let hup = io::Error::new(io::ErrorKind::BrokenPipe, "hup");
-        assert_eq!(DeviceError::from_io(&hup, "reading").kind(), ErrorKind::Disconnected);
+        assert_eq!(
+            DeviceError::from_io(&hup, "reading").kind(),
+            ErrorKind::Disconnected
+        );
         let eio = io::Error::from_raw_os_error(5);
-        assert_eq!(DeviceError::from_io(&eio, "reading").kind(), ErrorKind::Disconnected);
+        assert_eq!(
+            DeviceError::from_io(&eio, "reading").kind(),
+            ErrorKind::Disconnected
+        );
         let denied = io::Error::new(io::ErrorKind::PermissionDenied, "no");
-        assert_eq!(DeviceError::from_io(&denied, "opening").kind(), ErrorKind::Io);
+        assert_eq!(
+            DeviceError::from_io(&denied, "opening").kind(),
+            ErrorKind::Io
+        );
     }
 }

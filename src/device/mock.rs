@@ -264,9 +264,14 @@ pub fn run_mock(
     shutdown: &AtomicBool,
     on_event: &mut dyn FnMut(MockEvent),
 ) -> Result<MockStats, MockError> {
-    for (name, rate) in [("corrupt rate", faults.corrupt_rate), ("drop rate", faults.drop_rate)] {
+    for (name, rate) in [
+        ("corrupt rate", faults.corrupt_rate),
+        ("drop rate", faults.drop_rate),
+    ] {
         if !(0.0..=1.0).contains(&rate) {
-            return Err(MockError::Config(format!("{name} {rate} must be between 0 and 1")));
+            return Err(MockError::Config(format!(
+                "{name} {rate} must be between 0 and 1"
+            )));
         }
     }
     const TICK_US: u64 = 1_000;
@@ -359,7 +364,11 @@ pub fn run_mock(
         }
         if now >= next_tick_us {
             let force = session.force_n();
-            let force_n = DVec3::new(f64::from(force[0]), f64::from(force[1]), f64::from(force[2]));
+            let force_n = DVec3::new(
+                f64::from(force[0]),
+                f64::from(force[1]),
+                f64::from(force[2]),
+            );
             arm.step(now as f64 * 1e-6, TICK_US as f64 * 1e-6, force_n)?;
             let sample = DeviceSample {
                 position_m: to_f32(arm.position_m()),
@@ -391,7 +400,10 @@ pub fn run_mock(
             stats.bytes_corrupted += rng.corrupt(&mut frame[..len], faults.corrupt_rate);
             delayed.push_back((now + faults.latency_us, frame, len));
         }
-        while delayed.front().is_some_and(|(release_us, _, _)| *release_us <= now) {
+        while delayed
+            .front()
+            .is_some_and(|(release_us, _, _)| *release_us <= now)
+        {
             if let Some((_, frame, len)) = delayed.pop_front() {
                 pty.master
                     .write_all(&frame[..len])

@@ -144,7 +144,11 @@ where
         })();
         match result {
             Ok(device) => {
-                let limit = self.config.safety.max_force_n.min(device.info().max_force_n);
+                let limit = self
+                    .config
+                    .safety
+                    .max_force_n
+                    .min(device.info().max_force_n);
                 self.safety.set_max_force_n(limit);
                 self.safety.enable(now_us);
                 self.device = Some(device);

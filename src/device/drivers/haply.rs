@@ -138,7 +138,11 @@ impl Haply2DiyConfig {
     /// Handle position (m, in the device plane) and the Jacobian rows [[J11, J12], [J21, J22]] at motor angles
     /// (degrees). `None` where the links cannot meet (a reading outside the mechanism's reach).
     pub fn kinematics(&self, angles_deg: [f32; 2]) -> Option<([f64; 2], [[f64; 2]; 2])> {
-        let (l, big_l, d) = (self.proximal_link_m, self.distal_link_m, self.base_distance_m);
+        let (l, big_l, d) = (
+            self.proximal_link_m,
+            self.distal_link_m,
+            self.base_distance_m,
+        );
         let th1 = f64::from(angles_deg[0]).to_radians();
         let th2 = f64::from(angles_deg[1]).to_radians();
         let (s1, c1) = th1.sin_cos();
@@ -147,7 +151,7 @@ impl Haply2DiyConfig {
         let (xb, yb) = (d + l * c2, l * s2);
         let (hx, hy) = (xb - xa, yb - ya);
         let hm = (hx * hx + hy * hy).sqrt();
-        if !(hm > 0.0) || hm > 2.0 * big_l {
+        if hm.is_nan() || hm <= 0.0 || hm > 2.0 * big_l {
             return None;
         }
         // Equal distal links: cos β = |h| / (2 L).
@@ -175,11 +179,17 @@ impl Haply2DiyConfig {
             )
         };
         let jacobian = [
-            [-big_l * eta * s11 - big_l * s11 - l * s1, big_l * c11 * eta + big_l * c11 + c1 * l],
+            [
+                -big_l * eta * s11 - big_l * s11 - l * s1,
+                big_l * c11 * eta + big_l * c11 + c1 * l,
+            ],
             [-big_l * s11 * nu, big_l * c11 * nu],
         ];
         let position = [xp, yp];
-        let finite = position.iter().chain(jacobian.iter().flatten()).all(|v| v.is_finite());
+        let finite = position
+            .iter()
+            .chain(jacobian.iter().flatten())
+            .all(|v| v.is_finite());
         finite.then_some((position, jacobian))
     }
 }
@@ -251,7 +261,8 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     }
 
     fn open(&mut self) -> Result<(), DeviceError> {
-        self.transport.write_all(&Haply2DiyConfig::reset_command())?;
+        self.transport
+            .write_all(&Haply2DiyConfig::reset_command())?;
         self.transport.write_all(&self.config.setup_command())
     }
 
@@ -265,7 +276,10 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         let [[j11, j12], [j21, j22]] = self.jacobian;
         let tau1 = j11 * force_n.x + j12 * force_n.y;
         let tau2 = j21 * force_n.x + j22 * force_n.y;
-        let command = self.config.torque_command([tau1 as f32, tau2 as f32]);
+        // `+ 0.0` turns a -0.0 (a zero force through a negative Jacobian entry) into the plain zero the board expects.
+        let command = self
+            .config
+            .torque_command([tau1 as f32 + 0.0, tau2 as f32 + 0.0]);
         self.transport.write_all(&command)
     }
 
@@ -278,7 +292,11 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
             });
         };
         self.jacobian = jacobian;
-        Ok(DeviceState::at_rest(DVec3::new(position[0], position[1], 0.0)))
+        Ok(DeviceState::at_rest(DVec3::new(
+            position[0],
+            position[1],
+            0.0,
+        )))
     }
 
     fn disable(&mut self) -> Result<(), DeviceError> {

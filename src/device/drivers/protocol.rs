@@ -99,7 +99,8 @@ impl<T: ByteTransport> MessageLink for SerialLink<T> {
         self.decoder.reset();
         self.start = 0;
         self.end = 0;
-        self.transport.write_all(&[voxhap_protocol::serial::DELIMITER])
+        self.transport
+            .write_all(&[voxhap_protocol::serial::DELIMITER])
     }
 
     fn stats(&self) -> DecoderStats {
@@ -283,8 +284,20 @@ impl<L: MessageLink> ProtocolDevice<L> {
         self.host.forces_in_flight()
     }
 
-    /// Sends a Heartbeat and waits for its reply; returns the device time (µs).
-    pub fn heartbeat(&mut self, timeout: Duration) -> Result<u64, DeviceError> {
+    /// Waits at most `timeout` for one message from the device and classifies it (for idle times: faults, late
+    /// states). `Ok(None)` when nothing came.
+    pub fn poll_event(&mut self, timeout: Duration) -> Result<Option<HostEvent>, DeviceError> {
+        match self.link.receive(timeout)? {
+            None => Ok(None),
+            Some(message) => self.handle(&message).map(Some),
+        }
+    }
+
+    /// Sends a Heartbeat and waits for its reply (device time and status bits).
+    pub fn heartbeat(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<voxhap_protocol::HeartbeatReply, DeviceError> {
         let message = self.host.heartbeat();
         let HostToDevice::Heartbeat(sent) = message else {
             return Err(DeviceError::Protocol {
@@ -305,7 +318,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 Some(message) => {
                     if let HostEvent::Heartbeat(reply) = self.handle(&message)? {
                         if reply.counter == sent.counter {
-                            return Ok(reply.device_time_us);
+                            return Ok(reply);
                         }
                     }
                 }
@@ -427,7 +440,11 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
                 };
                 self.last_state = Some(sample);
                 // Lockstep: the State answering the newest SetForce ends the wait; older ones are late.
-                if state.last_force_sequence.wrapping_sub(self.last_sent_sequence) == 0 {
+                if state
+                    .last_force_sequence
+                    .wrapping_sub(self.last_sent_sequence)
+                    == 0
+                {
                     return Ok(sample);
                 }
                 self.counters.late_states += 1;

@@ -150,7 +150,9 @@ mod tests {
 
     #[test]
     fn plays_positions_in_order_with_finite_difference_velocity_then_holds() {
-        let mut device = ReplayDevice::new(&trace(&[(0.0, 0.0), (0.001, 0.002), (0.002, 0.003)]), false).unwrap();
+        let mut device =
+            ReplayDevice::new(&trace(&[(0.0, 0.0), (0.001, 0.002), (0.002, 0.003)]), false)
+                .unwrap();
         assert_eq!(device.read_state().unwrap().position_m.x, 0.0);
         let second = device.read_state().unwrap();
         assert_eq!(second.position_m.x, 0.002);
@@ -165,7 +167,9 @@ mod tests {
     #[test]
     fn looping_starts_over() {
         let mut device = ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, 2.0)]), true).unwrap();
-        let xs: Vec<f64> = (0..4).map(|_| device.read_state().unwrap().position_m.x).collect();
+        let xs: Vec<f64> = (0..4)
+            .map(|_| device.read_state().unwrap().position_m.x)
+            .collect();
         assert_eq!(xs, [1.0, 2.0, 1.0, 2.0]);
     }
 

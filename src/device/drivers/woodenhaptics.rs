@@ -153,8 +153,16 @@ impl WoodenHapticsConfig {
         // Rows of J as in CWoodenDevice.cpp; glam matrices are built from columns.
         let jacobian = DMat3::from_cols(
             DVec3::new(-ta.sin() * reach, ta.cos() * reach, 0.0),
-            DVec3::new(lb * ta.cos() * tb.cos(), lb * ta.sin() * tb.cos(), -lb * tb.sin()),
-            DVec3::new(lc * ta.cos() * tc.cos(), lc * ta.sin() * tc.cos(), lc * tc.sin()),
+            DVec3::new(
+                lb * ta.cos() * tb.cos(),
+                lb * ta.sin() * tb.cos(),
+                -lb * tb.sin(),
+            ),
+            DVec3::new(
+                lc * ta.cos() * tc.cos(),
+                lc * ta.sin() * tc.cos(),
+                lc * tc.sin(),
+            ),
         );
         let [mb, mc] = self.body_mass_kg;
         let [lb_cm, lc_cm] = self.center_of_mass_m;

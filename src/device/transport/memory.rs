@@ -54,7 +54,10 @@ impl Script {
         self.step += 1;
         match self.expected.pop_front() {
             Some(transaction) => transaction,
-            None => panic!("scripted transport: unexpected {call} at step {} (script finished)", self.step),
+            None => panic!(
+                "scripted transport: unexpected {call} at step {} (script finished)",
+                self.step
+            ),
         }
     }
 
@@ -257,7 +260,9 @@ impl ByteTransport for MemoryPipe {
         let (mut guard, _) = self
             .incoming
             .ready
-            .wait_timeout_while(guard, timeout, |(bytes, closed)| bytes.is_empty() && !*closed)
+            .wait_timeout_while(guard, timeout, |(bytes, closed)| {
+                bytes.is_empty() && !*closed
+            })
             .map_err(|_| disconnected("reading"))?;
         if guard.0.is_empty() {
             return if guard.1 {

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::mock::{default_arm_config, run_mock, FaultConfig, MockEvent, ServeOn};
 use voxhap::device::transport::SerialTransport;
-use voxhap::device::{HapticDevice, Lifecycle};
+use voxhap::device::Lifecycle;
 
 type Device = Lifecycle<ProtocolDevice<SerialLink<SerialTransport>>>;
 
@@ -38,7 +38,9 @@ fn start_mock() -> (Arc<AtomicBool>, std::thread::JoinHandle<()>, String) {
             eprintln!("mock device failed: {error}");
         }
     });
-    let path = receiver.recv_timeout(Duration::from_secs(5)).expect("mock device path");
+    let path = receiver
+        .recv_timeout(Duration::from_secs(5))
+        .expect("mock device path");
     (shutdown, handle, path)
 }
 
@@ -55,7 +57,9 @@ fn open(path: &str) -> Device {
 }
 
 fn round_trip(device: &mut Device) {
-    device.write_force(DVec3::new(0.1, 0.0, 0.0)).expect("write");
+    device
+        .write_force(DVec3::new(0.1, 0.0, 0.0))
+        .expect("write");
     std::hint::black_box(device.read_state().expect("state"));
 }
 
@@ -87,7 +91,9 @@ fn bench(c: &mut Criterion) {
     let (shutdown, handle, path) = start_mock();
     let mut device = open(&path);
     paced_percentiles(&mut device);
-    c.bench_function("device/pty_round_trip", |b| b.iter(|| round_trip(&mut device)));
+    c.bench_function("device/pty_round_trip", |b| {
+        b.iter(|| round_trip(&mut device))
+    });
     let _ = device.close();
     shutdown.store(true, Ordering::Relaxed);
     let _ = handle.join();

@@ -7,6 +7,7 @@ mod util;
 
 mod cli_solve;
 mod device_drivers;
+mod device_hardware;
 mod device_pty;
 mod device_safety;
 mod paper;

@@ -11,9 +11,11 @@
 //! g = (d_bodyA/d_capA, -d_bodyB/d_capB, d_bodyC/d_capC); joint angles θ_i = 2π e_i / (cpr_i g_i), then
 //! θ_C ← π/2 - θ_C. Forward kinematics with link lengths L_a, L_b, L_c and workspace origin o:
 //!
-//!     x = cos θA (Lb sin θB + Lc sin θC) - o_x
-//!     y = sin θA (Lb sin θB + Lc sin θC) - o_y
-//!     z = La + Lb cos θB - Lc cos θC     - o_z
+//! ```text
+//! x = cos θA (Lb sin θB + Lc sin θC) - o_x
+//! y = sin θA (Lb sin θB + Lc sin θC) - o_y
+//! z = La + Lb cos θB - Lc cos θC     - o_z
+//! ```
 //!
 //! Torques τ = Jᵀ f with J the Jacobian of that map, plus gravity compensation
 //! -g (0, m_B l_B sin θB + m_C (l_B + l_C) sin θC, m_C l_C sin θC); motor torques through the capstans

@@ -345,6 +345,24 @@ proptest! {
     }
 
     #[test]
+    fn protocol_driver_over_hid_survives_arbitrary_reports(
+        reports in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..65), 0..6)
+    ) {
+        let mut script = vec![Transaction::Write({
+            let mut hello = vec![0x01, 0x01, 0x01, 0x00];
+            hello.resize(64, 0);
+            hello
+        })];
+        script.extend(reports.into_iter().map(Transaction::Read));
+        script.push(Transaction::ReadTimeout);
+        let mut device = ProtocolDevice::new(HidLink::new(ScriptedReports::new(&script)), ProtocolConfig::default());
+        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| device.open())).map_err(|panic| {
+            let text = panic.downcast_ref::<String>().cloned().unwrap_or_default();
+            assert!(text.contains("scripted transport"), "driver panicked: {text}");
+        });
+    }
+
+    #[test]
     fn woodenhaptics_decoder_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..20)) {
         let result = decode_input(&bytes);
         prop_assert_eq!(result.is_ok(), bytes.len() == 8);

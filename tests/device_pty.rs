@@ -319,3 +319,54 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
     );
     assert_eq!(supervisor.counters().disconnects, 1);
 }
+
+#[test]
+fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
+    let mock = Mock::start(&["--pty", "--stop-after", "0.3"]);
+    let path = mock.path.clone();
+    let protocol = ProtocolConfig {
+        state_timeout: Duration::from_millis(5),
+        open_timeout: Duration::from_millis(50),
+        ..ProtocolConfig::default()
+    };
+    let config = SupervisorConfig {
+        reconnect_interval_us: 100_000,
+        max_consecutive_timeouts: 10,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(config, || {
+        let transport = SerialTransport::open(&path, 1_000_000)?;
+        Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
+    })
+    .unwrap();
+    let start = Instant::now();
+    let mut lost_at = None;
+    let mut failed_reconnects = 0;
+    let mut tick = 0u64;
+    while start.elapsed() < Duration::from_secs(2) && failed_reconnects < 2 {
+        tick += 1;
+        wait_until(start + Duration::from_micros(tick * 1_000));
+        let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
+        let out = supervisor.tick(DVec3::new(0.2, 0.0, 0.0), now_us);
+        match out.event {
+            Some(SupervisorEvent::Disconnected(kind)) => {
+                assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
+                lost_at = Some(now_us);
+            }
+            Some(SupervisorEvent::ReconnectFailed(_)) => failed_reconnects += 1,
+            _ => {}
+        }
+        if lost_at.is_some() {
+            assert_eq!(out.sent_force_n, DVec3::ZERO);
+        }
+    }
+    let lost_at = lost_at.expect("a mute device was never declared lost");
+    assert!(
+        lost_at >= 300_000,
+        "lost at {lost_at} us, before the device went mute"
+    );
+    assert!(
+        failed_reconnects >= 1,
+        "the supervisor never tried to reopen the mute device"
+    );
+}

@@ -72,7 +72,7 @@ pub enum MockError {
     #[error("mock device: cannot open a pseudo-terminal: {0}")]
     Pty(String),
     /// The link path could not be made.
-    #[error("mock device: cannot link {path} to the pseudo-terminal: {source}")]
+    #[error("mock device: cannot link {path} to the pseudo-terminal")]
     Link {
         /// The path asked for.
         path: PathBuf,
@@ -80,7 +80,7 @@ pub enum MockError {
         source: std::io::Error,
     },
     /// Reading or writing the pseudo-terminal failed.
-    #[error("mock device: pseudo-terminal I/O failed while {during}: {source}")]
+    #[error("mock device: pseudo-terminal I/O failed while {during}")]
     Io {
         /// What the mock was doing.
         during: &'static str,

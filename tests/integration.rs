@@ -7,6 +7,10 @@ mod util;
 
 mod alloc_free;
 mod cli_solve;
+mod device_drivers;
+mod device_hardware;
+mod device_pty;
+mod device_safety;
 mod paper;
 mod record;
 mod solver_props;

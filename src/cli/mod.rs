@@ -3,7 +3,9 @@
 //! `voxhap` with no subcommand runs the default job: until `voxhap serve` exists, it solves the README's
 //! example scene (sims/scenes/plane_point.json, built into the binary) with the exact solver.
 
+pub mod devices;
 pub mod info;
+pub mod mock_device;
 pub mod plot;
 pub mod solve;
 
@@ -27,6 +29,10 @@ pub enum Command {
     Info(info::InfoArgs),
     /// Plot a recorded force trace (CSV or MCAP) to a PNG or SVG image.
     Plot(plot::PlotArgs),
+    /// List serial ports and HID devices, naming the haptic devices voxhap recognises.
+    Devices(devices::DevicesArgs),
+    /// Serve the simulated arm over voxhap's device protocol on a pseudo-terminal, with fault injection.
+    MockDevice(mock_device::MockDeviceArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -60,6 +66,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Solve(args)) => solve::run(&args),
         Some(Command::Info(args)) => info::run(&args),
         Some(Command::Plot(args)) => plot::run(args),
+        Some(Command::Devices(args)) => devices::run(&args),
+        Some(Command::MockDevice(args)) => mock_device::run(&args),
         None => {
             print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
             print_out("See `voxhap --help` for the other commands.\n")?;

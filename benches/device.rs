@@ -1,0 +1,103 @@
+//! Host round trip over a pseudo-terminal pair: write a force, read the State that answers it (lockstep), with the
+//! mock device (src/device/mock.rs, the simulated arm behind the real protocol) serving in a thread of this process.
+//!
+//! Two measurements: criterion's timing of back-to-back round trips, and a paced run at 1 kHz (the servo rate)
+//! that prints the p50, p99 and maximum round-trip latency over 5 000 exchanges.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use glam::DVec3;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
+use voxhap::device::mock::{default_arm_config, run_mock, FaultConfig, MockEvent, ServeOn};
+use voxhap::device::transport::SerialTransport;
+use voxhap::device::Lifecycle;
+
+type Device = Lifecycle<ProtocolDevice<SerialLink<SerialTransport>>>;
+
+fn start_mock() -> (Arc<AtomicBool>, std::thread::JoinHandle<()>, String) {
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let (sender, receiver) = mpsc::channel();
+    let flag = shutdown.clone();
+    let handle = std::thread::spawn(move || {
+        let mut on_event = |event: MockEvent| {
+            if let MockEvent::Serving(path) = event {
+                let _ = sender.send(path);
+            }
+        };
+        let result = run_mock(
+            default_arm_config(),
+            FaultConfig::default(),
+            &ServeOn::Pty,
+            None,
+            &flag,
+            &mut on_event,
+        );
+        if let Err(error) = result {
+            eprintln!("mock device failed: {error}");
+        }
+    });
+    let path = receiver
+        .recv_timeout(Duration::from_secs(5))
+        .expect("mock device path");
+    (shutdown, handle, path)
+}
+
+fn open(path: &str) -> Device {
+    let config = ProtocolConfig {
+        state_timeout: Duration::from_millis(100),
+        ..ProtocolConfig::default()
+    };
+    let transport = SerialTransport::open(path, 1_000_000).expect("open the pseudo-terminal");
+    let mut device = Lifecycle::new(ProtocolDevice::new(SerialLink::new(transport), config));
+    device.open().expect("handshake");
+    device.enable().expect("enable");
+    device
+}
+
+fn round_trip(device: &mut Device) {
+    device
+        .write_force(DVec3::new(0.1, 0.0, 0.0))
+        .expect("write");
+    std::hint::black_box(device.read_state().expect("state"));
+}
+
+fn paced_percentiles(device: &mut Device) {
+    let count = 5_000;
+    let mut latencies_us = Vec::with_capacity(count);
+    let start = Instant::now();
+    for tick in 1..=count as u64 {
+        let deadline = start + Duration::from_micros(tick * 1_000);
+        let now = Instant::now();
+        if deadline > now {
+            std::thread::sleep(deadline - now);
+        }
+        let sent = Instant::now();
+        round_trip(device);
+        latencies_us.push(sent.elapsed().as_secs_f64() * 1e6);
+    }
+    latencies_us.sort_by(f64::total_cmp);
+    let at = |q: f64| latencies_us[((latencies_us.len() - 1) as f64 * q).round() as usize];
+    println!(
+        "device/pty_round_trip_paced_1khz: {count} exchanges: p50 {:.1} us, p99 {:.1} us, max {:.1} us",
+        at(0.5),
+        at(0.99),
+        latencies_us[latencies_us.len() - 1]
+    );
+}
+
+fn bench(c: &mut Criterion) {
+    let (shutdown, handle, path) = start_mock();
+    let mut device = open(&path);
+    paced_percentiles(&mut device);
+    c.bench_function("device/pty_round_trip", |b| {
+        b.iter(|| round_trip(&mut device))
+    });
+    let _ = device.close();
+    shutdown.store(true, Ordering::Relaxed);
+    let _ = handle.join();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,328 @@
+//! In-memory transports for tests: scripted transactions in the embedded-hal-mock manner ([`ScriptedStream`],
+//! [`ScriptedReports`]), each checked by `done()`, and [`MemoryPipe`], a duplex byte pipe between a driver and a
+//! simulated device in the same process.
+//!
+//! The scripted doubles panic on an unexpected call, with a message naming the step: that is their purpose (a
+//! test double that tolerated a wrong byte would hide a driver bug). They are not used outside tests and benches.
+
+use super::{ByteTransport, ReportTransport};
+use crate::device::DeviceError;
+use std::collections::VecDeque;
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Duration;
+
+/// One expected transaction of a scripted transport.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Transaction {
+    /// The driver writes exactly these bytes (one `write_all` or `write_report` call).
+    Write(Vec<u8>),
+    /// The driver reads, and gets these bytes (a byte stream may take them over several reads).
+    Read(Vec<u8>),
+    /// The driver reads, and nothing arrives in time.
+    ReadTimeout,
+    /// The next call (read or write) fails with a disconnect.
+    Disconnect,
+}
+
+impl Transaction {
+    /// A write of these bytes.
+    pub fn write(bytes: &[u8]) -> Transaction {
+        Transaction::Write(bytes.to_vec())
+    }
+
+    /// A read returning these bytes.
+    pub fn read(bytes: &[u8]) -> Transaction {
+        Transaction::Read(bytes.to_vec())
+    }
+}
+
+#[derive(Debug)]
+struct Script {
+    expected: VecDeque<Transaction>,
+    step: usize,
+}
+
+impl Script {
+    fn new(transactions: &[Transaction]) -> Script {
+        Script {
+            expected: transactions.iter().cloned().collect(),
+            step: 0,
+        }
+    }
+
+    fn next(&mut self, call: &str) -> Transaction {
+        self.step += 1;
+        match self.expected.pop_front() {
+            Some(transaction) => transaction,
+            None => panic!(
+                "scripted transport: unexpected {call} at step {} (script finished)",
+                self.step
+            ),
+        }
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> Result<(), DeviceError> {
+        match self.next("write") {
+            Transaction::Write(expected) => {
+                assert_eq!(
+                    bytes,
+                    expected.as_slice(),
+                    "scripted transport: step {} wrote {:02x?}, expected {:02x?}",
+                    self.step,
+                    bytes,
+                    expected
+                );
+                Ok(())
+            }
+            Transaction::Disconnect => Err(disconnected("writing")),
+            other => panic!(
+                "scripted transport: step {} is {other:?}, but the driver wrote {bytes:02x?}",
+                self.step
+            ),
+        }
+    }
+
+    fn done(&self) {
+        assert!(
+            self.expected.is_empty(),
+            "scripted transport: {} transactions never happened: {:?}",
+            self.expected.len(),
+            self.expected
+        );
+    }
+}
+
+fn disconnected(during: &'static str) -> DeviceError {
+    DeviceError::Disconnected {
+        during,
+        kind: std::io::ErrorKind::BrokenPipe,
+    }
+}
+
+/// A scripted byte stream.
+#[derive(Debug)]
+pub struct ScriptedStream {
+    script: Script,
+}
+
+impl ScriptedStream {
+    /// A stream that expects exactly `transactions`, in order.
+    pub fn new(transactions: &[Transaction]) -> ScriptedStream {
+        ScriptedStream {
+            script: Script::new(transactions),
+        }
+    }
+
+    /// Panics unless every expected transaction happened.
+    pub fn done(&self) {
+        self.script.done();
+    }
+}
+
+impl ByteTransport for ScriptedStream {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), DeviceError> {
+        self.script.write(bytes)
+    }
+
+    fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, DeviceError> {
+        match self.script.next("read") {
+            Transaction::Read(mut bytes) => {
+                let n = bytes.len().min(buf.len());
+                buf[..n].copy_from_slice(&bytes[..n]);
+                if n < bytes.len() {
+                    // The rest stays for the next read.
+                    bytes.drain(..n);
+                    self.script.expected.push_front(Transaction::Read(bytes));
+                    self.script.step -= 1;
+                }
+                Ok(n)
+            }
+            Transaction::ReadTimeout => Ok(0),
+            Transaction::Disconnect => Err(disconnected("reading")),
+            Transaction::Write(expected) => panic!(
+                "scripted transport: step {} expects a write of {expected:02x?}, but the driver read",
+                self.script.step
+            ),
+        }
+    }
+}
+
+/// A scripted HID report transport.
+#[derive(Debug)]
+pub struct ScriptedReports {
+    script: Script,
+}
+
+impl ScriptedReports {
+    /// A transport that expects exactly `transactions`, in order.
+    pub fn new(transactions: &[Transaction]) -> ScriptedReports {
+        ScriptedReports {
+            script: Script::new(transactions),
+        }
+    }
+
+    /// Panics unless every expected transaction happened.
+    pub fn done(&self) {
+        self.script.done();
+    }
+}
+
+impl ReportTransport for ScriptedReports {
+    fn write_report(&mut self, report: &[u8]) -> Result<(), DeviceError> {
+        self.script.write(report)
+    }
+
+    fn read_report(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, DeviceError> {
+        match self.script.next("read_report") {
+            Transaction::Read(bytes) => {
+                assert!(
+                    bytes.len() <= buf.len(),
+                    "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
+                    bytes.len(),
+                    buf.len()
+                );
+                buf[..bytes.len()].copy_from_slice(&bytes);
+                Ok(bytes.len())
+            }
+            Transaction::ReadTimeout => Ok(0),
+            Transaction::Disconnect => Err(disconnected("reading")),
+            Transaction::Write(expected) => panic!(
+                "scripted transport: step {} expects a write of {expected:02x?}, but the driver read",
+                self.script.step
+            ),
+        }
+    }
+}
+
+#[derive(Debug, Default)]
+struct Channel {
+    bytes: Mutex<(VecDeque<u8>, bool)>,
+    ready: Condvar,
+}
+
+/// One end of an in-memory duplex byte pipe (tests and in-process simulations; it locks, so it is not for the
+/// servo thread of a real run).
+#[derive(Debug, Clone)]
+pub struct MemoryPipe {
+    incoming: Arc<Channel>,
+    outgoing: Arc<Channel>,
+}
+
+impl MemoryPipe {
+    /// Two connected ends.
+    pub fn pair() -> (MemoryPipe, MemoryPipe) {
+        let a = Arc::new(Channel::default());
+        let b = Arc::new(Channel::default());
+        (
+            MemoryPipe {
+                incoming: a.clone(),
+                outgoing: b.clone(),
+            },
+            MemoryPipe {
+                incoming: b,
+                outgoing: a,
+            },
+        )
+    }
+
+    /// Hangs up: both ends see a disconnect from now on.
+    pub fn close(&self) {
+        for channel in [&self.incoming, &self.outgoing] {
+            if let Ok(mut guard) = channel.bytes.lock() {
+                guard.1 = true;
+            }
+            channel.ready.notify_all();
+        }
+    }
+}
+
+impl ByteTransport for MemoryPipe {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), DeviceError> {
+        let mut guard = self
+            .outgoing
+            .bytes
+            .lock()
+            .map_err(|_| disconnected("writing"))?;
+        if guard.1 {
+            return Err(disconnected("writing"));
+        }
+        guard.0.extend(bytes);
+        self.outgoing.ready.notify_all();
+        Ok(())
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        let guard = self
+            .incoming
+            .bytes
+            .lock()
+            .map_err(|_| disconnected("reading"))?;
+        let (mut guard, _) = self
+            .incoming
+            .ready
+            .wait_timeout_while(guard, timeout, |(bytes, closed)| {
+                bytes.is_empty() && !*closed
+            })
+            .map_err(|_| disconnected("reading"))?;
+        if guard.0.is_empty() {
+            return if guard.1 {
+                Err(disconnected("reading"))
+            } else {
+                Ok(0)
+            };
+        }
+        let n = guard.0.len().min(buf.len());
+        for (slot, byte) in buf.iter_mut().zip(guard.0.drain(..n)) {
+            *slot = byte;
+        }
+        Ok(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scripted_stream_splits_a_long_read_and_reports_completion() {
+        let mut stream = ScriptedStream::new(&[
+            Transaction::write(&[1, 2]),
+            Transaction::read(&[3, 4, 5]),
+            Transaction::ReadTimeout,
+        ]);
+        stream.write_all(&[1, 2]).unwrap();
+        let mut buf = [0u8; 2];
+        assert_eq!(stream.read(&mut buf, Duration::ZERO).unwrap(), 2);
+        assert_eq!(buf, [3, 4]);
+        assert_eq!(stream.read(&mut buf, Duration::ZERO).unwrap(), 1);
+        assert_eq!(buf[0], 5);
+        assert_eq!(stream.read(&mut buf, Duration::ZERO).unwrap(), 0);
+        stream.done();
+    }
+
+    #[test]
+    #[should_panic(expected = "wrote")]
+    fn scripted_stream_rejects_a_wrong_write() {
+        let mut stream = ScriptedStream::new(&[Transaction::write(&[1, 2])]);
+        let _ = stream.write_all(&[1, 3]);
+    }
+
+    #[test]
+    #[should_panic(expected = "never happened")]
+    fn done_notices_missing_transactions() {
+        ScriptedStream::new(&[Transaction::ReadTimeout]).done();
+    }
+
+    #[test]
+    fn memory_pipe_carries_bytes_both_ways_and_reports_hang_up() {
+        let (mut a, mut b) = MemoryPipe::pair();
+        a.write_all(b"ping").unwrap();
+        let mut buf = [0u8; 8];
+        assert_eq!(b.read(&mut buf, Duration::from_millis(100)).unwrap(), 4);
+        assert_eq!(&buf[..4], b"ping");
+        assert_eq!(a.read(&mut buf, Duration::from_millis(1)).unwrap(), 0);
+        b.close();
+        let error = a.read(&mut buf, Duration::from_millis(1)).unwrap_err();
+        assert!(matches!(error, DeviceError::Disconnected { .. }));
+    }
+}

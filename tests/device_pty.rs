@@ -1,0 +1,372 @@
+//! The serial protocol driver against `voxhap mock-device` over real pseudo-terminals (a separate process):
+//! handshake, a clean 1 kHz exchange, corruption, the device watchdog, and disconnect/reconnect.
+
+use glam::DVec3;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::time::{Duration, Instant};
+use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
+use voxhap::device::safety::SafetyConfig;
+use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent};
+use voxhap::device::transport::SerialTransport;
+use voxhap::device::{HapticDevice, Lifecycle};
+use voxhap_protocol::{FaultCode, HostEvent, StatusFlags};
+
+/// A running mock device, killed on drop.
+struct Mock {
+    child: Child,
+    path: String,
+    stdout: BufReader<ChildStdout>,
+}
+
+impl Mock {
+    fn start(args: &[&str]) -> Mock {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+            .arg("mock-device")
+            .args(args)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("start voxhap mock-device");
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        stdout.read_line(&mut line).unwrap();
+        let path = line
+            .trim()
+            .strip_prefix("serving ")
+            .unwrap_or_else(|| panic!("mock said {line:?}"))
+            .to_string();
+        Mock {
+            child,
+            path,
+            stdout,
+        }
+    }
+
+    fn next_line(&mut self) -> String {
+        let mut line = String::new();
+        self.stdout.read_line(&mut line).unwrap();
+        line.trim().to_string()
+    }
+}
+
+impl Drop for Mock {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn open(
+    path: &str,
+    config: ProtocolConfig,
+) -> Lifecycle<ProtocolDevice<SerialLink<SerialTransport>>> {
+    let transport = SerialTransport::open(path, 1_000_000).unwrap();
+    let mut device = Lifecycle::new(ProtocolDevice::new(SerialLink::new(transport), config));
+    device.open().unwrap();
+    device
+}
+
+/// Sleeps until `deadline` (the pacing of a 1 kHz loop).
+fn wait_until(deadline: Instant) {
+    let now = Instant::now();
+    if deadline > now {
+        std::thread::sleep(deadline - now);
+    }
+}
+
+#[test]
+fn handshake_reports_the_mock_device_info() {
+    let mock = Mock::start(&["--pty"]);
+    let mut device = open(&mock.path, ProtocolConfig::default());
+    let info = device.info().clone();
+    assert_eq!(info.model, "voxhap-mock");
+    assert_eq!(info.serial_number, "sim-0001");
+    assert_eq!((info.position_dof, info.force_dof), (3, 3));
+    assert!((info.max_force_n - 5.0).abs() < 1e-6);
+    assert!(info.state_rates_hz.contains(&1000));
+    device.close().unwrap();
+}
+
+#[test]
+fn clean_link_at_1_khz_loses_no_frames() {
+    let mock = Mock::start(&["--pty"]);
+    let config = ProtocolConfig {
+        state_timeout: Duration::from_millis(100),
+        ..ProtocolConfig::default()
+    };
+    let mut device = open(&mock.path, config);
+    device.enable().unwrap();
+    let start = Instant::now();
+    let ticks = 2_500;
+    let mut previous_time_us = 0;
+    for tick in 1..=ticks {
+        wait_until(start + Duration::from_micros(tick * 1_000));
+        device.write_force(DVec3::new(0.1, 0.0, 0.0)).unwrap();
+        let state = device.read_state().unwrap();
+        let time_us = state.device_time_us.unwrap();
+        assert!(time_us >= previous_time_us, "device time went back");
+        previous_time_us = time_us;
+    }
+    let driver = device.device();
+    assert_eq!(
+        driver.decoder_stats().dropped(),
+        0,
+        "{:?}",
+        driver.decoder_stats()
+    );
+    assert_eq!(
+        driver.decoder_stats().frames_ok,
+        ticks + 2,
+        "one state per force, plus info and the open state"
+    );
+    assert_eq!(driver.counters().states_lost, 0);
+    assert_eq!(driver.counters().late_states, 0);
+    assert_eq!(driver.counters().timeouts, 0);
+    device.close().unwrap();
+}
+
+#[test]
+fn corrupted_link_counts_crc_errors_and_recovers() {
+    let mock = Mock::start(&["--pty", "--corrupt-rate", "0.002", "--seed", "42"]);
+    let config = ProtocolConfig {
+        state_timeout: Duration::from_millis(20),
+        ..ProtocolConfig::default()
+    };
+    // The handshake itself may be hit: retry it a few times, as a host would.
+    let mut device = None;
+    for _ in 0..5 {
+        let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
+        let mut candidate = Lifecycle::new(ProtocolDevice::new(SerialLink::new(transport), config));
+        if candidate.open().is_ok() {
+            device = Some(candidate);
+            break;
+        }
+    }
+    let mut device = device.expect("handshake never got through a 0.2 % corrupted link");
+    device.enable().unwrap();
+    let mut ok = 0;
+    let mut ok_after_error = false;
+    let mut had_error = false;
+    for _ in 0..1_000 {
+        if device
+            .write_force(DVec3::ZERO)
+            .and_then(|()| device.read_state())
+            .is_ok()
+        {
+            ok += 1;
+            ok_after_error |= had_error;
+        } else {
+            had_error = true;
+        }
+    }
+    let stats = device.device().decoder_stats();
+    assert!(
+        stats.crc_errors + stats.cobs_errors > 0,
+        "no corruption seen: {stats:?}"
+    );
+    assert!(
+        had_error && ok_after_error,
+        "the link never failed, or never recovered"
+    );
+    assert!(ok > 800, "only {ok} of 1000 exchanges succeeded; {stats:?}");
+    device.mark_lost();
+}
+
+#[test]
+fn device_drops_to_zero_force_within_its_watchdog_when_the_host_stops() {
+    let mut mock = Mock::start(&["--pty"]);
+    let watchdog_us = 20_000;
+    let config = ProtocolConfig {
+        device_watchdog_us: watchdog_us,
+        ..ProtocolConfig::default()
+    };
+    let mut device = open(&mock.path, config);
+    device.enable().unwrap();
+    for _ in 0..100 {
+        device.write_force(DVec3::new(0.5, 0.0, 0.0)).unwrap();
+        device.read_state().unwrap();
+    }
+    // The host stops sending. The mock must report its watchdog within the timeout plus one control period
+    // (1 ms) plus scheduling slack.
+    let stopped = Instant::now();
+    device.mark_lost(); // nothing more is sent, not even the zero force of a clean disable
+    let line = mock.next_line();
+    let elapsed = stopped.elapsed();
+    assert!(line.starts_with("watchdog tripped"), "mock said {line:?}");
+    assert!(
+        elapsed < Duration::from_micros(u64::from(watchdog_us)) + Duration::from_millis(80),
+        "watchdog reported after {elapsed:?}"
+    );
+}
+
+#[test]
+fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
+    let mock = Mock::start(&["--pty"]);
+    let config = ProtocolConfig {
+        device_watchdog_us: 10_000,
+        ..ProtocolConfig::default()
+    };
+    let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
+    let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
+    device.open().unwrap();
+    device.enable().unwrap();
+    for _ in 0..20 {
+        device.write_force(DVec3::new(0.5, 0.0, 0.0)).unwrap();
+        device.read_state().unwrap();
+    }
+    let stopped = Instant::now();
+    let fault = loop {
+        assert!(
+            stopped.elapsed() < Duration::from_millis(500),
+            "no fault message"
+        );
+        if let Some(HostEvent::Fault(fault)) = device.poll_event(Duration::from_millis(50)).unwrap()
+        {
+            break fault;
+        }
+    };
+    assert_eq!(fault.code, FaultCode::WATCHDOG_EXPIRED);
+    assert!(
+        stopped.elapsed() < Duration::from_millis(10 + 60),
+        "fault after {:?}",
+        stopped.elapsed()
+    );
+    let reply = device.heartbeat(Duration::from_millis(200)).unwrap();
+    assert!(reply.status.contains(StatusFlags::WATCHDOG_TRIPPED));
+    assert!(
+        !reply.status.contains(StatusFlags::ENABLED),
+        "device still enabled: {:?}",
+        reply.status
+    );
+}
+
+#[test]
+fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("arm");
+    let link_text = link.to_str().unwrap().to_string();
+    let _mock = Mock::start(&[
+        "--port",
+        &link_text,
+        "--disconnect-after",
+        "0.6",
+        "--reconnect-after",
+        "0.4",
+    ]);
+    let protocol = ProtocolConfig {
+        state_timeout: Duration::from_millis(20),
+        ..ProtocolConfig::default()
+    };
+    let config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 50_000,
+            ..SafetyConfig::default()
+        },
+        reconnect_interval_us: 50_000,
+        max_consecutive_timeouts: 10,
+    };
+    let mut supervisor = Supervisor::new(config, || {
+        let transport = SerialTransport::open(&link_text, 1_000_000)?;
+        Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
+    })
+    .unwrap();
+    let start = Instant::now();
+    let (mut disconnected_at, mut reconnected_at) = (None, None);
+    let mut connects = 0;
+    let mut ticks_after_reconnect = 0;
+    let mut tick = 0u64;
+    while start.elapsed() < Duration::from_secs(4) && ticks_after_reconnect < 200 {
+        tick += 1;
+        wait_until(start + Duration::from_micros(tick * 1_000));
+        let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
+        let out = supervisor.tick(DVec3::new(0.2, 0.0, 0.0), now_us);
+        match out.event {
+            Some(SupervisorEvent::Connected) => {
+                connects += 1;
+                if disconnected_at.is_some() {
+                    reconnected_at = Some(now_us);
+                }
+            }
+            Some(SupervisorEvent::Disconnected(_)) => disconnected_at = Some(now_us),
+            _ => {}
+        }
+        if disconnected_at.is_some() && reconnected_at.is_none() {
+            assert_eq!(
+                out.sent_force_n,
+                DVec3::ZERO,
+                "force sent while disconnected"
+            );
+            assert!(!out.connected || out.event.is_some());
+        }
+        if reconnected_at.is_some() && !out.stale {
+            ticks_after_reconnect += 1;
+        }
+    }
+    let disconnected_at = disconnected_at.expect("the host never noticed the disconnect");
+    let reconnected_at = reconnected_at.expect("the host never reconnected");
+    assert_eq!(connects, 2);
+    assert!(
+        disconnected_at > 500_000,
+        "disconnect noticed too early: {disconnected_at} us"
+    );
+    assert!(
+        reconnected_at - disconnected_at >= 300_000,
+        "reconnected before the mock came back"
+    );
+    assert!(
+        ticks_after_reconnect >= 200,
+        "only {ticks_after_reconnect} good ticks after reconnecting"
+    );
+    assert_eq!(supervisor.counters().disconnects, 1);
+}
+
+#[test]
+fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
+    let mock = Mock::start(&["--pty", "--stop-after", "0.3"]);
+    let path = mock.path.clone();
+    let protocol = ProtocolConfig {
+        state_timeout: Duration::from_millis(5),
+        open_timeout: Duration::from_millis(50),
+        ..ProtocolConfig::default()
+    };
+    let config = SupervisorConfig {
+        reconnect_interval_us: 100_000,
+        max_consecutive_timeouts: 10,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(config, || {
+        let transport = SerialTransport::open(&path, 1_000_000)?;
+        Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
+    })
+    .unwrap();
+    let start = Instant::now();
+    let mut lost_at = None;
+    let mut failed_reconnects = 0;
+    let mut tick = 0u64;
+    while start.elapsed() < Duration::from_secs(2) && failed_reconnects < 2 {
+        tick += 1;
+        wait_until(start + Duration::from_micros(tick * 1_000));
+        let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
+        let out = supervisor.tick(DVec3::new(0.2, 0.0, 0.0), now_us);
+        match out.event {
+            Some(SupervisorEvent::Disconnected(kind)) => {
+                assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
+                lost_at = Some(now_us);
+            }
+            Some(SupervisorEvent::ReconnectFailed(_)) => failed_reconnects += 1,
+            _ => {}
+        }
+        if lost_at.is_some() {
+            assert_eq!(out.sent_force_n, DVec3::ZERO);
+        }
+    }
+    let lost_at = lost_at.expect("a mute device was never declared lost");
+    assert!(
+        lost_at >= 300_000,
+        "lost at {lost_at} us, before the device went mute"
+    );
+    assert!(
+        failed_reconnects >= 1,
+        "the supervisor never tried to reopen the mute device"
+    );
+}

@@ -1,0 +1,175 @@
+//! The safety pipeline and the supervisor on the servo path: no allocation per tick (counting allocator), and the
+//! supervisor's handling of a lost device (replay device behind an opener that can fail).
+
+use crate::util::count_allocations;
+use glam::DVec3;
+use std::cell::Cell;
+use std::rc::Rc;
+use voxhap::device::drivers::ReplayDevice;
+use voxhap::device::safety::{SafetyConfig, SafetyPipeline};
+use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent};
+use voxhap::device::{DeviceError, DeviceInfo, DeviceState, ErrorKind, HapticDevice};
+use voxhap::record::{Trace, TraceSample};
+
+#[test]
+fn safety_pipeline_tick_does_not_allocate() {
+    let mut pipeline = SafetyPipeline::new(SafetyConfig::default()).unwrap();
+    pipeline.enable(0);
+    let forces = [
+        DVec3::ZERO,
+        DVec3::new(10.0, 0.0, 0.0),
+        DVec3::new(f64::NAN, 0.0, 0.0),
+        DVec3::Y,
+    ];
+    let events = count_allocations(|| {
+        for tick in 0..10_000u64 {
+            let out = pipeline.process(forces[(tick % 4) as usize], tick * 1_000);
+            std::hint::black_box(out);
+        }
+    });
+    assert_eq!(events, 0);
+    assert!(pipeline.counters().non_finite > 0 && pipeline.counters().clamped > 0);
+}
+
+fn trace(count: usize) -> Trace {
+    Trace {
+        mode_names: Vec::new(),
+        samples: (0..count)
+            .map(|i| TraceSample {
+                tick: i as u64,
+                t_s: i as f64 * 1e-3,
+                probe_m: DVec3::new(i as f64 * 1e-5, 0.0, 0.0),
+                ..TraceSample::zeroed(0)
+            })
+            .collect(),
+        sidecar: None,
+    }
+}
+
+#[test]
+fn supervisor_steady_state_tick_does_not_allocate() {
+    let replay = trace(100);
+    let mut supervisor = Supervisor::new(SupervisorConfig::default(), || {
+        ReplayDevice::new(&replay, true)
+    })
+    .unwrap();
+    assert!(supervisor.connect(0).is_ok());
+    supervisor.tick(DVec3::ZERO, 1_000);
+    let events = count_allocations(|| {
+        for tick in 2..5_000u64 {
+            std::hint::black_box(supervisor.tick(DVec3::new(0.01, 0.0, 0.0), tick * 1_000));
+        }
+    });
+    assert_eq!(events, 0);
+}
+
+/// A device that works until told to vanish.
+struct Flaky {
+    info: DeviceInfo,
+    gone: Rc<Cell<bool>>,
+    forces: Rc<Cell<DVec3>>,
+}
+
+impl HapticDevice for Flaky {
+    type Error = DeviceError;
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+    fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        if self.gone.get() {
+            return Err(DeviceError::Disconnected {
+                during: "writing",
+                kind: std::io::ErrorKind::BrokenPipe,
+            });
+        }
+        self.forces.set(force_n);
+        Ok(())
+    }
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        Ok(DeviceState::at_rest(DVec3::ZERO))
+    }
+}
+
+#[test]
+fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
+    let gone = Rc::new(Cell::new(false));
+    let forces = Rc::new(Cell::new(DVec3::ZERO));
+    let info = DeviceInfo {
+        model: "flaky".into(),
+        serial_number: String::new(),
+        position_dof: 3,
+        force_dof: 3,
+        button_count: 0,
+        workspace_min_m: DVec3::splat(-0.1),
+        workspace_max_m: DVec3::splat(0.1),
+        max_force_n: 1.0,
+        max_stiffness_n_per_m: 1000.0,
+        state_rates_hz: Vec::new(),
+    };
+    let opener_gone = gone.clone();
+    let opener_forces = forces.clone();
+    let config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 10_000,
+            ..SafetyConfig::default()
+        },
+        reconnect_interval_us: 50_000,
+        max_consecutive_timeouts: 5,
+    };
+    let mut supervisor = Supervisor::new(config, move || {
+        if opener_gone.get() {
+            Err(DeviceError::Open {
+                path: "flaky".into(),
+                message: "not there".into(),
+            })
+        } else {
+            Ok(Flaky {
+                info: info.clone(),
+                gone: opener_gone.clone(),
+                forces: opener_forces.clone(),
+            })
+        }
+    })
+    .unwrap();
+    let push = DVec3::new(5.0, 0.0, 0.0);
+    let mut now_us = 0;
+    let mut tick = |supervisor: &mut Supervisor<_, _>, force: DVec3| {
+        now_us += 1_000;
+        supervisor.tick(force, now_us)
+    };
+    assert_eq!(
+        tick(&mut supervisor, DVec3::ZERO).event,
+        Some(SupervisorEvent::Connected)
+    );
+    for _ in 0..20 {
+        tick(&mut supervisor, push);
+    }
+    // Ramped in, clamped to the device's 1 N.
+    assert!((forces.get().x - 1.0).abs() < 1e-12, "{:?}", forces.get());
+    gone.set(true);
+    let out = tick(&mut supervisor, push);
+    assert_eq!(
+        out.event,
+        Some(SupervisorEvent::Disconnected(ErrorKind::Disconnected))
+    );
+    assert!(!out.connected);
+    for _ in 0..100 {
+        let out = tick(&mut supervisor, push);
+        assert_eq!(out.sent_force_n, DVec3::ZERO);
+        assert!(!out.connected);
+    }
+    assert!(supervisor.counters().failed_reconnects >= 1);
+    gone.set(false);
+    let mut reconnected = false;
+    for _ in 0..100 {
+        if tick(&mut supervisor, DVec3::ZERO).event == Some(SupervisorEvent::Connected) {
+            reconnected = true;
+            break;
+        }
+    }
+    assert!(reconnected);
+    // Forces ramp in again from zero: the first tick after reconnection sends (nearly) nothing.
+    let out = tick(&mut supervisor, DVec3::new(0.05, 0.0, 0.0));
+    assert!(out.sent_force_n.length() < 0.01, "{:?}", out.sent_force_n);
+    assert_eq!(supervisor.counters().disconnects, 1);
+}

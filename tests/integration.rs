@@ -6,6 +6,7 @@
 mod util;
 
 mod cli_solve;
+mod modes;
 mod paper;
 mod solver_alloc;
 mod solver_props;

@@ -30,7 +30,10 @@
 //! `N = max(0, n . F)`. At equilibrium `F` balances the sum of primitive forces, so when the surface plane
 //! is the only primitive pushing along `n` this is exactly the plane's force. When the surface emitted no
 //! plane last tick, `N = 0` and friction emits nothing. Friction uses a point (as the paper does), so it
-//! also resists pulling the proxy off the surface, by at most `mu N`.
+//! resists motion in every direction, not only along the surface: where the surface's transfer function
+//! is not saturated at the proxy (the proxy sits in its ramp), the point also carries part of the normal
+//! load and less is left for tangential friction. Surfaces that should feel friction want a transfer
+//! function that reaches its full strength within a few micrometres of depth (a steep ramp).
 //!
 //! **Vortex core.** A line through the proxy along `w` would only resist sideways motion; to follow a
 //! vortex the line is placed on the core estimated from the local linearisation `v(x + d) = v + J d`:

@@ -7,5 +7,7 @@
 
 pub mod cli;
 pub mod clock;
+pub mod device;
 pub mod haptics;
+pub mod record;
 pub mod volume;

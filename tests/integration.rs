@@ -5,10 +5,11 @@
 
 mod util;
 
+mod alloc_free;
 mod cli_solve;
 mod modes;
 mod paper;
-mod solver_alloc;
+mod record;
 mod solver_props;
 mod volume_io;
 

@@ -4,6 +4,7 @@
 //! example scene (sims/scenes/plane_point.json, built into the binary) with the exact solver.
 
 pub mod info;
+pub mod plot;
 pub mod solve;
 
 use crate::haptics::scene::Scene;
@@ -24,6 +25,8 @@ pub enum Command {
     Solve(solve::SolveArgs),
     /// Print what the loader reads from a volume file (or builtin:NAME).
     Info(info::InfoArgs),
+    /// Plot a recorded force trace (CSV or MCAP) to a PNG or SVG image.
+    Plot(plot::PlotArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -56,6 +59,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Some(Command::Solve(args)) => solve::run(&args),
         Some(Command::Info(args)) => info::run(&args),
+        Some(Command::Plot(args)) => plot::run(args),
         None => {
             print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
             print_out("See `voxhap --help` for the other commands.\n")?;

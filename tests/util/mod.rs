@@ -1,3 +1,12 @@
 //! Shared helpers for the integration tests.
+//!
+//! [`alloc::CountingAllocator`] is the test binary's global allocator (installed in tests/integration.rs): it
+//! counts allocations, reallocations and frees per thread, so a test can prove that a hot path (the solver, the
+//! servo tick, `SimArm::step`) does not allocate while other tests run in parallel on other threads.
 
 pub mod alloc;
+
+/// Runs `f` and returns how many allocation events (alloc, realloc, free) the current thread made meanwhile.
+pub fn count_allocations(f: impl FnOnce()) -> u64 {
+    alloc::count_allocations(f).1
+}

@@ -1,4 +1,5 @@
-//! The exact solver allocates nothing once its workspace has the scene's size (the servo-path rule).
+//! The servo-path rule, proved with the counting allocator: the exact solver allocates nothing once its workspace
+//! has the scene's size, and volume sampling never allocates.
 
 use crate::util::alloc::count_allocations;
 use glam::DVec3;
@@ -54,4 +55,31 @@ fn solving_allocates_nothing_after_warm_up() {
         results.iter().all(|s| *s == SolveStatus::Certified),
         "{results:?}"
     );
+}
+
+/// Volume sampling runs every tick on the servo thread: it must not allocate either.
+#[test]
+fn volume_sampling_allocates_nothing() {
+    use voxhap::volume::procedural;
+    let density = procedural::sphere(0.03, [48, 48, 48], 0.05).unwrap();
+    let flow = procedural::rankine_vortex(0.01, 0.05, [32, 32, 32], 0.05).unwrap();
+    let mut acc = 0.0;
+    let ((), events) = count_allocations(|| {
+        for i in 0..2000 {
+            let t = i as f64 * 1e-3;
+            // Inside, on the edge of and outside the grid, and one non-finite position.
+            let p = DVec3::new(
+                0.07 * (3.0 * t).sin(),
+                0.05 * (2.0 * t).cos(),
+                0.04 * (5.0 * t).sin(),
+            );
+            let (v, g) = density.sample_with_gradient(p);
+            acc += v + g.x + density.gradient(p).y + density.sample(p);
+            acc +=
+                flow.sample(p).z + flow.curl(p).z + flow.divergence(p) + flow.jacobian(p).x_axis.x;
+        }
+        acc += density.sample(DVec3::NAN) + flow.curl(DVec3::INFINITY).x;
+    });
+    assert_eq!(events, 0, "volume sampling allocated");
+    assert!(acc.is_finite());
 }

@@ -1,0 +1,68 @@
+//! `voxhap plot TRACE --out FILE.png|svg`: draws a recorded force trace (CSV or MCAP) with
+//! [`crate::record::plot`]. Thin: argument parsing, the title, and error context.
+
+use anyhow::Context;
+use clap::Args;
+use std::path::PathBuf;
+
+use crate::record::{plot::plot_trace, read_trace, Trace};
+
+/// Arguments of `voxhap plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// The trace to plot: a CSV or MCAP file written by voxhap (its sidecar TRACE.json is used when present).
+    pub trace: PathBuf,
+    /// Output image; the extension chooses the format: .png or .svg.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 1200)]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 1000)]
+    pub height: u32,
+    /// Title; by default the trace's file name, scenario name, rate and length.
+    #[arg(long)]
+    pub title: Option<String>,
+}
+
+/// Reads the trace and writes the plot.
+pub fn run(args: PlotArgs) -> anyhow::Result<()> {
+    // The reader's errors name the file (and the line and column).
+    let trace = read_trace(&args.trace)?;
+    let title = args
+        .title
+        .clone()
+        .unwrap_or_else(|| default_title(&args, &trace));
+    plot_trace(&trace, &title, &args.out, args.width, args.height)
+        .with_context(|| format!("cannot plot {}", args.trace.display()))?;
+    eprintln!(
+        "wrote {} ({} samples)",
+        args.out.display(),
+        trace.samples.len()
+    );
+    Ok(())
+}
+
+fn default_title(args: &PlotArgs, trace: &Trace) -> String {
+    let file = args
+        .trace
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut title = file;
+    if let Some(sidecar) = &trace.sidecar {
+        if let Some(name) = sidecar.meta.scenario.get("name").and_then(|v| v.as_str()) {
+            title.push_str(&format!(" - {name}"));
+        }
+        title.push_str(&format!(" - {} Hz", sidecar.meta.rate_hz));
+    }
+    if let (Some(first), Some(last)) = (trace.samples.first(), trace.samples.last()) {
+        title.push_str(&format!(
+            " - {} ticks, {:.3} s",
+            trace.samples.len(),
+            last.t_s - first.t_s
+        ));
+    }
+    title
+}

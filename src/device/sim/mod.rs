@@ -1,0 +1,85 @@
+//! The simulated arm: a point mass moved by a virtual hand, feeling the rendered force.
+//!
+//! In the data flow of DESIGN.md section 5 the simulated arm stands in for a real device: each servo tick
+//! the loop reads [`SimArm::position_m`] as the probe position, computes the force, and hands it back with
+//! [`SimArm::step`], which advances the arm's physics by one tick. Time is passed in, so runs are
+//! deterministic and can go faster than real time.
+//!
+//! Model (all SI): the end effector is a point mass `m` with viscous damping `b_arm` to ground. Three
+//! forces act on it besides damping:
+//!
+//! * the rendered force from the haptic loop, held constant over the tick (zero-order hold, as a real
+//!   device's amplifier does);
+//! * the virtual hand ([`HandParams`], [`HandPath`]): a spring-damper `k_h (target - x) + b_h (v_target - v)`
+//!   towards a scripted moving target, or a scripted force profile;
+//! * the workspace limit ([`Workspace`]): a stiff one-sided wall. With `d` the distance outside the
+//!   workspace and `n` the outward normal, the wall pushes with `max(0, k_w d + b_w v.n)` along `-n`, so it
+//!   acts only while the arm is outside and never pulls inward. At rest under a force `F` pushing outward
+//!   the arm sits `F / k_w` outside; an arm arriving with speed can overshoot further, by at most
+//!   `sqrt(2 E / k_w)` where `E` is its kinetic plus hand-spring energy (every damper only dissipates).
+//!   These are the documented tolerances of the limit.
+//!
+//! Integration is semi-implicit (symplectic) Euler with `substeps_per_tick` equal substeps of
+//! `h = dt / substeps`: `v += h a(x, v, t)`, then `x += h v`. The hand target is evaluated at each substep's
+//! start time. For `m x'' = -k x - b x'` this is stable when `h^2 k/m < 4 - 2 h b/m`; [`SimArm::new`]
+//! computes the conservative limit `h <= min(sqrt(m / k_total), m / b_total)` (with `k_total = k_h + k_w`,
+//! `b_total = b_arm + b_h + b_w`) and [`SimArm::step`] refuses longer substeps.
+//!
+//! Steady-state behaviour (what the tests check): following a target that moves at constant velocity `V`,
+//! the arm settles at the target's velocity and lags it by `b_arm V / k_h` (the arm's damping has to be
+//! pulled by the hand spring); holding a fixed target under a constant rendered force `F`, it settles at
+//! `target + F / k_h`. The rendered force's own stiffness (the coupling) is outside this model; the sampled
+//! loop's stability is the servo's business.
+
+mod arm;
+mod path;
+
+pub use arm::{ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace};
+pub use path::{ForceProfile, HandDrive, HandPath};
+
+/// Why a simulated arm could not be built or stepped. Copy and allocation-free, so the servo thread can
+/// return it.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// A scalar parameter is out of range.
+    #[error("simulated arm parameter {name} = {value} must be {requirement}")]
+    InvalidParameter {
+        /// Parameter name as written in the scenario file.
+        name: &'static str,
+        /// The offending value.
+        value: f64,
+        /// What it must be.
+        requirement: &'static str,
+    },
+    /// A vector parameter has a NaN or infinite component.
+    #[error("simulated arm parameter {name} has a non-finite component")]
+    NonFiniteVector {
+        /// Parameter name as written in the scenario file.
+        name: &'static str,
+    },
+    /// A waypoint path with no points.
+    #[error("simulated arm path: waypoints needs at least one point in points_m")]
+    EmptyWaypoints,
+    /// The workspace box has `min_m` above `max_m` on some axis.
+    #[error("simulated arm workspace box: min_m must be <= max_m on every axis")]
+    InvertedBox,
+    /// `step` got a non-finite time or a non-positive or non-finite tick length.
+    #[error("simulated arm step: t_s = {t_s} and dt_s = {dt_s} must be finite with dt_s > 0")]
+    InvalidTime {
+        /// Tick start time given (s).
+        t_s: f64,
+        /// Tick length given (s).
+        dt_s: f64,
+    },
+    /// The physics substep is too long for the stiffness and damping: raise `substeps_per_tick`.
+    #[error(
+        "simulated arm substep {substep_s} s exceeds the stable limit {max_substep_s} s: \
+         raise arm.substeps_per_tick or lower the stiffness"
+    )]
+    SubstepTooLong {
+        /// The substep asked for (s).
+        substep_s: f64,
+        /// The longest stable substep (s).
+        max_substep_s: f64,
+    },
+}

@@ -1,0 +1,539 @@
+//! The virtual hand's script: where the hand wants the arm to be (or what force it pushes with) at time t.
+//!
+//! A [`HandPath`] is a pure function of time, evaluated inside every physics substep of
+//! [`SimArm::step`](super::SimArm::step), so it never allocates and never fails: the parameters are checked
+//! once by [`HandPath::validate`] (which [`SimArm::new`](super::SimArm::new) calls). Every position path
+//! returns both the target position and its exact time derivative, so the hand's damper acts on the
+//! velocity error rather than fighting the motion.
+//!
+//! Conventions: time before 0 (or non-finite) is treated as 0; paths that end (line, waypoints, raster) hold
+//! their last point afterwards; the circle repeats forever. Polylines (waypoints, raster) are walked at a
+//! constant speed along their arc length, with a velocity jump at each corner.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::TAU;
+
+use super::SimError;
+
+/// What the virtual hand does at one instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HandDrive {
+    /// Pull the arm with the hand spring-damper towards this moving target.
+    Target {
+        /// Target position (m).
+        position_m: DVec3,
+        /// Target velocity, the time derivative of `position_m` (m/s).
+        velocity_m_per_s: DVec3,
+    },
+    /// Push the arm with this force directly (no spring).
+    Force {
+        /// Applied force (N).
+        force_n: DVec3,
+    },
+}
+
+/// A scripted hand motion. In a scenario TOML it is a table with a `kind` key, e.g.
+/// `{ kind = "line", from_m = [0, 0, 0], to_m = [0.05, 0, 0], duration_s = 2.0 }`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum HandPath {
+    /// Hold still at one point.
+    Hold {
+        /// The point (m).
+        at_m: DVec3,
+    },
+    /// Move from `from_m` to `to_m` at constant velocity over `duration_s`, then hold at `to_m`.
+    Line {
+        /// Start point (m), held before t = 0.
+        from_m: DVec3,
+        /// End point (m), held after `duration_s`.
+        to_m: DVec3,
+        /// Travel time (s), > 0.
+        duration_s: f64,
+    },
+    /// Visit the points in order at a constant speed, then hold at the last one.
+    Waypoints {
+        /// At least one point (m).
+        points_m: Vec<DVec3>,
+        /// Speed along the polyline (m/s), > 0.
+        speed_m_per_s: f64,
+    },
+    /// Go round a circle forever. The start point and sense are fixed by the normal: with
+    /// `(u, w) = normal.any_orthonormal_pair()` the target is `center + r (cos a u + sin a w)` with
+    /// `a = 2 pi t / period_s`, so for a normal along +z it starts on +x and turns towards +y.
+    Circle {
+        /// Centre (m).
+        center_m: DVec3,
+        /// Radius (m), > 0.
+        radius_m: f64,
+        /// Axis of the circle (any non-zero length; normalised on use).
+        normal: DVec3,
+        /// Time for one turn (s), > 0.
+        period_s: f64,
+    },
+    /// A boustrophedon (lawn-mower) sweep: `lines` passes along `sweep_m`, stepping across by
+    /// `step_m / (lines - 1)` between passes, alternating direction, at constant speed; then hold.
+    Raster {
+        /// Start corner (m).
+        origin_m: DVec3,
+        /// One pass: direction and length (m).
+        sweep_m: DVec3,
+        /// Total offset from the first pass to the last (m); unused when `lines` is 1.
+        step_m: DVec3,
+        /// Number of passes, >= 1.
+        lines: u32,
+        /// Speed along the path (m/s), > 0.
+        speed_m_per_s: f64,
+    },
+    /// Apply a force profile instead of following a target (the hand spring is not used).
+    Force {
+        /// The force over time.
+        profile: ForceProfile,
+    },
+}
+
+/// A force over time, for [`HandPath::Force`]. A table with a `shape` key.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "shape", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ForceProfile {
+    /// The same force at all times.
+    Constant {
+        /// Force (N).
+        force_n: DVec3,
+    },
+    /// Linear from `from_n` at t = 0 to `to_n` at `duration_s`, then constant.
+    Ramp {
+        /// Force at t = 0 (N).
+        from_n: DVec3,
+        /// Force from `duration_s` on (N).
+        to_n: DVec3,
+        /// Ramp time (s), > 0.
+        duration_s: f64,
+    },
+    /// `offset_n + amplitude_n sin(2 pi frequency_hz t)`.
+    Sine {
+        /// Mean force (N).
+        offset_n: DVec3,
+        /// Amplitude, per axis (N).
+        amplitude_n: DVec3,
+        /// Frequency (Hz), > 0.
+        frequency_hz: f64,
+    },
+}
+
+fn check_positive(name: &'static str, value: f64) -> Result<(), SimError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(SimError::InvalidParameter {
+            name,
+            value,
+            requirement: "finite and > 0",
+        })
+    }
+}
+
+fn check_vector(name: &'static str, value: DVec3) -> Result<(), SimError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(SimError::NonFiniteVector { name })
+    }
+}
+
+/// Clamps time to the path's domain: negative and non-finite times count as 0.
+fn path_time(t_s: f64) -> f64 {
+    if t_s.is_finite() {
+        t_s.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// Position and velocity on a polyline of `count` vertices walked at `speed` from time 0.
+/// `vertex(i)` gives vertex i; zero-length segments are skipped. No allocation.
+fn polyline_at(count: usize, vertex: impl Fn(usize) -> DVec3, speed: f64, t_s: f64) -> HandDrive {
+    let mut remaining_m = speed * path_time(t_s);
+    let mut current = vertex(0);
+    for i in 1..count {
+        let next = vertex(i);
+        let segment = next - current;
+        let length_m = segment.length();
+        if length_m > 0.0 {
+            if remaining_m < length_m {
+                let direction = segment / length_m;
+                return HandDrive::Target {
+                    position_m: current + direction * remaining_m,
+                    velocity_m_per_s: direction * speed,
+                };
+            }
+            remaining_m -= length_m;
+        }
+        current = next;
+    }
+    HandDrive::Target {
+        position_m: current,
+        velocity_m_per_s: DVec3::ZERO,
+    }
+}
+
+impl HandPath {
+    /// Checks that every parameter is finite and in range. [`SimArm::new`](super::SimArm::new) calls this.
+    pub fn validate(&self) -> Result<(), SimError> {
+        match self {
+            HandPath::Hold { at_m } => check_vector("path.at_m", *at_m),
+            HandPath::Line {
+                from_m,
+                to_m,
+                duration_s,
+            } => {
+                check_vector("path.from_m", *from_m)?;
+                check_vector("path.to_m", *to_m)?;
+                check_positive("path.duration_s", *duration_s)
+            }
+            HandPath::Waypoints {
+                points_m,
+                speed_m_per_s,
+            } => {
+                if points_m.is_empty() {
+                    return Err(SimError::EmptyWaypoints);
+                }
+                for point in points_m {
+                    check_vector("path.points_m", *point)?;
+                }
+                check_positive("path.speed_m_per_s", *speed_m_per_s)
+            }
+            HandPath::Circle {
+                center_m,
+                radius_m,
+                normal,
+                period_s,
+            } => {
+                check_vector("path.center_m", *center_m)?;
+                check_positive("path.radius_m", *radius_m)?;
+                check_vector("path.normal", *normal)?;
+                check_positive("path.normal (length)", normal.length())?;
+                check_positive("path.period_s", *period_s)
+            }
+            HandPath::Raster {
+                origin_m,
+                sweep_m,
+                step_m,
+                lines,
+                speed_m_per_s,
+            } => {
+                check_vector("path.origin_m", *origin_m)?;
+                check_vector("path.sweep_m", *sweep_m)?;
+                check_vector("path.step_m", *step_m)?;
+                check_positive("path.lines", f64::from(*lines))?;
+                check_positive("path.speed_m_per_s", *speed_m_per_s)
+            }
+            HandPath::Force { profile } => profile.validate(),
+        }
+    }
+
+    /// The hand's drive at time `t_s`: a target with its velocity, or a force. Pure and allocation-free.
+    pub fn drive_at(&self, t_s: f64) -> HandDrive {
+        match self {
+            HandPath::Hold { at_m } => HandDrive::Target {
+                position_m: *at_m,
+                velocity_m_per_s: DVec3::ZERO,
+            },
+            HandPath::Line {
+                from_m,
+                to_m,
+                duration_s,
+            } => {
+                let t = path_time(t_s);
+                if t >= *duration_s {
+                    HandDrive::Target {
+                        position_m: *to_m,
+                        velocity_m_per_s: DVec3::ZERO,
+                    }
+                } else {
+                    let fraction = t / duration_s;
+                    HandDrive::Target {
+                        position_m: from_m.lerp(*to_m, fraction),
+                        velocity_m_per_s: (*to_m - *from_m) / *duration_s,
+                    }
+                }
+            }
+            HandPath::Waypoints {
+                points_m,
+                speed_m_per_s,
+            } => polyline_at(points_m.len(), |i| points_m[i], *speed_m_per_s, t_s),
+            HandPath::Circle {
+                center_m,
+                radius_m,
+                normal,
+                period_s,
+            } => {
+                let (u, w) = normal.normalize().any_orthonormal_pair();
+                let omega_rad_per_s = TAU / period_s;
+                let angle_rad = omega_rad_per_s * path_time(t_s);
+                let (sin, cos) = angle_rad.sin_cos();
+                HandDrive::Target {
+                    position_m: *center_m + *radius_m * (cos * u + sin * w),
+                    velocity_m_per_s: *radius_m * omega_rad_per_s * (-sin * u + cos * w),
+                }
+            }
+            HandPath::Raster {
+                origin_m,
+                sweep_m,
+                step_m,
+                lines,
+                speed_m_per_s,
+            } => {
+                let lines = (*lines).max(1) as usize;
+                let across = if lines > 1 {
+                    *step_m / (lines - 1) as f64
+                } else {
+                    DVec3::ZERO
+                };
+                let vertex = |j: usize| {
+                    let row = j / 2;
+                    let end_of_row = j % 2 == 1;
+                    let along = if (row % 2 == 0) == end_of_row {
+                        1.0
+                    } else {
+                        0.0
+                    };
+                    *origin_m + *sweep_m * along + across * row as f64
+                };
+                polyline_at(2 * lines, vertex, *speed_m_per_s, t_s)
+            }
+            HandPath::Force { profile } => HandDrive::Force {
+                force_n: profile.force_at(t_s),
+            },
+        }
+    }
+
+    /// The target position at `t_s`, or `None` for a [`HandPath::Force`] profile (which has no target).
+    pub fn target_at(&self, t_s: f64) -> Option<DVec3> {
+        match self.drive_at(t_s) {
+            HandDrive::Target { position_m, .. } => Some(position_m),
+            HandDrive::Force { .. } => None,
+        }
+    }
+}
+
+impl ForceProfile {
+    /// Checks that every parameter is finite and in range.
+    pub fn validate(&self) -> Result<(), SimError> {
+        match self {
+            ForceProfile::Constant { force_n } => check_vector("profile.force_n", *force_n),
+            ForceProfile::Ramp {
+                from_n,
+                to_n,
+                duration_s,
+            } => {
+                check_vector("profile.from_n", *from_n)?;
+                check_vector("profile.to_n", *to_n)?;
+                check_positive("profile.duration_s", *duration_s)
+            }
+            ForceProfile::Sine {
+                offset_n,
+                amplitude_n,
+                frequency_hz,
+            } => {
+                check_vector("profile.offset_n", *offset_n)?;
+                check_vector("profile.amplitude_n", *amplitude_n)?;
+                check_positive("profile.frequency_hz", *frequency_hz)
+            }
+        }
+    }
+
+    /// The force at `t_s` (N).
+    pub fn force_at(&self, t_s: f64) -> DVec3 {
+        let t = path_time(t_s);
+        match self {
+            ForceProfile::Constant { force_n } => *force_n,
+            ForceProfile::Ramp {
+                from_n,
+                to_n,
+                duration_s,
+            } => from_n.lerp(*to_n, (t / duration_s).min(1.0)),
+            ForceProfile::Sine {
+                offset_n,
+                amplitude_n,
+                frequency_hz,
+            } => *offset_n + *amplitude_n * (TAU * frequency_hz * t).sin(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn target(path: &HandPath, t_s: f64) -> (DVec3, DVec3) {
+        match path.drive_at(t_s) {
+            HandDrive::Target {
+                position_m,
+                velocity_m_per_s,
+            } => (position_m, velocity_m_per_s),
+            HandDrive::Force { .. } => panic!("expected a target"),
+        }
+    }
+
+    #[test]
+    fn line_moves_then_holds() {
+        let path = HandPath::Line {
+            from_m: DVec3::ZERO,
+            to_m: DVec3::new(0.1, 0.0, 0.0),
+            duration_s: 2.0,
+        };
+        let (p, v) = target(&path, 1.0);
+        assert!((p - DVec3::new(0.05, 0.0, 0.0)).length() < 1e-15);
+        assert!((v - DVec3::new(0.05, 0.0, 0.0)).length() < 1e-15);
+        let (p, v) = target(&path, 5.0);
+        assert_eq!(p, DVec3::new(0.1, 0.0, 0.0));
+        assert_eq!(v, DVec3::ZERO);
+        assert_eq!(target(&path, -1.0).0, DVec3::ZERO);
+    }
+
+    #[test]
+    fn circle_starts_on_x_for_z_normal_and_velocity_is_derivative() {
+        let path = HandPath::Circle {
+            center_m: DVec3::new(0.0, 0.0, 0.1),
+            radius_m: 0.02,
+            normal: DVec3::new(0.0, 0.0, 2.0),
+            period_s: 4.0,
+        };
+        let (p0, _) = target(&path, 0.0);
+        assert!((p0 - DVec3::new(0.02, 0.0, 0.1)).length() < 1e-15);
+        let (p1, _) = target(&path, 1.0);
+        assert!((p1 - DVec3::new(0.0, 0.02, 0.1)).length() < 1e-15);
+        let h = 1e-6;
+        let (pa, _) = target(&path, 0.7 - h);
+        let (pb, _) = target(&path, 0.7 + h);
+        let (_, v) = target(&path, 0.7);
+        assert!(((pb - pa) / (2.0 * h) - v).length() < 1e-8);
+    }
+
+    #[test]
+    fn raster_visits_the_corners_in_boustrophedon_order() {
+        let path = HandPath::Raster {
+            origin_m: DVec3::ZERO,
+            sweep_m: DVec3::new(0.04, 0.0, 0.0),
+            step_m: DVec3::new(0.0, 0.02, 0.0),
+            lines: 3,
+            speed_m_per_s: 0.01,
+        };
+        // Passes of 0.04 m and steps of 0.01 m: corners at 0, 4, 5, 9, 10, 14 s.
+        let expected = [
+            (0.0, DVec3::new(0.0, 0.0, 0.0)),
+            (4.0, DVec3::new(0.04, 0.0, 0.0)),
+            (5.0, DVec3::new(0.04, 0.01, 0.0)),
+            (9.0, DVec3::new(0.0, 0.01, 0.0)),
+            (10.0, DVec3::new(0.0, 0.02, 0.0)),
+            (14.0, DVec3::new(0.04, 0.02, 0.0)),
+            (100.0, DVec3::new(0.04, 0.02, 0.0)),
+        ];
+        for (t_s, corner) in expected {
+            let (p, _) = target(&path, t_s);
+            assert!((p - corner).length() < 1e-12, "t = {t_s}: {p} != {corner}");
+        }
+        let (_, v) = target(&path, 6.0);
+        assert!((v - DVec3::new(-0.01, 0.0, 0.0)).length() < 1e-15);
+    }
+
+    #[test]
+    fn waypoints_skip_repeated_points_and_hold_at_the_end() {
+        let path = HandPath::Waypoints {
+            points_m: vec![
+                DVec3::ZERO,
+                DVec3::ZERO,
+                DVec3::new(0.0, 0.0, 0.03),
+                DVec3::new(0.04, 0.0, 0.03),
+            ],
+            speed_m_per_s: 0.01,
+        };
+        let (p, v) = target(&path, 4.0);
+        assert!((p - DVec3::new(0.01, 0.0, 0.03)).length() < 1e-15);
+        assert!((v - DVec3::new(0.01, 0.0, 0.0)).length() < 1e-15);
+        assert_eq!(target(&path, 8.0).0, DVec3::new(0.04, 0.0, 0.03));
+        let single = HandPath::Waypoints {
+            points_m: vec![DVec3::ONE],
+            speed_m_per_s: 1.0,
+        };
+        assert_eq!(single.target_at(3.0), Some(DVec3::ONE));
+    }
+
+    #[test]
+    fn force_profiles() {
+        let ramp = ForceProfile::Ramp {
+            from_n: DVec3::ZERO,
+            to_n: DVec3::new(0.0, 0.0, -2.0),
+            duration_s: 1.0,
+        };
+        assert_eq!(ramp.force_at(0.5), DVec3::new(0.0, 0.0, -1.0));
+        assert_eq!(ramp.force_at(3.0), DVec3::new(0.0, 0.0, -2.0));
+        let sine = ForceProfile::Sine {
+            offset_n: DVec3::X,
+            amplitude_n: DVec3::Y,
+            frequency_hz: 1.0,
+        };
+        assert!((sine.force_at(0.25) - DVec3::new(1.0, 1.0, 0.0)).length() < 1e-12);
+        let path = HandPath::Force { profile: ramp };
+        assert_eq!(path.target_at(0.5), None);
+    }
+
+    #[test]
+    fn validation_names_the_bad_parameter() {
+        let bad = HandPath::Line {
+            from_m: DVec3::ZERO,
+            to_m: DVec3::X,
+            duration_s: 0.0,
+        };
+        let message = bad.validate().unwrap_err().to_string();
+        assert!(message.contains("path.duration_s"), "{message}");
+        let bad = HandPath::Circle {
+            center_m: DVec3::ZERO,
+            radius_m: 0.01,
+            normal: DVec3::ZERO,
+            period_s: 1.0,
+        };
+        assert!(bad.validate().unwrap_err().to_string().contains("normal"));
+        let bad = HandPath::Waypoints {
+            points_m: vec![DVec3::new(f64::NAN, 0.0, 0.0)],
+            speed_m_per_s: 1.0,
+        };
+        assert!(bad.validate().is_err());
+        let empty = HandPath::Waypoints {
+            points_m: vec![],
+            speed_m_per_s: 1.0,
+        };
+        assert_eq!(empty.validate(), Err(SimError::EmptyWaypoints));
+    }
+
+    #[test]
+    fn paths_parse_from_toml() {
+        #[derive(Deserialize)]
+        struct Wrapper {
+            path: HandPath,
+        }
+        let text = r#"
+            path = { kind = "circle", center_m = [0.0, 0.0, 0.1], radius_m = 0.02, normal = [0.0, 0.0, 1.0], period_s = 2.0 }
+        "#;
+        let parsed: Wrapper = toml::from_str(text).expect("circle parses");
+        assert!(matches!(parsed.path, HandPath::Circle { .. }));
+        let text = r#"
+            [path]
+            kind = "force"
+            profile = { shape = "constant", force_n = [0.0, 0.0, -1.5] }
+        "#;
+        let parsed: Wrapper = toml::from_str(text).expect("force parses");
+        assert_eq!(
+            parsed.path,
+            HandPath::Force {
+                profile: ForceProfile::Constant {
+                    force_n: DVec3::new(0.0, 0.0, -1.5)
+                }
+            }
+        );
+        let typo = r#"path = { kind = "hold", at_m = [0.0, 0.0, 0.0], at_mm = 1 }"#;
+        assert!(toml::from_str::<Wrapper>(typo).is_err());
+    }
+}

@@ -1,0 +1,147 @@
+//! Errors of the trace writers ([`TraceError`]) and readers ([`TraceReadError`]). Each names what went
+//! wrong and where: the tick for a bad sample, the file, line and column for a bad trace. Errors that
+//! wrap a lower-level error (I/O, MCAP, JSON) chain it as `source()` rather than repeating it in their
+//! message; print them with `{:#}` (anyhow) or walk the chain.
+
+use std::path::PathBuf;
+
+/// Why a trace could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum TraceError {
+    /// Creating, writing or flushing a file failed.
+    #[error("cannot write the trace file {path}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The MCAP library refused a record.
+    #[error("cannot write the MCAP trace {path}")]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// The library's error.
+        source: mcap::McapError,
+    },
+    /// The run metadata is unusable.
+    #[error("trace metadata: {0}")]
+    Meta(String),
+    /// A sample's `mode_count` differs from the number of mode names in the metadata.
+    #[error("trace sample at tick {tick}: mode_count {found} but the trace has {expected} modes")]
+    ModeCountMismatch {
+        /// Tick of the sample.
+        tick: u64,
+        /// Modes named in the metadata.
+        expected: usize,
+        /// The sample's `mode_count`.
+        found: usize,
+    },
+    /// Tick numbers must strictly increase.
+    #[error("trace sample at tick {tick} follows tick {previous}: ticks must strictly increase")]
+    TickOrder {
+        /// The previous sample's tick.
+        previous: u64,
+        /// This sample's tick.
+        tick: u64,
+    },
+    /// A position, force or time is NaN or infinite.
+    #[error("trace sample at tick {tick}: {field} is not finite")]
+    NonFinite {
+        /// Tick of the sample.
+        tick: u64,
+        /// The field.
+        field: &'static str,
+    },
+    /// Time is negative.
+    #[error("trace sample at tick {tick}: t_s = {t_s} is negative")]
+    NegativeTime {
+        /// Tick of the sample.
+        tick: u64,
+        /// The time given (s).
+        t_s: f64,
+    },
+    /// The certificate bound is NaN or negative.
+    #[error("trace sample at tick {tick}: error_bound_m = {value} must be >= 0 (or +inf)")]
+    InvalidErrorBound {
+        /// Tick of the sample.
+        tick: u64,
+        /// The bound given (m).
+        value: f64,
+    },
+    /// `write_sample` or `finish` after `finish`.
+    #[error("trace writer already finished")]
+    Finished,
+}
+
+/// Why a trace could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum TraceReadError {
+    /// Opening or reading the file failed.
+    #[error("cannot read {path}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file has no header line.
+    #[error("CSV trace is empty: no header line")]
+    Empty,
+    /// The header does not have the expected columns.
+    #[error("CSV trace line 1, column {column}: expected {expected}, found {found:?}")]
+    Header {
+        /// 1-based column.
+        column: usize,
+        /// What was expected there.
+        expected: String,
+        /// What the file has (empty when the line ends early).
+        found: String,
+    },
+    /// A row has the wrong number of fields.
+    #[error("CSV trace line {line}: {found} fields, expected {expected}")]
+    FieldCount {
+        /// 1-based line.
+        line: usize,
+        /// Columns in the header.
+        expected: usize,
+        /// Fields on the line.
+        found: usize,
+    },
+    /// A field does not parse or breaks a trace rule.
+    #[error("CSV trace line {line}, column {column} ({name}): {problem}: {value:?}")]
+    Field {
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// Column name.
+        name: String,
+        /// The text of the field.
+        value: String,
+        /// What is wrong with it.
+        problem: &'static str,
+    },
+    /// A line is not UTF-8 text.
+    #[error("CSV trace line {line}: not UTF-8 text")]
+    NotText {
+        /// 1-based line.
+        line: usize,
+    },
+    /// The sidecar `TRACE.json` exists but does not parse.
+    #[error("cannot parse the trace sidecar {path}")]
+    Sidecar {
+        /// The sidecar file.
+        path: PathBuf,
+        /// The JSON error (with its line and column).
+        source: serde_json::Error,
+    },
+    /// The MCAP file is damaged or not a voxhap trace.
+    #[error("MCAP trace {path}: {problem}")]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        problem: String,
+    },
+}

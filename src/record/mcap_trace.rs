@@ -1,0 +1,568 @@
+//! MCAP force traces: the writer ([`McapTraceWriter`]) and a reader ([`read_mcap_trace`]) for `voxhap plot`.
+//!
+//! File layout (uncompressed chunks, message indexes and a summary, so any MCAP reader can seek):
+//!
+//! * two channels, one per message kind, both with `json` message encoding and a `jsonschema` schema:
+//!   [`STATE_TOPIC`] (`voxhap.State`: tick, t_s, probe_m, proxy_m, force_n, vectors as `[x, y, z]`) and
+//!   [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s, primitives as an object keyed by mode name in mode
+//!   order, sweeps, error_bound_m (`null` when +inf), flags);
+//! * one message on each channel per tick, `log_time = publish_time = round(t_s * 1e9)` ns since the run
+//!   started (deterministic: tick time, not wall time), `sequence` = the sample's index in the trace;
+//! * one metadata record named [`METADATA_NAME`] with the sidecar's metadata fields as strings (JSON for
+//!   the ones that are not strings).
+//!
+//! The writer library string is `voxhap <version>` and the profile is empty. Numbers are written by
+//! serde_json (shortest round-trip) and parsed with its `float_roundtrip` feature, so the reader
+//! recovers the exact bits.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use serde::ser::SerializeMap;
+use serde::{Deserialize, Serialize, Serializer};
+
+use super::csv::read_sidecar;
+use super::{
+    sidecar_path, SampleChecker, Sidecar, Trace, TraceError, TraceFormat, TraceMeta,
+    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+};
+
+/// Topic of the per-tick state messages (positions and force).
+pub const STATE_TOPIC: &str = "/voxhap/state";
+/// Topic of the per-tick solver messages (primitive counts, effort, certificate, flags).
+pub const SOLVER_TOPIC: &str = "/voxhap/solver";
+/// Name of the metadata record.
+pub const METADATA_NAME: &str = "voxhap_trace";
+
+const STATE_SCHEMA_NAME: &str = "voxhap.State";
+const SOLVER_SCHEMA_NAME: &str = "voxhap.Solver";
+
+fn state_schema() -> serde_json::Value {
+    let vector = |description: &str| {
+        serde_json::json!({
+            "type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
+            "description": description
+        })
+    };
+    serde_json::json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": STATE_SCHEMA_NAME,
+        "type": "object",
+        "properties": {
+            "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
+            "t_s": {"type": "number", "description": "tick time since the run started (s)"},
+            "probe_m": vector("probe (device) position [x, y, z] (m)"),
+            "proxy_m": vector("proxy position [x, y, z] (m)"),
+            "force_n": vector("force sent to the device [x, y, z] (N)")
+        },
+        "required": ["tick", "t_s", "probe_m", "proxy_m", "force_n"]
+    })
+}
+
+fn solver_schema(mode_names: &[String]) -> serde_json::Value {
+    let modes: serde_json::Map<String, serde_json::Value> = mode_names
+        .iter()
+        .map(|name| {
+            (
+                name.clone(),
+                serde_json::json!({"type": "integer", "minimum": 0, "maximum": 65535}),
+            )
+        })
+        .collect();
+    serde_json::json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": SOLVER_SCHEMA_NAME,
+        "type": "object",
+        "properties": {
+            "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
+            "t_s": {"type": "number", "description": "tick time since the run started (s)"},
+            "primitives": {
+                "type": "object", "properties": modes, "additionalProperties": false,
+                "description": "primitives each haptic mode emitted this tick"
+            },
+            "sweeps": {"type": "integer", "minimum": 0, "description": "solver sweeps"},
+            "error_bound_m": {
+                "type": ["number", "null"], "minimum": 0,
+                "description": "certificate bound on the proxy's distance from the equilibrium (m); null = none"
+            },
+            "flags": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"}
+        },
+        "required": ["tick", "t_s", "primitives", "sweeps", "error_bound_m", "flags"]
+    })
+}
+
+#[derive(Serialize, Deserialize)]
+struct StateMessage {
+    tick: u64,
+    t_s: f64,
+    probe_m: [f64; 3],
+    proxy_m: [f64; 3],
+    force_n: [f64; 3],
+}
+
+/// Primitive counts serialised as an object keyed by mode name, in mode order.
+struct Primitives<'a> {
+    names: &'a [String],
+    counts: &'a [u16],
+}
+
+impl Serialize for Primitives<'_> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(Some(self.names.len()))?;
+        for (name, count) in self.names.iter().zip(self.counts) {
+            map.serialize_entry(name, count)?;
+        }
+        map.end()
+    }
+}
+
+#[derive(Serialize)]
+struct SolverMessage<'a> {
+    tick: u64,
+    t_s: f64,
+    primitives: Primitives<'a>,
+    sweeps: u32,
+    error_bound_m: Option<f64>,
+    flags: u32,
+}
+
+#[derive(Deserialize)]
+struct SolverMessageOwned {
+    tick: u64,
+    t_s: f64,
+    primitives: serde_json::Map<String, serde_json::Value>,
+    sweeps: u32,
+    error_bound_m: Option<f64>,
+    flags: u32,
+}
+
+/// Writes an MCAP trace and its sidecar.
+pub struct McapTraceWriter {
+    path: PathBuf,
+    sidecar_path: PathBuf,
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    state_channel: u16,
+    solver_channel: u16,
+    mode_names: Vec<String>,
+    message: Vec<u8>,
+    checker: SampleChecker,
+    sidecar: Sidecar,
+}
+
+impl McapTraceWriter {
+    /// Creates (truncates) `path` and `path.json`; writes the header, schemas, channels, the metadata
+    /// record and a provisional sidecar.
+    pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
+        meta.validate()?;
+        let mcap_error = |source| TraceError::Mcap {
+            path: path.to_path_buf(),
+            source,
+        };
+        let file = File::create(path).map_err(|source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let options = mcap::WriteOptions::new()
+            .compression(None)
+            .profile("")
+            .library(format!("voxhap {}", env!("CARGO_PKG_VERSION")));
+        let mut writer = options.create(BufWriter::new(file)).map_err(mcap_error)?;
+        let state_schema = writer
+            .add_schema(
+                STATE_SCHEMA_NAME,
+                "jsonschema",
+                state_schema().to_string().as_bytes(),
+            )
+            .map_err(mcap_error)?;
+        let solver_schema = writer
+            .add_schema(
+                SOLVER_SCHEMA_NAME,
+                "jsonschema",
+                solver_schema(&meta.mode_names).to_string().as_bytes(),
+            )
+            .map_err(mcap_error)?;
+        let no_metadata = BTreeMap::new();
+        let state_channel = writer
+            .add_channel(state_schema, STATE_TOPIC, "json", &no_metadata)
+            .map_err(mcap_error)?;
+        let solver_channel = writer
+            .add_channel(solver_schema, SOLVER_TOPIC, "json", &no_metadata)
+            .map_err(mcap_error)?;
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: METADATA_NAME.to_string(),
+                metadata: metadata_strings(meta)?,
+            })
+            .map_err(mcap_error)?;
+        let sidecar = Sidecar::new(meta, TraceFormat::Mcap, path);
+        let sidecar_path = sidecar_path(path);
+        sidecar.write(&sidecar_path)?;
+        Ok(McapTraceWriter {
+            path: path.to_path_buf(),
+            sidecar_path,
+            writer: Some(writer),
+            state_channel,
+            solver_channel,
+            mode_names: meta.mode_names.clone(),
+            message: Vec::with_capacity(512),
+            checker: SampleChecker::new(meta.mode_names.len()),
+            sidecar,
+        })
+    }
+
+    fn mcap_error(&self, source: mcap::McapError) -> TraceError {
+        TraceError::Mcap {
+            path: self.path.clone(),
+            source,
+        }
+    }
+}
+
+/// The metadata fields as MCAP's string map: strings as they are, everything else as JSON.
+fn metadata_strings(meta: &TraceMeta) -> Result<BTreeMap<String, String>, TraceError> {
+    let value = serde_json::to_value(meta)
+        .map_err(|e| TraceError::Meta(format!("cannot encode the metadata: {e}")))?;
+    let serde_json::Value::Object(fields) = value else {
+        return Err(TraceError::Meta("metadata is not a JSON object".into()));
+    };
+    Ok(fields
+        .into_iter()
+        .map(|(key, value)| match value {
+            serde_json::Value::String(text) => (key, text),
+            other => (key, other.to_string()),
+        })
+        .collect())
+}
+
+impl TraceWriter for McapTraceWriter {
+    fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
+        if self.writer.is_none() {
+            return Err(TraceError::Finished);
+        }
+        self.checker.check(sample)?;
+        let sequence = (self.checker.count - 1) as u32;
+        let time_ns = (sample.t_s * 1e9).round() as u64;
+        let state = StateMessage {
+            tick: sample.tick,
+            t_s: sample.t_s,
+            probe_m: sample.probe_m.to_array(),
+            proxy_m: sample.proxy_m.to_array(),
+            force_n: sample.force_n.to_array(),
+        };
+        let solver = SolverMessage {
+            tick: sample.tick,
+            t_s: sample.t_s,
+            primitives: Primitives {
+                names: &self.mode_names,
+                counts: sample.primitives(),
+            },
+            sweeps: sample.sweeps,
+            error_bound_m: sample
+                .error_bound_m
+                .is_finite()
+                .then_some(sample.error_bound_m),
+            flags: sample.flags,
+        };
+        for channel_id in [self.state_channel, self.solver_channel] {
+            self.message.clear();
+            let encoded = if channel_id == self.state_channel {
+                serde_json::to_writer(&mut self.message, &state)
+            } else {
+                serde_json::to_writer(&mut self.message, &solver)
+            };
+            encoded.map_err(|e| TraceError::Meta(format!("cannot encode a message: {e}")))?;
+            let header = mcap::records::MessageHeader {
+                channel_id,
+                sequence,
+                log_time: time_ns,
+                publish_time: time_ns,
+            };
+            let result = self
+                .writer
+                .as_mut()
+                .map(|w| w.write_to_known_channel(&header, &self.message));
+            if let Some(Err(source)) = result {
+                return Err(self.mcap_error(source));
+            }
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), TraceError> {
+        let result = match self.writer.as_mut() {
+            Some(writer) => writer.flush(),
+            None => return Err(TraceError::Finished),
+        };
+        result.map_err(|e| self.mcap_error(e))
+    }
+
+    fn finish(&mut self) -> Result<TraceSummary, TraceError> {
+        let Some(mut writer) = self.writer.take() else {
+            return Err(TraceError::Finished);
+        };
+        self.checker.finished = true;
+        writer.finish().map_err(|e| self.mcap_error(e))?;
+        let file = writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| TraceError::Io {
+                path: self.path.clone(),
+                source: e.into_error(),
+            })?;
+        file.sync_all().map_err(|source| TraceError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.sidecar.complete = true;
+        self.sidecar.sample_count = self.checker.count;
+        self.sidecar.write(&self.sidecar_path)?;
+        Ok(TraceSummary {
+            trace_path: self.path.clone(),
+            sidecar_path: self.sidecar_path.clone(),
+            sample_count: self.checker.count,
+        })
+    }
+
+    fn sample_count(&self) -> u64 {
+        self.checker.count
+    }
+}
+
+/// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
+/// from the two channels joined by tick), and its sidecar when `path.json` exists.
+pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
+    let bytes = std::fs::read(path).map_err(|source| TraceReadError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let problem = |problem: String| TraceReadError::Mcap {
+        path: path.to_path_buf(),
+        problem,
+    };
+    // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
+    // chunk, found by the proptest below); a damaged file must be an error, not a crash.
+    let parsed = std::panic::catch_unwind(|| {
+        let mode_names = read_mode_names(&bytes)?;
+        let samples = read_samples(&bytes, &mode_names)?;
+        Ok::<_, String>((mode_names, samples))
+    });
+    let (mode_names, samples) = match parsed {
+        Ok(result) => result.map_err(problem)?,
+        Err(_) => {
+            return Err(problem(
+                "damaged file: the MCAP library failed while parsing it".to_string(),
+            ))
+        }
+    };
+    Ok(Trace {
+        mode_names,
+        samples,
+        sidecar: read_sidecar(&sidecar_path(path))?,
+    })
+}
+
+fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {
+    for record in mcap::read::LinearReader::new(bytes).map_err(|e| e.to_string())? {
+        if let mcap::records::Record::Metadata(metadata) = record.map_err(|e| e.to_string())? {
+            if metadata.name == METADATA_NAME {
+                let text = metadata
+                    .metadata
+                    .get("mode_names")
+                    .ok_or("metadata record has no mode_names")?;
+                let names: Vec<String> =
+                    serde_json::from_str(text).map_err(|e| format!("metadata mode_names: {e}"))?;
+                if names.len() > MAX_MODES {
+                    return Err(format!("{} modes, at most {MAX_MODES}", names.len()));
+                }
+                return Ok(names);
+            }
+        }
+    }
+    Err(format!(
+        "no {METADATA_NAME:?} metadata record: not a voxhap trace"
+    ))
+}
+
+fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>, String> {
+    let mut states: Vec<StateMessage> = Vec::new();
+    let mut solvers: Vec<SolverMessageOwned> = Vec::new();
+    for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
+        let message = message.map_err(|e| e.to_string())?;
+        let topic = message.channel.topic.as_str();
+        if topic == STATE_TOPIC {
+            states.push(
+                serde_json::from_slice(&message.data)
+                    .map_err(|e| format!("{STATE_TOPIC} message {}: {e}", message.sequence))?,
+            );
+        } else if topic == SOLVER_TOPIC {
+            solvers.push(
+                serde_json::from_slice(&message.data)
+                    .map_err(|e| format!("{SOLVER_TOPIC} message {}: {e}", message.sequence))?,
+            );
+        }
+    }
+    if states.len() != solvers.len() {
+        return Err(format!(
+            "{} state messages but {} solver messages",
+            states.len(),
+            solvers.len()
+        ));
+    }
+    let mut samples = Vec::with_capacity(states.len());
+    let mut last_tick = None;
+    for (state, solver) in states.into_iter().zip(solvers) {
+        if state.tick != solver.tick || state.t_s.to_bits() != solver.t_s.to_bits() {
+            return Err(format!(
+                "state tick {} (t_s {}) paired with solver tick {} (t_s {})",
+                state.tick, state.t_s, solver.tick, solver.t_s
+            ));
+        }
+        let mut primitives_per_mode = [0u16; MAX_MODES];
+        for (slot, name) in primitives_per_mode.iter_mut().zip(mode_names) {
+            let count = solver
+                .primitives
+                .get(name)
+                .and_then(|v| v.as_u64())
+                .and_then(|v| u16::try_from(v).ok())
+                .ok_or_else(|| {
+                    format!("tick {}: no valid primitive count for {name}", state.tick)
+                })?;
+            *slot = count;
+        }
+        let sample = TraceSample {
+            tick: state.tick,
+            t_s: state.t_s,
+            probe_m: DVec3::from_array(state.probe_m),
+            proxy_m: DVec3::from_array(state.proxy_m),
+            force_n: DVec3::from_array(state.force_n),
+            primitives_per_mode,
+            mode_count: mode_names.len() as u8,
+            sweeps: solver.sweeps,
+            error_bound_m: solver.error_bound_m.unwrap_or(f64::INFINITY),
+            flags: solver.flags,
+        };
+        super::check_sample(&sample, mode_names.len(), last_tick).map_err(|e| e.to_string())?;
+        last_tick = Some(sample.tick);
+        samples.push(sample);
+    }
+    Ok(samples)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::test_support::{meta, samples};
+    use super::super::{create_trace_writer, read_trace};
+    use super::*;
+
+    fn write_mcap(path: &Path, modes: &[&str], data: &[TraceSample]) {
+        let mut writer = create_trace_writer(path, TraceFormat::Mcap, &meta(modes)).unwrap();
+        for (i, sample) in data.iter().enumerate() {
+            writer.write_sample(sample).unwrap();
+            if i == data.len() / 2 {
+                writer.flush().unwrap();
+            }
+        }
+        assert_eq!(writer.finish().unwrap().sample_count, data.len() as u64);
+        assert!(matches!(writer.finish(), Err(TraceError::Finished)));
+    }
+
+    #[test]
+    fn two_identical_runs_give_identical_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = samples(400, 2);
+        let a = dir.path().join("a.mcap");
+        let b = dir.path().join("b.mcap");
+        write_mcap(&a, &["surface", "friction"], &data);
+        write_mcap(&b, &["surface", "friction"], &data);
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    }
+
+    #[test]
+    fn write_then_read_round_trips_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = samples(250, 3);
+        let path = dir.path().join("run.mcap");
+        write_mcap(&path, &["surface", "friction", "vortex"], &data);
+        let trace = read_trace(&path).unwrap();
+        assert_eq!(trace.mode_names, ["surface", "friction", "vortex"]);
+        assert_eq!(trace.samples.len(), data.len());
+        for (read, written) in trace.samples.iter().zip(&data) {
+            assert_eq!(read, written, "tick {}", written.tick);
+            assert_eq!(read.probe_m.z.to_bits(), written.probe_m.z.to_bits());
+        }
+        assert!(trace.sidecar.unwrap().complete);
+    }
+
+    #[test]
+    fn log_times_are_tick_times_and_schemas_are_json() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = samples(20, 1);
+        let path = dir.path().join("t.mcap");
+        write_mcap(&path, &["surface"], &data);
+        let bytes = std::fs::read(&path).unwrap();
+        let mut count = 0;
+        for message in mcap::MessageStream::new(&bytes).unwrap() {
+            let message = message.unwrap();
+            let index = message.sequence as usize;
+            assert_eq!(message.log_time, (data[index].t_s * 1e9).round() as u64);
+            assert_eq!(message.channel.message_encoding, "json");
+            let schema = message.channel.schema.as_ref().unwrap();
+            assert_eq!(schema.encoding, "jsonschema");
+            let _: serde_json::Value = serde_json::from_slice(&schema.data).unwrap();
+            count += 1;
+        }
+        assert_eq!(count, 2 * data.len());
+    }
+
+    #[test]
+    fn truncated_or_foreign_files_give_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = samples(50, 1);
+        let path = dir.path().join("t.mcap");
+        write_mcap(&path, &["surface"], &data);
+        let bytes = std::fs::read(&path).unwrap();
+        let cut = dir.path().join("cut.mcap");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        assert!(read_mcap_trace(&cut).is_err());
+        let empty = dir.path().join("empty.mcap");
+        std::fs::write(&empty, mcap::MAGIC).unwrap();
+        assert!(read_mcap_trace(&empty).is_err());
+    }
+
+    /// Regression: a record inside an uncompressed chunk claiming more bytes than the chunk holds made
+    /// the mcap crate panic (subtract overflow); it must be an error.
+    #[test]
+    fn record_longer_than_its_chunk_is_an_error_not_a_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.mcap");
+        write_mcap(&path, &["surface"], &samples(8, 1));
+        let mut bytes = std::fs::read(&path).unwrap();
+        let at = 47876 % bytes.len();
+        bytes[at] = 118;
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(read_mcap_trace(&path).is_err());
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// A valid MCAP trace with bytes overwritten never panics the reader.
+        #[test]
+        fn mutated_mcap_never_panics(
+            edits in proptest::collection::vec((0usize..100_000, proptest::prelude::any::<u8>()), 1..6)
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("m.mcap");
+            write_mcap(&path, &["surface"], &samples(8, 1));
+            let mut bytes = std::fs::read(&path).unwrap();
+            for (position, byte) in edits {
+                let at = position % bytes.len();
+                bytes[at] = byte;
+            }
+            std::fs::write(&path, &bytes).unwrap();
+            let _ = read_mcap_trace(&path);
+        }
+    }
+}

@@ -1,0 +1,295 @@
+//! Run metadata ([`TraceMeta`]) and the JSON sidecar ([`Sidecar`]) written next to every trace.
+//!
+//! The sidecar `TRACE.json` repeats the metadata and makes the trace self-describing: the CSV columns
+//! with their units, the flag bits, the format, and (once the writer finished) the sample count.
+//! `created_utc` is the only field that depends on the wall clock.
+
+use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use super::{TraceError, TraceFormat, FLAG_DOCS, MAX_MODES};
+
+/// Version of the trace layout (columns, topics, sidecar keys); bumped on incompatible changes.
+pub const TRACE_FORMAT_VERSION: u32 = 1;
+
+/// What a run was: written into the sidecar and the MCAP metadata record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TraceMeta {
+    /// [`TRACE_FORMAT_VERSION`] of the writer.
+    pub format_version: u32,
+    /// The voxhap version that wrote the trace.
+    pub voxhap_version: String,
+    /// When the trace was created, RFC 3339 UTC (`2026-01-31T12:00:00Z`). The only non-deterministic field.
+    pub created_utc: String,
+    /// Servo rate (Hz).
+    pub rate_hz: f64,
+    /// The haptic modes, in the order of `TraceSample::primitives_per_mode`. At most [`MAX_MODES`];
+    /// each name is non-empty ASCII letters, digits, `_` or `-`, and names are unique.
+    pub mode_names: Vec<String>,
+    /// The scenario that ran, as given (any JSON).
+    pub scenario: serde_json::Value,
+    /// The volume(s) rendered, e.g. a file path or `procedural:sphere`.
+    pub volume: String,
+    /// The solver and its settings, e.g. `exact-dual`.
+    pub solver: String,
+}
+
+impl TraceMeta {
+    /// Metadata for a run starting now: fills `format_version`, `voxhap_version` and `created_utc`.
+    pub fn new(
+        mode_names: Vec<String>,
+        rate_hz: f64,
+        scenario: serde_json::Value,
+        volume: impl Into<String>,
+        solver: impl Into<String>,
+    ) -> Self {
+        TraceMeta {
+            format_version: TRACE_FORMAT_VERSION,
+            voxhap_version: env!("CARGO_PKG_VERSION").to_string(),
+            created_utc: utc_now_rfc3339(),
+            rate_hz,
+            mode_names,
+            scenario,
+            volume: volume.into(),
+            solver: solver.into(),
+        }
+    }
+
+    /// Checks the rate and the mode names.
+    pub fn validate(&self) -> Result<(), TraceError> {
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            return Err(TraceError::Meta(format!(
+                "rate_hz = {} must be finite and > 0",
+                self.rate_hz
+            )));
+        }
+        if self.mode_names.len() > MAX_MODES {
+            return Err(TraceError::Meta(format!(
+                "{} modes, at most {MAX_MODES} can be recorded",
+                self.mode_names.len()
+            )));
+        }
+        for (i, name) in self.mode_names.iter().enumerate() {
+            if !is_valid_mode_name(name) {
+                return Err(TraceError::Meta(format!(
+                    "mode name {name:?} must be non-empty ASCII letters, digits, '_' or '-'"
+                )));
+            }
+            if self.mode_names[..i].contains(name) {
+                return Err(TraceError::Meta(format!(
+                    "mode name {name:?} appears twice"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn is_valid_mode_name(name: &str) -> bool {
+    !name.is_empty()
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// One column of a CSV trace (also documents the MCAP fields).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ColumnDoc {
+    /// Header name.
+    pub name: Cow<'static, str>,
+    /// Unit (`m`, `N`, `s`, `count`, `bits`, `-`).
+    pub unit: Cow<'static, str>,
+    /// What it holds.
+    pub meaning: Cow<'static, str>,
+}
+
+/// One flag bit.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FlagDoc {
+    /// Bit index (value `1 << bit`).
+    pub bit: u32,
+    /// Short name.
+    pub name: Cow<'static, str>,
+    /// What it means when set.
+    pub meaning: Cow<'static, str>,
+}
+
+/// The JSON sidecar `TRACE.json`: the metadata plus what a reader needs to interpret the trace.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sidecar {
+    /// The run's metadata (its keys appear at the top level of the JSON object).
+    #[serde(flatten)]
+    pub meta: TraceMeta,
+    /// `csv` or `mcap`.
+    pub trace_format: TraceFormat,
+    /// File name of the trace this sidecar describes.
+    pub trace_file: String,
+    /// `false` while the run is recording (or if it died), `true` once the writer finished.
+    pub complete: bool,
+    /// Samples in the trace (final once `complete`).
+    pub sample_count: u64,
+    /// The CSV columns in order, with units.
+    pub columns: Vec<ColumnDoc>,
+    /// The flag bits.
+    pub flag_bits: Vec<FlagDoc>,
+}
+
+impl Sidecar {
+    pub(crate) fn new(meta: &TraceMeta, format: TraceFormat, trace_path: &Path) -> Self {
+        Sidecar {
+            meta: meta.clone(),
+            trace_format: format,
+            trace_file: trace_path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            complete: false,
+            sample_count: 0,
+            columns: csv_columns(&meta.mode_names),
+            flag_bits: FLAG_DOCS.to_vec(),
+        }
+    }
+
+    /// Writes the sidecar as pretty JSON with a final newline.
+    pub(crate) fn write(&self, path: &Path) -> Result<(), TraceError> {
+        let mut text = serde_json::to_string_pretty(self)
+            .map_err(|e| TraceError::Meta(format!("cannot encode the sidecar: {e}")))?;
+        text.push('\n');
+        std::fs::write(path, text).map_err(|source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
+/// The sidecar's path for a trace: the trace path with `.json` appended (`run.csv` -> `run.csv.json`).
+pub fn sidecar_path(trace_path: &Path) -> PathBuf {
+    let mut name = trace_path.as_os_str().to_os_string();
+    name.push(".json");
+    PathBuf::from(name)
+}
+
+fn column(name: &'static str, unit: &'static str, meaning: &'static str) -> ColumnDoc {
+    ColumnDoc {
+        name: Cow::Borrowed(name),
+        unit: Cow::Borrowed(unit),
+        meaning: Cow::Borrowed(meaning),
+    }
+}
+
+/// The CSV columns for these modes, in file order.
+pub(crate) fn csv_columns(mode_names: &[String]) -> Vec<ColumnDoc> {
+    let mut columns = vec![
+        column("tick", "-", "servo tick number since the run started"),
+        column("t_s", "s", "tick time since the run started"),
+        column("probe_x_m", "m", "probe (device) position x"),
+        column("probe_y_m", "m", "probe (device) position y"),
+        column("probe_z_m", "m", "probe (device) position z"),
+        column("proxy_x_m", "m", "proxy position x"),
+        column("proxy_y_m", "m", "proxy position y"),
+        column("proxy_z_m", "m", "proxy position z"),
+        column("force_x_n", "N", "force sent to the device x"),
+        column("force_y_n", "N", "force sent to the device y"),
+        column("force_z_n", "N", "force sent to the device z"),
+    ];
+    for name in mode_names {
+        columns.push(ColumnDoc {
+            name: Cow::Owned(format!("primitives_{name}")),
+            unit: Cow::Borrowed("count"),
+            meaning: Cow::Owned(format!("primitives the {name} mode emitted")),
+        });
+    }
+    columns.extend([
+        column("sweeps", "count", "solver sweeps"),
+        column(
+            "error_bound_m",
+            "m",
+            "certificate bound on the proxy's distance from the exact equilibrium; inf = none",
+        ),
+        column("flags", "bits", "bit set, see flag_bits"),
+    ]);
+    columns
+}
+
+/// The current time as RFC 3339 UTC with whole seconds, e.g. `2026-01-31T12:00:00Z`.
+pub(crate) fn utc_now_rfc3339() -> String {
+    let seconds = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    format_utc(seconds)
+}
+
+/// Formats seconds since 1970 as RFC 3339 UTC (Howard Hinnant's days-to-civil algorithm).
+fn format_utc(seconds: u64) -> String {
+    let days = (seconds / 86_400) as i64;
+    let second_of_day = seconds % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let day_of_era = z.rem_euclid(146_097);
+    let year_of_era =
+        (day_of_era - day_of_era / 1460 + day_of_era / 36_524 - day_of_era / 146_096) / 365;
+    let day_of_year = day_of_era - (365 * year_of_era + year_of_era / 4 - year_of_era / 100);
+    let month_index = (5 * day_of_year + 2) / 153;
+    let day = day_of_year - (153 * month_index + 2) / 5 + 1;
+    let month = if month_index < 10 {
+        month_index + 3
+    } else {
+        month_index - 9
+    };
+    let year = year_of_era + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        second_of_day / 3600,
+        second_of_day / 60 % 60,
+        second_of_day % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_formatting_matches_known_dates() {
+        assert_eq!(format_utc(0), "1970-01-01T00:00:00Z");
+        assert_eq!(format_utc(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(format_utc(1_700_000_000), "2023-11-14T22:13:20Z");
+        assert_eq!(format_utc(4_102_444_799), "2099-12-31T23:59:59Z");
+    }
+
+    #[test]
+    fn sidecar_path_appends_json() {
+        assert_eq!(
+            sidecar_path(Path::new("out/run.csv")),
+            PathBuf::from("out/run.csv.json")
+        );
+    }
+
+    #[test]
+    fn bad_metadata_is_rejected_with_a_reason() {
+        let mut meta = TraceMeta::new(
+            vec!["surface".into()],
+            1000.0,
+            serde_json::Value::Null,
+            "",
+            "",
+        );
+        assert!(meta.validate().is_ok());
+        meta.mode_names.push("bad name".into());
+        assert!(meta
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("bad name"));
+        meta.mode_names = vec!["a".into(), "a".into()];
+        assert!(meta.validate().unwrap_err().to_string().contains("twice"));
+        meta.mode_names = (0..=MAX_MODES).map(|i| format!("m{i}")).collect();
+        assert!(meta.validate().is_err());
+        meta.mode_names.clear();
+        meta.rate_hz = f64::NAN;
+        assert!(meta.validate().unwrap_err().to_string().contains("rate_hz"));
+    }
+}

@@ -5,6 +5,7 @@
 
 pub mod info;
 pub mod plot;
+pub mod sim;
 pub mod solve;
 
 use crate::haptics::scene::Scene;
@@ -27,6 +28,8 @@ pub enum Command {
     Info(info::InfoArgs),
     /// Plot a recorded force trace (CSV or MCAP) to a PNG or SVG image.
     Plot(plot::PlotArgs),
+    /// Run a scenario headless (simulated arm, mock clock) and record its force trace.
+    Sim(sim::SimArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -60,6 +63,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Solve(args)) => solve::run(&args),
         Some(Command::Info(args)) => info::run(&args),
         Some(Command::Plot(args)) => plot::run(args),
+        Some(Command::Sim(args)) => sim::run(&args),
         None => {
             print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
             print_out("See `voxhap --help` for the other commands.\n")?;

@@ -10,6 +10,7 @@ mod cli_solve;
 mod modes;
 mod paper;
 mod record;
+mod sim;
 mod solver_props;
 mod volume_io;
 

@@ -17,9 +17,9 @@ use crate::record::{
 /// Why a run stopped early.
 #[derive(Debug, thiserror::Error)]
 pub enum SimRunError {
-    #[error("simulated arm: {0}")]
+    #[error(transparent)]
     Arm(#[from] SimError),
-    #[error("trace: {0}")]
+    #[error(transparent)]
     Trace(#[from] TraceError),
 }
 

@@ -7,7 +7,7 @@
 //! `arm: missing field mass_kg`). Relative volume file paths are resolved against the directory of the
 //! scenario file (not the working directory), so a scenario runs the same from anywhere.
 
-use crate::device::sim::{ArmParams, HandParams, HandPath, SimArmConfig};
+use crate::device::sim::{ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError};
 use crate::haptics::modes::{ModeConfig, ModeError, RenderScene};
 use crate::haptics::tick::SolverKind;
 use crate::haptics::SolverConfig;
@@ -135,15 +135,17 @@ pub enum ScenarioError {
     },
     #[error("{origin}: {message}")]
     Invalid { origin: String, message: String },
-    #[error("{origin}: volumes[{index}] ({name}): {source}")]
+    #[error("{origin}: volumes[{index}] ({name})")]
     Load {
         origin: String,
         index: usize,
         name: String,
         source: Box<io::LoadError>,
     },
-    #[error("{origin}: {source}")]
+    #[error("{origin}")]
     Modes { origin: String, source: ModeError },
+    #[error("{origin}")]
+    Arm { origin: String, source: SimError },
 }
 
 /// A scenario with its volumes loaded and its scene built: ready to run.
@@ -321,6 +323,11 @@ impl Scenario {
             hand: self.hand,
             path: self.path.clone(),
         };
+        // Check the arm now, so that a bad [arm], [hand] or [path] is refused before any trace is created.
+        SimArm::new(arm.clone(), start_m).map_err(|source| ScenarioError::Arm {
+            origin: origin.to_owned(),
+            source,
+        })?;
         Ok(LoadedScenario {
             scenario: self,
             scene,
@@ -373,6 +380,17 @@ from_m = [0.0, 0.0, 0.045]
 to_m = [0.0, 0.0, 0.02]
 duration_s = 0.5
 "#;
+
+    /// The error with its sources, as `voxhap` prints it.
+    fn chain(err: &dyn std::error::Error) -> String {
+        let mut text = err.to_string();
+        let mut source = err.source();
+        while let Some(inner) = source {
+            text = format!("{text}: {inner}");
+            source = inner.source();
+        }
+        text
+    }
 
     fn error_of(text: &str) -> String {
         Scenario::parse(text, "test.toml").unwrap_err().to_string()
@@ -445,8 +463,8 @@ duration_s = 0.5
         let err = Scenario::parse(&missing_file, "t.toml")
             .unwrap()
             .load(Path::new("/nonexistent-dir"), "t.toml")
-            .unwrap_err()
-            .to_string();
+            .unwrap_err();
+        let err = chain(&err);
         assert!(
             err.contains("volumes[0] (density)") && err.contains("/nonexistent-dir/no-such.nii.gz"),
             "{err}"
@@ -458,6 +476,15 @@ duration_s = 0.5
             .unwrap_err()
             .to_string();
         assert!(err.contains("set part"), "{err}");
+        let bad_arm = MINIMAL.replace("mass_kg = 0.1", "mass_kg = -0.1");
+        let err = Scenario::parse(&bad_arm, "t.toml")
+            .unwrap()
+            .load(Path::new("."), "t.toml")
+            .unwrap_err();
+        assert_eq!(
+            chain(&err),
+            "t.toml: simulated arm parameter arm.mass_kg = -0.1 must be finite and > 0"
+        );
     }
 
     proptest! {

@@ -75,7 +75,13 @@ fn bench_tick(c: &mut Criterion) {
             b.iter(|| {
                 let probe = probes[n % probes.len()];
                 n += 1;
-                black_box(tick(&mut state, &scene, black_box(probe), DT_S, &mut workspace))
+                black_box(tick(
+                    &mut state,
+                    &scene,
+                    black_box(probe),
+                    DT_S,
+                    &mut workspace,
+                ))
             })
         });
     }

@@ -177,16 +177,21 @@ pub fn tick(
 
     workspace.primitives.clear();
     let mut normals = [DVec3::ZERO; MAX_MODES];
-    for index in 0..mode_count {
+    for (index, (count_slot, normal_slot)) in output
+        .primitives_per_mode
+        .iter_mut()
+        .zip(normals.iter_mut())
+        .take(mode_count)
+        .enumerate()
+    {
         let (count, normal) = scene.emit(
             index,
-            previous_proxy_m,
             previous_proxy_m,
             &state.memory,
             &mut workspace.primitives,
         );
-        output.primitives_per_mode[index] = count;
-        normals[index] = normal;
+        *count_slot = count;
+        *normal_slot = normal;
     }
 
     let primitives = &workspace.primitives;

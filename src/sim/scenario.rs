@@ -453,8 +453,8 @@ duration_s = 0.5
         let err = Scenario::parse(&wrong_kind, "t.toml")
             .unwrap()
             .load(Path::new("."), "t.toml")
-            .unwrap_err()
-            .to_string();
+            .unwrap_err();
+        let err = chain(&err);
         assert!(
             err.contains("modes[0].volume") && err.contains("vector volume"),
             "{err}"

@@ -7,14 +7,15 @@
 //! surface from one volume and a flow constraint from another give the non-orthogonal constraints the
 //! primitives method exists for.
 //!
-//! What each mode emits (`x` the proxy, `x_prev` the proxy one tick ago, `TF` the mode's
-//! [`TransferFunction`]):
+//! What each mode emits (`x` the proxy at the start of the tick, `TF` the mode's [`TransferFunction`]).
+//! The start-of-tick proxy is where the previous tick left it, so "a point at the previous proxy
+//! position" (DESIGN.md) is a point at `x`, and it resists the proxy's motion during this tick:
 //!
 //! | mode | reads | emits |
 //! |---|---|---|
 //! | surface | scalar `V` | plane through `x`, normal `-grad V/abs(grad V)` (side `outward`, default) or `+grad V/abs(grad V)` (`inward`), strength `TF(V)` |
-//! | friction | a surface mode | point at `x_prev`, strength `mu N` (N below) |
-//! | viscosity | scalar `V` | point at `x_prev`, strength `TF(V)` |
+//! | friction | a surface mode | point at `x`, strength `mu N` (N below) |
+//! | viscosity | scalar `V` | point at `x`, strength `TF(V)` |
 //! | vector follow | vector `v` | line through `x` along `v/abs(v)`, strength `TF(abs(v))` |
 //! | vortex | vector `v` | line along `w/abs(w)`, `w = curl v`, through the linearised core (below), strength `TF(abs(w))` |
 //! | vector force | vector `v` | directed force along `v/abs(v)`, strength `TF(abs(v))` |
@@ -250,14 +251,14 @@ impl RenderScene {
         }
     }
 
-    /// Runs mode `index` at proxy `proxy_m` (with `previous_proxy_m` one tick ago and `memory` from the
-    /// previous tick): pushes at most one primitive onto `out` and returns how many it pushed, and the
-    /// normal of the plane it emitted (surface modes), or zero. No allocation while `out` has capacity.
+    /// Runs mode `index` at `proxy_m`, the proxy at the start of the tick (where the last tick left it),
+    /// with `memory` from the previous tick: pushes at most one primitive onto `out` and returns how many it
+    /// pushed, and the normal of the plane it emitted (surface modes), or zero. No allocation while `out`
+    /// has capacity.
     pub fn emit(
         &self,
         index: usize,
         proxy_m: DVec3,
-        previous_proxy_m: DVec3,
         memory: &ModeMemory,
         out: &mut Vec<Primitive>,
     ) -> (u16, DVec3) {
@@ -285,12 +286,11 @@ impl RenderScene {
             Mode::Friction { surface_mode, mu } => {
                 let normal = memory.plane_normals[*surface_mode];
                 let normal_force_n = normal.dot(memory.previous_force_n).max(0.0);
-                nonzero(mu * normal_force_n)
-                    .and_then(|s| Primitive::point(previous_proxy_m, s).ok())
+                nonzero(mu * normal_force_n).and_then(|s| Primitive::point(proxy_m, s).ok())
             }
             Mode::Viscosity { volume, transfer } => self.scalar(*volume).and_then(|v| {
                 nonzero(transfer.eval(v.sample(proxy_m)))
-                    .and_then(|s| Primitive::point(previous_proxy_m, s).ok())
+                    .and_then(|s| Primitive::point(proxy_m, s).ok())
             }),
             Mode::GradientForce { volume, transfer } => self.scalar(*volume).and_then(|v| {
                 let gradient = v.gradient(proxy_m);

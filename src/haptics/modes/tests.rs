@@ -26,7 +26,7 @@ fn emit_one(
     memory: &ModeMemory,
 ) -> Vec<Primitive> {
     let mut out = Vec::new();
-    let (count, _) = scene.emit(index, proxy, proxy, memory, &mut out);
+    let (count, _) = scene.emit(index, proxy, memory, &mut out);
     assert_eq!(usize::from(count), out.len());
     out
 }
@@ -94,12 +94,10 @@ fn friction_scales_the_previous_normal_force() {
     );
     memory.plane_normals[0] = DVec3::X;
     memory.previous_force_n = DVec3::new(1.2, 0.7, 0.0);
-    let mut out = Vec::new();
-    let previous = DVec3::new(0.0301, 0.001, 0.0);
-    scene.emit(1, proxy, previous, &memory, &mut out);
+    let out = emit_one(&scene, 1, proxy, &memory);
     assert_eq!(out.len(), 1);
     assert_eq!(out[0].kind(), crate::haptics::PrimitiveKind::Point);
-    assert_eq!(out[0].position_m(), previous);
+    assert_eq!(out[0].position_m(), proxy);
     assert!((out[0].strength_n() - 0.6).abs() < 1e-15);
     // A force pulling away from the surface is no normal force.
     memory.previous_force_n = DVec3::new(-1.0, 0.0, 0.0);

@@ -27,12 +27,10 @@ use crate::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-/// Flag bit: the exact solver stopped on its budget before the certificate met its tolerance (same bit as
-/// the trace format's `solver_budget_hit`).
-pub const FLAG_SOLVER_BUDGET_HIT: u32 = 1 << 0;
-/// Flag bit: the probe position or `dt_s` was not finite; the proxy was held and zero force sent (same bit
-/// as the trace format's `non_finite_replaced`).
-pub const FLAG_NON_FINITE_REPLACED: u32 = 1 << 4;
+/// Flag bits the tick sets, shared with the trace format: `FLAG_SOLVER_BUDGET_HIT` (the exact solver stopped
+/// on its budget before the certificate met its tolerance) and `FLAG_NON_FINITE_REPLACED` (the probe position
+/// or `dt_s` was not finite; the proxy was held and zero force sent).
+pub use crate::record::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT};
 
 /// Which proxy solver a tick runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
@@ -92,7 +90,8 @@ impl TickState {
     }
 }
 
-/// The tick's preallocated buffers and the solver. Make one per scene, off the servo thread.
+/// The tick's preallocated buffers and the solver. Make one per scene, off the servo thread: ticking a scene
+/// with more modes than the workspace was made for still works, but the first such tick allocates.
 #[derive(Debug, Clone)]
 pub struct TickWorkspace {
     solver_kind: SolverKind,

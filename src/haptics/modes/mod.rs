@@ -57,8 +57,8 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 /// The most modes a scene holds: the width of the per-mode primitive counts in a tick's output and in
-/// traces.
-pub const MAX_MODES: usize = 8;
+/// traces (the trace format's limit).
+pub const MAX_MODES: usize = crate::record::MAX_MODES;
 
 /// Smallest gradient, vector or curl magnitude (in the data's unit per metre, or its unit) that defines a
 /// direction. Below it the mode emits nothing.

@@ -10,4 +10,5 @@ pub mod clock;
 pub mod device;
 pub mod haptics;
 pub mod record;
+pub mod sim;
 pub mod volume;

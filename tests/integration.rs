@@ -11,8 +11,10 @@ mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
+mod modes;
 mod paper;
 mod record;
+mod sim;
 mod solver_props;
 mod volume_io;
 

@@ -7,6 +7,7 @@ pub mod devices;
 pub mod info;
 pub mod mock_device;
 pub mod plot;
+pub mod sim;
 pub mod solve;
 
 use crate::haptics::scene::Scene;
@@ -33,6 +34,8 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Serve the simulated arm over voxhap's device protocol on a pseudo-terminal, with fault injection.
     MockDevice(mock_device::MockDeviceArgs),
+    /// Run a scenario headless (simulated arm, mock clock) and record its force trace.
+    Sim(sim::SimArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -68,6 +71,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Plot(args)) => plot::run(args),
         Some(Command::Devices(args)) => devices::run(&args),
         Some(Command::MockDevice(args)) => mock_device::run(&args),
+        Some(Command::Sim(args)) => sim::run(&args),
         None => {
             print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
             print_out("See `voxhap --help` for the other commands.\n")?;

@@ -1,6 +1,6 @@
 //! Haptic rendering: primitives, the exact proxy solver and the paper's baselines.
 //!
-//! Data flow within a tick: modes (later, `modes`) sample volumes at the proxy and emit [`primitive::Primitive`]s;
+//! Data flow within a tick ([`tick`]): [`modes`] sample volumes at the proxy and emit [`primitive::Primitive`]s;
 //! [`solver::Solver`] finds the proxy position that balances them against the coupling `k (proxy - probe)` and
 //! certifies it; the coupling force goes to the device. [`baselines`] holds the methods the exact solver is
 //! compared with, [`bench_scenes`] the deterministic scenes of tests and benchmarks, and [`reference`] a slow independent minimiser used to validate it. [`scene`] reads the JSON
@@ -8,10 +8,12 @@
 
 pub mod baselines;
 pub mod bench_scenes;
+pub mod modes;
 pub mod primitive;
 pub mod reference;
 pub mod scene;
 pub mod solver;
+pub mod tick;
 
 pub use primitive::{Primitive, PrimitiveError, PrimitiveKind};
 pub use solver::{Problem, Solution, SolveError, SolveStatus, Solver, SolverConfig};

@@ -1,0 +1,372 @@
+//! Haptic modes (DESIGN.md section 3): from volume data at the proxy to haptic primitives.
+//!
+//! Place in the data flow: each servo tick, [`crate::haptics::tick`] asks every mode of the
+//! [`RenderScene`] to sample its volume at the current proxy position (the proxy at the start of the
+//! tick) and to push at most one [`Primitive`] into the tick's preallocated buffer; the solver then
+//! balances all of them against the coupling. Modes combine freely, over any of the scene's volumes: a
+//! surface from one volume and a flow constraint from another give the non-orthogonal constraints the
+//! primitives method exists for.
+//!
+//! What each mode emits (`x` the proxy at the start of the tick, `TF` the mode's [`TransferFunction`]).
+//! The start-of-tick proxy is where the previous tick left it, so "a point at the previous proxy
+//! position" (DESIGN.md) is a point at `x`, and it resists the proxy's motion during this tick:
+//!
+//! | mode | reads | emits |
+//! |---|---|---|
+//! | surface | scalar `V` | plane through `x`, normal `-grad V/abs(grad V)` (side `outward`, default) or `+grad V/abs(grad V)` (`inward`), strength `TF(V)` |
+//! | friction | a surface mode | point at `x`, strength `mu N` (N below) |
+//! | viscosity | scalar `V` | point at `x`, strength `TF(V)` |
+//! | vector follow | vector `v` | line through `x` along `v/abs(v)`, strength `TF(abs(v))` |
+//! | vortex | vector `v` | line along `w/abs(w)`, `w = curl v`, through the linearised core (below), strength `TF(abs(w))` |
+//! | vector force | vector `v` | directed force along `v/abs(v)`, strength `TF(abs(v))` |
+//! | gradient force | scalar `V` | directed force along `grad V/abs(grad V)`, strength `TF(abs(grad V))` |
+//! | support plane | nothing | the fixed plane the user placed |
+//!
+//! Where the direction is undefined (zero gradient, zero vector, zero curl) or the strength is zero, the
+//! mode emits nothing that tick.
+//!
+//! **Friction's normal force.** The solver does not expose its dual variables per primitive, so `N` is
+//! the simplest honest estimate available without them: the previous tick's device force
+//! `F = k (proxy - probe)` resolved along the normal of the plane the surface mode emitted in that tick,
+//! `N = max(0, n . F)`. At equilibrium `F` balances the sum of primitive forces, so when the surface plane
+//! is the only primitive pushing along `n` this is exactly the plane's force. When the surface emitted no
+//! plane last tick, `N = 0` and friction emits nothing. Friction uses a point (as the paper does), so it
+//! resists motion in every direction, not only along the surface: where the surface's transfer function
+//! is not saturated at the proxy (the proxy sits in its ramp), the point also carries part of the normal
+//! load and less is left for tangential friction. Surfaces that should feel friction want a transfer
+//! function that reaches its full strength within a few micrometres of depth (a steep ramp).
+//!
+//! **Vortex core.** A line through the proxy along `w` would only resist sideways motion; to follow a
+//! vortex the line is placed on the core estimated from the local linearisation `v(x + d) = v + J d`:
+//! with `(a, b)` an orthonormal pair across `w`, solve the 2x2 system for `d` in that plane that zeroes the
+//! in-plane velocity (the "reduced velocity" core criterion). For solid-body rotation, and for a Burgers
+//! vortex with its radial inflow, this is the exact core. When the 2x2 system is singular the line goes
+//! through the proxy.
+//!
+//! All sampling is allocation-free; so is [`RenderScene::emit`].
+
+mod config;
+pub mod transfer;
+
+pub use config::{ModeConfig, ModeKind};
+pub use transfer::{TransferError, TransferFunction};
+
+use crate::haptics::Primitive;
+use crate::volume::{AnyVolume, ScalarVolume, VectorVolume};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// The most modes a scene holds: the width of the per-mode primitive counts in a tick's output and in
+/// traces (the trace format's limit).
+pub const MAX_MODES: usize = crate::record::MAX_MODES;
+
+/// Smallest gradient, vector or curl magnitude (in the data's unit per metre, or its unit) that defines a
+/// direction. Below it the mode emits nothing.
+pub const MIN_DIRECTION_MAGNITUDE: f64 = 1e-9;
+
+/// Which way a surface plane faces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SurfaceSide {
+    /// Normal `-grad V/abs(grad V)`: the plane pushes towards lower values. For a density (dense inside)
+    /// this is out of the material, so the proxy stays outside.
+    #[default]
+    Outward,
+    /// Normal `+grad V/abs(grad V)`: the plane pushes towards higher values (keeps the proxy inside).
+    Inward,
+}
+
+/// A built mode: volume names resolved to indices into [`RenderScene::volumes`], settings validated.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Mode {
+    Surface {
+        volume: usize,
+        transfer: TransferFunction,
+        side: SurfaceSide,
+    },
+    Friction {
+        /// Index of the surface mode in the scene.
+        surface_mode: usize,
+        mu: f64,
+    },
+    Viscosity {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    VectorFollow {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    Vortex {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    VectorForce {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    GradientForce {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    SupportPlane {
+        plane: Primitive,
+    },
+}
+
+/// Why a scene could not be built. Mode errors name the key: `modes[1].transfer: x must increase ...`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ModeError {
+    #[error("modes[{index}].{key}: {problem}")]
+    Invalid {
+        index: usize,
+        key: &'static str,
+        problem: String,
+    },
+    #[error("k: stiffness must be a finite number > 0 N/m, got {0}")]
+    BadStiffness(f64),
+    #[error("modes: {0} modes is more than the {MAX_MODES} a scene can hold")]
+    TooManyModes(usize),
+    #[error("modes[{index}].name: {name:?} is used by another mode; give each mode a unique name")]
+    DuplicateModeName { index: usize, name: String },
+    #[error("modes[{index}].name: {name:?} must be non-empty ASCII letters, digits, '_' or '-'")]
+    BadModeName { index: usize, name: String },
+    #[error("volumes: the name {0:?} is used twice")]
+    DuplicateVolumeName(String),
+}
+
+/// What the tick renders: the volumes, the modes over them, and the coupling stiffness. Built off the
+/// servo thread; read-only during ticks.
+#[derive(Debug, Clone)]
+pub struct RenderScene {
+    stiffness_n_per_m: f64,
+    volumes: Vec<(String, AnyVolume)>,
+    modes: Vec<Mode>,
+    mode_names: Vec<String>,
+}
+
+/// What a mode remembers from the previous tick, kept in the tick state (fixed size, `Copy`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModeMemory {
+    /// The normal of the plane each mode emitted last tick (surface modes only), zero when none.
+    pub plane_normals: [DVec3; MAX_MODES],
+    /// The device force of the previous tick (N).
+    pub previous_force_n: DVec3,
+}
+
+impl Default for ModeMemory {
+    fn default() -> Self {
+        Self {
+            plane_normals: [DVec3::ZERO; MAX_MODES],
+            previous_force_n: DVec3::ZERO,
+        }
+    }
+}
+
+impl RenderScene {
+    /// Builds a scene from named volumes and mode settings. Errors name the offending key.
+    pub fn new(
+        stiffness_n_per_m: f64,
+        volumes: Vec<(String, AnyVolume)>,
+        modes: &[ModeConfig],
+    ) -> Result<Self, ModeError> {
+        if !(stiffness_n_per_m.is_finite() && stiffness_n_per_m > 0.0) {
+            return Err(ModeError::BadStiffness(stiffness_n_per_m));
+        }
+        if modes.len() > MAX_MODES {
+            return Err(ModeError::TooManyModes(modes.len()));
+        }
+        for (i, (name, _)) in volumes.iter().enumerate() {
+            if volumes[..i].iter().any(|(n, _)| n == name) {
+                return Err(ModeError::DuplicateVolumeName(name.clone()));
+            }
+        }
+        let names: Vec<&str> = modes.iter().map(ModeConfig::display_name).collect();
+        let kinds: Vec<ModeKind> = modes.iter().map(|m| m.kind).collect();
+        for (index, name) in names.iter().enumerate() {
+            let valid = !name.is_empty()
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+            if !valid {
+                return Err(ModeError::BadModeName {
+                    index,
+                    name: (*name).to_owned(),
+                });
+            }
+            if names[..index].contains(name) {
+                return Err(ModeError::DuplicateModeName {
+                    index,
+                    name: (*name).to_owned(),
+                });
+            }
+        }
+        let built = modes
+            .iter()
+            .enumerate()
+            .map(|(index, m)| m.build(index, &volumes, &names, &kinds))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            stiffness_n_per_m,
+            volumes,
+            modes: built,
+            mode_names: names.into_iter().map(str::to_owned).collect(),
+        })
+    }
+
+    /// Coupling stiffness `k` (N/m).
+    pub fn stiffness_n_per_m(&self) -> f64 {
+        self.stiffness_n_per_m
+    }
+
+    pub fn volumes(&self) -> &[(String, AnyVolume)] {
+        &self.volumes
+    }
+
+    pub fn modes(&self) -> &[Mode] {
+        &self.modes
+    }
+
+    /// The modes' names, in order (trace columns).
+    pub fn mode_names(&self) -> &[String] {
+        &self.mode_names
+    }
+
+    /// The most primitives one tick can emit (each mode emits at most one).
+    pub fn max_primitives(&self) -> usize {
+        self.modes.len()
+    }
+
+    fn scalar(&self, index: usize) -> Option<&ScalarVolume> {
+        match &self.volumes[index].1 {
+            AnyVolume::Scalar(v) => Some(v),
+            AnyVolume::Vector(_) => None,
+        }
+    }
+
+    fn vector(&self, index: usize) -> Option<&VectorVolume> {
+        match &self.volumes[index].1 {
+            AnyVolume::Vector(v) => Some(v),
+            AnyVolume::Scalar(_) => None,
+        }
+    }
+
+    /// Runs mode `index` at `proxy_m`, the proxy at the start of the tick (where the last tick left it),
+    /// with `memory` from the previous tick: pushes at most one primitive onto `out` and returns how many it
+    /// pushed, and the normal of the plane it emitted (surface modes), or zero. No allocation while `out`
+    /// has capacity.
+    pub fn emit(
+        &self,
+        index: usize,
+        proxy_m: DVec3,
+        memory: &ModeMemory,
+        out: &mut Vec<Primitive>,
+    ) -> (u16, DVec3) {
+        let mut normal_out = DVec3::ZERO;
+        let primitive = match &self.modes[index] {
+            Mode::Surface {
+                volume,
+                transfer,
+                side,
+            } => self.scalar(*volume).and_then(|v| {
+                let (value, gradient) = v.sample_with_gradient(proxy_m);
+                let strength = transfer.eval(value);
+                let normal = match side {
+                    SurfaceSide::Outward => -gradient,
+                    SurfaceSide::Inward => gradient,
+                };
+                let plane = direction_of(normal)
+                    .and_then(|n| nonzero(strength).map(|s| (n, s)))
+                    .and_then(|(n, s)| Primitive::plane(proxy_m, n, s).ok());
+                if let Some(p) = &plane {
+                    normal_out = p.direction();
+                }
+                plane
+            }),
+            Mode::Friction { surface_mode, mu } => {
+                let normal = memory.plane_normals[*surface_mode];
+                let normal_force_n = normal.dot(memory.previous_force_n).max(0.0);
+                nonzero(mu * normal_force_n).and_then(|s| Primitive::point(proxy_m, s).ok())
+            }
+            Mode::Viscosity { volume, transfer } => self.scalar(*volume).and_then(|v| {
+                nonzero(transfer.eval(v.sample(proxy_m)))
+                    .and_then(|s| Primitive::point(proxy_m, s).ok())
+            }),
+            Mode::GradientForce { volume, transfer } => self.scalar(*volume).and_then(|v| {
+                let gradient = v.gradient(proxy_m);
+                let magnitude = gradient.length();
+                direction_of(gradient)
+                    .and_then(|_| nonzero(transfer.eval(magnitude)))
+                    .and_then(|s| Primitive::directed(gradient, s).ok())
+            }),
+            Mode::VectorFollow { volume, transfer } => self.vector(*volume).and_then(|v| {
+                let velocity = v.sample(proxy_m);
+                direction_of(velocity)
+                    .and_then(|_| nonzero(transfer.eval(velocity.length())))
+                    .and_then(|s| Primitive::line(proxy_m, velocity, s).ok())
+            }),
+            Mode::VectorForce { volume, transfer } => self.vector(*volume).and_then(|v| {
+                let velocity = v.sample(proxy_m);
+                direction_of(velocity)
+                    .and_then(|_| nonzero(transfer.eval(velocity.length())))
+                    .and_then(|s| Primitive::directed(velocity, s).ok())
+            }),
+            Mode::Vortex { volume, transfer } => self.vector(*volume).and_then(|v| {
+                let jacobian = v.jacobian(proxy_m);
+                let curl = crate::volume::vector::curl_of(&jacobian);
+                let axis = direction_of(curl)?;
+                let strength = nonzero(transfer.eval(curl.length()))?;
+                let core = vortex_core_m(proxy_m, v.sample(proxy_m), &jacobian, axis);
+                Primitive::line(core, axis, strength).ok()
+            }),
+            Mode::SupportPlane { plane } => Some(*plane),
+        };
+        match primitive {
+            Some(p) => {
+                out.push(p);
+                (1, normal_out)
+            }
+            None => (0, DVec3::ZERO),
+        }
+    }
+}
+
+/// The unit vector along `v`, or `None` when `v` is too short (or not finite) to define a direction.
+fn direction_of(v: DVec3) -> Option<DVec3> {
+    let length = v.length();
+    (length.is_finite() && length > MIN_DIRECTION_MAGNITUDE).then(|| v / length)
+}
+
+fn nonzero(strength_n: f64) -> Option<f64> {
+    (strength_n.is_finite() && strength_n > 0.0).then_some(strength_n)
+}
+
+/// The vortex core nearest `x` from the linearisation `v(x + d) = v + J d` (module docs): `d` in the
+/// plane across `axis` zeroing the in-plane velocity; `x` itself when that 2x2 system is singular.
+fn vortex_core_m(x: DVec3, velocity: DVec3, jacobian: &glam::DMat3, axis: DVec3) -> DVec3 {
+    let (a, b) = axis.any_orthonormal_pair();
+    let ja = *jacobian * a;
+    let jb = *jacobian * b;
+    // M = [[a.Ja, a.Jb], [b.Ja, b.Jb]], rhs = -(a.v, b.v)
+    let m00 = a.dot(ja);
+    let m01 = a.dot(jb);
+    let m10 = b.dot(ja);
+    let m11 = b.dot(jb);
+    let det = m00 * m11 - m01 * m10;
+    let scale = m00.abs().max(m01.abs()).max(m10.abs()).max(m11.abs());
+    if !(det.is_finite() && det.abs() > 1e-12 * scale * scale) || scale == 0.0 {
+        return x;
+    }
+    let (r0, r1) = (-a.dot(velocity), -b.dot(velocity));
+    let c0 = (m11 * r0 - m01 * r1) / det;
+    let c1 = (m00 * r1 - m10 * r0) / det;
+    let core = x + c0 * a + c1 * b;
+    if core.is_finite() {
+        core
+    } else {
+        x
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,261 @@
+//! The servo tick as a pure function (STYLE.md item 1): state, probe position, scene, `dt` and a
+//! caller-owned workspace in; proxy, device force and diagnostics out.
+//!
+//! Place in the data flow (DESIGN.md section 5): the servo thread (or `voxhap sim`, with a mock clock)
+//! reads the probe position and calls [`tick`]. The tick runs every mode of the [`RenderScene`] at the
+//! proxy position of the previous tick, collecting their primitives in the workspace's preallocated
+//! buffer, then solves for the new proxy with the chosen solver:
+//!
+//! - [`SolverKind::Exact`]: [`Solver`] (owned by the workspace, warm-started from the previous dual and
+//!   `previous_proxy_m`), certified: the output carries the bound `sqrt(2 gap / k)` on the distance to the
+//!   true equilibrium;
+//! - [`SolverKind::Euler`] and [`SolverKind::Constraint`]: the paper's baselines, started from the
+//!   previous proxy. They have no certificate: the output's `error_bound_m` is `+inf` (the trace
+//!   convention for "no certificate") and its status [`TickStatus::Uncertified`].
+//!
+//! The device force is the coupling `k (proxy - probe)`. A tick reads no clock, does no I/O, takes no
+//! lock and allocates nothing once the workspace was made for the scene ([`TickWorkspace::new`]); a
+//! counting-allocator integration test runs thousands of multi-mode ticks to prove it. `dt_s` is used only
+//! for the proxy velocity in the output; time never enters the modes, so a run is deterministic.
+//!
+//! A non-finite probe position (a device glitch) or a bad `dt_s` leaves the proxy where it was, sends zero
+//! force and sets [`FLAG_NON_FINITE_REPLACED`].
+
+use crate::haptics::baselines::{constraint, euler};
+use crate::haptics::modes::{ModeMemory, RenderScene, MAX_MODES};
+use crate::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// Flag bits the tick sets, shared with the trace format: `FLAG_SOLVER_BUDGET_HIT` (the exact solver stopped
+/// on its budget before the certificate met its tolerance) and `FLAG_NON_FINITE_REPLACED` (the probe position
+/// or `dt_s` was not finite; the proxy was held and zero force sent).
+pub use crate::record::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT};
+
+/// Which proxy solver a tick runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SolverKind {
+    /// The certified exact solver (DESIGN.md section 2).
+    #[default]
+    Exact,
+    /// The paper's adaptive Euler solver (baseline, uncertified).
+    Euler,
+    /// The constraint approach (baseline, uncertified; shows the non-orthogonal artifact).
+    Constraint,
+}
+
+impl SolverKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            SolverKind::Exact => "exact",
+            SolverKind::Euler => "euler",
+            SolverKind::Constraint => "constraint",
+        }
+    }
+}
+
+/// How a tick's solve ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TickStatus {
+    /// The exact solver certified its answer within tolerance.
+    Certified,
+    /// The exact solver ran out of budget; the bound is honest but above tolerance.
+    BudgetExhausted,
+    /// The exact solver's bound stopped improving (f64 limit); the bound is honest.
+    Stalled,
+    /// A baseline solver ran: no certificate.
+    Uncertified,
+    /// The input was not finite; the proxy was held and no force sent.
+    InputRejected,
+}
+
+/// What persists from tick to tick: the proxy and what modes remember. `Copy`, fixed size.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickState {
+    /// The proxy position after the last tick (m).
+    pub proxy_m: DVec3,
+    /// Per-mode memory (surface normals, last device force) for friction.
+    pub memory: ModeMemory,
+}
+
+impl TickState {
+    /// A state with the proxy at `proxy_m` (usually the first probe position) and no contact.
+    pub fn new(proxy_m: DVec3) -> Self {
+        Self {
+            proxy_m,
+            memory: ModeMemory::default(),
+        }
+    }
+}
+
+/// The tick's preallocated buffers and the solver. Make one per scene, off the servo thread: ticking a scene
+/// with more modes than the workspace was made for still works, but the first such tick allocates.
+#[derive(Debug, Clone)]
+pub struct TickWorkspace {
+    solver_kind: SolverKind,
+    solver: Solver,
+    euler_config: euler::EulerConfig,
+    primitives: Vec<Primitive>,
+}
+
+impl TickWorkspace {
+    /// A workspace sized for `scene`, using `solver_kind` (the exact solver with `config`).
+    pub fn new(scene: &RenderScene, solver_kind: SolverKind, config: SolverConfig) -> Self {
+        let capacity = scene.max_primitives().max(1);
+        Self {
+            solver_kind,
+            solver: Solver::with_capacity(config, capacity),
+            euler_config: euler::EulerConfig::default(),
+            primitives: Vec::with_capacity(capacity),
+        }
+    }
+
+    pub fn solver_kind(&self) -> SolverKind {
+        self.solver_kind
+    }
+
+    /// The primitives the last tick solved with.
+    pub fn primitives(&self) -> &[Primitive] {
+        &self.primitives
+    }
+}
+
+/// What one tick produces. `Copy`, heap-free.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickOutput {
+    /// The new proxy position (m).
+    pub proxy_m: DVec3,
+    /// The force to send to the device, `k (proxy - probe)` (N).
+    pub force_n: DVec3,
+    /// The proxy's velocity over the tick (m/s).
+    pub proxy_velocity_m_per_s: DVec3,
+    /// Primitives each mode emitted (slots past `mode_count` are 0).
+    pub primitives_per_mode: [u16; MAX_MODES],
+    pub mode_count: u8,
+    /// Exact solver: block sweeps; Euler: iterations; constraint: 1.
+    pub sweeps: u32,
+    /// Exact solver: active-set rounds; baselines: 0.
+    pub active_set_rounds: u32,
+    /// Certified bound on the distance from the exact equilibrium (m); `+inf` without a certificate.
+    pub error_bound_m: f64,
+    pub status: TickStatus,
+    /// `FLAG_*` bits.
+    pub flags: u32,
+}
+
+/// One servo tick (module docs). Pure apart from `state` and `workspace`; no allocation, clock, lock or I/O.
+pub fn tick(
+    state: &mut TickState,
+    scene: &RenderScene,
+    probe_m: DVec3,
+    dt_s: f64,
+    workspace: &mut TickWorkspace,
+) -> TickOutput {
+    let mode_count = scene.modes().len().min(MAX_MODES);
+    let mut output = TickOutput {
+        proxy_m: state.proxy_m,
+        force_n: DVec3::ZERO,
+        proxy_velocity_m_per_s: DVec3::ZERO,
+        primitives_per_mode: [0; MAX_MODES],
+        mode_count: mode_count as u8,
+        sweeps: 0,
+        active_set_rounds: 0,
+        error_bound_m: f64::INFINITY,
+        status: TickStatus::InputRejected,
+        flags: 0,
+    };
+    if !(probe_m.is_finite() && dt_s.is_finite() && dt_s > 0.0) {
+        output.flags |= FLAG_NON_FINITE_REPLACED;
+        state.memory.previous_force_n = DVec3::ZERO;
+        return output;
+    }
+    let previous_proxy_m = state.proxy_m;
+    let k = scene.stiffness_n_per_m();
+
+    workspace.primitives.clear();
+    let mut normals = [DVec3::ZERO; MAX_MODES];
+    for (index, (count_slot, normal_slot)) in output
+        .primitives_per_mode
+        .iter_mut()
+        .zip(normals.iter_mut())
+        .take(mode_count)
+        .enumerate()
+    {
+        let (count, normal) = scene.emit(
+            index,
+            previous_proxy_m,
+            &state.memory,
+            &mut workspace.primitives,
+        );
+        *count_slot = count;
+        *normal_slot = normal;
+    }
+
+    let primitives = &workspace.primitives;
+    let (proxy_m, status) = match workspace.solver_kind {
+        SolverKind::Exact => {
+            let problem = Problem {
+                stiffness_n_per_m: k,
+                probe_m,
+                previous_proxy_m: Some(previous_proxy_m),
+                primitives,
+            };
+            match workspace.solver.solve(&problem) {
+                Ok(solution) => {
+                    output.sweeps = solution.sweeps;
+                    output.active_set_rounds = solution.active_set_rounds;
+                    output.error_bound_m = solution.error_bound_m;
+                    let status = match solution.status {
+                        SolveStatus::Certified => TickStatus::Certified,
+                        SolveStatus::BudgetExhausted => {
+                            output.flags |= FLAG_SOLVER_BUDGET_HIT;
+                            TickStatus::BudgetExhausted
+                        }
+                        SolveStatus::Stalled => TickStatus::Stalled,
+                    };
+                    (solution.proxy_m, status)
+                }
+                // Unreachable with a validated scene and a finite probe; hold the proxy rather than panic.
+                Err(_) => {
+                    output.flags |= FLAG_NON_FINITE_REPLACED;
+                    (previous_proxy_m, TickStatus::InputRejected)
+                }
+            }
+        }
+        SolverKind::Euler => {
+            let solution = euler::solve(
+                k,
+                probe_m,
+                previous_proxy_m,
+                primitives,
+                &workspace.euler_config,
+            );
+            output.sweeps = solution.iterations;
+            (solution.proxy_m, TickStatus::Uncertified)
+        }
+        SolverKind::Constraint => {
+            let solution = constraint::solve(k, probe_m, previous_proxy_m, primitives);
+            output.sweeps = solution.iterations;
+            (solution.proxy_m, TickStatus::Uncertified)
+        }
+    };
+    // Guard the numbers (STYLE.md item 8): a non-finite proxy from a baseline is never passed on.
+    let proxy_m = if proxy_m.is_finite() {
+        proxy_m
+    } else {
+        output.flags |= FLAG_NON_FINITE_REPLACED;
+        previous_proxy_m
+    };
+    let force_n = k * (proxy_m - probe_m);
+    output.proxy_m = proxy_m;
+    output.force_n = force_n;
+    output.proxy_velocity_m_per_s = (proxy_m - previous_proxy_m) / dt_s;
+    output.status = status;
+
+    state.proxy_m = proxy_m;
+    state.memory.plane_normals = normals;
+    state.memory.previous_force_n = force_n;
+    output
+}

@@ -1,0 +1,14 @@
+//! `voxhap sim`: headless, deterministic runs of a scenario (volumes, modes, simulated arm, hand path)
+//! through the real servo tick, recorded as a force trace.
+//!
+//! Data flow: [`scenario`] reads and validates the TOML file and builds the [`crate::haptics::modes::RenderScene`]
+//! and the arm; [`runner`] closes the loop simulated arm -> [`crate::haptics::tick::tick`] -> simulated arm
+//! with a mock clock (the tick counter) and hands every tick to a [`crate::record::TraceWriter`].
+
+pub mod runner;
+pub mod scenario;
+
+pub use runner::{run, SimRunError, SimSummary};
+pub use scenario::{
+    LoadedScenario, Scenario, ScenarioError, SolverSettings, VolumePart, VolumeSpec,
+};

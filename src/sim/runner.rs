@@ -1,0 +1,100 @@
+//! The headless sim loop: simulated arm -> tick -> simulated arm, recorded every tick.
+//!
+//! Place in the data flow (DESIGN.md section 5, with the device and the clock replaced): each servo tick
+//! the arm's position is the probe, [`tick`] renders the force, and the arm integrates one tick of
+//! physics (its own substeps) under that force. Time is the tick number divided by the rate (a mock clock
+//! nobody reads: the loop is the clock), so runs are deterministic and as fast as the machine allows.
+//! Each tick becomes a [`TraceSample`] handed to the caller's [`TraceWriter`]; the tick itself stays pure
+//! and allocation-free, the writer does the I/O.
+
+use super::scenario::LoadedScenario;
+use crate::device::sim::{SimArm, SimError};
+use crate::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
+use crate::record::{
+    TraceError, TraceSample, TraceWriter, FLAG_NON_FINITE_REPLACED, FLAG_WORKSPACE_LIMIT,
+};
+
+/// Why a run stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum SimRunError {
+    #[error(transparent)]
+    Arm(#[from] SimError),
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+}
+
+/// What a run did, for the summary line and the tests.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimSummary {
+    pub ticks: u64,
+    /// Ticks whose exact solve met the tolerance.
+    pub certified_ticks: u64,
+    /// The largest certificate bound of the run (m); `+inf` when a baseline solver ran.
+    pub max_error_bound_m: f64,
+    /// The most sweeps one tick took.
+    pub max_sweeps: u32,
+    /// The largest force magnitude sent (N).
+    pub max_force_n: f64,
+    /// Ticks with the probe at the workspace limit.
+    pub workspace_limit_ticks: u64,
+}
+
+/// Runs `scenario` with `solver`, writing every tick to `writer`; `progress(ticks_done)` is called every
+/// 1000 ticks and at the end. The writer is not finished here (the caller owns it).
+pub fn run(
+    scenario: &LoadedScenario,
+    solver: SolverKind,
+    writer: &mut dyn TraceWriter,
+    mut progress: impl FnMut(u64),
+) -> Result<SimSummary, SimRunError> {
+    let scene = &scenario.scene;
+    let settings = &scenario.scenario;
+    let ticks = settings.tick_count();
+    let dt_s = settings.dt_s();
+    let mut arm = SimArm::new(scenario.arm.clone(), scenario.start_m)?;
+    let mut state = TickState::new(arm.position_m());
+    let mut workspace = TickWorkspace::new(scene, solver, settings.solver.solver_config());
+    let mut summary = SimSummary {
+        ticks,
+        certified_ticks: 0,
+        max_error_bound_m: 0.0,
+        max_sweeps: 0,
+        max_force_n: 0.0,
+        workspace_limit_ticks: 0,
+    };
+    for index in 0..ticks {
+        let t_s = index as f64 * dt_s;
+        let probe_m = arm.position_m();
+        let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
+        let outcome = arm.step(t_s, dt_s, out.force_n)?;
+        let mut flags = out.flags;
+        if outcome.workspace_limit_hit {
+            flags |= FLAG_WORKSPACE_LIMIT;
+            summary.workspace_limit_ticks += 1;
+        }
+        if outcome.force_rejected {
+            flags |= FLAG_NON_FINITE_REPLACED;
+        }
+        writer.write_sample(&TraceSample {
+            tick: index,
+            t_s,
+            probe_m,
+            proxy_m: out.proxy_m,
+            force_n: out.force_n,
+            primitives_per_mode: out.primitives_per_mode,
+            mode_count: out.mode_count,
+            sweeps: out.sweeps,
+            error_bound_m: out.error_bound_m,
+            flags,
+        })?;
+        summary.certified_ticks += u64::from(out.status == TickStatus::Certified);
+        summary.max_error_bound_m = summary.max_error_bound_m.max(out.error_bound_m);
+        summary.max_sweeps = summary.max_sweeps.max(out.sweeps);
+        summary.max_force_n = summary.max_force_n.max(out.force_n.length());
+        if (index + 1) % 1000 == 0 {
+            progress(index + 1);
+        }
+    }
+    progress(ticks);
+    Ok(summary)
+}

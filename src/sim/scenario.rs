@@ -1,0 +1,516 @@
+//! Scenario files for `voxhap sim`: the volumes, the modes, the coupling, the simulated arm and hand, the
+//! hand's path and the duration, in one TOML file.
+//!
+//! Off the servo path: a scenario is read and validated once ([`Scenario::parse`]), its volumes are loaded
+//! or generated ([`Scenario::load`]) into a [`RenderScene`], and the runner ([`super::runner`]) ticks it.
+//! Unknown keys are errors, and every error names the key (`modes[1].transfer: x must increase ...`,
+//! `arm: missing field mass_kg`). Relative volume file paths are resolved against the directory of the
+//! scenario file (not the working directory), so a scenario runs the same from anywhere.
+
+use crate::device::sim::{ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError};
+use crate::haptics::modes::{ModeConfig, ModeError, RenderScene};
+use crate::haptics::tick::SolverKind;
+use crate::haptics::SolverConfig;
+use crate::volume::{io, procedural, AnyVolume};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Longest scenario accepted (s): a day at 1 kHz is 86.4 million ticks.
+pub const MAX_DURATION_S: f64 = 86_400.0;
+
+/// A scenario as written in its TOML file (schema in the module docs and notes/README-modes.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// A label for traces and plots.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// What the scenario shows (free text).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
+    /// Simulated time (s), > 0.
+    pub duration_s: f64,
+    /// Servo rate (Hz), > 0; default 1000.
+    #[serde(default = "default_rate_hz")]
+    pub rate_hz: f64,
+    /// Coupling stiffness k (N/m), > 0.
+    pub k_n_per_m: f64,
+    /// Where the arm starts at rest (m); default: the hand path's target at t = 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_m: Option<DVec3>,
+    /// Solver settings; `--solver` overrides `kind`.
+    #[serde(default)]
+    pub solver: SolverSettings,
+    /// The volumes, by name.
+    pub volumes: Vec<VolumeSpec>,
+    /// The haptic modes, in trace column order (at most 8).
+    #[serde(default)]
+    pub modes: Vec<ModeConfig>,
+    pub arm: ArmParams,
+    pub hand: HandParams,
+    pub path: HandPath,
+}
+
+fn default_rate_hz() -> f64 {
+    1000.0
+}
+
+/// `[solver]`: which solver and the exact solver's budget.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSettings {
+    /// `exact` (default), `euler` or `constraint`.
+    #[serde(default)]
+    pub kind: SolverKind,
+    /// Exact solver: stop when the certified bound is at most this (m); default 1e-12.
+    #[serde(default = "default_tolerance_m")]
+    pub tolerance_m: f64,
+    /// Exact solver: most block sweeps per tick; default 10000.
+    #[serde(default = "default_max_sweeps")]
+    pub max_sweeps: u32,
+}
+
+fn default_tolerance_m() -> f64 {
+    1e-12
+}
+
+fn default_max_sweeps() -> u32 {
+    10_000
+}
+
+impl Default for SolverSettings {
+    fn default() -> Self {
+        Self {
+            kind: SolverKind::default(),
+            tolerance_m: default_tolerance_m(),
+            max_sweeps: default_max_sweeps(),
+        }
+    }
+}
+
+impl SolverSettings {
+    /// The exact solver's configuration (deterministic: no time budget in a sim).
+    pub fn solver_config(&self) -> SolverConfig {
+        SolverConfig {
+            tolerance_m: self.tolerance_m,
+            max_sweeps: self.max_sweeps,
+            ..SolverConfig::default()
+        }
+    }
+}
+
+/// `[[volumes]]`: a named volume from a built-in generator or a file. Exactly one of `builtin`, `file`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeSpec {
+    /// The name modes use to refer to it.
+    pub name: String,
+    /// A built-in procedural volume: `sphere`, `torus`, `shells`, `rankine`, `burgers`, `density-flow`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub builtin: Option<String>,
+    /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml), relative to the scenario file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
+    /// For a built-in with two fields (`density-flow`): `scalar` or `vector`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part: Option<VolumePart>,
+}
+
+/// Which field of a two-field built-in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VolumePart {
+    Scalar,
+    Vector,
+}
+
+/// Why a scenario could not be read or built. Every message names the file and the key.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("cannot read scenario file {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{origin}: {message}")]
+    Invalid { origin: String, message: String },
+    #[error("{origin}: volumes[{index}] ({name})")]
+    Load {
+        origin: String,
+        index: usize,
+        name: String,
+        source: Box<io::LoadError>,
+    },
+    #[error("{origin}")]
+    Modes { origin: String, source: ModeError },
+    #[error("{origin}")]
+    Arm { origin: String, source: SimError },
+}
+
+/// A scenario with its volumes loaded and its scene built: ready to run.
+#[derive(Debug, Clone)]
+pub struct LoadedScenario {
+    pub scenario: Scenario,
+    pub scene: RenderScene,
+    pub arm: SimArmConfig,
+    /// Where the arm starts (m).
+    pub start_m: DVec3,
+    /// The volumes as a short description for traces, e.g. `builtin:sphere` or a file path.
+    pub volume_description: String,
+}
+
+impl Scenario {
+    /// Parses and validates scenario text; `origin` names it in errors (usually the file path).
+    pub fn parse(text: &str, origin: &str) -> Result<Scenario, ScenarioError> {
+        let invalid = |message: String| ScenarioError::Invalid {
+            origin: origin.to_owned(),
+            message,
+        };
+        let deserializer = toml::Deserializer::parse(text)
+            .map_err(|err| invalid(err.to_string().trim_end().to_owned()))?;
+        let scenario: Scenario = serde_path_to_error::deserialize(deserializer).map_err(|err| {
+            let path = err.path().to_string();
+            let inner = err.into_inner().to_string();
+            let inner = inner.trim_end();
+            invalid(if path == "." || path.is_empty() {
+                inner.to_owned()
+            } else {
+                format!("{path}: {inner}")
+            })
+        })?;
+        scenario.validate().map_err(invalid)?;
+        Ok(scenario)
+    }
+
+    /// Reads and validates a scenario file.
+    pub fn read(path: &Path) -> Result<Scenario, ScenarioError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        let positive = |key: &str, value: f64| {
+            if value.is_finite() && value > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{key}: must be a finite number > 0, got {value}"))
+            }
+        };
+        positive("duration_s", self.duration_s)?;
+        if self.duration_s > MAX_DURATION_S {
+            return Err(format!(
+                "duration_s: {} s is longer than the {MAX_DURATION_S} s limit",
+                self.duration_s
+            ));
+        }
+        positive("rate_hz", self.rate_hz)?;
+        positive("k_n_per_m", self.k_n_per_m)?;
+        positive("solver.tolerance_m", self.solver.tolerance_m)?;
+        if self.solver.max_sweeps == 0 {
+            return Err("solver.max_sweeps: must be at least 1".to_owned());
+        }
+        if self.tick_count() == 0 {
+            return Err(format!(
+                "duration_s: {} s at {} Hz is less than one tick",
+                self.duration_s, self.rate_hz
+            ));
+        }
+        if let Some(start) = self.start_m {
+            if !start.is_finite() {
+                return Err("start_m: must be three finite numbers (m)".to_owned());
+            }
+        }
+        if self.volumes.is_empty() && self.modes.iter().any(|m| m.volume.is_some()) {
+            return Err("volumes: modes name volumes but none are given".to_owned());
+        }
+        for (index, volume) in self.volumes.iter().enumerate() {
+            match (&volume.builtin, &volume.file) {
+                (Some(_), Some(_)) => {
+                    return Err(format!(
+                        "volumes[{index}]: give one of builtin and file, not both"
+                    ))
+                }
+                (None, None) => {
+                    return Err(format!("volumes[{index}]: needs builtin or file"));
+                }
+                (None, Some(_)) if volume.part.is_some() => {
+                    return Err(format!(
+                        "volumes[{index}].part: only used with a two-field builtin"
+                    ))
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Servo ticks in the run: `round(duration_s * rate_hz)`.
+    pub fn tick_count(&self) -> u64 {
+        (self.duration_s * self.rate_hz).round() as u64
+    }
+
+    /// Tick length (s).
+    pub fn dt_s(&self) -> f64 {
+        1.0 / self.rate_hz
+    }
+
+    /// Loads or generates the volumes (files relative to `base_dir`, the scenario file's directory) and
+    /// builds the scene and the arm configuration.
+    pub fn load(self, base_dir: &Path, origin: &str) -> Result<LoadedScenario, ScenarioError> {
+        let mut volumes = Vec::with_capacity(self.volumes.len());
+        let mut descriptions = Vec::with_capacity(self.volumes.len());
+        for (index, spec) in self.volumes.iter().enumerate() {
+            let invalid = |message: String| ScenarioError::Invalid {
+                origin: origin.to_owned(),
+                message: format!("volumes[{index}]: {message}"),
+            };
+            let volume = if let Some(name) = &spec.builtin {
+                let built = procedural::builtin(name).map_err(|err| invalid(err.to_string()))?;
+                descriptions.push(format!("builtin:{name}"));
+                match (spec.part, built.scalar, built.vector) {
+                    (None | Some(VolumePart::Scalar), Some(s), None) => AnyVolume::Scalar(s),
+                    (None | Some(VolumePart::Vector), None, Some(v)) => AnyVolume::Vector(v),
+                    (Some(VolumePart::Scalar), Some(s), Some(_)) => AnyVolume::Scalar(s),
+                    (Some(VolumePart::Vector), Some(_), Some(v)) => AnyVolume::Vector(v),
+                    (None, Some(_), Some(_)) => {
+                        return Err(invalid(format!(
+                            "builtin {name:?} has a scalar and a vector field: set part = \"scalar\" or \"vector\""
+                        )))
+                    }
+                    (Some(part), _, _) => {
+                        return Err(invalid(format!("builtin {name:?} has no {part:?} field")))
+                    }
+                    (None, None, None) => {
+                        return Err(invalid(format!("builtin {name:?} is empty")))
+                    }
+                }
+            } else if let Some(file) = &spec.file {
+                let path = base_dir.join(file);
+                let loaded = io::load(&path).map_err(|source| ScenarioError::Load {
+                    origin: origin.to_owned(),
+                    index,
+                    name: spec.name.clone(),
+                    source: Box::new(source),
+                })?;
+                descriptions.push(file.display().to_string());
+                loaded.volume
+            } else {
+                return Err(invalid("needs builtin or file".to_owned()));
+            };
+            volumes.push((spec.name.clone(), volume));
+        }
+        let scene = RenderScene::new(self.k_n_per_m, volumes, &self.modes).map_err(|source| {
+            ScenarioError::Modes {
+                origin: origin.to_owned(),
+                source,
+            }
+        })?;
+        let start_m = match self.start_m.or_else(|| self.path.target_at(0.0)) {
+            Some(start) => start,
+            None => {
+                return Err(ScenarioError::Invalid {
+                    origin: origin.to_owned(),
+                    message: "start_m: needed when the hand path is a force profile".to_owned(),
+                })
+            }
+        };
+        let arm = SimArmConfig {
+            arm: self.arm,
+            hand: self.hand,
+            path: self.path.clone(),
+        };
+        // Check the arm now, so that a bad [arm], [hand] or [path] is refused before any trace is created.
+        SimArm::new(arm.clone(), start_m).map_err(|source| ScenarioError::Arm {
+            origin: origin.to_owned(),
+            source,
+        })?;
+        Ok(LoadedScenario {
+            scenario: self,
+            scene,
+            arm,
+            start_m,
+            volume_description: descriptions.join(", "),
+        })
+    }
+}
+
+impl LoadedScenario {
+    /// Reads, validates and loads a scenario file (volume files relative to its directory).
+    pub fn from_file(path: &Path) -> Result<LoadedScenario, ScenarioError> {
+        let scenario = Scenario::read(path)?;
+        let base_dir = path.parent().unwrap_or(Path::new(""));
+        scenario.load(base_dir, &path.display().to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const MINIMAL: &str = r#"
+duration_s = 0.5
+k_n_per_m = 500.0
+
+[[volumes]]
+name = "density"
+builtin = "sphere"
+
+[[modes]]
+kind = "surface"
+volume = "density"
+transfer = [[0.45, 0.0], [0.5, 2.0]]
+
+[arm]
+mass_kg = 0.1
+damping_n_s_per_m = 1.0
+workspace = { shape = "unbounded" }
+
+[hand]
+stiffness_n_per_m = 300.0
+damping_n_s_per_m = 3.0
+
+[path]
+kind = "line"
+from_m = [0.0, 0.0, 0.045]
+to_m = [0.0, 0.0, 0.02]
+duration_s = 0.5
+"#;
+
+    /// The error with its sources, as `voxhap` prints it.
+    fn chain(err: &dyn std::error::Error) -> String {
+        let mut text = err.to_string();
+        let mut source = err.source();
+        while let Some(inner) = source {
+            text = format!("{text}: {inner}");
+            source = inner.source();
+        }
+        text
+    }
+
+    fn error_of(text: &str) -> String {
+        Scenario::parse(text, "test.toml").unwrap_err().to_string()
+    }
+
+    #[test]
+    fn minimal_scenario_parses_and_loads() {
+        let scenario = Scenario::parse(MINIMAL, "test.toml").unwrap();
+        assert_eq!(scenario.tick_count(), 500);
+        assert_eq!(scenario.rate_hz, 1000.0);
+        let loaded = scenario.load(Path::new("."), "test.toml").unwrap();
+        assert_eq!(loaded.scene.mode_names(), ["surface"]);
+        assert_eq!(loaded.start_m, DVec3::new(0.0, 0.0, 0.045));
+        assert_eq!(loaded.volume_description, "builtin:sphere");
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let typo = MINIMAL.replace("k_n_per_m", "k_n_per_mm");
+        assert!(
+            error_of(&typo).contains("k_n_per_mm"),
+            "{}",
+            error_of(&typo)
+        );
+        let bad_tf = MINIMAL.replace("[[0.45, 0.0], [0.5, 2.0]]", "[[0.5, 0.0], [0.45, 2.0]]");
+        let message = error_of(&bad_tf);
+        assert!(
+            message.contains("modes[0].transfer") && message.contains("x must increase"),
+            "{message}"
+        );
+        let unknown_mode_key =
+            MINIMAL.replace("kind = \"surface\"", "kind = \"surface\"\nstiffness = 3");
+        assert!(
+            error_of(&unknown_mode_key).contains("stiffness"),
+            "{}",
+            error_of(&unknown_mode_key)
+        );
+        let negative = MINIMAL.replace("duration_s = 0.5\nk_n", "duration_s = -1.0\nk_n");
+        assert!(
+            error_of(&negative).starts_with("test.toml: duration_s: must be"),
+            "{}",
+            error_of(&negative)
+        );
+        let both = MINIMAL.replace(
+            "builtin = \"sphere\"",
+            "builtin = \"sphere\"\nfile = \"x.nii\"",
+        );
+        assert!(error_of(&both).contains("volumes[0]: give one of builtin and file"));
+        let missing_arm = MINIMAL.replace("mass_kg = 0.1\n", "");
+        assert!(
+            error_of(&missing_arm).contains("mass_kg"),
+            "{}",
+            error_of(&missing_arm)
+        );
+    }
+
+    #[test]
+    fn load_errors_name_the_volume_and_mode() {
+        let wrong_kind = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"rankine\"");
+        let err = Scenario::parse(&wrong_kind, "t.toml")
+            .unwrap()
+            .load(Path::new("."), "t.toml")
+            .unwrap_err();
+        let err = chain(&err);
+        assert!(
+            err.contains("modes[0].volume") && err.contains("vector volume"),
+            "{err}"
+        );
+        let missing_file = MINIMAL.replace("builtin = \"sphere\"", "file = \"no-such.nii.gz\"");
+        let err = Scenario::parse(&missing_file, "t.toml")
+            .unwrap()
+            .load(Path::new("/nonexistent-dir"), "t.toml")
+            .unwrap_err();
+        let err = chain(&err);
+        assert!(
+            err.contains("volumes[0] (density)") && err.contains("/nonexistent-dir/no-such.nii.gz"),
+            "{err}"
+        );
+        let two_fields = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"density-flow\"");
+        let err = Scenario::parse(&two_fields, "t.toml")
+            .unwrap()
+            .load(Path::new("."), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("set part"), "{err}");
+        let bad_arm = MINIMAL.replace("mass_kg = 0.1", "mass_kg = -0.1");
+        let err = Scenario::parse(&bad_arm, "t.toml")
+            .unwrap()
+            .load(Path::new("."), "t.toml")
+            .unwrap_err();
+        assert_eq!(
+            chain(&err),
+            "t.toml: simulated arm parameter arm.mass_kg = -0.1 must be finite and > 0"
+        );
+    }
+
+    proptest! {
+        /// Arbitrary text never panics the parser.
+        #[test]
+        fn arbitrary_text_never_panics(text in "\\PC{0,400}") {
+            let _ = Scenario::parse(&text, "fuzz.toml");
+        }
+
+        /// Mutations of a valid scenario (bytes replaced, cut, or spliced) are parsed or refused, never panic,
+        /// and whatever parses also loads or is refused cleanly.
+        #[test]
+        fn mutated_scenarios_never_panic(
+            edits in proptest::collection::vec((0usize..2000, any::<u8>()), 0..6),
+            cut in 0usize..2000,
+        ) {
+            let mut bytes = MINIMAL.as_bytes().to_vec();
+            for (at, byte) in edits {
+                let at = at % bytes.len();
+                bytes[at] = byte;
+            }
+            bytes.truncate(cut.max(1).min(bytes.len()));
+            let text = String::from_utf8_lossy(&bytes);
+            if let Ok(scenario) = Scenario::parse(&text, "fuzz.toml") {
+                let _ = scenario.load(Path::new("/nonexistent-dir"), "fuzz.toml");
+            }
+        }
+    }
+}

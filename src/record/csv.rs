@@ -40,7 +40,6 @@ const PRIMITIVES_PREFIX: &str = "primitives_";
 /// Writes a CSV trace and its sidecar.
 pub struct CsvTraceWriter {
     path: PathBuf,
-    sidecar_path: PathBuf,
     out: BufWriter<File>,
     checker: SampleChecker,
     sidecar: Sidecar,
@@ -62,11 +61,9 @@ impl CsvTraceWriter {
             .collect();
         writeln!(out, "{}", header.join(",")).map_err(io_error)?;
         let sidecar = Sidecar::new(meta, TraceFormat::Csv, path);
-        let sidecar_path = sidecar_path(path);
-        sidecar.write(&sidecar_path)?;
+        sidecar.write(&sidecar_path(path))?;
         Ok(CsvTraceWriter {
             path: path.to_path_buf(),
-            sidecar_path,
             out,
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
@@ -115,14 +112,7 @@ impl TraceWriter for CsvTraceWriter {
             .sync_all()
             .map_err(|e| self.io_error(e))?;
         self.checker.finished = true;
-        self.sidecar.complete = true;
-        self.sidecar.sample_count = self.checker.count;
-        self.sidecar.write(&self.sidecar_path)?;
-        Ok(TraceSummary {
-            trace_path: self.path.clone(),
-            sidecar_path: self.sidecar_path.clone(),
-            sample_count: self.checker.count,
-        })
+        self.sidecar.complete(&self.path, self.checker.count)
     }
 
     fn sample_count(&self) -> u64 {

@@ -142,7 +142,6 @@ struct SolverMessageOwned {
 /// Writes an MCAP trace and its sidecar.
 pub struct McapTraceWriter {
     path: PathBuf,
-    sidecar_path: PathBuf,
     writer: Option<mcap::Writer<BufWriter<File>>>,
     state_channel: u16,
     solver_channel: u16,
@@ -198,11 +197,9 @@ impl McapTraceWriter {
             })
             .map_err(mcap_error)?;
         let sidecar = Sidecar::new(meta, TraceFormat::Mcap, path);
-        let sidecar_path = sidecar_path(path);
-        sidecar.write(&sidecar_path)?;
+        sidecar.write(&sidecar_path(path))?;
         Ok(McapTraceWriter {
             path: path.to_path_buf(),
-            sidecar_path,
             writer: Some(writer),
             state_channel,
             solver_channel,
@@ -316,14 +313,7 @@ impl TraceWriter for McapTraceWriter {
             path: self.path.clone(),
             source,
         })?;
-        self.sidecar.complete = true;
-        self.sidecar.sample_count = self.checker.count;
-        self.sidecar.write(&self.sidecar_path)?;
-        Ok(TraceSummary {
-            trace_path: self.path.clone(),
-            sidecar_path: self.sidecar_path.clone(),
-            sample_count: self.checker.count,
-        })
+        self.sidecar.complete(&self.path, self.checker.count)
     }
 
     fn sample_count(&self) -> u64 {

@@ -152,6 +152,24 @@ impl Sidecar {
         }
     }
 
+    /// Marks the trace complete with `sample_count` samples, writes the sidecar next to `trace_path`, and returns
+    /// the summary every writer's `finish` reports.
+    pub(crate) fn complete(
+        &mut self,
+        trace_path: &Path,
+        sample_count: u64,
+    ) -> Result<super::TraceSummary, TraceError> {
+        self.complete = true;
+        self.sample_count = sample_count;
+        let sidecar_path = sidecar_path(trace_path);
+        self.write(&sidecar_path)?;
+        Ok(super::TraceSummary {
+            trace_path: trace_path.to_path_buf(),
+            sidecar_path,
+            sample_count,
+        })
+    }
+
     /// Writes the sidecar as pretty JSON with a final newline.
     pub(crate) fn write(&self, path: &Path) -> Result<(), TraceError> {
         let mut text = serde_json::to_string_pretty(self)

@@ -10,5 +10,6 @@ pub mod clock;
 pub mod device;
 pub mod haptics;
 pub mod record;
+pub mod servo;
 pub mod sim;
 pub mod volume;

@@ -1,0 +1,267 @@
+//! The servo session's outside face: what a server, a CLI or a test reads from a running servo loop
+//! ([`Snapshot`], [`StatsReport`], [`SceneReport`]) and what it may ask of it ([`ControlCommand`]).
+//!
+//! Where it sits (DESIGN.md section 5): the servo thread publishes a [`Snapshot`] through a triple buffer
+//! every tick and keeps its statistics in atomics; [`SessionApi`] is the non-real-time side of those
+//! boundaries. Control commands are validated and turned into ready-built scenes here, off the servo
+//! thread, then handed over through an SPSC ring and applied at a tick boundary. Nothing in this module
+//! runs on the servo thread except filling a `Snapshot` (`Copy`, no heap).
+//!
+//! The HTTP/WebSocket server (issue 6) is written against the [`SessionApi`] trait, so it can be tested
+//! against the real session and knows nothing about threads or rings.
+
+use crate::haptics::modes::{ModeConfig, TransferFunction, MAX_MODES};
+use crate::haptics::tick::TickStatus;
+use crate::haptics::{Primitive, PrimitiveKind};
+use crate::record::TraceFormat;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// One primitive the solver used this tick, as plain data.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PrimitiveView {
+    /// `point`, `line`, `plane` or `directed`.
+    pub kind: PrimitiveKind,
+    /// Index of the mode that emitted it.
+    pub mode: u8,
+    /// A point of the primitive (m); zero for `directed`.
+    pub position_m: DVec3,
+    /// Unit direction (line direction, plane normal, directed force direction); zero for `point`.
+    pub direction: DVec3,
+    /// Strength s (N).
+    pub strength_n: f64,
+}
+
+impl PrimitiveView {
+    /// The view of `primitive`, emitted by mode `mode`.
+    pub fn new(primitive: &Primitive, mode: u8) -> Self {
+        PrimitiveView {
+            kind: primitive.kind(),
+            mode,
+            position_m: primitive.position_m(),
+            direction: primitive.direction(),
+            strength_n: primitive.strength_n(),
+        }
+    }
+}
+
+/// The servo loop's newest state, published every tick (triple buffer). `Copy`, fixed size.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Snapshot {
+    /// Ticks since the session started (gaps in a sequence of snapshots are ticks not looked at, or ticks
+    /// skipped after an overrun).
+    pub tick: u64,
+    /// Time of this tick since the session started (s).
+    pub t_s: f64,
+    /// Probe (device) position (m).
+    pub probe_m: DVec3,
+    /// Probe velocity as the device reports it (m/s).
+    pub probe_velocity_m_per_s: DVec3,
+    /// Proxy position after the solve (m).
+    pub proxy_m: DVec3,
+    /// Force the tick rendered: coupling spring plus damping (N), before safety.
+    pub rendered_force_n: DVec3,
+    /// Force actually sent to the device after the safety pipeline (N).
+    pub sent_force_n: DVec3,
+    /// Primitives of this tick; only the first `primitive_count` are valid ([`Snapshot::primitives`]).
+    #[serde(skip)]
+    pub primitive_slots: [Option<PrimitiveView>; MAX_MODES],
+    pub primitive_count: u8,
+    /// Certified bound on the proxy's distance from the exact equilibrium (m); `+inf` (serialised as
+    /// `null`) without a certificate.
+    pub error_bound_m: f64,
+    /// How the solve ended.
+    pub status: TickStatus,
+    /// Solver sweeps this tick.
+    pub sweeps: u32,
+    /// Coupling stiffness in use (N/m).
+    pub stiffness_n_per_m: f64,
+    /// Coupling damping in use (N s/m).
+    pub damping_n_s_per_m: f64,
+    /// True while the device is connected and enabled.
+    pub connected: bool,
+    /// True once the safety pipeline passes forces (after the ramp-in started).
+    pub engaged: bool,
+    /// `FLAG_*` bits of the trace format for this tick.
+    pub flags: u32,
+    /// Incremented every time a command changes the scene (k, damping, modes, volume).
+    pub scene_generation: u64,
+    /// Simulated arm only: where the virtual hand is being pulled to (m), when a client set it.
+    pub hand_target_m: Option<DVec3>,
+}
+
+impl Snapshot {
+    /// The valid primitives of this tick.
+    pub fn primitives(&self) -> impl Iterator<Item = &PrimitiveView> {
+        self.primitive_slots[..usize::from(self.primitive_count).min(MAX_MODES)]
+            .iter()
+            .flatten()
+    }
+}
+
+/// Percentiles of one histogram (µs).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct HistogramReport {
+    pub count: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub p999_us: f64,
+    pub max_us: f64,
+}
+
+/// The servo loop's statistics since it started (or since `reset`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct StatsReport {
+    /// Loop rate (Hz).
+    pub rate_hz: f64,
+    /// Ticks run.
+    pub ticks: u64,
+    /// How late each tick started after its deadline.
+    pub lateness: HistogramReport,
+    /// Compute time of each tick (device read to device write).
+    pub compute: HistogramReport,
+    /// Ticks that started after the next deadline had already passed (schedule skipped).
+    pub overruns: u64,
+    /// Ticks skipped by those overruns.
+    pub skipped_ticks: u64,
+    /// Ticks whose compute exceeded its budget (the last safe force went out instead).
+    pub budget_overruns: u64,
+    /// Most solver sweeps in one tick.
+    pub max_sweeps: u32,
+    /// Worst certificate bound of a tick (m).
+    pub worst_error_bound_m: f64,
+    /// Device errors (timeouts, disconnects, protocol errors).
+    pub device_errors: u64,
+    /// Device disconnects.
+    pub disconnects: u64,
+    /// Samples the recorder ring had no room for.
+    pub recorder_drops: u64,
+    /// Commands applied at tick boundaries.
+    pub commands_applied: u64,
+    /// Which real-time features the thread got (`SCHED_FIFO`, memory lock, pinned core).
+    pub realtime: RealtimeReport,
+}
+
+/// What the servo thread was granted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub struct RealtimeReport {
+    pub sched_fifo: bool,
+    pub memory_locked: bool,
+    pub pinned_cpu: Option<u32>,
+}
+
+/// The scene as configured now (off the real-time path; for clients that show controls).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SceneReport {
+    pub stiffness_n_per_m: f64,
+    pub damping_n_s_per_m: f64,
+    /// The modes, in order, with their settings.
+    pub modes: Vec<ModeConfig>,
+    /// Volume names and where they came from (`builtin:sphere`, a file path).
+    pub volumes: Vec<VolumeReport>,
+    /// The device spec the session was started with (`sim`, `mock:/dev/pts/3`, ...).
+    pub device: String,
+    /// True when the device is the in-process simulated arm (hand target commands work).
+    pub simulated: bool,
+    /// The trace being recorded, if any.
+    pub recording: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VolumeReport {
+    pub name: String,
+    pub source: String,
+    /// Voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// `scalar` or `vector`.
+    pub kind: &'static str,
+    /// World-space bounding box (m).
+    pub min_m: DVec3,
+    pub max_m: DVec3,
+}
+
+/// A request to change a running session. JSON: `{"command": "set_stiffness", "k": 400}` etc.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "command", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ControlCommand {
+    /// Coupling stiffness k (N/m), finite, > 0 and at most the device's maximum.
+    SetStiffness { k: f64 },
+    /// Coupling damping b (N s/m), finite, >= 0.
+    SetDamping { damping: f64 },
+    /// Replace the transfer function of the mode named `mode`.
+    SetTransfer {
+        mode: String,
+        transfer: TransferFunction,
+    },
+    /// Add a mode (scene-file syntax) at the end.
+    AddMode { mode: ModeConfig },
+    /// Remove the mode named `name` (modes that depend on it, like friction, must go first).
+    RemoveMode { name: String },
+    /// Load a volume file and swap it in for the volume named `name` (default: the first volume).
+    LoadVolume {
+        path: PathBuf,
+        #[serde(default)]
+        name: Option<String>,
+    },
+    /// Start recording every tick to `path` (format from `format` or the file extension).
+    StartRecording {
+        path: PathBuf,
+        #[serde(default)]
+        format: Option<TraceFormat>,
+    },
+    /// Stop recording; the trace is flushed and closed.
+    StopRecording,
+    /// Simulated arm only: pull the virtual hand towards `position_m` (m), or `null` to resume its path.
+    SetHandTarget { position_m: Option<[f64; 3]> },
+}
+
+/// What a successful command did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ControlReply {
+    /// Human-readable summary: `stiffness set to 400 N/m`.
+    pub message: String,
+    /// The scene generation the change produced (0 when the scene did not change).
+    pub scene_generation: u64,
+}
+
+/// Why a command was refused. A refused command changed nothing.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ControlError {
+    /// A value out of range, not finite, or a scene that does not build (the message says which key).
+    #[error("invalid: {0}")]
+    Invalid(String),
+    /// A mode, volume or file that does not exist.
+    #[error("not found: {0}")]
+    NotFound(String),
+    /// Not possible in the current state (already recording, not the simulated arm, ...).
+    #[error("conflict: {0}")]
+    Conflict(String),
+    /// The servo did not take the command in time (stopped, or its command ring is full).
+    #[error("unavailable: {0}")]
+    Unavailable(String),
+}
+
+impl ControlError {
+    /// The HTTP status a server should answer with.
+    pub fn http_status(&self) -> u16 {
+        match self {
+            ControlError::Invalid(_) => 400,
+            ControlError::NotFound(_) => 404,
+            ControlError::Conflict(_) => 409,
+            ControlError::Unavailable(_) => 503,
+        }
+    }
+}
+
+/// A running session as a server sees it. Every method is cheap and never blocks the servo thread.
+pub trait SessionApi: Send + Sync + 'static {
+    /// The newest published state; `None` before the first tick.
+    fn snapshot(&self) -> Option<Snapshot>;
+    /// Statistics so far.
+    fn stats(&self) -> StatsReport;
+    /// The scene as configured now.
+    fn scene(&self) -> SceneReport;
+    /// Validates and applies `command`; returns once the servo thread has taken it (or refused).
+    fn control(&self, command: ControlCommand) -> Result<ControlReply, ControlError>;
+}

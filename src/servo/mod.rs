@@ -1,0 +1,13 @@
+//! The real-time servo runtime (DESIGN.md section 5): the dedicated thread that reads the device, runs the
+//! pure tick, passes the force through the safety pipeline and writes the device, on an absolute-deadline
+//! schedule; and the lock-free boundaries around it (state out through a triple buffer, samples to the
+//! recorder and commands in through SPSC rings).
+//!
+//! - [`api`]: what the outside sees and may ask (snapshots, statistics, control commands).
+
+pub mod api;
+
+pub use api::{
+    ControlCommand, ControlError, ControlReply, HistogramReport, PrimitiveView, RealtimeReport,
+    SceneReport, SessionApi, Snapshot, StatsReport, VolumeReport,
+};

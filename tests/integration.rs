@@ -14,6 +14,7 @@ mod device_safety;
 mod modes;
 mod paper;
 mod record;
+mod servo;
 mod sim;
 mod solver_props;
 mod volume_io;

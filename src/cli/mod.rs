@@ -1,16 +1,17 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 //!
-//! `voxhap` with no subcommand runs the default job: until `voxhap serve` exists, it solves the README's
-//! example scene (sims/scenes/plane_point.json, built into the binary) with the exact solver.
+//! `voxhap` with no subcommand runs the default job, `voxhap serve` with its defaults: the simulated arm
+//! exploring the built-in scene (sims/explore.toml) at 1 kHz until Ctrl-C.
 
+pub mod bench_loop;
 pub mod devices;
 pub mod info;
 pub mod mock_device;
 pub mod plot;
+pub mod serve;
 pub mod sim;
 pub mod solve;
 
-use crate::haptics::scene::Scene;
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -36,6 +37,10 @@ pub enum Command {
     MockDevice(mock_device::MockDeviceArgs),
     /// Run a scenario headless (simulated arm, mock clock) and record its force trace.
     Sim(sim::SimArgs),
+    /// Run the real-time servo loop on a device (default: the simulated arm and the built-in scene).
+    Serve(serve::ServeArgs),
+    /// Run the servo loop on the simulated arm for a while and print its timing histograms.
+    BenchLoop(bench_loop::BenchLoopArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -72,11 +77,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Devices(args)) => devices::run(&args),
         Some(Command::MockDevice(args)) => mock_device::run(&args),
         Some(Command::Sim(args)) => sim::run(&args),
+        Some(Command::Serve(args)) => serve::run(&args),
+        Some(Command::BenchLoop(args)) => bench_loop::run(&args),
         None => {
-            print_out("voxhap: no subcommand given; solving the built-in example scene (sims/scenes/plane_point.json).")?;
-            print_out("See `voxhap --help` for the other commands.\n")?;
-            let scene = Scene::parse(EXAMPLE_SCENE, "sims/scenes/plane_point.json")?;
-            print_out(&solve::report(&scene, solve::SolverChoice::Exact, false)?)
+            print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
+            print_out("See `voxhap --help` for the other commands.")?;
+            serve::run(&serve::ServeArgs::defaults())
         }
     }
 }

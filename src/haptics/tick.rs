@@ -21,6 +21,7 @@
 //! A non-finite probe position (a device glitch) or a bad `dt_s` leaves the proxy where it was, sends zero
 //! force and sets [`FLAG_NON_FINITE_REPLACED`].
 
+use crate::clock::Clock;
 use crate::haptics::baselines::{constraint, euler};
 use crate::haptics::modes::{ModeMemory, RenderScene, MAX_MODES};
 use crate::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
@@ -146,12 +147,37 @@ pub struct TickOutput {
 }
 
 /// One servo tick (module docs). Pure apart from `state` and `workspace`; no allocation, clock, lock or I/O.
+/// The exact solver stops on its sweep budget only, so the result is deterministic.
 pub fn tick(
     state: &mut TickState,
     scene: &RenderScene,
     probe_m: DVec3,
     dt_s: f64,
     workspace: &mut TickWorkspace,
+) -> TickOutput {
+    tick_inner(state, scene, probe_m, dt_s, workspace, None)
+}
+
+/// [`tick`] with the exact solver's time budget (`SolverConfig::max_time_ns`) measured on `clock`: the
+/// servo thread's variant. The clock is only read, so a mock clock keeps tests deterministic.
+pub fn tick_timed(
+    state: &mut TickState,
+    scene: &RenderScene,
+    probe_m: DVec3,
+    dt_s: f64,
+    workspace: &mut TickWorkspace,
+    clock: &dyn Clock,
+) -> TickOutput {
+    tick_inner(state, scene, probe_m, dt_s, workspace, Some(clock))
+}
+
+fn tick_inner(
+    state: &mut TickState,
+    scene: &RenderScene,
+    probe_m: DVec3,
+    dt_s: f64,
+    workspace: &mut TickWorkspace,
+    clock: Option<&dyn Clock>,
 ) -> TickOutput {
     let mode_count = scene.modes().len().min(MAX_MODES);
     let mut output = TickOutput {
@@ -202,7 +228,11 @@ pub fn tick(
                 previous_proxy_m: Some(previous_proxy_m),
                 primitives,
             };
-            match workspace.solver.solve(&problem) {
+            let solved = match clock {
+                Some(clock) => workspace.solver.solve_with_clock(&problem, clock),
+                None => workspace.solver.solve(&problem),
+            };
+            match solved {
                 Ok(solution) => {
                     output.sweeps = solution.sweeps;
                     output.active_set_rounds = solution.active_set_rounds;

@@ -47,8 +47,12 @@ pub const FLAG_SAMPLES_DROPPED: u32 = 1 << 5;
 /// Flag bit: the force output was ramping in (enable) or held at zero (watchdog, disconnect).
 pub const FLAG_FORCE_LIMITED_BY_SAFETY: u32 = 1 << 6;
 
+/// Flag bit: the tick's compute (modes and solve) took longer than its budget, so the last safe force was
+/// sent again instead of this tick's.
+pub const FLAG_COMPUTE_OVER_BUDGET: u32 = 1 << 7;
+
 /// Every flag bit with its name and meaning, lowest bit first; written into the sidecar.
-pub const FLAG_DOCS: [FlagDoc; 7] = [
+pub const FLAG_DOCS: [FlagDoc; 8] = [
     FlagDoc {
         bit: 0,
         name: Cow::Borrowed("solver_budget_hit"),
@@ -86,6 +90,13 @@ pub const FLAG_DOCS: [FlagDoc; 7] = [
         name: Cow::Borrowed("force_limited_by_safety"),
         meaning: Cow::Borrowed(
             "force ramping in on enable, or held at zero by the watchdog or a disconnect",
+        ),
+    },
+    FlagDoc {
+        bit: 7,
+        name: Cow::Borrowed("compute_over_budget"),
+        meaning: Cow::Borrowed(
+            "tick compute exceeded its budget; the last safe force was sent again",
         ),
     },
 ];

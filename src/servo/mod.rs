@@ -11,3 +11,13 @@ pub use api::{
     ControlCommand, ControlError, ControlReply, HistogramReport, PrimitiveView, RealtimeReport,
     SceneReport, SessionApi, Snapshot, StatsReport, VolumeReport,
 };
+pub mod device;
+pub mod recorder;
+pub mod rt;
+pub mod runner;
+pub mod schedule;
+pub mod session;
+pub mod setup;
+pub mod stats;
+
+pub use session::{Session, SessionConfig, SessionError, SessionShared, SessionSummary};

@@ -117,6 +117,58 @@ pub struct VolumeSpec {
     pub part: Option<VolumePart>,
 }
 
+impl VolumeSpec {
+    /// Loads or generates this volume (`index` is its place in `volumes`, for messages; files relative to
+    /// `base_dir`). Returns the volume and where it came from (`builtin:sphere`, the file path).
+    pub fn load(
+        &self,
+        index: usize,
+        base_dir: &Path,
+        origin: &str,
+    ) -> Result<(AnyVolume, String), ScenarioError> {
+        let spec = self;
+        let description;
+        let invalid = |message: String| ScenarioError::Invalid {
+            origin: origin.to_owned(),
+            message: format!("volumes[{index}]: {message}"),
+        };
+        let volume = if let Some(name) = &spec.builtin {
+            let built = procedural::builtin(name).map_err(|err| invalid(err.to_string()))?;
+            description = format!("builtin:{name}");
+            match (spec.part, built.scalar, built.vector) {
+                (None | Some(VolumePart::Scalar), Some(s), None) => AnyVolume::Scalar(s),
+                (None | Some(VolumePart::Vector), None, Some(v)) => AnyVolume::Vector(v),
+                (Some(VolumePart::Scalar), Some(s), Some(_)) => AnyVolume::Scalar(s),
+                (Some(VolumePart::Vector), Some(_), Some(v)) => AnyVolume::Vector(v),
+                (None, Some(_), Some(_)) => {
+                    return Err(invalid(format!(
+                        "builtin {name:?} has a scalar and a vector field: set part = \"scalar\" or \"vector\""
+                    )))
+                }
+                (Some(part), _, _) => {
+                    return Err(invalid(format!("builtin {name:?} has no {part:?} field")))
+                }
+                (None, None, None) => {
+                    return Err(invalid(format!("builtin {name:?} is empty")))
+                }
+            }
+        } else if let Some(file) = &spec.file {
+            let path = base_dir.join(file);
+            let loaded = io::load(&path).map_err(|source| ScenarioError::Load {
+                origin: origin.to_owned(),
+                index,
+                name: spec.name.clone(),
+                source: Box::new(source),
+            })?;
+            description = file.display().to_string();
+            loaded.volume
+        } else {
+            return Err(invalid("needs builtin or file".to_owned()));
+        };
+        Ok((volume, description))
+    }
+}
+
 /// Which field of a two-field built-in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -264,43 +316,8 @@ impl Scenario {
         let mut volumes = Vec::with_capacity(self.volumes.len());
         let mut descriptions = Vec::with_capacity(self.volumes.len());
         for (index, spec) in self.volumes.iter().enumerate() {
-            let invalid = |message: String| ScenarioError::Invalid {
-                origin: origin.to_owned(),
-                message: format!("volumes[{index}]: {message}"),
-            };
-            let volume = if let Some(name) = &spec.builtin {
-                let built = procedural::builtin(name).map_err(|err| invalid(err.to_string()))?;
-                descriptions.push(format!("builtin:{name}"));
-                match (spec.part, built.scalar, built.vector) {
-                    (None | Some(VolumePart::Scalar), Some(s), None) => AnyVolume::Scalar(s),
-                    (None | Some(VolumePart::Vector), None, Some(v)) => AnyVolume::Vector(v),
-                    (Some(VolumePart::Scalar), Some(s), Some(_)) => AnyVolume::Scalar(s),
-                    (Some(VolumePart::Vector), Some(_), Some(v)) => AnyVolume::Vector(v),
-                    (None, Some(_), Some(_)) => {
-                        return Err(invalid(format!(
-                            "builtin {name:?} has a scalar and a vector field: set part = \"scalar\" or \"vector\""
-                        )))
-                    }
-                    (Some(part), _, _) => {
-                        return Err(invalid(format!("builtin {name:?} has no {part:?} field")))
-                    }
-                    (None, None, None) => {
-                        return Err(invalid(format!("builtin {name:?} is empty")))
-                    }
-                }
-            } else if let Some(file) = &spec.file {
-                let path = base_dir.join(file);
-                let loaded = io::load(&path).map_err(|source| ScenarioError::Load {
-                    origin: origin.to_owned(),
-                    index,
-                    name: spec.name.clone(),
-                    source: Box::new(source),
-                })?;
-                descriptions.push(file.display().to_string());
-                loaded.volume
-            } else {
-                return Err(invalid("needs builtin or file".to_owned()));
-            };
+            let (volume, description) = spec.load(index, base_dir, origin)?;
+            descriptions.push(description);
             volumes.push((spec.name.clone(), volume));
         }
         let scene = RenderScene::new(self.k_n_per_m, volumes, &self.modes).map_err(|source| {

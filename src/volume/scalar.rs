@@ -9,12 +9,15 @@
 use super::sampling::{index_derivatives, locate, trilinear};
 use super::{Grid, VolumeError};
 use glam::DVec3;
+use std::sync::Arc;
 
 /// A scalar field on a regular grid, stored as `f32`, `data[i + nx·(j + ny·k)]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScalarVolume {
     grid: Grid,
-    data: Vec<f32>,
+    /// Shared, so a scene rebuilt for a control command (new transfer function, new mode) reuses the
+    /// samples instead of copying them.
+    data: Arc<[f32]>,
     value_range: (f32, f32),
 }
 
@@ -40,7 +43,7 @@ impl ScalarVolume {
         }
         Ok(ScalarVolume {
             grid,
-            data,
+            data: data.into(),
             value_range: (min, max),
         })
     }
@@ -68,11 +71,6 @@ impl ScalarVolume {
     /// The stored values, x fastest.
     pub fn data(&self) -> &[f32] {
         &self.data
-    }
-
-    /// Gives the grid and data back.
-    pub fn into_parts(self) -> (Grid, Vec<f32>) {
-        (self.grid, self.data)
     }
 
     /// Smallest and largest stored value.

@@ -16,12 +16,15 @@
 use super::sampling::{index_derivatives, locate, trilinear};
 use super::{Grid, VolumeError};
 use glam::{DMat3, DVec3};
+use std::sync::Arc;
 
 /// A 3-vector field on a regular grid, stored as `[f32; 3]`, `data[i + nx·(j + ny·k)]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VectorVolume {
     grid: Grid,
-    data: Vec<[f32; 3]>,
+    /// Shared, so a scene rebuilt for a control command (new transfer function, new mode) reuses the
+    /// samples instead of copying them.
+    data: Arc<[[f32; 3]]>,
     magnitude_range: (f32, f32),
 }
 
@@ -49,7 +52,7 @@ impl VectorVolume {
         }
         Ok(VectorVolume {
             grid,
-            data,
+            data: data.into(),
             magnitude_range: (min, max),
         })
     }
@@ -80,11 +83,6 @@ impl VectorVolume {
     /// The stored vectors, x fastest.
     pub fn data(&self) -> &[[f32; 3]] {
         &self.data
-    }
-
-    /// Gives the grid and data back.
-    pub fn into_parts(self) -> (Grid, Vec<[f32; 3]>) {
-        (self.grid, self.data)
     }
 
     /// Smallest and largest stored vector magnitude.

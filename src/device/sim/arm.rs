@@ -158,6 +158,9 @@ pub struct SimArm {
     hand_force_n: DVec3,
     wall_force_n: DVec3,
     rejected_force_count: u64,
+    /// When set, the hand pulls towards this point (at rest) instead of following its path: a user dragging
+    /// the hand with the mouse in the visualiser.
+    hand_target_override_m: Option<DVec3>,
 }
 
 fn positive(name: &'static str, value: f64) -> Result<(), SimError> {
@@ -223,6 +226,7 @@ impl SimArm {
             hand_force_n: DVec3::ZERO,
             wall_force_n: DVec3::ZERO,
             rejected_force_count: 0,
+            hand_target_override_m: None,
         })
     }
 
@@ -264,7 +268,14 @@ impl SimArm {
             let time_s = t_s + f64::from(i) * substep_s;
             let x = self.position_m;
             let v = self.velocity_m_per_s;
-            self.hand_force_n = match self.config.path.drive_at(time_s) {
+            let drive = match self.hand_target_override_m {
+                Some(position_m) => HandDrive::Target {
+                    position_m,
+                    velocity_m_per_s: DVec3::ZERO,
+                },
+                None => self.config.path.drive_at(time_s),
+            };
+            self.hand_force_n = match drive {
                 HandDrive::Target {
                     position_m,
                     velocity_m_per_s,
@@ -284,6 +295,21 @@ impl SimArm {
             self.position_m = x + self.velocity_m_per_s * substep_s;
         }
         Ok(outcome)
+    }
+
+    /// Makes the hand pull towards `target_m` (held still) instead of following its path, or, with `None`,
+    /// resume the path. A non-finite target is refused (returns false, nothing changes).
+    pub fn set_hand_target_m(&mut self, target_m: Option<DVec3>) -> bool {
+        if target_m.is_some_and(|t| !t.is_finite()) {
+            return false;
+        }
+        self.hand_target_override_m = target_m;
+        true
+    }
+
+    /// The hand target set by [`SimArm::set_hand_target_m`], if any.
+    pub fn hand_target_m(&self) -> Option<DVec3> {
+        self.hand_target_override_m
     }
 
     /// The end effector's position (m): the probe position the servo loop reads.

@@ -37,6 +37,20 @@ impl HidTransport {
         Ok(HidTransport { device })
     }
 
+    /// Opens the device with this USB vendor id, product id and serial number.
+    pub fn open_serial(
+        vendor_id: u16,
+        product_id: u16,
+        serial: &str,
+    ) -> Result<HidTransport, DeviceError> {
+        let name = format!("HID {vendor_id:04x}:{product_id:04x} serial {serial}");
+        let api = HidApi::new().map_err(|error| open_error(name.clone(), error))?;
+        let device = api
+            .open_serial(vendor_id, product_id, serial)
+            .map_err(|error| open_error(name, error))?;
+        Ok(HidTransport { device })
+    }
+
     /// Opens a device by its hidraw path (`/dev/hidraw3`).
     pub fn open_path(path: &str) -> Result<HidTransport, DeviceError> {
         let api = HidApi::new().map_err(|error| open_error(path.to_string(), error))?;

@@ -219,6 +219,16 @@ impl RenderScene {
         self.stiffness_n_per_m
     }
 
+    /// Changes the coupling stiffness `k` (N/m) in place (no allocation; the servo thread applies stiffness
+    /// commands this way). Refuses a non-finite or non-positive value and keeps the old one.
+    pub fn set_stiffness_n_per_m(&mut self, stiffness_n_per_m: f64) -> Result<(), ModeError> {
+        if !(stiffness_n_per_m.is_finite() && stiffness_n_per_m > 0.0) {
+            return Err(ModeError::BadStiffness(stiffness_n_per_m));
+        }
+        self.stiffness_n_per_m = stiffness_n_per_m;
+        Ok(())
+    }
+
     pub fn volumes(&self) -> &[(String, AnyVolume)] {
         &self.volumes
     }

@@ -1,0 +1,417 @@
+//! The device end of the servo loop: which device `--device` names, how it is opened, and the one object
+//! ([`ServoDevice`]) the servo thread talks to, whatever the device is.
+//!
+//! Every device runs inside a [`Supervisor`] (lifecycle, safety pipeline, reconnection; see
+//! `device::supervisor`), so the safety pipeline is applied to every force of every device, the simulated
+//! arm included. [`ServoDevice`] erases the driver type so the servo thread holds one `Box<dyn
+//! ServoDevice>`.
+//!
+//! The in-process simulated arm ([`SimDevice`]) is the default device: a [`SimArm`] stepped one servo period
+//! per force written, its virtual hand following a scripted path, or, when a client sets one through the
+//! session, a hand target (a triple buffer, so setting it never blocks the servo thread).
+
+use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
+use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
+use crate::device::drivers::replay::ReplayDevice;
+use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
+use crate::device::safety::SafetyConfigError;
+use crate::device::sim::{SimArm, SimArmConfig, SimError};
+use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorCounters, TickOutput};
+use crate::device::transport::{HidTransport, SerialTransport};
+use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use glam::DVec3;
+use std::path::PathBuf;
+use std::str::FromStr;
+
+/// The device as the servo thread sees it: one exchange per tick, plus a few queries.
+pub trait ServoDevice: Send {
+    /// Makes `force_n` safe, sends it and reads the answering state (see [`Supervisor::tick`]).
+    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput;
+    /// The supervisor's counters.
+    fn counters(&self) -> SupervisorCounters;
+    /// True once the safety pipeline passes forces.
+    fn engaged(&self) -> bool;
+    /// Zero force, disable, close.
+    fn stop(&mut self);
+    /// Opens the device now (before the loop starts), so a missing device fails `serve` at once.
+    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind>;
+    /// The device's capabilities, while connected.
+    fn info(&self) -> Option<DeviceInfo>;
+}
+
+impl<D, F> ServoDevice for Supervisor<D, F>
+where
+    D: HapticDevice + Send,
+    F: FnMut() -> Result<D, DeviceError> + Send,
+{
+    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput {
+        self.tick(force_n, now_us)
+    }
+
+    fn counters(&self) -> SupervisorCounters {
+        Supervisor::counters(self)
+    }
+
+    fn engaged(&self) -> bool {
+        self.safety().is_engaged()
+    }
+
+    fn stop(&mut self) {
+        Supervisor::stop(self);
+    }
+
+    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind> {
+        Supervisor::connect(self, now_us)
+    }
+
+    fn info(&self) -> Option<DeviceInfo> {
+        self.device().map(|d| d.info().clone())
+    }
+}
+
+/// Which device to drive: the `--device` argument.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DeviceSpec {
+    /// `sim`: the in-process simulated arm.
+    Sim,
+    /// `mock:PATH`: `voxhap mock-device` on the pseudo-terminal at PATH (voxhap protocol over serial).
+    Mock(PathBuf),
+    /// `serial:PATH`: a device speaking the voxhap protocol on the serial port at PATH.
+    Serial(PathBuf),
+    /// `hid:VID:PID[:SERIAL]`: a device speaking the voxhap protocol over USB HID (hex ids).
+    Hid {
+        vendor_id: u16,
+        product_id: u16,
+        serial: Option<String>,
+    },
+    /// `woodenhaptics`: WoodenHaptics 1.5 over USB HID.
+    WoodenHaptics,
+    /// `haply2diy:PATH`: Haply 2DIY on the USB serial port at PATH.
+    Haply2Diy(PathBuf),
+    /// `replay:TRACE`: plays the probe positions of a recorded trace (loops at the end).
+    Replay(PathBuf),
+}
+
+/// Why `--device` was not understood.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics, haply2diy:PATH or replay:TRACE")]
+pub struct DeviceSpecError {
+    pub given: String,
+    pub problem: String,
+}
+
+impl FromStr for DeviceSpec {
+    type Err = DeviceSpecError;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let error = |problem: &str| DeviceSpecError {
+            given: text.to_owned(),
+            problem: problem.to_owned(),
+        };
+        let (kind, rest) = match text.split_once(':') {
+            Some((kind, rest)) => (kind, Some(rest)),
+            None => (text, None),
+        };
+        let path = |rest: Option<&str>| match rest {
+            Some(p) if !p.is_empty() => Ok(PathBuf::from(p)),
+            _ => Err(error("a path is needed after the colon")),
+        };
+        match kind {
+            "sim" if rest.is_none() => Ok(DeviceSpec::Sim),
+            "woodenhaptics" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
+            "mock" => Ok(DeviceSpec::Mock(path(rest)?)),
+            "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
+            "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
+            "replay" => Ok(DeviceSpec::Replay(path(rest)?)),
+            "hid" => {
+                let rest = rest.ok_or_else(|| error("hid needs VID:PID"))?;
+                let mut parts = rest.splitn(3, ':');
+                let mut id = |what: &str| {
+                    let part = parts.next().unwrap_or("");
+                    let digits = part.trim_start_matches("0x");
+                    u16::from_str_radix(digits, 16)
+                        .map_err(|_| error(&format!("{what} {part:?} is not a 16-bit hex number")))
+                };
+                let vendor_id = id("vendor id")?;
+                let product_id = id("product id")?;
+                let serial = parts.next().filter(|s| !s.is_empty()).map(str::to_owned);
+                Ok(DeviceSpec::Hid {
+                    vendor_id,
+                    product_id,
+                    serial,
+                })
+            }
+            "sim" | "woodenhaptics" => Err(error("takes no argument")),
+            _ => Err(error("unknown device kind")),
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DeviceSpec::Sim => f.write_str("sim"),
+            DeviceSpec::Mock(p) => write!(f, "mock:{}", p.display()),
+            DeviceSpec::Serial(p) => write!(f, "serial:{}", p.display()),
+            DeviceSpec::Hid {
+                vendor_id,
+                product_id,
+                serial,
+            } => {
+                write!(f, "hid:{vendor_id:04x}:{product_id:04x}")?;
+                match serial {
+                    Some(s) => write!(f, ":{s}"),
+                    None => Ok(()),
+                }
+            }
+            DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics"),
+            DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
+            DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
+        }
+    }
+}
+
+/// Why a device could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error(transparent)]
+    Safety(#[from] SafetyConfigError),
+    #[error("simulated arm: {0}")]
+    Sim(#[from] SimError),
+    #[error("replay trace {path}: {message}")]
+    Replay { path: PathBuf, message: String },
+    #[error("device path {0:?} is not valid UTF-8")]
+    Path(PathBuf),
+}
+
+/// The simulated arm as a [`HapticDevice`]: each `write_force` steps the arm one servo period under that
+/// force; `read_state` reports where it got to.
+pub struct SimDevice {
+    arm: SimArm,
+    dt_s: f64,
+    t_s: f64,
+    info: DeviceInfo,
+    hand_target: triple_buffer::Output<Option<DVec3>>,
+    applied_target: Option<DVec3>,
+}
+
+/// The handle that moves a [`SimDevice`]'s hand from another thread (wait-free for the servo thread).
+pub type HandTargetInput = triple_buffer::Input<Option<DVec3>>;
+
+impl SimDevice {
+    /// An arm built from `config`, at rest at `start_m`, stepped `dt_s` per force; and the input that sets
+    /// its hand target.
+    pub fn new(
+        config: SimArmConfig,
+        start_m: DVec3,
+        dt_s: f64,
+    ) -> Result<(SimDevice, HandTargetInput), SimError> {
+        let arm = SimArm::new(config, start_m)?;
+        // Check the tick length now: `step` would refuse it on every tick otherwise.
+        arm.clone().step(0.0, dt_s, DVec3::ZERO)?;
+        let (input, output) = triple_buffer::triple_buffer(&None);
+        let info = DeviceInfo {
+            model: "voxhap simulated arm".to_owned(),
+            serial_number: "in-process".to_owned(),
+            position_dof: 3,
+            force_dof: 3,
+            button_count: 0,
+            workspace_min_m: DVec3::splat(-1.0),
+            workspace_max_m: DVec3::splat(1.0),
+            max_force_n: 10.0,
+            max_stiffness_n_per_m: 5000.0,
+            state_rates_hz: Vec::new(),
+        };
+        Ok((
+            SimDevice {
+                arm,
+                dt_s,
+                t_s: 0.0,
+                info,
+                hand_target: output,
+                applied_target: None,
+            },
+            input,
+        ))
+    }
+
+    /// The hand target in force, if a client set one.
+    pub fn hand_target_m(&self) -> Option<DVec3> {
+        self.applied_target
+    }
+}
+
+impl HapticDevice for SimDevice {
+    type Error = DeviceError;
+
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        let target = *self.hand_target.read();
+        if target != self.applied_target && self.arm.set_hand_target_m(target) {
+            self.applied_target = target;
+        }
+        self.arm
+            .step(self.t_s, self.dt_s, force_n)
+            .map_err(|_| DeviceError::Protocol {
+                what: "simulated arm refused its step",
+            })?;
+        self.t_s += self.dt_s;
+        Ok(())
+    }
+
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        Ok(DeviceState {
+            position_m: self.arm.position_m(),
+            velocity_m_per_s: self.arm.velocity_m_per_s(),
+            buttons: 0,
+            device_time_us: Some((self.t_s * 1e6) as u64),
+        })
+    }
+}
+
+/// An opened device spec: the servo's device, plus the hand-target input when it is the simulated arm.
+pub struct OpenedDevice {
+    pub device: Box<dyn ServoDevice>,
+    pub hand_target: Option<HandTargetInput>,
+}
+
+fn boxed<D, F>(config: SupervisorConfig, opener: F) -> Result<Box<dyn ServoDevice>, OpenError>
+where
+    D: HapticDevice + Send + 'static,
+    F: FnMut() -> Result<D, DeviceError> + Send + 'static,
+{
+    Ok(Box::new(Supervisor::new(config, opener)?))
+}
+
+fn path_str(path: &std::path::Path) -> Result<String, OpenError> {
+    path.to_str()
+        .map(str::to_owned)
+        .ok_or_else(|| OpenError::Path(path.to_path_buf()))
+}
+
+/// Makes the supervised device for `spec`. Nothing is opened yet (call [`ServoDevice::connect`]); the
+/// simulated arm uses `sim_arm` (its config and start point) stepped every `period_s`.
+pub fn open_device(
+    spec: &DeviceSpec,
+    config: SupervisorConfig,
+    sim_arm: (SimArmConfig, DVec3),
+    period_s: f64,
+) -> Result<OpenedDevice, OpenError> {
+    let protocol = ProtocolConfig::default();
+    let mut hand_target = None;
+    let device = match spec {
+        DeviceSpec::Sim => {
+            let (device, input) = SimDevice::new(sim_arm.0, sim_arm.1, period_s)?;
+            hand_target = Some(input);
+            let mut slot = Some(device);
+            // The simulated arm cannot be lost, so the opener is called once.
+            boxed(config, move || {
+                slot.take().ok_or(DeviceError::Config {
+                    what: "the simulated arm was already opened".to_owned(),
+                })
+            })?
+        }
+        DeviceSpec::Mock(path) | DeviceSpec::Serial(path) => {
+            let path = path_str(path)?;
+            boxed(config, move || {
+                let transport = SerialTransport::open(&path, 1_000_000)?;
+                Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
+            })?
+        }
+        DeviceSpec::Hid {
+            vendor_id,
+            product_id,
+            serial,
+        } => {
+            let (vendor_id, product_id, serial) = (*vendor_id, *product_id, serial.clone());
+            boxed(config, move || {
+                let transport = match &serial {
+                    Some(serial) => HidTransport::open_serial(vendor_id, product_id, serial)?,
+                    None => HidTransport::open_vid_pid(vendor_id, product_id)?,
+                };
+                Ok(ProtocolDevice::new(HidLink::new(transport), protocol))
+            })?
+        }
+        DeviceSpec::WoodenHaptics => boxed(config, move || {
+            let transport =
+                HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
+            WoodenHaptics::new(transport, WoodenHapticsConfig::default())
+        })?,
+        DeviceSpec::Haply2Diy(path) => {
+            let path = path_str(path)?;
+            boxed(config, move || {
+                let transport = SerialTransport::open(&path, 0)?;
+                Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
+            })?
+        }
+        DeviceSpec::Replay(path) => {
+            let trace = crate::record::read_trace(path).map_err(|e| OpenError::Replay {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            let replay = ReplayDevice::new(&trace, true).map_err(|e| OpenError::Replay {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            let mut slot = Some(replay);
+            boxed(config, move || {
+                slot.take().ok_or(DeviceError::Config {
+                    what: "the replay device was already opened".to_owned(),
+                })
+            })?
+        }
+    };
+    Ok(OpenedDevice {
+        device,
+        hand_target,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_specs_parse_and_print_back() {
+        for text in [
+            "sim",
+            "mock:/dev/pts/3",
+            "serial:/dev/ttyACM0",
+            "hid:1234:0006",
+            "hid:1234:0006:SN-1",
+            "woodenhaptics",
+            "haply2diy:/dev/ttyACM1",
+            "replay:trace.csv",
+        ] {
+            let spec: DeviceSpec = text.parse().unwrap();
+            assert_eq!(spec.to_string(), text);
+        }
+        assert_eq!(
+            "hid:0x1234:6".parse::<DeviceSpec>().unwrap(),
+            DeviceSpec::Hid {
+                vendor_id: 0x1234,
+                product_id: 6,
+                serial: None
+            }
+        );
+    }
+
+    #[test]
+    fn bad_device_specs_say_what_is_wrong() {
+        for (text, problem) in [
+            ("falcon", "unknown device kind"),
+            ("mock:", "a path is needed"),
+            ("serial", "a path is needed"),
+            ("sim:x", "takes no argument"),
+            ("hid:zz:0001", "vendor id \"zz\""),
+            ("hid:1234", "product id \"\""),
+        ] {
+            let err = text.parse::<DeviceSpec>().unwrap_err().to_string();
+            assert!(err.contains(problem), "{text}: {err}");
+            assert!(err.contains("expected sim"), "{err}");
+        }
+    }
+}

@@ -1,0 +1,132 @@
+//! Real-time setup of the servo thread: `SCHED_FIFO`, locked memory and a pinned core.
+//!
+//! Called once by the servo thread on itself, before its first tick. Each feature needs a privilege
+//! (`CAP_SYS_NICE` or an `rtprio` limit for `SCHED_FIFO`, `CAP_IPC_LOCK` or a `memlock` limit for `mlockall`;
+//! pinning is always allowed but is skipped on a single-CPU machine). [`RtMode`] says what to do when one is
+//! refused: `strict` refuses to start, `best-effort` (the default) warns and goes on without it, `off` does
+//! not ask. The README's "Real-time setup" section shows the limits to grant.
+
+use super::api::RealtimeReport;
+
+/// What the servo thread asks of the OS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RtMode {
+    /// SCHED_FIFO, locked memory and a pinned core, or refuse to start.
+    Strict,
+    /// Ask for all three; warn and continue without the ones refused.
+    #[default]
+    BestEffort,
+    /// Plain thread, no requests.
+    Off,
+}
+
+/// `SCHED_FIFO` priority used (1..=99; 80 sits above most kernel threads' defaults of 50 and below the
+/// watchdog/migration threads at 99).
+pub const FIFO_PRIORITY: i32 = 80;
+
+/// What was asked and refused, for the warning or the `strict` error.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("real-time setup refused: {}", refused.join("; "))]
+pub struct RtRefused {
+    pub refused: Vec<String>,
+}
+
+/// Applies `mode` to the calling thread, pinning it to `cpu` (default: the last CPU). Returns what was
+/// granted and, in best-effort mode, the refusals as warnings. Allocates (messages); call it before the loop.
+pub fn apply(mode: RtMode, cpu: Option<usize>) -> Result<(RealtimeReport, Vec<String>), RtRefused> {
+    let mut report = RealtimeReport::default();
+    let mut refused = Vec::new();
+    if mode == RtMode::Off {
+        return Ok((report, refused));
+    }
+    // SCHED_FIFO for this thread.
+    let param = libc::sched_param {
+        sched_priority: FIFO_PRIORITY,
+    };
+    // SAFETY: valid pointer to a sched_param; pid 0 means the calling thread.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+        report.sched_fifo = true;
+    } else {
+        refused.push(format!(
+            "SCHED_FIFO priority {FIFO_PRIORITY}: {} (grant rtprio or CAP_SYS_NICE)",
+            std::io::Error::last_os_error()
+        ));
+    }
+    // Lock current and future pages so no tick waits on a page fault.
+    // SAFETY: plain syscall with flag arguments.
+    if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0 {
+        report.memory_locked = true;
+    } else {
+        refused.push(format!(
+            "mlockall: {} (grant a memlock limit or CAP_IPC_LOCK)",
+            std::io::Error::last_os_error()
+        ));
+    }
+    // Pin to one core.
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let target = cpu.unwrap_or(cpus.saturating_sub(1));
+    if cpus > 1 || cpu.is_some() {
+        // SAFETY: cpu_set_t is plain data; CPU_ZERO/CPU_SET index within its fixed size (checked below).
+        let pinned = unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_ZERO(&mut set);
+            if target < libc::CPU_SETSIZE as usize {
+                libc::CPU_SET(target, &mut set);
+                libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+            } else {
+                false
+            }
+        };
+        if pinned {
+            report.pinned_cpu = u32::try_from(target).ok();
+        } else {
+            refused.push(format!(
+                "pinning to CPU {target}: {}",
+                std::io::Error::last_os_error()
+            ));
+        }
+    } else {
+        refused.push("pinning: only one CPU, not pinned".to_owned());
+    }
+    if mode == RtMode::Strict && !refused.is_empty() {
+        return Err(RtRefused { refused });
+    }
+    Ok((report, refused))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn off_asks_for_nothing() {
+        let (report, warnings) = apply(RtMode::Off, None).unwrap();
+        assert_eq!(report, RealtimeReport::default());
+        assert!(warnings.is_empty());
+    }
+
+    #[test]
+    fn strict_fails_exactly_when_something_was_refused() {
+        // Run on a scratch thread: the grants (if any) must not leak into the test harness's threads.
+        let result = std::thread::spawn(|| {
+            let best = apply(RtMode::BestEffort, None);
+            let strict = apply(RtMode::Strict, None);
+            (best, strict)
+        })
+        .join()
+        .unwrap();
+        let (best, strict) = result;
+        let (_, warnings) = best.expect("best effort never fails");
+        match strict {
+            Ok(_) => assert!(
+                warnings.is_empty(),
+                "strict passed but best-effort warned: {warnings:?}"
+            ),
+            Err(err) => {
+                assert!(!err.refused.is_empty());
+                assert!(err.to_string().starts_with("real-time setup refused"));
+            }
+        }
+    }
+}

@@ -1,0 +1,751 @@
+//! A running servo session: the servo thread, the recorder thread, and the control side that a CLI or a
+//! server talks to ([`SessionApi`]).
+//!
+//! Threads and boundaries (DESIGN.md section 5):
+//!
+//! ```text
+//!  control side (any thread, a Mutex among themselves)      servo thread (ServoLoop)      recorder thread
+//!    validate, build SceneBundle ── command ring (SPSC) ──▶ apply at tick boundary
+//!    drop retired bundles        ◀── retire ring (SPSC) ─── old bundle
+//!    snapshot()                  ◀── triple buffer ──────── Snapshot every tick
+//!    stats()                     ◀── atomics ────────────── histograms, counters
+//!                                                           TraceSample ── sample ring ──▶ writer
+//!    start/stop recording ─────────────────────────── mpsc ────────────────────────────▶
+//! ```
+//!
+//! The servo thread never waits on any of these: a full sample ring is counted, commands are polled, the
+//! snapshot buffer is wait-free. A control command returns once the servo thread has applied it (it polls
+//! the applied-command counter), or with an error that says why and changes nothing.
+
+use super::api::{
+    ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Snapshot, StatsReport,
+};
+use super::device::{open_device, DeviceSpec, HandTargetInput, OpenError, ServoDevice};
+use super::recorder::{run_recorder, RecorderError, RecorderRequest};
+use super::rt::{self, RtMode, RtRefused};
+use super::runner::{LoopIo, LoopTiming, ServoCommand, ServoLoop};
+use super::schedule::{SpinSleepWaiter, Waiter};
+use super::setup::{load_volume_arg, SceneBundle, SceneSetup};
+use super::stats::ServoStats;
+use crate::device::supervisor::SupervisorConfig;
+use crate::device::ErrorKind;
+use crate::record::{create_trace_writer, TraceError, TraceFormat, TraceMeta, TraceSummary};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Slowest and fastest servo rates accepted (Hz).
+pub const RATE_RANGE_HZ: (f64, f64) = (100.0, 10_000.0);
+/// Capacity of the command and retire rings.
+pub const COMMAND_RING: usize = 64;
+/// How long a control command waits for the servo thread to apply it.
+pub const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// How to run a session.
+#[derive(Debug, Clone)]
+pub struct SessionConfig {
+    pub device: DeviceSpec,
+    pub setup: SceneSetup,
+    /// Servo rate (Hz), 100 ..= 10 000.
+    pub rate_hz: f64,
+    pub rt: RtMode,
+    /// Core to pin the servo thread to (default: the last one).
+    pub cpu: Option<usize>,
+    /// Record from the first tick.
+    pub record: Option<(PathBuf, TraceFormat)>,
+    /// The exact solver's time budget, as a fraction of the period.
+    pub solver_budget_fraction: f64,
+    /// The tick's compute budget (modes + solve), as a fraction of the period; over it, the last safe force
+    /// goes out instead.
+    pub compute_budget_fraction: f64,
+    /// How long before each deadline the servo thread stops sleeping and spins (ns).
+    pub spin_ns: u64,
+    /// Samples the recorder ring holds (default: 4 s of ticks).
+    pub sample_ring: Option<usize>,
+    pub supervisor: SupervisorConfig,
+}
+
+impl SessionConfig {
+    /// Defaults for `setup` on `device`: 1 kHz, best-effort real time, solver budget 30 % and compute
+    /// budget 60 % of the period, 80 µs spin.
+    pub fn new(device: DeviceSpec, setup: SceneSetup) -> Self {
+        SessionConfig {
+            device,
+            rate_hz: setup.rate_hz.unwrap_or(1000.0),
+            setup,
+            rt: RtMode::BestEffort,
+            cpu: None,
+            record: None,
+            solver_budget_fraction: 0.3,
+            compute_budget_fraction: 0.6,
+            spin_ns: 80_000,
+            sample_ring: None,
+            supervisor: SupervisorConfig::default(),
+        }
+    }
+}
+
+/// Why a session did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("--rate {0} Hz is outside {min} ..= {max} Hz", min = RATE_RANGE_HZ.0, max = RATE_RANGE_HZ.1)]
+    Rate(f64),
+    #[error("scene: {0}")]
+    Scene(String),
+    #[error("device {spec}: {source}")]
+    Open { spec: String, source: OpenError },
+    #[error("device {spec}: could not connect ({kind:?}); is it plugged in and are the permissions right?")]
+    Connect { spec: String, kind: ErrorKind },
+    #[error(transparent)]
+    Realtime(#[from] RtRefused),
+    #[error("record {path}: {source}")]
+    Record { path: PathBuf, source: TraceError },
+    #[error("could not start a thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// What a session did, returned by [`Session::stop`].
+#[derive(Debug)]
+pub struct SessionSummary {
+    pub stats: StatsReport,
+    /// The trace that was being recorded at the end, finished.
+    pub trace: Option<TraceSummary>,
+    /// A recorder failure (disk full, ...), if there was one.
+    pub recorder_error: Option<String>,
+}
+
+struct Control {
+    commands: rtrb::Producer<ServoCommand>,
+    retired: rtrb::Consumer<Box<SceneBundle>>,
+    sent: u64,
+    setup: SceneSetup,
+    generation: u64,
+    recorder: mpsc::Sender<RecorderRequest>,
+    recording: Option<PathBuf>,
+    hand: Option<HandTargetInput>,
+}
+
+/// The part of a session that any thread may share (`Arc`); implements [`SessionApi`].
+pub struct SessionShared {
+    stats: Arc<ServoStats>,
+    snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
+    control: Mutex<Control>,
+    hand_target: Mutex<Option<DVec3>>,
+    stop: Arc<AtomicBool>,
+    servo_running: Arc<AtomicBool>,
+    device_label: String,
+    simulated: bool,
+    max_stiffness_n_per_m: f64,
+    rate_hz: f64,
+    period_ns: u64,
+    solver_budget_fraction: f64,
+    recorder_error: RecorderError,
+}
+
+/// A running session. Dropping it stops it (as [`Session::stop`] does, discarding the summary).
+pub struct Session {
+    shared: Arc<SessionShared>,
+    servo: Option<JoinHandle<()>>,
+    recorder: Option<JoinHandle<Result<Option<TraceSummary>, TraceError>>>,
+}
+
+fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
+    let mode_names = setup
+        .modes
+        .iter()
+        .map(|m| m.display_name().to_owned())
+        .collect();
+    let scenario = serde_json::json!({
+        "session": setup.label,
+        "device": device,
+        "k_n_per_m": setup.stiffness_n_per_m,
+        "damping_n_s_per_m": setup.damping_n_s_per_m,
+        "modes": setup.modes,
+    });
+    let volume = setup
+        .volumes
+        .iter()
+        .map(|v| v.source.clone())
+        .collect::<Vec<_>>()
+        .join(", ");
+    TraceMeta::new(
+        mode_names,
+        rate_hz,
+        scenario,
+        volume,
+        setup.solver_kind().name(),
+    )
+}
+
+impl Session {
+    /// Opens the device, builds the scene, starts the recorder and servo threads. Returns once the servo
+    /// thread has its real-time settings (or refused to start without them in `strict` mode).
+    pub fn start(config: SessionConfig) -> Result<Session, SessionError> {
+        let (min, max) = RATE_RANGE_HZ;
+        if !(config.rate_hz.is_finite() && (min..=max).contains(&config.rate_hz)) {
+            return Err(SessionError::Rate(config.rate_hz));
+        }
+        let period_ns = (1e9 / config.rate_hz).round() as u64;
+        let period_s = period_ns as f64 * 1e-9;
+        let bundle = config
+            .setup
+            .bundle(period_ns, config.solver_budget_fraction, 1)
+            .map_err(|e| SessionError::Scene(e.to_string()))?;
+        let spec_label = config.device.to_string();
+        let opened = open_device(
+            &config.device,
+            config.supervisor,
+            (config.setup.arm.clone(), config.setup.start_m),
+            period_s,
+        )
+        .map_err(|source| SessionError::Open {
+            spec: spec_label.clone(),
+            source,
+        })?;
+        let mut device: Box<dyn ServoDevice> = opened.device;
+        device.connect(0).map_err(|kind| SessionError::Connect {
+            spec: spec_label.clone(),
+            kind,
+        })?;
+        let max_stiffness_n_per_m = device
+            .info()
+            .map_or(f64::INFINITY, |i| i.max_stiffness_n_per_m);
+        // One zero-force exchange gives the first probe position; the proxy starts there.
+        let first_state = device.exchange(DVec3::ZERO, 0).state;
+
+        let sample_capacity = config
+            .sample_ring
+            .unwrap_or((config.rate_hz * 4.0) as usize)
+            .max(1024);
+        let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
+        let (retire_tx, retire_rx) = rtrb::RingBuffer::new(COMMAND_RING);
+        let (sample_tx, sample_rx) = rtrb::RingBuffer::new(sample_capacity);
+        let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
+        let stats = Arc::new(ServoStats::new(config.rate_hz));
+
+        // Recorder.
+        let (recorder_tx, recorder_rx) = mpsc::channel();
+        let recorder_error: RecorderError = Arc::default();
+        let mut recording = None;
+        if let Some((path, format)) = &config.record {
+            let meta = trace_meta(&config.setup, config.rate_hz, &spec_label);
+            let writer = create_trace_writer(path, *format, &meta).map_err(|source| {
+                SessionError::Record {
+                    path: path.clone(),
+                    source,
+                }
+            })?;
+            let _ = recorder_tx.send(RecorderRequest::Start {
+                writer,
+                first_tick: 0,
+            });
+            recording = Some(path.clone());
+        }
+        let error_slot = recorder_error.clone();
+        let recorder = std::thread::Builder::new()
+            .name("voxhap-recorder".to_owned())
+            .spawn(move || run_recorder(sample_rx, recorder_rx, error_slot))
+            .map_err(SessionError::Thread)?;
+
+        // Servo thread.
+        let stop = Arc::new(AtomicBool::new(false));
+        let servo_running = Arc::new(AtomicBool::new(true));
+        let (ready_tx, ready_rx) = mpsc::sync_channel(1);
+        let timing = LoopTiming {
+            period_ns,
+            compute_budget_ns: (period_ns as f64 * config.compute_budget_fraction) as u64,
+        };
+        let io = LoopIo {
+            commands: command_rx,
+            retired: retire_tx,
+            samples: sample_tx,
+            snapshot: snapshot_in,
+        };
+        let thread_stats = stats.clone();
+        let thread_stop = stop.clone();
+        let running = servo_running.clone();
+        let (rt_mode, cpu, spin_ns) = (config.rt, config.cpu, config.spin_ns);
+        let servo = std::thread::Builder::new()
+            .name("voxhap-servo".to_owned())
+            .spawn(move || {
+                let granted = rt::apply(rt_mode, cpu);
+                let report = match granted {
+                    Ok((report, warnings)) => {
+                        let _ = ready_tx.send(Ok(warnings));
+                        report
+                    }
+                    Err(refused) => {
+                        let mut device = device;
+                        device.stop();
+                        running.store(false, Ordering::Release);
+                        let _ = ready_tx.send(Err(refused));
+                        return;
+                    }
+                };
+                thread_stats.set_realtime(report);
+                let mut waiter = SpinSleepWaiter::new(spin_ns);
+                let origin_ns = waiter.now_ns() + period_ns;
+                let mut servo = ServoLoop::new(
+                    Box::new(bundle),
+                    device,
+                    io,
+                    thread_stats,
+                    timing,
+                    origin_ns,
+                    first_state,
+                );
+                servo.run(&mut waiter, &thread_stop);
+                running.store(false, Ordering::Release);
+            })
+            .map_err(SessionError::Thread)?;
+        let warnings = match ready_rx.recv() {
+            Ok(Ok(warnings)) => warnings,
+            Ok(Err(refused)) => {
+                let _ = servo.join();
+                return Err(SessionError::Realtime(refused));
+            }
+            Err(_) => Vec::new(),
+        };
+        for warning in warnings {
+            eprintln!("warning: servo thread: {warning}; continuing without it (--rt best-effort)");
+        }
+        let simulated = opened.hand_target.is_some();
+        let shared = Arc::new(SessionShared {
+            stats,
+            snapshot: Mutex::new(snapshot_out),
+            control: Mutex::new(Control {
+                commands: command_tx,
+                retired: retire_rx,
+                sent: 0,
+                setup: config.setup,
+                generation: 1,
+                recorder: recorder_tx,
+                recording,
+                hand: opened.hand_target,
+            }),
+            hand_target: Mutex::new(None),
+            stop,
+            servo_running,
+            device_label: spec_label,
+            simulated,
+            max_stiffness_n_per_m,
+            rate_hz: config.rate_hz,
+            period_ns,
+            solver_budget_fraction: config.solver_budget_fraction,
+            recorder_error,
+        });
+        Ok(Session {
+            shared,
+            servo: Some(servo),
+            recorder: Some(recorder),
+        })
+    }
+
+    /// The shared side, for servers.
+    pub fn api(&self) -> Arc<SessionShared> {
+        self.shared.clone()
+    }
+
+    /// True while the servo thread runs.
+    pub fn is_running(&self) -> bool {
+        self.shared.servo_running.load(Ordering::Acquire)
+    }
+
+    /// Stops the servo (zero force, device disabled and closed), then the recorder (trace flushed and
+    /// finished), and returns the statistics.
+    pub fn stop(mut self) -> SessionSummary {
+        self.stop_inner()
+    }
+
+    fn stop_inner(&mut self) -> SessionSummary {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(servo) = self.servo.take() {
+            let _ = servo.join();
+        }
+        let mut recorder_error = None;
+        let trace = match self.recorder.take().map(JoinHandle::join) {
+            Some(Ok(Ok(trace))) => trace,
+            Some(Ok(Err(error))) => {
+                recorder_error = Some(error.to_string());
+                None
+            }
+            Some(Err(_)) => {
+                recorder_error = Some("the recorder thread panicked".to_owned());
+                None
+            }
+            None => None,
+        };
+        if recorder_error.is_none() {
+            recorder_error = self
+                .shared
+                .recorder_error
+                .lock()
+                .ok()
+                .and_then(|e| e.clone());
+        }
+        SessionSummary {
+            stats: self.shared.stats.report(),
+            trace,
+            recorder_error,
+        }
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        if self.servo.is_some() {
+            self.stop_inner();
+        }
+    }
+}
+
+fn invalid(message: impl Into<String>) -> ControlError {
+    ControlError::Invalid(message.into())
+}
+
+fn finite(name: &str, value: f64) -> Result<f64, ControlError> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(invalid(format!(
+            "{name} must be a finite number, got {value}"
+        )))
+    }
+}
+
+impl SessionShared {
+    fn drain_retired(control: &mut Control) {
+        while let Ok(old) = control.retired.pop() {
+            drop(old);
+        }
+    }
+
+    /// Pushes `command` and waits until the servo thread has applied it.
+    fn send(&self, control: &mut Control, command: ServoCommand) -> Result<(), ControlError> {
+        if !self.servo_running.load(Ordering::Acquire) {
+            return Err(ControlError::Unavailable(
+                "the servo loop is not running".to_owned(),
+            ));
+        }
+        if control.commands.push(command).is_err() {
+            return Err(ControlError::Unavailable(
+                "the servo command queue is full; try again".to_owned(),
+            ));
+        }
+        control.sent += 1;
+        let target = control.sent;
+        let started = Instant::now();
+        while self.stats.commands_applied.load(Ordering::Acquire) < target {
+            if started.elapsed() > APPLY_TIMEOUT || !self.servo_running.load(Ordering::Acquire) {
+                return Err(ControlError::Unavailable(
+                    "the servo loop did not take the command in time".to_owned(),
+                ));
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        Self::drain_retired(control);
+        Ok(())
+    }
+
+    /// Builds `setup` into a bundle, swaps it in, and keeps `setup` as the current one.
+    fn swap(
+        &self,
+        control: &mut Control,
+        setup: SceneSetup,
+        message: String,
+    ) -> Result<ControlReply, ControlError> {
+        let generation = control.generation + 1;
+        let bundle = setup
+            .bundle(self.period_ns, self.solver_budget_fraction, generation)
+            .map_err(|e| invalid(e.to_string()))?;
+        self.send(control, ServoCommand::SwapScene(Box::new(bundle)))?;
+        control.setup = setup;
+        control.generation = generation;
+        Ok(ControlReply {
+            message,
+            scene_generation: generation,
+        })
+    }
+
+    fn coupling(
+        &self,
+        control: &mut Control,
+        k: f64,
+        damping: f64,
+        message: String,
+    ) -> Result<ControlReply, ControlError> {
+        let generation = control.generation + 1;
+        self.send(
+            control,
+            ServoCommand::SetCoupling {
+                stiffness_n_per_m: k,
+                damping_n_s_per_m: damping,
+                generation,
+            },
+        )?;
+        control.setup.stiffness_n_per_m = k;
+        control.setup.damping_n_s_per_m = damping;
+        control.generation = generation;
+        Ok(ControlReply {
+            message,
+            scene_generation: generation,
+        })
+    }
+
+    fn mode_index(setup: &SceneSetup, name: &str) -> Result<usize, ControlError> {
+        setup
+            .modes
+            .iter()
+            .position(|m| m.display_name() == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = setup.modes.iter().map(|m| m.display_name()).collect();
+                ControlError::NotFound(format!("no mode named {name:?} (modes: {names:?})"))
+            })
+    }
+
+    fn refuse_while_recording(control: &Control, what: &str) -> Result<(), ControlError> {
+        match &control.recording {
+            Some(path) => Err(ControlError::Conflict(format!(
+                "cannot {what} while recording to {} (a trace has a fixed set of mode columns); stop recording first",
+                path.display()
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    fn apply(
+        &self,
+        control: &mut Control,
+        command: ControlCommand,
+    ) -> Result<ControlReply, ControlError> {
+        Self::drain_retired(control);
+        match command {
+            ControlCommand::SetStiffness { k } => {
+                let k = finite("k", k)?;
+                if k <= 0.0 || k > self.max_stiffness_n_per_m {
+                    return Err(invalid(format!(
+                        "k must be > 0 and at most the device's {} N/m, got {k}",
+                        self.max_stiffness_n_per_m
+                    )));
+                }
+                let damping = control.setup.damping_n_s_per_m;
+                self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
+            }
+            ControlCommand::SetDamping { damping } => {
+                let damping = finite("damping", damping)?;
+                if damping < 0.0 {
+                    return Err(invalid(format!(
+                        "damping must be >= 0 N s/m, got {damping}"
+                    )));
+                }
+                let k = control.setup.stiffness_n_per_m;
+                self.coupling(
+                    control,
+                    k,
+                    damping,
+                    format!("damping set to {damping} N s/m"),
+                )
+            }
+            ControlCommand::SetTransfer { mode, transfer } => {
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &mode)?;
+                if setup.modes[index].transfer.is_none() {
+                    return Err(invalid(format!("mode {mode:?} has no transfer function")));
+                }
+                setup.modes[index].transfer = Some(transfer);
+                self.swap(
+                    control,
+                    setup,
+                    format!("transfer function of {mode:?} replaced"),
+                )
+            }
+            ControlCommand::AddMode { mode } => {
+                Self::refuse_while_recording(control, "add a mode")?;
+                let mut setup = control.setup.clone();
+                let name = mode.display_name().to_owned();
+                setup.modes.push(mode);
+                self.swap(control, setup, format!("mode {name:?} added"))
+            }
+            ControlCommand::RemoveMode { name } => {
+                Self::refuse_while_recording(control, "remove a mode")?;
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &name)?;
+                setup.modes.remove(index);
+                self.swap(control, setup, format!("mode {name:?} removed"))
+            }
+            ControlCommand::LoadVolume { path, name } => {
+                if !path.exists() {
+                    return Err(ControlError::NotFound(format!(
+                        "volume file {} does not exist",
+                        path.display()
+                    )));
+                }
+                let text = path.to_str().ok_or_else(|| {
+                    invalid(format!("volume path {} is not UTF-8", path.display()))
+                })?;
+                let (volume, source) = load_volume_arg(text).map_err(|e| invalid(e.to_string()))?;
+                let mut setup = control.setup.clone();
+                setup
+                    .replace_volume(name.as_deref(), volume, source)
+                    .map_err(|message| {
+                        if message.starts_with("no volume named") {
+                            ControlError::NotFound(message)
+                        } else {
+                            invalid(message)
+                        }
+                    })?;
+                self.swap(control, setup, format!("volume {} loaded", path.display()))
+            }
+            ControlCommand::StartRecording { path, format } => {
+                if let Some(current) = &control.recording {
+                    return Err(ControlError::Conflict(format!(
+                        "already recording to {}",
+                        current.display()
+                    )));
+                }
+                let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+                if let Some(parent) = parent {
+                    if !parent.is_dir() {
+                        return Err(ControlError::NotFound(format!(
+                            "directory {} does not exist",
+                            parent.display()
+                        )));
+                    }
+                }
+                let format = format.unwrap_or_else(|| TraceFormat::from_path(&path));
+                let meta = trace_meta(&control.setup, self.rate_hz, &self.device_label);
+                let writer = create_trace_writer(&path, format, &meta)
+                    .map_err(|e| invalid(e.to_string()))?;
+                let first_tick = self.snapshot().map_or(0, |s| s.tick + 1);
+                control
+                    .recorder
+                    .send(RecorderRequest::Start { writer, first_tick })
+                    .map_err(|_| {
+                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
+                    })?;
+                control.recording = Some(path.clone());
+                Ok(ControlReply {
+                    message: format!("recording to {} ({format})", path.display()),
+                    scene_generation: 0,
+                })
+            }
+            ControlCommand::StopRecording => {
+                let Some(path) = control.recording.clone() else {
+                    return Err(ControlError::Conflict("not recording".to_owned()));
+                };
+                let (reply_tx, reply_rx) = mpsc::channel();
+                control
+                    .recorder
+                    .send(RecorderRequest::Stop { reply: reply_tx })
+                    .map_err(|_| {
+                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
+                    })?;
+                control.recording = None;
+                match reply_rx.recv_timeout(Duration::from_secs(10)) {
+                    Ok(Ok(Some(summary))) => Ok(ControlReply {
+                        message: format!(
+                            "recording stopped: {} samples in {}",
+                            summary.sample_count,
+                            summary.trace_path.display()
+                        ),
+                        scene_generation: 0,
+                    }),
+                    Ok(Ok(None)) => Err(ControlError::Conflict(format!(
+                        "the recording to {} had already stopped: {}",
+                        path.display(),
+                        self.recorder_error
+                            .lock()
+                            .ok()
+                            .and_then(|e| e.clone())
+                            .unwrap_or_default()
+                    ))),
+                    Ok(Err(error)) => Err(ControlError::Unavailable(format!(
+                        "finishing {}: {error}",
+                        path.display()
+                    ))),
+                    Err(_) => Err(ControlError::Unavailable(
+                        "the recorder did not answer in time".to_owned(),
+                    )),
+                }
+            }
+            ControlCommand::SetHandTarget { position_m } => {
+                let Some(hand) = control.hand.as_mut() else {
+                    return Err(ControlError::Conflict(format!(
+                        "the device {} is not the simulated arm; only its hand can be moved",
+                        self.device_label
+                    )));
+                };
+                let target = match position_m {
+                    Some([x, y, z]) => {
+                        let v = DVec3::new(x, y, z);
+                        if !v.is_finite() {
+                            return Err(invalid("position_m must be three finite numbers"));
+                        }
+                        Some(v)
+                    }
+                    None => None,
+                };
+                hand.write(target);
+                if let Ok(mut slot) = self.hand_target.lock() {
+                    *slot = target;
+                }
+                Ok(ControlReply {
+                    message: match target {
+                        Some(t) => format!("hand target set to {:?} m", t.to_array()),
+                        None => "hand follows its path again".to_owned(),
+                    },
+                    scene_generation: 0,
+                })
+            }
+        }
+    }
+}
+
+impl SessionApi for SessionShared {
+    fn snapshot(&self) -> Option<Snapshot> {
+        let mut snapshot = (*self.snapshot.lock().ok()?.read())?;
+        snapshot.hand_target_m = self.hand_target.lock().ok().and_then(|t| *t);
+        Some(snapshot)
+    }
+
+    fn stats(&self) -> StatsReport {
+        self.stats.report()
+    }
+
+    fn scene(&self) -> SceneReport {
+        let control = match self.control.lock() {
+            Ok(control) => control,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        SceneReport {
+            stiffness_n_per_m: control.setup.stiffness_n_per_m,
+            damping_n_s_per_m: control.setup.damping_n_s_per_m,
+            modes: control.setup.modes.clone(),
+            volumes: control.setup.volumes.iter().map(|v| v.report()).collect(),
+            device: self.device_label.clone(),
+            simulated: self.simulated,
+            recording: control.recording.clone(),
+        }
+    }
+
+    fn control(&self, command: ControlCommand) -> Result<ControlReply, ControlError> {
+        let mut control = match self.control.lock() {
+            Ok(control) => control,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        self.apply(&mut control, command)
+    }
+}
+
+/// Checks that `path`'s directory exists (for `--record`, before anything starts).
+pub fn check_record_path(path: &Path) -> Result<(), String> {
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(parent) if !parent.is_dir() => {
+            Err(format!("directory {} does not exist", parent.display()))
+        }
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,290 @@
+//! The servo loop's statistics: lock-free histograms and counters that the servo thread updates every tick
+//! and any other thread reads at any time.
+//!
+//! Where it sits: the servo thread owns an `Arc<ServoStats>` and only does relaxed atomic adds and maxes
+//! on it (no allocation, no lock); the server, `voxhap serve`'s exit summary and `voxhap bench-loop` call
+//! [`ServoStats::report`].
+//!
+//! Histogram layout (log-linear, like HdrHistogram with 3 significant bits): values in nanoseconds below
+//! 16 ns get a bucket each; above, every power-of-two octave `[2^e, 2^(e+1))` is split into 16 equal
+//! sub-buckets, so a bucket's width is at most 1/16 of its lower edge. A percentile is reported as the
+//! upper edge of the bucket it falls in, so it over-states the true value by at most 6.25 % (and the
+//! maximum is kept exactly). Values up to 2^40 ns (18 minutes) are resolved; larger ones land in the last
+//! bucket.
+
+use super::api::{HistogramReport, RealtimeReport, StatsReport};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::Mutex;
+
+const SUB_BUCKETS: usize = 16;
+const SUB_BITS: u32 = 4;
+const MAX_OCTAVE: usize = 40;
+const BUCKETS: usize = SUB_BUCKETS + (MAX_OCTAVE - SUB_BITS as usize) * SUB_BUCKETS;
+
+/// A fixed-size, lock-free histogram of nanosecond values.
+#[derive(Debug)]
+pub struct Histogram {
+    buckets: Box<[AtomicU64]>,
+    count: AtomicU64,
+    max_ns: AtomicU64,
+}
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn bucket_of(value_ns: u64) -> usize {
+    if value_ns < SUB_BUCKETS as u64 {
+        return value_ns as usize;
+    }
+    let octave = 63 - value_ns.leading_zeros(); // >= SUB_BITS
+    let sub = ((value_ns >> (octave - SUB_BITS)) & (SUB_BUCKETS as u64 - 1)) as usize;
+    let index = SUB_BUCKETS + (octave - SUB_BITS) as usize * SUB_BUCKETS + sub;
+    index.min(BUCKETS - 1)
+}
+
+/// The largest value that falls in `bucket` (ns).
+fn upper_edge(bucket: usize) -> u64 {
+    if bucket < SUB_BUCKETS {
+        return bucket as u64;
+    }
+    let octave = (bucket - SUB_BUCKETS) / SUB_BUCKETS + SUB_BITS as usize;
+    let sub = ((bucket - SUB_BUCKETS) % SUB_BUCKETS) as u64;
+    let width = 1u64 << (octave - SUB_BITS as usize);
+    (1u64 << octave) + (sub + 1) * width - 1
+}
+
+impl Histogram {
+    /// An empty histogram (allocates its buckets once, here).
+    pub fn new() -> Self {
+        Histogram {
+            buckets: (0..BUCKETS).map(|_| AtomicU64::new(0)).collect(),
+            count: AtomicU64::new(0),
+            max_ns: AtomicU64::new(0),
+        }
+    }
+
+    /// Records one value. Lock-free, allocation-free.
+    pub fn record(&self, value_ns: u64) {
+        self.buckets[bucket_of(value_ns)].fetch_add(1, Ordering::Relaxed);
+        self.count.fetch_add(1, Ordering::Relaxed);
+        self.max_ns.fetch_max(value_ns, Ordering::Relaxed);
+    }
+
+    /// Values recorded.
+    pub fn count(&self) -> u64 {
+        self.count.load(Ordering::Relaxed)
+    }
+
+    /// The value at quantile `q` (0..=1), as its bucket's upper edge (ns), capped at the exact maximum;
+    /// 0 when empty.
+    pub fn quantile_ns(&self, q: f64) -> u64 {
+        let counts: Vec<u64> = self
+            .buckets
+            .iter()
+            .map(|b| b.load(Ordering::Relaxed))
+            .collect();
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return 0;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * total as f64).ceil() as u64).clamp(1, total);
+        let mut seen = 0;
+        let max = self.max_ns.load(Ordering::Relaxed);
+        for (bucket, count) in counts.iter().enumerate() {
+            seen += count;
+            if seen >= rank {
+                return upper_edge(bucket).min(max);
+            }
+        }
+        max
+    }
+
+    /// p50, p99, p99.9 and maximum in microseconds.
+    pub fn report(&self) -> HistogramReport {
+        let us = |ns: u64| ns as f64 / 1000.0;
+        HistogramReport {
+            count: self.count(),
+            p50_us: us(self.quantile_ns(0.50)),
+            p99_us: us(self.quantile_ns(0.99)),
+            p999_us: us(self.quantile_ns(0.999)),
+            max_us: us(self.max_ns.load(Ordering::Relaxed)),
+        }
+    }
+
+    /// Forgets everything recorded.
+    pub fn reset(&self) {
+        for bucket in self.buckets.iter() {
+            bucket.store(0, Ordering::Relaxed);
+        }
+        self.count.store(0, Ordering::Relaxed);
+        self.max_ns.store(0, Ordering::Relaxed);
+    }
+}
+
+/// Everything the servo loop counts. Shared (`Arc`) between the servo thread and readers.
+#[derive(Debug, Default)]
+pub struct ServoStats {
+    /// Loop rate, fixed at start (Hz, as f64 bits).
+    rate_hz_bits: AtomicU64,
+    pub ticks: AtomicU64,
+    pub lateness: Histogram,
+    pub compute: Histogram,
+    pub overruns: AtomicU64,
+    pub skipped_ticks: AtomicU64,
+    pub budget_overruns: AtomicU64,
+    pub max_sweeps: AtomicU32,
+    /// Worst certificate bound (m) as f64 bits; for non-negative floats (and +inf) the bit order is the
+    /// numeric order, so `fetch_max` on the bits is a max on the values.
+    worst_bound_bits: AtomicU64,
+    pub device_errors: AtomicU64,
+    pub disconnects: AtomicU64,
+    pub recorder_drops: AtomicU64,
+    pub commands_applied: AtomicU64,
+    realtime: Mutex<RealtimeReport>,
+}
+
+impl ServoStats {
+    /// Statistics for a loop at `rate_hz`.
+    pub fn new(rate_hz: f64) -> Self {
+        let stats = ServoStats::default();
+        stats
+            .rate_hz_bits
+            .store(rate_hz.to_bits(), Ordering::Relaxed);
+        stats
+    }
+
+    /// Notes a tick's certificate bound (m); NaN and negative values are ignored.
+    pub fn note_bound(&self, bound_m: f64) {
+        if bound_m >= 0.0 {
+            self.worst_bound_bits
+                .fetch_max(bound_m.to_bits(), Ordering::Relaxed);
+        }
+    }
+
+    /// Records what real-time features the thread got (once, at start, off the tick path).
+    pub fn set_realtime(&self, report: RealtimeReport) {
+        if let Ok(mut slot) = self.realtime.lock() {
+            *slot = report;
+        }
+    }
+
+    /// A consistent-enough copy of everything (each field is read atomically on its own).
+    pub fn report(&self) -> StatsReport {
+        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        StatsReport {
+            rate_hz: f64::from_bits(load(&self.rate_hz_bits)),
+            ticks: load(&self.ticks),
+            lateness: self.lateness.report(),
+            compute: self.compute.report(),
+            overruns: load(&self.overruns),
+            skipped_ticks: load(&self.skipped_ticks),
+            budget_overruns: load(&self.budget_overruns),
+            max_sweeps: self.max_sweeps.load(Ordering::Relaxed),
+            worst_error_bound_m: f64::from_bits(load(&self.worst_bound_bits)),
+            device_errors: load(&self.device_errors),
+            disconnects: load(&self.disconnects),
+            recorder_drops: load(&self.recorder_drops),
+            commands_applied: load(&self.commands_applied),
+            realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
+        }
+    }
+}
+
+impl StatsReport {
+    /// The table `voxhap serve` prints on exit and `voxhap bench-loop` prints.
+    pub fn table(&self) -> String {
+        let row = |name: &str, h: &HistogramReport| {
+            format!(
+                "{name:<10} {:>10} {:>10.1} {:>10.1} {:>10.1} {:>10.1}\n",
+                h.count, h.p50_us, h.p99_us, h.p999_us, h.max_us
+            )
+        };
+        let mut text = format!(
+            "{:<10} {:>10} {:>10} {:>10} {:>10} {:>10}\n",
+            "(us)", "count", "p50", "p99", "p99.9", "max"
+        );
+        text += &row("lateness", &self.lateness);
+        text += &row("compute", &self.compute);
+        text += &format!(
+            "rate {} Hz, ticks {}, overruns {} (skipped {} ticks), compute over budget {}\n",
+            self.rate_hz, self.ticks, self.overruns, self.skipped_ticks, self.budget_overruns
+        );
+        text += &format!(
+            "solver: max sweeps {}, worst certificate bound {:.3e} m\n",
+            self.max_sweeps, self.worst_error_bound_m
+        );
+        text += &format!(
+            "device errors {}, disconnects {}, recorder drops {}, commands applied {}\n",
+            self.device_errors, self.disconnects, self.recorder_drops, self.commands_applied
+        );
+        text += &format!(
+            "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",
+            yes_no(self.realtime.sched_fifo),
+            yes_no(self.realtime.memory_locked),
+            self.realtime
+                .pinned_cpu
+                .map_or("no".to_owned(), |c| c.to_string())
+        );
+        text
+    }
+}
+
+fn yes_no(value: bool) -> &'static str {
+    if value {
+        "yes"
+    } else {
+        "no"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn buckets_are_monotonic_and_tight() {
+        let mut previous = 0;
+        for value in (0..100_000u64).chain([1 << 20, 1 << 30, (1 << 40) - 1]) {
+            let bucket = bucket_of(value);
+            assert!(bucket >= previous, "bucket order at {value}");
+            previous = bucket;
+            let edge = upper_edge(bucket);
+            assert!(edge >= value, "upper edge {edge} below value {value}");
+            assert!(
+                (edge - value) as f64 <= value as f64 / 16.0 + 1.0,
+                "bucket of {value} too wide: edge {edge}"
+            );
+        }
+    }
+
+    #[test]
+    fn quantiles_of_a_known_distribution() {
+        let h = Histogram::new();
+        for value in 1..=1000u64 {
+            h.record(value * 1000); // 1 us .. 1 ms
+        }
+        let p50 = h.quantile_ns(0.5) as f64;
+        let p99 = h.quantile_ns(0.99) as f64;
+        assert!((500_000.0..=500_000.0 * 1.0625).contains(&p50), "p50 {p50}");
+        assert!((990_000.0..=1_000_000.0).contains(&p99), "p99 {p99}");
+        assert_eq!(h.report().max_us, 1000.0);
+        assert_eq!(h.count(), 1000);
+        h.reset();
+        assert_eq!(h.quantile_ns(0.5), 0);
+    }
+
+    #[test]
+    fn worst_bound_keeps_the_maximum_including_infinity() {
+        let stats = ServoStats::new(1000.0);
+        stats.note_bound(1e-12);
+        stats.note_bound(3e-9);
+        stats.note_bound(1e-10);
+        stats.note_bound(f64::NAN);
+        assert_eq!(stats.report().worst_error_bound_m, 3e-9);
+        stats.note_bound(f64::INFINITY);
+        assert_eq!(stats.report().worst_error_bound_m, f64::INFINITY);
+    }
+}

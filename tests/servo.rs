@@ -1,0 +1,525 @@
+//! The servo runtime: the loop under a mock clock (deterministic: overruns skip, budgets hold the last safe
+//! force, commands apply at tick boundaries, a full recorder ring is counted), the zero-allocation proof
+//! for 10 000 ticks with mode and volume changes, and a real-time session driven through `SessionApi`.
+
+use crate::util::alloc::count_allocations;
+use glam::DVec3;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+use voxhap::clock::{Clock, MockClock};
+use voxhap::device::supervisor::SupervisorConfig;
+use voxhap::haptics::modes::{ModeConfig, ModeKind, TransferFunction};
+use voxhap::record::{
+    read_trace, TraceFormat, TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_OVERRUN,
+    FLAG_SAMPLES_DROPPED,
+};
+use voxhap::servo::device::{open_device, DeviceSpec};
+use voxhap::servo::runner::{LoopIo, LoopTiming, ServoCommand, ServoLoop};
+use voxhap::servo::schedule::{MockWaiter, Waiter};
+use voxhap::servo::setup::{load_volume_arg, SceneBundle, SceneSetup};
+use voxhap::servo::stats::ServoStats;
+use voxhap::servo::{ControlCommand, ControlError, Session, SessionApi, SessionConfig, Snapshot};
+
+const PERIOD_NS: u64 = 1_000_000;
+
+struct Rig {
+    servo: ServoLoop,
+    commands: rtrb::Producer<ServoCommand>,
+    retired: rtrb::Consumer<Box<SceneBundle>>,
+    samples: rtrb::Consumer<TraceSample>,
+    snapshot: triple_buffer::Output<Option<Snapshot>>,
+    stats: Arc<ServoStats>,
+    setup: SceneSetup,
+}
+
+fn rig(sample_capacity: usize) -> Rig {
+    let setup = SceneSetup::builtin().unwrap();
+    let bundle = setup.bundle(PERIOD_NS, 0.3, 1).unwrap();
+    let opened = open_device(
+        &DeviceSpec::Sim,
+        SupervisorConfig::default(),
+        (setup.arm.clone(), setup.start_m),
+        PERIOD_NS as f64 * 1e-9,
+    )
+    .unwrap();
+    let mut device = opened.device;
+    device.connect(0).unwrap();
+    let first = device.exchange(DVec3::ZERO, 0).state;
+    let (commands, command_rx) = rtrb::RingBuffer::new(64);
+    let (retire_tx, retired) = rtrb::RingBuffer::new(64);
+    let (sample_tx, samples) = rtrb::RingBuffer::new(sample_capacity);
+    let (snapshot_in, snapshot) = triple_buffer::triple_buffer(&None);
+    let stats = Arc::new(ServoStats::new(1000.0));
+    let servo = ServoLoop::new(
+        Box::new(bundle),
+        device,
+        LoopIo {
+            commands: command_rx,
+            retired: retire_tx,
+            samples: sample_tx,
+            snapshot: snapshot_in,
+        },
+        stats.clone(),
+        LoopTiming {
+            period_ns: PERIOD_NS,
+            compute_budget_ns: 600_000,
+        },
+        PERIOD_NS,
+        first,
+    );
+    Rig {
+        servo,
+        commands,
+        retired,
+        samples,
+        snapshot,
+        stats,
+        setup,
+    }
+}
+
+fn mock_waiter() -> (MockWaiter, Arc<MockClock>) {
+    let clock = Arc::new(MockClock::new(0));
+    (MockWaiter::new(clock.clone()), clock)
+}
+
+#[test]
+fn on_time_ticks_are_consecutive_and_safe() {
+    let mut rig = rig(4096);
+    let (mut waiter, clock) = mock_waiter();
+    for expected in 0..2000 {
+        assert_eq!(rig.servo.step(&mut waiter), expected);
+    }
+    assert_eq!(
+        clock.now_ns(),
+        2000 * PERIOD_NS,
+        "each tick waited for its own deadline"
+    );
+    let report = rig.stats.report();
+    assert_eq!(
+        (report.ticks, report.overruns, report.recorder_drops),
+        (2000, 0, 0)
+    );
+    assert_eq!(report.lateness.max_us, 0.0);
+    let mut count = 0;
+    let mut max_force: f64 = 0.0;
+    while let Ok(sample) = rig.samples.pop() {
+        assert_eq!(sample.tick, count);
+        assert!(sample.force_n.is_finite() && sample.probe_m.is_finite());
+        max_force = max_force.max(sample.force_n.length());
+        count += 1;
+    }
+    assert_eq!(count, 2000);
+    // The arm is pulled into the ball: the surface pushes back, within the device limit.
+    assert!(
+        max_force > 0.1 && max_force <= 10.0,
+        "max force {max_force}"
+    );
+    let snapshot = rig.snapshot.read().unwrap();
+    assert_eq!(snapshot.tick, 1999);
+    assert!(snapshot.engaged && snapshot.connected);
+}
+
+#[test]
+fn a_late_tick_is_counted_and_skipped_not_caught_up() {
+    let mut rig = rig(4096);
+    let (mut waiter, clock) = mock_waiter();
+    // Tick 3 wakes 3.5 periods late; the ticks whose deadlines passed meanwhile are skipped.
+    waiter.script_lateness(&[0, 0, 0, 3_500_000]);
+    let ticks: Vec<u64> = (0..6).map(|_| rig.servo.step(&mut waiter)).collect();
+    assert_eq!(ticks, vec![0, 1, 2, 3, 7, 8]);
+    let report = rig.stats.report();
+    assert_eq!((report.overruns, report.skipped_ticks), (1, 3));
+    assert!(report.lateness.max_us >= 3500.0);
+    assert_eq!(
+        clock.now_ns(),
+        9 * PERIOD_NS,
+        "tick 8 is due at 9 ms (tick 0 at 1 ms)"
+    );
+    let samples: Vec<TraceSample> = std::iter::from_fn(|| rig.samples.pop().ok()).collect();
+    let flagged: Vec<u64> = samples
+        .iter()
+        .filter(|s| s.flags & FLAG_OVERRUN != 0)
+        .map(|s| s.tick)
+        .collect();
+    assert_eq!(
+        flagged,
+        vec![7],
+        "the first tick after the gap carries the overrun flag"
+    );
+}
+
+/// A waiter whose clock moves by `step_ns` every time it is read: a tick that reads the clock n times
+/// "takes" n * step_ns.
+struct SlowClockWaiter {
+    now_ns: std::cell::Cell<u64>,
+    step_ns: u64,
+}
+
+// SAFETY-free: the waiter lives on one thread; `Send` is needed by the trait only.
+unsafe impl Send for SlowClockWaiter {}
+
+impl Clock for SlowClockWaiter {
+    fn now_ns(&self) -> u64 {
+        let now = self.now_ns.get() + self.step_ns;
+        self.now_ns.set(now);
+        now
+    }
+}
+
+impl Waiter for SlowClockWaiter {
+    fn now_ns(&self) -> u64 {
+        Clock::now_ns(self)
+    }
+    fn wait_until(&mut self, deadline_ns: u64) {
+        if self.now_ns.get() < deadline_ns {
+            self.now_ns.set(deadline_ns);
+        }
+    }
+    fn clock(&self) -> &dyn Clock {
+        self
+    }
+}
+
+#[test]
+fn compute_over_budget_sends_the_last_safe_force() {
+    let mut rig = rig(4096);
+    let (mut waiter, _) = mock_waiter();
+    for _ in 0..500 {
+        rig.servo.step(&mut waiter);
+    }
+    let before: Vec<TraceSample> = std::iter::from_fn(|| rig.samples.pop().ok()).collect();
+    let last_safe = before.last().unwrap().force_n;
+    // Now every clock read costs 700 us: the compute check (budget 600 us) fails.
+    let mut slow = SlowClockWaiter {
+        now_ns: std::cell::Cell::new(500 * PERIOD_NS),
+        step_ns: 700_000,
+    };
+    rig.servo.step(&mut slow);
+    let sample = rig.samples.pop().unwrap();
+    assert!(sample.flags & FLAG_COMPUTE_OVER_BUDGET != 0);
+    assert_eq!(rig.stats.report().budget_overruns, 1);
+    // The safety pipeline passes the repeated force (it was already safe): same force as the last tick.
+    assert!(
+        (sample.force_n - last_safe).length() < 1e-12,
+        "sent {:?}, last safe {:?}",
+        sample.force_n,
+        last_safe
+    );
+}
+
+#[test]
+fn commands_apply_at_the_next_tick_boundary() {
+    let mut rig = rig(4096);
+    let (mut waiter, _) = mock_waiter();
+    rig.servo.step(&mut waiter);
+    assert_eq!(rig.snapshot.read().unwrap().stiffness_n_per_m, 500.0);
+    rig.commands
+        .push(ServoCommand::SetCoupling {
+            stiffness_n_per_m: 250.0,
+            damping_n_s_per_m: 1.5,
+            generation: 2,
+        })
+        .unwrap();
+    // Nothing changes until the servo's next tick.
+    assert_eq!(rig.snapshot.read().unwrap().stiffness_n_per_m, 500.0);
+    rig.servo.step(&mut waiter);
+    let snapshot = *rig.snapshot.read();
+    let snapshot = snapshot.unwrap();
+    assert_eq!(
+        (
+            snapshot.stiffness_n_per_m,
+            snapshot.damping_n_s_per_m,
+            snapshot.scene_generation
+        ),
+        (250.0, 1.5, 2)
+    );
+    // A bad value slipped past the control side is still refused by the servo.
+    rig.commands
+        .push(ServoCommand::SetCoupling {
+            stiffness_n_per_m: f64::NAN,
+            damping_n_s_per_m: 0.0,
+            generation: 3,
+        })
+        .unwrap();
+    rig.servo.step(&mut waiter);
+    assert_eq!(rig.snapshot.read().unwrap().stiffness_n_per_m, 250.0);
+    // A scene swap: the old bundle comes back through the retire ring.
+    let mut setup = rig.setup.clone();
+    setup.modes.pop();
+    rig.commands
+        .push(ServoCommand::SwapScene(Box::new(
+            setup.bundle(PERIOD_NS, 0.3, 4).unwrap(),
+        )))
+        .unwrap();
+    rig.servo.step(&mut waiter);
+    assert_eq!(rig.servo.bundle().scene.modes().len(), 2);
+    assert_eq!(rig.snapshot.read().unwrap().scene_generation, 4);
+    let retired = rig
+        .retired
+        .pop()
+        .expect("old scene returned for dropping off the servo thread");
+    assert_eq!(retired.scene.modes().len(), 3);
+    assert_eq!(rig.stats.commands_applied.load(Ordering::Relaxed), 3);
+}
+
+#[test]
+fn a_full_recorder_ring_is_counted_and_flagged_never_waited_on() {
+    let mut rig = rig(16);
+    let (mut waiter, _) = mock_waiter();
+    for _ in 0..20 {
+        rig.servo.step(&mut waiter);
+    }
+    assert_eq!(rig.stats.report().recorder_drops, 4);
+    let kept: Vec<TraceSample> = std::iter::from_fn(|| rig.samples.pop().ok()).collect();
+    assert_eq!(kept.len(), 16);
+    rig.servo.step(&mut waiter);
+    let next = rig.samples.pop().unwrap();
+    assert_eq!(next.tick, 20);
+    assert!(
+        next.flags & FLAG_SAMPLES_DROPPED != 0,
+        "the sample after a gap says samples were lost"
+    );
+}
+
+#[test]
+fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
+    let mut rig = rig(16_384);
+    let (mut waiter, _) = mock_waiter();
+    // Scenes prepared off the servo thread: remove a mode, add one back with another transfer function,
+    // swap the density volume for a torus, and back.
+    let base = rig.setup.clone();
+    let mut fewer = base.clone();
+    fewer.modes.pop();
+    let mut more = base.clone();
+    more.modes.push(ModeConfig {
+        name: Some("gradient".to_owned()),
+        volume: Some("density".to_owned()),
+        transfer: Some(TransferFunction::new(vec![[0.0, 0.0], [1.0, 0.2]]).unwrap()),
+        ..ModeConfig::new(ModeKind::GradientForce)
+    });
+    let mut torus = base.clone();
+    let (volume, source) = load_volume_arg("builtin:torus").unwrap();
+    torus
+        .replace_volume(Some("density"), volume, source)
+        .unwrap();
+    let setups = [fewer, more, torus, base];
+    let mut bundles: Vec<Box<SceneBundle>> = (0..20)
+        .map(|i| Box::new(setups[i % 4].bundle(PERIOD_NS, 0.3, i as u64 + 2).unwrap()))
+        .collect();
+    bundles.reverse();
+    let mut graveyard: Vec<Box<SceneBundle>> = Vec::with_capacity(64);
+    let mut samples_seen = 0u64;
+    let mut generations_seen = 0u64;
+    let mut last_generation = 0;
+    let ((), allocations) = count_allocations(|| {
+        for tick in 0..10_000u64 {
+            if tick % 500 == 250 {
+                if let Some(bundle) = bundles.pop() {
+                    let _ = rig.commands.push(ServoCommand::SwapScene(bundle));
+                }
+            }
+            if tick % 1000 == 700 {
+                let _ = rig.commands.push(ServoCommand::SetCoupling {
+                    stiffness_n_per_m: 300.0 + tick as f64 / 100.0,
+                    damping_n_s_per_m: 0.5,
+                    generation: 100 + tick,
+                });
+            }
+            rig.servo.step(&mut waiter);
+            while let Ok(old) = rig.retired.pop() {
+                if graveyard.len() < graveyard.capacity() {
+                    graveyard.push(old);
+                }
+            }
+            while rig.samples.pop().is_ok() {
+                samples_seen += 1;
+            }
+            if let Some(snapshot) = *rig.snapshot.read() {
+                if snapshot.scene_generation != last_generation {
+                    last_generation = snapshot.scene_generation;
+                    generations_seen += 1;
+                }
+            }
+        }
+    });
+    assert_eq!(allocations, 0, "the servo loop allocated or freed");
+    assert_eq!(samples_seen, 10_000);
+    assert_eq!(rig.stats.commands_applied.load(Ordering::Relaxed), 30);
+    assert_eq!(
+        graveyard.len(),
+        20,
+        "every replaced scene was returned, none dropped on the loop"
+    );
+    assert!(
+        generations_seen >= 30,
+        "saw {generations_seen} scene generations"
+    );
+    assert_eq!(rig.stats.report().recorder_drops, 0);
+}
+
+fn session(record: Option<std::path::PathBuf>) -> Session {
+    let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
+    config.rt = voxhap::servo::rt::RtMode::Off;
+    config.record = record.map(|p| (p, TraceFormat::Csv));
+    Session::start(config).unwrap()
+}
+
+fn wait_for_tick(api: &dyn SessionApi, tick: u64) -> Snapshot {
+    for _ in 0..500 {
+        if let Some(s) = api.snapshot() {
+            if s.tick >= tick {
+                return s;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    panic!("the servo never reached tick {tick}");
+}
+
+#[test]
+fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = session(None);
+    let api = session.api();
+    wait_for_tick(&*api, 50);
+
+    let reply = api
+        .control(ControlCommand::SetStiffness { k: 350.0 })
+        .unwrap();
+    let snapshot = api.snapshot().unwrap();
+    assert_eq!(
+        snapshot.stiffness_n_per_m, 350.0,
+        "applied before the reply"
+    );
+    assert_eq!(snapshot.scene_generation, reply.scene_generation);
+
+    let before = (api.scene(), api.snapshot().unwrap().scene_generation);
+    let refused: Vec<(ControlCommand, fn(&ControlError) -> bool)> = vec![
+        (ControlCommand::SetStiffness { k: -1.0 }, |e| {
+            matches!(e, ControlError::Invalid(_))
+        }),
+        (ControlCommand::SetStiffness { k: f64::INFINITY }, |e| {
+            matches!(e, ControlError::Invalid(_))
+        }),
+        (ControlCommand::SetStiffness { k: 1e9 }, |e| {
+            matches!(e, ControlError::Invalid(_))
+        }),
+        (ControlCommand::SetDamping { damping: -0.1 }, |e| {
+            matches!(e, ControlError::Invalid(_))
+        }),
+        (
+            ControlCommand::RemoveMode {
+                name: "nope".into(),
+            },
+            |e| matches!(e, ControlError::NotFound(_)),
+        ),
+        (
+            ControlCommand::LoadVolume {
+                path: dir.path().join("missing.nii"),
+                name: None,
+            },
+            |e| matches!(e, ControlError::NotFound(_)),
+        ),
+        (
+            ControlCommand::AddMode {
+                mode: ModeConfig {
+                    volume: Some("nope".into()),
+                    ..ModeConfig::new(ModeKind::Surface)
+                },
+            },
+            |e| matches!(e, ControlError::Invalid(_)),
+        ),
+        (ControlCommand::StopRecording, |e| {
+            matches!(e, ControlError::Conflict(_))
+        }),
+        (
+            ControlCommand::SetHandTarget {
+                position_m: Some([f64::NAN, 0.0, 0.0]),
+            },
+            |e| matches!(e, ControlError::Invalid(_)),
+        ),
+    ];
+    for (command, expected) in refused {
+        let error = api
+            .control(command.clone())
+            .expect_err(&format!("{command:?} accepted"));
+        assert!(expected(&error), "{command:?}: {error}");
+        assert!(!error.to_string().is_empty());
+    }
+    assert_eq!(api.scene(), before.0, "a refused command changed the scene");
+    assert_eq!(api.snapshot().unwrap().scene_generation, before.1);
+
+    // Remove a mode, change a transfer function, move the hand, record a while.
+    api.control(ControlCommand::RemoveMode {
+        name: "viscosity".into(),
+    })
+    .unwrap();
+    assert_eq!(api.scene().modes.len(), 2);
+    let transfer = TransferFunction::new(vec![[0.45, 0.0], [0.5, 1.0]]).unwrap();
+    api.control(ControlCommand::SetTransfer {
+        mode: "surface".into(),
+        transfer: transfer.clone(),
+    })
+    .unwrap();
+    assert_eq!(api.scene().modes[0].transfer, Some(transfer));
+    api.control(ControlCommand::SetHandTarget {
+        position_m: Some([0.0, 0.0, 0.05]),
+    })
+    .unwrap();
+    let trace = dir.path().join("session.csv");
+    api.control(ControlCommand::StartRecording {
+        path: trace.clone(),
+        format: None,
+    })
+    .unwrap();
+    let conflict = api.control(ControlCommand::AddMode {
+        mode: ModeConfig::new(ModeKind::Surface),
+    });
+    assert!(
+        matches!(conflict, Err(ControlError::Conflict(_))),
+        "{conflict:?}"
+    );
+    let start = api.snapshot().unwrap().tick;
+    wait_for_tick(&*api, start + 300);
+    let reply = api.control(ControlCommand::StopRecording).unwrap();
+    assert!(reply.message.contains("samples"), "{}", reply.message);
+    let summary = session.stop();
+    let trace = read_trace(&trace).unwrap();
+    assert!(
+        trace.samples.len() >= 250,
+        "{} samples",
+        trace.samples.len()
+    );
+    assert!(trace.samples.windows(2).all(|w| w[0].tick < w[1].tick));
+    assert_eq!(trace.mode_names, vec!["surface", "vector_follow"]);
+    // The hand holds the arm 5 cm up, above the ball: no contact force at the end.
+    let last = trace.samples.last().unwrap();
+    assert!(
+        (last.probe_m - DVec3::new(0.0, 0.0, 0.05)).length() < 0.01,
+        "{:?}",
+        last.probe_m
+    );
+    assert!(summary.stats.ticks > 300);
+    assert_eq!(summary.stats.recorder_drops, 0);
+}
+
+#[test]
+fn stopping_a_session_finishes_its_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.csv");
+    let session = session(Some(path.clone()));
+    wait_for_tick(&*session.api(), 200);
+    let summary = session.stop();
+    let trace = summary.trace.expect("the trace was finished on stop");
+    assert_eq!(trace.trace_path, path);
+    let read = read_trace(&path).unwrap();
+    assert_eq!(read.samples.len() as u64, trace.sample_count);
+    assert_eq!(read.samples[0].tick, 0);
+    assert!(summary.stats.ticks >= trace.sample_count);
+    assert!(read
+        .samples
+        .iter()
+        .all(|s| s.force_n.is_finite() && s.force_n.length() <= 10.0));
+}

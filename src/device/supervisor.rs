@@ -92,6 +92,10 @@ pub struct Supervisor<D: HapticDevice, F> {
     consecutive_timeouts: u32,
     next_reconnect_us: u64,
     counters: SupervisorCounters,
+    /// False when another thread reconnects ([`Supervisor::attach`]); the tick then never calls the opener.
+    auto_reconnect: bool,
+    /// A device lost on a tick, kept for [`Supervisor::take_lost`] instead of being dropped here.
+    lost: Option<Lifecycle<D>>,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -110,6 +114,8 @@ where
             consecutive_timeouts: 0,
             next_reconnect_us: 0,
             counters: SupervisorCounters::default(),
+            auto_reconnect: true,
+            lost: None,
         })
     }
 
@@ -144,16 +150,7 @@ where
         })();
         match result {
             Ok(device) => {
-                let limit = self
-                    .config
-                    .safety
-                    .max_force_n
-                    .min(device.info().max_force_n);
-                self.safety.set_max_force_n(limit);
-                self.safety.enable(now_us);
-                self.device = Some(device);
-                self.consecutive_timeouts = 0;
-                self.counters.connects += 1;
+                self.attach(device, now_us);
                 Ok(())
             }
             Err(kind) => {
@@ -161,6 +158,33 @@ where
                 Err(kind)
             }
         }
+    }
+
+    /// Installs a device that was opened and enabled elsewhere (a reconnect thread, so the servo thread never
+    /// blocks on a handshake); forces ramp in from here. Allocation-free.
+    pub fn attach(&mut self, device: Lifecycle<D>, now_us: u64) {
+        let limit = self
+            .config
+            .safety
+            .max_force_n
+            .min(device.info().max_force_n);
+        self.safety.set_max_force_n(limit);
+        self.safety.enable(now_us);
+        self.device = Some(device);
+        self.consecutive_timeouts = 0;
+        self.counters.connects += 1;
+    }
+
+    /// With `false`, a tick without a device no longer calls the opener: another thread reopens the device and
+    /// hands it over with [`Supervisor::attach`].
+    pub fn set_auto_reconnect(&mut self, enabled: bool) {
+        self.auto_reconnect = enabled;
+    }
+
+    /// The device lost on an earlier tick, if nobody took it yet (to close and drop it off the servo thread).
+    /// Without auto-reconnect the lost device is kept for this; with it, it is dropped on the next reopen.
+    pub fn take_lost(&mut self) -> Option<Lifecycle<D>> {
+        self.lost.take()
     }
 
     /// Disables and closes the device (zero force first).
@@ -174,6 +198,7 @@ where
     fn lose(&mut self, kind: ErrorKind, now_us: u64) -> SupervisorEvent {
         if let Some(mut device) = self.device.take() {
             device.mark_lost();
+            self.lost = Some(device);
         }
         self.safety.disconnect();
         self.counters.disconnects += 1;
@@ -193,9 +218,10 @@ where
             event: None,
         };
         if self.device.is_none() {
-            if now_us < self.next_reconnect_us {
+            if !self.auto_reconnect || now_us < self.next_reconnect_us {
                 return output;
             }
+            self.lost = None;
             match self.connect(now_us) {
                 Ok(()) => output.event = Some(SupervisorEvent::Connected),
                 Err(kind) => {

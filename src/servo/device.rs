@@ -18,10 +18,15 @@ use crate::device::safety::SafetyConfigError;
 use crate::device::sim::{SimArm, SimArmConfig, SimError};
 use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorCounters, TickOutput};
 use crate::device::transport::{HidTransport, SerialTransport};
+use crate::device::Lifecycle;
 use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::DVec3;
 use std::path::PathBuf;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
 
 /// The device as the servo thread sees it: one exchange per tick, plus a few queries.
 pub trait ServoDevice: Send {
@@ -66,6 +71,171 @@ where
 
     fn info(&self) -> Option<DeviceInfo> {
         self.device().map(|d| d.info().clone())
+    }
+}
+
+/// How a device is (re)opened: called off the servo thread only.
+type Opener<D> = Box<dyn FnMut() -> Result<D, DeviceError> + Send>;
+
+fn no_opener<D>() -> Result<D, DeviceError> {
+    Err(DeviceError::Config {
+        what: "reconnection happens on the connector thread".to_owned(),
+    })
+}
+
+fn open_and_enable<D: HapticDevice>(
+    opener: &Mutex<Opener<D>>,
+) -> Result<Lifecycle<D>, DeviceError> {
+    let mut opener = opener.lock().map_err(|_| DeviceError::Config {
+        what: "the device opener panicked earlier".to_owned(),
+    })?;
+    let mut device = Lifecycle::new((*opener)()?);
+    device.open().map_err(|e| DeviceError::Config {
+        what: e.to_string(),
+    })?;
+    device.enable().map_err(|e| DeviceError::Config {
+        what: e.to_string(),
+    })?;
+    Ok(device)
+}
+
+/// A supervised device whose reconnection runs on its own thread, so the servo thread never blocks on a
+/// port open or a handshake and never frees the lost device's buffers: when the link is lost, the servo
+/// hands the dead device to the connector thread (a ring) and raises a flag; the connector closes it, reopens
+/// every `reconnect_interval_us`, and hands the enabled device back (another ring); the next tick attaches it
+/// and forces ramp in again through the safety pipeline.
+pub struct Reconnecting<D: HapticDevice + Send + 'static> {
+    supervisor: Supervisor<D, fn() -> Result<D, DeviceError>>,
+    opener: Arc<Mutex<Opener<D>>>,
+    opened: rtrb::Consumer<Lifecycle<D>>,
+    lost: rtrb::Producer<Lifecycle<D>>,
+    lost_slot: Option<Lifecycle<D>>,
+    wanted: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
+    /// A supervised device opened by `opener`; starts the connector thread.
+    pub fn new(config: SupervisorConfig, opener: Opener<D>) -> Result<Self, OpenError> {
+        let mut supervisor: Supervisor<D, fn() -> Result<D, DeviceError>> =
+            Supervisor::new(config, no_opener::<D> as fn() -> Result<D, DeviceError>)?;
+        supervisor.set_auto_reconnect(false);
+        let opener = Arc::new(Mutex::new(opener));
+        let (opened_tx, opened) = rtrb::RingBuffer::new(1);
+        let (lost, lost_rx) = rtrb::RingBuffer::new(4);
+        let wanted = Arc::new(AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
+        let interval = Duration::from_micros(config.reconnect_interval_us.max(1000));
+        let thread = {
+            let (opener, wanted, stop) = (opener.clone(), wanted.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("voxhap-connector".to_owned())
+                .spawn(move || connector(opener, opened_tx, lost_rx, wanted, stop, interval))
+                .map_err(|e| OpenError::Thread(e.to_string()))?
+        };
+        Ok(Reconnecting {
+            supervisor,
+            opener,
+            opened,
+            lost,
+            lost_slot: None,
+            wanted,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    fn stop_connector(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn connector<D: HapticDevice + Send>(
+    opener: Arc<Mutex<Opener<D>>>,
+    mut opened: rtrb::Producer<Lifecycle<D>>,
+    mut lost: rtrb::Consumer<Lifecycle<D>>,
+    wanted: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+    interval: Duration,
+) {
+    while !stop.load(Ordering::Acquire) {
+        // Close dead devices first: a serial port is opened exclusively, so the old handle must go.
+        while let Ok(mut dead) = lost.pop() {
+            let _ = dead.close();
+        }
+        if wanted.load(Ordering::Acquire) && opened.slots() > 0 {
+            match open_and_enable(&opener) {
+                Ok(device) => {
+                    if opened.push(device).is_ok() {
+                        wanted.store(false, Ordering::Release);
+                    }
+                }
+                Err(_) => std::thread::sleep(interval),
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
+    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput {
+        let mut attached = false;
+        if !self.supervisor.is_connected() {
+            if let Ok(device) = self.opened.pop() {
+                self.supervisor.attach(device, now_us);
+                attached = true;
+            } else {
+                self.wanted.store(true, Ordering::Release);
+            }
+        }
+        let mut output = self.supervisor.tick(force_n, now_us);
+        if attached && output.event.is_none() {
+            output.event = Some(crate::device::supervisor::SupervisorEvent::Connected);
+        }
+        if self.lost_slot.is_none() {
+            self.lost_slot = self.supervisor.take_lost();
+        }
+        if let Some(dead) = self.lost_slot.take() {
+            if let Err(rtrb::PushError::Full(dead)) = self.lost.push(dead) {
+                self.lost_slot = Some(dead);
+            }
+            self.wanted.store(true, Ordering::Release);
+        }
+        output
+    }
+
+    fn counters(&self) -> SupervisorCounters {
+        self.supervisor.counters()
+    }
+
+    fn engaged(&self) -> bool {
+        self.supervisor.safety().is_engaged()
+    }
+
+    fn stop(&mut self) {
+        self.supervisor.stop();
+        self.stop_connector();
+    }
+
+    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind> {
+        use crate::device::Error as _;
+        let device = open_and_enable(&self.opener).map_err(|e| e.kind())?;
+        self.supervisor.attach(device, now_us);
+        Ok(())
+    }
+
+    fn info(&self) -> Option<DeviceInfo> {
+        self.supervisor.device().map(|d| d.info().clone())
+    }
+}
+
+impl<D: HapticDevice + Send + 'static> Drop for Reconnecting<D> {
+    fn drop(&mut self) {
+        self.stop_connector();
     }
 }
 
@@ -182,6 +352,8 @@ pub enum OpenError {
     Replay { path: PathBuf, message: String },
     #[error("device path {0:?} is not valid UTF-8")]
     Path(PathBuf),
+    #[error("could not start the connector thread: {0}")]
+    Thread(String),
 }
 
 /// The simulated arm as a [`HapticDevice`]: each `write_force` steps the arm one servo period under that
@@ -286,6 +458,16 @@ where
     Ok(Box::new(Supervisor::new(config, opener)?))
 }
 
+fn reconnecting<D>(
+    config: SupervisorConfig,
+    opener: impl FnMut() -> Result<D, DeviceError> + Send + 'static,
+) -> Result<Box<dyn ServoDevice>, OpenError>
+where
+    D: HapticDevice + Send + 'static,
+{
+    Ok(Box::new(Reconnecting::new(config, Box::new(opener))?))
+}
+
 fn path_str(path: &std::path::Path) -> Result<String, OpenError> {
     path.to_str()
         .map(str::to_owned)
@@ -316,7 +498,7 @@ pub fn open_device(
         }
         DeviceSpec::Mock(path) | DeviceSpec::Serial(path) => {
             let path = path_str(path)?;
-            boxed(config, move || {
+            reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 1_000_000)?;
                 Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
             })?
@@ -327,7 +509,7 @@ pub fn open_device(
             serial,
         } => {
             let (vendor_id, product_id, serial) = (*vendor_id, *product_id, serial.clone());
-            boxed(config, move || {
+            reconnecting(config, move || {
                 let transport = match &serial {
                     Some(serial) => HidTransport::open_serial(vendor_id, product_id, serial)?,
                     None => HidTransport::open_vid_pid(vendor_id, product_id)?,
@@ -335,14 +517,14 @@ pub fn open_device(
                 Ok(ProtocolDevice::new(HidLink::new(transport), protocol))
             })?
         }
-        DeviceSpec::WoodenHaptics => boxed(config, move || {
+        DeviceSpec::WoodenHaptics => reconnecting(config, move || {
             let transport =
                 HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
             WoodenHaptics::new(transport, WoodenHapticsConfig::default())
         })?,
         DeviceSpec::Haply2Diy(path) => {
             let path = path_str(path)?;
-            boxed(config, move || {
+            reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 0)?;
                 Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
             })?

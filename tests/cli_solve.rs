@@ -1,4 +1,4 @@
-//! `voxhap solve` and the default run, through the real binary.
+//! `voxhap solve` and the default run (`voxhap` with no subcommand serves), through the real binary.
 
 use std::process::Command;
 
@@ -55,15 +55,32 @@ fn baselines_print_json_without_a_certificate() {
 }
 
 #[test]
-fn default_run_solves_the_example() {
-    let out = voxhap(&[]);
-    assert!(out.status.success());
-    let text = String::from_utf8(out.stdout).unwrap();
+fn no_subcommand_serves_the_simulated_arm_until_sigterm() {
+    // `voxhap` alone is `voxhap serve` with its defaults: it runs until a signal, then exits 0 and
+    // prints the servo statistics.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run voxhap");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
     assert!(
-        text.contains("proxy        [+2.000000000e-3, +0.000000000e0, +0.000000000e0] m"),
-        "{text}"
+        child.try_wait().unwrap().is_none(),
+        "voxhap with no subcommand exited instead of serving"
     );
-    assert!(text.contains("(certified)"), "{text}");
+    // SAFETY: kill(2) on our own child's pid.
+    let rc = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    assert_eq!(rc, 0);
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("no subcommand given"), "{stdout}");
+    assert!(stdout.contains("device sim"), "{stdout}");
+    assert!(stdout.contains("lateness"), "{stdout}");
 }
 
 #[test]

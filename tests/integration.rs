@@ -14,6 +14,7 @@ mod device_safety;
 mod modes;
 mod paper;
 mod record;
+mod serve_e2e;
 mod servo;
 mod sim;
 mod solver_props;

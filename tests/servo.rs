@@ -21,6 +21,9 @@ use voxhap::servo::setup::{load_volume_arg, SceneBundle, SceneSetup};
 use voxhap::servo::stats::ServoStats;
 use voxhap::servo::{ControlCommand, ControlError, Session, SessionApi, SessionConfig, Snapshot};
 
+/// A command the session must refuse, and the error kind it must refuse it with.
+type RefusedCase = (ControlCommand, fn(&ControlError) -> bool);
+
 const PERIOD_NS: u64 = 1_000_000;
 
 struct Rig {
@@ -396,7 +399,7 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
     assert_eq!(snapshot.scene_generation, reply.scene_generation);
 
     let before = (api.scene(), api.snapshot().unwrap().scene_generation);
-    let refused: Vec<(ControlCommand, fn(&ControlError) -> bool)> = vec![
+    let refused: Vec<RefusedCase> = vec![
         (ControlCommand::SetStiffness { k: -1.0 }, |e| {
             matches!(e, ControlError::Invalid(_))
         }),

@@ -1,7 +1,7 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 //!
 //! `voxhap` with no subcommand runs the default job, `voxhap serve` with its defaults: the simulated arm
-//! exploring the built-in scene (sims/explore.toml) at 1 kHz until Ctrl-C.
+//! exploring the built-in scene (sims/scenes/explore.toml) at 1 kHz until Ctrl-C.
 
 pub mod bench_loop;
 pub mod devices;

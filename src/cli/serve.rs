@@ -92,10 +92,7 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
 /// Waits for Ctrl-C, SIGTERM or `duration`.
 pub async fn wait_for_stop(duration: Option<Duration>) -> &'static str {
     let ctrl_c = tokio::signal::ctrl_c();
-    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-        Ok(term) => Some(term),
-        Err(_) => None,
-    };
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
     let terminate = async {
         match term.as_mut() {
             Some(term) => {

@@ -7,7 +7,7 @@
 //! A scene file is TOML with the keys of a sim scenario (see the README "Scenario files"): `k_n_per_m`,
 //! optional `damping_n_s_per_m`, `[solver]`, `[[volumes]]`, `[[modes]]`, and for the simulated arm `start_m`,
 //! `[arm]`, `[hand]`, `[path]`. Any `voxhap sim` scenario file is also a valid scene (its `duration_s` is
-//! ignored). Without `--scene`, the built-in sims/explore.toml is used; `--volume` alone renders a surface of
+//! ignored). Without `--scene`, the built-in sims/scenes/explore.toml is used; `--volume` alone renders a surface of
 //! that volume at the middle of its value range, with the arm circling through its centre.
 
 use crate::device::mock::default_arm_config;
@@ -22,8 +22,8 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// The built-in scene (sims/explore.toml).
-pub const BUILTIN_SCENE: &str = include_str!("../../sims/explore.toml");
+/// The built-in scene (sims/scenes/explore.toml).
+pub const BUILTIN_SCENE: &str = include_str!("../../sims/scenes/explore.toml");
 
 /// A scene file as written.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -219,11 +219,11 @@ impl SceneSetup {
         Self::parse(&text, &origin, path.parent().unwrap_or(Path::new("")))
     }
 
-    /// The built-in scene (sims/explore.toml).
+    /// The built-in scene (sims/scenes/explore.toml).
     pub fn builtin() -> Result<SceneSetup, SetupError> {
         Self::parse(
             BUILTIN_SCENE,
-            "built-in scene sims/explore.toml",
+            "built-in scene sims/scenes/explore.toml",
             Path::new("."),
         )
     }

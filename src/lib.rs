@@ -11,5 +11,6 @@ pub mod device;
 pub mod haptics;
 pub mod record;
 pub mod servo;
+pub mod server;
 pub mod sim;
 pub mod volume;

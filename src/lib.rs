@@ -10,7 +10,7 @@ pub mod clock;
 pub mod device;
 pub mod haptics;
 pub mod record;
-pub mod servo;
 pub mod server;
+pub mod servo;
 pub mod sim;
 pub mod volume;

@@ -67,6 +67,7 @@ fn rig(sample_capacity: usize) -> Rig {
         LoopTiming {
             period_ns: PERIOD_NS,
             compute_budget_ns: 600_000,
+            warm_lead_ns: 0,
         },
         PERIOD_NS,
         first,

@@ -29,6 +29,9 @@ pub struct BenchLoopArgs {
     /// How long before each deadline the servo thread stops sleeping and spins (µs).
     #[arg(long, default_value_t = 80)]
     pub spin_us: u64,
+    /// How long before each deadline the servo thread warms its caches for the coming tick (µs; 0: off).
+    #[arg(long, default_value_t = 30)]
+    pub warm_us: u64,
     /// Real-time scheduling (as for serve).
     #[arg(long, value_enum, default_value_t = RtMode::BestEffort)]
     pub rt: RtMode,
@@ -42,6 +45,7 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     config.rate_hz = args.rate;
     config.rt = args.rt;
     config.spin_ns = args.spin_us.saturating_mul(1000);
+    config.warm_lead_ns = args.warm_us.saturating_mul(1000);
     let stop_load = Arc::new(AtomicBool::new(false));
     let load: Vec<_> = (0..args.load_threads)
         .map(|_| {

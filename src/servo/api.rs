@@ -119,8 +119,12 @@ pub struct StatsReport {
     pub ticks: u64,
     /// How late each tick started after its deadline.
     pub lateness: HistogramReport,
-    /// Compute time of each tick (device read to device write).
+    /// Compute time of each tick: commands, modes, solve and coupling force (the pure tick), from the tick's
+    /// start to the force being ready for the safety pipeline.
     pub compute: HistogramReport,
+    /// Time of each tick's device exchange: safety pipeline, write force, read state (for the simulated
+    /// arm this includes stepping its physics).
+    pub device: HistogramReport,
     /// Ticks that started after the next deadline had already passed (schedule skipped).
     pub overruns: u64,
     /// Ticks skipped by those overruns.

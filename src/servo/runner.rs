@@ -59,6 +59,9 @@ pub struct LoopTiming {
     pub period_ns: u64,
     /// Longest the tick's compute (modes + solve) may take before the last safe force is sent instead (ns).
     pub compute_budget_ns: u64,
+    /// How long before the deadline the loop wakes to warm the caches for the coming tick (reads the
+    /// volumes around the proxy; see `RenderScene::warm_caches`); 0 turns warming off.
+    pub warm_lead_ns: u64,
 }
 
 /// The servo thread's state. Everything it needs is owned here; see the module docs.
@@ -176,6 +179,14 @@ impl ServoLoop {
     pub fn step(&mut self, waiter: &mut dyn Waiter) -> u64 {
         let deadline_ns = self.schedule.next_deadline_ns();
         let tick_index = self.schedule.next_tick();
+        if self.timing.warm_lead_ns > 0 {
+            let warm_at_ns = deadline_ns.saturating_sub(self.timing.warm_lead_ns);
+            waiter.wait_until(warm_at_ns);
+            // Only when there is time left: a late wake-up goes straight to the tick.
+            if waiter.now_ns() < warm_at_ns + self.timing.warm_lead_ns / 2 {
+                std::hint::black_box(self.bundle.scene.warm_caches(self.state.proxy_m));
+            }
+        }
         waiter.wait_until(deadline_ns);
         let start_ns = waiter.now_ns();
         let lateness_ns = start_ns.saturating_sub(deadline_ns);
@@ -223,6 +234,7 @@ impl ServoLoop {
         }
 
         let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
+        let exchange_start_ns = waiter.now_ns();
         let device_out = self.device.exchange(rendered_n, now_us);
         self.last_safe_force_n = device_out.sent_force_n;
         if device_out.state.is_some() {
@@ -250,7 +262,10 @@ impl ServoLoop {
         let stats = &*self.stats;
         stats.ticks.fetch_add(1, Ordering::Relaxed);
         stats.lateness.record(lateness_ns);
-        stats.compute.record(end_ns.saturating_sub(start_ns));
+        stats.compute.record(compute_ns);
+        stats
+            .device
+            .record(end_ns.saturating_sub(exchange_start_ns));
         stats.max_sweeps.fetch_max(out.sweeps, Ordering::Relaxed);
         stats.note_bound(out.error_bound_m);
         let counters = self.device.counters();

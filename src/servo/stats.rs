@@ -132,6 +132,7 @@ pub struct ServoStats {
     pub ticks: AtomicU64,
     pub lateness: Histogram,
     pub compute: Histogram,
+    pub device: Histogram,
     pub overruns: AtomicU64,
     pub skipped_ticks: AtomicU64,
     pub budget_overruns: AtomicU64,
@@ -179,6 +180,7 @@ impl ServoStats {
             ticks: load(&self.ticks),
             lateness: self.lateness.report(),
             compute: self.compute.report(),
+            device: self.device.report(),
             overruns: load(&self.overruns),
             skipped_ticks: load(&self.skipped_ticks),
             budget_overruns: load(&self.budget_overruns),
@@ -208,6 +210,7 @@ impl StatsReport {
         );
         text += &row("lateness", &self.lateness);
         text += &row("compute", &self.compute);
+        text += &row("device", &self.device);
         text += &format!(
             "rate {} Hz, ticks {}, overruns {} (skipped {} ticks), compute over budget {}\n",
             self.rate_hz, self.ticks, self.overruns, self.skipped_ticks, self.budget_overruns

@@ -261,6 +261,20 @@ impl RenderScene {
         }
     }
 
+    /// Reads every volume around `proxy_m` (value, gradient or Jacobian) and returns a number made from the
+    /// reads only so they cannot be optimised away. The servo thread calls this a few microseconds before a
+    /// tick's deadline: after a millisecond asleep, the voxels the tick is about to sample have left the
+    /// caches, and fetching them again is most of a tick's compute time. No allocation.
+    pub fn warm_caches(&self, proxy_m: DVec3) -> f64 {
+        self.volumes
+            .iter()
+            .map(|(_, volume)| match volume {
+                AnyVolume::Scalar(v) => v.sample_with_gradient(proxy_m).0,
+                AnyVolume::Vector(v) => v.jacobian(proxy_m).x_axis.x,
+            })
+            .sum()
+    }
+
     /// Runs mode `index` at `proxy_m`, the proxy at the start of the tick (where the last tick left it),
     /// with `memory` from the previous tick: pushes at most one primitive onto `out` and returns how many it
     /// pushed, and the normal of the plane it emitted (surface modes), or zero. No allocation while `out`

@@ -37,6 +37,11 @@ struct Rig {
 }
 
 fn rig(sample_capacity: usize) -> Rig {
+    rig_warming(sample_capacity, 0)
+}
+
+/// A rig whose loop warms its caches `warm_lead_ns` before each deadline (0: off).
+fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
     let setup = SceneSetup::builtin().unwrap();
     let bundle = setup.bundle(PERIOD_NS, 0.3, 1).unwrap();
     let opened = open_device(
@@ -67,7 +72,7 @@ fn rig(sample_capacity: usize) -> Rig {
         LoopTiming {
             period_ns: PERIOD_NS,
             compute_budget_ns: 600_000,
-            warm_lead_ns: 0,
+            warm_lead_ns,
         },
         PERIOD_NS,
         first,
@@ -123,6 +128,61 @@ fn on_time_ticks_are_consecutive_and_safe() {
     let snapshot = rig.snapshot.read().unwrap();
     assert_eq!(snapshot.tick, 1999);
     assert!(snapshot.engaged && snapshot.connected);
+}
+
+/// Records every deadline the loop asks to wait for.
+struct RecordingWaiter {
+    inner: MockWaiter,
+    waits_ns: Vec<u64>,
+}
+
+impl Waiter for RecordingWaiter {
+    fn now_ns(&self) -> u64 {
+        self.inner.now_ns()
+    }
+    fn wait_until(&mut self, deadline_ns: u64) {
+        self.waits_ns.push(deadline_ns);
+        self.inner.wait_until(deadline_ns);
+    }
+    fn clock(&self) -> &dyn Clock {
+        self.inner.clock()
+    }
+}
+
+#[test]
+fn cache_warming_wakes_before_each_deadline_and_changes_no_output() {
+    const LEAD_NS: u64 = 30_000;
+    let mut plain = rig(4096);
+    let mut warmed = rig_warming(4096, LEAD_NS);
+    let (mut plain_waiter, _) = mock_waiter();
+    let mut waiter = RecordingWaiter {
+        inner: mock_waiter().0,
+        waits_ns: Vec::new(),
+    };
+    for _ in 0..500 {
+        plain.servo.step(&mut plain_waiter);
+        warmed.servo.step(&mut waiter);
+    }
+    // Two waits per tick: the warm-up point, then the deadline itself.
+    assert_eq!(waiter.waits_ns.len(), 1000);
+    for (tick, pair) in waiter.waits_ns.chunks(2).enumerate() {
+        let deadline = (tick as u64 + 1) * PERIOD_NS; // the rig starts one period in
+        assert_eq!(
+            pair,
+            [deadline.saturating_sub(LEAD_NS), deadline],
+            "tick {tick}"
+        );
+    }
+    // Warming only reads the volumes: every tick's output is bit for bit what it is without it.
+    let mut compared = 0;
+    while let (Ok(a), Ok(b)) = (plain.samples.pop(), warmed.samples.pop()) {
+        assert_eq!(
+            (a.tick, a.probe_m, a.proxy_m, a.force_n),
+            (b.tick, b.probe_m, b.proxy_m, b.force_n)
+        );
+        compared += 1;
+    }
+    assert_eq!(compared, 500);
 }
 
 #[test]

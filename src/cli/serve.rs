@@ -42,6 +42,9 @@ pub struct ServeArgs {
     /// How long before each deadline the servo thread stops sleeping and spins (µs).
     #[arg(long, default_value_t = 80)]
     pub spin_us: u64,
+    /// How long before each deadline the servo thread warms its caches for the coming tick (µs; 0: off).
+    #[arg(long, default_value_t = 30)]
+    pub warm_us: u64,
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
@@ -78,6 +81,7 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     }
     config.rt = args.rt;
     config.spin_ns = args.spin_us.saturating_mul(1000);
+    config.warm_lead_ns = args.warm_us.saturating_mul(1000);
     config.cpu = args.cpu;
     if let Some(path) = &args.record {
         check_record_path(path).map_err(|e| anyhow::anyhow!("--record {}: {e}", path.display()))?;

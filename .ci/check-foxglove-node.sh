@@ -6,7 +6,9 @@
 # Skips (exit 0, with a message) when node or npm is missing or the npm install fails (offline). Fails (exit 1)
 # with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
 #
-# Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 10000).
+# Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 10000), VOXHAP_BIN (a
+# voxhap binary to use instead of building target/release/voxhap, e.g. target/debug/voxhap after cargo test;
+# a release build from scratch takes minutes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -44,9 +46,14 @@ fi
 versions=$(cd "$tmp" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
 echo "$name: installed $versions"
 
-echo "$name: building target/release/voxhap (cargo build --release; quick when up to date)"
-cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
-voxhap=target/release/voxhap
+if [ -n "${VOXHAP_BIN:-}" ]; then
+  voxhap=$VOXHAP_BIN
+  [ -x "$voxhap" ] || fail "VOXHAP_BIN=$voxhap is not an executable"
+else
+  echo "$name: building target/release/voxhap (cargo build --release; quick when up to date)"
+  cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
+  voxhap=target/release/voxhap
+fi
 
 serve_args=(serve --foxglove 127.0.0.1:0 --duration 30)
 # The HTTP server comes from another branch; leave it out when this voxhap has it.

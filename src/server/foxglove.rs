@@ -5,8 +5,8 @@
 //! Where it sits (DESIGN.md section 5): a task on `voxhap serve`'s tokio runtime. It reads the servo only
 //! through [`SessionApi`] (the triple-buffer snapshot and the atomic statistics), at `--foxglove-rate`
 //! (default 60 Hz), and only publishes when the tick advanced; the SDK queues messages per client and drops
-//! the oldest for a slow one, so no client can slow the servo thread. Encoding is skipped for topics no
-//! client subscribed to.
+//! the oldest for a slow one, so no client can slow the servo thread. Nothing is read or encoded for
+//! topics no client subscribed to.
 //!
 //! Topics (frame `world` is voxhap's world space, metres):
 //!
@@ -284,6 +284,15 @@ struct Channels {
 }
 
 impl Channels {
+    /// True when a client subscribed to one of the sampled topics (everything but the statistics).
+    fn any_sampled_subscribed(&self) -> bool {
+        self.probe.has_sinks()
+            || self.proxy.has_sinks()
+            || self.force.has_sinks()
+            || self.primitives.has_sinks()
+            || self.bound.has_sinks()
+    }
+
     fn new(context: &Arc<Context>) -> Self {
         Channels {
             probe: context.channel_builder(PROBE_TOPIC).build(),
@@ -381,6 +390,9 @@ async fn publish(
         tokio::select! {
             _ = &mut stop => break,
             _ = sample.tick() => {
+                if !publisher.channels.any_sampled_subscribed() {
+                    continue;
+                }
                 if let Some(snapshot) = api.snapshot() {
                     publisher.snapshot(&snapshot);
                 }

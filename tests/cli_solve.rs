@@ -58,7 +58,9 @@ fn baselines_print_json_without_a_certificate() {
 fn no_subcommand_serves_the_simulated_arm_until_sigterm() {
     // `voxhap` alone is `voxhap serve` with its defaults: it runs until a signal, then exits 0 and
     // prints the servo statistics.
+    // --no-foxglove: parallel tests must not fight over the live view's port 8765.
     let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .arg("--no-foxglove")
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()

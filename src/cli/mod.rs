@@ -1,7 +1,8 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 //!
-//! `voxhap` with no subcommand runs the default job, `voxhap serve` with its defaults: the simulated arm
-//! exploring the built-in scene (sims/scenes/explore.toml) at 1 kHz until Ctrl-C.
+//! `voxhap` with no subcommand runs the default job, `voxhap serve` (and takes its flags: `voxhap
+//! --no-foxglove`); with the defaults that is the simulated arm exploring the built-in scene
+//! (sims/scenes/explore.toml) at 1 kHz until Ctrl-C.
 
 pub mod bench_loop;
 pub mod devices;
@@ -17,10 +18,18 @@ use std::process::ExitCode;
 
 /// voxhap: haptic proxy rendering for volume data.
 #[derive(Debug, Parser)]
-#[command(name = "voxhap", version, about)]
+#[command(
+    name = "voxhap",
+    version,
+    about,
+    args_conflicts_with_subcommands = true
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Option<Command>,
+    /// Without a subcommand voxhap serves, so it takes `voxhap serve`'s flags (`voxhap --no-foxglove`).
+    #[command(flatten)]
+    pub serve: serve::ServeArgs,
 }
 
 #[derive(Debug, Subcommand)]
@@ -82,7 +91,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;
-            serve::run(&serve::ServeArgs::defaults())
+            serve::run(&cli.serve)
         }
     }
 }

@@ -1,7 +1,10 @@
 //! `voxhap serve`: run the servo loop on a device until Ctrl-C or SIGTERM (or `--duration`), optionally
 //! recording every tick. With no flags it serves the simulated arm exploring the built-in scene.
 //!
-//! Shutdown order on a signal: the servo thread stops ticking and sends zero force, the device is disabled
+//! It also starts the Foxglove live view (`crate::server::foxglove`, `--foxglove ADDR`, default
+//! ws://127.0.0.1:8765; `--no-foxglove` to leave it out).
+//!
+//! Shutdown order on a signal: the Foxglove view stops and closes its clients, the servo thread stops ticking and sends zero force, the device is disabled
 //! and closed, the recorder drains its ring and finishes the trace, the statistics are printed, exit 0.
 
 use crate::record::TraceFormat;
@@ -51,6 +54,8 @@ pub struct ServeArgs {
     /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
     #[arg(long)]
     pub duration: Option<f64>,
+    #[command(flatten)]
+    pub foxglove: crate::server::foxglove::FoxgloveArgs,
 }
 
 /// `voxhap serve` with no flags (what `voxhap` alone runs).
@@ -124,6 +129,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         Some(s) => bail!("--duration must be a number of seconds > 0, got {s}"),
         None => None,
     };
+    let foxglove = args.foxglove.resolve()?;
     let config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
@@ -142,7 +148,20 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some((path, format)) = &record {
         super::print_out(&format!("recording: {} ({format})", path.display()))?;
     }
+    let foxglove = runtime.block_on(crate::server::foxglove::start_for_serve(
+        session.api(),
+        foxglove,
+    ))?;
+    if let Some(server) = &foxglove {
+        super::print_out(&format!(
+            "foxglove: listening on ws://{}",
+            server.local_addr()
+        ))?;
+    }
     let reason = runtime.block_on(wait_for_stop(duration));
+    if let Some(server) = foxglove {
+        runtime.block_on(server.stop());
+    }
     let summary = session.stop();
     super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
     if let Some(trace) = &summary.trace {

@@ -14,6 +14,7 @@
 
 mod csv;
 mod error;
+pub mod foxglove_topics;
 mod mcap_trace;
 mod meta;
 pub mod plot;
@@ -157,7 +158,8 @@ impl TraceSample {
 pub enum TraceFormat {
     /// Comma-separated text, one row per tick.
     Csv,
-    /// MCAP with JSON-encoded messages, readable by the `mcap` Python package and Foxglove.
+    /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
+    /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
     Mcap,
 }
 

@@ -2,3 +2,5 @@
 //! built-in page and the control API, and the Foxglove live view. Both read the servo only through
 //! [`crate::servo::SessionApi`] (triple-buffer snapshots and atomic statistics), so the servo thread never waits
 //! on them.
+
+pub mod foxglove;

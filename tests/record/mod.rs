@@ -153,18 +153,22 @@ fn python_mcap_package_reads_the_trace() {
     let script = r#"
 import json, sys
 from mcap.reader import make_reader
-counts, first, log_times_ok = {}, {}, True
+counts, first, log_times_ok, schemas = {}, {}, True, {}
 with open(sys.argv[1], "rb") as f:
     reader = make_reader(f)
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     for schema, channel, message in reader.iter_messages():
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        schemas[channel.topic] = [schema.name, schema.encoding, channel.message_encoding]
+        if channel.topic not in ("/voxhap/state", "/voxhap/solver"):
+            continue  # the Foxglove topics are protobuf
         assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
         json.loads(schema.data)
         data = json.loads(message.data)
-        counts[channel.topic] = counts.get(channel.topic, 0) + 1
         first.setdefault(channel.topic, data)
         log_times_ok &= message.log_time == round(data["t_s"] * 1e9)
-print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_times_ok": log_times_ok}))
+print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_times_ok": log_times_ok,
+                  "schemas": schemas}))
 "#;
     let output = Command::new("python3")
         .args(["-c", script])
@@ -179,6 +183,19 @@ print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_t
     let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(report["counts"]["/voxhap/state"], TICKS);
     assert_eq!(report["counts"]["/voxhap/solver"], TICKS);
+    // The Foxglove topics, one message per tick, with the SDK's protobuf schemas.
+    for (topic, schema) in [
+        ("/voxhap/probe", "foxglove.FrameTransform"),
+        ("/voxhap/proxy", "foxglove.FrameTransform"),
+        ("/voxhap/force", "foxglove.Vector3"),
+    ] {
+        assert_eq!(report["counts"][topic], TICKS, "{topic}");
+        assert_eq!(
+            report["schemas"][topic],
+            serde_json::json!([schema, "protobuf", "protobuf"]),
+            "{topic}"
+        );
+    }
     assert_eq!(report["log_times_ok"], true);
     let metadata = &report["metadata"]["voxhap_trace"];
     assert_eq!(metadata["mode_names"], "[\"surface\"]");

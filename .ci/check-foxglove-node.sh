@@ -1,0 +1,93 @@
+#!/usr/bin/env bash
+# Checks voxhap's Foxglove live view with an independent client: the npm packages @foxglove/ws-protocol and
+# ws (installed into a temporary directory, never the repository) subscribe to /voxhap/force on a running
+# `voxhap serve` and must receive at least N messages within a few seconds (.ci/foxglove-subscribe.mjs).
+#
+# Skips (exit 0, with a message) when node or npm is missing or the npm install fails (offline). Fails (exit 1)
+# with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
+#
+# Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 10000), VOXHAP_BIN (a
+# voxhap binary to use instead of building target/release/voxhap, e.g. target/debug/voxhap after cargo test;
+# a release build from scratch takes minutes).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+name=check-foxglove-node
+skip() {
+  echo "$name: SKIPPED: $*"
+  exit 0
+}
+fail() {
+  echo "$name: FAILED: $*" >&2
+  exit 1
+}
+
+command -v node >/dev/null 2>&1 || skip "node is not installed"
+command -v npm >/dev/null 2>&1 || skip "npm is not installed"
+
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/voxhap-foxglove-node.XXXXXX")
+server_pid=""
+cleanup() {
+  if [ -n "$server_pid" ] && kill -0 "$server_pid" 2>/dev/null; then
+    kill "$server_pid" 2>/dev/null || true
+    wait "$server_pid" 2>/dev/null || true
+  fi
+  rm -rf "$tmp"
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+echo "$name: installing @foxglove/ws-protocol and ws into $tmp (node $(node --version), npm $(npm --version 2>/dev/null))"
+if ! timeout 120 npm install --prefix "$tmp" --no-audit --no-fund --no-save --loglevel=error \
+  @foxglove/ws-protocol ws >"$tmp/npm.log" 2>&1; then
+  tail -n 5 "$tmp/npm.log" | sed "s/^/$name: npm: /"
+  skip "npm install of @foxglove/ws-protocol and ws failed (offline or no registry access)"
+fi
+versions=$(cd "$tmp" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
+echo "$name: installed $versions"
+
+if [ -n "${VOXHAP_BIN:-}" ]; then
+  voxhap=$VOXHAP_BIN
+  [ -x "$voxhap" ] || fail "VOXHAP_BIN=$voxhap is not an executable"
+else
+  echo "$name: building target/release/voxhap (cargo build --release; quick when up to date)"
+  cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
+  voxhap=target/release/voxhap
+fi
+
+serve_args=(serve --foxglove 127.0.0.1:0 --duration 30)
+# The HTTP server comes from another branch; leave it out when this voxhap has it.
+if "$voxhap" serve --help | grep -q -- '--no-http'; then
+  serve_args+=(--no-http)
+fi
+echo "$name: starting $voxhap ${serve_args[*]}"
+"$voxhap" "${serve_args[@]}" >"$tmp/serve.out" 2>"$tmp/serve.err" &
+server_pid=$!
+
+url=""
+for _ in $(seq 1 150); do
+  line=$(grep -m1 '^foxglove: listening on ws://' "$tmp/serve.out" || true)
+  if [ -n "$line" ]; then
+    url=${line#foxglove: listening on }
+    break
+  fi
+  if ! kill -0 "$server_pid" 2>/dev/null; then
+    cat "$tmp/serve.out" "$tmp/serve.err" | sed "s/^/$name: serve: /" >&2
+    fail "voxhap serve exited before its Foxglove server was listening"
+  fi
+  sleep 0.1
+done
+[ -n "$url" ] || fail "voxhap serve did not print 'foxglove: listening on ws://...' within 15 s"
+echo "$name: voxhap serve is listening on $url"
+
+cp .ci/foxglove-subscribe.mjs "$tmp/"
+if ! node "$tmp/foxglove-subscribe.mjs" "$url" "${VOXHAP_FOXGLOVE_MESSAGES:-60}" \
+  "${VOXHAP_FOXGLOVE_TIMEOUT_MS:-10000}"; then
+  sed "s/^/$name: serve: /" "$tmp/serve.err" >&2
+  fail "the Node client did not receive the force topic (see above)"
+fi
+
+kill "$server_pid" 2>/dev/null || true
+wait "$server_pid" 2>/dev/null || true
+server_pid=""
+echo "$name: passed"

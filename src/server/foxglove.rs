@@ -1,0 +1,463 @@
+//! The Foxglove live view: the `foxglove` SDK's WebSocket server (protocol `foxglove.sdk.v1`, default
+//! `ws://127.0.0.1:8765`) and a publisher task that samples the running session and logs it on Foxglove
+//! channels, so Foxglove or Lichtblick shows the session in 3D with plots.
+//!
+//! Where it sits (DESIGN.md section 5): a task on `voxhap serve`'s tokio runtime. It reads the servo only
+//! through [`SessionApi`] (the triple-buffer snapshot and the atomic statistics), at `--foxglove-rate`
+//! (default 60 Hz), and only publishes when the tick advanced; the SDK queues messages per client and drops
+//! the oldest for a slow one, so no client can slow the servo thread. Nothing is read or encoded for
+//! topics no client subscribed to.
+//!
+//! Topics (frame `world` is voxhap's world space, metres):
+//!
+//! | topic | schema | rate |
+//! |---|---|---|
+//! | `/voxhap/probe`, `/voxhap/proxy` | `foxglove.FrameTransform` (frames `probe`, `proxy` in `world`) | sampled |
+//! | `/voxhap/force` | `foxglove.Vector3`: force sent to the device (N) | sampled |
+//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate`: probe, proxy, force arrow, the tick's primitives ([`messages`]) | sampled |
+//! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
+//! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`crate::servo::StatsReport`] | 1 Hz |
+//!
+//! The first three are the same topics an MCAP trace carries (`crate::record::foxglove_topics`). Message
+//! timestamps and log times are wall-clock: the session's tick time plus the wall time at which the view
+//! first saw the session (the MCAP trace uses tick time since the start instead).
+
+pub mod messages;
+
+use self::messages::{scene_update, BoundMessage, StatsMessage};
+use crate::record::foxglove_topics::{
+    frame_transform, set_translation, timestamp_from_ns, vector3, FORCE_TOPIC, PROBE_FRAME,
+    PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC,
+};
+use crate::servo::{SessionApi, Snapshot};
+use ::foxglove::messages::{FrameTransform, SceneUpdate, Vector3};
+use ::foxglove::{Channel, Context, WebSocketServerHandle};
+use glam::DVec3;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tokio::time::MissedTickBehavior;
+
+/// Where the live view listens unless `--foxglove` says otherwise (Foxglove's usual port, loopback).
+pub const DEFAULT_ADDR: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 8765);
+/// Default sampling rate (Hz).
+pub const DEFAULT_RATE_HZ: u32 = 60;
+/// Accepted sampling rates (Hz).
+pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
+/// The scene: probe, proxy, force arrow and primitives as a `foxglove.SceneUpdate`.
+pub const PRIMITIVES_TOPIC: &str = "/voxhap/primitives";
+/// The certificate bound of the sampled tick (JSON `voxhap.Bound`).
+pub const BOUND_TOPIC: &str = "/voxhap/bound";
+/// The loop statistics, once a second (JSON `voxhap.Stats`).
+pub const STATS_TOPIC: &str = "/voxhap/stats";
+/// Every topic the live view advertises.
+pub const TOPICS: [&str; 6] = [
+    PROBE_TOPIC,
+    PROXY_TOPIC,
+    FORCE_TOPIC,
+    PRIMITIVES_TOPIC,
+    BOUND_TOPIC,
+    STATS_TOPIC,
+];
+/// How long [`FoxgloveServer::stop`] waits for client connections to close.
+pub const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// How often the statistics are published.
+pub const STATS_INTERVAL: Duration = Duration::from_secs(1);
+
+/// The live view's flags, flattened into `voxhap serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FoxgloveArgs {
+    /// Foxglove live view: WebSocket address for Foxglove or Lichtblick (protocol foxglove.sdk.v1)
+    /// [default: 127.0.0.1:8765; when that is busy, serve warns and runs without the view]
+    #[arg(long, value_name = "ADDR", value_parser = parse_addr)]
+    pub foxglove: Option<SocketAddr>,
+    /// Allow a non-loopback --foxglove address: anyone who can reach it can watch the session.
+    #[arg(long)]
+    pub foxglove_allow_remote: bool,
+    /// How often the live view samples the session (Hz, 1 to 1000).
+    #[arg(long, value_name = "HZ", default_value_t = DEFAULT_RATE_HZ,
+          value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub foxglove_rate: u32,
+    /// Do not start the Foxglove live view.
+    #[arg(long, conflicts_with_all = ["foxglove", "foxglove_allow_remote"])]
+    pub no_foxglove: bool,
+}
+
+fn parse_addr(text: &str) -> Result<SocketAddr, String> {
+    if let Some(port) = text.strip_prefix("localhost:") {
+        let port = port
+            .parse::<u16>()
+            .map_err(|_| format!("{port:?} is not a port number"))?;
+        return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
+    }
+    text.parse()
+        .map_err(|_| format!("expected IP:PORT such as 127.0.0.1:8765 or [::1]:8765, got {text:?}"))
+}
+
+/// A checked live-view configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FoxgloveConfig {
+    /// Where to listen; port 0 picks a free port.
+    pub addr: SocketAddr,
+    /// True when the address was given (`--foxglove`): then a busy address is an error, not a warning.
+    pub explicit: bool,
+    /// Sampling rate (Hz), in [`RATE_RANGE_HZ`].
+    pub rate_hz: u32,
+}
+
+impl FoxgloveConfig {
+    /// A configuration for an explicitly given address (tests, embedding).
+    pub fn at(addr: SocketAddr, rate_hz: u32) -> Self {
+        FoxgloveConfig {
+            addr,
+            explicit: true,
+            rate_hz,
+        }
+    }
+}
+
+/// Why the live view did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveViewError {
+    #[error(
+        "--foxglove {addr}: not a loopback address, so anyone who can reach it could watch the session; \
+         add --foxglove-allow-remote to allow that, or use 127.0.0.1"
+    )]
+    RemoteNotAllowed { addr: SocketAddr },
+    #[error("--foxglove-rate {0} Hz is outside 1 ..= 1000 Hz")]
+    Rate(u32),
+    #[error(
+        "--foxglove {addr}: the address is already in use (another voxhap or a Foxglove bridge?); \
+         choose another with --foxglove ADDR or pass --no-foxglove"
+    )]
+    AddressInUse { addr: SocketAddr },
+    #[error("--foxglove {addr}: could not start the Foxglove server: {source}")]
+    Start {
+        addr: SocketAddr,
+        source: ::foxglove::FoxgloveError,
+    },
+}
+
+impl FoxgloveArgs {
+    /// The configuration these flags ask for; `None` with `--no-foxglove`. Checks the address and rate
+    /// (call it before starting anything).
+    pub fn resolve(&self) -> Result<Option<FoxgloveConfig>, LiveViewError> {
+        if self.no_foxglove {
+            return Ok(None);
+        }
+        let config = FoxgloveConfig {
+            addr: self.foxglove.unwrap_or(DEFAULT_ADDR),
+            explicit: self.foxglove.is_some(),
+            rate_hz: self.foxglove_rate,
+        };
+        config.check(self.foxglove_allow_remote)?;
+        Ok(Some(config))
+    }
+}
+
+impl FoxgloveConfig {
+    /// Refuses a non-loopback address unless `allow_remote`, and a rate out of range.
+    pub fn check(&self, allow_remote: bool) -> Result<(), LiveViewError> {
+        if !RATE_RANGE_HZ.contains(&self.rate_hz) {
+            return Err(LiveViewError::Rate(self.rate_hz));
+        }
+        if !allow_remote && !self.addr.ip().is_loopback() {
+            return Err(LiveViewError::RemoteNotAllowed { addr: self.addr });
+        }
+        Ok(())
+    }
+}
+
+/// A running live view. Stop it with [`FoxgloveServer::stop`]; dropping it leaves the SDK's server running
+/// until the runtime ends.
+pub struct FoxgloveServer {
+    /// The channels' and the server's context. The SDK holds it only weakly: without this, clients would
+    /// connect but never see a channel.
+    _context: Arc<Context>,
+    handle: WebSocketServerHandle,
+    addr: SocketAddr,
+    stop: oneshot::Sender<()>,
+    publisher: JoinHandle<()>,
+}
+
+impl FoxgloveServer {
+    /// Binds `config.addr` and starts publishing `api`. Call it inside a tokio runtime: the server and the
+    /// publisher run on the current one. Does not check the address policy (see [`FoxgloveConfig::check`]).
+    pub async fn start(
+        api: Arc<dyn SessionApi>,
+        config: &FoxgloveConfig,
+    ) -> Result<FoxgloveServer, LiveViewError> {
+        if !RATE_RANGE_HZ.contains(&config.rate_hz) {
+            return Err(LiveViewError::Rate(config.rate_hz));
+        }
+        let context = Context::new();
+        let channels = Channels::new(&context);
+        let host = match config.addr.ip() {
+            IpAddr::V4(ip) => ip.to_string(),
+            IpAddr::V6(ip) => format!("[{ip}]"),
+        };
+        let started = context
+            .websocket_server()
+            .name(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
+            .bind(host, config.addr.port())
+            .start()
+            .await;
+        let handle = match started {
+            Ok(handle) => handle,
+            Err(::foxglove::FoxgloveError::Bind(error))
+                if error.kind() == std::io::ErrorKind::AddrInUse =>
+            {
+                return Err(LiveViewError::AddressInUse { addr: config.addr })
+            }
+            Err(source) => {
+                return Err(LiveViewError::Start {
+                    addr: config.addr,
+                    source,
+                })
+            }
+        };
+        let addr = SocketAddr::new(config.addr.ip(), handle.port());
+        let (stop, stopped) = oneshot::channel();
+        let period = Duration::from_secs_f64(1.0 / f64::from(config.rate_hz));
+        let publisher = tokio::spawn(publish(api, channels, period, stopped));
+        Ok(FoxgloveServer {
+            _context: context,
+            handle,
+            addr,
+            stop,
+            publisher,
+        })
+    }
+
+    /// The address it listens on (with the real port when it was started on port 0).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Clients connected now.
+    pub fn client_count(&self) -> usize {
+        self.handle.client_count()
+    }
+
+    /// Stops the publisher, closes every client connection and waits (at most [`STOP_TIMEOUT`]) for the
+    /// server's tasks to end; tasks still running then are aborted.
+    pub async fn stop(self) {
+        let _ = self.stop.send(());
+        let _ = self.publisher.await;
+        let _ = tokio::time::timeout(STOP_TIMEOUT, self.handle.stop().wait()).await;
+    }
+}
+
+/// What `voxhap serve` does with the flags: start the view at `config`; when the default address is busy,
+/// warn on stderr and go on without it (`Ok(None)`); an explicit busy address is an error.
+pub async fn start_for_serve(
+    api: Arc<dyn SessionApi>,
+    config: Option<FoxgloveConfig>,
+) -> Result<Option<FoxgloveServer>, LiveViewError> {
+    let Some(config) = config else {
+        return Ok(None);
+    };
+    match FoxgloveServer::start(api, &config).await {
+        Ok(server) => Ok(Some(server)),
+        Err(LiveViewError::AddressInUse { addr }) if !config.explicit => {
+            eprintln!(
+                "warning: foxglove: {addr} is already in use (another voxhap or a Foxglove bridge?); \
+                 continuing without the Foxglove live view (choose an address with --foxglove ADDR, \
+                 or --no-foxglove to silence this)"
+            );
+            Ok(None)
+        }
+        Err(error) => Err(error),
+    }
+}
+
+/// The live view's channels, on their own [`Context`] (so several servers can run in one process).
+struct Channels {
+    probe: Channel<FrameTransform>,
+    proxy: Channel<FrameTransform>,
+    force: Channel<Vector3>,
+    primitives: Channel<SceneUpdate>,
+    bound: Channel<BoundMessage>,
+    stats: Channel<StatsMessage>,
+}
+
+impl Channels {
+    /// True when a client subscribed to one of the sampled topics (everything but the statistics).
+    fn any_sampled_subscribed(&self) -> bool {
+        self.probe.has_sinks()
+            || self.proxy.has_sinks()
+            || self.force.has_sinks()
+            || self.primitives.has_sinks()
+            || self.bound.has_sinks()
+    }
+
+    fn new(context: &Arc<Context>) -> Self {
+        Channels {
+            probe: context.channel_builder(PROBE_TOPIC).build(),
+            proxy: context.channel_builder(PROXY_TOPIC).build(),
+            force: context.channel_builder(FORCE_TOPIC).build(),
+            primitives: context.channel_builder(PRIMITIVES_TOPIC).build(),
+            bound: context.channel_builder(BOUND_TOPIC).build(),
+            stats: context.channel_builder(STATS_TOPIC).build(),
+        }
+    }
+}
+
+fn unix_now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
+
+/// Turns snapshots into messages; keeps the reusable transforms and the tick-time-to-wall-clock offset.
+struct Publisher {
+    channels: Channels,
+    probe: FrameTransform,
+    proxy: FrameTransform,
+    /// Wall-clock time (ns since the Unix epoch) of the session's tick time 0.
+    epoch_ns: Option<u64>,
+    last_tick: Option<u64>,
+}
+
+impl Publisher {
+    fn new(channels: Channels) -> Self {
+        Publisher {
+            channels,
+            probe: frame_transform(PROBE_FRAME, DVec3::ZERO, 0),
+            proxy: frame_transform(PROXY_FRAME, DVec3::ZERO, 0),
+            epoch_ns: None,
+            last_tick: None,
+        }
+    }
+
+    /// Publishes `snapshot` unless its tick was already published.
+    fn snapshot(&mut self, snapshot: &Snapshot) {
+        if self.last_tick == Some(snapshot.tick) {
+            return;
+        }
+        self.last_tick = Some(snapshot.tick);
+        let tick_ns = (snapshot.t_s.max(0.0) * 1e9) as u64;
+        let epoch_ns = *self
+            .epoch_ns
+            .get_or_insert_with(|| unix_now_ns().saturating_sub(tick_ns));
+        let time_ns = epoch_ns.saturating_add(tick_ns);
+        let c = &self.channels;
+        if c.probe.has_sinks() {
+            set_translation(&mut self.probe, snapshot.probe_m, time_ns);
+            c.probe.log_with_time(&self.probe, time_ns);
+        }
+        if c.proxy.has_sinks() {
+            set_translation(&mut self.proxy, snapshot.proxy_m, time_ns);
+            c.proxy.log_with_time(&self.proxy, time_ns);
+        }
+        if c.force.has_sinks() {
+            c.force
+                .log_with_time(&vector3(snapshot.sent_force_n), time_ns);
+        }
+        if c.primitives.has_sinks() {
+            let update = scene_update(snapshot, timestamp_from_ns(time_ns));
+            c.primitives.log_with_time(&update, time_ns);
+        }
+        if c.bound.has_sinks() {
+            c.bound.log_with_time(&BoundMessage::new(snapshot), time_ns);
+        }
+    }
+
+    fn stats(&self, api: &dyn SessionApi) {
+        if self.channels.stats.has_sinks() {
+            self.channels
+                .stats
+                .log_with_time(&StatsMessage(api.stats()), unix_now_ns());
+        }
+    }
+}
+
+/// The publisher task: samples `api` every `period` and publishes new ticks; statistics once a second.
+async fn publish(
+    api: Arc<dyn SessionApi>,
+    channels: Channels,
+    period: Duration,
+    mut stop: oneshot::Receiver<()>,
+) {
+    let mut publisher = Publisher::new(channels);
+    let mut sample = tokio::time::interval(period);
+    sample.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut stats = tokio::time::interval(STATS_INTERVAL);
+    stats.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    loop {
+        tokio::select! {
+            _ = &mut stop => break,
+            _ = sample.tick() => {
+                if !publisher.channels.any_sampled_subscribed() {
+                    continue;
+                }
+                if let Some(snapshot) = api.snapshot() {
+                    publisher.snapshot(&snapshot);
+                }
+            }
+            _ = stats.tick() => publisher.stats(api.as_ref()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: FoxgloveArgs,
+    }
+
+    fn parse(args: &[&str]) -> Result<FoxgloveArgs, clap::Error> {
+        Cli::try_parse_from(std::iter::once("voxhap").chain(args.iter().copied())).map(|c| c.args)
+    }
+
+    #[test]
+    fn defaults_are_loopback_8765_at_60_hz_and_not_explicit() {
+        let config = parse(&[]).unwrap().resolve().unwrap().unwrap();
+        assert_eq!(config.addr, "127.0.0.1:8765".parse().unwrap());
+        assert!(!config.explicit);
+        assert_eq!(config.rate_hz, 60);
+        assert_eq!(parse(&["--no-foxglove"]).unwrap().resolve().unwrap(), None);
+    }
+
+    #[test]
+    fn a_remote_address_needs_the_flag() {
+        let args = parse(&["--foxglove", "0.0.0.0:9000"]).unwrap();
+        let error = args.resolve().unwrap_err();
+        assert!(matches!(error, LiveViewError::RemoteNotAllowed { .. }));
+        assert!(
+            error.to_string().contains("--foxglove-allow-remote"),
+            "{error}"
+        );
+        let args = parse(&["--foxglove", "0.0.0.0:9000", "--foxglove-allow-remote"]).unwrap();
+        let config = args.resolve().unwrap().unwrap();
+        assert!(config.explicit);
+        for loopback in ["[::1]:9000", "localhost:9000", "127.0.0.2:9000"] {
+            let config = parse(&["--foxglove", loopback]).unwrap().resolve().unwrap();
+            assert!(config.is_some(), "{loopback}");
+        }
+    }
+
+    #[test]
+    fn bad_values_are_refused_by_the_parser() {
+        for bad in [
+            &["--foxglove-rate", "0"][..],
+            &["--foxglove-rate", "1001"],
+            &["--foxglove", "8765"],
+            &["--foxglove", "example.org:80"],
+            &["--no-foxglove", "--foxglove", "127.0.0.1:1"],
+        ] {
+            assert!(parse(bad).is_err(), "{bad:?} accepted");
+        }
+        assert_eq!(
+            parse(&["--foxglove-rate", "1000"]).unwrap().foxglove_rate,
+            1000
+        );
+    }
+}

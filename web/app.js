@@ -40,6 +40,7 @@
     forceScaleSince: 0,
     history: [], // {t, fx, fy, fz, mag}
     peaks: {}, // mode name -> peak strength first seen (sets the slider range)
+    sliceVolume: '', // '' = the server's default (first scalar volume)
   };
 
   // The two orthographic views: h = world axis to the right, v = world axis up, w = the axis looked along.
@@ -357,6 +358,7 @@
     setText($('st-spec'), (scene.device || '–') + (scene.simulated ? ' (simulated arm)' : ''));
     setText($('st-rec'), scene.recording ? String(scene.recording) : 'not recording');
     $('hand-box').hidden = !app.simulated;
+    buildVolumeSelect(vols);
     for (const view of views) view.canvas.classList.toggle('draggable', app.simulated);
     buildModes(scene.modes || []);
     buildModeKeys(scene.modes || []);
@@ -364,6 +366,26 @@
     for (const view of views) view.sliceRequested = 0;
     app.dirty = true;
   }
+
+  function buildVolumeSelect(vols) {
+    const select = $('slice-volume');
+    const keep = app.sliceVolume;
+    while (select.options.length > 1) select.remove(1);
+    for (const v of vols) {
+      const option = document.createElement('option');
+      option.value = v.name;
+      option.textContent = v.name + ' (' + v.kind + ')';
+      select.append(option);
+    }
+    app.sliceVolume = vols.some((v) => v.name === keep) ? keep : '';
+    select.value = app.sliceVolume;
+  }
+
+  $('slice-volume').addEventListener('change', (e) => {
+    app.sliceVolume = e.target.value;
+    for (const view of views) view.sliceRequested = 0;
+    maybeFetchSlices();
+  });
 
   async function refetchScene() {
     if (app.sceneFetching) return;
@@ -735,10 +757,13 @@
     view.sliceInflight = true;
     view.sliceRequested = performance.now();
     view.sliceAt = at;
-    const query = 'axis=' + view.axis + '&size=' + SLICE_SIZE + '&at=' + at.map((x) => x.toFixed(6)).join(',');
+    let query = 'axis=' + view.axis + '&size=' + SLICE_SIZE + '&at=' + at.map((x) => x.toFixed(6)).join(',');
+    if (app.sliceVolume) query += '&volume=' + encodeURIComponent(app.sliceVolume);
+    const volume = app.sliceVolume;
     try {
       const slice = await getJson('api/slice?' + query);
-      setSlice(view, slice);
+      if (volume === app.sliceVolume) setSlice(view, slice);
+      else view.sliceRequested = 0; // the choice changed meanwhile: ask again
       view.sliceError = null;
     } catch (e) {
       view.sliceError = e.message;

@@ -233,6 +233,8 @@
     el.classList.add('conn-' + kind);
     setText($('conn-icon'), kind === 'up' ? '●' : kind === 'wait' ? '◐' : '○');
     setText($('conn-text'), text);
+    app.live = kind === 'up';
+    app.dirty = true;
   }
 
   function wsUrl() {
@@ -1164,6 +1166,18 @@
     ctx.textAlign = 'right';
     ctx.textBaseline = 'middle';
     ctx.fillText(trimNumber(barN) + ' N', bx1 - barPx - 4, by);
+
+    if (!app.live) {
+      // Not live: say so on the picture too (the badge at the top says why).
+      const text = 'not live: last state received';
+      ctx.font = '600 12px system-ui, sans-serif';
+      const tw = ctx.measureText(text).width;
+      ctx.fillStyle = 'rgba(120, 20, 20, 0.85)';
+      ctx.fillRect(frame.left + 6, frame.top + 6, tw + 16, 22);
+      ctx.fillStyle = '#fff';
+      ctx.textAlign = 'left';
+      ctx.fillText(text, frame.left + 14, frame.top + 17);
+    }
   }
 
   // ---------------------------------------------------------------- drawing: force plot

@@ -685,6 +685,9 @@
     setText(tick, String(s.tick));
     tick.dataset.tick = String(s.tick);
     setText($('st-time'), 't = ' + num(s.t_s, 2) + ' s');
+    const at = (v) => '(' + v.map((x) => mm(x)).join(', ') + ') mm';
+    setText($('st-probe'), at(s.probe_m));
+    setText($('st-proxy'), at(s.proxy_m) + ', ' + length(norm([0, 1, 2].map((i) => s.proxy_m[i] - s.probe_m[i]))) + ' from the probe');
     setFlag($('st-device'), s.connected, 'connected', 'disconnected');
     setFlag($('st-engaged'), s.engaged, 'engaged', 'not engaged (no force sent)');
     setText($('st-solve'), String(s.status || '–').replace(/_/g, ' ') + ', ' + (s.sweeps === undefined ? '–' : s.sweeps) + ' sweeps');

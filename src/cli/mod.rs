@@ -1,7 +1,8 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 //!
-//! `voxhap` with no subcommand runs the default job, `voxhap serve` with its defaults: the simulated arm
-//! exploring the built-in scene (sims/scenes/explore.toml) at 1 kHz until Ctrl-C.
+//! `voxhap` with no subcommand runs the default job, `voxhap serve` (and takes its flags): the simulated arm
+//! exploring the built-in scene (sims/scenes/explore.toml) at 1 kHz until Ctrl-C, watched on
+//! http://127.0.0.1:8080.
 
 pub mod bench_loop;
 pub mod devices;
@@ -16,11 +17,21 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 /// voxhap: haptic proxy rendering for volume data.
+///
+/// With no subcommand, voxhap runs `voxhap serve` and takes its flags (`voxhap --no-http`, `voxhap --http ADDR`).
 #[derive(Debug, Parser)]
-#[command(name = "voxhap", version, about)]
+#[command(
+    name = "voxhap",
+    version,
+    about,
+    args_conflicts_with_subcommands = true
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Option<Command>,
+    /// The flags of `voxhap serve`, for the default run.
+    #[command(flatten)]
+    pub serve: serve::ServeArgs,
 }
 
 #[derive(Debug, Subcommand)]
@@ -82,7 +93,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;
-            serve::run(&serve::ServeArgs::defaults())
+            serve::run(&cli.serve)
         }
     }
 }

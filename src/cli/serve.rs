@@ -1,10 +1,17 @@
 //! `voxhap serve`: run the servo loop on a device until Ctrl-C or SIGTERM (or `--duration`), optionally
 //! recording every tick. With no flags it serves the simulated arm exploring the built-in scene.
 //!
-//! Shutdown order on a signal: the servo thread stops ticking and sends zero force, the device is disabled
-//! and closed, the recorder drains its ring and finishes the trace, the statistics are printed, exit 0.
+//! The visualiser server (page, REST API, WebSocket stream; [`crate::server`]) runs on the same tokio runtime
+//! unless `--no-http`: on 127.0.0.1:8080 by default (a busy default port only warns), with a control token
+//! printed at start.
+//!
+//! Shutdown order on a signal: the visualiser server closes its clients (1001) and stops, the servo thread
+//! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
+//! finishes the trace, the statistics are printed, exit 0.
 
 use crate::record::TraceFormat;
+use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
+use crate::servo::api::SessionApi;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -12,7 +19,9 @@ use crate::servo::setup;
 use crate::servo::{Session, SessionConfig};
 use anyhow::{bail, Context};
 use clap::Args;
+use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Debug, Args)]
@@ -48,6 +57,8 @@ pub struct ServeArgs {
     /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
     #[arg(long)]
     pub duration: Option<f64>,
+    #[command(flatten)]
+    pub http: HttpArgs,
 }
 
 /// `voxhap serve` with no flags (what `voxhap` alone runs).
@@ -114,12 +125,38 @@ pub async fn wait_for_stop(duration: Option<Duration>) -> &'static str {
     }
 }
 
+/// Binds the visualiser server's address. A busy default address warns and gives `None`; a busy `--http` is
+/// an error.
+async fn bind_http(
+    settings: HttpSettings,
+) -> anyhow::Result<Option<(tokio::net::TcpListener, ServerConfig)>> {
+    match tokio::net::TcpListener::bind(settings.addr).await {
+        Ok(listener) => Ok(Some((listener, settings.config))),
+        Err(error) if error.kind() == std::io::ErrorKind::AddrInUse && !settings.explicit => {
+            eprintln!(
+                "warning: http: {} is in use; continuing without the visualiser server (choose another address with --http ADDR, or --no-http)",
+                settings.addr
+            );
+            Ok(None)
+        }
+        Err(error) => Err(anyhow::Error::new(error)
+            .context(format!("--http {}: cannot listen there", settings.addr))),
+    }
+}
+
+fn print_http(addr: SocketAddr, token: &str) -> anyhow::Result<()> {
+    super::print_out(&format!("http: listening on http://{addr}"))?;
+    super::print_out(&format!("http: control token {token}"))?;
+    super::print_out(&format!("http: open http://{addr}/?token={token}"))
+}
+
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let duration = match args.duration {
         Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
         Some(s) => bail!("--duration must be a number of seconds > 0, got {s}"),
         None => None,
     };
+    let http = args.http.resolve()?;
     let config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
@@ -131,6 +168,10 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let bound = match http {
+        Some(settings) => runtime.block_on(bind_http(settings))?,
+        None => None,
+    };
     let session = Session::start(config)?;
     super::print_out(&format!(
         "serving: device {device}, scene {label:?} ({modes} modes), {rate} Hz; Ctrl-C or SIGTERM to stop"
@@ -138,7 +179,30 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some((path, format)) = &record {
         super::print_out(&format!("recording: {} ({format})", path.display()))?;
     }
+    let (stop_http, http_stopped) = tokio::sync::oneshot::channel::<()>();
+    let mut http_task = None;
+    if let Some((listener, server_config)) = bound {
+        let addr = listener
+            .local_addr()
+            .context("the visualiser server's address")?;
+        print_http(addr, &server_config.token)?;
+        let api: Arc<dyn SessionApi> = session.api();
+        let shutdown = async move {
+            let _ = http_stopped.await;
+        };
+        http_task = Some(runtime.spawn(server::run(listener, api, server_config, shutdown)));
+    }
     let reason = runtime.block_on(wait_for_stop(duration));
+    // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream.
+    let _ = stop_http.send(());
+    if let Some(task) = http_task {
+        let finished = runtime.block_on(async {
+            tokio::time::timeout(server::SHUTDOWN_GRACE + Duration::from_secs(1), task).await
+        });
+        if let Ok(Ok(Err(error))) = finished {
+            eprintln!("warning: http: the visualiser server stopped with an error: {error}");
+        }
+    }
     let summary = session.stop();
     super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
     if let Some(trace) = &summary.trace {

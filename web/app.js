@@ -73,6 +73,7 @@
     if (typeof m !== 'number' || !isFinite(m)) return '–';
     const a = Math.abs(m);
     if (a === 0) return '0 m';
+    if (a < 1e-9) return m.toExponential(2) + ' m';
     if (a < 1e-6) return (m * 1e9).toPrecision(3) + ' nm';
     if (a < 1e-3) return (m * 1e6).toPrecision(3) + ' µm';
     return (m * 1e3).toPrecision(3) + ' mm';
@@ -1345,8 +1346,6 @@
     const canvas = view.canvas;
     canvas.addEventListener('pointerdown', (event) => {
       if (!app.simulated || !app.state || event.button !== 0) return;
-      event.preventDefault();
-      canvas.focus();
       try {
         canvas.setPointerCapture(event.pointerId);
       } catch (e) {

@@ -78,6 +78,10 @@ async function until(what, predicate, timeoutMs) {
     await page.press('#k-number', 'Enter');
     await until('stiffness ' + k, async () => Math.abs((await state()).stiffness_n_per_m - k) < 1e-6);
     check(true, 'the stiffness field sets k = ' + k + ' N/m');
+    await page.fill('#b-number', '0.5');
+    await page.press('#b-number', 'Enter');
+    await until('damping 0.5', async () => Math.abs((await state()).damping_n_s_per_m - 0.5) < 1e-9);
+    check(true, 'the damping field sets b = 0.5 N s/m');
 
     // A mode with a transfer function: scale its peak, then send bad breakpoints and expect the error inline.
     const index = (scene.modes || []).findIndex((m) => Array.isArray(m.transfer));
@@ -91,6 +95,10 @@ async function until(what, predicate, timeoutMs) {
         return m && Math.abs(Math.max(...m.transfer.map((p) => p[1])) - 1.25) < 1e-9;
       });
       check(true, 'the peak strength field rescales ' + name + "'s transfer function");
+      // The scene generation changed, so the page fetched the scene again and shows the new breakpoints.
+      await until('the page to show the rescaled breakpoints', async () =>
+        (await page.inputValue('#mode-' + index + '-points')).includes('1.25'));
+      check(true, 'the page rebuilt its mode controls from the new scene: ' + (await page.inputValue('#mode-' + index + '-points')));
       await page.fill('#mode-' + index + '-points', '[[0.5, 1.0], [0.2, 2.0]]');
       await page.press('#mode-' + index + '-points', 'Enter');
       const msg = page.locator('#mode-' + index + '-msg');

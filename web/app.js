@@ -180,7 +180,12 @@
   }
 
   async function getJson(path) {
-    const res = await fetch(apiUrl(path), { cache: 'no-store' });
+    let res;
+    try {
+      res = await fetch(apiUrl(path), { cache: 'no-store' });
+    } catch (e) {
+      throw new Error('cannot reach the server');
+    }
     const text = await res.text();
     let data = null;
     try {

@@ -56,11 +56,11 @@ fn baselines_print_json_without_a_certificate() {
 
 #[test]
 fn no_subcommand_serves_the_simulated_arm_until_sigterm() {
-    // `voxhap` alone is `voxhap serve` with its defaults: it runs until a signal, then exits 0 and
-    // prints the servo statistics.
-    // --no-foxglove: parallel tests must not fight over the live view's port 8765.
+    // `voxhap` alone is `voxhap serve` (with its flags): it runs until a signal, then exits 0 and
+    // prints the servo statistics. Port 0 and no live view, so parallel tests and a real server on 8080
+    // or 8765 do not collide.
     let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .arg("--no-foxglove")
+        .args(["--http", "127.0.0.1:0", "--no-foxglove"])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -83,6 +83,12 @@ fn no_subcommand_serves_the_simulated_arm_until_sigterm() {
     assert!(stdout.contains("no subcommand given"), "{stdout}");
     assert!(stdout.contains("device sim"), "{stdout}");
     assert!(stdout.contains("lateness"), "{stdout}");
+    assert!(
+        stdout.contains("http: listening on http://127.0.0.1:"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("http: control token "), "{stdout}");
+    assert!(stdout.contains("/?token="), "{stdout}");
 }
 
 #[test]

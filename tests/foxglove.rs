@@ -22,7 +22,7 @@ use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::setup::SceneSetup;
 use voxhap::servo::{
     ControlCommand, ControlError, ControlReply, SceneReport, Session, SessionApi, SessionConfig,
-    Snapshot, StatsReport,
+    Slice, SliceRequest, Snapshot, StatsReport,
 };
 
 const SUBPROTOCOL: &str = "foxglove.sdk.v1";
@@ -279,6 +279,9 @@ impl SessionApi for IdleSession {
         unimplemented!("not used by the live view")
     }
     fn control(&self, _: ControlCommand) -> Result<ControlReply, ControlError> {
+        Err(ControlError::Unavailable("idle test session".into()))
+    }
+    fn slice(&self, _: SliceRequest) -> Result<Slice, ControlError> {
         Err(ControlError::Unavailable("idle test session".into()))
     }
 }

@@ -16,6 +16,7 @@ mod modes;
 mod paper;
 mod record;
 mod serve_e2e;
+mod server;
 mod servo;
 mod sim;
 mod solver_props;

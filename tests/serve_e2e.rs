@@ -21,7 +21,14 @@ fn serve_against_the_mock_device_records_a_clean_trace_and_stops_on_sigterm() {
     let pty = line.trim().strip_prefix("serving ").unwrap().to_owned();
 
     let mut serve = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args(["serve", "--rt", "off", "--no-foxglove", "--device"])
+        .args([
+            "serve",
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--device",
+        ])
         .arg(format!("mock:{pty}"))
         .arg("--record")
         .arg(&trace_path)

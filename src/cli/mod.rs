@@ -1,8 +1,8 @@
 //! The command-line interface: argument parsing (clap) and one module per subcommand.
 //!
 //! `voxhap` with no subcommand runs the default job, `voxhap serve` (and takes its flags: `voxhap
-//! --no-foxglove`); with the defaults that is the simulated arm exploring the built-in scene
-//! (sims/scenes/explore.toml) at 1 kHz until Ctrl-C.
+//! --no-foxglove`): the simulated arm exploring the built-in scene (sims/scenes/explore.toml) at 1 kHz until
+//! Ctrl-C, watched on http://127.0.0.1:8080 and ws://127.0.0.1:8765 (Foxglove).
 
 pub mod bench_loop;
 pub mod devices;
@@ -17,6 +17,8 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 /// voxhap: haptic proxy rendering for volume data.
+///
+/// With no subcommand, voxhap runs `voxhap serve` and takes its flags (`voxhap --no-http`, `voxhap --http ADDR`).
 #[derive(Debug, Parser)]
 #[command(
     name = "voxhap",

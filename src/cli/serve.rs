@@ -1,13 +1,21 @@
 //! `voxhap serve`: run the servo loop on a device until Ctrl-C or SIGTERM (or `--duration`), optionally
 //! recording every tick. With no flags it serves the simulated arm exploring the built-in scene.
 //!
-//! It also starts the Foxglove live view (`crate::server::foxglove`, `--foxglove ADDR`, default
+//! The visualiser server (page, REST API, WebSocket stream; [`crate::server`]) runs on the same tokio runtime
+//! unless `--no-http`: on 127.0.0.1:8080 by default (a busy default port only warns), with a control token
+//! printed at start.
+//!
+//! It also starts the Foxglove live view ([`crate::server::foxglove`], `--foxglove ADDR`, default
 //! ws://127.0.0.1:8765; `--no-foxglove` to leave it out).
 //!
-//! Shutdown order on a signal: the Foxglove view stops and closes its clients, the servo thread stops ticking and sends zero force, the device is disabled
-//! and closed, the recorder drains its ring and finishes the trace, the statistics are printed, exit 0.
+//! Shutdown order on a signal: the visualiser server closes its clients (1001) and stops, the Foxglove view
+//! stops and closes its clients, the servo thread
+//! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
+//! finishes the trace, the statistics are printed, exit 0.
 
 use crate::record::TraceFormat;
+use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
+use crate::servo::api::SessionApi;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -15,7 +23,9 @@ use crate::servo::setup;
 use crate::servo::{Session, SessionConfig};
 use anyhow::{bail, Context};
 use clap::Args;
+use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Debug, Args)]
@@ -45,15 +55,14 @@ pub struct ServeArgs {
     /// How long before each deadline the servo thread stops sleeping and spins (µs).
     #[arg(long, default_value_t = 80)]
     pub spin_us: u64,
-    /// How long before each deadline the servo thread warms its caches for the coming tick (µs; 0: off).
-    #[arg(long, default_value_t = 30)]
-    pub warm_us: u64,
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
     /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
     #[arg(long)]
     pub duration: Option<f64>,
+    #[command(flatten)]
+    pub http: HttpArgs,
     #[command(flatten)]
     pub foxglove: crate::server::foxglove::FoxgloveArgs,
 }
@@ -86,7 +95,6 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     }
     config.rt = args.rt;
     config.spin_ns = args.spin_us.saturating_mul(1000);
-    config.warm_lead_ns = args.warm_us.saturating_mul(1000);
     config.cpu = args.cpu;
     if let Some(path) = &args.record {
         check_record_path(path).map_err(|e| anyhow::anyhow!("--record {}: {e}", path.display()))?;
@@ -123,12 +131,38 @@ pub async fn wait_for_stop(duration: Option<Duration>) -> &'static str {
     }
 }
 
+/// Binds the visualiser server's address. A busy default address warns and gives `None`; a busy `--http` is
+/// an error.
+async fn bind_http(
+    settings: HttpSettings,
+) -> anyhow::Result<Option<(tokio::net::TcpListener, ServerConfig)>> {
+    match tokio::net::TcpListener::bind(settings.addr).await {
+        Ok(listener) => Ok(Some((listener, settings.config))),
+        Err(error) if error.kind() == std::io::ErrorKind::AddrInUse && !settings.explicit => {
+            eprintln!(
+                "warning: http: {} is in use; continuing without the visualiser server (choose another address with --http ADDR, or --no-http)",
+                settings.addr
+            );
+            Ok(None)
+        }
+        Err(error) => Err(anyhow::Error::new(error)
+            .context(format!("--http {}: cannot listen there", settings.addr))),
+    }
+}
+
+fn print_http(addr: SocketAddr, token: &str) -> anyhow::Result<()> {
+    super::print_out(&format!("http: listening on http://{addr}"))?;
+    super::print_out(&format!("http: control token {token}"))?;
+    super::print_out(&format!("http: open http://{addr}/?token={token}"))
+}
+
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let duration = match args.duration {
         Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
         Some(s) => bail!("--duration must be a number of seconds > 0, got {s}"),
         None => None,
     };
+    let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
     let config = session_config(args)?;
     let label = config.setup.label.clone();
@@ -141,12 +175,29 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let bound = match http {
+        Some(settings) => runtime.block_on(bind_http(settings))?,
+        None => None,
+    };
     let session = Session::start(config)?;
     super::print_out(&format!(
         "serving: device {device}, scene {label:?} ({modes} modes), {rate} Hz; Ctrl-C or SIGTERM to stop"
     ))?;
     if let Some((path, format)) = &record {
         super::print_out(&format!("recording: {} ({format})", path.display()))?;
+    }
+    let (stop_http, http_stopped) = tokio::sync::oneshot::channel::<()>();
+    let mut http_task = None;
+    if let Some((listener, server_config)) = bound {
+        let addr = listener
+            .local_addr()
+            .context("the visualiser server's address")?;
+        print_http(addr, &server_config.token)?;
+        let api: Arc<dyn SessionApi> = session.api();
+        let shutdown = async move {
+            let _ = http_stopped.await;
+        };
+        http_task = Some(runtime.spawn(server::run(listener, api, server_config, shutdown)));
     }
     let foxglove = runtime.block_on(crate::server::foxglove::start_for_serve(
         session.api(),
@@ -159,6 +210,16 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         ))?;
     }
     let reason = runtime.block_on(wait_for_stop(duration));
+    // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream.
+    let _ = stop_http.send(());
+    if let Some(task) = http_task {
+        let finished = runtime.block_on(async {
+            tokio::time::timeout(server::SHUTDOWN_GRACE + Duration::from_secs(1), task).await
+        });
+        if let Ok(Ok(Err(error))) = finished {
+            eprintln!("warning: http: the visualiser server stopped with an error: {error}");
+        }
+    }
     if let Some(server) = foxglove {
         runtime.block_on(server.stop());
     }

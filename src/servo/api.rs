@@ -1,5 +1,5 @@
 //! The servo session's outside face: what a server, a CLI or a test reads from a running servo loop
-//! ([`Snapshot`], [`StatsReport`], [`SceneReport`]) and what it may ask of it ([`ControlCommand`]).
+//! ([`Snapshot`], [`StatsReport`], [`SceneReport`], a [`Slice`] of a volume) and what it may ask of it ([`ControlCommand`]).
 //!
 //! Where it sits (DESIGN.md section 5): the servo thread publishes a [`Snapshot`] through a triple buffer
 //! every tick and keeps its statistics in atomics; [`SessionApi`] is the non-real-time side of those
@@ -258,6 +258,95 @@ impl ControlError {
     }
 }
 
+/// The axis a slice is normal to: `z` gives the x-y plane (top view), `y` the x-z plane, `x` the y-z plane.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SliceAxis {
+    X,
+    Y,
+    Z,
+}
+
+impl SliceAxis {
+    /// `x`, `y` or `z`.
+    pub fn name(self) -> &'static str {
+        match self {
+            SliceAxis::X => "x",
+            SliceAxis::Y => "y",
+            SliceAxis::Z => "z",
+        }
+    }
+}
+
+impl std::str::FromStr for SliceAxis {
+    type Err = ControlError;
+
+    fn from_str(text: &str) -> Result<Self, ControlError> {
+        match text {
+            "x" => Ok(SliceAxis::X),
+            "y" => Ok(SliceAxis::Y),
+            "z" => Ok(SliceAxis::Z),
+            other => Err(ControlError::Invalid(format!(
+                "axis must be x, y or z, got {other:?}"
+            ))),
+        }
+    }
+}
+
+/// Samples per side of a slice: smallest, largest and default.
+pub const SLICE_SIZE_RANGE: (usize, usize) = (16, 512);
+pub const SLICE_SIZE_DEFAULT: usize = 128;
+
+/// What part of a volume to sample ([`SessionApi::slice`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SliceRequest {
+    pub axis: SliceAxis,
+    /// Samples per side, [`SLICE_SIZE_RANGE`].
+    pub size: usize,
+    /// A point of the plane (m); default the latest proxy position (the volume's centre before the first
+    /// tick).
+    pub at_m: Option<DVec3>,
+    /// The volume to sample; default the scene's first scalar volume. A vector volume gives its magnitude.
+    pub volume: Option<String>,
+}
+
+impl SliceRequest {
+    /// A `SLICE_SIZE_DEFAULT` slice normal to `axis` through the proxy, of the first scalar volume.
+    pub fn new(axis: SliceAxis) -> Self {
+        SliceRequest {
+            axis,
+            size: SLICE_SIZE_DEFAULT,
+            at_m: None,
+            volume: None,
+        }
+    }
+}
+
+/// An axis-aligned plane of a volume sampled on a regular `width` x `height` grid spanning the volume's
+/// bounding box: sample `(i, j)` is at `origin_m + i u_m + j v_m` and is `values[j * width + i]` (row-major, v
+/// outer). Off the real-time path.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Slice {
+    pub axis: SliceAxis,
+    pub width: usize,
+    pub height: usize,
+    /// World position of sample (0, 0) (m).
+    pub origin_m: DVec3,
+    /// Step between neighbouring samples along the width (m).
+    pub u_m: DVec3,
+    /// Step between neighbouring samples along the height (m).
+    pub v_m: DVec3,
+    /// Smallest and largest value in `values`.
+    pub min: f32,
+    pub max: f32,
+    pub values: Vec<f32>,
+    /// The volume sampled, `scalar` or `vector` (a vector volume gives its magnitude), and its bounding box.
+    pub volume: String,
+    pub volume_kind: &'static str,
+    pub volume_min_m: DVec3,
+    pub volume_max_m: DVec3,
+}
+
 /// A running session as a server sees it. Every method is cheap and never blocks the servo thread.
 pub trait SessionApi: Send + Sync + 'static {
     /// The newest published state; `None` before the first tick.
@@ -268,4 +357,8 @@ pub trait SessionApi: Send + Sync + 'static {
     fn scene(&self) -> SceneReport;
     /// Validates and applies `command`; returns once the servo thread has taken it (or refused).
     fn control(&self, command: ControlCommand) -> Result<ControlReply, ControlError>;
+    /// Samples a plane of a volume of the scene (off the servo thread; may take milliseconds for a large
+    /// `size`, so async callers run it on a blocking thread). Bad requests are [`ControlError::Invalid`], an
+    /// unknown volume [`ControlError::NotFound`].
+    fn slice(&self, request: SliceRequest) -> Result<Slice, ControlError>;
 }

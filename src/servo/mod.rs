@@ -9,7 +9,7 @@ pub mod api;
 
 pub use api::{
     ControlCommand, ControlError, ControlReply, HistogramReport, PrimitiveView, RealtimeReport,
-    SceneReport, SessionApi, Snapshot, StatsReport, VolumeReport,
+    SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport, VolumeReport,
 };
 pub mod device;
 pub mod recorder;
@@ -18,6 +18,7 @@ pub mod runner;
 pub mod schedule;
 pub mod session;
 pub mod setup;
+pub mod slice;
 pub mod stats;
 
 pub use session::{Session, SessionConfig, SessionError, SessionShared, SessionSummary};

@@ -8,6 +8,7 @@
 //!    validate, build SceneBundle ── command ring (SPSC) ──▶ apply at tick boundary
 //!    drop retired bundles        ◀── retire ring (SPSC) ─── old bundle
 //!    snapshot()                  ◀── triple buffer ──────── Snapshot every tick
+//!    scene(), slice(): read the control side's SceneSetup (volumes shared through Arc), no servo involvement
 //!    stats()                     ◀── atomics ────────────── histograms, counters
 //!                                                           TraceSample ── sample ring ──▶ writer
 //!    start/stop recording ─────────────────────────── mpsc ────────────────────────────▶
@@ -18,7 +19,8 @@
 //! the applied-command counter), or with an error that says why and changes nothing.
 
 use super::api::{
-    ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Snapshot, StatsReport,
+    ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
+    Snapshot, StatsReport,
 };
 use super::device::{open_device, DeviceSpec, HandTargetInput, OpenError, ServoDevice};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest};
@@ -26,6 +28,7 @@ use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoCommand, ServoLoop};
 use super::schedule::{SpinSleepWaiter, Waiter};
 use super::setup::{load_volume_arg, SceneBundle, SceneSetup};
+use super::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
 use crate::device::supervisor::SupervisorConfig;
 use crate::device::ErrorKind;
@@ -741,6 +744,27 @@ impl SessionApi for SessionShared {
             Err(poisoned) => poisoned.into_inner(),
         };
         self.apply(&mut control, command)
+    }
+
+    fn slice(&self, request: SliceRequest) -> Result<Slice, ControlError> {
+        check_request(&request)?;
+        // The control lock (never taken by the servo thread) only long enough to clone the volume's handle;
+        // the samples are shared, and sampling runs after it is released.
+        let volume = {
+            let control = match self.control.lock() {
+                Ok(control) => control,
+                Err(poisoned) => poisoned.into_inner(),
+            };
+            pick_volume(&control.setup.volumes, request.volume.as_deref())?.clone()
+        };
+        let at_m = request
+            .at_m
+            .or_else(|| self.snapshot().map(|s| s.proxy_m))
+            .unwrap_or_else(|| {
+                let (min_m, max_m) = volume.volume.grid().bounds_world();
+                (min_m + max_m) * 0.5
+            });
+        sample_slice(&volume, &request, at_m)
     }
 }
 

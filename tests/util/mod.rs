@@ -3,8 +3,10 @@
 //! [`alloc::CountingAllocator`] is the test binary's global allocator (installed in tests/integration.rs): it
 //! counts allocations, reallocations and frees per thread, so a test can prove that a hot path (the solver, the
 //! servo tick, `SimArm::step`) does not allocate while other tests run in parallel on other threads.
+//! [`server`] starts a session with the visualiser server and speaks HTTP and WebSocket to it.
 
 pub mod alloc;
+pub mod server;
 
 /// Runs `f` and returns how many allocation events (alloc, realloc, free) the current thread made meanwhile.
 pub fn count_allocations(f: impl FnOnce()) -> u64 {

@@ -239,3 +239,41 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(addr: SocketAddr, explicit: bool) -> HttpSettings {
+        HttpSettings {
+            addr,
+            explicit,
+            config: ServerConfig {
+                token: "test-token".to_owned(),
+                max_clients: 4,
+            },
+        }
+    }
+
+    #[test]
+    fn a_busy_default_port_warns_and_a_busy_explicit_one_fails() {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = taken.local_addr().unwrap();
+        let quiet = runtime.block_on(bind_http(settings(addr, false))).unwrap();
+        assert!(quiet.is_none(), "the default address only warns");
+        let error = runtime
+            .block_on(bind_http(settings(addr, true)))
+            .unwrap_err();
+        assert!(
+            format!("{error:#}").contains("cannot listen there"),
+            "{error:#}"
+        );
+        drop(taken);
+        let bound = runtime.block_on(bind_http(settings(addr, true))).unwrap();
+        assert!(bound.is_some());
+    }
+}

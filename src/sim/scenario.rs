@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 /// Longest scenario accepted (s): a day at 1 kHz is 86.4 million ticks.
 pub const MAX_DURATION_S: f64 = 86_400.0;
 
-/// A scenario as written in its TOML file (schema in the module docs and notes/README-modes.md).
+/// A scenario as written in its TOML file (schema in the module docs and the README (`voxhap sim` / "Scenario files")).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scenario {

@@ -64,9 +64,11 @@ pub struct SessionConfig {
     /// The tick's compute budget (modes + solve), as a fraction of the period; over it, the last safe force
     /// goes out instead.
     pub compute_budget_fraction: f64,
-    /// How long before each deadline the servo thread stops sleeping and spins (ns).
+    /// How long before each deadline the servo thread stops sleeping and spins (ns); at most a quarter of
+    /// the period is used.
     pub spin_ns: u64,
-    /// How long before each deadline the servo thread warms its caches for the coming tick (ns; 0: off).
+    /// How long before each deadline the servo thread warms its caches for the coming tick (ns; 0: off); at
+    /// most a quarter of the period is used.
     pub warm_lead_ns: u64,
     /// Samples the recorder ring holds (default: 4 s of ticks).
     pub sample_ring: Option<usize>,
@@ -263,7 +265,7 @@ impl Session {
         let timing = LoopTiming {
             period_ns,
             compute_budget_ns: (period_ns as f64 * config.compute_budget_fraction) as u64,
-            warm_lead_ns: config.warm_lead_ns.min(period_ns / 4),
+            warm_lead_ns: capped_busy_wait_ns(config.warm_lead_ns, period_ns),
         };
         let io = LoopIo {
             commands: command_rx,
@@ -274,7 +276,11 @@ impl Session {
         let thread_stats = stats.clone();
         let thread_stop = stop.clone();
         let running = servo_running.clone();
-        let (rt_mode, cpu, spin_ns) = (config.rt, config.cpu, config.spin_ns);
+        // Spinning (and warming) at most a quarter of the period each: a SCHED_FIFO thread that is busy
+        // more than 95 % of a second is throttled by Linux for the rest of it (sched_rt_runtime_us), which
+        // at 10 kHz with an 80 µs spin meant a 50 ms stall every second.
+        let spin_ns = capped_busy_wait_ns(config.spin_ns, period_ns);
+        let (rt_mode, cpu) = (config.rt, config.cpu);
         let servo = std::thread::Builder::new()
             .name("voxhap-servo".to_owned())
             .spawn(move || {
@@ -421,6 +427,13 @@ fn finite(name: &str, value: f64) -> Result<f64, ControlError> {
             "{name} must be a finite number, got {value}"
         )))
     }
+}
+
+/// The part of `requested_ns` (a spin or a cache-warming lead) the servo thread may use: at most a quarter of
+/// the period, so spinning plus warming keep the thread well under Linux's real-time limit of 95 % of a
+/// second (`sched_rt_runtime_us`); past it, the kernel stops the thread for the rest of the second.
+pub fn capped_busy_wait_ns(requested_ns: u64, period_ns: u64) -> u64 {
+    requested_ns.min(period_ns / 4)
 }
 
 impl SessionShared {
@@ -775,5 +788,21 @@ pub fn check_record_path(path: &Path) -> Result<(), String> {
             Err(format!("directory {} does not exist", parent.display()))
         }
         _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::capped_busy_wait_ns;
+
+    #[test]
+    fn spin_and_warm_leads_are_capped_at_a_quarter_of_the_period() {
+        // 1 kHz: the defaults (80 µs spin, 30 µs warming) pass unchanged.
+        assert_eq!(capped_busy_wait_ns(80_000, 1_000_000), 80_000);
+        assert_eq!(capped_busy_wait_ns(30_000, 1_000_000), 30_000);
+        // 10 kHz: an 80 µs spin would keep the thread busy most of each 100 µs period, past the kernel's
+        // real-time limit (it was throttled for 50 ms a second); 25 µs is used.
+        assert_eq!(capped_busy_wait_ns(80_000, 100_000), 25_000);
+        assert_eq!(capped_busy_wait_ns(0, 100_000), 0);
     }
 }

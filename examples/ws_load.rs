@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use voxhap::server::{self, ServerConfig};
 use voxhap::servo::device::DeviceSpec;
+use voxhap::servo::rt::RtMode;
 use voxhap::servo::setup::SceneSetup;
 use voxhap::servo::{SessionApi, SessionConfig, StatsReport};
 
@@ -43,16 +44,39 @@ struct RunResult {
     frames_dropped: u64,
 }
 
+/// Lets the calling thread run on every CPU (undoing an inherited `reserve_servo_cpu`).
+fn allow_every_cpu() {
+    // Online CPUs, not available_parallelism (that follows the restricted affinity being undone).
+    // SAFETY: sysconf is a plain query.
+    let cpus = usize::try_from(unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }).unwrap_or(1);
+    // SAFETY: cpu_set_t is plain data; CPU_SET stays within CPU_SETSIZE; pid 0 is the calling thread.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for cpu in 0..cpus.min(libc::CPU_SETSIZE as usize) {
+            libc::CPU_SET(cpu, &mut set);
+        }
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+    }
+}
+
 fn run_once(args: &Args, clients: usize) -> anyhow::Result<RunResult> {
+    allow_every_cpu(); // undo the previous run's reservation on this (main) thread
+                       // As `voxhap serve` does: the server's threads stay off the servo's core. The clients stand for other
+                       // processes (browsers, scripts), which may run on any core, so their runtime is started first and its
+                       // threads allowed every CPU.
+    let client_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .on_thread_start(allow_every_cpu)
+        .enable_all()
+        .build()?;
+    let servo_cpu =
+        voxhap::servo::rt::reserve_servo_cpu(RtMode::BestEffort, None).map(|(cpu, _)| cpu);
     let server_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
-    let config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin()?);
+    let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin()?);
+    config.cpu = servo_cpu.or(config.cpu);
     let session = voxhap::servo::Session::start(config)?;
     let api: Arc<dyn SessionApi> = session.api();
     let listener = server_rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;

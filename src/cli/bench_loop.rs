@@ -59,6 +59,10 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
+    // After the load threads (they are meant to load every core), before the session's own threads.
+    if let Some((servo, _)) = crate::servo::rt::reserve_servo_cpu(config.rt, config.cpu) {
+        config.cpu = Some(servo);
+    }
     let session = Session::start(config)?;
     std::thread::sleep(Duration::from_secs_f64(args.seconds));
     let summary = session.stop();

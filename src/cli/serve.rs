@@ -164,12 +164,18 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     };
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
-    let config = session_config(args)?;
+    let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
     let rate = config.rate_hz;
     let device = config.device.to_string();
     let record = config.record.clone();
+    // Before any other thread starts: the runtime, recorder and connector inherit this and stay off the
+    // servo thread's core.
+    let reserved = crate::servo::rt::reserve_servo_cpu(config.rt, config.cpu);
+    if let Some((servo, _)) = &reserved {
+        config.cpu = Some(*servo);
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -185,6 +191,11 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     ))?;
     if let Some((path, format)) = &record {
         super::print_out(&format!("recording: {} ({format})", path.display()))?;
+    }
+    if let Some((servo, others)) = &reserved {
+        super::print_out(&format!(
+            "cpus: servo thread alone on CPU {servo}, other threads on {others:?}"
+        ))?;
     }
     let (stop_http, http_stopped) = tokio::sync::oneshot::channel::<()>();
     let mut http_task = None;

@@ -64,8 +64,8 @@ pub fn apply(mode: RtMode, cpu: Option<usize>) -> Result<(RealtimeReport, Vec<St
         ));
     }
     // Pin to one core.
-    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let target = cpu.unwrap_or(cpus.saturating_sub(1));
+    let cpus = allowed_cpus().len();
+    let target = servo_cpu(cpu);
     if cpus > 1 || cpu.is_some() {
         // SAFETY: cpu_set_t is plain data; CPU_ZERO/CPU_SET index within its fixed size (checked below).
         let pinned = unsafe {
@@ -95,9 +95,88 @@ pub fn apply(mode: RtMode, cpu: Option<usize>) -> Result<(RealtimeReport, Vec<St
     Ok((report, refused))
 }
 
+/// The CPUs the calling thread may run on now (its affinity mask; a container's cpuset shows here).
+pub fn allowed_cpus() -> Vec<usize> {
+    // SAFETY: cpu_set_t is plain data; sched_getaffinity gets a valid pointer and its size; CPU_ISSET
+    // indexes within CPU_SETSIZE.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+            return Vec::new();
+        }
+        (0..libc::CPU_SETSIZE as usize)
+            .filter(|&c| libc::CPU_ISSET(c, &set))
+            .collect()
+    }
+}
+
+/// The CPU the servo thread pins itself to: `cpu` if given, else the last CPU the caller may use.
+pub fn servo_cpu(cpu: Option<usize>) -> usize {
+    cpu.unwrap_or_else(|| allowed_cpus().last().copied().unwrap_or(0))
+}
+
+/// Keeps the calling thread, and every thread it starts from now on (they inherit its affinity), off the
+/// servo's core: its affinity becomes the CPUs it may use now minus `servo_cpu(cpu)`. Call it on the main
+/// thread before starting the async runtime and the session, and pass the returned servo CPU on as
+/// `SessionConfig::cpu` (the servo thread, started after, inherits the restricted mask and must be told
+/// its core). The server, the recorder and the connector then never share the servo thread's core, so its
+/// caches and its wake-up latency stay its own. Does nothing with `RtMode::Off`, on one CPU, or when the
+/// servo CPU is not one the caller may use; returns the servo CPU and the CPUs left to the others.
+pub fn reserve_servo_cpu(mode: RtMode, cpu: Option<usize>) -> Option<(usize, Vec<usize>)> {
+    if mode == RtMode::Off {
+        return None;
+    }
+    let allowed = allowed_cpus();
+    let servo = servo_cpu(cpu);
+    if !allowed.contains(&servo) || allowed.len() < 2 {
+        return None;
+    }
+    let others: Vec<usize> = allowed.into_iter().filter(|&c| c != servo).collect();
+    // SAFETY: cpu_set_t is plain data; CPU_SET indexes within CPU_SETSIZE (the CPUs came from a cpu_set_t);
+    // pid 0 is the calling thread.
+    let restricted = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for &c in &others {
+            libc::CPU_SET(c, &mut set);
+        }
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+    };
+    restricted.then_some((servo, others))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reserving_the_servo_cpu_leaves_the_others_to_the_caller() {
+        // On a scratch thread, so the test harness keeps its own affinity.
+        std::thread::spawn(|| {
+            assert_eq!(reserve_servo_cpu(RtMode::Off, None), None);
+            let before = allowed_cpus();
+            let expected_servo = *before.last().unwrap();
+            match reserve_servo_cpu(RtMode::BestEffort, None) {
+                Some((servo, others)) => {
+                    assert_eq!(servo, expected_servo);
+                    assert!(!others.contains(&servo) && !others.is_empty());
+                    assert_eq!(others.len() + 1, before.len());
+                    // A thread started now inherits the restriction...
+                    let inherited = std::thread::spawn(allowed_cpus).join().unwrap();
+                    assert_eq!(inherited, others);
+                    // ...and the servo thread, told its CPU, can still pin itself there.
+                    let pinned = std::thread::spawn(move || {
+                        apply(RtMode::BestEffort, Some(servo)).unwrap().0.pinned_cpu
+                    })
+                    .join()
+                    .unwrap();
+                    assert_eq!(pinned, u32::try_from(servo).ok());
+                }
+                None => assert_eq!(before.len(), 1, "{before:?} CPUs but nothing reserved"),
+            }
+        })
+        .join()
+        .unwrap();
+    }
 
     #[test]
     fn off_asks_for_nothing() {

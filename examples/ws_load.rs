@@ -85,6 +85,7 @@ fn run_once(args: &Args, clients: usize) -> anyhow::Result<RunResult> {
     let server_config = ServerConfig {
         token: server::config::random_token()?,
         max_clients: clients + 1,
+        idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
     };
     let server = server_rt.spawn(server::run(
         listener,

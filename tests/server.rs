@@ -687,3 +687,88 @@ async fn the_page_and_the_read_endpoints() {
     assert_eq!(status, 404);
     assert!(body["error"].as_str().unwrap().contains("/api/nothing"));
 }
+
+/// Reads from `stream` until the server closes it (EOF or a reset) or `within` passes; true if it closed.
+async fn closed_by_server(stream: &mut tokio::net::TcpStream, within: Duration) -> bool {
+    use tokio::io::AsyncReadExt;
+    let mut buf = [0u8; 256];
+    let deadline = Instant::now() + within;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match tokio::time::timeout(left, stream.read(&mut buf)).await {
+            Err(_) => return false,
+            Ok(Ok(0)) | Ok(Err(_)) => return true,
+            Ok(Ok(_)) => continue,
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_over_the_cap_are_closed_at_once_and_counted() {
+    // max_clients 2: at most 2 + EXTRA_CONNECTIONS connections; a flood of idle ones beyond that is refused.
+    let server = TestServer::start(2).await;
+    let cap = 2 + voxhap::server::EXTRA_CONNECTIONS;
+    let mut idle = Vec::new();
+    for _ in 0..cap {
+        idle.push(tokio::net::TcpStream::connect(server.addr).await.unwrap());
+    }
+    // Let the server accept all of them before the extra ones arrive.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut extra = Vec::new();
+    for _ in 0..5 {
+        extra.push(tokio::net::TcpStream::connect(server.addr).await.unwrap());
+    }
+    for stream in &mut extra {
+        assert!(
+            closed_by_server(stream, Duration::from_secs(2)).await,
+            "a connection over the cap was kept open"
+        );
+    }
+    // The ones inside the cap are still open.
+    assert!(!closed_by_server(&mut idle[0], Duration::from_millis(200)).await);
+    drop(idle);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (status, stats) = server.get("/api/stats").await;
+    assert_eq!(status, 200, "{stats}");
+    assert_eq!(stats["server"]["connections_refused"], 5, "{stats}");
+    assert_eq!(stats["server"]["max_connections"], cap, "{stats}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_connections_are_closed_but_a_reading_websocket_client_stays() {
+    let server = TestServer::start_with(4, Duration::from_millis(400)).await;
+    // A connection that never sends a request (half a request, here) is closed after the idle timeout.
+    let mut silent = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+    {
+        use tokio::io::AsyncWriteExt;
+        silent
+            .write_all(b"GET /api/state HTTP/1.1\r\nHo")
+            .await
+            .unwrap();
+    }
+    let started = Instant::now();
+    assert!(closed_by_server(&mut silent, Duration::from_secs(3)).await);
+    assert!(
+        started.elapsed() >= Duration::from_millis(300),
+        "closed before the idle timeout: {:?}",
+        started.elapsed()
+    );
+    // A WebSocket client that sends nothing but reads its states keeps its connection well past the
+    // timeout: the writes are progress.
+    let mut ws = server.ws("rate=60").await;
+    let until = Instant::now() + Duration::from_millis(1500);
+    let mut states = 0;
+    while Instant::now() < until {
+        let message = next_json(&mut ws).await;
+        if message["type"] == "state" {
+            states += 1;
+        }
+    }
+    assert!(states > 60, "only {states} states in 1.5 s");
+    let (_, stats) = server.get("/api/stats").await;
+    assert!(
+        stats["server"]["idle_closed"].as_u64() >= Some(1),
+        "{stats}"
+    );
+    assert_eq!(stats["server"]["clients"], 1, "{stats}");
+}

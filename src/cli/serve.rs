@@ -262,6 +262,7 @@ mod tests {
             config: ServerConfig {
                 token: "test-token".to_owned(),
                 max_clients: 4,
+                idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
             },
         }
     }

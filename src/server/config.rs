@@ -7,12 +7,15 @@
 
 use clap::Args;
 use std::net::{Ipv4Addr, SocketAddr};
+use std::time::Duration;
 
 /// The address the server listens on when `--http` is not given.
 pub const DEFAULT_HTTP_ADDR: SocketAddr =
     SocketAddr::new(std::net::IpAddr::V4(Ipv4Addr::LOCALHOST), 8080);
 /// Default cap on concurrent WebSocket clients.
 pub const DEFAULT_MAX_CLIENTS: usize = 64;
+/// A connection on which nothing moved this long is closed (see `server::guard`).
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
 /// Largest `--max-clients`.
 pub const MAX_CLIENTS_LIMIT: usize = 4096;
 
@@ -44,6 +47,8 @@ pub struct ServerConfig {
     pub token: String,
     /// Most WebSocket clients at once.
     pub max_clients: usize,
+    /// A connection on which nothing was read or written this long is closed.
+    pub idle_timeout: Duration,
 }
 
 impl ServerConfig {
@@ -52,6 +57,7 @@ impl ServerConfig {
         Ok(ServerConfig {
             token: random_token()?,
             max_clients: DEFAULT_MAX_CLIENTS,
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
         })
     }
 }
@@ -129,6 +135,7 @@ impl HttpArgs {
             config: ServerConfig {
                 token,
                 max_clients: self.max_clients,
+                idle_timeout: DEFAULT_IDLE_TIMEOUT,
             },
         }))
     }

@@ -193,6 +193,12 @@ pub struct ServerStats {
     pub frames_dropped: u64,
     /// WebSocket upgrades refused because `max_clients` were connected.
     pub clients_refused: u64,
+    /// Most TCP connections open at once (`max_clients` plus room for page and REST requests).
+    pub max_connections: usize,
+    /// Connections closed at once because `max_connections` were open.
+    pub connections_refused: u64,
+    /// Connections closed because nothing was read or written on them for the idle timeout.
+    pub idle_closed: u64,
 }
 
 /// `GET /api/stats`.

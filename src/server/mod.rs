@@ -23,6 +23,7 @@ pub mod assets;
 pub mod auth;
 pub mod config;
 pub mod foxglove;
+pub mod guard;
 mod http;
 pub mod messages;
 mod ws;
@@ -30,7 +31,6 @@ mod ws;
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};
 
 use crate::servo::api::{ControlError, SessionApi};
-use axum::serve::ListenerExt;
 use messages::ServerStats;
 use std::future::{Future, IntoFuture};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -47,6 +47,8 @@ pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 pub const SEND_BUFFER_BYTES: usize = 64 * 1024;
 /// State frames queued per client before new ones are dropped.
 pub const CLIENT_QUEUE_FRAMES: usize = 4;
+/// TCP connections allowed beyond `max_clients` (the page, its scripts, REST requests, keep-alive).
+pub const EXTRA_CONNECTIONS: usize = 64;
 /// Slices computed at once (each is up to 512 x 512 samples of CPU work).
 const SLICE_PERMITS: usize = 2;
 /// Blocking session calls (control, scene) in flight at once across all clients.
@@ -61,6 +63,7 @@ pub(crate) struct Shared {
     pub(crate) frames_sent: AtomicU64,
     pub(crate) frames_dropped: AtomicU64,
     pub(crate) clients_refused: AtomicU64,
+    guards: Arc<guard::GuardCounters>,
     /// Becomes `true` once: every client closes with 1001.
     pub(crate) shutdown: watch::Receiver<bool>,
     slices: Semaphore,
@@ -75,7 +78,14 @@ impl Shared {
             frames_sent: self.frames_sent.load(Ordering::Relaxed),
             frames_dropped: self.frames_dropped.load(Ordering::Relaxed),
             clients_refused: self.clients_refused.load(Ordering::Relaxed),
+            max_connections: self.max_connections(),
+            connections_refused: self.guards.connections_refused.load(Ordering::Relaxed),
+            idle_closed: self.guards.idle_closed.load(Ordering::Relaxed),
         }
+    }
+
+    fn max_connections(&self) -> usize {
+        self.config.max_clients.saturating_add(EXTRA_CONNECTIONS)
     }
 
     /// A client slot, or `None` when `max_clients` are connected (counted as refused).
@@ -152,12 +162,19 @@ pub async fn run(
         frames_sent: AtomicU64::new(0),
         frames_dropped: AtomicU64::new(0),
         clients_refused: AtomicU64::new(0),
+        guards: Arc::default(),
         shutdown: shutdown_rx.clone(),
         slices: Semaphore::new(SLICE_PERMITS),
         blocking: Semaphore::new(BLOCKING_PERMITS),
     });
     let app = http::router(shared.clone());
-    let listener = listener.tap_io(tune_socket);
+    let listener = guard::GuardedListener::new(
+        listener,
+        shared.max_connections(),
+        shared.config.idle_timeout,
+        shared.guards.clone(),
+        tune_socket,
+    );
     let mut http_done = shutdown_rx.clone();
     let server = axum::serve(listener, app).with_graceful_shutdown(async move {
         let _ = http_done.wait_for(|stop| *stop).await;

@@ -35,6 +35,11 @@ impl TestServer {
     /// Starts the built-in scene on the simulated arm at 1 kHz and the server on an ephemeral port; returns
     /// once the servo has ticked.
     pub async fn start(max_clients: usize) -> TestServer {
+        Self::start_with(max_clients, server::config::DEFAULT_IDLE_TIMEOUT).await
+    }
+
+    /// As [`TestServer::start`], closing connections idle for `idle_timeout`.
+    pub async fn start_with(max_clients: usize, idle_timeout: Duration) -> TestServer {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = RtMode::Off;
         // Less spinning: several sessions may run at once on a small CI machine.
@@ -54,6 +59,7 @@ impl TestServer {
         let config = ServerConfig {
             token: TOKEN.to_owned(),
             max_clients,
+            idle_timeout,
         };
         let shared: Arc<dyn SessionApi> = api.clone();
         let task = tokio::spawn(server::run(listener, shared, config, async move {

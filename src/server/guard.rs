@@ -1,0 +1,223 @@
+//! Connection guards under the HTTP server: a cap on open TCP connections and an idle timeout on each.
+//!
+//! Where it sits: between the listening socket and axum. The WebSocket client cap (`--max-clients`) counts
+//! upgraded clients only; these guards cover every connection, so that clients that open connections and
+//! never finish a request, or keep-alive connections nobody uses, cannot pile up. [`GuardedListener`]
+//! accepts a connection only while fewer than `max_connections` are open (one more is accepted and closed
+//! at once, and counted, so a flood is refused quickly instead of filling the kernel's backlog);
+//! [`GuardedIo`] closes a connection on which nothing was read or written for `idle_timeout`. A WebSocket
+//! client that is sent states makes progress as long as it reads them; one that stops reading stalls the
+//! writes and is closed after the timeout, which is what a client that never reads deserves.
+
+use std::future::Future;
+use std::io;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio::time::{Instant, Sleep};
+
+/// Counters the guards keep (shown in `/api/stats` as `server.connections_refused`, `server.idle_closed`).
+#[derive(Debug, Default)]
+pub struct GuardCounters {
+    pub connections_refused: AtomicU64,
+    pub idle_closed: AtomicU64,
+}
+
+/// A listener that holds at most `max_connections` connections open at once.
+pub struct GuardedListener {
+    inner: TcpListener,
+    permits: Arc<Semaphore>,
+    idle_timeout: Duration,
+    counters: Arc<GuardCounters>,
+    tune: fn(&mut TcpStream),
+}
+
+impl GuardedListener {
+    /// Guards `inner`; `tune` is applied to every accepted socket.
+    pub fn new(
+        inner: TcpListener,
+        max_connections: usize,
+        idle_timeout: Duration,
+        counters: Arc<GuardCounters>,
+        tune: fn(&mut TcpStream),
+    ) -> Self {
+        GuardedListener {
+            inner,
+            permits: Arc::new(Semaphore::new(max_connections.max(1))),
+            idle_timeout,
+            counters,
+            tune,
+        }
+    }
+}
+
+impl axum::serve::Listener for GuardedListener {
+    type Io = GuardedIo;
+    type Addr = std::net::SocketAddr;
+
+    async fn accept(&mut self) -> (Self::Io, Self::Addr) {
+        loop {
+            let (mut stream, addr) = match self.inner.accept().await {
+                Ok(accepted) => accepted,
+                Err(error) => {
+                    // Out of file descriptors and the like: wait a little instead of spinning (as axum does).
+                    eprintln!("warning: http: accept failed: {error}");
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+            };
+            match self.permits.clone().try_acquire_owned() {
+                Ok(permit) => {
+                    (self.tune)(&mut stream);
+                    let io =
+                        GuardedIo::new(stream, permit, self.idle_timeout, self.counters.clone());
+                    return (io, addr);
+                }
+                Err(_) => {
+                    self.counters
+                        .connections_refused
+                        .fetch_add(1, Ordering::Relaxed);
+                    drop(stream);
+                }
+            }
+        }
+    }
+
+    fn local_addr(&self) -> io::Result<Self::Addr> {
+        self.inner.local_addr()
+    }
+}
+
+/// An accepted connection: holds its slot until dropped, and fails with `TimedOut` once nothing moved on it
+/// for the idle timeout.
+pub struct GuardedIo {
+    stream: TcpStream,
+    _permit: OwnedSemaphorePermit,
+    idle_timeout: Duration,
+    deadline: Pin<Box<Sleep>>,
+    counters: Arc<GuardCounters>,
+    timed_out: bool,
+}
+
+impl GuardedIo {
+    fn new(
+        stream: TcpStream,
+        permit: OwnedSemaphorePermit,
+        idle_timeout: Duration,
+        counters: Arc<GuardCounters>,
+    ) -> Self {
+        GuardedIo {
+            stream,
+            _permit: permit,
+            idle_timeout,
+            deadline: Box::pin(tokio::time::sleep(idle_timeout)),
+            counters,
+            timed_out: false,
+        }
+    }
+
+    fn progressed(&mut self) {
+        let next = Instant::now() + self.idle_timeout;
+        self.deadline.as_mut().reset(next);
+    }
+
+    /// `Pending` from the socket: still pending, or `TimedOut` if the connection has been idle too long.
+    fn pending_or_timeout<T>(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<T>> {
+        match self.deadline.as_mut().poll(cx) {
+            Poll::Ready(()) => {
+                if !self.timed_out {
+                    self.timed_out = true;
+                    self.counters.idle_closed.fetch_add(1, Ordering::Relaxed);
+                }
+                Poll::Ready(Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "connection idle for {} s (nothing read or written)",
+                        self.idle_timeout.as_secs_f64()
+                    ),
+                )))
+            }
+            Poll::Pending => Poll::Pending,
+        }
+    }
+}
+
+impl AsyncRead for GuardedIo {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        let before = buf.filled().len();
+        match Pin::new(&mut this.stream).poll_read(cx, buf) {
+            Poll::Ready(Ok(())) => {
+                if buf.filled().len() > before {
+                    this.progressed();
+                }
+                Poll::Ready(Ok(()))
+            }
+            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
+            Poll::Pending => this.pending_or_timeout(cx),
+        }
+    }
+}
+
+impl AsyncWrite for GuardedIo {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        data: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.stream).poll_write(cx, data) {
+            Poll::Ready(Ok(written)) => {
+                if written > 0 {
+                    this.progressed();
+                }
+                Poll::Ready(Ok(written))
+            }
+            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
+            Poll::Pending => this.pending_or_timeout(cx),
+        }
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.stream).poll_flush(cx) {
+            Poll::Pending => this.pending_or_timeout(cx),
+            ready => ready,
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.get_mut().stream).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.stream).poll_write_vectored(cx, bufs) {
+            Poll::Ready(Ok(written)) => {
+                if written > 0 {
+                    this.progressed();
+                }
+                Poll::Ready(Ok(written))
+            }
+            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
+            Poll::Pending => this.pending_or_timeout(cx),
+        }
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+}

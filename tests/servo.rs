@@ -487,6 +487,13 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
             |e| matches!(e, ControlError::NotFound(_)),
         ),
         (
+            ControlCommand::LoadVolume {
+                path: "builtin:nope".into(),
+                name: None,
+            },
+            |e| matches!(e, ControlError::Invalid(_)),
+        ),
+        (
             ControlCommand::AddMode {
                 mode: ModeConfig {
                     volume: Some("nope".into()),
@@ -549,6 +556,14 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
     wait_for_tick(&*api, start + 300);
     let reply = api.control(ControlCommand::StopRecording).unwrap();
     assert!(reply.message.contains("samples"), "{}", reply.message);
+    // A built-in volume loads like a file (as `--volume builtin:NAME` does).
+    api.control(ControlCommand::LoadVolume {
+        path: "builtin:shells".into(),
+        name: Some("density".into()),
+    })
+    .unwrap();
+    let density = api.scene().volumes.into_iter().find(|v| v.name == "density");
+    assert_eq!(density.map(|v| v.source), Some("builtin:shells".to_owned()));
     let summary = session.stop();
     let trace = read_trace(&trace).unwrap();
     assert!(

@@ -202,7 +202,8 @@ pub enum ControlCommand {
     AddMode { mode: ModeConfig },
     /// Remove the mode named `name` (modes that depend on it, like friction, must go first).
     RemoveMode { name: String },
-    /// Load a volume file and swap it in for the volume named `name` (default: the first volume).
+    /// Load a volume file (or `builtin:NAME`) and swap it in for the volume named `name` (default: the first
+    /// volume).
     LoadVolume {
         path: PathBuf,
         #[serde(default)]

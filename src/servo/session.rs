@@ -597,7 +597,8 @@ impl SessionShared {
                 self.swap(control, setup, format!("mode {name:?} removed"))
             }
             ControlCommand::LoadVolume { path, name } => {
-                if !path.exists() {
+                let builtin = path.to_str().is_some_and(|t| t.starts_with("builtin:"));
+                if !builtin && !path.exists() {
                     return Err(ControlError::NotFound(format!(
                         "volume file {} does not exist",
                         path.display()

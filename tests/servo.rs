@@ -562,7 +562,11 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
         name: Some("density".into()),
     })
     .unwrap();
-    let density = api.scene().volumes.into_iter().find(|v| v.name == "density");
+    let density = api
+        .scene()
+        .volumes
+        .into_iter()
+        .find(|v| v.name == "density");
     assert_eq!(density.map(|v| v.source), Some("builtin:shells".to_owned()));
     let summary = session.stop();
     let trace = read_trace(&trace).unwrap();

@@ -606,3 +606,26 @@ fn stopping_a_session_finishes_its_recording() {
         .iter()
         .all(|s| s.force_n.is_finite() && s.force_n.length() <= 10.0));
 }
+
+#[test]
+fn the_hand_of_a_real_device_cannot_be_moved() {
+    // A replay device stands in for hardware: record a short session, then replay it.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.csv");
+    let recorded = session(Some(path.clone()));
+    wait_for_tick(&*recorded.api(), 100);
+    recorded.stop();
+    let mut config = SessionConfig::new(DeviceSpec::Replay(path), SceneSetup::builtin().unwrap());
+    config.rt = voxhap::servo::rt::RtMode::Off;
+    let replay = Session::start(config).unwrap();
+    let api = replay.api();
+    assert!(!api.scene().simulated);
+    let error = api
+        .control(ControlCommand::SetHandTarget {
+            position_m: Some([0.0, 0.0, 0.05]),
+        })
+        .expect_err("a hand target for a replayed device");
+    assert!(matches!(error, ControlError::Conflict(_)), "{error}");
+    assert_eq!(error.http_status(), 409, "what /api/hand answers");
+    replay.stop();
+}

@@ -60,10 +60,10 @@ fn allow_every_cpu() {
 }
 
 fn run_once(args: &Args, clients: usize) -> anyhow::Result<RunResult> {
-    allow_every_cpu(); // undo the previous run's reservation on this (main) thread
-                       // As `voxhap serve` does: the server's threads stay off the servo's core. The clients stand for other
-                       // processes (browsers, scripts), which may run on any core, so their runtime is started first and its
-                       // threads allowed every CPU.
+    // Undo the previous run's reservation on this (main) thread. As `voxhap serve` does, the server's threads
+    // then stay off the servo's core; the clients stand for other processes (browsers, scripts), which may run
+    // on any core, so their runtime is started first and its threads allowed every CPU.
+    allow_every_cpu();
     let client_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .on_thread_start(allow_every_cpu)

@@ -236,23 +236,6 @@ impl McapTraceWriter {
         })
     }
 
-    /// Appends the encoded `self.message` to `channel_id`.
-    fn write_message(
-        &mut self,
-        channel_id: u16,
-        sequence: u32,
-        time_ns: u64,
-    ) -> Result<(), TraceError> {
-        write_message(
-            &mut self.writer,
-            &self.path,
-            channel_id,
-            sequence,
-            time_ns,
-            &self.message,
-        )
-    }
-
     fn mcap_error(&self, source: mcap::McapError) -> TraceError {
         TraceError::Mcap {
             path: self.path.clone(),
@@ -367,41 +350,35 @@ impl TraceWriter for McapTraceWriter {
                 .then_some(sample.error_bound_m),
             flags: sample.flags,
         };
-        for channel_id in [self.state_channel, self.solver_channel] {
-            self.message.clear();
-            let encoded = if channel_id == self.state_channel {
-                serde_json::to_writer(&mut self.message, &state)
-            } else {
-                serde_json::to_writer(&mut self.message, &solver)
-            };
-            encoded.map_err(|e| TraceError::Meta(format!("cannot encode a message: {e}")))?;
-            write_message(
-                &mut self.writer,
-                &self.path,
-                channel_id,
-                sequence,
-                time_ns,
-                &self.message,
-            )?;
-        }
-        // The Foxglove topics: protobuf through the SDK's `Encode`, into the same reusable buffer.
+        // Every channel's message is encoded into the one reusable buffer, then written.
+        let (writer, path, message) = (&mut self.writer, &self.path, &mut self.message);
+        let mut put = |channel_id: u16,
+                       encode: &dyn Fn(&mut Vec<u8>) -> Result<(), TraceError>|
+         -> Result<(), TraceError> {
+            message.clear();
+            encode(message)?;
+            write_message(writer, path, channel_id, sequence, time_ns, message)
+        };
+        let json_error =
+            |e: serde_json::Error| TraceError::Meta(format!("cannot encode a message: {e}"));
+        put(self.state_channel, &|m| {
+            serde_json::to_writer(m, &state).map_err(json_error)
+        })?;
+        put(self.solver_channel, &|m| {
+            serde_json::to_writer(m, &solver).map_err(json_error)
+        })?;
+        // The Foxglove topics: protobuf through the SDK's `Encode`.
         set_translation(&mut self.probe_transform, sample.probe_m, time_ns);
         set_translation(&mut self.proxy_transform, sample.proxy_m, time_ns);
-        self.message.clear();
-        self.probe_transform
-            .encode(&mut self.message)
-            .map_err(encode_error)?;
-        self.write_message(self.probe_channel, sequence, time_ns)?;
-        self.message.clear();
-        self.proxy_transform
-            .encode(&mut self.message)
-            .map_err(encode_error)?;
-        self.write_message(self.proxy_channel, sequence, time_ns)?;
-        self.message.clear();
-        vector3(sample.force_n)
-            .encode(&mut self.message)
-            .map_err(encode_error)?;
-        self.write_message(self.force_channel, sequence, time_ns)?;
+        put(self.probe_channel, &|m| {
+            self.probe_transform.encode(m).map_err(encode_error)
+        })?;
+        put(self.proxy_channel, &|m| {
+            self.proxy_transform.encode(m).map_err(encode_error)
+        })?;
+        put(self.force_channel, &|m| {
+            vector3(sample.force_n).encode(m).map_err(encode_error)
+        })?;
         Ok(())
     }
 

@@ -126,6 +126,26 @@ impl GuardedIo {
         self.deadline.as_mut().reset(next);
     }
 
+    /// What the socket answered, after bookkeeping: progress (`moved` > 0) pushes the idle deadline back;
+    /// `Pending` stays pending until the deadline passes, then fails with `TimedOut`.
+    fn settle<T>(
+        &mut self,
+        cx: &mut Context<'_>,
+        answer: Poll<io::Result<T>>,
+        moved: impl FnOnce(&T) -> bool,
+    ) -> Poll<io::Result<T>> {
+        match answer {
+            Poll::Ready(Ok(value)) => {
+                if moved(&value) {
+                    self.progressed();
+                }
+                Poll::Ready(Ok(value))
+            }
+            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
+            Poll::Pending => self.pending_or_timeout(cx),
+        }
+    }
+
     /// `Pending` from the socket: still pending, or `TimedOut` if the connection has been idle too long.
     fn pending_or_timeout<T>(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<T>> {
         match self.deadline.as_mut().poll(cx) {
@@ -155,16 +175,9 @@ impl AsyncRead for GuardedIo {
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
         let before = buf.filled().len();
-        match Pin::new(&mut this.stream).poll_read(cx, buf) {
-            Poll::Ready(Ok(())) => {
-                if buf.filled().len() > before {
-                    this.progressed();
-                }
-                Poll::Ready(Ok(()))
-            }
-            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
-            Poll::Pending => this.pending_or_timeout(cx),
-        }
+        let answer = Pin::new(&mut this.stream).poll_read(cx, buf);
+        let after = buf.filled().len();
+        this.settle(cx, answer, |()| after > before)
     }
 }
 
@@ -175,24 +188,14 @@ impl AsyncWrite for GuardedIo {
         data: &[u8],
     ) -> Poll<io::Result<usize>> {
         let this = self.get_mut();
-        match Pin::new(&mut this.stream).poll_write(cx, data) {
-            Poll::Ready(Ok(written)) => {
-                if written > 0 {
-                    this.progressed();
-                }
-                Poll::Ready(Ok(written))
-            }
-            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
-            Poll::Pending => this.pending_or_timeout(cx),
-        }
+        let answer = Pin::new(&mut this.stream).poll_write(cx, data);
+        this.settle(cx, answer, |written| *written > 0)
     }
 
     fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         let this = self.get_mut();
-        match Pin::new(&mut this.stream).poll_flush(cx) {
-            Poll::Pending => this.pending_or_timeout(cx),
-            ready => ready,
-        }
+        let answer = Pin::new(&mut this.stream).poll_flush(cx);
+        this.settle(cx, answer, |()| false)
     }
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
@@ -205,16 +208,8 @@ impl AsyncWrite for GuardedIo {
         bufs: &[io::IoSlice<'_>],
     ) -> Poll<io::Result<usize>> {
         let this = self.get_mut();
-        match Pin::new(&mut this.stream).poll_write_vectored(cx, bufs) {
-            Poll::Ready(Ok(written)) => {
-                if written > 0 {
-                    this.progressed();
-                }
-                Poll::Ready(Ok(written))
-            }
-            Poll::Ready(Err(error)) => Poll::Ready(Err(error)),
-            Poll::Pending => this.pending_or_timeout(cx),
-        }
+        let answer = Pin::new(&mut this.stream).poll_write_vectored(cx, bufs);
+        this.settle(cx, answer, |written| *written > 0)
     }
 
     fn is_write_vectored(&self) -> bool {

@@ -349,7 +349,8 @@ fn a_full_recorder_ring_is_counted_and_flagged_never_waited_on() {
 
 #[test]
 fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
-    let mut rig = rig(16_384);
+    // With cache warming on, as sessions run by default: the warm-up reads are on the servo thread too.
+    let mut rig = rig_warming(16_384, 30_000);
     let (mut waiter, _) = mock_waiter();
     // Scenes prepared off the servo thread: remove a mode, add one back with another transfer function,
     // swap the density volume for a torus, and back.

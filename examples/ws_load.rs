@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use voxhap::server::{self, ServerConfig};
 use voxhap::servo::device::DeviceSpec;
-use voxhap::servo::rt::RtMode;
+use voxhap::servo::rt::{self, RtMode};
 use voxhap::servo::setup::SceneSetup;
 use voxhap::servo::{SessionApi, SessionConfig, StatsReport};
 
@@ -46,17 +46,8 @@ struct RunResult {
 
 /// Lets the calling thread run on every CPU (undoing an inherited `reserve_servo_cpu`).
 fn allow_every_cpu() {
-    // Online CPUs, not available_parallelism (that follows the restricted affinity being undone).
-    // SAFETY: sysconf is a plain query.
-    let cpus = usize::try_from(unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }).unwrap_or(1);
-    // SAFETY: cpu_set_t is plain data; CPU_SET stays within CPU_SETSIZE; pid 0 is the calling thread.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        for cpu in 0..cpus.min(libc::CPU_SETSIZE as usize) {
-            libc::CPU_SET(cpu, &mut set);
-        }
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
-    }
+    let every: Vec<usize> = (0..rt::online_cpus()).collect();
+    let _ = rt::set_thread_affinity(&every);
 }
 
 fn run_once(args: &Args, clients: usize) -> anyhow::Result<RunResult> {
@@ -69,8 +60,7 @@ fn run_once(args: &Args, clients: usize) -> anyhow::Result<RunResult> {
         .on_thread_start(allow_every_cpu)
         .enable_all()
         .build()?;
-    let servo_cpu =
-        voxhap::servo::rt::reserve_servo_cpu(RtMode::BestEffort, None).map(|(cpu, _)| cpu);
+    let servo_cpu = rt::reserve_servo_cpu(RtMode::BestEffort, None).map(|(cpu, _)| cpu);
     let server_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -67,24 +67,10 @@ pub fn apply(mode: RtMode, cpu: Option<usize>) -> Result<(RealtimeReport, Vec<St
     let cpus = allowed_cpus().len();
     let target = servo_cpu(cpu);
     if cpus > 1 || cpu.is_some() {
-        // SAFETY: cpu_set_t is plain data; CPU_ZERO/CPU_SET index within its fixed size (checked below).
-        let pinned = unsafe {
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            libc::CPU_ZERO(&mut set);
-            if target < libc::CPU_SETSIZE as usize {
-                libc::CPU_SET(target, &mut set);
-                libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
-            } else {
-                false
-            }
-        };
-        if pinned {
-            report.pinned_cpu = u32::try_from(target).ok();
-        } else {
-            refused.push(format!(
-                "pinning to CPU {target}: {}",
-                std::io::Error::last_os_error()
-            ));
+        let pinned = set_thread_affinity(&[target]);
+        match pinned {
+            Ok(()) => report.pinned_cpu = u32::try_from(target).ok(),
+            Err(error) => refused.push(format!("pinning to CPU {target}: {error}")),
         }
     } else {
         refused.push("pinning: only one CPU, not pinned".to_owned());
@@ -110,6 +96,38 @@ pub fn allowed_cpus() -> Vec<usize> {
     }
 }
 
+/// Lets the calling thread run on `cpus` only (threads it starts later inherit this).
+pub fn set_thread_affinity(cpus: &[usize]) -> std::io::Result<()> {
+    // SAFETY: cpu_set_t is plain data; CPU_SET is only called with indices below CPU_SETSIZE; pid 0 is the
+    // calling thread and sched_setaffinity gets a valid pointer and its size.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for &cpu in cpus {
+            if cpu >= libc::CPU_SETSIZE as usize {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    format!(
+                        "CPU {cpu} is beyond the {} the kernel's CPU set holds",
+                        libc::CPU_SETSIZE
+                    ),
+                ));
+            }
+            libc::CPU_SET(cpu, &mut set);
+        }
+        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0 {
+            Ok(())
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+}
+
+/// The CPUs online (`sysconf(_SC_NPROCESSORS_ONLN)`), whatever the caller's affinity.
+pub fn online_cpus() -> usize {
+    // SAFETY: a plain query.
+    usize::try_from(unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }).map_or(1, |n| n.max(1))
+}
+
 /// The CPU the servo thread pins itself to: `cpu` if given, else the last CPU the caller may use.
 pub fn servo_cpu(cpu: Option<usize>) -> usize {
     cpu.unwrap_or_else(|| allowed_cpus().last().copied().unwrap_or(0))
@@ -132,16 +150,8 @@ pub fn reserve_servo_cpu(mode: RtMode, cpu: Option<usize>) -> Option<(usize, Vec
         return None;
     }
     let others: Vec<usize> = allowed.into_iter().filter(|&c| c != servo).collect();
-    // SAFETY: cpu_set_t is plain data; CPU_SET indexes within CPU_SETSIZE (the CPUs came from a cpu_set_t);
-    // pid 0 is the calling thread.
-    let restricted = unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        for &c in &others {
-            libc::CPU_SET(c, &mut set);
-        }
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
-    };
-    restricted.then_some((servo, others))
+    set_thread_affinity(&others).ok()?;
+    Some((servo, others))
 }
 
 #[cfg(test)]

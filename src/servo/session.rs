@@ -597,16 +597,16 @@ impl SessionShared {
                 self.swap(control, setup, format!("mode {name:?} removed"))
             }
             ControlCommand::LoadVolume { path, name } => {
-                let builtin = path.to_str().is_some_and(|t| t.starts_with("builtin:"));
-                if !builtin && !path.exists() {
+                let text = path.to_str().ok_or_else(|| {
+                    invalid(format!("volume path {} is not UTF-8", path.display()))
+                })?;
+                // `builtin:NAME` is not a file; `load_volume_arg` checks the name.
+                if !text.starts_with("builtin:") && !path.exists() {
                     return Err(ControlError::NotFound(format!(
                         "volume file {} does not exist",
                         path.display()
                     )));
                 }
-                let text = path.to_str().ok_or_else(|| {
-                    invalid(format!("volume path {} is not UTF-8", path.display()))
-                })?;
                 let (volume, source) = load_volume_arg(text).map_err(|e| invalid(e.to_string()))?;
                 let mut setup = control.setup.clone();
                 setup

@@ -772,3 +772,46 @@ async fn idle_connections_are_closed_but_a_reading_websocket_client_stays() {
     );
     assert_eq!(stats["server"]["clients"], 1, "{stats}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_request_trickled_a_byte_at_a_time_is_closed_after_the_timeout() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let server = TestServer::start_with(4, Duration::from_millis(400)).await;
+    let mut stream = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+    stream
+        .write_all(b"GET /api/state HTTP/1.1\r\nX-Slow: ")
+        .await
+        .unwrap();
+    let started = Instant::now();
+    let mut buf = [0u8; 256];
+    // A byte every 50 ms, well inside the 400 ms timeout each time: only the server's writes count.
+    let closed_after = loop {
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "a client trickling its request kept the connection for 5 s"
+        );
+        tokio::select! {
+            read = stream.read(&mut buf) => match read {
+                Ok(0) | Err(_) => break started.elapsed(),
+                Ok(n) => panic!(
+                    "the server answered a request that never finished: {:?}",
+                    String::from_utf8_lossy(&buf[..n])
+                ),
+            },
+            () = tokio::time::sleep(Duration::from_millis(50)) => {
+                if stream.write_all(b"a").await.is_err() {
+                    break started.elapsed();
+                }
+            }
+        }
+    };
+    assert!(
+        closed_after >= Duration::from_millis(300),
+        "closed before the timeout: {closed_after:?}"
+    );
+    let (_, stats) = server.get("/api/stats").await;
+    assert!(
+        stats["server"]["idle_closed"].as_u64() >= Some(1),
+        "{stats}"
+    );
+}

@@ -47,7 +47,8 @@ pub struct ServerConfig {
     pub token: String,
     /// Most WebSocket clients at once.
     pub max_clients: usize,
-    /// A connection on which nothing was read or written this long is closed.
+    /// A connection to which the server has written nothing this long (since the accept or the last
+    /// write) is closed; bytes from the client do not count, so a trickled request cannot hold it.
     pub idle_timeout: Duration,
 }
 

@@ -1,13 +1,17 @@
-//! Connection guards under the HTTP server: a cap on open TCP connections and an idle timeout on each.
+//! Connection guards under the HTTP server: a cap on open TCP connections and a silence timeout on each.
 //!
 //! Where it sits: between the listening socket and axum. The WebSocket client cap (`--max-clients`) counts
 //! upgraded clients only; these guards cover every connection, so that clients that open connections and
 //! never finish a request, or keep-alive connections nobody uses, cannot pile up. [`GuardedListener`]
 //! accepts a connection only while fewer than `max_connections` are open (one more is accepted and closed
 //! at once, and counted, so a flood is refused quickly instead of filling the kernel's backlog);
-//! [`GuardedIo`] closes a connection on which nothing was read or written for `idle_timeout`. A WebSocket
-//! client that is sent states makes progress as long as it reads them; one that stops reading stalls the
-//! writes and is closed after the timeout, which is what a client that never reads deserves.
+//! [`GuardedIo`] closes a connection to which the server has written nothing for `idle_timeout` (counted
+//! from the accept, then from each write). Only the server's writes count, not the client's bytes: a
+//! request whose headers or body arrive a byte every few seconds (slowloris) never gets its answer
+//! written, so it is closed after the timeout like a connection that sends nothing; so is a keep-alive
+//! connection left unused. A WebSocket client is sent a state at least once a second, so it stays as
+//! long as it reads them; one that stops reading stalls the writes and is closed after the timeout,
+//! which is what a client that never reads deserves.
 
 use std::future::Future;
 use std::io;
@@ -93,8 +97,8 @@ impl axum::serve::Listener for GuardedListener {
     }
 }
 
-/// An accepted connection: holds its slot until dropped, and fails with `TimedOut` once nothing moved on it
-/// for the idle timeout.
+/// An accepted connection: holds its slot until dropped, and fails with `TimedOut` once nothing has been
+/// written to it for the idle timeout.
 pub struct GuardedIo {
     stream: TcpStream,
     _permit: OwnedSemaphorePermit,
@@ -126,8 +130,8 @@ impl GuardedIo {
         self.deadline.as_mut().reset(next);
     }
 
-    /// What the socket answered, after bookkeeping: progress (`moved` > 0) pushes the idle deadline back;
-    /// `Pending` stays pending until the deadline passes, then fails with `TimedOut`.
+    /// What the socket answered, after bookkeeping: a write that moved bytes (`moved`) pushes the deadline
+    /// back; `Pending` stays pending until the deadline passes, then fails with `TimedOut`.
     fn settle<T>(
         &mut self,
         cx: &mut Context<'_>,
@@ -146,7 +150,7 @@ impl GuardedIo {
         }
     }
 
-    /// `Pending` from the socket: still pending, or `TimedOut` if the connection has been idle too long.
+    /// `Pending` from the socket: still pending, or `TimedOut` if nothing was written for too long.
     fn pending_or_timeout<T>(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<T>> {
         match self.deadline.as_mut().poll(cx) {
             Poll::Ready(()) => {
@@ -157,7 +161,8 @@ impl GuardedIo {
                 Poll::Ready(Err(io::Error::new(
                     io::ErrorKind::TimedOut,
                     format!(
-                        "connection idle for {} s (nothing read or written)",
+                        "nothing written to the connection for {} s (a request never finished, \
+                         an unused keep-alive connection, or a client that stopped reading)",
                         self.idle_timeout.as_secs_f64()
                     ),
                 )))
@@ -174,10 +179,10 @@ impl AsyncRead for GuardedIo {
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
-        let before = buf.filled().len();
+        // Bytes read are not progress: a request trickled in a byte at a time must not hold the
+        // connection (only the answer written to it does).
         let answer = Pin::new(&mut this.stream).poll_read(cx, buf);
-        let after = buf.filled().len();
-        this.settle(cx, answer, |()| after > before)
+        this.settle(cx, answer, |()| false)
     }
 }
 

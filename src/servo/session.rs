@@ -437,6 +437,13 @@ pub fn capped_busy_wait_ns(requested_ns: u64, period_ns: u64) -> u64 {
 }
 
 impl SessionShared {
+    /// The servo's live statistics, histograms included (read-only use: benchmarks copy the lateness
+    /// histogram's counts at window edges to compare parts of one session; everyone else wants
+    /// [`SessionApi::stats`]).
+    pub fn servo_stats(&self) -> &ServoStats {
+        &self.stats
+    }
+
     fn drain_retired(control: &mut Control) {
         while let Ok(old) = control.retired.pop() {
             drop(old);

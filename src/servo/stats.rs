@@ -81,25 +81,22 @@ impl Histogram {
     /// The value at quantile `q` (0..=1), as its bucket's upper edge (ns), capped at the exact maximum;
     /// 0 when empty.
     pub fn quantile_ns(&self, q: f64) -> u64 {
-        let counts: Vec<u64> = self
-            .buckets
-            .iter()
-            .map(|b| b.load(Ordering::Relaxed))
-            .collect();
-        let total: u64 = counts.iter().sum();
-        if total == 0 {
-            return 0;
+        self.counts()
+            .quantile_ns(q)
+            .min(self.max_ns.load(Ordering::Relaxed))
+    }
+
+    /// A copy of the bucket counts (allocates; not for the servo thread). Two copies taken apart in time
+    /// give the histogram of what was recorded in between ([`HistogramCounts::since`]), so a benchmark can
+    /// compare windows of one session.
+    pub fn counts(&self) -> HistogramCounts {
+        HistogramCounts {
+            buckets: self
+                .buckets
+                .iter()
+                .map(|b| b.load(Ordering::Relaxed))
+                .collect(),
         }
-        let rank = ((q.clamp(0.0, 1.0) * total as f64).ceil() as u64).clamp(1, total);
-        let mut seen = 0;
-        let max = self.max_ns.load(Ordering::Relaxed);
-        for (bucket, count) in counts.iter().enumerate() {
-            seen += count;
-            if seen >= rank {
-                return upper_edge(bucket).min(max);
-            }
-        }
-        max
     }
 
     /// p50, p99, p99.9 and maximum in microseconds.
@@ -121,6 +118,77 @@ impl Histogram {
         }
         self.count.store(0, Ordering::Relaxed);
         self.max_ns.store(0, Ordering::Relaxed);
+    }
+}
+
+/// Bucket counts copied out of a [`Histogram`]: a window of it ([`since`](Self::since)) or several windows
+/// pooled ([`add`](Self::add)). Quantiles are bucket upper edges, as for the histogram; the exact maximum is
+/// not kept, so the top quantile of a window is its highest bucket's upper edge.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HistogramCounts {
+    buckets: Vec<u64>,
+}
+
+impl Default for HistogramCounts {
+    fn default() -> Self {
+        HistogramCounts {
+            buckets: vec![0; BUCKETS],
+        }
+    }
+}
+
+impl HistogramCounts {
+    /// What was recorded after `earlier` was taken (counts are only ever added, so this never underflows
+    /// for copies of one histogram taken in order; saturates otherwise).
+    pub fn since(&self, earlier: &HistogramCounts) -> HistogramCounts {
+        HistogramCounts {
+            buckets: self
+                .buckets
+                .iter()
+                .zip(&earlier.buckets)
+                .map(|(now, before)| now.saturating_sub(*before))
+                .collect(),
+        }
+    }
+
+    /// Pools `other` into `self`.
+    pub fn add(&mut self, other: &HistogramCounts) {
+        for (mine, theirs) in self.buckets.iter_mut().zip(&other.buckets) {
+            *mine += theirs;
+        }
+    }
+
+    /// Values counted.
+    pub fn count(&self) -> u64 {
+        self.buckets.iter().sum()
+    }
+
+    /// Values above `threshold_ns`, counting a whole bucket when its lower edge lies above the threshold
+    /// (so up to one bucket, 1/16 of an octave, of values just above it may be missed).
+    pub fn count_above_ns(&self, threshold_ns: u64) -> u64 {
+        self.buckets
+            .iter()
+            .enumerate()
+            .filter(|(bucket, _)| *bucket > bucket_of(threshold_ns))
+            .map(|(_, count)| count)
+            .sum()
+    }
+
+    /// The value at quantile `q` (0..=1) as its bucket's upper edge (ns); 0 when empty.
+    pub fn quantile_ns(&self, q: f64) -> u64 {
+        let total = self.count();
+        if total == 0 {
+            return 0;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * total as f64).ceil() as u64).clamp(1, total);
+        let mut seen = 0;
+        for (bucket, count) in self.buckets.iter().enumerate() {
+            seen += count;
+            if seen >= rank {
+                return upper_edge(bucket);
+            }
+        }
+        upper_edge(BUCKETS - 1)
     }
 }
 
@@ -277,6 +345,34 @@ mod tests {
         assert_eq!(h.count(), 1000);
         h.reset();
         assert_eq!(h.quantile_ns(0.5), 0);
+    }
+
+    #[test]
+    fn windows_of_a_histogram_pool_to_the_whole() {
+        let h = Histogram::new();
+        let start = h.counts();
+        for value in 1..=100u64 {
+            h.record(value * 1000); // 1..100 us
+        }
+        let middle = h.counts();
+        for value in 1..=100u64 {
+            h.record(value * 100_000); // 0.1..10 ms
+        }
+        let first = middle.since(&start);
+        let second = h.counts().since(&middle);
+        assert_eq!((first.count(), second.count()), (100, 100));
+        assert!((99_000..=100_000 * 17 / 16).contains(&first.quantile_ns(0.99)));
+        assert!((9_900_000..=10_000_000 * 17 / 16).contains(&second.quantile_ns(0.99)));
+        assert_eq!(first.count_above_ns(200_000), 0);
+        // 0.3 ms .. 10 ms are above 0.2 ms; 0.2 ms itself shares its bucket with the threshold.
+        assert_eq!(second.count_above_ns(200_000), 98);
+        let mut pooled = first.clone();
+        pooled.add(&second);
+        assert_eq!(pooled, h.counts().since(&start));
+        assert_eq!(pooled.quantile_ns(0.5), h.quantile_ns(0.5));
+        assert_eq!(HistogramCounts::default().quantile_ns(0.99), 0);
+        // Copies taken out of order saturate instead of wrapping.
+        assert_eq!(start.since(&h.counts()).count(), 0);
     }
 
     #[test]

@@ -14,7 +14,10 @@
 //! same servo thread in the same session. The windows of each condition are pooled, and the pooled p99s
 //! compared. A 90 % bootstrap interval (block pairs resampled with replacement) says how far the ratio can be
 //! trusted: the verdict is "met" when the whole interval is at or below 1.10, "not met" when it is all above,
-//! and "undecided" otherwise.
+//! and "undecided" otherwise. It also prints the share of ticks more than 10 µs late, with its interval:
+//! when about 1 % of ticks are late the p99 sits on a cliff between on-time and late ticks and jumps, while
+//! that share stays steady. `--interfere-us 60` is the self-check: the loaded windows also get a thread above
+//! the servo's priority busying its core, a known cost the verdict must call "not met".
 //!
 //! The server runs on its own 2-worker tokio runtime kept off the servo's core, as in `voxhap serve`; the
 //! clients on another runtime allowed every CPU, standing for browsers and scripts on the same machine, so the

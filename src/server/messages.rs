@@ -606,25 +606,9 @@ mod tests {
     #[test]
     fn state_serialises_the_contract_fields() {
         let snapshot = Snapshot {
-            tick: 5,
-            t_s: 0.005,
-            probe_m: DVec3::X,
-            probe_velocity_m_per_s: DVec3::ZERO,
-            proxy_m: DVec3::Y,
-            rendered_force_n: DVec3::Z,
             sent_force_n: DVec3::Z * 0.5,
-            primitive_slots: [None; crate::haptics::modes::MAX_MODES],
-            primitive_count: 0,
             error_bound_m: f64::INFINITY,
-            status: TickStatus::Certified,
-            sweeps: 2,
-            stiffness_n_per_m: 500.0,
-            damping_n_s_per_m: 0.0,
-            connected: true,
-            engaged: true,
-            flags: 0,
-            scene_generation: 1,
-            hand_target_m: None,
+            ..Snapshot::example()
         };
         let value = serde_json::to_value(State::new(&snapshot, 3)).unwrap();
         assert_eq!(value["type"], "state");

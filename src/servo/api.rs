@@ -91,6 +91,35 @@ pub struct Snapshot {
     pub hand_target_m: Option<DVec3>,
 }
 
+#[cfg(test)]
+impl Snapshot {
+    /// A plausible certified tick with no primitives, for tests that build messages from a snapshot and
+    /// change the fields they look at (`Snapshot { tick: 42, ..Snapshot::example() }`).
+    pub(crate) fn example() -> Snapshot {
+        Snapshot {
+            tick: 5,
+            t_s: 0.005,
+            probe_m: DVec3::X,
+            probe_velocity_m_per_s: DVec3::ZERO,
+            proxy_m: DVec3::Y,
+            rendered_force_n: DVec3::Z,
+            sent_force_n: DVec3::Z,
+            primitive_slots: [None; MAX_MODES],
+            primitive_count: 0,
+            error_bound_m: 0.0,
+            status: TickStatus::Certified,
+            sweeps: 2,
+            stiffness_n_per_m: 500.0,
+            damping_n_s_per_m: 0.0,
+            connected: true,
+            engaged: true,
+            flags: 0,
+            scene_generation: 1,
+            hand_target_m: None,
+        }
+    }
+}
+
 impl Snapshot {
     /// The valid primitives of this tick.
     pub fn primitives(&self) -> impl Iterator<Item = &PrimitiveView> {

@@ -406,7 +406,6 @@ mod tests {
             tick: 42,
             t_s: 0.042,
             probe_m: DVec3::new(0.0, 0.0, 0.005),
-            probe_velocity_m_per_s: DVec3::ZERO,
             proxy_m: DVec3::new(0.0, 0.0, 0.01),
             rendered_force_n: DVec3::new(0.0, 0.0, 2.5),
             sent_force_n: DVec3::new(0.0, 0.0, 2.5),
@@ -415,13 +414,8 @@ mod tests {
             error_bound_m: f64::INFINITY,
             status: TickStatus::BudgetExhausted,
             sweeps: 7,
-            stiffness_n_per_m: 500.0,
-            damping_n_s_per_m: 0.0,
-            connected: true,
-            engaged: true,
-            flags: 0,
-            scene_generation: 1,
             hand_target_m: Some(DVec3::ONE * 0.01),
+            ..Snapshot::example()
         }
     }
 

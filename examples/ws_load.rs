@@ -14,7 +14,7 @@
 //! same servo thread in the same session. The windows of each condition are pooled, and the pooled p99s
 //! compared. A 90 % bootstrap interval (block pairs resampled with replacement) says how far the ratio can be
 //! trusted: the verdict is "met" when the whole interval is at or below 1.10, "not met" when it is all above,
-//! and "undecided" otherwise. It also prints the share of ticks more than 10 µs late, with its interval:
+//! and "undecided" otherwise (always with fewer than 10 pairs). It also prints the share of ticks more than 10 µs late, with its interval:
 //! when about 1 % of ticks are late the p99 sits on a cliff between on-time and late ticks and jumps, while
 //! that share stays steady. `--interfere-us 60` is the self-check: the loaded windows also get a thread above
 //! the servo's priority busying its core, a known cost the verdict must call "not met".
@@ -37,6 +37,8 @@ use voxhap::servo::{SessionApi, SessionConfig, SessionShared};
 
 /// The criterion: lateness p99 with the clients at most this times the figure without them.
 const CRITERION: f64 = 1.10;
+/// Fewer pairs than this give no verdict: resampling a handful of pairs says nothing about the spread.
+const MIN_PAIRS: usize = 10;
 /// Ticks later than this are counted as "late" in the table (ns).
 const LATE_NS: u64 = 10_000;
 
@@ -92,7 +94,8 @@ struct Bench {
     server_rt: tokio::runtime::Runtime,
     shared: Arc<SessionShared>,
     addr: std::net::SocketAddr,
-    servo_cpu: Option<usize>,
+    /// On in the loaded windows when the self-check (`--interfere-us`) runs.
+    interference: Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// A thread that, while `on`, preempts the servo on its core for `busy` every 2.9 ms (SCHED_FIFO priority
@@ -133,11 +136,7 @@ fn start_interference(
 
 impl Bench {
     /// Measures one window with `clients` streaming clients.
-    fn block(
-        &self,
-        clients: usize,
-        interference: &std::sync::atomic::AtomicBool,
-    ) -> anyhow::Result<Block> {
+    fn block(&self, clients: usize) -> anyhow::Result<Block> {
         let received = Arc::new(AtomicU64::new(0));
         let streaming = Arc::new(AtomicUsize::new(0));
         let mut readers = Vec::with_capacity(clients);
@@ -168,7 +167,7 @@ impl Bench {
             );
             std::thread::sleep(Duration::from_millis(10));
         }
-        interference.store(clients > 0, Ordering::Relaxed);
+        self.interference.store(clients > 0, Ordering::Relaxed);
         std::thread::sleep(Duration::from_secs_f64(self.args.settle_seconds));
 
         let dropped_before = self.frames_dropped();
@@ -186,7 +185,7 @@ impl Bench {
         let received_in_window = received.load(Ordering::Relaxed) - received_before;
         let frames_dropped = self.frames_dropped().saturating_sub(dropped_before);
 
-        interference.store(false, Ordering::Relaxed);
+        self.interference.store(false, Ordering::Relaxed);
         for reader in readers {
             reader.abort();
         }
@@ -228,13 +227,22 @@ async fn get_json(addr: std::net::SocketAddr, path: &str) -> serde_json::Value {
         .unwrap_or(serde_json::Value::Null)
 }
 
-/// The windows of one condition pooled.
-fn pool<'a>(blocks: impl Iterator<Item = &'a Block>) -> HistogramCounts {
-    let mut pooled = HistogramCounts::default();
-    for block in blocks {
-        pooled.add(&block.lateness);
+/// The pairs `picks` pooled: (no clients, with clients).
+fn pool(
+    pairs: &[(Block, Block)],
+    picks: impl Iterator<Item = usize>,
+) -> (HistogramCounts, HistogramCounts) {
+    let (mut idle, mut loaded) = (HistogramCounts::default(), HistogramCounts::default());
+    for i in picks {
+        idle.add(&pairs[i].0.lateness);
+        loaded.add(&pairs[i].1.lateness);
     }
-    pooled
+    (idle, loaded)
+}
+
+/// The share of ticks more than 10 µs late.
+fn late_share(h: &HistogramCounts) -> f64 {
+    h.count_above_ns(LATE_NS) as f64 / h.count().max(1) as f64
 }
 
 fn us(ns: u64) -> f64 {
@@ -263,28 +271,23 @@ fn p99_ratio(idle: &HistogramCounts, loaded: &HistogramCounts) -> f64 {
 
 /// Loaded over idle share of ticks more than 10 µs late.
 fn late_ratio(idle: &HistogramCounts, loaded: &HistogramCounts) -> f64 {
-    let share = |h: &HistogramCounts| h.count_above_ns(LATE_NS) as f64 / h.count().max(1) as f64;
-    share(loaded) / share(idle).max(1e-9)
+    late_share(loaded) / late_share(idle).max(1e-9)
 }
 
 /// `statistic` of all pairs pooled, and its 90 % bootstrap interval (pairs resampled with replacement).
 fn bootstrap(pairs: &[(Block, Block)], resamples: usize, statistic: Statistic) -> (f64, f64, f64) {
-    let pooled = |picks: &mut dyn Iterator<Item = usize>| {
-        let (mut idle, mut loaded) = (HistogramCounts::default(), HistogramCounts::default());
-        for i in picks {
-            idle.add(&pairs[i].0.lateness);
-            loaded.add(&pairs[i].1.lateness);
-        }
-        statistic(&idle, &loaded)
-    };
     let n = pairs.len();
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     let mut values: Vec<f64> = (0..resamples.max(1))
-        .map(|_| pooled(&mut (0..n).map(|_| rng.below(n))))
+        .map(|_| {
+            let (idle, loaded) = pool(pairs, (0..n).map(|_| rng.below(n)));
+            statistic(&idle, &loaded)
+        })
         .collect();
     values.sort_by(f64::total_cmp);
     let at = |q: f64| values[(q * (values.len() - 1) as f64).round() as usize];
-    (pooled(&mut (0..n)), at(0.05), at(0.95))
+    let (idle, loaded) = pool(pairs, 0..n);
+    (statistic(&idle, &loaded), at(0.05), at(0.95))
 }
 
 fn print_block(pair: usize, block: &Block) {
@@ -361,17 +364,16 @@ fn main() -> anyhow::Result<()> {
         server_rt,
         shared,
         addr,
-        servo_cpu,
+        interference: Arc::new(std::sync::atomic::AtomicBool::new(false)),
     };
-    let interference = Arc::new(std::sync::atomic::AtomicBool::new(false));
     if bench.args.interfere_us > 0.0 {
-        let cpu = bench.servo_cpu.ok_or_else(|| {
+        let cpu = servo_cpu.ok_or_else(|| {
             anyhow::anyhow!("--interfere-us needs the servo on a core of its own")
         })?;
         start_interference(
             cpu,
             Duration::from_secs_f64(bench.args.interfere_us * 1e-6),
-            interference.clone(),
+            bench.interference.clone(),
         )?;
         println!(
             "self-check: loaded blocks also busy the servo's core {} us every 2.9 ms",
@@ -386,9 +388,9 @@ fn main() -> anyhow::Result<()> {
         } else {
             [bench.args.clients, 0]
         };
-        let first = bench.block(order[0], &interference)?;
+        let first = bench.block(order[0])?;
         print_block(pair, &first);
-        let second = bench.block(order[1], &interference)?;
+        let second = bench.block(order[1])?;
         print_block(pair, &second);
         pairs.push(if first.clients == 0 {
             (first, second)
@@ -397,8 +399,7 @@ fn main() -> anyhow::Result<()> {
         });
     }
 
-    let idle = pool(pairs.iter().map(|(idle, _)| idle));
-    let loaded = pool(pairs.iter().map(|(_, loaded)| loaded));
+    let (idle, loaded) = pool(&pairs, 0..pairs.len());
     println!(
         "pooled            0 clients  {:>4} clients   ratio",
         bench.args.clients
@@ -407,19 +408,19 @@ fn main() -> anyhow::Result<()> {
         let (a, b) = (us(idle.quantile_ns(q)), us(loaded.quantile_ns(q)));
         println!("{name:<17} {a:>10.2} {b:>13.2} {:>7.2}", b / a.max(1e-3));
     }
-    let late =
-        |h: &HistogramCounts| 100.0 * h.count_above_ns(LATE_NS) as f64 / h.count().max(1) as f64;
     println!(
         "ticks > 10 us late {:>9.3}% {:>12.3}%",
-        late(&idle),
-        late(&loaded)
+        100.0 * late_share(&idle),
+        100.0 * late_share(&loaded)
     );
     let higher = pairs
         .iter()
         .filter(|(a, b)| b.lateness.quantile_ns(0.99) > a.lateness.quantile_ns(0.99))
         .count();
     let (ratio, low, high) = bootstrap(&pairs, bench.args.resamples, p99_ratio);
-    let verdict = if high <= CRITERION {
+    let verdict = if pairs.len() < MIN_PAIRS {
+        "undecided (fewer than 10 pairs: too few to resample)"
+    } else if high <= CRITERION {
         "met"
     } else if low > CRITERION {
         "not met"

@@ -166,12 +166,8 @@ impl HistogramCounts {
     /// Values above `threshold_ns`, counting a whole bucket when its lower edge lies above the threshold
     /// (so up to one bucket, 1/16 of an octave, of values just above it may be missed).
     pub fn count_above_ns(&self, threshold_ns: u64) -> u64 {
-        self.buckets
-            .iter()
-            .enumerate()
-            .filter(|(bucket, _)| *bucket > bucket_of(threshold_ns))
-            .map(|(_, count)| count)
-            .sum()
+        let first = (bucket_of(threshold_ns) + 1).min(self.buckets.len());
+        self.buckets[first..].iter().sum()
     }
 
     /// The value at quantile `q` (0..=1) as its bucket's upper edge (ns); 0 when empty.

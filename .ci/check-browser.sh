@@ -46,32 +46,16 @@ fi
 command -v python3 >/dev/null 2>&1 || { say "SKIP: python3 is needed to check the screenshots"; exit 0; }
 say "using $CHROMIUM ($("$CHROMIUM" --version 2>/dev/null | head -1))"
 
-# ---- the server binary: built unless an up-to-date release build is there
-BIN=${VOXHAP_BIN:-target/release/voxhap}
-if [ -z "${VOXHAP_BIN:-}" ]; then
-  if [ ! -x "$BIN" ] || [ -n "$(find src web Cargo.toml Cargo.lock -newer "$BIN" -print -quit 2>/dev/null)" ]; then
-    say "building the release binary (cargo build --release)"
-    cargo build --release --quiet || fail "cargo build --release failed"
-  fi
-fi
-[ -x "$BIN" ] || fail "no server binary at $BIN"
-
-WORK=$(mktemp -d /tmp/check-browser.XXXXXX)
-SERVER_PID=""
-cleanup() {
-  if [ -n "$SERVER_PID" ] && kill -0 "$SERVER_PID" 2>/dev/null; then
-    kill "$SERVER_PID" 2>/dev/null || true
-    wait "$SERVER_PID" 2>/dev/null || true
-  fi
-  rm -rf "$WORK"
-}
-trap cleanup EXIT
+# ---- the server binary
+. .ci/lib.sh
+find_voxhap check-browser
+make_work_dir check-browser
 
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 TOKEN=TESTTOKEN
 BASE="http://127.0.0.1:$PORT"
-say "starting $BIN serve on $BASE"
-"$BIN" serve --http "127.0.0.1:$PORT" --token "$TOKEN" --duration 60 >"$WORK/server.log" 2>&1 &
+say "starting $VOXHAP serve on $BASE"
+"$VOXHAP" serve --http "127.0.0.1:$PORT" --token "$TOKEN" --duration 60 >"$WORK/server.log" 2>&1 &
 SERVER_PID=$!
 
 server_log() { echo "--- server output:" >&2; tail -n 30 "$WORK/server.log" >&2 || true; }

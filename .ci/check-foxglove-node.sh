@@ -25,54 +25,34 @@ fail() {
 command -v node >/dev/null 2>&1 || skip "node is not installed"
 command -v npm >/dev/null 2>&1 || skip "npm is not installed"
 
-tmp=$(mktemp -d "${TMPDIR:-/tmp}/voxhap-foxglove-node.XXXXXX")
-server_pid=""
-cleanup() {
-  if [ -n "$server_pid" ] && kill -0 "$server_pid" 2>/dev/null; then
-    kill "$server_pid" 2>/dev/null || true
-    wait "$server_pid" 2>/dev/null || true
-  fi
-  rm -rf "$tmp"
-}
-trap cleanup EXIT
+. .ci/lib.sh
+make_work_dir voxhap-foxglove-node
 trap 'exit 130' INT TERM
 
-echo "$name: installing @foxglove/ws-protocol and ws into $tmp (node $(node --version), npm $(npm --version 2>/dev/null))"
-if ! timeout 120 npm install --prefix "$tmp" --no-audit --no-fund --no-save --loglevel=error \
-  @foxglove/ws-protocol ws >"$tmp/npm.log" 2>&1; then
-  tail -n 5 "$tmp/npm.log" | sed "s/^/$name: npm: /"
+echo "$name: installing @foxglove/ws-protocol and ws into $WORK (node $(node --version), npm $(npm --version 2>/dev/null))"
+if ! timeout 120 npm install --prefix "$WORK" --no-audit --no-fund --no-save --loglevel=error \
+  @foxglove/ws-protocol ws >"$WORK/npm.log" 2>&1; then
+  tail -n 5 "$WORK/npm.log" | sed "s/^/$name: npm: /"
   skip "npm install of @foxglove/ws-protocol and ws failed (offline or no registry access)"
 fi
-versions=$(cd "$tmp" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
+versions=$(cd "$WORK" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
 echo "$name: installed $versions"
 
-if [ -n "${VOXHAP_BIN:-}" ]; then
-  voxhap=$VOXHAP_BIN
-  [ -x "$voxhap" ] || fail "VOXHAP_BIN=$voxhap is not an executable"
-else
-  echo "$name: building target/release/voxhap (cargo build --release; quick when up to date)"
-  cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
-  voxhap=target/release/voxhap
-fi
-
-serve_args=(serve --foxglove 127.0.0.1:0 --duration 30)
-# The HTTP server comes from another branch; leave it out when this voxhap has it.
-if "$voxhap" serve --help | grep -q -- '--no-http'; then
-  serve_args+=(--no-http)
-fi
-echo "$name: starting $voxhap ${serve_args[*]}"
-"$voxhap" "${serve_args[@]}" >"$tmp/serve.out" 2>"$tmp/serve.err" &
-server_pid=$!
+find_voxhap "$name"
+serve_args=(serve --foxglove 127.0.0.1:0 --duration 30 --no-http)
+echo "$name: starting $VOXHAP ${serve_args[*]}"
+"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
+SERVER_PID=$!
 
 url=""
 for _ in $(seq 1 150); do
-  line=$(grep -m1 '^foxglove: listening on ws://' "$tmp/serve.out" || true)
+  line=$(grep -m1 '^foxglove: listening on ws://' "$WORK/serve.out" || true)
   if [ -n "$line" ]; then
     url=${line#foxglove: listening on }
     break
   fi
-  if ! kill -0 "$server_pid" 2>/dev/null; then
-    cat "$tmp/serve.out" "$tmp/serve.err" | sed "s/^/$name: serve: /" >&2
+  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
+    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
     fail "voxhap serve exited before its Foxglove server was listening"
   fi
   sleep 0.1
@@ -80,14 +60,14 @@ done
 [ -n "$url" ] || fail "voxhap serve did not print 'foxglove: listening on ws://...' within 15 s"
 echo "$name: voxhap serve is listening on $url"
 
-cp .ci/foxglove-subscribe.mjs "$tmp/"
-if ! node "$tmp/foxglove-subscribe.mjs" "$url" "${VOXHAP_FOXGLOVE_MESSAGES:-60}" \
+cp .ci/foxglove-subscribe.mjs "$WORK/"
+if ! node "$WORK/foxglove-subscribe.mjs" "$url" "${VOXHAP_FOXGLOVE_MESSAGES:-60}" \
   "${VOXHAP_FOXGLOVE_TIMEOUT_MS:-10000}"; then
-  sed "s/^/$name: serve: /" "$tmp/serve.err" >&2
+  sed "s/^/$name: serve: /" "$WORK/serve.err" >&2
   fail "the Node client did not receive the force topic (see above)"
 fi
 
-kill "$server_pid" 2>/dev/null || true
-wait "$server_pid" 2>/dev/null || true
-server_pid=""
+kill "$SERVER_PID" 2>/dev/null || true
+wait "$SERVER_PID" 2>/dev/null || true
+SERVER_PID=""
 echo "$name: passed"

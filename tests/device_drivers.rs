@@ -85,6 +85,9 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
         Transaction::Read(state_frame(3, 2, 0.03)),
         Transaction::Write(set_force_frame(3, [0.0; 3])),
         Transaction::Write(vector("disable")),
+        // Close writes zero and Disable once more, whatever the host believed (README, Safety).
+        Transaction::Write(set_force_frame(4, [0.0; 3])),
+        Transaction::Write(vector("disable")),
     ]);
     let mut device = Lifecycle::new(ProtocolDevice::new(
         SerialLink::new(stream),
@@ -100,18 +103,43 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
     assert!((state.position_m.x - 0.03).abs() < 1e-7);
     assert_eq!(device.device().counters().late_states, 1);
     device.disable().unwrap();
+    device.close().unwrap();
     device.device().link().transport().done();
 }
 
 #[test]
 fn protocol_driver_times_out_and_reports_a_disconnect() {
+    // No answer: Hello is sent five times (SPEC 7.1), then open fails naming the attempts.
+    let mut script = vec![Transaction::write(&[0x00])];
+    for _ in 0..5 {
+        script.push(Transaction::Write(vector("hello")));
+        script.push(Transaction::ReadTimeout);
+    }
+    let stream = ScriptedStream::new(&script);
+    let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
+    let error = device.open().unwrap_err();
+    assert_eq!(error.kind(), ErrorKind::Timeout);
+    assert!(error.to_string().contains("after 5 attempts"), "{error}");
+    device.link().transport().done();
+
+    // A corrupted DeviceInfo (bad CRC) counts as no answer: the second Hello gets the real one.
+    let mut corrupted = vector("device_info");
+    let crc_at = corrupted.len() - 3;
+    corrupted[crc_at] ^= 0x01;
     let stream = ScriptedStream::new(&[
         Transaction::write(&[0x00]),
         Transaction::Write(vector("hello")),
+        Transaction::Read(corrupted),
         Transaction::ReadTimeout,
+        Transaction::Write(vector("hello")),
+        Transaction::Read(vector("device_info")),
+        Transaction::Write(set_force_frame(1, [0.0; 3])),
+        Transaction::Read(state_frame(1, 1, 0.01)),
     ]);
     let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
-    assert_eq!(device.open().unwrap_err().kind(), ErrorKind::Timeout);
+    device.open().unwrap();
+    assert_eq!(device.counters().hellos, 2);
+    device.link().transport().done();
 
     let stream = ScriptedStream::new(&[
         Transaction::write(&[0x00]),

@@ -7,7 +7,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent};
+use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{HapticDevice, Lifecycle};
 use voxhap_protocol::{FaultCode, HostEvent, StatusFlags};
@@ -263,7 +263,8 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
             ..SafetyConfig::default()
         },
         reconnect_interval_us: 50_000,
-        max_consecutive_timeouts: 10,
+        max_consecutive_errors: 10,
+        ..SupervisorConfig::default()
     };
     let mut supervisor = Supervisor::new(config, || {
         let transport = SerialTransport::open(&link_text, 1_000_000)?;
@@ -279,24 +280,27 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
-        let out = supervisor.tick(DVec3::new(0.2, 0.0, 0.0), now_us);
-        match out.event {
-            Some(SupervisorEvent::Connected) => {
-                connects += 1;
-                if disconnected_at.is_some() {
-                    reconnected_at = Some(now_us);
+        let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
+        for event in out.events.iter() {
+            match event {
+                SupervisorEvent::Connected => {
+                    connects += 1;
+                    if disconnected_at.is_some() {
+                        reconnected_at = Some(now_us);
+                    }
                 }
+                SupervisorEvent::Disconnected { .. } => disconnected_at = Some(now_us),
+                _ => {}
             }
-            Some(SupervisorEvent::Disconnected(_)) => disconnected_at = Some(now_us),
-            _ => {}
         }
-        if disconnected_at.is_some() && reconnected_at.is_none() {
+        // From the tick after the one that noticed the loss (whose force went out before it was noticed).
+        if disconnected_at.is_some_and(|at| at < now_us) && reconnected_at.is_none() {
             assert_eq!(
                 out.sent_force_n,
                 DVec3::ZERO,
                 "force sent while disconnected"
             );
-            assert!(!out.connected || out.event.is_some());
+            assert!(!out.connected || !out.events.is_empty());
         }
         if reconnected_at.is_some() && !out.stale {
             ticks_after_reconnect += 1;
@@ -325,13 +329,12 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
     let mock = Mock::start(&["--pty", "--stop-after", "0.3"]);
     let path = mock.path.clone();
     let protocol = ProtocolConfig {
-        state_timeout: Duration::from_millis(5),
-        open_timeout: Duration::from_millis(50),
+        state_timeout: Duration::from_micros(500),
+        hello_timeout: Duration::from_millis(50),
         ..ProtocolConfig::default()
     };
     let config = SupervisorConfig {
         reconnect_interval_us: 100_000,
-        max_consecutive_timeouts: 10,
         ..SupervisorConfig::default()
     };
     let mut supervisor = Supervisor::new(config, || {
@@ -347,14 +350,16 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
-        let out = supervisor.tick(DVec3::new(0.2, 0.0, 0.0), now_us);
-        match out.event {
-            Some(SupervisorEvent::Disconnected(kind)) => {
-                assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
-                lost_at = Some(now_us);
+        let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
+        for event in out.events.iter() {
+            match event {
+                SupervisorEvent::Disconnected { kind, .. } => {
+                    assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
+                    lost_at = Some(now_us);
+                }
+                SupervisorEvent::ReconnectFailed(_) => failed_reconnects += 1,
+                _ => {}
             }
-            Some(SupervisorEvent::ReconnectFailed(_)) => failed_reconnects += 1,
-            _ => {}
         }
         if lost_at.is_some() {
             assert_eq!(out.sent_force_n, DVec3::ZERO);

@@ -7,7 +7,9 @@ use std::cell::Cell;
 use std::rc::Rc;
 use voxhap::device::drivers::ReplayDevice;
 use voxhap::device::safety::{SafetyConfig, SafetyPipeline};
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent};
+use voxhap::device::supervisor::{
+    LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
+};
 use voxhap::device::{DeviceError, DeviceInfo, DeviceState, ErrorKind, HapticDevice};
 use voxhap::record::{Trace, TraceSample};
 
@@ -23,7 +25,7 @@ fn safety_pipeline_tick_does_not_allocate() {
     ];
     let events = count_allocations(|| {
         for tick in 0..10_000u64 {
-            let out = pipeline.process(forces[(tick % 4) as usize], tick * 1_000);
+            let out = pipeline.process(forces[(tick % 4) as usize], tick * 1_000, true);
             std::hint::black_box(out);
         }
     });
@@ -54,10 +56,12 @@ fn supervisor_steady_state_tick_does_not_allocate() {
     })
     .unwrap();
     assert!(supervisor.connect(0).is_ok());
-    supervisor.tick(DVec3::ZERO, 1_000);
+    supervisor.tick(TickInput::at(DVec3::ZERO, 1_000));
     let events = count_allocations(|| {
         for tick in 2..5_000u64 {
-            std::hint::black_box(supervisor.tick(DVec3::new(0.01, 0.0, 0.0), tick * 1_000));
+            std::hint::black_box(
+                supervisor.tick(TickInput::at(DVec3::new(0.01, 0.0, 0.0), tick * 1_000)),
+            );
         }
     });
     assert_eq!(events, 0);
@@ -104,6 +108,8 @@ fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
         workspace_max_m: DVec3::splat(0.1),
         max_force_n: 1.0,
         max_stiffness_n_per_m: 1000.0,
+        max_speed_m_per_s: 5.0,
+        reports_velocity: false,
         state_rates_hz: Vec::new(),
     };
     let opener_gone = gone.clone();
@@ -114,7 +120,9 @@ fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
             ..SafetyConfig::default()
         },
         reconnect_interval_us: 50_000,
-        max_consecutive_timeouts: 5,
+        max_consecutive_errors: 5,
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
     };
     let mut supervisor = Supervisor::new(config, move || {
         if opener_gone.get() {
@@ -135,12 +143,17 @@ fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
     let mut now_us = 0;
     let mut tick = |supervisor: &mut Supervisor<_, _>, force: DVec3| {
         now_us += 1_000;
-        supervisor.tick(force, now_us)
+        supervisor.tick(TickInput::at(force, now_us))
     };
     assert_eq!(
-        tick(&mut supervisor, DVec3::ZERO).event,
+        tick(&mut supervisor, DVec3::ZERO).events.first(),
         Some(SupervisorEvent::Connected)
     );
+    // Enabled after 5 steady ticks; engaged after 10 small ones; ramped in over 10 ms; then the push, whose
+    // rise the slew limit spreads over a few ticks.
+    for _ in 0..30 {
+        tick(&mut supervisor, DVec3::ZERO);
+    }
     for _ in 0..20 {
         tick(&mut supervisor, push);
     }
@@ -149,8 +162,11 @@ fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
     gone.set(true);
     let out = tick(&mut supervisor, push);
     assert_eq!(
-        out.event,
-        Some(SupervisorEvent::Disconnected(ErrorKind::Disconnected))
+        out.events.first(),
+        Some(SupervisorEvent::Disconnected {
+            kind: ErrorKind::Disconnected,
+            reason: LossReason::HungUp
+        })
     );
     assert!(!out.connected);
     for _ in 0..100 {
@@ -162,7 +178,7 @@ fn supervisor_zeroes_reports_and_reconnects_after_a_disconnect() {
     gone.set(false);
     let mut reconnected = false;
     for _ in 0..100 {
-        if tick(&mut supervisor, DVec3::ZERO).event == Some(SupervisorEvent::Connected) {
+        if tick(&mut supervisor, DVec3::ZERO).events.first() == Some(SupervisorEvent::Connected) {
             reconnected = true;
             break;
         }

@@ -9,13 +9,14 @@ use std::sync::Arc;
 use std::time::Duration;
 use voxhap::clock::{Clock, MockClock};
 use voxhap::device::supervisor::SupervisorConfig;
+use voxhap::device::supervisor::TickInput;
 use voxhap::haptics::modes::{ModeConfig, ModeKind, TransferFunction};
 use voxhap::record::{
     read_trace, TraceFormat, TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_OVERRUN,
     FLAG_SAMPLES_DROPPED,
 };
 use voxhap::servo::device::{open_device, DeviceSpec};
-use voxhap::servo::runner::{LoopIo, LoopTiming, ServoCommand, ServoLoop};
+use voxhap::servo::runner::{CommandEnvelope, LoopIo, LoopTiming, ServoCommand, ServoLoop};
 use voxhap::servo::schedule::{MockWaiter, Waiter};
 use voxhap::servo::setup::{load_volume_arg, SceneBundle, SceneSetup};
 use voxhap::servo::stats::ServoStats;
@@ -28,12 +29,30 @@ const PERIOD_NS: u64 = 1_000_000;
 
 struct Rig {
     servo: ServoLoop,
-    commands: rtrb::Producer<ServoCommand>,
+    commands: Commands,
     retired: rtrb::Consumer<Box<SceneBundle>>,
     samples: rtrb::Consumer<TraceSample>,
     snapshot: triple_buffer::Output<Option<Snapshot>>,
     stats: Arc<ServoStats>,
     setup: SceneSetup,
+}
+
+/// The control side's end of the command ring, numbering commands as the session does.
+struct Commands {
+    ring: rtrb::Producer<CommandEnvelope>,
+    next_id: u64,
+}
+
+impl Commands {
+    fn push(&mut self, command: ServoCommand) -> Result<(), ()> {
+        self.next_id += 1;
+        self.ring
+            .push(CommandEnvelope {
+                id: self.next_id,
+                command,
+            })
+            .map_err(|_| ())
+    }
 }
 
 fn rig(sample_capacity: usize) -> Rig {
@@ -53,8 +72,13 @@ fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
     .unwrap();
     let mut device = opened.device;
     device.connect(0).unwrap();
-    let first = device.exchange(DVec3::ZERO, 0).state;
-    let (commands, command_rx) = rtrb::RingBuffer::new(64);
+    let first = device.exchange(TickInput::at(DVec3::ZERO, 0)).state;
+    let (command_ring, command_rx) = rtrb::RingBuffer::new(64);
+    let commands = Commands {
+        ring: command_ring,
+        next_id: 0,
+    };
+    let (events, _) = rtrb::RingBuffer::new(256);
     let (retire_tx, retired) = rtrb::RingBuffer::new(64);
     let (sample_tx, samples) = rtrb::RingBuffer::new(sample_capacity);
     let (snapshot_in, snapshot) = triple_buffer::triple_buffer(&None);
@@ -64,9 +88,11 @@ fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
         device,
         LoopIo {
             commands: command_rx,
+            command_claim: Arc::new(std::sync::atomic::AtomicU64::new(0)),
             retired: retire_tx,
             samples: sample_tx,
             snapshot: snapshot_in,
+            events,
         },
         stats.clone(),
         LoopTiming {
@@ -250,14 +276,16 @@ impl Waiter for SlowClockWaiter {
 fn compute_over_budget_sends_the_last_safe_force() {
     let mut rig = rig(4096);
     let (mut waiter, _) = mock_waiter();
-    for _ in 0..500 {
+    // Enabled after 50 steady ticks, engaged once the force is small, ramped in over 0.5 s.
+    for _ in 0..1500 {
         rig.servo.step(&mut waiter);
     }
+    assert!(rig.snapshot.read().unwrap().engaged);
     let before: Vec<TraceSample> = std::iter::from_fn(|| rig.samples.pop().ok()).collect();
     let last_safe = before.last().unwrap().force_n;
     // Now every clock read costs 700 us: the compute check (budget 600 us) fails.
     let mut slow = SlowClockWaiter {
-        now_ns: std::cell::Cell::new(500 * PERIOD_NS),
+        now_ns: std::cell::Cell::new(1500 * PERIOD_NS),
         step_ns: 700_000,
     };
     rig.servo.step(&mut slow);

@@ -5,6 +5,7 @@
 //! Ctrl-C, watched on http://127.0.0.1:8080 and ws://127.0.0.1:8765 (Foxglove).
 
 pub mod bench_loop;
+pub mod clear_fault;
 pub mod devices;
 pub mod info;
 pub mod mock_device;
@@ -52,6 +53,9 @@ pub enum Command {
     Serve(serve::ServeArgs),
     /// Run the servo loop on the simulated arm for a while and print its timing histograms.
     BenchLoop(bench_loop::BenchLoopArgs),
+    /// Acknowledge a device fault that needs a person: a running `voxhap serve` sends ClearFault and enables
+    /// the device again.
+    ClearFault(clear_fault::ClearFaultArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -90,6 +94,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sim(args)) => sim::run(&args),
         Some(Command::Serve(args)) => serve::run(&args),
         Some(Command::BenchLoop(args)) => bench_loop::run(&args),
+        Some(Command::ClearFault(args)) => clear_fault::run(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

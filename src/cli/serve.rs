@@ -106,28 +106,61 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     Ok(config)
 }
 
-/// Waits for Ctrl-C, SIGTERM or `duration`.
-pub async fn wait_for_stop(duration: Option<Duration>) -> &'static str {
-    let ctrl_c = tokio::signal::ctrl_c();
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-    let terminate = async {
-        match term.as_mut() {
-            Some(term) => {
-                term.recv().await;
+/// The signals that stop `serve` cleanly (zero force, Disable, trace finished, exit 0): SIGINT (Ctrl-C),
+/// SIGTERM, SIGHUP (the terminal closed), SIGQUIT and SIGUSR1. Their handlers are installed before the device is
+/// opened, so none of them can kill the process with force on the arm.
+pub struct StopSignals {
+    interrupt: tokio::signal::unix::Signal,
+    others: Vec<(tokio::signal::unix::Signal, &'static str)>,
+}
+
+impl StopSignals {
+    /// Installs the handlers (inside a tokio runtime).
+    pub fn install() -> anyhow::Result<StopSignals> {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut others = Vec::new();
+        for (kind, name) in [
+            (SignalKind::terminate(), "SIGTERM"),
+            (SignalKind::hangup(), "SIGHUP"),
+            (SignalKind::quit(), "SIGQUIT"),
+            (SignalKind::user_defined1(), "SIGUSR1"),
+        ] {
+            others.push((
+                signal(kind).with_context(|| format!("installing the {name} handler"))?,
+                name,
+            ));
+        }
+        Ok(StopSignals {
+            interrupt: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
+            others,
+        })
+    }
+
+    /// Waits for any stop signal or `duration`; says which.
+    pub async fn wait(&mut self, duration: Option<Duration>) -> &'static str {
+        let timer = async {
+            match duration {
+                Some(d) => tokio::time::sleep(d).await,
+                None => std::future::pending::<()>().await,
             }
-            None => std::future::pending::<()>().await,
+        };
+        let others =
+            futures_util::future::select_all(self.others.iter_mut().map(|(signal, name)| {
+                Box::pin(async move {
+                    signal.recv().await;
+                    *name
+                })
+            }));
+        tokio::select! {
+            _ = self.interrupt.recv() => "interrupt",
+            (name, _, _) = others => name,
+            () = timer => "duration reached",
         }
-    };
-    let timer = async {
-        match duration {
-            Some(d) => tokio::time::sleep(d).await,
-            None => std::future::pending::<()>().await,
-        }
-    };
-    tokio::select! {
-        _ = ctrl_c => "interrupt",
-        () = terminate => "SIGTERM",
-        () = timer => "duration reached",
+    }
+
+    /// Waits for a second SIGINT (which shortens the stop; the force is still zeroed).
+    pub async fn second_interrupt(&mut self) {
+        self.interrupt.recv().await;
     }
 }
 
@@ -181,11 +214,15 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let mut signals = runtime.block_on(async { StopSignals::install() })?;
     let bound = match http {
         Some(settings) => runtime.block_on(bind_http(settings))?,
         None => None,
     };
     let session = Session::start(config)?;
+    for notice in session.notices() {
+        eprintln!("notice: {notice}");
+    }
     super::print_out(&format!(
         "serving: device {device}, scene {label:?} ({modes} modes), {rate} Hz; Ctrl-C or SIGTERM to stop"
     ))?;
@@ -220,19 +257,33 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             server.local_addr()
         ))?;
     }
-    let reason = runtime.block_on(wait_for_stop(duration));
-    // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream.
+    let reason = runtime.block_on(signals.wait(duration));
+    // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream. A second
+    // Ctrl-C skips the wait for the clients; the servo still zeroes the force and disables the device.
     let _ = stop_http.send(());
-    if let Some(task) = http_task {
-        let finished = runtime.block_on(async {
-            tokio::time::timeout(server::SHUTDOWN_GRACE + Duration::from_secs(1), task).await
-        });
-        if let Ok(Ok(Err(error))) = finished {
-            eprintln!("warning: http: the visualiser server stopped with an error: {error}");
+    let shortened = runtime.block_on(async {
+        let clients = async {
+            if let Some(task) = http_task {
+                let finished =
+                    tokio::time::timeout(server::SHUTDOWN_GRACE + Duration::from_secs(1), task)
+                        .await;
+                if let Ok(Ok(Err(error))) = finished {
+                    eprintln!(
+                        "warning: http: the visualiser server stopped with an error: {error}"
+                    );
+                }
+            }
+            if let Some(server) = foxglove {
+                server.stop().await;
+            }
+        };
+        tokio::select! {
+            () = clients => false,
+            () = signals.second_interrupt() => true,
         }
-    }
-    if let Some(server) = foxglove {
-        runtime.block_on(server.stop());
+    });
+    if shortened {
+        eprintln!("second interrupt: stopping now (force zeroed, device disabled)");
     }
     let summary = session.stop();
     super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;

@@ -11,6 +11,7 @@ use std::io;
 
 /// What kind of failure an error is, independent of the driver that raised it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ErrorKind {
     /// The device went away (unplugged cable, closed pseudo-terminal, hang-up). Reopen when it comes back.
     Disconnected,
@@ -26,6 +27,8 @@ pub enum ErrorKind {
     InvalidState,
     /// The device or its configuration cannot be used (bad parameters, unsupported, incompatible version).
     Unsupported,
+    /// Anything else (embedded-hal's `Other`): reported, never acted on by kind.
+    Other,
 }
 
 /// The error trait of voxhap devices, in the embedded-hal manner: any driver error can say what kind it is.
@@ -66,6 +69,17 @@ pub enum DeviceError {
         message_type: u8,
         /// Reject reason code (1 no session, 2 version mismatch, 3 faulted, 4 invalid argument).
         reason: u8,
+    },
+    /// The device never answered a request that was retried (a handshake), so there is nobody there speaking
+    /// the protocol: wrong port, no power, other firmware, or a reply delay beyond the deadline.
+    #[error("the device did not answer: no {waiting_for} after {attempts} attempts of {each_us} µs each (is it powered, on this port, and running firmware that speaks this protocol?)")]
+    NoAnswer {
+        /// What the host waited for.
+        waiting_for: &'static str,
+        /// Requests sent.
+        attempts: u32,
+        /// Deadline of each (µs).
+        each_us: u64,
     },
     /// The device reported a latched hardware fault.
     #[error("device fault code {code} (active fault bits 0x{active:04x})")]
@@ -143,7 +157,7 @@ impl Error for DeviceError {
     fn kind(&self) -> ErrorKind {
         match self {
             DeviceError::Disconnected { .. } => ErrorKind::Disconnected,
-            DeviceError::Timeout { .. } => ErrorKind::Timeout,
+            DeviceError::Timeout { .. } | DeviceError::NoAnswer { .. } => ErrorKind::Timeout,
             DeviceError::Protocol { .. } | DeviceError::Rejected { .. } => ErrorKind::Protocol,
             DeviceError::Faulted { .. } => ErrorKind::Faulted,
             DeviceError::Io { .. } | DeviceError::Open { .. } => ErrorKind::Io,

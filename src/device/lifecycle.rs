@@ -2,8 +2,11 @@
 //! `Closed --open--> Open --enable--> Enabled --disable--> Open --close--> Closed`.
 //!
 //! Where it sits: between the supervisor (src/device/supervisor.rs) and a driver. Forces are accepted only while
-//! enabled; states can be read while open or enabled. On every stop (disable, close, drop while enabled) the wrapper
-//! writes an explicit zero force first, because some devices keep their last force (DESIGN.md section 6).
+//! enabled; while open the only force that may be written is zero (lockstep devices answer each write with a
+//! state, so the host watches the handle before enabling); states can be read while open or enabled. On every
+//! stop (disable, close, drop while open or enabled) the wrapper writes an explicit zero force first, because some
+//! devices keep their last force (DESIGN.md section 6), and close disables the device whether or not the host
+//! believed it enabled (the device may know better).
 
 use super::error::{Error, ErrorKind};
 use super::{DeviceInfo, DeviceState, HapticDevice};
@@ -117,17 +120,17 @@ impl<D: HapticDevice> Lifecycle<D> {
         zero.and(disabled).map_err(LifecycleError::Device)
     }
 
-    /// Open or Enabled → Closed (disabling first). The state becomes Closed even if the driver fails.
+    /// Open or Enabled → Closed, after an explicit zero force and a disable. The state becomes Closed even if
+    /// the driver fails.
     pub fn close(&mut self) -> Result<(), LifecycleError<D::Error>> {
         self.check("close", &[LifecycleState::Open, LifecycleState::Enabled])?;
-        let disabled = if self.state == LifecycleState::Enabled {
-            self.disable()
-        } else {
-            Ok(())
-        };
         self.state = LifecycleState::Closed;
-        let closed = self.device.close().map_err(LifecycleError::Device);
-        disabled.and(closed)
+        let zero = self.device.write_force(DVec3::ZERO);
+        let disabled = self.device.disable();
+        let closed = self.device.close();
+        zero.and(disabled)
+            .and(closed)
+            .map_err(LifecycleError::Device)
     }
 
     /// Sends a force; only while enabled.
@@ -136,6 +139,39 @@ impl<D: HapticDevice> Lifecycle<D> {
         self.device
             .write_force(force_n)
             .map_err(LifecycleError::Device)
+    }
+
+    /// Sends a zero force; while open or enabled (lockstep devices answer it with a state).
+    pub fn write_zero(&mut self) -> Result<(), LifecycleError<D::Error>> {
+        self.check(
+            "write a zero force to",
+            &[LifecycleState::Open, LifecycleState::Enabled],
+        )?;
+        self.device
+            .write_force(DVec3::ZERO)
+            .map_err(LifecycleError::Device)
+    }
+
+    /// The next event the device reported (a fault, a refusal).
+    pub fn take_event(&mut self) -> Option<super::DeviceEvent> {
+        self.device.take_event()
+    }
+
+    /// Clears the device's latched faults (an operator's request); while open.
+    pub fn clear_fault(&mut self) -> Result<(), LifecycleError<D::Error>> {
+        self.check("clear the faults of", &[LifecycleState::Open])?;
+        self.device.clear_fault().map_err(LifecycleError::Device)
+    }
+
+    /// Keeps an idle link alive (a heartbeat); while open.
+    pub fn keep_alive(&mut self) -> Result<(), LifecycleError<D::Error>> {
+        self.check("keep alive", &[LifecycleState::Open])?;
+        self.device.keep_alive().map_err(LifecycleError::Device)
+    }
+
+    /// The device's stop channel for the stall monitor, if its driver has one.
+    pub fn emergency_stop(&self) -> Option<Box<dyn super::EmergencyStop>> {
+        self.device.emergency_stop()
     }
 
     /// Reads the handle; while open or enabled.

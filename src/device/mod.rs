@@ -8,8 +8,10 @@
 //! - [`drivers`]: one per device family, each on a transport (voxhap's own protocol over serial or HID,
 //!   WoodenHaptics 1.5, Haply 2DIY, a replay of a recorded trace); all implement [`HapticDevice`];
 //! - [`Lifecycle`]: open → enabled → open → closed, enforced once for every driver;
-//! - [`safety`]: the host's safety pipeline, applied to every force before any driver;
-//! - [`supervisor`]: lifecycle plus safety plus reconnection, the one object the servo loop talks to;
+//! - [`plausibility`] and [`safety`]: the host's safety pipeline, applied to every sample a device reports and
+//!   to every force before any driver;
+//! - [`supervisor`]: lifecycle, safety, link health, the device's drive state (faults, recovery) and
+//!   reconnection: the one object the servo loop talks to;
 //! - [`mock`]: the simulated arm behind the real protocol, with fault injection (`voxhap mock-device`);
 //! - [`discovery`]: which serial ports and HID devices are present, and which ones voxhap recognises.
 //!
@@ -21,13 +23,14 @@ pub mod error;
 pub mod info;
 pub mod lifecycle;
 pub mod mock;
+pub mod plausibility;
 pub mod safety;
 pub mod sim;
 pub mod supervisor;
 pub mod transport;
 
 pub use error::{DeviceError, Error, ErrorKind};
-pub use info::{DeviceInfo, DeviceState};
+pub use info::{DeviceEvent, DeviceInfo, DeviceState, DeviceStatus};
 pub use lifecycle::{Lifecycle, LifecycleError, LifecycleState};
 
 use glam::DVec3;
@@ -70,4 +73,40 @@ pub trait HapticDevice {
 
     /// Reads the newest state of the handle.
     fn read_state(&mut self) -> Result<DeviceState, Self::Error>;
+
+    /// The next thing the device said outside its states (a fault, a refused command), if any. Drivers
+    /// queue these while reading states; the supervisor drains them every tick. Allocation-free.
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        None
+    }
+
+    /// Clears the device's latched faults, on an operator's explicit request only (never automatically).
+    fn clear_fault(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+
+    /// Keeps an idle link alive (voxhap protocol: a Heartbeat) while the host is connected but not sending a
+    /// force every period; called off the servo thread, at most every 100 ms.
+    fn keep_alive(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+
+    /// A handle that brings the device to zero force from another thread, used by the stall monitor when
+    /// the servo thread stops ticking (see `servo::monitor`). `None` when the driver has no such path; the
+    /// device's own watchdog is then the only stop while the servo thread is stalled. Called off the servo
+    /// thread, after open.
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        None
+    }
+}
+
+/// A minimal stop channel to a device, usable from another thread while the servo thread owns the device.
+///
+/// It writes only a self-contained "zero force, then disable" sequence (for the voxhap protocol over serial:
+/// a delimiter that ends any frame the stalled servo thread left half-written, a zero SetForce and a Disable,
+/// on a second handle of the same port), so it is safe to call while the servo thread is stalled anywhere,
+/// even inside a write.
+pub trait EmergencyStop: Send {
+    /// Commands zero force and, where the device has it, disables. Must return within a few milliseconds.
+    fn stop(&mut self) -> Result<(), DeviceError>;
 }

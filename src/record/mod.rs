@@ -51,9 +51,24 @@ pub const FLAG_FORCE_LIMITED_BY_SAFETY: u32 = 1 << 6;
 /// Flag bit: the tick's compute (modes and solve) took longer than its budget, so the last safe force was
 /// sent again instead of this tick's.
 pub const FLAG_COMPUTE_OVER_BUDGET: u32 = 1 << 7;
+/// Flag bit: the device was not accepting force (starting, recovering from its watchdog, faulted, or it
+/// refused Enable): zero was commanded, whatever the scene rendered.
+pub const FLAG_DEVICE_NOT_ENABLED: u32 = 1 << 8;
+/// Flag bit: the device's position was implausible (a jump beyond its maximum speed, outside its workspace,
+/// not finite); the last accepted one was used.
+pub const FLAG_POSITION_REJECTED: u32 = 1 << 9;
+/// Flag bit: the device's reported velocity disagreed with its positions (or exceeded its maximum speed);
+/// the estimate from positions was used.
+pub const FLAG_VELOCITY_REPLACED: u32 = 1 << 10;
+/// Flag bit: the force's rise was limited by the slew rate.
+pub const FLAG_FORCE_SLEW_LIMITED: u32 = 1 << 11;
+/// Flag bit: no fresh device state for several periods; zero was commanded.
+pub const FLAG_STALE_STATE: u32 = 1 << 12;
+/// Flag bit: a fault that needs a person is active on the device.
+pub const FLAG_DEVICE_FAULTED: u32 = 1 << 13;
 
 /// Every flag bit with its name and meaning, lowest bit first; written into the sidecar.
-pub const FLAG_DOCS: [FlagDoc; 8] = [
+pub const FLAG_DOCS: [FlagDoc; 14] = [
     FlagDoc {
         bit: 0,
         name: Cow::Borrowed("solver_budget_hit"),
@@ -90,7 +105,8 @@ pub const FLAG_DOCS: [FlagDoc; 8] = [
         bit: 6,
         name: Cow::Borrowed("force_limited_by_safety"),
         meaning: Cow::Borrowed(
-            "force ramping in on enable, or held at zero by the watchdog or a disconnect",
+            "force below what was rendered: ramping in, waiting to engage, slew-limited, or held at zero \
+             (watchdog, disconnect, device not enabled, stale state)",
         ),
     },
     FlagDoc {
@@ -99,6 +115,42 @@ pub const FLAG_DOCS: [FlagDoc; 8] = [
         meaning: Cow::Borrowed(
             "tick compute exceeded its budget; the last safe force was sent again",
         ),
+    },
+    FlagDoc {
+        bit: 8,
+        name: Cow::Borrowed("device_not_enabled"),
+        meaning: Cow::Borrowed(
+            "device not accepting force (starting, recovering, faulted, or Enable refused): zero commanded",
+        ),
+    },
+    FlagDoc {
+        bit: 9,
+        name: Cow::Borrowed("position_rejected"),
+        meaning: Cow::Borrowed(
+            "implausible device position (speed, workspace, non-finite); the last accepted one was held",
+        ),
+    },
+    FlagDoc {
+        bit: 10,
+        name: Cow::Borrowed("velocity_replaced"),
+        meaning: Cow::Borrowed(
+            "reported velocity disagreed with the positions; the estimate from positions was used",
+        ),
+    },
+    FlagDoc {
+        bit: 11,
+        name: Cow::Borrowed("force_slew_limited"),
+        meaning: Cow::Borrowed("the force's rise was limited by the slew rate"),
+    },
+    FlagDoc {
+        bit: 12,
+        name: Cow::Borrowed("stale_state"),
+        meaning: Cow::Borrowed("no fresh device state for several periods: zero commanded"),
+    },
+    FlagDoc {
+        bit: 13,
+        name: Cow::Borrowed("device_faulted"),
+        meaning: Cow::Borrowed("a device fault that needs a person is active"),
     },
 ];
 

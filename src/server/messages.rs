@@ -300,6 +300,7 @@ enum CommandWire {
     SetHandTarget {
         position_m: Option<[f64; 3]>,
     },
+    ClearFault {},
 }
 
 impl CommandWire {
@@ -320,6 +321,7 @@ impl CommandWire {
             CommandWire::SetHandTarget { position_m } => {
                 ControlCommand::SetHandTarget { position_m }
             }
+            CommandWire::ClearFault {} => ControlCommand::ClearFault,
         }
     }
 
@@ -341,6 +343,7 @@ impl CommandWire {
             ControlCommand::SetHandTarget { position_m } => {
                 CommandWire::SetHandTarget { position_m }
             }
+            ControlCommand::ClearFault => CommandWire::ClearFault {},
         }
     }
 }

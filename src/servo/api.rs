@@ -10,6 +10,7 @@
 //! The HTTP/WebSocket server (issue 6) is written against the [`SessionApi`] trait, so it can be tested
 //! against the real session and knows nothing about threads or rings.
 
+use crate::device::supervisor::OutputState;
 use crate::haptics::modes::{ModeConfig, TransferFunction, MAX_MODES};
 use crate::haptics::tick::TickStatus;
 use crate::haptics::{Primitive, PrimitiveKind};
@@ -81,8 +82,12 @@ pub struct Snapshot {
     pub damping_n_s_per_m: f64,
     /// True while the device is connected and enabled.
     pub connected: bool,
-    /// True once the safety pipeline passes forces (after the ramp-in started).
+    /// True once the safety pipeline passes forces at full strength.
     pub engaged: bool,
+    /// Where the output stands (why force is or is not reaching the hand).
+    pub output_state: OutputState,
+    /// Latched faults the device last reported (bit n = fault code n).
+    pub active_faults: u16,
     /// `FLAG_*` bits of the trace format for this tick.
     pub flags: u32,
     /// Incremented every time a command changes the scene (k, damping, modes, volume).
@@ -113,6 +118,8 @@ impl Snapshot {
             damping_n_s_per_m: 0.0,
             connected: true,
             engaged: true,
+            output_state: OutputState::Engaged,
+            active_faults: 0,
             flags: 0,
             scene_generation: 1,
             hand_target_m: None,
@@ -174,6 +181,43 @@ pub struct StatsReport {
     pub commands_applied: u64,
     /// Which real-time features the thread got (`SCHED_FIFO`, memory lock, pinned core).
     pub realtime: RealtimeReport,
+    /// What the safety pipeline and the device's status did (README "Safety").
+    pub safety: SafetyReport,
+}
+
+/// The safety side of the statistics: where the output stands and what every safety rule did so far.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct SafetyReport {
+    /// Where the output stands now.
+    pub output_state: OutputState,
+    /// What that means for the operator.
+    pub output_state_explanation: &'static str,
+    /// Latched faults the device last reported (bit n = fault code n).
+    pub active_faults: u16,
+    /// Faults the device reported (its watchdog included).
+    pub device_faults: u64,
+    /// Device watchdog trips among them (re-enabled automatically).
+    pub device_watchdog_trips: u64,
+    /// Commands the device refused.
+    pub device_rejections: u64,
+    /// Enables sent.
+    pub enables: u64,
+    /// Ticks on which the device was not accepting force (zero sent, flagged in the trace).
+    pub not_enabled_ticks: u64,
+    /// Ticks on which zero was sent because the device's state was stale.
+    pub stale_ticks: u64,
+    /// Device positions rejected as implausible (held).
+    pub positions_rejected: u64,
+    /// Reported velocities replaced by the estimate.
+    pub velocities_replaced: u64,
+    /// Ticks whose force rise was slew-limited.
+    pub slew_limited_ticks: u64,
+    /// Forces clamped to the device maximum.
+    pub forces_clamped: u64,
+    /// Stops by the stall monitor (counted by the monitor).
+    pub monitor_stops: u64,
+    /// Device events the servo thread could not hand to the reporter (ring full).
+    pub events_dropped: u64,
 }
 
 /// What the servo thread was granted.
@@ -248,6 +292,10 @@ pub enum ControlCommand {
     StopRecording,
     /// Simulated arm only: pull the virtual hand towards `position_m` (m), or `null` to resume its path.
     SetHandTarget { position_m: Option<[f64; 3]> },
+    /// The operator's explicit acknowledgement of a device fault that needs a person: ClearFault goes to the
+    /// device, which is then enabled again (forces ramp in) once the link is healthy. voxhap never sends
+    /// ClearFault by itself.
+    ClearFault,
 }
 
 /// What a successful command did.

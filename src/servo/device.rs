@@ -10,38 +10,73 @@
 //! per force written, its virtual hand following a scripted path, or, when a client sets one through the
 //! session, a hand target (a triple buffer, so setting it never blocks the servo thread).
 
+use super::monitor::StopSlot;
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
 use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
-use crate::device::safety::SafetyConfigError;
+use crate::device::plausibility::InputCounters;
 use crate::device::sim::{SimArm, SimArmConfig, SimError};
-use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorCounters, TickOutput};
+use crate::device::supervisor::{
+    ClearFaultOutcome, OutputState, Supervisor, SupervisorConfig, SupervisorConfigError,
+    SupervisorCounters, TickInput, TickOutput,
+};
 use crate::device::transport::{HidTransport, SerialTransport};
 use crate::device::Lifecycle;
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{DeviceError, DeviceInfo, DeviceState, ErrorKind, HapticDevice};
 use glam::DVec3;
 use std::path::PathBuf;
 use std::str::FromStr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// Why a device could not be connected: the kind, and the driver's own words (with the OS reason).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct ConnectError {
+    /// The kind of failure.
+    pub kind: ErrorKind,
+    /// What the driver said.
+    pub message: String,
+}
+
+impl ConnectError {
+    fn from_error<E: crate::device::Error>(error: &E) -> ConnectError {
+        ConnectError {
+            kind: error.kind(),
+            message: error.to_string(),
+        }
+    }
+}
 
 /// The device as the servo thread sees it: one exchange per tick, plus a few queries.
 pub trait ServoDevice: Send {
-    /// Makes `force_n` safe, sends it and reads the answering state (see [`Supervisor::tick`]).
-    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput;
+    /// Makes the tick's force safe, sends it and reads the answering state (see [`Supervisor::tick`]).
+    fn exchange(&mut self, input: TickInput) -> TickOutput;
     /// The supervisor's counters.
     fn counters(&self) -> SupervisorCounters;
-    /// True once the safety pipeline passes forces.
+    /// The input checks' counters.
+    fn input_counters(&self) -> InputCounters;
+    /// True once the safety pipeline passes forces at full strength.
     fn engaged(&self) -> bool;
+    /// Where the output stands.
+    fn output_state(&self) -> OutputState;
+    /// The operator's `clear_fault` (ClearFault goes out on the next tick).
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome;
     /// Zero force, disable, close.
     fn stop(&mut self);
     /// Opens the device now (before the loop starts), so a missing device fails `serve` at once.
-    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind>;
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError>;
     /// The device's capabilities, while connected.
     fn info(&self) -> Option<DeviceInfo>;
+    /// The servo period (µs), for the slew limit.
+    fn set_period_us(&mut self, period_us: u64);
+    /// Where the stall monitor finds the device's stop channel, and the flag it raises after using it.
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>);
+    /// The connected device's declared maximum stiffness at 1 kHz (N/m), without allocating.
+    fn max_stiffness_n_per_m(&self) -> Option<f64>;
 }
 
 impl<D, F> ServoDevice for Supervisor<D, F>
@@ -49,28 +84,58 @@ where
     D: HapticDevice + Send,
     F: FnMut() -> Result<D, DeviceError> + Send,
 {
-    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput {
-        self.tick(force_n, now_us)
+    fn exchange(&mut self, input: TickInput) -> TickOutput {
+        self.tick(input)
     }
 
     fn counters(&self) -> SupervisorCounters {
         Supervisor::counters(self)
     }
 
+    fn input_counters(&self) -> InputCounters {
+        Supervisor::input_counters(self)
+    }
+
     fn engaged(&self) -> bool {
         self.safety().is_engaged()
+    }
+
+    fn output_state(&self) -> OutputState {
+        Supervisor::output_state(self)
+    }
+
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
+        Supervisor::request_clear_fault(self)
     }
 
     fn stop(&mut self) {
         Supervisor::stop(self);
     }
 
-    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind> {
-        Supervisor::connect(self, now_us)
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError> {
+        Supervisor::connect(self, now_us).map_err(|kind| ConnectError {
+            kind,
+            message: format!("could not open the device ({kind:?})"),
+        })
     }
 
     fn info(&self) -> Option<DeviceInfo> {
         self.device().map(|d| d.info().clone())
+    }
+
+    fn set_period_us(&mut self, period_us: u64) {
+        Supervisor::set_period_us(self, period_us);
+    }
+
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {
+        if let Some(device) = self.device() {
+            slot.install(device.emergency_stop());
+        }
+        self.set_stall_flag(slot.tripped_flag());
+    }
+
+    fn max_stiffness_n_per_m(&self) -> Option<f64> {
+        self.device().map(|d| d.info().max_stiffness_n_per_m)
     }
 }
 
@@ -83,27 +148,28 @@ fn no_opener<D>() -> Result<D, DeviceError> {
     })
 }
 
-fn open_and_enable<D: HapticDevice>(
-    opener: &Mutex<Opener<D>>,
-) -> Result<Lifecycle<D>, DeviceError> {
-    let mut opener = opener.lock().map_err(|_| DeviceError::Config {
-        what: "the device opener panicked earlier".to_owned(),
+/// Opens a device (handshake included) without enabling it: the supervisor enables it once the servo loop
+/// runs steadily.
+fn open_only<D: HapticDevice>(opener: &Mutex<Opener<D>>) -> Result<Lifecycle<D>, ConnectError> {
+    let mut opener = opener.lock().map_err(|_| ConnectError {
+        kind: ErrorKind::Other,
+        message: "the device opener panicked earlier".to_owned(),
     })?;
-    let mut device = Lifecycle::new((*opener)()?);
-    device.open().map_err(|e| DeviceError::Config {
-        what: e.to_string(),
-    })?;
-    device.enable().map_err(|e| DeviceError::Config {
-        what: e.to_string(),
-    })?;
+    let mut device = Lifecycle::new((*opener)().map_err(|e| ConnectError::from_error(&e))?);
+    device.open().map_err(|e| ConnectError::from_error(&e))?;
     Ok(device)
 }
 
+/// How often an opened device that waits to be handed to the servo thread is kept alive (SPEC: heartbeat
+/// while the host is not streaming).
+const KEEP_ALIVE_INTERVAL: Duration = Duration::from_millis(100);
+
 /// A supervised device whose reconnection runs on its own thread, so the servo thread never blocks on a
 /// port open or a handshake and never frees the lost device's buffers: when the link is lost, the servo
-/// hands the dead device to the connector thread (a ring) and raises a flag; the connector closes it, reopens
-/// every `reconnect_interval_us`, and hands the enabled device back (another ring); the next tick attaches it
-/// and forces ramp in again through the safety pipeline.
+/// hands the dead device to the connector thread (a ring) and raises a flag; the connector closes it (zero
+/// and Disable once more), reopens every `reconnect_interval_us`, keeps the opened device alive with
+/// heartbeats until the servo asks for it, installs its stop channel for the stall monitor, and hands it back
+/// (another ring); the next tick attaches it, and the supervisor enables it once the loop runs steadily.
 pub struct Reconnecting<D: HapticDevice + Send + 'static> {
     supervisor: Supervisor<D, fn() -> Result<D, DeviceError>>,
     opener: Arc<Mutex<Opener<D>>>,
@@ -112,6 +178,7 @@ pub struct Reconnecting<D: HapticDevice + Send + 'static> {
     lost_slot: Option<Lifecycle<D>>,
     wanted: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
+    stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -126,12 +193,21 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
         let (lost, lost_rx) = rtrb::RingBuffer::new(4);
         let wanted = Arc::new(AtomicBool::new(false));
         let stop = Arc::new(AtomicBool::new(false));
+        let stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>> = Arc::default();
         let interval = Duration::from_micros(config.reconnect_interval_us.max(1000));
         let thread = {
-            let (opener, wanted, stop) = (opener.clone(), wanted.clone(), stop.clone());
+            let connector = Connector {
+                opener: opener.clone(),
+                opened: opened_tx,
+                lost: lost_rx,
+                wanted: wanted.clone(),
+                stop: stop.clone(),
+                stop_slot: stop_slot.clone(),
+                interval,
+            };
             std::thread::Builder::new()
                 .name("voxhap-connector".to_owned())
-                .spawn(move || connector(opener, opened_tx, lost_rx, wanted, stop, interval))
+                .spawn(move || connector.run())
                 .map_err(|e| OpenError::Thread(e.to_string()))?
         };
         Ok(Reconnecting {
@@ -142,6 +218,7 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
             lost_slot: None,
             wanted,
             stop,
+            stop_slot,
             thread: Some(thread),
         })
     }
@@ -154,47 +231,83 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
     }
 }
 
-fn connector<D: HapticDevice + Send>(
+struct Connector<D: HapticDevice> {
     opener: Arc<Mutex<Opener<D>>>,
-    mut opened: rtrb::Producer<Lifecycle<D>>,
-    mut lost: rtrb::Consumer<Lifecycle<D>>,
+    opened: rtrb::Producer<Lifecycle<D>>,
+    lost: rtrb::Consumer<Lifecycle<D>>,
     wanted: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
+    stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>>,
     interval: Duration,
-) {
-    while !stop.load(Ordering::Acquire) {
-        // Close dead devices first: a serial port is opened exclusively, so the old handle must go.
-        while let Ok(mut dead) = lost.pop() {
-            let _ = dead.close();
-        }
-        if wanted.load(Ordering::Acquire) && opened.slots() > 0 {
-            match open_and_enable(&opener) {
-                Ok(device) => {
-                    if opened.push(device).is_ok() {
-                        wanted.store(false, Ordering::Release);
-                    }
-                }
-                Err(_) => std::thread::sleep(interval),
+}
+
+impl<D: HapticDevice + Send> Connector<D> {
+    fn install_stop(&self, device: &Lifecycle<D>) {
+        if let Ok(slot) = self.stop_slot.lock() {
+            if let Some(slot) = slot.as_ref() {
+                slot.install(device.emergency_stop());
             }
         }
-        std::thread::sleep(Duration::from_millis(5));
+    }
+
+    fn run(mut self) {
+        let mut ready: Option<Lifecycle<D>> = None;
+        let mut last_keep_alive = Instant::now();
+        while !self.stop.load(Ordering::Acquire) {
+            // Close dead devices first (zero and Disable once more): a serial port is opened exclusively, so
+            // the old handle must go.
+            while let Ok(mut dead) = self.lost.pop() {
+                let _ = dead.close();
+            }
+            if ready.is_none() && self.wanted.load(Ordering::Acquire) {
+                match open_only(&self.opener) {
+                    Ok(device) => {
+                        ready = Some(device);
+                        last_keep_alive = Instant::now();
+                    }
+                    Err(_) => std::thread::sleep(self.interval),
+                }
+            }
+            if let Some(mut device) = ready.take() {
+                if self.wanted.load(Ordering::Acquire) && self.opened.slots() > 0 {
+                    self.install_stop(&device);
+                    match self.opened.push(device) {
+                        Ok(()) => self.wanted.store(false, Ordering::Release),
+                        Err(rtrb::PushError::Full(device)) => ready = Some(device),
+                    }
+                } else {
+                    if last_keep_alive.elapsed() >= KEEP_ALIVE_INTERVAL {
+                        last_keep_alive = Instant::now();
+                        if device.keep_alive().is_err() {
+                            let _ = device.close();
+                            continue;
+                        }
+                    }
+                    ready = Some(device);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        if let Some(mut device) = ready {
+            let _ = device.close();
+        }
     }
 }
 
 impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
-    fn exchange(&mut self, force_n: DVec3, now_us: u64) -> TickOutput {
+    fn exchange(&mut self, input: TickInput) -> TickOutput {
         let mut attached = false;
         if !self.supervisor.is_connected() {
             if let Ok(device) = self.opened.pop() {
-                self.supervisor.attach(device, now_us);
+                self.supervisor.attach(device, input.now_us);
                 attached = true;
             } else {
                 self.wanted.store(true, Ordering::Release);
             }
         }
-        let mut output = self.supervisor.tick(force_n, now_us);
-        if attached && output.event.is_none() {
-            output.event = Some(crate::device::supervisor::SupervisorEvent::Connected);
+        let mut output = self.supervisor.tick(input);
+        if attached {
+            output.report_connected();
         }
         if self.lost_slot.is_none() {
             self.lost_slot = self.supervisor.take_lost();
@@ -212,8 +325,20 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         self.supervisor.counters()
     }
 
+    fn input_counters(&self) -> InputCounters {
+        self.supervisor.input_counters()
+    }
+
     fn engaged(&self) -> bool {
         self.supervisor.safety().is_engaged()
+    }
+
+    fn output_state(&self) -> OutputState {
+        self.supervisor.output_state()
+    }
+
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
+        self.supervisor.request_clear_fault()
     }
 
     fn stop(&mut self) {
@@ -221,15 +346,39 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         self.stop_connector();
     }
 
-    fn connect(&mut self, now_us: u64) -> Result<(), crate::device::ErrorKind> {
-        use crate::device::Error as _;
-        let device = open_and_enable(&self.opener).map_err(|e| e.kind())?;
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError> {
+        let device = open_only(&self.opener)?;
+        if let Ok(slot) = self.stop_slot.lock() {
+            if let Some(slot) = slot.as_ref() {
+                slot.install(device.emergency_stop());
+            }
+        }
         self.supervisor.attach(device, now_us);
         Ok(())
     }
 
     fn info(&self) -> Option<DeviceInfo> {
         self.supervisor.device().map(|d| d.info().clone())
+    }
+
+    fn set_period_us(&mut self, period_us: u64) {
+        self.supervisor.set_period_us(period_us);
+    }
+
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {
+        if let Some(device) = self.supervisor.device() {
+            slot.install(device.emergency_stop());
+        }
+        self.supervisor.set_stall_flag(slot.tripped_flag());
+        if let Ok(mut shared) = self.stop_slot.lock() {
+            *shared = Some(slot);
+        }
+    }
+
+    fn max_stiffness_n_per_m(&self) -> Option<f64> {
+        self.supervisor
+            .device()
+            .map(|d| d.info().max_stiffness_n_per_m)
     }
 }
 
@@ -345,7 +494,7 @@ impl std::fmt::Display for DeviceSpec {
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     #[error(transparent)]
-    Safety(#[from] SafetyConfigError),
+    Safety(#[from] SupervisorConfigError),
     #[error("simulated arm: {0}")]
     Sim(#[from] SimError),
     #[error("replay trace {path}: {message}")]
@@ -392,6 +541,8 @@ impl SimDevice {
             workspace_max_m: DVec3::splat(1.0),
             max_force_n: 10.0,
             max_stiffness_n_per_m: 5000.0,
+            max_speed_m_per_s: crate::device::info::DEFAULT_MAX_SPEED_M_PER_S,
+            reports_velocity: true,
             state_rates_hz: Vec::new(),
         };
         Ok((
@@ -440,6 +591,8 @@ impl HapticDevice for SimDevice {
             velocity_m_per_s: self.arm.velocity_m_per_s(),
             buttons: 0,
             device_time_us: Some((self.t_s * 1e6) as u64),
+            sequence: None,
+            status: None,
         })
     }
 }
@@ -482,7 +635,7 @@ pub fn open_device(
     sim_arm: (SimArmConfig, DVec3),
     period_s: f64,
 ) -> Result<OpenedDevice, OpenError> {
-    let protocol = ProtocolConfig::default();
+    let protocol = ProtocolConfig::for_period(Duration::from_secs_f64(period_s));
     let mut hand_target = None;
     let device = match spec {
         DeviceSpec::Sim => {

@@ -9,9 +9,11 @@ pub mod api;
 
 pub use api::{
     ControlCommand, ControlError, ControlReply, HistogramReport, PrimitiveView, RealtimeReport,
-    SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport, VolumeReport,
+    SafetyReport, SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport,
+    VolumeReport,
 };
 pub mod device;
+pub mod monitor;
 pub mod recorder;
 pub mod rt;
 pub mod runner;

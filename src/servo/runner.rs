@@ -2,11 +2,20 @@
 //!
 //! [`ServoLoop::step`] is one tick: wait for the deadline, apply pending commands, read the probe from the
 //! previous exchange, run the pure tick ([`tick_timed`]: modes, exact solve under a time budget, coupling
-//! force), add the coupling damping, check the compute budget, hand the force to the device (safety
-//! pipeline, write, read), then publish the snapshot (triple buffer), push the trace sample (SPSC ring; a
-//! full ring is counted, never waited on), record statistics and advance the schedule (skipping after an
-//! overrun). The servo thread calls `step` in a loop; tests call it directly with a [`MockWaiter`], so the
+//! force), add the coupling damping, check the compute budget, hand the force to the device (the supervisor:
+//! device status, safety pipeline, write, read, input checks), report the device's events (SPSC ring to the
+//! monitor thread, which prints them), then publish the snapshot (triple buffer), push the trace sample (SPSC
+//! ring; a full ring is counted, never waited on), record statistics and advance the schedule (skipping after
+//! an overrun). The servo thread calls `step` in a loop; tests call it directly with a [`MockWaiter`], so the
 //! loop runs deterministically and faster than real time.
+//!
+//! Coupling caps: the stiffness and damping in use are capped by the connected device's declared limits
+//! ([`CouplingCaps`]: the stiffness it renders stably at 1 kHz, scaled to this rate, and the damping the
+//! passivity bound leaves), at start, on every reconnect, and on every command that changes them.
+//!
+//! Commands are atomic: each carries an id, and the servo thread applies command `n` only if it wins the
+//! claim `n - 1 → n` on a shared counter; a control thread that gave up waiting wins it instead, so the
+//! command is dropped unapplied (a replaced scene still goes back through the retire ring).
 //!
 //! Nothing in `step` allocates, locks or frees: scenes arrive ready-built in a `Box` through the command
 //! ring and the replaced one goes back through the retire ring, to be dropped by the control side. The
@@ -16,19 +25,23 @@
 
 use super::api::{PrimitiveView, Snapshot};
 use super::device::ServoDevice;
+use super::monitor::DeviceReport;
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
 use super::stats::ServoStats;
-use crate::device::safety::SafetyFlags;
+use crate::device::safety::{CouplingCaps, SafetyFlags};
+use crate::device::supervisor::{ClearFaultOutcome, SupervisorEvent, TickInput};
 use crate::device::DeviceState;
 use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
 use crate::record::{
-    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,
-    FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED,
+    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_FAULTED, FLAG_DEVICE_NOT_ENABLED,
+    FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY, FLAG_FORCE_SLEW_LIMITED,
+    FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_POSITION_REJECTED, FLAG_SAMPLES_DROPPED,
+    FLAG_STALE_STATE, FLAG_VELOCITY_REPLACED,
 };
 use glam::DVec3;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 /// A command for the servo thread, applied at the start of a tick.
@@ -42,14 +55,34 @@ pub enum ServoCommand {
     },
     /// A new scene (modes, transfer functions, volumes), built off the servo thread.
     SwapScene(Box<SceneBundle>),
+    /// The operator's `clear_fault`: ClearFault to the device, then enable again once the link is healthy.
+    ClearFault,
 }
+
+/// A command with its id (1, 2, 3, ... in the order sent).
+#[derive(Debug)]
+pub struct CommandEnvelope {
+    pub id: u64,
+    pub command: ServoCommand,
+}
+
+/// Outcome codes of the last `ClearFault` command, for the control side (`ServoStats::clear_fault_outcome`).
+pub const CLEAR_FAULT_REQUESTED: u8 = 1;
+/// No fault to clear.
+pub const CLEAR_FAULT_NOTHING: u8 = 2;
+/// No device connected.
+pub const CLEAR_FAULT_NO_DEVICE: u8 = 3;
 
 /// The ends of the rings and buffers the loop owns.
 pub struct LoopIo {
-    pub commands: rtrb::Consumer<ServoCommand>,
+    pub commands: rtrb::Consumer<CommandEnvelope>,
+    /// The id of the last command decided (applied by this thread, or cancelled by the control side).
+    pub command_claim: Arc<AtomicU64>,
     pub retired: rtrb::Producer<Box<SceneBundle>>,
     pub samples: rtrb::Producer<TraceSample>,
     pub snapshot: triple_buffer::Input<Option<Snapshot>>,
+    /// Device events for the monitor thread to print.
+    pub events: rtrb::Producer<DeviceReport>,
 }
 
 /// Timing settings of the loop.
@@ -82,6 +115,8 @@ pub struct ServoLoop {
     samples_dropped_pending: bool,
     last_disconnects: u64,
     last_errors: u64,
+    caps: CouplingCaps,
+    last_state_fresh: bool,
 }
 
 impl ServoLoop {
@@ -97,7 +132,11 @@ impl ServoLoop {
         first_state: Option<DeviceState>,
     ) -> Self {
         let start_m = first_state.map_or(DVec3::ZERO, |s| s.position_m);
-        ServoLoop {
+        let period_s = timing.period_ns as f64 * 1e-9;
+        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
+        let mut device = device;
+        device.set_period_us((timing.period_ns / 1000).max(1));
+        let mut servo = ServoLoop {
             bundle,
             pending_retire: None,
             state: TickState::new(start_m),
@@ -114,7 +153,28 @@ impl ServoLoop {
             samples_dropped_pending: false,
             last_disconnects: 0,
             last_errors: 0,
+            caps,
+            last_state_fresh: false,
+        };
+        servo.apply_caps();
+        servo
+    }
+
+    /// Caps the scene's coupling by the device's limits.
+    fn apply_caps(&mut self) {
+        let scene = &mut self.bundle.scene;
+        let (k, damping) = self
+            .caps
+            .cap(scene.stiffness_n_per_m(), self.bundle.damping_n_s_per_m);
+        if k < scene.stiffness_n_per_m() {
+            let _ = scene.set_stiffness_n_per_m(k);
         }
+        self.bundle.damping_n_s_per_m = damping;
+    }
+
+    /// The caps in force (device limits at this rate).
+    pub fn caps(&self) -> CouplingCaps {
+        self.caps
     }
 
     /// The schedule (for tests).
@@ -136,42 +196,70 @@ impl ServoLoop {
                 return;
             }
         }
-        while let Ok(command) = self.io.commands.pop() {
+        while let Ok(CommandEnvelope { id, command }) = self.io.commands.pop() {
+            // Atomic with the control side: apply only if this thread decides the command.
+            let claimed = self
+                .io
+                .command_claim
+                .compare_exchange(id.wrapping_sub(1), id, Ordering::AcqRel, Ordering::Acquire)
+                .is_ok();
             match command {
                 ServoCommand::SetCoupling {
                     stiffness_n_per_m,
                     damping_n_s_per_m,
                     generation,
-                } => {
-                    // Validated by the sender; checked again so a bad value can never reach the device.
-                    if self
-                        .bundle
-                        .scene
-                        .set_stiffness_n_per_m(stiffness_n_per_m)
-                        .is_ok()
-                        && damping_n_s_per_m.is_finite()
-                        && damping_n_s_per_m >= 0.0
-                    {
-                        self.bundle.damping_n_s_per_m = damping_n_s_per_m;
+                } if claimed
+                    // Validated by the sender; checked again so a bad value can never reach the device,
+                    // and capped by the device's limits.
+                    && stiffness_n_per_m.is_finite()
+                    && stiffness_n_per_m > 0.0
+                    && damping_n_s_per_m.is_finite()
+                    && damping_n_s_per_m >= 0.0 =>
+                {
+                    let (k, damping) = self.caps.cap(stiffness_n_per_m, damping_n_s_per_m);
+                    if self.bundle.scene.set_stiffness_n_per_m(k).is_ok() {
+                        self.bundle.damping_n_s_per_m = damping;
                         self.bundle.generation = generation;
                     }
                 }
-                ServoCommand::SwapScene(bundle) => {
-                    let old = std::mem::replace(&mut self.bundle, bundle);
-                    // Modes changed: what they remembered (surface normals) no longer applies.
-                    self.state.memory = ModeMemory {
-                        previous_force_n: self.state.memory.previous_force_n,
-                        ..ModeMemory::default()
+                ServoCommand::ClearFault if claimed => {
+                    let outcome = match self.device.request_clear_fault() {
+                        ClearFaultOutcome::Requested => CLEAR_FAULT_REQUESTED,
+                        ClearFaultOutcome::NothingToClear => CLEAR_FAULT_NOTHING,
+                        ClearFaultOutcome::NoDevice => CLEAR_FAULT_NO_DEVICE,
                     };
-                    self.stats.commands_applied.fetch_add(1, Ordering::Release);
-                    if let Err(rtrb::PushError::Full(old)) = self.io.retired.push(old) {
-                        self.pending_retire = Some(old);
+                    self.stats
+                        .clear_fault_outcome
+                        .store(outcome, Ordering::Release);
+                }
+                ServoCommand::SwapScene(bundle) => {
+                    let retire = if claimed {
+                        let old = std::mem::replace(&mut self.bundle, bundle);
+                        self.apply_caps();
+                        // Modes changed: what they remembered (surface normals) no longer applies.
+                        self.state.memory = ModeMemory {
+                            previous_force_n: self.state.memory.previous_force_n,
+                            ..ModeMemory::default()
+                        };
+                        old
+                    } else {
+                        // Cancelled: the new scene is never used, and goes back to be dropped off this thread.
+                        bundle
+                    };
+                    if claimed {
+                        self.stats.commands_applied.fetch_add(1, Ordering::Release);
+                    }
+                    if let Err(rtrb::PushError::Full(retire)) = self.io.retired.push(retire) {
+                        self.pending_retire = Some(retire);
                         return;
                     }
                     continue;
                 }
+                _ => {}
             }
-            self.stats.commands_applied.fetch_add(1, Ordering::Release);
+            if claimed {
+                self.stats.commands_applied.fetch_add(1, Ordering::Release);
+            }
         }
     }
 
@@ -206,6 +294,7 @@ impl ServoLoop {
             Some(state) => (state.position_m, state.velocity_m_per_s),
             None => (self.state.proxy_m, DVec3::ZERO),
         };
+        let on_time = lateness_ns < self.timing.period_ns / 2;
         let bundle = &mut *self.bundle;
         let out = tick_timed(
             &mut self.state,
@@ -233,29 +322,28 @@ impl ServoLoop {
             self.stats.budget_overruns.fetch_add(1, Ordering::Relaxed);
         }
 
+        let force_valid = self.last_state.is_some()
+            && self.last_state_fresh
+            && out.status != TickStatus::InputRejected
+            && flags & (FLAG_NON_FINITE_REPLACED | FLAG_COMPUTE_OVER_BUDGET) == 0;
+
         let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
         let exchange_start_ns = waiter.now_ns();
-        let device_out = self.device.exchange(rendered_n, now_us);
+        let device_out = self.device.exchange(TickInput {
+            force_n: rendered_n,
+            now_us,
+            on_time,
+            force_valid,
+        });
         self.last_safe_force_n = device_out.sent_force_n;
         if device_out.state.is_some() {
             self.last_state = device_out.state;
         }
+        self.last_state_fresh = device_out.state.is_some() && !device_out.stale;
         if !device_out.connected {
             self.last_state = None;
         }
-        if device_out.flags.contains(SafetyFlags::CLAMPED) {
-            flags |= FLAG_FORCE_CLAMPED;
-        }
-        if device_out.flags.contains(SafetyFlags::OUTPUT_OFF)
-            || device_out.flags.contains(SafetyFlags::RAMPING)
-            || device_out.flags.contains(SafetyFlags::WAITING_TO_ENGAGE)
-            || device_out.flags.contains(SafetyFlags::WATCHDOG)
-        {
-            flags |= FLAG_FORCE_LIMITED_BY_SAFETY;
-        }
-        if device_out.flags.contains(SafetyFlags::NON_FINITE) {
-            flags |= FLAG_NON_FINITE_REPLACED;
-        }
+        flags |= trace_flags(device_out.flags);
         let end_ns = waiter.now_ns();
 
         // Statistics.
@@ -319,6 +407,8 @@ impl ServoLoop {
             damping_n_s_per_m: damping,
             connected: device_out.connected,
             engaged: self.device.engaged(),
+            output_state: device_out.output_state,
+            active_faults: device_out.active_faults,
             flags,
             scene_generation: bundle.generation,
             hand_target_m: None,
@@ -344,8 +434,11 @@ impl ServoLoop {
             self.samples_dropped_pending = true;
         }
 
+        self.publish_safety(&device_out, tick_index, period_s);
+
         self.last_tick = Some(tick_index);
         let advance = self.schedule.advance(waiter.now_ns());
+        let stats = &*self.stats;
         if advance.overrun {
             stats.overruns.fetch_add(1, Ordering::Relaxed);
             stats
@@ -354,6 +447,64 @@ impl ServoLoop {
             self.overrun_pending = true;
         }
         tick_index
+    }
+
+    /// Hands the tick's device events to the monitor and stores the safety counters; caps the coupling again
+    /// when a (new) device connected.
+    fn publish_safety(
+        &mut self,
+        device_out: &crate::device::supervisor::TickOutput,
+        tick_index: u64,
+        period_s: f64,
+    ) {
+        let mut connected = false;
+        for event in device_out.events.iter() {
+            connected |= event == SupervisorEvent::Connected;
+            let report = DeviceReport {
+                tick: tick_index,
+                t_s: tick_index as f64 * period_s,
+                event,
+            };
+            if self.io.events.push(report).is_err() {
+                self.stats
+                    .safety
+                    .events_dropped
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        if connected {
+            self.caps =
+                CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
+            self.apply_caps();
+        }
+        let stats = &*self.stats;
+        let counters = self.device.counters();
+        let input = self.device.input_counters();
+        let safety = &stats.safety;
+        let store = |a: &AtomicU64, v: u64| a.store(v, Ordering::Relaxed);
+        safety
+            .output_state
+            .store(device_out.output_state as u8, Ordering::Relaxed);
+        safety
+            .active_faults
+            .store(u32::from(device_out.active_faults), Ordering::Relaxed);
+        store(&safety.device_faults, counters.faults);
+        store(
+            &safety.device_watchdog_trips,
+            counters.device_watchdog_trips,
+        );
+        store(&safety.device_rejections, counters.rejections);
+        store(&safety.enables, counters.enables);
+        store(&safety.not_enabled_ticks, counters.not_enabled_ticks);
+        store(&safety.stale_ticks, counters.stale_ticks);
+        store(&safety.positions_rejected, input.positions_rejected);
+        store(&safety.velocities_replaced, input.velocities_replaced);
+        if device_out.flags.contains(SafetyFlags::SLEW_LIMITED) {
+            safety.slew_limited_ticks.fetch_add(1, Ordering::Relaxed);
+        }
+        if device_out.flags.contains(SafetyFlags::CLAMPED) {
+            safety.forces_clamped.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     /// Runs ticks until `stop` is set, then zeroes the force and closes the device.
@@ -368,4 +519,28 @@ impl ServoLoop {
     pub fn shutdown(&mut self) {
         self.device.stop();
     }
+}
+
+/// The trace's flag bits for what the safety stages did this tick.
+pub fn trace_flags(safety: SafetyFlags) -> u32 {
+    let mut flags = 0;
+    let map = [
+        (SafetyFlags::CLAMPED, FLAG_FORCE_CLAMPED),
+        (SafetyFlags::NON_FINITE, FLAG_NON_FINITE_REPLACED),
+        (SafetyFlags::SLEW_LIMITED, FLAG_FORCE_SLEW_LIMITED),
+        (SafetyFlags::DEVICE_NOT_ENABLED, FLAG_DEVICE_NOT_ENABLED),
+        (SafetyFlags::STALE_STATE, FLAG_STALE_STATE),
+        (SafetyFlags::POSITION_REJECTED, FLAG_POSITION_REJECTED),
+        (SafetyFlags::VELOCITY_REPLACED, FLAG_VELOCITY_REPLACED),
+        (SafetyFlags::DEVICE_FAULTED, FLAG_DEVICE_FAULTED),
+    ];
+    for (safety_flag, trace_flag) in map {
+        if safety.contains(safety_flag) {
+            flags |= trace_flag;
+        }
+    }
+    if safety.limited() {
+        flags |= FLAG_FORCE_LIMITED_BY_SAFETY;
+    }
+    flags
 }

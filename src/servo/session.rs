@@ -22,20 +22,26 @@ use super::api::{
     ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
     Snapshot, StatsReport,
 };
-use super::device::{open_device, DeviceSpec, HandTargetInput, OpenError, ServoDevice};
+use super::device::{
+    open_device, ConnectError, DeviceSpec, HandTargetInput, OpenError, ServoDevice,
+};
+use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest};
 use super::rt::{self, RtMode, RtRefused};
-use super::runner::{LoopIo, LoopTiming, ServoCommand, ServoLoop};
+use super::runner::{
+    CommandEnvelope, LoopIo, LoopTiming, ServoCommand, ServoLoop, CLEAR_FAULT_NOTHING,
+    CLEAR_FAULT_NO_DEVICE, CLEAR_FAULT_REQUESTED,
+};
 use super::schedule::{SpinSleepWaiter, Waiter};
 use super::setup::{load_volume_arg, SceneBundle, SceneSetup};
 use super::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
-use crate::device::supervisor::SupervisorConfig;
-use crate::device::ErrorKind;
+use crate::device::safety::CouplingCaps;
+use crate::device::supervisor::{SupervisorConfig, TickInput};
 use crate::record::{create_trace_writer, TraceError, TraceFormat, TraceMeta, TraceSummary};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -73,6 +79,8 @@ pub struct SessionConfig {
     /// Samples the recorder ring holds (default: 4 s of ticks).
     pub sample_ring: Option<usize>,
     pub supervisor: SupervisorConfig,
+    /// Periods without a tick after which the monitor thread stops the device itself.
+    pub stall_periods: u32,
 }
 
 impl SessionConfig {
@@ -92,6 +100,7 @@ impl SessionConfig {
             warm_lead_ns: 30_000,
             sample_ring: None,
             supervisor: SupervisorConfig::default(),
+            stall_periods: 20,
         }
     }
 }
@@ -105,8 +114,8 @@ pub enum SessionError {
     Scene(String),
     #[error("device {spec}: {source}")]
     Open { spec: String, source: OpenError },
-    #[error("device {spec}: could not connect ({kind:?}); is it plugged in and are the permissions right?")]
-    Connect { spec: String, kind: ErrorKind },
+    #[error("device {spec}: could not connect: {source}")]
+    Connect { spec: String, source: ConnectError },
     #[error(transparent)]
     Realtime(#[from] RtRefused),
     #[error("record {path}: {source}")]
@@ -126,7 +135,9 @@ pub struct SessionSummary {
 }
 
 struct Control {
-    commands: rtrb::Producer<ServoCommand>,
+    commands: rtrb::Producer<CommandEnvelope>,
+    /// The id of the last command decided (applied by the servo thread or cancelled here).
+    claim: Arc<AtomicU64>,
     retired: rtrb::Consumer<Box<SceneBundle>>,
     sent: u64,
     setup: SceneSetup,
@@ -158,6 +169,9 @@ pub struct Session {
     shared: Arc<SessionShared>,
     servo: Option<JoinHandle<()>>,
     recorder: Option<JoinHandle<Result<Option<TraceSummary>, TraceError>>>,
+    monitor: Option<Monitor>,
+    /// What `serve` should tell the operator at start (coupling caps applied, ...).
+    notices: Vec<String>,
 }
 
 fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
@@ -198,10 +212,6 @@ impl Session {
         }
         let period_ns = (1e9 / config.rate_hz).round() as u64;
         let period_s = period_ns as f64 * 1e-9;
-        let bundle = config
-            .setup
-            .bundle(period_ns, config.solver_budget_fraction, 1)
-            .map_err(|e| SessionError::Scene(e.to_string()))?;
         let spec_label = config.device.to_string();
         let opened = open_device(
             &config.device,
@@ -214,21 +224,56 @@ impl Session {
             source,
         })?;
         let mut device: Box<dyn ServoDevice> = opened.device;
-        device.connect(0).map_err(|kind| SessionError::Connect {
+        let stop_slot = StopSlot::new();
+        device.set_stop_slot(stop_slot.clone());
+        device.connect(0).map_err(|source| SessionError::Connect {
             spec: spec_label.clone(),
-            kind,
+            source,
         })?;
-        let max_stiffness_n_per_m = device
-            .info()
-            .map_or(f64::INFINITY, |i| i.max_stiffness_n_per_m);
+        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
+        let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;
+        let mut notices = Vec::new();
+        let (k, damping) = (
+            config.setup.stiffness_n_per_m,
+            config.setup.damping_n_s_per_m,
+        );
+        let (k_capped, damping_capped) = caps.cap(k, damping);
+        if k_capped < k {
+            notices.push(format!(
+                "the scene's stiffness {k} N/m is above what device {spec_label} renders stably at {} Hz; using \
+                 {k_capped} N/m (its declared maximum at 1 kHz, scaled to this rate)",
+                config.rate_hz
+            ));
+        }
+        if damping_capped < damping {
+            notices.push(format!(
+                "the scene's damping {damping} N s/m is above the passivity bound for device {spec_label} at \
+                 k = {k_capped} N/m; using {damping_capped:.3} N s/m (README, Safety)"
+            ));
+        }
+        let mut setup = config.setup.clone();
+        setup.stiffness_n_per_m = k_capped;
+        setup.damping_n_s_per_m = damping_capped;
         // One zero-force exchange gives the first probe position; the proxy starts there.
-        let first_state = device.exchange(DVec3::ZERO, 0).state;
+        let first_state = device
+            .exchange(TickInput {
+                force_n: DVec3::ZERO,
+                now_us: 0,
+                on_time: false,
+                force_valid: false,
+            })
+            .state;
 
         let sample_capacity = config
             .sample_ring
             .unwrap_or((config.rate_hz * 4.0) as usize)
             .max(1024);
+        let bundle = setup
+            .bundle(period_ns, config.solver_budget_fraction, 1)
+            .map_err(|e| SessionError::Scene(e.to_string()))?;
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
+        let command_claim = Arc::new(AtomicU64::new(0));
+        let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
         let (retire_tx, retire_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let (sample_tx, sample_rx) = rtrb::RingBuffer::new(sample_capacity);
         let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
@@ -269,9 +314,11 @@ impl Session {
         };
         let io = LoopIo {
             commands: command_rx,
+            command_claim: command_claim.clone(),
             retired: retire_tx,
             samples: sample_tx,
             snapshot: snapshot_in,
+            events: event_tx,
         };
         let thread_stats = stats.clone();
         let thread_stop = stop.clone();
@@ -325,15 +372,27 @@ impl Session {
         for warning in warnings {
             eprintln!("warning: servo thread: {warning}; continuing without it (--rt best-effort)");
         }
+        let monitor = Monitor::spawn(
+            MonitorConfig {
+                period: Duration::from_nanos(period_ns),
+                stall_periods: config.stall_periods,
+            },
+            stats.clone(),
+            servo_running.clone(),
+            stop_slot,
+            event_rx,
+        )
+        .map_err(SessionError::Thread)?;
         let simulated = opened.hand_target.is_some();
         let shared = Arc::new(SessionShared {
             stats,
             snapshot: Mutex::new(snapshot_out),
             control: Mutex::new(Control {
                 commands: command_tx,
+                claim: command_claim,
                 retired: retire_rx,
                 sent: 0,
-                setup: config.setup,
+                setup,
                 generation: 1,
                 recorder: recorder_tx,
                 recording,
@@ -354,7 +413,14 @@ impl Session {
             shared,
             servo: Some(servo),
             recorder: Some(recorder),
+            monitor: Some(monitor),
+            notices,
         })
+    }
+
+    /// What the operator should know about how the session started (coupling caps applied, ...).
+    pub fn notices(&self) -> &[String] {
+        &self.notices
     }
 
     /// The shared side, for servers.
@@ -377,6 +443,10 @@ impl Session {
         self.shared.stop.store(true, Ordering::Release);
         if let Some(servo) = self.servo.take() {
             let _ = servo.join();
+        }
+        // After the servo thread: the monitor prints the last device events (the stop's included).
+        if let Some(mut monitor) = self.monitor.take() {
+            monitor.stop();
         }
         let mut recorder_error = None;
         let trace = match self.recorder.take().map(JoinHandle::join) {
@@ -457,19 +527,41 @@ impl SessionShared {
                 "the servo loop is not running".to_owned(),
             ));
         }
-        if control.commands.push(command).is_err() {
+        let id = control.sent + 1;
+        if control
+            .commands
+            .push(CommandEnvelope { id, command })
+            .is_err()
+        {
             return Err(ControlError::Unavailable(
                 "the servo command queue is full; try again".to_owned(),
             ));
         }
-        control.sent += 1;
-        let target = control.sent;
+        control.sent = id;
         let started = Instant::now();
-        while self.stats.commands_applied.load(Ordering::Acquire) < target {
+        loop {
+            if control.claim.load(Ordering::Acquire) >= id {
+                // Decided by the servo thread (this side cancels only below, and then returns).
+                break;
+            }
             if started.elapsed() > APPLY_TIMEOUT || !self.servo_running.load(Ordering::Acquire) {
-                return Err(ControlError::Unavailable(
-                    "the servo loop did not take the command in time".to_owned(),
-                ));
+                // Cancel: whoever moves the claim from id - 1 to id decides. If the servo thread got there
+                // first the command was applied after all, and that is what the caller is told.
+                if control
+                    .claim
+                    .compare_exchange(id - 1, id, Ordering::AcqRel, Ordering::Acquire)
+                    .is_ok()
+                {
+                    self.stats
+                        .commands_cancelled
+                        .fetch_add(1, Ordering::Relaxed);
+                    return Err(ControlError::Unavailable(
+                        "the servo loop did not take the command in time; it was withdrawn and will not be \
+                         applied"
+                            .to_owned(),
+                    ));
+                }
+                break;
             }
             std::thread::sleep(Duration::from_micros(200));
         }
@@ -698,6 +790,21 @@ impl SessionShared {
                         "the recorder did not answer in time".to_owned(),
                     )),
                 }
+            }
+            ControlCommand::ClearFault => {
+                self.send(control, ServoCommand::ClearFault)?;
+                let message = match self.stats.clear_fault_outcome.load(Ordering::Acquire) {
+                    CLEAR_FAULT_REQUESTED => {
+                        "ClearFault sent; the device is enabled again once the link is healthy, and forces ramp in"
+                    }
+                    CLEAR_FAULT_NOTHING => "no fault to clear",
+                    CLEAR_FAULT_NO_DEVICE => "no device connected",
+                    _ => "clear_fault applied",
+                };
+                Ok(ControlReply {
+                    message: message.to_owned(),
+                    scene_generation: 0,
+                })
             }
             ControlCommand::SetHandTarget { position_m } => {
                 let Some(hand) = control.hand.as_mut() else {

@@ -12,8 +12,9 @@
 //! maximum is kept exactly). Values up to 2^40 ns (18 minutes) are resolved; larger ones land in the last
 //! bucket.
 
-use super::api::{HistogramReport, RealtimeReport, StatsReport};
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use super::api::{HistogramReport, RealtimeReport, SafetyReport, StatsReport};
+use crate::device::supervisor::OutputState;
+use std::sync::atomic::{AtomicU32, AtomicU64, AtomicU8, Ordering};
 use std::sync::Mutex;
 
 const SUB_BUCKETS: usize = 16;
@@ -212,7 +213,33 @@ pub struct ServoStats {
     pub disconnects: AtomicU64,
     pub recorder_drops: AtomicU64,
     pub commands_applied: AtomicU64,
+    /// Commands the control side gave up on before the servo thread took them (never applied).
+    pub commands_cancelled: AtomicU64,
+    /// Stops by the stall monitor.
+    pub monitor_stops: AtomicU64,
+    /// Outcome of the last ClearFault command (`runner::CLEAR_FAULT_*`).
+    pub clear_fault_outcome: AtomicU8,
+    /// The safety side, copied from the device's counters every tick by the servo thread.
+    pub safety: SafetyStats,
     realtime: Mutex<RealtimeReport>,
+}
+
+/// The safety counters and state, as atomics the servo thread stores each tick.
+#[derive(Debug, Default)]
+pub struct SafetyStats {
+    pub output_state: AtomicU8,
+    pub active_faults: AtomicU32,
+    pub device_faults: AtomicU64,
+    pub device_watchdog_trips: AtomicU64,
+    pub device_rejections: AtomicU64,
+    pub enables: AtomicU64,
+    pub not_enabled_ticks: AtomicU64,
+    pub stale_ticks: AtomicU64,
+    pub positions_rejected: AtomicU64,
+    pub velocities_replaced: AtomicU64,
+    pub slew_limited_ticks: AtomicU64,
+    pub forces_clamped: AtomicU64,
+    pub events_dropped: AtomicU64,
 }
 
 impl ServoStats {
@@ -259,6 +286,30 @@ impl ServoStats {
             recorder_drops: load(&self.recorder_drops),
             commands_applied: load(&self.commands_applied),
             realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
+            safety: self.safety_report(),
+        }
+    }
+
+    fn safety_report(&self) -> SafetyReport {
+        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        let safety = &self.safety;
+        let output_state = OutputState::from_code(safety.output_state.load(Ordering::Relaxed));
+        SafetyReport {
+            output_state,
+            output_state_explanation: output_state.explanation(),
+            active_faults: safety.active_faults.load(Ordering::Relaxed) as u16,
+            device_faults: load(&safety.device_faults),
+            device_watchdog_trips: load(&safety.device_watchdog_trips),
+            device_rejections: load(&safety.device_rejections),
+            enables: load(&safety.enables),
+            not_enabled_ticks: load(&safety.not_enabled_ticks),
+            stale_ticks: load(&safety.stale_ticks),
+            positions_rejected: load(&safety.positions_rejected),
+            velocities_replaced: load(&safety.velocities_replaced),
+            slew_limited_ticks: load(&safety.slew_limited_ticks),
+            forces_clamped: load(&safety.forces_clamped),
+            monitor_stops: load(&self.monitor_stops),
+            events_dropped: load(&safety.events_dropped),
         }
     }
 }
@@ -290,6 +341,24 @@ impl StatsReport {
         text += &format!(
             "device errors {}, disconnects {}, recorder drops {}, commands applied {}\n",
             self.device_errors, self.disconnects, self.recorder_drops, self.commands_applied
+        );
+        let safety = &self.safety;
+        text += &format!(
+            "safety: output {} ({}); device faults {} (watchdog {}), refusals {}, enables {}, ticks not enabled {}, \
+             stale {}, positions rejected {}, velocities replaced {}, slew-limited {}, clamped {}, monitor stops {}\n",
+            safety.output_state.name(),
+            safety.output_state_explanation,
+            safety.device_faults,
+            safety.device_watchdog_trips,
+            safety.device_rejections,
+            safety.enables,
+            safety.not_enabled_ticks,
+            safety.stale_ticks,
+            safety.positions_rejected,
+            safety.velocities_replaced,
+            safety.slew_limited_ticks,
+            safety.forces_clamped,
+            safety.monitor_stops,
         );
         text += &format!(
             "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",

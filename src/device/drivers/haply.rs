@@ -218,6 +218,8 @@ impl<T: ByteTransport> Haply2Diy<T> {
             workspace_max_m: DVec3::new(reach + config.base_distance_m, reach, 0.0),
             max_force_n: config.max_force_n,
             max_stiffness_n_per_m: 1000.0,
+            max_speed_m_per_s: crate::device::info::DEFAULT_MAX_SPEED_M_PER_S,
+            reports_velocity: false,
             state_rates_hz: Vec::new(),
         };
         Haply2Diy {

@@ -2,20 +2,36 @@
 //! ([`HidLink`]).
 //!
 //! Where it sits: under the lifecycle wrapper, on a transport. It wraps the protocol crate's sans-IO
-//! [`HostSession`]: open sends a flush byte and Hello and waits for DeviceInfo (then one zero SetForce in
-//! lockstep, so the host sees the handle before enabling); enable sends Enable with the device watchdog timeout;
-//! every `write_force` sends a SetForce, and `read_state` waits for the State that echoes it (lockstep). Older or
-//! duplicate States are skipped, Fault messages are remembered and reported, a Rejected message becomes an error.
+//! [`HostSession`]:
+//!
+//! - **open** discards stale input, sends a flush byte and Hello, and waits `hello_timeout` (100 ms) for
+//!   DeviceInfo; no answer, or an answer that does not decode (bad CRC), means another Hello, up to
+//!   `hello_attempts` (5) in all. A device of another major version is refused with both versions named. Then
+//!   one zero SetForce in lockstep, so the host sees the handle before enabling.
+//! - **enable** sends Enable with the device watchdog timeout and returns at once: a refusal comes back as a
+//!   [`DeviceEvent::Rejected`], and the status bits of the next State say whether the device really is enabled.
+//! - every **write_force** sends one SetForce; **read_state** returns the newest State that arrived, waiting at
+//!   most `state_timeout` (half a servo period) for the one that echoes the last SetForce. Older or duplicate
+//!   States are skipped; when no State came but frames were dropped (CRC, COBS, length), the error is a
+//!   protocol error rather than a timeout, so the supervisor counts a corrupted link as such.
+//! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
+//! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
+//!   writes them on a second handle of the port, for the stall monitor.
+//!
 //! Per tick nothing allocates: frames are built on the stack and decoded by the crate's fixed-size decoder.
 
+use crate::device::info::DEFAULT_MAX_SPEED_M_PER_S;
 use crate::device::transport::{ByteTransport, ReportTransport};
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
+};
 use glam::DVec3;
 use std::time::{Duration, Instant};
 use voxhap_protocol::hid::REPORT_LEN;
 use voxhap_protocol::{
     decode_report, encode_frame, encode_report, DecoderStats, DeviceToHost, ForceFlags,
-    FrameDecoder, HostEvent, HostSession, HostToDevice, MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
+    FrameDecoder, HostEvent, HostSession, HostToDevice, SetForce, StatusFlags, MAX_WIRE_FRAME_LEN,
+    PROTOCOL_VERSION,
 };
 
 /// Moves protocol messages over some transport.
@@ -32,6 +48,47 @@ pub trait MessageLink {
 
     /// What the decoder accepted and dropped.
     fn stats(&self) -> DecoderStats;
+
+    /// Throws away what the device sent before now (stale replies of an earlier session).
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    /// A stop channel on a second handle of the link (see [`ProtocolDevice`]'s `emergency_stop`).
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        None
+    }
+}
+
+/// The stall monitor's stop for a serial link: fixed bytes on a second handle of the port.
+struct SerialStop {
+    writer: Box<dyn std::io::Write + Send>,
+    bytes: [u8; 2 * MAX_WIRE_FRAME_LEN + 1],
+    len: usize,
+}
+
+impl EmergencyStop for SerialStop {
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        self.writer
+            .write_all(&self.bytes[..self.len])
+            .and_then(|()| self.writer.flush())
+            .map_err(|error| DeviceError::from_io(&error, "writing the emergency stop"))
+    }
+}
+
+fn serial_stop(writer: Box<dyn std::io::Write + Send>) -> Option<Box<dyn EmergencyStop>> {
+    let mut bytes = [0u8; 2 * MAX_WIRE_FRAME_LEN + 1];
+    // A delimiter first: it ends any frame the stalled servo thread left half-written.
+    let mut len = 1;
+    let zero = HostToDevice::SetForce(SetForce {
+        sequence: 0,
+        force_n: [0.0; 3],
+        flags: ForceFlags::EMPTY,
+    });
+    for message in [zero, HostToDevice::Disable] {
+        len += encode_frame(&message, &mut bytes[len..]).ok()?;
+    }
+    Some(Box::new(SerialStop { writer, bytes, len }))
 }
 
 fn encode_error(_: voxhap_protocol::EncodeError) -> DeviceError {
@@ -106,6 +163,14 @@ impl<T: ByteTransport> MessageLink for SerialLink<T> {
     fn stats(&self) -> DecoderStats {
         *self.decoder.stats()
     }
+
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        self.transport.discard_input()
+    }
+
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        serial_stop(self.transport.try_clone_writer()?)
+    }
 }
 
 /// One message per 64-byte HID report.
@@ -163,12 +228,15 @@ impl<T: ReportTransport> MessageLink for HidLink<T> {
     }
 }
 
-/// Settings of the protocol driver.
+/// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ProtocolConfig {
-    /// How long open waits for DeviceInfo.
-    pub open_timeout: Duration,
-    /// How long `read_state` waits for the State answering the last SetForce.
+    /// How long open waits for DeviceInfo after each Hello.
+    pub hello_timeout: Duration,
+    /// How many Hellos open sends before giving up.
+    pub hello_attempts: u32,
+    /// How long `read_state` waits for the State answering the last SetForce; at most a servo period, so
+    /// device I/O never holds up the servo thread for longer (`open_device` sets half a period).
     pub state_timeout: Duration,
     /// The device's own force watchdog, sent with Enable (µs, 1 000 ..= 1 000 000).
     pub device_watchdog_us: u32,
@@ -177,12 +245,26 @@ pub struct ProtocolConfig {
 impl Default for ProtocolConfig {
     fn default() -> Self {
         ProtocolConfig {
-            open_timeout: Duration::from_millis(500),
-            state_timeout: Duration::from_millis(5),
+            hello_timeout: Duration::from_millis(100),
+            hello_attempts: 5,
+            state_timeout: Duration::from_micros(500),
             device_watchdog_us: 50_000,
         }
     }
 }
+
+impl ProtocolConfig {
+    /// The defaults for a servo loop of `period`: States are waited for at most half a period.
+    pub fn for_period(period: Duration) -> ProtocolConfig {
+        ProtocolConfig {
+            state_timeout: (period / 2).max(Duration::from_micros(50)),
+            ..ProtocolConfig::default()
+        }
+    }
+}
+
+/// At most this many device events wait for the supervisor; further ones replace the newest.
+const EVENT_QUEUE: usize = 8;
 
 /// Counters of the protocol driver beyond the decoder's.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -195,6 +277,10 @@ pub struct ProtocolCounters {
     pub faults: u64,
     /// Times `read_state` found no answer in time.
     pub timeouts: u64,
+    /// Hellos sent by open (more than one means retries).
+    pub hellos: u64,
+    /// Rejected messages received.
+    pub rejections: u64,
 }
 
 /// A device speaking voxhap's protocol.
@@ -208,6 +294,9 @@ pub struct ProtocolDevice<L> {
     last_state: Option<DeviceState>,
     last_fault: Option<voxhap_protocol::Fault>,
     counters: ProtocolCounters,
+    events: [Option<DeviceEvent>; EVENT_QUEUE],
+    event_head: usize,
+    event_len: usize,
 }
 
 fn placeholder_info() -> DeviceInfo {
@@ -221,6 +310,8 @@ fn placeholder_info() -> DeviceInfo {
         workspace_max_m: DVec3::ZERO,
         max_force_n: 0.0,
         max_stiffness_n_per_m: 0.0,
+        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
+        reports_velocity: true,
         state_rates_hz: Vec::new(),
     }
 }
@@ -240,7 +331,19 @@ fn convert_info(info: &voxhap_protocol::DeviceInfo) -> DeviceInfo {
         workspace_max_m: to_dvec3(info.workspace_max_m),
         max_force_n: f64::from(info.max_force_n),
         max_stiffness_n_per_m: f64::from(info.max_stiffness_n_per_m),
+        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
+        reports_velocity: true,
         state_rates_hz: info.supported_rates.iter_hz().collect(),
+    }
+}
+
+fn convert_status(status: StatusFlags, active_faults: u16) -> DeviceStatus {
+    DeviceStatus {
+        enabled: status.contains(StatusFlags::ENABLED),
+        faulted: status.contains(StatusFlags::FAULTED),
+        watchdog_tripped: status.contains(StatusFlags::WATCHDOG_TRIPPED),
+        force_clamped: status.contains(StatusFlags::FORCE_CLAMPED),
+        active_faults,
     }
 }
 
@@ -256,7 +359,21 @@ impl<L: MessageLink> ProtocolDevice<L> {
             last_state: None,
             last_fault: None,
             counters: ProtocolCounters::default(),
+            events: [None; EVENT_QUEUE],
+            event_head: 0,
+            event_len: 0,
         }
+    }
+
+    fn push_event(&mut self, event: DeviceEvent) {
+        if self.event_len == EVENT_QUEUE {
+            // Full: the newest slot is overwritten, so the first faults of a burst are the ones reported.
+            let newest = (self.event_head + EVENT_QUEUE - 1) % EVENT_QUEUE;
+            self.events[newest] = Some(event);
+            return;
+        }
+        self.events[(self.event_head + self.event_len) % EVENT_QUEUE] = Some(event);
+        self.event_len += 1;
     }
 
     /// The link (its transport, its decoder counters).
@@ -326,24 +443,62 @@ impl<L: MessageLink> ProtocolDevice<L> {
         }
     }
 
-    /// Classifies one message; faults are remembered, rejections become errors.
+    /// Classifies one message; faults and rejections are queued as events for the supervisor.
     fn handle(&mut self, message: &DeviceToHost) -> Result<HostEvent, DeviceError> {
         let event = self.host.on_message(message);
         match event {
             HostEvent::Fault(fault) => {
                 self.counters.faults += 1;
                 self.last_fault = Some(fault);
+                self.push_event(DeviceEvent::Fault {
+                    code: fault.code.0,
+                    active_faults: fault.active_faults.0,
+                });
             }
             HostEvent::Rejected(rejected) => {
-                return Err(DeviceError::Rejected {
+                self.counters.rejections += 1;
+                self.push_event(DeviceEvent::Rejected {
                     message_type: rejected.message_type,
                     reason: rejected.reason.0,
-                })
+                });
             }
             HostEvent::State { lost, .. } => self.counters.states_lost += u64::from(lost),
             _ => {}
         }
         Ok(event)
+    }
+
+    /// Sends Hello and waits for DeviceInfo once; `Ok(false)` when nothing usable came in time.
+    fn hello_once(&mut self) -> Result<bool, DeviceError> {
+        let hello = self.host.hello();
+        self.counters.hellos += 1;
+        self.link.send(&hello)?;
+        let deadline = Instant::now() + self.config.hello_timeout;
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            if remaining.is_zero() {
+                return Ok(false);
+            }
+            let Some(message) = self.link.receive(remaining)? else {
+                return Ok(false);
+            };
+            match self.host.on_message(&message) {
+                HostEvent::Connected(info) => {
+                    self.info = convert_info(&info);
+                    return Ok(true);
+                }
+                HostEvent::Incompatible(info) => {
+                    return Err(DeviceError::Incompatible {
+                        device_major: info.version.major,
+                        device_minor: info.version.minor,
+                        host_major: PROTOCOL_VERSION.major,
+                        host_minor: PROTOCOL_VERSION.minor,
+                    })
+                }
+                // Leftovers of an earlier session: ignore.
+                _ => {}
+            }
+        }
     }
 
     fn send_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
@@ -373,38 +528,33 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
     }
 
     fn open(&mut self) -> Result<(), DeviceError> {
+        self.link.discard_input()?;
         self.link.flush()?;
-        let hello = self.host.hello();
-        self.link.send(&hello)?;
-        let deadline = Instant::now() + self.config.open_timeout;
-        loop {
-            let remaining = deadline.saturating_duration_since(Instant::now());
-            let Some(message) = self.link.receive(remaining)? else {
-                return Err(DeviceError::Timeout {
-                    waited_us: duration_us(self.config.open_timeout),
-                    waiting_for: "device info after hello",
-                });
-            };
-            match self.host.on_message(&message) {
-                HostEvent::Connected(info) => {
-                    self.info = convert_info(&info);
-                    break;
-                }
-                HostEvent::Incompatible(info) => {
-                    return Err(DeviceError::Incompatible {
-                        device_major: info.version.major,
-                        device_minor: info.version.minor,
-                        host_major: PROTOCOL_VERSION.major,
-                        host_minor: PROTOCOL_VERSION.minor,
-                    })
-                }
-                // Leftovers of an earlier session: ignore.
-                _ => {}
+        let mut connected = false;
+        for _ in 0..self.config.hello_attempts.max(1) {
+            if self.hello_once()? {
+                connected = true;
+                break;
             }
         }
-        // One zero force in lockstep: the device answers with a State, so the host sees the handle before enabling.
-        self.send_force(DVec3::ZERO)?;
-        self.read_state().map(|_| ())
+        if !connected {
+            return Err(DeviceError::NoAnswer {
+                waiting_for: "device info after hello",
+                attempts: self.config.hello_attempts.max(1),
+                each_us: duration_us(self.config.hello_timeout),
+            });
+        }
+        // One zero force in lockstep: the device answers with a State, so the host sees the handle before
+        // enabling. Open runs off the servo thread, so it may wait for a few periods here.
+        for attempt in 0..20 {
+            self.send_force(DVec3::ZERO)?;
+            match self.read_state() {
+                Ok(_) => return Ok(()),
+                Err(error) if attempt < 19 && matches!(error, DeviceError::Timeout { .. }) => {}
+                Err(error) => return Err(error),
+            }
+        }
+        Ok(())
     }
 
     fn enable(&mut self) -> Result<(), DeviceError> {
@@ -420,16 +570,47 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         self.send_force(force_n)
     }
 
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        if self.event_len == 0 {
+            return None;
+        }
+        let event = self.events[self.event_head].take();
+        self.event_head = (self.event_head + 1) % EVENT_QUEUE;
+        self.event_len -= 1;
+        event
+    }
+
+    fn clear_fault(&mut self) -> Result<(), DeviceError> {
+        self.link.send(&HostToDevice::ClearFault)
+    }
+
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
+        let message = self.host.heartbeat();
+        self.link.send(&message)?;
+        // Drain what came meanwhile (heartbeat replies, faults) without waiting.
+        while let Some(message) = self.link.receive(Duration::ZERO)? {
+            self.handle(&message)?;
+        }
+        Ok(())
+    }
+
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        self.link.emergency_stop()
+    }
+
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         let deadline = Instant::now() + self.config.state_timeout;
+        let dropped_before = self.link.stats().dropped();
+        let mut newest: Option<DeviceState> = None;
         loop {
-            let remaining = deadline.saturating_duration_since(Instant::now());
+            // Wait only while nothing new came; once a State is in hand, take what is already there.
+            let remaining = if newest.is_some() {
+                Duration::ZERO
+            } else {
+                deadline.saturating_duration_since(Instant::now())
+            };
             let Some(message) = self.link.receive(remaining)? else {
-                self.counters.timeouts += 1;
-                return Err(DeviceError::Timeout {
-                    waited_us: duration_us(self.config.state_timeout),
-                    waiting_for: "the state answering the last force",
-                });
+                break;
             };
             if let HostEvent::State { state, .. } = self.handle(&message)? {
                 let sample = DeviceState {
@@ -437,18 +618,37 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
                     velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
                     buttons: state.buttons,
                     device_time_us: Some(state.device_time_us),
+                    sequence: Some(state.sequence),
+                    status: Some(convert_status(state.status, state.faults.0)),
                 };
                 self.last_state = Some(sample);
+                newest = Some(sample);
                 // Lockstep: the State answering the newest SetForce ends the wait; older ones are late.
                 if state
                     .last_force_sequence
                     .wrapping_sub(self.last_sent_sequence)
                     == 0
                 {
-                    return Ok(sample);
+                    break;
                 }
                 self.counters.late_states += 1;
+                if Instant::now() >= deadline {
+                    break;
+                }
             }
         }
+        if let Some(sample) = newest {
+            return Ok(sample);
+        }
+        if self.link.stats().dropped() > dropped_before {
+            return Err(DeviceError::Protocol {
+                what: "frames from the device were dropped (CRC, framing or length) and no state arrived",
+            });
+        }
+        self.counters.timeouts += 1;
+        Err(DeviceError::Timeout {
+            waited_us: duration_us(self.config.state_timeout),
+            waiting_for: "the state answering the last force",
+        })
     }
 }

@@ -60,6 +60,8 @@ impl ReplayDevice {
                 workspace_max_m: max,
                 max_force_n: f64::INFINITY,
                 max_stiffness_n_per_m: f64::INFINITY,
+                max_speed_m_per_s: crate::device::info::DEFAULT_MAX_SPEED_M_PER_S,
+                reports_velocity: false,
                 state_rates_hz: Vec::new(),
             },
             last_force_n: DVec3::ZERO,
@@ -122,6 +124,8 @@ impl HapticDevice for ReplayDevice {
             velocity_m_per_s,
             buttons: 0,
             device_time_us: Some((self.times_s[i].max(0.0) * 1e6) as u64),
+            sequence: None,
+            status: None,
         })
     }
 }

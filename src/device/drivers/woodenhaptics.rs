@@ -246,6 +246,8 @@ impl<T: ReportTransport> WoodenHaptics<T> {
             workspace_max_m: DVec3::splat(radius),
             max_force_n: config.max_force_n,
             max_stiffness_n_per_m: config.max_stiffness_n_per_m,
+            max_speed_m_per_s: crate::device::info::DEFAULT_MAX_SPEED_M_PER_S,
+            reports_velocity: false,
             state_rates_hz: Vec::new(),
         };
         let theta = config.joint_angles_rad([0, 0, 0]);

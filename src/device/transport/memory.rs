@@ -277,6 +277,29 @@ impl ByteTransport for MemoryPipe {
         }
         Ok(n)
     }
+
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        if let Ok(mut guard) = self.incoming.bytes.lock() {
+            guard.0.clear();
+        }
+        Ok(())
+    }
+
+    fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
+        Some(Box::new(self.clone()))
+    }
+}
+
+impl std::io::Write for MemoryPipe {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        ByteTransport::write_all(self, bytes)
+            .map(|()| bytes.len())
+            .map_err(|_| std::io::Error::from(std::io::ErrorKind::BrokenPipe))
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 #[cfg(test)]

@@ -25,6 +25,18 @@ pub trait ByteTransport {
     /// Reads what is available into `buf`, waiting at most `timeout` for the first byte. `Ok(0)` means nothing
     /// arrived in time.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError>;
+
+    /// Throws away whatever the device sent before now (stale replies of an earlier session), as a driver
+    /// does when it opens the link.
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    /// A second, write-only handle to the same link, for the stall monitor's emergency stop
+    /// ([`crate::device::EmergencyStop`]); `None` where the transport cannot be shared.
+    fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
+        None
+    }
 }
 
 /// A transport of whole reports (USB HID). Output reports start with their report id (0 when the device uses
@@ -43,6 +55,12 @@ impl<T: ByteTransport + ?Sized> ByteTransport for Box<T> {
     }
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
         (**self).read(buf, timeout)
+    }
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        (**self).discard_input()
+    }
+    fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
+        (**self).try_clone_writer()
     }
 }
 

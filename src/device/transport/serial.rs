@@ -17,15 +17,24 @@ pub struct SerialTransport {
 }
 
 impl SerialTransport {
-    /// Opens `path` at `baud_rate` (8N1, no flow control). USB CDC-ACM devices and pseudo-terminals ignore the rate.
+    /// Opens `path` at `baud_rate`, 8N1, no flow control, with DTR and RTS asserted (protocol/SPEC.md section
+    /// 4: many USB CDC-ACM firmwares treat DTR as "host present"). USB CDC-ACM devices and pseudo-terminals
+    /// ignore the rate.
     pub fn open(path: &str, baud_rate: u32) -> Result<SerialTransport, DeviceError> {
-        let port = serialport::new(path, baud_rate)
+        let mut port = serialport::new(path, baud_rate)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(serialport::Parity::None)
+            .stop_bits(serialport::StopBits::One)
+            .flow_control(serialport::FlowControl::None)
             .timeout(Duration::from_millis(10))
             .open_native()
             .map_err(|error| DeviceError::Open {
                 path: path.to_string(),
                 message: error.to_string(),
             })?;
+        // Pseudo-terminals have no modem lines and refuse these; a real port that refuses still works.
+        let _ = port.write_data_terminal_ready(true);
+        let _ = port.write_request_to_send(true);
         Ok(Self::from_port(port))
     }
 
@@ -71,5 +80,19 @@ impl ByteTransport for SerialTransport {
             Err(error) if error.kind() == std::io::ErrorKind::Interrupted => Ok(0),
             Err(error) => Err(DeviceError::from_io(&error, "reading from the serial port")),
         }
+    }
+
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        self.port
+            .clear(serialport::ClearBuffer::Input)
+            .map_err(|_| DeviceError::Io {
+                during: "discarding the serial input buffer",
+                kind: std::io::ErrorKind::Other,
+            })
+    }
+
+    fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
+        let port = self.port.try_clone_native().ok()?;
+        Some(Box::new(port))
     }
 }

@@ -343,6 +343,27 @@ pub fn stats_schema() -> serde_json::Value {
             "disconnects": count("device disconnects"),
             "recorder_drops": count("samples the recorder ring had no room for"),
             "commands_applied": count("control commands applied"),
+            "safety": {
+                "type": "object",
+                "description": "where the output stands and what every safety rule did (README, Safety)",
+                "properties": {
+                    "output_state": {"type": "string", "description": "disconnected, starting, waiting_to_engage, ramping_in, engaged, recovering, faulted, enable_refused or stale_state"},
+                    "output_state_explanation": {"type": "string"},
+                    "active_faults": count("latched device faults, bit n = fault code n"),
+                    "device_faults": count("faults the device reported"),
+                    "device_watchdog_trips": count("device watchdog trips"),
+                    "device_rejections": count("commands the device refused"),
+                    "enables": count("enables sent"),
+                    "not_enabled_ticks": count("ticks with the device not accepting force"),
+                    "stale_ticks": count("ticks with zero sent for a stale state"),
+                    "positions_rejected": count("implausible positions held"),
+                    "velocities_replaced": count("reported velocities replaced by the estimate"),
+                    "slew_limited_ticks": count("ticks whose force rise was slew-limited"),
+                    "forces_clamped": count("forces clamped to the device maximum"),
+                    "monitor_stops": count("stops by the stall monitor"),
+                    "events_dropped": count("device events the reporter ring had no room for")
+                }
+            },
             "realtime": {
                 "type": "object",
                 "description": "real-time features the servo thread got",

@@ -256,6 +256,25 @@ fn forces_above_the_maximum_are_scaled_keeping_direction() {
 }
 
 #[test]
+fn force_clamped_is_reported_only_while_a_clamped_force_is_applied() {
+    let mut device = enabled_device();
+    device.on_message(&force(1, [30.0, 40.0, 0.0]), 10);
+    device.poll(20, &DeviceSample::default());
+    assert!(device.status().contains(StatusFlags::FORCE_CLAMPED));
+    // Disable applies zero: nothing is being scaled down any more (SPEC section 6, status bits).
+    device.on_message(&HostToDevice::Disable, 30);
+    device.poll(40, &DeviceSample::default());
+    assert!(!device.status().contains(StatusFlags::FORCE_CLAMPED));
+    // A latching fault likewise.
+    let mut device = enabled_device();
+    device.on_message(&force(1, [30.0, 40.0, 0.0]), 10);
+    device.poll(20, &DeviceSample::default());
+    device.raise_fault(FaultCode::OVER_CURRENT, 30);
+    assert!(!device.status().contains(StatusFlags::FORCE_CLAMPED));
+    assert!(device.status().contains(StatusFlags::FAULTED));
+}
+
+#[test]
 fn non_finite_forces_from_a_caller_that_skipped_the_codec_are_ignored() {
     let mut device = enabled_device();
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 10);

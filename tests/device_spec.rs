@@ -311,6 +311,169 @@ fn spec_device_codec_matches_the_vectors() {
     assert_eq!(encode_frame(types::DEVICE_INFO, &[0; 62]).len(), 67);
 }
 
+/// A host written with the reference crate, to check the double's state machine (SPEC section 6) before the
+/// double judges voxhap's host: two independent readings of the SPEC must agree.
+struct ReferenceHost {
+    port: std::fs::File,
+    decoder: voxhap_protocol::FrameDecoder<voxhap_protocol::DeviceToHost>,
+}
+
+impl ReferenceHost {
+    fn open(path: &str) -> ReferenceHost {
+        use std::os::fd::AsRawFd;
+        use std::os::unix::fs::OpenOptionsExt;
+        let port = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+            .open(path)
+            .unwrap();
+        // SAFETY: termios is plain data, filled by tcgetattr and applied to our own fd.
+        unsafe {
+            let mut t: libc::termios = std::mem::zeroed();
+            assert_eq!(libc::tcgetattr(port.as_raw_fd(), &mut t), 0);
+            libc::cfmakeraw(&mut t);
+            assert_eq!(libc::tcsetattr(port.as_raw_fd(), libc::TCSANOW, &t), 0);
+        }
+        ReferenceHost {
+            port,
+            decoder: voxhap_protocol::FrameDecoder::new(),
+        }
+    }
+
+    fn send(&mut self, message: voxhap_protocol::HostToDevice) {
+        use std::io::Write;
+        let mut frame = [0u8; voxhap_protocol::MAX_WIRE_FRAME_LEN];
+        let len = voxhap_protocol::encode_frame(&message, &mut frame).unwrap();
+        self.port.write_all(&frame[..len]).unwrap();
+    }
+
+    /// Every message decoded within `window`.
+    fn receive_for(&mut self, window: Duration) -> Vec<voxhap_protocol::DeviceToHost> {
+        let deadline = Instant::now() + window;
+        let mut messages = Vec::new();
+        let mut buffer = [0u8; 256];
+        while Instant::now() < deadline {
+            match self.port.read(&mut buffer) {
+                Ok(n) if n > 0 => {
+                    for &byte in &buffer[..n] {
+                        if let Some(decoded) = self.decoder.push(byte) {
+                            messages
+                                .push(decoded.expect("the double sent a frame the crate rejects"));
+                        }
+                    }
+                }
+                _ => std::thread::sleep(Duration::from_millis(1)),
+            }
+        }
+        messages
+    }
+}
+
+#[test]
+fn spec_device_follows_section_6_as_the_reference_crate_reads_it() {
+    use voxhap_protocol::{
+        DeviceToHost, Enable, FaultCode, Heartbeat, Hello, HostToDevice, RejectReason, SetForce,
+        StatusFlags, PROTOCOL_VERSION,
+    };
+    let mut device = SpecDevice::spawn(SpecDeviceConfig {
+        max_force_n: 4.0,
+        ..SpecDeviceConfig::default()
+    });
+    let mut host = ReferenceHost::open(device.path());
+    let set_force = |sequence, force_n| {
+        HostToDevice::SetForce(SetForce {
+            sequence,
+            force_n,
+            flags: voxhap_protocol::ForceFlags::EMPTY,
+        })
+    };
+    let window = Duration::from_millis(100);
+
+    // Before Hello: Enable is refused for want of a session; SetForce is ignored silently.
+    host.send(HostToDevice::Enable(Enable {
+        watchdog_timeout_us: 0,
+    }));
+    host.send(set_force(1, [1.0, 0.0, 0.0]));
+    match host.receive_for(window).as_slice() {
+        [DeviceToHost::Rejected(r)] => assert_eq!(r.reason, RejectReason::NO_SESSION),
+        other => panic!("before Hello: {other:?}"),
+    }
+
+    host.send(HostToDevice::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    }));
+    match host.receive_for(window).as_slice() {
+        [DeviceToHost::DeviceInfo(info)] => {
+            assert_eq!(info.max_force_n, 4.0);
+            assert_eq!(info.model.as_str(), "spec-device");
+        }
+        other => panic!("Hello: {other:?}"),
+    }
+    host.send(HostToDevice::Heartbeat(Heartbeat { counter: 7 }));
+    host.send(set_force(1, [0.0; 3]));
+    let replies = host.receive_for(window);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::Heartbeat(h), DeviceToHost::State(s)]
+            if h.counter == 7 && s.last_force_sequence == 1
+                && s.status.contains(StatusFlags::SESSION_OPEN | StatusFlags::LOCKSTEP)
+                && !s.status.contains(StatusFlags::ENABLED)),
+        "Heartbeat and lockstep State: {replies:?}"
+    );
+
+    // Enabled: a force above max_force_n is applied clamped, and the State says so. Then no SetForce for the 50 ms
+    // default: the watchdog fires once, 50 ms (plus at most a few control periods) later.
+    host.send(HostToDevice::Enable(Enable {
+        watchdog_timeout_us: 0,
+    }));
+    host.send(set_force(2, [30.0, 40.0, 0.0]));
+    let replies = host.receive_for(Duration::from_millis(200));
+    match replies.as_slice() {
+        [DeviceToHost::State(s), DeviceToHost::Fault(f)] => {
+            assert_eq!(s.last_force_sequence, 2);
+            assert!(
+                s.status
+                    .contains(StatusFlags::ENABLED | StatusFlags::FORCE_CLAMPED),
+                "{s:?}"
+            );
+            assert_eq!(f.code, FaultCode::WATCHDOG_EXPIRED);
+            let after_us = f.device_time_us - s.device_time_us;
+            assert!(
+                (50_000..=80_000).contains(&after_us),
+                "watchdog after {after_us} us"
+            );
+        }
+        other => panic!("enabled, then silent: {other:?}"),
+    }
+    let logged = device.forces();
+    assert_eq!(logged.len(), 3, "{logged:?}");
+    assert!(!logged[0].enabled && !logged[1].enabled && logged[2].enabled);
+
+    host.send(HostToDevice::Heartbeat(Heartbeat { counter: 8 }));
+    let replies = host.receive_for(window);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::Heartbeat(h)]
+            if h.status.contains(StatusFlags::WATCHDOG_TRIPPED) && !h.status.contains(StatusFlags::ENABLED)),
+        "after the watchdog: {replies:?}"
+    );
+    device.stop();
+    let messages: Vec<_> = device.messages().iter().map(|m| m.message).collect();
+    assert_eq!(
+        messages,
+        [
+            HostMessage::Enable {
+                watchdog_timeout_us: 0
+            },
+            HostMessage::Hello { major: 1, minor: 0 },
+            HostMessage::Heartbeat { counter: 7 },
+            HostMessage::Enable {
+                watchdog_timeout_us: 0
+            },
+            HostMessage::Heartbeat { counter: 8 },
+        ]
+    );
+}
+
 // ---------------------------------------------------------------------------------------------------------------
 // A clean session.
 

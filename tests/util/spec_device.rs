@@ -32,7 +32,7 @@
 //! Misbehaviour ([`SpecDeviceConfig`] fields, each `None`/`0` by default): refuse every Enable; start Faulted; raise
 //! a Fault at a [`Trigger`]; corrupt the first N DeviceInfo replies (bad CRC); speak another major version; stop
 //! replying for a while; delay every reply; corrupt a fraction of the bytes it writes (seeded); send every Nth frame
-//! cut in half; add a position jump; report a fixed (absurd or inconsistent) velocity. The handle follows a
+//! cut in half; add a position jump; report a fixed (absurd or inconsistent) velocity; reset (a brown-out). The handle follows a
 //! scripted function of time ([`HandleFn`]).
 
 use std::collections::VecDeque;
@@ -306,6 +306,9 @@ pub struct SpecDeviceConfig {
     pub seed: u64,
     /// `corrupt_fraction` and `partial_frame_every` act only from this trigger on (`None`: from the start).
     pub noise_from: Option<Trigger>,
+    /// At the trigger the device resets (a brown-out): session closed, Idle, counters and settings back to
+    /// power-up, pending replies lost, a lone 0x00 sent as at start-up (SPEC sections 4.3 and 6).
+    pub reset: Option<Trigger>,
 }
 
 impl Default for SpecDeviceConfig {
@@ -334,6 +337,7 @@ impl Default for SpecDeviceConfig {
             velocity_override: None,
             seed: 1,
             noise_from: None,
+            reset: None,
         }
     }
 }
@@ -466,6 +470,7 @@ struct Device {
     first_enable: Option<Instant>,
     enabled_forces: u64,
     fault_done: bool,
+    reset_done: bool,
     silence_from: Option<Instant>,
     device_infos_sent: u32,
     frames_written: u32,
@@ -805,6 +810,12 @@ impl Device {
                 self.raise_fault(code, now);
             }
         }
+        if let Some(trigger) = self.config.reset {
+            if !self.reset_done && self.triggered(trigger, now) {
+                self.reset_done = true;
+                self.power_up(now);
+            }
+        }
         if self.silence_from.is_none() {
             if let Some((trigger, _)) = self.config.silence {
                 if self.triggered(trigger, now) {
@@ -821,6 +832,29 @@ impl Device {
             };
             self.send_state(now);
         }
+    }
+
+    /// Back to the power-up state (SPEC section 6: session closed, drive Idle, zero force), as after a reset.
+    fn power_up(&mut self, now: Instant) {
+        self.session_open = false;
+        self.drive = Drive::Idle;
+        self.watchdog_timeout_us = 50_000;
+        self.applied_force_n = [0.0; 3];
+        self.force_clamped = false;
+        self.watchdog_tripped = false;
+        self.faults = 0;
+        self.last_force_sequence = 0;
+        self.state_sequence = 0;
+        self.state_rate_hz = 0;
+        self.rx.clear();
+        self.outbox.clear();
+        self.outbox.push_back(Outgoing {
+            due: now,
+            message_type: 0,
+            detail: 0,
+            bytes: vec![0],
+            intact: true,
+        });
     }
 
     fn silent(&self, now: Instant) -> bool {
@@ -1063,6 +1097,7 @@ impl SpecDevice {
             first_enable: None,
             enabled_forces: 0,
             fault_done: false,
+            reset_done: false,
             silence_from: None,
             device_infos_sent: 0,
             frames_written: 0,

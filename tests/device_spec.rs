@@ -645,7 +645,7 @@ fn assert_zero_within_one_period_of(device: &SpecDeviceHandle, code: u8) {
 }
 
 #[test]
-#[ignore = "issue 12: after Fault(WATCHDOG_EXPIRED) today's host keeps sending ~1 800 non-zero SetForce to an Idle device"]
+#[ignore = "issue 12: after Fault(WATCHDOG_EXPIRED) today's host sends ~1 800 non-zero SetForce to an Idle device"]
 fn a_watchdog_fault_brings_zero_within_one_period_then_a_new_enable() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -692,7 +692,7 @@ fn a_latching_fault_brings_zero_within_one_period_and_is_never_cleared_by_the_ho
 }
 
 #[test]
-#[ignore = "issue 12: today's host sends ~900 non-zero SetForce (up to 3 N) to a device that refused Enable; once it gave up with 'could not connect (Unsupported)' instead"]
+#[ignore = "issue 12: today's host sends ~900 non-zero SetForce (3 N) after Enable was refused (once: Unsupported)"]
 fn a_refused_enable_gets_only_zero_forces() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -725,7 +725,7 @@ fn a_refused_enable_gets_only_zero_forces() {
 }
 
 #[test]
-#[ignore = "issue 12: today's host sends ~950 non-zero SetForce (up to 3 N) to a device that refused Enable with FAULTED"]
+#[ignore = "issue 12: today's host sends ~950 non-zero SetForce (3 N) after Rejected(Enable, FAULTED)"]
 fn a_faulted_device_gets_only_zero_forces_and_no_clear_fault() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -757,7 +757,7 @@ fn a_faulted_device_gets_only_zero_forces_and_no_clear_fault() {
 // Handshake.
 
 #[test]
-#[ignore = "issue 12: one corrupted DeviceInfo ends today's serve with 'could not connect (Unsupported)', no Hello retry"]
+#[ignore = "issue 12: a corrupted DeviceInfo ends today's serve ('could not connect (Unsupported)'), no retry"]
 fn corrupted_device_info_is_answered_by_another_hello() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -817,7 +817,7 @@ fn a_version_mismatch_names_both_versions_and_sends_no_force() {
 // Link health.
 
 #[test]
-#[ignore = "issue 12: today's host re-sends the stale force ~22 times, 15 of them more than 40 ms into the silence"]
+#[ignore = "issue 12: today's host re-sends the stale force ~22 times, 15 more than 40 ms into the silence"]
 fn a_silent_device_gets_no_stale_force_beyond_the_link_window_then_hello() {
     let _turn = take_turn();
     let silence_after = Duration::from_millis(1500);
@@ -878,7 +878,7 @@ fn a_silent_device_gets_no_stale_force_beyond_the_link_window_then_hello() {
 }
 
 #[test]
-#[ignore = "issue 12: on a noisy link today's host steps |force| by ~0.8 N in one tick (no slew limit; 2 runs of 3)"]
+#[ignore = "issue 12: on a noisy link today's host steps |force| ~0.8 N in one tick (2 runs of 3)"]
 fn a_noisy_link_keeps_every_force_invariant() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -905,7 +905,7 @@ fn a_noisy_link_keeps_every_force_invariant() {
 }
 
 #[test]
-#[ignore = "issue 12: with replies 2 ms late today's host steps |force| by up to ~1 N in one tick, and 3 runs in 30 end in 'could not connect (Unsupported)' when the State for SetForce 1 comes >= 2 ms late"]
+#[ignore = "issue 12: replies 2 ms late: today's host steps |force| ~1 N in a tick; a late first State ends it"]
 fn replies_two_periods_late_keep_every_force_invariant() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -920,7 +920,7 @@ fn replies_two_periods_late_keep_every_force_invariant() {
 }
 
 #[test]
-#[ignore = "issue 12: after a device reset today's host sends ~21 non-zero SetForce to the session-less device, most of them more than 40 ms after the reset"]
+#[ignore = "issue 12: after a device reset today's host sends ~21 non-zero SetForce, most over 40 ms later"]
 fn a_device_that_resets_is_handshaken_again_and_re_enabled() {
     let _turn = take_turn();
     let reset_after = Duration::from_millis(1200);
@@ -981,7 +981,7 @@ fn a_device_that_resets_is_handshaken_again_and_re_enabled() {
 /// SIGSTOP freezes the whole host (servo, monitor and all): only the device's watchdog can act. After SIGCONT the
 /// host must not resume with its stale force: zero until it has enabled the device again, then a ramp.
 #[test]
-#[ignore = "issue 12: after the device watchdog tripped during a 200 ms SIGSTOP today's host never sends Enable again"]
+#[ignore = "issue 12: after the watchdog tripped in a 200 ms SIGSTOP today's host never sends Enable again"]
 fn a_frozen_host_is_caught_by_the_device_watchdog_and_resumes_from_zero() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
@@ -1038,7 +1038,7 @@ fn a_frozen_host_is_caught_by_the_device_watchdog_and_resumes_from_zero() {
 // Plausibility and limits.
 
 #[test]
-#[ignore = "issue 12: a 1 cm encoder jump in contact gives today's host a 1.56 N force step in one tick"]
+#[ignore = "issue 12: a 1 cm encoder jump in contact gives today's host a 1.5 N force step in one tick"]
 fn a_position_glitch_never_steps_the_force_above_the_slew_limit() {
     let _turn = take_turn();
     // In light contact (3 mm inside the wall, about 1.5 N), then the encoder jumps 1 cm deeper: the coupling would
@@ -1082,7 +1082,7 @@ fn an_absurd_velocity_never_steps_the_force_above_the_slew_limit() {
 }
 
 #[test]
-#[ignore = "issue 12: a reported 0.5 m/s on a still handle gives today's host a 0 -> 2.5 N step in one tick"]
+#[ignore = "issue 12: a reported 0.5 m/s on a still handle gives today's host a 0 -> 2.5 N step in a tick"]
 fn an_inconsistent_velocity_never_steps_the_force_above_the_slew_limit() {
     let _turn = take_turn();
     let config = SpecDeviceConfig {
@@ -1100,7 +1100,7 @@ fn an_inconsistent_velocity_never_steps_the_force_above_the_slew_limit() {
 }
 
 #[test]
-#[ignore = "issue 12: today's host renders 3 N at the scene's 500 N/m on a device that declares 50 N/m (bound 0.67 N)"]
+#[ignore = "issue 12: today's host renders 3 N at the scene's 500 N/m on a 50 N/m device (bound 0.67 N)"]
 fn the_devices_stiffness_cap_holds_from_the_first_tick() {
     let _turn = take_turn();
     let cap_n_per_m = 50.0f32;
@@ -1201,7 +1201,7 @@ fn longest_nonzero_run_while_not_enabled(forces: &[ForceRecord]) -> usize {
 /// rising faster than the slew limit, and zero while not enabled (up to 3 frames in flight after the device left
 /// Enabled, the host's 3-period staleness bound).
 #[test]
-#[ignore = "issue 12: today's host fails the invariants under random misbehaviour (force steps, non-zero forces to an Idle device)"]
+#[ignore = "issue 12: today's host fails the invariants under random misbehaviour (force steps)"]
 fn random_misbehaviour_keeps_the_device_side_invariants() {
     let mut seed = 0x5eed_u64;
     let mut next = move |below: u64| {
@@ -1239,7 +1239,8 @@ fn random_misbehaviour_keeps_the_device_side_invariants() {
             config.silence = Some((at(next(1200)), Duration::from_millis(next(100))));
         }
         let description = format!(
-            "scenario {scenario}: max {max_force_n} N, delay {:?}, fault {:?}, glitch {:?}, velocity {:?}, noise {}, silence {:?}",
+            "scenario {scenario}: max {max_force_n} N, delay {:?}, fault {:?}, glitch {:?}, velocity {:?}, \
+             noise {}, silence {:?}",
             config.reply_delay,
             config.fault,
             config.position_glitch,

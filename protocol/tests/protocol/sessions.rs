@@ -579,3 +579,24 @@ fn faults_are_sent_without_a_session_and_hello_clears_neither_faulted_nor_watchd
     device.on_message(&enable(0), 100_010);
     assert!(!device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
 }
+
+/// SPEC 6.6: in lockstep REQUEST_STATE changes nothing: one State per SetForce, never two.
+#[test]
+fn request_state_in_lockstep_still_gives_one_state() {
+    let mut device = enabled_device();
+    device.on_message(
+        &HostToDevice::SetForce(SetForce {
+            sequence: 1,
+            force_n: [0.0; 3],
+            flags: ForceFlags::REQUEST_STATE,
+        }),
+        10,
+    );
+    device.poll(20, &DeviceSample::default());
+    device.poll(30, &DeviceSample::default());
+    let replies = drain(&mut device);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::State(s)] if s.last_force_sequence == 1),
+        "{replies:?}"
+    );
+}

@@ -11,6 +11,7 @@ mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
+mod device_spec;
 mod foxglove;
 mod modes;
 mod paper;

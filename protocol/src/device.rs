@@ -183,7 +183,11 @@ impl DeviceSession {
             .with(StatusFlags::ENABLED, self.drive == DriveState::Enabled)
             .with(StatusFlags::FAULTED, self.drive == DriveState::Faulted)
             .with(StatusFlags::WATCHDOG_TRIPPED, self.watchdog_tripped)
-            .with(StatusFlags::FORCE_CLAMPED, self.force_clamped)
+            // "The force being applied was scaled down": nothing is applied outside Enabled (SPEC section 6).
+            .with(
+                StatusFlags::FORCE_CLAMPED,
+                self.force_clamped && self.drive == DriveState::Enabled,
+            )
             .with(StatusFlags::LOCKSTEP, self.state_rate_hz == 0)
     }
 

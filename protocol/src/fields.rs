@@ -77,7 +77,7 @@ bit_set! {
         FAULTED = 1 << 2;
         /// The watchdog dropped the device to zero force since the last enable.
         WATCHDOG_TRIPPED = 1 << 3;
-        /// The last applied force was scaled down to the device's maximum force.
+        /// The force being applied (only while enabled) was scaled down to the device's maximum force.
         FORCE_CLAMPED = 1 << 4;
         /// State frames answer set-force messages (state rate 0) instead of streaming at a fixed rate.
         LOCKSTEP = 1 << 5;

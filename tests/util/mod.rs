@@ -4,9 +4,12 @@
 //! counts allocations, reallocations and frees per thread, so a test can prove that a hot path (the solver, the
 //! servo tick, `SimArm::step`) does not allocate while other tests run in parallel on other threads.
 //! [`server`] starts a session with the visualiser server and speaks HTTP and WebSocket to it.
+//! [`spec_device`] is a voxhap-protocol device written from protocol/SPEC.md alone, on a pseudo-terminal, that logs
+//! every force the host sends it and misbehaves on request (tests/device_spec.rs).
 
 pub mod alloc;
 pub mod server;
+pub mod spec_device;
 
 /// Runs `f` and returns how many allocation events (alloc, realloc, free) the current thread made meanwhile.
 pub fn count_allocations(f: impl FnOnce()) -> u64 {

@@ -7,5 +7,6 @@ mod loopback;
 mod robustness;
 mod roundtrip;
 mod sessions;
+mod spec_text;
 mod strategies;
 mod vectors;

@@ -256,6 +256,25 @@ fn forces_above_the_maximum_are_scaled_keeping_direction() {
 }
 
 #[test]
+fn force_clamped_is_reported_only_while_a_clamped_force_is_applied() {
+    let mut device = enabled_device();
+    device.on_message(&force(1, [30.0, 40.0, 0.0]), 10);
+    device.poll(20, &DeviceSample::default());
+    assert!(device.status().contains(StatusFlags::FORCE_CLAMPED));
+    // Disable applies zero: nothing is being scaled down any more (SPEC section 6, status bits).
+    device.on_message(&HostToDevice::Disable, 30);
+    device.poll(40, &DeviceSample::default());
+    assert!(!device.status().contains(StatusFlags::FORCE_CLAMPED));
+    // A latching fault likewise.
+    let mut device = enabled_device();
+    device.on_message(&force(1, [30.0, 40.0, 0.0]), 10);
+    device.poll(20, &DeviceSample::default());
+    device.raise_fault(FaultCode::OVER_CURRENT, 30);
+    assert!(!device.status().contains(StatusFlags::FORCE_CLAMPED));
+    assert!(device.status().contains(StatusFlags::FAULTED));
+}
+
+#[test]
 fn non_finite_forces_from_a_caller_that_skipped_the_codec_are_ignored() {
     let mut device = enabled_device();
     device.on_message(&force(1, [1.0, 0.0, 0.0]), 10);
@@ -503,4 +522,81 @@ fn firmware_footprint_is_small() {
     println!("FrameDecoder<HostToDevice>: {decoder} bytes, DeviceSession: {session} bytes");
     assert!(decoder <= 256, "decoder is {decoder} bytes");
     assert!(session <= 1024, "session is {session} bytes");
+}
+
+/// SPEC 6.3: an ENCODER outage stops State frames but not HeartbeatReply, and one State follows once the sample is
+/// finite again, echoing the last SetForce received meanwhile.
+#[test]
+fn an_encoder_outage_stops_states_then_one_state_catches_up() {
+    let mut device = enabled_device();
+    let bad = DeviceSample {
+        position_m: [f32::NAN, 0.0, 0.0],
+        ..DeviceSample::default()
+    };
+    device.on_message(&force(1, [1.0, 0.0, 0.0]), 10);
+    device.on_message(&force(2, [1.0, 0.0, 0.0]), 20);
+    assert_eq!(device.poll(30, &bad), [0.0; 3]);
+    device.on_message(&HostToDevice::Heartbeat(Heartbeat { counter: 5 }), 40);
+    let replies = drain(&mut device);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::Fault(f), DeviceToHost::Heartbeat(h)]
+            if f.code == FaultCode::ENCODER && h.counter == 5),
+        "{replies:?}"
+    );
+    device.on_message(&force(3, [1.0, 0.0, 0.0]), 50);
+    device.poll(60, &bad);
+    assert!(drain(&mut device).is_empty(), "no second Fault, no State");
+    device.poll(70, &DeviceSample::default());
+    let replies = drain(&mut device);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::State(s)] if s.last_force_sequence == 3
+            && s.status.contains(StatusFlags::FAULTED)),
+        "{replies:?}"
+    );
+}
+
+/// SPEC 6.3 and 6.1: a Fault is sent without a session; Hello keeps Faulted and WATCHDOG_TRIPPED.
+#[test]
+fn faults_are_sent_without_a_session_and_hello_clears_neither_faulted_nor_watchdog_tripped() {
+    let mut device = DeviceSession::new(info());
+    device.raise_fault(FaultCode::EMERGENCY_STOP, 5);
+    assert!(matches!(
+        drain(&mut device).as_slice(),
+        [DeviceToHost::Fault(_)]
+    ));
+    device.on_message(&hello(), 10);
+    drain(&mut device);
+    assert!(device.status().contains(StatusFlags::FAULTED));
+
+    let mut device = enabled_device();
+    device.poll(
+        DEFAULT_WATCHDOG_TIMEOUT_US as u64 + 10,
+        &DeviceSample::default(),
+    );
+    assert!(device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
+    device.on_message(&hello(), 100_000);
+    assert!(device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
+    device.on_message(&enable(0), 100_010);
+    assert!(!device.status().contains(StatusFlags::WATCHDOG_TRIPPED));
+}
+
+/// SPEC 6.6: in lockstep REQUEST_STATE changes nothing: one State per SetForce, never two.
+#[test]
+fn request_state_in_lockstep_still_gives_one_state() {
+    let mut device = enabled_device();
+    device.on_message(
+        &HostToDevice::SetForce(SetForce {
+            sequence: 1,
+            force_n: [0.0; 3],
+            flags: ForceFlags::REQUEST_STATE,
+        }),
+        10,
+    );
+    device.poll(20, &DeviceSample::default());
+    device.poll(30, &DeviceSample::default());
+    let replies = drain(&mut device);
+    assert!(
+        matches!(replies.as_slice(), [DeviceToHost::State(s)] if s.last_force_sequence == 1),
+        "{replies:?}"
+    );
 }

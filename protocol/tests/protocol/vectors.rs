@@ -11,12 +11,12 @@ use voxhap_protocol::{
     State, StatusFlags, Version, MAX_WIRE_FRAME_LEN,
 };
 
-enum Expected {
+pub(crate) enum Expected {
     Host(HostToDevice),
     Device(DeviceToHost),
 }
 
-fn expected_vectors() -> Vec<(&'static str, Expected)> {
+pub(crate) fn expected_vectors() -> Vec<(&'static str, Expected)> {
     use Expected::{Device, Host};
     let label = |text| Label::new(text).expect("valid label");
     vec![

@@ -50,9 +50,11 @@
 //! clock is given, nanoseconds; the solver always returns its best point with its certificate.
 
 pub mod active_set;
+mod certificate;
 pub mod linalg;
 
 use crate::clock::Clock;
+use certificate::{certify, Frame};
 use crate::haptics::primitive::{Primitive, PrimitiveKind};
 use glam::DVec3;
 use serde::Serialize;
@@ -146,8 +148,6 @@ pub(crate) struct Item {
     pub position_m: DVec3,
     pub direction: DVec3,
     pub strength_n: f64,
-    /// The rounding floor of this item's own coordinates (see [`position_floor_m`]).
-    pub floor_m: f64,
 }
 
 /// The solver and its workspace (STYLE.md item 3: allocate up front, `clear()` instead of rebuild).
@@ -257,6 +257,8 @@ impl Solver {
 
         // y = probe + (sum of directed forces) / k; the rest become items.
         let mut directed = DVec3::ZERO;
+        let mut directed_strength = 0.0;
+        let mut directed_count = 0.0;
         // Build the items in place; the previous dual is reused when the kinds match one for one.
         let mut count = 0;
         let mut same_structure = self.config.warm_start_dual && self.has_previous_dual;
@@ -264,6 +266,8 @@ impl Solver {
         for p in problem.primitives {
             if p.kind() == PrimitiveKind::Directed {
                 directed += p.strength_n() * p.direction();
+                directed_strength += p.strength_n();
+                directed_count += 1.0;
                 continue;
             }
             let item = Item {
@@ -271,7 +275,6 @@ impl Solver {
                 position_m: p.position_m(),
                 direction: p.direction(),
                 strength_n: p.strength_n(),
-                floor_m: ROUNDING_SLACK * p.position_m().abs().max_element(),
             };
             strength_sum += item.strength_n;
             if count < self.items.len() {
@@ -286,9 +289,22 @@ impl Solver {
         same_structure &= count == self.items.len() && count == self.dual.len();
         self.items.truncate(count);
         let y = problem.probe_m + directed / k;
-        // The previous dual need not be projected onto this tick's sets: the first sweep replaces every u_i by a
-        // projection before any certificate is taken.
-        if !same_structure {
+        let frame = Frame {
+            y,
+            k,
+            // Each directed force and the sum round to eps/2 of their magnitude, y's sum and quotient likewise.
+            y_error_m: 4.0
+                * f64::EPSILON
+                * (problem.probe_m.length() + (directed_count + 2.0) * directed_strength / k),
+            strength_over_k_m: strength_sum / k,
+        };
+        if same_structure {
+            // The previous tick's duals may lie outside this tick's sets (a weakened or tilted primitive):
+            // project them, so that every dual the solver holds, and every certificate, is feasible.
+            for (item, u) in self.items.iter().zip(self.dual.iter_mut()) {
+                *u = project(item, *u);
+            }
+        } else {
             self.dual.clear();
             for item in &self.items {
                 self.dual.push(
@@ -299,15 +315,15 @@ impl Solver {
             }
         }
         self.has_previous_dual = true;
-        let position_floor = position_floor_m(y, strength_sum, k);
 
         let mut sweeps = 0u32;
         let mut rounds = 0u32;
         let mut total = self.dual.iter().copied().sum::<DVec3>();
-        // With primitives, at least one sweep always runs, so the warm start is not certified separately
-        // (it saves a gap evaluation per tick; warm starts are rarely exact because primitives move).
+        // With primitives and a budget, at least one sweep runs before the first check, so the warm start is
+        // not certified separately (it saves a gap evaluation per tick). Every exit below certifies what it
+        // returns: `best` starts with an infinite bound, and the budget exit certifies the current dual.
         let mut best = if self.items.is_empty() {
-            self.certify_dual(y, k, total, position_floor)
+            self.certify_dual(&frame, total)
         } else {
             Candidate {
                 x: y - total / k,
@@ -335,9 +351,14 @@ impl Solver {
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
-                    best = self.certify_dual(y, k, total, position_floor);
+                    best = self.certify_dual(&frame, total);
                 }
-                return Ok(finish(best, sweeps, rounds, SolveStatus::BudgetExhausted));
+                let status = if best.bound_m <= config.tolerance_m {
+                    SolveStatus::Certified
+                } else {
+                    SolveStatus::BudgetExhausted
+                };
+                return Ok(finish(best, sweeps, rounds, status));
             }
             if sweeps - best_at_sweep >= STALL_SWEEPS {
                 return Ok(finish(best, sweeps, rounds, SolveStatus::Stalled));
@@ -345,7 +366,7 @@ impl Solver {
             for _ in 0..config.sweeps_per_round.max(1) {
                 total = self.sweep(y, k, total, sweeps % 2 == 1);
                 sweeps += 1;
-                let candidate = self.certify_dual(y, k, total, position_floor);
+                let candidate = self.certify_dual(&frame, total);
                 if candidate.bound_m < best.bound_m {
                     if candidate.bound_m < 0.5 * best.bound_m {
                         best_at_sweep = sweeps;
@@ -372,15 +393,8 @@ impl Solver {
             );
             if let Some(x) = attempt {
                 let candidate_total = self.candidate_dual.iter().copied().sum::<DVec3>();
-                let (gap, bound) = certificate(
-                    &self.items,
-                    &self.candidate_dual,
-                    y,
-                    k,
-                    x,
-                    candidate_total,
-                    position_floor,
-                );
+                let checked = certify(&self.items, &self.candidate_dual, &frame, x);
+                let (gap, bound) = (checked.gap_j, checked.bound_m);
                 if bound < best.bound_m {
                     if bound < 0.5 * best.bound_m {
                         best_at_sweep = sweeps;
@@ -412,10 +426,14 @@ impl Solver {
     }
 
     /// The primal point of the current dual and its certificate.
-    fn certify_dual(&self, y: DVec3, k: f64, total: DVec3, position_floor: f64) -> Candidate {
-        let x = y - total / k;
-        let (gap_j, bound_m) = certificate(&self.items, &self.dual, y, k, x, total, position_floor);
-        Candidate { x, gap_j, bound_m }
+    fn certify_dual(&self, frame: &Frame, total: DVec3) -> Candidate {
+        let x = frame.y - total / frame.k;
+        let checked = certify(&self.items, &self.dual, frame, x);
+        Candidate {
+            x,
+            gap_j: checked.gap_j,
+            bound_m: checked.bound_m,
+        }
     }
 }
 
@@ -470,102 +488,6 @@ pub(crate) fn subgradient(item: &Item, x: DVec3) -> DVec3 {
         }
         PrimitiveKind::Directed => DVec3::ZERO,
     }
-}
-
-/// Relative slack below which `s - |u|` counts as zero: `|u|` of a vector scaled to length `s` is `s` only to a
-/// few ulps, and without this the gap would floor at `s * dist * 1e-16` instead of converging.
-const ROUNDING_SLACK: f64 = 8.0 * f64::EPSILON;
-
-/// The rounding floor of a position computed as `x = y - (sum_i u_i)/k`: 8 machine epsilons of `|x|`, `|y|`
-/// and `sum_i |u_i| / k` (the sum of many forces loses that much). Since `|u_i| <= s_i`, both `|x|` and the sum
-/// are bounded by `|y| + sum_i s_i / k`, so the floor is fixed for a solve: `8 eps (2 |y| + 2 sum_i s_i / k)`.
-/// A distance to a kink below this floor (plus the kink's own coordinates) is representation error, not solver
-/// error: the gap counts it as zero and [`error_bound_m`] adds the floor to the bound instead (the square root
-/// would otherwise turn 1e-19 m of rounding into a claimed 1e-11 m).
-pub(crate) fn position_floor_m(y: DVec3, strength_sum_n: f64, k: f64) -> f64 {
-    2.0 * ROUNDING_SLACK * (y.abs().max_element() + strength_sum_n / k)
-}
-
-/// The certified distance bound: `sqrt(2 gap / k)` plus the rounding floor of the position.
-pub(crate) fn error_bound_m(gap_j: f64, k: f64, floor_m: f64) -> f64 {
-    (2.0 * gap_j / k).sqrt() + floor_m
-}
-
-/// `s dist(x, C) - u.(x - c)` for a ball or disc, written as two non-negative terms so that nothing cancels:
-/// `(s - |u|) |r| + (|u| |r| - u.r)`.
-fn ball_gap(s: f64, u: DVec3, r: DVec3, floor_m: f64) -> f64 {
-    let rho = r.length();
-    if rho <= floor_m {
-        return 0.0;
-    }
-    let a = u.length();
-    let slack = if (s - a) <= ROUNDING_SLACK * s {
-        0.0
-    } else {
-        s - a
-    };
-    // |u||r| - u.r, without cancellation: |u x r|^2 / (|u||r| + u.r) when u.r > 0.
-    let dot = u.dot(r);
-    let angle_term = if dot > 0.0 {
-        u.cross(r).length_squared() / (a * rho + dot)
-    } else {
-        a * rho - dot
-    };
-    slack * rho + angle_term
-}
-
-/// One primitive's share of the gap, `s dist(x, C) - u.(x - c) >= 0`, computed without cancellation.
-pub(crate) fn item_gap_j(item: &Item, u: DVec3, x: DVec3, position_floor_m: f64) -> f64 {
-    let r = x - item.position_m;
-    let s = item.strength_n;
-    let floor_m = position_floor_m + item.floor_m;
-    match item.kind {
-        PrimitiveKind::Point => ball_gap(s, u, r, floor_m),
-        PrimitiveKind::Line => {
-            let q = item.direction;
-            ball_gap(s, u - q * q.dot(u), r - q * q.dot(r), floor_m)
-        }
-        PrimitiveKind::Plane => {
-            let q = item.direction;
-            let sigma = q.dot(r);
-            // u = -t q; recovering t from u is exact only to a few ulps, like |u| for a ball.
-            let t = (-q.dot(u)).max(0.0).min(s);
-            if sigma.abs() <= floor_m {
-                0.0
-            } else if sigma > 0.0 {
-                if t <= ROUNDING_SLACK * s {
-                    0.0
-                } else {
-                    t * sigma
-                }
-            } else if s - t <= ROUNDING_SLACK * s {
-                0.0
-            } else {
-                (s - t) * -sigma
-            }
-        }
-        PrimitiveKind::Directed => 0.0,
-    }
-}
-
-/// The duality gap of the pair `(x, u)` (module docs), in joules, and the bound it certifies, in metres.
-/// `total` must be `sum u_i`.
-pub(crate) fn certificate(
-    items: &[Item],
-    dual: &[DVec3],
-    y: DVec3,
-    k: f64,
-    x: DVec3,
-    total: DVec3,
-    position_floor: f64,
-) -> (f64, f64) {
-    let mut gap: f64 = items
-        .iter()
-        .zip(dual)
-        .map(|(item, &u)| item_gap_j(item, u, x, position_floor))
-        .sum();
-    gap += (k * (x - y) + total).length_squared() / (2.0 * k);
-    (gap, error_bound_m(gap, k, position_floor))
 }
 
 #[cfg(test)]

@@ -119,15 +119,26 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Ve
         black_box(solver.solve(black_box(&problem)).expect("valid"))
     };
     let answer = exact();
-    let exact_ns = median_ns(batch_for(|| drop(exact())), || drop(exact()));
+    let batch = batch_for(|| {
+        exact();
+    });
+    let exact_ns = median_ns(batch, || {
+        exact();
+    });
     let euler_with = |config: &EulerConfig| euler::solve(K, black_box(probe), probe, primitives, config);
     let euler = euler_with(&EulerConfig::default());
-    let euler_ns = median_ns(batch_for(|| drop(euler_with(&EulerConfig::default()))), || {
-        drop(black_box(euler_with(&EulerConfig::default())))
+    let batch = batch_for(|| {
+        black_box(euler_with(&EulerConfig::default()));
+    });
+    let euler_ns = median_ns(batch, || {
+        black_box(euler_with(&EulerConfig::default()));
     });
     let accurate = euler_with(&EULER_ACCURATE);
-    let accurate_ns = median_ns(batch_for(|| drop(euler_with(&EULER_ACCURATE))), || {
-        drop(black_box(euler_with(&EULER_ACCURATE)))
+    let batch = batch_for(|| {
+        black_box(euler_with(&EULER_ACCURATE));
+    });
+    let accurate_ns = median_ns(batch, || {
+        black_box(euler_with(&EULER_ACCURATE));
     });
     rows.push(Row {
         case: name.to_string(),

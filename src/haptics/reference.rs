@@ -227,7 +227,9 @@ pub fn minimise(
                 t = t / 2.0;
             }
             let moved = f64::from((dot(step, step).sqrt() * t).abs());
-            if !accepted || moved < 1e-36 {
+            // Intermediate levels only need a start for the next one; the last goes to double-double precision.
+            let enough = if eps > final_eps { 1e-3 * eps } else { 1e-36 };
+            if !accepted || moved < enough {
                 break;
             }
         }

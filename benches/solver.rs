@@ -7,7 +7,7 @@
 //!
 //! Columns: the exact solver with its defaults (certified to 1e-12 m); Euler with its defaults (the paper's stop,
 //! `|f_res| <= 1e-3 N` or 100 iterations); and Euler asked for the exact solver's accuracy (`|f_res| <= k 1e-12 m`,
-//! up to 10^6 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
+//! up to 10^5 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
 //! double-double reference minimiser (src/haptics/reference.rs), whose own bound is printed.
 //!
 //! Run: `cargo bench --bench solver` (about two minutes). Times are medians of repeated solves measured in
@@ -29,7 +29,7 @@ const PATH_TICKS: usize = 2000;
 const FRICTION_MU: f64 = 0.4;
 /// Euler "to the same accuracy": a residual force of k times the exact solver's tolerance.
 const EULER_ACCURATE: EulerConfig = EulerConfig {
-    max_iterations: 1_000_000,
+    max_iterations: 100_000,
     force_tolerance_n: K * 1e-12,
 };
 
@@ -70,9 +70,20 @@ fn exploration_path() -> Vec<Tick> {
     ticks
 }
 
-/// Median nanoseconds per call of `f`: 31 samples of `batch` calls each.
+/// Median nanoseconds per call of `f`: 31 samples of `batch` calls each (5 samples when one call takes over
+/// 20 ms, 1 when it takes over a second, to keep the run short).
 fn median_ns(batch: usize, mut f: impl FnMut()) -> f64 {
-    let mut samples: Vec<f64> = (0..31)
+    let start = Instant::now();
+    f();
+    let once_ns = start.elapsed().as_nanos() as f64;
+    let count = if once_ns > 1e9 {
+        1
+    } else if once_ns > 2e7 {
+        5
+    } else {
+        31
+    };
+    let mut samples: Vec<f64> = (0..count)
         .map(|_| {
             let start = Instant::now();
             for _ in 0..batch {
@@ -105,6 +116,29 @@ struct Row {
     reference_bound_m: f64,
 }
 
+/// Prints a row as soon as it is measured (on stderr), so that a long run shows progress.
+fn report(row: Row, rows: &mut Vec<Row>) {
+    eprintln!("bench solver: {}", markdown_row(&row));
+    rows.push(row);
+}
+
+fn markdown_row(r: &Row) -> String {
+    format!(
+        "| {} | {} | {:.1e} | {:.1e} | {} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {:.0e} |",
+        r.case,
+        time(r.exact_ns),
+        r.exact_error_m,
+        r.exact_bound_m,
+        time(r.euler_ns),
+        r.euler_error_m,
+        r.euler_ns / r.exact_ns,
+        time(r.accurate_ns),
+        r.accurate_error_m,
+        r.accurate_ns / r.exact_ns,
+        r.reference_bound_m
+    )
+}
+
 fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Vec<Row>) {
     let reference = reference::minimise(K, probe, primitives);
     let problem = Problem {
@@ -125,7 +159,8 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Ve
     let exact_ns = median_ns(batch, || {
         exact();
     });
-    let euler_with = |config: &EulerConfig| euler::solve(K, black_box(probe), probe, primitives, config);
+    let euler_with =
+        |config: &EulerConfig| euler::solve(K, black_box(probe), probe, primitives, config);
     let euler = euler_with(&EulerConfig::default());
     let batch = batch_for(|| {
         black_box(euler_with(&EulerConfig::default()));
@@ -140,18 +175,20 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Ve
     let accurate_ns = median_ns(batch, || {
         black_box(euler_with(&EULER_ACCURATE));
     });
-    rows.push(Row {
-        case: name.to_string(),
-        exact_ns,
-        exact_error_m: reference.distance_m(answer.proxy_m),
-        exact_bound_m: answer.error_bound_m,
-        euler_ns,
-        euler_error_m: reference.distance_m(euler.proxy_m),
-        accurate_ns,
-        accurate_error_m: reference.distance_m(accurate.proxy_m),
-        reference_bound_m: reference.error_bound_m,
-    });
-    eprintln!("bench solver: {name} done");
+    report(
+        Row {
+            case: name.to_string(),
+            exact_ns,
+            exact_error_m: reference.distance_m(answer.proxy_m),
+            exact_bound_m: answer.error_bound_m,
+            euler_ns,
+            euler_error_m: reference.distance_m(euler.proxy_m),
+            accurate_ns,
+            accurate_error_m: reference.distance_m(accurate.proxy_m),
+            reference_bound_m: reference.error_bound_m,
+        },
+        rows,
+    );
 }
 
 fn path_case(rows: &mut Vec<Row>) {
@@ -191,7 +228,10 @@ fn path_case(rows: &mut Vec<Row>) {
     };
     let exact = run_exact(&mut Solver::with_capacity(SolverConfig::default(), 2));
     let exact_ns = median_ns(3, || {
-        black_box(run_exact(&mut Solver::with_capacity(SolverConfig::default(), 2)));
+        black_box(run_exact(&mut Solver::with_capacity(
+            SolverConfig::default(),
+            2,
+        )));
     }) / PATH_TICKS as f64;
     let euler_ns = median_ns(3, || {
         black_box(run_euler(&EulerConfig::default()));
@@ -200,18 +240,23 @@ fn path_case(rows: &mut Vec<Row>) {
         black_box(run_euler(&EULER_ACCURATE));
     }) / PATH_TICKS as f64;
     let exact_points: Vec<DVec3> = exact.iter().map(|e| e.0).collect();
-    rows.push(Row {
-        case: "exploration path (per tick, worst tick)".into(),
-        exact_ns,
-        exact_error_m: max_error(&exact_points),
-        exact_bound_m: exact.iter().map(|e| e.1).fold(0.0, f64::max),
-        euler_ns,
-        euler_error_m: max_error(&run_euler(&EulerConfig::default())),
-        accurate_ns,
-        accurate_error_m: max_error(&run_euler(&EULER_ACCURATE)),
-        reference_bound_m: references.iter().map(|r| r.error_bound_m).fold(0.0, f64::max),
-    });
-    eprintln!("bench solver: path done");
+    report(
+        Row {
+            case: "exploration path (per tick, worst tick)".into(),
+            exact_ns,
+            exact_error_m: max_error(&exact_points),
+            exact_bound_m: exact.iter().map(|e| e.1).fold(0.0, f64::max),
+            euler_ns,
+            euler_error_m: max_error(&run_euler(&EulerConfig::default())),
+            accurate_ns,
+            accurate_error_m: max_error(&run_euler(&EULER_ACCURATE)),
+            reference_bound_m: references
+                .iter()
+                .map(|r| r.error_bound_m)
+                .fold(0.0, f64::max),
+        },
+        rows,
+    );
 }
 
 fn machine() -> String {
@@ -274,26 +319,16 @@ fn benches(_c: &mut Criterion) {
     }
 
     println!();
-    println!("Solver benchmark (cargo bench --bench solver): {}", machine());
+    println!(
+        "Solver benchmark (cargo bench --bench solver): {}",
+        machine()
+    );
     println!("Median time per solve, cold start except the path; true errors (m) against the double-double reference.");
     println!();
     println!("| case | exact | exact error | exact bound | Euler (paper stop) | Euler error | speed-up | Euler to 1e-12 m | its error | speed-up | reference bound |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
-        println!(
-            "| {} | {} | {:.1e} | {:.1e} | {} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {:.0e} |",
-            r.case,
-            time(r.exact_ns),
-            r.exact_error_m,
-            r.exact_bound_m,
-            time(r.euler_ns),
-            r.euler_error_m,
-            r.euler_ns / r.exact_ns,
-            time(r.accurate_ns),
-            r.accurate_error_m,
-            r.accurate_ns / r.exact_ns,
-            r.reference_bound_m
-        );
+        println!("{}", markdown_row(r));
     }
 }
 

@@ -137,7 +137,8 @@ fn solve_never_hangs_and_reports_its_budget_status() {
             v
         })
         .collect();
-    let scene = serde_json::json!({"k": 500.0, "probe": [0.001, -0.002, 0.003], "primitives": primitives});
+    let scene =
+        serde_json::json!({"k": 500.0, "probe": [0.001, -0.002, 0.003], "primitives": primitives});
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("mixed.json");
     std::fs::write(&path, scene.to_string()).unwrap();
@@ -165,10 +166,7 @@ fn solve_never_hangs_and_reports_its_budget_status() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["sweeps"].as_u64().unwrap() <= 3, "{v}");
     let status = v["status"].as_str().unwrap();
-    assert!(
-        status == "budget_exhausted" || status == "certified",
-        "{v}"
-    );
+    assert!(status == "budget_exhausted" || status == "certified", "{v}");
     // JSON has no infinity: an infinite bound is printed as null, a finite one must be a number >= 0.
     assert!(v["error_bound"].is_null() || v["error_bound"].as_f64().unwrap() >= 0.0);
 

@@ -236,10 +236,7 @@ fn a_weakened_plane_with_no_sweep_reports_an_honest_bound() {
 fn a_tilted_plane_with_no_sweep_reports_an_honest_bound() {
     let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
     let probe = DVec3::new(0.001, 0.0, -0.0005);
-    let first = [
-        Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),
-        point,
-    ];
+    let first = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(), point];
     let second = [
         Primitive::plane(DVec3::ZERO, DVec3::new(0.5, 0.0, 1.0), 2.0).unwrap(),
         point,
@@ -258,10 +255,7 @@ fn a_time_budget_spent_before_the_first_sweep_reports_an_honest_bound() {
     let probe = DVec3::new(0.001, 0.0, -0.0005);
     let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
     let mut solver = Solver::default();
-    let first = [
-        Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),
-        point,
-    ];
+    let first = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(), point];
     let sol = solver
         .solve(&Problem {
             stiffness_n_per_m: k,
@@ -270,10 +264,7 @@ fn a_time_budget_spent_before_the_first_sweep_reports_an_honest_bound() {
             primitives: &first,
         })
         .unwrap();
-    let second = [
-        Primitive::plane(DVec3::ZERO, DVec3::Z, 0.1).unwrap(),
-        point,
-    ];
+    let second = [Primitive::plane(DVec3::ZERO, DVec3::Z, 0.1).unwrap(), point];
     solver.config_mut().max_time_ns = 0;
     let clock = MockClock::new(0);
     let next = solver

@@ -4,9 +4,9 @@
 //! answer with its honest bound and status (`certified`, `budget_exhausted`, `stalled`); the timing repeats
 //! stop after `TIMING_WALL_S` seconds of solving whatever the count.
 
+use crate::clock::MonotonicClock;
 use crate::haptics::baselines::{constraint, euler, BaselineSolution};
 use crate::haptics::scene::Scene;
-use crate::clock::MonotonicClock;
 use crate::haptics::solver::{Solution, Solver, SolverConfig};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -145,7 +145,12 @@ fn solve_timed(
 
 pub fn run(args: &SolveArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
-    super::print_out(&report(&scene, args.solver, args.json, solver_config(args))?)
+    super::print_out(&report(
+        &scene,
+        args.solver,
+        args.json,
+        solver_config(args),
+    )?)
 }
 
 /// Solves `scene` and formats the report (text, or one JSON object).

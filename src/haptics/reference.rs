@@ -94,9 +94,9 @@ fn solve3(mut m: M, mut b: V) -> Option<V> {
         b.swap(col, pivot);
         for row in col + 1..3 {
             let factor = m[row][col] / m[col][col];
-            for c in col..3 {
-                let v = m[col][c];
-                m[row][c] -= factor * v;
+            let pivot_row = m[col];
+            for (entry, v) in m[row].iter_mut().zip(pivot_row).skip(col) {
+                *entry -= factor * v;
             }
             let v = b[col];
             b[row] -= factor * v;
@@ -224,7 +224,7 @@ pub fn minimise(
                     accepted = true;
                     break;
                 }
-                t = t / 2.0;
+                t /= 2.0;
             }
             let moved = f64::from((dot(step, step).sqrt() * t).abs());
             // Intermediate levels only need a start for the next one; the last goes to double-double precision.
@@ -246,7 +246,11 @@ pub fn minimise(
         .map(|t| f64::from(t.strength))
         .fold(0.0, f64::max);
     ReferenceSolution {
-        proxy_m: DVec3::new(x[0].hi() + x[0].lo(), x[1].hi() + x[1].lo(), x[2].hi() + x[2].lo()),
+        proxy_m: DVec3::new(
+            x[0].hi() + x[0].lo(),
+            x[1].hi() + x[1].lo(),
+            x[2].hi() + x[2].lo(),
+        ),
         proxy_dd_m: x,
         error_bound_m: (2.0 * n * s_max * final_eps / stiffness_n_per_m).sqrt()
             + gradient_norm / stiffness_n_per_m,

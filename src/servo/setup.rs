@@ -365,14 +365,33 @@ mod tests {
     fn bad_scene_files_name_the_problem() {
         let base = Path::new(".");
         let err = SceneSetup::parse("k_n_per_m = -1\nvolumes = []", "s.toml", base).unwrap_err();
-        assert!(err.to_string().contains("s.toml: k_n_per_m: must be"), "{err}");
+        assert!(
+            err.to_string().contains("s.toml: k_n_per_m: must be"),
+            "{err}"
+        );
         // The solver settings are validated for serve as for sim, naming the key.
-        let err = SceneSetup::parse("k_n_per_m = 1\nvolumes = []\n[solver]\nmax_sweeps = 0", "s.toml", base)
-            .unwrap_err();
-        assert!(err.to_string().contains("s.toml: solver.max_sweeps: must be from 1"), "{err}");
-        let err = SceneSetup::parse("k_n_per_m = 1\nvolumes = []\n[solver]\ntolerance_m = 0.0", "s.toml", base)
-            .unwrap_err();
-        assert!(err.to_string().contains("s.toml: solver.tolerance_m: must be"), "{err}");
+        let err = SceneSetup::parse(
+            "k_n_per_m = 1\nvolumes = []\n[solver]\nmax_sweeps = 0",
+            "s.toml",
+            base,
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("s.toml: solver.max_sweeps: must be from 1"),
+            "{err}"
+        );
+        let err = SceneSetup::parse(
+            "k_n_per_m = 1\nvolumes = []\n[solver]\ntolerance_m = 0.0",
+            "s.toml",
+            base,
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("s.toml: solver.tolerance_m: must be"),
+            "{err}"
+        );
         let err = SceneSetup::parse("k_n_per_m = 1\nvolumes = []\nbogus = 1", "s.toml", base)
             .unwrap_err();
         assert!(err.to_string().contains("bogus"), "{err}");

@@ -276,7 +276,11 @@ impl Scenario {
     }
 
     /// Parses and validates a scene file's text for `purpose`.
-    pub fn parse_for(text: &str, origin: &str, purpose: Purpose) -> Result<Scenario, ScenarioError> {
+    pub fn parse_for(
+        text: &str,
+        origin: &str,
+        purpose: Purpose,
+    ) -> Result<Scenario, ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             origin: origin.to_owned(),
             message,

@@ -81,8 +81,8 @@ mod certificate;
 pub mod linalg;
 
 use crate::clock::Clock;
-use certificate::{certify, Frame};
 use crate::haptics::primitive::{Primitive, PrimitiveKind};
+use certificate::{certify, Frame};
 use glam::DVec3;
 use serde::Serialize;
 

@@ -56,6 +56,24 @@ impl Spec {
     }
 }
 
+/// Points, planes and directed forces, but no lines: across a line the reference's Hessian has a condition
+/// number near 1e30 and it resolves the position along the line only to about 1e-13 m (reference.rs), so scenes
+/// with lines are compared in their own test with that slack.
+fn spec_without_lines() -> impl Strategy<Value = Spec> {
+    (
+        prop_oneof![Just(0u8), Just(2u8), Just(3u8)],
+        vector(),
+        direction(),
+        strength(),
+    )
+        .prop_map(|(kind, position, direction, strength)| Spec {
+            kind,
+            position,
+            direction,
+            strength,
+        })
+}
+
 fn spec() -> impl Strategy<Value = Spec> {
     (0u8..4, vector(), direction(), strength()).prop_map(|(kind, position, direction, strength)| {
         Spec {
@@ -68,6 +86,10 @@ fn spec() -> impl Strategy<Value = Spec> {
 }
 
 fn primitive() -> impl Strategy<Value = Primitive> {
+    spec_without_lines().prop_map(|s| s.build())
+}
+
+fn primitive_with_lines() -> impl Strategy<Value = Primitive> {
     spec().prop_map(|s| s.build())
 }
 
@@ -96,9 +118,19 @@ fn assert_honest(
     prims: &[Primitive],
 ) -> Result<(), TestCaseError> {
     let reference = reference::minimise(k, probe, prims);
-    let error = reference.distance_m(sol.proxy_m);
+    // The check is only as sharp as the reference: it must be tighter than the solver's tolerance (it is about
+    // 1e-16 m on most scenes, up to about 1e-13 m with a proxy held on a line; see reference.rs).
     prop_assert!(
-        error <= sol.error_bound_m + reference.error_bound_m,
+        reference.error_bound_m <= 1e-12,
+        "reference bound {:e}",
+        reference.error_bound_m
+    );
+    let error = reference.distance_m(sol.proxy_m);
+    // Besides the reference's bound (part of it an estimate: the last Newton step), 4 ulps of the coordinates
+    // (about 1e-18 m): the resolution at which an f64 position can be compared at all.
+    let ulps = 4.0 * f64::EPSILON * (probe.length() + sol.proxy_m.length());
+    prop_assert!(
+        error <= sol.error_bound_m + reference.error_bound_m + ulps,
         "true error {:e} > bound {:e} (+ reference bound {:e}): {:?}",
         error,
         sol.error_bound_m,
@@ -136,7 +168,7 @@ proptest! {
     /// and each tick gets a budget of 0 to 6 sweeps. Whatever the exit, the bound holds.
     #[test]
     fn the_bound_holds_on_every_exit_across_changing_ticks(
-        specs in prop::collection::vec(spec(), 1..7),
+        specs in prop::collection::vec(spec_without_lines(), 1..7),
         probe in vector(),
         changes in prop::collection::vec((change(), 0u32..7), 1..6),
     ) {
@@ -165,10 +197,24 @@ proptest! {
         }
     }
 
+    /// Scenes with lines: the same checks with the slack of the reference along a line (1e-13 m).
+    #[test]
+    fn scenes_with_lines_match_the_reference_to_its_precision_there(
+        prims in prop::collection::vec(primitive_with_lines(), 0..9),
+        probe in vector(),
+    ) {
+        let mut solver = Solver::default();
+        let sol = solver.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: None, primitives: &prims }).unwrap();
+        prop_assert_eq!(sol.status, SolveStatus::Certified, "{:?}", sol);
+        let reference = reference::minimise(500.0, probe, &prims);
+        let error = reference.distance_m(sol.proxy_m);
+        prop_assert!(error <= sol.error_bound_m + reference.error_bound_m.max(1e-13), "{:e} {:?} {:?}", error, sol, reference);
+    }
+
     /// Warm-starting from any previous proxy gives the same answer.
     #[test]
     fn warm_start_does_not_change_the_answer(
-        prims in prop::collection::vec(primitive(), 1..7),
+        prims in prop::collection::vec(primitive_with_lines(), 1..7),
         probe in vector(),
         previous in vector(),
     ) {

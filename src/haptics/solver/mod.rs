@@ -206,6 +206,10 @@ struct Candidate {
 /// the floating-point floor of the scene and more sweeps cannot help.
 const STALL_SWEEPS: u32 = 2000;
 
+/// Scenes up to this many primitives are checked on the sweep schedule within a round; larger ones at the end
+/// of each round.
+const CHECK_EVERY_SWEEP_MAX_ITEMS: usize = 16;
+
 /// A clock for solves without a time budget: never read.
 struct NoClock;
 
@@ -402,7 +406,11 @@ impl Solver {
                 // A certificate costs about a sweep: check after sweeps 1, 2, 3, 4, 5, 6, 7, 8, 10, 12, 15, ...
                 // (at most a quarter of the sweeps are run past the one that met the tolerance), always at the
                 // end of a round and when the budget is spent.
-                if sweeps < next_check && sweep_in_round < round_sweeps && !over_budget(sweeps) {
+                // Large scenes check only at the end of a round: their sweeps rarely certify alone, and the
+                // active-set attempt that follows does.
+                let check_due =
+                    sweeps >= next_check && self.items.len() <= CHECK_EVERY_SWEEP_MAX_ITEMS;
+                if !check_due && sweep_in_round < round_sweeps && !over_budget(sweeps) {
                     continue;
                 }
                 next_check = sweeps + (sweeps / 4).max(1);

@@ -70,6 +70,26 @@
 //! squares and flips statuses until the guess is consistent. The answer is accepted only when the certificate
 //! says so; otherwise sweeps go on from the improved dual.
 //!
+//! # Speed: what was tried, and what the benchmark says
+//!
+//! `cargo bench --bench solver` (docs/solver.md has the table, printed by the bench). Measured on the shared
+//! 2-vCPU machine, test profile, median of 5 cold solves of the benchmark's random scenes (side by side in one
+//! run, 2026-11-24):
+//!
+//! - *Over-relaxation* of the block updates (`relaxation`): 1.5 and 1.8 were 1.2 to 3x slower than 1 on 10, 100
+//!   and 1000 primitives (more active-set rounds before one certifies). The default stays 1.
+//! - *Longer rounds* (`sweeps_per_round` 20 or 60 instead of 6): 3x faster on 1000 primitives (one round
+//!   instead of three), slower on 10, 100 and 3000. The default stays 6.
+//! - *Fewer certificates*: checking only at the end of each round in scenes of more than 16 primitives made
+//!   1000 primitives 1.8x faster (a certificate costs about a sweep). Kept.
+//! - *Capping the guessed kinks* at the 12 nearest keeps the active-set guess O(N); no change on these scenes.
+//!
+//! Where the time goes: on random scenes the dual sweeps converge in a handful of sweeps, and one active-set
+//! round costs most of the solve (about 35 µs for 100 primitives, 5 ms for 1000: tens of O(N) passes per status
+//! flip, many flips). The goals for 100 and more primitives are not met; the next step is a primal
+//! Newton on the smooth model from the first sweep (most primitives are off their kinks with full strength on
+//! these scenes), with screening of planes whose half-space the proxy cannot reach.
+//!
 //! # Real time
 //!
 //! `Solver` owns its workspace. After the first solve with N primitives, solving any scene of at most N

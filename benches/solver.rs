@@ -10,7 +10,7 @@
 //! up to 10^5 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
 //! double-double reference minimiser (src/haptics/reference.rs), whose own bound is printed.
 //!
-//! Run: `cargo bench --bench solver` (about two minutes). Times are medians of repeated solves measured in
+//! Run: `cargo bench --bench solver` (about five minutes, most of it the 10 000-primitive case). Times are medians of repeated solves measured in
 //! this process, one case after the other, so the ratios are side by side.
 
 use criterion::{criterion_group, criterion_main, Criterion};

@@ -116,3 +116,67 @@ fn malformed_scenes_name_the_field() {
         .contains("cannot read scene file"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// 3 000 mixed primitives (the scene that did not finish in 60 s): with a small budget `solve` returns
+/// promptly with its best answer, its bound and its status.
+#[test]
+fn solve_never_hangs_and_reports_its_budget_status() {
+    use voxhap::haptics::bench_scenes::{random_primitives, SplitMix};
+    use voxhap::haptics::PrimitiveKind;
+    let mut rng = SplitMix(3000);
+    let primitives: Vec<serde_json::Value> = random_primitives(&mut rng, 3000)
+        .iter()
+        .map(|p| {
+            let mut v = serde_json::json!({"type": p.kind().name(), "strength": p.strength_n()});
+            if p.kind() != PrimitiveKind::Directed {
+                v["position"] = serde_json::json!(p.position_m().to_array());
+            }
+            if p.kind() != PrimitiveKind::Point {
+                v["direction"] = serde_json::json!(p.direction().to_array());
+            }
+            v
+        })
+        .collect();
+    let scene =
+        serde_json::json!({"k": 500.0, "probe": [0.001, -0.002, 0.003], "primitives": primitives});
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mixed.json");
+    std::fs::write(&path, scene.to_string()).unwrap();
+    let started = std::time::Instant::now();
+    let out = voxhap(&[
+        "solve",
+        "--scene",
+        path.to_str().unwrap(),
+        "--json",
+        "--max-sweeps",
+        "3",
+        "--budget-ms",
+        "50",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(30),
+        "took {:?}",
+        started.elapsed()
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["sweeps"].as_u64().unwrap() <= 3, "{v}");
+    let status = v["status"].as_str().unwrap();
+    assert!(status == "budget_exhausted" || status == "certified", "{v}");
+    // JSON has no infinity: an infinite bound is printed as null, a finite one must be a number >= 0.
+    assert!(v["error_bound"].is_null() || v["error_bound"].as_f64().unwrap() >= 0.0);
+
+    let out = voxhap(&[
+        "solve",
+        "--scene",
+        path.to_str().unwrap(),
+        "--max-sweeps",
+        "0",
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--max-sweeps"));
+}

@@ -1,11 +1,14 @@
-//! Property tests: the exact solver against the slow, independent reference minimiser on random scenes, and
-//! the certificate against the true error.
+//! Property tests of the exact solver's certificate against the double-double reference minimiser
+//! (src/haptics/reference.rs), at the precision the certificate reports: cold solves on random scenes, and
+//! warm-started tick sequences in which strengths, directions, positions and the probe change between ticks,
+//! solved with budgets of 0 to 6 sweeps. On every exit the true error must be at most the reported bound; the
+//! only slack is the reference's own bound (about 1e-16 m), not the 3e-8 m of an f64 reference.
 
 use glam::DVec3;
 use proptest::prelude::*;
 use voxhap::haptics::primitive::total_energy_j;
 use voxhap::haptics::reference;
-use voxhap::haptics::{Primitive, Problem, SolveStatus, Solver};
+use voxhap::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
 
 /// Coordinates drawn partly from a small lattice so that coincident primitives, probes exactly on kinks and
 /// parallel planes come up often, and partly at random.
@@ -33,19 +36,112 @@ fn strength() -> impl Strategy<Value = f64> {
     prop_oneof![1 => Just(0.0), 4 => 0.0f64..3.0]
 }
 
-fn primitive() -> impl Strategy<Value = Primitive> {
+/// The parts of a primitive, so that a tick can change them.
+#[derive(Debug, Clone, Copy)]
+struct Spec {
+    kind: u8,
+    position: DVec3,
+    direction: DVec3,
+    strength: f64,
+}
+
+impl Spec {
+    fn build(&self) -> Primitive {
+        match self.kind {
+            0 => Primitive::point(self.position, self.strength).unwrap(),
+            1 => Primitive::line(self.position, self.direction, self.strength).unwrap(),
+            2 => Primitive::plane(self.position, self.direction, self.strength).unwrap(),
+            _ => Primitive::directed(self.direction, self.strength * 0.3).unwrap(),
+        }
+    }
+}
+
+/// Points, planes and directed forces, but no lines: across a line the reference's Hessian has a condition
+/// number near 1e30 and it resolves the position along the line only to about 1e-13 m (reference.rs), so scenes
+/// with lines are compared in their own test with that slack.
+fn spec_without_lines() -> impl Strategy<Value = Spec> {
+    (
+        prop_oneof![Just(0u8), Just(2u8), Just(3u8)],
+        vector(),
+        direction(),
+        strength(),
+    )
+        .prop_map(|(kind, position, direction, strength)| Spec {
+            kind,
+            position,
+            direction,
+            strength,
+        })
+}
+
+fn spec() -> impl Strategy<Value = Spec> {
     (0u8..4, vector(), direction(), strength()).prop_map(|(kind, position, direction, strength)| {
-        match kind {
-            0 => Primitive::point(position, strength).unwrap(),
-            1 => Primitive::line(position, direction, strength).unwrap(),
-            2 => Primitive::plane(position, direction, strength).unwrap(),
-            _ => Primitive::directed(direction, strength * 0.3).unwrap(),
+        Spec {
+            kind,
+            position,
+            direction,
+            strength,
         }
     })
 }
 
+fn primitive() -> impl Strategy<Value = Primitive> {
+    spec_without_lines().prop_map(|s| s.build())
+}
+
+fn primitive_with_lines() -> impl Strategy<Value = Primitive> {
+    spec().prop_map(|s| s.build())
+}
+
+/// One change between ticks: to the probe, or to one primitive's strength, direction or position.
+#[derive(Debug, Clone, Copy)]
+enum Change {
+    Probe(DVec3),
+    Strength(usize, f64),
+    Direction(usize, DVec3),
+    Position(usize, DVec3),
+}
+
+fn change() -> impl Strategy<Value = Change> {
+    prop_oneof![
+        vector().prop_map(Change::Probe),
+        (0usize..8, strength()).prop_map(|(i, s)| Change::Strength(i, s)),
+        (0usize..8, direction()).prop_map(|(i, d)| Change::Direction(i, d)),
+        (0usize..8, vector()).prop_map(|(i, p)| Change::Position(i, p)),
+    ]
+}
+
+fn assert_honest(
+    sol: &voxhap::haptics::Solution,
+    k: f64,
+    probe: DVec3,
+    prims: &[Primitive],
+) -> Result<(), TestCaseError> {
+    let reference = reference::minimise(k, probe, prims);
+    // The check is only as sharp as the reference: it must be tighter than the solver's tolerance (it is about
+    // 1e-16 m on most scenes, up to about 1e-13 m with a proxy held on a line; see reference.rs).
+    prop_assert!(
+        reference.error_bound_m <= 1e-12,
+        "reference bound {:e}",
+        reference.error_bound_m
+    );
+    let error = reference.distance_m(sol.proxy_m);
+    // Besides the reference's bound (part of it an estimate: the last Newton step), 4 ulps of the coordinates
+    // (about 1e-18 m): the resolution at which an f64 position can be compared at all.
+    let ulps = 4.0 * f64::EPSILON * (probe.length() + sol.proxy_m.length());
+    prop_assert!(
+        error <= sol.error_bound_m + reference.error_bound_m + ulps,
+        "true error {:e} > bound {:e} (+ reference bound {:e}): {:?}",
+        error,
+        sol.error_bound_m,
+        reference.error_bound_m,
+        sol
+    );
+    Ok(())
+}
+
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
 
     #[test]
     fn exact_solver_matches_the_reference_and_its_certificate_holds(
@@ -58,15 +154,9 @@ proptest! {
         let sol = solver.solve(&problem).unwrap();
         prop_assert_eq!(sol.status, SolveStatus::Certified, "{:?}", sol);
         prop_assert!(sol.error_bound_m <= 1e-12);
+        assert_honest(&sol, k, probe, &prims)?;
+        // And the reference's point has no lower energy (to rounding of the energy itself).
         let reference = reference::minimise(k, probe, &prims);
-        let error = (sol.proxy_m - reference.proxy_m).length();
-        // The certificate must bound the distance to the true minimiser, which lies within the reference's own
-        // bound of the reference answer.
-        prop_assert!(
-            error <= sol.error_bound_m + reference.error_bound_m,
-            "error {:e} > bound {:e} + reference bound {:e}", error, sol.error_bound_m, reference.error_bound_m
-        );
-        // And no point the reference found has lower energy.
         let e_exact = total_energy_j(k, probe, &prims, sol.proxy_m);
         let e_reference = total_energy_j(k, probe, &prims, reference.proxy_m);
         prop_assert!(e_exact <= e_reference + 1e-15, "{} > {}", e_exact, e_reference);
@@ -74,10 +164,57 @@ proptest! {
         prop_assert!((sol.force_n - k * (sol.proxy_m - probe)).length() <= 1e-12 * (1.0 + sol.force_n.length()));
     }
 
+    /// Tick sequences: the scene changes between ticks, the solver warm-starts from the previous tick's duals,
+    /// and each tick gets a budget of 0 to 6 sweeps. Whatever the exit, the bound holds.
+    #[test]
+    fn the_bound_holds_on_every_exit_across_changing_ticks(
+        specs in prop::collection::vec(spec_without_lines(), 1..7),
+        probe in vector(),
+        changes in prop::collection::vec((change(), 0u32..7), 1..6),
+    ) {
+        let k = 500.0;
+        let mut specs = specs;
+        let mut probe = probe;
+        let mut solver = Solver::new(SolverConfig { max_sweeps: 100_000, ..SolverConfig::default() });
+        let mut previous = None;
+        let prims: Vec<Primitive> = specs.iter().map(Spec::build).collect();
+        let sol = solver.solve(&Problem { stiffness_n_per_m: k, probe_m: probe, previous_proxy_m: previous, primitives: &prims }).unwrap();
+        previous = Some(sol.proxy_m);
+        for (change, budget) in changes {
+            let n = specs.len();
+            match change {
+                Change::Probe(p) => probe = p,
+                Change::Strength(i, s) => specs[i % n].strength = s,
+                Change::Direction(i, d) => specs[i % n].direction = d,
+                Change::Position(i, p) => specs[i % n].position = p,
+            }
+            let prims: Vec<Primitive> = specs.iter().map(Spec::build).collect();
+            solver.config_mut().max_sweeps = budget;
+            let sol = solver.solve(&Problem { stiffness_n_per_m: k, probe_m: probe, previous_proxy_m: previous, primitives: &prims }).unwrap();
+            prop_assert!(sol.sweeps <= budget.max(1) * 2 || sol.status == SolveStatus::Certified, "{:?}", sol);
+            assert_honest(&sol, k, probe, &prims)?;
+            previous = Some(sol.proxy_m);
+        }
+    }
+
+    /// Scenes with lines: the same checks with the slack of the reference along a line (1e-13 m).
+    #[test]
+    fn scenes_with_lines_match_the_reference_to_its_precision_there(
+        prims in prop::collection::vec(primitive_with_lines(), 0..9),
+        probe in vector(),
+    ) {
+        let mut solver = Solver::default();
+        let sol = solver.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: None, primitives: &prims }).unwrap();
+        prop_assert_eq!(sol.status, SolveStatus::Certified, "{:?}", sol);
+        let reference = reference::minimise(500.0, probe, &prims);
+        let error = reference.distance_m(sol.proxy_m);
+        prop_assert!(error <= sol.error_bound_m + reference.error_bound_m.max(1e-13), "{:e} {:?} {:?}", error, sol, reference);
+    }
+
     /// Warm-starting from any previous proxy gives the same answer.
     #[test]
     fn warm_start_does_not_change_the_answer(
-        prims in prop::collection::vec(primitive(), 1..7),
+        prims in prop::collection::vec(primitive_with_lines(), 1..7),
         probe in vector(),
         previous in vector(),
     ) {
@@ -87,4 +224,110 @@ proptest! {
         let b = warm.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: Some(previous), primitives: &prims }).unwrap();
         prop_assert!((a.proxy_m - b.proxy_m).length() <= a.error_bound_m + b.error_bound_m);
     }
+}
+
+/// The reproductions: a warm start whose duals are infeasible for this tick, with no sweep allowed.
+fn warm_then(first: &[Primitive], second: &[Primitive], probe: DVec3, config: SolverConfig) {
+    let k = 500.0;
+    let mut solver = Solver::default();
+    let sol = solver
+        .solve(&Problem {
+            stiffness_n_per_m: k,
+            probe_m: probe,
+            previous_proxy_m: None,
+            primitives: first,
+        })
+        .unwrap();
+    assert_eq!(sol.status, SolveStatus::Certified);
+    *solver.config_mut() = config;
+    let next = solver
+        .solve(&Problem {
+            stiffness_n_per_m: k,
+            probe_m: probe,
+            previous_proxy_m: Some(sol.proxy_m),
+            primitives: second,
+        })
+        .unwrap();
+    let reference = reference::minimise(k, probe, second);
+    let error = reference.distance_m(next.proxy_m);
+    assert!(
+        error <= next.error_bound_m + reference.error_bound_m,
+        "true error {error:e} > bound {:e}: {next:?}",
+        next.error_bound_m
+    );
+}
+
+#[test]
+fn a_weakened_plane_with_no_sweep_reports_an_honest_bound() {
+    // The case: a plane at 2 N holding a point's pull, weakened to 0.1 N; budget exhausted before the
+    // first sweep (sweeps or time).
+    let plane = |s| Primitive::plane(DVec3::ZERO, DVec3::Z, s).unwrap();
+    let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
+    let probe = DVec3::new(0.001, 0.0, -0.0005);
+    for config in [
+        SolverConfig {
+            max_sweeps: 0,
+            ..SolverConfig::default()
+        },
+        SolverConfig {
+            max_sweeps: 1,
+            ..SolverConfig::default()
+        },
+    ] {
+        warm_then(&[plane(2.0), point], &[plane(0.1), point], probe, config);
+    }
+}
+
+#[test]
+fn a_tilted_plane_with_no_sweep_reports_an_honest_bound() {
+    let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
+    let probe = DVec3::new(0.001, 0.0, -0.0005);
+    let first = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(), point];
+    let second = [
+        Primitive::plane(DVec3::ZERO, DVec3::new(0.5, 0.0, 1.0), 2.0).unwrap(),
+        point,
+    ];
+    let config = SolverConfig {
+        max_sweeps: 0,
+        ..SolverConfig::default()
+    };
+    warm_then(&first, &second, probe, config);
+}
+
+#[test]
+fn a_time_budget_spent_before_the_first_sweep_reports_an_honest_bound() {
+    use voxhap::clock::MockClock;
+    let k = 500.0;
+    let probe = DVec3::new(0.001, 0.0, -0.0005);
+    let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
+    let mut solver = Solver::default();
+    let first = [Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(), point];
+    let sol = solver
+        .solve(&Problem {
+            stiffness_n_per_m: k,
+            probe_m: probe,
+            previous_proxy_m: None,
+            primitives: &first,
+        })
+        .unwrap();
+    let second = [Primitive::plane(DVec3::ZERO, DVec3::Z, 0.1).unwrap(), point];
+    solver.config_mut().max_time_ns = 0;
+    let clock = MockClock::new(0);
+    let next = solver
+        .solve_with_clock(
+            &Problem {
+                stiffness_n_per_m: k,
+                probe_m: probe,
+                previous_proxy_m: Some(sol.proxy_m),
+                primitives: &second,
+            },
+            &clock,
+        )
+        .unwrap();
+    assert_eq!(next.sweeps, 0, "{next:?}");
+    let reference = reference::minimise(k, probe, &second);
+    assert!(
+        reference.distance_m(next.proxy_m) <= next.error_bound_m + reference.error_bound_m,
+        "{next:?} vs {reference:?}"
+    );
 }

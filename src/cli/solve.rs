@@ -1,5 +1,10 @@
 //! `voxhap solve`: solve one proxy problem from a JSON scene file and print the answer, as text or JSON.
+//!
+//! It never hangs: the exact solver gets a budget (`--max-sweeps`, `--budget-ms`) and always prints its best
+//! answer with its honest bound and status (`certified`, `budget_exhausted`, `stalled`); the timing repeats
+//! stop after `TIMING_WALL_S` seconds of solving whatever the count.
 
+use crate::clock::MonotonicClock;
 use crate::haptics::baselines::{constraint, euler, BaselineSolution};
 use crate::haptics::scene::Scene;
 use crate::haptics::solver::{Solution, Solver, SolverConfig};
@@ -40,10 +45,51 @@ pub struct SolveArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Exact solver: stop when the certified error bound is at most this (m).
+    #[arg(long, default_value_t = 1e-12, value_parser = parse_tolerance)]
+    pub tolerance_m: f64,
+    /// Exact solver: most block-coordinate sweeps per solve.
+    #[arg(long, default_value_t = 100_000, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_sweeps: u32,
+    /// Exact solver: most wall-clock milliseconds per solve; the best answer so far is printed with its bound
+    /// when it runs out.
+    #[arg(long, default_value_t = 1000.0, value_parser = parse_budget_ms)]
+    pub budget_ms: f64,
 }
 
-/// Times reported are the median of this many solves of the same scene (each from the same cold start).
+fn parse_tolerance(text: &str) -> Result<f64, String> {
+    let value: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    let (lo, hi) = crate::sim::scenario::TOLERANCE_RANGE_M;
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(format!("must be a number from {lo:e} to {hi:e} m"))
+    }
+}
+
+fn parse_budget_ms(text: &str) -> Result<f64, String> {
+    let value: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    if value.is_finite() && value > 0.0 && value <= 3_600_000.0 {
+        Ok(value)
+    } else {
+        Err("must be a number of milliseconds > 0 and at most 3600000 (an hour)".to_owned())
+    }
+}
+
+/// The exact solver's budget from the flags.
+fn solver_config(args: &SolveArgs) -> SolverConfig {
+    SolverConfig {
+        tolerance_m: args.tolerance_m,
+        max_sweeps: args.max_sweeps,
+        max_time_ns: (args.budget_ms * 1e6) as u64,
+        ..SolverConfig::default()
+    }
+}
+
+/// Times reported are the median of up to this many solves of the same scene (each from the same cold start)...
 const TIMING_RUNS: usize = 101;
+/// ... or of those that fit in this many seconds (at least one).
+const TIMING_WALL_S: f64 = 2.0;
 
 enum Answer {
     Exact(Solution),
@@ -55,7 +101,7 @@ fn solve_once(scene: &Scene, choice: SolverChoice, solver: &mut Solver) -> anyho
     Ok(match choice {
         SolverChoice::Exact => {
             solver.reset();
-            Answer::Exact(solver.solve(&scene.problem())?)
+            Answer::Exact(solver.solve_with_clock(&scene.problem(), &MonotonicClock::new())?)
         }
         SolverChoice::Euler => Answer::Baseline(euler::solve(
             scene.stiffness_n_per_m,
@@ -74,11 +120,19 @@ fn solve_once(scene: &Scene, choice: SolverChoice, solver: &mut Solver) -> anyho
 }
 
 /// Solves the scene `TIMING_RUNS` times and returns the answer with the median wall time.
-fn solve_timed(scene: &Scene, choice: SolverChoice) -> anyhow::Result<(Answer, u64)> {
-    let mut solver = Solver::with_capacity(SolverConfig::default(), scene.primitives.len());
+fn solve_timed(
+    scene: &Scene,
+    choice: SolverChoice,
+    config: SolverConfig,
+) -> anyhow::Result<(Answer, u64, usize)> {
+    let mut solver = Solver::with_capacity(config, scene.primitives.len());
     let mut times = Vec::with_capacity(TIMING_RUNS);
     let mut answer = None;
+    let wall = Instant::now();
     for _ in 0..TIMING_RUNS {
+        if answer.is_some() && wall.elapsed().as_secs_f64() >= TIMING_WALL_S {
+            break;
+        }
         let started = Instant::now();
         let result = solve_once(scene, choice, &mut solver)?;
         times.push(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
@@ -86,17 +140,27 @@ fn solve_timed(scene: &Scene, choice: SolverChoice) -> anyhow::Result<(Answer, u
     }
     times.sort_unstable();
     let answer = answer.context("no solve ran")?;
-    Ok((answer, times[times.len() / 2]))
+    Ok((answer, times[times.len() / 2], times.len()))
 }
 
 pub fn run(args: &SolveArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
-    super::print_out(&report(&scene, args.solver, args.json)?)
+    super::print_out(&report(
+        &scene,
+        args.solver,
+        args.json,
+        solver_config(args),
+    )?)
 }
 
 /// Solves `scene` and formats the report (text, or one JSON object).
-pub fn report(scene: &Scene, choice: SolverChoice, as_json: bool) -> anyhow::Result<String> {
-    let (answer, time_ns) = solve_timed(scene, choice)?;
+pub fn report(
+    scene: &Scene,
+    choice: SolverChoice,
+    as_json: bool,
+    config: SolverConfig,
+) -> anyhow::Result<String> {
+    let (answer, time_ns, runs) = solve_timed(scene, choice, config)?;
     let value = match &answer {
         Answer::Exact(sol) => json!({
             "solver": choice.name(),
@@ -140,7 +204,7 @@ pub fn report(scene: &Scene, choice: SolverChoice, as_json: bool) -> anyhow::Res
                 sol.active_set_rounds
             ));
             out.push_str(&format!(
-                "time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"
+                "time         {time_ns} ns (median of {runs} solves)\n"
             ));
             out.push_str(&format!("gap          {:.3e} J\n", sol.gap_j));
             let status = serde_json::to_value(sol.status)?;
@@ -159,7 +223,7 @@ pub fn report(scene: &Scene, choice: SolverChoice, as_json: bool) -> anyhow::Res
             ));
             out.push_str(&format!("iterations   {}\n", sol.iterations));
             out.push_str(&format!(
-                "time         {time_ns} ns (median of {TIMING_RUNS} solves)\n"
+                "time         {time_ns} ns (median of {runs} solves)\n"
             ));
             out.push_str(&format!(
                 "residual     {:.3e} N (|f_res| at the answer; no certificate)",

@@ -4,58 +4,28 @@
 //! Off the real-time path: everything here reads files, allocates and validates; the servo thread only
 //! ever receives a finished `SceneBundle` (scene plus a tick workspace sized for it).
 //!
-//! A scene file is TOML with the keys of a sim scenario (see the README "Scenario files"): `k_n_per_m`,
+//! A scene file is a sim scenario ([`crate::sim::scenario::Scenario`], one type and one validator): `k_n_per_m`,
 //! optional `damping_n_s_per_m`, `[solver]`, `[[volumes]]`, `[[modes]]`, and for the simulated arm `start_m`,
 //! `[arm]`, `[hand]`, `[path]`. Any `voxhap sim` scenario file is also a valid scene (its `duration_s` is
 //! ignored). Without `--scene`, the built-in sims/scenes/explore.toml is used; `--volume` alone renders a surface of
 //! that volume at the middle of its value range, with the arm circling through its centre.
 
 use crate::device::mock::default_arm_config;
-use crate::device::sim::{ArmParams, HandParams, HandPath, SimArmConfig};
+use crate::device::sim::{HandPath, SimArmConfig};
 use crate::haptics::modes::{ModeConfig, ModeError, ModeKind, RenderScene, TransferFunction};
 use crate::haptics::tick::{SolverKind, TickWorkspace};
 use crate::haptics::SolverConfig;
 use crate::servo::api::VolumeReport;
-use crate::sim::scenario::{ScenarioError, SolverSettings, VolumeSpec};
+use crate::sim::scenario::{Purpose, Scenario, ScenarioError, SolverSettings};
 use crate::volume::{io, procedural, AnyVolume};
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// The built-in scene (sims/scenes/explore.toml).
 pub const BUILTIN_SCENE: &str = include_str!("../../sims/scenes/explore.toml");
 
-/// A scene file as written.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SceneFile {
-    #[serde(default)]
-    pub name: Option<String>,
-    #[serde(default)]
-    pub description: Option<String>,
-    /// Accepted so sim scenarios load; ignored by `serve`.
-    #[serde(default)]
-    pub duration_s: Option<f64>,
-    /// Used when `--rate` is not given.
-    #[serde(default)]
-    pub rate_hz: Option<f64>,
-    pub k_n_per_m: f64,
-    #[serde(default)]
-    pub damping_n_s_per_m: f64,
-    #[serde(default)]
-    pub start_m: Option<DVec3>,
-    #[serde(default)]
-    pub solver: SolverSettings,
-    pub volumes: Vec<VolumeSpec>,
-    #[serde(default)]
-    pub modes: Vec<ModeConfig>,
-    #[serde(default)]
-    pub arm: Option<ArmParams>,
-    #[serde(default)]
-    pub hand: Option<HandParams>,
-    #[serde(default)]
-    pub path: Option<HandPath>,
-}
+/// A scene file as written: the same type, and the same validator, as a `voxhap sim` scenario.
+pub type SceneFile = Scenario;
 
 /// A volume with where it came from.
 #[derive(Debug, Clone)]
@@ -112,8 +82,6 @@ pub enum SetupError {
         origin: String,
         source: std::io::Error,
     },
-    #[error("{origin}: {message}")]
-    Parse { origin: String, message: String },
     #[error(transparent)]
     Volume(#[from] ScenarioError),
     #[error("--volume {given}: {message}")]
@@ -144,34 +112,11 @@ pub fn load_volume_arg(spec: &str) -> Result<(AnyVolume, String), SetupError> {
     Ok((loaded.volume, spec.to_owned()))
 }
 
-fn check_number(origin: &str, key: &str, value: f64, positive: bool) -> Result<(), SetupError> {
-    let ok = value.is_finite() && if positive { value > 0.0 } else { value >= 0.0 };
-    if ok {
-        Ok(())
-    } else {
-        Err(SetupError::Invalid {
-            origin: origin.to_owned(),
-            message: format!(
-                "{key} must be a finite number {} 0, got {value}",
-                if positive { ">" } else { ">=" }
-            ),
-        })
-    }
-}
-
 impl SceneSetup {
     /// Parses and loads a scene file's text (`origin` names it in errors; volume files relative to
     /// `base_dir`).
     pub fn parse(text: &str, origin: &str, base_dir: &Path) -> Result<SceneSetup, SetupError> {
-        let file: SceneFile = toml::from_str(text).map_err(|e| SetupError::Parse {
-            origin: origin.to_owned(),
-            message: e.to_string(),
-        })?;
-        check_number(origin, "k_n_per_m", file.k_n_per_m, true)?;
-        check_number(origin, "damping_n_s_per_m", file.damping_n_s_per_m, false)?;
-        if let Some(rate) = file.rate_hz {
-            check_number(origin, "rate_hz", rate, true)?;
-        }
+        let file = Scenario::parse_for(text, origin, Purpose::Serve)?;
         let mut volumes = Vec::with_capacity(file.volumes.len());
         for (index, spec) in file.volumes.iter().enumerate() {
             let (volume, source) = spec.load(index, base_dir, origin)?;
@@ -181,11 +126,10 @@ impl SceneSetup {
                 volume,
             });
         }
-        let defaults = default_arm_config();
         let arm = SimArmConfig {
-            arm: file.arm.unwrap_or(defaults.arm),
-            hand: file.hand.unwrap_or(defaults.hand),
-            path: file.path.unwrap_or(defaults.path),
+            arm: file.arm,
+            hand: file.hand,
+            path: file.path,
         };
         let start_m = file
             .start_m
@@ -200,7 +144,7 @@ impl SceneSetup {
             modes: file.modes,
             arm,
             start_m,
-            rate_hz: file.rate_hz,
+            rate_hz: Some(file.rate_hz),
         };
         setup.build_scene().map_err(|source| SetupError::Modes {
             origin: origin.to_owned(),
@@ -421,7 +365,33 @@ mod tests {
     fn bad_scene_files_name_the_problem() {
         let base = Path::new(".");
         let err = SceneSetup::parse("k_n_per_m = -1\nvolumes = []", "s.toml", base).unwrap_err();
-        assert!(err.to_string().contains("k_n_per_m must be"), "{err}");
+        assert!(
+            err.to_string().contains("s.toml: k_n_per_m: must be"),
+            "{err}"
+        );
+        // The solver settings are validated for serve as for sim, naming the key.
+        let err = SceneSetup::parse(
+            "k_n_per_m = 1\nvolumes = []\n[solver]\nmax_sweeps = 0",
+            "s.toml",
+            base,
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("s.toml: solver.max_sweeps: must be from 1"),
+            "{err}"
+        );
+        let err = SceneSetup::parse(
+            "k_n_per_m = 1\nvolumes = []\n[solver]\ntolerance_m = 0.0",
+            "s.toml",
+            base,
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("s.toml: solver.tolerance_m: must be"),
+            "{err}"
+        );
         let err = SceneSetup::parse("k_n_per_m = 1\nvolumes = []\nbogus = 1", "s.toml", base)
             .unwrap_err();
         assert!(err.to_string().contains("bogus"), "{err}");

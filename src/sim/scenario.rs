@@ -1,5 +1,12 @@
-//! Scenario files for `voxhap sim`: the volumes, the modes, the coupling, the simulated arm and hand, the
-//! hand's path and the duration, in one TOML file.
+//! Scene files, for `voxhap sim` and `voxhap serve` alike: the volumes, the modes, the coupling, the solver
+//! settings, the simulated arm and hand, the hand's path and (for `sim`) the duration, in one TOML file.
+//!
+//! One schema, one validator: [`Scenario`] is what `sim` runs and what `serve` renders
+//! (crate::servo::setup builds its scene from it), and [`Scenario::validate`] checks both, the solver settings
+//! included ([`SolverSettings::validate`]). The only difference is that `sim` needs `duration_s`
+//! ([`Purpose::Sim`]); `serve` ignores it. `[arm]`, `[hand]` and `[path]` default to the simulated arm of
+//! `voxhap serve` when left out. `damping_n_s_per_m` is rendered by `serve`; `sim` refuses a non-zero one
+//! rather than ignore it.
 //!
 //! Off the servo path: a scenario is read and validated once ([`Scenario::parse`]), its volumes are loaded
 //! or generated ([`Scenario::load`]) into a [`RenderScene`], and the runner ([`super::runner`]) ticks it.
@@ -29,13 +36,17 @@ pub struct Scenario {
     /// What the scenario shows (free text).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub description: Option<String>,
-    /// Simulated time (s), > 0.
+    /// Simulated time (s), > 0; needed by `sim`, ignored by `serve` (0 when not given).
+    #[serde(default)]
     pub duration_s: f64,
     /// Servo rate (Hz), > 0; default 1000.
     #[serde(default = "default_rate_hz")]
     pub rate_hz: f64,
     /// Coupling stiffness k (N/m), > 0.
     pub k_n_per_m: f64,
+    /// Coupling damping (N s/m), >= 0; default 0. Rendered by `serve`; `sim` refuses a non-zero one.
+    #[serde(default)]
+    pub damping_n_s_per_m: f64,
     /// Where the arm starts at rest (m); default: the hand path's target at t = 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_m: Option<DVec3>,
@@ -47,9 +58,31 @@ pub struct Scenario {
     /// The haptic modes, in trace column order (at most 8).
     #[serde(default)]
     pub modes: Vec<ModeConfig>,
+    #[serde(default = "default_arm")]
     pub arm: ArmParams,
+    #[serde(default = "default_hand")]
     pub hand: HandParams,
+    #[serde(default = "default_path")]
     pub path: HandPath,
+}
+
+fn default_arm() -> ArmParams {
+    crate::device::mock::default_arm_config().arm
+}
+
+fn default_hand() -> HandParams {
+    crate::device::mock::default_arm_config().hand
+}
+
+fn default_path() -> HandPath {
+    crate::device::mock::default_arm_config().path
+}
+
+/// What a scene file is read for: `sim` needs a duration, `serve` does not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Purpose {
+    Sim,
+    Serve,
 }
 
 fn default_rate_hz() -> f64 {
@@ -89,7 +122,31 @@ impl Default for SolverSettings {
     }
 }
 
+/// Smallest and largest accepted `[solver] tolerance_m` (m): below 1e-18 m no f64 position can be certified
+/// (the solver would stall every tick), above 1 mm the bound says nothing a user would want.
+pub const TOLERANCE_RANGE_M: (f64, f64) = (1e-18, 1e-3);
+/// Largest accepted `[solver] max_sweeps`.
+pub const MAX_SWEEPS_LIMIT: u32 = 10_000_000;
+
 impl SolverSettings {
+    /// Checks the settings; the message names the key (`solver.max_sweeps: ...`).
+    pub fn validate(&self) -> Result<(), String> {
+        let (lo, hi) = TOLERANCE_RANGE_M;
+        if !(self.tolerance_m.is_finite() && self.tolerance_m >= lo && self.tolerance_m <= hi) {
+            return Err(format!(
+                "solver.tolerance_m: must be a number from {lo:e} to {hi:e} m, got {}",
+                self.tolerance_m
+            ));
+        }
+        if self.max_sweeps == 0 || self.max_sweeps > MAX_SWEEPS_LIMIT {
+            return Err(format!(
+                "solver.max_sweeps: must be from 1 to {MAX_SWEEPS_LIMIT}, got {}",
+                self.max_sweeps
+            ));
+        }
+        Ok(())
+    }
+
     /// The exact solver's configuration (deterministic: no time budget in a sim).
     pub fn solver_config(&self) -> SolverConfig {
         SolverConfig {
@@ -213,8 +270,17 @@ pub struct LoadedScenario {
 }
 
 impl Scenario {
-    /// Parses and validates scenario text; `origin` names it in errors (usually the file path).
+    /// Parses and validates scenario text for `sim`; `origin` names it in errors (usually the file path).
     pub fn parse(text: &str, origin: &str) -> Result<Scenario, ScenarioError> {
+        Self::parse_for(text, origin, Purpose::Sim)
+    }
+
+    /// Parses and validates a scene file's text for `purpose`.
+    pub fn parse_for(
+        text: &str,
+        origin: &str,
+        purpose: Purpose,
+    ) -> Result<Scenario, ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             origin: origin.to_owned(),
             message,
@@ -231,7 +297,7 @@ impl Scenario {
                 format!("{path}: {inner}")
             })
         })?;
-        scenario.validate().map_err(invalid)?;
+        scenario.validate(purpose).map_err(invalid)?;
         Ok(scenario)
     }
 
@@ -244,7 +310,8 @@ impl Scenario {
         Self::parse(&text, &path.display().to_string())
     }
 
-    fn validate(&self) -> Result<(), String> {
+    /// The one validator of scene files (module docs).
+    pub fn validate(&self, purpose: Purpose) -> Result<(), String> {
         let positive = |key: &str, value: f64| {
             if value.is_finite() && value > 0.0 {
                 Ok(())
@@ -252,7 +319,24 @@ impl Scenario {
                 Err(format!("{key}: must be a finite number > 0, got {value}"))
             }
         };
-        positive("duration_s", self.duration_s)?;
+        if purpose == Purpose::Sim && self.duration_s == 0.0 {
+            return Err("duration_s: missing (voxhap sim needs it)".to_owned());
+        }
+        if purpose == Purpose::Sim || self.duration_s != 0.0 {
+            positive("duration_s", self.duration_s)?;
+        }
+        if self.damping_n_s_per_m != 0.0 && purpose == Purpose::Sim {
+            return Err(
+                "damping_n_s_per_m: voxhap sim does not render coupling damping; remove it or use serve"
+                    .to_owned(),
+            );
+        }
+        if !(self.damping_n_s_per_m.is_finite() && self.damping_n_s_per_m >= 0.0) {
+            return Err(format!(
+                "damping_n_s_per_m: must be a finite number >= 0, got {}",
+                self.damping_n_s_per_m
+            ));
+        }
         if self.duration_s > MAX_DURATION_S {
             return Err(format!(
                 "duration_s: {} s is longer than the {MAX_DURATION_S} s limit",
@@ -261,11 +345,8 @@ impl Scenario {
         }
         positive("rate_hz", self.rate_hz)?;
         positive("k_n_per_m", self.k_n_per_m)?;
-        positive("solver.tolerance_m", self.solver.tolerance_m)?;
-        if self.solver.max_sweeps == 0 {
-            return Err("solver.max_sweeps: must be at least 1".to_owned());
-        }
-        if self.tick_count() == 0 {
+        self.solver.validate()?;
+        if purpose == Purpose::Sim && self.tick_count() == 0 {
             return Err(format!(
                 "duration_s: {} s at {} Hz is less than one tick",
                 self.duration_s, self.rate_hz

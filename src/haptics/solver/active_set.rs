@@ -55,6 +55,8 @@ const STATUS_SLACK: f64 = 1e-9;
 const RANK_TOLERANCE: f64 = 1e-11;
 const MAX_NEWTON_STEPS: usize = 40;
 const MAX_SPLIT_SWEEPS: usize = 64;
+/// Guessed kinks tried, nearest first, before the rest are labelled by side.
+const MAX_KINK_CANDIDATES: usize = 12;
 /// Dual flips one primitive may make in one attempt before the attempt is abandoned as cycling.
 const MAX_FLIPS_PER_PRIMITIVE: u8 = 2;
 
@@ -276,7 +278,19 @@ impl Workspace {
         }
         let mut m = DMat3::ZERO;
         let mut b = DVec3::ZERO;
+        let mut tried = 0;
         loop {
+            if tried == MAX_KINK_CANDIDATES {
+                // R^3 holds few independent kinks: the nearest ones were tried; the rest are labelled by side
+                // (keeping the guess O(N) in crowded scenes, where an unconverged dual names hundreds).
+                for (item, status) in items.iter().zip(self.status.iter_mut()) {
+                    if *status == Status::Candidate {
+                        *status = side_status(item, x);
+                    }
+                }
+                break;
+            }
+            tried += 1;
             let nearest = items
                 .iter()
                 .zip(&self.status)
@@ -299,12 +313,7 @@ impl Workspace {
             if consistent {
                 (m, b) = (m_try, b_try);
             } else {
-                self.status[i] = match item.kind {
-                    PrimitiveKind::Plane if item.direction.dot(x - item.position_m) < 0.0 => {
-                        Status::Full
-                    }
-                    _ => Status::Off,
-                };
+                self.status[i] = side_status(item, x);
             }
         }
     }
@@ -419,6 +428,14 @@ impl Workspace {
                 }
             }
         }
+    }
+}
+
+/// The status of a primitive left off the kinks: a plane by the side of it `x` is on, a point or line off.
+fn side_status(item: &Item, x: DVec3) -> Status {
+    match item.kind {
+        PrimitiveKind::Plane if item.direction.dot(x - item.position_m) < 0.0 => Status::Full,
+        _ => Status::Off,
     }
 }
 

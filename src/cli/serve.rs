@@ -58,9 +58,15 @@ pub struct ServeArgs {
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
-    /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
-    #[arg(long)]
+    /// Stop after this many seconds, > 0 and <= 1e9 (default: run until Ctrl-C or SIGTERM).
+    #[arg(long, value_parser = super::parse_seconds)]
     pub duration: Option<f64>,
+    /// A folder the control API may load volume files from (`POST /api/volume`, `load_volume`); repeat for
+    /// more. Without it the API loads only builtin:NAME volumes.
+    #[arg(long, value_name = "DIR")]
+    pub volume_dir: Vec<PathBuf>,
+    #[command(flatten)]
+    pub limits: super::VolumeLimitArgs,
     #[command(flatten)]
     pub http: HttpArgs,
     #[command(flatten)]
@@ -88,6 +94,7 @@ fn parse_device(text: &str) -> Result<DeviceSpec, String> {
 
 /// Builds the session configuration from the flags (loads the scene and volumes).
 pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
+    args.limits.apply();
     let setup = setup::resolve(args.scene.as_ref(), args.volume.as_deref())?;
     let mut config = SessionConfig::new(args.device.clone(), setup);
     if let Some(rate) = args.rate {
@@ -157,11 +164,8 @@ fn print_http(addr: SocketAddr, token: &str) -> anyhow::Result<()> {
 }
 
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
-    let duration = match args.duration {
-        Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
-        Some(s) => bail!("--duration must be a number of seconds > 0, got {s}"),
-        None => None,
-    };
+    // Range-checked when parsed (super::parse_seconds), so the conversion cannot overflow.
+    let duration = args.duration.map(Duration::from_secs_f64);
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
     let mut config = session_config(args)?;

@@ -159,6 +159,21 @@ fn read_at_most(
     Ok(bytes)
 }
 
+/// Largest text file (scene, scenario, solve JSON) read: 16 MiB.
+pub const MAX_TEXT_FILE_BYTES: u64 = 16 << 20;
+
+/// Reads a scene, scenario or other settings file as UTF-8 text: a regular file of at most
+/// [`MAX_TEXT_FILE_BYTES`]. Errors are `std::io::Error`s whose message says what is wrong.
+pub fn read_text_file(path: &Path) -> std::io::Result<String> {
+    let bytes = read_regular(path, MAX_TEXT_FILE_BYTES, "a text file (16 MiB)").map_err(|e| match e {
+        FileError::Io(error) => error,
+        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("it {other}")),
+    })?;
+    String::from_utf8(bytes).map_err(|_| {
+        std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text")
+    })
+}
+
 /// Reads a regular file for a loader: a header, or a header with attached data. It may be at most
 /// `max_volume_bytes` plus [`MAX_HEADER_BYTES`] long.
 pub(crate) fn read_volume_file(path: &Path, options: &LoadOptions) -> Result<Vec<u8>, LoadProblem> {

@@ -418,14 +418,14 @@ impl TraceWriter for McapTraceWriter {
 /// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
 /// from the two channels joined by tick), and its sidecar when `path.json` exists.
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let bytes = std::fs::read(path).map_err(|source| TraceReadError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = super::read_trace_file(path)?;
     let problem = |problem: String| TraceReadError::Mcap {
         path: path.to_path_buf(),
         problem,
     };
+    // Every length in the file is checked against the file's size before the mcap crate sees it: its
+    // reader sizes a buffer from a record's length field, so 8 damaged bytes could ask for gigabytes.
+    check_record_lengths(&bytes).map_err(problem)?;
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
     let parsed = std::panic::catch_unwind(|| {
@@ -446,6 +446,96 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
         samples,
         sidecar: read_sidecar(&sidecar_path(path))?,
     })
+}
+
+/// Walks the file's records (and the records inside each chunk) and checks that every length field fits
+/// inside what contains it, and that chunks are uncompressed with an `uncompressed_size` equal to their
+/// records' length (voxhap writes them so; the reader is built without decompressors).
+pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
+    const HEADER: usize = 9; // opcode + u64 length
+    let u64_at = |at: usize| -> Option<u64> {
+        bytes
+            .get(at..at.checked_add(8)?)
+            .map(|b| u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+    };
+    let u32_at = |at: usize| -> Option<u32> {
+        bytes
+            .get(at..at.checked_add(4)?)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let damaged = |at: usize, what: &str| format!("damaged file: {what} at byte {at}");
+    // Checks the records in bytes[start..end]; returns where the footer starts if one is met.
+    let walk = |mut at: usize, end: usize, top_level: bool| -> Result<Option<usize>, String> {
+        while at < end {
+            let opcode = bytes[at];
+            let length = u64_at(at + 1)
+                .filter(|_| at + HEADER <= end)
+                .ok_or_else(|| damaged(at, "a record header runs past its container"))?;
+            let content = at + HEADER;
+            let record_end = usize::try_from(length)
+                .ok()
+                .and_then(|l| content.checked_add(l))
+                .filter(|&e| e <= end)
+                .ok_or_else(|| {
+                    damaged(at, &format!("a record claims {length} bytes, more than remain"))
+                })?;
+            if top_level && opcode == 0x02 {
+                return Ok(Some(at));
+            }
+            if top_level && opcode == 0x06 {
+                // Chunk: start time, end time, uncompressed size, CRC, compression, records.
+                let uncompressed = u64_at(content + 16);
+                let compression_len = u32_at(content + 28).map(|l| l as usize);
+                let records_len_at = compression_len.and_then(|l| (content + 32).checked_add(l));
+                let records_len = records_len_at.and_then(u64_at);
+                let (Some(uncompressed), Some(0), Some(records_len_at), Some(records_len)) =
+                    (uncompressed, compression_len, records_len_at, records_len)
+                else {
+                    return Err(damaged(
+                        at,
+                        "a chunk header is cut short or names a compression (voxhap writes none)",
+                    ));
+                };
+                let records_start = records_len_at + 8;
+                let records_end = usize::try_from(records_len)
+                    .ok()
+                    .and_then(|l| records_start.checked_add(l))
+                    .filter(|&e| e <= record_end && uncompressed == records_len)
+                    .ok_or_else(|| damaged(at, "a chunk's sizes do not match its length"))?;
+                walk_inner(bytes, records_start, records_end).map_err(|at| {
+                    damaged(at, "a record inside a chunk runs past the chunk")
+                })?;
+            }
+            at = record_end;
+        }
+        Ok(None)
+    };
+    let magic = mcap::MAGIC.len();
+    if bytes.len() < 2 * magic || !bytes.starts_with(mcap::MAGIC) || !bytes.ends_with(mcap::MAGIC)
+    {
+        return Err("not a complete MCAP file (magic missing at the start or end)".to_owned());
+    }
+    match walk(magic, bytes.len() - magic, true)? {
+        Some(_) => Ok(()),
+        None => Err("damaged file: no footer record before the closing magic".to_owned()),
+    }
+}
+
+/// Checks the records packed in a chunk (`bytes[at..end]`); on failure returns the bad record's offset.
+fn walk_inner(bytes: &[u8], mut at: usize, end: usize) -> Result<(), usize> {
+    while at < end {
+        let length = bytes
+            .get(at + 1..at + 9)
+            .filter(|_| at + 9 <= end)
+            .map(|b| u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+            .ok_or(at)?;
+        at = usize::try_from(length)
+            .ok()
+            .and_then(|l| (at + 9).checked_add(l))
+            .filter(|&e| e <= end)
+            .ok_or(at)?;
+    }
+    Ok(())
 }
 
 fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {

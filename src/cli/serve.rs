@@ -15,7 +15,7 @@
 
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
-use crate::servo::api::SessionApi;
+use crate::servo::api::{ConfinedVolumes, SessionApi, VolumeDirs};
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -168,6 +168,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let duration = args.duration.map(Duration::from_secs_f64);
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
+    let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
     let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
@@ -208,7 +209,8 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             .local_addr()
             .context("the visualiser server's address")?;
         print_http(addr, &server_config.token)?;
-        let api: Arc<dyn SessionApi> = session.api();
+        // load_volume commands through the API may only name files in the --volume-dir folders.
+        let api: Arc<dyn SessionApi> = Arc::new(ConfinedVolumes::new(session.api(), volume_dirs));
         let shutdown = async move {
             let _ = http_stopped.await;
         };
@@ -267,6 +269,9 @@ mod tests {
                 token: "test-token".to_owned(),
                 max_clients: 4,
                 idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
+                header_timeout: server::config::DEFAULT_HEADER_TIMEOUT,
+                allowed_hosts: Vec::new(),
+                allowed_origins: Vec::new(),
             },
         }
     }

@@ -40,6 +40,14 @@ impl TestServer {
 
     /// As [`TestServer::start`], closing connections idle for `idle_timeout`.
     pub async fn start_with(max_clients: usize, idle_timeout: Duration) -> TestServer {
+        Self::start_configured(max_clients, |config| config.idle_timeout = idle_timeout).await
+    }
+
+    /// As [`TestServer::start`], with the server settings changed by `edit`.
+    pub async fn start_configured(
+        max_clients: usize,
+        edit: impl FnOnce(&mut ServerConfig),
+    ) -> TestServer {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = RtMode::Off;
         // Less spinning: several sessions may run at once on a small CI machine.
@@ -56,11 +64,15 @@ impl TestServer {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-        let config = ServerConfig {
+        let mut config = ServerConfig {
             token: TOKEN.to_owned(),
             max_clients,
-            idle_timeout,
+            idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
+            header_timeout: voxhap::server::config::DEFAULT_HEADER_TIMEOUT,
+            allowed_hosts: Vec::new(),
+            allowed_origins: Vec::new(),
         };
+        edit(&mut config);
         let shared: Arc<dyn SessionApi> = api.clone();
         let task = tokio::spawn(server::run(listener, shared, config, async move {
             let _ = stopped.await;

@@ -15,6 +15,7 @@ mod foxglove;
 mod modes;
 mod paper;
 mod record;
+mod robustness;
 mod serve_e2e;
 mod server;
 mod servo;

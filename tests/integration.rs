@@ -6,12 +6,14 @@
 mod util;
 
 mod alloc_free;
+mod bad_inputs;
 mod cli_solve;
 mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
 mod foxglove;
+mod fuzz_corpus;
 mod modes;
 mod paper;
 mod record;

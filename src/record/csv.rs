@@ -143,7 +143,7 @@ pub(crate) fn read_sidecar(path: &Path) -> Result<Option<Sidecar>, TraceReadErro
     )
     .map_err(|error| match error {
         crate::volume::io::FileError::Io(source) => source,
-        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("it {other}")),
+        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
     });
     match read {
         Ok(bytes) => {

@@ -419,6 +419,24 @@ impl TraceWriter for McapTraceWriter {
 /// from the two channels joined by tick), and its sidecar when `path.json` exists.
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let bytes = super::read_trace_file(path)?;
+    let (mode_names, samples) = parse_mcap_bytes(&bytes, path)?;
+    Ok(Trace {
+        mode_names,
+        samples,
+        sidecar: read_sidecar(&sidecar_path(path))?,
+    })
+}
+
+/// Parses an MCAP trace held in memory; returns the mode names and the samples (as
+/// [`super::parse_csv_trace`] does for CSV).
+pub fn parse_mcap_trace(bytes: &[u8]) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
+    parse_mcap_bytes(bytes, Path::new("<input>"))
+}
+
+fn parse_mcap_bytes(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
     let problem = |problem: String| TraceReadError::Mcap {
         path: path.to_path_buf(),
         problem,
@@ -429,23 +447,16 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
     let parsed = std::panic::catch_unwind(|| {
-        let mode_names = read_mode_names(&bytes)?;
-        let samples = read_samples(&bytes, &mode_names)?;
+        let mode_names = read_mode_names(bytes)?;
+        let samples = read_samples(bytes, &mode_names)?;
         Ok::<_, String>((mode_names, samples))
     });
-    let (mode_names, samples) = match parsed {
-        Ok(result) => result.map_err(problem)?,
-        Err(_) => {
-            return Err(problem(
-                "damaged file: the MCAP library failed while parsing it".to_string(),
-            ))
-        }
-    };
-    Ok(Trace {
-        mode_names,
-        samples,
-        sidecar: read_sidecar(&sidecar_path(path))?,
-    })
+    match parsed {
+        Ok(result) => result.map_err(problem),
+        Err(_) => Err(problem(
+            "damaged file: the MCAP library failed while parsing it".to_string(),
+        )),
+    }
 }
 
 /// Walks the file's records (and the records inside each chunk) and checks that every length field fits

@@ -21,7 +21,7 @@ pub mod plot;
 
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
 pub use self::error::{TraceError, TraceReadError};
-pub use self::mcap_trace::{read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
+pub use self::mcap_trace::{parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
 pub use self::meta::{sidecar_path, ColumnDoc, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
 
 use glam::DVec3;
@@ -236,7 +236,7 @@ pub(crate) fn open_trace_file(path: &Path) -> Result<(std::fs::File, u64), Trace
         path: path.to_path_buf(),
         source: match error {
             crate::volume::io::FileError::Io(source) => source,
-            other => std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("it {other}")),
+            other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
         },
     })
 }

@@ -11,6 +11,7 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 use voxhap::server::{self, ServerConfig};
+use voxhap::servo::api::{ConfinedVolumes, VolumeDirs};
 use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::rt::RtMode;
 use voxhap::servo::setup::SceneSetup;
@@ -48,6 +49,16 @@ impl TestServer {
         max_clients: usize,
         edit: impl FnOnce(&mut ServerConfig),
     ) -> TestServer {
+        Self::start_full(max_clients, edit, None).await
+    }
+
+    /// As [`TestServer::start_configured`]; with `volume_dirs`, the server sees the session through
+    /// [`ConfinedVolumes`] as `voxhap serve --volume-dir` does.
+    pub async fn start_full(
+        max_clients: usize,
+        edit: impl FnOnce(&mut ServerConfig),
+        volume_dirs: Option<VolumeDirs>,
+    ) -> TestServer {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = RtMode::Off;
         // Less spinning: several sessions may run at once on a small CI machine.
@@ -73,7 +84,10 @@ impl TestServer {
             allowed_origins: Vec::new(),
         };
         edit(&mut config);
-        let shared: Arc<dyn SessionApi> = api.clone();
+        let shared: Arc<dyn SessionApi> = match volume_dirs {
+            Some(dirs) => Arc::new(ConfinedVolumes::new(api.clone(), dirs)),
+            None => api.clone(),
+        };
         let task = tokio::spawn(server::run(listener, shared, config, async move {
             let _ = stopped.await;
         }));

@@ -124,9 +124,9 @@ pub struct LoadError {
 pub enum LoadProblem {
     #[error("cannot read the file: {0}")]
     Io(#[from] std::io::Error),
-    #[error("cannot read the file: it {0}")]
+    #[error("cannot read the file: {0}")]
     File(FileError),
-    #[error("cannot read the data file {}: it {source}", path.display())]
+    #[error("cannot read the data file {}: {source}", path.display())]
     DataFile { path: PathBuf, source: FileError },
     #[error("loading this volume needs {needed_bytes} bytes (the data read or inflated plus 4 bytes per value), more than --max-volume-bytes {limit_bytes}")]
     OverLimit { needed_bytes: u64, limit_bytes: u64 },

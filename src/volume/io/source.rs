@@ -68,16 +68,16 @@ pub fn process_options() -> LoadOptions {
 pub enum FileError {
     #[error("{0}")]
     Io(#[from] std::io::Error),
-    #[error("is a {kind}, not a regular file (only regular files are read)")]
+    #[error("it is a {kind}, not a regular file (only regular files are read)")]
     NotRegular { kind: &'static str },
-    #[error("is {size_bytes} bytes, more than the {limit_bytes}-byte limit for {what}")]
+    #[error("it is {size_bytes} bytes, more than the {limit_bytes}-byte limit for {what}")]
     TooLong {
         size_bytes: u64,
         limit_bytes: u64,
         what: &'static str,
     },
     #[error(
-        "resolves to {}, outside the folder {} (add --allow-outside-paths to allow this)",
+        "it resolves to {}, outside the folder {} (add --allow-outside-paths to allow this)",
         resolved.display(),
         folder.display()
     )]
@@ -167,7 +167,7 @@ pub const MAX_TEXT_FILE_BYTES: u64 = 16 << 20;
 pub fn read_text_file(path: &Path) -> std::io::Result<String> {
     let bytes = read_regular(path, MAX_TEXT_FILE_BYTES, "a text file (16 MiB)").map_err(|e| match e {
         FileError::Io(error) => error,
-        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("it {other}")),
+        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
     })?;
     String::from_utf8(bytes).map_err(|_| {
         std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text")

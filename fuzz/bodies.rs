@@ -8,8 +8,11 @@
 
 use std::path::Path;
 
+/// A fuzz target's body.
+pub type Body = fn(&[u8]);
+
 /// Every body, by target name (the corpus replay uses this table).
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, Body)] = &[
     ("nifti", nifti),
     ("nrrd", nrrd),
     ("metaimage", metaimage),
@@ -26,7 +29,10 @@ const NOWHERE: &str = "/nonexistent-voxhap-fuzz";
 fn check_loaded(result: Result<voxhap::volume::io::LoadedVolume, voxhap::volume::io::LoadProblem>) {
     if let Ok(loaded) = result {
         let (min, max) = loaded.volume.value_range();
-        assert!(min.is_finite() && max.is_finite(), "non-finite values loaded");
+        assert!(
+            min.is_finite() && max.is_finite(),
+            "non-finite values loaded"
+        );
         let grid = loaded.volume.grid();
         assert!(grid.spacing_m().is_finite(), "non-finite spacing");
         assert!(grid.origin_m().is_finite(), "non-finite origin");

@@ -4,11 +4,11 @@
 //! cases fails too (rewrite it with `VOXHAP_BLESS=1 cargo test --test integration bad_inputs`).
 
 use crate::util::server::{TestServer, TOKEN};
-use voxhap::servo::api::VolumeDirs;
 use std::io::Write;
 use std::path::Path;
 use std::process::Command;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use voxhap::servo::api::VolumeDirs;
 
 /// One bad input given to a command.
 struct Case {
@@ -334,7 +334,8 @@ fn escape(text: &str) -> String {
 
 /// The page's tables, as generated from the cases.
 fn tables() -> String {
-    let mut out = String::from("| input | command | exit | error message contains |\n|---|---|---|---|\n");
+    let mut out =
+        String::from("| input | command | exit | error message contains |\n|---|---|---|---|\n");
     for case in CASES {
         out.push_str(&format!(
             "| {} | `voxhap {}` | {} | `{}` |\n",
@@ -350,12 +351,18 @@ fn tables() -> String {
     out.push_str("| input | request | status | error message contains |\n|---|---|---|---|\n");
     for case in REQUESTS {
         let first_line = case.request.lines().next().unwrap_or_default();
-        let (head, body) = case.request.split_once("\r\n\r\n").unwrap_or((case.request, ""));
+        let (head, body) = case
+            .request
+            .split_once("\r\n\r\n")
+            .unwrap_or((case.request, ""));
         let mut parts: Vec<String> = head
             .split("\r\n")
             .skip(1)
             .filter(|h| h.starts_with("Host") || h.starts_with("Origin") || h.starts_with("Auth"))
-            .map(|h| h.replace("{addr}", "127.0.0.1:PORT").replace("{port}", "PORT"))
+            .map(|h| {
+                h.replace("{addr}", "127.0.0.1:PORT")
+                    .replace("{port}", "PORT")
+            })
             .collect();
         if !body.is_empty() {
             parts.push(format!("body {body}"));
@@ -442,7 +449,11 @@ async fn every_bad_request_in_the_table_gets_its_error() {
         )
         .await;
         let text = String::from_utf8_lossy(&response);
-        let status: u16 = text.split(' ').nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
+        let status: u16 = text
+            .split(' ')
+            .nth(1)
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
         assert_eq!(status, case.status, "{}: {text}", case.input);
         let body = text.split_once("\r\n\r\n").map_or("", |(_, body)| body);
         let message = serde_json::from_str::<serde_json::Value>(body)

@@ -40,10 +40,9 @@ fn the_corpus_of_past_crashes_replays_cleanly() {
 
 #[test]
 fn every_fuzz_target_has_a_body_and_a_cargo_entry() {
-    let manifest = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/Cargo.toml"),
-    )
-    .unwrap();
+    let manifest =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/Cargo.toml"))
+            .unwrap();
     for (target, _) in bodies::TARGETS {
         assert!(
             manifest.contains(&format!("name = \"{target}\"")),

@@ -57,7 +57,10 @@ fn mkfifo(path: &Path) {
 fn nifti_header(dims: [u16; 3]) -> Vec<u8> {
     let mut h = vec![0u8; 352];
     h[0..4].copy_from_slice(&348i32.to_le_bytes());
-    for (i, d) in [3u16, dims[0], dims[1], dims[2], 1, 1, 1, 1].iter().enumerate() {
+    for (i, d) in [3u16, dims[0], dims[1], dims[2], 1, 1, 1, 1]
+        .iter()
+        .enumerate()
+    {
         h[40 + 2 * i..42 + 2 * i].copy_from_slice(&d.to_le_bytes());
     }
     h[70..72].copy_from_slice(&2i16.to_le_bytes()); // uint8
@@ -116,7 +119,8 @@ fn an_nrrd_byte_skip_cannot_get_past_the_volume_limit() {
     let output = run_capped(&["info", "skip.nrrd"], 1024, dir.path());
     assert_refused(&output, "--max-volume-bytes");
     // Within the limit, the skip still counts: a 1 MiB limit refuses a 2 MiB skip of a 2x2x2 volume.
-    let header = "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nbyte skip: 2097152\n\n";
+    let header =
+        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nbyte skip: 2097152\n\n";
     std::fs::write(dir.path().join("small.nrrd"), header).unwrap();
     let options = LoadOptions {
         max_volume_bytes: 1 << 20,
@@ -157,7 +161,10 @@ fn a_detached_data_file_pointing_at_dev_zero_is_refused() {
         let message = load_with(&path, &LoadOptions::default())
             .unwrap_err()
             .to_string();
-        assert!(message.contains("--allow-outside-paths"), "{name}: {message}");
+        assert!(
+            message.contains("--allow-outside-paths"),
+            "{name}: {message}"
+        );
         // ... and even when outside paths are allowed, a device is not a regular file.
         let message = load_with(&path, &allowed).unwrap_err().to_string();
         assert!(message.contains("character device"), "{name}: {message}");
@@ -222,7 +229,9 @@ fn replaying_dev_zero_is_refused_at_once() {
     let error = read_trace(Path::new("/dev/zero")).unwrap_err();
     let cause = std::error::Error::source(&error).map(ToString::to_string);
     assert!(
-        cause.as_deref().is_some_and(|c| c.contains("character device")),
+        cause
+            .as_deref()
+            .is_some_and(|c| c.contains("character device")),
         "{error}: {cause:?}"
     );
     let started = Instant::now();
@@ -307,10 +316,7 @@ async fn a_fifo_loaded_through_the_api_does_not_block_later_commands() {
     let body = serde_json::json!({ "path": fifo }).to_string();
     let (status, reply) = server.post("/api/volume", &body).await;
     assert_eq!(status, 400, "{reply}");
-    assert!(
-        reply["error"].as_str().unwrap().contains("FIFO"),
-        "{reply}"
-    );
+    assert!(reply["error"].as_str().unwrap().contains("FIFO"), "{reply}");
     let (status, reply) = server.post("/api/stiffness", r#"{"k": 450}"#).await;
     assert_eq!(status, 200, "{reply}");
     assert!(started.elapsed() < Duration::from_secs(5));
@@ -420,8 +426,14 @@ async fn dns_rebinding_and_cross_site_pages_are_refused() {
         let status = raw_status(addr, &get(format!("rebind.example:{port}"), path)).await;
         assert_eq!(status, 403, "{path}");
     }
-    assert_eq!(raw_status(addr, &get(format!("localhost:{port}"), "/api/state")).await, 200);
-    assert_eq!(raw_status(addr, &get(format!("voxhap.lab:{port}"), "/api/state")).await, 200);
+    assert_eq!(
+        raw_status(addr, &get(format!("localhost:{port}"), "/api/state")).await,
+        200
+    );
+    assert_eq!(
+        raw_status(addr, &get(format!("voxhap.lab:{port}"), "/api/state")).await,
+        200
+    );
     // Cross-site WebSocket and control requests.
     let upgrade = |origin: &str| {
         format!(
@@ -429,8 +441,14 @@ async fn dns_rebinding_and_cross_site_pages_are_refused() {
              Sec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
         )
     };
-    assert_eq!(raw_status(addr, &upgrade("https://evil.example")).await, 403);
-    assert_eq!(raw_status(addr, &upgrade(&format!("http://{addr}"))).await, 101);
+    assert_eq!(
+        raw_status(addr, &upgrade("https://evil.example")).await,
+        403
+    );
+    assert_eq!(
+        raw_status(addr, &upgrade(&format!("http://{addr}"))).await,
+        101
+    );
     let post = |origin: &str| {
         format!(
             "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nOrigin: {origin}\r\nAuthorization: Bearer {TOKEN}\r\n\
@@ -438,7 +456,10 @@ async fn dns_rebinding_and_cross_site_pages_are_refused() {
         )
     };
     assert_eq!(raw_status(addr, &post("https://evil.example")).await, 403);
-    assert_eq!(raw_status(addr, &post(&format!("http://{addr}"))).await, 200);
+    assert_eq!(
+        raw_status(addr, &post(&format!("http://{addr}"))).await,
+        200
+    );
 }
 
 fn crafted_nhdr(dir: &Path, name: &str, data_file: &str) -> PathBuf {
@@ -481,10 +502,9 @@ fn a_header_whose_data_file_climbs_out_of_its_folder_is_refused() {
     let path = crafted_nhdr(&dir, "allowed.nhdr", "../secret.raw");
     assert!(load_with(&path, &allowed).is_ok());
     // Scene files: a volume file outside the scenario's folder.
-    let scenario = std::fs::read_to_string("sims/sphere_surface.toml").unwrap().replace(
-        "builtin = \"sphere\"",
-        "file = \"../secret.nhdr\"",
-    );
+    let scenario = std::fs::read_to_string("sims/sphere_surface.toml")
+        .unwrap()
+        .replace("builtin = \"sphere\"", "file = \"../secret.nhdr\"");
     crafted_nhdr(root.path(), "secret.nhdr", "secret.raw");
     std::fs::write(dir.join("scene.toml"), scenario).unwrap();
     let output = voxhap()
@@ -516,12 +536,26 @@ async fn api_slice_never_serves_etc_passwd() {
     let error = closed.control(load(&crafted)).unwrap_err().to_string();
     assert!(error.contains("--volume-dir"), "{error}");
     // With --volume-dir: only files inside it, and their data files only inside their folder.
-    let open = ConfinedVolumes::new(session, VolumeDirs::new(&[volumes.clone()]).unwrap());
-    let error = open.control(load(Path::new("passwd.nhdr"))).unwrap_err().to_string();
+    let open = ConfinedVolumes::new(
+        session,
+        VolumeDirs::new(std::slice::from_ref(&volumes)).unwrap(),
+    );
+    let error = open
+        .control(load(Path::new("passwd.nhdr")))
+        .unwrap_err()
+        .to_string();
     assert!(error.contains("outside the folder"), "{error}");
-    let error = open.control(load(Path::new("/etc/passwd"))).unwrap_err().to_string();
-    assert!(error.contains("outside the --volume-dir folders"), "{error}");
-    let error = open.control(load(Path::new("../volumes/../../etc/hosts"))).unwrap_err();
+    let error = open
+        .control(load(Path::new("/etc/passwd")))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("outside the --volume-dir folders"),
+        "{error}"
+    );
+    let error = open
+        .control(load(Path::new("../volumes/../../etc/hosts")))
+        .unwrap_err();
     assert!(!error.to_string().is_empty());
     open.control(load(Path::new("ok.nhdr"))).unwrap();
     // /api/slice serves the volume that did load: nine-valued voxels, nothing from /etc/passwd.

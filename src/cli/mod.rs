@@ -49,7 +49,11 @@ pub fn parse_bytes(text: &str) -> Result<u64, String> {
         "M" | "MIB" | "MB" => 20,
         "G" | "GIB" | "GB" => 30,
         "T" | "TIB" | "TB" => 40,
-        _ => return Err(format!("{text:?} is not a byte count (e.g. 4G, 512M, 1000000)")),
+        _ => {
+            return Err(format!(
+                "{text:?} is not a byte count (e.g. 4G, 512M, 1000000)"
+            ))
+        }
     };
     digits
         .parse::<u64>()
@@ -114,6 +118,8 @@ pub struct Cli {
     pub serve: serve::ServeArgs,
 }
 
+// Parsed once at start: the size of the largest variant (serve's flags) does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Solve one proxy problem from a JSON scene file.

@@ -443,7 +443,7 @@ fn parse_mcap_bytes(
     };
     // Every length in the file is checked against the file's size before the mcap crate sees it: its
     // reader sizes a buffer from a record's length field, so 8 damaged bytes could ask for gigabytes.
-    check_record_lengths(&bytes).map_err(problem)?;
+    check_record_lengths(bytes).map_err(problem)?;
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
     let parsed = std::panic::catch_unwind(|| {
@@ -488,7 +488,10 @@ pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
                 .and_then(|l| content.checked_add(l))
                 .filter(|&e| e <= end)
                 .ok_or_else(|| {
-                    damaged(at, &format!("a record claims {length} bytes, more than remain"))
+                    damaged(
+                        at,
+                        &format!("a record claims {length} bytes, more than remain"),
+                    )
                 })?;
             if top_level && opcode == 0x02 {
                 return Ok(Some(at));
@@ -513,17 +516,15 @@ pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
                     .and_then(|l| records_start.checked_add(l))
                     .filter(|&e| e <= record_end && uncompressed == records_len)
                     .ok_or_else(|| damaged(at, "a chunk's sizes do not match its length"))?;
-                walk_inner(bytes, records_start, records_end).map_err(|at| {
-                    damaged(at, "a record inside a chunk runs past the chunk")
-                })?;
+                walk_inner(bytes, records_start, records_end)
+                    .map_err(|at| damaged(at, "a record inside a chunk runs past the chunk"))?;
             }
             at = record_end;
         }
         Ok(None)
     };
     let magic = mcap::MAGIC.len();
-    if bytes.len() < 2 * magic || !bytes.starts_with(mcap::MAGIC) || !bytes.ends_with(mcap::MAGIC)
-    {
+    if bytes.len() < 2 * magic || !bytes.starts_with(mcap::MAGIC) || !bytes.ends_with(mcap::MAGIC) {
         return Err("not a complete MCAP file (magic missing at the start or end)".to_owned());
     }
     match walk(magic, bytes.len() - magic, true)? {

@@ -21,7 +21,9 @@ pub mod plot;
 
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
 pub use self::error::{TraceError, TraceReadError};
-pub use self::mcap_trace::{parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
+pub use self::mcap_trace::{
+    parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
+};
 pub use self::meta::{sidecar_path, ColumnDoc, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
 
 use glam::DVec3;

@@ -45,7 +45,9 @@ pub enum PlotError {
     #[error("plot output {0}: the file name must end in .png or .svg")]
     UnsupportedFormat(PathBuf),
     /// Width or height outside [`PLOT_WIDTH_PX`] x [`PLOT_HEIGHT_PX`].
-    #[error("plot size {width_px}x{height_px} px is out of range: width 400..=8192, height 300..=8192")]
+    #[error(
+        "plot size {width_px}x{height_px} px is out of range: width 400..=8192, height 300..=8192"
+    )]
     TooSmall {
         /// Width asked for.
         width_px: u32,

@@ -40,7 +40,10 @@ impl OriginPolicy {
     pub fn new(listen: SocketAddr, allowed_hosts: &[String], allowed_origins: &[String]) -> Self {
         OriginPolicy {
             listen,
-            allowed_hosts: allowed_hosts.iter().map(|h| h.to_ascii_lowercase()).collect(),
+            allowed_hosts: allowed_hosts
+                .iter()
+                .map(|h| h.to_ascii_lowercase())
+                .collect(),
             allowed_origins: allowed_origins
                 .iter()
                 .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
@@ -81,7 +84,11 @@ impl OriginPolicy {
     }
 
     /// Checks a request's Origin header against its (already checked) Host header.
-    pub fn check_origin(&self, origin: Option<&str>, host: Option<&str>) -> Result<(), OriginError> {
+    pub fn check_origin(
+        &self,
+        origin: Option<&str>,
+        host: Option<&str>,
+    ) -> Result<(), OriginError> {
         let Some(origin) = origin else {
             return Ok(());
         };
@@ -129,7 +136,12 @@ mod tests {
     #[test]
     fn hosts_must_name_the_listening_address() {
         let loopback = policy("127.0.0.1:8080");
-        for ok in ["127.0.0.1:8080", "localhost:8080", "LOCALHOST:8080", "voxhap.lab:8080"] {
+        for ok in [
+            "127.0.0.1:8080",
+            "localhost:8080",
+            "LOCALHOST:8080",
+            "voxhap.lab:8080",
+        ] {
             assert!(loopback.check_host(Some(ok)).is_ok(), "{ok}");
         }
         assert!(loopback.check_host(None).is_ok());

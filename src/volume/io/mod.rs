@@ -43,8 +43,9 @@ pub mod source;
 
 pub use decode::{decode_samples, Decoded, Endian, ScalarType};
 pub use source::{
-    confined_path, open_regular, process_options, read_regular, read_text_file, MAX_TEXT_FILE_BYTES, set_process_options, FileError,
-    LoadOptions, DEFAULT_MAX_VOLUME_BYTES, MAX_HEADER_BYTES,
+    confined_path, open_regular, process_options, read_regular, read_text_file,
+    set_process_options, FileError, LoadOptions, DEFAULT_MAX_VOLUME_BYTES, MAX_HEADER_BYTES,
+    MAX_TEXT_FILE_BYTES,
 };
 
 use super::{AnyVolume, VolumeError};

@@ -77,11 +77,7 @@ pub fn parse_with(
         .data_offset
         .checked_add(plan.data_bytes)
         .ok_or_else(|| LoadProblem::header("vox_offset is too large"))?;
-    check_budget(
-        total_bytes,
-        (plan.voxels * plan.components) as u64,
-        options,
-    )?;
+    check_budget(total_bytes, (plan.voxels * plan.components) as u64, options)?;
     let inflated;
     let file: &[u8] = if gzipped {
         inflated = inflate(bytes, total_bytes)?;

@@ -127,7 +127,11 @@ pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64), FileError> {
 }
 
 /// Reads a whole regular file of at most `limit_bytes` (`what` names the limit in the message).
-pub fn read_regular(path: &Path, limit_bytes: u64, what: &'static str) -> Result<Vec<u8>, FileError> {
+pub fn read_regular(
+    path: &Path,
+    limit_bytes: u64,
+    what: &'static str,
+) -> Result<Vec<u8>, FileError> {
     let (file, size_bytes) = open_regular(path)?;
     if size_bytes > limit_bytes {
         return Err(FileError::TooLong {
@@ -165,21 +169,25 @@ pub const MAX_TEXT_FILE_BYTES: u64 = 16 << 20;
 /// Reads a scene, scenario or other settings file as UTF-8 text: a regular file of at most
 /// [`MAX_TEXT_FILE_BYTES`]. Errors are `std::io::Error`s whose message says what is wrong.
 pub fn read_text_file(path: &Path) -> std::io::Result<String> {
-    let bytes = read_regular(path, MAX_TEXT_FILE_BYTES, "a text file (16 MiB)").map_err(|e| match e {
-        FileError::Io(error) => error,
-        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
-    })?;
-    String::from_utf8(bytes).map_err(|_| {
-        std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text")
-    })
+    let bytes =
+        read_regular(path, MAX_TEXT_FILE_BYTES, "a text file (16 MiB)").map_err(|e| match e {
+            FileError::Io(error) => error,
+            other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
+        })?;
+    String::from_utf8(bytes)
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text"))
 }
 
 /// Reads a regular file for a loader: a header, or a header with attached data. It may be at most
 /// `max_volume_bytes` plus [`MAX_HEADER_BYTES`] long.
 pub(crate) fn read_volume_file(path: &Path, options: &LoadOptions) -> Result<Vec<u8>, LoadProblem> {
     let limit = options.max_volume_bytes.saturating_add(MAX_HEADER_BYTES);
-    read_regular(path, limit, "a volume file (--max-volume-bytes plus 1 MiB of header)")
-        .map_err(LoadProblem::File)
+    read_regular(
+        path,
+        limit,
+        "a volume file (--max-volume-bytes plus 1 MiB of header)",
+    )
+    .map_err(LoadProblem::File)
 }
 
 /// Where a detached data file's bytes start and how many the header needs from there.
@@ -232,9 +240,8 @@ pub(crate) fn read_data_file(
     }
     file.seek(SeekFrom::Start(start))
         .map_err(|e| error(e.into()))?;
-    let mut bytes = Vec::with_capacity(
-        usize::try_from(needed.min(size_bytes - start)).unwrap_or(0),
-    );
+    let mut bytes =
+        Vec::with_capacity(usize::try_from(needed.min(size_bytes - start)).unwrap_or(0));
     file.take(needed.saturating_add(1))
         .read_to_end(&mut bytes)
         .map_err(|e| error(e.into()))?;
@@ -307,7 +314,9 @@ mod tests {
 
     #[test]
     fn devices_and_fifos_are_refused_without_blocking() {
-        let message = open_regular(Path::new("/dev/zero")).unwrap_err().to_string();
+        let message = open_regular(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
         assert!(message.contains("character device"), "{message}");
         let dir = tempfile::tempdir().unwrap();
         let fifo = dir.path().join("pipe");
@@ -329,13 +338,27 @@ mod tests {
         let message = read_regular(&path, 99, "test").unwrap_err().to_string();
         assert!(message.contains("more than the 99-byte limit"), "{message}");
         let options = LoadOptions::default();
-        let bytes =
-            read_data_file(&path, DataRange::From { skip: 90, needed: 4 }, &options).unwrap();
+        let bytes = read_data_file(
+            &path,
+            DataRange::From {
+                skip: 90,
+                needed: 4,
+            },
+            &options,
+        )
+        .unwrap();
         assert_eq!(bytes.len(), 5, "needed plus one byte to see trailing data");
         let bytes = read_data_file(&path, DataRange::Tail { needed: 7 }, &options).unwrap();
         assert_eq!(bytes.len(), 7);
         assert!(matches!(
-            read_data_file(&path, DataRange::From { skip: 101, needed: 1 }, &options),
+            read_data_file(
+                &path,
+                DataRange::From {
+                    skip: 101,
+                    needed: 1
+                },
+                &options
+            ),
             Err(LoadProblem::Truncated { .. })
         ));
     }
@@ -353,7 +376,10 @@ mod tests {
             let message = confined_path(&inner, Path::new(name), false)
                 .unwrap_err()
                 .to_string();
-            assert!(message.contains("--allow-outside-paths"), "{name}: {message}");
+            assert!(
+                message.contains("--allow-outside-paths"),
+                "{name}: {message}"
+            );
         }
         assert!(confined_path(&inner, Path::new("../secret"), true).is_ok());
     }

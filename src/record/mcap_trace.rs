@@ -496,6 +496,10 @@ pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
             if top_level && opcode == 0x02 {
                 return Ok(Some(at));
             }
+            if opcode != 0x06 {
+                check_record_fields(opcode, &bytes[content..record_end])
+                    .map_err(|what| damaged(at, what))?;
+            }
             if top_level && opcode == 0x06 {
                 // Chunk: start time, end time, uncompressed size, CRC, compression, records.
                 let uncompressed = u64_at(content + 16);
@@ -541,13 +545,115 @@ fn walk_inner(bytes: &[u8], mut at: usize, end: usize) -> Result<(), usize> {
             .filter(|_| at + 9 <= end)
             .map(|b| u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
             .ok_or(at)?;
-        at = usize::try_from(length)
+        let record_end = usize::try_from(length)
             .ok()
             .and_then(|l| (at + 9).checked_add(l))
             .filter(|&e| e <= end)
             .ok_or(at)?;
+        check_record_fields(bytes[at], &bytes[at + 9..record_end]).map_err(|_| at)?;
+        at = record_end;
     }
     Ok(())
+}
+
+/// Reads the length-prefixed fields of one record's content in turn (MCAP specification, records 0x01 to
+/// 0x0F), checking each length against the bytes that remain: the mcap crate reserves a string's or a byte
+/// array's claimed length before reading it.
+struct Fields<'a> {
+    content: &'a [u8],
+    at: usize,
+}
+
+impl Fields<'_> {
+    const SHORT: &'static str = "a record's field runs past the record";
+
+    fn skip(&mut self, count: usize) -> Result<(), &'static str> {
+        self.at = self
+            .at
+            .checked_add(count)
+            .filter(|&end| end <= self.content.len())
+            .ok_or(Self::SHORT)?;
+        Ok(())
+    }
+
+    fn length(&mut self, width: usize) -> Result<usize, &'static str> {
+        let field = self
+            .content
+            .get(self.at..self.at + width)
+            .ok_or(Self::SHORT)?;
+        let mut raw = [0u8; 8];
+        raw[..width].copy_from_slice(field);
+        self.at += width;
+        usize::try_from(u64::from_le_bytes(raw)).map_err(|_| Self::SHORT)
+    }
+
+    /// A string or byte array with a u32 (or, for `width` 8, u64) length prefix; also a map's byte length.
+    fn prefixed(&mut self, width: usize) -> Result<(), &'static str> {
+        let length = self.length(width)?;
+        self.skip(length)
+    }
+
+    /// A map from string to string: a u32 byte length, then pairs of u32-prefixed strings inside it.
+    fn string_map(&mut self) -> Result<(), &'static str> {
+        let length = self.length(4)?;
+        let end = self.at.checked_add(length).ok_or(Self::SHORT)?;
+        if end > self.content.len() {
+            return Err(Self::SHORT);
+        }
+        let mut inner = Fields {
+            content: &self.content[..end],
+            at: self.at,
+        };
+        while inner.at < end {
+            inner.prefixed(4)?;
+            inner.prefixed(4)?;
+        }
+        self.at = end;
+        Ok(())
+    }
+}
+
+fn check_record_fields(opcode: u8, content: &[u8]) -> Result<(), &'static str> {
+    let mut fields = Fields { content, at: 0 };
+    let f = &mut fields;
+    match opcode {
+        0x01 => f.prefixed(4).and_then(|()| f.prefixed(4)),
+        0x02 => f.skip(20),
+        0x03 => f
+            .skip(2)
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(4)),
+        0x04 => f
+            .skip(4)
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.string_map()),
+        0x05 => f.skip(22),
+        0x07 => f.skip(2).and_then(|()| f.prefixed(4)),
+        0x08 => f
+            .skip(32)
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.skip(8))
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.skip(16)),
+        0x09 => f
+            .skip(16)
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(8))
+            .and_then(|()| f.skip(4)),
+        0x0A => f
+            .skip(40)
+            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.prefixed(4)),
+        0x0B => f.skip(42).and_then(|()| f.prefixed(4)),
+        0x0C => f.prefixed(4).and_then(|()| f.string_map()),
+        0x0D => f.skip(16).and_then(|()| f.prefixed(4)),
+        0x0E => f.skip(17),
+        0x0F => f.skip(4),
+        _ => Ok(()), // unknown records are skipped whole by the reader
+    }
 }
 
 fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {

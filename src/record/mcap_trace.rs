@@ -892,6 +892,21 @@ mod tests {
         assert!(read_mcap_trace(&path).is_err());
     }
 
+    /// Regression (fuzz target mcap_trace): a string length inside a record claiming gigabytes made the mcap
+    /// crate reserve them; every length-prefixed field is now checked against its record first.
+    #[test]
+    fn a_string_longer_than_its_record_is_an_error_not_an_allocation() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.mcap");
+        write_mcap(&path, &["surface"], &samples(8, 1));
+        let mut bytes = std::fs::read(&path).unwrap();
+        // The header record's first field, the profile string: its u32 length.
+        let at = mcap::MAGIC.len() + 9;
+        bytes[at..at + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        let message = parse_mcap_trace(&bytes).unwrap_err().to_string();
+        assert!(message.contains("a record's field runs past the record"), "{message}");
+    }
+
     /// Makes the first record inside the first chunk claim more bytes than the chunk holds, and clears the
     /// chunk's CRC (0 = not checked), so the reader reaches the overlong record. Found by the proptest
     /// below as a one-byte edit; written out here so it does not depend on the file's layout.

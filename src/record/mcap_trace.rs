@@ -904,7 +904,10 @@ mod tests {
         let at = mcap::MAGIC.len() + 9;
         bytes[at..at + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
         let message = parse_mcap_trace(&bytes).unwrap_err().to_string();
-        assert!(message.contains("a record's field runs past the record"), "{message}");
+        assert!(
+            message.contains("a record's field runs past the record"),
+            "{message}"
+        );
     }
 
     /// Makes the first record inside the first chunk claim more bytes than the chunk holds, and clears the

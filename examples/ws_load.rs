@@ -336,6 +336,9 @@ fn main() -> anyhow::Result<()> {
         token: server::config::random_token()?,
         max_clients: args.clients + 1,
         idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
+        header_timeout: server::config::DEFAULT_HEADER_TIMEOUT,
+        allowed_hosts: Vec::new(),
+        allowed_origins: Vec::new(),
     };
     let server = server_rt.spawn(server::run(listener, api, server_config, async move {
         let _ = stop_rx.await;

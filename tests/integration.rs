@@ -6,6 +6,7 @@
 mod util;
 
 mod alloc_free;
+mod bad_inputs;
 mod cli_solve;
 mod device_drivers;
 mod device_hardware;
@@ -13,9 +14,11 @@ mod device_pty;
 mod device_safety;
 mod device_spec;
 mod foxglove;
+mod fuzz_corpus;
 mod modes;
 mod paper;
 mod record;
+mod robustness;
 mod serve_e2e;
 mod server;
 mod servo;

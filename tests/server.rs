@@ -705,12 +705,21 @@ async fn closed_by_server(stream: &mut tokio::net::TcpStream, within: Duration) 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn connections_over_the_cap_are_closed_at_once_and_counted() {
-    // max_clients 2: at most 2 + EXTRA_CONNECTIONS connections; a flood of idle ones beyond that is refused.
+    // max_clients 2: at most 2 + EXTRA_CONNECTIONS connections. Here every slot carries a request in
+    // progress (a complete head whose body never comes), which half-open newcomers cannot take over: a
+    // flood beyond the cap is refused.
+    use tokio::io::AsyncWriteExt;
     let server = TestServer::start(2).await;
     let cap = 2 + voxhap::server::EXTRA_CONNECTIONS;
     let mut idle = Vec::new();
     for _ in 0..cap {
-        idle.push(tokio::net::TcpStream::connect(server.addr).await.unwrap());
+        let mut stream = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+        let head = format!(
+            "POST /api/control HTTP/1.1\r\nHost: {}\r\nContent-Length: 10\r\n\r\n",
+            server.addr
+        );
+        stream.write_all(head.as_bytes()).await.unwrap();
+        idle.push(stream);
     }
     // Let the server accept all of them before the extra ones arrive.
     tokio::time::sleep(Duration::from_millis(300)).await;

@@ -14,8 +14,8 @@ use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct BenchLoopArgs {
-    /// How long to run (s).
-    #[arg(long, default_value_t = 10.0)]
+    /// How long to run (s), > 0 and <= 1e9.
+    #[arg(long, default_value_t = 10.0, value_parser = super::parse_seconds)]
     pub seconds: f64,
     /// Servo rate (Hz), 100 to 10000.
     #[arg(long, default_value_t = 1000.0)]
@@ -23,9 +23,9 @@ pub struct BenchLoopArgs {
     /// Print the statistics as JSON.
     #[arg(long)]
     pub json: bool,
-    /// Busy threads to run alongside (to measure with the cores loaded).
-    #[arg(long, default_value_t = 0)]
-    pub load_threads: usize,
+    /// Busy threads to run alongside (to measure with the cores loaded), 0 to 64.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=64))]
+    pub load_threads: u16,
     /// How long before each deadline the servo thread stops sleeping and spins (µs).
     #[arg(long, default_value_t = 80)]
     pub spin_us: u64,

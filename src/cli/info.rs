@@ -18,6 +18,8 @@ pub struct InfoArgs {
     /// Print one JSON object per volume instead of text.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub limits: super::VolumeLimitArgs,
 }
 
 /// What `info` prints for one volume; also the `--json` schema.
@@ -151,6 +153,7 @@ pub fn reports(volume: &str) -> anyhow::Result<Vec<VolumeReport>> {
 
 /// Runs `voxhap info`.
 pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
+    args.limits.apply();
     let reports = reports(&args.volume)?;
     if args.json {
         // One object for one volume; an array for a built-in that holds two (density-flow).

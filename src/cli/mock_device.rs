@@ -59,7 +59,7 @@ pub fn run(args: &MockDeviceArgs) -> anyhow::Result<()> {
     let arm: SimArmConfig = match &args.arm {
         None => default_arm_config(),
         Some(path) => {
-            let text = std::fs::read_to_string(path)
+            let text = crate::volume::io::read_text_file(path)
                 .with_context(|| format!("reading the arm scenario {}", path.display()))?;
             toml::from_str(&text)
                 .with_context(|| format!("parsing the arm scenario {}", path.display()))?

@@ -15,11 +15,11 @@ pub struct PlotArgs {
     /// Output image; the extension chooses the format: .png or .svg.
     #[arg(long, short)]
     pub out: PathBuf,
-    /// Image width in pixels.
-    #[arg(long, default_value_t = 1200)]
+    /// Image width in pixels, 400 to 8192.
+    #[arg(long, default_value_t = 1200, value_parser = clap::value_parser!(u32).range(400..=8192))]
     pub width: u32,
-    /// Image height in pixels.
-    #[arg(long, default_value_t = 1000)]
+    /// Image height in pixels, 300 to 8192.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(300..=8192))]
     pub height: u32,
     /// Title; by default the trace's file name, scenario name, rate and length.
     #[arg(long)]

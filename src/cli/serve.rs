@@ -15,7 +15,7 @@
 
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
-use crate::servo::api::SessionApi;
+use crate::servo::api::{ConfinedVolumes, SessionApi, VolumeDirs};
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -58,9 +58,15 @@ pub struct ServeArgs {
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
-    /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
-    #[arg(long)]
+    /// Stop after this many seconds, > 0 and <= 1e9 (default: run until Ctrl-C or SIGTERM).
+    #[arg(long, value_parser = super::parse_seconds)]
     pub duration: Option<f64>,
+    /// A folder the control API may load volume files from (`POST /api/volume`, `load_volume`); repeat for
+    /// more. Without it the API loads only builtin:NAME volumes.
+    #[arg(long, value_name = "DIR")]
+    pub volume_dir: Vec<PathBuf>,
+    #[command(flatten)]
+    pub limits: super::VolumeLimitArgs,
     #[command(flatten)]
     pub http: HttpArgs,
     #[command(flatten)]
@@ -88,6 +94,7 @@ fn parse_device(text: &str) -> Result<DeviceSpec, String> {
 
 /// Builds the session configuration from the flags (loads the scene and volumes).
 pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
+    args.limits.apply();
     let setup = setup::resolve(args.scene.as_ref(), args.volume.as_deref())?;
     let mut config = SessionConfig::new(args.device.clone(), setup);
     if let Some(rate) = args.rate {
@@ -190,13 +197,11 @@ fn print_http(addr: SocketAddr, token: &str) -> anyhow::Result<()> {
 }
 
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
-    let duration = match args.duration {
-        Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
-        Some(s) => bail!("--duration must be a number of seconds > 0, got {s}"),
-        None => None,
-    };
+    // Range-checked when parsed (super::parse_seconds), so the conversion cannot overflow.
+    let duration = args.duration.map(Duration::from_secs_f64);
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
+    let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
     let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
@@ -241,7 +246,8 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             .local_addr()
             .context("the visualiser server's address")?;
         print_http(addr, &server_config.token)?;
-        let api: Arc<dyn SessionApi> = session.api();
+        // load_volume commands through the API may only name files in the --volume-dir folders.
+        let api: Arc<dyn SessionApi> = Arc::new(ConfinedVolumes::new(session.api(), volume_dirs));
         let shutdown = async move {
             let _ = http_stopped.await;
         };
@@ -314,6 +320,9 @@ mod tests {
                 token: "test-token".to_owned(),
                 max_clients: 4,
                 idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
+                header_timeout: server::config::DEFAULT_HEADER_TIMEOUT,
+                allowed_hosts: Vec::new(),
+                allowed_origins: Vec::new(),
             },
         }
     }

@@ -24,9 +24,12 @@ pub struct SimArgs {
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).
     #[arg(long, value_enum)]
     pub solver: Option<SolverKind>,
+    #[command(flatten)]
+    pub limits: super::VolumeLimitArgs,
 }
 
 pub fn run(args: &SimArgs) -> anyhow::Result<()> {
+    args.limits.apply();
     let loaded = LoadedScenario::from_file(&args.scenario)?;
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args

@@ -80,7 +80,7 @@ struct PrimitiveSpec {
 impl Scene {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        let text = crate::volume::io::read_text_file(path).map_err(|source| SceneError::Io {
             path: path.display().to_string(),
             source,
         })?;

@@ -122,11 +122,10 @@ impl TraceWriter for CsvTraceWriter {
 
 /// Reads a CSV trace, and its sidecar `path.json` when that file exists.
 pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let file = File::open(path).map_err(|source| TraceReadError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let (mode_names, samples) = parse_csv_lines(BufReader::new(file), path)?;
+    // A regular file only; reading stops at the size it had when opened.
+    let (file, size_bytes) = super::open_trace_file(path)?;
+    let reader = BufReader::new(std::io::Read::take(file, size_bytes));
+    let (mode_names, samples) = parse_csv_lines(reader, path)?;
     let sidecar = read_sidecar(&sidecar_path(path))?;
     Ok(Trace {
         mode_names,
@@ -137,7 +136,16 @@ pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
 
 /// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.
 pub(crate) fn read_sidecar(path: &Path) -> Result<Option<Sidecar>, TraceReadError> {
-    match std::fs::read(path) {
+    let read = crate::volume::io::read_regular(
+        path,
+        crate::volume::io::MAX_TEXT_FILE_BYTES,
+        "a trace sidecar (16 MiB)",
+    )
+    .map_err(|error| match error {
+        crate::volume::io::FileError::Io(source) => source,
+        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
+    });
+    match read {
         Ok(bytes) => {
             serde_json::from_slice(&bytes)
                 .map(Some)

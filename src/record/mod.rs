@@ -21,7 +21,9 @@ pub mod plot;
 
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
 pub use self::error::{TraceError, TraceReadError};
-pub use self::mcap_trace::{read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
+pub use self::mcap_trace::{
+    parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
+};
 pub use self::meta::{sidecar_path, ColumnDoc, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
 
 use glam::DVec3;
@@ -281,15 +283,38 @@ pub struct Trace {
     pub sidecar: Option<Sidecar>,
 }
 
+/// Opens a trace (or sidecar) for reading: a regular file only, so a FIFO or a device (`replay:/dev/zero`)
+/// is refused at once instead of blocking or reading without end.
+pub(crate) fn open_trace_file(path: &Path) -> Result<(std::fs::File, u64), TraceReadError> {
+    crate::volume::io::open_regular(path).map_err(|error| TraceReadError::Io {
+        path: path.to_path_buf(),
+        source: match error {
+            crate::volume::io::FileError::Io(source) => source,
+            other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
+        },
+    })
+}
+
+/// Reads a whole trace file (a regular file; its size bounds the read).
+pub(crate) fn read_trace_file(path: &Path) -> Result<Vec<u8>, TraceReadError> {
+    use std::io::Read;
+    let (file, size_bytes) = open_trace_file(path)?;
+    let mut bytes = Vec::with_capacity(usize::try_from(size_bytes).unwrap_or(0));
+    file.take(size_bytes)
+        .read_to_end(&mut bytes)
+        .map_err(|source| TraceReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    Ok(bytes)
+}
+
 /// Reads a CSV or MCAP trace, choosing by the file's first bytes (the MCAP magic) rather than its name.
 pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let mut magic = [0u8; 8];
     let is_mcap = {
         use std::io::Read;
-        let mut file = std::fs::File::open(path).map_err(|source| TraceReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let (mut file, _) = open_trace_file(path)?;
         let mut filled = 0;
         while filled < magic.len() {
             match file.read(&mut magic[filled..]) {

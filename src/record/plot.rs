@@ -44,8 +44,10 @@ pub enum PlotError {
     /// The output name does not end in `.png` or `.svg`.
     #[error("plot output {0}: the file name must end in .png or .svg")]
     UnsupportedFormat(PathBuf),
-    /// Width or height below the minimum.
-    #[error("plot size {width_px}x{height_px} px is too small: at least 400x300")]
+    /// Width or height outside [`PLOT_WIDTH_PX`] x [`PLOT_HEIGHT_PX`].
+    #[error(
+        "plot size {width_px}x{height_px} px is out of range: width 400..=8192, height 300..=8192"
+    )]
     TooSmall {
         /// Width asked for.
         width_px: u32,
@@ -130,6 +132,12 @@ fn register_font() -> Result<(), PlotError> {
     }
 }
 
+/// Plot widths accepted (px): at least room for the axes, at most a 8192-px image (an 8192 x 8192 PNG
+/// is 200 MB of pixels while drawn).
+pub const PLOT_WIDTH_PX: std::ops::RangeInclusive<u32> = 400..=8192;
+/// Plot heights accepted (px).
+pub const PLOT_HEIGHT_PX: std::ops::RangeInclusive<u32> = 300..=8192;
+
 /// Draws `trace` into `out` (`.png` or `.svg`, chosen by the extension) at the given size.
 pub fn plot_trace(
     trace: &Trace,
@@ -138,7 +146,7 @@ pub fn plot_trace(
     width_px: u32,
     height_px: u32,
 ) -> Result<(), PlotError> {
-    if width_px < 400 || height_px < 300 {
+    if !PLOT_WIDTH_PX.contains(&width_px) || !PLOT_HEIGHT_PX.contains(&height_px) {
         return Err(PlotError::TooSmall {
             width_px,
             height_px,

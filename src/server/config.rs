@@ -16,6 +16,9 @@ pub const DEFAULT_HTTP_ADDR: SocketAddr =
 pub const DEFAULT_MAX_CLIENTS: usize = 64;
 /// A connection on which nothing moved this long is closed (see `server::guard`).
 pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
+/// A request's head (request line and headers) must arrive this soon after the connection opens or the
+/// previous answer was written (see `server::guard`).
+pub const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(5);
 /// Largest `--max-clients`.
 pub const MAX_CLIENTS_LIMIT: usize = 4096;
 
@@ -35,8 +38,16 @@ pub struct HttpArgs {
     /// Most WebSocket clients at once; more are refused with 503.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_CLIENTS)]
     pub max_clients: usize,
+    /// Another name this server may be addressed by in the Host header (besides its IP address, and
+    /// localhost on loopback); repeat for more. Needed behind a DNS name or a reverse proxy.
+    #[arg(long, value_name = "NAME")]
+    pub allow_host: Vec<String>,
+    /// Another web origin (`http://viewer.lab:3000`) whose pages may open /ws and send control requests;
+    /// repeat for more. By default only the page served here may.
+    #[arg(long, value_name = "ORIGIN")]
+    pub allow_origin: Vec<String>,
     /// Do not start the visualiser server.
-    #[arg(long, conflicts_with_all = ["http", "allow_remote", "token", "max_clients"])]
+    #[arg(long, conflicts_with_all = ["http", "allow_remote", "token", "max_clients", "allow_host", "allow_origin"])]
     pub no_http: bool,
 }
 
@@ -50,6 +61,12 @@ pub struct ServerConfig {
     /// A connection to which the server has written nothing this long (since the accept or the last
     /// write) is closed; bytes from the client do not count, so a trickled request cannot hold it.
     pub idle_timeout: Duration,
+    /// A request's head must be complete this soon after the accept or the previous answer.
+    pub header_timeout: Duration,
+    /// Names (`--allow-host`) the Host header may carry besides the listening address.
+    pub allowed_hosts: Vec<String>,
+    /// Origins (`--allow-origin`) whose pages may open /ws and change the session.
+    pub allowed_origins: Vec<String>,
 }
 
 impl ServerConfig {
@@ -59,6 +76,9 @@ impl ServerConfig {
             token: random_token()?,
             max_clients: DEFAULT_MAX_CLIENTS,
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
+            header_timeout: DEFAULT_HEADER_TIMEOUT,
+            allowed_hosts: Vec::new(),
+            allowed_origins: Vec::new(),
         })
     }
 }
@@ -137,6 +157,9 @@ impl HttpArgs {
                 token,
                 max_clients: self.max_clients,
                 idle_timeout: DEFAULT_IDLE_TIMEOUT,
+                header_timeout: DEFAULT_HEADER_TIMEOUT,
+                allowed_hosts: self.allow_host.clone(),
+                allowed_origins: self.allow_origin.clone(),
             },
         }))
     }

@@ -52,7 +52,41 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/ws", get(ws::upgrade))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(MAX_MESSAGE_BYTES))
+        .layer(axum::middleware::from_fn_with_state(
+            shared.clone(),
+            check_host_and_origin,
+        ))
         .with_state(shared)
+}
+
+/// The Host check on every request, and the Origin check on `/ws` and every request that is not GET or
+/// HEAD ([`super::origin`]); 403 with the reason otherwise.
+async fn check_host_and_origin(
+    State(shared): Shared_,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let verdict = {
+        let headers = request.headers();
+        let text = |name: header::HeaderName| {
+            headers
+                .get(name)
+                .map(|value| value.to_str().unwrap_or("(not text)"))
+        };
+        let host = text(header::HOST);
+        let changes_state = !matches!(*request.method(), Method::GET | Method::HEAD);
+        shared.origin.check_host(host).and_then(|()| {
+            if changes_state || request.uri().path() == "/ws" {
+                shared.origin.check_origin(text(header::ORIGIN), host)
+            } else {
+                Ok(())
+            }
+        })
+    };
+    match verdict {
+        Ok(()) => next.run(request).await,
+        Err(error) => error_response(StatusCode::FORBIDDEN, error.to_string()),
+    }
 }
 
 /// `{"error": message}` with `status`.

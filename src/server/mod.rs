@@ -16,7 +16,8 @@
 //!                                                         ▲ one request in flight; shutdown → close 1001
 //! ```
 //!
-//! Files: [`config`] (flags), [`auth`] (bearer token), [`messages`] (the JSON), `http` (router and REST
+//! Files: [`config`] (flags), [`auth`] (bearer token), [`origin`] (Host and Origin checks), [`guard`]
+//! (connection cap, header deadline, silence timeout), [`messages`] (the JSON), `http` (router and REST
 //! handlers), `ws` (the client task), [`assets`] (the embedded page).
 
 pub mod assets;
@@ -26,6 +27,7 @@ pub mod foxglove;
 pub mod guard;
 mod http;
 pub mod messages;
+pub mod origin;
 mod ws;
 
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};
@@ -58,6 +60,8 @@ const BLOCKING_PERMITS: usize = 8;
 pub(crate) struct Shared {
     pub(crate) api: Arc<dyn SessionApi>,
     pub(crate) config: ServerConfig,
+    /// Host and Origin rules for this listening address.
+    pub(crate) origin: origin::OriginPolicy,
     /// WebSocket clients connected now; `run` waits on it reaching 0 at shutdown.
     clients: watch::Sender<usize>,
     pub(crate) frames_sent: AtomicU64,
@@ -155,8 +159,14 @@ pub async fn run(
 ) -> std::io::Result<()> {
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (clients_tx, mut clients_rx) = watch::channel(0usize);
+    let origin = origin::OriginPolicy::new(
+        listener.local_addr()?,
+        &config.allowed_hosts,
+        &config.allowed_origins,
+    );
     let shared = Arc::new(Shared {
         api,
+        origin,
         config,
         clients: clients_tx,
         frames_sent: AtomicU64::new(0),
@@ -171,7 +181,10 @@ pub async fn run(
     let listener = guard::GuardedListener::new(
         listener,
         shared.max_connections(),
-        shared.config.idle_timeout,
+        guard::GuardTimeouts {
+            idle: shared.config.idle_timeout,
+            header: shared.config.header_timeout,
+        },
         shared.guards.clone(),
         tune_socket,
     );

@@ -440,3 +440,110 @@ pub trait SessionApi: Send + Sync + 'static {
     /// unknown volume [`ControlError::NotFound`].
     fn slice(&self, request: SliceRequest) -> Result<Slice, ControlError>;
 }
+
+/// The folders the control API may load volume files from (`voxhap serve --volume-dir DIR`), checked before
+/// a `load_volume` command reaches the session: a relative path is looked up in each folder in turn, an
+/// absolute one must lie in one of them, both after following symlinks. `builtin:NAME` always passes.
+/// Without folders only built-ins load through the API, so a client with the token cannot make the
+/// server read (and `/api/slice` serve) an arbitrary file.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct VolumeDirs {
+    /// Canonical folders.
+    dirs: Vec<PathBuf>,
+}
+
+impl VolumeDirs {
+    /// The folders, each of which must exist; errors name the folder.
+    pub fn new(dirs: &[PathBuf]) -> Result<VolumeDirs, String> {
+        let dirs = dirs
+            .iter()
+            .map(|dir| {
+                dir.canonicalize()
+                    .ok()
+                    .filter(|d| d.is_dir())
+                    .ok_or_else(|| format!("--volume-dir {}: not a folder", dir.display()))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(VolumeDirs { dirs })
+    }
+
+    /// The file `path` names, resolved inside one of the folders, or why not.
+    pub fn resolve(&self, path: &std::path::Path) -> Result<PathBuf, ControlError> {
+        if path.to_str().is_some_and(|p| p.starts_with("builtin:")) {
+            return Ok(path.to_path_buf());
+        }
+        if self.dirs.is_empty() {
+            return Err(ControlError::Invalid(format!(
+                "volume {}: loading files through the API is off; start voxhap serve with \
+                 --volume-dir DIR to allow files from DIR (builtin:NAME volumes always load)",
+                path.display()
+            )));
+        }
+        let mut found = false;
+        for dir in &self.dirs {
+            let Ok(resolved) = dir.join(path).canonicalize() else {
+                continue;
+            };
+            found = true;
+            if resolved.starts_with(dir) {
+                return Ok(resolved);
+            }
+        }
+        let folders = self
+            .dirs
+            .iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+        if found {
+            Err(ControlError::Invalid(format!(
+                "volume {}: outside the --volume-dir folders ({folders})",
+                path.display()
+            )))
+        } else {
+            Err(ControlError::NotFound(format!(
+                "volume file {} does not exist in the --volume-dir folders ({folders})",
+                path.display()
+            )))
+        }
+    }
+}
+
+/// A [`SessionApi`] whose `load_volume` commands may only name files in [`VolumeDirs`]; everything else
+/// passes straight through. `voxhap serve` hands this to its servers.
+pub struct ConfinedVolumes<A: ?Sized> {
+    inner: std::sync::Arc<A>,
+    dirs: VolumeDirs,
+}
+
+impl<A: SessionApi + ?Sized> ConfinedVolumes<A> {
+    /// Wraps `inner`.
+    pub fn new(inner: std::sync::Arc<A>, dirs: VolumeDirs) -> Self {
+        ConfinedVolumes { inner, dirs }
+    }
+}
+
+impl<A: SessionApi + ?Sized> SessionApi for ConfinedVolumes<A> {
+    fn snapshot(&self) -> Option<Snapshot> {
+        self.inner.snapshot()
+    }
+    fn stats(&self) -> StatsReport {
+        self.inner.stats()
+    }
+    fn scene(&self) -> SceneReport {
+        self.inner.scene()
+    }
+    fn control(&self, command: ControlCommand) -> Result<ControlReply, ControlError> {
+        let command = match command {
+            ControlCommand::LoadVolume { path, name } => ControlCommand::LoadVolume {
+                path: self.dirs.resolve(&path)?,
+                name,
+            },
+            other => other,
+        };
+        self.inner.control(command)
+    }
+    fn slice(&self, request: SliceRequest) -> Result<Slice, ControlError> {
+        self.inner.slice(request)
+    }
+}

@@ -156,7 +156,7 @@ impl SceneSetup {
     /// Reads a scene file.
     pub fn read(path: &Path) -> Result<SceneSetup, SetupError> {
         let origin = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| SetupError::Read {
+        let text = crate::volume::io::read_text_file(path).map_err(|source| SetupError::Read {
             origin: origin.clone(),
             source,
         })?;

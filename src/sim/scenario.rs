@@ -25,6 +25,12 @@ use std::path::{Path, PathBuf};
 
 /// Longest scenario accepted (s): a day at 1 kHz is 86.4 million ticks.
 pub const MAX_DURATION_S: f64 = 86_400.0;
+/// Servo rates a scenario may ask for (Hz); the headless run costs rate x duration ticks.
+pub const RATE_HZ_RANGE: std::ops::RangeInclusive<f64> = 1.0..=100_000.0;
+/// Most ticks one scenario runs (a day at 1 kHz is 86.4 million).
+pub const MAX_TICKS: u64 = 100_000_000;
+/// Physics substeps of the simulated arm per tick: each costs a step of work every tick.
+pub const SUBSTEPS_PER_TICK_RANGE: std::ops::RangeInclusive<u32> = 1..=1000;
 
 /// A scenario as written in its TOML file (schema in the module docs and the README (`voxhap sim` / "Scenario files")).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -210,8 +216,17 @@ impl VolumeSpec {
                 }
             }
         } else if let Some(file) = &spec.file {
-            let path = base_dir.join(file);
-            let loaded = io::load(&path).map_err(|source| ScenarioError::Load {
+            // Confined to the scenario's folder (after symlinks) unless --allow-outside-paths.
+            let options = io::process_options();
+            let path = io::confined_path(base_dir, file, options.allow_outside_paths).map_err(
+                |problem| ScenarioError::Load {
+                    origin: origin.to_owned(),
+                    index,
+                    name: spec.name.clone(),
+                    source: Box::new(io::LoadProblem::File(problem).at(&base_dir.join(file))),
+                },
+            )?;
+            let loaded = io::load_with(&path, &options).map_err(|source| ScenarioError::Load {
                 origin: origin.to_owned(),
                 index,
                 name: spec.name.clone(),
@@ -303,7 +318,7 @@ impl Scenario {
 
     /// Reads and validates a scenario file.
     pub fn read(path: &Path) -> Result<Scenario, ScenarioError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+        let text = crate::volume::io::read_text_file(path).map_err(|source| ScenarioError::Io {
             path: path.to_path_buf(),
             source,
         })?;
@@ -344,8 +359,30 @@ impl Scenario {
             ));
         }
         positive("rate_hz", self.rate_hz)?;
+        if !RATE_HZ_RANGE.contains(&self.rate_hz) {
+            return Err(format!(
+                "rate_hz: {} Hz is out of range {}..={} Hz",
+                self.rate_hz,
+                RATE_HZ_RANGE.start(),
+                RATE_HZ_RANGE.end()
+            ));
+        }
+        if !SUBSTEPS_PER_TICK_RANGE.contains(&self.arm.substeps_per_tick) {
+            return Err(format!(
+                "arm.substeps_per_tick: {} is out of range {}..={}",
+                self.arm.substeps_per_tick,
+                SUBSTEPS_PER_TICK_RANGE.start(),
+                SUBSTEPS_PER_TICK_RANGE.end()
+            ));
+        }
         positive("k_n_per_m", self.k_n_per_m)?;
         self.solver.validate()?;
+        if self.tick_count() > MAX_TICKS {
+            return Err(format!(
+                "duration_s x rate_hz: {} ticks is more than the {MAX_TICKS}-tick limit",
+                self.tick_count()
+            ));
+        }
         if purpose == Purpose::Sim && self.tick_count() == 0 {
             return Err(format!(
                 "duration_s: {} s at {} Hz is less than one tick",

@@ -11,6 +11,7 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 use voxhap::server::{self, ServerConfig};
+use voxhap::servo::api::{ConfinedVolumes, VolumeDirs};
 use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::rt::RtMode;
 use voxhap::servo::setup::SceneSetup;
@@ -40,6 +41,24 @@ impl TestServer {
 
     /// As [`TestServer::start`], closing connections idle for `idle_timeout`.
     pub async fn start_with(max_clients: usize, idle_timeout: Duration) -> TestServer {
+        Self::start_configured(max_clients, |config| config.idle_timeout = idle_timeout).await
+    }
+
+    /// As [`TestServer::start`], with the server settings changed by `edit`.
+    pub async fn start_configured(
+        max_clients: usize,
+        edit: impl FnOnce(&mut ServerConfig),
+    ) -> TestServer {
+        Self::start_full(max_clients, edit, None).await
+    }
+
+    /// As [`TestServer::start_configured`]; with `volume_dirs`, the server sees the session through
+    /// [`ConfinedVolumes`] as `voxhap serve --volume-dir` does.
+    pub async fn start_full(
+        max_clients: usize,
+        edit: impl FnOnce(&mut ServerConfig),
+        volume_dirs: Option<VolumeDirs>,
+    ) -> TestServer {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = RtMode::Off;
         // Less spinning: several sessions may run at once on a small CI machine.
@@ -56,12 +75,19 @@ impl TestServer {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-        let config = ServerConfig {
+        let mut config = ServerConfig {
             token: TOKEN.to_owned(),
             max_clients,
-            idle_timeout,
+            idle_timeout: server::config::DEFAULT_IDLE_TIMEOUT,
+            header_timeout: voxhap::server::config::DEFAULT_HEADER_TIMEOUT,
+            allowed_hosts: Vec::new(),
+            allowed_origins: Vec::new(),
         };
-        let shared: Arc<dyn SessionApi> = api.clone();
+        edit(&mut config);
+        let shared: Arc<dyn SessionApi> = match volume_dirs {
+            Some(dirs) => Arc::new(ConfinedVolumes::new(api.clone(), dirs)),
+            None => api.clone(),
+        };
         let task = tokio::spawn(server::run(listener, shared, config, async move {
             let _ = stopped.await;
         }));

@@ -105,11 +105,15 @@ pub fn decode_samples(
     match bytes.len().cmp(&expected_bytes) {
         std::cmp::Ordering::Less => {
             return Err(LoadProblem::Truncated {
-                expected_bytes,
-                actual_bytes: bytes.len(),
+                expected_bytes: expected_bytes as u64,
+                actual_bytes: bytes.len() as u64,
             })
         }
-        std::cmp::Ordering::Greater => return Err(LoadProblem::TrailingData { expected_bytes }),
+        std::cmp::Ordering::Greater => {
+            return Err(LoadProblem::TrailingData {
+                expected_bytes: expected_bytes as u64,
+            })
+        }
         std::cmp::Ordering::Equal => {}
     }
     let mut decoded = Decoded {
@@ -173,10 +177,11 @@ fn push(decoded: &mut Decoded, stored: f32, scale: Option<(f64, f64)>, exact: f6
     }
 }
 
-/// Inflates gzip (magic `1f 8b`, multi-member allowed) or zlib data, reading at most
-/// `expected_bytes + 1` bytes so a lying header cannot make it allocate without bound.
-pub(crate) fn inflate(compressed: &[u8], expected_bytes: usize) -> Result<Vec<u8>, LoadProblem> {
-    let limit = expected_bytes as u64 + 1;
+/// Inflates gzip (magic `1f 8b`, multi-member allowed) or zlib data, producing at most
+/// `expected_bytes + 1` bytes so a lying header or a gzip bomb cannot make it allocate without bound (the
+/// caller checked `expected_bytes` against `--max-volume-bytes` first).
+pub(crate) fn inflate(compressed: &[u8], expected_bytes: u64) -> Result<Vec<u8>, LoadProblem> {
+    let limit = expected_bytes.saturating_add(1);
     let mut out = Vec::new();
     let result = if compressed.starts_with(&[0x1f, 0x8b]) {
         flate2::read::MultiGzDecoder::new(compressed)
@@ -324,7 +329,7 @@ mod tests {
                 prop_assert_eq!(decoded.values.len(), count);
                 prop_assert!(decoded.values.iter().all(|v| v.is_finite()));
             }
-            let _ = inflate(&bytes, count);
+            let _ = inflate(&bytes, count as u64);
         }
     }
 }

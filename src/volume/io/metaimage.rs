@@ -13,10 +13,10 @@
 //! (`BinaryData = False`), file lists, other dimensionalities.
 
 use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::{
-    assemble, checked_voxel_count, read_data_file, read_file, FileFormat, Layout, LoadProblem,
-    LoadedVolume,
+use super::source::{
+    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
+use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
 use crate::volume::Grid;
 use glam::{DMat3, DVec3};
 use std::path::Path;
@@ -44,14 +44,31 @@ pub struct MetaImageHeader {
     pub header_bytes: usize,
 }
 
-/// Loads a `.mha` or `.mhd` file.
+/// Loads a `.mha` or `.mhd` file with the default limits.
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    let bytes = read_file(path)?;
-    parse(&bytes, path)
+    load_with(path, &LoadOptions::default())
 }
 
-/// Parses a MetaImage file held in memory; a detached data file is read relative to `path`'s folder.
+/// Loads a `.mha` or `.mhd` file within `options`' limits.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
+    let bytes = read_volume_file(path, options)?;
+    parse_with(&bytes, path, options)
+}
+
+/// Parses a MetaImage file held in memory with the default limits; a detached data file is read relative
+/// to `path`'s folder.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
+    parse_with(bytes, path, &LoadOptions::default())
+}
+
+/// [`parse`] within `options`' limits: `HeaderSize` plus the data `DimSize` describes are checked against
+/// `--max-volume-bytes` before anything is read or inflated, and a detached data file must lie in the
+/// header's folder.
+pub fn parse_with(
+    bytes: &[u8],
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<LoadedVolume, LoadProblem> {
     let header = parse_header(bytes)?;
     if header.ndims.is_some_and(|n| n != 3) {
         return Err(LoadProblem::unsupported(format!(
@@ -83,14 +100,28 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
     };
     let voxels = checked_voxel_count(dims, components as u64)?;
     let count = voxels * components;
-    let expected_bytes = count * scalar_type.size_bytes();
+    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    check_budget(expected_bytes, count as u64, options)?;
     let grid = grid(&header, dims)?;
 
     let detached;
     let data: &[u8] = match &header.data_file {
         Some(name) => {
-            let folder = path.parent().unwrap_or(Path::new("."));
-            detached = read_data_file(&folder.join(name))?;
+            let data_path = data_file_path(path, name, options)?;
+            let range = match (header.compressed, header.header_size) {
+                (true, _) => DataRange::From {
+                    skip: 0,
+                    needed: options.max_volume_bytes,
+                },
+                (false, -1) => DataRange::Tail {
+                    needed: expected_bytes,
+                },
+                (false, skip) => DataRange::From {
+                    skip: u64::try_from(skip).unwrap_or(0),
+                    needed: expected_bytes,
+                },
+            };
+            detached = read_data_file(&data_path, range, options)?;
             &detached
         }
         None => bytes.get(header.header_bytes..).unwrap_or_default(),
@@ -99,23 +130,8 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
     let data = if header.compressed {
         inflated = inflate(data, expected_bytes)?;
         &inflated[..]
-    } else if header.data_file.is_some() && header.header_size == -1 {
-        let start = data
-            .len()
-            .checked_sub(expected_bytes)
-            .ok_or(LoadProblem::Truncated {
-                expected_bytes,
-                actual_bytes: data.len(),
-            })?;
-        &data[start..]
-    } else if header.data_file.is_some() {
-        let skip = usize::try_from(header.header_size)
-            .map_err(|_| LoadProblem::header("HeaderSize must be -1 or a byte count"))?;
-        data.get(skip..).ok_or(LoadProblem::Truncated {
-            expected_bytes: skip + expected_bytes,
-            actual_bytes: data.len(),
-        })?
     } else {
+        // A detached file was read from HeaderSize on (or its tail for -1); inline data starts here.
         data
     };
     let endian = if header.big_endian {

@@ -27,14 +27,26 @@
 //!
 //! **Errors.** Every failure is a [`LoadError`] naming the file and the problem; sizes are checked
 //! against the header before any large allocation, and no loader panics on any input.
+//!
+//! **Limits** ([`source`]): only regular files are opened (a FIFO, device or socket is refused at once);
+//! each load reads or inflates only the bytes its header describes (byte skips and header sizes included,
+//! with checked arithmetic), and at most `--max-volume-bytes` ([`LoadOptions`], default 4 GiB) counting
+//! the data and its `f32` copy; a data file named in a header must resolve inside the header's folder
+//! unless `--allow-outside-paths`.
 
 mod decode;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
 pub mod raw;
+pub mod source;
 
 pub use decode::{decode_samples, Decoded, Endian, ScalarType};
+pub use source::{
+    confined_path, open_regular, process_options, read_regular, read_text_file,
+    set_process_options, FileError, LoadOptions, DEFAULT_MAX_VOLUME_BYTES, MAX_HEADER_BYTES,
+    MAX_TEXT_FILE_BYTES,
+};
 
 use super::{AnyVolume, VolumeError};
 use std::path::{Path, PathBuf};
@@ -113,11 +125,12 @@ pub struct LoadError {
 pub enum LoadProblem {
     #[error("cannot read the file: {0}")]
     Io(#[from] std::io::Error),
+    #[error("cannot read the file: {0}")]
+    File(FileError),
     #[error("cannot read the data file {}: {source}", path.display())]
-    DataFile {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    DataFile { path: PathBuf, source: FileError },
+    #[error("loading this volume needs {needed_bytes} bytes (the data read or inflated plus 4 bytes per value), more than --max-volume-bytes {limit_bytes}")]
+    OverLimit { needed_bytes: u64, limit_bytes: u64 },
     #[error("unknown extension: expected .nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd or .toml")]
     UnknownExtension,
     #[error("bad header: {0}")]
@@ -126,13 +139,13 @@ pub enum LoadProblem {
     Unsupported(String),
     #[error("data is truncated: the header describes {expected_bytes} bytes but only {actual_bytes} are there")]
     Truncated {
-        expected_bytes: usize,
-        actual_bytes: usize,
+        expected_bytes: u64,
+        actual_bytes: u64,
     },
     #[error(
         "data is longer than the header describes ({expected_bytes} bytes expected, more found)"
     )]
-    TrailingData { expected_bytes: usize },
+    TrailingData { expected_bytes: u64 },
     #[error("compressed data is corrupt: {0}")]
     Decompress(std::io::Error),
     #[error("{voxels} voxels is more than the loader limit of {MAX_VOXELS}")]
@@ -162,15 +175,20 @@ impl LoadProblem {
 }
 
 /// Loads a volume file, choosing the loader by extension (`.nii`, `.nii.gz`, `.nrrd`, `.nhdr`, `.mha`,
-/// `.mhd`, `.toml`).
+/// `.mhd`, `.toml`), with the process-wide limits ([`process_options`]).
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadError> {
+    load_with(path, &process_options())
+}
+
+/// [`load`] with explicit limits.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadError> {
     let format =
         FileFormat::from_path(path).ok_or_else(|| LoadProblem::UnknownExtension.at(path))?;
     let result = match format {
-        FileFormat::Nifti => nifti::load(path),
-        FileFormat::Nrrd => nrrd::load(path),
-        FileFormat::MetaImage => metaimage::load(path),
-        FileFormat::RawToml => raw::load(path),
+        FileFormat::Nifti => nifti::load_with(path, options),
+        FileFormat::Nrrd => nrrd::load_with(path, options),
+        FileFormat::MetaImage => metaimage::load_with(path, options),
+        FileFormat::RawToml => raw::load_with(path, options),
     };
     result.map_err(|problem| problem.at(path))
 }
@@ -189,17 +207,13 @@ pub(crate) fn checked_voxel_count(dims: [u64; 3], components: u64) -> Result<usi
     Ok(voxels as usize)
 }
 
-/// Reads a whole file; errors name the file through [`LoadProblem::Io`].
-pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, LoadProblem> {
-    Ok(std::fs::read(path)?)
-}
-
-/// Reads a detached data file; errors name the data file.
-pub(crate) fn read_data_file(path: &Path) -> Result<Vec<u8>, LoadProblem> {
-    std::fs::read(path).map_err(|source| LoadProblem::DataFile {
-        path: path.to_path_buf(),
-        source,
-    })
+/// Bytes of `count` elements of `scalar_type`, checked.
+pub(crate) fn data_bytes(count: usize, scalar_type: ScalarType) -> Result<u64, LoadProblem> {
+    (count as u64)
+        .checked_mul(scalar_type.size_bytes() as u64)
+        .ok_or(LoadProblem::TooLarge {
+            voxels: count as u128,
+        })
 }
 
 /// How decoded values become a volume.

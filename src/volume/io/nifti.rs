@@ -16,9 +16,8 @@
 //! Not supported (clear errors): NIfTI-2, `.hdr`/`.img` pairs, complex and RGB types, 4-D series.
 
 use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::{
-    assemble, checked_voxel_count, read_file, FileFormat, Layout, LoadProblem, LoadedVolume,
-};
+use super::source::{check_budget, read_volume_file, LoadOptions};
+use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
 use crate::volume::Grid;
 use glam::{DMat3, DMat4, DVec3};
 use nifti::{NiftiHeader, NiftiType};
@@ -29,17 +28,34 @@ const HEADER_BYTES: usize = 348;
 /// NIfTI intent code of a vector field.
 const INTENT_VECTOR: i16 = 1007;
 
-/// Loads a `.nii` or `.nii.gz` file.
+/// Loads a `.nii` or `.nii.gz` file with the default limits.
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    let bytes = read_file(path)?;
+    load_with(path, &LoadOptions::default())
+}
+
+/// Loads a `.nii` or `.nii.gz` file within `options`' limits.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
+    let bytes = read_volume_file(path, options)?;
     let gzipped = path
         .file_name()
         .is_some_and(|name| name.to_string_lossy().to_ascii_lowercase().ends_with(".gz"));
-    parse(&bytes, gzipped, path)
+    parse_with(&bytes, gzipped, path, options)
 }
 
-/// Parses an in-memory NIfTI-1 file (gzipped or not). `path` only labels the result.
+/// Parses an in-memory NIfTI-1 file (gzipped or not) with the default limits. `path` only labels the
+/// result.
 pub fn parse(bytes: &[u8], gzipped: bool, path: &Path) -> Result<LoadedVolume, LoadProblem> {
+    parse_with(bytes, gzipped, path, &LoadOptions::default())
+}
+
+/// [`parse`] within `options`' limits: the header's sizes are checked against `--max-volume-bytes`
+/// before anything is inflated, and inflating stops one byte past what the header describes.
+pub fn parse_with(
+    bytes: &[u8],
+    gzipped: bool,
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<LoadedVolume, LoadProblem> {
     // Inflate just the header first: its dimensions bound how much inflating the rest may produce.
     let header_bytes = if gzipped {
         inflate_prefix(bytes, HEADER_BYTES)?
@@ -51,8 +67,8 @@ pub fn parse(bytes: &[u8], gzipped: bool, path: &Path) -> Result<LoadedVolume, L
     };
     if header_bytes.len() < HEADER_BYTES {
         return Err(LoadProblem::Truncated {
-            expected_bytes: HEADER_BYTES,
-            actual_bytes: header_bytes.len(),
+            expected_bytes: HEADER_BYTES as u64,
+            actual_bytes: header_bytes.len() as u64,
         });
     }
     let header = parse_header(&header_bytes)?;
@@ -61,6 +77,7 @@ pub fn parse(bytes: &[u8], gzipped: bool, path: &Path) -> Result<LoadedVolume, L
         .data_offset
         .checked_add(plan.data_bytes)
         .ok_or_else(|| LoadProblem::header("vox_offset is too large"))?;
+    check_budget(total_bytes, (plan.voxels * plan.components) as u64, options)?;
     let inflated;
     let file: &[u8] = if gzipped {
         inflated = inflate(bytes, total_bytes)?;
@@ -68,10 +85,13 @@ pub fn parse(bytes: &[u8], gzipped: bool, path: &Path) -> Result<LoadedVolume, L
     } else {
         bytes
     };
-    let data = file.get(plan.data_offset..).ok_or(LoadProblem::Truncated {
-        expected_bytes: total_bytes,
-        actual_bytes: file.len(),
-    })?;
+    let data = usize::try_from(plan.data_offset)
+        .ok()
+        .and_then(|offset| file.get(offset..))
+        .ok_or(LoadProblem::Truncated {
+            expected_bytes: total_bytes,
+            actual_bytes: file.len() as u64,
+        })?;
     let decoded = decode_samples(
         data,
         plan.scalar_type,
@@ -137,8 +157,8 @@ struct Plan {
     endian: Endian,
     voxels: usize,
     components: usize,
-    data_offset: usize,
-    data_bytes: usize,
+    data_offset: u64,
+    data_bytes: u64,
     scale: Option<(f64, f64)>,
 }
 
@@ -181,8 +201,9 @@ fn plan(header: &NiftiHeader) -> Result<Plan, LoadProblem> {
             "vox_offset {vox_offset} must be a whole number >= 348"
         )));
     }
-    let data_offset = vox_offset as usize;
-    let data_bytes = voxels * components * scalar_type.size_bytes();
+    // A whole number >= 348 below 2^64 (f32 holds at most 2^128; larger values fail the conversion).
+    let data_offset = vox_offset as u64;
+    let data_bytes = super::data_bytes(voxels * components, scalar_type)?;
     let slope = f64::from(header.scl_slope);
     let intercept = f64::from(header.scl_inter);
     let scale = (slope.is_finite() && slope != 0.0 && !(slope == 1.0 && intercept == 0.0))

@@ -12,9 +12,11 @@
 //! file` lists, time axes.
 
 use super::decode::{decode_samples, inflate, Decoded, Endian, ScalarType};
+use super::source::{
+    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
+};
 use super::{
-    assemble, checked_voxel_count, metres_per_unit, read_data_file, read_file, FileFormat, Layout,
-    LoadProblem, LoadedVolume,
+    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadProblem, LoadedVolume,
 };
 use crate::volume::Grid;
 use glam::{DMat3, DVec3};
@@ -50,14 +52,31 @@ pub struct NrrdHeader {
     pub header_bytes: usize,
 }
 
-/// Loads a `.nrrd` or `.nhdr` file.
+/// Loads a `.nrrd` or `.nhdr` file with the default limits.
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    let bytes = read_file(path)?;
-    parse(&bytes, path)
+    load_with(path, &LoadOptions::default())
 }
 
-/// Parses a NRRD file held in memory; a detached data file is read relative to `path`'s folder.
+/// Loads a `.nrrd` or `.nhdr` file within `options`' limits.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
+    let bytes = read_volume_file(path, options)?;
+    parse_with(&bytes, path, options)
+}
+
+/// Parses a NRRD file held in memory with the default limits; a detached data file is read relative to
+/// `path`'s folder.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
+    parse_with(bytes, path, &LoadOptions::default())
+}
+
+/// [`parse`] within `options`' limits: the byte skip plus the data the sizes describe are checked against
+/// `--max-volume-bytes` before anything is read or inflated, and a detached data file must lie in the
+/// header's folder.
+pub fn parse_with(
+    bytes: &[u8],
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<LoadedVolume, LoadProblem> {
     let header = parse_header(bytes)?;
     let scalar_type = header.scalar_type.ok_or_else(|| missing("type"))?;
     let dimension = header.dimension.ok_or_else(|| missing("dimension"))?;
@@ -89,12 +108,35 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
     };
     let grid = grid(&header, components, dims)?;
     let flip = header.space_flip.unwrap_or([1.0; 3]);
+    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    // What the reader must read or inflate: the byte skip, then the data. ASCII data is text, several
+    // bytes a value: its file size is bounded by the volume file limit instead.
+    let byte_skip = u64::try_from(header.byte_skip).unwrap_or(0);
+    let needed_bytes = byte_skip
+        .checked_add(expected_bytes)
+        .ok_or_else(|| LoadProblem::header(format!("byte skip {byte_skip} is too large")))?;
+    check_budget(needed_bytes, count as u64, options)?;
 
     let detached;
     let data: &[u8] = match &header.data_file {
         Some(name) => {
-            let folder = path.parent().unwrap_or(Path::new("."));
-            detached = read_data_file(&folder.join(name))?;
+            let data_path = data_file_path(path, name, options)?;
+            // Lines to skip come first; the bounded read below covers raw data without line skips, the
+            // common case; other layouts read the file up to the limit and are checked after decoding.
+            let range = match (encoding, header.line_skip, header.byte_skip) {
+                (Encoding::Raw, 0, -1) => DataRange::Tail {
+                    needed: expected_bytes,
+                },
+                (Encoding::Raw, 0, _) => DataRange::From {
+                    skip: 0,
+                    needed: needed_bytes,
+                },
+                _ => DataRange::From {
+                    skip: 0,
+                    needed: options.max_volume_bytes,
+                },
+            };
+            detached = read_data_file(&data_path, range, options)?;
             &detached
         }
         None => bytes.get(header.header_bytes..).unwrap_or_default(),
@@ -123,6 +165,7 @@ fn decode(
     endian: Endian,
     count: usize,
 ) -> Result<Decoded, LoadProblem> {
+    // Checked against the limit by the caller, so these fit in memory and in usize.
     let expected_bytes = count * scalar_type.size_bytes();
     let skip = |data: &[u8]| -> Result<Vec<u8>, LoadProblem> {
         let byte_skip = usize::try_from(header.byte_skip).map_err(|_| {
@@ -134,8 +177,8 @@ fn decode(
         data.get(byte_skip..)
             .map(<[u8]>::to_vec)
             .ok_or(LoadProblem::Truncated {
-                expected_bytes: byte_skip + expected_bytes,
-                actual_bytes: data.len(),
+                expected_bytes: (byte_skip as u64).saturating_add(expected_bytes as u64),
+                actual_bytes: data.len() as u64,
             })
     };
     match encoding {
@@ -145,8 +188,8 @@ fn decode(
                     data.len()
                         .checked_sub(expected_bytes)
                         .ok_or(LoadProblem::Truncated {
-                            expected_bytes,
-                            actual_bytes: data.len(),
+                            expected_bytes: expected_bytes as u64,
+                            actual_bytes: data.len() as u64,
                         })?;
                 &data[start..]
             } else {
@@ -155,8 +198,8 @@ fn decode(
             decode_samples(data, scalar_type, endian, count, None)
         }
         Encoding::Gzip => {
-            let byte_skip = usize::try_from(header.byte_skip).unwrap_or(0);
-            let inflated = inflate(data, byte_skip + expected_bytes)?;
+            let byte_skip = u64::try_from(header.byte_skip).unwrap_or(0);
+            let inflated = inflate(data, byte_skip.saturating_add(expected_bytes as u64))?;
             decode_samples(&skip(&inflated)?, scalar_type, endian, count, None)
         }
         Encoding::Ascii => {
@@ -177,7 +220,7 @@ fn decode_text(data: &[u8], scalar_type: ScalarType, count: usize) -> Result<Dec
     {
         if decoded.values.len() == count {
             return Err(LoadProblem::TrailingData {
-                expected_bytes: count,
+                expected_bytes: count as u64,
             });
         }
         let value: f64 = token.parse().map_err(|_| {
@@ -202,8 +245,8 @@ fn decode_text(data: &[u8], scalar_type: ScalarType, count: usize) -> Result<Dec
     }
     if decoded.values.len() < count {
         return Err(LoadProblem::Truncated {
-            expected_bytes: count,
-            actual_bytes: decoded.values.len(),
+            expected_bytes: count as u64,
+            actual_bytes: decoded.values.len() as u64,
         });
     }
     Ok(decoded)

@@ -19,9 +19,12 @@
 //! The world frame is taken to be RAS as written (no flip).
 
 use super::decode::{decode_samples, inflate, Endian, ScalarType};
+use super::source::{
+    check_budget, data_file_path, read_data_file, read_regular, DataRange, LoadOptions,
+    MAX_HEADER_BYTES,
+};
 use super::{
-    assemble, checked_voxel_count, metres_per_unit, read_data_file, read_file, FileFormat, Layout,
-    LoadProblem, LoadedVolume,
+    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadProblem, LoadedVolume,
 };
 use crate::volume::Grid;
 use glam::{DMat3, DVec3};
@@ -52,12 +55,39 @@ fn one() -> usize {
     1
 }
 
-/// Loads a raw volume through its `.toml` header.
+/// Loads a raw volume through its `.toml` header with the default limits.
 pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    let text = read_file(path)?;
+    load_with(path, &LoadOptions::default())
+}
+
+/// Loads a raw volume through its `.toml` header within `options`' limits: the header is at most 1 MiB,
+/// `header_bytes` plus the data `dims` describe are checked against `--max-volume-bytes` before the data
+/// file is read, and the data file must lie in the header's folder.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
+    let text = read_regular(path, MAX_HEADER_BYTES, "a raw volume's TOML header")
+        .map_err(LoadProblem::File)?;
     let header = parse_header(&text)?;
-    let folder = path.parent().unwrap_or(Path::new("."));
-    let data = read_data_file(&folder.join(&header.data_file))?;
+    let scalar_type = ScalarType::from_name(&header.scalar_type).ok_or_else(|| {
+        LoadProblem::header(format!(
+            "scalar_type {:?} is not one of u8 i8 u16 i16 u32 i32 u64 i64 f32 f64",
+            header.scalar_type
+        ))
+    })?;
+    let voxels = checked_voxel_count(header.dims, header.components.max(1) as u64)?;
+    let count = voxels * header.components.max(1);
+    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    check_budget(expected_bytes, count as u64, options)?;
+    let data_path = data_file_path(path, &header.data_file, options)?;
+    let compressed = !matches!(header.compression.as_deref(), None | Some("none"));
+    let range = DataRange::From {
+        skip: 0,
+        needed: if compressed {
+            options.max_volume_bytes
+        } else {
+            (header.header_bytes as u64).saturating_add(expected_bytes)
+        },
+    };
+    let data = read_data_file(&data_path, range, options)?;
     decode_with_header(&header, &data, path)
 }
 
@@ -118,10 +148,10 @@ pub fn decode_with_header(
     let data = data
         .get(header.header_bytes..)
         .ok_or(LoadProblem::Truncated {
-            expected_bytes: header.header_bytes,
-            actual_bytes: data.len(),
+            expected_bytes: header.header_bytes as u64,
+            actual_bytes: data.len() as u64,
         })?;
-    let expected_bytes = count * scalar_type.size_bytes();
+    let expected_bytes = super::data_bytes(count, scalar_type)?;
     let inflated;
     let data = match header.compression.as_deref() {
         None | Some("none") => data,

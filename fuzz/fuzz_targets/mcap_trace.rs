@@ -1,0 +1,11 @@
+//! Fuzz target `mcap_trace`: arbitrary bytes into `bodies::mcap_trace` (fuzz/bodies.rs, shared with the corpus replay in
+//! tests/fuzz_corpus.rs).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+#[allow(dead_code)] // each target uses one body
+#[path = "../bodies.rs"]
+mod bodies;
+
+fuzz_target!(|data: &[u8]| bodies::mcap_trace(data));

@@ -1,0 +1,470 @@
+//! Keeps docs/bad-inputs.md true: every row of its tables is a case here, run against the real `voxhap`
+//! binary (files made in a temporary folder) or a real server on 127.0.0.1:0, and the tables in the page
+//! are generated from these cases. A case whose error text changed fails; a page that no longer matches the
+//! cases fails too (rewrite it with `VOXHAP_BLESS=1 cargo test --test integration bad_inputs`).
+
+use crate::util::server::{TestServer, TOKEN};
+use std::io::Write;
+use std::path::Path;
+use std::process::Command;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use voxhap::servo::api::VolumeDirs;
+
+/// One bad input given to a command.
+struct Case {
+    /// What the input is (Markdown).
+    input: &'static str,
+    /// Makes the files the command reads, in the case's own folder.
+    setup: fn(&Path),
+    args: &'static [&'static str],
+    /// Exit code: 2 for a flag refused when parsed, 1 for any other error.
+    exit: i32,
+    /// Text the error message contains.
+    expected: &'static str,
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) {
+    std::fs::write(dir.join(name), bytes).unwrap();
+}
+
+fn nothing(_: &Path) {}
+
+fn nifti_gz(dims: u16, zeros: usize) -> Vec<u8> {
+    let mut h = vec![0u8; 352];
+    h[0..4].copy_from_slice(&348i32.to_le_bytes());
+    for (i, d) in [3u16, dims, dims, dims, 1, 1, 1, 1].iter().enumerate() {
+        h[40 + 2 * i..42 + 2 * i].copy_from_slice(&d.to_le_bytes());
+    }
+    h[70..72].copy_from_slice(&2i16.to_le_bytes());
+    h[72..74].copy_from_slice(&8i16.to_le_bytes());
+    for i in 0..4 {
+        h[76 + 4 * i..80 + 4 * i].copy_from_slice(&1f32.to_le_bytes());
+    }
+    h[108..112].copy_from_slice(&352f32.to_le_bytes());
+    h[344..348].copy_from_slice(b"n+1\0");
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    encoder.write_all(&h).unwrap();
+    encoder.write_all(&vec![0u8; zeros]).unwrap();
+    encoder.finish().unwrap()
+}
+
+fn nhdr(data_file: &str) -> Vec<u8> {
+    format!("NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: {data_file}\n\n")
+        .into_bytes()
+}
+
+fn scenario(dir: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string("sims/sphere_surface.toml")
+        .unwrap()
+        .replace(from, to);
+    write(dir, "scene.toml", text.as_bytes());
+}
+
+fn mcap(dir: &Path) {
+    let text = std::fs::read_to_string("sims/sphere_surface.toml")
+        .unwrap()
+        .replace("duration_s = 6.0", "duration_s = 0.01");
+    write(dir, "short.toml", text.as_bytes());
+    let status = voxhap()
+        .args(["sim", "short.toml", "--out", "trace.mcap"])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{status:?}");
+    let mut bytes = std::fs::read(dir.join("trace.mcap")).unwrap();
+    bytes[9..17].copy_from_slice(&4_300_000_000u64.to_le_bytes());
+    write(dir, "trace.mcap", &bytes);
+}
+
+const CASES: &[Case] = &[
+    Case {
+        input: "a FIFO (named pipe) as a volume",
+        setup: |dir| mkfifo(&dir.join("pipe.nii")),
+        args: &["info", "pipe.nii"],
+        exit: 1,
+        expected: "it is a FIFO (named pipe), not a regular file (only regular files are read)",
+    },
+    Case {
+        input: "a symlink to `/dev/zero` as a volume",
+        setup: |dir| std::os::unix::fs::symlink("/dev/zero", dir.join("zero.nii")).unwrap(),
+        args: &["info", "zero.nii"],
+        exit: 1,
+        expected: "it is a character device, not a regular file",
+    },
+    Case {
+        input: "a folder named like a volume",
+        setup: |dir| std::fs::create_dir(dir.join("folder.nrrd")).unwrap(),
+        args: &["info", "folder.nrrd"],
+        exit: 1,
+        expected: "it is a directory, not a regular file",
+    },
+    Case {
+        input: "a .nii.gz whose header claims 1024^3 voxels (a gzip bomb)",
+        setup: |dir| write(dir, "bomb.nii.gz", &nifti_gz(1024, 1024)),
+        args: &["info", "bomb.nii.gz"],
+        exit: 1,
+        expected: "loading this volume needs 5368709472 bytes (the data read or inflated plus 4 bytes per value), more than --max-volume-bytes 4294967296",
+    },
+    Case {
+        input: "a 2x2x2 .nii.gz followed by 64 MiB of compressed zeros",
+        setup: |dir| write(dir, "long.nii.gz", &nifti_gz(2, 64 << 20)),
+        args: &["info", "long.nii.gz"],
+        exit: 1,
+        expected: "data is longer than the header describes (8 bytes expected, more found)",
+    },
+    Case {
+        input: "a 2x2x2 NRRD with `byte skip: 5000000000`",
+        setup: |dir| {
+            write(
+                dir,
+                "skip.nrrd",
+                b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: gzip\nbyte skip: 5000000000\n\n",
+            )
+        },
+        args: &["info", "skip.nrrd"],
+        exit: 1,
+        expected: "more than --max-volume-bytes 4294967296",
+    },
+    Case {
+        input: "a volume within a lowered limit",
+        setup: |dir| write(dir, "small.nii.gz", &nifti_gz(64, 0)),
+        args: &["info", "small.nii.gz", "--max-volume-bytes", "1M"],
+        exit: 1,
+        expected: "loading this volume needs 1311072 bytes (the data read or inflated plus 4 bytes per value), more than --max-volume-bytes 1048576",
+    },
+    Case {
+        input: "a .nhdr whose `data file:` climbs out of its folder",
+        setup: |dir| write(dir, "climb.nhdr", &nhdr("../../../../../../../../etc/passwd")),
+        args: &["info", "climb.nhdr"],
+        exit: 1,
+        expected: "resolves to /etc/passwd, outside the folder",
+    },
+    Case {
+        input: "a .nhdr whose `data file:` is `/dev/zero`, outside paths allowed",
+        setup: |dir| write(dir, "zero.nhdr", &nhdr("/dev/zero")),
+        args: &["info", "zero.nhdr", "--allow-outside-paths"],
+        exit: 1,
+        expected: "cannot read the data file /dev/zero: it is a character device, not a regular file",
+    },
+    Case {
+        input: "a .mhd whose `ElementDataFile` is absolute",
+        setup: |dir| {
+            write(
+                dir,
+                "abs.mhd",
+                b"NDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = /etc/passwd\n",
+            )
+        },
+        args: &["info", "abs.mhd"],
+        exit: 1,
+        expected: "(add --allow-outside-paths to allow this)",
+    },
+    Case {
+        input: "a raw .toml whose `data_file` is a symlink out of its folder",
+        setup: |dir| {
+            std::os::unix::fs::symlink("/etc/passwd", dir.join("link.raw")).unwrap();
+            write(
+                dir,
+                "raw.toml",
+                b"data_file = \"link.raw\"\ndims = [2, 2, 2]\nscalar_type = \"u8\"\nspacing = [1, 1, 1]\n",
+            );
+        },
+        args: &["info", "raw.toml"],
+        exit: 1,
+        expected: "resolves to /etc/passwd, outside the folder",
+    },
+    Case {
+        input: "a scenario whose volume file is a symlink out of its folder",
+        setup: |dir| {
+            std::os::unix::fs::symlink("/etc/passwd", dir.join("link.nii")).unwrap();
+            scenario(dir, "builtin = \"sphere\"", "file = \"link.nii\"");
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "(add --allow-outside-paths to allow this)",
+    },
+    Case {
+        input: "a scenario with `substeps_per_tick = 4000000000`",
+        setup: |dir| scenario(dir, "[arm]", "[arm]\nsubsteps_per_tick = 4000000000"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "arm.substeps_per_tick: 4000000000 is out of range 1..=1000",
+    },
+    Case {
+        input: "a scenario with `rate_hz = 1e12`",
+        setup: |dir| scenario(dir, "rate_hz = 1000.0", "rate_hz = 1e12"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "rate_hz: 1000000000000 Hz is out of range 1..=100000 Hz",
+    },
+    Case {
+        input: "a FIFO as a scenario",
+        setup: |dir| mkfifo(&dir.join("scene.toml")),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "it is a FIFO (named pipe), not a regular file",
+    },
+    Case {
+        input: "an MCAP trace with 8 bytes of a record length overwritten",
+        setup: mcap,
+        args: &["plot", "trace.mcap", "--out", "p.png"],
+        exit: 1,
+        expected: "damaged file: a record claims 4300000000 bytes, more than remain at byte 8",
+    },
+    Case {
+        input: "`/dev/zero` as a trace to plot",
+        setup: nothing,
+        args: &["plot", "/dev/zero", "--out", "p.png"],
+        exit: 1,
+        expected: "cannot read /dev/zero: it is a character device, not a regular file",
+    },
+    Case {
+        input: "`/dev/zero` as a trace to replay",
+        setup: nothing,
+        args: &["serve", "--device", "replay:/dev/zero", "--no-http", "--no-foxglove"],
+        exit: 1,
+        expected: "replay trace /dev/zero: cannot read /dev/zero",
+    },
+    Case {
+        input: "`--max-volume-bytes 1k`",
+        setup: nothing,
+        args: &["info", "builtin:sphere", "--max-volume-bytes", "1k"],
+        exit: 2,
+        expected: "1024 bytes is out of range: give 1M (1048576) to 1T (1099511627776)",
+    },
+    Case {
+        input: "`serve --duration 1e20`",
+        setup: nothing,
+        args: &["serve", "--duration", "1e20"],
+        exit: 2,
+        expected: "1e20 s is out of range: give a number of seconds > 0 and <= 1e9",
+    },
+    Case {
+        input: "`bench-loop --seconds 1e20`",
+        setup: nothing,
+        args: &["bench-loop", "--seconds", "1e20"],
+        exit: 2,
+        expected: "1e20 s is out of range: give a number of seconds > 0 and <= 1e9",
+    },
+    Case {
+        input: "`bench-loop --load-threads 2000`",
+        setup: nothing,
+        args: &["bench-loop", "--load-threads", "2000"],
+        exit: 2,
+        expected: "2000 is not in 0..=64",
+    },
+    Case {
+        input: "`plot --width 100000`",
+        setup: nothing,
+        args: &["plot", "t.csv", "--out", "p.png", "--width", "100000"],
+        exit: 2,
+        expected: "100000 is not in 400..=8192",
+    },
+    Case {
+        input: "`plot --height 4294967295`",
+        setup: nothing,
+        args: &["plot", "t.csv", "--out", "p.png", "--height", "4294967295"],
+        exit: 2,
+        expected: "4294967295 is not in 300..=8192",
+    },
+    Case {
+        input: "`serve --volume-dir` naming no folder",
+        setup: nothing,
+        args: &["serve", "--volume-dir", "/nonexistent", "--no-http", "--no-foxglove"],
+        exit: 1,
+        expected: "--volume-dir /nonexistent: not a folder",
+    },
+];
+
+/// One bad request to `voxhap serve` (listening on 127.0.0.1:PORT, control token TOKEN).
+struct RequestCase {
+    input: &'static str,
+    /// The request; `{addr}` is replaced by the server's address.
+    request: &'static str,
+    status: u16,
+    expected: &'static str,
+}
+
+const REQUESTS: &[RequestCase] = &[
+    RequestCase {
+        input: "a page reached through DNS rebinding (its own name, our address)",
+        request: "GET /api/state HTTP/1.1\r\nHost: rebind.example:{port}\r\nConnection: close\r\n\r\n",
+        status: 403,
+        expected: "forbidden: Host \"rebind.example:{port}\" is not this server's address",
+    },
+    RequestCase {
+        input: "a WebSocket opened by another site's page",
+        request: "GET /ws HTTP/1.1\r\nHost: {addr}\r\nOrigin: https://evil.example\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n",
+        status: 403,
+        expected: "forbidden: Origin \"https://evil.example\" is not this server's page",
+    },
+    RequestCase {
+        input: "a control request sent by another site's page",
+        request: "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nOrigin: https://evil.example\r\nContent-Length: 10\r\nConnection: close\r\n\r\n{\"k\": 450}",
+        status: 403,
+        expected: "forbidden: Origin \"https://evil.example\" is not this server's page",
+    },
+    RequestCase {
+        input: "a volume file outside the `--volume-dir` folders",
+        request: "POST /api/volume HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 23\r\nConnection: close\r\n\r\n{\"path\": \"/etc/passwd\"}",
+        status: 400,
+        expected: "volume /etc/passwd: outside the --volume-dir folders",
+    },
+    RequestCase {
+        input: "a FIFO in the `--volume-dir` folder",
+        request: "POST /api/volume HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 20\r\nConnection: close\r\n\r\n{\"path\": \"pipe.nii\"}",
+        status: 400,
+        expected: "it is a FIFO (named pipe), not a regular file",
+    },
+];
+
+fn voxhap() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_voxhap"))
+}
+
+fn mkfifo(path: &Path) {
+    let c_path = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path; mkfifo only creates the node.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+}
+
+fn escape(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
+/// The page's tables, as generated from the cases.
+fn tables() -> String {
+    let mut out =
+        String::from("| input | command | exit | error message contains |\n|---|---|---|---|\n");
+    for case in CASES {
+        out.push_str(&format!(
+            "| {} | `voxhap {}` | {} | `{}` |\n",
+            case.input,
+            case.args.join(" "),
+            case.exit,
+            escape(case.expected)
+        ));
+    }
+    out.push_str(
+        "\nRequests to `voxhap serve --volume-dir DIR` on 127.0.0.1:PORT (DIR holds a FIFO `pipe.nii`):\n\n",
+    );
+    out.push_str("| input | request | status | error message contains |\n|---|---|---|---|\n");
+    for case in REQUESTS {
+        let first_line = case.request.lines().next().unwrap_or_default();
+        let (head, body) = case
+            .request
+            .split_once("\r\n\r\n")
+            .unwrap_or((case.request, ""));
+        let mut parts: Vec<String> = head
+            .split("\r\n")
+            .skip(1)
+            .filter(|h| h.starts_with("Host") || h.starts_with("Origin") || h.starts_with("Auth"))
+            .map(|h| {
+                h.replace("{addr}", "127.0.0.1:PORT")
+                    .replace("{port}", "PORT")
+            })
+            .collect();
+        if !body.is_empty() {
+            parts.push(format!("body {body}"));
+        }
+        out.push_str(&format!(
+            "| {} | `{first_line}` {} | {} | `{}` |\n",
+            case.input,
+            parts
+                .iter()
+                .map(|part| format!("`{}`", escape(part)))
+                .collect::<Vec<_>>()
+                .join(" "),
+            case.status,
+            escape(&case.expected.replace("{port}", "PORT"))
+        ));
+    }
+    out
+}
+
+const BEGIN: &str = "<!-- bad-inputs:begin (generated by tests/bad_inputs.rs) -->\n";
+const END: &str = "<!-- bad-inputs:end -->";
+
+#[test]
+fn the_page_lists_exactly_the_cases_that_are_run() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/bad-inputs.md");
+    let page = std::fs::read_to_string(&path).unwrap();
+    let (head, rest) = page.split_once(BEGIN).expect("the begin marker");
+    let (_, tail) = rest.split_once(END).expect("the end marker");
+    let wanted = format!("{head}{BEGIN}{}{END}{tail}", tables());
+    if std::env::var_os("VOXHAP_BLESS").is_some() {
+        std::fs::write(&path, &wanted).unwrap();
+    }
+    assert!(
+        page == wanted,
+        "docs/bad-inputs.md does not match the cases in tests/bad_inputs.rs; rerun with VOXHAP_BLESS=1"
+    );
+}
+
+#[test]
+fn every_bad_input_in_the_table_gets_its_error() {
+    let mut failures = Vec::new();
+    for case in CASES {
+        let dir = tempfile::tempdir().unwrap();
+        (case.setup)(dir.path());
+        let output = voxhap()
+            .args(case.args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        if output.status.code() != Some(case.exit) || !stderr.contains(case.expected) {
+            failures.push(format!(
+                "{}: expected exit {} and {:?}; got {:?}: {stderr}",
+                case.input,
+                case.exit,
+                case.expected,
+                output.status.code()
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_bad_request_in_the_table_gets_its_error() {
+    let volumes = tempfile::tempdir().unwrap();
+    mkfifo(&volumes.path().join("pipe.nii"));
+    let dirs = VolumeDirs::new(&[volumes.path().to_path_buf()]).unwrap();
+    let server = TestServer::start_full(4, |_| {}, Some(dirs)).await;
+    for case in REQUESTS {
+        let addr = server.addr.to_string();
+        let port = server.addr.port().to_string();
+        let request = case
+            .request
+            .replace("{addr}", &addr)
+            .replace("{port}", &port)
+            .replace("TOKEN", TOKEN);
+        let mut stream = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+        stream.write_all(request.as_bytes()).await.unwrap();
+        let mut response = Vec::new();
+        let _ = tokio::time::timeout(
+            std::time::Duration::from_secs(5),
+            stream.read_to_end(&mut response),
+        )
+        .await;
+        let text = String::from_utf8_lossy(&response);
+        let status: u16 = text
+            .split(' ')
+            .nth(1)
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        assert_eq!(status, case.status, "{}: {text}", case.input);
+        let body = text.split_once("\r\n\r\n").map_or("", |(_, body)| body);
+        let message = serde_json::from_str::<serde_json::Value>(body)
+            .ok()
+            .and_then(|v| v["error"].as_str().map(str::to_owned))
+            .unwrap_or_else(|| text.to_string());
+        let expected = case.expected.replace("{port}", &port);
+        assert!(
+            message.contains(&expected),
+            "{}: {expected:?} not in {message}",
+            case.input
+        );
+    }
+}

@@ -35,8 +35,8 @@ pub struct HttpArgs {
     /// Most WebSocket clients at once; more are refused with 503.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_CLIENTS)]
     pub max_clients: usize,
-    /// Do not start the visualiser server.
-    #[arg(long, conflicts_with_all = ["http", "allow_remote", "token", "max_clients"])]
+    /// Do not start the visualiser server (--token still sets the OpenIGTLink server's token).
+    #[arg(long, conflicts_with_all = ["http", "allow_remote", "max_clients"])]
     pub no_http: bool,
 }
 
@@ -200,5 +200,6 @@ mod tests {
             .contains("--max-clients must be"));
         assert_eq!(resolve(&["--no-http"]).unwrap(), None);
         assert!(resolve(&["--no-http", "--http", "127.0.0.1:1"]).is_err());
+        assert_eq!(resolve(&["--no-http", "--token", "s3cret-token"]).unwrap(), None);
     }
 }

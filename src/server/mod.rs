@@ -25,6 +25,7 @@ pub mod config;
 pub mod foxglove;
 pub mod guard;
 mod http;
+pub mod igtl;
 pub mod messages;
 mod ws;
 

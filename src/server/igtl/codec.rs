@@ -242,7 +242,10 @@ impl<'a> Body<'a> {
         let metadata = if meta_header == 0 {
             Vec::new()
         } else {
-            decode_metadata(&body[content_end..content_end + meta_header], &body[content_end + meta_header..])?
+            decode_metadata(
+                &body[content_end..content_end + meta_header],
+                &body[content_end + meta_header..],
+            )?
         };
         Ok(Body {
             content: &body[extended..content_end],
@@ -427,7 +430,10 @@ pub struct Status {
 pub fn decode_status(content: &[u8]) -> Result<Status, CodecError> {
     need("STATUS", content, 30)?;
     let message = &content[30..];
-    let end = message.iter().position(|&b| b == 0).unwrap_or(message.len());
+    let end = message
+        .iter()
+        .position(|&b| b == 0)
+        .unwrap_or(message.len());
     Ok(Status {
         code: u16_at(content, 0),
         sub_code: u64_at(content, 2) as i64,
@@ -443,7 +449,11 @@ pub fn encode_string(out: &mut Vec<u8>, text: &str) {
     while !text.is_char_boundary(end) {
         end -= 1;
     }
-    let encoding = if text.is_ascii() { MIB_US_ASCII } else { MIB_UTF8 };
+    let encoding = if text.is_ascii() {
+        MIB_US_ASCII
+    } else {
+        MIB_UTF8
+    };
     out.extend_from_slice(&encoding.to_be_bytes());
     out.extend_from_slice(&(end as u16).to_be_bytes());
     out.extend_from_slice(&text.as_bytes()[..end]);
@@ -571,7 +581,9 @@ pub fn decode_image(content: &[u8], max_voxels: usize) -> Result<Image, CodecErr
     let offset = [0, 1, 2].map(|a| usize::from(u16_at(content, 60 + 2 * a)));
     let sub_dims = [0, 1, 2].map(|a| usize::from(u16_at(content, 66 + 2 * a)));
     if dims.contains(&0) {
-        return Err(bad(format!("dimensions {dims:?}: every one must be at least 1")));
+        return Err(bad(format!(
+            "dimensions {dims:?}: every one must be at least 1"
+        )));
     }
     if offset != [0, 0, 0] || sub_dims != dims {
         return Err(bad(format!(
@@ -713,9 +725,15 @@ mod tests {
         };
         for version in [1u16, 2] {
             let mut out = Vec::new();
-            encode_message(&mut out, version, "TRANSFORM", "Probe", 7 << 32, &[("a", "b")], |o| {
-                transform.encode(o)
-            });
+            encode_message(
+                &mut out,
+                version,
+                "TRANSFORM",
+                "Probe",
+                7 << 32,
+                &[("a", "b")],
+                |o| transform.encode(o),
+            );
             let header = header_of(&out);
             assert_eq!(header.version, version);
             assert_eq!(header.type_name, "TRANSFORM");
@@ -745,11 +763,17 @@ mod tests {
         let mut body = out[HEADER_BYTES..].to_vec();
         assert_eq!(decode_status(&body).unwrap().message, "fine");
         body[3] ^= 1;
-        assert!(matches!(header.check_crc(&body), Err(CodecError::Crc { .. })));
+        assert!(matches!(
+            header.check_crc(&body),
+            Err(CodecError::Crc { .. })
+        ));
         let mut bad = out.clone();
         bad[1] = 9;
         let fixed: &[u8; HEADER_BYTES] = bad[..HEADER_BYTES].try_into().unwrap();
-        assert_eq!(Header::decode(fixed, 100), Err(CodecError::HeaderVersion(9)));
+        assert_eq!(
+            Header::decode(fixed, 100),
+            Err(CodecError::HeaderVersion(9))
+        );
         let fixed: &[u8; HEADER_BYTES] = out[..HEADER_BYTES].try_into().unwrap();
         assert!(matches!(
             Header::decode(fixed, 4),
@@ -768,10 +792,16 @@ mod tests {
         let mut body = vec![0, 12, 0, 10, 0, 0, 0, 1, 0, 0, 0, 0];
         body.extend_from_slice(&[0, 1, 0, 5, 0, 3, 0, 0, 0, 9]);
         body.push(b'k');
-        assert!(matches!(Body::split(2, &body), Err(CodecError::Metadata(_))));
+        assert!(matches!(
+            Body::split(2, &body),
+            Err(CodecError::Metadata(_))
+        ));
         // Sizes that add up to more than the body.
         body[7] = 200;
-        assert!(matches!(Body::split(2, &body), Err(CodecError::ExtendedHeader(_))));
+        assert!(matches!(
+            Body::split(2, &body),
+            Err(CodecError::ExtendedHeader(_))
+        ));
         assert!(Body::split(2, &[0, 12]).is_err());
     }
 

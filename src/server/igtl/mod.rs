@@ -417,9 +417,15 @@ fn status_frame(shared: &Shared, snapshot: Option<&Snapshot>) -> Arc<Frame> {
     );
     let encode = |version| {
         let mut out = Vec::with_capacity(128);
-        codec::encode_message(&mut out, version, "STATUS", STATUS_DEVICE, timestamp, &[], |o| {
-            codec::encode_status(o, code, 0, name, &message)
-        });
+        codec::encode_message(
+            &mut out,
+            version,
+            "STATUS",
+            STATUS_DEVICE,
+            timestamp,
+            &[],
+            |o| codec::encode_status(o, code, 0, name, &message),
+        );
         out
     };
     Arc::new(Frame {
@@ -547,9 +553,13 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
                 frame.v1.clone()
             }
         };
-        let initial = initial.unwrap_or_else(|| status_frame(&shared, shared.api.snapshot().as_ref()));
+        let initial =
+            initial.unwrap_or_else(|| status_frame(&shared, shared.api.snapshot().as_ref()));
         let mut failed = writer
-            .write_all(&frame_bytes(&initial, writer_version.load(Ordering::Relaxed)))
+            .write_all(&frame_bytes(
+                &initial,
+                writer_version.load(Ordering::Relaxed),
+            ))
             .await
             .is_err();
         while !failed {
@@ -640,9 +650,8 @@ async fn read_message<R: AsyncRead + Unpin>(
     }
     let rest = async {
         reader.read_exact(&mut raw[1..]).await?;
-        let header = Header::decode(&raw, MAX_BODY_BYTES).map_err(|e| {
-            std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string())
-        })?;
+        let header = Header::decode(&raw, MAX_BODY_BYTES)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()))?;
         // Grows with the bytes that actually arrive, never to the claimed size up front.
         let mut body = Vec::with_capacity(header.body_size.min(64 * 1024) as usize);
         let read = reader.take(header.body_size).read_to_end(&mut body).await?;
@@ -740,7 +749,12 @@ impl ClientSession {
         let device = header.device_name.clone();
         let sent = |ok: bool| if ok { Ok(()) } else { Err(Gone) };
         if let Err(error) = header.check_crc(&body) {
-            let reply = Reply::new(&device, status_code::CHECKSUM_ERROR, "ChecksumError", format!("{} {device:?} dropped: {error}", header.type_name));
+            let reply = Reply::new(
+                &device,
+                status_code::CHECKSUM_ERROR,
+                "ChecksumError",
+                format!("{} {device:?} dropped: {error}", header.type_name),
+            );
             return sent(self.reply(reply).await);
         }
         // The client speaks this header version: answer and stream in it from now on.
@@ -748,7 +762,12 @@ impl ClientSession {
         let body = match Body::split(header.version, &body) {
             Ok(body) => body,
             Err(error) => {
-                let reply = Reply::new(&device, status_code::CONFIGURATION_ERROR, "Error", format!("{} {device:?}: {error}", header.type_name));
+                let reply = Reply::new(
+                    &device,
+                    status_code::CONFIGURATION_ERROR,
+                    "Error",
+                    format!("{} {device:?}: {error}", header.type_name),
+                );
                 return sent(self.reply(reply).await);
             }
         };
@@ -759,7 +778,12 @@ impl ClientSession {
             "STRING" => {
                 let reply = match codec::decode_string(body.content) {
                     Ok(text) => self.string(&device, &text),
-                    Err(error) => Reply::new(&device, status_code::CONFIGURATION_ERROR, "Error", error.to_string()),
+                    Err(error) => Reply::new(
+                        &device,
+                        status_code::CONFIGURATION_ERROR,
+                        "Error",
+                        error.to_string(),
+                    ),
                 };
                 sent(self.reply(reply).await)
             }
@@ -773,7 +797,12 @@ impl ClientSession {
                         Ok(())
                     }
                     Err(error) => {
-                        let reply = Reply::new(&device, status_code::CONFIGURATION_ERROR, "Error", error.to_string());
+                        let reply = Reply::new(
+                            &device,
+                            status_code::CONFIGURATION_ERROR,
+                            "Error",
+                            error.to_string(),
+                        );
                         sent(self.reply(reply).await)
                     }
                 }
@@ -816,16 +845,29 @@ impl ClientSession {
             Some(("token", given)) => {
                 self.authorised = token_matches(&self.shared.token, given.trim());
                 if self.authorised {
-                    Reply::new(device, status_code::OK, "OK", "token accepted: this connection may load volumes and move the hand")
+                    Reply::new(
+                        device,
+                        status_code::OK,
+                        "OK",
+                        "token accepted: this connection may load volumes and move the hand",
+                    )
                 } else {
-                    Reply::new(device, status_code::ACCESS_DENIED, "AccessDenied", "wrong token")
+                    Reply::new(
+                        device,
+                        status_code::ACCESS_DENIED,
+                        "AccessDenied",
+                        "wrong token",
+                    )
                 }
             }
             _ => Reply::new(
                 device,
                 status_code::UNKNOWN_INSTRUCTION,
                 "UnknownCommand",
-                format!("unknown STRING command {:?}; voxhap understands \"token <T>\"", text.chars().take(40).collect::<String>()),
+                format!(
+                    "unknown STRING command {:?}; voxhap understands \"token <T>\"",
+                    text.chars().take(40).collect::<String>()
+                ),
             ),
         }
     }
@@ -833,7 +875,12 @@ impl ClientSession {
     /// Decodes, writes and loads an IMAGE; the STATUS that answers it.
     async fn image(&self, device: &str, content: Vec<u8>, volume: Option<String>) -> Reply {
         let Ok(_permit) = self.shared.images.acquire().await else {
-            return Reply::new(device, status_code::DEVICE_NOT_READY, "Error", "the server is stopping");
+            return Reply::new(
+                device,
+                status_code::DEVICE_NOT_READY,
+                "Error",
+                "the server is stopping",
+            );
         };
         let shared = self.shared.clone();
         let device_name = device.to_owned();
@@ -872,8 +919,15 @@ impl ClientSession {
         .await;
         match loaded {
             Ok(Ok(message)) => Reply::new(device, status_code::OK, "OK", message),
-            Ok(Err((code, message))) => Reply::new(device, code, "Error", format!("IMAGE refused: {message}")),
-            Err(_) => Reply::new(device, status_code::UNKNOWN_ERROR, "Error", "the IMAGE failed inside the server"),
+            Ok(Err((code, message))) => {
+                Reply::new(device, code, "Error", format!("IMAGE refused: {message}"))
+            }
+            Err(_) => Reply::new(
+                device,
+                status_code::UNKNOWN_ERROR,
+                "Error",
+                "the IMAGE failed inside the server",
+            ),
         }
     }
 }
@@ -909,7 +963,10 @@ mod tests {
 
     #[test]
     fn a_remote_address_needs_the_flag_and_bad_values_are_refused() {
-        let error = parse(&["--igtl", "0.0.0.0:18944"]).unwrap().resolve().unwrap_err();
+        let error = parse(&["--igtl", "0.0.0.0:18944"])
+            .unwrap()
+            .resolve()
+            .unwrap_err();
         assert!(error.to_string().contains("--igtl-allow-remote"), "{error}");
         assert!(parse(&["--igtl", "0.0.0.0:18944", "--igtl-allow-remote"])
             .unwrap()

@@ -47,10 +47,8 @@ impl ImageFolder {
         let mut random = [0u8; 6];
         getrandom::fill(&mut random).map_err(VolumeFileError::Random)?;
         let suffix: String = random.iter().map(|b| format!("{b:02x}")).collect();
-        let path = std::env::temp_dir().join(format!(
-            "voxhap-igtl-{}-{suffix}",
-            std::process::id()
-        ));
+        let path =
+            std::env::temp_dir().join(format!("voxhap-igtl-{}-{suffix}", std::process::id()));
         std::fs::create_dir(&path).map_err(|source| VolumeFileError::Folder {
             path: path.clone(),
             source,
@@ -76,19 +74,25 @@ impl ImageFolder {
             .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_')
             .take(20)
             .collect();
-        let stem = if stem.is_empty() { "image".to_owned() } else { stem };
+        let stem = if stem.is_empty() {
+            "image".to_owned()
+        } else {
+            stem
+        };
         let name = format!("{stem}-{}", self.count);
         let data_path = self.path.join(format!("{name}.f32"));
         let header_path = self.path.join(format!("{name}.toml"));
         let write = |path: &Path, bytes: &[u8]| -> Result<(), VolumeFileError> {
-            let mut file = std::fs::File::create(path).map_err(|source| VolumeFileError::Write {
-                path: path.to_path_buf(),
-                source,
-            })?;
-            file.write_all(bytes).map_err(|source| VolumeFileError::Write {
-                path: path.to_path_buf(),
-                source,
-            })
+            let mut file =
+                std::fs::File::create(path).map_err(|source| VolumeFileError::Write {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+            file.write_all(bytes)
+                .map_err(|source| VolumeFileError::Write {
+                    path: path.to_path_buf(),
+                    source,
+                })
         };
         let mut data = Vec::with_capacity(image.values.len() * 4);
         for value in &image.values {
@@ -115,7 +119,11 @@ impl ImageFolder {
 /// The raw loader's TOML header for `image` (data file `<name>.f32`, little-endian float32). The index axes
 /// split into unit directions and spacings; RAS millimetres.
 fn header_text(name: &str, image: &Image) -> String {
-    let axes = [image.axes_mm.x_axis, image.axes_mm.y_axis, image.axes_mm.z_axis];
+    let axes = [
+        image.axes_mm.x_axis,
+        image.axes_mm.y_axis,
+        image.axes_mm.z_axis,
+    ];
     let spacing = axes.map(|a| a.length());
     let direction = axes.map(|a| a.normalize_or_zero().to_array());
     let list = |v: [f64; 3]| format!("[{:?}, {:?}, {:?}]", v[0], v[1], v[2]);
@@ -160,9 +168,15 @@ mod tests {
         let grid = loaded.volume.grid();
         assert_eq!(grid.dims(), [4, 3, 2]);
         let origin = grid.origin_m();
-        assert!((origin - DVec3::new(-0.010, 0.020, 0.005)).length() < 1e-12, "{origin}");
+        assert!(
+            (origin - DVec3::new(-0.010, 0.020, 0.005)).length() < 1e-12,
+            "{origin}"
+        );
         let far = grid.index_to_world(DVec3::new(3.0, 2.0, 1.0));
-        assert!((far - DVec3::new(-0.004, 0.022, 0.0055)).length() < 1e-12, "{far}");
+        assert!(
+            (far - DVec3::new(-0.004, 0.022, 0.0055)).length() < 1e-12,
+            "{far}"
+        );
         assert_eq!(loaded.volume.value_range(), (0.0, 23.0));
         for n in 0..KEPT_IMAGES + 2 {
             folder.write("v", &image).unwrap();

@@ -7,13 +7,16 @@
 //!   [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s, primitives as an object keyed by mode name in mode
 //!   order, sweeps, error_bound_m (`null` when +inf), flags);
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
-//!   (`super::foxglove_topics`), so Foxglove and Lichtblick show a recording like a live session:
-//!   [`PROBE_TOPIC`] and [`PROXY_TOPIC`] (`foxglove.FrameTransform`, frames `probe` and `proxy` in `world`,
-//!   translation in m) and [`FORCE_TOPIC`] (`foxglove.Vector3`, the sent force in N). The transforms' own
-//!   timestamps equal the log time;
-//! * one message on every channel per tick (no decimation), `log_time = publish_time = round(t_s * 1e9)`
-//!   ns since the run started (deterministic: tick time, not wall time), `sequence` = the sample's index in
-//!   the trace;
+//!   (`super::foxglove_topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
+//!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
+//!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
+//!   in N), one message per tick. The transforms' own timestamps equal the log time;
+//! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` once (the volume's
+//!   bounds and iso-surface), `/voxhap/primitives` and `/voxhap/bound` at 60 Hz of tick time,
+//!   `/voxhap/stats` (`voxhap.TraceStats`) once a second;
+//! * `log_time = publish_time` = wall-clock UTC (ns since the Unix epoch): the wall time at which the
+//!   writer was created for the first sample, plus the tick time since the first sample for the others,
+//!   so recordings line up with other instruments; `sequence` = the sample's index in the trace;
 //! * one metadata record named [`METADATA_NAME`] with the sidecar's metadata fields as strings (JSON for
 //!   the ones that are not strings).
 //!
@@ -35,8 +38,8 @@ use ::foxglove::Encode;
 
 use super::csv::read_sidecar;
 use super::foxglove_topics::{
-    frame_transform, set_translation, vector3, FORCE_TOPIC, PROBE_FRAME, PROBE_TOPIC, PROXY_FRAME,
-    PROXY_TOPIC,
+    frame_transform, set_translation, vector3, RecordedScene, MEASURED_CP_TOPIC as PROBE_TOPIC,
+    PROBE_FRAME, PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
 use super::{
     sidecar_path, SampleChecker, Sidecar, Trace, TraceError, TraceFormat, TraceMeta,
@@ -168,12 +171,34 @@ pub struct McapTraceWriter {
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
+    /// The scene topics (markers, volume, bound, statistics).
+    scene: RecordedScene,
+    /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
+    wall_start_ns: u64,
+    first_t_s: Option<f64>,
+}
+
+/// Now, in ns since the Unix epoch.
+pub fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
 }
 
 impl McapTraceWriter {
     /// Creates (truncates) `path` and `path.json`; writes the header, schemas, channels, the metadata
     /// record and a provisional sidecar.
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
+        Self::create_at(path, meta, unix_now_ns())
+    }
+
+    /// As [`McapTraceWriter::create`], the first sample logged at `wall_start_ns` (ns since the Unix
+    /// epoch) and every later one at that plus its tick time since the first.
+    pub fn create_at(
+        path: &Path,
+        meta: &TraceMeta,
+        wall_start_ns: u64,
+    ) -> Result<Self, TraceError> {
         meta.validate()?;
         let mcap_error = |source| TraceError::Mcap {
             path: path.to_path_buf(),
@@ -211,6 +236,7 @@ impl McapTraceWriter {
             .map_err(mcap_error)?;
         let (probe_channel, proxy_channel, force_channel) =
             add_foxglove_channels(&mut writer).map_err(mcap_error)?;
+        let scene = RecordedScene::add(&mut writer, meta).map_err(mcap_error)?;
         writer
             .write_metadata(&mcap::records::Metadata {
                 name: METADATA_NAME.to_string(),
@@ -233,6 +259,9 @@ impl McapTraceWriter {
             message: Vec::with_capacity(512),
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
+            scene,
+            wall_start_ns,
+            first_t_s: None,
         })
     }
 
@@ -328,7 +357,10 @@ impl TraceWriter for McapTraceWriter {
         }
         self.checker.check(sample)?;
         let sequence = (self.checker.count - 1) as u32;
-        let time_ns = (sample.t_s * 1e9).round() as u64;
+        let first_t_s = *self.first_t_s.get_or_insert(sample.t_s);
+        let time_ns = self
+            .wall_start_ns
+            .saturating_add(((sample.t_s - first_t_s).max(0.0) * 1e9).round() as u64);
         let state = StateMessage {
             tick: sample.tick,
             t_s: sample.t_s,
@@ -378,6 +410,9 @@ impl TraceWriter for McapTraceWriter {
         })?;
         put(self.force_channel, &|m| {
             vector3(sample.force_n).encode(m).map_err(encode_error)
+        })?;
+        self.scene.write(sample, time_ns, &mut |channel, encode| {
+            put(channel, &|m| encode(m).map_err(encode_error))
         })?;
         Ok(())
     }
@@ -537,12 +572,16 @@ fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>,
 
 #[cfg(test)]
 mod tests {
+    use super::super::read_trace;
     use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, read_trace};
     use super::*;
 
+    /// Wall-clock time of the first sample in the tests' traces (2023-11-14T22:13:20Z).
+    const WALL_START_NS: u64 = 1_700_000_000_000_000_000;
+
     fn write_mcap(path: &Path, modes: &[&str], data: &[TraceSample]) {
-        let mut writer = create_trace_writer(path, TraceFormat::Mcap, &meta(modes)).unwrap();
+        let mut writer: Box<dyn TraceWriter> =
+            Box::new(McapTraceWriter::create_at(path, &meta(modes), WALL_START_NS).unwrap());
         for (i, sample) in data.iter().enumerate() {
             writer.write_sample(sample).unwrap();
             if i == data.len() / 2 {
@@ -581,7 +620,7 @@ mod tests {
     }
 
     #[test]
-    fn log_times_are_tick_times_and_voxhap_schemas_are_json() {
+    fn log_times_are_wall_clock_from_the_first_tick_and_voxhap_schemas_are_json() {
         let dir = tempfile::tempdir().unwrap();
         let data = samples(20, 1);
         let path = dir.path().join("t.mcap");
@@ -591,7 +630,8 @@ mod tests {
         for message in mcap::MessageStream::new(&bytes).unwrap() {
             let message = message.unwrap();
             let index = message.sequence as usize;
-            assert_eq!(message.log_time, (data[index].t_s * 1e9).round() as u64);
+            let since_first_ns = ((data[index].t_s - data[0].t_s) * 1e9).round() as u64;
+            assert_eq!(message.log_time, WALL_START_NS + since_first_ns);
             if ![STATE_TOPIC, SOLVER_TOPIC].contains(&message.channel.topic.as_str()) {
                 continue;
             }

@@ -200,6 +200,9 @@ mod tests {
             .contains("--max-clients must be"));
         assert_eq!(resolve(&["--no-http"]).unwrap(), None);
         assert!(resolve(&["--no-http", "--http", "127.0.0.1:1"]).is_err());
-        assert_eq!(resolve(&["--no-http", "--token", "s3cret-token"]).unwrap(), None);
+        assert_eq!(
+            resolve(&["--no-http", "--token", "s3cret-token"]).unwrap(),
+            None
+        );
     }
 }

@@ -27,6 +27,7 @@ pub mod guard;
 mod http;
 pub mod igtl;
 pub mod messages;
+pub mod palette;
 mod ws;
 
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};

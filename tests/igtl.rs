@@ -194,6 +194,11 @@ impl Fixture {
         config.spin_ns = 20_000;
         let session = Session::start(config).unwrap();
         let api = session.api();
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while api.snapshot().is_none() {
+            assert!(Instant::now() < deadline, "the servo never ticked");
+            std::thread::sleep(Duration::from_millis(5));
+        }
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
@@ -388,4 +393,52 @@ fn a_protocol_3_probe_target_with_a_metadata_token_moves_the_hand() {
         }
         assert!(Instant::now() < deadline, "no version-2 stream");
     }
+}
+
+/// `voxhap serve --igtl` without the HTTP server: `--token` is accepted and the token in use is printed.
+#[test]
+fn serve_runs_the_igtl_server_without_http_and_prints_its_token() {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args([
+            "serve",
+            "--igtl",
+            "127.0.0.1:0",
+            "--no-http",
+            "--no-foxglove",
+            "--token",
+            "given-token-123",
+            "--duration",
+            "0.5",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(stdout.contains("igtl: listening on 127.0.0.1:"), "{stdout}");
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l == "igtl: control token given-token-123"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("http: listening"), "{stdout}");
+    // A remote address needs --igtl-allow-remote, and nothing starts without it.
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args([
+            "serve",
+            "--igtl",
+            "0.0.0.0:0",
+            "--no-http",
+            "--no-foxglove",
+            "--duration",
+            "0.5",
+        ])
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--igtl-allow-remote"));
 }

@@ -467,6 +467,11 @@ fn recorded_bound_schema() -> serde_json::Value {
     crate::server::foxglove::messages::bound_schema()
 }
 
+/// Encodes one message into the buffer it is given.
+pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), String> + 'a;
+/// Writes one message: the channel and its encoder.
+pub type ScenePut<'a> = dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), super::TraceError> + 'a;
+
 /// The scene channels of an MCAP trace and what they need between samples.
 pub struct RecordedScene {
     primitives: u16,
@@ -535,10 +540,7 @@ impl RecordedScene {
         &mut self,
         sample: &super::TraceSample,
         time_ns: u64,
-        put: &mut dyn FnMut(
-            u16,
-            &dyn Fn(&mut Vec<u8>) -> Result<(), String>,
-        ) -> Result<(), super::TraceError>,
+        put: &mut ScenePut<'_>,
     ) -> Result<(), super::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);

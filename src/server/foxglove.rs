@@ -539,6 +539,8 @@ async fn publish(
                     && generation != picture_generation
                     && publisher.channels.volume_subscribed()
                 {
+                    // Everyone subscribed now gets the picture when it is built.
+                    resend.volume.store(false, Ordering::Release);
                     let api = api.clone();
                     let generation = generation.unwrap_or(0);
                     building = Some(tokio::task::spawn_blocking(move || {

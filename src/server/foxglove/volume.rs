@@ -58,10 +58,18 @@ pub fn half_strength_value(transfer: &TransferFunction) -> Option<f64> {
     })
 }
 
+/// The volume to draw: its scene name, description, bounds and, for a surface mode, its colour and
+/// iso-value.
+struct Chosen {
+    name: String,
+    description: String,
+    min_m: DVec3,
+    max_m: DVec3,
+    iso: Option<(Rgb, f64)>,
+}
+
 /// The volume to draw and, for a surface mode, its colour and iso-value.
-fn choose(
-    api: &dyn SessionApi,
-) -> Result<(String, String, DVec3, DVec3, Option<(Rgb, f64)>), ControlError> {
+fn choose(api: &dyn SessionApi) -> Result<Chosen, ControlError> {
     let scene = api.scene();
     let surface = scene
         .modes
@@ -79,13 +87,13 @@ fn choose(
         let value = half_strength_value(mode.transfer.as_ref()?)?;
         (report.kind == "scalar").then_some((palette().mode(index), value))
     });
-    Ok((
-        report.name.clone(),
-        format!("{} ({})", report.name, report.source),
-        report.min_m,
-        report.max_m,
+    Ok(Chosen {
+        name: report.name.clone(),
+        description: format!("{} ({})", report.name, report.source),
+        min_m: report.min_m,
+        max_m: report.max_m,
         iso,
-    ))
+    })
 }
 
 /// An `n`³ grid of the volume `name` over `min_m ..= max_m`, from `n` z-slices.
@@ -123,7 +131,13 @@ fn grid_from_slices(
 
 /// The bounding box and iso-surface of the scene's volume (blocking: samples the volume).
 pub fn volume_picture(api: &dyn SessionApi) -> Result<VolumePicture, ControlError> {
-    let (name, description, min_m, max_m, iso) = choose(api)?;
+    let Chosen {
+        name,
+        description,
+        min_m,
+        max_m,
+        iso,
+    } = choose(api)?;
     let surface = match iso {
         Some((rgb, value)) => {
             let (mesh, _) =

@@ -628,7 +628,14 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
     }
     drop(session);
     target_task.abort();
-    let _ = tokio::time::timeout(Duration::from_secs(1), writer_task).await;
+    // The writer ends when its reply queue closes; one stuck on a client that does not read is aborted.
+    let writer_abort = writer_task.abort_handle();
+    if tokio::time::timeout(Duration::from_secs(1), writer_task)
+        .await
+        .is_err()
+    {
+        writer_abort.abort();
+    }
     shared.counters.clients.fetch_sub(1, Ordering::AcqRel);
 }
 

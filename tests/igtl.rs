@@ -93,8 +93,9 @@ fn string_content(text: &str) -> Vec<u8> {
     content
 }
 
-/// A 16 x 12 x 8 uint16 RAS image, 2 mm voxels, centred at `centre_mm`, little-endian data.
-fn image_content(centre_mm: [f32; 3]) -> Vec<u8> {
+/// A 16 x 12 x 8 uint16 RAS image, 2 mm voxels, centred at `centre_mm`, little-endian data, values
+/// `offset + n % 100`.
+fn image_content(centre_mm: [f32; 3], offset: u16) -> Vec<u8> {
     let dims = [16u16, 12, 8];
     let mut content = 1u16.to_be_bytes().to_vec();
     content.extend_from_slice(&[1, 5, 2, 1]); // scalar, uint16, little-endian, RAS
@@ -110,7 +111,7 @@ fn image_content(centre_mm: [f32; 3]) -> Vec<u8> {
         content.extend_from_slice(&d.to_be_bytes());
     }
     for n in 0..(16 * 12 * 8u16) {
-        content.extend_from_slice(&(n % 100).to_le_bytes());
+        content.extend_from_slice(&(offset + n % 100).to_le_bytes());
     }
     content
 }
@@ -304,7 +305,7 @@ fn an_image_needs_the_token_and_then_replaces_the_first_volume() {
     let fixture = Fixture::start();
     let mut stream = fixture.connect();
     let before = fixture.api.scene().volumes[0].clone();
-    let image = pack(1, "IMAGE", "CT", &image_content([10.0, 0.0, 0.0]), &[]);
+    let image = pack(1, "IMAGE", "CT", &image_content([10.0, 0.0, 0.0], 0), &[]);
     stream.write_all(&image).unwrap();
     let (code, message) = status(&mut stream, "CT");
     assert_eq!(code, 5, "{message}");
@@ -346,6 +347,31 @@ fn an_image_needs_the_token_and_then_replaces_the_first_volume() {
         volume.min_m
     );
     assert!((volume.max_m - DVec3::new(25.0, 11.0, 7.0) / 1000.0).length() < 1e-9);
+    // Values 0 to 99 hold the built-in surface's 0.45 .. 0.5 ramp: its transfer is kept.
+    assert!(!message.contains("transfer"), "{message}");
+    let transfer = |api: &voxhap::servo::SessionShared| {
+        let scene = api.scene();
+        let surface = scene
+            .modes
+            .iter()
+            .find(|m| m.display_name() == "surface")
+            .unwrap();
+        surface.transfer.as_ref().unwrap().points().to_vec()
+    };
+    assert_eq!(transfer(&fixture.api), vec![[0.45, 0.0], [0.5, 2.0]]);
+    // Values 1000 to 1099 do not: the surface is fitted to them (0 N at 45 %, 2 N at 50 % of the range).
+    let shifted = pack(
+        1,
+        "IMAGE",
+        "CT",
+        &image_content([10.0, 0.0, 0.0], 1000),
+        &[],
+    );
+    stream.write_all(&shifted).unwrap();
+    let (code, message) = status(&mut stream, "CT");
+    assert_eq!(code, 1, "{message}");
+    assert!(message.contains("did not fit"), "{message}");
+    assert_eq!(transfer(&fixture.api), vec![[1044.55, 0.0], [1049.5, 2.0]]);
 }
 
 #[test]

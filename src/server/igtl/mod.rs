@@ -913,13 +913,15 @@ impl ClientSession {
                 .iter()
                 .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
             drop(image);
+            let replaced = volume.clone();
             let reply = shared
                 .api
                 .control(ControlCommand::LoadVolume { path, name: volume })
                 .map_err(|e| (control_code(&e), e.to_string()))?;
             shared.counters.images_loaded.fetch_add(1, Ordering::Relaxed);
+            let refits = refit_surfaces(shared.api.as_ref(), replaced.as_deref(), lo, hi);
             Ok(format!(
-                "volume {device_name:?} loaded: {} x {} x {} voxels, values {lo} to {hi}; scene generation {}",
+                "volume {device_name:?} loaded: {} x {} x {} voxels, values {lo} to {hi}; scene generation {}{refits}",
                 dims[0], dims[1], dims[2], reply.scene_generation
             ))
         })
@@ -937,6 +939,57 @@ impl ClientSession {
             ),
         }
     }
+}
+
+/// After an IMAGE replaced the volume `replaced` (default: the first), a surface mode on it whose surface
+/// the new values cannot show (the value where its transfer reaches half strength lies outside `lo ..= hi`)
+/// gets a transfer fitted to the image, as `voxhap serve --volume` does for a lone volume: 0 N at 45 % of
+/// the range, the mode's largest strength at 50 %. Returns what was changed, for the STATUS text.
+fn refit_surfaces(api: &dyn SessionApi, replaced: Option<&str>, lo: f32, hi: f32) -> String {
+    use crate::haptics::modes::{ModeKind, TransferFunction};
+    use crate::server::foxglove::volume::half_strength_value;
+    let scene = api.scene();
+    let Some(name) = replaced.or_else(|| scene.volumes.first().map(|v| v.name.as_str())) else {
+        return String::new();
+    };
+    let (lo, hi) = (f64::from(lo), f64::from(hi));
+    if hi <= lo {
+        return String::new();
+    }
+    let mut changed = String::new();
+    for mode in &scene.modes {
+        let Some(transfer) = mode.transfer.as_ref() else {
+            continue;
+        };
+        if mode.kind != ModeKind::Surface || mode.volume.as_deref() != Some(name) {
+            continue;
+        }
+        let fits = half_strength_value(transfer).is_some_and(|iso| lo < iso && iso < hi);
+        if fits {
+            continue;
+        }
+        let span = hi - lo;
+        let Ok(fitted) = TransferFunction::new(vec![
+            [lo + 0.45 * span, 0.0],
+            [lo + 0.5 * span, transfer.max_strength_n().max(1e-3)],
+        ]) else {
+            continue;
+        };
+        let points = fitted.points().to_vec();
+        let mode_name = mode.display_name().to_owned();
+        if api
+            .control(ControlCommand::SetTransfer {
+                mode: mode_name.clone(),
+                transfer: fitted,
+            })
+            .is_ok()
+        {
+            changed.push_str(&format!(
+                "; the transfer of surface mode {mode_name:?} did not fit these values and is now {points:?}"
+            ));
+        }
+    }
+    changed
 }
 
 #[cfg(test)]

@@ -16,7 +16,9 @@
 //!   `/voxhap/stats` (`voxhap.TraceStats`) once a second;
 //! * `log_time = publish_time` = wall-clock UTC (ns since the Unix epoch): the wall time at which the
 //!   writer was created for the first sample, plus the tick time since the first sample for the others,
-//!   so recordings line up with other instruments; `sequence` = the sample's index in the trace;
+//!   so recordings line up with other instruments ([`log_time_start_ns`]: a trace whose `created_utc` was
+//!   set to another time, as tests and reproducible runs do, starts at that time instead, so two such runs
+//!   write identical files); `sequence` = the sample's index in the trace;
 //! * one metadata record named [`METADATA_NAME`] with the sidecar's metadata fields as strings (JSON for
 //!   the ones that are not strings).
 //!
@@ -178,6 +180,54 @@ pub struct McapTraceWriter {
     first_t_s: Option<f64>,
 }
 
+/// Wall-clock time (ns since the Unix epoch) of a trace's first sample: `now_ns` for a trace created now
+/// (`meta.created_utc` within 2 s of it: a live recording, stamped with the precise clock), else the time
+/// `created_utc` names (a trace whose creation time was set, e.g. to make two runs identical).
+pub fn log_time_start_ns(meta: &TraceMeta, now_ns: u64) -> u64 {
+    match parse_utc_seconds(&meta.created_utc) {
+        Some(seconds) if seconds.saturating_mul(1_000_000_000).abs_diff(now_ns) > 2_000_000_000 => {
+            seconds.saturating_mul(1_000_000_000)
+        }
+        _ => now_ns,
+    }
+}
+
+/// Seconds since 1970 of `YYYY-MM-DDTHH:MM:SS[.fff]Z` (the fraction is ignored); `None` otherwise.
+fn parse_utc_seconds(text: &str) -> Option<u64> {
+    let text = text.strip_suffix('Z')?;
+    let (date, time) = text.split_once('T')?;
+    let mut date_parts = date.splitn(3, '-').map(|p| p.parse::<i64>().ok());
+    let (year, month, day) = (
+        date_parts.next()??,
+        date_parts.next()??,
+        date_parts.next()??,
+    );
+    let time = time.split('.').next()?;
+    let mut time_parts = time.splitn(3, ':').map(|p| p.parse::<u64>().ok());
+    let (hour, minute, second) = (
+        time_parts.next()??,
+        time_parts.next()??,
+        time_parts.next()??,
+    );
+    if !(1..=12).contains(&month)
+        || !(1..=31).contains(&day)
+        || hour > 23
+        || minute > 59
+        || second > 60
+    {
+        return None;
+    }
+    // Days from the civil date (Howard Hinnant's algorithm).
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let year_of_era = y.rem_euclid(400);
+    let month_shifted = (month + 9) % 12;
+    let day_of_year = (153 * month_shifted + 2) / 5 + day - 1;
+    let day_of_era = year_of_era * 365 + year_of_era / 4 - year_of_era / 100 + day_of_year;
+    let days = u64::try_from(era * 146_097 + day_of_era - 719_468).ok()?;
+    Some(days * 86_400 + hour * 3600 + minute * 60 + second)
+}
+
 /// Now, in ns since the Unix epoch.
 pub fn unix_now_ns() -> u64 {
     std::time::SystemTime::now()
@@ -189,7 +239,7 @@ impl McapTraceWriter {
     /// Creates (truncates) `path` and `path.json`; writes the header, schemas, channels, the metadata
     /// record and a provisional sidecar.
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
-        Self::create_at(path, meta, unix_now_ns())
+        Self::create_at(path, meta, log_time_start_ns(meta, unix_now_ns()))
     }
 
     /// As [`McapTraceWriter::create`], the first sample logged at `wall_start_ns` (ns since the Unix
@@ -590,6 +640,31 @@ mod tests {
         }
         assert_eq!(writer.finish().unwrap().sample_count, data.len() as u64);
         assert!(matches!(writer.finish(), Err(TraceError::Finished)));
+    }
+
+    #[test]
+    fn log_times_start_now_for_a_live_trace_and_at_a_set_creation_time_otherwise() {
+        assert_eq!(parse_utc_seconds("1970-01-01T00:00:00Z"), Some(0));
+        assert_eq!(parse_utc_seconds("2000-03-01T00:00:01Z"), Some(951_868_801));
+        assert_eq!(
+            parse_utc_seconds("2023-11-14T22:13:20.5Z"),
+            Some(1_700_000_000)
+        );
+        assert_eq!(parse_utc_seconds("2023-13-14T22:13:20Z"), None);
+        assert_eq!(parse_utc_seconds("yesterday"), None);
+        let set = meta(&["surface"]); // created 2000-01-01T00:00:00Z
+        let now = 1_700_000_000_123_456_789;
+        assert_eq!(log_time_start_ns(&set, now), 946_684_800_000_000_000);
+        let live = TraceMeta {
+            created_utc: "2023-11-14T22:13:20Z".to_owned(),
+            ..set.clone()
+        };
+        assert_eq!(log_time_start_ns(&live, now), now);
+        let odd = TraceMeta {
+            created_utc: "not a time".to_owned(),
+            ..set
+        };
+        assert_eq!(log_time_start_ns(&odd, now), now);
     }
 
     #[test]

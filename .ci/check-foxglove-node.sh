@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# Checks voxhap's Foxglove live view with an independent client: the npm packages @foxglove/ws-protocol and
-# ws (installed into a temporary directory, never the repository) subscribe to /voxhap/force on a running
-# `voxhap serve` and must receive at least N messages within a few seconds (.ci/foxglove-subscribe.mjs).
+# Checks voxhap's Foxglove live view with an independent client: the npm packages @foxglove/ws-protocol, ws
+# and protobufjs (installed into a temporary directory, never the repository) subscribe on a running
+# `voxhap serve` and must receive at least N messages on /voxhap/servo_cf, the volume's mesh and bounding box
+# on /voxhap/volume and the three slices; the shipped layout contrib/foxglove/voxhap-layout.json must refer
+# only to topics the server advertises (.ci/foxglove-subscribe.mjs).
 #
 # Skips (exit 0, with a message) when node or npm is missing or the npm install fails (offline). Fails (exit 1)
 # with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
 #
-# Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 10000), VOXHAP_BIN (a
+# Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 15000), VOXHAP_BIN (a
 # voxhap binary to use instead of building target/release/voxhap, e.g. target/debug/voxhap after cargo test;
 # a release build from scratch takes minutes).
 set -euo pipefail
@@ -29,13 +31,13 @@ command -v npm >/dev/null 2>&1 || skip "npm is not installed"
 make_work_dir voxhap-foxglove-node
 trap 'exit 130' INT TERM
 
-echo "$name: installing @foxglove/ws-protocol and ws into $WORK (node $(node --version), npm $(npm --version 2>/dev/null))"
+echo "$name: installing @foxglove/ws-protocol, ws and protobufjs into $WORK (node $(node --version), npm $(npm --version 2>/dev/null))"
 if ! timeout 120 npm install --prefix "$WORK" --no-audit --no-fund --no-save --loglevel=error \
-  @foxglove/ws-protocol ws >"$WORK/npm.log" 2>&1; then
+  @foxglove/ws-protocol ws protobufjs >"$WORK/npm.log" 2>&1; then
   tail -n 5 "$WORK/npm.log" | sed "s/^/$name: npm: /"
-  skip "npm install of @foxglove/ws-protocol and ws failed (offline or no registry access)"
+  skip "npm install of @foxglove/ws-protocol, ws and protobufjs failed (offline or no registry access)"
 fi
-versions=$(cd "$WORK" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
+versions=$(cd "$WORK" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws", "protobufjs"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
 echo "$name: installed $versions"
 
 find_voxhap "$name"
@@ -61,10 +63,10 @@ done
 echo "$name: voxhap serve is listening on $url"
 
 cp .ci/foxglove-subscribe.mjs "$WORK/"
-if ! node "$WORK/foxglove-subscribe.mjs" "$url" "${VOXHAP_FOXGLOVE_MESSAGES:-60}" \
-  "${VOXHAP_FOXGLOVE_TIMEOUT_MS:-10000}"; then
+if ! node "$WORK/foxglove-subscribe.mjs" "$url" contrib/foxglove/voxhap-layout.json \
+  "${VOXHAP_FOXGLOVE_MESSAGES:-60}" "${VOXHAP_FOXGLOVE_TIMEOUT_MS:-15000}"; then
   sed "s/^/$name: serve: /" "$WORK/serve.err" >&2
-  fail "the Node client did not receive the force topic (see above)"
+  fail "the Node client's checks failed (see above)"
 fi
 
 kill "$SERVER_PID" 2>/dev/null || true

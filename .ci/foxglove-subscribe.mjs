@@ -1,35 +1,63 @@
 // An independent Foxglove WebSocket client for .ci/check-foxglove-node.sh: the npm packages
-// @foxglove/ws-protocol (FoxgloveClient) and ws connect to `voxhap serve`'s live view, subscribe to
-// /voxhap/force and require at least N messages within a time limit, each a foxglove.Vector3 protobuf
-// with finite components (decoded by hand: fields 1..3 are doubles).
+// @foxglove/ws-protocol (FoxgloveClient), ws and protobufjs connect to `voxhap serve`'s live view and check:
 //
-// Usage: node foxglove-subscribe.mjs ws://127.0.0.1:PORT [N=60] [TIMEOUT_MS=10000]
+// - /voxhap/servo_cf: at least N messages within the time limit, each a foxglove.Vector3 with finite
+//   components (decoded by hand: fields 1..3 are doubles);
+// - /voxhap/volume: a foxglove.SceneUpdate with the volume's bounding box (12 edges) and an iso-surface mesh
+//   (indexed triangles), decoded with protobufjs from the schema the server advertises;
+// - /voxhap/volume/slice_x, _y, _z: foxglove.Grid slices whose data holds column_count x rows cells;
+// - the shipped Foxglove layout (contrib/foxglove/voxhap-layout.json) refers only to advertised topics.
+//
+// Usage: node foxglove-subscribe.mjs ws://127.0.0.1:PORT LAYOUT.json [N=60] [TIMEOUT_MS=15000]
 // Exit 0 on success, 1 with a message saying what was missing. Run from a directory whose node_modules
-// holds the two packages (the check script copies it into its temporary install).
+// holds the packages (the check script copies it into its temporary install).
 
+import fs from "node:fs";
 import protocol from "@foxglove/ws-protocol";
+import protobuf from "protobufjs";
+import descriptor from "protobufjs/ext/descriptor/index.js";
 import WebSocket from "ws";
 
 const { FoxgloveClient } = protocol;
 const url = process.argv[2];
-const wanted = Number(process.argv[3] ?? 60);
-const timeoutMs = Number(process.argv[4] ?? 10000);
-const TOPIC = "/voxhap/force";
+const layoutPath = process.argv[3];
+const wanted = Number(process.argv[4] ?? 60);
+const timeoutMs = Number(process.argv[5] ?? 15000);
+const FORCE = "/voxhap/servo_cf";
+const VOLUME = "/voxhap/volume";
+const SLICES = ["/voxhap/volume/slice_x", "/voxhap/volume/slice_y", "/voxhap/volume/slice_z"];
 // The foxglove SDK's server speaks `foxglove.sdk.v1` (the same messages as the older
 // `foxglove.websocket.v1`, which @foxglove/ws-protocol names as its default and the SDK refuses).
 const SUBPROTOCOL = "foxglove.sdk.v1";
 
-if (!url) {
-  console.error("usage: node foxglove-subscribe.mjs ws://HOST:PORT [N] [TIMEOUT_MS]");
+if (!url || !layoutPath) {
+  console.error("usage: node foxglove-subscribe.mjs ws://HOST:PORT LAYOUT.json [N] [TIMEOUT_MS]");
   process.exit(2);
 }
 
+/** The topics a Foxglove layout refers to: 3D panel topics, plot/state paths, raw-message topic paths. */
+function layoutTopics(layout) {
+  const topics = new Set();
+  for (const config of Object.values(layout.configById ?? {})) {
+    for (const topic of Object.keys(config.topics ?? {})) topics.add(topic);
+    for (const path of config.paths ?? []) topics.add(path.value.split(".")[0]);
+    if (config.topicPath) topics.add(config.topicPath.split(".")[0]);
+  }
+  return [...topics];
+}
+
+const layout = JSON.parse(fs.readFileSync(layoutPath, "utf8"));
 const started = Date.now();
 let serverName = null;
-let forceChannel = null;
-let received = 0;
-let firstAt = null;
-let last = null;
+const channelsByTopic = new Map();
+const channelsById = new Map();
+const decoders = new Map();
+let forces = 0;
+let firstForceAt = null;
+let lastForce = null;
+let mesh = null;
+const slices = new Map();
+let layoutChecked = false;
 let done = false;
 
 function finish(ok, message) {
@@ -62,6 +90,32 @@ function decodeVector3(view) {
   return vector;
 }
 
+/** A protobufjs type for a channel, from the FileDescriptorSet the server advertised. */
+function decoderFor(channel) {
+  if (!decoders.has(channel.id)) {
+    if (channel.encoding !== "protobuf") throw new Error(`${channel.topic} is ${channel.encoding}, not protobuf`);
+    const set = descriptor.FileDescriptorSet.decode(Buffer.from(channel.schema, "base64"));
+    const root = protobuf.Root.fromDescriptor(set);
+    decoders.set(channel.id, root.lookupType(channel.schemaName));
+  }
+  return decoders.get(channel.id);
+}
+
+function checkAll() {
+  if (forces >= wanted && mesh && slices.size === SLICES.length && layoutChecked) {
+    const seconds = (Date.now() - firstForceAt) / 1000;
+    const rate = seconds > 0 ? ((forces - 1) / seconds).toFixed(1) : "n/a";
+    finish(
+      true,
+      `${forces} messages on ${FORCE} from ${JSON.stringify(serverName)} in ${seconds.toFixed(2)} s ` +
+        `(about ${rate} Hz), last force [${lastForce.x.toFixed(4)}, ${lastForce.y.toFixed(4)}, ${lastForce.z.toFixed(4)}] N; ` +
+        `volume mesh of ${mesh.triangles} triangles in a box of ${mesh.edges} edges; slices ` +
+        [...slices.entries()].map(([topic, size]) => `${topic.split("_").pop()} ${size}`).join(", ") +
+        `; the layout's ${layoutTopics(layout).length} topics are all advertised`,
+    );
+  }
+}
+
 const ws = new WebSocket(url, [SUBPROTOCOL]);
 const client = new FoxgloveClient({ ws });
 
@@ -72,54 +126,79 @@ client.on("open", () => {
 });
 client.on("error", (error) => finish(false, `connection error: ${error?.message ?? error}`));
 client.on("close", (event) =>
-  finish(false, `connection closed after ${received} messages (code ${event?.code ?? "?"})`),
+  finish(false, `connection closed after ${forces} force messages (code ${event?.code ?? "?"})`),
 );
 client.on("serverInfo", (info) => {
   serverName = info.name;
 });
 client.on("advertise", (channels) => {
-  if (forceChannel !== null) return;
-  const channel = channels.find((c) => c.topic === TOPIC);
-  if (!channel) return;
-  if (channel.schemaName !== "foxglove.Vector3" || channel.encoding !== "protobuf") {
-    finish(false, `${TOPIC} advertised as ${channel.schemaName} (${channel.encoding}), expected foxglove.Vector3 (protobuf)`);
-    return;
+  for (const channel of channels) {
+    if (channelsByTopic.has(channel.topic)) continue;
+    channelsByTopic.set(channel.topic, channel);
+    if (channel.topic === FORCE && (channel.schemaName !== "foxglove.Vector3" || channel.encoding !== "protobuf")) {
+      finish(false, `${FORCE} advertised as ${channel.schemaName} (${channel.encoding}), expected foxglove.Vector3`);
+      return;
+    }
+    if ([FORCE, VOLUME, ...SLICES].includes(channel.topic)) {
+      const id = client.subscribe(channel.id);
+      channelsById.set(id, channel);
+    }
   }
-  forceChannel = channel;
-  client.subscribe(channel.id);
+  const missing = layoutTopics(layout).filter((topic) => !channelsByTopic.has(topic));
+  if (missing.length === 0) {
+    layoutChecked = true;
+  } else if (Date.now() - started > 3000) {
+    finish(false, `the layout refers to topics the server does not advertise: ${missing.join(", ")}`);
+  }
 });
-client.on("message", ({ data }) => {
-  let force;
+client.on("message", ({ subscriptionId, data }) => {
+  const channel = channelsById.get(subscriptionId);
+  if (!channel) return;
   try {
-    force = decodeVector3(data);
+    if (channel.topic === FORCE) {
+      const force = decodeVector3(data);
+      if (![force.x, force.y, force.z].every(Number.isFinite)) throw new Error(`non-finite force ${JSON.stringify(force)}`);
+      forces += 1;
+      firstForceAt ??= Date.now();
+      lastForce = force;
+    } else if (channel.topic === VOLUME) {
+      const type = decoderFor(channel);
+      const update = type.toObject(type.decode(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)));
+      const entities = update.entities ?? [];
+      const bounds = entities.find((e) => e.id === "volume/bounds");
+      const surface = entities.find((e) => e.id === "volume/surface");
+      if (!bounds || (bounds.lines?.[0]?.points?.length ?? 0) !== 24) throw new Error("no 12-edge bounding box");
+      const triangles = surface?.triangles?.[0];
+      const indices = triangles?.indices ?? [];
+      if (indices.length < 3 || indices.length % 3 !== 0) throw new Error(`mesh with ${indices.length} indices`);
+      if (!indices.every((i) => i < triangles.points.length)) throw new Error("mesh index out of range");
+      mesh = { triangles: indices.length / 3, edges: bounds.lines[0].points.length / 2 };
+    } else {
+      const type = decoderFor(channel);
+      const grid = type.toObject(type.decode(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)), { bytes: Array });
+      const cells = grid.data.length / grid.cellStride;
+      const rows = cells / grid.columnCount;
+      if (!Number.isInteger(rows) || rows < 2 || grid.rowStride !== grid.columnCount * grid.cellStride) {
+        throw new Error(`grid of ${grid.data.length} bytes, ${grid.columnCount} columns, stride ${grid.cellStride}`);
+      }
+      slices.set(channel.topic, `${grid.columnCount}x${rows}`);
+    }
   } catch (error) {
-    finish(false, `message ${received + 1} on ${TOPIC}: ${error.message}`);
+    finish(false, `${channel.topic}: ${error.message}`);
     return;
   }
-  if (![force.x, force.y, force.z].every(Number.isFinite)) {
-    finish(false, `non-finite force ${JSON.stringify(force)}`);
-    return;
-  }
-  received += 1;
-  firstAt ??= Date.now();
-  last = force;
-  if (received >= wanted) {
-    const seconds = (Date.now() - firstAt) / 1000;
-    const rate = seconds > 0 ? ((received - 1) / seconds).toFixed(1) : "n/a";
-    finish(
-      true,
-      `${received} messages on ${TOPIC} from ${JSON.stringify(serverName)} in ${seconds.toFixed(2)} s ` +
-        `(about ${rate} Hz); last force [${last.x.toFixed(4)}, ${last.y.toFixed(4)}, ${last.z.toFixed(4)}] N`,
-    );
-  }
+  checkAll();
 });
 
 setTimeout(() => {
-  const what =
-    serverName === null
-      ? "no serverInfo"
-      : forceChannel === null
-        ? `${TOPIC} was not advertised`
-        : `only ${received} of ${wanted} messages on ${TOPIC}`;
-  finish(false, `${what} within ${timeoutMs} ms (connected for ${Date.now() - started} ms)`);
+  const missing = [];
+  if (serverName === null) missing.push("no serverInfo");
+  if (forces < wanted) missing.push(`only ${forces} of ${wanted} messages on ${FORCE}`);
+  if (!mesh) missing.push(`no volume mesh on ${VOLUME}`);
+  if (slices.size < SLICES.length) missing.push(`slices only on [${[...slices.keys()].join(", ")}]`);
+  if (!layoutChecked) {
+    const absent = layoutTopics(layout).filter((topic) => !channelsByTopic.has(topic));
+    missing.push(`layout topics not advertised: ${absent.join(", ")}`);
+  }
+  finish(false, `${missing.join("; ")} within ${timeoutMs} ms (connected for ${Date.now() - started} ms)`);
 }, timeoutMs);

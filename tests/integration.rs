@@ -15,6 +15,7 @@ mod device_safety;
 mod device_spec;
 mod foxglove;
 mod fuzz_corpus;
+mod igtl;
 mod modes;
 mod paper;
 mod record;

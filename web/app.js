@@ -18,8 +18,21 @@
   const TOKEN_KEY = 'voxhap.token';
   const DEFAULT_BOUNDS = { min: [-0.05, -0.05, -0.05], max: [0.05, 0.05, 0.05] };
   const AXIS_NAMES = ['x', 'y', 'z'];
-  // Mode colours (chosen to stand out on grey); every mode is also named in the legend.
-  const MODE_COLOURS = ['#ff9f1c', '#2ec4b6', '#e71d73', '#9b5de5', '#00bbf9', '#f15bb5', '#fee440', '#00f5d4'];
+  // The scene palette is defined once, as --scene-* variables in style.css (Foxglove gets the same colours
+  // from voxhap, which reads those lines too). Mode colours are chosen to stand out on grey; every mode is
+  // also named in the legend.
+  const cssColour = (name) => getComputedStyle(document.documentElement).getPropertyValue(`--scene-${name}`).trim();
+  const COLOURS = {
+    probe: cssColour('probe'),
+    proxy: cssColour('proxy'),
+    hand: cssColour('hand'),
+    force: cssColour('force'),
+    fx: cssColour('force-x'),
+    fy: cssColour('force-y'),
+    fz: cssColour('force-z'),
+    mag: cssColour('force-magnitude'),
+  };
+  const MODE_COLOURS = [0, 1, 2, 3, 4, 5, 6, 7].map((i) => cssColour(`mode-${i}`));
 
   const $ = (id) => document.getElementById(id);
 
@@ -1122,7 +1135,7 @@
         ctx.beginPath();
         ctx.moveTo(px, py);
         ctx.lineTo(tx, ty);
-      }, '#7fdbff', 1);
+      }, COLOURS.hand, 1);
       ctx.setLineDash([]);
       outlined(ctx, () => {
         ctx.beginPath();
@@ -1131,7 +1144,7 @@
         ctx.lineTo(tx, ty + 8);
         ctx.lineTo(tx - 8, ty);
         ctx.closePath();
-      }, '#7fdbff', 1.5);
+      }, COLOURS.hand, 1.5);
     }
 
     // Probe: hollow circle. Proxy: filled dot, with a thin line to the probe (the coupling spring).
@@ -1143,10 +1156,10 @@
     outlined(ctx, () => {
       ctx.beginPath();
       ctx.arc(px, py, 8, 0, 2 * Math.PI);
-    }, '#ffffff', 2);
+    }, COLOURS.probe, 2);
     ctx.beginPath();
     ctx.arc(qx, qy, 4.5, 0, 2 * Math.PI);
-    ctx.fillStyle = '#ffd23f';
+    ctx.fillStyle = COLOURS.proxy;
     ctx.fill();
     ctx.lineWidth = 1.5;
     ctx.strokeStyle = '#000';
@@ -1154,7 +1167,7 @@
 
     // Force arrow from the proxy, app.forceScale N per px.
     const f = isVec3(s.force_n) ? s.force_n : [0, 0, 0];
-    arrow(ctx, qx, qy, qx + f[h] / app.forceScale, qy - f[v] / app.forceScale, '#ff4040', 2.5, false);
+    arrow(ctx, qx, qy, qx + f[h] / app.forceScale, qy - f[v] / app.forceScale, COLOURS.force, 2.5, false);
     ctx.restore();
 
     // Scale bar for the force arrows (bottom right, inside the plot).
@@ -1164,7 +1177,7 @@
     const by = frame.top + frame.height - 10;
     ctx.fillStyle = 'rgba(0,0,0,0.6)';
     ctx.fillRect(bx1 - barPx - 62, by - 14, barPx + 68, 22);
-    ctx.strokeStyle = '#ff4040';
+    ctx.strokeStyle = COLOURS.force;
     ctx.lineWidth = 3;
     ctx.beginPath();
     ctx.moveTo(bx1 - barPx, by);
@@ -1258,10 +1271,10 @@
     ctx.rect(left, top, pw, ph);
     ctx.clip();
     const series = [
-      { key: 'fx', colour: '#ff6b6b', width: 1.25, dash: [] },
-      { key: 'fy', colour: '#51cf66', width: 1.25, dash: [6, 4] },
-      { key: 'fz', colour: '#4dabf7', width: 1.5, dash: [1.5, 3] },
-      { key: 'mag', colour: '#f1f3f5', width: 2.5, dash: [] },
+      { key: 'fx', colour: COLOURS.fx, width: 1.25, dash: [] },
+      { key: 'fy', colour: COLOURS.fy, width: 1.25, dash: [6, 4] },
+      { key: 'fz', colour: COLOURS.fz, width: 1.5, dash: [1.5, 3] },
+      { key: 'mag', colour: COLOURS.mag, width: 2.5, dash: [] },
     ];
     for (const line of series) {
       ctx.beginPath();

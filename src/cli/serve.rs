@@ -8,8 +8,12 @@
 //! It also starts the Foxglove live view ([`crate::server::foxglove`], `--foxglove ADDR`, default
 //! ws://127.0.0.1:8765; `--no-foxglove` to leave it out).
 //!
+//! With `--igtl [ADDR]` it also runs the OpenIGTLink server for 3D Slicer ([`crate::server::igtl`], default
+//! 127.0.0.1:18944), which takes the same control token (printed as `igtl: control token T`, also with
+//! `--no-http`).
+//!
 //! Shutdown order on a signal: the visualiser server closes its clients (1001) and stops, the Foxglove view
-//! stops and closes its clients, the servo thread
+//! and the OpenIGTLink server stop and close their clients, the servo thread
 //! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
 //! finishes the trace, the statistics are printed, exit 0.
 
@@ -71,6 +75,8 @@ pub struct ServeArgs {
     pub http: HttpArgs,
     #[command(flatten)]
     pub foxglove: crate::server::foxglove::FoxgloveArgs,
+    #[command(flatten)]
+    pub igtl: crate::server::igtl::IgtlArgs,
 }
 
 /// `voxhap serve` with no flags (what `voxhap` alone runs).
@@ -202,6 +208,18 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
     let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
+    let igtl = args.igtl.resolve()?;
+    // The OpenIGTLink server takes the HTTP server's control token; with --no-http, --token (checked by
+    // the same rules) or a random one.
+    let igtl_token = match (&igtl, &http) {
+        (None, _) => None,
+        (Some(_), Some(settings)) => Some(settings.config.token.clone()),
+        (Some(_), None) => {
+            let mut flags = args.http.clone();
+            flags.no_http = false;
+            flags.resolve()?.map(|settings| settings.config.token)
+        }
+    };
     let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
@@ -263,6 +281,23 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             server.local_addr()
         ))?;
     }
+    let igtl = match (igtl, igtl_token) {
+        (Some(config), Some(token)) => {
+            let server = runtime.block_on(crate::server::igtl::IgtlServer::start(
+                session.api(),
+                &config,
+                token.clone(),
+            ))?;
+            super::print_out(&format!(
+                "igtl: listening on {} (OpenIGTLink, {} Hz)",
+                server.local_addr(),
+                config.rate_hz
+            ))?;
+            super::print_out(&format!("igtl: control token {token}"))?;
+            Some(server)
+        }
+        _ => None,
+    };
     let reason = runtime.block_on(signals.wait(duration));
     // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream. A second
     // Ctrl-C skips the wait for the clients; the servo still zeroes the force and disables the device.
@@ -280,6 +315,9 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
                 }
             }
             if let Some(server) = foxglove {
+                server.stop().await;
+            }
+            if let Some(server) = igtl {
                 server.stop().await;
             }
         };

@@ -1,28 +1,63 @@
 //! The Foxglove topics voxhap publishes, shared by the live view (`src/server/foxglove.rs`, over the
 //! Foxglove WebSocket protocol) and the MCAP trace writer (`mcap_trace.rs`), so a recorded session opens in
-//! Foxglove or Lichtblick with the same topics, frames and schemas as a live one.
+//! Foxglove or Lichtblick with the same topics, frames, schemas and colours as a live one.
 //!
 //! Messages are the Foxglove SDK's well-known schemas (`foxglove::messages`), protobuf-encoded through
-//! the SDK's [`foxglove::Encode`] implementations:
+//! the SDK's [`foxglove::Encode`] implementations. Pose, velocity and force topics carry CRTK names (the
+//! Collaborative Robotics Toolkit conventions of dVRK and sawSensablePhantom):
 //!
-//! | topic | schema | content |
-//! |---|---|---|
-//! | [`PROBE_TOPIC`] | `foxglove.FrameTransform` | frame [`PROBE_FRAME`] in [`WORLD_FRAME`]: the device position (m) |
-//! | [`PROXY_TOPIC`] | `foxglove.FrameTransform` | frame [`PROXY_FRAME`] in [`WORLD_FRAME`]: the proxy position (m) |
-//! | [`FORCE_TOPIC`] | `foxglove.Vector3` | force sent to the device after safety (N) |
+//! | topic | schema | content | old name (live view only, deprecated) |
+//! |---|---|---|---|
+//! | [`MEASURED_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROBE_FRAME`] in [`WORLD_FRAME`]: the device position (m) | [`PROBE_TOPIC`] |
+//! | [`SETPOINT_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROXY_FRAME`] in [`WORLD_FRAME`]: the proxy, the coupling spring's set point (m) | [`PROXY_TOPIC`] |
+//! | [`MEASURED_CV_TOPIC`] | `foxglove.Vector3` | probe velocity (m/s); live view only | |
+//! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
+//! | [`OPERATING_STATE_TOPIC`] | `crtk.OperatingState` (JSON) | `state`, `is_homed`, `is_busy`; live view only | |
+//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, hand target, force arrow (and live: the tick's primitives) | |
+//! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box and the surface mode's iso-surface mesh, once per scene | |
+//! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre (the layout's camera follows it) | |
 //!
-//! The live view adds `/voxhap/primitives`, `/voxhap/bound` and `/voxhap/stats` (see the server module).
-//! World space is voxhap's world space (RAS, metres); rotations are the identity.
+//! World space is voxhap's world space (RAS, metres); rotations are the identity. Colours come from the one
+//! palette ([`crate::server::palette`]).
 
-use ::foxglove::messages::{FrameTransform, Quaternion, Timestamp, Vector3};
-use glam::DVec3;
+use crate::server::palette::{palette, Rgb};
+use crate::volume::isosurface::Mesh;
+use ::foxglove::messages::{
+    line_primitive, scene_entity_deletion, ArrowPrimitive, Color, FrameTransform, KeyValuePair,
+    LinePrimitive, Point3, Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate,
+    SpherePrimitive, Timestamp, TriangleListPrimitive, Vector3,
+};
+use glam::{DQuat, DVec3};
 
-/// The probe (device) position as a transform of [`PROBE_FRAME`] in [`WORLD_FRAME`].
+/// CRTK `measured_cp`: the probe (device) position as a transform of [`PROBE_FRAME`] in [`WORLD_FRAME`].
+pub const MEASURED_CP_TOPIC: &str = "/voxhap/measured_cp";
+/// CRTK `setpoint_cp`: the proxy position (the coupling spring pulls the probe towards it) as a transform of
+/// [`PROXY_FRAME`] in [`WORLD_FRAME`].
+pub const SETPOINT_CP_TOPIC: &str = "/voxhap/setpoint_cp";
+/// CRTK `measured_cv`: the probe velocity (m/s), linear part, as a `foxglove.Vector3`.
+pub const MEASURED_CV_TOPIC: &str = "/voxhap/measured_cv";
+/// CRTK `servo_cf`: the force commanded to the device after the safety pipeline (N), as a `foxglove.Vector3`.
+pub const SERVO_CF_TOPIC: &str = "/voxhap/servo_cf";
+/// CRTK `operating_state` (JSON).
+pub const OPERATING_STATE_TOPIC: &str = "/voxhap/operating_state";
+/// The scene markers as a `foxglove.SceneUpdate`.
+pub const PRIMITIVES_TOPIC: &str = "/voxhap/primitives";
+/// The volume's bounds and iso-surface as a `foxglove.SceneUpdate`.
+pub const VOLUME_TOPIC: &str = "/voxhap/volume";
+/// Frame [`VOLUME_FRAME`] at the volume's centre.
+pub const VOLUME_FRAME_TOPIC: &str = "/voxhap/volume_frame";
+/// The certificate bound (JSON `voxhap.Bound`).
+pub const BOUND_TOPIC: &str = "/voxhap/bound";
+/// Statistics (JSON), once a second.
+pub const STATS_TOPIC: &str = "/voxhap/stats";
+/// Deprecated name of [`MEASURED_CP_TOPIC`]; the live view still publishes it in this release.
 pub const PROBE_TOPIC: &str = "/voxhap/probe";
-/// The proxy position as a transform of [`PROXY_FRAME`] in [`WORLD_FRAME`].
+/// Deprecated name of [`SETPOINT_CP_TOPIC`]; the live view still publishes it in this release.
 pub const PROXY_TOPIC: &str = "/voxhap/proxy";
-/// The force sent to the device (N), as a `foxglove.Vector3`.
+/// Deprecated name of [`SERVO_CF_TOPIC`]; the live view still publishes it in this release.
 pub const FORCE_TOPIC: &str = "/voxhap/force";
+/// The frame at the volume's centre, axes parallel to [`WORLD_FRAME`].
+pub const VOLUME_FRAME: &str = "volume";
 /// The fixed frame everything is expressed in (voxhap world space, metres).
 pub const WORLD_FRAME: &str = "world";
 /// The frame that follows the probe.
@@ -69,6 +104,528 @@ pub fn set_translation(transform: &mut FrameTransform, position_m: DVec3, time_n
     transform.translation = Some(vector3(position_m));
 }
 
+/// Arrow length per newton of force (m/N): 1 N draws a 1 cm arrow.
+pub const FORCE_ARROW_M_PER_N: f64 = 0.01;
+/// Longest arrow drawn (m); stronger forces are drawn at this length.
+pub const MAX_ARROW_M: f64 = 0.05;
+/// Diameter of the probe and proxy spheres (m).
+pub const MARKER_DIAMETER_M: f64 = 0.003;
+/// Opacity of the iso-surface mesh.
+pub const SURFACE_ALPHA: f64 = 0.45;
+
+/// A Foxglove colour from a palette colour.
+pub fn color(rgb: Rgb, alpha: f64) -> Color {
+    Color {
+        r: rgb.r,
+        g: rgb.g,
+        b: rgb.b,
+        a: alpha,
+    }
+}
+
+/// The identity rotation.
+pub fn identity() -> Quaternion {
+    Quaternion {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+        w: 1.0,
+    }
+}
+
+/// A Foxglove quaternion from a glam one.
+pub fn quaternion(q: DQuat) -> Quaternion {
+    Quaternion {
+        x: q.x,
+        y: q.y,
+        z: q.z,
+        w: q.w,
+    }
+}
+
+/// A pose at `position_m` with `orientation`.
+pub fn pose(position_m: DVec3, orientation: Quaternion) -> Option<Pose> {
+    Some(Pose {
+        position: Some(vector3(position_m)),
+        orientation: Some(orientation),
+    })
+}
+
+/// The rotation taking `from` to the unit vector `to` (identity when `to` is not a usable direction).
+pub fn rotation_to(from: DVec3, to: DVec3) -> Quaternion {
+    match to.try_normalize() {
+        Some(to) => quaternion(DQuat::from_rotation_arc(from, to)),
+        None => identity(),
+    }
+}
+
+/// Key-value metadata of an entity.
+pub fn metadata(pairs: &[(&str, String)]) -> Vec<KeyValuePair> {
+    pairs
+        .iter()
+        .map(|(key, value)| KeyValuePair {
+            key: (*key).to_owned(),
+            value: value.clone(),
+        })
+        .collect()
+}
+
+/// An empty entity `id` in [`WORLD_FRAME`].
+pub fn entity(id: String, timestamp: Timestamp, metadata: Vec<KeyValuePair>) -> SceneEntity {
+    SceneEntity {
+        timestamp: Some(timestamp),
+        frame_id: WORLD_FRAME.to_owned(),
+        id,
+        metadata,
+        ..SceneEntity::default()
+    }
+}
+
+/// A sphere of `diameter_m` at `position_m`.
+pub fn sphere(position_m: DVec3, diameter_m: f64, color: Color) -> SpherePrimitive {
+    SpherePrimitive {
+        pose: pose(position_m, identity()),
+        size: Some(vector3(DVec3::splat(diameter_m))),
+        color: Some(color),
+    }
+}
+
+/// An arrow from `start_m` along `vector` (any length), `length_m` long (at most [`MAX_ARROW_M`]); `None`
+/// for a zero length or a direction that is not finite.
+pub fn arrow(start_m: DVec3, vector: DVec3, length_m: f64, color: Color) -> Option<ArrowPrimitive> {
+    let direction = vector.try_normalize()?;
+    if !(length_m.is_finite() && length_m > 1e-6) {
+        return None;
+    }
+    let length_m = length_m.min(MAX_ARROW_M);
+    let head_length = (0.25 * length_m).min(0.003);
+    Some(ArrowPrimitive {
+        pose: pose(start_m, rotation_to(DVec3::X, direction)),
+        shaft_length: length_m - head_length,
+        shaft_diameter: 0.0006,
+        head_length,
+        head_diameter: 0.0018,
+        color: Some(color),
+    })
+}
+
+/// The markers of one moment: probe, proxy, hand target (when set) and the force arrow from the proxy.
+pub fn marker_entities(
+    probe_m: DVec3,
+    proxy_m: DVec3,
+    hand_target_m: Option<DVec3>,
+    force_n: DVec3,
+    timestamp: Timestamp,
+) -> Vec<SceneEntity> {
+    let colours = palette();
+    let mut entities = Vec::with_capacity(4);
+    let mut probe = entity("probe".to_owned(), timestamp, Vec::new());
+    probe.spheres.push(sphere(
+        probe_m,
+        MARKER_DIAMETER_M,
+        color(colours.probe, 1.0),
+    ));
+    entities.push(probe);
+    let mut proxy = entity("proxy".to_owned(), timestamp, Vec::new());
+    proxy.spheres.push(sphere(
+        proxy_m,
+        MARKER_DIAMETER_M,
+        color(colours.proxy, 1.0),
+    ));
+    entities.push(proxy);
+    if let Some(target) = hand_target_m {
+        let mut hand = entity("hand_target".to_owned(), timestamp, Vec::new());
+        hand.spheres
+            .push(sphere(target, MARKER_DIAMETER_M, color(colours.hand, 1.0)));
+        entities.push(hand);
+    }
+    let mut force = entity(
+        "force".to_owned(),
+        timestamp,
+        metadata(&[("force_n", force_n.length().to_string())]),
+    );
+    force.arrows.extend(arrow(
+        proxy_m,
+        force_n,
+        force_n.length() * FORCE_ARROW_M_PER_N,
+        color(colours.force, 1.0),
+    ));
+    entities.push(force);
+    entities
+}
+
+/// A scene update that first deletes everything drawn before on its topic, then draws `entities`.
+pub fn replace_all(entities: Vec<SceneEntity>, timestamp: Timestamp) -> SceneUpdate {
+    SceneUpdate {
+        deletions: vec![SceneEntityDeletion {
+            timestamp: Some(timestamp),
+            r#type: scene_entity_deletion::Type::All as i32,
+            id: String::new(),
+        }],
+        entities,
+    }
+}
+
+fn point3(p: DVec3) -> Point3 {
+    Point3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    }
+}
+
+/// The volume picture: `volume/bounds` (the 12 edges of the world-space bounding box `min_m ..= max_m`) and,
+/// when given, `volume/surface` (the iso-surface `mesh` in the surface mode's colour, translucent). Entities
+/// never expire; the update replaces the previous volume picture.
+pub fn volume_scene(
+    min_m: DVec3,
+    max_m: DVec3,
+    mesh: Option<(&Mesh, Rgb, f64)>,
+    description: &str,
+    timestamp: Timestamp,
+) -> SceneUpdate {
+    let corner = |c: usize| {
+        DVec3::new(
+            if c & 1 == 0 { min_m.x } else { max_m.x },
+            if c & 2 == 0 { min_m.y } else { max_m.y },
+            if c & 4 == 0 { min_m.z } else { max_m.z },
+        )
+    };
+    let edges = [
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (6, 7),
+        (0, 2),
+        (1, 3),
+        (4, 6),
+        (5, 7),
+        (0, 4),
+        (1, 5),
+        (2, 6),
+        (3, 7),
+    ];
+    let mut bounds = entity(
+        "volume/bounds".to_owned(),
+        timestamp,
+        metadata(&[
+            ("volume", description.to_owned()),
+            ("min_m", format!("{:?}", min_m.to_array())),
+            ("max_m", format!("{:?}", max_m.to_array())),
+        ]),
+    );
+    bounds.lines.push(LinePrimitive {
+        r#type: line_primitive::Type::LineList as i32,
+        pose: pose(DVec3::ZERO, identity()),
+        thickness: 2.0,
+        scale_invariant: true,
+        points: edges
+            .iter()
+            .flat_map(|&(a, b)| [point3(corner(a)), point3(corner(b))])
+            .collect(),
+        color: Some(color(palette().bounds, 1.0)),
+        colors: Vec::new(),
+        indices: Vec::new(),
+    });
+    let mut entities = vec![bounds];
+    if let Some((mesh, rgb, iso)) = mesh {
+        let mut surface = entity(
+            "volume/surface".to_owned(),
+            timestamp,
+            metadata(&[
+                ("iso_value", iso.to_string()),
+                ("triangles", mesh.triangles.len().to_string()),
+            ]),
+        );
+        surface.triangles.push(TriangleListPrimitive {
+            pose: pose(DVec3::ZERO, identity()),
+            points: mesh.vertices.iter().map(|&v| point3(v)).collect(),
+            color: Some(color(rgb, SURFACE_ALPHA)),
+            colors: Vec::new(),
+            indices: mesh.triangles.iter().flatten().copied().collect(),
+        });
+        entities.push(surface);
+    }
+    replace_all(entities, timestamp)
+}
+
+/// Largest iso-surface mesh recorded (triangles).
+pub const RECORDED_MAX_TRIANGLES: usize = 60_000;
+/// How often the recorded scene markers and bound are written (per second of tick time).
+pub const RECORDED_SCENE_HZ: f64 = 60.0;
+
+/// The volume picture of a recording: bounds and the surface mode's iso-surface, built from the trace's
+/// metadata when the recording starts (the volumes are loaded again from their sources; the first one that
+/// loads as a scalar volume is drawn, meshed at the iso-value of the first surface mode:
+/// `crate::server::foxglove::volume::half_strength_value`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedVolume {
+    pub description: String,
+    pub min_m: DVec3,
+    pub max_m: DVec3,
+    pub surface: Option<(Mesh, Rgb, f64)>,
+}
+
+impl RecordedVolume {
+    /// The picture of `meta`'s volumes; `None` when none of them loads as a scalar volume (then a
+    /// recording simply has no volume topic messages).
+    pub fn from_meta(meta: &super::TraceMeta) -> Option<RecordedVolume> {
+        use crate::haptics::modes::{ModeConfig, ModeKind};
+        use crate::volume::isosurface::{bounded_isosurface, SampledGrid};
+        let volume = meta.volume.split(", ").find_map(|source| {
+            let loaded = match source.strip_prefix("builtin:") {
+                Some(name) => crate::volume::procedural::builtin(name).ok()?.scalar?,
+                None => match crate::volume::io::load(std::path::Path::new(source))
+                    .ok()?
+                    .volume
+                {
+                    crate::volume::AnyVolume::Scalar(volume) => volume,
+                    crate::volume::AnyVolume::Vector(_) => return None,
+                },
+            };
+            Some((source.to_owned(), loaded))
+        });
+        let (source, volume) = volume?;
+        let (min_m, max_m) = volume.grid().bounds_world();
+        let modes: Vec<ModeConfig> = meta
+            .scenario
+            .get("modes")
+            .and_then(|m| serde_json::from_value(m.clone()).ok())
+            .unwrap_or_default();
+        let surface = modes
+            .iter()
+            .enumerate()
+            .find(|(_, m)| m.kind == ModeKind::Surface)
+            .and_then(|(index, mode)| {
+                let iso =
+                    crate::server::foxglove::volume::half_strength_value(mode.transfer.as_ref()?)?;
+                let sample = |n: usize| {
+                    Ok::<_, ()>(SampledGrid::from_fn(min_m, max_m, [n, n, n], |p| {
+                        volume.sample(p) as f32
+                    }))
+                };
+                let (mesh, _) =
+                    bounded_isosurface(iso as f32, 64, RECORDED_MAX_TRIANGLES, sample).ok()?;
+                Some((mesh, palette().mode(index), iso))
+            });
+        Some(RecordedVolume {
+            description: source,
+            min_m,
+            max_m,
+            surface,
+        })
+    }
+}
+
+/// `/voxhap/bound` in a recording (JSON `voxhap.Bound`, the live view's schema). The trace has no solver
+/// status, so `status` is derived: `budget_exhausted` when the tick's solver-budget flag is set,
+/// `uncertified` without a certificate, else `certified`.
+#[derive(serde::Serialize)]
+struct RecordedBound {
+    tick: u64,
+    t_s: f64,
+    error_bound_m: Option<f64>,
+    sweeps: u32,
+    status: &'static str,
+}
+
+/// `/voxhap/stats` in a recording (JSON `voxhap.TraceStats`): totals from the first recorded tick, once a
+/// second of tick time.
+#[derive(serde::Serialize, Default)]
+struct RecordedStats {
+    t_s: f64,
+    ticks: u64,
+    max_sweeps: u32,
+    worst_error_bound_m: Option<f64>,
+    overruns: u64,
+    solver_budget_hits: u64,
+    force_clamped: u64,
+    samples_dropped: u64,
+}
+
+fn trace_stats_schema() -> serde_json::Value {
+    let count =
+        |what: &str| serde_json::json!({"type": "integer", "minimum": 0, "description": what});
+    serde_json::json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "voxhap.TraceStats",
+        "type": "object",
+        "properties": {
+            "t_s": {"type": "number", "description": "tick time of the latest tick counted (s)"},
+            "ticks": count("ticks recorded so far"),
+            "max_sweeps": count("most solver sweeps in one tick"),
+            "worst_error_bound_m": {"type": ["number", "null"], "description": "worst certificate bound (m); null = a tick without one"},
+            "overruns": count("ticks flagged overrun"),
+            "solver_budget_hits": count("ticks flagged solver_budget_hit"),
+            "force_clamped": count("ticks flagged force_clamped"),
+            "samples_dropped": count("ticks flagged samples_dropped")
+        }
+    })
+}
+
+fn recorded_bound_schema() -> serde_json::Value {
+    crate::server::foxglove::messages::bound_schema()
+}
+
+/// Encodes one message into the buffer it is given.
+pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), String> + 'a;
+/// Writes one message: the channel and its encoder.
+pub type ScenePut<'a> = dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), super::TraceError> + 'a;
+
+/// The scene channels of an MCAP trace and what they need between samples.
+pub struct RecordedScene {
+    primitives: u16,
+    volume: u16,
+    volume_frame: u16,
+    bound: u16,
+    stats: u16,
+    picture: Option<RecordedVolume>,
+    picture_written: bool,
+    next_scene_ns: u64,
+    next_stats_t_s: Option<f64>,
+    totals: RecordedStats,
+    worst_bound_m: f64,
+}
+
+impl RecordedScene {
+    /// Adds the schemas and channels ([`PRIMITIVES_TOPIC`], [`VOLUME_TOPIC`], [`VOLUME_FRAME_TOPIC`],
+    /// [`BOUND_TOPIC`], [`STATS_TOPIC`]) and builds the volume picture of `meta`.
+    pub fn add<W: std::io::Write + std::io::Seek>(
+        writer: &mut mcap::Writer<W>,
+        meta: &super::TraceMeta,
+    ) -> Result<RecordedScene, mcap::McapError> {
+        use ::foxglove::Encode;
+        let none = std::collections::BTreeMap::new();
+        let mut schema_of = |schema: Option<::foxglove::Schema>| match schema {
+            Some(schema) => writer.add_schema(&schema.name, &schema.encoding, &schema.data),
+            None => Ok(0),
+        };
+        let scene_schema = schema_of(SceneUpdate::get_schema())?;
+        let transform_schema = schema_of(FrameTransform::get_schema())?;
+        let bound_schema = writer.add_schema(
+            "voxhap.Bound",
+            "jsonschema",
+            recorded_bound_schema().to_string().as_bytes(),
+        )?;
+        let stats_schema = writer.add_schema(
+            "voxhap.TraceStats",
+            "jsonschema",
+            trace_stats_schema().to_string().as_bytes(),
+        )?;
+        let protobuf = SceneUpdate::get_message_encoding();
+        Ok(RecordedScene {
+            primitives: writer.add_channel(scene_schema, PRIMITIVES_TOPIC, &protobuf, &none)?,
+            volume: writer.add_channel(scene_schema, VOLUME_TOPIC, &protobuf, &none)?,
+            volume_frame: writer.add_channel(
+                transform_schema,
+                VOLUME_FRAME_TOPIC,
+                &protobuf,
+                &none,
+            )?,
+            bound: writer.add_channel(bound_schema, BOUND_TOPIC, "json", &none)?,
+            stats: writer.add_channel(stats_schema, STATS_TOPIC, "json", &none)?,
+            picture: RecordedVolume::from_meta(meta),
+            picture_written: false,
+            next_scene_ns: 0,
+            next_stats_t_s: None,
+            totals: RecordedStats::default(),
+            worst_bound_m: 0.0,
+        })
+    }
+
+    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture with the first sample,
+    /// markers and bound at [`RECORDED_SCENE_HZ`], statistics once a second. `put(channel, encode)` writes
+    /// one message.
+    pub fn write(
+        &mut self,
+        sample: &super::TraceSample,
+        time_ns: u64,
+        put: &mut ScenePut<'_>,
+    ) -> Result<(), super::TraceError> {
+        use ::foxglove::Encode;
+        let timestamp = timestamp_from_ns(time_ns);
+        if !self.picture_written {
+            self.picture_written = true;
+            if let Some(picture) = &self.picture {
+                let surface = picture
+                    .surface
+                    .as_ref()
+                    .map(|(m, rgb, iso)| (m, *rgb, *iso));
+                let update = volume_scene(
+                    picture.min_m,
+                    picture.max_m,
+                    surface,
+                    &picture.description,
+                    timestamp,
+                );
+                put(self.volume, &|m| {
+                    update.encode(m).map_err(|e| e.to_string())
+                })?;
+                let frame =
+                    frame_transform(VOLUME_FRAME, (picture.min_m + picture.max_m) * 0.5, time_ns);
+                put(self.volume_frame, &|m| {
+                    frame.encode(m).map_err(|e| e.to_string())
+                })?;
+            }
+        }
+        let t = &mut self.totals;
+        t.t_s = sample.t_s;
+        t.ticks += 1;
+        t.max_sweeps = t.max_sweeps.max(sample.sweeps);
+        self.worst_bound_m = self.worst_bound_m.max(sample.error_bound_m);
+        t.worst_error_bound_m = self.worst_bound_m.is_finite().then_some(self.worst_bound_m);
+        let flag = |bit: u32| u64::from(sample.flags & bit != 0);
+        t.overruns += flag(super::FLAG_OVERRUN);
+        t.solver_budget_hits += flag(super::FLAG_SOLVER_BUDGET_HIT);
+        t.force_clamped += flag(super::FLAG_FORCE_CLAMPED);
+        t.samples_dropped += flag(super::FLAG_SAMPLES_DROPPED);
+        if time_ns >= self.next_scene_ns {
+            self.next_scene_ns = time_ns.saturating_add((1e9 / RECORDED_SCENE_HZ) as u64);
+            let update = replace_all(
+                marker_entities(
+                    sample.probe_m,
+                    sample.proxy_m,
+                    None,
+                    sample.force_n,
+                    timestamp,
+                ),
+                timestamp,
+            );
+            put(self.primitives, &|m| {
+                update.encode(m).map_err(|e| e.to_string())
+            })?;
+            let bound = RecordedBound {
+                tick: sample.tick,
+                t_s: sample.t_s,
+                error_bound_m: sample
+                    .error_bound_m
+                    .is_finite()
+                    .then_some(sample.error_bound_m),
+                sweeps: sample.sweeps,
+                status: if sample.flags & super::FLAG_SOLVER_BUDGET_HIT != 0 {
+                    "budget_exhausted"
+                } else if sample.error_bound_m.is_finite() {
+                    "certified"
+                } else {
+                    "uncertified"
+                },
+            };
+            put(self.bound, &|m| {
+                serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
+            })?;
+        }
+        let due = self.next_stats_t_s.get_or_insert(sample.t_s + 1.0);
+        if sample.t_s >= *due {
+            *due = sample.t_s + 1.0;
+            let totals = &self.totals;
+            put(self.stats, &|m| {
+                serde_json::to_writer(m, totals).map_err(|e| e.to_string())
+            })?;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -91,6 +648,34 @@ mod tests {
         assert_eq!(schema.encoding, "protobuf");
         assert_eq!(FrameTransform::get_message_encoding(), "protobuf");
         assert_eq!(Vector3::get_schema().unwrap().name, "foxglove.Vector3");
+    }
+
+    #[test]
+    fn a_recording_of_a_builtin_sphere_gets_its_bounds_and_a_mesh_at_the_surface_threshold() {
+        let mut meta = crate::record::test_support::meta(&["surface"]);
+        meta.volume = "builtin:sphere".to_owned();
+        meta.scenario = serde_json::json!({
+            "modes": [{"kind": "surface", "volume": "v", "transfer": [[0.45, 0.0], [0.55, 2.0]]}]
+        });
+        let picture = RecordedVolume::from_meta(&meta).expect("a picture");
+        assert!(
+            picture.min_m.x < -0.03 && picture.max_m.x > 0.03,
+            "{picture:?}"
+        );
+        let (mesh, colour, iso) = picture.surface.expect("a surface mesh");
+        assert!((iso - 0.5).abs() < 1e-12);
+        assert_eq!(colour, palette().mode(0));
+        assert!(!mesh.triangles.is_empty() && mesh.triangles.len() <= RECORDED_MAX_TRIANGLES);
+        // The half-density shell of the radius-3 cm ball.
+        for v in &mesh.vertices {
+            assert!(
+                (v.length() - 0.03).abs() < 0.003,
+                "vertex at {} m",
+                v.length()
+            );
+        }
+        meta.volume = "procedural:sphere, /no/such/file.nii".to_owned();
+        assert_eq!(RecordedVolume::from_meta(&meta), None);
     }
 
     #[test]

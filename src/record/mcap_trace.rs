@@ -7,13 +7,18 @@
 //!   [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s, primitives as an object keyed by mode name in mode
 //!   order, sweeps, error_bound_m (`null` when +inf), flags);
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
-//!   (`super::foxglove_topics`), so Foxglove and Lichtblick show a recording like a live session:
-//!   [`PROBE_TOPIC`] and [`PROXY_TOPIC`] (`foxglove.FrameTransform`, frames `probe` and `proxy` in `world`,
-//!   translation in m) and [`FORCE_TOPIC`] (`foxglove.Vector3`, the sent force in N). The transforms' own
-//!   timestamps equal the log time;
-//! * one message on every channel per tick (no decimation), `log_time = publish_time = round(t_s * 1e9)`
-//!   ns since the run started (deterministic: tick time, not wall time), `sequence` = the sample's index in
-//!   the trace;
+//!   (`super::foxglove_topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
+//!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
+//!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
+//!   in N), one message per tick. The transforms' own timestamps equal the log time;
+//! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` once (the volume's
+//!   bounds and iso-surface), `/voxhap/primitives` and `/voxhap/bound` at 60 Hz of tick time,
+//!   `/voxhap/stats` (`voxhap.TraceStats`) once a second;
+//! * `log_time = publish_time` = wall-clock UTC (ns since the Unix epoch): the wall time at which the
+//!   writer was created for the first sample, plus the tick time since the first sample for the others,
+//!   so recordings line up with other instruments ([`log_time_start_ns`]: a trace whose `created_utc` was
+//!   set to another time, as tests and reproducible runs do, starts at that time instead, so two such runs
+//!   write identical files); `sequence` = the sample's index in the trace;
 //! * one metadata record named [`METADATA_NAME`] with the sidecar's metadata fields as strings (JSON for
 //!   the ones that are not strings).
 //!
@@ -35,8 +40,8 @@ use ::foxglove::Encode;
 
 use super::csv::read_sidecar;
 use super::foxglove_topics::{
-    frame_transform, set_translation, vector3, FORCE_TOPIC, PROBE_FRAME, PROBE_TOPIC, PROXY_FRAME,
-    PROXY_TOPIC,
+    frame_transform, set_translation, vector3, RecordedScene, MEASURED_CP_TOPIC as PROBE_TOPIC,
+    PROBE_FRAME, PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
 use super::{
     sidecar_path, SampleChecker, Sidecar, Trace, TraceError, TraceFormat, TraceMeta,
@@ -168,12 +173,82 @@ pub struct McapTraceWriter {
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
+    /// The scene topics (markers, volume, bound, statistics).
+    scene: RecordedScene,
+    /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
+    wall_start_ns: u64,
+    first_t_s: Option<f64>,
+}
+
+/// Wall-clock time (ns since the Unix epoch) of a trace's first sample: `now_ns` for a trace created now
+/// (`meta.created_utc` within 2 s of it: a live recording, stamped with the precise clock), else the time
+/// `created_utc` names (a trace whose creation time was set, e.g. to make two runs identical).
+pub fn log_time_start_ns(meta: &TraceMeta, now_ns: u64) -> u64 {
+    match parse_utc_seconds(&meta.created_utc) {
+        Some(seconds) if seconds.saturating_mul(1_000_000_000).abs_diff(now_ns) > 2_000_000_000 => {
+            seconds.saturating_mul(1_000_000_000)
+        }
+        _ => now_ns,
+    }
+}
+
+/// Seconds since 1970 of `YYYY-MM-DDTHH:MM:SS[.fff]Z` (the fraction is ignored); `None` otherwise.
+fn parse_utc_seconds(text: &str) -> Option<u64> {
+    let text = text.strip_suffix('Z')?;
+    let (date, time) = text.split_once('T')?;
+    let mut date_parts = date.splitn(3, '-').map(|p| p.parse::<i64>().ok());
+    let (year, month, day) = (
+        date_parts.next()??,
+        date_parts.next()??,
+        date_parts.next()??,
+    );
+    let time = time.split('.').next()?;
+    let mut time_parts = time.splitn(3, ':').map(|p| p.parse::<u64>().ok());
+    let (hour, minute, second) = (
+        time_parts.next()??,
+        time_parts.next()??,
+        time_parts.next()??,
+    );
+    if !(1..=12).contains(&month)
+        || !(1..=31).contains(&day)
+        || hour > 23
+        || minute > 59
+        || second > 60
+    {
+        return None;
+    }
+    // Days from the civil date (Howard Hinnant's algorithm).
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let year_of_era = y.rem_euclid(400);
+    let month_shifted = (month + 9) % 12;
+    let day_of_year = (153 * month_shifted + 2) / 5 + day - 1;
+    let day_of_era = year_of_era * 365 + year_of_era / 4 - year_of_era / 100 + day_of_year;
+    let days = u64::try_from(era * 146_097 + day_of_era - 719_468).ok()?;
+    Some(days * 86_400 + hour * 3600 + minute * 60 + second)
+}
+
+/// Now, in ns since the Unix epoch.
+pub fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
 }
 
 impl McapTraceWriter {
     /// Creates (truncates) `path` and `path.json`; writes the header, schemas, channels, the metadata
     /// record and a provisional sidecar.
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
+        Self::create_at(path, meta, log_time_start_ns(meta, unix_now_ns()))
+    }
+
+    /// As [`McapTraceWriter::create`], the first sample logged at `wall_start_ns` (ns since the Unix
+    /// epoch) and every later one at that plus its tick time since the first.
+    pub fn create_at(
+        path: &Path,
+        meta: &TraceMeta,
+        wall_start_ns: u64,
+    ) -> Result<Self, TraceError> {
         meta.validate()?;
         let mcap_error = |source| TraceError::Mcap {
             path: path.to_path_buf(),
@@ -211,6 +286,7 @@ impl McapTraceWriter {
             .map_err(mcap_error)?;
         let (probe_channel, proxy_channel, force_channel) =
             add_foxglove_channels(&mut writer).map_err(mcap_error)?;
+        let scene = RecordedScene::add(&mut writer, meta).map_err(mcap_error)?;
         writer
             .write_metadata(&mcap::records::Metadata {
                 name: METADATA_NAME.to_string(),
@@ -233,6 +309,9 @@ impl McapTraceWriter {
             message: Vec::with_capacity(512),
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
+            scene,
+            wall_start_ns,
+            first_t_s: None,
         })
     }
 
@@ -328,7 +407,10 @@ impl TraceWriter for McapTraceWriter {
         }
         self.checker.check(sample)?;
         let sequence = (self.checker.count - 1) as u32;
-        let time_ns = (sample.t_s * 1e9).round() as u64;
+        let first_t_s = *self.first_t_s.get_or_insert(sample.t_s);
+        let time_ns = self
+            .wall_start_ns
+            .saturating_add(((sample.t_s - first_t_s).max(0.0) * 1e9).round() as u64);
         let state = StateMessage {
             tick: sample.tick,
             t_s: sample.t_s,
@@ -378,6 +460,9 @@ impl TraceWriter for McapTraceWriter {
         })?;
         put(self.force_channel, &|m| {
             vector3(sample.force_n).encode(m).map_err(encode_error)
+        })?;
+        self.scene.write(sample, time_ns, &mut |channel, encode| {
+            put(channel, &|m| encode(m).map_err(encode_error))
         })?;
         Ok(())
     }
@@ -745,12 +830,16 @@ fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>,
 
 #[cfg(test)]
 mod tests {
+    use super::super::read_trace;
     use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, read_trace};
     use super::*;
 
+    /// Wall-clock time of the first sample in the tests' traces (2023-11-14T22:13:20Z).
+    const WALL_START_NS: u64 = 1_700_000_000_000_000_000;
+
     fn write_mcap(path: &Path, modes: &[&str], data: &[TraceSample]) {
-        let mut writer = create_trace_writer(path, TraceFormat::Mcap, &meta(modes)).unwrap();
+        let mut writer: Box<dyn TraceWriter> =
+            Box::new(McapTraceWriter::create_at(path, &meta(modes), WALL_START_NS).unwrap());
         for (i, sample) in data.iter().enumerate() {
             writer.write_sample(sample).unwrap();
             if i == data.len() / 2 {
@@ -759,6 +848,31 @@ mod tests {
         }
         assert_eq!(writer.finish().unwrap().sample_count, data.len() as u64);
         assert!(matches!(writer.finish(), Err(TraceError::Finished)));
+    }
+
+    #[test]
+    fn log_times_start_now_for_a_live_trace_and_at_a_set_creation_time_otherwise() {
+        assert_eq!(parse_utc_seconds("1970-01-01T00:00:00Z"), Some(0));
+        assert_eq!(parse_utc_seconds("2000-03-01T00:00:01Z"), Some(951_868_801));
+        assert_eq!(
+            parse_utc_seconds("2023-11-14T22:13:20.5Z"),
+            Some(1_700_000_000)
+        );
+        assert_eq!(parse_utc_seconds("2023-13-14T22:13:20Z"), None);
+        assert_eq!(parse_utc_seconds("yesterday"), None);
+        let set = meta(&["surface"]); // created 2000-01-01T00:00:00Z
+        let now = 1_700_000_000_123_456_789;
+        assert_eq!(log_time_start_ns(&set, now), 946_684_800_000_000_000);
+        let live = TraceMeta {
+            created_utc: "2023-11-14T22:13:20Z".to_owned(),
+            ..set.clone()
+        };
+        assert_eq!(log_time_start_ns(&live, now), now);
+        let odd = TraceMeta {
+            created_utc: "not a time".to_owned(),
+            ..set
+        };
+        assert_eq!(log_time_start_ns(&odd, now), now);
     }
 
     #[test]
@@ -789,7 +903,7 @@ mod tests {
     }
 
     #[test]
-    fn log_times_are_tick_times_and_voxhap_schemas_are_json() {
+    fn log_times_are_wall_clock_from_the_first_tick_and_voxhap_schemas_are_json() {
         let dir = tempfile::tempdir().unwrap();
         let data = samples(20, 1);
         let path = dir.path().join("t.mcap");
@@ -799,7 +913,8 @@ mod tests {
         for message in mcap::MessageStream::new(&bytes).unwrap() {
             let message = message.unwrap();
             let index = message.sequence as usize;
-            assert_eq!(message.log_time, (data[index].t_s * 1e9).round() as u64);
+            let since_first_ns = ((data[index].t_s - data[0].t_s) * 1e9).round() as u64;
+            assert_eq!(message.log_time, WALL_START_NS + since_first_ns);
             if ![STATE_TOPIC, SOLVER_TOPIC].contains(&message.channel.topic.as_str()) {
                 continue;
             }

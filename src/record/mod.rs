@@ -8,8 +8,9 @@
 //! [`read_mcap_trace`].
 //!
 //! Determinism: everything written is a function of the samples and the [`TraceMeta`], and only
-//! `TraceMeta::created_utc` depends on the wall clock, so two runs of the same scenario write identical
-//! files apart from that field. Floats are written in shortest round-trip form, so reading a CSV trace
+//! `TraceMeta::created_utc` and an MCAP trace's log times (wall-clock UTC, so recordings line up with other
+//! instruments) depend on the wall clock, so two runs of the same scenario write identical files apart from
+//! those. Floats are written in shortest round-trip form, so reading a CSV trace
 //! gives back the exact bits written.
 
 mod csv;

@@ -46,8 +46,8 @@ pub struct HttpArgs {
     /// repeat for more. By default only the page served here may.
     #[arg(long, value_name = "ORIGIN")]
     pub allow_origin: Vec<String>,
-    /// Do not start the visualiser server.
-    #[arg(long, conflicts_with_all = ["http", "allow_remote", "token", "max_clients", "allow_host", "allow_origin"])]
+    /// Do not start the visualiser server (--token still sets the OpenIGTLink server's token).
+    #[arg(long, conflicts_with_all = ["http", "allow_remote", "max_clients", "allow_host", "allow_origin"])]
     pub no_http: bool,
 }
 
@@ -223,5 +223,9 @@ mod tests {
             .contains("--max-clients must be"));
         assert_eq!(resolve(&["--no-http"]).unwrap(), None);
         assert!(resolve(&["--no-http", "--http", "127.0.0.1:1"]).is_err());
+        assert_eq!(
+            resolve(&["--no-http", "--token", "s3cret-token"]).unwrap(),
+            None
+        );
     }
 }

@@ -8,32 +8,47 @@
 //! the oldest for a slow one, so no client can slow the servo thread. Nothing is read or encoded for
 //! topics no client subscribed to.
 //!
-//! Topics (frame `world` is voxhap's world space, metres):
+//! Topics (frame `world` is voxhap's world space, RAS metres; pose, velocity and force topics carry CRTK
+//! names, see `crate::record::foxglove_topics` for the table with the old names):
 //!
 //! | topic | schema | rate |
 //! |---|---|---|
-//! | `/voxhap/probe`, `/voxhap/proxy` | `foxglove.FrameTransform` (frames `probe`, `proxy` in `world`) | sampled |
-//! | `/voxhap/force` | `foxglove.Vector3`: force sent to the device (N) | sampled |
+//! | `/voxhap/measured_cp`, `/voxhap/setpoint_cp` | `foxglove.FrameTransform` (frames `probe`, `proxy` in `world`) | sampled |
+//! | `/voxhap/measured_cv` | `foxglove.Vector3`: probe velocity (m/s) | sampled |
+//! | `/voxhap/servo_cf` | `foxglove.Vector3`: force sent to the device (N) | sampled |
+//! | `/voxhap/operating_state` | `voxhap.OperatingState` (JSON, CRTK fields `state`, `is_homed`, `is_busy`) | sampled |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate`: probe, proxy, force arrow, the tick's primitives ([`messages`]) | sampled |
 //! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
 //! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`crate::servo::StatsReport`] | 1 Hz |
+//! | `/voxhap/volume` | `foxglove.SceneUpdate`: the volume's bounding box and iso-surface ([`volume`]) | on each scene change and each new subscriber |
+//! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre | with `/voxhap/volume` |
+//! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
+//! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
 //!
-//! The first three are the same topics an MCAP trace carries (`crate::record::foxglove_topics`). Message
-//! timestamps and log times are wall-clock: the session's tick time plus the wall time at which the view
-//! first saw the session (the MCAP trace uses tick time since the start instead).
+//! The pose, force, primitives and volume topics are also in MCAP traces (`crate::record::foxglove_topics`).
+//! Message timestamps and log times are wall-clock: the session's tick time plus the wall time at which the
+//! view first saw the session. The volume picture and the slices are computed on tokio's blocking pool, one
+//! at a time, never on the servo thread.
 
 pub mod messages;
+pub mod volume;
 
-use self::messages::{scene_update, BoundMessage, StatsMessage};
+use self::messages::{scene_update, BoundMessage, OperatingStateMessage, StatsMessage};
+use self::volume::VolumePicture;
 use crate::record::foxglove_topics::{
-    frame_transform, set_translation, timestamp_from_ns, vector3, FORCE_TOPIC, PROBE_FRAME,
-    PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC,
+    frame_transform, set_translation, timestamp_from_ns, vector3, volume_scene, FORCE_TOPIC,
+    MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME, PROBE_TOPIC,
+    PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME, VOLUME_FRAME_TOPIC,
+    VOLUME_TOPIC,
 };
+pub use crate::record::foxglove_topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
 use crate::servo::{SessionApi, Snapshot};
-use ::foxglove::messages::{FrameTransform, SceneUpdate, Vector3};
+use ::foxglove::messages::{FrameTransform, Grid, SceneUpdate, Vector3};
+use ::foxglove::websocket::{ChannelView, Client, ServerListener};
 use ::foxglove::{Channel, Context, WebSocketServerHandle};
 use glam::DVec3;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::sync::oneshot;
@@ -46,21 +61,34 @@ pub const DEFAULT_ADDR: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALH
 pub const DEFAULT_RATE_HZ: u32 = 60;
 /// Accepted sampling rates (Hz).
 pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
-/// The scene: probe, proxy, force arrow and primitives as a `foxglove.SceneUpdate`.
-pub const PRIMITIVES_TOPIC: &str = "/voxhap/primitives";
-/// The certificate bound of the sampled tick (JSON `voxhap.Bound`).
-pub const BOUND_TOPIC: &str = "/voxhap/bound";
-/// The loop statistics, once a second (JSON `voxhap.Stats`).
-pub const STATS_TOPIC: &str = "/voxhap/stats";
+/// The slices through the proxy, normal to x, y and z (`foxglove.Grid`).
+pub const SLICE_TOPICS: [&str; 3] = [
+    "/voxhap/volume/slice_x",
+    "/voxhap/volume/slice_y",
+    "/voxhap/volume/slice_z",
+];
 /// Every topic the live view advertises.
-pub const TOPICS: [&str; 6] = [
-    PROBE_TOPIC,
-    PROXY_TOPIC,
-    FORCE_TOPIC,
+pub const TOPICS: [&str; 16] = [
+    MEASURED_CP_TOPIC,
+    SETPOINT_CP_TOPIC,
+    MEASURED_CV_TOPIC,
+    SERVO_CF_TOPIC,
+    OPERATING_STATE_TOPIC,
     PRIMITIVES_TOPIC,
     BOUND_TOPIC,
     STATS_TOPIC,
+    VOLUME_TOPIC,
+    VOLUME_FRAME_TOPIC,
+    SLICE_TOPICS[0],
+    SLICE_TOPICS[1],
+    SLICE_TOPICS[2],
+    // Deprecated names, dropped in the next release.
+    PROBE_TOPIC,
+    PROXY_TOPIC,
+    FORCE_TOPIC,
 ];
+/// How often the slices through the proxy are sampled and sent (when subscribed).
+pub const SLICE_INTERVAL: Duration = Duration::from_millis(250);
 /// How long [`FoxgloveServer::stop`] waits for client connections to close.
 pub const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 /// How often the statistics are published.
@@ -194,6 +222,7 @@ impl FoxgloveServer {
         }
         let context = Context::new();
         let channels = Channels::new(&context);
+        let resend = Arc::new(ResendOnSubscribe::default());
         let host = match config.addr.ip() {
             IpAddr::V4(ip) => ip.to_string(),
             IpAddr::V6(ip) => format!("[{ip}]"),
@@ -201,6 +230,7 @@ impl FoxgloveServer {
         let started = context
             .websocket_server()
             .name(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
+            .listener(resend.clone())
             .bind(host, config.addr.port())
             .start()
             .await;
@@ -221,7 +251,7 @@ impl FoxgloveServer {
         let addr = SocketAddr::new(config.addr.ip(), handle.port());
         let (stop, stopped) = oneshot::channel();
         let period = Duration::from_secs_f64(1.0 / f64::from(config.rate_hz));
-        let publisher = tokio::spawn(publish(api, channels, period, stopped));
+        let publisher = tokio::spawn(publish(api, channels, resend, period, stopped));
         Ok(FoxgloveServer {
             _context: context,
             handle,
@@ -273,34 +303,78 @@ pub async fn start_for_serve(
     }
 }
 
+/// Asks the publisher to send the volume picture again when a client subscribes to it (it is sent once per
+/// scene otherwise, and a late subscriber would see nothing).
+#[derive(Default)]
+struct ResendOnSubscribe {
+    volume: AtomicBool,
+}
+
+impl ServerListener for ResendOnSubscribe {
+    fn on_subscribe(&self, _client: Client, channel: ChannelView) {
+        if channel.topic() == VOLUME_TOPIC || channel.topic() == VOLUME_FRAME_TOPIC {
+            self.volume.store(true, Ordering::Release);
+        }
+    }
+}
+
 /// The live view's channels, on their own [`Context`] (so several servers can run in one process).
 struct Channels {
-    probe: Channel<FrameTransform>,
-    proxy: Channel<FrameTransform>,
-    force: Channel<Vector3>,
+    measured_cp: Channel<FrameTransform>,
+    setpoint_cp: Channel<FrameTransform>,
+    measured_cv: Channel<Vector3>,
+    servo_cf: Channel<Vector3>,
+    operating_state: Channel<OperatingStateMessage>,
     primitives: Channel<SceneUpdate>,
     bound: Channel<BoundMessage>,
     stats: Channel<StatsMessage>,
+    volume: Channel<SceneUpdate>,
+    volume_frame: Channel<FrameTransform>,
+    slices: [Channel<Grid>; 3],
+    old_probe: Channel<FrameTransform>,
+    old_proxy: Channel<FrameTransform>,
+    old_force: Channel<Vector3>,
 }
 
 impl Channels {
-    /// True when a client subscribed to one of the sampled topics (everything but the statistics).
+    /// True when a client subscribed to one of the sampled topics.
     fn any_sampled_subscribed(&self) -> bool {
-        self.probe.has_sinks()
-            || self.proxy.has_sinks()
-            || self.force.has_sinks()
+        self.measured_cp.has_sinks()
+            || self.setpoint_cp.has_sinks()
+            || self.measured_cv.has_sinks()
+            || self.servo_cf.has_sinks()
+            || self.operating_state.has_sinks()
             || self.primitives.has_sinks()
             || self.bound.has_sinks()
+            || self.old_probe.has_sinks()
+            || self.old_proxy.has_sinks()
+            || self.old_force.has_sinks()
+    }
+
+    fn volume_subscribed(&self) -> bool {
+        self.volume.has_sinks() || self.volume_frame.has_sinks() || self.slices_subscribed()
+    }
+
+    fn slices_subscribed(&self) -> bool {
+        self.slices.iter().any(Channel::has_sinks)
     }
 
     fn new(context: &Arc<Context>) -> Self {
         Channels {
-            probe: context.channel_builder(PROBE_TOPIC).build(),
-            proxy: context.channel_builder(PROXY_TOPIC).build(),
-            force: context.channel_builder(FORCE_TOPIC).build(),
+            measured_cp: context.channel_builder(MEASURED_CP_TOPIC).build(),
+            setpoint_cp: context.channel_builder(SETPOINT_CP_TOPIC).build(),
+            measured_cv: context.channel_builder(MEASURED_CV_TOPIC).build(),
+            servo_cf: context.channel_builder(SERVO_CF_TOPIC).build(),
+            operating_state: context.channel_builder(OPERATING_STATE_TOPIC).build(),
             primitives: context.channel_builder(PRIMITIVES_TOPIC).build(),
             bound: context.channel_builder(BOUND_TOPIC).build(),
             stats: context.channel_builder(STATS_TOPIC).build(),
+            volume: context.channel_builder(VOLUME_TOPIC).build(),
+            volume_frame: context.channel_builder(VOLUME_FRAME_TOPIC).build(),
+            slices: SLICE_TOPICS.map(|topic| context.channel_builder(topic).build()),
+            old_probe: context.channel_builder(PROBE_TOPIC).build(),
+            old_proxy: context.channel_builder(PROXY_TOPIC).build(),
+            old_force: context.channel_builder(FORCE_TOPIC).build(),
         }
     }
 }
@@ -332,29 +406,46 @@ impl Publisher {
         }
     }
 
+    fn wall_ns(&mut self, t_s: f64) -> u64 {
+        let tick_ns = (t_s.max(0.0) * 1e9) as u64;
+        let epoch_ns = *self
+            .epoch_ns
+            .get_or_insert_with(|| unix_now_ns().saturating_sub(tick_ns));
+        epoch_ns.saturating_add(tick_ns)
+    }
+
     /// Publishes `snapshot` unless its tick was already published.
     fn snapshot(&mut self, snapshot: &Snapshot) {
         if self.last_tick == Some(snapshot.tick) {
             return;
         }
         self.last_tick = Some(snapshot.tick);
-        let tick_ns = (snapshot.t_s.max(0.0) * 1e9) as u64;
-        let epoch_ns = *self
-            .epoch_ns
-            .get_or_insert_with(|| unix_now_ns().saturating_sub(tick_ns));
-        let time_ns = epoch_ns.saturating_add(tick_ns);
+        let time_ns = self.wall_ns(snapshot.t_s);
         let c = &self.channels;
-        if c.probe.has_sinks() {
-            set_translation(&mut self.probe, snapshot.probe_m, time_ns);
-            c.probe.log_with_time(&self.probe, time_ns);
+        set_translation(&mut self.probe, snapshot.probe_m, time_ns);
+        set_translation(&mut self.proxy, snapshot.proxy_m, time_ns);
+        for channel in [&c.measured_cp, &c.old_probe] {
+            if channel.has_sinks() {
+                channel.log_with_time(&self.probe, time_ns);
+            }
         }
-        if c.proxy.has_sinks() {
-            set_translation(&mut self.proxy, snapshot.proxy_m, time_ns);
-            c.proxy.log_with_time(&self.proxy, time_ns);
+        for channel in [&c.setpoint_cp, &c.old_proxy] {
+            if channel.has_sinks() {
+                channel.log_with_time(&self.proxy, time_ns);
+            }
         }
-        if c.force.has_sinks() {
-            c.force
-                .log_with_time(&vector3(snapshot.sent_force_n), time_ns);
+        for channel in [&c.servo_cf, &c.old_force] {
+            if channel.has_sinks() {
+                channel.log_with_time(&vector3(snapshot.sent_force_n), time_ns);
+            }
+        }
+        if c.measured_cv.has_sinks() {
+            c.measured_cv
+                .log_with_time(&vector3(snapshot.probe_velocity_m_per_s), time_ns);
+        }
+        if c.operating_state.has_sinks() {
+            c.operating_state
+                .log_with_time(&OperatingStateMessage::new(snapshot), time_ns);
         }
         if c.primitives.has_sinks() {
             let update = scene_update(snapshot, timestamp_from_ns(time_ns));
@@ -372,12 +463,39 @@ impl Publisher {
                 .log_with_time(&StatsMessage(api.stats()), unix_now_ns());
         }
     }
+
+    /// Publishes the volume picture (bounds, mesh, the `volume` frame).
+    fn volume(&self, picture: &VolumePicture) {
+        let time_ns = unix_now_ns();
+        let surface = picture
+            .surface
+            .as_ref()
+            .map(|(mesh, rgb, iso)| (mesh, *rgb, *iso));
+        let update = volume_scene(
+            picture.min_m,
+            picture.max_m,
+            surface,
+            &picture.description,
+            timestamp_from_ns(time_ns),
+        );
+        self.channels.volume.log_with_time(&update, time_ns);
+        let centre = (picture.min_m + picture.max_m) * 0.5;
+        self.channels
+            .volume_frame
+            .log_with_time(&frame_transform(VOLUME_FRAME, centre, time_ns), time_ns);
+    }
 }
 
-/// The publisher task: samples `api` every `period` and publishes new ticks; statistics once a second.
+/// What the blocking pool is computing for the publisher.
+type Pending<T> = Option<JoinHandle<Result<T, crate::servo::ControlError>>>;
+
+/// The publisher task: samples `api` every `period` and publishes new ticks; statistics once a second; the
+/// volume picture when the scene changes (or a client subscribes to it); the slices every
+/// [`SLICE_INTERVAL`].
 async fn publish(
     api: Arc<dyn SessionApi>,
     channels: Channels,
+    resend: Arc<ResendOnSubscribe>,
     period: Duration,
     mut stop: oneshot::Receiver<()>,
 ) {
@@ -386,19 +504,82 @@ async fn publish(
     sample.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut stats = tokio::time::interval(STATS_INTERVAL);
     stats.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut slices = tokio::time::interval(SLICE_INTERVAL);
+    slices.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    // The scene generation the picture was built for, the picture, and the build in progress.
+    let mut picture_generation: Option<u64> = None;
+    let mut picture: Option<Arc<VolumePicture>> = None;
+    let mut building: Pending<(u64, VolumePicture)> = None;
+    let mut slicing: Pending<[Grid; 3]> = None;
     loop {
         tokio::select! {
             _ = &mut stop => break,
             _ = sample.tick() => {
-                if !publisher.channels.any_sampled_subscribed() {
-                    continue;
+                let snapshot = api.snapshot();
+                if publisher.channels.any_sampled_subscribed() {
+                    if let Some(snapshot) = &snapshot {
+                        publisher.snapshot(snapshot);
+                    }
                 }
-                if let Some(snapshot) = api.snapshot() {
-                    publisher.snapshot(&snapshot);
+                // The volume picture: rebuilt when the scene changed, resent to new subscribers.
+                if let Some(done) = building.take_if(|task| task.is_finished()) {
+                    if let Ok(Ok((generation, built))) = done.await {
+                        picture_generation = Some(generation);
+                        let built = Arc::new(built);
+                        publisher.volume(&built);
+                        picture = Some(built);
+                    } else {
+                        // Keep the old picture; try again on the next scene change.
+                        picture_generation = snapshot.as_ref().map(|s| s.scene_generation);
+                    }
+                }
+                let generation = snapshot.as_ref().map(|s| s.scene_generation);
+                if building.is_none()
+                    && generation.is_some()
+                    && generation != picture_generation
+                    && publisher.channels.volume_subscribed()
+                {
+                    // Everyone subscribed now gets the picture when it is built.
+                    resend.volume.store(false, Ordering::Release);
+                    let api = api.clone();
+                    let generation = generation.unwrap_or(0);
+                    building = Some(tokio::task::spawn_blocking(move || {
+                        volume::volume_picture(api.as_ref()).map(|p| (generation, p))
+                    }));
+                } else if resend.volume.swap(false, Ordering::AcqRel) {
+                    if let Some(picture) = &picture {
+                        publisher.volume(picture);
+                    }
+                }
+            }
+            _ = slices.tick() => {
+                if let Some(done) = slicing.take_if(|task| task.is_finished()) {
+                    if let Ok(Ok(grids)) = done.await {
+                        for (channel, grid) in publisher.channels.slices.iter().zip(&grids) {
+                            channel.log_with_time(grid, unix_now_ns());
+                        }
+                    }
+                }
+                let (Some(snapshot), Some(current)) = (api.snapshot(), picture.clone()) else { continue };
+                if slicing.is_none() && publisher.channels.slices_subscribed() {
+                    let api = api.clone();
+                    let time_ns = publisher.wall_ns(snapshot.t_s);
+                    slicing = Some(tokio::task::spawn_blocking(move || {
+                        volume::slice_grids(api.as_ref(), &current.volume_name, snapshot.proxy_m, time_ns)
+                    }));
                 }
             }
             _ = stats.tick() => publisher.stats(api.as_ref()),
         }
+    }
+    for task in [
+        building.map(|t| t.abort_handle()),
+        slicing.map(|t| t.abort_handle()),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        task.abort();
     }
 }
 
@@ -442,6 +623,55 @@ mod tests {
             let config = parse(&["--foxglove", loopback]).unwrap().resolve().unwrap();
             assert!(config.is_some(), "{loopback}");
         }
+    }
+
+    /// The topics a Foxglove layout refers to: 3D panel topics, plot and state paths (up to the first
+    /// `.`), raw message panels' topic paths.
+    fn layout_topics(layout: &serde_json::Value) -> Vec<String> {
+        let mut topics = Vec::new();
+        let panels = layout["configById"].as_object().unwrap();
+        for (id, config) in panels {
+            if let Some(map) = config["topics"].as_object() {
+                topics.extend(map.keys().cloned());
+            }
+            for path in config["paths"].as_array().into_iter().flatten() {
+                let value = path["value"].as_str().unwrap();
+                topics.push(value.split('.').next().unwrap().to_owned());
+            }
+            if let Some(path) = config["topicPath"].as_str() {
+                topics.push(path.split('.').next().unwrap().to_owned());
+            }
+            assert!(id.contains('!'), "panel id {id}");
+        }
+        topics
+    }
+
+    #[test]
+    fn the_shipped_layout_uses_only_current_topics_and_the_palette() {
+        let layout: serde_json::Value =
+            serde_json::from_str(include_str!("../../contrib/foxglove/voxhap-layout.json"))
+                .unwrap();
+        let topics = layout_topics(&layout);
+        assert!(topics.len() >= 8, "{topics:?}");
+        let current = &TOPICS[..TOPICS.len() - 3];
+        for topic in &topics {
+            assert!(
+                current.contains(&topic.as_str()),
+                "{topic} is not advertised (or deprecated)"
+            );
+        }
+        assert_eq!(layout["configById"]["3D!voxhap"]["followTf"], VOLUME_FRAME);
+        let colours = crate::server::palette::palette();
+        let force = &layout["configById"]["Plot!force"]["paths"];
+        for (axis, path) in force.as_array().unwrap().iter().enumerate() {
+            assert_eq!(
+                path["color"],
+                colours.force_axes[axis].hex(),
+                "force axis {axis}"
+            );
+        }
+        let bound = &layout["configById"]["Plot!bound"]["paths"][0];
+        assert_eq!(bound["color"], colours.proxy.hex());
     }
 
     #[test]

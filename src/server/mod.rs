@@ -1,5 +1,6 @@
 //! The visualiser servers that run on tokio inside `voxhap serve`: the axum HTTP/WebSocket server with the
-//! built-in page and the control API, and the Foxglove live view. Both read the servo only through
+//! built-in page and the control API, the Foxglove live view, and the OpenIGTLink server for 3D Slicer
+//! ([`igtl`]). All read the servo only through
 //! [`crate::servo::SessionApi`] (triple-buffer snapshots and atomic statistics), so the servo thread never waits
 //! on them.
 //!
@@ -26,8 +27,10 @@ pub mod config;
 pub mod foxglove;
 pub mod guard;
 mod http;
+pub mod igtl;
 pub mod messages;
 pub mod origin;
+pub mod palette;
 mod ws;
 
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};

@@ -25,6 +25,7 @@
 
 pub mod grid;
 pub mod io;
+pub mod isosurface;
 pub mod procedural;
 mod sampling;
 pub mod scalar;

@@ -92,8 +92,17 @@ fn meta() -> TraceMeta {
     meta
 }
 
+/// Wall-clock time of the first sample of the MCAP traces written here (MCAP log times are wall-clock UTC;
+/// a fixed start keeps identical runs identical).
+const WALL_START_NS: u64 = 1_000_000_000_000_000_000;
+
 fn record(path: &Path, format: TraceFormat, samples: &[TraceSample]) {
-    let mut writer = create_trace_writer(path, format, &meta()).unwrap();
+    let mut writer: Box<dyn voxhap::record::TraceWriter> = match format {
+        TraceFormat::Mcap => Box::new(
+            voxhap::record::McapTraceWriter::create_at(path, &meta(), WALL_START_NS).unwrap(),
+        ),
+        _ => create_trace_writer(path, format, &meta()).unwrap(),
+    };
     for sample in samples {
         writer.write_sample(sample).unwrap();
     }
@@ -154,6 +163,7 @@ fn python_mcap_package_reads_the_trace() {
 import json, sys
 from mcap.reader import make_reader
 counts, first, log_times_ok, schemas = {}, {}, True, {}
+wall_start_ns, t0 = int(sys.argv[2]), None
 with open(sys.argv[1], "rb") as f:
     reader = make_reader(f)
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
@@ -166,13 +176,15 @@ with open(sys.argv[1], "rb") as f:
         json.loads(schema.data)
         data = json.loads(message.data)
         first.setdefault(channel.topic, data)
-        log_times_ok &= message.log_time == round(data["t_s"] * 1e9)
+        t0 = data["t_s"] if t0 is None else t0
+        log_times_ok &= message.log_time == wall_start_ns + round((data["t_s"] - t0) * 1e9)
 print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_times_ok": log_times_ok,
                   "schemas": schemas}))
 "#;
     let output = Command::new("python3")
         .args(["-c", script])
         .arg(&path)
+        .arg(WALL_START_NS.to_string())
         .output()
         .unwrap();
     assert!(
@@ -185,9 +197,9 @@ print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_t
     assert_eq!(report["counts"]["/voxhap/solver"], TICKS);
     // The Foxglove topics, one message per tick, with the SDK's protobuf schemas.
     for (topic, schema) in [
-        ("/voxhap/probe", "foxglove.FrameTransform"),
-        ("/voxhap/proxy", "foxglove.FrameTransform"),
-        ("/voxhap/force", "foxglove.Vector3"),
+        ("/voxhap/measured_cp", "foxglove.FrameTransform"),
+        ("/voxhap/setpoint_cp", "foxglove.FrameTransform"),
+        ("/voxhap/servo_cf", "foxglove.Vector3"),
     ] {
         assert_eq!(report["counts"][topic], TICKS, "{topic}");
         assert_eq!(

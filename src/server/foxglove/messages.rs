@@ -10,32 +10,33 @@
 //!
 //! | entity id | drawn as |
 //! |---|---|
-//! | `probe`, `proxy` | small spheres (grey, blue) |
-//! | `hand_target` | small green sphere, when a client pulls the simulated arm's hand |
-//! | `force` | red arrow from the proxy along the sent force, [`FORCE_ARROW_M_PER_N`] long per newton |
-//! | `primitive/I` | the I-th primitive of the tick: point = orange sphere, line = magenta segment, plane = thin translucent cyan square, directed force = yellow arrow from the proxy |
+//! | `probe`, `proxy` | small spheres |
+//! | `hand_target` | small sphere, when a client pulls the simulated arm's hand |
+//! | `force` | arrow from the proxy along the sent force, [`FORCE_ARROW_M_PER_N`] long per newton |
+//! | `primitive/I` | the I-th primitive of the tick in its mode's colour: point = sphere, line = segment, plane = thin translucent square, directed force = arrow from the proxy |
+//!
+//! Colours come from the one palette ([`crate::server::palette`], web/style.css), so Foxglove and the
+//! built-in page draw each object in the same colour.
 //!
 //! Every update first deletes all earlier entities, so primitives that went away disappear.
 
 use crate::haptics::PrimitiveKind;
-use crate::record::foxglove_topics::{vector3, WORLD_FRAME};
+use crate::record::foxglove_topics::{
+    arrow, color, entity, identity, marker_entities, metadata, pose, replace_all, rotation_to,
+    sphere, FORCE_ARROW_M_PER_N,
+};
+use crate::server::palette::palette;
 use crate::servo::{PrimitiveView, Snapshot, StatsReport};
 use ::foxglove::bytes::BufMut;
 use ::foxglove::messages::{
-    scene_entity_deletion, ArrowPrimitive, Color, CubePrimitive, KeyValuePair, LinePrimitive,
-    Point3, Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate, SpherePrimitive,
-    Timestamp, Vector3,
+    CubePrimitive, LinePrimitive, Point3, SceneEntity, SceneUpdate, Timestamp, Vector3,
 };
 use ::foxglove::{Encode, Schema};
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use serde::Serialize;
 
-/// Arrow length per newton of force (m/N): 1 N draws a 1 cm arrow.
-pub const FORCE_ARROW_M_PER_N: f64 = 0.01;
-/// Longest arrow drawn (m); stronger forces are drawn at this length.
-pub const MAX_ARROW_M: f64 = 0.05;
-/// Diameter of the probe and proxy spheres (m).
-pub const MARKER_DIAMETER_M: f64 = 0.003;
+pub use crate::record::foxglove_topics::{MARKER_DIAMETER_M, MAX_ARROW_M};
+
 /// Diameter of a point primitive's sphere (m).
 pub const POINT_DIAMETER_M: f64 = 0.0025;
 /// Half-length of a drawn line primitive (m).
@@ -44,99 +45,8 @@ pub const LINE_HALF_LENGTH_M: f64 = 0.02;
 pub const PLANE_SIDE_M: f64 = 0.03;
 /// Thickness of a drawn plane primitive (m).
 pub const PLANE_THICKNESS_M: f64 = 0.0003;
-
-const GREY: Color = rgba(0.6, 0.6, 0.6, 1.0);
-const BLUE: Color = rgba(0.2, 0.45, 1.0, 1.0);
-const GREEN: Color = rgba(0.2, 0.8, 0.3, 1.0);
-const RED: Color = rgba(0.95, 0.15, 0.1, 1.0);
-const ORANGE: Color = rgba(1.0, 0.55, 0.0, 1.0);
-const MAGENTA: Color = rgba(0.85, 0.2, 0.85, 1.0);
-const CYAN: Color = rgba(0.1, 0.8, 0.9, 0.35);
-const YELLOW: Color = rgba(0.95, 0.85, 0.1, 1.0);
-
-const fn rgba(r: f64, g: f64, b: f64, a: f64) -> Color {
-    Color { r, g, b, a }
-}
-
-fn identity() -> Quaternion {
-    Quaternion {
-        x: 0.0,
-        y: 0.0,
-        z: 0.0,
-        w: 1.0,
-    }
-}
-
-fn quaternion(q: DQuat) -> Quaternion {
-    Quaternion {
-        x: q.x,
-        y: q.y,
-        z: q.z,
-        w: q.w,
-    }
-}
-
-fn pose(position_m: DVec3, orientation: Quaternion) -> Option<Pose> {
-    Some(Pose {
-        position: Some(vector3(position_m)),
-        orientation: Some(orientation),
-    })
-}
-
-/// The rotation taking `from` to the unit vector `to` (identity when `to` is not a usable direction).
-fn rotation_to(from: DVec3, to: DVec3) -> Quaternion {
-    match to.try_normalize() {
-        Some(to) => quaternion(DQuat::from_rotation_arc(from, to)),
-        None => identity(),
-    }
-}
-
-fn metadata(pairs: &[(&str, String)]) -> Vec<KeyValuePair> {
-    pairs
-        .iter()
-        .map(|(key, value)| KeyValuePair {
-            key: (*key).to_owned(),
-            value: value.clone(),
-        })
-        .collect()
-}
-
-fn entity(id: String, timestamp: Timestamp, metadata: Vec<KeyValuePair>) -> SceneEntity {
-    SceneEntity {
-        timestamp: Some(timestamp),
-        frame_id: WORLD_FRAME.to_owned(),
-        id,
-        metadata,
-        ..SceneEntity::default()
-    }
-}
-
-fn sphere(position_m: DVec3, diameter_m: f64, color: Color) -> SpherePrimitive {
-    SpherePrimitive {
-        pose: pose(position_m, identity()),
-        size: Some(vector3(DVec3::splat(diameter_m))),
-        color: Some(color),
-    }
-}
-
-/// An arrow from `start_m` along `vector` (any length), `length_m` long; `None` for a zero length or a
-/// direction that is not finite.
-fn arrow(start_m: DVec3, vector: DVec3, length_m: f64, color: Color) -> Option<ArrowPrimitive> {
-    let direction = vector.try_normalize()?;
-    if !(length_m.is_finite() && length_m > 1e-6) {
-        return None;
-    }
-    let length_m = length_m.min(MAX_ARROW_M);
-    let head_length = (0.25 * length_m).min(0.003);
-    Some(ArrowPrimitive {
-        pose: pose(start_m, rotation_to(DVec3::X, direction)),
-        shaft_length: length_m - head_length,
-        shaft_diameter: 0.0006,
-        head_length,
-        head_diameter: 0.0018,
-        color: Some(color),
-    })
-}
+/// Opacity of a drawn plane primitive.
+pub const PLANE_ALPHA: f64 = 0.35;
 
 /// The entity for one primitive of the tick (`index` in the tick's list).
 fn primitive_entity(
@@ -156,8 +66,13 @@ fn primitive_entity(
     );
     let at = primitive.position_m;
     let direction = primitive.direction;
+    let mode_colour = palette().mode(usize::from(primitive.mode));
     match primitive.kind {
-        PrimitiveKind::Point => entity.spheres.push(sphere(at, POINT_DIAMETER_M, ORANGE)),
+        PrimitiveKind::Point => {
+            entity
+                .spheres
+                .push(sphere(at, POINT_DIAMETER_M, color(mode_colour, 1.0)))
+        }
         PrimitiveKind::Line => entity.lines.push(LinePrimitive {
             r#type: ::foxglove::messages::line_primitive::Type::LineList as i32,
             pose: pose(DVec3::ZERO, identity()),
@@ -173,7 +88,7 @@ fn primitive_entity(
                     }
                 })
                 .to_vec(),
-            color: Some(MAGENTA),
+            color: Some(color(mode_colour, 1.0)),
             colors: Vec::new(),
             indices: Vec::new(),
         }),
@@ -184,13 +99,13 @@ fn primitive_entity(
                 y: PLANE_SIDE_M,
                 z: PLANE_THICKNESS_M,
             }),
-            color: Some(CYAN),
+            color: Some(color(mode_colour, PLANE_ALPHA)),
         }),
         PrimitiveKind::Directed => entity.arrows.extend(arrow(
             proxy_m,
             direction,
             primitive.strength_n * FORCE_ARROW_M_PER_N,
-            YELLOW,
+            color(mode_colour, 1.0),
         )),
     }
     entity
@@ -199,35 +114,14 @@ fn primitive_entity(
 /// The scene of one snapshot: probe, proxy, hand target, force arrow and the tick's primitives, after a
 /// deletion of everything drawn before.
 pub fn scene_update(snapshot: &Snapshot, timestamp: Timestamp) -> SceneUpdate {
-    let mut entities = Vec::with_capacity(4 + usize::from(snapshot.primitive_count));
-    let mut probe = entity("probe".to_owned(), timestamp, Vec::new());
-    probe
-        .spheres
-        .push(sphere(snapshot.probe_m, MARKER_DIAMETER_M, GREY));
-    entities.push(probe);
-    let mut proxy = entity("proxy".to_owned(), timestamp, Vec::new());
-    proxy
-        .spheres
-        .push(sphere(snapshot.proxy_m, MARKER_DIAMETER_M, BLUE));
-    entities.push(proxy);
-    if let Some(target) = snapshot.hand_target_m {
-        let mut hand = entity("hand_target".to_owned(), timestamp, Vec::new());
-        hand.spheres.push(sphere(target, MARKER_DIAMETER_M, GREEN));
-        entities.push(hand);
-    }
-    let force = snapshot.sent_force_n;
-    let mut arrow_entity = entity(
-        "force".to_owned(),
-        timestamp,
-        metadata(&[("force_n", force.length().to_string())]),
-    );
-    arrow_entity.arrows.extend(arrow(
+    let mut entities: Vec<SceneEntity> = marker_entities(
+        snapshot.probe_m,
         snapshot.proxy_m,
-        force,
-        force.length() * FORCE_ARROW_M_PER_N,
-        RED,
-    ));
-    entities.push(arrow_entity);
+        snapshot.hand_target_m,
+        snapshot.sent_force_n,
+        timestamp,
+    );
+    entities.reserve(usize::from(snapshot.primitive_count));
     for (index, primitive) in snapshot.primitives().enumerate() {
         entities.push(primitive_entity(
             index,
@@ -236,14 +130,7 @@ pub fn scene_update(snapshot: &Snapshot, timestamp: Timestamp) -> SceneUpdate {
             timestamp,
         ));
     }
-    SceneUpdate {
-        deletions: vec![SceneEntityDeletion {
-            timestamp: Some(timestamp),
-            r#type: scene_entity_deletion::Type::All as i32,
-            id: String::new(),
-        }],
-        entities,
-    }
+    replace_all(entities, timestamp)
 }
 
 /// `/voxhap/bound`: the certificate of one tick (JSON, schema `voxhap.Bound`).
@@ -296,6 +183,46 @@ pub fn bound_schema() -> serde_json::Value {
             }
         },
         "required": ["tick", "t_s", "error_bound_m", "sweeps", "status"]
+    })
+}
+
+/// `/voxhap/operating_state`: the CRTK operating state (JSON, schema `voxhap.OperatingState`): `state` is
+/// `ENABLED` while the device is connected and enabled, else `DISABLED`; `is_homed` is always true (voxhap's
+/// devices need no homing); `is_busy` is true while forces ramp in (not yet engaged).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct OperatingStateMessage {
+    pub state: &'static str,
+    pub is_homed: bool,
+    pub is_busy: bool,
+}
+
+impl OperatingStateMessage {
+    pub fn new(snapshot: &Snapshot) -> Self {
+        OperatingStateMessage {
+            state: if snapshot.connected {
+                "ENABLED"
+            } else {
+                "DISABLED"
+            },
+            is_homed: true,
+            is_busy: snapshot.connected && !snapshot.engaged,
+        }
+    }
+}
+
+/// The JSON schema of [`OperatingStateMessage`].
+pub fn operating_state_schema() -> serde_json::Value {
+    serde_json::json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "voxhap.OperatingState",
+        "description": "CRTK operating_state",
+        "type": "object",
+        "properties": {
+            "state": {"type": "string", "enum": ["ENABLED", "DISABLED"]},
+            "is_homed": {"type": "boolean"},
+            "is_busy": {"type": "boolean", "description": "forces ramping in"}
+        },
+        "required": ["state", "is_homed", "is_busy"]
     })
 }
 
@@ -404,13 +331,20 @@ macro_rules! json_encode {
 
 json_encode!(BoundMessage, "voxhap.Bound", bound_schema());
 json_encode!(StatsMessage, "voxhap.Stats", stats_schema());
+json_encode!(
+    OperatingStateMessage,
+    "voxhap.OperatingState",
+    operating_state_schema()
+);
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::haptics::tick::TickStatus;
     use crate::haptics::Primitive;
+    use ::foxglove::messages::scene_entity_deletion;
     use ::foxglove::Decode;
+    use glam::DQuat;
 
     fn snapshot() -> Snapshot {
         let mut slots = [None; crate::haptics::modes::MAX_MODES];

@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Checks voxhap's OpenIGTLink server with an independent client: pyigtl (PyPI, the Python OpenIGTLink
+# library Slicer users script with) runs .ci/igtl_client.py against a running `voxhap serve --igtl`:
+# the streamed TRANSFORMs and STATUS (CRC-64 checked by pyigtl's CRC), the rate, RAS millimetres, the force,
+# IMAGE refused without the token and loaded with it, a protocol-3 client authorised by metadata.
+#
+# Installs pyigtl with pip (into the user's Python, like .ci/run does for mcap). In CI (CI=true) a failed
+# install fails the check; elsewhere it skips with a message. Takes about 20 s once voxhap is built.
+#
+# Environment: VOXHAP_BIN (a voxhap binary to use instead of building target/release/voxhap, e.g.
+# target/debug/voxhap after cargo test), VOXHAP_IGTL_RATE (default 60).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+name=check-igtl
+skip() {
+  echo "$name: SKIPPED: $*"
+  exit 0
+}
+fail() {
+  echo "$name: FAILED: $*" >&2
+  exit 1
+}
+
+if ! command -v python3 >/dev/null 2>&1; then
+  [ "${CI:-}" = "true" ] && fail "python3 is not installed"
+  skip "python3 is not installed"
+fi
+if ! python3 -c 'import pyigtl, numpy' >/dev/null 2>&1; then
+  echo "$name: installing pyigtl with pip"
+  if ! python3 -m pip install --quiet --disable-pip-version-check pyigtl; then
+    [ "${CI:-}" = "true" ] && fail "pip install pyigtl failed"
+    skip "pip install pyigtl failed (offline?)"
+  fi
+fi
+echo "$name: $(python3 -c 'from importlib.metadata import version as v; print("pyigtl", v("pyigtl"), "numpy", v("numpy"))')"
+
+. .ci/lib.sh
+make_work_dir voxhap-igtl
+trap 'exit 130' INT TERM
+find_voxhap "$name"
+
+token=igtl-check-token-0123
+rate=${VOXHAP_IGTL_RATE:-60}
+serve_args=(serve --igtl 127.0.0.1:0 --igtl-rate "$rate" --http 127.0.0.1:0 --token "$token" --no-foxglove
+  --duration 120)
+echo "$name: starting $VOXHAP ${serve_args[*]}"
+"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
+SERVER_PID=$!
+
+igtl="" http=""
+for _ in $(seq 1 150); do
+  igtl=$(sed -n 's/^igtl: listening on \([^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
+  http=$(sed -n 's/^http: listening on \(http:[^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
+  [ -n "$igtl" ] && [ -n "$http" ] && break
+  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
+    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
+    fail "voxhap serve exited before its OpenIGTLink server was listening"
+  fi
+  sleep 0.1
+done
+[ -n "$igtl" ] && [ -n "$http" ] || fail "voxhap serve did not print its igtl and http addresses within 15 s"
+grep -q "^igtl: control token $token\$" "$WORK/serve.out" || fail "voxhap serve did not print 'igtl: control token $token'"
+echo "$name: voxhap serve: OpenIGTLink on $igtl, HTTP on $http"
+
+if ! timeout 120 python3 .ci/igtl_client.py "$igtl" "$http" "$token" "$rate"; then
+  sed "s/^/$name: serve: /" "$WORK/serve.err" >&2
+  fail "the pyigtl client's checks failed (see above)"
+fi
+echo "$name: passed"

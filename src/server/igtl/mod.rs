@@ -1,0 +1,1079 @@
+//! The OpenIGTLink server behind `voxhap serve --igtl`: voxhap as a tracked, force-rendering tool for 3D
+//! Slicer (OpenIGTLinkIF) and other OpenIGTLink clients, and a way for them to send a volume in.
+//!
+//! Where it sits (DESIGN.md section 5): tasks on `voxhap serve`'s tokio runtime that read the servo only
+//! through [`SessionApi`] (the triple-buffer snapshot) and change it only through
+//! [`SessionApi::control`] on the blocking pool. A streamer task samples the session at `--igtl-rate`
+//! (default 60 Hz) and puts one encoded frame per new tick on a bounded broadcast queue
+//! ([`CLIENT_QUEUE_FRAMES`]); a client that falls behind loses the oldest frames (counted), so no client can
+//! slow another or the servo.
+//!
+//! What a client receives (every message with a valid CRC-64; header version 1, i.e. protocol 2, until the
+//! client itself sends a version-2 header, i.e. protocol 3, and from then on version 2):
+//!
+//! | device name | type | content |
+//! |---|---|---|
+//! | `Probe` | TRANSFORM | the device (stylus) position, RAS millimetres, identity rotation (voxhap's probe is a point) |
+//! | `Proxy` | TRANSFORM | the proxy position, RAS millimetres, identity rotation |
+//! | `ProbeVelocity` | TRANSFORM | identity rotation, translation = probe velocity in mm/s, RAS (as PLUS's OpenHaptics device sends `StylusVelocity`) |
+//! | `Force` | TRANSFORM | identity rotation, translation = the force sent to the device in newtons, RAS (the convention of PLUS's `Force` tool) |
+//! | `voxhap` | STATUS | once a second and on connect: 1 OK (connected and engaged), 13 not ready (ramping in), 15 disabled (no device) |
+//!
+//! The velocity and force conventions are PLUS's (PlusToolkit/PlusLib,
+//! src/PlusDataCollection/OpenHaptics/vtkPlusOpenHapticsDevice.cxx at commit 063daba7): its `positionCallback`
+//! puts `HD_CURRENT_VELOCITY` into the translation column of an otherwise identity matrix for the
+//! `StylusVelocity` tool, and reads the force for `HD_CURRENT_FORCE` (newtons) from elements (0..2, 3), the
+//! translation, of the `Force` tool's matrix, both in RAS after its `rasCorrection`.
+//!
+//! What a client may send (replies are STATUS messages with the request's device name):
+//!
+//! - STRING `token <T>`: authorises this connection for control (the token `voxhap serve` prints as
+//!   `igtl: control token T`, the same one the HTTP server takes). A protocol-3 message may instead carry
+//!   the metadata entry `token` = T. Reply: 1 OK, or 5 access denied.
+//! - IMAGE (a scalar volume, any device name; needs the token): decoded ([`codec::decode_image`], RAS or
+//!   LPS, the position is the image centre), written to the server's private folder
+//!   ([`volume_file`]) and loaded with `load_volume`, replacing the scene's first volume (or the one named
+//!   by the metadata entry `volume`). The scene is built on the blocking pool, never on the servo thread.
+//!   Reply: 1 OK with the new volume's size, or the error (5 without the token).
+//! - TRANSFORM `ProbeTarget` (needs the token): pulls the simulated arm's hand to the translation (RAS mm);
+//!   only the newest target is applied when they come faster than the session takes them. Replies only on
+//!   failure.
+//! - GET_STATUS: answered with the current STATUS. Anything else is read and ignored.
+//!
+//! Limits: [`MAX_CLIENTS`] connections (more get a STATUS 6 busy and are closed), bodies up to
+//! [`MAX_BODY_BYTES`], images up to [`MAX_IMAGE_VOXELS`], and a message must arrive whole within
+//! [`MESSAGE_TIMEOUT`] once its first byte came. A bad CRC is answered with STATUS 9 and the message
+//! dropped; a header that cannot be framed closes the connection.
+
+pub mod codec;
+pub mod volume_file;
+
+use self::codec::{status_code, Body, Header, Transform, HEADER_BYTES};
+use self::volume_file::ImageFolder;
+use crate::server::auth::token_matches;
+use crate::servo::api::{ControlCommand, ControlError, SessionApi, Snapshot};
+use glam::DVec3;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::sync::atomic::{AtomicU16, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{broadcast, mpsc, oneshot, watch, Semaphore};
+use tokio::task::JoinHandle;
+use tokio::time::MissedTickBehavior;
+
+/// Where the server listens with a bare `--igtl` (loopback, Slicer OpenIGTLinkIF's default port).
+pub const DEFAULT_ADDR: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 18944);
+/// Default streaming rate (Hz).
+pub const DEFAULT_RATE_HZ: u32 = 60;
+/// Accepted streaming rates (Hz).
+pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
+/// Most clients at once.
+pub const MAX_CLIENTS: usize = 16;
+/// Stream frames queued per client; a client further behind loses the oldest.
+pub const CLIENT_QUEUE_FRAMES: usize = 8;
+/// Replies queued per client.
+const REPLY_QUEUE: usize = 16;
+/// Largest message body accepted (bytes).
+pub const MAX_BODY_BYTES: u64 = 256 << 20;
+/// Largest IMAGE accepted (voxels).
+pub const MAX_IMAGE_VOXELS: usize = 64 << 20;
+/// Once a message's first byte arrived, the rest must follow within this.
+pub const MESSAGE_TIMEOUT: Duration = Duration::from_secs(30);
+/// How often the streamed STATUS is sent.
+pub const STATUS_INTERVAL: Duration = Duration::from_secs(1);
+/// How long [`IgtlServer::stop`] waits for the tasks to end.
+pub const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// Device name of the probe pose.
+pub const PROBE_DEVICE: &str = "Probe";
+/// Device name of the proxy pose.
+pub const PROXY_DEVICE: &str = "Proxy";
+/// Device name of the probe velocity.
+pub const PROBE_VELOCITY_DEVICE: &str = "ProbeVelocity";
+/// Device name of the force.
+pub const FORCE_DEVICE: &str = "Force";
+/// Device name of the streamed STATUS.
+pub const STATUS_DEVICE: &str = "voxhap";
+/// Device name of the TRANSFORM that moves the simulated hand.
+pub const PROBE_TARGET_DEVICE: &str = "ProbeTarget";
+/// Metadata key (protocol 3) that carries the control token.
+pub const TOKEN_METADATA_KEY: &str = "token";
+
+/// The server's flags, flattened into `voxhap serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct IgtlArgs {
+    /// OpenIGTLink server for 3D Slicer and other clients; a bare --igtl listens on 127.0.0.1:18944
+    /// (OpenIGTLinkIF's default port). Off unless given.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:18944",
+          value_parser = parse_addr)]
+    pub igtl: Option<SocketAddr>,
+    /// Allow a non-loopback --igtl address: anyone who can reach it sees the session, and with the token
+    /// loads volumes and moves the simulated hand.
+    #[arg(long, requires = "igtl")]
+    pub igtl_allow_remote: bool,
+    /// How often the OpenIGTLink server streams the poses and the force (Hz, 1 to 1000).
+    #[arg(long, value_name = "HZ", default_value_t = DEFAULT_RATE_HZ,
+          value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub igtl_rate: u32,
+}
+
+fn parse_addr(text: &str) -> Result<SocketAddr, String> {
+    if let Some(port) = text.strip_prefix("localhost:") {
+        let port = port
+            .parse::<u16>()
+            .map_err(|_| format!("{port:?} is not a port number"))?;
+        return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
+    }
+    text.parse().map_err(|_| {
+        format!("expected IP:PORT such as 127.0.0.1:18944 or [::1]:18944, got {text:?}")
+    })
+}
+
+/// A checked server configuration (without the token, which `voxhap serve` shares with the HTTP server).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct IgtlConfig {
+    /// Where to listen; port 0 picks a free port.
+    pub addr: SocketAddr,
+    /// Streaming rate (Hz), in [`RATE_RANGE_HZ`].
+    pub rate_hz: u32,
+}
+
+/// Why the server did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum IgtlError {
+    #[error(
+        "--igtl {addr}: not a loopback address, so anyone who can reach it could see the session and, with \
+         the token, load volumes; add --igtl-allow-remote to allow that, or use 127.0.0.1"
+    )]
+    RemoteNotAllowed { addr: SocketAddr },
+    #[error("--igtl-rate {0} Hz is outside 1 ..= 1000 Hz")]
+    Rate(u32),
+    #[error("--igtl {addr}: cannot listen there: {source}")]
+    Bind {
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("the OpenIGTLink server's image folder: {0}")]
+    Folder(#[from] volume_file::VolumeFileError),
+}
+
+impl IgtlArgs {
+    /// The configuration these flags ask for; `None` without `--igtl`.
+    pub fn resolve(&self) -> Result<Option<IgtlConfig>, IgtlError> {
+        let Some(addr) = self.igtl else {
+            return Ok(None);
+        };
+        let config = IgtlConfig {
+            addr,
+            rate_hz: self.igtl_rate,
+        };
+        config.check(self.igtl_allow_remote)?;
+        Ok(Some(config))
+    }
+}
+
+impl IgtlConfig {
+    /// Refuses a non-loopback address unless `allow_remote`, and a rate out of range.
+    pub fn check(&self, allow_remote: bool) -> Result<(), IgtlError> {
+        if !RATE_RANGE_HZ.contains(&self.rate_hz) {
+            return Err(IgtlError::Rate(self.rate_hz));
+        }
+        if !allow_remote && !self.addr.ip().is_loopback() {
+            return Err(IgtlError::RemoteNotAllowed { addr: self.addr });
+        }
+        Ok(())
+    }
+}
+
+/// Counters of a running server.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct IgtlStats {
+    /// Clients connected now.
+    pub clients: usize,
+    /// Stream frames written to clients (one frame = the four transforms of one tick).
+    pub frames_sent: u64,
+    /// Stream frames a slow client lost.
+    pub frames_dropped: u64,
+    /// Connections refused because [`MAX_CLIENTS`] were connected.
+    pub clients_refused: u64,
+    /// Volumes loaded from IMAGE messages.
+    pub images_loaded: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    clients: AtomicUsize,
+    frames_sent: AtomicU64,
+    frames_dropped: AtomicU64,
+    clients_refused: AtomicU64,
+    images_loaded: AtomicU64,
+}
+
+/// One tick's stream, encoded for both header versions.
+struct Frame {
+    v1: Vec<u8>,
+    v2: Vec<u8>,
+}
+
+/// What every task shares.
+struct Shared {
+    api: Arc<dyn SessionApi>,
+    token: String,
+    counters: Counters,
+    frames: broadcast::Sender<Arc<Frame>>,
+    /// The newest STATUS, encoded for both header versions (sent to new clients first).
+    status: Mutex<Option<Arc<Frame>>>,
+    folder: Mutex<Option<ImageFolder>>,
+    /// One IMAGE decoded and loaded at a time.
+    images: Semaphore,
+    clock: WallClock,
+}
+
+/// A running OpenIGTLink server. Stop it with [`IgtlServer::stop`].
+pub struct IgtlServer {
+    addr: SocketAddr,
+    shared: Arc<Shared>,
+    stop: watch::Sender<bool>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl IgtlServer {
+    /// Binds `config.addr` and starts serving `api` with control token `token`. Call it inside a tokio
+    /// runtime. Does not check the address policy (see [`IgtlConfig::check`]).
+    pub async fn start(
+        api: Arc<dyn SessionApi>,
+        config: &IgtlConfig,
+        token: String,
+    ) -> Result<IgtlServer, IgtlError> {
+        if !RATE_RANGE_HZ.contains(&config.rate_hz) {
+            return Err(IgtlError::Rate(config.rate_hz));
+        }
+        let listener = TcpListener::bind(config.addr)
+            .await
+            .map_err(|source| IgtlError::Bind {
+                addr: config.addr,
+                source,
+            })?;
+        let addr = listener.local_addr().map_err(|source| IgtlError::Bind {
+            addr: config.addr,
+            source,
+        })?;
+        let folder = ImageFolder::create()?;
+        let (frames, _) = broadcast::channel(CLIENT_QUEUE_FRAMES);
+        let shared = Arc::new(Shared {
+            api,
+            token,
+            counters: Counters::default(),
+            frames,
+            status: Mutex::new(None),
+            folder: Mutex::new(Some(folder)),
+            images: Semaphore::new(1),
+            clock: WallClock::default(),
+        });
+        let (stop, stopped) = watch::channel(false);
+        let period = Duration::from_secs_f64(1.0 / f64::from(config.rate_hz));
+        let tasks = vec![
+            tokio::spawn(stream(shared.clone(), period, stopped.clone())),
+            tokio::spawn(accept(listener, shared.clone(), stopped)),
+        ];
+        Ok(IgtlServer {
+            addr,
+            shared,
+            stop,
+            tasks,
+        })
+    }
+
+    /// The address it listens on (the real port when started on port 0).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> IgtlStats {
+        let c = &self.shared.counters;
+        IgtlStats {
+            clients: c.clients.load(Ordering::Relaxed),
+            frames_sent: c.frames_sent.load(Ordering::Relaxed),
+            frames_dropped: c.frames_dropped.load(Ordering::Relaxed),
+            clients_refused: c.clients_refused.load(Ordering::Relaxed),
+            images_loaded: c.images_loaded.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Stops accepting, closes every client and waits (at most [`STOP_TIMEOUT`]) for the tasks; removes the
+    /// image folder.
+    pub async fn stop(self) {
+        let _ = self.stop.send(true);
+        for task in self.tasks {
+            let _ = tokio::time::timeout(STOP_TIMEOUT, task).await;
+        }
+        let deadline = tokio::time::Instant::now() + STOP_TIMEOUT;
+        while self.shared.counters.clients.load(Ordering::Relaxed) > 0
+            && tokio::time::Instant::now() < deadline
+        {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let folder = self.shared.folder.lock().ok().and_then(|mut f| f.take());
+        if let Some(folder) = folder {
+            folder.remove();
+        }
+    }
+}
+
+/// Maps the session's tick time to wall-clock time (ns since the Unix epoch), fixed at the first snapshot.
+#[derive(Default)]
+struct WallClock {
+    epoch_ns: Mutex<Option<u64>>,
+}
+
+fn unix_now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
+
+impl WallClock {
+    fn at(&self, t_s: f64) -> u64 {
+        let tick_ns = (t_s.max(0.0) * 1e9) as u64;
+        let mut epoch = match self.epoch_ns.lock() {
+            Ok(epoch) => epoch,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        epoch
+            .get_or_insert_with(|| unix_now_ns().saturating_sub(tick_ns))
+            .saturating_add(tick_ns)
+    }
+}
+
+/// Metres to millimetres.
+const MM_PER_M: f64 = 1000.0;
+
+/// The four transforms of `snapshot`, appended to `out` with header `version`.
+fn encode_stream(out: &mut Vec<u8>, version: u16, snapshot: &Snapshot, timestamp: u64) {
+    let items = [
+        (PROBE_DEVICE, snapshot.probe_m * MM_PER_M),
+        (PROXY_DEVICE, snapshot.proxy_m * MM_PER_M),
+        (
+            PROBE_VELOCITY_DEVICE,
+            snapshot.probe_velocity_m_per_s * MM_PER_M,
+        ),
+        (FORCE_DEVICE, snapshot.sent_force_n),
+    ];
+    for (device, translation) in items {
+        // A non-finite value is never sent: it becomes zero (the snapshot's values are checked by the servo
+        // already; this is the last guard before another program).
+        let translation = if translation.is_finite() {
+            translation
+        } else {
+            DVec3::ZERO
+        };
+        codec::encode_message(out, version, "TRANSFORM", device, timestamp, &[], |o| {
+            Transform::translation(translation).encode(o)
+        });
+    }
+}
+
+/// The STATUS that describes `snapshot` (or a session that has not ticked yet).
+fn status_of(snapshot: Option<&Snapshot>) -> (u16, &'static str, String) {
+    match snapshot {
+        None => (
+            status_code::DEVICE_NOT_READY,
+            "NotReady",
+            "the servo loop has not ticked yet".to_owned(),
+        ),
+        Some(s) => {
+            let (code, name) = match (s.connected, s.engaged) {
+                (true, true) => (status_code::OK, "OK"),
+                (true, false) => (status_code::DEVICE_NOT_READY, "NotEngaged"),
+                (false, _) => (status_code::DEVICE_DISABLED, "Disconnected"),
+            };
+            let bound = if s.error_bound_m.is_finite() {
+                format!("{:.3e} m", s.error_bound_m)
+            } else {
+                "none".to_owned()
+            };
+            (
+                code,
+                name,
+                format!(
+                    "tick {} t {:.3} s; device {}, force {}; |force| {:.3} N; certificate bound {bound}",
+                    s.tick,
+                    s.t_s,
+                    if s.connected { "connected" } else { "disconnected" },
+                    if s.engaged { "engaged" } else { "not engaged" },
+                    s.sent_force_n.length()
+                ),
+            )
+        }
+    }
+}
+
+fn status_frame(shared: &Shared, snapshot: Option<&Snapshot>) -> Arc<Frame> {
+    let (code, name, message) = status_of(snapshot);
+    let timestamp = codec::timestamp_from_unix_ns(
+        snapshot.map_or_else(unix_now_ns, |s| shared.clock.at(s.t_s)),
+    );
+    let encode = |version| {
+        let mut out = Vec::with_capacity(128);
+        codec::encode_message(
+            &mut out,
+            version,
+            "STATUS",
+            STATUS_DEVICE,
+            timestamp,
+            &[],
+            |o| codec::encode_status(o, code, 0, name, &message),
+        );
+        out
+    };
+    Arc::new(Frame {
+        v1: encode(1),
+        v2: encode(2),
+    })
+}
+
+/// The streamer: every `period`, when a client listens and the tick advanced, one frame of the four
+/// transforms; every [`STATUS_INTERVAL`] a STATUS.
+async fn stream(shared: Arc<Shared>, period: Duration, mut stop: watch::Receiver<bool>) {
+    let mut sample = tokio::time::interval(period);
+    sample.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut status = tokio::time::interval(STATUS_INTERVAL);
+    status.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut last_tick = None;
+    loop {
+        tokio::select! {
+            _ = stop.changed() => break,
+            _ = sample.tick() => {
+                if shared.frames.receiver_count() == 0 {
+                    continue;
+                }
+                let Some(snapshot) = shared.api.snapshot() else { continue };
+                if last_tick == Some(snapshot.tick) {
+                    continue;
+                }
+                last_tick = Some(snapshot.tick);
+                let timestamp = codec::timestamp_from_unix_ns(shared.clock.at(snapshot.t_s));
+                let mut v1 = Vec::with_capacity(4 * 106);
+                encode_stream(&mut v1, 1, &snapshot, timestamp);
+                let mut v2 = Vec::with_capacity(4 * 120);
+                encode_stream(&mut v2, 2, &snapshot, timestamp);
+                let _ = shared.frames.send(Arc::new(Frame { v1, v2 }));
+            }
+            _ = status.tick() => {
+                let frame = status_frame(&shared, shared.api.snapshot().as_ref());
+                if let Ok(mut slot) = shared.status.lock() {
+                    *slot = Some(frame.clone());
+                }
+                if shared.frames.receiver_count() > 0 {
+                    let _ = shared.frames.send(frame);
+                }
+            }
+        }
+    }
+}
+
+/// The accept loop: one reader and one writer task per client, up to [`MAX_CLIENTS`].
+async fn accept(listener: TcpListener, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
+    loop {
+        let accepted = tokio::select! {
+            _ = stop.changed() => break,
+            accepted = listener.accept() => accepted,
+        };
+        let Ok((mut socket, _)) = accepted else {
+            // Out of file descriptors and the like: wait a moment rather than spin.
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            continue;
+        };
+        let _ = socket.set_nodelay(true);
+        let counters = &shared.counters;
+        let admitted = counters
+            .clients
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < MAX_CLIENTS).then_some(n + 1)
+            })
+            .is_ok();
+        if !admitted {
+            counters.clients_refused.fetch_add(1, Ordering::Relaxed);
+            let mut out = Vec::new();
+            codec::encode_message(&mut out, 1, "STATUS", STATUS_DEVICE, 0, &[], |o| {
+                codec::encode_status(
+                    o,
+                    status_code::BUSY,
+                    0,
+                    "Busy",
+                    &format!("voxhap: {MAX_CLIENTS} OpenIGTLink clients are connected already"),
+                )
+            });
+            tokio::spawn(async move {
+                let _ = tokio::time::timeout(Duration::from_secs(1), socket.write_all(&out)).await;
+            });
+            continue;
+        }
+        tokio::spawn(client(socket, shared.clone(), stop.clone()));
+    }
+}
+
+/// A reply the reader asks the writer to send: STATUS content for `device`.
+struct Reply {
+    device: String,
+    code: u16,
+    error_name: &'static str,
+    message: String,
+}
+
+impl Reply {
+    fn new(device: &str, code: u16, error_name: &'static str, message: impl Into<String>) -> Self {
+        Reply {
+            device: device.to_owned(),
+            code,
+            error_name,
+            message: message.into(),
+        }
+    }
+}
+
+/// One connection: a writer (stream frames and replies) and this task reading requests.
+async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
+    let (mut reader, mut writer) = socket.into_split();
+    let version = Arc::new(AtomicU16::new(1));
+    let (reply_tx, mut reply_rx) = mpsc::channel::<Reply>(REPLY_QUEUE);
+    let mut frames = shared.frames.subscribe();
+    let initial = shared.status.lock().ok().and_then(|s| s.clone());
+    let writer_shared = shared.clone();
+    let writer_version = version.clone();
+    let (writer_done_tx, mut writer_done) = oneshot::channel::<()>();
+    let writer_task = tokio::spawn(async move {
+        let shared = writer_shared;
+        let frame_bytes = |frame: &Frame, version: u16| -> Vec<u8> {
+            if version >= 2 {
+                frame.v2.clone()
+            } else {
+                frame.v1.clone()
+            }
+        };
+        let initial =
+            initial.unwrap_or_else(|| status_frame(&shared, shared.api.snapshot().as_ref()));
+        let mut failed = writer
+            .write_all(&frame_bytes(
+                &initial,
+                writer_version.load(Ordering::Relaxed),
+            ))
+            .await
+            .is_err();
+        while !failed {
+            tokio::select! {
+                frame = frames.recv() => match frame {
+                    Ok(frame) => {
+                        let bytes = frame_bytes(&frame, writer_version.load(Ordering::Relaxed));
+                        failed = writer.write_all(&bytes).await.is_err();
+                        if !failed {
+                            shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Lagged(lost)) => {
+                        shared.counters.frames_dropped.fetch_add(lost, Ordering::Relaxed);
+                    }
+                    Err(broadcast::error::RecvError::Closed) => break,
+                },
+                reply = reply_rx.recv() => match reply {
+                    Some(reply) => {
+                        let mut out = Vec::with_capacity(64 + reply.message.len());
+                        let timestamp = codec::timestamp_from_unix_ns(unix_now_ns());
+                        codec::encode_message(
+                            &mut out,
+                            writer_version.load(Ordering::Relaxed),
+                            "STATUS",
+                            &reply.device,
+                            timestamp,
+                            &[],
+                            |o| codec::encode_status(o, reply.code, 0, reply.error_name, &reply.message),
+                        );
+                        failed = writer.write_all(&out).await.is_err();
+                    }
+                    None => break,
+                },
+            }
+        }
+        let _ = writer.shutdown().await;
+        let _ = writer_done_tx.send(());
+    });
+    let (target_tx, target_rx) = watch::channel::<Option<DVec3>>(None);
+    let target_task = tokio::spawn(apply_targets(shared.clone(), target_rx, reply_tx.clone()));
+    let mut session = ClientSession {
+        shared: shared.clone(),
+        authorised: false,
+        replies: reply_tx,
+        targets: target_tx,
+        version,
+    };
+    loop {
+        tokio::select! {
+            _ = stop.changed() => break,
+            _ = &mut writer_done => break,
+            outcome = read_message(&mut reader) => match outcome {
+                Ok(Some((header, body))) => {
+                    if session.handle(header, body).await.is_err() {
+                        break;
+                    }
+                }
+                Ok(None) => break,
+                Err(problem) => {
+                    session.reply(Reply::new(STATUS_DEVICE, problem.code, "Error", problem.message)).await;
+                    break;
+                }
+            }
+        }
+    }
+    drop(session);
+    target_task.abort();
+    // The writer ends when its reply queue closes; one stuck on a client that does not read is aborted.
+    let writer_abort = writer_task.abort_handle();
+    if tokio::time::timeout(Duration::from_secs(1), writer_task)
+        .await
+        .is_err()
+    {
+        writer_abort.abort();
+    }
+    shared.counters.clients.fetch_sub(1, Ordering::AcqRel);
+}
+
+/// Why a connection is closed after a bad message.
+struct ReadProblem {
+    code: u16,
+    message: String,
+}
+
+/// Reads one message: `Ok(None)` at a clean end of the connection. A bad CRC is not a read problem: the
+/// message is framed, so it is returned with its CRC left for the caller to check.
+async fn read_message<R: AsyncRead + Unpin>(
+    reader: &mut R,
+) -> Result<Option<(Header, Vec<u8>)>, ReadProblem> {
+    let mut raw = [0u8; HEADER_BYTES];
+    match reader.read(&mut raw[..1]).await {
+        Ok(0) | Err(_) => return Ok(None),
+        Ok(_) => {}
+    }
+    let rest = async {
+        reader.read_exact(&mut raw[1..]).await?;
+        let header = Header::decode(&raw, MAX_BODY_BYTES)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()))?;
+        // Grows with the bytes that actually arrive, never to the claimed size up front.
+        let mut body = Vec::with_capacity(header.body_size.min(64 * 1024) as usize);
+        let read = reader.take(header.body_size).read_to_end(&mut body).await?;
+        if (read as u64) < header.body_size {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                format!(
+                    "the connection ended {read} bytes into a {}-byte body",
+                    header.body_size
+                ),
+            ));
+        }
+        Ok::<_, std::io::Error>((header, body))
+    };
+    match tokio::time::timeout(MESSAGE_TIMEOUT, rest).await {
+        Ok(Ok(message)) => Ok(Some(message)),
+        Ok(Err(error)) if error.kind() == std::io::ErrorKind::InvalidData => Err(ReadProblem {
+            code: status_code::CONFIGURATION_ERROR,
+            message: format!("voxhap closes the connection: {error}"),
+        }),
+        Ok(Err(_)) => Ok(None),
+        Err(_) => Err(ReadProblem {
+            code: status_code::CONFIGURATION_ERROR,
+            message: format!(
+                "voxhap closes the connection: a message did not arrive whole within {} s",
+                MESSAGE_TIMEOUT.as_secs()
+            ),
+        }),
+    }
+}
+
+/// Applies the newest `ProbeTarget` of one client, one at a time, on the blocking pool.
+async fn apply_targets(
+    shared: Arc<Shared>,
+    mut targets: watch::Receiver<Option<DVec3>>,
+    replies: mpsc::Sender<Reply>,
+) {
+    while targets.changed().await.is_ok() {
+        let Some(target_m) = *targets.borrow_and_update() else {
+            continue;
+        };
+        let api = shared.api.clone();
+        let applied = tokio::task::spawn_blocking(move || {
+            api.control(ControlCommand::SetHandTarget {
+                position_m: Some(target_m.to_array()),
+            })
+        })
+        .await;
+        let failure = match applied {
+            Ok(Ok(_)) => None,
+            Ok(Err(error)) => Some(error.to_string()),
+            Err(_) => Some("the request failed inside the server".to_owned()),
+        };
+        if let Some(message) = failure {
+            let _ = replies
+                .send(Reply::new(
+                    PROBE_TARGET_DEVICE,
+                    status_code::CONFIGURATION_ERROR,
+                    "Refused",
+                    message,
+                ))
+                .await;
+        }
+    }
+}
+
+/// The request side of one connection.
+struct ClientSession {
+    shared: Arc<Shared>,
+    authorised: bool,
+    replies: mpsc::Sender<Reply>,
+    targets: watch::Sender<Option<DVec3>>,
+    version: Arc<AtomicU16>,
+}
+
+/// The connection is gone (the writer stopped).
+struct Gone;
+
+fn control_code(error: &ControlError) -> u16 {
+    match error {
+        ControlError::Invalid(_) => status_code::CONFIGURATION_ERROR,
+        ControlError::NotFound(_) => status_code::NOT_FOUND,
+        ControlError::Conflict(_) => status_code::BUSY,
+        ControlError::Unavailable(_) => status_code::DEVICE_NOT_READY,
+    }
+}
+
+impl ClientSession {
+    async fn reply(&self, reply: Reply) -> bool {
+        self.replies.send(reply).await.is_ok()
+    }
+
+    /// Answers one request; `Err` when the connection is gone.
+    async fn handle(&mut self, header: Header, body: Vec<u8>) -> Result<(), Gone> {
+        let device = header.device_name.clone();
+        let sent = |ok: bool| if ok { Ok(()) } else { Err(Gone) };
+        if let Err(error) = header.check_crc(&body) {
+            let reply = Reply::new(
+                &device,
+                status_code::CHECKSUM_ERROR,
+                "ChecksumError",
+                format!("{} {device:?} dropped: {error}", header.type_name),
+            );
+            return sent(self.reply(reply).await);
+        }
+        // The client speaks this header version: answer and stream in it from now on.
+        self.version.store(header.version, Ordering::Relaxed);
+        let body = match Body::split(header.version, &body) {
+            Ok(body) => body,
+            Err(error) => {
+                let reply = Reply::new(
+                    &device,
+                    status_code::CONFIGURATION_ERROR,
+                    "Error",
+                    format!("{} {device:?}: {error}", header.type_name),
+                );
+                return sent(self.reply(reply).await);
+            }
+        };
+        if let Some(token) = body.metadata_value(TOKEN_METADATA_KEY) {
+            self.authorised = token_matches(&self.shared.token, token);
+        }
+        match header.type_name.as_str() {
+            "STRING" => {
+                let reply = match codec::decode_string(body.content) {
+                    Ok(text) => self.string(&device, &text),
+                    Err(error) => Reply::new(
+                        &device,
+                        status_code::CONFIGURATION_ERROR,
+                        "Error",
+                        error.to_string(),
+                    ),
+                };
+                sent(self.reply(reply).await)
+            }
+            "TRANSFORM" if device == PROBE_TARGET_DEVICE => {
+                if !self.authorised {
+                    return sent(self.reply(self.denied(&device, "ProbeTarget")).await);
+                }
+                match Transform::decode(body.content) {
+                    Ok(transform) => {
+                        let _ = self.targets.send(Some(transform.translation / MM_PER_M));
+                        Ok(())
+                    }
+                    Err(error) => {
+                        let reply = Reply::new(
+                            &device,
+                            status_code::CONFIGURATION_ERROR,
+                            "Error",
+                            error.to_string(),
+                        );
+                        sent(self.reply(reply).await)
+                    }
+                }
+            }
+            "IMAGE" => {
+                if !self.authorised {
+                    return sent(self.reply(self.denied(&device, "IMAGE")).await);
+                }
+                let volume = body.metadata_value("volume").map(str::to_owned);
+                // The content is copied once into the blocking task (decode and write happen there).
+                let content = body.content.to_vec();
+                drop(body);
+                let reply = self.image(&device, content, volume).await;
+                sent(self.reply(reply).await)
+            }
+            "GET_STATUS" => {
+                let (code, name, message) = status_of(self.shared.api.snapshot().as_ref());
+                sent(self.reply(Reply::new(&device, code, name, message)).await)
+            }
+            // TRANSFORMs of other names (Slicer may echo nodes back), STATUS, and other types: ignored.
+            _ => Ok(()),
+        }
+    }
+
+    fn denied(&self, device: &str, what: &str) -> Reply {
+        Reply::new(
+            device,
+            status_code::ACCESS_DENIED,
+            "AccessDenied",
+            format!(
+                "{what} needs the control token: send the STRING \"token <T>\" first, or the metadata entry \
+                 \"{TOKEN_METADATA_KEY}\" (T is printed by voxhap serve as 'igtl: control token T')"
+            ),
+        )
+    }
+
+    fn string(&mut self, device: &str, text: &str) -> Reply {
+        let text = text.trim();
+        match text.split_once(' ') {
+            Some(("token", given)) => {
+                self.authorised = token_matches(&self.shared.token, given.trim());
+                if self.authorised {
+                    Reply::new(
+                        device,
+                        status_code::OK,
+                        "OK",
+                        "token accepted: this connection may load volumes and move the hand",
+                    )
+                } else {
+                    Reply::new(
+                        device,
+                        status_code::ACCESS_DENIED,
+                        "AccessDenied",
+                        "wrong token",
+                    )
+                }
+            }
+            _ => Reply::new(
+                device,
+                status_code::UNKNOWN_INSTRUCTION,
+                "UnknownCommand",
+                format!(
+                    "unknown STRING command {:?}; voxhap understands \"token <T>\"",
+                    text.chars().take(40).collect::<String>()
+                ),
+            ),
+        }
+    }
+
+    /// Decodes, writes and loads an IMAGE; the STATUS that answers it.
+    async fn image(&self, device: &str, content: Vec<u8>, volume: Option<String>) -> Reply {
+        let Ok(_permit) = self.shared.images.acquire().await else {
+            return Reply::new(
+                device,
+                status_code::DEVICE_NOT_READY,
+                "Error",
+                "the server is stopping",
+            );
+        };
+        let shared = self.shared.clone();
+        let device_name = device.to_owned();
+        let loaded = tokio::task::spawn_blocking(move || -> Result<String, (u16, String)> {
+            let image = codec::decode_image(&content, MAX_IMAGE_VOXELS)
+                .map_err(|e| (status_code::CONFIGURATION_ERROR, e.to_string()))?;
+            drop(content);
+            let path = {
+                let mut folder = shared.folder.lock().map_err(|_| {
+                    (status_code::UNKNOWN_ERROR, "the image folder is unavailable".to_owned())
+                })?;
+                let folder = folder.as_mut().ok_or((
+                    status_code::DEVICE_NOT_READY,
+                    "the server is stopping".to_owned(),
+                ))?;
+                folder
+                    .write(&device_name, &image)
+                    .map_err(|e| (status_code::NOT_ENOUGH_RESOURCE, e.to_string()))?
+            };
+            let dims = image.dims;
+            let (lo, hi) = image
+                .values
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+            drop(image);
+            let replaced = volume.clone();
+            let reply = shared
+                .api
+                .control(ControlCommand::LoadVolume { path, name: volume })
+                .map_err(|e| (control_code(&e), e.to_string()))?;
+            shared.counters.images_loaded.fetch_add(1, Ordering::Relaxed);
+            let refits = refit_surfaces(shared.api.as_ref(), replaced.as_deref(), lo, hi);
+            Ok(format!(
+                "volume {device_name:?} loaded: {} x {} x {} voxels, values {lo} to {hi}; scene generation {}{refits}",
+                dims[0], dims[1], dims[2], reply.scene_generation
+            ))
+        })
+        .await;
+        match loaded {
+            Ok(Ok(message)) => Reply::new(device, status_code::OK, "OK", message),
+            Ok(Err((code, message))) => {
+                Reply::new(device, code, "Error", format!("IMAGE refused: {message}"))
+            }
+            Err(_) => Reply::new(
+                device,
+                status_code::UNKNOWN_ERROR,
+                "Error",
+                "the IMAGE failed inside the server",
+            ),
+        }
+    }
+}
+
+/// After an IMAGE replaced the volume `replaced` (default: the first), a surface mode on it whose surface
+/// the new values cannot show (the value where its transfer reaches half strength lies outside `lo ..= hi`)
+/// gets a transfer fitted to the image, as `voxhap serve --volume` does for a lone volume: 0 N at 45 % of
+/// the range, the mode's largest strength at 50 %. Returns what was changed, for the STATUS text.
+fn refit_surfaces(api: &dyn SessionApi, replaced: Option<&str>, lo: f32, hi: f32) -> String {
+    use crate::haptics::modes::{ModeKind, TransferFunction};
+    use crate::server::foxglove::volume::half_strength_value;
+    let scene = api.scene();
+    let Some(name) = replaced.or_else(|| scene.volumes.first().map(|v| v.name.as_str())) else {
+        return String::new();
+    };
+    let (lo, hi) = (f64::from(lo), f64::from(hi));
+    if hi <= lo {
+        return String::new();
+    }
+    let mut changed = String::new();
+    for mode in &scene.modes {
+        let Some(transfer) = mode.transfer.as_ref() else {
+            continue;
+        };
+        if mode.kind != ModeKind::Surface || mode.volume.as_deref() != Some(name) {
+            continue;
+        }
+        let fits = half_strength_value(transfer).is_some_and(|iso| lo < iso && iso < hi);
+        if fits {
+            continue;
+        }
+        let span = hi - lo;
+        let Ok(fitted) = TransferFunction::new(vec![
+            [lo + 0.45 * span, 0.0],
+            [lo + 0.5 * span, transfer.max_strength_n().max(1e-3)],
+        ]) else {
+            continue;
+        };
+        let points = fitted.points().to_vec();
+        let mode_name = mode.display_name().to_owned();
+        if api
+            .control(ControlCommand::SetTransfer {
+                mode: mode_name.clone(),
+                transfer: fitted,
+            })
+            .is_ok()
+        {
+            changed.push_str(&format!(
+                "; the transfer of surface mode {mode_name:?} did not fit these values and is now {points:?}"
+            ));
+        }
+    }
+    changed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: IgtlArgs,
+    }
+
+    fn parse(args: &[&str]) -> Result<IgtlArgs, clap::Error> {
+        Cli::try_parse_from(std::iter::once("voxhap").chain(args.iter().copied())).map(|c| c.args)
+    }
+
+    #[test]
+    fn off_by_default_and_a_bare_flag_is_loopback_18944_at_60_hz() {
+        assert_eq!(parse(&[]).unwrap().resolve().unwrap(), None);
+        let config = parse(&["--igtl"]).unwrap().resolve().unwrap().unwrap();
+        assert_eq!(config.addr, DEFAULT_ADDR);
+        assert_eq!(config.rate_hz, 60);
+        let config = parse(&["--igtl", "localhost:0", "--igtl-rate", "250"])
+            .unwrap()
+            .resolve()
+            .unwrap()
+            .unwrap();
+        assert_eq!((config.addr.port(), config.rate_hz), (0, 250));
+    }
+
+    #[test]
+    fn a_remote_address_needs_the_flag_and_bad_values_are_refused() {
+        let error = parse(&["--igtl", "0.0.0.0:18944"])
+            .unwrap()
+            .resolve()
+            .unwrap_err();
+        assert!(error.to_string().contains("--igtl-allow-remote"), "{error}");
+        assert!(parse(&["--igtl", "0.0.0.0:18944", "--igtl-allow-remote"])
+            .unwrap()
+            .resolve()
+            .unwrap()
+            .is_some());
+        for bad in [
+            &["--igtl-rate", "0"][..],
+            &["--igtl", "--igtl-rate", "1001"],
+            &["--igtl", "18944"],
+            &["--igtl-allow-remote"],
+        ] {
+            assert!(parse(bad).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn the_stream_is_millimetres_and_newtons_and_never_non_finite() {
+        let snapshot = Snapshot {
+            probe_m: DVec3::new(0.01, -0.02, 0.03),
+            proxy_m: DVec3::new(0.0, 0.0, 0.001),
+            probe_velocity_m_per_s: DVec3::new(f64::NAN, 0.0, 0.0),
+            sent_force_n: DVec3::new(0.5, 0.0, -1.5),
+            ..Snapshot::example()
+        };
+        let mut out = Vec::new();
+        encode_stream(&mut out, 1, &snapshot, 0);
+        let mut at = 0;
+        let mut seen = Vec::new();
+        while at < out.len() {
+            let raw: &[u8; HEADER_BYTES] = out[at..at + HEADER_BYTES].try_into().unwrap();
+            let header = Header::decode(raw, 1000).unwrap();
+            let body = &out[at + HEADER_BYTES..at + HEADER_BYTES + header.body_size as usize];
+            header.check_crc(body).unwrap();
+            let transform = Transform::decode(body).unwrap();
+            assert_eq!(transform.rotation, glam::DMat3::IDENTITY);
+            seen.push((header.device_name, transform.translation));
+            at += HEADER_BYTES + header.body_size as usize;
+        }
+        let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-4;
+        assert_eq!(seen.len(), 4);
+        assert_eq!(seen[0].0, "Probe");
+        assert!(close(seen[0].1, DVec3::new(10.0, -20.0, 30.0)));
+        assert!(close(seen[1].1, DVec3::new(0.0, 0.0, 1.0)));
+        assert_eq!(seen[2].0, "ProbeVelocity");
+        assert_eq!(seen[2].1, DVec3::ZERO);
+        assert_eq!(seen[3].0, "Force");
+        assert!(close(seen[3].1, DVec3::new(0.5, 0.0, -1.5)));
+    }
+}

@@ -43,6 +43,7 @@ fn trace(count: usize) -> Trace {
             })
             .collect(),
         sidecar: None,
+        warnings: Vec::new(),
     }
 }
 

@@ -49,6 +49,10 @@ pub struct ServeArgs {
     /// Trace format (default: from the file name).
     #[arg(long)]
     pub record_format: Option<TraceFormat>,
+    /// Replace an existing --record trace (never an input of the run: the scene, a volume, a replayed
+    /// trace).
+    #[arg(long)]
+    pub force: bool,
     /// Real-time scheduling: strict refuses to start without SCHED_FIFO, locked memory and a pinned core.
     #[arg(long, value_enum, default_value_t = RtMode::BestEffort)]
     pub rt: RtMode,
@@ -101,6 +105,18 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
         let format = args
             .record_format
             .unwrap_or_else(|| TraceFormat::from_path(path));
+        let mut inputs: Vec<PathBuf> = args.scene.iter().cloned().collect();
+        inputs.extend(args.volume.iter().map(PathBuf::from));
+        inputs.extend(config.setup.volumes.iter().map(|v| PathBuf::from(&v.source)));
+        if let DeviceSpec::Replay(trace) = &args.device {
+            inputs.push(trace.clone());
+        }
+        config.record_policy = crate::record::OutputPolicy {
+            overwrite: args.force,
+            inputs,
+        };
+        crate::record::check_output_path(path, &config.record_policy)
+            .map_err(|e| anyhow::anyhow!("--record: {e}"))?;
         config.record = Some((path.clone(), format));
     }
     Ok(config)

@@ -1,10 +1,16 @@
-//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint]`: run a
-//! scenario headless and record its force trace (see [`crate::sim`]).
+//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint] [--force]
+//! [--max-trace-bytes N]`: run a scenario headless and record its force trace (see [`crate::sim`]).
 //!
+//! Before anything is written: the output must not exist (unless `--force`) and is never one of the
+//! run's inputs (the scenario, its volume files); the trace's size is estimated from the tick count and
+//! the format, and a run over `--max-trace-bytes` (default 2 GB) is refused with the estimate.
 //! A progress bar shows on a terminal (stderr) and nothing otherwise; one summary line goes to stdout.
 
 use crate::haptics::tick::SolverKind;
-use crate::record::{create_trace_writer, TraceFormat, TraceMeta};
+use crate::record::{
+    create_trace_writer_with, error_chain, estimate_trace_bytes, OutputPolicy, TraceFormat,
+    TraceMeta,
+};
 use crate::sim::{self, LoadedScenario};
 use anyhow::Context;
 use clap::Args;
@@ -24,6 +30,29 @@ pub struct SimArgs {
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).
     #[arg(long, value_enum)]
     pub solver: Option<SolverKind>,
+    /// Replace an existing trace (never the scenario or one of its volume files).
+    #[arg(long)]
+    pub force: bool,
+    /// Refuse to start when the trace is estimated to take more bytes than this.
+    #[arg(long, default_value_t = DEFAULT_MAX_TRACE_BYTES)]
+    pub max_trace_bytes: u64,
+}
+
+/// Default of `--max-trace-bytes`: 2 GB.
+pub const DEFAULT_MAX_TRACE_BYTES: u64 = 2_000_000_000;
+
+/// The run's input files: the scenario and the volume files it names (relative to its directory).
+pub fn scenario_inputs(scenario_path: &std::path::Path, loaded: &LoadedScenario) -> Vec<PathBuf> {
+    let base = scenario_path.parent().unwrap_or(std::path::Path::new(""));
+    let mut inputs = vec![scenario_path.to_path_buf()];
+    inputs.extend(
+        loaded
+            .scenario
+            .volumes
+            .iter()
+            .filter_map(|v| v.file.as_ref().map(|f| base.join(f))),
+    );
+    inputs
 }
 
 pub fn run(args: &SimArgs) -> anyhow::Result<()> {
@@ -41,8 +70,24 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         loaded.volume_description.clone(),
         solver_label(solver),
     );
-    let mut writer = create_trace_writer(&args.out, format, &meta)?;
     let ticks = loaded.scenario.tick_count();
+    let estimate = estimate_trace_bytes(format, loaded.scene.mode_names().len(), ticks);
+    if estimate > args.max_trace_bytes {
+        anyhow::bail!(
+            "the trace would take about {} ({ticks} ticks, {} s at {} Hz, {format}), more than --max-trace-bytes {}; \
+             shorten the run, lower the rate, or raise --max-trace-bytes",
+            human_bytes(estimate),
+            loaded.scenario.duration_s,
+            loaded.scenario.rate_hz,
+            args.max_trace_bytes
+        );
+    }
+    let policy = OutputPolicy {
+        overwrite: args.force,
+        inputs: scenario_inputs(&args.scenario, &loaded),
+    };
+    let mut writer = create_trace_writer_with(&args.out, format, &meta, &policy)
+        .map_err(|e| anyhow::anyhow!("--out: {}", error_chain(&e)))?;
     let bar = if std::io::stderr().is_terminal() {
         let bar = indicatif::ProgressBar::new(ticks);
         if let Ok(style) = indicatif::ProgressStyle::with_template(
@@ -59,6 +104,10 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         bar.set_position(done)
     });
     bar.finish_and_clear();
+    if let Err(error) = &result {
+        // The sidecar says why the trace ends early.
+        let _ = writer.fail(&error_chain(error));
+    }
     let summary = result.with_context(|| format!("sim {} stopped", args.scenario.display()))?;
     let written = writer.finish()?;
     let bound = if summary.max_error_bound_m.is_finite() {
@@ -80,6 +129,18 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         written.trace_path.display(),
         written.sidecar_path.display(),
     ))
+}
+
+/// `bytes` as a short human figure (`1.9 GB`, `310 MB`, `12 kB`).
+pub fn human_bytes(bytes: u64) -> String {
+    let b = bytes as f64;
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.0} MB", b / 1e6)
+    } else {
+        format!("{:.0} kB", b / 1e3)
+    }
 }
 
 /// The solver label recorded in the trace metadata.

@@ -7,9 +7,18 @@
 //! brings a ready writer and the first tick to record (samples already in the ring from before the request
 //! are not part of the recording); a stop finishes the trace (MCAP summary, sidecar) and answers with the
 //! summary. When the servo thread ends, the ring is abandoned: the recorder drains what is left, finishes
-//! the trace and exits. A write error stops the recording and is kept for the control side to report.
+//! the trace and exits.
+//!
+//! Honest failure: a bad sample never stops a recording (the writer records it flagged, see
+//! [`TraceWriter`]). A write or flush error (disk full, I/O error) does: at once, the recorder prints it
+//! with the OS reason to stderr (`voxhap: recording to x.csv stopped: ... No space left on device (os
+//! error 28)`), counts it in the statistics (`recorder_errors`), keeps the message for the control side,
+//! and marks the sidecar (`complete: false`, `error`). The trace is flushed every [`FLUSH_INTERVAL`]
+//! (whole CSV lines, closed MCAP chunks), so an error or a crash is noticed, and loses, at most that much.
 
-use crate::record::{TraceError, TraceSample, TraceSummary, TraceWriter};
+use super::stats::ServoStats;
+use crate::record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
+use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -40,10 +49,40 @@ struct Active {
     first_tick: u64,
 }
 
-fn finish(active: Option<Active>) -> Result<Option<TraceSummary>, TraceError> {
-    match active {
-        Some(mut active) => active.writer.finish().map(Some),
-        None => Ok(None),
+/// Where a recorder reports a failure: stderr, the statistics and the control side's slot.
+struct Reporter {
+    slot: RecorderError,
+    stats: Arc<ServoStats>,
+}
+
+impl Reporter {
+    /// Reports `error` and marks the trace failed; the recording ends.
+    fn fail(&self, mut active: Active, error: &TraceError) {
+        let text = error_chain(error);
+        eprintln!("voxhap: recording stopped: {text}");
+        self.stats.recorder_errors.fetch_add(1, Ordering::Relaxed);
+        if let Ok(mut slot) = self.slot.lock() {
+            *slot = Some(text.clone());
+        }
+        if let Err(sidecar_error) = active.writer.fail(&text) {
+            eprintln!(
+                "voxhap: could not mark the trace's sidecar as failed either: {}",
+                error_chain(&sidecar_error)
+            );
+        }
+    }
+
+    fn finish(&self, active: Option<Active>) -> Result<Option<TraceSummary>, TraceError> {
+        match active {
+            Some(mut current) => match current.writer.finish() {
+                Ok(summary) => Ok(Some(summary)),
+                Err(error) => {
+                    self.fail(current, &error);
+                    Err(error)
+                }
+            },
+            None => Ok(None),
+        }
     }
 }
 
@@ -52,7 +91,12 @@ pub fn run_recorder(
     mut samples: rtrb::Consumer<TraceSample>,
     requests: mpsc::Receiver<RecorderRequest>,
     error_slot: RecorderError,
+    stats: Arc<ServoStats>,
 ) -> Result<Option<TraceSummary>, TraceError> {
+    let reporter = Reporter {
+        slot: error_slot,
+        stats,
+    };
     let mut active: Option<Active> = None;
     let mut last_flush = Instant::now();
     loop {
@@ -61,27 +105,26 @@ pub fn run_recorder(
                 RecorderRequest::Start { writer, first_tick } => {
                     // A start while recording replaces the trace; the control side refuses that, so finish
                     // the old one properly just in case.
-                    if let Err(error) = finish(active.take()) {
-                        store(&error_slot, &error);
-                    }
+                    let _ = reporter.finish(active.take());
                     active = Some(Active { writer, first_tick });
+                    last_flush = Instant::now();
                 }
                 RecorderRequest::Stop { reply } => {
-                    drain(&mut samples, &mut active, &error_slot);
-                    let _ = reply.send(finish(active.take()));
+                    drain(&mut samples, &mut active, &reporter);
+                    let _ = reply.send(reporter.finish(active.take()));
                 }
             }
         }
         let abandoned = samples.is_abandoned();
-        drain(&mut samples, &mut active, &error_slot);
+        drain(&mut samples, &mut active, &reporter);
         if abandoned {
-            return finish(active.take());
+            return reporter.finish(active.take());
         }
         if last_flush.elapsed() >= FLUSH_INTERVAL {
-            if let Some(current) = active.as_mut() {
-                if let Err(error) = current.writer.flush() {
-                    store(&error_slot, &error);
-                    active = None;
+            if let Some(mut current) = active.take() {
+                match current.writer.flush() {
+                    Ok(()) => active = Some(current),
+                    Err(error) => reporter.fail(current, &error),
                 }
             }
             last_flush = Instant::now();
@@ -90,16 +133,10 @@ pub fn run_recorder(
     }
 }
 
-fn store(slot: &RecorderError, error: &TraceError) {
-    if let Ok(mut slot) = slot.lock() {
-        *slot = Some(error.to_string());
-    }
-}
-
 fn drain(
     samples: &mut rtrb::Consumer<TraceSample>,
     active: &mut Option<Active>,
-    error_slot: &RecorderError,
+    reporter: &Reporter,
 ) {
     while let Ok(sample) = samples.pop() {
         let Some(current) = active.as_mut() else {
@@ -109,10 +146,9 @@ fn drain(
             continue;
         }
         if let Err(error) = current.writer.write_sample(&sample) {
-            store(error_slot, &error);
-            // Keep what was written: finish the file, then stop recording.
-            let _ = current.writer.finish();
-            *active = None;
+            if let Some(failed) = active.take() {
+                reporter.fail(failed, &error);
+            }
         }
     }
 }

@@ -25,7 +25,7 @@ use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
 use crate::record::{
     TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,
-    FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED,
+    FLAG_DEVICE_DISCONNECTED, FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED,
 };
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -327,16 +327,27 @@ impl ServoLoop {
         if std::mem::take(&mut self.samples_dropped_pending) {
             flags |= FLAG_SAMPLES_DROPPED;
         }
+        if !device_out.connected {
+            flags |= FLAG_DEVICE_DISCONNECTED;
+        }
         let sample = TraceSample {
             tick: tick_index,
             t_s,
             probe_m,
+            probe_velocity_m_per_s: probe_velocity,
             proxy_m: out.proxy_m,
+            rendered_force_n: rendered_n,
             force_n: device_out.sent_force_n,
+            mode_force_n: out.mode_force_n,
             primitives_per_mode: out.primitives_per_mode,
             mode_count: out.mode_count,
+            solver_status: out.status.into(),
             sweeps: out.sweeps,
             error_bound_m: out.error_bound_m,
+            // The lead wires the device's sequence number and FLAG_DEVICE_NOT_ENABLED /
+            // FLAG_VELOCITY_ESTIMATED with the device path of issue 12.
+            device_sequence: None,
+            device_time_us: self.last_state.and_then(|s| s.device_time_us),
             flags,
         };
         if self.io.samples.push(sample).is_err() {

@@ -145,6 +145,7 @@ mod tests {
                 })
                 .collect(),
             sidecar: None,
+            warnings: Vec::new(),
         }
     }
 

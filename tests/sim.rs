@@ -23,6 +23,7 @@ fn run_to(name: &str, solver: SolverKind, out: &Path, format: TraceFormat) -> (S
         solver.name(),
     );
     meta.created_utc = "2000-01-01T00:00:00Z".to_owned();
+    meta.start_utc_ns = 946_684_800_000_000_000;
     let mut writer = create_trace_writer(out, format, &meta).unwrap();
     let summary = sim::run(&loaded, solver, writer.as_mut(), |_| {}).unwrap();
     writer.finish().unwrap();
@@ -47,7 +48,7 @@ fn every_shipped_scenario_parses_and_the_procedural_ones_run_certified() {
         let (summary, trace) = run_to(
             name,
             SolverKind::Exact,
-            &dir.path().join("t.csv"),
+            &dir.path().join(format!("{name}.csv")),
             TraceFormat::Csv,
         );
         assert_eq!(trace.samples.len() as u64, summary.ticks, "{name}");
@@ -152,7 +153,7 @@ fn cli_runs_are_deterministic_apart_from_the_sidecar_timestamp() {
             .arg(&scenario)
             .arg("--out")
             .arg(out)
-            .args(["--solver", solver])
+            .args(["--solver", solver, "--start-utc-ns", "1700000000000000000"])
             .output()
             .unwrap();
         assert!(
@@ -181,6 +182,7 @@ fn cli_runs_are_deterministic_apart_from_the_sidecar_timestamp() {
             serde_json::from_slice(&std::fs::read(voxhap::record::sidecar_path(p)).unwrap())
                 .unwrap();
         v.as_object_mut().unwrap().remove("created_utc");
+        assert_eq!(v["start_utc_ns"], 1_700_000_000_000_000_000i64);
         v.as_object_mut().unwrap().remove("trace_file");
         v
     };

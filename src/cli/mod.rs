@@ -12,6 +12,7 @@ pub mod plot;
 pub mod serve;
 pub mod sim;
 pub mod solve;
+pub mod trace;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -52,6 +53,8 @@ pub enum Command {
     Serve(serve::ServeArgs),
     /// Run the servo loop on the simulated arm for a while and print its timing histograms.
     BenchLoop(bench_loop::BenchLoopArgs),
+    /// Work on recorded traces: `voxhap trace repair FILE` recovers what a crash left.
+    Trace(trace::TraceArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -90,6 +93,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sim(args)) => sim::run(&args),
         Some(Command::Serve(args)) => serve::run(&args),
         Some(Command::BenchLoop(args)) => bench_loop::run(&args),
+        Some(Command::Trace(args)) => trace::run(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

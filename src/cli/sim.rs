@@ -33,6 +33,10 @@ pub struct SimArgs {
     /// Replace an existing trace (never the scenario or one of its volume files).
     #[arg(long)]
     pub force: bool,
+    /// Wall-clock UTC (ns since 1970) dated to the run's t = 0 in the trace's utc_ns column; default: now.
+    /// A fixed value makes two runs' traces byte-for-byte identical.
+    #[arg(long)]
+    pub start_utc_ns: Option<i64>,
     /// Refuse to start when the trace is estimated to take more bytes than this.
     #[arg(long, default_value_t = DEFAULT_MAX_TRACE_BYTES)]
     pub max_trace_bytes: u64,
@@ -86,6 +90,10 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         overwrite: args.force,
         inputs: scenario_inputs(&args.scenario, &loaded),
     };
+    let mut meta = meta;
+    if let Some(start) = args.start_utc_ns {
+        meta.start_utc_ns = start;
+    }
     let mut writer = create_trace_writer_with(&args.out, format, &meta, &policy)
         .map_err(|e| anyhow::anyhow!("--out: {}", error_chain(&e)))?;
     let bar = if std::io::stderr().is_terminal() {

@@ -107,7 +107,13 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
             .unwrap_or_else(|| TraceFormat::from_path(path));
         let mut inputs: Vec<PathBuf> = args.scene.iter().cloned().collect();
         inputs.extend(args.volume.iter().map(PathBuf::from));
-        inputs.extend(config.setup.volumes.iter().map(|v| PathBuf::from(&v.source)));
+        inputs.extend(
+            config
+                .setup
+                .volumes
+                .iter()
+                .map(|v| PathBuf::from(&v.source)),
+        );
         if let DeviceSpec::Replay(trace) = &args.device {
             inputs.push(trace.clone());
         }

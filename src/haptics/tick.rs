@@ -303,7 +303,8 @@ fn tick_inner(
         let mut primitives = workspace.primitives.iter();
         for (mode, &count) in output.primitives_per_mode[..mode_count].iter().enumerate() {
             for primitive in primitives.by_ref().take(usize::from(count)) {
-                let force = if exact && primitive.kind() != crate::haptics::PrimitiveKind::Directed {
+                let force = if exact && primitive.kind() != crate::haptics::PrimitiveKind::Directed
+                {
                     dual_forces.next().unwrap_or(DVec3::ZERO)
                 } else {
                     primitive.force_n(proxy_m)

@@ -92,7 +92,12 @@ pub fn columns(mode_names: &[String]) -> Vec<ColumnDoc> {
     use ColumnType::*;
     let mut c = vec![
         col("tick", "-", "servo tick number since the run started", U64),
-        col("t_s", "s", "tick time since the run started (monotonic schedule time)", F64),
+        col(
+            "t_s",
+            "s",
+            "tick time since the run started (monotonic schedule time)",
+            F64,
+        ),
         col(
             "utc_ns",
             "ns",
@@ -100,17 +105,31 @@ pub fn columns(mode_names: &[String]) -> Vec<ColumnDoc> {
             I64,
         ),
     ];
-    vector_columns(&mut c, ["probe_x_m", "probe_y_m", "probe_z_m"], "m", "probe (device) position");
+    vector_columns(
+        &mut c,
+        ["probe_x_m", "probe_y_m", "probe_z_m"],
+        "m",
+        "probe (device) position",
+    );
     vector_columns(
         &mut c,
         ["probe_vx_m_per_s", "probe_vy_m_per_s", "probe_vz_m_per_s"],
         "m/s",
         "probe velocity (reported, or estimated: flag_velocity_estimated)",
     );
-    vector_columns(&mut c, ["proxy_x_m", "proxy_y_m", "proxy_z_m"], "m", "proxy position");
     vector_columns(
         &mut c,
-        ["rendered_force_x_n", "rendered_force_y_n", "rendered_force_z_n"],
+        ["proxy_x_m", "proxy_y_m", "proxy_z_m"],
+        "m",
+        "proxy position",
+    );
+    vector_columns(
+        &mut c,
+        [
+            "rendered_force_x_n",
+            "rendered_force_y_n",
+            "rendered_force_z_n",
+        ],
         "N",
         "force rendered, before the safety pipeline",
     );
@@ -172,7 +191,12 @@ fn push_vector(out: &mut Vec<Cell>, v: DVec3) {
 }
 
 /// The cells of `sample` in column order (as [`columns`] for `mode_count` modes), appended to `out`.
-pub(crate) fn cells(sample: &TraceSample, mode_count: usize, start_utc_ns: i64, out: &mut Vec<Cell>) {
+pub(crate) fn cells(
+    sample: &TraceSample,
+    mode_count: usize,
+    start_utc_ns: i64,
+    out: &mut Vec<Cell>,
+) {
     out.push(Cell::U64(sample.tick));
     out.push(Cell::F64(sample.t_s));
     out.push(utc_cell(start_utc_ns, sample.t_s));
@@ -241,7 +265,11 @@ pub(crate) fn sample_from_cells(
     let t_s = f64_cell(&mut next)?;
     let (utc_index, utc) = next();
     let vector = |next: &mut dyn FnMut() -> (usize, Cell)| -> Result<DVec3, CellError> {
-        Ok(DVec3::new(f64_cell(next)?, f64_cell(next)?, f64_cell(next)?))
+        Ok(DVec3::new(
+            f64_cell(next)?,
+            f64_cell(next)?,
+            f64_cell(next)?,
+        ))
     };
     let mut sample = TraceSample::zeroed(mode_count as u8);
     sample.tick = tick;
@@ -254,7 +282,9 @@ pub(crate) fn sample_from_cells(
     for mode in 0..mode_count.min(MAX_MODES) {
         let (i, count) = next();
         sample.primitives_per_mode[mode] = match count {
-            Cell::U64(v) => u16::try_from(v).map_err(|_| err(i, "not an integer from 0 to 65535"))?,
+            Cell::U64(v) => {
+                u16::try_from(v).map_err(|_| err(i, "not an integer from 0 to 65535"))?
+            }
             _ => return Err(err(i, "not an integer from 0 to 65535")),
         };
         sample.mode_force_n[mode] = vector(&mut next)?;
@@ -313,7 +343,9 @@ mod tests {
         sorted.dedup();
         assert_eq!(sorted.len(), names.len());
         // Attributes of a pandas DataFrame that a column must not shadow.
-        for reserved in ["flags", "index", "columns", "values", "shape", "size", "T", "dtypes"] {
+        for reserved in [
+            "flags", "index", "columns", "values", "shape", "size", "T", "dtypes",
+        ] {
             assert!(!names.iter().any(|n| n == reserved), "{reserved}");
         }
     }

@@ -123,7 +123,12 @@ impl TraceWriter for CsvTraceWriter {
             return Ok(());
         };
         self.row.clear();
-        cells(&sample, self.checker.mode_count, self.start_utc_ns, &mut self.row);
+        cells(
+            &sample,
+            self.checker.mode_count,
+            self.start_utc_ns,
+            &mut self.row,
+        );
         write_cells(&mut self.buffer, &self.row);
         if self.buffer.len() >= WRITE_CHUNK_BYTES {
             self.write_buffer()?;
@@ -258,7 +263,15 @@ fn parse_csv_lines(
         let parsed = std::str::from_utf8(&buffer)
             .map_err(|_| TraceReadError::NotText { line })
             .and_then(|text| {
-                let sample = parse_row(text, line, &names, &types, &mut row, mode_names.len(), start_utc_ns)?;
+                let sample = parse_row(
+                    text,
+                    line,
+                    &names,
+                    &types,
+                    &mut row,
+                    mode_names.len(),
+                    start_utc_ns,
+                )?;
                 match check_sample(&sample, mode_names.len(), last_tick) {
                     Ok(()) => Ok(sample),
                     Err(problem) => Err(rule_error(problem, text, line, &names)),
@@ -338,7 +351,9 @@ fn parse_cell(text: &str, column_type: ColumnType) -> Result<Cell, &'static str>
     match column_type {
         ColumnType::U64 => {
             integer("not an unsigned integer")?;
-            text.parse().map(Cell::U64).map_err(|_| "not an unsigned integer")
+            text.parse()
+                .map(Cell::U64)
+                .map_err(|_| "not an unsigned integer")
         }
         ColumnType::OptionalU64 if text.is_empty() => Ok(Cell::Missing),
         ColumnType::OptionalU64 => {
@@ -636,7 +651,11 @@ mod tests {
         let trace = read_csv_trace(&path).unwrap();
         assert_eq!(trace.samples.len(), 3);
         assert_eq!(trace.warnings.len(), 1);
-        assert!(trace.warnings[0].contains("partial last line 5"), "{:?}", trace.warnings);
+        assert!(
+            trace.warnings[0].contains("partial last line 5"),
+            "{:?}",
+            trace.warnings
+        );
         // The same damage in the middle of the file is an error.
         let lines: Vec<&str> = good.lines().collect();
         let middle = [lines[0], &lines[1][..20], lines[2]].join("\n") + "\n";
@@ -647,7 +666,10 @@ mod tests {
     fn an_old_format_trace_is_refused_with_a_clear_error() {
         let old = "tick,t_s,probe_x_m,probe_y_m,probe_z_m,proxy_x_m,proxy_y_m,proxy_z_m,force_x_n,force_y_n,force_z_n,primitives_surface,sweeps,error_bound_m,flags\n0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,1,2,0.0,0\n";
         let err = read_err(old);
-        assert!(err.contains("older voxhap") && err.contains("format 1"), "{err}");
+        assert!(
+            err.contains("older voxhap") && err.contains("format 1"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -79,7 +79,9 @@ pub enum TraceError {
         path: PathBuf,
     },
     /// The output is one of the run's inputs (same file, perhaps by another name).
-    #[error("{path} is an input of this run ({input}); it is never overwritten, even with --force")]
+    #[error(
+        "{path} is an input of this run ({input}); it is never overwritten, even with --force"
+    )]
     IsInput {
         /// The output asked for.
         path: PathBuf,

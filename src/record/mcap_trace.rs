@@ -41,16 +41,15 @@ use serde::{Deserialize, Serialize, Serializer};
 use ::foxglove::messages::{FrameTransform, Vector3};
 use ::foxglove::Encode;
 
+use super::columns::{utc_cell, Cell};
 use super::csv::read_sidecar;
 use super::foxglove_topics::{
     frame_transform, set_translation, vector3, FORCE_TOPIC, PROBE_FRAME, PROBE_TOPIC, PROXY_FRAME,
     PROXY_TOPIC,
 };
-use super::columns::{utc_cell, Cell};
 use super::{
-    sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat,
-    TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
-    TRACE_FORMAT_VERSION,
+    sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat, TraceMeta,
+    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES, TRACE_FORMAT_VERSION,
 };
 
 /// Topic of the per-tick state messages (positions and force).
@@ -583,8 +582,11 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
 
 /// The mode names and the trace format version from the metadata record.
 fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), String> {
-    for record in
-        mcap::read::LinearReader::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into()).map_err(|e| e.to_string())?
+    for record in mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )
+    .map_err(|e| e.to_string())?
     {
         let Ok(record) = record else {
             break;

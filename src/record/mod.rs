@@ -26,9 +26,7 @@ pub use self::columns::{columns, ColumnDoc, ColumnType};
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
 pub use self::error::{error_chain, TraceError, TraceReadError};
 pub use self::mcap_trace::{read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
-pub use self::meta::{
-    sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION,
-};
+pub use self::meta::{sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
 pub use self::output::{check_output_path, estimate_trace_bytes, OutputPolicy};
 
 use glam::DVec3;
@@ -426,7 +424,10 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
     let finite_fields: [(&'static str, bool); 6] = [
         ("t_s", sample.t_s.is_finite()),
         ("probe_m", sample.probe_m.is_finite()),
-        ("probe_velocity_m_per_s", sample.probe_velocity_m_per_s.is_finite()),
+        (
+            "probe_velocity_m_per_s",
+            sample.probe_velocity_m_per_s.is_finite(),
+        ),
         ("proxy_m", sample.proxy_m.is_finite()),
         ("rendered_force_n", sample.rendered_force_n.is_finite()),
         ("force_n", sample.force_n.is_finite()),
@@ -521,14 +522,22 @@ pub(crate) mod test_support {
                 }
                 let force_n = (proxy_m - probe_m) * 500.0 + DVec3::new(-0.0, 1e-300, 0.1);
                 let mut mode_force_n = [DVec3::ZERO; MAX_MODES];
-                for (m, slot) in mode_force_n.iter_mut().take(usize::from(mode_count)).enumerate() {
+                for (m, slot) in mode_force_n
+                    .iter_mut()
+                    .take(usize::from(mode_count))
+                    .enumerate()
+                {
                     *slot = force_n * (m as f64 + 1.0) / 3.0;
                 }
                 TraceSample {
                     tick: i * 2,
                     t_s,
                     probe_m,
-                    probe_velocity_m_per_s: DVec3::new(-0.14 * angle.sin(), 0.14 * angle.cos(), -0.001),
+                    probe_velocity_m_per_s: DVec3::new(
+                        -0.14 * angle.sin(),
+                        0.14 * angle.cos(),
+                        -0.001,
+                    ),
                     proxy_m,
                     rendered_force_n: force_n * 1.5,
                     force_n,
@@ -544,7 +553,12 @@ pub(crate) mod test_support {
                     },
                     device_sequence: (i % 3 != 0).then_some(i * 10),
                     device_time_us: (i % 2 == 0).then_some(i * 1000 + 17),
-                    flags: (i % 4) as u32 | if i % 11 == 5 { FLAG_DEVICE_NOT_ENABLED } else { 0 },
+                    flags: (i % 4) as u32
+                        | if i % 11 == 5 {
+                            FLAG_DEVICE_NOT_ENABLED
+                        } else {
+                            0
+                        },
                 }
             })
             .collect()

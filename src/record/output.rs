@@ -94,7 +94,9 @@ mod tests {
         check_output_path(&out, &forced).unwrap();
         // The input under another spelling, and through a symlink, is refused even with --force.
         let other_name = dir.path().join(".").join("scene.toml");
-        let err = check_output_path(&other_name, &forced).unwrap_err().to_string();
+        let err = check_output_path(&other_name, &forced)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("is an input"), "{err}");
         #[cfg(unix)]
         {

@@ -74,7 +74,11 @@ pub fn repair_trace(
             };
             let mut meta = TraceMeta::new(
                 trace.mode_names.clone(),
-                if rate_hz.is_finite() && rate_hz > 0.0 { rate_hz } else { 1000.0 },
+                if rate_hz.is_finite() && rate_hz > 0.0 {
+                    rate_hz
+                } else {
+                    1000.0
+                },
                 serde_json::Value::Null,
                 "unknown (no sidecar)",
                 "unknown (no sidecar)",
@@ -109,13 +113,19 @@ pub fn repair_trace(
             trace.warnings.join("; ")
         )
     };
-    let mut sidecar: Sidecar = serde_json::from_slice(
-        &std::fs::read(&summary.sidecar_path).map_err(|source| TraceError::Io {
-            path: summary.sidecar_path.clone(),
-            source,
-        })?,
-    )
-    .map_err(|e| TraceError::Meta(format!("cannot re-read the new sidecar: {}", error_chain(&e))))?;
+    let mut sidecar: Sidecar =
+        serde_json::from_slice(&std::fs::read(&summary.sidecar_path).map_err(|source| {
+            TraceError::Io {
+                path: summary.sidecar_path.clone(),
+                source,
+            }
+        })?)
+        .map_err(|e| {
+            TraceError::Meta(format!(
+                "cannot re-read the new sidecar: {}",
+                error_chain(&e)
+            ))
+        })?;
     sidecar.repaired = Some(note);
     if let Some(old) = &trace.sidecar {
         sidecar.error = old.error.clone();

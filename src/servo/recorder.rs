@@ -152,3 +152,151 @@ fn drain(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::{read_trace, CsvTraceWriter, TraceMeta, FLAG_INVALID_VALUES};
+    use glam::DVec3;
+
+    fn meta() -> TraceMeta {
+        TraceMeta::new(
+            vec!["surface".into()],
+            1000.0,
+            serde_json::Value::Null,
+            "",
+            "",
+        )
+    }
+
+    fn sample(tick: u64) -> TraceSample {
+        let mut sample = TraceSample::zeroed(1);
+        sample.tick = tick;
+        sample.t_s = tick as f64 * 1e-3;
+        sample
+    }
+
+    /// Regression: one tick with a non-finite proxy and certificate (a replayed probe of 1e300) ended the
+    /// recording for the rest of the session while the sidecar said complete.
+    #[test]
+    fn a_bad_tick_is_recorded_flagged_and_the_trace_goes_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.csv");
+        let writer = CsvTraceWriter::create(&path, &meta()).unwrap();
+        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
+        let (requests_tx, requests_rx) = mpsc::channel();
+        requests_tx
+            .send(RecorderRequest::Start {
+                writer: Box::new(writer),
+                first_tick: 0,
+            })
+            .unwrap();
+        for tick in 0..3000 {
+            let mut s = sample(tick);
+            if tick == 1000 {
+                s.probe_m = DVec3::splat(1e300);
+                s.proxy_m = DVec3::new(f64::NAN, 0.0, 0.0);
+                s.error_bound_m = f64::NAN;
+            }
+            producer.push(s).unwrap();
+        }
+        drop(producer);
+        let stats = Arc::new(ServoStats::new(1000.0));
+        let summary = run_recorder(consumer, requests_rx, Arc::default(), stats.clone())
+            .unwrap()
+            .unwrap();
+        assert_eq!(summary.sample_count, 3000);
+        let trace = read_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 3000);
+        assert_ne!(trace.samples[1000].flags & FLAG_INVALID_VALUES, 0);
+        assert_eq!(trace.samples[999].flags & FLAG_INVALID_VALUES, 0);
+        assert!(trace.sidecar.unwrap().complete);
+        assert_eq!(stats.recorder_errors.load(Ordering::Relaxed), 0);
+    }
+
+    /// A trace writer whose disk fills after `capacity` samples: later writes and flushes fail with the
+    /// OS's ENOSPC error, as a file on a full disk does. (The real writers' own ENOSPC path is tested
+    /// against /dev/full in `record::csv`.) It keeps what `fail` was told.
+    struct FillingDisk {
+        capacity: u64,
+        written: u64,
+        failed_with: Arc<Mutex<Option<String>>>,
+    }
+
+    impl TraceWriter for FillingDisk {
+        fn write_sample(&mut self, _: &TraceSample) -> Result<(), TraceError> {
+            if self.written >= self.capacity {
+                return Err(TraceError::Io {
+                    path: "disk.csv".into(),
+                    source: std::io::Error::from_raw_os_error(28),
+                });
+            }
+            self.written += 1;
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), TraceError> {
+            Ok(())
+        }
+        fn finish(&mut self) -> Result<TraceSummary, TraceError> {
+            Err(TraceError::Finished)
+        }
+        fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+            *self.failed_with.lock().unwrap() = Some(error.to_owned());
+            Ok(())
+        }
+        fn sample_count(&self) -> u64 {
+            self.written
+        }
+    }
+
+    /// A full disk reaches the error slot and the statistics within a second, with the OS reason, and
+    /// the writer is told (so its sidecar says what happened), while the session goes on.
+    #[test]
+    fn a_full_disk_is_reported_within_a_second_with_the_os_reason() {
+        let failed_with = Arc::default();
+        let writer = FillingDisk {
+            capacity: 500,
+            written: 0,
+            failed_with: Arc::clone(&failed_with),
+        };
+        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
+        let (requests_tx, requests_rx) = mpsc::channel();
+        requests_tx
+            .send(RecorderRequest::Start {
+                writer: Box::new(writer),
+                first_tick: 0,
+            })
+            .unwrap();
+        let slot: RecorderError = Arc::default();
+        let stats = Arc::new(ServoStats::new(1000.0));
+        let thread = {
+            let (slot, stats) = (slot.clone(), stats.clone());
+            std::thread::spawn(move || run_recorder(consumer, requests_rx, slot, stats))
+        };
+        // A 1 kHz session: 10 samples every 10 ms; the disk fills after half a second.
+        let started = Instant::now();
+        let mut tick = 0;
+        let mut full_at = None;
+        while slot.lock().unwrap().is_none() && started.elapsed() < Duration::from_secs(5) {
+            for _ in 0..10 {
+                let _ = producer.push(sample(tick));
+                tick += 1;
+                if tick == 501 {
+                    full_at = Some(Instant::now());
+                }
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let message = slot.lock().unwrap().clone().expect("error reported");
+        let delay = full_at.expect("disk filled").elapsed();
+        assert!(delay < Duration::from_secs(1), "reported {delay:?} after");
+        assert!(message.contains("No space left on device"), "{message}");
+        assert_eq!(stats.recorder_errors.load(Ordering::Relaxed), 1);
+        assert_eq!(
+            failed_with.lock().unwrap().as_deref(),
+            Some(message.as_str())
+        );
+        drop(producer);
+        assert!(thread.join().unwrap().unwrap().is_none());
+    }
+}

@@ -24,8 +24,8 @@ use crate::device::DeviceState;
 use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
 use crate::record::{
-    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,
-    FLAG_DEVICE_DISCONNECTED, FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED,
+    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_DISCONNECTED, FLAG_FORCE_CLAMPED,
+    FLAG_FORCE_LIMITED_BY_SAFETY, FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED,
 };
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -99,6 +99,9 @@ impl SessionConfig {
     }
 }
 
+/// The farthest a hand target may be from the origin (m), for an unbounded workspace.
+pub const MAX_HAND_TARGET_M: f64 = 10.0;
+
 /// Why a session did not start.
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
@@ -249,11 +252,9 @@ impl Session {
                 &meta,
                 &config.record_policy,
             )
-            .map_err(|source| {
-                SessionError::Record {
-                    path: path.clone(),
-                    source,
-                }
+            .map_err(|source| SessionError::Record {
+                path: path.clone(),
+                source,
             })?;
             let _ = recorder_tx.send(RecorderRequest::Start {
                 writer,
@@ -725,6 +726,15 @@ impl SessionShared {
                         let v = DVec3::new(x, y, z);
                         if !v.is_finite() {
                             return Err(invalid("position_m must be three finite numbers"));
+                        }
+                        // Inside the arm's workspace, and (for an unbounded one) within 10 m: a
+                        // far target (1e308) would overflow the hand spring into NaN.
+                        let workspace = &control.setup.arm.arm.workspace;
+                        if !workspace.contains_m(v, 0.0) || v.length() > MAX_HAND_TARGET_M {
+                            return Err(invalid(format!(
+                                "position_m {:?} m is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the origin)",
+                                v.to_array()
+                            )));
                         }
                         Some(v)
                     }

@@ -2,6 +2,8 @@
 //! renderer (a floor at z = 0 felt through a proxy), recorded as CSV and MCAP, read back by voxhap, by
 //! the `mcap` Python package and by pandas, and plotted with `voxhap plot`.
 
+mod cli;
+
 use glam::DVec3;
 use std::path::Path;
 use std::process::Command;

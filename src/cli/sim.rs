@@ -1,5 +1,11 @@
 //! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint] [--force]
-//! [--max-trace-bytes N]`: run a scenario headless and record its force trace (see [`crate::sim`]).
+//! [--max-trace-bytes N] [--set KEY=VALUE]... [--duration S] [--rate HZ] [--fail-on LIST]`: run a scenario
+//! headless and record its force trace (see [`crate::sim`]).
+//!
+//! Overrides (`--set`, `--duration`, `--rate`) change the scenario before it is validated
+//! ([`crate::sim::overrides`]); the trace's metadata records the scenario as run. `--fail-on` makes a run
+//! that completed exit with [`EXIT_FAIL_ON`] when one of the named conditions occurred (the trace is
+//! still written and finished).
 //!
 //! Before anything is written: the output must not exist (unless `--force`) and is never one of the
 //! run's inputs (the scenario, its volume files); the trace's size is estimated from the tick count and
@@ -40,6 +46,85 @@ pub struct SimArgs {
     /// Refuse to start when the trace is estimated to take more bytes than this.
     #[arg(long, default_value_t = DEFAULT_MAX_TRACE_BYTES)]
     pub max_trace_bytes: u64,
+    /// Override a scenario key before validation: KEY=VALUE, KEY a dotted path with array indices
+    /// (k_n_per_m=200, modes[1].mu=0.4, path.speed_m_per_s=0.01); repeatable, applied in order.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Override the scenario's duration_s (s).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Override the scenario's rate_hz (Hz).
+    #[arg(long)]
+    pub rate: Option<f64>,
+    /// Exit with code 3 (after writing the trace) when any of these occurred: uncertified (a tick the
+    /// exact solver did not certify, or any tick of a baseline solver), device-error (a non-finite force
+    /// or probe replaced by zero), disconnect, overrun (never in a sim: it has no device link and no
+    /// clock). Comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub fail_on: Vec<FailOn>,
+}
+
+/// Conditions `--fail-on` can make a run fail on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FailOn {
+    /// A tick without a certificate within the solver's tolerance.
+    Uncertified,
+    /// The device disconnected.
+    Disconnect,
+    /// A device error (in a sim: a non-finite force or probe replaced by zero).
+    DeviceError,
+    /// A tick started late (the schedule skipped).
+    Overrun,
+}
+
+/// Exit code of a run that finished but met a `--fail-on` condition.
+pub const EXIT_FAIL_ON: u8 = 3;
+
+/// The scenario file with `--set`, `--duration` and `--rate` applied, validated and loaded.
+pub fn load_scenario(
+    path: &std::path::Path,
+    set: &[String],
+    duration_s: Option<f64>,
+    rate_hz: Option<f64>,
+) -> anyhow::Result<LoadedScenario> {
+    let mut overrides = set.to_vec();
+    if let Some(duration) = duration_s {
+        overrides.push(format!("duration_s={duration:?}"));
+    }
+    if let Some(rate) = rate_hz {
+        overrides.push(format!("rate_hz={rate:?}"));
+    }
+    if overrides.is_empty() {
+        return Ok(LoadedScenario::from_file(path)?);
+    }
+    let origin = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read scenario file {origin}"))?;
+    let text = crate::sim::overrides::apply_overrides(&text, &overrides)
+        .with_context(|| format!("{origin}: overrides"))?;
+    let scenario = crate::sim::Scenario::parse(&text, &format!("{origin} (with --set)"))?;
+    let base_dir = path.parent().unwrap_or(std::path::Path::new(""));
+    Ok(scenario.load(base_dir, &origin)?)
+}
+
+/// What `--fail-on` found in a finished run, as a sentence per condition met.
+pub fn fail_on_findings(fail_on: &[FailOn], summary: &crate::sim::SimSummary) -> Vec<String> {
+    let mut found = Vec::new();
+    for condition in fail_on {
+        match condition {
+            FailOn::Uncertified if summary.certified_ticks < summary.ticks => found.push(format!(
+                "uncertified: {} of {} ticks without a certificate within tolerance",
+                summary.ticks - summary.certified_ticks,
+                summary.ticks
+            )),
+            FailOn::DeviceError if summary.non_finite_ticks > 0 => found.push(format!(
+                "device-error: {} ticks with a non-finite force or probe replaced by zero",
+                summary.non_finite_ticks
+            )),
+            _ => {}
+        }
+    }
+    found
 }
 
 /// Default of `--max-trace-bytes`: 2 GB.
@@ -60,7 +145,7 @@ pub fn scenario_inputs(scenario_path: &std::path::Path, loaded: &LoadedScenario)
 }
 
 pub fn run(args: &SimArgs) -> anyhow::Result<()> {
-    let loaded = LoadedScenario::from_file(&args.scenario)?;
+    let loaded = load_scenario(&args.scenario, &args.set, args.duration, args.rate)?;
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args
         .format
@@ -123,6 +208,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     } else {
         "none (uncertified solver)".to_owned()
     };
+    let findings = fail_on_findings(&args.fail_on, &summary);
     super::print_out(&format!(
         "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
          largest force {:.3} N -> {} (+ {})",
@@ -136,7 +222,15 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         summary.max_force_n,
         written.trace_path.display(),
         written.sidecar_path.display(),
-    ))
+    ))?;
+    if !findings.is_empty() {
+        return Err(super::ExitWith {
+            code: EXIT_FAIL_ON,
+            message: format!("--fail-on: {}", findings.join("; ")),
+        }
+        .into());
+    }
+    Ok(())
 }
 
 /// `bytes` as a short human figure (`1.9 GB`, `310 MB`, `12 kB`).

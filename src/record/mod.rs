@@ -13,6 +13,7 @@
 //! gives back the exact bits written.
 
 mod columns;
+pub mod compare;
 mod csv;
 mod error;
 pub mod foxglove_topics;

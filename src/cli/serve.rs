@@ -65,6 +65,11 @@ pub struct ServeArgs {
     /// Stop after this many seconds (default: run until Ctrl-C or SIGTERM).
     #[arg(long)]
     pub duration: Option<f64>,
+    /// Exit with code 3 after a clean stop when any of these occurred: uncertified (some tick's bound
+    /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun.
+    /// Comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub fail_on: Vec<super::sim::FailOn>,
     #[command(flatten)]
     pub http: HttpArgs,
     #[command(flatten)]
@@ -189,6 +194,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
+    let config_tolerance_m = config.setup.solver.tolerance_m;
     let rate = config.rate_hz;
     let device = config.device.to_string();
     let record = config.record.clone();
@@ -256,6 +262,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some(server) = foxglove {
         runtime.block_on(server.stop());
     }
+    let tolerance_m = config_tolerance_m;
     let summary = session.stop();
     super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
     if let Some(trace) = &summary.trace {
@@ -270,7 +277,44 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some(error) = summary.recorder_error {
         bail!("recording failed: {error}");
     }
+    let findings = serve_fail_on_findings(&args.fail_on, &summary.stats, tolerance_m);
+    if !findings.is_empty() {
+        return Err(super::ExitWith {
+            code: super::sim::EXIT_FAIL_ON,
+            message: format!("--fail-on: {}", findings.join("; ")),
+        }
+        .into());
+    }
     Ok(())
+}
+
+/// What `--fail-on` found in a finished session's statistics.
+fn serve_fail_on_findings(
+    fail_on: &[super::sim::FailOn],
+    stats: &crate::servo::api::StatsReport,
+    tolerance_m: f64,
+) -> Vec<String> {
+    use super::sim::FailOn;
+    let mut found = Vec::new();
+    for condition in fail_on {
+        match condition {
+            FailOn::Uncertified if !(stats.worst_error_bound_m <= tolerance_m) => found.push(format!(
+                "uncertified: the worst certificate bound {:.3e} m is above the tolerance {tolerance_m:.1e} m",
+                stats.worst_error_bound_m
+            )),
+            FailOn::Disconnect if stats.disconnects > 0 => {
+                found.push(format!("disconnect: {} device disconnects", stats.disconnects))
+            }
+            FailOn::DeviceError if stats.device_errors > 0 => {
+                found.push(format!("device-error: {} device errors", stats.device_errors))
+            }
+            FailOn::Overrun if stats.overruns > 0 => {
+                found.push(format!("overrun: {} ticks started late", stats.overruns))
+            }
+            _ => {}
+        }
+    }
+    found
 }
 
 #[cfg(test)]

@@ -201,3 +201,38 @@ fn a_killed_csv_sim_reads_up_to_the_kill_and_repairs() {
 fn a_killed_mcap_sim_reads_up_to_the_kill_and_repairs() {
     kill_mid_run("mcap");
 }
+
+/// `serve --fail-on uncertified` exits 3 after a clean stop when a baseline solver ran (no tick certified),
+/// and 0 with the exact solver.
+#[test]
+fn serve_fail_on_exits_3_only_when_a_condition_occurred() {
+    let dir = tempfile::tempdir().unwrap();
+    let euler = scenario_copy(dir.path(), "vortex_core.toml", |t| {
+        t.replace(
+            "k_n_per_m = 500.0\n",
+            "k_n_per_m = 500.0\n\n[solver]\nkind = \"euler\"\n",
+        )
+    });
+    let serve = |scene: &Path| {
+        voxhap(&[
+            "serve".as_ref(),
+            "--scene".as_ref(),
+            scene.as_os_str(),
+            "--duration".as_ref(),
+            "0.3".as_ref(),
+            "--no-http".as_ref(),
+            "--no-foxglove".as_ref(),
+            "--fail-on".as_ref(),
+            "uncertified,disconnect,device-error".as_ref(),
+        ])
+    };
+    let failed = serve(&euler);
+    assert_eq!(failed.status.code(), Some(3), "{}", stderr(&failed));
+    assert!(
+        stderr(&failed).contains("--fail-on: uncertified"),
+        "{}",
+        stderr(&failed)
+    );
+    let exact = serve(&sims_dir().join("vortex_core.toml"));
+    assert!(exact.status.success(), "{}", stderr(&exact));
+}

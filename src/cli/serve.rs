@@ -298,7 +298,7 @@ fn serve_fail_on_findings(
     let mut found = Vec::new();
     for condition in fail_on {
         match condition {
-            FailOn::Uncertified if !(stats.worst_error_bound_m <= tolerance_m) => found.push(format!(
+            FailOn::Uncertified if stats.worst_error_bound_m.is_nan() || stats.worst_error_bound_m > tolerance_m => found.push(format!(
                 "uncertified: the worst certificate bound {:.3e} m is above the tolerance {tolerance_m:.1e} m",
                 stats.worst_error_bound_m
             )),

@@ -45,6 +45,7 @@ fn trace(count: usize) -> Trace {
             })
             .collect(),
         sidecar: None,
+        warnings: Vec::new(),
     }
 }
 

@@ -1,6 +1,8 @@
-//! `voxhap sim` and the sims/ scenarios end to end: every shipped scenario runs, the multi-modal scene is
-//! certified on every tick by the exact solver and shows the constraint approach's artifact, runs are
-//! byte-for-byte deterministic, and the MRI brain sim runs when the shared data is there (skips otherwise).
+//! `voxhap sim` and the sims/ scenarios end to end: every shipped scenario runs, every claim sims/README.md
+//! makes about a scenario is asserted here on its trace (the sphere yields at s, friction slips at mu N,
+//! the vortex proxy stays on the core, the multi-modal scene is certified on every tick and the constraint
+//! approach sinks), runs are byte-for-byte deterministic, and the MRI brain sim runs when the shared data
+//! is there (skips otherwise). Keep sims/README.md in step with the numbers asserted here.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -23,6 +25,7 @@ fn run_to(name: &str, solver: SolverKind, out: &Path, format: TraceFormat) -> (S
         solver.name(),
     );
     meta.created_utc = "2000-01-01T00:00:00Z".to_owned();
+    meta.start_utc_ns = 946_684_800_000_000_000;
     let mut writer = create_trace_writer(out, format, &meta).unwrap();
     let summary = sim::run(&loaded, solver, writer.as_mut(), |_| {}).unwrap();
     writer.finish().unwrap();
@@ -47,7 +50,7 @@ fn every_shipped_scenario_parses_and_the_procedural_ones_run_certified() {
         let (summary, trace) = run_to(
             name,
             SolverKind::Exact,
-            &dir.path().join("t.csv"),
+            &dir.path().join(format!("{name}.csv")),
             TraceFormat::Csv,
         );
         assert_eq!(trace.samples.len() as u64, summary.ticks, "{name}");
@@ -66,6 +69,186 @@ fn every_shipped_scenario_parses_and_the_procedural_ones_run_certified() {
         );
         assert!(summary.max_force_n > 0.1, "{name}: {}", summary.max_force_n);
     }
+}
+
+/// sims/README.md: the force is normal to the surface and grows as k times the probe's penetration until
+/// it reaches s = 2 N; there the surface yields (the proxy breaks through and the force drops).
+#[test]
+fn sphere_surface_force_is_normal_and_peaks_and_yields_at_s() {
+    let dir = tempfile::tempdir().unwrap();
+    let (summary, trace) = run_to(
+        "sphere_surface.toml",
+        SolverKind::Exact,
+        &dir.path().join("sphere.csv"),
+        TraceFormat::Csv,
+    );
+    const S_N: f64 = 2.0;
+    const K: f64 = 500.0;
+    const RADIUS_M: f64 = 0.03;
+    assert_eq!(summary.certified_ticks, summary.ticks);
+    // Peaks at s (never above: the plane can push with at most s).
+    let (peak_index, peak_n) = trace
+        .samples
+        .iter()
+        .map(|s| s.force_n.length())
+        .enumerate()
+        .fold(
+            (0, 0.0),
+            |best, (i, f)| if f > best.1 { (i, f) } else { best },
+        );
+    assert!(
+        (S_N * 0.99..=S_N + 1e-9).contains(&peak_n),
+        "peak force {peak_n} N"
+    );
+    // Before the peak, in contact: the force is normal to the ball (within 8 degrees), points out, and
+    // is k times the probe's depth below the proxy on the surface.
+    let mut in_contact = 0;
+    for s in &trace.samples[..peak_index] {
+        let force = s.force_n.length();
+        if force < 0.2 {
+            continue;
+        }
+        in_contact += 1;
+        let outward = s.proxy_m.normalize();
+        assert!(
+            s.force_n.dot(outward) / force > 0.99,
+            "tick {}: force {:?} not normal",
+            s.tick,
+            s.force_n
+        );
+        let depth_m = s.proxy_m.length() - s.probe_m.length();
+        assert!(
+            (force - K * depth_m).abs() < 0.02 * force + 0.01,
+            "tick {}: {force} N at depth {depth_m} m",
+            s.tick
+        );
+        assert!(
+            (s.proxy_m.length() - RADIUS_M).abs() < 5e-4,
+            "tick {}: the proxy left the surface before the yield",
+            s.tick
+        );
+    }
+    assert!(in_contact > 300, "{in_contact} ticks in contact");
+    // It yields: within 0.5 s after the peak the proxy is through the surface and the force has dropped.
+    let after = &trace.samples[peak_index..peak_index + 500];
+    assert!(
+        after
+            .iter()
+            .any(|s| s.proxy_m.length() < RADIUS_M - 0.005 && s.force_n.length() < 0.5 * S_N),
+        "no yield after the peak"
+    );
+}
+
+/// sims/README.md: stick, then slip, with the friction force mu N (mu = 0.5) within 2 % on at least 99 %
+/// of the slipping ticks.
+#[test]
+fn friction_slips_at_mu_times_the_normal_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, trace) = run_to(
+        "friction_sliding.toml",
+        SolverKind::Exact,
+        &dir.path().join("friction.csv"),
+        TraceFormat::Csv,
+    );
+    assert_eq!(trace.mode_names, ["surface", "friction"]);
+    const MU: f64 = 0.5;
+    let (mut slipping, mut within, mut sticking) = (0usize, 0usize, 0usize);
+    for pair in trace.samples.windows(2) {
+        let (before, s) = (&pair[0], &pair[1]);
+        let normal_n = s.mode_force_n[0].length();
+        let friction_n = s.mode_force_n[1].length();
+        if normal_n < 0.2 {
+            continue;
+        }
+        let slide_m_per_s = (s.proxy_m.x - before.proxy_m.x).abs() / (s.t_s - before.t_s);
+        if slide_m_per_s > 1e-3 {
+            slipping += 1;
+            if (friction_n / normal_n - MU).abs() <= 0.02 * MU {
+                within += 1;
+            }
+        } else if slide_m_per_s < 1e-6 {
+            sticking += 1;
+        }
+    }
+    assert!(
+        slipping > 1000 && sticking > 100,
+        "{slipping} slipping, {sticking} sticking ticks"
+    );
+    assert!(
+        within as f64 >= 0.99 * slipping as f64,
+        "friction within 2 % of mu N on {within} of {slipping} slipping ticks"
+    );
+}
+
+/// sims/README.md: the proxy stays within 0.15 mm of the vortex core (the z axis) while the probe wanders
+/// up to 2 mm off it.
+#[test]
+fn vortex_proxy_stays_on_the_core() {
+    let dir = tempfile::tempdir().unwrap();
+    let (summary, trace) = run_to(
+        "vortex_core.toml",
+        SolverKind::Exact,
+        &dir.path().join("vortex.csv"),
+        TraceFormat::Csv,
+    );
+    assert_eq!(summary.certified_ticks, summary.ticks);
+    let off_axis = |v: glam::DVec3| v.x.hypot(v.y);
+    let proxy_max = trace
+        .samples
+        .iter()
+        .map(|s| off_axis(s.proxy_m))
+        .fold(0.0, f64::max);
+    let probe_max = trace
+        .samples
+        .iter()
+        .map(|s| off_axis(s.probe_m))
+        .fold(0.0, f64::max);
+    assert!(proxy_max < 1.5e-4, "proxy up to {proxy_max} m off the core");
+    assert!(probe_max > 1.8e-3, "probe only {probe_max} m off the core");
+    // And it slides along the core: the proxy covers most of the 6 cm of core the hand travels.
+    let (low, high) = trace
+        .samples
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), s| {
+            (lo.min(s.proxy_m.z), hi.max(s.proxy_m.z))
+        });
+    assert!(
+        high - low > 0.05,
+        "proxy travelled {} m along the core",
+        high - low
+    );
+}
+
+/// sims/README.md: crossing three nested shells, the hand feels drag in each of the six shell walls it
+/// passes and none in the gaps.
+#[test]
+fn viscosity_drags_in_each_shell_and_not_in_the_gaps() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, trace) = run_to(
+        "viscosity_shells.toml",
+        SolverKind::Exact,
+        &dir.path().join("shells.csv"),
+        TraceFormat::Csv,
+    );
+    let mut walls = 0;
+    let mut inside = false;
+    for s in &trace.samples {
+        let drag = s.primitives()[0] > 0;
+        if drag && !inside {
+            walls += 1;
+        }
+        inside = drag;
+        if !drag {
+            assert_eq!(s.mode_force_n[0], glam::DVec3::ZERO, "tick {}", s.tick);
+        }
+    }
+    assert_eq!(walls, 6);
+    let strongest = trace
+        .samples
+        .iter()
+        .map(|s| s.mode_force_n[0].length())
+        .fold(0.0, f64::max);
+    assert!(strongest > 0.3, "drag up to {strongest} N");
 }
 
 #[test]
@@ -117,13 +300,33 @@ fn multimodal_exact_trace_is_certified_and_the_constraint_approach_loses_the_sur
             / (t.samples.len() - half) as f64
     };
     let (exact_r, constraint_r) = (mean_radius(&trace), mean_radius(&constraint));
+    // sims/README.md: the exact proxy stays on the ball (within 0.1 mm of its 3 cm radius); the constraint
+    // approach's proxy sinks about 1.7 mm into it (more than 1.5 mm), down with the probe.
     assert!(
-        exact_r > 0.0295,
+        (exact_r - 0.03).abs() < 1e-4,
         "exact proxy at {exact_r} m from the centre"
     );
     assert!(
-        constraint_r < exact_r - 0.001,
+        constraint_r < 0.03 - 0.0015,
         "constraint proxy at {constraint_r} m vs exact {exact_r} m"
+    );
+    let mean_probe_radius = |t: &Trace| {
+        t.samples[half..]
+            .iter()
+            .map(|s| s.probe_m.length())
+            .sum::<f64>()
+            / (t.samples.len() - half) as f64
+    };
+    // README: the exact proxy rides the ball about 0.65 mm outside the probe.
+    let gap_m = exact_r - mean_probe_radius(&trace);
+    assert!(
+        (5e-4..8e-4).contains(&gap_m),
+        "proxy {gap_m} m outside the probe"
+    );
+    let probe_r = mean_probe_radius(&constraint);
+    assert!(
+        (constraint_r - probe_r).abs() < 1e-4,
+        "the constraint proxy ({constraint_r} m) sinks with the probe ({probe_r} m)"
     );
 }
 
@@ -152,7 +355,7 @@ fn cli_runs_are_deterministic_apart_from_the_sidecar_timestamp() {
             .arg(&scenario)
             .arg("--out")
             .arg(out)
-            .args(["--solver", solver])
+            .args(["--solver", solver, "--start-utc-ns", "1700000000000000000"])
             .output()
             .unwrap();
         assert!(
@@ -181,6 +384,7 @@ fn cli_runs_are_deterministic_apart_from_the_sidecar_timestamp() {
             serde_json::from_slice(&std::fs::read(voxhap::record::sidecar_path(p)).unwrap())
                 .unwrap();
         v.as_object_mut().unwrap().remove("created_utc");
+        assert_eq!(v["start_utc_ns"], 1_700_000_000_000_000_000i64);
         v.as_object_mut().unwrap().remove("trace_file");
         v
     };
@@ -250,4 +454,201 @@ fn brain_surface_exploration_on_the_mni_template() {
         trace.samples.len()
     );
     assert!(summary.max_force_n <= 2.0 + 1e-9, "{}", summary.max_force_n);
+}
+
+fn voxhap(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// `sim --set/--duration/--rate` change the scenario (recorded in the sidecar); `--fail-on uncertified`
+/// exits 3 for a baseline solver after writing the trace; `compare` exits 0 for equal traces and 1 with a
+/// readable report for different ones.
+#[test]
+fn overrides_fail_on_and_compare_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = sims_dir().join("vortex_core.toml");
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "sim".as_ref(),
+            scenario.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--start-utc-ns".as_ref(),
+            "0".as_ref(),
+        ];
+        args.extend(extra.iter().map(std::ffi::OsStr::new));
+        voxhap(&args)
+    };
+    let a = dir.path().join("a.csv");
+    let output = run(
+        &a,
+        &[
+            "--duration",
+            "0.5",
+            "--rate",
+            "2000",
+            "--set",
+            "k_n_per_m=400",
+        ],
+    );
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let trace = read_trace(&a).unwrap();
+    assert_eq!(trace.samples.len(), 1000);
+    let sidecar = trace.sidecar.unwrap();
+    assert_eq!(sidecar.meta.rate_hz, 2000.0);
+    assert_eq!(sidecar.meta.scenario["k_n_per_m"], 400.0);
+    // A bad key is refused naming it, before anything is written.
+    let bad = dir.path().join("bad.csv");
+    let output = run(&bad, &["--set", "k_n_per_mm=400"]);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&output.stderr).contains("k_n_per_mm"));
+    assert!(!bad.exists());
+    // --fail-on.
+    let euler = dir.path().join("euler.csv");
+    let output = run(
+        &euler,
+        &[
+            "--duration",
+            "0.2",
+            "--solver",
+            "euler",
+            "--fail-on",
+            "uncertified,overrun",
+        ],
+    );
+    assert_eq!(
+        output.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(String::from_utf8_lossy(&output.stderr).contains("uncertified: 200 of 200 ticks"));
+    assert!(read_trace(&euler).unwrap().sidecar.unwrap().complete);
+    let exact = dir.path().join("exact.csv");
+    let output = run(
+        &exact,
+        &["--duration", "0.2", "--fail-on", "uncertified,device-error"],
+    );
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // compare.
+    let b = dir.path().join("b.csv");
+    assert!(run(
+        &b,
+        &[
+            "--duration",
+            "0.5",
+            "--rate",
+            "2000",
+            "--set",
+            "k_n_per_m=400"
+        ]
+    )
+    .status
+    .success());
+    let same = voxhap(&["compare".as_ref(), a.as_os_str(), b.as_os_str()]);
+    assert!(
+        same.status.success(),
+        "{}",
+        String::from_utf8_lossy(&same.stderr)
+    );
+    let c = dir.path().join("c.csv");
+    assert!(run(
+        &c,
+        &[
+            "--duration",
+            "0.5",
+            "--rate",
+            "2000",
+            "--set",
+            "k_n_per_m=410"
+        ]
+    )
+    .status
+    .success());
+    let differ = voxhap(&[
+        "compare".as_ref(),
+        a.as_os_str(),
+        c.as_os_str(),
+        "--tol".as_ref(),
+        "force=1e-6,proxy=1e-6".as_ref(),
+    ]);
+    assert_eq!(differ.status.code(), Some(1));
+    let report = String::from_utf8_lossy(&differ.stderr);
+    assert!(
+        report.contains("force") && report.contains("DIFFERS"),
+        "{report}"
+    );
+    let loose = voxhap(&[
+        "compare".as_ref(),
+        a.as_os_str(),
+        c.as_os_str(),
+        "--tol".as_ref(),
+        "all=1".as_ref(),
+    ]);
+    assert!(
+        loose.status.success(),
+        "{}",
+        String::from_utf8_lossy(&loose.stderr)
+    );
+}
+
+/// `sweep` runs every combination, one trace per point with the values in its sidecar, and a summary.
+#[test]
+fn sweep_runs_every_combination_in_parallel() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("sweep");
+    let output = voxhap(&[
+        "sweep".as_ref(),
+        sims_dir().join("friction_sliding.toml").as_os_str(),
+        "--set".as_ref(),
+        "k_n_per_m=200,500,1000".as_ref(),
+        "--set".as_ref(),
+        "modes[1].mu=0.3,0.5".as_ref(),
+        "--duration".as_ref(),
+        "0.3".as_ref(),
+        "--jobs".as_ref(),
+        "2".as_ref(),
+        "--out-dir".as_ref(),
+        out_dir.as_os_str(),
+    ]);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(stdout.contains("6 points (2 jobs)"), "{stdout}");
+    let summary = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
+    assert_eq!(summary.lines().count(), 7);
+    for index in 0..6 {
+        let trace = read_trace(&out_dir.join(format!("point-{index:03}.csv"))).unwrap();
+        assert_eq!(trace.samples.len(), 300);
+        let scenario = trace.sidecar.unwrap().meta.scenario;
+        let k = [200.0, 500.0, 1000.0][index / 2];
+        let mu = [0.3, 0.5][index % 2];
+        assert_eq!(scenario["k_n_per_m"], k, "point {index}");
+        assert_eq!(scenario["modes"][1]["mu"], mu, "point {index}");
+    }
+    // Again without --force: refused, nothing replaced.
+    let again = voxhap(&[
+        "sweep".as_ref(),
+        sims_dir().join("friction_sliding.toml").as_os_str(),
+        "--set".as_ref(),
+        "k_n_per_m=200".as_ref(),
+        "--out-dir".as_ref(),
+        out_dir.as_os_str(),
+    ]);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--force"));
 }

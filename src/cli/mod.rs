@@ -6,6 +6,7 @@
 
 pub mod bench_loop;
 pub mod clear_fault;
+pub mod compare;
 pub mod devices;
 pub mod info;
 pub mod mock_device;
@@ -13,6 +14,8 @@ pub mod plot;
 pub mod serve;
 pub mod sim;
 pub mod solve;
+pub mod sweep;
+pub mod trace;
 
 use clap::{Args, Parser, Subcommand};
 use std::process::ExitCode;
@@ -142,6 +145,12 @@ pub enum Command {
     /// Acknowledge a device fault that needs a person: a running `voxhap serve` sends ClearFault and enables
     /// the device again.
     ClearFault(clear_fault::ClearFaultArgs),
+    /// Work on recorded traces: `voxhap trace repair FILE` recovers what a crash left.
+    Trace(trace::TraceArgs),
+    /// Run a scenario for every combination of --set value lists, in parallel, one trace per point.
+    Sweep(sweep::SweepArgs),
+    /// Compare a trace with a reference within tolerances; exit 1 when they differ.
+    Compare(compare::CompareArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -158,15 +167,40 @@ pub fn print_out(text: &str) -> anyhow::Result<()> {
     }
 }
 
-/// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code.
+/// An outcome that ends voxhap with a particular exit code (`--fail-on` conditions: 3; `voxhap compare`
+/// finding a difference: 1).
+#[derive(Debug)]
+pub struct ExitWith {
+    /// The process exit code.
+    pub code: u8,
+    /// What to print on stderr.
+    pub message: String,
+}
+
+impl std::fmt::Display for ExitWith {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for ExitWith {}
+
+/// Parses the arguments, runs the subcommand and maps errors to a non-zero exit code: 1 for errors, 2 for
+/// bad arguments (clap), the code of an [`ExitWith`] otherwise.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(err) => {
-            eprintln!("error: {err:#}");
-            ExitCode::FAILURE
-        }
+        Err(err) => match err.downcast_ref::<ExitWith>() {
+            Some(exit) => {
+                eprintln!("{}", exit.message);
+                ExitCode::from(exit.code)
+            }
+            None => {
+                eprintln!("error: {err:#}");
+                ExitCode::FAILURE
+            }
+        },
     }
 }
 
@@ -181,6 +215,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Serve(args)) => serve::run(&args),
         Some(Command::BenchLoop(args)) => bench_loop::run(&args),
         Some(Command::ClearFault(args)) => clear_fault::run(&args),
+        Some(Command::Trace(args)) => trace::run(&args),
+        Some(Command::Sweep(args)) => sweep::run(&args),
+        Some(Command::Compare(args)) => compare::run(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

@@ -30,6 +30,9 @@ pub struct PlotArgs {
 pub fn run(args: PlotArgs) -> anyhow::Result<()> {
     // The reader's errors name the file (and the line and column).
     let trace = read_trace(&args.trace)?;
+    for warning in &trace.warnings {
+        eprintln!("warning: {warning}");
+    }
     let title = args
         .title
         .clone()

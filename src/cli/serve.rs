@@ -53,6 +53,10 @@ pub struct ServeArgs {
     /// Trace format (default: from the file name).
     #[arg(long)]
     pub record_format: Option<TraceFormat>,
+    /// Replace an existing --record trace (never an input of the run: the scene, a volume, a replayed
+    /// trace).
+    #[arg(long)]
+    pub force: bool,
     /// Real-time scheduling: strict refuses to start without SCHED_FIFO, locked memory and a pinned core.
     #[arg(long, value_enum, default_value_t = RtMode::BestEffort)]
     pub rt: RtMode,
@@ -71,6 +75,11 @@ pub struct ServeArgs {
     pub volume_dir: Vec<PathBuf>,
     #[command(flatten)]
     pub limits: super::VolumeLimitArgs,
+    /// Exit with code 3 after a clean stop when any of these occurred: uncertified (some tick's bound
+    /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun.
+    /// Comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub fail_on: Vec<super::sim::FailOn>,
     #[command(flatten)]
     pub http: HttpArgs,
     #[command(flatten)]
@@ -114,6 +123,24 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
         let format = args
             .record_format
             .unwrap_or_else(|| TraceFormat::from_path(path));
+        let mut inputs: Vec<PathBuf> = args.scene.iter().cloned().collect();
+        inputs.extend(args.volume.iter().map(PathBuf::from));
+        inputs.extend(
+            config
+                .setup
+                .volumes
+                .iter()
+                .map(|v| PathBuf::from(&v.source)),
+        );
+        if let DeviceSpec::Replay(trace) = &args.device {
+            inputs.push(trace.clone());
+        }
+        config.record_policy = crate::record::OutputPolicy {
+            overwrite: args.force,
+            inputs,
+        };
+        crate::record::check_output_path(path, &config.record_policy)
+            .map_err(|e| anyhow::anyhow!("--record: {e}"))?;
         config.record = Some((path.clone(), format));
     }
     Ok(config)
@@ -223,6 +250,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let mut config = session_config(args)?;
     let label = config.setup.label.clone();
     let modes = config.setup.modes.len();
+    let config_tolerance_m = config.setup.solver.tolerance_m;
     let rate = config.rate_hz;
     let device = config.device.to_string();
     let record = config.record.clone();
@@ -329,6 +357,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if shortened {
         eprintln!("second interrupt: stopping now (force zeroed, device disabled)");
     }
+    let tolerance_m = config_tolerance_m;
     let summary = session.stop();
     super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
     if let Some(trace) = &summary.trace {
@@ -343,7 +372,44 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some(error) = summary.recorder_error {
         bail!("recording failed: {error}");
     }
+    let findings = serve_fail_on_findings(&args.fail_on, &summary.stats, tolerance_m);
+    if !findings.is_empty() {
+        return Err(super::ExitWith {
+            code: super::sim::EXIT_FAIL_ON,
+            message: format!("--fail-on: {}", findings.join("; ")),
+        }
+        .into());
+    }
     Ok(())
+}
+
+/// What `--fail-on` found in a finished session's statistics.
+fn serve_fail_on_findings(
+    fail_on: &[super::sim::FailOn],
+    stats: &crate::servo::api::StatsReport,
+    tolerance_m: f64,
+) -> Vec<String> {
+    use super::sim::FailOn;
+    let mut found = Vec::new();
+    for condition in fail_on {
+        match condition {
+            FailOn::Uncertified if stats.worst_error_bound_m.is_nan() || stats.worst_error_bound_m > tolerance_m => found.push(format!(
+                "uncertified: the worst certificate bound {:.3e} m is above the tolerance {tolerance_m:.1e} m",
+                stats.worst_error_bound_m
+            )),
+            FailOn::Disconnect if stats.disconnects > 0 => {
+                found.push(format!("disconnect: {} device disconnects", stats.disconnects))
+            }
+            FailOn::DeviceError if stats.device_errors > 0 => {
+                found.push(format!("device-error: {} device errors", stats.device_errors))
+            }
+            FailOn::Overrun if stats.overruns > 0 => {
+                found.push(format!("overrun: {} ticks started late", stats.overruns))
+            }
+            _ => {}
+        }
+    }
+    found
 }
 
 #[cfg(test)]

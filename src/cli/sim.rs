@@ -1,10 +1,22 @@
-//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint]`: run a
-//! scenario headless and record its force trace (see [`crate::sim`]).
+//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint] [--force]
+//! [--max-trace-bytes N] [--set KEY=VALUE]... [--duration S] [--rate HZ] [--fail-on LIST]`: run a scenario
+//! headless and record its force trace (see [`crate::sim`]).
 //!
+//! Overrides (`--set`, `--duration`, `--rate`) change the scenario before it is validated
+//! ([`crate::sim::overrides`]); the trace's metadata records the scenario as run. `--fail-on` makes a run
+//! that completed exit with [`EXIT_FAIL_ON`] when one of the named conditions occurred (the trace is
+//! still written and finished).
+//!
+//! Before anything is written: the output must not exist (unless `--force`) and is never one of the
+//! run's inputs (the scenario, its volume files); the trace's size is estimated from the tick count and
+//! the format, and a run over `--max-trace-bytes` (default 2 GB) is refused with the estimate.
 //! A progress bar shows on a terminal (stderr) and nothing otherwise; one summary line goes to stdout.
 
 use crate::haptics::tick::SolverKind;
-use crate::record::{create_trace_writer, TraceFormat, TraceMeta};
+use crate::record::{
+    create_trace_writer_with, error_chain, estimate_trace_bytes, OutputPolicy, TraceFormat,
+    TraceMeta,
+};
 use crate::sim::{self, LoadedScenario};
 use anyhow::Context;
 use clap::Args;
@@ -24,13 +36,119 @@ pub struct SimArgs {
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).
     #[arg(long, value_enum)]
     pub solver: Option<SolverKind>,
+    /// Replace an existing trace (never the scenario or one of its volume files).
+    #[arg(long)]
+    pub force: bool,
+    /// Wall-clock UTC (ns since 1970) dated to the run's t = 0 in the trace's utc_ns column; default: now.
+    /// A fixed value makes two runs' traces byte-for-byte identical.
+    #[arg(long)]
+    pub start_utc_ns: Option<i64>,
+    /// Refuse to start when the trace is estimated to take more bytes than this.
+    #[arg(long, default_value_t = DEFAULT_MAX_TRACE_BYTES)]
+    pub max_trace_bytes: u64,
+    /// Override a scenario key before validation: KEY=VALUE, KEY a dotted path with array indices
+    /// (k_n_per_m=200, modes[1].mu=0.4, path.speed_m_per_s=0.01); repeatable, applied in order.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Override the scenario's duration_s (s).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Override the scenario's rate_hz (Hz).
+    #[arg(long)]
+    pub rate: Option<f64>,
+    /// Exit with code 3 (after writing the trace) when any of these occurred: uncertified (a tick the
+    /// exact solver did not certify, or any tick of a baseline solver), device-error (a non-finite force
+    /// or probe replaced by zero), disconnect, overrun (never in a sim: it has no device link and no
+    /// clock). Comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub fail_on: Vec<FailOn>,
     #[command(flatten)]
     pub limits: super::VolumeLimitArgs,
 }
 
+/// Conditions `--fail-on` can make a run fail on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FailOn {
+    /// A tick without a certificate within the solver's tolerance.
+    Uncertified,
+    /// The device disconnected.
+    Disconnect,
+    /// A device error (in a sim: a non-finite force or probe replaced by zero).
+    DeviceError,
+    /// A tick started late (the schedule skipped).
+    Overrun,
+}
+
+/// Exit code of a run that finished but met a `--fail-on` condition.
+pub const EXIT_FAIL_ON: u8 = 3;
+
+/// The scenario file with `--set`, `--duration` and `--rate` applied, validated and loaded.
+pub fn load_scenario(
+    path: &std::path::Path,
+    set: &[String],
+    duration_s: Option<f64>,
+    rate_hz: Option<f64>,
+) -> anyhow::Result<LoadedScenario> {
+    let mut overrides = set.to_vec();
+    if let Some(duration) = duration_s {
+        overrides.push(format!("duration_s={duration:?}"));
+    }
+    if let Some(rate) = rate_hz {
+        overrides.push(format!("rate_hz={rate:?}"));
+    }
+    if overrides.is_empty() {
+        return Ok(LoadedScenario::from_file(path)?);
+    }
+    let origin = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read scenario file {origin}"))?;
+    let text = crate::sim::overrides::apply_overrides(&text, &overrides)
+        .with_context(|| format!("{origin}: overrides"))?;
+    let scenario = crate::sim::Scenario::parse(&text, &format!("{origin} (with --set)"))?;
+    let base_dir = path.parent().unwrap_or(std::path::Path::new(""));
+    Ok(scenario.load(base_dir, &origin)?)
+}
+
+/// What `--fail-on` found in a finished run, as a sentence per condition met.
+pub fn fail_on_findings(fail_on: &[FailOn], summary: &crate::sim::SimSummary) -> Vec<String> {
+    let mut found = Vec::new();
+    for condition in fail_on {
+        match condition {
+            FailOn::Uncertified if summary.certified_ticks < summary.ticks => found.push(format!(
+                "uncertified: {} of {} ticks without a certificate within tolerance",
+                summary.ticks - summary.certified_ticks,
+                summary.ticks
+            )),
+            FailOn::DeviceError if summary.non_finite_ticks > 0 => found.push(format!(
+                "device-error: {} ticks with a non-finite force or probe replaced by zero",
+                summary.non_finite_ticks
+            )),
+            _ => {}
+        }
+    }
+    found
+}
+
+/// Default of `--max-trace-bytes`: 2 GB.
+pub const DEFAULT_MAX_TRACE_BYTES: u64 = 2_000_000_000;
+
+/// The run's input files: the scenario and the volume files it names (relative to its directory).
+pub fn scenario_inputs(scenario_path: &std::path::Path, loaded: &LoadedScenario) -> Vec<PathBuf> {
+    let base = scenario_path.parent().unwrap_or(std::path::Path::new(""));
+    let mut inputs = vec![scenario_path.to_path_buf()];
+    inputs.extend(
+        loaded
+            .scenario
+            .volumes
+            .iter()
+            .filter_map(|v| v.file.as_ref().map(|f| base.join(f))),
+    );
+    inputs
+}
+
 pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     args.limits.apply();
-    let loaded = LoadedScenario::from_file(&args.scenario)?;
+    let loaded = load_scenario(&args.scenario, &args.set, args.duration, args.rate)?;
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args
         .format
@@ -44,8 +162,28 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         loaded.volume_description.clone(),
         solver_label(solver),
     );
-    let mut writer = create_trace_writer(&args.out, format, &meta)?;
     let ticks = loaded.scenario.tick_count();
+    let estimate = estimate_trace_bytes(format, loaded.scene.mode_names().len(), ticks);
+    if estimate > args.max_trace_bytes {
+        anyhow::bail!(
+            "the trace would take about {} ({ticks} ticks, {} s at {} Hz, {format}), more than --max-trace-bytes {}; \
+             shorten the run, lower the rate, or raise --max-trace-bytes",
+            human_bytes(estimate),
+            loaded.scenario.duration_s,
+            loaded.scenario.rate_hz,
+            args.max_trace_bytes
+        );
+    }
+    let policy = OutputPolicy {
+        overwrite: args.force,
+        inputs: scenario_inputs(&args.scenario, &loaded),
+    };
+    let mut meta = meta;
+    if let Some(start) = args.start_utc_ns {
+        meta.start_utc_ns = start;
+    }
+    let mut writer = create_trace_writer_with(&args.out, format, &meta, &policy)
+        .map_err(|e| anyhow::anyhow!("--out: {}", error_chain(&e)))?;
     let bar = if std::io::stderr().is_terminal() {
         let bar = indicatif::ProgressBar::new(ticks);
         if let Ok(style) = indicatif::ProgressStyle::with_template(
@@ -62,6 +200,10 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         bar.set_position(done)
     });
     bar.finish_and_clear();
+    if let Err(error) = &result {
+        // The sidecar says why the trace ends early.
+        let _ = writer.fail(&error_chain(error));
+    }
     let summary = result.with_context(|| format!("sim {} stopped", args.scenario.display()))?;
     let written = writer.finish()?;
     let bound = if summary.max_error_bound_m.is_finite() {
@@ -69,6 +211,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     } else {
         "none (uncertified solver)".to_owned()
     };
+    let findings = fail_on_findings(&args.fail_on, &summary);
     super::print_out(&format!(
         "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
          largest force {:.3} N -> {} (+ {})",
@@ -82,7 +225,27 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         summary.max_force_n,
         written.trace_path.display(),
         written.sidecar_path.display(),
-    ))
+    ))?;
+    if !findings.is_empty() {
+        return Err(super::ExitWith {
+            code: EXIT_FAIL_ON,
+            message: format!("--fail-on: {}", findings.join("; ")),
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// `bytes` as a short human figure (`1.9 GB`, `310 MB`, `12 kB`).
+pub fn human_bytes(bytes: u64) -> String {
+    let b = bytes as f64;
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.0} MB", b / 1e6)
+    } else {
+        format!("{:.0} kB", b / 1e3)
+    }
 }
 
 /// The solver label recorded in the trace metadata.

@@ -137,6 +137,8 @@ pub struct InputVerdict {
     pub position_rejected: bool,
     /// The reported velocity was replaced by the estimate.
     pub velocity_replaced: bool,
+    /// The device reports no velocity; the estimate is used.
+    pub velocity_estimated: bool,
     /// More than `max_rejected_run` positions in a row were rejected: drop the link.
     pub link_broken: bool,
     /// False when the position was rejected and there was no accepted one to hold: nothing may be rendered
@@ -246,6 +248,7 @@ impl InputGuard {
             state: raw,
             position_rejected: false,
             velocity_replaced: false,
+            velocity_estimated: !self.reports_velocity,
             link_broken: false,
             usable: true,
         };

@@ -189,6 +189,8 @@ impl SafetyFlags {
     pub const VELOCITY_REPLACED: SafetyFlags = SafetyFlags(1 << 10);
     /// A fault that needs a person is active on the device.
     pub const DEVICE_FAULTED: SafetyFlags = SafetyFlags(1 << 11);
+    /// The velocity used is the host's estimate from positions (the device reports none).
+    pub const VELOCITY_ESTIMATED: SafetyFlags = SafetyFlags(1 << 12);
 
     /// True if every bit of `other` is set.
     pub fn contains(self, other: SafetyFlags) -> bool {

@@ -933,6 +933,9 @@ where
                 if verdict.velocity_replaced {
                     out.flags |= SafetyFlags::VELOCITY_REPLACED;
                 }
+                if verdict.velocity_estimated {
+                    out.flags |= SafetyFlags::VELOCITY_ESTIMATED;
+                }
                 if verdict.link_broken {
                     self.lose(
                         ErrorKind::Protocol,

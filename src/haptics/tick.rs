@@ -72,6 +72,19 @@ pub enum TickStatus {
     InputRejected,
 }
 
+impl From<TickStatus> for crate::record::SolverStatus {
+    fn from(status: TickStatus) -> Self {
+        use crate::record::SolverStatus as S;
+        match status {
+            TickStatus::Certified => S::Certified,
+            TickStatus::BudgetExhausted => S::BudgetExhausted,
+            TickStatus::Stalled => S::Stalled,
+            TickStatus::Uncertified => S::Uncertified,
+            TickStatus::InputRejected => S::InputRejected,
+        }
+    }
+}
+
 /// What persists from tick to tick: the proxy and what modes remember. `Copy`, fixed size.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TickState {
@@ -134,6 +147,10 @@ pub struct TickOutput {
     pub proxy_velocity_m_per_s: DVec3,
     /// Primitives each mode emitted (slots past `mode_count` are 0).
     pub primitives_per_mode: [u16; MAX_MODES],
+    /// Force each mode's primitives exert on the proxy at the new position (N): from the exact solver's
+    /// dual (they sum to `force_n` within `k error_bound_m`), or the primitives' force functions for the
+    /// baselines. Slots past `mode_count` are zero.
+    pub mode_force_n: [DVec3; MAX_MODES],
     pub mode_count: u8,
     /// Exact solver: block sweeps; Euler: iterations; constraint: 1.
     pub sweeps: u32,
@@ -185,6 +202,7 @@ fn tick_inner(
         force_n: DVec3::ZERO,
         proxy_velocity_m_per_s: DVec3::ZERO,
         primitives_per_mode: [0; MAX_MODES],
+        mode_force_n: [DVec3::ZERO; MAX_MODES],
         mode_count: mode_count as u8,
         sweeps: 0,
         active_set_rounds: 0,
@@ -279,6 +297,22 @@ fn tick_inner(
         previous_proxy_m
     };
     let force_n = k * (proxy_m - probe_m);
+    if status != TickStatus::InputRejected {
+        let exact = workspace.solver_kind == SolverKind::Exact;
+        let mut dual_forces = workspace.solver.primitive_forces_n();
+        let mut primitives = workspace.primitives.iter();
+        for (mode, &count) in output.primitives_per_mode[..mode_count].iter().enumerate() {
+            for primitive in primitives.by_ref().take(usize::from(count)) {
+                let force = if exact && primitive.kind() != crate::haptics::PrimitiveKind::Directed
+                {
+                    dual_forces.next().unwrap_or(DVec3::ZERO)
+                } else {
+                    primitive.force_n(proxy_m)
+                };
+                output.mode_force_n[mode] += force;
+            }
+        }
+    }
     output.proxy_m = proxy_m;
     output.force_n = force_n;
     output.proxy_velocity_m_per_s = (proxy_m - previous_proxy_m) / dt_s;

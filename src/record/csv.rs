@@ -1,71 +1,71 @@
 //! CSV force traces: the writer ([`CsvTraceWriter`]) and the reader ([`read_csv_trace`]).
 //!
 //! Layout: a header line, then one line per tick, fields separated by `,` with no quoting (no field can
-//! contain a comma: mode names are restricted to `[A-Za-z0-9_-]`) and `\n` line ends. Columns:
-//! `tick,t_s,probe_{x,y,z}_m,proxy_{x,y,z}_m,force_{x,y,z}_n,primitives_<mode>...,sweeps,error_bound_m,flags`.
-//! Floats are written with Rust's `{:?}` formatting, the shortest text that parses back to the same
-//! bits (`0.001`, `-0.0`, `1e-17`, `inf`), so write-then-read is exact. The reader is strict: it checks
-//! the header, every field and the trace rules (finite positions, increasing ticks) and names the line
-//! and column of the first problem.
+//! contain a comma: mode names are restricted to `[A-Za-z0-9_-]`) and `\n` line ends. The columns are
+//! `super::columns::columns` (documented with units and types in the sidecar): tick and times, probe,
+//! velocity, proxy, rendered and sent force, per mode its primitive count and force, solver status,
+//! sweeps, bound, device sequence and time (empty when the device has none), `flag_bits` and one
+//! `true`/`false` column per flag. Floats are written with Rust's `{:?}` formatting, the shortest text
+//! that parses back to the same bits (`0.001`, `-0.0`, `1e-17`, `inf`, `NaN`), so write-then-read is
+//! exact.
+//!
+//! Crash safety: rows are formatted into a buffer and handed to the file only as whole lines (when the
+//! buffer passes 64 KiB, and on every flush), so a crash loses at most the lines since the last flush and
+//! leaves at most one partial line at the end. The reader skips such a partial last line with a warning
+//! (`Trace::warnings`); anywhere else a bad line is an error naming the line and column. A trace written
+//! in the old layout (format 1, column `flags`) is refused with an error saying so.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
-use super::meta::{csv_columns, is_valid_mode_name};
+use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use super::meta::is_valid_mode_name;
 use super::{
-    check_sample, sidecar_path, SampleChecker, Sidecar, Trace, TraceError, TraceFormat, TraceMeta,
-    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
+    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+    TRACE_FORMAT_VERSION,
 };
-use glam::DVec3;
 
-/// Columns before the per-mode primitive counts.
-const LEADING_COLUMNS: [&str; 11] = [
-    "tick",
-    "t_s",
-    "probe_x_m",
-    "probe_y_m",
-    "probe_z_m",
-    "proxy_x_m",
-    "proxy_y_m",
-    "proxy_z_m",
-    "force_x_n",
-    "force_y_n",
-    "force_z_n",
-];
-/// Columns after the per-mode primitive counts.
-const TRAILING_COLUMNS: [&str; 3] = ["sweeps", "error_bound_m", "flags"];
-const PRIMITIVES_PREFIX: &str = "primitives_";
+/// Buffered bytes (whole lines) after which the writer hands them to the file.
+const WRITE_CHUNK_BYTES: usize = 64 * 1024;
 
 /// Writes a CSV trace and its sidecar.
 pub struct CsvTraceWriter {
     path: PathBuf,
-    out: BufWriter<File>,
+    file: Option<File>,
+    buffer: Vec<u8>,
+    row: Vec<Cell>,
     checker: SampleChecker,
+    start_utc_ns: i64,
     sidecar: Sidecar,
 }
 
 impl CsvTraceWriter {
-    /// Creates (truncates) `path` and `path.json`, writes the header and a provisional sidecar.
+    /// Creates (truncates) `path` and `path.json`, writes the header and a provisional sidecar. Callers
+    /// check first whether the files may be replaced (`create_trace_writer_with`).
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         meta.validate()?;
         let io_error = |source| TraceError::Io {
             path: path.to_path_buf(),
             source,
         };
-        let file = File::create(path).map_err(io_error)?;
-        let mut out = BufWriter::new(file);
-        let header: Vec<String> = csv_columns(&meta.mode_names)
+        let mut file = File::create(path).map_err(io_error)?;
+        let header: Vec<String> = columns(&meta.mode_names)
             .into_iter()
             .map(|c| c.name.into_owned())
             .collect();
-        writeln!(out, "{}", header.join(",")).map_err(io_error)?;
+        file.write_all(format!("{}\n", header.join(",")).as_bytes())
+            .map_err(io_error)?;
         let sidecar = Sidecar::new(meta, TraceFormat::Csv, path);
         sidecar.write(&sidecar_path(path))?;
         Ok(CsvTraceWriter {
             path: path.to_path_buf(),
-            out,
+            file: Some(file),
+            buffer: Vec::with_capacity(WRITE_CHUNK_BYTES + 4096),
+            row: Vec::with_capacity(128),
             checker: SampleChecker::new(meta.mode_names.len()),
+            start_utc_ns: meta.start_utc_ns,
             sidecar,
         })
     }
@@ -76,43 +76,92 @@ impl CsvTraceWriter {
             source,
         }
     }
+
+    /// Hands the buffered whole lines to the file.
+    fn write_buffer(&mut self) -> Result<(), TraceError> {
+        let Some(file) = self.file.as_mut() else {
+            return Err(TraceError::Finished);
+        };
+        let result = file.write_all(&self.buffer);
+        self.buffer.clear();
+        result.map_err(|e| self.io_error(e))
+    }
 }
 
-fn write_row(out: &mut impl Write, s: &TraceSample) -> std::io::Result<()> {
-    write!(out, "{},{:?}", s.tick, s.t_s)?;
-    for v in [s.probe_m, s.proxy_m, s.force_n] {
-        write!(out, ",{:?},{:?},{:?}", v.x, v.y, v.z)?;
+/// Appends one row of cells and a newline.
+fn write_cells(out: &mut Vec<u8>, row: &[Cell]) {
+    for (i, cell) in row.iter().enumerate() {
+        if i > 0 {
+            out.push(b',');
+        }
+        // Writing into a Vec cannot fail.
+        let _ = match cell {
+            Cell::U64(v) => write!(out, "{v}"),
+            Cell::I64(v) => write!(out, "{v}"),
+            Cell::F64(v) => write!(out, "{v:?}"),
+            Cell::Bool(v) => write!(out, "{v}"),
+            Cell::Text(v) => write!(out, "{v}"),
+            Cell::Missing => Ok(()),
+        };
     }
-    for count in s.primitives() {
-        write!(out, ",{count}")?;
-    }
-    writeln!(out, ",{},{:?},{}", s.sweeps, s.error_bound_m, s.flags)
+    out.push(b'\n');
+}
+
+#[cfg(test)]
+fn write_row(out: &mut Vec<u8>, s: &TraceSample, start_utc_ns: i64) {
+    let mut row = Vec::new();
+    cells(s, usize::from(s.mode_count), start_utc_ns, &mut row);
+    write_cells(out, &row);
 }
 
 impl TraceWriter for CsvTraceWriter {
     fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
-        self.checker.check(sample)?;
-        write_row(&mut self.out, sample).map_err(|e| self.io_error(e))
+        if self.file.is_none() {
+            return Err(TraceError::Finished);
+        }
+        let Some(sample) = self.checker.admit(sample)? else {
+            return Ok(());
+        };
+        self.row.clear();
+        cells(
+            &sample,
+            self.checker.mode_count,
+            self.start_utc_ns,
+            &mut self.row,
+        );
+        write_cells(&mut self.buffer, &self.row);
+        if self.buffer.len() >= WRITE_CHUNK_BYTES {
+            self.write_buffer()?;
+        }
+        Ok(())
     }
 
     fn flush(&mut self) -> Result<(), TraceError> {
         if self.checker.finished {
             return Err(TraceError::Finished);
         }
-        self.out.flush().map_err(|e| self.io_error(e))
+        self.write_buffer()
     }
 
     fn finish(&mut self) -> Result<TraceSummary, TraceError> {
         if self.checker.finished {
             return Err(TraceError::Finished);
         }
-        self.out.flush().map_err(|e| self.io_error(e))?;
-        self.out
-            .get_ref()
-            .sync_all()
-            .map_err(|e| self.io_error(e))?;
+        self.write_buffer()?;
+        if let Some(file) = self.file.take() {
+            file.sync_all().map_err(|e| self.io_error(e))?;
+        }
         self.checker.finished = true;
+        self.sidecar.samples_rejected = self.checker.rejected;
         self.sidecar.complete(&self.path, self.checker.count)
+    }
+
+    fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+        self.checker.finished = true;
+        self.file = None;
+        self.buffer.clear();
+        self.sidecar.samples_rejected = self.checker.rejected;
+        self.sidecar.fail(&self.path, self.checker.count, error)
     }
 
     fn sample_count(&self) -> u64 {
@@ -124,13 +173,18 @@ impl TraceWriter for CsvTraceWriter {
 pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
     // A regular file only; reading stops at the size it had when opened.
     let (file, size_bytes) = super::open_trace_file(path)?;
-    let reader = BufReader::new(std::io::Read::take(file, size_bytes));
-    let (mode_names, samples) = parse_csv_lines(reader, path)?;
     let sidecar = read_sidecar(&sidecar_path(path))?;
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let (mode_names, samples, warnings) = parse_csv_lines(
+        BufReader::new(std::io::Read::take(file, size_bytes)),
+        path,
+        start_utc_ns,
+    )?;
     Ok(Trace {
         mode_names,
         samples,
         sidecar,
+        warnings,
     })
 }
 
@@ -162,20 +216,25 @@ pub(crate) fn read_sidecar(path: &Path) -> Result<Option<Sidecar>, TraceReadErro
     }
 }
 
-/// Parses CSV trace text from any reader; returns the mode names and the samples.
+/// Parses CSV trace text from any reader; returns the mode names and the samples (a partial last line
+/// is skipped).
 pub fn parse_csv_trace(
     reader: impl BufRead,
 ) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
-    parse_csv_lines(reader, Path::new("<input>"))
+    parse_csv_lines(reader, Path::new("<input>"), None).map(|(modes, samples, _)| (modes, samples))
 }
+
+type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
 
 fn parse_csv_lines(
     mut reader: impl BufRead,
     path: &Path,
-) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
+    start_utc_ns: Option<i64>,
+) -> Result<Parsed, TraceReadError> {
     let mut buffer = Vec::new();
     let mut line_number = 0usize;
-    let mut next_line = |buffer: &mut Vec<u8>| -> Result<Option<usize>, TraceReadError> {
+    // Returns the line number and whether the line ended with a newline.
+    let mut next_line = |buffer: &mut Vec<u8>| -> Result<Option<(usize, bool)>, TraceReadError> {
         buffer.clear();
         let read = reader
             .read_until(b'\n', buffer)
@@ -187,173 +246,178 @@ fn parse_csv_lines(
             return Ok(None);
         }
         line_number += 1;
-        if buffer.last() == Some(&b'\n') {
+        let complete = buffer.last() == Some(&b'\n');
+        if complete {
             buffer.pop();
             if buffer.last() == Some(&b'\r') {
                 buffer.pop();
             }
         }
-        Ok(Some(line_number))
+        Ok(Some((line_number, complete)))
     };
 
     let Some(_) = next_line(&mut buffer)? else {
         return Err(TraceReadError::Empty);
     };
     let header = std::str::from_utf8(&buffer).map_err(|_| TraceReadError::NotText { line: 1 })?;
-    let mode_names = parse_header(header)?;
-    let columns: Vec<String> = csv_columns(&mode_names)
-        .into_iter()
-        .map(|c| c.name.into_owned())
-        .collect();
+    let mode_names = parse_header(header, path)?;
+    let docs = columns(&mode_names);
+    let names: Vec<String> = docs.iter().map(|c| c.name.to_string()).collect();
+    let types: Vec<ColumnType> = docs.iter().map(|c| c.column_type).collect();
 
     let mut samples = Vec::new();
+    let mut warnings = Vec::new();
     let mut last_tick = None;
-    while let Some(line) = next_line(&mut buffer)? {
-        let text = std::str::from_utf8(&buffer).map_err(|_| TraceReadError::NotText { line })?;
-        let sample = parse_row(text, line, &columns, mode_names.len())?;
-        if let Err(problem) = check_sample(&sample, mode_names.len(), last_tick) {
-            return Err(rule_error(problem, text, line, &columns));
+    let mut row = Vec::with_capacity(names.len());
+    while let Some((line, complete)) = next_line(&mut buffer)? {
+        let parsed = std::str::from_utf8(&buffer)
+            .map_err(|_| TraceReadError::NotText { line })
+            .and_then(|text| {
+                let sample = parse_row(
+                    text,
+                    line,
+                    &names,
+                    &types,
+                    &mut row,
+                    mode_names.len(),
+                    start_utc_ns,
+                )?;
+                match check_sample(&sample, mode_names.len(), last_tick) {
+                    Ok(()) => Ok(sample),
+                    Err(problem) => Err(rule_error(problem, text, line, &names)),
+                }
+            });
+        match parsed {
+            Ok(sample) => {
+                last_tick = Some(sample.tick);
+                samples.push(sample);
+            }
+            // A crash leaves at most one partial line, at the end and without a newline.
+            Err(error) if !complete => {
+                warnings.push(format!(
+                    "{}: skipped the partial last line {line} (the recording was cut off): {error}",
+                    path.display()
+                ));
+                break;
+            }
+            Err(error) => return Err(error),
         }
-        last_tick = Some(sample.tick);
-        samples.push(sample);
     }
-    Ok((mode_names, samples))
+    Ok((mode_names, samples, warnings))
 }
 
-fn parse_header(header: &str) -> Result<Vec<String>, TraceReadError> {
+fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError> {
     let fields: Vec<&str> = header.split(',').collect();
+    if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {
+        return Err(TraceReadError::OldFormat {
+            path: path.to_path_buf(),
+            found: 1,
+            expected: TRACE_FORMAT_VERSION,
+            hint: "its last column is `flags`",
+        });
+    }
     let mismatch = |column: usize, expected: &str| TraceReadError::Header {
         column: column + 1,
         expected: expected.to_string(),
         found: fields.get(column).copied().unwrap_or("").to_string(),
     };
-    for (i, expected) in LEADING_COLUMNS.iter().enumerate() {
-        if fields.get(i) != Some(expected) {
-            return Err(mismatch(i, expected));
-        }
-    }
     let mut mode_names = Vec::new();
-    let mut column = LEADING_COLUMNS.len();
-    while let Some(name) = fields
-        .get(column)
-        .and_then(|f| f.strip_prefix(PRIMITIVES_PREFIX))
-    {
-        if !is_valid_mode_name(name) || mode_names.iter().any(|m| m == name) {
-            return Err(mismatch(
-                column,
-                "primitives_<mode> with a unique mode name of letters, digits, '_' or '-'",
-            ));
+    for (column, field) in fields.iter().enumerate() {
+        if let Some(name) = field.strip_prefix(PRIMITIVES_PREFIX) {
+            if !is_valid_mode_name(name) || mode_names.iter().any(|m| m == name) {
+                return Err(mismatch(
+                    column,
+                    "primitives_<mode> with a unique mode name of letters, digits, '_' or '-'",
+                ));
+            }
+            if mode_names.len() == MAX_MODES {
+                return Err(mismatch(column, "at most 8 primitives_<mode> columns"));
+            }
+            mode_names.push(name.to_string());
         }
-        if mode_names.len() == MAX_MODES {
-            return Err(mismatch(column, "at most 8 primitives_<mode> columns"));
-        }
-        mode_names.push(name.to_string());
-        column += 1;
     }
-    for expected in TRAILING_COLUMNS {
-        if fields.get(column) != Some(&expected) {
-            return Err(mismatch(column, expected));
+    let expected = columns(&mode_names);
+    for (column, doc) in expected.iter().enumerate() {
+        if fields.get(column) != Some(&doc.name.as_ref()) {
+            return Err(mismatch(column, &doc.name));
         }
-        column += 1;
     }
-    if fields.len() > column {
-        return Err(mismatch(column, "the end of the line"));
+    if fields.len() > expected.len() {
+        return Err(mismatch(expected.len(), "the end of the line"));
     }
     Ok(mode_names)
 }
 
-/// Field cursor for one row: parses the next field and names it in errors.
-struct Fields<'a> {
-    fields: std::str::Split<'a, char>,
-    index: usize,
-    line: usize,
-    columns: &'a [String],
-}
-
-impl<'a> Fields<'a> {
-    fn next_str(&mut self) -> (usize, &'a str) {
-        let index = self.index;
-        self.index += 1;
-        (index, self.fields.next().unwrap_or(""))
-    }
-
-    fn error(&self, index: usize, value: &str, problem: &'static str) -> TraceReadError {
-        TraceReadError::Field {
-            line: self.line,
-            column: index + 1,
-            name: self.columns[index].clone(),
-            value: value.to_string(),
-            problem,
-        }
-    }
-
-    fn integer<T: std::str::FromStr>(
-        &mut self,
-        problem: &'static str,
-    ) -> Result<T, TraceReadError> {
-        let (index, text) = self.next_str();
-        // Rust's integer parsing accepts a leading '+'; the format never writes one.
+/// Parses one field of a column of type `column_type`.
+fn parse_cell(text: &str, column_type: ColumnType) -> Result<Cell, &'static str> {
+    // Rust's integer parsing accepts a leading '+'; the format never writes one.
+    let integer = |problem| {
         if text.starts_with('+') {
-            return Err(self.error(index, text, problem));
+            Err(problem)
+        } else {
+            Ok(())
         }
-        text.parse().map_err(|_| self.error(index, text, problem))
-    }
-
-    fn float(&mut self) -> Result<f64, TraceReadError> {
-        let (index, text) = self.next_str();
-        text.parse()
-            .map_err(|_| self.error(index, text, "not a number"))
-    }
-
-    fn vector(&mut self) -> Result<DVec3, TraceReadError> {
-        Ok(DVec3::new(self.float()?, self.float()?, self.float()?))
+    };
+    match column_type {
+        ColumnType::U64 => {
+            integer("not an unsigned integer")?;
+            text.parse()
+                .map(Cell::U64)
+                .map_err(|_| "not an unsigned integer")
+        }
+        ColumnType::OptionalU64 if text.is_empty() => Ok(Cell::Missing),
+        ColumnType::OptionalU64 => {
+            integer("not an unsigned integer or empty")?;
+            text.parse()
+                .map(Cell::U64)
+                .map_err(|_| "not an unsigned integer or empty")
+        }
+        ColumnType::I64 if text.is_empty() => Ok(Cell::Missing),
+        ColumnType::I64 => {
+            integer("not an integer")?;
+            text.parse().map(Cell::I64).map_err(|_| "not an integer")
+        }
+        ColumnType::F64 => text.parse().map(Cell::F64).map_err(|_| "not a number"),
+        ColumnType::Bool => match text {
+            "true" => Ok(Cell::Bool(true)),
+            "false" => Ok(Cell::Bool(false)),
+            _ => Err("not true or false"),
+        },
+        ColumnType::Text => SolverStatus::from_name(text)
+            .map(|s| Cell::Text(s.name()))
+            .ok_or("not a solver status"),
     }
 }
 
 fn parse_row(
     text: &str,
     line: usize,
-    columns: &[String],
+    names: &[String],
+    types: &[ColumnType],
+    row: &mut Vec<Cell>,
     mode_count: usize,
+    start_utc_ns: Option<i64>,
 ) -> Result<TraceSample, TraceReadError> {
     let found = text.split(',').count();
-    if found != columns.len() {
+    if found != names.len() {
         return Err(TraceReadError::FieldCount {
             line,
-            expected: columns.len(),
+            expected: names.len(),
             found,
         });
     }
-    let mut fields = Fields {
-        fields: text.split(','),
-        index: 0,
+    let field_error = |index: usize, problem: &'static str| TraceReadError::Field {
         line,
-        columns,
+        column: index + 1,
+        name: names[index].clone(),
+        value: text.split(',').nth(index).unwrap_or("").to_string(),
+        problem,
     };
-    let tick = fields.integer("not an unsigned 64-bit integer")?;
-    let t_s = fields.float()?;
-    let probe_m = fields.vector()?;
-    let proxy_m = fields.vector()?;
-    let force_n = fields.vector()?;
-    let mut primitives_per_mode = [0u16; MAX_MODES];
-    for slot in primitives_per_mode.iter_mut().take(mode_count) {
-        *slot = fields.integer("not an integer from 0 to 65535")?;
+    row.clear();
+    for (index, (field, column_type)) in text.split(',').zip(types).enumerate() {
+        row.push(parse_cell(field, *column_type).map_err(|problem| field_error(index, problem))?);
     }
-    let sweeps = fields.integer("not an unsigned 32-bit integer")?;
-    let error_bound_m = fields.float()?;
-    let flags = fields.integer("not an unsigned 32-bit integer")?;
-    Ok(TraceSample {
-        tick,
-        t_s,
-        probe_m,
-        proxy_m,
-        force_n,
-        primitives_per_mode,
-        mode_count: mode_count as u8,
-        sweeps,
-        error_bound_m,
-        flags,
-    })
+    sample_from_cells(row, mode_count, start_utc_ns).map_err(|e| field_error(e.index, e.problem))
 }
 
 /// Turns a broken trace rule into an error naming the line and the first column concerned.
@@ -365,11 +429,13 @@ fn rule_error(problem: TraceError, text: &str, line: usize, columns: &[String]) 
         TraceError::NonFinite { field, .. } => (
             match field {
                 "probe_m" => "probe_x_m",
+                "probe_velocity_m_per_s" => "probe_vx_m_per_s",
                 "proxy_m" => "proxy_x_m",
+                "rendered_force_n" => "rendered_force_x_n",
                 "force_n" => "force_x_n",
                 other => other,
             },
-            "not finite (checked from this column on)",
+            "not finite without flag_invalid_values (checked from this column on)",
         ),
         _ => ("tick", "invalid sample"),
     };
@@ -386,7 +452,7 @@ fn rule_error(problem: TraceError, text: &str, line: usize, columns: &[String]) 
 #[cfg(test)]
 mod tests {
     use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, TraceFormat};
+    use super::super::{create_trace_writer, TraceFormat, FLAG_INVALID_VALUES};
     use super::*;
 
     fn write_csv(path: &Path, modes: &[&str], data: &[TraceSample]) {
@@ -412,6 +478,7 @@ mod tests {
             assert_eq!(read.t_s.to_bits(), written.t_s.to_bits());
             for (a, b) in [
                 (read.probe_m, written.probe_m),
+                (read.mode_force_n[2], written.mode_force_n[2]),
                 (read.proxy_m, written.proxy_m),
                 (read.force_n, written.force_n),
             ] {
@@ -434,7 +501,10 @@ mod tests {
             sidecar.meta,
             meta(&["surface", "friction", "vector-follow"])
         );
-        assert_eq!(sidecar.columns.len(), 11 + 3 + 3);
+        assert_eq!(
+            sidecar.columns.len(),
+            columns(&["surface".into(), "friction".into(), "vector-follow".into()]).len()
+        );
     }
 
     #[test]
@@ -464,45 +534,58 @@ mod tests {
     }
 
     #[test]
-    fn writer_rejects_bad_samples_naming_the_tick() {
+    fn bad_samples_are_recorded_flagged_and_never_end_the_trace() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bad.csv");
         let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
         let mut sample = TraceSample::zeroed(1);
         sample.tick = 5;
         writer.write_sample(&sample).unwrap();
-        let err = writer.write_sample(&sample).unwrap_err().to_string();
-        assert!(err.contains("tick 5"), "{err}");
+        // A repeated tick is left out and counted.
+        writer.write_sample(&sample).unwrap();
         sample.tick = 6;
-        sample.force_n.y = f64::NAN;
-        let err = writer.write_sample(&sample).unwrap_err().to_string();
-        assert!(err.contains("force_n") && err.contains("tick 6"), "{err}");
-        sample.force_n.y = 0.0;
+        sample.proxy_m.y = f64::NAN;
+        sample.error_bound_m = f64::NAN;
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 7;
+        sample.proxy_m.y = 1e300;
         sample.mode_count = 2;
-        assert!(matches!(
-            writer.write_sample(&sample),
-            Err(TraceError::ModeCountMismatch { .. })
-        ));
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 8;
         sample.mode_count = 1;
         sample.error_bound_m = -1.0;
-        assert!(writer.write_sample(&sample).is_err());
-        writer.finish().unwrap();
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 9;
+        sample.error_bound_m = 0.0;
+        writer.write_sample(&sample).unwrap();
+        let summary = writer.finish().unwrap();
+        assert_eq!(summary.sample_count, 5);
         assert!(matches!(
             writer.write_sample(&sample),
             Err(TraceError::Finished)
         ));
-        assert_eq!(read_csv_trace(&path).unwrap().samples.len(), 1);
+        let trace = read_csv_trace(&path).unwrap();
+        let flagged: Vec<u64> = trace
+            .samples
+            .iter()
+            .filter(|s| s.flags & FLAG_INVALID_VALUES != 0)
+            .map(|s| s.tick)
+            .collect();
+        assert_eq!(flagged, [6, 7, 8]);
+        assert!(trace.samples[1].proxy_m.y.is_nan());
+        assert_eq!(trace.samples.last().unwrap().tick, 9);
+        assert_eq!(trace.sidecar.unwrap().samples_rejected, 1);
     }
 
     fn valid_text() -> String {
         let mut out = Vec::new();
-        let header: Vec<String> = csv_columns(&["surface".to_string()])
+        let header: Vec<String> = columns(&["surface".to_string()])
             .into_iter()
             .map(|c| c.name.into_owned())
             .collect();
         writeln!(out, "{}", header.join(",")).unwrap();
         for sample in samples(4, 1) {
-            write_row(&mut out, &sample).unwrap();
+            write_row(&mut out, &sample, 0);
         }
         String::from_utf8(out).unwrap()
     }
@@ -517,43 +600,145 @@ mod tests {
         assert_eq!(parse_csv_trace(good.as_bytes()).unwrap().1.len(), 4);
 
         let lines: Vec<&str> = good.lines().collect();
-        // A bad float on line 3, column 4 (probe_y_m).
+        // A bad float on line 3, column 5 (probe_y_m).
         let mut fields: Vec<&str> = lines[2].split(',').collect();
-        fields[3] = "0.0x1";
-        let broken = [lines[0], lines[1], &fields.join(","), lines[3]].join("\n");
+        fields[4] = "0.0x1";
+        let broken = [lines[0], lines[1], &fields.join(","), lines[3]].join("\n") + "\n";
         let err = read_err(&broken);
         assert!(
-            err.contains("line 3, column 4 (probe_y_m)") && err.contains("0.0x1"),
+            err.contains("line 3, column 5 (probe_y_m)") && err.contains("0.0x1"),
             "{err}"
         );
-        // A missing field on line 4.
-        let short = lines[3].rsplit_once(',').unwrap().0;
-        let err = read_err(&[lines[0], lines[1], lines[2], short].join("\n"));
-        assert!(err.contains("line 4") && err.contains("fields"), "{err}");
+        // A missing field on line 3 (not the last line).
+        let short = lines[2].rsplit_once(',').unwrap().0;
+        let err = read_err(&([lines[0], lines[1], short, lines[3]].join("\n") + "\n"));
+        assert!(err.contains("line 3") && err.contains("fields"), "{err}");
         // Ticks going backwards on line 3.
-        let err = read_err(&[lines[0], lines[2], lines[1]].join("\n"));
+        let err = read_err(&([lines[0], lines[2], lines[1]].join("\n") + "\n"));
         assert!(err.contains("line 3") && err.contains("tick"), "{err}");
-        // A NaN position.
+        // A NaN position without the invalid-values flag.
         let nan_row = lines[1].replacen(",0.02,", ",NaN,", 1);
         assert_ne!(nan_row, lines[1]);
-        let err = read_err(&[lines[0], &nan_row].join("\n"));
+        let err = read_err(&([lines[0], &nan_row].join("\n") + "\n"));
         assert!(
             err.contains("line 2") && err.contains("not finite"),
             "{err}"
         );
         // A wrong header.
         let err = read_err(&good.replacen("probe_x_m", "probe_x_mm", 1));
-        assert!(err.contains("line 1, column 3"), "{err}");
+        assert!(err.contains("line 1, column 4"), "{err}");
         // An empty file.
         assert!(matches!(
             parse_csv_trace(&b""[..]),
             Err(TraceReadError::Empty)
         ));
         // Negative primitive count.
+        let index = columns(&["surface".to_string()])
+            .iter()
+            .position(|c| c.name == "primitives_surface")
+            .unwrap();
         let mut fields: Vec<&str> = lines[1].split(',').collect();
-        fields[11] = "-1";
-        let err = read_err(&[lines[0], &fields.join(",")].join("\n"));
-        assert!(err.contains("column 12 (primitives_surface)"), "{err}");
+        fields[index] = "-1";
+        let err = read_err(&([lines[0], &fields.join(",")].join("\n") + "\n"));
+        assert!(
+            err.contains(&format!("column {} (primitives_surface)", index + 1)),
+            "{err}"
+        );
+        // A flag column that disagrees with flag_bits.
+        let flipped = lines[1].replacen(",false", ",true", 1);
+        let err = read_err(&([lines[0], &flipped].join("\n") + "\n"));
+        assert!(err.contains("disagrees with flag_bits"), "{err}");
+    }
+
+    #[test]
+    fn a_partial_last_line_is_skipped_with_a_warning() {
+        let good = valid_text();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cut.csv");
+        // Cut in the middle of the last line, as a crash leaves it.
+        let cut = good.len() - 9;
+        std::fs::write(&path, &good[..cut]).unwrap();
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 3);
+        assert_eq!(trace.warnings.len(), 1);
+        assert!(
+            trace.warnings[0].contains("partial last line 5"),
+            "{:?}",
+            trace.warnings
+        );
+        // The same damage in the middle of the file is an error.
+        let lines: Vec<&str> = good.lines().collect();
+        let middle = [lines[0], &lines[1][..20], lines[2]].join("\n") + "\n";
+        assert!(parse_csv_trace(middle.as_bytes()).is_err());
+    }
+
+    #[test]
+    fn an_old_format_trace_is_refused_with_a_clear_error() {
+        let old = "tick,t_s,probe_x_m,probe_y_m,probe_z_m,proxy_x_m,proxy_y_m,proxy_z_m,force_x_n,force_y_n,force_z_n,primitives_surface,sweeps,error_bound_m,flags\n0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,1,2,0.0,0\n";
+        let err = read_err(old);
+        assert!(
+            err.contains("older voxhap") && err.contains("format 1"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn lines_reach_the_file_whole_on_flush() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("live.csv");
+        let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        for sample in samples(10, 1) {
+            writer.write_sample(&sample).unwrap();
+        }
+        writer.flush().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.ends_with('\n'));
+        assert_eq!(text.lines().count(), 11);
+        // Readable while the writer is still open (the sidecar says incomplete).
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 10);
+        assert!(!trace.sidecar.unwrap().complete);
+    }
+
+    #[test]
+    fn a_full_disk_is_an_error_with_the_os_reason_and_the_sidecar_says_so() {
+        // /dev/full accepts the open and fails every write with ENOSPC; the trace path is a symlink to
+        // it so the sidecar lands in the temporary directory.
+        if !Path::new("/dev/full").exists() {
+            eprintln!("skipped: /dev/full does not exist on this system");
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("full.csv");
+        #[cfg(unix)]
+        std::os::unix::fs::symlink("/dev/full", &path).unwrap();
+        let mut writer = match CsvTraceWriter::create(&path, &meta(&["surface"])) {
+            Ok(writer) => writer,
+            Err(error) => {
+                // The header write already fails.
+                let text = super::super::error_chain(&error);
+                assert!(text.contains("No space left on device"), "{text}");
+                return;
+            }
+        };
+        let mut failure = None;
+        for sample in samples(3000, 1) {
+            if let Err(error) = writer.write_sample(&sample) {
+                failure = Some(error);
+                break;
+            }
+        }
+        let error = match failure {
+            Some(error) => error,
+            None => writer.flush().unwrap_err(),
+        };
+        let text = super::super::error_chain(&error);
+        assert!(text.contains("No space left on device"), "{text}");
+        writer.fail(&text).unwrap();
+        let sidecar: Sidecar =
+            serde_json::from_slice(&std::fs::read(sidecar_path(&path)).unwrap()).unwrap();
+        assert!(!sidecar.complete);
+        assert!(sidecar.error.unwrap().contains("No space left on device"));
     }
 
     #[test]

@@ -72,6 +72,35 @@ pub enum TraceError {
     /// `write_sample` or `finish` after `finish`.
     #[error("trace writer already finished")]
     Finished,
+    /// The output exists and overwriting was not asked for.
+    #[error("{path} exists; pass --force to replace it")]
+    Exists {
+        /// The existing file.
+        path: PathBuf,
+    },
+    /// The output is one of the run's inputs (same file, perhaps by another name).
+    #[error(
+        "{path} is an input of this run ({input}); it is never overwritten, even with --force"
+    )]
+    IsInput {
+        /// The output asked for.
+        path: PathBuf,
+        /// The input it is the same file as.
+        input: PathBuf,
+    },
+}
+
+/// An error and its sources joined with `: `, as `voxhap` prints them (`cannot write the trace file
+/// x.csv: No space left on device (os error 28)`).
+pub fn error_chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(inner) = source {
+        text.push_str(": ");
+        text.push_str(&inner.to_string());
+        source = inner.source();
+    }
+    text
 }
 
 /// Why a trace could not be read.
@@ -88,6 +117,18 @@ pub enum TraceReadError {
     /// The file has no header line.
     #[error("CSV trace is empty: no header line")]
     Empty,
+    /// The trace was written by a voxhap with an older trace layout.
+    #[error("{path}: written by an older voxhap (trace format {found}, {hint}); this voxhap reads trace format {expected}: record it again")]
+    OldFormat {
+        /// The file.
+        path: PathBuf,
+        /// The format version the file has.
+        found: u32,
+        /// The version this reader reads.
+        expected: u32,
+        /// How it was recognised.
+        hint: &'static str,
+    },
     /// The header does not have the expected columns.
     #[error("CSV trace line 1, column {column}: expected {expected}, found {found:?}")]
     Header {

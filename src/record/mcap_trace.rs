@@ -3,9 +3,12 @@
 //! File layout (uncompressed chunks, message indexes and a summary, so any MCAP reader can seek):
 //!
 //! * two channels, one per message kind, both with `json` message encoding and a `jsonschema` schema:
-//!   [`STATE_TOPIC`] (`voxhap.State`: tick, t_s, probe_m, proxy_m, force_n, vectors as `[x, y, z]`) and
-//!   [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s, primitives as an object keyed by mode name in mode
-//!   order, sweeps, error_bound_m (`null` when +inf), flags);
+//!   [`STATE_TOPIC`] (`voxhap.State`: tick, t_s, utc_ns, probe_m, probe_velocity_m_per_s, proxy_m,
+//!   rendered_force_n, force_n, vectors as `[x, y, z]`) and [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s,
+//!   primitives and mode_force_n as objects keyed by mode name in mode order, solver_status, sweeps,
+//!   error_bound_m (`null` when +inf), device_sequence and device_time_us (`null` when the device has
+//!   none), flag_bits). JSON has no NaN: a non-finite number in a sample flagged `invalid_values` is
+//!   written as `null` and read back as NaN;
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
 //!   (`super::foxglove_topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
 //!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
@@ -21,6 +24,11 @@
 //!   write identical files); `sequence` = the sample's index in the trace;
 //! * one metadata record named [`METADATA_NAME`] with the sidecar's metadata fields as strings (JSON for
 //!   the ones that are not strings).
+//!
+//! Crash safety: every [`TraceWriter::flush`] (the recorder flushes every 250 ms; `voxhap sim` every
+//! 1000 ticks) closes the current chunk, so a crash loses at most the messages since then. A file without
+//! its summary and end magic (the writer never finished) is read up to the last complete chunk, with a
+//! warning; `voxhap trace repair` rewrites it as a finished file.
 //!
 //! The writer library string is `voxhap <version>` and the profile is empty. Numbers are written by
 //! serde_json (shortest round-trip) and parsed with its `float_roundtrip` feature, so the reader
@@ -38,14 +46,15 @@ use serde::{Deserialize, Serialize, Serializer};
 use ::foxglove::messages::{FrameTransform, Vector3};
 use ::foxglove::Encode;
 
+use super::columns::{utc_cell, Cell};
 use super::csv::read_sidecar;
 use super::foxglove_topics::{
     frame_transform, set_translation, vector3, RecordedScene, MEASURED_CP_TOPIC as PROBE_TOPIC,
     PROBE_FRAME, PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
 use super::{
-    sidecar_path, SampleChecker, Sidecar, Trace, TraceError, TraceFormat, TraceMeta,
-    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+    sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat, TraceMeta,
+    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES, TRACE_FORMAT_VERSION,
 };
 
 /// Topic of the per-tick state messages (positions and force).
@@ -72,11 +81,14 @@ fn state_schema() -> serde_json::Value {
         "properties": {
             "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
             "t_s": {"type": "number", "description": "tick time since the run started (s)"},
+            "utc_ns": {"type": ["integer", "null"], "description": "wall-clock UTC of the tick (ns since 1970)"},
             "probe_m": vector("probe (device) position [x, y, z] (m)"),
+            "probe_velocity_m_per_s": vector("probe velocity [x, y, z] (m/s), reported or estimated"),
             "proxy_m": vector("proxy position [x, y, z] (m)"),
+            "rendered_force_n": vector("force rendered before the safety pipeline [x, y, z] (N)"),
             "force_n": vector("force sent to the device [x, y, z] (N)")
         },
-        "required": ["tick", "t_s", "probe_m", "proxy_m", "force_n"]
+        "required": ["tick", "t_s", "utc_ns", "probe_m", "probe_velocity_m_per_s", "proxy_m", "rendered_force_n", "force_n"]
     })
 }
 
@@ -90,6 +102,16 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
             )
         })
         .collect();
+    let mode_forces: serde_json::Map<String, serde_json::Value> = mode_names
+        .iter()
+        .map(|name| {
+            (
+                name.clone(),
+                serde_json::json!({"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3}),
+            )
+        })
+        .collect();
+    let statuses: Vec<&str> = SolverStatus::ALL.iter().map(|s| s.name()).collect();
     serde_json::json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": SOLVER_SCHEMA_NAME,
@@ -101,24 +123,68 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
                 "type": "object", "properties": modes, "additionalProperties": false,
                 "description": "primitives each haptic mode emitted this tick"
             },
+            "mode_force_n": {
+                "type": "object", "properties": mode_forces, "additionalProperties": false,
+                "description": "force each mode's primitives exert on the proxy [x, y, z] (N)"
+            },
+            "solver_status": {"enum": statuses, "description": "how the solve ended"},
             "sweeps": {"type": "integer", "minimum": 0, "description": "solver sweeps"},
             "error_bound_m": {
                 "type": ["number", "null"], "minimum": 0,
                 "description": "certificate bound on the proxy's distance from the equilibrium (m); null = none"
             },
-            "flags": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"}
+            "device_sequence": {"type": ["integer", "null"], "minimum": 0, "description": "the device's sequence number; null = none"},
+            "device_time_us": {"type": ["integer", "null"], "minimum": 0, "description": "the device's clock (us); null = none"},
+            "flag_bits": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"}
         },
-        "required": ["tick", "t_s", "primitives", "sweeps", "error_bound_m", "flags"]
+        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "error_bound_m", "device_sequence", "device_time_us", "flag_bits"]
     })
 }
 
-#[derive(Serialize, Deserialize)]
+#[derive(Serialize)]
 struct StateMessage {
     tick: u64,
     t_s: f64,
+    utc_ns: Option<i64>,
     probe_m: [f64; 3],
+    probe_velocity_m_per_s: [f64; 3],
     proxy_m: [f64; 3],
+    rendered_force_n: [f64; 3],
     force_n: [f64; 3],
+}
+
+/// A vector as read back: `null` (a non-finite value written by JSON) becomes NaN.
+type ReadVector = [Option<f64>; 3];
+
+fn read_vector(v: ReadVector) -> DVec3 {
+    DVec3::from_array(v.map(|x| x.unwrap_or(f64::NAN)))
+}
+
+#[derive(Deserialize)]
+struct StateMessageOwned {
+    tick: u64,
+    t_s: Option<f64>,
+    probe_m: ReadVector,
+    probe_velocity_m_per_s: ReadVector,
+    proxy_m: ReadVector,
+    rendered_force_n: ReadVector,
+    force_n: ReadVector,
+}
+
+/// Per-mode forces serialised as an object keyed by mode name, in mode order.
+struct ModeForces<'a> {
+    names: &'a [String],
+    forces: &'a [DVec3],
+}
+
+impl Serialize for ModeForces<'_> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(Some(self.names.len()))?;
+        for (name, force) in self.names.iter().zip(self.forces) {
+            map.serialize_entry(name, &force.to_array())?;
+        }
+        map.end()
+    }
 }
 
 /// Primitive counts serialised as an object keyed by mode name, in mode order.
@@ -142,19 +208,27 @@ struct SolverMessage<'a> {
     tick: u64,
     t_s: f64,
     primitives: Primitives<'a>,
+    mode_force_n: ModeForces<'a>,
+    solver_status: &'static str,
     sweeps: u32,
     error_bound_m: Option<f64>,
-    flags: u32,
+    device_sequence: Option<u64>,
+    device_time_us: Option<u64>,
+    flag_bits: u32,
 }
 
 #[derive(Deserialize)]
 struct SolverMessageOwned {
     tick: u64,
-    t_s: f64,
+    t_s: Option<f64>,
     primitives: serde_json::Map<String, serde_json::Value>,
+    mode_force_n: serde_json::Map<String, serde_json::Value>,
+    solver_status: String,
     sweeps: u32,
     error_bound_m: Option<f64>,
-    flags: u32,
+    device_sequence: Option<u64>,
+    device_time_us: Option<u64>,
+    flag_bits: u32,
 }
 
 /// Writes an MCAP trace and its sidecar.
@@ -170,6 +244,7 @@ pub struct McapTraceWriter {
     probe_transform: FrameTransform,
     proxy_transform: FrameTransform,
     mode_names: Vec<String>,
+    start_utc_ns: i64,
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
@@ -306,6 +381,7 @@ impl McapTraceWriter {
             probe_transform: frame_transform(PROBE_FRAME, DVec3::ZERO, 0),
             proxy_transform: frame_transform(PROXY_FRAME, DVec3::ZERO, 0),
             mode_names: meta.mode_names.clone(),
+            start_utc_ns: meta.start_utc_ns,
             message: Vec::with_capacity(512),
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
@@ -405,17 +481,31 @@ impl TraceWriter for McapTraceWriter {
         if self.writer.is_none() {
             return Err(TraceError::Finished);
         }
-        self.checker.check(sample)?;
+        let Some(sample) = self.checker.admit(sample)? else {
+            return Ok(());
+        };
+        let sample = &sample;
         let sequence = (self.checker.count - 1) as u32;
-        let first_t_s = *self.first_t_s.get_or_insert(sample.t_s);
-        let time_ns = self
-            .wall_start_ns
-            .saturating_add(((sample.t_s - first_t_s).max(0.0) * 1e9).round() as u64);
+        // Log times are wall-clock UTC (the run's start plus the sample's time); a non-finite or negative time
+        // (a sample flagged invalid) is logged at the start.
+        let time_ns = if sample.t_s.is_finite() && sample.t_s >= 0.0 {
+            let first_t_s = *self.first_t_s.get_or_insert(sample.t_s);
+            self.wall_start_ns
+                .saturating_add(((sample.t_s - first_t_s).max(0.0) * 1e9).round() as u64)
+        } else {
+            self.wall_start_ns
+        };
         let state = StateMessage {
             tick: sample.tick,
             t_s: sample.t_s,
+            utc_ns: match utc_cell(self.start_utc_ns, sample.t_s) {
+                Cell::I64(v) => Some(v),
+                _ => None,
+            },
             probe_m: sample.probe_m.to_array(),
+            probe_velocity_m_per_s: sample.probe_velocity_m_per_s.to_array(),
             proxy_m: sample.proxy_m.to_array(),
+            rendered_force_n: sample.rendered_force_n.to_array(),
             force_n: sample.force_n.to_array(),
         };
         let solver = SolverMessage {
@@ -425,12 +515,19 @@ impl TraceWriter for McapTraceWriter {
                 names: &self.mode_names,
                 counts: sample.primitives(),
             },
+            mode_force_n: ModeForces {
+                names: &self.mode_names,
+                forces: sample.mode_forces(),
+            },
+            solver_status: sample.solver_status.name(),
             sweeps: sample.sweeps,
             error_bound_m: sample
                 .error_bound_m
                 .is_finite()
                 .then_some(sample.error_bound_m),
-            flags: sample.flags,
+            device_sequence: sample.device_sequence,
+            device_time_us: sample.device_time_us,
+            flag_bits: sample.flags,
         };
         // Every channel's message is encoded into the one reusable buffer, then written.
         let (writer, path, message) = (&mut self.writer, &self.path, &mut self.message);
@@ -492,7 +589,19 @@ impl TraceWriter for McapTraceWriter {
             path: self.path.clone(),
             source,
         })?;
+        self.sidecar.samples_rejected = self.checker.rejected;
         self.sidecar.complete(&self.path, self.checker.count)
+    }
+
+    fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+        // Best effort: try to end the file properly (it may work if the error was passing); if not, the
+        // chunks already written stay readable and `voxhap trace repair` adds the summary.
+        if let Some(mut writer) = self.writer.take() {
+            let _ = writer.finish();
+        }
+        self.checker.finished = true;
+        self.sidecar.samples_rejected = self.checker.rejected;
+        self.sidecar.fail(&self.path, self.checker.count, error)
     }
 
     fn sample_count(&self) -> u64 {
@@ -501,53 +610,83 @@ impl TraceWriter for McapTraceWriter {
 }
 
 /// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
-/// from the two channels joined by tick), and its sidecar when `path.json` exists.
+/// from the two channels joined by tick), and its sidecar when `path.json` exists. A file the writer never
+/// finished (no end magic: a crash) is read up to its last complete chunk, with a warning.
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let bytes = super::read_trace_file(path)?;
-    let (mode_names, samples) = parse_mcap_bytes(&bytes, path)?;
+    let (mode_names, samples, warnings) = parse_mcap_bytes(&bytes, path)?;
     Ok(Trace {
         mode_names,
         samples,
         sidecar: read_sidecar(&sidecar_path(path))?,
+        warnings,
     })
 }
 
 /// Parses an MCAP trace held in memory; returns the mode names and the samples (as
 /// [`super::parse_csv_trace`] does for CSV).
 pub fn parse_mcap_trace(bytes: &[u8]) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
-    parse_mcap_bytes(bytes, Path::new("<input>"))
+    parse_mcap_bytes(bytes, Path::new("<input>")).map(|(modes, samples, _)| (modes, samples))
 }
 
-fn parse_mcap_bytes(
-    bytes: &[u8],
-    path: &Path,
-) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
+type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
+
+fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError> {
     let problem = |problem: String| TraceReadError::Mcap {
         path: path.to_path_buf(),
         problem,
     };
+    let finished = bytes.len() >= 2 * mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC);
     // Every length in the file is checked against the file's size before the mcap crate sees it: its
-    // reader sizes a buffer from a record's length field, so 8 damaged bytes could ask for gigabytes.
-    check_record_lengths(bytes).map_err(problem)?;
+    // reader sizes a buffer from a record's length field, so 8 damaged bytes could ask for gigabytes. An
+    // unfinished file is read up to its last complete record.
+    let readable = check_record_lengths(bytes, finished).map_err(problem)?;
+    let bytes = &bytes[..readable];
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
     let parsed = std::panic::catch_unwind(|| {
-        let mode_names = read_mode_names(bytes)?;
-        let samples = read_samples(bytes, &mode_names)?;
-        Ok::<_, String>((mode_names, samples))
+        let (mode_names, version) = read_mode_names(&bytes)?;
+        if version != TRACE_FORMAT_VERSION {
+            return Ok(Err(version));
+        }
+        let (samples, cut) = read_samples(&bytes, &mode_names, finished)?;
+        Ok::<_, String>(Ok((mode_names, samples, cut)))
     });
-    match parsed {
-        Ok(result) => result.map_err(problem),
-        Err(_) => Err(problem(
-            "damaged file: the MCAP library failed while parsing it".to_string(),
-        )),
+    let (mode_names, samples, cut) = match parsed {
+        Ok(Ok(Ok(result))) => result,
+        Ok(Ok(Err(found))) => {
+            return Err(TraceReadError::OldFormat {
+                path: path.to_path_buf(),
+                found,
+                expected: TRACE_FORMAT_VERSION,
+                hint: "its metadata record says so",
+            })
+        }
+        Ok(Err(message)) => return Err(problem(message)),
+        Err(_) => {
+            return Err(problem(
+                "damaged file: the MCAP library failed while parsing it".to_string(),
+            ))
+        }
+    };
+    let mut warnings = Vec::new();
+    if let Some(reason) = cut {
+        warnings.push(format!(
+            "{}: the file was not finished (the recording was cut off); read {} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
+            path.display(),
+            samples.len()
+        ));
     }
+    Ok((mode_names, samples, warnings))
 }
 
 /// Walks the file's records (and the records inside each chunk) and checks that every length field fits
 /// inside what contains it, and that chunks are uncompressed with an `uncompressed_size` equal to their
 /// records' length (voxhap writes them so; the reader is built without decompressors).
-pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
+///
+/// Returns how many bytes the reader may use: all of a finished file; for an unfinished one (a crash: no
+/// footer and no end magic), the complete records before the one the crash cut.
+pub(crate) fn check_record_lengths(bytes: &[u8], finished: bool) -> Result<usize, String> {
     const HEADER: usize = 9; // opcode + u64 length
     let u64_at = |at: usize| -> Option<u64> {
         bytes
@@ -560,24 +699,31 @@ pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
             .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     };
     let damaged = |at: usize, what: &str| format!("damaged file: {what} at byte {at}");
-    // Checks the records in bytes[start..end]; returns where the footer starts if one is met.
+    // Checks the records in bytes[start..end]; returns where the footer starts if one is met, or (when `cut`
+    // is allowed) where a record the end cut short starts.
     let walk = |mut at: usize, end: usize, top_level: bool| -> Result<Option<usize>, String> {
         while at < end {
             let opcode = bytes[at];
-            let length = u64_at(at + 1)
-                .filter(|_| at + HEADER <= end)
-                .ok_or_else(|| damaged(at, "a record header runs past its container"))?;
+            let Some(length) = u64_at(at + 1).filter(|_| at + HEADER <= end) else {
+                if !finished {
+                    return Ok(Some(at));
+                }
+                return Err(damaged(at, "a record header runs past its container"));
+            };
             let content = at + HEADER;
-            let record_end = usize::try_from(length)
+            let Some(record_end) = usize::try_from(length)
                 .ok()
                 .and_then(|l| content.checked_add(l))
                 .filter(|&e| e <= end)
-                .ok_or_else(|| {
-                    damaged(
-                        at,
-                        &format!("a record claims {length} bytes, more than remain"),
-                    )
-                })?;
+            else {
+                if !finished {
+                    return Ok(Some(at));
+                }
+                return Err(damaged(
+                    at,
+                    &format!("a record claims {length} bytes, more than remain"),
+                ));
+            };
             if top_level && opcode == 0x02 {
                 return Ok(Some(at));
             }
@@ -613,12 +759,16 @@ pub(crate) fn check_record_lengths(bytes: &[u8]) -> Result<(), String> {
         Ok(None)
     };
     let magic = mcap::MAGIC.len();
-    if bytes.len() < 2 * magic || !bytes.starts_with(mcap::MAGIC) || !bytes.ends_with(mcap::MAGIC) {
-        return Err("not a complete MCAP file (magic missing at the start or end)".to_owned());
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err("not an MCAP file (magic missing at the start)".to_owned());
     }
-    match walk(magic, bytes.len() - magic, true)? {
-        Some(_) => Ok(()),
-        None => Err("damaged file: no footer record before the closing magic".to_owned()),
+    if finished {
+        match walk(magic, bytes.len() - magic, true)? {
+            Some(_) => Ok(bytes.len()),
+            None => Err("damaged file: no footer record before the closing magic".to_owned()),
+        }
+    } else {
+        Ok(walk(magic, bytes.len(), true)?.unwrap_or(bytes.len()))
     }
 }
 
@@ -741,10 +891,27 @@ fn check_record_fields(opcode: u8, content: &[u8]) -> Result<(), &'static str> {
     }
 }
 
-fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {
-    for record in mcap::read::LinearReader::new(bytes).map_err(|e| e.to_string())? {
-        if let mcap::records::Record::Metadata(metadata) = record.map_err(|e| e.to_string())? {
+/// The mode names and the trace format version from the metadata record.
+fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), String> {
+    for record in mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )
+    .map_err(|e| e.to_string())?
+    {
+        let Ok(record) = record else {
+            break;
+        };
+        if let mcap::records::Record::Metadata(metadata) = record {
             if metadata.name == METADATA_NAME {
+                let version: u32 = metadata
+                    .metadata
+                    .get("format_version")
+                    .and_then(|v| v.parse().ok())
+                    .ok_or("metadata record has no format_version")?;
+                if version != TRACE_FORMAT_VERSION {
+                    return Ok((Vec::new(), version));
+                }
                 let text = metadata
                     .metadata
                     .get("mode_names")
@@ -754,7 +921,7 @@ fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {
                 if names.len() > MAX_MODES {
                     return Err(format!("{} modes, at most {MAX_MODES}", names.len()));
                 }
-                return Ok(names);
+                return Ok((names, version));
             }
         }
     }
@@ -763,11 +930,29 @@ fn read_mode_names(bytes: &[u8]) -> Result<Vec<String>, String> {
     ))
 }
 
-fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>, String> {
-    let mut states: Vec<StateMessage> = Vec::new();
+/// The samples, and (for an unfinished file) why reading stopped early.
+fn read_samples(
+    bytes: &[u8],
+    mode_names: &[String],
+    finished: bool,
+) -> Result<(Vec<TraceSample>, Option<String>), String> {
+    let mut states: Vec<StateMessageOwned> = Vec::new();
     let mut solvers: Vec<SolverMessageOwned> = Vec::new();
-    for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
-        let message = message.map_err(|e| e.to_string())?;
+    let mut cut = None;
+    let stream = if finished {
+        mcap::MessageStream::new(bytes)
+    } else {
+        mcap::MessageStream::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into())
+    };
+    for message in stream.map_err(|e| e.to_string())? {
+        let message = match message {
+            Ok(message) => message,
+            Err(error) if !finished => {
+                cut = Some(error.to_string());
+                break;
+            }
+            Err(error) => return Err(error.to_string()),
+        };
         let topic = message.channel.topic.as_str();
         if topic == STATE_TOPIC {
             states.push(
@@ -781,25 +966,34 @@ fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>,
             );
         }
     }
+    if !finished && cut.is_none() {
+        cut = Some("no summary or end magic".to_owned());
+    }
     if states.len() != solvers.len() {
-        return Err(format!(
-            "{} state messages but {} solver messages",
-            states.len(),
-            solvers.len()
-        ));
+        if finished {
+            return Err(format!(
+                "{} state messages but {} solver messages",
+                states.len(),
+                solvers.len()
+            ));
+        }
+        let keep = states.len().min(solvers.len());
+        states.truncate(keep);
+        solvers.truncate(keep);
     }
     let mut samples = Vec::with_capacity(states.len());
     let mut last_tick = None;
     for (state, solver) in states.into_iter().zip(solvers) {
-        if state.tick != solver.tick || state.t_s.to_bits() != solver.t_s.to_bits() {
+        let t_s = state.t_s.unwrap_or(f64::NAN);
+        if state.tick != solver.tick || t_s.to_bits() != solver.t_s.unwrap_or(f64::NAN).to_bits() {
             return Err(format!(
-                "state tick {} (t_s {}) paired with solver tick {} (t_s {})",
-                state.tick, state.t_s, solver.tick, solver.t_s
+                "state tick {} (t_s {}) paired with solver tick {} (t_s {:?})",
+                state.tick, t_s, solver.tick, solver.t_s
             ));
         }
-        let mut primitives_per_mode = [0u16; MAX_MODES];
-        for (slot, name) in primitives_per_mode.iter_mut().zip(mode_names) {
-            let count = solver
+        let mut sample = TraceSample::zeroed(mode_names.len() as u8);
+        for (mode, name) in mode_names.iter().enumerate() {
+            sample.primitives_per_mode[mode] = solver
                 .primitives
                 .get(name)
                 .and_then(|v| v.as_u64())
@@ -807,25 +1001,36 @@ fn read_samples(bytes: &[u8], mode_names: &[String]) -> Result<Vec<TraceSample>,
                 .ok_or_else(|| {
                     format!("tick {}: no valid primitive count for {name}", state.tick)
                 })?;
-            *slot = count;
+            let force: ReadVector = solver
+                .mode_force_n
+                .get(name)
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .ok_or_else(|| format!("tick {}: no valid mode force for {name}", state.tick))?;
+            sample.mode_force_n[mode] = read_vector(force);
         }
-        let sample = TraceSample {
-            tick: state.tick,
-            t_s: state.t_s,
-            probe_m: DVec3::from_array(state.probe_m),
-            proxy_m: DVec3::from_array(state.proxy_m),
-            force_n: DVec3::from_array(state.force_n),
-            primitives_per_mode,
-            mode_count: mode_names.len() as u8,
-            sweeps: solver.sweeps,
-            error_bound_m: solver.error_bound_m.unwrap_or(f64::INFINITY),
-            flags: solver.flags,
-        };
+        sample.tick = state.tick;
+        sample.t_s = t_s;
+        sample.probe_m = read_vector(state.probe_m);
+        sample.probe_velocity_m_per_s = read_vector(state.probe_velocity_m_per_s);
+        sample.proxy_m = read_vector(state.proxy_m);
+        sample.rendered_force_n = read_vector(state.rendered_force_n);
+        sample.force_n = read_vector(state.force_n);
+        sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
+            format!(
+                "tick {}: unknown solver_status {:?}",
+                state.tick, solver.solver_status
+            )
+        })?;
+        sample.sweeps = solver.sweeps;
+        sample.error_bound_m = solver.error_bound_m.unwrap_or(f64::INFINITY);
+        sample.device_sequence = solver.device_sequence;
+        sample.device_time_us = solver.device_time_us;
+        sample.flags = solver.flag_bits;
         super::check_sample(&sample, mode_names.len(), last_tick).map_err(|e| e.to_string())?;
         last_tick = Some(sample.tick);
         samples.push(sample);
     }
-    Ok(samples)
+    Ok((samples, cut))
 }
 
 #[cfg(test)]
@@ -986,12 +1191,66 @@ mod tests {
         let path = dir.path().join("t.mcap");
         write_mcap(&path, &["surface"], &data);
         let bytes = std::fs::read(&path).unwrap();
+        // Cut in half (a crash): read up to the last complete chunk, with a warning.
         let cut = dir.path().join("cut.mcap");
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-        assert!(read_mcap_trace(&cut).is_err());
+        let partial = read_mcap_trace(&cut).unwrap();
+        assert_eq!(partial.warnings.len(), 1, "{:?}", partial.warnings);
+        assert!(partial.warnings[0].contains("trace repair"));
+        assert!(!partial.samples.is_empty() && partial.samples.len() < data.len());
+        assert_eq!(partial.samples[..], data[..partial.samples.len()]);
+
         let empty = dir.path().join("empty.mcap");
         std::fs::write(&empty, mcap::MAGIC).unwrap();
         assert!(read_mcap_trace(&empty).is_err());
+    }
+
+    /// A writer that dies without finishing (SIGKILL) leaves every flushed chunk readable, by voxhap and
+    /// (after `voxhap trace repair`) as a finished file.
+    #[test]
+    fn a_killed_writer_leaves_its_flushed_chunks_readable_and_repairable() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("killed.mcap");
+        let data = samples(300, 2);
+        let mut writer = McapTraceWriter::create(&path, &meta(&["surface", "friction"])).unwrap();
+        for (i, sample) in data.iter().enumerate() {
+            writer.write_sample(sample).unwrap();
+            if i == 199 {
+                writer.flush().unwrap();
+            }
+        }
+        // As a kill would: no finish, no destructor.
+        std::mem::forget(writer);
+        let trace = read_mcap_trace(&path).unwrap();
+        assert_eq!(trace.samples, data[..200]);
+        assert_eq!(trace.warnings.len(), 1);
+        let repaired = dir.path().join("repaired.mcap");
+        let report = crate::record::repair::repair_trace(
+            &path,
+            &repaired,
+            None,
+            &crate::record::OutputPolicy::default(),
+        )
+        .unwrap();
+        assert_eq!(report.sample_count, 200);
+        let fixed = read_mcap_trace(&repaired).unwrap();
+        assert!(fixed.warnings.is_empty());
+        assert_eq!(fixed.samples, data[..200]);
+        let sidecar = fixed.sidecar.unwrap();
+        assert!(sidecar.complete);
+        assert!(sidecar.repaired.unwrap().contains("recovered 200 samples"));
+        // The input is never the output, even when asked to overwrite.
+        let err = crate::record::repair::repair_trace(
+            &path,
+            &path,
+            None,
+            &crate::record::OutputPolicy {
+                overwrite: true,
+                inputs: Vec::new(),
+            },
+        )
+        .unwrap_err();
+        assert!(crate::record::error_chain(&err).contains("is an input"));
     }
 
     /// Regression: a record inside an uncompressed chunk claiming more bytes than the chunk holds made

@@ -1,18 +1,23 @@
 //! Run metadata ([`TraceMeta`]) and the JSON sidecar ([`Sidecar`]) written next to every trace.
 //!
-//! The sidecar `TRACE.json` repeats the metadata and makes the trace self-describing: the CSV columns
-//! with their units, the flag bits, the format, and (once the writer finished) the sample count.
-//! `created_utc` is the only field that depends on the wall clock.
+//! The sidecar `TRACE.json` repeats the metadata and makes the trace self-describing: the columns with
+//! their units and types, the flag bits, the format, and (once the writer finished) the sample count. A
+//! writer that fails says so in the sidecar (`complete: false` and `error`), rewriting it in place: the
+//! provisional sidecar is padded with spaces so that the final one fits even on a full disk.
+//! `created_utc` and `start_utc_ns` are the only fields that depend on the wall clock.
 
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use super::columns::{columns, ColumnDoc};
 use super::{TraceError, TraceFormat, FLAG_DOCS, MAX_MODES};
 
 /// Version of the trace layout (columns, topics, sidecar keys); bumped on incompatible changes.
-pub const TRACE_FORMAT_VERSION: u32 = 1;
+/// Version 2 (this one) added the velocity, rendered force, per-mode force, solver status, device sequence
+/// and time, UTC and per-flag columns and renamed `flags` to `flag_bits`.
+pub const TRACE_FORMAT_VERSION: u32 = 2;
 
 /// What a run was: written into the sidecar and the MCAP metadata record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -23,6 +28,9 @@ pub struct TraceMeta {
     pub voxhap_version: String,
     /// When the trace was created, RFC 3339 UTC (`2026-01-31T12:00:00Z`). The only non-deterministic field.
     pub created_utc: String,
+    /// Wall-clock UTC at the run's `t_s = 0`, ns since 1970: each tick's `utc_ns` is this plus its `t_s`.
+    #[serde(default)]
+    pub start_utc_ns: i64,
     /// Servo rate (Hz).
     pub rate_hz: f64,
     /// The haptic modes, in the order of `TraceSample::primitives_per_mode`. At most [`MAX_MODES`];
@@ -49,6 +57,7 @@ impl TraceMeta {
             format_version: TRACE_FORMAT_VERSION,
             voxhap_version: env!("CARGO_PKG_VERSION").to_string(),
             created_utc: utc_now_rfc3339(),
+            start_utc_ns: utc_now_ns(),
             rate_hz,
             mode_names,
             scenario,
@@ -94,17 +103,6 @@ pub(crate) fn is_valid_mode_name(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
 }
 
-/// One column of a CSV trace (also documents the MCAP fields).
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ColumnDoc {
-    /// Header name.
-    pub name: Cow<'static, str>,
-    /// Unit (`m`, `N`, `s`, `count`, `bits`, `-`).
-    pub unit: Cow<'static, str>,
-    /// What it holds.
-    pub meaning: Cow<'static, str>,
-}
-
 /// One flag bit.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FlagDoc {
@@ -130,7 +128,16 @@ pub struct Sidecar {
     pub complete: bool,
     /// Samples in the trace (final once `complete`).
     pub sample_count: u64,
-    /// The CSV columns in order, with units.
+    /// Samples the writer left out because their tick did not increase (a producer bug; normally 0).
+    #[serde(default)]
+    pub samples_rejected: u64,
+    /// Why the recording stopped early (the writer's error with the OS reason), if it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// What `voxhap trace repair` did to this trace, if it was repaired.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub repaired: Option<String>,
+    /// The columns (CSV, Parquet) in order, with units and types.
     pub columns: Vec<ColumnDoc>,
     /// The flag bits.
     pub flag_bits: Vec<FlagDoc>,
@@ -147,7 +154,10 @@ impl Sidecar {
                 .unwrap_or_default(),
             complete: false,
             sample_count: 0,
-            columns: csv_columns(&meta.mode_names),
+            samples_rejected: 0,
+            error: None,
+            repaired: None,
+            columns: columns(&meta.mode_names),
             flag_bits: FLAG_DOCS.to_vec(),
         }
     }
@@ -170,65 +180,71 @@ impl Sidecar {
         })
     }
 
-    /// Writes the sidecar as pretty JSON with a final newline.
+    /// Marks the trace as stopped early by `error` after `sample_count` samples and rewrites the sidecar.
+    pub(crate) fn fail(
+        &mut self,
+        trace_path: &Path,
+        sample_count: u64,
+        error: &str,
+    ) -> Result<(), TraceError> {
+        self.complete = false;
+        self.sample_count = sample_count;
+        let mut error = error.to_owned();
+        if error.len() > MAX_ERROR_TEXT {
+            let mut end = MAX_ERROR_TEXT;
+            while !error.is_char_boundary(end) {
+                end -= 1;
+            }
+            error.truncate(end);
+        }
+        self.error = Some(error);
+        self.write(&sidecar_path(trace_path))
+    }
+
+    /// Writes the sidecar as pretty JSON with a final newline, in place: the file is overwritten from the
+    /// start and only then cut to length, so rewriting a sidecar no longer than the padded first version
+    /// needs no new disk space. The first version is padded with [`SIDECAR_RESERVE`] spaces for that.
     pub(crate) fn write(&self, path: &Path) -> Result<(), TraceError> {
+        use std::io::{Seek, Write};
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| TraceError::Meta(format!("cannot encode the sidecar: {e}")))?;
         text.push('\n');
-        std::fs::write(path, text).map_err(|source| TraceError::Io {
+        let io_error = |source| TraceError::Io {
             path: path.to_path_buf(),
             source,
-        })
+        };
+        let mut file = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .map_err(io_error)?;
+        let old_len = file.metadata().map_err(io_error)?.len();
+        if !self.complete && self.error.is_none() && self.sample_count == 0 {
+            // The provisional sidecar: reserve room for the final one.
+            text.extend(std::iter::repeat_n(' ', SIDECAR_RESERVE));
+            text.push('\n');
+        }
+        file.seek(std::io::SeekFrom::Start(0)).map_err(io_error)?;
+        file.write_all(text.as_bytes()).map_err(io_error)?;
+        if old_len > text.len() as u64 {
+            file.set_len(text.len() as u64).map_err(io_error)?;
+        }
+        file.sync_data().map_err(io_error)
     }
 }
+
+/// Spaces after the provisional sidecar's JSON (valid JSON whitespace), so the final sidecar (with an
+/// error message of up to [`MAX_ERROR_TEXT`] bytes) fits in the space already allocated.
+const SIDECAR_RESERVE: usize = 1024;
+/// The longest error text a sidecar keeps.
+const MAX_ERROR_TEXT: usize = 600;
 
 /// The sidecar's path for a trace: the trace path with `.json` appended (`run.csv` -> `run.csv.json`).
 pub fn sidecar_path(trace_path: &Path) -> PathBuf {
     let mut name = trace_path.as_os_str().to_os_string();
     name.push(".json");
     PathBuf::from(name)
-}
-
-fn column(name: &'static str, unit: &'static str, meaning: &'static str) -> ColumnDoc {
-    ColumnDoc {
-        name: Cow::Borrowed(name),
-        unit: Cow::Borrowed(unit),
-        meaning: Cow::Borrowed(meaning),
-    }
-}
-
-/// The CSV columns for these modes, in file order.
-pub(crate) fn csv_columns(mode_names: &[String]) -> Vec<ColumnDoc> {
-    let mut columns = vec![
-        column("tick", "-", "servo tick number since the run started"),
-        column("t_s", "s", "tick time since the run started"),
-        column("probe_x_m", "m", "probe (device) position x"),
-        column("probe_y_m", "m", "probe (device) position y"),
-        column("probe_z_m", "m", "probe (device) position z"),
-        column("proxy_x_m", "m", "proxy position x"),
-        column("proxy_y_m", "m", "proxy position y"),
-        column("proxy_z_m", "m", "proxy position z"),
-        column("force_x_n", "N", "force sent to the device x"),
-        column("force_y_n", "N", "force sent to the device y"),
-        column("force_z_n", "N", "force sent to the device z"),
-    ];
-    for name in mode_names {
-        columns.push(ColumnDoc {
-            name: Cow::Owned(format!("primitives_{name}")),
-            unit: Cow::Borrowed("count"),
-            meaning: Cow::Owned(format!("primitives the {name} mode emitted")),
-        });
-    }
-    columns.extend([
-        column("sweeps", "count", "solver sweeps"),
-        column(
-            "error_bound_m",
-            "m",
-            "certificate bound on the proxy's distance from the exact equilibrium; inf = none",
-        ),
-        column("flags", "bits", "bit set, see flag_bits"),
-    ]);
-    columns
 }
 
 /// The current time as RFC 3339 UTC with whole seconds, e.g. `2026-01-31T12:00:00Z`.
@@ -238,6 +254,14 @@ pub(crate) fn utc_now_rfc3339() -> String {
         .map(|d| d.as_secs())
         .unwrap_or(0);
     format_utc(seconds)
+}
+
+/// The current time as ns since 1970 (UTC), 0 if the clock is before 1970.
+pub fn utc_now_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+        .unwrap_or(0)
 }
 
 /// Formats seconds since 1970 as RFC 3339 UTC (Howard Hinnant's days-to-civil algorithm).

@@ -13,19 +13,25 @@
 //! those. Floats are written in shortest round-trip form, so reading a CSV trace
 //! gives back the exact bits written.
 
+mod columns;
+pub mod compare;
 mod csv;
 mod error;
 pub mod foxglove_topics;
 mod mcap_trace;
 mod meta;
+mod output;
 pub mod plot;
+pub mod repair;
 
+pub use self::columns::{columns, ColumnDoc, ColumnType};
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
-pub use self::error::{TraceError, TraceReadError};
+pub use self::error::{error_chain, TraceError, TraceReadError};
 pub use self::mcap_trace::{
     parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
 };
-pub use self::meta::{sidecar_path, ColumnDoc, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
+pub use self::meta::{sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
+pub use self::output::{check_output_path, estimate_trace_bytes, OutputPolicy};
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -57,129 +63,170 @@ pub const FLAG_COMPUTE_OVER_BUDGET: u32 = 1 << 7;
 /// Flag bit: the device was not accepting force (starting, recovering from its watchdog, faulted, or it
 /// refused Enable): zero was commanded, whatever the scene rendered.
 pub const FLAG_DEVICE_NOT_ENABLED: u32 = 1 << 8;
+/// Flag bit: the device was disconnected this tick (the force went nowhere; the probe is the last known).
+pub const FLAG_DEVICE_DISCONNECTED: u32 = 1 << 9;
+/// Flag bit: the probe velocity is the host's estimate from positions, not the device's report.
+pub const FLAG_VELOCITY_ESTIMATED: u32 = 1 << 10;
+/// Flag bit: the sample broke a trace rule (a non-finite or negative value, a mode count that differs
+/// from the trace's); it was recorded as it came (NaN stays NaN) so the trace goes on.
+pub const FLAG_INVALID_VALUES: u32 = 1 << 11;
 /// Flag bit: the device's position was implausible (a jump beyond its maximum speed, outside its workspace,
 /// not finite); the last accepted one was used.
-pub const FLAG_POSITION_REJECTED: u32 = 1 << 9;
+pub const FLAG_POSITION_REJECTED: u32 = 1 << 12;
 /// Flag bit: the device's reported velocity disagreed with its positions (or exceeded its maximum speed);
 /// the estimate from positions was used.
-pub const FLAG_VELOCITY_REPLACED: u32 = 1 << 10;
+pub const FLAG_VELOCITY_REPLACED: u32 = 1 << 13;
 /// Flag bit: the force's rise was limited by the slew rate.
-pub const FLAG_FORCE_SLEW_LIMITED: u32 = 1 << 11;
+pub const FLAG_FORCE_SLEW_LIMITED: u32 = 1 << 14;
 /// Flag bit: no fresh device state for several periods; zero was commanded.
-pub const FLAG_STALE_STATE: u32 = 1 << 12;
+pub const FLAG_STALE_STATE: u32 = 1 << 15;
 /// Flag bit: a fault that needs a person is active on the device.
-pub const FLAG_DEVICE_FAULTED: u32 = 1 << 13;
+pub const FLAG_DEVICE_FAULTED: u32 = 1 << 16;
 
-/// Every flag bit with its name and meaning, lowest bit first; written into the sidecar.
-pub const FLAG_DOCS: [FlagDoc; 14] = [
+const fn flag(bit: u32, name: &'static str, meaning: &'static str) -> FlagDoc {
     FlagDoc {
-        bit: 0,
-        name: Cow::Borrowed("solver_budget_hit"),
-        meaning: Cow::Borrowed(
-            "solver stopped on its sweep or time budget before the certificate met its tolerance",
-        ),
-    },
-    FlagDoc {
-        bit: 1,
-        name: Cow::Borrowed("force_clamped"),
-        meaning: Cow::Borrowed("force clamped to the device maximum, direction kept"),
-    },
-    FlagDoc {
-        bit: 2,
-        name: Cow::Borrowed("workspace_limit"),
-        meaning: Cow::Borrowed("probe at or beyond the device workspace limit"),
-    },
-    FlagDoc {
-        bit: 3,
-        name: Cow::Borrowed("overrun"),
-        meaning: Cow::Borrowed("tick started late; missed ticks were skipped, not caught up"),
-    },
-    FlagDoc {
-        bit: 4,
-        name: Cow::Borrowed("non_finite_replaced"),
-        meaning: Cow::Borrowed("a non-finite probe position or force was replaced by zero"),
-    },
-    FlagDoc {
-        bit: 5,
-        name: Cow::Borrowed("samples_dropped"),
-        meaning: Cow::Borrowed("recorder ring was full; samples before this one were lost"),
-    },
-    FlagDoc {
-        bit: 6,
-        name: Cow::Borrowed("force_limited_by_safety"),
-        meaning: Cow::Borrowed(
-            "force below what was rendered: ramping in, waiting to engage, slew-limited, or held at zero \
-             (watchdog, disconnect, device not enabled, stale state)",
-        ),
-    },
-    FlagDoc {
-        bit: 7,
-        name: Cow::Borrowed("compute_over_budget"),
-        meaning: Cow::Borrowed(
-            "tick compute exceeded its budget; the last safe force was sent again",
-        ),
-    },
-    FlagDoc {
-        bit: 8,
-        name: Cow::Borrowed("device_not_enabled"),
-        meaning: Cow::Borrowed(
-            "device not accepting force (starting, recovering, faulted, or Enable refused): zero commanded",
-        ),
-    },
-    FlagDoc {
-        bit: 9,
-        name: Cow::Borrowed("position_rejected"),
-        meaning: Cow::Borrowed(
-            "implausible device position (speed, workspace, non-finite); the last accepted one was held",
-        ),
-    },
-    FlagDoc {
-        bit: 10,
-        name: Cow::Borrowed("velocity_replaced"),
-        meaning: Cow::Borrowed(
-            "reported velocity disagreed with the positions; the estimate from positions was used",
-        ),
-    },
-    FlagDoc {
-        bit: 11,
-        name: Cow::Borrowed("force_slew_limited"),
-        meaning: Cow::Borrowed("the force's rise was limited by the slew rate"),
-    },
-    FlagDoc {
-        bit: 12,
-        name: Cow::Borrowed("stale_state"),
-        meaning: Cow::Borrowed("no fresh device state for several periods: zero commanded"),
-    },
-    FlagDoc {
-        bit: 13,
-        name: Cow::Borrowed("device_faulted"),
-        meaning: Cow::Borrowed("a device fault that needs a person is active"),
-    },
+        bit,
+        name: Cow::Borrowed(name),
+        meaning: Cow::Borrowed(meaning),
+    }
+}
+
+/// How many flag bits are defined.
+pub const FLAG_COUNT: usize = 17;
+
+/// Every flag bit with its name and meaning, lowest bit first; written into the sidecar and, one boolean
+/// column `flag_<name>` each, into the trace.
+pub const FLAG_DOCS: [FlagDoc; FLAG_COUNT] = [
+    flag(
+        0,
+        "solver_budget_hit",
+        "solver stopped on its sweep or time budget before the certificate met its tolerance",
+    ),
+    flag(1, "force_clamped", "force clamped to the device maximum, direction kept"),
+    flag(2, "workspace_limit", "probe at or beyond the device workspace limit"),
+    flag(3, "overrun", "tick started late; missed ticks were skipped, not caught up"),
+    flag(4, "non_finite_replaced", "a non-finite probe position or force was replaced by zero"),
+    flag(5, "samples_dropped", "recorder ring was full; samples before this one were lost"),
+    flag(
+        6,
+        "force_limited_by_safety",
+        "force below what was rendered: ramping in, waiting to engage, slew-limited, or held at zero (watchdog, disconnect, device not enabled, stale state)",
+    ),
+    flag(7, "compute_over_budget", "tick compute exceeded its budget; the last safe force was sent again"),
+    flag(
+        8,
+        "device_not_enabled",
+        "device not accepting force (starting, recovering, faulted, or Enable refused): zero commanded",
+    ),
+    flag(9, "device_disconnected", "the device was disconnected this tick"),
+    flag(10, "velocity_estimated", "probe velocity estimated by the host from positions, not reported by the device"),
+    flag(
+        11,
+        "invalid_values",
+        "the sample broke a trace rule (non-finite or negative value, wrong mode count) and was recorded as it came",
+    ),
+    flag(
+        12,
+        "position_rejected",
+        "implausible device position (speed, workspace, non-finite); the last accepted one was held",
+    ),
+    flag(
+        13,
+        "velocity_replaced",
+        "reported velocity disagreed with the positions; the estimate from positions was used",
+    ),
+    flag(14, "force_slew_limited", "the force's rise was limited by the slew rate"),
+    flag(15, "stale_state", "no fresh device state for several periods: zero commanded"),
+    flag(16, "device_faulted", "a device fault that needs a person is active"),
 ];
+
+/// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
+/// `crate::haptics::tick::TickStatus`; `Unknown` for producers that do not say.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SolverStatus {
+    /// Not reported.
+    #[default]
+    Unknown,
+    /// The exact solver certified its answer within tolerance.
+    Certified,
+    /// The exact solver ran out of budget; the bound is honest but above tolerance.
+    BudgetExhausted,
+    /// The exact solver's bound stopped improving (f64 limit).
+    Stalled,
+    /// A baseline solver ran: no certificate.
+    Uncertified,
+    /// The tick's input was not finite; the proxy was held and no force sent.
+    InputRejected,
+}
+
+impl SolverStatus {
+    /// Every status, in code order.
+    pub const ALL: [SolverStatus; 6] = [
+        SolverStatus::Unknown,
+        SolverStatus::Certified,
+        SolverStatus::BudgetExhausted,
+        SolverStatus::Stalled,
+        SolverStatus::Uncertified,
+        SolverStatus::InputRejected,
+    ];
+
+    /// The name written in traces.
+    pub fn name(self) -> &'static str {
+        match self {
+            SolverStatus::Unknown => "unknown",
+            SolverStatus::Certified => "certified",
+            SolverStatus::BudgetExhausted => "budget_exhausted",
+            SolverStatus::Stalled => "stalled",
+            SolverStatus::Uncertified => "uncertified",
+            SolverStatus::InputRejected => "input_rejected",
+        }
+    }
+
+    /// The status with this name.
+    pub fn from_name(name: &str) -> Option<SolverStatus> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+}
 
 /// One servo tick, as recorded. `Copy` and heap-free: the servo thread writes it into an SPSC ring.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraceSample {
     /// Tick number since the run started; strictly increasing in a trace (gaps mean skipped ticks).
     pub tick: u64,
-    /// Time of the tick since the run started (s), >= 0.
+    /// Time of the tick since the run started (s), >= 0 (monotonic: the schedule's time, never stepped).
+    /// The wall-clock UTC column is `TraceMeta::start_utc_ns + t_s`.
     pub t_s: f64,
     /// Probe (device) position (m).
     pub probe_m: DVec3,
+    /// Probe velocity (m/s): the device's report, or the host's estimate when
+    /// [`FLAG_VELOCITY_ESTIMATED`] is set.
+    pub probe_velocity_m_per_s: DVec3,
     /// Proxy position after the solve (m).
     pub proxy_m: DVec3,
-    /// Force sent to the device (N).
+    /// Force the renderer asked for, before the safety pipeline (N): coupling plus damping.
+    pub rendered_force_n: DVec3,
+    /// Force sent to the device, after the safety pipeline (N).
     pub force_n: DVec3,
+    /// Force each mode's primitives exerted on the proxy at the solution (N); they sum to the coupling
+    /// force `k (proxy - probe)` (exactly for the baselines, within `k error_bound_m` for the exact
+    /// solver). Slots at and past `mode_count` are ignored and read back as 0.
+    pub mode_force_n: [DVec3; MAX_MODES],
     /// Primitives each mode emitted this tick; slots at and past `mode_count` are ignored and read back
     /// as 0.
     pub primitives_per_mode: [u16; MAX_MODES],
     /// How many modes the scene has; must equal the trace's `TraceMeta::mode_names` length.
     pub mode_count: u8,
+    /// How the solve ended.
+    pub solver_status: SolverStatus,
     /// Solver sweeps this tick.
     pub sweeps: u32,
     /// Certificate bound on the proxy's distance from the exact equilibrium (m), >= 0; `+inf` when the
     /// solver produced no certificate.
     pub error_bound_m: f64,
+    /// The device's own sequence number of the state this tick used, where the device sends one.
+    pub device_sequence: Option<u64>,
+    /// The device's clock at that state (us), where the device has one.
+    pub device_time_us: Option<u64>,
     /// Bit set of `FLAG_*` constants.
     pub flags: u32,
 }
@@ -191,12 +238,18 @@ impl TraceSample {
             tick: 0,
             t_s: 0.0,
             probe_m: DVec3::ZERO,
+            probe_velocity_m_per_s: DVec3::ZERO,
             proxy_m: DVec3::ZERO,
+            rendered_force_n: DVec3::ZERO,
             force_n: DVec3::ZERO,
+            mode_force_n: [DVec3::ZERO; MAX_MODES],
             primitives_per_mode: [0; MAX_MODES],
             mode_count,
+            solver_status: SolverStatus::Unknown,
             sweeps: 0,
             error_bound_m: 0.0,
+            device_sequence: None,
+            device_time_us: None,
             flags: 0,
         }
     }
@@ -204,6 +257,11 @@ impl TraceSample {
     /// The primitive counts of the modes in use.
     pub fn primitives(&self) -> &[u16] {
         &self.primitives_per_mode[..usize::from(self.mode_count).min(MAX_MODES)]
+    }
+
+    /// The per-mode forces of the modes in use.
+    pub fn mode_forces(&self) -> &[DVec3] {
+        &self.mode_force_n[..usize::from(self.mode_count).min(MAX_MODES)]
     }
 }
 
@@ -250,23 +308,46 @@ pub struct TraceSummary {
 
 /// A trace sink. Runs on the recorder thread (it allocates and does I/O; never call it on the servo
 /// thread). Call [`TraceWriter::finish`] to close the files cleanly; writing after that is an error.
+///
+/// A sample that breaks a trace rule (a non-finite value, a wrong mode count) is recorded as it came with
+/// [`FLAG_INVALID_VALUES`] set, so one bad tick never ends a trace; a sample whose tick does not increase
+/// is left out and counted (`Sidecar::samples_rejected`). Only I/O errors end a trace: the caller then
+/// calls [`TraceWriter::fail`] so the sidecar says why.
 pub trait TraceWriter: Send {
-    /// Checks and appends one sample. Errors name the tick and the problem.
+    /// Appends one sample (see the trait docs for bad samples). Errors are I/O errors, or `Finished`.
     fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError>;
-    /// Pushes buffered data to the file so a reader (or a crash) sees everything written so far.
+    /// Pushes buffered data to the file so a reader (or a crash) sees everything written so far: whole
+    /// CSV lines, a closed MCAP chunk.
     fn flush(&mut self) -> Result<(), TraceError>;
     /// Writes the trailer (MCAP summary), flushes, and rewrites the sidecar with the final sample count.
     fn finish(&mut self) -> Result<TraceSummary, TraceError>;
+    /// Gives up after an error: no more writes, and the sidecar records `error` (complete: false) and the
+    /// samples written so far. Best effort: the sidecar may be unwritable too.
+    fn fail(&mut self, error: &str) -> Result<(), TraceError>;
     /// Samples written so far.
     fn sample_count(&self) -> u64;
 }
 
-/// Creates `path` (and `path.json`) in `format` for a run described by `meta`.
+/// Creates `path` (and `path.json`) in `format` for a run described by `meta`, refusing to replace an
+/// existing file ([`create_trace_writer_with`] with [`OutputPolicy::default`]).
 pub fn create_trace_writer(
     path: &Path,
     format: TraceFormat,
     meta: &TraceMeta,
 ) -> Result<Box<dyn TraceWriter>, TraceError> {
+    create_trace_writer_with(path, format, meta, &OutputPolicy::default())
+}
+
+/// Creates `path` (and `path.json`) in `format` for a run described by `meta`, after checking `policy`:
+/// an existing trace or sidecar is replaced only with `policy.overwrite`, and a file that is one of
+/// `policy.inputs` never is.
+pub fn create_trace_writer_with(
+    path: &Path,
+    format: TraceFormat,
+    meta: &TraceMeta,
+    policy: &OutputPolicy,
+) -> Result<Box<dyn TraceWriter>, TraceError> {
+    check_output_path(path, policy)?;
     Ok(match format {
         TraceFormat::Csv => Box::new(CsvTraceWriter::create(path, meta)?),
         TraceFormat::Mcap => Box::new(McapTraceWriter::create(path, meta)?),
@@ -282,6 +363,9 @@ pub struct Trace {
     pub samples: Vec<TraceSample>,
     /// The sidecar, when `TRACE.json` exists.
     pub sidecar: Option<Sidecar>,
+    /// What the reader skipped and why (a partial last CSV line, an unfinished MCAP chunk after a
+    /// crash); empty for a cleanly finished trace. Callers show these to the user.
+    pub warnings: Vec<String>,
 }
 
 /// Opens a trace (or sidecar) for reading: a regular file only, so a FIFO or a device (`replay:/dev/zero`)
@@ -338,12 +422,13 @@ pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
     }
 }
 
-/// Checks one sample against the trace's rules; shared by both writers.
+/// Applies the trace rules to samples on their way into a writer; shared by every writer.
 #[derive(Clone, Debug)]
 struct SampleChecker {
     mode_count: usize,
     last_tick: Option<u64>,
     count: u64,
+    rejected: u64,
     finished: bool,
 }
 
@@ -353,22 +438,85 @@ impl SampleChecker {
             mode_count,
             last_tick: None,
             count: 0,
+            rejected: 0,
             finished: false,
         }
     }
 
-    fn check(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
+    /// The sample to record (flagged [`FLAG_INVALID_VALUES`] if it broke a value rule), or `None` when
+    /// its tick does not increase (counted in `rejected`).
+    fn admit(&mut self, sample: &TraceSample) -> Result<Option<TraceSample>, TraceError> {
         if self.finished {
             return Err(TraceError::Finished);
         }
-        check_sample(sample, self.mode_count, self.last_tick)?;
+        if let Some(previous) = self.last_tick {
+            if sample.tick <= previous {
+                self.rejected += 1;
+                return Ok(None);
+            }
+        }
+        let mut sample = *sample;
+        if usize::from(sample.mode_count) != self.mode_count {
+            // Record the trace's modes; counts and forces past the sample's own are zero.
+            for slot in usize::from(sample.mode_count).min(MAX_MODES)..MAX_MODES {
+                sample.primitives_per_mode[slot] = 0;
+                sample.mode_force_n[slot] = DVec3::ZERO;
+            }
+            sample.mode_count = self.mode_count as u8;
+            sample.flags |= FLAG_INVALID_VALUES;
+        }
+        if check_values(&sample).is_err() {
+            sample.flags |= FLAG_INVALID_VALUES;
+        }
         self.last_tick = Some(sample.tick);
         self.count += 1;
-        Ok(())
+        Ok(Some(sample))
     }
 }
 
-/// The rules every recorded sample obeys (the reader applies the same ones).
+/// The value rules of a sample: finite time, positions, velocity and forces, `t_s >= 0`, and a bound that
+/// is `>= 0` or `+inf`.
+fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
+    let tick = sample.tick;
+    let finite_fields: [(&'static str, bool); 6] = [
+        ("t_s", sample.t_s.is_finite()),
+        ("probe_m", sample.probe_m.is_finite()),
+        (
+            "probe_velocity_m_per_s",
+            sample.probe_velocity_m_per_s.is_finite(),
+        ),
+        ("proxy_m", sample.proxy_m.is_finite()),
+        ("rendered_force_n", sample.rendered_force_n.is_finite()),
+        ("force_n", sample.force_n.is_finite()),
+    ];
+    for (field, finite) in finite_fields {
+        if !finite {
+            return Err(TraceError::NonFinite { tick, field });
+        }
+    }
+    if !sample.mode_forces().iter().all(|f| f.is_finite()) {
+        return Err(TraceError::NonFinite {
+            tick,
+            field: "mode_force_n",
+        });
+    }
+    if sample.t_s < 0.0 {
+        return Err(TraceError::NegativeTime {
+            tick,
+            t_s: sample.t_s,
+        });
+    }
+    if sample.error_bound_m.is_nan() || sample.error_bound_m < 0.0 {
+        return Err(TraceError::InvalidErrorBound {
+            tick,
+            value: sample.error_bound_m,
+        });
+    }
+    Ok(())
+}
+
+/// The rules every sample read back obeys: the mode count, increasing ticks, and the value rules unless
+/// the sample is flagged [`FLAG_INVALID_VALUES`] (then its values are kept as recorded).
 fn check_sample(
     sample: &TraceSample,
     mode_count: usize,
@@ -387,30 +535,10 @@ fn check_sample(
             return Err(TraceError::TickOrder { previous, tick });
         }
     }
-    let finite_fields: [(&'static str, bool); 4] = [
-        ("t_s", sample.t_s.is_finite()),
-        ("probe_m", sample.probe_m.is_finite()),
-        ("proxy_m", sample.proxy_m.is_finite()),
-        ("force_n", sample.force_n.is_finite()),
-    ];
-    for (field, finite) in finite_fields {
-        if !finite {
-            return Err(TraceError::NonFinite { tick, field });
-        }
+    if sample.flags & FLAG_INVALID_VALUES != 0 {
+        return Ok(());
     }
-    if sample.t_s < 0.0 {
-        return Err(TraceError::NegativeTime {
-            tick,
-            t_s: sample.t_s,
-        });
-    }
-    if sample.error_bound_m.is_nan() || sample.error_bound_m < 0.0 {
-        return Err(TraceError::InvalidErrorBound {
-            tick,
-            value: sample.error_bound_m,
-        });
-    }
-    Ok(())
+    check_values(sample)
 }
 
 #[cfg(test)]
@@ -428,6 +556,7 @@ pub(crate) mod test_support {
             "exact-dual",
         );
         meta.created_utc = "2000-01-01T00:00:00Z".to_string();
+        meta.start_utc_ns = 946_684_800_000_000_000;
         meta
     }
 
@@ -448,21 +577,45 @@ pub(crate) mod test_support {
                 {
                     *slot = ((i as usize + m) % 3) as u16;
                 }
+                let force_n = (proxy_m - probe_m) * 500.0 + DVec3::new(-0.0, 1e-300, 0.1);
+                let mut mode_force_n = [DVec3::ZERO; MAX_MODES];
+                for (m, slot) in mode_force_n
+                    .iter_mut()
+                    .take(usize::from(mode_count))
+                    .enumerate()
+                {
+                    *slot = force_n * (m as f64 + 1.0) / 3.0;
+                }
                 TraceSample {
                     tick: i * 2,
                     t_s,
                     probe_m,
+                    probe_velocity_m_per_s: DVec3::new(
+                        -0.14 * angle.sin(),
+                        0.14 * angle.cos(),
+                        -0.001,
+                    ),
                     proxy_m,
-                    force_n: (proxy_m - probe_m) * 500.0 + DVec3::new(-0.0, 1e-300, 0.1),
+                    rendered_force_n: force_n * 1.5,
+                    force_n,
+                    mode_force_n,
                     primitives_per_mode,
                     mode_count,
+                    solver_status: SolverStatus::ALL[(i % 6) as usize],
                     sweeps: (i % 5) as u32,
                     error_bound_m: if i % 7 == 3 {
                         f64::INFINITY
                     } else {
                         1e-17 * (i as f64 + 1.0).powi(3)
                     },
-                    flags: (i % 4) as u32,
+                    device_sequence: (i % 3 != 0).then_some(i * 10),
+                    device_time_us: (i % 2 == 0).then_some(i * 1000 + 17),
+                    flags: (i % 4) as u32
+                        | if i % 11 == 5 {
+                            FLAG_DEVICE_NOT_ENABLED
+                        } else {
+                            0
+                        },
                 }
             })
             .collect()

@@ -574,6 +574,7 @@ mod tests {
             mode_names: vec!["surface".into()],
             samples: samples(count, 1),
             sidecar: None,
+            warnings: Vec::new(),
         }
     }
 

@@ -177,6 +177,9 @@ pub struct StatsReport {
     pub disconnects: u64,
     /// Samples the recorder ring had no room for.
     pub recorder_drops: u64,
+    /// Trace writer errors (disk full, I/O error): each stops the recording; the message is on stderr
+    /// and in the trace's sidecar.
+    pub recorder_errors: u64,
     /// Commands applied at tick boundaries.
     pub commands_applied: u64,
     /// Which real-time features the thread got (`SCHED_FIFO`, memory lock, pinned core).

@@ -7,9 +7,18 @@
 //! brings a ready writer and the first tick to record (samples already in the ring from before the request
 //! are not part of the recording); a stop finishes the trace (MCAP summary, sidecar) and answers with the
 //! summary. When the servo thread ends, the ring is abandoned: the recorder drains what is left, finishes
-//! the trace and exits. A write error stops the recording and is kept for the control side to report.
+//! the trace and exits.
+//!
+//! Honest failure: a bad sample never stops a recording (the writer records it flagged, see
+//! [`TraceWriter`]). A write or flush error (disk full, I/O error) does: at once, the recorder prints it
+//! with the OS reason to stderr (`voxhap: recording to x.csv stopped: ... No space left on device (os
+//! error 28)`), counts it in the statistics (`recorder_errors`), keeps the message for the control side,
+//! and marks the sidecar (`complete: false`, `error`). The trace is flushed every [`FLUSH_INTERVAL`]
+//! (whole CSV lines, closed MCAP chunks), so an error or a crash is noticed, and loses, at most that much.
 
-use crate::record::{TraceError, TraceSample, TraceSummary, TraceWriter};
+use super::stats::ServoStats;
+use crate::record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
+use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -40,10 +49,40 @@ struct Active {
     first_tick: u64,
 }
 
-fn finish(active: Option<Active>) -> Result<Option<TraceSummary>, TraceError> {
-    match active {
-        Some(mut active) => active.writer.finish().map(Some),
-        None => Ok(None),
+/// Where a recorder reports a failure: stderr, the statistics and the control side's slot.
+struct Reporter {
+    slot: RecorderError,
+    stats: Arc<ServoStats>,
+}
+
+impl Reporter {
+    /// Reports `error` and marks the trace failed; the recording ends.
+    fn fail(&self, mut active: Active, error: &TraceError) {
+        let text = error_chain(error);
+        eprintln!("voxhap: recording stopped: {text}");
+        self.stats.recorder_errors.fetch_add(1, Ordering::Relaxed);
+        if let Ok(mut slot) = self.slot.lock() {
+            *slot = Some(text.clone());
+        }
+        if let Err(sidecar_error) = active.writer.fail(&text) {
+            eprintln!(
+                "voxhap: could not mark the trace's sidecar as failed either: {}",
+                error_chain(&sidecar_error)
+            );
+        }
+    }
+
+    fn finish(&self, active: Option<Active>) -> Result<Option<TraceSummary>, TraceError> {
+        match active {
+            Some(mut current) => match current.writer.finish() {
+                Ok(summary) => Ok(Some(summary)),
+                Err(error) => {
+                    self.fail(current, &error);
+                    Err(error)
+                }
+            },
+            None => Ok(None),
+        }
     }
 }
 
@@ -52,7 +91,12 @@ pub fn run_recorder(
     mut samples: rtrb::Consumer<TraceSample>,
     requests: mpsc::Receiver<RecorderRequest>,
     error_slot: RecorderError,
+    stats: Arc<ServoStats>,
 ) -> Result<Option<TraceSummary>, TraceError> {
+    let reporter = Reporter {
+        slot: error_slot,
+        stats,
+    };
     let mut active: Option<Active> = None;
     let mut last_flush = Instant::now();
     loop {
@@ -61,27 +105,26 @@ pub fn run_recorder(
                 RecorderRequest::Start { writer, first_tick } => {
                     // A start while recording replaces the trace; the control side refuses that, so finish
                     // the old one properly just in case.
-                    if let Err(error) = finish(active.take()) {
-                        store(&error_slot, &error);
-                    }
+                    let _ = reporter.finish(active.take());
                     active = Some(Active { writer, first_tick });
+                    last_flush = Instant::now();
                 }
                 RecorderRequest::Stop { reply } => {
-                    drain(&mut samples, &mut active, &error_slot);
-                    let _ = reply.send(finish(active.take()));
+                    drain(&mut samples, &mut active, &reporter);
+                    let _ = reply.send(reporter.finish(active.take()));
                 }
             }
         }
         let abandoned = samples.is_abandoned();
-        drain(&mut samples, &mut active, &error_slot);
+        drain(&mut samples, &mut active, &reporter);
         if abandoned {
-            return finish(active.take());
+            return reporter.finish(active.take());
         }
         if last_flush.elapsed() >= FLUSH_INTERVAL {
-            if let Some(current) = active.as_mut() {
-                if let Err(error) = current.writer.flush() {
-                    store(&error_slot, &error);
-                    active = None;
+            if let Some(mut current) = active.take() {
+                match current.writer.flush() {
+                    Ok(()) => active = Some(current),
+                    Err(error) => reporter.fail(current, &error),
                 }
             }
             last_flush = Instant::now();
@@ -90,16 +133,10 @@ pub fn run_recorder(
     }
 }
 
-fn store(slot: &RecorderError, error: &TraceError) {
-    if let Ok(mut slot) = slot.lock() {
-        *slot = Some(error.to_string());
-    }
-}
-
 fn drain(
     samples: &mut rtrb::Consumer<TraceSample>,
     active: &mut Option<Active>,
-    error_slot: &RecorderError,
+    reporter: &Reporter,
 ) {
     while let Ok(sample) = samples.pop() {
         let Some(current) = active.as_mut() else {
@@ -109,10 +146,157 @@ fn drain(
             continue;
         }
         if let Err(error) = current.writer.write_sample(&sample) {
-            store(error_slot, &error);
-            // Keep what was written: finish the file, then stop recording.
-            let _ = current.writer.finish();
-            *active = None;
+            if let Some(failed) = active.take() {
+                reporter.fail(failed, &error);
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::{read_trace, CsvTraceWriter, TraceMeta, FLAG_INVALID_VALUES};
+    use glam::DVec3;
+
+    fn meta() -> TraceMeta {
+        TraceMeta::new(
+            vec!["surface".into()],
+            1000.0,
+            serde_json::Value::Null,
+            "",
+            "",
+        )
+    }
+
+    fn sample(tick: u64) -> TraceSample {
+        let mut sample = TraceSample::zeroed(1);
+        sample.tick = tick;
+        sample.t_s = tick as f64 * 1e-3;
+        sample
+    }
+
+    /// Regression: one tick with a non-finite proxy and certificate (a replayed probe of 1e300) ended the
+    /// recording for the rest of the session while the sidecar said complete.
+    #[test]
+    fn a_bad_tick_is_recorded_flagged_and_the_trace_goes_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.csv");
+        let writer = CsvTraceWriter::create(&path, &meta()).unwrap();
+        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
+        let (requests_tx, requests_rx) = mpsc::channel();
+        requests_tx
+            .send(RecorderRequest::Start {
+                writer: Box::new(writer),
+                first_tick: 0,
+            })
+            .unwrap();
+        for tick in 0..3000 {
+            let mut s = sample(tick);
+            if tick == 1000 {
+                s.probe_m = DVec3::splat(1e300);
+                s.proxy_m = DVec3::new(f64::NAN, 0.0, 0.0);
+                s.error_bound_m = f64::NAN;
+            }
+            producer.push(s).unwrap();
+        }
+        drop(producer);
+        let stats = Arc::new(ServoStats::new(1000.0));
+        let summary = run_recorder(consumer, requests_rx, Arc::default(), stats.clone())
+            .unwrap()
+            .unwrap();
+        assert_eq!(summary.sample_count, 3000);
+        let trace = read_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 3000);
+        assert_ne!(trace.samples[1000].flags & FLAG_INVALID_VALUES, 0);
+        assert_eq!(trace.samples[999].flags & FLAG_INVALID_VALUES, 0);
+        assert!(trace.sidecar.unwrap().complete);
+        assert_eq!(stats.recorder_errors.load(Ordering::Relaxed), 0);
+    }
+
+    /// A trace writer whose disk fills after `capacity` samples: later writes and flushes fail with the
+    /// OS's ENOSPC error, as a file on a full disk does. (The real writers' own ENOSPC path is tested
+    /// against /dev/full in `record::csv`.) It keeps what `fail` was told.
+    struct FillingDisk {
+        capacity: u64,
+        written: u64,
+        failed_with: Arc<Mutex<Option<String>>>,
+    }
+
+    impl TraceWriter for FillingDisk {
+        fn write_sample(&mut self, _: &TraceSample) -> Result<(), TraceError> {
+            if self.written >= self.capacity {
+                return Err(TraceError::Io {
+                    path: "disk.csv".into(),
+                    source: std::io::Error::from_raw_os_error(28),
+                });
+            }
+            self.written += 1;
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), TraceError> {
+            Ok(())
+        }
+        fn finish(&mut self) -> Result<TraceSummary, TraceError> {
+            Err(TraceError::Finished)
+        }
+        fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+            *self.failed_with.lock().unwrap() = Some(error.to_owned());
+            Ok(())
+        }
+        fn sample_count(&self) -> u64 {
+            self.written
+        }
+    }
+
+    /// A full disk reaches the error slot and the statistics within a second, with the OS reason, and
+    /// the writer is told (so its sidecar says what happened), while the session goes on.
+    #[test]
+    fn a_full_disk_is_reported_within_a_second_with_the_os_reason() {
+        let failed_with = Arc::default();
+        let writer = FillingDisk {
+            capacity: 500,
+            written: 0,
+            failed_with: Arc::clone(&failed_with),
+        };
+        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
+        let (requests_tx, requests_rx) = mpsc::channel();
+        requests_tx
+            .send(RecorderRequest::Start {
+                writer: Box::new(writer),
+                first_tick: 0,
+            })
+            .unwrap();
+        let slot: RecorderError = Arc::default();
+        let stats = Arc::new(ServoStats::new(1000.0));
+        let thread = {
+            let (slot, stats) = (slot.clone(), stats.clone());
+            std::thread::spawn(move || run_recorder(consumer, requests_rx, slot, stats))
+        };
+        // A 1 kHz session: 10 samples every 10 ms; the disk fills after half a second.
+        let started = Instant::now();
+        let mut tick = 0;
+        let mut full_at = None;
+        while slot.lock().unwrap().is_none() && started.elapsed() < Duration::from_secs(5) {
+            for _ in 0..10 {
+                let _ = producer.push(sample(tick));
+                tick += 1;
+                if tick == 501 {
+                    full_at = Some(Instant::now());
+                }
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let message = slot.lock().unwrap().clone().expect("error reported");
+        let delay = full_at.expect("disk filled").elapsed();
+        assert!(delay < Duration::from_secs(1), "reported {delay:?} after");
+        assert!(message.contains("No space left on device"), "{message}");
+        assert_eq!(stats.recorder_errors.load(Ordering::Relaxed), 1);
+        assert_eq!(
+            failed_with.lock().unwrap().as_deref(),
+            Some(message.as_str())
+        );
+        drop(producer);
+        assert!(thread.join().unwrap().unwrap().is_none());
     }
 }

@@ -35,10 +35,10 @@ use crate::device::DeviceState;
 use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
 use crate::record::{
-    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_FAULTED, FLAG_DEVICE_NOT_ENABLED,
-    FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY, FLAG_FORCE_SLEW_LIMITED,
-    FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_POSITION_REJECTED, FLAG_SAMPLES_DROPPED,
-    FLAG_STALE_STATE, FLAG_VELOCITY_REPLACED,
+    TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_DISCONNECTED, FLAG_DEVICE_FAULTED,
+    FLAG_DEVICE_NOT_ENABLED, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,
+    FLAG_FORCE_SLEW_LIMITED, FLAG_NON_FINITE_REPLACED, FLAG_OVERRUN, FLAG_POSITION_REJECTED,
+    FLAG_SAMPLES_DROPPED, FLAG_STALE_STATE, FLAG_VELOCITY_ESTIMATED, FLAG_VELOCITY_REPLACED,
 };
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -417,16 +417,25 @@ impl ServoLoop {
         if std::mem::take(&mut self.samples_dropped_pending) {
             flags |= FLAG_SAMPLES_DROPPED;
         }
+        if !device_out.connected {
+            flags |= FLAG_DEVICE_DISCONNECTED;
+        }
         let sample = TraceSample {
             tick: tick_index,
             t_s,
             probe_m,
+            probe_velocity_m_per_s: probe_velocity,
             proxy_m: out.proxy_m,
+            rendered_force_n: rendered_n,
             force_n: device_out.sent_force_n,
+            mode_force_n: out.mode_force_n,
             primitives_per_mode: out.primitives_per_mode,
             mode_count: out.mode_count,
+            solver_status: out.status.into(),
             sweeps: out.sweeps,
             error_bound_m: out.error_bound_m,
+            device_sequence: self.last_state.and_then(|s| s.sequence).map(u64::from),
+            device_time_us: self.last_state.and_then(|s| s.device_time_us),
             flags,
         };
         if self.io.samples.push(sample).is_err() {
@@ -533,6 +542,7 @@ pub fn trace_flags(safety: SafetyFlags) -> u32 {
         (SafetyFlags::POSITION_REJECTED, FLAG_POSITION_REJECTED),
         (SafetyFlags::VELOCITY_REPLACED, FLAG_VELOCITY_REPLACED),
         (SafetyFlags::DEVICE_FAULTED, FLAG_DEVICE_FAULTED),
+        (SafetyFlags::VELOCITY_ESTIMATED, FLAG_VELOCITY_ESTIMATED),
     ];
     for (safety_flag, trace_flag) in map {
         if safety.contains(safety_flag) {

@@ -65,6 +65,8 @@ pub struct SessionConfig {
     pub cpu: Option<usize>,
     /// Record from the first tick.
     pub record: Option<(PathBuf, TraceFormat)>,
+    /// What `record` may replace (`--force`) and the run's inputs, which it never may.
+    pub record_policy: crate::record::OutputPolicy,
     /// The exact solver's time budget, as a fraction of the period.
     pub solver_budget_fraction: f64,
     /// The tick's compute budget (modes + solve), as a fraction of the period; over it, the last safe force
@@ -94,6 +96,7 @@ impl SessionConfig {
             rt: RtMode::BestEffort,
             cpu: None,
             record: None,
+            record_policy: crate::record::OutputPolicy::default(),
             solver_budget_fraction: 0.3,
             compute_budget_fraction: 0.6,
             spin_ns: 80_000,
@@ -104,6 +107,9 @@ impl SessionConfig {
         }
     }
 }
+
+/// The farthest a hand target may be from the origin (m), for an unbounded workspace.
+pub const MAX_HAND_TARGET_M: f64 = 10.0;
 
 /// Why a session did not start.
 #[derive(Debug, thiserror::Error)]
@@ -285,11 +291,15 @@ impl Session {
         let mut recording = None;
         if let Some((path, format)) = &config.record {
             let meta = trace_meta(&config.setup, config.rate_hz, &spec_label);
-            let writer = create_trace_writer(path, *format, &meta).map_err(|source| {
-                SessionError::Record {
-                    path: path.clone(),
-                    source,
-                }
+            let writer = crate::record::create_trace_writer_with(
+                path,
+                *format,
+                &meta,
+                &config.record_policy,
+            )
+            .map_err(|source| SessionError::Record {
+                path: path.clone(),
+                source,
             })?;
             let _ = recorder_tx.send(RecorderRequest::Start {
                 writer,
@@ -298,9 +308,10 @@ impl Session {
             recording = Some(path.clone());
         }
         let error_slot = recorder_error.clone();
+        let recorder_stats = stats.clone();
         let recorder = std::thread::Builder::new()
             .name("voxhap-recorder".to_owned())
-            .spawn(move || run_recorder(sample_rx, recorder_rx, error_slot))
+            .spawn(move || run_recorder(sample_rx, recorder_rx, error_slot, recorder_stats))
             .map_err(SessionError::Thread)?;
 
         // Servo thread.
@@ -736,7 +747,11 @@ impl SessionShared {
                     }
                 }
                 let format = format.unwrap_or_else(|| TraceFormat::from_path(&path));
-                let meta = trace_meta(&control.setup, self.rate_hz, &self.device_label);
+                let mut meta = trace_meta(&control.setup, self.rate_hz, &self.device_label);
+                // Ticks count from the session's start: date the trace's t_s = 0 there.
+                if let Some(snapshot) = self.snapshot() {
+                    meta.start_utc_ns -= (snapshot.t_s * 1e9).round() as i64;
+                }
                 let writer = create_trace_writer(&path, format, &meta)
                     .map_err(|e| invalid(e.to_string()))?;
                 let first_tick = self.snapshot().map_or(0, |s| s.tick + 1);
@@ -818,6 +833,15 @@ impl SessionShared {
                         let v = DVec3::new(x, y, z);
                         if !v.is_finite() {
                             return Err(invalid("position_m must be three finite numbers"));
+                        }
+                        // Inside the arm's workspace, and (for an unbounded one) within 10 m: a
+                        // far target (1e308) would overflow the hand spring into NaN.
+                        let workspace = &control.setup.arm.arm.workspace;
+                        if !workspace.contains_m(v, 0.0) || v.length() > MAX_HAND_TARGET_M {
+                            return Err(invalid(format!(
+                                "position_m {:?} m is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the origin)",
+                                v.to_array()
+                            )));
                         }
                         Some(v)
                     }

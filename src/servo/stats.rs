@@ -212,6 +212,8 @@ pub struct ServoStats {
     pub device_errors: AtomicU64,
     pub disconnects: AtomicU64,
     pub recorder_drops: AtomicU64,
+    /// Trace writer errors (set by the recorder thread).
+    pub recorder_errors: AtomicU64,
     pub commands_applied: AtomicU64,
     /// Commands the control side gave up on before the servo thread took them (never applied).
     pub commands_cancelled: AtomicU64,
@@ -284,6 +286,7 @@ impl ServoStats {
             device_errors: load(&self.device_errors),
             disconnects: load(&self.disconnects),
             recorder_drops: load(&self.recorder_drops),
+            recorder_errors: load(&self.recorder_errors),
             commands_applied: load(&self.commands_applied),
             realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
             safety: self.safety_report(),
@@ -339,8 +342,12 @@ impl StatsReport {
             self.max_sweeps, self.worst_error_bound_m
         );
         text += &format!(
-            "device errors {}, disconnects {}, recorder drops {}, commands applied {}\n",
-            self.device_errors, self.disconnects, self.recorder_drops, self.commands_applied
+            "device errors {}, disconnects {}, recorder drops {}, recorder errors {}, commands applied {}\n",
+            self.device_errors,
+            self.disconnects,
+            self.recorder_drops,
+            self.recorder_errors,
+            self.commands_applied
         );
         let safety = &self.safety;
         text += &format!(

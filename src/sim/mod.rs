@@ -5,6 +5,7 @@
 //! and the arm; [`runner`] closes the loop simulated arm -> [`crate::haptics::tick::tick`] -> simulated arm
 //! with a mock clock (the tick counter) and hands every tick to a [`crate::record::TraceWriter`].
 
+pub mod overrides;
 pub mod runner;
 pub mod scenario;
 

@@ -2,13 +2,15 @@
 //! renderer (a floor at z = 0 felt through a proxy), recorded as CSV and MCAP, read back by voxhap, by
 //! the `mcap` Python package and by pandas, and plotted with `voxhap plot`.
 
+mod cli;
+
 use glam::DVec3;
 use std::path::Path;
 use std::process::Command;
 use voxhap::device::sim::{ArmParams, HandParams, HandPath, SimArm, SimArmConfig, Workspace};
 use voxhap::record::{
-    create_trace_writer, read_trace, sidecar_path, TraceFormat, TraceMeta, TraceSample,
-    FLAG_WORKSPACE_LIMIT, MAX_MODES,
+    create_trace_writer, read_trace, sidecar_path, SolverStatus, TraceFormat, TraceMeta,
+    TraceSample, FLAG_WORKSPACE_LIMIT, MAX_MODES,
 };
 
 const RATE_HZ: f64 = 1000.0;
@@ -57,16 +59,24 @@ fn run_scenario() -> Vec<TraceSample> {
         let in_contact = probe_m.z < 0.0;
         let mut primitives_per_mode = [0u16; MAX_MODES];
         primitives_per_mode[0] = u16::from(in_contact);
+        let mut mode_force_n = [DVec3::ZERO; MAX_MODES];
+        mode_force_n[0] = force_n;
         samples.push(TraceSample {
             tick,
             t_s,
             probe_m,
+            probe_velocity_m_per_s: arm.velocity_m_per_s(),
             proxy_m,
+            rendered_force_n: force_n,
             force_n,
+            mode_force_n,
             primitives_per_mode,
             mode_count: 1,
+            solver_status: SolverStatus::Certified,
             sweeps: u32::from(in_contact),
             error_bound_m: if in_contact { 1e-12 * (1.0 + t_s) } else { 0.0 },
+            device_sequence: Some(tick),
+            device_time_us: Some(tick * 1000),
             flags: limit_flag,
         });
         force_n = COUPLING_N_PER_M * (proxy_m - probe_m);
@@ -89,6 +99,7 @@ fn meta() -> TraceMeta {
         "stand-in clamp",
     );
     meta.created_utc = "2001-02-03T04:05:06Z".into();
+    meta.start_utc_ns = 981_173_106_000_000_000;
     meta
 }
 
@@ -236,7 +247,11 @@ exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "r
 df = pd.read_csv(sys.argv[1], **exact)
 print(json.dumps({"rows": len(df), "columns": list(df.columns),
                   "min_probe_z_m": float(df["probe_z_m"].min()),
-                  "contacts": int(df["primitives_surface"].sum())}))
+                  "contacts": int(df["primitives_surface"].sum()),
+                  "flag_dtype": str(df["flag_workspace_limit"].dtype),
+                  "limit_ticks": int(df["flag_workspace_limit"].sum()),
+                  "utc_span_ns": int(df["utc_ns"].iloc[-1] - df["utc_ns"].iloc[0]),
+                  "flags_attr_is_pandas": type(df.flags).__module__.startswith("pandas")}))
 "#;
     let output = Command::new("python3")
         .args(["-c", script])
@@ -250,7 +265,19 @@ print(json.dumps({"rows": len(df), "columns": list(df.columns),
     );
     let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(report["rows"], TICKS);
-    assert_eq!(report["columns"][11], "primitives_surface");
+    let columns: Vec<String> = serde_json::from_value(report["columns"].clone()).unwrap();
+    assert!(columns.contains(&"primitives_surface".to_owned()));
+    assert!(columns.contains(&"flag_bits".to_owned()));
+    assert!(!columns.contains(&"flags".to_owned()));
+    // Flags come out as booleans without numpy bit twiddling, and `df.flags` is still pandas' own.
+    assert_eq!(report["flag_dtype"], "bool");
+    let limit_ticks = samples
+        .iter()
+        .filter(|s| s.flags & FLAG_WORKSPACE_LIMIT != 0)
+        .count();
+    assert_eq!(report["limit_ticks"], limit_ticks);
+    assert_eq!(report["flags_attr_is_pandas"], true);
+    assert_eq!(report["utc_span_ns"], (TICKS - 1) * 1_000_000);
     let min_z = samples
         .iter()
         .map(|s| s.probe_m.z)

@@ -14,5 +14,5 @@ pub mod woodenhaptics;
 
 pub use haply::{Haply2Diy, Haply2DiyConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
-pub use replay::ReplayDevice;
+pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions};
 pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};

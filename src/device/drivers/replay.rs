@@ -1,55 +1,157 @@
 //! A replay device (HAPI's PlaybackHapticsDevice): plays the probe positions of a recorded force trace, one
-//! sample per `read_state`, and records the forces it is sent instead of rendering them.
+//! recorded sample per `read_state` at speed 1, and records the forces it is sent instead of rendering them.
 //!
 //! Where it sits: in place of a real arm, for regression runs of the servo loop against a recorded session.
-//! Velocity is the finite difference of consecutive probe positions over their recorded times. At the end of the
-//! trace it holds the last position (or starts over, if asked to loop).
+//! Controls ([`ReplayOptions`], written `replay:TRACE[,seek=S][,speed=X][,loop]`, see [`parse_replay_spec`]):
+//! `seek` starts at the first sample at or after trace time S (s), also at run time with
+//! [`ReplayDevice::seek`]; `speed` plays X recorded samples per read (0.5 holds each sample for two reads,
+//! 2 skips every other one; velocities scale with it); the default plays the trace once and then holds
+//! the last position, with [`ReplayDevice::end_message`] saying so; `loop` starts over instead.
+//! Velocity is the finite difference of consecutive probe positions over their recorded times, times the
+//! speed. Samples whose probe position or time is not finite (recorded with the `invalid_values` flag) are
+//! left out and counted: a replay never hands a NaN to the servo loop.
 
 use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use crate::record::Trace;
 use glam::DVec3;
+use std::path::PathBuf;
+
+/// How a trace is played.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReplayOptions {
+    /// Trace time to start at (s); default 0 (the first sample).
+    pub seek_s: f64,
+    /// Recorded samples per read, > 0 and at most [`MAX_REPLAY_SPEED`]; default 1.
+    pub speed: f64,
+    /// Start over at the end instead of holding the last position; default false (play once).
+    pub looped: bool,
+}
+
+/// The fastest replay speed.
+pub const MAX_REPLAY_SPEED: f64 = 1000.0;
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        ReplayOptions {
+            seek_s: 0.0,
+            speed: 1.0,
+            looped: false,
+        }
+    }
+}
+
+/// Parses `TRACE[,seek=S][,speed=X][,loop]` (what follows `replay:` in `--device`).
+pub fn parse_replay_spec(text: &str) -> Result<(PathBuf, ReplayOptions), String> {
+    let mut parts = text.split(',');
+    let path = parts.next().unwrap_or("");
+    if path.is_empty() {
+        return Err(
+            "replay: needs a trace file: replay:TRACE[,seek=S][,speed=X][,loop]".to_owned(),
+        );
+    }
+    let mut options = ReplayOptions::default();
+    for part in parts {
+        let number = |value: &str, name: &str| {
+            value
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("replay {name}={value:?}: not a finite number"))
+        };
+        match part.split_once('=') {
+            Some(("seek", value)) => options.seek_s = number(value, "seek")?,
+            Some(("speed", value)) => options.speed = number(value, "speed")?,
+            None if part == "loop" => options.looped = true,
+            _ => {
+                return Err(format!(
+                    "replay option {part:?}: expected seek=S, speed=X or loop"
+                ))
+            }
+        }
+    }
+    options.check()?;
+    Ok((PathBuf::from(path), options))
+}
+
+impl ReplayOptions {
+    fn check(&self) -> Result<(), String> {
+        if !(self.speed > 0.0 && self.speed <= MAX_REPLAY_SPEED) {
+            return Err(format!(
+                "replay speed {} must be > 0 and at most {MAX_REPLAY_SPEED}",
+                self.speed
+            ));
+        }
+        if !self.seek_s.is_finite() || self.seek_s < 0.0 {
+            return Err(format!("replay seek {} s must be >= 0", self.seek_s));
+        }
+        Ok(())
+    }
+}
 
 /// Plays a trace's probe positions.
 #[derive(Debug, Clone)]
 pub struct ReplayDevice {
     positions_m: Vec<DVec3>,
     times_s: Vec<f64>,
-    next: usize,
-    looped: bool,
+    /// Position in the samples (fractional at speeds other than 1).
+    cursor: f64,
+    options: ReplayOptions,
+    skipped_samples: usize,
     info: DeviceInfo,
     last_force_n: DVec3,
     forces_received: u64,
 }
 
 impl ReplayDevice {
-    /// A replay of `trace`. Refuses an empty trace and non-finite positions or times.
+    /// A replay of `trace` from its start, looping or playing once.
     pub fn new(trace: &Trace, looped: bool) -> Result<ReplayDevice, DeviceError> {
-        if trace.samples.is_empty() {
-            return Err(DeviceError::Config {
-                what: "cannot replay a trace with no samples".to_string(),
-            });
-        }
+        Self::with_options(
+            trace,
+            ReplayOptions {
+                looped,
+                ..ReplayOptions::default()
+            },
+        )
+    }
+
+    /// A replay of `trace` with `options`. Refuses a trace without a finite sample, and bad options.
+    pub fn with_options(
+        trace: &Trace,
+        options: ReplayOptions,
+    ) -> Result<ReplayDevice, DeviceError> {
+        options
+            .check()
+            .map_err(|what| DeviceError::Config { what })?;
         let mut positions_m = Vec::with_capacity(trace.samples.len());
         let mut times_s = Vec::with_capacity(trace.samples.len());
-        for (i, sample) in trace.samples.iter().enumerate() {
+        let mut skipped_samples = 0;
+        for sample in &trace.samples {
             if !sample.probe_m.is_finite() || !sample.t_s.is_finite() {
-                return Err(DeviceError::Config {
-                    what: format!("trace sample {i} has a non-finite probe position or time"),
-                });
+                skipped_samples += 1;
+                continue;
             }
             positions_m.push(sample.probe_m);
             times_s.push(sample.t_s);
+        }
+        if positions_m.is_empty() {
+            return Err(DeviceError::Config {
+                what: format!(
+                    "cannot replay a trace with no finite samples ({} samples, {skipped_samples} not finite)",
+                    trace.samples.len()
+                ),
+            });
         }
         let (min, max) = positions_m
             .iter()
             .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
                 (lo.min(*p), hi.max(*p))
             });
-        Ok(ReplayDevice {
+        let mut device = ReplayDevice {
             positions_m,
             times_s,
-            next: 0,
-            looped,
+            cursor: 0.0,
+            options,
+            skipped_samples,
             info: DeviceInfo {
                 model: String::from("trace replay"),
                 serial_number: String::new(),
@@ -66,7 +168,16 @@ impl ReplayDevice {
             },
             last_force_n: DVec3::ZERO,
             forces_received: 0,
-        })
+        };
+        device.seek(options.seek_s);
+        Ok(device)
+    }
+
+    /// Continues from the first sample at or after trace time `t_s` (s); past the end, the replay is
+    /// finished (or, looping, starts over).
+    pub fn seek(&mut self, t_s: f64) {
+        let index = self.times_s.partition_point(|&t| t < t_s);
+        self.cursor = index as f64;
     }
 
     /// The last force sent to the replay (N).
@@ -79,9 +190,28 @@ impl ReplayDevice {
         self.forces_received
     }
 
+    /// Samples left out because their position or time was not finite.
+    pub fn skipped_samples(&self) -> usize {
+        self.skipped_samples
+    }
+
     /// True once every sample was played (never when looping).
     pub fn finished(&self) -> bool {
-        !self.looped && self.next >= self.positions_m.len()
+        !self.options.looped && self.cursor >= self.positions_m.len() as f64
+    }
+
+    /// Once a play-once replay has finished: what the operator should be told (allocates: call it off the
+    /// servo thread).
+    pub fn end_message(&self) -> Option<String> {
+        self.finished().then(|| {
+            format!(
+                "replay finished: all {} samples played (trace time {:.3} s to {:.3} s); holding the last \
+                 position. Add ,loop to the replay device to play it again",
+                self.positions_m.len(),
+                self.times_s[0],
+                self.times_s[self.times_s.len() - 1]
+            )
+        })
     }
 }
 
@@ -100,19 +230,19 @@ impl HapticDevice for ReplayDevice {
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         let count = self.positions_m.len();
-        if self.next >= count {
-            if self.looped {
-                self.next = 0;
+        if self.cursor >= count as f64 {
+            if self.options.looped {
+                self.cursor = 0.0;
             } else {
                 return Ok(DeviceState::at_rest(self.positions_m[count - 1]));
             }
         }
-        let i = self.next;
-        self.next += 1;
+        let i = self.cursor as usize;
+        self.cursor += self.options.speed;
         let velocity_m_per_s = if i > 0 {
             let dt_s = self.times_s[i] - self.times_s[i - 1];
             if dt_s > 0.0 {
-                (self.positions_m[i] - self.positions_m[i - 1]) / dt_s
+                (self.positions_m[i] - self.positions_m[i - 1]) / dt_s * self.options.speed
             } else {
                 DVec3::ZERO
             }
@@ -149,6 +279,7 @@ mod tests {
                 })
                 .collect(),
             sidecar: None,
+            warnings: Vec::new(),
         }
     }
 
@@ -178,9 +309,82 @@ mod tests {
     }
 
     #[test]
-    fn refuses_empty_and_non_finite_traces() {
+    fn refuses_empty_traces_and_skips_non_finite_samples() {
         assert!(ReplayDevice::new(&trace(&[]), false).is_err());
         assert!(ReplayDevice::new(&trace(&[(0.0, f64::NAN)]), false).is_err());
+        let mut device =
+            ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, f64::NAN), (0.2, 3.0)]), false).unwrap();
+        assert_eq!(device.skipped_samples(), 1);
+        let xs: Vec<f64> = (0..3)
+            .map(|_| device.read_state().unwrap().position_m.x)
+            .collect();
+        assert_eq!(xs, [1.0, 3.0, 3.0]);
+    }
+
+    #[test]
+    fn play_once_says_so_at_the_end() {
+        let mut device = ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, 2.0)]), false).unwrap();
+        assert!(device.end_message().is_none());
+        device.read_state().unwrap();
+        device.read_state().unwrap();
+        let message = device.end_message().unwrap();
+        assert!(
+            message.contains("all 2 samples") && message.contains(",loop"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn seek_and_speed() {
+        let points: Vec<(f64, f64)> = (0..10).map(|i| (i as f64 * 0.1, i as f64)).collect();
+        let options = ReplayOptions {
+            seek_s: 0.45,
+            speed: 2.0,
+            looped: false,
+        };
+        let mut device = ReplayDevice::with_options(&trace(&points), options).unwrap();
+        let first = device.read_state().unwrap();
+        assert_eq!(first.position_m.x, 5.0);
+        // Twice as fast: every other sample, velocity doubled (10 m/s recorded).
+        assert!((first.velocity_m_per_s.x - 20.0).abs() < 1e-9);
+        assert_eq!(device.read_state().unwrap().position_m.x, 7.0);
+        device.seek(0.0);
+        assert_eq!(device.read_state().unwrap().position_m.x, 0.0);
+        let slow = ReplayOptions {
+            speed: 0.5,
+            ..ReplayOptions::default()
+        };
+        let mut device = ReplayDevice::with_options(&trace(&points), slow).unwrap();
+        let xs: Vec<f64> = (0..4)
+            .map(|_| device.read_state().unwrap().position_m.x)
+            .collect();
+        assert_eq!(xs, [0.0, 0.0, 1.0, 1.0]);
+    }
+
+    #[test]
+    fn replay_specs_parse_and_bad_ones_are_named() {
+        let (path, options) = parse_replay_spec("run.csv,seek=2.5,speed=0.5,loop").unwrap();
+        assert_eq!(path, PathBuf::from("run.csv"));
+        assert_eq!(
+            options,
+            ReplayOptions {
+                seek_s: 2.5,
+                speed: 0.5,
+                looped: true
+            }
+        );
+        assert_eq!(
+            parse_replay_spec("run.csv").unwrap().1,
+            ReplayOptions::default()
+        );
+        assert!(parse_replay_spec("run.csv,speed=0")
+            .unwrap_err()
+            .contains("speed"));
+        assert!(parse_replay_spec("run.csv,speed=nan").is_err());
+        assert!(parse_replay_spec("run.csv,fast")
+            .unwrap_err()
+            .contains("fast"));
+        assert!(parse_replay_spec("").is_err());
     }
 
     #[test]

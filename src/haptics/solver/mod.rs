@@ -270,6 +270,13 @@ impl Solver {
         &mut self.config
     }
 
+    /// The force each non-directed primitive exerted on the proxy in the last solve, `-u_i` from its final
+    /// dual (N), in the order the primitives were given with the directed ones skipped. They balance the
+    /// coupling at the returned proxy within `k * error_bound_m`. Allocation-free.
+    pub fn primitive_forces_n(&self) -> impl Iterator<Item = DVec3> + '_ {
+        self.dual.iter().map(|u| -*u)
+    }
+
     /// Forget the previous dual (the next solve starts cold or from `previous_proxy_m`).
     pub fn reset(&mut self) {
         self.has_previous_dual = false;

@@ -269,6 +269,7 @@ pub fn stats_schema() -> serde_json::Value {
             "device_errors": count("device errors"),
             "disconnects": count("device disconnects"),
             "recorder_drops": count("samples the recorder ring had no room for"),
+            "recorder_errors": count("trace write errors (each stops the recording)"),
             "commands_applied": count("control commands applied"),
             "safety": {
                 "type": "object",

@@ -1,0 +1,369 @@
+//! The trace's columns, one list for every format: names, units, meanings, value types, and the cells of
+//! one sample in column order.
+//!
+//! Where it sits: the CSV writer and reader, the Parquet writer and reader and the sidecar all take their
+//! columns from [`columns`], so a column added here appears in every tabular format and in the sidecar's
+//! documentation at once. The MCAP messages carry the same values grouped by message (see
+//! `mcap_trace.rs`). Names are safe for pandas: no name collides with a `DataFrame` attribute (the flag bit
+//! set is `flag_bits`, not `flags`), and every flag also gets a boolean column `flag_<name>`.
+
+use super::{SolverStatus, TraceSample, FLAG_DOCS, MAX_MODES};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
+
+/// The value type of a column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColumnType {
+    /// Unsigned 64-bit integer.
+    U64,
+    /// Signed 64-bit integer.
+    I64,
+    /// 64-bit float (NaN and infinities allowed where the column says so).
+    F64,
+    /// `true` or `false`.
+    Bool,
+    /// Short text from a fixed set (the solver status).
+    Text,
+    /// Unsigned 64-bit integer that may be missing (empty in CSV, null in Parquet and MCAP).
+    OptionalU64,
+}
+
+/// One column of a trace (CSV and Parquet), as documented in the sidecar.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ColumnDoc {
+    /// Header name.
+    pub name: Cow<'static, str>,
+    /// Unit (`m`, `N`, `s`, `ns`, `us`, `m/s`, `count`, `bits`, `-`).
+    pub unit: Cow<'static, str>,
+    /// What it holds.
+    pub meaning: Cow<'static, str>,
+    /// Its value type.
+    #[serde(rename = "type")]
+    pub column_type: ColumnType,
+}
+
+/// One cell of a row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Cell {
+    U64(u64),
+    I64(i64),
+    F64(f64),
+    Bool(bool),
+    Text(&'static str),
+    Missing,
+}
+
+fn col(name: &'static str, unit: &'static str, meaning: &'static str, t: ColumnType) -> ColumnDoc {
+    ColumnDoc {
+        name: Cow::Borrowed(name),
+        unit: Cow::Borrowed(unit),
+        meaning: Cow::Borrowed(meaning),
+        column_type: t,
+    }
+}
+
+fn vector_columns(
+    columns: &mut Vec<ColumnDoc>,
+    names: [&'static str; 3],
+    unit: &'static str,
+    meaning: &'static str,
+) {
+    for (name, axis) in names.into_iter().zip(["x", "y", "z"]) {
+        columns.push(ColumnDoc {
+            name: Cow::Borrowed(name),
+            unit: Cow::Borrowed(unit),
+            meaning: Cow::Owned(format!("{meaning} {axis}")),
+            column_type: ColumnType::F64,
+        });
+    }
+}
+
+/// Prefix of the per-mode primitive count columns.
+pub(crate) const PRIMITIVES_PREFIX: &str = "primitives_";
+/// Prefix of the per-mode force columns (`mode_force_<mode>_x_n`).
+pub(crate) const MODE_FORCE_PREFIX: &str = "mode_force_";
+/// Prefix of the per-flag boolean columns.
+pub(crate) const FLAG_PREFIX: &str = "flag_";
+
+/// The columns for these modes, in file order.
+pub fn columns(mode_names: &[String]) -> Vec<ColumnDoc> {
+    use ColumnType::*;
+    let mut c = vec![
+        col("tick", "-", "servo tick number since the run started", U64),
+        col(
+            "t_s",
+            "s",
+            "tick time since the run started (monotonic schedule time)",
+            F64,
+        ),
+        col(
+            "utc_ns",
+            "ns",
+            "wall-clock UTC of the tick, ns since 1970 (the run's start_utc_ns + t_s)",
+            I64,
+        ),
+    ];
+    vector_columns(
+        &mut c,
+        ["probe_x_m", "probe_y_m", "probe_z_m"],
+        "m",
+        "probe (device) position",
+    );
+    vector_columns(
+        &mut c,
+        ["probe_vx_m_per_s", "probe_vy_m_per_s", "probe_vz_m_per_s"],
+        "m/s",
+        "probe velocity (reported, or estimated: flag_velocity_estimated)",
+    );
+    vector_columns(
+        &mut c,
+        ["proxy_x_m", "proxy_y_m", "proxy_z_m"],
+        "m",
+        "proxy position",
+    );
+    vector_columns(
+        &mut c,
+        [
+            "rendered_force_x_n",
+            "rendered_force_y_n",
+            "rendered_force_z_n",
+        ],
+        "N",
+        "force rendered, before the safety pipeline",
+    );
+    vector_columns(
+        &mut c,
+        ["force_x_n", "force_y_n", "force_z_n"],
+        "N",
+        "force sent to the device, after the safety pipeline",
+    );
+    for name in mode_names {
+        c.push(ColumnDoc {
+            name: Cow::Owned(format!("{PRIMITIVES_PREFIX}{name}")),
+            unit: Cow::Borrowed("count"),
+            meaning: Cow::Owned(format!("primitives the {name} mode emitted")),
+            column_type: U64,
+        });
+        for axis in ["x", "y", "z"] {
+            c.push(ColumnDoc {
+                name: Cow::Owned(format!("{MODE_FORCE_PREFIX}{name}_{axis}_n")),
+                unit: Cow::Borrowed("N"),
+                meaning: Cow::Owned(format!(
+                    "force the {name} mode's primitives exert on the proxy, {axis}"
+                )),
+                column_type: F64,
+            });
+        }
+    }
+    c.extend([
+        col(
+            "solver_status",
+            "-",
+            "certified, budget_exhausted, stalled, uncertified (baseline solver), input_rejected or unknown",
+            Text,
+        ),
+        col("sweeps", "count", "solver sweeps", U64),
+        col(
+            "error_bound_m",
+            "m",
+            "certificate bound on the proxy's distance from the exact equilibrium; inf = none",
+            F64,
+        ),
+        col("device_sequence", "-", "the device's sequence number of the state used; empty if it has none", OptionalU64),
+        col("device_time_us", "us", "the device's clock at that state; empty if it has none", OptionalU64),
+        col("flag_bits", "bits", "bit set of the flags, see the sidecar's flag_bits", U64),
+    ]);
+    for doc in FLAG_DOCS.iter() {
+        c.push(ColumnDoc {
+            name: Cow::Owned(format!("{FLAG_PREFIX}{}", doc.name)),
+            unit: Cow::Borrowed("-"),
+            meaning: doc.meaning.clone(),
+            column_type: Bool,
+        });
+    }
+    c
+}
+
+fn push_vector(out: &mut Vec<Cell>, v: DVec3) {
+    out.extend([Cell::F64(v.x), Cell::F64(v.y), Cell::F64(v.z)]);
+}
+
+/// The cells of `sample` in column order (as [`columns`] for `mode_count` modes), appended to `out`.
+pub(crate) fn cells(
+    sample: &TraceSample,
+    mode_count: usize,
+    start_utc_ns: i64,
+    out: &mut Vec<Cell>,
+) {
+    out.push(Cell::U64(sample.tick));
+    out.push(Cell::F64(sample.t_s));
+    out.push(utc_cell(start_utc_ns, sample.t_s));
+    push_vector(out, sample.probe_m);
+    push_vector(out, sample.probe_velocity_m_per_s);
+    push_vector(out, sample.proxy_m);
+    push_vector(out, sample.rendered_force_n);
+    push_vector(out, sample.force_n);
+    for mode in 0..mode_count.min(MAX_MODES) {
+        out.push(Cell::U64(u64::from(sample.primitives_per_mode[mode])));
+        push_vector(out, sample.mode_force_n[mode]);
+    }
+    out.push(Cell::Text(sample.solver_status.name()));
+    out.push(Cell::U64(u64::from(sample.sweeps)));
+    out.push(Cell::F64(sample.error_bound_m));
+    for value in [sample.device_sequence, sample.device_time_us] {
+        out.push(value.map_or(Cell::Missing, Cell::U64));
+    }
+    out.push(Cell::U64(u64::from(sample.flags)));
+    for doc in FLAG_DOCS.iter() {
+        out.push(Cell::Bool(sample.flags & (1 << doc.bit) != 0));
+    }
+}
+
+/// The UTC cell: `start_utc_ns + round(t_s * 1e9)`, saturating; missing when `t_s` is not finite.
+pub(crate) fn utc_cell(start_utc_ns: i64, t_s: f64) -> Cell {
+    if t_s.is_finite() {
+        Cell::I64(start_utc_ns.saturating_add((t_s * 1e9).round() as i64))
+    } else {
+        Cell::Missing
+    }
+}
+
+/// Why a row of cells is not a sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct CellError {
+    /// 0-based column.
+    pub index: usize,
+    /// What is wrong.
+    pub problem: &'static str,
+}
+
+/// Builds a sample from cells in column order (the reader's inverse of [`cells`]). The `utc_ns` cell and
+/// the boolean flag cells are checked against the values they derive from.
+pub(crate) fn sample_from_cells(
+    row: &[Cell],
+    mode_count: usize,
+    start_utc_ns: Option<i64>,
+) -> Result<TraceSample, CellError> {
+    let mut index = 0usize;
+    let mut next = || {
+        let i = index;
+        index += 1;
+        (i, row.get(i).copied().unwrap_or(Cell::Missing))
+    };
+    let err = |index, problem| CellError { index, problem };
+    let u64_cell = |next: &mut dyn FnMut() -> (usize, Cell)| match next() {
+        (_, Cell::U64(v)) => Ok(v),
+        (i, _) => Err(err(i, "not an unsigned integer")),
+    };
+    let f64_cell = |next: &mut dyn FnMut() -> (usize, Cell)| match next() {
+        (_, Cell::F64(v)) => Ok(v),
+        (i, _) => Err(err(i, "not a number")),
+    };
+    let tick = u64_cell(&mut next)?;
+    let t_s = f64_cell(&mut next)?;
+    let (utc_index, utc) = next();
+    let vector = |next: &mut dyn FnMut() -> (usize, Cell)| -> Result<DVec3, CellError> {
+        Ok(DVec3::new(
+            f64_cell(next)?,
+            f64_cell(next)?,
+            f64_cell(next)?,
+        ))
+    };
+    let mut sample = TraceSample::zeroed(mode_count as u8);
+    sample.tick = tick;
+    sample.t_s = t_s;
+    sample.probe_m = vector(&mut next)?;
+    sample.probe_velocity_m_per_s = vector(&mut next)?;
+    sample.proxy_m = vector(&mut next)?;
+    sample.rendered_force_n = vector(&mut next)?;
+    sample.force_n = vector(&mut next)?;
+    for mode in 0..mode_count.min(MAX_MODES) {
+        let (i, count) = next();
+        sample.primitives_per_mode[mode] = match count {
+            Cell::U64(v) => {
+                u16::try_from(v).map_err(|_| err(i, "not an integer from 0 to 65535"))?
+            }
+            _ => return Err(err(i, "not an integer from 0 to 65535")),
+        };
+        sample.mode_force_n[mode] = vector(&mut next)?;
+    }
+    sample.solver_status = match next() {
+        (_, Cell::Text(text)) => SolverStatus::from_name(text).unwrap_or_default(),
+        (i, _) => return Err(err(i, "not a solver status")),
+    };
+    let (i, sweeps) = next();
+    sample.sweeps = match sweeps {
+        Cell::U64(v) => u32::try_from(v).map_err(|_| err(i, "not an unsigned 32-bit integer"))?,
+        _ => return Err(err(i, "not an unsigned 32-bit integer")),
+    };
+    sample.error_bound_m = f64_cell(&mut next)?;
+    for slot in [&mut sample.device_sequence, &mut sample.device_time_us] {
+        *slot = match next() {
+            (_, Cell::U64(v)) => Some(v),
+            (_, Cell::Missing) => None,
+            (i, _) => return Err(err(i, "not an unsigned integer or empty")),
+        };
+    }
+    let (i, bits) = next();
+    sample.flags = match bits {
+        Cell::U64(v) => u32::try_from(v).map_err(|_| err(i, "not an unsigned 32-bit integer"))?,
+        _ => return Err(err(i, "not an unsigned 32-bit integer")),
+    };
+    for doc in FLAG_DOCS.iter() {
+        match next() {
+            (_, Cell::Bool(set)) if set == (sample.flags & (1 << doc.bit) != 0) => {}
+            (i, Cell::Bool(_)) => return Err(err(i, "disagrees with flag_bits")),
+            (i, _) => return Err(err(i, "not true or false")),
+        }
+    }
+    if let Some(start) = start_utc_ns {
+        if utc != utc_cell(start, t_s) {
+            return Err(err(utc_index, "disagrees with start_utc_ns + t_s"));
+        }
+    } else if !matches!(utc, Cell::I64(_) | Cell::Missing) {
+        return Err(err(utc_index, "not an integer"));
+    }
+    Ok(sample)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_unique_and_pandas_safe() {
+        let names: Vec<String> = columns(&["surface".into(), "friction".into()])
+            .into_iter()
+            .map(|c| c.name.into_owned())
+            .collect();
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len());
+        // Attributes of a pandas DataFrame that a column must not shadow.
+        for reserved in [
+            "flags", "index", "columns", "values", "shape", "size", "T", "dtypes",
+        ] {
+            assert!(!names.iter().any(|n| n == reserved), "{reserved}");
+        }
+    }
+
+    #[test]
+    fn cells_round_trip_through_sample_from_cells() {
+        let mut sample = TraceSample::zeroed(2);
+        sample.tick = 7;
+        sample.t_s = 0.007;
+        sample.mode_force_n[1] = DVec3::new(1.0, -2.0, 3.5);
+        sample.primitives_per_mode[1] = 3;
+        sample.device_time_us = Some(99);
+        sample.flags = 0b101;
+        sample.solver_status = SolverStatus::Certified;
+        let mut row = Vec::new();
+        cells(&sample, 2, 1_000, &mut row);
+        assert_eq!(row.len(), columns(&["a".into(), "b".into()]).len());
+        assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
+        assert!(sample_from_cells(&row, 2, Some(5)).is_err());
+    }
+}

@@ -1,0 +1,128 @@
+//! Where a trace may be written: the checks made before any output file is created, and the size
+//! estimate a sim makes before it starts.
+//!
+//! Where it sits: `voxhap sim --out`, `voxhap serve --record`, the control API's start-recording command
+//! and `voxhap trace repair` create traces through `create_trace_writer_with`, which calls
+//! [`check_output_path`] first. An existing trace or sidecar is replaced only when the user asked
+//! (`--force`); a file that is an input of the run (the scenario, a volume, a replayed trace) is never an
+//! output, even with `--force`. Inputs are compared as files (device and inode on Unix, canonical paths
+//! elsewhere), so `./a/../x.toml`, a hard link or a symlink to an input is recognised.
+
+use super::{sidecar_path, TraceError, TraceFormat};
+use std::path::{Path, PathBuf};
+
+/// What a new trace may replace.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct OutputPolicy {
+    /// Replace an existing trace and sidecar (`--force`).
+    pub overwrite: bool,
+    /// The run's input files; never outputs.
+    pub inputs: Vec<PathBuf>,
+}
+
+/// The identity of an existing file: (device, inode) on Unix, the canonical path elsewhere.
+fn file_identity(path: &Path) -> Option<(u64, u64, PathBuf)> {
+    let metadata = std::fs::metadata(path).ok()?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        Some((metadata.dev(), metadata.ino(), PathBuf::new()))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = metadata;
+        Some((0, 0, std::fs::canonicalize(path).ok()?))
+    }
+}
+
+/// Checks that `path` (and its sidecar `path.json`) may be written under `policy`.
+pub fn check_output_path(path: &Path, policy: &OutputPolicy) -> Result<(), TraceError> {
+    for candidate in [path.to_path_buf(), sidecar_path(path)] {
+        let Some(identity) = file_identity(&candidate) else {
+            continue;
+        };
+        for input in &policy.inputs {
+            if file_identity(input).as_ref() == Some(&identity) {
+                return Err(TraceError::IsInput {
+                    path: candidate,
+                    input: input.clone(),
+                });
+            }
+        }
+        if !policy.overwrite {
+            return Err(TraceError::Exists { path: candidate });
+        }
+    }
+    Ok(())
+}
+
+/// A generous estimate of the bytes a trace of `ticks` samples with `mode_count` modes takes in
+/// `format` (the sidecar not included). Measured row sizes with margin: CSV writes shortest round-trip
+/// floats (up to 24 characters each), MCAP five messages per tick.
+pub fn estimate_trace_bytes(format: TraceFormat, mode_count: usize, ticks: u64) -> u64 {
+    let per_tick: u64 = match format {
+        // 23 float columns + 4 per mode at up to 24 bytes, integers, status, 12 flags at 6 bytes.
+        TraceFormat::Csv => 23 * 24 + mode_count as u64 * (4 * 24) + 60 + 12 * 6,
+        // JSON state and solver messages plus three protobuf messages and their record headers.
+        TraceFormat::Mcap => 900 + mode_count as u64 * 90,
+    };
+    4096u64.saturating_add(per_tick.saturating_mul(ticks))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn existing_files_need_force_and_inputs_are_never_outputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run.csv");
+        let input = dir.path().join("scene.toml");
+        std::fs::write(&input, "x").unwrap();
+        let policy = OutputPolicy {
+            overwrite: false,
+            inputs: vec![input.clone()],
+        };
+        check_output_path(&out, &policy).unwrap();
+        std::fs::write(&out, "old").unwrap();
+        let err = check_output_path(&out, &policy).unwrap_err().to_string();
+        assert!(err.contains("exists") && err.contains("--force"), "{err}");
+        let forced = OutputPolicy {
+            overwrite: true,
+            ..policy.clone()
+        };
+        check_output_path(&out, &forced).unwrap();
+        // The input under another spelling, and through a symlink, is refused even with --force.
+        let other_name = dir.path().join(".").join("scene.toml");
+        let err = check_output_path(&other_name, &forced)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("is an input"), "{err}");
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link.csv");
+            std::os::unix::fs::symlink(&input, &link).unwrap();
+            assert!(matches!(
+                check_output_path(&link, &forced),
+                Err(TraceError::IsInput { .. })
+            ));
+        }
+        // A sidecar that would overwrite an input is refused too.
+        let sidecar_target = dir.path().join("x.csv");
+        std::fs::write(sidecar_path(&sidecar_target), "{}").unwrap();
+        let guarded = OutputPolicy {
+            overwrite: true,
+            inputs: vec![sidecar_path(&sidecar_target)],
+        };
+        assert!(check_output_path(&sidecar_target, &guarded).is_err());
+    }
+
+    #[test]
+    fn estimates_grow_with_ticks_and_modes() {
+        let small = estimate_trace_bytes(TraceFormat::Csv, 1, 1000);
+        assert!(small > 1000 * 500);
+        assert!(estimate_trace_bytes(TraceFormat::Csv, 3, 1000) > small);
+        // 1e9 Hz for 60 s would be hundreds of GB: far over a 2 GB limit.
+        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 60_000_000_000) > 2_000_000_000);
+    }
+}

@@ -21,6 +21,7 @@ mod servo;
 mod sim;
 mod solver_props;
 mod volume_io;
+mod woodenhaptics_serial;
 
 #[global_allocator]
 static ALLOCATOR: util::alloc::CountingAllocator = util::alloc::CountingAllocator;

@@ -14,6 +14,7 @@ use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
 use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
+use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use crate::device::safety::SafetyConfigError;
 use crate::device::sim::{SimArm, SimArmConfig, SimError};
 use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorCounters, TickOutput};
@@ -254,8 +255,11 @@ pub enum DeviceSpec {
         product_id: u16,
         serial: Option<String>,
     },
-    /// `woodenhaptics`: WoodenHaptics 1.5 over USB HID.
+    /// `woodenhaptics-hid`: WoodenHaptics 1.5 over USB HID (legacy mbed firmware).
     WoodenHaptics,
+    /// `woodenhaptics:PATH`: WoodenHaptics, Polhem or a retrofitted PHANTOM on the Teensy firmware (USB serial);
+    /// the model comes from the device's reports.
+    WoodenHapticsSerial(PathBuf),
     /// `haply2diy:PATH`: Haply 2DIY on the USB serial port at PATH.
     Haply2Diy(PathBuf),
     /// `replay:TRACE`: plays the probe positions of a recorded trace (loops at the end).
@@ -264,7 +268,7 @@ pub enum DeviceSpec {
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics, haply2diy:PATH or replay:TRACE")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH or replay:TRACE")]
 pub struct DeviceSpecError {
     pub given: String,
     pub problem: String,
@@ -288,7 +292,12 @@ impl FromStr for DeviceSpec {
         };
         match kind {
             "sim" if rest.is_none() => Ok(DeviceSpec::Sim),
-            "woodenhaptics" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
+            "woodenhaptics-hid" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
+            "woodenhaptics" if rest.is_none() => Err(error(
+                "needs the serial port of the Teensy firmware, e.g. woodenhaptics:/dev/ttyACM0 \
+                 (the retired mbed HID firmware is woodenhaptics-hid)",
+            )),
+            "woodenhaptics" => Ok(DeviceSpec::WoodenHapticsSerial(path(rest)?)),
             "mock" => Ok(DeviceSpec::Mock(path(rest)?)),
             "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
@@ -311,7 +320,7 @@ impl FromStr for DeviceSpec {
                     serial,
                 })
             }
-            "sim" | "woodenhaptics" => Err(error("takes no argument")),
+            "sim" | "woodenhaptics-hid" => Err(error("takes no argument")),
             _ => Err(error("unknown device kind")),
         }
     }
@@ -334,7 +343,8 @@ impl std::fmt::Display for DeviceSpec {
                     None => Ok(()),
                 }
             }
-            DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics"),
+            DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics-hid"),
+            DeviceSpec::WoodenHapticsSerial(p) => write!(f, "woodenhaptics:{}", p.display()),
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
             DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
         }
@@ -522,6 +532,14 @@ pub fn open_device(
                 HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
             WoodenHaptics::new(transport, WoodenHapticsConfig::default())
         })?,
+        DeviceSpec::WoodenHapticsSerial(path) => {
+            let path = path_str(path)?;
+            reconnecting(config, move || {
+                // USB CDC-ACM (Teensy) ignores the rate; the firmware calls Serial.begin(115200).
+                let transport = SerialTransport::open(&path, 115_200)?;
+                Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+            })?
+        }
         DeviceSpec::Haply2Diy(path) => {
             let path = path_str(path)?;
             reconnecting(config, move || {
@@ -564,7 +582,8 @@ mod tests {
             "serial:/dev/ttyACM0",
             "hid:1234:0006",
             "hid:1234:0006:SN-1",
-            "woodenhaptics",
+            "woodenhaptics-hid",
+            "woodenhaptics:/dev/ttyACM2",
             "haply2diy:/dev/ttyACM1",
             "replay:trace.csv",
         ] {

@@ -3,7 +3,9 @@
 //!
 //! - [`protocol`]: voxhap's own wire protocol (protocol/SPEC.md) over serial or USB HID, for microcontroller arms
 //!   and for `voxhap mock-device`;
-//! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (motor currents out, encoder counts in, kinematics here);
+//! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
+//!   (text lines over USB serial; kinematics from hfabapi);
+//! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`replay`]: plays back the probe positions of a recorded force trace.
 
@@ -11,8 +13,10 @@ pub mod haply;
 pub mod protocol;
 pub mod replay;
 pub mod woodenhaptics;
+pub mod woodenhaptics_serial;
 
 pub use haply::{Haply2Diy, Haply2DiyConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
 pub use replay::ReplayDevice;
 pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
+pub use woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel};

@@ -22,11 +22,28 @@ impl SerialTransport {
         let port = serialport::new(path, baud_rate)
             .timeout(Duration::from_millis(10))
             .open_native()
-            .map_err(|error| DeviceError::Open {
-                path: path.to_string(),
-                message: error.to_string(),
-            })?;
+            .map_err(|error| open_error(path, &error))?;
         Ok(Self::from_port(port))
+    }
+
+    /// Sets the DTR and RTS modem lines (the FTDI-based devices use them as signals; USB CDC-ACM ignores them).
+    pub fn set_modem_lines(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError> {
+        let failed = |_| DeviceError::Io {
+            during: "setting the DTR/RTS modem lines",
+            kind: std::io::ErrorKind::Other,
+        };
+        self.port.write_data_terminal_ready(dtr).map_err(failed)?;
+        self.port.write_request_to_send(rts).map_err(failed)
+    }
+
+    /// Changes the baud rate (any rate: Linux's termios2 passes custom rates to drivers such as ftdi_sio).
+    pub fn set_baud_rate(&mut self, baud_rate: u32) -> Result<(), DeviceError> {
+        self.port
+            .set_baud_rate(baud_rate)
+            .map_err(|_| DeviceError::Io {
+                during: "setting the baud rate",
+                kind: std::io::ErrorKind::InvalidInput,
+            })
     }
 
     /// Wraps an open port (for example one end of `TTYPort::pair()`).
@@ -40,6 +57,21 @@ impl SerialTransport {
     /// The port's path, when it has one.
     pub fn name(&self) -> Option<String> {
         self.port.name()
+    }
+}
+
+/// The open error for `path`: the OS reason and the next step (permissions, a missing device, a busy port).
+pub fn open_error(path: &str, error: &serialport::Error) -> DeviceError {
+    let kind = match error.kind() {
+        serialport::ErrorKind::Io(kind) => kind,
+        // serialport reports EBUSY (another process holds the port exclusively) as NoDevice.
+        serialport::ErrorKind::NoDevice => std::io::ErrorKind::ResourceBusy,
+        _ => std::io::ErrorKind::Other,
+    };
+    // serialport's description is the OS's text ("Permission denied", "No such file or directory").
+    DeviceError::Open {
+        path: path.to_string(),
+        message: super::open_message(&error.description, kind),
     }
 }
 
@@ -71,5 +103,22 @@ impl ByteTransport for SerialTransport {
             Err(error) if error.kind() == std::io::ErrorKind::Interrupted => Ok(0),
             Err(error) => Err(DeviceError::from_io(&error, "reading from the serial port")),
         }
+    }
+
+    /// Clears the kernel's input queue, then drains what arrives meanwhile.
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        self.port
+            .clear(serialport::ClearBuffer::Input)
+            .map_err(|_| DeviceError::Io {
+                during: "discarding the serial input",
+                kind: std::io::ErrorKind::Other,
+            })?;
+        let mut scratch = [0u8; 256];
+        for _ in 0..256 {
+            if self.read(&mut scratch, Duration::ZERO)? == 0 {
+                break;
+            }
+        }
+        Ok(())
     }
 }

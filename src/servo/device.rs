@@ -11,6 +11,7 @@
 //! session, a hand target (a triple buffer, so setting it never blocks the servo thread).
 
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
+use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
 use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
@@ -264,11 +265,13 @@ pub enum DeviceSpec {
     Haply2Diy(PathBuf),
     /// `replay:TRACE`: plays the probe positions of a recorded trace (loops at the end).
     Replay(PathBuf),
+    /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
+    HaplyInverse(String),
 }
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH or replay:TRACE")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT] or replay:TRACE")]
 pub struct DeviceSpecError {
     pub given: String,
     pub problem: String,
@@ -302,6 +305,17 @@ impl FromStr for DeviceSpec {
             "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
             "replay" => Ok(DeviceSpec::Replay(path(rest)?)),
+            "haply-inverse" => match rest {
+                None => Ok(DeviceSpec::HaplyInverse(
+                    crate::device::transport::inverse_service::DEFAULT_URL.to_owned(),
+                )),
+                Some(url) if url.starts_with("ws://") && url.len() > "ws://".len() => {
+                    Ok(DeviceSpec::HaplyInverse(url.to_owned()))
+                }
+                Some(_) => Err(error(
+                    "the Inverse Service address must be ws://HOST:PORT (default ws://127.0.0.1:10001)",
+                )),
+            },
             "hid" => {
                 let rest = rest.ok_or_else(|| error("hid needs VID:PID"))?;
                 let mut parts = rest.splitn(3, ':');
@@ -347,6 +361,7 @@ impl std::fmt::Display for DeviceSpec {
             DeviceSpec::WoodenHapticsSerial(p) => write!(f, "woodenhaptics:{}", p.display()),
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
             DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
+            DeviceSpec::HaplyInverse(url) => write!(f, "haply-inverse:{url}"),
         }
     }
 }
@@ -547,6 +562,11 @@ pub fn open_device(
                 Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
             })?
         }
+        DeviceSpec::HaplyInverse(url) => {
+            let mut driver_config = HaplyInverseConfig::default();
+            driver_config.service.url = url.clone();
+            reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
+        }
         DeviceSpec::Replay(path) => {
             let trace = crate::record::read_trace(path).map_err(|e| OpenError::Replay {
                 path: path.clone(),
@@ -586,6 +606,8 @@ mod tests {
             "woodenhaptics:/dev/ttyACM2",
             "haply2diy:/dev/ttyACM1",
             "replay:trace.csv",
+            "haply-inverse:ws://127.0.0.1:10001",
+            "haply-inverse:ws://lab-pc:9000",
         ] {
             let spec: DeviceSpec = text.parse().unwrap();
             assert_eq!(spec.to_string(), text);
@@ -609,6 +631,8 @@ mod tests {
             ("sim:x", "takes no argument"),
             ("hid:zz:0001", "vendor id \"zz\""),
             ("hid:1234", "product id \"\""),
+            ("haply-inverse:localhost:10001", "must be ws://HOST:PORT"),
+            ("woodenhaptics", "woodenhaptics-hid"),
         ] {
             let err = text.parse::<DeviceSpec>().unwrap_err().to_string();
             assert!(err.contains(problem), "{text}: {err}");

@@ -7,15 +7,18 @@
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
+//! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 //! - [`replay`]: plays back the probe positions of a recorded force trace.
 
 pub mod haply;
+pub mod haply_inverse;
 pub mod protocol;
 pub mod replay;
 pub mod woodenhaptics;
 pub mod woodenhaptics_serial;
 
 pub use haply::{Haply2Diy, Haply2DiyConfig};
+pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
 pub use replay::ReplayDevice;
 pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};

@@ -2,11 +2,15 @@
 //! serial port, a pseudo-terminal, a USB HID device, an in-memory pipe to a simulated device, or a scripted test
 //! double (STYLE.md 7).
 //!
+//! [`inverse_service`] is a third kind: the Haply Inverse Service's JSON-over-WebSocket channel on its own I/O
+//! thread, handed to the servo thread through lock-free buffers.
+//!
 //! Two shapes: [`ByteTransport`] is a byte stream (UART, USB CDC-ACM, pseudo-terminal) whose framing the driver
 //! does; [`ReportTransport`] moves whole HID reports. Reads take a timeout and return `Ok(0)` when nothing came,
 //! so a timeout is the driver's decision, not the transport's; a hang-up is `DeviceError::Disconnected`.
 
 pub mod hid;
+pub mod inverse_service;
 pub mod memory;
 pub mod serial;
 

@@ -12,6 +12,7 @@ mod device_hardware;
 mod device_pty;
 mod device_safety;
 mod foxglove;
+mod haply_2diy_pty;
 mod haply_inverse;
 mod modes;
 mod paper;

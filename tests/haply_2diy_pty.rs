@@ -70,7 +70,7 @@ fn a_partial_or_shifted_reply_costs_a_few_ticks_then_replies_are_aligned_again()
             }
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
-        assert!(errors >= 1 && errors <= 4, "{fault:?}: {errors} errors");
+        assert!((1..=4).contains(&errors), "{fault:?}: {errors} errors");
         assert!(good_after_fault >= 170, "{fault:?}: {good_after_fault}");
         assert!(device.device().resync_count() >= 1);
         // The board saw a torque command for every tick, all finite.

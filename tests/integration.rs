@@ -7,10 +7,12 @@ mod util;
 
 mod alloc_free;
 mod cli_solve;
+mod device_bringup;
 mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
+mod falcon;
 mod foxglove;
 mod haply_2diy_pty;
 mod haply_inverse;

@@ -10,6 +10,7 @@
 //! per force written, its virtual hand following a scripted path, or, when a client sets one through the
 //! session, a hand target (a triple buffer, so setting it never blocks the servo thread).
 
+use crate::device::drivers::falcon::{Falcon, FalconConfig};
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
@@ -267,11 +268,18 @@ pub enum DeviceSpec {
     Replay(PathBuf),
     /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
     HaplyInverse(String),
+    /// `falcon[:SERIAL|:PATH][,firmware=FILE]`: Novint Falcon on its FTDI serial port (`ftdi_sio`), chosen by
+    /// USB serial number or port path (default: the first Falcon found); FILE is Novint's firmware, uploaded
+    /// when none is running.
+    Falcon {
+        select: Option<String>,
+        firmware: Option<PathBuf>,
+    },
 }
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT] or replay:TRACE")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE")]
 pub struct DeviceSpecError {
     pub given: String,
     pub problem: String,
@@ -285,6 +293,11 @@ impl FromStr for DeviceSpec {
             given: text.to_owned(),
             problem: problem.to_owned(),
         };
+        if let Some(rest) = text.strip_prefix("falcon") {
+            if rest.is_empty() || rest.starts_with(':') || rest.starts_with(',') {
+                return parse_falcon(rest).map_err(|problem| error(&problem));
+            }
+        }
         let (kind, rest) = match text.split_once(':') {
             Some((kind, rest)) => (kind, Some(rest)),
             None => (text, None),
@@ -340,6 +353,25 @@ impl FromStr for DeviceSpec {
     }
 }
 
+/// The part of a `falcon` spec after the word: `[:SERIAL|:PATH][,firmware=FILE]`.
+fn parse_falcon(rest: &str) -> Result<DeviceSpec, String> {
+    let rest = rest.strip_prefix(':').unwrap_or(rest);
+    let mut parts = rest.split(',');
+    let select = parts.next().filter(|s| !s.is_empty()).map(str::to_owned);
+    let mut firmware = None;
+    for option in parts {
+        match option.split_once('=') {
+            Some(("firmware", path)) if !path.is_empty() => firmware = Some(PathBuf::from(path)),
+            _ => {
+                return Err(format!(
+                    "unknown falcon option {option:?} (the only one is firmware=FILE)"
+                ))
+            }
+        }
+    }
+    Ok(DeviceSpec::Falcon { select, firmware })
+}
+
 impl std::fmt::Display for DeviceSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -362,6 +394,16 @@ impl std::fmt::Display for DeviceSpec {
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
             DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
             DeviceSpec::HaplyInverse(url) => write!(f, "haply-inverse:{url}"),
+            DeviceSpec::Falcon { select, firmware } => {
+                f.write_str("falcon")?;
+                if let Some(select) = select {
+                    write!(f, ":{select}")?;
+                }
+                match firmware {
+                    Some(path) => write!(f, ",firmware={}", path.display()),
+                    None => Ok(()),
+                }
+            }
         }
     }
 }
@@ -567,6 +609,25 @@ pub fn open_device(
             driver_config.service.url = url.clone();
             reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
         }
+        DeviceSpec::Falcon { select, firmware } => {
+            let (select, firmware) = (select.clone(), firmware.clone());
+            reconnecting(config, move || {
+                let (path, serial) = crate::device::discovery::find_falcon(select.as_deref())?;
+                let transport =
+                    SerialTransport::open(&path, crate::device::drivers::falcon::NORMAL_BAUD)?;
+                let mut falcon = Falcon::new(
+                    transport,
+                    FalconConfig {
+                        firmware: firmware.clone(),
+                        ..FalconConfig::default()
+                    },
+                );
+                if let Some(serial) = serial {
+                    falcon.set_serial_number(&serial);
+                }
+                Ok(falcon)
+            })?
+        }
         DeviceSpec::Replay(path) => {
             let trace = crate::record::read_trace(path).map_err(|e| OpenError::Replay {
                 path: path.clone(),
@@ -608,6 +669,10 @@ mod tests {
             "replay:trace.csv",
             "haply-inverse:ws://127.0.0.1:10001",
             "haply-inverse:ws://lab-pc:9000",
+            "falcon",
+            "falcon:A1B2C3",
+            "falcon:/dev/ttyUSB0,firmware=/opt/novint/test_firmware.bin",
+            "falcon,firmware=fw.bin",
         ] {
             let spec: DeviceSpec = text.parse().unwrap();
             assert_eq!(spec.to_string(), text);
@@ -625,7 +690,8 @@ mod tests {
     #[test]
     fn bad_device_specs_say_what_is_wrong() {
         for (text, problem) in [
-            ("falcon", "unknown device kind"),
+            ("falconx", "unknown device kind"),
+            ("falcon:SN,speed=3", "unknown falcon option"),
             ("mock:", "a path is needed"),
             ("serial", "a path is needed"),
             ("sim:x", "takes no argument"),

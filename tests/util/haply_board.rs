@@ -103,8 +103,7 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
                 continue;
             }
         }
-        loop {
-            let Some(&kind) = pending.first() else { break };
+        while let Some(&kind) = pending.first() {
             let len = match kind {
                 0 => 2,
                 1 => 26,

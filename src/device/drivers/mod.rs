@@ -6,10 +6,13 @@
 //! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
+//! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
+//!   and kinematics;
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 //! - [`replay`]: plays back the probe positions of a recorded force trace.
 
+pub mod falcon;
 pub mod haply;
 pub mod haply_inverse;
 pub mod protocol;
@@ -17,6 +20,7 @@ pub mod replay;
 pub mod woodenhaptics;
 pub mod woodenhaptics_serial;
 
+pub use falcon::{Falcon, FalconConfig};
 pub use haply::{Haply2Diy, Haply2DiyConfig};
 pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};

@@ -324,10 +324,39 @@ fn parse_frame(message: &Message) -> Option<WireFrame> {
     }
 }
 
-/// Connects, reads the inventory, picks the device, configures the session (identity basis) with a zero force,
-/// and starts the I/O thread.
-pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
-    let url = config.url.as_str();
+/// Reads the service's inventory and closes (`voxhap devices`): sends nothing but the WebSocket handshake.
+pub fn inventory(url: &str, timeout: Duration) -> Result<Vec<ServiceDevice>, DeviceError> {
+    let (mut socket, frame) = connect_and_read_inventory(url, timeout)?;
+    let _ = socket.close(None);
+    let _ = socket.flush();
+    Ok(frame
+        .inverse3
+        .iter()
+        .map(|entry| service_device(entry, frame.session_id))
+        .collect())
+}
+
+fn service_device(entry: &WireInverse3, session_id: Option<u64>) -> ServiceDevice {
+    let info = entry.config.clone().unwrap_or_default();
+    ServiceDevice {
+        device_id: entry.device_id.clone(),
+        device_type: info.device_type.unwrap_or_else(|| "inverse3".to_owned()),
+        firmware: info.device_info.as_ref().and_then(|d| {
+            Some(format!(
+                "{}.{}",
+                d.major_version?,
+                d.minor_version.unwrap_or(0)
+            ))
+        }),
+        handedness: info.handedness,
+        session_id,
+    }
+}
+
+fn connect_and_read_inventory(
+    url: &str,
+    timeout: Duration,
+) -> Result<(Socket, WireFrame), DeviceError> {
     let (authority, _) = split_url(url)?;
     let address = authority
         .to_socket_addrs()
@@ -340,13 +369,11 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
                 std::io::ErrorKind::NotFound,
             )
         })?;
-    let stream = TcpStream::connect_timeout(&address, config.connect_timeout)
+    let stream = TcpStream::connect_timeout(&address, timeout)
         .map_err(|e| open_error(url, &e.to_string(), e.kind()))?;
     let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
     stream.set_nodelay(true).map_err(io)?;
-    stream
-        .set_read_timeout(Some(config.connect_timeout))
-        .map_err(io)?;
+    stream.set_read_timeout(Some(timeout)).map_err(io)?;
     let ws_config = WebSocketConfig::default()
         .max_message_size(Some(MAX_MESSAGE_BYTES))
         .max_frame_size(Some(MAX_MESSAGE_BYTES));
@@ -358,24 +385,31 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
                 std::io::ErrorKind::InvalidData,
             )
         })?;
-    let protocol = |what: &'static str| DeviceError::Protocol { what };
-    let deadline = Instant::now() + config.connect_timeout;
-    let inventory = loop {
+    let deadline = Instant::now() + timeout;
+    loop {
         let message = read_text(&mut socket, deadline)
             .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?
             .ok_or(DeviceError::Timeout {
-                waited_us: u64::try_from(config.connect_timeout.as_micros()).unwrap_or(u64::MAX),
+                waited_us: u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX),
                 waiting_for: "the Inverse Service's device inventory",
             })?;
         if let Some(frame) = parse_frame(&message) {
-            break frame;
+            return Ok((socket, frame));
         }
         if Instant::now() >= deadline {
-            return Err(protocol(
-                "the Inverse Service's first message is not a device inventory",
-            ));
+            return Err(DeviceError::Protocol {
+                what: "the Inverse Service's first message is not a device inventory",
+            });
         }
-    };
+    }
+}
+
+/// Connects, reads the inventory, picks the device, configures the session (identity basis) with a zero force,
+/// and starts the I/O thread.
+pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
+    let url = config.url.as_str();
+    let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
+    let (mut socket, inventory) = connect_and_read_inventory(url, config.connect_timeout)?;
     let entry = inventory
         .inverse3
         .iter()

@@ -12,6 +12,7 @@ mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
+mod drivers_alloc_free;
 mod falcon;
 mod foxglove;
 mod haply_2diy_pty;

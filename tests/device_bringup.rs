@@ -85,3 +85,33 @@ fn with_all_the_listing_does_not_suggest_all() {
     let text = String::from_utf8(output.stdout).unwrap();
     assert!(!text.contains("--all lists them"), "{text}");
 }
+
+#[test]
+fn the_udev_rules_cover_every_usb_id_voxhap_recognises() {
+    use voxhap::device::discovery::{recognise_usb, Recognised};
+    let rules = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/contrib/udev/70-voxhap.rules"
+    ))
+    .unwrap();
+    for (vid, pid) in [
+        (0x16c0u16, 0x0483u16),
+        (0x1234, 0x0006),
+        (0x2341, 0x003d),
+        (0x0403, 0xcb48),
+    ] {
+        assert_ne!(recognise_usb(vid, pid, None), Recognised::Unknown);
+        let needle_vid = format!("{{idVendor}}==\"{vid:04x}\"");
+        let needle_pid = format!("{{idProduct}}==\"{pid:04x}\"");
+        assert!(
+            rules
+                .lines()
+                .filter(|l| !l.starts_with('#'))
+                .any(|l| l.contains(&needle_vid)
+                    && l.contains(&needle_pid)
+                    && l.contains("MODE=\"0660\"")),
+            "no access rule for {vid:04x}:{pid:04x}"
+        );
+    }
+    assert!(rules.contains("ATTRS{product}==\"*[Vv]oxhap*\""));
+}

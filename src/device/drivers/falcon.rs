@@ -12,9 +12,11 @@
 //!   homing-mode request in bit 0 (FalconFirmwareNovintSDK.cpp:92-93). Device to host: the values are the three
 //!   encoder counts (signed 16-bit), the status byte's bits 4-6 the homing state of motors 1-3, its low nibble
 //!   the grip (FalconFirmwareNovintSDK.cpp:51-62); the device answers each frame with one frame.
-//! - Homing (include/falcon/core/FalconFirmware.h:55-61): with homing mode on, pull the grip all the way out and
-//!   push it in, until the three homing bits are set. Until then voxhap sends zero torque and lights the red
-//!   LED; once homed, green.
+//! - Homing (include/falcon/core/FalconFirmware.h:50-61): the homing-mode bit must be set in every frame for the
+//!   Falcon to stay homed; the user pulls the grip all the way out and pushes it in, until the three homing bits
+//!   are set; becoming homed resets the coordinate system, so no torque may be computed from positions before.
+//!   voxhap sets the bit in every frame, sends zero torque and lights the red LED until homed, then green, and
+//!   restarts its position estimate at the moment the Falcon becomes homed.
 //! - Kinematics (R. E. Stamper's delta-robot analysis as libnifalcon implements it,
 //!   src/kinematic/FalconKinematicStamper.cpp): leg angle from encoder counts
 //!   θ = count · (π·0.01425 / (320·4)) / (π·0.110/360) + 35° (include/falcon/core/FalconKinematic.h:59-62,
@@ -479,9 +481,9 @@ impl<P: FalconPort> Falcon<P> {
     }
 
     fn send(&mut self, motor: [i16; 3]) -> Result<(), DeviceError> {
-        let homed = self.is_homed();
-        let leds = if homed { LED_GREEN } else { LED_RED };
-        self.port.write_all(&encode_command(motor, leds, !homed))
+        let leds = if self.is_homed() { LED_GREEN } else { LED_RED };
+        // Homing mode in every frame, or the Falcon does not stay homed (FalconFirmware.h:50).
+        self.port.write_all(&encode_command(motor, leds, true))
     }
 
     /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`.
@@ -610,7 +612,12 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
                 waiting_for: "a Falcon frame",
             });
         };
+        let was_homed = self.is_homed();
         self.last_reply = Some(reply);
+        if !was_homed && self.is_homed() {
+            // Homing resets the encoders' coordinate system: start the Newton iteration afresh.
+            self.position_m = DVec3::new(0.0, 0.0, 0.08);
+        }
         let theta = reply.encoders.map(leg_angle_rad);
         let (position, converged) = forward_kinematics(theta, self.position_m);
         if converged {

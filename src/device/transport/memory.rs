@@ -82,10 +82,11 @@ impl Script {
         }
     }
 
-    /// True when a poll (a read with a zero timeout) finds nothing queued: the script's next step is not a read.
-    /// Scripts model a queue, so draining it ("read until nothing is left") needs no extra script steps.
+    /// True when a poll (a read with a zero timeout) finds nothing queued: the script's next step is a write or
+    /// the script is finished. Scripts model a queue, so draining it ("read until nothing is left") needs no
+    /// extra script steps; an explicit `ReadTimeout` or `Disconnect` step is still consumed by a poll.
     fn poll_finds_nothing(&self, timeout: Duration) -> bool {
-        timeout.is_zero() && !matches!(self.expected.front(), Some(Transaction::Read(_)))
+        timeout.is_zero() && matches!(self.expected.front(), None | Some(Transaction::Write(_)))
     }
 
     fn done(&self) {

@@ -8,13 +8,18 @@ mod util;
 mod alloc_free;
 mod bad_inputs;
 mod cli_solve;
+mod device_bringup;
 mod device_drivers;
 mod device_hardware;
 mod device_pty;
 mod device_safety;
 mod device_spec;
+mod drivers_alloc_free;
+mod falcon;
 mod foxglove;
 mod fuzz_corpus;
+mod haply_2diy_pty;
+mod haply_inverse;
 mod igtl;
 mod modes;
 mod paper;
@@ -26,6 +31,7 @@ mod servo;
 mod sim;
 mod solver_props;
 mod volume_io;
+mod woodenhaptics_serial;
 
 #[global_allocator]
 static ALLOCATOR: util::alloc::CountingAllocator = util::alloc::CountingAllocator;

@@ -1,12 +1,16 @@
 //! Which devices are plugged in: serial ports (through `serialport`, scanning sysfs, no libudev) and HID devices
-//! (through `hidapi`), each matched against the devices voxhap knows.
+//! (through `hidapi`), each matched against the devices voxhap knows, and read-only probes that ask a recognised
+//! device who it is.
 //!
-//! Where it sits: behind `voxhap devices`, before a device is opened. Recognition is by USB vendor and product id
-//! where the device has fixed ones (WoodenHaptics 1.5: 1234:0006; Novint Falcon: FTDI 0403:cb48; Arduino Due
-//! native port, used by the Haply 2DIY: 2341:003d), by product string for voxhap-protocol firmware (a product
-//! name containing "voxhap"), and by path for voxhap's own mock device (a pseudo-terminal).
+//! Where it sits: behind `voxhap devices` and the Falcon's opener, before a device is opened. Recognition is by
+//! USB vendor and product id where the device has fixed ones (WoodenHaptics 1.5 mbed HID: 1234:0006; Novint
+//! Falcon: FTDI 0403:cb48; Teensy USB serial, used by the WoodenHaptics/Polhem Teensy firmware: 16c0:0483;
+//! Arduino Due native port, used by the Haply 2DIY: 2341:003d), and by product string for voxhap-protocol
+//! firmware (a product name containing "voxhap"). The Haply Inverse3 is not a port of its own: the Haply Inverse
+//! Service owns it, and [`probe_inverse_service`] asks the service.
 
 use crate::device::drivers::woodenhaptics;
+use crate::device::DeviceError;
 
 /// What voxhap thinks a port or HID device is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -15,8 +19,10 @@ pub enum Recognised {
     WoodenHaptics,
     /// A board that is probably a Haply 2DIY (Arduino Due native USB serial).
     Haply2Diy,
-    /// A Novint Falcon (FTDI serial; not supported by a driver yet).
+    /// A Novint Falcon (FTDI serial).
     NovintFalcon,
+    /// A Teensy USB serial port: probably WoodenHaptics/Polhem on the Teensy firmware.
+    Teensy,
     /// Firmware that names itself voxhap (serial or HID).
     VoxhapProtocol,
     /// Not a device voxhap knows.
@@ -27,14 +33,11 @@ impl Recognised {
     /// A short description for listings.
     pub fn describe(self) -> &'static str {
         match self {
-            Recognised::WoodenHaptics => "WoodenHaptics 1.5 (driver: woodenhaptics)",
-            Recognised::Haply2Diy => {
-                "probably a Haply 2DIY (Arduino Due native port; driver: haply-2diy)"
-            }
-            Recognised::NovintFalcon => "Novint Falcon (no driver yet)",
-            Recognised::VoxhapProtocol => {
-                "voxhap protocol firmware (driver: voxhap-serial / voxhap-hid)"
-            }
+            Recognised::WoodenHaptics => "WoodenHaptics 1.5, legacy mbed HID firmware",
+            Recognised::Haply2Diy => "probably a Haply 2DIY (Arduino Due native port)",
+            Recognised::NovintFalcon => "Novint Falcon",
+            Recognised::Teensy => "Teensy USB serial: WoodenHaptics/Polhem Teensy firmware?",
+            Recognised::VoxhapProtocol => "voxhap protocol firmware",
             Recognised::Unknown => "not recognised",
         }
     }
@@ -49,6 +52,7 @@ pub fn recognise_usb(vendor_id: u16, product_id: u16, product: Option<&str>) -> 
         (woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID) => Recognised::WoodenHaptics,
         (0x0403, 0xcb48) => Recognised::NovintFalcon,
         (0x2341, 0x003d) => Recognised::Haply2Diy,
+        (0x16c0, 0x0483) => Recognised::Teensy,
         _ => Recognised::Unknown,
     }
 }
@@ -62,6 +66,10 @@ pub struct SerialPortEntry {
     pub usb_id: Option<(u16, u16)>,
     /// USB product string, where known.
     pub product: Option<String>,
+    /// USB manufacturer string, where known.
+    pub manufacturer: Option<String>,
+    /// USB serial number, where known.
+    pub serial_number: Option<String>,
     /// What it is.
     pub recognised: Recognised,
 }
@@ -79,6 +87,8 @@ pub struct HidEntry {
     pub product: Option<String>,
     /// Manufacturer string.
     pub manufacturer: Option<String>,
+    /// Serial number string.
+    pub serial_number: Option<String>,
     /// What it is.
     pub recognised: Recognised,
 }
@@ -94,15 +104,49 @@ pub fn serial_ports() -> Result<Vec<SerialPortEntry>, String> {
                 path: port.port_name,
                 usb_id: Some((usb.vid, usb.pid)),
                 product: usb.product,
+                manufacturer: usb.manufacturer,
+                serial_number: usb.serial_number,
             },
             _ => SerialPortEntry {
                 path: port.port_name,
                 usb_id: None,
                 product: None,
+                manufacturer: None,
+                serial_number: None,
                 recognised: Recognised::Unknown,
             },
         })
         .collect())
+}
+
+/// The Falcon to open for `falcon[:SELECT]`: SELECT is a port path (starting with `/`) or a USB serial number;
+/// without it, the first Falcon (USB 0403:cb48) among the serial ports. Returns the path and, when known, the
+/// USB serial number.
+pub fn find_falcon(select: Option<&str>) -> Result<(String, Option<String>), DeviceError> {
+    if let Some(path) = select.filter(|s| s.starts_with('/')) {
+        return Ok((path.to_owned(), None));
+    }
+    let ports = serial_ports().map_err(|message| DeviceError::Open {
+        path: "Novint Falcon".to_owned(),
+        message: format!("cannot list serial ports: {message}"),
+    })?;
+    ports
+        .into_iter()
+        .find(|port| {
+            port.recognised == Recognised::NovintFalcon
+                && select.is_none_or(|serial| port.serial_number.as_deref() == Some(serial))
+        })
+        .map(|port| (port.path, port.serial_number))
+        .ok_or_else(|| DeviceError::Open {
+            path: match select {
+                Some(serial) => format!("Novint Falcon with serial {serial}"),
+                None => "Novint Falcon".to_owned(),
+            },
+            message: "no serial port with USB id 0403:cb48: is it plugged in and powered, and does ftdi_sio \
+                      know its id? (install contrib/udev/70-voxhap.rules; `voxhap devices` lists what is \
+                      connected; docs/devices/novint-falcon.md)"
+                .to_owned(),
+        })
 }
 
 /// Lists HID devices. A failure to start hidapi is returned as its message.
@@ -116,6 +160,7 @@ pub fn hid_devices() -> Result<Vec<HidEntry>, String> {
             product_id: device.product_id(),
             product: device.product_string().map(str::to_string),
             manufacturer: device.manufacturer_string().map(str::to_string),
+            serial_number: device.serial_number().map(str::to_string),
             recognised: recognise_usb(
                 device.vendor_id(),
                 device.product_id(),
@@ -123,6 +168,74 @@ pub fn hid_devices() -> Result<Vec<HidEntry>, String> {
             ),
         })
         .collect())
+}
+
+/// What a device said about itself when probed.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ProbeReport {
+    /// Model, as the device reports it.
+    pub model: Option<String>,
+    /// Serial number or device id.
+    pub serial_number: Option<String>,
+    /// Firmware version.
+    pub firmware: Option<String>,
+    /// What the probe sent, for the operator (empty when it only listened).
+    pub sent: &'static str,
+}
+
+/// Probes a serial port voxhap recognised. Only devices that answer without being driven are probed:
+/// voxhap-protocol firmware (Hello, then one zero force; the device is not enabled) and the WoodenHaptics
+/// Teensy firmware (one zero-current command: it answers only commands; its 100 ms watchdog then cuts the
+/// amplifiers). `Ok(None)` for devices that are not probed (the Haply 2DIY answers only motor commands, the
+/// Falcon's firmware may need uploading).
+pub fn probe_serial(entry: &SerialPortEntry) -> Result<Option<ProbeReport>, DeviceError> {
+    use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
+    use crate::device::drivers::{ProtocolConfig, ProtocolDevice, SerialLink};
+    use crate::device::transport::SerialTransport;
+    use crate::device::HapticDevice;
+    use std::time::Duration;
+    match entry.recognised {
+        Recognised::VoxhapProtocol => {
+            let transport = SerialTransport::open(&entry.path, 1_000_000)?;
+            let mut device =
+                ProtocolDevice::new(SerialLink::new(transport), ProtocolConfig::default());
+            device.open()?;
+            let info = device.info().clone();
+            let _ = device.close();
+            Ok(Some(ProbeReport {
+                model: Some(info.model),
+                serial_number: Some(info.serial_number).filter(|s| !s.is_empty()),
+                firmware: None,
+                sent: "Hello and one zero force (not enabled)",
+            }))
+        }
+        Recognised::Teensy => {
+            let transport = SerialTransport::open(&entry.path, 115_200)?;
+            let config = WoodyConfig {
+                hello_attempts: 2,
+                hello_timeout: Duration::from_millis(50),
+                ..WoodyConfig::default()
+            };
+            let mut device = WoodenHapticsSerial::new(transport, config);
+            device.open()?;
+            let model = device.model().map(|m| m.name().to_owned());
+            let _ = device.close();
+            Ok(Some(ProbeReport {
+                model,
+                serial_number: entry.serial_number.clone(),
+                firmware: None,
+                sent: "one zero-current command [0,0,0]",
+            }))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// Asks the Haply Inverse Service at `url` which Inverse3 devices it has (reads its inventory message only).
+pub fn probe_inverse_service(
+    url: &str,
+) -> Result<Vec<crate::device::transport::inverse_service::ServiceDevice>, DeviceError> {
+    crate::device::transport::inverse_service::inventory(url, std::time::Duration::from_millis(500))
 }
 
 #[cfg(test)]
@@ -140,6 +253,7 @@ mod tests {
             Recognised::NovintFalcon
         );
         assert_eq!(recognise_usb(0x2341, 0x003d, None), Recognised::Haply2Diy);
+        assert_eq!(recognise_usb(0x16c0, 0x0483, None), Recognised::Teensy);
         assert_eq!(
             recognise_usb(0x1209, 0x0001, Some("Voxhap arm")),
             Recognised::VoxhapProtocol

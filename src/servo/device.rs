@@ -11,10 +11,13 @@
 //! session, a hand target (a triple buffer, so setting it never blocks the servo thread).
 
 use super::monitor::StopSlot;
+use crate::device::drivers::falcon::{Falcon, FalconConfig};
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
+use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
 use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
+use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use crate::device::plausibility::InputCounters;
 use crate::device::sim::{SimArm, SimArmConfig, SimError};
 use crate::device::supervisor::{
@@ -403,17 +406,29 @@ pub enum DeviceSpec {
         product_id: u16,
         serial: Option<String>,
     },
-    /// `woodenhaptics`: WoodenHaptics 1.5 over USB HID.
+    /// `woodenhaptics-hid`: WoodenHaptics 1.5 over USB HID (legacy mbed firmware).
     WoodenHaptics,
+    /// `woodenhaptics:PATH`: WoodenHaptics, Polhem or a retrofitted PHANTOM on the Teensy firmware (USB serial);
+    /// the model comes from the device's reports.
+    WoodenHapticsSerial(PathBuf),
     /// `haply2diy:PATH`: Haply 2DIY on the USB serial port at PATH.
     Haply2Diy(PathBuf),
     /// `replay:TRACE`: plays the probe positions of a recorded trace (loops at the end).
     Replay(PathBuf),
+    /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
+    HaplyInverse(String),
+    /// `falcon[:SERIAL|:PATH][,firmware=FILE]`: Novint Falcon on its FTDI serial port (`ftdi_sio`), chosen by
+    /// USB serial number or port path (default: the first Falcon found); FILE is Novint's firmware, uploaded
+    /// when none is running.
+    Falcon {
+        select: Option<String>,
+        firmware: Option<PathBuf>,
+    },
 }
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics, haply2diy:PATH or replay:TRACE")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE")]
 pub struct DeviceSpecError {
     pub given: String,
     pub problem: String,
@@ -427,6 +442,11 @@ impl FromStr for DeviceSpec {
             given: text.to_owned(),
             problem: problem.to_owned(),
         };
+        if let Some(rest) = text.strip_prefix("falcon") {
+            if rest.is_empty() || rest.starts_with(':') || rest.starts_with(',') {
+                return parse_falcon(rest).map_err(|problem| error(&problem));
+            }
+        }
         let (kind, rest) = match text.split_once(':') {
             Some((kind, rest)) => (kind, Some(rest)),
             None => (text, None),
@@ -437,11 +457,27 @@ impl FromStr for DeviceSpec {
         };
         match kind {
             "sim" if rest.is_none() => Ok(DeviceSpec::Sim),
-            "woodenhaptics" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
+            "woodenhaptics-hid" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
+            "woodenhaptics" if rest.is_none() => Err(error(
+                "needs the serial port of the Teensy firmware, e.g. woodenhaptics:/dev/ttyACM0 \
+                 (the retired mbed HID firmware is woodenhaptics-hid)",
+            )),
+            "woodenhaptics" => Ok(DeviceSpec::WoodenHapticsSerial(path(rest)?)),
             "mock" => Ok(DeviceSpec::Mock(path(rest)?)),
             "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
             "replay" => Ok(DeviceSpec::Replay(path(rest)?)),
+            "haply-inverse" => match rest {
+                None => Ok(DeviceSpec::HaplyInverse(
+                    crate::device::transport::inverse_service::DEFAULT_URL.to_owned(),
+                )),
+                Some(url) if url.starts_with("ws://") && url.len() > "ws://".len() => {
+                    Ok(DeviceSpec::HaplyInverse(url.to_owned()))
+                }
+                Some(_) => Err(error(
+                    "the Inverse Service address must be ws://HOST:PORT (default ws://127.0.0.1:10001)",
+                )),
+            },
             "hid" => {
                 let rest = rest.ok_or_else(|| error("hid needs VID:PID"))?;
                 let mut parts = rest.splitn(3, ':');
@@ -460,10 +496,29 @@ impl FromStr for DeviceSpec {
                     serial,
                 })
             }
-            "sim" | "woodenhaptics" => Err(error("takes no argument")),
+            "sim" | "woodenhaptics-hid" => Err(error("takes no argument")),
             _ => Err(error("unknown device kind")),
         }
     }
+}
+
+/// The part of a `falcon` spec after the word: `[:SERIAL|:PATH][,firmware=FILE]`.
+fn parse_falcon(rest: &str) -> Result<DeviceSpec, String> {
+    let rest = rest.strip_prefix(':').unwrap_or(rest);
+    let mut parts = rest.split(',');
+    let select = parts.next().filter(|s| !s.is_empty()).map(str::to_owned);
+    let mut firmware = None;
+    for option in parts {
+        match option.split_once('=') {
+            Some(("firmware", path)) if !path.is_empty() => firmware = Some(PathBuf::from(path)),
+            _ => {
+                return Err(format!(
+                    "unknown falcon option {option:?} (the only one is firmware=FILE)"
+                ))
+            }
+        }
+    }
+    Ok(DeviceSpec::Falcon { select, firmware })
 }
 
 impl std::fmt::Display for DeviceSpec {
@@ -483,9 +538,21 @@ impl std::fmt::Display for DeviceSpec {
                     None => Ok(()),
                 }
             }
-            DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics"),
+            DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics-hid"),
+            DeviceSpec::WoodenHapticsSerial(p) => write!(f, "woodenhaptics:{}", p.display()),
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
             DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
+            DeviceSpec::HaplyInverse(url) => write!(f, "haply-inverse:{url}"),
+            DeviceSpec::Falcon { select, firmware } => {
+                f.write_str("falcon")?;
+                if let Some(select) = select {
+                    write!(f, ":{select}")?;
+                }
+                match firmware {
+                    Some(path) => write!(f, ",firmware={}", path.display()),
+                    None => Ok(()),
+                }
+            }
         }
     }
 }
@@ -675,11 +742,43 @@ pub fn open_device(
                 HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
             WoodenHaptics::new(transport, WoodenHapticsConfig::default())
         })?,
+        DeviceSpec::WoodenHapticsSerial(path) => {
+            let path = path_str(path)?;
+            reconnecting(config, move || {
+                // USB CDC-ACM (Teensy) ignores the rate; the firmware calls Serial.begin(115200).
+                let transport = SerialTransport::open(&path, 115_200)?;
+                Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+            })?
+        }
         DeviceSpec::Haply2Diy(path) => {
             let path = path_str(path)?;
             reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 0)?;
                 Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
+            })?
+        }
+        DeviceSpec::HaplyInverse(url) => {
+            let mut driver_config = HaplyInverseConfig::default();
+            driver_config.service.url = url.clone();
+            reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
+        }
+        DeviceSpec::Falcon { select, firmware } => {
+            let (select, firmware) = (select.clone(), firmware.clone());
+            reconnecting(config, move || {
+                let (path, serial) = crate::device::discovery::find_falcon(select.as_deref())?;
+                let transport =
+                    SerialTransport::open(&path, crate::device::drivers::falcon::NORMAL_BAUD)?;
+                let mut falcon = Falcon::new(
+                    transport,
+                    FalconConfig {
+                        firmware: firmware.clone(),
+                        ..FalconConfig::default()
+                    },
+                );
+                if let Some(serial) = serial {
+                    falcon.set_serial_number(&serial);
+                }
+                Ok(falcon)
             })?
         }
         DeviceSpec::Replay(path) => {
@@ -717,9 +816,16 @@ mod tests {
             "serial:/dev/ttyACM0",
             "hid:1234:0006",
             "hid:1234:0006:SN-1",
-            "woodenhaptics",
+            "woodenhaptics-hid",
+            "woodenhaptics:/dev/ttyACM2",
             "haply2diy:/dev/ttyACM1",
             "replay:trace.csv",
+            "haply-inverse:ws://127.0.0.1:10001",
+            "haply-inverse:ws://lab-pc:9000",
+            "falcon",
+            "falcon:A1B2C3",
+            "falcon:/dev/ttyUSB0,firmware=/opt/novint/test_firmware.bin",
+            "falcon,firmware=fw.bin",
         ] {
             let spec: DeviceSpec = text.parse().unwrap();
             assert_eq!(spec.to_string(), text);
@@ -737,12 +843,15 @@ mod tests {
     #[test]
     fn bad_device_specs_say_what_is_wrong() {
         for (text, problem) in [
-            ("falcon", "unknown device kind"),
+            ("falconx", "unknown device kind"),
+            ("falcon:SN,speed=3", "unknown falcon option"),
             ("mock:", "a path is needed"),
             ("serial", "a path is needed"),
             ("sim:x", "takes no argument"),
             ("hid:zz:0001", "vendor id \"zz\""),
             ("hid:1234", "product id \"\""),
+            ("haply-inverse:localhost:10001", "must be ws://HOST:PORT"),
+            ("woodenhaptics", "woodenhaptics-hid"),
         ] {
             let err = text.parse::<DeviceSpec>().unwrap_err().to_string();
             assert!(err.contains(problem), "{text}: {err}");

@@ -15,3 +15,8 @@ pub mod spec_device;
 pub fn count_allocations(f: impl FnOnce()) -> u64 {
     alloc::count_allocations(f).1
 }
+pub mod falcon_firmware;
+pub mod haply_board;
+pub mod inverse_service;
+pub mod pty;
+pub mod woody_firmware;

@@ -16,6 +16,12 @@
 //! the perpendicular L sin β (-h1y, h1x)/|h1|. The Jacobian J follows from the same construction (η, ν there), and
 //! torques are τ1 = J11 fx + J12 fy, τ2 = J21 fx + J22 fy (gain 1). The device is planar: z is reported as 0 and
 //! the z force is dropped.
+//!
+//! Framing: a reply has no start marker or checksum, so a reply cut short (a timeout) or a late one would shift
+//! every later reply by a few bytes. The driver therefore discards the port's input when it opens (stale bytes
+//! from an earlier program) and again before the next command after any timeout or reply with a wrong device id,
+//! so each exchange starts on a reply boundary. Velocity is not measured: `read_state` reports zero and the
+//! host's safety pipeline estimates it from positions.
 
 use crate::device::transport::ByteTransport;
 use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
@@ -202,6 +208,9 @@ pub struct Haply2Diy<T> {
     info: DeviceInfo,
     jacobian: [[f64; 2]; 2],
     reply_timeout: Duration,
+    /// Set after a timeout or a shifted reply: the input holds (or may soon hold) the rest of an old reply.
+    resync_needed: bool,
+    resyncs: u64,
 }
 
 impl<T: ByteTransport> Haply2Diy<T> {
@@ -228,7 +237,14 @@ impl<T: ByteTransport> Haply2Diy<T> {
             info,
             jacobian: [[0.0; 2]; 2],
             reply_timeout: Duration::from_millis(10),
+            resync_needed: false,
+            resyncs: 0,
         }
+    }
+
+    /// How many times the driver discarded input to get back onto a reply boundary.
+    pub fn resync_count(&self) -> u64 {
+        self.resyncs
     }
 
     /// The transport (to check a scripted double with `done()`).
@@ -244,6 +260,8 @@ impl<T: ByteTransport> Haply2Diy<T> {
             let remaining = deadline.saturating_duration_since(Instant::now());
             let n = self.transport.read(&mut reply[filled..], remaining)?;
             if n == 0 {
+                // The rest of this reply (or all of it) may still arrive: drop it before the next command.
+                self.resync_needed = true;
                 return Err(DeviceError::Timeout {
                     waited_us: u64::try_from(self.reply_timeout.as_micros()).unwrap_or(u64::MAX),
                     waiting_for: "the Haply board's angle reply",
@@ -263,6 +281,9 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     }
 
     fn open(&mut self) -> Result<(), DeviceError> {
+        // Stale angle replies from an earlier program would shift every reply of this session.
+        self.transport.discard_input()?;
+        self.resync_needed = false;
         self.transport
             .write_all(&Haply2DiyConfig::reset_command())?;
         self.transport.write_all(&self.config.setup_command())
@@ -274,6 +295,11 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
             return Err(DeviceError::InvalidData {
                 what: "force is not finite (the safety pipeline should have zeroed it)",
             });
+        }
+        if self.resync_needed {
+            self.transport.discard_input()?;
+            self.resync_needed = false;
+            self.resyncs += 1;
         }
         let [[j11, j12], [j21, j22]] = self.jacobian;
         let tau1 = j11 * force_n.x + j12 * force_n.y;
@@ -287,7 +313,10 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         let reply = self.read_reply()?;
-        let angles = self.config.parse_reply(&reply)?;
+        let angles = self.config.parse_reply(&reply).inspect_err(|_| {
+            // A wrong id or a non-finite angle: most likely a reply shifted by lost or extra bytes.
+            self.resync_needed = true;
+        })?;
         let Some((position, jacobian)) = self.config.kinematics(angles) else {
             return Err(DeviceError::InvalidData {
                 what: "Haply angles put the pantograph links out of reach",

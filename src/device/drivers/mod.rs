@@ -3,16 +3,27 @@
 //!
 //! - [`protocol`]: voxhap's own wire protocol (protocol/SPEC.md) over serial or USB HID, for microcontroller arms
 //!   and for `voxhap mock-device`;
-//! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (motor currents out, encoder counts in, kinematics here);
+//! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
+//!   (text lines over USB serial; kinematics from hfabapi);
+//! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
+//! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
+//!   and kinematics;
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
+//! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 //! - [`replay`]: plays back the probe positions of a recorded force trace.
 
+pub mod falcon;
 pub mod haply;
+pub mod haply_inverse;
 pub mod protocol;
 pub mod replay;
 pub mod woodenhaptics;
+pub mod woodenhaptics_serial;
 
+pub use falcon::{Falcon, FalconConfig};
 pub use haply::{Haply2Diy, Haply2DiyConfig};
+pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
 pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions};
 pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
+pub use woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel};

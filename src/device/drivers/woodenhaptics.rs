@@ -1,4 +1,10 @@
-//! WoodenHaptics 1.5 over USB HID (an mbed LPC1768 running the WoodenHapticsHID firmware).
+//! WoodenHaptics 1.5 over USB HID (an mbed LPC1768 running the WoodenHapticsHID firmware): **legacy**, selected
+//! with `--device woodenhaptics-hid`. The WoodenHaptics project retired this firmware in 2019; current devices run
+//! the Teensy serial firmware, driven by [`super::woodenhaptics_serial`] (`--device woodenhaptics:PATH`).
+//!
+//! Latency: the firmware streams reports faster than a host may read them, and the kernel queues them; reading
+//! one per tick would fall behind by up to the whole queue (~64 reports, ~64 ms). `read_state` therefore drains
+//! the queue and keeps the newest report, as chai3d's USB branch does on every read.
 //!
 //! Sources (public): the firmware `mbed-code/main.cpp` in WoodenHaptics/woody-experimental (8-byte reports both
 //! ways: `pc_to_hid_message` = three `short` motor currents in mA then a debug word; `hid_to_pc_message` = three
@@ -229,6 +235,7 @@ pub struct WoodenHaptics<T> {
     theta: [f64; 3],
     read_timeout: Duration,
     last_counter: Option<u16>,
+    drained_reports: u64,
 }
 
 impl<T: ReportTransport> WoodenHaptics<T> {
@@ -237,7 +244,7 @@ impl<T: ReportTransport> WoodenHaptics<T> {
         config.validate()?;
         let radius = config.workspace_radius_m;
         let info = DeviceInfo {
-            model: String::from("WoodenHaptics 1.5"),
+            model: String::from("WoodenHaptics 1.5 (legacy HID firmware)"),
             serial_number: String::new(),
             position_dof: 3,
             force_dof: 3,
@@ -258,12 +265,18 @@ impl<T: ReportTransport> WoodenHaptics<T> {
             theta,
             read_timeout: Duration::from_millis(5),
             last_counter: None,
+            drained_reports: 0,
         })
     }
 
     /// The transport (to check a scripted double with `done()`).
     pub fn transport(&self) -> &T {
         &self.transport
+    }
+
+    /// How many older queued reports `read_state` skipped to reach the newest one.
+    pub fn drained_reports(&self) -> u64 {
+        self.drained_reports
     }
 
     /// The firmware's report counter from the last input report.
@@ -298,7 +311,19 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
                 waiting_for: "a WoodenHaptics input report",
             });
         }
-        let (counts, counter) = decode_input(&report[..n])?;
+        // Drain the queue: keep the newest report (bounded, so a device flooding reports cannot hold the tick).
+        let mut newest = n;
+        let mut next = [0u8; 64];
+        for _ in 0..128 {
+            let m = self.transport.read_report(&mut next, Duration::ZERO)?;
+            if m == 0 {
+                break;
+            }
+            report = next;
+            newest = m;
+            self.drained_reports += 1;
+        }
+        let (counts, counter) = decode_input(&report[..newest])?;
         self.last_counter = Some(counter);
         self.theta = self.config.joint_angles_rad(counts);
         let position_m = self.config.position_m(self.theta);

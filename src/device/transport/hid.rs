@@ -1,7 +1,7 @@
 //! USB HID devices through `hidapi` (Linux hidraw backend with the pure-Rust `basic-udev`, no system libraries).
 //!
 //! Where it sits: under the HID drivers (voxhap protocol over HID, WoodenHaptics 1.5). Opening needs read/write
-//! access to `/dev/hidraw*` (a udev rule; see the README section "Connecting a device").
+//! access to `/dev/hidraw*` (contrib/udev/70-voxhap.rules; see docs/devices/README.md).
 
 use super::ReportTransport;
 use crate::device::DeviceError;
@@ -20,9 +20,19 @@ impl std::fmt::Debug for HidTransport {
 }
 
 fn open_error(path: String, error: hidapi::HidError) -> DeviceError {
+    let reason = error.to_string();
+    let kind = match &error {
+        hidapi::HidError::IoError { error } => error.kind(),
+        // The hidraw backend reports some failures only as text.
+        _ if reason.contains("Permission denied") => std::io::ErrorKind::PermissionDenied,
+        _ if reason.contains("not found") || reason.contains("No such") => {
+            std::io::ErrorKind::NotFound
+        }
+        _ => std::io::ErrorKind::Other,
+    };
     DeviceError::Open {
         path,
-        message: error.to_string(),
+        message: super::open_message(&reason, kind),
     }
 }
 

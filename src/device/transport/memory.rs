@@ -82,6 +82,13 @@ impl Script {
         }
     }
 
+    /// True when a poll (a read with a zero timeout) finds nothing queued: the script's next step is a write or
+    /// the script is finished. Scripts model a queue, so draining it ("read until nothing is left") needs no
+    /// extra script steps; an explicit `ReadTimeout` or `Disconnect` step is still consumed by a poll.
+    fn poll_finds_nothing(&self, timeout: Duration) -> bool {
+        timeout.is_zero() && matches!(self.expected.front(), None | Some(Transaction::Write(_)))
+    }
+
     fn done(&self) {
         assert!(
             self.expected.is_empty(),
@@ -124,7 +131,10 @@ impl ByteTransport for ScriptedStream {
         self.script.write(bytes)
     }
 
-    fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, DeviceError> {
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        if self.script.poll_finds_nothing(timeout) {
+            return Ok(0);
+        }
         match self.script.next("read") {
             Transaction::Read(mut bytes) => {
                 let n = bytes.len().min(buf.len());
@@ -172,7 +182,10 @@ impl ReportTransport for ScriptedReports {
         self.script.write(report)
     }
 
-    fn read_report(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, DeviceError> {
+    fn read_report(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        if self.script.poll_finds_nothing(timeout) {
+            return Ok(0);
+        }
         match self.script.next("read_report") {
             Transaction::Read(bytes) => {
                 assert!(

@@ -2,11 +2,15 @@
 //! serial port, a pseudo-terminal, a USB HID device, an in-memory pipe to a simulated device, or a scripted test
 //! double (STYLE.md 7).
 //!
+//! [`inverse_service`] is a third kind: the Haply Inverse Service's JSON-over-WebSocket channel on its own I/O
+//! thread, handed to the servo thread through lock-free buffers.
+//!
 //! Two shapes: [`ByteTransport`] is a byte stream (UART, USB CDC-ACM, pseudo-terminal) whose framing the driver
 //! does; [`ReportTransport`] moves whole HID reports. Reads take a timeout and return `Ok(0)` when nothing came,
 //! so a timeout is the driver's decision, not the transport's; a hang-up is `DeviceError::Disconnected`.
 
 pub mod hid;
+pub mod inverse_service;
 pub mod memory;
 pub mod serial;
 
@@ -26,9 +30,19 @@ pub trait ByteTransport {
     /// arrived in time.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError>;
 
-    /// Throws away whatever the device sent before now (stale replies of an earlier session), as a driver
-    /// does when it opens the link.
+    /// Throws away whatever the device sent before now (stale replies from an earlier session), so the next read
+    /// starts at a fresh reply. The default reads with a zero timeout until nothing is left (at most 64 KiB, so a
+    /// device that never stops talking cannot hold the caller).
     fn discard_input(&mut self) -> Result<(), DeviceError> {
+        let mut scratch = [0u8; 256];
+        let mut discarded = 0usize;
+        while discarded < 65_536 {
+            let n = self.read(&mut scratch, Duration::ZERO)?;
+            if n == 0 {
+                break;
+            }
+            discarded += n;
+        }
         Ok(())
     }
 
@@ -37,6 +51,33 @@ pub trait ByteTransport {
     fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
         None
     }
+}
+
+/// The next step to suggest when opening a device failed with this OS error kind: what a lab user should check
+/// or change. Used by every transport's open error, so the advice is the same for every device.
+pub fn open_advice(kind: std::io::ErrorKind) -> &'static str {
+    match kind {
+        std::io::ErrorKind::PermissionDenied => {
+            "add your user to the dialout group (then log out and in), or install contrib/udev/70-voxhap.rules \
+             (see docs/devices/README.md)"
+        }
+        std::io::ErrorKind::NotFound => {
+            "is it plugged in and switched on? `voxhap devices` lists what is connected"
+        }
+        std::io::ErrorKind::ResourceBusy | std::io::ErrorKind::AddrInUse => {
+            "another program has the device open (a vendor tool, a second voxhap, ModemManager); close it and retry"
+        }
+        std::io::ErrorKind::ConnectionRefused => {
+            "nothing listens there: is the vendor service running, and on that port?"
+        }
+        std::io::ErrorKind::TimedOut => "the device did not answer: unplug it, plug it in again and retry",
+        _ => "check the cable and the path; `voxhap devices` lists what is connected",
+    }
+}
+
+/// Builds the message of a [`DeviceError::Open`]: the OS reason, then the next step.
+pub fn open_message(reason: &str, kind: std::io::ErrorKind) -> String {
+    format!("{reason}: {}", open_advice(kind))
 }
 
 /// A transport of whole reports (USB HID). Output reports start with their report id (0 when the device uses

@@ -28,14 +28,31 @@ impl SerialTransport {
             .flow_control(serialport::FlowControl::None)
             .timeout(Duration::from_millis(10))
             .open_native()
-            .map_err(|error| DeviceError::Open {
-                path: path.to_string(),
-                message: error.to_string(),
-            })?;
+            .map_err(|error| open_error(path, &error))?;
         // Pseudo-terminals have no modem lines and refuse these; a real port that refuses still works.
         let _ = port.write_data_terminal_ready(true);
         let _ = port.write_request_to_send(true);
         Ok(Self::from_port(port))
+    }
+
+    /// Sets the DTR and RTS modem lines (the FTDI-based devices use them as signals; USB CDC-ACM ignores them).
+    pub fn set_modem_lines(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError> {
+        let failed = |_| DeviceError::Io {
+            during: "setting the DTR/RTS modem lines",
+            kind: std::io::ErrorKind::Other,
+        };
+        self.port.write_data_terminal_ready(dtr).map_err(failed)?;
+        self.port.write_request_to_send(rts).map_err(failed)
+    }
+
+    /// Changes the baud rate (any rate: Linux's termios2 passes custom rates to drivers such as ftdi_sio).
+    pub fn set_baud_rate(&mut self, baud_rate: u32) -> Result<(), DeviceError> {
+        self.port
+            .set_baud_rate(baud_rate)
+            .map_err(|_| DeviceError::Io {
+                during: "setting the baud rate",
+                kind: std::io::ErrorKind::InvalidInput,
+            })
     }
 
     /// Wraps an open port (for example one end of `TTYPort::pair()`).
@@ -49,6 +66,21 @@ impl SerialTransport {
     /// The port's path, when it has one.
     pub fn name(&self) -> Option<String> {
         self.port.name()
+    }
+}
+
+/// The open error for `path`: the OS reason and the next step (permissions, a missing device, a busy port).
+pub fn open_error(path: &str, error: &serialport::Error) -> DeviceError {
+    let kind = match error.kind() {
+        serialport::ErrorKind::Io(kind) => kind,
+        // serialport reports EBUSY (another process holds the port exclusively) as NoDevice.
+        serialport::ErrorKind::NoDevice => std::io::ErrorKind::ResourceBusy,
+        _ => std::io::ErrorKind::Other,
+    };
+    // serialport's description is the OS's text ("Permission denied", "No such file or directory").
+    DeviceError::Open {
+        path: path.to_string(),
+        message: super::open_message(&error.description, kind),
     }
 }
 
@@ -82,17 +114,57 @@ impl ByteTransport for SerialTransport {
         }
     }
 
+    /// Clears the kernel's input queue, then drains what arrives meanwhile.
     fn discard_input(&mut self) -> Result<(), DeviceError> {
         self.port
             .clear(serialport::ClearBuffer::Input)
             .map_err(|_| DeviceError::Io {
-                during: "discarding the serial input buffer",
+                during: "discarding the serial input",
                 kind: std::io::ErrorKind::Other,
-            })
+            })?;
+        let mut scratch = [0u8; 256];
+        for _ in 0..256 {
+            if self.read(&mut scratch, Duration::ZERO)? == 0 {
+                break;
+            }
+        }
+        Ok(())
     }
 
     fn try_clone_writer(&self) -> Option<Box<dyn std::io::Write + Send>> {
         let port = self.port.try_clone_native().ok()?;
         Some(Box::new(port))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn open_errors_keep_the_os_reason_and_name_the_next_step() {
+        let denied = serialport::Error::new(
+            serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied),
+            "Permission denied",
+        );
+        let message = open_error("/dev/ttyACM0", &denied).to_string();
+        assert_eq!(
+            message,
+            "cannot open /dev/ttyACM0: Permission denied: add your user to the dialout group (then log out and \
+             in), or install contrib/udev/70-voxhap.rules (see docs/devices/README.md)"
+        );
+        let missing = serialport::Error::new(
+            serialport::ErrorKind::Io(std::io::ErrorKind::NotFound),
+            "No such file or directory",
+        );
+        let message = open_error("/dev/ttyACM0", &missing).to_string();
+        assert!(message.ends_with(
+            "No such file or directory: is it plugged in and switched on? `voxhap devices` lists what is connected"
+        ));
+        let busy =
+            serialport::Error::new(serialport::ErrorKind::NoDevice, "Device or resource busy");
+        assert!(open_error("/dev/ttyUSB0", &busy)
+            .to_string()
+            .contains("another program has the device open"));
     }
 }

@@ -1,0 +1,243 @@
+//! Test doubles of the Novint Falcon, written from libnifalcon's description of the link (libnifalcon/libnifalcon:
+//! src/firmware/FalconFirmwareNovintSDK.cpp for the 16-byte frames, include/falcon/core/FalconFirmware.h for
+//! the LED and homing bits and the homing procedure, src/core/FalconFirmware.cpp and
+//! src/comm/FalconCommLibUSB.cpp for the bootloader exchange), not from voxhap's driver.
+//!
+//! [`FalconDevice`] is the Falcon with its firmware running, on a pseudo-terminal: it answers each well-formed
+//! host frame with one frame of encoder counts and status, and logs every motor command with its LED and
+//! homing bits. [`Bootloader`] is the Falcon before its firmware is loaded, on an in-memory pipe (a
+//! pseudo-terminal has no baud rate or DTR line to switch): it answers the `0a 43 0d` check, echoes `A`, echoes
+//! the firmware, then runs like [`FalconDevice`].
+
+use super::pty::PtyDevice;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+use voxhap::device::transport::{ByteTransport, MemoryPipe};
+
+/// One host frame, as the Falcon decoded it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FalconCommand {
+    pub motor: [i16; 3],
+    pub leds: u8,
+    pub homing_requested: bool,
+}
+
+#[derive(Debug, Default)]
+pub struct FalconShared {
+    pub commands: Mutex<Vec<FalconCommand>>,
+    pub encoders: Mutex<[i16; 3]>,
+    /// Homing bits reported (bit n = motor n+1).
+    pub homing: Mutex<u8>,
+    pub grip: Mutex<u8>,
+    /// Firmware bytes received by the bootloader.
+    pub firmware: Mutex<Vec<u8>>,
+    stop: AtomicBool,
+}
+
+/// Host frame → command: `<`, 3 × 4 nibbles + 0x41 (least significant first), control byte + 0x41, spare, `>`.
+fn decode_host_frame(frame: &[u8]) -> Option<FalconCommand> {
+    if frame.len() != 16 || frame[0] != b'<' || frame[15] != b'>' {
+        return None;
+    }
+    if frame[1..15].iter().any(|&b| !(0x41..=0x50).contains(&b)) {
+        return None;
+    }
+    let nibble = |i: usize| u16::from(frame[i] - 0x41);
+    let mut motor = [0i16; 3];
+    for (k, m) in motor.iter_mut().enumerate() {
+        let base = 1 + 4 * k;
+        *m = (nibble(base) | nibble(base + 1) << 4 | nibble(base + 2) << 8 | nibble(base + 3) << 12)
+            as i16;
+    }
+    let control = frame[13] - 0x41;
+    Some(FalconCommand {
+        motor,
+        leds: control & 0xe,
+        homing_requested: control & 1 == 1,
+    })
+}
+
+/// Device frame: encoders as nibbles, status byte = homing bits << 4 | grip, each + 0x41.
+fn device_frame(encoders: [i16; 3], homing: u8, grip: u8) -> [u8; 16] {
+    let mut out = [0x41u8; 16];
+    out[0] = b'<';
+    out[15] = b'>';
+    for (k, e) in encoders.iter().enumerate() {
+        let v = *e as u16;
+        for n in 0..4 {
+            out[1 + 4 * k + n] = 0x41 + ((v >> (4 * n)) & 0xf) as u8;
+        }
+    }
+    out[13] = 0x41 + ((homing & 7) << 4 | (grip & 0xf));
+    out
+}
+
+/// Handles the host frames in `pending`, answering each; returns what to send.
+fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let Some(start) = pending.iter().position(|&b| b == b'<') else {
+            pending.clear();
+            break;
+        };
+        pending.drain(..start);
+        if pending.len() < 16 {
+            break;
+        }
+        let frame: Vec<u8> = pending.drain(..16).collect();
+        if let Some(command) = decode_host_frame(&frame) {
+            shared.commands.lock().unwrap().push(command);
+            out.extend_from_slice(&device_frame(
+                *shared.encoders.lock().unwrap(),
+                *shared.homing.lock().unwrap(),
+                *shared.grip.lock().unwrap(),
+            ));
+        }
+    }
+    out
+}
+
+/// A Falcon with its firmware running, on a pseudo-terminal.
+pub struct FalconDevice {
+    pub shared: Arc<FalconShared>,
+    path: String,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl FalconDevice {
+    pub fn start() -> FalconDevice {
+        let mut pty = PtyDevice::new();
+        let path = pty.path().to_string();
+        let shared = Arc::new(FalconShared::default());
+        let thread = {
+            let shared = shared.clone();
+            std::thread::spawn(move || {
+                let mut pending = Vec::new();
+                let mut chunk = [0u8; 256];
+                while !shared.stop.load(Ordering::Acquire) {
+                    match pty.read(&mut chunk) {
+                        Ok(n) => pending.extend_from_slice(&chunk[..n]),
+                        Err(_) => {
+                            std::thread::sleep(Duration::from_millis(1));
+                            continue;
+                        }
+                    }
+                    let out = serve_frames(&mut pending, &shared);
+                    if !out.is_empty() {
+                        let _ = pty.write(&out);
+                    }
+                }
+            })
+        };
+        FalconDevice {
+            shared,
+            path,
+            thread: Some(thread),
+        }
+    }
+
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    pub fn commands(&self) -> Vec<FalconCommand> {
+        self.shared.commands.lock().unwrap().clone()
+    }
+}
+
+impl Drop for FalconDevice {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// A Falcon without firmware, on an in-memory pipe; it expects a firmware file of `firmware_len` bytes.
+pub struct Bootloader {
+    pub shared: Arc<FalconShared>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Bootloader {
+    /// Starts the double; returns it and the host's end of the pipe.
+    pub fn start(firmware_len: usize) -> (Bootloader, MemoryPipe) {
+        let (host, mut device) = MemoryPipe::pair();
+        let shared = Arc::new(FalconShared::default());
+        let thread = {
+            let shared = shared.clone();
+            std::thread::spawn(move || {
+                #[derive(PartialEq)]
+                enum Stage {
+                    Check,
+                    WaitA,
+                    Firmware,
+                    Running,
+                }
+                let mut stage = Stage::Check;
+                let mut pending = Vec::new();
+                let mut chunk = [0u8; 256];
+                while !shared.stop.load(Ordering::Acquire) {
+                    match device.read(&mut chunk, Duration::from_millis(2)) {
+                        Ok(n) => pending.extend_from_slice(&chunk[..n]),
+                        Err(_) => return,
+                    }
+                    let reply: Vec<u8> = match stage {
+                        Stage::Check => {
+                            // Until firmware runs, normal frames get no answer; the check gets the bootloader's.
+                            match pending.windows(3).position(|w| w == [0x0a, 0x43, 0x0d]) {
+                                Some(at) => {
+                                    pending.drain(..at + 3);
+                                    stage = Stage::WaitA;
+                                    vec![0x0a, 0x44, 0x2c, 0x0d]
+                                }
+                                None => Vec::new(),
+                            }
+                        }
+                        Stage::WaitA => match pending.iter().position(|&b| b == b'A') {
+                            Some(at) => {
+                                pending.drain(..=at);
+                                stage = Stage::Firmware;
+                                vec![b'A']
+                            }
+                            None => Vec::new(),
+                        },
+                        Stage::Firmware => {
+                            let mut firmware = shared.firmware.lock().unwrap();
+                            let take = pending.len().min(firmware_len - firmware.len());
+                            let echoed: Vec<u8> = pending.drain(..take).collect();
+                            firmware.extend_from_slice(&echoed);
+                            if firmware.len() == firmware_len {
+                                stage = Stage::Running;
+                            }
+                            echoed
+                        }
+                        Stage::Running => serve_frames(&mut pending, &shared),
+                    };
+                    if !reply.is_empty() && device.write_all(&reply).is_err() {
+                        return;
+                    }
+                }
+            })
+        };
+        (
+            Bootloader {
+                shared,
+                thread: Some(thread),
+            },
+            host,
+        )
+    }
+}
+
+impl Drop for Bootloader {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}

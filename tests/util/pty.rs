@@ -1,0 +1,51 @@
+//! A pseudo-terminal for serial device doubles: the double owns the master end, the driver opens the slave by
+//! its path (`/dev/pts/N`) exactly as it opens a USB serial port.
+
+use serialport::{SerialPort, TTYPort};
+use std::io::{Read, Write};
+use std::time::Duration;
+
+/// The device side of a pseudo-terminal.
+pub struct PtyDevice {
+    master: TTYPort,
+    // Held open so the master does not see a hang-up while the driver has not opened the path yet.
+    _slave: TTYPort,
+    path: String,
+}
+
+impl PtyDevice {
+    /// A fresh pseudo-terminal pair.
+    pub fn new() -> PtyDevice {
+        let (mut master, slave) = TTYPort::pair().expect("create a pseudo-terminal pair");
+        master
+            .set_timeout(Duration::from_millis(2))
+            .expect("set the master's read timeout");
+        let path = slave.name().expect("the slave end has a path");
+        PtyDevice {
+            master,
+            _slave: slave,
+            path,
+        }
+    }
+
+    /// The path the driver opens.
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// Reads what the host wrote (`Ok(0)` when nothing came within 2 ms).
+    pub fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self.master.read(buf) {
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => Ok(0),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Sends bytes to the host.
+    pub fn write(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.master.write_all(bytes)?;
+        self.master.flush()
+    }
+}

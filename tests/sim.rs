@@ -435,12 +435,29 @@ fn brain_surface_exploration_on_the_mni_template() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (summary, trace) = run_to(
-        "brain_surface.toml",
-        SolverKind::Exact,
-        &dir.path().join("b.mcap"),
-        TraceFormat::Mcap,
+    // The scenario names a file outside its folder, which the loader refuses without
+    // --allow-outside-paths (issue 18): run a copy beside a copy of the data instead.
+    let scenario = std::fs::read_to_string(sims_dir().join("brain_surface.toml"))
+        .unwrap()
+        .replace(
+            "../../shared/data/mni152_t1_1mm.nii.gz",
+            "mni152_t1_1mm.nii.gz",
+        );
+    std::fs::write(dir.path().join("brain_surface.toml"), scenario).unwrap();
+    std::fs::copy(&data, dir.path().join("mni152_t1_1mm.nii.gz")).unwrap();
+    let loaded = LoadedScenario::from_file(&dir.path().join("brain_surface.toml")).unwrap();
+    let out = dir.path().join("b.mcap");
+    let meta = TraceMeta::new(
+        loaded.scene.mode_names().to_vec(),
+        loaded.scenario.rate_hz,
+        serde_json::to_value(&loaded.scenario).unwrap(),
+        loaded.volume_description.clone(),
+        SolverKind::Exact.name(),
     );
+    let mut writer = create_trace_writer(&out, TraceFormat::Mcap, &meta).unwrap();
+    let summary = sim::run(&loaded, SolverKind::Exact, writer.as_mut(), |_| {}).unwrap();
+    writer.finish().unwrap();
+    let trace = read_trace(&out).unwrap();
     assert_eq!(summary.certified_ticks, summary.ticks);
     // The proxy rides the cortex: in contact for a good part of the raster, never deeper than s/k below it.
     let contact = trace

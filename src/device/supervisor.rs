@@ -481,6 +481,8 @@ pub struct Supervisor<D: HapticDevice, F> {
     /// A device lost on a tick, kept for [`Supervisor::take_lost`] instead of being dropped here.
     lost: Option<Lifecycle<D>>,
     stall_flag: Option<Arc<AtomicBool>>,
+    /// A planar (2-DOF) device renders x and y only: z of the force is sent as zero (SPEC 6.8).
+    planar: bool,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -509,6 +511,7 @@ where
             auto_reconnect: true,
             lost: None,
             stall_flag: None,
+            planar: false,
         })
     }
 
@@ -607,6 +610,7 @@ where
         self.safety.set_max_force_n(limit);
         self.safety.disable();
         self.input.attach(device.info());
+        self.planar = device.info().force_dof == 2;
         self.device = Some(device);
         self.drive = Drive::Starting { steady_ticks: 0 };
         self.last_state = None;
@@ -907,6 +911,10 @@ where
                 flags,
             }
         };
+        let mut safe = safe;
+        if self.planar {
+            safe.force_n.z = 0.0;
+        }
         out.flags = safe.flags;
         out.sent_force_n = safe.force_n;
         out.connected = true;

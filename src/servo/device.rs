@@ -253,6 +253,14 @@ impl<D: HapticDevice + Send> Connector<D> {
         }
     }
 
+    fn install_none(&self) {
+        if let Ok(slot) = self.stop_slot.lock() {
+            if let Some(slot) = slot.as_ref() {
+                slot.install(None);
+            }
+        }
+    }
+
     fn run(mut self) {
         let mut ready: Option<Lifecycle<D>> = None;
         let mut last_keep_alive = Instant::now();
@@ -260,6 +268,9 @@ impl<D: HapticDevice + Send> Connector<D> {
             // Close dead devices first (zero and Disable once more): a serial port is opened exclusively, so
             // the old handle must go.
             while let Ok(mut dead) = self.lost.pop() {
+                // The stop channel holds a second handle of the port: release it too, or the port stays
+                // busy (serial ports are opened exclusively) and cannot be reopened.
+                self.install_none();
                 let _ = dead.close();
             }
             if ready.is_none() && self.wanted.load(Ordering::Acquire) {

@@ -536,6 +536,9 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
 
 fn info_for(model: Option<WoodyModel>, kinematics: &WoodyKinematics) -> DeviceInfo {
     let radius = kinematics.workspace_radius_m;
+    // The longest arm of the family (links b + c of a WoodenHaptics, hfab_math.h) bounds how far the handle
+    // can be from the workspace origin.
+    const REACH_M: f64 = 0.45;
     DeviceInfo {
         model: model
             .map(WoodyModel::name)
@@ -545,8 +548,10 @@ fn info_for(model: Option<WoodyModel>, kinematics: &WoodyKinematics) -> DeviceIn
         position_dof: 3,
         force_dof: 3,
         button_count: 0,
-        workspace_min_m: DVec3::splat(-radius),
-        workspace_max_m: DVec3::splat(radius),
+        // The box the handle can physically reach (the host rejects positions outside it): the links' full
+        // reach around the workspace origin, not the usable sphere of `radius`, which only sizes fitting.
+        workspace_min_m: DVec3::splat(-(radius + REACH_M)),
+        workspace_max_m: DVec3::splat(radius + REACH_M),
         max_force_n: kinematics.max_force_n,
         max_stiffness_n_per_m: kinematics.max_stiffness_n_per_m,
         max_speed_m_per_s: crate::device::info::DEFAULT_MAX_SPEED_M_PER_S,

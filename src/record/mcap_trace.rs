@@ -645,11 +645,11 @@ fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError>
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
     let parsed = std::panic::catch_unwind(|| {
-        let (mode_names, version) = read_mode_names(&bytes)?;
+        let (mode_names, version) = read_mode_names(bytes)?;
         if version != TRACE_FORMAT_VERSION {
             return Ok(Err(version));
         }
-        let (samples, cut) = read_samples(&bytes, &mode_names, finished)?;
+        let (samples, cut) = read_samples(bytes, &mode_names, finished)?;
         Ok::<_, String>(Ok((mode_names, samples, cut)))
     });
     let (mode_names, samples, cut) = match parsed {

@@ -120,8 +120,8 @@ pub enum SessionError {
     Scene(String),
     #[error("device {spec}: {source}")]
     Open { spec: String, source: OpenError },
-    #[error("device {spec}: could not connect: {source}")]
-    Connect { spec: String, source: ConnectError },
+    #[error("device {spec}: could not connect: {cause}")]
+    Connect { spec: String, cause: ConnectError },
     #[error(transparent)]
     Realtime(#[from] RtRefused),
     #[error("record {path}: {source}")]
@@ -232,9 +232,9 @@ impl Session {
         let mut device: Box<dyn ServoDevice> = opened.device;
         let stop_slot = StopSlot::new();
         device.set_stop_slot(stop_slot.clone());
-        device.connect(0).map_err(|source| SessionError::Connect {
+        device.connect(0).map_err(|cause| SessionError::Connect {
             spec: spec_label.clone(),
-            source,
+            cause,
         })?;
         let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
         let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;

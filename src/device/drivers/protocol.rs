@@ -550,7 +550,13 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
             self.send_force(DVec3::ZERO)?;
             match self.read_state() {
                 Ok(_) => return Ok(()),
-                Err(error) if attempt < 19 && matches!(error, DeviceError::Timeout { .. }) => {}
+                // A lost or corrupted reply on a noisy link: ask again (open may take a few periods).
+                Err(error)
+                    if attempt < 19
+                        && matches!(
+                            error,
+                            DeviceError::Timeout { .. } | DeviceError::Protocol { .. }
+                        ) => {}
                 Err(error) => return Err(error),
             }
         }

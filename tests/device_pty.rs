@@ -375,3 +375,68 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
         "the supervisor never tried to reopen the mute device"
     );
 }
+
+/// Runs `voxhap serve` on the mock device at `path` for `seconds`; returns its stdout and stderr.
+fn serve_on(path: &str, seconds: &str) -> (bool, String) {
+    let output = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args(["serve", "--device"])
+        .arg(format!("mock:{path}"))
+        .args([
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--duration",
+            seconds,
+        ])
+        .output()
+        .expect("run voxhap serve");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    (output.status.success(), text)
+}
+
+/// The number after `label ` in the exit summary (`ticks 2999`, `skipped 4 ticks`).
+fn summary_number(text: &str, label: &str) -> u64 {
+    let at = text
+        .find(label)
+        .unwrap_or_else(|| panic!("no {label:?} in {text}"));
+    text[at + label.len()..]
+        .split(|c: char| !c.is_ascii_digit())
+        .find(|s| !s.is_empty())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
+}
+
+/// Regression (issue 18): replies 5 ms late made connect fail with a "permissions?" message. The handshake
+/// waits 100 ms per Hello and the servo reads pipelined states, so the session runs and engages.
+#[test]
+fn a_device_answering_5_ms_late_connects_and_engages() {
+    let mock = Mock::start(&["--pty", "--latency-ms", "5"]);
+    let (ok, text) = serve_on(&mock.path, "3");
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("enables 1") || text.contains("enables 2"),
+        "{text}"
+    );
+    assert!(!text.contains("permission"), "{text}");
+}
+
+/// Regression (issue 18): with 1 % of the bytes corrupted, 73 % of the ticks were skipped. Device I/O now
+/// waits at most half a period, so ticks keep their rate; the safety rules keep the force at zero or hold.
+#[test]
+fn a_lossy_link_keeps_the_tick_rate() {
+    let mock = Mock::start(&["--pty", "--corrupt-rate", "0.01", "--seed", "7"]);
+    let (ok, text) = serve_on(&mock.path, "3");
+    assert!(ok, "{text}");
+    let ticks = summary_number(&text, "ticks ");
+    let skipped = summary_number(&text, "(skipped ");
+    // Generous for a shared machine: before the fix 73 % were skipped.
+    assert!(
+        skipped * 10 < ticks,
+        "{skipped} of {ticks} ticks skipped: {text}"
+    );
+}

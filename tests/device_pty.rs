@@ -440,3 +440,48 @@ fn a_lossy_link_keeps_the_tick_rate() {
         "{skipped} of {ticks} ticks skipped: {text}"
     );
 }
+
+/// The reconnecting wrapper the servo thread holds for every real device (connector thread, stop channel,
+/// supervisor, protocol driver over a real pseudo-terminal) allocates nothing per exchange once connected and
+/// enabled.
+#[test]
+fn the_reconnecting_wrapper_exchange_does_not_allocate() {
+    use voxhap::servo::device::{open_device, DeviceSpec};
+    use voxhap::servo::monitor::StopSlot;
+    use voxhap::servo::setup::SceneSetup;
+    let mock = Mock::start(&["--pty"]);
+    let setup = SceneSetup::builtin().unwrap();
+    let mut device = open_device(
+        &DeviceSpec::Mock(mock.path.clone().into()),
+        SupervisorConfig::default(),
+        (setup.arm.clone(), setup.start_m),
+        1e-3,
+    )
+    .unwrap()
+    .device;
+    device.set_stop_slot(StopSlot::new());
+    device.connect(0).unwrap();
+    let start = Instant::now();
+    let mut tick = 0u64;
+    let mut exchange = |device: &mut Box<dyn voxhap::servo::device::ServoDevice>| {
+        tick += 1;
+        wait_until(start + Duration::from_micros(tick * 1_000));
+        device.exchange(TickInput::at(DVec3::new(0.05, 0.0, 0.0), tick * 1_000))
+    };
+    // Enabled after 50 steady ticks; engaged once the force is small.
+    for _ in 0..200 {
+        exchange(&mut device);
+    }
+    assert!(device.counters().enables >= 1, "{:?}", device.counters());
+    let mut connected = 0;
+    let allocations = crate::util::count_allocations(|| {
+        for _ in 0..2_000 {
+            if exchange(&mut device).connected {
+                connected += 1;
+            }
+        }
+    });
+    device.stop();
+    assert_eq!(allocations, 0);
+    assert!(connected > 1_900, "{connected} of 2000 exchanges connected");
+}

@@ -7,6 +7,7 @@ use super::ByteTransport;
 use crate::device::DeviceError;
 use serialport::{SerialPort, TTYPort};
 use std::io::{Read, Write};
+use std::os::unix::io::AsRawFd;
 use std::time::Duration;
 
 /// A serial port as a [`ByteTransport`].
@@ -92,15 +93,27 @@ impl ByteTransport for SerialTransport {
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
-        if timeout != self.timeout {
+        // Wait here, with ppoll and nanosecond resolution, rather than in serialport's read: on a timeout that
+        // read builds an `io::Error` with a message (a heap allocation), and the servo thread reads with
+        // short timeouts every tick. serialport's own wait then finds the bytes already there.
+        match wait_readable(self.port.as_raw_fd(), timeout) {
+            Readiness::Timeout => return Ok(0),
+            Readiness::HungUp => {
+                return Err(DeviceError::Disconnected {
+                    during: "reading from the serial port",
+                    kind: std::io::ErrorKind::BrokenPipe,
+                })
+            }
+            Readiness::Readable => {}
+        }
+        let wait = timeout.max(Duration::from_millis(1));
+        if wait != self.timeout {
             // Only stores the value; the wait happens in read's poll.
-            self.port
-                .set_timeout(timeout)
-                .map_err(|_| DeviceError::Io {
-                    during: "setting the serial timeout",
-                    kind: std::io::ErrorKind::InvalidInput,
-                })?;
-            self.timeout = timeout;
+            self.port.set_timeout(wait).map_err(|_| DeviceError::Io {
+                during: "setting the serial timeout",
+                kind: std::io::ErrorKind::InvalidInput,
+            })?;
+            self.timeout = wait;
         }
         match self.port.read(buf) {
             Ok(0) => Err(DeviceError::Disconnected {
@@ -166,5 +179,37 @@ mod tests {
         assert!(open_error("/dev/ttyUSB0", &busy)
             .to_string()
             .contains("another program has the device open"));
+    }
+}
+
+enum Readiness {
+    Readable,
+    Timeout,
+    HungUp,
+}
+
+/// Waits at most `timeout` for `fd` to have bytes to read (or to hang up), without allocating.
+fn wait_readable(fd: std::os::unix::io::RawFd, timeout: Duration) -> Readiness {
+    let mut poll = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let limit = libc::timespec {
+        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
+        tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32),
+    };
+    // SAFETY: `poll` and `limit` are valid for the call; one descriptor is passed, and no signal mask.
+    let ready = unsafe { libc::ppoll(&mut poll, 1, &limit, std::ptr::null()) };
+    if ready <= 0 {
+        // 0: nothing in time; -1: EINTR and the like, treated as nothing yet (the caller asks again next tick).
+        return Readiness::Timeout;
+    }
+    if poll.revents & libc::POLLIN != 0 {
+        Readiness::Readable
+    } else if poll.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
+        Readiness::HungUp
+    } else {
+        Readiness::Timeout
     }
 }

@@ -150,38 +150,6 @@ impl ByteTransport for SerialTransport {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn open_errors_keep_the_os_reason_and_name_the_next_step() {
-        let denied = serialport::Error::new(
-            serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied),
-            "Permission denied",
-        );
-        let message = open_error("/dev/ttyACM0", &denied).to_string();
-        assert_eq!(
-            message,
-            "cannot open /dev/ttyACM0: Permission denied: add your user to the dialout group (then log out and \
-             in), or install contrib/udev/70-voxhap.rules (see docs/devices/README.md)"
-        );
-        let missing = serialport::Error::new(
-            serialport::ErrorKind::Io(std::io::ErrorKind::NotFound),
-            "No such file or directory",
-        );
-        let message = open_error("/dev/ttyACM0", &missing).to_string();
-        assert!(message.ends_with(
-            "No such file or directory: is it plugged in and switched on? `voxhap devices` lists what is connected"
-        ));
-        let busy =
-            serialport::Error::new(serialport::ErrorKind::NoDevice, "Device or resource busy");
-        assert!(open_error("/dev/ttyUSB0", &busy)
-            .to_string()
-            .contains("another program has the device open"));
-    }
-}
-
 enum Readiness {
     Readable,
     Timeout,
@@ -211,5 +179,37 @@ fn wait_readable(fd: std::os::unix::io::RawFd, timeout: Duration) -> Readiness {
         Readiness::HungUp
     } else {
         Readiness::Timeout
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn open_errors_keep_the_os_reason_and_name_the_next_step() {
+        let denied = serialport::Error::new(
+            serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied),
+            "Permission denied",
+        );
+        let message = open_error("/dev/ttyACM0", &denied).to_string();
+        assert_eq!(
+            message,
+            "cannot open /dev/ttyACM0: Permission denied: add your user to the dialout group (then log out and \
+             in), or install contrib/udev/70-voxhap.rules (see docs/devices/README.md)"
+        );
+        let missing = serialport::Error::new(
+            serialport::ErrorKind::Io(std::io::ErrorKind::NotFound),
+            "No such file or directory",
+        );
+        let message = open_error("/dev/ttyACM0", &missing).to_string();
+        assert!(message.ends_with(
+            "No such file or directory: is it plugged in and switched on? `voxhap devices` lists what is connected"
+        ));
+        let busy =
+            serialport::Error::new(serialport::ErrorKind::NoDevice, "Device or resource busy");
+        assert!(open_error("/dev/ttyUSB0", &busy)
+            .to_string()
+            .contains("another program has the device open"));
     }
 }

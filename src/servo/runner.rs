@@ -294,7 +294,8 @@ impl ServoLoop {
             Some(state) => (state.position_m, state.velocity_m_per_s),
             None => (self.state.proxy_m, DVec3::ZERO),
         };
-        let on_time = lateness_ns < self.timing.period_ns / 2;
+        // On time: started before the next deadline (an overrun is the loop not keeping its rate).
+        let on_time = lateness_ns < self.timing.period_ns;
         let bundle = &mut *self.bundle;
         let out = tick_timed(
             &mut self.state,

@@ -851,6 +851,16 @@ impl Fields<'_> {
         self.skip(length)
     }
 
+    /// A map of fixed-size entries (`Map<u16, u64>`: 10 bytes each): a u32 byte length that must be a whole
+    /// number of entries, or the mcap crate reads past it and takes the next bytes as lengths.
+    fn fixed_map(&mut self, entry: usize) -> Result<(), &'static str> {
+        let length = self.length(4)?;
+        if length % entry != 0 {
+            return Err("a map's length is not a whole number of entries");
+        }
+        self.skip(length)
+    }
+
     /// A map from string to string: a u32 byte length, then pairs of u32-prefixed strings inside it.
     fn string_map(&mut self) -> Result<(), &'static str> {
         let length = self.length(4)?;
@@ -891,7 +901,7 @@ fn check_record_fields(opcode: u8, content: &[u8]) -> Result<(), &'static str> {
         0x07 => f.skip(2).and_then(|()| f.prefixed(4)),
         0x08 => f
             .skip(32)
-            .and_then(|()| f.prefixed(4))
+            .and_then(|()| f.fixed_map(10))
             .and_then(|()| f.skip(8))
             .and_then(|()| f.prefixed(4))
             .and_then(|()| f.skip(16)),
@@ -905,7 +915,7 @@ fn check_record_fields(opcode: u8, content: &[u8]) -> Result<(), &'static str> {
             .skip(40)
             .and_then(|()| f.prefixed(4))
             .and_then(|()| f.prefixed(4)),
-        0x0B => f.skip(42).and_then(|()| f.prefixed(4)),
+        0x0B => f.skip(42).and_then(|()| f.fixed_map(10)),
         0x0C => f.prefixed(4).and_then(|()| f.string_map()),
         0x0D => f.skip(16).and_then(|()| f.prefixed(4)),
         0x0E => f.skip(17),

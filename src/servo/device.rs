@@ -181,7 +181,7 @@ pub struct Reconnecting<D: HapticDevice + Send + 'static> {
     lost_slot: Option<Lifecycle<D>>,
     wanted: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
-    stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>>,
+    stop_slot: SharedStopSlot,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -196,7 +196,7 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
         let (lost, lost_rx) = rtrb::RingBuffer::new(4);
         let wanted = Arc::new(AtomicBool::new(false));
         let stop = Arc::new(AtomicBool::new(false));
-        let stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>> = Arc::default();
+        let stop_slot: SharedStopSlot = Arc::default();
         let interval = Duration::from_micros(config.reconnect_interval_us.max(1000));
         let thread = {
             let connector = Connector {
@@ -240,27 +240,23 @@ struct Connector<D: HapticDevice> {
     lost: rtrb::Consumer<Lifecycle<D>>,
     wanted: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
-    stop_slot: Arc<Mutex<Option<Arc<StopSlot>>>>,
+    stop_slot: SharedStopSlot,
     interval: Duration,
 }
 
+/// The stop slot a [`Reconnecting`] device shares with its connector, once the session has given one.
+type SharedStopSlot = Arc<Mutex<Option<Arc<StopSlot>>>>;
+
+/// Installs `handle` (a device's stop channel, or `None`) in the session's stop slot, if there is one yet.
+fn install_stop(shared: &SharedStopSlot, handle: Option<Box<dyn crate::device::EmergencyStop>>) {
+    if let Ok(slot) = shared.lock() {
+        if let Some(slot) = slot.as_ref() {
+            slot.install(handle);
+        }
+    }
+}
+
 impl<D: HapticDevice + Send> Connector<D> {
-    fn install_stop(&self, device: &Lifecycle<D>) {
-        if let Ok(slot) = self.stop_slot.lock() {
-            if let Some(slot) = slot.as_ref() {
-                slot.install(device.emergency_stop());
-            }
-        }
-    }
-
-    fn install_none(&self) {
-        if let Ok(slot) = self.stop_slot.lock() {
-            if let Some(slot) = slot.as_ref() {
-                slot.install(None);
-            }
-        }
-    }
-
     fn run(mut self) {
         let mut ready: Option<Lifecycle<D>> = None;
         let mut last_keep_alive = Instant::now();
@@ -270,7 +266,7 @@ impl<D: HapticDevice + Send> Connector<D> {
             while let Ok(mut dead) = self.lost.pop() {
                 // The stop channel holds a second handle of the port: release it too, or the port stays
                 // busy (serial ports are opened exclusively) and cannot be reopened.
-                self.install_none();
+                install_stop(&self.stop_slot, None);
                 let _ = dead.close();
             }
             if ready.is_none() && self.wanted.load(Ordering::Acquire) {
@@ -284,7 +280,7 @@ impl<D: HapticDevice + Send> Connector<D> {
             }
             if let Some(mut device) = ready.take() {
                 if self.wanted.load(Ordering::Acquire) && self.opened.slots() > 0 {
-                    self.install_stop(&device);
+                    install_stop(&self.stop_slot, device.emergency_stop());
                     match self.opened.push(device) {
                         Ok(()) => self.wanted.store(false, Ordering::Release),
                         Err(rtrb::PushError::Full(device)) => ready = Some(device),
@@ -362,11 +358,7 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
 
     fn connect(&mut self, now_us: u64) -> Result<(), ConnectError> {
         let device = open_only(&self.opener)?;
-        if let Ok(slot) = self.stop_slot.lock() {
-            if let Some(slot) = slot.as_ref() {
-                slot.install(device.emergency_stop());
-            }
-        }
+        install_stop(&self.stop_slot, device.emergency_stop());
         self.supervisor.attach(device, now_us);
         Ok(())
     }

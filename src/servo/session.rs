@@ -563,9 +563,6 @@ impl SessionShared {
                     .compare_exchange(id - 1, id, Ordering::AcqRel, Ordering::Acquire)
                     .is_ok()
                 {
-                    self.stats
-                        .commands_cancelled
-                        .fetch_add(1, Ordering::Relaxed);
                     return Err(ControlError::Unavailable(
                         "the servo loop did not take the command in time; it was withdrawn and will not be \
                          applied"

@@ -215,8 +215,6 @@ pub struct ServoStats {
     /// Trace writer errors (set by the recorder thread).
     pub recorder_errors: AtomicU64,
     pub commands_applied: AtomicU64,
-    /// Commands the control side gave up on before the servo thread took them (never applied).
-    pub commands_cancelled: AtomicU64,
     /// Stops by the stall monitor.
     pub monitor_stops: AtomicU64,
     /// Outcome of the last ClearFault command (`runner::CLEAR_FAULT_*`).

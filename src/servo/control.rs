@@ -11,7 +11,7 @@ use super::runner::{
     CLEAR_FAULT_REQUESTED,
 };
 use super::session::{trace_meta, SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
-use super::setup::{load_volume_arg, SceneBundle, SceneSetup};
+use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
 use crate::record::{create_trace_writer, TraceFormat};
 use glam::DVec3;
 use std::path::PathBuf;
@@ -240,11 +240,12 @@ impl SessionShared {
                 let mut setup = control.setup.clone();
                 setup
                     .replace_volume(name.as_deref(), volume, source)
-                    .map_err(|message| {
-                        if message.starts_with("no volume named") {
-                            ControlError::NotFound(message)
-                        } else {
-                            invalid(message)
+                    .map_err(|error| match error {
+                        ReplaceVolumeError::NoSuchVolume { .. } => {
+                            ControlError::NotFound(error.to_string())
+                        }
+                        ReplaceVolumeError::NoVolume | ReplaceVolumeError::Modes(_) => {
+                            invalid(error.to_string())
                         }
                     })?;
                 self.swap(control, setup, format!("volume {} loaded", path.display()))

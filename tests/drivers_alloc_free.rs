@@ -1,7 +1,12 @@
-//! The servo-path rule for every driver of issue 13: after warm-up, a tick's `write_force` + `read_state`
-//! allocates nothing (the counting allocator counts this thread only; the device doubles answer from their own
-//! threads). WoodenHaptics (Teensy), Haply 2DIY and Falcon run over in-memory pipes, the Inverse3 over a loopback
-//! WebSocket, the legacy WoodenHaptics HID driver over a fixed report source.
+//! The servo-path rule for every driver: after warm-up, a tick allocates nothing (the counting allocator counts
+//! this thread only; the device doubles answer from their own threads). WoodenHaptics (Teensy), Haply 2DIY, Falcon
+//! and the voxhap protocol over serial run over in-memory pipes, the voxhap protocol over HID over an in-memory
+//! report pipe, the Inverse3 over a loopback WebSocket, the legacy WoodenHaptics HID driver over a fixed report
+//! source.
+//!
+//! Each driver is checked twice: bare (`write_force` + `read_state`), and the way the servo thread holds it, inside
+//! the reconnecting wrapper (`servo::device::Reconnecting`: connector thread, supervisor with its lifecycle, link
+//! health and safety pipeline), connected, enabled and engaged, one `ServoDevice::exchange` per tick.
 
 use crate::util::alloc::count_allocations;
 use crate::util::falcon_firmware::Bootloader;
@@ -13,11 +18,17 @@ use std::time::Duration;
 use voxhap::device::drivers::falcon::{Falcon, FalconConfig};
 use voxhap::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
+use voxhap::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::drivers::woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
 use voxhap::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
+use voxhap::device::supervisor::{SupervisorConfig, TickInput};
 use voxhap::device::transport::inverse_service::ServiceConfig;
 use voxhap::device::transport::{ByteTransport, MemoryPipe, ReportTransport};
 use voxhap::device::{DeviceError, HapticDevice};
+use voxhap::servo::device::{Reconnecting, ServoDevice};
+use voxhap::servo::monitor::StopSlot;
+use voxhap_protocol::hid::REPORT_LEN;
+use voxhap_protocol::{DeviceSample, DeviceSession, FrameDecoder, HostToDevice};
 
 /// Runs `ticks` ticks after `warm_up` ticks and returns the allocation events of the counted ones.
 fn ticks_allocate<D: HapticDevice>(device: &mut D, warm_up: usize, ticks: usize) -> u64 {
@@ -64,22 +75,33 @@ fn responder(
     stop
 }
 
-#[test]
-fn woodenhaptics_serial_ticks_allocate_nothing() {
+/// A WoodenHaptics (Teensy) driver on a pipe whose far end answers every command with a report.
+fn woody() -> (WoodenHapticsSerial<MemoryPipe>, Arc<AtomicBool>) {
     let (host, device) = MemoryPipe::pair();
     let stop = responder(
         device,
         |p| p.iter().position(|&b| b == b'\n').map(|i| i + 1),
         |_| b"[3,120,-40,300,0,0,0,0]\n".to_vec(),
     );
-    let mut driver = WoodenHapticsSerial::new(host, WoodyConfig::default());
-    driver.open().unwrap();
-    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
-    stop.store(true, Ordering::Release);
+    (WoodenHapticsSerial::new(host, WoodyConfig::default()), stop)
 }
 
 #[test]
-fn haply_2diy_ticks_allocate_nothing() {
+fn woodenhaptics_serial_ticks_allocate_nothing() {
+    let (mut driver, stop) = woody();
+    driver.open().unwrap();
+    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
+    stop.store(true, Ordering::Release);
+    let (driver, stop) = woody();
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+    stop.store(true, Ordering::Release);
+}
+
+/// A Haply 2DIY driver on a pipe whose far end answers as the board's firmware does.
+fn haply() -> (Haply2Diy<MemoryPipe>, Arc<AtomicBool>) {
     let (host, device) = MemoryPipe::pair();
     let stop = responder(
         device,
@@ -100,51 +122,83 @@ fn haply_2diy_ticks_allocate_nothing() {
             }
         },
     );
-    let mut driver = Haply2Diy::new(host, Haply2DiyConfig::default());
-    driver.open().unwrap();
-    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
-    stop.store(true, Ordering::Release);
+    (Haply2Diy::new(host, Haply2DiyConfig::default()), stop)
 }
 
 #[test]
-fn falcon_ticks_allocate_nothing() {
-    // The bootloader double runs its firmware once it has 1 byte of "firmware"; upload it, then tick.
+fn haply_2diy_ticks_allocate_nothing() {
+    let (mut driver, stop) = haply();
+    driver.open().unwrap();
+    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
+    stop.store(true, Ordering::Release);
+    let (driver, stop) = haply();
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+    stop.store(true, Ordering::Release);
+}
+
+/// A Falcon driver on the bootloader double, which runs its firmware once it has 1 byte of "firmware" (uploaded
+/// at open). The bootloader handle and the firmware file must live as long as the driver.
+fn falcon() -> (Falcon<MemoryPipe>, Bootloader, tempfile::TempDir) {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("fw.bin");
     std::fs::write(&file, [0x5a]).unwrap();
     let (bootloader, pipe) = Bootloader::start(1);
     *bootloader.shared.homing.lock().unwrap() = 0x7;
     *bootloader.shared.encoders.lock().unwrap() = [-300, 200, 100];
-    let mut driver = Falcon::new(
+    let driver = Falcon::new(
         pipe,
         FalconConfig {
             firmware: Some(file),
             ..FalconConfig::default()
         },
     );
-    driver.open().unwrap();
-    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
+    (driver, bootloader, dir)
 }
 
 #[test]
-fn haply_inverse_ticks_allocate_nothing() {
-    let service = InverseService::start();
-    let mut driver = HaplyInverse::new(HaplyInverseConfig {
+fn falcon_ticks_allocate_nothing() {
+    let (mut driver, _bootloader, _dir) = falcon();
+    driver.open().unwrap();
+    assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
+    let (driver, _bootloader, _dir) = falcon();
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+}
+
+fn inverse(service: &InverseService) -> HaplyInverse {
+    HaplyInverse::new(HaplyInverseConfig {
         service: ServiceConfig {
             url: service.url(),
             ..ServiceConfig::default()
         },
         reply_wait: Duration::from_millis(20),
         ..HaplyInverseConfig::default()
-    });
+    })
+}
+
+#[test]
+fn haply_inverse_ticks_allocate_nothing() {
+    let service = InverseService::start();
+    let mut driver = inverse(&service);
     driver.open().unwrap();
     assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
     driver.close().unwrap();
+    assert_eq!(
+        supervised_ticks_allocate(inverse(&service), SUPERVISED_WARM_UP, 1000),
+        0
+    );
 }
 
 /// A HID source that always has the same two reports queued (so every read drains one stale report).
 struct FixedReports {
     queued: u8,
+    /// The three encoder counts (little-endian i16 each) every report carries.
+    counts: [u8; 6],
 }
 
 impl ReportTransport for FixedReports {
@@ -157,17 +211,251 @@ impl ReportTransport for FixedReports {
             return Ok(0);
         }
         self.queued -= 1;
-        buf[..8].copy_from_slice(&[10, 0, 20, 0, 30, 0, self.queued, 0]);
+        buf[..6].copy_from_slice(&self.counts);
+        buf[6..8].copy_from_slice(&[self.queued, 0]);
         Ok(8)
     }
 }
 
 #[test]
 fn woodenhaptics_hid_ticks_allocate_nothing_and_keep_the_newest_report() {
-    let mut driver =
-        WoodenHaptics::new(FixedReports { queued: 0 }, WoodenHapticsConfig::default()).unwrap();
+    let reports = FixedReports {
+        queued: 0,
+        counts: [10, 0, 20, 0, 30, 0],
+    };
+    let mut driver = WoodenHaptics::new(reports, WoodenHapticsConfig::default()).unwrap();
     assert_eq!(ticks_allocate(&mut driver, 10, 1000), 0);
     // Two reports were queued per tick; the newest (counter 0) was kept, the older one skipped.
     assert_eq!(driver.last_counter(), Some(0));
     assert_eq!(driver.drained_reports(), 1010);
+    // Supervised: the handle inside the device's workspace, at counts (0, -240, 2000), about (5, 0, 82) mm (the
+    // counts above lie outside it, and the input checks would drop the link after a run of them).
+    let reports = FixedReports {
+        queued: 0,
+        counts: [0, 0, 16, 255, 208, 7],
+    };
+    let driver = WoodenHaptics::new(reports, WoodenHapticsConfig::default()).unwrap();
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// The drivers inside the reconnecting wrapper, through the supervisor and the safety pipeline.
+
+/// Wraps `driver` (not yet opened) in the reconnecting wrapper, connects it, runs `warm_up` exchanges (enable after
+/// the steady ticks, engagement, ramp-in) and returns the allocation events of the next `ticks` exchanges. Panics
+/// if the device was never enabled or any counted exchange found it disconnected.
+fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
+    driver: D,
+    warm_up: u64,
+    ticks: u64,
+) -> u64 {
+    let mut slot = Some(driver);
+    let mut device = Reconnecting::new(
+        SupervisorConfig::default(),
+        Box::new(move || {
+            slot.take().ok_or(DeviceError::Config {
+                what: "the in-memory device was already opened".to_owned(),
+            })
+        }),
+    )
+    .unwrap();
+    device.set_stop_slot(StopSlot::new());
+    device.connect(0).unwrap();
+    // A small force (under the engage threshold) that varies, so every stage of the pipeline works.
+    let exchange = |device: &mut Reconnecting<D>, tick: u64| {
+        let force = DVec3::new(0.3 * (tick as f64 * 0.01).sin(), 0.1, 0.2);
+        device.exchange(TickInput::at(force, tick * 1_000))
+    };
+    let mut warm_up_events = Vec::new();
+    for tick in 1..=warm_up {
+        let output = exchange(&mut device, tick);
+        warm_up_events.extend(output.events.iter().map(|e| (tick, e)));
+    }
+    assert!(
+        device.counters().enables >= 1,
+        "never enabled: {:?}; events {warm_up_events:?}",
+        device.counters()
+    );
+    assert!(device.engaged(), "not engaged after {warm_up} ticks");
+    let mut disconnected = 0;
+    let ((), events) = count_allocations(|| {
+        for tick in warm_up + 1..=warm_up + ticks {
+            if !exchange(&mut device, tick).connected {
+                disconnected += 1;
+            }
+        }
+    });
+    device.stop();
+    assert_eq!(disconnected, 0, "exchanges without a connected device");
+    events
+}
+
+/// Ticks enough for Enable (50 steady ticks), engagement (10 small ticks) and the 0.5 s ramp-in.
+const SUPERVISED_WARM_UP: u64 = 700;
+
+/// The voxhap protocol device side (the reference crate's `DeviceSession`, as `voxhap mock-device` runs it), fed one
+/// message at a time; answers go out through `send`.
+struct ProtocolResponder {
+    session: DeviceSession,
+    start: std::time::Instant,
+}
+
+impl ProtocolResponder {
+    fn new() -> Self {
+        ProtocolResponder {
+            session: DeviceSession::new(voxhap::device::mock::mock_device_info()),
+            start: std::time::Instant::now(),
+        }
+    }
+
+    fn on_message(
+        &mut self,
+        message: &HostToDevice,
+        mut send: impl FnMut(&voxhap_protocol::DeviceToHost),
+    ) {
+        let now_us = self.start.elapsed().as_micros() as u64;
+        self.session.on_message(message, now_us);
+        let sample = DeviceSample {
+            position_m: [0.01, 0.0, 0.0],
+            velocity_m_per_s: [0.0; 3],
+            buttons: 0,
+        };
+        self.session.poll(now_us, &sample);
+        while let Some(reply) = self.session.poll_transmit() {
+            send(&reply);
+        }
+    }
+}
+
+#[test]
+fn supervised_protocol_serial_exchanges_allocate_nothing() {
+    let (host, mut device) = MemoryPipe::pair();
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    std::thread::spawn(move || {
+        let mut responder = ProtocolResponder::new();
+        let mut decoder = FrameDecoder::<HostToDevice>::new();
+        let mut buf = [0u8; 256];
+        while !flag.load(Ordering::Acquire) {
+            let Ok(n) = device.read(&mut buf, Duration::from_millis(5)) else {
+                return;
+            };
+            for &byte in &buf[..n] {
+                if let Some(Ok(message)) = decoder.push(byte) {
+                    responder.on_message(&message, |reply| {
+                        let mut frame = [0u8; voxhap_protocol::MAX_WIRE_FRAME_LEN];
+                        if let Ok(len) = voxhap_protocol::encode_frame(reply, &mut frame) {
+                            let _ = device.write_all(&frame[..len]);
+                        }
+                    });
+                }
+            }
+        }
+    });
+    let driver = ProtocolDevice::new(SerialLink::new(host), ProtocolConfig::default());
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+    stop.store(true, Ordering::Release);
+}
+
+/// One direction of an in-memory HID link: whole reports, in order (capacity reserved up front, so passing a
+/// report never allocates).
+#[derive(Clone)]
+struct ReportQueue(
+    Arc<(
+        std::sync::Mutex<std::collections::VecDeque<[u8; REPORT_LEN]>>,
+        std::sync::Condvar,
+    )>,
+);
+
+impl ReportQueue {
+    fn new() -> Self {
+        ReportQueue(Arc::new((
+            std::sync::Mutex::new(std::collections::VecDeque::with_capacity(64)),
+            std::sync::Condvar::new(),
+        )))
+    }
+
+    fn push(&self, report: &[u8]) {
+        let mut fixed = [0u8; REPORT_LEN];
+        let n = report.len().min(REPORT_LEN);
+        fixed[..n].copy_from_slice(&report[..n]);
+        let (queue, ready) = &*self.0;
+        let mut queue = queue.lock().unwrap();
+        if queue.len() < queue.capacity() {
+            queue.push_back(fixed);
+        }
+        ready.notify_one();
+    }
+
+    fn pop(&self, timeout: Duration) -> Option<[u8; REPORT_LEN]> {
+        let (queue, ready) = &*self.0;
+        let queue = queue.lock().unwrap();
+        let (mut queue, _) = ready
+            .wait_timeout_while(queue, timeout, |q| q.is_empty())
+            .unwrap();
+        queue.pop_front()
+    }
+}
+
+/// The host's end of an in-memory HID link.
+struct ReportPipe {
+    to_device: ReportQueue,
+    to_host: ReportQueue,
+}
+
+impl ReportTransport for ReportPipe {
+    fn write_report(&mut self, report: &[u8]) -> Result<(), DeviceError> {
+        self.to_device.push(report);
+        Ok(())
+    }
+
+    fn read_report(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        match self.to_host.pop(timeout) {
+            Some(report) => {
+                let n = buf.len().min(REPORT_LEN);
+                buf[..n].copy_from_slice(&report[..n]);
+                Ok(n)
+            }
+            None => Ok(0),
+        }
+    }
+}
+
+#[test]
+fn supervised_protocol_hid_exchanges_allocate_nothing() {
+    let (to_device, to_host) = (ReportQueue::new(), ReportQueue::new());
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let (from_host, replies) = (to_device.clone(), to_host.clone());
+    std::thread::spawn(move || {
+        let mut responder = ProtocolResponder::new();
+        while !flag.load(Ordering::Acquire) {
+            let Some(report) = from_host.pop(Duration::from_millis(5)) else {
+                continue;
+            };
+            if let Ok(message) = voxhap_protocol::decode_report::<HostToDevice>(&report) {
+                responder.on_message(&message, |reply| {
+                    let mut out = [0u8; REPORT_LEN];
+                    if let Ok(len) = voxhap_protocol::encode_report(reply, &mut out) {
+                        replies.push(&out[..len]);
+                    }
+                });
+            }
+        }
+    });
+    let driver = ProtocolDevice::new(
+        HidLink::new(ReportPipe { to_device, to_host }),
+        ProtocolConfig::default(),
+    );
+    assert_eq!(
+        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        0
+    );
+    stop.store(true, Ordering::Release);
 }

@@ -99,6 +99,22 @@ impl SessionShared {
         Ok(())
     }
 
+    /// Waits briefly (at most 100 ms) until the servo thread's snapshot shows scene `generation`. The servo
+    /// thread takes a command at the start of a tick and publishes that tick's snapshot at its end, so without
+    /// this a client reading the snapshot right after the reply could still see the old values.
+    fn wait_for_snapshot(&self, generation: u64) {
+        let deadline = Instant::now() + Duration::from_millis(100);
+        while Instant::now() < deadline && self.servo_running.load(Ordering::Acquire) {
+            if self
+                .snapshot()
+                .is_some_and(|s| s.scene_generation >= generation)
+            {
+                return;
+            }
+            std::thread::sleep(Duration::from_micros(100));
+        }
+    }
+
     /// Builds `setup` into a bundle, swaps it in, and keeps `setup` as the current one.
     fn swap(
         &self,
@@ -111,6 +127,7 @@ impl SessionShared {
             .bundle(self.period_ns, self.solver_budget_fraction, generation)
             .map_err(|e| invalid(e.to_string()))?;
         self.send(control, ServoCommand::SwapScene(Box::new(bundle)))?;
+        self.wait_for_snapshot(generation);
         control.setup = setup;
         control.generation = generation;
         Ok(ControlReply {
@@ -135,6 +152,7 @@ impl SessionShared {
                 generation,
             },
         )?;
+        self.wait_for_snapshot(generation);
         control.setup.stiffness_n_per_m = k;
         control.setup.damping_n_s_per_m = damping;
         control.generation = generation;

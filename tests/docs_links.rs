@@ -1,6 +1,7 @@
 //! Every relative link in the documentation resolves: README.md, ARCHITECTURE.md and every Markdown page
-//! under docs/ (and the files those pages include), to a file or folder inside the repository and, when the
-//! link has a `#fragment`, to a heading (or an `<a id>`) of the Markdown file it names.
+//! under docs/ (and the files those pages include), to a file or folder inside the repository (inside docs/
+//! for a docs/ page, since the book holds only docs/) and, when the link has a `#fragment`, to a heading (or
+//! an `<a id>`) of the Markdown file it names. Every page under docs/ is listed in docs/SUMMARY.md.
 //!
 //! Where it sits: documentation checks, beside tests/docs_reference.rs. Heading anchors follow the rule GitHub
 //! and mdBook share: lower case, letters, digits, `-` and `_` kept, spaces become `-`, everything else is
@@ -237,6 +238,14 @@ fn check_file(root: &Path, file: &Path) -> Vec<String> {
             };
             let problem = if !resolved.starts_with(root) {
                 Some("points outside the repository".to_owned())
+            } else if file.starts_with(root.join("docs"))
+                && !resolved.starts_with(root.join("docs"))
+            {
+                Some(
+                    "points outside docs/, which the book cannot show (link a docs/ page instead, e.g. \
+                     protocol-spec.md, which includes protocol/SPEC.md)"
+                        .to_owned(),
+                )
             } else if !resolved.exists() {
                 Some(format!(
                     "{} does not exist",

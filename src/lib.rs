@@ -14,3 +14,22 @@ pub mod server;
 pub mod servo;
 pub mod sim;
 pub mod volume;
+
+/// The Rust examples in the documentation pages, compiled (and, unless marked `no_run`, run) by
+/// `cargo test --doc`, so a page cannot show code that no longer builds. Every fenced block without a
+/// language in these pages is marked `text`, since rustdoc would take it for Rust.
+#[cfg(doctest)]
+mod docs_examples {
+    #[doc = include_str!("../docs/serve.md")]
+    struct Serve;
+    #[doc = include_str!("../docs/scenarios.md")]
+    struct Scenarios;
+    #[doc = include_str!("../docs/sim-arm.md")]
+    struct SimArm;
+    #[doc = include_str!("../docs/recording.md")]
+    struct Recording;
+    #[doc = include_str!("../docs/firmware.md")]
+    struct Firmware;
+    #[doc = include_str!("../docs/devices/host.md")]
+    struct DeviceLayer;
+}

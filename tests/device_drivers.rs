@@ -85,7 +85,7 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
         Transaction::Read(state_frame(3, 2, 0.03)),
         Transaction::Write(set_force_frame(3, [0.0; 3])),
         Transaction::Write(vector("disable")),
-        // Close writes zero and Disable once more, whatever the host believed (README, Safety).
+        // Close writes zero and Disable once more, whatever the host believed (docs/safety.md).
         Transaction::Write(set_force_frame(4, [0.0; 3])),
         Transaction::Write(vector("disable")),
     ]);

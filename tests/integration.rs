@@ -14,6 +14,8 @@ mod device_hardware;
 mod device_pty;
 mod device_safety;
 mod device_spec;
+mod docs_links;
+mod docs_reference;
 mod drivers_alloc_free;
 mod falcon;
 mod foxglove;

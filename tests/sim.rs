@@ -317,7 +317,7 @@ fn multimodal_exact_trace_is_certified_and_the_constraint_approach_loses_the_sur
             .sum::<f64>()
             / (t.samples.len() - half) as f64
     };
-    // README: the exact proxy rides the ball about 0.65 mm outside the probe.
+    // docs/scenarios.md: the exact proxy rides the ball about 0.65 mm outside the probe.
     let gap_m = exact_r - mean_probe_radius(&trace);
     assert!(
         (5e-4..8e-4).contains(&gap_m),

@@ -1,7 +1,7 @@
 //! `voxhap clear-fault`: the operator's explicit acknowledgement of a device fault that needs a person
 //! (e-stop, over-current, ...). It asks a running `voxhap serve` (through its control API on loopback) to send
 //! ClearFault to the device; the session then enables the device again once the link is healthy, and forces
-//! ramp in. voxhap never clears such a fault by itself (README, Safety).
+//! ramp in. voxhap never clears such a fault by itself (docs/safety.md).
 //!
 //! The request is one HTTP/1.1 POST of `{"command":"clear_fault"}` to `/api/control` with the control token,
 //! written over a plain `TcpStream`: the server is on this machine and speaks plain HTTP, so a client library

@@ -1,0 +1,154 @@
+//! The generated reference pages in docs/reference/: the CLI (from the clap definitions) and the trace
+//! columns and flags (from `voxhap::record`'s column list and flag table).
+//!
+//! Where it sits: documentation checks. Each test renders its page from the code and fails when the committed
+//! file differs, so the docs cannot drift from the flags or columns. `VOXHAP_BLESS=1 cargo test --test
+//! integration docs_reference` writes the pages instead (after adding a flag or a column).
+
+use clap::CommandFactory;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Compares `generated` with the committed file `docs/reference/NAME`, or writes it when `VOXHAP_BLESS=1`.
+fn check_or_bless(name: &str, generated: &str) {
+    let path: PathBuf = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("docs/reference")
+        .join(name);
+    if std::env::var_os("VOXHAP_BLESS").is_some_and(|v| v == "1") {
+        std::fs::write(&path, generated)
+            .unwrap_or_else(|err| panic!("cannot write {}: {err}", path.display()));
+        eprintln!("blessed {}", path.display());
+        return;
+    }
+    let committed = std::fs::read_to_string(&path).unwrap_or_default();
+    if committed != generated {
+        let first_difference = committed
+            .lines()
+            .zip(generated.lines())
+            .position(|(a, b)| a != b)
+            .unwrap_or_else(|| committed.lines().count().min(generated.lines().count()));
+        panic!(
+            "{} is stale (first difference at line {}): regenerate it with\n  \
+             VOXHAP_BLESS=1 cargo test --test integration docs_reference\nand commit the result",
+            path.display(),
+            first_difference + 1
+        );
+    }
+}
+
+/// Hides the values of environment variables in help text (`--token` reads VOXHAP_TOKEN), so the page does
+/// not depend on the environment the test runs in.
+fn without_env_values(command: clap::Command) -> clap::Command {
+    command
+        .mut_args(|arg| arg.hide_env_values(true))
+        .mut_subcommands(without_env_values)
+}
+
+fn render_command(out: &mut String, command: &mut clap::Command, path: &str) {
+    let heading = if path.contains(' ') { "##" } else { "#" };
+    if heading == "##" {
+        writeln!(out, "{heading} `{path}`\n").unwrap();
+    }
+    let help = command.render_long_help().to_string();
+    let help: Vec<&str> = help.trim_end().lines().map(str::trim_end).collect();
+    writeln!(out, "```text\n$ {path} --help\n{}\n```\n", help.join("\n")).unwrap();
+    let names: Vec<String> = command
+        .get_subcommands()
+        .filter(|sub| sub.get_name() != "help")
+        .map(|sub| sub.get_name().to_owned())
+        .collect();
+    for name in names {
+        let sub = command
+            .find_subcommand_mut(&name)
+            .expect("listed subcommand");
+        render_command(out, sub, &format!("{path} {name}"));
+    }
+}
+
+fn cli_markdown() -> String {
+    let mut command = without_env_values(voxhap::cli::Cli::command());
+    command.build();
+    let mut out = String::from(
+        "# The `voxhap` command-line reference\n\n\
+         <!-- Generated from the clap definitions by tests/docs_reference.rs; do not edit by hand. After \
+         changing a flag: VOXHAP_BLESS=1 cargo test --test integration docs_reference -->\n\n\
+         Every subcommand's `--help`, as the binary prints it. Guides with examples: [serve](../serve.md), \
+         [sim](../scenarios.md), [sims in CI](../sims.md), [traces](../traces.md), \
+         [devices](../devices/README.md).\n\n",
+    );
+    out.push_str("Subcommands:");
+    for sub in command.get_subcommands().filter(|s| s.get_name() != "help") {
+        write!(out, " [`{0}`](#voxhap-{0}),", sub.get_name()).unwrap();
+    }
+    out.pop();
+    out.push_str(".\n\n## `voxhap`\n\n");
+    render_command(&mut out, &mut command, "voxhap");
+    out.truncate(out.trim_end().len());
+    out.push('\n');
+    out
+}
+
+fn table_cell(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
+fn trace_markdown() -> String {
+    let mode = ["MODE".to_owned()];
+    let mut out = String::from(
+        "# Trace columns and flags\n\n\
+         <!-- Generated from voxhap::record::columns and FLAG_DOCS by tests/docs_reference.rs; do not edit by \
+         hand. After changing a column or a flag: VOXHAP_BLESS=1 cargo test --test integration docs_reference \
+         -->\n\n\
+         The columns of a CSV trace, in file order, as the sidecar's `columns` list gives them. The \
+         per-mode columns repeat for every mode of the scene, `MODE` standing for the mode's name. How \
+         traces are written, read and repaired: [Force traces](../traces.md).\n\n\
+         ## Columns\n\n\
+         | column | unit | type | meaning |\n|---|---|---|---|\n",
+    );
+    for column in voxhap::record::columns(&mode) {
+        let column_type = serde_json::to_value(column.column_type).expect("column type serialises");
+        writeln!(
+            out,
+            "| `{}` | {} | {} | {} |",
+            column.name,
+            column.unit,
+            column_type.as_str().unwrap_or("?"),
+            table_cell(&column.meaning)
+        )
+        .unwrap();
+    }
+    out.push_str(
+        "\n## Flags\n\n\
+         `flag_bits` holds every flag as one integer (bit `b` has the value `1 << b`); each flag also has its \
+         own `true`/`false` column `flag_<name>`. The sidecar's `flag_bits` list repeats this table.\n\n\
+         | bit | value | name | meaning |\n|---|---|---|---|\n",
+    );
+    for flag in voxhap::record::FLAG_DOCS.iter() {
+        writeln!(
+            out,
+            "| {} | {} | `{}` | {} |",
+            flag.bit,
+            1u64 << flag.bit,
+            flag.name,
+            table_cell(&flag.meaning)
+        )
+        .unwrap();
+    }
+    out
+}
+
+#[test]
+fn cli_reference_matches_the_clap_definitions() {
+    check_or_bless("cli.md", &cli_markdown());
+}
+
+#[test]
+fn trace_reference_matches_the_column_list_and_flag_table() {
+    let page = trace_markdown();
+    // Every flag of the code is on the page, bit 7 included (it was once missing from the hand-written list).
+    assert!(
+        page.contains("| 7 | 128 | `compute_over_budget` |"),
+        "{page}"
+    );
+    check_or_bless("trace.md", &page);
+}

@@ -243,6 +243,20 @@ async fn invalid_commands_are_rejected_naming_the_problem_and_change_nothing() {
             400,
             "transfer",
         ),
+        (
+            "POST",
+            "/api/modes/nonesuch/enabled",
+            r#"{"enabled": false}"#,
+            404,
+            "no mode named \"nonesuch\"",
+        ),
+        (
+            "POST",
+            "/api/modes/surface/enabled",
+            r#"{"enabled": "no"}"#,
+            400,
+            "enabled",
+        ),
         ("DELETE", "/api/modes/nonesuch", "", 404, "no mode named"),
         (
             "POST",
@@ -407,6 +421,36 @@ async fn a_valid_change_takes_effect_in_the_next_state() {
         )
         .await;
     assert_eq!(status, 200, "{reply}");
+    // Switched off and on again: the breakpoints survive (issue 17: a strength of 0 and back used to
+    // flatten them), and the scene says which modes are off.
+    let mode_named = |scene: &Value, name: &str| {
+        scene["modes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["name"] == name || (m["name"].is_null() && m["kind"] == name))
+            .cloned()
+            .unwrap()
+    };
+    let (status, reply) = server
+        .post("/api/modes/viscosity/enabled", r#"{"enabled": false}"#)
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    assert!(
+        reply["message"].as_str().unwrap().contains("off"),
+        "{reply}"
+    );
+    let off = mode_named(&server.get("/api/scene").await.1, "viscosity");
+    assert_eq!(off["enabled"], false, "{off}");
+    assert_eq!(off["transfer"], json!([[0.0, 0.0], [1.0, 0.1]]), "{off}");
+    let (status, reply) = server
+        .post("/api/modes/viscosity/enabled", r#"{"enabled": true}"#)
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    let on = mode_named(&server.get("/api/scene").await.1, "viscosity");
+    assert!(on.get("enabled").is_none(), "{on}");
+    assert_eq!(on["transfer"], json!([[0.0, 0.0], [1.0, 0.1]]), "{on}");
+
     let (status, reply) = server
         .send("DELETE", "/api/modes/viscosity", Some(TOKEN), "")
         .await;

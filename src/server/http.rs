@@ -9,7 +9,7 @@
 use super::auth::check_bearer;
 use super::messages::{
     decode_command, decode_value, parse_json, ControlFailed, ControlOk, EmptyBody, ErrorBody,
-    HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody, TransferBody,
+    EnabledBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody, TransferBody,
     VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::{assets, ws, Shared};
@@ -44,6 +44,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/modes", post(add_mode))
         .route("/api/modes/{name}", delete(remove_mode))
         .route("/api/modes/{name}/transfer", post(set_transfer))
+        .route("/api/modes/{name}/enabled", post(set_mode_enabled))
         .route("/api/volume", post(load_volume))
         .route("/api/record/start", post(record_start))
         .route("/api/record/stop", post(record_stop))
@@ -373,6 +374,26 @@ async fn set_transfer(
         one(ControlCommand::SetTransfer {
             mode,
             transfer: body.transfer,
+        })
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+async fn set_mode_enabled(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let mode = match name {
+        Ok(Path(name)) => name,
+        Err(rejection) => return bad_path(&rejection),
+    };
+    let decode: Decode = Box::new(move |value| {
+        let body: EnabledBody = decode_value(value)?;
+        one(ControlCommand::SetModeEnabled {
+            mode,
+            enabled: body.enabled,
         })
     });
     control_request(&shared, &headers, body, false, decode).await

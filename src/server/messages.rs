@@ -280,6 +280,10 @@ enum CommandWire {
         mode: String,
         transfer: TransferFunction,
     },
+    SetModeEnabled {
+        mode: String,
+        enabled: bool,
+    },
     AddMode {
         mode: ModeConfig,
     },
@@ -311,6 +315,9 @@ impl CommandWire {
             CommandWire::SetTransfer { mode, transfer } => {
                 ControlCommand::SetTransfer { mode, transfer }
             }
+            CommandWire::SetModeEnabled { mode, enabled } => {
+                ControlCommand::SetModeEnabled { mode, enabled }
+            }
             CommandWire::AddMode { mode } => ControlCommand::AddMode { mode },
             CommandWire::RemoveMode { name } => ControlCommand::RemoveMode { name },
             CommandWire::LoadVolume { path, name } => ControlCommand::LoadVolume { path, name },
@@ -332,6 +339,9 @@ impl CommandWire {
             ControlCommand::SetDamping { damping } => CommandWire::SetDamping { damping },
             ControlCommand::SetTransfer { mode, transfer } => {
                 CommandWire::SetTransfer { mode, transfer }
+            }
+            ControlCommand::SetModeEnabled { mode, enabled } => {
+                CommandWire::SetModeEnabled { mode, enabled }
             }
             ControlCommand::AddMode { mode } => CommandWire::AddMode { mode },
             ControlCommand::RemoveMode { name } => CommandWire::RemoveMode { name },
@@ -473,6 +483,13 @@ pub struct TransferBody {
     pub transfer: TransferFunction,
 }
 
+/// `POST /api/modes/{name}/enabled`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnabledBody {
+    pub enabled: bool,
+}
+
 /// `POST /api/volume`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -517,6 +534,10 @@ mod tests {
             ControlCommand::SetTransfer {
                 mode: "surface".into(),
                 transfer: TransferFunction::new(vec![[0.0, 0.0], [1.0, 2.0]]).unwrap(),
+            },
+            ControlCommand::SetModeEnabled {
+                mode: "surface".into(),
+                enabled: false,
             },
             ControlCommand::AddMode {
                 mode: ModeConfig::new(ModeKind::Viscosity),

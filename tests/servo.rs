@@ -722,7 +722,11 @@ fn switching_modes_off_renders_nothing_and_keeps_their_breakpoints() {
         })
         .unwrap();
     }
-    assert_eq!(api.scene().modes, scene_before.modes, "not restored as it was");
+    assert_eq!(
+        api.scene().modes,
+        scene_before.modes,
+        "not restored as it was"
+    );
     let again = wait_for_tick(&*api, api.snapshot().unwrap().tick + 300);
     assert!(strongest_primitive_n(&again) > 0.1, "{again:?}");
 

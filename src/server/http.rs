@@ -8,9 +8,9 @@
 
 use super::auth::check_bearer;
 use super::messages::{
-    decode_command, decode_value, parse_json, ControlFailed, ControlOk, EmptyBody, ErrorBody,
-    EnabledBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody, TransferBody,
-    VolumeBody, MAX_MESSAGE_BYTES,
+    decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
+    EnabledBody, ErrorBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody,
+    StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::{assets, ws, Shared};
 use crate::servo::api::{
@@ -165,9 +165,9 @@ fn parse_point(text: &str) -> Result<DVec3, String> {
 /// The slice request of a `GET /api/slice` query.
 fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, String> {
     for key in params.keys() {
-        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume") {
+        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume" | "encoding") {
             return Err(format!(
-                "unknown query parameter {key:?}; expected axis, size, at, volume"
+                "unknown query parameter {key:?}; expected axis, size, at, volume, encoding"
             ));
         }
     }
@@ -205,10 +205,20 @@ async fn slice(
         Ok(request) => request,
         Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
     };
+    let u8_levels = match params.get("encoding").map(String::as_str) {
+        None | Some("f32") => false,
+        Some("u8") => true,
+        Some(other) => {
+            return error_response(
+                StatusCode::BAD_REQUEST,
+                format!("invalid: encoding must be f32 or u8, got {other:?}"),
+            )
+        }
+    };
     let result = shared
         .blocking(true, move |api| {
             api.slice(request)
-                .map(|slice| serde_json::to_string(&slice).unwrap_or_default())
+                .map(|slice| slice_json(&slice, u8_levels))
         })
         .await
         .and_then(|r| r);

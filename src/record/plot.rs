@@ -540,9 +540,7 @@ where
 }
 
 /// Red triangles at the axis edge where samples lay beyond it.
-fn outlier_markers(
-    points: Points,
-) -> impl Iterator<Item = TriangleMarker<(f64, f64), i32>> {
+fn outlier_markers(points: Points) -> impl Iterator<Item = TriangleMarker<(f64, f64), i32>> {
     points
         .into_iter()
         .map(|p| TriangleMarker::new(p, 5, OUTLIER_COLOR.filled()))

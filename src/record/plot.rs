@@ -337,8 +337,11 @@ fn push_period(periods: &mut Vec<(f64, f64)>, period: (f64, f64), merge_gap_s: f
 /// What the solver panel counts: the exact solver's block sweeps, or the baselines' iterations.
 fn effort_name(trace: &Trace) -> &'static str {
     match trace.sidecar.as_ref().map(|s| s.meta.solver.as_str()) {
+        // `exact`, `exact-dual`; `euler-baseline`, `constraint-baseline` (and their short names).
         Some(solver) if solver.starts_with("exact") => "sweeps",
-        Some("euler" | "constraint") => "iterations",
+        Some(solver) if solver.starts_with("euler") || solver.starts_with("constraint") => {
+            "iterations"
+        }
         _ => "sweeps or iterations",
     }
 }
@@ -948,6 +951,33 @@ mod tests {
         jump.samples[10].probe_m.x = 1e6;
         jump.samples[11].force_n.z = -1e9;
         plot_trace(&jump, "jump", &out, 640, 480).unwrap();
+    }
+
+    #[test]
+    fn the_effort_is_named_by_solver() {
+        let mut traced = trace(5);
+        assert_eq!(effort_name(&traced), "sweeps or iterations");
+        for (solver, name) in [
+            ("exact", "sweeps"),
+            ("exact-dual", "sweeps"),
+            ("euler-baseline", "iterations"),
+            ("constraint-baseline", "iterations"),
+        ] {
+            let meta = crate::record::TraceMeta::new(
+                vec!["surface".into()],
+                1000.0,
+                serde_json::Value::Null,
+                "v",
+                solver,
+            );
+            let sidecar = crate::record::Sidecar::new(
+                &meta,
+                crate::record::TraceFormat::Csv,
+                Path::new("t.csv"),
+            );
+            traced.sidecar = Some(sidecar);
+            assert_eq!(effort_name(&traced), name, "{solver}");
+        }
     }
 
     #[test]

@@ -470,12 +470,21 @@ where
     Ok(chart)
 }
 
-/// Legend entries of the shaded flag kinds.
-fn shade_entries(shaded: &[ShadedPeriods]) -> Vec<LegendEntry> {
-    shaded
-        .iter()
-        .map(|s| LegendEntry::filled(s.name, s.color))
-        .collect()
+/// `entries` followed by the count of samples drawn on the axis edge (when there are any) and the shaded
+/// flag kinds: the legend of a time panel.
+fn with_marks(
+    mut entries: Vec<LegendEntry>,
+    off_axis: usize,
+    shaded: &[ShadedPeriods],
+) -> Vec<LegendEntry> {
+    if off_axis > 0 {
+        entries.push(LegendEntry::filled(
+            format!("{off_axis} off the axis"),
+            OUTLIER_COLOR,
+        ));
+    }
+    entries.extend(shaded.iter().map(|s| LegendEntry::filled(s.name, s.color)));
+    entries
 }
 
 /// A range covering `values` with 5 % padding; a unit-wide range around a constant.
@@ -578,17 +587,14 @@ where
             (name, color, points)
         })
         .collect();
-    let mut entries: Vec<LegendEntry> = series
-        .iter()
-        .map(|(name, color, _)| LegendEntry::line(*name, *color))
-        .collect();
-    if !outliers.is_empty() {
-        entries.push(LegendEntry::filled(
-            format!("{} off the axis", outliers.len()),
-            OUTLIER_COLOR,
-        ));
-    }
-    entries.extend(shade_entries(shaded));
+    let entries = with_marks(
+        series
+            .iter()
+            .map(|(name, color, _)| LegendEntry::line(*name, *color))
+            .collect(),
+        outliers.len(),
+        shaded,
+    );
     let area = legend_strip(area, "Force on the device", &entries)?;
     let mut chart = ChartBuilder::on(&area)
         .margin(8)
@@ -662,17 +668,14 @@ where
         }
     });
 
-    let mut entries = vec![
-        LegendEntry::line(format!("{effort} (left)"), BLACK),
-        LegendEntry::line("certificate bound (right)", BOUND_COLOR),
-    ];
-    if !outliers.is_empty() {
-        entries.push(LegendEntry::filled(
-            format!("{} off the axis", outliers.len()),
-            OUTLIER_COLOR,
-        ));
-    }
-    entries.extend(shade_entries(shaded));
+    let entries = with_marks(
+        vec![
+            LegendEntry::line(format!("{effort} (left)"), BLACK),
+            LegendEntry::line("certificate bound (right)", BOUND_COLOR),
+        ],
+        outliers.len(),
+        shaded,
+    );
     let area = legend_strip(area, "Solver effort", &entries)?;
     let mut chart = ChartBuilder::on(&area)
         .margin(8)
@@ -796,16 +799,14 @@ where
         .chain(&proxy)
         .filter(|p| !x.contains(&p.0) || !y.contains(&p.1))
         .count();
-    let mut entries = vec![
-        LegendEntry::line("probe", PROBE_COLOR),
-        LegendEntry::line("proxy", PROXY_COLOR),
-    ];
-    if off_axis > 0 {
-        entries.push(LegendEntry::filled(
-            format!("{off_axis} off the axes"),
-            OUTLIER_COLOR,
-        ));
-    }
+    let entries = with_marks(
+        vec![
+            LegendEntry::line("probe", PROBE_COLOR),
+            LegendEntry::line("proxy", PROXY_COLOR),
+        ],
+        off_axis,
+        &[],
+    );
     let area = &legend_strip(area, caption, &entries)?;
     let (width_px, height_px) = area.dim_in_pixel();
     // Plot area: the panel less the label areas and margins used below.

@@ -375,18 +375,14 @@ async fn set_transfer(
     name: Result<Path<String>, PathRejection>,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
-    let mode = match name {
-        Ok(Path(name)) => name,
-        Err(rejection) => return bad_path(&rejection),
-    };
-    let decode: Decode = Box::new(move |value| {
+    mode_request(&shared, &headers, name, body, |mode, value| {
         let body: TransferBody = decode_value(value)?;
-        one(ControlCommand::SetTransfer {
+        Ok(ControlCommand::SetTransfer {
             mode,
             transfer: body.transfer,
         })
-    });
-    control_request(&shared, &headers, body, false, decode).await
+    })
+    .await
 }
 
 async fn set_mode_enabled(
@@ -395,18 +391,31 @@ async fn set_mode_enabled(
     name: Result<Path<String>, PathRejection>,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
+    mode_request(&shared, &headers, name, body, |mode, value| {
+        let body: EnabledBody = decode_value(value)?;
+        Ok(ControlCommand::SetModeEnabled {
+            mode,
+            enabled: body.enabled,
+        })
+    })
+    .await
+}
+
+/// A control endpoint on one mode (`/api/modes/{name}/...`): the mode's name from the path, then `command`
+/// makes the command from it and the body.
+async fn mode_request(
+    shared: &Arc<Shared>,
+    headers: &HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+    command: fn(String, Value) -> Result<ControlCommand, String>,
+) -> Response {
     let mode = match name {
         Ok(Path(name)) => name,
         Err(rejection) => return bad_path(&rejection),
     };
-    let decode: Decode = Box::new(move |value| {
-        let body: EnabledBody = decode_value(value)?;
-        one(ControlCommand::SetModeEnabled {
-            mode,
-            enabled: body.enabled,
-        })
-    });
-    control_request(&shared, &headers, body, false, decode).await
+    let decode: Decode = Box::new(move |value| one(command(mode, value)?));
+    control_request(shared, headers, body, false, decode).await
 }
 
 async fn load_volume(

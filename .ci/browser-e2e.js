@@ -1,7 +1,10 @@
 // Drives the built-in page in headless Chromium with playwright-core (installed by check-browser.sh into a
 // temporary directory, found through NODE_PATH): drags the virtual hand in the top view and checks the
 // server's hand target follows, sets the stiffness, scales a mode and checks that a refused change shows the
-// server's error inline. Usage: node browser-e2e.js BASE_URL TOKEN CHROMIUM_PATH
+// server's error inline; then on a 390 x 844 phone screen checks that nothing is wider than the screen, that the
+// on/off switch, peak strength and breakpoints work, that slices stay under 200 KiB/s and the status line and
+// stream rate show; then that a wrong token is said and a drag with it sends nothing.
+// Usage: node browser-e2e.js BASE_URL TOKEN CHROMIUM_PATH
 'use strict';
 const { chromium } = require('playwright-core');
 
@@ -23,6 +26,117 @@ async function until(what, predicate, timeoutMs) {
     await sleep(100);
   }
   throw new Error('timed out waiting for ' + what);
+}
+
+async function sceneMode(name) {
+  const sc = await (await fetch(base + '/api/scene')).json();
+  return sc.modes.find((m) => (m.name || m.kind) === name);
+}
+
+// A phone (390 x 844): nothing wider than the screen, and the controls work there; the slice traffic stays
+// within its budget and the page shows the stream's real rate.
+async function phone(browser, check) {
+  const page = await browser.newPage({ viewport: { width: 390, height: 844 }, deviceScaleFactor: 2 });
+  const pageErrors = [];
+  page.on('pageerror', (e) => pageErrors.push(String(e)));
+  const slices = [];
+  page.on('response', async (res) => {
+    if (!res.url().includes('/api/slice')) return;
+    try {
+      slices.push({ t: Date.now(), bytes: (await res.body()).length });
+    } catch (e) {
+      /* page closed */
+    }
+  });
+  await page.goto(base + '/?token=' + encodeURIComponent(token));
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  await sleep(1500);
+  const widths = await page.evaluate(() => {
+    const wide = [];
+    for (const el of document.querySelectorAll('body *')) {
+      const r = el.getBoundingClientRect();
+      if (r.width > 0 && r.right > window.innerWidth + 0.5) wide.push(el.tagName.toLowerCase() + (el.id ? '#' + el.id : '') + ' ' + Math.round(r.right));
+    }
+    return { scroll: document.documentElement.scrollWidth, inner: window.innerWidth, wide: wide.slice(0, 5) };
+  });
+  check(widths.scroll <= widths.inner && widths.wide.length === 0,
+    'no horizontal overflow at 390x844: page ' + widths.scroll + ' px wide for a ' + widths.inner + ' px screen' +
+      (widths.wide.length ? '; too wide: ' + widths.wide.join(', ') : ''));
+
+  const status = await page.textContent('#status-line');
+  check(/^connected/.test(status) && /control token accepted/.test(status), 'the status line: ' + status);
+  await until('the measured stream rate', async () => /states\/s received/.test(await page.textContent('#st-stream')), 4000);
+  check(true, 'the real stream rate is shown: ' + (await page.textContent('#st-stream')));
+
+  // The on/off switch of the first mode with a transfer function: off keeps the breakpoints.
+  const scene = await (await fetch(base + '/api/scene')).json();
+  const index = (scene.modes || []).findIndex((m) => Array.isArray(m.transfer));
+  if (index >= 0) {
+    const name = scene.modes[index].name || scene.modes[index].kind;
+    const before = JSON.stringify((await sceneMode(name)).transfer);
+    await page.locator('#mode-' + index + '-on').scrollIntoViewIfNeeded();
+    await page.click('#mode-' + index + '-on');
+    await until(name + ' off', async () => (await sceneMode(name)).enabled === false);
+    check(JSON.stringify((await sceneMode(name)).transfer) === before, 'the switch turns ' + name + ' off and keeps its breakpoints ' + before);
+    await page.click('#mode-' + index + '-on');
+    await until(name + ' on', async () => (await sceneMode(name)).enabled === undefined);
+    check(true, 'the switch turns ' + name + ' on again');
+    // Peak 0 and back: the breakpoints' shape survives (issue 17).
+    await page.fill('#mode-' + index + '-peak', '0');
+    await page.press('#mode-' + index + '-peak', 'Enter');
+    await until(name + ' off by peak 0', async () => (await sceneMode(name)).enabled === false);
+    await page.fill('#mode-' + index + '-peak', '2');
+    await page.press('#mode-' + index + '-peak', 'Enter');
+    const back = await until(name + ' on at peak 2', async () => {
+      const m = await sceneMode(name);
+      return m.enabled === undefined && Math.abs(Math.max(...m.transfer.map((p) => p[1])) - 2) < 1e-9 ? m : null;
+    });
+    const shape = (t) => JSON.stringify(t.map((p) => [p[0], Number((p[1] / Math.max(...t.map((q) => q[1]))).toFixed(9))]));
+    check(shape(back.transfer) === shape(JSON.parse(before)), 'peak 0 and back to 2 N keeps the shape: ' + JSON.stringify(back.transfer));
+    // Breakpoints typed in the field.
+    await page.fill('#mode-' + index + '-points', '[[0, 0], [0.5, 0.7], [1, 0.9]]');
+    await page.press('#mode-' + index + '-points', 'Enter');
+    await until('the typed breakpoints', async () => JSON.stringify((await sceneMode(name)).transfer) === '[[0,0],[0.5,0.7],[1,0.9]]');
+    check(true, 'the breakpoints field sets ' + name + "'s transfer function");
+  }
+
+  // Slice traffic over 4 s, while the arm moves: at most 200 KiB in any second.
+  slices.length = 0;
+  await sleep(4000);
+  let worst = 0;
+  for (const s of slices) worst = Math.max(worst, slices.filter((o) => o.t >= s.t && o.t < s.t + 1000).reduce((a, o) => a + o.bytes, 0));
+  const total = slices.reduce((a, o) => a + o.bytes, 0);
+  check(worst <= 200 * 1024 * 1.05, 'slices: ' + slices.length + ' answers, ' + (total / 4 / 1024).toFixed(1) + ' KiB/s on average, at most ' + (worst / 1024).toFixed(1) + ' KiB in one second');
+  if (process.env.KEEP_SCREENSHOTS) {
+    await page.screenshot({ path: process.env.KEEP_SCREENSHOTS + '/phone-390x844.png', fullPage: true });
+  }
+  check(pageErrors.length === 0, 'no script errors on the phone' + (pageErrors.length ? ': ' + pageErrors.join('; ') : ''));
+  await page.close();
+}
+
+// A wrong token: the page says so, and dragging sends nothing (no storm of refused requests).
+async function refusedToken(browser, check) {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
+  let controlRequests = 0;
+  page.on('request', (req) => {
+    if (req.method() === 'POST' && !req.url().endsWith('/api/stiffness')) controlRequests += 1;
+  });
+  await page.goto(base + '/?token=wrong-' + encodeURIComponent(token));
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  await until('the refused-token banner', async () => page.isVisible('#token-banner'), 5000);
+  check(true, 'a refused token is said: ' + (await page.textContent('#token-banner')));
+  const box = await page.locator('#view-z').boundingBox();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.mouse.down();
+  for (let i = 1; i <= 12; i++) {
+    await page.mouse.move(box.x + box.width / 2 + i * 6, box.y + box.height / 2);
+    await sleep(30);
+  }
+  await page.mouse.up();
+  await sleep(300);
+  check(controlRequests === 0, 'a drag with a refused token sends no requests (' + controlRequests + ' sent): ' + (await page.textContent('#hand-msg')));
+  check((await page.textContent('#status-line')).includes('REFUSED'), 'the status line says the token was refused');
+  await page.close();
 }
 
 (async () => {
@@ -106,6 +220,10 @@ async function until(what, predicate, timeoutMs) {
       check(true, 'a refused transfer function shows the server error inline: ' + (await msg.textContent()));
     }
     check(pageErrors.length === 0, 'no script errors' + (pageErrors.length ? ': ' + pageErrors.join('; ') : ''));
+    await page.close();
+
+    await phone(browser, check);
+    await refusedToken(browser, check);
   } catch (e) {
     check(false, e.message);
   } finally {

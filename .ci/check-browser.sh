@@ -7,7 +7,10 @@
 #   2. takes two screenshots a couple of seconds apart and checks both are real 1280x900 pictures with a
 #      greyscale slice drawn in the views, and that the views changed between them;
 #   3. if node and npm are there, installs playwright-core into a temporary directory (never the repo) and
-#      runs .ci/browser-e2e.js: drag the virtual hand in a view, set the stiffness, scale a mode.
+#      runs .ci/browser-e2e.js: drag the virtual hand in a view, set the stiffness, scale a mode; then at
+#      390x844 (a phone): no horizontal overflow, the mode on/off switch, peak strength 0 and back keeping the
+#      breakpoints, typed breakpoints, slices within 200 KiB/s, the status line and the measured stream rate;
+#      then a wrong token: the page says so and a drag sends no request.
 # Skips (exit 0) with a message when no Chromium can be found or installed. Exit 1 on a failed check.
 #
 # Environment: VOXHAP_BIN (use this binary), KEEP_SCREENSHOTS=DIR (copy the PNGs there),
@@ -211,7 +214,7 @@ elif ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
 else
   mkdir -p "$WORK/npm"
   if (cd "$WORK/npm" && timeout 120 npm install --silent --no-audit --no-fund --no-save playwright-core >"$WORK/npm.log" 2>&1); then
-    NODE_PATH="$WORK/npm/node_modules" timeout 60 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
+    NODE_PATH="$WORK/npm/node_modules" timeout 150 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
       || { server_log; fail "the browser interaction test failed"; }
   else
     say "SKIP: browser interaction test (npm could not install playwright-core: $(tail -n 1 "$WORK/npm.log"))"

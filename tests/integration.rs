@@ -7,6 +7,7 @@ mod util;
 
 mod alloc_free;
 mod bad_inputs;
+mod cli_shell;
 mod cli_solve;
 mod device_bringup;
 mod device_drivers;

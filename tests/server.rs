@@ -243,6 +243,20 @@ async fn invalid_commands_are_rejected_naming_the_problem_and_change_nothing() {
             400,
             "transfer",
         ),
+        (
+            "POST",
+            "/api/modes/nonesuch/enabled",
+            r#"{"enabled": false}"#,
+            404,
+            "no mode named \"nonesuch\"",
+        ),
+        (
+            "POST",
+            "/api/modes/surface/enabled",
+            r#"{"enabled": "no"}"#,
+            400,
+            "enabled",
+        ),
         ("DELETE", "/api/modes/nonesuch", "", 404, "no mode named"),
         (
             "POST",
@@ -407,6 +421,36 @@ async fn a_valid_change_takes_effect_in_the_next_state() {
         )
         .await;
     assert_eq!(status, 200, "{reply}");
+    // Switched off and on again: the breakpoints survive (issue 17: a strength of 0 and back used to
+    // flatten them), and the scene says which modes are off.
+    let mode_named = |scene: &Value, name: &str| {
+        scene["modes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["name"] == name || (m["name"].is_null() && m["kind"] == name))
+            .cloned()
+            .unwrap()
+    };
+    let (status, reply) = server
+        .post("/api/modes/viscosity/enabled", r#"{"enabled": false}"#)
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    assert!(
+        reply["message"].as_str().unwrap().contains("off"),
+        "{reply}"
+    );
+    let off = mode_named(&server.get("/api/scene").await.1, "viscosity");
+    assert_eq!(off["enabled"], false, "{off}");
+    assert_eq!(off["transfer"], json!([[0.0, 0.0], [1.0, 0.1]]), "{off}");
+    let (status, reply) = server
+        .post("/api/modes/viscosity/enabled", r#"{"enabled": true}"#)
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    let on = mode_named(&server.get("/api/scene").await.1, "viscosity");
+    assert!(on.get("enabled").is_none(), "{on}");
+    assert_eq!(on["transfer"], json!([[0.0, 0.0], [1.0, 0.1]]), "{on}");
+
     let (status, reply) = server
         .send("DELETE", "/api/modes/viscosity", Some(TOKEN), "")
         .await;
@@ -596,6 +640,46 @@ async fn slices_over_rest_and_websocket() {
         "slice at z = {slice_z}, proxy at {proxy_z}"
     );
 
+    // 8-bit levels (what the page asks for): the same picture in a fraction of the bytes.
+    let (_, _, full_text) = http(
+        server.addr,
+        "GET",
+        "/api/slice?axis=z&size=128&at=0,0,0",
+        None,
+        "",
+    )
+    .await;
+    let (status, _, u8_text) = http(
+        server.addr,
+        "GET",
+        "/api/slice?axis=z&size=128&at=0,0,0&encoding=u8",
+        None,
+        "",
+    )
+    .await;
+    assert_eq!(status, 200, "{u8_text}");
+    let compact: Value = serde_json::from_str(&u8_text).unwrap();
+    assert!(compact.get("values").is_none());
+    let levels = base64::Engine::decode(
+        &base64::engine::general_purpose::STANDARD,
+        compact["values_u8"].as_str().unwrap(),
+    )
+    .unwrap();
+    assert_eq!(levels.len(), 128 * 128);
+    assert_eq!(levels.iter().copied().max(), Some(255), "max maps to 255");
+    assert_eq!(levels.iter().copied().min(), Some(0), "min maps to 0");
+    assert!(
+        u8_text.len() * 3 < full_text.len(),
+        "u8 {} bytes vs f32 {} bytes",
+        u8_text.len(),
+        full_text.len()
+    );
+    eprintln!(
+        "slice 128x128: f32 JSON {} bytes, u8 JSON {} bytes",
+        full_text.len(),
+        u8_text.len()
+    );
+
     let (status, slice) = server
         .get("/api/slice?axis=x&size=16&at=0,0,0.01&volume=flow")
         .await;
@@ -608,6 +692,7 @@ async fn slices_over_rest_and_websocket() {
         ("axis=w", 400, "axis must be x, y or z"),
         ("at=1,2", 400, "at must be three finite numbers"),
         ("volume=nope", 404, "no volume named"),
+        ("encoding=png", 400, "encoding must be f32 or u8"),
     ] {
         let (got, body) = server.get(&format!("/api/slice?{query}")).await;
         assert_eq!(got, status, "{query}: {body}");

@@ -665,3 +665,87 @@ fn the_hand_of_a_real_device_cannot_be_moved() {
     assert_eq!(error.http_status(), 409, "what /api/hand answers");
     replay.stop();
 }
+
+/// The largest strength (N) among the primitives the servo emitted this tick.
+fn strongest_primitive_n(snapshot: &Snapshot) -> f64 {
+    snapshot.primitive_slots[..usize::from(snapshot.primitive_count)]
+        .iter()
+        .flatten()
+        .map(|p| p.strength_n)
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn switching_modes_off_renders_nothing_and_keeps_their_breakpoints() {
+    let dir = tempfile::tempdir().unwrap();
+    let trace = dir.path().join("switched.csv");
+    let session = session(Some(trace.clone()));
+    let api = session.api();
+    // Hold the simulated hand at the density ball's centre, where every mode pushes.
+    api.control(ControlCommand::SetHandTarget {
+        position_m: Some([0.0, 0.0, 0.0]),
+    })
+    .unwrap();
+    let start = api.snapshot().map_or(0, |s| s.tick);
+    let on = wait_for_tick(&*api, start + 500);
+    assert!(
+        strongest_primitive_n(&on) > 0.1,
+        "nothing pushes at the centre: {on:?}"
+    );
+    let scene_before = api.scene();
+
+    // Allowed while recording: the trace keeps its columns.
+    let names: Vec<String> = scene_before
+        .modes
+        .iter()
+        .map(|m| m.display_name().to_owned())
+        .collect();
+    for name in &names {
+        let reply = api
+            .control(ControlCommand::SetModeEnabled {
+                mode: name.clone(),
+                enabled: false,
+            })
+            .unwrap();
+        assert!(reply.message.contains("off"), "{}", reply.message);
+    }
+    let off = wait_for_tick(&*api, api.snapshot().unwrap().tick + 300);
+    assert_eq!(strongest_primitive_n(&off), 0.0, "{off:?}");
+    assert!(
+        off.rendered_force_n.length() < 0.05,
+        "switched-off modes still push: {} N",
+        off.rendered_force_n
+    );
+    let scene_off = api.scene();
+    for (before, now) in scene_before.modes.iter().zip(&scene_off.modes) {
+        assert!(!now.is_enabled());
+        assert_eq!(before.transfer, now.transfer, "breakpoints lost");
+    }
+
+    for name in &names {
+        api.control(ControlCommand::SetModeEnabled {
+            mode: name.clone(),
+            enabled: true,
+        })
+        .unwrap();
+    }
+    assert_eq!(
+        api.scene().modes,
+        scene_before.modes,
+        "not restored as it was"
+    );
+    let again = wait_for_tick(&*api, api.snapshot().unwrap().tick + 300);
+    assert!(strongest_primitive_n(&again) > 0.1, "{again:?}");
+
+    let error = api
+        .control(ControlCommand::SetModeEnabled {
+            mode: "nonesuch".into(),
+            enabled: false,
+        })
+        .expect_err("an unknown mode");
+    assert!(matches!(error, ControlError::NotFound(_)), "{error}");
+    let summary = session.stop();
+    assert!(summary.trace.is_some(), "the recording did not survive");
+    assert_eq!(summary.recorder_error, None);
+    assert!(std::fs::metadata(&trace).unwrap().len() > 0);
+}

@@ -3,16 +3,21 @@
 //
 // Data flow: one WebSocket (/ws?rate=N) brings a `hello` (with the scene) and then `state` messages; the page
 // keeps only the newest state and redraws on the next animation frame. Slices of the volume come from
-// GET /api/slice (re-requested when the proxy moved more than a voxel, or every 500 ms), servo statistics
-// from GET /api/stats every second, the scene from GET /api/scene when scene_generation changes. Changes go
-// out as REST POSTs with the token as a Bearer header.
+// GET /api/slice?encoding=u8 (8-bit, base64), re-requested only when the proxy moved more than a voxel across
+// the view's plane or the scene or chosen volume changed, and never more than SLICE_BUDGET_BYTES_PER_S in any
+// second. Servo statistics come from GET /api/stats every second while connected, the scene from
+// GET /api/scene when scene_generation changes. Changes go out as REST POSTs with the token as a Bearer
+// header; without a token, or with one the server refused, the page sends nothing and says why.
 'use strict';
 
 (function () {
   const SCHEMA = 'voxhap.visualiser.v1';
   const SLICE_SIZE = 128;
-  const SLICE_PERIOD_MS = 500;
-  const SLICE_MIN_GAP_MS = 60;
+  const SLICE_BUDGET_BYTES_PER_S = 200 * 1024; // issue 17: one page pulled 2.2 MiB/s of slices
+  // Requests are planned against 85 % of the budget: answers vary in size and arrive a little later than asked.
+  const SLICE_PLAN_BYTES_PER_S = 0.85 * SLICE_BUDGET_BYTES_PER_S;
+  const SLICE_RETRY_MS = 2000;
+  const CONTROL_DEBOUNCE_MS = 250; // a held arrow key on a slider sends one request, not one per step
   const PLOT_WINDOW_S = 10;
   const HAND_PERIOD_MS = 33; // ~30 Hz
   const TOKEN_KEY = 'voxhap.token';
@@ -67,6 +72,8 @@
     view.sliceAt = null; // proxy position it was requested at
     view.sliceRequested = 0; // performance.now() of the last request
     view.sliceInflight = false;
+    view.sliceStale = true; // fetch at the first state, then when the proxy crosses a voxel or the scene changes
+    view.sliceBytes = 24 * 1024; // size of the last answer (a 128 x 128 u8 slice is about 23 KiB)
     view.sliceError = null;
     view.frame = null; // layout of the last draw (for pointer mapping)
   }
@@ -135,6 +142,17 @@
     setText(el, on ? '✔ ' + yes : '✖ ' + no);
     el.classList.toggle('flag-on', !!on);
     el.classList.toggle('flag-off', !on);
+    el.classList.remove('flag-unknown');
+  }
+
+  /** Calls `fn` with the last arguments once no call came for `ms`. */
+  function debounce(fn, ms) {
+    let timer = null;
+    return function () {
+      const args = arguments;
+      clearTimeout(timer);
+      timer = setTimeout(() => fn.apply(null, args), ms);
+    };
   }
 
   function showMsg(el, text, isError) {
@@ -148,6 +166,58 @@
   // ---------------------------------------------------------------- token
 
   const tokenInput = $('token');
+  // The token the server refused last: not sent again until it is edited (no storms of refused requests).
+  const auth = { refused: null, accepted: null };
+
+  function currentToken() {
+    return tokenInput.value.trim();
+  }
+
+  /** Why the page will not send a change now, or null. */
+  function tokenProblem() {
+    const token = currentToken();
+    if (!token) return 'enter the control token (voxhap serve prints it) to change anything';
+    if (token === auth.refused) {
+      return 'the server refused this control token (a restarted voxhap serve has a new one): paste the new token';
+    }
+    return null;
+  }
+
+  function showTokenBanner(text) {
+    const banner = $('token-banner');
+    banner.textContent = text || '';
+    banner.hidden = !text;
+    updateStatusLine();
+  }
+
+  function tokenRefused(token) {
+    auth.refused = token;
+    auth.accepted = null;
+    showTokenBanner(
+      'The server refused the control token. voxhap serve makes a new token each time it starts: paste the one it ' +
+        'printed into "Control token" (Controls). Viewing goes on; changes are not sent until then.'
+    );
+  }
+
+  /** Asks the server whether the token is still good (after a (re)connect or an edit); changes nothing. */
+  async function checkToken() {
+    const token = currentToken();
+    if (!token || token === auth.refused) return;
+    try {
+      // An empty stiffness body: the token is checked first (401), then the body is refused (400).
+      const res = await fetch(apiUrl('api/stiffness'), {
+        method: 'POST',
+        headers: { 'Content-Type': 'application/json', Authorization: 'Bearer ' + token },
+        body: '{}',
+      });
+      if (currentToken() !== token) return;
+      if (res.status === 401 || res.status === 403) tokenRefused(token);
+      else auth.accepted = token;
+      updateStatusLine();
+    } catch (e) {
+      /* not connected: checked again on the next hello */
+    }
+  }
 
   function storageGet() {
     try {
@@ -180,7 +250,13 @@
       }
     }
     tokenInput.value = fromUrl !== null ? fromUrl : storageGet() || '';
-    tokenInput.addEventListener('input', () => storageSet(tokenInput.value));
+    tokenInput.addEventListener('input', () => {
+      storageSet(tokenInput.value);
+      auth.refused = null;
+      auth.accepted = null;
+      showTokenBanner('');
+      checkToken();
+    });
     $('token-show').addEventListener('change', (e) => {
       tokenInput.type = e.target.checked ? 'text' : 'password';
     });
@@ -193,6 +269,11 @@
   }
 
   async function getJson(path) {
+    return (await getJsonSized(path)).data;
+  }
+
+  /** GET `path` → {data, bytes}: the JSON answer and its size in characters (≈ bytes: ASCII). */
+  async function getJsonSized(path) {
     let res;
     try {
       res = await fetch(apiUrl(path), { cache: 'no-store' });
@@ -211,14 +292,16 @@
       throw new Error('HTTP ' + res.status + ': ' + why);
     }
     if (data === null) throw new Error('the answer is not JSON');
-    return data;
+    return { data: data, bytes: text.length };
   }
 
   /** POSTs `body` as JSON with the token; resolves to the reply, rejects with the server's error message. */
   async function post(path, body) {
+    const problem = tokenProblem();
+    if (problem) throw new Error(problem);
     const headers = { 'Content-Type': 'application/json' };
-    const token = tokenInput.value.trim();
-    if (token) headers.Authorization = 'Bearer ' + token;
+    const token = currentToken();
+    headers.Authorization = 'Bearer ' + token;
     let res;
     try {
       res = await fetch(apiUrl(path), { method: 'POST', headers: headers, body: JSON.stringify(body) });
@@ -235,9 +318,14 @@
     if (!res.ok || (data && data.ok === false)) {
       let why = (data && (data.error || data.message)) || text.trim() || res.statusText || 'refused';
       if (res.status === 401 || res.status === 403) {
-        why += token ? ' (check the control token)' : ' (enter the control token)';
+        tokenRefused(token);
+        why += ' (the server refused the control token: paste the new one)';
       }
       throw new Error(why);
+    }
+    if (auth.accepted !== token) {
+      auth.accepted = token;
+      updateStatusLine();
     }
     return data || {};
   }
@@ -254,6 +342,50 @@
     setText($('conn-text'), text);
     app.live = kind === 'up';
     app.dirty = true;
+    if (!app.live) {
+      // The device flags are the server's; while the page is not connected it does not know them.
+      for (const id of ['st-device', 'st-engaged']) {
+        const el = $(id);
+        setText(el, '? unknown (the page is not connected)');
+        el.classList.remove('flag-on', 'flag-off');
+        el.classList.add('flag-unknown');
+      }
+      stream.count = 0;
+      stream.since = performance.now();
+      stream.rate = null;
+    }
+    updateStatusLine();
+  }
+
+  // ---------------------------------------------------------------- status line
+
+  // States received per second, measured by the page (the asked rate is an upper bound: see VISUALISER.md).
+  const stream = { count: 0, since: performance.now(), rate: null };
+
+  function measureRates() {
+    const now = performance.now();
+    const seconds = (now - stream.since) / 1000;
+    if (app.live && seconds > 0) stream.rate = stream.count / seconds;
+    stream.count = 0;
+    stream.since = now;
+    setText($('st-stream'), stream.rate === null ? '–' : num(stream.rate, 1) + ' states/s received (asked ' + app.rateHz + ' Hz)');
+    setText(
+      $('st-slices'),
+      num(sliceBytesLastSecond(now) / 1024, 1) + ' KiB/s (at most ' + SLICE_BUDGET_BYTES_PER_S / 1024 + ' KiB/s), ' + sliceTraffic.fetched + ' fetched'
+    );
+    updateStatusLine();
+  }
+
+  function updateStatusLine() {
+    const parts = [];
+    parts.push(app.live ? 'connected' : 'not connected');
+    if (app.live && stream.rate !== null) parts.push('stream ' + num(stream.rate, 1) + ' states/s of ' + app.rateHz + ' Hz asked');
+    parts.push('slices ' + num(sliceBytesLastSecond(performance.now()) / 1024, 1) + ' KiB/s');
+    const token = currentToken();
+    parts.push(
+      !token ? 'no control token (view only)' : token === auth.refused ? 'control token REFUSED' : token === auth.accepted ? 'control token accepted' : 'control token not checked yet'
+    );
+    setText($('status-line'), parts.join(' · '));
   }
 
   function wsUrl() {
@@ -331,6 +463,7 @@
         if (typeof msg.servo_rate_hz === 'number') app.servoRateHz = msg.servo_rate_hz;
         syncRateSelect();
         if (msg.scene) setScene(msg.scene);
+        checkToken(); // a restarted server has a new token
         break;
       case 'state':
         onState(msg);
@@ -384,7 +517,7 @@
     buildModes(scene.modes || []);
     buildModeKeys(scene.modes || []);
     // New scene (perhaps a new volume): fetch fresh slices.
-    for (const view of views) view.sliceRequested = 0;
+    for (const view of views) view.sliceStale = true;
     app.dirty = true;
   }
 
@@ -404,7 +537,7 @@
 
   $('slice-volume').addEventListener('change', (e) => {
     app.sliceVolume = e.target.value;
-    for (const view of views) view.sliceRequested = 0;
+    for (const view of views) view.sliceStale = true;
     maybeFetchSlices();
   });
 
@@ -414,7 +547,7 @@
     try {
       setScene(await getJson('api/scene'));
     } catch (e) {
-      console.warn('voxhap: scene: ' + e.message);
+      if (app.live) console.warn('voxhap: scene: ' + e.message);
     } finally {
       app.sceneFetching = false;
     }
@@ -430,7 +563,7 @@
       sw.className = 'swatch';
       sw.setAttribute('aria-hidden', 'true');
       sw.style.background = MODE_COLOURS[i % MODE_COLOURS.length];
-      key.append(sw, (i + 1) + ' ' + modeName(mode));
+      key.append(sw, (i + 1) + ' ' + modeName(mode) + (mode.enabled === false ? ' (off)' : ''));
       box.append(key);
     });
   }
@@ -493,14 +626,49 @@
     msg.id = id + '-msg';
     msg.setAttribute('aria-live', 'polite');
 
+    // On/off: off keeps every setting (breakpoints too) and renders no force.
+    let enabled = mode.enabled !== false;
+    const switchLabel = document.createElement('label');
+    switchLabel.className = 'inline mode-switch';
+    const toggle = document.createElement('input');
+    toggle.type = 'checkbox';
+    toggle.id = id + '-on';
+    toggle.className = 'mode-on';
+    toggle.setAttribute('aria-label', name + ' on');
+    switchLabel.append(toggle, ' on');
+    box.append(switchLabel);
+
+    function showEnabled(on) {
+      enabled = on;
+      toggle.checked = on;
+      box.classList.toggle('mode-off', !on);
+    }
+    showEnabled(enabled);
+
+    async function setEnabled(on) {
+      showMsg(msg, 'sending…', false);
+      try {
+        const reply = await post('api/modes/' + encodeURIComponent(name) + '/enabled', { enabled: on });
+        showEnabled(on);
+        showMsg(msg, reply.message || name + (on ? ' on' : ' off'), false);
+        return true;
+      } catch (e) {
+        showEnabled(enabled);
+        showMsg(msg, e.message, true);
+        return false;
+      }
+    }
+    toggle.addEventListener('change', () => setEnabled(toggle.checked));
+
     if (!Array.isArray(mode.transfer)) {
       const p = document.createElement('p');
       p.className = 'help';
       if (mode.kind === 'friction') p.textContent = 'μ = ' + mode.mu + ' on ' + mode.surface + ' (no transfer function to scale)';
       else if (mode.kind === 'support_plane') p.textContent = 'fixed plane, ' + mode.strength_n + ' N (no transfer function to scale)';
       else p.textContent = 'no transfer function to scale';
-      box.append(p);
+      box.append(p, msg);
       box._update = (m) => {
+        showEnabled(m.enabled !== false);
         if (m.kind === 'friction') p.textContent = 'μ = ' + m.mu + ' on ' + m.surface + ' (no transfer function to scale)';
       };
       return box;
@@ -560,6 +728,7 @@
       if (document.activeElement !== tf) tf.value = pointsText(points);
     }
     box._update = (m) => {
+      showEnabled(m.enabled !== false);
       if (Array.isArray(m.transfer)) show(m);
     };
     show(mode);
@@ -577,23 +746,32 @@
       }
     }
 
-    function scaleTo(target) {
+    // Peak 0 switches the mode off and leaves its breakpoints alone (scaling them to 0 N would lose their
+    // shape: issue 17); a peak > 0 scales them and switches the mode on.
+    async function scaleTo(target) {
       if (!(target >= 0) || !isFinite(target)) {
         showMsg(msg, 'peak strength must be a number ≥ 0', true);
         return;
       }
+      if (target === 0) {
+        if (await setEnabled(false)) showMsg(msg, name + ' switched off (peak 0); its breakpoints are kept', false);
+        show({ transfer: points });
+        return;
+      }
       const peak = maxStrength(points);
       const scaled = points.map((p) => [p[0], peak > 0 ? (p[1] * target) / peak : target]);
-      send(scaled, name + ' peak strength ' + trimNumber(target) + ' N');
+      await send(scaled, name + ' peak strength ' + trimNumber(target) + ' N');
+      if (!enabled) await setEnabled(true);
     }
+    const scaleSoon = debounce(scaleTo, CONTROL_DEBOUNCE_MS);
 
     range.addEventListener('input', () => {
       number.value = trimNumber(Number(range.value));
     });
-    range.addEventListener('change', () => scaleTo(Number(range.value)));
+    range.addEventListener('change', () => scaleSoon(Number(range.value)));
     number.addEventListener('change', () => {
       if (number.value === '') return;
-      scaleTo(Number(number.value));
+      scaleSoon(Number(number.value));
     });
     const applyPoints = () => {
       let parsed;
@@ -635,9 +813,10 @@
     rangeEl.addEventListener('input', () => {
       numberEl.value = rangeEl.value;
     });
-    rangeEl.addEventListener('change', () => sendValue(Number(rangeEl.value)));
+    const sendSoon = debounce(sendValue, CONTROL_DEBOUNCE_MS);
+    rangeEl.addEventListener('change', () => sendSoon(Number(rangeEl.value)));
     numberEl.addEventListener('change', () => {
-      if (numberEl.value !== '') sendValue(Number(numberEl.value));
+      if (numberEl.value !== '') sendSoon(Number(numberEl.value));
     });
     return function sync(value) {
       if (typeof value !== 'number' || !isFinite(value) || sending) return;
@@ -679,6 +858,7 @@
     if (previous && (s.tick < previous.tick || s.t_s < previous.t_s)) app.history = []; // a new session
     app.state = s;
     app.dirty = true;
+    stream.count += 1;
 
     if (!conn.stateSeen && conn.ws) setConn('up', 'live, ' + app.rateHz + ' Hz updates');
     conn.stateSeen = true;
@@ -724,6 +904,7 @@
   // ---------------------------------------------------------------- stats
 
   async function pollStats() {
+    if (!app.live) return; // no requests (and no console errors) while the server is away
     try {
       const stats = await getJson('api/stats');
       const servo = stats.servo || {};
@@ -760,34 +941,60 @@
 
   // ---------------------------------------------------------------- slices
 
+  // Slice answers of the last second, for the budget: {t: performance.now(), bytes}.
+  const sliceTraffic = { log: [], fetched: 0, timer: null };
+
+  function sliceBytesLastSecond(now) {
+    const log = sliceTraffic.log;
+    // Entries move to their arrival time, so the log is only nearly sorted: filter, do not just shift.
+    sliceTraffic.log = log.filter((entry) => entry.t >= now - 1000);
+    return sliceTraffic.log.reduce((sum, entry) => sum + entry.bytes, 0);
+  }
+
+  /** Fetches the slices that are due (a slice spans the whole volume, so only the proxy's coordinate along the
+   * view's axis matters), within SLICE_BUDGET_BYTES_PER_S; a slice over budget waits for the next window. */
   function maybeFetchSlices() {
     const s = app.state;
-    if (!s) return;
+    if (!s || !app.live) return;
     const now = performance.now();
     for (const view of views) {
       if (view.sliceInflight) continue;
-      const since = now - view.sliceRequested;
-      const period = view.sliceError ? 2000 : SLICE_PERIOD_MS;
-      let due = since >= period;
-      if (!due && since >= SLICE_MIN_GAP_MS && view.sliceAt) {
-        const d = [0, 1, 2].map((i) => s.proxy_m[i] - view.sliceAt[i]);
-        due = norm(d) > app.voxelM;
+      let due = view.sliceStale || !view.sliceAt || Math.abs(s.proxy_m[view.w] - view.sliceAt[view.w]) > app.voxelM;
+      if (view.sliceError && now - view.sliceRequested < SLICE_RETRY_MS) due = false;
+      if (!due) continue;
+      if (sliceBytesLastSecond(now) + view.sliceBytes > SLICE_PLAN_BYTES_PER_S) {
+        if (!sliceTraffic.timer) {
+          const oldest = sliceTraffic.log.reduce((t, entry) => Math.min(t, entry.t), now);
+          sliceTraffic.timer = setTimeout(() => {
+            sliceTraffic.timer = null;
+            maybeFetchSlices();
+          }, Math.max(20, oldest + 1000 - now));
+        }
+        continue;
       }
-      if (due) fetchSlice(view, s.proxy_m.slice());
+      fetchSlice(view, s.proxy_m.slice());
     }
   }
 
   async function fetchSlice(view, at) {
     view.sliceInflight = true;
+    view.sliceStale = false;
     view.sliceRequested = performance.now();
     view.sliceAt = at;
-    let query = 'axis=' + view.axis + '&size=' + SLICE_SIZE + '&at=' + at.map((x) => x.toFixed(6)).join(',');
+    // Reserve the expected size now, so two views asking at once stay within the budget.
+    const entry = { t: performance.now(), bytes: view.sliceBytes };
+    sliceTraffic.log.push(entry);
+    let query = 'axis=' + view.axis + '&size=' + SLICE_SIZE + '&encoding=u8&at=' + at.map((x) => x.toFixed(6)).join(',');
     if (app.sliceVolume) query += '&volume=' + encodeURIComponent(app.sliceVolume);
     const volume = app.sliceVolume;
     try {
-      const slice = await getJson('api/slice?' + query);
-      if (volume === app.sliceVolume) setSlice(view, slice);
-      else view.sliceRequested = 0; // the choice changed meanwhile: ask again
+      const answer = await getJsonSized('api/slice?' + query);
+      entry.bytes = answer.bytes;
+      entry.t = performance.now(); // counted from its arrival (keeps the log in time order: see below)
+      view.sliceBytes = answer.bytes;
+      sliceTraffic.fetched += 1;
+      if (volume === app.sliceVolume) setSlice(view, answer.data);
+      else view.sliceStale = true; // the choice changed meanwhile: ask again
       view.sliceError = null;
     } catch (e) {
       view.sliceError = e.message;
@@ -802,6 +1009,14 @@
   function setSlice(view, slice) {
     const w = slice.width | 0;
     const h = slice.height | 0;
+    if (typeof slice.values_u8 === 'string') {
+      // 8-bit: byte b stands for min + b (max - min) / 255.
+      const bytes = atob(slice.values_u8);
+      if (!(w > 0 && h > 0) || bytes.length < w * h) throw new Error('malformed slice');
+      const grey = new Array(w * h);
+      for (let i = 0; i < w * h; i++) grey[i] = bytes.charCodeAt(i);
+      slice = Object.assign({}, slice, { values: grey, min: 0, max: 255 });
+    }
     if (!(w > 0 && h > 0) || !Array.isArray(slice.values) || slice.values.length < w * h) {
       throw new Error('malformed slice');
     }
@@ -1314,6 +1529,12 @@
   const hand = { dragging: null, local: null, pending: undefined, inflight: false, lastSent: 0, timer: null };
 
   function queueHand(position) {
+    const problem = tokenProblem();
+    if (problem) {
+      // Say why once per drag; send nothing (issue 17: a drag without a token fired ~12 refused requests).
+      showMsg($('hand-msg'), 'hand not moved: ' + problem, true);
+      return;
+    }
     hand.pending = position;
     pumpHand();
   }
@@ -1437,9 +1658,8 @@
       app.dirty = true;
     });
   }
-  // Slices also refresh when no state arrives (e.g. the proxy is still).
-  setInterval(maybeFetchSlices, SLICE_PERIOD_MS);
   setInterval(pollStats, 1000);
+  setInterval(measureRates, 1000);
   pollStats();
   getJson('api/scene')
     .then((scene) => {

@@ -12,6 +12,7 @@ pub mod info;
 pub mod mock_device;
 pub mod plot;
 pub mod serve;
+pub mod shell;
 pub mod sim;
 pub mod solve;
 pub mod sweep;
@@ -151,6 +152,10 @@ pub enum Command {
     Sweep(sweep::SweepArgs),
     /// Compare a trace with a reference within tolerances; exit 1 when they differ.
     Compare(compare::CompareArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell) generated from these flags.
+    Completions(shell::CompletionsArgs),
+    /// Print the voxhap(1) man page, or write one page per command with --dir.
+    Man(shell::ManArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -218,6 +223,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Trace(args)) => trace::run(&args),
         Some(Command::Sweep(args)) => sweep::run(&args),
         Some(Command::Compare(args)) => compare::run(&args),
+        Some(Command::Completions(args)) => shell::run_completions(&args),
+        Some(Command::Man(args)) => shell::run_man(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

@@ -5,11 +5,19 @@
 //! panels with `plotters` into a PNG or SVG file:
 //!
 //! 1. force over time: magnitude and x, y, z components (N);
-//! 2. solver effort over time: sweeps per tick (left axis, linear) and the certificate bound (right axis,
-//!    log scale, m), as in the paper's Figure 7; ticks without a certificate (`inf`) are left out and a
-//!    bound of exactly 0 is drawn at the bottom of the axis;
+//! 2. solver effort over time: sweeps (exact solver) or iterations (Euler, constraint) per tick, named
+//!    from the trace's sidecar (left axis, linear), and the certificate bound (right axis, log scale, m),
+//!    as in the paper's Figure 7; ticks without a certificate (`inf`) are left out and a bound of exactly 0
+//!    is drawn at the bottom of the axis;
 //! 3. top view (x-y) and 4. side view (x-z) of the probe and proxy paths (mm), with equal scales on both
 //!    axes so shapes are not distorted.
+//!
+//! The two time panels shade the periods when the trace's flags say the force was held back (ramp-in,
+//! waiting to engage, slew limit: `force_limited_by_safety`) or the device was away (disconnected, not
+//! enabled, faulted, stale state). Each panel's legend sits in a strip above its chart, never on the data.
+//! Axis limits are robust: when a few samples lie far outside the rest (a spike), the axis covers the
+//! 0.5 %..99.5 % quantiles and the samples beyond it are drawn on the axis edge as red triangles, counted in
+//! the legend, instead of squashing everything else into a line.
 //!
 //! Long traces are thinned for drawing: time series keep the minimum and maximum of each of at most
 //! [`MAX_BUCKETS`] time buckets (so spikes survive), paths keep every n-th point and drop sub-pixel
@@ -20,6 +28,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -37,6 +46,32 @@ const X_COLOR: RGBColor = RGBColor(214, 39, 40);
 const Y_COLOR: RGBColor = RGBColor(44, 160, 44);
 const Z_COLOR: RGBColor = RGBColor(31, 119, 180);
 const BOUND_COLOR: RGBColor = RGBColor(148, 103, 189);
+const OUTLIER_COLOR: RGBColor = RGBColor(220, 0, 0);
+/// Shading of periods with the force held back by safety (ramp-in, engage, slew).
+const SAFETY_SHADE: RGBColor = RGBColor(255, 200, 120);
+/// Shading of periods with the device away (disconnected, not enabled, faulted, stale).
+const DEVICE_SHADE: RGBColor = RGBColor(200, 200, 200);
+/// Height of each panel's legend strip (px).
+const LEGEND_PX: u32 = 22;
+/// Most shaded periods drawn per kind (closer ones are merged).
+const MAX_SHADED_PERIODS: usize = 500;
+
+/// The flag bits whose periods are shaded, with the legend text and colour.
+const SHADED_FLAGS: [(u32, &str, RGBColor); 2] = [
+    (
+        super::FLAG_FORCE_LIMITED_BY_SAFETY,
+        "force held back (ramp-in, engage, slew)",
+        SAFETY_SHADE,
+    ),
+    (
+        super::FLAG_DEVICE_DISCONNECTED
+            | super::FLAG_DEVICE_NOT_ENABLED
+            | super::FLAG_DEVICE_FAULTED
+            | super::FLAG_STALE_STATE,
+        "device away (disconnected, not enabled, faulted)",
+        DEVICE_SHADE,
+    ),
+];
 
 /// Why a plot could not be drawn.
 #[derive(Debug, thiserror::Error)]
@@ -203,8 +238,17 @@ where
         root.clone()
             .shrink((r.x0, r.y0), (r.x1 - r.x0, r.y1 - r.y0))
     };
-    draw_force(&area(force), &trace.samples)?;
-    draw_solver(&area(solver), &trace.samples)?;
+    let shaded: Vec<ShadedPeriods> = SHADED_FLAGS
+        .iter()
+        .map(|&(mask, name, color)| ShadedPeriods {
+            name,
+            color,
+            periods: flag_periods(&trace.samples, mask),
+        })
+        .filter(|s| !s.periods.is_empty())
+        .collect();
+    draw_force(&area(force), &trace.samples, &shaded)?;
+    draw_solver(&area(solver), &trace.samples, effort_name(trace), &shaded)?;
     draw_path(
         &area(top),
         &trace.samples,
@@ -251,6 +295,198 @@ fn envelope(samples: &[TraceSample], value: impl Fn(&TraceSample) -> f64) -> Vec
     points
 }
 
+/// Periods (start, end time in s) of a flag kind, for shading.
+struct ShadedPeriods {
+    name: &'static str,
+    color: RGBColor,
+    periods: Vec<(f64, f64)>,
+}
+
+/// The time periods in which some bit of `mask` is set: from the first flagged sample to the next
+/// unflagged one (or the last sample). Periods closer than 1/`MAX_SHADED_PERIODS` of the trace are merged so
+/// at most about `MAX_SHADED_PERIODS` are drawn.
+fn flag_periods(samples: &[TraceSample], mask: u32) -> Vec<(f64, f64)> {
+    let time = time_range(samples);
+    let merge_gap_s = (time.end - time.start) / MAX_SHADED_PERIODS as f64;
+    let mut periods: Vec<(f64, f64)> = Vec::new();
+    let mut open: Option<f64> = None;
+    for sample in samples {
+        let flagged = sample.flags & mask != 0;
+        match (open, flagged) {
+            (None, true) => open = Some(sample.t_s),
+            (Some(start), false) => {
+                push_period(&mut periods, (start, sample.t_s), merge_gap_s);
+                open = None;
+            }
+            _ => {}
+        }
+    }
+    if let (Some(start), Some(last)) = (open, samples.last()) {
+        push_period(&mut periods, (start, last.t_s), merge_gap_s);
+    }
+    periods
+}
+
+fn push_period(periods: &mut Vec<(f64, f64)>, period: (f64, f64), merge_gap_s: f64) {
+    match periods.last_mut() {
+        Some(last) if period.0 - last.1 <= merge_gap_s => last.1 = period.1,
+        _ => periods.push(period),
+    }
+}
+
+/// What the solver panel counts: the exact solver's block sweeps, or the baselines' iterations.
+fn effort_name(trace: &Trace) -> &'static str {
+    match trace.sidecar.as_ref().map(|s| s.meta.solver.as_str()) {
+        // `exact`, `exact-dual`; `euler-baseline`, `constraint-baseline` (and their short names).
+        Some(solver) if solver.starts_with("exact") => "sweeps",
+        Some(solver) if solver.starts_with("euler") || solver.starts_with("constraint") => {
+            "iterations"
+        }
+        _ => "sweeps or iterations",
+    }
+}
+
+/// An axis range for `values` that a few far-off values cannot squash: the full range padded 5 % when
+/// the 0.5 %..99.5 % quantiles span at least a third of it, else those quantiles padded 5 % (the values
+/// beyond are drawn on the edge, see [`clamp_outliers`]).
+fn robust_range(values: impl Iterator<Item = f64>) -> Range<f64> {
+    let mut finite: Vec<f64> = values.filter(|v| v.is_finite()).collect();
+    if finite.len() < 20 {
+        return padded_range(finite.into_iter());
+    }
+    finite.sort_by(f64::total_cmp);
+    let n = finite.len();
+    let (low, high) = (finite[0], finite[n - 1]);
+    let q_low = finite[n / 200];
+    let q_high = finite[n - 1 - n / 200];
+    if q_high - q_low >= (high - low) / 3.0 {
+        padded_range([low, high].into_iter())
+    } else {
+        padded_range([q_low, q_high].into_iter())
+    }
+}
+
+/// `points` with y clamped into `range`, and the points that were outside (at the edge they were drawn at).
+fn clamp_outliers(points: Points, range: &Range<f64>) -> (Points, Points) {
+    let mut outside = Vec::new();
+    let clamped = points
+        .into_iter()
+        .map(|(x, y)| {
+            if y < range.start || y > range.end {
+                let edge = y.clamp(range.start, range.end);
+                outside.push((x, edge));
+                (x, edge)
+            } else {
+                (x, y)
+            }
+        })
+        .collect();
+    (clamped, outside)
+}
+
+/// One legend entry: text, colour, and whether it is a filled box (shading, markers) or a line.
+struct LegendEntry {
+    text: String,
+    color: RGBColor,
+    filled: bool,
+}
+
+impl LegendEntry {
+    fn line(text: impl Into<String>, color: RGBColor) -> Self {
+        LegendEntry {
+            text: text.into(),
+            color,
+            filled: false,
+        }
+    }
+
+    fn filled(text: impl Into<String>, color: RGBColor) -> Self {
+        LegendEntry {
+            text: text.into(),
+            color,
+            filled: true,
+        }
+    }
+}
+
+/// Splits a panel into its legend strip (caption, then the entries, left to right) and the chart area
+/// below, so no legend covers data.
+fn legend_strip<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    caption: &str,
+    entries: &[LegendEntry],
+) -> Result<DrawingArea<DB, Shift>, String>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    let (strip, chart) = area.split_vertically(LEGEND_PX);
+    let caption_font = (FONT, 16).into_font().color(&BLACK);
+    strip
+        .draw(&Text::new(
+            caption.to_string(),
+            (10, 3),
+            caption_font.clone(),
+        ))
+        .map_err(err)?;
+    let (width, _) = strip.dim_in_pixel();
+    let text_width = |text: &str, size: f64| {
+        strip
+            .estimate_text_size(text, &TextStyle::from((FONT, size).into_font()))
+            .map_or(text.len() as i32 * 7, |(w, _)| w as i32)
+    };
+    let mut x = 10 + text_width(caption, 16.0) + 24;
+    let label_font = (FONT, 12).into_font().color(&BLACK);
+    for entry in entries {
+        let needed = 24 + text_width(&entry.text, 12.0) + 16;
+        if x + needed > width as i32 {
+            break; // no room: the strip never draws over the chart
+        }
+        let y = (LEGEND_PX / 2) as i32;
+        if entry.filled {
+            strip
+                .draw(&Rectangle::new(
+                    [(x, y - 6), (x + 18, y + 6)],
+                    entry.color.filled(),
+                ))
+                .map_err(err)?;
+        } else {
+            strip
+                .draw(&PathElement::new(
+                    vec![(x, y), (x + 18, y)],
+                    entry.color.stroke_width(2),
+                ))
+                .map_err(err)?;
+        }
+        strip
+            .draw(&Text::new(
+                entry.text.clone(),
+                (x + 24, y - 7),
+                label_font.clone(),
+            ))
+            .map_err(err)?;
+        x += needed;
+    }
+    Ok(chart)
+}
+
+/// `entries` followed by the count of samples drawn on the axis edge (when there are any) and the shaded
+/// flag kinds: the legend of a time panel.
+fn with_marks(
+    mut entries: Vec<LegendEntry>,
+    off_axis: usize,
+    shaded: &[ShadedPeriods],
+) -> Vec<LegendEntry> {
+    if off_axis > 0 {
+        entries.push(LegendEntry::filled(
+            format!("{off_axis} off the axis"),
+            OUTLIER_COLOR,
+        ));
+    }
+    entries.extend(shaded.iter().map(|s| LegendEntry::filled(s.name, s.color)));
+    entries
+}
+
 /// A range covering `values` with 5 % padding; a unit-wide range around a constant.
 fn padded_range(values: impl Iterator<Item = f64>) -> Range<f64> {
     let (low, high) = values
@@ -293,13 +529,39 @@ fn thick_segments(
         .chain(single)
 }
 
-fn legend_line(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
-    move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+/// Shades `periods` over the full height of a chart whose y axis spans `y`.
+fn shade_periods<DB: DrawingBackend, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+    shaded: &[ShadedPeriods],
+    y: &Range<f64>,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    for kind in shaded {
+        let style = kind.color.mix(0.45).filled();
+        chart
+            .draw_series(
+                kind.periods
+                    .iter()
+                    .map(|&(t0, t1)| Rectangle::new([(t0, y.start), (t1, y.end)], style)),
+            )
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+/// Red triangles at the axis edge where samples lay beyond it.
+fn outlier_markers(points: Points) -> impl Iterator<Item = TriangleMarker<(f64, f64), i32>> {
+    points
+        .into_iter()
+        .map(|p| TriangleMarker::new(p, 5, OUTLIER_COLOR.filled()))
 }
 
 fn draw_force<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     samples: &[TraceSample],
+    shaded: &[ShadedPeriods],
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
@@ -315,13 +577,30 @@ where
         .iter()
         .map(|(name, color, f)| (*name, *color, envelope(samples, f)))
         .collect();
-    let y_range = padded_range(series.iter().flat_map(|(_, _, p)| p.iter().map(|p| p.1)));
-    let mut chart = ChartBuilder::on(area)
-        .caption("Force on the device", (FONT, 16))
+    let y_range = robust_range(series.iter().flat_map(|(_, _, p)| p.iter().map(|p| p.1)));
+    let mut outliers = Vec::new();
+    let series: Vec<_> = series
+        .into_iter()
+        .map(|(name, color, points)| {
+            let (points, outside) = clamp_outliers(points, &y_range);
+            outliers.extend(outside);
+            (name, color, points)
+        })
+        .collect();
+    let entries = with_marks(
+        series
+            .iter()
+            .map(|(name, color, _)| LegendEntry::line(*name, *color))
+            .collect(),
+        outliers.len(),
+        shaded,
+    );
+    let area = legend_strip(area, "Force on the device", &entries)?;
+    let mut chart = ChartBuilder::on(&area)
         .margin(8)
         .x_label_area_size(32)
         .y_label_area_size(64)
-        .build_cartesian_2d(time_range(samples), y_range)
+        .build_cartesian_2d(time_range(samples), y_range.clone())
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -331,34 +610,33 @@ where
         .light_line_style(WHITE.mix(0.0))
         .draw()
         .map_err(err)?;
+    shade_periods(&mut chart, shaded, &y_range)?;
     for (name, color, points) in series {
-        let drawn = if name == "|F|" {
+        if name == "|F|" {
             chart.draw_series(thick_segments(points, color.stroke_width(2)))
         } else {
             chart.draw_series(LineSeries::new(points, color.stroke_width(1)))
-        };
-        drawn.map_err(err)?.label(name).legend(legend_line(color));
+        }
+        .map_err(err)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()
-        .map_err(err)
+    chart.draw_series(outlier_markers(outliers)).map_err(err)?;
+    Ok(())
 }
 
 fn draw_solver<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     samples: &[TraceSample],
+    effort: &str,
+    shaded: &[ShadedPeriods],
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     let sweeps = envelope(samples, |s| f64::from(s.sweeps));
-    let max_sweeps = sweeps.iter().map(|p| p.1).fold(0.0, f64::max).max(1.0);
+    let sweep_range = robust_range(sweeps.iter().map(|p| p.1).chain([0.0]));
+    let sweep_range = 0.0..sweep_range.end.max(1.0);
+    let (sweeps, outliers) = clamp_outliers(sweeps, &sweep_range);
     let positive_bounds = samples
         .iter()
         .map(|s| s.error_bound_m)
@@ -390,19 +668,27 @@ where
         }
     });
 
-    let mut chart = ChartBuilder::on(area)
-        .caption("Solver effort", (FONT, 16))
+    let entries = with_marks(
+        vec![
+            LegendEntry::line(format!("{effort} (left)"), BLACK),
+            LegendEntry::line("certificate bound (right)", BOUND_COLOR),
+        ],
+        outliers.len(),
+        shaded,
+    );
+    let area = legend_strip(area, "Solver effort", &entries)?;
+    let mut chart = ChartBuilder::on(&area)
         .margin(8)
         .x_label_area_size(32)
         .y_label_area_size(64)
         .right_y_label_area_size(72)
-        .build_cartesian_2d(time_range(samples), 0.0..max_sweeps * 1.1)
+        .build_cartesian_2d(time_range(samples), sweep_range.clone())
         .map_err(err)?
         .set_secondary_coord(time_range(samples), log_low..log_high);
     chart
         .configure_mesh()
         .x_desc("t (s)")
-        .y_desc("sweeps per tick")
+        .y_desc(format!("{effort} per tick"))
         .label_style((FONT, 12))
         .light_line_style(WHITE.mix(0.0))
         .draw()
@@ -415,25 +701,16 @@ where
         .y_label_formatter(&decade_label)
         .draw()
         .map_err(err)?;
+    shade_periods(&mut chart, shaded, &sweep_range)?;
     // The bound first, so the sweeps stay visible on top of a dense bound band.
     chart
         .draw_secondary_series(LineSeries::new(bounds, BOUND_COLOR.stroke_width(1)))
-        .map_err(err)?
-        .label("error bound (right)")
-        .legend(legend_line(BOUND_COLOR));
+        .map_err(err)?;
     chart
         .draw_series(LineSeries::new(sweeps, BLACK.stroke_width(1)))
-        .map_err(err)?
-        .label("sweeps")
-        .legend(legend_line(BLACK));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()
-        .map_err(err)
+        .map_err(err)?;
+    chart.draw_series(outlier_markers(outliers)).map_err(err)?;
+    Ok(())
 }
 
 /// Labels a log10 axis at whole decades (`-12` -> `1e-12`), leaving other ticks unlabelled.
@@ -515,8 +792,22 @@ where
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     let (probe, proxy) = path_points(samples, vertical);
-    let x = padded_range(probe.iter().chain(&proxy).map(|p| p.0));
-    let y = padded_range(probe.iter().chain(&proxy).map(|p| p.1));
+    let x = robust_range(probe.iter().chain(&proxy).map(|p| p.0));
+    let y = robust_range(probe.iter().chain(&proxy).map(|p| p.1));
+    let off_axis = probe
+        .iter()
+        .chain(&proxy)
+        .filter(|p| !x.contains(&p.0) || !y.contains(&p.1))
+        .count();
+    let entries = with_marks(
+        vec![
+            LegendEntry::line("probe", PROBE_COLOR),
+            LegendEntry::line("proxy", PROXY_COLOR),
+        ],
+        off_axis,
+        &[],
+    );
+    let area = &legend_strip(area, caption, &entries)?;
     let (width_px, height_px) = area.dim_in_pixel();
     // Plot area: the panel less the label areas and margins used below.
     let (x, y) = equal_aspect(
@@ -527,10 +818,25 @@ where
     );
     let min_step_mm =
         1.5 * (x.end - x.start) / f64::from(width_px.saturating_sub(64 + 16)).max(1.0);
-    let probe = thin_path(probe, min_step_mm);
-    let proxy = thin_path(proxy, min_step_mm);
+    // Points off the axes are drawn on the edge (red triangles), not outside the chart.
+    let clamp = |points: Points| -> (Points, Points) {
+        let mut outside = Vec::new();
+        let kept = points
+            .into_iter()
+            .map(|(a, b)| {
+                let edge = (a.clamp(x.start, x.end), b.clamp(y.start, y.end));
+                if edge != (a, b) {
+                    outside.push(edge);
+                }
+                edge
+            })
+            .collect();
+        (kept, outside)
+    };
+    let (probe, mut outliers) = clamp(thin_path(probe, min_step_mm));
+    let (proxy, more) = clamp(thin_path(proxy, min_step_mm));
+    outliers.extend(more);
     let mut chart = ChartBuilder::on(area)
-        .caption(caption, (FONT, 16))
         .margin(8)
         .x_label_area_size(32)
         .y_label_area_size(64)
@@ -546,22 +852,12 @@ where
         .map_err(err)?;
     chart
         .draw_series(thick_segments(probe, PROBE_COLOR.stroke_width(3)))
-        .map_err(err)?
-        .label("probe")
-        .legend(legend_line(PROBE_COLOR));
+        .map_err(err)?;
     chart
         .draw_series(LineSeries::new(proxy, PROXY_COLOR.stroke_width(1)))
-        .map_err(err)?
-        .label("proxy")
-        .legend(legend_line(PROXY_COLOR));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()
-        .map_err(err)
+        .map_err(err)?;
+    chart.draw_series(outlier_markers(outliers)).map_err(err)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -656,6 +952,115 @@ mod tests {
         jump.samples[10].probe_m.x = 1e6;
         jump.samples[11].force_n.z = -1e9;
         plot_trace(&jump, "jump", &out, 640, 480).unwrap();
+    }
+
+    #[test]
+    fn the_effort_is_named_by_solver() {
+        let mut traced = trace(5);
+        assert_eq!(effort_name(&traced), "sweeps or iterations");
+        for (solver, name) in [
+            ("exact", "sweeps"),
+            ("exact-dual", "sweeps"),
+            ("euler-baseline", "iterations"),
+            ("constraint-baseline", "iterations"),
+        ] {
+            let meta = crate::record::TraceMeta::new(
+                vec!["surface".into()],
+                1000.0,
+                serde_json::Value::Null,
+                "v",
+                solver,
+            );
+            let sidecar = crate::record::Sidecar::new(
+                &meta,
+                crate::record::TraceFormat::Csv,
+                Path::new("t.csv"),
+            );
+            traced.sidecar = Some(sidecar);
+            assert_eq!(effort_name(&traced), name, "{solver}");
+        }
+    }
+
+    #[test]
+    fn one_spike_does_not_squash_the_axis_and_is_marked() {
+        let values: Vec<f64> = (0..1000).map(|i| f64::from(i % 10) * 0.1).collect();
+        let mut spiked = values.clone();
+        spiked[500] = 1e6;
+        let range = robust_range(spiked.iter().copied());
+        assert!(range.end < 2.0 && range.start < 0.0, "{range:?}");
+        // Spread-out data keeps its full range.
+        assert_eq!(
+            robust_range(values.iter().copied()),
+            padded_range(values.iter().copied())
+        );
+        let points: Points = spiked
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| (i as f64, v))
+            .collect();
+        let (clamped, outside) = clamp_outliers(points, &range);
+        assert_eq!(outside, vec![(500.0, range.end)]);
+        assert!(clamped
+            .iter()
+            .all(|p| range.contains(&p.1) || p.1 == range.end));
+    }
+
+    #[test]
+    fn flagged_periods_are_found_and_merged() {
+        let mut data = samples(1000, 1);
+        for (i, s) in data.iter_mut().enumerate() {
+            s.flags = 0;
+            if (100..200).contains(&i) || (600..610).contains(&i) || i >= 990 {
+                s.flags = crate::record::FLAG_FORCE_LIMITED_BY_SAFETY;
+            }
+        }
+        let t = |i: usize| data[i].t_s;
+        let periods = flag_periods(&data, crate::record::FLAG_FORCE_LIMITED_BY_SAFETY);
+        assert_eq!(
+            periods,
+            vec![(t(100), t(200)), (t(600), t(610)), (t(990), t(999))]
+        );
+        assert!(flag_periods(&data, crate::record::FLAG_DEVICE_DISCONNECTED).is_empty());
+        // Flicker every other tick merges into one period.
+        for (i, s) in data.iter_mut().enumerate() {
+            s.flags = if i % 2 == 0 {
+                crate::record::FLAG_DEVICE_DISCONNECTED
+            } else {
+                0
+            };
+        }
+        assert_eq!(
+            flag_periods(&data, crate::record::FLAG_DEVICE_DISCONNECTED).len(),
+            1
+        );
+    }
+
+    #[test]
+    fn svg_names_the_effort_shades_flags_and_counts_outliers() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("flags.svg");
+        let mut spiky = trace(2000);
+        for (i, s) in spiky.samples.iter_mut().enumerate() {
+            s.flags = if i < 300 {
+                crate::record::FLAG_FORCE_LIMITED_BY_SAFETY
+            } else {
+                0
+            };
+        }
+        spiky.samples[1500].force_n.z = 1e4;
+        plot_trace(&spiky, "flags", &out, 1200, 900).unwrap();
+        let text = std::fs::read_to_string(&out).unwrap();
+        for expected in [
+            "sweeps or iterations per tick",
+            "force held back (ramp-in, engage, slew)",
+            "off the axis",
+        ] {
+            assert!(text.contains(expected), "the SVG lacks {expected:?}");
+        }
+        assert!(
+            !text.contains("device away"),
+            "no device flags in this trace"
+        );
     }
 
     #[test]

@@ -8,9 +8,9 @@
 
 use super::auth::check_bearer;
 use super::messages::{
-    decode_command, decode_value, parse_json, ControlFailed, ControlOk, EmptyBody, ErrorBody,
-    HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody, TransferBody,
-    VolumeBody, MAX_MESSAGE_BYTES,
+    decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
+    EnabledBody, ErrorBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody,
+    StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::{assets, ws, Shared};
 use crate::servo::api::{
@@ -44,6 +44,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/modes", post(add_mode))
         .route("/api/modes/{name}", delete(remove_mode))
         .route("/api/modes/{name}/transfer", post(set_transfer))
+        .route("/api/modes/{name}/enabled", post(set_mode_enabled))
         .route("/api/volume", post(load_volume))
         .route("/api/record/start", post(record_start))
         .route("/api/record/stop", post(record_stop))
@@ -164,9 +165,9 @@ fn parse_point(text: &str) -> Result<DVec3, String> {
 /// The slice request of a `GET /api/slice` query.
 fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, String> {
     for key in params.keys() {
-        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume") {
+        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume" | "encoding") {
             return Err(format!(
-                "unknown query parameter {key:?}; expected axis, size, at, volume"
+                "unknown query parameter {key:?}; expected axis, size, at, volume, encoding"
             ));
         }
     }
@@ -204,10 +205,20 @@ async fn slice(
         Ok(request) => request,
         Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
     };
+    let u8_levels = match params.get("encoding").map(String::as_str) {
+        None | Some("f32") => false,
+        Some("u8") => true,
+        Some(other) => {
+            return error_response(
+                StatusCode::BAD_REQUEST,
+                format!("invalid: encoding must be f32 or u8, got {other:?}"),
+            )
+        }
+    };
     let result = shared
         .blocking(true, move |api| {
             api.slice(request)
-                .map(|slice| serde_json::to_string(&slice).unwrap_or_default())
+                .map(|slice| slice_json(&slice, u8_levels))
         })
         .await
         .and_then(|r| r);
@@ -364,18 +375,47 @@ async fn set_transfer(
     name: Result<Path<String>, PathRejection>,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
+    mode_request(&shared, &headers, name, body, |mode, value| {
+        let body: TransferBody = decode_value(value)?;
+        Ok(ControlCommand::SetTransfer {
+            mode,
+            transfer: body.transfer,
+        })
+    })
+    .await
+}
+
+async fn set_mode_enabled(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    mode_request(&shared, &headers, name, body, |mode, value| {
+        let body: EnabledBody = decode_value(value)?;
+        Ok(ControlCommand::SetModeEnabled {
+            mode,
+            enabled: body.enabled,
+        })
+    })
+    .await
+}
+
+/// A control endpoint on one mode (`/api/modes/{name}/...`): the mode's name from the path, then `command`
+/// makes the command from it and the body.
+async fn mode_request(
+    shared: &Arc<Shared>,
+    headers: &HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+    command: fn(String, Value) -> Result<ControlCommand, String>,
+) -> Response {
     let mode = match name {
         Ok(Path(name)) => name,
         Err(rejection) => return bad_path(&rejection),
     };
-    let decode: Decode = Box::new(move |value| {
-        let body: TransferBody = decode_value(value)?;
-        one(ControlCommand::SetTransfer {
-            mode,
-            transfer: body.transfer,
-        })
-    });
-    control_request(&shared, &headers, body, false, decode).await
+    let decode: Decode = Box::new(move |value| one(command(mode, value)?));
+    control_request(shared, headers, body, false, decode).await
 }
 
 async fn load_volume(

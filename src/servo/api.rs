@@ -274,6 +274,9 @@ pub enum ControlCommand {
         mode: String,
         transfer: TransferFunction,
     },
+    /// Switch the mode named `mode` on or off. Off keeps its breakpoints (and every other setting) and
+    /// renders no force; allowed while recording (the trace keeps its columns).
+    SetModeEnabled { mode: String, enabled: bool },
     /// Add a mode (scene-file syntax) at the end.
     AddMode { mode: ModeConfig },
     /// Remove the mode named `name` (modes that depend on it, like friction, must go first).

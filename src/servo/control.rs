@@ -229,6 +229,13 @@ impl SessionShared {
                     format!("transfer function of {mode:?} replaced"),
                 )
             }
+            ControlCommand::SetModeEnabled { mode, enabled } => {
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &mode)?;
+                setup.modes[index].enabled = (!enabled).then_some(false);
+                let state = if enabled { "on" } else { "off" };
+                self.swap(control, setup, format!("mode {mode:?} switched {state}"))
+            }
             ControlCommand::AddMode { mode } => {
                 Self::refuse_while_recording(control, "add a mode")?;
                 let mut setup = control.setup.clone();

@@ -63,7 +63,9 @@ impl ModeKind {
 /// | `support_plane` | `point_m`, `normal`, `strength_n` |
 ///
 /// Every mode takes an optional `name` (default: its kind), unique within the scene; it labels the
-/// mode's column in traces. A key a kind does not use is an error.
+/// mode's column in traces, and an optional `enabled` (default `true`): a mode with `enabled = false` keeps
+/// its settings (breakpoints, `mu`, `strength_n`) and its trace column but renders no force (its strengths
+/// are taken as 0 N). A key a kind does not use is an error.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModeConfig {
@@ -94,6 +96,10 @@ pub struct ModeConfig {
     /// Support plane: strength (N).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub strength_n: Option<f64>,
+    /// `Some(false)`: the mode is switched off (renders no force) but keeps every other setting. `None`
+    /// and `Some(true)` both mean on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub enabled: Option<bool>,
 }
 
 impl ModeConfig {
@@ -110,6 +116,7 @@ impl ModeConfig {
             point_m: None,
             normal: None,
             strength_n: None,
+            enabled: None,
         }
     }
 
@@ -151,6 +158,11 @@ impl ModeConfig {
     pub fn named(mut self, name: &str) -> Self {
         self.name = Some(name.to_owned());
         self
+    }
+
+    /// False when the mode is switched off (`enabled = false`).
+    pub fn is_enabled(&self) -> bool {
+        self.enabled != Some(false)
     }
 
     /// The mode's name: `name`, or the kind's name.
@@ -227,7 +239,17 @@ impl ModeConfig {
             }
             Ok(found)
         };
-        let transfer = || self.transfer.clone().ok_or_else(|| missing("transfer"));
+        // A switched-off mode keeps its breakpoints in the configuration; the built mode gets the same
+        // breakpoints with 0 N everywhere (so it emits nothing and its trace column stays).
+        let enabled = self.is_enabled();
+        let transfer = || {
+            let transfer = self.transfer.clone().ok_or_else(|| missing("transfer"))?;
+            if enabled {
+                Ok(transfer)
+            } else {
+                Ok(transfer.scaled(0.0))
+            }
+        };
         Ok(match self.kind {
             ModeKind::Surface => Mode::Surface {
                 volume: volume_index()?,
@@ -276,12 +298,18 @@ impl ModeConfig {
                         ),
                     ));
                 }
+                let mu = if enabled { mu } else { 0.0 };
                 Mode::Friction { surface_mode, mu }
             }
             ModeKind::SupportPlane => {
                 let point = self.point_m.ok_or_else(|| missing("point_m"))?;
                 let normal = self.normal.ok_or_else(|| missing("normal"))?;
                 let strength = self.strength_n.ok_or_else(|| missing("strength_n"))?;
+                let strength = if enabled || !strength.is_finite() {
+                    strength
+                } else {
+                    0.0
+                };
                 let plane = Primitive::plane(
                     DVec3::from_array(point),
                     DVec3::from_array(normal),

@@ -81,6 +81,22 @@ impl TransferFunction {
         &self.points
     }
 
+    /// The same breakpoints with every strength multiplied by `factor` (a factor that is not a finite number
+    /// >= 0 is taken as 0, so the result is always valid). `scaled(0.0)` is the mode switched off.
+    pub fn scaled(&self, factor: f64) -> Self {
+        let factor = if factor.is_finite() && factor >= 0.0 {
+            factor
+        } else {
+            0.0
+        };
+        let points = self
+            .points
+            .iter()
+            .map(|&[x, y]| [x, (y * factor).min(f64::MAX)])
+            .collect();
+        Self { points }
+    }
+
     /// The largest strength the function can return (N).
     pub fn max_strength_n(&self) -> f64 {
         self.points.iter().map(|p| p[1]).fold(0.0, f64::max)
@@ -141,6 +157,20 @@ mod tests {
         assert_eq!(tf.eval(f64::NAN), 0.0);
         assert_eq!(tf.eval(f64::INFINITY), 0.0);
         assert_eq!(tf.max_strength_n(), 3.0);
+    }
+
+    #[test]
+    fn scaling_keeps_the_breakpoints() {
+        let tf = TransferFunction::new(vec![[0.0, 0.0], [0.1, 0.4]]).unwrap();
+        let off = tf.scaled(0.0);
+        assert_eq!(off.points(), &[[0.0, 0.0], [0.1, 0.0]]);
+        assert_eq!(tf.scaled(2.5).points(), &[[0.0, 0.0], [0.1, 1.0]]);
+        // Not a finite factor >= 0: switched off, never a negative or infinite strength.
+        for bad in [f64::NAN, -1.0, f64::NEG_INFINITY, f64::INFINITY] {
+            assert_eq!(tf.scaled(bad).max_strength_n(), 0.0);
+        }
+        let huge = TransferFunction::constant(1e300).unwrap().scaled(1e10);
+        assert_eq!(huge.max_strength_n(), f64::MAX);
     }
 
     #[test]

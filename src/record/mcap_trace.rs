@@ -248,8 +248,10 @@ pub struct McapTraceWriter {
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
-    /// The scene topics (markers, volume, bound, statistics).
+    /// The scene topics (markers and primitives, volume, slices, bound, operating state, statistics).
     scene: RecordedScene,
+    /// The servo's latest snapshot handed over for the scene topics (used with the sample of its tick).
+    frame: Option<crate::servo::Snapshot>,
     /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
     wall_start_ns: u64,
     first_t_s: Option<f64>,
@@ -386,6 +388,7 @@ impl McapTraceWriter {
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
             scene,
+            frame: None,
             wall_start_ns,
             first_t_s: None,
         })
@@ -558,9 +561,11 @@ impl TraceWriter for McapTraceWriter {
         put(self.force_channel, &|m| {
             vector3(sample.force_n).encode(m).map_err(encode_error)
         })?;
-        self.scene.write(sample, time_ns, &mut |channel, encode| {
-            put(channel, &|m| encode(m).map_err(encode_error))
-        })?;
+        let frame = self.frame.take_if(|frame| frame.tick <= sample.tick);
+        self.scene
+            .write(sample, frame.as_ref(), time_ns, &mut |channel, encode| {
+                put(channel, &|m| encode(m).map_err(encode_error))
+            })?;
         Ok(())
     }
 
@@ -606,6 +611,10 @@ impl TraceWriter for McapTraceWriter {
 
     fn sample_count(&self) -> u64 {
         self.checker.count
+    }
+
+    fn scene_frame(&mut self, frame: &crate::servo::Snapshot) {
+        self.frame = Some(*frame);
     }
 }
 

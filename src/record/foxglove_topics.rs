@@ -12,10 +12,16 @@
 //! | [`SETPOINT_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROXY_FRAME`] in [`WORLD_FRAME`]: the proxy, the coupling spring's set point (m) | [`PROXY_TOPIC`] |
 //! | [`MEASURED_CV_TOPIC`] | `foxglove.Vector3` | probe velocity (m/s); live view only | |
 //! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
-//! | [`OPERATING_STATE_TOPIC`] | `crtk.OperatingState` (JSON) | `state`, `is_homed`, `is_busy`; live view only | |
-//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, hand target, force arrow (and live: the tick's primitives) | |
+//! | [`OPERATING_STATE_TOPIC`] | `voxhap.OperatingState` (JSON) | CRTK `state`, `is_homed`, `is_busy` | |
+//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, force arrow, the tick's primitives (live: and the hand target) | |
 //! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box and the surface mode's iso-surface mesh, once per scene | |
 //! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre (the layout's camera follows it) | |
+//!
+//! | `/voxhap/volume/slice_x`, `_y`, `_z` | `foxglove.Grid` | slices through the proxy (live 128², recorded 64²) | |
+//!
+//! In a recording ([`RecordedScene`]) the scene update, bound and operating state come from the servo's own
+//! snapshot, handed to the recorder every [`scene_frame_interval_ticks`] ticks through an SPSC ring
+//! (`crate::servo::runner`), and are drawn by the live view's code (`crate::server::foxglove::messages`).
 //!
 //! World space is voxhap's world space (RAS, metres); rotations are the identity. Colours come from the one
 //! palette ([`crate::server::palette`]).
@@ -841,6 +847,65 @@ mod tests {
         }
         meta.volume = "procedural:sphere, /no/such/file.nii".to_owned();
         assert_eq!(RecordedVolume::from_meta(&meta), None);
+    }
+
+    /// Writes 3 s of 1 kHz samples through a [`RecordedScene`], with the servo's snapshots every 17th tick
+    /// for the first second only; returns how many messages each channel got and the last statistics.
+    fn record_with_frames_for_one_second() -> (RecordedScene, Vec<u16>, serde_json::Value) {
+        let mut meta = crate::record::test_support::meta(&["surface"]);
+        meta.volume = "builtin:sphere".to_owned();
+        let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
+        let mut channels = Vec::new();
+        let mut last_stats = serde_json::Value::Null;
+        let every = scene_frame_interval_ticks(1_000_000);
+        for tick in 0..3000u64 {
+            let mut sample = crate::record::TraceSample::zeroed(1);
+            sample.tick = tick;
+            sample.t_s = tick as f64 * 1e-3;
+            let frame = Snapshot {
+                tick,
+                t_s: sample.t_s,
+                connected: true,
+                engaged: true,
+                ..Snapshot::example()
+            };
+            let frame = (tick < 1000 && tick % every == 0).then_some(&frame);
+            let stats_channel = scene.stats;
+            scene
+                .write(&sample, frame, tick * 1_000_000, &mut |channel, encode| {
+                    let mut bytes = Vec::new();
+                    encode(&mut bytes).unwrap();
+                    if channel == stats_channel {
+                        last_stats = serde_json::from_slice(&bytes).unwrap();
+                    }
+                    channels.push(channel);
+                    Ok(())
+                })
+                .unwrap();
+        }
+        (scene, channels, last_stats)
+    }
+
+    #[test]
+    fn snapshots_drive_the_scene_updates_and_missing_ones_are_drawn_from_samples_and_counted() {
+        let (scene, channels, stats) = record_with_frames_for_one_second();
+        let count = |channel: u16| channels.iter().filter(|&&c| c == channel).count();
+        // 59 snapshots in the first second (ticks 0, 17, ..., 986); then none: one update per 3 intervals
+        // (50 ms) from the samples, 40 in the last two seconds.
+        assert_eq!(count(scene.primitives), 59 + 40);
+        assert_eq!(count(scene.bound), count(scene.primitives));
+        assert_eq!(count(scene.operating_state), count(scene.primitives));
+        // The last statistics (at 2 s) count the 20 updates drawn from samples by then (ticks 1036 ..= 1986).
+        assert_eq!(stats["t_s"], 2.0);
+        assert_eq!(stats["scene_frames_missing"], 20, "{stats}");
+        // Slices every 0.25 s, the volume picture once, statistics once a second (at 1 s and 2 s).
+        for channel in scene.slices {
+            assert_eq!(count(channel), 12);
+        }
+        assert_eq!(count(scene.volume), 1);
+        assert_eq!(count(scene.volume_frame), 1);
+        assert_eq!(count(scene.stats), 2);
     }
 
     #[test]

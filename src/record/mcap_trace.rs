@@ -15,8 +15,10 @@
 //!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
 //!   in N), one message per tick. The transforms' own timestamps equal the log time;
 //! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` once (the volume's
-//!   bounds and iso-surface), `/voxhap/primitives` and `/voxhap/bound` at 60 Hz of tick time,
-//!   `/voxhap/stats` (`voxhap.TraceStats`) once a second;
+//!   bounds and iso-surface), `/voxhap/primitives` (markers and the tick's primitives), `/voxhap/bound` and
+//!   `/voxhap/operating_state` from the servo's snapshots ([`TraceWriter::scene_frame`], at most 60 Hz of
+//!   tick time), the slices `/voxhap/volume/slice_x`, `_y`, `_z` 4 times a second, `/voxhap/stats`
+//!   (`voxhap.TraceStats`) once a second;
 //! * `log_time = publish_time` = wall-clock UTC (ns since the Unix epoch): the wall time at which the
 //!   writer was created for the first sample, plus the tick time since the first sample for the others,
 //!   so recordings line up with other instruments ([`log_time_start_ns`]: a trace whose `created_utc` was

@@ -25,7 +25,8 @@
 //! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
 //! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
 //!
-//! The pose, force, primitives and volume topics are also in MCAP traces (`crate::record::foxglove_topics`).
+//! Every topic but `measured_cv` and the deprecated names is also in MCAP traces
+//! (`crate::record::foxglove_topics::RecordedScene`), so a recording shows the shipped layout's picture.
 //! Message timestamps and log times are wall-clock: the session's tick time plus the wall time at which the
 //! view first saw the session. The volume picture and the slices are computed on tokio's blocking pool, one
 //! at a time, never on the servo thread.

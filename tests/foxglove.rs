@@ -711,3 +711,50 @@ fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
         serde_json::json!(["foxglove.SceneUpdate", "protobuf", "protobuf"])
     );
 }
+
+/// A sim's MCAP trace, with its scene topics (the volume picture, slices, scene updates), stays within the
+/// size `voxhap sim` estimates before it starts (`--max-trace-bytes` relies on that estimate), at the
+/// scenario's rate and at a tenth of it (the slices come per second of tick time, not per tick).
+#[test]
+fn a_sim_recording_with_its_scene_topics_stays_within_the_size_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/sims/sphere_surface.toml");
+    for rate in ["1000", "100"] {
+        let path = dir.path().join(format!("sim-{rate}.mcap"));
+        let out = voxhap(&[
+            "sim",
+            scenario,
+            "--out",
+            path.to_str().unwrap(),
+            "--duration",
+            "2",
+            "--rate",
+            rate,
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let rate_hz: f64 = rate.parse().unwrap();
+        let estimate = voxhap::record::estimate_trace_bytes(
+            TraceFormat::Mcap,
+            1,
+            (2.0 * rate_hz) as u64,
+            rate_hz,
+        );
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(
+            size <= estimate && size * 2 > estimate / 2,
+            "{rate} Hz: {size} bytes written, {estimate} estimated"
+        );
+        let slices = mcap::Summary::read(&std::fs::read(&path).unwrap())
+            .unwrap()
+            .unwrap()
+            .channels
+            .values()
+            .filter(|c| c.topic.starts_with("/voxhap/volume/slice_"))
+            .count();
+        assert_eq!(slices, 3);
+    }
+}

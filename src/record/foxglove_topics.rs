@@ -371,6 +371,19 @@ pub const RECORDED_SCENE_HZ: f64 = 60.0;
 pub const RECORDED_SLICE_SAMPLES: usize = 64;
 /// Tick time between two recorded sets of slices (s), as often as the live view sends them.
 pub const RECORDED_SLICE_INTERVAL_S: f64 = 0.25;
+/// A generous estimate of the bytes the scene topics add to a recording of `duration_s` seconds of tick
+/// time with `mode_count` modes: the volume picture (a 60 000-triangle mesh takes about 1.6 MB), the slices
+/// (3 x 32.8 kB, 4 times a second) and the scene updates, bounds and operating states (measured about 500
+/// bytes plus 150 per primitive, 60 times a second), with a quarter of margin and the record headers.
+pub fn recorded_scene_bytes(duration_s: f64, mode_count: usize) -> u64 {
+    const PICTURE_BYTES: f64 = 2.5e6;
+    let slices_per_s = (3 * (RECORDED_SLICE_SAMPLES * RECORDED_SLICE_SAMPLES * 8 + 300)) as f64
+        / RECORDED_SLICE_INTERVAL_S;
+    let updates_per_s = RECORDED_SCENE_HZ * (700.0 + 190.0 * mode_count as f64);
+    // `as` saturates: an enormous duration gives u64::MAX.
+    (PICTURE_BYTES + 1.25 * duration_s.max(0.0) * (slices_per_s + updates_per_s)) as u64
+}
+
 /// Without a snapshot from the servo for this many scene intervals, a recording draws the markers from the
 /// trace sample instead (and counts `scene_frames_missing`).
 const MISSING_FRAME_INTERVALS: u64 = 3;

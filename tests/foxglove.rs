@@ -16,7 +16,8 @@ use tokio_tungstenite::tungstenite::http::HeaderValue;
 use tokio_tungstenite::tungstenite::Message;
 use voxhap::record::{read_trace, TraceFormat};
 use voxhap::server::foxglove::{
-    start_for_serve, FoxgloveConfig, FoxgloveServer, LiveViewError, TOPICS,
+    layout_topics, start_for_serve, FoxgloveConfig, FoxgloveServer, LiveViewError, SHIPPED_LAYOUT,
+    TOPICS,
 };
 use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::setup::SceneSetup;
@@ -462,15 +463,36 @@ fn serve_prints_the_live_view_address_and_fails_on_an_explicit_busy_one() {
     assert!(stderr.contains("already in use"), "{stderr}");
 }
 
+/// The topics a recording must carry for the shipped layout: every topic it names, and the topics of the
+/// frames its 3D panel follows (`followTf`) or lists (`transforms`).
+fn layout_needs() -> Vec<String> {
+    let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
+    let mut topics = layout_topics(&layout).expect("the layout has panels");
+    let frame_topic = |frame: &str| match frame {
+        "volume" => "/voxhap/volume_frame",
+        "probe" => "/voxhap/measured_cp",
+        "proxy" => "/voxhap/setpoint_cp",
+        other => panic!("the layout names frame {other:?}, which no voxhap topic publishes"),
+    };
+    let panel = &layout["configById"]["3D!voxhap"];
+    topics.push(frame_topic(panel["followTf"].as_str().unwrap()).to_owned());
+    for key in panel["transforms"].as_object().unwrap().keys() {
+        topics.push(frame_topic(key.strip_prefix("frame:").unwrap()).to_owned());
+    }
+    topics.sort();
+    topics.dedup();
+    topics
+}
+
 #[test]
 fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("session.mcap");
     let session = sim_session(Some((path.clone(), TraceFormat::Mcap)));
-    std::thread::sleep(Duration::from_millis(400));
+    std::thread::sleep(Duration::from_millis(2000));
     let summary = session.stop();
     let trace = summary.trace.expect("a finished trace");
-    assert!(trace.sample_count > 100, "{} samples", trace.sample_count);
+    assert!(trace.sample_count > 500, "{} samples", trace.sample_count);
 
     let bytes = std::fs::read(&path).unwrap();
     let mcap_summary = mcap::Summary::read(&bytes)
@@ -489,6 +511,14 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
             (schema, channel.message_encoding.clone(), count),
         );
     }
+    // Every topic the shipped layout shows is in the recording, with messages.
+    for topic in layout_needs() {
+        let count = by_topic.get(&topic).map_or(0, |t| t.2);
+        assert!(
+            count > 0,
+            "the layout shows {topic}, the recording has {count} messages of it"
+        );
+    }
     let n = trace.sample_count;
     let protobuf = |name: &str| Some((name.to_owned(), "protobuf".to_owned()));
     let json = |name: &str| Some((name.to_owned(), "jsonschema".to_owned()));
@@ -504,20 +534,49 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
         by_topic["/voxhap/servo_cf"],
         (protobuf("foxglove.Vector3"), "protobuf".into(), n)
     );
-    // The scene: the volume once, markers and bound at up to 60 Hz of tick time, statistics once a second.
+    // The scene: the volume once; scene updates (markers and the tick's primitives), bound and operating
+    // state from the servo's snapshots, every 17th tick (58.8 Hz at 1 kHz); slices 4 times a second;
+    // statistics once a second. (Ticks skipped after an overrun on a busy machine may lose a snapshot or
+    // shift a slice, hence the ranges.)
+    let read = read_trace(&path).unwrap();
+    assert_eq!(read.samples.len() as u64, n);
+    let duration_s = read.samples[read.samples.len() - 1].t_s - read.samples[0].t_s;
     assert_eq!(
         by_topic["/voxhap/volume"],
         (protobuf("foxglove.SceneUpdate"), "protobuf".into(), 1)
     );
     assert_eq!(by_topic["/voxhap/volume_frame"].2, 1);
-    let markers = by_topic["/voxhap/primitives"].2;
+    let scene_updates = by_topic["/voxhap/primitives"].2;
+    let rate_hz = scene_updates as f64 / duration_s;
     assert!(
-        markers > 10 && markers < n / 10,
-        "{markers} scene updates for {n} ticks"
+        (0.8 * 58.8..=60.0 + 2.0 / duration_s).contains(&rate_hz),
+        "{scene_updates} scene updates in {duration_s} s of ticks: {rate_hz} Hz, expected 58.8 Hz"
     );
-    assert_eq!(by_topic["/voxhap/bound"].2, markers);
+    assert_eq!(by_topic["/voxhap/bound"].2, scene_updates);
     assert_eq!(by_topic["/voxhap/bound"].0, json("voxhap.Bound"));
+    assert_eq!(
+        by_topic["/voxhap/operating_state"],
+        (json("voxhap.OperatingState"), "json".into(), scene_updates)
+    );
+    let slices = (duration_s / 0.25).floor() as u64 + 1;
+    for axis in ["x", "y", "z"] {
+        let (schema, encoding, count) = &by_topic[&format!("/voxhap/volume/slice_{axis}")];
+        assert_eq!(
+            (schema, encoding.as_str()),
+            (&protobuf("foxglove.Grid"), "protobuf")
+        );
+        assert!(
+            (slices - 1..=slices).contains(count),
+            "{count} slice_{axis} messages in {duration_s} s, expected {slices} (4 Hz)"
+        );
+    }
     assert_eq!(by_topic["/voxhap/stats"].0, json("voxhap.TraceStats"));
+    let seconds = duration_s.floor() as u64;
+    assert!(
+        (seconds.saturating_sub(1)..=seconds).contains(&by_topic["/voxhap/stats"].2),
+        "{} statistics messages in {duration_s} s",
+        by_topic["/voxhap/stats"].2
+    );
     // The trace's own channels are still there, and voxhap reads the trace back.
     assert_eq!(
         by_topic["/voxhap/state"],
@@ -527,14 +586,59 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
         by_topic["/voxhap/solver"],
         (json("voxhap.Solver"), "json".into(), n)
     );
-    assert_eq!(by_topic.len(), 10, "{:?}", by_topic.keys());
-    let read = read_trace(&path).unwrap();
-    assert_eq!(read.samples.len() as u64, n);
+    assert_eq!(by_topic.len(), 14, "{:?}", by_topic.keys());
+
+    let messages = || {
+        mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(Result::unwrap)
+    };
+    // The scene updates are the servo's snapshots: the arm, pulled into the ball, feels the surface and
+    // the flow, so some carry the tick's primitives (a plane, a line, ...), drawn as the live view does.
+    let mut with_primitives = 0;
+    for message in messages().filter(|m| m.channel.topic == "/voxhap/primitives") {
+        let update = SceneUpdate::decode(&message.data[..]).unwrap();
+        let ids: Vec<&str> = update.entities.iter().map(|e| e.id.as_str()).collect();
+        assert!(ids.starts_with(&["probe", "proxy"]), "{ids:?}");
+        let primitives: Vec<_> = update
+            .entities
+            .iter()
+            .filter(|e| e.id.starts_with("primitive/"))
+            .collect();
+        for primitive in &primitives {
+            let kind = &primitive.metadata[0];
+            assert_eq!(kind.key, "kind");
+            let shapes = primitive.cubes.len()
+                + primitive.lines.len()
+                + primitive.spheres.len()
+                + primitive.arrows.len();
+            // A directed force too weak for an arrow is drawn as nothing (as in the live view).
+            assert!(
+                shapes == 1 || (shapes == 0 && kind.value == "directed"),
+                "{shapes} shapes for a {}: {primitive:?}",
+                kind.value
+            );
+        }
+        with_primitives += usize::from(!primitives.is_empty());
+    }
+    assert!(
+        with_primitives > 0,
+        "no recorded scene update carried a primitive"
+    );
+    let slice = messages()
+        .find(|m| m.channel.topic == "/voxhap/volume/slice_z")
+        .unwrap();
+    let grid = ::foxglove::messages::Grid::decode(&slice.data[..]).unwrap();
+    assert_eq!(grid.column_count, 64);
+    assert_eq!(grid.data.len(), 64 * 64 * 8);
+    let state = messages()
+        .find(|m| m.channel.topic == "/voxhap/operating_state")
+        .unwrap();
+    let state: serde_json::Value = serde_json::from_slice(&state.data).unwrap();
+    assert_eq!(state["is_homed"], true, "{state}");
 
     // The last force message is the last sample's force.
-    let last_force = mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(Result::unwrap)
+    let last_force = messages()
         .filter(|m| m.channel.topic == "/voxhap/servo_cf")
         .last()
         .unwrap();
@@ -542,9 +646,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
     let sample = read.samples.last().unwrap();
     assert_eq!([force.x, force.y, force.z], sample.force_n.to_array());
     // Log times are wall-clock UTC: the first sample at about the time the recording started.
-    let first = mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(Result::unwrap)
+    let first = messages()
         .find(|m| m.channel.topic == "/voxhap/servo_cf")
         .unwrap();
     let since_first_ns = ((sample.t_s - read.samples[0].t_s) * 1e9).round() as u64;
@@ -561,7 +663,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
 }
 
 /// The scene topics of a recording, read by the `mcap` Python package (an independent MCAP reader; .ci/run
-/// installs it): the volume picture once, markers and bounds, statistics, wall-clock log times.
+/// installs it) in `.ci/mcap_scene_check.py`: every topic the shipped layout shows is there, at its rate.
 #[test]
 fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
     let has_mcap = Command::new("python3")
@@ -579,28 +681,13 @@ fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("scene.mcap");
     let session = sim_session(Some((path.clone(), TraceFormat::Mcap)));
-    std::thread::sleep(Duration::from_millis(1500));
+    std::thread::sleep(Duration::from_millis(2000));
     session.stop();
-    let script = r#"
-import json, sys, time
-from mcap.reader import make_reader
-report = {"counts": {}, "schemas": {}, "sizes": {}, "first_log_time": None, "json": {}}
-with open(sys.argv[1], "rb") as f:
-    for schema, channel, message in make_reader(f).iter_messages():
-        topic = channel.topic
-        report["counts"][topic] = report["counts"].get(topic, 0) + 1
-        report["schemas"][topic] = [schema.name, schema.encoding, channel.message_encoding]
-        report["sizes"][topic] = max(report["sizes"].get(topic, 0), len(message.data))
-        if report["first_log_time"] is None:
-            report["first_log_time"] = message.log_time
-        if channel.message_encoding == "json":
-            report["json"].setdefault(topic, json.loads(message.data))
-report["now_ns"] = time.time_ns()
-print(json.dumps(report))
-"#;
+    let root = env!("CARGO_MANIFEST_DIR");
     let output = Command::new("python3")
-        .args(["-c", script])
+        .arg(format!("{root}/.ci/mcap_scene_check.py"))
         .arg(&path)
+        .arg(format!("{root}/contrib/foxglove/voxhap-layout.json"))
         .output()
         .unwrap();
     assert!(
@@ -609,38 +696,65 @@ print(json.dumps(report))
         String::from_utf8_lossy(&output.stderr)
     );
     let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
-    let schema = |topic: &str| report["schemas"][topic].clone();
-    assert_eq!(
-        schema("/voxhap/volume"),
-        serde_json::json!(["foxglove.SceneUpdate", "protobuf", "protobuf"])
-    );
-    assert_eq!(report["counts"]["/voxhap/volume"], 1);
-    assert_eq!(report["counts"]["/voxhap/volume_frame"], 1);
-    // The built-in scene's density ball, meshed: tens of kilobytes of triangles.
-    let volume_bytes = report["sizes"]["/voxhap/volume"].as_u64().unwrap();
-    assert!(
-        volume_bytes > 20_000,
-        "volume message of {volume_bytes} bytes"
-    );
-    let markers = report["counts"]["/voxhap/primitives"].as_u64().unwrap();
-    assert!(
-        (30..=120).contains(&markers),
-        "{markers} marker updates in ~1.5 s"
-    );
-    assert_eq!(
-        schema("/voxhap/primitives"),
-        serde_json::json!(["foxglove.SceneUpdate", "protobuf", "protobuf"])
-    );
-    let bound = &report["json"]["/voxhap/bound"];
-    for key in ["tick", "t_s", "error_bound_m", "sweeps", "status"] {
-        assert!(bound.get(key).is_some(), "{key} missing from {bound}");
+    // The script's own checks passed; these tie its view to the layout Rust reads.
+    let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
+    for topic in layout_topics(&layout).unwrap() {
+        assert!(
+            report["counts"][&topic].as_u64().unwrap_or(0) > 0,
+            "{topic} not in the recording as Python reads it: {report}"
+        );
     }
-    let stats = &report["json"]["/voxhap/stats"];
-    assert!(stats["ticks"].as_u64().unwrap() >= 900, "{stats}");
-    let first = report["first_log_time"].as_u64().unwrap();
-    let now = report["now_ns"].as_u64().unwrap();
-    assert!(
-        now > first && now - first < 120_000_000_000,
-        "first log time {first}, now {now}"
+    let scene_hz = report["rates_hz"]["/voxhap/primitives"].as_f64().unwrap();
+    assert!((45.0..=62.0).contains(&scene_hz), "{scene_hz} Hz");
+    assert_eq!(
+        report["schemas"]["/voxhap/volume"],
+        serde_json::json!(["foxglove.SceneUpdate", "protobuf", "protobuf"])
     );
+}
+
+/// A sim's MCAP trace, with its scene topics (the volume picture, slices, scene updates), stays within the
+/// size `voxhap sim` estimates before it starts (`--max-trace-bytes` relies on that estimate), at the
+/// scenario's rate and at a tenth of it (the slices come per second of tick time, not per tick).
+#[test]
+fn a_sim_recording_with_its_scene_topics_stays_within_the_size_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/sims/sphere_surface.toml");
+    for rate in ["1000", "100"] {
+        let path = dir.path().join(format!("sim-{rate}.mcap"));
+        let out = voxhap(&[
+            "sim",
+            scenario,
+            "--out",
+            path.to_str().unwrap(),
+            "--duration",
+            "2",
+            "--rate",
+            rate,
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let rate_hz: f64 = rate.parse().unwrap();
+        let estimate = voxhap::record::estimate_trace_bytes(
+            TraceFormat::Mcap,
+            1,
+            (2.0 * rate_hz) as u64,
+            rate_hz,
+        );
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(
+            size <= estimate && size * 2 > estimate / 2,
+            "{rate} Hz: {size} bytes written, {estimate} estimated"
+        );
+        let slices = mcap::Summary::read(&std::fs::read(&path).unwrap())
+            .unwrap()
+            .unwrap()
+            .channels
+            .values()
+            .filter(|c| c.topic.starts_with("/voxhap/volume/slice_"))
+            .count();
+        assert_eq!(slices, 3);
+    }
 }

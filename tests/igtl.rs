@@ -190,6 +190,11 @@ struct Fixture {
 
 impl Fixture {
     fn start() -> Fixture {
+        Fixture::start_at(100)
+    }
+
+    /// A session on the simulated arm and a server streaming at `rate_hz`.
+    fn start_at(rate_hz: u32) -> Fixture {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = voxhap::servo::rt::RtMode::Off;
         config.spin_ns = 20_000;
@@ -208,7 +213,7 @@ impl Fixture {
         let shared: Arc<dyn SessionApi> = api.clone();
         let config = IgtlConfig {
             addr: "127.0.0.1:0".parse().unwrap(),
-            rate_hz: 100,
+            rate_hz,
         };
         let server = runtime
             .block_on(IgtlServer::start(shared, &config, TOKEN.to_owned()))
@@ -467,4 +472,85 @@ fn serve_runs_the_igtl_server_without_http_and_prints_its_token() {
         .unwrap();
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("--igtl-allow-remote"));
+}
+
+/// Several clients: each gets the whole stream; a client that stops reading (a tiny receive window) loses
+/// the oldest frames, counted, while another keeps its full rate and the servo keeps ticking; past
+/// `MAX_CLIENTS` a connection gets STATUS 6 (busy) and is closed. The stream runs at 1 kHz so the stalled
+/// client's socket buffers (up to 4 MB on the server's side with Linux defaults) fill in about 10 s.
+#[test]
+fn a_stalled_client_loses_frames_without_slowing_another_and_the_seventeenth_is_refused_busy() {
+    let fixture = Fixture::start_at(1000);
+    let server = fixture.server.as_ref().unwrap();
+    let addr = server.local_addr();
+    // The stalled client: a 4 kB receive buffer (set before connecting, so the window stays small), never
+    // read.
+    let stalled = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+    stalled.set_recv_buffer_size(4096).unwrap();
+    stalled.connect(&addr.into()).unwrap();
+    let mut reader = fixture.connect();
+    let tick_before = fixture.api.snapshot().unwrap().tick;
+    let started = Instant::now();
+    let mut probes = 0u32;
+    // Until the stalled client was sent more than its socket buffers can hold: 14 000 frames of four
+    // 106-byte TRANSFORMs, 5.9 MB, against at most 4 MB of send buffer (Linux's default tcp_wmem maximum)
+    // and the 8 kB receive buffer; about 14 s at 1 kHz.
+    while probes < 14_000 && started.elapsed() < Duration::from_secs(60) {
+        let message = read(&mut reader);
+        probes += u32::from(message.kind == "TRANSFORM" && message.device == "Probe");
+    }
+    let elapsed_s = started.elapsed().as_secs_f64();
+    let ticks = fixture.api.snapshot().unwrap().tick - tick_before;
+    // The stalled client's writer is stuck writing into full socket buffers; once the client reads again,
+    // it finds its queue overflowed: the frames it lost are counted and it goes on with the newest.
+    let mut stalled: TcpStream = stalled.into();
+    stalled
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let drained = Instant::now();
+    while server.stats().frames_dropped == 0 && drained.elapsed() < Duration::from_secs(20) {
+        read(&mut stalled);
+    }
+    let stats = server.stats();
+    assert!(
+        stats.frames_dropped > 0,
+        "the stalled client lost no frames: {stats:?}"
+    );
+    // The servo kept ticking (1 kHz; at least half of it here, with RT scheduling off), and the reading
+    // client kept up with the stream: one frame per new tick the streamer saw (at least half the ticks).
+    assert!(
+        ticks as f64 > 500.0 * elapsed_s,
+        "{ticks} ticks in {elapsed_s:.1} s"
+    );
+    let rate_hz = f64::from(probes) / elapsed_s;
+    assert!(
+        f64::from(probes) > 0.5 * ticks as f64,
+        "the reading client got {probes} Probe messages in {elapsed_s:.1} s ({rate_hz:.1} Hz) for {ticks} ticks"
+    );
+    eprintln!(
+        "stalled client: {} frames dropped after {elapsed_s:.1} s; reader {rate_hz:.1} Hz",
+        stats.frames_dropped
+    );
+
+    // Fill the server up to MAX_CLIENTS; the next connection is refused with STATUS 6 and closed.
+    let max = voxhap::server::igtl::MAX_CLIENTS;
+    let mut others: Vec<TcpStream> = (2..max).map(|_| fixture.connect()).collect();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while server.stats().clients < max {
+        assert!(Instant::now() < deadline, "{:?}", server.stats());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let mut refused = fixture.connect();
+    let (code, text) = status(&mut refused, "voxhap");
+    assert_eq!(code, 6, "{text}");
+    assert!(text.contains("connected already"), "{text}");
+    let mut rest = Vec::new();
+    assert_eq!(refused.read_to_end(&mut rest).unwrap(), 0, "not closed");
+    assert_eq!(server.stats().clients_refused, 1);
+    // The admitted ones still stream.
+    for stream in others.iter_mut().take(2) {
+        let message = read(stream);
+        assert!(["TRANSFORM", "STATUS"].contains(&message.kind.as_str()));
+    }
+    drop(stalled);
 }

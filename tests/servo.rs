@@ -33,6 +33,8 @@ struct Rig {
     retired: rtrb::Consumer<Box<SceneBundle>>,
     samples: rtrb::Consumer<TraceSample>,
     snapshot: triple_buffer::Output<Option<Snapshot>>,
+    /// The snapshots handed to the recorder for the scene topics.
+    scene_frames: rtrb::Consumer<Snapshot>,
     stats: Arc<ServoStats>,
     setup: SceneSetup,
 }
@@ -82,6 +84,7 @@ fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
     let (retire_tx, retired) = rtrb::RingBuffer::new(64);
     let (sample_tx, samples) = rtrb::RingBuffer::new(sample_capacity);
     let (snapshot_in, snapshot) = triple_buffer::triple_buffer(&None);
+    let (frame_tx, scene_frames) = rtrb::RingBuffer::new(256);
     let stats = Arc::new(ServoStats::new(1000.0));
     let servo = ServoLoop::new(
         Box::new(bundle),
@@ -92,6 +95,7 @@ fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
             retired: retire_tx,
             samples: sample_tx,
             snapshot: snapshot_in,
+            scene_frames: frame_tx,
             events,
         },
         stats.clone(),
@@ -109,6 +113,7 @@ fn rig_warming(sample_capacity: usize, warm_lead_ns: u64) -> Rig {
         retired,
         samples,
         snapshot,
+        scene_frames,
         stats,
         setup,
     }
@@ -154,6 +159,20 @@ fn on_time_ticks_are_consecutive_and_safe() {
     let snapshot = rig.snapshot.read().unwrap();
     assert_eq!(snapshot.tick, 1999);
     assert!(snapshot.engaged && snapshot.connected);
+    // The recorder's scene snapshots: every 17th tick at 1 kHz (58.8 Hz, under the recorded 60 Hz), each
+    // the tick's full snapshot, the primitives of the surface the arm is pulled into among them.
+    let every = voxhap::record::foxglove_topics::scene_frame_interval_ticks(PERIOD_NS);
+    assert_eq!(every, 17);
+    let mut frames = Vec::new();
+    while let Ok(frame) = rig.scene_frames.pop() {
+        frames.push(frame);
+    }
+    let ticks: Vec<u64> = frames.iter().map(|f| f.tick).collect();
+    assert_eq!(ticks, (0..2000).step_by(17).collect::<Vec<u64>>());
+    assert!(
+        frames.iter().any(|f| f.primitive_count > 0),
+        "no scene snapshot carried a primitive"
+    );
 }
 
 /// Records every deadline the loop asks to wait for.

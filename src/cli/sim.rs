@@ -163,7 +163,12 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         solver_label(solver),
     );
     let ticks = loaded.scenario.tick_count();
-    let estimate = estimate_trace_bytes(format, loaded.scene.mode_names().len(), ticks);
+    let estimate = estimate_trace_bytes(
+        format,
+        loaded.scene.mode_names().len(),
+        ticks,
+        loaded.scenario.rate_hz,
+    );
     if estimate > args.max_trace_bytes {
         anyhow::bail!(
             "the trace would take about {} ({ticks} ticks, {} s at {} Hz, {format}), more than --max-trace-bytes {}; \

@@ -112,6 +112,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             args.format,
             loaded.scene.mode_names().len(),
             ticks,
+            loaded.scenario.rate_hz,
         ));
         let out = args
             .out_dir

@@ -12,16 +12,28 @@
 //! | [`SETPOINT_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROXY_FRAME`] in [`WORLD_FRAME`]: the proxy, the coupling spring's set point (m) | [`PROXY_TOPIC`] |
 //! | [`MEASURED_CV_TOPIC`] | `foxglove.Vector3` | probe velocity (m/s); live view only | |
 //! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
-//! | [`OPERATING_STATE_TOPIC`] | `crtk.OperatingState` (JSON) | `state`, `is_homed`, `is_busy`; live view only | |
-//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, hand target, force arrow (and live: the tick's primitives) | |
+//! | [`OPERATING_STATE_TOPIC`] | `voxhap.OperatingState` (JSON) | CRTK `state`, `is_homed`, `is_busy` | |
+//! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, force arrow, the tick's primitives (live: and the hand target) | |
 //! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box and the surface mode's iso-surface mesh, once per scene | |
 //! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre (the layout's camera follows it) | |
+//!
+//! | `/voxhap/volume/slice_x`, `_y`, `_z` | `foxglove.Grid` | slices through the proxy (live 128², recorded 64²) | |
+//!
+//! In a recording ([`RecordedScene`]) the scene update, bound and operating state come from the servo's own
+//! snapshot, handed to the recorder every [`scene_frame_interval_ticks`] ticks through an SPSC ring
+//! (`crate::servo::runner`), and are drawn by the live view's code (`crate::server::foxglove::messages`).
 //!
 //! World space is voxhap's world space (RAS, metres); rotations are the identity. Colours come from the one
 //! palette ([`crate::server::palette`]).
 
+use crate::server::foxglove::messages::{scene_update, BoundMessage, OperatingStateMessage};
+use crate::server::foxglove::volume::slice_grid;
 use crate::server::palette::{palette, Rgb};
+use crate::servo::setup::NamedVolume;
+use crate::servo::slice::sample_slice;
+use crate::servo::Snapshot;
 use crate::volume::isosurface::Mesh;
+use ::foxglove::messages::Grid;
 use ::foxglove::messages::{
     line_primitive, scene_entity_deletion, ArrowPrimitive, Color, FrameTransform, KeyValuePair,
     LinePrimitive, Point3, Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate,
@@ -351,8 +363,37 @@ pub fn volume_scene(
 
 /// Largest iso-surface mesh recorded (triangles).
 pub const RECORDED_MAX_TRIANGLES: usize = 60_000;
-/// How often the recorded scene markers and bound are written (per second of tick time).
+/// Most scene updates (markers and the tick's primitives), bounds and operating states recorded per second
+/// of tick time. The servo thread hands the recorder a snapshot every [`scene_frame_interval_ticks`] ticks,
+/// which keeps under this rate.
 pub const RECORDED_SCENE_HZ: f64 = 60.0;
+/// Samples per side of a recorded slice (the live view sends 128; a recording keeps a quarter of the bytes).
+pub const RECORDED_SLICE_SAMPLES: usize = 64;
+/// Tick time between two recorded sets of slices (s), as often as the live view sends them.
+pub const RECORDED_SLICE_INTERVAL_S: f64 = 0.25;
+/// A generous estimate of the bytes the scene topics add to a recording of `duration_s` seconds of tick
+/// time with `mode_count` modes: the volume picture (a 60 000-triangle mesh takes about 1.6 MB), the slices
+/// (3 x 32.8 kB, 4 times a second) and the scene updates, bounds and operating states (measured about 500
+/// bytes plus 150 per primitive, 60 times a second), with a quarter of margin and the record headers.
+pub fn recorded_scene_bytes(duration_s: f64, mode_count: usize) -> u64 {
+    const PICTURE_BYTES: f64 = 2.5e6;
+    let slices_per_s = (3 * (RECORDED_SLICE_SAMPLES * RECORDED_SLICE_SAMPLES * 8 + 300)) as f64
+        / RECORDED_SLICE_INTERVAL_S;
+    let updates_per_s = RECORDED_SCENE_HZ * (700.0 + 190.0 * mode_count as f64);
+    // `as` saturates: an enormous duration gives u64::MAX.
+    (PICTURE_BYTES + 1.25 * duration_s.max(0.0) * (slices_per_s + updates_per_s)) as u64
+}
+
+/// Without a snapshot from the servo for this many scene intervals, a recording draws the markers from the
+/// trace sample instead (and counts `scene_frames_missing`).
+const MISSING_FRAME_INTERVALS: u64 = 3;
+
+/// Ticks between two snapshots the servo thread hands the recorder for the scene topics: the fewest ticks
+/// that last at least `1 / RECORDED_SCENE_HZ` (17 at 1 kHz, so 58.8 Hz).
+pub fn scene_frame_interval_ticks(period_ns: u64) -> u64 {
+    let interval_ns = (1e9 / RECORDED_SCENE_HZ).ceil() as u64;
+    interval_ns.div_ceil(period_ns.max(1)).max(1)
+}
 
 /// The volume picture of a recording: bounds and the surface mode's iso-surface, built from the trace's
 /// metadata when the recording starts (the volumes are loaded again from their sources; the first one that
@@ -370,6 +411,11 @@ impl RecordedVolume {
     /// The picture of `meta`'s volumes; `None` when none of them loads as a scalar volume (then a
     /// recording simply has no volume topic messages).
     pub fn from_meta(meta: &super::TraceMeta) -> Option<RecordedVolume> {
+        Self::load(meta).map(|(picture, _)| picture)
+    }
+
+    /// The picture and the volume it shows (which the recorded slices sample).
+    fn load(meta: &super::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
         use crate::haptics::modes::{ModeConfig, ModeKind};
         use crate::volume::isosurface::{bounded_isosurface, SampledGrid};
         let volume = meta.volume.split(", ").find_map(|source| {
@@ -408,17 +454,23 @@ impl RecordedVolume {
                     bounded_isosurface(iso as f32, 64, RECORDED_MAX_TRIANGLES, sample).ok()?;
                 Some((mesh, palette().mode(index), iso))
             });
-        Some(RecordedVolume {
-            description: source,
+        let picture = RecordedVolume {
+            description: source.clone(),
             min_m,
             max_m,
             surface,
-        })
+        };
+        let named = NamedVolume {
+            name: source.clone(),
+            source,
+            volume: crate::volume::AnyVolume::Scalar(volume),
+        };
+        Some((picture, named))
     }
 }
 
-/// `/voxhap/bound` in a recording (JSON `voxhap.Bound`, the live view's schema). The trace has no solver
-/// status, so `status` is derived: `budget_exhausted` when the tick's solver-budget flag is set,
+/// `/voxhap/bound` in a recording without servo snapshots (`voxhap sim`): the live view's schema, with
+/// `status` derived from the trace sample: `budget_exhausted` when the tick's solver-budget flag is set,
 /// `uncertified` without a certificate, else `certified`.
 #[derive(serde::Serialize)]
 struct RecordedBound {
@@ -441,6 +493,7 @@ struct RecordedStats {
     solver_budget_hits: u64,
     force_clamped: u64,
     samples_dropped: u64,
+    scene_frames_missing: u64,
 }
 
 fn trace_stats_schema() -> serde_json::Value {
@@ -458,13 +511,10 @@ fn trace_stats_schema() -> serde_json::Value {
             "overruns": count("ticks flagged overrun"),
             "solver_budget_hits": count("ticks flagged solver_budget_hit"),
             "force_clamped": count("ticks flagged force_clamped"),
-            "samples_dropped": count("ticks flagged samples_dropped")
+            "samples_dropped": count("ticks flagged samples_dropped"),
+            "scene_frames_missing": count("scene updates drawn from the trace sample because the servo's snapshot did not arrive (markers without the tick's primitives)")
         }
     })
-}
-
-fn recorded_bound_schema() -> serde_json::Value {
-    crate::server::foxglove::messages::bound_schema()
 }
 
 /// Encodes one message into the buffer it is given.
@@ -479,9 +529,17 @@ pub struct RecordedScene {
     volume_frame: u16,
     bound: u16,
     stats: u16,
+    operating_state: u16,
+    slices: [u16; 3],
     picture: Option<RecordedVolume>,
+    /// The volume the slices sample (the picture's).
+    slice_volume: Option<NamedVolume>,
     picture_written: bool,
-    next_scene_ns: u64,
+    /// Log time of the last scene update written.
+    last_scene_ns: Option<u64>,
+    /// True once the servo handed over a snapshot: from then on scene updates follow the snapshots.
+    frames_seen: bool,
+    next_slice_t_s: Option<f64>,
     next_stats_t_s: Option<f64>,
     totals: RecordedStats,
     worst_bound_m: f64,
@@ -489,11 +547,14 @@ pub struct RecordedScene {
 
 impl RecordedScene {
     /// Adds the schemas and channels ([`PRIMITIVES_TOPIC`], [`VOLUME_TOPIC`], [`VOLUME_FRAME_TOPIC`],
-    /// [`BOUND_TOPIC`], [`STATS_TOPIC`]) and builds the volume picture of `meta`.
+    /// [`BOUND_TOPIC`], [`STATS_TOPIC`], [`OPERATING_STATE_TOPIC`], the slice topics) and builds the volume
+    /// picture of `meta`.
     pub fn add<W: std::io::Write + std::io::Seek>(
         writer: &mut mcap::Writer<W>,
         meta: &super::TraceMeta,
     ) -> Result<RecordedScene, mcap::McapError> {
+        use crate::server::foxglove::messages::{bound_schema, operating_state_schema};
+        use crate::server::foxglove::SLICE_TOPICS;
         use ::foxglove::Encode;
         let none = std::collections::BTreeMap::new();
         let mut schema_of = |schema: Option<::foxglove::Schema>| match schema {
@@ -502,17 +563,23 @@ impl RecordedScene {
         };
         let scene_schema = schema_of(SceneUpdate::get_schema())?;
         let transform_schema = schema_of(FrameTransform::get_schema())?;
-        let bound_schema = writer.add_schema(
-            "voxhap.Bound",
-            "jsonschema",
-            recorded_bound_schema().to_string().as_bytes(),
-        )?;
-        let stats_schema = writer.add_schema(
-            "voxhap.TraceStats",
-            "jsonschema",
-            trace_stats_schema().to_string().as_bytes(),
-        )?;
+        let grid_schema = schema_of(Grid::get_schema())?;
+        let mut json_schema = |name: &str, schema: serde_json::Value| {
+            writer.add_schema(name, "jsonschema", schema.to_string().as_bytes())
+        };
+        let bound_schema = json_schema("voxhap.Bound", bound_schema())?;
+        let stats_schema = json_schema("voxhap.TraceStats", trace_stats_schema())?;
+        let state_schema = json_schema("voxhap.OperatingState", operating_state_schema())?;
         let protobuf = SceneUpdate::get_message_encoding();
+        let mut slices = [0; 3];
+        for (channel, topic) in slices.iter_mut().zip(SLICE_TOPICS) {
+            *channel = writer.add_channel(grid_schema, topic, &protobuf, &none)?;
+        }
+        let loaded = RecordedVolume::load(meta);
+        let (picture, slice_volume) = match loaded {
+            Some((picture, volume)) => (Some(picture), Some(volume)),
+            None => (None, None),
+        };
         Ok(RecordedScene {
             primitives: writer.add_channel(scene_schema, PRIMITIVES_TOPIC, &protobuf, &none)?,
             volume: writer.add_channel(scene_schema, VOLUME_TOPIC, &protobuf, &none)?,
@@ -524,21 +591,34 @@ impl RecordedScene {
             )?,
             bound: writer.add_channel(bound_schema, BOUND_TOPIC, "json", &none)?,
             stats: writer.add_channel(stats_schema, STATS_TOPIC, "json", &none)?,
-            picture: RecordedVolume::from_meta(meta),
+            operating_state: writer.add_channel(
+                state_schema,
+                OPERATING_STATE_TOPIC,
+                "json",
+                &none,
+            )?,
+            slices,
+            picture,
+            slice_volume,
             picture_written: false,
-            next_scene_ns: 0,
+            last_scene_ns: None,
+            frames_seen: false,
+            next_slice_t_s: None,
             next_stats_t_s: None,
             totals: RecordedStats::default(),
             worst_bound_m: 0.0,
         })
     }
 
-    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture with the first sample,
-    /// markers and bound at [`RECORDED_SCENE_HZ`], statistics once a second. `put(channel, encode)` writes
-    /// one message.
+    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture with the first
+    /// sample; the scene update (markers and the tick's primitives), bound and operating state from `frame`,
+    /// the servo's snapshot of this tick, when there is one (at most [`RECORDED_SCENE_HZ`]), else from the
+    /// sample at that rate (`voxhap sim`, or a snapshot that did not arrive); slices through the proxy every
+    /// [`RECORDED_SLICE_INTERVAL_S`]; statistics once a second. `put(channel, encode)` writes one message.
     pub fn write(
         &mut self,
         sample: &super::TraceSample,
+        frame: Option<&Snapshot>,
         time_ns: u64,
         put: &mut ScenePut<'_>,
     ) -> Result<(), super::TraceError> {
@@ -568,6 +648,56 @@ impl RecordedScene {
                 })?;
             }
         }
+        self.count(sample);
+        let frame = frame.filter(|f| f.tick == sample.tick);
+        self.frames_seen |= frame.is_some();
+        let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
+        let since_ns = self
+            .last_scene_ns
+            .map_or(u64::MAX, |last| time_ns.saturating_sub(last));
+        // A snapshot is taken when at least 0.9 interval passed (the servo spaces them by whole ticks, a
+        // little over one interval); without snapshots, the sample is, once per interval (or, when the
+        // snapshots stopped coming, once they are overdue).
+        let from_frame = frame.filter(|_| since_ns >= interval_ns / 10 * 9);
+        let from_sample = frame.is_none()
+            && if self.frames_seen {
+                since_ns >= MISSING_FRAME_INTERVALS * interval_ns
+            } else {
+                since_ns >= interval_ns
+            };
+        if let Some(frame) = from_frame {
+            self.last_scene_ns = Some(time_ns);
+            let update = scene_update(frame, timestamp);
+            put(self.primitives, &|m| {
+                update.encode(m).map_err(|e| e.to_string())
+            })?;
+            let bound = BoundMessage::new(frame);
+            put(self.bound, &|m| {
+                serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
+            })?;
+            let state = OperatingStateMessage::new(frame);
+            put(self.operating_state, &|m| {
+                serde_json::to_writer(m, &state).map_err(|e| e.to_string())
+            })?;
+        } else if from_sample {
+            self.last_scene_ns = Some(time_ns);
+            self.totals.scene_frames_missing += u64::from(self.frames_seen);
+            self.write_from_sample(sample, time_ns, put)?;
+        }
+        self.write_slices(sample, time_ns, put)?;
+        let due = self.next_stats_t_s.get_or_insert(sample.t_s + 1.0);
+        if sample.t_s >= *due {
+            *due = sample.t_s + 1.0;
+            let totals = &self.totals;
+            put(self.stats, &|m| {
+                serde_json::to_writer(m, totals).map_err(|e| e.to_string())
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Adds `sample` to the statistics.
+    fn count(&mut self, sample: &super::TraceSample) {
         let t = &mut self.totals;
         t.t_s = sample.t_s;
         t.ticks += 1;
@@ -579,48 +709,102 @@ impl RecordedScene {
         t.solver_budget_hits += flag(super::FLAG_SOLVER_BUDGET_HIT);
         t.force_clamped += flag(super::FLAG_FORCE_CLAMPED);
         t.samples_dropped += flag(super::FLAG_SAMPLES_DROPPED);
-        if time_ns >= self.next_scene_ns {
-            self.next_scene_ns = time_ns.saturating_add((1e9 / RECORDED_SCENE_HZ) as u64);
-            let update = replace_all(
-                marker_entities(
-                    sample.probe_m,
-                    sample.proxy_m,
-                    None,
-                    sample.force_n,
-                    timestamp,
-                ),
+    }
+
+    /// The scene update, bound and operating state as far as the trace sample tells them: markers without
+    /// the tick's primitives, the bound's status from the flags, `DISABLED` when the device was
+    /// disconnected or not enabled.
+    fn write_from_sample(
+        &mut self,
+        sample: &super::TraceSample,
+        time_ns: u64,
+        put: &mut ScenePut<'_>,
+    ) -> Result<(), super::TraceError> {
+        use ::foxglove::Encode;
+        let timestamp = timestamp_from_ns(time_ns);
+        let update = replace_all(
+            marker_entities(
+                sample.probe_m,
+                sample.proxy_m,
+                None,
+                sample.force_n,
                 timestamp,
-            );
-            put(self.primitives, &|m| {
-                update.encode(m).map_err(|e| e.to_string())
-            })?;
-            let bound = RecordedBound {
-                tick: sample.tick,
-                t_s: sample.t_s,
-                error_bound_m: sample
-                    .error_bound_m
-                    .is_finite()
-                    .then_some(sample.error_bound_m),
-                sweeps: sample.sweeps,
-                status: if sample.flags & super::FLAG_SOLVER_BUDGET_HIT != 0 {
-                    "budget_exhausted"
-                } else if sample.error_bound_m.is_finite() {
-                    "certified"
-                } else {
-                    "uncertified"
-                },
-            };
-            put(self.bound, &|m| {
-                serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
-            })?;
+            ),
+            timestamp,
+        );
+        put(self.primitives, &|m| {
+            update.encode(m).map_err(|e| e.to_string())
+        })?;
+        let bound = RecordedBound {
+            tick: sample.tick,
+            t_s: sample.t_s,
+            error_bound_m: sample
+                .error_bound_m
+                .is_finite()
+                .then_some(sample.error_bound_m),
+            sweeps: sample.sweeps,
+            status: if sample.flags & super::FLAG_SOLVER_BUDGET_HIT != 0 {
+                "budget_exhausted"
+            } else if sample.error_bound_m.is_finite() {
+                "certified"
+            } else {
+                "uncertified"
+            },
+        };
+        put(self.bound, &|m| {
+            serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
+        })?;
+        let disabled = super::FLAG_DEVICE_DISCONNECTED | super::FLAG_DEVICE_NOT_ENABLED;
+        let state = OperatingStateMessage {
+            state: if sample.flags & disabled == 0 {
+                "ENABLED"
+            } else {
+                "DISABLED"
+            },
+            is_homed: true,
+            is_busy: false,
+        };
+        put(self.operating_state, &|m| {
+            serde_json::to_writer(m, &state).map_err(|e| e.to_string())
+        })
+    }
+
+    /// The three slices through the proxy, every [`RECORDED_SLICE_INTERVAL_S`] of tick time, when the
+    /// recording has a volume picture and the proxy is a finite point.
+    fn write_slices(
+        &mut self,
+        sample: &super::TraceSample,
+        time_ns: u64,
+        put: &mut ScenePut<'_>,
+    ) -> Result<(), super::TraceError> {
+        use crate::servo::api::{SliceAxis, SliceRequest};
+        use ::foxglove::Encode;
+        let Some(volume) = &self.slice_volume else {
+            return Ok(());
+        };
+        let due = self.next_slice_t_s.get_or_insert(sample.t_s);
+        if !(sample.t_s >= *due && sample.proxy_m.is_finite()) {
+            return Ok(());
         }
-        let due = self.next_stats_t_s.get_or_insert(sample.t_s + 1.0);
-        if sample.t_s >= *due {
-            *due = sample.t_s + 1.0;
-            let totals = &self.totals;
-            put(self.stats, &|m| {
-                serde_json::to_writer(m, totals).map_err(|e| e.to_string())
-            })?;
+        *due = sample.t_s + RECORDED_SLICE_INTERVAL_S;
+        for (channel, axis) in
+            self.slices
+                .into_iter()
+                .zip([SliceAxis::X, SliceAxis::Y, SliceAxis::Z])
+        {
+            let request = SliceRequest {
+                axis,
+                size: RECORDED_SLICE_SAMPLES,
+                at_m: Some(sample.proxy_m),
+                volume: None,
+            };
+            // The request is valid by construction (size in range, finite point); a refusal would only
+            // leave this slice out.
+            let Ok(slice) = sample_slice(volume, &request, sample.proxy_m) else {
+                continue;
+            };
+            let grid = slice_grid(&slice, time_ns);
+            put(channel, &|m| grid.encode(m).map_err(|e| e.to_string()))?;
         }
         Ok(())
     }
@@ -676,6 +860,65 @@ mod tests {
         }
         meta.volume = "procedural:sphere, /no/such/file.nii".to_owned();
         assert_eq!(RecordedVolume::from_meta(&meta), None);
+    }
+
+    /// Writes 3 s of 1 kHz samples through a [`RecordedScene`], with the servo's snapshots every 17th tick
+    /// for the first second only; returns how many messages each channel got and the last statistics.
+    fn record_with_frames_for_one_second() -> (RecordedScene, Vec<u16>, serde_json::Value) {
+        let mut meta = crate::record::test_support::meta(&["surface"]);
+        meta.volume = "builtin:sphere".to_owned();
+        let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
+        let mut channels = Vec::new();
+        let mut last_stats = serde_json::Value::Null;
+        let every = scene_frame_interval_ticks(1_000_000);
+        for tick in 0..3000u64 {
+            let mut sample = crate::record::TraceSample::zeroed(1);
+            sample.tick = tick;
+            sample.t_s = tick as f64 * 1e-3;
+            let frame = Snapshot {
+                tick,
+                t_s: sample.t_s,
+                connected: true,
+                engaged: true,
+                ..Snapshot::example()
+            };
+            let frame = (tick < 1000 && tick % every == 0).then_some(&frame);
+            let stats_channel = scene.stats;
+            scene
+                .write(&sample, frame, tick * 1_000_000, &mut |channel, encode| {
+                    let mut bytes = Vec::new();
+                    encode(&mut bytes).unwrap();
+                    if channel == stats_channel {
+                        last_stats = serde_json::from_slice(&bytes).unwrap();
+                    }
+                    channels.push(channel);
+                    Ok(())
+                })
+                .unwrap();
+        }
+        (scene, channels, last_stats)
+    }
+
+    #[test]
+    fn snapshots_drive_the_scene_updates_and_missing_ones_are_drawn_from_samples_and_counted() {
+        let (scene, channels, stats) = record_with_frames_for_one_second();
+        let count = |channel: u16| channels.iter().filter(|&&c| c == channel).count();
+        // 59 snapshots in the first second (ticks 0, 17, ..., 986); then none: one update per 3 intervals
+        // (50 ms) from the samples, 40 in the last two seconds.
+        assert_eq!(count(scene.primitives), 59 + 40);
+        assert_eq!(count(scene.bound), count(scene.primitives));
+        assert_eq!(count(scene.operating_state), count(scene.primitives));
+        // The last statistics (at 2 s) count the 20 updates drawn from samples by then (ticks 1036 ..= 1986).
+        assert_eq!(stats["t_s"], 2.0);
+        assert_eq!(stats["scene_frames_missing"], 20, "{stats}");
+        // Slices every 0.25 s, the volume picture once, statistics once a second (at 1 s and 2 s).
+        for channel in scene.slices {
+            assert_eq!(count(channel), 12);
+        }
+        assert_eq!(count(scene.volume), 1);
+        assert_eq!(count(scene.volume_frame), 1);
+        assert_eq!(count(scene.stats), 2);
     }
 
     #[test]

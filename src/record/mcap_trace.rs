@@ -15,8 +15,10 @@
 //!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
 //!   in N), one message per tick. The transforms' own timestamps equal the log time;
 //! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` once (the volume's
-//!   bounds and iso-surface), `/voxhap/primitives` and `/voxhap/bound` at 60 Hz of tick time,
-//!   `/voxhap/stats` (`voxhap.TraceStats`) once a second;
+//!   bounds and iso-surface), `/voxhap/primitives` (markers and the tick's primitives), `/voxhap/bound` and
+//!   `/voxhap/operating_state` from the servo's snapshots ([`TraceWriter::scene_frame`], at most 60 Hz of
+//!   tick time), the slices `/voxhap/volume/slice_x`, `_y`, `_z` 4 times a second, `/voxhap/stats`
+//!   (`voxhap.TraceStats`) once a second;
 //! * `log_time = publish_time` = wall-clock UTC (ns since the Unix epoch): the wall time at which the
 //!   writer was created for the first sample, plus the tick time since the first sample for the others,
 //!   so recordings line up with other instruments ([`log_time_start_ns`]: a trace whose `created_utc` was
@@ -248,8 +250,10 @@ pub struct McapTraceWriter {
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
-    /// The scene topics (markers, volume, bound, statistics).
+    /// The scene topics (markers and primitives, volume, slices, bound, operating state, statistics).
     scene: RecordedScene,
+    /// The servo's latest snapshot handed over for the scene topics (used with the sample of its tick).
+    frame: Option<crate::servo::Snapshot>,
     /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
     wall_start_ns: u64,
     first_t_s: Option<f64>,
@@ -386,6 +390,7 @@ impl McapTraceWriter {
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
             scene,
+            frame: None,
             wall_start_ns,
             first_t_s: None,
         })
@@ -558,9 +563,11 @@ impl TraceWriter for McapTraceWriter {
         put(self.force_channel, &|m| {
             vector3(sample.force_n).encode(m).map_err(encode_error)
         })?;
-        self.scene.write(sample, time_ns, &mut |channel, encode| {
-            put(channel, &|m| encode(m).map_err(encode_error))
-        })?;
+        let frame = self.frame.take_if(|frame| frame.tick <= sample.tick);
+        self.scene
+            .write(sample, frame.as_ref(), time_ns, &mut |channel, encode| {
+                put(channel, &|m| encode(m).map_err(encode_error))
+            })?;
         Ok(())
     }
 
@@ -606,6 +613,10 @@ impl TraceWriter for McapTraceWriter {
 
     fn sample_count(&self) -> u64 {
         self.checker.count
+    }
+
+    fn scene_frame(&mut self, frame: &crate::servo::Snapshot) {
+        self.frame = Some(*frame);
     }
 }
 

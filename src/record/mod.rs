@@ -326,6 +326,11 @@ pub trait TraceWriter: Send {
     fn fail(&mut self, error: &str) -> Result<(), TraceError>;
     /// Samples written so far.
     fn sample_count(&self) -> u64;
+    /// The servo's snapshot of a tick whose sample comes next (the recorder hands one over at most
+    /// `foxglove_topics::RECORDED_SCENE_HZ` times a second of tick time, before that tick's sample): the
+    /// MCAP writer draws the tick's primitives and operating state from it. Writers without scene topics
+    /// ignore it.
+    fn scene_frame(&mut self, _frame: &crate::servo::Snapshot) {}
 }
 
 /// Creates `path` (and `path.json`) in `format` for a run described by `meta`, refusing to replace an

@@ -56,17 +56,31 @@ pub fn check_output_path(path: &Path, policy: &OutputPolicy) -> Result<(), Trace
     Ok(())
 }
 
-/// A generous estimate of the bytes a trace of `ticks` samples with `mode_count` modes takes in
-/// `format` (the sidecar not included). Measured row sizes with margin: CSV writes shortest round-trip
-/// floats (up to 24 characters each), MCAP five messages per tick.
-pub fn estimate_trace_bytes(format: TraceFormat, mode_count: usize, ticks: u64) -> u64 {
+/// A generous estimate of the bytes a trace of `ticks` samples at `rate_hz` with `mode_count` modes takes
+/// in `format` (the sidecar not included). Measured row sizes with margin: CSV writes shortest round-trip
+/// floats (up to 24 characters each), MCAP five messages per tick plus the scene topics
+/// ([`super::foxglove_topics::recorded_scene_bytes`]: slices, scene updates, the volume picture).
+pub fn estimate_trace_bytes(
+    format: TraceFormat,
+    mode_count: usize,
+    ticks: u64,
+    rate_hz: f64,
+) -> u64 {
     let per_tick: u64 = match format {
         // 23 float columns + 4 per mode at up to 24 bytes, integers, status, 12 flags at 6 bytes.
         TraceFormat::Csv => 23 * 24 + mode_count as u64 * (4 * 24) + 60 + 12 * 6,
         // JSON state and solver messages plus three protobuf messages and their record headers.
         TraceFormat::Mcap => 900 + mode_count as u64 * 90,
     };
-    4096u64.saturating_add(per_tick.saturating_mul(ticks))
+    let scene = match format {
+        TraceFormat::Csv => 0,
+        TraceFormat::Mcap => {
+            super::foxglove_topics::recorded_scene_bytes(ticks as f64 / rate_hz, mode_count)
+        }
+    };
+    4096u64
+        .saturating_add(per_tick.saturating_mul(ticks))
+        .saturating_add(scene)
 }
 
 #[cfg(test)]
@@ -119,10 +133,14 @@ mod tests {
 
     #[test]
     fn estimates_grow_with_ticks_and_modes() {
-        let small = estimate_trace_bytes(TraceFormat::Csv, 1, 1000);
+        let small = estimate_trace_bytes(TraceFormat::Csv, 1, 1000, 1000.0);
         assert!(small > 1000 * 500);
-        assert!(estimate_trace_bytes(TraceFormat::Csv, 3, 1000) > small);
+        assert!(estimate_trace_bytes(TraceFormat::Csv, 3, 1000, 1000.0) > small);
         // 1e9 Hz for 60 s would be hundreds of GB: far over a 2 GB limit.
-        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 60_000_000_000) > 2_000_000_000);
+        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 60_000_000_000, 1e9) > 2_000_000_000);
+        // The scene topics are per second, not per tick: the same ticks at a tenth of the rate last ten
+        // times as long and carry ten times the slices.
+        let fast = estimate_trace_bytes(TraceFormat::Mcap, 1, 10_000, 1000.0);
+        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 10_000, 100.0) > fast + 9 * 390_000);
     }
 }

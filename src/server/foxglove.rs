@@ -25,7 +25,8 @@
 //! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
 //! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
 //!
-//! The pose, force, primitives and volume topics are also in MCAP traces (`crate::record::foxglove_topics`).
+//! Every topic but `measured_cv` and the deprecated names is also in MCAP traces
+//! (`crate::record::foxglove_topics::RecordedScene`), so a recording shows the shipped layout's picture.
 //! Message timestamps and log times are wall-clock: the session's tick time plus the wall time at which the
 //! view first saw the session. The volume picture and the slices are computed on tokio's blocking pool, one
 //! at a time, never on the servo thread.
@@ -583,6 +584,26 @@ async fn publish(
     }
 }
 
+/// The shipped Foxglove layout (`contrib/foxglove/voxhap-layout.json`).
+pub const SHIPPED_LAYOUT: &str = include_str!("../../contrib/foxglove/voxhap-layout.json");
+
+/// The topics a Foxglove layout refers to, in panel order: 3D panel topics, plot and state-transition
+/// paths (up to the first `.`), raw-message panels' topic paths; `None` when `layout` has no panels.
+pub fn layout_topics(layout: &serde_json::Value) -> Option<Vec<String>> {
+    let mut topics = Vec::new();
+    let topic_of = |path: &str| path.split('.').next().unwrap_or(path).to_owned();
+    for config in layout["configById"].as_object()?.values() {
+        if let Some(map) = config["topics"].as_object() {
+            topics.extend(map.keys().cloned());
+        }
+        for path in config["paths"].as_array().into_iter().flatten() {
+            topics.extend(path["value"].as_str().map(topic_of));
+        }
+        topics.extend(config["topicPath"].as_str().map(topic_of));
+    }
+    Some(topics)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -625,33 +646,13 @@ mod tests {
         }
     }
 
-    /// The topics a Foxglove layout refers to: 3D panel topics, plot and state paths (up to the first
-    /// `.`), raw message panels' topic paths.
-    fn layout_topics(layout: &serde_json::Value) -> Vec<String> {
-        let mut topics = Vec::new();
-        let panels = layout["configById"].as_object().unwrap();
-        for (id, config) in panels {
-            if let Some(map) = config["topics"].as_object() {
-                topics.extend(map.keys().cloned());
-            }
-            for path in config["paths"].as_array().into_iter().flatten() {
-                let value = path["value"].as_str().unwrap();
-                topics.push(value.split('.').next().unwrap().to_owned());
-            }
-            if let Some(path) = config["topicPath"].as_str() {
-                topics.push(path.split('.').next().unwrap().to_owned());
-            }
-            assert!(id.contains('!'), "panel id {id}");
-        }
-        topics
-    }
-
     #[test]
     fn the_shipped_layout_uses_only_current_topics_and_the_palette() {
-        let layout: serde_json::Value =
-            serde_json::from_str(include_str!("../../contrib/foxglove/voxhap-layout.json"))
-                .unwrap();
-        let topics = layout_topics(&layout);
+        let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
+        for id in layout["configById"].as_object().unwrap().keys() {
+            assert!(id.contains('!'), "panel id {id}");
+        }
+        let topics = layout_topics(&layout).unwrap();
         assert!(topics.len() >= 8, "{topics:?}");
         let current = &TOPICS[..TOPICS.len() - 3];
         for topic in &topics {

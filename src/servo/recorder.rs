@@ -16,6 +16,7 @@
 //! and marks the sidecar (`complete: false`, `error`). The trace is flushed every [`FLUSH_INTERVAL`]
 //! (whole CSV lines, closed MCAP chunks), so an error or a crash is noticed, and loses, at most that much.
 
+use super::api::Snapshot;
 use super::stats::ServoStats;
 use crate::record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
 use std::sync::atomic::Ordering;
@@ -43,6 +44,9 @@ pub type RecorderError = Arc<Mutex<Option<String>>>;
 pub const DRAIN_INTERVAL: Duration = Duration::from_millis(2);
 /// How often an active trace is flushed to disk.
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
+/// Capacity of the ring of snapshots the servo hands over for the scene topics (about a second of them at
+/// `RECORDED_SCENE_HZ`; the recorder drains it every [`DRAIN_INTERVAL`]).
+pub const SCENE_FRAME_RING: usize = 64;
 
 struct Active {
     writer: Box<dyn TraceWriter>,
@@ -89,6 +93,7 @@ impl Reporter {
 /// The recorder thread's body. Returns the summary of the trace that was open when the servo ended.
 pub fn run_recorder(
     mut samples: rtrb::Consumer<TraceSample>,
+    mut frames: rtrb::Consumer<Snapshot>,
     requests: mpsc::Receiver<RecorderRequest>,
     error_slot: RecorderError,
     stats: Arc<ServoStats>,
@@ -110,13 +115,13 @@ pub fn run_recorder(
                     last_flush = Instant::now();
                 }
                 RecorderRequest::Stop { reply } => {
-                    drain(&mut samples, &mut active, &reporter);
+                    drain(&mut samples, &mut frames, &mut active, &reporter);
                     let _ = reply.send(reporter.finish(active.take()));
                 }
             }
         }
         let abandoned = samples.is_abandoned();
-        drain(&mut samples, &mut active, &reporter);
+        drain(&mut samples, &mut frames, &mut active, &reporter);
         if abandoned {
             return reporter.finish(active.take());
         }
@@ -133,17 +138,27 @@ pub fn run_recorder(
     }
 }
 
+/// Writes the samples in the ring, each after the servo's snapshot of its tick when there is one (the
+/// servo pushes a tick's snapshot before its sample); snapshots of ticks without a sample are dropped.
 fn drain(
     samples: &mut rtrb::Consumer<TraceSample>,
+    frames: &mut rtrb::Consumer<Snapshot>,
     active: &mut Option<Active>,
     reporter: &Reporter,
 ) {
     while let Ok(sample) = samples.pop() {
+        let mut frame = None;
+        while frames.peek().is_ok_and(|f| f.tick <= sample.tick) {
+            frame = frames.pop().ok();
+        }
         let Some(current) = active.as_mut() else {
             continue;
         };
         if sample.tick < current.first_tick {
             continue;
+        }
+        if let Some(frame) = frame.filter(|f| f.tick == sample.tick) {
+            current.writer.scene_frame(&frame);
         }
         if let Err(error) = current.writer.write_sample(&sample) {
             if let Some(failed) = active.take() {
@@ -202,7 +217,8 @@ mod tests {
         }
         drop(producer);
         let stats = Arc::new(ServoStats::new(1000.0));
-        let summary = run_recorder(consumer, requests_rx, Arc::default(), stats.clone())
+        let (_, frames) = rtrb::RingBuffer::new(1);
+        let summary = run_recorder(consumer, frames, requests_rx, Arc::default(), stats.clone())
             .unwrap()
             .unwrap();
         assert_eq!(summary.sample_count, 3000);
@@ -271,7 +287,10 @@ mod tests {
         let stats = Arc::new(ServoStats::new(1000.0));
         let thread = {
             let (slot, stats) = (slot.clone(), stats.clone());
-            std::thread::spawn(move || run_recorder(consumer, requests_rx, slot, stats))
+            std::thread::spawn(move || {
+                let (_, frames) = rtrb::RingBuffer::new(1);
+                run_recorder(consumer, frames, requests_rx, slot, stats)
+            })
         };
         // A 1 kHz session: 10 samples every 10 ms; the disk fills after half a second.
         let started = Instant::now();

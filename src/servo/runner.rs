@@ -4,9 +4,9 @@
 //! previous exchange, run the pure tick ([`tick_timed`]: modes, exact solve under a time budget, coupling
 //! force), add the coupling damping, check the compute budget, hand the force to the device (the supervisor:
 //! device status, safety pipeline, write, read, input checks), report the device's events (SPSC ring to the
-//! monitor thread, which prints them), then publish the snapshot (triple buffer), push the trace sample (SPSC
-//! ring; a full ring is counted, never waited on), record statistics and advance the schedule (skipping after
-//! an overrun). The servo thread calls `step` in a loop; tests call it directly with a [`MockWaiter`], so the
+//! monitor thread, which prints them), then publish the snapshot (triple buffer; every few ticks also into
+//! an SPSC ring for the recorder's scene topics), push the trace sample (SPSC ring; a full ring is counted,
+//! never waited on), record statistics and advance the schedule (skipping after an overrun). The servo thread calls `step` in a loop; tests call it directly with a [`MockWaiter`], so the
 //! loop runs deterministically and faster than real time.
 //!
 //! Coupling caps: the stiffness and damping in use are capped by the connected device's declared limits
@@ -34,6 +34,7 @@ use crate::device::supervisor::{ClearFaultOutcome, SupervisorEvent, TickInput};
 use crate::device::DeviceState;
 use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
+use crate::record::foxglove_topics::scene_frame_interval_ticks;
 use crate::record::{
     TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_DISCONNECTED, FLAG_DEVICE_FAULTED,
     FLAG_DEVICE_NOT_ENABLED, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,
@@ -81,6 +82,9 @@ pub struct LoopIo {
     pub retired: rtrb::Producer<Box<SceneBundle>>,
     pub samples: rtrb::Producer<TraceSample>,
     pub snapshot: triple_buffer::Input<Option<Snapshot>>,
+    /// Every [`scene_frame_interval_ticks`]-th tick's snapshot, for the recorder's scene topics (MCAP); a
+    /// full ring skips the frame (the trace writer draws those markers from the sample and counts them).
+    pub scene_frames: rtrb::Producer<Snapshot>,
     /// Device events for the monitor thread to print.
     pub events: rtrb::Producer<DeviceReport>,
 }
@@ -117,6 +121,8 @@ pub struct ServoLoop {
     last_errors: u64,
     caps: CouplingCaps,
     last_state_fresh: bool,
+    /// Ticks between two snapshots handed to the recorder ([`scene_frame_interval_ticks`]).
+    scene_frame_every_ticks: u64,
 }
 
 impl ServoLoop {
@@ -155,6 +161,7 @@ impl ServoLoop {
             last_errors: 0,
             caps,
             last_state_fresh: false,
+            scene_frame_every_ticks: scene_frame_interval_ticks(timing.period_ns),
         };
         servo.apply_caps();
         servo
@@ -415,6 +422,10 @@ impl ServoLoop {
             hand_target_m: None,
         };
         self.io.snapshot.write(Some(snapshot));
+        if tick_index % self.scene_frame_every_ticks == 0 {
+            // Before the tick's sample, so the recorder finds it when that sample arrives.
+            let _ = self.io.scene_frames.push(snapshot);
+        }
         if std::mem::take(&mut self.samples_dropped_pending) {
             flags |= FLAG_SAMPLES_DROPPED;
         }

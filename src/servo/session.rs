@@ -25,7 +25,7 @@ use super::api::{
 use super::control::Control;
 use super::device::{open_device, ConnectError, DeviceSpec, OpenError, ServoDevice};
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
-use super::recorder::{run_recorder, RecorderError, RecorderRequest};
+use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
 use super::schedule::{SpinSleepWaiter, Waiter};
@@ -265,6 +265,7 @@ impl Session {
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
         let (retire_tx, retire_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let (sample_tx, sample_rx) = rtrb::RingBuffer::new(sample_capacity);
+        let (frame_tx, frame_rx) = rtrb::RingBuffer::new(SCENE_FRAME_RING);
         let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
         let stats = Arc::new(ServoStats::new(config.rate_hz));
 
@@ -294,7 +295,9 @@ impl Session {
         let recorder_stats = stats.clone();
         let recorder = std::thread::Builder::new()
             .name("voxhap-recorder".to_owned())
-            .spawn(move || run_recorder(sample_rx, recorder_rx, error_slot, recorder_stats))
+            .spawn(move || {
+                run_recorder(sample_rx, frame_rx, recorder_rx, error_slot, recorder_stats)
+            })
             .map_err(SessionError::Thread)?;
 
         // Servo thread.
@@ -311,6 +314,7 @@ impl Session {
             command_claim: command_claim.clone(),
             retired: retire_tx,
             samples: sample_tx,
+            scene_frames: frame_tx,
             snapshot: snapshot_in,
             events: event_tx,
         };

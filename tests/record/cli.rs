@@ -147,7 +147,9 @@ fn kill_mid_run(extension: &str) {
         .spawn()
         .unwrap();
     let started = Instant::now();
-    while std::fs::metadata(&out).map_or(0, |m| m.len()) < 3_000_000 {
+    // 6 MB: past an MCAP trace's volume picture (1 MB) and a few flushed 1000-tick chunks (1.3 MB each
+    // with the scene topics).
+    while std::fs::metadata(&out).map_or(0, |m| m.len()) < 6_000_000 {
         assert!(
             started.elapsed() < Duration::from_secs(120),
             "the sim wrote too little"

@@ -1,0 +1,102 @@
+#!/usr/bin/env python3
+"""Checks the Foxglove scene topics of a voxhap MCAP recording with the `mcap` PyPI package, an MCAP reader
+independent of voxhap's: every topic the shipped Foxglove layout shows is in the recording, and each topic
+comes at its documented rate (docs/foxglove.md, "Topics").
+
+Usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json
+Prints one JSON report line on success; exits 1 with the reason otherwise. Run by tests/foxglove.rs
+(python_mcap_reads_the_scene_topics_of_a_recorded_session), which skips visibly without python3 or mcap.
+"""
+import json
+import sys
+import time
+
+from mcap.reader import make_reader
+
+
+def fail(message):
+    print(f"mcap_scene_check: FAILED: {message}", file=sys.stderr)
+    sys.exit(1)
+
+
+def check(condition, message):
+    if not condition:
+        fail(message)
+
+
+# The topic that publishes each frame the layout's 3D panel follows or lists.
+FRAME_TOPICS = {"volume": "/voxhap/volume_frame", "probe": "/voxhap/measured_cp", "proxy": "/voxhap/setpoint_cp"}
+
+
+def layout_topics(layout):
+    """Topics a Foxglove layout refers to: 3D panel topics and frames, plot/state paths, raw-message topics."""
+    topics = set()
+    for panel in layout["configById"].values():
+        topics.update(panel.get("topics", {}).keys())
+        for path in panel.get("paths", []):
+            topics.add(path["value"].split(".")[0])
+        if "topicPath" in panel:
+            topics.add(panel["topicPath"].split(".")[0])
+        if "followTf" in panel:
+            topics.add(FRAME_TOPICS[panel["followTf"]])
+        for key in panel.get("transforms", {}):
+            topics.add(FRAME_TOPICS[key.removeprefix("frame:")])
+    return topics
+
+
+def main():
+    if len(sys.argv) != 3:
+        fail("usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json")
+    with open(sys.argv[2]) as f:
+        wanted = layout_topics(json.load(f))
+    counts, schemas, first, last, sizes, first_json = {}, {}, {}, {}, {}, {}
+    with open(sys.argv[1], "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            topic = channel.topic
+            counts[topic] = counts.get(topic, 0) + 1
+            schemas[topic] = [schema.name, schema.encoding, channel.message_encoding]
+            sizes[topic] = max(sizes.get(topic, 0), len(message.data))
+            check(message.log_time >= last.get(topic, 0), f"{topic}: log times go backwards")
+            first.setdefault(topic, message.log_time)
+            last[topic] = message.log_time
+            if channel.message_encoding == "json" and topic not in first_json:
+                first_json[topic] = json.loads(message.data)
+
+    missing = sorted(t for t in wanted if counts.get(t, 0) == 0)
+    check(not missing, f"the layout shows {missing}, which the recording does not carry")
+
+    # Rates over the recording's span of ticks (servo_cf: one message per tick).
+    ticks = counts["/voxhap/servo_cf"]
+    span_s = (last["/voxhap/servo_cf"] - first["/voxhap/servo_cf"]) / 1e9
+    check(span_s > 1.0, f"recording only {span_s:.3f} s long")
+    for topic in ("/voxhap/measured_cp", "/voxhap/setpoint_cp", "/voxhap/state", "/voxhap/solver"):
+        check(counts[topic] == ticks, f"{topic}: {counts[topic]} messages for {ticks} ticks")
+    check(counts["/voxhap/volume"] == 1 and counts["/voxhap/volume_frame"] == 1, "the volume picture not once")
+    check(sizes["/voxhap/volume"] > 20_000, f"volume message of {sizes['/voxhap/volume']} bytes: no mesh?")
+    rates = {topic: counts[topic] / span_s for topic in counts}
+    scene = rates["/voxhap/primitives"]
+    check(0.8 * 58.8 <= scene <= 60.0 + 2.0 / span_s, f"/voxhap/primitives at {scene:.1f} Hz, expected 58.8")
+    for topic in ("/voxhap/bound", "/voxhap/operating_state"):
+        check(counts[topic] == counts["/voxhap/primitives"], f"{topic}: {counts[topic]} messages")
+    for axis in "xyz":
+        topic = f"/voxhap/volume/slice_{axis}"
+        check(schemas[topic][0] == "foxglove.Grid", f"{topic} schema {schemas[topic]}")
+        check(abs(counts[topic] - (span_s / 0.25 + 1)) <= 1.5, f"{topic}: {counts[topic]} in {span_s:.2f} s (4 Hz)")
+    check(abs(counts["/voxhap/stats"] - span_s) <= 1.5, f"/voxhap/stats: {counts['/voxhap/stats']} in {span_s:.2f} s")
+
+    # The JSON topics decode to what the layout's panels plot.
+    check(first_json["/voxhap/operating_state"]["state"] in ("ENABLED", "DISABLED"), "operating_state.state")
+    for key in ("error_bound_m", "status"):
+        check(key in first_json["/voxhap/bound"], f"/voxhap/bound has no {key}")
+    stats = first_json["/voxhap/stats"]
+    check(stats["t_s"] >= 1.0 and stats["ticks"] > 0, f"first statistics {stats}")
+
+    # Log times are wall-clock UTC.
+    now_ns = time.time_ns()
+    check(0 < now_ns - first["/voxhap/servo_cf"] < 120e9, f"first log time {first['/voxhap/servo_cf']}, now {now_ns}")
+    print(json.dumps({"counts": counts, "rates_hz": rates, "span_s": span_s, "schemas": schemas,
+                      "layout_topics": sorted(wanted)}))
+
+
+if __name__ == "__main__":
+    main()

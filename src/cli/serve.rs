@@ -47,7 +47,7 @@ pub struct ServeArgs {
     /// Servo rate (Hz), 100 to 10000; default the scene's rate_hz or 1000.
     #[arg(long)]
     pub rate: Option<f64>,
-    /// Record every tick to this trace (CSV, or MCAP for a .mcap name) with its JSON sidecar.
+    /// Record every tick to this trace (CSV, MCAP for a .mcap name, Parquet for .parquet) with its JSON sidecar.
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Trace format (default: from the file name).

@@ -65,6 +65,8 @@ pub fn estimate_trace_bytes(format: TraceFormat, mode_count: usize, ticks: u64) 
         TraceFormat::Csv => 23 * 24 + mode_count as u64 * (4 * 24) + 60 + 12 * 6,
         // JSON state and solver messages plus three protobuf messages and their record headers.
         TraceFormat::Mcap => 900 + mode_count as u64 * 90,
+        // Uncompressed column values (8 bytes per number) plus row-group footers; Snappy makes it smaller.
+        TraceFormat::Parquet => 23 * 8 + mode_count as u64 * (4 * 8) + 60 + 17,
     };
     4096u64.saturating_add(per_tick.saturating_mul(ticks))
 }

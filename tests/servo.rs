@@ -523,6 +523,13 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
             |e| matches!(e, ControlError::Invalid(_)),
         ),
         (
+            ControlCommand::LoadVolume {
+                path: "builtin:sphere".into(),
+                name: Some("nope".into()),
+            },
+            |e| matches!(e, ControlError::NotFound(m) if m.contains("no volume named \"nope\"")),
+        ),
+        (
             ControlCommand::AddMode {
                 mode: ModeConfig {
                     volume: Some("nope".into()),

@@ -12,6 +12,7 @@ pub use api::{
     SafetyReport, SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport,
     VolumeReport,
 };
+mod control;
 pub mod device;
 pub mod monitor;
 pub mod recorder;

@@ -22,29 +22,25 @@ use super::api::{
     ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
     Snapshot, StatsReport,
 };
-use super::device::{
-    open_device, ConnectError, DeviceSpec, HandTargetInput, OpenError, ServoDevice,
-};
+use super::control::Control;
+use super::device::{open_device, ConnectError, DeviceSpec, OpenError, ServoDevice};
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest};
 use super::rt::{self, RtMode, RtRefused};
-use super::runner::{
-    CommandEnvelope, LoopIo, LoopTiming, ServoCommand, ServoLoop, CLEAR_FAULT_NOTHING,
-    CLEAR_FAULT_NO_DEVICE, CLEAR_FAULT_REQUESTED,
-};
+use super::runner::{LoopIo, LoopTiming, ServoLoop};
 use super::schedule::{SpinSleepWaiter, Waiter};
-use super::setup::{load_volume_arg, SceneBundle, SceneSetup};
+use super::setup::SceneSetup;
 use super::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
 use crate::device::safety::CouplingCaps;
 use crate::device::supervisor::{SupervisorConfig, TickInput};
-use crate::record::{create_trace_writer, TraceError, TraceFormat, TraceMeta, TraceSummary};
+use crate::record::{TraceError, TraceFormat, TraceMeta, TraceSummary};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Slowest and fastest servo rates accepted (Hz).
 pub const RATE_RANGE_HZ: (f64, f64) = (100.0, 10_000.0);
@@ -140,34 +136,21 @@ pub struct SessionSummary {
     pub recorder_error: Option<String>,
 }
 
-struct Control {
-    commands: rtrb::Producer<CommandEnvelope>,
-    /// The id of the last command decided (applied by the servo thread or cancelled here).
-    claim: Arc<AtomicU64>,
-    retired: rtrb::Consumer<Box<SceneBundle>>,
-    sent: u64,
-    setup: SceneSetup,
-    generation: u64,
-    recorder: mpsc::Sender<RecorderRequest>,
-    recording: Option<PathBuf>,
-    hand: Option<HandTargetInput>,
-}
-
 /// The part of a session that any thread may share (`Arc`); implements [`SessionApi`].
 pub struct SessionShared {
-    stats: Arc<ServoStats>,
-    snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
-    control: Mutex<Control>,
-    hand_target: Mutex<Option<DVec3>>,
-    stop: Arc<AtomicBool>,
-    servo_running: Arc<AtomicBool>,
-    device_label: String,
-    simulated: bool,
-    max_stiffness_n_per_m: f64,
-    rate_hz: f64,
-    period_ns: u64,
-    solver_budget_fraction: f64,
-    recorder_error: RecorderError,
+    pub(super) stats: Arc<ServoStats>,
+    pub(super) snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
+    pub(super) control: Mutex<Control>,
+    pub(super) hand_target: Mutex<Option<DVec3>>,
+    pub(super) stop: Arc<AtomicBool>,
+    pub(super) servo_running: Arc<AtomicBool>,
+    pub(super) device_label: String,
+    pub(super) simulated: bool,
+    pub(super) max_stiffness_n_per_m: f64,
+    pub(super) rate_hz: f64,
+    pub(super) period_ns: u64,
+    pub(super) solver_budget_fraction: f64,
+    pub(super) recorder_error: RecorderError,
 }
 
 /// A running session. Dropping it stops it (as [`Session::stop`] does, discarding the summary).
@@ -180,7 +163,7 @@ pub struct Session {
     notices: Vec<String>,
 }
 
-fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
+pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
     let mode_names = setup
         .modes
         .iter()
@@ -496,20 +479,6 @@ impl Drop for Session {
     }
 }
 
-fn invalid(message: impl Into<String>) -> ControlError {
-    ControlError::Invalid(message.into())
-}
-
-fn finite(name: &str, value: f64) -> Result<f64, ControlError> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
-        Err(invalid(format!(
-            "{name} must be a finite number, got {value}"
-        )))
-    }
-}
-
 /// The part of `requested_ns` (a spin or a cache-warming lead) the servo thread may use: at most a quarter of
 /// the period, so spinning plus warming keep the thread well under Linux's real-time limit of 95 % of a
 /// second (`sched_rt_runtime_us`); past it, the kernel stops the thread for the rest of the second.
@@ -523,340 +492,6 @@ impl SessionShared {
     /// [`SessionApi::stats`]).
     pub fn servo_stats(&self) -> &ServoStats {
         &self.stats
-    }
-
-    fn drain_retired(control: &mut Control) {
-        while let Ok(old) = control.retired.pop() {
-            drop(old);
-        }
-    }
-
-    /// Pushes `command` and waits until the servo thread has applied it.
-    fn send(&self, control: &mut Control, command: ServoCommand) -> Result<(), ControlError> {
-        if !self.servo_running.load(Ordering::Acquire) {
-            return Err(ControlError::Unavailable(
-                "the servo loop is not running".to_owned(),
-            ));
-        }
-        let id = control.sent + 1;
-        if control
-            .commands
-            .push(CommandEnvelope { id, command })
-            .is_err()
-        {
-            return Err(ControlError::Unavailable(
-                "the servo command queue is full; try again".to_owned(),
-            ));
-        }
-        control.sent = id;
-        let started = Instant::now();
-        loop {
-            if control.claim.load(Ordering::Acquire) >= id {
-                // Decided by the servo thread (this side cancels only below, and then returns).
-                break;
-            }
-            if started.elapsed() > APPLY_TIMEOUT || !self.servo_running.load(Ordering::Acquire) {
-                // Cancel: whoever moves the claim from id - 1 to id decides. If the servo thread got there
-                // first the command was applied after all, and that is what the caller is told.
-                if control
-                    .claim
-                    .compare_exchange(id - 1, id, Ordering::AcqRel, Ordering::Acquire)
-                    .is_ok()
-                {
-                    return Err(ControlError::Unavailable(
-                        "the servo loop did not take the command in time; it was withdrawn and will not be \
-                         applied"
-                            .to_owned(),
-                    ));
-                }
-                break;
-            }
-            std::thread::sleep(Duration::from_micros(200));
-        }
-        Self::drain_retired(control);
-        Ok(())
-    }
-
-    /// Builds `setup` into a bundle, swaps it in, and keeps `setup` as the current one.
-    fn swap(
-        &self,
-        control: &mut Control,
-        setup: SceneSetup,
-        message: String,
-    ) -> Result<ControlReply, ControlError> {
-        let generation = control.generation + 1;
-        let bundle = setup
-            .bundle(self.period_ns, self.solver_budget_fraction, generation)
-            .map_err(|e| invalid(e.to_string()))?;
-        self.send(control, ServoCommand::SwapScene(Box::new(bundle)))?;
-        control.setup = setup;
-        control.generation = generation;
-        Ok(ControlReply {
-            message,
-            scene_generation: generation,
-        })
-    }
-
-    fn coupling(
-        &self,
-        control: &mut Control,
-        k: f64,
-        damping: f64,
-        message: String,
-    ) -> Result<ControlReply, ControlError> {
-        let generation = control.generation + 1;
-        self.send(
-            control,
-            ServoCommand::SetCoupling {
-                stiffness_n_per_m: k,
-                damping_n_s_per_m: damping,
-                generation,
-            },
-        )?;
-        control.setup.stiffness_n_per_m = k;
-        control.setup.damping_n_s_per_m = damping;
-        control.generation = generation;
-        Ok(ControlReply {
-            message,
-            scene_generation: generation,
-        })
-    }
-
-    fn mode_index(setup: &SceneSetup, name: &str) -> Result<usize, ControlError> {
-        setup
-            .modes
-            .iter()
-            .position(|m| m.display_name() == name)
-            .ok_or_else(|| {
-                let names: Vec<&str> = setup.modes.iter().map(|m| m.display_name()).collect();
-                ControlError::NotFound(format!("no mode named {name:?} (modes: {names:?})"))
-            })
-    }
-
-    fn refuse_while_recording(control: &Control, what: &str) -> Result<(), ControlError> {
-        match &control.recording {
-            Some(path) => Err(ControlError::Conflict(format!(
-                "cannot {what} while recording to {} (a trace has a fixed set of mode columns); stop recording first",
-                path.display()
-            ))),
-            None => Ok(()),
-        }
-    }
-
-    fn apply(
-        &self,
-        control: &mut Control,
-        command: ControlCommand,
-    ) -> Result<ControlReply, ControlError> {
-        Self::drain_retired(control);
-        match command {
-            ControlCommand::SetStiffness { k } => {
-                let k = finite("k", k)?;
-                if k <= 0.0 || k > self.max_stiffness_n_per_m {
-                    return Err(invalid(format!(
-                        "k must be > 0 and at most the device's {} N/m, got {k}",
-                        self.max_stiffness_n_per_m
-                    )));
-                }
-                let damping = control.setup.damping_n_s_per_m;
-                self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
-            }
-            ControlCommand::SetDamping { damping } => {
-                let damping = finite("damping", damping)?;
-                if damping < 0.0 {
-                    return Err(invalid(format!(
-                        "damping must be >= 0 N s/m, got {damping}"
-                    )));
-                }
-                let k = control.setup.stiffness_n_per_m;
-                self.coupling(
-                    control,
-                    k,
-                    damping,
-                    format!("damping set to {damping} N s/m"),
-                )
-            }
-            ControlCommand::SetTransfer { mode, transfer } => {
-                let mut setup = control.setup.clone();
-                let index = Self::mode_index(&setup, &mode)?;
-                if setup.modes[index].transfer.is_none() {
-                    return Err(invalid(format!("mode {mode:?} has no transfer function")));
-                }
-                setup.modes[index].transfer = Some(transfer);
-                self.swap(
-                    control,
-                    setup,
-                    format!("transfer function of {mode:?} replaced"),
-                )
-            }
-            ControlCommand::AddMode { mode } => {
-                Self::refuse_while_recording(control, "add a mode")?;
-                let mut setup = control.setup.clone();
-                let name = mode.display_name().to_owned();
-                setup.modes.push(mode);
-                self.swap(control, setup, format!("mode {name:?} added"))
-            }
-            ControlCommand::RemoveMode { name } => {
-                Self::refuse_while_recording(control, "remove a mode")?;
-                let mut setup = control.setup.clone();
-                let index = Self::mode_index(&setup, &name)?;
-                setup.modes.remove(index);
-                self.swap(control, setup, format!("mode {name:?} removed"))
-            }
-            ControlCommand::LoadVolume { path, name } => {
-                let text = path.to_str().ok_or_else(|| {
-                    invalid(format!("volume path {} is not UTF-8", path.display()))
-                })?;
-                // `builtin:NAME` is not a file; `load_volume_arg` checks the name.
-                if !text.starts_with("builtin:") && !path.exists() {
-                    return Err(ControlError::NotFound(format!(
-                        "volume file {} does not exist",
-                        path.display()
-                    )));
-                }
-                let (volume, source) = load_volume_arg(text).map_err(|e| invalid(e.to_string()))?;
-                let mut setup = control.setup.clone();
-                setup
-                    .replace_volume(name.as_deref(), volume, source)
-                    .map_err(|message| {
-                        if message.starts_with("no volume named") {
-                            ControlError::NotFound(message)
-                        } else {
-                            invalid(message)
-                        }
-                    })?;
-                self.swap(control, setup, format!("volume {} loaded", path.display()))
-            }
-            ControlCommand::StartRecording { path, format } => {
-                if let Some(current) = &control.recording {
-                    return Err(ControlError::Conflict(format!(
-                        "already recording to {}",
-                        current.display()
-                    )));
-                }
-                let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
-                if let Some(parent) = parent {
-                    if !parent.is_dir() {
-                        return Err(ControlError::NotFound(format!(
-                            "directory {} does not exist",
-                            parent.display()
-                        )));
-                    }
-                }
-                let format = format.unwrap_or_else(|| TraceFormat::from_path(&path));
-                let mut meta = trace_meta(&control.setup, self.rate_hz, &self.device_label);
-                // Ticks count from the session's start: date the trace's t_s = 0 there.
-                if let Some(snapshot) = self.snapshot() {
-                    meta.start_utc_ns -= (snapshot.t_s * 1e9).round() as i64;
-                }
-                let writer = create_trace_writer(&path, format, &meta)
-                    .map_err(|e| invalid(e.to_string()))?;
-                let first_tick = self.snapshot().map_or(0, |s| s.tick + 1);
-                control
-                    .recorder
-                    .send(RecorderRequest::Start { writer, first_tick })
-                    .map_err(|_| {
-                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
-                    })?;
-                control.recording = Some(path.clone());
-                Ok(ControlReply {
-                    message: format!("recording to {} ({format})", path.display()),
-                    scene_generation: 0,
-                })
-            }
-            ControlCommand::StopRecording => {
-                let Some(path) = control.recording.clone() else {
-                    return Err(ControlError::Conflict("not recording".to_owned()));
-                };
-                let (reply_tx, reply_rx) = mpsc::channel();
-                control
-                    .recorder
-                    .send(RecorderRequest::Stop { reply: reply_tx })
-                    .map_err(|_| {
-                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
-                    })?;
-                control.recording = None;
-                match reply_rx.recv_timeout(Duration::from_secs(10)) {
-                    Ok(Ok(Some(summary))) => Ok(ControlReply {
-                        message: format!(
-                            "recording stopped: {} samples in {}",
-                            summary.sample_count,
-                            summary.trace_path.display()
-                        ),
-                        scene_generation: 0,
-                    }),
-                    Ok(Ok(None)) => Err(ControlError::Conflict(format!(
-                        "the recording to {} had already stopped: {}",
-                        path.display(),
-                        self.recorder_error
-                            .lock()
-                            .ok()
-                            .and_then(|e| e.clone())
-                            .unwrap_or_default()
-                    ))),
-                    Ok(Err(error)) => Err(ControlError::Unavailable(format!(
-                        "finishing {}: {error}",
-                        path.display()
-                    ))),
-                    Err(_) => Err(ControlError::Unavailable(
-                        "the recorder did not answer in time".to_owned(),
-                    )),
-                }
-            }
-            ControlCommand::ClearFault => {
-                self.send(control, ServoCommand::ClearFault)?;
-                let message = match self.stats.clear_fault_outcome.load(Ordering::Acquire) {
-                    CLEAR_FAULT_REQUESTED => {
-                        "ClearFault sent; the device is enabled again once the link is healthy, and forces ramp in"
-                    }
-                    CLEAR_FAULT_NOTHING => "no fault to clear",
-                    CLEAR_FAULT_NO_DEVICE => "no device connected",
-                    _ => "clear_fault applied",
-                };
-                Ok(ControlReply {
-                    message: message.to_owned(),
-                    scene_generation: 0,
-                })
-            }
-            ControlCommand::SetHandTarget { position_m } => {
-                let Some(hand) = control.hand.as_mut() else {
-                    return Err(ControlError::Conflict(format!(
-                        "the device {} is not the simulated arm; only its hand can be moved",
-                        self.device_label
-                    )));
-                };
-                let target = match position_m {
-                    Some([x, y, z]) => {
-                        let v = DVec3::new(x, y, z);
-                        if !v.is_finite() {
-                            return Err(invalid("position_m must be three finite numbers"));
-                        }
-                        // Inside the arm's workspace, and (for an unbounded one) within 10 m: a
-                        // far target (1e308) would overflow the hand spring into NaN.
-                        let workspace = &control.setup.arm.arm.workspace;
-                        if !workspace.contains_m(v, 0.0) || v.length() > MAX_HAND_TARGET_M {
-                            return Err(invalid(format!(
-                                "position_m {:?} m is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the origin)",
-                                v.to_array()
-                            )));
-                        }
-                        Some(v)
-                    }
-                    None => None,
-                };
-                hand.write(target);
-                if let Ok(mut slot) = self.hand_target.lock() {
-                    *slot = target;
-                }
-                Ok(ControlReply {
-                    message: match target {
-                        Some(t) => format!("hand target set to {:?} m", t.to_array()),
-                        None => "hand follows its path again".to_owned(),
-                    },
-                    scene_generation: 0,
-                })
-            }
-        }
     }
 }
 

@@ -84,31 +84,67 @@ pub enum SetupError {
     },
     #[error(transparent)]
     Volume(#[from] ScenarioError),
-    #[error("--volume {given}: {message}")]
-    VolumeArg { given: String, message: String },
+    #[error("--volume {given}: {source}")]
+    VolumeArg {
+        given: String,
+        source: VolumeArgError,
+    },
+    #[error("--volume {given}: {source}")]
+    ReplaceVolume {
+        given: String,
+        source: ReplaceVolumeError,
+    },
     #[error("{origin}: {source}")]
     Modes { origin: String, source: ModeError },
     #[error("{origin}: {message}")]
     Invalid { origin: String, message: String },
 }
 
+/// Why a `--volume` / `load_volume` argument gave no volume.
+#[derive(Debug, thiserror::Error)]
+pub enum VolumeArgError {
+    /// `builtin:NAME` names no built-in volume.
+    #[error(transparent)]
+    Builtin(#[from] crate::volume::VolumeError),
+    /// The built-in has neither a scalar nor a vector field.
+    #[error("the built-in is empty")]
+    EmptyBuiltin,
+    /// The volume file could not be loaded.
+    #[error(transparent)]
+    Load(#[from] io::LoadError),
+}
+
+/// Why a scene's volume could not be replaced (the scene is left as it was).
+#[derive(Debug, thiserror::Error)]
+pub enum ReplaceVolumeError {
+    /// No volume has the name asked for.
+    #[error("no volume named {name:?}")]
+    NoSuchVolume { name: String },
+    /// The scene has no volume to replace.
+    #[error("the scene has no volume")]
+    NoVolume,
+    /// The scene's modes do not accept the new volume.
+    #[error(transparent)]
+    Modes(#[from] ModeError),
+}
+
 /// Loads `spec` (`builtin:NAME` or a file path) as a volume for `--volume` and `load_volume`; a built-in
 /// with two fields gives its scalar one.
 pub fn load_volume_arg(spec: &str) -> Result<(AnyVolume, String), SetupError> {
-    let error = |message: String| SetupError::VolumeArg {
+    let error = |source: VolumeArgError| SetupError::VolumeArg {
         given: spec.to_owned(),
-        message,
+        source,
     };
     if let Some(name) = spec.strip_prefix("builtin:") {
-        let built = procedural::builtin(name).map_err(|e| error(e.to_string()))?;
+        let built = procedural::builtin(name).map_err(|e| error(e.into()))?;
         let volume = match (built.scalar, built.vector) {
             (Some(s), _) => AnyVolume::Scalar(s),
             (None, Some(v)) => AnyVolume::Vector(v),
-            (None, None) => return Err(error("the built-in is empty".to_owned())),
+            (None, None) => return Err(error(VolumeArgError::EmptyBuiltin)),
         };
         return Ok((volume, spec.to_owned()));
     }
-    let loaded = io::load(Path::new(spec)).map_err(|e| error(e.to_string()))?;
+    let loaded = io::load(Path::new(spec)).map_err(|e| error(e.into()))?;
     Ok((loaded.volume, spec.to_owned()))
 }
 
@@ -245,14 +281,16 @@ impl SceneSetup {
         name: Option<&str>,
         volume: AnyVolume,
         source: String,
-    ) -> Result<(), String> {
+    ) -> Result<(), ReplaceVolumeError> {
         let index = match name {
             Some(name) => self
                 .volumes
                 .iter()
                 .position(|v| v.name == name)
-                .ok_or_else(|| format!("no volume named {name:?}"))?,
-            None if self.volumes.is_empty() => return Err("the scene has no volume".to_owned()),
+                .ok_or_else(|| ReplaceVolumeError::NoSuchVolume {
+                    name: name.to_owned(),
+                })?,
+            None if self.volumes.is_empty() => return Err(ReplaceVolumeError::NoVolume),
             None => 0,
         };
         let name = self.volumes[index].name.clone();
@@ -266,7 +304,7 @@ impl SceneSetup {
         );
         if let Err(error) = self.build_scene() {
             self.volumes[index] = previous;
-            return Err(error.to_string());
+            return Err(error.into());
         }
         Ok(())
     }
@@ -330,9 +368,9 @@ pub fn resolve(scene: Option<&PathBuf>, volume: Option<&str>) -> Result<SceneSet
             let (volume, source) = load_volume_arg(spec)?;
             setup
                 .replace_volume(None, volume, source)
-                .map_err(|message| SetupError::VolumeArg {
+                .map_err(|source| SetupError::ReplaceVolume {
                     given: spec.to_owned(),
-                    message,
+                    source,
                 })?;
             Ok(setup)
         }
@@ -422,13 +460,13 @@ mod tests {
             .replace_volume(Some("density"), vector, source)
             .is_err());
         assert_eq!(setup.volumes[0].source, before);
-        assert!(setup
+        assert!(matches!(setup
             .replace_volume(
                 Some("nope"),
                 load_volume_arg("builtin:sphere").unwrap().0,
                 String::new()
             )
-            .unwrap_err()
-            .contains("no volume named"));
+            .unwrap_err(),
+            ReplaceVolumeError::NoSuchVolume { name } if name == "nope"));
     }
 }

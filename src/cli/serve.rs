@@ -34,7 +34,7 @@ use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | replay:TRACE
+    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | replay:TRACE[,seek=S][,speed=X][,loop]
     #[arg(long, default_value = "sim", value_parser = parse_device)]
     pub device: DeviceSpec,
     /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml) or builtin:NAME; with --scene it
@@ -132,7 +132,7 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
                 .iter()
                 .map(|v| PathBuf::from(&v.source)),
         );
-        if let DeviceSpec::Replay(trace) = &args.device {
+        if let DeviceSpec::Replay { path: trace, .. } = &args.device {
             inputs.push(trace.clone());
         }
         config.record_policy = crate::record::OutputPolicy {

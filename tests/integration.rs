@@ -25,6 +25,7 @@ mod modes;
 mod paper;
 mod record;
 mod robustness;
+mod safety_props;
 mod serve_e2e;
 mod server;
 mod servo;

@@ -109,9 +109,9 @@ pub enum VolumeArgError {
     /// The built-in has neither a scalar nor a vector field.
     #[error("the built-in is empty")]
     EmptyBuiltin,
-    /// The volume file could not be loaded.
+    /// The volume file could not be loaded (boxed: the error is large).
     #[error(transparent)]
-    Load(#[from] io::LoadError),
+    Load(Box<io::LoadError>),
 }
 
 /// Why a scene's volume could not be replaced (the scene is left as it was).
@@ -144,7 +144,7 @@ pub fn load_volume_arg(spec: &str) -> Result<(AnyVolume, String), SetupError> {
         };
         return Ok((volume, spec.to_owned()));
     }
-    let loaded = io::load(Path::new(spec)).map_err(|e| error(e.into()))?;
+    let loaded = io::load(Path::new(spec)).map_err(|e| error(VolumeArgError::Load(Box::new(e))))?;
     Ok((loaded.volume, spec.to_owned()))
 }
 

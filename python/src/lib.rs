@@ -79,9 +79,37 @@ fn sim(
     Ok((summary.ticks, summary.certified_ticks, summary.max_force_n))
 }
 
+/// Solves the one proxy problem of a JSON scene file (as `voxhap solve SCENE --json`) with `solver`
+/// (`exact`, `euler` or `constraint`) and returns the answer as JSON text: proxy, force, status, bound.
+#[pyfunction]
+#[pyo3(signature = (scene, solver = "exact"))]
+fn solve(scene: PathBuf, solver: &str) -> PyResult<String> {
+    use voxhap::cli::solve::SolverChoice;
+    let choice = match solver {
+        "exact" => SolverChoice::Exact,
+        "euler" => SolverChoice::Euler,
+        "constraint" => SolverChoice::Constraint,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "solver {other:?}: expected exact, euler or constraint"
+            )))
+        }
+    };
+    let scene = voxhap::haptics::scene::Scene::load(&scene)
+        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+    voxhap::cli::solve::report(
+        &scene,
+        choice,
+        true,
+        voxhap::haptics::solver::SolverConfig::default(),
+    )
+    .map_err(|e| PyValueError::new_err(format!("{e:#}")))
+}
+
 #[pymodule]
 fn _voxhap(module: &Bound<'_, PyModule>) -> PyResult<()> {
     module.add_function(wrap_pyfunction!(trace_to_parquet, module)?)?;
     module.add_function(wrap_pyfunction!(sim, module)?)?;
+    module.add_function(wrap_pyfunction!(solve, module)?)?;
     Ok(())
 }

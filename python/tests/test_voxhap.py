@@ -53,3 +53,14 @@ def test_read_trace_reads_every_format_and_a_cut_off_file(tmp_path):
     assert 0 < len(back) < 2000
     with pytest.raises(ValueError, match="cannot read"):
         voxhap.read_trace(tmp_path / "missing.csv")
+
+
+def test_solve_returns_the_certified_answer():
+    answer = voxhap.solve(ROOT / "sims" / "scenes" / "plane_point.json")
+    assert answer["status"] == "certified"
+    assert len(answer["proxy"]) == 3 and len(answer["force"]) == 3
+    assert answer["error_bound"] < 1e-9
+    with pytest.raises(ValueError, match="expected exact, euler or constraint"):
+        voxhap.solve(ROOT / "sims" / "scenes" / "plane_point.json", solver="newton")
+    with pytest.raises(ValueError):
+        voxhap.solve(ROOT / "sims" / "scenes" / "missing.json")

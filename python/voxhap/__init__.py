@@ -17,7 +17,15 @@ import pyarrow.parquet as pq
 
 from . import _voxhap
 
-__all__ = ["read_trace", "sim"]
+__all__ = ["read_trace", "sim", "solve"]
+
+
+def solve(scene, solver="exact"):
+    """Solves the proxy problem of a JSON scene file (as `voxhap solve SCENE --json`).
+
+    Returns a dict: `proxy` and `force` ([x, y, z], m and N), `status` and `error_bound` (exact solver), the
+    iteration counts and the median solve time in ns."""
+    return json.loads(_voxhap.solve(os.fspath(scene), solver))
 
 
 def _frame(parquet_path, reader_warnings=()):

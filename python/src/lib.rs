@@ -56,8 +56,8 @@ fn sim(
     let loaded = voxhap::cli::sim::load_scenario(&scenario, &overrides, duration_s, rate_hz)
         .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
     let solver = loaded.scenario.solver.kind;
-    let scenario_json = serde_json::to_value(&loaded.scenario)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let scenario_json =
+        serde_json::to_value(&loaded.scenario).map_err(|e| PyValueError::new_err(e.to_string()))?;
     let meta = TraceMeta::new(
         loaded.scene.mode_names().to_vec(),
         loaded.scenario.rate_hz,

@@ -21,6 +21,7 @@ mod drivers_alloc_free;
 mod falcon;
 mod foxglove;
 mod fuzz_corpus;
+mod hand_target;
 mod haply_2diy_pty;
 mod haply_inverse;
 mod igtl;

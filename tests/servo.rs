@@ -670,7 +670,13 @@ fn the_hand_of_a_real_device_cannot_be_moved() {
     let recorded = session(Some(path.clone()));
     wait_for_tick(&*recorded.api(), 100);
     recorded.stop();
-    let mut config = SessionConfig::new(DeviceSpec::Replay(path), SceneSetup::builtin().unwrap());
+    let mut config = SessionConfig::new(
+        DeviceSpec::Replay {
+            path,
+            options: Default::default(),
+        },
+        SceneSetup::builtin().unwrap(),
+    );
     config.rt = voxhap::servo::rt::RtMode::Off;
     let replay = Session::start(config).unwrap();
     let api = replay.api();

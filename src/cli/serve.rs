@@ -34,7 +34,7 @@ use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | falcon[:SERIAL|:PATH][,firmware=FILE] | replay:TRACE
+    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | falcon[:SERIAL|:PATH][,firmware=FILE] | replay:TRACE[,seek=S][,speed=X][,loop]
     #[arg(long, default_value = "sim", value_parser = parse_device)]
     pub device: DeviceSpec,
     /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml) or builtin:NAME; with --scene it
@@ -47,7 +47,7 @@ pub struct ServeArgs {
     /// Servo rate (Hz), 100 to 10000; default the scene's rate_hz or 1000.
     #[arg(long)]
     pub rate: Option<f64>,
-    /// Record every tick to this trace (CSV, or MCAP for a .mcap name) with its JSON sidecar.
+    /// Record every tick to this trace (CSV, MCAP for a .mcap name, Parquet for .parquet) with its JSON sidecar.
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Trace format (default: from the file name).
@@ -132,7 +132,7 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
                 .iter()
                 .map(|v| PathBuf::from(&v.source)),
         );
-        if let DeviceSpec::Replay(trace) = &args.device {
+        if let DeviceSpec::Replay { path: trace, .. } = &args.device {
             inputs.push(trace.clone());
         }
         config.record_policy = crate::record::OutputPolicy {

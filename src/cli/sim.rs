@@ -1,4 +1,4 @@
-//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap] [--solver exact|euler|constraint] [--force]
+//! `voxhap sim SCENARIO.toml --out TRACE [--format csv|mcap|parquet] [--solver exact|euler|constraint] [--force]
 //! [--max-trace-bytes N] [--set KEY=VALUE]... [--duration S] [--rate HZ] [--fail-on LIST]`: run a scenario
 //! headless and record its force trace (see [`crate::sim`]).
 //!
@@ -30,7 +30,7 @@ pub struct SimArgs {
     /// The trace to write; its sidecar is TRACE.json.
     #[arg(long)]
     pub out: PathBuf,
-    /// Trace format; default: from the --out extension (.mcap is MCAP, anything else CSV).
+    /// Trace format; default: from the --out extension (.mcap is MCAP, .parquet Parquet, anything else CSV).
     #[arg(long, value_enum)]
     pub format: Option<TraceFormat>,
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).

@@ -22,7 +22,7 @@ pub enum TraceCommand {
 
 #[derive(Debug, Args)]
 pub struct RepairArgs {
-    /// The damaged trace (CSV or MCAP); it is never modified.
+    /// The damaged trace (CSV, MCAP or Parquet); it is never modified.
     pub file: PathBuf,
     /// Where to write the repaired trace; default NAME.repaired.EXT next to FILE.
     #[arg(long)]

@@ -24,6 +24,14 @@ pub enum TraceError {
         /// The library's error.
         source: mcap::McapError,
     },
+    /// The Parquet library refused to write.
+    #[error("cannot write the Parquet trace {path}")]
+    Parquet {
+        /// The file.
+        path: PathBuf,
+        /// The library's error.
+        source: parquet::errors::ParquetError,
+    },
     /// The run metadata is unusable.
     #[error("trace metadata: {0}")]
     Meta(String),
@@ -180,6 +188,14 @@ pub enum TraceReadError {
     /// The MCAP file is damaged or not a voxhap trace.
     #[error("MCAP trace {path}: {problem}")]
     Mcap {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The Parquet file is damaged or not a voxhap trace.
+    #[error("Parquet trace {path}: {problem}")]
+    Parquet {
         /// The file.
         path: PathBuf,
         /// What is wrong.

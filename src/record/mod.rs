@@ -21,6 +21,7 @@ pub mod foxglove_topics;
 mod mcap_trace;
 mod meta;
 mod output;
+mod parquet_trace;
 pub mod plot;
 pub mod repair;
 
@@ -32,6 +33,9 @@ pub use self::mcap_trace::{
 };
 pub use self::meta::{sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
 pub use self::output::{check_output_path, estimate_trace_bytes, OutputPolicy};
+pub use self::parquet_trace::{
+    read_parquet_trace, ParquetTraceWriter, SIDECAR_KEY as PARQUET_SIDECAR_KEY,
+};
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -274,13 +278,17 @@ pub enum TraceFormat {
     /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
     /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
     Mcap,
+    /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
+    /// pandas, polars and DuckDB.
+    Parquet,
 }
 
 impl TraceFormat {
-    /// Guesses the format from a file name: `.mcap` is MCAP, anything else CSV.
+    /// Guesses the format from a file name: `.mcap` is MCAP, `.parquet` Parquet, anything else CSV.
     pub fn from_path(path: &Path) -> Self {
         match path.extension().and_then(|e| e.to_str()) {
             Some(ext) if ext.eq_ignore_ascii_case("mcap") => TraceFormat::Mcap,
+            Some(ext) if ext.eq_ignore_ascii_case("parquet") => TraceFormat::Parquet,
             _ => TraceFormat::Csv,
         }
     }
@@ -291,6 +299,7 @@ impl fmt::Display for TraceFormat {
         f.write_str(match self {
             TraceFormat::Csv => "csv",
             TraceFormat::Mcap => "mcap",
+            TraceFormat::Parquet => "parquet",
         })
     }
 }
@@ -356,6 +365,7 @@ pub fn create_trace_writer_with(
     Ok(match format {
         TraceFormat::Csv => Box::new(CsvTraceWriter::create(path, meta)?),
         TraceFormat::Mcap => Box::new(McapTraceWriter::create(path, meta)?),
+        TraceFormat::Parquet => Box::new(ParquetTraceWriter::create(path, meta)?),
     })
 }
 
@@ -399,7 +409,8 @@ pub(crate) fn read_trace_file(path: &Path) -> Result<Vec<u8>, TraceReadError> {
     Ok(bytes)
 }
 
-/// Reads a CSV or MCAP trace, choosing by the file's first bytes (the MCAP magic) rather than its name.
+/// Reads a CSV, MCAP or Parquet trace, choosing by the file's first bytes (the MCAP magic, `PAR1`)
+/// rather than its name.
 pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let mut magic = [0u8; 8];
     let is_mcap = {
@@ -422,6 +433,8 @@ pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
     };
     if is_mcap {
         read_mcap_trace(path)
+    } else if magic.starts_with(b"PAR1") {
+        read_parquet_trace(path)
     } else {
         read_csv_trace(path)
     }

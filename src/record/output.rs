@@ -71,6 +71,8 @@ pub fn estimate_trace_bytes(
         TraceFormat::Csv => 23 * 24 + mode_count as u64 * (4 * 24) + 60 + 12 * 6,
         // JSON state and solver messages plus three protobuf messages and their record headers.
         TraceFormat::Mcap => 900 + mode_count as u64 * 90,
+        // Uncompressed column values (8 bytes per number) plus row-group footers; Snappy makes it smaller.
+        TraceFormat::Parquet => 23 * 8 + mode_count as u64 * (4 * 8) + 60 + 17,
     };
     let scene = match format {
         TraceFormat::Csv => 0,

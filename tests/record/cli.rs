@@ -1,7 +1,7 @@
 //! The command line's care for files and crashes: `voxhap sim` and `voxhap serve` never overwrite an
 //! existing trace without `--force` and never an input of the run even with it; a sim whose trace would
-//! be too large refuses with the estimate; a sim killed with SIGKILL leaves a trace that reads up to the
-//! kill and that `voxhap trace repair` rewrites as a finished one.
+//! be too large refuses with the estimate; a sim killed with SIGKILL leaves a trace (CSV, MCAP, Parquet)
+//! that reads up to the kill and that `voxhap trace repair` rewrites as a finished one.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -170,8 +170,9 @@ fn kill_mid_run(extension: &str) {
     }
     let sidecar = trace.sidecar.as_ref().unwrap();
     assert!(!sidecar.complete);
-    // MCAP is always unfinished after a kill; CSV may end on a whole line.
-    if extension == "mcap" {
+    // MCAP and Parquet are always unfinished after a kill (no summary, no footer); CSV may end on a
+    // whole line.
+    if extension != "csv" {
         assert_eq!(trace.warnings.len(), 1, "{:?}", trace.warnings);
     }
     let repaired = dir.path().join(format!("fixed.{extension}"));
@@ -205,6 +206,11 @@ fn a_killed_csv_sim_reads_up_to_the_kill_and_repairs() {
 #[test]
 fn a_killed_mcap_sim_reads_up_to_the_kill_and_repairs() {
     kill_mid_run("mcap");
+}
+
+#[test]
+fn a_killed_parquet_sim_reads_up_to_the_kill_and_repairs() {
+    kill_mid_run("parquet");
 }
 
 /// `serve --fail-on uncertified` exits 3 after a clean stop when a baseline solver ran (no tick certified),

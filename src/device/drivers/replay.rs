@@ -27,6 +27,10 @@ pub struct ReplayOptions {
     pub looped: bool,
 }
 
+// Options are only made by `parse_replay_spec` and `Default`, which admit finite numbers only, so
+// equality is reflexive (device specs compare with `Eq`).
+impl Eq for ReplayOptions {}
+
 /// The fastest replay speed.
 pub const MAX_REPLAY_SPEED: f64 = 1000.0;
 
@@ -198,6 +202,28 @@ impl ReplayDevice {
     /// True once every sample was played (never when looping).
     pub fn finished(&self) -> bool {
         !self.options.looped && self.cursor >= self.positions_m.len() as f64
+    }
+
+    /// What this replay will do, for the operator at start (allocates: call it off the servo thread):
+    /// `replay run.csv: 3000 samples (trace time 0.000 s to 2.999 s) from 0.000 s at speed 1, once, then
+    /// holding the last position (add ,loop to repeat)`.
+    pub fn plan(&self, name: &str) -> String {
+        let first = self.times_s[0];
+        let last = self.times_s[self.times_s.len() - 1];
+        format!(
+            "replay {name}: {} samples (trace time {first:.3} s to {last:.3} s) from {:.3} s at speed {}, {}",
+            self.positions_m.len(),
+            self.times_s
+                .get(self.cursor as usize)
+                .copied()
+                .unwrap_or(last),
+            self.options.speed,
+            if self.options.looped {
+                "looping"
+            } else {
+                "once, then holding the last position (add ,loop to repeat)"
+            }
+        )
     }
 
     /// Once a play-once replay has finished: what the operator should be told (allocates: call it off the

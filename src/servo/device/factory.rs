@@ -153,15 +153,17 @@ pub fn open_device(
                 Ok(falcon)
             })?
         }
-        DeviceSpec::Replay(path) => {
+        DeviceSpec::Replay { path, options } => {
             let trace = crate::record::read_trace(path).map_err(|e| OpenError::Replay {
                 path: path.clone(),
                 message: e.to_string(),
             })?;
-            let replay = ReplayDevice::new(&trace, true).map_err(|e| OpenError::Replay {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
+            let replay =
+                ReplayDevice::with_options(&trace, *options).map_err(|e| OpenError::Replay {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?;
+            eprintln!("voxhap: {}", replay.plan(&path.display().to_string()));
             let mut slot = Some(replay);
             boxed(config, move || {
                 slot.take().ok_or(DeviceError::Config {

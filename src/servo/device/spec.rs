@@ -26,8 +26,14 @@ pub enum DeviceSpec {
     WoodenHapticsSerial(PathBuf),
     /// `haply2diy:PATH`: Haply 2DIY on the USB serial port at PATH.
     Haply2Diy(PathBuf),
-    /// `replay:TRACE`: plays the probe positions of a recorded trace (loops at the end).
-    Replay(PathBuf),
+    /// `replay:TRACE[,seek=S][,speed=X][,loop]`: plays the probe positions of a recorded trace, once
+    /// (then holds the last position) unless `loop` is given.
+    Replay {
+        /// The trace file.
+        path: PathBuf,
+        /// Seek, speed and loop.
+        options: crate::device::drivers::replay::ReplayOptions,
+    },
     /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
     HaplyInverse(String),
     /// `falcon[:SERIAL|:PATH][,firmware=FILE]`: Novint Falcon on its FTDI serial port (`ftdi_sio`), chosen by
@@ -41,7 +47,7 @@ pub enum DeviceSpec {
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE[,seek=S][,speed=X][,loop]")]
 pub struct DeviceSpecError {
     pub given: String,
     pub problem: String,
@@ -79,7 +85,12 @@ impl FromStr for DeviceSpec {
             "mock" => Ok(DeviceSpec::Mock(path(rest)?)),
             "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
-            "replay" => Ok(DeviceSpec::Replay(path(rest)?)),
+            "replay" => {
+                let (path, options) =
+                    crate::device::drivers::replay::parse_replay_spec(rest.unwrap_or(""))
+                        .map_err(|problem| error(&problem))?;
+                Ok(DeviceSpec::Replay { path, options })
+            }
             "haply-inverse" => match rest {
                 None => Ok(DeviceSpec::HaplyInverse(
                     crate::device::transport::inverse_service::DEFAULT_URL.to_owned(),
@@ -154,7 +165,20 @@ impl std::fmt::Display for DeviceSpec {
             DeviceSpec::WoodenHaptics => f.write_str("woodenhaptics-hid"),
             DeviceSpec::WoodenHapticsSerial(p) => write!(f, "woodenhaptics:{}", p.display()),
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
-            DeviceSpec::Replay(p) => write!(f, "replay:{}", p.display()),
+            DeviceSpec::Replay { path, options } => {
+                write!(f, "replay:{}", path.display())?;
+                let defaults = crate::device::drivers::replay::ReplayOptions::default();
+                if options.seek_s != defaults.seek_s {
+                    write!(f, ",seek={}", options.seek_s)?;
+                }
+                if options.speed != defaults.speed {
+                    write!(f, ",speed={}", options.speed)?;
+                }
+                if options.looped {
+                    f.write_str(",loop")?;
+                }
+                Ok(())
+            }
             DeviceSpec::HaplyInverse(url) => write!(f, "haply-inverse:{url}"),
             DeviceSpec::Falcon { select, firmware } => {
                 f.write_str("falcon")?;
@@ -175,6 +199,36 @@ mod tests {
     use super::*;
 
     #[test]
+    fn bad_replay_options_are_refused_by_name() {
+        for (text, expected) in [
+            ("replay:t.csv,speed=0", "replay speed 0 must be > 0"),
+            (
+                "replay:t.csv,speed=fast",
+                "replay speed=\"fast\": not a finite number",
+            ),
+            ("replay:t.csv,seek=-1", "replay seek -1 s must be >= 0"),
+            ("replay:t.csv,seek=inf", "not a finite number"),
+            (
+                "replay:t.csv,repeat",
+                "replay option \"repeat\": expected seek=S, speed=X or loop",
+            ),
+            ("replay:", "replay: needs a trace file"),
+        ] {
+            let error = text.parse::<DeviceSpec>().unwrap_err().to_string();
+            assert!(error.contains(expected), "{text}: {error}");
+        }
+        let spec: DeviceSpec = "replay:t.csv,loop,speed=2.5,seek=3".parse().unwrap();
+        let DeviceSpec::Replay { path, options } = spec else {
+            panic!("not a replay: {spec:?}");
+        };
+        assert_eq!(path, PathBuf::from("t.csv"));
+        assert_eq!(
+            (options.seek_s, options.speed, options.looped),
+            (3.0, 2.5, true)
+        );
+    }
+
+    #[test]
     fn device_specs_parse_and_print_back() {
         for text in [
             "sim",
@@ -186,6 +240,8 @@ mod tests {
             "woodenhaptics:/dev/ttyACM2",
             "haply2diy:/dev/ttyACM1",
             "replay:trace.csv",
+            "replay:trace.parquet,seek=1.5,speed=2,loop",
+            "replay:trace.csv,speed=0.5",
             "haply-inverse:ws://127.0.0.1:10001",
             "haply-inverse:ws://lab-pc:9000",
             "falcon",

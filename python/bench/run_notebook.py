@@ -1,0 +1,21 @@
+"""Runs a notebook's code cells in order as plain Python (no Jupyter kernel needed) and fails on the
+first error: how CI executes examples/*.ipynb. Usage: python run_notebook.py NOTEBOOK.ipynb"""
+
+import json
+import sys
+
+
+def main():
+    with open(sys.argv[1], encoding="utf-8") as handle:
+        notebook = json.load(handle)
+    namespace = {"__name__": "__main__"}
+    for index, cell in enumerate(notebook["cells"]):
+        if cell["cell_type"] != "code":
+            continue
+        source = "".join(cell["source"])
+        exec(compile(source, f"{sys.argv[1]} cell {index}", "exec"), namespace)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

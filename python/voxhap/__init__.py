@@ -1,0 +1,80 @@
+"""voxhap from Python: read force traces and run sims into pandas DataFrames.
+
+`read_trace(path)` reads a CSV, MCAP or Parquet trace (also one cut off by a crash, with a warning) with
+voxhap's own reader; `sim(scenario, overrides)` runs a sim scenario and returns its trace. Both return a
+pandas DataFrame with the trace's columns (docs/traces.md): flags as boolean `flag_<name>` columns, missing
+device values as nulls. `df.attrs["sidecar"]` holds the trace's metadata and `df.attrs["warnings"]` what the
+reader skipped.
+"""
+
+import json
+import os
+import tempfile
+import warnings
+
+import pandas as pd
+import pyarrow.parquet as pq
+
+from . import _voxhap
+
+__all__ = ["read_trace", "sim", "solve"]
+
+
+def solve(scene, solver="exact"):
+    """Solves the proxy problem of a JSON scene file (as `voxhap solve SCENE --json`).
+
+    Returns a dict: `proxy` and `force` ([x, y, z], m and N), `status` and `error_bound` (exact solver), the
+    iteration counts and the median solve time in ns."""
+    return json.loads(_voxhap.solve(os.fspath(scene), solver))
+
+
+def _frame(parquet_path, reader_warnings=()):
+    frame = pd.read_parquet(parquet_path, engine="pyarrow")
+    metadata = pq.ParquetFile(parquet_path).metadata.metadata or {}
+    sidecar = metadata.get(b"voxhap.sidecar")
+    frame.attrs["sidecar"] = json.loads(sidecar) if sidecar else None
+    frame.attrs["warnings"] = list(reader_warnings)
+    for text in reader_warnings:
+        warnings.warn(text, stacklevel=3)
+    return frame
+
+
+def read_trace(path):
+    """The trace at `path` (CSV, MCAP or Parquet) as a pandas DataFrame."""
+    path = os.fspath(path)
+    with tempfile.TemporaryDirectory(prefix="voxhap-") as work:
+        out = os.path.join(work, "trace.parquet")
+        reader_warnings = _voxhap.trace_to_parquet(path, out)
+        return _frame(out, reader_warnings)
+
+
+def sim(scenario, overrides=None, duration_s=None, rate_hz=None):
+    """Runs the sim `scenario` (a TOML file) and returns its trace as a DataFrame.
+
+    `overrides` maps scenario keys (dotted paths, array indices, as `voxhap sim --set`) to values, e.g.
+    `{"k_n_per_m": 200, "arm.mass_kg": 0.2}`. `df.attrs["summary"]` holds the tick counts and the
+    largest force.
+    """
+    sets = [f"{key}={_toml_value(value)}" for key, value in (overrides or {}).items()]
+    with tempfile.TemporaryDirectory(prefix="voxhap-") as work:
+        out = os.path.join(work, "sim.parquet")
+        ticks, certified, max_force_n = _voxhap.sim(
+            os.fspath(scenario), out, sets, duration_s, rate_hz
+        )
+        frame = _frame(out)
+    frame.attrs["summary"] = {
+        "ticks": ticks,
+        "certified_ticks": certified,
+        "max_force_n": max_force_n,
+    }
+    return frame
+
+
+def _toml_value(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return repr(value)

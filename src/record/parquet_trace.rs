@@ -1,0 +1,862 @@
+//! Parquet force traces: the writer ([`ParquetTraceWriter`]) and the reader ([`read_parquet_trace`]).
+//!
+//! Where it sits: one of the three trace formats behind [`super::TraceWriter`] (chosen by a `.parquet`
+//! name or `--format parquet`). The columns are `super::columns::columns`, the same names, order and
+//! values as CSV, with Parquet types: `UInt64` counts and ticks, `Int64` `utc_ns` (null when `t_s` is not
+//! finite), `Float64` quantities (NaN and infinities kept), `Boolean` flag columns, a UTF-8
+//! `solver_status`, and nullable `UInt64` device sequence and time. The finished file's metadata holds
+//! the sidecar's JSON under the key [`SIDECAR_KEY`], so a Parquet trace describes itself even without its
+//! `TRACE.json`. Pages are Snappy-compressed (what pandas and pyarrow write by default).
+//!
+//! Crash safety: rows are buffered and written as one row group per second of trace time (at most
+//! [`ROW_GROUP_MAX_ROWS`] rows, and at most about one second of wall-clock time when the recorder
+//! flushes), so a crash loses at most the last second. A Parquet reader needs the footer, which is only
+//! written at the end; so after every row group the writer also writes a *row-group footer*: a Parquet
+//! footer (metadata, length) that describes only that row group, ending in `VXRG` instead of `PAR1` so
+//! no reader mistakes a cut-off file for a finished one holding only its last row group. Readers ignore
+//! bytes between row groups. A file cut off by a crash ends without the final footer; [`read_parquet_trace`]
+//! then finds the last row-group footer whose row group ends exactly where the footer starts, follows
+//! the chain back to the first row group (each row group starts right after the previous one's footer),
+//! reads those row groups, and reports what it skipped in `Trace::warnings`. `voxhap trace repair`
+//! uses that to write a finished file.
+//!
+//! Compaction: one-second row groups cost readers time (pyarrow reads 3 600 of them about 2.5 times
+//! slower than a few large ones) and space. So a trace that finishes cleanly is rewritten once, into a
+//! temporary file next to it, with row groups of up to [`COMPACT_ROW_GROUP_ROWS`] rows, and renamed over
+//! the original; a crash during that leaves the original (and perhaps the temporary file) intact.
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use arrow_array::builder::{
+    BooleanBuilder, Float64Builder, Int64Builder, StringBuilder, UInt64Builder,
+};
+use arrow_array::{
+    Array, ArrayRef, BooleanArray, Float64Array, Int64Array, RecordBatch, StringArray, UInt64Array,
+};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use bytes::Bytes;
+use parquet::arrow::arrow_reader::{
+    ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder,
+};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::Compression;
+use parquet::file::metadata::{
+    FileMetaData, KeyValue, ParquetMetaData, ParquetMetaDataReader, ParquetMetaDataWriter,
+    RowGroupMetaData,
+};
+use parquet::file::properties::WriterProperties;
+
+use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use super::csv::read_sidecar;
+use super::meta::is_valid_mode_name;
+use super::{
+    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
+    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+};
+
+/// The file-metadata key holding the sidecar's JSON (the final sidecar, in a finished file).
+pub const SIDECAR_KEY: &str = "voxhap.sidecar";
+/// A row group holds at most this much trace time (s): a crash loses at most this.
+pub const ROW_GROUP_MAX_SPAN_S: f64 = 1.0;
+/// A row group holds at most this many rows (bounds memory at very high rates).
+pub const ROW_GROUP_MAX_ROWS: usize = 100_000;
+/// A finished trace is rewritten with row groups of up to this many rows (fewer, larger row groups load
+/// several times faster and compress better).
+pub const COMPACT_ROW_GROUP_ROWS: usize = 1 << 20;
+/// A flush closes an open row group at least this long after it was opened (wall clock), so a paused or
+/// slow producer still loses at most about a second.
+const ROW_GROUP_MAX_AGE: Duration = Duration::from_secs(1);
+/// `PAR1`, which starts a Parquet file and ends its footer.
+const MAGIC: &[u8; 4] = b"PAR1";
+/// Ends a row-group footer in place of `PAR1`, so a file cut off after a row-group footer is not taken
+/// for a finished file holding only its last row group (pyarrow refuses it; `voxhap trace repair` reads
+/// it).
+const ROW_GROUP_FOOTER_MAGIC: &[u8; 4] = b"VXRG";
+
+/// A column being filled, one builder per column type.
+enum ColumnBuilder {
+    U64(UInt64Builder),
+    I64(Int64Builder),
+    F64(Float64Builder),
+    Bool(BooleanBuilder),
+    Text(StringBuilder),
+}
+
+impl ColumnBuilder {
+    fn new(column_type: ColumnType) -> Self {
+        match column_type {
+            ColumnType::U64 | ColumnType::OptionalU64 => ColumnBuilder::U64(UInt64Builder::new()),
+            ColumnType::I64 => ColumnBuilder::I64(Int64Builder::new()),
+            ColumnType::F64 => ColumnBuilder::F64(Float64Builder::new()),
+            ColumnType::Bool => ColumnBuilder::Bool(BooleanBuilder::new()),
+            ColumnType::Text => ColumnBuilder::Text(StringBuilder::new()),
+        }
+    }
+
+    fn append(&mut self, cell: Cell) {
+        match (self, cell) {
+            (ColumnBuilder::U64(b), Cell::U64(v)) => b.append_value(v),
+            (ColumnBuilder::I64(b), Cell::I64(v)) => b.append_value(v),
+            (ColumnBuilder::F64(b), Cell::F64(v)) => b.append_value(v),
+            (ColumnBuilder::Bool(b), Cell::Bool(v)) => b.append_value(v),
+            (ColumnBuilder::Text(b), Cell::Text(v)) => b.append_value(v),
+            (ColumnBuilder::U64(b), _) => b.append_null(),
+            (ColumnBuilder::I64(b), _) => b.append_null(),
+            (ColumnBuilder::F64(b), _) => b.append_null(),
+            (ColumnBuilder::Bool(b), _) => b.append_null(),
+            (ColumnBuilder::Text(b), _) => b.append_null(),
+        }
+    }
+
+    fn finish(&mut self) -> ArrayRef {
+        match self {
+            ColumnBuilder::U64(b) => Arc::new(b.finish()),
+            ColumnBuilder::I64(b) => Arc::new(b.finish()),
+            ColumnBuilder::F64(b) => Arc::new(b.finish()),
+            ColumnBuilder::Bool(b) => Arc::new(b.finish()),
+            ColumnBuilder::Text(b) => Arc::new(b.finish()),
+        }
+    }
+}
+
+/// The Arrow type of a column type, and whether it may be null.
+fn arrow_type(column_type: ColumnType) -> (DataType, bool) {
+    match column_type {
+        ColumnType::U64 => (DataType::UInt64, false),
+        ColumnType::OptionalU64 => (DataType::UInt64, true),
+        // utc_ns is null when t_s is not finite (only in a sample flagged invalid_values).
+        ColumnType::I64 => (DataType::Int64, true),
+        ColumnType::F64 => (DataType::Float64, false),
+        ColumnType::Bool => (DataType::Boolean, false),
+        ColumnType::Text => (DataType::Utf8, false),
+    }
+}
+
+/// The Arrow schema of a trace with these modes.
+fn arrow_schema(mode_names: &[String]) -> SchemaRef {
+    let fields: Vec<Field> = columns(mode_names)
+        .into_iter()
+        .map(|c| {
+            let (data_type, nullable) = arrow_type(c.column_type);
+            Field::new(c.name.into_owned(), data_type, nullable)
+        })
+        .collect();
+    Arc::new(Schema::new(fields))
+}
+
+/// Writes a Parquet trace and its sidecar.
+pub struct ParquetTraceWriter {
+    path: PathBuf,
+    writer: Option<ArrowWriter<BufWriter<File>>>,
+    schema: SchemaRef,
+    builders: Vec<ColumnBuilder>,
+    row: Vec<Cell>,
+    /// Rows in the open row group, its first sample's time, and when it was opened.
+    group_rows: usize,
+    group_start_t_s: f64,
+    group_opened: Instant,
+    checker: SampleChecker,
+    start_utc_ns: i64,
+    sidecar: Sidecar,
+}
+
+impl ParquetTraceWriter {
+    /// Creates (truncates) `path` and `path.json` and writes a provisional sidecar. Callers check first
+    /// whether the files may be replaced (`create_trace_writer_with`).
+    pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
+        meta.validate()?;
+        let file = File::create(path).map_err(|source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let schema = arrow_schema(&meta.mode_names);
+        let properties = WriterProperties::builder()
+            .set_compression(Compression::SNAPPY)
+            .set_max_row_group_row_count(Some(ROW_GROUP_MAX_ROWS))
+            .set_created_by(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
+            .build();
+        let writer = ArrowWriter::try_new(
+            BufWriter::with_capacity(256 * 1024, file),
+            schema.clone(),
+            Some(properties),
+        )
+        .map_err(|source| TraceError::Parquet {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let sidecar = Sidecar::new(meta, TraceFormat::Parquet, path);
+        sidecar.write(&sidecar_path(path))?;
+        let builders = columns(&meta.mode_names)
+            .iter()
+            .map(|c| ColumnBuilder::new(c.column_type))
+            .collect();
+        Ok(ParquetTraceWriter {
+            path: path.to_path_buf(),
+            writer: Some(writer),
+            schema,
+            builders,
+            row: Vec::with_capacity(128),
+            group_rows: 0,
+            group_start_t_s: 0.0,
+            group_opened: Instant::now(),
+            checker: SampleChecker::new(meta.mode_names.len()),
+            start_utc_ns: meta.start_utc_ns,
+            sidecar,
+        })
+    }
+
+    fn parquet_error(&self, source: parquet::errors::ParquetError) -> TraceError {
+        TraceError::Parquet {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    fn io_error(&self, source: std::io::Error) -> TraceError {
+        TraceError::Io {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// Writes the buffered rows as one row group, then its row-group footer, and hands the bytes to the
+    /// file.
+    fn close_row_group(&mut self) -> Result<(), TraceError> {
+        if self.group_rows == 0 {
+            return Ok(());
+        }
+        let arrays: Vec<ArrayRef> = self
+            .builders
+            .iter_mut()
+            .map(ColumnBuilder::finish)
+            .collect();
+        self.group_rows = 0;
+        let batch = RecordBatch::try_new(self.schema.clone(), arrays)
+            .map_err(|e| self.parquet_error(parquet::errors::ParquetError::from(e)))?;
+        let Some(writer) = self.writer.as_mut() else {
+            return Err(TraceError::Finished);
+        };
+        let result = writer
+            .write(&batch)
+            .and_then(|()| writer.flush())
+            .and_then(|()| {
+                let group = writer.flushed_row_groups().last().cloned().ok_or_else(|| {
+                    parquet::errors::ParquetError::General("no row group was written".into())
+                })?;
+                let footer = row_group_footer(group)?;
+                writer.write_all(&footer)?;
+                Ok(())
+            });
+        result.map_err(|e| self.parquet_error(e))?;
+        let sync = self.writer.as_mut().map(|w| w.sync());
+        if let Some(Err(e)) = sync {
+            return Err(self.io_error(e));
+        }
+        Ok(())
+    }
+}
+
+/// Rewrites the finished Parquet file at `path` with row groups of up to [`COMPACT_ROW_GROUP_ROWS`] rows
+/// (same schema, values and key-value metadata), through a temporary file renamed over it. A file with one
+/// row group or none is left as it is.
+fn compact(path: &Path, schema: &SchemaRef) -> Result<(), parquet::errors::ParquetError> {
+    let input = File::open(path)?;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(input)?;
+    if builder.metadata().num_row_groups() <= 1 {
+        return Ok(());
+    }
+    let key_values = builder
+        .metadata()
+        .file_metadata()
+        .key_value_metadata()
+        .cloned()
+        .unwrap_or_default();
+    let reader = builder.with_batch_size(64 * 1024).build()?;
+    let mut temporary_name = std::ffi::OsString::from(".");
+    temporary_name.push(path.file_name().unwrap_or_default());
+    temporary_name.push(format!(".compacting.{}", std::process::id()));
+    let temporary = path.with_file_name(temporary_name);
+    let result = (|| {
+        let output = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temporary)?;
+        let properties = WriterProperties::builder()
+            .set_compression(Compression::SNAPPY)
+            .set_max_row_group_row_count(Some(COMPACT_ROW_GROUP_ROWS))
+            .set_created_by(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
+            .build();
+        let mut writer = ArrowWriter::try_new(
+            BufWriter::with_capacity(256 * 1024, output),
+            schema.clone(),
+            Some(properties),
+        )?;
+        for batch in reader {
+            writer.write(&batch?)?;
+        }
+        for kv in key_values {
+            // The writer adds its own ARROW:schema entry.
+            if kv.key != "ARROW:schema" {
+                writer.append_key_value_metadata(kv);
+            }
+        }
+        let file = writer
+            .into_inner()?
+            .into_inner()
+            .map_err(|e| parquet::errors::ParquetError::from(e.into_error()))?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)?;
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result
+}
+
+/// A Parquet footer (metadata, length, [`ROW_GROUP_FOOTER_MAGIC`]) describing only `group`.
+fn row_group_footer(group: RowGroupMetaData) -> Result<Vec<u8>, parquet::errors::ParquetError> {
+    let file_metadata = FileMetaData::new(
+        1,
+        group.num_rows(),
+        None,
+        None,
+        group.schema_descr_ptr(),
+        None,
+    );
+    let metadata = ParquetMetaData::new(file_metadata, vec![group]);
+    let mut footer = Vec::new();
+    ParquetMetaDataWriter::new(&mut footer, &metadata).finish()?;
+    let magic_at = footer.len() - MAGIC.len();
+    footer[magic_at..].copy_from_slice(ROW_GROUP_FOOTER_MAGIC);
+    Ok(footer)
+}
+
+impl TraceWriter for ParquetTraceWriter {
+    fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
+        if self.writer.is_none() {
+            return Err(TraceError::Finished);
+        }
+        let Some(sample) = self.checker.admit(sample)? else {
+            return Ok(());
+        };
+        // A sample more than a second after the group's first closes the group first (a NaN time never
+        // does; it is bounded by the row count).
+        if self.group_rows > 0
+            && (self.group_rows >= ROW_GROUP_MAX_ROWS
+                || sample.t_s - self.group_start_t_s >= ROW_GROUP_MAX_SPAN_S)
+        {
+            self.close_row_group()?;
+        }
+        if self.group_rows == 0 {
+            self.group_start_t_s = sample.t_s;
+            self.group_opened = Instant::now();
+        }
+        self.row.clear();
+        cells(
+            &sample,
+            self.checker.mode_count,
+            self.start_utc_ns,
+            &mut self.row,
+        );
+        for (builder, cell) in self.builders.iter_mut().zip(self.row.iter()) {
+            builder.append(*cell);
+        }
+        self.group_rows += 1;
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), TraceError> {
+        if self.checker.finished {
+            return Err(TraceError::Finished);
+        }
+        if self.group_rows > 0 && self.group_opened.elapsed() >= ROW_GROUP_MAX_AGE {
+            self.close_row_group()?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<TraceSummary, TraceError> {
+        if self.checker.finished {
+            return Err(TraceError::Finished);
+        }
+        self.close_row_group()?;
+        let Some(mut writer) = self.writer.take() else {
+            return Err(TraceError::Finished);
+        };
+        self.checker.finished = true;
+        self.sidecar.samples_rejected = self.checker.rejected;
+        // The final sidecar goes into the file's metadata as well.
+        let mut final_sidecar = self.sidecar.clone();
+        final_sidecar.complete = true;
+        final_sidecar.sample_count = self.checker.count;
+        let json = serde_json::to_string(&final_sidecar)
+            .map_err(|e| TraceError::Meta(format!("cannot encode the sidecar: {e}")))?;
+        writer.append_key_value_metadata(KeyValue::new(SIDECAR_KEY.to_owned(), json));
+        let file = writer
+            .into_inner()
+            .map_err(|e| self.parquet_error(e))?
+            .into_inner()
+            .map_err(|e| self.io_error(e.into_error()))?;
+        file.sync_all().map_err(|e| self.io_error(e))?;
+        drop(file);
+        compact(&self.path, &self.schema).map_err(|e| self.parquet_error(e))?;
+        self.sidecar.complete(&self.path, self.checker.count)
+    }
+
+    fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+        self.checker.finished = true;
+        // Dropped without its final footer: what was written reads back up to the last row group.
+        self.writer = None;
+        self.group_rows = 0;
+        self.sidecar.samples_rejected = self.checker.rejected;
+        self.sidecar.fail(&self.path, self.checker.count, error)
+    }
+
+    fn sample_count(&self) -> u64 {
+        self.checker.count
+    }
+}
+
+/// Reads a Parquet trace, and its sidecar `path.json` when that file exists. A file without its final
+/// footer (cut off by a crash) is read up to its last complete row group, with a warning.
+pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
+    let bytes = Bytes::from(super::read_trace_file(path)?);
+    let sidecar = read_sidecar(&sidecar_path(path))?;
+    let problem = |problem: String| TraceReadError::Parquet {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let mut warnings = Vec::new();
+    let (metadata, embedded_sidecar) = match ParquetMetaDataReader::new().parse_and_finish(&bytes) {
+        Ok(metadata) => {
+            let embedded = metadata
+                .file_metadata()
+                .key_value_metadata()
+                .and_then(|kv| kv.iter().find(|kv| kv.key == SIDECAR_KEY))
+                .and_then(|kv| kv.value.as_deref())
+                .and_then(|json| serde_json::from_str::<Sidecar>(json).ok());
+            (Some(metadata), embedded)
+        }
+        Err(error) => {
+            if !bytes.starts_with(MAGIC) {
+                return Err(problem(format!("not a Parquet file ({error})")));
+            }
+            let (recovered, skipped_bytes) = recover_row_groups(&bytes);
+            warnings.push(format!(
+                    "{}: the file has no final footer (the recording was cut off: {error}); read {} complete row groups ({} rows), skipped the last {skipped_bytes} bytes",
+                    path.display(),
+                    recovered.as_ref().map_or(0, |m| m.num_row_groups()),
+                    recovered.as_ref().map_or(0, |m| m.file_metadata().num_rows()),
+                ));
+            (recovered, None)
+        }
+    };
+    let sidecar = sidecar.or(embedded_sidecar);
+    let Some(metadata) = metadata else {
+        // Nothing complete: the modes come from the sidecar.
+        let Some(sidecar) = sidecar else {
+            return Err(problem(
+                "no complete row group and no sidecar to name its modes".to_owned(),
+            ));
+        };
+        return Ok(Trace {
+            mode_names: sidecar.meta.mode_names.clone(),
+            samples: Vec::new(),
+            sidecar: Some(sidecar),
+            warnings,
+        });
+    };
+    let reader_metadata =
+        ArrowReaderMetadata::try_new(Arc::new(metadata), ArrowReaderOptions::new())
+            .map_err(|e| problem(e.to_string()))?;
+    let schema = reader_metadata.schema().clone();
+    let mode_names = mode_names_from_schema(&schema).map_err(problem)?;
+    let expected = arrow_schema(&mode_names);
+    for (index, want) in expected.fields().iter().enumerate() {
+        match schema.fields().get(index) {
+            Some(got) if got.name() == want.name() && got.data_type() == want.data_type() => {}
+            Some(got) => {
+                return Err(problem(format!(
+                    "column {} is {} ({}), expected {} ({})",
+                    index + 1,
+                    got.name(),
+                    got.data_type(),
+                    want.name(),
+                    want.data_type()
+                )))
+            }
+            None => {
+                return Err(problem(format!(
+                    "column {} missing, expected {}",
+                    index + 1,
+                    want.name()
+                )))
+            }
+        }
+    }
+    if schema.fields().len() != expected.fields().len() {
+        return Err(problem(format!(
+            "{} columns, expected {}",
+            schema.fields().len(),
+            expected.fields().len()
+        )));
+    }
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let reader = ParquetRecordBatchReaderBuilder::new_with_metadata(bytes, reader_metadata)
+        .with_batch_size(64 * 1024)
+        .build()
+        .map_err(|e| problem(e.to_string()))?;
+    let mut samples = Vec::new();
+    let mut last_tick = None;
+    let mut row = Vec::with_capacity(expected.fields().len());
+    let mut row_number = 0usize;
+    for batch in reader {
+        let batch = batch.map_err(|e| problem(e.to_string()))?;
+        let columns = batch_columns(&batch).map_err(problem)?;
+        for i in 0..batch.num_rows() {
+            row_number += 1;
+            row.clear();
+            for column in &columns {
+                row.push(
+                    column
+                        .cell(i)
+                        .map_err(|e| problem(format!("row {row_number}: {e}")))?,
+                );
+            }
+            let sample = sample_from_cells(&row, mode_names.len(), start_utc_ns).map_err(|e| {
+                problem(format!(
+                    "row {row_number}, column {} ({}): {}",
+                    e.index + 1,
+                    expected
+                        .field(e.index.min(expected.fields().len() - 1))
+                        .name(),
+                    e.problem
+                ))
+            })?;
+            check_sample(&sample, mode_names.len(), last_tick)
+                .map_err(|e| problem(format!("row {row_number}: {e}")))?;
+            last_tick = Some(sample.tick);
+            samples.push(sample);
+        }
+    }
+    Ok(Trace {
+        mode_names,
+        samples,
+        sidecar,
+        warnings,
+    })
+}
+
+/// The mode names in a trace's schema (the `primitives_<mode>` columns, in order).
+fn mode_names_from_schema(schema: &Schema) -> Result<Vec<String>, String> {
+    let mut names: Vec<String> = Vec::new();
+    for field in schema.fields() {
+        if let Some(name) = field.name().strip_prefix(PRIMITIVES_PREFIX) {
+            if !is_valid_mode_name(name) || names.iter().any(|n| n == name) {
+                return Err(format!(
+                    "column {:?}: not a unique valid mode name",
+                    field.name()
+                ));
+            }
+            names.push(name.to_owned());
+        }
+    }
+    if names.len() > MAX_MODES {
+        return Err(format!("{} modes, at most {MAX_MODES}", names.len()));
+    }
+    if schema.fields().first().map(|f| f.name().as_str()) != Some("tick") {
+        return Err("not a voxhap trace: the first column is not tick".to_owned());
+    }
+    Ok(names)
+}
+
+/// One column of a batch, typed.
+enum TypedColumn<'a> {
+    U64(&'a UInt64Array),
+    I64(&'a Int64Array),
+    F64(&'a Float64Array),
+    Bool(&'a BooleanArray),
+    Text(&'a StringArray),
+}
+
+impl TypedColumn<'_> {
+    fn cell(&self, i: usize) -> Result<Cell, String> {
+        let null = match self {
+            TypedColumn::U64(a) => a.is_null(i),
+            TypedColumn::I64(a) => a.is_null(i),
+            TypedColumn::F64(a) => a.is_null(i),
+            TypedColumn::Bool(a) => a.is_null(i),
+            TypedColumn::Text(a) => a.is_null(i),
+        };
+        if null {
+            return Ok(Cell::Missing);
+        }
+        Ok(match self {
+            TypedColumn::U64(a) => Cell::U64(a.value(i)),
+            TypedColumn::I64(a) => Cell::I64(a.value(i)),
+            TypedColumn::F64(a) => Cell::F64(a.value(i)),
+            TypedColumn::Bool(a) => Cell::Bool(a.value(i)),
+            TypedColumn::Text(a) => {
+                let text = a.value(i);
+                match SolverStatus::from_name(text) {
+                    Some(status) => Cell::Text(status.name()),
+                    None => return Err(format!("unknown solver status {text:?}")),
+                }
+            }
+        })
+    }
+}
+
+fn batch_columns(batch: &RecordBatch) -> Result<Vec<TypedColumn<'_>>, String> {
+    batch
+        .columns()
+        .iter()
+        .enumerate()
+        .map(|(index, array)| {
+            let any = array.as_any();
+            let typed = if let Some(a) = any.downcast_ref::<UInt64Array>() {
+                TypedColumn::U64(a)
+            } else if let Some(a) = any.downcast_ref::<Int64Array>() {
+                TypedColumn::I64(a)
+            } else if let Some(a) = any.downcast_ref::<Float64Array>() {
+                TypedColumn::F64(a)
+            } else if let Some(a) = any.downcast_ref::<BooleanArray>() {
+                TypedColumn::Bool(a)
+            } else if let Some(a) = any.downcast_ref::<StringArray>() {
+                TypedColumn::Text(a)
+            } else {
+                return Err(format!(
+                    "column {}: unexpected type {}",
+                    index + 1,
+                    array.data_type()
+                ));
+            };
+            Ok(typed)
+        })
+        .collect()
+}
+
+/// Finds the row groups a crash left whole: the last row-group footer whose row group ends where the
+/// footer starts, then the chain of footers before it back to the first row group. Returns their
+/// metadata (`None` when there is no complete row group) and how many bytes at the end were skipped.
+fn recover_row_groups(bytes: &[u8]) -> (Option<ParquetMetaData>, usize) {
+    // The last row-group footer: scan back from the end for its magic.
+    let mut end = bytes.len();
+    let mut last = None;
+    while end >= 12 {
+        if &bytes[end - 4..end] == ROW_GROUP_FOOTER_MAGIC {
+            if let Some(found) = footer_ending_at(bytes, end) {
+                last = Some((found, end));
+                break;
+            }
+        }
+        end -= 1;
+    }
+    let Some(((group, group_start), footer_end)) = last else {
+        return (None, bytes.len().saturating_sub(MAGIC.len()));
+    };
+    let mut groups = vec![group];
+    let mut start = group_start;
+    while start > MAGIC.len() {
+        match footer_ending_at(bytes, start) {
+            Some((group, group_start)) if group_start < start => {
+                groups.push(group);
+                start = group_start;
+            }
+            // A broken chain: keep the contiguous run found from the end... which would not start at
+            // the file's first row group; report nothing rather than a trace with a hole.
+            _ => return (None, bytes.len().saturating_sub(MAGIC.len())),
+        }
+    }
+    groups.reverse();
+    let schema = groups[0].schema_descr_ptr();
+    let rows = groups.iter().map(|g| g.num_rows()).sum();
+    let metadata =
+        ParquetMetaData::new(FileMetaData::new(1, rows, None, None, schema, None), groups);
+    (Some(metadata), bytes.len() - footer_end)
+}
+
+/// The row group described by a row-group footer ending at `end` (just after its magic), and where
+/// that row group starts, if the footer decodes and its one row group ends exactly where the footer
+/// begins.
+fn footer_ending_at(bytes: &[u8], end: usize) -> Option<(RowGroupMetaData, usize)> {
+    if end < 12 || &bytes[end - 4..end] != ROW_GROUP_FOOTER_MAGIC {
+        return None;
+    }
+    let length = u32::from_le_bytes(bytes[end - 8..end - 4].try_into().ok()?) as usize;
+    let footer_start = (end - 8).checked_sub(length)?;
+    if footer_start < MAGIC.len() {
+        return None;
+    }
+    let metadata = ParquetMetaDataReader::decode_metadata(&bytes[footer_start..end - 8]).ok()?;
+    let [group] = metadata.row_groups() else {
+        return None;
+    };
+    let mut first = u64::MAX;
+    let mut last = 0u64;
+    for column in group.columns() {
+        let (start, length) = column.byte_range();
+        first = first.min(start);
+        last = last.max(start.checked_add(length)?);
+    }
+    (last == footer_start as u64 && first >= MAGIC.len() as u64 && first < last)
+        .then(|| (group.clone(), first as usize))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::test_support::{meta, samples};
+    use super::super::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
+    use super::*;
+
+    fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
+        let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(modes)).unwrap();
+        for s in samples {
+            writer.write_sample(s).unwrap();
+        }
+        writer.finish().unwrap()
+    }
+
+    #[test]
+    fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        // 2 500 samples 1 ms apart at even ticks: 2.5 s of trace time.
+        let written = samples(2500, 2);
+        let summary = write(&path, &["surface", "friction"], &written);
+        assert_eq!(summary.sample_count, 2500);
+        let trace = read_trace(&path).unwrap();
+        assert!(trace.warnings.is_empty(), "{:?}", trace.warnings);
+        assert_eq!(trace.mode_names, ["surface", "friction"]);
+        assert_eq!(trace.samples.len(), written.len());
+        for (a, b) in trace.samples.iter().zip(&written) {
+            // Bit-exact, including -0.0 and infinite bounds.
+            assert_eq!(format!("{a:?}"), format!("{b:?}"));
+        }
+        let metadata = ParquetMetaDataReader::new()
+            .parse_and_finish(&Bytes::from(std::fs::read(&path).unwrap()))
+            .unwrap();
+        // Written as three one-second row groups, compacted into one when finished.
+        assert_eq!(metadata.num_row_groups(), 1);
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            2,
+            "trace and sidecar only, no temporary file left"
+        );
+        let embedded = metadata
+            .file_metadata()
+            .key_value_metadata()
+            .unwrap()
+            .iter()
+            .find(|kv| kv.key == SIDECAR_KEY)
+            .unwrap();
+        let sidecar: Sidecar = serde_json::from_str(embedded.value.as_deref().unwrap()).unwrap();
+        assert!(sidecar.complete);
+        assert_eq!(sidecar.sample_count, 2500);
+        assert_eq!(sidecar.trace_format, TraceFormat::Parquet);
+    }
+
+    #[test]
+    fn a_bad_sample_is_flagged_and_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let mut written = samples(5, 1);
+        written[2].force_n.x = f64::NAN;
+        written[3].t_s = f64::INFINITY;
+        write(&path, &["surface"], &written);
+        let trace = read_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 5);
+        assert!(trace.samples[2].force_n.x.is_nan());
+        assert_ne!(trace.samples[2].flags & FLAG_INVALID_VALUES, 0);
+        assert_eq!(trace.samples[3].t_s, f64::INFINITY);
+    }
+
+    #[test]
+    fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let written = samples(3500, 1);
+        let mut writer =
+            create_trace_writer(&path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
+        for s in &written {
+            writer.write_sample(s).unwrap();
+        }
+        // Three row groups (1 s each) are on disk; the last 500 samples are still buffered. A crash now
+        // (nothing more is written):
+        std::mem::forget(writer);
+        let bytes = std::fs::read(&path).unwrap();
+        let cut = dir.path().join("cut.parquet");
+        std::fs::copy(sidecar_path(&path), sidecar_path(&cut)).unwrap();
+        let mut previous = usize::MAX;
+        for length in [
+            bytes.len(),
+            bytes.len() - 1,
+            bytes.len() * 2 / 3,
+            bytes.len() / 3,
+            4,
+            0,
+        ] {
+            std::fs::write(&cut, &bytes[..length]).unwrap();
+            let result = read_parquet_trace(&cut);
+            if length < 4 {
+                assert!(result.is_err());
+                continue;
+            }
+            let trace = result.unwrap();
+            assert_eq!(trace.warnings.len(), 1, "{:?}", trace.warnings);
+            let n = trace.samples.len();
+            assert_eq!(n % 1000, 0, "whole row groups only: {n} at {length} bytes");
+            assert!(n <= previous);
+            previous = n;
+            assert_eq!(trace.samples[..], written[..n]);
+            if length == bytes.len() {
+                assert_eq!(n, 3000);
+            }
+        }
+        assert_eq!(previous, 0);
+
+        // `voxhap trace repair` writes what was recovered as a finished Parquet file, never over the input.
+        let repaired = dir.path().join("t.repaired.parquet");
+        let report = super::super::repair::repair_trace(
+            &path,
+            &repaired,
+            None,
+            &super::super::OutputPolicy::default(),
+        )
+        .unwrap();
+        assert_eq!(report.sample_count, 3000);
+        assert_eq!(report.warnings.len(), 1);
+        let trace = read_parquet_trace(&repaired).unwrap();
+        assert!(trace.warnings.is_empty());
+        assert_eq!(trace.samples[..], written[..3000]);
+        let sidecar = trace.sidecar.unwrap();
+        assert!(sidecar.complete);
+        assert!(sidecar.repaired.unwrap().contains("recovered 3000 samples"));
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+    }
+
+    #[test]
+    fn damaged_files_are_errors_not_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        write(&path, &["surface"], &samples(1200, 1));
+        let bytes = std::fs::read(&path).unwrap();
+        let bad = dir.path().join("bad.parquet");
+        std::fs::write(&bad, b"PAR1 this is not parquet").unwrap();
+        // No sidecar and nothing complete: an error naming the problem.
+        let error = read_parquet_trace(&bad).unwrap_err().to_string();
+        assert!(error.contains("no complete row group"), "{error}");
+        // Flipped bytes in the middle: an error or fewer samples, never a panic.
+        for position in (4..bytes.len()).step_by(997) {
+            let mut damaged = bytes.clone();
+            damaged[position] ^= 0x5a;
+            std::fs::write(&bad, &damaged).unwrap();
+            let _ = read_parquet_trace(&bad);
+        }
+    }
+}

@@ -75,7 +75,8 @@ pub fn estimate_trace_bytes(
         TraceFormat::Parquet => 23 * 8 + mode_count as u64 * (4 * 8) + 60 + 17,
     };
     let scene = match format {
-        TraceFormat::Csv => 0,
+        // Only MCAP carries the Foxglove scene topics.
+        TraceFormat::Csv | TraceFormat::Parquet => 0,
         TraceFormat::Mcap => {
             super::foxglove_topics::recorded_scene_bytes(ticks as f64 / rate_hz, mode_count)
         }

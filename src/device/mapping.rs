@@ -96,7 +96,11 @@ impl Default for WorkspaceMapping {
 /// The rows of a matrix (for messages and files).
 pub fn matrix_rows(m: DMat3) -> [[f64; 3]; 3] {
     let t = m.transpose();
-    [t.x_axis.to_array(), t.y_axis.to_array(), t.z_axis.to_array()]
+    [
+        t.x_axis.to_array(),
+        t.y_axis.to_array(),
+        t.z_axis.to_array(),
+    ]
 }
 
 /// A matrix from its rows.
@@ -398,7 +402,10 @@ mod tests {
         let k_scene = 100.0;
         let b_scene = scene.max_damping_n_s_per_m(k_scene);
         let b_device = device.max_damping_n_s_per_m(m.felt_stiffness_n_per_m(k_scene));
-        assert!((b_scene * 4.0 - b_device).abs() < 1e-12, "{b_scene} {b_device}");
+        assert!(
+            (b_scene * 4.0 - b_device).abs() < 1e-12,
+            "{b_scene} {b_device}"
+        );
     }
 
     #[test]
@@ -421,7 +428,9 @@ mod tests {
         assert!(error.to_string().contains("orthonormal"), "{error}");
         for scale in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e7] {
             assert_eq!(
-                WorkspaceMapping::new(DMat3::IDENTITY, scale, DVec3::ZERO).unwrap_err().to_string(),
+                WorkspaceMapping::new(DMat3::IDENTITY, scale, DVec3::ZERO)
+                    .unwrap_err()
+                    .to_string(),
                 MappingError::Scale(scale).to_string()
             );
         }
@@ -436,13 +445,18 @@ mod tests {
         // Inverse3-like cube of ±5 cm; a head volume 20 x 24 x 18 cm centred at (0.01, 0.02, 0.3).
         let device = (DVec3::splat(-0.05), DVec3::splat(0.05));
         let scene = (DVec3::new(-0.09, -0.10, 0.21), DVec3::new(0.11, 0.14, 0.39));
-        let m = WorkspaceMapping::fit(DMat3::IDENTITY, device.0, device.1, scene.0, scene.1).unwrap();
+        let m =
+            WorkspaceMapping::fit(DMat3::IDENTITY, device.0, device.1, scene.0, scene.1).unwrap();
         // The tallest ratio is y: 0.24 / 0.10.
         assert!((m.scale() - 2.4).abs() < 1e-12);
         let (min, max) = m.scene_box_m(device.0, device.1);
         assert!(min.cmple(scene.0 + 1e-12).all() && max.cmpge(scene.1 - 1e-12).all());
         assert!((max.y - scene.1.y).abs() < 1e-12 && (min.y - scene.0.y).abs() < 1e-12);
-        assert!(close(m.to_scene_position_m(DVec3::ZERO), (scene.0 + scene.1) / 2.0, 1e-12));
+        assert!(close(
+            m.to_scene_position_m(DVec3::ZERO),
+            (scene.0 + scene.1) / 2.0,
+            1e-12
+        ));
     }
 
     #[test]
@@ -450,9 +464,14 @@ mod tests {
         // Haply 2DIY-like: x in [-0.16, 0.16], y in [0, 0.16], z flat; volume 10 cm cube at the origin.
         let device = (DVec3::new(-0.16, 0.0, 0.0), DVec3::new(0.16, 0.16, 0.0));
         let scene = (DVec3::splat(-0.05), DVec3::splat(0.05));
-        let m = WorkspaceMapping::fit(DMat3::IDENTITY, device.0, device.1, scene.0, scene.1).unwrap();
+        let m =
+            WorkspaceMapping::fit(DMat3::IDENTITY, device.0, device.1, scene.0, scene.1).unwrap();
         assert!((m.scale() - 0.1 / 0.16).abs() < 1e-12);
-        assert!(close(m.to_scene_position_m(DVec3::new(0.0, 0.08, 0.0)), DVec3::ZERO, 1e-12));
+        assert!(close(
+            m.to_scene_position_m(DVec3::new(0.0, 0.08, 0.0)),
+            DVec3::ZERO,
+            1e-12
+        ));
         // Rotated 90 degrees about z: the scene's x extent lies along the device's y.
         let r = rotation_from_degrees([0.0, 0.0, 90.0]);
         let wide = (DVec3::new(-0.2, -0.01, -0.01), DVec3::new(0.2, 0.01, 0.01));
@@ -465,7 +484,8 @@ mod tests {
     fn fitting_refuses_boxes_that_cannot_be_fitted() {
         let unit = (DVec3::splat(-1.0), DVec3::splat(1.0));
         let point = DVec3::splat(0.3);
-        let error = WorkspaceMapping::fit(DMat3::IDENTITY, unit.0, unit.1, point, point).unwrap_err();
+        let error =
+            WorkspaceMapping::fit(DMat3::IDENTITY, unit.0, unit.1, point, point).unwrap_err();
         assert!(error.to_string().contains("single point"), "{error}");
         let error =
             WorkspaceMapping::fit(DMat3::IDENTITY, unit.1, unit.0, unit.0, unit.1).unwrap_err();

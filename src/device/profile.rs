@@ -85,7 +85,9 @@ pub enum ProfileError {
         source: std::io::Error,
     },
     /// Neither a file nor a built-in name.
-    #[error("device profile {given:?} is neither a file nor a built-in profile (built-in: {builtin})")]
+    #[error(
+        "device profile {given:?} is neither a file nor a built-in profile (built-in: {builtin})"
+    )]
     Unknown { given: String, builtin: String },
     /// A key has a bad value, or is not known.
     #[error("device profile {origin}: {key}: {problem}")]
@@ -131,7 +133,9 @@ struct VelocityFilterSection {
 struct ProfileFile {
     name: Option<String>,
     device: Option<String>,
-    base: Option<String>,
+    /// Read from the table before deserialising (the built-in underneath).
+    #[serde(rename = "base")]
+    _base: Option<String>,
     #[serde(default)]
     mapping: MappingSection,
     #[serde(default)]
@@ -281,7 +285,9 @@ impl DeviceProfile {
             return Err(ProfileError::Key {
                 origin,
                 key: "(file)".to_owned(),
-                problem: format!("{length} bytes is too long for a profile (at most {MAX_PROFILE_BYTES})"),
+                problem: format!(
+                    "{length} bytes is too long for a profile (at most {MAX_PROFILE_BYTES})"
+                ),
             });
         }
         let text = std::fs::read_to_string(path).map_err(read_error)?;
@@ -290,11 +296,13 @@ impl DeviceProfile {
 
     /// Parses a profile's text (`origin` names it in errors).
     pub fn parse(text: &str, origin: &str) -> Result<DeviceProfile, ProfileError> {
-        let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ProfileError::Key {
-            origin: origin.to_owned(),
-            key: "(syntax)".to_owned(),
-            problem: e.to_string().trim_end().to_owned(),
-        })?;
+        let table: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| ProfileError::Key {
+                origin: origin.to_owned(),
+                key: "(syntax)".to_owned(),
+                problem: e.to_string().trim_end().to_owned(),
+            })?;
         DeviceProfile::from_table(table, origin)
     }
 
@@ -397,7 +405,12 @@ impl DeviceProfile {
                 }
             }
         };
-        check("max_force_n", self.limits.max_force_n, info.max_force_n, "N");
+        check(
+            "max_force_n",
+            self.limits.max_force_n,
+            info.max_force_n,
+            "N",
+        );
         check(
             "max_stiffness_n_per_m",
             self.limits.max_stiffness_n_per_m,
@@ -457,7 +470,10 @@ impl ProfileFile {
             if !DEVICE_FAMILIES.contains(&device.as_str()) {
                 return Err(key_error(
                     "device",
-                    format!("{device:?} is not a device family ({})", DEVICE_FAMILIES.join(", ")),
+                    format!(
+                        "{device:?} is not a device family ({})",
+                        DEVICE_FAMILIES.join(", ")
+                    ),
                 ));
             }
         }
@@ -549,9 +565,9 @@ impl ProfileFile {
                     for (key, value) in &table {
                         let all_positive_finite = match value {
                             toml::Value::Float(_) | toml::Value::Integer(_) => true,
-                            toml::Value::Array(items) => items
-                                .iter()
-                                .all(|v| matches!(v, toml::Value::Float(_) | toml::Value::Integer(_))),
+                            toml::Value::Array(items) => items.iter().all(|v| {
+                                matches!(v, toml::Value::Float(_) | toml::Value::Integer(_))
+                            }),
                             _ => false,
                         };
                         if !all_positive_finite {
@@ -589,9 +605,8 @@ impl ProfileFile {
                         ))
                     }
                 };
-                check_kinematics(&kinematics).map_err(|(key, problem)| {
-                    key_error(&format!("kinematics.{key}"), problem)
-                })?;
+                check_kinematics(&kinematics)
+                    .map_err(|(key, problem)| key_error(&format!("kinematics.{key}"), problem))?;
                 kinematics
             }
         };
@@ -682,7 +697,8 @@ mod tests {
     #[test]
     fn every_builtin_profile_parses() {
         for (name, text) in BUILTIN_PROFILES {
-            let profile = DeviceProfile::parse(text, name).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let profile =
+                DeviceProfile::parse(text, name).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(profile.name, *name);
             assert!(DeviceProfile::resolve(name).is_ok());
         }
@@ -691,7 +707,10 @@ mod tests {
     #[test]
     fn an_empty_profile_is_the_identity_with_the_devices_limits() {
         let profile = parse("").unwrap();
-        assert_eq!(profile.mapping, MappingChoice::Fixed(WorkspaceMapping::IDENTITY));
+        assert_eq!(
+            profile.mapping,
+            MappingChoice::Fixed(WorkspaceMapping::IDENTITY)
+        );
         assert_eq!(profile.limits, ProfileLimits::default());
         let mut config = SupervisorConfig::default();
         profile.apply_to(&mut config);
@@ -726,24 +745,54 @@ mod tests {
         for (text, key) in [
             ("[limits]\nmax_force_n = -1\n", "limits.max_force_n"),
             ("[limits]\nmax_force_n = nan\n", "limits.max_force_n"),
-            ("[limits]\nmax_stiffness_n_per_m = 0\n", "limits.max_stiffness_n_per_m"),
-            ("[limits]\nmax_damping_n_s_per_m = -0.1\n", "limits.max_damping_n_s_per_m"),
+            (
+                "[limits]\nmax_stiffness_n_per_m = 0\n",
+                "limits.max_stiffness_n_per_m",
+            ),
+            (
+                "[limits]\nmax_damping_n_s_per_m = -0.1\n",
+                "limits.max_damping_n_s_per_m",
+            ),
             ("[limits]\nmax_force = 1\n", "limits"),
-            ("[velocity_filter]\ncutoff_hz = inf\n", "velocity_filter.cutoff_hz"),
+            (
+                "[velocity_filter]\ncutoff_hz = inf\n",
+                "velocity_filter.cutoff_hz",
+            ),
             ("[mapping]\nscale = 0\n", "mapping.scale"),
             ("[mapping]\nscale = \"big\"\n", "mapping.scale"),
-            ("[mapping]\ntranslation_m = [0, 0]\n", "mapping.translation_m"),
-            ("[mapping]\nrotation_matrix = [[1,0,0],[0,1,0],[0,0,-1]]\n", "mapping.rotation_matrix"),
-            ("[mapping]\nrotation_deg = [0, 0, inf]\n", "mapping.rotation_deg"),
-            ("[mapping]\nrotation_deg = [0,0,0]\nrotation_matrix = [[1,0,0],[0,1,0],[0,0,1]]\n", "mapping.rotation_matrix"),
+            (
+                "[mapping]\ntranslation_m = [0, 0]\n",
+                "mapping.translation_m",
+            ),
+            (
+                "[mapping]\nrotation_matrix = [[1,0,0],[0,1,0],[0,0,-1]]\n",
+                "mapping.rotation_matrix",
+            ),
+            (
+                "[mapping]\nrotation_deg = [0, 0, inf]\n",
+                "mapping.rotation_deg",
+            ),
+            (
+                "[mapping]\nrotation_deg = [0,0,0]\nrotation_matrix = [[1,0,0],[0,1,0],[0,0,1]]\n",
+                "mapping.rotation_matrix",
+            ),
             ("[mapping]\nfit_volume = true\nscale = 2\n", "mapping.scale"),
             ("device = \"phantom\"\n", "device"),
             ("base = \"nothing\"\n", "base"),
             ("colour = 3\n", "colour"),
             ("[kinematics]\nproximal_link_m = 0.07\n", "kinematics"),
-            ("device = \"haply2diy\"\n[kinematics]\nproximal_link_m = -0.07\n", "kinematics.proximal_link_m"),
-            ("device = \"haply2diy\"\n[kinematics]\nlink = 0.07\n", "kinematics"),
-            ("device = \"woodenhaptics-hid\"\n[kinematics]\nlink_length_m = [0.08, 0.2]\n", "kinematics.link_length_m"),
+            (
+                "device = \"haply2diy\"\n[kinematics]\nproximal_link_m = -0.07\n",
+                "kinematics.proximal_link_m",
+            ),
+            (
+                "device = \"haply2diy\"\n[kinematics]\nlink = 0.07\n",
+                "kinematics",
+            ),
+            (
+                "device = \"woodenhaptics-hid\"\n[kinematics]\nlink_length_m = [0.08, 0.2]\n",
+                "kinematics.link_length_m",
+            ),
             ("[limits\n", "(syntax)"),
         ] {
             let error = parse(text).expect_err(text).to_string();
@@ -768,7 +817,10 @@ mod tests {
         let mut config = Haply2DiyConfig::default();
         profile.apply_haply2diy(&mut config);
         assert_eq!(config.distal_link_m, 0.095);
-        assert_eq!(config.proximal_link_m, Haply2DiyConfig::default().proximal_link_m);
+        assert_eq!(
+            config.proximal_link_m,
+            Haply2DiyConfig::default().proximal_link_m
+        );
         assert_eq!(profile.limits.max_force_n, Some(1.0));
     }
 
@@ -777,7 +829,9 @@ mod tests {
         let profile = parse("[mapping]\nfit_volume = true\nrotation_deg = [0, 0, 90]\n").unwrap();
         let device = (DVec3::splat(-0.05), DVec3::splat(0.05));
         let volume = (DVec3::splat(-0.1), DVec3::splat(0.1));
-        let m = profile.mapping_for(device.0, device.1, Some(volume)).unwrap();
+        let m = profile
+            .mapping_for(device.0, device.1, Some(volume))
+            .unwrap();
         assert!((m.scale() - 2.0).abs() < 1e-12);
         assert!(profile.mapping_for(device.0, device.1, None).is_err());
         let fixed = parse("[mapping]\nscale = 3\ntranslation_m = [0, 0.1, 0]\n").unwrap();
@@ -788,7 +842,9 @@ mod tests {
 
     #[test]
     fn unknown_names_list_the_builtins_and_files_are_read() {
-        let error = DeviceProfile::resolve("no-such-profile").unwrap_err().to_string();
+        let error = DeviceProfile::resolve("no-such-profile")
+            .unwrap_err()
+            .to_string();
         assert!(error.contains("haply-inverse"), "{error}");
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("lab.toml");

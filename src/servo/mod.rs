@@ -13,6 +13,7 @@ pub use api::{
     VolumeReport,
 };
 pub mod device;
+pub mod mapped;
 pub mod monitor;
 pub mod recorder;
 pub mod rt;

@@ -1,0 +1,177 @@
+//! Building a device from a spec ([`open_device`]): picks the driver and transport for a [`DeviceSpec`],
+//! wraps it in a [`Supervisor`] (directly for in-process devices, through [`Reconnecting`] for devices that
+//! can be lost) and returns it as a `Box<dyn ServoDevice>`.
+
+use super::reconnect::Reconnecting;
+use super::sim::{HandTargetInput, SimDevice};
+use super::spec::DeviceSpec;
+use super::ServoDevice;
+use crate::device::drivers::falcon::{Falcon, FalconConfig};
+use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
+use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
+use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
+use crate::device::drivers::replay::ReplayDevice;
+use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
+use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
+use crate::device::sim::{SimArmConfig, SimError};
+use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorConfigError};
+use crate::device::transport::{HidTransport, SerialTransport};
+use crate::device::{DeviceError, HapticDevice};
+use glam::DVec3;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Why a device could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error(transparent)]
+    Safety(#[from] SupervisorConfigError),
+    #[error("simulated arm: {0}")]
+    Sim(#[from] SimError),
+    #[error("replay trace {path}: {message}")]
+    Replay { path: PathBuf, message: String },
+    #[error("device path {0:?} is not valid UTF-8")]
+    Path(PathBuf),
+    #[error("could not start the connector thread: {0}")]
+    Thread(String),
+}
+
+/// An opened device spec: the servo's device, plus the hand-target input when it is the simulated arm.
+pub struct OpenedDevice {
+    pub device: Box<dyn ServoDevice>,
+    pub hand_target: Option<HandTargetInput>,
+}
+
+fn boxed<D, F>(config: SupervisorConfig, opener: F) -> Result<Box<dyn ServoDevice>, OpenError>
+where
+    D: HapticDevice + Send + 'static,
+    F: FnMut() -> Result<D, DeviceError> + Send + 'static,
+{
+    Ok(Box::new(Supervisor::new(config, opener)?))
+}
+
+fn reconnecting<D>(
+    config: SupervisorConfig,
+    opener: impl FnMut() -> Result<D, DeviceError> + Send + 'static,
+) -> Result<Box<dyn ServoDevice>, OpenError>
+where
+    D: HapticDevice + Send + 'static,
+{
+    Ok(Box::new(Reconnecting::new(config, Box::new(opener))?))
+}
+
+fn path_str(path: &std::path::Path) -> Result<String, OpenError> {
+    path.to_str()
+        .map(str::to_owned)
+        .ok_or_else(|| OpenError::Path(path.to_path_buf()))
+}
+
+/// Makes the supervised device for `spec`. Nothing is opened yet (call [`ServoDevice::connect`]); the
+/// simulated arm uses `sim_arm` (its config and start point) stepped every `period_s`.
+pub fn open_device(
+    spec: &DeviceSpec,
+    config: SupervisorConfig,
+    sim_arm: (SimArmConfig, DVec3),
+    period_s: f64,
+) -> Result<OpenedDevice, OpenError> {
+    let protocol = ProtocolConfig::for_period(Duration::from_secs_f64(period_s));
+    let mut hand_target = None;
+    let device = match spec {
+        DeviceSpec::Sim => {
+            let (device, input) = SimDevice::new(sim_arm.0, sim_arm.1, period_s)?;
+            hand_target = Some(input);
+            let mut slot = Some(device);
+            // The simulated arm cannot be lost, so the opener is called once.
+            boxed(config, move || {
+                slot.take().ok_or(DeviceError::Config {
+                    what: "the simulated arm was already opened".to_owned(),
+                })
+            })?
+        }
+        DeviceSpec::Mock(path) | DeviceSpec::Serial(path) => {
+            let path = path_str(path)?;
+            reconnecting(config, move || {
+                let transport = SerialTransport::open(&path, 1_000_000)?;
+                Ok(ProtocolDevice::new(SerialLink::new(transport), protocol))
+            })?
+        }
+        DeviceSpec::Hid {
+            vendor_id,
+            product_id,
+            serial,
+        } => {
+            let (vendor_id, product_id, serial) = (*vendor_id, *product_id, serial.clone());
+            reconnecting(config, move || {
+                let transport = match &serial {
+                    Some(serial) => HidTransport::open_serial(vendor_id, product_id, serial)?,
+                    None => HidTransport::open_vid_pid(vendor_id, product_id)?,
+                };
+                Ok(ProtocolDevice::new(HidLink::new(transport), protocol))
+            })?
+        }
+        DeviceSpec::WoodenHaptics => reconnecting(config, move || {
+            let transport =
+                HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
+            WoodenHaptics::new(transport, WoodenHapticsConfig::default())
+        })?,
+        DeviceSpec::WoodenHapticsSerial(path) => {
+            let path = path_str(path)?;
+            reconnecting(config, move || {
+                // USB CDC-ACM (Teensy) ignores the rate; the firmware calls Serial.begin(115200).
+                let transport = SerialTransport::open(&path, 115_200)?;
+                Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+            })?
+        }
+        DeviceSpec::Haply2Diy(path) => {
+            let path = path_str(path)?;
+            reconnecting(config, move || {
+                let transport = SerialTransport::open(&path, 0)?;
+                Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
+            })?
+        }
+        DeviceSpec::HaplyInverse(url) => {
+            let mut driver_config = HaplyInverseConfig::default();
+            driver_config.service.url = url.clone();
+            reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
+        }
+        DeviceSpec::Falcon { select, firmware } => {
+            let (select, firmware) = (select.clone(), firmware.clone());
+            reconnecting(config, move || {
+                let (path, serial) = crate::device::discovery::find_falcon(select.as_deref())?;
+                let transport =
+                    SerialTransport::open(&path, crate::device::drivers::falcon::NORMAL_BAUD)?;
+                let mut falcon = Falcon::new(
+                    transport,
+                    FalconConfig {
+                        firmware: firmware.clone(),
+                        ..FalconConfig::default()
+                    },
+                );
+                if let Some(serial) = serial {
+                    falcon.set_serial_number(&serial);
+                }
+                Ok(falcon)
+            })?
+        }
+        DeviceSpec::Replay(path) => {
+            let trace = crate::record::read_trace(path).map_err(|e| OpenError::Replay {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            let replay = ReplayDevice::new(&trace, true).map_err(|e| OpenError::Replay {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            let mut slot = Some(replay);
+            boxed(config, move || {
+                slot.take().ok_or(DeviceError::Config {
+                    what: "the replay device was already opened".to_owned(),
+                })
+            })?
+        }
+    };
+    Ok(OpenedDevice {
+        device,
+        hand_target,
+    })
+}

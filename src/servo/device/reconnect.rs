@@ -1,0 +1,269 @@
+//! The reconnecting wrapper ([`Reconnecting`]): a supervised device whose port opens, handshakes and
+//! reconnection run on a connector thread, so the servo thread never blocks on them; the servo thread and the
+//! connector hand devices to each other through two SPSC rings.
+
+use super::{ConnectError, OpenError, ServoDevice};
+use crate::device::plausibility::InputCounters;
+use crate::device::supervisor::{
+    ClearFaultOutcome, OutputState, Supervisor, SupervisorConfig, SupervisorCounters, TickInput,
+    TickOutput,
+};
+use crate::device::Lifecycle;
+use crate::device::{DeviceError, DeviceInfo, ErrorKind, HapticDevice};
+use crate::servo::monitor::StopSlot;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// How a device is (re)opened: called off the servo thread only.
+type Opener<D> = Box<dyn FnMut() -> Result<D, DeviceError> + Send>;
+
+fn no_opener<D>() -> Result<D, DeviceError> {
+    Err(DeviceError::Config {
+        what: "reconnection happens on the connector thread".to_owned(),
+    })
+}
+
+/// Opens a device (handshake included) without enabling it: the supervisor enables it once the servo loop
+/// runs steadily.
+fn open_only<D: HapticDevice>(opener: &Mutex<Opener<D>>) -> Result<Lifecycle<D>, ConnectError> {
+    let mut opener = opener.lock().map_err(|_| ConnectError {
+        kind: ErrorKind::Other,
+        message: "the device opener panicked earlier".to_owned(),
+    })?;
+    let mut device = Lifecycle::new((*opener)().map_err(|e| ConnectError::from_error(&e))?);
+    device.open().map_err(|e| ConnectError::from_error(&e))?;
+    Ok(device)
+}
+
+/// How often an opened device that waits to be handed to the servo thread is kept alive (SPEC: heartbeat
+/// while the host is not streaming).
+const KEEP_ALIVE_INTERVAL: Duration = Duration::from_millis(100);
+
+/// A supervised device whose reconnection runs on its own thread, so the servo thread never blocks on a
+/// port open or a handshake and never frees the lost device's buffers: when the link is lost, the servo
+/// hands the dead device to the connector thread (a ring) and raises a flag; the connector closes it (zero
+/// and Disable once more), reopens every `reconnect_interval_us`, keeps the opened device alive with
+/// heartbeats until the servo asks for it, installs its stop channel for the stall monitor, and hands it back
+/// (another ring); the next tick attaches it, and the supervisor enables it once the loop runs steadily.
+pub struct Reconnecting<D: HapticDevice + Send + 'static> {
+    supervisor: Supervisor<D, fn() -> Result<D, DeviceError>>,
+    opener: Arc<Mutex<Opener<D>>>,
+    opened: rtrb::Consumer<Lifecycle<D>>,
+    lost: rtrb::Producer<Lifecycle<D>>,
+    lost_slot: Option<Lifecycle<D>>,
+    wanted: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+    stop_slot: SharedStopSlot,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
+    /// A supervised device opened by `opener`; starts the connector thread.
+    pub fn new(config: SupervisorConfig, opener: Opener<D>) -> Result<Self, OpenError> {
+        let mut supervisor: Supervisor<D, fn() -> Result<D, DeviceError>> =
+            Supervisor::new(config, no_opener::<D> as fn() -> Result<D, DeviceError>)?;
+        supervisor.set_auto_reconnect(false);
+        let opener = Arc::new(Mutex::new(opener));
+        let (opened_tx, opened) = rtrb::RingBuffer::new(1);
+        let (lost, lost_rx) = rtrb::RingBuffer::new(4);
+        let wanted = Arc::new(AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop_slot: SharedStopSlot = Arc::default();
+        let interval = Duration::from_micros(config.reconnect_interval_us.max(1000));
+        let thread = {
+            let connector = Connector {
+                opener: opener.clone(),
+                opened: opened_tx,
+                lost: lost_rx,
+                wanted: wanted.clone(),
+                stop: stop.clone(),
+                stop_slot: stop_slot.clone(),
+                interval,
+            };
+            std::thread::Builder::new()
+                .name("voxhap-connector".to_owned())
+                .spawn(move || connector.run())
+                .map_err(|e| OpenError::Thread(e.to_string()))?
+        };
+        Ok(Reconnecting {
+            supervisor,
+            opener,
+            opened,
+            lost,
+            lost_slot: None,
+            wanted,
+            stop,
+            stop_slot,
+            thread: Some(thread),
+        })
+    }
+
+    fn stop_connector(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+struct Connector<D: HapticDevice> {
+    opener: Arc<Mutex<Opener<D>>>,
+    opened: rtrb::Producer<Lifecycle<D>>,
+    lost: rtrb::Consumer<Lifecycle<D>>,
+    wanted: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+    stop_slot: SharedStopSlot,
+    interval: Duration,
+}
+
+/// The stop slot a [`Reconnecting`] device shares with its connector, once the session has given one.
+type SharedStopSlot = Arc<Mutex<Option<Arc<StopSlot>>>>;
+
+/// Installs `handle` (a device's stop channel, or `None`) in the session's stop slot, if there is one yet.
+fn install_stop(shared: &SharedStopSlot, handle: Option<Box<dyn crate::device::EmergencyStop>>) {
+    if let Ok(slot) = shared.lock() {
+        if let Some(slot) = slot.as_ref() {
+            slot.install(handle);
+        }
+    }
+}
+
+impl<D: HapticDevice + Send> Connector<D> {
+    fn run(mut self) {
+        let mut ready: Option<Lifecycle<D>> = None;
+        let mut last_keep_alive = Instant::now();
+        while !self.stop.load(Ordering::Acquire) {
+            // Close dead devices first (zero and Disable once more): a serial port is opened exclusively, so
+            // the old handle must go.
+            while let Ok(mut dead) = self.lost.pop() {
+                // The stop channel holds a second handle of the port: release it too, or the port stays
+                // busy (serial ports are opened exclusively) and cannot be reopened.
+                install_stop(&self.stop_slot, None);
+                let _ = dead.close();
+            }
+            if ready.is_none() && self.wanted.load(Ordering::Acquire) {
+                match open_only(&self.opener) {
+                    Ok(device) => {
+                        ready = Some(device);
+                        last_keep_alive = Instant::now();
+                    }
+                    Err(_) => std::thread::sleep(self.interval),
+                }
+            }
+            if let Some(mut device) = ready.take() {
+                if self.wanted.load(Ordering::Acquire) && self.opened.slots() > 0 {
+                    install_stop(&self.stop_slot, device.emergency_stop());
+                    match self.opened.push(device) {
+                        Ok(()) => self.wanted.store(false, Ordering::Release),
+                        Err(rtrb::PushError::Full(device)) => ready = Some(device),
+                    }
+                } else {
+                    if last_keep_alive.elapsed() >= KEEP_ALIVE_INTERVAL {
+                        last_keep_alive = Instant::now();
+                        if device.keep_alive().is_err() {
+                            let _ = device.close();
+                            continue;
+                        }
+                    }
+                    ready = Some(device);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        if let Some(mut device) = ready {
+            let _ = device.close();
+        }
+    }
+}
+
+impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
+    fn exchange(&mut self, input: TickInput) -> TickOutput {
+        let mut attached = false;
+        if !self.supervisor.is_connected() {
+            if let Ok(device) = self.opened.pop() {
+                self.supervisor.attach(device, input.now_us);
+                attached = true;
+            } else {
+                self.wanted.store(true, Ordering::Release);
+            }
+        }
+        let mut output = self.supervisor.tick(input);
+        if attached {
+            output.report_connected();
+        }
+        if self.lost_slot.is_none() {
+            self.lost_slot = self.supervisor.take_lost();
+        }
+        if let Some(dead) = self.lost_slot.take() {
+            if let Err(rtrb::PushError::Full(dead)) = self.lost.push(dead) {
+                self.lost_slot = Some(dead);
+            }
+            self.wanted.store(true, Ordering::Release);
+        }
+        output
+    }
+
+    fn counters(&self) -> SupervisorCounters {
+        self.supervisor.counters()
+    }
+
+    fn input_counters(&self) -> InputCounters {
+        self.supervisor.input_counters()
+    }
+
+    fn engaged(&self) -> bool {
+        self.supervisor.safety().is_engaged()
+    }
+
+    fn output_state(&self) -> OutputState {
+        self.supervisor.output_state()
+    }
+
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
+        self.supervisor.request_clear_fault()
+    }
+
+    fn stop(&mut self) {
+        self.supervisor.stop();
+        self.stop_connector();
+    }
+
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError> {
+        let device = open_only(&self.opener)?;
+        install_stop(&self.stop_slot, device.emergency_stop());
+        self.supervisor.attach(device, now_us);
+        Ok(())
+    }
+
+    fn info(&self) -> Option<DeviceInfo> {
+        self.supervisor.device().map(|d| d.info().clone())
+    }
+
+    fn set_period_us(&mut self, period_us: u64) {
+        self.supervisor.set_period_us(period_us);
+    }
+
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {
+        if let Some(device) = self.supervisor.device() {
+            slot.install(device.emergency_stop());
+        }
+        self.supervisor.set_stall_flag(slot.tripped_flag());
+        if let Ok(mut shared) = self.stop_slot.lock() {
+            *shared = Some(slot);
+        }
+    }
+
+    fn max_stiffness_n_per_m(&self) -> Option<f64> {
+        self.supervisor
+            .device()
+            .map(|d| d.info().max_stiffness_n_per_m)
+    }
+}
+
+impl<D: HapticDevice + Send + 'static> Drop for Reconnecting<D> {
+    fn drop(&mut self) {
+        self.stop_connector();
+    }
+}

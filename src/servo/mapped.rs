@@ -161,6 +161,23 @@ impl ServoDevice for MappedDevice {
         self.inner.set_stop_slot(slot);
     }
 
+    fn workspace_note(&self) -> Option<String> {
+        if self.mapping.is_identity() {
+            return None;
+        }
+        let m = &self.mapping;
+        let rows = crate::device::mapping::matrix_rows(m.rotation());
+        Some(format!(
+            "device profile {}: scene = {:.4} x R x device + {:?} m, R = {:?}; the hand feels the scene's \
+             stiffness x {:.4}",
+            self.profile.name,
+            m.scale(),
+            m.translation_m().to_array(),
+            rows,
+            m.scale()
+        ))
+    }
+
     fn max_stiffness_n_per_m(&self) -> Option<f64> {
         self.inner.max_stiffness_n_per_m().map(|declared| {
             self.mapping

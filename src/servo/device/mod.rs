@@ -16,7 +16,7 @@ mod reconnect;
 mod sim;
 mod spec;
 
-pub use factory::{open_device, OpenError, OpenedDevice};
+pub use factory::{open_device, open_device_with_profile, spec_family, OpenError, OpenedDevice};
 pub use reconnect::Reconnecting;
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError};
@@ -74,6 +74,11 @@ pub trait ServoDevice: Send {
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>);
     /// The connected device's declared maximum stiffness at 1 kHz (N/m), without allocating.
     fn max_stiffness_n_per_m(&self) -> Option<f64>;
+    /// A line for the operator on how the device's workspace is mapped into the scene (`servo::mapped`), when
+    /// it is not the identity.
+    fn workspace_note(&self) -> Option<String> {
+        None
+    }
 }
 
 impl<D, F> ServoDevice for Supervisor<D, F>

@@ -5,6 +5,7 @@
 //! Ctrl-C, watched on http://127.0.0.1:8080 and ws://127.0.0.1:8765 (Foxglove).
 
 pub mod bench_loop;
+pub mod calibrate;
 pub mod clear_fault;
 pub mod compare;
 pub mod devices;
@@ -151,6 +152,8 @@ pub enum Command {
     Sweep(sweep::SweepArgs),
     /// Compare a trace with a reference within tolerances; exit 1 when they differ.
     Compare(compare::CompareArgs),
+    /// Record the box the handle reaches (move it to every limit) and write it as a device profile.
+    Calibrate(calibrate::CalibrateArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -218,6 +221,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Trace(args)) => trace::run(&args),
         Some(Command::Sweep(args)) => sweep::run(&args),
         Some(Command::Compare(args)) => compare::run(&args),
+        Some(Command::Calibrate(args)) => calibrate::run(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

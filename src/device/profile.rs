@@ -23,6 +23,9 @@
 //! max_speed_m_per_s = 2.0
 //! [velocity_filter]
 //! cutoff_hz = 50.0
+//! [workspace]                     # the reachable box measured by `voxhap calibrate` (device frame)
+//! min_m = [-0.05, 0.02, 0.0]
+//! max_m = [0.05, 0.14, 0.0]
 //! [kinematics]                    # haply2diy and woodenhaptics-hid only
 //! proximal_link_m = 0.07
 //! ```
@@ -120,6 +123,14 @@ struct LimitsSection {
     max_speed_m_per_s: Option<f64>,
 }
 
+/// `[workspace]` as written.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WorkspaceSection {
+    min_m: Option<[f64; 3]>,
+    max_m: Option<[f64; 3]>,
+}
+
 /// `[velocity_filter]` as written.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -142,6 +153,8 @@ struct ProfileFile {
     limits: LimitsSection,
     #[serde(default)]
     velocity_filter: VelocityFilterSection,
+    #[serde(default)]
+    workspace: WorkspaceSection,
     kinematics: Option<toml::Table>,
 }
 
@@ -212,6 +225,9 @@ pub struct DeviceProfile {
     pub limits: ProfileLimits,
     /// Cutoff of the velocity estimate's low-pass filter (Hz), when set.
     pub velocity_cutoff_hz: Option<f64>,
+    /// The reachable box measured by `voxhap calibrate` (device frame, m); a fit uses it instead of the
+    /// device's declared workspace.
+    pub workspace_m: Option<(DVec3, DVec3)>,
     pub kinematics: Kinematics,
 }
 
@@ -224,6 +240,7 @@ impl Default for DeviceProfile {
             mapping: MappingChoice::Fixed(WorkspaceMapping::IDENTITY),
             limits: ProfileLimits::default(),
             velocity_cutoff_hz: None,
+            workspace_m: None,
             kinematics: Kinematics::Default,
         }
     }
@@ -342,8 +359,9 @@ impl DeviceProfile {
         file.check(origin)
     }
 
-    /// The mapping for a device with the workspace box `[min, max]` and a volume with the bounds given (when
-    /// one is loaded): the fixed one, or the fitted one.
+    /// The mapping for a device with the workspace box `[min, max]` (replaced by the profile's measured
+    /// `[workspace]` when it has one) and a volume with the bounds given (when one is loaded): the fixed one,
+    /// or the fitted one.
     pub fn mapping_for(
         &self,
         device_min_m: DVec3,
@@ -353,6 +371,8 @@ impl DeviceProfile {
         match self.mapping {
             MappingChoice::Fixed(mapping) => Ok(mapping),
             MappingChoice::FitVolume { rotation } => {
+                let (device_min_m, device_max_m) =
+                    self.workspace_m.unwrap_or((device_min_m, device_max_m));
                 let (min, max) = volume_bounds_m.ok_or(MappingError::Fit {
                     what: "the volume",
                     problem: "the scene has no volume to fit",
@@ -557,6 +577,36 @@ impl ProfileFile {
                 ));
             }
         }
+        // Measured workspace.
+        let workspace_m = match (self.workspace.min_m, self.workspace.max_m) {
+            (None, None) => None,
+            (Some(min), Some(max)) => {
+                let (min, max) = (DVec3::from_array(min), DVec3::from_array(max));
+                if !(min.is_finite() && max.is_finite()) || min.cmpgt(max).any() || min == max {
+                    return Err(key_error(
+                        "workspace.max_m",
+                        format!(
+                            "{:?} .. {:?} must be finite corners with min <= max and some extent",
+                            min.to_array(),
+                            max.to_array()
+                        ),
+                    ));
+                }
+                Some((min, max))
+            }
+            (None, Some(_)) => {
+                return Err(key_error(
+                    "workspace.min_m",
+                    "missing (max_m is given)".to_owned(),
+                ))
+            }
+            (Some(_), None) => {
+                return Err(key_error(
+                    "workspace.max_m",
+                    "missing (min_m is given)".to_owned(),
+                ))
+            }
+        };
         // Kinematics.
         let kinematics = match self.kinematics {
             None => Kinematics::Default,
@@ -623,6 +673,7 @@ impl ProfileFile {
                 max_speed_m_per_s: l.max_speed_m_per_s,
             },
             velocity_cutoff_hz: self.velocity_filter.cutoff_hz,
+            workspace_m,
             kinematics,
         })
     }
@@ -794,6 +845,11 @@ mod tests {
                 "kinematics.link_length_m",
             ),
             ("[limits\n", "(syntax)"),
+            ("[workspace]\nmin_m = [0, 0, 0]\n", "workspace.max_m"),
+            (
+                "[workspace]\nmin_m = [0, 0, 0]\nmax_m = [0, -1, 0]\n",
+                "workspace.max_m",
+            ),
         ] {
             let error = parse(text).expect_err(text).to_string();
             assert!(
@@ -834,6 +890,15 @@ mod tests {
             .unwrap();
         assert!((m.scale() - 2.0).abs() < 1e-12);
         assert!(profile.mapping_for(device.0, device.1, None).is_err());
+        // A measured workspace replaces the declared one.
+        let measured = parse(
+            "[mapping]\nfit_volume = true\n[workspace]\nmin_m = [-0.02, -0.02, -0.02]\nmax_m = [0.02, 0.02, 0.02]\n",
+        )
+        .unwrap();
+        let m = measured
+            .mapping_for(device.0, device.1, Some(volume))
+            .unwrap();
+        assert!((m.scale() - 5.0).abs() < 1e-12, "{}", m.scale());
         let fixed = parse("[mapping]\nscale = 3\ntranslation_m = [0, 0.1, 0]\n").unwrap();
         let m = fixed.mapping_for(device.0, device.1, Some(volume)).unwrap();
         assert_eq!(m.scale(), 3.0);

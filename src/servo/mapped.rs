@@ -161,6 +161,13 @@ impl ServoDevice for MappedDevice {
         self.inner.set_stop_slot(slot);
     }
 
+    fn max_damping_n_s_per_m(&self) -> Option<f64> {
+        self.profile
+            .limits
+            .max_damping_n_s_per_m
+            .map(|felt| self.mapping.scene_damping_cap_n_s_per_m(felt))
+    }
+
     fn workspace_note(&self) -> Option<String> {
         if self.mapping.is_identity() {
             return None;
@@ -314,7 +321,23 @@ mod tests {
         assert!(felt > 2.99, "felt {felt} N: the cap was not reached");
         let info = device.info().unwrap();
         assert!((info.max_stiffness_n_per_m - 150.0).abs() < 1e-9);
+        // No damping limit in this profile: the passivity bound alone.
+        assert_eq!(device.max_damping_n_s_per_m(), None);
         assert!((info.workspace_max_m - DVec3::splat(0.5)).length() < 1e-12);
+    }
+
+    #[test]
+    fn a_profile_damping_limit_is_felt_damping_divided_by_the_scale() {
+        let (mut device, _, _) =
+            mapped("[mapping]\nscale = 4\n[limits]\nmax_damping_n_s_per_m = 0.2\n");
+        device.connect(0).unwrap();
+        let limit = device.max_damping_n_s_per_m().unwrap();
+        assert!((limit - 0.05).abs() < 1e-12, "{limit}");
+        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap(), 1e-3)
+            .with_damping_limit(Some(limit));
+        // 2000 N/m declared / 4 = 500 N/m in the scene; passivity would allow 0.25 - 0.05 = 0.2 N s/m at
+        // k = 100: the profile's 0.05 wins.
+        assert_eq!(caps.cap(100.0, 1.0), (100.0, 0.05));
     }
 
     #[test]

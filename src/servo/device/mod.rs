@@ -79,6 +79,10 @@ pub trait ServoDevice: Send {
     fn workspace_note(&self) -> Option<String> {
         None
     }
+    /// A damping limit below the passivity bound (N s/m, scene units), from a device profile.
+    fn max_damping_n_s_per_m(&self) -> Option<f64> {
+        None
+    }
 }
 
 impl<D, F> ServoDevice for Supervisor<D, F>

@@ -881,6 +881,23 @@ mod tests {
     }
 
     #[test]
+    fn the_docs_example_profile_parses() {
+        // docs/workspace.md: a 2DIY rotated a quarter turn, magnified twice, gentler force.
+        let profile = parse(
+            "base = \"haply2diy\"\n[limits]\nmax_force_n = 1.0\nmax_stiffness_n_per_m = 1500\n\
+             [mapping]\nscale = 2.0\ntranslation_m = [0.0, -0.16, 0.0]\nrotation_deg = [0, 0, 90]\n",
+        )
+        .unwrap();
+        let MappingChoice::Fixed(m) = profile.mapping else {
+            panic!("fixed mapping expected");
+        };
+        // The device's +x becomes the scene's +y, doubled; the 2DIY's box middle (0, 0.08) lands at (-0.16, -0.16).
+        let p = m.to_scene_position_m(DVec3::new(0.0, 0.08, 0.0));
+        assert!((p - DVec3::new(-0.16, -0.16, 0.0)).length() < 1e-12, "{p}");
+        assert_eq!(profile.device.as_deref(), Some("haply2diy"));
+    }
+
+    #[test]
     fn fit_volume_profiles_fit_and_fixed_ones_do_not() {
         let profile = parse("[mapping]\nfit_volume = true\nrotation_deg = [0, 0, 90]\n").unwrap();
         let device = (DVec3::splat(-0.05), DVec3::splat(0.05));

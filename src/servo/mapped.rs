@@ -223,7 +223,9 @@ mod tests {
         }
     }
 
-    fn mapped(profile_text: &str) -> (MappedDevice, Arc<Mutex<DVec3>>, Arc<Mutex<Vec<DVec3>>>) {
+    type Shared<T> = Arc<Mutex<T>>;
+
+    fn mapped(profile_text: &str) -> (MappedDevice, Shared<DVec3>, Shared<Vec<DVec3>>) {
         let position = Arc::new(Mutex::new(DVec3::new(0.01, 0.02, 0.03)));
         let forces = Arc::new(Mutex::new(Vec::new()));
         let mut info = DeviceInfo::basic("logging arm", DVec3::splat(-0.05), DVec3::splat(0.05));
@@ -235,8 +237,10 @@ mod tests {
             forces: forces.clone(),
         };
         let mut slot = Some(arm);
-        let mut config = SupervisorConfig::default();
-        config.steady_ticks_before_enable = 1;
+        let mut config = SupervisorConfig {
+            steady_ticks_before_enable: 1,
+            ..SupervisorConfig::default()
+        };
         config.safety.ramp_time_us = 0;
         config.safety.engage_ticks = 1;
         config.safety.slew_n_per_ms = 100.0;

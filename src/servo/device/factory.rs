@@ -168,7 +168,7 @@ fn open_supervised(
                     woodenhaptics::VENDOR_ID,
                     woodenhaptics::PRODUCT_ID,
                 )?;
-                WoodenHaptics::new(transport, woodenhaptics_config.clone())
+                WoodenHaptics::new(transport, woodenhaptics_config)
             }
         })?,
         DeviceSpec::WoodenHapticsSerial(path) => {
@@ -185,7 +185,7 @@ fn open_supervised(
             profile.apply_haply2diy(&mut haply_config);
             reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 0)?;
-                Ok(Haply2Diy::new(transport, haply_config.clone()))
+                Ok(Haply2Diy::new(transport, haply_config))
             })?
         }
         DeviceSpec::HaplyInverse(url) => {

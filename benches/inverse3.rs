@@ -11,10 +11,13 @@
 #[path = "../tests/util/inverse_service.rs"]
 mod inverse_service;
 
+#[path = "util/paced.rs"]
+mod paced;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use inverse_service::InverseService;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap::device::transport::inverse_service::ServiceConfig;
 use voxhap::device::Lifecycle;
@@ -45,34 +48,12 @@ fn round_trip(device: &mut Device) {
     std::hint::black_box(device.read_state().expect("state"));
 }
 
-fn paced_percentiles(device: &mut Device) {
-    let count = 2_000;
-    let mut latencies_us = Vec::with_capacity(count);
-    let start = Instant::now();
-    for tick in 1..=count as u64 {
-        let deadline = start + Duration::from_micros(tick * 1_000);
-        let now = Instant::now();
-        if deadline > now {
-            std::thread::sleep(deadline - now);
-        }
-        let sent = Instant::now();
-        round_trip(device);
-        latencies_us.push(sent.elapsed().as_secs_f64() * 1e6);
-    }
-    latencies_us.sort_by(f64::total_cmp);
-    let at = |q: f64| latencies_us[((latencies_us.len() - 1) as f64 * q).round() as usize];
-    println!(
-        "device/inverse3_loopback_paced_1khz: {count} exchanges: p50 {:.1} us, p99 {:.1} us, max {:.1} us",
-        at(0.5),
-        at(0.99),
-        latencies_us[latencies_us.len() - 1]
-    );
-}
-
 fn bench(c: &mut Criterion) {
     let service = InverseService::start();
     let mut device = open(&service.url());
-    paced_percentiles(&mut device);
+    paced::paced_percentiles("device/inverse3_loopback_paced_1khz", 2_000, || {
+        round_trip(&mut device)
+    });
     let mut group = c.benchmark_group("device");
     group
         .warm_up_time(Duration::from_secs(1))

@@ -2,8 +2,8 @@
 //! the simulated arm and against `voxhap mock-device` on a pseudo-terminal (the voxhap protocol), the
 //! never-overwrite rule, and `serve --device-profile` / `--fit-volume` / a scene's `[device]` table.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Output, Stdio};
+use crate::util::mock_process::MockProcess;
+use std::process::{Command, Output};
 use voxhap::device::profile::DeviceProfile;
 
 fn voxhap(args: &[&str]) -> Output {
@@ -11,6 +11,13 @@ fn voxhap(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run voxhap")
+}
+
+/// `voxhap serve` for 0.3 s without servers, with `args`.
+fn serve(args: &[&str]) -> Output {
+    let mut all = vec!["serve", "--no-http", "--no-foxglove", "--duration", "0.3"];
+    all.extend_from_slice(args);
+    voxhap(&all)
 }
 
 fn text(output: &Output) -> String {
@@ -76,19 +83,8 @@ fn calibrate_on_the_simulated_arm_writes_a_profile_and_never_overwrites_one() {
 
 #[test]
 fn calibrate_against_the_mock_device_on_a_pseudo_terminal() {
-    let mut mock = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .arg("mock-device")
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("start voxhap mock-device");
-    let mut stdout = BufReader::new(mock.stdout.take().unwrap());
-    let mut line = String::new();
-    stdout.read_line(&mut line).unwrap();
-    let path = line
-        .trim()
-        .strip_prefix("serving ")
-        .unwrap_or_else(|| panic!("mock said {line:?}"))
-        .to_owned();
+    let mock = MockProcess::start(&["--pty"]);
+    let path = mock.path.clone();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mock.toml");
     let run = voxhap(&[
@@ -100,8 +96,7 @@ fn calibrate_against_the_mock_device_on_a_pseudo_terminal() {
         "--seconds",
         "1.5",
     ]);
-    let _ = mock.kill();
-    let _ = mock.wait();
+    drop(mock);
     assert!(run.status.success(), "{}", text(&run));
     let profile = DeviceProfile::read(&out).unwrap();
     assert_eq!(profile.device.as_deref(), Some("mock"));
@@ -111,12 +106,7 @@ fn calibrate_against_the_mock_device_on_a_pseudo_terminal() {
 
 #[test]
 fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
-    let fitted = voxhap(&[
-        "serve",
-        "--no-http",
-        "--no-foxglove",
-        "--duration",
-        "0.3",
+    let fitted = serve(&[
         "--device-profile",
         "sim",
         "--fit-volume",
@@ -133,15 +123,7 @@ fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[limits]\nmax_force_n = -2\n").unwrap();
-    let refused = voxhap(&[
-        "serve",
-        "--no-http",
-        "--no-foxglove",
-        "--duration",
-        "0.3",
-        "--device-profile",
-        bad.to_str().unwrap(),
-    ]);
+    let refused = serve(&["--device-profile", bad.to_str().unwrap()]);
     assert_eq!(refused.status.code(), Some(1));
     assert!(
         text(&refused).contains("limits.max_force_n: -2 must be finite and > 0"),
@@ -161,15 +143,7 @@ fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
         format!("{builtin}\n[device]\n[device.mapping]\nscael = 2\n"),
     )
     .unwrap();
-    let refused = voxhap(&[
-        "serve",
-        "--no-http",
-        "--no-foxglove",
-        "--duration",
-        "0.3",
-        "--scene",
-        scene.to_str().unwrap(),
-    ]);
+    let refused = serve(&["--scene", scene.to_str().unwrap()]);
     assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
     assert!(
         text(&refused).contains("[device]: mapping.scael"),
@@ -181,15 +155,7 @@ fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
         format!("{builtin}\n[device]\n[device.mapping]\nscale = 2\n"),
     )
     .unwrap();
-    let served = voxhap(&[
-        "serve",
-        "--no-http",
-        "--no-foxglove",
-        "--duration",
-        "0.3",
-        "--scene",
-        scene.to_str().unwrap(),
-    ]);
+    let served = serve(&["--scene", scene.to_str().unwrap()]);
     assert!(served.status.success(), "{}", text(&served));
     assert!(
         text(&served).contains("scene = 2.0000 x R x device"),

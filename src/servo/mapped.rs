@@ -168,13 +168,17 @@ impl ServoDevice for MappedDevice {
             .map(|felt| self.mapping.scene_damping_cap_n_s_per_m(felt))
     }
 
-    fn workspace_note(&self) -> Option<String> {
+    fn profile_notes(&self) -> Vec<String> {
+        let mut notes = match self.inner.info() {
+            Some(info) => self.profile.notes_against(&info),
+            None => Vec::new(),
+        };
         if self.mapping.is_identity() {
-            return None;
+            return notes;
         }
         let m = &self.mapping;
         let rows = crate::device::mapping::matrix_rows(m.rotation());
-        Some(format!(
+        notes.push(format!(
             "device profile {}: scene = {:.4} x R x device + {:?} m, R = {:?}; the hand feels the scene's \
              stiffness x {:.4}",
             self.profile.name,
@@ -182,7 +186,8 @@ impl ServoDevice for MappedDevice {
             m.translation_m().to_array(),
             rows,
             m.scale()
-        ))
+        ));
+        notes
     }
 
     fn max_stiffness_n_per_m(&self) -> Option<f64> {
@@ -327,6 +332,10 @@ mod tests {
         assert!((info.max_stiffness_n_per_m - 150.0).abs() < 1e-9);
         // No damping limit in this profile: the passivity bound alone.
         assert_eq!(device.max_damping_n_s_per_m(), None);
+        // 1500 N/m is below the declared 2000: nothing to say but the mapping.
+        let notes = device.profile_notes();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("stiffness x 10.0000"), "{notes:?}");
         assert!((info.workspace_max_m - DVec3::splat(0.5)).length() < 1e-12);
     }
 

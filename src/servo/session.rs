@@ -247,9 +247,7 @@ impl Session {
             cause,
         })?;
         let mut notices = Vec::new();
-        if let Some(note) = device.workspace_note() {
-            notices.push(note);
-        }
+        notices.extend(device.profile_notes());
         let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
             .with_damping_limit(device.max_damping_n_s_per_m());
         let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;

@@ -74,10 +74,10 @@ pub trait ServoDevice: Send {
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>);
     /// The connected device's declared maximum stiffness at 1 kHz (N/m), without allocating.
     fn max_stiffness_n_per_m(&self) -> Option<f64>;
-    /// A line for the operator on how the device's workspace is mapped into the scene (`servo::mapped`), when
-    /// it is not the identity.
-    fn workspace_note(&self) -> Option<String> {
-        None
+    /// Lines for the operator from the device profile (`servo::mapped`): how the workspace is mapped into the
+    /// scene when that is not the identity, and limits the profile asks for above the device's own.
+    fn profile_notes(&self) -> Vec<String> {
+        Vec::new()
     }
     /// A damping limit below the passivity bound (N s/m, scene units), from a device profile.
     fn max_damping_n_s_per_m(&self) -> Option<f64> {

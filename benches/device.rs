@@ -4,11 +4,14 @@
 //! Two measurements: criterion's timing of back-to-back round trips, and a paced run at 1 kHz (the servo rate)
 //! that prints the p50, p99 and maximum round-trip latency over 5 000 exchanges.
 
+#[path = "util/paced.rs"]
+mod paced;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::mock::{default_arm_config, run_mock, FaultConfig, MockEvent, ServeOn};
 use voxhap::device::transport::SerialTransport;
@@ -63,34 +66,12 @@ fn round_trip(device: &mut Device) {
     std::hint::black_box(device.read_state().expect("state"));
 }
 
-fn paced_percentiles(device: &mut Device) {
-    let count = 5_000;
-    let mut latencies_us = Vec::with_capacity(count);
-    let start = Instant::now();
-    for tick in 1..=count as u64 {
-        let deadline = start + Duration::from_micros(tick * 1_000);
-        let now = Instant::now();
-        if deadline > now {
-            std::thread::sleep(deadline - now);
-        }
-        let sent = Instant::now();
-        round_trip(device);
-        latencies_us.push(sent.elapsed().as_secs_f64() * 1e6);
-    }
-    latencies_us.sort_by(f64::total_cmp);
-    let at = |q: f64| latencies_us[((latencies_us.len() - 1) as f64 * q).round() as usize];
-    println!(
-        "device/pty_round_trip_paced_1khz: {count} exchanges: p50 {:.1} us, p99 {:.1} us, max {:.1} us",
-        at(0.5),
-        at(0.99),
-        latencies_us[latencies_us.len() - 1]
-    );
-}
-
 fn bench(c: &mut Criterion) {
     let (shutdown, handle, path) = start_mock();
     let mut device = open(&path);
-    paced_percentiles(&mut device);
+    paced::paced_percentiles("device/pty_round_trip_paced_1khz", 5_000, || {
+        round_trip(&mut device)
+    });
     c.bench_function("device/pty_round_trip", |b| {
         b.iter(|| round_trip(&mut device))
     });

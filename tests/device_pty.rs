@@ -1,9 +1,9 @@
 //! The serial protocol driver against `voxhap mock-device` over real pseudo-terminals (a separate process):
 //! handshake, a clean 1 kHz exchange, corruption, the device watchdog, and disconnect/reconnect.
 
+use crate::util::mock_process::MockProcess as Mock;
 use glam::DVec3;
-use std::io::{BufRead, BufReader};
-use std::process::{Child, ChildStdout, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::safety::SafetyConfig;
@@ -11,50 +11,6 @@ use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, 
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{HapticDevice, Lifecycle};
 use voxhap_protocol::{FaultCode, HostEvent, StatusFlags};
-
-/// A running mock device, killed on drop.
-struct Mock {
-    child: Child,
-    path: String,
-    stdout: BufReader<ChildStdout>,
-}
-
-impl Mock {
-    fn start(args: &[&str]) -> Mock {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-            .arg("mock-device")
-            .args(args)
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("start voxhap mock-device");
-        let mut stdout = BufReader::new(child.stdout.take().unwrap());
-        let mut line = String::new();
-        stdout.read_line(&mut line).unwrap();
-        let path = line
-            .trim()
-            .strip_prefix("serving ")
-            .unwrap_or_else(|| panic!("mock said {line:?}"))
-            .to_string();
-        Mock {
-            child,
-            path,
-            stdout,
-        }
-    }
-
-    fn next_line(&mut self) -> String {
-        let mut line = String::new();
-        self.stdout.read_line(&mut line).unwrap();
-        line.trim().to_string()
-    }
-}
-
-impl Drop for Mock {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
 
 fn open(
     path: &str,

@@ -37,6 +37,7 @@ mod sim;
 mod solver_props;
 mod volume_io;
 mod woodenhaptics_serial;
+mod workspace;
 
 #[global_allocator]
 static ALLOCATOR: util::alloc::CountingAllocator = util::alloc::CountingAllocator;

@@ -5,6 +5,7 @@
 //! Ctrl-C, watched on http://127.0.0.1:8080 and ws://127.0.0.1:8765 (Foxglove).
 
 pub mod bench_loop;
+pub mod calibrate;
 pub mod clear_fault;
 pub mod compare;
 pub mod devices;
@@ -156,6 +157,8 @@ pub enum Command {
     Completions(shell::CompletionsArgs),
     /// Print the voxhap(1) man page, or write one page per command with --dir.
     Man(shell::ManArgs),
+    /// Record the box the handle reaches (move it to every limit) and write it as a device profile.
+    Calibrate(calibrate::CalibrateArgs),
 }
 
 /// The README's example scene, built into the binary for the default run.
@@ -225,6 +228,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Compare(args)) => compare::run(&args),
         Some(Command::Completions(args)) => shell::run_completions(&args),
         Some(Command::Man(args)) => shell::run_man(&args),
+        Some(Command::Calibrate(args)) => calibrate::run(&args),
         None => {
             print_out("voxhap: no subcommand given; serving the simulated arm on the built-in scene (voxhap serve).")?;
             print_out("See `voxhap --help` for the other commands.")?;

@@ -17,6 +17,7 @@
 //! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
 //! finishes the trace, the statistics are printed, exit 0.
 
+use crate::device::profile::{DeviceProfile, MappingChoice};
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
 use crate::servo::api::{ConfinedVolumes, SessionApi, VolumeDirs};
@@ -75,6 +76,16 @@ pub struct ServeArgs {
     pub volume_dir: Vec<PathBuf>,
     #[command(flatten)]
     pub limits: super::VolumeLimitArgs,
+    /// Device profile: a built-in name (sim, haply-inverse, haply2diy, woodenhaptics, woodenhaptics-hid,
+    /// falcon) or a TOML file: workspace mapping, limits that only lower the device's, velocity filter,
+    /// kinematics constants (docs/workspace.md). Replaces the scene's [device] table. Default: the scene's
+    /// [device] table, else identity mapping and the device's own limits.
+    #[arg(long, value_name = "NAME|FILE")]
+    pub device_profile: Option<String>,
+    /// Map the device's declared workspace onto the first volume's bounds: centre on centre, the smallest
+    /// uniform scale at which the whole volume is reachable, the profile's rotation kept (docs/workspace.md).
+    #[arg(long)]
+    pub fit_volume: bool,
     /// Exit with code 3 after a clean stop when any of these occurred: uncertified (some tick's bound
     /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun.
     /// Comma-separated.
@@ -118,6 +129,7 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     config.rt = args.rt;
     config.spin_ns = args.spin_us.saturating_mul(1000);
     config.cpu = args.cpu;
+    config.profile = device_profile(args)?;
     if let Some(path) = &args.record {
         check_record_path(path).map_err(|e| anyhow::anyhow!("--record {}: {e}", path.display()))?;
         let format = args
@@ -144,6 +156,38 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
         config.record = Some((path.clone(), format));
     }
     Ok(config)
+}
+
+/// The device profile from `--device-profile`, else the scene's `[device]` table, else the default; with
+/// `--fit-volume` its mapping becomes the fit (its rotation kept).
+pub fn device_profile(args: &ServeArgs) -> anyhow::Result<DeviceProfile> {
+    let mut profile = match (&args.device_profile, &args.scene) {
+        (Some(given), _) => DeviceProfile::resolve(given)?,
+        (None, Some(scene)) => {
+            let text = crate::volume::io::read_text_file(scene)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", scene.display()))?;
+            let table: toml::Table = text
+                .parse()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", scene.display()))?;
+            match table.get("device") {
+                Some(toml::Value::Table(device)) => DeviceProfile::from_table(
+                    device.clone(),
+                    &format!("{} [device]", scene.display()),
+                )?,
+                Some(_) => anyhow::bail!("{}: device must be a table ([device])", scene.display()),
+                None => DeviceProfile::default(),
+            }
+        }
+        (None, None) => DeviceProfile::default(),
+    };
+    if args.fit_volume {
+        let rotation = match profile.mapping {
+            MappingChoice::Fixed(mapping) => mapping.rotation(),
+            MappingChoice::FitVolume { rotation } => rotation,
+        };
+        profile.mapping = MappingChoice::FitVolume { rotation };
+    }
+    Ok(profile)
 }
 
 /// The signals that stop `serve` cleanly (zero force, Disable, trace finished, exit 0): SIGINT (Ctrl-C),

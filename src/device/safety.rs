@@ -78,6 +78,8 @@ pub struct CouplingCaps {
     pub device_damping_n_s_per_m: f64,
     /// Servo period (s).
     pub period_s: f64,
+    /// A further damping limit (N s/m; a device profile's, in scene units); infinite when none.
+    pub damping_limit_n_s_per_m: f64,
 }
 
 impl CouplingCaps {
@@ -98,12 +100,23 @@ impl CouplingCaps {
             max_stiffness_n_per_m: declared * (1e-3 / period_s).min(1.0),
             device_damping_n_s_per_m: declared * 1e-3 / 2.0,
             period_s,
+            damping_limit_n_s_per_m: f64::INFINITY,
         }
+    }
+
+    /// These caps with the damping further limited to `limit_n_s_per_m` where one is given (finite, >= 0).
+    pub fn with_damping_limit(mut self, limit_n_s_per_m: Option<f64>) -> CouplingCaps {
+        if let Some(limit) = limit_n_s_per_m.filter(|l| l.is_finite() && *l >= 0.0) {
+            self.damping_limit_n_s_per_m = limit;
+        }
+        self
     }
 
     /// The largest damping passivity allows with stiffness `stiffness_n_per_m` (N s/m).
     pub fn max_damping_n_s_per_m(&self, stiffness_n_per_m: f64) -> f64 {
-        (self.device_damping_n_s_per_m - stiffness_n_per_m * self.period_s / 2.0).max(0.0)
+        (self.device_damping_n_s_per_m - stiffness_n_per_m * self.period_s / 2.0)
+            .max(0.0)
+            .min(self.damping_limit_n_s_per_m)
     }
 
     /// `(stiffness, damping)` capped.

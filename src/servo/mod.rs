@@ -14,6 +14,7 @@ pub use api::{
 };
 mod control;
 pub mod device;
+pub mod mapped;
 pub mod monitor;
 pub mod recorder;
 pub mod rt;

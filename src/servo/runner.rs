@@ -139,7 +139,8 @@ impl ServoLoop {
     ) -> Self {
         let start_m = first_state.map_or(DVec3::ZERO, |s| s.position_m);
         let period_s = timing.period_ns as f64 * 1e-9;
-        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
+        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
+            .with_damping_limit(device.max_damping_n_s_per_m());
         let mut device = device;
         device.set_period_us((timing.period_ns / 1000).max(1));
         let mut servo = ServoLoop {
@@ -495,7 +496,8 @@ impl ServoLoop {
         }
         if connected {
             self.caps =
-                CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
+                CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
+                    .with_damping_limit(self.device.max_damping_n_s_per_m());
             self.apply_caps();
         }
         let stats = &*self.stats;

@@ -23,7 +23,9 @@ use super::api::{
     Snapshot, StatsReport,
 };
 use super::control::Control;
-use super::device::{open_device, ConnectError, DeviceSpec, OpenError, ServoDevice};
+use super::device::{
+    open_device_with_profile, ConnectError, DeviceSpec, HandTargetInput, OpenError, ServoDevice,
+};
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
@@ -77,6 +79,8 @@ pub struct SessionConfig {
     /// Samples the recorder ring holds (default: 4 s of ticks).
     pub sample_ring: Option<usize>,
     pub supervisor: SupervisorConfig,
+    /// The device profile: workspace mapping, limits, kinematics (default: identity, the device's limits).
+    pub profile: crate::device::profile::DeviceProfile,
     /// Periods without a tick after which the monitor thread stops the device itself.
     pub stall_periods: u32,
 }
@@ -99,6 +103,7 @@ impl SessionConfig {
             warm_lead_ns: 30_000,
             sample_ring: None,
             supervisor: SupervisorConfig::default(),
+            profile: crate::device::profile::DeviceProfile::default(),
             stall_periods: 20,
         }
     }
@@ -202,11 +207,18 @@ impl Session {
         let period_ns = (1e9 / config.rate_hz).round() as u64;
         let period_s = period_ns as f64 * 1e-9;
         let spec_label = config.device.to_string();
-        let opened = open_device(
+        let volume_bounds_m = config
+            .setup
+            .volumes
+            .first()
+            .map(|v| v.volume.grid().bounds_world());
+        let opened = open_device_with_profile(
             &config.device,
             config.supervisor,
             (config.setup.arm.clone(), config.setup.start_m),
             period_s,
+            &config.profile,
+            volume_bounds_m,
         )
         .map_err(|source| SessionError::Open {
             spec: spec_label.clone(),
@@ -219,9 +231,11 @@ impl Session {
             spec: spec_label.clone(),
             cause,
         })?;
-        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s);
-        let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;
         let mut notices = Vec::new();
+        notices.extend(device.profile_notes());
+        let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
+            .with_damping_limit(device.max_damping_n_s_per_m());
+        let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;
         let (k, damping) = (
             config.setup.stiffness_n_per_m,
             config.setup.damping_n_s_per_m,

@@ -70,6 +70,9 @@ pub struct Scenario {
     pub hand: HandParams,
     #[serde(default = "default_path")]
     pub path: HandPath,
+    /// `[device]`: a device profile for `serve` (device::profile; `--device-profile` replaces it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<toml::Table>,
 }
 
 fn default_arm() -> ArmParams {

@@ -18,5 +18,6 @@ pub fn count_allocations(f: impl FnOnce()) -> u64 {
 pub mod falcon_firmware;
 pub mod haply_board;
 pub mod inverse_service;
+pub mod mock_process;
 pub mod pty;
 pub mod woody_firmware;

@@ -13,10 +13,12 @@ use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, 
 use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
 use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
+use crate::device::profile::{DeviceProfile, Kinematics};
 use crate::device::sim::{SimArmConfig, SimError};
 use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorConfigError};
 use crate::device::transport::{HidTransport, SerialTransport};
 use crate::device::{DeviceError, HapticDevice};
+use crate::servo::mapped::MappedDevice;
 use glam::DVec3;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -34,6 +36,8 @@ pub enum OpenError {
     Path(PathBuf),
     #[error("could not start the connector thread: {0}")]
     Thread(String),
+    #[error("{0}")]
+    Profile(String),
 }
 
 /// An opened device spec: the servo's device, plus the hand-target input when it is the simulated arm.
@@ -74,6 +78,53 @@ pub fn open_device(
     sim_arm: (SimArmConfig, DVec3),
     period_s: f64,
 ) -> Result<OpenedDevice, OpenError> {
+    open_supervised(spec, config, sim_arm, period_s, &DeviceProfile::default())
+}
+
+/// [`open_device`] with a device profile: its limits folded into `config`, its kinematics constants into the
+/// driver's config, and the device seen through its workspace mapping ([`MappedDevice`]; a fitting mapping
+/// fits `volume_bounds_m`, the scene's first volume).
+pub fn open_device_with_profile(
+    spec: &DeviceSpec,
+    mut config: SupervisorConfig,
+    sim_arm: (SimArmConfig, DVec3),
+    period_s: f64,
+    profile: &DeviceProfile,
+    volume_bounds_m: Option<(DVec3, DVec3)>,
+) -> Result<OpenedDevice, OpenError> {
+    let family = spec_family(spec);
+    if let Some(device) = &profile.device {
+        if profile.kinematics != Kinematics::Default && *device != family {
+            return Err(OpenError::Profile(format!(
+                "device profile {} holds kinematics for {device}, but the device is {family}",
+                profile.name
+            )));
+        }
+    }
+    profile.apply_to(&mut config);
+    let mut opened = open_supervised(spec, config, sim_arm, period_s, profile)?;
+    opened.device = Box::new(MappedDevice::new(
+        opened.device,
+        profile.clone(),
+        volume_bounds_m,
+    ));
+    Ok(opened)
+}
+
+/// The `--device` kind of a spec (`haply2diy`, `falcon`, ...), as device profiles name it.
+pub fn spec_family(spec: &DeviceSpec) -> String {
+    let text = spec.to_string();
+    let end = text.find([':', ',']).unwrap_or(text.len());
+    text[..end].to_owned()
+}
+
+fn open_supervised(
+    spec: &DeviceSpec,
+    config: SupervisorConfig,
+    sim_arm: (SimArmConfig, DVec3),
+    period_s: f64,
+    profile: &DeviceProfile,
+) -> Result<OpenedDevice, OpenError> {
     let protocol = ProtocolConfig::for_period(Duration::from_secs_f64(period_s));
     let mut hand_target = None;
     let device = match spec {
@@ -109,10 +160,16 @@ pub fn open_device(
                 Ok(ProtocolDevice::new(HidLink::new(transport), protocol))
             })?
         }
-        DeviceSpec::WoodenHaptics => reconnecting(config, move || {
-            let transport =
-                HidTransport::open_vid_pid(woodenhaptics::VENDOR_ID, woodenhaptics::PRODUCT_ID)?;
-            WoodenHaptics::new(transport, WoodenHapticsConfig::default())
+        DeviceSpec::WoodenHaptics => reconnecting(config, {
+            let mut woodenhaptics_config = WoodenHapticsConfig::default();
+            profile.apply_woodenhaptics_hid(&mut woodenhaptics_config);
+            move || {
+                let transport = HidTransport::open_vid_pid(
+                    woodenhaptics::VENDOR_ID,
+                    woodenhaptics::PRODUCT_ID,
+                )?;
+                WoodenHaptics::new(transport, woodenhaptics_config)
+            }
         })?,
         DeviceSpec::WoodenHapticsSerial(path) => {
             let path = path_str(path)?;
@@ -124,9 +181,11 @@ pub fn open_device(
         }
         DeviceSpec::Haply2Diy(path) => {
             let path = path_str(path)?;
+            let mut haply_config = Haply2DiyConfig::default();
+            profile.apply_haply2diy(&mut haply_config);
             reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 0)?;
-                Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
+                Ok(Haply2Diy::new(transport, haply_config))
             })?
         }
         DeviceSpec::HaplyInverse(url) => {

@@ -16,7 +16,7 @@ mod reconnect;
 mod sim;
 mod spec;
 
-pub use factory::{open_device, OpenError, OpenedDevice};
+pub use factory::{open_device, open_device_with_profile, spec_family, OpenError, OpenedDevice};
 pub use reconnect::Reconnecting;
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError};
@@ -74,6 +74,15 @@ pub trait ServoDevice: Send {
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>);
     /// The connected device's declared maximum stiffness at 1 kHz (N/m), without allocating.
     fn max_stiffness_n_per_m(&self) -> Option<f64>;
+    /// Lines for the operator from the device profile (`servo::mapped`): how the workspace is mapped into the
+    /// scene when that is not the identity, and limits the profile asks for above the device's own.
+    fn profile_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
+    /// A damping limit below the passivity bound (N s/m, scene units), from a device profile.
+    fn max_damping_n_s_per_m(&self) -> Option<f64> {
+        None
+    }
 }
 
 impl<D, F> ServoDevice for Supervisor<D, F>

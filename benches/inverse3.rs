@@ -1,0 +1,70 @@
+//! Haply Inverse3 host round trip over a loopback WebSocket: the real driver (its I/O thread and lock-free
+//! hand-off) against the Inverse Service test double of tests/util/inverse_service.rs (written from Haply's
+//! published service documentation), both in this process, on 127.0.0.1.
+//!
+//! One round trip = `write_force` (the command goes to the I/O thread, which sends `set_cursor_force`) then
+//! `read_state` (waits for the state frame the service sends back for that message). Two measurements:
+//! criterion's timing of back-to-back round trips (short: 1 s warm-up, 3 s measurement), and a paced run at
+//! 1 kHz (the servo rate) printing p50, p99 and the maximum over 2 000 exchanges.
+
+#[allow(dead_code)]
+#[path = "../tests/util/inverse_service.rs"]
+mod inverse_service;
+
+#[path = "util/paced.rs"]
+mod paced;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use glam::DVec3;
+use inverse_service::InverseService;
+use std::time::Duration;
+use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
+use voxhap::device::transport::inverse_service::ServiceConfig;
+use voxhap::device::Lifecycle;
+
+type Device = Lifecycle<HaplyInverse>;
+
+fn open(url: &str) -> Device {
+    let config = HaplyInverseConfig {
+        service: ServiceConfig {
+            url: url.to_owned(),
+            ..ServiceConfig::default()
+        },
+        // Wait for the answer to this very command (the servo default is 0.4 ms, after which it uses an
+        // older state); the benchmark measures the full round trip.
+        reply_wait: Duration::from_millis(50),
+        ..HaplyInverseConfig::default()
+    };
+    let mut device = Lifecycle::new(HaplyInverse::new(config));
+    device.open().expect("open the Inverse Service double");
+    device.enable().expect("enable");
+    device
+}
+
+fn round_trip(device: &mut Device) {
+    device
+        .write_force(DVec3::new(0.1, 0.0, 0.0))
+        .expect("write");
+    std::hint::black_box(device.read_state().expect("state"));
+}
+
+fn bench(c: &mut Criterion) {
+    let service = InverseService::start();
+    let mut device = open(&service.url());
+    paced::paced_percentiles("device/inverse3_loopback_paced_1khz", 2_000, || {
+        round_trip(&mut device)
+    });
+    let mut group = c.benchmark_group("device");
+    group
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3))
+        .sample_size(20);
+    group.bench_function("inverse3_loopback_round_trip", |b| {
+        b.iter(|| round_trip(&mut device))
+    });
+    group.finish();
+    let _ = device.close();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -303,6 +303,8 @@ fn run(case: &Case) -> Vec<ForceRecord> {
     let (retire_tx, _retired) = rtrb::RingBuffer::new(4);
     let (sample_tx, mut samples) = rtrb::RingBuffer::new(64);
     let (snapshot_in, _snapshot) = triple_buffer::triple_buffer(&None);
+    // Scene frames for the recorder: nobody reads them here; a full ring only skips frames.
+    let (scene_frames, _scene_frames_rx) = rtrb::RingBuffer::new(4);
     let mut servo = ServoLoop::new(
         Box::new(bundle),
         device,
@@ -313,6 +315,7 @@ fn run(case: &Case) -> Vec<ForceRecord> {
             samples: sample_tx,
             snapshot: snapshot_in,
             events,
+            scene_frames,
         },
         Arc::new(ServoStats::new(1000.0)),
         LoopTiming {

@@ -24,7 +24,7 @@ use super::api::{
 };
 use super::control::Control;
 use super::device::{
-    open_device_with_profile, ConnectError, DeviceSpec, HandTargetInput, OpenError, ServoDevice,
+    open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice,
 };
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};

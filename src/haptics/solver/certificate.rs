@@ -55,14 +55,14 @@ pub(crate) struct Frame {
 /// Neumaier's compensated sum of 3-vectors: the error is about 2 eps of the result plus n eps^2 of the sum of
 /// magnitudes, instead of n eps of the sum of magnitudes.
 #[derive(Debug, Clone, Copy, Default)]
-struct CompensatedSum {
+pub(crate) struct CompensatedSum {
     sum: DVec3,
     compensation: DVec3,
 }
 
 impl CompensatedSum {
     #[inline]
-    fn add(&mut self, v: DVec3) {
+    pub(crate) fn add(&mut self, v: DVec3) {
         let t = self.sum + v;
         let big = self.sum.abs().cmpge(v.abs());
         let lost = DVec3::select(big, (self.sum - t) + v, (v - t) + self.sum);
@@ -70,7 +70,7 @@ impl CompensatedSum {
         self.sum = t;
     }
 
-    fn value(&self) -> DVec3 {
+    pub(crate) fn value(&self) -> DVec3 {
         self.sum + self.compensation
     }
 }
@@ -283,6 +283,16 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
                 + linear_m
                 + (subgradient_sensitivity * shift_m + direction_rounding_n) / k;
             let bound_b = rounded_up(bound_b);
+            #[cfg(test)]
+            if std::env::var("NEWTON_TRACE").is_ok() {
+                eprintln!(
+                    "  cert B: shift {shift_m:e} shares {shares:e} residual/k {:e} linear {linear_m:e} sens {:e} dirround {:e} kinks {}",
+                    residual / k,
+                    subgradient_sensitivity * shift_m / k,
+                    direction_rounding_n / k,
+                    kinks.count
+                );
+            }
             if bound_b < best.bound_m {
                 best = Certificate {
                     gap_j: shares + residual * residual / (2.0 * k),

@@ -99,10 +99,11 @@
 pub mod active_set;
 mod certificate;
 pub mod linalg;
+mod newton;
 
 use crate::clock::Clock;
 use crate::haptics::primitive::{Primitive, PrimitiveKind};
-use certificate::{certify, Frame};
+use certificate::{certify, CompensatedSum, Frame};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -124,20 +125,32 @@ pub struct SolverConfig {
     /// Over-relaxation of the block updates, in `[1, 2)`: `u_i <- proj(u_i + w (u_i^best - u_i))`. 1 is plain
     /// block coordinate ascent.
     pub relaxation: f64,
+    /// Try the primal Newton method ([`newton`]) first; `false` runs the dual method alone (the solver before
+    /// the primal method existed, kept for comparison in the benchmark).
+    pub primal_newton: bool,
+    /// Screen out planes that provably keep their side at the answer (primal Newton only).
+    pub screening: bool,
 }
 
 impl Default for SolverConfig {
     fn default() -> Self {
-        Self {
-            tolerance_m: 1e-12,
-            max_sweeps: 100_000,
-            max_time_ns: u64::MAX,
-            sweeps_per_round: 6,
-            max_flips_per_round: 48,
-            warm_start_dual: true,
-            relaxation: 1.0,
-        }
+        Self::DEFAULT
     }
+}
+
+impl SolverConfig {
+    /// The defaults, usable in constants.
+    pub const DEFAULT: Self = Self {
+        tolerance_m: 1e-12,
+        max_sweeps: 100_000,
+        max_time_ns: u64::MAX,
+        sweeps_per_round: 6,
+        max_flips_per_round: 48,
+        warm_start_dual: true,
+        relaxation: 1.0,
+        primal_newton: true,
+        screening: true,
+    };
 }
 
 /// One proxy problem: the coupling, the probe, and the primitives.
@@ -181,8 +194,11 @@ pub struct Solution {
     pub proxy_m: DVec3,
     /// The coupling force sent to the device, `k (proxy - probe)` (N).
     pub force_n: DVec3,
-    /// Block-coordinate sweeps run.
+    /// O(N) passes over the primitives: the primal Newton method's passes plus the dual method's block
+    /// sweeps (each is what `max_sweeps` limits).
     pub sweeps: u32,
+    /// How many of `sweeps` were primal Newton passes.
+    pub newton_passes: u32,
     /// Active-set attempts run.
     pub active_set_rounds: u32,
     /// Duality gap of the returned pair (J).
@@ -212,6 +228,7 @@ pub struct Solver {
     /// Whether `items` and `dual` hold the previous solve's values (false after `reset`).
     has_previous_dual: bool,
     active_set: active_set::Workspace,
+    newton: newton::Workspace,
 }
 
 /// A primal point with its certificate.
@@ -221,6 +238,9 @@ struct Candidate {
     gap_j: f64,
     bound_m: f64,
 }
+
+/// Most passes of the primal Newton attempt before the dual method takes over.
+const NEWTON_MAX_PASSES: u32 = 100;
 
 /// Sweeps without halving the bound after which a solve stops as [`SolveStatus::Stalled`]: the bound has reached
 /// the floating-point floor of the scene and more sweeps cannot help.
@@ -259,6 +279,7 @@ impl Solver {
             candidate_dual: Vec::with_capacity(max_primitives),
             has_previous_dual: false,
             active_set: active_set::Workspace::with_capacity(max_primitives),
+            newton: newton::Workspace::with_capacity(max_primitives),
         }
     }
 
@@ -318,7 +339,8 @@ impl Solver {
         let config = self.config;
 
         // y = probe + (sum of directed forces) / k; the rest become items.
-        let mut directed = DVec3::ZERO;
+        // Summed with compensation, so that y's rounding stays a few ulps however many directed forces there are.
+        let mut directed = CompensatedSum::default();
         let mut directed_strength = 0.0;
         let mut directed_count = 0.0;
         // Build the items in place; the previous dual is reused when the kinds match one for one.
@@ -327,7 +349,7 @@ impl Solver {
         let mut strength_sum = 0.0;
         for p in problem.primitives {
             if p.kind() == PrimitiveKind::Directed {
-                directed += p.strength_n() * p.direction();
+                directed.add(p.strength_n() * p.direction());
                 directed_strength += p.strength_n();
                 directed_count += 1.0;
                 continue;
@@ -350,14 +372,20 @@ impl Solver {
         }
         same_structure &= count == self.items.len() && count == self.dual.len();
         self.items.truncate(count);
+        let directed = directed.value();
         let y = problem.probe_m + directed / k;
         let frame = Frame {
             y,
             k,
-            // Each directed force and the sum round to eps/2 of their magnitude, y's sum and quotient likewise.
-            y_error_m: 4.0
+            // Each product s q rounds by eps/2 of s per coordinate (at most eps s in length); the compensated
+            // sum adds 2 eps of the result and n eps^2 of the magnitudes (certificate.rs); the quotient by k and
+            // the sum with the probe add eps/2 of their results each. Doubled for margin.
+            y_error_m: 2.0
                 * f64::EPSILON
-                * (problem.probe_m.length() + (directed_count + 2.0) * directed_strength / k),
+                * (problem.probe_m.length()
+                    + (2.0 * directed.length()
+                        + (1.0 + directed_count * f64::EPSILON) * directed_strength)
+                        / k),
             strength_over_k_m: strength_sum / k,
         };
         if same_structure {
@@ -395,10 +423,12 @@ impl Solver {
         };
         let mut best_at_sweep = 0u32;
         let mut next_check = 1u32;
-        let finish = |best: Candidate, sweeps, rounds, status| Solution {
+        let mut newton_passes = 0;
+        let finish = |best: Candidate, sweeps, newton_passes, rounds, status| Solution {
             proxy_m: best.x,
             force_n: k * (best.x - problem.probe_m),
             sweeps,
+            newton_passes,
             active_set_rounds: rounds,
             gap_j: best.gap_j,
             error_bound_m: best.bound_m,
@@ -408,9 +438,53 @@ impl Solver {
             sweeps >= config.max_sweeps
                 || (timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns)
         };
+        // With no pass allowed (or no time), the warm start is certified as it is, below.
+        if config.primal_newton && !self.items.is_empty() && !over_budget(sweeps) {
+            let limits = newton::Limits {
+                tolerance_m: config.tolerance_m,
+                max_passes: config.max_sweeps.min(NEWTON_MAX_PASSES),
+                screening: config.screening,
+            };
+            let mut over_time =
+                || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
+            let outcome = self.newton.solve(
+                &self.items,
+                &frame,
+                problem.previous_proxy_m.unwrap_or(y),
+                limits,
+                &mut self.dual,
+                &mut over_time,
+            );
+            sweeps += outcome.passes;
+            newton_passes = outcome.passes;
+            let checked = match outcome.certificate {
+                Some(checked) => Some(checked),
+                // Out of budget: the point and dual it reached are certified as they are.
+                None if over_budget(sweeps) => {
+                    Some(certify(&self.items, &self.dual, &frame, outcome.x))
+                }
+                None => None,
+            };
+            if let Some(checked) = checked {
+                best = Candidate {
+                    x: outcome.x,
+                    gap_j: checked.gap_j,
+                    bound_m: checked.bound_m,
+                };
+                best_at_sweep = sweeps;
+            }
+            // The dual method goes on from the primal method's dual (feasible up to rounding; the sweeps project).
+            total = self.dual.iter().copied().sum::<DVec3>();
+        }
         loop {
             if best.bound_m <= config.tolerance_m {
-                return Ok(finish(best, sweeps, rounds, SolveStatus::Certified));
+                return Ok(finish(
+                    best,
+                    sweeps,
+                    newton_passes,
+                    rounds,
+                    SolveStatus::Certified,
+                ));
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
@@ -421,10 +495,16 @@ impl Solver {
                 } else {
                     SolveStatus::BudgetExhausted
                 };
-                return Ok(finish(best, sweeps, rounds, status));
+                return Ok(finish(best, sweeps, newton_passes, rounds, status));
             }
             if sweeps - best_at_sweep >= STALL_SWEEPS {
-                return Ok(finish(best, sweeps, rounds, SolveStatus::Stalled));
+                return Ok(finish(
+                    best,
+                    sweeps,
+                    newton_passes,
+                    rounds,
+                    SolveStatus::Stalled,
+                ));
             }
             let round_sweeps = config.sweeps_per_round.max(1);
             for sweep_in_round in 1..=round_sweeps {

@@ -44,7 +44,10 @@ fn one_point_is_solved_by_one_update() {
     let sol = solve(probe, &prims);
     // k |probe - point| = 5 N > 2 N: the point holds the proxy s/k = 4 mm back from the probe.
     assert_certified_near(&sol, DVec3::new(0.006, 0.0, 0.0));
-    assert_eq!(sol.sweeps, 1);
+    // The primal Newton method: one pass and an exact step (radially the energy is a quadratic), one pass
+    // that finds the gradient zero and certifies.
+    assert_eq!(sol.sweeps, 2);
+    assert_eq!(sol.newton_passes, 2);
     assert!((sol.force_n - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
 }
 
@@ -344,4 +347,62 @@ fn bad_coupling_is_refused() {
         solver.solve(&problem),
         Err(SolveError::BadPreviousProxy(_))
     ));
+}
+
+#[test]
+#[ignore]
+fn scratch_newton_statistics() {
+    for n in [2usize, 5, 10, 30, 100, 1000, 3000, 10000] {
+        let mut certified_by_newton = 0;
+        let mut passes = Vec::new();
+        let mut sweeps = Vec::new();
+        for seed in 0..10u64 {
+            let mut rng = SplitMix(n as u64 + 1000 * seed);
+            let prims = random_primitives(&mut rng, n);
+            let probe = rng.vec(0.02);
+            let mut solver = Solver::with_capacity(SolverConfig::default(), n);
+            let sol = solver
+                .solve(&Problem {
+                    stiffness_n_per_m: K,
+                    probe_m: probe,
+                    previous_proxy_m: None,
+                    primitives: &prims,
+                })
+                .unwrap();
+            if sol.sweeps == sol.newton_passes && sol.status == SolveStatus::Certified {
+                certified_by_newton += 1;
+            }
+            passes.push(sol.newton_passes);
+            sweeps.push((
+                sol.sweeps,
+                sol.active_set_rounds,
+                sol.status,
+                sol.error_bound_m,
+            ));
+        }
+        eprintln!("n={n}: newton certified {certified_by_newton}/10 passes {passes:?}");
+        eprintln!("   {sweeps:?}");
+    }
+}
+
+#[test]
+#[ignore]
+fn scratch_newton_trace() {
+    let n: usize = std::env::var("N").unwrap().parse().unwrap();
+    let seed: u64 = std::env::var("SEED").unwrap().parse().unwrap();
+    let mut rng = SplitMix(n as u64 + 1000 * seed);
+    let prims = random_primitives(&mut rng, n);
+    let probe = rng.vec(0.02);
+    let mut config = SolverConfig::default();
+    config.max_sweeps = std::env::var("MAXS").map_or(100_000, |v| v.parse().unwrap());
+    let mut solver = Solver::with_capacity(config, n);
+    let sol = solver
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: None,
+            primitives: &prims,
+        })
+        .unwrap();
+    eprintln!("{sol:?}");
 }

@@ -283,16 +283,6 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
                 + linear_m
                 + (subgradient_sensitivity * shift_m + direction_rounding_n) / k;
             let bound_b = rounded_up(bound_b);
-            #[cfg(test)]
-            if std::env::var("NEWTON_TRACE").is_ok() {
-                eprintln!(
-                    "  cert B: shift {shift_m:e} shares {shares:e} residual/k {:e} linear {linear_m:e} sens {:e} dirround {:e} kinks {}",
-                    residual / k,
-                    subgradient_sensitivity * shift_m / k,
-                    direction_rounding_n / k,
-                    kinks.count
-                );
-            }
             if bound_b < best.bound_m {
                 best = Certificate {
                     gap_j: shares + residual * residual / (2.0 * k),

@@ -261,10 +261,6 @@ impl Workspace {
                 let slack = 64.0 * EPS * (model.energy_scale_j + energy_prev.abs());
                 if model.energy_j > energy_prev + slack {
                     halvings += 1;
-                    #[cfg(test)]
-                    if std::env::var("NEWTON_TRACE").is_ok() {
-                        eprintln!("  halve: E {:.17e} > {:.17e}", model.energy_j, energy_prev);
-                    }
                     if halvings > MAX_HALVINGS {
                         return outcome;
                     }
@@ -307,10 +303,6 @@ impl Workspace {
                 match self.multipliers(items, &face, model.gradient, dual) {
                     Ok(()) => {
                         let certificate = certify(items, dual, frame, x);
-                        #[cfg(test)]
-                        if std::env::var("NEWTON_TRACE").is_ok() {
-                            eprintln!("  certify: {certificate:?} |d|={:.3e}", d.length());
-                        }
                         outcome.certificate = Some(certificate);
                         if certificate.bound_m <= limits.tolerance_m {
                             outcome.certified = true;
@@ -335,10 +327,6 @@ impl Workspace {
                     Err(worst) => {
                         let (i, u, label) = worst;
                         self.drops[i] = self.drops[i].saturating_add(1);
-                        #[cfg(test)]
-                        if std::env::var("NEWTON_TRACE").is_ok() {
-                            eprintln!("  drop {i} u={u:?} label={label:?}");
-                        }
                         if self.drops[i] > MAX_DROPS_PER_PRIMITIVE {
                             return outcome;
                         }
@@ -367,22 +355,6 @@ impl Workspace {
             }
 
             let step = self.line_search(items, x, d, reduced_gradient.dot(d), &model);
-            #[cfg(test)]
-            if std::env::var("NEWTON_TRACE").is_ok() {
-                eprintln!(
-                    "pass {} W={:?} |rg|={:.3e} |d|={:.3e} t={:.3e} kink={:?} E={:.17e} active={} clear={:.2e} bps={}",
-                    outcome.passes,
-                    &self.kinks[..self.kink_count],
-                    reduced_gradient.length(),
-                    d.length(),
-                    step.t,
-                    step.kink,
-                    model.energy_j,
-                    self.active.len(),
-                    model.clearance_m,
-                    self.breakpoints.len()
-                );
-            }
             let kinks_before = self.kinks;
             let count_before = self.kink_count;
             let mut x_next = x + step.t * d;
@@ -513,13 +485,6 @@ impl Workspace {
     ) -> Step {
         let curvature = d.dot(model.hessian * d).max(f64::MIN_POSITIVE);
         let smooth_t = (-slope / curvature).min(1.0);
-        #[cfg(test)]
-        if std::env::var("NEWTON_TRACE").is_ok() {
-            eprintln!(
-                "  ls: slope {slope:e} curvature {curvature:e} d {d:?} g {:?}",
-                model.gradient
-            );
-        }
         if d.length() < model.clearance_m {
             // No kink within reach of the step.
             return Step {

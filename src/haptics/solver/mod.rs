@@ -64,31 +64,46 @@
 //!    within the rounding threshold, and is the one step verified in floating point rather than proved. When the
 //!    check fails, certificate A stands alone.
 //!
-//! **Active-set finish** ([`active_set`]). Near-parallel planes make sweeps crawl (like alternating projections).
-//! After a few sweeps the solver guesses which primitives sit on their kink, solves the smooth model on that
-//! affine set with Newton steps (x is in R^3, so each is a 3x3 solve), recovers the kink multipliers by least
-//! squares and flips statuses until the guess is consistent. The answer is accepted only when the certificate
-//! says so; otherwise sweeps go on from the improved dual.
+//! **Primal Newton first** ([`newton`]). Every cold or large solve starts with an active-set Newton method on
+//! `x` itself: O(N) passes, each followed by a 3x3 Newton step on the kinks the proxy is held on and an exact
+//! line search over the planes crossed; at the end the kink multipliers are recovered, and that dual is what
+//! the certificate above checks. Planes whose side at the answer is proven (strong convexity bounds
+//! `|x - x*|` by `|subgradient| / k`) are screened out of the passes. The gradient is summed with
+//! compensation, so Newton converges to the true zero and not to a rounding artefact of N forces.
+//!
+//! **Dual method** (the solver before the primal one; the fallback, and the first choice for small scenes that
+//! can reuse last tick's dual). Block sweeps, and an active-set finish ([`active_set`]): near-parallel planes
+//! make sweeps crawl (like alternating projections), so after a few sweeps the solver guesses which primitives
+//! sit on their kink, solves the smooth model on that affine set with Newton steps, recovers the kink
+//! multipliers by least squares and flips statuses until the guess is consistent. The answer is accepted only
+//! when the certificate says so; otherwise sweeps go on from the improved dual.
 //!
 //! # Speed: what was tried, and what the benchmark says
 //!
-//! `cargo bench --bench solver` (docs/solver.md has the table, printed by the bench). Measured on the shared
-//! 2-vCPU machine, test profile, median of 5 cold solves of the benchmark's random scenes (side by side in one
-//! run, 2026-11-24):
+//! `cargo bench --bench solver` prints the table docs/solver.md quotes, with the dual method alone
+//! (`primal_newton: false`) side by side in the same run. Shared 2-vCPU machine under load, 2026-11-24:
 //!
-//! - *Over-relaxation* of the block updates (`relaxation`): 1.5 and 1.8 were 1.2 to 3x slower than 1 on 10, 100
-//!   and 1000 primitives (more active-set rounds before one certifies). The default stays 1.
-//! - *Longer rounds* (`sweeps_per_round` 20 or 60 instead of 6): 3x faster on 1000 primitives (one round
-//!   instead of three), slower on 10, 100 and 3000. The default stays 6.
-//! - *Fewer certificates*: checking only at the end of each round in scenes of more than 16 primitives made
-//!   1000 primitives 1.8x faster (a certificate costs about a sweep). Kept.
-//! - *Capping the guessed kinks* at the 12 nearest keeps the active-set guess O(N); no change on these scenes.
+//! - *Primal Newton* (kept, the default): against the dual method alone, 1.8x to 2.9x faster on the wedges and
+//!   on 10 and 100 random primitives, 20x on 1 000 (173 us against 3.45 ms), 33x on 3 000 mixed (0.53 ms
+//!   against 17 ms), and it certifies 10 000 mixed primitives in 2.1 ms where the dual method gave up after 4 s.
+//!   Two fixes made it work at scale: a line search that stops at a point or line only when the other terms'
+//!   slope there is within what it can hold (otherwise Newton cycled onto points that cannot hold the proxy),
+//!   and compensated sums for the gradient and for `y` (a plain sum of 7 500 forces, and the old worst-case
+//!   bound on `y`'s rounding, left 10 000 primitives at a 2e-12 m floor).
+//! - On the servo loop's usual tick (a plane and a friction point, warm-started) the primal method took 2 us
+//!   where one or two dual sweeps from last tick's dual take 0.19 us, so small warm-started scenes (at most 16
+//!   non-directed primitives) go to the dual sweeps first.
+//! - *Screening* of planes: it removes work only in the last passes (the proven radius is large until Newton has
+//!   nearly converged), so its gain is small; kept because it never changes the answer. Not measured apart.
+//! - Earlier, on the dual method: over-relaxation (1.5, 1.8) was 1.2x to 3x slower; longer rounds helped 1 000
+//!   primitives only; certifying only at the end of each round for more than 16 primitives was 1.8x faster on
+//!   1 000 (kept).
 //!
-//! Where the time goes: on random scenes the dual sweeps converge in a handful of sweeps, and one active-set
-//! round costs most of the solve (about 35 µs for 100 primitives, 5 ms for 1000: tens of O(N) passes per status
-//! flip, many flips). The goals for 100 and more primitives are not met; the next step is a primal
-//! Newton on the smooth model from the first sweep (most primitives are off their kinks with full strength on
-//! these scenes), with screening of planes whose half-space the proxy cannot reach.
+//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) are
+//! not met on this machine: 193 ns, 1.5 us, 12.2 us, 173 us; 3 000 mixed < 1 ms is met (0.53 ms). A pass costs
+//! about 15 to 20 ns per primitive and a solve takes 5 to 20 passes plus a certificate; the next steps would be
+//! a cheaper first step (the first Newton step from `y` is often halved twice) and fewer passes spent on kinks
+//! that the multipliers later reject.
 //!
 //! # Real time
 //!

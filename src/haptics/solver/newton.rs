@@ -41,8 +41,9 @@
 //! primal form; it removes work, never changes the answer, and the certificate still runs over every
 //! primitive.
 
+use super::active_set::kink_projector;
 use super::certificate::{certify, Certificate, CompensatedSum, Frame};
-use super::linalg::{outer, psd_pseudo_inverse};
+use super::linalg::psd_pseudo_inverse;
 use super::{project, Item};
 use crate::haptics::primitive::PrimitiveKind;
 use glam::{DMat3, DVec3};
@@ -679,7 +680,8 @@ impl Workspace {
         screened_radius_m: &mut f64,
         dual: &mut [DVec3],
     ) {
-        if !(radius < 0.25 * *screened_radius_m) {
+        // (A NaN radius screens nothing.)
+        if radius.is_nan() || radius >= 0.25 * *screened_radius_m {
             return;
         }
         *screened_radius_m = radius;
@@ -880,17 +882,5 @@ fn kink_distance(item: &Item, x: DVec3) -> f64 {
         PrimitiveKind::Line => (r - q * q.dot(r)).length(),
         PrimitiveKind::Plane => q.dot(r).abs(),
         PrimitiveKind::Directed => f64::INFINITY,
-    }
-}
-
-/// The part of a vector that the kink constrains: all of it (point), its part orthogonal to the line, or its
-/// part along the plane normal.
-fn kink_projector(item: &Item) -> DMat3 {
-    let q = item.direction;
-    match item.kind {
-        PrimitiveKind::Point => DMat3::IDENTITY,
-        PrimitiveKind::Line => DMat3::IDENTITY - outer(q, q),
-        PrimitiveKind::Plane => outer(q, q),
-        PrimitiveKind::Directed => DMat3::ZERO,
     }
 }

@@ -27,6 +27,13 @@ use voxhap::haptics::{Primitive, Problem, Solver, SolverConfig};
 const K: f64 = 500.0;
 const PATH_TICKS: usize = 2000;
 const FRICTION_MU: f64 = 0.4;
+/// The exact solver as it was before the primal Newton method: dual block sweeps and the dual active-set finish.
+const DUAL_ONLY: SolverConfig = SolverConfig {
+    primal_newton: false,
+    ..SOLVER_DEFAULTS
+};
+const SOLVER_DEFAULTS: SolverConfig = SolverConfig::DEFAULT;
+
 /// Euler "to the same accuracy": a residual force of k times the exact solver's tolerance.
 const EULER_ACCURATE: EulerConfig = EulerConfig {
     max_iterations: 100_000,
@@ -109,6 +116,9 @@ struct Row {
     exact_ns: f64,
     exact_error_m: f64,
     exact_bound_m: f64,
+    dual_ns: f64,
+    dual_error_m: f64,
+    dual_bound_m: f64,
     euler_ns: f64,
     euler_error_m: f64,
     accurate_ns: f64,
@@ -124,11 +134,15 @@ fn report(row: Row, rows: &mut Vec<Row>) {
 
 fn markdown_row(r: &Row) -> String {
     format!(
-        "| {} | {} | {:.1e} | {:.1e} | {} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {:.0e} |",
+        "| {} | {} | {:.1e} | {:.1e} | {} | {:.1e} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {:.0e} |",
         r.case,
         time(r.exact_ns),
         r.exact_error_m,
         r.exact_bound_m,
+        time(r.dual_ns),
+        r.dual_error_m,
+        r.dual_bound_m,
+        r.dual_ns / r.exact_ns,
         time(r.euler_ns),
         r.euler_error_m,
         r.euler_ns / r.exact_ns,
@@ -159,6 +173,18 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Ve
     let exact_ns = median_ns(batch, || {
         exact();
     });
+    let mut dual_solver = Solver::with_capacity(DUAL_ONLY, primitives.len());
+    let mut dual = || {
+        dual_solver.reset();
+        black_box(dual_solver.solve(black_box(&problem)).expect("valid"))
+    };
+    let dual_answer = dual();
+    let batch = batch_for(|| {
+        dual();
+    });
+    let dual_ns = median_ns(batch, || {
+        dual();
+    });
     let euler_with =
         |config: &EulerConfig| euler::solve(K, black_box(probe), probe, primitives, config);
     let euler = euler_with(&EulerConfig::default());
@@ -181,6 +207,9 @@ fn single_case(name: &str, probe: DVec3, primitives: &[Primitive], rows: &mut Ve
             exact_ns,
             exact_error_m: reference.distance_m(answer.proxy_m),
             exact_bound_m: answer.error_bound_m,
+            dual_ns,
+            dual_error_m: reference.distance_m(dual_answer.proxy_m),
+            dual_bound_m: dual_answer.error_bound_m,
             euler_ns,
             euler_error_m: reference.distance_m(euler.proxy_m),
             accurate_ns,
@@ -233,6 +262,11 @@ fn path_case(rows: &mut Vec<Row>) {
             2,
         )));
     }) / PATH_TICKS as f64;
+    let dual = run_exact(&mut Solver::with_capacity(DUAL_ONLY, 2));
+    let dual_ns = median_ns(3, || {
+        black_box(run_exact(&mut Solver::with_capacity(DUAL_ONLY, 2)));
+    }) / PATH_TICKS as f64;
+    let dual_points: Vec<DVec3> = dual.iter().map(|e| e.0).collect();
     let euler_ns = median_ns(3, || {
         black_box(run_euler(&EulerConfig::default()));
     }) / PATH_TICKS as f64;
@@ -246,6 +280,9 @@ fn path_case(rows: &mut Vec<Row>) {
             exact_ns,
             exact_error_m: max_error(&exact_points),
             exact_bound_m: exact.iter().map(|e| e.1).fold(0.0, f64::max),
+            dual_ns,
+            dual_error_m: max_error(&dual_points),
+            dual_bound_m: dual.iter().map(|e| e.1).fold(0.0, f64::max),
             euler_ns,
             euler_error_m: max_error(&run_euler(&EulerConfig::default())),
             accurate_ns,
@@ -325,8 +362,8 @@ fn benches(_c: &mut Criterion) {
     );
     println!("Median time per solve, cold start except the path; true errors (m) against the double-double reference.");
     println!();
-    println!("| case | exact | exact error | exact bound | Euler (paper stop) | Euler error | speed-up | Euler to 1e-12 m | its error | speed-up | reference bound |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| case | exact | exact error | exact bound | exact, dual method only | its error | its bound | speed-up | Euler (paper stop) | Euler error | speed-up | Euler to 1e-12 m | its error | speed-up | reference bound |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!("{}", markdown_row(r));
     }

@@ -6,6 +6,7 @@
 
 use glam::DVec3;
 use proptest::prelude::*;
+use voxhap::haptics::bench_scenes::{random_primitives, SplitMix};
 use voxhap::haptics::primitive::total_energy_j;
 use voxhap::haptics::reference;
 use voxhap::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
@@ -223,6 +224,60 @@ proptest! {
         let a = cold.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: None, primitives: &prims }).unwrap();
         let b = warm.solve(&Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: Some(previous), primitives: &prims }).unwrap();
         prop_assert!((a.proxy_m - b.proxy_m).length() <= a.error_bound_m + b.error_bound_m);
+    }
+}
+
+/// The solver as it was before the primal Newton method: dual block sweeps and the dual active-set finish.
+fn dual_method() -> Solver {
+    Solver::new(SolverConfig {
+        primal_newton: false,
+        ..SolverConfig::default()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// The primal Newton method (the default) and the dual method find the same point to the tolerance, both
+    /// certified, and the new one's certificate holds against the double-double reference.
+    #[test]
+    fn primal_newton_agrees_with_the_dual_method(
+        prims in prop::collection::vec(primitive_with_lines(), 0..12),
+        probe in vector(),
+        k in prop_oneof![Just(500.0), 50.0f64..3000.0],
+    ) {
+        let problem = Problem { stiffness_n_per_m: k, probe_m: probe, previous_proxy_m: None, primitives: &prims };
+        let new = Solver::default().solve(&problem).unwrap();
+        let old = dual_method().solve(&problem).unwrap();
+        prop_assert_eq!(new.status, SolveStatus::Certified, "{:?}", new);
+        prop_assert_eq!(old.status, SolveStatus::Certified, "{:?}", old);
+        let apart = (new.proxy_m - old.proxy_m).length();
+        prop_assert!(apart <= new.error_bound_m + old.error_bound_m, "{:e}: {:?} {:?}", apart, new, old);
+        prop_assert!(apart <= 2e-12, "{:e}", apart);
+        let reference = reference::minimise(k, probe, &prims);
+        let error = reference.distance_m(new.proxy_m);
+        prop_assert!(error <= new.error_bound_m + reference.error_bound_m.max(1e-13), "{:e} {:?}", error, new);
+    }
+
+    /// The same on the benchmark's random scenes (all four kinds, 10 to 300 primitives), warm-started from a
+    /// random previous proxy as the servo loop does.
+    #[test]
+    fn primal_newton_agrees_with_the_dual_method_on_larger_scenes(
+        seed in any::<u64>(),
+        n in 10usize..300,
+        previous in vector(),
+    ) {
+        let mut rng = SplitMix(seed);
+        let prims = random_primitives(&mut rng, n);
+        let probe = rng.vec(0.02);
+        let problem = Problem { stiffness_n_per_m: 500.0, probe_m: probe, previous_proxy_m: Some(previous), primitives: &prims };
+        let new = Solver::with_capacity(SolverConfig::default(), n).solve(&problem).unwrap();
+        let old = dual_method().solve(&problem).unwrap();
+        prop_assert_eq!(new.status, SolveStatus::Certified, "{:?}", new);
+        prop_assert_eq!(old.status, SolveStatus::Certified, "{:?}", old);
+        let apart = (new.proxy_m - old.proxy_m).length();
+        prop_assert!(apart <= new.error_bound_m + old.error_bound_m, "{:e}: {:?} {:?}", apart, new, old);
+        prop_assert!(apart <= 2e-12, "{:e}", apart);
     }
 }
 

@@ -470,7 +470,7 @@ fn guess_status(item: &Item, x: DVec3, u: DVec3) -> Status {
 
 /// The part of `v` that the kink constrains: all of it (point), its part orthogonal to the line, or its part
 /// along the plane normal.
-fn kink_projector(item: &Item) -> DMat3 {
+pub(crate) fn kink_projector(item: &Item) -> DMat3 {
     let q = item.direction;
     match item.kind {
         PrimitiveKind::Point => DMat3::IDENTITY,

@@ -55,14 +55,14 @@ pub(crate) struct Frame {
 /// Neumaier's compensated sum of 3-vectors: the error is about 2 eps of the result plus n eps^2 of the sum of
 /// magnitudes, instead of n eps of the sum of magnitudes.
 #[derive(Debug, Clone, Copy, Default)]
-struct CompensatedSum {
+pub(crate) struct CompensatedSum {
     sum: DVec3,
     compensation: DVec3,
 }
 
 impl CompensatedSum {
     #[inline]
-    fn add(&mut self, v: DVec3) {
+    pub(crate) fn add(&mut self, v: DVec3) {
         let t = self.sum + v;
         let big = self.sum.abs().cmpge(v.abs());
         let lost = DVec3::select(big, (self.sum - t) + v, (v - t) + self.sum);
@@ -70,7 +70,7 @@ impl CompensatedSum {
         self.sum = t;
     }
 
-    fn value(&self) -> DVec3 {
+    pub(crate) fn value(&self) -> DVec3 {
         self.sum + self.compensation
     }
 }

@@ -64,31 +64,46 @@
 //!    within the rounding threshold, and is the one step verified in floating point rather than proved. When the
 //!    check fails, certificate A stands alone.
 //!
-//! **Active-set finish** ([`active_set`]). Near-parallel planes make sweeps crawl (like alternating projections).
-//! After a few sweeps the solver guesses which primitives sit on their kink, solves the smooth model on that
-//! affine set with Newton steps (x is in R^3, so each is a 3x3 solve), recovers the kink multipliers by least
-//! squares and flips statuses until the guess is consistent. The answer is accepted only when the certificate
-//! says so; otherwise sweeps go on from the improved dual.
+//! **Primal Newton first** ([`newton`]). Every cold or large solve starts with an active-set Newton method on
+//! `x` itself: O(N) passes, each followed by a 3x3 Newton step on the kinks the proxy is held on and an exact
+//! line search over the planes crossed; at the end the kink multipliers are recovered, and that dual is what
+//! the certificate above checks. Planes whose side at the answer is proven (strong convexity bounds
+//! `|x - x*|` by `|subgradient| / k`) are screened out of the passes. The gradient is summed with
+//! compensation, so Newton converges to the true zero and not to a rounding artefact of N forces.
+//!
+//! **Dual method** (the solver before the primal one; the fallback, and the first choice for small scenes that
+//! can reuse last tick's dual). Block sweeps, and an active-set finish ([`active_set`]): near-parallel planes
+//! make sweeps crawl (like alternating projections), so after a few sweeps the solver guesses which primitives
+//! sit on their kink, solves the smooth model on that affine set with Newton steps, recovers the kink
+//! multipliers by least squares and flips statuses until the guess is consistent. The answer is accepted only
+//! when the certificate says so; otherwise sweeps go on from the improved dual.
 //!
 //! # Speed: what was tried, and what the benchmark says
 //!
-//! `cargo bench --bench solver` (docs/solver.md has the table, printed by the bench). Measured on the shared
-//! 2-vCPU machine, test profile, median of 5 cold solves of the benchmark's random scenes (side by side in one
-//! run, 2026-11-24):
+//! `cargo bench --bench solver` prints the table docs/solver.md quotes, with the dual method alone
+//! (`primal_newton: false`) side by side in the same run. Shared 2-vCPU machine under load, 2026-11-24:
 //!
-//! - *Over-relaxation* of the block updates (`relaxation`): 1.5 and 1.8 were 1.2 to 3x slower than 1 on 10, 100
-//!   and 1000 primitives (more active-set rounds before one certifies). The default stays 1.
-//! - *Longer rounds* (`sweeps_per_round` 20 or 60 instead of 6): 3x faster on 1000 primitives (one round
-//!   instead of three), slower on 10, 100 and 3000. The default stays 6.
-//! - *Fewer certificates*: checking only at the end of each round in scenes of more than 16 primitives made
-//!   1000 primitives 1.8x faster (a certificate costs about a sweep). Kept.
-//! - *Capping the guessed kinks* at the 12 nearest keeps the active-set guess O(N); no change on these scenes.
+//! - *Primal Newton* (kept, the default): against the dual method alone, 1.8x to 2.9x faster on the wedges and
+//!   on 10 and 100 random primitives, 20x on 1 000 (173 us against 3.45 ms), 33x on 3 000 mixed (0.53 ms
+//!   against 17 ms), and it certifies 10 000 mixed primitives in 2.1 ms where the dual method gave up after 4 s.
+//!   Two fixes made it work at scale: a line search that stops at a point or line only when the other terms'
+//!   slope there is within what it can hold (otherwise Newton cycled onto points that cannot hold the proxy),
+//!   and compensated sums for the gradient and for `y` (a plain sum of 7 500 forces, and the old worst-case
+//!   bound on `y`'s rounding, left 10 000 primitives at a 2e-12 m floor).
+//! - On the servo loop's usual tick (a plane and a friction point, warm-started) the primal method took 2 us
+//!   where one or two dual sweeps from last tick's dual take 0.19 us, so small warm-started scenes (at most 16
+//!   non-directed primitives) go to the dual sweeps first.
+//! - *Screening* of planes: it removes work only in the last passes (the proven radius is large until Newton has
+//!   nearly converged), so its gain is small; kept because it never changes the answer. Not measured apart.
+//! - Earlier, on the dual method: over-relaxation (1.5, 1.8) was 1.2x to 3x slower; longer rounds helped 1 000
+//!   primitives only; certifying only at the end of each round for more than 16 primitives was 1.8x faster on
+//!   1 000 (kept).
 //!
-//! Where the time goes: on random scenes the dual sweeps converge in a handful of sweeps, and one active-set
-//! round costs most of the solve (about 35 µs for 100 primitives, 5 ms for 1000: tens of O(N) passes per status
-//! flip, many flips). The goals for 100 and more primitives are not met; the next step is a primal
-//! Newton on the smooth model from the first sweep (most primitives are off their kinks with full strength on
-//! these scenes), with screening of planes whose half-space the proxy cannot reach.
+//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) are
+//! not met on this machine: 193 ns, 1.5 us, 12.2 us, 173 us; 3 000 mixed < 1 ms is met (0.53 ms). A pass costs
+//! about 15 to 20 ns per primitive and a solve takes 5 to 20 passes plus a certificate; the next steps would be
+//! a cheaper first step (the first Newton step from `y` is often halved twice) and fewer passes spent on kinks
+//! that the multipliers later reject.
 //!
 //! # Real time
 //!
@@ -99,10 +114,11 @@
 pub mod active_set;
 mod certificate;
 pub mod linalg;
+mod newton;
 
 use crate::clock::Clock;
 use crate::haptics::primitive::{Primitive, PrimitiveKind};
-use certificate::{certify, Frame};
+use certificate::{certify, CompensatedSum, Frame};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -124,20 +140,32 @@ pub struct SolverConfig {
     /// Over-relaxation of the block updates, in `[1, 2)`: `u_i <- proj(u_i + w (u_i^best - u_i))`. 1 is plain
     /// block coordinate ascent.
     pub relaxation: f64,
+    /// Try the primal Newton method ([`newton`]) first; `false` runs the dual method alone (the solver before
+    /// the primal method existed, kept for comparison in the benchmark).
+    pub primal_newton: bool,
+    /// Screen out planes that provably keep their side at the answer (primal Newton only).
+    pub screening: bool,
 }
 
 impl Default for SolverConfig {
     fn default() -> Self {
-        Self {
-            tolerance_m: 1e-12,
-            max_sweeps: 100_000,
-            max_time_ns: u64::MAX,
-            sweeps_per_round: 6,
-            max_flips_per_round: 48,
-            warm_start_dual: true,
-            relaxation: 1.0,
-        }
+        Self::DEFAULT
     }
+}
+
+impl SolverConfig {
+    /// The defaults, usable in constants.
+    pub const DEFAULT: Self = Self {
+        tolerance_m: 1e-12,
+        max_sweeps: 100_000,
+        max_time_ns: u64::MAX,
+        sweeps_per_round: 6,
+        max_flips_per_round: 48,
+        warm_start_dual: true,
+        relaxation: 1.0,
+        primal_newton: true,
+        screening: true,
+    };
 }
 
 /// One proxy problem: the coupling, the probe, and the primitives.
@@ -181,8 +209,11 @@ pub struct Solution {
     pub proxy_m: DVec3,
     /// The coupling force sent to the device, `k (proxy - probe)` (N).
     pub force_n: DVec3,
-    /// Block-coordinate sweeps run.
+    /// O(N) passes over the primitives: the primal Newton method's passes plus the dual method's block
+    /// sweeps (each is what `max_sweeps` limits).
     pub sweeps: u32,
+    /// How many of `sweeps` were primal Newton passes.
+    pub newton_passes: u32,
     /// Active-set attempts run.
     pub active_set_rounds: u32,
     /// Duality gap of the returned pair (J).
@@ -212,6 +243,7 @@ pub struct Solver {
     /// Whether `items` and `dual` hold the previous solve's values (false after `reset`).
     has_previous_dual: bool,
     active_set: active_set::Workspace,
+    newton: newton::Workspace,
 }
 
 /// A primal point with its certificate.
@@ -221,6 +253,9 @@ struct Candidate {
     gap_j: f64,
     bound_m: f64,
 }
+
+/// Most passes of the primal Newton attempt before the dual method takes over.
+const NEWTON_MAX_PASSES: u32 = 100;
 
 /// Sweeps without halving the bound after which a solve stops as [`SolveStatus::Stalled`]: the bound has reached
 /// the floating-point floor of the scene and more sweeps cannot help.
@@ -259,6 +294,7 @@ impl Solver {
             candidate_dual: Vec::with_capacity(max_primitives),
             has_previous_dual: false,
             active_set: active_set::Workspace::with_capacity(max_primitives),
+            newton: newton::Workspace::with_capacity(max_primitives),
         }
     }
 
@@ -318,7 +354,8 @@ impl Solver {
         let config = self.config;
 
         // y = probe + (sum of directed forces) / k; the rest become items.
-        let mut directed = DVec3::ZERO;
+        // Summed with compensation, so that y's rounding stays a few ulps however many directed forces there are.
+        let mut directed = CompensatedSum::default();
         let mut directed_strength = 0.0;
         let mut directed_count = 0.0;
         // Build the items in place; the previous dual is reused when the kinds match one for one.
@@ -327,7 +364,7 @@ impl Solver {
         let mut strength_sum = 0.0;
         for p in problem.primitives {
             if p.kind() == PrimitiveKind::Directed {
-                directed += p.strength_n() * p.direction();
+                directed.add(p.strength_n() * p.direction());
                 directed_strength += p.strength_n();
                 directed_count += 1.0;
                 continue;
@@ -350,14 +387,20 @@ impl Solver {
         }
         same_structure &= count == self.items.len() && count == self.dual.len();
         self.items.truncate(count);
+        let directed = directed.value();
         let y = problem.probe_m + directed / k;
         let frame = Frame {
             y,
             k,
-            // Each directed force and the sum round to eps/2 of their magnitude, y's sum and quotient likewise.
-            y_error_m: 4.0
+            // Each product s q rounds by eps/2 of s per coordinate (at most eps s in length); the compensated
+            // sum adds 2 eps of the result and n eps^2 of the magnitudes (certificate.rs); the quotient by k and
+            // the sum with the probe add eps/2 of their results each. Doubled for margin.
+            y_error_m: 2.0
                 * f64::EPSILON
-                * (problem.probe_m.length() + (directed_count + 2.0) * directed_strength / k),
+                * (problem.probe_m.length()
+                    + (2.0 * directed.length()
+                        + (1.0 + directed_count * f64::EPSILON) * directed_strength)
+                        / k),
             strength_over_k_m: strength_sum / k,
         };
         if same_structure {
@@ -395,10 +438,12 @@ impl Solver {
         };
         let mut best_at_sweep = 0u32;
         let mut next_check = 1u32;
-        let finish = |best: Candidate, sweeps, rounds, status| Solution {
+        let mut newton_passes = 0;
+        let finish = |best: Candidate, sweeps, newton_passes, rounds, status| Solution {
             proxy_m: best.x,
             force_n: k * (best.x - problem.probe_m),
             sweeps,
+            newton_passes,
             active_set_rounds: rounds,
             gap_j: best.gap_j,
             error_bound_m: best.bound_m,
@@ -408,9 +453,58 @@ impl Solver {
             sweeps >= config.max_sweeps
                 || (timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns)
         };
+        // With no pass allowed (or no time), the warm start is certified as it is, below.
+        // Small warm-started scenes (the servo loop's usual tick: a surface and friction) are finished fastest
+        // by a dual sweep or two from last tick's dual (the benchmark's exploration path: 0.2 us against 2 us
+        // for the primal method); everything else starts with the primal method.
+        let primal_first = config.primal_newton
+            && !(same_structure && self.items.len() <= CHECK_EVERY_SWEEP_MAX_ITEMS);
+        if primal_first && !self.items.is_empty() && !over_budget(sweeps) {
+            let limits = newton::Limits {
+                tolerance_m: config.tolerance_m,
+                max_passes: config.max_sweeps.min(NEWTON_MAX_PASSES),
+                screening: config.screening,
+            };
+            let mut over_time =
+                || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
+            let outcome = self.newton.solve(
+                &self.items,
+                &frame,
+                problem.previous_proxy_m.unwrap_or(y),
+                limits,
+                &mut self.dual,
+                &mut over_time,
+            );
+            sweeps += outcome.passes;
+            newton_passes = outcome.passes;
+            let checked = match outcome.certificate {
+                Some(checked) => Some(checked),
+                // Out of budget: the point and dual it reached are certified as they are.
+                None if over_budget(sweeps) => {
+                    Some(certify(&self.items, &self.dual, &frame, outcome.x))
+                }
+                None => None,
+            };
+            if let Some(checked) = checked {
+                best = Candidate {
+                    x: outcome.x,
+                    gap_j: checked.gap_j,
+                    bound_m: checked.bound_m,
+                };
+                best_at_sweep = sweeps;
+            }
+            // The dual method goes on from the primal method's dual (feasible up to rounding; the sweeps project).
+            total = self.dual.iter().copied().sum::<DVec3>();
+        }
         loop {
             if best.bound_m <= config.tolerance_m {
-                return Ok(finish(best, sweeps, rounds, SolveStatus::Certified));
+                return Ok(finish(
+                    best,
+                    sweeps,
+                    newton_passes,
+                    rounds,
+                    SolveStatus::Certified,
+                ));
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
@@ -421,10 +515,16 @@ impl Solver {
                 } else {
                     SolveStatus::BudgetExhausted
                 };
-                return Ok(finish(best, sweeps, rounds, status));
+                return Ok(finish(best, sweeps, newton_passes, rounds, status));
             }
             if sweeps - best_at_sweep >= STALL_SWEEPS {
-                return Ok(finish(best, sweeps, rounds, SolveStatus::Stalled));
+                return Ok(finish(
+                    best,
+                    sweeps,
+                    newton_passes,
+                    rounds,
+                    SolveStatus::Stalled,
+                ));
             }
             let round_sweeps = config.sweeps_per_round.max(1);
             for sweep_in_round in 1..=round_sweeps {

@@ -44,7 +44,10 @@ fn one_point_is_solved_by_one_update() {
     let sol = solve(probe, &prims);
     // k |probe - point| = 5 N > 2 N: the point holds the proxy s/k = 4 mm back from the probe.
     assert_certified_near(&sol, DVec3::new(0.006, 0.0, 0.0));
-    assert_eq!(sol.sweeps, 1);
+    // The primal Newton method: one pass and an exact step (radially the energy is a quadratic), one pass
+    // that finds the gradient zero and certifies.
+    assert_eq!(sol.sweeps, 2);
+    assert_eq!(sol.newton_passes, 2);
     assert!((sol.force_n - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
 }
 
@@ -344,4 +347,39 @@ fn bad_coupling_is_refused() {
         solver.solve(&problem),
         Err(SolveError::BadPreviousProxy(_))
     ));
+}
+
+/// The primal Newton method certifies the benchmark's random scenes on its own (no dual sweep), in a handful
+/// of passes, and agrees with the dual method.
+#[test]
+fn primal_newton_certifies_random_scenes_alone() {
+    for n in [10usize, 30, 100, 1000] {
+        for seed in 0..4u64 {
+            let mut rng = SplitMix(n as u64 + 1000 * seed);
+            let prims = random_primitives(&mut rng, n);
+            let problem = Problem {
+                stiffness_n_per_m: K,
+                probe_m: rng.vec(0.02),
+                previous_proxy_m: None,
+                primitives: &prims,
+            };
+            let new = Solver::with_capacity(SolverConfig::default(), n)
+                .solve(&problem)
+                .unwrap();
+            assert_eq!(new.status, SolveStatus::Certified, "n={n}: {new:?}");
+            assert_eq!(new.sweeps, new.newton_passes, "n={n}: {new:?}");
+            assert!(new.newton_passes <= 30, "n={n}: {new:?}");
+            let old = Solver::new(SolverConfig {
+                primal_newton: false,
+                ..SolverConfig::default()
+            })
+            .solve(&problem)
+            .unwrap();
+            assert_eq!(old.newton_passes, 0);
+            assert!(
+                (new.proxy_m - old.proxy_m).length() <= new.error_bound_m + old.error_bound_m,
+                "n={n}: {new:?} {old:?}"
+            );
+        }
+    }
 }

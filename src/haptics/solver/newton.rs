@@ -1,0 +1,886 @@
+//! The primal Newton method of the exact solver: an active-set Newton iteration on the proxy position itself
+//! (x in R^3), with the dual (the primitives' forces) recovered at the end for the certificate.
+//!
+//! It is the solver's first attempt on every tick ([`super::Solver`]); the dual block sweeps and the dual
+//! active-set finish ([`super::active_set`]) take over only if it does not certify within its pass budget.
+//!
+//! # The iteration
+//!
+//! The energy `P(x) = k/2 |x - y|^2 + sum_i s_i dist(x, C_i)` is smooth except on the primitives' kink sets (the
+//! point, the line, the plane). Off its kink a point or a line is a smooth distance term (gradient `s n`,
+//! Hessian `s/rho (I - n n^T)` restricted to the line's normal plane); a plane is linear on each side (`-s q`
+//! behind it, `0` in front). A *working set* W holds the kinks the proxy is kept on (at most a few: x is in
+//! R^3). One iteration is:
+//!
+//! 1. One O(N) pass at `x`: gradient `g`, Hessian `H` and energy of the smooth terms, and each primitive's
+//!    subgradient written as its dual value (points and lines `s n`, planes `-s q` or `0`).
+//! 2. The Newton step restricted to the affine set of W: `d = -(Z H Z + I - Z)^-1 Z g`, `Z` the projector onto
+//!    the null space of `M = sum_{i in W} P_i` (`P_i` = I, `I - q q^T`, `q q^T`); a 3x3 solve.
+//! 3. A line search on the exact piecewise model along `d`: the smooth part as its quadratic, every plane
+//!    crossed on the way as the jump `s |q.d|` it adds to the slope (sorted breakpoints). If the minimum lies
+//!    at a plane's crossing, the step stops there and the plane joins W; a step that turns round a point or a
+//!    line close to it stops at the closest approach and the primitive joins W. A step that does not lower the
+//!    energy (checked by the next pass) is halved.
+//! 4. When the step on the face is negligible, the kink multipliers are recovered: the minimum-norm split
+//!    `u_i = P_i M^+ (-g)` or, when the kinks are dependent (a point on a plane), projected block sweeps over
+//!    W alone. A multiplier outside its set means the kink is wrong: the worst one leaves W (a plane labelled by
+//!    the way it wants to go, a point or line nudged off). When all are feasible, the pair is certified
+//!    ([`super::certificate::certify`], over all primitives, independent of everything above).
+//!
+//! Nothing here has to be right for the answer to be honest: the certificate checks the returned pair from
+//! scratch, and an attempt that does not certify hands its point and dual to the dual method.
+//!
+//! # Screening
+//!
+//! Strong convexity gives `|x - x*| <= |xi| / k` for any subgradient `xi` of `P` at `x`: at the end of a pass
+//! with W empty, `xi = g`; with W, `xi = g + sum_W u_i` for feasible multipliers. So every pass proves a ball
+//! `B(x, r)` around the answer (r is padded for rounding: 1 % plus `64 N eps` of the force scale). A plane
+//! whose signed distance at `x` exceeds `r` (plus its own rounding) keeps its side on the whole ball, so at the
+//! answer: one in front of it exerts nothing and is dropped from the passes; one behind it pushes with all of
+//! `s` and becomes a constant term. This is the gap-safe screening of Fercoq, Gramfort and Salmon (2015) in its
+//! primal form; it removes work, never changes the answer, and the certificate still runs over every
+//! primitive.
+
+use super::active_set::kink_projector;
+use super::certificate::{certify, Certificate, CompensatedSum, Frame};
+use super::linalg::psd_pseudo_inverse;
+use super::{project, Item};
+use crate::haptics::primitive::PrimitiveKind;
+use glam::{DMat3, DVec3};
+
+const EPS: f64 = f64::EPSILON;
+/// Most kinks held at once. R^3 has room for three independent ones; degenerate scenes (a pyramid's apex, a
+/// point on a plane) need a few more.
+const MAX_KINKS: usize = 8;
+/// Relative eigenvalue threshold for the rank of `M`.
+const RANK_TOLERANCE: f64 = 1e-11;
+/// Relative slack when deciding that a multiplier lies outside its set.
+const MULTIPLIER_SLACK: f64 = 1e-9;
+/// Projected block sweeps over the kinks when the minimum-norm split is infeasible.
+const MAX_SPLIT_SWEEPS: usize = 64;
+/// Times one primitive may leave W in one solve before the attempt is abandoned as cycling.
+const MAX_DROPS_PER_PRIMITIVE: u8 = 2;
+/// Halvings of one step before the attempt is abandoned.
+const MAX_HALVINGS: u32 = 30;
+
+/// What a primitive is to the iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// Zero strength: exerts nothing, never in a pass.
+    Inactive,
+    /// A point or line off its kink.
+    Smooth,
+    /// A plane in front of the proxy (exerts nothing); also the label of a plane the proxy is on but that
+    /// was released from W that way.
+    Off,
+    /// A plane behind the proxy (pushes with all of `s`).
+    Full,
+    /// In the working set W.
+    Kink,
+    /// Screened: provably in front of the answer; out of the passes.
+    ScreenedOff,
+    /// Screened: provably behind the answer; a constant term.
+    ScreenedFull,
+}
+
+/// The result of one Newton attempt.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Outcome {
+    /// The last point, and its certificate when one was computed there.
+    pub x: DVec3,
+    pub certificate: Option<Certificate>,
+    /// O(N) passes run (each counts as a sweep against the budget).
+    pub passes: u32,
+    /// Whether `certificate` met the tolerance.
+    pub certified: bool,
+}
+
+/// One pass's smooth model at `x`.
+#[derive(Debug, Clone, Copy)]
+struct Model {
+    gradient: DVec3,
+    hessian: DMat3,
+    energy_j: f64,
+    /// Sum of the magnitudes of the energy's terms, for the rounding slack of energy comparisons.
+    energy_scale_j: f64,
+    /// Smallest distance from `x` to the kink set of a primitive outside W (for skipping the line search's
+    /// breakpoint pass when the step is shorter).
+    clearance_m: f64,
+    /// A point or line that `x` sits exactly on but that is not in W (its gradient is undefined there).
+    on_unlisted_kink: Option<usize>,
+}
+
+/// The affine set of the working set: `x` is kept on it, steps stay in its null space.
+#[derive(Debug, Clone, Copy)]
+struct Face {
+    pinv: DMat3,
+    null: DMat3,
+    /// A point in W pins `x` to that point.
+    point: Option<usize>,
+}
+
+/// A line search's answer: the step fraction and the primitive whose kink the step stops on, if any.
+#[derive(Debug, Clone, Copy)]
+struct Step {
+    t: f64,
+    kink: Option<usize>,
+}
+
+/// The Newton attempt's workspace, kept between solves (allocation-free once grown to the scene size).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Workspace {
+    state: Vec<State>,
+    drops: Vec<u8>,
+    /// Items that take part in passes: not inactive, not screened (W members included, skipped by state).
+    active: Vec<u32>,
+    /// Line-search breakpoints: (step fraction, slope jump, item).
+    breakpoints: Vec<(f64, f64, u32)>,
+    kinks: [u32; MAX_KINKS],
+    kink_count: usize,
+    /// Sum of the screened planes' constant gradients `-s q` (N).
+    fixed_gradient_n: DVec3,
+    /// Sum of the screened planes' `s q.c`: with `fixed_gradient_n . x` their energy (J).
+    fixed_energy_j: f64,
+}
+
+/// Budget and settings of one attempt.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Limits {
+    pub tolerance_m: f64,
+    pub max_passes: u32,
+    pub screening: bool,
+}
+
+impl Workspace {
+    pub fn with_capacity(n: usize) -> Self {
+        Self {
+            state: Vec::with_capacity(n),
+            drops: Vec::with_capacity(n),
+            active: Vec::with_capacity(n),
+            breakpoints: Vec::with_capacity(n),
+            ..Self::default()
+        }
+    }
+
+    /// Runs the primal Newton iteration from `x_start`. `dual` (one entry per item) receives the dual values of
+    /// the last point; `over_time` is polled before each pass.
+    pub fn solve(
+        &mut self,
+        items: &[Item],
+        frame: &Frame,
+        x_start: DVec3,
+        limits: Limits,
+        dual: &mut [DVec3],
+        over_time: &mut dyn FnMut() -> bool,
+    ) -> Outcome {
+        let Frame { y, k, .. } = *frame;
+        let n = items.len();
+        // Length scale of the scene: thresholds for "on a kink" and rounding slack are relative to it.
+        let mut position_scale: f64 = y.abs().max_element() + x_start.abs().max_element();
+        let mut strength_sum = 0.0;
+        self.state.clear();
+        self.drops.clear();
+        self.drops.resize(n, 0);
+        self.active.clear();
+        self.kink_count = 0;
+        self.fixed_gradient_n = DVec3::ZERO;
+        self.fixed_energy_j = 0.0;
+        for (i, (item, u)) in items.iter().zip(dual.iter_mut()).enumerate() {
+            *u = DVec3::ZERO;
+            position_scale = position_scale.max(item.position_m.abs().max_element());
+            strength_sum += item.strength_n;
+            let state = if item.strength_n == 0.0 {
+                State::Inactive
+            } else {
+                self.active.push(i as u32);
+                match item.kind {
+                    PrimitiveKind::Plane => {
+                        if item.direction.dot(x_start - item.position_m) < 0.0 {
+                            State::Full
+                        } else {
+                            State::Off
+                        }
+                    }
+                    _ => State::Smooth,
+                }
+            };
+            self.state.push(state);
+        }
+        let scale = position_scale + frame.strength_over_k_m;
+        // On a kink: within 16 ulps of the scene's coordinates (where rounding alone can leave a converged x).
+        let on_kink_m = 16.0 * EPS * scale;
+        // Below this a step is rounding noise.
+        let step_floor_m = 4.0 * EPS * scale;
+        let force_scale_n = k * scale + strength_sum;
+        let gradient_floor_n = 8.0 * EPS * force_scale_n;
+
+        let mut x = x_start;
+        // Start on the kinks x already sits on (a warm start: the plane the proxy rests on, the friction point at
+        // the previous proxy).
+        for &i in &self.active {
+            let i = i as usize;
+            if kink_distance(&items[i], x) <= on_kink_m && self.kink_count < MAX_KINKS {
+                self.kinks[self.kink_count] = i as u32;
+                self.kink_count += 1;
+            }
+        }
+        for slot in 0..self.kink_count {
+            self.state[self.kinks[slot] as usize] = State::Kink;
+        }
+        let mut face = self.face(items);
+        if !self.project_onto_face(items, &face, &mut x, scale) {
+            // Not consistent (several kinks through no common point): start off them all.
+            for slot in 0..self.kink_count {
+                let i = self.kinks[slot] as usize;
+                self.state[i] = start_state(&items[i], x);
+            }
+            self.kink_count = 0;
+            face = self.face(items);
+        }
+
+        let mut outcome = Outcome {
+            x,
+            certificate: None,
+            passes: 0,
+            certified: false,
+        };
+        // The last accepted point: its energy, the step taken from it, and W before the step.
+        let mut previous: Option<(DVec3, f64, DVec3, f64, [u32; MAX_KINKS], usize)> = None;
+        let mut halvings = 0;
+        let mut screened_radius_m = f64::INFINITY;
+        loop {
+            if outcome.passes >= limits.max_passes || over_time() {
+                return outcome;
+            }
+            let model = self.pass(items, frame, x, dual);
+            outcome.passes += 1;
+            outcome.x = x;
+            outcome.certificate = None;
+
+            // Check the last step against the energy: a step that raised it (beyond rounding) is halved.
+            if let Some((x_prev, energy_prev, d, t, kinks_prev, count_prev)) = previous {
+                let slack = 64.0 * EPS * (model.energy_scale_j + energy_prev.abs());
+                if model.energy_j > energy_prev + slack {
+                    halvings += 1;
+                    if halvings > MAX_HALVINGS {
+                        return outcome;
+                    }
+                    self.restore_kinks(items, kinks_prev, count_prev, x_prev);
+                    face = self.face(items);
+                    let t = 0.5 * t;
+                    x = x_prev + t * d;
+                    self.project_onto_face(items, &face, &mut x, scale);
+                    previous = Some((x_prev, energy_prev, d, t, kinks_prev, count_prev));
+                    continue;
+                }
+            }
+            halvings = 0;
+            previous = None;
+
+            if let Some(i) = model.on_unlisted_kink {
+                // x landed exactly on a point or line: its gradient is undefined there, so it joins W (or, if
+                // that is inconsistent, x moves off it by a rounding-sized step and the pass repeats).
+                if !self.try_add_kink(items, i, &mut x, scale) {
+                    x += DVec3::splat(on_kink_m);
+                }
+                face = self.face(items);
+                continue;
+            }
+
+            // Newton step on the face.
+            let reduced_gradient = face.null * model.gradient;
+            let reduced_hessian =
+                face.null * model.hessian * face.null + (DMat3::IDENTITY - face.null);
+            // The solve leaves a component off the face of the order of eps |g| (g is large where kinks hold the
+            // proxy): project it away.
+            let d = -(face.null * (reduced_hessian.inverse() * reduced_gradient));
+            if !d.is_finite() {
+                return outcome;
+            }
+            let face_done = d.length() <= step_floor_m
+                || reduced_gradient.length()
+                    <= (0.25 * k * limits.tolerance_m).max(gradient_floor_n);
+            if face_done {
+                match self.multipliers(items, &face, model.gradient, dual) {
+                    Ok(()) => {
+                        let certificate = certify(items, dual, frame, x);
+                        outcome.certificate = Some(certificate);
+                        if certificate.bound_m <= limits.tolerance_m {
+                            outcome.certified = true;
+                            return outcome;
+                        }
+                        if d.length() <= step_floor_m {
+                            // Nothing left to gain on this face and the certificate is not met: rounding
+                            // limits it here. Let the dual method try.
+                            return outcome;
+                        }
+                        if limits.screening {
+                            // The certificate is a proven radius around the answer.
+                            self.screen(
+                                items,
+                                x,
+                                certificate.bound_m,
+                                &mut screened_radius_m,
+                                dual,
+                            );
+                        }
+                    }
+                    Err(worst) => {
+                        let (i, u, label) = worst;
+                        self.drops[i] = self.drops[i].saturating_add(1);
+                        if self.drops[i] > MAX_DROPS_PER_PRIMITIVE {
+                            return outcome;
+                        }
+                        self.remove_kink(i, label);
+                        let item = &items[i];
+                        if item.kind != PrimitiveKind::Plane {
+                            // Leave the kink the way the excess force pushes, by what the coupling alone
+                            // would yield to it.
+                            let excess = u.length() - item.strength_n;
+                            x += u.normalize_or_zero() * (excess / k).max(1e-9 * scale);
+                        }
+                        face = self.face(items);
+                        self.project_onto_face(items, &face, &mut x, scale);
+                        continue;
+                    }
+                }
+            } else if limits.screening && self.kink_count == 0 {
+                // With W empty every term is differentiable at x (or a plane exactly at zero distance, whose
+                // value in the pass is one of its subgradients): g is a subgradient of P, and |x - x*| <= |g|/k.
+                // Padded for the rounding of the sum (N terms, each within eps of the force scale) and of y.
+                let radius = (1.01 * model.gradient.length()
+                    + 64.0 * (n as f64 + 4.0) * EPS * force_scale_n)
+                    / k
+                    + frame.y_error_m;
+                self.screen(items, x, radius, &mut screened_radius_m, dual);
+            }
+
+            let step = self.line_search(items, x, d, reduced_gradient.dot(d), &model);
+            let kinks_before = self.kinks;
+            let count_before = self.kink_count;
+            let mut x_next = x + step.t * d;
+            if let Some(i) = step.kink {
+                if self.try_add_kink(items, i, &mut x_next, scale) {
+                    face = self.face(items);
+                } else {
+                    x_next = x + step.t * d;
+                    self.project_onto_face(items, &face, &mut x_next, scale);
+                }
+            } else {
+                self.project_onto_face(items, &face, &mut x_next, scale);
+            }
+            previous = Some((x, model.energy_j, d, step.t, kinks_before, count_before));
+            x = x_next;
+        }
+    }
+
+    /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are
+    /// left to [`Self::multipliers`]).
+    fn pass(&mut self, items: &[Item], frame: &Frame, x: DVec3, dual: &mut [DVec3]) -> Model {
+        let Frame { y, k, .. } = *frame;
+        let offset = x - y;
+        // Summed with compensation: near the answer the gradient is the small difference of many forces, and a
+        // plain sum's rounding (about sqrt(N) eps of their magnitudes) would be what Newton converges to.
+        let mut gradient = CompensatedSum::default();
+        gradient.add(k * offset);
+        gradient.add(self.fixed_gradient_n);
+        let mut energy =
+            0.5 * k * offset.length_squared() + self.fixed_gradient_n.dot(x) + self.fixed_energy_j;
+        let mut energy_scale = energy.abs();
+        // Hessian of the distance terms: a I - B, with B symmetric (xx, xy, xz, yy, yz, zz).
+        let mut a = 0.0;
+        let mut b = [0.0f64; 6];
+        let mut clearance = f64::INFINITY;
+        let mut on_unlisted_kink = None;
+        for &index in &self.active {
+            let i = index as usize;
+            let item = &items[i];
+            let state = self.state[i];
+            if state == State::Kink {
+                continue;
+            }
+            let s = item.strength_n;
+            let r = x - item.position_m;
+            match item.kind {
+                PrimitiveKind::Plane => {
+                    let q = item.direction;
+                    let sigma = q.dot(r);
+                    let full = sigma < 0.0 || (sigma == 0.0 && state == State::Full);
+                    if full {
+                        gradient.add(-s * q);
+                        energy -= s * sigma;
+                        energy_scale -= s * sigma;
+                        dual[i] = -s * q;
+                        self.state[i] = State::Full;
+                    } else {
+                        dual[i] = DVec3::ZERO;
+                        self.state[i] = State::Off;
+                    }
+                    clearance = clearance.min(sigma.abs());
+                }
+                PrimitiveKind::Point | PrimitiveKind::Line => {
+                    let line = item.kind == PrimitiveKind::Line;
+                    let q = item.direction;
+                    let perpendicular = if line { r - q * q.dot(r) } else { r };
+                    let rho_squared = perpendicular.length_squared();
+                    if rho_squared == 0.0 {
+                        on_unlisted_kink = Some(i);
+                        dual[i] = DVec3::ZERO;
+                        clearance = 0.0;
+                        continue;
+                    }
+                    let rho = rho_squared.sqrt();
+                    let inverse = 1.0 / rho;
+                    let normal = perpendicular * inverse;
+                    let force = s * normal;
+                    gradient.add(force);
+                    dual[i] = force;
+                    energy += s * rho;
+                    energy_scale += s * rho;
+                    let w = s * inverse;
+                    a += w;
+                    b[0] += w * normal.x * normal.x;
+                    b[1] += w * normal.x * normal.y;
+                    b[2] += w * normal.x * normal.z;
+                    b[3] += w * normal.y * normal.y;
+                    b[4] += w * normal.y * normal.z;
+                    b[5] += w * normal.z * normal.z;
+                    if line {
+                        b[0] += w * q.x * q.x;
+                        b[1] += w * q.x * q.y;
+                        b[2] += w * q.x * q.z;
+                        b[3] += w * q.y * q.y;
+                        b[4] += w * q.y * q.z;
+                        b[5] += w * q.z * q.z;
+                    }
+                    clearance = clearance.min(rho);
+                }
+                PrimitiveKind::Directed => {}
+            }
+        }
+        let diagonal = k + a;
+        let hessian = DMat3::from_cols(
+            DVec3::new(diagonal - b[0], -b[1], -b[2]),
+            DVec3::new(-b[1], diagonal - b[3], -b[4]),
+            DVec3::new(-b[2], -b[4], diagonal - b[5]),
+        );
+        Model {
+            gradient: gradient.value(),
+            hessian,
+            energy_j: energy,
+            energy_scale_j: energy_scale,
+            clearance_m: clearance,
+            on_unlisted_kink,
+        }
+    }
+
+    /// Minimises the piecewise model along `d` over `t in [0, 1]` (module header, step 3).
+    /// `slope` is the derivative along `d` on the face (the reduced gradient's, free of the kinks' part).
+    fn line_search(
+        &mut self,
+        items: &[Item],
+        x: DVec3,
+        d: DVec3,
+        slope: f64,
+        model: &Model,
+    ) -> Step {
+        let curvature = d.dot(model.hessian * d).max(f64::MIN_POSITIVE);
+        let smooth_t = (-slope / curvature).min(1.0);
+        if d.length() < model.clearance_m {
+            // No kink within reach of the step.
+            return Step {
+                t: smooth_t.max(0.0),
+                kink: None,
+            };
+        }
+        self.breakpoints.clear();
+        for &index in &self.active {
+            let i = index as usize;
+            let item = &items[i];
+            let state = self.state[i];
+            let r = x - item.position_m;
+            match (item.kind, state) {
+                (PrimitiveKind::Plane, State::Off | State::Full) => {
+                    let q = item.direction;
+                    let qd = q.dot(d);
+                    let crosses = if state == State::Off {
+                        qd < 0.0
+                    } else {
+                        qd > 0.0
+                    };
+                    if !crosses {
+                        continue;
+                    }
+                    let t = (-q.dot(r) / qd).max(0.0);
+                    if t <= 1.0 {
+                        self.breakpoints
+                            .push((t, item.strength_n * qd.abs(), index));
+                    }
+                }
+                (PrimitiveKind::Point | PrimitiveKind::Line, State::Smooth) => {
+                    // A step that turns the offset round and comes within a tenth of the starting distance
+                    // passes close to the kink; whether it should stop there is decided in the walk below.
+                    let line = item.kind == PrimitiveKind::Line;
+                    let q = item.direction;
+                    let before = if line { r - q * q.dot(r) } else { r };
+                    let step = if line { d - q * q.dot(d) } else { d };
+                    if before.dot(before + step) > 0.0 {
+                        continue;
+                    }
+                    let tau = (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0);
+                    if (before + tau * step).length() > 0.1 * before.length() {
+                        continue;
+                    }
+                    // A negative jump marks a near pass rather than a slope change.
+                    self.breakpoints.push((tau, -1.0, index));
+                }
+                _ => {}
+            }
+        }
+        self.breakpoints
+            .sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let mut jumps = 0.0;
+        for &(t, jump, index) in &self.breakpoints {
+            let unconstrained = -(slope + jumps) / curvature;
+            if unconstrained < t {
+                return Step {
+                    t: unconstrained.max(0.0),
+                    kink: None,
+                };
+            }
+            if jump < 0.0 {
+                // A near pass of a point or line: stop on it if, along the step, the other terms' slope there
+                // is within what the primitive can hold (`s |step|` either way): the minimum along the line
+                // is at the kink. The model's slope there is corrected for the primitive's own share, which the
+                // quadratic model spreads over the whole step.
+                let item = &items[index as usize];
+                let line = item.kind == PrimitiveKind::Line;
+                let q = item.direction;
+                let r = x - item.position_m;
+                let before = if line { r - q * q.dot(r) } else { r };
+                let step = if line { d - q * q.dot(d) } else { d };
+                let rho = before.length();
+                let normal = before / rho;
+                let s = item.strength_n;
+                let own_slope = s * normal.dot(step);
+                let own_curvature = s / rho * (step.length_squared() - normal.dot(step).powi(2));
+                let others = slope - own_slope + t * (curvature - own_curvature) + jumps;
+                if others.abs() <= s * step.length() {
+                    return Step {
+                        t,
+                        kink: Some(index as usize),
+                    };
+                }
+                continue;
+            }
+            jumps += jump;
+            if slope + t * curvature + jumps >= 0.0 {
+                return Step {
+                    t,
+                    kink: Some(index as usize),
+                };
+            }
+        }
+        Step {
+            t: (-(slope + jumps) / curvature).clamp(0.0, 1.0),
+            kink: None,
+        }
+    }
+
+    /// Recovers the kink multipliers (module header, step 4) into `dual`, each in its set. On failure returns
+    /// the worst violation: the item, its multiplier, and the label it leaves W with.
+    fn multipliers(
+        &self,
+        items: &[Item],
+        face: &Face,
+        gradient: DVec3,
+        dual: &mut [DVec3],
+    ) -> Result<(), (usize, DVec3, State)> {
+        if self.kink_count == 0 {
+            return Ok(());
+        }
+        let needed = -gradient;
+        if face.point.is_none() {
+            // The minimum-norm split.
+            let w = face.pinv * needed;
+            let mut worst: Option<(usize, f64, DVec3, State)> = None;
+            for &index in &self.kinks[..self.kink_count] {
+                let i = index as usize;
+                let item = &items[i];
+                let u = kink_projector(item) * w;
+                dual[i] = project(item, u);
+                if let Some((violation, label)) = violation(item, u) {
+                    if worst.is_none_or(|(_, v, _, _)| violation > v) {
+                        worst = Some((i, violation, u, label));
+                    }
+                }
+            }
+            match worst {
+                None => return Ok(()),
+                Some((i, _, u, label)) => {
+                    if self.kink_count == 1 {
+                        return Err((i, u, label));
+                    }
+                    // Dependent kinks can split the force another way: try the sweeps below.
+                    let _ = (i, u, label);
+                }
+            }
+        } else {
+            for &index in &self.kinks[..self.kink_count] {
+                dual[index as usize] = DVec3::ZERO;
+            }
+        }
+        // Dependent kinks: look for a feasible split by projected block sweeps over W alone.
+        let tolerance = 8.0 * EPS * needed.length().max(f64::MIN_POSITIVE);
+        let mut sum = DVec3::ZERO;
+        for &index in &self.kinks[..self.kink_count] {
+            let i = index as usize;
+            dual[i] = project(&items[i], dual[i]);
+            sum += dual[i];
+        }
+        for _ in 0..MAX_SPLIT_SWEEPS {
+            for &index in &self.kinks[..self.kink_count] {
+                let i = index as usize;
+                let others = sum - dual[i];
+                dual[i] = project(&items[i], needed - others);
+                sum = others + dual[i];
+            }
+            if (sum - needed).length() <= tolerance {
+                return Ok(());
+            }
+        }
+        // No feasible split found: the kink whose unconstrained share most exceeds its set leaves.
+        let mut worst: Option<(usize, f64, DVec3, State)> = None;
+        for &index in &self.kinks[..self.kink_count] {
+            let i = index as usize;
+            let others = sum - dual[i];
+            let u = kink_projector(&items[i]) * (needed - others);
+            if let Some((violation, label)) = violation(&items[i], u) {
+                if worst.is_none_or(|(_, v, _, _)| violation > v) {
+                    worst = Some((i, violation, u, label));
+                }
+            }
+        }
+        let (i, _, u, label) = worst.unwrap_or_else(|| {
+            // Every share is feasible on its own yet they do not add up: drop the last kink added.
+            let i = self.kinks[self.kink_count - 1] as usize;
+            (i, 0.0, dual[i], leave_label(&items[i], dual[i]))
+        });
+        Err((i, u, label))
+    }
+
+    /// Gap-safe screening (module header): drops the planes that keep their side on the ball of radius
+    /// `radius` around `x`, which is proven to hold the answer. Runs only when the radius has shrunk by 4
+    /// since the last screening.
+    fn screen(
+        &mut self,
+        items: &[Item],
+        x: DVec3,
+        radius: f64,
+        screened_radius_m: &mut f64,
+        dual: &mut [DVec3],
+    ) {
+        // (A NaN radius screens nothing.)
+        if radius.is_nan() || radius >= 0.25 * *screened_radius_m {
+            return;
+        }
+        *screened_radius_m = radius;
+        let scale = x.abs().max_element();
+        let mut kept = 0;
+        for slot in 0..self.active.len() {
+            let index = self.active[slot];
+            let i = index as usize;
+            let item = &items[i];
+            let state = self.state[i];
+            if item.kind == PrimitiveKind::Plane && matches!(state, State::Off | State::Full) {
+                let sigma = item.direction.dot(x - item.position_m);
+                let rounding = 8.0 * EPS * (scale + item.position_m.abs().max_element());
+                if sigma.abs() > radius + rounding {
+                    if sigma < 0.0 {
+                        self.state[i] = State::ScreenedFull;
+                        self.fixed_gradient_n -= item.strength_n * item.direction;
+                        self.fixed_energy_j +=
+                            item.strength_n * item.direction.dot(item.position_m);
+                        dual[i] = -item.strength_n * item.direction;
+                    } else {
+                        self.state[i] = State::ScreenedOff;
+                        dual[i] = DVec3::ZERO;
+                    }
+                    continue;
+                }
+            }
+            self.active[kept] = index;
+            kept += 1;
+        }
+        self.active.truncate(kept);
+    }
+
+    /// The affine set of W.
+    fn face(&self, items: &[Item]) -> Face {
+        let kinks = &self.kinks[..self.kink_count];
+        if let Some(&p) = kinks
+            .iter()
+            .find(|&&i| items[i as usize].kind == PrimitiveKind::Point)
+        {
+            return Face {
+                pinv: DMat3::ZERO,
+                null: DMat3::ZERO,
+                point: Some(p as usize),
+            };
+        }
+        match kinks {
+            [] => Face {
+                pinv: DMat3::ZERO,
+                null: DMat3::IDENTITY,
+                point: None,
+            },
+            [only] => {
+                let p = kink_projector(&items[*only as usize]);
+                Face {
+                    pinv: p,
+                    null: DMat3::IDENTITY - p,
+                    point: None,
+                }
+            }
+            _ => {
+                let m = kinks
+                    .iter()
+                    .map(|&i| kink_projector(&items[i as usize]))
+                    .fold(DMat3::ZERO, |m, p| m + p);
+                let (pinv, null, _) = psd_pseudo_inverse(m, RANK_TOLERANCE);
+                Face {
+                    pinv,
+                    null,
+                    point: None,
+                }
+            }
+        }
+    }
+
+    /// Moves `x` onto the affine set of W (two rounds: the second removes the first's rounding). Returns whether
+    /// every kink then holds it (the set is consistent).
+    fn project_onto_face(&self, items: &[Item], face: &Face, x: &mut DVec3, scale: f64) -> bool {
+        if self.kink_count == 0 {
+            return true;
+        }
+        if let Some(p) = face.point {
+            *x = items[p].position_m;
+        } else {
+            for _ in 0..2 {
+                let mut residual = DVec3::ZERO;
+                for &index in &self.kinks[..self.kink_count] {
+                    let item = &items[index as usize];
+                    residual += kink_projector(item) * (item.position_m - *x);
+                }
+                *x += face.pinv * residual;
+            }
+        }
+        let tolerance = 64.0 * EPS * scale;
+        self.kinks[..self.kink_count]
+            .iter()
+            .all(|&i| kink_distance(&items[i as usize], *x) <= tolerance)
+    }
+
+    /// Adds item `i` to W if the enlarged set is consistent, moving `x` onto it; otherwise leaves W and `x`.
+    fn try_add_kink(&mut self, items: &[Item], i: usize, x: &mut DVec3, scale: f64) -> bool {
+        if self.kink_count == MAX_KINKS || self.state[i] == State::Kink {
+            return false;
+        }
+        self.kinks[self.kink_count] = i as u32;
+        self.kink_count += 1;
+        let face = self.face(items);
+        let mut moved = *x;
+        if self.project_onto_face(items, &face, &mut moved, scale) {
+            self.state[i] = State::Kink;
+            *x = moved;
+            true
+        } else {
+            self.kink_count -= 1;
+            false
+        }
+    }
+
+    /// Removes item `i` from W with the given label.
+    fn remove_kink(&mut self, i: usize, label: State) {
+        if let Some(slot) = self.kinks[..self.kink_count]
+            .iter()
+            .position(|&k| k as usize == i)
+        {
+            self.kinks.copy_within(slot + 1..self.kink_count, slot);
+            self.kink_count -= 1;
+        }
+        self.state[i] = label;
+    }
+
+    /// Puts W back as it was before a step that is being halved.
+    fn restore_kinks(&mut self, items: &[Item], kinks: [u32; MAX_KINKS], count: usize, x: DVec3) {
+        for slot in 0..self.kink_count {
+            let i = self.kinks[slot] as usize;
+            if !kinks[..count].contains(&(i as u32)) {
+                self.state[i] = start_state(&items[i], x);
+            }
+        }
+        self.kinks = kinks;
+        self.kink_count = count;
+        for &i in &kinks[..count] {
+            self.state[i as usize] = State::Kink;
+        }
+    }
+}
+
+/// The state of an item off W at `x`.
+fn start_state(item: &Item, x: DVec3) -> State {
+    match item.kind {
+        PrimitiveKind::Plane => {
+            if item.direction.dot(x - item.position_m) < 0.0 {
+                State::Full
+            } else {
+                State::Off
+            }
+        }
+        _ => State::Smooth,
+    }
+}
+
+/// How far a multiplier lies outside its set (relative to the strength), and the label its item leaves W with.
+fn violation(item: &Item, u: DVec3) -> Option<(f64, State)> {
+    let s = item.strength_n;
+    let (amount, label) = match item.kind {
+        PrimitiveKind::Plane => {
+            let t = -item.direction.dot(u);
+            if t < 0.0 {
+                (-t, State::Off)
+            } else {
+                (t - s, State::Full)
+            }
+        }
+        _ => (u.length() - s, State::Smooth),
+    };
+    (amount > MULTIPLIER_SLACK * s).then_some((amount / s, label))
+}
+
+/// The label of a kink leaving W with multiplier `u`.
+fn leave_label(item: &Item, u: DVec3) -> State {
+    match item.kind {
+        PrimitiveKind::Plane => {
+            if -item.direction.dot(u) > 0.5 * item.strength_n {
+                State::Full
+            } else {
+                State::Off
+            }
+        }
+        _ => State::Smooth,
+    }
+}
+
+/// The distance from `x` to an item's kink set.
+fn kink_distance(item: &Item, x: DVec3) -> f64 {
+    let r = x - item.position_m;
+    let q = item.direction;
+    match item.kind {
+        PrimitiveKind::Point => r.length(),
+        PrimitiveKind::Line => (r - q * q.dot(r)).length(),
+        PrimitiveKind::Plane => q.dot(r).abs(),
+        PrimitiveKind::Directed => f64::INFINITY,
+    }
+}

@@ -23,9 +23,7 @@ use super::api::{
     Snapshot, StatsReport,
 };
 use super::control::Control;
-use super::device::{
-    open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice,
-};
+use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};

@@ -11,15 +11,17 @@
 #      390x844 (a phone): no horizontal overflow, the mode on/off switch, peak strength 0 and back keeping the
 #      breakpoints, typed breakpoints, slices within 200 KiB/s, the status line and the measured stream rate;
 #      then a wrong token: the page says so and a drag sends no request.
-# Skips (exit 0) with a message when no Chromium can be found or installed. Exit 1 on a failed check.
+# Skips (exit 0) with a message when no Chromium, node or npm can be found or installed, except in CI (CI set),
+# where that fails. Exit 1 on a failed check.
 #
 # Environment: VOXHAP_BIN (use this binary), KEEP_SCREENSHOTS=DIR (copy the PNGs there),
 # SKIP_E2E=1 (skip step 3).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-say() { echo "check-browser: $*"; }
-fail() { echo "check-browser: FAIL: $*" >&2; exit 1; }
+name=check-browser
+. .ci/lib.sh
+say() { echo "$name: $*"; }
 
 # ---- Chromium
 find_chromium() {
@@ -43,14 +45,12 @@ if [ -z "$CHROMIUM" ] && [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2
   CHROMIUM=$(find_chromium || true)
 fi
 if [ -z "$CHROMIUM" ]; then
-  say "SKIP: no chromium or chromium-browser found (and it could not be installed); the page was not checked"
-  exit 0
+  missing "no chromium or chromium-browser found (and it could not be installed); the page was not checked"
 fi
-command -v python3 >/dev/null 2>&1 || { say "SKIP: python3 is needed to check the screenshots"; exit 0; }
+command -v python3 >/dev/null 2>&1 || missing "python3 is needed to check the screenshots"
 say "using $CHROMIUM ($("$CHROMIUM" --version 2>/dev/null | head -1))"
 
 # ---- the server binary
-. .ci/lib.sh
 find_voxhap check-browser
 make_work_dir check-browser
 
@@ -206,18 +206,18 @@ if changed < 50:
 print("check-browser: ok: %d pixels of the views changed between the screenshots" % changed)
 EOF
 
-# ---- 3. Optional: drag the virtual hand and use the controls (playwright-core).
+# ---- 3. Drag the virtual hand and use the controls (playwright-core).
 if [ "${SKIP_E2E:-}" = "1" ]; then
   say "SKIP: browser interaction test (SKIP_E2E=1)"
 elif ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
-  say "SKIP: browser interaction test (node or npm not found)"
+  missing "browser interaction test: node or npm not found"
 else
   mkdir -p "$WORK/npm"
   if (cd "$WORK/npm" && timeout 120 npm install --silent --no-audit --no-fund --no-save playwright-core >"$WORK/npm.log" 2>&1); then
     NODE_PATH="$WORK/npm/node_modules" timeout 150 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
       || { server_log; fail "the browser interaction test failed"; }
   else
-    say "SKIP: browser interaction test (npm could not install playwright-core: $(tail -n 1 "$WORK/npm.log"))"
+    missing "browser interaction test: npm could not install playwright-core: $(tail -n 1 "$WORK/npm.log")"
   fi
 fi
 

@@ -5,8 +5,8 @@
 # on /voxhap/volume and the three slices; the shipped layout contrib/foxglove/voxhap-layout.json must refer
 # only to topics the server advertises (.ci/foxglove-subscribe.mjs).
 #
-# Skips (exit 0, with a message) when node or npm is missing or the npm install fails (offline). Fails (exit 1)
-# with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
+# Skips (exit 0, with a message) when node or npm is missing or the npm install fails (offline), except in CI
+# (CI set), where that fails. Fails (exit 1) with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
 #
 # Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 15000), VOXHAP_BIN (a
 # voxhap binary to use instead of building target/release/voxhap, e.g. target/debug/voxhap after cargo test;
@@ -15,19 +15,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 name=check-foxglove-node
-skip() {
-  echo "$name: SKIPPED: $*"
-  exit 0
-}
-fail() {
-  echo "$name: FAILED: $*" >&2
-  exit 1
-}
-
-command -v node >/dev/null 2>&1 || skip "node is not installed"
-command -v npm >/dev/null 2>&1 || skip "npm is not installed"
-
 . .ci/lib.sh
+
+command -v node >/dev/null 2>&1 || missing "node is not installed"
+command -v npm >/dev/null 2>&1 || missing "npm is not installed"
+
 make_work_dir voxhap-foxglove-node
 trap 'exit 130' INT TERM
 
@@ -35,7 +27,7 @@ echo "$name: installing @foxglove/ws-protocol, ws and protobufjs into $WORK (nod
 if ! timeout 120 npm install --prefix "$WORK" --no-audit --no-fund --no-save --loglevel=error \
   @foxglove/ws-protocol ws protobufjs >"$WORK/npm.log" 2>&1; then
   tail -n 5 "$WORK/npm.log" | sed "s/^/$name: npm: /"
-  skip "npm install of @foxglove/ws-protocol, ws and protobufjs failed (offline or no registry access)"
+  missing "npm install of @foxglove/ws-protocol, ws and protobufjs failed (offline or no registry access)"
 fi
 versions=$(cd "$WORK" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws", "protobufjs"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
 echo "$name: installed $versions"

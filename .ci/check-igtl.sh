@@ -13,29 +13,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 name=check-igtl
-skip() {
-  echo "$name: SKIPPED: $*"
-  exit 0
-}
-fail() {
-  echo "$name: FAILED: $*" >&2
-  exit 1
-}
+. .ci/lib.sh
 
-if ! command -v python3 >/dev/null 2>&1; then
-  [ "${CI:-}" = "true" ] && fail "python3 is not installed"
-  skip "python3 is not installed"
-fi
-if ! python3 -c 'import pyigtl, numpy' >/dev/null 2>&1; then
-  echo "$name: installing pyigtl with pip"
-  if ! python3 -m pip install --quiet --disable-pip-version-check pyigtl; then
-    [ "${CI:-}" = "true" ] && fail "pip install pyigtl failed"
-    skip "pip install pyigtl failed (offline?)"
-  fi
-fi
+need_python "pyigtl, numpy" pyigtl
 echo "$name: $(python3 -c 'from importlib.metadata import version as v; print("pyigtl", v("pyigtl"), "numpy", v("numpy"))')"
 
-. .ci/lib.sh
 make_work_dir voxhap-igtl
 trap 'exit 130' INT TERM
 find_voxhap "$name"

@@ -19,29 +19,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 name=check-parquet-pandas
-skip() {
-  echo "$name: SKIPPED: $*"
-  exit 0
-}
-fail() {
-  echo "$name: FAILED: $*" >&2
-  exit 1
-}
+. .ci/lib.sh
 
-if ! command -v python3 >/dev/null 2>&1; then
-  [ -n "${CI:-}" ] && fail "python3 is not installed"
-  skip "python3 is not installed"
-fi
-if ! python3 -c 'import pandas, pyarrow, matplotlib' >/dev/null 2>&1; then
-  echo "$name: installing pandas, pyarrow and matplotlib with pip"
-  if ! python3 -m pip install --quiet --disable-pip-version-check pandas pyarrow matplotlib; then
-    [ -n "${CI:-}" ] && fail "pip install pandas pyarrow matplotlib failed"
-    skip "pip install pandas pyarrow matplotlib failed (offline?)"
-  fi
-fi
+need_python "pandas, pyarrow, matplotlib" pandas pyarrow matplotlib
 echo "$name: $(python3 -c 'import pandas, pyarrow; print("pandas", pandas.__version__, "pyarrow", pyarrow.__version__)')"
 
-. .ci/lib.sh
 find_voxhap "$name"
 make_work_dir voxhap-parquet
 

@@ -12,26 +12,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 name=check-python
-skip() {
-  echo "$name: SKIPPED: $*"
-  exit 0
-}
-fail() {
-  echo "$name: FAILED: $*" >&2
-  exit 1
-}
+. .ci/lib.sh
 
-if ! command -v python3 >/dev/null 2>&1; then
-  [ -n "${CI:-}" ] && fail "python3 is not installed"
-  skip "python3 is not installed"
-fi
-if ! python3 -c 'import maturin, pytest, pandas, pyarrow' >/dev/null 2>&1; then
-  echo "$name: installing maturin, pytest, pandas and pyarrow with pip"
-  if ! python3 -m pip install --quiet --disable-pip-version-check maturin pytest pandas pyarrow; then
-    [ -n "${CI:-}" ] && fail "pip install maturin pytest pandas pyarrow failed"
-    skip "pip install maturin pytest pandas pyarrow failed (offline?)"
-  fi
-fi
+need_python "maturin, pytest, pandas, pyarrow" maturin pytest pandas pyarrow
 export VOXHAP_BIN=${VOXHAP_BIN:-target/debug/voxhap}
 [ -x "$VOXHAP_BIN" ] || cargo build --quiet --bin voxhap || fail "cargo build failed"
 export VOXHAP_BIN=$(realpath "$VOXHAP_BIN")

@@ -1,4 +1,37 @@
-# Shared by the .ci/check-*.sh scripts (sourced, after they define fail()).
+# Shared by the .ci/check-*.sh scripts (sourced at their top, after they set `name`).
+#
+# The rule (the project brief): a check that needs a tool skips with a visible message on a developer's machine
+# when the tool cannot be had, but in CI (.ci/run exports CI=true) a tool that a registry provides (PyPI, npm,
+# Debian) is installed, and a failed install FAILS the run. Only another toolchain (nightly Rust) may be
+# skipped in CI, visibly.
+
+skip() {
+  echo "$name: SKIPPED: $*"
+  exit 0
+}
+fail() {
+  echo "$name: FAILED: $*" >&2
+  exit 1
+}
+# True in a CI run (CI set to anything but "", "0" or "false").
+in_ci() {
+  [ -n "${CI:-}" ] && [ "${CI}" != "0" ] && [ "${CI}" != "false" ]
+}
+# A tool could not be had: fail in CI, skip visibly elsewhere.
+missing() {
+  if in_ci; then fail "$* (CI needs it)"; fi
+  skip "$*"
+}
+# need_python "MODULE, ..." PACKAGE...: python3 with these modules, pip-installing PACKAGEs when an import fails.
+need_python() {
+  local imports=$1
+  shift
+  command -v python3 >/dev/null 2>&1 || missing "python3 is not installed"
+  if ! python3 -c "import $imports" >/dev/null 2>&1; then
+    echo "$name: installing $* with pip"
+    python3 -m pip install --quiet --disable-pip-version-check "$@" || missing "pip install $* failed (offline?)"
+  fi
+}
 
 # Sets VOXHAP to the binary to run: $VOXHAP_BIN when given (e.g. target/debug/voxhap after cargo test), else
 # target/release/voxhap, built by cargo (quick when up to date; minutes from scratch).

@@ -134,6 +134,8 @@ fn device_drops_to_zero_force_within_its_watchdog_when_the_host_stops() {
     let watchdog_us = 20_000;
     let config = ProtocolConfig {
         device_watchdog_us: watchdog_us,
+        // A late answer on a loaded machine is not what this test is about: wait for it.
+        state_timeout: Duration::from_millis(100),
         ..ProtocolConfig::default()
     };
     let mut device = open(&mock.path, config);
@@ -160,6 +162,8 @@ fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
     let mock = Mock::start(&["--pty"]);
     let config = ProtocolConfig {
         device_watchdog_us: 10_000,
+        // A late answer on a loaded machine is not what this test is about: wait for it.
+        state_timeout: Duration::from_millis(100),
         ..ProtocolConfig::default()
     };
     let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
@@ -299,7 +303,11 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
     })
     .unwrap();
     let start = Instant::now();
+    // The last loss: on a loaded machine the mock can be descheduled for longer than the link-health bound while
+    // it still answers, and then the host rightly drops the link and reconnects; what must hold is that the loss
+    // it never recovers from comes after the device went mute, and that no force goes out while the link is down.
     let mut lost_at = None;
+    let mut link_down = false;
     let mut failed_reconnects = 0;
     let mut tick = 0u64;
     while start.elapsed() < Duration::from_secs(2) && failed_reconnects < 2 {
@@ -312,19 +320,21 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
                 SupervisorEvent::Disconnected { kind, .. } => {
                     assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
                     lost_at = Some(now_us);
+                    link_down = true;
                 }
+                SupervisorEvent::Connected => link_down = false,
                 SupervisorEvent::ReconnectFailed(_) => failed_reconnects += 1,
                 _ => {}
             }
         }
-        if lost_at.is_some() {
+        if link_down {
             assert_eq!(out.sent_force_n, DVec3::ZERO);
         }
     }
     let lost_at = lost_at.expect("a mute device was never declared lost");
     assert!(
         lost_at >= 300_000,
-        "lost at {lost_at} us, before the device went mute"
+        "last lost at {lost_at} us, before the device went mute"
     );
     assert!(
         failed_reconnects >= 1,

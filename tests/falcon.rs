@@ -20,6 +20,21 @@ fn open(path: &str) -> Lifecycle<Falcon<SerialTransport>> {
     device
 }
 
+/// The last command the double has logged once its thread has caught up with what the host wrote: the double
+/// logs from its own thread, so right after a write the log can still lack the final frame.
+fn last_command_settled(falcon: &FalconDevice) -> crate::util::falcon_firmware::FalconCommand {
+    let deadline = std::time::Instant::now() + Duration::from_secs(1);
+    let mut count = falcon.commands().len();
+    loop {
+        std::thread::sleep(Duration::from_millis(20));
+        let commands = falcon.commands();
+        if commands.len() == count || std::time::Instant::now() > deadline {
+            return *commands.last().expect("the double logged no command");
+        }
+        count = commands.len();
+    }
+}
+
 #[test]
 fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() {
     let falcon = FalconDevice::start();
@@ -49,7 +64,7 @@ fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() 
     assert!(last.homing_requested && last.leds == LED_GREEN, "{last:?}");
     assert!(last.motor.iter().all(|&m| m != 0), "{last:?}");
     device.disable().unwrap();
-    assert_eq!(falcon.commands().last().unwrap().motor, [0, 0, 0]);
+    assert_eq!(last_command_settled(&falcon).motor, [0, 0, 0]);
 }
 
 #[test]
@@ -110,6 +125,7 @@ fn the_supervisor_bounds_forces_and_ends_with_zero_torque() {
         std::thread::sleep(Duration::from_micros(500));
     }
     supervisor.stop();
+    last_command_settled(&falcon);
     let commands = falcon.commands();
     // 2 N along z at the handle's pose gives this command; 50 N asked must never exceed it by much.
     let at_clamp = voxhap::device::drivers::falcon::motor_commands(

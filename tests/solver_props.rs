@@ -256,7 +256,7 @@ proptest! {
         prop_assert!(apart <= 2e-12, "{:e}", apart);
         let reference = reference::minimise(k, probe, &prims);
         let error = reference.distance_m(new.proxy_m);
-        prop_assert!(error <= new.error_bound_m + reference.error_bound_m.max(1e-13), "{:e} {:?}", error, new);
+        prop_assert!(error <= new.error_bound_m + reference.error_bound_m.max(1e-13), "{:e} {:?} REF {:?} OLD {:?}", error, new, reference, old);
     }
 
     /// The same on the benchmark's random scenes (all four kinds, 10 to 300 primitives), warm-started from a

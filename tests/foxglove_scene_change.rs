@@ -104,14 +104,14 @@ fn assert_shows_ball(update: &SceneUpdate, min_m: DVec3, max_m: DVec3) {
         close(shown_min, min_m) && close(shown_max, max_m),
         "shown {shown_min}..{shown_max}"
     );
-    // 31 samples of 10 mm: a 31 cm cube, its centre at RAS (250, 200, 135) mm.
+    // 31 samples of 10 mm: a 31 cm cube from RAS (100, 50, -20) mm, its centre at (255, 205, 135) mm.
     assert!(
         ((max_m - min_m) - DVec3::splat(0.31)).length() < 1e-9,
         "{min_m}..{max_m}"
     );
     let centre = (min_m + max_m) * 0.5;
     assert!(
-        (centre - DVec3::new(0.25, 0.2, 0.135)).length() < 1e-9,
+        (centre - DVec3::new(0.255, 0.205, 0.135)).length() < 1e-9,
         "{centre}"
     );
     // The framing: target at the centre, distance 1.1 x (0.31 sqrt(3) / 2) / sin(22.5 degrees).

@@ -14,9 +14,8 @@
 //! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
 //! | [`OPERATING_STATE_TOPIC`] | `voxhap.OperatingState` (JSON) | CRTK `state`, `is_homed`, `is_busy` | |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, force arrow, the tick's primitives (live: and the hand target) | |
-//! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box and the surface mode's iso-surface mesh, once per scene | |
-//! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre (the layout's camera follows it) | |
-//!
+//! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box (with the [`CameraFraming`] in its metadata) and the surface mode's iso-surface mesh, once per scene | |
+//! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre and frame [`VIEW_FRAME`], which the shipped layout's camera follows ([`CameraFraming`]) | |
 //! | `/voxhap/volume/slice_x`, `_y`, `_z` | `foxglove.Grid` | slices through the proxy (live 128², recorded 64²) | |
 //!
 //! In a recording ([`RecordedScene`]) the scene update, bound and operating state come from the servo's own
@@ -788,8 +787,9 @@ impl RecordedScene {
         })
     }
 
-    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture with the first
-    /// sample; the scene update (markers and the tick's primitives), bound and operating state from `frame`,
+    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture and frames with the
+    /// first sample, and again with the first snapshot of a scene change's generation
+    /// ([`RecordedScene::scene_changed`]); the scene update (markers and the tick's primitives), bound and operating state from `frame`,
     /// the servo's snapshot of this tick, when there is one (at most [`RECORDED_SCENE_HZ`]), else from the
     /// sample at that rate (`voxhap sim`, or a snapshot that did not arrive); slices through the proxy every
     /// [`RECORDED_SLICE_INTERVAL_S`]; statistics once a second. `put(channel, encode)` writes one message.

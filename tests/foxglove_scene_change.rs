@@ -288,12 +288,17 @@ fn a_volume_loaded_while_recording_is_redrawn_in_the_mcap() {
     let api = session.api();
     std::thread::sleep(Duration::from_millis(600));
     let (old_min, old_max) = density_bounds(api.as_ref());
+    let asked = Instant::now();
     let reply = api
         .control(ControlCommand::LoadVolume {
             path: ball,
             name: Some("density".to_owned()),
         })
         .expect("the ball loads while recording");
+    eprintln!(
+        "load_volume while recording (meshing the recording's picture) took {:.3} s",
+        asked.elapsed().as_secs_f64()
+    );
     let (new_min, new_max) = density_bounds(api.as_ref());
     // Long enough for the recorder to mesh the ball on a loaded machine and record past it.
     std::thread::sleep(Duration::from_millis(2500));

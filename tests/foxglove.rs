@@ -114,6 +114,24 @@ pub(crate) async fn handshake(client: &mut Client) -> HashMap<String, (u64, Stri
     channels
 }
 
+/// Subscribes to `topics` (advertised in `channels`); subscription id i + 1 is `topics[i]`.
+pub(crate) async fn subscribe(
+    client: &mut Client,
+    channels: &HashMap<String, (u64, String, String)>,
+    topics: &[&str],
+) {
+    let subscriptions: Vec<serde_json::Value> = topics
+        .iter()
+        .enumerate()
+        .map(|(i, topic)| serde_json::json!({"id": i + 1, "channelId": channels[*topic].0}))
+        .collect();
+    let subscribe = serde_json::json!({"op": "subscribe", "subscriptions": subscriptions});
+    client
+        .send(Message::Text(subscribe.to_string().into()))
+        .await
+        .unwrap();
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate() {
     let session = sim_session(None);
@@ -163,16 +181,7 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
     }
 
     // Subscribe to everything; subscription id i + 1 is TOPICS[i].
-    let subscriptions: Vec<serde_json::Value> = TOPICS
-        .iter()
-        .enumerate()
-        .map(|(i, topic)| serde_json::json!({"id": i + 1, "channelId": channels[*topic].0}))
-        .collect();
-    let subscribe = serde_json::json!({"op": "subscribe", "subscriptions": subscriptions});
-    client
-        .send(Message::Text(subscribe.to_string().into()))
-        .await
-        .unwrap();
+    subscribe(&mut client, &channels, &TOPICS).await;
 
     let mut received: HashMap<&str, Vec<Received>> = HashMap::new();
     let started = Instant::now();

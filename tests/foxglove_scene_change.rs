@@ -6,10 +6,10 @@
 
 use super::foxglove::{
     connect, handshake, loopback, message_data, next, python_mcap_scene_check, sim_session,
+    subscribe,
 };
 use ::foxglove::messages::{FrameTransform, Grid, SceneUpdate};
 use ::foxglove::Decode;
-use futures_util::SinkExt;
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -156,16 +156,7 @@ async fn a_loaded_volume_is_redrawn_for_a_subscribed_client_and_nothing_stale_fo
         "/voxhap/volume_frame",
         "/voxhap/volume/slice_z",
     ];
-    let subscriptions: Vec<_> = topics
-        .iter()
-        .enumerate()
-        .map(|(i, topic)| serde_json::json!({"id": i + 1, "channelId": channels[*topic].0}))
-        .collect();
-    let subscribe = serde_json::json!({"op": "subscribe", "subscriptions": subscriptions});
-    client
-        .send(Message::Text(subscribe.to_string().into()))
-        .await
-        .unwrap();
+    subscribe(&mut client, &channels, &topics).await;
 
     // Every message from now on: (arrival, topic index, payload).
     let mut received: Vec<(Instant, usize, Vec<u8>)> = Vec::new();

@@ -388,7 +388,7 @@ fn point3(p: DVec3) -> Point3 {
 pub fn volume_scene(
     min_m: DVec3,
     max_m: DVec3,
-    mesh: Option<(&Mesh, Rgb, f64)>,
+    mesh: Option<&(Mesh, Rgb, f64)>,
     description: &str,
     timestamp: Timestamp,
 ) -> SceneUpdate {
@@ -444,6 +444,7 @@ pub fn volume_scene(
     });
     let mut entities = vec![bounds];
     if let Some((mesh, rgb, iso)) = mesh {
+        let (rgb, iso) = (*rgb, *iso);
         let mut surface = entity(
             "volume/surface".to_owned(),
             timestamp,
@@ -887,14 +888,10 @@ impl RecordedScene {
         let Some(picture) = &self.picture else {
             return Ok(());
         };
-        let surface = picture
-            .surface
-            .as_ref()
-            .map(|(m, rgb, iso)| (m, *rgb, *iso));
         let update = volume_scene(
             picture.min_m,
             picture.max_m,
-            surface,
+            picture.surface.as_ref(),
             &picture.description,
             timestamp_from_ns(time_ns),
         );
@@ -1075,6 +1072,14 @@ mod tests {
         assert_eq!(RecordedVolume::from_meta(&meta), None);
     }
 
+    /// A one-mode sample of tick `tick` at 1 kHz.
+    fn sample_at(tick: u64) -> crate::record::TraceSample {
+        let mut sample = crate::record::TraceSample::zeroed(1);
+        sample.tick = tick;
+        sample.t_s = tick as f64 * 1e-3;
+        sample
+    }
+
     /// Writes 3 s of 1 kHz samples through a [`RecordedScene`], with the servo's snapshots every 17th tick
     /// for the first second only; returns how many messages each channel got and the last statistics.
     fn record_with_frames_for_one_second() -> (RecordedScene, Vec<u16>, serde_json::Value) {
@@ -1086,9 +1091,7 @@ mod tests {
         let mut last_stats = serde_json::Value::Null;
         let every = scene_frame_interval_ticks(1_000_000);
         for tick in 0..3000u64 {
-            let mut sample = crate::record::TraceSample::zeroed(1);
-            sample.tick = tick;
-            sample.t_s = tick as f64 * 1e-3;
+            let sample = sample_at(tick);
             let frame = Snapshot {
                 tick,
                 t_s: sample.t_s,
@@ -1261,9 +1264,7 @@ mod tests {
             if tick == 400 {
                 scene.scene_changed(&change);
             }
-            let mut sample = crate::record::TraceSample::zeroed(1);
-            sample.tick = tick;
-            sample.t_s = tick as f64 * 1e-3;
+            let sample = sample_at(tick);
             // The servo took the change at tick 410.
             let frame = Snapshot {
                 tick,

@@ -465,17 +465,13 @@ impl Publisher {
         }
     }
 
-    /// Publishes the volume picture (bounds, mesh, the `volume` frame).
+    /// Publishes the volume picture (bounds, mesh, the `volume` and `volume_view` frames).
     fn volume(&self, picture: &VolumePicture) {
         let time_ns = unix_now_ns();
-        let surface = picture
-            .surface
-            .as_ref()
-            .map(|(mesh, rgb, iso)| (mesh, *rgb, *iso));
         let update = volume_scene(
             picture.min_m,
             picture.max_m,
-            surface,
+            picture.surface.as_ref(),
             &picture.description,
             timestamp_from_ns(time_ns),
         );

@@ -6,6 +6,8 @@
 // - /voxhap/volume: a foxglove.SceneUpdate with the volume's bounding box (12 edges) and an iso-surface mesh
 //   (indexed triangles), decoded with protobufjs from the schema the server advertises;
 // - /voxhap/volume/slice_x, _y, _z: foxglove.Grid slices whose data holds column_count x rows cells;
+// - /voxhap/volume_frame: foxglove.FrameTransform messages for the frames `volume` (the volume's centre) and
+//   `volume_view` (the camera framing), among them the frame the layout's 3D panel follows (followTf);
 // - the shipped Foxglove layout (contrib/foxglove/voxhap-layout.json) refers only to advertised topics.
 //
 // Usage: node foxglove-subscribe.mjs ws://127.0.0.1:PORT LAYOUT.json [N=60] [TIMEOUT_MS=15000]
@@ -25,6 +27,7 @@ const wanted = Number(process.argv[4] ?? 60);
 const timeoutMs = Number(process.argv[5] ?? 15000);
 const FORCE = "/voxhap/servo_cf";
 const VOLUME = "/voxhap/volume";
+const VOLUME_FRAME = "/voxhap/volume_frame";
 const SLICES = ["/voxhap/volume/slice_x", "/voxhap/volume/slice_y", "/voxhap/volume/slice_z"];
 // The foxglove SDK's server speaks `foxglove.sdk.v1` (the same messages as the older
 // `foxglove.websocket.v1`, which @foxglove/ws-protocol names as its default and the SDK refuses).
@@ -47,6 +50,10 @@ function layoutTopics(layout) {
 }
 
 const layout = JSON.parse(fs.readFileSync(layoutPath, "utf8"));
+// The frames the layout's 3D panels follow.
+const followed = Object.values(layout.configById ?? {})
+  .map((config) => config.followTf)
+  .filter((frame) => typeof frame === "string");
 const started = Date.now();
 let serverName = null;
 const channelsByTopic = new Map();
@@ -56,6 +63,7 @@ let forces = 0;
 let firstForceAt = null;
 let lastForce = null;
 let mesh = null;
+const frames = new Map();
 const slices = new Map();
 let layoutChecked = false;
 let done = false;
@@ -102,7 +110,8 @@ function decoderFor(channel) {
 }
 
 function checkAll() {
-  if (forces >= wanted && mesh && slices.size === SLICES.length && layoutChecked) {
+  const framed = ["volume", "volume_view", ...followed].every((frame) => frames.has(frame));
+  if (forces >= wanted && mesh && slices.size === SLICES.length && framed && layoutChecked) {
     const seconds = (Date.now() - firstForceAt) / 1000;
     const rate = seconds > 0 ? ((forces - 1) / seconds).toFixed(1) : "n/a";
     finish(
@@ -111,6 +120,8 @@ function checkAll() {
         `(about ${rate} Hz), last force [${lastForce.x.toFixed(4)}, ${lastForce.y.toFixed(4)}, ${lastForce.z.toFixed(4)}] N; ` +
         `volume mesh of ${mesh.triangles} triangles in a box of ${mesh.edges} edges; slices ` +
         [...slices.entries()].map(([topic, size]) => `${topic.split("_").pop()} ${size}`).join(", ") +
+        `; frames ${[...frames.entries()].map(([frame, at]) => `${frame} at [${at.map((v) => v.toFixed(3)).join(", ")}] m`).join(", ")}` +
+        ` (the layout follows ${followed.join(", ")})` +
         `; the layout's ${layoutTopics(layout).length} topics are all advertised`,
     );
   }
@@ -139,7 +150,7 @@ client.on("advertise", (channels) => {
       finish(false, `${FORCE} advertised as ${channel.schemaName} (${channel.encoding}), expected foxglove.Vector3`);
       return;
     }
-    if ([FORCE, VOLUME, ...SLICES].includes(channel.topic)) {
+    if ([FORCE, VOLUME, VOLUME_FRAME, ...SLICES].includes(channel.topic)) {
       const id = client.subscribe(channel.id);
       channelsById.set(id, channel);
     }
@@ -173,6 +184,15 @@ client.on("message", ({ subscriptionId, data }) => {
       if (indices.length < 3 || indices.length % 3 !== 0) throw new Error(`mesh with ${indices.length} indices`);
       if (!indices.every((i) => i < triangles.points.length)) throw new Error("mesh index out of range");
       mesh = { triangles: indices.length / 3, edges: bounds.lines[0].points.length / 2 };
+    } else if (channel.topic === VOLUME_FRAME) {
+      const type = decoderFor(channel);
+      const frame = type.toObject(type.decode(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)));
+      const t = frame.translation ?? {};
+      const at = [t.x ?? 0, t.y ?? 0, t.z ?? 0];
+      if (frame.parentFrameId !== "world" || !at.every(Number.isFinite)) {
+        throw new Error(`frame ${frame.childFrameId} in ${frame.parentFrameId} at ${at}`);
+      }
+      frames.set(frame.childFrameId, at);
     } else {
       const type = decoderFor(channel);
       const grid = type.toObject(type.decode(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)), { bytes: Array });
@@ -196,6 +216,8 @@ setTimeout(() => {
   if (forces < wanted) missing.push(`only ${forces} of ${wanted} messages on ${FORCE}`);
   if (!mesh) missing.push(`no volume mesh on ${VOLUME}`);
   if (slices.size < SLICES.length) missing.push(`slices only on [${[...slices.keys()].join(", ")}]`);
+  const absentFrames = ["volume", "volume_view", ...followed].filter((frame) => !frames.has(frame));
+  if (absentFrames.length > 0) missing.push(`no frame ${absentFrames.join(", ")} on ${VOLUME_FRAME}`);
   if (!layoutChecked) {
     const absent = layoutTopics(layout).filter((topic) => !channelsByTopic.has(topic));
     missing.push(`layout topics not advertised: ${absent.join(", ")}`);

@@ -3,9 +3,12 @@
 independent of voxhap's: every topic the shipped Foxglove layout shows is in the recording, and each topic
 comes at its documented rate (docs/foxglove.md, "Topics").
 
-Usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json
+Usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json [PICTURES=1]
+PICTURES is how many volume pictures the recording must hold: 1, plus one per volume loaded while
+recording; each comes with its two frames (`volume` and `volume_view`, the camera framing), in log-time order.
 Prints one JSON report line on success; exits 1 with the reason otherwise. Run by tests/foxglove.rs
-(python_mcap_reads_the_scene_topics_of_a_recorded_session), which skips visibly without python3 or mcap.
+(python_mcap_reads_the_scene_topics_of_a_recorded_session) and tests/foxglove_scene_change.rs (a volume
+loaded mid-recording, PICTURES=2), which skip visibly without python3 or mcap.
 """
 import json
 import sys
@@ -25,7 +28,12 @@ def check(condition, message):
 
 
 # The topic that publishes each frame the layout's 3D panel follows or lists.
-FRAME_TOPICS = {"volume": "/voxhap/volume_frame", "probe": "/voxhap/measured_cp", "proxy": "/voxhap/setpoint_cp"}
+FRAME_TOPICS = {
+    "volume": "/voxhap/volume_frame",
+    "volume_view": "/voxhap/volume_frame",
+    "probe": "/voxhap/measured_cp",
+    "proxy": "/voxhap/setpoint_cp",
+}
 
 
 def layout_topics(layout):
@@ -45,11 +53,13 @@ def layout_topics(layout):
 
 
 def main():
-    if len(sys.argv) != 3:
-        fail("usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json")
+    if len(sys.argv) not in (3, 4):
+        fail("usage: mcap_scene_check.py RECORDING.mcap LAYOUT.json [PICTURES]")
+    pictures = int(sys.argv[3]) if len(sys.argv) == 4 else 1
     with open(sys.argv[2]) as f:
         wanted = layout_topics(json.load(f))
     counts, schemas, first, last, sizes, first_json = {}, {}, {}, {}, {}, {}
+    picture_times, frame_times = [], []
     with open(sys.argv[1], "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
             topic = channel.topic
@@ -59,6 +69,10 @@ def main():
             check(message.log_time >= last.get(topic, 0), f"{topic}: log times go backwards")
             first.setdefault(topic, message.log_time)
             last[topic] = message.log_time
+            if topic == "/voxhap/volume":
+                picture_times.append(message.log_time)
+            if topic == "/voxhap/volume_frame":
+                frame_times.append(message.log_time)
             if channel.message_encoding == "json" and topic not in first_json:
                 first_json[topic] = json.loads(message.data)
 
@@ -71,7 +85,9 @@ def main():
     check(span_s > 1.0, f"recording only {span_s:.3f} s long")
     for topic in ("/voxhap/measured_cp", "/voxhap/setpoint_cp", "/voxhap/state", "/voxhap/solver"):
         check(counts[topic] == ticks, f"{topic}: {counts[topic]} messages for {ticks} ticks")
-    check(counts["/voxhap/volume"] == 1 and counts["/voxhap/volume_frame"] == 1, "the volume picture not once")
+    check(len(picture_times) == pictures, f"{len(picture_times)} volume pictures, expected {pictures}")
+    check(picture_times == sorted(set(picture_times)), f"volume pictures' log times not increasing: {picture_times}")
+    check(frame_times == [t for t in picture_times for _ in range(2)], "not two volume frames with each picture")
     check(sizes["/voxhap/volume"] > 20_000, f"volume message of {sizes['/voxhap/volume']} bytes: no mesh?")
     rates = {topic: counts[topic] / span_s for topic in counts}
     scene = rates["/voxhap/primitives"]
@@ -81,7 +97,9 @@ def main():
     for axis in "xyz":
         topic = f"/voxhap/volume/slice_{axis}"
         check(schemas[topic][0] == "foxglove.Grid", f"{topic} schema {schemas[topic]}")
-        check(abs(counts[topic] - (span_s / 0.25 + 1)) <= 1.5, f"{topic}: {counts[topic]} in {span_s:.2f} s (4 Hz)")
+        # A new volume's slices start at its picture: up to one extra set per change.
+        expected = span_s / 0.25 + 1
+        check(-1.5 <= counts[topic] - expected <= 1.5 + (pictures - 1), f"{topic}: {counts[topic]} in {span_s:.2f} s (4 Hz)")
     check(abs(counts["/voxhap/stats"] - span_s) <= 1.5, f"/voxhap/stats: {counts['/voxhap/stats']} in {span_s:.2f} s")
 
     # The JSON topics decode to what the layout's panels plot.
@@ -95,6 +113,7 @@ def main():
     now_ns = time.time_ns()
     check(0 < now_ns - first["/voxhap/servo_cf"] < 120e9, f"first log time {first['/voxhap/servo_cf']}, now {now_ns}")
     print(json.dumps({"counts": counts, "rates_hz": rates, "span_s": span_s, "schemas": schemas,
+                      "picture_log_times": picture_times,
                       "layout_topics": sorted(wanted)}))
 
 

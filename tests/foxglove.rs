@@ -28,21 +28,21 @@ use voxhap::servo::{
 
 const SUBPROTOCOL: &str = "foxglove.sdk.v1";
 
-fn sim_session(record: Option<(std::path::PathBuf, TraceFormat)>) -> Session {
+pub(crate) fn sim_session(record: Option<(std::path::PathBuf, TraceFormat)>) -> Session {
     let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
     config.rt = voxhap::servo::rt::RtMode::Off;
     config.record = record;
     Session::start(config).unwrap()
 }
 
-fn loopback(port: u16) -> SocketAddr {
+pub(crate) fn loopback(port: u16) -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], port))
 }
 
 type Client =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
-async fn connect(addr: SocketAddr) -> Client {
+pub(crate) async fn connect(addr: SocketAddr) -> Client {
     let mut request = format!("ws://{addr}/").into_client_request().unwrap();
     request.headers_mut().insert(
         "sec-websocket-protocol",
@@ -59,7 +59,7 @@ async fn connect(addr: SocketAddr) -> Client {
 }
 
 /// The next message within `timeout`, or `None`.
-async fn next(client: &mut Client, timeout: Duration) -> Option<Message> {
+pub(crate) async fn next(client: &mut Client, timeout: Duration) -> Option<Message> {
     match tokio::time::timeout(timeout, client.next()).await {
         Ok(Some(Ok(message))) => Some(message),
         _ => None,
@@ -70,7 +70,7 @@ async fn next(client: &mut Client, timeout: Duration) -> Option<Message> {
 type Received = (Instant, u64, Vec<u8>);
 
 /// A `messageData` frame: opcode 1, subscription id (u32 LE), log time (u64 LE ns), payload.
-fn message_data(bytes: &[u8]) -> (u32, u64, &[u8]) {
+pub(crate) fn message_data(bytes: &[u8]) -> (u32, u64, &[u8]) {
     assert!(bytes.len() >= 13, "binary frame of {} bytes", bytes.len());
     assert_eq!(bytes[0], 1, "opcode of a messageData frame");
     let id = u32::from_le_bytes(bytes[1..5].try_into().unwrap());
@@ -80,7 +80,7 @@ fn message_data(bytes: &[u8]) -> (u32, u64, &[u8]) {
 
 /// Reads the serverInfo and the advertisements; returns the channels as topic -> (id, schema name,
 /// encoding).
-async fn handshake(client: &mut Client) -> HashMap<String, (u64, String, String)> {
+pub(crate) async fn handshake(client: &mut Client) -> HashMap<String, (u64, String, String)> {
     let mut server_info = None;
     let mut channels = HashMap::new();
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -112,6 +112,24 @@ async fn handshake(client: &mut Client) -> HashMap<String, (u64, String, String)
         "{server_info}"
     );
     channels
+}
+
+/// Subscribes to `topics` (advertised in `channels`); subscription id i + 1 is `topics[i]`.
+pub(crate) async fn subscribe(
+    client: &mut Client,
+    channels: &HashMap<String, (u64, String, String)>,
+    topics: &[&str],
+) {
+    let subscriptions: Vec<serde_json::Value> = topics
+        .iter()
+        .enumerate()
+        .map(|(i, topic)| serde_json::json!({"id": i + 1, "channelId": channels[*topic].0}))
+        .collect();
+    let subscribe = serde_json::json!({"op": "subscribe", "subscriptions": subscriptions});
+    client
+        .send(Message::Text(subscribe.to_string().into()))
+        .await
+        .unwrap();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -163,16 +181,7 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
     }
 
     // Subscribe to everything; subscription id i + 1 is TOPICS[i].
-    let subscriptions: Vec<serde_json::Value> = TOPICS
-        .iter()
-        .enumerate()
-        .map(|(i, topic)| serde_json::json!({"id": i + 1, "channelId": channels[*topic].0}))
-        .collect();
-    let subscribe = serde_json::json!({"op": "subscribe", "subscriptions": subscriptions});
-    client
-        .send(Message::Text(subscribe.to_string().into()))
-        .await
-        .unwrap();
+    subscribe(&mut client, &channels, &TOPICS).await;
 
     let mut received: HashMap<&str, Vec<Received>> = HashMap::new();
     let started = Instant::now();
@@ -469,7 +478,7 @@ fn layout_needs() -> Vec<String> {
     let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
     let mut topics = layout_topics(&layout).expect("the layout has panels");
     let frame_topic = |frame: &str| match frame {
-        "volume" => "/voxhap/volume_frame",
+        "volume" | "volume_view" => "/voxhap/volume_frame",
         "probe" => "/voxhap/measured_cp",
         "proxy" => "/voxhap/setpoint_cp",
         other => panic!("the layout names frame {other:?}, which no voxhap topic publishes"),
@@ -545,7 +554,8 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
         by_topic["/voxhap/volume"],
         (protobuf("foxglove.SceneUpdate"), "protobuf".into(), 1)
     );
-    assert_eq!(by_topic["/voxhap/volume_frame"].2, 1);
+    // The volume's frames: `volume` and `volume_view` (the camera framing), once.
+    assert_eq!(by_topic["/voxhap/volume_frame"].2, 2);
     let scene_updates = by_topic["/voxhap/primitives"].2;
     let rate_hz = scene_updates as f64 / duration_s;
     assert!(
@@ -662,10 +672,14 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
     );
 }
 
-/// The scene topics of a recording, read by the `mcap` Python package (an independent MCAP reader; .ci/run
-/// installs it) in `.ci/mcap_scene_check.py`: every topic the shipped layout shows is there, at its rate.
-#[test]
-fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
+/// Runs `.ci/mcap_scene_check.py` (the `mcap` Python package, an MCAP reader independent of voxhap's;
+/// .ci/run installs it) on `path`, expecting `pictures` volume pictures; its JSON report, or `None` (with
+/// a visible SKIPPED line naming `test`) without python3 and `mcap`. Panics when the script's checks fail.
+pub(crate) fn python_mcap_scene_check(
+    test: &str,
+    path: &std::path::Path,
+    pictures: usize,
+) -> Option<serde_json::Value> {
     let has_mcap = Command::new("python3")
         .args(["-c", "import mcap"])
         .output()
@@ -673,21 +687,16 @@ fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
         .unwrap_or(false);
     if !has_mcap {
         eprintln!(
-            "SKIPPED python_mcap_reads_the_scene_topics_of_a_recorded_session: python3 with the `mcap` \
-             package is not available (pip install mcap)"
+            "SKIPPED {test}: python3 with the `mcap` package is not available (pip install mcap)"
         );
-        return;
+        return None;
     }
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("scene.mcap");
-    let session = sim_session(Some((path.clone(), TraceFormat::Mcap)));
-    std::thread::sleep(Duration::from_millis(2000));
-    session.stop();
     let root = env!("CARGO_MANIFEST_DIR");
     let output = Command::new("python3")
         .arg(format!("{root}/.ci/mcap_scene_check.py"))
-        .arg(&path)
+        .arg(path)
         .arg(format!("{root}/contrib/foxglove/voxhap-layout.json"))
+        .arg(pictures.to_string())
         .output()
         .unwrap();
     assert!(
@@ -695,7 +704,25 @@ fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
         "python failed: {}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    Some(serde_json::from_slice(&output.stdout).unwrap())
+}
+
+/// The scene topics of a recording, read by the `mcap` Python package in `.ci/mcap_scene_check.py`: every
+/// topic the shipped layout shows is there, at its rate.
+#[test]
+fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.mcap");
+    let session = sim_session(Some((path.clone(), TraceFormat::Mcap)));
+    std::thread::sleep(Duration::from_millis(2000));
+    session.stop();
+    let Some(report) = python_mcap_scene_check(
+        "python_mcap_reads_the_scene_topics_of_a_recorded_session",
+        &path,
+        1,
+    ) else {
+        return;
+    };
     // The script's own checks passed; these tie its view to the layout Rust reads.
     let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
     for topic in layout_topics(&layout).unwrap() {

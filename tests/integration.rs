@@ -20,6 +20,7 @@ mod docs_reference;
 mod drivers_alloc_free;
 mod falcon;
 mod foxglove;
+mod foxglove_scene_change;
 mod fuzz_corpus;
 mod hand_target;
 mod haply_2diy_pty;

@@ -14,9 +14,8 @@
 //! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
 //! | [`OPERATING_STATE_TOPIC`] | `voxhap.OperatingState` (JSON) | CRTK `state`, `is_homed`, `is_busy` | |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, force arrow, the tick's primitives (live: and the hand target) | |
-//! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box and the surface mode's iso-surface mesh, once per scene | |
-//! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre (the layout's camera follows it) | |
-//!
+//! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box (with the [`CameraFraming`] in its metadata) and the surface mode's iso-surface mesh, once per scene | |
+//! | [`VOLUME_FRAME_TOPIC`] | `foxglove.FrameTransform` | frame [`VOLUME_FRAME`] at the volume's centre and frame [`VIEW_FRAME`], which the shipped layout's camera follows ([`CameraFraming`]) | |
 //! | `/voxhap/volume/slice_x`, `_y`, `_z` | `foxglove.Grid` | slices through the proxy (live 128², recorded 64²) | |
 //!
 //! In a recording ([`RecordedScene`]) the scene update, bound and operating state come from the servo's own
@@ -70,6 +69,10 @@ pub const PROXY_TOPIC: &str = "/voxhap/proxy";
 pub const FORCE_TOPIC: &str = "/voxhap/force";
 /// The frame at the volume's centre, axes parallel to [`WORLD_FRAME`].
 pub const VOLUME_FRAME: &str = "volume";
+/// The frame the shipped layout's 3D panel follows ([`CameraFraming`]): on the line of sight through the
+/// volume's centre, placed so that Foxglove's orbit camera frames the volume. Published on
+/// [`VOLUME_FRAME_TOPIC`] with [`VOLUME_FRAME`].
+pub const VIEW_FRAME: &str = "volume_view";
 /// The fixed frame everything is expressed in (voxhap world space, metres).
 pub const WORLD_FRAME: &str = "world";
 /// The frame that follows the probe.
@@ -114,6 +117,97 @@ pub fn frame_transform(child: &str, position_m: DVec3, time_ns: u64) -> FrameTra
 pub fn set_translation(transform: &mut FrameTransform, position_m: DVec3, time_ns: u64) {
     transform.timestamp = Some(timestamp_from_ns(time_ns));
     transform.translation = Some(vector3(position_m));
+}
+
+/// The shipped layout's 3D camera (`contrib/foxglove/voxhap-layout.json`, `cameraState`): its distance
+/// from the followed frame (m), which [`CameraFraming`] corrects for, ...
+pub const LAYOUT_CAMERA_DISTANCE_M: f64 = 0.25;
+/// ... its polar angle from +z (degrees: 60 looks down at 30 degrees from above), ...
+pub const LAYOUT_CAMERA_PHI_DEG: f64 = 60.0;
+/// ... its azimuth offset (degrees), ...
+pub const LAYOUT_CAMERA_THETA_OFFSET_DEG: f64 = 35.0;
+/// ... and its vertical field of view (degrees).
+pub const LAYOUT_CAMERA_FOVY_DEG: f64 = 45.0;
+/// Room around the volume's bounding sphere: the camera stands this many times farther than the distance
+/// at which the sphere just touches the top and bottom of the view.
+pub const FRAMING_MARGIN: f64 = 1.1;
+/// The closest the framing puts the camera (m), for a degenerate (flat or empty) volume.
+pub const MIN_CAMERA_DISTANCE_M: f64 = 0.01;
+
+/// The camera framing of a volume: the target is the centre of its bounds, the distance makes the bounding
+/// sphere (radius = half the box's diagonal) fill the vertical field of view with [`FRAMING_MARGIN`]:
+/// `distance = margin * radius / sin(fovy / 2)`.
+///
+/// How Foxglove gets it: a 3D panel's camera orbits the frame it follows at the layout's fixed distance,
+/// and no message sets that distance. So the shipped layout follows [`VIEW_FRAME`] (position only) at
+/// [`LAYOUT_CAMERA_DISTANCE_M`], and voxhap puts that frame on the line of sight through the centre,
+/// `distance - LAYOUT_CAMERA_DISTANCE_M` in front of it ([`CameraFraming::view_frame_m`]): the camera
+/// then stands `distance` from the centre and looks straight at it. Foxglove's orbit camera in the
+/// followed frame sits at `d (-sin phi sin theta, -sin phi cos theta, cos phi)` (`theta` = the layout's
+/// `thetaOffset`; three.js spherical coordinates turned 90 degrees about x, as Foxglove's renderer
+/// does), see [`camera_direction`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraFraming {
+    /// The centre of the volume's bounds (m, world).
+    pub target_m: DVec3,
+    /// The bounding sphere's radius (m).
+    pub radius_m: f64,
+    /// From the camera to [`CameraFraming::target_m`] (m).
+    pub distance_m: f64,
+    /// Where [`VIEW_FRAME`] goes (m, world).
+    pub view_frame_m: DVec3,
+}
+
+/// The unit vector from the followed frame to Foxglove's orbit camera for a layout's `phi` and
+/// `thetaOffset` (degrees).
+pub fn camera_direction(phi_deg: f64, theta_offset_deg: f64) -> DVec3 {
+    let (phi, theta) = (phi_deg.to_radians(), theta_offset_deg.to_radians());
+    DVec3::new(
+        -phi.sin() * theta.sin(),
+        -phi.sin() * theta.cos(),
+        phi.cos(),
+    )
+}
+
+impl CameraFraming {
+    /// The framing of the box `min_m ..= max_m` for the shipped layout's camera. A box with a non-finite
+    /// corner is framed as a point at the origin.
+    pub fn of_bounds(min_m: DVec3, max_m: DVec3) -> CameraFraming {
+        let (min_m, max_m) = if min_m.is_finite() && max_m.is_finite() {
+            (min_m, max_m)
+        } else {
+            (DVec3::ZERO, DVec3::ZERO)
+        };
+        let target_m = (min_m + max_m) * 0.5;
+        let radius_m = 0.5 * (max_m - min_m).length();
+        let half_fovy = 0.5 * LAYOUT_CAMERA_FOVY_DEG.to_radians();
+        let distance_m = (FRAMING_MARGIN * radius_m / half_fovy.sin()).max(MIN_CAMERA_DISTANCE_M);
+        let towards_camera =
+            camera_direction(LAYOUT_CAMERA_PHI_DEG, LAYOUT_CAMERA_THETA_OFFSET_DEG);
+        CameraFraming {
+            target_m,
+            radius_m,
+            distance_m,
+            view_frame_m: target_m + (distance_m - LAYOUT_CAMERA_DISTANCE_M) * towards_camera,
+        }
+    }
+
+    /// Where the layout's camera stands (m, world).
+    pub fn camera_m(&self) -> DVec3 {
+        self.view_frame_m
+            + LAYOUT_CAMERA_DISTANCE_M
+                * camera_direction(LAYOUT_CAMERA_PHI_DEG, LAYOUT_CAMERA_THETA_OFFSET_DEG)
+    }
+}
+
+/// The volume's frames, both in [`WORLD_FRAME`] with identity rotation, stamped `time_ns`:
+/// [`VOLUME_FRAME`] at the centre of `min_m ..= max_m` and [`VIEW_FRAME`] where [`CameraFraming`] puts it.
+pub fn volume_frames(min_m: DVec3, max_m: DVec3, time_ns: u64) -> [FrameTransform; 2] {
+    let framing = CameraFraming::of_bounds(min_m, max_m);
+    [
+        frame_transform(VOLUME_FRAME, framing.target_m, time_ns),
+        frame_transform(VIEW_FRAME, framing.view_frame_m, time_ns),
+    ]
 }
 
 /// Arrow length per newton of force (m/N): 1 N draws a 1 cm arrow.
@@ -286,13 +380,15 @@ fn point3(p: DVec3) -> Point3 {
     }
 }
 
-/// The volume picture: `volume/bounds` (the 12 edges of the world-space bounding box `min_m ..= max_m`) and,
+/// The volume picture: `volume/bounds` (the 12 edges of the world-space bounding box `min_m ..= max_m`,
+/// with metadata `volume`, `min_m`, `max_m` and the camera framing: `camera_target_m`,
+/// `camera_distance_m`, `bounding_radius_m`, see [`CameraFraming`]) and,
 /// when given, `volume/surface` (the iso-surface `mesh` in the surface mode's colour, translucent). Entities
 /// never expire; the update replaces the previous volume picture.
 pub fn volume_scene(
     min_m: DVec3,
     max_m: DVec3,
-    mesh: Option<(&Mesh, Rgb, f64)>,
+    mesh: Option<&(Mesh, Rgb, f64)>,
     description: &str,
     timestamp: Timestamp,
 ) -> SceneUpdate {
@@ -317,6 +413,7 @@ pub fn volume_scene(
         (2, 6),
         (3, 7),
     ];
+    let framing = CameraFraming::of_bounds(min_m, max_m);
     let mut bounds = entity(
         "volume/bounds".to_owned(),
         timestamp,
@@ -324,6 +421,12 @@ pub fn volume_scene(
             ("volume", description.to_owned()),
             ("min_m", format!("{:?}", min_m.to_array())),
             ("max_m", format!("{:?}", max_m.to_array())),
+            (
+                "camera_target_m",
+                format!("{:?}", framing.target_m.to_array()),
+            ),
+            ("camera_distance_m", framing.distance_m.to_string()),
+            ("bounding_radius_m", framing.radius_m.to_string()),
         ]),
     );
     bounds.lines.push(LinePrimitive {
@@ -341,6 +444,7 @@ pub fn volume_scene(
     });
     let mut entities = vec![bounds];
     if let Some((mesh, rgb, iso)) = mesh {
+        let (rgb, iso) = (*rgb, *iso);
         let mut surface = entity(
             "volume/surface".to_owned(),
             timestamp,
@@ -416,8 +520,7 @@ impl RecordedVolume {
 
     /// The picture and the volume it shows (which the recorded slices sample).
     fn load(meta: &super::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
-        use crate::haptics::modes::{ModeConfig, ModeKind};
-        use crate::volume::isosurface::{bounded_isosurface, SampledGrid};
+        use crate::haptics::modes::ModeConfig;
         let volume = meta.volume.split(", ").find_map(|source| {
             let loaded = match source.strip_prefix("builtin:") {
                 Some(name) => crate::volume::procedural::builtin(name).ok()?.scalar?,
@@ -432,40 +535,111 @@ impl RecordedVolume {
             Some((source.to_owned(), loaded))
         });
         let (source, volume) = volume?;
-        let (min_m, max_m) = volume.grid().bounds_world();
         let modes: Vec<ModeConfig> = meta
             .scenario
             .get("modes")
             .and_then(|m| serde_json::from_value(m.clone()).ok())
             .unwrap_or_default();
-        let surface = modes
-            .iter()
-            .enumerate()
-            .find(|(_, m)| m.kind == ModeKind::Surface)
-            .and_then(|(index, mode)| {
-                let iso =
-                    crate::server::foxglove::volume::half_strength_value(mode.transfer.as_ref()?)?;
-                let sample = |n: usize| {
-                    Ok::<_, ()>(SampledGrid::from_fn(min_m, max_m, [n, n, n], |p| {
-                        volume.sample(p) as f32
-                    }))
-                };
-                let (mesh, _) =
-                    bounded_isosurface(iso as f32, 64, RECORDED_MAX_TRIANGLES, sample).ok()?;
-                Some((mesh, palette().mode(index), iso))
-            });
-        let picture = RecordedVolume {
-            description: source.clone(),
-            min_m,
-            max_m,
-            surface,
-        };
         let named = NamedVolume {
             name: source.clone(),
             source,
             volume: crate::volume::AnyVolume::Scalar(volume),
         };
-        Some((picture, named))
+        Some(Self::of_volume(named, &modes))
+    }
+
+    /// The picture of a scene's first scalar volume among `volumes`, meshed at the iso-value of the first
+    /// surface mode of `modes`; `None` without a scalar volume.
+    pub fn of_scene(
+        volumes: &[NamedVolume],
+        modes: &[crate::haptics::modes::ModeConfig],
+    ) -> Option<(RecordedVolume, NamedVolume)> {
+        Some(Self::of_volume(first_scalar(volumes)?.clone(), modes))
+    }
+
+    /// The picture of `named` (a scalar volume; any other kind gets bounds only).
+    fn of_volume(
+        named: NamedVolume,
+        modes: &[crate::haptics::modes::ModeConfig],
+    ) -> (RecordedVolume, NamedVolume) {
+        use crate::volume::isosurface::{bounded_isosurface, SampledGrid};
+        let (min_m, max_m) = named.volume.grid().bounds_world();
+        let surface = match (&named.volume, surface_iso(modes)) {
+            (crate::volume::AnyVolume::Scalar(volume), Some((rgb, iso))) => {
+                let sample = |n: usize| {
+                    Ok::<_, ()>(SampledGrid::from_fn(min_m, max_m, [n, n, n], |p| {
+                        volume.sample(p) as f32
+                    }))
+                };
+                bounded_isosurface(iso as f32, 64, RECORDED_MAX_TRIANGLES, sample)
+                    .ok()
+                    .map(|(mesh, _)| (mesh, rgb, iso))
+            }
+            _ => None,
+        };
+        let picture = RecordedVolume {
+            description: named.source.clone(),
+            min_m,
+            max_m,
+            surface,
+        };
+        (picture, named)
+    }
+}
+
+/// The first scalar volume of `volumes`: the one a recording draws.
+fn first_scalar(volumes: &[NamedVolume]) -> Option<&NamedVolume> {
+    volumes
+        .iter()
+        .find(|v| matches!(v.volume, crate::volume::AnyVolume::Scalar(_)))
+}
+
+/// The colour and iso-value of the first surface mode of `modes` (its transfer function's half-strength
+/// value), `None` without one.
+fn surface_iso(modes: &[crate::haptics::modes::ModeConfig]) -> Option<(Rgb, f64)> {
+    use crate::haptics::modes::ModeKind;
+    let (index, mode) = modes
+        .iter()
+        .enumerate()
+        .find(|(_, m)| m.kind == ModeKind::Surface)?;
+    let iso = crate::server::foxglove::volume::half_strength_value(mode.transfer.as_ref()?)?;
+    Some((palette().mode(index), iso))
+}
+
+/// A scene change during a recording, ready to draw: the new volume picture, the volume its slices sample,
+/// and the scene generation that brought it (the servo's snapshots show it from the tick the change took
+/// effect). The control side builds it ([`SceneChange::between`], so neither the servo nor the recorder
+/// thread meshes) and sends it to the recorder thread
+/// (`crate::servo::recorder::RecorderRequest::SceneChanged`), which hands it to the trace writer
+/// ([`super::TraceWriter::scene_changed`]).
+#[derive(Debug, Clone)]
+pub struct SceneChange {
+    pub generation: u64,
+    pub picture: RecordedVolume,
+    pub volume: NamedVolume,
+}
+
+impl SceneChange {
+    /// The redraw for a change of the scene from (`old_volumes`, `old_modes`) to (`volumes`, `modes`),
+    /// meshed on the caller's thread; `None` when the picture stays the same (the same first scalar volume,
+    /// the same surface colour and iso-value) or the new scene has no scalar volume (the old picture stays).
+    pub fn between(
+        (old_volumes, old_modes): (&[NamedVolume], &[crate::haptics::modes::ModeConfig]),
+        (volumes, modes): (&[NamedVolume], &[crate::haptics::modes::ModeConfig]),
+        generation: u64,
+    ) -> Option<SceneChange> {
+        let chosen = first_scalar(volumes)?;
+        let unchanged = first_scalar(old_volumes).is_some_and(|old| old.volume == chosen.volume)
+            && surface_iso(old_modes) == surface_iso(modes);
+        if unchanged {
+            return None;
+        }
+        let (picture, volume) = RecordedVolume::of_volume(chosen.clone(), modes);
+        Some(SceneChange {
+            generation,
+            picture,
+            volume,
+        })
     }
 }
 
@@ -535,6 +709,9 @@ pub struct RecordedScene {
     /// The volume the slices sample (the picture's).
     slice_volume: Option<NamedVolume>,
     picture_written: bool,
+    /// The picture of a scene change ([`RecordedScene::scene_changed`]) and the volume its slices sample,
+    /// waiting for the first snapshot of its scene generation.
+    pending: Option<(u64, RecordedVolume, NamedVolume)>,
     /// Log time of the last scene update written.
     last_scene_ns: Option<u64>,
     /// True once the servo handed over a snapshot: from then on scene updates follow the snapshots.
@@ -601,6 +778,7 @@ impl RecordedScene {
             picture,
             slice_volume,
             picture_written: false,
+            pending: None,
             last_scene_ns: None,
             frames_seen: false,
             next_slice_t_s: None,
@@ -610,8 +788,9 @@ impl RecordedScene {
         })
     }
 
-    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture with the first
-    /// sample; the scene update (markers and the tick's primitives), bound and operating state from `frame`,
+    /// The scene messages due with `sample` (logged at `time_ns`): the volume picture and frames with the
+    /// first sample, and again with the first snapshot of a scene change's generation
+    /// ([`RecordedScene::scene_changed`]); the scene update (markers and the tick's primitives), bound and operating state from `frame`,
     /// the servo's snapshot of this tick, when there is one (at most [`RECORDED_SCENE_HZ`]), else from the
     /// sample at that rate (`voxhap sim`, or a snapshot that did not arrive); slices through the proxy every
     /// [`RECORDED_SLICE_INTERVAL_S`]; statistics once a second. `put(channel, encode)` writes one message.
@@ -624,37 +803,33 @@ impl RecordedScene {
     ) -> Result<(), super::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
+        let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
+        let since_ns = self
+            .last_scene_ns
+            .map_or(u64::MAX, |last| time_ns.saturating_sub(last));
         if !self.picture_written {
             self.picture_written = true;
-            if let Some(picture) = &self.picture {
-                let surface = picture
-                    .surface
-                    .as_ref()
-                    .map(|(m, rgb, iso)| (m, *rgb, *iso));
-                let update = volume_scene(
-                    picture.min_m,
-                    picture.max_m,
-                    surface,
-                    &picture.description,
-                    timestamp,
-                );
-                put(self.volume, &|m| {
-                    update.encode(m).map_err(|e| e.to_string())
-                })?;
-                let frame =
-                    frame_transform(VOLUME_FRAME, (picture.min_m + picture.max_m) * 0.5, time_ns);
-                put(self.volume_frame, &|m| {
-                    frame.encode(m).map_err(|e| e.to_string())
-                })?;
+            self.write_picture(time_ns, put)?;
+        }
+        // A scene change is drawn with the first snapshot of its generation (or at once without
+        // snapshots: `voxhap sim`, or when they stopped coming).
+        let change_due = self.pending.as_ref().is_some_and(|(generation, _, _)| {
+            frame.is_some_and(|f| f.scene_generation >= *generation)
+                || !self.frames_seen
+                || since_ns >= MISSING_FRAME_INTERVALS * interval_ns
+        });
+        if change_due {
+            if let Some((_, picture, volume)) = self.pending.take() {
+                self.picture = Some(picture);
+                self.slice_volume = Some(volume);
+                // Slices of the new volume at once.
+                self.next_slice_t_s = None;
+                self.write_picture(time_ns, put)?;
             }
         }
         self.count(sample);
         let frame = frame.filter(|f| f.tick == sample.tick);
         self.frames_seen |= frame.is_some();
-        let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
-        let since_ns = self
-            .last_scene_ns
-            .map_or(u64::MAX, |last| time_ns.saturating_sub(last));
         // A snapshot is taken when at least 0.9 interval passed (the servo spaces them by whole ticks, a
         // little over one interval); without snapshots, the sample is, once per interval (or, when the
         // snapshots stopped coming, once they are overdue).
@@ -691,6 +866,41 @@ impl RecordedScene {
             let totals = &self.totals;
             put(self.stats, &|m| {
                 serde_json::to_writer(m, totals).map_err(|e| e.to_string())
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Takes in a scene change, to be written by [`RecordedScene::write`] with the first snapshot of
+    /// `change.generation` (a later change replaces one not yet written).
+    pub fn scene_changed(&mut self, change: &SceneChange) {
+        self.pending = Some((
+            change.generation,
+            change.picture.clone(),
+            change.volume.clone(),
+        ));
+    }
+
+    /// Writes the volume picture (bounds, iso-surface) and the volume's frames ([`volume_frames`]), when
+    /// there is a picture.
+    fn write_picture(&self, time_ns: u64, put: &mut ScenePut<'_>) -> Result<(), super::TraceError> {
+        use ::foxglove::Encode;
+        let Some(picture) = &self.picture else {
+            return Ok(());
+        };
+        let update = volume_scene(
+            picture.min_m,
+            picture.max_m,
+            picture.surface.as_ref(),
+            &picture.description,
+            timestamp_from_ns(time_ns),
+        );
+        put(self.volume, &|m| {
+            update.encode(m).map_err(|e| e.to_string())
+        })?;
+        for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
+            put(self.volume_frame, &|m| {
+                frame.encode(m).map_err(|e| e.to_string())
             })?;
         }
         Ok(())
@@ -862,6 +1072,14 @@ mod tests {
         assert_eq!(RecordedVolume::from_meta(&meta), None);
     }
 
+    /// A one-mode sample of tick `tick` at 1 kHz.
+    fn sample_at(tick: u64) -> crate::record::TraceSample {
+        let mut sample = crate::record::TraceSample::zeroed(1);
+        sample.tick = tick;
+        sample.t_s = tick as f64 * 1e-3;
+        sample
+    }
+
     /// Writes 3 s of 1 kHz samples through a [`RecordedScene`], with the servo's snapshots every 17th tick
     /// for the first second only; returns how many messages each channel got and the last statistics.
     fn record_with_frames_for_one_second() -> (RecordedScene, Vec<u16>, serde_json::Value) {
@@ -873,9 +1091,7 @@ mod tests {
         let mut last_stats = serde_json::Value::Null;
         let every = scene_frame_interval_ticks(1_000_000);
         for tick in 0..3000u64 {
-            let mut sample = crate::record::TraceSample::zeroed(1);
-            sample.tick = tick;
-            sample.t_s = tick as f64 * 1e-3;
+            let sample = sample_at(tick);
             let frame = Snapshot {
                 tick,
                 t_s: sample.t_s,
@@ -917,8 +1133,204 @@ mod tests {
             assert_eq!(count(channel), 12);
         }
         assert_eq!(count(scene.volume), 1);
-        assert_eq!(count(scene.volume_frame), 1);
+        assert_eq!(
+            count(scene.volume_frame),
+            2,
+            "frames volume and volume_view"
+        );
         assert_eq!(count(scene.stats), 2);
+    }
+
+    #[test]
+    fn the_camera_is_framed_on_the_bounding_sphere_of_a_small_and_a_large_volume() {
+        // The built-in scene's 10 cm cube: radius 5 sqrt(3) cm, distance 1.1 r / sin(22.5 degrees).
+        let small = CameraFraming::of_bounds(DVec3::splat(-0.05), DVec3::splat(0.05));
+        assert_eq!(small.target_m, DVec3::ZERO);
+        assert!((small.radius_m - 0.086_602_540).abs() < 1e-9, "{small:?}");
+        assert!((small.distance_m - 0.248_933_7).abs() < 1e-6, "{small:?}");
+        // A 0.4 x 0.3 x 1.2 m box off the origin: diagonal 1.3 m.
+        let min_m = DVec3::new(0.1, -0.2, 0.3);
+        let large = CameraFraming::of_bounds(min_m, min_m + DVec3::new(0.4, 0.3, 1.2));
+        assert!((large.target_m - DVec3::new(0.3, -0.05, 0.9)).length() < 1e-12);
+        assert!((large.radius_m - 0.65).abs() < 1e-12);
+        assert!((large.distance_m - 1.868_385_0).abs() < 1e-6, "{large:?}");
+        // The camera stands `distance` from the centre, and the followed frame lies between them, on the
+        // line of sight, so the camera looks at the centre.
+        for framing in [small, large] {
+            let to_camera = framing.camera_m() - framing.target_m;
+            assert!((to_camera.length() - framing.distance_m).abs() < 1e-12);
+            let to_frame = framing.view_frame_m - framing.target_m;
+            assert!(to_frame.cross(to_camera).length() < 1e-12);
+            assert!(
+                (to_frame.length() - (framing.distance_m - LAYOUT_CAMERA_DISTANCE_M).abs()).abs()
+                    < 1e-12
+            );
+        }
+        // Foxglove's orbit camera: phi 0 looks straight down from +z; phi 90, theta 0 stands on -y.
+        assert!((camera_direction(0.0, 0.0) - DVec3::Z).length() < 1e-12);
+        assert!((camera_direction(90.0, 0.0) + DVec3::Y).length() < 1e-12);
+        assert!((camera_direction(90.0, 90.0) + DVec3::X).length() < 1e-12);
+        // A degenerate box is framed from the closest distance, never NaN.
+        let point = CameraFraming::of_bounds(DVec3::ONE, DVec3::ONE);
+        assert_eq!(point.distance_m, MIN_CAMERA_DISTANCE_M);
+        let bad = CameraFraming::of_bounds(DVec3::NAN, DVec3::ONE);
+        assert!(bad.view_frame_m.is_finite() && bad.distance_m.is_finite());
+        // The picture carries the framing; the frames put `volume` at the centre.
+        let update = volume_scene(
+            min_m,
+            min_m + DVec3::new(0.4, 0.3, 1.2),
+            None,
+            "box",
+            timestamp_from_ns(0),
+        );
+        let bounds = &update.entities[0].metadata;
+        let value = |key: &str| {
+            bounds
+                .iter()
+                .find(|kv| kv.key == key)
+                .unwrap()
+                .value
+                .clone()
+        };
+        assert_eq!(
+            value("camera_distance_m").parse::<f64>().unwrap(),
+            large.distance_m
+        );
+        assert_eq!(
+            value("bounding_radius_m").parse::<f64>().unwrap(),
+            large.radius_m
+        );
+        let [volume, view] = volume_frames(min_m, min_m + DVec3::new(0.4, 0.3, 1.2), 7);
+        assert_eq!(
+            (volume.child_frame_id.as_str(), view.child_frame_id.as_str()),
+            (VOLUME_FRAME, VIEW_FRAME)
+        );
+        let at = |t: &FrameTransform| {
+            let v = t.translation.as_ref().unwrap();
+            DVec3::new(v.x, v.y, v.z)
+        };
+        assert_eq!(at(&volume), large.target_m);
+        assert_eq!(at(&view), large.view_frame_m);
+    }
+
+    /// A scene change while recording: the new volume's picture and frames are written with the first
+    /// snapshot of the new generation, slices switch to it, and an unchanged scene draws nothing.
+    #[test]
+    fn a_scene_change_redraws_the_volume_with_the_first_snapshot_of_its_generation() {
+        use crate::haptics::modes::ModeConfig;
+        let mut meta = crate::record::test_support::meta(&["surface"]);
+        meta.volume = "builtin:sphere".to_owned();
+        let modes: Vec<ModeConfig> = serde_json::from_value(serde_json::json!([
+            {"kind": "surface", "volume": "v", "transfer": [[0.45, 0.0], [0.55, 2.0]]}
+        ]))
+        .unwrap();
+        meta.scenario = serde_json::json!({ "modes": modes });
+        let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
+        // A 10 cm ball in a 40 cm cube.
+        let big = crate::volume::procedural::sphere(0.1, [24; 3], 0.2).unwrap();
+        let (big_min_m, big_max_m) = big.grid().bounds_world();
+        assert!((big_max_m - big_min_m - DVec3::splat(0.4)).length() < 0.05);
+        let sphere = NamedVolume {
+            name: "v".to_owned(),
+            source: "builtin:sphere".to_owned(),
+            volume: crate::volume::AnyVolume::Scalar(
+                crate::volume::procedural::builtin("sphere")
+                    .unwrap()
+                    .scalar
+                    .unwrap(),
+            ),
+        };
+        let ball = NamedVolume {
+            name: "v".to_owned(),
+            source: "big.mha".to_owned(),
+            volume: crate::volume::AnyVolume::Scalar(big),
+        };
+        let before = (std::slice::from_ref(&sphere), &modes[..]);
+        // The same scene draws nothing new.
+        assert!(SceneChange::between(before, before, 2).is_none());
+        let change =
+            SceneChange::between(before, (std::slice::from_ref(&ball), &modes[..]), 2).unwrap();
+        // A new iso-value redraws the same volume.
+        let mut steeper = modes.clone();
+        steeper[0].transfer =
+            Some(crate::haptics::modes::TransferFunction::ramp(0.2, 0.3, 2.0).unwrap());
+        let redrawn =
+            SceneChange::between(before, (std::slice::from_ref(&sphere), &steeper[..]), 3);
+        assert!((redrawn.unwrap().picture.surface.unwrap().2 - 0.25).abs() < 1e-12);
+        let every = scene_frame_interval_ticks(1_000_000);
+        let mut written: Vec<(u16, u64, Vec<u8>)> = Vec::new();
+        for tick in 0..1000u64 {
+            if tick == 400 {
+                scene.scene_changed(&change);
+            }
+            let sample = sample_at(tick);
+            // The servo took the change at tick 410.
+            let frame = Snapshot {
+                tick,
+                t_s: sample.t_s,
+                scene_generation: if tick >= 410 { 2 } else { 1 },
+                ..Snapshot::example()
+            };
+            let frame = (tick % every == 0).then_some(&frame);
+            let time_ns = tick * 1_000_000;
+            scene
+                .write(&sample, frame, time_ns, &mut |channel, encode| {
+                    let mut bytes = Vec::new();
+                    encode(&mut bytes).unwrap();
+                    written.push((channel, time_ns, bytes));
+                    Ok(())
+                })
+                .unwrap();
+        }
+        let pictures: Vec<_> = written.iter().filter(|m| m.0 == scene.volume).collect();
+        assert_eq!(pictures.len(), 2);
+        // The first snapshot of generation 2 is tick 425 (every 17th tick).
+        assert_eq!((pictures[0].1, pictures[1].1), (0, 425_000_000));
+        let second = SceneUpdate::decode(&pictures[1].2[..]).unwrap();
+        let meta_of = |key: &str| {
+            second.entities[0]
+                .metadata
+                .iter()
+                .find(|kv| kv.key == key)
+                .unwrap()
+                .value
+                .clone()
+        };
+        assert_eq!(meta_of("volume"), "big.mha");
+        let expected = CameraFraming::of_bounds(big_min_m, big_max_m);
+        let max_m: Vec<f64> = serde_json::from_str(&meta_of("max_m")).unwrap();
+        assert_eq!(max_m, big_max_m.to_array());
+        assert!(
+            (meta_of("camera_distance_m").parse::<f64>().unwrap() - expected.distance_m).abs()
+                < 1e-9
+        );
+        let mesh = &second.entities[1].triangles[0];
+        let reach = mesh
+            .points
+            .iter()
+            .map(|p| DVec3::new(p.x, p.y, p.z).length())
+            .fold(0.0, f64::max);
+        assert!(
+            (reach - 0.1).abs() < 0.02,
+            "the new ball's surface reaches {reach} m"
+        );
+        // Two frames per picture; the slices after the change sample the new 40 cm volume.
+        assert_eq!(
+            written.iter().filter(|m| m.0 == scene.volume_frame).count(),
+            4
+        );
+        let slice = written
+            .iter()
+            .find(|m| m.0 == scene.slices[2] && m.1 >= 425_000_000)
+            .unwrap();
+        assert_eq!(slice.1, 425_000_000, "slices of the new volume at once");
+        let grid = Grid::decode(&slice.2[..]).unwrap();
+        let cell = grid.cell_size.unwrap().x;
+        assert!(
+            (cell * RECORDED_SLICE_SAMPLES as f64 - 0.4).abs() < 0.05,
+            "cell {cell} m"
+        );
     }
 
     #[test]

@@ -14,8 +14,9 @@
 //!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
 //!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
 //!   in N), one message per tick. The transforms' own timestamps equal the log time;
-//! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` once (the volume's
-//!   bounds and iso-surface), `/voxhap/primitives` (markers and the tick's primitives), `/voxhap/bound` and
+//! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` at the start and
+//!   again when a scene change loads another volume ([`TraceWriter::scene_changed`]; the volume's bounds,
+//!   iso-surface and camera framing), `/voxhap/primitives` (markers and the tick's primitives), `/voxhap/bound` and
 //!   `/voxhap/operating_state` from the servo's snapshots ([`TraceWriter::scene_frame`], at most 60 Hz of
 //!   tick time), the slices `/voxhap/volume/slice_x`, `_y`, `_z` 4 times a second, `/voxhap/stats`
 //!   (`voxhap.TraceStats`) once a second;
@@ -617,6 +618,10 @@ impl TraceWriter for McapTraceWriter {
 
     fn scene_frame(&mut self, frame: &crate::servo::Snapshot) {
         self.frame = Some(*frame);
+    }
+
+    fn scene_changed(&mut self, change: &super::foxglove_topics::SceneChange) {
+        self.scene.scene_changed(change);
     }
 }
 

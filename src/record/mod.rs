@@ -340,6 +340,10 @@ pub trait TraceWriter: Send {
     /// MCAP writer draws the tick's primitives and operating state from it. Writers without scene topics
     /// ignore it.
     fn scene_frame(&mut self, _frame: &crate::servo::Snapshot) {}
+    /// The scene changed while recording (a volume loaded, a transfer function replaced): the MCAP writer
+    /// draws the new volume picture with the first snapshot that shows `change.generation`. Writers
+    /// without scene topics ignore it.
+    fn scene_changed(&mut self, _change: &foxglove_topics::SceneChange) {}
 }
 
 /// Creates `path` (and `path.json`) in `format` for a run described by `meta`, refusing to replace an

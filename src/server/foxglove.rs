@@ -21,7 +21,7 @@
 //! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
 //! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`crate::servo::StatsReport`] | 1 Hz |
 //! | `/voxhap/volume` | `foxglove.SceneUpdate`: the volume's bounding box and iso-surface ([`volume`]) | on each scene change and each new subscriber |
-//! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre | with `/voxhap/volume` |
+//! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre and frame `volume_view`, which the shipped layout's camera follows (`crate::record::foxglove_topics::CameraFraming`) | with `/voxhap/volume` |
 //! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
 //! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
 //!
@@ -37,9 +37,9 @@ pub mod volume;
 use self::messages::{scene_update, BoundMessage, OperatingStateMessage, StatsMessage};
 use self::volume::VolumePicture;
 use crate::record::foxglove_topics::{
-    frame_transform, set_translation, timestamp_from_ns, vector3, volume_scene, FORCE_TOPIC,
-    MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME, PROBE_TOPIC,
-    PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME, VOLUME_FRAME_TOPIC,
+    frame_transform, set_translation, timestamp_from_ns, vector3, volume_frames, volume_scene,
+    FORCE_TOPIC, MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME,
+    PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC,
     VOLUME_TOPIC,
 };
 pub use crate::record::foxglove_topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
@@ -465,25 +465,20 @@ impl Publisher {
         }
     }
 
-    /// Publishes the volume picture (bounds, mesh, the `volume` frame).
+    /// Publishes the volume picture (bounds, mesh, the `volume` and `volume_view` frames).
     fn volume(&self, picture: &VolumePicture) {
         let time_ns = unix_now_ns();
-        let surface = picture
-            .surface
-            .as_ref()
-            .map(|(mesh, rgb, iso)| (mesh, *rgb, *iso));
         let update = volume_scene(
             picture.min_m,
             picture.max_m,
-            surface,
+            picture.surface.as_ref(),
             &picture.description,
             timestamp_from_ns(time_ns),
         );
         self.channels.volume.log_with_time(&update, time_ns);
-        let centre = (picture.min_m + picture.max_m) * 0.5;
-        self.channels
-            .volume_frame
-            .log_with_time(&frame_transform(VOLUME_FRAME, centre, time_ns), time_ns);
+        for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
+            self.channels.volume_frame.log_with_time(&frame, time_ns);
+        }
     }
 }
 
@@ -661,7 +656,22 @@ mod tests {
                 "{topic} is not advertised (or deprecated)"
             );
         }
-        assert_eq!(layout["configById"]["3D!voxhap"]["followTf"], VOLUME_FRAME);
+        // The camera: follows the position of the frame the framing places, with the camera state the
+        // framing assumes (CameraFraming).
+        use crate::record::foxglove_topics as topics;
+        let panel = &layout["configById"]["3D!voxhap"];
+        assert_eq!(panel["followTf"], topics::VIEW_FRAME);
+        assert_eq!(panel["followMode"], "follow-position");
+        let camera = &panel["cameraState"];
+        assert_eq!(camera["distance"], topics::LAYOUT_CAMERA_DISTANCE_M);
+        assert_eq!(camera["phi"], topics::LAYOUT_CAMERA_PHI_DEG);
+        assert_eq!(
+            camera["thetaOffset"],
+            topics::LAYOUT_CAMERA_THETA_OFFSET_DEG
+        );
+        assert_eq!(camera["fovy"], topics::LAYOUT_CAMERA_FOVY_DEG);
+        assert_eq!(camera["perspective"], true);
+        assert_eq!(camera["targetOffset"], serde_json::json!([0, 0, 0]));
         let colours = crate::server::palette::palette();
         let force = &layout["configById"]["Plot!force"]["paths"];
         for (axis, path) in force.as_array().unwrap().iter().enumerate() {

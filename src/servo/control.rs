@@ -12,6 +12,7 @@ use super::runner::{
 };
 use super::session::{trace_meta, SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
+use crate::record::foxglove_topics::SceneChange;
 use crate::record::{create_trace_writer, TraceFormat};
 use glam::DVec3;
 use std::path::PathBuf;
@@ -126,8 +127,23 @@ impl SessionShared {
         let bundle = setup
             .bundle(self.period_ns, self.solver_budget_fraction, generation)
             .map_err(|e| invalid(e.to_string()))?;
+        // While recording, the recording redraws the volume: meshed here, before the swap, so the recorder
+        // thread never stalls on it.
+        let redraw = control.recording.as_ref().and_then(|_| {
+            SceneChange::between(
+                (&control.setup.volumes[..], &control.setup.modes[..]),
+                (&setup.volumes[..], &setup.modes[..]),
+                generation,
+            )
+        });
         self.send(control, ServoCommand::SwapScene(Box::new(bundle)))?;
         self.wait_for_snapshot(generation);
+        if let Some(redraw) = redraw {
+            // A recorder that stopped has nothing to draw it in.
+            let _ = control
+                .recorder
+                .send(RecorderRequest::SceneChanged(Box::new(redraw)));
+        }
         control.setup = setup;
         control.generation = generation;
         Ok(ControlReply {

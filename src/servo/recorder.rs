@@ -18,6 +18,7 @@
 
 use super::api::Snapshot;
 use super::stats::ServoStats;
+use crate::record::foxglove_topics::SceneChange;
 use crate::record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;
@@ -35,6 +36,9 @@ pub enum RecorderRequest {
     Stop {
         reply: mpsc::Sender<Result<Option<TraceSummary>, TraceError>>,
     },
+    /// The scene changed (sent by the control side while recording, with the new volume already
+    /// meshed): the trace draws the new volume ([`TraceWriter::scene_changed`]).
+    SceneChanged(Box<SceneChange>),
 }
 
 /// The last write error, for the control side.
@@ -113,6 +117,11 @@ pub fn run_recorder(
                     let _ = reporter.finish(active.take());
                     active = Some(Active { writer, first_tick });
                     last_flush = Instant::now();
+                }
+                RecorderRequest::SceneChanged(change) => {
+                    if let Some(current) = active.as_mut() {
+                        current.writer.scene_changed(&change);
+                    }
                 }
                 RecorderRequest::Stop { reply } => {
                     drain(&mut samples, &mut frames, &mut active, &reporter);

@@ -2,6 +2,7 @@
 wall's force (k times the penetration, along its normal), leaving it gives zero, the trace holds what ran,
 closing stops the servo thread, bad input is refused, and the example in docs/python.md runs."""
 
+import gc
 import math
 import pathlib
 import re
@@ -98,6 +99,16 @@ def test_trace_holds_every_tick_that_ran_and_close_stops_the_servo_thread():
     with pytest.raises(RuntimeError, match="closed"):
         session.state()
     assert session.close() is not None  # closing twice is harmless
+
+
+def test_a_session_dropped_without_close_stops_too():
+    session = voxhap.Session(WALL)
+    session.wait_ticks(5)
+    work = pathlib.Path(session._work)
+    assert servo_threads() == ["voxhap-servo"] and work.is_dir()
+    del session
+    gc.collect()
+    assert servo_threads() == [] and not work.exists()
 
 
 def test_bad_input_is_refused_with_the_problem_named():

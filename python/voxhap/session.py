@@ -145,10 +145,13 @@ class Session:
         return False
 
     def __del__(self):
+        # A session dropped without close(): stop it all the same (zero force, arm disabled).
         native = getattr(self, "_native", None)
-        if native is not None:
-            native.close()
-        self._remove_work()
+        try:
+            if native is not None:
+                native.close()
+        finally:
+            self._remove_work()
 
     @property
     def running(self):

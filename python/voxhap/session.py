@@ -117,7 +117,7 @@ class Session:
     `scene`: a scene or sim scenario TOML file (docs/scenarios.md); None for the built-in scene of
     `voxhap serve`. `overrides`: scene keys to change, as `voxhap sim --set` (`{"k_n_per_m": 250}`).
     `rate_hz`: servo rate, 100 to 10 000 (default the scene's `rate_hz`, else 1000). `record`: keep every
-    tick for `trace()` (a CSV file in a temporary folder, about 0.25 kB per tick; False for none).
+    tick for `trace()` (a CSV file in a temporary folder, 0.25 to 0.7 kB per tick depending on the modes; False for none).
     """
 
     def __init__(self, scene=None, overrides=None, rate_hz=None, record=True):

@@ -29,6 +29,7 @@ mod igtl;
 mod modes;
 mod paper;
 mod record;
+mod replay;
 mod robustness;
 mod safety_props;
 mod serve_e2e;

@@ -2,6 +2,9 @@
 //! other half). It exposes the library's own trace reader and sim loop; Python turns their Parquet output
 //! into pandas DataFrames. Where it sits: beside the `voxhap` command, over the same library calls
 //! (`voxhap::record`, `voxhap::sim`), so a trace read or a sim run from Python is exactly what the CLI gives.
+//! `session.rs` runs a live session with the simulated arm (`voxhap.Session`).
+
+mod session;
 
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
@@ -111,5 +114,6 @@ fn _voxhap(module: &Bound<'_, PyModule>) -> PyResult<()> {
     module.add_function(wrap_pyfunction!(trace_to_parquet, module)?)?;
     module.add_function(wrap_pyfunction!(sim, module)?)?;
     module.add_function(wrap_pyfunction!(solve, module)?)?;
+    module.add_class::<session::NativeSession>()?;
     Ok(())
 }

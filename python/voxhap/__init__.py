@@ -1,10 +1,11 @@
-"""voxhap from Python: read force traces and run sims into pandas DataFrames.
+"""voxhap from Python: read force traces, run sims into pandas DataFrames, and drive a live session.
 
 `read_trace(path)` reads a CSV, MCAP or Parquet trace (also one cut off by a crash, with a warning) with
 voxhap's own reader; `sim(scenario, overrides)` runs a sim scenario and returns its trace. Both return a
 pandas DataFrame with the trace's columns (docs/traces.md): flags as boolean `flag_<name>` columns, missing
 device values as nulls. `df.attrs["sidecar"]` holds the trace's metadata and `df.attrs["warnings"]` what the
-reader skipped.
+reader skipped. `Session(scene)` runs a live servo session with the simulated arm in this process, for
+integration tests: move the hand, wait for ticks, read the forces (voxhap/session.py).
 """
 
 import json
@@ -17,7 +18,7 @@ import pyarrow.parquet as pq
 
 from . import _voxhap
 
-__all__ = ["read_trace", "sim", "solve"]
+__all__ = ["Session", "State", "read_trace", "sim", "solve"]
 
 
 def solve(scene, solver="exact"):
@@ -78,3 +79,6 @@ def _toml_value(value):
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     return repr(value)
+
+
+from .session import Session, State  # noqa: E402  (session.py uses read_trace and _toml_value above)

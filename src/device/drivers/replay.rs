@@ -7,6 +7,8 @@
 //! [`ReplayDevice::seek`]; `speed` plays X recorded samples per read (0.5 holds each sample for two reads,
 //! 2 skips every other one; velocities scale with it); the default plays the trace once and then holds
 //! the last position, with [`ReplayDevice::end_message`] saying so; `loop` starts over instead.
+//! [`ReplayDevice::report_end`] prints that message on stderr when the end is reached (`voxhap serve`
+//! calls it): the servo thread only raises a flag, a small reporter thread prints.
 //! Velocity is the finite difference of consecutive probe positions over their recorded times, times the
 //! speed. Samples whose probe position or time is not finite (recorded with the `invalid_values` flag) are
 //! left out and counted: a replay never hands a NaN to the servo loop.
@@ -15,6 +17,9 @@ use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use crate::record::Trace;
 use glam::DVec3;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
 
 /// How a trace is played.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -104,7 +109,13 @@ pub struct ReplayDevice {
     info: DeviceInfo,
     last_force_n: DVec3,
     forces_received: u64,
+    /// Raised (by `read_state`, on the servo thread) once a play-once replay has played its last sample,
+    /// when [`ReplayDevice::report_end`] is watching.
+    end_reached: Option<Arc<AtomicBool>>,
 }
+
+/// How often the end reporter thread looks at the flag.
+const END_POLL_INTERVAL: Duration = Duration::from_millis(20);
 
 impl ReplayDevice {
     /// A replay of `trace` from its start, looping or playing once.
@@ -172,6 +183,7 @@ impl ReplayDevice {
             },
             last_force_n: DVec3::ZERO,
             forces_received: 0,
+            end_reached: None,
         };
         device.seek(options.seek_s);
         Ok(device)
@@ -228,16 +240,48 @@ impl ReplayDevice {
 
     /// Once a play-once replay has finished: what the operator should be told (allocates: call it off the
     /// servo thread).
-    pub fn end_message(&self) -> Option<String> {
-        self.finished().then(|| {
-            format!(
-                "replay finished: all {} samples played (trace time {:.3} s to {:.3} s); holding the last \
-                 position. Add ,loop to the replay device to play it again",
-                self.positions_m.len(),
-                self.times_s[0],
-                self.times_s[self.times_s.len() - 1]
-            )
-        })
+    pub fn end_message(&self, name: &str) -> Option<String> {
+        self.finished().then(|| self.end_text(name))
+    }
+
+    /// `replay: end of run.csv after 3000 samples (2.999 s); holding the last position; use --device
+    /// replay:run.csv,loop to repeat`: the samples and trace time played from the seek point.
+    fn end_text(&self, name: &str) -> String {
+        let first = self
+            .times_s
+            .partition_point(|&t| t < self.options.seek_s)
+            .min(self.times_s.len() - 1);
+        let played = self.times_s.len() - first;
+        let span_s = self.times_s[self.times_s.len() - 1] - self.times_s[first];
+        format!(
+            "replay: end of {name} after {played} samples ({span_s:.3} s); holding the last position; use \
+             --device replay:{name},loop to repeat"
+        )
+    }
+
+    /// For a play-once replay: prints [`ReplayDevice::end_message`] on stderr once the last sample has
+    /// been played. The message is made here; the servo thread only raises a flag, which a reporter thread
+    /// (`voxhap-replay-end`) polls every 20 ms; it ends after printing, or when the device is dropped.
+    pub fn report_end(&mut self, name: &str) -> std::io::Result<()> {
+        if self.options.looped {
+            return Ok(());
+        }
+        let reached = Arc::new(AtomicBool::new(false));
+        self.end_reached = Some(reached.clone());
+        let message = self.end_text(name);
+        std::thread::Builder::new()
+            .name("voxhap-replay-end".to_owned())
+            .spawn(move || {
+                // The device holds the other reference; once it is gone the end can no longer come.
+                while Arc::strong_count(&reached) > 1 {
+                    if reached.load(Ordering::Acquire) {
+                        eprintln!("{message}");
+                        return;
+                    }
+                    std::thread::sleep(END_POLL_INTERVAL);
+                }
+            })?;
+        Ok(())
     }
 }
 
@@ -260,6 +304,9 @@ impl HapticDevice for ReplayDevice {
             if self.options.looped {
                 self.cursor = 0.0;
             } else {
+                if let Some(reached) = &self.end_reached {
+                    reached.store(true, Ordering::Release);
+                }
                 return Ok(DeviceState::at_rest(self.positions_m[count - 1]));
             }
         }
@@ -350,14 +397,23 @@ mod tests {
     #[test]
     fn play_once_says_so_at_the_end() {
         let mut device = ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, 2.0)]), false).unwrap();
-        assert!(device.end_message().is_none());
+        assert!(device.end_message("run.csv").is_none());
         device.read_state().unwrap();
         device.read_state().unwrap();
-        let message = device.end_message().unwrap();
-        assert!(
-            message.contains("all 2 samples") && message.contains(",loop"),
-            "{message}"
+        assert_eq!(
+            device.end_message("run.csv").unwrap(),
+            "replay: end of run.csv after 2 samples (0.100 s); holding the last position; use --device \
+             replay:run.csv,loop to repeat"
         );
+        let points: Vec<(f64, f64)> = (0..10).map(|i| (i as f64 * 0.1, i as f64)).collect();
+        let seeked = ReplayOptions {
+            seek_s: 0.45,
+            ..ReplayOptions::default()
+        };
+        let device = ReplayDevice::with_options(&trace(&points), seeked).unwrap();
+        assert!(device
+            .end_text("t.csv")
+            .starts_with("replay: end of t.csv after 5 samples (0.400 s)"));
     }
 
     #[test]

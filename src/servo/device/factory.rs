@@ -217,12 +217,16 @@ fn open_supervised(
                 path: path.clone(),
                 message: e.to_string(),
             })?;
-            let replay =
+            let mut replay =
                 ReplayDevice::with_options(&trace, *options).map_err(|e| OpenError::Replay {
                     path: path.clone(),
                     message: e.to_string(),
                 })?;
-            eprintln!("voxhap: {}", replay.plan(&path.display().to_string()));
+            let name = path.display().to_string();
+            eprintln!("voxhap: {}", replay.plan(&name));
+            replay
+                .report_end(&name)
+                .map_err(|e| OpenError::Thread(e.to_string()))?;
             let mut slot = Some(replay);
             boxed(config, move || {
                 slot.take().ok_or(DeviceError::Config {

@@ -395,7 +395,10 @@ impl DeviceProfile {
     pub fn default_for(family: &str) -> Result<DeviceProfile, ProfileError> {
         let mut profile = match builtin_text(family) {
             Some(text) => DeviceProfile::parse(text, &format!("built-in {family}"))?,
-            None => DeviceProfile::default(),
+            None => DeviceProfile {
+                name: format!("default ({family})"),
+                ..DeviceProfile::default()
+            },
         };
         profile.mapping_given = false;
         Ok(profile)
@@ -1134,10 +1137,10 @@ mod tests {
         );
         assert_eq!(falcon.mapping, builtin.mapping);
         // No built-in for the voxhap protocol: the identity.
-        assert_eq!(
-            DeviceProfile::default_for("mock").unwrap(),
-            DeviceProfile::default()
-        );
+        let mock = DeviceProfile::default_for("mock").unwrap();
+        assert_eq!(mock.name, "default (mock)");
+        assert_eq!(mock.mapping, DeviceProfile::default().mapping);
+        assert_eq!(mock.kinematics, Kinematics::Default);
         falcon.fit_when_out_of_reach();
         let MappingChoice::FitWhenOutOfReach(given) = falcon.mapping else {
             panic!("{:?}", falcon.mapping);
@@ -1276,6 +1279,26 @@ mod tests {
             .geometry
             .forward_kinematics(theta, DVec3::new(0.0, 0.0, 0.1));
         assert!(converged && (found - p).length() < 0.005, "{found}");
+    }
+
+    #[test]
+    fn the_device_pages_example_profiles_parse() {
+        // docs/devices/woodenhaptics.md: only the keys given change, the base's other keys and models stay.
+        let profile = parse(
+            "base = \"woodenhaptics\"\n[kinematics.woodenhaptics]\nlink_length_m = [0.080, 0.207, 0.245]\n\
+             encoder_home_counts = [0, 0, -5980]\n",
+        )
+        .unwrap();
+        let mut config = WoodyConfig::default();
+        profile.apply_woodenhaptics(&mut config);
+        let woody = config.model_constants[WoodyModel::WoodenHaptics.index()]
+            .applied_to(WoodyModel::WoodenHaptics.config());
+        assert_eq!(woody.link_length_m, [0.080, 0.207, 0.245]);
+        assert_eq!(woody.encoder_home, [0, 0, -5980]);
+        assert_eq!(woody.capstan_diameter_m, [0.010; 3]);
+        let polhem = config.model_constants[WoodyModel::Polhem.index()]
+            .applied_to(WoodyModel::Polhem.config());
+        assert_eq!(polhem, WoodyModel::Polhem.config());
     }
 
     #[test]

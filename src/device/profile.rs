@@ -205,7 +205,7 @@ pub enum Kinematics {
     Default,
     Haply2Diy(Haply2DiyKinematics),
     WoodenHapticsHid(WoodenHapticsHidKinematics),
-    WoodenHaptics(WoodenHapticsKinematics),
+    WoodenHaptics(Box<WoodenHapticsKinematics>),
     /// The Falcon's constants: the keys given replace libnifalcon's (missing keys keep them).
     Falcon(FalconGeometry),
 }

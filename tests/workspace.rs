@@ -195,6 +195,26 @@ fn write_large_slab_scene(dir: &std::path::Path) -> std::path::PathBuf {
     scene
 }
 
+/// `voxhap serve` on the Inverse Service double at `url` with `scene`, for `seconds`, without servers.
+fn serve_inverse3(url: &str, scene: &std::path::Path, seconds: &str) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
+    command
+        .args([
+            "serve",
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--duration",
+            seconds,
+        ])
+        .arg("--device")
+        .arg(format!("haply-inverse:{url}"))
+        .arg("--scene")
+        .arg(scene);
+    command
+}
+
 /// Issue 13: a real device with no profile gets its built-in one, and a volume out of its reach is fitted
 /// automatically, with one notice line. Checked from the device's side: the Inverse Service double
 /// (tests/util/inverse_service.rs) logs every force. Its box is ±0.1 m (identity, built-in profile
@@ -216,20 +236,7 @@ fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted()
     let service = InverseService::start();
     // Start outside the material under the fit (scene x = 0.04 m).
     service.set_position([-0.02, 0.0, 0.0]);
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args([
-            "serve",
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--duration",
-            "60",
-        ])
-        .arg("--device")
-        .arg(format!("haply-inverse:{}", service.url()))
-        .arg("--scene")
-        .arg(&scene)
+    let mut serve = serve_inverse3(&service.url(), &scene, "60")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -334,20 +341,7 @@ fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted()
     // --no-fit-volume keeps the built-in identity: the same handle feels nothing.
     service.set_position([0.0015, 0.0, 0.0]);
     let before = service.forces().len();
-    let kept = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args([
-            "serve",
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--duration",
-            "2",
-        ])
-        .arg("--device")
-        .arg(format!("haply-inverse:{}", service.url()))
-        .arg("--scene")
-        .arg(&scene)
+    let kept = serve_inverse3(&service.url(), &scene, "2")
         .arg("--no-fit-volume")
         .output()
         .unwrap();

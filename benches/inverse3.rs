@@ -6,6 +6,11 @@
 //! `read_state` (waits for the state frame the service sends back for that message). Two measurements:
 //! criterion's timing of back-to-back round trips (short: 1 s warm-up, 3 s measurement), and a paced run at
 //! 1 kHz (the servo rate) printing p50, p99 and the maximum over 2 000 exchanges.
+//!
+//! Then the servo loop itself (issue 13's Performance section): a `voxhap serve` session (the built-in scene,
+//! 1 kHz, best-effort real time) on the simulated arm and on the Inverse3 through the same double, side by side
+//! in one run, in alternating windows (sim, Inverse3, sim, Inverse3; 2 s each), printing the servo's lateness
+//! p50/p99/max and the device exchange's p50/p99 of each window.
 
 #[allow(dead_code)]
 #[path = "../tests/util/inverse_service.rs"]
@@ -21,6 +26,9 @@ use std::time::Duration;
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap::device::transport::inverse_service::ServiceConfig;
 use voxhap::device::Lifecycle;
+use voxhap::servo::device::DeviceSpec;
+use voxhap::servo::setup::SceneSetup;
+use voxhap::servo::{Session, SessionConfig};
 
 type Device = Lifecycle<HaplyInverse>;
 
@@ -48,8 +56,38 @@ fn round_trip(device: &mut Device) {
     std::hint::black_box(device.read_state().expect("state"));
 }
 
+/// One servo session of `seconds` on `device`; prints its lateness and device-exchange percentiles.
+fn servo_window(label: &str, device: DeviceSpec, seconds: f64) {
+    let setup = SceneSetup::builtin().expect("the built-in scene");
+    let session =
+        Session::start(SessionConfig::new(device, setup)).expect("start the servo session");
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let stats = session.stop().stats;
+    println!(
+        "servo/{label}: {} ticks at {} Hz: lateness p50 {:.1} us, p99 {:.1} us, max {:.1} us; device exchange \
+         p50 {:.1} us, p99 {:.1} us; overruns {}, device errors {}",
+        stats.ticks,
+        stats.rate_hz,
+        stats.lateness.p50_us,
+        stats.lateness.p99_us,
+        stats.lateness.max_us,
+        stats.device.p50_us,
+        stats.device.p99_us,
+        stats.overruns,
+        stats.device_errors
+    );
+}
+
 fn bench(c: &mut Criterion) {
     let service = InverseService::start();
+    for _ in 0..2 {
+        servo_window("sim", DeviceSpec::Sim, 2.0);
+        servo_window(
+            "inverse3_loopback",
+            DeviceSpec::HaplyInverse(service.url()),
+            2.0,
+        );
+    }
     let mut device = open(&service.url());
     paced::paced_percentiles("device/inverse3_loopback_paced_1khz", 2_000, || {
         round_trip(&mut device)

@@ -163,3 +163,221 @@ fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
         text(&served)
     );
 }
+
+/// A 0.35 m cube of density (u8, 8³ voxels 50 mm apart, from -0.1 m to 0.25 m on every axis): 0 for
+/// x <= 0.05 m, 1 for x >= 0.1 m, so the trilinear value crosses 0.45 at x = 0.0725 m. Written as raw data
+/// with a TOML header (stored as 0 and 255), with a scene that renders it as a stiff surface (0 N at 0.45 of
+/// 255, 50 N at 0.5 of 255; k 500 N/m).
+fn write_large_slab_scene(dir: &std::path::Path) -> std::path::PathBuf {
+    let mut data = Vec::with_capacity(512);
+    for _k in 0..8 {
+        for _j in 0..8 {
+            for i in 0..8 {
+                data.push(if i >= 4 { 255u8 } else { 0 });
+            }
+        }
+    }
+    std::fs::write(dir.join("slab.raw"), data).unwrap();
+    std::fs::write(
+        dir.join("slab.toml"),
+        "data_file = \"slab.raw\"\ndims = [8, 8, 8]\nscalar_type = \"u8\"\nspacing = [50.0, 50.0, 50.0]\n\
+         origin = [-100.0, -100.0, -100.0]\nunits = \"mm\"\n",
+    )
+    .unwrap();
+    let scene = dir.join("slab-scene.toml");
+    std::fs::write(
+        &scene,
+        "name = \"slab\"\nk_n_per_m = 500.0\ndamping_n_s_per_m = 0.0\n\n[[volumes]]\nname = \"slab\"\n\
+         file = \"slab.toml\"\n\n[[modes]]\nkind = \"surface\"\nvolume = \"slab\"\n\
+         transfer = [[114.75, 0.0], [127.5, 50.0]]\n",
+    )
+    .unwrap();
+    scene
+}
+
+/// `voxhap serve` on the Inverse Service double at `url` with `scene`, for `seconds`, without servers.
+fn serve_inverse3(url: &str, scene: &std::path::Path, seconds: &str) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
+    command
+        .args([
+            "serve",
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--duration",
+            seconds,
+        ])
+        .arg("--device")
+        .arg(format!("haply-inverse:{url}"))
+        .arg("--scene")
+        .arg(scene);
+    command
+}
+
+/// Issue 13: a real device with no profile gets its built-in one, and a volume out of its reach is fitted
+/// automatically, with one notice line. Checked from the device's side: the Inverse Service double
+/// (tests/util/inverse_service.rs) logs every force. Its box is ±0.1 m (identity, built-in profile
+/// haply-inverse); the volume spans -0.1 .. 0.25 m, so the fit is s = 0.35 / 0.2 = 1.75 and t = 0.075 m on
+/// every axis. A handle at device x = 1.5 mm is then at scene x = 0.077625 m, inside the surface, which lies
+/// where the transfer function rises (0.45 to 0.5 of 255: x = 0.0725 to 0.075 m): the double must receive a
+/// force along -x between 500 N/m x 2.6 mm = 1.31 N and 500 N/m x 5.1 mm = 2.56 N, and nothing else. Under
+/// the identity mapping the handle would be at scene x = 1.5 mm, far outside the material, and get nothing
+/// (checked with `--no-fit-volume`).
+#[test]
+fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted() {
+    use crate::util::inverse_service::InverseService;
+    use std::io::Read as _;
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_large_slab_scene(dir.path());
+    let service = InverseService::start();
+    // Start outside the material under the fit (scene x = 0.04 m).
+    service.set_position([-0.02, 0.0, 0.0]);
+    let mut serve = serve_inverse3(&service.url(), &scene, "60")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start voxhap serve");
+    // Let it connect, then move the handle in at 0.1 m/s (the input checks reject jumps faster than the
+    // device's speed), and hold it until the output has been enabled and ramped in (on a loaded machine the
+    // supervisor waits for the loop to run steadily first) and 300 forces came at full strength.
+    let started = Instant::now();
+    while service.forces().len() < 100 {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "serve sent no forces"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let outside_forces = service.forces().len();
+    // In, hold, and if the force has not come to full strength (the output was enabled only after the
+    // handle went in, so it waits for the hand to leave the object: the engage rule), out and in again.
+    let move_to = |from: f64, to: f64| {
+        let mut x = from;
+        while x != to {
+            x = if to > from {
+                (x + 0.0005f64).min(to)
+            } else {
+                (x - 0.0005f64).max(to)
+            };
+            service.set_position([x, 0.0, 0.0]);
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    let full_strength = |forces: &[[f64; 3]]| forces.iter().filter(|f| f[0] < -1.25).count();
+    move_to(-0.02, 0.0015);
+    for _attempt in 0..8 {
+        let before = full_strength(&service.forces());
+        std::thread::sleep(Duration::from_millis(1500));
+        if full_strength(&service.forces()) >= before + 300 {
+            break;
+        }
+        move_to(0.0015, -0.02);
+        std::thread::sleep(Duration::from_millis(500));
+        move_to(-0.02, 0.0015);
+    }
+    // SAFETY: plain kill(2) on our own child's pid.
+    assert_eq!(
+        unsafe { libc::kill(serve.id() as libc::pid_t, libc::SIGTERM) },
+        0
+    );
+    let status = serve.wait().unwrap();
+    let mut out = String::new();
+    serve
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    serve
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    assert!(status.success(), "{out}");
+
+    let notices: Vec<&str> = out.lines().filter(|l| l.contains("was fitted")).collect();
+    assert_eq!(notices.len(), 1, "{out}");
+    for expected in [
+        "device profile haply-inverse: the volume does not fit",
+        "scale 1.7500",
+        "translation [0.075, 0.075, 0.075] m",
+        "--no-fit-volume",
+    ] {
+        assert!(
+            notices[0].contains(expected),
+            "{expected:?} not in {:?}",
+            notices[0]
+        );
+    }
+
+    let forces = service.forces();
+    // Outside the material: nothing but zero.
+    assert!(
+        forces[..outside_forces]
+            .iter()
+            .all(|f| f.iter().all(|v| v.abs() < 1e-9)),
+        "force while outside: {:?}",
+        forces[..outside_forces]
+            .iter()
+            .find(|f| f.iter().any(|v| v.abs() >= 1e-9))
+    );
+    // Inside: along -x, as the fitted mapping predicts, and never more (while the output ramps in, or
+    // after the hand left, less).
+    for force in &forces[outside_forces..] {
+        assert!(
+            force[0] <= 1e-9 && force[0] > -2.76 && force[1].abs() < 0.05 && force[2].abs() < 0.05,
+            "force {force:?}, expected between 0 and [-2.56, 0, 0] N; serve said {out}"
+        );
+    }
+    let held = forces.iter().filter(|f| f[0] <= -1.25).count();
+    let strongest = forces.iter().map(|f| f[0]).fold(0.0, f64::min);
+    assert!(held >= 300, "{held} forces between -1.31 and -2.56 N along x (strongest x {strongest}); serve said {out}");
+
+    // --no-fit-volume keeps the built-in identity: the same handle feels nothing.
+    service.set_position([0.0015, 0.0, 0.0]);
+    let before = service.forces().len();
+    let kept = serve_inverse3(&service.url(), &scene, "2")
+        .arg("--no-fit-volume")
+        .output()
+        .unwrap();
+    assert!(kept.status.success(), "{}", text(&kept));
+    assert!(!text(&kept).contains("was fitted"), "{}", text(&kept));
+    let after = service.forces();
+    assert!(after.len() > before + 50, "{}", text(&kept));
+    assert!(
+        after[before..]
+            .iter()
+            .all(|f| f.iter().all(|v| v.abs() < 1e-9)),
+        "a force without the fit"
+    );
+}
+
+/// Regression (issue 13): `serve` printed a device's open error twice ("device sim: X: X"), because the
+/// error named its cause and also returned it as its source. Each cause is now printed once.
+#[test]
+fn serve_prints_a_device_open_error_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("bad-arm.toml");
+    std::fs::write(
+        &scene,
+        "name = \"bad arm\"\nk_n_per_m = 500.0\n[[volumes]]\nname = \"d\"\nbuiltin = \"sphere\"\n\
+         [[modes]]\nkind = \"surface\"\nvolume = \"d\"\ntransfer = [[0.45, 0.0], [0.5, 2.0]]\n\
+         [arm]\nmass_kg = -1.0\ndamping_n_s_per_m = 1.0\nworkspace = { shape = \"unbounded\" }\n",
+    )
+    .unwrap();
+    let refused = serve(&["--scene", scene.to_str().unwrap()]);
+    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error: device sim: "))
+        .unwrap_or_else(|| panic!("no device error in {stderr}"));
+    let message = "arm.mass_kg = -1 must be finite and > 0";
+    assert_eq!(line.matches(message).count(), 1, "{line}");
+    assert_eq!(line.matches("simulated arm").count(), 1, "{line}");
+}

@@ -79,13 +79,19 @@ pub struct ServeArgs {
     /// Device profile: a built-in name (sim, haply-inverse, haply2diy, woodenhaptics, woodenhaptics-hid,
     /// falcon) or a TOML file: workspace mapping, limits that only lower the device's, velocity filter,
     /// kinematics constants (docs/workspace.md). Replaces the scene's [device] table. Default: the scene's
-    /// [device] table, else identity mapping and the device's own limits.
+    /// [device] table, else the device's built-in profile (a real device) or the identity (sim, replay).
     #[arg(long, value_name = "NAME|FILE")]
     pub device_profile: Option<String>,
     /// Map the device's declared workspace onto the first volume's bounds: centre on centre, the smallest
     /// uniform scale at which the whole volume is reachable, the profile's rotation kept (docs/workspace.md).
-    #[arg(long)]
+    /// A real device (not sim or replay) whose profile gives no [mapping] gets this automatically when the
+    /// volume is out of reach.
+    #[arg(long, conflicts_with = "no_fit_volume")]
     pub fit_volume: bool,
+    /// Never fit the volume automatically: a real device keeps its profile's mapping even when the volume is
+    /// out of reach.
+    #[arg(long)]
+    pub no_fit_volume: bool,
     /// Exit with code 3 after a clean stop when any of these occurred: uncertified (some tick's bound
     /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun.
     /// Comma-separated.
@@ -158,9 +164,25 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     Ok(config)
 }
 
-/// The device profile from `--device-profile`, else the scene's `[device]` table, else the default; with
-/// `--fit-volume` its mapping becomes the fit (its rotation kept).
+/// True for a physical device (its workspace is a real box the volume must fit in): everything but the
+/// simulated arm and trace replay, which keep the identity unless told otherwise.
+fn is_real_device(spec: &DeviceSpec) -> bool {
+    !matches!(spec, DeviceSpec::Sim | DeviceSpec::Replay { .. })
+}
+
+/// The device profile from `--device-profile`, else the scene's `[device]` table, else the device's default
+/// (its built-in profile for a real device); with `--fit-volume` its mapping becomes the fit (its rotation
+/// kept). A real device whose profile gives no `[mapping]` of its own is fitted when the volume is out of
+/// reach, unless `--no-fit-volume`.
 pub fn device_profile(args: &ServeArgs) -> anyhow::Result<DeviceProfile> {
+    let family = crate::servo::device::spec_family(&args.device);
+    let default_profile = || -> anyhow::Result<DeviceProfile> {
+        Ok(if is_real_device(&args.device) {
+            DeviceProfile::default_for(&family)?
+        } else {
+            DeviceProfile::default()
+        })
+    };
     let mut profile = match (&args.device_profile, &args.scene) {
         (Some(given), _) => DeviceProfile::resolve(given)?,
         (None, Some(scene)) => {
@@ -175,14 +197,19 @@ pub fn device_profile(args: &ServeArgs) -> anyhow::Result<DeviceProfile> {
                     &format!("{} [device]", scene.display()),
                 )?,
                 Some(_) => anyhow::bail!("{}: device must be a table ([device])", scene.display()),
-                None => DeviceProfile::default(),
+                None => default_profile()?,
             }
         }
-        (None, None) => DeviceProfile::default(),
+        (None, None) => default_profile()?,
     };
+    if is_real_device(&args.device) && !profile.mapping_given && !args.no_fit_volume {
+        profile.fit_when_out_of_reach();
+    }
     if args.fit_volume {
         let rotation = match profile.mapping {
-            MappingChoice::Fixed(mapping) => mapping.rotation(),
+            MappingChoice::Fixed(mapping) | MappingChoice::FitWhenOutOfReach(mapping) => {
+                mapping.rotation()
+            }
             MappingChoice::FitVolume { rotation } => rotation,
         };
         profile.mapping = MappingChoice::FitVolume { rotation };

@@ -239,6 +239,45 @@ impl WorkspaceMapping {
         (center - extent, center + extent)
     }
 
+    /// True when every point of the scene box `[scene_min, scene_max]` (a volume's bounds) is reachable under
+    /// this mapping: its eight corners, mapped into the device frame, lie inside the device box
+    /// `[device_min, device_max]` (with 1 µm of slack for rounding) on every axis the device moves in (a
+    /// planar device's flat axis is skipped, as [`WorkspaceMapping::fit`] skips it).
+    pub fn reaches(
+        &self,
+        device_min_m: DVec3,
+        device_max_m: DVec3,
+        scene_min_m: DVec3,
+        scene_max_m: DVec3,
+    ) -> bool {
+        const SLACK_M: f64 = 1e-6;
+        (0..8).all(|corner| {
+            let scene = DVec3::new(
+                if corner & 1 != 0 {
+                    scene_max_m.x
+                } else {
+                    scene_min_m.x
+                },
+                if corner & 2 != 0 {
+                    scene_max_m.y
+                } else {
+                    scene_min_m.y
+                },
+                if corner & 4 != 0 {
+                    scene_max_m.z
+                } else {
+                    scene_min_m.z
+                },
+            );
+            let device = self.to_device_position_m(scene);
+            (0..3).all(|axis| {
+                device_max_m[axis] <= device_min_m[axis]
+                    || (device[axis] >= device_min_m[axis] - SLACK_M
+                        && device[axis] <= device_max_m[axis] + SLACK_M)
+            })
+        })
+    }
+
     /// The mapping that fits a scene box (a volume's bounds) into the device's workspace box, with the
     /// rotation `rotation` kept. "Fits" means exactly this:
     ///
@@ -478,6 +517,33 @@ mod tests {
         let m = WorkspaceMapping::fit(r, device.0, device.1, wide.0, wide.1).unwrap();
         assert!((m.scale() - 0.4 / 0.16).abs() < 1e-9, "{}", m.scale());
         assert_eq!(m.rotation(), r);
+    }
+
+    #[test]
+    fn a_fitted_volume_is_reached_and_a_larger_one_is_not() {
+        let device = (DVec3::splat(-0.1), DVec3::splat(0.1));
+        let inside = (DVec3::splat(-0.05), DVec3::splat(0.05));
+        let big = (DVec3::splat(-0.1), DVec3::splat(0.25));
+        let identity = WorkspaceMapping::IDENTITY;
+        assert!(identity.reaches(device.0, device.1, inside.0, inside.1));
+        assert!(!identity.reaches(device.0, device.1, big.0, big.1));
+        let fitted =
+            WorkspaceMapping::fit(DMat3::IDENTITY, device.0, device.1, big.0, big.1).unwrap();
+        assert!(fitted.reaches(device.0, device.1, big.0, big.1));
+        // A planar device: the flat axis is not checked.
+        let planar = (DVec3::new(-0.1, -0.1, 0.0), DVec3::new(0.1, 0.1, 0.0));
+        assert!(identity.reaches(planar.0, planar.1, inside.0, inside.1));
+        // A rotation moves a long box out of reach along the other axis.
+        let long = (
+            DVec3::new(-0.15, -0.01, -0.01),
+            DVec3::new(0.15, 0.01, 0.01),
+        );
+        let narrow = (DVec3::new(-0.2, -0.05, -0.05), DVec3::new(0.2, 0.05, 0.05));
+        assert!(identity.reaches(narrow.0, narrow.1, long.0, long.1));
+        let turned =
+            WorkspaceMapping::new(rotation_from_degrees([0.0, 0.0, 90.0]), 1.0, DVec3::ZERO)
+                .unwrap();
+        assert!(!turned.reaches(narrow.0, narrow.1, long.0, long.1));
     }
 
     #[test]

@@ -30,8 +30,10 @@
 //! proximal_link_m = 0.07
 //! ```
 
+use super::drivers::falcon::{FalconConfig, FalconGeometry};
 use super::drivers::haply::Haply2DiyConfig;
 use super::drivers::woodenhaptics::WoodenHapticsConfig;
+use super::drivers::woodenhaptics_serial::{WoodyConfig, WoodyConstants, WoodyModel};
 use super::mapping::{matrix_from_rows, rotation_from_degrees, MappingError, WorkspaceMapping};
 use super::supervisor::SupervisorConfig;
 use super::DeviceInfo;
@@ -181,6 +183,20 @@ pub struct WoodenHapticsHidKinematics {
     pub counts_per_revolution: Option<[f64; 3]>,
 }
 
+/// WoodenHaptics, Polhem and retrofitted PHANTOM (Teensy firmware) constants, one table per model: the one
+/// for the model the device reports replaces that model's published constants (forsslund/hfabapi
+/// hfab_math.h), key by key.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WoodenHapticsKinematics {
+    /// Model 3 (`woodenhaptics_v2015()`).
+    pub woodenhaptics: Option<WoodyConstants>,
+    /// Model 1 (`polhem_v3()`).
+    pub polhem: Option<WoodyConstants>,
+    /// Model 2 (`vintage()`).
+    pub vintage: Option<WoodyConstants>,
+}
+
 /// Kinematics constants for the drivers that compute kinematics on the host.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub enum Kinematics {
@@ -189,6 +205,9 @@ pub enum Kinematics {
     Default,
     Haply2Diy(Haply2DiyKinematics),
     WoodenHapticsHid(WoodenHapticsHidKinematics),
+    WoodenHaptics(Box<WoodenHapticsKinematics>),
+    /// The Falcon's constants: the keys given replace libnifalcon's (missing keys keep them).
+    Falcon(FalconGeometry),
 }
 
 /// Where the workspace goes.
@@ -198,6 +217,10 @@ pub enum MappingChoice {
     Fixed(WorkspaceMapping),
     /// Fit the loaded volume's bounds into the device's workspace, keeping this rotation.
     FitVolume { rotation: DMat3 },
+    /// This mapping while the volume's bounds are within reach under it; otherwise the fit, keeping its
+    /// rotation. What a real device gets by default (no mapping given, no `--fit-volume`, no
+    /// `--no-fit-volume`; docs/workspace.md).
+    FitWhenOutOfReach(WorkspaceMapping),
 }
 
 /// Limits that can only lower the device's own (`None`: the device's).
@@ -229,6 +252,9 @@ pub struct DeviceProfile {
     /// device's declared workspace.
     pub workspace_m: Option<(DVec3, DVec3)>,
     pub kinematics: Kinematics,
+    /// True when the profile's own text has a `[mapping]` table (one inherited through `base` does not
+    /// count): such a mapping is the user's choice, never replaced by an automatic fit.
+    pub mapping_given: bool,
 }
 
 impl Default for DeviceProfile {
@@ -242,6 +268,7 @@ impl Default for DeviceProfile {
             velocity_cutoff_hz: None,
             workspace_m: None,
             kinematics: Kinematics::Default,
+            mapping_given: false,
         }
     }
 }
@@ -330,6 +357,7 @@ impl DeviceProfile {
             key: key.to_owned(),
             problem,
         };
+        let mapping_given = table.contains_key("mapping");
         let table = match table.get("base") {
             None => table,
             Some(toml::Value::String(base)) => {
@@ -356,23 +384,53 @@ impl DeviceProfile {
                     err.into_inner().to_string().trim_end().to_owned(),
                 )
             })?;
-        file.check(origin)
+        let mut profile = file.check(origin)?;
+        profile.mapping_given = mapping_given;
+        Ok(profile)
+    }
+
+    /// The profile a device of this `--device` kind gets when none is given: its built-in profile
+    /// (contrib/profiles/KIND.toml) when there is one, else the identity with the device's own limits; in
+    /// both cases no mapping counts as given (`mapping_given` is false).
+    pub fn default_for(family: &str) -> Result<DeviceProfile, ProfileError> {
+        let mut profile = match builtin_text(family) {
+            Some(text) => DeviceProfile::parse(text, &format!("built-in {family}"))?,
+            None => DeviceProfile {
+                name: format!("default ({family})"),
+                ..DeviceProfile::default()
+            },
+        };
+        profile.mapping_given = false;
+        Ok(profile)
+    }
+
+    /// Turns a fixed mapping into [`MappingChoice::FitWhenOutOfReach`] (a fitting one is left as it is).
+    pub fn fit_when_out_of_reach(&mut self) {
+        if let MappingChoice::Fixed(mapping) = self.mapping {
+            self.mapping = MappingChoice::FitWhenOutOfReach(mapping);
+        }
     }
 
     /// The mapping for a device with the workspace box `[min, max]` (replaced by the profile's measured
     /// `[workspace]` when it has one) and a volume with the bounds given (when one is loaded): the fixed one,
-    /// or the fitted one.
+    /// the fitted one, or (for [`MappingChoice::FitWhenOutOfReach`]) the fixed one unless the volume is out
+    /// of its reach, then the fitted one.
     pub fn mapping_for(
         &self,
         device_min_m: DVec3,
         device_max_m: DVec3,
         volume_bounds_m: Option<(DVec3, DVec3)>,
     ) -> Result<WorkspaceMapping, MappingError> {
+        let (device_min_m, device_max_m) = self.workspace_m.unwrap_or((device_min_m, device_max_m));
         match self.mapping {
             MappingChoice::Fixed(mapping) => Ok(mapping),
+            MappingChoice::FitWhenOutOfReach(mapping) => match volume_bounds_m {
+                Some((min, max)) if !mapping.reaches(device_min_m, device_max_m, min, max) => {
+                    WorkspaceMapping::fit(mapping.rotation(), device_min_m, device_max_m, min, max)
+                }
+                _ => Ok(mapping),
+            },
             MappingChoice::FitVolume { rotation } => {
-                let (device_min_m, device_max_m) =
-                    self.workspace_m.unwrap_or((device_min_m, device_max_m));
                 let (min, max) = volume_bounds_m.ok_or(MappingError::Fit {
                     what: "the volume",
                     problem: "the scene has no volume to fit",
@@ -454,6 +512,29 @@ impl DeviceProfile {
             set(&mut config.base_distance_m, k.base_distance_m);
             set(&mut config.encoder_offset_deg, k.encoder_offset_deg);
             set(&mut config.encoder_resolution, k.encoder_resolution);
+        }
+    }
+
+    /// Applies the WoodenHaptics (Teensy firmware) constants (where given) to a driver config: each model's
+    /// table replaces that model's published constants when the device reports that model.
+    pub fn apply_woodenhaptics(&self, config: &mut WoodyConfig) {
+        if let Kinematics::WoodenHaptics(k) = &self.kinematics {
+            for (model, constants) in [
+                (WoodyModel::WoodenHaptics, k.woodenhaptics),
+                (WoodyModel::Polhem, k.polhem),
+                (WoodyModel::VintagePhantom, k.vintage),
+            ] {
+                if let Some(constants) = constants {
+                    config.model_constants[model.index()] = constants;
+                }
+            }
+        }
+    }
+
+    /// Applies the Falcon's kinematic constants (where given) to a driver config.
+    pub fn apply_falcon(&self, config: &mut FalconConfig) {
+        if let Kinematics::Falcon(geometry) = &self.kinematics {
+            config.geometry = *geometry;
         }
     }
 
@@ -611,20 +692,35 @@ impl ProfileFile {
         let kinematics = match self.kinematics {
             None => Kinematics::Default,
             Some(table) => {
-                let parse = |table: toml::Table| -> Result<toml::Value, ProfileError> {
-                    for (key, value) in &table {
-                        let all_positive_finite = match value {
+                fn numbers_only(table: &toml::Table, prefix: &str) -> Result<(), (String, String)> {
+                    for (key, value) in table {
+                        let numbers = match value {
                             toml::Value::Float(_) | toml::Value::Integer(_) => true,
                             toml::Value::Array(items) => items.iter().all(|v| {
                                 matches!(v, toml::Value::Float(_) | toml::Value::Integer(_))
                             }),
                             _ => false,
                         };
-                        if !all_positive_finite {
-                            return Err(key_error(
-                                &format!("kinematics.{key}"),
+                        if !numbers {
+                            return Err((
+                                format!("{prefix}{key}"),
                                 "must be a number or an array of numbers".to_owned(),
                             ));
+                        }
+                    }
+                    Ok(())
+                }
+                let parse = |table: toml::Table| -> Result<toml::Value, ProfileError> {
+                    numbers_only(&table, "kinematics.")
+                        .map_err(|(key, problem)| key_error(&key, problem))?;
+                    Ok(toml::Value::Table(table))
+                };
+                // One table per model: each holds numbers only.
+                let parse_per_model = |table: toml::Table| -> Result<toml::Value, ProfileError> {
+                    for (model, value) in &table {
+                        if let toml::Value::Table(inner) = value {
+                            numbers_only(inner, &format!("kinematics.{model}."))
+                                .map_err(|(key, problem)| key_error(&key, problem))?;
                         }
                     }
                     Ok(toml::Value::Table(table))
@@ -644,12 +740,20 @@ impl ProfileFile {
                         serde_path_to_error::deserialize(parse(table)?)
                             .map_err(deserialize_error)?,
                     ),
+                    Some("falcon") => Kinematics::Falcon(
+                        serde_path_to_error::deserialize(parse(table)?)
+                            .map_err(deserialize_error)?,
+                    ),
+                    Some("woodenhaptics") => Kinematics::WoodenHaptics(
+                        serde_path_to_error::deserialize(parse_per_model(table)?)
+                            .map_err(deserialize_error)?,
+                    ),
                     other => {
                         return Err(key_error(
                             "kinematics",
                             format!(
-                                "device {} takes no kinematics constants from a profile (haply2diy and \
-                                 woodenhaptics-hid do; set device = \"...\")",
+                                "device {} takes no kinematics constants from a profile (haply2diy, \
+                                 woodenhaptics, woodenhaptics-hid and falcon do; set device = \"...\")",
                                 other.map_or("(not set)".to_owned(), |d| format!("{d:?}"))
                             ),
                         ))
@@ -675,24 +779,36 @@ impl ProfileFile {
             velocity_cutoff_hz: self.velocity_filter.cutoff_hz,
             workspace_m,
             kinematics,
+            mapping_given: false,
         })
     }
 }
 
-/// Lengths, diameters, constants and resolutions must be finite and > 0; offsets finite.
-fn check_kinematics(kinematics: &Kinematics) -> Result<(), (&'static str, String)> {
-    let positive = |key: &'static str, values: &[f64]| {
+/// Lengths, diameters, constants and resolutions must be finite and > 0 (a link length that the published
+/// constants set to zero, >= 0); offsets finite. The error names the key (below `kinematics.`).
+fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
+    let positive = |key: &str, values: &[f64]| {
         if values.iter().all(|v| v.is_finite() && *v > 0.0) {
             Ok(())
         } else {
-            Err((key, format!("{values:?} must be finite and > 0")))
+            Err((key.to_owned(), format!("{values:?} must be finite and > 0")))
         }
     };
-    let finite = |key: &'static str, values: &[f64]| {
+    let non_negative = |key: &str, values: &[f64]| {
+        if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            Ok(())
+        } else {
+            Err((
+                key.to_owned(),
+                format!("{values:?} must be finite and >= 0"),
+            ))
+        }
+    };
+    let finite = |key: &str, values: &[f64]| {
         if values.iter().all(|v| v.is_finite()) {
             Ok(())
         } else {
-            Err((key, format!("{values:?} must be finite")))
+            Err((key.to_owned(), format!("{values:?} must be finite")))
         }
     };
     match kinematics {
@@ -705,9 +821,7 @@ fn check_kinematics(kinematics: &Kinematics) -> Result<(), (&'static str, String
                 positive("distal_link_m", &[v])?;
             }
             if let Some(v) = k.base_distance_m {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(("base_distance_m", format!("{v} must be finite and >= 0")));
-                }
+                non_negative("base_distance_m", &[v])?;
             }
             if let Some(v) = k.encoder_offset_deg {
                 finite("encoder_offset_deg", &v.map(f64::from))?;
@@ -731,6 +845,55 @@ fn check_kinematics(kinematics: &Kinematics) -> Result<(), (&'static str, String
             }
             if let Some(v) = k.workspace_origin_m {
                 finite("workspace_origin_m", &v)?;
+            }
+            Ok(())
+        }
+        Kinematics::Falcon(g) => {
+            for (key, value) in [
+                ("a_m", g.a_m),
+                ("b_m", g.b_m),
+                ("c_m", g.c_m),
+                ("d_m", g.d_m),
+                ("e_m", g.e_m),
+                ("wheel_slots", g.wheel_slots),
+                ("shaft_diameter_m", g.shaft_diameter_m),
+                ("small_arm_diameter_m", g.small_arm_diameter_m),
+            ] {
+                positive(key, &[value])?;
+            }
+            for (key, value) in [
+                ("f_m", g.f_m),
+                ("r_m", g.r_m),
+                ("s_m", g.s_m),
+                ("theta_offset_deg", g.theta_offset_deg),
+            ] {
+                finite(key, &[value])?;
+            }
+            Ok(())
+        }
+        Kinematics::WoodenHaptics(k) => {
+            for (model, constants) in [
+                ("woodenhaptics", &k.woodenhaptics),
+                ("polhem", &k.polhem),
+                ("vintage", &k.vintage),
+            ] {
+                let Some(c) = constants else { continue };
+                for (key, value) in [
+                    ("capstan_diameter_m", c.capstan_diameter_m),
+                    ("body_diameter_m", c.body_diameter_m),
+                    ("torque_constant_n_m_per_a", c.torque_constant_n_m_per_a),
+                    ("counts_per_revolution", c.counts_per_revolution),
+                ] {
+                    if let Some(v) = value {
+                        positive(&format!("{model}.{key}"), &v)?;
+                    }
+                }
+                if let Some(v) = c.link_length_m {
+                    non_negative(&format!("{model}.link_length_m"), &v)?;
+                }
+                if let Some(v) = c.workspace_origin_m {
+                    finite(&format!("{model}.workspace_origin_m"), &v)?;
+                }
             }
             Ok(())
         }
@@ -844,6 +1007,46 @@ mod tests {
                 "device = \"woodenhaptics-hid\"\n[kinematics]\nlink_length_m = [0.08, 0.2]\n",
                 "kinematics.link_length_m",
             ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.woodenhaptics]\ncapstan_diameter_m = [0.01, 0, 0.01]\n",
+                "kinematics.woodenhaptics.capstan_diameter_m",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.polhem]\ntorque_constant_n_m_per_a = [0.06, -0.05, 0.05]\n",
+                "kinematics.polhem.torque_constant_n_m_per_a",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.vintage]\nworkspace_origin_m = [0.1, nan, 0]\n",
+                "kinematics.vintage.workspace_origin_m",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.woodenhaptics]\nlink_length_m = [0.08, inf, 0.2]\n",
+                "kinematics.woodenhaptics.link_length_m",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.woodenhaptics]\ncounts_per_revolution = \"2000\"\n",
+                "kinematics.woodenhaptics.counts_per_revolution",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.woody]\nlink_length_m = [0.08, 0.2, 0.2]\n",
+                "kinematics",
+            ),
+            (
+                "device = \"falcon\"\n[kinematics]\na_m = 0\n",
+                "kinematics.a_m",
+            ),
+            (
+                "device = \"falcon\"\n[kinematics]\nwheel_slots = -320\n",
+                "kinematics.wheel_slots",
+            ),
+            (
+                "device = \"falcon\"\n[kinematics]\ns_m = nan\n",
+                "kinematics.s_m",
+            ),
+            (
+                "device = \"falcon\"\n[kinematics]\nlength = 0.06\n",
+                "kinematics",
+            ),
             ("[limits\n", "(syntax)"),
             ("[workspace]\nmin_m = [0, 0, 0]\n", "workspace.max_m"),
             (
@@ -920,6 +1123,182 @@ mod tests {
         let m = fixed.mapping_for(device.0, device.1, Some(volume)).unwrap();
         assert_eq!(m.scale(), 3.0);
         assert_eq!(m.translation_m(), DVec3::new(0.0, 0.1, 0.0));
+    }
+
+    #[test]
+    fn a_real_device_defaults_to_its_builtin_and_fits_only_what_is_out_of_reach() {
+        let mut falcon = DeviceProfile::default_for("falcon").unwrap();
+        assert_eq!(falcon.device.as_deref(), Some("falcon"));
+        assert!(!falcon.mapping_given);
+        let builtin = DeviceProfile::resolve("falcon").unwrap();
+        assert!(
+            builtin.mapping_given,
+            "a built-in named on purpose is a mapping given"
+        );
+        assert_eq!(falcon.mapping, builtin.mapping);
+        // No built-in for the voxhap protocol: the identity.
+        let mock = DeviceProfile::default_for("mock").unwrap();
+        assert_eq!(mock.name, "default (mock)");
+        assert_eq!(mock.mapping, DeviceProfile::default().mapping);
+        assert_eq!(mock.kinematics, Kinematics::Default);
+        falcon.fit_when_out_of_reach();
+        let MappingChoice::FitWhenOutOfReach(given) = falcon.mapping else {
+            panic!("{:?}", falcon.mapping);
+        };
+        // The Falcon's box: x, y ±0.06 m, z 0.075 .. 0.175 m; the built-in centres it on the origin.
+        let device = (
+            DVec3::new(-0.06, -0.06, 0.075),
+            DVec3::new(0.06, 0.06, 0.175),
+        );
+        let small = (DVec3::splat(-0.04), DVec3::splat(0.04));
+        assert_eq!(
+            falcon.mapping_for(device.0, device.1, Some(small)).unwrap(),
+            given
+        );
+        assert_eq!(falcon.mapping_for(device.0, device.1, None).unwrap(), given);
+        let head = (DVec3::new(-0.1, -0.12, 0.2), DVec3::new(0.1, 0.12, 0.4));
+        let fitted = falcon.mapping_for(device.0, device.1, Some(head)).unwrap();
+        assert!((fitted.scale() - 2.0).abs() < 1e-12, "{}", fitted.scale());
+        assert!(fitted.reaches(device.0, device.1, head.0, head.1));
+        // Only the user's own [mapping] counts as given; one inherited through base does not.
+        assert!(parse("[mapping]\nscale = 2\n").unwrap().mapping_given);
+        assert!(
+            !parse("base = \"falcon\"\n[limits]\nmax_force_n = 2\n")
+                .unwrap()
+                .mapping_given
+        );
+    }
+
+    #[test]
+    fn the_woodenhaptics_builtin_lists_hfabapis_published_constants() {
+        let profile = DeviceProfile::resolve("woodenhaptics").unwrap();
+        let mut config = WoodyConfig::default();
+        profile.apply_woodenhaptics(&mut config);
+        for model in [
+            WoodyModel::WoodenHaptics,
+            WoodyModel::Polhem,
+            WoodyModel::VintagePhantom,
+        ] {
+            assert_ne!(
+                config.model_constants[model.index()],
+                WoodyConstants::default()
+            );
+            assert_eq!(
+                config.model_constants[model.index()].applied_to(model.config()),
+                model.config(),
+                "{model:?}"
+            );
+        }
+    }
+
+    /// Changing a WoodenHaptics constant changes position and current as hfabapi's equations predict
+    /// (serial chain: x = cos θA (Lb sin θB + Lc sin θC) - origin; current = τ dir d_capstan / d_body / k_t).
+    #[test]
+    fn a_woodenhaptics_profile_constant_changes_position_and_current_as_predicted() {
+        let profile = parse(
+            "device = \"woodenhaptics\"\n[kinematics.woodenhaptics]\nlink_length_m = [0.080, 0.250, 0.245]\n\
+             torque_constant_n_m_per_a = [0.0518, 0.0259, 0.0259]\nencoder_home_counts = [0, 0, -5000]\n",
+        )
+        .unwrap();
+        let mut config = WoodyConfig::default();
+        profile.apply_woodenhaptics(&mut config);
+        let published = WoodyModel::WoodenHaptics.config();
+        let changed =
+            config.model_constants[WoodyModel::WoodenHaptics.index()].applied_to(published);
+        // Body B straight up (θB = π/2), C level (θC = 0), A at 0: x = Lb - origin_x.
+        let theta = [0.0, std::f64::consts::FRAC_PI_2, 0.0];
+        let before = published.position_m(theta).unwrap();
+        let after = changed.position_m(theta).unwrap();
+        assert!(
+            (after.x - before.x - (0.250 - 0.205)).abs() < 1e-12,
+            "{before} {after}"
+        );
+        assert!((after.y - before.y).abs() < 1e-12 && (after.z - before.z).abs() < 1e-12);
+        // A sideways force of 1 N loads joint A only at this pose: τA = reach = Lb, and motor A's current is
+        // τA · d_capstan / d_body / k_t (mA, truncated): 0.205 m and 0.0259 N m/A before, 0.250 m and
+        // 0.0518 N m/A after.
+        let force = DVec3::new(0.0, 1.0, 0.0);
+        let ma_before = published.currents_ma(theta, force, 6000);
+        let ma_after = changed.currents_ma(theta, force, 6000);
+        let predicted = |reach: f64, k_t: f64| (reach * 0.010 / 0.160 / k_t * 1000.0) as i32;
+        assert_eq!(ma_before, [predicted(0.205, 0.0259), 0, 0]);
+        assert_eq!(ma_after, [predicted(0.250, 0.0518), 0, 0]);
+        // The home count moves joint C by 1000 counts through the capstan: 2π·1000/2000 · 10/120 rad.
+        let raw = [0, 0, 0];
+        let dc = changed.joint_angles_rad(raw)[2] - published.joint_angles_rad(raw)[2];
+        let expected = -2.0 * std::f64::consts::PI * 1000.0 / 2000.0 * 0.010 / 0.120;
+        assert!((dc - expected).abs() < 1e-12, "{dc} vs {expected}");
+        // The other models keep their published constants.
+        assert_eq!(
+            config.model_constants[WoodyModel::Polhem.index()],
+            WoodyConstants::default()
+        );
+    }
+
+    #[test]
+    fn the_falcon_builtin_lists_libnifalcons_constants_and_a_change_moves_the_handle_as_predicted()
+    {
+        let mut config = FalconConfig::default();
+        DeviceProfile::resolve("falcon")
+            .unwrap()
+            .apply_falcon(&mut config);
+        assert_eq!(config.geometry, FalconGeometry::LIBNIFALCON);
+        assert!(matches!(
+            DeviceProfile::resolve("falcon").unwrap().kinematics,
+            Kinematics::Falcon(_)
+        ));
+        // The leg angle is count · (π·shaft / (slots·4)) / (π·arm / 360) + offset (FalconKinematic.h:59-62):
+        // doubling the shaft diameter doubles the angle per count; moving the offset moves every angle.
+        let profile = parse(
+            "device = \"falcon\"\n[kinematics]\nshaft_diameter_m = 0.0285\ntheta_offset_deg = 30\n",
+        )
+        .unwrap();
+        let mut changed = FalconConfig::default();
+        profile.apply_falcon(&mut changed);
+        let (published, changed) = (FalconGeometry::LIBNIFALCON, changed.geometry);
+        assert_eq!(
+            changed.a_m, published.a_m,
+            "keys not given keep libnifalcon's"
+        );
+        let per_count = |g: &FalconGeometry| g.leg_angle_rad(100) - g.leg_angle_rad(0);
+        assert!((per_count(&changed) - 2.0 * per_count(&published)).abs() < 1e-12);
+        assert!((changed.leg_angle_rad(0) - 30f64.to_radians()).abs() < 1e-12);
+        // A longer thigh changes the inverse kinematics and so the torque for the same force.
+        let longer = parse("device = \"falcon\"\n[kinematics]\na_m = 0.065\n").unwrap();
+        let mut longer_config = FalconConfig::default();
+        longer.apply_falcon(&mut longer_config);
+        let p = DVec3::new(0.0, 0.0, 0.11);
+        let up = DVec3::new(0.0, 0.0, 1.0);
+        assert_ne!(
+            longer_config.geometry.motor_commands(p, up),
+            published.motor_commands(p, up)
+        );
+        // Round trip with the changed geometry: forward kinematics inverts its own inverse kinematics.
+        let theta = longer_config.geometry.inverse_kinematics(p).theta1;
+        let (found, converged) = longer_config
+            .geometry
+            .forward_kinematics(theta, DVec3::new(0.0, 0.0, 0.1));
+        assert!(converged && (found - p).length() < 0.005, "{found}");
+    }
+
+    #[test]
+    fn the_device_pages_example_profiles_parse() {
+        // docs/devices/woodenhaptics.md: only the keys given change, the base's other keys and models stay.
+        let profile = parse(
+            "base = \"woodenhaptics\"\n[kinematics.woodenhaptics]\nlink_length_m = [0.080, 0.207, 0.245]\n\
+             encoder_home_counts = [0, 0, -5980]\n",
+        )
+        .unwrap();
+        let mut config = WoodyConfig::default();
+        profile.apply_woodenhaptics(&mut config);
+        let woody = config.model_constants[WoodyModel::WoodenHaptics.index()]
+            .applied_to(WoodyModel::WoodenHaptics.config());
+        assert_eq!(woody.link_length_m, [0.080, 0.207, 0.245]);
+        assert_eq!(woody.encoder_home, [0, 0, -5980]);
+        assert_eq!(woody.capstan_diameter_m, [0.010; 3]);
+        let polhem = config.model_constants[WoodyModel::Polhem.index()]
+            .applied_to(WoodyModel::Polhem.config());
+        assert_eq!(polhem, WoodyModel::Polhem.config());
     }
 
     #[test]

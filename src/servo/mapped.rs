@@ -20,7 +20,7 @@ use super::device::{ConnectError, ServoDevice};
 use super::monitor::StopSlot;
 use crate::device::mapping::WorkspaceMapping;
 use crate::device::plausibility::InputCounters;
-use crate::device::profile::DeviceProfile;
+use crate::device::profile::{DeviceProfile, MappingChoice};
 use crate::device::safety::DEFAULT_MAX_STIFFNESS_N_PER_M;
 use crate::device::supervisor::{
     ClearFaultOutcome, OutputState, SupervisorCounters, TickInput, TickOutput,
@@ -45,8 +45,8 @@ impl MappedDevice {
         volume_bounds_m: Option<(DVec3, DVec3)>,
     ) -> MappedDevice {
         let mapping = match profile.mapping {
-            crate::device::profile::MappingChoice::Fixed(mapping) => mapping,
-            crate::device::profile::MappingChoice::FitVolume { .. } => WorkspaceMapping::IDENTITY,
+            MappingChoice::Fixed(mapping) | MappingChoice::FitWhenOutOfReach(mapping) => mapping,
+            MappingChoice::FitVolume { .. } => WorkspaceMapping::IDENTITY,
         };
         MappedDevice {
             inner,
@@ -64,6 +64,12 @@ impl MappedDevice {
     /// The profile.
     pub fn profile(&self) -> &DeviceProfile {
         &self.profile
+    }
+
+    /// True when the volume was out of reach under the profile's mapping and was fitted automatically
+    /// ([`MappingChoice::FitWhenOutOfReach`]).
+    pub fn fitted_automatically(&self) -> bool {
+        matches!(self.profile.mapping, MappingChoice::FitWhenOutOfReach(given) if given != self.mapping)
     }
 
     /// The stiffness the hand may feel (N/m): the declaration (or the default when none is stated), lowered
@@ -178,6 +184,23 @@ impl ServoDevice for MappedDevice {
         }
         let m = &self.mapping;
         let rows = crate::device::mapping::matrix_rows(m.rotation());
+        if self.fitted_automatically() {
+            let translation = m
+                .translation_m()
+                .to_array()
+                .map(|v| (v * 1e4).round() / 1e4);
+            notes.push(format!(
+                "device profile {}: the volume does not fit in the device's workspace under the profile's \
+                 mapping, so it was fitted: scale {:.4} (scene m per device m), translation {:?} m; the hand \
+                 feels the scene's stiffness x {:.4}. Turn this off with --no-fit-volume, or give a [mapping] in \
+                 a profile (--device-profile FILE)",
+                self.profile.name,
+                m.scale(),
+                translation,
+                m.scale()
+            ));
+            return notes;
+        }
         notes.push(format!(
             "device profile {}: scene = {:.4} x R x device + {:?} m, R = {:?}; the hand feels the scene's \
              stiffness x {:.4}",

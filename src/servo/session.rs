@@ -117,8 +117,10 @@ pub enum SessionError {
     Rate(f64),
     #[error("scene: {0}")]
     Scene(String),
-    #[error("device {spec}: {source}")]
-    Open { spec: String, source: OpenError },
+    /// The cause is part of the message and deliberately not `source()`, so an error chain printed with
+    /// `{:#}` names it once.
+    #[error("device {spec}: {cause}")]
+    Open { spec: String, cause: OpenError },
     #[error("device {spec}: could not connect: {cause}")]
     Connect { spec: String, cause: ConnectError },
     #[error(transparent)]
@@ -218,9 +220,9 @@ impl Session {
             &config.profile,
             volume_bounds_m,
         )
-        .map_err(|source| SessionError::Open {
+        .map_err(|cause| SessionError::Open {
             spec: spec_label.clone(),
-            source,
+            cause,
         })?;
         let mut device: Box<dyn ServoDevice> = opened.device;
         let stop_slot = StopSlot::new();

@@ -81,6 +81,15 @@ impl WoodyModel {
         }
     }
 
+    /// Index of this model in per-model tables (model number - 1).
+    pub fn index(self) -> usize {
+        match self {
+            WoodyModel::Polhem => 0,
+            WoodyModel::VintagePhantom => 1,
+            WoodyModel::WoodenHaptics => 2,
+        }
+    }
+
     /// The published kinematic configuration for this model (hfab_api.cpp:159-179).
     pub fn config(self) -> WoodyKinematics {
         match self {
@@ -294,6 +303,53 @@ impl WoodyKinematics {
     }
 }
 
+/// Constants of one model that a device profile replaces (`[kinematics.woodenhaptics]`, `.polhem`,
+/// `.vintage`); `None` keeps hfabapi's published value. Checked by `device::profile` (lengths, diameters,
+/// torque constants and counts finite and > 0, origins finite).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WoodyConstants {
+    /// Capstan diameters A, B, C (m).
+    pub capstan_diameter_m: Option<[f64; 3]>,
+    /// Body (drum) diameters A, B, C (m).
+    pub body_diameter_m: Option<[f64; 3]>,
+    /// Link lengths A, B, C (m); the serial chain only (Polhem's closed chain has its own lengths).
+    pub link_length_m: Option<[f64; 3]>,
+    /// Workspace origin subtracted from the position (m).
+    pub workspace_origin_m: Option<[f64; 3]>,
+    /// Motor torque constants (N m / A).
+    pub torque_constant_n_m_per_a: Option<[f64; 3]>,
+    /// Encoder counts per revolution.
+    pub counts_per_revolution: Option<[f64; 3]>,
+    /// Encoder counts at the home pose, added to every reading (hfab_api.cpp:103-106).
+    pub encoder_home_counts: Option<[i32; 3]>,
+}
+
+impl WoodyConstants {
+    /// `kinematics` with the constants given here replaced.
+    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
+        fn set<T: Copy>(target: &mut T, value: Option<T>) {
+            if let Some(value) = value {
+                *target = value;
+            }
+        }
+        set(&mut kinematics.capstan_diameter_m, self.capstan_diameter_m);
+        set(&mut kinematics.body_diameter_m, self.body_diameter_m);
+        set(&mut kinematics.link_length_m, self.link_length_m);
+        set(&mut kinematics.workspace_origin_m, self.workspace_origin_m);
+        set(
+            &mut kinematics.torque_constant_n_m_per_a,
+            self.torque_constant_n_m_per_a,
+        );
+        set(
+            &mut kinematics.counts_per_revolution,
+            self.counts_per_revolution,
+        );
+        set(&mut kinematics.encoder_home, self.encoder_home_counts);
+        kinematics
+    }
+}
+
 // Polhem's link lengths (hfab_polhem.h:84-89).
 const POLHEM_L0: f64 = 34e-3;
 const POLHEM_L1: f64 = 165e-3;
@@ -399,6 +455,9 @@ pub struct WoodyConfig {
     pub max_current_ma: i32,
     /// Kinematics to use instead of the model's published one (a calibrated profile).
     pub kinematics_override: Option<WoodyKinematics>,
+    /// Per model (indexed by [`WoodyModel::index`]): constants replacing the published ones for the model the
+    /// device reports (a device profile's `[kinematics.MODEL]`).
+    pub model_constants: [WoodyConstants; 3],
 }
 
 impl Default for WoodyConfig {
@@ -409,6 +468,7 @@ impl Default for WoodyConfig {
             hello_attempts: 5,
             max_current_ma: MAX_CURRENT_MA,
             kinematics_override: None,
+            model_constants: [WoodyConstants::default(); 3],
         }
     }
 }
@@ -509,7 +569,9 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
                 });
             }
             self.model = Some(model);
-            self.kinematics = self.config.kinematics_override.unwrap_or(model.config());
+            self.kinematics = self.config.kinematics_override.unwrap_or_else(|| {
+                self.config.model_constants[model.index()].applied_to(model.config())
+            });
             self.info = info_for(Some(model), &self.kinematics);
         }
         let theta = self.kinematics.joint_angles_rad([

@@ -23,13 +23,16 @@ use glam::DVec3;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// Why a device could not be set up.
+/// Why a device could not be set up. Each message holds its cause once: a variant either is its cause
+/// (`transparent`) or names it in its text without returning it from `source()`, so an error chain printed
+/// with `{:#}` never repeats it.
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     #[error(transparent)]
     Safety(#[from] SupervisorConfigError),
-    #[error("simulated arm: {0}")]
-    Sim(#[from] SimError),
+    /// Every `SimError` message already starts with "simulated arm".
+    #[error("{0}")]
+    Sim(SimError),
     #[error("replay trace {path}: {message}")]
     Replay { path: PathBuf, message: String },
     #[error("device path {0:?} is not valid UTF-8")]
@@ -38,6 +41,12 @@ pub enum OpenError {
     Thread(String),
     #[error("{0}")]
     Profile(String),
+}
+
+impl From<SimError> for OpenError {
+    fn from(error: SimError) -> Self {
+        OpenError::Sim(error)
+    }
 }
 
 /// An opened device spec: the servo's device, plus the hand-target input when it is the simulated arm.
@@ -173,10 +182,12 @@ fn open_supervised(
         })?,
         DeviceSpec::WoodenHapticsSerial(path) => {
             let path = path_str(path)?;
+            let mut woody_config = WoodyConfig::default();
+            profile.apply_woodenhaptics(&mut woody_config);
             reconnecting(config, move || {
                 // USB CDC-ACM (Teensy) ignores the rate; the firmware calls Serial.begin(115200).
                 let transport = SerialTransport::open(&path, 115_200)?;
-                Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+                Ok(WoodenHapticsSerial::new(transport, woody_config))
             })?
         }
         DeviceSpec::Haply2Diy(path) => {
@@ -195,6 +206,8 @@ fn open_supervised(
         }
         DeviceSpec::Falcon { select, firmware } => {
             let (select, firmware) = (select.clone(), firmware.clone());
+            let mut falcon_config = FalconConfig::default();
+            profile.apply_falcon(&mut falcon_config);
             reconnecting(config, move || {
                 let (path, serial) = crate::device::discovery::find_falcon(select.as_deref())?;
                 let transport =
@@ -203,7 +216,7 @@ fn open_supervised(
                     transport,
                     FalconConfig {
                         firmware: firmware.clone(),
-                        ..FalconConfig::default()
+                        ..falcon_config.clone()
                     },
                 );
                 if let Some(serial) = serial {

@@ -112,7 +112,7 @@
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) are
 //! not met on this machine (bench run of 2026-11-24 19:41 UTC, plain sums in): 200 ns, 1.4 us, 10.7 us, 151 us;
 //! 3 000 mixed < 1 ms is met (0.45 ms), and 10 000 mixed (1.76 ms) now beats Euler to equal accuracy (2.09 ms,
-//! 1.19x; the same run with the previous code: 2.11 ms against 2.34 ms, 1.11x). A pass costs
+//! 1.19x; the previous code, run right after: 2.11 ms against 2.34 ms, 1.11x). A pass costs
 //! about 15 to 20 ns per primitive and a solve takes 5 to 20 passes plus a certificate; the next steps would be
 //! a cheaper first step (the first Newton step from `y` is often halved twice) and fewer passes spent on kinks
 //! that the multipliers later reject. On the path (about 1 750 instructions a tick, callgrind) the certificate

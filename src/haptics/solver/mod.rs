@@ -102,7 +102,9 @@
 //!   compensated passes screen). Instructions
 //!   per cold solve (callgrind, deterministic, load-independent), before / after: 10 random primitives
 //!   16 977 / 15 686 (-8 %), 100: 145 578 / 128 232 (-12 %), 1 000: 2 158 745 / 1 936 443 (-10 %); the 1 degree
-//!   wedge 6 998 / 7 156 (+2 %, the repeated check); pass counts unchanged (6, 8, 13).
+//!   wedge 6 998 / 7 156 (+2 %); pass counts unchanged (6, 8, 13). These counts are of a first version that
+//!   re-checked every face found on a plain sum; the kept one re-checks only a face that does not certify (it
+//!   saves the extra pass on one point), and was measured only by the bench.
 //! - *Ordering line-search breakpoints a chunk at a time* (16 selected in O(n), then sorted, instead of one
 //!   full sort): tried and dropped, 1 000 primitives took 7 % more instructions (2 077 628 against 1 936 443).
 //! - Earlier, on the dual method: over-relaxation (1.5, 1.8) was 1.2x to 3x slower; longer rounds helped 1 000

@@ -168,6 +168,7 @@ pub fn report(
             "force": sol.force_n.to_array(),
             "iterations": sol.sweeps + sol.active_set_rounds,
             "sweeps": sol.sweeps,
+            "newton_passes": sol.newton_passes,
             "active_set_rounds": sol.active_set_rounds,
             "time_ns": time_ns,
             "gap": sol.gap_j,
@@ -198,9 +199,10 @@ pub fn report(
                 sol.force_n.length()
             ));
             out.push_str(&format!(
-                "iterations   {} ({} sweeps, {} active-set rounds)\n",
+                "iterations   {} ({} sweeps, of which {} Newton passes; {} active-set rounds)\n",
                 sol.sweeps + sol.active_set_rounds,
                 sol.sweeps,
+                sol.newton_passes,
                 sol.active_set_rounds
             ));
             out.push_str(&format!(

@@ -60,6 +60,40 @@ pub(crate) struct CompensatedSum {
     compensation: DVec3,
 }
 
+/// A running sum of 3-vectors: [`CompensatedSum`] or [`PlainSum`] (the primal Newton passes pick one).
+pub(crate) trait GradientSum: Default {
+    fn add(&mut self, v: DVec3);
+    fn value(&self) -> DVec3;
+}
+
+/// A plain running sum (error up to n eps of the sum of magnitudes).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct PlainSum(DVec3);
+
+impl GradientSum for PlainSum {
+    #[inline]
+    fn add(&mut self, v: DVec3) {
+        self.0 += v;
+    }
+
+    #[inline]
+    fn value(&self) -> DVec3 {
+        self.0
+    }
+}
+
+impl GradientSum for CompensatedSum {
+    #[inline]
+    fn add(&mut self, v: DVec3) {
+        CompensatedSum::add(self, v);
+    }
+
+    #[inline]
+    fn value(&self) -> DVec3 {
+        CompensatedSum::value(self)
+    }
+}
+
 impl CompensatedSum {
     #[inline]
     pub(crate) fn add(&mut self, v: DVec3) {

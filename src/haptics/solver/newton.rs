@@ -42,7 +42,7 @@
 //! primitive.
 
 use super::active_set::kink_projector;
-use super::certificate::{certify, Certificate, CompensatedSum, Frame};
+use super::certificate::{certify, Certificate, CompensatedSum, Frame, GradientSum, PlainSum};
 use super::linalg::psd_pseudo_inverse;
 use super::{project, Item};
 use crate::haptics::primitive::PrimitiveKind;
@@ -60,6 +60,9 @@ const MULTIPLIER_SLACK: f64 = 1e-9;
 const MAX_SPLIT_SWEEPS: usize = 64;
 /// Times one primitive may leave W in one solve before the attempt is abandoned as cycling.
 const MAX_DROPS_PER_PRIMITIVE: u8 = 2;
+/// Passes sum the gradient plainly until the reduced gradient is below this fraction of the force scale, then
+/// with compensation (see `Workspace::pass`).
+const COMPENSATE_BELOW: f64 = 1e-4;
 /// Halvings of one step before the attempt is abandoned.
 const MAX_HALVINGS: u32 = 30;
 
@@ -248,11 +251,17 @@ impl Workspace {
         let mut previous: Option<(DVec3, f64, DVec3, f64, [u32; MAX_KINKS], usize)> = None;
         let mut halvings = 0;
         let mut screened_radius_m = f64::INFINITY;
+        // Whether passes sum the gradient with compensation (see `pass`): from the first pass near the answer.
+        let mut compensated = false;
         loop {
             if outcome.passes >= limits.max_passes || over_time() {
                 return outcome;
             }
-            let model = self.pass(items, frame, x, dual);
+            let model = if compensated {
+                self.pass::<CompensatedSum>(items, frame, x, dual)
+            } else {
+                self.pass::<PlainSum>(items, frame, x, dual)
+            };
             outcome.passes += 1;
             outcome.x = x;
             outcome.certificate = None;
@@ -300,6 +309,13 @@ impl Workspace {
             let face_done = d.length() <= step_floor_m
                 || reduced_gradient.length()
                     <= (0.25 * k * limits.tolerance_m).max(gradient_floor_n);
+            if !compensated
+                && !face_done
+                && reduced_gradient.length() <= COMPENSATE_BELOW * force_scale_n
+            {
+                // Close to the answer: sum with compensation from now on.
+                compensated = true;
+            }
             if face_done {
                 match self.multipliers(items, &face, model.gradient, dual) {
                     Ok(()) => {
@@ -308,6 +324,12 @@ impl Workspace {
                         if certificate.bound_m <= limits.tolerance_m {
                             outcome.certified = true;
                             return outcome;
+                        }
+                        if !compensated {
+                            // The plain sum's rounding may be what keeps the certificate above the tolerance:
+                            // check again at the same point with the compensated sum.
+                            compensated = true;
+                            continue;
                         }
                         if d.length() <= step_floor_m {
                             // Nothing left to gain on this face and the certificate is not met: rounding
@@ -344,10 +366,11 @@ impl Workspace {
                         continue;
                     }
                 }
-            } else if limits.screening && self.kink_count == 0 {
+            } else if limits.screening && self.kink_count == 0 && compensated {
                 // With W empty every term is differentiable at x (or a plane exactly at zero distance, whose
                 // value in the pass is one of its subgradients): g is a subgradient of P, and |x - x*| <= |g|/k.
-                // Padded for the rounding of the sum (N terms, each within eps of the force scale) and of y.
+                // Padded for the rounding of the (compensated) sum (N terms, each within eps of the force scale)
+                // and of y. Plain-sum passes do not screen.
                 let radius = (1.01 * model.gradient.length()
                     + 64.0 * (n as f64 + 4.0) * EPS * force_scale_n)
                     / k
@@ -376,12 +399,19 @@ impl Workspace {
 
     /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are
     /// left to [`Self::multipliers`]).
-    fn pass(&mut self, items: &[Item], frame: &Frame, x: DVec3, dual: &mut [DVec3]) -> Model {
+    /// `S` is how the gradient is summed: [`CompensatedSum`] near the answer, where the gradient is the small
+    /// difference of many forces and a plain sum's rounding (about sqrt(N) eps of their magnitudes) would be
+    /// what Newton converges to; [`PlainSum`] before that, where only the step's direction matters.
+    fn pass<S: GradientSum>(
+        &mut self,
+        items: &[Item],
+        frame: &Frame,
+        x: DVec3,
+        dual: &mut [DVec3],
+    ) -> Model {
         let Frame { y, k, .. } = *frame;
         let offset = x - y;
-        // Summed with compensation: near the answer the gradient is the small difference of many forces, and a
-        // plain sum's rounding (about sqrt(N) eps of their magnitudes) would be what Newton converges to.
-        let mut gradient = CompensatedSum::default();
+        let mut gradient = S::default();
         gradient.add(k * offset);
         gradient.add(self.fixed_gradient_n);
         let mut energy =

@@ -1128,27 +1128,46 @@ mod tests {
         let centre = |r: &Range<f64>| 0.5 * (r.start + r.end);
         let span = |r: &Range<f64>| r.end - r.start;
         for (name, vertical, expected_vertical_centre) in [
-            ("top", (|v: glam::DVec3| v.y) as fn(glam::DVec3) -> f64, -4.5),
+            (
+                "top",
+                (|v: glam::DVec3| v.y) as fn(glam::DVec3) -> f64,
+                -4.5,
+            ),
             ("side", |v: glam::DVec3| v.z, 30.025),
         ] {
             let (probe, proxy) = path_points(&wobble.samples, vertical);
             let (x, y) = path_data_limits(&probe, &proxy);
-            assert!((span(&x) - MIN_PATH_SPAN_MM).abs() < 1e-9, "{name}: x {x:?}");
-            assert!((span(&y) - MIN_PATH_SPAN_MM).abs() < 1e-9, "{name}: y {y:?}");
+            assert!(
+                (span(&x) - MIN_PATH_SPAN_MM).abs() < 1e-9,
+                "{name}: x {x:?}"
+            );
+            assert!(
+                (span(&y) - MIN_PATH_SPAN_MM).abs() < 1e-9,
+                "{name}: y {y:?}"
+            );
             assert!((centre(&x) - 12.3).abs() < 0.01, "{name}: x {x:?}");
             assert!(
                 (centre(&y) - expected_vertical_centre).abs() < 0.01,
                 "{name}: y {y:?}"
             );
             for p in probe.iter().chain(&proxy) {
-                assert!(x.contains(&p.0) && y.contains(&p.1), "{name}: {p:?} off the axes");
+                assert!(
+                    x.contains(&p.0) && y.contains(&p.1),
+                    "{name}: {p:?} off the axes"
+                );
             }
         }
         // A path wider than the minimum keeps its own (robust, padded) limits.
         let wide = vec![(0.0, 0.0), (40.0, 20.0)];
         let (x, y) = path_data_limits(&wide, &wide);
-        assert!((x.start + 2.0).abs() < 1e-9 && (x.end - 42.0).abs() < 1e-9, "{x:?}");
-        assert!((y.start + 1.0).abs() < 1e-9 && (y.end - 21.0).abs() < 1e-9, "{y:?}");
+        assert!(
+            (x.start + 2.0).abs() < 1e-9 && (x.end - 42.0).abs() < 1e-9,
+            "{x:?}"
+        );
+        assert!(
+            (y.start + 1.0).abs() < 1e-9 && (y.end - 21.0).abs() < 1e-9,
+            "{y:?}"
+        );
         // Drawing the sub-millimetre trace works.
         let dir = tempfile::tempdir().unwrap();
         plot_trace(&wobble, "wobble", &dir.path().join("w.svg"), 800, 600).unwrap();

@@ -435,6 +435,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::error_chain as chain;
     use crate::sim::scenario::{LoadedScenario, Purpose, Scenario};
     use std::collections::BTreeSet;
 
@@ -471,18 +472,6 @@ mod tests {
                 body(section, changes)
             )
         }
-    }
-
-    /// The message and every source's, joined.
-    fn chain(error: &dyn std::error::Error) -> String {
-        let mut text = error.to_string();
-        let mut source = error.source();
-        while let Some(inner) = source {
-            text.push_str(": ");
-            text.push_str(&inner.to_string());
-            source = inner.source();
-        }
-        text
     }
 
     /// Parses, validates and loads `text` as `sim` (or `serve`) does.

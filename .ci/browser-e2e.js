@@ -3,7 +3,8 @@
 // server's hand target follows, sets the stiffness, scales a mode and checks that a refused change shows the
 // server's error inline; then on a 390 x 844 phone screen checks that nothing is wider than the screen, that the
 // on/off switch, peak strength and breakpoints work, that slices stay under 200 KiB/s and the status line and
-// stream rate show; then that a wrong token is said and a drag with it sends nothing.
+// stream rate show; that the proxy marker is drawn on top of the probe's and both stay visible when they
+// coincide; then that a wrong token is said and a drag with it sends nothing.
 // Usage: node browser-e2e.js BASE_URL TOKEN CHROMIUM_PATH
 'use strict';
 const { chromium } = require('playwright-core');
@@ -111,6 +112,58 @@ async function phone(browser, check) {
     await page.screenshot({ path: process.env.KEEP_SCREENSHOTS + '/phone-390x844.png', fullPage: true });
   }
   check(pageErrors.length === 0, 'no script errors on the phone' + (pageErrors.length ? ': ' + pageErrors.join('; ') : ''));
+  await page.close();
+}
+
+// The probe and proxy markers (issue 17: they overlapped at the proxy). The proxy is drawn last, a filled dot
+// inside the probe's hollow ring, and a view says "proxy on probe" when they coincide. Checked on the page's
+// own layout numbers and on the canvas pixels, with the simulated hand held in free space (no contact, so the
+// proxy sits on the probe).
+async function markers(browser, check) {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
+  await page.goto(base + '/?token=' + encodeURIComponent(token));
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  const geometry = await page.evaluate(() => window.voxhapPage.markerLayout([100, 100], [100, 100]));
+  // The ring's inner edge (radius less half its line and its 1.25 px outline) clears the dot and its outline.
+  const clearance = geometry.probeRadius - geometry.probeLine / 2 - 1.25 - (geometry.proxyRadius + geometry.proxyLine / 2);
+  check(clearance >= 1 && geometry.label === 'proxy on probe',
+    'coinciding markers: a ' + geometry.proxyRadius + ' px proxy dot inside a ' + geometry.probeRadius + ' px probe ring, ' +
+      clearance.toFixed(2) + ' px clear of each other, labelled ' + JSON.stringify(geometry.label));
+  const scene = await (await fetch(base + '/api/scene')).json();
+  const volume = (scene.volumes || [])[0];
+  if (!scene.simulated || !volume) {
+    console.log('skip: live marker check needs the simulated arm and a volume');
+    await page.close();
+    return;
+  }
+  // A corner of the volume, far from the built-in ball: no primitive there, so the proxy follows the probe.
+  const corner = [0, 1, 2].map((i) => volume.min_m[i] + 0.08 * (volume.max_m[i] - volume.min_m[i]));
+  const post = (body) => fetch(base + '/api/hand', { method: 'POST', headers: { Authorization: 'Bearer ' + token }, body: JSON.stringify(body) });
+  check((await post({ position_m: corner })).ok, 'the hand is held at ' + JSON.stringify(corner.map((x) => Number(x.toFixed(4)))));
+  const seen = await until('the proxy on the probe in the top view', async () => page.evaluate(() => {
+    const m = window.voxhapPage.markers()[0].markers;
+    if (!m || !m.layout.label) return null;
+    // Read the canvas in the same task as the layout it was drawn with.
+    const canvas = document.getElementById('view-z');
+    const ctx = canvas.getContext('2d');
+    const dpr = canvas.width / canvas.getBoundingClientRect().width;
+    const at = (x, y) => Array.from(ctx.getImageData(Math.round(x * dpr), Math.round(y * dpr), 1, 1).data.slice(0, 3));
+    return {
+      m: m,
+      proxyPixel: at(m.proxy[0], m.proxy[1]),
+      ringPixel: at(m.probe[0], m.probe[1] - m.layout.probeRadius),
+      proxyColour: getComputedStyle(document.documentElement).getPropertyValue('--scene-proxy').trim(),
+    };
+  }), 10000);
+  await post({ position_m: null });
+  const hex = (c) => [1, 3, 5].map((i) => parseInt(c.slice(i, i + 2), 16));
+  const near = (a, b) => a.every((x, i) => Math.abs(x - b[i]) <= 40);
+  check(seen.m.order[seen.m.order.length - 1] === 'proxy', 'the proxy is drawn last: ' + seen.m.order.join(' < '));
+  check(near(seen.proxyPixel, hex(seen.proxyColour)),
+    'the proxy dot shows on top at the proxy: pixel ' + JSON.stringify(seen.proxyPixel) + ', proxy colour ' + seen.proxyColour);
+  check(seen.ringPixel.every((x) => x >= 200),
+    'the probe ring shows around it (' + seen.m.layout.apartPx.toFixed(2) + ' px apart): pixel ' + JSON.stringify(seen.ringPixel) +
+      ', label ' + JSON.stringify(seen.m.layout.label));
   await page.close();
 }
 
@@ -222,6 +275,7 @@ async function refusedToken(browser, check) {
     check(pageErrors.length === 0, 'no script errors' + (pageErrors.length ? ': ' + pageErrors.join('; ') : ''));
     await page.close();
 
+    await markers(browser, check);
     await phone(browser, check);
     await refusedToken(browser, check);
   } catch (e) {

@@ -1,5 +1,6 @@
-//! The generated reference pages in docs/reference/: the CLI (from the clap definitions) and the trace
-//! columns and flags (from `voxhap::record`'s column list and flag table).
+//! The generated reference pages in docs/reference/: the CLI (from the clap definitions), the trace
+//! columns and flags (from `voxhap::record`'s column list and flag table) and the scene file keys (from
+//! `voxhap::sim::schema::SCENE_SCHEMA`, which its unit tests hold against the parser and validator).
 //!
 //! Where it sits: documentation checks. Each test renders its page from the code and fails when the committed
 //! file differs, so the docs cannot drift from the flags or columns. `VOXHAP_BLESS=1 cargo test --test
@@ -135,6 +136,59 @@ fn trace_markdown() -> String {
         .unwrap();
     }
     out
+}
+
+fn scene_markdown() -> String {
+    use voxhap::sim::schema::{KeyDefault, SCENE_SCHEMA};
+    let mut out = String::from(
+        "# Scene files\n\n\
+         <!-- Generated from voxhap::sim::schema::SCENE_SCHEMA by tests/docs_reference.rs; do not edit by hand. \
+         After changing a key: VOXHAP_BLESS=1 cargo test --test integration docs_reference -->\n\n\
+         Every key of a scene file (`voxhap serve --scene FILE`) or scenario (`voxhap sim FILE`): one TOML \
+         file, one schema, one validator. Units are SI and named in the key; unknown keys are errors, and \
+         errors name the key (`solver.max_sweeps: must be from 1 to 10000000, got 0`). The unit tests of \
+         `src/sim/schema.rs` hold this table against the parser and validator: each table's keys are the \
+         ones the parser accepts, a default written out equals the key left out, each range is accepted at \
+         its edges, and values just outside it, NaN and infinity are refused. Guides with examples: \
+         [Scenarios](../scenarios.md), [Haptic modes](../modes.md), [The simulated arm](../sim-arm.md), \
+         [Volumes](../volumes.md).\n",
+    );
+    for section in SCENE_SCHEMA {
+        write!(
+            out,
+            "\n## {}\n\n{}\n\n| key | unit | default | accepts | meaning |\n|---|---|---|---|---|\n",
+            section.title, section.intro
+        )
+        .unwrap();
+        for key in section.keys {
+            let default = match key.default {
+                KeyDefault::Required => "required".to_owned(),
+                KeyDefault::Value(value) => format!("`{value}`"),
+                KeyDefault::Otherwise(words) => words.to_owned(),
+            };
+            writeln!(
+                out,
+                "| `{}` | {} | {} | {} | {} |",
+                key.name,
+                if key.unit.is_empty() { "-" } else { key.unit },
+                table_cell(&default),
+                table_cell(&key.accepts.describe()),
+                table_cell(key.meaning)
+            )
+            .unwrap();
+        }
+    }
+    out
+}
+
+#[test]
+fn scene_reference_matches_the_schema_table() {
+    let page = scene_markdown();
+    assert!(
+        page.contains("| `tolerance_m` | m | `1e-12` | 1e-18 to 1e-3 |"),
+        "{page}"
+    );
+    check_or_bless("scene.md", &page);
 }
 
 #[test]

@@ -19,6 +19,8 @@
   const SLICE_RETRY_MS = 2000;
   const CONTROL_DEBOUNCE_MS = 250; // a held arrow key on a slider sends one request, not one per step
   const PLOT_WINDOW_S = 10;
+  const MARKER_LABEL_PX = 3; // probe and proxy closer than this on a view: say "proxy on probe"
+
   const HAND_PERIOD_MS = 33; // ~30 Hz
   const TOKEN_KEY = 'voxhap.token';
   const DEFAULT_BOUNDS = { min: [-0.05, -0.05, -0.05], max: [0.05, 0.05, 0.05] };
@@ -1309,6 +1311,18 @@
     }
   }
 
+  /** How the probe (hollow ring) and the proxy (filled dot, drawn last) are drawn when their centres are at
+   * `probe` and `proxy` (CSS px). The ring's inside stays clear of the dot (ring radius minus half its line
+   * and outline > dot radius plus its outline), so with the proxy on the probe both stay visible as a dot in
+   * a ring; when they are closer than MARKER_LABEL_PX the view also says "proxy on probe". */
+  function markerLayout(probe, proxy) {
+    const layout = { probeRadius: 9, probeLine: 2, proxyRadius: 4.5, proxyLine: 1.5, label: null };
+    const apart = Math.hypot(probe[0] - proxy[0], probe[1] - proxy[1]);
+    layout.apartPx = apart;
+    if (apart < MARKER_LABEL_PX) layout.label = 'proxy on probe';
+    return layout;
+  }
+
   function drawView(view) {
     const { ctx, width, height } = fitCanvas(view.canvas);
     ctx.fillStyle = '#1b1f24';
@@ -1362,27 +1376,41 @@
       }, COLOURS.hand, 1.5);
     }
 
-    // Probe: hollow circle. Proxy: filled dot, with a thin line to the probe (the coupling spring).
+    // Coupling spring (thin line probe -> proxy) and the force arrow first, then the probe and the proxy on
+    // top of everything, the proxy last: at the proxy the primitives and the arrow start, and with no contact
+    // the proxy sits on the probe (issue 17: "markers overlap at the proxy"). markerLayout says how.
     outlined(ctx, () => {
       ctx.beginPath();
       ctx.moveTo(px, py);
       ctx.lineTo(qx, qy);
     }, 'rgba(255,255,255,0.6)', 0.75);
-    outlined(ctx, () => {
-      ctx.beginPath();
-      ctx.arc(px, py, 8, 0, 2 * Math.PI);
-    }, COLOURS.probe, 2);
-    ctx.beginPath();
-    ctx.arc(qx, qy, 4.5, 0, 2 * Math.PI);
-    ctx.fillStyle = COLOURS.proxy;
-    ctx.fill();
-    ctx.lineWidth = 1.5;
-    ctx.strokeStyle = '#000';
-    ctx.stroke();
-
-    // Force arrow from the proxy, app.forceScale N per px.
     const f = isVec3(s.force_n) ? s.force_n : [0, 0, 0];
     arrow(ctx, qx, qy, qx + f[h] / app.forceScale, qy - f[v] / app.forceScale, COLOURS.force, 2.5, false);
+    const layout = markerLayout([px, py], [qx, qy]);
+    outlined(ctx, () => {
+      ctx.beginPath();
+      ctx.arc(px, py, layout.probeRadius, 0, 2 * Math.PI);
+    }, COLOURS.probe, layout.probeLine);
+    ctx.beginPath();
+    ctx.arc(qx, qy, layout.proxyRadius, 0, 2 * Math.PI);
+    ctx.fillStyle = COLOURS.proxy;
+    ctx.fill();
+    ctx.lineWidth = layout.proxyLine;
+    ctx.strokeStyle = '#000';
+    ctx.stroke();
+    if (layout.label) {
+      ctx.font = '600 11px system-ui, sans-serif';
+      ctx.textAlign = 'left';
+      ctx.textBaseline = 'middle';
+      const lx = px + layout.probeRadius + 5;
+      const ly = py - layout.probeRadius - 4;
+      ctx.lineWidth = 3;
+      ctx.strokeStyle = 'rgba(0,0,0,0.85)';
+      ctx.strokeText(layout.label, lx, ly);
+      ctx.fillStyle = '#fff';
+      ctx.fillText(layout.label, lx, ly);
+    }
+    view.markers = { probe: [px, py], proxy: [qx, qy], layout: layout, order: ['primitives', 'hand', 'spring', 'force', 'probe', 'proxy'] };
     ctx.restore();
 
     // Scale bar for the force arrows (bottom right, inside the plot).
@@ -1668,6 +1696,11 @@
     .catch(() => {
       /* the hello brings it */
     });
+  // For the headless browser test (.ci/browser-e2e.js): what the last draw of each view put where.
+  window.voxhapPage = {
+    markerLayout: markerLayout,
+    markers: () => views.map((view) => ({ axis: view.axis, markers: view.markers || null })),
+  };
   connect();
   requestAnimationFrame(frame);
 })();

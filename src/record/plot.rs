@@ -10,7 +10,8 @@
 //!    as in the paper's Figure 7; ticks without a certificate (`inf`) are left out and a bound of exactly 0
 //!    is drawn at the bottom of the axis;
 //! 3. top view (x-y) and 4. side view (x-z) of the probe and proxy paths (mm), with equal scales on both
-//!    axes so shapes are not distorted.
+//!    axes so shapes are not distorted, and each axis at least [`MIN_PATH_SPAN_MM`] wide, centred on the
+//!    data, so a sub-millimetre motion stays readable.
 //!
 //! The two time panels shade the periods when the trace's flags say the force was held back (ramp-in,
 //! waiting to engage, slew limit: `force_limited_by_safety`) or the device was away (disconnected, not
@@ -763,6 +764,33 @@ fn path_points(samples: &[TraceSample], vertical: impl Fn(glam::DVec3) -> f64) -
     (probe, proxy)
 }
 
+/// Smallest span of each path view's axes (mm): a sub-millimetre wobble is drawn as the small motion it is,
+/// on readable millimetre ticks, instead of being blown up to fill the panel (issue 17: "the side view is
+/// unreadable for small motions").
+pub const MIN_PATH_SPAN_MM: f64 = 5.0;
+
+/// `range` widened, about its centre, to at least `min_span` (a wider range is returned as it is).
+fn with_min_span(range: Range<f64>, min_span: f64) -> Range<f64> {
+    let span = range.end - range.start;
+    if span >= min_span {
+        return range;
+    }
+    let centre = 0.5 * (range.start + range.end);
+    (centre - 0.5 * min_span)..(centre + 0.5 * min_span)
+}
+
+/// The data limits of a path view (mm), before the equal-aspect widening: robust on each axis (a far-off
+/// point does not squash the rest, see [`robust_range`]) and at least [`MIN_PATH_SPAN_MM`] wide, centred on
+/// the data.
+fn path_data_limits(probe: &[(f64, f64)], proxy: &[(f64, f64)]) -> (Range<f64>, Range<f64>) {
+    let x = robust_range(probe.iter().chain(proxy).map(|p| p.0));
+    let y = robust_range(probe.iter().chain(proxy).map(|p| p.1));
+    (
+        with_min_span(x, MIN_PATH_SPAN_MM),
+        with_min_span(y, MIN_PATH_SPAN_MM),
+    )
+}
+
 /// Widens one of the ranges so that a millimetre has the same length on both axes of a plot area of
 /// `width_px` by `height_px`.
 fn equal_aspect(
@@ -792,8 +820,7 @@ where
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     let (probe, proxy) = path_points(samples, vertical);
-    let x = robust_range(probe.iter().chain(&proxy).map(|p| p.0));
-    let y = robust_range(probe.iter().chain(&proxy).map(|p| p.1));
+    let (x, y) = path_data_limits(&probe, &proxy);
     let off_axis = probe
         .iter()
         .chain(&proxy)
@@ -1082,6 +1109,68 @@ mod tests {
         assert!(thinned.len() <= 12, "{}", thinned.len());
         assert_eq!(thinned.last(), Some(&(9.9, 0.0)));
         assert!(thinned.windows(2).all(|w| w[1].0 > w[0].0));
+    }
+
+    #[test]
+    fn sub_millimetre_motion_gets_readable_path_limits() {
+        // The probe wobbles 0.2 mm round (12.3, -4.5, 30.0) mm, the proxy 0.05 mm above it: both views'
+        // axes span MIN_PATH_SPAN_MM, centred on the data, instead of the 0.4 mm the data covers.
+        let mut wobble = trace(2000);
+        for (i, s) in wobble.samples.iter_mut().enumerate() {
+            let a = i as f64 * 0.01;
+            s.probe_m = glam::DVec3::new(
+                12.3e-3 + 0.2e-3 * a.cos(),
+                -4.5e-3 + 0.2e-3 * a.sin(),
+                30.0e-3 + 0.1e-3 * (2.0 * a).sin(),
+            );
+            s.proxy_m = s.probe_m + glam::DVec3::new(0.0, 0.0, 0.05e-3);
+        }
+        let centre = |r: &Range<f64>| 0.5 * (r.start + r.end);
+        let span = |r: &Range<f64>| r.end - r.start;
+        for (name, vertical, expected_vertical_centre) in [
+            (
+                "top",
+                (|v: glam::DVec3| v.y) as fn(glam::DVec3) -> f64,
+                -4.5,
+            ),
+            ("side", |v: glam::DVec3| v.z, 30.025),
+        ] {
+            let (probe, proxy) = path_points(&wobble.samples, vertical);
+            let (x, y) = path_data_limits(&probe, &proxy);
+            assert!(
+                (span(&x) - MIN_PATH_SPAN_MM).abs() < 1e-9,
+                "{name}: x {x:?}"
+            );
+            assert!(
+                (span(&y) - MIN_PATH_SPAN_MM).abs() < 1e-9,
+                "{name}: y {y:?}"
+            );
+            assert!((centre(&x) - 12.3).abs() < 0.01, "{name}: x {x:?}");
+            assert!(
+                (centre(&y) - expected_vertical_centre).abs() < 0.01,
+                "{name}: y {y:?}"
+            );
+            for p in probe.iter().chain(&proxy) {
+                assert!(
+                    x.contains(&p.0) && y.contains(&p.1),
+                    "{name}: {p:?} off the axes"
+                );
+            }
+        }
+        // A path wider than the minimum keeps its own (robust, padded) limits.
+        let wide = vec![(0.0, 0.0), (40.0, 20.0)];
+        let (x, y) = path_data_limits(&wide, &wide);
+        assert!(
+            (x.start + 2.0).abs() < 1e-9 && (x.end - 42.0).abs() < 1e-9,
+            "{x:?}"
+        );
+        assert!(
+            (y.start + 1.0).abs() < 1e-9 && (y.end - 21.0).abs() < 1e-9,
+            "{y:?}"
+        );
+        // Drawing the sub-millimetre trace works.
+        let dir = tempfile::tempdir().unwrap();
+        plot_trace(&wobble, "wobble", &dir.path().join("w.svg"), 800, 600).unwrap();
     }
 
     #[test]

@@ -8,6 +8,7 @@
 pub mod overrides;
 pub mod runner;
 pub mod scenario;
+pub mod schema;
 
 pub use runner::{run, SimRunError, SimSummary};
 pub use scenario::{

@@ -199,7 +199,8 @@ impl VolumeSpec {
             message: format!("volumes[{index}]: {message}"),
         };
         let volume = if let Some(name) = &spec.builtin {
-            let built = procedural::builtin(name).map_err(|err| invalid(err.to_string()))?;
+            let built =
+                procedural::builtin(name).map_err(|err| invalid(format!("builtin: {err}")))?;
             description = format!("builtin:{name}");
             match (spec.part, built.scalar, built.vector) {
                 (None | Some(VolumePart::Scalar), Some(s), None) => AnyVolume::Scalar(s),

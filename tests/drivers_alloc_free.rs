@@ -295,17 +295,36 @@ fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
         device.counters()
     );
     assert!(device.engaged(), "not engaged after {warm_up} ticks");
-    let mut disconnected = 0;
-    let ((), events) = count_allocations(|| {
-        for tick in warm_up + 1..=warm_up + ticks {
-            if !exchange(&mut device, tick).connected {
-                disconnected += 1;
+    // The steady state must not allocate. A window in which the supervisor reported an event (a device fault
+    // and its recovery, after the device double's thread was descheduled past its watchdog: seen once in a CI
+    // run, 2 allocations) is measured again, up to three times, and said on stderr; allocations in a window
+    // without any event always fail.
+    let mut first_tick = warm_up + 1;
+    for window in 1..=3 {
+        let mut disconnected = 0;
+        let mut supervisor_events = 0usize;
+        let ((), allocations) = count_allocations(|| {
+            for tick in first_tick..first_tick + ticks {
+                let output = exchange(&mut device, tick);
+                if !output.connected {
+                    disconnected += 1;
+                }
+                supervisor_events += output.events.iter().count();
             }
+        });
+        first_tick += ticks;
+        assert_eq!(disconnected, 0, "exchanges without a connected device");
+        if allocations > 0 && supervisor_events > 0 && window < 3 {
+            eprintln!(
+                "drivers_alloc_free: window {window}: {allocations} allocations with {supervisor_events} \
+                 supervisor events (a fault and its recovery); measuring a steady window again"
+            );
+            continue;
         }
-    });
-    device.stop();
-    assert_eq!(disconnected, 0, "exchanges without a connected device");
-    events
+        device.stop();
+        return allocations;
+    }
+    unreachable!("the last window returns")
 }
 
 /// Ticks enough for Enable (50 steady ticks), engagement (10 small ticks) and the 0.5 s ramp-in.

@@ -766,6 +766,10 @@ impl ProfileFile {
     }
 }
 
+/// A check of a key's values ([`positive`], [`non_negative`], [`finite`]): the key and the problem when they
+/// fail it.
+type ValueCheck = fn(&str, &[f64]) -> Result<(), (String, String)>;
+
 /// `values` finite and > 0, else `key` with the problem.
 fn positive(key: &str, values: &[f64]) -> Result<(), (String, String)> {
     if values.iter().all(|v| v.is_finite() && *v > 0.0) {
@@ -872,7 +876,7 @@ fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
 fn check_woodenhaptics(
     prefix: &str,
     c: &WoodenHapticsConstants,
-    link_length_check: fn(&str, &[f64]) -> Result<(), (String, String)>,
+    link_length_check: ValueCheck,
 ) -> Result<(), (String, String)> {
     for (key, value) in [
         ("capstan_diameter_m", c.capstan_diameter_m),

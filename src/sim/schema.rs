@@ -663,8 +663,7 @@ mod tests {
     fn table_of(text: &str) -> String {
         let header = text
             .lines()
-            .filter(|line| line.starts_with('['))
-            .next_back()
+            .rfind(|line| line.starts_with('['))
             .unwrap_or_default();
         match header.strip_prefix("[[").and_then(|h| h.strip_suffix("]]")) {
             Some(name) => {

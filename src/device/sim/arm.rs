@@ -4,7 +4,7 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use super::tagged::KindKeys;
+use super::tagged::{given_keys, KindKeys};
 use super::{HandDrive, HandPath, SimError};
 
 fn default_substeps_per_tick() -> u32 {
@@ -88,12 +88,7 @@ impl TryFrom<WorkspaceTable> for Workspace {
     type Error = String;
 
     fn try_from(table: WorkspaceTable) -> Result<Self, String> {
-        let given = [
-            ("min_m", table.min_m.is_some()),
-            ("max_m", table.max_m.is_some()),
-            ("center_m", table.center_m.is_some()),
-            ("radius_m", table.radius_m.is_some()),
-        ];
+        let given = given_keys!(table: min_m, max_m, center_m, radius_m);
         let keys = KindKeys::new("shape", table.shape.name(), &given);
         keys.only(table.shape.keys())?;
         Ok(match table.shape {

@@ -14,7 +14,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
-use super::tagged::KindKeys;
+use super::tagged::{given_keys, KindKeys};
 use super::SimError;
 
 /// What the virtual hand does at one instant.
@@ -194,23 +194,10 @@ impl TryFrom<HandPathTable> for HandPath {
     type Error = String;
 
     fn try_from(table: HandPathTable) -> Result<Self, String> {
-        let given = [
-            ("at_m", table.at_m.is_some()),
-            ("from_m", table.from_m.is_some()),
-            ("to_m", table.to_m.is_some()),
-            ("duration_s", table.duration_s.is_some()),
-            ("points_m", table.points_m.is_some()),
-            ("speed_m_per_s", table.speed_m_per_s.is_some()),
-            ("center_m", table.center_m.is_some()),
-            ("radius_m", table.radius_m.is_some()),
-            ("normal", table.normal.is_some()),
-            ("period_s", table.period_s.is_some()),
-            ("origin_m", table.origin_m.is_some()),
-            ("sweep_m", table.sweep_m.is_some()),
-            ("step_m", table.step_m.is_some()),
-            ("lines", table.lines.is_some()),
-            ("profile", table.profile.is_some()),
-        ];
+        let given = given_keys!(table:
+            at_m, from_m, to_m, duration_s, points_m, speed_m_per_s, center_m, radius_m, normal,
+            period_s, origin_m, sweep_m, step_m, lines, profile
+        );
         let keys = KindKeys::new("kind", table.kind.name(), &given);
         keys.only(table.kind.keys())?;
         Ok(match table.kind {
@@ -294,15 +281,9 @@ impl TryFrom<ForceProfileTable> for ForceProfile {
     type Error = String;
 
     fn try_from(table: ForceProfileTable) -> Result<Self, String> {
-        let given = [
-            ("force_n", table.force_n.is_some()),
-            ("from_n", table.from_n.is_some()),
-            ("to_n", table.to_n.is_some()),
-            ("duration_s", table.duration_s.is_some()),
-            ("offset_n", table.offset_n.is_some()),
-            ("amplitude_n", table.amplitude_n.is_some()),
-            ("frequency_hz", table.frequency_hz.is_some()),
-        ];
+        let given = given_keys!(table:
+            force_n, from_n, to_n, duration_s, offset_n, amplitude_n, frequency_hz
+        );
         let keys = KindKeys::new("shape", table.shape.name(), &given);
         keys.only(table.shape.keys())?;
         Ok(match table.shape {

@@ -12,6 +12,15 @@
 //! ``path: missing field `duration_s` (kind = "line" needs it)``. Serialising is unchanged (the tagged
 //! enum).
 
+/// `[("key", table.key.is_some()), ...]` for the `Option` fields named: the keys given in a table, for
+/// [`KindKeys::new`] (each name is the field's own, so the two cannot drift apart).
+macro_rules! given_keys {
+    ($table:ident: $($key:ident),+ $(,)?) => {
+        [$((stringify!($key), $table.$key.is_some())),+]
+    };
+}
+pub(super) use given_keys;
+
 /// The keys given in one tagged table, for the checks of its `TryFrom`.
 pub(super) struct KindKeys<'a> {
     /// The tag key: `kind` or `shape`.

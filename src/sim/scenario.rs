@@ -307,18 +307,35 @@ impl Scenario {
         origin: &str,
         purpose: Purpose,
     ) -> Result<Scenario, ScenarioError> {
+        Self::parse_text(text, origin, purpose, true)
+    }
+
+    /// Parses and validates, for `sim`, a scenario's text as rewritten by `--set` (sim::overrides): as
+    /// [`Scenario::parse`], but messages give no line and column, which would point into the rewritten text
+    /// rather than the user's file.
+    pub fn parse_edited(text: &str, origin: &str) -> Result<Scenario, ScenarioError> {
+        Self::parse_text(text, origin, Purpose::Sim, false)
+    }
+
+    /// Parses and validates `text`; `locate`: serde's messages say where in `text` the value is.
+    fn parse_text(
+        text: &str,
+        origin: &str,
+        purpose: Purpose,
+        locate: bool,
+    ) -> Result<Scenario, ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             origin: origin.to_owned(),
             message,
         };
         let deserializer = toml::Deserializer::parse(text)
             .map_err(|err| invalid(err.to_string().trim_end().to_owned()))?;
-        // One line: the key's full path, serde's message, where it is in the file.
+        // One line: the key's full path, serde's message, where it is in the file (when `locate`).
         let scenario: Scenario = serde_path_to_error::deserialize(deserializer).map_err(|err| {
             let path = err.path().to_string();
             let inner = err.into_inner();
             let mut message = inner.message().trim_end().to_owned();
-            if let Some(span) = inner.span() {
+            if let Some(span) = inner.span().filter(|_| locate) {
                 let before = &text.as_bytes()[..span.start.min(text.len())];
                 let line = before.iter().filter(|b| **b == b'\n').count() + 1;
                 let line_start = before
@@ -713,6 +730,14 @@ duration_s = 0.5
             );
             assert!(!message.contains('\n'), "one line: {message:?}");
         }
+        // Text rewritten by --set: no line and column (they would point into the rewritten text).
+        let edited = Scenario::parse_edited(&cases[0].0, "test.toml (with --set)")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            edited,
+            "test.toml (with --set): k_n_per_m: invalid type: string \"stiff\", expected f64"
+        );
     }
 
     #[test]

@@ -81,6 +81,20 @@ async fn bad_hand_targets_are_refused_and_the_arm_stays_finite() {
         .post("/api/hand", &json!({"position_m": target}).to_string())
         .await;
     assert_eq!(status, 200, "{reply}");
+    let distance = probe_distance_after_settling(&server, target, 0.005).await;
+    assert!(
+        distance < 0.005,
+        "the probe is still {distance} m from a valid hand target"
+    );
+}
+
+/// Waits (up to 5 s) until the probe (scene frame, as `/api/state` reports it, finite) is within `within_m` of
+/// `target`; returns the last distance.
+async fn probe_distance_after_settling(
+    server: &TestServer,
+    target: [f64; 3],
+    within_m: f64,
+) -> f64 {
     let started = Instant::now();
     loop {
         let (_, state) = server.get("/api/state").await;
@@ -92,31 +106,7 @@ async fn bad_hand_targets_are_refused_and_the_arm_stays_finite() {
             .map(|(p, t)| (p - t).powi(2))
             .sum::<f64>()
             .sqrt();
-        if distance < 0.005 {
-            break;
-        }
-        assert!(
-            started.elapsed() < Duration::from_secs(5),
-            "the probe is still {distance} m from a valid hand target"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
-/// Waits (up to 5 s) until the probe (scene frame, as `/api/state` reports it) is within 3 mm of `target`;
-/// returns the last distance.
-async fn probe_distance_after_settling(server: &TestServer, target: [f64; 3]) -> f64 {
-    let started = Instant::now();
-    loop {
-        let (_, state) = server.get("/api/state").await;
-        let probe: Vec<f64> = serde_json::from_value(state["probe_m"].clone()).unwrap();
-        let distance = probe
-            .iter()
-            .zip(target)
-            .map(|(p, t)| (p - t).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        if distance < 0.003 || started.elapsed() > Duration::from_secs(5) {
+        if distance < within_m || started.elapsed() > Duration::from_secs(5) {
             return distance;
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
@@ -154,7 +144,7 @@ async fn a_hand_target_in_scene_coordinates_puts_the_probe_there_under_a_workspa
             json!(target),
             "reported in the scene frame"
         );
-        let distance = probe_distance_after_settling(&server, target).await;
+        let distance = probe_distance_after_settling(&server, target, 0.003).await;
         assert!(
             distance < 0.003,
             "the probe settled {distance} m from the scene target {target:?}"

@@ -6,9 +6,10 @@
 
 #[path = "util/paced.rs"]
 mod paced;
+#[path = "util/round_trip.rs"]
+mod round_trip;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
@@ -53,27 +54,17 @@ fn open(path: &str) -> Device {
         ..ProtocolConfig::default()
     };
     let transport = SerialTransport::open(path, 1_000_000).expect("open the pseudo-terminal");
-    let mut device = Lifecycle::new(ProtocolDevice::new(SerialLink::new(transport), config));
-    device.open().expect("handshake");
-    device.enable().expect("enable");
-    device
-}
-
-fn round_trip(device: &mut Device) {
-    device
-        .write_force(DVec3::new(0.1, 0.0, 0.0))
-        .expect("write");
-    std::hint::black_box(device.read_state().expect("state"));
+    round_trip::enabled(ProtocolDevice::new(SerialLink::new(transport), config))
 }
 
 fn bench(c: &mut Criterion) {
     let (shutdown, handle, path) = start_mock();
     let mut device = open(&path);
     paced::paced_percentiles("device/pty_round_trip_paced_1khz", 5_000, || {
-        round_trip(&mut device)
+        round_trip::round_trip(&mut device)
     });
     c.bench_function("device/pty_round_trip", |b| {
-        b.iter(|| round_trip(&mut device))
+        b.iter(|| round_trip::round_trip(&mut device))
     });
     let _ = device.close();
     shutdown.store(true, Ordering::Relaxed);

@@ -18,9 +18,10 @@ mod inverse_service;
 
 #[path = "util/paced.rs"]
 mod paced;
+#[path = "util/round_trip.rs"]
+mod round_trip;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use glam::DVec3;
 use inverse_service::InverseService;
 use std::time::Duration;
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
@@ -33,7 +34,7 @@ use voxhap::servo::{Session, SessionConfig};
 type Device = Lifecycle<HaplyInverse>;
 
 fn open(url: &str) -> Device {
-    let config = HaplyInverseConfig {
+    round_trip::enabled(HaplyInverse::new(HaplyInverseConfig {
         service: ServiceConfig {
             url: url.to_owned(),
             ..ServiceConfig::default()
@@ -42,18 +43,7 @@ fn open(url: &str) -> Device {
         // older state); the benchmark measures the full round trip.
         reply_wait: Duration::from_millis(50),
         ..HaplyInverseConfig::default()
-    };
-    let mut device = Lifecycle::new(HaplyInverse::new(config));
-    device.open().expect("open the Inverse Service double");
-    device.enable().expect("enable");
-    device
-}
-
-fn round_trip(device: &mut Device) {
-    device
-        .write_force(DVec3::new(0.1, 0.0, 0.0))
-        .expect("write");
-    std::hint::black_box(device.read_state().expect("state"));
+    }))
 }
 
 /// One servo session of `seconds` on `device`; prints its lateness and device-exchange percentiles.
@@ -90,7 +80,7 @@ fn bench(c: &mut Criterion) {
     }
     let mut device = open(&service.url());
     paced::paced_percentiles("device/inverse3_loopback_paced_1khz", 2_000, || {
-        round_trip(&mut device)
+        round_trip::round_trip(&mut device)
     });
     let mut group = c.benchmark_group("device");
     group
@@ -98,7 +88,7 @@ fn bench(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(3))
         .sample_size(20);
     group.bench_function("inverse3_loopback_round_trip", |b| {
-        b.iter(|| round_trip(&mut device))
+        b.iter(|| round_trip::round_trip(&mut device))
     });
     group.finish();
     let _ = device.close();

@@ -60,6 +60,13 @@ fn scenario(dir: &Path, from: &str, to: &str) {
     write(dir, "scene.toml", text.as_bytes());
 }
 
+/// The scenario with its `[path]` table (the last one in the file) replaced by `path_table`.
+fn scenario_path(dir: &Path, path_table: &str) {
+    let text = std::fs::read_to_string("sims/sphere_surface.toml").unwrap();
+    let (head, _) = text.split_once("[path]").unwrap();
+    write(dir, "scene.toml", format!("{head}{path_table}").as_bytes());
+}
+
 fn mcap(dir: &Path) {
     let text = std::fs::read_to_string("sims/sphere_surface.toml")
         .unwrap()
@@ -189,6 +196,53 @@ const CASES: &[Case] = &[
         args: &["sim", "scene.toml", "--out", "t.csv"],
         exit: 1,
         expected: "arm.substeps_per_tick: 4000000000 is out of range 1..=1000",
+    },
+    Case {
+        input: "a scenario with `speed_m_per_s = \"fast\"` in `[path]`",
+        setup: |dir| scenario(dir, "speed_m_per_s = 0.02", "speed_m_per_s = \"fast\""),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "scene.toml: path.speed_m_per_s: invalid type: string \"fast\", expected f64 (line 35, column 17)",
+    },
+    Case {
+        input: "a scenario whose `[path]` has a key of another kind (`radius_m` in a waypoints path)",
+        setup: |dir| scenario(dir, "speed_m_per_s = 0.02", "speed_m_per_s = 0.02\nradius_m = 0.01"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "scene.toml: path: kind = \"waypoints\" takes no key `radius_m` (its keys: `points_m`, `speed_m_per_s`)",
+    },
+    Case {
+        input: "a scenario with `radius_m = \"big\"` in `[arm.workspace]`",
+        setup: |dir| {
+            scenario(
+                dir,
+                "workspace = { shape = \"box\", min_m = [-0.08, -0.08, -0.08], max_m = [0.08, 0.08, 0.08] }",
+                "workspace = { shape = \"sphere\", center_m = [0.0, 0.0, 0.0], radius_m = \"big\" }",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "scene.toml: arm.workspace.radius_m: invalid type: string \"big\", expected f64",
+    },
+    Case {
+        input: "a scenario with `duration_s = \"slow\"` in `[path.profile]`",
+        setup: |dir| {
+            scenario_path(
+                dir,
+                "[path]\nkind = \"force\"\n[path.profile]\nshape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\n\
+                 to_n = [0.0, 0.0, -1.0]\nduration_s = \"slow\"\n",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "scene.toml: path.profile.duration_s: invalid type: string \"slow\", expected f64",
+    },
+    Case {
+        input: "a device profile with `scale = \"big\"` in `[mapping]`",
+        setup: |dir| write(dir, "arm.toml", b"[mapping]\nscale = \"big\"\n"),
+        args: &["serve", "--device-profile", "arm.toml", "--no-http", "--no-foxglove"],
+        exit: 1,
+        expected: "device profile arm.toml: mapping.scale: invalid type: string \"big\", expected f64",
     },
     Case {
         input: "a scenario with `rate_hz = 1e12`",
@@ -332,17 +386,26 @@ fn escape(text: &str) -> String {
     text.replace('|', "\\|")
 }
 
+/// `text` as a Markdown code span in a table cell (a double-backtick span when it holds a backtick).
+fn code(text: &str) -> String {
+    if text.contains('`') {
+        format!("`` {} ``", escape(text))
+    } else {
+        format!("`{}`", escape(text))
+    }
+}
+
 /// The page's tables, as generated from the cases.
 fn tables() -> String {
     let mut out =
         String::from("| input | command | exit | error message contains |\n|---|---|---|---|\n");
     for case in CASES {
         out.push_str(&format!(
-            "| {} | `voxhap {}` | {} | `{}` |\n",
+            "| {} | `voxhap {}` | {} | {} |\n",
             case.input,
             case.args.join(" "),
             case.exit,
-            escape(case.expected)
+            code(case.expected)
         ));
     }
     out.push_str(

@@ -295,36 +295,20 @@ fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
         device.counters()
     );
     assert!(device.engaged(), "not engaged after {warm_up} ticks");
-    // The steady state must not allocate. A window in which the supervisor reported an event (a device fault
-    // and its recovery, after the device double's thread was descheduled past its watchdog: seen once in a CI
-    // run, 2 allocations) is measured again, up to three times, and said on stderr; allocations in a window
-    // without any event always fail.
-    let mut first_tick = warm_up + 1;
-    for window in 1..=3 {
-        let mut disconnected = 0;
-        let mut supervisor_events = 0usize;
-        let ((), allocations) = count_allocations(|| {
-            for tick in first_tick..first_tick + ticks {
-                let output = exchange(&mut device, tick);
-                if !output.connected {
-                    disconnected += 1;
-                }
-                supervisor_events += output.events.iter().count();
+    // The steady state must not allocate, whatever happens in it: a fault and its recovery included (the device
+    // doubles' threads may fall behind on a loaded machine). util::alloc prints where the first allocation was.
+    let mut disconnected = 0;
+    let ((), allocations) = count_allocations(|| {
+        for tick in warm_up + 1..=warm_up + ticks {
+            let output = exchange(&mut device, tick);
+            if !output.connected {
+                disconnected += 1;
             }
-        });
-        first_tick += ticks;
-        assert_eq!(disconnected, 0, "exchanges without a connected device");
-        if allocations > 0 && supervisor_events > 0 && window < 3 {
-            eprintln!(
-                "drivers_alloc_free: window {window}: {allocations} allocations with {supervisor_events} \
-                 supervisor events (a fault and its recovery); measuring a steady window again"
-            );
-            continue;
         }
-        device.stop();
-        return allocations;
-    }
-    unreachable!("the last window returns")
+    });
+    assert_eq!(disconnected, 0, "exchanges without a connected device");
+    device.stop();
+    allocations
 }
 
 /// Ticks enough for Enable (50 steady ticks), engagement (10 small ticks) and the 0.5 s ramp-in.
@@ -362,6 +346,22 @@ impl ProtocolResponder {
             send(&reply);
         }
     }
+}
+
+/// The in-memory pipe the serial drivers run over here must not allocate either, even when the device double's
+/// thread falls behind and bytes pile up: a growing buffer did, once in a CI run (2 events in 1 000 supervised
+/// exchanges, found by the backtrace util::alloc prints). 60 KiB pending, written in 20-byte frames.
+#[test]
+fn the_memory_pipe_allocates_nothing_while_its_reader_falls_behind() {
+    let (mut host, device) = MemoryPipe::pair();
+    let frame = [0x5au8; 20];
+    let ((), events) = count_allocations(|| {
+        for _ in 0..(60 * 1024 / frame.len()) {
+            host.write_all(&frame).unwrap();
+        }
+    });
+    assert_eq!(events, 0);
+    drop(device);
 }
 
 #[test]

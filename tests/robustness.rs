@@ -563,3 +563,44 @@ async fn api_slice_never_serves_etc_passwd() {
     assert_eq!(status, 200, "{slice}");
     assert_eq!(slice["max"], 9.0, "{slice}");
 }
+
+/// `bench-loop --baseline --json`: the loop and the empty schedule in alternating windows, each side accounting
+/// for every deadline of its windows (waited for or skipped).
+#[test]
+fn bench_loop_baseline_reports_the_empty_schedule_beside_the_loop() {
+    let output = voxhap()
+        .args([
+            "bench-loop",
+            "--seconds",
+            "2.4",
+            "--rate",
+            "1000",
+            "--rt",
+            "off",
+            "--baseline",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    // 2.4 s in windows of at most 2 s: 2 pairs of 1.2 s.
+    assert_eq!(report["pairs"], 2, "{report}");
+    assert_eq!(report["window_s"], 1.2, "{report}");
+    // The empty schedule waits for each of its 2 x 1 200 deadlines or skips it; the loop's sessions tick from
+    // their start to their stop (start-up and shutdown take a little of each window).
+    let ticks = report["baseline"]["ticks"].as_u64().unwrap();
+    let skipped = report["baseline"]["skipped_ticks"].as_u64().unwrap();
+    assert!(ticks <= 2400 && ticks + skipped >= 2400, "{report}");
+    assert!(report["loop"]["ticks"].as_u64().unwrap() > 1000, "{report}");
+    for side in ["loop", "baseline"] {
+        let ticks = report[side]["ticks"].as_u64();
+        assert_eq!(
+            report[side]["lateness"]["count"].as_u64(),
+            ticks,
+            "{side}: {report}"
+        );
+    }
+    assert_eq!(report["sched_fifo"], false, "--rt off asks for nothing");
+}

@@ -28,20 +28,46 @@ fn text(output: &Output) -> String {
     )
 }
 
+/// `voxhap serve` with `args` (as [`serve`]), which must succeed and print `expected`; returns its output.
+fn serve_succeeds(args: &[&str], expected: &str) -> String {
+    let output = serve(args);
+    let printed = text(&output);
+    assert!(output.status.success(), "{printed}");
+    assert!(printed.contains(expected), "{expected:?} not in {printed}");
+    printed
+}
+
+/// `voxhap serve` with `args` (as [`serve`]), which must fail with exit code 1 and print `expected`; returns
+/// its output.
+fn serve_refuses(args: &[&str], expected: &str) -> String {
+    let output = serve(args);
+    let printed = text(&output);
+    assert_eq!(output.status.code(), Some(1), "{printed}");
+    assert!(printed.contains(expected), "{expected:?} not in {printed}");
+    printed
+}
+
+/// `voxhap calibrate --device sim --out OUT --seconds SECONDS` with `more` arguments.
+fn calibrate_sim(out: &str, seconds: &str, more: &[&str]) -> Output {
+    let mut args = vec![
+        "calibrate",
+        "--device",
+        "sim",
+        "--out",
+        out,
+        "--seconds",
+        seconds,
+    ];
+    args.extend_from_slice(more);
+    voxhap(&args)
+}
+
 #[test]
 fn calibrate_on_the_simulated_arm_writes_a_profile_and_never_overwrites_one() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("arm.toml");
     let out_str = out.to_str().unwrap();
-    let run = voxhap(&[
-        "calibrate",
-        "--device",
-        "sim",
-        "--out",
-        out_str,
-        "--seconds",
-        "1",
-    ]);
+    let run = calibrate_sim(out_str, "1", &[]);
     assert!(run.status.success(), "{}", text(&run));
     let profile = DeviceProfile::read(&out).unwrap();
     let (min, max) = profile.workspace_m.expect("a measured box");
@@ -52,31 +78,12 @@ fn calibrate_on_the_simulated_arm_writes_a_profile_and_never_overwrites_one() {
     );
     // A second run without --force refuses and leaves the file as it was.
     let before = std::fs::read(&out).unwrap();
-    let again = voxhap(&[
-        "calibrate",
-        "--device",
-        "sim",
-        "--out",
-        out_str,
-        "--seconds",
-        "0.2",
-    ]);
+    let again = calibrate_sim(out_str, "0.2", &[]);
     assert_eq!(again.status.code(), Some(1), "{}", text(&again));
     assert!(text(&again).contains("--force"), "{}", text(&again));
     assert_eq!(std::fs::read(&out).unwrap(), before);
     // With --force it is replaced.
-    let forced = voxhap(&[
-        "calibrate",
-        "--device",
-        "sim",
-        "--out",
-        out_str,
-        "--seconds",
-        "0.5",
-        "--force",
-        "--name",
-        "again",
-    ]);
+    let forced = calibrate_sim(out_str, "0.5", &["--force", "--name", "again"]);
     assert!(forced.status.success(), "{}", text(&forced));
     assert_eq!(DeviceProfile::read(&out).unwrap().name, "again");
 }
@@ -106,61 +113,47 @@ fn calibrate_against_the_mock_device_on_a_pseudo_terminal() {
 
 #[test]
 fn serve_applies_a_profile_fits_the_volume_and_names_bad_keys() {
-    let fitted = serve(&[
-        "--device-profile",
-        "sim",
-        "--fit-volume",
-        "--volume",
-        "builtin:sphere",
-    ]);
-    assert!(fitted.status.success(), "{}", text(&fitted));
-    assert!(
-        text(&fitted).contains("notice: device profile sim: scene = "),
-        "{}",
-        text(&fitted)
+    serve_succeeds(
+        &[
+            "--device-profile",
+            "sim",
+            "--fit-volume",
+            "--volume",
+            "builtin:sphere",
+        ],
+        "notice: device profile sim: scene = ",
     );
 
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[limits]\nmax_force_n = -2\n").unwrap();
-    let refused = serve(&["--device-profile", bad.to_str().unwrap()]);
-    assert_eq!(refused.status.code(), Some(1));
-    assert!(
-        text(&refused).contains("limits.max_force_n: -2 must be finite and > 0"),
-        "{}",
-        text(&refused)
+    serve_refuses(
+        &["--device-profile", bad.to_str().unwrap()],
+        "limits.max_force_n: -2 must be finite and > 0",
     );
 
-    // A scene's [device] table, with a key that does not exist.
+    // A scene's [device] table, with a key that does not exist, then with a good one.
     let scene = dir.path().join("scene.toml");
     let builtin = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/sims/scenes/explore.toml"
     ))
     .unwrap();
-    std::fs::write(
-        &scene,
-        format!("{builtin}\n[device]\n[device.mapping]\nscael = 2\n"),
-    )
-    .unwrap();
-    let refused = serve(&["--scene", scene.to_str().unwrap()]);
-    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
-    assert!(
-        text(&refused).contains("[device]: mapping.scael"),
-        "{}",
-        text(&refused)
+    let scene_with_mapping = |mapping: &str| {
+        std::fs::write(
+            &scene,
+            format!("{builtin}\n[device]\n[device.mapping]\n{mapping}\n"),
+        )
+        .unwrap();
+        scene.to_str().unwrap().to_owned()
+    };
+    serve_refuses(
+        &["--scene", &scene_with_mapping("scael = 2")],
+        "[device]: mapping.scael",
     );
-    std::fs::write(
-        &scene,
-        format!("{builtin}\n[device]\n[device.mapping]\nscale = 2\n"),
-    )
-    .unwrap();
-    let served = serve(&["--scene", scene.to_str().unwrap()]);
-    assert!(served.status.success(), "{}", text(&served));
-    assert!(
-        text(&served).contains("scene = 2.0000 x R x device"),
-        "{}",
-        text(&served)
+    serve_succeeds(
+        &["--scene", &scene_with_mapping("scale = 2")],
+        "scene = 2.0000 x R x device",
     );
 }
 
@@ -195,6 +188,32 @@ fn write_large_slab_scene(dir: &std::path::Path) -> std::path::PathBuf {
     scene
 }
 
+/// Stops a `voxhap serve` started with piped output (SIGTERM, as Ctrl-C would) and returns its exit status
+/// and everything it printed (stdout, then stderr).
+fn stop_and_read(mut serve: std::process::Child) -> (std::process::ExitStatus, String) {
+    use std::io::Read as _;
+    // SAFETY: plain kill(2) on our own child's pid.
+    assert_eq!(
+        unsafe { libc::kill(serve.id() as libc::pid_t, libc::SIGTERM) },
+        0
+    );
+    let status = serve.wait().unwrap();
+    let mut out = String::new();
+    serve
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    serve
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    (status, out)
+}
+
 /// `voxhap serve` on the Inverse Service double at `url` with `scene`, for `seconds`, without servers.
 fn serve_inverse3(url: &str, scene: &std::path::Path, seconds: &str) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
@@ -227,7 +246,6 @@ fn serve_inverse3(url: &str, scene: &std::path::Path, seconds: &str) -> Command 
 #[test]
 fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted() {
     use crate::util::inverse_service::InverseService;
-    use std::io::Read as _;
     use std::process::Stdio;
     use std::time::{Duration, Instant};
 
@@ -236,7 +254,7 @@ fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted()
     let service = InverseService::start();
     // Start outside the material under the fit (scene x = 0.04 m).
     service.set_position([-0.02, 0.0, 0.0]);
-    let mut serve = serve_inverse3(&service.url(), &scene, "60")
+    let serve = serve_inverse3(&service.url(), &scene, "60")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -279,25 +297,7 @@ fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted()
         std::thread::sleep(Duration::from_millis(500));
         move_to(-0.02, 0.0015);
     }
-    // SAFETY: plain kill(2) on our own child's pid.
-    assert_eq!(
-        unsafe { libc::kill(serve.id() as libc::pid_t, libc::SIGTERM) },
-        0
-    );
-    let status = serve.wait().unwrap();
-    let mut out = String::new();
-    serve
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut out)
-        .unwrap();
-    serve
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut out)
-        .unwrap();
+    let (status, out) = stop_and_read(serve);
     assert!(status.success(), "{out}");
 
     let notices: Vec<&str> = out.lines().filter(|l| l.contains("was fitted")).collect();
@@ -370,13 +370,11 @@ fn serve_prints_a_device_open_error_once() {
          [arm]\nmass_kg = -1.0\ndamping_n_s_per_m = 1.0\nworkspace = { shape = \"unbounded\" }\n",
     )
     .unwrap();
-    let refused = serve(&["--scene", scene.to_str().unwrap()]);
-    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
-    let stderr = String::from_utf8_lossy(&refused.stderr);
-    let line = stderr
+    let printed = serve_refuses(&["--scene", scene.to_str().unwrap()], "error: device sim: ");
+    let line = printed
         .lines()
         .find(|l| l.starts_with("error: device sim: "))
-        .unwrap_or_else(|| panic!("no device error in {stderr}"));
+        .unwrap_or_else(|| panic!("no device error in {printed}"));
     let message = "arm.mass_kg = -1 must be finite and > 0";
     assert_eq!(line.matches(message).count(), 1, "{line}");
     assert_eq!(line.matches("simulated arm").count(), 1, "{line}");

@@ -1,13 +1,19 @@
 //! `voxhap bench-loop`: runs the servo loop on the simulated arm with the built-in three-mode scene for a
 //! while and prints the lateness and compute histograms and the overrun count (the servo issue's benchmark).
-//! `--load-threads N` adds N busy threads (at normal priority) to measure under load.
+//! `--load-threads N` adds N busy threads (at normal priority) to measure under load. `--baseline` alternates
+//! windows of the loop with windows of the same schedule with an empty tick on the same CPU
+//! ([`crate::servo::baseline`]), so stalls of the machine show apart from the loop's own.
 
+use crate::servo::api::HistogramReport;
+use crate::servo::baseline::run_empty_schedule;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::setup::SceneSetup;
+use crate::servo::stats::{Histogram, HistogramCounts};
 use crate::servo::{Session, SessionConfig};
 use anyhow::bail;
 use clap::Args;
+use serde::Serialize;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -35,6 +41,11 @@ pub struct BenchLoopArgs {
     /// Real-time scheduling (as for serve).
     #[arg(long, value_enum, default_value_t = RtMode::BestEffort)]
     pub rt: RtMode,
+    /// Alternate windows (at most 2 s each, --seconds in all) of the loop and of the same schedule (rate, spin,
+    /// CPU, real-time setup) with an empty tick, and print both lateness rows: what the empty tick shows comes
+    /// from the machine, not from voxhap.
+    #[arg(long)]
+    pub baseline: bool,
 }
 
 pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
@@ -63,6 +74,25 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     if let Some((servo, _)) = crate::servo::rt::reserve_servo_cpu(config.rt, config.cpu) {
         config.cpu = Some(servo);
     }
+    if args.baseline {
+        let comparison = side_by_side(args, &config);
+        stop_load.store(true, Ordering::Relaxed);
+        for thread in load {
+            let _ = thread.join();
+        }
+        let comparison = comparison?;
+        return if args.json {
+            super::print_out(&serde_json::to_string_pretty(&comparison)?)
+        } else {
+            super::print_out(&format!(
+                "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}",
+                args.seconds,
+                args.rate,
+                args.load_threads,
+                comparison.table()
+            ))
+        };
+    }
     let session = Session::start(config)?;
     std::thread::sleep(Duration::from_secs_f64(args.seconds));
     let summary = session.stop();
@@ -81,4 +111,141 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             summary.stats.table()
         ))
     }
+}
+
+/// Longest window of `--baseline`'s alternation (s).
+const BASELINE_WINDOW_MAX_S: f64 = 2.0;
+
+/// One side of `--baseline`'s comparison, pooled over its windows.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct WindowsReport {
+    /// Ticks run (deadlines waited for).
+    pub ticks: u64,
+    /// Lateness after the deadline (µs): percentiles of the pooled windows (bucket upper edges), exact maximum.
+    pub lateness: HistogramReport,
+    /// Ticks that ended after the next deadline.
+    pub overruns: u64,
+    /// Deadlines skipped by them.
+    pub skipped_ticks: u64,
+}
+
+/// `bench-loop --baseline`: the loop and the empty schedule in alternating windows of one run.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct SideBySide {
+    /// Pairs of windows (loop, then empty schedule).
+    pub pairs: u32,
+    /// Length of each window (s).
+    pub window_s: f64,
+    /// The servo loop on the simulated arm (a new session each window; its start-up ticks included).
+    #[serde(rename = "loop")]
+    pub servo_loop: WindowsReport,
+    /// The same schedule with an empty tick.
+    pub baseline: WindowsReport,
+    /// Whether the servo thread got SCHED_FIFO, locked memory and its CPU (the empty schedule asks the same).
+    pub sched_fifo: bool,
+    /// Memory locked.
+    pub memory_locked: bool,
+    /// The CPU both ran on, if pinned.
+    pub pinned_cpu: Option<u32>,
+}
+
+impl SideBySide {
+    fn table(&self) -> String {
+        let row = |name: &str, w: &WindowsReport| {
+            let h = &w.lateness;
+            format!(
+                "{name:<12} {:>10} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>10} {:>10}\n",
+                w.ticks, h.p50_us, h.p99_us, h.p999_us, h.max_us, w.overruns, w.skipped_ticks
+            )
+        };
+        let mut text = format!(
+            "{} pairs of {:.2} s windows, alternating: the loop, then the same schedule with an empty tick\n",
+            self.pairs, self.window_s
+        );
+        text += &format!(
+            "{:<12} {:>10} {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}\n",
+            "lateness us", "ticks", "p50", "p99", "p99.9", "max", "overruns", "skipped"
+        );
+        text += &row("loop", &self.servo_loop);
+        text += &row("empty tick", &self.baseline);
+        text += &format!(
+            "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",
+            yes_no(self.sched_fifo),
+            yes_no(self.memory_locked),
+            self.pinned_cpu
+                .map_or_else(|| "none".to_owned(), |cpu| cpu.to_string())
+        );
+        text
+    }
+}
+
+fn yes_no(flag: bool) -> &'static str {
+    if flag {
+        "yes"
+    } else {
+        "no"
+    }
+}
+
+/// Runs `--baseline`'s alternation: windows of at most [`BASELINE_WINDOW_MAX_S`] adding up to `--seconds`,
+/// each pair a servo session on the simulated arm, then the empty schedule on the same CPU with the same
+/// real-time setup, so both meet the same machine (a shared machine's load drifts within seconds).
+fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<SideBySide> {
+    let pairs = (args.seconds / BASELINE_WINDOW_MAX_S)
+        .ceil()
+        .clamp(1.0, u32::MAX as f64) as u32;
+    let window_s = args.seconds / f64::from(pairs);
+    let empty_lateness = Arc::new(Histogram::new());
+    let mut servo_loop = WindowsReport {
+        ticks: 0,
+        lateness: HistogramReport::default(),
+        overruns: 0,
+        skipped_ticks: 0,
+    };
+    let mut baseline = servo_loop;
+    let mut loop_counts = HistogramCounts::default();
+    let mut loop_max_us: f64 = 0.0;
+    let mut realtime = None;
+    for _ in 0..pairs {
+        let session = Session::start(config.clone())?;
+        let shared = session.api();
+        std::thread::sleep(Duration::from_secs_f64(window_s));
+        let summary = session.stop();
+        loop_counts.add(&shared.servo_stats().lateness.counts());
+        loop_max_us = loop_max_us.max(summary.stats.lateness.max_us);
+        servo_loop.ticks += summary.stats.ticks;
+        servo_loop.overruns += summary.stats.overruns;
+        servo_loop.skipped_ticks += summary.stats.skipped_ticks;
+        realtime = Some(summary.stats.realtime);
+        let empty = run_empty_schedule(
+            args.rate,
+            config.spin_ns,
+            config.rt,
+            config.cpu,
+            window_s,
+            empty_lateness.clone(),
+        )?;
+        baseline.ticks += empty.ticks;
+        baseline.overruns += empty.overruns;
+        baseline.skipped_ticks += empty.skipped_ticks;
+        baseline.lateness = empty.lateness;
+    }
+    let us = |ns: u64| ns as f64 / 1000.0;
+    servo_loop.lateness = HistogramReport {
+        count: loop_counts.count(),
+        p50_us: us(loop_counts.quantile_ns(0.50)).min(loop_max_us),
+        p99_us: us(loop_counts.quantile_ns(0.99)).min(loop_max_us),
+        p999_us: us(loop_counts.quantile_ns(0.999)).min(loop_max_us),
+        max_us: loop_max_us,
+    };
+    let realtime = realtime.unwrap_or_default();
+    Ok(SideBySide {
+        pairs,
+        window_s,
+        servo_loop,
+        baseline,
+        sched_fifo: realtime.sched_fifo,
+        memory_locked: realtime.memory_locked,
+        pinned_cpu: realtime.pinned_cpu,
+    })
 }

@@ -104,7 +104,7 @@ pub fn load_scenario(
         .with_context(|| format!("cannot read scenario file {origin}"))?;
     let text = crate::sim::overrides::apply_overrides(&text, &overrides)
         .with_context(|| format!("{origin}: overrides"))?;
-    let scenario = crate::sim::Scenario::parse(&text, &format!("{origin} (with --set)"))?;
+    let scenario = crate::sim::Scenario::parse_edited(&text, &format!("{origin} (with --set)"))?;
     let base_dir = path.parent().unwrap_or(std::path::Path::new(""));
     Ok(scenario.load(base_dir, &origin)?)
 }

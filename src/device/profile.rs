@@ -33,7 +33,8 @@
 use super::drivers::falcon::{FalconConfig, FalconGeometry};
 use super::drivers::haply::Haply2DiyConfig;
 use super::drivers::woodenhaptics::WoodenHapticsConfig;
-use super::drivers::woodenhaptics_serial::{WoodyConfig, WoodyConstants, WoodyModel};
+use super::drivers::woodenhaptics_constants::WoodenHapticsConstants;
+use super::drivers::woodenhaptics_serial::{WoodyConfig, WoodyModel};
 use super::mapping::{matrix_from_rows, rotation_from_degrees, MappingError, WorkspaceMapping};
 use super::supervisor::SupervisorConfig;
 use super::DeviceInfo;
@@ -171,18 +172,6 @@ pub struct Haply2DiyKinematics {
     pub encoder_resolution: Option<[f32; 2]>,
 }
 
-/// WoodenHaptics (legacy HID) kinematics constants (see `drivers::woodenhaptics`); each replaces the default.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct WoodenHapticsHidKinematics {
-    pub capstan_diameter_m: Option<[f64; 3]>,
-    pub body_diameter_m: Option<[f64; 3]>,
-    pub link_length_m: Option<[f64; 3]>,
-    pub workspace_origin_m: Option<[f64; 3]>,
-    pub torque_constant_n_m_per_a: Option<[f64; 3]>,
-    pub counts_per_revolution: Option<[f64; 3]>,
-}
-
 /// WoodenHaptics, Polhem and retrofitted PHANTOM (Teensy firmware) constants, one table per model: the one
 /// for the model the device reports replaces that model's published constants (forsslund/hfabapi
 /// hfab_math.h), key by key.
@@ -190,11 +179,11 @@ pub struct WoodenHapticsHidKinematics {
 #[serde(deny_unknown_fields)]
 pub struct WoodenHapticsKinematics {
     /// Model 3 (`woodenhaptics_v2015()`).
-    pub woodenhaptics: Option<WoodyConstants>,
+    pub woodenhaptics: Option<WoodenHapticsConstants>,
     /// Model 1 (`polhem_v3()`).
-    pub polhem: Option<WoodyConstants>,
+    pub polhem: Option<WoodenHapticsConstants>,
     /// Model 2 (`vintage()`).
-    pub vintage: Option<WoodyConstants>,
+    pub vintage: Option<WoodenHapticsConstants>,
 }
 
 /// Kinematics constants for the drivers that compute kinematics on the host.
@@ -204,7 +193,8 @@ pub enum Kinematics {
     #[default]
     Default,
     Haply2Diy(Haply2DiyKinematics),
-    WoodenHapticsHid(WoodenHapticsHidKinematics),
+    /// The legacy HID driver's constants (`encoder_home_counts` is refused: that driver has none).
+    WoodenHapticsHid(WoodenHapticsConstants),
     WoodenHaptics(Box<WoodenHapticsKinematics>),
     /// The Falcon's constants: the keys given replace libnifalcon's (missing keys keep them).
     Falcon(FalconGeometry),
@@ -540,16 +530,8 @@ impl DeviceProfile {
 
     /// Applies the WoodenHaptics (HID) kinematics constants (where given) to a driver config.
     pub fn apply_woodenhaptics_hid(&self, config: &mut WoodenHapticsConfig) {
-        if let Kinematics::WoodenHapticsHid(k) = &self.kinematics {
-            set(&mut config.capstan_diameter_m, k.capstan_diameter_m);
-            set(&mut config.body_diameter_m, k.body_diameter_m);
-            set(&mut config.link_length_m, k.link_length_m);
-            set(&mut config.workspace_origin_m, k.workspace_origin_m);
-            set(
-                &mut config.torque_constant_n_m_per_a,
-                k.torque_constant_n_m_per_a,
-            );
-            set(&mut config.counts_per_revolution, k.counts_per_revolution);
+        if let Kinematics::WoodenHapticsHid(constants) = &self.kinematics {
+            constants.apply_to_hid(config);
         }
     }
 }
@@ -784,33 +766,43 @@ impl ProfileFile {
     }
 }
 
+/// A check of a key's values ([`positive`], [`non_negative`], [`finite`]): the key and the problem when they
+/// fail it.
+type ValueCheck = fn(&str, &[f64]) -> Result<(), (String, String)>;
+
+/// `values` finite and > 0, else `key` with the problem.
+fn positive(key: &str, values: &[f64]) -> Result<(), (String, String)> {
+    if values.iter().all(|v| v.is_finite() && *v > 0.0) {
+        Ok(())
+    } else {
+        Err((key.to_owned(), format!("{values:?} must be finite and > 0")))
+    }
+}
+
+/// `values` finite and >= 0, else `key` with the problem.
+fn non_negative(key: &str, values: &[f64]) -> Result<(), (String, String)> {
+    if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
+        Ok(())
+    } else {
+        Err((
+            key.to_owned(),
+            format!("{values:?} must be finite and >= 0"),
+        ))
+    }
+}
+
+/// `values` finite, else `key` with the problem.
+fn finite(key: &str, values: &[f64]) -> Result<(), (String, String)> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err((key.to_owned(), format!("{values:?} must be finite")))
+    }
+}
+
 /// Lengths, diameters, constants and resolutions must be finite and > 0 (a link length that the published
 /// constants set to zero, >= 0); offsets finite. The error names the key (below `kinematics.`).
 fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
-    let positive = |key: &str, values: &[f64]| {
-        if values.iter().all(|v| v.is_finite() && *v > 0.0) {
-            Ok(())
-        } else {
-            Err((key.to_owned(), format!("{values:?} must be finite and > 0")))
-        }
-    };
-    let non_negative = |key: &str, values: &[f64]| {
-        if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
-            Ok(())
-        } else {
-            Err((
-                key.to_owned(),
-                format!("{values:?} must be finite and >= 0"),
-            ))
-        }
-    };
-    let finite = |key: &str, values: &[f64]| {
-        if values.iter().all(|v| v.is_finite()) {
-            Ok(())
-        } else {
-            Err((key.to_owned(), format!("{values:?} must be finite")))
-        }
-    };
     match kinematics {
         Kinematics::Default => Ok(()),
         Kinematics::Haply2Diy(k) => {
@@ -832,21 +824,14 @@ fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
             Ok(())
         }
         Kinematics::WoodenHapticsHid(k) => {
-            for (key, value) in [
-                ("capstan_diameter_m", k.capstan_diameter_m),
-                ("body_diameter_m", k.body_diameter_m),
-                ("link_length_m", k.link_length_m),
-                ("torque_constant_n_m_per_a", k.torque_constant_n_m_per_a),
-                ("counts_per_revolution", k.counts_per_revolution),
-            ] {
-                if let Some(v) = value {
-                    positive(key, &v)?;
-                }
+            if k.encoder_home_counts.is_some() {
+                return Err((
+                    "encoder_home_counts".to_owned(),
+                    "the legacy HID driver has no encoder home offset (device = \"woodenhaptics\" takes one)"
+                        .to_owned(),
+                ));
             }
-            if let Some(v) = k.workspace_origin_m {
-                finite("workspace_origin_m", &v)?;
-            }
-            Ok(())
+            check_woodenhaptics("", k, positive)
         }
         Kinematics::Falcon(g) => {
             for (key, value) in [
@@ -877,27 +862,39 @@ fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
                 ("polhem", &k.polhem),
                 ("vintage", &k.vintage),
             ] {
-                let Some(c) = constants else { continue };
-                for (key, value) in [
-                    ("capstan_diameter_m", c.capstan_diameter_m),
-                    ("body_diameter_m", c.body_diameter_m),
-                    ("torque_constant_n_m_per_a", c.torque_constant_n_m_per_a),
-                    ("counts_per_revolution", c.counts_per_revolution),
-                ] {
-                    if let Some(v) = value {
-                        positive(&format!("{model}.{key}"), &v)?;
-                    }
-                }
-                if let Some(v) = c.link_length_m {
-                    non_negative(&format!("{model}.link_length_m"), &v)?;
-                }
-                if let Some(v) = c.workspace_origin_m {
-                    finite(&format!("{model}.workspace_origin_m"), &v)?;
+                if let Some(c) = constants {
+                    check_woodenhaptics(&format!("{model}."), c, non_negative)?;
                 }
             }
             Ok(())
         }
     }
+}
+
+/// One WoodenHaptics constants table (keys below `prefix`): diameters, torque constants and counts finite and
+/// > 0, link lengths as `link_length_check` says, the origin finite.
+fn check_woodenhaptics(
+    prefix: &str,
+    c: &WoodenHapticsConstants,
+    link_length_check: ValueCheck,
+) -> Result<(), (String, String)> {
+    for (key, value) in [
+        ("capstan_diameter_m", c.capstan_diameter_m),
+        ("body_diameter_m", c.body_diameter_m),
+        ("torque_constant_n_m_per_a", c.torque_constant_n_m_per_a),
+        ("counts_per_revolution", c.counts_per_revolution),
+    ] {
+        if let Some(v) = value {
+            positive(&format!("{prefix}{key}"), &v)?;
+        }
+    }
+    if let Some(v) = c.link_length_m {
+        link_length_check(&format!("{prefix}link_length_m"), &v)?;
+    }
+    if let Some(v) = c.workspace_origin_m {
+        finite(&format!("{prefix}workspace_origin_m"), &v)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -967,7 +964,7 @@ mod tests {
                 "[limits]\nmax_damping_n_s_per_m = -0.1\n",
                 "limits.max_damping_n_s_per_m",
             ),
-            ("[limits]\nmax_force = 1\n", "limits"),
+            ("[limits]\nmax_force = 1\n", "limits.max_force"),
             (
                 "[velocity_filter]\ncutoff_hz = inf\n",
                 "velocity_filter.cutoff_hz",
@@ -1001,7 +998,7 @@ mod tests {
             ),
             (
                 "device = \"haply2diy\"\n[kinematics]\nlink = 0.07\n",
-                "kinematics",
+                "kinematics.link",
             ),
             (
                 "device = \"woodenhaptics-hid\"\n[kinematics]\nlink_length_m = [0.08, 0.2]\n",
@@ -1029,7 +1026,7 @@ mod tests {
             ),
             (
                 "device = \"woodenhaptics\"\n[kinematics.woody]\nlink_length_m = [0.08, 0.2, 0.2]\n",
-                "kinematics",
+                "kinematics.woody",
             ),
             (
                 "device = \"falcon\"\n[kinematics]\na_m = 0\n",
@@ -1045,7 +1042,7 @@ mod tests {
             ),
             (
                 "device = \"falcon\"\n[kinematics]\nlength = 0.06\n",
-                "kinematics",
+                "kinematics.length",
             ),
             ("[limits\n", "(syntax)"),
             ("[workspace]\nmin_m = [0, 0, 0]\n", "workspace.max_m"),
@@ -1058,6 +1055,59 @@ mod tests {
             assert!(
                 error.starts_with(&format!("device profile test.toml: {key}")),
                 "{text:?} gave {error:?}, expected key {key}"
+            );
+        }
+    }
+
+    /// Issue 14: a value of the wrong type in any table of a profile is refused naming the key's full path.
+    #[test]
+    fn every_table_names_the_key_of_a_wrong_typed_value() {
+        for (text, expected) in [
+            ("name = 3\n", "name: invalid type: integer `3`, expected a string"),
+            ("device = [\"sim\"]\n", "device: invalid type: sequence, expected a string"),
+            ("base = 3\n", "base: must be a string"),
+            (
+                "[mapping]\nfit_volume = \"yes\"\n",
+                "mapping.fit_volume: invalid type: string \"yes\", expected a boolean",
+            ),
+            (
+                "[mapping]\nrotation_matrix = [[1, 0, 0], [0, 1, 0], [0, 0, \"1\"]]\n",
+                "mapping.rotation_matrix[2][2]: invalid type: string \"1\", expected f64",
+            ),
+            (
+                "[limits]\nslew_n_per_ms = \"fast\"\n",
+                "limits.slew_n_per_ms: invalid type: string \"fast\", expected f64",
+            ),
+            (
+                "[velocity_filter]\ncutoff_hz = [50]\n",
+                "velocity_filter.cutoff_hz: invalid type: sequence, expected f64",
+            ),
+            (
+                "[workspace]\nmin_m = [0, 0, \"low\"]\nmax_m = [1, 1, 1]\n",
+                "workspace.min_m[2]: invalid type: string \"low\", expected f64",
+            ),
+            (
+                "device = \"haply2diy\"\n[kinematics]\nencoder_offset_deg = [0.0]\n",
+                "kinematics.encoder_offset_deg: invalid length 1, expected an array of length 2",
+            ),
+            (
+                "device = \"falcon\"\n[kinematics]\na_m = \"long\"\n",
+                "kinematics.a_m: must be a number or an array of numbers",
+            ),
+            (
+                "device = \"woodenhaptics\"\n[kinematics.polhem]\nencoder_home_counts = [1.5, 0, 0]\n",
+                "kinematics.polhem.encoder_home_counts[0]: invalid type: floating point `1.5`, expected i32",
+            ),
+            (
+                "device = \"woodenhaptics-hid\"\n[kinematics]\nencoder_home_counts = [0, 0, 0]\n",
+                "kinematics.encoder_home_counts: the legacy HID driver has no encoder home offset",
+            ),
+        ] {
+            let error = parse(text).expect_err(text).to_string();
+            let expected = format!("device profile test.toml: {expected}");
+            assert!(
+                error.starts_with(&expected),
+                "{text:?}:\nexpected {expected:?}\n     got {error:?}"
             );
         }
     }
@@ -1181,7 +1231,7 @@ mod tests {
         ] {
             assert_ne!(
                 config.model_constants[model.index()],
-                WoodyConstants::default()
+                WoodenHapticsConstants::default()
             );
             assert_eq!(
                 config.model_constants[model.index()].applied_to(model.config()),
@@ -1231,7 +1281,7 @@ mod tests {
         // The other models keep their published constants.
         assert_eq!(
             config.model_constants[WoodyModel::Polhem.index()],
-            WoodyConstants::default()
+            WoodenHapticsConstants::default()
         );
     }
 

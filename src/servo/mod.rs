@@ -6,6 +6,7 @@
 //! - [`api`]: what the outside sees and may ask (snapshots, statistics, control commands).
 
 pub mod api;
+pub mod baseline;
 
 pub use api::{
     ControlCommand, ControlError, ControlReply, HistogramReport, PrimitiveView, RealtimeReport,

@@ -2,7 +2,7 @@
 //! the scenario is validated, so an override is checked exactly like the file itself.
 //!
 //! Where it sits: `voxhap sim --set`, `--duration`, `--rate` and `voxhap sweep` read the scenario text,
-//! call [`apply_overrides`] and hand the result to `Scenario::parse`. Keys are dotted paths with array
+//! call [`apply_overrides`] and hand the result to `Scenario::parse_edited`. Keys are dotted paths with array
 //! indices: `k_n_per_m`, `path.speed_m_per_s`, `modes[1].mu`, `modes[0].transfer[1][1]`, `path.points_m[2]`.
 //! Values are TOML (`200`, `1e-3`, `[0.0, 0.0, 0.02]`, `"sphere"`); a value that is not TOML is taken as a
 //! string, so `solver.kind=euler` works without quotes. A missing table on the way is created (`solver.kind`

@@ -194,13 +194,14 @@ impl VolumeSpec {
     ) -> Result<(AnyVolume, String), ScenarioError> {
         let spec = self;
         let description;
-        let invalid = |message: String| ScenarioError::Invalid {
+        // `key` is the key below `volumes[index]` the message is about ("" for the table).
+        let invalid = |key: &str, message: String| ScenarioError::Invalid {
             origin: origin.to_owned(),
-            message: format!("volumes[{index}]: {message}"),
+            message: format!("volumes[{index}]{key}: {message}"),
         };
         let volume = if let Some(name) = &spec.builtin {
             let built =
-                procedural::builtin(name).map_err(|err| invalid(format!("builtin: {err}")))?;
+                procedural::builtin(name).map_err(|err| invalid(".builtin", err.to_string()))?;
             description = format!("builtin:{name}");
             match (spec.part, built.scalar, built.vector) {
                 (None | Some(VolumePart::Scalar), Some(s), None) => AnyVolume::Scalar(s),
@@ -208,15 +209,21 @@ impl VolumeSpec {
                 (Some(VolumePart::Scalar), Some(s), Some(_)) => AnyVolume::Scalar(s),
                 (Some(VolumePart::Vector), Some(_), Some(v)) => AnyVolume::Vector(v),
                 (None, Some(_), Some(_)) => {
-                    return Err(invalid(format!(
-                        "builtin {name:?} has a scalar and a vector field: set part = \"scalar\" or \"vector\""
-                    )))
+                    return Err(invalid(
+                        ".part",
+                        format!(
+                            "builtin {name:?} has a scalar and a vector field: set part = \"scalar\" or \"vector\""
+                        ),
+                    ))
                 }
                 (Some(part), _, _) => {
-                    return Err(invalid(format!("builtin {name:?} has no {part:?} field")))
+                    return Err(invalid(
+                        ".part",
+                        format!("builtin {name:?} has no {part:?} field"),
+                    ))
                 }
                 (None, None, None) => {
-                    return Err(invalid(format!("builtin {name:?} is empty")))
+                    return Err(invalid(".builtin", format!("builtin {name:?} is empty")))
                 }
             }
         } else if let Some(file) = &spec.file {
@@ -239,7 +246,7 @@ impl VolumeSpec {
             description = file.display().to_string();
             loaded.volume
         } else {
-            return Err(invalid("needs builtin or file".to_owned()));
+            return Err(invalid("", "needs builtin or file".to_owned()));
         };
         Ok((volume, description))
     }
@@ -300,20 +307,51 @@ impl Scenario {
         origin: &str,
         purpose: Purpose,
     ) -> Result<Scenario, ScenarioError> {
+        Self::parse_text(text, origin, purpose, true)
+    }
+
+    /// Parses and validates, for `sim`, a scenario's text as rewritten by `--set` (sim::overrides): as
+    /// [`Scenario::parse`], but messages give no line and column, which would point into the rewritten text
+    /// rather than the user's file.
+    pub fn parse_edited(text: &str, origin: &str) -> Result<Scenario, ScenarioError> {
+        Self::parse_text(text, origin, Purpose::Sim, false)
+    }
+
+    /// Parses and validates `text`; `locate`: serde's messages say where in `text` the value is.
+    fn parse_text(
+        text: &str,
+        origin: &str,
+        purpose: Purpose,
+        locate: bool,
+    ) -> Result<Scenario, ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             origin: origin.to_owned(),
             message,
         };
         let deserializer = toml::Deserializer::parse(text)
             .map_err(|err| invalid(err.to_string().trim_end().to_owned()))?;
+        // One line: the key's full path, serde's message, where it is in the file (when `locate`).
         let scenario: Scenario = serde_path_to_error::deserialize(deserializer).map_err(|err| {
             let path = err.path().to_string();
-            let inner = err.into_inner().to_string();
-            let inner = inner.trim_end();
+            let inner = err.into_inner();
+            let mut message = inner.message().trim_end().to_owned();
+            if let Some(span) = inner.span().filter(|_| locate) {
+                let before = &text.as_bytes()[..span.start.min(text.len())];
+                let line = before.iter().filter(|b| **b == b'\n').count() + 1;
+                let line_start = before
+                    .iter()
+                    .rposition(|b| *b == b'\n')
+                    .map_or(0, |i| i + 1);
+                let column = String::from_utf8_lossy(&before[line_start..])
+                    .chars()
+                    .count()
+                    + 1;
+                message = format!("{message} (line {line}, column {column})");
+            }
             invalid(if path == "." || path.is_empty() {
-                inner.to_owned()
+                message
             } else {
-                format!("{path}: {inner}")
+                format!("{path}: {message}")
             })
         })?;
         scenario.validate(purpose).map_err(invalid)?;
@@ -583,6 +621,122 @@ duration_s = 0.5
             error_of(&missing_arm).contains("mass_kg"),
             "{}",
             error_of(&missing_arm)
+        );
+    }
+
+    /// Issue 14: a wrong-typed value, an unknown key, a key of another kind or a missing key in any table is
+    /// refused naming the key's full path (tables chosen by `kind`/`shape` included: device::sim::tagged).
+    #[test]
+    fn every_table_names_the_key_in_a_serde_error() {
+        let path_line = "[path]\nkind = \"line\"\nfrom_m = [0.0, 0.0, 0.045]\nto_m = [0.0, 0.0, 0.02]\nduration_s = 0.5\n";
+        let with_path = |path: &str| MINIMAL.replace(path_line, path);
+        let with_workspace =
+            |workspace: &str| MINIMAL.replace("workspace = { shape = \"unbounded\" }", workspace);
+        let cases: Vec<(String, &str)> = vec![
+            (
+                MINIMAL.replace("k_n_per_m = 500.0", "k_n_per_m = \"stiff\""),
+                "test.toml: k_n_per_m: invalid type: string \"stiff\", expected f64 (line 3, column 13)",
+            ),
+            (
+                format!("{MINIMAL}\n[solver]\nmax_sweeps = \"many\"\n"),
+                "test.toml: solver.max_sweeps: invalid type: string \"many\", expected u32 (line ",
+            ),
+            (
+                MINIMAL.replace("builtin = \"sphere\"", "builtin = \"sphere\"\npart = 3"),
+                "test.toml: volumes[0].part: wanted string or table (line 8, column 8)",
+            ),
+            (
+                MINIMAL.replace("kind = \"surface\"", "kind = \"surface\"\nenabled = \"yes\""),
+                "test.toml: modes[0].enabled: invalid type: string \"yes\", expected a boolean",
+            ),
+            (
+                MINIMAL.replace("mass_kg = 0.1", "mass_kg = \"heavy\""),
+                "test.toml: arm.mass_kg: invalid type: string \"heavy\", expected f64",
+            ),
+            (
+                with_workspace("workspace = { shape = \"sphere\", center_m = [0.0, 0.0, 0.0], radius_m = \"big\" }"),
+                "test.toml: arm.workspace.radius_m: invalid type: string \"big\", expected f64",
+            ),
+            (
+                with_workspace("workspace = { shape = \"box\", min_m = [0.0, 0.0], max_m = [0.1, 0.1, 0.1] }"),
+                "test.toml: arm.workspace.min_m: invalid length 2",
+            ),
+            (
+                with_workspace("workspace = { shape = \"unbounded\", radius = 0.1 }"),
+                "test.toml: arm.workspace.radius: unknown field `radius`, expected one of `shape`, `min_m`, `max_m`, `center_m`, `radius_m`",
+            ),
+            (
+                with_workspace("workspace = { shape = \"unbounded\", radius_m = 0.1 }"),
+                "test.toml: arm.workspace: shape = \"unbounded\" takes no key `radius_m` (it takes none)",
+            ),
+            (
+                with_workspace("workspace = { shape = \"ball\" }"),
+                "test.toml: arm.workspace.shape: unknown variant `ball`, expected one of `box`, `sphere`, `unbounded`",
+            ),
+            (
+                MINIMAL.replace("stiffness_n_per_m = 300.0", "stiffness_n_per_m = [300.0]"),
+                "test.toml: hand.stiffness_n_per_m: invalid type: sequence, expected f64",
+            ),
+            (
+                with_path("[path]\nkind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04]]\nspeed_m_per_s = \"fast\"\n"),
+                "test.toml: path.speed_m_per_s: invalid type: string \"fast\", expected f64",
+            ),
+            (
+                with_path("[path]\nkind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, \"y\", 0.0]]\nspeed_m_per_s = 0.1\n"),
+                "test.toml: path.points_m[1]",
+            ),
+            (
+                with_path("[path]\nkind = \"raster\"\norigin_m = [0.0, 0.0, 0.0]\nsweep_m = [0.01, 0.0, 0.0]\nstep_m = [0.0, 0.01, 0.0]\nlines = -2\nspeed_m_per_s = 0.1\n"),
+                "test.toml: path.lines: invalid value: integer `-2`, expected u32",
+            ),
+            (
+                with_path("[path]\nkind = \"hold\"\nat_m = [0.0, 0.0, 0.04]\nspeed = 2\n"),
+                "test.toml: path.speed: unknown field `speed`, expected one of `kind`, `at_m`,",
+            ),
+            (
+                with_path("[path]\nkind = \"hold\"\nat_m = [0.0, 0.0, 0.04]\nradius_m = 0.1\n"),
+                "test.toml: path: kind = \"hold\" takes no key `radius_m` (its keys: `at_m`)",
+            ),
+            (
+                with_path("[path]\nkind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\n"),
+                "test.toml: path: missing field `duration_s` (kind = \"line\" needs it)",
+            ),
+            (
+                with_path("[path]\nkind = \"walk\"\n"),
+                "test.toml: path.kind: unknown variant `walk`, expected one of `hold`, `line`, `waypoints`, `circle`, `raster`, `force`",
+            ),
+            (
+                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -1.0]\nduration_s = \"slow\"\n"),
+                "test.toml: path.profile.duration_s: invalid type: string \"slow\", expected f64",
+            ),
+            (
+                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"constant\"\nforce_n = [0.0, 0.0, -1.0]\nfrequency_hz = 2.0\n"),
+                "test.toml: path.profile: shape = \"constant\" takes no key `frequency_hz` (its keys: `force_n`)",
+            ),
+            (
+                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"sine\"\noffset_n = [0.0, 0.0, 0.0]\namplitude_n = [0.0, 0.0, 1.0]\n"),
+                "test.toml: path.profile: missing field `frequency_hz` (shape = \"sine\" needs it)",
+            ),
+            (
+                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"constant\"\nforce = [0.0, 0.0, -1.0]\n"),
+                "test.toml: path.profile.force: unknown field `force`, expected one of `shape`, `force_n`,",
+            ),
+        ];
+        for (text, expected) in &cases {
+            let message = error_of(text);
+            assert!(
+                message.contains(expected),
+                "expected {expected:?}\n     got {message:?}"
+            );
+            assert!(!message.contains('\n'), "one line: {message:?}");
+        }
+        // Text rewritten by --set: no line and column (they would point into the rewritten text).
+        let edited = Scenario::parse_edited(&cases[0].0, "test.toml (with --set)")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            edited,
+            "test.toml (with --set): k_n_per_m: invalid type: string \"stiff\", expected f64"
         );
     }
 

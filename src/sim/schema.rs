@@ -296,7 +296,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
                 takes no other key.",
         header: "[arm]\nmass_kg = 0.1\ndamping_n_s_per_m = 1.0\n[arm.workspace]",
         base: "shape = \"box\"\nmin_m = [-0.1, -0.1, -0.1]\nmax_m = [0.1, 0.1, 0.1]",
-        group: "workspace.box",
+        group: "workspace",
         keys: &[
             key("shape", "", Required, OneOf(&["box", "sphere", "unbounded"]), "\"box\"", "the workspace's shape"),
             key("min_m", "m", Required, Vector, "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
@@ -308,7 +308,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "A ball.",
         header: "[arm]\nmass_kg = 0.1\ndamping_n_s_per_m = 1.0\n[arm.workspace]",
         base: "shape = \"sphere\"\ncenter_m = [0.0, 0.0, 0.0]\nradius_m = 0.1",
-        group: "workspace.sphere",
+        group: "workspace",
         keys: &[
             key("center_m", "m", Required, Vector, "[0.0, 0.0, 0.01]", "centre"),
             key("radius_m", "m", Required, Positive, "0.2", "radius"),
@@ -330,7 +330,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "What the virtual hand does over time: a table with a `kind` key. `hold`: stay at one point.",
         header: "[path]",
         base: "kind = \"hold\"\nat_m = [0.0, 0.0, 0.04]",
-        group: "path.hold",
+        group: "path",
         keys: &[
             key("kind", "", Required, OneOf(&["hold", "line", "waypoints", "circle", "raster", "force"]), "\"hold\"", "the kind of path"),
             key("at_m", "m", Required, Vector, "[0.01, 0.0, 0.04]", "the point"),
@@ -341,7 +341,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "From `from_m` to `to_m` at constant speed, then hold.",
         header: "[path]",
         base: "kind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\nduration_s = 2.0",
-        group: "path.line",
+        group: "path",
         keys: &[
             key("from_m", "m", Required, Vector, "[0.01, 0.0, 0.04]", "start point"),
             key("to_m", "m", Required, Vector, "[0.01, 0.0, 0.0]", "end point"),
@@ -353,7 +353,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "Visit the points in order at constant speed, then hold at the last.",
         header: "[path]",
         base: "kind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, 0.0, 0.0]]\nspeed_m_per_s = 0.02",
-        group: "path.waypoints",
+        group: "path",
         keys: &[
             key("points_m", "m", Required, Points, "[[0.0, 0.0, 0.04]]", "the points"),
             key("speed_m_per_s", "m/s", Required, Positive, "0.05", "speed along the polyline"),
@@ -364,7 +364,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "Go round a circle forever.",
         header: "[path]",
         base: "kind = \"circle\"\ncenter_m = [0.0, 0.0, 0.02]\nradius_m = 0.02\nnormal = [0.0, 0.0, 1.0]\nperiod_s = 3.0",
-        group: "path.circle",
+        group: "path",
         keys: &[
             key("center_m", "m", Required, Vector, "[0.0, 0.0, 0.01]", "centre"),
             key("radius_m", "m", Required, Positive, "0.01", "radius"),
@@ -378,7 +378,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
                 then hold.",
         header: "[path]",
         base: "kind = \"raster\"\norigin_m = [-0.02, -0.02, 0.0]\nsweep_m = [0.04, 0.0, 0.0]\nstep_m = [0.0, 0.04, 0.0]\nlines = 5\nspeed_m_per_s = 0.05",
-        group: "path.raster",
+        group: "path",
         keys: &[
             key("origin_m", "m", Required, Vector, "[-0.01, -0.02, 0.0]", "start corner"),
             key("sweep_m", "m", Required, Vector, "[0.02, 0.0, 0.0]", "one pass: direction and length"),
@@ -392,7 +392,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "Push the arm with a force profile instead of a target (needs `start_m`).",
         header: "[path]",
         base: "kind = \"force\"\nprofile = { shape = \"constant\", force_n = [0.0, 0.0, -1.0] }",
-        group: "path.force",
+        group: "path",
         keys: &[key("profile", "", Required, Table("`[path.profile]`"), "", "the force over time")],
     },
     SchemaSection {
@@ -400,7 +400,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "The force of a `force` path: a table with a `shape` key. `constant`: the same force always.",
         header: "[path]\nkind = \"force\"\n[path.profile]",
         base: "shape = \"constant\"\nforce_n = [0.0, 0.0, -1.0]",
-        group: "profile.constant",
+        group: "profile",
         keys: &[
             key("shape", "", Required, OneOf(&["constant", "ramp", "sine"]), "\"constant\"", "the kind of profile"),
             key("force_n", "N", Required, Vector, "[0.0, 0.5, -1.0]", "the force"),
@@ -411,7 +411,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "Linear from `from_n` at t = 0 to `to_n` at `duration_s`, then constant.",
         header: "[path]\nkind = \"force\"\n[path.profile]",
         base: "shape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -2.0]\nduration_s = 2.0",
-        group: "profile.ramp",
+        group: "profile",
         keys: &[
             key("from_n", "N", Required, Vector, "[0.0, 0.0, -0.5]", "force at t = 0"),
             key("to_n", "N", Required, Vector, "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
@@ -423,7 +423,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         intro: "`offset_n + amplitude_n sin(2 pi frequency_hz t)`, per axis.",
         header: "[path]\nkind = \"force\"\n[path.profile]",
         base: "shape = \"sine\"\noffset_n = [0.0, 0.0, -1.0]\namplitude_n = [0.0, 0.0, 0.5]\nfrequency_hz = 2.0",
-        group: "profile.sine",
+        group: "profile",
         keys: &[
             key("offset_n", "N", Required, Vector, "[0.0, 0.0, -0.5]", "mean force"),
             key("amplitude_n", "N", Required, Vector, "[0.1, 0.0, 0.5]", "amplitude"),
@@ -516,16 +516,47 @@ mod tests {
                 .nth(1)
                 .unwrap_or_else(|| panic!("{group}: no field list in {error:?}"));
             let accepted: BTreeSet<&str> = expected.split('`').skip(1).step_by(2).collect();
-            // An internally tagged table's tag (`kind`, `shape`) is not among its variant's fields.
-            let documented: BTreeSet<&str> = documented
-                .into_iter()
-                .filter(|k| accepted.contains(k) || !["kind", "shape"].contains(k))
-                .collect();
             assert_eq!(
                 documented, accepted,
                 "{group}: the table's keys against the parser's ({error})"
             );
         }
+    }
+
+    /// The tables read by `kind` or `shape` (device::sim::tagged): each section lists exactly the keys of
+    /// its kind (the first section of a table also lists the tag).
+    const TAGGED_GROUPS: &[&str] = &["workspace", "path", "profile"];
+
+    #[test]
+    fn a_key_of_another_kind_is_refused_by_name() {
+        let mut checked = 0;
+        for section in SCENE_SCHEMA
+            .iter()
+            .filter(|s| TAGGED_GROUPS.contains(&s.group))
+        {
+            let takes: BTreeSet<&str> = section.keys.iter().map(|k| k.name).collect();
+            let others = SCENE_SCHEMA
+                .iter()
+                .filter(|s| s.group == section.group)
+                .flat_map(|s| s.keys.iter())
+                .filter(|k| !takes.contains(k.name) && !["kind", "shape"].contains(&k.name))
+                .filter(|k| !k.example.is_empty());
+            for other in others {
+                let text = document(section, &[(other.name, Some(other.example))]);
+                let error = load(&text, Purpose::Sim).expect_err("a key of another kind");
+                let table = table_of(&text);
+                assert!(
+                    error.contains(&format!("{table}: "))
+                        && error.contains(&format!("takes no key `{}`", other.name)),
+                    "{}: {} = {}: {error}",
+                    section.title,
+                    other.name,
+                    other.example
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 40, "{checked} keys checked");
     }
 
     #[test]
@@ -628,18 +659,38 @@ mod tests {
         }
     }
 
-    /// The outermost table whose keys depend on a `kind` or `shape` key (`path`, `workspace`), when the
-    /// section lies in one: serde reads such a table through a buffer, so a value of the wrong type in it
-    /// is reported at that table, not at its key.
-    fn tagged_table(section: &SchemaSection) -> Option<&'static str> {
-        let group = section.group;
-        if group.starts_with("path.") || group.starts_with("profile.") {
-            Some("path")
-        } else if group.starts_with("workspace.") {
-            Some("workspace")
-        } else {
-            None
+    /// The table a document's last lines are in, as an error names it (`path.profile`, `modes[1]`).
+    fn table_of(text: &str) -> String {
+        let header = text
+            .lines()
+            .rfind(|line| line.starts_with('['))
+            .unwrap_or_default();
+        match header.strip_prefix("[[").and_then(|h| h.strip_suffix("]]")) {
+            Some(name) => {
+                let index = text.lines().filter(|line| *line == header).count() - 1;
+                format!("{name}[{index}]")
+            }
+            None => header.trim_matches(['[', ']']).to_owned(),
         }
+    }
+
+    /// The full path of `key` of `section` in its document `text` (`path.profile.force_n`, `modes[1].mu`).
+    fn key_path(section: &SchemaSection, text: &str, key: &str) -> String {
+        if section.header.is_empty() {
+            return key.to_owned();
+        }
+        format!("{}.{key}", table_of(text))
+    }
+
+    /// Whether `error` names `path` as a whole key (not as the end of a longer one, `path.duration_s` for
+    /// `duration_s`).
+    fn names_key(error: &str, path: &str) -> bool {
+        error.match_indices(path).any(|(at, _)| {
+            let before = error[..at].chars().next_back();
+            let after = error[at + path.len()..].chars().next();
+            !before.is_some_and(|c| c.is_alphanumeric() || "_.]".contains(c))
+                && !after.is_some_and(|c| c.is_alphanumeric() || c == '_')
+        })
     }
 
     #[test]
@@ -672,18 +723,12 @@ mod tests {
                             "{}: {} = {value} should be refused",
                             section.title, key.name
                         )),
-                        Err(e) if e.contains(key.name) => {}
-                        // A value of the wrong type inside a table chosen by `kind`/`shape` (serde reads
-                        // those through a buffer that loses the key's path): the message names the table.
-                        Err(e) if tagged_table(section).is_some_and(|t| e.contains(t)) => {
-                            eprintln!(
-                                "note: {}: {} = {value}: the error names only the table: {e}",
-                                section.title, key.name
-                            );
-                        }
+                        Err(e) if names_key(&e, &key_path(section, &text, key.name)) => {}
                         Err(e) => wrong.push(format!(
-                            "{}: {} = {value}: the error does not name the key: {e}",
-                            section.title, key.name
+                            "{}: {} = {value}: the error does not name the key {}: {e}",
+                            section.title,
+                            key.name,
+                            key_path(section, &text, key.name)
                         )),
                     }
                     checked += 1;

@@ -32,6 +32,7 @@
 //! scales the three currents together so none exceeds [`MAX_CURRENT_MA`] (keeping the force's direction, as
 //! libnifalcon does for the Falcon), where the firmware would zero a single motor.
 
+use super::woodenhaptics_constants::WoodenHapticsConstants;
 use crate::device::transport::ByteTransport;
 use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::{DMat3, DVec3};
@@ -303,53 +304,6 @@ impl WoodyKinematics {
     }
 }
 
-/// Constants of one model that a device profile replaces (`[kinematics.woodenhaptics]`, `.polhem`,
-/// `.vintage`); `None` keeps hfabapi's published value. Checked by `device::profile` (lengths, diameters,
-/// torque constants and counts finite and > 0, origins finite).
-#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct WoodyConstants {
-    /// Capstan diameters A, B, C (m).
-    pub capstan_diameter_m: Option<[f64; 3]>,
-    /// Body (drum) diameters A, B, C (m).
-    pub body_diameter_m: Option<[f64; 3]>,
-    /// Link lengths A, B, C (m); the serial chain only (Polhem's closed chain has its own lengths).
-    pub link_length_m: Option<[f64; 3]>,
-    /// Workspace origin subtracted from the position (m).
-    pub workspace_origin_m: Option<[f64; 3]>,
-    /// Motor torque constants (N m / A).
-    pub torque_constant_n_m_per_a: Option<[f64; 3]>,
-    /// Encoder counts per revolution.
-    pub counts_per_revolution: Option<[f64; 3]>,
-    /// Encoder counts at the home pose, added to every reading (hfab_api.cpp:103-106).
-    pub encoder_home_counts: Option<[i32; 3]>,
-}
-
-impl WoodyConstants {
-    /// `kinematics` with the constants given here replaced.
-    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
-        fn set<T: Copy>(target: &mut T, value: Option<T>) {
-            if let Some(value) = value {
-                *target = value;
-            }
-        }
-        set(&mut kinematics.capstan_diameter_m, self.capstan_diameter_m);
-        set(&mut kinematics.body_diameter_m, self.body_diameter_m);
-        set(&mut kinematics.link_length_m, self.link_length_m);
-        set(&mut kinematics.workspace_origin_m, self.workspace_origin_m);
-        set(
-            &mut kinematics.torque_constant_n_m_per_a,
-            self.torque_constant_n_m_per_a,
-        );
-        set(
-            &mut kinematics.counts_per_revolution,
-            self.counts_per_revolution,
-        );
-        set(&mut kinematics.encoder_home, self.encoder_home_counts);
-        kinematics
-    }
-}
-
 // Polhem's link lengths (hfab_polhem.h:84-89).
 const POLHEM_L0: f64 = 34e-3;
 const POLHEM_L1: f64 = 165e-3;
@@ -457,7 +411,7 @@ pub struct WoodyConfig {
     pub kinematics_override: Option<WoodyKinematics>,
     /// Per model (indexed by [`WoodyModel::index`]): constants replacing the published ones for the model the
     /// device reports (a device profile's `[kinematics.MODEL]`).
-    pub model_constants: [WoodyConstants; 3],
+    pub model_constants: [WoodenHapticsConstants; 3],
 }
 
 impl Default for WoodyConfig {
@@ -468,7 +422,7 @@ impl Default for WoodyConfig {
             hello_attempts: 5,
             max_current_ma: MAX_CURRENT_MA,
             kinematics_override: None,
-            model_constants: [WoodyConstants::default(); 3],
+            model_constants: [WoodenHapticsConstants::default(); 3],
         }
     }
 }

@@ -4,6 +4,7 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use super::tagged::{given_keys, KindKeys};
 use super::{HandDrive, HandPath, SimError};
 
 fn default_substeps_per_tick() -> u32 {
@@ -19,9 +20,10 @@ fn default_wall_damping_n_s_per_m() -> f64 {
 }
 
 /// Where the arm can go. A table with a `shape` key, e.g. `{ shape = "sphere", center_m = [0, 0, 0],
-/// radius_m = 0.1 }`. Outside it a stiff one-sided wall spring pushes the arm back (see [`ArmParams`]).
+/// radius_m = 0.1 }`, read through `WorkspaceTable` so that every error names its key (super::tagged).
+/// Outside it a stiff one-sided wall spring pushes the arm back (see [`ArmParams`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "shape", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "shape", rename_all = "snake_case", try_from = "WorkspaceTable")]
 pub enum Workspace {
     /// An axis-aligned box.
     Box {
@@ -39,6 +41,68 @@ pub enum Workspace {
     },
     /// No limit.
     Unbounded,
+}
+
+/// The `shape` of a [`Workspace`] table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WorkspaceShape {
+    Box,
+    Sphere,
+    Unbounded,
+}
+
+impl WorkspaceShape {
+    /// The name written in a scene file.
+    pub fn name(self) -> &'static str {
+        match self {
+            WorkspaceShape::Box => "box",
+            WorkspaceShape::Sphere => "sphere",
+            WorkspaceShape::Unbounded => "unbounded",
+        }
+    }
+
+    /// The keys a workspace of this shape takes (besides `shape`); all of them are needed.
+    pub fn keys(self) -> &'static [&'static str] {
+        match self {
+            WorkspaceShape::Box => &["min_m", "max_m"],
+            WorkspaceShape::Sphere => &["center_m", "radius_m"],
+            WorkspaceShape::Unbounded => &[],
+        }
+    }
+}
+
+/// An `[arm.workspace]` table as written: every key of every shape, checked against its `shape` by
+/// `Workspace::try_from` (super::tagged says why).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WorkspaceTable {
+    shape: WorkspaceShape,
+    min_m: Option<DVec3>,
+    max_m: Option<DVec3>,
+    center_m: Option<DVec3>,
+    radius_m: Option<f64>,
+}
+
+impl TryFrom<WorkspaceTable> for Workspace {
+    type Error = String;
+
+    fn try_from(table: WorkspaceTable) -> Result<Self, String> {
+        let given = given_keys!(table: min_m, max_m, center_m, radius_m);
+        let keys = KindKeys::new("shape", table.shape.name(), &given);
+        keys.only(table.shape.keys())?;
+        Ok(match table.shape {
+            WorkspaceShape::Box => Workspace::Box {
+                min_m: keys.need("min_m", table.min_m)?,
+                max_m: keys.need("max_m", table.max_m)?,
+            },
+            WorkspaceShape::Sphere => Workspace::Sphere {
+                center_m: keys.need("center_m", table.center_m)?,
+                radius_m: keys.need("radius_m", table.radius_m)?,
+            },
+            WorkspaceShape::Unbounded => Workspace::Unbounded,
+        })
+    }
 }
 
 impl Workspace {

@@ -33,9 +33,12 @@
 
 mod arm;
 mod path;
+mod tagged;
 
-pub use arm::{ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace};
-pub use path::{ForceProfile, HandDrive, HandPath};
+pub use arm::{
+    ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace, WorkspaceShape,
+};
+pub use path::{ForceProfile, ForceProfileShape, HandDrive, HandPath, HandPathKind};
 
 /// Why a simulated arm could not be built or stepped. Copy and allocation-free, so the servo thread can
 /// return it.
@@ -58,10 +61,10 @@ pub enum SimError {
         name: &'static str,
     },
     /// A waypoint path with no points.
-    #[error("simulated arm path: waypoints needs at least one point in points_m")]
+    #[error("simulated arm parameter path.points_m: a waypoints path needs at least one point")]
     EmptyWaypoints,
     /// The workspace box has `min_m` above `max_m` on some axis.
-    #[error("simulated arm workspace box: min_m must be <= max_m on every axis")]
+    #[error("simulated arm parameter arm.workspace.max_m: must be >= min_m on every axis (a box)")]
     InvertedBox,
     /// `step` got a non-finite time or a non-positive or non-finite tick length.
     #[error("simulated arm step: t_s = {t_s} and dt_s = {dt_s} must be finite with dt_s > 0")]

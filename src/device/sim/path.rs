@@ -14,6 +14,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
+use super::tagged::{given_keys, KindKeys};
 use super::SimError;
 
 /// What the virtual hand does at one instant.
@@ -34,9 +35,10 @@ pub enum HandDrive {
 }
 
 /// A scripted hand motion. In a scenario TOML it is a table with a `kind` key, e.g.
-/// `{ kind = "line", from_m = [0, 0, 0], to_m = [0.05, 0, 0], duration_s = 2.0 }`.
+/// `{ kind = "line", from_m = [0, 0, 0], to_m = [0.05, 0, 0], duration_s = 2.0 }`, read through
+/// `HandPathTable` so that every error names its key (super::tagged).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "kind", rename_all = "snake_case", try_from = "HandPathTable")]
 pub enum HandPath {
     /// Hold still at one point.
     Hold {
@@ -93,9 +95,14 @@ pub enum HandPath {
     },
 }
 
-/// A force over time, for [`HandPath::Force`]. A table with a `shape` key.
+/// A force over time, for [`HandPath::Force`]. A table with a `shape` key, read through
+/// `ForceProfileTable` (super::tagged).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "shape", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(
+    tag = "shape",
+    rename_all = "snake_case",
+    try_from = "ForceProfileTable"
+)]
 pub enum ForceProfile {
     /// The same force at all times.
     Constant {
@@ -120,6 +127,181 @@ pub enum ForceProfile {
         /// Frequency (Hz), > 0.
         frequency_hz: f64,
     },
+}
+
+/// The `kind` of a [`HandPath`] table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HandPathKind {
+    Hold,
+    Line,
+    Waypoints,
+    Circle,
+    Raster,
+    Force,
+}
+
+impl HandPathKind {
+    /// The name written in a scene file.
+    pub fn name(self) -> &'static str {
+        match self {
+            HandPathKind::Hold => "hold",
+            HandPathKind::Line => "line",
+            HandPathKind::Waypoints => "waypoints",
+            HandPathKind::Circle => "circle",
+            HandPathKind::Raster => "raster",
+            HandPathKind::Force => "force",
+        }
+    }
+
+    /// The keys a path of this kind takes (besides `kind`); all of them are needed.
+    pub fn keys(self) -> &'static [&'static str] {
+        match self {
+            HandPathKind::Hold => &["at_m"],
+            HandPathKind::Line => &["from_m", "to_m", "duration_s"],
+            HandPathKind::Waypoints => &["points_m", "speed_m_per_s"],
+            HandPathKind::Circle => &["center_m", "radius_m", "normal", "period_s"],
+            HandPathKind::Raster => &["origin_m", "sweep_m", "step_m", "lines", "speed_m_per_s"],
+            HandPathKind::Force => &["profile"],
+        }
+    }
+}
+
+/// A `[path]` table as written: every key of every kind, checked against its `kind` by
+/// `HandPath::try_from` (super::tagged says why).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HandPathTable {
+    kind: HandPathKind,
+    at_m: Option<DVec3>,
+    from_m: Option<DVec3>,
+    to_m: Option<DVec3>,
+    duration_s: Option<f64>,
+    points_m: Option<Vec<DVec3>>,
+    speed_m_per_s: Option<f64>,
+    center_m: Option<DVec3>,
+    radius_m: Option<f64>,
+    normal: Option<DVec3>,
+    period_s: Option<f64>,
+    origin_m: Option<DVec3>,
+    sweep_m: Option<DVec3>,
+    step_m: Option<DVec3>,
+    lines: Option<u32>,
+    profile: Option<ForceProfile>,
+}
+
+impl TryFrom<HandPathTable> for HandPath {
+    type Error = String;
+
+    fn try_from(table: HandPathTable) -> Result<Self, String> {
+        let given = given_keys!(table:
+            at_m, from_m, to_m, duration_s, points_m, speed_m_per_s, center_m, radius_m, normal,
+            period_s, origin_m, sweep_m, step_m, lines, profile
+        );
+        let keys = KindKeys::new("kind", table.kind.name(), &given);
+        keys.only(table.kind.keys())?;
+        Ok(match table.kind {
+            HandPathKind::Hold => HandPath::Hold {
+                at_m: keys.need("at_m", table.at_m)?,
+            },
+            HandPathKind::Line => HandPath::Line {
+                from_m: keys.need("from_m", table.from_m)?,
+                to_m: keys.need("to_m", table.to_m)?,
+                duration_s: keys.need("duration_s", table.duration_s)?,
+            },
+            HandPathKind::Waypoints => HandPath::Waypoints {
+                points_m: keys.need("points_m", table.points_m)?,
+                speed_m_per_s: keys.need("speed_m_per_s", table.speed_m_per_s)?,
+            },
+            HandPathKind::Circle => HandPath::Circle {
+                center_m: keys.need("center_m", table.center_m)?,
+                radius_m: keys.need("radius_m", table.radius_m)?,
+                normal: keys.need("normal", table.normal)?,
+                period_s: keys.need("period_s", table.period_s)?,
+            },
+            HandPathKind::Raster => HandPath::Raster {
+                origin_m: keys.need("origin_m", table.origin_m)?,
+                sweep_m: keys.need("sweep_m", table.sweep_m)?,
+                step_m: keys.need("step_m", table.step_m)?,
+                lines: keys.need("lines", table.lines)?,
+                speed_m_per_s: keys.need("speed_m_per_s", table.speed_m_per_s)?,
+            },
+            HandPathKind::Force => HandPath::Force {
+                profile: keys.need("profile", table.profile)?,
+            },
+        })
+    }
+}
+
+/// The `shape` of a [`ForceProfile`] table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ForceProfileShape {
+    Constant,
+    Ramp,
+    Sine,
+}
+
+impl ForceProfileShape {
+    /// The name written in a scene file.
+    pub fn name(self) -> &'static str {
+        match self {
+            ForceProfileShape::Constant => "constant",
+            ForceProfileShape::Ramp => "ramp",
+            ForceProfileShape::Sine => "sine",
+        }
+    }
+
+    /// The keys a profile of this shape takes (besides `shape`); all of them are needed.
+    pub fn keys(self) -> &'static [&'static str] {
+        match self {
+            ForceProfileShape::Constant => &["force_n"],
+            ForceProfileShape::Ramp => &["from_n", "to_n", "duration_s"],
+            ForceProfileShape::Sine => &["offset_n", "amplitude_n", "frequency_hz"],
+        }
+    }
+}
+
+/// A `[path.profile]` table as written: every key of every shape, checked against its `shape` by
+/// `ForceProfile::try_from` (super::tagged says why).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ForceProfileTable {
+    shape: ForceProfileShape,
+    force_n: Option<DVec3>,
+    from_n: Option<DVec3>,
+    to_n: Option<DVec3>,
+    duration_s: Option<f64>,
+    offset_n: Option<DVec3>,
+    amplitude_n: Option<DVec3>,
+    frequency_hz: Option<f64>,
+}
+
+impl TryFrom<ForceProfileTable> for ForceProfile {
+    type Error = String;
+
+    fn try_from(table: ForceProfileTable) -> Result<Self, String> {
+        let given = given_keys!(table:
+            force_n, from_n, to_n, duration_s, offset_n, amplitude_n, frequency_hz
+        );
+        let keys = KindKeys::new("shape", table.shape.name(), &given);
+        keys.only(table.shape.keys())?;
+        Ok(match table.shape {
+            ForceProfileShape::Constant => ForceProfile::Constant {
+                force_n: keys.need("force_n", table.force_n)?,
+            },
+            ForceProfileShape::Ramp => ForceProfile::Ramp {
+                from_n: keys.need("from_n", table.from_n)?,
+                to_n: keys.need("to_n", table.to_n)?,
+                duration_s: keys.need("duration_s", table.duration_s)?,
+            },
+            ForceProfileShape::Sine => ForceProfile::Sine {
+                offset_n: keys.need("offset_n", table.offset_n)?,
+                amplitude_n: keys.need("amplitude_n", table.amplitude_n)?,
+                frequency_hz: keys.need("frequency_hz", table.frequency_hz)?,
+            },
+        })
+    }
 }
 
 fn check_positive(name: &'static str, value: f64) -> Result<(), SimError> {
@@ -322,24 +504,24 @@ impl ForceProfile {
     /// Checks that every parameter is finite and in range.
     pub fn validate(&self) -> Result<(), SimError> {
         match self {
-            ForceProfile::Constant { force_n } => check_vector("profile.force_n", *force_n),
+            ForceProfile::Constant { force_n } => check_vector("path.profile.force_n", *force_n),
             ForceProfile::Ramp {
                 from_n,
                 to_n,
                 duration_s,
             } => {
-                check_vector("profile.from_n", *from_n)?;
-                check_vector("profile.to_n", *to_n)?;
-                check_positive("profile.duration_s", *duration_s)
+                check_vector("path.profile.from_n", *from_n)?;
+                check_vector("path.profile.to_n", *to_n)?;
+                check_positive("path.profile.duration_s", *duration_s)
             }
             ForceProfile::Sine {
                 offset_n,
                 amplitude_n,
                 frequency_hz,
             } => {
-                check_vector("profile.offset_n", *offset_n)?;
-                check_vector("profile.amplitude_n", *amplitude_n)?;
-                check_positive("profile.frequency_hz", *frequency_hz)
+                check_vector("path.profile.offset_n", *offset_n)?;
+                check_vector("path.profile.amplitude_n", *amplitude_n)?;
+                check_positive("path.profile.frequency_hz", *frequency_hz)
             }
         }
     }

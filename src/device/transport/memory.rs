@@ -207,14 +207,33 @@ impl ReportTransport for ScriptedReports {
     }
 }
 
-#[derive(Debug, Default)]
+/// Bytes one direction of a [`MemoryPipe`] holds before a write waits for the reader, like the buffer of a tty.
+/// Reserved when the pipe is made, so passing bytes never allocates (the allocation-free servo tests run
+/// drivers over this pipe: a growing buffer allocated on the driver's thread whenever the device double's
+/// thread fell behind, seen once in a CI run).
+pub const MEMORY_PIPE_CAPACITY: usize = 64 * 1024;
+
+/// How long a write into a full [`MemoryPipe`] waits for the reader before it fails with a timeout.
+pub const MEMORY_PIPE_WRITE_TIMEOUT: Duration = Duration::from_millis(200);
+
+#[derive(Debug)]
 struct Channel {
     bytes: Mutex<(VecDeque<u8>, bool)>,
     ready: Condvar,
 }
 
+impl Channel {
+    fn new() -> Channel {
+        Channel {
+            bytes: Mutex::new((VecDeque::with_capacity(MEMORY_PIPE_CAPACITY), false)),
+            ready: Condvar::new(),
+        }
+    }
+}
+
 /// One end of an in-memory duplex byte pipe (tests and in-process simulations; it locks, so it is not for the
-/// servo thread of a real run).
+/// servo thread of a real run). Each direction holds at most [`MEMORY_PIPE_CAPACITY`] bytes, reserved up
+/// front; a writer facing a full pipe waits for the reader up to [`MEMORY_PIPE_WRITE_TIMEOUT`].
 #[derive(Debug, Clone)]
 pub struct MemoryPipe {
     incoming: Arc<Channel>,
@@ -224,8 +243,8 @@ pub struct MemoryPipe {
 impl MemoryPipe {
     /// Two connected ends.
     pub fn pair() -> (MemoryPipe, MemoryPipe) {
-        let a = Arc::new(Channel::default());
-        let b = Arc::new(Channel::default());
+        let a = Arc::new(Channel::new());
+        let b = Arc::new(Channel::new());
         (
             MemoryPipe {
                 incoming: a.clone(),
@@ -256,12 +275,34 @@ impl ByteTransport for MemoryPipe {
             .bytes
             .lock()
             .map_err(|_| disconnected("writing"))?;
-        if guard.1 {
-            return Err(disconnected("writing"));
+        let mut rest = bytes;
+        loop {
+            if guard.1 {
+                return Err(disconnected("writing"));
+            }
+            let room = MEMORY_PIPE_CAPACITY - guard.0.len();
+            let n = room.min(rest.len());
+            guard.0.extend(&rest[..n]);
+            rest = &rest[n..];
+            self.outgoing.ready.notify_all();
+            if rest.is_empty() {
+                return Ok(());
+            }
+            let (next, wait) = self
+                .outgoing
+                .ready
+                .wait_timeout_while(guard, MEMORY_PIPE_WRITE_TIMEOUT, |(bytes, closed)| {
+                    bytes.len() == MEMORY_PIPE_CAPACITY && !*closed
+                })
+                .map_err(|_| disconnected("writing"))?;
+            guard = next;
+            if wait.timed_out() && guard.0.len() == MEMORY_PIPE_CAPACITY {
+                return Err(DeviceError::Timeout {
+                    waited_us: MEMORY_PIPE_WRITE_TIMEOUT.as_micros() as u64,
+                    waiting_for: "room in the in-memory pipe (its reader stopped reading)",
+                });
+            }
         }
-        guard.0.extend(bytes);
-        self.outgoing.ready.notify_all();
-        Ok(())
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
@@ -288,6 +329,8 @@ impl ByteTransport for MemoryPipe {
         for (slot, byte) in buf.iter_mut().zip(guard.0.drain(..n)) {
             *slot = byte;
         }
+        // A writer may be waiting for room.
+        self.incoming.ready.notify_all();
         Ok(n)
     }
 
@@ -295,6 +338,7 @@ impl ByteTransport for MemoryPipe {
         if let Ok(mut guard) = self.incoming.bytes.lock() {
             guard.0.clear();
         }
+        self.incoming.ready.notify_all();
         Ok(())
     }
 
@@ -318,6 +362,47 @@ impl std::io::Write for MemoryPipe {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_full_pipe_makes_the_writer_wait_for_the_reader_and_then_time_out() {
+        let (mut host, mut device) = MemoryPipe::pair();
+        host.write_all(&vec![7u8; MEMORY_PIPE_CAPACITY]).unwrap();
+        let error = host.write_all(&[1]).unwrap_err();
+        assert!(
+            matches!(error, DeviceError::Timeout { waiting_for, .. } if waiting_for.contains("room")),
+            "{error}"
+        );
+        // The reader frees room: the next write goes through, and nothing was lost or reordered.
+        let mut buf = [0u8; 16];
+        assert_eq!(device.read(&mut buf, Duration::ZERO).unwrap(), 16);
+        host.write_all(&[1, 2, 3]).unwrap();
+        let mut all = vec![0u8; MEMORY_PIPE_CAPACITY];
+        let mut got = 0;
+        while got < MEMORY_PIPE_CAPACITY - 16 + 3 {
+            got += device.read(&mut all[got..], Duration::ZERO).unwrap();
+        }
+        assert!(all[..MEMORY_PIPE_CAPACITY - 16].iter().all(|&b| b == 7));
+        assert_eq!(&all[MEMORY_PIPE_CAPACITY - 16..got], &[1, 2, 3]);
+    }
+
+    #[test]
+    fn a_write_larger_than_the_pipe_completes_while_the_reader_reads() {
+        let (mut host, mut device) = MemoryPipe::pair();
+        let sent: Vec<u8> = (0..3 * MEMORY_PIPE_CAPACITY)
+            .map(|i| (i % 251) as u8)
+            .collect();
+        let expected = sent.clone();
+        let writer = std::thread::spawn(move || host.write_all(&sent));
+        let mut received = Vec::new();
+        let mut buf = [0u8; 4096];
+        while received.len() < expected.len() {
+            let n = device.read(&mut buf, Duration::from_secs(5)).unwrap();
+            assert!(n > 0, "the writer stalled after {} bytes", received.len());
+            received.extend_from_slice(&buf[..n]);
+        }
+        writer.join().unwrap().unwrap();
+        assert_eq!(received, expected);
+    }
 
     #[test]
     fn scripted_stream_splits_a_long_read_and_reports_completion() {

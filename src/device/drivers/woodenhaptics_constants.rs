@@ -1,0 +1,78 @@
+//! The WoodenHaptics kinematic and motor constants a device profile may replace: one type for both
+//! WoodenHaptics drivers, the Teensy serial firmware's ([`super::woodenhaptics_serial`], one table per model:
+//! `[kinematics.woodenhaptics]`, `.polhem`, `.vintage`) and the legacy HID firmware's
+//! ([`super::woodenhaptics`], `[kinematics]` with `device = "woodenhaptics-hid"`).
+//!
+//! Where it sits: read from a profile and checked by `device::profile`, then laid over the driver's published
+//! constants, key by key, before the device opens ([`WoodenHapticsConstants::applied_to`] for the serial
+//! driver's model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID driver's configuration).
+//! Never on the servo path.
+
+use super::woodenhaptics::WoodenHapticsConfig;
+use super::woodenhaptics_serial::WoodyKinematics;
+
+/// Constants that replace a WoodenHaptics driver's published ones; `None` keeps the published value. Checked
+/// by `device::profile` (diameters, torque constants and counts finite and > 0, link lengths finite and > 0,
+/// or >= 0 for the serial firmware's models, whose published constants set one to zero; origins finite).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WoodenHapticsConstants {
+    /// Capstan diameters A, B, C (m).
+    pub capstan_diameter_m: Option<[f64; 3]>,
+    /// Body (drum) diameters A, B, C (m).
+    pub body_diameter_m: Option<[f64; 3]>,
+    /// Link lengths A, B, C (m); the serial chain only (Polhem's closed chain has its own lengths).
+    pub link_length_m: Option<[f64; 3]>,
+    /// Workspace origin subtracted from the position (m).
+    pub workspace_origin_m: Option<[f64; 3]>,
+    /// Motor torque constants (N m / A).
+    pub torque_constant_n_m_per_a: Option<[f64; 3]>,
+    /// Encoder counts per revolution.
+    pub counts_per_revolution: Option<[f64; 3]>,
+    /// Encoder counts at the home pose, added to every reading (hfab_api.cpp:103-106). The serial firmware's
+    /// models only: the legacy HID driver has no home offset, and a profile for it may not set this.
+    pub encoder_home_counts: Option<[i32; 3]>,
+}
+
+fn set<T: Copy>(target: &mut T, value: Option<T>) {
+    if let Some(value) = value {
+        *target = value;
+    }
+}
+
+impl WoodenHapticsConstants {
+    /// A serial-firmware model's `kinematics` with the constants given here replaced.
+    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
+        set(&mut kinematics.capstan_diameter_m, self.capstan_diameter_m);
+        set(&mut kinematics.body_diameter_m, self.body_diameter_m);
+        set(&mut kinematics.link_length_m, self.link_length_m);
+        set(&mut kinematics.workspace_origin_m, self.workspace_origin_m);
+        set(
+            &mut kinematics.torque_constant_n_m_per_a,
+            self.torque_constant_n_m_per_a,
+        );
+        set(
+            &mut kinematics.counts_per_revolution,
+            self.counts_per_revolution,
+        );
+        set(&mut kinematics.encoder_home, self.encoder_home_counts);
+        kinematics
+    }
+
+    /// The legacy HID driver's configuration with the constants given here replaced (`encoder_home_counts`
+    /// has no counterpart there).
+    pub fn apply_to_hid(&self, config: &mut WoodenHapticsConfig) {
+        set(&mut config.capstan_diameter_m, self.capstan_diameter_m);
+        set(&mut config.body_diameter_m, self.body_diameter_m);
+        set(&mut config.link_length_m, self.link_length_m);
+        set(&mut config.workspace_origin_m, self.workspace_origin_m);
+        set(
+            &mut config.torque_constant_n_m_per_a,
+            self.torque_constant_n_m_per_a,
+        );
+        set(
+            &mut config.counts_per_revolution,
+            self.counts_per_revolution,
+        );
+    }
+}

@@ -3,11 +3,17 @@
 //! session), outside the arm's workspace (for the unbounded built-in arm: more than 10 m from the origin),
 //! out of JSON's range or malformed. Each is refused with 400 and a
 //! message naming the problem, and the session goes on: ticks keep coming, the arm's probe, proxy and
-//! force stay finite, and a valid target is still obeyed afterwards.
+//! force stay finite, and a valid target is still obeyed afterwards. Targets are scene positions: under a
+//! workspace mapping (issue 13) the hand is moved to the device point that maps there.
 
 use crate::util::server::TestServer;
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
+use voxhap::device::mapping::WorkspaceMapping;
+use voxhap::device::profile::{DeviceProfile, MappingChoice};
+use voxhap::servo::device::DeviceSpec;
+use voxhap::servo::setup::SceneSetup;
+use voxhap::servo::SessionConfig;
 
 fn finite_vector(state: &Value, key: &str) -> bool {
     state[key]
@@ -75,6 +81,20 @@ async fn bad_hand_targets_are_refused_and_the_arm_stays_finite() {
         .post("/api/hand", &json!({"position_m": target}).to_string())
         .await;
     assert_eq!(status, 200, "{reply}");
+    let distance = probe_distance_after_settling(&server, target, 0.005).await;
+    assert!(
+        distance < 0.005,
+        "the probe is still {distance} m from a valid hand target"
+    );
+}
+
+/// Waits (up to 5 s) until the probe (scene frame, as `/api/state` reports it, finite) is within `within_m` of
+/// `target`; returns the last distance.
+async fn probe_distance_after_settling(
+    server: &TestServer,
+    target: [f64; 3],
+    within_m: f64,
+) -> f64 {
     let started = Instant::now();
     loop {
         let (_, state) = server.get("/api/state").await;
@@ -86,13 +106,65 @@ async fn bad_hand_targets_are_refused_and_the_arm_stays_finite() {
             .map(|(p, t)| (p - t).powi(2))
             .sum::<f64>()
             .sqrt();
-        if distance < 0.005 {
-            break;
+        if distance < within_m || started.elapsed() > Duration::from_secs(5) {
+            return distance;
         }
-        assert!(
-            started.elapsed() < Duration::from_secs(5),
-            "the probe is still {distance} m from a valid hand target"
-        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+}
+
+/// Issue 13: `/api/hand` takes a scene position. Under a mapping with scale 2 and a translation of
+/// (0.1, -0.05, 0.02) m, a target of (0.14, -0.05, 0.02) m in the scene is the device point (0.02, 0, 0) m;
+/// the probe, which the session reports in the scene frame, must come to the target. Were the target taken
+/// as a device point, the probe would settle at s p + t = (0.38, -0.15, 0.06) m instead.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hand_target_in_scene_coordinates_puts_the_probe_there_under_a_workspace_mapping() {
+    let mapping = WorkspaceMapping::new(
+        glam::DMat3::IDENTITY,
+        2.0,
+        glam::DVec3::new(0.1, -0.05, 0.02),
+    )
+    .unwrap();
+    let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
+    config.profile = DeviceProfile {
+        mapping: MappingChoice::Fixed(mapping),
+        ..DeviceProfile::default()
+    };
+    // No modes: nothing but the hand moves the arm.
+    config.setup.modes.clear();
+    let server = TestServer::start_session(8, |_| {}, None, config).await;
+    for target in [[0.14, -0.05, 0.02], [0.08, -0.03, 0.04]] {
+        let (status, reply) = server
+            .post("/api/hand", &json!({"position_m": target}).to_string())
+            .await;
+        assert_eq!(status, 200, "{reply}");
+        let (_, state) = server.get("/api/state").await;
+        assert_eq!(
+            state["hand_target_m"],
+            json!(target),
+            "reported in the scene frame"
+        );
+        let distance = probe_distance_after_settling(&server, target, 0.003).await;
+        assert!(
+            distance < 0.003,
+            "the probe settled {distance} m from the scene target {target:?}"
+        );
+    }
+    // The workspace check is made in the device frame, and the error says both: the built-in arm's 10 m
+    // limit is 20 m in this scene, so a scene target 12 m out is accepted, and one 25 m out is not.
+    let (status, reply) = server
+        .post(
+            "/api/hand",
+            &json!({"position_m": [12.0, 0.0, 0.0]}).to_string(),
+        )
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    let (status, reply) = server
+        .post(
+            "/api/hand",
+            &json!({"position_m": [25.0, 0.0, 0.0]}).to_string(),
+        )
+        .await;
+    assert_eq!(status, 400, "{reply}");
+    assert!(reply.to_string().contains("in the device frame"), "{reply}");
 }

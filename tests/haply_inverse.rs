@@ -101,6 +101,46 @@ fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
     assert!(forces[before + 50..].iter().all(|f| *f == [0.0; 3]));
 }
 
+/// A reply that comes after the I/O thread stopped waiting for it (a busy service) answers an older command,
+/// and is labelled so: afterwards, every state the driver gives as answering this tick's force (age 0) holds
+/// the position set before that force, never the one of a tick before. (Before issue 13's fix, each late
+/// reply shifted every later state by one command for the rest of the session.)
+#[test]
+fn a_reply_that_comes_late_is_never_taken_for_a_newer_one() {
+    let service = InverseService::start();
+    let mut device = Lifecycle::new(HaplyInverse::new(config(&service.url())));
+    device.open().unwrap();
+    device.enable().unwrap();
+    let position = |i: u32| [0.0001 * f64::from(i), -0.12, 0.15];
+    let mut checked = 0;
+    for i in 0..200u32 {
+        service.set_position(position(i));
+        if i == 20 {
+            // Three times the I/O thread's 20 ms reply timeout.
+            service
+                .shared
+                .delay_next_reply_ms
+                .store(60, Ordering::Release);
+        }
+        device.write_force(DVec3::ZERO).unwrap();
+        let Ok(state) = device.read_state() else {
+            continue;
+        };
+        if i > 40 && device.device().state_age_ticks() == 0 {
+            checked += 1;
+            assert!(
+                (state.position_m.x - position(i)[0]).abs() < 1e-12,
+                "tick {i}: a state given as this tick's answer holds x = {} (tick {:.0})",
+                state.position_m.x,
+                state.position_m.x / 0.0001
+            );
+        }
+    }
+    device.disable().unwrap();
+    device.close().unwrap();
+    assert!(checked > 100, "only {checked} ticks answered in time");
+}
+
 fn supervisor(
     url: &str,
 ) -> Supervisor<HaplyInverse, impl FnMut() -> Result<HaplyInverse, voxhap::device::DeviceError>> {

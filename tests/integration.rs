@@ -26,6 +26,7 @@ mod hand_target;
 mod haply_2diy_pty;
 mod haply_inverse;
 mod igtl;
+mod late_states;
 mod modes;
 mod paper;
 mod record;

@@ -76,6 +76,14 @@ pub trait HapticDevice {
     /// Reads the newest state of the handle.
     fn read_state(&mut self) -> Result<DeviceState, Self::Error>;
 
+    /// How many servo ticks old the state the last `read_state` returned is: 0 when it answers this tick's
+    /// force (drivers that wait for their answer), `n` when the driver handed out the newest state it had and
+    /// that state answers the force of `n` ticks ago (the Haply Inverse3, whose replies may come late). The
+    /// supervisor counts it towards its staleness bound. Allocation-free.
+    fn state_age_ticks(&self) -> u32 {
+        0
+    }
+
     /// The next thing the device said outside its states (a fault, a refused command), if any. Drivers
     /// queue these while reading states; the supervisor drains them every tick. Allocation-free.
     fn take_event(&mut self) -> Option<DeviceEvent> {

@@ -26,8 +26,12 @@
 //!   corrupted frames, anything but a hang-up, which drops it at once), after `link_timeout_us` without a
 //!   valid state, or after a run of implausible positions. Before it is dropped the host writes zero and
 //!   Disable if the port still takes writes; the dead device is handed out ([`Supervisor::take_lost`]) to be
-//!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods is not used to
-//!   compute force: zero is sent instead (`STALE_STATE`).
+//!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods (counted from
+//!   the force it answers: a driver that hands out an earlier answer says how old it is,
+//!   [`HapticDevice::state_age_ticks`]) is not used to compute force: zero is sent instead (`STALE_STATE`).
+//! - **Steady before enabling.** `Starting` (and `Recovering`) count on-time ticks that end with a state
+//!   within that staleness bound; a reply that came a tick or two late keeps the count, a gap that would zero
+//!   the force or a late servo tick restarts it.
 //! - A stall monitor on another thread may have stopped the device while the servo thread was stalled
 //!   ([`Supervisor::set_stall_flag`]); the next tick sees the flag and goes through `Recovering`.
 //!
@@ -61,11 +65,13 @@ pub struct SupervisorConfig {
     pub max_consecutive_errors: u32,
     /// Time without a valid state that counts as a lost link (µs).
     pub link_timeout_us: u64,
-    /// A state older than this many ticks is not used to render force; zero is sent instead.
+    /// A state older than this many ticks (counted from the force it answers, see
+    /// `HapticDevice::state_age_ticks`) is not used to render force; zero is sent instead.
     pub stale_state_ticks: u32,
-    /// On-time ticks with fresh states, after connecting, before the device is enabled.
+    /// On-time ticks in a row, after connecting, each ending with a state within the staleness bound
+    /// (`stale_state_ticks`), before the device is enabled.
     pub steady_ticks_before_enable: u32,
-    /// On-time ticks with fresh states, after a device watchdog trip or a stall, before it is enabled again.
+    /// The same count after a device watchdog trip or a stall, before the device is enabled again.
     pub healthy_ticks_before_reenable: u32,
     /// Ticks after an Enable during which a status that still says "not enabled" is not yet believed (the
     /// answer may have been sampled before the Enable arrived).
@@ -803,8 +809,9 @@ where
         }
     }
 
-    fn advance_drive(&mut self, input: &TickInput, fresh: bool, out: &mut TickOutput) {
-        let steady = fresh && input.on_time;
+    /// `usable`: this tick ended with a state within the staleness bound (force may be computed from it).
+    fn advance_drive(&mut self, input: &TickInput, usable: bool, out: &mut TickOutput) {
+        let steady = usable && input.on_time;
         match self.drive {
             Drive::Starting { steady_ticks } => {
                 let steady_ticks = if steady { steady_ticks + 1 } else { 0 };
@@ -930,6 +937,7 @@ where
             device.write_zero()
         };
         let result = written.and_then(|()| device.read_state());
+        let state_age_ticks = device.device().state_age_ticks();
         let mut fresh = false;
         match result {
             Ok(raw) => {
@@ -988,7 +996,9 @@ where
             }
         }
         if fresh {
-            self.ticks_since_fresh = 0;
+            // A driver that handed out an earlier answer says how old it is: the staleness bound counts from
+            // the force the state answers, not from when it arrived.
+            self.ticks_since_fresh = state_age_ticks;
             self.last_fresh_us = now_us;
         } else {
             self.ticks_since_fresh = self.ticks_since_fresh.saturating_add(1);
@@ -1008,7 +1018,11 @@ where
             self.on_event(event, now_us, &mut out);
         }
         if self.device.is_some() {
-            self.advance_drive(&input, fresh, &mut out);
+            // A state that came a tick or two late (within the staleness bound) keeps the link steady; a gap
+            // that would zero the force does not (docs/safety.md).
+            let usable = self.last_state.is_some()
+                && self.ticks_since_fresh <= self.config.stale_state_ticks;
+            self.advance_drive(&input, usable, &mut out);
         }
         out.output_state = self.output_state();
         out

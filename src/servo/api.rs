@@ -92,7 +92,7 @@ pub struct Snapshot {
     pub flags: u32,
     /// Incremented every time a command changes the scene (k, damping, modes, volume).
     pub scene_generation: u64,
-    /// Simulated arm only: where the virtual hand is being pulled to (m), when a client set it.
+    /// Simulated arm only: where the virtual hand is being pulled to (m, scene frame), when a client set it.
     pub hand_target_m: Option<DVec3>,
 }
 
@@ -296,7 +296,8 @@ pub enum ControlCommand {
     },
     /// Stop recording; the trace is flushed and closed.
     StopRecording,
-    /// Simulated arm only: pull the virtual hand towards `position_m` (m), or `null` to resume its path.
+    /// Simulated arm only: pull the virtual hand towards `position_m` (m, scene frame: mapped through the
+    /// session's workspace mapping into the device frame), or `null` to resume its path.
     SetHandTarget { position_m: Option<[f64; 3]> },
     /// The operator's explicit acknowledgement of a device fault that needs a person: ClearFault goes to the
     /// device, which is then enabled again (forces ramp in) once the link is healthy. voxhap never sends

@@ -12,6 +12,7 @@ use super::runner::{
 };
 use super::session::{trace_meta, SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
+use crate::device::mapping::WorkspaceMapping;
 use crate::record::foxglove_topics::SceneChange;
 use crate::record::{create_trace_writer, TraceFormat};
 use glam::DVec3;
@@ -31,6 +32,8 @@ pub(super) struct Control {
     pub(super) recorder: mpsc::Sender<RecorderRequest>,
     pub(super) recording: Option<PathBuf>,
     pub(super) hand: Option<HandTargetInput>,
+    /// Device frame -> scene frame of the session (a hand target is given in the scene, moved in the device).
+    pub(super) hand_mapping: WorkspaceMapping,
 }
 
 fn invalid(message: impl Into<String>) -> ControlError {
@@ -389,28 +392,42 @@ impl SessionShared {
                         self.device_label
                     )));
                 };
-                let target = match position_m {
+                // `position_m` is in the scene frame; the hand moves in the device frame.
+                let (scene_target, device_target) = match position_m {
                     Some([x, y, z]) => {
-                        let v = DVec3::new(x, y, z);
-                        if !v.is_finite() {
+                        let scene = DVec3::new(x, y, z);
+                        if !scene.is_finite() {
                             return Err(invalid("position_m must be three finite numbers"));
                         }
+                        let device = control.hand_mapping.to_device_position_m(scene);
                         // Inside the arm's workspace, and (for an unbounded one) within 10 m: a
                         // far target (1e308) would overflow the hand spring into NaN.
                         let workspace = &control.setup.arm.arm.workspace;
-                        if !workspace.contains_m(v, 0.0) || v.length() > MAX_HAND_TARGET_M {
+                        if !device.is_finite()
+                            || !workspace.contains_m(device, 0.0)
+                            || device.length() > MAX_HAND_TARGET_M
+                        {
+                            let frame = if control.hand_mapping.is_identity() {
+                                String::new()
+                            } else {
+                                format!(
+                                    " (scene position; {:?} m in the device frame under the workspace mapping)",
+                                    device.to_array()
+                                )
+                            };
                             return Err(invalid(format!(
-                                "position_m {:?} m is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the origin)",
-                                v.to_array()
+                                "position_m {:?} m{frame} is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the device origin)",
+                                scene.to_array()
                             )));
                         }
-                        Some(v)
+                        (Some(scene), Some(device))
                     }
-                    None => None,
+                    None => (None, None),
                 };
-                hand.write(target);
+                let target = scene_target;
+                hand.write(device_target);
                 if let Ok(mut slot) = self.hand_target.lock() {
-                    *slot = target;
+                    *slot = scene_target;
                 }
                 Ok(ControlReply {
                     message: match target {

@@ -167,6 +167,10 @@ impl ServoDevice for MappedDevice {
         self.inner.set_stop_slot(slot);
     }
 
+    fn workspace_mapping(&self) -> WorkspaceMapping {
+        self.mapping
+    }
+
     fn max_damping_n_s_per_m(&self) -> Option<f64> {
         self.profile
             .limits

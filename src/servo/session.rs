@@ -233,6 +233,8 @@ impl Session {
         })?;
         let mut notices = Vec::new();
         notices.extend(device.profile_notes());
+        // Hand targets come in scene coordinates; the simulated arm's hand moves in the device frame.
+        let hand_mapping = device.workspace_mapping();
         let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
             .with_damping_limit(device.max_damping_n_s_per_m());
         let max_stiffness_n_per_m = caps.max_stiffness_n_per_m;
@@ -409,6 +411,7 @@ impl Session {
                 recorder: recorder_tx,
                 recording,
                 hand: opened.hand_target,
+                hand_mapping,
             }),
             hand_target: Mutex::new(None),
             stop,

@@ -6,12 +6,13 @@
 //! Behaviour: on connect it sends the initial inventory (`session_id` and, per Inverse3, `device_id`, `config`,
 //! `state`, `status`); then exactly one state update (`state` and `status` of every device) per client message,
 //! whatever the message. Every `set_cursor_force` vector it receives is logged with its device id, and so are
-//! messages it cannot parse. A test can move the handle, make the next replies malformed, or stop the service
-//! (every connection dropped, the port closed) and start it again on the same port.
+//! messages it cannot parse. A test can move the handle, make the next replies malformed, hold the next reply
+//! back for a while (a busy service: the state is the one at the message's arrival, sent late), or stop the
+//! service (every connection dropped, the port closed) and start it again on the same port.
 
 use serde_json::{json, Value};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -37,6 +38,8 @@ pub struct ServiceShared {
     pub position_m: Mutex<[f64; 3]>,
     /// The next this-many replies are malformed (alternately not JSON, a binary frame, and JSON without state).
     pub malformed_replies: AtomicU32,
+    /// The next reply is sent this many milliseconds late (then back to 0).
+    pub delay_next_reply_ms: AtomicU64,
     stop: AtomicBool,
 }
 
@@ -83,6 +86,7 @@ impl InverseService {
             log: Mutex::new(Vec::new()),
             position_m: Mutex::new([0.0, -0.12, 0.15]),
             malformed_replies: AtomicU32::new(0),
+            delay_next_reply_ms: AtomicU64::new(0),
             stop: AtomicBool::new(false),
         });
         Self::start_on("127.0.0.1:0".parse().unwrap(), shared)
@@ -253,6 +257,10 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
                     .to_string(),
             )
         };
+        let delay_ms = shared.delay_next_reply_ms.swap(0, Ordering::AcqRel);
+        if delay_ms > 0 {
+            std::thread::sleep(Duration::from_millis(delay_ms));
+        }
         if socket.send(reply).is_err() {
             return;
         }

@@ -59,7 +59,22 @@ impl TestServer {
         edit: impl FnOnce(&mut ServerConfig),
         volume_dirs: Option<VolumeDirs>,
     ) -> TestServer {
-        let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
+        Self::start_session(
+            max_clients,
+            edit,
+            volume_dirs,
+            SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap()),
+        )
+        .await
+    }
+
+    /// As [`TestServer::start_full`], on a session started from `config` (real-time settings off).
+    pub async fn start_session(
+        max_clients: usize,
+        edit: impl FnOnce(&mut ServerConfig),
+        volume_dirs: Option<VolumeDirs>,
+        mut config: SessionConfig,
+    ) -> TestServer {
         config.rt = RtMode::Off;
         // Less spinning: several sessions may run at once on a small CI machine.
         config.spin_ns = 20_000;

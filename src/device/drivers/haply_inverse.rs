@@ -8,8 +8,17 @@
 //! Per tick: `write_force` queues one force command (sequence n) and wakes the I/O thread, which sends one
 //! `set_cursor_force` message and reads the one state update the service sends back. `read_state` waits at most
 //! `reply_wait` (default 0.4 ms, under half a 1 kHz period) for the state answering command n; without it, it
-//! returns the newest state if that answers one of the last `max_stale_ticks` commands, and otherwise a timeout
-//! (the supervisor counts those and drops the link after too many). A connection that ends (the service stopped
+//! returns the newest state if that answers one of the last `max_stale_ticks` commands, with its age in ticks
+//! ([`HapticDevice::state_age_ticks`], which the supervisor counts towards its staleness bound), and otherwise a
+//! timeout (the supervisor counts those and drops the link after too many).
+//!
+//! The wait spins only for its first [`REPLY_SPIN`] and then yields the CPU on every check
+//! (`sched_yield`): the answer needs two other threads to run (this I/O thread and the service), and on a
+//! loaded two-core machine a servo thread spinning for the whole wait kept them off the CPU it held, so the
+//! answer came only after the wait had ended (issue 13: 8-12 % of ticks found no state newer than 3 ticks
+//! under two busy loops, and the output took a second or never got enabled; with the yield, 0-0.1 %). Under
+//! `--rt` (SCHED_FIFO, pinned) the yield gives way to nobody, as before: the I/O thread runs on another CPU.
+//! A connection that ends (the service stopped
 //! or restarted) is reported as a disconnect: the supervisor closes this driver and opens a new one, which
 //! connects again. Every stop sends a zero force (the lifecycle wrapper's explicit zero, then the I/O thread's
 //! own zero before it closes the socket); when commands stop, the service returns the device to idle on its own.
@@ -29,6 +38,8 @@ use std::time::{Duration, Instant};
 pub const DEFAULT_MAX_FORCE_N: f64 = 3.0;
 /// Half the edge of the capability record's workspace box (m).
 pub const WORKSPACE_HALF_EXTENT_M: f64 = 0.10;
+/// How long `read_state` spins before it starts yielding the CPU while it waits for the answer.
+pub const REPLY_SPIN: Duration = Duration::from_micros(20);
 
 /// Settings of the driver.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,6 +72,8 @@ pub struct HaplyInverse {
     link: Option<ServiceLink>,
     info: DeviceInfo,
     sequence: u64,
+    /// Age (ticks) of the state the last `read_state` returned.
+    state_age_ticks: u32,
 }
 
 impl HaplyInverse {
@@ -86,6 +99,7 @@ impl HaplyInverse {
             link: None,
             info,
             sequence: 0,
+            state_age_ticks: 0,
         }
     }
 
@@ -95,10 +109,14 @@ impl HaplyInverse {
     }
 
     fn link_mut(&mut self) -> Result<&mut ServiceLink, DeviceError> {
-        self.link.as_mut().ok_or(DeviceError::Disconnected {
-            during: "using the Inverse Service link before open",
-            kind: std::io::ErrorKind::NotConnected,
-        })
+        self.link.as_mut().ok_or_else(not_open)
+    }
+}
+
+fn not_open() -> DeviceError {
+    DeviceError::Disconnected {
+        during: "using the Inverse Service link before open",
+        kind: std::io::ErrorKind::NotConnected,
     }
 }
 
@@ -157,8 +175,10 @@ impl HapticDevice for HaplyInverse {
             self.config.reply_wait,
             self.config.max_stale_ticks,
         );
-        let link = self.link_mut()?;
-        let deadline = Instant::now() + wait;
+        // The link through the field, not `link_mut`, so `state_age_ticks` can be set while it is borrowed.
+        let link = self.link.as_mut().ok_or_else(not_open)?;
+        let started = Instant::now();
+        let (spin_until, deadline) = (started + REPLY_SPIN.min(wait), started + wait);
         loop {
             if link.shared.link_down.load(Ordering::Acquire) {
                 return Err(DeviceError::Disconnected {
@@ -168,11 +188,14 @@ impl HapticDevice for HaplyInverse {
             }
             let snapshot = *link.states.read();
             let answered = snapshot.answers_sequence >= wanted;
+            let now = Instant::now();
             if answered
-                || (Instant::now() >= deadline
+                || (now >= deadline
                     && snapshot.answers_sequence > 0
                     && wanted - snapshot.answers_sequence <= max_stale)
             {
+                let age = wanted.saturating_sub(snapshot.answers_sequence);
+                self.state_age_ticks = u32::try_from(age).unwrap_or(u32::MAX);
                 return Ok(DeviceState {
                     position_m: snapshot.position_m,
                     velocity_m_per_s: snapshot.velocity_m_per_s,
@@ -182,14 +205,23 @@ impl HapticDevice for HaplyInverse {
                     status: None,
                 });
             }
-            if Instant::now() >= deadline {
+            if now >= deadline {
                 return Err(DeviceError::Timeout {
                     waited_us: u64::try_from(wait.as_micros()).unwrap_or(u64::MAX),
                     waiting_for: "the Inverse Service's state update",
                 });
             }
-            std::hint::spin_loop();
+            if now < spin_until {
+                std::hint::spin_loop();
+            } else {
+                // Let the I/O thread and the service have this CPU (module docs).
+                std::thread::yield_now();
+            }
         }
+    }
+
+    fn state_age_ticks(&self) -> u32 {
+        self.state_age_ticks
     }
 }
 

@@ -20,7 +20,11 @@
 //! service's partial-update semantics).
 //!
 //! The thread sends a force as soon as one is queued (coalescing to the newest if several are: it never falls
-//! behind), reads the one reply, and publishes the state; with no force for 100 ms it sends a zero-force
+//! behind), reads the one reply, and publishes the state labelled with the sequence of the message it answers.
+//! Replies come in the order of the messages, so one that comes after `reply_timeout` (a busy service) is read
+//! next time and labelled with its own, older sequence: before, it passed for the answer to the next message,
+//! and every later state for the answer to a message newer than the one it answered. With no force for 100 ms
+//! it sends a zero-force
 //! keepalive (Haply's own tutorials do the same). Malformed frames (not JSON, binary, no state for our device)
 //! are counted and skipped. A socket error ends the thread and raises `link_down`; the driver then reports a
 //! disconnect and the supervisor reconnects with a new driver. On stop the thread sends a zero force, then a
@@ -539,6 +543,8 @@ fn io_thread(
     reply_timeout: Duration,
 ) {
     let mut last_send = Instant::now();
+    // Sequences of the messages sent whose replies have not come yet, oldest first.
+    let mut unanswered = std::collections::VecDeque::with_capacity(FORCE_RING_CAPACITY);
     let result: Result<(), tungstenite::Error> = (|| {
         while !shared.stop.load(Ordering::Acquire) {
             let mut newest = None;
@@ -567,27 +573,36 @@ fn io_thread(
             socket.send(Message::text(force_message(&device_id, force_n, None)))?;
             last_send = Instant::now();
             shared.sent.fetch_add(1, Ordering::Relaxed);
-            // One reply per message.
-            match read_text(&mut socket, Instant::now() + reply_timeout)? {
-                Some(message) => {
-                    let used = parse_frame(&message)
-                        .and_then(|frame| {
-                            frame
-                                .inverse3
-                                .into_iter()
-                                .find(|d| d.device_id == device_id)
-                        })
-                        .is_some_and(|entry| apply_state(&mut snapshot, entry.state.as_ref()));
-                    if used {
-                        snapshot.answers_sequence = sequence;
-                        states.write(snapshot);
-                        shared.states.fetch_add(1, Ordering::Relaxed);
-                    } else {
-                        shared.malformed.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
-                None => {
-                    // No reply in time: counted by the driver as a missing state.
+            if unanswered.len() >= FORCE_RING_CAPACITY {
+                // The service has left this many messages unanswered: forget the oldest (the driver has long
+                // reported the missing states, and the link is dropped well before this in a session).
+                unanswered.pop_front();
+            }
+            unanswered.push_back(sequence);
+            // One reply per message, in the order sent: read until this message's reply has come. A reply
+            // that came after `reply_timeout` answers an earlier message and is labelled with that one's
+            // sequence, so a late reply never passes for the answer to a newer force.
+            let deadline = Instant::now() + reply_timeout;
+            while let Some(&answers) = unanswered.front() {
+                // No reply in time: counted by the driver as a missing state; it may still come.
+                let Some(message) = read_text(&mut socket, deadline)? else {
+                    break;
+                };
+                unanswered.pop_front();
+                let used = parse_frame(&message)
+                    .and_then(|frame| {
+                        frame
+                            .inverse3
+                            .into_iter()
+                            .find(|d| d.device_id == device_id)
+                    })
+                    .is_some_and(|entry| apply_state(&mut snapshot, entry.state.as_ref()));
+                if used {
+                    snapshot.answers_sequence = snapshot.answers_sequence.max(answers);
+                    states.write(snapshot);
+                    shared.states.fetch_add(1, Ordering::Relaxed);
+                } else {
+                    shared.malformed.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }

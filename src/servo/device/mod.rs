@@ -22,6 +22,7 @@ pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError};
 
 use super::monitor::StopSlot;
+use crate::device::mapping::WorkspaceMapping;
 use crate::device::plausibility::InputCounters;
 use crate::device::supervisor::{
     ClearFaultOutcome, OutputState, Supervisor, SupervisorCounters, TickInput, TickOutput,
@@ -82,6 +83,11 @@ pub trait ServoDevice: Send {
     /// A damping limit below the passivity bound (N s/m, scene units), from a device profile.
     fn max_damping_n_s_per_m(&self) -> Option<f64> {
         None
+    }
+    /// The mapping from the device frame into the scene in force (after `connect`; `servo::mapped`): the
+    /// control side maps a client's hand target (scene frame) through it into the device frame.
+    fn workspace_mapping(&self) -> WorkspaceMapping {
+        WorkspaceMapping::IDENTITY
     }
 }
 

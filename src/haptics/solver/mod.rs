@@ -496,9 +496,13 @@ impl Solver {
             let checked = match outcome.certificate {
                 Some(checked) => Some(checked),
                 // Out of budget: the point and dual it reached are certified as they are.
-                None if over_budget(sweeps) => {
-                    Some(certify(&self.items, &self.dual, &frame, outcome.x))
-                }
+                None if over_budget(sweeps) => Some(certify(
+                    &self.items,
+                    &self.dual,
+                    &frame,
+                    outcome.x,
+                    config.tolerance_m,
+                )),
                 None => None,
             };
             if let Some(checked) = checked {
@@ -584,7 +588,13 @@ impl Solver {
             );
             if let Some(x) = attempt {
                 let candidate_total = self.candidate_dual.iter().copied().sum::<DVec3>();
-                let checked = certify(&self.items, &self.candidate_dual, &frame, x);
+                let checked = certify(
+                    &self.items,
+                    &self.candidate_dual,
+                    &frame,
+                    x,
+                    config.tolerance_m,
+                );
                 let (gap, bound) = (checked.gap_j, checked.bound_m);
                 if bound < best.bound_m {
                     if bound < 0.5 * best.bound_m {
@@ -624,7 +634,7 @@ impl Solver {
     /// The primal point of the current dual and its certificate.
     fn certify_dual(&self, frame: &Frame, total: DVec3) -> Candidate {
         let x = frame.y - total / frame.k;
-        let checked = certify(&self.items, &self.dual, frame, x);
+        let checked = certify(&self.items, &self.dual, frame, x, self.config.tolerance_m);
         Candidate {
             x,
             gap_j: checked.gap_j,

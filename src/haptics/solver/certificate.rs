@@ -10,7 +10,8 @@
 //! - every `u_i` is first projected onto its set `U_i` (`v_i`), so the dual behind the bound is feasible for this
 //!   tick's primitives; what rounding leaves of infeasibility (a few ulps of `s_i`) is charged as a linear
 //!   perturbation of the energy, `8 eps s_i / k` metres per primitive;
-//! - two certificates are formed in one pass and the smaller kept. **A** takes the gap at `x` with all `v_i`
+//! - two certificates are formed, B first; A only when B misses the tolerance (it never meets it with a
+//!   primitive at its kink, where B is needed), and then the smaller is kept. **A** takes the gap at `x` with all `v_i`
 //!   projected, each primitive's share computed without cancellation *plus* its own rounding error, so rounding
 //!   only overstates it. **B** certifies a nearby exact point `x^`, which lies exactly on the kinks that `x` is
 //!   within rounding of (the plane it rests on, the point it is held by): there those shares are exactly zero;

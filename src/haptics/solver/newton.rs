@@ -26,6 +26,11 @@
 //!    W alone. A multiplier outside its set means the kink is wrong: the worst one leaves W (a plane labelled by
 //!    the way it wants to go, a point or line nudged off). When all are feasible, the pair is certified
 //!    ([`super::certificate::certify`], over all primitives, independent of everything above).
+//! 5. A full Newton step short enough that quadratic convergence puts its end within the tolerance
+//!    (`|d|^2 <= 0.1 tolerance clearance`, compensated passes only) is certified at its end directly: the kink
+//!    multipliers come from the gradient the model predicts there (`g + H d`), the other primitives' duals are
+//!    the certificate's own exact subgradients there. This saves the pass that would only confirm the point;
+//!    if the certificate misses, the pass runs as usual.
 //!
 //! Nothing here has to be right for the answer to be honest: the certificate checks the returned pair from
 //! scratch, and an attempt that does not certify hands its point and dual to the dual method.
@@ -63,7 +68,7 @@ const MAX_DROPS_PER_PRIMITIVE: u8 = 2;
 /// Passes sum the gradient plainly until the reduced gradient is below this fraction of the force scale, then
 /// with compensation (see `Workspace::pass`).
 const COMPENSATE_BELOW: f64 = 1e-4;
-/// Shortenings of one step before the attempt is abandoned.
+/// Halvings of one step before the attempt is abandoned.
 const MAX_HALVINGS: u32 = 30;
 /// A full Newton step `d` with `|d|^2 <= SPECULATE_BELOW * tolerance * clearance` is certified at its end
 /// without a confirming pass (Newton's error after the step is of order `|d|^2 / clearance`).
@@ -140,26 +145,9 @@ struct Previous {
     d: DVec3,
     /// The step fraction taken.
     t: f64,
-    /// The energy's slope along `d` at `x` (the smooth part's).
-    slope: f64,
     /// W before the step.
     kinks: [u32; MAX_KINKS],
     kink_count: usize,
-}
-
-impl Previous {
-    /// A shorter step after the step to `t` raised the energy to `energy_at_t_j`: the minimiser of the
-    /// parabola through the energy and slope at `x` and the energy at `t` (the energy along the step is
-    /// convex, so this is at most `t/2`), kept at or above `t/10`; plain halving if the slope is not negative.
-    fn shortened_step(&self, energy_at_t_j: f64) -> f64 {
-        let t = self.t;
-        let rise = energy_at_t_j - self.energy_j - self.slope * t;
-        if self.slope < 0.0 && rise > 0.0 {
-            (-self.slope * t * t / (2.0 * rise)).clamp(0.1 * t, 0.5 * t)
-        } else {
-            0.5 * t
-        }
-    }
 }
 
 /// The Newton attempt's workspace, kept between solves (allocation-free once grown to the scene size).
@@ -299,7 +287,7 @@ impl Workspace {
             outcome.x = x;
             outcome.certificate = None;
 
-            // Check the last step against the energy: a step that raised it (beyond rounding) is shortened.
+            // Check the last step against the energy: a step that raised it (beyond rounding) is halved.
             if let Some(last) = previous {
                 let slack = 64.0 * EPS * (model.energy_scale_j + last.energy_j.abs());
                 if model.energy_j > last.energy_j + slack {
@@ -309,7 +297,7 @@ impl Workspace {
                     }
                     self.restore_kinks(items, last.kinks, last.kink_count, last.x);
                     face = self.face(items);
-                    let t = last.shortened_step(model.energy_j);
+                    let t = 0.5 * last.t;
                     x = last.x + t * last.d;
                     self.project_onto_face(items, &face, &mut x, scale);
                     previous = Some(Previous { t, ..last });
@@ -446,7 +434,6 @@ impl Workspace {
                 energy_j: model.energy_j,
                 d,
                 t: step.t,
-                slope: reduced_gradient.dot(d),
                 kinks: kinks_before,
                 kink_count: count_before,
             });

@@ -10,7 +10,9 @@
 //!
 //! Instructions per solve: `valgrind --tool=callgrind --toggle-collect='*Solver::solve' target/release/examples/
 //! solver_instructions cold random100 100`, divided by REPS (the scene set-up is not collected).
-use std::time::Instant;
+#[path = "../benches/util/timing.rs"]
+mod timing;
+
 use voxhap::haptics::baselines::euler;
 use voxhap::haptics::bench_scenes::*;
 use voxhap::haptics::*;
@@ -70,22 +72,23 @@ const CASES: [&str; 7] = [
     "mixed10000",
 ];
 
+/// Median nanoseconds per call, batches of about 2 ms (the benchmark's timer).
 fn median_ns(mut f: impl FnMut()) -> f64 {
-    let start = Instant::now();
-    f();
-    let once = start.elapsed().as_nanos().max(1) as f64;
-    let batch = ((2e6 / once) as usize).clamp(1, 100_000);
-    let mut samples: Vec<f64> = (0..31)
-        .map(|_| {
-            let start = Instant::now();
-            for _ in 0..batch {
-                f();
-            }
-            start.elapsed().as_nanos() as f64 / batch as f64
+    let batch = timing::batch_for(&mut f);
+    timing::median_ns(batch, f)
+}
+
+/// One exploration-path tick, warm-started from the solver's previous tick.
+fn path_tick(solver: &mut Solver, tick: &(glam::DVec3, glam::DVec3, [Primitive; 2])) -> Solution {
+    let (probe, previous, primitives) = tick;
+    solver
+        .solve(&Problem {
+            stiffness_n_per_m: K,
+            probe_m: *probe,
+            previous_proxy_m: Some(*previous),
+            primitives,
         })
-        .collect();
-    samples.sort_by(f64::total_cmp);
-    samples[samples.len() / 2]
+        .unwrap()
 }
 
 fn main() {
@@ -140,17 +143,8 @@ fn main() {
             let ticks = path_ticks();
             let mut solver = Solver::with_capacity(SolverConfig::default(), 2);
             let path_ns = median_ns(|| {
-                for (probe, prev, prims) in &ticks {
-                    std::hint::black_box(
-                        solver
-                            .solve(&Problem {
-                                stiffness_n_per_m: K,
-                                probe_m: *probe,
-                                previous_proxy_m: Some(*prev),
-                                primitives: prims,
-                            })
-                            .unwrap(),
-                    );
+                for tick in &ticks {
+                    std::hint::black_box(path_tick(&mut solver, tick));
                 }
             }) / ticks.len() as f64;
             println!("path {path_ns:.0} ns per tick");
@@ -175,19 +169,10 @@ fn main() {
             let mut acc = glam::DVec3::ZERO;
             let mut solver = Solver::default();
             for _ in 0..10 {
-                for (probe, prev, prims) in &ticks {
+                for tick in &ticks {
+                    let (probe, prev, prims) = tick;
                     acc += match which {
-                        "path" | "exact" => {
-                            solver
-                                .solve(&Problem {
-                                    stiffness_n_per_m: K,
-                                    probe_m: *probe,
-                                    previous_proxy_m: Some(*prev),
-                                    primitives: prims,
-                                })
-                                .unwrap()
-                                .proxy_m
-                        }
+                        "path" | "exact" => path_tick(&mut solver, tick).proxy_m,
                         "euler" => {
                             euler::solve(K, *probe, *prev, prims, &euler::EulerConfig::default())
                                 .proxy_m

@@ -8,7 +8,11 @@ use crate::haptics::reference;
 const K: f64 = 500.0;
 
 fn solve(probe: DVec3, primitives: &[Primitive]) -> Solution {
-    let mut solver = Solver::default();
+    solve_with(&mut Solver::default(), probe, primitives)
+}
+
+/// A cold solve with the given solver (whose duals the caller may then read).
+fn solve_with(solver: &mut Solver, probe: DVec3, primitives: &[Primitive]) -> Solution {
     let problem = Problem {
         stiffness_n_per_m: K,
         probe_m: probe,
@@ -395,14 +399,7 @@ fn primitive_forces_balance_the_coupling_at_the_answer() {
         let prims = random_primitives(&mut rng, n);
         let probe = rng.vec(0.02);
         let mut solver = Solver::with_capacity(SolverConfig::default(), n);
-        let sol = solver
-            .solve(&Problem {
-                stiffness_n_per_m: K,
-                probe_m: probe,
-                previous_proxy_m: None,
-                primitives: &prims,
-            })
-            .unwrap();
+        let sol = solve_with(&mut solver, probe, &prims);
         assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
         let directed: DVec3 = prims
             .iter()

@@ -130,7 +130,10 @@
 //!   consistency check at a point visits them instead of every primitive, and their projector sum is built
 //!   only in the general case. *Ahead:* a last full Newton step short enough for quadratic convergence is
 //!   certified at its end without the pass that would confirm it ([`newton`], step 5): one pass less per solve
-//!   on most scenes (10 random: 6 to 5 passes; 100: 8 to 7; 1 000: 13 to 12).
+//!   on most scenes (10 random: 6 to 5 passes; 100: 8 to 7; 1 000: 13 to 12). The version kept also requires
+//!   every primitive outside W to stay clear of the certificate's kink threshold at the step's end (so the
+//!   duals it leaves are the certificate's); it counts 6 110, 13 493, 112 486, 1 771 830, 5 065 675,
+//!   16 737 233 and 1 338 in the table's rows.
 //!   *Shortened step* (dropped): a rejected step cut to the minimiser of the parabola through the energy and
 //!   slope at its start and the energy at its end (within t/10 to t/2) instead of halved. Over other scenes
 //!   (`solver_instructions seeds`) it was better or level: 20 scenes of 1 000 primitives 1 749 827 against

@@ -417,6 +417,11 @@ impl Workspace {
                 && step.kink.is_none()
                 && step.t == 1.0
                 && d.length_squared() <= SPECULATE_BELOW * limits.tolerance_m * model.clearance_m
+                // No primitive outside W comes within the certificate's kink threshold of x_next, so the
+                // certificate gives every point and line its exact subgradient there, the value the duals
+                // are brought to on success.
+                && model.clearance_m
+                    > d.length() + 64.0 * EPS * (scale + x_next.abs().max_element())
             {
                 // The step is so short that Newton's quadratic convergence puts x_next within the tolerance:
                 // certify x_next now, without the pass that would confirm it (module header, step 5).

@@ -16,13 +16,15 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use std::hint::black_box;
-use std::time::Instant;
 use voxhap::haptics::baselines::euler::{self, EulerConfig};
 use voxhap::haptics::bench_scenes::{
     exploration_primitives, exploration_probe, random_primitives, thin_wedge, SplitMix,
 };
 use voxhap::haptics::reference;
 use voxhap::haptics::{Primitive, Problem, Solver, SolverConfig};
+
+mod util;
+use util::timing::{batch_for, median_ns};
 
 const K: f64 = 500.0;
 const PATH_TICKS: usize = 2000;
@@ -75,40 +77,6 @@ fn exploration_path() -> Vec<Tick> {
         proxy = sol.proxy_m;
     }
     ticks
-}
-
-/// Median nanoseconds per call of `f`: 31 samples of `batch` calls each (5 samples when one call takes over
-/// 20 ms, 1 when it takes over a second, to keep the run short).
-fn median_ns(batch: usize, mut f: impl FnMut()) -> f64 {
-    let start = Instant::now();
-    f();
-    let once_ns = start.elapsed().as_nanos() as f64;
-    let count = if once_ns > 1e9 {
-        1
-    } else if once_ns > 2e7 {
-        5
-    } else {
-        31
-    };
-    let mut samples: Vec<f64> = (0..count)
-        .map(|_| {
-            let start = Instant::now();
-            for _ in 0..batch {
-                f();
-            }
-            start.elapsed().as_nanos() as f64 / batch as f64
-        })
-        .collect();
-    samples.sort_by(f64::total_cmp);
-    samples[samples.len() / 2]
-}
-
-/// Calls per sample so that a sample lasts about 2 ms (at least one call).
-fn batch_for(mut f: impl FnMut()) -> usize {
-    let start = Instant::now();
-    f();
-    let once = start.elapsed().as_nanos().max(1) as f64;
-    ((2e6 / once) as usize).clamp(1, 100_000)
 }
 
 struct Row {

@@ -10,7 +10,8 @@
 //! - every `u_i` is first projected onto its set `U_i` (`v_i`), so the dual behind the bound is feasible for this
 //!   tick's primitives; what rounding leaves of infeasibility (a few ulps of `s_i`) is charged as a linear
 //!   perturbation of the energy, `8 eps s_i / k` metres per primitive;
-//! - two certificates are formed in one pass and the smaller kept. **A** takes the gap at `x` with all `v_i`
+//! - two certificates are formed, B first; A only when B misses the tolerance (it never meets it with a
+//!   primitive at its kink, where B is needed), and then the smaller is kept. **A** takes the gap at `x` with all `v_i`
 //!   projected, each primitive's share computed without cancellation *plus* its own rounding error, so rounding
 //!   only overstates it. **B** certifies a nearby exact point `x^`, which lies exactly on the kinks that `x` is
 //!   within rounding of (the plane it rests on, the point it is held by): there those shares are exactly zero;
@@ -19,7 +20,7 @@
 //!   remains is the coupling residual `|k (x - y) + sum v_i|`, which bounds the distance linearly (`/k`),
 //!   not through a square root, and `|x - x^|` counted twice.
 
-use super::linalg::{outer, psd_pseudo_inverse};
+use super::linalg::outer;
 use super::{project, Item};
 use crate::haptics::primitive::PrimitiveKind;
 use glam::{DMat3, DVec3};
@@ -39,6 +40,8 @@ pub(crate) struct Certificate {
     pub gap_j: f64,
     /// The bound on `|x - x*|` (m).
     pub bound_m: f64,
+    /// Whether the bound is certificate B's, whose dual gives saturated items their exact subgradient at `x`.
+    pub by_kinks: bool,
 }
 
 /// The fixed data of one solve that the certificate needs besides the items.
@@ -203,31 +206,88 @@ struct Kinks {
     count: usize,
     /// Sum of upper bounds on the distances from `x` to each kink set.
     distance_sum_m: f64,
-    /// `sum P_i` and `sum P_i c_i` over the kinks (for the general case).
-    system: DMat3,
-    rhs: DVec3,
     /// Sum over the kinks of each set's codimension (point 3, line 2, plane 1).
     codimension: usize,
     /// A point among the kinks, if any: then `x^` can only be that point.
     point: Option<usize>,
+    /// The kinks' indices, when there are at most [`LISTED_KINKS`] of them (the consistency checks then visit
+    /// only these instead of every item).
+    listed: [u32; LISTED_KINKS],
+}
+
+/// Kinks remembered by index in one certificate; beyond that the consistency checks scan every item.
+const LISTED_KINKS: usize = 8;
+
+impl Kinks {
+    /// `sum P_i` and `sum P_i c_i` over the kinks (only the general case of [`kink_shift_m`] needs them).
+    fn system(&self, items: &[Item], x: DVec3, scale: f64) -> (DMat3, DVec3) {
+        let mut system = DMat3::ZERO;
+        let mut rhs = DVec3::ZERO;
+        let mut add = |item: &Item| {
+            let projector = match item.kind {
+                PrimitiveKind::Point => DMat3::IDENTITY,
+                PrimitiveKind::Line => DMat3::IDENTITY - outer(item.direction, item.direction),
+                _ => outer(item.direction, item.direction),
+            };
+            system += projector;
+            rhs += projector * item.position_m;
+        };
+        if self.count <= LISTED_KINKS {
+            for &i in &self.listed[..self.count] {
+                add(&items[i as usize]);
+            }
+        } else {
+            for item in items {
+                let (d, _) = kink_distance(item, x - item.position_m);
+                if item.strength_n != 0.0 && d <= kink_threshold_m(scale, item) {
+                    add(item);
+                }
+            }
+        }
+        (system, rhs)
+    }
+
+    /// Whether every kink set passes within rounding of `point` (the kinks are those items within their
+    /// threshold of `x`).
+    fn all_pass_through(&self, items: &[Item], x: DVec3, point: DVec3, scale: f64) -> bool {
+        let passes = |item: &Item| {
+            let (at_point, rounding) = kink_distance(item, point - item.position_m);
+            at_point <= kink_threshold_m(scale, item) + rounding
+        };
+        if self.count <= LISTED_KINKS {
+            return self.listed[..self.count]
+                .iter()
+                .all(|&i| passes(&items[i as usize]));
+        }
+        items.iter().all(|item| {
+            let (d, _) = kink_distance(item, x - item.position_m);
+            item.strength_n == 0.0 || d > kink_threshold_m(scale, item) || passes(item)
+        })
+    }
 }
 
 /// Certifies the pair `(x, dual)`. `dual` may be anything (it is projected here); the result is a valid bound on
 /// `|x - x*|` for the exact problem.
-pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -> Certificate {
+///
+/// Certificate B is formed first; when it is at most `enough_m` it is returned as it is, and A (which needs a
+/// second pass over the items) is not formed. Otherwise the smaller of the two is returned. Either way the
+/// bound is valid; `enough_m` only decides how much work is spent making it small.
+pub(crate) fn certify(
+    items: &[Item],
+    dual: &[DVec3],
+    frame: &Frame,
+    x: DVec3,
+    enough_m: f64,
+) -> Certificate {
     let Frame { y, k, .. } = *frame;
     let scale = x.abs().max_element() + y.abs().max_element() + frame.strength_over_k_m;
     let mut kinks = Kinks {
         count: 0,
         distance_sum_m: 0.0,
-        system: DMat3::ZERO,
-        rhs: DVec3::ZERO,
         codimension: 0,
         point: None,
+        listed: [0; LISTED_KINKS],
     };
-    // Certificate A: all projected, at x.
-    let mut shares_a = 0.0;
-    let mut total_a = CompensatedSum::default();
     // Certificate B: kinks zero, saturated items their subgradient, the rest projected.
     let mut shares_b = 0.0;
     let mut total_b = CompensatedSum::default();
@@ -239,7 +299,6 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
     let mut smallest_margin_m = f64::INFINITY;
     let mut direction_rounding_n = 0.0;
     let mut strength_sum = 0.0;
-    let mut magnitude_sum = 0.0;
     for (i, (item, &u)) in items.iter().zip(dual).enumerate() {
         let s = item.strength_n;
         if s == 0.0 {
@@ -247,27 +306,22 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
         }
         strength_sum += s;
         let v = project(item, u);
-        magnitude_sum += v.length();
         let r = x - item.position_m;
-        let share = projected_share(item, v, r);
-        shares_a += share;
-        total_a.add(v);
-
         let (distance, rounding) = kink_distance(item, r);
         if distance <= kink_threshold_m(scale, item) {
+            if kinks.count < LISTED_KINKS {
+                kinks.listed[kinks.count] = i as u32;
+            }
             kinks.count += 1;
             kinks.distance_sum_m += distance + rounding;
-            let (projector, codimension) = match item.kind {
+            kinks.codimension += match item.kind {
                 PrimitiveKind::Point => {
                     kinks.point.get_or_insert(i);
-                    (DMat3::IDENTITY, 3)
+                    3
                 }
-                PrimitiveKind::Line => (DMat3::IDENTITY - outer(item.direction, item.direction), 2),
-                _ => (outer(item.direction, item.direction), 1),
+                PrimitiveKind::Line => 2,
+                _ => 1,
             };
-            kinks.system += projector;
-            kinks.rhs += projector * item.position_m;
-            kinks.codimension += codimension;
             total_b.add(v);
         } else if let Some(g) = saturated_subgradient(item, r, v) {
             let margin = distance - rounding;
@@ -280,7 +334,7 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
             }
             total_b.add(g);
         } else {
-            shares_b += share;
+            shares_b += projected_share(item, v, r);
             moved_share_weight += s + v.length();
             total_b.add(v);
         }
@@ -289,24 +343,24 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
     // and the subgradients are exact to a few ulps of s.
     let dual_rounding_n = 8.0 * EPS * strength_sum;
     let n = items.len() as f64;
+    // Every term of either sum (a projected dual or a subgradient) is at most s (1 + 4 eps) long, so twice the
+    // strength sum bounds the sum of their magnitudes in the compensated sum's error.
+    let magnitude_bound_n = 2.0 * strength_sum;
     let residual_bound = |total: &CompensatedSum| {
         let t = total.value();
         let coupling = k * (x - y);
         let residual = (coupling + t).length();
         residual * (1.0 + 8.0 * EPS)
             + 8.0 * EPS * (coupling.length() + t.length())
-            + 4.0 * n * EPS * EPS * magnitude_sum
+            + 4.0 * n * EPS * EPS * magnitude_bound_n
     };
     let linear_m = frame.y_error_m + dual_rounding_n / k;
 
-    let residual_a = residual_bound(&total_a);
-    let gap_a = shares_a + residual_a * residual_a / (2.0 * k);
-    let bound_a = (2.0 * shares_a / k).sqrt() + residual_a / k + linear_m;
     let mut best = Certificate {
-        gap_j: gap_a,
-        bound_m: rounded_up(bound_a),
+        gap_j: f64::INFINITY,
+        bound_m: f64::INFINITY,
+        by_kinks: false,
     };
-
     if let Some(shift_m) = kink_shift_m(items, &kinks, x, scale) {
         if smallest_margin_m > 2.0 * shift_m {
             let shares = shares_b + moved_share_weight * shift_m;
@@ -316,14 +370,36 @@ pub(crate) fn certify(items: &[Item], dual: &[DVec3], frame: &Frame, x: DVec3) -
                 + residual / k
                 + linear_m
                 + (subgradient_sensitivity * shift_m + direction_rounding_n) / k;
-            let bound_b = rounded_up(bound_b);
-            if bound_b < best.bound_m {
-                best = Certificate {
-                    gap_j: shares + residual * residual / (2.0 * k),
-                    bound_m: bound_b,
-                };
-            }
+            best = Certificate {
+                gap_j: shares + residual * residual / (2.0 * k),
+                bound_m: rounded_up(bound_b),
+                by_kinks: true,
+            };
         }
+    }
+    if best.bound_m <= enough_m {
+        return best;
+    }
+
+    // Certificate A: all projected, at x.
+    let mut shares_a = 0.0;
+    let mut total_a = CompensatedSum::default();
+    for (item, &u) in items.iter().zip(dual) {
+        if item.strength_n == 0.0 {
+            continue;
+        }
+        let v = project(item, u);
+        shares_a += projected_share(item, v, x - item.position_m);
+        total_a.add(v);
+    }
+    let residual_a = residual_bound(&total_a);
+    let bound_a = rounded_up((2.0 * shares_a / k).sqrt() + residual_a / k + linear_m);
+    if bound_a < best.bound_m || best.bound_m.is_nan() {
+        best = Certificate {
+            gap_j: shares_a + residual_a * residual_a / (2.0 * k),
+            bound_m: bound_a,
+            by_kinks: false,
+        };
     }
     best
 }
@@ -349,47 +425,33 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     if let Some(p) = kinks.point {
         // x^ is that point: every other kink must pass through it (checked at the rounding threshold).
         let c = items[p].position_m;
-        let consistent = items.iter().all(|item| {
-            let threshold = kink_threshold_m(scale, item);
-            let (d, _) = kink_distance(item, x - item.position_m);
-            if item.strength_n == 0.0 || d > threshold {
-                return true;
-            }
-            let (at_point, rounding) = kink_distance(item, c - item.position_m);
-            at_point <= threshold + rounding
-        });
-        if !consistent {
+        if !kinks.all_pass_through(items, x, c, scale) {
             return None;
         }
         let (d, rounding) = kink_distance(&items[p], x - c);
         return Some(d + rounding);
     }
-    let (pinv, _, rank) = psd_pseudo_inverse(kinks.system, RANK_TOLERANCE);
-    let eigen = super::linalg::symmetric_eigen3(kinks.system);
+    // One eigen-decomposition gives both the smallest positive eigenvalue and, when needed, the pseudo-inverse.
+    let (system, rhs) = kinks.system(items, x, scale);
+    let eigen = super::linalg::symmetric_eigen3(system);
     let max = eigen.values.max_element();
-    let smallest_positive = eigen
-        .values
-        .to_array()
-        .into_iter()
-        .filter(|&l| l > RANK_TOLERANCE * max)
-        .fold(f64::INFINITY, f64::min);
+    let mut smallest_positive = f64::INFINITY;
+    let mut rank = 0;
+    for l in eigen.values.to_array() {
+        if max > 0.0 && l > RANK_TOLERANCE * max {
+            smallest_positive = smallest_positive.min(l);
+            rank += 1;
+        }
+    }
     if !smallest_positive.is_finite() || rank == 0 {
         return None;
     }
     if kinks.codimension != rank {
         // Not transversal: the sets meet only if they happen to pass through a common point. Check that the
         // least-squares point lies on all of them to within rounding.
-        let x_hat = x + pinv * (kinks.rhs - kinks.system * x);
-        let consistent = items.iter().all(|item| {
-            let (d, _) = kink_distance(item, x - item.position_m);
-            let threshold = kink_threshold_m(scale, item);
-            if item.strength_n == 0.0 || d > threshold {
-                return true;
-            }
-            let (at_hat, rounding) = kink_distance(item, x_hat - item.position_m);
-            at_hat <= threshold + rounding
-        });
-        if !consistent {
+        let pinv = super::linalg::pseudo_inverse_from(&eigen, RANK_TOLERANCE);
+        let x_hat = x + pinv * (rhs - system * x);
+        if !kinks.all_pass_through(items, x, x_hat, scale) {
             return None;
         }
     }

@@ -73,6 +73,18 @@ pub fn symmetric_eigen3(m: DMat3) -> SymmetricEigen3 {
 /// treating eigenvalues below `relative_tolerance * max eigenvalue` as zero. Returns `(pinv, null_projector, rank)`.
 pub fn psd_pseudo_inverse(m: DMat3, relative_tolerance: f64) -> (DMat3, DMat3, usize) {
     let eig = symmetric_eigen3(m);
+    let (pinv, range, rank) = pseudo_inverse_parts(&eig, relative_tolerance);
+    (pinv, DMat3::IDENTITY - range, rank)
+}
+
+/// The pseudo-inverse of a symmetric positive semi-definite matrix from its eigen-decomposition (eigenvalues
+/// below `relative_tolerance * max eigenvalue` taken as zero).
+pub fn pseudo_inverse_from(eig: &SymmetricEigen3, relative_tolerance: f64) -> DMat3 {
+    pseudo_inverse_parts(eig, relative_tolerance).0
+}
+
+/// `(pinv, projector onto the range, rank)` from an eigen-decomposition.
+fn pseudo_inverse_parts(eig: &SymmetricEigen3, relative_tolerance: f64) -> (DMat3, DMat3, usize) {
     let max = eig.values.max_element().max(0.0);
     let mut pinv = DMat3::ZERO;
     let mut range = DMat3::ZERO;
@@ -89,7 +101,7 @@ pub fn psd_pseudo_inverse(m: DMat3, relative_tolerance: f64) -> (DMat3, DMat3, u
             }
         }
     }
-    (pinv, DMat3::IDENTITY - range, rank)
+    (pinv, range, rank)
 }
 
 /// The outer product `a b^T`.

@@ -50,8 +50,8 @@
 //!    its rounding error (`16 eps (s_i + |v_i|) |x - x_i|` and a relative `16 eps`) is *added*. (c) The residual
 //!    `k (x - y) + V` is summed with compensation (Neumaier) and its rounding bound added.
 //! 3. *No square root of rounding.* Alone, (b) would floor the bound at `sqrt(eps s |x| / k)`, about 1e-10 m,
-//!    because a bracket at a kink is linear in the distance to it. So a second certificate, B, is formed in the
-//!    same pass and the smaller bound kept. Primitives within 16 ulps of their kink (the plane the proxy rests
+//!    because a bracket at a kink is linear in the distance to it. So a second certificate, B, is formed (first:
+//!    A is formed too only when B misses the tolerance) and the smaller bound kept. Primitives within 16 ulps of their kink (the plane the proxy rests
 //!    on) are treated as exactly on it at a nearby exact point `x^`, where their bracket is exactly zero;
 //!    primitives pulling with full strength off their kink take their exact subgradient at `x^` as dual value,
 //!    bracket exactly zero (what that changes in `V` shows in the residual); the others keep their bracket, grown
@@ -111,15 +111,62 @@
 //!   primitives only; certifying only at the end of each round for more than 16 primitives was 1.8x faster on
 //!   1 000 (kept).
 //!
-//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) are
-//! not met on this machine (bench run of 2026-11-24 19:41 UTC, plain sums in): 200 ns, 1.4 us, 10.7 us, 151 us;
-//! 3 000 mixed < 1 ms is met (0.45 ms), and 10 000 mixed (1.76 ms) now beats Euler to equal accuracy (2.09 ms,
-//! 1.19x; the previous code, run right after: 2.11 ms against 2.34 ms, 1.11x). A pass costs
-//! about 15 to 20 ns per primitive and a solve takes 5 to 20 passes plus a certificate; the next steps would be
-//! a cheaper first step (the first Newton step from `y` is often halved twice) and fewer passes spent on kinks
-//! that the multipliers later reject. On the path (about 1 750 instructions a tick, callgrind) the certificate
-//! is 54 % of the tick and the sweep with the set-up most of the rest: under 100 ns needs a cheaper certificate
-//! for the two-primitive case (one kink set, no eigen-decomposition), which was not done.
+//! - *Cheaper cold solves* (2026-11-24 evening; the first two kept). Instructions per solve (callgrind,
+//!   `examples/solver_instructions.rs`, deterministic), main before, then the steps added one by one:
+//!
+//!   | case | before | certificate | + ahead (kept) | + shortened step (dropped) |
+//!   |---|---|---|---|---|
+//!   | wedges (5 and 1 degree) | 6 609 | 6 198 | 6 108 | 6 146 |
+//!   | 10 random | 15 867 | 14 784 | 13 469 | 13 535 |
+//!   | 100 random | 129 848 | 120 096 | 112 438 | 117 446 |
+//!   | 1 000 random | 1 951 968 | 1 854 380 | 1 771 556 | 3 577 767 |
+//!   | 3 000 mixed | 5 465 080 | 5 172 281 | 5 064 918 | 3 330 991 |
+//!   | 10 000 mixed | 18 467 221 | 17 491 153 | 16 734 709 | 17 899 875 |
+//!   | path, per tick | 1 693 | 1 475 | 1 338 | 1 338 |
+//!
+//!   *Certificate:* B is formed first and A only when B misses the tolerance (A never certifies with a
+//!   primitive at its kink, so on the path and at every converged kink it was pure cost); one
+//!   eigen-decomposition instead of two in the kink shift; the kinks are remembered by index, so the
+//!   consistency check at a point visits them instead of every primitive, and their projector sum is built
+//!   only in the general case. *Ahead:* a last full Newton step short enough for quadratic convergence is
+//!   certified at its end without the pass that would confirm it ([`newton`], step 5): one pass less per solve
+//!   on most scenes (10 random: 6 to 5 passes; 100: 8 to 7; 1 000: 13 to 12). The version kept also requires
+//!   every primitive outside W to stay clear of the certificate's kink threshold at the step's end (so the
+//!   duals it leaves are the certificate's); it counts 6 110, 13 493, 112 486, 1 771 830, 5 065 675,
+//!   16 737 233 and 1 338 in the table's rows.
+//!   *Shortened step* (dropped): a rejected step cut to the minimiser of the parabola through the energy and
+//!   slope at its start and the energy at its end (within t/10 to t/2) instead of halved. Over other scenes
+//!   (`solver_instructions seeds`) it was better or level: 20 scenes of 1 000 primitives 1 749 827 against
+//!   1 968 673 instructions per solve with halving (201 against 251 passes in all), 100 scenes of 100:
+//!   132 743 against 135 975, 6 of 3 000: level, 400 of 10: level. But on the benchmark's 1 000 scene it takes
+//!   a detour (a point joins W from the line search's near-pass rule and is dropped with a multiplier 1 250
+//!   times its strength: 24 passes instead of 12), which made the exact solver slower there than Euler to the
+//!   same accuracy (280 us against 215 us in one bench run), a case halving wins. Worth another look together
+//!   with the near-pass rule.
+//!   Quick timings of main and this version, alternated twice in one run (`solver_instructions time`,
+//!   medians, loaded 2-vCPU VM, 2026-11-24 22:19 UTC), before / after: path 202, 198 / 147, 148 ns per tick;
+//!   wedges 625 to 646 / 530 to 536 ns; 10 random 1.41, 1.43 / 1.09, 1.09 us; 100: 10.5, 10.9 / 8.5, 8.6 us;
+//!   1 000: 154, 151 / 140, 142 us; 3 000 mixed 427, 428 / 407, 406 us; 10 000 mixed 1.69, 1.69 / 1.61,
+//!   1.56 ms.
+//! - Where the time goes (callgrind, 10 random primitives): the passes over eight primitives, the Newton steps'
+//!   3x3 algebra and the line search are about 84 %, the one certificate 16 %. On 1 000 primitives the
+//!   passes and line searches are about 90 %; a pass with its line search costs about 135 instructions per
+//!   primitive. On the path
+//!   the certificate is 46 % of the tick (610 of 1 338 instructions), the rest is set-up, the warm projection
+//!   and one sweep, spread thinly over many lines: under 100 ns needs about 850 instructions on this machine.
+//! - Not tried for lack of time: an O(active) re-check of the previous tick's active set for warm large
+//!   scenes; a structure-of-arrays layout for the passes; checking the kink multipliers before the face has
+//!   converged (on the benchmark's 1 000 scene, passes 6 to 9 converge on a plane whose multiplier then
+//!   asks to leave, and a point added by the line search's near-pass rule is dropped with a multiplier 1 250
+//!   times its strength: both are passes spent on kinks the multipliers reject).
+//!
+//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
+//! this machine, bench run of 2026-11-24 22:20 UTC (docs/solver.md): path **not met** (150 ns), N = 10 **not
+//! met** (1.1 us), N = 100 **met** (8.9 us), N = 1 000 **not met** (141 us); 3 000 mixed < 1 ms met (449 us).
+//! The exact solver is faster than Euler asked for the same accuracy on every case (1.24x to 4.96x; 10 000
+//! mixed 1.59 ms against 2.12 ms, 1.34x). Two earlier runs the same evening, minutes apart, gave 134 and 261 us
+//! for 1 000 primitives and 263 to 1 220 us for 3 000: the machine was shared, and only side-by-side ratios
+//! and instruction counts are steady.
 //!
 //! # Real time
 //!
@@ -496,9 +543,13 @@ impl Solver {
             let checked = match outcome.certificate {
                 Some(checked) => Some(checked),
                 // Out of budget: the point and dual it reached are certified as they are.
-                None if over_budget(sweeps) => {
-                    Some(certify(&self.items, &self.dual, &frame, outcome.x))
-                }
+                None if over_budget(sweeps) => Some(certify(
+                    &self.items,
+                    &self.dual,
+                    &frame,
+                    outcome.x,
+                    config.tolerance_m,
+                )),
                 None => None,
             };
             if let Some(checked) = checked {
@@ -584,7 +635,13 @@ impl Solver {
             );
             if let Some(x) = attempt {
                 let candidate_total = self.candidate_dual.iter().copied().sum::<DVec3>();
-                let checked = certify(&self.items, &self.candidate_dual, &frame, x);
+                let checked = certify(
+                    &self.items,
+                    &self.candidate_dual,
+                    &frame,
+                    x,
+                    config.tolerance_m,
+                );
                 let (gap, bound) = (checked.gap_j, checked.bound_m);
                 if bound < best.bound_m {
                     if bound < 0.5 * best.bound_m {
@@ -624,7 +681,7 @@ impl Solver {
     /// The primal point of the current dual and its certificate.
     fn certify_dual(&self, frame: &Frame, total: DVec3) -> Candidate {
         let x = frame.y - total / frame.k;
-        let checked = certify(&self.items, &self.dual, frame, x);
+        let checked = certify(&self.items, &self.dual, frame, x, self.config.tolerance_m);
         Candidate {
             x,
             gap_j: checked.gap_j,

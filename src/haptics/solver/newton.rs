@@ -26,6 +26,11 @@
 //!    W alone. A multiplier outside its set means the kink is wrong: the worst one leaves W (a plane labelled by
 //!    the way it wants to go, a point or line nudged off). When all are feasible, the pair is certified
 //!    ([`super::certificate::certify`], over all primitives, independent of everything above).
+//! 5. A full Newton step short enough that quadratic convergence puts its end within the tolerance
+//!    (`|d|^2 <= 0.1 tolerance clearance`, compensated passes only) is certified at its end directly: the kink
+//!    multipliers come from the gradient the model predicts there (`g + H d`), the other primitives' duals are
+//!    the certificate's own exact subgradients there. This saves the pass that would only confirm the point;
+//!    if the certificate misses, the pass runs as usual.
 //!
 //! Nothing here has to be right for the answer to be honest: the certificate checks the returned pair from
 //! scratch, and an attempt that does not certify hands its point and dual to the dual method.
@@ -65,6 +70,9 @@ const MAX_DROPS_PER_PRIMITIVE: u8 = 2;
 const COMPENSATE_BELOW: f64 = 1e-4;
 /// Halvings of one step before the attempt is abandoned.
 const MAX_HALVINGS: u32 = 30;
+/// A full Newton step `d` with `|d|^2 <= SPECULATE_BELOW * tolerance * clearance` is certified at its end
+/// without a confirming pass (Newton's error after the step is of order `|d|^2 / clearance`).
+const SPECULATE_BELOW: f64 = 0.1;
 
 /// What a primitive is to the iteration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -127,6 +135,19 @@ struct Face {
 struct Step {
     t: f64,
     kink: Option<usize>,
+}
+
+/// The last accepted point and the step taken from it, kept until the next pass has checked the step.
+#[derive(Debug, Clone, Copy)]
+struct Previous {
+    x: DVec3,
+    energy_j: f64,
+    d: DVec3,
+    /// The step fraction taken.
+    t: f64,
+    /// W before the step.
+    kinks: [u32; MAX_KINKS],
+    kink_count: usize,
 }
 
 /// The Newton attempt's workspace, kept between solves (allocation-free once grown to the scene size).
@@ -248,7 +269,7 @@ impl Workspace {
             certified: false,
         };
         // The last accepted point: its energy, the step taken from it, and W before the step.
-        let mut previous: Option<(DVec3, f64, DVec3, f64, [u32; MAX_KINKS], usize)> = None;
+        let mut previous: Option<Previous> = None;
         let mut halvings = 0;
         let mut screened_radius_m = f64::INFINITY;
         // Whether passes sum the gradient with compensation (see `pass`): from the first pass near the answer.
@@ -267,19 +288,19 @@ impl Workspace {
             outcome.certificate = None;
 
             // Check the last step against the energy: a step that raised it (beyond rounding) is halved.
-            if let Some((x_prev, energy_prev, d, t, kinks_prev, count_prev)) = previous {
-                let slack = 64.0 * EPS * (model.energy_scale_j + energy_prev.abs());
-                if model.energy_j > energy_prev + slack {
+            if let Some(last) = previous {
+                let slack = 64.0 * EPS * (model.energy_scale_j + last.energy_j.abs());
+                if model.energy_j > last.energy_j + slack {
                     halvings += 1;
                     if halvings > MAX_HALVINGS {
                         return outcome;
                     }
-                    self.restore_kinks(items, kinks_prev, count_prev, x_prev);
+                    self.restore_kinks(items, last.kinks, last.kink_count, last.x);
                     face = self.face(items);
-                    let t = 0.5 * t;
-                    x = x_prev + t * d;
+                    let t = 0.5 * last.t;
+                    x = last.x + t * last.d;
                     self.project_onto_face(items, &face, &mut x, scale);
-                    previous = Some((x_prev, energy_prev, d, t, kinks_prev, count_prev));
+                    previous = Some(Previous { t, ..last });
                     continue;
                 }
             }
@@ -319,7 +340,7 @@ impl Workspace {
             if face_done {
                 match self.multipliers(items, &face, model.gradient, dual) {
                     Ok(()) => {
-                        let certificate = certify(items, dual, frame, x);
+                        let certificate = certify(items, dual, frame, x, limits.tolerance_m);
                         outcome.certificate = Some(certificate);
                         if certificate.bound_m <= limits.tolerance_m {
                             outcome.certified = true;
@@ -392,9 +413,71 @@ impl Workspace {
             } else {
                 self.project_onto_face(items, &face, &mut x_next, scale);
             }
-            previous = Some((x, model.energy_j, d, step.t, kinks_before, count_before));
+            if compensated
+                && step.kink.is_none()
+                && step.t == 1.0
+                && d.length_squared() <= SPECULATE_BELOW * limits.tolerance_m * model.clearance_m
+                // No primitive outside W comes within the certificate's kink threshold of x_next, so the
+                // certificate gives every point and line its exact subgradient there, the value the duals
+                // are brought to on success.
+                && model.clearance_m
+                    > d.length() + 64.0 * EPS * (scale + x_next.abs().max_element())
+            {
+                // The step is so short that Newton's quadratic convergence puts x_next within the tolerance:
+                // certify x_next now, without the pass that would confirm it (module header, step 5).
+                if let Some(certificate) =
+                    self.certify_ahead(items, frame, &face, &model, d, x_next, limits, dual)
+                {
+                    outcome.x = x_next;
+                    outcome.certificate = Some(certificate);
+                    outcome.certified = true;
+                    return outcome;
+                }
+            }
+            previous = Some(Previous {
+                x,
+                energy_j: model.energy_j,
+                d,
+                t: step.t,
+                kinks: kinks_before,
+                kink_count: count_before,
+            });
             x = x_next;
         }
+    }
+
+    /// Certifies `x_next = x + d` (on the current face) without a pass there: the kink multipliers are
+    /// recovered from the gradient the model predicts at `x_next`, `g + H d`; the other items' duals at `x` are
+    /// hints the certificate replaces by their exact subgradients at `x_next` (certificate B). On success the
+    /// points' and lines' duals are brought to `x_next` (what the certificate used) and the certificate is
+    /// returned; otherwise `dual` holds hints only, which the next pass overwrites.
+    #[allow(clippy::too_many_arguments)]
+    fn certify_ahead(
+        &self,
+        items: &[Item],
+        frame: &Frame,
+        face: &Face,
+        model: &Model,
+        d: DVec3,
+        x_next: DVec3,
+        limits: Limits,
+        dual: &mut [DVec3],
+    ) -> Option<Certificate> {
+        let predicted = model.gradient + model.hessian * d;
+        self.multipliers(items, face, predicted, dual).ok()?;
+        let certificate = certify(items, dual, frame, x_next, limits.tolerance_m);
+        if certificate.bound_m > limits.tolerance_m {
+            return None;
+        }
+        if certificate.by_kinks {
+            for &index in &self.active {
+                let i = index as usize;
+                if self.state[i] == State::Smooth {
+                    dual[i] = super::subgradient(&items[i], x_next);
+                }
+            }
+        }
+        Some(certificate)
     }
 
     /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are

@@ -8,7 +8,11 @@ use crate::haptics::reference;
 const K: f64 = 500.0;
 
 fn solve(probe: DVec3, primitives: &[Primitive]) -> Solution {
-    let mut solver = Solver::default();
+    solve_with(&mut Solver::default(), probe, primitives)
+}
+
+/// A cold solve with the given solver (whose duals the caller may then read).
+fn solve_with(solver: &mut Solver, probe: DVec3, primitives: &[Primitive]) -> Solution {
     let problem = Problem {
         stiffness_n_per_m: K,
         probe_m: probe,
@@ -381,5 +385,34 @@ fn primal_newton_certifies_random_scenes_alone() {
                 "n={n}: {new:?} {old:?}"
             );
         }
+    }
+}
+
+/// A solve that the primal method finishes by certifying a last Newton step ahead, without the pass that would
+/// confirm it, leaves the duals the certificate used: the primitives' forces balance the coupling at the
+/// returned proxy within k times the bound (what `primitive_forces_n` promises, and what the servo's per-mode
+/// forces are built from).
+#[test]
+fn primitive_forces_balance_the_coupling_at_the_answer() {
+    for (n, seed) in [(10, 10), (100, 100), (1000, 1000), (300, 7), (40, 3)] {
+        let mut rng = SplitMix(seed);
+        let prims = random_primitives(&mut rng, n);
+        let probe = rng.vec(0.02);
+        let mut solver = Solver::with_capacity(SolverConfig::default(), n);
+        let sol = solve_with(&mut solver, probe, &prims);
+        assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
+        let directed: DVec3 = prims
+            .iter()
+            .filter(|p| p.kind() == PrimitiveKind::Directed)
+            .map(|p| p.strength_n() * p.direction())
+            .sum();
+        let forces = directed + solver.primitive_forces_n().sum::<DVec3>();
+        let imbalance = (sol.force_n - forces).length();
+        // Rounding of the two sums of up to 1 000 forces of up to 2 N: far below 1e-9 N.
+        assert!(
+            imbalance <= K * sol.error_bound_m + 1e-9,
+            "n = {n}: imbalance {imbalance:e} N, bound {:e} m",
+            sol.error_bound_m
+        );
     }
 }

@@ -37,6 +37,7 @@ mod serve_e2e;
 mod server;
 mod servo;
 mod sim;
+mod sim_path;
 mod solver_props;
 mod volume_io;
 mod woodenhaptics_serial;

@@ -201,6 +201,11 @@ impl WorkspaceMapping {
         self.scale * (self.rotation * device_m_per_s)
     }
 
+    /// A scene velocity in the device frame: `Rᵀ v / s`.
+    pub fn to_device_velocity_m_per_s(&self, scene_m_per_s: DVec3) -> DVec3 {
+        self.rotation.transpose() * scene_m_per_s / self.scale
+    }
+
     /// A scene force as the device renders it: `Rᵀ f` (not scaled).
     pub fn to_device_force_n(&self, scene_n: DVec3) -> DVec3 {
         self.rotation.transpose() * scene_n

@@ -10,7 +10,9 @@
 //! damping the hand may feel, divided by the scale (`device::mapping` derives this, after CHAI3D).
 //!
 //! A mapping that fits the volume (`--fit-volume`, `fit_volume = true`) is computed once, in [`connect`], from
-//! the device's declared workspace and the volume bounds given at construction; a reconnect keeps it.
+//! the device's declared workspace and the volume bounds given at construction; a reconnect keeps it. The
+//! simulated arm, whose scripted path is in the scene frame, is told the mapping through a
+//! [`SceneMappingSlot`] that `connect` fills ([`MappedDevice::publish_mapping_to`]).
 //!
 //! `exchange` and the queries used on the servo thread do a few multiplications: nothing allocates or locks.
 //!
@@ -27,7 +29,11 @@ use crate::device::supervisor::{
 };
 use crate::device::{DeviceInfo, ErrorKind};
 use glam::DVec3;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
+
+/// Where [`MappedDevice::connect`] leaves the mapping it settled on, for a device that needs it itself (the
+/// simulated arm reads its scripted path in the scene frame). Set once; reading it is an atomic load.
+pub type SceneMappingSlot = Arc<OnceLock<WorkspaceMapping>>;
 
 /// A supervised device seen through a workspace mapping (see the module docs).
 pub struct MappedDevice {
@@ -35,6 +41,7 @@ pub struct MappedDevice {
     profile: DeviceProfile,
     volume_bounds_m: Option<(DVec3, DVec3)>,
     mapping: WorkspaceMapping,
+    mapping_slot: Option<SceneMappingSlot>,
 }
 
 impl MappedDevice {
@@ -53,7 +60,14 @@ impl MappedDevice {
             profile,
             volume_bounds_m,
             mapping,
+            mapping_slot: None,
         }
+    }
+
+    /// Leaves the mapping in `slot` when the device connects (the first connect's mapping stays there).
+    pub fn publish_mapping_to(mut self, slot: SceneMappingSlot) -> MappedDevice {
+        self.mapping_slot = Some(slot);
+        self
     }
 
     /// The mapping in force (after `connect` for a fitting profile).
@@ -136,6 +150,10 @@ impl ServoDevice for MappedDevice {
                     kind: ErrorKind::Unsupported,
                     message: format!("device profile {}: {error}", self.profile.name),
                 })?;
+        }
+        if let Some(slot) = &self.mapping_slot {
+            // A later connect computes the same mapping from the same inputs; the first one stays.
+            let _ = slot.set(self.mapping);
         }
         Ok(())
     }

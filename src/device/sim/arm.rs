@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::tagged::{given_keys, KindKeys};
 use super::{HandDrive, HandPath, SimError};
+use crate::device::mapping::WorkspaceMapping;
 
 fn default_substeps_per_tick() -> u32 {
     10
@@ -225,6 +226,9 @@ pub struct SimArm {
     /// When set, the hand pulls towards this point (at rest) instead of following its path: a user dragging
     /// the hand with the mouse in the visualiser.
     hand_target_override_m: Option<DVec3>,
+    /// When set, the scripted path is in the scene frame and this maps the arm's (device) frame into it
+    /// ([`SimArm::use_scene_frame`]); `None` for the identity, so such arms compute exactly as before.
+    path_mapping: Option<WorkspaceMapping>,
 }
 
 fn positive(name: &'static str, value: f64) -> Result<(), SimError> {
@@ -291,6 +295,7 @@ impl SimArm {
             wall_force_n: DVec3::ZERO,
             rejected_force_count: 0,
             hand_target_override_m: None,
+            path_mapping: None,
         })
     }
 
@@ -337,7 +342,7 @@ impl SimArm {
                     position_m,
                     velocity_m_per_s: DVec3::ZERO,
                 },
-                None => self.config.path.drive_at(time_s),
+                None => self.scripted_drive_at(time_s),
             };
             self.hand_force_n = match drive {
                 HandDrive::Target {
@@ -359,6 +364,53 @@ impl SimArm {
             self.position_m = x + self.velocity_m_per_s * substep_s;
         }
         Ok(outcome)
+    }
+
+    /// Reads the scripted path and the start point as scene positions under `mapping` (device frame to
+    /// scene frame, `x_scene = s R x_device + t`): the arm is placed at rest at the device point that maps to
+    /// `start_scene_m`, and from then on the hand follows the path's targets mapped into the device frame
+    /// (`Rᵀ (p - t) / s`, velocities `Rᵀ v / s`) or pushes with its scripted force rotated back (`Rᵀ f`, not
+    /// scaled, as every scene force). The workspace limit and a hand target set with
+    /// [`SimArm::set_hand_target_m`] stay in the device frame. Meant to be called before the first step; the
+    /// identity mapping leaves the path as it is. A start point that leaves f64's range in the device frame is refused
+    /// (nothing changes).
+    pub fn use_scene_frame(
+        &mut self,
+        mapping: WorkspaceMapping,
+        start_scene_m: DVec3,
+    ) -> Result<(), SimError> {
+        let start_m = mapping.to_device_position_m(start_scene_m);
+        if !start_m.is_finite() {
+            return Err(SimError::NonFiniteVector {
+                name: "start_m (mapped into the device frame)",
+            });
+        }
+        self.path_mapping = (!mapping.is_identity()).then_some(mapping);
+        self.position_m = start_m;
+        self.velocity_m_per_s = DVec3::ZERO;
+        self.hand_force_n = DVec3::ZERO;
+        self.wall_force_n = DVec3::ZERO;
+        Ok(())
+    }
+
+    /// The scripted path's drive at `time_s`, in the arm's (device) frame.
+    fn scripted_drive_at(&self, time_s: f64) -> HandDrive {
+        let drive = self.config.path.drive_at(time_s);
+        let Some(mapping) = self.path_mapping else {
+            return drive;
+        };
+        match drive {
+            HandDrive::Target {
+                position_m,
+                velocity_m_per_s,
+            } => HandDrive::Target {
+                position_m: mapping.to_device_position_m(position_m),
+                velocity_m_per_s: mapping.to_device_velocity_m_per_s(velocity_m_per_s),
+            },
+            HandDrive::Force { force_n } => HandDrive::Force {
+                force_n: mapping.to_device_force_n(force_n),
+            },
+        }
     }
 
     /// Makes the hand pull towards `target_m` (held still) instead of following its path, or, with `None`,
@@ -495,6 +547,73 @@ mod tests {
             "lag {error} expected {expected_lag}"
         );
         assert!((arm.velocity_m_per_s() - velocity).length() < 1e-9);
+    }
+
+    /// Scale 2, a quarter turn about z, a translation: the path and the start point are scene positions.
+    fn scene_mapping() -> WorkspaceMapping {
+        WorkspaceMapping::new(
+            crate::device::mapping::rotation_from_degrees([0.0, 0.0, 90.0]),
+            2.0,
+            DVec3::new(0.1, -0.05, 0.02),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_path_in_the_scene_frame_is_followed_through_the_mapping() {
+        let mapping = scene_mapping();
+        let (from, to) = (DVec3::new(0.0, 0.0, 0.02), DVec3::new(0.2, 0.04, 0.02));
+        let path = HandPath::Line {
+            from_m: from,
+            to_m: to,
+            duration_s: 2.0,
+        };
+        let cfg = config(path.clone(), big_box());
+        let mut arm = SimArm::new(cfg.clone(), from).unwrap();
+        arm.use_scene_frame(mapping, from).unwrap();
+        assert!((arm.position_m() - mapping.to_device_position_m(from)).length() < 1e-15);
+        // The documented steady-state lag, in the device frame: the device target moves at Rᵀ V / s.
+        let (arm, _) = run(arm, 1000, |_, _| DVec3::ZERO);
+        let device_velocity = mapping.to_device_velocity_m_per_s((to - from) / 2.0);
+        let expected_lag = cfg.arm.damping_n_s_per_m * device_velocity / cfg.hand.stiffness_n_per_m;
+        let device_target = mapping.to_device_position_m(path.target_at(1.0).unwrap());
+        let error = device_target - arm.position_m();
+        assert!(
+            (error - expected_lag).length() < 1e-9,
+            "lag {error} expected {expected_lag}"
+        );
+        // Seen from the scene, the arm ends where the scene path ends.
+        let (arm, _) = run(arm, 3000, |_, _| DVec3::ZERO);
+        let end = mapping.to_scene_position_m(arm.position_m());
+        assert!((end - to).length() < 1e-6, "{end}");
+    }
+
+    #[test]
+    fn a_scripted_force_in_the_scene_frame_is_rotated_back_not_scaled() {
+        let mapping = scene_mapping();
+        let force = DVec3::new(0.0, 0.1, 0.0);
+        let path = HandPath::Force {
+            profile: super::super::ForceProfile::Constant { force_n: force },
+        };
+        let cfg = config(path, big_box());
+        let mut arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        arm.use_scene_frame(mapping, mapping.translation_m())
+            .unwrap();
+        assert_eq!(arm.position_m(), DVec3::ZERO);
+        // Terminal velocity F / b (time constant m / b = 0.1 s), F = Rᵀ f: the scene's +y is the device's +x.
+        let (arm, _) = run(arm, 1500, |_, _| DVec3::ZERO);
+        let expected = DVec3::new(0.1, 0.0, 0.0) / cfg.arm.damping_n_s_per_m;
+        assert!(
+            (arm.velocity_m_per_s() - expected).length() < 1e-5,
+            "{}",
+            arm.velocity_m_per_s()
+        );
+        // A start point beyond f64's range in the device frame is refused, and nothing changes.
+        let mut tiny = SimArm::new(cfg, DVec3::ZERO).unwrap();
+        let shrink = WorkspaceMapping::new(glam::DMat3::IDENTITY, 1e-6, DVec3::ZERO).unwrap();
+        assert!(tiny.use_scene_frame(shrink, DVec3::splat(1e303)).is_err());
+        assert_eq!(tiny.position_m(), DVec3::ZERO);
+        assert!(tiny.path_mapping.is_none());
     }
 
     #[test]

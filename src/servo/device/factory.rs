@@ -18,7 +18,7 @@ use crate::device::sim::{SimArmConfig, SimError};
 use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorConfigError};
 use crate::device::transport::{HidTransport, SerialTransport};
 use crate::device::{DeviceError, HapticDevice};
-use crate::servo::mapped::MappedDevice;
+use crate::servo::mapped::{MappedDevice, SceneMappingSlot};
 use glam::DVec3;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -87,12 +87,20 @@ pub fn open_device(
     sim_arm: (SimArmConfig, DVec3),
     period_s: f64,
 ) -> Result<OpenedDevice, OpenError> {
-    open_supervised(spec, config, sim_arm, period_s, &DeviceProfile::default())
+    open_supervised(
+        spec,
+        config,
+        sim_arm,
+        period_s,
+        &DeviceProfile::default(),
+        None,
+    )
 }
 
 /// [`open_device`] with a device profile: its limits folded into `config`, its kinematics constants into the
 /// driver's config, and the device seen through its workspace mapping ([`MappedDevice`]; a fitting mapping
-/// fits `volume_bounds_m`, the scene's first volume).
+/// fits `volume_bounds_m`, the scene's first volume). The simulated arm's scripted path and start point are
+/// scene positions: the arm is given the mapping when the device connects.
 pub fn open_device_with_profile(
     spec: &DeviceSpec,
     mut config: SupervisorConfig,
@@ -111,12 +119,17 @@ pub fn open_device_with_profile(
         }
     }
     profile.apply_to(&mut config);
-    let mut opened = open_supervised(spec, config, sim_arm, period_s, profile)?;
-    opened.device = Box::new(MappedDevice::new(
-        opened.device,
-        profile.clone(),
-        volume_bounds_m,
-    ));
+    let sim_mapping = SceneMappingSlot::default();
+    let mut opened = open_supervised(
+        spec,
+        config,
+        sim_arm,
+        period_s,
+        profile,
+        Some(sim_mapping.clone()),
+    )?;
+    let mapped = MappedDevice::new(opened.device, profile.clone(), volume_bounds_m);
+    opened.device = Box::new(mapped.publish_mapping_to(sim_mapping));
     Ok(opened)
 }
 
@@ -133,13 +146,17 @@ fn open_supervised(
     sim_arm: (SimArmConfig, DVec3),
     period_s: f64,
     profile: &DeviceProfile,
+    sim_mapping: Option<SceneMappingSlot>,
 ) -> Result<OpenedDevice, OpenError> {
     let protocol = ProtocolConfig::for_period(Duration::from_secs_f64(period_s));
     let mut hand_target = None;
     let device = match spec {
         DeviceSpec::Sim => {
-            let (device, input) = SimDevice::new(sim_arm.0, sim_arm.1, period_s)?;
+            let (mut device, input) = SimDevice::new(sim_arm.0, sim_arm.1, period_s)?;
             hand_target = Some(input);
+            if let Some(slot) = sim_mapping {
+                device.follow_scene_mapping(slot);
+            }
             let mut slot = Some(device);
             // The simulated arm cannot be lost, so the opener is called once.
             boxed(config, move || {

@@ -1,9 +1,15 @@
 //! The in-process simulated arm as a [`HapticDevice`] ([`SimDevice`]), the default device: a [`SimArm`]
 //! stepped one servo period per force written, its virtual hand following a scripted path, or, when a client
 //! sets one through the session, a hand target (a triple buffer, so setting it never blocks the servo thread).
+//!
+//! Frames: the scripted path and the start point are scene positions. Under a workspace mapping the arm is told
+//! the mapping once it is known ([`SimDevice::follow_scene_mapping`]: `servo::mapped::MappedDevice` fills the
+//! slot when it connects, before the first exchange) and moves them into the device frame
+//! ([`SimArm::use_scene_frame`]). A hand target arrives already in the device frame (`servo::control` maps it).
 
 use crate::device::sim::{SimArm, SimArmConfig, SimError};
 use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::servo::mapped::SceneMappingSlot;
 use glam::DVec3;
 
 /// The simulated arm as a [`HapticDevice`]: each `write_force` steps the arm one servo period under that
@@ -15,6 +21,10 @@ pub struct SimDevice {
     info: DeviceInfo,
     hand_target: triple_buffer::Output<Option<DVec3>>,
     applied_target: Option<DVec3>,
+    /// The start point as given (scene frame), for when the mapping arrives.
+    start_scene_m: DVec3,
+    /// Where the workspace mapping will be, until the arm has taken it or has stepped.
+    scene_mapping: Option<SceneMappingSlot>,
 }
 
 /// The handle that moves a [`SimDevice`]'s hand from another thread (wait-free for the servo thread).
@@ -54,9 +64,38 @@ impl SimDevice {
                 info,
                 hand_target: output,
                 applied_target: None,
+                start_scene_m: start_m,
+                scene_mapping: None,
             },
             input,
         ))
+    }
+
+    /// Reads the scripted path and the start point as scene positions under the mapping `slot` will hold
+    /// (filled by `MappedDevice::connect`). The arm takes it on its first exchange (state read or force
+    /// written) after the slot is filled and before its first step; an arm whose slot is still empty when
+    /// it first steps keeps the device frame (the identity), as an arm without a slot does.
+    pub fn follow_scene_mapping(&mut self, slot: SceneMappingSlot) {
+        self.scene_mapping = Some(slot);
+    }
+
+    /// Takes the mapping from the slot if it is there (an atomic load, nothing allocates); once taken, or
+    /// once the arm has stepped, the slot is let go.
+    fn take_scene_mapping(&mut self, stepping: bool) -> Result<(), DeviceError> {
+        let Some(slot) = &self.scene_mapping else {
+            return Ok(());
+        };
+        if let Some(mapping) = slot.get().copied() {
+            self.scene_mapping = None;
+            self.arm
+                .use_scene_frame(mapping, self.start_scene_m)
+                .map_err(|_| DeviceError::Protocol {
+                    what: "simulated arm: start_m mapped into the device frame is not finite",
+                })?;
+        } else if stepping {
+            self.scene_mapping = None;
+        }
+        Ok(())
     }
 
     /// The hand target in force, if a client set one.
@@ -73,6 +112,7 @@ impl HapticDevice for SimDevice {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        self.take_scene_mapping(true)?;
         let target = *self.hand_target.read();
         if target != self.applied_target && self.arm.set_hand_target_m(target) {
             self.applied_target = target;
@@ -87,6 +127,7 @@ impl HapticDevice for SimDevice {
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.take_scene_mapping(false)?;
         Ok(DeviceState {
             position_m: self.arm.position_m(),
             velocity_m_per_s: self.arm.velocity_m_per_s(),
@@ -95,5 +136,53 @@ impl HapticDevice for SimDevice {
             sequence: None,
             status: None,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::mapping::WorkspaceMapping;
+    use crate::device::sim::HandPath;
+    use glam::DMat3;
+
+    fn arm(start_m: DVec3) -> SimDevice {
+        let mut config = crate::device::mock::default_arm_config();
+        config.path = HandPath::Hold { at_m: start_m };
+        SimDevice::new(config, start_m, 1e-3).unwrap().0
+    }
+
+    fn scale_2() -> WorkspaceMapping {
+        WorkspaceMapping::new(DMat3::IDENTITY, 2.0, DVec3::new(0.1, 0.0, 0.0)).unwrap()
+    }
+
+    #[test]
+    fn a_mapping_given_before_the_first_exchange_moves_the_start_into_the_device_frame() {
+        let start = DVec3::new(0.02, 0.01, 0.0);
+        let mut device = arm(start);
+        let slot = SceneMappingSlot::default();
+        device.follow_scene_mapping(slot.clone());
+        slot.set(scale_2()).unwrap();
+        let expected = DVec3::new(-0.04, 0.005, 0.0);
+        assert!((device.read_state().unwrap().position_m - expected).length() < 1e-15);
+        // Holding its (mapped) start, the arm stays there.
+        for _ in 0..100 {
+            device.write_force(DVec3::ZERO).unwrap();
+        }
+        assert!((device.read_state().unwrap().position_m - expected).length() < 1e-12);
+    }
+
+    #[test]
+    fn a_mapping_that_arrives_after_the_first_step_is_not_taken() {
+        let start = DVec3::new(0.02, 0.01, 0.0);
+        let mut device = arm(start);
+        let slot = SceneMappingSlot::default();
+        device.follow_scene_mapping(slot.clone());
+        device.write_force(DVec3::ZERO).unwrap();
+        slot.set(scale_2()).unwrap();
+        for _ in 0..100 {
+            device.write_force(DVec3::ZERO).unwrap();
+        }
+        assert!((device.read_state().unwrap().position_m - start).length() < 1e-12);
     }
 }

@@ -146,43 +146,38 @@ mod tests {
     use crate::device::sim::HandPath;
     use glam::DMat3;
 
-    fn arm(start_m: DVec3) -> SimDevice {
-        let mut config = crate::device::mock::default_arm_config();
-        config.path = HandPath::Hold { at_m: start_m };
-        SimDevice::new(config, start_m, 1e-3).unwrap().0
-    }
+    const START_M: DVec3 = DVec3::new(0.02, 0.01, 0.0);
 
-    fn scale_2() -> WorkspaceMapping {
-        WorkspaceMapping::new(DMat3::IDENTITY, 2.0, DVec3::new(0.1, 0.0, 0.0)).unwrap()
+    /// An arm holding its start point [`START_M`], following a mapping slot; with `mapping_first` the slot is
+    /// filled before the first step, otherwise after it. Returns the arm after 100 more steps.
+    fn arm_after_steps(mapping_first: bool) -> SimDevice {
+        let mut config = crate::device::mock::default_arm_config();
+        config.path = HandPath::Hold { at_m: START_M };
+        let mut device = SimDevice::new(config, START_M, 1e-3).unwrap().0;
+        let slot = SceneMappingSlot::default();
+        device.follow_scene_mapping(slot.clone());
+        if !mapping_first {
+            device.write_force(DVec3::ZERO).unwrap();
+        }
+        let scale_2 = WorkspaceMapping::new(DMat3::IDENTITY, 2.0, DVec3::new(0.1, 0.0, 0.0));
+        slot.set(scale_2.unwrap()).unwrap();
+        for _ in 0..100 {
+            device.write_force(DVec3::ZERO).unwrap();
+        }
+        device
     }
 
     #[test]
     fn a_mapping_given_before_the_first_exchange_moves_the_start_into_the_device_frame() {
-        let start = DVec3::new(0.02, 0.01, 0.0);
-        let mut device = arm(start);
-        let slot = SceneMappingSlot::default();
-        device.follow_scene_mapping(slot.clone());
-        slot.set(scale_2()).unwrap();
+        // Holding its start, mapped to R^T (start - t) / s, the arm stays there.
+        let mut device = arm_after_steps(true);
         let expected = DVec3::new(-0.04, 0.005, 0.0);
-        assert!((device.read_state().unwrap().position_m - expected).length() < 1e-15);
-        // Holding its (mapped) start, the arm stays there.
-        for _ in 0..100 {
-            device.write_force(DVec3::ZERO).unwrap();
-        }
         assert!((device.read_state().unwrap().position_m - expected).length() < 1e-12);
     }
 
     #[test]
     fn a_mapping_that_arrives_after_the_first_step_is_not_taken() {
-        let start = DVec3::new(0.02, 0.01, 0.0);
-        let mut device = arm(start);
-        let slot = SceneMappingSlot::default();
-        device.follow_scene_mapping(slot.clone());
-        device.write_force(DVec3::ZERO).unwrap();
-        slot.set(scale_2()).unwrap();
-        for _ in 0..100 {
-            device.write_force(DVec3::ZERO).unwrap();
-        }
-        assert!((device.read_state().unwrap().position_m - start).length() < 1e-12);
+        let mut device = arm_after_steps(false);
+        assert!((device.read_state().unwrap().position_m - START_M).length() < 1e-12);
     }
 }

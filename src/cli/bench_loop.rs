@@ -4,7 +4,7 @@
 //! windows of the loop with windows of the same schedule with an empty tick on the same CPU
 //! ([`crate::servo::baseline`]), so stalls of the machine show apart from the loop's own.
 
-use crate::servo::api::HistogramReport;
+use crate::servo::api::{HistogramReport, RealtimeReport};
 use crate::servo::baseline::run_empty_schedule;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
@@ -74,12 +74,15 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     if let Some((servo, _)) = crate::servo::rt::reserve_servo_cpu(config.rt, config.cpu) {
         config.cpu = Some(servo);
     }
-    if args.baseline {
-        let comparison = side_by_side(args, &config);
+    let stop_load_threads = || {
         stop_load.store(true, Ordering::Relaxed);
         for thread in load {
             let _ = thread.join();
         }
+    };
+    if args.baseline {
+        let comparison = side_by_side(args, &config);
+        stop_load_threads();
         let comparison = comparison?;
         return if args.json {
             super::print_out(&serde_json::to_string_pretty(&comparison)?)
@@ -96,10 +99,7 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     let session = Session::start(config)?;
     std::thread::sleep(Duration::from_secs_f64(args.seconds));
     let summary = session.stop();
-    stop_load.store(true, Ordering::Relaxed);
-    for thread in load {
-        let _ = thread.join();
-    }
+    stop_load_threads();
     if args.json {
         super::print_out(&serde_json::to_string_pretty(&summary.stats)?)
     } else {
@@ -141,12 +141,9 @@ pub struct SideBySide {
     pub servo_loop: WindowsReport,
     /// The same schedule with an empty tick.
     pub baseline: WindowsReport,
-    /// Whether the servo thread got SCHED_FIFO, locked memory and its CPU (the empty schedule asks the same).
-    pub sched_fifo: bool,
-    /// Memory locked.
-    pub memory_locked: bool,
-    /// The CPU both ran on, if pinned.
-    pub pinned_cpu: Option<u32>,
+    /// What the servo thread was granted of its real-time setup (the empty schedule asks the same).
+    #[serde(flatten)]
+    pub realtime: RealtimeReport,
 }
 
 impl SideBySide {
@@ -168,22 +165,8 @@ impl SideBySide {
         );
         text += &row("loop", &self.servo_loop);
         text += &row("empty tick", &self.baseline);
-        text += &format!(
-            "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",
-            yes_no(self.sched_fifo),
-            yes_no(self.memory_locked),
-            self.pinned_cpu
-                .map_or_else(|| "none".to_owned(), |cpu| cpu.to_string())
-        );
+        text += &self.realtime.summary();
         text
-    }
-}
-
-fn yes_no(flag: bool) -> &'static str {
-    if flag {
-        "yes"
-    } else {
-        "no"
     }
 }
 
@@ -204,7 +187,7 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
     };
     let mut baseline = servo_loop;
     let mut loop_counts = HistogramCounts::default();
-    let mut loop_max_us: f64 = 0.0;
+    let mut loop_max_ns = 0u64;
     let mut realtime = None;
     for _ in 0..pairs {
         let session = Session::start(config.clone())?;
@@ -212,7 +195,7 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         std::thread::sleep(Duration::from_secs_f64(window_s));
         let summary = session.stop();
         loop_counts.add(&shared.servo_stats().lateness.counts());
-        loop_max_us = loop_max_us.max(summary.stats.lateness.max_us);
+        loop_max_ns = loop_max_ns.max(shared.servo_stats().lateness.max_ns());
         servo_loop.ticks += summary.stats.ticks;
         servo_loop.overruns += summary.stats.overruns;
         servo_loop.skipped_ticks += summary.stats.skipped_ticks;
@@ -228,24 +211,14 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         baseline.ticks += empty.ticks;
         baseline.overruns += empty.overruns;
         baseline.skipped_ticks += empty.skipped_ticks;
-        baseline.lateness = empty.lateness;
     }
-    let us = |ns: u64| ns as f64 / 1000.0;
-    servo_loop.lateness = HistogramReport {
-        count: loop_counts.count(),
-        p50_us: us(loop_counts.quantile_ns(0.50)).min(loop_max_us),
-        p99_us: us(loop_counts.quantile_ns(0.99)).min(loop_max_us),
-        p999_us: us(loop_counts.quantile_ns(0.999)).min(loop_max_us),
-        max_us: loop_max_us,
-    };
-    let realtime = realtime.unwrap_or_default();
+    servo_loop.lateness = loop_counts.report(loop_max_ns);
+    baseline.lateness = empty_lateness.report();
     Ok(SideBySide {
         pairs,
         window_s,
         servo_loop,
         baseline,
-        sched_fifo: realtime.sched_fifo,
-        memory_locked: realtime.memory_locked,
-        pinned_cpu: realtime.pinned_cpu,
+        realtime: realtime.unwrap_or_default(),
     })
 }

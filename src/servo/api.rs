@@ -231,6 +231,19 @@ pub struct RealtimeReport {
     pub pinned_cpu: Option<u32>,
 }
 
+impl RealtimeReport {
+    /// The line the statistics tables end with: `real time: SCHED_FIFO yes, memory locked yes, pinned CPU 1`.
+    pub fn summary(&self) -> String {
+        let yes_no = |value: bool| if value { "yes" } else { "no" };
+        format!(
+            "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",
+            yes_no(self.sched_fifo),
+            yes_no(self.memory_locked),
+            self.pinned_cpu.map_or("no".to_owned(), |c| c.to_string())
+        )
+    }
+}
+
 /// The scene as configured now (off the real-time path; for clients that show controls).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SceneReport {

@@ -8,67 +8,24 @@
 //! the virtual machine), so when the baseline shows the same stalls as the loop, removing them is a matter for
 //! the machine (an isolated core, a host without CPU overcommit), not for the tick.
 
-use super::api::HistogramReport;
+use super::api::RealtimeReport;
 use super::rt::{self, RtMode};
 use super::schedule::{Schedule, SpinSleepWaiter, Waiter};
 use super::stats::Histogram;
 use serde::Serialize;
 use std::sync::Arc;
 
-/// What the empty schedule recorded.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct BaselineReport {
-    /// Rate (Hz).
-    pub rate_hz: f64,
+/// What one run of the empty schedule counted (its lateness goes into the histogram the caller gives).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct EmptyScheduleRun {
     /// Deadlines waited for.
     pub ticks: u64,
-    /// How late each wait returned after its deadline (µs): everything the histogram given to
-    /// [`run_empty_schedule`] holds, so earlier windows recorded into it are included.
-    pub lateness: HistogramReport,
     /// Waits that returned after the next deadline had passed.
     pub overruns: u64,
     /// Deadlines skipped by those overruns.
     pub skipped_ticks: u64,
-    /// Whether the thread got `SCHED_FIFO`, locked memory and its CPU, as the servo thread asks.
-    pub sched_fifo: bool,
-    /// Memory locked (`mlockall`).
-    pub memory_locked: bool,
-    /// The CPU it was pinned to, if any.
-    pub pinned_cpu: Option<u32>,
-}
-
-impl BaselineReport {
-    /// The lines `voxhap bench-loop --baseline` prints under the loop's table.
-    pub fn table(&self) -> String {
-        let h = &self.lateness;
-        format!(
-            "{:<10} {:>10} {:>10.1} {:>10.1} {:>10.1} {:>10.1}\n\
-             baseline: rate {} Hz, ticks {}, overruns {} (skipped {} ticks); SCHED_FIFO {}, memory locked {}, \
-             pinned CPU {}\n",
-            "empty tick",
-            h.count,
-            h.p50_us,
-            h.p99_us,
-            h.p999_us,
-            h.max_us,
-            self.rate_hz,
-            self.ticks,
-            self.overruns,
-            self.skipped_ticks,
-            yes_no(self.sched_fifo),
-            yes_no(self.memory_locked),
-            self.pinned_cpu
-                .map_or_else(|| "none".to_owned(), |cpu| cpu.to_string()),
-        )
-    }
-}
-
-fn yes_no(flag: bool) -> &'static str {
-    if flag {
-        "yes"
-    } else {
-        "no"
-    }
+    /// What the thread was granted of the servo thread's real-time setup.
+    pub realtime: RealtimeReport,
 }
 
 /// Errors of [`run_empty_schedule`].
@@ -95,8 +52,8 @@ pub enum BaselineError {
 
 /// Runs the empty schedule for `seconds` at `rate_hz` on its own thread, with the real-time setup `mode` on
 /// `cpu` (as the servo thread would get it), spinning the last `spin_ns` before each deadline (capped as the
-/// servo thread caps it), and records each wait's lateness into `lateness`; blocks until done. The counts
-/// returned are this run's.
+/// servo thread caps it), and records each wait's lateness into `lateness` (windows of one comparison pool
+/// into one histogram); blocks until done.
 pub fn run_empty_schedule(
     rate_hz: f64,
     spin_ns: u64,
@@ -104,7 +61,7 @@ pub fn run_empty_schedule(
     cpu: Option<usize>,
     seconds: f64,
     lateness: Arc<Histogram>,
-) -> Result<BaselineReport, BaselineError> {
+) -> Result<EmptyScheduleRun, BaselineError> {
     for (what, value) in [("the rate", rate_hz), ("the duration", seconds)] {
         if !(value.is_finite() && value > 0.0) {
             return Err(BaselineError::NotPositive { what, value });
@@ -116,7 +73,7 @@ pub fn run_empty_schedule(
     let duration_ns = (seconds * 1e9).min(u64::MAX as f64 / 2.0) as u64;
     let thread = std::thread::Builder::new()
         .name("voxhap-baseline".to_owned())
-        .spawn(move || -> Result<BaselineReport, BaselineError> {
+        .spawn(move || -> Result<EmptyScheduleRun, BaselineError> {
             let (granted, _warnings) = rt::apply(mode, cpu)?;
             let mut waiter = SpinSleepWaiter::new(spin_ns);
             let start_ns = waiter.now_ns();
@@ -135,15 +92,11 @@ pub fn run_empty_schedule(
                     skipped_ticks += advance.skipped;
                 }
             }
-            Ok(BaselineReport {
-                rate_hz,
+            Ok(EmptyScheduleRun {
                 ticks,
-                lateness: lateness.report(),
                 overruns,
                 skipped_ticks,
-                sched_fifo: granted.sched_fifo,
-                memory_locked: granted.memory_locked,
-                pinned_cpu: granted.pinned_cpu,
+                realtime: granted,
             })
         })
         .map_err(BaselineError::Thread)?;
@@ -163,15 +116,13 @@ mod tests {
         // for or skipped by an overrun (a last overrun may also skip deadlines after the end).
         assert!(report.ticks <= 200, "{report:?}");
         assert!(report.ticks + report.skipped_ticks >= 200, "{report:?}");
-        assert_eq!(report.lateness.count, report.ticks);
+        assert_eq!(lateness.count(), report.ticks);
         assert!(report.overruns <= report.skipped_ticks);
-        assert!(!report.sched_fifo, "RtMode::Off asks for nothing");
-        let table = report.table();
-        assert!(table.starts_with("empty tick"), "{table}");
-        assert!(table.contains("baseline: rate 1000 Hz"), "{table}");
+        assert!(!report.realtime.sched_fifo, "RtMode::Off asks for nothing");
         // A second window adds to the same histogram.
-        let second = run_empty_schedule(1000.0, 50_000, RtMode::Off, None, 0.05, lateness).unwrap();
-        assert_eq!(second.lateness.count, report.ticks + second.ticks);
+        let second =
+            run_empty_schedule(1000.0, 50_000, RtMode::Off, None, 0.05, lateness.clone()).unwrap();
+        assert_eq!(lateness.count(), report.ticks + second.ticks);
     }
 
     #[test]

@@ -79,6 +79,11 @@ impl Histogram {
         self.count.load(Ordering::Relaxed)
     }
 
+    /// The largest value recorded (ns); 0 when empty.
+    pub fn max_ns(&self) -> u64 {
+        self.max_ns.load(Ordering::Relaxed)
+    }
+
     /// The value at quantile `q` (0..=1), as its bucket's upper edge (ns), capped at the exact maximum;
     /// 0 when empty.
     pub fn quantile_ns(&self, q: f64) -> u64 {
@@ -103,17 +108,7 @@ impl Histogram {
     /// p50, p99, p99.9 and maximum in microseconds.
     pub fn report(&self) -> HistogramReport {
         // One copy of the buckets for all three percentiles.
-        let counts = self.counts();
-        let max_ns = self.max_ns.load(Ordering::Relaxed);
-        let us = |ns: u64| ns as f64 / 1000.0;
-        let at = |q: f64| us(counts.quantile_ns(q).min(max_ns));
-        HistogramReport {
-            count: self.count(),
-            p50_us: at(0.50),
-            p99_us: at(0.99),
-            p999_us: at(0.999),
-            max_us: us(max_ns),
-        }
+        self.counts().report(self.max_ns())
     }
 
     /// Forgets everything recorded.
@@ -173,6 +168,20 @@ impl HistogramCounts {
     pub fn count_above_ns(&self, threshold_ns: u64) -> u64 {
         let first = (bucket_of(threshold_ns) + 1).min(self.buckets.len());
         self.buckets[first..].iter().sum()
+    }
+
+    /// p50, p99, p99.9 (capped at `max_ns`) and `max_ns` in microseconds: the exact maximum is not in the
+    /// counts, so the caller gives it.
+    pub fn report(&self, max_ns: u64) -> HistogramReport {
+        let us = |ns: u64| ns as f64 / 1000.0;
+        let at = |q: f64| us(self.quantile_ns(q).min(max_ns));
+        HistogramReport {
+            count: self.count(),
+            p50_us: at(0.50),
+            p99_us: at(0.99),
+            p999_us: at(0.999),
+            max_us: us(max_ns),
+        }
     }
 
     /// The value at quantile `q` (0..=1) as its bucket's upper edge (ns); 0 when empty.
@@ -365,23 +374,8 @@ impl StatsReport {
             safety.forces_clamped,
             safety.monitor_stops,
         );
-        text += &format!(
-            "real time: SCHED_FIFO {}, memory locked {}, pinned CPU {}",
-            yes_no(self.realtime.sched_fifo),
-            yes_no(self.realtime.memory_locked),
-            self.realtime
-                .pinned_cpu
-                .map_or("no".to_owned(), |c| c.to_string())
-        );
+        text += &self.realtime.summary();
         text
-    }
-}
-
-fn yes_no(value: bool) -> &'static str {
-    if value {
-        "yes"
-    } else {
-        "no"
     }
 }
 

@@ -26,6 +26,10 @@ enum Answer {
 struct Log {
     forces: Vec<(DVec3, u32)>,
     enables: u32,
+    /// Per force received: whether the device was enabled (an Enable since the last Disable).
+    enabled: Vec<bool>,
+    /// Enabled now (the double's own state).
+    is_enabled: bool,
 }
 
 struct LateDevice {
@@ -44,14 +48,20 @@ impl HapticDevice for LateDevice {
         &self.info
     }
     fn enable(&mut self) -> Result<(), DeviceError> {
-        self.log.borrow_mut().enables += 1;
+        let mut log = self.log.borrow_mut();
+        log.enables += 1;
+        log.is_enabled = true;
+        Ok(())
+    }
+    fn disable(&mut self) -> Result<(), DeviceError> {
+        self.log.borrow_mut().is_enabled = false;
         Ok(())
     }
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        self.log
-            .borrow_mut()
-            .forces
-            .push((force_n, self.information_age));
+        let mut log = self.log.borrow_mut();
+        log.forces.push((force_n, self.information_age));
+        let enabled = log.is_enabled;
+        log.enabled.push(enabled);
         Ok(())
     }
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
@@ -141,6 +151,30 @@ fn assert_no_force_on_old_states(log: &Log) {
             "force {force:?} at write {i} while the newest state was {age} ticks old"
         );
     }
+    assert_device_invariants(log);
+}
+
+/// The invariants every force the device receives keeps (docs/safety.md): finite, at most the device's 2 N,
+/// rising at most the default slew of 0.5 N per 1 ms tick, and zero while the device is not enabled.
+fn assert_device_invariants(log: &Log) {
+    let mut previous = 0.0;
+    for (i, ((force, _), enabled)) in log.forces.iter().zip(&log.enabled).enumerate() {
+        let magnitude = force.length();
+        assert!(force.is_finite(), "force {force:?} at write {i}");
+        assert!(
+            magnitude <= 2.0 + 1e-9,
+            "force {force:?} above 2 N at write {i}"
+        );
+        assert!(
+            magnitude <= previous + 0.5 + 1e-9,
+            "force {force:?} at write {i} rose from {previous} N"
+        );
+        assert!(
+            *enabled || *force == DVec3::ZERO,
+            "force {force:?} at write {i} while the device was not enabled"
+        );
+        previous = magnitude;
+    }
 }
 
 #[test]
@@ -195,4 +229,5 @@ fn a_link_that_is_never_within_the_bound_is_never_enabled() {
     let log = run(1000, |_| Answer::Aged(4));
     assert_eq!(log.enables, 0);
     assert!(log.forces.iter().all(|(f, _)| *f == DVec3::ZERO));
+    assert_device_invariants(&log);
 }

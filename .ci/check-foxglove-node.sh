@@ -10,7 +10,7 @@
 # (CI set), where that fails. Fails (exit 1) with a message saying what went wrong otherwise. Takes well under two minutes once voxhap is built.
 #
 # Environment: VOXHAP_FOXGLOVE_MESSAGES (default 60), VOXHAP_FOXGLOVE_TIMEOUT_MS (default 15000), VOXHAP_BIN (a
-# voxhap binary to use instead of building target/release/voxhap, e.g. target/debug/voxhap after cargo test;
+# voxhap binary to use instead of building target/release/voxhap, e.g. the one `cargo test --release` built;
 # a release build from scratch takes minutes).
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -8,7 +8,7 @@
 # install fails the check; elsewhere it skips with a message. Takes about 20 s once voxhap is built.
 #
 # Environment: VOXHAP_BIN (a voxhap binary to use instead of building target/release/voxhap, e.g.
-# target/debug/voxhap after cargo test), VOXHAP_IGTL_RATE (default 60).
+# target/release/voxhap after cargo test --release), VOXHAP_IGTL_RATE (default 60).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -13,7 +13,7 @@
 # built (writing the one-hour trace with the debug binary takes about 25 s).
 #
 # Environment: VOXHAP_BIN (a voxhap binary to use instead of building target/release/voxhap, e.g.
-# target/debug/voxhap after cargo test), VOXHAP_PARQUET_LOAD_MAX_S (default 15).
+# target/release/voxhap after cargo test --release), VOXHAP_PARQUET_LOAD_MAX_S (default 15).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

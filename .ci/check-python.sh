@@ -5,12 +5,12 @@
 # with TMPDIR pointing to an empty folder, and fails if the notebook left anything there or in the
 # repository.
 #
-# Installs maturin, pytest, pandas, pyarrow and matplotlib with pip, then `pip install ./python` (a debug build, to reuse
-# cargo's dev-profile dependency builds; about 3-6 minutes from scratch on 2 cores). In CI (CI set) a failed
+# Installs maturin, pytest, pandas, pyarrow and matplotlib with pip, then `pip install ./python` (a release build, to
+# reuse the dependency builds of the README's commands, which build in the release profile). In CI (CI set) a failed
 # install fails the check; elsewhere it skips with a visible message when pip or maturin cannot be had.
 #
 # Environment: VOXHAP_BIN (a voxhap binary for the tests that write CSV/MCAP traces; default
-# target/debug/voxhap, built by cargo when missing).
+# target/release/voxhap, built by cargo when missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,13 +18,13 @@ name=check-python
 . .ci/lib.sh
 
 need_python "maturin, pytest, pandas, pyarrow, matplotlib" maturin pytest pandas pyarrow matplotlib
-export VOXHAP_BIN=${VOXHAP_BIN:-target/debug/voxhap}
-[ -x "$VOXHAP_BIN" ] || cargo build --quiet --bin voxhap || fail "cargo build failed"
+export VOXHAP_BIN=${VOXHAP_BIN:-target/release/voxhap}
+[ -x "$VOXHAP_BIN" ] || cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
 export VOXHAP_BIN=$(realpath "$VOXHAP_BIN")
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
-echo "$name: pip install ./python (maturin, debug profile)"
+echo "$name: pip install ./python (maturin, release profile)"
 python3 -m pip install --quiet --disable-pip-version-check --no-build-isolation \
-  --config-settings=build-args=--profile=dev ./python || fail "pip install ./python failed"
+  --config-settings=build-args=--profile=release ./python || fail "pip install ./python failed"
 python3 -m pytest -q python/tests || fail "pytest python/tests failed"
 echo "$name: examples/figure7_force_penetration.ipynb"
 make_work_dir voxhap-notebook

@@ -33,7 +33,7 @@ need_python() {
   fi
 }
 
-# Sets VOXHAP to the binary to run: $VOXHAP_BIN when given (e.g. target/debug/voxhap after cargo test), else
+# Sets VOXHAP to the binary to run: $VOXHAP_BIN when given (e.g. target/release/voxhap after cargo test --release), else
 # target/release/voxhap, built by cargo (quick when up to date; minutes from scratch).
 find_voxhap() {
   if [ -n "${VOXHAP_BIN:-}" ]; then

@@ -37,7 +37,7 @@ def test_read_trace_reads_every_format_and_a_cut_off_file(tmp_path):
         import subprocess
 
         subprocess.run(
-            [os.environ.get("VOXHAP_BIN", str(ROOT / "target/debug/voxhap")), "sim", str(SPHERE),
+            [os.environ.get("VOXHAP_BIN", str(ROOT / "target/release/voxhap")), "sim", str(SPHERE),
              "--out", str(out), "--duration", "2"],
             check=True, capture_output=True,
         )

@@ -48,7 +48,8 @@
 //!    `(v_i - v_i*).(x - x_i)`: the bound adds `sum e_i / k`, charged as `8 eps sum s_i / k`; the rounding of `y`
 //!    is a linear term too. (b) Each bracket is computed as a sum of non-negative pieces (no cancellation), and
 //!    its rounding error (`16 eps (s_i + |v_i|) |x - x_i|` and a relative `16 eps`) is *added*. (c) The residual
-//!    `k (x - y) + V` is summed with compensation (Neumaier) and its rounding bound added.
+//!    `k (x - y) + V` is summed with compensation (Neumaier's; each step's error is computed exactly by
+//!    Knuth's TwoSum, which gives the same values without a branch) and its rounding bound added.
 //! 3. *No square root of rounding.* Alone, (b) would floor the bound at `sqrt(eps s |x| / k)`, about 1e-10 m,
 //!    because a bracket at a kink is linear in the distance to it. So a second certificate, B, is formed (first:
 //!    A is formed too only when B misses the tolerance) and the smaller bound kept. Primitives within 16 ulps of their kink (the plane the proxy rests

@@ -420,8 +420,9 @@ fn primitive_forces_balance_the_coupling_at_the_answer() {
 /// The primal method's pass count on the benchmark's 1 000 scene and on 20 others (`solver_instructions
 /// seeds 1000 20`), which the early leave of a single kink, the near-pass hold check and the parabola-shortened
 /// step brought down (newton.rs header). Measured: the benchmark's scene 9 passes (12 before; 12 without the
-/// hold check, 10 without the parabola), the 20 others 159 in all (251 before; 189 without the parabola, 220
-/// with the early leave alone). Every solve is certified.
+/// hold check, 10 without the parabola), the 20 others 159 in all (251 before; 189 without the parabola, 190
+/// without the early leave, 220 with the early leave alone). So the test fails if any of the three is undone.
+/// Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
     let mut solver = Solver::with_capacity(SolverConfig::default(), 1000);

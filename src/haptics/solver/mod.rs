@@ -172,15 +172,15 @@
 //!   100 of 100 815 / 706, 200 of 30 1 981 / 1 509, 400 of 10 2 217 / 2 040, 6 of 3 000 62 / 54; the
 //!   benchmark's 1 000 scene 12 / 9, 3 000 mixed 11 / 6. Without (c) the 20 scenes took 189 passes (the
 //!   benchmark's 10), with (a) alone 220; (c) without (b): 165, but 12 on the benchmark's scene. Instructions
-//!   per solve (callgrind, main / this): wedges 6 092 / 6 056; 10 random 13 695 / 13 351; 100: 114 806 /
-//!   112 910; 1 000: 1 813 405 / 1 425 768 (-21 %); 3 000 mixed 5 166 935 / 3 195 041 (-38 %); 10 000 mixed
-//!   17 044 670 / 17 831 707 (+5 %: same 10 passes, a different path); path 1 349 / 1 323 per tick. Quick
-//!   timings alternated main, this, main, this (`solver_instructions time`, medians, 2-vCPU VM at load 3.2 to
-//!   3.4, 2026-11-25 01:01 UTC): path 178, 158 / 174, 160 ns; 10 random 1.30, 1.44 / 1.28, 1.10 us; 100:
-//!   10.2, 9.6 / 10.2, 8.8 us; 1 000: 155, 153 / 125, 109 us; 3 000 mixed 501, 483 / 294, 257 us; 10 000
-//!   mixed 1.80, 1.77 / 1.77, 1.73 ms.
-//! - Not done: the path (certificate 585 of 1 323 instructions per tick, the rest set-up, projections and one
-//!   sweep spread over many lines) and N = 10 (13 351 instructions; under 500 ns needs about 6 000) need a
+//!   per solve (callgrind, main / this): wedges 6 092 / 5 965; 10 random 13 695 / 13 347; 100: 114 806 /
+//!   112 799; 1 000: 1 813 405 / 1 424 555 (-21 %); 3 000 mixed 5 166 935 / 3 191 493 (-38 %); 10 000 mixed
+//!   17 044 670 / 17 819 592 (+5 %: the same 10 passes by another way); path 1 349 / 1 296 per tick (of which
+//!   26 from inlining `project`). Quick timings alternated main, this, main, this (`solver_instructions
+//!   time`, medians, 2-vCPU VM at load 3.2 to 3.4, 2026-11-25 01:01 UTC, before the inlining): path 178, 158 /
+//!   174, 160 ns; 10 random 1.30, 1.44 / 1.28, 1.10 us; 100: 10.2, 9.6 / 10.2, 8.8 us; 1 000: 155, 153 / 125,
+//!   109 us; 3 000 mixed 501, 483 / 294, 257 us; 10 000 mixed 1.80, 1.77 / 1.77, 1.73 ms.
+//! - Not done: the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
+//!   sweep spread over many lines) and N = 10 (13 347 instructions; under 500 ns needs about 6 000) need a
 //!   different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated
 //!   friction point (1 999 of the 2 000 path ticks take one dual sweep and one certificate, and in all but
 //!   16 of them the proxy slides: a plane kink and a saturated point), and for small N cheaper
@@ -189,12 +189,12 @@
 //!   re-check of last tick's active set for warm large scenes.
 //!
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
-//! this machine, bench run of 2026-11-25 01:08 UTC at load about 3 (docs/solver.md): path **not met**
-//! (138 ns), N = 10 **not met** (1.1 us), N = 100 **met** (8.3 us), N = 1 000 **not met** (102 us, just over);
-//! 3 000 mixed < 1 ms met (236 us). The exact solver is faster than Euler asked for the same accuracy on every
-//! case (1.27x to 5.19x; 10 000 mixed 1.61 ms against 2.04 ms), and now also than Euler with its own stop on
-//! 1 000 (2.11x) and 3 000 primitives (1.22x). On this shared machine only side-by-side ratios and
-//! instruction counts are steady.
+//! this machine, bench run of 2026-11-25 01:22 UTC at load 1 to 1.5 (docs/solver.md): path **not met**
+//! (134 ns), N = 10 **not met** (1.1 us), N = 100 **met** (8.3 us), N = 1 000 **not met** (103 us, just over;
+//! 102 us in a run at load 3 at 01:08); 3 000 mixed < 1 ms met (236 us). The exact solver is faster than Euler
+//! asked for the same accuracy on every case (1.26x to 5.46x; 10 000 mixed 1.62 ms against 2.05 ms), and now
+//! also than Euler with its own stop on 1 000 (2.09x) and 3 000 primitives (1.21x). On this shared machine
+//! only side-by-side ratios and instruction counts are steady.
 //!
 //! # Real time
 //!

@@ -179,6 +179,10 @@
 //!   time`, medians, 2-vCPU VM at load 3.2 to 3.4, 2026-11-25 01:01 UTC, before the inlining): path 178, 158 /
 //!   174, 160 ns; 10 random 1.30, 1.44 / 1.28, 1.10 us; 100: 10.2, 9.6 / 10.2, 8.8 us; 1 000: 155, 153 / 125,
 //!   109 us; 3 000 mixed 501, 483 / 294, 257 us; 10 000 mixed 1.80, 1.77 / 1.77, 1.73 ms.
+//! - *Capping a cold solve's first step* at the scene's coordinate scale (the first step on the 1 000 scene
+//!   overshoots and is shortened after a wasted pass): tried and dropped; the 1 000 scene kept its 9 passes,
+//!   3 000 mixed went from 6 to 11, 100 random needed the dual fallback (13 sweeps), 100 other scenes of 100
+//!   took 753 passes against 706.
 //! - Not done: the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
 //!   sweep spread over many lines) and N = 10 (13 347 instructions; under 500 ns needs about 6 000) need a
 //!   different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated

@@ -56,7 +56,8 @@ pub(crate) struct Frame {
 }
 
 /// Neumaier's compensated sum of 3-vectors: the error is about 2 eps of the result plus n eps^2 of the sum of
-/// magnitudes, instead of n eps of the sum of magnitudes.
+/// magnitudes, instead of n eps of the sum of magnitudes. Each step's rounding error is computed exactly (by
+/// Knuth's TwoSum, branch-free), so the sums, and the bounds built on them, are those of Neumaier's algorithm.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct CompensatedSum {
     sum: DVec3,
@@ -100,9 +101,12 @@ impl GradientSum for CompensatedSum {
 impl CompensatedSum {
     #[inline]
     pub(crate) fn add(&mut self, v: DVec3) {
+        // Knuth's TwoSum: `lost` is the rounding error of `t` exactly (as in Neumaier's branch on the larger
+        // magnitude, which gives the same value), in six operations per coordinate and no comparison.
         let t = self.sum + v;
-        let big = self.sum.abs().cmpge(v.abs());
-        let lost = DVec3::select(big, (self.sum - t) + v, (v - t) + self.sum);
+        let v_part = t - self.sum;
+        let sum_part = t - v_part;
+        let lost = (self.sum - sum_part) + (v - v_part);
         self.compensation += lost;
         self.sum = t;
     }

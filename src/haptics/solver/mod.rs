@@ -48,7 +48,8 @@
 //!    `(v_i - v_i*).(x - x_i)`: the bound adds `sum e_i / k`, charged as `8 eps sum s_i / k`; the rounding of `y`
 //!    is a linear term too. (b) Each bracket is computed as a sum of non-negative pieces (no cancellation), and
 //!    its rounding error (`16 eps (s_i + |v_i|) |x - x_i|` and a relative `16 eps`) is *added*. (c) The residual
-//!    `k (x - y) + V` is summed with compensation (Neumaier) and its rounding bound added.
+//!    `k (x - y) + V` is summed with compensation (Neumaier's; each step's error is computed exactly by
+//!    Knuth's TwoSum, which gives the same values without a branch) and its rounding bound added.
 //! 3. *No square root of rounding.* Alone, (b) would floor the bound at `sqrt(eps s |x| / k)`, about 1e-10 m,
 //!    because a bracket at a kink is linear in the distance to it. So a second certificate, B, is formed (first:
 //!    A is formed too only when B misses the tolerance) and the smaller bound kept. Primitives within 16 ulps of their kink (the plane the proxy rests
@@ -154,19 +155,50 @@
 //!   primitive. On the path
 //!   the certificate is 46 % of the tick (610 of 1 338 instructions), the rest is set-up, the warm projection
 //!   and one sweep, spread thinly over many lines: under 100 ns needs about 850 instructions on this machine.
-//! - Not tried for lack of time: an O(active) re-check of the previous tick's active set for warm large
-//!   scenes; a structure-of-arrays layout for the passes; checking the kink multipliers before the face has
-//!   converged (on the benchmark's 1 000 scene, passes 6 to 9 converge on a plane whose multiplier then
-//!   asks to leave, and a point added by the line search's near-pass rule is dropped with a multiplier 1 250
-//!   times its strength: both are passes spent on kinks the multipliers reject).
+//! - *Fewer passes* (2026-11-25, kept; [`newton`]'s header, steps 3 to 5). (a) *Early leave:* with one kink
+//!   in W, its multiplier predicted at the face's minimiser (`g + H d`) is checked every pass; far outside its
+//!   set (by over a quarter of its strength) the kink leaves at once (the benchmark's 1 000 scene converged
+//!   three passes on a plane that then asked for 2.7 N against its 0.96 N). (b) *Hold check:* a point or line
+//!   passed near joins an empty W only if the other terms' whole modelled force on it is at most twice its
+//!   strength (a point joined with 1 250 times its strength, and leaving it threw the proxy 0.5 m off: the
+//!   "detour" that made the shortened step lose last time). (c) *Shortened step*, the parabola of the entry
+//!   above, kept now that (b) removed its detour. (d) A step fraction within 1e-6 of 1 counts as full for
+//!   certifying ahead (rounding had left it just below 1). (e) The line search reads only items whose kink
+//!   is within `|d|` of `x` (distances kept from the pass; the others can neither cross nor pass near),
+//!   the compensated sum is branch-free (TwoSum: the same values), the split sweeps over dependent kinks stop
+//!   at a fixed point, and a kink added by the line search does not rebuild its face twice. None of this
+//!   touches the certificate, which checks every answer from scratch as before, so the argument above stands
+//!   unchanged. Passes (`solver_instructions seeds`, main / this): 20 scenes of 1 000 primitives 251 / 159,
+//!   100 of 100 815 / 706, 200 of 30 1 981 / 1 509, 400 of 10 2 217 / 2 040, 6 of 3 000 62 / 54; the
+//!   benchmark's 1 000 scene 12 / 9, 3 000 mixed 11 / 6. Without (c) the 20 scenes took 189 passes (the
+//!   benchmark's 10), with (a) alone 220; (c) without (b): 165, but 12 on the benchmark's scene. Instructions
+//!   per solve (callgrind, main / this): wedges 6 092 / 5 965; 10 random 13 695 / 13 347; 100: 114 806 /
+//!   112 799; 1 000: 1 813 405 / 1 424 555 (-21 %); 3 000 mixed 5 166 935 / 3 191 493 (-38 %); 10 000 mixed
+//!   17 044 670 / 17 819 592 (+5 %: the same 10 passes by another way); path 1 349 / 1 296 per tick (of which
+//!   26 from inlining `project`). Quick timings alternated main, this, main, this (`solver_instructions
+//!   time`, medians, 2-vCPU VM at load 3.2 to 3.4, 2026-11-25 01:01 UTC, before the inlining): path 178, 158 /
+//!   174, 160 ns; 10 random 1.30, 1.44 / 1.28, 1.10 us; 100: 10.2, 9.6 / 10.2, 8.8 us; 1 000: 155, 153 / 125,
+//!   109 us; 3 000 mixed 501, 483 / 294, 257 us; 10 000 mixed 1.80, 1.77 / 1.77, 1.73 ms.
+//! - *Capping a cold solve's first step* at the scene's coordinate scale (the first step on the 1 000 scene
+//!   overshoots and is shortened after a wasted pass): tried and dropped; the 1 000 scene kept its 9 passes,
+//!   3 000 mixed went from 6 to 11, 100 random needed the dual fallback (13 sweeps), 100 other scenes of 100
+//!   took 753 passes against 706.
+//! - Not done: the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
+//!   sweep spread over many lines) and N = 10 (13 347 instructions; under 500 ns needs about 6 000) need a
+//!   different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated
+//!   friction point (1 999 of the 2 000 path ticks take one dual sweep and one certificate, and in all but
+//!   16 of them the proxy slides: a plane kink and a saturated point), and for small N cheaper
+//!   iterations (5 passes of about 2 200 instructions each, each with its 3x3 step and line search, and a
+//!   certificate of about 2 200 over eight primitives). Also not tried: a structure-of-arrays layout for the passes, an O(active)
+//!   re-check of last tick's active set for warm large scenes.
 //!
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
-//! this machine, bench run of 2026-11-24 22:20 UTC (docs/solver.md): path **not met** (150 ns), N = 10 **not
-//! met** (1.1 us), N = 100 **met** (8.9 us), N = 1 000 **not met** (141 us); 3 000 mixed < 1 ms met (449 us).
-//! The exact solver is faster than Euler asked for the same accuracy on every case (1.24x to 4.96x; 10 000
-//! mixed 1.59 ms against 2.12 ms, 1.34x). Two earlier runs the same evening, minutes apart, gave 134 and 261 us
-//! for 1 000 primitives and 263 to 1 220 us for 3 000: the machine was shared, and only side-by-side ratios
-//! and instruction counts are steady.
+//! this machine, bench run of 2026-11-25 01:22 UTC at load 1 to 1.5 (docs/solver.md): path **not met**
+//! (134 ns), N = 10 **not met** (1.1 us), N = 100 **met** (8.3 us), N = 1 000 **not met** (103 us, just over;
+//! 102 us in a run at load 3 at 01:08); 3 000 mixed < 1 ms met (236 us). The exact solver is faster than Euler
+//! asked for the same accuracy on every case (1.26x to 5.46x; 10 000 mixed 1.62 ms against 2.05 ms), and now
+//! also than Euler with its own stop on 1 000 (2.09x) and 3 000 primitives (1.21x). On this shared machine
+//! only side-by-side ratios and instruction counts are steady.
 //!
 //! # Real time
 //!
@@ -691,6 +723,7 @@ impl Solver {
 }
 
 /// Euclidean projection of `v` onto the dual set `U_i` of an item.
+#[inline]
 pub(crate) fn project(item: &Item, v: DVec3) -> DVec3 {
     let s = item.strength_n;
     match item.kind {
@@ -708,6 +741,7 @@ pub(crate) fn project(item: &Item, v: DVec3) -> DVec3 {
     }
 }
 
+#[inline]
 fn clamp_length(v: DVec3, max: f64) -> DVec3 {
     let length = v.length();
     if length > max {

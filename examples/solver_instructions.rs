@@ -73,6 +73,16 @@ const CASES: [&str; 7] = [
 ];
 
 /// Median nanoseconds per call, batches of about 2 ms (the benchmark's timer).
+/// A cold problem at the benchmark's coupling stiffness (no previous proxy).
+fn cold_problem(probe_m: glam::DVec3, primitives: &[Primitive]) -> Problem<'_> {
+    Problem {
+        stiffness_n_per_m: K,
+        probe_m,
+        previous_proxy_m: None,
+        primitives,
+    }
+}
+
 fn median_ns(mut f: impl FnMut()) -> f64 {
     let batch = timing::batch_for(&mut f);
     timing::median_ns(batch, f)
@@ -98,12 +108,7 @@ fn main() {
         "cold" => {
             let (probe, primitives) = case(args.get(1).map(String::as_str).unwrap_or("random10"));
             let reps: usize = args.get(2).map_or(1, |r| r.parse().expect("REPS"));
-            let problem = Problem {
-                stiffness_n_per_m: K,
-                probe_m: probe,
-                previous_proxy_m: None,
-                primitives: &primitives,
-            };
+            let problem = cold_problem(probe, &primitives);
             let mut solver = Solver::with_capacity(SolverConfig::default(), primitives.len());
             let mut last = None;
             for _ in 0..reps {
@@ -126,12 +131,7 @@ fn main() {
             for seed in 1..=count {
                 let mut rng = SplitMix(seed * 1_000_003 + n as u64);
                 let primitives = random_primitives(&mut rng, n);
-                let problem = Problem {
-                    stiffness_n_per_m: K,
-                    probe_m: rng.vec(0.02),
-                    previous_proxy_m: None,
-                    primitives: &primitives,
-                };
+                let problem = cold_problem(rng.vec(0.02), &primitives);
                 solver.reset();
                 let sol = solver.solve(&problem).unwrap();
                 passes += sol.sweeps;
@@ -150,12 +150,7 @@ fn main() {
             println!("path {path_ns:.0} ns per tick");
             for name in CASES {
                 let (probe, primitives) = case(name);
-                let problem = Problem {
-                    stiffness_n_per_m: K,
-                    probe_m: probe,
-                    previous_proxy_m: None,
-                    primitives: &primitives,
-                };
+                let problem = cold_problem(probe, &primitives);
                 let mut solver = Solver::with_capacity(SolverConfig::default(), primitives.len());
                 let ns = median_ns(|| {
                     solver.reset();

@@ -10,15 +10,20 @@
 //! - every `u_i` is first projected onto its set `U_i` (`v_i`), so the dual behind the bound is feasible for this
 //!   tick's primitives; what rounding leaves of infeasibility (a few ulps of `s_i`) is charged as a linear
 //!   perturbation of the energy, `8 eps s_i / k` metres per primitive;
-//! - two certificates are formed, B first; A only when B misses the tolerance (it never meets it with a
-//!   primitive at its kink, where B is needed), and then the smaller is kept. **A** takes the gap at `x` with all `v_i`
-//!   projected, each primitive's share computed without cancellation *plus* its own rounding error, so rounding
-//!   only overstates it. **B** certifies a nearby exact point `x^`, which lies exactly on the kinks that `x` is
-//!   within rounding of (the plane it rests on, the point it is held by): there those shares are exactly zero;
-//!   primitives pulling with full strength off their kink take their exact subgradient at `x^`, whose share is
-//!   exactly zero too; the rest keep their projected share plus what moving from `x` to `x^` can change it. What
-//!   remains is the coupling residual `|k (x - y) + sum v_i|`, which bounds the distance linearly (`/k`),
-//!   not through a square root, and `|x - x^|` counted twice.
+//! - two certificates are formed, B first; A only when B misses the tolerance, and then the smaller is kept.
+//!   **B** certifies a nearby exact point `x^`, which lies exactly on the kinks that `x` is within rounding of
+//!   (the plane it rests on, the line it is held by): there those shares are exactly zero; primitives pulling
+//!   with full strength off their kink take their exact subgradient at `x^`, whose share is exactly zero too;
+//!   the rest keep their projected share plus what moving from `x` to `x^` can change it. What remains is the
+//!   coupling residual `|k (x - y) + sum v_i|`, which bounds the distance linearly (`/k`), not through a square
+//!   root, and `|x - x^|` counted twice. `x^` must exist, so B takes only kinks whose sets certainly meet:
+//!   transversal ones, or ones that meet exactly by construction ([`kink_set_contains`]).
+//! - **A** takes the gap at `x` with all `v_i` projected, each primitive's share computed without cancellation
+//!   *plus* its own rounding error, so rounding only overstates it, and the kinks' *sharpness*: a kink whose
+//!   dual lies strictly inside its set holds the proxy like a spring with no give, and turns the square root of
+//!   the shares into a linear bound ([`sharp_distance_m`]; the argument is in the module header, item 3). A
+//!   needs no common point of the kinks, so it certifies what B must refuse: a proxy stuck on a friction point
+//!   that lies only within rounding of a tilted plane.
 
 use super::linalg::outer;
 use super::{project, Item};
@@ -205,69 +210,205 @@ fn projected_share(item: &Item, v: DVec3, r: DVec3) -> f64 {
     share * (1.0 + 16.0 * EPS) + 16.0 * EPS * (s + v.length()) * r.length()
 }
 
-/// The kinks of certificate B: how far `x` may be from the exact point `x^` on all of them.
+/// The kinks: the items `x` is within [`kink_threshold_m`] of. Certificate B moves to an exact point `x^` on
+/// all of them; certificate A uses their sharpness.
 struct Kinks {
     count: usize,
     /// Sum of upper bounds on the distances from `x` to each kink set.
     distance_sum_m: f64,
     /// Sum over the kinks of each set's codimension (point 3, line 2, plane 1).
     codimension: usize,
-    /// A point among the kinks, if any: then `x^` can only be that point.
-    point: Option<usize>,
-    /// The kinks' indices, when there are at most [`LISTED_KINKS`] of them (the consistency checks then visit
-    /// only these instead of every item).
+    /// Whether a point is among the kinks.
+    point: bool,
+    /// The kinks' indices, when there are at most [`LISTED_KINKS`] of them (the later passes then visit only
+    /// these instead of every item).
     listed: [u32; LISTED_KINKS],
 }
 
-/// Kinks remembered by index in one certificate; beyond that the consistency checks scan every item.
+/// Kinks remembered by index in one certificate; beyond that the later passes scan every item.
 const LISTED_KINKS: usize = 8;
 
 impl Kinks {
-    /// `sum P_i` and `sum P_i c_i` over the kinks (only the general case of [`kink_shift_m`] needs them).
-    fn system(&self, items: &[Item], x: DVec3, scale: f64) -> (DMat3, DVec3) {
-        let mut system = DMat3::ZERO;
-        let mut rhs = DVec3::ZERO;
-        let mut add = |item: &Item| {
-            let projector = match item.kind {
-                PrimitiveKind::Point => DMat3::IDENTITY,
-                PrimitiveKind::Line => DMat3::IDENTITY - outer(item.direction, item.direction),
-                _ => outer(item.direction, item.direction),
-            };
-            system += projector;
-            rhs += projector * item.position_m;
-        };
+    /// The codimension of the kinks' intersection if they are transversal once every kink set that exactly
+    /// contains another is left out (it adds no constraint), and whether a point remains among them. Beyond
+    /// [`LISTED_KINKS`] no set is left out.
+    fn distinct(&self, items: &[Item]) -> (usize, bool) {
+        if self.count > LISTED_KINKS {
+            return (self.codimension, self.point);
+        }
+        let listed = &self.listed[..self.count];
+        let mut codim = 0;
+        let mut point = false;
+        for (a, &i) in listed.iter().enumerate() {
+            let big = &items[i as usize];
+            // Left out if it contains another kink set; of two equal sets, the later one.
+            let redundant = listed.iter().enumerate().any(|(b, &j)| {
+                let small = &items[j as usize];
+                b != a && kink_set_contains(big, small) && (b < a || !kink_set_contains(small, big))
+            });
+            if !redundant {
+                codim += codimension(big);
+                point |= big.kind == PrimitiveKind::Point;
+            }
+        }
+        // Two lines in one coordinate plane that are not parallel cross at a point: their intersection has
+        // codimension 3, not 4.
+        if let [i, j] = listed {
+            let (a, b) = (&items[*i as usize], &items[*j as usize]);
+            if a.kind == PrimitiveKind::Line
+                && b.kind == PrimitiveKind::Line
+                && codim == 4
+                // Not parallel, by far more than rounding (the rank test of the caller confirms it).
+                && a.direction.cross(b.direction).length() > 1e-8
+                && (0..3).any(|c| {
+                    a.direction[c] == 0.0
+                        && b.direction[c] == 0.0
+                        && a.position_m[c] == b.position_m[c]
+                })
+            {
+                codim = 3;
+            }
+        }
+        (codim, point)
+    }
+
+    /// Calls `f` with the index of every kink.
+    fn for_each(&self, items: &[Item], x: DVec3, scale: f64, mut f: impl FnMut(usize)) {
         if self.count <= LISTED_KINKS {
             for &i in &self.listed[..self.count] {
-                add(&items[i as usize]);
+                f(i as usize);
             }
         } else {
-            for item in items {
+            for (i, item) in items.iter().enumerate() {
                 let (d, _) = kink_distance(item, x - item.position_m);
                 if item.strength_n != 0.0 && d <= kink_threshold_m(scale, item) {
-                    add(item);
+                    f(i);
                 }
             }
         }
-        (system, rhs)
     }
 
-    /// Whether every kink set passes within rounding of `point` (the kinks are those items within their
-    /// threshold of `x`).
-    fn all_pass_through(&self, items: &[Item], x: DVec3, point: DVec3, scale: f64) -> bool {
-        let passes = |item: &Item| {
-            let (at_point, rounding) = kink_distance(item, point - item.position_m);
-            at_point <= kink_threshold_m(scale, item) + rounding
-        };
-        if self.count <= LISTED_KINKS {
-            return self.listed[..self.count]
-                .iter()
-                .all(|&i| passes(&items[i as usize]));
-        }
-        items.iter().all(|item| {
-            let (d, _) = kink_distance(item, x - item.position_m);
-            item.strength_n == 0.0 || d > kink_threshold_m(scale, item) || passes(item)
-        })
+    /// `sum P_i` over the kinks, `P_i` the projector onto the normal space of kink set `i` (only the general
+    /// case of [`kink_shift_m`] needs it).
+    fn system(&self, items: &[Item], x: DVec3, scale: f64) -> DMat3 {
+        let mut system = DMat3::ZERO;
+        self.for_each(items, x, scale, |i| system += normal_projector(&items[i]));
+        system
     }
+
+    /// Certificate A's sharpness at `x`: `(lambda, slack)` such that, for every `z`, the kinks' shares at `z`
+    /// add up to at least `lambda |z - x| - slack` (module header, "sharpness"). Each kink contributes its
+    /// margin `m_i`, how far its projected dual lies inside its set: `lambda` is a lower bound on the smallest
+    /// eigenvalue of `sum m_i P_i`, and `slack` bounds `sum m_i dist(x, kink set i)`.
+    fn sharpness(&self, items: &[Item], dual: &[DVec3], x: DVec3, scale: f64) -> (f64, f64) {
+        let mut weighted = DMat3::ZERO;
+        let mut point_margins = 0.0;
+        let mut slack = 0.0;
+        let mut rank = 0;
+        self.for_each(items, x, scale, |i| {
+            let item = &items[i];
+            let margin = dual_margin(item, project(item, dual[i]));
+            if margin <= 0.0 {
+                return;
+            }
+            let (distance, rounding) = kink_distance(item, x - item.position_m);
+            slack += margin * (distance + rounding);
+            match item.kind {
+                PrimitiveKind::Point => {
+                    point_margins += margin;
+                    rank += 3;
+                }
+                PrimitiveKind::Line => rank += 2,
+                _ => rank += 1,
+            }
+            weighted += normal_projector(item) * margin;
+        });
+        // Every point adds its margin times the identity, and the other terms are positive semi-definite.
+        let mut lambda = point_margins;
+        if point_margins == 0.0 && rank >= 3 {
+            let eigen = super::linalg::symmetric_eigen3(weighted);
+            let smallest = eigen.values.min_element();
+            lambda = lambda.max(smallest - eigenvalue_error(weighted, self.count));
+        }
+        (lambda.max(0.0), slack * (1.0 + 16.0 * EPS))
+    }
+}
+
+/// The codimension of an item's kink set (point 3, line 2, plane 1).
+fn codimension(item: &Item) -> usize {
+    match item.kind {
+        PrimitiveKind::Point => 3,
+        PrimitiveKind::Line => 2,
+        _ => 1,
+    }
+}
+
+/// Whether kink set `small` lies inside kink set `big`, decided exactly, without rounding, by a sufficient rule
+/// that holds for coordinate-aligned geometry (a line along x in the plane z = 0, a friction point on such a
+/// plane, two planes with one normal and offset): coordinate by coordinate, anchors that are equal or differ
+/// only where the set extends (a zero normal component of a plane, the one non-zero component of an axis-aligned
+/// line), and directions that are equal, or orthogonal with no coordinate where both are non-zero. Sets that
+/// are inside one another only to within rounding are not found: the caller then treats them as distinct.
+fn kink_set_contains(big: &Item, small: &Item) -> bool {
+    let (a, p) = (small.position_m, big.position_m);
+    let (d, n) = (small.direction, big.direction);
+    match big.kind {
+        PrimitiveKind::Point => small.kind == PrimitiveKind::Point && a == p,
+        PrimitiveKind::Line => {
+            let along = |j: usize| (0..3).all(|i| i == j || n[i] == 0.0);
+            let on_line = (0..3).all(|j| a[j] == p[j] || along(j));
+            match small.kind {
+                PrimitiveKind::Point => on_line,
+                PrimitiveKind::Line => on_line && d == n,
+                _ => false,
+            }
+        }
+        PrimitiveKind::Plane => {
+            let on_plane = (0..3).all(|j| a[j] == p[j] || n[j] == 0.0);
+            match small.kind {
+                PrimitiveKind::Point => on_plane,
+                PrimitiveKind::Line => on_plane && (0..3).all(|j| d[j] == 0.0 || n[j] == 0.0),
+                PrimitiveKind::Plane => on_plane && d == n,
+                PrimitiveKind::Directed => false,
+            }
+        }
+        PrimitiveKind::Directed => false,
+    }
+}
+
+/// The projector onto the normal space of an item's kink set (point: all of R^3; line: the plane orthogonal to
+/// it; plane: its normal).
+fn normal_projector(item: &Item) -> DMat3 {
+    match item.kind {
+        PrimitiveKind::Point => DMat3::IDENTITY,
+        PrimitiveKind::Line => DMat3::IDENTITY - outer(item.direction, item.direction),
+        _ => outer(item.direction, item.direction),
+    }
+}
+
+/// A lower bound on how far a projected dual value lies inside its set, in the directions normal to the kink
+/// set (ball or disc: `s - |v|`; segment `{-t q : 0 <= t <= s}`: `min(t, s - t)`), less its rounding and the
+/// few ulps of `s` by which a rounded projection may lie off the set (module header, 2 (a)).
+fn dual_margin(item: &Item, v: DVec3) -> f64 {
+    let s = item.strength_n;
+    let inside = match item.kind {
+        PrimitiveKind::Point | PrimitiveKind::Line => s - v.length() * (1.0 + 4.0 * EPS),
+        PrimitiveKind::Plane => {
+            let t = -item.direction.dot(v);
+            t.min(s - t) - 4.0 * EPS * s
+        }
+        PrimitiveKind::Directed => 0.0,
+    };
+    inside * (1.0 - 4.0 * EPS) - 8.0 * EPS * s
+}
+
+/// An upper bound on the error of [`super::linalg::symmetric_eigen3`]'s eigenvalues of a positive
+/// semi-definite sum of `count` weighted projectors: each entry of the sum is rounded at most `count` times, and
+/// each of at most 96 Jacobi rotations is backward stable to a few ulps of the matrix's norm, which the trace
+/// bounds.
+fn eigenvalue_error(m: DMat3, count: usize) -> f64 {
+    let trace = m.x_axis.x + m.y_axis.y + m.z_axis.z;
+    (4e-13 + 8.0 * EPS * count as f64) * trace.abs()
 }
 
 /// Certifies the pair `(x, dual)`. `dual` may be anything (it is projected here); the result is a valid bound on
@@ -289,7 +430,7 @@ pub(crate) fn certify(
         count: 0,
         distance_sum_m: 0.0,
         codimension: 0,
-        point: None,
+        point: false,
         listed: [0; LISTED_KINKS],
     };
     // Certificate B: kinks zero, saturated items their subgradient, the rest projected.
@@ -318,14 +459,8 @@ pub(crate) fn certify(
             }
             kinks.count += 1;
             kinks.distance_sum_m += distance + rounding;
-            kinks.codimension += match item.kind {
-                PrimitiveKind::Point => {
-                    kinks.point.get_or_insert(i);
-                    3
-                }
-                PrimitiveKind::Line => 2,
-                _ => 1,
-            };
+            kinks.codimension += codimension(item);
+            kinks.point |= item.kind == PrimitiveKind::Point;
             total_b.add(v);
         } else if let Some(g) = saturated_subgradient(item, r, v) {
             let margin = distance - rounding;
@@ -367,7 +502,8 @@ pub(crate) fn certify(
     };
     if let Some(shift_m) = kink_shift_m(items, &kinks, x, scale) {
         if smallest_margin_m > 2.0 * shift_m {
-            let shares = shares_b + moved_share_weight * shift_m;
+            // A sum of n non-negative terms is rounded by at most n eps of itself.
+            let shares = shares_b * (1.0 + (n + 2.0) * EPS) + moved_share_weight * shift_m;
             let residual = residual_bound(&total_b) + k * shift_m;
             let bound_b = 2.0 * shift_m
                 + (2.0 * shares / k).sqrt()
@@ -385,7 +521,7 @@ pub(crate) fn certify(
         return best;
     }
 
-    // Certificate A: all projected, at x.
+    // Certificate A: all projected, at x, with the kinks' sharpness.
     let mut shares_a = 0.0;
     let mut total_a = CompensatedSum::default();
     for (item, &u) in items.iter().zip(dual) {
@@ -396,8 +532,16 @@ pub(crate) fn certify(
         shares_a += projected_share(item, v, x - item.position_m);
         total_a.add(v);
     }
+    // A sum of n non-negative terms is rounded by at most n eps of itself.
+    shares_a *= 1.0 + (n + 2.0) * EPS;
     let residual_a = residual_bound(&total_a);
-    let bound_a = rounded_up((2.0 * shares_a / k).sqrt() + residual_a / k + linear_m);
+    let (sharpness, slack) = if kinks.count > 0 {
+        kinks.sharpness(items, dual, x, scale)
+    } else {
+        (0.0, 0.0)
+    };
+    let bound_a =
+        rounded_up(sharp_distance_m(k, sharpness, residual_a, shares_a + slack) + linear_m);
     if bound_a < best.bound_m || best.bound_m.is_nan() {
         best = Certificate {
             gap_j: shares_a + residual_a * residual_a / (2.0 * k),
@@ -406,6 +550,19 @@ pub(crate) fn certify(
         };
     }
     best
+}
+
+/// The largest `d >= 0` with `k d^2 + (sharpness - residual) d <= shares` (module header, "sharpness"), from
+/// the root's two forms that add only non-negative terms; the caller adds its rounding.
+fn sharp_distance_m(k: f64, sharpness_n: f64, residual_n: f64, shares_j: f64) -> f64 {
+    // A lower bound on sharpness - residual: d grows as it falls, so rounding it down only overstates d.
+    let beta = (sharpness_n - residual_n) - 2.0 * EPS * (sharpness_n + residual_n);
+    let root = (beta * beta + 4.0 * k * shares_j).sqrt();
+    if beta > 0.0 {
+        2.0 * shares_j / (beta + root)
+    } else {
+        (root - beta) / (2.0 * k)
+    }
 }
 
 /// Below this distance from its kink set an item counts as on it (`scale` is `|x| + |y| + sum s_i / k`).
@@ -419,24 +576,22 @@ fn rounded_up(bound: f64) -> f64 {
 }
 
 /// An upper bound on `|x - x^|`, where `x^` is the exact point nearest `x` on all the kink sets, or `None` when
-/// the kinks have no common point (within rounding) or are too degenerate to bound.
+/// the kink sets are not certain to meet (not transversal, and not meeting exactly by construction) or are too
+/// degenerate to bound.
 fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f64> {
     match kinks.count {
         0 => return Some(0.0),
         1 => return Some(kinks.distance_sum_m),
         _ => {}
     }
-    if let Some(p) = kinks.point {
-        // x^ is that point: every other kink must pass through it (checked at the rounding threshold).
-        let c = items[p].position_m;
-        if !kinks.all_pass_through(items, x, c, scale) {
-            return None;
-        }
-        let (d, rounding) = kink_distance(&items[p], x - c);
-        return Some(d + rounding);
+    let (codimension, point) = kinks.distinct(items);
+    if point {
+        // Every other kink set exactly contains the point: `x^` is the point. A point with any other kink is not
+        // transversal (module header), and left to certificate A's sharpness.
+        return (codimension == 3).then_some(kinks.distance_sum_m);
     }
     // One eigen-decomposition gives both the smallest positive eigenvalue and, when needed, the pseudo-inverse.
-    let (system, rhs) = kinks.system(items, x, scale);
+    let system = kinks.system(items, x, scale);
     let eigen = super::linalg::symmetric_eigen3(system);
     let max = eigen.values.max_element();
     let mut smallest_positive = f64::INFINITY;
@@ -450,16 +605,13 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     if !smallest_positive.is_finite() || rank == 0 {
         return None;
     }
-    if kinks.codimension != rank {
-        // Not transversal: the sets meet only if they happen to pass through a common point. Check that the
-        // least-squares point lies on all of them to within rounding.
-        let pinv = super::linalg::pseudo_inverse_from(&eigen, RANK_TOLERANCE);
-        let x_hat = x + pinv * (rhs - system * x);
-        if !kinks.all_pass_through(items, x, x_hat, scale) {
-            return None;
-        }
+    if codimension != rank {
+        // Not transversal: the sets meet only if they pass through a common point, which floating point
+        // cannot confirm. Left to certificate A, whose sharpness needs no common point (module header).
+        return None;
     }
-    // |M^+ sum_i P_i r_i| <= sum_i |P_i r_i| / sqrt(lambda_min^+), since P_i <= M; with a margin for the
-    // eigenvalue's own rounding.
-    Some(kinks.distance_sum_m / (smallest_positive * (1.0 - 1e-9)).sqrt())
+    // |M^+ sum_i P_i r_i| <= sum_i |P_i r_i| / sqrt(lambda_min^+), since P_i <= M; less what rounding can
+    // have added to the eigenvalue.
+    let lower = smallest_positive - eigenvalue_error(system, kinks.count);
+    (lower > 0.0).then(|| kinks.distance_sum_m / lower.sqrt())
 }

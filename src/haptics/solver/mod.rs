@@ -227,13 +227,12 @@
 //!   re-check of last tick's active set for warm large scenes.
 //!
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
-//! this machine, bench run of 2026-11-25 01:30 UTC in the release profile with overflow checks, at load 0.7 to
-//! 1.8 (docs/solver.md): path **not met** (135 ns), N = 10 **not met** (1.1 us), N = 100 **met** (8.3 us),
-//! N = 1 000 **not met** (104.5 us, just over; 102-103 us in two runs without overflow checks at 01:08 and
-//! 01:22); 3 000 mixed < 1 ms met (252 us). The exact solver is faster than Euler asked for the same accuracy
-//! on every case (1.22x to 5.32x; 10 000 mixed 1.67 ms against 2.04 ms), and now also than Euler with its own
-//! stop on 1 000 (2.14x) and 3 000 primitives (1.14x). On this shared machine
-//! only side-by-side ratios and instruction counts are steady.
+//! this machine, bench run of 2026-11-25 04:33 UTC in the release profile with overflow checks, nothing else
+//! running (docs/solver.md): path **not met** (142 ns), N = 10 **not met** (1.1 us), N = 100 **met**
+//! (8.5 us), N = 1 000 **not met** (103.4 us, just over); 3 000 mixed < 1 ms met (251 us). The exact solver is
+//! faster than Euler asked for the same accuracy on every case (1.20x to 5.07x; 10 000 mixed 1.68 ms against
+//! 2.03 ms), and than Euler with its own stop on 1 000 (2.09x) and 3 000 primitives (1.14x). On this shared
+//! machine only side-by-side ratios and instruction counts are steady.
 //!
 //! # Real time
 //!

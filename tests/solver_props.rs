@@ -210,7 +210,7 @@ proptest! {
         prop_assert_eq!(sol.status, SolveStatus::Certified, "{:?}", sol);
         let reference = reference::minimise(500.0, probe, &prims);
         let error = reference.distance_m(sol.proxy_m);
-        prop_assert!(error <= sol.error_bound_m + reference.error_bound_m, "{:e} {:?} {:?}", error, sol, reference);
+        prop_assert!(error <= sol.error_bound_m + reference.error_bound_m, "{:e} {:?} {:?} primitives {:?} probe {:?}", error, sol, reference, prims, probe);
     }
 
     /// Warm-starting from any previous proxy gives the same answer.

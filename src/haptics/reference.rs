@@ -16,7 +16,10 @@
 //! `solver_props::primal_newton_agrees_with_the_dual_method`, kept in its regression file), and the answer is
 //! finished by Newton steps along the face of the kinks it sits on, with those terms left out
 //! ([`polish_on_face`]; without it a proxy on a tilted plane was left 2.8e-16 m off along it, and one on a line
-//! 1.35e-13 m, while the estimate said about 1e-17 m; both kept in the regression file).
+//! 1.35e-13 m, while the estimate said about 1e-17 m; both kept in the regression file). Quotients go through
+//! [`div`], one Newton step past `twofloat`'s division, which is only about f64-accurate: with it, a unit
+//! direction was unit only to 1e-17, and a face basis built by Gram-Schmidt was off by 3.5e-13, which left a
+//! proxy on a line 1.1e-15 m off along it.
 //!
 //! The inputs (probe, positions, directions, strengths) are taken as exact: they are the f64 values the solver
 //! sees, so the reference answers the same problem.
@@ -50,6 +53,13 @@ type V = [D; 3];
 
 fn d(x: f64) -> D {
     D::from(x)
+}
+
+/// `a / b` to double-double precision: `twofloat`'s quotient is only about f64-accurate (1 / sqrt(2) was off by
+/// 2e-17), so one Newton step refines it (the residual `a - q b` is exact enough in double-double).
+fn div(a: D, b: D) -> D {
+    let q = a / b;
+    q + (a - q * b) / b
 }
 
 fn from_vec(v: DVec3) -> V {
@@ -101,7 +111,7 @@ fn solve3(mut m: M, mut b: V) -> Option<V> {
         m.swap(col, pivot);
         b.swap(col, pivot);
         for row in col + 1..3 {
-            let factor = m[row][col] / m[col][col];
+            let factor = div(m[row][col], m[col][col]);
             let pivot_row = m[col];
             for (entry, v) in m[row].iter_mut().zip(pivot_row).skip(col) {
                 *entry -= factor * v;
@@ -116,7 +126,7 @@ fn solve3(mut m: M, mut b: V) -> Option<V> {
         for c in row + 1..3 {
             acc -= m[row][c] * x[c];
         }
-        x[row] = acc / m[row][row];
+        x[row] = div(acc, m[row][row]);
     }
     Some(x)
 }
@@ -175,10 +185,10 @@ fn smoothed_without(
                 };
                 let root = (dot(v, v) + eps2).sqrt();
                 e += s * (root - eps);
-                g = add(g, scale(v, s / root));
+                g = add(g, scale(v, div(s, root)));
                 if hessian {
                     // s (P / root - v v^T / root^3), P = I (point) or I - q q^T (line).
-                    let c = s / root;
+                    let c = div(s, root);
                     for (i, row) in h.iter_mut().enumerate() {
                         row[i] += c;
                     }
@@ -192,7 +202,7 @@ fn smoothed_without(
                 let sigma = dot(q, r);
                 let root = (sigma * sigma + eps2).sqrt();
                 e += s * (root - sigma - eps) / 2.0;
-                g = add(g, scale(q, s * (sigma / root - 1.0) / 2.0));
+                g = add(g, scale(q, s * (div(sigma, root) - 1.0) / 2.0));
                 if hessian {
                     add_outer(&mut h, q, q, s * eps2 / (root * root * root * 2.0));
                 }
@@ -218,13 +228,13 @@ pub fn minimise(
         let q = from_vec(p.direction());
         let length = dot(q, q).sqrt();
         let q = if f64::from(length) > 0.0 {
-            scale(q, d(1.0) / length)
+            scale(q, div(d(1.0), length))
         } else {
             q
         };
         let s = d(p.strength_n());
         if p.kind() == PrimitiveKind::Directed {
-            y = add(y, scale(q, s / k));
+            y = add(y, scale(q, div(s, k)));
         } else {
             terms.push(Term {
                 kind: p.kind(),
@@ -367,7 +377,7 @@ fn polish_on_face(k: D, y: V, terms: &[Term], x: V, eps: D) -> (V, f64) {
             }
             let length = dot(w, w).sqrt();
             if f64::from(length) > 1e-6 {
-                basis.push(scale(w, d(1.0) / length));
+                basis.push(scale(w, div(d(1.0), length)));
             }
         }
         basis

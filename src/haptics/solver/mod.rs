@@ -127,7 +127,10 @@
 //!   bound on `y`'s rounding, left 10 000 primitives at a 2e-12 m floor).
 //! - On the servo loop's usual tick (a plane and a friction point, warm-started) the primal method took 2 us
 //!   where one or two dual sweeps from last tick's dual take 0.19 us, so small warm-started scenes (at most 16
-//!   non-directed primitives) go to the dual sweeps first.
+//!   non-directed primitives) go to the dual sweeps first. If two active-set rounds do not finish such a
+//!   scene, the primal method runs once from the best point (2026-11-25: a proxy held by a friction point
+//!   beside a plane kept the dual method stalled for 2 000 sweeps, bound 3.6e-7 m, before and after the
+//!   certificate's fix; found by `solver_props::the_bound_holds_on_a_plane_with_friction_tick_after_tick`).
 //! - *Screening* of planes: it removes work only in the last passes (the proven radius is large until Newton has
 //!   nearly converged), so its gain is small; kept because it never changes the answer. Not measured apart.
 //! - *Plain sums far from the answer* (kept): the compensated gradient sum costs several times a plain one per
@@ -567,6 +570,7 @@ impl Solver {
         };
         let mut best_at_sweep = 0u32;
         let mut retry_from_sweeps = false;
+        let mut primal_fallback_done = false;
         let mut next_check = 1u32;
         let mut newton_passes = 0;
         let finish = |best: Candidate, sweeps, newton_passes, rounds, status| Solution {
@@ -732,6 +736,46 @@ impl Solver {
                     std::mem::swap(&mut self.dual, &mut self.candidate_dual);
                     total = candidate_total;
                     retry_from_sweeps = false;
+                }
+            }
+            // A small warm scene that two active-set rounds could not finish gets the primal method once, from
+            // the best point so far (the dual method can stall for its whole budget on a proxy held by a
+            // friction point beside a plane; found by `the_bound_holds_on_a_plane_with_friction_tick_after_tick`).
+            if !primal_first && !primal_fallback_done && config.primal_newton && rounds >= 2 {
+                primal_fallback_done = true;
+                let limits = newton::Limits {
+                    tolerance_m: config.tolerance_m,
+                    max_passes: config
+                        .max_sweeps
+                        .saturating_sub(sweeps)
+                        .min(NEWTON_MAX_PASSES),
+                    screening: config.screening,
+                };
+                let mut over_time =
+                    || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
+                self.candidate_dual.clear();
+                self.candidate_dual.extend_from_slice(&self.dual);
+                let outcome = self.newton.solve(
+                    &self.items,
+                    &frame,
+                    best.x,
+                    limits,
+                    &mut self.candidate_dual,
+                    &mut over_time,
+                );
+                sweeps += outcome.passes;
+                newton_passes += outcome.passes;
+                if let Some(checked) = outcome.certificate {
+                    if checked.bound_m < best.bound_m {
+                        best = Candidate {
+                            x: outcome.x,
+                            gap_j: checked.gap_j,
+                            bound_m: checked.bound_m,
+                        };
+                        best_at_sweep = sweeps;
+                        std::mem::swap(&mut self.dual, &mut self.candidate_dual);
+                        total = self.dual.iter().copied().sum::<DVec3>();
+                    }
                 }
             }
         }

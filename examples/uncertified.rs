@@ -7,35 +7,14 @@
 //! `VOXHAP_SHOW=1` it prints each such scene. Every answer still carries an honest bound (the property tests
 //! check that); this measures only how often the bound misses the tolerance.
 
-use glam::DVec3;
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
 use proptest::test_runner::{Config, TestRunner};
 use voxhap::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
 
-fn coordinate() -> impl Strategy<Value = f64> {
-    prop_oneof![
-        2 => (-2i32..=2).prop_map(|i| i as f64 * 0.002),
-        3 => -0.01f64..0.01,
-    ]
-}
-
-fn vector() -> impl Strategy<Value = DVec3> {
-    (coordinate(), coordinate(), coordinate()).prop_map(|(x, y, z)| DVec3::new(x, y, z))
-}
-
-fn direction() -> impl Strategy<Value = DVec3> {
-    prop_oneof![
-        Just(DVec3::Z),
-        Just(DVec3::X),
-        Just(DVec3::new(0.0175, 0.0, 1.0)),
-        (-1.0f64..1.0, -1.0f64..1.0, -1.0f64..1.0).prop_map(|(x, y, z)| DVec3::new(x, y, z + 0.05)),
-    ]
-}
-
-fn strength() -> impl Strategy<Value = f64> {
-    prop_oneof![1 => Just(0.0), 4 => 0.0f64..3.0]
-}
+#[path = "../tests/util/scene_strategies.rs"]
+mod scene_strategies;
+use scene_strategies::{direction, strength, vector};
 
 fn primitive(lines: bool) -> impl Strategy<Value = Primitive> {
     (0u8..4, vector(), direction(), strength()).prop_map(move |(kind, p, d, s)| {

@@ -11,31 +11,7 @@ use voxhap::haptics::primitive::total_energy_j;
 use voxhap::haptics::reference;
 use voxhap::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
 
-/// Coordinates drawn partly from a small lattice so that coincident primitives, probes exactly on kinks and
-/// parallel planes come up often, and partly at random.
-fn coordinate() -> impl Strategy<Value = f64> {
-    prop_oneof![
-        2 => (-2i32..=2).prop_map(|i| i as f64 * 0.002),
-        3 => -0.01f64..0.01,
-    ]
-}
-
-fn vector() -> impl Strategy<Value = DVec3> {
-    (coordinate(), coordinate(), coordinate()).prop_map(|(x, y, z)| DVec3::new(x, y, z))
-}
-
-fn direction() -> impl Strategy<Value = DVec3> {
-    prop_oneof![
-        Just(DVec3::Z),
-        Just(DVec3::X),
-        Just(DVec3::new(0.0175, 0.0, 1.0)),
-        (-1.0f64..1.0, -1.0f64..1.0, -1.0f64..1.0).prop_map(|(x, y, z)| DVec3::new(x, y, z + 0.05)),
-    ]
-}
-
-fn strength() -> impl Strategy<Value = f64> {
-    prop_oneof![1 => Just(0.0), 4 => 0.0f64..3.0]
-}
+use crate::util::scene_strategies::{direction, strength, vector};
 
 /// The parts of a primitive, so that a tick can change them.
 #[derive(Debug, Clone, Copy)]
@@ -407,14 +383,32 @@ fn a_friction_point_within_rounding_of_a_tilted_plane_is_not_taken_as_on_it() {
         (0.0, 0.0005302535060117836, 0.0004883747273277321),
         (0.0, -0.0002555044402677522, 0.00040707921757741433),
     ];
+    let start = DVec3::new(0.0, 0.006487477334788303, 0.0);
+    if let Err(e) = friction_ticks(k, plane, mu, start, &steps) {
+        panic!("{e}");
+    }
+}
+
+/// The servo loop's usual tick, tick after tick: a plane, and a friction point at the previous proxy whose
+/// strength is `mu` times the last normal force, warm-started as the exploration path is. Each step moves the
+/// probe along the plane by `(a, b)` and puts it `depth` below the surface. Every tick must be honest against
+/// the reference and certified; returns how many ticks the proxy slid on.
+fn friction_ticks(
+    k: f64,
+    plane: Primitive,
+    mu: f64,
+    start: DVec3,
+    steps: &[(f64, f64, f64)],
+) -> Result<usize, TestCaseError> {
+    let plane_at = plane.position_m();
     let q = plane.direction();
     let along = q.any_orthonormal_pair();
-    let start = DVec3::new(0.0, 0.006487477334788303, 0.0);
     let mut solver = Solver::default();
     let mut proxy = start - q * q.dot(start - plane_at);
     let mut normal_force: f64 = 0.0;
     let mut probe = proxy;
-    for (tick, (a, b, depth)) in steps.into_iter().enumerate() {
+    let mut slid = 0;
+    for (tick, &(a, b, depth)) in steps.iter().enumerate() {
         probe += along.0 * a + along.1 * b;
         probe -= q * (q.dot(probe - plane_at) + depth);
         let prims = [plane, Primitive::point(proxy, mu * normal_force).unwrap()];
@@ -425,13 +419,20 @@ fn a_friction_point_within_rounding_of_a_tilted_plane_is_not_taken_as_on_it() {
             primitives: &prims,
         };
         let sol = solver.solve(&problem).unwrap();
-        if let Err(e) = assert_honest(&sol, k, probe, &prims) {
-            panic!("tick {tick}: {e}");
-        }
-        assert_eq!(sol.status, SolveStatus::Certified, "tick {tick}: {sol:?}");
+        assert_honest(&sol, k, probe, &prims)
+            .map_err(|e| TestCaseError::fail(format!("tick {tick}: {e}")))?;
+        prop_assert_eq!(
+            sol.status,
+            SolveStatus::Certified,
+            "tick {}: {:?}",
+            tick,
+            sol
+        );
+        slid += usize::from((sol.proxy_m - proxy).length() > 1e-9);
         normal_force = sol.force_n.dot(q).abs();
         proxy = sol.proxy_m;
     }
+    Ok(slid)
 }
 
 proptest! {
@@ -453,25 +454,7 @@ proptest! {
         k in prop_oneof![Just(500.0), 200.0f64..2000.0],
     ) {
         let plane = Primitive::plane(plane_at, normal, plane_strength).unwrap();
-        let q = plane.direction();
-        let along = q.any_orthonormal_pair();
-        let mut solver = Solver::default();
-        let mut proxy = start - q * q.dot(start - plane_at);
-        let mut normal_force: f64 = 0.0;
-        let mut probe = proxy;
-        let mut slid = 0;
-        for (a, b, depth) in steps {
-            // Below the surface by `depth`, moved along it.
-            probe += along.0 * a + along.1 * b;
-            probe -= q * (q.dot(probe - plane_at) + depth);
-            let prims = [plane, Primitive::point(proxy, mu * normal_force).unwrap()];
-            let sol = solver.solve(&Problem { stiffness_n_per_m: k, probe_m: probe, previous_proxy_m: Some(proxy), primitives: &prims }).unwrap();
-            prop_assert_eq!(sol.status, SolveStatus::Certified, "{:?}", sol);
-            assert_honest(&sol, k, probe, &prims)?;
-            slid += usize::from((sol.proxy_m - proxy).length() > 1e-9);
-            normal_force = sol.force_n.dot(q).abs();
-            proxy = sol.proxy_m;
-        }
+        let slid = friction_ticks(k, plane, mu, start, &steps)?;
         prop_assert!(slid > 0);
     }
 

@@ -5,9 +5,11 @@
 //! servo tick, `SimArm::step`) does not allocate while other tests run in parallel on other threads.
 //! [`server`] starts a session with the visualiser server and speaks HTTP and WebSocket to it.
 //! [`spec_device`] is a voxhap-protocol device written from protocol/SPEC.md alone, on a pseudo-terminal, that logs
-//! every force the host sends it and misbehaves on request (tests/device_spec.rs).
+//! every force the host sends it and misbehaves on request (tests/device_spec.rs). [`scene_strategies`] draws
+//! the solver property tests' random scenes.
 
 pub mod alloc;
+pub mod scene_strategies;
 pub mod server;
 pub mod spec_device;
 

@@ -594,18 +594,13 @@ impl Solver {
         let primal_first = config.primal_newton
             && !(same_structure && self.items.len() <= CHECK_EVERY_SWEEP_MAX_ITEMS);
         if primal_first && !self.items.is_empty() && !over_budget(sweeps) {
-            let limits = newton::Limits {
-                tolerance_m: config.tolerance_m,
-                max_passes: config.max_sweeps.min(NEWTON_MAX_PASSES),
-                screening: config.screening,
-            };
             let mut over_time =
                 || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
             let outcome = self.newton.solve(
                 &self.items,
                 &frame,
                 problem.previous_proxy_m.unwrap_or(y),
-                limits,
+                newton_limits(&config, sweeps),
                 &mut self.dual,
                 &mut over_time,
             );
@@ -743,14 +738,6 @@ impl Solver {
             // friction point beside a plane; found by `the_bound_holds_on_a_plane_with_friction_tick_after_tick`).
             if !primal_first && !primal_fallback_done && config.primal_newton && rounds >= 2 {
                 primal_fallback_done = true;
-                let limits = newton::Limits {
-                    tolerance_m: config.tolerance_m,
-                    max_passes: config
-                        .max_sweeps
-                        .saturating_sub(sweeps)
-                        .min(NEWTON_MAX_PASSES),
-                    screening: config.screening,
-                };
                 let mut over_time =
                     || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
                 self.candidate_dual.clear();
@@ -759,7 +746,7 @@ impl Solver {
                     &self.items,
                     &frame,
                     best.x,
-                    limits,
+                    newton_limits(&config, sweeps),
                     &mut self.candidate_dual,
                     &mut over_time,
                 );
@@ -809,6 +796,18 @@ impl Solver {
             gap_j: checked.gap_j,
             bound_m: checked.bound_m,
         }
+    }
+}
+
+/// The primal Newton method's limits with `sweeps` of the sweep budget already spent.
+fn newton_limits(config: &SolverConfig, sweeps: u32) -> newton::Limits {
+    newton::Limits {
+        tolerance_m: config.tolerance_m,
+        max_passes: config
+            .max_sweeps
+            .saturating_sub(sweeps)
+            .min(NEWTON_MAX_PASSES),
+        screening: config.screening,
     }
 }
 

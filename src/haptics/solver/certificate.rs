@@ -121,29 +121,39 @@ impl CompensatedSum {
     }
 }
 
-/// The distance from `x` to an item's kink set, with an upper bound on its rounding error.
+/// The distance from `x` to an item's kink set, with an upper bound on its rounding error (`4 eps |r|`, with
+/// `|r|` itself for a point and the upper bound `|r|_1 >= |r|` for a line or a plane, which needs no square root).
 #[inline]
 fn kink_distance(item: &Item, r: DVec3) -> (f64, f64) {
-    let rounding = 4.0 * EPS * r.length();
     match item.kind {
-        PrimitiveKind::Point => (r.length(), rounding),
+        PrimitiveKind::Point => {
+            let distance = r.length();
+            (distance, 4.0 * EPS * distance)
+        }
         PrimitiveKind::Line => {
             let q = item.direction;
-            ((r - q * q.dot(r)).length(), rounding)
+            (
+                (r - q * q.dot(r)).length(),
+                4.0 * EPS * r.abs().element_sum(),
+            )
         }
-        PrimitiveKind::Plane => (item.direction.dot(r).abs(), rounding),
+        PrimitiveKind::Plane => (
+            item.direction.dot(r).abs(),
+            4.0 * EPS * r.abs().element_sum(),
+        ),
         PrimitiveKind::Directed => (f64::INFINITY, 0.0),
     }
 }
 
 /// The exact subgradient of an off-kink item at `x` (as computed; its rounding is charged separately), if the
-/// item pulls with full strength: the value its dual takes at the answer.
+/// item pulls with full strength: the value its dual takes at the answer. `distance` is the item's
+/// [`kink_distance`], positive here (the item is off its kink).
 #[inline]
-fn saturated_subgradient(item: &Item, r: DVec3, v: DVec3) -> Option<DVec3> {
+fn saturated_subgradient(item: &Item, r: DVec3, v: DVec3, distance: f64) -> Option<DVec3> {
     let s = item.strength_n;
     match item.kind {
         PrimitiveKind::Point | PrimitiveKind::Line => {
-            if v.length() < (1.0 - 1e-6) * s {
+            if v.length_squared() < (1.0 - 2e-6) * s * s {
                 return None;
             }
             let q = item.direction;
@@ -152,7 +162,9 @@ fn saturated_subgradient(item: &Item, r: DVec3, v: DVec3) -> Option<DVec3> {
             } else {
                 r
             };
-            Some(perpendicular.normalize_or_zero() * s)
+            // The offset's length is `distance`, computed the same way: `s / distance` scales it to length
+            // `s` (to a few ulps, charged with the dual rounding), one division instead of a normalisation.
+            Some(perpendicular * (s / distance))
         }
         PrimitiveKind::Plane => {
             let sigma = item.direction.dot(r);
@@ -462,7 +474,7 @@ pub(crate) fn certify(
             kinks.codimension += codimension(item);
             kinks.point |= item.kind == PrimitiveKind::Point;
             total_b.add(v);
-        } else if let Some(g) = saturated_subgradient(item, r, v) {
+        } else if let Some(g) = saturated_subgradient(item, r, v, distance) {
             let margin = distance - rounding;
             smallest_margin_m = smallest_margin_m.min(margin);
             if item.kind != PrimitiveKind::Plane {
@@ -489,8 +501,9 @@ pub(crate) fn certify(
         let t = total.value();
         let coupling = k * (x - y);
         let residual = (coupling + t).length();
+        // The 1-norms bound the lengths from above (no square roots needed for a rounding term).
         residual * (1.0 + 8.0 * EPS)
-            + 8.0 * EPS * (coupling.length() + t.length())
+            + 8.0 * EPS * (coupling.abs().element_sum() + t.abs().element_sum())
             + 4.0 * n * EPS * EPS * magnitude_bound_n
     };
     let linear_m = frame.y_error_m + dual_rounding_n / k;
@@ -540,8 +553,11 @@ pub(crate) fn certify(
     } else {
         (0.0, 0.0)
     };
-    let bound_a =
-        rounded_up(sharp_distance_m(k, sharpness, residual_a, shares_a + slack) + linear_m);
+    // The kinks' sharpness, or a point's own (whichever bounds tighter; both are valid).
+    let distance_a = sharp_distance_m(k, sharpness, residual_a, shares_a + slack).min(
+        point_sharpness_distance_m(items, dual, &kinks, x, scale, k, residual_a, shares_a),
+    );
+    let bound_a = rounded_up(distance_a + linear_m);
     if bound_a < best.bound_m || best.bound_m.is_nan() {
         best = Certificate {
             gap_j: shares_a + residual_a * residual_a / (2.0 * k),
@@ -550,6 +566,110 @@ pub(crate) fn certify(
         };
     }
     best
+}
+
+/// A plane or a line among the kinks, as a partner of a point in [`point_sharpness_distance_m`]: its share is
+/// at least `margin |P (z - x)| - slack` (module header, "sharpness").
+#[derive(Debug, Clone, Copy, Default)]
+struct Partner {
+    line: bool,
+    direction: DVec3,
+    margin_n: f64,
+    slack_j: f64,
+}
+
+/// Certificate A's distance with a point's own sharpness (module header, "sharpness", the point form): the
+/// smallest over the point items, alone or with one plane or line among the kinks, of the largest `d` with
+/// `k d^2 + (lambda - residual) d <= shares + slack`.
+///
+/// For a point at `c` with projected dual `v`, at `w = z - x` its share is `s |w + e| - v.(w + e)` with
+/// `e = x - c`, at least `s |w| - v.w - (s + |v|) |e|`; a plane kink with margin `m` adds at least
+/// `m |q.w| - slack` (a line, `m |P w| - slack`). Their sum is the support function of `K = B(-v, s) + Z`,
+/// `Z` the segment `{t q : |t| <= m}` (the line's disc of radius `m` across it; `{0}` alone), which is at
+/// least `lambda |w|` for `lambda = s - dist(v, Z)`: the ball of that radius lies in `K`. A saturated point
+/// (`|v| = s`) has no margin of its own, yet with a plane pushing with room to spare it is sharp unless it
+/// pulls along the plane. A proxy resting on a tilted plane, held by a friction point 5.6e-17 m in front of it
+/// with 18 % of its strength to spare (so the minimiser is on the plane 1e-16 m from the point, which pulls with
+/// all of its strength), had a bound of 2.8e-10 m and ended `Stalled`; it is certified at 2.5e-15 m this way
+/// (2026-11-27, found by the friction property test, kept in its regression file). The point need not be among
+/// the kinks; its offset `|e|` enters the slack.
+#[allow(clippy::too_many_arguments)]
+fn point_sharpness_distance_m(
+    items: &[Item],
+    dual: &[DVec3],
+    kinks: &Kinks,
+    x: DVec3,
+    scale: f64,
+    k: f64,
+    residual_n: f64,
+    shares_j: f64,
+) -> f64 {
+    let mut partners = [Partner::default(); LISTED_KINKS];
+    let mut count = 0;
+    if kinks.count > 0 {
+        kinks.for_each(items, x, scale, |j| {
+            let item = &items[j];
+            if item.kind == PrimitiveKind::Point || count == LISTED_KINKS {
+                return;
+            }
+            let margin_n = dual_margin(item, project(item, dual[j]));
+            // (Written so that a NaN margin is left out too: `clamp` below needs a number.)
+            if !(margin_n > 0.0) {
+                return;
+            }
+            let (distance, rounding) = kink_distance(item, x - item.position_m);
+            partners[count] = Partner {
+                line: item.kind == PrimitiveKind::Line,
+                direction: item.direction,
+                margin_n,
+                slack_j: margin_n * (distance + rounding) * (1.0 + 4.0 * EPS),
+            };
+            count += 1;
+        });
+    }
+    let mut best = f64::INFINITY;
+    for (item, &u) in items.iter().zip(dual) {
+        if item.kind != PrimitiveKind::Point || item.strength_n == 0.0 {
+            continue;
+        }
+        let s = item.strength_n;
+        let v = project(item, u);
+        // (s + |v|) |e| <= 2 s (1 + 4 eps) |e|, and the computed |e| is within 4 eps of itself.
+        let own_slack_j = 2.0 * s * (x - item.position_m).length() * (1.0 + 16.0 * EPS);
+        let distance = |lambda_n: f64, partner_slack_j: f64| {
+            // Three non-negative terms: their sum rounds by at most 2 eps of itself.
+            let slack_j = (shares_j + own_slack_j + partner_slack_j) * (1.0 + 4.0 * EPS);
+            sharp_distance_m(k, lambda_n, residual_n, slack_j)
+        };
+        // Alone: `Z = {0}`, lambda = s - |v|, which is the point's margin.
+        best = best.min(distance(dual_margin(item, v), 0.0));
+        for partner in &partners[..count] {
+            best = best.min(distance(point_lambda_n(s, v, partner), partner.slack_j));
+        }
+    }
+    best
+}
+
+/// A lower bound on `s - dist(v, Z)`, `Z` the partner's segment `{t q : |t| <= m}` or, for a line, its disc of
+/// radius `m` across the line. The distance is measured to a point of `Z` (as computed, so within a few ulps of
+/// `|v| + m` of it), which can only overstate it; that rounding and the few ulps of `s` by which `v` may lie
+/// off its ball (module header, 2 (a)) are taken off.
+fn point_lambda_n(s: f64, v: DVec3, partner: &Partner) -> f64 {
+    let q = partner.direction;
+    let m = partner.margin_n;
+    let nearest = if partner.line {
+        let across = v - q * q.dot(v);
+        let length = across.length();
+        if length > m {
+            across * (m / length)
+        } else {
+            across
+        }
+    } else {
+        q * q.dot(v).clamp(-m, m)
+    };
+    let distance = (v - nearest).length() * (1.0 + 4.0 * EPS) + 8.0 * EPS * (v.length() + m);
+    (s - distance) * (1.0 - 4.0 * EPS) - 8.0 * EPS * s
 }
 
 /// The largest `d >= 0` with `k d^2 + (sharpness - residual) d <= shares` (module header, "sharpness"), from

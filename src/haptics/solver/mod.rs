@@ -37,10 +37,13 @@
 //! # Why the bound never lies
 //!
 //! 1. *Feasible duals on every exit.* The solver's duals come from projections onto this tick's sets, except a
-//!    warm start, whose values were projected onto *last* tick's sets. So a warm start is projected onto the new
-//!    sets before anything else (O(N)), and the certificate itself projects whatever it is given once more. A
-//!    solve that runs out of budget before its first sweep certifies that projected warm start; a stalled or
-//!    exhausted solve returns the best pair it certified; with no primitives the bound is the rounding of `y`.
+//!    warm start, whose values were projected onto *last* tick's sets. The certificate projects whatever it is
+//!    given onto this tick's sets before it uses it, so no bound rests on a value outside them. The warm start
+//!    itself is projected where it is used: a sweep projects each value it writes, the primal method starts
+//!    from zero, and a solve that runs out of budget before its first pass projects the warm start and
+//!    certifies that. A stalled or exhausted solve returns the best pair it certified; with no primitives the
+//!    bound is the rounding of `y`. (Until 2026-11-27 the warm start was projected up front as well, once more
+//!    than needed: two projections per path tick.)
 //! 2. *Rounding only overstates.* Three perturbation facts carry the f64 arithmetic into the argument. (a) If
 //!    `E' = E + h` with `h` L-Lipschitz, the minimisers differ by at most `L/k` (compare `E` and `E'` at both
 //!    minimisers with strong convexity). So a dual value off its set by `e_i` (a rounded projection is, by a few
@@ -82,6 +85,14 @@
 //!    delta_i`, and `d` is at most that quadratic's root: *linear* in `S` once `Lambda > |rho|`, which is the
 //!    case of a proxy held by a friction point (sticking) or in a corner with room to spare. With no sharp
 //!    kink (`Lambda = 0`) the root is at most `|rho| / k + sqrt(S / k)`, never worse than the plain gap bound.
+//!    *A point's own sharpness* (2026-11-27): a point at `c` with dual `v` has the share `s |z - c| - v.(z - c)`,
+//!    at least `s |w| - v.w - (s + |v|) |x - c|` for `w = z - x`; with one plane or line kink of margin `m`
+//!    beside it the two add up to at least `(s - dist(v, Z)) |w|` less their slacks, `Z` the plane's segment
+//!    `{t q : |t| <= m}` (the line's disc of radius `m`), because that sum is the support function of
+//!    `B(-v, s) + Z`, which contains the ball of radius `s - dist(v, Z)`. So a saturated point (no margin of its
+//!    own) beside a plane that pushes with room to spare is sharp unless it pulls along the plane; A takes the
+//!    better of this and the kinks' sharpness, over every point item (it need not be a kink: its distance
+//!    from `x` enters the slack).
 //!    Rounding: the margins are shrunk by their rounding and by the few ulps by which a projection may lie off
 //!    its set ((a) above), the shares are summed with their error added ((b)), and `Lambda - |rho|` is rounded
 //!    down, which only lengthens the root.
@@ -98,6 +109,22 @@
 //!    kind), before / after the change: without lines 0 / 2 not certified, with lines 5 / 4, with lines and
 //!    the dual method alone 9 / 4. So the new misses are about 1 in 200 000 scenes without lines, and fewer
 //!    than the misses with lines that were there before (bounds up to 2e-4 m, left alone).
+//!
+//!    *The stick/slip boundary on a tilted plane* (found 2026-11-27 by the friction property test at case 692
+//!    of 4 000; in the regression file). A friction point that lies 6.8e-20 m in front of a tilted plane
+//!    (within rounding, as the previous proxy always is), asked by the coupling for 0.3740254 N against its
+//!    0.3740282 N (7.6e-6 to spare, relative): the minimiser lies on the plane 1.7e-17 m from the point, the
+//!    point pulling with all of its strength almost along the plane. B cannot take both kinks (not
+//!    transversal, not meeting exactly), and with the plane alone the point's pull turns by up to 2 s / margin
+//!    per metre the proxy is moved, which for a margin of 1.7e-17 m is no bound at all. A's sharpness is the
+//!    point's 2.8e-6 N to spare, against shares of about 1e-17 J (the rounding of a plane anchored 4 mm away),
+//!    so its bound is 8.9e-12 m: honest (the true error is 1.9e-17 m) but above the 1e-12 m tolerance, and the
+//!    tick ends `Stalled` after its sweep budget for stalling (about 2 000 sweeps). This was so before the
+//!    2026-11-27 changes too (same bound, checked on the previous commit). Near the boundary A's bound is about
+//!    S / margin, S the rounding charged on the plane's share (`16 eps (s + t) |x - x_p|`, `x_p` its anchor):
+//!    the property test asserts an honest bound of at most 1e-8 m where that estimate comes within a factor
+//!    of ten of the tolerance, and certification on every other tick. (In the servo loop the surface plane
+//!    is anchored at the proxy, so `|x - x_p|` is one tick's motion and the band far narrower.)
 //!
 //! **Primal Newton first** ([`newton`]). Every cold or large solve starts with an active-set Newton method on
 //! `x` itself: O(N) passes, each followed by a 3x3 Newton step on the kinks the proxy is held on and an exact
@@ -527,21 +554,20 @@ impl Solver {
             // Each product s q rounds by eps/2 of s per coordinate (at most eps s in length); the compensated
             // sum adds 2 eps of the result and n eps^2 of the magnitudes (certificate.rs); the quotient by k and
             // the sum with the probe add eps/2 of their results each. Doubled for margin.
+            // The 1-norms bound the lengths from above, without square roots.
             y_error_m: 2.0
                 * f64::EPSILON
-                * (problem.probe_m.length()
-                    + (2.0 * directed.length()
+                * (problem.probe_m.abs().element_sum()
+                    + (2.0 * directed.abs().element_sum()
                         + (1.0 + directed_count * f64::EPSILON) * directed_strength)
                         / k),
             strength_over_k_m: strength_sum / k,
         };
-        if same_structure {
-            // The previous tick's duals may lie outside this tick's sets (a weakened or tilted primitive):
-            // project them, so that every dual the solver holds, and every certificate, is feasible.
-            for (item, u) in self.items.iter().zip(self.dual.iter_mut()) {
-                *u = project(item, *u);
-            }
-        } else {
+        // A reused dual is not projected here, though the previous tick's values may lie outside this tick's sets
+        // (a weakened or tilted primitive): every use projects it first. A sweep projects each value it writes,
+        // the primal method starts from zero, the certificate projects whatever it is given, and the one exit
+        // that returns the warm start as it is (out of budget before any pass) projects it there.
+        if !same_structure {
             self.dual.clear();
             for item in &self.items {
                 self.dual.push(
@@ -641,6 +667,12 @@ impl Solver {
             }
             if over_budget(sweeps) {
                 if !best.bound_m.is_finite() {
+                    // Out of budget before any pass: the warm start, projected onto this tick's sets (it is
+                    // what `primitive_forces_n` reports).
+                    for (item, u) in self.items.iter().zip(self.dual.iter_mut()) {
+                        *u = project(item, *u);
+                    }
+                    total = self.dual.iter().copied().sum::<DVec3>();
                     best = self.certify_dual(&frame, total);
                 }
                 let status = if best.bound_m <= config.tolerance_m {

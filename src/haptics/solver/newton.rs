@@ -176,8 +176,9 @@ pub(crate) struct Workspace {
     drops: Vec<u8>,
     /// Items that take part in passes: not inactive, not screened (W members included, skipped by state).
     active: Vec<u32>,
-    /// Line-search breakpoints: (step fraction, slope jump, item).
-    breakpoints: Vec<(f64, f64, u32)>,
+    /// Line-search breakpoints: (the bits of the step fraction, item). A plane's slope jump is recomputed when
+    /// the walk reaches it, which keeps the sorted elements small.
+    breakpoints: Vec<(u64, u32)>,
     /// Each item's distance to its kink set at the last pass's `x` (m), by item index: the line search skips
     /// every item farther than the step is long (it can neither cross nor pass near its kink).
     kink_distance_m: Vec<f64>,
@@ -677,10 +678,9 @@ impl Workspace {
                     if !crosses {
                         continue;
                     }
-                    let t = (-q.dot(r) / qd).max(0.0);
+                    let t = (-q.dot(r) / qd).max(0.0) + 0.0;
                     if t <= 1.0 {
-                        self.breakpoints
-                            .push((t, item.strength_n * qd.abs(), index));
+                        self.breakpoints.push((t.to_bits(), index));
                     }
                 }
                 (PrimitiveKind::Point | PrimitiveKind::Line, State::Smooth) => {
@@ -693,22 +693,24 @@ impl Workspace {
                     if before.dot(before + step) > 0.0 {
                         continue;
                     }
-                    let tau = (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0);
+                    let tau = (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0) + 0.0;
                     if (before + tau * step).length() > 0.1 * before.length() {
                         continue;
                     }
-                    // A negative jump marks a near pass rather than a slope change.
-                    self.breakpoints.push((tau, -1.0, index));
+                    // A point or line marks a near pass rather than a slope change.
+                    self.breakpoints.push((tau.to_bits(), index));
                 }
                 _ => {}
             }
         }
-        self.breakpoints
-            .sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        // Every step fraction is >= +0.0 (pushed as `max(0.0) + 0.0`, which turns -0.0 into +0.0), and the bits of
+        // non-negative floats order as the floats do: an integer key is cheaper to compare than `total_cmp`.
+        self.breakpoints.sort_unstable_by_key(|b| b.0);
         let mut jumps = 0.0;
         // The planes crossed so far, as the change they make to the gradient (for the near-pass test).
         let mut jump_gradient = DVec3::ZERO;
-        for &(t, jump, index) in &self.breakpoints {
+        for &(t_bits, index) in &self.breakpoints {
+            let t = f64::from_bits(t_bits);
             let unconstrained = -(slope + jumps) / curvature;
             if unconstrained < t {
                 return Step {
@@ -716,12 +718,12 @@ impl Workspace {
                     kink: None,
                 };
             }
-            if jump < 0.0 {
+            let item = &items[index as usize];
+            if item.kind != PrimitiveKind::Plane {
                 // A near pass of a point or line: stop on it if, along the step, the other terms' slope there
                 // is within what the primitive can hold (`s |step|` either way): the minimum along the line
                 // is at the kink. The model's slope there is corrected for the primitive's own share, which the
                 // quadratic model spreads over the whole step.
-                let item = &items[index as usize];
                 let line = item.kind == PrimitiveKind::Line;
                 let q = item.direction;
                 let r = x - item.position_m;
@@ -744,8 +746,8 @@ impl Workspace {
                 }
                 continue;
             }
-            jumps += jump;
-            let plane = &items[index as usize];
+            let plane = item;
+            jumps += plane.strength_n * plane.direction.dot(d).abs();
             jump_gradient += if self.state[index as usize] == State::Off {
                 -plane.strength_n * plane.direction
             } else {

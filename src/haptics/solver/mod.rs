@@ -172,6 +172,14 @@
 //!   saves the extra pass on one point), and was measured only by the bench.
 //! - *Ordering line-search breakpoints a chunk at a time* (16 selected in O(n), then sorted, instead of one
 //!   full sort): tried and dropped, 1 000 primitives took 7 % more instructions (2 077 628 against 1 936 443).
+//! - *Sorting breakpoints by integer keys* (2026-11-27, kept): each breakpoint is (the bits of its step
+//!   fraction, item), sorted by the bits (non-negative floats order as their bits do; `-0.0` is turned into
+//!   `+0.0` first), instead of `total_cmp` on (fraction, slope jump, item); a plane's jump is recomputed when the
+//!   walk reaches it. Same passes everywhere. Instructions per cold solve (callgrind), before / after: 1 000
+//!   random 1 451 930 / 1 409 861 (-2.9 %), 3 000 mixed 3 242 322 / 3 160 083 (-2.5 %), 10 000 mixed
+//!   18 117 120 / 16 971 239 (-6.3 %), 20 other scenes of 1 000 (`seeds 1000 20`) 1 309 511 / 1 279 818 per
+//!   solve; wedges 6 293 / 6 310, 10 random 13 669 / 13 659, 100: 114 851 / 114 493. Quick timings alternated
+//!   twice (medians): 1 000 random 80.3, 79.5 / 79.2, 77.8 us; 10 000 mixed 1.24, 1.23 / 1.19, 1.17 ms.
 //! - Earlier, on the dual method: over-relaxation (1.5, 1.8) was 1.2x to 3x slower; longer rounds helped 1 000
 //!   primitives only; certifying only at the end of each round for more than 16 primitives was 1.8x faster on
 //!   1 000 (kept).
@@ -247,9 +255,35 @@
 //!   overshoots and is shortened after a wasted pass): tried and dropped; the 1 000 scene kept its 9 passes,
 //!   3 000 mixed went from 6 to 11, 100 random needed the dual fallback (13 sweeps), 100 other scenes of 100
 //!   took 753 passes against 706.
+//! - *Cheaper small cold solves* (2026-11-27, kept; [`newton`]'s header). (a) *The start:* a cold solve begins
+//!   where one dual block sweep from zero leads, not at `y` (Newton's first step from `y` overshoots: the
+//!   pull of a point a few millimetres off is a poor quadratic). (b) No screening for at most 16 primitives in
+//!   the passes (it cost 468 of 13 659 instructions on 10 random primitives and saved nothing). (c) With no
+//!   kink the Newton step is an LDL^T solve of the Hessian, not products with the identity projector and a
+//!   general inverse. (d) Certifying ahead recomputes the points' and lines' subgradients inline (the same
+//!   values). The certificate is untouched and still checks every answer from scratch. Instructions per cold
+//!   solve (callgrind), before / after: wedges 6 310 / 5 123 (3 / 2 passes); 10 random 13 659 / 11 038
+//!   (5 / 4); 100: 114 493 / 89 631 (7 / 5); 1 000: 1 409 861 / 855 787 (9 / 5); 3 000 mixed 3 160 083 /
+//!   2 820 393 (6 / 6); 10 000 mixed 16 971 239 / 9 474 803 (10 / 6); path unchanged (dual first). Other scenes
+//!   (`solver_instructions seeds`, passes in all and instructions per solve, before / after; none uncertified
+//!   either way): 400 of 10: 2 040 / 1 661 passes, 13 967 / 11 381; 200 of 30: 1 509 / 1 112, 47 347 /
+//!   33 240; 100 of 100: 706 / 537, 119 674 / 94 143; 20 of 1 000: 159 / 111, 1 279 818 / 921 668; 6 of
+//!   3 000: 54 / 39, 4 071 512 / 3 009 370. (b) to (d) alone: 10 random 11 879, wedges 6 035. Quick timings
+//!   (`solver_instructions time`, medians, before / after, alternated, 2-vCPU VM, 2026-11-27 15:20 UTC):
+//!   wedges 368 to 399 / 292 to 317 ns; 10 random 814 to 866 / 753 to 786 ns; 100: 6.26, 6.29 / 5.66, 5.50 us;
+//!   1 000: 76.1, 76.4 / 53.4, 51.8 us; 10 000 mixed 1.18, 1.19 / 0.71, 0.71 ms; but 3 000 mixed 175.7 to
+//!   178.0 / 177.8 to 183.0 us (about 2 % slower with 11 % fewer instructions and the same passes: the
+//!   sweep is a serial chain, each primitive's square root and division waiting on the sum before it).
+//!   Tried and dropped: more sweeps (2, 3, 4 and 6 from zero: fewer passes on 10 primitives, 1 419 to 1 001
+//!   for the 400 scenes, but more instructions from 100 primitives up: 20 of 1 000 took 1.03 to 1.16 million
+//!   per solve against 0.94 with one sweep); sweeping from the subgradients at `y` instead of zero (better on
+//!   10, worse from 100 up: 20 of 1 000 180 passes); updating 4 primitives at a time from one sum (to overlap
+//!   their square roots): 10 000 mixed then needed the dual fallback (23.2 million instructions).
 //! - Not done: the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
-//!   sweep spread over many lines) and N = 10 (13 347 instructions; under 500 ns needs about 6 000) need a
-//!   different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated
+//!   sweep spread over many lines) and N = 10 (13 347 instructions then, 11 038 after the entry above: 4
+//!   passes, a pass over eight primitives about 1 000 instructions and its step, line search and bookkeeping
+//!   about 900 more (measured before that entry), and a certificate of about 2 100;
+//!   under 500 ns needs about 7 000) need a different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated
 //!   friction point (1 999 of the 2 000 path ticks take one dual sweep and one certificate, and in all but
 //!   16 of them the proxy slides: a plane kink and a saturated point), and for small N cheaper
 //!   iterations (5 passes of about 2 200 instructions each, each with its 3x3 step and line search, and a

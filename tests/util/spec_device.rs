@@ -5,7 +5,7 @@
 //! serial:PATH`) on [`SpecDeviceHandle::path`], and asserts on the device-side logs ([`SpecDeviceHandle::forces`],
 //! [`SpecDeviceHandle::messages`], [`SpecDeviceHandle::sent`]) and the helpers built on them
 //! ([`SpecDeviceHandle::max_force_while_not_enabled`], [`SpecDeviceHandle::max_slew_n_per_ms`],
-//! [`SpecDeviceHandle::nonzero_forces_after`], ...). It is an independent second reading of the SPEC: COBS,
+//! [`SpecDeviceHandle::nonzero_forces_after_index`], ...). It is an independent second reading of the SPEC: COBS,
 //! CRC-16/CCITT-FALSE and the payload layouts are implemented here from the SPEC text, not with the
 //! `voxhap-protocol` crate, and nothing here was written from the host's driver code. Two tests in
 //! tests/device_spec.rs check the double itself: its codec against `protocol/vectors/*.hex`, and its state machine
@@ -41,15 +41,18 @@
 //!
 //! The logs: every SetForce received ([`ForceRecord`]: arrival [`Instant`], host sequence, force, whether the drive
 //! was Enabled at that moment), every other message received ([`MessageRecord`], including a `PortClosed` event
-//! when the host closes the pty), and every frame written ([`SentRecord`]). All three share one event counter
-//! (`index`) so that their order is exact.
+//! when the host closes the pty), every frame written ([`SentRecord`]) and every trigger as it fired
+//! ([`TriggerRecord`]). All four share one event counter (`index`) so that their order is exact.
 //!
 //! Misbehaviour ([`SpecDeviceConfig`] fields, each off by default): refuse every Enable; start Faulted; raise a
-//! Fault at a [`Trigger`] (a time after the first Enable, or a number of applied SetForce frames); corrupt the first
-//! N DeviceInfo replies (bad CRC); speak another major version; stop replying for a while; delay every reply;
-//! corrupt a fraction of the bytes it writes (seeded); send every Nth frame cut in half; add a position jump; report
-//! a fixed (absurd or inconsistent) velocity; reset (a brown-out). The handle follows a scripted function of time
-//! ([`HandleFn`]); `max_force_n`, `max_stiffness_n_per_m` and the workspace are what DeviceInfo declares.
+//! Fault at a [`Trigger`] (a time after the first Enable, or the first moment an applied force is above a
+//! threshold); corrupt the first N DeviceInfo replies (bad CRC); speak another major version; stop replying for a
+//! while; delay every reply; corrupt a fraction of the bytes it writes (seeded); send every Nth frame cut in half;
+//! add a position jump; report a fixed (absurd or inconsistent) velocity; reset (a brown-out). The handle follows a
+//! scripted function of time ([`HandleFn`]), and can be held still from a trigger on; `max_force_n`,
+//! `max_stiffness_n_per_m` and the workspace are what DeviceInfo declares. A test can also have the device thread
+//! run an action of its own at a trigger (`call_at`), so that it acts on the host while force is flowing, not some
+//! scheduling delay later.
 
 use std::collections::VecDeque;
 use std::ffi::CStr;
@@ -259,13 +262,16 @@ fn label(text: &str) -> [u8; 12] {
 // ---------------------------------------------------------------------------------------------------------------
 // Configuration.
 
-/// When an injected misbehaviour starts.
+/// When an injected misbehaviour starts. The device checks each trigger at every control cycle and latches it the
+/// first time it holds (logged as a [`TriggerRecord`]); two settings with equal triggers fire at the same cycle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Trigger {
     /// This long after the first accepted Enable.
     AfterFirstEnable(Duration),
-    /// Once this many SetForce frames have been received while Enabled (counted over the whole run).
-    AfterEnabledForces(u64),
+    /// At the first control cycle at which the drive is Enabled and the last SetForce received since the latest
+    /// Enable was applied and longer than this many newtons: force is flowing at that moment, however long the
+    /// host took to get there.
+    ForceAbove(f32),
 }
 
 /// The time a scripted handle sees.
@@ -325,7 +331,15 @@ pub struct SpecDeviceConfig {
     /// At the trigger the device resets (a brown-out): session closed, Idle, counters and settings back to
     /// power-up, pending replies lost, a lone 0x00 sent as at start-up (SPEC sections 4.3 and 6).
     pub reset: Option<Trigger>,
+    /// From the trigger on, the handle stays where it was when the trigger fired (the hand stops moving).
+    pub handle_hold: Option<Trigger>,
+    /// Called once, on the device thread, at the control cycle the trigger fires: lets a test act on the host at
+    /// that exact moment (freeze it, signal it to stop) rather than some scheduling delay later.
+    pub call_at: Option<(Trigger, Callback)>,
 }
+
+/// A test's action run by the device thread ([`SpecDeviceConfig::call_at`]).
+pub type Callback = Arc<dyn Fn() + Send + Sync>;
 
 impl Default for SpecDeviceConfig {
     fn default() -> Self {
@@ -354,6 +368,8 @@ impl Default for SpecDeviceConfig {
             seed: 1,
             noise_from: None,
             reset: None,
+            handle_hold: None,
+            call_at: None,
         }
     }
 }
@@ -430,12 +446,21 @@ pub struct SentRecord {
     pub intact: bool,
 }
 
+/// A trigger as it fired (the control cycle at which it first held).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TriggerRecord {
+    pub index: u64,
+    pub at: Instant,
+    pub trigger: Trigger,
+}
+
 #[derive(Default)]
 struct Log {
     next_index: u64,
     forces: Vec<ForceRecord>,
     messages: Vec<MessageRecord>,
     sent: Vec<SentRecord>,
+    triggers: Vec<TriggerRecord>,
     dropped_frames: u64,
 }
 
@@ -484,7 +509,10 @@ struct Device {
     next_state_at: Instant,
     // Bookkeeping.
     first_enable: Option<Instant>,
-    enabled_forces: u64,
+    /// |force| of the last SetForce applied since the latest Enable (`None` until one is).
+    last_applied_n: Option<f32>,
+    /// Triggers that have fired, and when.
+    fired: Vec<(Trigger, Instant)>,
     fault_done: bool,
     reset_done: bool,
     silence_from: Option<Instant>,
@@ -507,10 +535,57 @@ impl Device {
         at.duration_since(self.spawned).as_micros() as u64
     }
 
-    fn triggered(&self, trigger: Trigger, now: Instant) -> bool {
+    /// Whether `trigger` has fired (latched at a control cycle, [`Device::latch_triggers`]).
+    fn triggered(&self, trigger: Trigger) -> bool {
+        self.fired_at(trigger).is_some()
+    }
+
+    fn fired_at(&self, trigger: Trigger) -> Option<Instant> {
+        self.fired
+            .iter()
+            .find(|(t, _)| *t == trigger)
+            .map(|&(_, at)| at)
+    }
+
+    /// Whether the condition of `trigger` holds now.
+    fn holds(&self, trigger: Trigger, now: Instant) -> bool {
         match trigger {
             Trigger::AfterFirstEnable(d) => self.first_enable.is_some_and(|t| now >= t + d),
-            Trigger::AfterEnabledForces(n) => self.enabled_forces >= n,
+            Trigger::ForceAbove(newtons) => {
+                self.drive == Drive::Enabled && self.last_applied_n.is_some_and(|f| f > newtons)
+            }
+        }
+    }
+
+    /// Latches every configured trigger whose condition holds now, logs it, and runs a `call_at` action whose
+    /// trigger just fired.
+    fn latch_triggers(&mut self, now: Instant) {
+        let c = &self.config;
+        let triggers = [
+            c.fault.map(|(t, _)| t),
+            c.silence.map(|(t, _)| t),
+            c.position_glitch.map(|(t, _)| t),
+            c.velocity_override.map(|(t, _)| t),
+            c.noise_from,
+            c.reset,
+            c.handle_hold,
+            c.call_at.as_ref().map(|(t, _)| *t),
+        ];
+        for trigger in triggers.into_iter().flatten() {
+            if self.triggered(trigger) || !self.holds(trigger, now) {
+                continue;
+            }
+            self.fired.push((trigger, now));
+            if let Some((_, action)) = self.config.call_at.as_ref().filter(|(t, _)| *t == trigger) {
+                action();
+            }
+            let mut log = self.log.lock().unwrap();
+            let index = log.index();
+            log.triggers.push(TriggerRecord {
+                index,
+                at: now,
+                trigger,
+            });
         }
     }
 
@@ -612,15 +687,21 @@ impl Device {
     /// The handle as sensed now: scripted position plus any glitch, and the velocity (finite difference or the
     /// injected override).
     fn sample(&mut self, now: Instant) -> ([f32; 3], [f32; 3]) {
+        // A held handle is where the script had it when the hold began.
+        let script_at = self
+            .config
+            .handle_hold
+            .and_then(|t| self.fired_at(t))
+            .unwrap_or(now);
         let time = HandleTime {
-            since_spawn_s: now.duration_since(self.spawned).as_secs_f64(),
+            since_spawn_s: script_at.duration_since(self.spawned).as_secs_f64(),
             since_first_enable_s: self
                 .first_enable
-                .map(|t| now.duration_since(t).as_secs_f64()),
+                .map(|t| script_at.saturating_duration_since(t).as_secs_f64()),
         };
         let mut position = (self.config.handle)(time);
         if let Some((trigger, jump)) = self.config.position_glitch {
-            if self.triggered(trigger, now) {
+            if self.triggered(trigger) {
                 for (p, j) in position.iter_mut().zip(jump) {
                     *p += j;
                 }
@@ -636,7 +717,7 @@ impl Device {
             [0.0; 3]
         };
         if let Some((trigger, v)) = self.config.velocity_override {
-            if self.triggered(trigger, now) {
+            if self.triggered(trigger) {
                 velocity = v;
             }
         }
@@ -696,12 +777,12 @@ impl Device {
                 }
                 self.last_force_sequence = sequence;
                 if self.drive == Drive::Enabled {
-                    self.enabled_forces += 1;
                     let norm = force_n
                         .iter()
                         .map(|f| f64::from(*f).powi(2))
                         .sum::<f64>()
                         .sqrt();
+                    self.last_applied_n = Some(norm as f32);
                     let max = f64::from(self.config.max_force_n);
                     if norm > max {
                         self.applied_force_n = force_n.map(|f| (f64::from(f) * max / norm) as f32);
@@ -805,6 +886,7 @@ impl Device {
             _ => return self.reject(types::ENABLE, reject::INVALID_ARGUMENT, now),
         };
         self.drive = Drive::Enabled;
+        self.last_applied_n = None;
         self.watchdog_timeout_us = u64::from(timeout_us);
         self.last_feed = now;
         self.applied_force_n = [0.0; 3];
@@ -815,26 +897,27 @@ impl Device {
 
     /// One periodic 1 kHz control cycle: watchdog, injected faults, streamed States.
     fn control_cycle(&mut self, now: Instant) {
+        self.latch_triggers(now);
         if self.drive == Drive::Enabled
             && now.duration_since(self.last_feed) > Duration::from_micros(self.watchdog_timeout_us)
         {
             self.raise_fault(fault::WATCHDOG_EXPIRED, now);
         }
         if let Some((trigger, code)) = self.config.fault {
-            if !self.fault_done && self.triggered(trigger, now) {
+            if !self.fault_done && self.triggered(trigger) {
                 self.fault_done = true;
                 self.raise_fault(code, now);
             }
         }
         if let Some(trigger) = self.config.reset {
-            if !self.reset_done && self.triggered(trigger, now) {
+            if !self.reset_done && self.triggered(trigger) {
                 self.reset_done = true;
                 self.power_up(now);
             }
         }
         if self.silence_from.is_none() {
             if let Some((trigger, _)) = self.config.silence {
-                if self.triggered(trigger, now) {
+                if self.triggered(trigger) {
                     self.silence_from = Some(now);
                 }
             }
@@ -896,10 +979,7 @@ impl Device {
             if self.silent(now) {
                 continue; // silence: the frame is lost, not postponed
             }
-            let noisy = self
-                .config
-                .noise_from
-                .is_none_or(|t| self.triggered(t, now));
+            let noisy = self.config.noise_from.is_none_or(|t| self.triggered(t));
             if out.message_type != 0 && noisy {
                 self.frames_written += 1;
                 if let Some(every) = self.config.partial_frame_every {
@@ -1111,7 +1191,8 @@ impl SpecDevice {
             state_rate_hz: 0,
             next_state_at: now,
             first_enable: None,
-            enabled_forces: 0,
+            last_applied_n: None,
+            fired: Vec::new(),
             fault_done: false,
             reset_done: false,
             silence_from: None,
@@ -1166,6 +1247,39 @@ impl SpecDeviceHandle {
     /// Every frame written so far, in order.
     pub fn sent(&self) -> Vec<SentRecord> {
         self.log.lock().unwrap().sent.clone()
+    }
+
+    /// When `trigger` fired, if it has.
+    pub fn fired(&self, trigger: Trigger) -> Option<TriggerRecord> {
+        self.log
+            .lock()
+            .unwrap()
+            .triggers
+            .iter()
+            .find(|r| r.trigger == trigger)
+            .copied()
+    }
+
+    /// The last SetForce received, if any (cheap: nothing else is copied).
+    pub fn last_force(&self) -> Option<ForceRecord> {
+        self.log.lock().unwrap().forces.last().copied()
+    }
+
+    /// The number of SetForce frames received so far (cheap: nothing is copied).
+    pub fn force_count(&self) -> usize {
+        self.log.lock().unwrap().forces.len()
+    }
+
+    /// The number of SetForce frames received after `instant` (cheap: nothing is copied).
+    pub fn force_count_after(&self, instant: Instant) -> usize {
+        let log = self.log.lock().unwrap();
+        log.forces.len() - log.forces.partition_point(|f| f.at <= instant)
+    }
+
+    /// The number of SetForce frames received after the event with this `index` (cheap: nothing is copied).
+    pub fn force_count_after_index(&self, index: u64) -> usize {
+        let log = self.log.lock().unwrap();
+        log.forces.len() - log.forces.partition_point(|f| f.index <= index)
     }
 
     /// Frames received and dropped (bad COBS, CRC, length, type, or a non-finite force).
@@ -1235,14 +1349,6 @@ impl SpecDeviceHandle {
                 (w[1].magnitude_n() - w[0].magnitude_n()) / steps as f32
             })
             .fold(0.0, f32::max)
-    }
-
-    /// Non-zero SetForce frames received after `instant`.
-    pub fn nonzero_forces_after(&self, instant: Instant) -> usize {
-        self.forces()
-            .iter()
-            .filter(|f| f.at > instant && !f.is_zero())
-            .count()
     }
 
     /// Non-zero SetForce frames received after the event with this `index`.

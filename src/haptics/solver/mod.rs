@@ -279,7 +279,7 @@
 //!   per solve against 0.94 with one sweep); sweeping from the subgradients at `y` instead of zero (better on
 //!   10, worse from 100 up: 20 of 1 000 180 passes); updating 4 primitives at a time from one sum (to overlap
 //!   their square roots): 10 000 mixed then needed the dual fallback (23.2 million instructions).
-//! - Not done: the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
+//! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
 //!   sweep spread over many lines) and N = 10 (13 347 instructions then, 11 038 after the entry above: 4
 //!   passes, a pass over eight primitives about 1 000 instructions and its step, line search and bookkeeping
 //!   about 900 more (measured before that entry), and a certificate of about 2 100;
@@ -291,12 +291,19 @@
 //!   re-check of last tick's active set for warm large scenes.
 //!
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
-//! this machine, bench run of 2026-11-25 04:33 UTC in the release profile with overflow checks, nothing else
-//! running (docs/solver.md): path **not met** (142 ns), N = 10 **not met** (1.1 us), N = 100 **met**
-//! (8.5 us), N = 1 000 **not met** (103.4 us, just over); 3 000 mixed < 1 ms met (251 us). The exact solver is
-//! faster than Euler asked for the same accuracy on every case (1.20x to 5.07x; 10 000 mixed 1.68 ms against
-//! 2.03 ms), and than Euler with its own stop on 1 000 (2.09x) and 3 000 primitives (1.14x). On this shared
-//! machine only side-by-side ratios and instruction counts are steady.
+//! this machine, bench run of 2026-11-27 16:29 UTC in the release profile with overflow checks (docs/solver.md
+//! has the table as printed): path **met, just** (99 ns), N = 10 **not met** (759 ns), N = 100 **met**
+//! (5.5 us), N = 1 000 **met** (52.2 us); 3 000 mixed < 1 ms met (179 us). The exact solver is faster than
+//! Euler asked for the same accuracy on every case (1.24x to 5.18x; 10 000 mixed 0.64 ms against 1.81 ms),
+//! and than Euler with its own stop on 1 000 (3.29x), 3 000 (1.39x) and 10 000 primitives (1.66x), not on 10
+//! (0.80x) or 100 (0.97x). On this shared machine only side-by-side ratios and instruction counts are steady.
+//! *The path tick* (2026-11-27): 1 327 to 1 216 instructions (callgrind, `solver_instructions path`, 22 000
+//! ticks), 109 to 93 ns in `solver_instructions time` alternated twice, from rounding terms bounded by
+//! 1-norms instead of lengths (no square roots), a saturated point's subgradient scaled by the distance the
+//! certificate already has, and no up-front projection of a reused dual (every use projects it). What is left
+//! of N = 10 (11 038 instructions against about 7 000 for 500 ns): four passes of about 1 000 instructions,
+//! about 900 per iteration for the step, line search and bookkeeping, the certificate's 2 100 and about 900 of
+//! set-up; a leaner structure-of-arrays pass is the next thing to try.
 //!
 //! # Real time
 //!

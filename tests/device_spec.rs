@@ -33,11 +33,12 @@ use std::time::{Duration, Instant};
 const SLEW_LIMIT_N_PER_MS: f32 = 0.5;
 const SLEW_MARGIN_N_PER_MS: f32 = 0.01;
 
-/// The longest a test waits for what it needs (force flowing, an event and what follows it) before it fails.
-/// Generous on purpose: on a saturated 2-core machine the kernel's pseudo-terminal can hold bytes back for a second
-/// or more (its buffer work runs on a kworker thread, which then waits for a CPU like everything else, and a
-/// reader of the pty waits for that work), so the host may time out, drop the link and start over many times
-/// before force flows. A condition that is met ends the wait at once, so a quiet machine never comes near it.
+/// The longest a test waits for what it needs (force flowing, an event and what follows it, serve's stop) before
+/// it fails. Generous on purpose: on a saturated 2-core machine the pseudo-terminal itself can hold bytes back for
+/// seconds, at worst minutes (a pty's buffer work runs on a kernel worker thread, and poll and read on the pty wait
+/// for it; with two busy loops running, the kernel logged "workqueue lockup ... stuck for" 30 to 120 s with that
+/// work pending), so the host may time out, drop the link and start over many times before force flows. A
+/// condition that is met ends the wait at once, so a quiet machine never comes near it.
 const PATIENCE: Duration = Duration::from_secs(120);
 
 /// Force is flowing: the device applied a SetForce above this (N) while Enabled. The checks before an event ask for
@@ -290,7 +291,7 @@ fn run(
     let scene = ball_scene(dir.path(), damping_n_s_per_m);
     let mut device = SpecDevice::spawn(config);
     let serve = Serve::start(&device, Some(&scene), Some(duration_s));
-    let (status, output) = serve.finish(Duration::from_secs_f64(duration_s + 20.0));
+    let (status, output) = serve.finish(Duration::from_secs_f64(duration_s) + PATIENCE);
     // Let the last frames in flight arrive before the logs are read.
     std::thread::sleep(Duration::from_millis(50));
     device.stop();
@@ -311,7 +312,7 @@ fn run_until(
     let mut serve = Serve::start(&device, Some(&scene), None);
     serve.wait_for(&device, what, done);
     serve.signal(libc::SIGTERM);
-    let (status, output) = serve.finish(Duration::from_secs(20));
+    let (status, output) = serve.finish(PATIENCE);
     std::thread::sleep(Duration::from_millis(50));
     device.stop();
     (device, status, output)
@@ -1235,7 +1236,7 @@ fn a_frozen_host_is_caught_by_the_device_watchdog_and_resumes_from_zero() {
         },
     );
     serve.signal(libc::SIGTERM);
-    let (_status, output) = serve.finish(Duration::from_secs(10));
+    let (_status, output) = serve.finish(PATIENCE);
     std::thread::sleep(Duration::from_millis(50));
     device.stop();
     // A loaded machine may trip the device's watchdog before the freeze too (a late host): the one that counts
@@ -1440,7 +1441,7 @@ fn stops_cleanly_on(signal: libc::c_int) {
     serve.wait_for(&device, "force flowing (and the signal)", |device| {
         device.fired(FLOWING).is_some()
     });
-    let (_status, _output) = serve.finish(Duration::from_secs(20));
+    let (_status, _output) = serve.finish(PATIENCE);
     std::thread::sleep(Duration::from_millis(50));
     device.stop();
     assert_stop_sequence(&device);

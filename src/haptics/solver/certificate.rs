@@ -613,8 +613,8 @@ fn point_sharpness_distance_m(
                 return;
             }
             let margin_n = dual_margin(item, project(item, dual[j]));
-            // (Written so that a NaN margin is left out too: `clamp` below needs a number.)
-            if !(margin_n > 0.0) {
+            // A NaN margin is left out too: `clamp` below needs a number.
+            if margin_n.is_nan() || margin_n <= 0.0 {
                 return;
             }
             let (distance, rounding) = kink_distance(item, x - item.position_m);

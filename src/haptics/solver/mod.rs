@@ -666,7 +666,7 @@ impl Solver {
             let outcome = self.newton.solve(
                 &self.items,
                 &frame,
-                problem.previous_proxy_m.unwrap_or(y),
+                problem.previous_proxy_m,
                 newton_limits(&config, sweeps),
                 &mut self.dual,
                 &mut over_time,
@@ -818,7 +818,7 @@ impl Solver {
                 let outcome = self.newton.solve(
                     &self.items,
                     &frame,
-                    best.x,
+                    Some(best.x),
                     newton_limits(&config, sweeps),
                     &mut self.candidate_dual,
                     &mut over_time,

@@ -10,7 +10,7 @@
 //! point, the line, the plane). Off its kink a point or a line is a smooth distance term (gradient `s n`,
 //! Hessian `s/rho (I - n n^T)` restricted to the line's normal plane); a plane is linear on each side (`-s q`
 //! behind it, `0` in front). A *working set* W holds the kinks the proxy is kept on (at most a few: x is in
-//! R^3). A cold start (the caller gives `y` itself as the start: no previous proxy) begins where one dual block sweep from zero
+//! R^3). A cold start (the caller gives no start point: no previous proxy) begins where one dual block sweep from zero
 //! leads (`u_i = proj_{U_i}(k (y - x_i) - sum_{j < i} u_j)`, then `x = y - sum u_i / k`; about 40 instructions
 //! per primitive, a third of a pass): far from the answer the sweep is the better guess, since the pull of a
 //! point or line a few millimetres off is a poor quadratic, and Newton's first step from `y` overshoots.
@@ -218,13 +218,13 @@ impl Workspace {
         }
     }
 
-    /// Runs the primal Newton iteration from `x_start`. `dual` (one entry per item) receives the dual values of
-    /// the last point; `over_time` is polled before each pass.
+    /// Runs the primal Newton iteration from `start` (`None`: a cold start, module header). `dual` (one entry
+    /// per item) receives the dual values of the last point; `over_time` is polled before each pass.
     pub fn solve(
         &mut self,
         items: &[Item],
         frame: &Frame,
-        x_start: DVec3,
+        start: Option<DVec3>,
         limits: Limits,
         dual: &mut [DVec3],
         over_time: &mut dyn FnMut() -> bool,
@@ -232,6 +232,8 @@ impl Workspace {
         let Frame { y, k, .. } = *frame;
         let n = items.len();
         // Length scale of the scene: thresholds for "on a kink" and rounding slack are relative to it.
+        // No start given (no previous proxy): a cold start, from `y`.
+        let x_start = start.unwrap_or(y);
         let mut position_scale: f64 = y.abs().max_element() + x_start.abs().max_element();
         let mut strength_sum = 0.0;
         self.state.clear();
@@ -243,9 +245,9 @@ impl Workspace {
         self.kink_count = 0;
         self.fixed_gradient_n = DVec3::ZERO;
         self.fixed_energy_j = 0.0;
-        // A cold start (no better point than y given) begins where one dual block sweep from zero leads
-        // (module header, "The start"): `U` is the sum of its values, and the start is `y - U/k`.
-        let cold = x_start == y;
+        // A cold start begins where one dual block sweep from zero leads (module header): `U` is the sum of its
+        // values, and the start is `y - U/k`.
+        let cold = start.is_none();
         let mut swept = DVec3::ZERO;
         for (i, (item, u)) in items.iter().zip(dual.iter_mut()).enumerate() {
             *u = DVec3::ZERO;

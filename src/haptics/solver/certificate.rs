@@ -147,16 +147,25 @@ fn kink_distance(item: &Item, r: DVec3) -> (f64, f64) {
 
 /// The exact subgradient of an off-kink item at `x` (as computed; its rounding is charged separately), if the
 /// item pulls with full strength: the value its dual takes at the answer. `distance` is the item's
-/// [`kink_distance`], positive here (the item is off its kink).
+/// [`kink_distance`], positive here (the item is off its kink). `u` is the dual as given, unprojected: the test
+/// reads the projection's length (or a plane's magnitude) from it without forming the projection, whose square
+/// root and division only the other branches of [`certify`] need (`|proj u|^2 = min(|P u|^2, s^2)` for a ball or
+/// disc, `P` the projector across a line; a plane's clamped magnitude passes or fails both tests as its
+/// unclamped one does).
 #[inline]
-fn saturated_subgradient(item: &Item, r: DVec3, v: DVec3, distance: f64) -> Option<DVec3> {
+fn saturated_subgradient(item: &Item, r: DVec3, u: DVec3, distance: f64) -> Option<DVec3> {
     let s = item.strength_n;
     match item.kind {
         PrimitiveKind::Point | PrimitiveKind::Line => {
-            if v.length_squared() < (1.0 - 2e-6) * s * s {
+            let q = item.direction;
+            let across = if item.kind == PrimitiveKind::Line {
+                u - q * q.dot(u)
+            } else {
+                u
+            };
+            if across.length_squared() < (1.0 - 2e-6) * s * s {
                 return None;
             }
-            let q = item.direction;
             let perpendicular = if item.kind == PrimitiveKind::Line {
                 r - q * q.dot(r)
             } else {
@@ -168,7 +177,7 @@ fn saturated_subgradient(item: &Item, r: DVec3, v: DVec3, distance: f64) -> Opti
         }
         PrimitiveKind::Plane => {
             let sigma = item.direction.dot(r);
-            let t = -item.direction.dot(v);
+            let t = -item.direction.dot(u);
             if sigma < 0.0 && t >= (1.0 - 1e-6) * s {
                 Some(-s * item.direction)
             } else if sigma > 0.0 && t <= 1e-6 * s {
@@ -436,6 +445,20 @@ pub(crate) fn certify(
     x: DVec3,
     enough_m: f64,
 ) -> Certificate {
+    certify_into(items, dual, frame, x, enough_m, None)
+}
+
+/// [`certify`], also writing certificate B's dual (the projected values, and the saturated items' subgradients)
+/// to `b_dual` (one entry per item) when given: the dual the bound is about when `by_kinks` is set, for a caller
+/// that adopts it without computing the subgradients again.
+pub(crate) fn certify_into(
+    items: &[Item],
+    dual: &[DVec3],
+    frame: &Frame,
+    x: DVec3,
+    enough_m: f64,
+    mut b_dual: Option<&mut [DVec3]>,
+) -> Certificate {
     let Frame { y, k, .. } = *frame;
     let scale = x.abs().max_element() + y.abs().max_element() + frame.strength_over_k_m;
     let mut kinks = Kinks {
@@ -459,13 +482,16 @@ pub(crate) fn certify(
     for (i, (item, &u)) in items.iter().zip(dual).enumerate() {
         let s = item.strength_n;
         if s == 0.0 {
+            if let Some(out) = b_dual.as_deref_mut() {
+                out[i] = DVec3::ZERO;
+            }
             continue;
         }
         strength_sum += s;
-        let v = project(item, u);
         let r = x - item.position_m;
         let (distance, rounding) = kink_distance(item, r);
-        if distance <= kink_threshold_m(scale, item) {
+        let used = if distance <= kink_threshold_m(scale, item) {
+            let v = project(item, u);
             if kinks.count < LISTED_KINKS {
                 kinks.listed[kinks.count] = i as u32;
             }
@@ -473,8 +499,8 @@ pub(crate) fn certify(
             kinks.distance_sum_m += distance + rounding;
             kinks.codimension += codimension(item);
             kinks.point |= item.kind == PrimitiveKind::Point;
-            total_b.add(v);
-        } else if let Some(g) = saturated_subgradient(item, r, v, distance) {
+            v
+        } else if let Some(g) = saturated_subgradient(item, r, u, distance) {
             let margin = distance - rounding;
             smallest_margin_m = smallest_margin_m.min(margin);
             if item.kind != PrimitiveKind::Plane {
@@ -483,11 +509,16 @@ pub(crate) fn certify(
                 // The direction of the computed offset is off by at most 2 rounding / margin.
                 direction_rounding_n += 2.0 * s * rounding * inverse_margin;
             }
-            total_b.add(g);
+            g
         } else {
+            let v = project(item, u);
             shares_b += projected_share(item, v, r);
             moved_share_weight += s + v.length();
-            total_b.add(v);
+            v
+        };
+        total_b.add(used);
+        if let Some(out) = b_dual.as_deref_mut() {
+            out[i] = used;
         }
     }
     // Rounding of the dual values themselves, charged as a linear perturbation (module header): the projection

@@ -63,7 +63,9 @@
 //! over the planes, and on 10 primitives it was 468 of 13 659 instructions per solve for nothing saved.
 
 use super::active_set::kink_projector;
-use super::certificate::{certify, Certificate, CompensatedSum, Frame, GradientSum, PlainSum};
+use super::certificate::{
+    certify, certify_into, Certificate, CompensatedSum, Frame, GradientSum, PlainSum,
+};
 use super::linalg::psd_pseudo_inverse;
 use super::{project, Item};
 use crate::haptics::primitive::PrimitiveKind;
@@ -196,6 +198,8 @@ pub(crate) struct Workspace {
     fixed_gradient_n: DVec3,
     /// Sum of the screened planes' `s q.c`: with `fixed_gradient_n . x` their energy (J).
     fixed_energy_j: f64,
+    /// Certificate B's dual at a point certified ahead (`Self::certify_ahead`), adopted when B certifies.
+    b_dual: Vec<DVec3>,
 }
 
 /// Budget and settings of one attempt.
@@ -214,6 +218,7 @@ impl Workspace {
             active: Vec::with_capacity(n),
             breakpoints: Vec::with_capacity(n),
             kink_distance_m: Vec::with_capacity(n),
+            b_dual: Vec::with_capacity(n),
             ..Self::default()
         }
     }
@@ -241,6 +246,8 @@ impl Workspace {
         self.drops.resize(n, 0);
         self.kink_distance_m.clear();
         self.kink_distance_m.resize(n, f64::INFINITY);
+        self.b_dual.clear();
+        self.b_dual.resize(n, DVec3::ZERO);
         self.active.clear();
         self.kink_count = 0;
         self.fixed_gradient_n = DVec3::ZERO;
@@ -281,12 +288,17 @@ impl Workspace {
         // planes remain to be saved.
         let screening = limits.screening && self.active.len() > SCREEN_MIN_ITEMS;
         let gradient_floor_n = 8.0 * EPS * force_scale_n;
+        // A face is done when its reduced gradient is below this (or its step below `step_floor_m`).
+        let face_done_gradient_n = (0.25 * k * limits.tolerance_m).max(gradient_floor_n);
+        let compensate_below_n = COMPENSATE_BELOW * force_scale_n;
 
         // Start on the kinks x already sits on (a warm start: the plane the proxy rests on, the friction point at
         // the previous proxy).
         for &i in &self.active {
             let i = i as usize;
-            if kink_distance(&items[i], x) <= on_kink_m && self.kink_count < MAX_KINKS {
+            if kink_distance_squared(&items[i], x) <= on_kink_m * on_kink_m
+                && self.kink_count < MAX_KINKS
+            {
                 self.kinks[self.kink_count] = i as u32;
                 self.kink_count += 1;
             }
@@ -387,12 +399,13 @@ impl Workspace {
             if !d.is_finite() {
                 return outcome;
             }
-            let face_done = d.length() <= step_floor_m
-                || reduced_gradient.length()
-                    <= (0.25 * k * limits.tolerance_m).max(gradient_floor_n);
+            // Lengths compared squared (no square root on the iteration's path).
+            let gradient_squared = reduced_gradient.length_squared();
+            let face_done = d.length_squared() <= step_floor_m * step_floor_m
+                || gradient_squared <= face_done_gradient_n * face_done_gradient_n;
             if !compensated
                 && !face_done
-                && reduced_gradient.length() <= COMPENSATE_BELOW * force_scale_n
+                && gradient_squared <= compensate_below_n * compensate_below_n
             {
                 // Close to the answer: sum with compensation from now on.
                 compensated = true;
@@ -520,12 +533,13 @@ impl Workspace {
 
     /// Certifies `x_next = x + d` (on the current face) without a pass there: the kink multipliers are
     /// recovered from the gradient the model predicts at `x_next`, `g + H d`; the other items' duals at `x` are
-    /// hints the certificate replaces by their exact subgradients at `x_next` (certificate B). On success the
-    /// points' and lines' duals are brought to `x_next` (what the certificate used) and the certificate is
-    /// returned; otherwise `dual` holds hints only, which the next pass overwrites.
+    /// hints the certificate replaces by their exact subgradients at `x_next` (certificate B). On success by B,
+    /// `dual` takes B's dual (what the bound is about: the points', lines' and planes' subgradients at `x_next`,
+    /// the kinks' multipliers projected) and the certificate is returned; otherwise `dual` holds hints only,
+    /// which the next pass overwrites.
     #[allow(clippy::too_many_arguments)]
     fn certify_ahead(
-        &self,
+        &mut self,
         items: &[Item],
         frame: &Frame,
         face: &Face,
@@ -537,23 +551,19 @@ impl Workspace {
     ) -> Option<Certificate> {
         let predicted = model.gradient + model.hessian * d;
         self.multipliers(items, face, predicted, dual).ok()?;
-        let certificate = certify(items, dual, frame, x_next, limits.tolerance_m);
+        let certificate = certify_into(
+            items,
+            dual,
+            frame,
+            x_next,
+            limits.tolerance_m,
+            Some(&mut self.b_dual),
+        );
         if certificate.bound_m > limits.tolerance_m {
             return None;
         }
         if certificate.by_kinks {
-            for &index in &self.active {
-                let i = index as usize;
-                if self.state[i] == State::Smooth {
-                    // `super::subgradient` for a point or a line, whose offset is at least the clearance here
-                    // (a point's direction is zero): the same values, without its match and zero test.
-                    let item = &items[i];
-                    let q = item.direction;
-                    let r = x_next - item.position_m;
-                    let perpendicular = r - q * q.dot(r);
-                    dual[i] = perpendicular * (1.0 / perpendicular.length()) * item.strength_n;
-                }
-            }
+            dual.copy_from_slice(&self.b_dual);
         }
         Some(certificate)
     }
@@ -680,7 +690,7 @@ impl Workspace {
     ) -> Step {
         let curvature = d.dot(model.hessian * d).max(f64::MIN_POSITIVE);
         let smooth_t = (-slope / curvature).min(1.0);
-        if d.length() < model.clearance_m {
+        if d.length_squared() < model.clearance_m * model.clearance_m {
             // No kink within reach of the step.
             return Step {
                 t: smooth_t.max(0.0),
@@ -1189,23 +1199,37 @@ fn kink_distance(item: &Item, x: DVec3) -> f64 {
     }
 }
 
+/// The squared distance from `x` to an item's kink set (no square root: for comparisons).
+fn kink_distance_squared(item: &Item, x: DVec3) -> f64 {
+    let r = x - item.position_m;
+    let q = item.direction;
+    match item.kind {
+        PrimitiveKind::Point => r.length_squared(),
+        PrimitiveKind::Line => (r - q * q.dot(r)).length_squared(),
+        PrimitiveKind::Plane => q.dot(r) * q.dot(r),
+        PrimitiveKind::Directed => f64::INFINITY,
+    }
+}
+
 /// `H^-1 g` for a symmetric positive definite `H` (the Hessian of a pass with no kink: `k I` plus positive
 /// semi-definite terms), by an LDL^T factorisation of its lower triangle.
 #[inline]
 fn solve_symmetric(h: &DMat3, g: DVec3) -> DVec3 {
     let (a00, a10, a20) = (h.x_axis.x, h.x_axis.y, h.x_axis.z);
     let (a11, a21, a22) = (h.y_axis.y, h.y_axis.z, h.z_axis.z);
-    let d0 = a00;
-    let l10 = a10 / d0;
-    let l20 = a20 / d0;
+    // Three divisions (the pivots' reciprocals) instead of six.
+    let inv0 = 1.0 / a00;
+    let l10 = a10 * inv0;
+    let l20 = a20 * inv0;
     let d1 = a11 - l10 * a10;
-    let l21 = (a21 - l20 * a10) / d1;
+    let inv1 = 1.0 / d1;
+    let l21 = (a21 - l20 * a10) * inv1;
     let d2 = a22 - l20 * a20 - l21 * l21 * d1;
     let z0 = g.x;
     let z1 = g.y - l10 * z0;
     let z2 = g.z - l20 * z0 - l21 * z1;
     let x2 = z2 / d2;
-    let x1 = z1 / d1 - l21 * x2;
-    let x0 = z0 / d0 - l10 * x1 - l20 * x2;
+    let x1 = z1 * inv1 - l21 * x2;
+    let x0 = z0 * inv0 - l10 * x1 - l20 * x2;
     DVec3::new(x0, x1, x2)
 }

@@ -10,8 +10,16 @@
 //! up to 10^5 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
 //! double-double reference minimiser (src/haptics/reference.rs), whose own bound is printed.
 //!
-//! Run: `cargo bench --bench solver` (about five minutes, most of it the 10 000-primitive case). Times are medians of repeated solves measured in
+//! Run: `cargo bench --bench solver` (16 s on the 2-vCPU EPYC VM of 2026-11-27, most of it the dual method on
+//! the 10 000-primitive case, once built). Times are medians of repeated solves measured in
 //! this process, one case after the other, so the ratios are side by side.
+//!
+//! It prints two tables: the summary (the exact solver against Euler at both stops, with issue 14's goal for the
+//! case and whether this run met it, decided here from the measured median) and the full table. With
+//! `VOXHAP_BENCH_DOCS=1` it also writes them into README.md (the summary) and docs/solver.md (both), between
+//! the `<!-- solver-bench:... -->` markers, so the tables in the docs are the bench's output, never typed.
+//! tests/docs_reference.rs checks the blocks: present, one run in both files, every speed-up and "met" agreeing
+//! with its row.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
@@ -98,6 +106,65 @@ struct Row {
 fn report(row: Row, rows: &mut Vec<Row>) {
     eprintln!("bench solver: {}", markdown_row(&row));
     rows.push(row);
+}
+
+/// Issue 14's goal for a case (median time per solve, cold start except the path), if it has one.
+fn goal_ns(case: &str) -> Option<f64> {
+    match case {
+        "exploration path (per tick, worst tick)" => Some(100.0),
+        "10 random primitives" => Some(500.0),
+        "100 random primitives" => Some(10_000.0),
+        "1000 random primitives" => Some(100_000.0),
+        "3000 mixed primitives" => Some(1_000_000.0),
+        _ => None,
+    }
+}
+
+/// The summary table's header (tests/docs_reference.rs reads the tables by it).
+const SUMMARY_HEADER: &str = "| case | exact | its bound | Euler (paper stop) | its error | speed-up | Euler to 1e-12 m | its error | speed-up | goal | met |";
+
+fn summary_row(r: &Row) -> String {
+    let goal = goal_ns(&r.case);
+    format!(
+        "| {} | {} | {:.1e} | {} | {:.1e} | {:.2}x | {} | {:.1e} | {:.2}x | {} | {} |",
+        r.case,
+        time(r.exact_ns),
+        r.exact_bound_m,
+        time(r.euler_ns),
+        r.euler_error_m,
+        r.euler_ns / r.exact_ns,
+        time(r.accurate_ns),
+        r.accurate_error_m,
+        r.accurate_ns / r.exact_ns,
+        goal.map_or_else(|| "-".to_owned(), |g| format!("< {}", time(g))),
+        match goal {
+            None => "-",
+            Some(g) if r.exact_ns < g => "yes",
+            Some(_) => "no",
+        }
+    )
+}
+
+/// Replaces the text between `<!-- solver-bench:NAME begin -->` and `<!-- solver-bench:NAME end -->` in `path`
+/// (relative to the crate root) by `text`. The file is written to a temporary beside it and renamed over it, so
+/// an interrupted run leaves the old file whole. A missing marker is an error naming the file and the marker.
+fn write_block(path: &str, name: &str, text: &str) -> Result<(), String> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    let old = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let begin = format!("<!-- solver-bench:{name} begin -->\n");
+    let end = format!("<!-- solver-bench:{name} end -->");
+    let start = old
+        .find(&begin)
+        .ok_or_else(|| format!("{}: no marker `{}`", path.display(), begin.trim()))?
+        + begin.len();
+    let stop = old[start..]
+        .find(&end)
+        .ok_or_else(|| format!("{}: no marker `{end}` after its begin", path.display()))?
+        + start;
+    let new = format!("{}{text}{}", &old[..start], &old[stop..]);
+    let temporary = path.with_extension("md.bench-tmp");
+    std::fs::write(&temporary, new).map_err(|e| format!("{}: {e}", temporary.display()))?;
+    std::fs::rename(&temporary, &path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
 fn markdown_row(r: &Row) -> String {
@@ -323,17 +390,44 @@ fn benches(_c: &mut Criterion) {
         );
     }
 
-    println!();
-    println!(
+    let title = format!(
         "Solver benchmark (cargo bench --bench solver): {}",
         machine()
     );
-    println!("Median time per solve, cold start except the path; true errors (m) against the double-double reference.");
-    println!();
-    println!("| case | exact | exact error | exact bound | exact, dual method only | its error | its bound | speed-up | Euler (paper stop) | Euler error | speed-up | Euler to 1e-12 m | its error | speed-up | reference bound |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut summary = String::new();
+    summary.push_str(&format!("{title}\n"));
+    summary.push_str("Median time per solve, cold start except the path; bounds and errors in m (errors against the double-double reference); goals from issue 14.\n\n");
+    summary.push_str(&format!("{SUMMARY_HEADER}\n"));
+    summary.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
     for r in &rows {
-        println!("{}", markdown_row(r));
+        summary.push_str(&format!("{}\n", summary_row(r)));
+    }
+    let mut full = String::new();
+    full.push_str(&format!("{title}\n"));
+    full.push_str("Median time per solve, cold start except the path; true errors (m) against the double-double reference.\n\n");
+    full.push_str("| case | exact | exact error | exact bound | exact, dual method only | its error | its bound | speed-up | Euler (paper stop) | Euler error | speed-up | Euler to 1e-12 m | its error | speed-up | reference bound |\n");
+    full.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for r in &rows {
+        full.push_str(&format!("{}\n", markdown_row(r)));
+    }
+    println!();
+    println!("{summary}");
+    println!("{full}");
+    if std::env::var_os("VOXHAP_BENCH_DOCS").is_some_and(|v| v == "1") {
+        let fenced = |table: &str| format!("```text\n{table}```\n");
+        for (path, name, text) in [
+            ("README.md", "summary", fenced(&summary)),
+            ("docs/solver.md", "summary", fenced(&summary)),
+            ("docs/solver.md", "full", fenced(&full)),
+        ] {
+            match write_block(path, name, &text) {
+                Ok(()) => eprintln!("bench solver: wrote the {name} table into {path}"),
+                Err(e) => {
+                    eprintln!("bench solver: could not write the {name} table: {e}");
+                    std::process::exit(1);
+                }
+            }
+        }
     }
 }
 

@@ -206,3 +206,159 @@ fn trace_reference_matches_the_column_list_and_flag_table() {
     );
     check_or_bless("trace.md", &page);
 }
+
+/// The text between `<!-- solver-bench:NAME begin -->` and `<!-- solver-bench:NAME end -->` in a file of the
+/// crate (benches/solver.rs writes it with `VOXHAP_BENCH_DOCS=1`).
+fn bench_block(path: &str, name: &str) -> String {
+    let full = Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    let text = std::fs::read_to_string(&full)
+        .unwrap_or_else(|err| panic!("cannot read {}: {err}", full.display()));
+    let begin = format!("<!-- solver-bench:{name} begin -->\n");
+    let end = format!("<!-- solver-bench:{name} end -->");
+    let start = text
+        .find(&begin)
+        .unwrap_or_else(|| panic!("{path}: no marker {}", begin.trim()))
+        + begin.len();
+    let stop = text[start..]
+        .find(&end)
+        .unwrap_or_else(|| panic!("{path}: no marker {end}"))
+        + start;
+    text[start..stop].to_owned()
+}
+
+/// A printed time (`99 ns`, `5.5 us`, `1.06 ms`) in ns, and half its last printed digit (the rounding).
+fn printed_ns(cell: &str) -> (f64, f64) {
+    let (number, unit) = cell
+        .trim()
+        .split_once(' ')
+        .unwrap_or_else(|| panic!("not a time: {cell:?}"));
+    let scale = match unit {
+        "ns" => 1.0,
+        "us" => 1e3,
+        "ms" => 1e6,
+        _ => panic!("unknown unit in {cell:?}"),
+    };
+    let decimals = number.split_once('.').map_or(0, |(_, d)| d.len());
+    let value: f64 = number
+        .parse()
+        .unwrap_or_else(|_| panic!("not a number: {cell:?}"));
+    (value * scale, 0.5 * 10f64.powi(-(decimals as i32)) * scale)
+}
+
+/// The table rows (cells trimmed) after the header line `header` in a bench block.
+fn bench_rows<'a>(block: &'a str, header: &str) -> Vec<Vec<&'a str>> {
+    let mut lines = block.lines().skip_while(|l| !l.starts_with(header));
+    assert!(
+        lines.next().is_some(),
+        "no table headed {header:?} in:\n{block}"
+    );
+    lines
+        .skip(1)
+        .take_while(|l| l.starts_with('|'))
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect()
+}
+
+#[test]
+fn solver_tables_are_the_benchmarks_output() {
+    let bench_source =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/solver.rs"))
+            .expect("benches/solver.rs");
+    let summary_header = bench_source
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("const SUMMARY_HEADER: &str = \"")?
+                .strip_suffix("\";")
+        })
+        .expect("benches/solver.rs defines SUMMARY_HEADER");
+    let full_header = "| case | exact | exact error | exact bound |";
+    assert!(bench_source.contains(full_header));
+
+    let readme = bench_block("README.md", "summary");
+    let summary = bench_block("docs/solver.md", "summary");
+    let full = bench_block("docs/solver.md", "full");
+    assert_eq!(
+        readme, summary,
+        "README.md and docs/solver.md hold different summary tables; both are written by one run of \
+         VOXHAP_BENCH_DOCS=1 cargo bench --bench solver"
+    );
+    // One run: the same title (machine and date) on both tables.
+    let title = summary
+        .lines()
+        .nth(1)
+        .expect("a title line after the fence");
+    assert!(
+        title.starts_with("Solver benchmark (cargo bench --bench solver): ")
+            && title.ends_with(" UTC"),
+        "not the bench's title: {title:?}"
+    );
+    assert_eq!(
+        full.lines().nth(1),
+        Some(title),
+        "the full table is from another run"
+    );
+
+    let cases = [
+        "exploration path (per tick, worst tick)",
+        "wedge 5 degrees",
+        "wedge 1 degrees",
+        "10 random primitives",
+        "100 random primitives",
+        "1000 random primitives",
+        "3000 mixed primitives",
+        "10000 mixed primitives",
+    ];
+    let rows = bench_rows(&summary, summary_header);
+    let full_rows = bench_rows(&full, full_header);
+    assert_eq!(rows.iter().map(|r| r[0]).collect::<Vec<_>>(), cases);
+    assert_eq!(full_rows.iter().map(|r| r[0]).collect::<Vec<_>>(), cases);
+    let mut goals = 0;
+    for (row, full_row) in rows.iter().zip(&full_rows) {
+        assert_eq!(row.len(), 11, "{row:?}");
+        // The summary repeats the full table's cells for the exact solver and for Euler at both stops.
+        assert_eq!((row[1], row[2]), (full_row[1], full_row[3]), "{}", row[0]);
+        assert_eq!(&row[3..6], &full_row[8..11], "{}", row[0]);
+        assert_eq!(&row[6..9], &full_row[11..14], "{}", row[0]);
+        let (exact, exact_rounding) = printed_ns(row[1]);
+        // Each speed-up is Euler's time over the exact solver's, up to the rounding of the printed times.
+        for (time, speed_up) in [(row[3], row[5]), (row[6], row[8])] {
+            let (other, other_rounding) = printed_ns(time);
+            let printed: f64 = speed_up
+                .strip_suffix('x')
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("{}: not a speed-up: {speed_up:?}", row[0]));
+            let low = (other - other_rounding) / (exact + exact_rounding) - 0.005;
+            let high = (other + other_rounding) / (exact - exact_rounding) + 0.005;
+            assert!(
+                (low..=high).contains(&printed),
+                "{}: speed-up {speed_up} is not {time} over {}",
+                row[0],
+                row[1]
+            );
+        }
+        if row[9] == "-" {
+            assert_eq!(row[10], "-", "{}", row[0]);
+            continue;
+        }
+        goals += 1;
+        let goal = printed_ns(row[9].strip_prefix("< ").expect("a goal `< T`")).0;
+        assert!(
+            row[10] == "yes" || row[10] == "no",
+            "{}: met is {:?}",
+            row[0],
+            row[10]
+        );
+        if (exact - goal).abs() > exact_rounding {
+            assert_eq!(
+                row[10] == "yes",
+                exact < goal,
+                "{}: {} against the goal {} is marked met = {}",
+                row[0],
+                row[1],
+                row[9],
+                row[10]
+            );
+        }
+    }
+    assert_eq!(goals, 5, "issue 14 sets goals for five cases");
+}

@@ -279,6 +279,18 @@
 //!   per solve against 0.94 with one sweep); sweeping from the subgradients at `y` instead of zero (better on
 //!   10, worse from 100 up: 20 of 1 000 180 passes); updating 4 primitives at a time from one sum (to overlap
 //!   their square roots): 10 000 mixed then needed the dual fallback (23.2 million instructions).
+//! - *Fewer square roots and divisions* (2026-11-27 evening, kept). Certificate B tests a point's or line's
+//!   saturation on the unprojected dual (`|proj u|^2 = min(|P u|^2, s^2)`), so a saturated one costs no
+//!   projection; certifying ahead adopts B's dual (`certificate::certify_into`) instead of computing the
+//!   subgradients again; the primal method compares lengths squared; the LDL^T solve takes three reciprocals
+//!   instead of six divisions. Instructions per cold solve: 10 random 10 705 / 10 359, 100: 86 767 / 83 532,
+//!   1 000: 827 376 / 808 631; the path 0.3 % and the 5 degree wedge 1.7 % more (the adopted dual's buffer). Time
+//!   (`solver_instructions time`, three alternations with the previous binary, 2-vCPU VM, 17:50 UTC): 10 random
+//!   737 / 698 ns, 100: 5.34 / 5.04 us, 1 000: 49.8 / 47.6 us, 3 000 mixed 168 / 160 us, 10 000 mixed 590 /
+//!   553 us. The time fell more than the instructions: on these scenes the square roots and divisions are
+//!   what the passes wait on. Tried and dropped: the pass as two loops (points and lines with no branch on the
+//!   kind, a point being a line with no direction; then the planes): fewer instructions, but 1 000 random
+//!   9 % slower and 3 000 mixed 7 % slower.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
 //!   sweep spread over many lines) and N = 10 (13 347 instructions then, 11 038 after the entry above: 4
 //!   passes, a pass over eight primitives about 1 000 instructions and its step, line search and bookkeeping

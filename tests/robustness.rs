@@ -601,6 +601,69 @@ fn bench_loop_baseline_reports_the_empty_schedule_beside_the_loop() {
             ticks,
             "{side}: {report}"
         );
+        // The lateness histogram by decade counts every tick once.
+        let decades = report[side]["lateness_by_decade"].as_array().unwrap();
+        assert_eq!(decades.len(), 6, "{side}: {report}");
+        assert_eq!(
+            decades.iter().map(|c| c.as_u64().unwrap()).sum::<u64>(),
+            ticks.unwrap(),
+            "{side}: {report}"
+        );
     }
     assert_eq!(report["sched_fifo"], false, "--rt off asks for nothing");
+    // Steal time over the run, where Linux's /proc/stat is readable.
+    if std::fs::read_to_string("/proc/stat").is_ok() {
+        let steal = &report["steal"];
+        assert!(steal["total_ms"].as_f64().unwrap() >= 0.0, "{report}");
+        assert!(steal["resolution_ms"].as_f64().unwrap() > 0.0, "{report}");
+        assert!(
+            steal["servo_cpu_ms"].is_null(),
+            "--rt off pins no CPU: {report}"
+        );
+    } else {
+        eprintln!("SKIP steal time check: /proc/stat not readable here");
+    }
+}
+
+/// Plain `bench-loop` (text): the lateness histogram row counts every tick once, and the steal line is there.
+#[test]
+fn bench_loop_prints_the_lateness_histogram_and_the_steal_time() {
+    let output = voxhap()
+        .args([
+            "bench-loop",
+            "--seconds",
+            "0.5",
+            "--rate",
+            "1000",
+            "--rt",
+            "off",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let ticks: u64 = text
+        .split("ticks ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no tick count in:\n{text}"));
+    let lines: Vec<&str> = text.lines().collect();
+    let head = lines
+        .iter()
+        .position(|l| l.starts_with("lateness histogram"))
+        .unwrap_or_else(|| panic!("no lateness histogram in:\n{text}"));
+    assert!(
+        lines[head].contains("<=1us") && lines[head].contains(">10ms"),
+        "{text}"
+    );
+    let counts: Vec<u64> = lines[head + 1]
+        .split_whitespace()
+        .skip(1)
+        .map(|c| c.parse().unwrap())
+        .collect();
+    assert_eq!(counts.len(), 6, "{text}");
+    assert_eq!(counts.iter().sum::<u64>(), ticks, "{text}");
+    assert!(text.contains("steal time"), "{text}");
 }

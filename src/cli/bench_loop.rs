@@ -2,14 +2,17 @@
 //! while and prints the lateness and compute histograms and the overrun count (the servo issue's benchmark).
 //! `--load-threads N` adds N busy threads (at normal priority) to measure under load. `--baseline` alternates
 //! windows of the loop with windows of the same schedule with an empty tick on the same CPU
-//! ([`crate::servo::baseline`]), so stalls of the machine show apart from the loop's own.
+//! ([`crate::servo::baseline`]), so stalls of the machine show apart from the loop's own. Both end with the
+//! steal time over the run ([`crate::servo::steal`]): on a virtual machine, the time the host ran something
+//! else while the guest's CPUs had work.
 
 use crate::servo::api::{HistogramReport, RealtimeReport};
 use crate::servo::baseline::run_empty_schedule;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::setup::SceneSetup;
-use crate::servo::stats::{Histogram, HistogramCounts};
+use crate::servo::stats::{Histogram, HistogramCounts, DECADE_HEADS};
+use crate::servo::steal::{self, StealReport};
 use crate::servo::{Session, SessionConfig};
 use anyhow::bail;
 use clap::Args;
@@ -80,8 +83,22 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             let _ = thread.join();
         }
     };
+    let steal_before = steal::sample();
+    let steal_over_run = |pinned: Option<u32>| {
+        let before = steal_before.as_ref()?;
+        steal::between(before, &steal::sample()?, pinned)
+    };
+    let steal_line = |report: Option<StealReport>| {
+        report.map_or_else(
+            || "steal time: not available (no readable /proc/stat)".to_owned(),
+            |r| r.summary(),
+        )
+    };
     if args.baseline {
-        let comparison = side_by_side(args, &config);
+        let comparison = side_by_side(args, &config).map(|mut c| {
+            c.steal = steal_over_run(c.realtime.pinned_cpu);
+            c
+        });
         stop_load_threads();
         let comparison = comparison?;
         return if args.json {
@@ -97,18 +114,23 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
         };
     }
     let session = Session::start(config)?;
+    let shared = session.api();
     std::thread::sleep(Duration::from_secs_f64(args.seconds));
     let summary = session.stop();
+    let steal = steal_over_run(summary.stats.realtime.pinned_cpu);
+    let decades = shared.servo_stats().lateness.counts().by_decade();
     stop_load_threads();
     if args.json {
         super::print_out(&serde_json::to_string_pretty(&summary.stats)?)
     } else {
         super::print_out(&format!(
-            "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}",
+            "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}\n{}{}",
             args.seconds,
             args.rate,
             args.load_threads,
-            summary.stats.table()
+            summary.stats.table(),
+            decade_table(&[("ticks", &decades)]),
+            steal_line(steal)
         ))
     }
 }
@@ -127,6 +149,26 @@ pub struct WindowsReport {
     pub overruns: u64,
     /// Deadlines skipped by them.
     pub skipped_ticks: u64,
+    /// The lateness histogram: ticks up to 1 µs late, 1 to 10 µs, 10 to 100 µs, 0.1 to 1 ms, 1 to 10 ms, and
+    /// over 10 ms (`HistogramCounts::by_decade`).
+    pub lateness_by_decade: [u64; 6],
+}
+
+/// The lateness histogram as text: one row of tick counts per decade for each named histogram.
+fn decade_table(rows: &[(&str, &[u64; 6])]) -> String {
+    let mut text = format!("{:<24}", "lateness histogram");
+    for head in DECADE_HEADS {
+        text += &format!(" {head:>10}");
+    }
+    text += "\n";
+    for (name, counts) in rows {
+        text += &format!("{name:<24}");
+        for count in counts.iter() {
+            text += &format!(" {count:>10}");
+        }
+        text += "\n";
+    }
+    text
 }
 
 /// `bench-loop --baseline`: the loop and the empty schedule in alternating windows of one run.
@@ -144,6 +186,8 @@ pub struct SideBySide {
     /// What the servo thread was granted of its real-time setup (the empty schedule asks the same).
     #[serde(flatten)]
     pub realtime: RealtimeReport,
+    /// Steal time over the whole alternation (`null` where /proc/stat is not readable).
+    pub steal: Option<StealReport>,
 }
 
 impl SideBySide {
@@ -165,7 +209,16 @@ impl SideBySide {
         );
         text += &row("loop", &self.servo_loop);
         text += &row("empty tick", &self.baseline);
+        text += &decade_table(&[
+            ("loop (ticks)", &self.servo_loop.lateness_by_decade),
+            ("empty tick (ticks)", &self.baseline.lateness_by_decade),
+        ]);
         text += &self.realtime.summary();
+        text += "\n";
+        text += &self.steal.map_or_else(
+            || "steal time: not available (no readable /proc/stat)".to_owned(),
+            |r| r.summary(),
+        );
         text
     }
 }
@@ -184,6 +237,7 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         lateness: HistogramReport::default(),
         overruns: 0,
         skipped_ticks: 0,
+        lateness_by_decade: [0; 6],
     };
     let mut baseline = servo_loop;
     let mut loop_counts = HistogramCounts::default();
@@ -213,12 +267,15 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         baseline.skipped_ticks += empty.skipped_ticks;
     }
     servo_loop.lateness = loop_counts.report(loop_max_ns);
+    servo_loop.lateness_by_decade = loop_counts.by_decade();
     baseline.lateness = empty_lateness.report();
+    baseline.lateness_by_decade = empty_lateness.counts().by_decade();
     Ok(SideBySide {
         pairs,
         window_s,
         servo_loop,
         baseline,
         realtime: realtime.unwrap_or_default(),
+        steal: None,
     })
 }

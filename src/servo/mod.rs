@@ -25,5 +25,6 @@ pub mod session;
 pub mod setup;
 pub mod slice;
 pub mod stats;
+pub mod steal;
 
 pub use session::{Session, SessionConfig, SessionError, SessionShared, SessionSummary};

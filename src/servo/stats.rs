@@ -137,6 +137,12 @@ impl Default for HistogramCounts {
     }
 }
 
+/// The upper edges (ns) of [`HistogramCounts::by_decade`]'s first five decades: 1 µs to 10 ms.
+pub const DECADE_EDGES_NS: [u64; 5] = [1_000, 10_000, 100_000, 1_000_000, 10_000_000];
+
+/// The column heads of a [`HistogramCounts::by_decade`] row.
+pub const DECADE_HEADS: [&str; 6] = ["<=1us", "1-10us", "10-100us", "0.1-1ms", "1-10ms", ">10ms"];
+
 impl HistogramCounts {
     /// What was recorded after `earlier` was taken (counts are only ever added, so this never underflows
     /// for copies of one histogram taken in order; saturates otherwise).
@@ -182,6 +188,23 @@ impl HistogramCounts {
             p999_us: at(0.999),
             max_us: us(max_ns),
         }
+    }
+
+    /// Counts by decade (the lateness histogram `voxhap bench-loop` prints): values up to 1 µs, then up to
+    /// 10 µs, 100 µs, 1 ms, 10 ms, and above 10 ms. A bucket counts in the decade of its upper edge, so a value
+    /// up to one bucket (1/16 of an octave, 6.25 %) below a decade's edge may count in the decade above it:
+    /// the histogram can overstate lateness, never understate it.
+    pub fn by_decade(&self) -> [u64; 6] {
+        let mut decades = [0u64; 6];
+        for (bucket, &count) in self.buckets.iter().enumerate() {
+            let edge = upper_edge(bucket);
+            let decade = DECADE_EDGES_NS
+                .iter()
+                .position(|&limit| edge <= limit)
+                .unwrap_or(DECADE_EDGES_NS.len());
+            decades[decade] += count;
+        }
+        decades
     }
 
     /// The value at quantile `q` (0..=1) as its bucket's upper edge (ns); 0 when empty.
@@ -397,6 +420,33 @@ mod tests {
                 "bucket of {value} too wide: edge {edge}"
             );
         }
+    }
+
+    #[test]
+    fn decades_count_each_value_once_in_its_decade() {
+        let h = Histogram::new();
+        // Values well inside each decade (away from the 6.25 % edge allowance), and their counts: 3 at
+        // 0.5 us, 5 at 5 us, 7 at 50 us, 11 at 500 us, 13 at 5 ms, 17 at 50 ms.
+        for (value_ns, times) in [
+            (500, 3),
+            (5_000, 5),
+            (50_000, 7),
+            (500_000, 11),
+            (5_000_000, 13),
+            (50_000_000, 17),
+        ] {
+            for _ in 0..times {
+                h.record(value_ns);
+            }
+        }
+        assert_eq!(h.counts().by_decade(), [3, 5, 7, 11, 13, 17]);
+        // Near an edge: more than a bucket below it counts below; the edge's own bucket (992 to 1 023 ns)
+        // counts above, so 1 000 ns is never reported as at most 1 us; past it counts above.
+        let edges = Histogram::new();
+        edges.record(900);
+        edges.record(1_000);
+        edges.record(1_100);
+        assert_eq!(edges.counts().by_decade(), [1, 2, 0, 0, 0, 0]);
     }
 
     #[test]

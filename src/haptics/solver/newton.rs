@@ -1038,7 +1038,7 @@ impl Workspace {
         let tolerance = 64.0 * EPS * scale;
         self.kinks[..self.kink_count]
             .iter()
-            .all(|&i| kink_distance(&items[i as usize], *x) <= tolerance)
+            .all(|&i| kink_distance_squared(&items[i as usize], *x) <= tolerance * tolerance)
     }
 
     /// Adds item `i` to W if the enlarged set is consistent, moving `x` onto it, and returns the new face;
@@ -1184,18 +1184,6 @@ fn leave_label(item: &Item, u: DVec3) -> State {
             }
         }
         _ => State::Smooth,
-    }
-}
-
-/// The distance from `x` to an item's kink set.
-fn kink_distance(item: &Item, x: DVec3) -> f64 {
-    let r = x - item.position_m;
-    let q = item.direction;
-    match item.kind {
-        PrimitiveKind::Point => r.length(),
-        PrimitiveKind::Line => (r - q * q.dot(r)).length(),
-        PrimitiveKind::Plane => q.dot(r).abs(),
-        PrimitiveKind::Directed => f64::INFINITY,
     }
 }
 

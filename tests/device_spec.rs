@@ -318,6 +318,18 @@ fn run_until(
     (device, status, output)
 }
 
+/// [`run_until`], asserting that serve exited successfully; returns the (stopped) device.
+fn run_until_ok(
+    config: SpecDeviceConfig,
+    damping_n_s_per_m: f64,
+    what: &str,
+    done: impl Fn(&SpecDeviceHandle) -> bool,
+) -> SpecDeviceHandle {
+    let (device, status, output) = run_until(config, damping_n_s_per_m, what, done);
+    assert!(status.success(), "serve failed: {output}");
+    device
+}
+
 /// `trigger` has fired and the device has received `forces` SetForce frames since (the host's ticks after it).
 fn forces_after_trigger(trigger: Trigger, forces: usize) -> impl Fn(&SpecDeviceHandle) -> bool {
     move |device| {
@@ -333,6 +345,25 @@ fn enable_after(device: &SpecDeviceHandle, index: u64) -> Option<MessageRecord> 
         .messages()
         .into_iter()
         .find(|m| m.index > index && matches!(m.message, HostMessage::Enable { .. }))
+}
+
+/// Whether the host has enabled the device again after the event with this `index` and sent at least `forces`
+/// SetForce after that Enable.
+fn enabled_again_after(device: &SpecDeviceHandle, index: u64, forces: usize) -> bool {
+    enable_after(device, index)
+        .is_some_and(|enable| device.force_count_after_index(enable.index) >= forces)
+}
+
+/// A `run_until` condition: `trigger` fired, then a new Enable, then `forces` SetForce after it.
+fn enabled_again_after_trigger(
+    trigger: Trigger,
+    forces: usize,
+) -> impl Fn(&SpecDeviceHandle) -> bool {
+    move |device| {
+        device
+            .fired(trigger)
+            .is_some_and(|fired| enabled_again_after(device, fired.index, forces))
+    }
 }
 
 /// An action for `call_at` that sends `signal` to the serve whose pid is in `pid` ([`Serve::share_pid`]; a
@@ -647,13 +678,12 @@ fn a_clean_session_keeps_every_force_invariant() {
         max_force_n: 2.0,
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "force flowing, then 500 host ticks",
         forces_after_trigger(FLOWING, 500),
     );
-    assert!(status.success(), "serve failed: {output}");
     let forces = device.forces();
     assert!(forces.len() > 500, "too few SetForce: {}", summary(&forces));
     assert!(
@@ -672,15 +702,13 @@ fn a_clean_session_keeps_every_force_invariant() {
 #[test]
 fn enable_comes_only_after_the_servo_runs() {
     let _turn = take_turn();
-    let (device, status, output) =
-        run_until(SpecDeviceConfig::default(), 0.0, "an Enable", |device| {
-            !device
-                .messages_like(HostMessage::Enable {
-                    watchdog_timeout_us: 0,
-                })
-                .is_empty()
-        });
-    assert!(status.success(), "serve failed: {output}");
+    let device = run_until_ok(SpecDeviceConfig::default(), 0.0, "an Enable", |device| {
+        !device
+            .messages_like(HostMessage::Enable {
+                watchdog_timeout_us: 0,
+            })
+            .is_empty()
+    });
     let messages = device.messages();
     let hello = messages
         .iter()
@@ -781,11 +809,7 @@ fn assert_zero_within_one_period_of(device: &SpecDeviceHandle, code: u8, injecte
         .find(|s| s.index > fault_frame.index && s.message_type == types::STATE)
         .expect("a State after the Fault");
     let forces = device.forces();
-    let re_enable = device
-        .messages()
-        .iter()
-        .find(|m| m.index > fault_frame.index && matches!(m.message, HostMessage::Enable { .. }))
-        .map_or(u64::MAX, |m| m.index);
+    let re_enable = enable_after(device, fault_frame.index).map_or(u64::MAX, |m| m.index);
     let before_fault = forces
         .iter()
         .rfind(|f| f.index < fault_frame.index)
@@ -818,18 +842,12 @@ fn a_watchdog_fault_brings_zero_within_one_period_then_a_new_enable() {
         fault: Some((FLOWING, fault::WATCHDOG_EXPIRED)),
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "a new Enable after the fault, and 50 host ticks after it",
-        |device| {
-            device
-                .fired(FLOWING)
-                .and_then(|fault| enable_after(device, fault.index))
-                .is_some_and(|enable| device.force_count_after_index(enable.index) >= 50)
-        },
+        enabled_again_after_trigger(FLOWING, 50),
     );
-    assert!(status.success(), "serve failed: {output}");
     let injected = device.fired(FLOWING).unwrap().index;
     assert_zero_within_one_period_of(&device, fault::WATCHDOG_EXPIRED, injected);
     let enables = device.messages_like(HostMessage::Enable {
@@ -851,13 +869,12 @@ fn a_latching_fault_brings_zero_within_one_period_and_is_never_cleared_by_the_ho
         fault: Some((FLOWING, fault::OVER_CURRENT)),
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "500 host ticks after the fault",
         forces_after_trigger(FLOWING, 500),
     );
-    assert!(status.success(), "serve failed: {output}");
     let injected = device.fired(FLOWING).unwrap().index;
     assert_zero_within_one_period_of(&device, fault::OVER_CURRENT, injected);
     assert!(
@@ -957,10 +974,9 @@ fn corrupted_device_info_is_answered_by_another_hello() {
         corrupt_device_infos: 2,
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(config, 0.0, "force flowing", |device| {
+    let device = run_until_ok(config, 0.0, "force flowing", |device| {
         device.fired(FLOWING).is_some()
     });
-    assert!(status.success(), "serve failed: {output}");
     let hellos = device.messages_like(HostMessage::Hello { major: 0, minor: 0 });
     assert!(
         hellos.len() >= 3,
@@ -1021,13 +1037,12 @@ fn a_silent_device_gets_no_stale_force_beyond_the_link_window_then_hello() {
         silence: Some((FLOWING, Duration::from_millis(400))),
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) =
-        run_until(config, 0.0, "a new Enable after the silence", |device| {
-            device
-                .fired(FLOWING)
-                .is_some_and(|silence| enable_after(device, silence.index).is_some())
-        });
-    assert!(status.success(), "serve failed: {output}");
+    let device = run_until_ok(
+        config,
+        0.0,
+        "a new Enable after the silence",
+        enabled_again_after_trigger(FLOWING, 0),
+    );
     let silence = device.fired(FLOWING).unwrap();
     let silence_start = silence.at;
     let forces = device.forces();
@@ -1104,13 +1119,12 @@ fn replies_two_periods_late_keep_every_force_invariant() {
         reply_delay: Duration::from_millis(2),
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "force flowing, then 500 host ticks",
         forces_after_trigger(FLOWING, 500),
     );
-    assert!(status.success(), "serve failed: {output}");
     assert_force_invariants(&device, 8.0);
     assert_slew_limited(&device);
 }
@@ -1122,18 +1136,12 @@ fn a_device_that_resets_is_handshaken_again_and_re_enabled() {
         reset: Some(FLOWING),
         ..tapping_until(INSIDE_X_M, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "a new Enable after the reset, and 50 host ticks after it",
-        |device| {
-            device
-                .fired(FLOWING)
-                .and_then(|reset| enable_after(device, reset.index))
-                .is_some_and(|enable| device.force_count_after_index(enable.index) >= 50)
-        },
+        enabled_again_after_trigger(FLOWING, 50),
     );
-    assert!(status.success(), "serve failed: {output}");
     let messages = device.messages();
     let reset = device.fired(FLOWING).unwrap();
     let reset_at = reset.at;
@@ -1146,11 +1154,8 @@ fn a_device_that_resets_is_handshaken_again_and_re_enabled() {
         "Hello only {:?} after the reset",
         hello_again.at - reset_at
     );
-    let enable_again = messages
-        .iter()
-        .find(|m| m.index > hello_again.index && matches!(m.message, HostMessage::Enable { .. }));
     assert!(
-        enable_again.is_some(),
+        enable_after(&device, hello_again.index).is_some(),
         "never enabled again after the reset"
     );
     // The handle is still in the wall, so after the new Enable the engage rule may keep the force at zero; the
@@ -1230,10 +1235,7 @@ fn a_frozen_host_is_caught_by_the_device_watchdog_and_resumes_from_zero() {
     serve.wait_for(
         &device,
         "a new Enable after the freeze, and 50 host ticks after it",
-        |device| {
-            enable_after(device, frozen.index)
-                .is_some_and(|enable| device.force_count_after_index(enable.index) >= 50)
-        },
+        |device| enabled_again_after(device, frozen.index, 50),
     );
     serve.signal(libc::SIGTERM);
     let (_status, output) = serve.finish(PATIENCE);
@@ -1288,13 +1290,12 @@ fn a_position_glitch_never_steps_the_force_above_the_slew_limit() {
         position_glitch: Some((FLOWING, [-0.01, 0.0, 0.0])),
         ..tapping_until(BALL_RADIUS_M - 0.003, FLOWING)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "contact, the glitch, then 300 host ticks",
         forces_after_trigger(FLOWING, 300),
     );
-    assert!(status.success(), "serve failed: {output}");
     let forces = device.forces();
     assert!(
         forces.iter().any(|f| f.magnitude_n() > 0.5),
@@ -1319,13 +1320,12 @@ fn an_absurd_velocity_never_steps_the_force_above_the_slew_limit() {
         velocity_override: Some((FLOWING, [1e30, 0.0, 0.0])),
         ..light_contact_until_force_flows()
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         5.0,
         "force flowing, the velocity, then 300 host ticks",
         forces_after_trigger(FLOWING, 300),
     );
-    assert!(status.success(), "serve failed: {output}");
     assert_slew_limited(&device);
     assert_force_invariants(&device, 8.0);
 }
@@ -1337,13 +1337,12 @@ fn an_inconsistent_velocity_never_steps_the_force_above_the_slew_limit() {
         velocity_override: Some((FLOWING, [0.5, 0.0, 0.0])),
         ..light_contact_until_force_flows()
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         5.0,
         "force flowing, the velocity, then 300 host ticks",
         forces_after_trigger(FLOWING, 300),
     );
-    assert!(status.success(), "serve failed: {output}");
     assert_slew_limited(&device);
     assert_force_invariants(&device, 8.0);
 }
@@ -1358,13 +1357,12 @@ fn the_devices_stiffness_cap_holds_from_the_first_tick() {
         max_stiffness_n_per_m: cap_n_per_m,
         ..tapping_until(INSIDE_X_M, contact)
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "contact, then 500 host ticks (the ramp done)",
         forces_after_trigger(contact, 500),
     );
-    assert!(status.success(), "serve failed: {output}");
     let forces = device.forces();
     // 1 cm inside the wall, plus the smooth edge of the ball (two voxels of 1.6 mm) as margin.
     let penetration_m = BALL_RADIUS_M - INSIDE_X_M + 0.0035;
@@ -1400,13 +1398,12 @@ fn a_two_dof_device_gets_force_z_zero() {
         handle_hold: Some(contact),
         ..SpecDeviceConfig::default()
     };
-    let (device, status, output) = run_until(
+    let device = run_until_ok(
         config,
         0.0,
         "contact, then 300 host ticks",
         forces_after_trigger(contact, 300),
     );
-    assert!(status.success(), "serve failed: {output}");
     let forces = device.forces();
     assert!(
         forces.iter().any(|f| f.force_n[0] > 0.5),

@@ -83,22 +83,8 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             let _ = thread.join();
         }
     };
-    let steal_before = steal::sample();
-    let steal_over_run = |pinned: Option<u32>| {
-        let before = steal_before.as_ref()?;
-        steal::between(before, &steal::sample()?, pinned)
-    };
-    let steal_line = |report: Option<StealReport>| {
-        report.map_or_else(
-            || "steal time: not available (no readable /proc/stat)".to_owned(),
-            |r| r.summary(),
-        )
-    };
     if args.baseline {
-        let comparison = side_by_side(args, &config).map(|mut c| {
-            c.steal = steal_over_run(c.realtime.pinned_cpu);
-            c
-        });
+        let comparison = side_by_side(args, &config);
         stop_load_threads();
         let comparison = comparison?;
         return if args.json {
@@ -113,11 +99,12 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             ))
         };
     }
+    let steal_before = steal::sample();
     let session = Session::start(config)?;
     let shared = session.api();
     std::thread::sleep(Duration::from_secs_f64(args.seconds));
     let summary = session.stop();
-    let steal = steal_over_run(summary.stats.realtime.pinned_cpu);
+    let steal = steal::since(steal_before.as_ref(), summary.stats.realtime.pinned_cpu);
     let decades = shared.servo_stats().lateness.counts().by_decade();
     stop_load_threads();
     if args.json {
@@ -130,7 +117,7 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
             args.load_threads,
             summary.stats.table(),
             decade_table(&[("ticks", &decades)]),
-            steal_line(steal)
+            steal::describe(steal.as_ref())
         ))
     }
 }
@@ -215,10 +202,7 @@ impl SideBySide {
         ]);
         text += &self.realtime.summary();
         text += "\n";
-        text += &self.steal.map_or_else(
-            || "steal time: not available (no readable /proc/stat)".to_owned(),
-            |r| r.summary(),
-        );
+        text += &steal::describe(self.steal.as_ref());
         text
     }
 }
@@ -231,6 +215,7 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         .ceil()
         .clamp(1.0, u32::MAX as f64) as u32;
     let window_s = args.seconds / f64::from(pairs);
+    let steal_before = steal::sample();
     let empty_lateness = Arc::new(Histogram::new());
     let mut servo_loop = WindowsReport {
         ticks: 0,
@@ -276,6 +261,6 @@ fn side_by_side(args: &BenchLoopArgs, config: &SessionConfig) -> anyhow::Result<
         servo_loop,
         baseline,
         realtime: realtime.unwrap_or_default(),
-        steal: None,
+        steal: steal::since(steal_before.as_ref(), realtime.and_then(|r| r.pinned_cpu)),
     })
 }

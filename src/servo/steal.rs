@@ -71,6 +71,19 @@ pub fn sample() -> Option<StealSample> {
     parse(&std::fs::read_to_string("/proc/stat").ok()?)
 }
 
+/// The steal time from `before` (a [`sample`]) to now; `None` if either sample is missing.
+pub fn since(before: Option<&StealSample>, servo_cpu: Option<u32>) -> Option<StealReport> {
+    between(before?, &sample()?, servo_cpu)
+}
+
+/// The line a text output ends with: the report's [`StealReport::summary`], or why there is none.
+pub fn describe(report: Option<&StealReport>) -> String {
+    report.map_or_else(
+        || "steal time: not available (no readable /proc/stat)".to_owned(),
+        StealReport::summary,
+    )
+}
+
 /// Clock ticks per second of `/proc/stat`'s counters.
 fn ticks_per_s() -> f64 {
     // SAFETY: sysconf has no preconditions; it returns -1 for an unknown name.
@@ -146,9 +159,9 @@ mod tests {
         assert_eq!(report.resolution_ms, 10.0);
         let unpinned = between_at(&before, &after, None, 100.0).unwrap();
         assert_eq!(unpinned.servo_cpu_ms, None);
-        assert!(report
-            .summary()
+        assert!(describe(Some(&report))
             .contains("370 ms over all CPUs, 350 ms of it on the servo's CPU"));
+        assert!(describe(None).contains("not available"));
     }
 
     #[test]

@@ -862,7 +862,7 @@ impl Solver {
             let item = &self.items[i];
             let old = self.dual[i];
             let others = total - old;
-            let mut u = project(item, k * (y - item.position_m) - others);
+            let mut u = block_update(item, y, k, others);
             if w != 1.0 {
                 u = project(item, old + w * (u - old));
             }
@@ -894,6 +894,14 @@ fn newton_limits(config: &SolverConfig, sweeps: u32) -> newton::Limits {
             .min(NEWTON_MAX_PASSES),
         screening: config.screening,
     }
+}
+
+/// The dual block update of one item (the module header's block sweeps): the exact minimiser of the dual over `u_i` with the
+/// others' sum `others` fixed, `proj_{U_i}(k (y - c_i) - others)`. Used by the dual sweeps and by the primal
+/// method's cold start.
+#[inline]
+pub(crate) fn block_update(item: &Item, y: DVec3, k: f64, others: DVec3) -> DVec3 {
+    project(item, k * (y - item.position_m) - others)
 }
 
 /// Euclidean projection of `v` onto the dual set `U_i` of an item.

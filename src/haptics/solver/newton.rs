@@ -66,8 +66,8 @@ use super::active_set::kink_projector;
 use super::certificate::{
     certify, certify_into, Certificate, CompensatedSum, Frame, GradientSum, PlainSum,
 };
-use super::linalg::psd_pseudo_inverse;
-use super::{project, Item};
+use super::linalg::{psd_pseudo_inverse, solve_spd};
+use super::{block_update, project, Item};
 use crate::haptics::primitive::PrimitiveKind;
 use glam::{DMat3, DVec3};
 
@@ -246,7 +246,7 @@ impl Workspace {
         self.drops.resize(n, 0);
         self.kink_distance_m.clear();
         self.kink_distance_m.resize(n, f64::INFINITY);
-        self.b_dual.clear();
+        // Only its length matters: `certify_into` writes every entry before it is read.
         self.b_dual.resize(n, DVec3::ZERO);
         self.active.clear();
         self.kink_count = 0;
@@ -265,7 +265,7 @@ impl Workspace {
             } else {
                 self.active.push(i as u32);
                 if cold {
-                    swept += project(item, k * (y - item.position_m) - swept);
+                    swept += block_update(item, y, k, swept);
                 }
                 start_state(item, x_start)
             };
@@ -381,10 +381,7 @@ impl Workspace {
             // Newton step on the face.
             let (reduced_gradient, d) = if self.kink_count == 0 {
                 // No kink: the plain Newton step, by a symmetric solve.
-                (
-                    model.gradient,
-                    -solve_symmetric(&model.hessian, model.gradient),
-                )
+                (model.gradient, -solve_spd(&model.hessian, model.gradient))
             } else {
                 let reduced_gradient = face.null * model.gradient;
                 let reduced_hessian =
@@ -1197,27 +1194,4 @@ fn kink_distance_squared(item: &Item, x: DVec3) -> f64 {
         PrimitiveKind::Plane => q.dot(r) * q.dot(r),
         PrimitiveKind::Directed => f64::INFINITY,
     }
-}
-
-/// `H^-1 g` for a symmetric positive definite `H` (the Hessian of a pass with no kink: `k I` plus positive
-/// semi-definite terms), by an LDL^T factorisation of its lower triangle.
-#[inline]
-fn solve_symmetric(h: &DMat3, g: DVec3) -> DVec3 {
-    let (a00, a10, a20) = (h.x_axis.x, h.x_axis.y, h.x_axis.z);
-    let (a11, a21, a22) = (h.y_axis.y, h.y_axis.z, h.z_axis.z);
-    // Three divisions (the pivots' reciprocals) instead of six.
-    let inv0 = 1.0 / a00;
-    let l10 = a10 * inv0;
-    let l20 = a20 * inv0;
-    let d1 = a11 - l10 * a10;
-    let inv1 = 1.0 / d1;
-    let l21 = (a21 - l20 * a10) * inv1;
-    let d2 = a22 - l20 * a20 - l21 * l21 * d1;
-    let z0 = g.x;
-    let z1 = g.y - l10 * z0;
-    let z2 = g.z - l20 * z0 - l21 * z1;
-    let x2 = z2 / d2;
-    let x1 = z1 * inv1 - l21 * x2;
-    let x0 = z0 * inv0 - l10 * x1 - l20 * x2;
-    DVec3::new(x0, x1, x2)
 }

@@ -283,7 +283,8 @@
 //!   saturation on the unprojected dual (`|proj u|^2 = min(|P u|^2, s^2)`), so a saturated one costs no
 //!   projection; certifying ahead adopts B's dual (`certificate::certify_into`) instead of computing the
 //!   subgradients again; the primal method compares lengths squared; the LDL^T solve takes three reciprocals
-//!   instead of six divisions. Instructions per cold solve: 10 random 10 705 / 10 359, 100: 86 767 / 83 532,
+//!   instead of six divisions (then 10 307 on 10 random once the scratch dual was only resized, not cleared).
+//!   Instructions per cold solve: 10 random 10 705 / 10 359, 100: 86 767 / 83 532,
 //!   1 000: 827 376 / 808 631; the path 0.3 % and the 5 degree wedge 1.7 % more (the adopted dual's buffer). Time
 //!   (`solver_instructions time`, three alternations with the previous binary, 2-vCPU VM, 17:50 UTC): 10 random
 //!   737 / 698 ns, 100: 5.34 / 5.04 us, 1 000: 49.8 / 47.6 us, 3 000 mixed 168 / 160 us, 10 000 mixed 590 /

@@ -292,16 +292,17 @@
 //!   what the passes wait on. Tried and dropped: the pass as two loops (points and lines with no branch on the
 //!   kind, a point being a line with no direction; then the planes): fewer instructions, but 1 000 random
 //!   9 % slower and 3 000 mixed 7 % slower.
-//! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296 instructions per tick, the rest set-up, projections and one
-//!   sweep spread over many lines) and N = 10 (13 347 instructions then, 11 038 after the entry above: 4
-//!   passes, a pass over eight primitives about 1 000 instructions and its step, line search and bookkeeping
-//!   about 900 more (measured before that entry), and a certificate of about 2 100;
-//!   under 500 ns needs about 7 000) need a different structure, not a trim: a specialised certificate for a proxy on one plane with a saturated
-//!   friction point (1 999 of the 2 000 path ticks take one dual sweep and one certificate, and in all but
-//!   16 of them the proxy slides: a plane kink and a saturated point), and for small N cheaper
-//!   iterations (5 passes of about 2 200 instructions each, each with its 3x3 step and line search, and a
-//!   certificate of about 2 200 over eight primitives). Also not tried: a structure-of-arrays layout for the passes, an O(active)
-//!   re-check of last tick's active set for warm large scenes.
+//! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
+//!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
+//!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000
+//!   instructions and its step, line search and bookkeeping about 900 more (measured before that entry), and a
+//!   certificate of about 2 100; under 500 ns needs about 7 000) need a different structure, not a trim: a
+//!   specialised certificate for a proxy on one plane with a saturated friction point (1 999 of the 2 000 path
+//!   ticks take one dual sweep and one certificate, and in all but 16 of them the proxy slides: a plane kink and a
+//!   saturated point), and for small N cheaper iterations (5 passes of about 2 200 instructions each, each with its
+//!   3x3 step and line search, and a certificate of about 2 200 over eight primitives). Also not tried: a
+//!   structure-of-arrays layout for the passes, an O(active) re-check of last tick's active set for warm large
+//!   scenes.
 //!
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
 //! this machine, bench run of 2026-11-27 16:29 UTC in the release profile with overflow checks (docs/solver.md
@@ -897,9 +898,9 @@ fn newton_limits(config: &SolverConfig, sweeps: u32) -> newton::Limits {
     }
 }
 
-/// The dual block update of one item (the module header's block sweeps): the exact minimiser of the dual over `u_i` with the
-/// others' sum `others` fixed, `proj_{U_i}(k (y - c_i) - others)`. Used by the dual sweeps and by the primal
-/// method's cold start.
+/// The dual block update of one item (the module header's block sweeps): the exact minimiser of the dual over `u_i`
+/// with the others' sum `others` fixed, `proj_{U_i}(k (y - c_i) - others)`. Used by the dual sweeps and by the
+/// primal method's cold start.
 #[inline]
 pub(crate) fn block_update(item: &Item, y: DVec3, k: f64, others: DVec3) -> DVec3 {
     project(item, k * (y - item.position_m) - others)

@@ -7,6 +7,7 @@
 //!   `random1000`, `mixed3000`, `mixed10000`); prints the passes and the bound of one solve.
 //! - `... -- seeds N COUNT`: one cold solve of each of COUNT other random scenes of N primitives.
 //! - `... -- time`: median nanoseconds per solve of every case (31 samples of about 2 ms each).
+//! - `... -- timeseeds N COUNT`: median nanoseconds per cold solve over the COUNT scenes of `seeds`.
 //!
 //! Instructions per solve: `valgrind --tool=callgrind --toggle-collect='*Solver::solve' target/release/examples/
 //! solver_instructions cold random100 100`, divided by REPS (the scene set-up is not collected).
@@ -138,6 +139,28 @@ fn main() {
                 uncertified += u32::from(sol.status != SolveStatus::Certified);
             }
             println!("passes {passes} in {count} solves, {uncertified} not certified");
+        }
+        "timeseeds" => {
+            // Median nanoseconds per cold solve over COUNT random scenes of N primitives (the scenes of
+            // `seeds`, each solved once per round): a timing beyond the benchmark's one scene per size.
+            let n: usize = args.get(1).map_or(10, |v| v.parse().expect("N"));
+            let count: u64 = args.get(2).map_or(100, |v| v.parse().expect("COUNT"));
+            let scenes: Vec<_> = (1..=count)
+                .map(|seed| {
+                    let mut rng = SplitMix(seed * 1_000_003 + n as u64);
+                    let primitives = random_primitives(&mut rng, n);
+                    (rng.vec(0.02), primitives)
+                })
+                .collect();
+            let mut solver = Solver::with_capacity(SolverConfig::default(), n);
+            let ns = median_ns(|| {
+                for (probe, primitives) in &scenes {
+                    solver.reset();
+                    let problem = cold_problem(*probe, primitives);
+                    std::hint::black_box(solver.solve(std::hint::black_box(&problem)).unwrap());
+                }
+            }) / count as f64;
+            println!("{n} primitives, {count} scenes: {ns:.0} ns per solve");
         }
         "time" => {
             let ticks = path_ticks();

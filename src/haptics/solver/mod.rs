@@ -292,6 +292,33 @@
 //!   what the passes wait on. Tried and dropped: the pass as two loops (points and lines with no branch on the
 //!   kind, a point being a line with no direction; then the planes): fewer instructions, but 1 000 random
 //!   9 % slower and 3 000 mixed 7 % slower.
+//! - *Third-order correction of the last step* (2026-11-27 night, kept; [`newton`]'s header, step 5). A short
+//!   full step with W empty gets Chebyshev's correction `-H^-1 T[d, d] / 2` and is certified at its end, when
+//!   the last two steps predict that it lands within the tolerance; the pass is kept out of line (its code no
+//!   longer shifts with the iteration around it). Instructions per cold solve (callgrind), before / after:
+//!   10 random 10 307 / 9 621 (4 / 3 passes), 100: 83 328 / 82 968, 1 000: 806 650 / 802 284, 3 000 mixed
+//!   2 699 571 / 2 655 423 (6 / 5 passes), 5 degree wedge 5 206 / 5 319 (+2 %, the out-of-line pass). Other
+//!   scenes (`solver_instructions seeds`, passes in all and instructions per solve): 400 of 10 1 661 / 1 435,
+//!   10 697 / 10 476; 200 of 30 1 112 / 1 012, 31 319 / 30 818; 100 of 100 537 / 490, 88 166 / 86 721; 20 of
+//!   1 000 111 / 106, 874 937 / 859 746. The passes fall more than the instructions: `T` costs about half a
+//!   pass. Time (`solver_instructions time` and `timeseeds`, three alternations, 2-vCPU VM, 21:00 UTC): 10
+//!   random 714 to 722 / 679 to 683 ns, 100: 5.18 to 5.26 / 5.20 to 5.25 us, the 400 scenes of 10 800 to 806 /
+//!   787 to 802 ns, the 100 of 100 5.69 to 5.77 / 5.67 to 5.74 us, the 200 of 30 2.10 to 2.13 / 2.13 to 2.15
+//!   us; one run each: 1 000 random 48.9 / 48.7 us, 3 000 mixed 170 / 157 us, 10 000 mixed 586 / 543 us.
+//!   Tried and dropped: the correction on every full step with W empty (1 321 passes for the 400 scenes of 10,
+//!   but more instructions, and the benchmark's 10 scene still 3 passes); more dual sweeps at the start (2, 3
+//!   or 4: 1 188, 1 033 or 959 passes for the 400 scenes, but a sweep over eight primitives costs about 100 ns,
+//!   a serial chain of square roots and divisions); a Jacobi start (each item projected from zero alone, the
+//!   sum halved: no chain; 12 to 17 % faster on scenes of 16 to 30 primitives, level at 50, but 50 % slower at
+//!   100 and 20 % on the wedges); the start's sweep with an approximate inverse square root (a bit-level guess
+//!   and one Newton step, 0.2 % off: 10 random 2.5 % faster, but one point is then no longer solved by its
+//!   first pass).
+//!   *Where the 10 random primitives' time goes* (about 680 ns; each part measured by running it twice in a
+//!   chain and timing the difference): a pass about 65 ns (three of them), the certificate about 110 ns, the
+//!   start's sweep about 97 ns (a serial chain: each item's square root and division wait on the sum before
+//!   it), the rest (the primitives copied in, the Newton steps, the line searches, the third-order term) about
+//!   280 ns. Under 500 ns needs a cut in every part, not one: a structure-of-arrays pass over the small scenes,
+//!   a start without the serial chain that stays exact on one primitive, and leaner set-up are what is left.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000
@@ -304,20 +331,15 @@
 //!   structure-of-arrays layout for the passes, an O(active) re-check of last tick's active set for warm large
 //!   scenes.
 //!
-//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us) on
-//! this machine, bench run of 2026-11-27 16:29 UTC in the release profile with overflow checks (docs/solver.md
-//! has the table as printed): path **met, just** (99 ns), N = 10 **not met** (759 ns), N = 100 **met**
-//! (5.5 us), N = 1 000 **met** (52.2 us); 3 000 mixed < 1 ms met (179 us). The exact solver is faster than
-//! Euler asked for the same accuracy on every case (1.24x to 5.18x; 10 000 mixed 0.64 ms against 1.81 ms),
-//! and than Euler with its own stop on 1 000 (3.29x), 3 000 (1.39x) and 10 000 primitives (1.66x), not on 10
-//! (0.80x) or 100 (0.97x). On this shared machine only side-by-side ratios and instruction counts are steady.
+//! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us,
+//! 3 000 mixed < 1 ms) are checked by the bench itself: `VOXHAP_BENCH_DOCS=1 cargo bench --bench solver`
+//! writes the measured table, with its "met" column computed, into README.md and docs/solver.md. As of the
+//! last run all are met except N = 10 (about 0.68 us; where that time goes is in the entry above). On this
+//! shared machine only side-by-side ratios and instruction counts are steady.
 //! *The path tick* (2026-11-27): 1 327 to 1 216 instructions (callgrind, `solver_instructions path`, 22 000
 //! ticks), 109 to 93 ns in `solver_instructions time` alternated twice, from rounding terms bounded by
 //! 1-norms instead of lengths (no square roots), a saturated point's subgradient scaled by the distance the
-//! certificate already has, and no up-front projection of a reused dual (every use projects it). What is left
-//! of N = 10 (11 038 instructions against about 7 000 for 500 ns): four passes of about 1 000 instructions,
-//! about 900 per iteration for the step, line search and bookkeeping, the certificate's 2 100 and about 900 of
-//! set-up; a leaner structure-of-arrays pass is the next thing to try.
+//! certificate already has, and no up-front projection of a reused dual (every use projects it).
 //!
 //! # Real time
 //!

@@ -278,9 +278,12 @@ impl Workspace {
             } else {
                 self.active.push(i as u32);
                 if cold {
+                    // The state is set at the sweep's point below.
                     swept += block_update(item, y, k, swept);
+                    State::Smooth
+                } else {
+                    start_state(item, x_start)
                 }
-                start_state(item, x_start)
             };
             self.state.push(state);
         }
@@ -680,8 +683,13 @@ impl Workspace {
                         dual[i] = DVec3::ZERO;
                         self.state[i] = State::Off;
                     }
-                    self.kink_distance_m[i] = sigma.abs();
-                    clearance = clearance.min(sigma.abs());
+                    let distance = sigma.abs();
+                    self.kink_distance_m[i] = distance;
+                    // A comparison, not `f64::min` (whose NaN rule costs a few instructions per item): a NaN
+                    // distance is skipped either way.
+                    if distance < clearance {
+                        clearance = distance;
+                    }
                 }
                 PrimitiveKind::Point | PrimitiveKind::Line => {
                     let line = item.kind == PrimitiveKind::Line;
@@ -720,7 +728,9 @@ impl Workspace {
                         b[4] += w * q.y * q.z;
                         b[5] += w * q.z * q.z;
                     }
-                    clearance = clearance.min(rho);
+                    if rho < clearance {
+                        clearance = rho;
+                    }
                 }
                 PrimitiveKind::Directed => {}
             }

@@ -321,12 +321,14 @@
 //!   10 476 / 10 245. Time (three alternations): the path 97 to 99 / 93 to 94 ns, 100 random 5.27 to 5.30 /
 //!   5.18 to 5.19 us, 10 random level (665 to 704 / 681 to 700 ns); one run each: 1 000 random 48.9 / 47.1 us,
 //!   3 000 mixed 158 / 154 us, 10 000 mixed 552 / 539 us.
-//!   *Where the 10 random primitives' time goes* (about 680 ns; each part measured by running it twice in a
-//!   chain and timing the difference): a pass about 65 ns (three of them), the certificate about 110 ns, the
-//!   start's sweep about 97 ns (a serial chain: each item's square root and division wait on the sum before
-//!   it), the rest (the primitives copied in, the Newton steps, the line searches, the third-order term) about
-//!   280 ns. Under 500 ns needs a cut in every part, not one: a structure-of-arrays pass over the small scenes,
-//!   a start without the serial chain that stays exact on one primitive, and leaner set-up are what is left.
+//!   *Where the 10 random primitives' time goes* (about 680 ns; each part run twice in a chain and the
+//!   difference timed, which measures its latency, partly hidden in the real solve, so the parts overstate):
+//!   a pass about 65 ns (three of them), the certificate about 110 ns, the start's sweep about 97 ns (a serial
+//!   chain; yet sweeping two items at a time from one sum, which halves the chain, was not faster), a line
+//!   search up to 20 ns, the third-order term up to 50 ns (computing it from `1 / rho` kept by the pass,
+//!   without its two divisions per item, was not faster either), and the rest (the primitives copied in, the
+//!   Newton steps, the bookkeeping). Under 500 ns needs a cut in every part, not one: a structure-of-arrays
+//!   pass over small scenes and leaner set-up are what is left to try.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000

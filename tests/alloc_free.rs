@@ -23,6 +23,7 @@ fn scene(tick: usize, n: usize) -> Vec<Primitive> {
     prims
 }
 
+/// Warm ticks and, every tenth tick, a cold solve of the same size.
 #[test]
 fn solving_allocates_nothing_after_warm_up() {
     let n = 40;
@@ -38,10 +39,16 @@ fn solving_allocates_nothing_after_warm_up() {
                 0.004 * t,
                 -0.002 + 0.003 * (5.0 * t).cos(),
             );
+            // Every tenth tick starts cold (no previous dual or proxy): the primal method's cold start and the
+            // dual sized afresh must not allocate either.
+            let cold = tick % 10 == 0;
+            if cold {
+                solver.reset();
+            }
             let problem = Problem {
                 stiffness_n_per_m: 500.0,
                 probe_m: probe,
-                previous_proxy_m: Some(proxy),
+                previous_proxy_m: (!cold).then_some(proxy),
                 primitives: prims,
             };
             let sol = solver.solve(&problem).unwrap();

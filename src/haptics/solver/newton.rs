@@ -511,26 +511,12 @@ impl Workspace {
             // A full step, to rounding: `-slope / curvature` of an exact Newton step is 1 within a few ulps.
             let full = compensated && step.kink.is_none() && step.t >= 1.0 - FULL_STEP_SLACK;
             let d_squared = d.length_squared();
+            // A point to certify ahead, if any: the gradient the model predicts there and the step to it.
+            let mut ahead = None;
             if full && d_squared <= SPECULATE_BELOW * limits.tolerance_m * model.clearance_m {
                 // The step is so short that Newton's quadratic convergence puts x_next within the tolerance:
                 // certify x_next now, without the pass that would confirm it (module header, step 5).
-                if let Some(certificate) = self.certify_ahead(
-                    items,
-                    frame,
-                    &face,
-                    model.gradient + model.hessian * (step.t * d),
-                    step.t * d,
-                    x_next,
-                    model.clearance_m,
-                    scale,
-                    limits,
-                    dual,
-                ) {
-                    outcome.x = x_next;
-                    outcome.certificate = Some(certificate);
-                    outcome.certified = true;
-                    return outcome;
-                }
+                ahead = Some((model.gradient + model.hessian * (step.t * d), step.t * d));
             } else if full
                 && self.kink_count == 0
                 && d_squared
@@ -549,23 +535,27 @@ impl Workspace {
                     taken = corrected;
                     taken_t = 1.0;
                     x_next = x + corrected;
-                    if let Some(certificate) = self.certify_ahead(
-                        items,
-                        frame,
-                        &face,
-                        model.gradient,
-                        corrected,
-                        x_next,
-                        model.clearance_m,
-                        scale,
-                        limits,
-                        dual,
-                    ) {
-                        outcome.x = x_next;
-                        outcome.certificate = Some(certificate);
-                        outcome.certified = true;
-                        return outcome;
-                    }
+                    // With W empty no multipliers are recovered, so the predicted gradient is not read.
+                    ahead = Some((model.gradient, corrected));
+                }
+            }
+            if let Some((predicted_gradient, step_to_next)) = ahead {
+                if let Some(certificate) = self.certify_ahead(
+                    items,
+                    frame,
+                    &face,
+                    predicted_gradient,
+                    step_to_next,
+                    x_next,
+                    model.clearance_m,
+                    scale,
+                    limits,
+                    dual,
+                ) {
+                    outcome.x = x_next;
+                    outcome.certificate = Some(certificate);
+                    outcome.certified = true;
+                    return outcome;
                 }
             }
             last_full_step_m = if step.kink.is_none() && step.t >= 1.0 - FULL_STEP_SLACK {

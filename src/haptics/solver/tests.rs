@@ -417,6 +417,28 @@ fn primitive_forces_balance_the_coupling_at_the_answer() {
     }
 }
 
+/// Newton passes of cold solves of `random_primitives(n)` scenes (`solver_instructions seeds n count`): the
+/// benchmark's scene (seed `n`) and the sum over `others` scenes (seeds `k * 1 000 003 + n`). Every solve must
+/// be certified to 1e-12 m.
+fn cold_pass_counts(n: usize, others: u64) -> (u32, u32) {
+    let mut solver = Solver::with_capacity(SolverConfig::default(), n);
+    let mut solve_seed = |seed: u64| {
+        let mut rng = SplitMix(seed);
+        let prims = random_primitives(&mut rng, n);
+        let probe = rng.vec(0.02);
+        solver.reset();
+        let sol = solve_with(&mut solver, probe, &prims);
+        assert_eq!(sol.status, SolveStatus::Certified, "seed {seed}: {sol:?}");
+        assert!(sol.error_bound_m <= 1e-12, "seed {seed}: {sol:?}");
+        sol.newton_passes
+    };
+    let benchmark = solve_seed(n as u64);
+    let others = (1..=others)
+        .map(|k| solve_seed(k * 1_000_003 + n as u64))
+        .sum();
+    (benchmark, others)
+}
+
 /// The primal method's pass count on the benchmark's 1 000 scene and on 20 others (`solver_instructions
 /// seeds 1000 20`), which the early leave of a single kink, the near-pass hold check and the parabola-shortened
 /// step brought down (newton.rs header). Measured: the benchmark's scene 9 passes (12 before; 12 without the
@@ -425,22 +447,8 @@ fn primitive_forces_balance_the_coupling_at_the_answer() {
 /// Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
-    let mut solver = Solver::with_capacity(SolverConfig::default(), 1000);
-    let mut solve_seed = |seed: u64| {
-        let mut rng = SplitMix(seed);
-        let prims = random_primitives(&mut rng, 1000);
-        let probe = rng.vec(0.02);
-        solver.reset();
-        let sol = solve_with(&mut solver, probe, &prims);
-        assert_eq!(sol.status, SolveStatus::Certified, "seed {seed}: {sol:?}");
-        assert!(sol.error_bound_m <= 1e-12, "seed {seed}: {sol:?}");
-        sol.newton_passes
-    };
-    let benchmark = solve_seed(1000);
+    let (benchmark, others) = cold_pass_counts(1000, 20);
     assert!(benchmark <= 9, "benchmark scene: {benchmark} passes");
-    let others: u32 = (1..=20u64)
-        .map(|seed| solve_seed(seed * 1_000_003 + 1000))
-        .sum();
     assert!(others <= 170, "20 other scenes: {others} passes");
 }
 
@@ -450,21 +458,7 @@ fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
 /// without it). So the test fails if the correction is undone. Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_ten_primitive_scenes() {
-    let mut solver = Solver::with_capacity(SolverConfig::default(), 10);
-    let mut solve_seed = |seed: u64| {
-        let mut rng = SplitMix(seed);
-        let prims = random_primitives(&mut rng, 10);
-        let probe = rng.vec(0.02);
-        solver.reset();
-        let sol = solve_with(&mut solver, probe, &prims);
-        assert_eq!(sol.status, SolveStatus::Certified, "seed {seed}: {sol:?}");
-        assert!(sol.error_bound_m <= 1e-12, "seed {seed}: {sol:?}");
-        sol.newton_passes
-    };
-    let benchmark = solve_seed(10);
+    let (benchmark, others) = cold_pass_counts(10, 400);
     assert!(benchmark <= 3, "benchmark scene: {benchmark} passes");
-    let others: u32 = (1..=400u64)
-        .map(|seed| solve_seed(seed * 1_000_003 + 10))
-        .sum();
     assert!(others <= 1450, "400 other scenes: {others} passes");
 }

@@ -56,9 +56,7 @@ fn case(name: &str) -> (glam::DVec3, Vec<Primitive>) {
                 .trim_start_matches("mixed")
                 .parse()
                 .expect("case: wedge5, wedge1, randomN or mixedN");
-            let mut rng = SplitMix(n as u64);
-            let primitives = random_primitives(&mut rng, n);
-            (rng.vec(0.02), primitives)
+            random_scene(n as u64, n)
         }
     }
 }
@@ -130,9 +128,8 @@ fn main() {
             let mut solver = Solver::with_capacity(SolverConfig::default(), n);
             let (mut passes, mut uncertified) = (0, 0);
             for seed in 1..=count {
-                let mut rng = SplitMix(seed * 1_000_003 + n as u64);
-                let primitives = random_primitives(&mut rng, n);
-                let problem = cold_problem(rng.vec(0.02), &primitives);
+                let (probe, primitives) = random_scene(seed * 1_000_003 + n as u64, n);
+                let problem = cold_problem(probe, &primitives);
                 solver.reset();
                 let sol = solver.solve(&problem).unwrap();
                 passes += sol.sweeps;
@@ -146,11 +143,7 @@ fn main() {
             let n: usize = args.get(1).map_or(10, |v| v.parse().expect("N"));
             let count: u64 = args.get(2).map_or(100, |v| v.parse().expect("COUNT"));
             let scenes: Vec<_> = (1..=count)
-                .map(|seed| {
-                    let mut rng = SplitMix(seed * 1_000_003 + n as u64);
-                    let primitives = random_primitives(&mut rng, n);
-                    (rng.vec(0.02), primitives)
-                })
+                .map(|seed| random_scene(seed * 1_000_003 + n as u64, n))
                 .collect();
             let mut solver = Solver::with_capacity(SolverConfig::default(), n);
             let ns = median_ns(|| {

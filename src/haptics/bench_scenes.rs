@@ -57,6 +57,15 @@ pub fn random_primitives(rng: &mut SplitMix, n: usize) -> Vec<Primitive> {
         .collect()
 }
 
+/// The benchmark's random scene of `n` primitives from `seed`: a probe within 2 cm of the origin and
+/// [`random_primitives`] (drawn first, from the same generator). The benchmark's own scene of `n` uses seed `n`;
+/// the "other scenes" of `solver_instructions seeds` and the pass-count tests use `k * 1 000 003 + n`.
+pub fn random_scene(seed: u64, n: usize) -> (DVec3, Vec<Primitive>) {
+    let mut rng = SplitMix(seed);
+    let primitives = random_primitives(&mut rng, n);
+    (rng.vec(0.02), primitives)
+}
+
 /// A thin wedge: the region `|z| <= x tan(angle/2)` between two 50 N planes at `angle_deg` to each other, edge
 /// along y. A probe at `(-0.2 mm, y, 0.01 mm)` belongs exactly on the edge, at `(0, y, 0)`.
 pub fn thin_wedge(angle_deg: f64) -> [Primitive; 2] {

@@ -509,7 +509,8 @@ impl Workspace {
             let mut taken = d;
             let mut taken_t = step.t;
             // A full step, to rounding: `-slope / curvature` of an exact Newton step is 1 within a few ulps.
-            let full = compensated && step.kink.is_none() && step.t >= 1.0 - FULL_STEP_SLACK;
+            let full_step = step.kink.is_none() && step.t >= 1.0 - FULL_STEP_SLACK;
+            let full = compensated && full_step;
             let d_squared = d.length_squared();
             // A point to certify ahead, if any: the gradient the model predicts there and the step to it.
             let mut ahead = None;
@@ -558,7 +559,7 @@ impl Workspace {
                     return outcome;
                 }
             }
-            last_full_step_m = if step.kink.is_none() && step.t >= 1.0 - FULL_STEP_SLACK {
+            last_full_step_m = if full_step {
                 taken.length()
             } else {
                 f64::INFINITY
@@ -761,8 +762,8 @@ impl Workspace {
             };
             let rho_squared = perpendicular.length_squared();
             let c = perpendicular.dot(along);
-            let scale = item.strength_n / (rho_squared * self.kink_distance_m[i]);
-            sum -= scale
+            let weight = item.strength_n / (rho_squared * self.kink_distance_m[i]);
+            sum -= weight
                 * (2.0 * c * along
                     + (along.length_squared() - 3.0 * c * c / rho_squared) * perpendicular);
         }
@@ -1304,21 +1305,12 @@ fn kink_distance_squared(item: &Item, x: DVec3) -> f64 {
 mod tests {
     use super::*;
     use crate::haptics::bench_scenes::SplitMix;
+    use crate::haptics::solver::subgradient;
 
-    /// The gradient of the smooth terms at `x` (points and lines off their kink), for finite differences.
+    /// The gradient of the smooth terms at `x` (points and lines off their kink: their subgradient), for
+    /// finite differences.
     fn smooth_gradient(items: &[Item], x: DVec3) -> DVec3 {
-        items
-            .iter()
-            .map(|item| {
-                let r = x - item.position_m;
-                let q = item.direction;
-                let perpendicular = match item.kind {
-                    PrimitiveKind::Line => r - q * q.dot(r),
-                    _ => r,
-                };
-                item.strength_n * perpendicular / perpendicular.length()
-            })
-            .sum()
+        items.iter().map(|item| subgradient(item, x)).sum()
     }
 
     /// `third_order` is the third derivative applied twice: it matches the second central difference of the

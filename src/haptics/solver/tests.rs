@@ -1,7 +1,7 @@
 //! Unit tests of the exact solver: closed-form cases, the hard cases of DESIGN.md section 2, and warm starts.
 
 use super::*;
-use crate::haptics::bench_scenes::{random_primitives, thin_wedge, SplitMix};
+use crate::haptics::bench_scenes::{random_primitives, random_scene, thin_wedge, SplitMix};
 use crate::haptics::primitive::total_energy_j;
 use crate::haptics::reference;
 
@@ -423,9 +423,7 @@ fn primitive_forces_balance_the_coupling_at_the_answer() {
 fn cold_pass_counts(n: usize, others: u64) -> (u32, u32) {
     let mut solver = Solver::with_capacity(SolverConfig::default(), n);
     let mut solve_seed = |seed: u64| {
-        let mut rng = SplitMix(seed);
-        let prims = random_primitives(&mut rng, n);
-        let probe = rng.vec(0.02);
+        let (probe, prims) = random_scene(seed, n);
         solver.reset();
         let sol = solve_with(&mut solver, probe, &prims);
         assert_eq!(sol.status, SolveStatus::Certified, "seed {seed}: {sol:?}");

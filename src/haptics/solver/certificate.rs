@@ -145,48 +145,94 @@ fn kink_distance(item: &Item, r: DVec3) -> (f64, f64) {
     }
 }
 
-/// The exact subgradient of an off-kink item at `x` (as computed; its rounding is charged separately), if the
-/// item pulls with full strength: the value its dual takes at the answer. `distance` is the item's
-/// [`kink_distance`], positive here (the item is off its kink). `u` is the dual as given, unprojected: the test
-/// reads the projection's length (or a plane's magnitude) from it without forming the projection, whose square
-/// root and division only the other branches of [`certify`] need (`|proj u|^2 = min(|P u|^2, s^2)` for a ball or
-/// disc, `P` the projector across a line; a plane's clamped magnitude passes or fails both tests as its
-/// unclamped one does).
+/// What certificate B's first loop sees of one item at `x`: on its kink, pulling with full strength off it
+/// (with its exact subgradient), or neither.
+enum Look {
+    /// Within [`kink_threshold_m`] of its kink set: `distance` and its rounding bound, as [`kink_distance`].
+    Kink { distance: f64, rounding: f64 },
+    /// Off its kink and pulling with full strength: `g` its exact subgradient at `x` (as computed; its rounding
+    /// is charged separately), `margin` its distance to the kink less rounding, `rounding` the distance's
+    /// rounding bound; `curved` for a point or line, whose subgradient turns as `x` moves.
+    Saturated {
+        g: DVec3,
+        margin: f64,
+        rounding: f64,
+        curved: bool,
+    },
+    /// Neither: its dual is projected and its share of the gap computed.
+    Projected,
+}
+
+/// One item's [`Look`] at `x` (`r = x - c`), with one `match` on its kind: its [`kink_distance`], then, off the
+/// kink, whether it pulls with full strength. `u` is the dual as given, unprojected: the test reads the
+/// projection's length (or a plane's magnitude) from it without forming the projection, whose square root and
+/// division only the other branches of [`certify`] need (`|proj u|^2 = min(|P u|^2, s^2)` for a ball or disc, `P`
+/// the projector across a line; a plane's clamped magnitude passes or fails both tests as its unclamped one
+/// does). A point's or line's subgradient is its offset scaled by `s / distance`: the offset's length is
+/// `distance`, computed the same way, so this is length `s` to a few ulps (charged with the dual rounding), one
+/// division instead of a normalisation.
 #[inline]
-fn saturated_subgradient(item: &Item, r: DVec3, u: DVec3, distance: f64) -> Option<DVec3> {
+fn look(item: &Item, r: DVec3, u: DVec3, threshold_m: f64) -> Look {
     let s = item.strength_n;
     match item.kind {
-        PrimitiveKind::Point | PrimitiveKind::Line => {
-            let q = item.direction;
-            let across = if item.kind == PrimitiveKind::Line {
-                u - q * q.dot(u)
+        PrimitiveKind::Point => {
+            let distance = r.length();
+            let rounding = 4.0 * EPS * distance;
+            if distance <= threshold_m {
+                Look::Kink { distance, rounding }
+            } else if u.length_squared() < (1.0 - 2e-6) * s * s {
+                Look::Projected
             } else {
-                u
-            };
-            if across.length_squared() < (1.0 - 2e-6) * s * s {
-                return None;
+                Look::Saturated {
+                    g: r * (s / distance),
+                    margin: distance - rounding,
+                    rounding,
+                    curved: true,
+                }
             }
-            let perpendicular = if item.kind == PrimitiveKind::Line {
-                r - q * q.dot(r)
+        }
+        PrimitiveKind::Line => {
+            let q = item.direction;
+            let perpendicular = r - q * q.dot(r);
+            let distance = perpendicular.length();
+            let rounding = 4.0 * EPS * r.abs().element_sum();
+            if distance <= threshold_m {
+                Look::Kink { distance, rounding }
+            } else if (u - q * q.dot(u)).length_squared() < (1.0 - 2e-6) * s * s {
+                Look::Projected
             } else {
-                r
-            };
-            // The offset's length is `distance`, computed the same way: `s / distance` scales it to length
-            // `s` (to a few ulps, charged with the dual rounding), one division instead of a normalisation.
-            Some(perpendicular * (s / distance))
+                Look::Saturated {
+                    g: perpendicular * (s / distance),
+                    margin: distance - rounding,
+                    rounding,
+                    curved: true,
+                }
+            }
         }
         PrimitiveKind::Plane => {
-            let sigma = item.direction.dot(r);
-            let t = -item.direction.dot(u);
-            if sigma < 0.0 && t >= (1.0 - 1e-6) * s {
-                Some(-s * item.direction)
+            let q = item.direction;
+            let sigma = q.dot(r);
+            let distance = sigma.abs();
+            let rounding = 4.0 * EPS * r.abs().element_sum();
+            let t = -q.dot(u);
+            let g = if distance <= threshold_m {
+                return Look::Kink { distance, rounding };
+            } else if sigma < 0.0 && t >= (1.0 - 1e-6) * s {
+                -s * q
             } else if sigma > 0.0 && t <= 1e-6 * s {
-                Some(DVec3::ZERO)
+                DVec3::ZERO
             } else {
-                None
+                return Look::Projected;
+            };
+            Look::Saturated {
+                g,
+                margin: distance - rounding,
+                rounding,
+                curved: false,
             }
         }
-        PrimitiveKind::Directed => None,
+        // Not among the items (directed forces are folded into `y`); as a kinkless item, projected to zero.
+        PrimitiveKind::Directed => Look::Projected,
     }
 }
 
@@ -489,32 +535,39 @@ pub(crate) fn certify_into(
         }
         strength_sum += s;
         let r = x - item.position_m;
-        let (distance, rounding) = kink_distance(item, r);
-        let used = if distance <= kink_threshold_m(scale, item) {
-            let v = project(item, u);
-            if kinks.count < LISTED_KINKS {
-                kinks.listed[kinks.count] = i as u32;
+        let used = match look(item, r, u, kink_threshold_m(scale, item)) {
+            Look::Kink { distance, rounding } => {
+                let v = project(item, u);
+                if kinks.count < LISTED_KINKS {
+                    kinks.listed[kinks.count] = i as u32;
+                }
+                kinks.count += 1;
+                kinks.distance_sum_m += distance + rounding;
+                kinks.codimension += codimension(item);
+                kinks.point |= item.kind == PrimitiveKind::Point;
+                v
             }
-            kinks.count += 1;
-            kinks.distance_sum_m += distance + rounding;
-            kinks.codimension += codimension(item);
-            kinks.point |= item.kind == PrimitiveKind::Point;
-            v
-        } else if let Some(g) = saturated_subgradient(item, r, u, distance) {
-            let margin = distance - rounding;
-            smallest_margin_m = smallest_margin_m.min(margin);
-            if item.kind != PrimitiveKind::Plane {
-                let inverse_margin = 1.0 / margin.max(f64::MIN_POSITIVE);
-                subgradient_sensitivity += 2.0 * s * inverse_margin;
-                // The direction of the computed offset is off by at most 2 rounding / margin.
-                direction_rounding_n += 2.0 * s * rounding * inverse_margin;
+            Look::Saturated {
+                g,
+                margin,
+                rounding,
+                curved,
+            } => {
+                smallest_margin_m = smallest_margin_m.min(margin);
+                if curved {
+                    let inverse_margin = 1.0 / margin.max(f64::MIN_POSITIVE);
+                    subgradient_sensitivity += 2.0 * s * inverse_margin;
+                    // The direction of the computed offset is off by at most 2 rounding / margin.
+                    direction_rounding_n += 2.0 * s * rounding * inverse_margin;
+                }
+                g
             }
-            g
-        } else {
-            let v = project(item, u);
-            shares_b += projected_share(item, v, r);
-            moved_share_weight += s + v.length();
-            v
+            Look::Projected => {
+                let v = project(item, u);
+                shares_b += projected_share(item, v, r);
+                moved_share_weight += s + v.length();
+                v
+            }
         };
         total_b.add(used);
         if let Some(out) = b_dual.as_deref_mut() {

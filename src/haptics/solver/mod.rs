@@ -329,6 +329,19 @@
 //!   without its two divisions per item, was not faster either), and the rest (the primitives copied in, the
 //!   Newton steps, the bookkeeping). Under 500 ns needs a cut in every part, not one: a structure-of-arrays
 //!   pass over small scenes and leaner set-up are what is left to try.
+//!   Later the same evening, certificate B's first loop reads each item through one `match` on its kind
+//!   (`look`: the kink distance and the full-strength test together, a line's offset across it formed once)
+//!   instead of two functions each with its own, and a cold start sets its states in the visit that looks for
+//!   kinks. Same passes and same bounds everywhere (`uncertified -- 400000` unchanged: 2 / 1 / 4). Instructions
+//!   per solve, before / after: 10 random 9 354 / 9 167, 100: 79 759 / 78 059, 1 000: 766 854 / 749 867,
+//!   3 000 mixed 2 556 766 / 2 505 766, 5 degree wedge 5 230 / 5 223, the path 1 201 / 1 187 per tick; the
+//!   400 scenes of 10 10 193 / 10 008. Tried and dropped the same evening: `w n` formed once for the pass's
+//!   Hessian (the compiler already does; written from the force instead, 1.4 % more instructions), and plain
+//!   sums throughout for small scenes (compensation is not what a pass over ten primitives costs: 0.2 % more).
+//!   Building with `-C target-cpu=native` (AVX-512 here) was 3 to 8 % faster on 10 random primitives, and fat
+//!   LTO with one codegen unit about 3 %; neither is used (the first makes a binary that stops with an illegal
+//!   instruction on an older processor, the second multiplies the test build's link time), and neither is
+//!   near the 26 % that N = 10 lacks.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000

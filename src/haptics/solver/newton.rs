@@ -290,9 +290,6 @@ impl Workspace {
         let mut x = x_start;
         if cold && !self.active.is_empty() {
             x = y - swept / k;
-            for &i in &self.active {
-                self.state[i as usize] = start_state(&items[i as usize], x);
-            }
         }
         let scale = position_scale + frame.strength_over_k_m;
         // On a kink: within 16 ulps of the scene's coordinates (where rounding alone can leave a converged x).
@@ -312,6 +309,10 @@ impl Workspace {
         // the previous proxy).
         for &i in &self.active {
             let i = i as usize;
+            if cold {
+                // The state at the sweep's point, set in the same visit.
+                self.state[i] = start_state(&items[i], x);
+            }
             if kink_distance_squared(&items[i], x) <= on_kink_m * on_kink_m
                 && self.kink_count < MAX_KINKS
             {

@@ -528,7 +528,7 @@ impl Workspace {
                 // Short, but not short enough for Newton's error alone: the third-order (Chebyshev) correction
                 // `e = -H^-1 T[d, d] / 2` takes Newton's leading error term away, leaving one of order
                 // `|e|^2 / |d|` (module header, step 5).
-                let correction = -0.5 * solve_spd(&model.hessian, self.third_order(items, x, d));
+                let correction = -0.5 * solve_spd(&model.hessian, self.third_order(items, dual, d));
                 let corrected = d + correction;
                 if corrected.is_finite()
                     && correction.length_squared()
@@ -744,9 +744,11 @@ impl Workspace {
     }
 
     /// `T[d, d]`, the third derivative of the smooth terms at `x` applied twice to `d` (W empty): for a point at
-    /// distance `rho` along `r` (`r` the offset from it, for a line its part normal to the line, and `d` too),
-    /// `D^3 (s |r|)[d, d] = -(s / rho^3) (2 (r.d) d + (|d|^2 - 3 (r.d)^2 / rho^2) r)`; planes are linear.
-    fn third_order(&self, items: &[Item], x: DVec3, d: DVec3) -> DVec3 {
+    /// distance `rho` in direction `n` (for a line, `n` normal to it and `d` replaced by its part `d'` across the
+    /// line), `D^3 (s |r|)[d, d] = -(s / rho^2) (2 a d' + (|d'|^2 - 3 a^2) n)` with `a = n.d'`; planes are
+    /// linear. Read from the last pass at `x`: its force `f = s n` (`dual`) and `rho` (`kink_distance_m`), with
+    /// `b = f.d'` that is `-(1 / rho^2) (2 b d' + |d'|^2 f) + 3 b^2 / (rho^2 s^2) f`, one division per item.
+    fn third_order(&self, items: &[Item], dual: &[DVec3], d: DVec3) -> DVec3 {
         let mut sum = DVec3::ZERO;
         for &index in &self.active {
             let i = index as usize;
@@ -754,19 +756,20 @@ impl Workspace {
                 continue;
             }
             let item = &items[i];
-            let r = x - item.position_m;
-            let (perpendicular, along) = if item.kind == PrimitiveKind::Line {
+            let along = if item.kind == PrimitiveKind::Line {
                 let q = item.direction;
-                (r - q * q.dot(r), d - q * q.dot(d))
+                d - q * q.dot(d)
             } else {
-                (r, d)
+                d
             };
-            let rho_squared = perpendicular.length_squared();
-            let c = perpendicular.dot(along);
-            let weight = item.strength_n / (rho_squared * self.kink_distance_m[i]);
-            sum -= weight
-                * (2.0 * c * along
-                    + (along.length_squared() - 3.0 * c * c / rho_squared) * perpendicular);
+            let f = dual[i];
+            let b = f.dot(along);
+            let rho = self.kink_distance_m[i];
+            let s_squared = item.strength_n * item.strength_n;
+            // 1 / (rho^2 s^2); times s^2 it is 1 / rho^2.
+            let inverse = 1.0 / (rho * rho * s_squared);
+            sum += (3.0 * b * b * inverse) * f
+                - (s_squared * inverse) * (2.0 * b * along + along.length_squared() * f);
         }
         sum
     }
@@ -1339,6 +1342,8 @@ mod tests {
             let x = rng.vec(0.01);
             let d = rng.vec(1e-3);
             let mut workspace = Workspace::with_capacity(items.len());
+            // A pass at x writes each smooth item's force there (its subgradient) as its dual value.
+            let dual: Vec<DVec3> = items.iter().map(|item| subgradient(item, x)).collect();
             for (i, item) in items.iter().enumerate() {
                 workspace.active.push(i as u32);
                 workspace.state.push(State::Smooth);
@@ -1346,7 +1351,7 @@ mod tests {
                     .kink_distance_m
                     .push(kink_distance_squared(item, x).sqrt());
             }
-            let analytic = workspace.third_order(&items, x, d);
+            let analytic = workspace.third_order(&items, &dual, d);
             let h = 1e-3;
             let numeric = (smooth_gradient(&items, x + h * d) - 2.0 * smooth_gradient(&items, x)
                 + smooth_gradient(&items, x - h * d))

@@ -344,6 +344,17 @@
 //!   LTO with one codegen unit about 3 %; neither is used (the first makes a binary that stops with an illegal
 //!   instruction on an older processor, the second multiplies the test build's link time), and neither is
 //!   near the 26 % that N = 10 lacks.
+//!   Then two fixes found by sampling where the time goes (`perf record -e cpu-clock` on `solver_instructions
+//!   cold random10`; this VM has no hardware counters, but the sampled clock shows stalls that instruction
+//!   counts do not): the 3x3 solve of the Newton step and of the third-order correction by cofactors, one
+//!   division instead of an LDL^T factorisation's three in a row (same passes; 200 scenes of 30: 1 012 / 1 010);
+//!   and the items copied in field by field (the copy of a whole `Item` built on the stack stalled on store
+//!   forwarding: 46 % of `solve_inner`'s samples on one load, 9.9 % of the solve, now 5.1 %). Time, three
+//!   alternations in one run against the commit before this evening's changes: path 94 to 95 / 86 to 88 ns,
+//!   10 random 682 to 698 / 614 to 623 ns, 100 random 5.20 to 5.24 / 4.79 to 4.86 us, 1 000 random 47.8 to
+//!   48.1 / 44.0 to 44.4 us, 3 000 mixed 156 to 157 / 143 to 150 us, 10 000 mixed 559 to 565 / 513 to 530 us;
+//!   the 400 scenes of 10 816 to 831 / 742 to 743 ns. Tried and dropped: the pass's energy scale derived from
+//!   its energy (one accumulator fewer in the loop; 10 random level, 100 random 3 % slower).
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000
@@ -630,19 +641,25 @@ impl Solver {
                 directed_count += 1.0;
                 continue;
             }
-            let item = Item {
-                kind: p.kind(),
-                position_m: p.position_m(),
-                direction: p.direction(),
-                strength_n: p.strength_n(),
-            };
-            strength_sum += item.strength_n;
+            strength_sum += p.strength_n();
             if count < self.items.len() {
-                same_structure &= self.items[count].kind == item.kind;
-                self.items[count] = item;
+                // Field by field into the slot: an `Item` built on the stack and copied whole was read back
+                // with wider loads than it was written with, which stalled the copy (store forwarding fails):
+                // 4 % of a 10-primitive solve.
+                let slot = &mut self.items[count];
+                same_structure &= slot.kind == p.kind();
+                slot.kind = p.kind();
+                slot.position_m = p.position_m();
+                slot.direction = p.direction();
+                slot.strength_n = p.strength_n();
             } else {
                 same_structure = false;
-                self.items.push(item);
+                self.items.push(Item {
+                    kind: p.kind(),
+                    position_m: p.position_m(),
+                    direction: p.direction(),
+                    strength_n: p.strength_n(),
+                });
             }
             count += 1;
         }

@@ -355,6 +355,15 @@
 //!   48.1 / 44.0 to 44.4 us, 3 000 mixed 156 to 157 / 143 to 150 us, 10 000 mixed 559 to 565 / 513 to 530 us;
 //!   the 400 scenes of 10 816 to 831 / 742 to 743 ns. Tried and dropped: the pass's energy scale derived from
 //!   its energy (one accumulator fewer in the loop; 10 random level, 100 random 3 % slower).
+//!   Then the cold start of scenes of up to 128 items: the damped Jacobi sum instead of the Gauss-Seidel sweep
+//!   (newton.rs `start_sum`, with the pass counts that chose the damping and the bound). The sweep was a fifth
+//!   of the 10-primitive solve in the sampled profile, a chain of eight square roots and divisions each
+//!   waiting on the one before; the Jacobi sum's items are independent. Same bounds (`uncertified -- 400000`:
+//!   2 / 1 / 4). Passes: 400 scenes of 10 1 435 / 1 460, 200 of 30 1 010 / 956, 100 of 100 490 / 489, 10
+//!   random 3 / 3, 100 random 5 / 6. Time, three alternations: 10 random 593 to 599 / 522 to 540 ns, 100
+//!   random 4.70 to 4.76 / 4.59 to 4.68 us, wedges 321 to 328 / 314 to 317 ns, the 400 scenes of 10 730 to 741
+//!   / 657 to 661 ns, the 200 of 30 1.94 to 1.97 / 1.60 us, the 100 of 100 5.18 to 5.24 / 4.59 to 4.69 us;
+//!   1 000 random and the mixed scenes (the sweep, unchanged) level.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000

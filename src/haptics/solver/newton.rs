@@ -10,11 +10,14 @@
 //! point, the line, the plane). Off its kink a point or a line is a smooth distance term (gradient `s n`,
 //! Hessian `s/rho (I - n n^T)` restricted to the line's normal plane); a plane is linear on each side (`-s q`
 //! behind it, `0` in front). A *working set* W holds the kinks the proxy is kept on (at most a few: x is in
-//! R^3). A cold start (the caller gives no start point: no previous proxy) begins where one dual block sweep from zero
-//! leads (`u_i = proj_{U_i}(k (y - x_i) - sum_{j < i} u_j)`, then `x = y - sum u_i / k`; about 40 instructions
-//! per primitive, a third of a pass): far from the answer the sweep is the better guess, since the pull of a
-//! point or line a few millimetres off is a poor quadratic, and Newton's first step from `y` overshoots.
-//! The sweep's values are discarded (the first pass writes its own). One iteration is:
+//! R^3). A cold start (the caller gives no start point: no previous proxy) begins at `x = y - U / k` for a dual sum
+//! `U` ([`start_sum`]): up to 128 items the damped sum of each item's projection from zero alone
+//! (`min(1, 2 / sqrt(m)) sum_i proj_{U_i}(k (y - x_i))`, no item waiting on another), beyond that one dual
+//! block sweep from zero (`u_i = proj_{U_i}(k (y - x_i) - sum_{j < i} u_j)`, a chain of dependent square roots
+//! and divisions, worth it only where it saves passes over many items): far from the answer either is the
+//! better guess, since the pull of a point or line a few millimetres off is a poor quadratic, and Newton's first
+//! step from `y` overshoots. The start's dual values are discarded (the first pass writes its own). One
+//! iteration is:
 //!
 //! 1. One O(N) pass at `x`: gradient `g`, Hessian `H` and energy of the smooth terms, and each primitive's
 //!    subgradient written as its dual value (points and lines `s n`, planes `-s q` or `0`).
@@ -265,10 +268,8 @@ impl Workspace {
         self.kink_count = 0;
         self.fixed_gradient_n = DVec3::ZERO;
         self.fixed_energy_j = 0.0;
-        // A cold start begins where one dual block sweep from zero leads (module header): `U` is the sum of its
-        // values, and the start is `y - U/k`.
+        // A cold start begins at `y - U/k`, `U` from `start_sum` (module header).
         let cold = start.is_none();
-        let mut swept = DVec3::ZERO;
         for (i, (item, u)) in items.iter().zip(dual.iter_mut()).enumerate() {
             *u = DVec3::ZERO;
             position_scale = position_scale.max(item.position_m.abs().max_element());
@@ -278,8 +279,7 @@ impl Workspace {
             } else {
                 self.active.push(i as u32);
                 if cold {
-                    // The state is set at the sweep's point below.
-                    swept += block_update(item, y, k, swept);
+                    // The state is set at the start point, below.
                     State::Smooth
                 } else {
                     start_state(item, x_start)
@@ -289,7 +289,7 @@ impl Workspace {
         }
         let mut x = x_start;
         if cold && !self.active.is_empty() {
-            x = y - swept / k;
+            x = y - start_sum(items, &self.active, y, k) / k;
         }
         let scale = position_scale + frame.strength_over_k_m;
         // On a kink: within 16 ulps of the scene's coordinates (where rounding alone can leave a converged x).
@@ -1246,6 +1246,38 @@ fn chebyshev_may_certify(step_m: f64, last_step_m: f64, tolerance_m: f64) -> boo
     let ratio = step_m / last_step_m;
     let ratio_squared = ratio * ratio;
     step_m * ratio_squared * ratio_squared <= SPECULATE_BELOW * tolerance_m
+}
+
+/// Scenes with at most this many items in the passes start from a damped Jacobi sum, larger ones from a Gauss-Seidel
+/// sweep ([`start_sum`]).
+const JACOBI_START_MAX_ITEMS: usize = 128;
+
+/// The dual sum `U` a cold start begins from (the start is `y - U / k`; module header, "The iteration").
+///
+/// Up to [`JACOBI_START_MAX_ITEMS`] items, each item's projection from zero, `proj_{U_i}(k (y - x_i))`, all
+/// independent of each other, summed and damped by `min(1, 2 / sqrt(m))` for `m` items: each term is the force
+/// the item would exert were it alone, and `m` of them pulling in unrelated directions add up to about
+/// `sqrt(m)` times one, far more than the coupling balances at the answer. Beyond that, one Gauss-Seidel
+/// sweep, where each projection sees the sum before it: a better start for many items, but a chain of
+/// dependent square roots and divisions, which on ten primitives was a fifth of the solve.
+/// Measured (2026-11-27, `solver_instructions seeds` and `timeseeds`, passes in all and median time per
+/// solve, sweep / Jacobi): 400 scenes of 5 985 / 1 058 passes, 382 / 370 ns; of 10 1 435 / 1 460, 723 / 674 ns;
+/// 200 of 30 1 010 / 956, 1 969 / 1 649 ns; 100 of 100 490 / 489, 5.34 / 4.69 us; 60 of 150 304 / 344,
+/// 8.3 / 7.8 us; 50 of 200 261 / 336, 10.4 / 14.5 us; 20 of 1 000 106 / 180. Undamped Jacobi (1 656 passes
+/// for the 400 of 10) and fixed factors (a half: 1 501 for those, 754 for the 100 of 100) did worse.
+fn start_sum(items: &[Item], active: &[u32], y: DVec3, k: f64) -> DVec3 {
+    let mut sum = DVec3::ZERO;
+    if active.len() <= JACOBI_START_MAX_ITEMS {
+        for &i in active {
+            sum += block_update(&items[i as usize], y, k, DVec3::ZERO);
+        }
+        sum * (2.0 / (active.len() as f64).sqrt()).min(1.0)
+    } else {
+        for &i in active {
+            sum += block_update(&items[i as usize], y, k, sum);
+        }
+        sum
+    }
 }
 
 /// The state of an item off W at `x`.

@@ -48,8 +48,8 @@ fn one_point_is_solved_by_one_update() {
     let sol = solve(probe, &prims);
     // k |probe - point| = 5 N > 2 N: the point holds the proxy s/k = 4 mm back from the probe.
     assert_certified_near(&sol, DVec3::new(0.006, 0.0, 0.0));
-    // The primal Newton method starts where one dual sweep leads, which for one point is the answer: one pass
-    // finds the gradient zero there and certifies.
+    // The primal Newton method starts where the point's projected force from zero leads (undamped for one
+    // item), which for one point is the answer: one pass finds the gradient zero there and certifies.
     assert_eq!(sol.sweeps, 1);
     assert_eq!(sol.newton_passes, 1);
     assert!((sol.force_n - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
@@ -452,11 +452,12 @@ fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
 
 /// The primal method's pass count on the benchmark's 10 scene and on 400 others (`solver_instructions seeds
 /// 10 400`), which the third-order correction of a short last step brought down (newton.rs header, step 5).
-/// Measured: the benchmark's scene 3 passes (4 without the correction), the 400 others 1 435 in all (1 661
-/// without it). So the test fails if the correction is undone. Every solve is certified.
+/// Measured: the benchmark's scene 3 passes (4 without the correction), the 400 others 1 460 in all (1 682
+/// without it; from the damped Jacobi start, newton.rs `start_sum`; 1 435 and 1 661 from the Gauss-Seidel
+/// sweep it replaced for small scenes). So the test fails if the correction is undone. Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_ten_primitive_scenes() {
     let (benchmark, others) = cold_pass_counts(10, 400);
     assert!(benchmark <= 3, "benchmark scene: {benchmark} passes");
-    assert!(others <= 1450, "400 other scenes: {others} passes");
+    assert!(others <= 1480, "400 other scenes: {others} passes");
 }

@@ -1496,7 +1496,7 @@ fn assert_dof_invariants(device: &SpecDeviceHandle, dof: u8, max_force_n: f32, x
 /// A well-behaved 2-DOF device whose plane cuts the ball 1.5 cm above its centre, pressed in to x = 1.5 cm (8.8 mm
 /// inside the wall; the 3-D force, about 4.4 N, points 45 degrees out of the plane). It receives x and y only,
 /// z exactly 0, and the clamp to its 2 N acts on that in-plane force: x reaches 2 N (clamping the 3-D force first
-/// and dropping z afterwards would leave it 1.4 N).
+/// and dropping z afterwards left it at 1.57 N).
 #[test]
 fn a_two_dof_device_receives_x_and_y_only_clamped_as_sent() {
     let _turn = take_turn();

@@ -1407,8 +1407,8 @@ fn workspace_for(dof: u8) -> ([f32; 3], [f32; 3]) {
     let default = SpecDeviceConfig::default();
     let flat = |v: [f32; 3]| {
         let mut v = v;
-        for axis in usize::from(dof)..3 {
-            v[axis] = 0.0;
+        for component in v.iter_mut().skip(usize::from(dof)) {
+            *component = 0.0;
         }
         v
     };

@@ -744,10 +744,12 @@ impl Device {
         position = used_components(position, dof);
         velocity = used_components(velocity, dof);
         if let Some((garbage_position, garbage_velocity)) = self.config.unused_components {
-            for axis in usize::from(dof.clamp(1, 3))..3 {
-                position[axis] = garbage_position[axis];
-                velocity[axis] = garbage_velocity[axis];
-            }
+            let unused = match dof {
+                1 | 2 => usize::from(dof)..3,
+                _ => 3..3,
+            };
+            position[unused.clone()].copy_from_slice(&garbage_position[unused.clone()]);
+            velocity[unused.clone()].copy_from_slice(&garbage_velocity[unused]);
         }
         (position, velocity)
     }

@@ -94,12 +94,8 @@ fn into_the_wall(after_enable_s: f64) -> HandleFn {
 /// servo tick, a dropped link, a new Enable): a hand held in the wall would then never feel force again, while this
 /// one gives the host a moment in free space every 0.7 s (short, because on a loaded machine the link may stay up
 /// for well under a second at a time). Tests stop it (`handle_hold`) once force flows, so that what follows their
-/// event happens with the handle in the wall, as on a quiet machine.
-fn tapping() -> HandleFn {
-    tapping_to(INSIDE_X_M)
-}
-
-/// As [`tapping`], pressing in to `end_x_m`.
+/// event happens with the handle in the wall, as on a quiet machine. [`tapping_until`] presses in to `end_x_m`
+/// instead.
 fn tapping_to(end_x_m: f32) -> HandleFn {
     Arc::new(move |t: HandleTime| {
         let phase = t.since_spawn_s % 0.7;
@@ -306,8 +302,23 @@ fn run_until(
     what: &str,
     done: impl Fn(&SpecDeviceHandle) -> bool,
 ) -> (SpecDeviceHandle, ExitStatus, String) {
+    run_on_scene_until(config, damping_n_s_per_m, "", what, done)
+}
+
+/// [`run_until`] on the ball scene with `scene_tail` appended to its file (a `[device]` table, say).
+fn run_on_scene_until(
+    config: SpecDeviceConfig,
+    damping_n_s_per_m: f64,
+    scene_tail: &str,
+    what: &str,
+    done: impl Fn(&SpecDeviceHandle) -> bool,
+) -> (SpecDeviceHandle, ExitStatus, String) {
     let dir = tempfile::tempdir().unwrap();
     let scene = ball_scene(dir.path(), damping_n_s_per_m);
+    if !scene_tail.is_empty() {
+        let text = std::fs::read_to_string(&scene).unwrap();
+        std::fs::write(&scene, format!("{text}{scene_tail}")).unwrap();
+    }
     let mut device = SpecDevice::spawn(config);
     let mut serve = Serve::start(&device, Some(&scene), None);
     serve.wait_for(&device, what, done);
@@ -1379,44 +1390,163 @@ fn the_devices_stiffness_cap_holds_from_the_first_tick() {
     );
 }
 
-/// SPEC 6.8: a 2-DOF device uses x and y. Its z readings are meaningless (here a constant 2 cm that would put the
-/// probe on the ball's upper slope) and the host must send force z = 0.
-#[test]
-fn a_two_dof_device_gets_force_z_zero() {
-    let _turn = take_turn();
-    let planar = tapping();
-    // On the ball's slope the wall gives only about 0.63 N along x (below FLOWING): wait for what the check below
-    // asks for (z is zero or that check fails anyway, and y is zero, so |f| is the force along x).
-    let contact = Trigger::ForceAbove(0.5);
-    let config = SpecDeviceConfig {
-        position_dof: 2,
-        force_dof: 2,
-        handle: Arc::new(move |t| {
-            let [x, y, _] = planar(t);
-            [x, y, 0.02]
-        }),
-        handle_hold: Some(contact),
-        ..SpecDeviceConfig::default()
+// ---------------------------------------------------------------------------------------------------------------
+// Degrees of freedom (SPEC 6.8): a 2-DOF device uses x and y, a 1-DOF device x alone; the host ignores the other
+// components of State and sends them as 0 in SetForce. What such a device should feel is the part of the scene's
+// 3-D coupling force along its axes, at a probe on its plane or line (docs/devices/README.md).
+
+/// A scene `[device]` table that puts the device's origin at `translation_m` in the scene (no rotation, scale 1):
+/// a 2-DOF device's plane z = 0 becomes the scene plane z = `translation_m[2]`, a 1-DOF device's x axis the scene
+/// line through `translation_m` along x.
+fn device_offset(translation_m: [f64; 3]) -> String {
+    format!("[device]\nname = \"offset\"\n[device.mapping]\ntranslation_m = {translation_m:?}\n")
+}
+
+/// The device's declared box for `dof` (SPEC 6.8: the unused axes have no extent).
+fn workspace_for(dof: u8) -> ([f32; 3], [f32; 3]) {
+    let default = SpecDeviceConfig::default();
+    let flat = |v: [f32; 3]| {
+        let mut v = v;
+        for component in v.iter_mut().skip(usize::from(dof)) {
+            *component = 0.0;
+        }
+        v
     };
-    let device = run_until_ok(
+    (flat(default.workspace_min_m), flat(default.workspace_max_m))
+}
+
+/// A `dof`-DOF device (position and force) declaring `max_force_n`, its handle tapping into the ball to `end_x_m`.
+fn device_with_dof(dof: u8, max_force_n: f32, end_x_m: f32) -> SpecDeviceConfig {
+    let (workspace_min_m, workspace_max_m) = workspace_for(dof);
+    SpecDeviceConfig {
+        position_dof: dof,
+        force_dof: dof,
+        workspace_min_m,
+        workspace_max_m,
+        max_force_n,
+        handle: tapping_to(end_x_m),
+        ..SpecDeviceConfig::default()
+    }
+}
+
+/// Runs `serve` on the ball scene plus `scene_tail` until the device has received a SetForce with x of at least
+/// `x_target_n`, or 3 000 SetForce after a light contact (0.3 N applied; a host that never gets there fails the
+/// checks after it). The handle keeps tapping, so that a host that starts engagement over gets free space again.
+fn run_for_x_force(
+    config: SpecDeviceConfig,
+    scene_tail: &str,
+    x_target_n: f32,
+) -> SpecDeviceHandle {
+    let contact = Trigger::ForceAbove(0.3);
+    let after_contact = forces_after_trigger(contact, 3_000);
+    let config = SpecDeviceConfig {
+        // A no-op at contact: it makes the device watch for (and log) the trigger.
+        call_at: Some((contact, Arc::new(|| {}))),
+        ..config
+    };
+    let (device, status, output) = run_on_scene_until(
         config,
         0.0,
-        "contact, then 300 host ticks",
-        forces_after_trigger(contact, 300),
+        scene_tail,
+        "a SetForce with the expected x, or 3000 host ticks after contact",
+        move |device| {
+            after_contact(device) || device.forces().iter().any(|f| f.force_n[0] >= x_target_n)
+        },
     );
+    assert!(status.success(), "serve failed: {output}");
+    device
+}
+
+/// The SetForce frames whose components beyond the first `dof` are not exactly +0.0.
+fn with_unused_components(forces: &[ForceRecord], dof: u8) -> Vec<ForceRecord> {
+    forces
+        .iter()
+        .filter(|f| {
+            f.force_n[usize::from(dof)..]
+                .iter()
+                .any(|c| c.to_bits() != 0)
+        })
+        .copied()
+        .collect()
+}
+
+/// The device-side checks every DOF test makes: unused components exactly +0.0 in every SetForce, finite, never
+/// above `max_force_n`, slew-limited, zero while not Enabled; and x reached `x_target_n` (the force along the
+/// device's axes is what the clamp limits, not the 3-D force it was part of).
+fn assert_dof_invariants(device: &SpecDeviceHandle, dof: u8, max_force_n: f32, x_target_n: f32) {
     let forces = device.forces();
+    let bad = with_unused_components(&forces, dof);
     assert!(
-        forces.iter().any(|f| f.force_n[0] > 0.5),
-        "the wall was never felt along x: {}",
+        bad.is_empty(),
+        "{} SetForce with a non-zero component beyond the first {dof} to a {dof}-DOF device (first {:?}); {}",
+        bad.len(),
+        bad.first(),
         summary(&forces)
     );
-    let with_z: Vec<_> = forces.iter().filter(|f| f.force_n[2] != 0.0).collect();
+    assert_force_invariants(device, max_force_n);
+    assert_slew_limited(device);
+    let best_x = forces.iter().map(|f| f.force_n[0]).fold(0.0f32, f32::max);
     assert!(
-        with_z.is_empty(),
-        "{} SetForce with a z component to a 2-DOF device (first {:?})",
-        with_z.len(),
-        with_z.first()
+        best_x >= x_target_n,
+        "the largest force along x was {best_x} N, expected at least {x_target_n} N; {}",
+        summary(&forces)
     );
+}
+
+/// A well-behaved 2-DOF device whose plane cuts the ball 1.5 cm above its centre, pressed in to x = 1.5 cm (8.8 mm
+/// inside the wall; the 3-D force, about 4.4 N, points 45 degrees out of the plane). It receives x and y only,
+/// z exactly 0, and the clamp to its 2 N acts on that in-plane force: x reaches 2 N (clamping the 3-D force first
+/// and dropping z afterwards left it at 1.57 N).
+#[test]
+fn a_two_dof_device_receives_x_and_y_only_clamped_as_sent() {
+    let _turn = take_turn();
+    let (dof, max_force_n, target_n) = (2, 2.0, 1.9);
+    let device = run_for_x_force(
+        device_with_dof(dof, max_force_n, 0.015),
+        &device_offset([0.0, 0.0, 0.015]),
+        target_n,
+    );
+    assert_dof_invariants(&device, dof, max_force_n, target_n);
+}
+
+/// A well-behaved 1-DOF device whose line runs 1 cm off the ball's centre in y and in z, pressed in to x = 1.5 cm:
+/// the 3-D force (about 4.7 N) has large y and z parts; the device receives x only, y and z exactly 0, and x
+/// reaches its 2 N clamp.
+#[test]
+fn a_one_dof_device_receives_x_only_clamped_as_sent() {
+    let _turn = take_turn();
+    let (dof, max_force_n, target_n) = (1, 2.0, 1.9);
+    let device = run_for_x_force(
+        device_with_dof(dof, max_force_n, 0.015),
+        &device_offset([0.0, 0.01, 0.01]),
+        target_n,
+    );
+    assert_dof_invariants(&device, dof, max_force_n, target_n);
+}
+
+/// A device that breaks SPEC 6.8 and reports garbage in the State components its DOF leaves unused (a constant
+/// 2 cm of position and 0.5 m/s of velocity) is rendered as if they were 0: pressed 1 cm into the wall on the
+/// ball's equator it renders about 5 N along x (k = 500 N/m) and gets its full 3 N, not the 0.63 N of the upper
+/// slope at z = 2 cm (2-DOF), nor nothing at (2, 2, 2) cm outside the ball (1-DOF).
+fn garbage_in_unused_state_components_is_ignored(dof: u8) {
+    let _turn = take_turn();
+    let (max_force_n, target_n) = (3.0, 2.9);
+    let config = SpecDeviceConfig {
+        unused_components: Some(([0.02; 3], [0.5; 3])),
+        ..device_with_dof(dof, max_force_n, INSIDE_X_M)
+    };
+    let device = run_for_x_force(config, "", target_n);
+    assert_dof_invariants(&device, dof, max_force_n, target_n);
+}
+
+#[test]
+fn a_two_dof_devices_garbage_z_in_state_is_ignored() {
+    garbage_in_unused_state_components_is_ignored(2);
+}
+
+#[test]
+fn a_one_dof_devices_garbage_y_and_z_in_state_are_ignored() {
+    garbage_in_unused_state_components_is_ignored(1);
 }
 
 // ---------------------------------------------------------------------------------------------------------------

@@ -44,6 +44,16 @@ pub struct DeviceInfo {
 }
 
 impl DeviceInfo {
+    /// The components of position and velocity this device senses ([`super::dof`], SPEC 6.8).
+    pub fn position_axes(&self) -> super::dof::UsedAxes {
+        super::dof::UsedAxes::from_dof(self.position_dof)
+    }
+
+    /// The components of force this device renders ([`super::dof`], SPEC 6.8).
+    pub fn force_axes(&self) -> super::dof::UsedAxes {
+        super::dof::UsedAxes::from_dof(self.force_dof)
+    }
+
     /// A record with the given model and workspace and conservative defaults for the rest (3 DOF, 3 N,
     /// 1 000 N/m, [`DEFAULT_MAX_SPEED_M_PER_S`], no velocity, lockstep); drivers override what they know.
     pub fn basic(model: &str, workspace_min_m: DVec3, workspace_max_m: DVec3) -> DeviceInfo {

@@ -10,6 +10,8 @@
 //! - [`Lifecycle`]: open → enabled → open → closed, enforced once for every driver;
 //! - [`plausibility`] and [`safety`]: the host's safety pipeline, applied to every sample a device reports and
 //!   to every force before any driver;
+//! - [`dof`]: which components a 1- or 2-DOF device uses (SPEC 6.8); the others are dropped on the way in and
+//!   out;
 //! - [`supervisor`]: lifecycle, safety, link health, the device's drive state (faults, recovery) and
 //!   reconnection: the one object the servo loop talks to;
 //! - [`mock`]: the simulated arm behind the real protocol, with fault injection (`voxhap mock-device`);
@@ -18,6 +20,7 @@
 //! [`sim`] is the in-process simulated arm used by scenarios, tests and demos.
 
 pub mod discovery;
+pub mod dof;
 pub mod drivers;
 pub mod error;
 pub mod info;

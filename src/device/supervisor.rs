@@ -32,6 +32,9 @@
 //! - **Steady before enabling.** `Starting` (and `Recovering`) count on-time ticks that end with a state
 //!   within that staleness bound; a reply that came a tick or two late keeps the count, a gap that would zero
 //!   the force or a late servo tick restarts it.
+//! - **Degrees of freedom** (SPEC 6.8, `device::dof`). For a 1- or 2-DOF device the components it does not use
+//!   are set to 0 in every sample before the input checks, and in every force before the safety pipeline (so
+//!   the clamp, engage rule and slew limit see what is sent) and again after it (exactly +0.0 on the wire).
 //! - A stall monitor on another thread may have stopped the device while the servo thread was stalled
 //!   ([`Supervisor::set_stall_flag`]); the next tick sees the flag and goes through `Recovering`.
 //!
@@ -39,6 +42,7 @@
 //! interval and only while the device is gone (tests); `servo::device::Reconnecting` moves them to a connector
 //! thread. The steady-state tick does not allocate.
 
+use super::dof::UsedAxes;
 use super::lifecycle::{Lifecycle, LifecycleError, LifecycleState};
 use super::plausibility::{InputConfig, InputConfigError, InputCounters, InputGuard};
 use super::safety::{
@@ -487,8 +491,12 @@ pub struct Supervisor<D: HapticDevice, F> {
     /// A device lost on a tick, kept for [`Supervisor::take_lost`] instead of being dropped here.
     lost: Option<Lifecycle<D>>,
     stall_flag: Option<Arc<AtomicBool>>,
-    /// A planar (2-DOF) device renders x and y only: z of the force is sent as zero (SPEC 6.8).
-    planar: bool,
+    /// The components of position and velocity the device senses; the others are set to 0 before the input
+    /// checks (SPEC 6.8: "ignored by the host"; `device::dof`).
+    position_axes: UsedAxes,
+    /// The components of force the device renders; the others are set to 0 before the safety pipeline, so that
+    /// its clamp, engage rule and slew limit act on what is sent, and after it (SPEC 6.8; `device::dof`).
+    force_axes: UsedAxes,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -517,7 +525,8 @@ where
             auto_reconnect: true,
             lost: None,
             stall_flag: None,
-            planar: false,
+            position_axes: UsedAxes::ALL,
+            force_axes: UsedAxes::ALL,
         })
     }
 
@@ -616,7 +625,8 @@ where
         self.safety.set_max_force_n(limit);
         self.safety.disable();
         self.input.attach(device.info());
-        self.planar = device.info().force_dof == 2;
+        self.position_axes = device.info().position_axes();
+        self.force_axes = device.info().force_axes();
         self.device = Some(device);
         self.drive = Drive::Starting { steady_ticks: 0 };
         self.last_state = None;
@@ -896,9 +906,12 @@ where
                 .is_some_and(|d| d.state() == LifecycleState::Enabled);
         let stale = self.ticks_since_fresh > self.config.stale_state_ticks;
         let safe = if accepting {
+            // Only what the device renders goes through the limits: a 2-DOF device's clamp, engage rule and
+            // slew limit are about its x and y (SPEC 6.8, 7.1).
+            let rendered_n = self.force_axes.keep(input.force_n);
             let mut safe = self
                 .safety
-                .process(input.force_n, now_us, input.force_valid && !stale);
+                .process(rendered_n, now_us, input.force_valid && !stale);
             if stale {
                 safe.force_n = DVec3::ZERO;
                 safe.flags |= SafetyFlags::STALE_STATE;
@@ -919,9 +932,8 @@ where
             }
         };
         let mut safe = safe;
-        if self.planar {
-            safe.force_n.z = 0.0;
-        }
+        // Unused components go out as exactly +0.0 (the limits only scale, but a -0.0 must not reach the wire).
+        safe.force_n = self.force_axes.keep(safe.force_n);
         out.flags = safe.flags;
         out.sent_force_n = safe.force_n;
         out.connected = true;
@@ -940,8 +952,11 @@ where
         let state_age_ticks = device.device().state_age_ticks();
         let mut fresh = false;
         match result {
-            Ok(raw) => {
+            Ok(mut raw) => {
                 self.consecutive_errors = 0;
+                // Components the device does not sense are ignored, whatever it reported there (SPEC 6.8).
+                raw.position_m = self.position_axes.keep(raw.position_m);
+                raw.velocity_m_per_s = self.position_axes.keep(raw.velocity_m_per_s);
                 let verdict = self.input.check(raw, now_us);
                 if verdict.position_rejected {
                     out.flags |= SafetyFlags::POSITION_REJECTED;

@@ -36,6 +36,9 @@
 //! - §6.6: lockstep: one State per SetForce (a control cycle runs as soon as a SetForce is received, so the State
 //!   is sampled and sent at once); streaming at SetStateRate(r) from the device clock.
 //! - §6.7: the double's outbox is unbounded: it never drops a reply of its own accord (only on purpose, below).
+//! - §6.8: a device with `position_dof` 1 or 2 reports the components it does not sense as 0 (unless told to
+//!   report garbage there, `unused_components`), and one with `force_dof` 1 or 2 applies only the components it
+//!   renders (the log keeps all three as received).
 //! - Not modelled: buttons (always 0) and non-finite samples (the scripted handle is always finite, so no ENCODER
 //!   fault arises by itself; a test can inject one with `fault`).
 //!
@@ -48,7 +51,8 @@
 //! Fault at a [`Trigger`] (a time after the first Enable, or the first moment an applied force is above a
 //! threshold); corrupt the first N DeviceInfo replies (bad CRC); speak another major version; stop replying for a
 //! while; delay every reply; corrupt a fraction of the bytes it writes (seeded); send every Nth frame cut in half;
-//! add a position jump; report a fixed (absurd or inconsistent) velocity; reset (a brown-out). The handle follows a
+//! add a position jump; report a fixed (absurd or inconsistent) velocity; report garbage in the components a 1- or
+//! 2-DOF device does not use; reset (a brown-out). The handle follows a
 //! scripted function of time ([`HandleFn`]), and can be held still from a trigger on; `max_force_n`,
 //! `max_stiffness_n_per_m` and the workspace are what DeviceInfo declares. A test can also have the device thread
 //! run an action of its own at a trigger (`call_at`), so that it acts on the host while force is flowing, not some
@@ -259,6 +263,16 @@ fn label(text: &str) -> [u8; 12] {
     out
 }
 
+/// SPEC 6.8: a device with 2 DOF uses x and y, one with 1 DOF x alone; the other components are 0. Any other
+/// DOF count uses all three.
+pub fn used_components(v: [f32; 3], dof: u8) -> [f32; 3] {
+    match dof {
+        1 => [v[0], 0.0, 0.0],
+        2 => [v[0], v[1], 0.0],
+        _ => v,
+    }
+}
+
 // ---------------------------------------------------------------------------------------------------------------
 // Configuration.
 
@@ -324,6 +338,9 @@ pub struct SpecDeviceConfig {
     pub position_glitch: Option<(Trigger, [f32; 3])>,
     /// From the trigger on, the reported velocity is this constant (m/s) instead of the handle's own.
     pub velocity_override: Option<(Trigger, [f32; 3])>,
+    /// Against SPEC 6.8: a 1- or 2-DOF device reports these (position m, velocity m/s) in the components its
+    /// `position_dof` leaves unused, instead of 0. (`None`: 0, as the SPEC says.)
+    pub unused_components: Option<([f32; 3], [f32; 3])>,
     /// RNG seed for `corrupt_fraction`.
     pub seed: u64,
     /// `corrupt_fraction` and `partial_frame_every` act only from this trigger on (`None`: from the start).
@@ -365,6 +382,7 @@ impl Default for SpecDeviceConfig {
             partial_frame_every: None,
             position_glitch: None,
             velocity_override: None,
+            unused_components: None,
             seed: 1,
             noise_from: None,
             reset: None,
@@ -721,6 +739,18 @@ impl Device {
                 velocity = v;
             }
         }
+        // SPEC 6.8: a 1- or 2-DOF device reports its unused components as 0 (or, misbehaving, as garbage).
+        let dof = self.config.position_dof;
+        position = used_components(position, dof);
+        velocity = used_components(velocity, dof);
+        if let Some((garbage_position, garbage_velocity)) = self.config.unused_components {
+            let unused = match dof {
+                1 | 2 => usize::from(dof)..3,
+                _ => 3..3,
+            };
+            position[unused.clone()].copy_from_slice(&garbage_position[unused.clone()]);
+            velocity[unused.clone()].copy_from_slice(&garbage_velocity[unused]);
+        }
         (position, velocity)
     }
 
@@ -777,6 +807,9 @@ impl Device {
                 }
                 self.last_force_sequence = sequence;
                 if self.drive == Drive::Enabled {
+                    // SPEC 6.8: a 1- or 2-DOF device ignores the components it does not render (the log above
+                    // keeps what arrived, so a test still sees them).
+                    let force_n = used_components(force_n, self.config.force_dof);
                     let norm = force_n
                         .iter()
                         .map(|f| f64::from(*f).powi(2))

@@ -1085,3 +1085,29 @@ impl<D: HapticDevice, F> std::fmt::Debug for Supervisor<D, F> {
             .finish_non_exhaustive()
     }
 }
+
+#[cfg(test)]
+mod config_tests {
+    use super::{SupervisorConfig, CONNECT_TIMEOUT_RANGE_US};
+
+    #[test]
+    fn a_connect_timeout_out_of_range_is_refused_naming_the_key() {
+        assert!(SupervisorConfig::default().validate().is_ok());
+        let (min, max) = CONNECT_TIMEOUT_RANGE_US;
+        for bad in [0, min - 1, max + 1] {
+            let config = SupervisorConfig {
+                connect_timeout_us: bad,
+                ..SupervisorConfig::default()
+            };
+            let error = config.validate().unwrap_err().to_string();
+            assert!(error.contains("connect_timeout_us"), "{error}");
+        }
+        for good in [min, max] {
+            let config = SupervisorConfig {
+                connect_timeout_us: good,
+                ..SupervisorConfig::default()
+            };
+            assert!(config.validate().is_ok());
+        }
+    }
+}

@@ -58,6 +58,29 @@ fn state_frame(sequence: u32, echo: u32, x_m: f32) -> Vec<u8> {
     frame[..len].to_vec()
 }
 
+/// The handshake's Heartbeat (its nonce), encoded by the protocol crate.
+fn heartbeat_frame(counter: u32) -> Vec<u8> {
+    let message = voxhap_protocol::HostToDevice::Heartbeat(voxhap_protocol::Heartbeat { counter });
+    let mut frame = [0u8; MAX_WIRE_FRAME_LEN];
+    let len = encode_frame(&message, &mut frame).unwrap();
+    frame[..len].to_vec()
+}
+
+/// The device's HeartbeatReply with `status`.
+fn heartbeat_reply_frame(counter: u32, status: StatusFlags) -> Vec<u8> {
+    let reply = DeviceToHost::Heartbeat(voxhap_protocol::HeartbeatReply {
+        counter,
+        device_time_us: 1,
+        status,
+    });
+    let mut frame = [0u8; MAX_WIRE_FRAME_LEN];
+    let len = encode_frame(&reply, &mut frame).unwrap();
+    frame[..len].to_vec()
+}
+
+/// The handshake nonce the scripted tests fix.
+const NONCE: u32 = 7;
+
 /// SetForce frames are encoded by the protocol crate, whose encoder the crate's own tests hold to the vectors.
 fn set_force_frame(sequence: u32, force_n: [f32; 3]) -> Vec<u8> {
     let message = voxhap_protocol::HostToDevice::SetForce(voxhap_protocol::SetForce {
@@ -75,7 +98,9 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
     let stream = ScriptedStream::new(&[
         Transaction::write(&[0x00]),
         Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE)),
         Transaction::Read(vector("device_info")),
+        Transaction::Read(heartbeat_reply_frame(NONCE, StatusFlags::SESSION_OPEN)),
         Transaction::Write(set_force_frame(1, [0.0; 3])),
         Transaction::Read(state_frame(1, 1, 0.01)),
         Transaction::Write(vector("enable")),
@@ -89,10 +114,10 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
         Transaction::Write(set_force_frame(4, [0.0; 3])),
         Transaction::Write(vector("disable")),
     ]);
-    let mut device = Lifecycle::new(ProtocolDevice::new(
-        SerialLink::new(stream),
-        ProtocolConfig::default(),
-    ));
+    let mut device = Lifecycle::new(
+        ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default())
+            .with_handshake_nonce(NONCE),
+    );
     device.open().unwrap();
     assert_eq!(device.info().model, "voxhap-sim");
     assert_eq!(device.info().state_rates_hz, [250, 500, 1000]);
@@ -109,17 +134,33 @@ fn protocol_driver_handshake_enable_force_disable_over_serial_match_the_vectors(
 
 #[test]
 fn protocol_driver_times_out_and_reports_a_disconnect() {
-    // No answer: Hello is sent five times (SPEC 7.1), then open fails naming the attempts.
+    // No answer: Hello (each with its nonce Heartbeat) is sent six times in the default 3 s (waits of 0.1, 0.2,
+    // 0.4, 0.8, 1 and the last 0.5 s; SPEC 7.1), then open fails naming what it sent.
+    let config = ProtocolConfig::default();
+    let waits: Vec<Duration> = config.hello_waits().collect();
+    assert_eq!(
+        waits,
+        [100, 200, 400, 800, 1000, 500].map(Duration::from_millis),
+        "the Hello schedule"
+    );
     let mut script = vec![Transaction::write(&[0x00])];
-    for _ in 0..5 {
+    for attempt in 0..6 {
         script.push(Transaction::Write(vector("hello")));
+        script.push(Transaction::Write(heartbeat_frame(NONCE + attempt)));
         script.push(Transaction::ReadTimeout);
     }
     let stream = ScriptedStream::new(&script);
-    let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
+    let mut device =
+        ProtocolDevice::new(SerialLink::new(stream), config).with_handshake_nonce(NONCE);
     let error = device.open().unwrap_err();
     assert_eq!(error.kind(), ErrorKind::Timeout);
-    assert!(error.to_string().contains("after 5 attempts"), "{error}");
+    assert!(
+        error
+            .to_string()
+            .contains("no DeviceInfo answering Hello within")
+            && error.to_string().contains("(6 Hellos sent)"),
+        "{error}"
+    );
     device.link().transport().done();
 
     // A corrupted DeviceInfo (bad CRC) counts as no answer: the second Hello gets the real one.
@@ -129,14 +170,19 @@ fn protocol_driver_times_out_and_reports_a_disconnect() {
     let stream = ScriptedStream::new(&[
         Transaction::write(&[0x00]),
         Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE)),
         Transaction::Read(corrupted),
+        Transaction::Read(heartbeat_reply_frame(NONCE, StatusFlags::SESSION_OPEN)),
         Transaction::ReadTimeout,
         Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE + 1)),
         Transaction::Read(vector("device_info")),
+        Transaction::Read(heartbeat_reply_frame(NONCE + 1, StatusFlags::SESSION_OPEN)),
         Transaction::Write(set_force_frame(1, [0.0; 3])),
         Transaction::Read(state_frame(1, 1, 0.01)),
     ]);
-    let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
+    let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default())
+        .with_handshake_nonce(NONCE);
     device.open().unwrap();
     assert_eq!(device.counters().hellos, 2);
     device.link().transport().done();
@@ -148,6 +194,42 @@ fn protocol_driver_times_out_and_reports_a_disconnect() {
     ]);
     let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
     assert_eq!(device.open().unwrap_err().kind(), ErrorKind::Disconnected);
+}
+
+/// A DeviceInfo that answered another open's Hello (here: followed by the reply to a heartbeat this open never
+/// sent, nonce 6), or one whose confirming reply says the session is not open, is not taken for this open's; the
+/// next Hello's DeviceInfo, confirmed by this open's nonce, is. States that came before the confirmation (an
+/// earlier session's) are not taken for the first State either.
+#[test]
+fn protocol_driver_takes_only_a_device_info_confirmed_by_its_own_nonce() {
+    let stream = ScriptedStream::new(&[
+        Transaction::write(&[0x00]),
+        Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE)),
+        Transaction::Read(vector("device_info")),
+        Transaction::Read(heartbeat_reply_frame(NONCE - 1, StatusFlags::SESSION_OPEN)),
+        Transaction::Read(state_frame(40, 12, 0.05)),
+        Transaction::ReadTimeout,
+        Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE + 1)),
+        Transaction::Read(vector("device_info")),
+        Transaction::Read(heartbeat_reply_frame(NONCE, StatusFlags::EMPTY)),
+        Transaction::ReadTimeout,
+        Transaction::Write(vector("hello")),
+        Transaction::Write(heartbeat_frame(NONCE + 2)),
+        Transaction::Read(vector("device_info")),
+        Transaction::Read(heartbeat_reply_frame(NONCE + 1, StatusFlags::SESSION_OPEN)),
+        Transaction::Write(set_force_frame(1, [0.0; 3])),
+        Transaction::Read(state_frame(41, 1, 0.01)),
+    ]);
+    let mut device = Lifecycle::new(
+        ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default())
+            .with_handshake_nonce(NONCE),
+    );
+    device.open().unwrap();
+    assert_eq!(device.device().counters().hellos, 3);
+    device.device().link().transport().done();
+    device.mark_lost();
 }
 
 #[test]
@@ -181,16 +263,25 @@ fn protocol_driver_over_hid_sends_one_64_byte_report_per_message() {
         status: StatusFlags::SESSION_OPEN,
         faults: FaultFlags::EMPTY,
     });
+    let heartbeat =
+        voxhap_protocol::HostToDevice::Heartbeat(voxhap_protocol::Heartbeat { counter: NONCE });
+    let reply = DeviceToHost::Heartbeat(voxhap_protocol::HeartbeatReply {
+        counter: NONCE,
+        device_time_us: 4,
+        status: StatusFlags::SESSION_OPEN,
+    });
     let reports = ScriptedReports::new(&[
         Transaction::Write(hello),
+        Transaction::Write(report(&heartbeat)),
         Transaction::Read(device_report(&DeviceToHost::DeviceInfo(info))),
+        Transaction::Read(device_report(&reply)),
         Transaction::Write(report(&zero_force)),
         Transaction::Read(device_report(&state)),
     ]);
-    let mut device = Lifecycle::new(ProtocolDevice::new(
-        HidLink::new(reports),
-        ProtocolConfig::default(),
-    ));
+    let mut device = Lifecycle::new(
+        ProtocolDevice::new(HidLink::new(reports), ProtocolConfig::default())
+            .with_handshake_nonce(NONCE),
+    );
     device.open().unwrap();
     assert_eq!(device.info().model, "voxhap-mock");
     device.device().link().transport().done();
@@ -360,10 +451,12 @@ proptest! {
         let stream = ScriptedStream::new(&[
             Transaction::write(&[0x00]),
             Transaction::Write(vector("hello")),
+            Transaction::Write(heartbeat_frame(NONCE)),
             Transaction::Read(bytes),
             Transaction::ReadTimeout,
         ]);
-        let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default());
+        let mut device = ProtocolDevice::new(SerialLink::new(stream), ProtocolConfig::default())
+            .with_handshake_nonce(NONCE);
         // Whatever the bytes, open ends with an error or (if they happen to hold device info) goes on to write.
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| device.open())).map_err(|panic| {
             // Only the scripted double may panic (an unexpected write after a lucky device info); never the driver.
@@ -380,10 +473,16 @@ proptest! {
             let mut hello = vec![0x01, 0x01, 0x01, 0x00];
             hello.resize(64, 0);
             hello
+        }), Transaction::Write({
+            let heartbeat = voxhap_protocol::HostToDevice::Heartbeat(voxhap_protocol::Heartbeat { counter: NONCE });
+            let mut out = [0u8; 64];
+            encode_report(&heartbeat, &mut out).unwrap();
+            out.to_vec()
         })];
         script.extend(reports.into_iter().map(Transaction::Read));
         script.push(Transaction::ReadTimeout);
-        let mut device = ProtocolDevice::new(HidLink::new(ScriptedReports::new(&script)), ProtocolConfig::default());
+        let mut device = ProtocolDevice::new(HidLink::new(ScriptedReports::new(&script)), ProtocolConfig::default())
+            .with_handshake_nonce(NONCE);
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| device.open())).map_err(|panic| {
             let text = panic.downcast_ref::<String>().cloned().unwrap_or_default();
             assert!(text.contains("scripted transport"), "driver panicked: {text}");

@@ -72,8 +72,8 @@ fn clean_link_at_1_khz_loses_no_frames() {
     );
     assert_eq!(
         driver.decoder_stats().frames_ok,
-        ticks + 2,
-        "one state per force, plus info and the open state"
+        ticks + 3,
+        "one state per force, plus info, the handshake's heartbeat reply and the open state"
     );
     assert_eq!(driver.counters().states_lost, 0);
     assert_eq!(driver.counters().late_states, 0);

@@ -39,17 +39,17 @@ const SLEW_MARGIN_N_PER_MS: f32 = 0.01;
 /// for it; with two busy loops running, the kernel logged "workqueue lockup ... stuck for" 30 to 120 s with that
 /// work pending), so the host may time out, drop the link and start over many times before force flows. A
 /// condition that is met ends the wait at once, so a quiet machine never comes near it.
-const PATIENCE: Duration = Duration::from_secs(120);
+pub(crate) const PATIENCE: Duration = Duration::from_secs(120);
 
 /// Force is flowing: the device applied a SetForce above this (N) while Enabled. The checks before an event ask for
 /// more than 0.5 N in the last SetForce before it; an event on this trigger comes in the device's control cycle
 /// right after that SetForce, so they hold by construction and stay as a record of it.
-const FLOWING: Trigger = Trigger::ForceAbove(1.0);
+pub(crate) const FLOWING: Trigger = Trigger::ForceAbove(1.0);
 
 /// One `serve` at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
-fn take_turn() -> MutexGuard<'static, ()> {
+pub(crate) fn take_turn() -> MutexGuard<'static, ()> {
     SERIAL
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner())
@@ -57,11 +57,11 @@ fn take_turn() -> MutexGuard<'static, ()> {
 
 /// Where the free-space handle rests (outside the ball) and where it is 1 cm inside the wall.
 const FREE_X_M: f32 = 0.045;
-const INSIDE_X_M: f32 = 0.02;
+pub(crate) const INSIDE_X_M: f32 = 0.02;
 const BALL_RADIUS_M: f32 = 0.03;
 
 /// A scene with one ball (radius 3 cm) felt as a surface at k = 500 N/m, with damping `damping_n_s_per_m`.
-fn ball_scene(dir: &Path, damping_n_s_per_m: f64) -> PathBuf {
+pub(crate) fn ball_scene(dir: &Path, damping_n_s_per_m: f64) -> PathBuf {
     let path = dir.join("ball.toml");
     let text = format!(
         "name = \"ball\"\nk_n_per_m = 500.0\ndamping_n_s_per_m = {damping_n_s_per_m:?}\nstart_m = [0.045, 0.0, 0.0]\n\
@@ -113,7 +113,7 @@ fn tapping_to(end_x_m: f32) -> HandleFn {
 }
 
 /// A device config whose handle taps (ending at `end_x_m`) until `trigger`, then stays where it is.
-fn tapping_until(end_x_m: f32, trigger: Trigger) -> SpecDeviceConfig {
+pub(crate) fn tapping_until(end_x_m: f32, trigger: Trigger) -> SpecDeviceConfig {
     SpecDeviceConfig {
         handle: tapping_to(end_x_m),
         handle_hold: Some(trigger),
@@ -131,7 +131,7 @@ fn into_the_wall_after_spawn(after_spawn_s: f64) -> HandleFn {
 }
 
 /// A `serve` process with its output collected in the background.
-struct Serve {
+pub(crate) struct Serve {
     child: Child,
     output: Arc<Mutex<String>>,
     readers: Vec<std::thread::JoinHandle<()>>,
@@ -141,6 +141,16 @@ struct Serve {
 
 impl Serve {
     fn start(device: &SpecDeviceHandle, scene: Option<&Path>, duration_s: Option<f64>) -> Serve {
+        Serve::start_on(device.path(), scene, duration_s, &[])
+    }
+
+    /// `serve --device serial:PATH` with `extra` flags, on any port (a [`SpecDevice`]'s or a silent pty).
+    pub(crate) fn start_on(
+        path: &str,
+        scene: Option<&Path>,
+        duration_s: Option<f64>,
+        extra: &[&str],
+    ) -> Serve {
         let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
         command
             .args([
@@ -151,7 +161,8 @@ impl Serve {
                 "off",
                 "--device",
             ])
-            .arg(format!("serial:{}", device.path()));
+            .arg(format!("serial:{path}"))
+            .args(extra);
         if let Some(scene) = scene {
             command.arg("--scene").arg(scene);
         }
@@ -198,7 +209,7 @@ impl Serve {
     }
 
     /// Sends `signal` to the process.
-    fn signal(&self, signal: libc::c_int) {
+    pub(crate) fn signal(&self, signal: libc::c_int) {
         // SAFETY: plain kill(2) on our own child's pid.
         let sent = unsafe { libc::kill(self.child.id() as libc::pid_t, signal) };
         assert_eq!(sent, 0, "kill: {}", std::io::Error::last_os_error());
@@ -207,7 +218,7 @@ impl Serve {
     /// Polls until `done` holds for the device. Panics, naming `what` it waited for, with the device's forces and
     /// everything serve said, if serve exits first or [`PATIENCE`] runs out (then serve gets SIGTERM first, so
     /// that its statistics, lateness and device times included, show what held it up).
-    fn wait_for(
+    pub(crate) fn wait_for(
         &mut self,
         device: &SpecDeviceHandle,
         what: &str,
@@ -244,7 +255,7 @@ impl Serve {
     }
 
     /// Waits for the process to exit (killing it after `limit`), and returns its status and all its output.
-    fn finish(mut self, limit: Duration) -> (ExitStatus, String) {
+    pub(crate) fn finish(mut self, limit: Duration) -> (ExitStatus, String) {
         let start = Instant::now();
         let status = loop {
             if let Some(status) = self.child.try_wait().unwrap() {
@@ -351,7 +362,7 @@ fn forces_after_trigger(trigger: Trigger, forces: usize) -> impl Fn(&SpecDeviceH
 }
 
 /// The first Enable received after the event with this `index`.
-fn enable_after(device: &SpecDeviceHandle, index: u64) -> Option<MessageRecord> {
+pub(crate) fn enable_after(device: &SpecDeviceHandle, index: u64) -> Option<MessageRecord> {
     device
         .messages()
         .into_iter()
@@ -366,7 +377,7 @@ fn enabled_again_after(device: &SpecDeviceHandle, index: u64, forces: usize) -> 
 }
 
 /// A `run_until` condition: `trigger` fired, then a new Enable, then `forces` SetForce after it.
-fn enabled_again_after_trigger(
+pub(crate) fn enabled_again_after_trigger(
     trigger: Trigger,
     forces: usize,
 ) -> impl Fn(&SpecDeviceHandle) -> bool {
@@ -391,7 +402,7 @@ fn signaller(pid: &Arc<AtomicI32>, signal: libc::c_int) -> Callback {
     })
 }
 
-fn summary(forces: &[ForceRecord]) -> String {
+pub(crate) fn summary(forces: &[ForceRecord]) -> String {
     let nonzero = forces.iter().filter(|f| !f.is_zero()).count();
     let max = forces
         .iter()
@@ -403,7 +414,7 @@ fn summary(forces: &[ForceRecord]) -> String {
 /// The invariants every run must keep (SPEC section 7.1): finite, never above `max_force_n`, zero while the device
 /// is not Enabled. When the device drops out by itself (its watchdog, a fault) the SetForce already on its way
 /// cannot know: at most one non-zero SetForce may follow, in lockstep ("zero within one period").
-fn assert_force_invariants(device: &SpecDeviceHandle, max_force_n: f32) {
+pub(crate) fn assert_force_invariants(device: &SpecDeviceHandle, max_force_n: f32) {
     assert_finite_and_bounded(device, max_force_n);
     let forces = device.forces();
     let run = longest_nonzero_run_while_not_enabled(&forces);

@@ -10,6 +10,7 @@ mod bad_inputs;
 mod cli_shell;
 mod cli_solve;
 mod device_bringup;
+mod device_connect;
 mod device_drivers;
 mod device_hardware;
 mod device_pty;

@@ -67,6 +67,12 @@ pub struct ServeArgs {
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
+    /// How long connecting to the device waits for its answer, in seconds, 0.1 to 600: for a voxhap-protocol
+    /// device, for the DeviceInfo answering Hello (Hello sent again after 0.1, 0.2, 0.4, 0.8 s, then every
+    /// second), then as long again for the State answering the first zero force; on every reconnect too. A port
+    /// where nothing answers fails `serve` after this long; a missing port fails at once.
+    #[arg(long, value_name = "SECONDS", default_value_t = 3.0, value_parser = parse_connect_timeout)]
+    pub connect_timeout: f64,
     /// Stop after this many seconds, > 0 and <= 1e9 (default: run until Ctrl-C or SIGTERM).
     #[arg(long, value_parser = super::parse_seconds)]
     pub duration: Option<f64>,
@@ -119,6 +125,20 @@ impl ServeArgs {
     }
 }
 
+fn parse_connect_timeout(text: &str) -> Result<f64, String> {
+    let (min_us, max_us) = crate::device::supervisor::CONNECT_TIMEOUT_RANGE_US;
+    let (min, max) = (min_us as f64 * 1e-6, max_us as f64 * 1e-6);
+    let seconds: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if seconds.is_finite() && (min..=max).contains(&seconds) {
+        Ok(seconds)
+    } else {
+        Err(format!("{text} s is outside {min} ..= {max} s"))
+    }
+}
+
 fn parse_device(text: &str) -> Result<DeviceSpec, String> {
     text.parse()
         .map_err(|e: crate::servo::device::DeviceSpecError| e.to_string())
@@ -133,6 +153,8 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
         config.rate_hz = rate;
     }
     config.rt = args.rt;
+    // Range-checked when parsed (parse_connect_timeout); SupervisorConfig::validate checks it again.
+    config.supervisor.connect_timeout_us = (args.connect_timeout * 1e6).round() as u64;
     config.spin_ns = args.spin_us.saturating_mul(1000);
     config.cpu = args.cpu;
     config.profile = device_profile(args)?;
@@ -341,7 +363,19 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         Some(settings) => runtime.block_on(bind_http(settings))?,
         None => None,
     };
-    let session = Session::start(config)?;
+    let connect_timeout = args.connect_timeout;
+    let session = Session::start(config).map_err(|error| {
+        let timed_out = matches!(&error, crate::servo::session::SessionError::Connect { cause, .. }
+            if cause.kind == crate::device::ErrorKind::Timeout);
+        if timed_out {
+            anyhow::anyhow!(
+                "{error}; a device that needs longer to answer (a bootloader, a slow adapter) can be given more \
+                 with --connect-timeout SECONDS (now {connect_timeout} s)"
+            )
+        } else {
+            anyhow::Error::new(error)
+        }
+    })?;
     for notice in session.notices() {
         eprintln!("notice: {notice}");
     }

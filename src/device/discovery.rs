@@ -197,8 +197,12 @@ pub fn probe_serial(entry: &SerialPortEntry) -> Result<Option<ProbeReport>, Devi
     match entry.recognised {
         Recognised::VoxhapProtocol => {
             let transport = SerialTransport::open(&entry.path, 1_000_000)?;
-            let mut device =
-                ProtocolDevice::new(SerialLink::new(transport), ProtocolConfig::default());
+            // A probe of every port keeps the old half second per port (SPEC section 7.1's first Hellos).
+            let config = ProtocolConfig {
+                connect_timeout: Duration::from_millis(500),
+                ..ProtocolConfig::default()
+            };
+            let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
             device.open()?;
             let info = device.info().clone();
             let _ = device.close();

@@ -72,14 +72,16 @@ pub enum DeviceError {
     },
     /// The device never answered a request that was retried (a handshake), so there is nobody there speaking
     /// the protocol: wrong port, no power, other firmware, or a reply delay beyond the deadline.
-    #[error("the device did not answer: no {waiting_for} after {attempts} attempts of {each_us} µs each (is it powered, on this port, and running firmware that speaks this protocol?)")]
+    #[error("the device did not answer: no {waiting_for} within {} s ({attempts} {sent} sent); check that it is powered, on this port, running firmware that speaks voxhap protocol {}.x at the port's baud rate, and that no other program holds the port", seconds(*waited_us), voxhap_protocol::PROTOCOL_VERSION.major)]
     NoAnswer {
         /// What the host waited for.
         waiting_for: &'static str,
         /// Requests sent.
         attempts: u32,
-        /// Deadline of each (µs).
-        each_us: u64,
+        /// What the requests were ("Hellos").
+        sent: &'static str,
+        /// How long the host waited in all (µs).
+        waited_us: u64,
     },
     /// The device reported a latched hardware fault.
     #[error("device fault code {code} (active fault bits 0x{active:04x})")]
@@ -129,6 +131,11 @@ pub enum DeviceError {
         /// What was wrong.
         what: String,
     },
+}
+
+/// Microseconds as seconds with one decimal, for messages.
+fn seconds(us: u64) -> String {
+    format!("{:.1}", us as f64 * 1e-6)
 }
 
 impl DeviceError {

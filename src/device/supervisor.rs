@@ -65,6 +65,10 @@ pub struct SupervisorConfig {
     pub input: InputConfig,
     /// Time between reopen attempts while the device is gone (µs).
     pub reconnect_interval_us: u64,
+    /// How long a (re)connect waits for the device's answer to its handshake (µs; `serve --connect-timeout`):
+    /// for voxhap-protocol devices, for a DeviceInfo answering Hello, then again for the first State.
+    /// [`CONNECT_TIMEOUT_RANGE_US`].
+    pub connect_timeout_us: u64,
     /// Failed exchanges in a row (timeouts, corrupted frames, refusals) that count as a lost link.
     pub max_consecutive_errors: u32,
     /// Time without a valid state that counts as a lost link (µs).
@@ -90,6 +94,7 @@ impl Default for SupervisorConfig {
             safety: SafetyConfig::default(),
             input: InputConfig::default(),
             reconnect_interval_us: 200_000,
+            connect_timeout_us: 3_000_000,
             max_consecutive_errors: 10,
             link_timeout_us: 20_000,
             stale_state_ticks: 3,
@@ -116,7 +121,22 @@ pub enum SupervisorConfigError {
         /// Setting name.
         name: &'static str,
     },
+    /// A setting outside its range.
+    #[error("supervisor setting {name} = {value} is outside {min} ..= {max}")]
+    Range {
+        /// Setting name.
+        name: &'static str,
+        /// The value given.
+        value: u64,
+        /// Smallest allowed.
+        min: u64,
+        /// Largest allowed.
+        max: u64,
+    },
 }
+
+/// The connect timeout's range (µs): at least a Hello's first wait (100 ms), at most 10 minutes.
+pub const CONNECT_TIMEOUT_RANGE_US: (u64, u64) = (100_000, 600_000_000);
 
 impl SupervisorConfig {
     /// Checks every setting.
@@ -142,6 +162,15 @@ impl SupervisorConfig {
             if value == 0 {
                 return Err(SupervisorConfigError::Zero { name });
             }
+        }
+        let (min, max) = CONNECT_TIMEOUT_RANGE_US;
+        if !(min..=max).contains(&self.connect_timeout_us) {
+            return Err(SupervisorConfigError::Range {
+                name: "connect_timeout_us",
+                value: self.connect_timeout_us,
+                min,
+                max,
+            });
         }
         Ok(())
     }
@@ -1069,5 +1098,31 @@ impl<D: HapticDevice, F> std::fmt::Debug for Supervisor<D, F> {
             .field("config", &self.config)
             .field("counters", &self.counters)
             .finish_non_exhaustive()
+    }
+}
+
+#[cfg(test)]
+mod config_tests {
+    use super::{SupervisorConfig, CONNECT_TIMEOUT_RANGE_US};
+
+    #[test]
+    fn a_connect_timeout_out_of_range_is_refused_naming_the_key() {
+        assert!(SupervisorConfig::default().validate().is_ok());
+        let (min, max) = CONNECT_TIMEOUT_RANGE_US;
+        for bad in [0, min - 1, max + 1] {
+            let config = SupervisorConfig {
+                connect_timeout_us: bad,
+                ..SupervisorConfig::default()
+            };
+            let error = config.validate().unwrap_err().to_string();
+            assert!(error.contains("connect_timeout_us"), "{error}");
+        }
+        for good in [min, max] {
+            let config = SupervisorConfig {
+                connect_timeout_us: good,
+                ..SupervisorConfig::default()
+            };
+            assert!(config.validate().is_ok());
+        }
     }
 }

@@ -50,9 +50,10 @@
 //! Misbehaviour ([`SpecDeviceConfig`] fields, each off by default): refuse every Enable; start Faulted; raise a
 //! Fault at a [`Trigger`] (a time after the first Enable, or the first moment an applied force is above a
 //! threshold); corrupt the first N DeviceInfo replies (bad CRC); speak another major version; stop replying for a
-//! while; delay every reply; corrupt a fraction of the bytes it writes (seeded); send every Nth frame cut in half;
-//! add a position jump; report a fixed (absurd or inconsistent) velocity; report garbage in the components a 1- or
-//! 2-DOF device does not use; reset (a brown-out). The handle follows a
+//! while; delay every reply; delay DeviceInfo (and so everything after it) by a configurable time; corrupt a
+//! fraction of the bytes it writes (seeded); send every Nth frame cut in half; add a position jump; report a fixed
+//! (absurd or inconsistent) velocity; report garbage in the components a 1- or 2-DOF device does not use; reset (a
+//! brown-out). The handle follows a
 //! scripted function of time ([`HandleFn`]), and can be held still from a trigger on; `max_force_n`,
 //! `max_stiffness_n_per_m` and the workspace are what DeviceInfo declares. A test can also have the device thread
 //! run an action of its own at a trigger (`call_at`), so that it acts on the host while force is flowing, not some
@@ -330,6 +331,13 @@ pub struct SpecDeviceConfig {
     pub silence: Option<(Trigger, Duration)>,
     /// Every frame is written this long after it was produced.
     pub reply_delay: Duration,
+    /// Each DeviceInfo (with its leading 0x00) is written this long after the Hello it answers arrived (on top
+    /// of `reply_delay`), and, since the device writes in order, so is everything it produced after it: a device
+    /// slow to answer Hello (a bootloader, a USB-serial adapter's latency timer, a long round trip). The session
+    /// itself opens when the Hello arrives (SPEC section 6).
+    pub device_info_delay: Duration,
+    /// `device_info_delay` acts only from this trigger on (`None`: from the start).
+    pub device_info_delay_from: Option<Trigger>,
     /// Each written byte is replaced by a random one with this probability (seeded by `seed`).
     pub corrupt_fraction: f64,
     /// Every Nth frame written is cut to its first half, without the delimiter.
@@ -378,6 +386,8 @@ impl Default for SpecDeviceConfig {
             corrupt_device_infos: 0,
             silence: None,
             reply_delay: Duration::ZERO,
+            device_info_delay: Duration::ZERO,
+            device_info_delay_from: None,
             corrupt_fraction: 0.0,
             partial_frame_every: None,
             position_glitch: None,
@@ -691,6 +701,17 @@ impl Device {
         put_vec3(&mut p, max);
         p.extend_from_slice(&c.max_force_n.to_le_bytes());
         p.extend_from_slice(&c.max_stiffness_n_per_m.to_le_bytes());
+        // A slow answer: the DeviceInfo is due later; the outbox is written in order, so whatever the device
+        // queues after it waits too.
+        let slow = self
+            .config
+            .device_info_delay_from
+            .is_none_or(|t| self.triggered(t));
+        let now = if slow {
+            now + self.config.device_info_delay
+        } else {
+            now
+        };
         // SPEC section 4.3: a lone 0x00 before each DeviceInfo.
         self.outbox.push_back(Outgoing {
             due: now + self.config.reply_delay,

@@ -4,10 +4,21 @@
 //! Where it sits: under the lifecycle wrapper, on a transport. It wraps the protocol crate's sans-IO
 //! [`HostSession`]:
 //!
-//! - **open** discards stale input, sends a flush byte and Hello, and waits `hello_timeout` (100 ms) for
-//!   DeviceInfo; no answer, or an answer that does not decode (bad CRC), means another Hello, up to
-//!   `hello_attempts` (5) in all. A device of another major version is refused with both versions named. Then
-//!   one zero SetForce in lockstep, so the host sees the handle before enabling.
+//! - **open** discards stale input, sends a flush byte, then Hello followed at once by a Heartbeat whose counter
+//!   is a nonce of this open (the handshake's session id, see below). It waits for DeviceInfo for at most
+//!   `connect_timeout` (3 s by default): Hello is sent again when nothing usable came, after 100 ms, then after
+//!   waits that double up to 1 s (`hello_timeout` is the first wait), so a device that answers late (a
+//!   bootloader, a USB-serial adapter's latency timer, a loaded host) is still heard and a silent port costs a
+//!   handful of Hellos, not a flood. A device of another major version is refused with both versions named.
+//!   Then one zero SetForce in lockstep (sent again every `hello_timeout`), waited for up to `connect_timeout`
+//!   more, so the host sees the handle before enabling. Neither wait is the servo's per-tick budget.
+//! - **Which DeviceInfo counts.** DeviceInfo echoes nothing, so a late reply to a Hello of an earlier open (on
+//!   an earlier handle of the same port, or from an earlier process) cannot be told from a fresh one by itself.
+//!   The Heartbeat after each Hello can: the device answers in order, so a HeartbeatReply carrying one of this
+//!   open's nonces, with `SESSION_OPEN` set, comes after the DeviceInfo answering the Hello sent just before it.
+//!   The handshake takes the DeviceInfo that came last before such a reply (any other HeartbeatReply in between
+//!   clears it), and every State after that reply answers a SetForce of this open. Nonces come from a process-wide
+//!   counter started from the clock, so neither an earlier attempt nor an earlier process shares them.
 //! - **enable** sends Enable with the device watchdog timeout and returns at once: a refusal comes back as a
 //!   [`DeviceEvent::Rejected`], and the status bits of the next State say whether the device really is enabled.
 //! - every **write_force** sends one SetForce; **read_state** returns the newest State that arrived, waiting at
@@ -26,12 +37,13 @@ use crate::device::{
     DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
 };
 use glam::DVec3;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::hid::REPORT_LEN;
 use voxhap_protocol::{
     decode_report, encode_frame, encode_report, DecoderStats, DeviceToHost, ForceFlags,
-    FrameDecoder, HostEvent, HostSession, HostToDevice, SetForce, StatusFlags, MAX_WIRE_FRAME_LEN,
-    PROTOCOL_VERSION,
+    FrameDecoder, Heartbeat, HostEvent, HostSession, HostToDevice, SetForce, StatusFlags,
+    MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
 };
 
 /// Moves protocol messages over some transport.
@@ -231,10 +243,12 @@ impl<T: ReportTransport> MessageLink for HidLink<T> {
 /// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ProtocolConfig {
-    /// How long open waits for DeviceInfo after each Hello.
+    /// How long open waits for DeviceInfo after the first Hello before sending another; each later wait is
+    /// twice the one before, up to 1 s (or this, if longer).
     pub hello_timeout: Duration,
-    /// How many Hellos open sends before giving up.
-    pub hello_attempts: u32,
+    /// How long open waits in all for a DeviceInfo answering one of its Hellos, and then again for the State
+    /// answering its first zero force (`serve --connect-timeout`).
+    pub connect_timeout: Duration,
     /// How long `read_state` waits for the State answering the last SetForce; at most a servo period, so
     /// device I/O never holds up the servo thread for longer (`open_device` sets half a period).
     pub state_timeout: Duration,
@@ -242,11 +256,17 @@ pub struct ProtocolConfig {
     pub device_watchdog_us: u32,
 }
 
+/// The handshake's default patience for a device's answer (`serve --connect-timeout`).
+pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// The longest wait between two Hellos (unless `hello_timeout` is longer).
+const MAX_HELLO_INTERVAL: Duration = Duration::from_secs(1);
+
 impl Default for ProtocolConfig {
     fn default() -> Self {
         ProtocolConfig {
             hello_timeout: Duration::from_millis(100),
-            hello_attempts: 5,
+            connect_timeout: DEFAULT_CONNECT_TIMEOUT,
             state_timeout: Duration::from_micros(500),
             device_watchdog_us: 50_000,
         }
@@ -261,7 +281,56 @@ impl ProtocolConfig {
             ..ProtocolConfig::default()
         }
     }
+
+    /// How long open waits after each Hello: `hello_timeout`, then twice the last wait up to 1 s, until the
+    /// waits add up to `connect_timeout` (the last one cut short). At least one Hello is always sent.
+    pub fn hello_waits(&self) -> impl Iterator<Item = Duration> {
+        let first = self.hello_timeout.max(Duration::from_millis(1));
+        let cap = MAX_HELLO_INTERVAL.max(first);
+        let total = self.connect_timeout.max(first);
+        let mut spent = Duration::ZERO;
+        let mut next = first;
+        std::iter::from_fn(move || {
+            if spent >= total {
+                return None;
+            }
+            let wait = next.min(total - spent);
+            spent += wait;
+            next = (next * 2).min(cap);
+            Some(wait)
+        })
+    }
 }
+
+/// The next handshake nonce (a Heartbeat counter, SPEC section 3.1: "any value; echoed"). A process-wide
+/// counter, started from the clock and the process id the first time, so that a reply to another open's Hello
+/// (an earlier attempt, an earlier process) carries a nonce this open never sent.
+fn take_nonces(count: u32) -> u32 {
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let mut current = NEXT.load(Ordering::Relaxed);
+    if current == 0 {
+        let clock = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| {
+                d.subsec_nanos() ^ (d.as_secs() as u32).rotate_left(16)
+            });
+        let seed = (clock ^ std::process::id().rotate_left(7)).max(1);
+        current = match NEXT.compare_exchange(0, seed, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => seed,
+            Err(existing) => existing,
+        };
+    }
+    loop {
+        let next = current.wrapping_add(count).max(1);
+        match NEXT.compare_exchange_weak(current, next, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => return current,
+            Err(existing) => current = existing,
+        }
+    }
+}
+
+/// At most this many Hellos per open (a `connect_timeout` of 10 minutes needs 600 at the 1 s cap).
+const MAX_HELLOS: u32 = 1024;
 
 /// At most this many device events wait for the supervisor; further ones replace the newest.
 const EVENT_QUEUE: usize = 8;
@@ -297,6 +366,8 @@ pub struct ProtocolDevice<L> {
     events: [Option<DeviceEvent>; EVENT_QUEUE],
     event_head: usize,
     event_len: usize,
+    /// The first handshake nonce, when a test fixes it (`None`: drawn per open, [`take_nonces`]).
+    handshake_nonce: Option<u32>,
 }
 
 fn placeholder_info() -> DeviceInfo {
@@ -362,7 +433,15 @@ impl<L: MessageLink> ProtocolDevice<L> {
             events: [None; EVENT_QUEUE],
             event_head: 0,
             event_len: 0,
+            handshake_nonce: None,
         }
+    }
+
+    /// Fixes the handshake's first Heartbeat counter (then +1 per Hello), so that a scripted test can spell
+    /// the bytes; by default each open draws fresh nonces that no other open uses.
+    pub fn with_handshake_nonce(mut self, first: u32) -> Self {
+        self.handshake_nonce = Some(first);
+        self
     }
 
     fn push_event(&mut self, event: DeviceEvent) {
@@ -468,37 +547,115 @@ impl<L: MessageLink> ProtocolDevice<L> {
         Ok(event)
     }
 
-    /// Sends Hello and waits for DeviceInfo once; `Ok(false)` when nothing usable came in time.
-    fn hello_once(&mut self) -> Result<bool, DeviceError> {
-        let hello = self.host.hello();
-        self.counters.hellos += 1;
-        self.link.send(&hello)?;
-        let deadline = Instant::now() + self.config.hello_timeout;
-        loop {
-            let remaining = deadline.saturating_duration_since(Instant::now());
-            if remaining.is_zero() {
-                return Ok(false);
-            }
-            let Some(message) = self.link.receive(remaining)? else {
-                return Ok(false);
-            };
-            match self.host.on_message(&message) {
-                HostEvent::Connected(info) => {
-                    self.info = convert_info(&info);
-                    return Ok(true);
+    /// Hello (with its nonce Heartbeat) until a DeviceInfo is confirmed by a HeartbeatReply carrying one of
+    /// this open's nonces, or `connect_timeout` has passed (module header: which DeviceInfo counts).
+    fn handshake(&mut self) -> Result<(), DeviceError> {
+        let base = self
+            .handshake_nonce
+            .unwrap_or_else(|| take_nonces(MAX_HELLOS));
+        let started = Instant::now();
+        let mut sent: u32 = 0;
+        // The last DeviceInfo since the last HeartbeatReply.
+        let mut candidate: Option<voxhap_protocol::DeviceInfo> = None;
+        for wait in self.config.hello_waits().take(MAX_HELLOS as usize) {
+            let hello = self.host.hello();
+            self.counters.hellos += 1;
+            self.link.send(&hello)?;
+            self.link.send(&HostToDevice::Heartbeat(Heartbeat {
+                counter: base.wrapping_add(sent),
+            }))?;
+            sent += 1;
+            let deadline = Instant::now() + wait;
+            loop {
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                // A transport that reports a timeout (Ok(None)) has waited out the slot; the next Hello goes.
+                let Some(message) = self.link.receive(remaining)? else {
+                    break;
+                };
+                match message {
+                    DeviceToHost::DeviceInfo(info) => match self.host.on_message(&message) {
+                        HostEvent::Incompatible(_) => {
+                            return Err(DeviceError::Incompatible {
+                                device_major: info.version.major,
+                                device_minor: info.version.minor,
+                                host_major: PROTOCOL_VERSION.major,
+                                host_minor: PROTOCOL_VERSION.minor,
+                            })
+                        }
+                        _ => candidate = Some(info),
+                    },
+                    DeviceToHost::Heartbeat(reply) => {
+                        let ours = reply.counter.wrapping_sub(base) < sent;
+                        let open = reply.status.contains(StatusFlags::SESSION_OPEN);
+                        match candidate.take() {
+                            Some(info) if ours && open => {
+                                self.info = convert_info(&info);
+                                return Ok(());
+                            }
+                            // A reply to another open's heartbeat, or one that says no session: the
+                            // DeviceInfo before it is not the answer to a Hello of ours.
+                            _ => {}
+                        }
+                    }
+                    // States, faults and refusals of an earlier session: the session is not ours yet.
+                    _ => {}
                 }
-                HostEvent::Incompatible(info) => {
-                    return Err(DeviceError::Incompatible {
-                        device_major: info.version.major,
-                        device_minor: info.version.minor,
-                        host_major: PROTOCOL_VERSION.major,
-                        host_minor: PROTOCOL_VERSION.minor,
-                    })
+                if remaining.is_zero() {
+                    break;
                 }
-                // Leftovers of an earlier session: ignore.
-                _ => {}
             }
         }
+        Err(DeviceError::NoAnswer {
+            waiting_for: "DeviceInfo answering Hello",
+            attempts: sent,
+            sent: "Hellos",
+            waited_us: duration_us(started.elapsed()),
+        })
+    }
+
+    /// One zero force in lockstep, sent again every `hello_timeout`, until a State answers (every State after
+    /// the handshake's confirming HeartbeatReply answers a force of this open), for at most `connect_timeout`.
+    fn first_state(&mut self) -> Result<(), DeviceError> {
+        let started = Instant::now();
+        let mut sent: u32 = 0;
+        let slots = (self.config.connect_timeout.as_micros()
+            / self
+                .config
+                .hello_timeout
+                .max(Duration::from_millis(1))
+                .as_micros())
+        .clamp(1, u128::from(MAX_HELLOS)) as u32;
+        while sent < slots {
+            self.send_force(DVec3::ZERO)?;
+            sent += 1;
+            let deadline = Instant::now() + self.config.hello_timeout;
+            loop {
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                let Some(message) = self.link.receive(remaining)? else {
+                    break;
+                };
+                if let HostEvent::State { state, .. } = self.handle(&message)? {
+                    self.last_state = Some(DeviceState {
+                        position_m: to_dvec3(state.position_m),
+                        velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
+                        buttons: state.buttons,
+                        device_time_us: Some(state.device_time_us),
+                        sequence: Some(state.sequence),
+                        status: Some(convert_status(state.status, state.faults.0)),
+                    });
+                    return Ok(());
+                }
+                if remaining.is_zero() {
+                    break;
+                }
+            }
+        }
+        Err(DeviceError::NoAnswer {
+            waiting_for: "State answering a zero force after DeviceInfo",
+            attempts: sent,
+            sent: "zero forces",
+            waited_us: duration_us(started.elapsed()),
+        })
     }
 
     fn send_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
@@ -530,37 +687,10 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
     fn open(&mut self) -> Result<(), DeviceError> {
         self.link.discard_input()?;
         self.link.flush()?;
-        let mut connected = false;
-        for _ in 0..self.config.hello_attempts.max(1) {
-            if self.hello_once()? {
-                connected = true;
-                break;
-            }
-        }
-        if !connected {
-            return Err(DeviceError::NoAnswer {
-                waiting_for: "device info after hello",
-                attempts: self.config.hello_attempts.max(1),
-                each_us: duration_us(self.config.hello_timeout),
-            });
-        }
+        self.handshake()?;
         // One zero force in lockstep: the device answers with a State, so the host sees the handle before
-        // enabling. Open runs off the servo thread, so it may wait for a few periods here.
-        for attempt in 0..20 {
-            self.send_force(DVec3::ZERO)?;
-            match self.read_state() {
-                Ok(_) => return Ok(()),
-                // A lost or corrupted reply on a noisy link: ask again (open may take a few periods).
-                Err(error)
-                    if attempt < 19
-                        && matches!(
-                            error,
-                            DeviceError::Timeout { .. } | DeviceError::Protocol { .. }
-                        ) => {}
-                Err(error) => return Err(error),
-            }
-        }
-        Ok(())
+        // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
+        self.first_state()
     }
 
     fn enable(&mut self) -> Result<(), DeviceError> {

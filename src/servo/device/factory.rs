@@ -148,7 +148,10 @@ fn open_supervised(
     profile: &DeviceProfile,
     sim_mapping: Option<SceneMappingSlot>,
 ) -> Result<OpenedDevice, OpenError> {
-    let protocol = ProtocolConfig::for_period(Duration::from_secs_f64(period_s));
+    let protocol = ProtocolConfig {
+        connect_timeout: Duration::from_micros(config.connect_timeout_us),
+        ..ProtocolConfig::for_period(Duration::from_secs_f64(period_s))
+    };
     let mut hand_target = None;
     let device = match spec {
         DeviceSpec::Sim => {

@@ -379,8 +379,9 @@
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us,
 //! 3 000 mixed < 1 ms) are checked by the bench itself: `VOXHAP_BENCH_DOCS=1 cargo bench --bench solver`
 //! writes the measured table, with its "met" column computed, into README.md and docs/solver.md. As of the
-//! last run all are met except N = 10 (about 0.68 us; where that time goes is in the entry above). On this
-//! shared machine only side-by-side ratios and instruction counts are steady.
+//! last run all are met except N = 10 (0.54 us, 2026-11-27 23:14 UTC; where that time goes is in the entries
+//! above and in docs/solver.md). On this shared machine only side-by-side ratios and instruction counts are
+//! steady.
 //! *The path tick* (2026-11-27): 1 327 to 1 216 instructions (callgrind, `solver_instructions path`, 22 000
 //! ticks), 109 to 93 ns in `solver_instructions time` alternated twice, from rounding terms bounded by
 //! 1-norms instead of lengths (no square roots), a saturated point's subgradient scaled by the distance the

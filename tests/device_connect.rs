@@ -9,34 +9,25 @@
 //! (`take_turn`); waits end as soon as their condition holds, up to [`PATIENCE`].
 
 use crate::device_spec::{
-    assert_force_invariants, ball_scene, enable_after, enabled_again_after_trigger, summary,
+    assert_force_invariants, enable_after, enabled_again_after_trigger, run_until, summary,
     take_turn, tapping_until, Serve, FLOWING, INSIDE_X_M, PATIENCE,
 };
 use crate::util::pty::PtyDevice;
-use crate::util::spec_device::{HostMessage, SpecDevice, SpecDeviceConfig, SpecDeviceHandle};
+use crate::util::spec_device::{HostMessage, SpecDeviceConfig, SpecDeviceHandle};
 use std::process::ExitStatus;
 use std::time::{Duration, Instant};
 
 /// The documented default of `--connect-timeout` (docs/serve.md, docs/safety.md).
 const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 
-/// Runs `serve` on the ball scene against a device with `config` until `done` holds, then SIGTERM; returns the
-/// device (stopped), serve's status and output.
+/// Runs `serve` on the ball scene (no damping) against a device with `config` until `done` holds, then SIGTERM;
+/// returns the device (stopped), serve's status and output (device_spec's `run_until`).
 fn serve_until(
     config: SpecDeviceConfig,
     what: &str,
     done: impl Fn(&SpecDeviceHandle) -> bool,
 ) -> (SpecDeviceHandle, ExitStatus, String) {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = ball_scene(dir.path(), 0.0);
-    let mut device = SpecDevice::spawn(config);
-    let mut serve = Serve::start_on(device.path(), Some(&scene), None, &[]);
-    serve.wait_for(&device, what, done);
-    serve.signal(libc::SIGTERM);
-    let (status, output) = serve.finish(PATIENCE);
-    std::thread::sleep(Duration::from_millis(50));
-    device.stop();
-    (device, status, output)
+    run_until(config, 0.0, what, done)
 }
 
 /// Enabled, and `forces` SetForce after the first Enable.

@@ -307,7 +307,7 @@ fn run(
 
 /// Runs `serve` against a device with `config` on the ball scene until `done` holds for the device (see
 /// [`Serve::wait_for`]), then stops it with SIGTERM; returns the device (stopped) and serve's status and output.
-fn run_until(
+pub(crate) fn run_until(
     config: SpecDeviceConfig,
     damping_n_s_per_m: f64,
     what: &str,

@@ -565,15 +565,9 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 counter: base.wrapping_add(sent),
             }))?;
             sent += 1;
-            let deadline = Instant::now() + wait;
-            loop {
-                let remaining = deadline.saturating_duration_since(Instant::now());
-                // A transport that reports a timeout (Ok(None)) has waited out the slot; the next Hello goes.
-                let Some(message) = self.link.receive(remaining)? else {
-                    break;
-                };
+            let answered = self.receive_for(wait, |this, message| {
                 match message {
-                    DeviceToHost::DeviceInfo(info) => match self.host.on_message(&message) {
+                    DeviceToHost::DeviceInfo(info) => match this.host.on_message(&message) {
                         HostEvent::Incompatible(_) => {
                             return Err(DeviceError::Incompatible {
                                 device_major: info.version.major,
@@ -589,8 +583,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
                         let open = reply.status.contains(StatusFlags::SESSION_OPEN);
                         match candidate.take() {
                             Some(info) if ours && open => {
-                                self.info = convert_info(&info);
-                                return Ok(());
+                                this.info = convert_info(&info);
+                                return Ok(Some(()));
                             }
                             // A reply to another open's heartbeat, or one that says no session: the
                             // DeviceInfo before it is not the answer to a Hello of ours.
@@ -600,9 +594,10 @@ impl<L: MessageLink> ProtocolDevice<L> {
                     // States, faults and refusals of an earlier session: the session is not ours yet.
                     _ => {}
                 }
-                if remaining.is_zero() {
-                    break;
-                }
+                Ok(None)
+            })?;
+            if answered.is_some() {
+                return Ok(());
             }
         }
         Err(DeviceError::NoAnswer {
@@ -611,6 +606,29 @@ impl<L: MessageLink> ProtocolDevice<L> {
             sent: "Hellos",
             waited_us: duration_us(started.elapsed()),
         })
+    }
+
+    /// Receives for `wait` (a transport timeout, `Ok(None)`, also ends it), handing each message to `take`
+    /// until it returns something: that, or `None` when the time is up. The handshake and the first State
+    /// both wait this way, one slot per message they sent.
+    fn receive_for<T>(
+        &mut self,
+        wait: Duration,
+        mut take: impl FnMut(&mut Self, DeviceToHost) -> Result<Option<T>, DeviceError>,
+    ) -> Result<Option<T>, DeviceError> {
+        let deadline = Instant::now() + wait;
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            let Some(message) = self.link.receive(remaining)? else {
+                return Ok(None);
+            };
+            if let Some(taken) = take(self, message)? {
+                return Ok(Some(taken));
+            }
+            if remaining.is_zero() {
+                return Ok(None);
+            }
+        }
     }
 
     /// One zero force in lockstep, sent again every `hello_timeout`, until a State answers (every State after
@@ -628,26 +646,22 @@ impl<L: MessageLink> ProtocolDevice<L> {
         while sent < slots {
             self.send_force(DVec3::ZERO)?;
             sent += 1;
-            let deadline = Instant::now() + self.config.hello_timeout;
-            loop {
-                let remaining = deadline.saturating_duration_since(Instant::now());
-                let Some(message) = self.link.receive(remaining)? else {
-                    break;
+            let answered = self.receive_for(self.config.hello_timeout, |this, message| {
+                let HostEvent::State { state, .. } = this.handle(&message)? else {
+                    return Ok(None);
                 };
-                if let HostEvent::State { state, .. } = self.handle(&message)? {
-                    self.last_state = Some(DeviceState {
-                        position_m: to_dvec3(state.position_m),
-                        velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
-                        buttons: state.buttons,
-                        device_time_us: Some(state.device_time_us),
-                        sequence: Some(state.sequence),
-                        status: Some(convert_status(state.status, state.faults.0)),
-                    });
-                    return Ok(());
-                }
-                if remaining.is_zero() {
-                    break;
-                }
+                this.last_state = Some(DeviceState {
+                    position_m: to_dvec3(state.position_m),
+                    velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
+                    buttons: state.buttons,
+                    device_time_us: Some(state.device_time_us),
+                    sequence: Some(state.sequence),
+                    status: Some(convert_status(state.status, state.faults.0)),
+                });
+                Ok(Some(()))
+            })?;
+            if answered.is_some() {
+                return Ok(());
             }
         }
         Err(DeviceError::NoAnswer {

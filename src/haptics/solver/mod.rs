@@ -363,7 +363,10 @@
 //!   random 3 / 3, 100 random 5 / 6. Time, three alternations: 10 random 593 to 599 / 522 to 540 ns, 100
 //!   random 4.70 to 4.76 / 4.59 to 4.68 us, wedges 321 to 328 / 314 to 317 ns, the 400 scenes of 10 730 to 741
 //!   / 657 to 661 ns, the 200 of 30 1.94 to 1.97 / 1.60 us, the 100 of 100 5.18 to 5.24 / 4.59 to 4.69 us;
-//!   1 000 random and the mixed scenes (the sweep, unchanged) level.
+//!   1 000 random and the mixed scenes (the sweep, unchanged) level. Tried after it and dropped (level in
+//!   three alternations, 10 random 530 to 541 / 531 to 535 ns): certificate B's `2 s / margin` from the
+//!   `s / distance` it already has (no second division per point or line), and no sum over a cold dual that
+//!   is all zeros.
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000

@@ -9,8 +9,9 @@
 //! (`take_turn`); waits end as soon as their condition holds, up to [`PATIENCE`].
 
 use crate::device_spec::{
-    assert_force_invariants, enable_after, enabled_again_after_trigger, run_until, summary,
-    take_turn, tapping_until, Serve, FLOWING, INSIDE_X_M, PATIENCE,
+    assert_force_invariants, assert_force_invariants_across_a_reset, assert_slew_limited,
+    enable_after, enabled_again_after_trigger, run_until, summary, take_turn, tapping_until, Serve,
+    FLOWING, INSIDE_X_M, PATIENCE,
 };
 use crate::util::pty::PtyDevice;
 use crate::util::spec_device::{HostMessage, SpecDeviceConfig, SpecDeviceHandle};
@@ -89,6 +90,7 @@ fn first_connect_with_device_info_late_by(delay: Duration) {
     );
     assert_zero_until_enabled(&device, 0);
     assert_force_invariants(&device, 8.0);
+    assert_slew_limited(&device);
 }
 
 #[test]
@@ -133,6 +135,10 @@ fn a_reconnect_waits_for_a_device_info_1_s_late() {
     assert_zero_until_enabled(&device, hello.index);
     // The first session, before the reset, was enabled the ordinary way too.
     assert_zero_until_enabled(&device, 0);
+    // And across both sessions: finite, never above the device's maximum, zero while not enabled but for what
+    // was in flight when it reset, no rise faster than the slew limit.
+    assert_force_invariants_across_a_reset(&device, &reset, 8.0);
+    assert_slew_limited(&device);
 }
 
 /// A port that is there but silent (a pseudo-terminal nobody answers on): serve gives up after the documented

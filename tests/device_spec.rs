@@ -20,7 +20,7 @@
 
 use crate::util::spec_device::{
     fault, reject, types, Callback, ForceRecord, HandleFn, HandleTime, HostMessage, MessageRecord,
-    SpecDevice, SpecDeviceConfig, SpecDeviceHandle, Trigger,
+    SpecDevice, SpecDeviceConfig, SpecDeviceHandle, Trigger, TriggerRecord,
 };
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -426,6 +426,48 @@ pub(crate) fn assert_force_invariants(device: &SpecDeviceHandle, max_force_n: f3
     );
 }
 
+/// [`assert_force_invariants`] for a device that reset (`reset`, the trigger's event) while force flowed: finite
+/// and never above `max_force_n` throughout. The host cannot know at once that the device reset: the forces in
+/// flight, and at most 3 periods on the last State (SPEC section 7.1), may still be non-zero; none once 40 ms
+/// have passed. Before the reset, as everywhere, at most the one SetForce already in flight to a device that is
+/// not enabled.
+pub(crate) fn assert_force_invariants_across_a_reset(
+    device: &SpecDeviceHandle,
+    reset: &TriggerRecord,
+    max_force_n: f32,
+) {
+    let forces = device.forces();
+    let reset_at = reset.at;
+    assert_finite_and_bounded(device, max_force_n);
+    let (before, after): (Vec<_>, Vec<_>) = nonzero_while_not_enabled(&forces)
+        .into_iter()
+        .partition(|f| f.index < reset.index);
+    let late = after
+        .iter()
+        .filter(|f| f.at > reset_at + Duration::from_millis(40))
+        .count();
+    assert!(
+        after.len() <= 5 && late == 0,
+        "{} non-zero SetForce to the reset device, {late} of them more than 40 ms after; {}",
+        after.len(),
+        summary(&forces)
+    );
+    // Before the reset the device can only have dropped out by itself (its watchdog, when a loaded machine made
+    // the host late): then at most the one SetForce already in flight, as everywhere (assert_force_invariants).
+    let before_reset: Vec<_> = forces
+        .iter()
+        .filter(|f| f.index < reset.index)
+        .copied()
+        .collect();
+    let run = longest_nonzero_run_while_not_enabled(&before_reset);
+    assert!(
+        run <= 1,
+        "{run} non-zero SetForce in a row to the device before it reset (first: {:?}); {}",
+        before.first(),
+        summary(&forces)
+    );
+}
+
 fn assert_finite_and_bounded(device: &SpecDeviceHandle, max_force_n: f32) {
     assert_eq!(
         device.non_finite_forces(),
@@ -447,7 +489,7 @@ fn nonzero_while_not_enabled(forces: &[ForceRecord]) -> Vec<ForceRecord> {
         .collect()
 }
 
-fn assert_slew_limited(device: &SpecDeviceHandle) {
+pub(crate) fn assert_slew_limited(device: &SpecDeviceHandle) {
     let slew = device.max_slew_n_per_ms();
     assert!(
         slew <= SLEW_LIMIT_N_PER_MS + SLEW_MARGIN_N_PER_MS,
@@ -1198,36 +1240,7 @@ fn a_device_that_resets_is_handshaken_again_and_re_enabled() {
         "the device applied no SetForce after the reset: {}",
         summary(&forces)
     );
-    // The host cannot know at once that the device reset: the forces in flight, and at most 3 periods on the
-    // last State (SPEC section 7.1), may still be non-zero; none once 40 ms have passed.
-    assert_finite_and_bounded(&device, 8.0);
-    let (before, after): (Vec<_>, Vec<_>) = nonzero_while_not_enabled(&forces)
-        .into_iter()
-        .partition(|f| f.index < reset.index);
-    let late = after
-        .iter()
-        .filter(|f| f.at > reset_at + Duration::from_millis(40))
-        .count();
-    assert!(
-        after.len() <= 5 && late == 0,
-        "{} non-zero SetForce to the reset device, {late} of them more than 40 ms after; {}",
-        after.len(),
-        summary(&forces)
-    );
-    // Before the reset the device can only have dropped out by itself (its watchdog, when a loaded machine made
-    // the host late): then at most the one SetForce already in flight, as everywhere (assert_force_invariants).
-    let before_reset: Vec<_> = forces
-        .iter()
-        .filter(|f| f.index < reset.index)
-        .copied()
-        .collect();
-    let run = longest_nonzero_run_while_not_enabled(&before_reset);
-    assert!(
-        run <= 1,
-        "{run} non-zero SetForce in a row to the device before it reset (first: {:?}); {}",
-        before.first(),
-        summary(&forces)
-    );
+    assert_force_invariants_across_a_reset(&device, &reset, 8.0);
 }
 
 /// SIGSTOP freezes the whole host (servo, monitor and all): only the device's watchdog can act. After SIGCONT the

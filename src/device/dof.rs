@@ -31,12 +31,6 @@ pub struct UsedAxes {
     count: u8,
 }
 
-impl Default for UsedAxes {
-    fn default() -> Self {
-        UsedAxes::ALL
-    }
-}
-
 impl UsedAxes {
     /// x, y and z.
     pub const ALL: UsedAxes = UsedAxes { count: 3 };
@@ -50,11 +44,6 @@ impl UsedAxes {
                 _ => 3,
             },
         }
-    }
-
-    /// How many components are used (1, 2 or 3).
-    pub fn count(self) -> u8 {
-        self.count
     }
 
     /// `v` with the unused components set to exactly `+0.0` (whatever they held: a NaN there is dropped too).

@@ -408,6 +408,18 @@ fn convert_info(info: &voxhap_protocol::DeviceInfo) -> DeviceInfo {
     }
 }
 
+/// A protocol State as the device layer's sample (the first State of an open and every later one).
+fn convert_state(state: &voxhap_protocol::State) -> DeviceState {
+    DeviceState {
+        position_m: to_dvec3(state.position_m),
+        velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
+        buttons: state.buttons,
+        device_time_us: Some(state.device_time_us),
+        sequence: Some(state.sequence),
+        status: Some(convert_status(state.status, state.faults.0)),
+    }
+}
+
 fn convert_status(status: StatusFlags, active_faults: u16) -> DeviceStatus {
     DeviceStatus {
         enabled: status.contains(StatusFlags::ENABLED),
@@ -650,14 +662,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 let HostEvent::State { state, .. } = this.handle(&message)? else {
                     return Ok(None);
                 };
-                this.last_state = Some(DeviceState {
-                    position_m: to_dvec3(state.position_m),
-                    velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
-                    buttons: state.buttons,
-                    device_time_us: Some(state.device_time_us),
-                    sequence: Some(state.sequence),
-                    status: Some(convert_status(state.status, state.faults.0)),
-                });
+                this.last_state = Some(convert_state(&state));
                 Ok(Some(()))
             })?;
             if answered.is_some() {
@@ -763,14 +768,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
                 break;
             };
             if let HostEvent::State { state, .. } = self.handle(&message)? {
-                let sample = DeviceState {
-                    position_m: to_dvec3(state.position_m),
-                    velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
-                    buttons: state.buttons,
-                    device_time_us: Some(state.device_time_us),
-                    sequence: Some(state.sequence),
-                    status: Some(convert_status(state.status, state.faults.0)),
-                };
+                let sample = convert_state(&state);
                 self.last_state = Some(sample);
                 newest = Some(sample);
                 // Lockstep: the State answering the newest SetForce ends the wait; older ones are late.

@@ -109,29 +109,50 @@ pub fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// `H^-1 g` for a symmetric positive definite `H` (the primal method's Hessian with no kink: `k I` plus positive
-/// semi-definite terms), by its cofactors: one division, and every cofactor independent of the others, so the
+/// Solves `H x = g` for a symmetric positive definite `H` (the primal method's Hessian with no kink: `k I` plus
+/// positive semi-definite terms), by its cofactors: one division, and every cofactor independent of the others, so the
 /// solve's chain of dependent operations is short (an LDL^T factorisation divides by each pivot in turn, three
 /// divisions one after another, which on the primal method's path was a tenth of a 10-primitive solve). For
 /// such an `H` every 2x2 minor is at least `k^2`, and the result is as accurate as the factorisation's (a
 /// relative error of a few eps times the condition number); nothing needs more: the certificate checks
 /// whatever point the steps reach.
-#[inline]
-pub fn solve_spd(h: &DMat3, g: DVec3) -> DVec3 {
-    let (a00, a10, a20) = (h.x_axis.x, h.x_axis.y, h.x_axis.z);
-    let (a11, a21, a22) = (h.y_axis.y, h.y_axis.z, h.z_axis.z);
-    let c00 = a11 * a22 - a21 * a21;
-    let c01 = a20 * a21 - a10 * a22;
-    let c02 = a10 * a21 - a11 * a20;
-    let c11 = a00 * a22 - a20 * a20;
-    let c12 = a10 * a20 - a00 * a21;
-    let c22 = a00 * a11 - a10 * a10;
-    let inverse_det = 1.0 / (a00 * c00 + a10 * c01 + a20 * c02);
-    DVec3::new(
-        c00 * g.x + c01 * g.y + c02 * g.z,
-        c01 * g.x + c11 * g.y + c12 * g.z,
-        c02 * g.x + c12 * g.y + c22 * g.z,
-    ) * inverse_det
+///
+/// Kept (the cofactors and the inverse of the determinant) to solve again with the same matrix without a second
+/// division: the primal method's third-order correction uses the Newton step's Hessian.
+#[derive(Debug, Clone, Copy)]
+pub struct SpdCofactors {
+    /// `c00, c01, c02, c11, c12, c22` (the cofactor matrix is symmetric).
+    c: [f64; 6],
+    inverse_det: f64,
+}
+
+impl SpdCofactors {
+    #[inline]
+    pub fn of(h: &DMat3) -> Self {
+        let (a00, a10, a20) = (h.x_axis.x, h.x_axis.y, h.x_axis.z);
+        let (a11, a21, a22) = (h.y_axis.y, h.y_axis.z, h.z_axis.z);
+        let c00 = a11 * a22 - a21 * a21;
+        let c01 = a20 * a21 - a10 * a22;
+        let c02 = a10 * a21 - a11 * a20;
+        let c11 = a00 * a22 - a20 * a20;
+        let c12 = a10 * a20 - a00 * a21;
+        let c22 = a00 * a11 - a10 * a10;
+        Self {
+            c: [c00, c01, c02, c11, c12, c22],
+            inverse_det: 1.0 / (a00 * c00 + a10 * c01 + a20 * c02),
+        }
+    }
+
+    /// `H^-1 g`: the cofactors' product with `g` (independent of the division), then the scale.
+    #[inline]
+    pub fn solve(&self, g: DVec3) -> DVec3 {
+        let [c00, c01, c02, c11, c12, c22] = self.c;
+        DVec3::new(
+            c00 * g.x + c01 * g.y + c02 * g.z,
+            c01 * g.x + c11 * g.y + c12 * g.z,
+            c02 * g.x + c12 * g.y + c22 * g.z,
+        ) * self.inverse_det
+    }
 }
 
 #[cfg(test)]
@@ -146,7 +167,7 @@ mod tests {
         let h =
             DMat3::IDENTITY * 500.0 + (DMat3::IDENTITY - outer(n, n)) * 80.0 + outer(q, q) * 3e4;
         let g = DVec3::new(1.5, -0.25, 4.0);
-        let x = solve_spd(&h, g);
+        let x = SpdCofactors::of(&h).solve(g);
         let expected = h.inverse() * g;
         assert!(
             (x - expected).length() <= 1e-14 * expected.length(),

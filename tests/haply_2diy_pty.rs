@@ -4,9 +4,71 @@
 
 use crate::util::haply_board::{Fault, HaplyBoard, ANGLES_DEG};
 use glam::DVec3;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
 use voxhap::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
+use voxhap::device::safety::SafetyConfig;
+use voxhap::device::supervisor::{OutputState, Supervisor, SupervisorConfig, TickInput};
 use voxhap::device::transport::SerialTransport;
-use voxhap::device::Lifecycle;
+use voxhap::device::{DeviceEvent, Lifecycle};
+
+// The 2DIY's links (hardware version 2, as the Haply examples set them): proximal l, distal L, motor axes d apart.
+const L_PROXIMAL: f64 = 0.07;
+const L_DISTAL: f64 = 0.09;
+const D_BASE: f64 = 0.0;
+
+/// Handle position at motor angles θ1, θ2 (degrees), as Haply-API-cpp `src/Haply/Pantograph.cpp` computes it
+/// (lines 43-66: elbows A = l(cos θ1, sin θ1), B = (d + l cos θ2, l sin θ2), the handle on the far side of the
+/// line through them, from the quadratic in y_E with M, N, a, b, c, Δ).
+fn haply_position(theta1_deg: f64, theta2_deg: f64) -> [f64; 2] {
+    let (l, big_l, d) = (L_PROXIMAL, L_DISTAL, D_BASE);
+    let (th1, th2) = (theta1_deg.to_radians(), theta2_deg.to_radians());
+    let (xa, ya) = (l * th1.cos(), l * th1.sin());
+    let (xb, yb) = (d + l * th2.cos(), l * th2.sin());
+    let r = xa * xa + ya * ya;
+    let s = xb * xb + yb * yb;
+    let m = (ya - yb) / (xb - xa);
+    let n = 0.5 * (s - r) / (xb - xa);
+    let a = m * m + 1.0;
+    let b = 2.0 * (m * n - m * xa - ya);
+    let c = n * n - 2.0 * n * xa + r - big_l * big_l;
+    let delta = b * b - 4.0 * a * c;
+    let y = (-b + delta.sqrt()) / (2.0 * a);
+    [m * y + n, y]
+}
+
+/// The force (N, in the plane) the pantograph exerts at true motor angles θ1, θ2 (degrees) when its motors
+/// apply torques τ1, τ2 (N m): by virtual work τ = Jᵀ f, with J = ∂P/∂θ of the vendor's position above (central
+/// differences), solved for f.
+fn haply_exerted_force(theta_deg: [f64; 2], tau: [f64; 2]) -> DVec3 {
+    let h = 1e-4; // degrees
+    let column = |i: usize| {
+        let mut plus = theta_deg;
+        let mut minus = theta_deg;
+        plus[i] += h;
+        minus[i] -= h;
+        let (p, m) = (
+            haply_position(plus[0], plus[1]),
+            haply_position(minus[0], minus[1]),
+        );
+        let step = (2.0 * h).to_radians();
+        [(p[0] - m[0]) / step, (p[1] - m[1]) / step]
+    };
+    let (j1, j2) = (column(0), column(1));
+    // τ1 = j1 · f, τ2 = j2 · f.
+    let det = j1[0] * j2[1] - j1[1] * j2[0];
+    let fx = (tau[0] * j2[1] - tau[1] * j1[1]) / det;
+    let fy = (j1[0] * tau[1] - j2[0] * tau[0]) / det;
+    DVec3::new(fx, fy, 0.0)
+}
+
+fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !done() {
+        assert!(Instant::now() < deadline, "waited 20 s for {what}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
 
 fn expected_position() -> DVec3 {
     let config = Haply2DiyConfig::default();
@@ -77,4 +139,141 @@ fn a_partial_or_shifted_reply_costs_a_few_ticks_then_replies_are_aligned_again()
         let torques = board.torques();
         assert!(torques.len() >= 190 && torques.iter().flatten().all(|t| t.is_finite()));
     }
+}
+
+/// A constant request far above the 2 N limit: at every torque pair the board receives, the force the
+/// pantograph exerts at its true angles (Haply's kinematics, not voxhap's) stays within the limit and within a
+/// few degrees of the request, while replies carry jumps, NaN and out-of-reach angles.
+#[test]
+fn rejected_readings_never_steer_the_force_the_pantograph_exerts() {
+    let board = HaplyBoard::start(&[]);
+    let path = board.path().to_string();
+    let config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 2.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(config, move || {
+        let transport = SerialTransport::open(&path, 0)?;
+        Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    let asked = DVec3::new(0.8, -0.6, 0.0);
+    // Port order: (θ2, θ1). The handle moves slowly around the symmetric pose.
+    let truth = |tick: u64| {
+        let phase = tick as f64 * 2.0 * std::f64::consts::PI / 2000.0;
+        [45.0 + 8.0 * phase.cos(), 135.0 + 10.0 * phase.sin()]
+    };
+    let mut output = OutputState::Starting;
+    let mut forced_ticks = 0;
+    let mut tick = 0u64;
+    while forced_ticks < 600 && tick < 200_000 {
+        let angles = truth(tick);
+        let true_f32 = [angles[0] as f32, angles[1] as f32];
+        *board.shared.true_angles_deg.lock().unwrap() = Some(true_f32);
+        if tick % 37 == 11 {
+            let mut readings = board.shared.readings.lock().unwrap();
+            match (tick / 37) % 4 {
+                // A jump of 40° on one motor (about 5 cm at the handle).
+                0 => readings.push_back([true_f32[0] + 40.0, true_f32[1]]),
+                1 => readings.extend([[f32::NAN, true_f32[1]]; 2]),
+                2 => readings.extend([[true_f32[0] - 30.0, true_f32[1] + 25.0]; 3]),
+                // Angles where the links cannot meet.
+                _ => readings.extend([[true_f32[0] - 80.0, true_f32[1] + 80.0], [f32::NAN; 2]]),
+            }
+        }
+        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
+        let force = if on { asked * 500.0 } else { DVec3::ZERO };
+        output = supervisor
+            .tick(TickInput::at(force, tick * 1000))
+            .output_state;
+        forced_ticks += u32::from(on);
+        tick += 1;
+    }
+    supervisor.stop();
+    assert_eq!(
+        forced_ticks, 600,
+        "force was on for only {forced_ticks} of {tick} ticks"
+    );
+    assert!(
+        supervisor.input_counters().positions_rejected >= 20,
+        "{:?}",
+        supervisor.input_counters()
+    );
+    let applied = board.shared.applied.lock().unwrap().clone();
+    let mut strong = 0;
+    let mut worst_angle = 0.0f64;
+    for command in &applied {
+        // Port order: torques (τ2, τ1), angles (θ2, θ1).
+        let theta = [
+            f64::from(command.true_angles_deg[1]),
+            f64::from(command.true_angles_deg[0]),
+        ];
+        let tau = [f64::from(command.torques[1]), f64::from(command.torques[0])];
+        let exerted = haply_exerted_force(theta, tau);
+        assert!(
+            exerted.length() <= 2.0 + 0.01,
+            "{exerted} ({} N) at the true angles {theta:?} from torques {tau:?}",
+            exerted.length()
+        );
+        if exerted.length() > 0.2 {
+            let angle = exerted
+                .normalize()
+                .dot(asked.normalize())
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            worst_angle = worst_angle.max(angle);
+            assert!(
+                angle < 2.0,
+                "{exerted} is {angle:.1}° off the request at the true angles {theta:?} (torques {tau:?})"
+            );
+        }
+        strong += u32::from(exerted.length() > 1.9);
+    }
+    assert!(strong >= 100, "only {strong} torque pairs near the limit");
+    eprintln!("worst angle {worst_angle:.3}°, {strong} torque pairs near 2 N");
+}
+
+/// A board that answers every command twice: each tick's state is the reply to that tick's command (the
+/// angles the test set just before it), never an older one queued behind, and the extra replies are counted
+/// and reported. Each step waits until the board has written its answers, so this holds whatever the load.
+#[test]
+fn a_board_that_answers_twice_builds_no_backlog_and_is_reported() {
+    let board = HaplyBoard::start(&[]);
+    board.shared.extra_answers.store(1, Ordering::Release);
+    let mut device = open(&board);
+    let mut reported = Vec::new();
+    for tick in 0..300u32 {
+        // A new true pose every tick, so each reply says which tick it answers.
+        let angles = [45.0 + 0.02 * tick as f32, 135.0 - 0.01 * tick as f32];
+        *board.shared.true_angles_deg.lock().unwrap() = Some(angles);
+        let before = board.shared.answered.load(Ordering::Acquire);
+        device.write_force(DVec3::ZERO).unwrap();
+        wait_for("the board's answers", || {
+            board.shared.answered.load(Ordering::Acquire) > before
+        });
+        let state = device.read_state().unwrap();
+        device.input_checked(true);
+        let expected = haply_position(f64::from(angles[1]), f64::from(angles[0]));
+        assert!(
+            (state.position_m.x - expected[0]).abs() < 1e-6
+                && (state.position_m.y - expected[1]).abs() < 1e-6,
+            "tick {tick}: state {} is not the reply to this tick's command ({expected:?})",
+            state.position_m
+        );
+        while let Some(event) = device.take_event() {
+            if let DeviceEvent::Surplus { total } = event {
+                reported.push(total);
+            }
+        }
+    }
+    let surplus = device.device().surplus_replies();
+    assert!(surplus >= 299, "{surplus}");
+    assert!(reported.len() >= 2 && reported.len() <= 10, "{reported:?}");
 }

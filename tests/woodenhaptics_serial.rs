@@ -1,17 +1,101 @@
 //! The WoodenHaptics/Polhem serial driver against a double of the Teensy firmware (tests/util/woody_firmware.rs,
 //! written from `firmware/woody_teensy_mini/woody_teensy_mini.ino`) over a real pseudo-terminal, with the
-//! supervisor's full safety pipeline. Safety is checked from the device's side: the double's log of currents.
+//! supervisor's full safety pipeline. Safety is checked from the device's side: the double's log of currents,
+//! turned into the force the arm exerts at its true pose with hfabapi's own kinematics (below, not voxhap's).
 
-use crate::util::woody_firmware::{FirmwareEvent, WoodyFirmware};
-use glam::DVec3;
+use crate::util::woody_firmware::{FirmwareEvent, Glitch, WoodyFirmware};
+use glam::{DMat3, DVec3};
+use std::f64::consts::PI;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::woodenhaptics_serial::{
     WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel, MAX_CURRENT_MA,
 };
 use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, TickInput};
+use voxhap::device::supervisor::{
+    OutputState, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
+};
 use voxhap::device::transport::SerialTransport;
-use voxhap::device::Lifecycle;
+use voxhap::device::{DeviceEvent, Lifecycle};
+
+// hfabapi's WoodenHaptics (firmware model 3): `woodenhaptics_v2015()`, hfab_math.h:306-317, read in the order of
+// the `configuration` constructor (hfab_math.h:252-271); the home offset of hfab_api.cpp:106.
+const HFAB_CAPSTAN_M: [f64; 3] = [0.010, 0.010, 0.010];
+const HFAB_LB_M: f64 = 0.205;
+const HFAB_LC_M: f64 = 0.245;
+const HFAB_BODY_M: [f64; 3] = [0.160, 0.120, 0.120];
+const HFAB_TORQUE_CONSTANT: [f64; 3] = [0.0259, 0.0259, 0.0259];
+const HFAB_CPR: [f64; 3] = [2000.0, 2000.0, 2000.0];
+const HFAB_MOTOR_AND_BODY_ALIGNED: [bool; 3] = [false, true, true];
+const HFAB_HOME: [i32; 3] = [0, 0, -6000];
+
+/// Body angles at raw encoder counts: hfab_api.cpp adds the home offset, then hfab_kinematics.cpp:109-111
+/// (motor angle 2π e / cpr), 122-124 (dir = -1 where motor and body are aligned) and 137-139
+/// (θ = dir · motor angle · d_capstan / d_body).
+fn hfab_body_angles(raw: [i32; 3]) -> [f64; 3] {
+    let mut theta = [0.0; 3];
+    for i in 0..3 {
+        let counts = f64::from(raw[i] + HFAB_HOME[i]);
+        let dir = if HFAB_MOTOR_AND_BODY_ALIGNED[i] {
+            -1.0
+        } else {
+            1.0
+        };
+        theta[i] = dir * (2.0 * PI * counts / HFAB_CPR[i]) * HFAB_CAPSTAN_M[i] / HFAB_BODY_M[i];
+    }
+    theta
+}
+
+/// The force (N) the arm exerts at raw counts `raw` when its motors carry `currents_ma`. hfabapi computes the
+/// currents from a force as: joint torques t = Jᵀ f with the rows of hfab_kinematics.cpp:267-269, motor torques
+/// t · dir · d_capstan / d_body (295-297), amperes = motor torque / k_t (301-303; gravity term zero, g = 0 in
+/// this configuration), sent as int(A·1000) (hfab_api.cpp:244-246). This runs that chain backwards.
+fn hfab_exerted_force(raw: [i32; 3], currents_ma: [i32; 3]) -> DVec3 {
+    let [ta, tb, tc] = hfab_body_angles(raw);
+    let mut joint = [0.0; 3];
+    for i in 0..3 {
+        let dir = if HFAB_MOTOR_AND_BODY_ALIGNED[i] {
+            -1.0
+        } else {
+            1.0
+        };
+        let motor_torque = f64::from(currents_ma[i]) / 1000.0 * HFAB_TORQUE_CONSTANT[i];
+        joint[i] = motor_torque / (dir * HFAB_CAPSTAN_M[i] / HFAB_BODY_M[i]);
+    }
+    let reach = HFAB_LB_M * tb.sin() + HFAB_LC_M * tc.sin();
+    // Rows of Jᵀ (hfab_kinematics.cpp:267-269).
+    let rows = [
+        DVec3::new(-ta.sin() * reach, ta.cos() * reach, 0.0),
+        DVec3::new(
+            HFAB_LB_M * ta.cos() * tb.cos(),
+            HFAB_LB_M * ta.sin() * tb.cos(),
+            -HFAB_LB_M * tb.sin(),
+        ),
+        DVec3::new(
+            HFAB_LC_M * ta.cos() * tc.cos(),
+            HFAB_LC_M * ta.sin() * tc.cos(),
+            HFAB_LC_M * tc.sin(),
+        ),
+    ];
+    let jt = DMat3::from_cols(rows[0], rows[1], rows[2]).transpose();
+    jt.inverse() * DVec3::from_array(joint)
+}
+
+fn angle_deg(a: DVec3, b: DVec3) -> f64 {
+    a.normalize()
+        .dot(b.normalize())
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !done() {
+        assert!(Instant::now() < deadline, "waited 20 s for {what}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
 
 fn open(path: &str) -> Lifecycle<WoodenHapticsSerial<SerialTransport>> {
     let transport = SerialTransport::open(path, 115_200).unwrap();
@@ -59,6 +143,8 @@ fn encoders_give_the_hfabapi_position_and_forces_the_jacobian_transpose_currents
         "{}",
         state.position_m
     );
+    // The host's input checks accepted that pose (the supervisor says so every tick).
+    device.input_checked(true);
     // 1 N along +x at that pose: motor B gets -659 mA (see the unit test's derivation from hfab_kinematics.cpp
     // 267-303 and hfab_api.cpp:245).
     device.write_force(DVec3::X).unwrap();
@@ -104,25 +190,34 @@ fn with_the_safety_pipeline_currents_ramp_in_stay_bounded_and_end_at_zero() {
     })
     .unwrap();
     supervisor.connect(0).unwrap();
-    let start = Instant::now();
+    // Paced by ticks, not by the wall clock: zero while the output is not on (the engage rule), then a huge
+    // force with a non-finite one now and then, which the pipeline must clamp and zero. A busy machine only
+    // makes this take longer (timeouts, a dropped link and a reconnect restart the ramp).
+    let mut output = OutputState::Starting;
+    let mut engaged_ticks = 0;
     let mut tick = 0u64;
-    while start.elapsed() < Duration::from_millis(300) {
-        // Zero first (the engage rule), then a huge force with a non-finite one now and then: the pipeline must
-        // clamp and zero them.
-        let force = if tick < 20 {
+    while engaged_ticks < 100 && tick < 200_000 {
+        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
+        let force = if !on {
             DVec3::ZERO
         } else if tick % 50 == 7 {
             DVec3::NAN
         } else {
             DVec3::new(500.0, 0.0, 0.0)
         };
-        supervisor.tick(TickInput::at(force, tick * 1000));
+        output = supervisor
+            .tick(TickInput::at(force, tick * 1000))
+            .output_state;
+        engaged_ticks += u32::from(output == OutputState::Engaged);
         tick += 1;
-        std::thread::sleep(Duration::from_millis(1));
     }
+    assert_eq!(engaged_ticks, 100, "never engaged in {tick} ticks");
     supervisor.stop();
+    // The firmware's watchdog cuts the amplifiers once the commands stop; by then it has logged every command.
+    wait_for("the watchdog cut", || {
+        firmware.events().last() == Some(&FirmwareEvent::WatchdogCut)
+    });
     let currents = firmware.currents();
-    assert!(currents.len() > 100, "only {} commands", currents.len());
     // The pipeline clamps |f| to 3 N: at the home pose at most 3 N · Lb · (0.010/0.120) / 0.0259 A ≈ 1.98 A on
     // motor B, nothing on A and C.
     let limit_ma = (3.0 * 0.205 * (0.010 / 0.120) / 0.0259 * 1000.0) as i32 + 1;
@@ -132,16 +227,211 @@ fn with_the_safety_pipeline_currents_ramp_in_stay_bounded_and_end_at_zero() {
             .all(|c| c.iter().all(|m| m.abs() <= limit_ma)),
         "{currents:?}"
     );
-    // It ramps in (engaged at the first zero-force tick, 50 ms ramp): the first push, 20 ticks in, is at most
-    // 20/50 of the clamp (plus a tick of slack); later ones reach the clamp.
-    let first_push = currents.iter().find(|c| c[1] != 0).unwrap();
-    assert!(first_push[1].abs() <= limit_ma * 21 / 50, "{first_push:?}");
+    // It ramps in (50 ms on the tick clock from the engaging tick; the force is asked for from the first tick
+    // that ramps): the first push is at most a few ticks' share of the clamp; later ones reach the clamp.
+    let first_push = currents
+        .iter()
+        .find(|c| c[1] != 0)
+        .expect("engaged ticks sent force");
+    assert!(first_push[1].abs() <= limit_ma * 3 / 50, "{first_push:?}");
     assert!(currents.iter().any(|c| c[1].abs() > limit_ma * 9 / 10));
     // Every stop ends with zero current.
     assert_eq!(*currents.last().unwrap(), [0, 0, 0]);
-    // After the commands stop, the firmware's watchdog cuts the amplifiers.
-    std::thread::sleep(Duration::from_millis(200));
-    assert_eq!(firmware.events().last(), Some(&FirmwareEvent::WatchdogCut));
+}
+
+/// A constant request along an oblique direction, far above the 3 N limit: at every command, the force the arm
+/// exerts at its true pose (hfabapi's kinematics, from the currents the firmware received) stays within the
+/// limit and within a few degrees of the request, while replies carry glitched counts and unreadable lines.
+#[test]
+fn rejected_readings_never_steer_the_force_the_arm_exerts() {
+    let firmware = WoodyFirmware::start(3);
+    let path = firmware.path().to_string();
+    let config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 3.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(config, move || {
+        let transport = SerialTransport::open(&path, 115_200)?;
+        Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    let asked = DVec3::new(0.6, -0.48, 0.64);
+    // The arm moves slowly (about 0.1 m/s at most) around a pose away from home.
+    let true_counts = |tick: u64| {
+        let phase = tick as f64 * 2.0 * PI / 400.0;
+        [
+            300 + (100.0 * phase.sin()) as i32,
+            -400 + (80.0 * phase.cos()) as i32,
+            500,
+        ]
+    };
+    let mut output = OutputState::Starting;
+    let mut forced_ticks = 0;
+    let mut tick = 0u64;
+    while forced_ticks < 600 && tick < 200_000 {
+        let counts = true_counts(tick);
+        firmware.set_encoders([counts[0], counts[1], counts[2], 0, 0, 0]);
+        if tick % 37 == 11 {
+            // Glitches far beyond what the hand can move in a few periods (3 000 counts on motor B is about
+            // 16 cm), a burst of one to three, or a reading that is not numbers.
+            let mut glitches = firmware.shared.glitches.lock().unwrap();
+            match (tick / 37) % 4 {
+                0 => glitches.push_back(Glitch::Counts([counts[0], counts[1] + 3000, counts[2]])),
+                1 => glitches
+                    .extend([Glitch::Counts([counts[0] - 2500, counts[1], counts[2] + 2500]); 3]),
+                2 => glitches.extend([Glitch::Garbage; 2]),
+                _ => glitches.extend([
+                    Glitch::Counts([counts[0] + 4000, counts[1] - 3000, counts[2]]),
+                    Glitch::Garbage,
+                ]),
+            }
+        }
+        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
+        let force = if on { asked * 500.0 } else { DVec3::ZERO };
+        output = supervisor
+            .tick(TickInput::at(force, tick * 1000))
+            .output_state;
+        forced_ticks += u32::from(on);
+        tick += 1;
+    }
+    supervisor.stop();
+    assert_eq!(
+        forced_ticks, 600,
+        "force was on for only {forced_ticks} of {tick} ticks"
+    );
+    assert!(
+        supervisor.input_counters().positions_rejected >= 20,
+        "{:?}",
+        supervisor.input_counters()
+    );
+    let applied = firmware.shared.applied.lock().unwrap().clone();
+    let mut strong = 0;
+    let mut worst_angle = 0.0f64;
+    let mut largest = 0.0f64;
+    for command in &applied {
+        let exerted = hfab_exerted_force(command.true_counts, command.currents_ma);
+        largest = largest.max(exerted.length());
+        // Currents are whole milliamperes: a few mN of rounding.
+        assert!(
+            exerted.length() <= 3.0 + 0.02,
+            "{exerted} ({} N) at the true pose {:?} from {:?}",
+            exerted.length(),
+            command.true_counts,
+            command.currents_ma
+        );
+        if exerted.length() > 0.3 {
+            let angle = angle_deg(exerted, asked);
+            worst_angle = worst_angle.max(angle);
+            assert!(
+                angle < 2.0,
+                "{exerted} is {angle:.1}° off the request at the true pose {:?} (currents {:?})",
+                command.true_counts,
+                command.currents_ma
+            );
+        }
+        strong += u32::from(exerted.length() > 2.9);
+    }
+    assert!(
+        strong >= 100,
+        "only {strong} commands near the limit (largest {largest} N)"
+    );
+    eprintln!("worst angle {worst_angle:.3}°, largest {largest:.3} N, {strong} commands near 3 N");
+}
+
+/// A firmware that answers every message twice, or floods lines after each answer: the driver uses the reply
+/// to the newest message every tick (no queue of old positions builds up), counts what it did not ask for and
+/// reports it. Each step waits until the double has written all its answers, so the check holds whatever the
+/// machine's load.
+#[test]
+fn a_firmware_that_answers_twice_or_floods_builds_no_backlog_and_is_reported() {
+    for (answers, flood) in [(2u32, 0u32), (1, 40)] {
+        let firmware = WoodyFirmware::start(3);
+        firmware.shared.answers.store(answers, Ordering::Release);
+        firmware.shared.flood.store(flood, Ordering::Release);
+        firmware.shared.stamp.store(true, Ordering::Release);
+        let mut device = open(firmware.path());
+        device.enable().unwrap();
+        let mut reported = Vec::new();
+        for tick in 0..300u64 {
+            let before = firmware.shared.answered.load(Ordering::Acquire);
+            device.write_force(DVec3::ZERO).unwrap();
+            wait_for("the double's answers", || {
+                firmware.shared.answered.load(Ordering::Acquire) > before
+            });
+            // Every message so far is answered (the test is the only writer): the newest answer is this one.
+            let newest = firmware.shared.answered.load(Ordering::Acquire);
+            device.read_state().unwrap();
+            device.input_checked(true);
+            // Encoder 3 carries the number of the message the reply answers.
+            let answered = device.device().last_report().unwrap().encoders[3];
+            assert_eq!(
+                i64::from(answered),
+                newest as i64,
+                "answers {answers}, flood {flood}, tick {tick}: the state answers message {answered}, the \
+                 newest is {newest}"
+            );
+            while let Some(event) = device.take_event() {
+                if let DeviceEvent::Surplus { total } = event {
+                    reported.push(total);
+                }
+            }
+        }
+        // Every message brought (answers - 1) + flood lines nobody asked for (open's hello too).
+        let per_message = u64::from(answers - 1 + flood);
+        let surplus = device.device().surplus_replies();
+        assert!(surplus >= 300 * per_message, "{surplus}");
+        // Reported at the first surplus and again as the count grows (not at every message).
+        let most = 4 + surplus / 1000;
+        assert!(
+            reported.len() >= 2 && reported.len() as u64 <= most,
+            "{reported:?}"
+        );
+        device.close().unwrap();
+    }
+}
+
+/// Through the supervisor, the surplus is an event the session prints, and a counter.
+#[test]
+fn surplus_replies_reach_the_supervisors_events_and_counters() {
+    let firmware = WoodyFirmware::start(3);
+    firmware.shared.answers.store(2, Ordering::Release);
+    let path = firmware.path().to_string();
+    let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
+        let transport = SerialTransport::open(&path, 115_200)?;
+        Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    let mut events = Vec::new();
+    let mut tick = 0u64;
+    while supervisor.counters().device_surplus < 10 && tick < 200_000 {
+        let out = supervisor.tick(TickInput::at(DVec3::ZERO, tick * 1000));
+        events.extend(out.events.iter());
+        tick += 1;
+    }
+    supervisor.stop();
+    assert!(
+        supervisor.counters().device_surplus >= 10,
+        "{:?}",
+        supervisor.counters()
+    );
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, SupervisorEvent::Surplus { total } if *total >= 1)),
+        "{events:?}"
+    );
+    let text = voxhap::servo::monitor::describe(SupervisorEvent::Surplus { total: 10 });
+    assert!(
+        text.contains("10 message(s) more than the host asked for"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -140,6 +140,51 @@ pub enum DeviceEvent {
         /// Reason code (1 no session, 2 version mismatch, 3 faulted, 4 invalid argument).
         reason: u8,
     },
+    /// The device sent more than the host asked for (a second answer to one command, a flood of replies):
+    /// the driver rendered from the newest and dropped the rest. Reported at the first surplus message, at 10,
+    /// 100 and 1 000, then every 1 000 more ([`SurplusCount`]).
+    Surplus {
+        /// Surplus messages since the driver was opened.
+        total: u64,
+    },
+}
+
+/// Counts the messages a device sent beyond what the host asked for, and says when to report them
+/// ([`DeviceEvent::Surplus`]: at 1, 10, 100, 1 000, then every 1 000 more, so a device that always answers
+/// twice is reported without flooding the event ring). Allocation-free.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SurplusCount {
+    total: u64,
+    next_report: u64,
+}
+
+impl SurplusCount {
+    /// Adds `n` surplus messages; returns the event to report when a reporting threshold was crossed.
+    pub fn add(&mut self, n: u64) -> Option<DeviceEvent> {
+        if n == 0 {
+            return None;
+        }
+        self.total = self.total.saturating_add(n);
+        if self.next_report == 0 {
+            self.next_report = 1;
+        }
+        if self.total < self.next_report {
+            return None;
+        }
+        while self.next_report <= self.total {
+            self.next_report = if self.next_report < 1_000 {
+                self.next_report * 10
+            } else {
+                self.next_report.saturating_add(1_000)
+            };
+        }
+        Some(DeviceEvent::Surplus { total: self.total })
+    }
+
+    /// Surplus messages counted so far.
+    pub fn total(&self) -> u64 {
+        self.total
+    }
 }
 
 /// Fault code of the device's own force watchdog (voxhap protocol): it does not latch.
@@ -177,3 +222,27 @@ pub const MESSAGE_TYPE_ENABLE: u8 = 0x02;
 pub const REJECT_NO_SESSION: u8 = 1;
 /// Reject reason: the device is faulted.
 pub const REJECT_FAULTED: u8 = 3;
+
+#[cfg(test)]
+mod tests {
+    use super::{DeviceEvent, SurplusCount};
+
+    #[test]
+    fn surplus_is_reported_at_1_10_100_1000_then_every_1000() {
+        let mut count = SurplusCount::default();
+        let mut reported = Vec::new();
+        for _ in 0..3_500 {
+            if let Some(DeviceEvent::Surplus { total }) = count.add(1) {
+                reported.push(total);
+            }
+        }
+        assert_eq!(reported, [1, 10, 100, 1_000, 2_000, 3_000]);
+        assert_eq!(count.total(), 3_500);
+        // A burst crossing several thresholds is one report.
+        let mut count = SurplusCount::default();
+        assert_eq!(count.add(0), None);
+        assert_eq!(count.add(150), Some(DeviceEvent::Surplus { total: 150 }));
+        assert_eq!(count.add(500), None);
+        assert_eq!(count.add(400), Some(DeviceEvent::Surplus { total: 1_050 }));
+    }
+}

@@ -152,6 +152,12 @@ impl<D: HapticDevice> Lifecycle<D> {
             .map_err(LifecycleError::Device)
     }
 
+    /// Passes the host's input-check verdict on the last state read to the driver
+    /// ([`HapticDevice::input_checked`]).
+    pub fn input_checked(&mut self, accepted: bool) {
+        self.device.input_checked(accepted);
+    }
+
     /// The next event the device reported (a fault, a refusal).
     pub fn take_event(&mut self) -> Option<super::DeviceEvent> {
         self.device.take_event()

@@ -35,7 +35,7 @@ pub mod supervisor;
 pub mod transport;
 
 pub use error::{DeviceError, Error, ErrorKind};
-pub use info::{DeviceEvent, DeviceInfo, DeviceState, DeviceStatus};
+pub use info::{DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, SurplusCount};
 pub use lifecycle::{Lifecycle, LifecycleError, LifecycleState};
 
 use glam::DVec3;
@@ -85,6 +85,18 @@ pub trait HapticDevice {
     /// supervisor counts it towards its staleness bound. Allocation-free.
     fn state_age_ticks(&self) -> u32 {
         0
+    }
+
+    /// The host's verdict on the state the last `read_state` returned: `accepted` is false when the input checks
+    /// (`plausibility`) rejected its position (held at the last accepted one, or unusable). The supervisor calls
+    /// it every tick on which `read_state` returned a state, after checking it and before the next
+    /// `write_force`. A driver that turns force into motor commands from a pose it read itself (joint angles,
+    /// a Jacobian) must convert only with a pose the host accepted: it keeps the newest reading as a
+    /// candidate, adopts it here when accepted, and keeps the last accepted pose when not; until a first pose
+    /// is accepted it sends zero. Allocation-free. The default does nothing (drivers whose device converts
+    /// force itself).
+    fn input_checked(&mut self, accepted: bool) {
+        let _ = accepted;
     }
 
     /// The next thing the device said outside its states (a fault, a refused command), if any. Drivers

@@ -268,6 +268,12 @@ pub enum SupervisorEvent {
     StallStop,
     /// The operator cleared the faults (ClearFault sent); the device is enabled again once the link is healthy.
     FaultCleared,
+    /// The device sent more than the host asked for (it answers twice, or floods); the driver rendered from
+    /// the newest message and dropped the rest ([`DeviceEvent::Surplus`]).
+    Surplus {
+        /// Surplus messages since the device was opened.
+        total: u64,
+    },
 }
 
 /// Where the output stands, for people and traces: why force is or is not reaching the hand.
@@ -470,6 +476,8 @@ pub struct SupervisorCounters {
     pub stall_stops: u64,
     /// Events that did not fit in a tick's list.
     pub events_dropped: u64,
+    /// Surplus messages the current device sent (more than asked for), as its driver last reported.
+    pub device_surplus: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -790,7 +798,13 @@ where
                     }
                 }
             }
+            DeviceEvent::Surplus { total } => self.observe_surplus(total, out),
         }
+    }
+
+    fn observe_surplus(&mut self, total: u64, out: &mut TickOutput) {
+        self.counters.device_surplus = total;
+        out.report(&mut self.counters, SupervisorEvent::Surplus { total });
     }
 
     fn observe_status(&mut self, status: DeviceStatus, now_us: u64, out: &mut TickOutput) {
@@ -987,6 +1001,8 @@ where
                 raw.position_m = self.position_axes.keep(raw.position_m);
                 raw.velocity_m_per_s = self.position_axes.keep(raw.velocity_m_per_s);
                 let verdict = self.input.check(raw, now_us);
+                // The driver converts the next force with this pose only if the checks accepted it.
+                device.input_checked(verdict.usable && !verdict.position_rejected);
                 if verdict.position_rejected {
                     out.flags |= SafetyFlags::POSITION_REJECTED;
                 }

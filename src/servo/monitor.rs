@@ -155,6 +155,10 @@ pub fn describe(event: SupervisorEvent) -> String {
         SupervisorEvent::FaultCleared => {
             "faults cleared on the operator's request; enabling again once the link is healthy".to_owned()
         }
+        SupervisorEvent::Surplus { total } => format!(
+            "device sent {total} message(s) more than the host asked for (does it answer twice, or stream?): \
+             force is rendered from the newest, the rest are dropped; check the device's firmware"
+        ),
     }
 }
 

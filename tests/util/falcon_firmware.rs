@@ -8,9 +8,13 @@
 //! homing bits. [`Bootloader`] is the Falcon before its firmware is loaded, on an in-memory pipe (a
 //! pseudo-terminal has no baud rate or DTR line to switch): it answers the `0a 43 0d` check, echoes `A`, echoes
 //! the firmware, then runs like [`FalconDevice`].
+//!
+//! Misbehaviour a test can ask for: frames whose encoder counts are not the true ones (glitches, jumps) while
+//! every command is logged with the true counts ([`Applied`]), and more than one answer per frame.
 
 use super::pty::PtyDevice;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -24,9 +28,24 @@ pub struct FalconCommand {
     pub homing_requested: bool,
 }
 
+/// One motor command with the true encoder counts when it arrived.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Applied {
+    pub motor: [i16; 3],
+    pub true_encoders: [i16; 3],
+}
+
 #[derive(Debug, Default)]
 pub struct FalconShared {
     pub commands: Mutex<Vec<FalconCommand>>,
+    /// Every command with the true counts.
+    pub applied: Mutex<Vec<Applied>>,
+    /// Counts for the next answers instead of the true ones, in order.
+    pub glitches: Mutex<VecDeque<[i16; 3]>>,
+    /// Answers per frame beyond the first.
+    pub extra_answers: AtomicU32,
+    /// Frames answered (all answers written).
+    pub answered: AtomicU64,
     pub encoders: Mutex<[i16; 3]>,
     /// Homing bits reported (bit n = motor n+1).
     pub homing: Mutex<u8>,
@@ -89,11 +108,20 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> Vec<u8> {
         let frame: Vec<u8> = pending.drain(..16).collect();
         if let Some(command) = decode_host_frame(&frame) {
             shared.commands.lock().unwrap().push(command);
-            out.extend_from_slice(&device_frame(
-                *shared.encoders.lock().unwrap(),
+            let truth = *shared.encoders.lock().unwrap();
+            shared.applied.lock().unwrap().push(Applied {
+                motor: command.motor,
+                true_encoders: truth,
+            });
+            let reported = shared.glitches.lock().unwrap().pop_front().unwrap_or(truth);
+            let answer = device_frame(
+                reported,
                 *shared.homing.lock().unwrap(),
                 *shared.grip.lock().unwrap(),
-            ));
+            );
+            for _ in 0..=shared.extra_answers.load(Ordering::Acquire) {
+                out.extend_from_slice(&answer);
+            }
         }
     }
     out
@@ -124,10 +152,13 @@ impl FalconDevice {
                             continue;
                         }
                     }
+                    let before = shared.commands.lock().unwrap().len();
                     let out = serve_frames(&mut pending, &shared);
                     if !out.is_empty() {
                         let _ = pty.write(&out);
                     }
+                    let served = shared.commands.lock().unwrap().len() - before;
+                    shared.answered.fetch_add(served as u64, Ordering::AcqRel);
                 }
             })
         };

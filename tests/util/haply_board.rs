@@ -3,10 +3,13 @@
 //! torques: id then two little-endian f32 in port order), and a torque command is answered by
 //! `[device id][f32 angle port 1][f32 angle port 2]` (degrees). Served on a pseudo-terminal. It logs every torque
 //! pair, and can misbehave the way a USB serial link does: stale bytes before the host opens, a reply cut short
-//! whose rest arrives late, and a stray extra byte.
+//! whose rest arrives late, and a stray extra byte. It can also report readings that are not the pantograph's
+//! true angles (glitches, NaN) while logging every torque pair with the true angles ([`Applied`]), and answer
+//! every command more than once.
 
 use super::pty::PtyDevice;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -20,8 +23,25 @@ pub enum Fault {
     ExtraByte,
 }
 
+/// One torque command with the true angles when it arrived (both in port order).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Applied {
+    pub torques: [f32; 2],
+    pub true_angles_deg: [f32; 2],
+}
+
 #[derive(Debug, Default)]
 pub struct BoardShared {
+    /// The pantograph's true angles (degrees, port order); `None` means [`ANGLES_DEG`].
+    pub true_angles_deg: Mutex<Option<[f32; 2]>>,
+    /// Readings for the next replies instead of the true angles (port order; NaN allowed), in order.
+    pub readings: Mutex<VecDeque<[f32; 2]>>,
+    /// Every torque command with the true angles.
+    pub applied: Mutex<Vec<Applied>>,
+    /// Replies per torque command beyond the first.
+    pub extra_answers: AtomicU32,
+    /// Torque commands answered (all answers written).
+    pub answered: AtomicU64,
     /// Torque pairs received (port order), in order.
     pub torques: Mutex<Vec<[f32; 2]>>,
     /// Resets and setups received.
@@ -77,11 +97,11 @@ impl Drop for HaplyBoard {
     }
 }
 
-fn reply() -> [u8; 9] {
+fn reply(angles: [f32; 2]) -> [u8; 9] {
     let mut out = [0u8; 9];
     out[0] = DEVICE_ID;
-    out[1..5].copy_from_slice(&ANGLES_DEG[0].to_le_bytes());
-    out[5..9].copy_from_slice(&ANGLES_DEG[1].to_le_bytes());
+    out[1..5].copy_from_slice(&angles[0].to_le_bytes());
+    out[5..9].copy_from_slice(&angles[1].to_le_bytes());
     out
 }
 
@@ -130,19 +150,27 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
                         ])
                     };
                     shared.torques.lock().unwrap().push([f(2), f(6)]);
+                    let truth = shared.true_angles_deg.lock().unwrap().unwrap_or(ANGLES_DEG);
+                    shared.applied.lock().unwrap().push(Applied {
+                        torques: [f(2), f(6)],
+                        true_angles_deg: truth,
+                    });
                     let fault = {
                         let mut faults = shared.faults.lock().unwrap();
                         (!faults.is_empty()).then(|| faults.remove(0))
                     };
-                    let answer = reply();
+                    let reading = shared.readings.lock().unwrap().pop_front().unwrap_or(truth);
+                    let answer = reply(reading);
+                    let extra = shared.extra_answers.load(Ordering::Acquire) as usize;
                     let _ = match fault {
-                        None => pty.write(&answer),
+                        None => pty.write(&answer.repeat(1 + extra)),
                         Some(Fault::ExtraByte) => pty.write(&[0x77]).and(pty.write(&answer)),
                         Some(Fault::Partial) => {
                             late = Some((std::time::Instant::now(), answer[4..].to_vec()));
                             pty.write(&answer[..4])
                         }
                     };
+                    shared.answered.fetch_add(1, Ordering::AcqRel);
                 }
             }
         }

@@ -8,9 +8,16 @@
 //! `]` are 128), the `sscanf("[%d,%d,%d]")` parse (ino:486-488, error 1024), one reply per message with
 //! `[model,enc0..enc5,error]\n` (ino:108, 457-466, 543-553), currents outside ±6000 mA replaced by 0
 //! (ino:17, 510), and the 100 ms message watchdog that cuts the amplifiers (ino:274-281, 493-494).
+//!
+//! Misbehaviour a test can ask for: glitched replies (encoder counts that are not the arm's true ones, or a
+//! line that is not numbers at all) while the true counts stay in `encoders` and are logged with every command
+//! ([`Applied`]), so a test computes the force the arm really exerts; answering every message more than once,
+//! or flooding lines after it; and stamping each reply with the number of the message it answers (in the
+//! unused gimbal encoder 3), so a test measures how old the reply a driver uses is.
 
 use super::pty::PtyDevice;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -26,9 +33,39 @@ pub enum FirmwareEvent {
     WatchdogCut,
 }
 
+/// A reply that does not tell the truth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Glitch {
+    /// Report these counts for encoders 0-2 instead of the true ones.
+    Counts([i32; 3]),
+    /// A line that is not numbers (a corrupted reading): `[3,nan,nan,nan,0,0,0,0]`.
+    Garbage,
+}
+
+/// One accepted command with the arm's true encoder counts when it arrived.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Applied {
+    /// Motor currents applied (mA).
+    pub currents_ma: [i32; 3],
+    /// The true counts of encoders 0-2 (what a truthful reply would have said).
+    pub true_counts: [i32; 3],
+}
+
 /// Shared state of a running double.
 #[derive(Debug)]
 pub struct FirmwareShared {
+    /// Glitches for the next replies, in order (each reply takes one).
+    pub glitches: Mutex<VecDeque<Glitch>>,
+    /// Every accepted command with the true counts.
+    pub applied: Mutex<Vec<Applied>>,
+    /// Replies per valid message (1 for the real firmware).
+    pub answers: AtomicU32,
+    /// Extra unsolicited lines sent after each reply (a flood).
+    pub flood: AtomicU32,
+    /// Write the number of the message answered into encoder 3 of every reply.
+    pub stamp: AtomicBool,
+    /// Valid messages answered so far (all answers written).
+    pub answered: AtomicU64,
     /// Every event, in order.
     pub log: Mutex<Vec<FirmwareEvent>>,
     /// The six encoder counters the firmware reports.
@@ -56,6 +93,12 @@ impl WoodyFirmware {
         let mut pty = PtyDevice::new();
         let path = pty.path().to_string();
         let shared = Arc::new(FirmwareShared {
+            glitches: Mutex::new(VecDeque::new()),
+            applied: Mutex::new(Vec::new()),
+            answers: AtomicU32::new(1),
+            flood: AtomicU32::new(0),
+            stamp: AtomicBool::new(false),
+            answered: AtomicU64::new(0),
             log: Mutex::new(Vec::new()),
             encoders: Mutex::new([0; 6]),
             amplifiers_enabled: AtomicBool::new(false),
@@ -134,12 +177,27 @@ fn reply(pty: &mut PtyDevice, model: i32, shared: &FirmwareShared, error_code: i
     if shared.mute.load(Ordering::Acquire) {
         return;
     }
-    let e = *shared.encoders.lock().unwrap();
-    let line = format!(
-        "[{},{},{},{},{},{},{},{}]\n",
-        model, e[0], e[1], e[2], e[3], e[4], e[5], error_code
-    );
-    let _ = pty.write(line.as_bytes());
+    let mut e = *shared.encoders.lock().unwrap();
+    if shared.stamp.load(Ordering::Acquire) {
+        e[3] = (shared.answered.load(Ordering::Acquire) + 1) as i32;
+    }
+    let glitch = shared.glitches.lock().unwrap().pop_front();
+    let line = match glitch {
+        Some(Glitch::Garbage) => format!("[{model},nan,nan,nan,0,0,0,{error_code}]\n"),
+        Some(Glitch::Counts(counts)) => format!(
+            "[{},{},{},{},{},{},{},{}]\n",
+            model, counts[0], counts[1], counts[2], e[3], e[4], e[5], error_code
+        ),
+        None => format!(
+            "[{},{},{},{},{},{},{},{}]\n",
+            model, e[0], e[1], e[2], e[3], e[4], e[5], error_code
+        ),
+    };
+    // Every answer (and any flood) in one write, so they reach the host together.
+    let answers = shared.answers.load(Ordering::Acquire).max(1) as usize;
+    let flood = shared.flood.load(Ordering::Acquire) as usize;
+    let out = line.repeat(answers + flood);
+    let _ = pty.write(out.as_bytes());
 }
 
 fn run(pty: &mut PtyDevice, model: i32, shared: &FirmwareShared) {
@@ -237,7 +295,13 @@ fn run(pty: &mut PtyDevice, model: i32, shared: &FirmwareShared) {
                 .lock()
                 .unwrap()
                 .push(FirmwareEvent::Currents(checked));
+            let e = *shared.encoders.lock().unwrap();
+            shared.applied.lock().unwrap().push(Applied {
+                currents_ma: checked,
+                true_counts: [e[0], e[1], e[2]],
+            });
             reply(pty, model, shared, 0);
+            shared.answered.fetch_add(1, Ordering::AcqRel);
         }
     }
 }

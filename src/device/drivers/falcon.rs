@@ -35,10 +35,22 @@
 //!   loading, 1 ms after): `ftdi_sio` exposes it as the sysfs attribute `latency_timer`, which
 //!   contrib/udev/70-voxhap.rules sets to 1 ms; it is not set from here.
 //!
+//! Which pose converts force: the position the forward kinematics found for the newest frame is a candidate
+//! until the host's input checks accept it ([`HapticDevice::input_checked`]); torques are computed only at the
+//! newest accepted position. After a rejected frame (an encoder glitch, a jump) the driver keeps the last
+//! accepted position, and restarts its forward-kinematics guess there; before any position was accepted, and
+//! again after homing resets the coordinates, it sends zero torque.
+//!
+//! No backlog: the Falcon answers each frame with one frame. Before each command the driver drops every frame
+//! already waiting (a reply whose read timed out, or frames nobody asked for, which are counted and reported,
+//! [`DeviceEvent::Surplus`]), so the frame read after the command answers it (at most one tick old).
+//!
 //! The firmware file is Novint's (for example `test_firmware.bin` of their SDK); voxhap never ships it.
 
 use crate::device::transport::{ByteTransport, SerialTransport};
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount,
+};
 use glam::{DMat3, DVec3};
 use std::f64::consts::PI;
 use std::time::{Duration, Instant};
@@ -498,11 +510,19 @@ pub struct Falcon<P> {
     port: P,
     config: FalconConfig,
     info: DeviceInfo,
+    /// The forward kinematics' newest estimate (its next guess).
     position_m: DVec3,
+    /// The newest position the host accepted: the only one force is converted at.
+    accepted_m: Option<DVec3>,
+    /// The newest frame's position, until the host's verdict on it.
+    candidate_m: Option<DVec3>,
     last_reply: Option<FalconReply>,
     frame: [u8; 64],
     frame_len: usize,
     malformed: u64,
+    awaiting_reply: bool,
+    surplus: SurplusCount,
+    event: Option<DeviceEvent>,
 }
 
 impl<P: FalconPort> Falcon<P> {
@@ -528,11 +548,50 @@ impl<P: FalconPort> Falcon<P> {
             info,
             // libnifalcon's first guess (FalconKinematicStamper.cpp:20).
             position_m: DVec3::new(0.0, 0.0, 0.08),
+            accepted_m: None,
+            candidate_m: None,
             last_reply: None,
             frame: [0; 64],
             frame_len: 0,
             malformed: 0,
+            awaiting_reply: false,
+            surplus: SurplusCount::default(),
+            event: None,
         }
+    }
+
+    /// Frames the Falcon sent that no command asked for, dropped.
+    pub fn surplus_frames(&self) -> u64 {
+        self.surplus.total()
+    }
+
+    /// The position torques are computed at: the newest the host accepted (`None` before the first).
+    pub fn conversion_position(&self) -> Option<DVec3> {
+        self.accepted_m
+    }
+
+    /// Drops every frame already waiting before a command (bounded, so a flood cannot hold the tick).
+    fn drain_waiting(&mut self) -> Result<(), DeviceError> {
+        let mut surplus = 0;
+        for _ in 0..64 {
+            if self.read_frame(Duration::ZERO)?.is_none() {
+                break;
+            }
+            if !std::mem::take(&mut self.awaiting_reply) {
+                surplus += 1;
+            }
+        }
+        if self.read_frame(Duration::ZERO)?.is_some() {
+            // Still more: a flood. Throw the rest away.
+            self.port.discard_input()?;
+            self.frame_len = 0;
+            surplus += 1;
+        }
+        self.awaiting_reply = false;
+        if let Some(event) = self.surplus.add(surplus) {
+            self.event = Some(event);
+        }
+        Ok(())
     }
 
     /// Sets the serial number shown in the capability record (from the USB descriptor).
@@ -567,8 +626,10 @@ impl<P: FalconPort> Falcon<P> {
     }
 
     /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`.
+    /// With a zero timeout the port is still polled once (without waiting).
     fn read_frame(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
         let deadline = Instant::now() + timeout;
+        let mut polled = false;
         loop {
             while self.frame_len >= FRAME_LEN {
                 let mut candidate = [0u8; FRAME_LEN];
@@ -588,9 +649,10 @@ impl<P: FalconPort> Falcon<P> {
                 self.frame_len -= skip;
             }
             let remaining = deadline.saturating_duration_since(Instant::now());
-            if remaining.is_zero() {
+            if remaining.is_zero() && polled {
                 return Ok(None);
             }
+            polled = true;
             let n = self
                 .port
                 .read(&mut self.frame[self.frame_len..], remaining)?;
@@ -619,6 +681,9 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.port.set_baud(NORMAL_BAUD)?;
         self.port.discard_input()?;
         self.frame_len = 0;
+        self.accepted_m = None;
+        self.candidate_m = None;
+        self.awaiting_reply = false;
         // libnifalcon's isFirmwareLoaded tries many exchanges (FalconFirmware.cpp:169-190); a few suffice here.
         for _ in 0..10 {
             if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
@@ -668,14 +733,32 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
                 what: "force is not finite (the safety pipeline should have zeroed it)",
             });
         }
-        let motor = if self.is_homed() {
-            self.config
-                .geometry
-                .motor_commands(self.position_m, force_n)
-        } else {
-            [0; 3]
+        self.drain_waiting()?;
+        let motor = match self.accepted_m {
+            Some(position) if self.is_homed() => {
+                self.config.geometry.motor_commands(position, force_n)
+            }
+            _ => [0; 3],
         };
-        self.send(motor)
+        self.send(motor)?;
+        self.awaiting_reply = true;
+        Ok(())
+    }
+
+    fn input_checked(&mut self, accepted: bool) {
+        match self.candidate_m.take() {
+            Some(position) if accepted => self.accepted_m = Some(position),
+            // A rejected frame may have led the iteration astray: restart it from the accepted position.
+            _ => {
+                if let Some(position) = self.accepted_m {
+                    self.position_m = position;
+                }
+            }
+        }
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        self.event.take()
     }
 
     /// The wrapper's zero torque went out: read the frame that answers it, so the Falcon has taken it before the
@@ -688,23 +771,28 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.candidate_m = None;
         let Some(reply) = self.read_frame(self.config.reply_timeout)? else {
             return Err(DeviceError::Timeout {
                 waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
                 waiting_for: "a Falcon frame",
             });
         };
+        self.awaiting_reply = false;
         let was_homed = self.is_homed();
         self.last_reply = Some(reply);
         if !was_homed && self.is_homed() {
-            // Homing resets the encoders' coordinate system: start the Newton iteration afresh.
+            // Homing resets the encoders' coordinate system: start the Newton iteration afresh, and convert no
+            // force until a position in the new coordinates is accepted.
             self.position_m = DVec3::new(0.0, 0.0, 0.08);
+            self.accepted_m = None;
         }
         let geometry = self.config.geometry;
         let theta = reply.encoders.map(|count| geometry.leg_angle_rad(count));
         let (position, converged) = geometry.forward_kinematics(theta, self.position_m);
         if converged {
             self.position_m = position;
+            self.candidate_m = Some(position);
         }
         Ok(DeviceState {
             position_m: self.position_m,

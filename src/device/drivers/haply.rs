@@ -20,11 +20,21 @@
 //! Framing: a reply has no start marker or checksum, so a reply cut short (a timeout) or a late one would shift
 //! every later reply by a few bytes. The driver therefore discards the port's input when it opens (stale bytes
 //! from an earlier program) and again before the next command after any timeout or reply with a wrong device id,
-//! so each exchange starts on a reply boundary. Velocity is not measured: `read_state` reports zero and the
+//! so each exchange starts on a reply boundary. Bytes already waiting before a command when no reply is overdue
+//! were not asked for (a board that answers twice, or streams): they are dropped (so replies never queue up and
+//! the state is the reply to this tick's command, at most one tick old), counted in whole replies and reported
+//! ([`DeviceEvent::Surplus`]).
+//!
+//! Which pose converts force: the Jacobian of the newest reply is a candidate until the host's input checks
+//! accept that reply ([`HapticDevice::input_checked`]); force is turned into torques only with the Jacobian of
+//! the newest accepted reply (after a rejected one, the last accepted), and before any reply was accepted the
+//! torques are zero. Velocity is not measured: `read_state` reports zero and the
 //! host's safety pipeline estimates it from positions.
 
 use crate::device::transport::ByteTransport;
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount,
+};
 use glam::DVec3;
 use std::time::{Duration, Instant};
 
@@ -206,11 +216,16 @@ pub struct Haply2Diy<T> {
     transport: T,
     config: Haply2DiyConfig,
     info: DeviceInfo,
-    jacobian: [[f64; 2]; 2],
+    /// Jacobian of the newest reply the host accepted: the only one force is converted with.
+    jacobian: Option<[[f64; 2]; 2]>,
+    /// Jacobian of the newest reply, until the host's verdict on it.
+    candidate: Option<[[f64; 2]; 2]>,
     reply_timeout: Duration,
     /// Set after a timeout or a shifted reply: the input holds (or may soon hold) the rest of an old reply.
     resync_needed: bool,
     resyncs: u64,
+    surplus: SurplusCount,
+    event: Option<DeviceEvent>,
 }
 
 impl<T: ByteTransport> Haply2Diy<T> {
@@ -235,11 +250,45 @@ impl<T: ByteTransport> Haply2Diy<T> {
             transport,
             config,
             info,
-            jacobian: [[0.0; 2]; 2],
+            jacobian: None,
+            candidate: None,
             reply_timeout: Duration::from_millis(10),
             resync_needed: false,
             resyncs: 0,
+            surplus: SurplusCount::default(),
+            event: None,
         }
+    }
+
+    /// Replies the board sent that no command asked for (counted in whole replies), dropped.
+    pub fn surplus_replies(&self) -> u64 {
+        self.surplus.total()
+    }
+
+    /// Drops whatever is waiting before a command. Without an overdue reply, those bytes were not asked for.
+    fn drain_waiting(&mut self) -> Result<(), DeviceError> {
+        if self.resync_needed {
+            self.transport.discard_input()?;
+            self.resync_needed = false;
+            self.resyncs += 1;
+            return Ok(());
+        }
+        let mut scratch = [0u8; 64];
+        let mut bytes = 0u64;
+        // Bounded (64 KiB), so a board that never stops talking cannot hold the tick.
+        while bytes < 65_536 {
+            let n = self.transport.read(&mut scratch, Duration::ZERO)?;
+            if n == 0 {
+                break;
+            }
+            bytes += n as u64;
+        }
+        if bytes > 0 {
+            if let Some(event) = self.surplus.add(bytes.div_ceil(9)) {
+                self.event = Some(event);
+            }
+        }
+        Ok(())
     }
 
     /// How many times the driver discarded input to get back onto a reply boundary.
@@ -284,6 +333,8 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         // Stale angle replies from an earlier program would shift every reply of this session.
         self.transport.discard_input()?;
         self.resync_needed = false;
+        self.jacobian = None;
+        self.candidate = None;
         self.transport
             .write_all(&Haply2DiyConfig::reset_command())?;
         self.transport.write_all(&self.config.setup_command())
@@ -296,12 +347,13 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
                 what: "force is not finite (the safety pipeline should have zeroed it)",
             });
         }
-        if self.resync_needed {
-            self.transport.discard_input()?;
-            self.resync_needed = false;
-            self.resyncs += 1;
-        }
-        let [[j11, j12], [j21, j22]] = self.jacobian;
+        self.drain_waiting()?;
+        // Only a pose the host accepted converts force; none yet means zero torque.
+        let Some([[j11, j12], [j21, j22]]) = self.jacobian else {
+            return self
+                .transport
+                .write_all(&self.config.torque_command([0.0, 0.0]));
+        };
         let tau1 = j11 * force_n.x + j12 * force_n.y;
         let tau2 = j21 * force_n.x + j22 * force_n.y;
         // `+ 0.0` turns a -0.0 (a zero force through a negative Jacobian entry) into the plain zero the board expects.
@@ -312,6 +364,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.candidate = None;
         let reply = self.read_reply()?;
         let angles = self.config.parse_reply(&reply).inspect_err(|_| {
             // A wrong id or a non-finite angle: most likely a reply shifted by lost or extra bytes.
@@ -322,12 +375,23 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
                 what: "Haply angles put the pantograph links out of reach",
             });
         };
-        self.jacobian = jacobian;
+        self.candidate = Some(jacobian);
         Ok(DeviceState::at_rest(DVec3::new(
             position[0],
             position[1],
             0.0,
         )))
+    }
+
+    fn input_checked(&mut self, accepted: bool) {
+        match self.candidate.take() {
+            Some(jacobian) if accepted => self.jacobian = Some(jacobian),
+            _ => {}
+        }
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        self.event.take()
     }
 
     fn disable(&mut self) -> Result<(), DeviceError> {

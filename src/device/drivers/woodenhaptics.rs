@@ -13,6 +13,11 @@
 //! a leading report id 0 on writes, the kinematics, the Jacobian-transpose torques, the 3 A current limit and the
 //! default configuration used here).
 //!
+//! Which pose converts force: the newest report's joint angles are a candidate until the host's input checks
+//! accept that report ([`HapticDevice::input_checked`]); currents are computed only with the newest accepted
+//! angles (after a rejected report, the last accepted), and before any report was accepted the currents are
+//! zero. The firmware streams reports, so more reports than commands are expected here, not surplus.
+//!
 //! Maths (all from CWoodenDevice.cpp, USB branch). Encoder counts e = (-e_a, e_b, e_c); gear ratios
 //! g = (d_bodyA/d_capA, -d_bodyB/d_capB, d_bodyC/d_capC); joint angles θ_i = 2π e_i / (cpr_i g_i), then
 //! θ_C ← π/2 - θ_C. Forward kinematics with link lengths L_a, L_b, L_c and workspace origin o:
@@ -232,7 +237,10 @@ pub struct WoodenHaptics<T> {
     transport: T,
     config: WoodenHapticsConfig,
     info: DeviceInfo,
-    theta: [f64; 3],
+    /// Joint angles of the newest report the host accepted: the only pose force is converted with.
+    theta: Option<[f64; 3]>,
+    /// Joint angles of the newest report, until the host's verdict on it.
+    candidate: Option<[f64; 3]>,
     read_timeout: Duration,
     last_counter: Option<u16>,
     drained_reports: u64,
@@ -257,12 +265,12 @@ impl<T: ReportTransport> WoodenHaptics<T> {
             reports_velocity: false,
             state_rates_hz: Vec::new(),
         };
-        let theta = config.joint_angles_rad([0, 0, 0]);
         Ok(WoodenHaptics {
             transport,
             config,
             info,
-            theta,
+            theta: None,
+            candidate: None,
             read_timeout: Duration::from_millis(5),
             last_counter: None,
             drained_reports: 0,
@@ -298,11 +306,16 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
                 what: "force is not finite (the safety pipeline should have zeroed it)",
             });
         }
-        let currents = self.config.currents_ma(self.theta, force_n);
+        // Only a pose the host accepted converts force; none yet means zero.
+        let currents = match self.theta {
+            Some(theta) => self.config.currents_ma(theta, force_n),
+            None => [0; 3],
+        };
         self.transport.write_report(&encode_output(currents, 0))
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.candidate = None;
         let mut report = [0u8; 64];
         let n = self.transport.read_report(&mut report, self.read_timeout)?;
         if n == 0 {
@@ -325,13 +338,21 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
         }
         let (counts, counter) = decode_input(&report[..newest])?;
         self.last_counter = Some(counter);
-        self.theta = self.config.joint_angles_rad(counts);
-        let position_m = self.config.position_m(self.theta);
+        let theta = self.config.joint_angles_rad(counts);
+        self.candidate = Some(theta);
+        let position_m = self.config.position_m(theta);
         Ok(DeviceState::at_rest(position_m))
     }
 
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The wrapper has written a zero force; the firmware's own 0.5 s watchdog disables the amplifiers.
         Ok(())
+    }
+
+    fn input_checked(&mut self, accepted: bool) {
+        match self.candidate.take() {
+            Some(theta) if accepted => self.theta = Some(theta),
+            _ => {}
+        }
     }
 }

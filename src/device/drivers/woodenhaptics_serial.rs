@@ -27,6 +27,20 @@
 //! direct compensation, hfab_polhem.h:276-333, is left out, so a Polhem feels its own weight), and the gimbal
 //! encoders 3-5 (reported by the firmware, not used: voxhap renders 3-DOF forces).
 //!
+//! Which pose converts force: the driver keeps the newest report's joint angles as a candidate and converts
+//! force with them only once the host's input checks accepted that report ([`HapticDevice::input_checked`]);
+//! after a rejected report (an encoder glitch, a jump) it keeps converting with the last accepted angles, and
+//! before any report was accepted it sends zero currents. A glitched reading therefore never turns the next
+//! force into currents that push another way at the arm's true pose.
+//!
+//! No backlog: the firmware answers each message once (ino:470-553). Before each command the driver reads
+//! whatever lines are already waiting without blocking (a reply that came after its read timed out, a second
+//! answer, a flood) and drops them; after the reply to the command it drops any further lines already waiting.
+//! Lines nobody asked for are counted and reported ([`DeviceEvent::Surplus`]); a flood larger than
+//! [`MAX_LINES_DRAINED`] lines per tick is discarded wholesale. The state handed out is the first reply after the
+//! command (at most one tick old when a second answer of the previous command slipped in behind the drain), so
+//! positions never queue up: the supervisor's staleness bound (`stale_state_ticks`) counts from there.
+//!
 //! Frame: hfabapi's device frame in metres with its workspace origin subtracted (for a WoodenHaptics: x forward
 //! from the base axis, y to the side, z up). The supervisor's safety pipeline bounds the force; this driver also
 //! scales the three currents together so none exceeds [`MAX_CURRENT_MA`] (keeping the force's direction, as
@@ -34,7 +48,9 @@
 
 use super::woodenhaptics_constants::WoodenHapticsConstants;
 use crate::device::transport::ByteTransport;
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount,
+};
 use glam::{DMat3, DVec3};
 use std::f64::consts::PI;
 use std::io::Write as _;
@@ -50,6 +66,8 @@ pub const WATCHDOG_MS: u64 = 100;
 pub const MAX_LINE_LEN: usize = 127;
 /// Error bits the firmware sets when it could not parse our message (ino:433-454, 487).
 pub const MESSAGE_ERROR_BITS: i32 = 8 | 128 | 256 | 512 | 1024;
+/// Most lines read and dropped in one tick before the rest of the input is discarded at once (a flood).
+pub const MAX_LINES_DRAINED: usize = 64;
 
 /// Which device the firmware says it is (the first number of every report).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -435,11 +453,17 @@ pub struct WoodenHapticsSerial<T> {
     info: DeviceInfo,
     model: Option<WoodyModel>,
     kinematics: WoodyKinematics,
-    theta: [f64; 3],
+    /// Joint angles of the newest report the host accepted: the only pose force is converted with.
+    theta: Option<[f64; 3]>,
+    /// Joint angles of the newest report, until the host's verdict on it.
+    candidate: Option<[f64; 3]>,
     line: [u8; 256],
     line_len: usize,
     last_report: Option<WoodyReport>,
     awaiting_reply: bool,
+    late_replies: u64,
+    surplus: SurplusCount,
+    event: Option<DeviceEvent>,
 }
 
 impl<T: ByteTransport> WoodenHapticsSerial<T> {
@@ -454,12 +478,67 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             info: info_for(None, &kinematics),
             model: None,
             kinematics,
-            theta: [0.0; 3],
+            theta: None,
+            candidate: None,
             line: [0; 256],
             line_len: 0,
             last_report: None,
             awaiting_reply: false,
+            late_replies: 0,
+            surplus: SurplusCount::default(),
+            event: None,
         }
+    }
+
+    /// Lines the device sent that no command asked for (second answers, floods), dropped.
+    pub fn surplus_replies(&self) -> u64 {
+        self.surplus.total()
+    }
+
+    /// Replies that came after their read had timed out, dropped before the next command.
+    pub fn late_replies(&self) -> u64 {
+        self.late_replies
+    }
+
+    /// Joint angles force is converted with: the newest report the host accepted (`None` before the first).
+    pub fn conversion_angles(&self) -> Option<[f64; 3]> {
+        self.theta
+    }
+
+    fn count_surplus(&mut self, n: u64) {
+        if let Some(event) = self.surplus.add(n) {
+            self.event = Some(event);
+        }
+    }
+
+    /// Drops every complete line already waiting, without blocking: a reply whose read timed out (late), or
+    /// lines nobody asked for (surplus). More than [`MAX_LINES_DRAINED`] lines: the rest is discarded at once.
+    fn drain_waiting(&mut self) -> Result<(), DeviceError> {
+        let mut surplus = 0;
+        let mut lines = 0;
+        loop {
+            if lines == MAX_LINES_DRAINED {
+                self.transport.discard_input()?;
+                self.line_len = 0;
+                surplus += 1;
+                break;
+            }
+            match self.read_line(Duration::ZERO) {
+                Ok(Some(_)) | Err(DeviceError::Protocol { .. }) => {}
+                Ok(None) => break,
+                Err(error) => return Err(error),
+            }
+            lines += 1;
+            if std::mem::take(&mut self.awaiting_reply) {
+                self.late_replies += 1;
+            } else {
+                surplus += 1;
+            }
+        }
+        // A reply still missing a whole tick later is lost (or so late that it counts as surplus when it comes).
+        self.awaiting_reply = false;
+        self.count_surplus(surplus);
+        Ok(())
     }
 
     /// The model the device reported.
@@ -538,7 +617,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
                 what: "WoodenHaptics encoders put the linkage where it cannot close",
             });
         };
-        self.theta = theta;
+        self.candidate = Some(theta);
         self.last_report = Some(report);
         Ok(DeviceState::at_rest(position_m))
     }
@@ -588,6 +667,9 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         self.transport.discard_input()?;
         self.line_len = 0;
         self.model = None;
+        self.theta = None;
+        self.candidate = None;
+        self.awaiting_reply = false;
         let mut last_error = None;
         for _ in 0..self.config.hello_attempts.max(1) {
             self.send_currents([0; 3])?;
@@ -613,15 +695,23 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
                 what: "force is not finite (the safety pipeline should have zeroed it)",
             });
         }
-        let currents = self
-            .kinematics
-            .currents_ma(self.theta, force_n, self.config.max_current_ma);
+        self.drain_waiting()?;
+        // Only a pose the host accepted converts force; none yet means zero.
+        let currents = match self.theta {
+            Some(theta) => self
+                .kinematics
+                .currents_ma(theta, force_n, self.config.max_current_ma),
+            None => [0; 3],
+        };
         self.send_currents(currents)?;
         self.awaiting_reply = true;
         Ok(())
     }
 
+    /// The reply to the last command, or the newest good line already waiting behind it (those extra lines are
+    /// counted as surplus).
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.candidate = None;
         let Some(report) = self.read_line(self.config.reply_timeout)? else {
             return Err(DeviceError::Timeout {
                 waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
@@ -629,7 +719,35 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
             });
         };
         self.awaiting_reply = false;
-        self.accept(report)
+        let mut state = self.accept(report)?;
+        // Lines already waiting behind the reply were not asked for; the newest good one is the freshest pose.
+        let mut surplus = 0;
+        for _ in 0..MAX_LINES_DRAINED {
+            match self.read_line(Duration::ZERO) {
+                Ok(Some(extra)) => {
+                    surplus += 1;
+                    if let Ok(newer) = self.accept(extra) {
+                        state = newer;
+                    }
+                }
+                Err(DeviceError::Protocol { .. }) => surplus += 1,
+                Ok(None) => break,
+                Err(error) => return Err(error),
+            }
+        }
+        self.count_surplus(surplus);
+        Ok(state)
+    }
+
+    fn input_checked(&mut self, accepted: bool) {
+        match self.candidate.take() {
+            Some(theta) if accepted => self.theta = Some(theta),
+            _ => {}
+        }
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        self.event.take()
     }
 
     fn disable(&mut self) -> Result<(), DeviceError> {

@@ -140,6 +140,13 @@ pub enum DeviceEvent {
         /// Reason code (1 no session, 2 version mismatch, 3 faulted, 4 invalid argument).
         reason: u8,
     },
+    /// The device (or the service in front of it) sends more messages than its protocol says it answers
+    /// with: the driver reads them all and renders from the newest, so they build no backlog, and reports
+    /// their count so far now and then (at 1, 2, 4, 8, ... extra messages).
+    ExtraMessages {
+        /// Extra messages on this link so far.
+        total: u64,
+    },
 }
 
 /// Fault code of the device's own force watchdog (voxhap protocol): it does not latch.

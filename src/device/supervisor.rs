@@ -268,6 +268,12 @@ pub enum SupervisorEvent {
     StallStop,
     /// The operator cleared the faults (ClearFault sent); the device is enabled again once the link is healthy.
     FaultCleared,
+    /// The device sends more messages than it should (a second reply, unsolicited updates): read, the newest
+    /// used, counted ([`SupervisorCounters::extra_messages`]); force is not affected.
+    ExtraMessages {
+        /// Extra messages on the current link so far.
+        total: u64,
+    },
 }
 
 /// Where the output stands, for people and traces: why force is or is not reaching the hand.
@@ -470,6 +476,9 @@ pub struct SupervisorCounters {
     pub stall_stops: u64,
     /// Events that did not fit in a tick's list.
     pub events_dropped: u64,
+    /// Extra messages devices sent beyond what their protocol answers with, as last reported (summed over
+    /// links).
+    pub extra_messages: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -526,6 +535,8 @@ pub struct Supervisor<D: HapticDevice, F> {
     /// The components of force the device renders; the others are set to 0 before the safety pipeline, so that
     /// its clamp, engage rule and slew limit act on what is sent, and after it (SPEC 6.8; `device::dof`).
     force_axes: UsedAxes,
+    /// The extra-message total the current link last reported.
+    extra_messages_on_link: u64,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -556,6 +567,7 @@ where
             stall_flag: None,
             position_axes: UsedAxes::ALL,
             force_axes: UsedAxes::ALL,
+            extra_messages_on_link: 0,
         })
     }
 
@@ -664,6 +676,7 @@ where
         self.ticks_since_fresh = 0;
         self.last_fresh_us = now_us;
         self.clear_requested = false;
+        self.extra_messages_on_link = 0;
         self.counters.connects += 1;
     }
 
@@ -747,6 +760,12 @@ where
 
     fn on_event(&mut self, event: DeviceEvent, now_us: u64, out: &mut TickOutput) {
         match event {
+            DeviceEvent::ExtraMessages { total } => {
+                let new = total.saturating_sub(self.extra_messages_on_link);
+                self.extra_messages_on_link = total;
+                self.counters.extra_messages = self.counters.extra_messages.saturating_add(new);
+                out.report(&mut self.counters, SupervisorEvent::ExtraMessages { total });
+            }
             DeviceEvent::Fault {
                 code,
                 active_faults,

@@ -155,6 +155,11 @@ pub fn describe(event: SupervisorEvent) -> String {
         SupervisorEvent::FaultCleared => {
             "faults cleared on the operator's request; enabling again once the link is healthy".to_owned()
         }
+        SupervisorEvent::ExtraMessages { total } => format!(
+            "the device sends more messages than it answers commands with ({total} extra so far on this \
+             link): voxhap reads them all and renders from the newest, so positions do not fall behind; check \
+             the device's firmware or service version (docs/bad-inputs.md)"
+        ),
     }
 }
 

@@ -451,7 +451,14 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     let _turn = crate::device_spec::take_turn();
     let service = InverseService::start();
     let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args(["serve", "--no-http", "--no-foxglove", "--rt", "off", "--device"])
+        .args([
+            "serve",
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--device",
+        ])
         .arg(format!("haply-inverse:{}", service.url()))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -495,7 +502,10 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     // Inside the handshake (it never ends; its deadline is 1 s).
     std::thread::sleep(Duration::from_millis(300));
     // SAFETY: plain kill(2) on our own child's pid.
-    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) }, 0);
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+        0
+    );
     let signalled = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {

@@ -20,8 +20,8 @@
 //! last state message whose write has returned.
 
 use serde_json::{json, Value};
-use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -240,7 +240,8 @@ fn state_message(shared: &ServiceShared) -> (Message, u64) {
         position[0] = STAMP_BASE_M + index as f64 * STAMP_STEP_M;
     }
     let message = Message::text(
-        json!({"inverse3": [{"device_id": DEVICE_ID, "state": state(position), "status": {}}]}).to_string(),
+        json!({"inverse3": [{"device_id": DEVICE_ID, "state": state(position), "status": {}}]})
+            .to_string(),
     );
     (message, index)
 }
@@ -257,7 +258,11 @@ fn slow_handshake(mut stream: TcpStream, shared: &ServiceShared) {
         match stream.read(&mut buffer) {
             Ok(0) => return,
             Ok(n) => request.extend_from_slice(&buffer[..n]),
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
             Err(_) => return,
         }
     }
@@ -266,7 +271,8 @@ fn slow_handshake(mut stream: TcpStream, shared: &ServiceShared) {
         .lines()
         .find_map(|line| {
             let (name, value) = line.split_once(':')?;
-            name.eq_ignore_ascii_case("sec-websocket-key").then(|| value.trim().to_owned())
+            name.eq_ignore_ascii_case("sec-websocket-key")
+                .then(|| value.trim().to_owned())
         })
         .unwrap_or_default();
     let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());

@@ -468,7 +468,10 @@ fn connect_and_read_inventory(
         })?;
     let left = deadline.saturating_duration_since(Instant::now());
     if left.is_zero() {
-        return Err(connect_timeout_error(timeout, "a TCP connection to the Inverse Service"));
+        return Err(connect_timeout_error(
+            timeout,
+            "a TCP connection to the Inverse Service",
+        ));
     }
     let stream = TcpStream::connect_timeout(&address, left)
         .map_err(|e| open_error(url, &e.to_string(), e.kind()))?;

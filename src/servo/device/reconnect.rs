@@ -102,7 +102,6 @@ impl Backoff {
     }
 }
 
-
 /// A supervised device whose reconnection runs on its own thread, so the servo thread never blocks on a
 /// port open or a handshake and never frees the lost device's buffers: when the link is lost, the servo
 /// hands the dead device to the connector thread (a ring) and raises a flag; the connector closes it (zero

@@ -271,7 +271,7 @@ pub enum SupervisorEvent {
     /// The device sent more than the host asked for (it answers twice, or floods); the driver rendered from
     /// the newest message and dropped the rest ([`DeviceEvent::Surplus`]).
     Surplus {
-        /// Surplus messages since the device was opened.
+        /// Surplus messages since the driver was opened (this link).
         total: u64,
     },
 }
@@ -476,7 +476,7 @@ pub struct SupervisorCounters {
     pub stall_stops: u64,
     /// Events that did not fit in a tick's list.
     pub events_dropped: u64,
-    /// Surplus messages the current device sent (more than asked for), as its driver last reported.
+    /// Surplus messages devices sent (more than asked for), as their drivers last reported, summed over links.
     pub device_surplus: u64,
 }
 
@@ -534,6 +534,8 @@ pub struct Supervisor<D: HapticDevice, F> {
     /// The components of force the device renders; the others are set to 0 before the safety pipeline, so that
     /// its clamp, engage rule and slew limit act on what is sent, and after it (SPEC 6.8; `device::dof`).
     force_axes: UsedAxes,
+    /// The surplus total the current link's driver last reported.
+    surplus_on_link: u64,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -564,6 +566,7 @@ where
             stall_flag: None,
             position_axes: UsedAxes::ALL,
             force_axes: UsedAxes::ALL,
+            surplus_on_link: 0,
         })
     }
 
@@ -672,6 +675,7 @@ where
         self.ticks_since_fresh = 0;
         self.last_fresh_us = now_us;
         self.clear_requested = false;
+        self.surplus_on_link = 0;
         self.counters.connects += 1;
     }
 
@@ -803,7 +807,10 @@ where
     }
 
     fn observe_surplus(&mut self, total: u64, out: &mut TickOutput) {
-        self.counters.device_surplus = total;
+        // `total` counts from the driver's open; the counter sums over links.
+        let new = total.saturating_sub(self.surplus_on_link);
+        self.surplus_on_link = total;
+        self.counters.device_surplus = self.counters.device_surplus.saturating_add(new);
         out.report(&mut self.counters, SupervisorEvent::Surplus { total });
     }
 

@@ -48,6 +48,25 @@ pub const RATE_RANGE_HZ: (f64, f64) = (100.0, 10_000.0);
 pub const COMMAND_RING: usize = 64;
 /// How long a control command waits for the servo thread to apply it.
 pub const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
+/// Longest [`Session::stop`] waits for the servo thread to stop ticking, zero the force and close the device
+/// (the connector thread's share of it is at most `reconnect::CONNECTOR_STOP_BOUND`). Past it the session
+/// stops without it and says so in the summary's `recorder_error` (the trace cannot be finished then).
+pub const SERVO_STOP_BOUND: Duration = Duration::from_secs(3);
+
+/// Waits for `thread` to finish, at most `bound` (checked every 2 ms); gives the handle back if it did not.
+pub(crate) fn join_within<T>(
+    thread: JoinHandle<T>,
+    bound: Duration,
+) -> Result<std::thread::Result<T>, JoinHandle<T>> {
+    let start = std::time::Instant::now();
+    while !thread.is_finished() {
+        if start.elapsed() >= bound {
+            return Err(thread);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    Ok(thread.join())
+}
 
 /// How to run a session.
 #[derive(Debug, Clone)]
@@ -449,21 +468,32 @@ impl Session {
     }
 
     /// Stops the servo (zero force, device disabled and closed), then the recorder (trace flushed and
-    /// finished), and returns the statistics.
+    /// finished), and returns the statistics. The servo thread is waited for at most [`SERVO_STOP_BOUND`].
     pub fn stop(mut self) -> SessionSummary {
         self.stop_inner()
     }
 
     fn stop_inner(&mut self) -> SessionSummary {
         self.shared.stop.store(true, Ordering::Release);
+        let mut servo_stuck = false;
         if let Some(servo) = self.servo.take() {
-            let _ = servo.join();
+            // A servo thread still inside a device's close after the bound is left behind (its trace
+            // cannot be finished: the recorder ends when the servo thread lets go of the sample ring).
+            servo_stuck = join_within(servo, SERVO_STOP_BOUND).is_err();
         }
         // After the servo thread: the monitor prints the last device events (the stop's included).
         if let Some(mut monitor) = self.monitor.take() {
             monitor.stop();
         }
         let mut recorder_error = None;
+        if servo_stuck {
+            self.recorder.take();
+            recorder_error = Some(format!(
+                "the servo thread did not finish stopping the device within {} s; the session stopped without \
+                 it (the trace is not finished)",
+                SERVO_STOP_BOUND.as_secs()
+            ));
+        }
         let trace = match self.recorder.take().map(JoinHandle::join) {
             Some(Ok(Ok(trace))) => trace,
             Some(Ok(Err(error))) => {

@@ -9,8 +9,18 @@
 //! messages it cannot parse. A test can move the handle, make the next replies malformed, hold the next reply
 //! back for a while (a busy service: the state is the one at the message's arrival, sent late), or stop the
 //! service (every connection dropped, the port closed) and start it again on the same port.
+//!
+//! Misbehaviours outside Haply's documentation, for the driver's robustness: more than one reply per message
+//! (`replies_per_message`), an unsolicited state update every `unsolicited_every_ms`, no replies at all
+//! (`mute`: messages are still read and logged), dropping each connection after a number of replies
+//! (`close_after_replies`), dropping each connection at once without a handshake (`refuse`), and a
+//! slow-loris handshake (`slow_handshake_from`: from that connection on, the HTTP answer is sent one byte per
+//! 100 ms and never ends). With `stamp`, the position of every state message carries its index (1, 2, ...
+//! over the double's life): x = [`STAMP_BASE_M`] + index · [`STAMP_STEP_M`]; `written` is the index of the
+//! last state message whose write has returned.
 
 use serde_json::{json, Value};
+use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -40,7 +50,36 @@ pub struct ServiceShared {
     pub malformed_replies: AtomicU32,
     /// The next reply is sent this many milliseconds late (then back to 0).
     pub delay_next_reply_ms: AtomicU64,
+    /// State updates sent per message received (documented: 1).
+    pub replies_per_message: AtomicU32,
+    /// An unsolicited state update this often (ms; 0: never, as documented).
+    pub unsolicited_every_ms: AtomicU64,
+    /// Positions carry the message index (module docs).
+    pub stamp: AtomicBool,
+    /// Index of the last state message whose write returned (with `stamp`; 0 before the first).
+    pub written: AtomicU64,
+    next_index: AtomicU64,
+    /// Read and log messages, answer none.
+    pub mute: AtomicBool,
+    /// Drop each connection after this many replies (0: never).
+    pub close_after_replies: AtomicU32,
+    /// Drop each connection as soon as it is accepted.
+    pub refuse: AtomicBool,
+    /// Connections numbered from this one on (1 is the first) get the slow-loris handshake (0: none).
+    pub slow_handshake_from: AtomicU32,
+    /// TCP connections accepted.
+    pub accepted: AtomicU32,
     stop: AtomicBool,
+}
+
+/// Where stamped positions start (m).
+pub const STAMP_BASE_M: f64 = -0.05;
+/// Stamped positions advance by this per message (m): 1 µm, a plausible drift of about 1-2 mm/s.
+pub const STAMP_STEP_M: f64 = 1e-6;
+
+/// The message index a stamped position carries.
+pub fn stamp_of(x_m: f64) -> u64 {
+    ((x_m - STAMP_BASE_M) / STAMP_STEP_M).round() as u64
 }
 
 /// The running double.
@@ -87,6 +126,16 @@ impl InverseService {
             position_m: Mutex::new([0.0, -0.12, 0.15]),
             malformed_replies: AtomicU32::new(0),
             delay_next_reply_ms: AtomicU64::new(0),
+            replies_per_message: AtomicU32::new(1),
+            unsolicited_every_ms: AtomicU64::new(0),
+            stamp: AtomicBool::new(false),
+            written: AtomicU64::new(0),
+            next_index: AtomicU64::new(0),
+            mute: AtomicBool::new(false),
+            close_after_replies: AtomicU32::new(0),
+            refuse: AtomicBool::new(false),
+            slow_handshake_from: AtomicU32::new(0),
+            accepted: AtomicU32::new(0),
             stop: AtomicBool::new(false),
         });
         Self::start_on("127.0.0.1:0".parse().unwrap(), shared)
@@ -183,12 +232,77 @@ fn vec3(value: &Value) -> [f64; 3] {
     [get("x"), get("y"), get("z")]
 }
 
+/// A state message for the handle where the double has it, stamped when asked: returns it and its index.
+fn state_message(shared: &ServiceShared) -> (Message, u64) {
+    let mut position = *shared.position_m.lock().unwrap();
+    let index = shared.next_index.fetch_add(1, Ordering::AcqRel) + 1;
+    if shared.stamp.load(Ordering::Acquire) {
+        position[0] = STAMP_BASE_M + index as f64 * STAMP_STEP_M;
+    }
+    let message = Message::text(
+        json!({"inverse3": [{"device_id": DEVICE_ID, "state": state(position), "status": {}}]})
+            .to_string(),
+    );
+    (message, index)
+}
+
+/// The slow-loris handshake: reads the HTTP request, then answers one byte per 100 ms, a header line after
+/// another, until the client goes or the double stops.
+fn slow_handshake(mut stream: TcpStream, shared: &ServiceShared) {
+    let mut request = Vec::new();
+    let mut buffer = [0u8; 1024];
+    while !request.windows(4).any(|w| w == b"\r\n\r\n") {
+        if shared.stop.load(Ordering::Acquire) {
+            return;
+        }
+        match stream.read(&mut buffer) {
+            Ok(0) => return,
+            Ok(n) => request.extend_from_slice(&buffer[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(_) => return,
+        }
+    }
+    let text = String::from_utf8_lossy(&request).into_owned();
+    let key = text
+        .lines()
+        .find_map(|line| {
+            let (name, value) = line.split_once(':')?;
+            name.eq_ignore_ascii_case("sec-websocket-key")
+                .then(|| value.trim().to_owned())
+        })
+        .unwrap_or_default();
+    let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());
+    let head = format!(
+        "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Accept: {accept}\r\n"
+    );
+    let bytes = head.bytes().chain(b"X-Slow: 1\r\n".iter().copied().cycle());
+    for byte in bytes {
+        if shared.stop.load(Ordering::Acquire) || stream.write_all(&[byte]).is_err() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 fn serve(stream: TcpStream, shared: &ServiceShared) {
+    let number = shared.accepted.fetch_add(1, Ordering::AcqRel) + 1;
+    if shared.refuse.load(Ordering::Acquire) {
+        return;
+    }
     stream.set_nodelay(true).unwrap();
     stream.set_nonblocking(false).unwrap();
     stream
         .set_read_timeout(Some(Duration::from_millis(5)))
         .unwrap();
+    let slow_from = shared.slow_handshake_from.load(Ordering::Acquire);
+    if slow_from != 0 && number >= slow_from {
+        slow_handshake(stream, shared);
+        return;
+    }
     let Ok(mut socket) = tungstenite::accept(stream) else {
         return;
     };
@@ -201,7 +315,18 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
     }
     shared.log.lock().unwrap().push(ServiceEvent::Connected);
     let mut malformed_turn = 0u32;
+    let mut replies = 0u32;
+    let mut last_unsolicited = std::time::Instant::now();
     while !shared.stop.load(Ordering::Acquire) {
+        let every_ms = shared.unsolicited_every_ms.load(Ordering::Acquire);
+        if every_ms > 0 && last_unsolicited.elapsed() >= Duration::from_millis(every_ms) {
+            last_unsolicited = std::time::Instant::now();
+            let (update, index) = state_message(shared);
+            if socket.send(update).is_err() {
+                return;
+            }
+            shared.written.store(index, Ordering::Release);
+        }
         let message = match socket.read() {
             Ok(Message::Text(text)) => text.to_string(),
             Ok(Message::Binary(bytes)) => String::from_utf8_lossy(&bytes).into_owned(),
@@ -238,30 +363,42 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
                 .unwrap()
                 .push(ServiceEvent::Unparsable(message)),
         }
-        // One state update per message.
-        let reply = if shared
-            .malformed_replies
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
-            .is_ok()
-        {
-            malformed_turn += 1;
-            match malformed_turn % 3 {
-                0 => Message::text("{\"inverse3\": [ {\"device_id\": "),
-                1 => Message::binary(vec![0xff, 0x00, 0x13]),
-                _ => Message::text(json!({"inverse3": [{"device_id": DEVICE_ID}]}).to_string()),
-            }
-        } else {
-            let position = *shared.position_m.lock().unwrap();
-            Message::text(
-                json!({"inverse3": [{"device_id": DEVICE_ID, "state": state(position), "status": {}}]})
-                    .to_string(),
-            )
-        };
-        let delay_ms = shared.delay_next_reply_ms.swap(0, Ordering::AcqRel);
-        if delay_ms > 0 {
-            std::thread::sleep(Duration::from_millis(delay_ms));
+        if shared.mute.load(Ordering::Acquire) {
+            continue;
         }
-        if socket.send(reply).is_err() {
+        // One state update per message (or as many as asked).
+        let delay_ms = shared.delay_next_reply_ms.swap(0, Ordering::AcqRel);
+        let count = shared.replies_per_message.load(Ordering::Acquire).max(1);
+        for _ in 0..count {
+            let (reply, index) = if shared
+                .malformed_replies
+                .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
+                .is_ok()
+            {
+                malformed_turn += 1;
+                let reply = match malformed_turn % 3 {
+                    0 => Message::text("{\"inverse3\": [ {\"device_id\": "),
+                    1 => Message::binary(vec![0xff, 0x00, 0x13]),
+                    _ => Message::text(json!({"inverse3": [{"device_id": DEVICE_ID}]}).to_string()),
+                };
+                (reply, None)
+            } else {
+                let (reply, index) = state_message(shared);
+                (reply, Some(index))
+            };
+            if delay_ms > 0 {
+                std::thread::sleep(Duration::from_millis(delay_ms));
+            }
+            if socket.send(reply).is_err() {
+                return;
+            }
+            if let Some(index) = index {
+                shared.written.store(index, Ordering::Release);
+            }
+        }
+        replies += 1;
+        let close_after = shared.close_after_replies.load(Ordering::Acquire);
+        if close_after != 0 && replies >= close_after {
             return;
         }
     }

@@ -681,6 +681,8 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.port.set_baud(NORMAL_BAUD)?;
         self.port.discard_input()?;
         self.frame_len = 0;
+        // Surplus counts from this open (the supervisor sums over links).
+        self.surplus = SurplusCount::default();
         self.accepted_m = None;
         self.candidate_m = None;
         self.awaiting_reply = false;

@@ -333,6 +333,8 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         // Stale angle replies from an earlier program would shift every reply of this session.
         self.transport.discard_input()?;
         self.resync_needed = false;
+        // Surplus counts from this open (the supervisor sums over links).
+        self.surplus = SurplusCount::default();
         self.jacobian = None;
         self.candidate = None;
         self.transport

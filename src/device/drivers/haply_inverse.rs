@@ -6,7 +6,10 @@
 //! [`crate::device::transport::inverse_service`] (protocol, coordinate basis and sources are described there).
 //!
 //! Per tick: `write_force` queues one force command (sequence n) and wakes the I/O thread, which sends one
-//! `set_cursor_force` message and reads the one state update the service sends back. `read_state` waits at most
+//! `set_cursor_force` message and reads the state update the service sends back, and every other message
+//! already received (so a service that sends more than one per command builds no backlog: the newest state
+//! is always the one published, and the extra messages are counted and reported once at 1, 2, 4, 8, ...
+//! extra as [`DeviceEvent::Surplus`]). `read_state` waits at most
 //! `reply_wait` (default 0.4 ms, under half a 1 kHz period) for the state answering command n; without it, it
 //! returns the newest state if that answers one of the last `max_stale_ticks` commands, with its age in ticks
 //! ([`HapticDevice::state_age_ticks`], which the supervisor counts towards its staleness bound), and otherwise a
@@ -29,7 +32,7 @@
 //! targets to a 0.10 m sphere). The device profile (the lead's workspace mapping) overrides both.
 
 use crate::device::transport::inverse_service::{self, ForceCommand, ServiceConfig, ServiceLink};
-use crate::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use crate::device::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -74,6 +77,11 @@ pub struct HaplyInverse {
     sequence: u64,
     /// Age (ticks) of the state the last `read_state` returned.
     state_age_ticks: u32,
+    /// Extra messages reported so far on this link ([`DeviceEvent::Surplus`] at 1, 10, 100, 1 000, then every
+    /// 1 000 more).
+    surplus: SurplusCount,
+    /// A report waiting for [`HapticDevice::take_event`].
+    pending_event: Option<DeviceEvent>,
 }
 
 impl HaplyInverse {
@@ -100,6 +108,8 @@ impl HaplyInverse {
             info,
             sequence: 0,
             state_age_ticks: 0,
+            surplus: SurplusCount::default(),
+            pending_event: None,
         }
     }
 
@@ -133,6 +143,8 @@ impl HapticDevice for HaplyInverse {
         self.info.model = format!("Haply {} (Inverse Service)", device.device_type);
         self.info.serial_number = device.device_id.clone();
         self.sequence = 0;
+        self.surplus = SurplusCount::default();
+        self.pending_event = None;
         self.link = Some(link);
         Ok(())
     }
@@ -177,6 +189,12 @@ impl HapticDevice for HaplyInverse {
         );
         // The link through the field, not `link_mut`, so `state_age_ticks` can be set while it is borrowed.
         let link = self.link.as_mut().ok_or_else(not_open)?;
+        // A service that sends more than one message per command is reported at its 1st, 10th, 100th and
+        // 1 000th extra message, then every 1 000 more: a handful of reports however long it goes on.
+        let extra = link.shared.extra.load(Ordering::Relaxed);
+        if let Some(event) = self.surplus.add(extra.saturating_sub(self.surplus.total())) {
+            self.pending_event = Some(event);
+        }
         let started = Instant::now();
         let (spin_until, deadline) = (started + REPLY_SPIN.min(wait), started + wait);
         loop {
@@ -222,6 +240,10 @@ impl HapticDevice for HaplyInverse {
 
     fn state_age_ticks(&self) -> u32 {
         self.state_age_ticks
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        self.pending_event.take()
     }
 }
 

@@ -667,6 +667,8 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         self.transport.discard_input()?;
         self.line_len = 0;
         self.model = None;
+        // Surplus counts from this open (the supervisor sums over links).
+        self.surplus = SurplusCount::default();
         self.theta = None;
         self.candidate = None;
         self.awaiting_reply = false;

@@ -20,20 +20,40 @@
 //! service's partial-update semantics).
 //!
 //! The thread sends a force as soon as one is queued (coalescing to the newest if several are: it never falls
-//! behind), reads the one reply, and publishes the state labelled with the sequence of the message it answers.
-//! Replies come in the order of the messages, so one that comes after `reply_timeout` (a busy service) is read
-//! next time and labelled with its own, older sequence: before, it passed for the answer to the next message,
-//! and every later state for the answer to a message newer than the one it answered. With no force for 100 ms
-//! it sends a zero-force
-//! keepalive (Haply's own tutorials do the same). Malformed frames (not JSON, binary, no state for our device)
-//! are counted and skipped. A socket error ends the thread and raises `link_down`; the driver then reports a
-//! disconnect and the supervisor reconnects with a new driver. On stop the thread sends a zero force, then a
-//! WebSocket close.
+//! behind) and reads the reply. Its socket is non-blocking: it waits with poll(2), and before every send,
+//! right after it and while waiting for the reply it **drains** the socket, reading every complete message
+//! already there, so a service that sends more than one message per command (a second reply, unsolicited
+//! updates) builds no backlog: the state published is always the newest received. Invariants:
+//!
+//! - Replies are counted against the messages sent, in order. A message that arrives when every message
+//!   sent has had its reply is an **extra**: it updates the position, is counted (`extra`; the driver reports
+//!   it as [`crate::device::DeviceEvent::Surplus`]) and never advances the label below.
+//! - Each published state is labelled with the sequence of the force it answers at the latest: its reply's
+//!   message, but never a force sent after the socket was last found empty (`floor`). A reply that came after
+//!   `reply_timeout` (a busy service) is read later and labelled with its own, older sequence; a message
+//!   counted against the wrong force because of extras is at most as new as the newest force sent before the
+//!   drain that preceded it, since TCP keeps the order. So the age the driver reports is never younger than
+//!   the message is, whatever the service sends.
+//! - More than [`MAX_DRAIN_MESSAGES`] in one drain (a flood), a send that cannot leave within
+//!   [`WRITE_TIMEOUT`] (a service that reads nothing) or a socket error ends the thread and raises
+//!   `link_down`; the driver then reports a disconnect and the supervisor reconnects with a new driver (with
+//!   back-off, `servo::device::reconnect`). The stop therefore never waits on the service for more than a few
+//!   write timeouts.
+//! - The connect (TCP, WebSocket handshake, inventory, the answer to the session configuration) has one
+//!   overall deadline, `connect_timeout`: every read and write of it gets only the time left
+//!   ([`ServiceStream`]), so a service that sends its handshake one byte at a time fails the open at the
+//!   deadline.
+//!
+//! With no force for 100 ms the thread sends a zero-force keepalive (Haply's own tutorials do the same).
+//! Malformed frames (not JSON, binary, no state for our device) are counted and skipped. On stop the thread
+//! sends a zero force, then a WebSocket close.
 
 use crate::device::DeviceError;
 use glam::DVec3;
 use serde::Deserialize;
+use std::io::{Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -49,6 +69,12 @@ pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
 pub const KEEPALIVE_INTERVAL: Duration = Duration::from_millis(100);
 /// Capacity of the force ring (ticks): a full ring means the I/O thread has stalled this long.
 pub const FORCE_RING_CAPACITY: usize = 64;
+/// Longest a message to the service may take to leave (the socket's send buffer full because the service
+/// stopped reading): past it the link is dropped, so no stop waits on a service that reads nothing.
+pub const WRITE_TIMEOUT: Duration = Duration::from_millis(100);
+/// Most messages read in one drain: a service that always has more than this many waiting floods the link,
+/// which is then dropped (a message per command and a few unsolicited updates are a handful).
+pub const MAX_DRAIN_MESSAGES: usize = 1024;
 
 /// A vector as the service writes it.
 #[derive(Debug, Clone, Copy, Default, Deserialize)]
@@ -175,6 +201,12 @@ pub struct ServiceShared {
     pub malformed: AtomicU64,
     /// Commands dropped because a newer one was queued behind them.
     pub coalesced: AtomicU64,
+    /// Messages beyond the one reply per message sent (duplicates, unsolicited updates): read, used for the
+    /// position (the newest wins) and counted, never taken for the answer to a newer command.
+    pub extra: AtomicU64,
+    /// Raised with `link_down` when the link was dropped because the service flooded it
+    /// ([`MAX_DRAIN_MESSAGES`]).
+    pub flooded: AtomicBool,
 }
 
 /// The servo thread's end of the channel.
@@ -250,7 +282,55 @@ impl Default for ServiceConfig {
     }
 }
 
-type Socket = WebSocket<TcpStream>;
+/// The TCP stream under the WebSocket. While `deadline` is set (connecting), every read and write is given
+/// only the time left before it, so a service that sends its handshake one byte at a time cannot stretch the
+/// connect past its deadline.
+#[derive(Debug)]
+pub struct ServiceStream {
+    stream: TcpStream,
+    deadline: Option<Instant>,
+}
+
+impl ServiceStream {
+    /// The time left before the deadline (`None`: no deadline); an error once it has passed.
+    fn time_left(&self) -> std::io::Result<Option<Duration>> {
+        let Some(deadline) = self.deadline else {
+            return Ok(None);
+        };
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the connect deadline passed",
+            ));
+        }
+        Ok(Some(left))
+    }
+}
+
+impl Read for ServiceStream {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if let Some(left) = self.time_left()? {
+            self.stream.set_read_timeout(Some(left))?;
+        }
+        self.stream.read(buf)
+    }
+}
+
+impl Write for ServiceStream {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if let Some(left) = self.time_left()? {
+            self.stream.set_write_timeout(Some(left))?;
+        }
+        self.stream.write(buf)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
+type Socket = WebSocket<ServiceStream>;
 
 fn open_error(url: &str, reason: &str, kind: std::io::ErrorKind) -> DeviceError {
     let advice = match kind {
@@ -297,6 +377,7 @@ pub fn force_message(device_id: &str, force_n: DVec3, session: Option<&str>) -> 
 }
 
 /// Reads the next text frame within `deadline`: `Ok(None)` on timeout; pings are answered by tungstenite.
+/// For the blocking socket of the connect phase.
 fn read_text(
     socket: &mut Socket,
     deadline: Instant,
@@ -329,8 +410,10 @@ fn parse_frame(message: &Message) -> Option<WireFrame> {
 }
 
 /// Reads the service's inventory and closes (`voxhap devices`): sends nothing but the WebSocket handshake.
+/// The whole exchange takes at most `timeout`.
 pub fn inventory(url: &str, timeout: Duration) -> Result<Vec<ServiceDevice>, DeviceError> {
-    let (mut socket, frame) = connect_and_read_inventory(url, timeout)?;
+    let deadline = Instant::now() + timeout;
+    let (mut socket, frame) = connect_and_read_inventory(url, deadline, timeout)?;
     let _ = socket.close(None);
     let _ = socket.flush();
     Ok(frame
@@ -357,8 +440,18 @@ fn service_device(entry: &WireInverse3, session_id: Option<u64>) -> ServiceDevic
     }
 }
 
+fn connect_timeout_error(timeout: Duration, waiting_for: &'static str) -> DeviceError {
+    DeviceError::Timeout {
+        waited_us: u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX),
+        waiting_for,
+    }
+}
+
+/// TCP connect, WebSocket handshake and the inventory, all before `deadline` (`timeout` is its length, for
+/// the error).
 fn connect_and_read_inventory(
     url: &str,
+    deadline: Instant,
     timeout: Duration,
 ) -> Result<(Socket, WireFrame), DeviceError> {
     let (authority, _) = split_url(url)?;
@@ -373,30 +466,43 @@ fn connect_and_read_inventory(
                 std::io::ErrorKind::NotFound,
             )
         })?;
-    let stream = TcpStream::connect_timeout(&address, timeout)
+    let left = deadline.saturating_duration_since(Instant::now());
+    if left.is_zero() {
+        return Err(connect_timeout_error(
+            timeout,
+            "a TCP connection to the Inverse Service",
+        ));
+    }
+    let stream = TcpStream::connect_timeout(&address, left)
         .map_err(|e| open_error(url, &e.to_string(), e.kind()))?;
     let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
     stream.set_nodelay(true).map_err(io)?;
-    stream.set_read_timeout(Some(timeout)).map_err(io)?;
+    let stream = ServiceStream {
+        stream,
+        deadline: Some(deadline),
+    };
     let ws_config = WebSocketConfig::default()
         .max_message_size(Some(MAX_MESSAGE_BYTES))
         .max_frame_size(Some(MAX_MESSAGE_BYTES));
     let (mut socket, _) = tungstenite::client::client_with_config(url, stream, Some(ws_config))
         .map_err(|e| {
-            open_error(
-                url,
-                &format!("WebSocket handshake failed ({e})"),
-                std::io::ErrorKind::InvalidData,
-            )
+            if Instant::now() >= deadline {
+                connect_timeout_error(timeout, "the Inverse Service's WebSocket handshake")
+            } else {
+                open_error(
+                    url,
+                    &format!("WebSocket handshake failed ({e})"),
+                    std::io::ErrorKind::InvalidData,
+                )
+            }
         })?;
-    let deadline = Instant::now() + timeout;
     loop {
         let message = read_text(&mut socket, deadline)
             .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?
-            .ok_or(DeviceError::Timeout {
-                waited_us: u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX),
-                waiting_for: "the Inverse Service's device inventory",
-            })?;
+            .ok_or(connect_timeout_error(
+                timeout,
+                "the Inverse Service's device inventory",
+            ))?;
         if let Some(frame) = parse_frame(&message) {
             return Ok((socket, frame));
         }
@@ -409,11 +515,15 @@ fn connect_and_read_inventory(
 }
 
 /// Connects, reads the inventory, picks the device, configures the session (identity basis) with a zero force,
-/// and starts the I/O thread.
+/// and starts the I/O thread. Everything before the I/O thread starts (TCP connect, WebSocket handshake,
+/// inventory, the answer to the configuration) shares one deadline, `connect_timeout` from the start, however
+/// slowly the service sends its bytes.
 pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
     let url = config.url.as_str();
     let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
-    let (mut socket, inventory) = connect_and_read_inventory(url, config.connect_timeout)?;
+    let deadline = Instant::now() + config.connect_timeout;
+    let (mut socket, inventory) =
+        connect_and_read_inventory(url, deadline, config.connect_timeout)?;
     let entry = inventory
         .inverse3
         .iter()
@@ -429,20 +539,7 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
                     .to_owned(),
             },
         })?;
-    let info = entry.config.clone().unwrap_or_default();
-    let device = ServiceDevice {
-        device_id: entry.device_id.clone(),
-        device_type: info.device_type.unwrap_or_else(|| "inverse3".to_owned()),
-        firmware: info.device_info.as_ref().and_then(|d| {
-            Some(format!(
-                "{}.{}",
-                d.major_version?,
-                d.minor_version.unwrap_or(0)
-            ))
-        }),
-        handedness: info.handedness,
-        session_id: inventory.session_id,
-    };
+    let device = service_device(entry, inventory.session_id);
     let mut snapshot = ServiceSnapshot {
         answers_sequence: 0,
         position_m: DVec3::ZERO,
@@ -457,12 +554,12 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
             Some(&config.profile_name),
         )))
         .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?;
-    let reply = read_text(&mut socket, Instant::now() + config.connect_timeout)
+    let reply = read_text(&mut socket, deadline)
         .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?
-        .ok_or(DeviceError::Timeout {
-            waited_us: u64::try_from(config.connect_timeout.as_micros()).unwrap_or(u64::MAX),
-            waiting_for: "the Inverse Service's answer to the session configuration",
-        })?;
+        .ok_or(connect_timeout_error(
+            config.connect_timeout,
+            "the Inverse Service's answer to the session configuration",
+        ))?;
     if let Some(frame) = parse_frame(&reply) {
         if let Some(entry) = frame
             .inverse3
@@ -472,34 +569,29 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
             apply_state(&mut snapshot, entry.state.as_ref());
         }
     }
-    socket
-        .get_ref()
-        .set_read_timeout(Some(Duration::from_millis(1)))
-        .map_err(io)?;
+    // From here on the I/O thread never blocks on the socket: it polls it (module docs).
+    socket.get_mut().deadline = None;
+    socket.get_ref().stream.set_nonblocking(true).map_err(io)?;
 
     let (forces, force_rx) = rtrb::RingBuffer::new(FORCE_RING_CAPACITY);
     let (mut state_tx, states) = triple_buffer::triple_buffer(&snapshot);
     state_tx.write(snapshot);
     let shared = Arc::new(ServiceShared::default());
     let thread = {
-        let (shared, device_id, reply_timeout) = (
-            shared.clone(),
-            device.device_id.clone(),
-            config.reply_timeout,
-        );
+        let io_loop = IoLoop {
+            socket,
+            device_id: device.device_id.clone(),
+            states: state_tx,
+            snapshot,
+            shared: shared.clone(),
+            unanswered: std::collections::VecDeque::with_capacity(FORCE_RING_CAPACITY),
+            last_sent: 0,
+            floor: 0,
+        };
+        let reply_timeout = config.reply_timeout;
         std::thread::Builder::new()
             .name("voxhap-inverse-io".to_owned())
-            .spawn(move || {
-                io_thread(
-                    socket,
-                    device_id,
-                    force_rx,
-                    state_tx,
-                    snapshot,
-                    &shared,
-                    reply_timeout,
-                )
-            })
+            .spawn(move || io_loop.run(force_rx, reply_timeout))
             .map_err(|e| open_error(url, &e.to_string(), e.kind()))?
     };
     Ok(ServiceLink {
@@ -533,32 +625,76 @@ fn apply_state(snapshot: &mut ServiceSnapshot, state: Option<&WireState>) -> boo
     true
 }
 
-fn io_thread(
-    mut socket: Socket,
+fn is_would_block(error: &tungstenite::Error) -> bool {
+    matches!(error, tungstenite::Error::Io(e) if e.kind() == std::io::ErrorKind::WouldBlock)
+}
+
+/// Waits until the socket has `events` (`POLLIN`, `POLLOUT`) or `timeout` passes (rounded up to 1 ms).
+fn poll_socket(socket: &Socket, events: libc::c_short, timeout: Duration) {
+    let mut fd = libc::pollfd {
+        fd: socket.get_ref().stream.as_raw_fd(),
+        events,
+        revents: 0,
+    };
+    let ms = i32::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(i32::MAX);
+    // SAFETY: one valid pollfd for the duration of the call; the descriptor stays open (we own the socket).
+    unsafe {
+        libc::poll(&mut fd, 1, ms);
+    }
+}
+
+/// The I/O thread's state.
+struct IoLoop {
+    socket: Socket,
     device_id: String,
-    mut forces: rtrb::Consumer<ForceCommand>,
-    mut states: triple_buffer::Input<ServiceSnapshot>,
-    mut snapshot: ServiceSnapshot,
-    shared: &ServiceShared,
-    reply_timeout: Duration,
-) {
-    let mut last_send = Instant::now();
-    // Sequences of the messages sent whose replies have not come yet, oldest first.
-    let mut unanswered = std::collections::VecDeque::with_capacity(FORCE_RING_CAPACITY);
-    let result: Result<(), tungstenite::Error> = (|| {
-        while !shared.stop.load(Ordering::Acquire) {
+    states: triple_buffer::Input<ServiceSnapshot>,
+    snapshot: ServiceSnapshot,
+    shared: Arc<ServiceShared>,
+    /// Sequences of the messages sent whose replies have not come yet, oldest first.
+    unanswered: std::collections::VecDeque<u64>,
+    /// The newest force sequence sent.
+    last_sent: u64,
+    /// The newest force sequence sent before the socket was last found empty: every message read after
+    /// that was written by the service after that force was sent (a TCP stream keeps the order).
+    floor: u64,
+}
+
+impl IoLoop {
+    fn run(mut self, mut forces: rtrb::Consumer<ForceCommand>, reply_timeout: Duration) {
+        let result = self.exchange(&mut forces, reply_timeout);
+        let result = result.and_then(|()| {
+            // Stop: zero force, then close.
+            let zero = force_message(&self.device_id, DVec3::ZERO, None);
+            self.send(Message::text(zero))?;
+            let _ = self.socket.close(None);
+            let _ = self.flush_within(Instant::now() + WRITE_TIMEOUT);
+            Ok(())
+        });
+        if result.is_err() {
+            self.shared.link_down.store(true, Ordering::Release);
+        }
+    }
+
+    fn exchange(
+        &mut self,
+        forces: &mut rtrb::Consumer<ForceCommand>,
+        reply_timeout: Duration,
+    ) -> Result<(), tungstenite::Error> {
+        let mut last_send = Instant::now();
+        while !self.shared.stop.load(Ordering::Acquire) {
+            // Whatever came since the last look (a second reply, an unsolicited update) is read now, so the
+            // servo thread always gets the newest state and nothing queues up unread.
+            self.drain()?;
             let mut newest = None;
             while let Ok(command) = forces.pop() {
                 if newest.is_some() {
-                    shared.coalesced.fetch_add(1, Ordering::Relaxed);
+                    self.shared.coalesced.fetch_add(1, Ordering::Relaxed);
                 }
                 newest = Some(command);
             }
             let (sequence, force_n) = match newest {
                 Some(command) => (command.sequence, command.force_n),
-                None if last_send.elapsed() >= KEEPALIVE_INTERVAL => {
-                    (snapshot.answers_sequence, DVec3::ZERO)
-                }
+                None if last_send.elapsed() >= KEEPALIVE_INTERVAL => (self.last_sent, DVec3::ZERO),
                 None => {
                     std::thread::park_timeout(Duration::from_micros(500));
                     continue;
@@ -570,51 +706,118 @@ fn io_thread(
             } else {
                 DVec3::ZERO
             };
-            socket.send(Message::text(force_message(&device_id, force_n, None)))?;
+            let text = force_message(&self.device_id, force_n, None);
+            self.send(Message::text(text))?;
             last_send = Instant::now();
-            shared.sent.fetch_add(1, Ordering::Relaxed);
-            if unanswered.len() >= FORCE_RING_CAPACITY {
+            self.last_sent = self.last_sent.max(sequence);
+            self.shared.sent.fetch_add(1, Ordering::Relaxed);
+            if self.unanswered.len() >= FORCE_RING_CAPACITY {
                 // The service has left this many messages unanswered: forget the oldest (the driver has long
                 // reported the missing states, and the link is dropped well before this in a session).
-                unanswered.pop_front();
+                self.unanswered.pop_front();
             }
-            unanswered.push_back(sequence);
-            // One reply per message, in the order sent: read until this message's reply has come. A reply
-            // that came after `reply_timeout` answers an earlier message and is labelled with that one's
-            // sequence, so a late reply never passes for the answer to a newer force.
+            self.unanswered.push_back(sequence);
+            // One reply per message, in the order sent: read until this message's reply has come (or
+            // `reply_timeout`: it may still come, and is then labelled with its own, older sequence).
             let deadline = Instant::now() + reply_timeout;
-            while let Some(&answers) = unanswered.front() {
-                // No reply in time: counted by the driver as a missing state; it may still come.
-                let Some(message) = read_text(&mut socket, deadline)? else {
+            loop {
+                self.drain()?;
+                let now = Instant::now();
+                if self.unanswered.is_empty()
+                    || now >= deadline
+                    || self.shared.stop.load(Ordering::Acquire)
+                {
                     break;
-                };
-                unanswered.pop_front();
-                let used = parse_frame(&message)
-                    .and_then(|frame| {
-                        frame
-                            .inverse3
-                            .into_iter()
-                            .find(|d| d.device_id == device_id)
-                    })
-                    .is_some_and(|entry| apply_state(&mut snapshot, entry.state.as_ref()));
-                if used {
-                    snapshot.answers_sequence = snapshot.answers_sequence.max(answers);
-                    states.write(snapshot);
-                    shared.states.fetch_add(1, Ordering::Relaxed);
-                } else {
-                    shared.malformed.fetch_add(1, Ordering::Relaxed);
                 }
+                poll_socket(
+                    &self.socket,
+                    libc::POLLIN,
+                    (deadline - now).min(Duration::from_millis(1)),
+                );
             }
         }
-        // Stop: zero force, then close.
-        socket.send(Message::text(force_message(&device_id, DVec3::ZERO, None)))?;
-        shared.sent.fetch_add(1, Ordering::Relaxed);
-        let _ = socket.close(None);
-        let _ = socket.flush();
         Ok(())
-    })();
-    if result.is_err() {
-        shared.link_down.store(true, Ordering::Release);
+    }
+
+    /// Reads every complete message already received, until the socket has nothing more; then raises
+    /// `floor`. A service that keeps more than [`MAX_DRAIN_MESSAGES`] coming is flooding the link: error.
+    fn drain(&mut self) -> Result<(), tungstenite::Error> {
+        for _ in 0..MAX_DRAIN_MESSAGES {
+            match self.socket.read() {
+                Ok(message @ (Message::Text(_) | Message::Binary(_))) => self.take(&message),
+                Ok(Message::Close(_)) => return Err(tungstenite::Error::ConnectionClosed),
+                Ok(_) => {}
+                Err(error) if is_would_block(&error) => {
+                    self.floor = self.last_sent;
+                    return Ok(());
+                }
+                Err(error) => return Err(error),
+            }
+        }
+        self.shared.flooded.store(true, Ordering::Release);
+        Err(tungstenite::Error::Io(std::io::Error::other(
+            "the Inverse Service sends more messages than voxhap can read",
+        )))
+    }
+
+    /// One message from the service: the reply to the oldest unanswered message, or an extra one.
+    fn take(&mut self, message: &Message) {
+        let answers = self.unanswered.pop_front();
+        if answers.is_none() {
+            self.shared.extra.fetch_add(1, Ordering::Relaxed);
+        }
+        let used = parse_frame(message)
+            .and_then(|frame| {
+                frame
+                    .inverse3
+                    .into_iter()
+                    .find(|d| d.device_id == self.device_id)
+            })
+            .is_some_and(|entry| apply_state(&mut self.snapshot, entry.state.as_ref()));
+        if used {
+            // The label says which force the state answers at the latest: the reply's own message, but never
+            // one sent after the socket was last found empty (a reply counted against the wrong message
+            // because the service sent extra ones is then at most as new as that). An extra message updates
+            // the position and keeps the label.
+            if let Some(answers) = answers {
+                let label = answers.min(self.floor);
+                self.snapshot.answers_sequence = self.snapshot.answers_sequence.max(label);
+            }
+            self.states.write(self.snapshot);
+            self.shared.states.fetch_add(1, Ordering::Relaxed);
+        } else {
+            self.shared.malformed.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Sends one message, waiting at most [`WRITE_TIMEOUT`] for room in the socket's send buffer.
+    fn send(&mut self, message: Message) -> Result<(), tungstenite::Error> {
+        match self.socket.send(message) {
+            Ok(()) => Ok(()),
+            Err(error) if is_would_block(&error) => {
+                self.flush_within(Instant::now() + WRITE_TIMEOUT)
+            }
+            Err(error) => Err(error),
+        }
+    }
+
+    fn flush_within(&mut self, deadline: Instant) -> Result<(), tungstenite::Error> {
+        loop {
+            match self.socket.flush() {
+                Ok(()) => return Ok(()),
+                Err(error) if is_would_block(&error) => {
+                    let now = Instant::now();
+                    if now >= deadline {
+                        return Err(tungstenite::Error::Io(std::io::Error::new(
+                            std::io::ErrorKind::TimedOut,
+                            "the Inverse Service reads nothing",
+                        )));
+                    }
+                    poll_socket(&self.socket, libc::POLLOUT, deadline - now);
+                }
+                Err(error) => return Err(error),
+            }
+        }
     }
 }
 

@@ -1,6 +1,17 @@
 //! The reconnecting wrapper ([`Reconnecting`]): a supervised device whose port opens, handshakes and
 //! reconnection run on a connector thread, so the servo thread never blocks on them; the servo thread and the
 //! connector hand devices to each other through two SPSC rings.
+//!
+//! Invariants, for every driver:
+//! - **Back-off.** After a failed open, or a link that was lost less than [`STABLE_LINK`] after it was handed
+//!   to the servo thread, the next open waits `min(CAP, interval · 2^n) · j` (`n` such failures in a row,
+//!   `interval` the supervisor's `reconnect_interval_us`, `CAP` = [`RECONNECT_BACKOFF_CAP`], `j` uniform in
+//!   [0.75, 1] so that several hosts of one service do not retry in step). A link that lasted longer resets
+//!   `n`: the first reopen after it is immediate.
+//! - **Bounded stop.** The connector checks its stop flag at least every [`CONNECTOR_POLL`] when it is not
+//!   inside a driver's open or close; [`ServoDevice::stop`] waits for it at most [`CONNECTOR_STOP_BOUND`],
+//!   then leaves it to finish on its own (its driver's handshake deadline ends it; a device it opens after the
+//!   stop is closed, never handed out).
 
 use super::{ConnectError, OpenError, ServoDevice};
 use crate::device::plausibility::InputCounters;
@@ -40,6 +51,56 @@ fn open_only<D: HapticDevice>(opener: &Mutex<Opener<D>>) -> Result<Lifecycle<D>,
 /// How often an opened device that waits to be handed to the servo thread is kept alive (SPEC: heartbeat
 /// while the host is not streaming).
 const KEEP_ALIVE_INTERVAL: Duration = Duration::from_millis(100);
+/// Longest wait between two reopen attempts (module docs, "Back-off").
+pub const RECONNECT_BACKOFF_CAP: Duration = Duration::from_secs(5);
+/// A link lost sooner than this after it was handed out counts as a failed attempt for the back-off.
+pub const STABLE_LINK: Duration = Duration::from_secs(5);
+/// Longest [`ServoDevice::stop`] waits for the connector thread.
+pub const CONNECTOR_STOP_BOUND: Duration = Duration::from_secs(1);
+/// How often the connector looks at its rings and its stop flag.
+pub const CONNECTOR_POLL: Duration = Duration::from_millis(2);
+
+/// The reopen schedule (module docs, "Back-off").
+#[derive(Debug, Clone)]
+pub struct Backoff {
+    interval: Duration,
+    cap: Duration,
+    failures: u32,
+    random: u64,
+}
+
+impl Backoff {
+    /// Waits start at `interval` and double up to `cap`; `seed` drives the jitter.
+    pub fn new(interval: Duration, cap: Duration, seed: u64) -> Backoff {
+        Backoff {
+            interval,
+            cap: cap.max(interval),
+            failures: 0,
+            // xorshift needs a non-zero state.
+            random: seed | 1,
+        }
+    }
+
+    /// The wait before the next attempt after one more failure (counted).
+    pub fn next_delay(&mut self) -> Duration {
+        let doubled = self
+            .interval
+            .saturating_mul(1u32 << self.failures.min(20))
+            .min(self.cap);
+        self.failures = self.failures.saturating_add(1);
+        // xorshift64; 53 bits make a uniform fraction in [0, 1).
+        self.random ^= self.random << 13;
+        self.random ^= self.random >> 7;
+        self.random ^= self.random << 17;
+        let fraction = (self.random >> 11) as f64 / (1u64 << 53) as f64;
+        doubled.mul_f64(1.0 - 0.25 * fraction)
+    }
+
+    /// A link lasted: the next attempt is immediate, then waits start from `interval` again.
+    pub fn reset(&mut self) {
+        self.failures = 0;
+    }
+}
 
 /// A supervised device whose reconnection runs on its own thread, so the servo thread never blocks on a
 /// port open or a handshake and never frees the lost device's buffers: when the link is lost, the servo
@@ -100,10 +161,12 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
         })
     }
 
+    /// Stops the connector thread, waiting for it at most [`CONNECTOR_STOP_BOUND`] (module docs).
     fn stop_connector(&mut self) {
         self.stop.store(true, Ordering::Release);
         if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
+            // Past the bound the thread is left to end on its own: its driver's open has a deadline.
+            let _ = crate::servo::session::join_within(thread, CONNECTOR_STOP_BOUND);
         }
     }
 }
@@ -131,10 +194,22 @@ fn install_stop(shared: &SharedStopSlot, handle: Option<Box<dyn crate::device::E
 }
 
 impl<D: HapticDevice + Send> Connector<D> {
+    fn stopping(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+
     fn run(mut self) {
         let mut ready: Option<Lifecycle<D>> = None;
         let mut last_keep_alive = Instant::now();
-        while !self.stop.load(Ordering::Acquire) {
+        let seed = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |t| t.as_nanos() as u64)
+            ^ u64::from(std::process::id()).rotate_left(32);
+        let mut backoff = Backoff::new(self.interval, RECONNECT_BACKOFF_CAP, seed);
+        let mut next_attempt = Instant::now();
+        // The device the session opened at start counts as handed out now.
+        let mut handed_out_at = Some(Instant::now());
+        while !self.stopping() {
             // Close dead devices first (zero and Disable once more): a serial port is opened exclusively, so
             // the old handle must go.
             while let Ok(mut dead) = self.lost.pop() {
@@ -142,21 +217,40 @@ impl<D: HapticDevice + Send> Connector<D> {
                 // busy (serial ports are opened exclusively) and cannot be reopened.
                 install_stop(&self.stop_slot, None);
                 let _ = dead.close();
+                // A link that did not last counts as a failed attempt.
+                match handed_out_at.take() {
+                    Some(at) if at.elapsed() >= STABLE_LINK => {
+                        backoff.reset();
+                        next_attempt = Instant::now();
+                    }
+                    _ => next_attempt = Instant::now() + backoff.next_delay(),
+                }
             }
-            if ready.is_none() && self.wanted.load(Ordering::Acquire) {
+            if ready.is_none()
+                && self.wanted.load(Ordering::Acquire)
+                && Instant::now() >= next_attempt
+            {
                 match open_only(&self.opener) {
+                    Ok(mut device) if self.stopping() => {
+                        // Opened after the stop: never handed out.
+                        let _ = device.close();
+                        break;
+                    }
                     Ok(device) => {
                         ready = Some(device);
                         last_keep_alive = Instant::now();
                     }
-                    Err(_) => std::thread::sleep(self.interval),
+                    Err(_) => next_attempt = Instant::now() + backoff.next_delay(),
                 }
             }
             if let Some(mut device) = ready.take() {
                 if self.wanted.load(Ordering::Acquire) && self.opened.slots() > 0 {
                     install_stop(&self.stop_slot, device.emergency_stop());
                     match self.opened.push(device) {
-                        Ok(()) => self.wanted.store(false, Ordering::Release),
+                        Ok(()) => {
+                            self.wanted.store(false, Ordering::Release);
+                            handed_out_at = Some(Instant::now());
+                        }
                         Err(rtrb::PushError::Full(device)) => ready = Some(device),
                     }
                 } else {
@@ -164,16 +258,21 @@ impl<D: HapticDevice + Send> Connector<D> {
                         last_keep_alive = Instant::now();
                         if device.keep_alive().is_err() {
                             let _ = device.close();
+                            next_attempt = Instant::now() + backoff.next_delay();
                             continue;
                         }
                     }
                     ready = Some(device);
                 }
             }
-            std::thread::sleep(Duration::from_millis(2));
+            std::thread::sleep(CONNECTOR_POLL);
         }
         if let Some(mut device) = ready {
             let _ = device.close();
+        }
+        // Dead devices the servo thread handed over last are closed too.
+        while let Ok(mut dead) = self.lost.pop() {
+            let _ = dead.close();
         }
     }
 }

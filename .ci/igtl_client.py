@@ -7,8 +7,12 @@
   --igtl-rate.
 - RAS millimetres: with the simulated hand held at a target by ProbeTarget, Probe equals the HTTP state's
   probe_m x 1000; Force equals k (Proxy - Probe) / 1000 (newtons, RAS).
-- IMAGE: refused (STATUS 5) without the token, the scene unchanged; accepted (STATUS 1) after the STRING
-  "token <T>", and /api/scene then reports the sent volume's size and bounds in metres.
+- IMAGE: refused (STATUS 5) without the token, the scene unchanged: the 96 kB ball is over the 64 KiB a
+  connection without the token may send, so it is refused from its header and the connection closed;
+  accepted (STATUS 1) after the STRING "token <T>", and /api/scene then reports the sent volume's size and
+  bounds in metres.
+- No lockout: with 16 idle connections open (the most the server takes), pyigtl's own client still
+  connects and receives the poses.
 - A protocol-3 client (header version 2) authorised by the metadata entry "token".
 
 Usage: igtl_client.py IGTL_HOST:PORT HTTP_URL TOKEN RATE_HZ. Exit 0 when every check passes; otherwise 1 with
@@ -85,6 +89,20 @@ class Raw:
         _, content = self.wait_for("STATUS", device, timeout)
         code, sub_code, name = struct.unpack("> H q 20s", content[:30])
         return code, content[30:].split(b"\0")[0].decode()
+
+    def closed_by_server(self, timeout=5.0):
+        """True when the server closes the connection within `timeout` (whatever it sends first is read)."""
+        deadline = time.time() + timeout
+        try:
+            while time.time() < deadline:
+                self.sock.settimeout(max(0.01, deadline - time.time()))
+                if not self.sock.recv(65536):
+                    return True
+        except (ConnectionResetError, BrokenPipeError):
+            return True
+        except socket.timeout:
+            return False
+        return False
 
     def close(self):
         self.sock.close()
@@ -182,10 +200,16 @@ def main():
     ijk_to_ras[0:3, 3] = origin_mm
     image = pyigtl.ImageMessage(voxels, ijk_to_world_matrix=ijk_to_ras, world_coordinate_system="ras", device_name="Ball")
     raw.send(image)
-    code, text = raw.status("Ball")
-    check(code == 5, f"IMAGE without the token answered {code} {text!r}, expected 5 (access denied)")
+    # Refused from its header (the body is over 64 KiB): STATUS 5 under the server's device name, then closed.
+    code, text = raw.status("voxhap")
+    while code != 5:
+        code, text = raw.status("voxhap")
+    check(code == 5 and "65536" in text, f"IMAGE without the token answered {code} {text!r}, expected 5 (access denied)")
+    check(raw.closed_by_server(), "the connection stayed open after a large body without the token")
+    raw.close()
     check(http_json(f"{http}/api/scene")["volumes"][0] == before, "the scene changed after a refused IMAGE")
     print(f"igtl_client: IMAGE without the token refused: {text}")
+    raw = Raw(host, port)
 
     # 4. A wrong token is refused, the right one accepted; then the IMAGE loads.
     raw.send(pyigtl.StringMessage("token not-the-token", device_name="Login"))
@@ -225,6 +249,17 @@ def main():
           f"IGTL Probe {probe_mm} mm against HTTP probe_m {state['probe_m']} m")
     check(np.allclose(state["hand_target_m"], target / 1000.0), f"hand target {state['hand_target_m']}")
     print(f"igtl_client: RAS millimetres OK: Probe {probe_mm} mm, HTTP probe_m {state['probe_m']} m")
+
+    # 7 (first, while the scene is as left by 5). No lockout: 16 idle connections, then pyigtl's client.
+    idle = [socket.create_connection((host, port), timeout=5) for _ in range(16)]
+    time.sleep(0.5)
+    client = pyigtl.OpenIGTLinkClient(host=host, port=port)
+    probe = client.wait_for_message("Probe", timeout=10)
+    check(probe is not None, "with 16 idle connections open, pyigtl's client received no Probe within 10 s")
+    client.stop()
+    for sock in idle:
+        sock.close()
+    print("igtl_client: 16 idle connections did not lock out pyigtl's client")
 
     # 6. Pressed into the ball: Force = k (Proxy - Probe), newtons, RAS.
     k_n_per_m = http_json(f"{http}/api/scene")["stiffness_n_per_m"]

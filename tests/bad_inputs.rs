@@ -328,6 +328,13 @@ const CASES: &[Case] = &[
         exit: 1,
         expected: "--volume-dir /nonexistent: not a folder",
     },
+    Case {
+        input: "an OpenIGTLink idle timeout of 0 s",
+        setup: nothing,
+        args: &["serve", "--igtl", "--igtl-idle-timeout", "0", "--no-http", "--no-foxglove"],
+        exit: 2,
+        expected: "0 is not in 1..=3600",
+    },
 ];
 
 /// One bad request to `voxhap serve` (listening on 127.0.0.1:PORT, control token TOKEN).
@@ -357,6 +364,18 @@ const REQUESTS: &[RequestCase] = &[
         request: "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nOrigin: https://evil.example\r\nContent-Length: 10\r\nConnection: close\r\n\r\n{\"k\": 450}",
         status: 403,
         expected: "forbidden: Origin \"https://evil.example\" is not this server's page",
+    },
+    RequestCase {
+        input: "two Host headers, the server's own first",
+        request: "GET /api/state HTTP/1.1\r\nHost: {addr}\r\nHost: rebind.example:{port}\r\nConnection: close\r\n\r\n",
+        status: 400,
+        expected: "bad request: 2 Host headers; a request carries at most one",
+    },
+    RequestCase {
+        input: "two Origin headers, the page's own first",
+        request: "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nOrigin: http://{addr}\r\nOrigin: https://evil.example\r\nContent-Length: 10\r\nConnection: close\r\n\r\n{\"k\": 450}",
+        status: 400,
+        expected: "bad request: 2 Origin headers; a request carries at most one",
     },
     RequestCase {
         input: "a volume file outside the `--volume-dir` folders",

@@ -9,6 +9,7 @@ use std::net::TcpStream;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use voxhap::server::igtl::{IgtlConfig, IgtlServer};
+use voxhap::server::igtl::{MAX_CLIENTS, UNAUTHENTICATED_BODY_BYTES};
 use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::setup::SceneSetup;
 use voxhap::servo::{ControlCommand, Session, SessionApi, SessionConfig};
@@ -96,7 +97,11 @@ fn string_content(text: &str) -> Vec<u8> {
 /// A 16 x 12 x 8 uint16 RAS image, 2 mm voxels, centred at `centre_mm`, little-endian data, values
 /// `offset + n % 100`.
 fn image_content(centre_mm: [f32; 3], offset: u16) -> Vec<u8> {
-    let dims = [16u16, 12, 8];
+    image_content_sized([16, 12, 8], centre_mm, offset)
+}
+
+/// As [`image_content`], `dims` voxels.
+fn image_content_sized(dims: [u16; 3], centre_mm: [f32; 3], offset: u16) -> Vec<u8> {
     let mut content = 1u16.to_be_bytes().to_vec();
     content.extend_from_slice(&[1, 5, 2, 1]); // scalar, uint16, little-endian, RAS
     for d in dims {
@@ -110,8 +115,9 @@ fn image_content(centre_mm: [f32; 3], offset: u16) -> Vec<u8> {
     for d in dims {
         content.extend_from_slice(&d.to_be_bytes());
     }
-    for n in 0..(16 * 12 * 8u16) {
-        content.extend_from_slice(&(offset + n % 100).to_le_bytes());
+    let voxels = dims.iter().map(|&d| u32::from(d)).product::<u32>();
+    for n in 0..voxels {
+        content.extend_from_slice(&(offset + (n % 100) as u16).to_le_bytes());
     }
     content
 }
@@ -130,13 +136,18 @@ fn text(bytes: &[u8]) -> String {
 
 /// Reads one message and checks its CRC; the content without the extended header and metadata.
 fn read(stream: &mut TcpStream) -> Message {
+    try_read(stream).expect("a whole message")
+}
+
+/// [`read`], or `None` when the connection ended (or failed) first.
+fn try_read(stream: &mut TcpStream) -> Option<Message> {
     let mut header = [0u8; 58];
-    stream.read_exact(&mut header).unwrap();
+    stream.read_exact(&mut header).ok()?;
     let version = u16::from_be_bytes([header[0], header[1]]);
     let body_size = u64::from_be_bytes(header[42..50].try_into().unwrap()) as usize;
     let crc = u64::from_be_bytes(header[50..58].try_into().unwrap());
     let mut body = vec![0u8; body_size];
-    stream.read_exact(&mut body).unwrap();
+    stream.read_exact(&mut body).ok()?;
     assert_eq!(crc64(&body), crc, "CRC of {}", text(&header[2..14]));
     let content = if version == 2 {
         let ext = u16::from_be_bytes([body[0], body[1]]) as usize;
@@ -146,12 +157,25 @@ fn read(stream: &mut TcpStream) -> Message {
     } else {
         body
     };
-    Message {
+    Some(Message {
         version,
         kind: text(&header[2..14]),
         device: text(&header[14..34]),
         content,
+    })
+}
+
+/// Reads until the server closes the connection; the STATUS messages of `device` on the way, as (code,
+/// message).
+fn statuses_until_closed(stream: &mut TcpStream, device: &str) -> Vec<(u16, String)> {
+    let mut seen = Vec::new();
+    while let Some(message) = try_read(stream) {
+        if message.kind == "STATUS" && message.device == device {
+            let code = u16::from_be_bytes([message.content[0], message.content[1]]);
+            seen.push((code, text(&message.content[30..])));
+        }
     }
+    seen
 }
 
 fn translation_mm(content: &[u8]) -> DVec3 {
@@ -195,6 +219,11 @@ impl Fixture {
 
     /// A session on the simulated arm and a server streaming at `rate_hz`.
     fn start_at(rate_hz: u32) -> Fixture {
+        Fixture::start_with(rate_hz, voxhap::server::igtl::DEFAULT_IDLE_TIMEOUT)
+    }
+
+    /// A session on the simulated arm and a server streaming at `rate_hz` with `idle_timeout`.
+    fn start_with(rate_hz: u32, idle_timeout: Duration) -> Fixture {
         let mut config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
         config.rt = voxhap::servo::rt::RtMode::Off;
         config.spin_ns = 20_000;
@@ -212,8 +241,9 @@ impl Fixture {
             .unwrap();
         let shared: Arc<dyn SessionApi> = api.clone();
         let config = IgtlConfig {
-            addr: "127.0.0.1:0".parse().unwrap(),
             rate_hz,
+            idle_timeout,
+            ..IgtlConfig::new("127.0.0.1:0".parse().unwrap())
         };
         let server = runtime
             .block_on(IgtlServer::start(shared, &config, TOKEN.to_owned()))
@@ -476,11 +506,11 @@ fn serve_runs_the_igtl_server_without_http_and_prints_its_token() {
 
 /// Several clients: each gets the whole stream; a client that stops reading (a tiny receive window) loses
 /// the oldest frames, counted, while another keeps its full rate and the servo keeps ticking; past
-/// `MAX_CLIENTS` a connection gets STATUS 6 (busy) and is closed. The stream runs at 1 kHz so the stalled
-/// client's socket buffers (up to 4 MB on the server's side with Linux defaults) fill in about 10 s.
+/// `MAX_CLIENTS` a newcomer still gets in. The stream runs at 1 kHz so the stalled client's socket buffers
+/// fill within seconds. The idle timeout is longer than the test, so the stalled client is not closed.
 #[test]
-fn a_stalled_client_loses_frames_without_slowing_another_and_the_seventeenth_is_refused_busy() {
-    let fixture = Fixture::start_at(1000);
+fn a_stalled_client_loses_frames_without_slowing_another_and_a_seventeenth_still_gets_in() {
+    let fixture = Fixture::start_with(1000, Duration::from_secs(3600));
     let server = fixture.server.as_ref().unwrap();
     let addr = server.local_addr();
     // The stalled client: a 4 kB receive buffer (set before connecting, so the window stays small), never
@@ -493,8 +523,8 @@ fn a_stalled_client_loses_frames_without_slowing_another_and_the_seventeenth_is_
     let started = Instant::now();
     let mut probes = 0u32;
     // Until the stalled client was sent more than its socket buffers can hold: 14 000 frames of four
-    // 106-byte TRANSFORMs, 5.9 MB, against at most 4 MB of send buffer (Linux's default tcp_wmem maximum)
-    // and the 8 kB receive buffer; about 14 s at 1 kHz.
+    // 106-byte TRANSFORMs, 5.9 MB, against the server's 64 KiB send buffer (128 KiB as Linux books it) and
+    // the 8 kB receive buffer; about 14 s at 1 kHz.
     while probes < 14_000 && started.elapsed() < Duration::from_secs(60) {
         let message = read(&mut reader);
         probes += u32::from(message.kind == "TRANSFORM" && message.device == "Probe");
@@ -532,25 +562,240 @@ fn a_stalled_client_loses_frames_without_slowing_another_and_the_seventeenth_is_
         stats.frames_dropped
     );
 
-    // Fill the server up to MAX_CLIENTS; the next connection is refused with STATUS 6 and closed.
-    let max = voxhap::server::igtl::MAX_CLIENTS;
-    let mut others: Vec<TcpStream> = (2..max).map(|_| fixture.connect()).collect();
+    // Fill the server up to MAX_CLIENTS; the next connection still gets in, in the place of another.
+    let mut others: Vec<TcpStream> = (2..MAX_CLIENTS).map(|_| fixture.connect()).collect();
     let deadline = Instant::now() + Duration::from_secs(10);
-    while server.stats().clients < max {
+    while server.stats().clients < MAX_CLIENTS {
         assert!(Instant::now() < deadline, "{:?}", server.stats());
         std::thread::sleep(Duration::from_millis(10));
     }
-    let mut refused = fixture.connect();
-    let (code, text) = status(&mut refused, "voxhap");
-    assert_eq!(code, 6, "{text}");
-    assert!(text.contains("connected already"), "{text}");
-    let mut rest = Vec::new();
-    assert_eq!(refused.read_to_end(&mut rest).unwrap(), 0, "not closed");
-    assert_eq!(server.stats().clients_refused, 1);
+    let mut newcomer = fixture.connect();
+    let message = read(&mut newcomer);
+    assert_eq!(
+        (message.kind.as_str(), message.device.as_str()),
+        ("STATUS", "voxhap")
+    );
+    assert_ne!(
+        u16::from_be_bytes([message.content[0], message.content[1]]),
+        6,
+        "the newcomer was refused"
+    );
+    assert_eq!(server.stats().clients_evicted, 1);
     // The admitted ones still stream.
     for stream in others.iter_mut().take(2) {
         let message = read(stream);
         assert!(["TRANSFORM", "STATUS"].contains(&message.kind.as_str()));
     }
     drop(stalled);
+}
+
+/// A full table of idle connections (they connect and then neither send nor read) never locks out a new
+/// client: it gets in at once and is served, and the connection closed to make room is the one the
+/// documented order picks (the oldest without the token; the one that sent the token stays).
+#[test]
+fn a_full_table_of_idle_connections_never_locks_out_a_new_client() {
+    // 10 Hz: the idle connections' socket buffers take minutes to fill, so none is stalled here.
+    let fixture = Fixture::start_at(10);
+    let server = fixture.server.as_ref().unwrap();
+    let mut holder = fixture.connect();
+    let login = pack(
+        1,
+        "STRING",
+        "Login",
+        &string_content(&format!("token {TOKEN}")),
+        &[],
+    );
+    holder.write_all(&login).unwrap();
+    assert_eq!(status(&mut holder, "Login").0, 1);
+    let mut idle: Vec<TcpStream> = (1..MAX_CLIENTS).map(|_| fixture.connect()).collect();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while server.stats().clients < MAX_CLIENTS {
+        assert!(Instant::now() < deadline, "{:?}", server.stats());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // The newcomer is served: the stream, and answers to what it asks.
+    let mut newcomer = fixture.connect();
+    newcomer
+        .write_all(&pack(1, "GET_STATUS", "Ask", &[], &[]))
+        .unwrap();
+    let (code, message) = status(&mut newcomer, "Ask");
+    assert!([1, 13].contains(&code), "{code} {message}");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while read(&mut newcomer).device != "Probe" {
+        assert!(Instant::now() < deadline, "no Probe transform");
+    }
+    assert_eq!(server.stats().clients_evicted, 1);
+    // The oldest connection without the token was told why and closed.
+    let seen = statuses_until_closed(&mut idle[0], "voxhap");
+    let (code, message) = seen.last().expect("a STATUS before the close");
+    assert_eq!(*code, 6, "{message}");
+    assert!(message.contains("make room"), "{message}");
+    // The token holder, connected before it, is still served.
+    holder
+        .write_all(&pack(1, "GET_STATUS", "Ask", &[], &[]))
+        .unwrap();
+    assert!([1, 13].contains(&status(&mut holder, "Ask").0));
+    assert_eq!(server.stats().clients_evicted, 1);
+}
+
+/// A client that reads nothing (a 4 kB receive window, never read) is closed once a message could not be
+/// written to it for the idle timeout (1 s here); a client that reads but never sends stays.
+#[test]
+fn a_client_that_reads_nothing_is_closed_by_the_idle_timeout_and_a_reader_stays() {
+    let fixture = Fixture::start_with(200, Duration::from_secs(1));
+    let server = fixture.server.as_ref().unwrap();
+    let socket = |receive_buffer_bytes| {
+        let socket =
+            socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+        socket.set_recv_buffer_size(receive_buffer_bytes).unwrap();
+        socket.connect(&server.local_addr().into()).unwrap();
+        let stream: TcpStream = socket.into();
+        stream
+            .set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        stream
+    };
+    let mut stalled = socket(4096);
+    // The reader's 1 MB window holds seconds of stream, so a pause of this thread on a busy machine does
+    // not stall it.
+    let mut reader = socket(1 << 20);
+    let started = Instant::now();
+    while server.stats().idle_closed == 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "the stalled client was never closed: {:?}",
+            server.stats()
+        );
+        read(&mut reader);
+    }
+    // The reader, silent all along, still streams, and only the stalled client was closed.
+    let until = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < until {
+        read(&mut reader);
+    }
+    let stats = server.stats();
+    assert_eq!((stats.idle_closed, stats.clients), (1, 1), "{stats:?}");
+    statuses_until_closed(&mut stalled, "voxhap");
+}
+
+/// The 58-byte header of an IMAGE (header version 1) announcing `body_bytes` (OpenIGTLink header.md:
+/// V u16, TYPE char[12], DEVICE_NAME char[20], TIME_STAMP u64, BODY_SIZE u64, CRC u64, big-endian).
+fn image_header(body_bytes: u64) -> Vec<u8> {
+    let mut header = 1u16.to_be_bytes().to_vec();
+    header.extend(fixed("IMAGE", 12));
+    header.extend(fixed("Big", 20));
+    header.extend_from_slice(&0u64.to_be_bytes());
+    header.extend_from_slice(&body_bytes.to_be_bytes());
+    header.extend_from_slice(&0u64.to_be_bytes());
+    header
+}
+
+/// A header announcing a body over the limit for a client without the token is refused from the header
+/// alone: STATUS 5 naming the limit, then the connection is closed, before any of the body was sent. With
+/// the token, a body over that limit is read and loaded.
+#[test]
+fn a_large_body_without_the_token_is_refused_from_its_header() {
+    let fixture = Fixture::start();
+    let server = fixture.server.as_ref().unwrap();
+    let mut stream = fixture.connect();
+    stream.write_all(&image_header(256 << 20)).unwrap();
+    let seen = statuses_until_closed(&mut stream, "voxhap");
+    let (code, message) = seen.last().expect("a STATUS before the close");
+    assert_eq!(*code, 5, "{message}");
+    assert!(
+        message.contains(&format!("at most {UNAUTHENTICATED_BODY_BYTES} bytes")),
+        "{message}"
+    );
+    assert_eq!(server.stats().large_bodies_refused, 1);
+
+    // The same size class with the token first: a 64 x 64 x 16 uint16 image, 128 KiB of voxels.
+    let mut stream = fixture.connect();
+    let login = pack(
+        1,
+        "STRING",
+        "Login",
+        &string_content(&format!("token {TOKEN}")),
+        &[],
+    );
+    stream.write_all(&login).unwrap();
+    assert_eq!(status(&mut stream, "Login").0, 1);
+    let content = image_content_sized([64, 64, 16], [0.0, 0.0, 0.0], 0);
+    assert!(content.len() as u64 > UNAUTHENTICATED_BODY_BYTES);
+    stream
+        .write_all(&pack(1, "IMAGE", "CT", &content, &[]))
+        .unwrap();
+    let (code, message) = status(&mut stream, "CT");
+    assert_eq!(code, 1, "{message}");
+    assert_eq!(fixture.api.scene().volumes[0].dims, [64, 64, 16]);
+}
+
+/// 15 clients without the token each announce a 256 MiB IMAGE and try to send 32 MiB of it to a real
+/// `voxhap serve --igtl`: the server stops reading each soon after its header (a client's writes fail or
+/// block once the socket buffers and the bounded discard are full, before 32 MiB), and its peak resident
+/// size (VmHWM in /proc/PID/status) grows by far less than the 480 MiB the bodies would take.
+#[test]
+fn unauthenticated_clients_announcing_large_bodies_do_not_grow_the_server() {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .args([
+            "serve",
+            "--igtl",
+            "127.0.0.1:0",
+            "--no-http",
+            "--no-foxglove",
+            "--token",
+            TOKEN,
+            "--duration",
+            "120",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let pid = child.id().to_string();
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let addr: std::net::SocketAddr = loop {
+        let line = lines.next().expect("serve printed its address").unwrap();
+        if let Some(rest) = line.strip_prefix("igtl: listening on ") {
+            break rest.split(' ').next().unwrap().parse().unwrap();
+        }
+    };
+    let hwm_before_kb = crate::util::server::proc_status_kb(&pid, "VmHWM");
+    const SENT_BYTES: usize = 32 << 20;
+    let clients: Vec<_> = (0..15)
+        .map(|_| {
+            std::thread::spawn(move || {
+                let mut stream = TcpStream::connect(addr).unwrap();
+                stream
+                    .set_write_timeout(Some(Duration::from_secs(5)))
+                    .unwrap();
+                stream.write_all(&image_header(256 << 20)).unwrap();
+                let chunk = vec![0u8; 64 << 10];
+                let mut written = 0;
+                while written < SENT_BYTES {
+                    match stream.write(&chunk) {
+                        Ok(n) if n > 0 => written += n,
+                        _ => break,
+                    }
+                }
+                written
+            })
+        })
+        .collect();
+    let written: Vec<usize> = clients.into_iter().map(|c| c.join().unwrap()).collect();
+    let hwm_after_kb = crate::util::server::proc_status_kb(&pid, "VmHWM");
+    let _ = child.kill();
+    let _ = child.wait();
+    let growth_mib = hwm_after_kb.saturating_sub(hwm_before_kb) as f64 / 1024.0;
+    eprintln!(
+        "peak RSS {hwm_before_kb} kB before, {hwm_after_kb} kB after ({growth_mib:.1} MiB); bytes written {written:?}"
+    );
+    assert!(
+        written.iter().all(|&w| w < SENT_BYTES),
+        "the server read 32 MiB of body from a client without the token: {written:?}"
+    );
+    assert!(
+        growth_mib < 64.0,
+        "the server's peak RSS grew by {growth_mib:.1} MiB"
+    );
 }

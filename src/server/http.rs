@@ -12,6 +12,7 @@ use super::messages::{
     EnabledBody, ErrorBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody,
     StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
+use super::origin::check_single;
 use super::{assets, ws, Shared};
 use crate::servo::api::{
     ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
@@ -61,7 +62,8 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
 }
 
 /// The Host check on every request, and the Origin check on `/ws` and every request that is not GET or
-/// HEAD ([`super::origin`]); 403 with the reason otherwise.
+/// HEAD ([`super::origin`]); a request with more than one Host or Origin header is refused (400) before
+/// either; 403 with the reason otherwise.
 async fn check_host_and_origin(
     State(shared): Shared_,
     request: axum::extract::Request,
@@ -76,17 +78,23 @@ async fn check_host_and_origin(
         };
         let host = text(header::HOST);
         let changes_state = !matches!(*request.method(), Method::GET | Method::HEAD);
-        shared.origin.check_host(host).and_then(|()| {
-            if changes_state || request.uri().path() == "/ws" {
-                shared.origin.check_origin(text(header::ORIGIN), host)
-            } else {
-                Ok(())
-            }
-        })
+        check_single("Host", headers.get_all(header::HOST).iter().count())
+            .and_then(|()| check_single("Origin", headers.get_all(header::ORIGIN).iter().count()))
+            .and_then(|()| shared.origin.check_host(host))
+            .and_then(|()| {
+                if changes_state || request.uri().path() == "/ws" {
+                    shared.origin.check_origin(text(header::ORIGIN), host)
+                } else {
+                    Ok(())
+                }
+            })
     };
     match verdict {
         Ok(()) => next.run(request).await,
-        Err(error) => error_response(StatusCode::FORBIDDEN, error.to_string()),
+        Err(error) => {
+            let status = StatusCode::from_u16(error.http_status()).unwrap_or(StatusCode::FORBIDDEN);
+            error_response(status, error.to_string())
+        }
     }
 }
 

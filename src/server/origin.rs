@@ -15,6 +15,11 @@
 //! - **Origin**, on `/ws` and on every request that is not GET or HEAD, must be `http://` + the request's
 //!   own Host (same origin), or one given with `--allow-origin`. Requests without an Origin header
 //!   (curl, scripts) pass: they are not a browser acting for a web page.
+//! - **One of each:** a request with more than one Host header, or more than one Origin header, is refused
+//!   with 400 before either check. HTTP allows one Host field line (RFC 9112 section 3.2: a server "MUST
+//!   respond with a 400 (Bad Request) status code to any request message that contains more than one Host
+//!   header field line"), and a browser sends at most one Origin (RFC 6454 section 7.3); with two, the
+//!   check could read a good one while another part of the stack reads the other.
 
 use std::net::{IpAddr, SocketAddr};
 
@@ -26,13 +31,34 @@ pub struct OriginPolicy {
     allowed_origins: Vec<String>,
 }
 
-/// Why a request was refused (HTTP 403).
+/// Why a request was refused (HTTP 403, or 400 for a repeated header: [`OriginError::http_status`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum OriginError {
+    #[error("bad request: {count} {header} headers; a request carries at most one (with two, a check could read one and another part of the server the other)")]
+    Repeated { header: &'static str, count: usize },
     #[error("forbidden: Host {host:?} is not this server's address {listen} (a DNS-rebinding page would send its own name); start voxhap with --allow-host NAME to serve that name")]
     Host { host: String, listen: SocketAddr },
     #[error("forbidden: Origin {origin:?} is not this server's page (http://{host}); only the page served here may open /ws or change the session; start voxhap with --allow-origin ORIGIN to allow another")]
     Origin { origin: String, host: String },
+}
+
+impl OriginError {
+    /// The HTTP status that answers it: 400 for a repeated header, 403 otherwise.
+    pub fn http_status(&self) -> u16 {
+        match self {
+            OriginError::Repeated { .. } => 400,
+            OriginError::Host { .. } | OriginError::Origin { .. } => 403,
+        }
+    }
+}
+
+/// Refuses more than one line of the header `header` (`count` lines were received).
+pub fn check_single(header: &'static str, count: usize) -> Result<(), OriginError> {
+    if count > 1 {
+        Err(OriginError::Repeated { header, count })
+    } else {
+        Ok(())
+    }
 }
 
 impl OriginPolicy {
@@ -163,6 +189,15 @@ mod tests {
         let any = policy("0.0.0.0:8080");
         assert!(any.check_host(Some("192.168.1.20:8080")).is_ok());
         assert!(any.check_host(Some("rebind.example:8080")).is_err());
+    }
+
+    #[test]
+    fn a_repeated_host_or_origin_is_a_bad_request() {
+        assert!(check_single("Host", 0).is_ok());
+        assert!(check_single("Host", 1).is_ok());
+        let error = check_single("Origin", 2).unwrap_err();
+        assert_eq!(error.http_status(), 400);
+        assert!(error.to_string().contains("2 Origin headers"), "{error}");
     }
 
     #[test]

@@ -271,10 +271,15 @@ pub async fn close_code(ws: &mut Ws) -> Option<u16> {
 
 /// This process's resident set size (kB), from /proc/self/status.
 pub fn rss_kb() -> u64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    proc_status_kb("self", "VmRSS")
+}
+
+/// A memory field (kB) of /proc/`pid`/status: `VmRSS` (resident now), `VmHWM` (the peak resident size).
+pub fn proc_status_kb(pid: &str, field: &str) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
     status
         .lines()
-        .find_map(|line| line.strip_prefix("VmRSS:"))
+        .find_map(|line| line.strip_prefix(field)?.strip_prefix(':'))
         .and_then(|rest| rest.trim().trim_end_matches("kB").trim().parse().ok())
-        .expect("VmRSS in /proc/self/status")
+        .unwrap_or_else(|| panic!("{field} in /proc/{pid}/status"))
 }

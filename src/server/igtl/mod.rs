@@ -40,10 +40,37 @@
 //!   failure.
 //! - GET_STATUS: answered with the current STATUS. Anything else is read and ignored.
 //!
-//! Limits: [`MAX_CLIENTS`] connections (more get a STATUS 6 busy and are closed), bodies up to
-//! [`MAX_BODY_BYTES`], images up to [`MAX_IMAGE_VOXELS`], and a message must arrive whole within
-//! [`MESSAGE_TIMEOUT`] once its first byte came. A bad CRC is answered with STATUS 9 and the message
-//! dropped; a header that cannot be framed closes the connection.
+//! Who may connect, and what a client can make the server hold (the bounds are the constants below):
+//!
+//! - **Connections:** [`MAX_CLIENTS`]. A new client always gets in: when the table is full, the connection
+//!   that matters least is closed to make room (STATUS 6 "Evicted" with the reason, counted in
+//!   `clients_evicted`), chosen by [`choose_victim`]: one without the token before one with it, then one
+//!   whose stream the server cannot write (it does not read) before one that reads, then the one silent
+//!   longest (nothing received from it), then the oldest. A client that must stay connected under pressure
+//!   sends the token.
+//! - **Idle timeout** (`--igtl-idle-timeout`, default [`DEFAULT_IDLE_TIMEOUT`]): a connection to which a
+//!   message could not be written for that long (the client does not read, so its socket buffers are full)
+//!   is closed (counted in `idle_closed`). Reading the stream is what keeps a client connected; a
+//!   viewer that only reads (Slicer's connector) stays as long as it reads. Each accepted socket's kernel
+//!   send buffer is [`SEND_BUFFER_BYTES`], so a client that stops reading stalls after a few seconds of
+//!   stream.
+//! - **Authentication before large bodies:** a client without the token may send bodies of at most
+//!   [`UNAUTHENTICATED_BODY_BYTES`]; a larger one is refused from its header alone (STATUS 5, then the
+//!   connection is closed after discarding at most [`LINGER_BYTES`] for at most [`LINGER_TIME`], so that
+//!   the client can read the STATUS), and none of it is stored. So a large IMAGE needs the token sent first
+//!   (STRING `token <T>`, or the metadata entry on an earlier small message).
+//! - **Bodies with the token:** up to [`MAX_BODY_BYTES`] each; all bodies over
+//!   [`UNAUTHENTICATED_BODY_BYTES`] being read or handled at once, over all clients, share a budget of
+//!   [`LARGE_BODY_BUDGET_BYTES`] (a client waits for its share at most [`MESSAGE_TIMEOUT`]); IMAGEs are
+//!   decoded one at a time, up to [`MAX_IMAGE_VOXELS`] (4 bytes each once decoded).
+//! - **Time:** once a message's first byte arrived, its header must follow within [`MESSAGE_TIMEOUT`],
+//!   and its body within [`MESSAGE_TIMEOUT`] after that.
+//!
+//! So a client without the token makes the server hold at most one body of
+//! [`UNAUTHENTICATED_BODY_BYTES`], [`REPLY_QUEUE`] short replies, one stream frame being written and the
+//! [`SEND_BUFFER_BYTES`] kernel buffer; all token holders together at most [`LARGE_BODY_BUDGET_BYTES`] of
+//! bodies plus one decoded image. A bad CRC is answered with STATUS 9 and the message dropped; a header
+//! that cannot be framed closes the connection.
 
 pub mod codec;
 pub mod volume_file;
@@ -54,12 +81,13 @@ use crate::server::auth::token_matches;
 use crate::servo::api::{ControlCommand, ControlError, SessionApi, Snapshot};
 use glam::DVec3;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
-use std::sync::atomic::{AtomicU16, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU16, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
+use tokio::net::tcp::OwnedWriteHalf;
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot, watch, Semaphore};
+use tokio::sync::{broadcast, mpsc, oneshot, watch, Notify, OwnedSemaphorePermit, Semaphore};
 use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
@@ -69,18 +97,34 @@ pub const DEFAULT_ADDR: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALH
 pub const DEFAULT_RATE_HZ: u32 = 60;
 /// Accepted streaming rates (Hz).
 pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
-/// Most clients at once.
+/// Most clients at once; a newcomer to a full table takes the place of the one [`choose_victim`] picks.
 pub const MAX_CLIENTS: usize = 16;
 /// Stream frames queued per client; a client further behind loses the oldest.
 pub const CLIENT_QUEUE_FRAMES: usize = 8;
 /// Replies queued per client.
-const REPLY_QUEUE: usize = 16;
-/// Largest message body accepted (bytes).
+pub const REPLY_QUEUE: usize = 16;
+/// Largest message body accepted (bytes), from a client with the token.
 pub const MAX_BODY_BYTES: u64 = 256 << 20;
+/// Largest message body accepted from a client without the token (bytes): larger is refused from the
+/// header, before any of the body is read.
+pub const UNAUTHENTICATED_BODY_BYTES: u64 = 64 << 10;
+/// All bodies over [`UNAUTHENTICATED_BODY_BYTES`] read or handled at once, over all clients (bytes).
+pub const LARGE_BODY_BUDGET_BYTES: u64 = MAX_BODY_BYTES;
+/// After refusing a body, at most this much of what follows is read and discarded (never stored) before
+/// the connection is closed, so that the client can read the refusal.
+pub const LINGER_BYTES: u64 = 1 << 20;
+/// ... and for at most this long.
+pub const LINGER_TIME: Duration = Duration::from_secs(1);
+/// Kernel send buffer of each accepted socket (bytes).
+pub const SEND_BUFFER_BYTES: usize = 64 << 10;
 /// Largest IMAGE accepted (voxels).
 pub const MAX_IMAGE_VOXELS: usize = 64 << 20;
-/// Once a message's first byte arrived, the rest must follow within this.
+/// Once a message's first byte arrived, its header must follow within this, then its body within this.
 pub const MESSAGE_TIMEOUT: Duration = Duration::from_secs(30);
+/// Default `--igtl-idle-timeout`: a connection the server could not write to for this long is closed.
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
+/// Accepted `--igtl-idle-timeout` values (seconds).
+pub const IDLE_TIMEOUT_RANGE_S: std::ops::RangeInclusive<u64> = 1..=3600;
 /// How often the streamed STATUS is sent.
 pub const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 /// How long [`IgtlServer::stop`] waits for the tasks to end.
@@ -116,6 +160,11 @@ pub struct IgtlArgs {
     #[arg(long, value_name = "HZ", default_value_t = DEFAULT_RATE_HZ,
           value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub igtl_rate: u32,
+    /// Close an OpenIGTLink connection to which a message could not be written for this long (the client
+    /// does not read its stream), in seconds (1 to 3600).
+    #[arg(long, value_name = "SECONDS", default_value_t = DEFAULT_IDLE_TIMEOUT.as_secs(),
+          value_parser = clap::value_parser!(u64).range(1..=3600))]
+    pub igtl_idle_timeout: u64,
 }
 
 fn parse_addr(text: &str) -> Result<SocketAddr, String> {
@@ -137,6 +186,9 @@ pub struct IgtlConfig {
     pub addr: SocketAddr,
     /// Streaming rate (Hz), in [`RATE_RANGE_HZ`].
     pub rate_hz: u32,
+    /// A connection the server could not write to for this long is closed; within
+    /// [`IDLE_TIMEOUT_RANGE_S`] seconds.
+    pub idle_timeout: Duration,
 }
 
 /// Why the server did not start.
@@ -149,6 +201,8 @@ pub enum IgtlError {
     RemoteNotAllowed { addr: SocketAddr },
     #[error("--igtl-rate {0} Hz is outside 1 ..= 1000 Hz")]
     Rate(u32),
+    #[error("--igtl-idle-timeout {0:?} is outside 1 s ..= 3600 s")]
+    IdleTimeout(Duration),
     #[error("--igtl {addr}: cannot listen there: {source}")]
     Bind {
         addr: SocketAddr,
@@ -167,6 +221,7 @@ impl IgtlArgs {
         let config = IgtlConfig {
             addr,
             rate_hz: self.igtl_rate,
+            idle_timeout: Duration::from_secs(self.igtl_idle_timeout),
         };
         config.check(self.igtl_allow_remote)?;
         Ok(Some(config))
@@ -174,11 +229,31 @@ impl IgtlArgs {
 }
 
 impl IgtlConfig {
-    /// Refuses a non-loopback address unless `allow_remote`, and a rate out of range.
-    pub fn check(&self, allow_remote: bool) -> Result<(), IgtlError> {
+    /// A configuration on `addr` with the default rate and idle timeout.
+    pub fn new(addr: SocketAddr) -> Self {
+        IgtlConfig {
+            addr,
+            rate_hz: DEFAULT_RATE_HZ,
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
+        }
+    }
+
+    /// Refuses a rate or an idle timeout out of range.
+    fn check_values(&self) -> Result<(), IgtlError> {
         if !RATE_RANGE_HZ.contains(&self.rate_hz) {
             return Err(IgtlError::Rate(self.rate_hz));
         }
+        let range = Duration::from_secs(*IDLE_TIMEOUT_RANGE_S.start())
+            ..=Duration::from_secs(*IDLE_TIMEOUT_RANGE_S.end());
+        if !range.contains(&self.idle_timeout) {
+            return Err(IgtlError::IdleTimeout(self.idle_timeout));
+        }
+        Ok(())
+    }
+
+    /// Refuses a non-loopback address unless `allow_remote`, and values out of range.
+    pub fn check(&self, allow_remote: bool) -> Result<(), IgtlError> {
+        self.check_values()?;
         if !allow_remote && !self.addr.ip().is_loopback() {
             return Err(IgtlError::RemoteNotAllowed { addr: self.addr });
         }
@@ -189,14 +264,19 @@ impl IgtlConfig {
 /// Counters of a running server.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct IgtlStats {
-    /// Clients connected now.
+    /// Connections open now (one being closed to make room counts until it is closed).
     pub clients: usize,
     /// Stream frames written to clients (one frame = the four transforms of one tick).
     pub frames_sent: u64,
     /// Stream frames a slow client lost.
     pub frames_dropped: u64,
-    /// Connections refused because [`MAX_CLIENTS`] were connected.
-    pub clients_refused: u64,
+    /// Connections closed to make room for a new client when [`MAX_CLIENTS`] were connected.
+    pub clients_evicted: u64,
+    /// Connections closed by the idle timeout (a message could not be written to them).
+    pub idle_closed: u64,
+    /// Messages refused from their header because the body was larger than a client without the token
+    /// may send ([`UNAUTHENTICATED_BODY_BYTES`]).
+    pub large_bodies_refused: u64,
     /// Volumes loaded from IMAGE messages.
     pub images_loaded: u64,
 }
@@ -206,7 +286,9 @@ struct Counters {
     clients: AtomicUsize,
     frames_sent: AtomicU64,
     frames_dropped: AtomicU64,
-    clients_refused: AtomicU64,
+    clients_evicted: AtomicU64,
+    idle_closed: AtomicU64,
+    large_bodies_refused: AtomicU64,
     images_loaded: AtomicU64,
 }
 
@@ -227,7 +309,87 @@ struct Shared {
     folder: Mutex<Option<ImageFolder>>,
     /// One IMAGE decoded and loaded at a time.
     images: Semaphore,
+    /// [`LARGE_BODY_BUDGET_BYTES`] in KiB: a body over [`UNAUTHENTICATED_BODY_BYTES`] holds its size's
+    /// share while it is read and handled.
+    large_bodies: Arc<Semaphore>,
+    /// The connections that count towards [`MAX_CLIENTS`], oldest first.
+    table: Mutex<Vec<Arc<Connection>>>,
+    idle_timeout: Duration,
+    /// The zero of the millisecond times in [`Connection`].
+    epoch: tokio::time::Instant,
     clock: WallClock,
+}
+
+impl Shared {
+    /// Milliseconds since the server started.
+    fn now_ms(&self) -> u64 {
+        u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX)
+    }
+}
+
+/// What the accept loop knows of a connection, to choose whom to close when the table is full.
+struct Connection {
+    /// When the client's last byte arrived (ms since the server started; the accept at first).
+    heard_ms: AtomicU64,
+    /// When the write in progress started ([`NOT_WRITING`] when none is).
+    writing_since_ms: AtomicU64,
+    authorised: AtomicBool,
+    /// Told to close, to make room.
+    evicted: Notify,
+}
+
+/// [`Connection::writing_since_ms`] when no write is in progress.
+const NOT_WRITING: u64 = u64::MAX;
+/// A write in progress for longer than this counts as stalled (the client is not reading) when choosing
+/// whom to close.
+const STALLED_AFTER_MS: u64 = 1000;
+
+impl Connection {
+    fn new(now_ms: u64) -> Self {
+        Connection {
+            heard_ms: AtomicU64::new(now_ms),
+            writing_since_ms: AtomicU64::new(NOT_WRITING),
+            authorised: AtomicBool::new(false),
+            evicted: Notify::new(),
+        }
+    }
+
+    fn candidate(&self, now_ms: u64) -> Candidate {
+        let writing_since = self.writing_since_ms.load(Ordering::Relaxed);
+        Candidate {
+            authorised: self.authorised.load(Ordering::Relaxed),
+            stalled: writing_since != NOT_WRITING
+                && now_ms.saturating_sub(writing_since) > STALLED_AFTER_MS,
+            silent_ms: now_ms.saturating_sub(self.heard_ms.load(Ordering::Relaxed)),
+        }
+    }
+}
+
+/// A connection as [`choose_victim`] sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Candidate {
+    /// It sent the control token.
+    pub authorised: bool,
+    /// A write to it has been waiting for more than a second: it does not read its stream.
+    pub stalled: bool,
+    /// Milliseconds since its last byte arrived (since it connected, if it never sent one).
+    pub silent_ms: u64,
+}
+
+/// Which connection (index into `candidates`, oldest first) to close so that a new client gets in: one
+/// without the token before one with it; then one that does not read (stalled) before one that does; then
+/// the one silent longest; then the oldest. `None` for an empty list.
+pub fn choose_victim(candidates: &[Candidate]) -> Option<usize> {
+    let key = |c: &Candidate| (!c.authorised, c.stalled, c.silent_ms);
+    let mut best: Option<(usize, (bool, bool, u64))> = None;
+    for (index, candidate) in candidates.iter().enumerate() {
+        let this = key(candidate);
+        // Strictly greater: of equals, the first (oldest) stays the choice.
+        if best.is_none_or(|(_, b)| this > b) {
+            best = Some((index, this));
+        }
+    }
+    best.map(|(index, _)| index)
 }
 
 /// A running OpenIGTLink server. Stop it with [`IgtlServer::stop`].
@@ -246,9 +408,7 @@ impl IgtlServer {
         config: &IgtlConfig,
         token: String,
     ) -> Result<IgtlServer, IgtlError> {
-        if !RATE_RANGE_HZ.contains(&config.rate_hz) {
-            return Err(IgtlError::Rate(config.rate_hz));
-        }
+        config.check_values()?;
         let listener = TcpListener::bind(config.addr)
             .await
             .map_err(|source| IgtlError::Bind {
@@ -269,6 +429,10 @@ impl IgtlServer {
             status: Mutex::new(None),
             folder: Mutex::new(Some(folder)),
             images: Semaphore::new(1),
+            large_bodies: Arc::new(Semaphore::new(kib(LARGE_BODY_BUDGET_BYTES) as usize)),
+            table: Mutex::new(Vec::with_capacity(MAX_CLIENTS)),
+            idle_timeout: config.idle_timeout,
+            epoch: tokio::time::Instant::now(),
             clock: WallClock::default(),
         });
         let (stop, stopped) = watch::channel(false);
@@ -297,7 +461,9 @@ impl IgtlServer {
             clients: c.clients.load(Ordering::Relaxed),
             frames_sent: c.frames_sent.load(Ordering::Relaxed),
             frames_dropped: c.frames_dropped.load(Ordering::Relaxed),
-            clients_refused: c.clients_refused.load(Ordering::Relaxed),
+            clients_evicted: c.clients_evicted.load(Ordering::Relaxed),
+            idle_closed: c.idle_closed.load(Ordering::Relaxed),
+            large_bodies_refused: c.large_bodies_refused.load(Ordering::Relaxed),
             images_loaded: c.images_loaded.load(Ordering::Relaxed),
         }
     }
@@ -474,45 +640,52 @@ async fn stream(shared: Arc<Shared>, period: Duration, mut stop: watch::Receiver
     }
 }
 
-/// The accept loop: one reader and one writer task per client, up to [`MAX_CLIENTS`].
+/// The accept loop: one reader and one writer task per client. When [`MAX_CLIENTS`] are connected, the
+/// connection [`choose_victim`] picks is told to close and the newcomer takes its place at once.
 async fn accept(listener: TcpListener, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
     loop {
         let accepted = tokio::select! {
             _ = stop.changed() => break,
             accepted = listener.accept() => accepted,
         };
-        let Ok((mut socket, _)) = accepted else {
+        let Ok((socket, _)) = accepted else {
             // Out of file descriptors and the like: wait a moment rather than spin.
             tokio::time::sleep(Duration::from_millis(50)).await;
             continue;
         };
         let _ = socket.set_nodelay(true);
-        let counters = &shared.counters;
-        let admitted = counters
-            .clients
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
-                (n < MAX_CLIENTS).then_some(n + 1)
-            })
-            .is_ok();
-        if !admitted {
-            counters.clients_refused.fetch_add(1, Ordering::Relaxed);
-            let mut out = Vec::new();
-            codec::encode_message(&mut out, 1, "STATUS", STATUS_DEVICE, 0, &[], |o| {
-                codec::encode_status(
-                    o,
-                    status_code::BUSY,
-                    0,
-                    "Busy",
-                    &format!("voxhap: {MAX_CLIENTS} OpenIGTLink clients are connected already"),
-                )
-            });
-            tokio::spawn(async move {
-                let _ = tokio::time::timeout(Duration::from_secs(1), socket.write_all(&out)).await;
-            });
-            continue;
+        let _ = socket2::SockRef::from(&socket).set_send_buffer_size(SEND_BUFFER_BYTES);
+        let now_ms = shared.now_ms();
+        let connection = Arc::new(Connection::new(now_ms));
+        let victim = {
+            let Ok(mut table) = shared.table.lock() else {
+                break;
+            };
+            let victim = if table.len() >= MAX_CLIENTS {
+                let candidates: Vec<Candidate> =
+                    table.iter().map(|c| c.candidate(now_ms)).collect();
+                choose_victim(&candidates).map(|index| table.remove(index))
+            } else {
+                None
+            };
+            table.push(connection.clone());
+            victim
+        };
+        if let Some(victim) = victim {
+            shared
+                .counters
+                .clients_evicted
+                .fetch_add(1, Ordering::Relaxed);
+            victim.evicted.notify_one();
         }
-        tokio::spawn(client(socket, shared.clone(), stop.clone()));
+        shared.counters.clients.fetch_add(1, Ordering::AcqRel);
+        tokio::spawn(client(socket, connection, shared.clone(), stop.clone()));
     }
+}
+
+/// KiB, rounded up (the unit of [`Shared::large_bodies`]).
+fn kib(bytes: u64) -> u32 {
+    u32::try_from(bytes.div_ceil(1024)).unwrap_or(u32::MAX)
 }
 
 /// A reply the reader asks the writer to send: STATUS content for `device`.
@@ -534,18 +707,49 @@ impl Reply {
     }
 }
 
+/// Writes `bytes`, marking the write in progress on `connection`; false when the socket failed or
+/// a message could not be written whole within the idle timeout (counted).
+async fn write_marked(
+    writer: &mut OwnedWriteHalf,
+    bytes: &[u8],
+    connection: &Connection,
+    shared: &Shared,
+) -> bool {
+    connection
+        .writing_since_ms
+        .store(shared.now_ms(), Ordering::Relaxed);
+    let written = tokio::time::timeout(shared.idle_timeout, writer.write_all(bytes)).await;
+    connection
+        .writing_since_ms
+        .store(NOT_WRITING, Ordering::Relaxed);
+    match written {
+        Ok(result) => result.is_ok(),
+        Err(_) => {
+            shared.counters.idle_closed.fetch_add(1, Ordering::Relaxed);
+            false
+        }
+    }
+}
+
 /// One connection: a writer (stream frames and replies) and this task reading requests.
-async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
+async fn client(
+    socket: TcpStream,
+    connection: Arc<Connection>,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
     let (mut reader, mut writer) = socket.into_split();
     let version = Arc::new(AtomicU16::new(1));
     let (reply_tx, mut reply_rx) = mpsc::channel::<Reply>(REPLY_QUEUE);
     let mut frames = shared.frames.subscribe();
     let initial = shared.status.lock().ok().and_then(|s| s.clone());
     let writer_shared = shared.clone();
+    let writer_connection = connection.clone();
     let writer_version = version.clone();
     let (writer_done_tx, mut writer_done) = oneshot::channel::<()>();
     let writer_task = tokio::spawn(async move {
         let shared = writer_shared;
+        let connection = writer_connection;
         let frame_bytes = |frame: &Frame, version: u16| -> Vec<u8> {
             if version >= 2 {
                 frame.v2.clone()
@@ -555,19 +759,14 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
         };
         let initial =
             initial.unwrap_or_else(|| status_frame(&shared, shared.api.snapshot().as_ref()));
-        let mut failed = writer
-            .write_all(&frame_bytes(
-                &initial,
-                writer_version.load(Ordering::Relaxed),
-            ))
-            .await
-            .is_err();
+        let bytes = frame_bytes(&initial, writer_version.load(Ordering::Relaxed));
+        let mut failed = !write_marked(&mut writer, &bytes, &connection, &shared).await;
         while !failed {
             tokio::select! {
                 frame = frames.recv() => match frame {
                     Ok(frame) => {
                         let bytes = frame_bytes(&frame, writer_version.load(Ordering::Relaxed));
-                        failed = writer.write_all(&bytes).await.is_err();
+                        failed = !write_marked(&mut writer, &bytes, &connection, &shared).await;
                         if !failed {
                             shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
                         }
@@ -590,7 +789,7 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
                             &[],
                             |o| codec::encode_status(o, reply.code, 0, reply.error_name, &reply.message),
                         );
-                        failed = writer.write_all(&out).await.is_err();
+                        failed = !write_marked(&mut writer, &out, &connection, &shared).await;
                     }
                     None => break,
                 },
@@ -603,24 +802,42 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
     let target_task = tokio::spawn(apply_targets(shared.clone(), target_rx, reply_tx.clone()));
     let mut session = ClientSession {
         shared: shared.clone(),
-        authorised: false,
+        connection: connection.clone(),
         replies: reply_tx,
         targets: target_tx,
         version,
     };
+    let mut linger = false;
     loop {
+        let authorised = connection.authorised.load(Ordering::Relaxed);
         tokio::select! {
             _ = stop.changed() => break,
             _ = &mut writer_done => break,
-            outcome = read_message(&mut reader) => match outcome {
-                Ok(Some((header, body))) => {
-                    if session.handle(header, body).await.is_err() {
+            () = connection.evicted.notified() => {
+                let _ = session.replies.try_send(Reply::new(
+                    STATUS_DEVICE,
+                    status_code::BUSY,
+                    "Evicted",
+                    format!(
+                        "voxhap closes this connection to make room for a new client ({MAX_CLIENTS} were \
+                         connected; connections without the token, not reading, or silent longest go first)"
+                    ),
+                ));
+                break;
+            }
+            outcome = read_message(&mut reader, authorised, &shared, &connection) => match outcome {
+                Ok(Some(message)) => {
+                    let Incoming { header, body, budget } = message;
+                    let handled = session.handle(header, body).await;
+                    drop(budget);
+                    if handled.is_err() {
                         break;
                     }
                 }
                 Ok(None) => break,
                 Err(problem) => {
-                    session.reply(Reply::new(STATUS_DEVICE, problem.code, "Error", problem.message)).await;
+                    linger = problem.linger;
+                    session.reply(Reply::new(STATUS_DEVICE, problem.code, problem.name, problem.message)).await;
                     break;
                 }
             }
@@ -636,57 +853,157 @@ async fn client(socket: TcpStream, shared: Arc<Shared>, mut stop: watch::Receive
     {
         writer_abort.abort();
     }
+    if linger {
+        // The refusal is written and the write side shut: read and drop (never store) a bounded amount of
+        // what the client still sends, so that closing does not reset the connection before it reads the
+        // refusal.
+        let mut scratch = [0u8; 16 * 1024];
+        let mut discard = (&mut reader).take(LINGER_BYTES);
+        let _ = tokio::time::timeout(LINGER_TIME, async {
+            while matches!(discard.read(&mut scratch).await, Ok(n) if n > 0) {}
+        })
+        .await;
+    }
+    if let Ok(mut table) = shared.table.lock() {
+        table.retain(|c| !Arc::ptr_eq(c, &connection));
+    }
     shared.counters.clients.fetch_sub(1, Ordering::AcqRel);
 }
 
 /// Why a connection is closed after a bad message.
 struct ReadProblem {
     code: u16,
+    name: &'static str,
     message: String,
+    /// The client may still be sending the refused body: discard a bounded amount before closing.
+    linger: bool,
+}
+
+impl ReadProblem {
+    fn new(code: u16, name: &'static str, message: String) -> Self {
+        ReadProblem {
+            code,
+            name,
+            message,
+            linger: false,
+        }
+    }
+}
+
+/// A whole message read from a client, with its share of the large-body budget (if it needed one).
+struct Incoming {
+    header: Header,
+    body: Vec<u8>,
+    budget: Option<OwnedSemaphorePermit>,
 }
 
 /// Reads one message: `Ok(None)` at a clean end of the connection. A bad CRC is not a read problem: the
-/// message is framed, so it is returned with its CRC left for the caller to check.
+/// message is framed, so it is returned with its CRC left for the caller to check. A body larger than
+/// [`UNAUTHENTICATED_BODY_BYTES`] is refused from the header when the connection is not `authorised`, and
+/// otherwise waits for its share of [`LARGE_BODY_BUDGET_BYTES`] before a byte of it is read.
 async fn read_message<R: AsyncRead + Unpin>(
     reader: &mut R,
-) -> Result<Option<(Header, Vec<u8>)>, ReadProblem> {
+    authorised: bool,
+    shared: &Shared,
+    connection: &Connection,
+) -> Result<Option<Incoming>, ReadProblem> {
+    let closing = |what: String| {
+        ReadProblem::new(
+            status_code::CONFIGURATION_ERROR,
+            "Error",
+            format!("voxhap closes the connection: {what}"),
+        )
+    };
+    let heard = || {
+        connection
+            .heard_ms
+            .store(shared.now_ms(), Ordering::Relaxed)
+    };
     let mut raw = [0u8; HEADER_BYTES];
     match reader.read(&mut raw[..1]).await {
         Ok(0) | Err(_) => return Ok(None),
-        Ok(_) => {}
+        Ok(_) => heard(),
     }
-    let rest = async {
-        reader.read_exact(&mut raw[1..]).await?;
-        let header = Header::decode(&raw, MAX_BODY_BYTES)
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()))?;
-        // Grows with the bytes that actually arrive, never to the claimed size up front.
-        let mut body = Vec::with_capacity(header.body_size.min(64 * 1024) as usize);
-        let read = reader.take(header.body_size).read_to_end(&mut body).await?;
-        if (read as u64) < header.body_size {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::UnexpectedEof,
-                format!(
-                    "the connection ended {read} bytes into a {}-byte body",
-                    header.body_size
-                ),
-            ));
-        }
-        Ok::<_, std::io::Error>((header, body))
-    };
-    match tokio::time::timeout(MESSAGE_TIMEOUT, rest).await {
-        Ok(Ok(message)) => Ok(Some(message)),
-        Ok(Err(error)) if error.kind() == std::io::ErrorKind::InvalidData => Err(ReadProblem {
-            code: status_code::CONFIGURATION_ERROR,
-            message: format!("voxhap closes the connection: {error}"),
-        }),
-        Ok(Err(_)) => Ok(None),
-        Err(_) => Err(ReadProblem {
-            code: status_code::CONFIGURATION_ERROR,
-            message: format!(
-                "voxhap closes the connection: a message did not arrive whole within {} s",
+    let rest = tokio::time::timeout(MESSAGE_TIMEOUT, reader.read_exact(&mut raw[1..])).await;
+    let header = match rest {
+        // Without the token the smaller limit below applies first, so that the answer is "send the token".
+        Ok(Ok(_)) => Header::decode(&raw, if authorised { MAX_BODY_BYTES } else { u64::MAX })
+            .map_err(|e| closing(e.to_string()))?,
+        Ok(Err(_)) => return Ok(None),
+        Err(_) => {
+            return Err(closing(format!(
+                "a message header did not arrive whole within {} s",
                 MESSAGE_TIMEOUT.as_secs()
-            ),
-        }),
+            )))
+        }
+    };
+    heard();
+    let mut budget = None;
+    if header.body_size > UNAUTHENTICATED_BODY_BYTES {
+        if !authorised {
+            shared
+                .counters
+                .large_bodies_refused
+                .fetch_add(1, Ordering::Relaxed);
+            return Err(ReadProblem {
+                code: status_code::ACCESS_DENIED,
+                name: "AccessDenied",
+                message: format!(
+                    "voxhap closes the connection: {} {:?} announces a {}-byte body, and a connection without \
+                     the control token may send at most {UNAUTHENTICATED_BODY_BYTES} bytes; send the STRING \
+                     \"token <T>\" first (T is printed by voxhap serve as 'igtl: control token T')",
+                    header.type_name, header.device_name, header.body_size
+                ),
+                linger: true,
+            });
+        }
+        let share = kib(header.body_size);
+        let waited = tokio::time::timeout(
+            MESSAGE_TIMEOUT,
+            shared.large_bodies.clone().acquire_many_owned(share),
+        )
+        .await;
+        budget = match waited {
+            Ok(Ok(permit)) => Some(permit),
+            Ok(Err(_)) => return Ok(None),
+            Err(_) => {
+                return Err(ReadProblem::new(
+                    status_code::NOT_ENOUGH_RESOURCE,
+                    "Busy",
+                    format!(
+                        "voxhap closes the connection: other clients' large messages held the \
+                         {LARGE_BODY_BUDGET_BYTES}-byte budget for {} s; send the {}-byte {} again later",
+                        MESSAGE_TIMEOUT.as_secs(),
+                        header.body_size,
+                        header.type_name
+                    ),
+                ))
+            }
+        };
+    }
+    let body_size = header.body_size;
+    let read_body = async {
+        // Grows with the bytes that actually arrive, never to the claimed size up front.
+        let mut body = Vec::with_capacity(body_size.min(64 * 1024) as usize);
+        let read = reader.take(body_size).read_to_end(&mut body).await?;
+        Ok::<_, std::io::Error>((read, body))
+    };
+    match tokio::time::timeout(MESSAGE_TIMEOUT, read_body).await {
+        Ok(Ok((read, body))) if read as u64 == body_size => {
+            heard();
+            Ok(Some(Incoming {
+                header,
+                body,
+                budget,
+            }))
+        }
+        Ok(_) => Ok(None),
+        Err(_) => Err(closing(format!(
+            "the {body_size}-byte body of {} {:?} did not arrive whole within {} s of its header",
+            header.type_name,
+            header.device_name,
+            MESSAGE_TIMEOUT.as_secs()
+        ))),
     }
 }
 
@@ -728,7 +1045,8 @@ async fn apply_targets(
 /// The request side of one connection.
 struct ClientSession {
     shared: Arc<Shared>,
-    authorised: bool,
+    /// Holds whether this connection sent the token (the accept loop reads it when choosing whom to close).
+    connection: Arc<Connection>,
     replies: mpsc::Sender<Reply>,
     targets: watch::Sender<Option<DVec3>>,
     version: Arc<AtomicU16>,
@@ -747,15 +1065,26 @@ fn control_code(error: &ControlError) -> u16 {
 }
 
 impl ClientSession {
+    fn authorised(&self) -> bool {
+        self.connection.authorised.load(Ordering::Relaxed)
+    }
+
+    /// Records whether `given` is the token; true when it is.
+    fn authorise(&self, given: &str) -> bool {
+        let matches = token_matches(&self.shared.token, given);
+        self.connection.authorised.store(matches, Ordering::Relaxed);
+        matches
+    }
+
     async fn reply(&self, reply: Reply) -> bool {
         self.replies.send(reply).await.is_ok()
     }
 
     /// Answers one request; `Err` when the connection is gone.
-    async fn handle(&mut self, header: Header, body: Vec<u8>) -> Result<(), Gone> {
+    async fn handle(&mut self, header: Header, raw: Vec<u8>) -> Result<(), Gone> {
         let device = header.device_name.clone();
         let sent = |ok: bool| if ok { Ok(()) } else { Err(Gone) };
-        if let Err(error) = header.check_crc(&body) {
+        if let Err(error) = header.check_crc(&raw) {
             let reply = Reply::new(
                 &device,
                 status_code::CHECKSUM_ERROR,
@@ -766,7 +1095,7 @@ impl ClientSession {
         }
         // The client speaks this header version: answer and stream in it from now on.
         self.version.store(header.version, Ordering::Relaxed);
-        let body = match Body::split(header.version, &body) {
+        let body = match Body::split(header.version, &raw) {
             Ok(body) => body,
             Err(error) => {
                 let reply = Reply::new(
@@ -779,7 +1108,7 @@ impl ClientSession {
             }
         };
         if let Some(token) = body.metadata_value(TOKEN_METADATA_KEY) {
-            self.authorised = token_matches(&self.shared.token, token);
+            self.authorise(token);
         }
         match header.type_name.as_str() {
             "STRING" => {
@@ -795,7 +1124,7 @@ impl ClientSession {
                 sent(self.reply(reply).await)
             }
             "TRANSFORM" if device == PROBE_TARGET_DEVICE => {
-                if !self.authorised {
+                if !self.authorised() {
                     return sent(self.reply(self.denied(&device, "ProbeTarget")).await);
                 }
                 match Transform::decode(body.content) {
@@ -815,14 +1144,15 @@ impl ClientSession {
                 }
             }
             "IMAGE" => {
-                if !self.authorised {
+                if !self.authorised() {
                     return sent(self.reply(self.denied(&device, "IMAGE")).await);
                 }
                 let volume = body.metadata_value("volume").map(str::to_owned);
-                // The content is copied once into the blocking task (decode and write happen there).
-                let content = body.content.to_vec();
+                // The body moves into the blocking task (decode and write happen there), never copied.
+                let start = body.content.as_ptr() as usize - raw.as_ptr() as usize;
+                let content = start..start + body.content.len();
                 drop(body);
-                let reply = self.image(&device, content, volume).await;
+                let reply = self.image(&device, raw, content, volume).await;
                 sent(self.reply(reply).await)
             }
             "GET_STATUS" => {
@@ -850,8 +1180,7 @@ impl ClientSession {
         let text = text.trim();
         match text.split_once(' ') {
             Some(("token", given)) => {
-                self.authorised = token_matches(&self.shared.token, given.trim());
-                if self.authorised {
+                if self.authorise(given.trim()) {
                     Reply::new(
                         device,
                         status_code::OK,
@@ -880,7 +1209,13 @@ impl ClientSession {
     }
 
     /// Decodes, writes and loads an IMAGE; the STATUS that answers it.
-    async fn image(&self, device: &str, content: Vec<u8>, volume: Option<String>) -> Reply {
+    async fn image(
+        &self,
+        device: &str,
+        raw: Vec<u8>,
+        content: std::ops::Range<usize>,
+        volume: Option<String>,
+    ) -> Reply {
         let Ok(_permit) = self.shared.images.acquire().await else {
             return Reply::new(
                 device,
@@ -892,9 +1227,9 @@ impl ClientSession {
         let shared = self.shared.clone();
         let device_name = device.to_owned();
         let loaded = tokio::task::spawn_blocking(move || -> Result<String, (u16, String)> {
-            let image = codec::decode_image(&content, MAX_IMAGE_VOXELS)
+            let image = codec::decode_image(&raw[content], MAX_IMAGE_VOXELS)
                 .map_err(|e| (status_code::CONFIGURATION_ERROR, e.to_string()))?;
-            drop(content);
+            drop(raw);
             let path = {
                 let mut folder = shared.folder.lock().map_err(|_| {
                     (status_code::UNKNOWN_ERROR, "the image folder is unavailable".to_owned())
@@ -1019,6 +1354,64 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!((config.addr.port(), config.rate_hz), (0, 250));
+        assert_eq!(config.idle_timeout, Duration::from_secs(30));
+        let config = parse(&["--igtl", "--igtl-idle-timeout", "5"])
+            .unwrap()
+            .resolve()
+            .unwrap()
+            .unwrap();
+        assert_eq!(config.idle_timeout, Duration::from_secs(5));
+    }
+
+    #[test]
+    fn an_idle_timeout_out_of_range_is_refused() {
+        for bad in ["0", "3601", "-1", "1.5"] {
+            assert!(
+                parse(&["--igtl", "--igtl-idle-timeout", bad]).is_err(),
+                "{bad} accepted"
+            );
+        }
+        let mut config = IgtlConfig::new(DEFAULT_ADDR);
+        config.idle_timeout = Duration::from_millis(500);
+        let error = config.check(false).unwrap_err().to_string();
+        assert!(error.contains("--igtl-idle-timeout"), "{error}");
+    }
+
+    /// The documented order (module header): without the token first, then stalled, then silent longest,
+    /// then the oldest.
+    #[test]
+    fn the_connection_closed_for_a_newcomer_follows_the_documented_order() {
+        let c = |authorised, stalled, silent_ms| Candidate {
+            authorised,
+            stalled,
+            silent_ms,
+        };
+        assert_eq!(choose_victim(&[]), None);
+        // Equal: the oldest.
+        assert_eq!(
+            choose_victim(&[c(false, false, 5), c(false, false, 5)]),
+            Some(0)
+        );
+        // Silent longest.
+        assert_eq!(
+            choose_victim(&[c(false, false, 5), c(false, false, 9)]),
+            Some(1)
+        );
+        // A stalled one before one silent longer.
+        assert_eq!(
+            choose_victim(&[c(false, false, 90_000), c(false, true, 10)]),
+            Some(1)
+        );
+        // One without the token before a stalled, silent token holder.
+        assert_eq!(
+            choose_victim(&[c(true, true, 90_000), c(false, false, 0)]),
+            Some(1)
+        );
+        // All with the token: the same order among them.
+        assert_eq!(
+            choose_victim(&[c(true, false, 7), c(true, true, 1), c(true, false, 8)]),
+            Some(1)
+        );
     }
 
     #[test]

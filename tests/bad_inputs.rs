@@ -83,6 +83,46 @@ fn mcap(dir: &Path) {
     write(dir, "trace.mcap", &bytes);
 }
 
+/// A short scenario `scene.toml` and a dangling symlink `link` (its target in a folder that exists).
+fn scenario_and_dangling_link(dir: &Path, link: &str) {
+    scenario(dir, "duration_s = 6.0", "duration_s = 0.01");
+    std::fs::create_dir(dir.join("elsewhere")).unwrap();
+    std::os::unix::fs::symlink(dir.join("elsewhere/created"), dir.join(link)).unwrap();
+}
+
+/// A short CSV trace `trace.csv` whose sidecar claims 99999 samples.
+fn lying_sidecar(dir: &Path) {
+    scenario(dir, "duration_s = 6.0", "duration_s = 0.01");
+    let status = voxhap()
+        .args(["sim", "scene.toml", "--out", "trace.csv"])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{status:?}");
+    let path = dir.join("trace.csv.json");
+    let mut sidecar: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    sidecar["sample_count"] = 99999.into();
+    std::fs::write(&path, serde_json::to_vec(&sidecar).unwrap()).unwrap();
+}
+
+/// A 2x2x2 gzip NRRD whose byte skip is 256 MiB of zeros (four gzip members of 64 MiB, 256 kB on disk)
+/// with no data after it.
+fn gzip_skip_bomb(dir: &Path) {
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    encoder.write_all(&vec![0u8; 64 << 20]).unwrap();
+    let member = encoder.finish().unwrap();
+    let mut bytes = format!(
+        "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 2 2\nencoding: gzip\nbyte skip: {}\n\n",
+        4u64 << 26
+    )
+    .into_bytes();
+    for _ in 0..4 {
+        bytes.extend_from_slice(&member);
+    }
+    write(dir, "skip.nrrd", &bytes);
+}
+
 const CASES: &[Case] = &[
     Case {
         input: "a FIFO (named pipe) as a volume",
@@ -335,6 +375,55 @@ const CASES: &[Case] = &[
         exit: 2,
         expected: "0 is not in 1..=3600",
     },
+    Case {
+        input: "a gzip NRRD whose `byte skip` is 256 MiB of compressed zeros, no data after it",
+        setup: gzip_skip_bomb,
+        args: &["info", "skip.nrrd"],
+        exit: 1,
+        expected: "data is truncated: the header describes 268435464 bytes but only 268435456 are there",
+    },
+    Case {
+        input: "`sim --out` naming a dangling symlink",
+        setup: |dir| scenario_and_dangling_link(dir, "t.csv"),
+        args: &["sim", "scene.toml", "--out", "t.csv", "--force"],
+        exit: 1,
+        expected: "t.csv is a symbolic link; voxhap never writes a trace or sidecar through one, even with --force",
+    },
+    Case {
+        input: "a trace whose sidecar path is a symlink",
+        setup: |dir| scenario_and_dangling_link(dir, "t.csv.json"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "t.csv.json is a symbolic link",
+    },
+    Case {
+        input: "`serve --record` naming a dangling symlink",
+        setup: |dir| scenario_and_dangling_link(dir, "t.mcap"),
+        args: &["serve", "--record", "t.mcap", "--duration", "0.1", "--no-http", "--no-foxglove"],
+        exit: 1,
+        expected: "t.mcap is a symbolic link",
+    },
+    Case {
+        input: "`serve --record-dir` naming no folder",
+        setup: nothing,
+        args: &["serve", "--record-dir", "/nonexistent", "--no-http", "--no-foxglove"],
+        exit: 1,
+        expected: "--record-dir /nonexistent: not a folder",
+    },
+    Case {
+        input: "a sidecar that claims more samples than its trace holds (a warning; the data win)",
+        setup: lying_sidecar,
+        args: &["trace", "repair", "trace.csv"],
+        exit: 0,
+        expected: "warning: trace.csv: the sidecar trace.csv.json does not match the trace: it says 99999 samples, the trace holds 10",
+    },
+    Case {
+        input: "the same lying sidecar, replayed",
+        setup: lying_sidecar,
+        args: &["serve", "--device", "replay:trace.csv", "--duration", "0.1", "--no-http", "--no-foxglove"],
+        exit: 0,
+        expected: "it says 99999 samples, the trace holds 10",
+    },
 ];
 
 /// One bad request to `voxhap serve` (listening on 127.0.0.1:PORT, control token TOKEN).
@@ -382,6 +471,12 @@ const REQUESTS: &[RequestCase] = &[
         request: "POST /api/volume HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 23\r\nConnection: close\r\n\r\n{\"path\": \"/etc/passwd\"}",
         status: 400,
         expected: "volume /etc/passwd: outside the --volume-dir folders",
+    },
+    RequestCase {
+        input: "a recording started through the API without `--record-dir`",
+        request: "POST /api/record/start HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 25\r\nConnection: close\r\n\r\n{\"path\": \"../escape.csv\"}",
+        status: 400,
+        expected: "recording to ../escape.csv: recording through the API is off; start voxhap serve with --record-dir DIR",
     },
     RequestCase {
         input: "a FIFO in the `--volume-dir` folder",

@@ -20,7 +20,7 @@
 use crate::device::profile::{DeviceProfile, MappingChoice};
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
-use crate::servo::api::{ConfinedVolumes, SessionApi, VolumeDirs};
+use crate::servo::api::{ConfinedVolumes, RecordDir, SessionApi, VolumeDirs};
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -80,6 +80,11 @@ pub struct ServeArgs {
     /// more. Without it the API loads only builtin:NAME volumes.
     #[arg(long, value_name = "DIR")]
     pub volume_dir: Vec<PathBuf>,
+    /// The folder the control API may record traces into (`POST /api/record/start`, `start_recording`),
+    /// which then names a plain file name in it. Without it the API cannot start a recording (--record
+    /// still records from the start).
+    #[arg(long, value_name = "DIR")]
+    pub record_dir: Option<PathBuf>,
     #[command(flatten)]
     pub limits: super::VolumeLimitArgs,
     /// Device profile: a built-in name (sim, haply-inverse, haply2diy, woodenhaptics, woodenhaptics-hid,
@@ -328,6 +333,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
     let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
+    let record_dir = RecordDir::new(args.record_dir.as_deref()).map_err(anyhow::Error::msg)?;
     let igtl = args.igtl.resolve()?;
     // The OpenIGTLink server takes the HTTP server's control token; with --no-http, --token (checked by
     // the same rules) or a random one.
@@ -397,8 +403,10 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             .local_addr()
             .context("the visualiser server's address")?;
         print_http(addr, &server_config.token)?;
-        // load_volume commands through the API may only name files in the --volume-dir folders.
-        let api: Arc<dyn SessionApi> = Arc::new(ConfinedVolumes::new(session.api(), volume_dirs));
+        // load_volume commands through the API may only name files in the --volume-dir folders, and
+        // start_recording commands only a file name in the --record-dir folder.
+        let api: Arc<dyn SessionApi> =
+            Arc::new(ConfinedVolumes::new(session.api(), volume_dirs).with_record_dir(record_dir));
         let shutdown = async move {
             let _ = http_stopped.await;
         };

@@ -210,7 +210,14 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         let _ = writer.fail(&error_chain(error));
     }
     let summary = result.with_context(|| format!("sim {} stopped", args.scenario.display()))?;
-    let written = writer.finish()?;
+    let written = match writer.finish() {
+        Ok(written) => written,
+        Err(error) => {
+            // The sidecar says why the trace ends early, and counts what reached the file.
+            let _ = writer.fail(&error_chain(&error));
+            return Err(anyhow::anyhow!("{}", error_chain(&error)));
+        }
+    };
     let bound = if summary.max_error_bound_m.is_finite() {
         format!("{:.2e} m", summary.max_error_bound_m)
     } else {

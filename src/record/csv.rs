@@ -37,20 +37,24 @@ pub struct CsvTraceWriter {
     buffer: Vec<u8>,
     row: Vec<Cell>,
     checker: SampleChecker,
+    /// Rows in `buffer`, not yet handed to the file.
+    buffered_rows: u64,
+    /// Rows whose whole line reached the file: the count the sidecar gives.
+    committed_rows: u64,
     start_utc_ns: i64,
     sidecar: Sidecar,
 }
 
 impl CsvTraceWriter {
-    /// Creates (truncates) `path` and `path.json`, writes the header and a provisional sidecar. Callers
-    /// check first whether the files may be replaced (`create_trace_writer_with`).
+    /// Creates `path` and `path.json` (new files, never through a symlink), writes the header and a
+    /// provisional sidecar. `create_trace_writer_with` removes files that `--force` replaces first.
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         meta.validate()?;
         let io_error = |source| TraceError::Io {
             path: path.to_path_buf(),
             source,
         };
-        let mut file = File::create(path).map_err(io_error)?;
+        let mut file = super::create_new_file(path)?;
         let header: Vec<String> = columns(&meta.mode_names)
             .into_iter()
             .map(|c| c.name.into_owned())
@@ -58,13 +62,15 @@ impl CsvTraceWriter {
         file.write_all(format!("{}\n", header.join(",")).as_bytes())
             .map_err(io_error)?;
         let sidecar = Sidecar::new(meta, TraceFormat::Csv, path);
-        sidecar.write(&sidecar_path(path))?;
+        sidecar.write_new(&sidecar_path(path))?;
         Ok(CsvTraceWriter {
             path: path.to_path_buf(),
             file: Some(file),
             buffer: Vec::with_capacity(WRITE_CHUNK_BYTES + 4096),
             row: Vec::with_capacity(128),
             checker: SampleChecker::new(meta.mode_names.len()),
+            buffered_rows: 0,
+            committed_rows: 0,
             start_utc_ns: meta.start_utc_ns,
             sidecar,
         })
@@ -77,12 +83,41 @@ impl CsvTraceWriter {
         }
     }
 
-    /// Hands the buffered whole lines to the file.
+    /// Hands the buffered whole lines to the file, counting the lines that reached it. After a failed
+    /// write (a full disk takes part of the buffer, then refuses the rest) nothing more is written, and
+    /// only the lines that reached the file whole are counted (the reader skips the partial one).
     fn write_buffer(&mut self) -> Result<(), TraceError> {
         let Some(file) = self.file.as_mut() else {
             return Err(TraceError::Finished);
         };
-        let result = file.write_all(&self.buffer);
+        let mut written = 0;
+        let mut result = Ok(());
+        while written < self.buffer.len() {
+            match file.write(&self.buffer[written..]) {
+                Ok(0) => {
+                    result = Err(std::io::Error::from(std::io::ErrorKind::WriteZero));
+                    break;
+                }
+                Ok(n) => written += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        match result {
+            Ok(()) => self.committed_rows += self.buffered_rows,
+            Err(_) => {
+                let whole_lines = self.buffer[..written]
+                    .iter()
+                    .filter(|&&b| b == b'\n')
+                    .count();
+                self.committed_rows += whole_lines as u64;
+                self.file = None;
+            }
+        }
+        self.buffered_rows = 0;
         self.buffer.clear();
         result.map_err(|e| self.io_error(e))
     }
@@ -130,6 +165,7 @@ impl TraceWriter for CsvTraceWriter {
             &mut self.row,
         );
         write_cells(&mut self.buffer, &self.row);
+        self.buffered_rows += 1;
         if self.buffer.len() >= WRITE_CHUNK_BYTES {
             self.write_buffer()?;
         }
@@ -153,19 +189,20 @@ impl TraceWriter for CsvTraceWriter {
         }
         self.checker.finished = true;
         self.sidecar.samples_rejected = self.checker.rejected;
-        self.sidecar.complete(&self.path, self.checker.count)
+        self.sidecar.complete(&self.path, self.committed_rows)
     }
 
     fn fail(&mut self, error: &str) -> Result<(), TraceError> {
         self.checker.finished = true;
         self.file = None;
         self.buffer.clear();
+        self.buffered_rows = 0;
         self.sidecar.samples_rejected = self.checker.rejected;
-        self.sidecar.fail(&self.path, self.checker.count, error)
+        self.sidecar.fail(&self.path, self.committed_rows, error)
     }
 
     fn sample_count(&self) -> u64 {
-        self.checker.count
+        self.committed_rows
     }
 }
 
@@ -180,12 +217,13 @@ pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
         path,
         start_utc_ns,
     )?;
-    Ok(Trace {
+    let trace = Trace {
         mode_names,
         samples,
         sidecar,
         warnings,
-    })
+    };
+    Ok(super::check_sidecar(trace, path, TraceFormat::Csv))
 }
 
 /// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.
@@ -700,30 +738,30 @@ mod tests {
         assert!(!trace.sidecar.unwrap().complete);
     }
 
+    /// A full disk mid-trace: the rows flushed before it stay, the sidecar counts exactly the rows a reader
+    /// gets back, and nothing is written after the failure. The writer's file is switched to /dev/full
+    /// (which fails every write with ENOSPC, as a full disk does) after 1000 rows were flushed.
     #[test]
-    fn a_full_disk_is_an_error_with_the_os_reason_and_the_sidecar_says_so() {
-        // /dev/full accepts the open and fails every write with ENOSPC; the trace path is a symlink to
-        // it so the sidecar lands in the temporary directory.
-        if !Path::new("/dev/full").exists() {
-            eprintln!("skipped: /dev/full does not exist on this system");
+    fn a_full_disk_is_an_error_with_the_os_reason_and_the_sidecar_counts_what_reached_the_file() {
+        use std::os::unix::io::AsRawFd;
+        let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") else {
+            eprintln!("skipped: /dev/full cannot be opened on this system");
             return;
-        }
+        };
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("full.csv");
-        #[cfg(unix)]
-        std::os::unix::fs::symlink("/dev/full", &path).unwrap();
-        let mut writer = match CsvTraceWriter::create(&path, &meta(&["surface"])) {
-            Ok(writer) => writer,
-            Err(error) => {
-                // The header write already fails.
-                let text = super::super::error_chain(&error);
-                assert!(text.contains("No space left on device"), "{text}");
-                return;
-            }
-        };
+        let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        let data = samples(3000, 1);
+        for sample in &data[..1000] {
+            writer.write_sample(sample).unwrap();
+        }
+        writer.flush().unwrap();
+        let fd = writer.file.as_ref().unwrap().as_raw_fd();
+        // SAFETY: both descriptors are open; dup2 makes the writer's descriptor refer to /dev/full.
+        assert_eq!(unsafe { libc::dup2(full.as_raw_fd(), fd) }, fd);
         let mut failure = None;
-        for sample in samples(3000, 1) {
-            if let Err(error) = writer.write_sample(&sample) {
+        for sample in &data[1000..] {
+            if let Err(error) = writer.write_sample(sample) {
                 failure = Some(error);
                 break;
             }
@@ -735,9 +773,14 @@ mod tests {
         let text = super::super::error_chain(&error);
         assert!(text.contains("No space left on device"), "{text}");
         writer.fail(&text).unwrap();
-        let sidecar: Sidecar =
-            serde_json::from_slice(&std::fs::read(sidecar_path(&path)).unwrap()).unwrap();
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 1000);
+        let sidecar = trace.sidecar.unwrap();
         assert!(!sidecar.complete);
+        assert_eq!(
+            sidecar.sample_count, 1000,
+            "rows buffered when the disk filled are not counted"
+        );
         assert!(sidecar.error.unwrap().contains("No space left on device"));
     }
 

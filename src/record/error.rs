@@ -86,6 +86,16 @@ pub enum TraceError {
         /// The existing file.
         path: PathBuf,
     },
+    /// The output path's last component is a symbolic link (dangling or not); outputs are never written
+    /// through one.
+    #[error(
+        "{path} is a symbolic link; voxhap never writes a trace or sidecar through one, even with --force: \
+         remove it or name the real file"
+    )]
+    Symlink {
+        /// The link.
+        path: PathBuf,
+    },
     /// The output is one of the run's inputs (same file, perhaps by another name).
     #[error(
         "{path} is an input of this run ({input}); it is never overwritten, even with --force"

@@ -29,17 +29,19 @@
 //!   the ones that are not strings).
 //!
 //! Crash safety: every [`TraceWriter::flush`] (the recorder flushes every 250 ms; `voxhap sim` every
-//! 1000 ticks) closes the current chunk, so a crash loses at most the messages since then. A file without
-//! its summary and end magic (the writer never finished) is read up to the last complete chunk, with a
-//! warning, and to the last tick whose messages all made it (the writer also closes a chunk at its 1 MiB
-//! size limit, which may fall inside a tick); `voxhap trace repair` rewrites it as a finished file.
+//! 1000 ticks) closes the current chunk, and so does the first whole tick that takes a chunk past 1 MiB;
+//! chunks always end between ticks. A crash loses at most the messages since then. A file without its
+//! summary and end magic (the writer never finished) is read up to the last complete chunk, with a
+//! warning, and to the last tick whose messages all made it (files from writers that cut chunks inside a
+//! tick are read that way too); `voxhap trace repair` rewrites it as a finished file. After a write error
+//! nothing more reaches the file and the sidecar counts the samples in closed chunks, exactly what a
+//! reader recovers.
 //!
 //! The writer library string is `voxhap <version>` and the profile is empty. Numbers are written by
 //! serde_json (shortest round-trip) and parsed with its `float_roundtrip` feature, so the reader
 //! recovers the exact bits.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
@@ -56,6 +58,7 @@ use super::foxglove_topics::{
     frame_transform, set_translation, vector3, RecordedScene, MEASURED_CP_TOPIC as PROBE_TOPIC,
     PROBE_FRAME, PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
+use super::output::{OutputFile, StopSwitch};
 use super::{
     sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat, TraceMeta,
     TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES, TRACE_FORMAT_VERSION,
@@ -238,7 +241,14 @@ struct SolverMessageOwned {
 /// Writes an MCAP trace and its sidecar.
 pub struct McapTraceWriter {
     path: PathBuf,
-    writer: Option<mcap::Writer<BufWriter<File>>>,
+    writer: Option<mcap::Writer<BufWriter<OutputFile>>>,
+    /// Stops the file at the first failure, so nothing reaches it afterwards.
+    stop: StopSwitch,
+    /// Samples in chunks that were closed and handed to the file: the count the sidecar gives.
+    committed: u64,
+    /// Samples written into the open chunk, and that chunk's message bytes.
+    pending: u64,
+    chunk_bytes: u64,
     state_channel: u16,
     solver_channel: u16,
     /// The Foxglove channels and the reusable messages for them.
@@ -260,6 +270,10 @@ pub struct McapTraceWriter {
     wall_start_ns: u64,
     first_t_s: Option<f64>,
 }
+
+/// A chunk is closed after the first whole tick that takes it past this many message bytes (besides every
+/// flush), bounding the memory of a reader and what a crash loses.
+const CHUNK_BYTES: u64 = 1 << 20;
 
 /// Wall-clock time (ns since the Unix epoch) of a trace's first sample: `now_ns` for a trace created now
 /// (`meta.created_utc` within 2 s of it: a live recording, stamped with the precise clock), else the time
@@ -335,12 +349,13 @@ impl McapTraceWriter {
             path: path.to_path_buf(),
             source,
         };
-        let file = File::create(path).map_err(|source| TraceError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let stop = StopSwitch::default();
+        let file = OutputFile::new(super::create_new_file(path)?, &stop);
+        // Chunks close only between ticks (on a flush, or past CHUNK_BYTES after a whole tick), so the
+        // samples in closed chunks are exactly what a reader recovers from a file cut after one.
         let options = mcap::WriteOptions::new()
             .compression(None)
+            .chunk_size(None)
             .profile("")
             .library(format!("voxhap {}", env!("CARGO_PKG_VERSION")));
         let mut writer = options.create(BufWriter::new(file)).map_err(mcap_error)?;
@@ -375,10 +390,14 @@ impl McapTraceWriter {
             })
             .map_err(mcap_error)?;
         let sidecar = Sidecar::new(meta, TraceFormat::Mcap, path);
-        sidecar.write(&sidecar_path(path))?;
+        sidecar.write_new(&sidecar_path(path))?;
         Ok(McapTraceWriter {
             path: path.to_path_buf(),
             writer: Some(writer),
+            stop,
+            committed: 0,
+            pending: 0,
+            chunk_bytes: 0,
             state_channel,
             solver_channel,
             probe_channel,
@@ -408,7 +427,7 @@ impl McapTraceWriter {
 
 /// Appends `data` to `channel_id` as one message at `time_ns`.
 fn write_message(
-    writer: &mut Option<mcap::Writer<BufWriter<File>>>,
+    writer: &mut Option<mcap::Writer<BufWriter<OutputFile>>>,
     path: &Path,
     channel_id: u16,
     sequence: u32,
@@ -537,12 +556,19 @@ impl TraceWriter for McapTraceWriter {
             flag_bits: sample.flags,
         };
         // Every channel's message is encoded into the one reusable buffer, then written.
-        let (writer, path, message) = (&mut self.writer, &self.path, &mut self.message);
+        let (writer, path, message, chunk_bytes) = (
+            &mut self.writer,
+            &self.path,
+            &mut self.message,
+            &mut self.chunk_bytes,
+        );
         let mut put = |channel_id: u16,
                        encode: &dyn Fn(&mut Vec<u8>) -> Result<(), TraceError>|
          -> Result<(), TraceError> {
             message.clear();
             encode(message)?;
+            // The message record's header and its index entry.
+            *chunk_bytes += message.len() as u64 + 47;
             write_message(writer, path, channel_id, sequence, time_ns, message)
         };
         let json_error =
@@ -570,6 +596,10 @@ impl TraceWriter for McapTraceWriter {
             .write(sample, frame.as_ref(), time_ns, &mut |channel, encode| {
                 put(channel, &|m| encode(m).map_err(encode_error))
             })?;
+        self.pending += 1;
+        if self.chunk_bytes >= CHUNK_BYTES {
+            self.flush()?;
+        }
         Ok(())
     }
 
@@ -578,7 +608,11 @@ impl TraceWriter for McapTraceWriter {
             Some(writer) => writer.flush(),
             None => return Err(TraceError::Finished),
         };
-        result.map_err(|e| self.mcap_error(e))
+        result.map_err(|e| self.mcap_error(e))?;
+        // The chunk is closed and handed to the file.
+        self.committed += std::mem::take(&mut self.pending);
+        self.chunk_bytes = 0;
+        Ok(())
     }
 
     fn finish(&mut self) -> Result<TraceSummary, TraceError> {
@@ -594,27 +628,28 @@ impl TraceWriter for McapTraceWriter {
                 path: self.path.clone(),
                 source: e.into_error(),
             })?;
-        file.sync_all().map_err(|source| TraceError::Io {
+        file.file().sync_all().map_err(|source| TraceError::Io {
             path: self.path.clone(),
             source,
         })?;
+        self.committed += std::mem::take(&mut self.pending);
         self.sidecar.samples_rejected = self.checker.rejected;
-        self.sidecar.complete(&self.path, self.checker.count)
+        self.sidecar.complete(&self.path, self.committed)
     }
 
     fn fail(&mut self, error: &str) -> Result<(), TraceError> {
-        // Best effort: try to end the file properly (it may work if the error was passing); if not, the
-        // chunks already written stay readable and `voxhap trace repair` adds the summary.
-        if let Some(mut writer) = self.writer.take() {
-            let _ = writer.finish();
-        }
+        // Nothing more reaches the file (not the open chunk, not a summary): the chunks already closed
+        // stay readable, exactly `committed` samples, and `voxhap trace repair` adds the summary.
+        self.stop.stop();
+        self.writer = None;
+        self.pending = 0;
         self.checker.finished = true;
         self.sidecar.samples_rejected = self.checker.rejected;
-        self.sidecar.fail(&self.path, self.checker.count, error)
+        self.sidecar.fail(&self.path, self.committed, error)
     }
 
     fn sample_count(&self) -> u64 {
-        self.checker.count
+        self.committed
     }
 
     fn scene_frame(&mut self, frame: &crate::servo::Snapshot) {
@@ -632,12 +667,13 @@ impl TraceWriter for McapTraceWriter {
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let bytes = super::read_trace_file(path)?;
     let (mode_names, samples, warnings) = parse_mcap_bytes(&bytes, path)?;
-    Ok(Trace {
+    let trace = Trace {
         mode_names,
         samples,
         sidecar: read_sidecar(&sidecar_path(path))?,
         warnings,
-    })
+    };
+    Ok(super::check_sidecar(trace, path, TraceFormat::Mcap))
 }
 
 /// Parses an MCAP trace held in memory; returns the mode names and the samples (as

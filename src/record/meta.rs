@@ -201,10 +201,23 @@ impl Sidecar {
         self.write(&sidecar_path(trace_path))
     }
 
+    /// Writes the first (provisional) sidecar into a new file at `path` (never over an existing file, never
+    /// through a symlink).
+    pub(crate) fn write_new(&self, path: &Path) -> Result<(), TraceError> {
+        let file = super::output::create_new_file(path)?;
+        self.write_into(file, path)
+    }
+
     /// Writes the sidecar as pretty JSON with a final newline, in place: the file is overwritten from the
     /// start and only then cut to length, so rewriting a sidecar no longer than the padded first version
-    /// needs no new disk space. The first version is padded with [`SIDECAR_RESERVE`] spaces for that.
+    /// needs no new disk space. The first version is padded with [`SIDECAR_RESERVE`] spaces for that. The
+    /// file must exist ([`Sidecar::write_new`] made it) and is not opened through a symlink.
     pub(crate) fn write(&self, path: &Path) -> Result<(), TraceError> {
+        let file = super::output::open_existing_output(path)?;
+        self.write_into(file, path)
+    }
+
+    fn write_into(&self, mut file: std::fs::File, path: &Path) -> Result<(), TraceError> {
         use std::io::{Seek, Write};
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| TraceError::Meta(format!("cannot encode the sidecar: {e}")))?;
@@ -213,12 +226,6 @@ impl Sidecar {
             path: path.to_path_buf(),
             source,
         };
-        let mut file = std::fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(path)
-            .map_err(io_error)?;
         let old_len = file.metadata().map_err(io_error)?.len();
         if !self.complete && self.error.is_none() && self.sample_count == 0 {
             // The provisional sidecar: reserve room for the final one.

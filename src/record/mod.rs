@@ -32,7 +32,7 @@ pub use self::mcap_trace::{
     parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
 };
 pub use self::meta::{sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
-pub use self::output::{check_output_path, estimate_trace_bytes, OutputPolicy};
+pub use self::output::{check_output_path, create_new_file, estimate_trace_bytes, OutputPolicy};
 pub use self::parquet_trace::{
     read_parquet_trace, ParquetTraceWriter, SIDECAR_KEY as PARQUET_SIDECAR_KEY,
 };
@@ -330,10 +330,12 @@ pub trait TraceWriter: Send {
     fn flush(&mut self) -> Result<(), TraceError>;
     /// Writes the trailer (MCAP summary), flushes, and rewrites the sidecar with the final sample count.
     fn finish(&mut self) -> Result<TraceSummary, TraceError>;
-    /// Gives up after an error: no more writes, and the sidecar records `error` (complete: false) and the
-    /// samples written so far. Best effort: the sidecar may be unwritable too.
+    /// Gives up after an error: nothing more reaches the trace file (not even buffered bytes), and the
+    /// sidecar records `error` (complete: false) and the samples that reached the file, exactly the ones
+    /// a reader recovers. Best effort: the sidecar may be unwritable too.
     fn fail(&mut self, error: &str) -> Result<(), TraceError>;
-    /// Samples written so far.
+    /// Samples that reached the file so far (whole CSV lines handed to the OS, closed Parquet row groups,
+    /// closed MCAP chunks): the count the sidecar gives, never samples still in a buffer.
     fn sample_count(&self) -> u64;
     /// The servo's snapshot of a tick whose sample comes next (the recorder hands one over at most
     /// `foxglove_topics::RECORDED_SCENE_HZ` times a second of tick time, before that tick's sample): the
@@ -357,8 +359,8 @@ pub fn create_trace_writer(
 }
 
 /// Creates `path` (and `path.json`) in `format` for a run described by `meta`, after checking `policy`:
-/// an existing trace or sidecar is replaced only with `policy.overwrite`, and a file that is one of
-/// `policy.inputs` never is.
+/// an existing trace or sidecar is replaced only with `policy.overwrite` (removed, then created anew), a
+/// file that is one of `policy.inputs` never is, and a symlink is never followed (see `output`).
 pub fn create_trace_writer_with(
     path: &Path,
     format: TraceFormat,
@@ -366,6 +368,9 @@ pub fn create_trace_writer_with(
     policy: &OutputPolicy,
 ) -> Result<Box<dyn TraceWriter>, TraceError> {
     check_output_path(path, policy)?;
+    if policy.overwrite {
+        output::remove_replaced(path)?;
+    }
     Ok(match format {
         TraceFormat::Csv => Box::new(CsvTraceWriter::create(path, meta)?),
         TraceFormat::Mcap => Box::new(McapTraceWriter::create(path, meta)?),
@@ -385,6 +390,72 @@ pub struct Trace {
     /// What the reader skipped and why (a partial last CSV line, an unfinished MCAP chunk after a
     /// crash); empty for a cleanly finished trace. Callers show these to the user.
     pub warnings: Vec<String>,
+}
+
+/// What a trace's sidecar says that its data contradict, one warning each (empty when it tells the
+/// truth, or when there is no sidecar): the sample count (of a finished trace, or of one whose sidecar
+/// records the error that stopped it; a sidecar still provisional, `complete: false` without an error,
+/// has no final count to check), the mode names, the columns, the format and the trace format version
+/// (not `trace_file`: a trace and sidecar renamed together are still honest). The readers add these to `Trace::warnings`, which `voxhap plot`, `voxhap trace`, replay
+/// and `voxhap compare` print on stderr: a lying sidecar is never trusted silently.
+pub fn sidecar_warnings(
+    sidecar: Option<&Sidecar>,
+    path: &Path,
+    format: TraceFormat,
+    mode_names: &[String],
+    sample_count: u64,
+) -> Vec<String> {
+    let Some(sidecar) = sidecar else {
+        return Vec::new();
+    };
+    let mut warnings = Vec::new();
+    let mut warn = |what: String| {
+        warnings.push(format!(
+            "{}: the sidecar {} does not match the trace: {what}; the trace's data are used",
+            path.display(),
+            sidecar_path(path).display()
+        ))
+    };
+    if (sidecar.complete || sidecar.error.is_some()) && sidecar.sample_count != sample_count {
+        warn(format!(
+            "it says {} samples, the trace holds {sample_count}",
+            sidecar.sample_count
+        ));
+    }
+    if sidecar.meta.mode_names != mode_names {
+        warn(format!(
+            "it names the modes {:?}, the trace has {:?}",
+            sidecar.meta.mode_names, mode_names
+        ));
+    } else if sidecar.columns != columns(mode_names) {
+        warn("its column list differs from the trace's columns".to_owned());
+    }
+    if sidecar.trace_format != format {
+        warn(format!(
+            "it says trace_format {}, the file is {format}",
+            sidecar.trace_format
+        ));
+    }
+    if sidecar.meta.format_version != TRACE_FORMAT_VERSION {
+        warn(format!(
+            "it says format_version {}, this reader reads {TRACE_FORMAT_VERSION}",
+            sidecar.meta.format_version
+        ));
+    }
+    warnings
+}
+
+/// Adds [`sidecar_warnings`] for a trace just read from `path` to its warnings.
+pub(crate) fn check_sidecar(mut trace: Trace, path: &Path, format: TraceFormat) -> Trace {
+    let found = sidecar_warnings(
+        trace.sidecar.as_ref(),
+        path,
+        format,
+        &trace.mode_names,
+        trace.samples.len() as u64,
+    );
+    trace.warnings.extend(found);
+    trace
 }
 
 /// Opens a trace (or sidecar) for reading: a regular file only, so a FIFO or a device (`replay:/dev/zero`)

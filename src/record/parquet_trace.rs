@@ -53,6 +53,7 @@ use parquet::file::properties::WriterProperties;
 use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
 use super::csv::read_sidecar;
 use super::meta::is_valid_mode_name;
+use super::output::{OutputFile, StopSwitch};
 use super::{
     check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
     TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
@@ -151,7 +152,11 @@ fn arrow_schema(mode_names: &[String]) -> SchemaRef {
 /// Writes a Parquet trace and its sidecar.
 pub struct ParquetTraceWriter {
     path: PathBuf,
-    writer: Option<ArrowWriter<BufWriter<File>>>,
+    writer: Option<ArrowWriter<BufWriter<OutputFile>>>,
+    /// Stops the file at the first failure, so nothing reaches it afterwards.
+    stop: StopSwitch,
+    /// Rows in row groups whose bytes and footer reached the file: the count the sidecar gives.
+    committed_rows: u64,
     schema: SchemaRef,
     builders: Vec<ColumnBuilder>,
     row: Vec<Cell>,
@@ -169,10 +174,8 @@ impl ParquetTraceWriter {
     /// whether the files may be replaced (`create_trace_writer_with`).
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         meta.validate()?;
-        let file = File::create(path).map_err(|source| TraceError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let stop = StopSwitch::default();
+        let file = OutputFile::new(super::create_new_file(path)?, &stop);
         let schema = arrow_schema(&meta.mode_names);
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
@@ -189,7 +192,7 @@ impl ParquetTraceWriter {
             source,
         })?;
         let sidecar = Sidecar::new(meta, TraceFormat::Parquet, path);
-        sidecar.write(&sidecar_path(path))?;
+        sidecar.write_new(&sidecar_path(path))?;
         let builders = columns(&meta.mode_names)
             .iter()
             .map(|c| ColumnBuilder::new(c.column_type))
@@ -197,6 +200,8 @@ impl ParquetTraceWriter {
         Ok(ParquetTraceWriter {
             path: path.to_path_buf(),
             writer: Some(writer),
+            stop,
+            committed_rows: 0,
             schema,
             builders,
             row: Vec::with_capacity(128),
@@ -234,6 +239,7 @@ impl ParquetTraceWriter {
             .iter_mut()
             .map(ColumnBuilder::finish)
             .collect();
+        let rows = self.group_rows as u64;
         self.group_rows = 0;
         let batch = RecordBatch::try_new(self.schema.clone(), arrays)
             .map_err(|e| self.parquet_error(parquet::errors::ParquetError::from(e)))?;
@@ -256,6 +262,8 @@ impl ParquetTraceWriter {
         if let Some(Err(e)) = sync {
             return Err(self.io_error(e));
         }
+        // The row group and its footer are in the file: a reader recovers them.
+        self.committed_rows += rows;
         Ok(())
     }
 }
@@ -281,10 +289,8 @@ fn compact(path: &Path, schema: &SchemaRef) -> Result<(), parquet::errors::Parqu
     temporary_name.push(format!(".compacting.{}", std::process::id()));
     let temporary = path.with_file_name(temporary_name);
     let result = (|| {
-        let output = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&temporary)?;
+        let output = super::create_new_file(&temporary)
+            .map_err(|e| parquet::errors::ParquetError::General(super::error_chain(&e)))?;
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
             .set_max_row_group_row_count(Some(COMPACT_ROW_GROUP_ROWS))
@@ -393,7 +399,7 @@ impl TraceWriter for ParquetTraceWriter {
         // The final sidecar goes into the file's metadata as well.
         let mut final_sidecar = self.sidecar.clone();
         final_sidecar.complete = true;
-        final_sidecar.sample_count = self.checker.count;
+        final_sidecar.sample_count = self.committed_rows;
         let json = serde_json::to_string(&final_sidecar)
             .map_err(|e| TraceError::Meta(format!("cannot encode the sidecar: {e}")))?;
         writer.append_key_value_metadata(KeyValue::new(SIDECAR_KEY.to_owned(), json));
@@ -402,23 +408,25 @@ impl TraceWriter for ParquetTraceWriter {
             .map_err(|e| self.parquet_error(e))?
             .into_inner()
             .map_err(|e| self.io_error(e.into_error()))?;
-        file.sync_all().map_err(|e| self.io_error(e))?;
+        file.file().sync_all().map_err(|e| self.io_error(e))?;
         drop(file);
         compact(&self.path, &self.schema).map_err(|e| self.parquet_error(e))?;
-        self.sidecar.complete(&self.path, self.checker.count)
+        self.sidecar.complete(&self.path, self.committed_rows)
     }
 
     fn fail(&mut self, error: &str) -> Result<(), TraceError> {
         self.checker.finished = true;
-        // Dropped without its final footer: what was written reads back up to the last row group.
+        // Stopped, then dropped without its final footer: nothing buffered reaches the file, and what was
+        // written reads back up to the last whole row group, exactly `committed_rows` rows.
+        self.stop.stop();
         self.writer = None;
         self.group_rows = 0;
         self.sidecar.samples_rejected = self.checker.rejected;
-        self.sidecar.fail(&self.path, self.checker.count, error)
+        self.sidecar.fail(&self.path, self.committed_rows, error)
     }
 
     fn sample_count(&self) -> u64 {
-        self.checker.count
+        self.committed_rows
     }
 }
 
@@ -464,13 +472,15 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
                 "no complete row group and no sidecar to name its modes".to_owned(),
             ));
         };
-        return Ok(Trace {
+        let trace = Trace {
             mode_names: sidecar.meta.mode_names.clone(),
             samples: Vec::new(),
             sidecar: Some(sidecar),
             warnings,
-        });
+        };
+        return Ok(super::check_sidecar(trace, path, TraceFormat::Parquet));
     };
+    check_claimed_sizes(&metadata, bytes.len() as u64).map_err(problem)?;
     let reader_metadata =
         ArrowReaderMetadata::try_new(Arc::new(metadata), ArrowReaderOptions::new())
             .map_err(|e| problem(e.to_string()))?;
@@ -544,12 +554,44 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
             samples.push(sample);
         }
     }
-    Ok(Trace {
+    let trace = Trace {
         mode_names,
         samples,
         sidecar,
         warnings,
-    })
+    };
+    Ok(super::check_sidecar(trace, path, TraceFormat::Parquet))
+}
+
+/// Snappy's largest expansion (a 3-byte copy tag yields at most 64 bytes), with margin: a column chunk
+/// cannot hold more uncompressed bytes than this many times its compressed bytes.
+const MAX_DECOMPRESSION_RATIO: u64 = 32;
+
+/// Checks the sizes the metadata claims against the file's real size before any page is decoded, so a
+/// crafted footer cannot make the reader allocate far more than the file can supply: every column chunk
+/// lies inside the file and claims at most [`MAX_DECOMPRESSION_RATIO`] times its compressed size (plus
+/// 64 KiB for page headers) once uncompressed.
+fn check_claimed_sizes(metadata: &ParquetMetaData, file_bytes: u64) -> Result<(), String> {
+    for (g, group) in metadata.row_groups().iter().enumerate() {
+        for (c, column) in group.columns().iter().enumerate() {
+            let compressed = u64::try_from(column.compressed_size()).unwrap_or(u64::MAX);
+            let uncompressed = u64::try_from(column.uncompressed_size()).unwrap_or(u64::MAX);
+            let (start, _) = column.byte_range();
+            if start.saturating_add(compressed) > file_bytes {
+                return Err(format!(
+                    "row group {g}, column {c}: {compressed} bytes at offset {start} run past the end \
+                     of the {file_bytes}-byte file"
+                ));
+            }
+            if uncompressed > compressed.saturating_mul(MAX_DECOMPRESSION_RATIO) + (64 << 10) {
+                return Err(format!(
+                    "row group {g}, column {c}: claims {uncompressed} uncompressed bytes from \
+                     {compressed} compressed (more than a {MAX_DECOMPRESSION_RATIO}:1 expansion)"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The mode names in a trace's schema (the `primitives_<mode>` columns, in order).

@@ -257,8 +257,12 @@ pub struct SceneReport {
     pub device: String,
     /// True when the device is the in-process simulated arm (hand target commands work).
     pub simulated: bool,
-    /// The trace being recorded, if any.
+    /// The trace being recorded, if any (it stays named after a write error stopped it, until a stop).
     pub recording: Option<PathBuf>,
+    /// Why the last recording stopped early (the writer's error with the OS reason, e.g. `No space left
+    /// on device`), once one did: the session goes on unrecorded, `recorder_errors` in the statistics
+    /// counts it, and `voxhap serve` exits non-zero at the end.
+    pub recording_error: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -301,7 +305,8 @@ pub enum ControlCommand {
         #[serde(default)]
         name: Option<String>,
     },
-    /// Start recording every tick to `path` (format from `format` or the file extension).
+    /// Start recording every tick to `path` (format from `format` or the file extension). Through
+    /// `voxhap serve`'s servers `path` is a plain file name in the `--record-dir` folder ([`RecordDir`]).
     StartRecording {
         path: PathBuf,
         #[serde(default)]
@@ -529,17 +534,79 @@ impl VolumeDirs {
     }
 }
 
-/// A [`SessionApi`] whose `load_volume` commands may only name files in [`VolumeDirs`]; everything else
-/// passes straight through. `voxhap serve` hands this to its servers.
+/// The folder the control API may record traces into (`voxhap serve --record-dir DIR`), checked before a
+/// `start_recording` command reaches the session: the command names a plain file name (no folder part,
+/// not `.` or `..`), and the trace and its sidecar are created in DIR under that name (new files, never
+/// through a symlink: see `record::output`). Without the folder, recording through the API is off, so a
+/// client with the token cannot make the server write files anywhere it can (`../`, `/tmp`, a relative
+/// path). `--record FILE` on the command line is not affected.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RecordDir {
+    /// The canonical folder, if recording through the API is on.
+    dir: Option<PathBuf>,
+}
+
+impl RecordDir {
+    /// The folder `dir` (it must exist), or API recording off for `None`; errors name the folder.
+    pub fn new(dir: Option<&std::path::Path>) -> Result<RecordDir, String> {
+        let Some(dir) = dir else {
+            return Ok(RecordDir::default());
+        };
+        let canonical = dir
+            .canonicalize()
+            .ok()
+            .filter(|d| d.is_dir())
+            .ok_or_else(|| format!("--record-dir {}: not a folder", dir.display()))?;
+        Ok(RecordDir {
+            dir: Some(canonical),
+        })
+    }
+
+    /// The trace path a `start_recording` for `path` writes, or why it is refused.
+    pub fn resolve(&self, path: &std::path::Path) -> Result<PathBuf, ControlError> {
+        let Some(dir) = &self.dir else {
+            return Err(ControlError::Invalid(format!(
+                "recording to {}: recording through the API is off; start voxhap serve with \
+                 --record-dir DIR to allow traces named by a plain file name in DIR",
+                path.display()
+            )));
+        };
+        let mut components = path.components();
+        match (components.next(), components.next()) {
+            (Some(std::path::Component::Normal(name)), None) => Ok(dir.join(name)),
+            _ => Err(ControlError::Invalid(format!(
+                "recording to {}: path must be a plain file name (no folder, no `..`); the trace is \
+                 written in the --record-dir folder {}",
+                path.display(),
+                dir.display()
+            ))),
+        }
+    }
+}
+
+/// A [`SessionApi`] whose `load_volume` commands may only name files in [`VolumeDirs`] and whose
+/// `start_recording` commands may only name a file in the [`RecordDir`]; everything else passes straight
+/// through. `voxhap serve` hands this to its servers.
 pub struct ConfinedVolumes<A: ?Sized> {
     inner: std::sync::Arc<A>,
     dirs: VolumeDirs,
+    records: RecordDir,
 }
 
 impl<A: SessionApi + ?Sized> ConfinedVolumes<A> {
-    /// Wraps `inner`.
+    /// Wraps `inner`; recording through the API is off until [`ConfinedVolumes::with_record_dir`].
     pub fn new(inner: std::sync::Arc<A>, dirs: VolumeDirs) -> Self {
-        ConfinedVolumes { inner, dirs }
+        ConfinedVolumes {
+            inner,
+            dirs,
+            records: RecordDir::default(),
+        }
+    }
+
+    /// Lets `start_recording` write into `records`.
+    pub fn with_record_dir(mut self, records: RecordDir) -> Self {
+        self.records = records;
+        self
     }
 }
 
@@ -558,6 +625,10 @@ impl<A: SessionApi + ?Sized> SessionApi for ConfinedVolumes<A> {
             ControlCommand::LoadVolume { path, name } => ControlCommand::LoadVolume {
                 path: self.dirs.resolve(&path)?,
                 name,
+            },
+            ControlCommand::StartRecording { path, format } => ControlCommand::StartRecording {
+                path: self.records.resolve(&path)?,
+                format,
             },
             other => other,
         };

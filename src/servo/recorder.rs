@@ -10,11 +10,16 @@
 //! the trace and exits.
 //!
 //! Honest failure: a bad sample never stops a recording (the writer records it flagged, see
-//! [`TraceWriter`]). A write or flush error (disk full, I/O error) does: at once, the recorder prints it
-//! with the OS reason to stderr (`voxhap: recording to x.csv stopped: ... No space left on device (os
-//! error 28)`), counts it in the statistics (`recorder_errors`), keeps the message for the control side,
-//! and marks the sidecar (`complete: false`, `error`). The trace is flushed every [`FLUSH_INTERVAL`]
-//! (whole CSV lines, closed MCAP chunks), so an error or a crash is noticed, and loses, at most that much.
+//! [`TraceWriter`]). A write or flush error (disk full, file too large, I/O error) does, and the session
+//! goes on unrecorded (the device keeps its force rendering; stopping the recording is not a reason to
+//! change what the user's hand feels): at once, the recorder prints it with the OS reason to stderr
+//! (`voxhap: RECORDING STOPPED, the session goes on unrecorded: cannot write the trace file x.csv: No
+//! space left on device (os error 28)`), counts it in the statistics (`recorder_errors`), keeps the
+//! message for the control side (`recording_error` in `/api/scene`; `voxhap serve` exits non-zero at the
+//! end with it), and marks the sidecar (`complete: false`, `error`, and the count of samples that reached
+//! the file: exactly what a reader gets back). Nothing more is written to the trace after the error. The
+//! trace is flushed every [`FLUSH_INTERVAL`] (whole CSV lines, closed MCAP chunks and Parquet row groups
+//! at most a second old), so an error or a crash is noticed, and loses, at most that much.
 
 use super::api::Snapshot;
 use super::stats::ServoStats;
@@ -67,7 +72,7 @@ impl Reporter {
     /// Reports `error` and marks the trace failed; the recording ends.
     fn fail(&self, mut active: Active, error: &TraceError) {
         let text = error_chain(error);
-        eprintln!("voxhap: recording stopped: {text}");
+        eprintln!("voxhap: RECORDING STOPPED, the session goes on unrecorded: {text}");
         self.stats.recorder_errors.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut slot) = self.slot.lock() {
             *slot = Some(text.clone());

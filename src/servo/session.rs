@@ -570,6 +570,7 @@ impl SessionApi for SessionShared {
             device: self.device_label.clone(),
             simulated: self.simulated,
             recording: control.recording.clone(),
+            recording_error: self.recorder_error.lock().ok().and_then(|e| e.clone()),
         }
     }
 

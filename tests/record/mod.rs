@@ -3,6 +3,7 @@
 //! the `mcap` Python package and by pandas, and plotted with `voxhap plot`.
 
 mod cli;
+mod files;
 
 use glam::DVec3;
 use std::path::Path;

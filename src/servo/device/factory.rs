@@ -250,6 +250,9 @@ fn open_supervised(
                 path: path.clone(),
                 message: e.to_string(),
             })?;
+            for warning in &trace.warnings {
+                eprintln!("voxhap: warning: {warning}");
+            }
             let mut replay =
                 ReplayDevice::with_options(&trace, *options).map_err(|e| OpenError::Replay {
                     path: path.clone(),

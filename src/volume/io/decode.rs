@@ -181,18 +181,42 @@ fn push(decoded: &mut Decoded, stored: f32, scale: Option<(f64, f64)>, exact: f6
 /// `expected_bytes + 1` bytes so a lying header or a gzip bomb cannot make it allocate without bound (the
 /// caller checked `expected_bytes` against `--max-volume-bytes` first).
 pub(crate) fn inflate(compressed: &[u8], expected_bytes: u64) -> Result<Vec<u8>, LoadProblem> {
-    let limit = expected_bytes.saturating_add(1);
-    let mut out = Vec::new();
-    let result = if compressed.starts_with(&[0x1f, 0x8b]) {
-        flate2::read::MultiGzDecoder::new(compressed)
-            .take(limit)
-            .read_to_end(&mut out)
+    inflate_skip(compressed, 0, expected_bytes)
+}
+
+/// Deflate's largest expansion: one compressed byte gives at most about 1032 bytes (RFC 1951 length codes
+/// of 258 bytes in 2 bits), so `compressed.len() * MAX_INFLATE_RATIO` bounds what a stream can supply.
+const MAX_INFLATE_RATIO: u64 = 1032;
+
+/// Inflates `compressed`, discards its first `skip` bytes (NRRD `byte skip`, NIfTI `vox_offset`) in
+/// bounded chunks without keeping them, and returns at most the next `expected_bytes + 1` bytes. The
+/// buffer it allocates is bounded by what the stream can supply, never by what the header claims.
+pub(crate) fn inflate_skip(
+    compressed: &[u8],
+    skip: u64,
+    expected_bytes: u64,
+) -> Result<Vec<u8>, LoadProblem> {
+    let reader: Box<dyn Read + '_> = if compressed.starts_with(&[0x1f, 0x8b]) {
+        Box::new(flate2::read::MultiGzDecoder::new(compressed))
     } else {
-        flate2::read::ZlibDecoder::new(compressed)
-            .take(limit)
-            .read_to_end(&mut out)
+        Box::new(flate2::read::ZlibDecoder::new(compressed))
     };
-    result.map_err(LoadProblem::Decompress)?;
+    let mut reader = reader;
+    let skipped = std::io::copy(&mut (&mut reader).take(skip), &mut std::io::sink())
+        .map_err(LoadProblem::Decompress)?;
+    if skipped < skip {
+        return Err(LoadProblem::Truncated {
+            expected_bytes: skip.saturating_add(expected_bytes),
+            actual_bytes: skipped,
+        });
+    }
+    let limit = expected_bytes.saturating_add(1);
+    let supply = (compressed.len() as u64).saturating_mul(MAX_INFLATE_RATIO);
+    let mut out = Vec::with_capacity(usize::try_from(limit.min(supply)).unwrap_or(0));
+    reader
+        .take(limit)
+        .read_to_end(&mut out)
+        .map_err(LoadProblem::Decompress)?;
     Ok(out)
 }
 

@@ -15,7 +15,7 @@
 //! NIfTI world space is RAS+ already. The affine is scaled from the file's units to metres.
 //! Not supported (clear errors): NIfTI-2, `.hdr`/`.img` pairs, complex and RGB types, 4-D series.
 
-use super::decode::{decode_samples, inflate, Endian, ScalarType};
+use super::decode::{decode_samples, inflate_skip, Endian, ScalarType};
 use super::source::{check_budget, read_volume_file, LoadOptions};
 use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
 use crate::volume::Grid;
@@ -79,19 +79,19 @@ pub fn parse_with(
         .ok_or_else(|| LoadProblem::header("vox_offset is too large"))?;
     check_budget(total_bytes, (plan.voxels * plan.components) as u64, options)?;
     let inflated;
-    let file: &[u8] = if gzipped {
-        inflated = inflate(bytes, total_bytes)?;
+    let data: &[u8] = if gzipped {
+        // vox_offset bytes of the inflated stream are skipped without being kept.
+        inflated = inflate_skip(bytes, plan.data_offset, plan.data_bytes)?;
         &inflated
     } else {
-        bytes
+        usize::try_from(plan.data_offset)
+            .ok()
+            .and_then(|offset| bytes.get(offset..))
+            .ok_or(LoadProblem::Truncated {
+                expected_bytes: total_bytes,
+                actual_bytes: bytes.len() as u64,
+            })?
     };
-    let data = usize::try_from(plan.data_offset)
-        .ok()
-        .and_then(|offset| file.get(offset..))
-        .ok_or(LoadProblem::Truncated {
-            expected_bytes: total_bytes,
-            actual_bytes: file.len() as u64,
-        })?;
     let decoded = decode_samples(
         data,
         plan.scalar_type,

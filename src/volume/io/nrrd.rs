@@ -11,7 +11,7 @@
 //! [`super`]). Unsupported (clear errors): bzip2 and hex encodings, `block` type, multi-file `data
 //! file` lists, time axes.
 
-use super::decode::{decode_samples, inflate, Decoded, Endian, ScalarType};
+use super::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
 use super::source::{
     check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
@@ -118,6 +118,7 @@ pub fn parse_with(
     check_budget(needed_bytes, count as u64, options)?;
 
     let detached;
+    let mut applied_byte_skip = false;
     let data: &[u8] = match &header.data_file {
         Some(name) => {
             let data_path = data_file_path(path, name, options)?;
@@ -127,10 +128,14 @@ pub fn parse_with(
                 (Encoding::Raw, 0, -1) => DataRange::Tail {
                     needed: expected_bytes,
                 },
-                (Encoding::Raw, 0, _) => DataRange::From {
-                    skip: 0,
-                    needed: needed_bytes,
-                },
+                // The byte skip is sought past, not read.
+                (Encoding::Raw, 0, _) => {
+                    applied_byte_skip = true;
+                    DataRange::From {
+                        skip: byte_skip,
+                        needed: expected_bytes,
+                    }
+                }
                 _ => DataRange::From {
                     skip: 0,
                     needed: options.max_volume_bytes,
@@ -142,7 +147,12 @@ pub fn parse_with(
         None => bytes.get(header.header_bytes..).unwrap_or_default(),
     };
     let data = skip_lines(data, header.line_skip)?;
-    let decoded = decode(data, &header, encoding, scalar_type, endian, count)?;
+    let byte_skip = if applied_byte_skip {
+        0
+    } else {
+        header.byte_skip
+    };
+    let decoded = decode(data, byte_skip, encoding, scalar_type, endian, count)?;
     let layout = Layout {
         source_type: scalar_type,
         format: FileFormat::Nrrd,
@@ -157,9 +167,11 @@ fn missing(field: &str) -> LoadProblem {
     LoadProblem::header(format!("missing required field \"{field}\""))
 }
 
-fn decode(
-    data: &[u8],
-    header: &NrrdHeader,
+/// Decodes `data` (after its line skips): `byte_skip` bytes (of the inflated stream for gzip) are skipped
+/// first, without copying or keeping them.
+fn decode<'a>(
+    data: &'a [u8],
+    byte_skip: i64,
     encoding: Encoding,
     scalar_type: ScalarType,
     endian: Endian,
@@ -167,23 +179,23 @@ fn decode(
 ) -> Result<Decoded, LoadProblem> {
     // Checked against the limit by the caller, so these fit in memory and in usize.
     let expected_bytes = count * scalar_type.size_bytes();
-    let skip = |data: &[u8]| -> Result<Vec<u8>, LoadProblem> {
-        let byte_skip = usize::try_from(header.byte_skip).map_err(|_| {
+    let skip_count = || {
+        u64::try_from(byte_skip).map_err(|_| {
             LoadProblem::header(format!(
-                "byte skip {} is only allowed (as -1) with raw encoding",
-                header.byte_skip
+                "byte skip {byte_skip} is only allowed (as -1) with raw encoding"
             ))
-        })?;
-        data.get(byte_skip..)
-            .map(<[u8]>::to_vec)
-            .ok_or(LoadProblem::Truncated {
-                expected_bytes: (byte_skip as u64).saturating_add(expected_bytes as u64),
-                actual_bytes: data.len() as u64,
-            })
+        })
+    };
+    let skip = |data: &'a [u8]| -> Result<&'a [u8], LoadProblem> {
+        let byte_skip = usize::try_from(skip_count()?).unwrap_or(usize::MAX);
+        data.get(byte_skip..).ok_or(LoadProblem::Truncated {
+            expected_bytes: (byte_skip as u64).saturating_add(expected_bytes as u64),
+            actual_bytes: data.len() as u64,
+        })
     };
     match encoding {
         Encoding::Raw => {
-            let data = if header.byte_skip == -1 {
+            let data = if byte_skip == -1 {
                 let start =
                     data.len()
                         .checked_sub(expected_bytes)
@@ -193,18 +205,17 @@ fn decode(
                         })?;
                 &data[start..]
             } else {
-                &skip(data)?
+                skip(data)?
             };
             decode_samples(data, scalar_type, endian, count, None)
         }
         Encoding::Gzip => {
-            let byte_skip = u64::try_from(header.byte_skip).unwrap_or(0);
-            let inflated = inflate(data, byte_skip.saturating_add(expected_bytes as u64))?;
-            decode_samples(&skip(&inflated)?, scalar_type, endian, count, None)
+            let inflated = inflate_skip(data, skip_count()?, expected_bytes as u64)?;
+            decode_samples(&inflated, scalar_type, endian, count, None)
         }
         Encoding::Ascii => {
             let data = skip(data)?;
-            decode_text(&data, scalar_type, count)
+            decode_text(data, scalar_type, count)
         }
     }
 }

@@ -61,8 +61,8 @@ pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
 }
 
 /// Loads a raw volume through its `.toml` header within `options`' limits: the header is at most 1 MiB,
-/// `header_bytes` plus the data `dims` describe are checked against `--max-volume-bytes` before the data
-/// file is read, and the data file must lie in the header's folder.
+/// the data `dims` describe is checked against `--max-volume-bytes` before the data file is read (its
+/// `header_bytes` are sought past, not read), and the data file must lie in the header's folder.
 pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
     let text = read_regular(path, MAX_HEADER_BYTES, "a raw volume's TOML header")
         .map_err(LoadProblem::File)?;
@@ -79,16 +79,23 @@ pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, Loa
     check_budget(expected_bytes, count as u64, options)?;
     let data_path = data_file_path(path, &header.data_file, options)?;
     let compressed = !matches!(header.compression.as_deref(), None | Some("none"));
+    if compressed {
+        let range = DataRange::From {
+            skip: 0,
+            needed: options.max_volume_bytes,
+        };
+        let data = read_data_file(&data_path, range, options)?;
+        return decode_with_header(&header, &data, path);
+    }
+    // Uncompressed: `header_bytes` is sought past, not read.
     let range = DataRange::From {
-        skip: 0,
-        needed: if compressed {
-            options.max_volume_bytes
-        } else {
-            (header.header_bytes as u64).saturating_add(expected_bytes)
-        },
+        skip: header.header_bytes as u64,
+        needed: expected_bytes,
     };
     let data = read_data_file(&data_path, range, options)?;
-    decode_with_header(&header, &data, path)
+    let mut after_header = header;
+    after_header.header_bytes = 0;
+    decode_with_header(&after_header, &data, path)
 }
 
 /// Parses the TOML header.

@@ -19,7 +19,9 @@ async function state() {
 }
 
 async function until(what, predicate, timeoutMs) {
-  const end = Date.now() + (timeoutMs || 5000);
+  // Generous deadlines: on a loaded CI machine the page, the server and the browser all run late; a check
+  // waits for what it looks for and fails only when it never comes.
+  const end = Date.now() + Math.max(timeoutMs || 0, 30000);
   let last;
   while (Date.now() < end) {
     last = await predicate();
@@ -50,7 +52,7 @@ async function phone(browser, check) {
     }
   });
   await page.goto(base + '/?token=' + encodeURIComponent(token));
-  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 60000 });
   await sleep(1500);
   const widths = await page.evaluate(() => {
     const wide = [];
@@ -122,7 +124,7 @@ async function phone(browser, check) {
 async function markers(browser, check) {
   const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
   await page.goto(base + '/?token=' + encodeURIComponent(token));
-  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 60000 });
   const geometry = await page.evaluate(() => window.voxhapPage.markerLayout([100, 100], [100, 100]));
   // The ring's inner edge (radius less half its line and its 1.25 px outline) clears the dot and its outline.
   const clearance = geometry.probeRadius - geometry.probeLine / 2 - 1.25 - (geometry.proxyRadius + geometry.proxyLine / 2);
@@ -185,7 +187,7 @@ async function refusedToken(browser, check) {
     if (req.method() === 'POST' && !req.url().endsWith('/api/stiffness')) controlRequests += 1;
   });
   await page.goto(base + '/?token=wrong-' + encodeURIComponent(token));
-  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+  await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 60000 });
   await until('the refused-token banner', async () => page.isVisible('#token-banner'), 5000);
   check(true, 'a refused token is said: ' + (await page.textContent('#token-banner')));
   const box = await page.locator('#view-z').boundingBox();
@@ -217,7 +219,7 @@ async function refusedToken(browser, check) {
     const pageErrors = [];
     page.on('pageerror', (e) => pageErrors.push(String(e)));
     await page.goto(base + '/?token=' + encodeURIComponent(token));
-    await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 10000 });
+    await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 60000 });
     check(true, 'the page shows ticks');
     check((await page.inputValue('#token')) === token, 'the token field is prefilled from ?token=');
     check(!page.url().includes('token='), 'the token is removed from the address bar');

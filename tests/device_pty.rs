@@ -7,7 +7,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
+use voxhap::device::supervisor::{
+    LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
+};
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{HapticDevice, Lifecycle};
 use voxhap_protocol::{FaultCode, HostEvent, StatusFlags};
@@ -46,10 +48,15 @@ fn handshake_reports_the_mock_device_info() {
 #[test]
 fn clean_link_at_1_khz_loses_no_frames() {
     let mock = Mock::start(&["--pty"]);
-    let config = ProtocolConfig {
-        state_timeout: Duration::from_millis(100),
-        ..ProtocolConfig::default()
-    };
+    // Patience far beyond any scheduling delay, so that on a loaded machine the host never sends a second
+    // Hello, a second first zero force or gives up on a State (each would add or move frames); the device's
+    // own watchdog at its longest, 1 s. A host stalled longer than that still trips it, and the device then
+    // sends one Fault frame: counted below, not a lost or extra frame.
+    let mut config = ProtocolConfig::default();
+    config.hello_timeout = Duration::from_secs(60);
+    config.connect_timeout = Duration::from_secs(60);
+    config.state_timeout = Duration::from_secs(60);
+    config.device_watchdog_us = 1_000_000;
     let mut device = open(&mock.path, config);
     device.enable().unwrap();
     let start = Instant::now();
@@ -64,20 +71,30 @@ fn clean_link_at_1_khz_loses_no_frames() {
         previous_time_us = time_us;
     }
     let driver = device.device();
+    let stats = driver.decoder_stats();
+    let counters = driver.counters();
+    assert_eq!(stats.dropped(), 0, "{stats:?}");
+    assert_eq!(counters.hellos, 1, "{counters:?}");
+    assert_eq!(counters.states_lost, 0, "{counters:?}");
+    assert_eq!(counters.late_states, 0, "{counters:?}");
+    assert_eq!(counters.timeouts, 0, "{counters:?}");
+    assert_eq!(counters.rejections, 0, "{counters:?}");
+    if counters.faults > 0 {
+        let fault = driver.last_fault().unwrap();
+        assert_eq!(
+            fault.code,
+            FaultCode::WATCHDOG_EXPIRED,
+            "the only fault a clean link may see is a host stalled past the device watchdog"
+        );
+    }
+    // What the device sent (protocol/SPEC.md): DeviceInfo and a HeartbeatReply for the Hello, one State
+    // answering each SetForce (the open's zero force and one per tick), and one Fault per watchdog trip.
     assert_eq!(
-        driver.decoder_stats().dropped(),
-        0,
-        "{:?}",
-        driver.decoder_stats()
+        stats.frames_ok,
+        ticks + 3 + counters.faults,
+        "one state per force, plus info, the handshake's heartbeat reply, the open state and {} watchdog faults",
+        counters.faults
     );
-    assert_eq!(
-        driver.decoder_stats().frames_ok,
-        ticks + 3,
-        "one state per force, plus info, the handshake's heartbeat reply and the open state"
-    );
-    assert_eq!(driver.counters().states_lost, 0);
-    assert_eq!(driver.counters().late_states, 0);
-    assert_eq!(driver.counters().timeouts, 0);
     device.close().unwrap();
 }
 
@@ -128,57 +145,85 @@ fn corrupted_link_counts_crc_errors_and_recovers() {
     device.mark_lost();
 }
 
+/// Enables `device` and exchanges forces until the State answering the last one says the device is still
+/// enabled (a host descheduled for longer than the device watchdog trips it, which is right: enable again);
+/// returns that State's device time, µs (the time the device took the last force, which restarts its watchdog).
+fn exchange_until_enabled<L: voxhap::device::drivers::protocol::MessageLink>(
+    device: &mut ProtocolDevice<L>,
+    exchanges: usize,
+) -> u64 {
+    for _ in 0..100 {
+        device.enable().unwrap();
+        let mut last = None;
+        for _ in 0..exchanges {
+            device.write_force(DVec3::new(0.5, 0.0, 0.0)).unwrap();
+            last = Some(device.read_state().unwrap());
+        }
+        let last = last.unwrap();
+        if last.status.is_some_and(|s| s.enabled) {
+            return last.device_time_us.unwrap();
+        }
+    }
+    panic!("the device never stayed enabled through {exchanges} exchanges in 100 tries");
+}
+
+/// The device side of the watchdog, end to end over a real pseudo-terminal: when the host stops sending, the
+/// mock trips its watchdog, and not before the timeout has passed since the last force it took (device clock).
+/// How promptly it trips is a property of the device session under a given clock, tested with virtual time
+/// (protocol/tests/protocol/sessions.rs); here the mock process may be descheduled, so no upper bound.
 #[test]
 fn device_drops_to_zero_force_within_its_watchdog_when_the_host_stops() {
-    let mut mock = Mock::start(&["--pty"]);
+    // The mock exits after 120 s, so a watchdog that never trips ends the test instead of hanging it.
+    let mut mock = Mock::start(&["--pty", "--duration", "120"]);
     let watchdog_us = 20_000;
-    let config = ProtocolConfig {
-        device_watchdog_us: watchdog_us,
-        // A late answer on a loaded machine is not what this test is about: wait for it.
-        state_timeout: Duration::from_millis(100),
-        ..ProtocolConfig::default()
+    let mut config = ProtocolConfig::default();
+    config.device_watchdog_us = watchdog_us;
+    // A late answer on a loaded machine is not what this test is about: wait for it.
+    config.state_timeout = Duration::from_secs(60);
+    let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
+    let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
+    device.open().unwrap();
+    let last_force_us = exchange_until_enabled(&mut device, 100);
+    // The host stops sending (the link stays open): nothing more goes out, not even the zero force of a
+    // clean disable.
+    // Trips during the exchanges above (a stalled host) were reported before the last force; skip them.
+    let tripped_us = loop {
+        let line = mock.next_line();
+        let seconds: f64 = line
+            .strip_prefix("watchdog tripped at ")
+            .and_then(|rest| rest.strip_suffix(" s"))
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| panic!("mock said {line:?}, not a watchdog trip"));
+        // Printed in whole milliseconds: within 500 µs of the device time.
+        let tripped_us = seconds * 1e6;
+        if tripped_us + 500.0 >= last_force_us as f64 {
+            break tripped_us;
+        }
     };
-    let mut device = open(&mock.path, config);
-    device.enable().unwrap();
-    for _ in 0..100 {
-        device.write_force(DVec3::new(0.5, 0.0, 0.0)).unwrap();
-        device.read_state().unwrap();
-    }
-    // The host stops sending. The mock must report its watchdog within the timeout plus one control period
-    // (1 ms) plus scheduling slack.
-    let stopped = Instant::now();
-    device.mark_lost(); // nothing more is sent, not even the zero force of a clean disable
-    let line = mock.next_line();
-    let elapsed = stopped.elapsed();
-    assert!(line.starts_with("watchdog tripped"), "mock said {line:?}");
     assert!(
-        elapsed < Duration::from_micros(u64::from(watchdog_us)) + Duration::from_millis(80),
-        "watchdog reported after {elapsed:?}"
+        tripped_us + 500.0 > (last_force_us + u64::from(watchdog_us)) as f64,
+        "the watchdog tripped at {tripped_us} us, less than {watchdog_us} us after the last force at {last_force_us} us"
     );
 }
 
 #[test]
 fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
     let mock = Mock::start(&["--pty"]);
-    let config = ProtocolConfig {
-        device_watchdog_us: 10_000,
-        // A late answer on a loaded machine is not what this test is about: wait for it.
-        state_timeout: Duration::from_millis(100),
-        ..ProtocolConfig::default()
-    };
+    let watchdog_us = 10_000;
+    let mut config = ProtocolConfig::default();
+    config.device_watchdog_us = watchdog_us;
+    // A late answer on a loaded machine is not what this test is about: wait for it.
+    config.state_timeout = Duration::from_secs(60);
     let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
     let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
     device.open().unwrap();
-    device.enable().unwrap();
-    for _ in 0..20 {
-        device.write_force(DVec3::new(0.5, 0.0, 0.0)).unwrap();
-        device.read_state().unwrap();
-    }
+    let last_force_us = exchange_until_enabled(&mut device, 20);
+    // The host stops sending; the Fault must come (a generous deadline only guards against a hang).
     let stopped = Instant::now();
     let fault = loop {
         assert!(
-            stopped.elapsed() < Duration::from_millis(500),
-            "no fault message"
+            stopped.elapsed() < Duration::from_secs(60),
+            "no fault message within 60 s"
         );
         if let Some(HostEvent::Fault(fault)) = device.poll_event(Duration::from_millis(50)).unwrap()
         {
@@ -187,11 +232,11 @@ fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
     };
     assert_eq!(fault.code, FaultCode::WATCHDOG_EXPIRED);
     assert!(
-        stopped.elapsed() < Duration::from_millis(10 + 60),
-        "fault after {:?}",
-        stopped.elapsed()
+        fault.device_time_us > last_force_us + u64::from(watchdog_us),
+        "the fault at device time {} us came less than {watchdog_us} us after the last force at {last_force_us} us",
+        fault.device_time_us
     );
-    let reply = device.heartbeat(Duration::from_millis(200)).unwrap();
+    let reply = device.heartbeat(Duration::from_secs(60)).unwrap();
     assert!(reply.status.contains(StatusFlags::WATCHDOG_TRIPPED));
     assert!(
         !reply.status.contains(StatusFlags::ENABLED),
@@ -200,6 +245,11 @@ fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
     );
 }
 
+/// The mock hangs up 0.6 s after it started (its clock) and serves again 0.4 s later: the host reports the
+/// hang-up, sends no force while the link is down, reconnects, and runs on the device that came back. What
+/// holds whatever the scheduling: the one hang-up is reported as one, every State after the reconnection was
+/// sent after the mock came back (device time at least 1.0 s), and losses the host declares itself on a loaded
+/// machine (a mock descheduled past the link-health bound) are timeouts it recovers from.
 #[test]
 fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
     let dir = tempfile::tempdir().unwrap();
@@ -213,10 +263,9 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
         "--reconnect-after",
         "0.4",
     ]);
-    let protocol = ProtocolConfig {
-        state_timeout: Duration::from_millis(20),
-        ..ProtocolConfig::default()
-    };
+    let back_us = 1_000_000; // device time when the mock serves again
+    let mut protocol = ProtocolConfig::default();
+    protocol.state_timeout = Duration::from_millis(20);
     let config = SupervisorConfig {
         safety: SafetyConfig {
             ramp_time_us: 50_000,
@@ -232,67 +281,89 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
     })
     .unwrap();
     let start = Instant::now();
-    let (mut disconnected_at, mut reconnected_at) = (None, None);
+    let mut hang_ups = 0;
+    let mut other_losses = 0;
     let mut connects = 0;
+    let mut link_down = false;
+    // After the hang-up: reconnected, and good ticks since.
+    let mut reconnected = false;
     let mut ticks_after_reconnect = 0;
     let mut tick = 0u64;
-    while start.elapsed() < Duration::from_secs(4) && ticks_after_reconnect < 200 {
+    while ticks_after_reconnect < 200 {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no 200 good ticks after a reconnection within 120 s: {hang_ups} hang-ups, {connects} connects"
+        );
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
         let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
-        for event in out.events.iter() {
-            match event {
-                SupervisorEvent::Connected => {
-                    connects += 1;
-                    if disconnected_at.is_some() {
-                        reconnected_at = Some(now_us);
-                    }
-                }
-                SupervisorEvent::Disconnected { .. } => disconnected_at = Some(now_us),
-                _ => {}
-            }
-        }
-        // From the tick after the one that noticed the loss (whose force went out before it was noticed).
-        if disconnected_at.is_some_and(|at| at < now_us) && reconnected_at.is_none() {
+        // The tick that notices a loss sent its force before noticing; from the next one on, nothing.
+        if link_down {
             assert_eq!(
                 out.sent_force_n,
                 DVec3::ZERO,
                 "force sent while disconnected"
             );
-            assert!(!out.connected || !out.events.is_empty());
         }
-        if reconnected_at.is_some() && !out.stale {
+        for event in out.events.iter() {
+            match event {
+                SupervisorEvent::Connected => {
+                    connects += 1;
+                    link_down = false;
+                    reconnected = hang_ups > 0;
+                }
+                SupervisorEvent::Disconnected { kind, reason } => {
+                    link_down = true;
+                    reconnected = false;
+                    if reason == LossReason::HungUp {
+                        assert_eq!(kind, voxhap::device::ErrorKind::Disconnected);
+                        hang_ups += 1;
+                    } else {
+                        assert_eq!(
+                            kind,
+                            voxhap::device::ErrorKind::Timeout,
+                            "a loss other than the hang-up: {reason:?}"
+                        );
+                        other_losses += 1;
+                    }
+                }
+                _ => {}
+            }
+        }
+        if let Some(state) = out
+            .state
+            .filter(|_| reconnected && !out.stale && out.connected)
+        {
+            let device_time_us = state.device_time_us.unwrap();
+            assert!(
+                device_time_us >= back_us,
+                "a state from device time {device_time_us} us after the reconnection: the mock served again at {back_us} us"
+            );
             ticks_after_reconnect += 1;
         }
     }
-    let disconnected_at = disconnected_at.expect("the host never noticed the disconnect");
-    let reconnected_at = reconnected_at.expect("the host never reconnected");
-    assert_eq!(connects, 2);
-    assert!(
-        disconnected_at > 500_000,
-        "disconnect noticed too early: {disconnected_at} us"
+    assert_eq!(hang_ups, 1, "the mock hung up once");
+    assert_eq!(
+        connects,
+        1 + hang_ups + other_losses,
+        "every loss is followed by one reconnection"
     );
-    assert!(
-        reconnected_at - disconnected_at >= 300_000,
-        "reconnected before the mock came back"
-    );
-    assert!(
-        ticks_after_reconnect >= 200,
-        "only {ticks_after_reconnect} good ticks after reconnecting"
-    );
-    assert_eq!(supervisor.counters().disconnects, 1);
+    assert_eq!(supervisor.counters().disconnects, hang_ups + other_losses);
 }
 
+/// The mock stops answering 0.3 s after it started and stays mute: the host declares the link lost (a
+/// timeout), sends no force while it is down, and its reopen attempts fail. On a loaded machine the mock can
+/// be descheduled for longer than the link-health bound while it still answers, and then the host rightly
+/// drops the link and reconnects; what must hold is that the loss it never recovers from is a timeout and
+/// that no force goes out while the link is down.
 #[test]
 fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
     let mock = Mock::start(&["--pty", "--stop-after", "0.3"]);
     let path = mock.path.clone();
-    let protocol = ProtocolConfig {
-        state_timeout: Duration::from_micros(500),
-        hello_timeout: Duration::from_millis(50),
-        ..ProtocolConfig::default()
-    };
+    let mut protocol = ProtocolConfig::default();
+    protocol.state_timeout = Duration::from_micros(500);
+    protocol.hello_timeout = Duration::from_millis(50);
     let config = SupervisorConfig {
         reconnect_interval_us: 100_000,
         ..SupervisorConfig::default()
@@ -303,42 +374,47 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
     })
     .unwrap();
     let start = Instant::now();
-    // The last loss: on a loaded machine the mock can be descheduled for longer than the link-health bound while
-    // it still answers, and then the host rightly drops the link and reconnects; what must hold is that the loss
-    // it never recovers from comes after the device went mute, and that no force goes out while the link is down.
-    let mut lost_at = None;
+    let mut losses = 0;
     let mut link_down = false;
+    // Reopen attempts that failed since the link was last up.
     let mut failed_reconnects = 0;
     let mut tick = 0u64;
-    while start.elapsed() < Duration::from_secs(2) && failed_reconnects < 2 {
+    while failed_reconnects < 2 {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "the mute device was not given up on within 120 s: {losses} losses, {failed_reconnects} failed reopens"
+        );
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
         let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
+        if link_down {
+            assert_eq!(
+                out.sent_force_n,
+                DVec3::ZERO,
+                "force sent while the link was down"
+            );
+        }
         for event in out.events.iter() {
             match event {
                 SupervisorEvent::Disconnected { kind, .. } => {
                     assert_eq!(kind, voxhap::device::ErrorKind::Timeout);
-                    lost_at = Some(now_us);
+                    losses += 1;
                     link_down = true;
                 }
-                SupervisorEvent::Connected => link_down = false,
+                SupervisorEvent::Connected => {
+                    link_down = false;
+                    failed_reconnects = 0;
+                }
                 SupervisorEvent::ReconnectFailed(_) => failed_reconnects += 1,
                 _ => {}
             }
         }
-        if link_down {
-            assert_eq!(out.sent_force_n, DVec3::ZERO);
-        }
     }
-    let lost_at = lost_at.expect("a mute device was never declared lost");
+    assert!(losses >= 1, "a mute device was never declared lost");
     assert!(
-        lost_at >= 300_000,
-        "last lost at {lost_at} us, before the device went mute"
-    );
-    assert!(
-        failed_reconnects >= 1,
-        "the supervisor never tried to reopen the mute device"
+        link_down,
+        "the link is up again although the device is mute"
     );
 }
 
@@ -382,12 +458,11 @@ fn summary_number(text: &str, label: &str) -> u64 {
 #[test]
 fn a_device_answering_5_ms_late_connects_and_engages() {
     let mock = Mock::start(&["--pty", "--latency-ms", "5"]);
-    let (ok, text) = serve_on(&mock.path, "3");
+    // Long enough to engage on a loaded machine; a link the host drops there (a descheduled mock) is enabled
+    // again, so at least one enable is what must hold.
+    let (ok, text) = serve_on(&mock.path, "10");
     assert!(ok, "{text}");
-    assert!(
-        text.contains("enables 1") || text.contains("enables 2"),
-        "{text}"
-    );
+    assert!(summary_number(&text, "enables ") >= 1, "{text}");
     assert!(!text.contains("permission"), "{text}");
 }
 

@@ -30,6 +30,7 @@ mod igtl;
 mod late_states;
 mod modes;
 mod paper;
+mod plot_stream;
 mod record;
 mod replay;
 mod robustness;

@@ -1,16 +1,19 @@
-//! `voxhap plot TRACE --out FILE.png|svg`: draws a recorded force trace (CSV or MCAP) with
-//! [`crate::record::plot`]. Thin: argument parsing, the title, and error context.
+//! `voxhap plot TRACE --out FILE.png|svg`: draws a recorded force trace (CSV, Parquet or MCAP) with
+//! [`crate::record::plot`]. Thin: argument parsing, the title, and error context. The trace is read in batches
+//! into a reduction whose size does not depend on the trace's length ([`PlotData`]).
 
 use anyhow::Context;
 use clap::Args;
 use std::path::PathBuf;
 
-use crate::record::{plot::plot_trace, read_trace, Trace};
+use crate::record::plot::{check_output_name, plot_data, read_plot_data, PlotData};
+use crate::record::Trace;
 
 /// Arguments of `voxhap plot`.
 #[derive(Debug, Args)]
 pub struct PlotArgs {
-    /// The trace to plot: a CSV or MCAP file written by voxhap (its sidecar TRACE.json is used when present).
+    /// The trace to plot: a CSV, Parquet or MCAP file written by voxhap (its sidecar TRACE.json is used when
+    /// present).
     pub trace: PathBuf,
     /// Output image; the extension chooses the format: .png or .svg.
     #[arg(long, short)]
@@ -24,30 +27,42 @@ pub struct PlotArgs {
     /// Title; by default the trace's file name, scenario name, rate and length.
     #[arg(long)]
     pub title: Option<String>,
+    /// Also print the smallest and largest value drawn of each force series and path coordinate (N, mm).
+    #[arg(long)]
+    pub extents: bool,
 }
 
 /// Reads the trace and writes the plot.
 pub fn run(args: PlotArgs) -> anyhow::Result<()> {
+    check_output_name(&args.out)?;
     // The reader's errors name the file (and the line and column).
-    let trace = read_trace(&args.trace)?;
+    let (trace, data) = read_plot_data(&args.trace, args.width)?;
     for warning in &trace.warnings {
         eprintln!("warning: {warning}");
     }
     let title = args
         .title
         .clone()
-        .unwrap_or_else(|| default_title(&args, &trace));
-    plot_trace(&trace, &title, &args.out, args.width, args.height)
+        .unwrap_or_else(|| default_title(&args, &trace, &data));
+    plot_data(&data, &trace, &title, &args.out, args.width, args.height)
         .with_context(|| format!("cannot plot {}", args.trace.display()))?;
-    eprintln!(
-        "wrote {} ({} samples)",
-        args.out.display(),
-        trace.samples.len()
-    );
+    eprintln!("wrote {} ({} samples)", args.out.display(), data.samples());
+    if data.untimed_samples() > 0 {
+        eprintln!(
+            "warning: {} samples have no finite time and are not drawn",
+            data.untimed_samples()
+        );
+    }
+    if args.extents {
+        for (name, low, high) in data.drawn_extents() {
+            let unit = if name.starts_with('p') { "mm" } else { "N" };
+            eprintln!("drawn {name}: {low} to {high} {unit}");
+        }
+    }
     Ok(())
 }
 
-fn default_title(args: &PlotArgs, trace: &Trace) -> String {
+fn default_title(args: &PlotArgs, trace: &Trace, data: &PlotData) -> String {
     let file = args
         .trace
         .file_name()
@@ -60,11 +75,11 @@ fn default_title(args: &PlotArgs, trace: &Trace) -> String {
         }
         title.push_str(&format!(" - {} Hz", sidecar.meta.rate_hz));
     }
-    if let (Some(first), Some(last)) = (trace.samples.first(), trace.samples.last()) {
+    if let Some((first, last)) = data.time_span_s() {
         title.push_str(&format!(
             " - {} ticks, {:.3} s",
-            trace.samples.len(),
-            last.t_s - first.t_s
+            data.samples(),
+            last - first
         ));
     }
     title

@@ -265,10 +265,61 @@ pub fn parse_csv_trace(
 type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
 
 fn parse_csv_lines(
-    mut reader: impl BufRead,
+    reader: impl BufRead,
     path: &Path,
     start_utc_ns: Option<i64>,
 ) -> Result<Parsed, TraceReadError> {
+    let mut samples = Vec::new();
+    let (mode_names, warnings, _) = for_each_csv_line(reader, path, start_utc_ns, &mut |sample| {
+        samples.push(*sample)
+    })?;
+    Ok((mode_names, samples, warnings))
+}
+
+/// Reads a CSV trace as [`read_csv_trace`] does, but hands each sample to `sink` in file order instead of
+/// collecting them (memory does not grow with the trace's length). Returns the trace without its samples,
+/// and how many were read.
+pub(crate) fn for_each_csv_sample(
+    path: &Path,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<(Trace, u64), TraceReadError> {
+    let (file, size_bytes) = super::open_trace_file(path)?;
+    let sidecar = read_sidecar(&sidecar_path(path))?;
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let (mode_names, warnings, count) = for_each_csv_line(
+        BufReader::new(std::io::Read::take(file, size_bytes)),
+        path,
+        start_utc_ns,
+        sink,
+    )?;
+    let mut warnings = warnings;
+    warnings.extend(super::sidecar_warnings(
+        sidecar.as_ref(),
+        path,
+        super::TraceFormat::Csv,
+        &mode_names,
+        count,
+    ));
+    Ok((
+        Trace {
+            mode_names,
+            samples: Vec::new(),
+            sidecar,
+            warnings,
+        },
+        count,
+    ))
+}
+
+/// The mode names, the warnings and the count of samples handed to `sink`.
+type Streamed = (Vec<String>, Vec<String>, u64);
+
+fn for_each_csv_line(
+    mut reader: impl BufRead,
+    path: &Path,
+    start_utc_ns: Option<i64>,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<Streamed, TraceReadError> {
     let mut buffer = Vec::new();
     let mut line_number = 0usize;
     // Returns the line number and whether the line ended with a newline.
@@ -303,7 +354,7 @@ fn parse_csv_lines(
     let names: Vec<String> = docs.iter().map(|c| c.name.to_string()).collect();
     let types: Vec<ColumnType> = docs.iter().map(|c| c.column_type).collect();
 
-    let mut samples = Vec::new();
+    let mut count = 0u64;
     let mut warnings = Vec::new();
     let mut last_tick = None;
     let mut row = Vec::with_capacity(names.len());
@@ -328,7 +379,8 @@ fn parse_csv_lines(
         match parsed {
             Ok(sample) => {
                 last_tick = Some(sample.tick);
-                samples.push(sample);
+                count += 1;
+                sink(&sample);
             }
             // A crash leaves at most one partial line, at the end and without a newline.
             Err(error) if !complete => {
@@ -341,7 +393,7 @@ fn parse_csv_lines(
             Err(error) => return Err(error),
         }
     }
-    Ok((mode_names, samples, warnings))
+    Ok((mode_names, warnings, count))
 }
 
 fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError> {

@@ -484,50 +484,82 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
     let reader_metadata =
         ArrowReaderMetadata::try_new(Arc::new(metadata), ArrowReaderOptions::new())
             .map_err(|e| problem(e.to_string()))?;
-    let schema = reader_metadata.schema().clone();
-    let mode_names = mode_names_from_schema(&schema).map_err(problem)?;
-    let expected = arrow_schema(&mode_names);
-    for (index, want) in expected.fields().iter().enumerate() {
-        match schema.fields().get(index) {
-            Some(got) if got.name() == want.name() && got.data_type() == want.data_type() => {}
-            Some(got) => {
-                return Err(problem(format!(
-                    "column {} is {} ({}), expected {} ({})",
-                    index + 1,
-                    got.name(),
-                    got.data_type(),
-                    want.name(),
-                    want.data_type()
-                )))
-            }
-            None => {
-                return Err(problem(format!(
-                    "column {} missing, expected {}",
-                    index + 1,
-                    want.name()
-                )))
-            }
-        }
-    }
-    if schema.fields().len() != expected.fields().len() {
-        return Err(problem(format!(
-            "{} columns, expected {}",
-            schema.fields().len(),
-            expected.fields().len()
-        )));
-    }
+    let (mode_names, expected) = trace_schema(reader_metadata.schema()).map_err(problem)?;
     let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
     let reader = ParquetRecordBatchReaderBuilder::new_with_metadata(bytes, reader_metadata)
         .with_batch_size(64 * 1024)
         .build()
         .map_err(|e| problem(e.to_string()))?;
     let mut samples = Vec::new();
+    for_each_row(
+        reader,
+        &mode_names,
+        &expected,
+        start_utc_ns,
+        &problem,
+        &mut |sample| samples.push(*sample),
+    )?;
+    let trace = Trace {
+        mode_names,
+        samples,
+        sidecar,
+        warnings,
+    };
+    Ok(super::check_sidecar(trace, path, TraceFormat::Parquet))
+}
+
+/// Checks that `schema` is a voxhap trace's (every column named and typed as written); returns the mode names
+/// and the expected schema.
+fn trace_schema(schema: &SchemaRef) -> Result<(Vec<String>, SchemaRef), String> {
+    let mode_names = mode_names_from_schema(schema)?;
+    let expected = arrow_schema(&mode_names);
+    for (index, want) in expected.fields().iter().enumerate() {
+        match schema.fields().get(index) {
+            Some(got) if got.name() == want.name() && got.data_type() == want.data_type() => {}
+            Some(got) => {
+                return Err(format!(
+                    "column {} is {} ({}), expected {} ({})",
+                    index + 1,
+                    got.name(),
+                    got.data_type(),
+                    want.name(),
+                    want.data_type()
+                ))
+            }
+            None => {
+                return Err(format!(
+                    "column {} missing, expected {}",
+                    index + 1,
+                    want.name()
+                ))
+            }
+        }
+    }
+    if schema.fields().len() != expected.fields().len() {
+        return Err(format!(
+            "{} columns, expected {}",
+            schema.fields().len(),
+            expected.fields().len()
+        ));
+    }
+    Ok((mode_names, expected))
+}
+
+/// Converts and checks every row of `reader`'s batches, in order, handing each sample to `sink`.
+fn for_each_row(
+    reader: impl Iterator<Item = Result<RecordBatch, arrow_schema::ArrowError>>,
+    mode_names: &[String],
+    expected: &Schema,
+    start_utc_ns: Option<i64>,
+    problem: &dyn Fn(String) -> TraceReadError,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<u64, TraceReadError> {
     let mut last_tick = None;
     let mut row = Vec::with_capacity(expected.fields().len());
     let mut row_number = 0usize;
     for batch in reader {
         let batch = batch.map_err(|e| problem(e.to_string()))?;
-        let columns = batch_columns(&batch).map_err(problem)?;
+        let columns = batch_columns(&batch).map_err(|e| problem(e))?;
         for i in 0..batch.num_rows() {
             row_number += 1;
             row.clear();
@@ -551,16 +583,65 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
             check_sample(&sample, mode_names.len(), last_tick)
                 .map_err(|e| problem(format!("row {row_number}: {e}")))?;
             last_tick = Some(sample.tick);
-            samples.push(sample);
+            sink(&sample);
         }
     }
-    let trace = Trace {
-        mode_names,
-        samples,
-        sidecar,
-        warnings,
+    Ok(row_number as u64)
+}
+
+/// Rows per batch when streaming ([`for_each_parquet_sample`]).
+const STREAM_BATCH_ROWS: usize = 8 * 1024;
+
+/// Reads a Parquet trace as [`read_parquet_trace`] does, but hands each sample to `sink` in file order
+/// instead of collecting them: the file is read page by page, batch by batch ([`STREAM_BATCH_ROWS`] rows),
+/// so memory does not grow with the trace's length. Returns the trace without its samples, and how many were
+/// read. A file without its final footer (cut off by a crash) is recovered as [`read_parquet_trace`] does,
+/// which holds it whole.
+pub(crate) fn for_each_parquet_sample(
+    path: &Path,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<(Trace, u64), TraceReadError> {
+    let (file, _) = super::open_trace_file(path)?;
+    let problem = |problem: String| TraceReadError::Parquet {
+        path: path.to_path_buf(),
+        problem,
     };
-    Ok(super::check_sidecar(trace, path, TraceFormat::Parquet))
+    let Ok(metadata) = ParquetMetaDataReader::new().parse_and_finish(&file) else {
+        let mut trace = read_parquet_trace(path)?;
+        let samples = std::mem::take(&mut trace.samples);
+        samples.iter().for_each(|sample| sink(sample));
+        return Ok((trace, samples.len() as u64));
+    };
+    let embedded_sidecar = metadata
+        .file_metadata()
+        .key_value_metadata()
+        .and_then(|kv| kv.iter().find(|kv| kv.key == SIDECAR_KEY))
+        .and_then(|kv| kv.value.as_deref())
+        .and_then(|json| serde_json::from_str::<Sidecar>(json).ok());
+    let sidecar = read_sidecar(&sidecar_path(path))?.or(embedded_sidecar);
+    let file_bytes = file.metadata().map_err(|e| problem(e.to_string()))?.len();
+    check_claimed_sizes(&metadata, file_bytes).map_err(problem)?;
+    let reader_metadata =
+        ArrowReaderMetadata::try_new(Arc::new(metadata), ArrowReaderOptions::new())
+            .map_err(|e| problem(e.to_string()))?;
+    let (mode_names, expected) = trace_schema(reader_metadata.schema()).map_err(problem)?;
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let reader = ParquetRecordBatchReaderBuilder::new_with_metadata(file, reader_metadata)
+        .with_batch_size(STREAM_BATCH_ROWS)
+        .build()
+        .map_err(|e| problem(e.to_string()))?;
+    let count = for_each_row(reader, &mode_names, &expected, start_utc_ns, &problem, sink)?;
+    let warnings =
+        super::sidecar_warnings(sidecar.as_ref(), path, TraceFormat::Parquet, &mode_names, count);
+    Ok((
+        Trace {
+            mode_names,
+            samples: Vec::new(),
+            sidecar,
+            warnings,
+        },
+        count,
+    ))
 }
 
 /// Snappy's largest expansion (a 3-byte copy tag yields at most 64 bytes), with margin: a column chunk

@@ -33,12 +33,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Trace, TraceSample};
-
-/// Most time buckets (each drawn as its min and max) per time series.
-pub const MAX_BUCKETS: usize = 2000;
-/// Most points per drawn path.
-pub const MAX_PATH_POINTS: usize = 4000;
+use super::{Trace, TraceReadError, TraceSample};
 
 const FONT: &str = "sans-serif";
 const PROBE_COLOR: RGBColor = RGBColor(31, 119, 180);
@@ -182,35 +177,104 @@ pub fn plot_trace(
     width_px: u32,
     height_px: u32,
 ) -> Result<(), PlotError> {
+    let mut data = PlotData::new(width_px);
+    trace.samples.iter().for_each(|sample| data.push(sample));
+    plot_data(&data, trace, title, out, width_px, height_px)
+}
+
+/// Reads the trace at `path` in batches (Parquet pages, CSV lines) into a [`PlotData`] for a plot `width_px`
+/// wide, so that memory does not grow with the trace's length; returns the trace without its samples (mode
+/// names, sidecar, warnings) and the reduction. An MCAP trace, and a Parquet file cut off before its footer,
+/// are read whole first.
+pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), TraceReadError> {
+    let mut data = PlotData::new(width_px);
+    let mut sink = |sample: &TraceSample| data.push(sample);
+    let (trace, _) = match sniff_format(path)? {
+        super::TraceFormat::Parquet => {
+            super::parquet_trace::for_each_parquet_sample(path, &mut sink)?
+        }
+        super::TraceFormat::Csv => super::csv::for_each_csv_sample(path, &mut sink)?,
+        super::TraceFormat::Mcap => {
+            let mut trace = super::read_trace(path)?;
+            let samples = std::mem::take(&mut trace.samples);
+            samples.iter().for_each(&mut sink);
+            (trace, samples.len() as u64)
+        }
+    };
+    Ok((trace, data))
+}
+
+/// The trace's format from its first bytes (the MCAP magic, `PAR1`, else CSV), as [`super::read_trace`]
+/// chooses.
+fn sniff_format(path: &Path) -> Result<super::TraceFormat, TraceReadError> {
+    use std::io::Read;
+    let (file, _) = super::open_trace_file(path)?;
+    let mut magic = Vec::with_capacity(8);
+    file.take(8)
+        .read_to_end(&mut magic)
+        .map_err(|source| TraceReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    Ok(if magic[..] == *mcap::MAGIC {
+        super::TraceFormat::Mcap
+    } else if magic.starts_with(b"PAR1") {
+        super::TraceFormat::Parquet
+    } else {
+        super::TraceFormat::Csv
+    })
+}
+
+/// Draws a reduced trace into `out` (`.png` or `.svg`, chosen by the extension) at the given size; `trace`
+/// gives the sidecar (its samples are not used).
+pub fn plot_data(
+    data: &PlotData,
+    trace: &Trace,
+    title: &str,
+    out: &Path,
+    width_px: u32,
+    height_px: u32,
+) -> Result<(), PlotError> {
     if !PLOT_WIDTH_PX.contains(&width_px) || !PLOT_HEIGHT_PX.contains(&height_px) {
         return Err(PlotError::TooSmall {
             width_px,
             height_px,
         });
     }
-    if trace.samples.is_empty() {
+    if data.time_span_s().is_none() {
         return Err(PlotError::EmptyTrace);
     }
     register_font()?;
-    let extension = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
+    let extension = check_output_name(out)?;
     let drawing_error = |message: String| PlotError::Drawing {
         path: out.to_path_buf(),
         message,
     };
-    match extension.as_deref() {
-        Some("png") => {
+    let effort = effort_name(trace);
+    match extension {
+        "png" => {
             let root = BitMapBackend::new(out, (width_px, height_px)).into_drawing_area();
-            draw(&root, trace, title).map_err(drawing_error)?;
+            draw(&root, data, effort, title).map_err(drawing_error)?;
             root.present().map_err(|e| drawing_error(e.to_string()))
         }
-        Some("svg") => {
+        _ => {
             let root = SVGBackend::new(out, (width_px, height_px)).into_drawing_area();
-            draw(&root, trace, title).map_err(drawing_error)?;
+            draw(&root, data, effort, title).map_err(drawing_error)?;
             root.present().map_err(|e| drawing_error(e.to_string()))
         }
+    }
+}
+
+/// The output format, `"png"` or `"svg"`, from the file name (checked before a trace is read).
+pub fn check_output_name(out: &Path) -> Result<&'static str, PlotError> {
+    match out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("png") => Ok("png"),
+        Some("svg") => Ok("svg"),
         _ => Err(PlotError::UnsupportedFormat(out.to_path_buf())),
     }
 }
@@ -218,10 +282,13 @@ pub fn plot_trace(
 type DrawResult = Result<(), String>;
 /// A polyline in chart coordinates.
 type Points = Vec<(f64, f64)>;
-/// A force series: legend name, colour and the value it plots.
-type ForceSeries = (&'static str, RGBColor, fn(&TraceSample) -> f64);
 
-fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, trace: &Trace, title: &str) -> DrawResult
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    data: &PlotData,
+    effort: &str,
+    title: &str,
+) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
@@ -244,56 +311,15 @@ where
         .map(|&(mask, name, color)| ShadedPeriods {
             name,
             color,
-            periods: flag_periods(&trace.samples, mask),
+            periods: data.flag_periods(mask),
         })
         .filter(|s| !s.periods.is_empty())
         .collect();
-    draw_force(&area(force), &trace.samples, &shaded)?;
-    draw_solver(&area(solver), &trace.samples, effort_name(trace), &shaded)?;
-    draw_path(
-        &area(top),
-        &trace.samples,
-        "Top view (x-y)",
-        "y (mm)",
-        |v| v.y,
-    )?;
-    draw_path(
-        &area(side),
-        &trace.samples,
-        "Side view (x-z)",
-        "z (mm)",
-        |v| v.z,
-    )?;
+    draw_force(&area(force), data, &shaded)?;
+    draw_solver(&area(solver), data, effort, &shaded)?;
+    draw_path(&area(top), data, VIEW_TOP, "Top view (x-y)", "y (mm)")?;
+    draw_path(&area(side), data, VIEW_SIDE, "Side view (x-z)", "z (mm)")?;
     Ok(())
-}
-
-/// Min and max of `value` in each of at most `MAX_BUCKETS` equal-count buckets, in time order.
-fn envelope(samples: &[TraceSample], value: impl Fn(&TraceSample) -> f64) -> Vec<(f64, f64)> {
-    let bucket = samples.len().div_ceil(MAX_BUCKETS).max(1);
-    let mut points = Vec::with_capacity(2 * samples.len().min(MAX_BUCKETS) + 2);
-    for chunk in samples.chunks(bucket) {
-        if bucket == 1 {
-            points.push((chunk[0].t_s, value(&chunk[0])));
-            continue;
-        }
-        let (mut low, mut high) = (&chunk[0], &chunk[0]);
-        for s in chunk {
-            if value(s) < value(low) {
-                low = s;
-            }
-            if value(s) > value(high) {
-                high = s;
-            }
-        }
-        let (first, second) = if low.t_s <= high.t_s {
-            (low, high)
-        } else {
-            (high, low)
-        };
-        points.push((first.t_s, value(first)));
-        points.push((second.t_s, value(second)));
-    }
-    points
 }
 
 /// Periods (start, end time in s) of a flag kind, for shading.
@@ -301,31 +327,6 @@ struct ShadedPeriods {
     name: &'static str,
     color: RGBColor,
     periods: Vec<(f64, f64)>,
-}
-
-/// The time periods in which some bit of `mask` is set: from the first flagged sample to the next
-/// unflagged one (or the last sample). Periods closer than 1/`MAX_SHADED_PERIODS` of the trace are merged so
-/// at most about `MAX_SHADED_PERIODS` are drawn.
-fn flag_periods(samples: &[TraceSample], mask: u32) -> Vec<(f64, f64)> {
-    let time = time_range(samples);
-    let merge_gap_s = (time.end - time.start) / MAX_SHADED_PERIODS as f64;
-    let mut periods: Vec<(f64, f64)> = Vec::new();
-    let mut open: Option<f64> = None;
-    for sample in samples {
-        let flagged = sample.flags & mask != 0;
-        match (open, flagged) {
-            (None, true) => open = Some(sample.t_s),
-            (Some(start), false) => {
-                push_period(&mut periods, (start, sample.t_s), merge_gap_s);
-                open = None;
-            }
-            _ => {}
-        }
-    }
-    if let (Some(start), Some(last)) = (open, samples.last()) {
-        push_period(&mut periods, (start, last.t_s), merge_gap_s);
-    }
-    periods
 }
 
 fn push_period(periods: &mut Vec<(f64, f64)>, period: (f64, f64), merge_gap_s: f64) {
@@ -506,16 +507,6 @@ fn padded_range(values: impl Iterator<Item = f64>) -> Range<f64> {
     (low - 0.05 * span)..(high + 0.05 * span)
 }
 
-fn time_range(samples: &[TraceSample]) -> Range<f64> {
-    let first = samples.first().map_or(0.0, |s| s.t_s);
-    let last = samples.last().map_or(1.0, |s| s.t_s);
-    if last > first {
-        first..last
-    } else {
-        first..first + 1e-3
-    }
-}
-
 /// A thick polyline as separate two-point segments: plotters joins thick polylines with mitres that
 /// shoot far outside the chart at sharp reversals (min/max envelopes, raster turns).
 fn thick_segments(
@@ -561,22 +552,23 @@ fn outlier_markers(points: Points) -> impl Iterator<Item = TriangleMarker<(f64, 
 
 fn draw_force<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    samples: &[TraceSample],
+    data: &PlotData,
     shaded: &[ShadedPeriods],
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    let components: [ForceSeries; 4] = [
-        ("|F|", BLACK, |s| s.force_n.length()),
-        ("Fx", X_COLOR, |s| s.force_n.x),
-        ("Fy", Y_COLOR, |s| s.force_n.y),
-        ("Fz", Z_COLOR, |s| s.force_n.z),
+    let components: [(&str, RGBColor); 4] = [
+        ("|F|", BLACK),
+        ("Fx", X_COLOR),
+        ("Fy", Y_COLOR),
+        ("Fz", Z_COLOR),
     ];
     let series: Vec<_> = components
         .iter()
-        .map(|(name, color, f)| (*name, *color, envelope(samples, f)))
+        .enumerate()
+        .map(|(index, (name, color))| (*name, *color, data.series_points(index, |v| v)))
         .collect();
     let y_range = robust_range(series.iter().flat_map(|(_, _, p)| p.iter().map(|p| p.1)));
     let mut outliers = Vec::new();
@@ -601,7 +593,7 @@ where
         .margin(8)
         .x_label_area_size(32)
         .y_label_area_size(64)
-        .build_cartesian_2d(time_range(samples), y_range.clone())
+        .build_cartesian_2d(data.time_range(), y_range.clone())
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -626,7 +618,7 @@ where
 
 fn draw_solver<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    samples: &[TraceSample],
+    data: &PlotData,
     effort: &str,
     shaded: &[ShadedPeriods],
 ) -> DrawResult
@@ -634,17 +626,11 @@ where
     DB::ErrorType: 'static,
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    let sweeps = envelope(samples, |s| f64::from(s.sweeps));
+    let sweeps = data.series_points(SERIES_SWEEPS, |v| v);
     let sweep_range = robust_range(sweeps.iter().map(|p| p.1).chain([0.0]));
     let sweep_range = 0.0..sweep_range.end.max(1.0);
     let (sweeps, outliers) = clamp_outliers(sweeps, &sweep_range);
-    let positive_bounds = samples
-        .iter()
-        .map(|s| s.error_bound_m)
-        .filter(|b| b.is_finite() && *b > 0.0);
-    let (low, high) = positive_bounds.fold((f64::INFINITY, 0.0f64), |(lo, hi), b| {
-        (lo.min(b), hi.max(b))
-    });
+    let (low, high) = (data.bound_low, data.bound_high);
     // The bound axis is linear in log10(bound) with whole decades labelled; plotters' own log axis
     // labels too few decades to read.
     let (log_low, log_high) = if low.is_finite() {
@@ -655,15 +641,11 @@ where
     } else {
         (-18.0, -15.0)
     };
-    // Finite bounds only; 0 drawn at the bottom of the axis.
-    let finite: Vec<TraceSample> = samples
-        .iter()
-        .filter(|s| s.error_bound_m.is_finite())
-        .copied()
-        .collect();
-    let bounds = envelope(&finite, |s| {
-        if s.error_bound_m > 0.0 {
-            s.error_bound_m.log10().max(log_low)
+    // Finite bounds only (ticks without a certificate are left out); 0 drawn at the bottom of the axis. The
+    // logarithm keeps the order, so each bucket's minimum and maximum stay its extremes.
+    let bounds = data.series_points(SERIES_BOUND, |bound| {
+        if bound > 0.0 {
+            bound.log10().max(log_low)
         } else {
             log_low
         }
@@ -683,9 +665,9 @@ where
         .x_label_area_size(32)
         .y_label_area_size(64)
         .right_y_label_area_size(72)
-        .build_cartesian_2d(time_range(samples), sweep_range.clone())
+        .build_cartesian_2d(data.time_range(), sweep_range.clone())
         .map_err(err)?
-        .set_secondary_coord(time_range(samples), log_low..log_high);
+        .set_secondary_coord(data.time_range(), log_low..log_high);
     chart
         .configure_mesh()
         .x_desc("t (s)")
@@ -743,27 +725,6 @@ fn thin_path(points: Vec<(f64, f64)>, min_step: f64) -> Vec<(f64, f64)> {
     kept
 }
 
-/// Every n-th point of the probe and proxy paths in mm, at most `MAX_PATH_POINTS` each.
-fn path_points(samples: &[TraceSample], vertical: impl Fn(glam::DVec3) -> f64) -> (Points, Points) {
-    let stride = samples.len().div_ceil(MAX_PATH_POINTS).max(1);
-    let pick = |v: glam::DVec3| (v.x * 1e3, vertical(v) * 1e3);
-    let mut probe: Vec<_> = samples
-        .iter()
-        .step_by(stride)
-        .map(|s| pick(s.probe_m))
-        .collect();
-    let mut proxy: Vec<_> = samples
-        .iter()
-        .step_by(stride)
-        .map(|s| pick(s.proxy_m))
-        .collect();
-    if let Some(last) = samples.last() {
-        probe.push(pick(last.probe_m));
-        proxy.push(pick(last.proxy_m));
-    }
-    (probe, proxy)
-}
-
 /// Smallest span of each path view's axes (mm): a sub-millimetre wobble is drawn as the small motion it is,
 /// on readable millimetre ticks, instead of being blown up to fill the panel (issue 17: "the side view is
 /// unreadable for small motions").
@@ -810,16 +771,16 @@ fn equal_aspect(
 
 fn draw_path<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    samples: &[TraceSample],
+    data: &PlotData,
+    view: usize,
     caption: &str,
     vertical_label: &str,
-    vertical: impl Fn(glam::DVec3) -> f64,
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    let (probe, proxy) = path_points(samples, vertical);
+    let (probe, proxy) = data.path_points(view);
     let (x, y) = path_data_limits(&probe, &proxy);
     let off_axis = probe
         .iter()
@@ -885,6 +846,389 @@ where
         .map_err(err)?;
     chart.draw_series(outlier_markers(outliers)).map_err(err)?;
     Ok(())
+}
+
+/// The time series kept per time bucket, as their minimum and maximum: |F|, Fx, Fy, Fz, sweeps, and the
+/// certificate bound (finite values only, m).
+const SERIES: usize = 6;
+const SERIES_SWEEPS: usize = 4;
+const SERIES_BOUND: usize = 5;
+/// The paths kept per time bucket: (top, side) x (probe, proxy), index `2 * view + which`.
+const PATHS: usize = 4;
+/// Path views: the vertical axis of the top view is y, of the side view z.
+const VIEW_TOP: usize = 0;
+const VIEW_SIDE: usize = 1;
+
+/// The smallest and largest value seen, each with its time: `(t_s, value)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct MinMax {
+    low: (f64, f64),
+    high: (f64, f64),
+}
+
+impl MinMax {
+    const EMPTY: MinMax = MinMax {
+        low: (0.0, f64::INFINITY),
+        high: (0.0, f64::NEG_INFINITY),
+    };
+
+    fn add(&mut self, t_s: f64, value: f64) {
+        if value < self.low.1 {
+            self.low = (t_s, value);
+        }
+        if value > self.high.1 {
+            self.high = (t_s, value);
+        }
+    }
+
+    fn merge(&mut self, other: &MinMax) {
+        if other.low.1 < self.low.1 {
+            self.low = other.low;
+        }
+        if other.high.1 > self.high.1 {
+            self.high = other.high;
+        }
+    }
+
+    /// The minimum and maximum in time order (one point when they are the same sample).
+    fn push_points(&self, points: &mut Points, map: impl Fn(f64) -> f64) {
+        if self.low.1 > self.high.1 {
+            return;
+        }
+        let (first, second) = if self.low.0 <= self.high.0 {
+            (self.low, self.high)
+        } else {
+            (self.high, self.low)
+        };
+        points.push((first.0, map(first.1)));
+        if second != first {
+            points.push((second.0, map(second.1)));
+        }
+    }
+}
+
+/// The points of a path (mm) that reach furthest in eight directions (along the horizontal and vertical
+/// axes and the two diagonals, both ways), each with its time: `(t_s, horizontal, vertical)`. The path's
+/// smallest and largest coordinates are among them, and on a curve they are spread along the stretch of path
+/// the bucket covers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PathExtremes {
+    /// `None` until a point is added.
+    points: Option<[(f64, f64, f64); 8]>,
+}
+
+impl PathExtremes {
+    const EMPTY: PathExtremes = PathExtremes { points: None };
+
+    /// How far `point` reaches in direction `k` (0..8).
+    fn reach(point: &(f64, f64, f64), k: usize) -> f64 {
+        let (a, b) = (point.1, point.2);
+        match k {
+            0 => -a,
+            1 => a,
+            2 => -b,
+            3 => b,
+            4 => -(a + b),
+            5 => a + b,
+            6 => b - a,
+            _ => a - b,
+        }
+    }
+
+    fn add(&mut self, point: (f64, f64, f64)) {
+        match &mut self.points {
+            None => self.points = Some([point; 8]),
+            Some(points) => {
+                for (k, kept) in points.iter_mut().enumerate() {
+                    if Self::reach(&point, k) > Self::reach(kept, k) {
+                        *kept = point;
+                    }
+                }
+            }
+        }
+    }
+
+    fn merge(&mut self, other: &PathExtremes) {
+        if let Some(points) = other.points {
+            points.into_iter().for_each(|p| self.add(p));
+        }
+    }
+
+    /// The distinct extreme points in time order.
+    fn push_points(&self, points: &mut Points) {
+        let Some(mut sorted) = self.points else {
+            return;
+        };
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (i, p) in sorted.iter().enumerate() {
+            if i == 0 || *p != sorted[i - 1] {
+                points.push((p.1, p.2));
+            }
+        }
+    }
+}
+
+/// Equal time buckets that merge in pairs (the width doubling) when a sample falls past the last one.
+#[derive(Clone, Debug)]
+struct Buckets<B> {
+    slots: Vec<Option<B>>,
+    width_s: f64,
+}
+
+impl<B: Copy> Buckets<B> {
+    fn new(capacity: usize) -> Self {
+        Buckets {
+            slots: vec![None; capacity.max(2) & !1],
+            width_s: FIRST_BUCKET_S,
+        }
+    }
+
+    /// The bucket for a sample `offset_s` (finite) after the first, merging as needed.
+    fn at(&mut self, offset_s: f64, empty: B, merge: impl Fn(&mut B, &B)) -> &mut B {
+        let capacity = self.slots.len();
+        while offset_s / self.width_s >= capacity as f64 {
+            for k in 0..capacity / 2 {
+                let (a, b) = (self.slots[2 * k], self.slots[2 * k + 1]);
+                self.slots[k] = match (a, b) {
+                    (Some(mut a), Some(b)) => {
+                        merge(&mut a, &b);
+                        Some(a)
+                    }
+                    (a, b) => a.or(b),
+                };
+            }
+            for slot in &mut self.slots[capacity / 2..] {
+                *slot = None;
+            }
+            self.width_s *= 2.0;
+        }
+        // Before the first sample (times are not required to increase): the first bucket.
+        let index = ((offset_s / self.width_s).floor().max(0.0) as usize).min(capacity - 1);
+        self.slots[index].get_or_insert(empty)
+    }
+}
+
+/// What one time bucket keeps of the samples in it.
+#[derive(Clone, Copy, Debug)]
+struct Bucket {
+    series: [MinMax; SERIES],
+    /// The flags of all its samples, or'ed.
+    flags: u32,
+}
+
+impl Bucket {
+    const EMPTY: Bucket = Bucket {
+        series: [MinMax::EMPTY; SERIES],
+        flags: 0,
+    };
+
+    fn merge(&mut self, other: &Bucket) {
+        for (mine, theirs) in self.series.iter_mut().zip(&other.series) {
+            mine.merge(theirs);
+        }
+        self.flags |= other.flags;
+    }
+}
+
+/// What one path bucket keeps: the extreme points of each path in each view, index `2 * view + which`.
+type PathBucket = [PathExtremes; PATHS];
+
+fn merge_paths(mine: &mut PathBucket, theirs: &PathBucket) {
+    for (mine, theirs) in mine.iter_mut().zip(theirs) {
+        mine.merge(theirs);
+    }
+}
+
+/// A trace reduced for drawing as it streams past, in memory that does not grow with its length.
+///
+/// Time series: the time axis is cut into at most twice as many equal buckets as the image has pixel columns,
+/// and each bucket keeps the minimum and maximum of every series, each with its time; when a sample falls past
+/// the last bucket, neighbouring buckets merge in pairs and the width doubles. Drawn in time order, these keep
+/// the envelope of a long trace: a spike survives, a fast oscillation stays a filled band.
+///
+/// Paths: [`PATH_BUCKETS`] finer buckets, each keeping the points of the probe and proxy paths that reach
+/// furthest in eight directions. Drawn in time order, a path is a polygon whose corners lie on it, at most a
+/// bucket's stretch of path apart: a circle stays round, where every n-th sample taken near its period draws a
+/// star.
+///
+/// The smallest and largest value of every series and path coordinate are among the kept points, so the drawn
+/// extent is the data's.
+#[derive(Clone, Debug)]
+pub struct PlotData {
+    series: Buckets<Bucket>,
+    paths: Buckets<PathBucket>,
+    origin_s: f64,
+    samples: u64,
+    untimed: u64,
+    first_s: f64,
+    last_s: f64,
+    /// Smallest and largest positive finite certificate bound (m).
+    bound_low: f64,
+    bound_high: f64,
+}
+
+/// Narrowest bucket a trace starts with (s); the width doubles as the trace grows.
+const FIRST_BUCKET_S: f64 = 1e-9;
+/// Most path buckets (each keeps 8 points of each of the 4 paths: about 13 MiB in all).
+pub const PATH_BUCKETS: usize = 16 * 1024;
+
+impl PlotData {
+    /// An empty reduction for a plot `width_px` wide.
+    pub fn new(width_px: u32) -> PlotData {
+        let columns = usize::try_from(width_px.clamp(200, 8192)).unwrap_or(8192);
+        PlotData {
+            series: Buckets::new(2 * columns),
+            paths: Buckets::new(PATH_BUCKETS),
+            origin_s: f64::NAN,
+            samples: 0,
+            untimed: 0,
+            first_s: f64::INFINITY,
+            last_s: f64::NEG_INFINITY,
+            bound_low: f64::INFINITY,
+            bound_high: 0.0,
+        }
+    }
+
+    /// Samples seen.
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// Samples seen whose time is not finite (counted, not drawn).
+    pub fn untimed_samples(&self) -> u64 {
+        self.untimed
+    }
+
+    /// The earliest and latest finite time seen (s), when any.
+    pub fn time_span_s(&self) -> Option<(f64, f64)> {
+        (self.first_s <= self.last_s).then_some((self.first_s, self.last_s))
+    }
+
+    /// Adds one sample. A sample whose time is not finite is counted but has no place on the time axis and
+    /// is not drawn.
+    pub fn push(&mut self, sample: &TraceSample) {
+        self.samples += 1;
+        let t = sample.t_s;
+        if self.origin_s.is_nan() && t.is_finite() {
+            self.origin_s = t;
+        }
+        let offset = t - self.origin_s;
+        if !offset.is_finite() {
+            self.untimed += 1;
+            return;
+        }
+        self.first_s = self.first_s.min(t);
+        self.last_s = self.last_s.max(t);
+        let bucket = self.series.at(offset, Bucket::EMPTY, Bucket::merge);
+        let values = [
+            sample.force_n.length(),
+            sample.force_n.x,
+            sample.force_n.y,
+            sample.force_n.z,
+            f64::from(sample.sweeps),
+        ];
+        for (series, value) in bucket.series.iter_mut().zip(values) {
+            if value.is_finite() {
+                series.add(t, value);
+            }
+        }
+        let bound = sample.error_bound_m;
+        if bound.is_finite() && bound >= 0.0 {
+            bucket.series[SERIES_BOUND].add(t, bound);
+            if bound > 0.0 {
+                self.bound_low = self.bound_low.min(bound);
+                self.bound_high = self.bound_high.max(bound);
+            }
+        }
+        bucket.flags |= sample.flags;
+        let paths = self
+            .paths
+            .at(offset, [PathExtremes::EMPTY; PATHS], merge_paths);
+        for (which, position) in [sample.probe_m, sample.proxy_m].into_iter().enumerate() {
+            if !position.is_finite() {
+                continue;
+            }
+            let mm = position * 1e3;
+            paths[2 * VIEW_TOP + which].add((t, mm.x, mm.y));
+            paths[2 * VIEW_SIDE + which].add((t, mm.x, mm.z));
+        }
+    }
+
+    fn time_range(&self) -> Range<f64> {
+        match self.time_span_s() {
+            Some((first, last)) if last > first => first..last,
+            Some((first, _)) => first..first + 1e-3,
+            None => 0.0..1.0,
+        }
+    }
+
+    /// The kept points of one series, in time order, through `map`.
+    fn series_points(&self, series: usize, map: impl Fn(f64) -> f64) -> Points {
+        let mut points = Vec::new();
+        for bucket in self.series.slots.iter().flatten() {
+            bucket.series[series].push_points(&mut points, &map);
+        }
+        points
+    }
+
+    /// The kept points of the probe and proxy paths in one view (mm), in time order.
+    fn path_points(&self, view: usize) -> (Points, Points) {
+        let (mut probe, mut proxy) = (Vec::new(), Vec::new());
+        for bucket in self.paths.slots.iter().flatten() {
+            bucket[2 * view].push_points(&mut probe);
+            bucket[2 * view + 1].push_points(&mut proxy);
+        }
+        (probe, proxy)
+    }
+
+    /// The time periods in which some bit of `mask` is set, at the buckets' resolution; periods closer than
+    /// 1/[`MAX_SHADED_PERIODS`] of the trace are merged.
+    fn flag_periods(&self, mask: u32) -> Vec<(f64, f64)> {
+        let time = self.time_range();
+        let merge_gap_s = (time.end - time.start) / MAX_SHADED_PERIODS as f64;
+        let mut periods: Vec<(f64, f64)> = Vec::new();
+        let width_s = self.series.width_s;
+        for (k, bucket) in self.series.slots.iter().enumerate() {
+            let Some(bucket) = bucket else { continue };
+            if bucket.flags & mask == 0 {
+                continue;
+            }
+            let start = (self.origin_s + k as f64 * width_s).clamp(time.start, time.end);
+            let end = (self.origin_s + (k + 1) as f64 * width_s).clamp(time.start, time.end);
+            push_period(&mut periods, (start, end), merge_gap_s.max(width_s));
+        }
+        periods
+    }
+
+    /// The smallest and largest value of each drawn series and path coordinate, taken from the points that
+    /// are drawn (before they are clamped to the axes): `(name, min, max)`, N for forces, mm for positions.
+    pub fn drawn_extents(&self) -> Vec<(&'static str, f64, f64)> {
+        let extent = |values: &mut dyn Iterator<Item = f64>| {
+            values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            })
+        };
+        let mut extents = Vec::new();
+        for (index, name) in ["|F|", "Fx", "Fy", "Fz"].into_iter().enumerate() {
+            let points = self.series_points(index, |v| v);
+            let (lo, hi) = extent(&mut points.iter().map(|p| p.1));
+            extents.push((name, lo, hi));
+        }
+        let (top_probe, top_proxy) = self.path_points(VIEW_TOP);
+        let (side_probe, side_proxy) = self.path_points(VIEW_SIDE);
+        for (name, points, vertical) in [
+            ("probe x", &top_probe, false),
+            ("probe y", &top_probe, true),
+            ("probe z", &side_probe, true),
+            ("proxy x", &top_proxy, false),
+            ("proxy y", &top_proxy, true),
+            ("proxy z", &side_proxy, true),
+        ] {
+            let (lo, hi) = extent(&mut points.iter().map(|p| if vertical { p.1 } else { p.0 }));
+            extents.push((name, lo, hi));
+        }
+        extents
+    }
 }
 
 #[cfg(test)]
@@ -1032,22 +1376,37 @@ mod tests {
             .all(|p| range.contains(&p.1) || p.1 == range.end));
     }
 
+    fn reduce(samples: &[TraceSample]) -> PlotData {
+        let mut data = PlotData::new(1000);
+        samples.iter().for_each(|s| data.push(s));
+        data
+    }
+
     #[test]
     fn flagged_periods_are_found_and_merged() {
         let mut data = samples(1000, 1);
+        let flagged = [(100, 199), (600, 609), (990, 999)];
         for (i, s) in data.iter_mut().enumerate() {
             s.flags = 0;
-            if (100..200).contains(&i) || (600..610).contains(&i) || i >= 990 {
+            if flagged.iter().any(|&(a, b)| (a..=b).contains(&i)) {
                 s.flags = crate::record::FLAG_FORCE_LIMITED_BY_SAFETY;
             }
         }
-        let t = |i: usize| data[i].t_s;
-        let periods = flag_periods(&data, crate::record::FLAG_FORCE_LIMITED_BY_SAFETY);
-        assert_eq!(
-            periods,
-            vec![(t(100), t(200)), (t(600), t(610)), (t(990), t(999))]
-        );
-        assert!(flag_periods(&data, crate::record::FLAG_DEVICE_DISCONNECTED).is_empty());
+        let reduced = reduce(&data);
+        let periods = reduced.flag_periods(crate::record::FLAG_FORCE_LIMITED_BY_SAFETY);
+        // At the buckets' resolution: each period covers its flagged samples and reaches at most one bucket
+        // past them (less than the 1 ms between samples here).
+        let width = reduced.series.width_s;
+        assert!(width < 1e-3, "{width}");
+        assert_eq!(periods.len(), flagged.len(), "{periods:?}");
+        for (&(start, end), &(a, b)) in periods.iter().zip(&flagged) {
+            let (ta, tb) = (data[a].t_s, data[b].t_s);
+            assert!(start <= ta && start > ta - width, "{start} vs {ta}");
+            assert!(end >= tb && end < tb + width + 1e-12, "{end} vs {tb}");
+        }
+        assert!(reduced
+            .flag_periods(crate::record::FLAG_DEVICE_DISCONNECTED)
+            .is_empty());
         // Flicker every other tick merges into one period.
         for (i, s) in data.iter_mut().enumerate() {
             s.flags = if i % 2 == 0 {
@@ -1057,7 +1416,9 @@ mod tests {
             };
         }
         assert_eq!(
-            flag_periods(&data, crate::record::FLAG_DEVICE_DISCONNECTED).len(),
+            reduce(&data)
+                .flag_periods(crate::record::FLAG_DEVICE_DISCONNECTED)
+                .len(),
             1
         );
     }
@@ -1092,12 +1453,82 @@ mod tests {
 
     #[test]
     fn envelope_keeps_spikes_and_time_order() {
-        let mut data = samples(10_000, 1);
-        data[5_555].force_n.x = 99.0;
-        let points = envelope(&data, |s| s.force_n.x);
-        assert!(points.len() <= 2 * MAX_BUCKETS);
+        let mut data = samples(100_000, 1);
+        data[55_555].force_n.x = 99.0;
+        let reduced = reduce(&data);
+        let points = reduced.series_points(1, |v| v);
+        assert!(points.len() <= 2 * 2 * 1000);
         assert!(points.iter().any(|p| p.1 == 99.0));
         assert!(points.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    /// An hour at 1 kHz of a 20 mm circle run every 3 s (Nyquist's worst case for drawing every n-th sample:
+    /// 3.6 million samples thinned to a few thousand would take them about 0.9 s apart, 108 degrees of the
+    /// circle, and draw a star). The kept path points all lie on the circle, no two consecutive ones are more
+    /// than a sixth of it apart (so the polygon drawn through them stays round), and the drawn extents are the
+    /// circle's, computed here from the samples.
+    #[test]
+    fn an_hour_of_a_3_s_circle_stays_round_and_keeps_its_extremes() {
+        let radius_mm = 20.0;
+        let mut data = PlotData::new(1200);
+        let (mut x_low, mut x_high, mut y_low, mut y_high) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        let (mut f_low, mut f_high) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut sample = TraceSample::zeroed(1);
+        for i in 0..3_600_000u64 {
+            sample.tick = i;
+            sample.t_s = i as f64 * 1e-3;
+            let angle = std::f64::consts::TAU * sample.t_s / 3.0;
+            sample.probe_m = glam::DVec3::new(angle.cos(), angle.sin(), 0.0) * radius_mm * 1e-3;
+            sample.proxy_m = sample.probe_m;
+            sample.force_n = glam::DVec3::new(angle.sin(), 0.0, 0.0);
+            let mm = sample.probe_m * 1e3;
+            (x_low, x_high) = (x_low.min(mm.x), x_high.max(mm.x));
+            (y_low, y_high) = (y_low.min(mm.y), y_high.max(mm.y));
+            (f_low, f_high) = (f_low.min(sample.force_n.x), f_high.max(sample.force_n.x));
+            data.push(&sample);
+        }
+        let (probe, _) = data.path_points(VIEW_TOP);
+        assert!(probe.len() < 16 * PATH_BUCKETS, "{}", probe.len());
+        let mut widest = 0.0f64;
+        for pair in probe.windows(2) {
+            let [a, b] = [pair[0], pair[1]].map(|(x, y)| {
+                assert!(((x * x + y * y).sqrt() - radius_mm).abs() < 1e-9);
+                y.atan2(x)
+            });
+            let apart = (b - a).rem_euclid(std::f64::consts::TAU);
+            widest = widest.max(apart.min(std::f64::consts::TAU - apart));
+        }
+        assert!(
+            widest < std::f64::consts::TAU / 6.0,
+            "consecutive path points {:.1} degrees apart",
+            widest.to_degrees()
+        );
+        let extents = data.drawn_extents();
+        let get = |name: &str| extents.iter().find(|e| e.0 == name).map(|e| (e.1, e.2));
+        assert_eq!(get("probe x"), Some((x_low, x_high)));
+        assert_eq!(get("probe y"), Some((y_low, y_high)));
+        assert_eq!(get("Fx"), Some((f_low, f_high)));
+        let dir = tempfile::tempdir().unwrap();
+        let trace = Trace {
+            mode_names: vec!["surface".into()],
+            samples: Vec::new(),
+            sidecar: None,
+            warnings: Vec::new(),
+        };
+        plot_data(
+            &data,
+            &trace,
+            "an hour",
+            &dir.path().join("hour.png"),
+            1200,
+            1000,
+        )
+        .unwrap();
     }
 
     #[test]
@@ -1135,7 +1566,12 @@ mod tests {
             ),
             ("side", |v: glam::DVec3| v.z, 30.025),
         ] {
-            let (probe, proxy) = path_points(&wobble.samples, vertical);
+            let view = if vertical(glam::DVec3::Z) == 1.0 {
+                VIEW_SIDE
+            } else {
+                VIEW_TOP
+            };
+            let (probe, proxy) = reduce(&wobble.samples).path_points(view);
             let (x, y) = path_data_limits(&probe, &proxy);
             assert!(
                 (span(&x) - MIN_PATH_SPAN_MM).abs() < 1e-9,

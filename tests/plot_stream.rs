@@ -1,0 +1,173 @@
+//! `voxhap plot` on long traces, as a separate process: its peak memory does not grow with the trace's length
+//! (the child's maximum resident set, from wait4), and the extents it draws are the data's, computed here from
+//! the samples as they were written.
+
+use glam::DVec3;
+use std::path::Path;
+use std::process::Command;
+use voxhap::record::{create_trace_writer, TraceFormat, TraceMeta, TraceSample};
+
+/// Writes `seconds` of a 1 kHz trace in `format`: the probe runs a 20 mm circle every 3 s with a slow drift
+/// in z, the proxy follows 1 mm below, and the force is a slowly modulated spring. Returns the smallest and
+/// largest value of each series `voxhap plot --extents` names, in its order.
+fn write_trace(path: &Path, format: TraceFormat, seconds: u64) -> Vec<(&'static str, f64, f64)> {
+    let meta = TraceMeta::new(
+        vec!["surface".to_string()],
+        1000.0,
+        serde_json::json!({"name": "long circle"}),
+        "procedural:sphere",
+        "exact",
+    );
+    let mut writer = create_trace_writer(path, format, &meta).unwrap();
+    let names = [
+        "|F|", "Fx", "Fy", "Fz", "probe x", "probe y", "probe z", "proxy x", "proxy y", "proxy z",
+    ];
+    let mut extents: Vec<(&'static str, f64, f64)> = names
+        .iter()
+        .map(|&n| (n, f64::INFINITY, f64::NEG_INFINITY))
+        .collect();
+    let mut sample = TraceSample::zeroed(1);
+    for i in 0..seconds * 1000 {
+        let t = i as f64 * 1e-3;
+        let angle = std::f64::consts::TAU * t / 3.0;
+        sample.tick = i;
+        sample.t_s = t;
+        sample.probe_m = DVec3::new(
+            0.02 * angle.cos(),
+            0.02 * angle.sin(),
+            0.005 * (t / 600.0).sin(),
+        );
+        sample.proxy_m = sample.probe_m - DVec3::new(0.0, 0.0, 0.001);
+        sample.force_n = (sample.proxy_m - sample.probe_m) * 500.0 * (1.0 + 0.5 * (t * 0.37).sin())
+            + DVec3::new(0.3 * (t * 1.1).cos(), 0.0, 0.0);
+        sample.sweeps = (i % 7) as u32;
+        sample.error_bound_m = 1e-9 * (1.0 + (i % 13) as f64);
+        let values = [
+            sample.force_n.length(),
+            sample.force_n.x,
+            sample.force_n.y,
+            sample.force_n.z,
+            sample.probe_m.x * 1e3,
+            sample.probe_m.y * 1e3,
+            sample.probe_m.z * 1e3,
+            sample.proxy_m.x * 1e3,
+            sample.proxy_m.y * 1e3,
+            sample.proxy_m.z * 1e3,
+        ];
+        for (extent, value) in extents.iter_mut().zip(values) {
+            extent.1 = extent.1.min(value);
+            extent.2 = extent.2.max(value);
+        }
+        writer.write_sample(&sample).unwrap();
+    }
+    writer.finish().unwrap();
+    extents
+}
+
+/// Runs `voxhap plot TRACE --out OUT --extents`; returns its stderr and its peak resident memory (KiB).
+fn plot(trace: &Path, out: &Path) -> (String, i64) {
+    let child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+        .arg("plot")
+        .arg(trace)
+        .arg("--out")
+        .arg(out)
+        .arg("--extents")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run voxhap plot");
+    let pid = child.id() as libc::pid_t;
+    let mut stderr = child.stderr.expect("stderr is piped");
+    // Read stderr on a thread, so a full pipe never blocks the child while we wait for it.
+    let reader = std::thread::spawn(move || {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut stderr, &mut text).unwrap();
+        text
+    });
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is valid; wait4 fills it for this one child (the peak resident set of the
+    // process, as /proc/PID/status's VmHWM, which is gone once the process has exited).
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let waited = loop {
+        // SAFETY: pid is our child, not yet waited for; status and usage are valid for writing.
+        let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+        if waited == -1 && std::io::Error::last_os_error().kind() == std::io::ErrorKind::Interrupted
+        {
+            continue;
+        }
+        break waited;
+    };
+    assert_eq!(waited, pid, "wait4: {}", std::io::Error::last_os_error());
+    let text = reader.join().unwrap();
+    assert!(
+        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        "voxhap plot failed ({status}): {text}"
+    );
+    (text, i64::from(usage.ru_maxrss))
+}
+
+/// `drawn NAME: LOW to HIGH UNIT` lines of `voxhap plot --extents`.
+fn drawn_extents(text: &str) -> Vec<(String, f64, f64)> {
+    text.lines()
+        .filter_map(|line| {
+            let rest = line.strip_prefix("drawn ")?;
+            let (name, values) = rest.split_once(": ")?;
+            let mut words = values.split(' ');
+            let low = words.next()?.parse().ok()?;
+            let _to = words.next()?;
+            let high = words.next()?.parse().ok()?;
+            Some((name.to_string(), low, high))
+        })
+        .collect()
+}
+
+#[test]
+fn plotting_a_long_parquet_trace_streams_in_bounded_memory_and_draws_the_data_extents() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = dir.path().join("short.parquet");
+    let long = dir.path().join("long.parquet");
+    write_trace(&short, TraceFormat::Parquet, 60);
+    // 20 minutes at 1 kHz: 1.2 million samples. Read whole, as before, its samples alone took about 0.9 GB.
+    let expected = write_trace(&long, TraceFormat::Parquet, 1200);
+    let (_, short_kib) = plot(&short, &dir.path().join("short.png"));
+    let (text, long_kib) = plot(&long, &dir.path().join("long.png"));
+    eprintln!("voxhap plot peak memory: 1 minute {short_kib} KiB, 20 minutes {long_kib} KiB");
+    assert!(
+        text.contains("(1200000 samples)"),
+        "not every sample was read: {text}"
+    );
+    // Bounded independently of the length: twenty times the samples, at most 48 MiB more (row-group
+    // metadata and page buffers), and under 256 MiB in all.
+    assert!(
+        long_kib <= short_kib + 48 * 1024,
+        "peak memory grew with the trace: {short_kib} KiB for 1 minute, {long_kib} KiB for 20"
+    );
+    assert!(long_kib < 256 * 1024, "peak memory {long_kib} KiB");
+    let drawn = drawn_extents(&text);
+    assert_eq!(drawn.len(), expected.len(), "{text}");
+    for ((name, low, high), (want, want_low, want_high)) in drawn.iter().zip(&expected) {
+        assert_eq!(name, want);
+        assert_eq!(
+            (*low, *high),
+            (*want_low, *want_high),
+            "{name}: drawn {low}..{high}, the data spans {want_low}..{want_high}"
+        );
+    }
+}
+
+#[test]
+fn plotting_a_long_csv_trace_draws_the_data_extents() {
+    let dir = tempfile::tempdir().unwrap();
+    let trace = dir.path().join("long.csv");
+    let expected = write_trace(&trace, TraceFormat::Csv, 300);
+    let (text, kib) = plot(&trace, &dir.path().join("long.svg"));
+    eprintln!("voxhap plot peak memory, 5 minutes of CSV: {kib} KiB");
+    assert!(text.contains("(300000 samples)"), "{text}");
+    assert!(kib < 128 * 1024, "peak memory {kib} KiB");
+    let drawn = drawn_extents(&text);
+    assert_eq!(drawn.len(), expected.len(), "{text}");
+    for ((name, low, high), (want, want_low, want_high)) in drawn.iter().zip(&expected) {
+        assert_eq!(name, want);
+        assert_eq!((*low, *high), (*want_low, *want_high), "{name}");
+    }
+}

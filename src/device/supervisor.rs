@@ -35,6 +35,9 @@
 //! - **Degrees of freedom** (SPEC 6.8, `device::dof`). For a 1- or 2-DOF device the components it does not use
 //!   are set to 0 in every sample before the input checks, and in every force before the safety pipeline (so
 //!   the clamp, engage rule and slew limit see what is sent) and again after it (exactly +0.0 on the wire).
+//! - A device that sends more messages than its protocol answers with reports
+//!   [`DeviceEvent::Surplus`]: counted (`device_surplus`) and reported; force is not affected (the
+//!   driver renders from the newest and reports an honest age, which the staleness bound above covers).
 //! - A stall monitor on another thread may have stopped the device while the servo thread was stalled
 //!   ([`Supervisor::set_stall_flag`]); the next tick sees the flag and goes through `Recovering`.
 //!

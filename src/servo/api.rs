@@ -221,6 +221,8 @@ pub struct SafetyReport {
     pub monitor_stops: u64,
     /// Device events the servo thread could not hand to the reporter (ring full).
     pub events_dropped: u64,
+    /// Messages the device sent beyond what its protocol answers commands with (read, the newest used).
+    pub device_surplus: u64,
 }
 
 /// What the servo thread was granted.

@@ -165,6 +165,9 @@ pub fn describe(event: SupervisorEvent) -> String {
 /// The running monitor thread.
 pub struct Monitor {
     stop: Arc<AtomicBool>,
+    /// The session is stopping: ticks have ended on purpose, and a stop that takes a while (a device's close,
+    /// the connector thread) is said to be one, not a stall. The device is still stopped through its channel.
+    stopping: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -180,6 +183,8 @@ impl Monitor {
     ) -> std::io::Result<Monitor> {
         let stop = Arc::new(AtomicBool::new(false));
         let thread_stop = stop.clone();
+        let stopping = Arc::new(AtomicBool::new(false));
+        let thread_stopping = stopping.clone();
         let poll = (config.period / 2).clamp(Duration::from_micros(100), Duration::from_millis(1));
         let thread = std::thread::Builder::new()
             .name("voxhap-monitor".to_owned())
@@ -212,18 +217,21 @@ impl Monitor {
                         stopped_this_stall = true;
                         stats.monitor_stops.fetch_add(1, Ordering::Relaxed);
                         let stalled_ms = last_change.elapsed().as_secs_f64() * 1e3;
+                        let what = if thread_stopping.load(Ordering::Acquire) {
+                            "the session is stopping and the servo thread has not finished for"
+                        } else {
+                            "the servo thread has not ticked for"
+                        };
                         match slot.fire() {
                             Ok(true) => eprintln!(
-                                "monitor: the servo thread has not ticked for {stalled_ms:.1} ms: zero force \
-                                 and Disable sent to the device"
+                                "monitor: {what} {stalled_ms:.1} ms: zero force and Disable sent to the device"
                             ),
                             Ok(false) => eprintln!(
-                                "monitor: the servo thread has not ticked for {stalled_ms:.1} ms; this device has \
-                                 no stop channel, so its own watchdog must stop it"
+                                "monitor: {what} {stalled_ms:.1} ms; this device has no stop channel, so its \
+                                 own watchdog must stop it"
                             ),
                             Err(error) => eprintln!(
-                                "monitor: the servo thread has not ticked for {stalled_ms:.1} ms; stopping the \
-                                 device failed: {error}"
+                                "monitor: {what} {stalled_ms:.1} ms; stopping the device failed: {error}"
                             ),
                         }
                     }
@@ -232,8 +240,15 @@ impl Monitor {
             })?;
         Ok(Monitor {
             stop,
+            stopping,
             thread: Some(thread),
         })
+    }
+
+    /// The session is stopping (its servo thread has been told to stop): a pause in ticks from here on is
+    /// reported as the stop taking a while, not as a stall.
+    pub fn note_stopping(&self) {
+        self.stopping.store(true, Ordering::Release);
     }
 
     /// Stops the thread (after printing what is left in the ring).

@@ -520,6 +520,7 @@ impl ServoLoop {
         store(&safety.enables, counters.enables);
         store(&safety.not_enabled_ticks, counters.not_enabled_ticks);
         store(&safety.stale_ticks, counters.stale_ticks);
+        store(&safety.device_surplus, counters.device_surplus);
         store(&safety.positions_rejected, input.positions_rejected);
         store(&safety.velocities_replaced, input.velocities_replaced);
         if device_out.flags.contains(SafetyFlags::SLEW_LIMITED) {

@@ -475,6 +475,9 @@ impl Session {
 
     fn stop_inner(&mut self) -> SessionSummary {
         self.shared.stop.store(true, Ordering::Release);
+        if let Some(monitor) = &self.monitor {
+            monitor.note_stopping();
+        }
         let mut servo_stuck = false;
         if let Some(servo) = self.servo.take() {
             // A servo thread still inside a device's close after the bound is left behind (its trace

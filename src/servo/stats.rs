@@ -272,6 +272,7 @@ pub struct SafetyStats {
     pub slew_limited_ticks: AtomicU64,
     pub forces_clamped: AtomicU64,
     pub events_dropped: AtomicU64,
+    pub device_surplus: AtomicU64,
 }
 
 impl ServoStats {
@@ -343,6 +344,7 @@ impl ServoStats {
             forces_clamped: load(&safety.forces_clamped),
             monitor_stops: load(&self.monitor_stops),
             events_dropped: load(&safety.events_dropped),
+            device_surplus: load(&safety.device_surplus),
         }
     }
 }
@@ -382,7 +384,8 @@ impl StatsReport {
         let safety = &self.safety;
         text += &format!(
             "safety: output {} ({}); device faults {} (watchdog {}), refusals {}, enables {}, ticks not enabled {}, \
-             stale {}, positions rejected {}, velocities replaced {}, slew-limited {}, clamped {}, monitor stops {}\n",
+             stale {}, positions rejected {}, velocities replaced {}, slew-limited {}, clamped {}, monitor stops {}, \
+             surplus device messages {}\n",
             safety.output_state.name(),
             safety.output_state_explanation,
             safety.device_faults,
@@ -396,6 +399,7 @@ impl StatsReport {
             safety.slew_limited_ticks,
             safety.forces_clamped,
             safety.monitor_stops,
+            safety.device_surplus,
         );
         text += &self.realtime.summary();
         text

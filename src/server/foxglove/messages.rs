@@ -289,7 +289,8 @@ pub fn stats_schema() -> serde_json::Value {
                     "slew_limited_ticks": count("ticks whose force rise was slew-limited"),
                     "forces_clamped": count("forces clamped to the device maximum"),
                     "monitor_stops": count("stops by the stall monitor"),
-                    "events_dropped": count("device events the reporter ring had no room for")
+                    "events_dropped": count("device events the reporter ring had no room for"),
+                    "device_surplus": count("messages the device sent beyond its answers (the newest used)")
                 }
             },
             "realtime": {

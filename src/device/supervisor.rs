@@ -29,6 +29,10 @@
 //!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods (counted from
 //!   the force it answers: a driver that hands out an earlier answer says how old it is,
 //!   [`HapticDevice::state_age_ticks`]) is not used to compute force: zero is sent instead (`STALE_STATE`).
+//! - **Pose verdict.** After checking each state, the supervisor tells the driver whether its position was
+//!   accepted ([`HapticDevice::input_checked`]), so a driver that converts force with a pose it read itself
+//!   never converts with a rejected one. A driver's report of messages nobody asked for
+//!   ([`DeviceEvent::Surplus`]) becomes a [`SupervisorEvent::Surplus`] and `device_surplus`.
 //! - **Steady before enabling.** `Starting` (and `Recovering`) count on-time ticks that end with a state
 //!   within that staleness bound; a reply that came a tick or two late keeps the count, a gap that would zero
 //!   the force or a late servo tick restarts it.

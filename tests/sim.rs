@@ -830,8 +830,7 @@ fn a_scenario_over_the_16_mib_limit_is_refused_everywhere_it_is_read() {
     }
     for overrides in [Vec::new(), vec!["k_n_per_m=400".to_owned()]] {
         let err = voxhap::cli::sim::load_scenario(&big, &overrides, None, Some(500.0))
-            .err()
-            .expect("refused");
+            .expect_err("refused");
         let message = format!("{err:#}");
         assert!(
             message.contains(&big.display().to_string()) && message.contains(limit),

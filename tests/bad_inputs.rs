@@ -67,6 +67,14 @@ fn scenario_path(dir: &Path, path_table: &str) {
     write(dir, "scene.toml", format!("{head}{path_table}").as_bytes());
 }
 
+/// A sparse file of 629 MB (no disk blocks): larger than any text input's limit.
+fn big_file(path: &Path) {
+    std::fs::File::create(path)
+        .unwrap()
+        .set_len(629_000_000)
+        .unwrap();
+}
+
 fn mcap(dir: &Path) {
     let text = std::fs::read_to_string("sims/sphere_surface.toml")
         .unwrap()
@@ -290,6 +298,98 @@ const CASES: &[Case] = &[
         args: &["sim", "scene.toml", "--out", "t.csv"],
         exit: 1,
         expected: "rate_hz: 1000000000000 Hz is out of range 1..=100000 Hz",
+    },
+    Case {
+        input: "a scenario with a path speed of `1e300` m/s (ran to an all-NaN trace)",
+        setup: |dir| scenario(dir, "speed_m_per_s = 0.02", "speed_m_per_s = 1e300"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "path.speed_m_per_s = 1e300 is out of range: give a number > 0 and at most 100 m/s",
+    },
+    Case {
+        input: "`sim --set k_n_per_m=1e300`",
+        setup: |dir| scenario(dir, "", ""),
+        args: &["sim", "scene.toml", "--set", "k_n_per_m=1e300", "--out", "t.csv"],
+        exit: 1,
+        expected: "k_n_per_m: 1e300 N/m is out of range: give a number from 0.001 to 10000000 N/m",
+    },
+    Case {
+        input: "a sweep over a hand mass of `1e300` kg",
+        setup: |dir| scenario(dir, "", ""),
+        args: &["sweep", "scene.toml", "--set", "arm.mass_kg=0.1,1e300", "--out-dir", "out"],
+        exit: 1,
+        expected: "arm.mass_kg = 1e300 is out of range: give a number > 0 and at most 1000 kg",
+    },
+    Case {
+        input: "a scenario with a sine force of `frequency_hz = 1e300`",
+        setup: |dir| {
+            scenario_path(
+                dir,
+                "[path]\nkind = \"force\"\n[path.profile]\nshape = \"sine\"\noffset_n = [0.0, 0.0, 0.0]\n\
+                 amplitude_n = [0.0, 0.0, 1.0]\nfrequency_hz = 1e300\n",
+            )
+        },
+        args: &["sim", "scene.toml", "--set", "start_m=[0.0, 0.0, 0.03]", "--out", "t.csv"],
+        exit: 1,
+        expected: "path.profile.frequency_hz = 1e300 is out of range: give a number > 0 and at most 10000 Hz",
+    },
+    Case {
+        input: "a raster path of `lines = 4000000000` (walked every substep)",
+        setup: |dir| {
+            scenario_path(
+                dir,
+                "[path]\nkind = \"raster\"\norigin_m = [0.0, 0.0, 0.03]\nsweep_m = [0.01, 0.0, 0.0]\n\
+                 step_m = [0.0, 0.01, 0.0]\nlines = 4000000000\nspeed_m_per_s = 0.02\n",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "path.lines = 4000000000 is out of range: give a number from 1 to 10000 lines",
+    },
+    Case {
+        input: "a solve scene with `k = 1e300`",
+        setup: |dir| {
+            write(dir, "scene.json", br#"{"k": 1e300, "probe": [0, 0, 0], "primitives": []}"#)
+        },
+        args: &["solve", "--scene", "scene.json"],
+        exit: 1,
+        expected: "scene.json: k: 1e300 N/m is out of range: give a number from 0.001 to 10000000 N/m",
+    },
+    Case {
+        input: "a solve scene with a primitive of strength `1e300` N",
+        setup: |dir| {
+            write(
+                dir,
+                "scene.json",
+                br#"{"k": 500, "probe": [0, 0, 0], "primitives": [{"type": "point", "position": [0, 0, 0], "strength": 1e300}]}"#,
+            )
+        },
+        args: &["solve", "--scene", "scene.json"],
+        exit: 1,
+        expected: "scene.json: primitives[0].strength: 1e300 N is out of range: give a number from 0 to 1000000 N",
+    },
+    Case {
+        input: "a solve scene with its probe at `1e300` m",
+        setup: |dir| {
+            write(dir, "scene.json", br#"{"k": 500, "probe": [1e300, 0, 0], "primitives": []}"#)
+        },
+        args: &["solve", "--scene", "scene.json"],
+        exit: 1,
+        expected: "scene.json: probe: [1e300, 0.0, 0.0] is out of range: each of x, y, z must be from -1000 to 1000 m",
+    },
+    Case {
+        input: "a 629 MB (sparse) scenario to `sim --set`",
+        setup: |dir| big_file(&dir.join("big.toml")),
+        args: &["sim", "big.toml", "--set", "k_n_per_m=400", "--out", "t.csv"],
+        exit: 1,
+        expected: "cannot read scenario file big.toml: it is 629000000 bytes, more than the 16777216-byte limit for a text file (16 MiB)",
+    },
+    Case {
+        input: "a 629 MB (sparse) scenario to `sweep`",
+        setup: |dir| big_file(&dir.join("big.toml")),
+        args: &["sweep", "big.toml", "--set", "k_n_per_m=400,500", "--out-dir", "out"],
+        exit: 1,
+        expected: "cannot read scenario file big.toml: it is 629000000 bytes, more than the 16777216-byte limit for a text file (16 MiB)",
     },
     Case {
         input: "a FIFO as a scenario",

@@ -180,3 +180,148 @@ fn solve_never_hangs_and_reports_its_budget_status() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--max-sweeps"));
 }
+
+/// A scene file of `primitives` (the documented schema), with an optional previous proxy.
+fn scene_json(
+    k: f64,
+    probe: glam::DVec3,
+    previous: Option<glam::DVec3>,
+    primitives: &[voxhap::haptics::Primitive],
+) -> String {
+    use voxhap::haptics::PrimitiveKind;
+    let primitives: Vec<serde_json::Value> = primitives
+        .iter()
+        .map(|p| {
+            let mut v = serde_json::json!({"type": p.kind().name(), "strength": p.strength_n()});
+            if p.kind() != PrimitiveKind::Directed {
+                v["position"] = serde_json::json!(p.position_m().to_array());
+            }
+            if p.kind() != PrimitiveKind::Point {
+                v["direction"] = serde_json::json!(p.direction().to_array());
+            }
+            v
+        })
+        .collect();
+    let mut scene =
+        serde_json::json!({"k": k, "probe": probe.to_array(), "primitives": primitives});
+    if let Some(previous) = previous {
+        scene["previous_proxy"] = serde_json::json!(previous.to_array());
+    }
+    scene.to_string()
+}
+
+/// The issue's case: on 10 000 mixed primitives (the benchmark's scene) `solve --max-sweeps 2` returned a proxy
+/// 7.2 m away with 3.6 kN, and `--budget-ms 0.5` 3.6 kN, where the start (`y`, the probe plus the directed
+/// forces over k) was 0.32 m from the answer. Now every budget-cut answer has at most the start's energy
+/// (computed here from the primitives' energy terms, src/haptics/primitive.rs) and a bound that holds against
+/// the double-double reference minimiser.
+#[test]
+fn a_budget_cut_solve_returns_no_worse_a_point_than_its_start() {
+    use voxhap::haptics::primitive::total_energy_j;
+    use voxhap::haptics::PrimitiveKind;
+    let k = 500.0;
+    let (probe, primitives) = voxhap::haptics::bench_scenes::random_scene(10_000, 10_000);
+    let directed: glam::DVec3 = primitives
+        .iter()
+        .filter(|p| p.kind() == PrimitiveKind::Directed)
+        .map(|p| p.strength_n() * p.direction())
+        .sum();
+    let y = probe + directed / k;
+    let previous = probe + glam::DVec3::new(-0.004, 0.001, 0.002);
+    let reference = voxhap::haptics::reference::minimise(k, probe, &primitives);
+    let dir = tempfile::tempdir().unwrap();
+    for (previous_proxy, start) in [(None, y), (Some(previous), previous)] {
+        let path = dir.path().join("mixed10000.json");
+        std::fs::write(&path, scene_json(k, probe, previous_proxy, &primitives)).unwrap();
+        for budget in [
+            ["--max-sweeps", "1"],
+            ["--max-sweeps", "2"],
+            ["--max-sweeps", "3"],
+            ["--budget-ms", "0.5"],
+            ["--budget-ms", "0.05"],
+        ] {
+            let mut args = vec!["solve", "--scene", path.to_str().unwrap(), "--json"];
+            args.extend(budget);
+            let out = voxhap(&args);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let proxy: [f64; 3] = serde_json::from_value(v["proxy"].clone()).unwrap();
+            let force: [f64; 3] = serde_json::from_value(v["force"].clone()).unwrap();
+            let proxy = glam::DVec3::from_array(proxy);
+            let e_start = total_energy_j(k, probe, &primitives, start);
+            let e_answer = total_energy_j(k, probe, &primitives, proxy);
+            assert!(
+                e_answer <= e_start + 1e-9 * e_start.abs().max(1.0),
+                "{budget:?}, start {start:?}: energy {e_answer} J > {e_start} J at the start: {v}"
+            );
+            let bound = v["error_bound"].as_f64().expect("a finite bound");
+            let error = reference.distance_m(proxy);
+            assert!(
+                error <= bound + reference.error_bound_m,
+                "{budget:?}: true error {error:e} m > bound {bound:e} m: {v}"
+            );
+            let coupling = k * (proxy - probe);
+            assert!(
+                (glam::DVec3::from_array(force) - coupling).length()
+                    <= 1e-9 * (1.0 + coupling.length()),
+                "{v}"
+            );
+        }
+    }
+}
+
+/// Finite values that overflow the energy or the force (a stiffness, a probe, a strength of 1e300) are refused
+/// with the file, the field, the value and the range; values at the range's ends are accepted.
+#[test]
+fn degenerate_scene_values_are_refused_with_the_field_and_the_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.json");
+    let cases = [
+        (
+            r#"{"k": 1e300, "probe": [0, 0, 0], "primitives": []}"#,
+            "scene.json: k: 1e300 N/m is out of range: give a number from 0.001 to 10000000 N/m",
+        ),
+        (
+            r#"{"k": 1e-300, "probe": [0, 0, 0], "primitives": []}"#,
+            "scene.json: k: 1e-300 N/m is out of range",
+        ),
+        (
+            r#"{"k": 500, "probe": [0, 0, 0], "previous_proxy": [0, -2000, 0], "primitives": []}"#,
+            "scene.json: previous_proxy: [0.0, -2000.0, 0.0] is out of range: each of x, y, z must be from -1000 to 1000 m",
+        ),
+        (
+            r#"{"k": 500, "probe": [0, 0, 0], "primitives": [{"type": "plane", "position": [0, 0, 1e300], "direction": [0, 0, 1], "strength": 1}]}"#,
+            "scene.json: primitives[0].position: [0.0, 0.0, 1e300] is out of range",
+        ),
+        (
+            r#"{"k": 500, "probe": [0, 0, 0], "primitives": [{"type": "directed", "direction": [0, 0, 1], "strength": 1e300}]}"#,
+            "scene.json: primitives[0].strength: 1e300 N is out of range: give a number from 0 to 1000000 N",
+        ),
+    ];
+    for (scene, expected) in cases {
+        std::fs::write(&path, scene).unwrap();
+        let out = voxhap(&["solve", "--scene", path.to_str().unwrap(), "--json"]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{scene}: {stderr}");
+        assert!(stderr.contains(expected), "{scene}: {stderr}");
+    }
+    // The ends of the ranges are accepted and solve to finite numbers.
+    std::fs::write(
+        &path,
+        r#"{"k": 10000000, "probe": [1000, -1000, 1000], "previous_proxy": [-1000, 1000, -1000], "primitives": [{"type": "point", "position": [1000, 1000, -1000], "strength": 1000000}, {"type": "directed", "direction": [1, 0, 0], "strength": 1000000}]}"#,
+    )
+    .unwrap();
+    let out = voxhap(&["solve", "--scene", path.to_str().unwrap(), "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let force: [f64; 3] = serde_json::from_value(v["force"].clone()).unwrap();
+    assert!(force.iter().all(|f| f.is_finite()), "{v}");
+}

@@ -100,7 +100,8 @@ pub fn load_scenario(
         return Ok(LoadedScenario::from_file(path)?);
     }
     let origin = path.display().to_string();
-    let text = std::fs::read_to_string(path)
+    // Bounded like every scenario read (`Scenario::read`): a regular file of at most 16 MiB.
+    let text = crate::volume::io::read_text_file(path)
         .with_context(|| format!("cannot read scenario file {origin}"))?;
     let text = crate::sim::overrides::apply_overrides(&text, &overrides)
         .with_context(|| format!("{origin}: overrides"))?;

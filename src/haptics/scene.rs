@@ -15,11 +15,33 @@
 //! `k` in N/m, positions in metres, strengths in newtons. `previous_proxy` is optional. A point takes no
 //! `direction` and a directed force no `position`; giving one is an error rather than silently ignored.
 //! Every error names the field, e.g. `primitives[1].strength: strength must be a finite number >= 0 N, got -1`.
+//! Finite values far outside physical sense are refused too, with the range ([`STIFFNESS_RANGE_N_PER_M`],
+//! [`MAX_SCENE_COORDINATE_M`], [`MAX_SCENE_STRENGTH_N`]): beyond them the energy and the force overflow.
 
 use crate::haptics::primitive::{Primitive, PrimitiveError};
 use glam::DVec3;
 use serde::Deserialize;
 use std::path::Path;
+
+/// Coupling stiffness a scene or scenario may ask for (N/m): below a millinewton per metre the directed forces
+/// over `k` put the proxy kilometres away; above 10 MN/m (a thousand times the stiffest haptic device) the
+/// coupling force of a millimetre is 10 kN.
+pub const STIFFNESS_RANGE_N_PER_M: (f64, f64) = (1e-3, 1e7);
+/// Largest size of a coordinate of a scene's positions (probe, previous proxy, primitives) (m).
+pub const MAX_SCENE_COORDINATE_M: f64 = 1e3;
+/// Largest strength of a scene's primitive (N).
+pub const MAX_SCENE_STRENGTH_N: f64 = 1e6;
+
+/// A number as a reader writes it: `0.02`, but `1e300` (Rust's `Display` writes every digit of a large float).
+fn readable(x: f64) -> String {
+    if x.fract() == 0.0 && x.abs() < 1e16 {
+        format!("{x:.0}")
+    } else if x != 0.0 && !(1e-3..=1e7).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
 
 /// A parsed, validated scene.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,8 +132,34 @@ impl Scene {
                 format!("stiffness must be a finite number > 0 N/m, got {}", file.k),
             ));
         }
-        let probe = DVec3::from_array(file.probe);
-        let previous_proxy = file.previous_proxy.map(DVec3::from_array);
+        let (k_min, k_max) = STIFFNESS_RANGE_N_PER_M;
+        if !(k_min..=k_max).contains(&file.k) {
+            return Err(invalid(
+                "k".into(),
+                format!(
+                    "{} N/m is out of range: give a number from {k_min} to {k_max:.0} N/m",
+                    readable(file.k)
+                ),
+            ));
+        }
+        // Finite but far out, positions and strengths overflow the energy and the force (a probe at 1e300 m).
+        let position = |field: String, value: [f64; 3]| {
+            if value.iter().all(|c| c.abs() <= MAX_SCENE_COORDINATE_M) {
+                Ok(DVec3::from_array(value))
+            } else {
+                Err(invalid(
+                    field,
+                    format!(
+                        "{value:?} is out of range: each of x, y, z must be from -{MAX_SCENE_COORDINATE_M} to {MAX_SCENE_COORDINATE_M} m"
+                    ),
+                ))
+            }
+        };
+        let probe = position("probe".into(), file.probe)?;
+        let previous_proxy = file
+            .previous_proxy
+            .map(|p| position("previous_proxy".into(), p))
+            .transpose()?;
         let mut primitives = Vec::with_capacity(file.primitives.len());
         for (i, spec) in file.primitives.iter().enumerate() {
             let field = |name: &str| format!("primitives[{i}].{name}");
@@ -160,6 +208,18 @@ impl Scene {
                 };
                 invalid(field(name), err.to_string())
             })?;
+            if primitive.strength_n() > MAX_SCENE_STRENGTH_N {
+                return Err(invalid(
+                    field("strength"),
+                    format!(
+                        "{} N is out of range: give a number from 0 to {MAX_SCENE_STRENGTH_N:.0} N",
+                        readable(primitive.strength_n())
+                    ),
+                ));
+            }
+            if let Some(p) = spec.position {
+                position(field("position"), p)?;
+            }
             primitives.push(primitive);
         }
         Ok(Scene {

@@ -14,8 +14,12 @@
 //! `arm: missing field mass_kg`). Relative volume file paths are resolved against the directory of the
 //! scenario file (not the working directory), so a scenario runs the same from anywhere.
 
-use crate::device::sim::{ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError};
+pub use crate::device::sim::MAX_POSITION_M;
+use crate::device::sim::{
+    readable, ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError,
+};
 use crate::haptics::modes::{ModeConfig, ModeError, RenderScene};
+pub use crate::haptics::scene::STIFFNESS_RANGE_N_PER_M;
 use crate::haptics::tick::SolverKind;
 use crate::haptics::SolverConfig;
 use crate::volume::{io, procedural, AnyVolume};
@@ -418,6 +422,15 @@ impl Scenario {
             ));
         }
         positive("k_n_per_m", self.k_n_per_m)?;
+        let (k_min, k_max) = STIFFNESS_RANGE_N_PER_M;
+        if !(k_min..=k_max).contains(&self.k_n_per_m) {
+            return Err(format!(
+                "k_n_per_m: {} N/m is out of range: give a number from {} to {} N/m",
+                readable(self.k_n_per_m),
+                readable(k_min),
+                readable(k_max)
+            ));
+        }
         self.solver.validate()?;
         if self.tick_count() > MAX_TICKS {
             return Err(format!(
@@ -432,8 +445,11 @@ impl Scenario {
             ));
         }
         if let Some(start) = self.start_m {
-            if !start.is_finite() {
-                return Err("start_m: must be three finite numbers (m)".to_owned());
+            if !(start.is_finite() && start.abs().max_element() <= MAX_POSITION_M) {
+                return Err(format!(
+                    "start_m: must be three finite numbers from -{MAX_POSITION_M} to {MAX_POSITION_M} m, got {:?}",
+                    start.to_array()
+                ));
             }
         }
         if self.volumes.is_empty() && self.modes.iter().any(|m| m.volume.is_some()) {

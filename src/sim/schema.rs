@@ -16,7 +16,12 @@
 //! tests/docs_reference.rs.
 
 use super::scenario::{
-    MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
+    MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
+    SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
+};
+use crate::device::sim::{
+    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M,
+    MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
 };
 use crate::volume::procedural::BUILTIN_NAMES;
 
@@ -41,10 +46,14 @@ pub enum Accepts {
     Count(u64, u64),
     /// Three finite numbers.
     Vector,
+    /// Three finite numbers, each from `-.0` to `.0`.
+    VectorWithin(f64),
     /// Three finite numbers, not all zero.
     Direction,
     /// A list of at least one vector of three finite numbers.
     Points,
+    /// A list of 1 to `.1` vectors of three finite numbers, each from `-.0` to `.0`.
+    PointsWithin(f64, u64),
     /// A transfer function: `[[value, newtons], ...]`, values strictly increasing, newtons >= 0.
     Transfer,
     /// A table, described in the section with this title.
@@ -68,8 +77,20 @@ impl Accepts {
             Accepts::Between(lo, hi) => format!("{} to {}", plain(*lo), plain(*hi)),
             Accepts::Count(lo, hi) => format!("whole number, {lo} to {hi}"),
             Accepts::Vector => "`[x, y, z]`".to_owned(),
+            Accepts::VectorWithin(limit) => {
+                format!(
+                    "`[x, y, z]`, each from -{} to {}",
+                    plain(*limit),
+                    plain(*limit)
+                )
+            }
             Accepts::Direction => "`[x, y, z]`, not zero".to_owned(),
             Accepts::Points => "`[[x, y, z], ...]`, at least one".to_owned(),
+            Accepts::PointsWithin(limit, most) => format!(
+                "`[[x, y, z], ...]`, 1 to {most}, each coordinate from -{} to {}",
+                plain(*limit),
+                plain(*limit)
+            ),
             Accepts::Transfer => {
                 "`[[value, N], ...]`: values strictly increasing, N >= 0".to_owned()
             }
@@ -177,9 +198,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("description", "", Otherwise("none"), Text, "\"a ball\"", "what the scene shows (free text)"),
             key("duration_s", "s", Otherwise("needed by `voxhap sim`; ignored by `serve`"), PositiveAtMost(MAX_DURATION_S), "2.0", "simulated time of a `voxhap sim` run"),
             key("rate_hz", "Hz", Value("1000.0"), Between(*RATE_HZ_RANGE.start(), *RATE_HZ_RANGE.end()), "500.0", "servo rate"),
-            key("k_n_per_m", "N/m", Required, Positive, "400.0", "coupling stiffness k between probe and proxy"),
+            key("k_n_per_m", "N/m", Required, Between(STIFFNESS_RANGE_N_PER_M.0, STIFFNESS_RANGE_N_PER_M.1), "400.0", "coupling stiffness k between probe and proxy"),
             key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping; rendered by `serve`, refused by `sim` when not 0"),
-            key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), Vector, "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
+            key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
             key("solver", "", Otherwise("all of `[solver]`'s defaults"), Table("`[solver]`"), "", "which solver, and the exact solver's budget"),
             key("volumes", "", Required, Table("`[[volumes]]`"), "", "the volumes, by name (may be empty: `volumes = []`)"),
             key("modes", "", Otherwise("no modes"), Table("`[[modes]]`"), "", "the haptic modes, at most 8, in trace column order"),
@@ -282,7 +303,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "mass_kg = 0.1\ndamping_n_s_per_m = 1.0\nworkspace = { shape = \"unbounded\" }",
         group: "arm",
         keys: &[
-            key("mass_kg", "kg", Required, Positive, "0.2", "moving mass at the end effector"),
+            key("mass_kg", "kg", Required, PositiveAtMost(MAX_ARM_MASS_KG), "0.2", "moving mass at the end effector"),
             key("damping_n_s_per_m", "N s/m", Required, NonNegative, "2.0", "viscous damping to ground"),
             key("workspace", "", Required, Table("`[arm.workspace]`"), "", "where the arm can go"),
             key("substeps_per_tick", "", Value("10"), Count(*SUBSTEPS_PER_TICK_RANGE.start() as u64, *SUBSTEPS_PER_TICK_RANGE.end() as u64), "20", "physics steps per servo tick"),
@@ -299,8 +320,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "workspace",
         keys: &[
             key("shape", "", Required, OneOf(&["box", "sphere", "unbounded"]), "\"box\"", "the workspace's shape"),
-            key("min_m", "m", Required, Vector, "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
-            key("max_m", "m", Required, Vector, "[0.2, 0.1, 0.1]", "`box`: upper corner, >= `min_m` on every axis"),
+            key("min_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
+            key("max_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.2, 0.1, 0.1]", "`box`: upper corner, >= `min_m` on every axis"),
         ],
     },
     SchemaSection {
@@ -310,8 +331,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"sphere\"\ncenter_m = [0.0, 0.0, 0.0]\nradius_m = 0.1",
         group: "workspace",
         keys: &[
-            key("center_m", "m", Required, Vector, "[0.0, 0.0, 0.01]", "centre"),
-            key("radius_m", "m", Required, Positive, "0.2", "radius"),
+            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
+            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.2", "radius"),
         ],
     },
     SchemaSection {
@@ -333,7 +354,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "path",
         keys: &[
             key("kind", "", Required, OneOf(&["hold", "line", "waypoints", "circle", "raster", "force"]), "\"hold\"", "the kind of path"),
-            key("at_m", "m", Required, Vector, "[0.01, 0.0, 0.04]", "the point"),
+            key("at_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "the point"),
         ],
     },
     SchemaSection {
@@ -343,9 +364,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\nduration_s = 2.0",
         group: "path",
         keys: &[
-            key("from_m", "m", Required, Vector, "[0.01, 0.0, 0.04]", "start point"),
-            key("to_m", "m", Required, Vector, "[0.01, 0.0, 0.0]", "end point"),
-            key("duration_s", "s", Required, Positive, "1.0", "travel time"),
+            key("from_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "start point"),
+            key("to_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.0]", "end point"),
+            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "travel time"),
         ],
     },
     SchemaSection {
@@ -355,8 +376,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, 0.0, 0.0]]\nspeed_m_per_s = 0.02",
         group: "path",
         keys: &[
-            key("points_m", "m", Required, Points, "[[0.0, 0.0, 0.04]]", "the points"),
-            key("speed_m_per_s", "m/s", Required, Positive, "0.05", "speed along the polyline"),
+            key("points_m", "m", Required, PointsWithin(MAX_POSITION_M, MAX_PATH_VERTICES as u64), "[[0.0, 0.0, 0.04]]", "the points"),
+            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.05", "speed along the polyline"),
         ],
     },
     SchemaSection {
@@ -366,10 +387,10 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"circle\"\ncenter_m = [0.0, 0.0, 0.02]\nradius_m = 0.02\nnormal = [0.0, 0.0, 1.0]\nperiod_s = 3.0",
         group: "path",
         keys: &[
-            key("center_m", "m", Required, Vector, "[0.0, 0.0, 0.01]", "centre"),
-            key("radius_m", "m", Required, Positive, "0.01", "radius"),
+            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
+            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.01", "radius"),
             key("normal", "", Required, Direction, "[0.0, 1.0, 0.0]", "the circle's axis (any length)"),
-            key("period_s", "s", Required, Positive, "4.0", "time for one turn"),
+            key("period_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "4.0", "time for one turn"),
         ],
     },
     SchemaSection {
@@ -380,11 +401,11 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"raster\"\norigin_m = [-0.02, -0.02, 0.0]\nsweep_m = [0.04, 0.0, 0.0]\nstep_m = [0.0, 0.04, 0.0]\nlines = 5\nspeed_m_per_s = 0.05",
         group: "path",
         keys: &[
-            key("origin_m", "m", Required, Vector, "[-0.01, -0.02, 0.0]", "start corner"),
-            key("sweep_m", "m", Required, Vector, "[0.02, 0.0, 0.0]", "one pass: direction and length"),
-            key("step_m", "m", Required, Vector, "[0.0, 0.02, 0.0]", "offset from the first pass to the last"),
-            key("lines", "", Required, Count(1, u32::MAX as u64), "3", "number of passes"),
-            key("speed_m_per_s", "m/s", Required, Positive, "0.02", "speed along the path"),
+            key("origin_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.01, -0.02, 0.0]", "start corner"),
+            key("sweep_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.02, 0.0, 0.0]", "one pass: direction and length"),
+            key("step_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.02, 0.0]", "offset from the first pass to the last"),
+            key("lines", "", Required, Count(1, MAX_PATH_VERTICES as u64), "3", "number of passes"),
+            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.02", "speed along the path"),
         ],
     },
     SchemaSection {
@@ -403,7 +424,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "profile",
         keys: &[
             key("shape", "", Required, OneOf(&["constant", "ramp", "sine"]), "\"constant\"", "the kind of profile"),
-            key("force_n", "N", Required, Vector, "[0.0, 0.5, -1.0]", "the force"),
+            key("force_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.5, -1.0]", "the force"),
         ],
     },
     SchemaSection {
@@ -413,9 +434,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -2.0]\nduration_s = 2.0",
         group: "profile",
         keys: &[
-            key("from_n", "N", Required, Vector, "[0.0, 0.0, -0.5]", "force at t = 0"),
-            key("to_n", "N", Required, Vector, "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
-            key("duration_s", "s", Required, Positive, "1.0", "ramp time"),
+            key("from_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "force at t = 0"),
+            key("to_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
+            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "ramp time"),
         ],
     },
     SchemaSection {
@@ -425,9 +446,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"sine\"\noffset_n = [0.0, 0.0, -1.0]\namplitude_n = [0.0, 0.0, 0.5]\nfrequency_hz = 2.0",
         group: "profile",
         keys: &[
-            key("offset_n", "N", Required, Vector, "[0.0, 0.0, -0.5]", "mean force"),
-            key("amplitude_n", "N", Required, Vector, "[0.1, 0.0, 0.5]", "amplitude"),
-            key("frequency_hz", "Hz", Required, Positive, "1.0", "frequency"),
+            key("offset_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "mean force"),
+            key("amplitude_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.1, 0.0, 0.5]", "amplitude"),
+            key("frequency_hz", "Hz", Required, PositiveAtMost(MAX_FREQUENCY_HZ), "1.0", "frequency"),
         ],
     },
 ];
@@ -639,6 +660,33 @@ mod tests {
                 vec![example.to_owned()],
                 vec!["[]".to_owned(), "[[0.0, nan, 0.0]]".to_owned()],
             ),
+            VectorWithin(limit) => (
+                vec![example.to_owned(), at_limit(example, limit)],
+                vec![
+                    "[nan, 0.0, 0.0]".to_owned(),
+                    "[0.0, 0.0]".to_owned(),
+                    format!("[{:?}, 0.0, 0.0]", limit * 2.0),
+                    format!("[0.0, 0.0, {:?}]", -limit * 1.001),
+                ],
+            ),
+            PointsWithin(limit, most) => {
+                let point = example.trim_start_matches('[').trim_end_matches(']');
+                let many = vec![format!("[{point}]"); most as usize + 1].join(", ");
+                let full = vec![format!("[{point}]"); most as usize].join(", ");
+                (
+                    vec![
+                        example.to_owned(),
+                        format!("[{}]", at_limit(&format!("[{point}]"), limit)),
+                        format!("[{full}]"),
+                    ],
+                    vec![
+                        "[]".to_owned(),
+                        "[[0.0, nan, 0.0]]".to_owned(),
+                        format!("[[{:?}, 0.0, 0.0]]", limit * 2.0),
+                        format!("[{many}]"),
+                    ],
+                )
+            }
             Transfer => (
                 vec![example.to_owned()],
                 vec![
@@ -657,6 +705,20 @@ mod tests {
             ),
             Text | Table(_) => (Vec::new(), Vec::new()),
         }
+    }
+
+    /// The example vector `[x, y, z]` with each non-zero coordinate moved out to `limit`, keeping its sign (so a
+    /// box's corners stay ordered).
+    fn at_limit(example: &str, limit: f64) -> String {
+        let coordinates: Vec<String> = example
+            .trim_matches(['[', ']'])
+            .split(',')
+            .map(|c| {
+                let c: f64 = c.trim().parse().expect("an example coordinate");
+                format!("{:?}", limit * c.signum() * f64::from(u8::from(c != 0.0)))
+            })
+            .collect();
+        format!("[{}]", coordinates.join(", "))
     }
 
     /// The table a document's last lines are in, as an error names it (`path.profile`, `modes[1]`).

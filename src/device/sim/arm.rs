@@ -4,6 +4,7 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use super::path::{check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M};
 use super::tagged::{given_keys, KindKeys};
 use super::{HandDrive, HandPath, SimError};
 use crate::device::mapping::WorkspaceMapping;
@@ -110,28 +111,16 @@ impl Workspace {
     fn validate(&self) -> Result<(), SimError> {
         match self {
             Workspace::Box { min_m, max_m } => {
-                if !min_m.is_finite() {
-                    return Err(SimError::NonFiniteVector {
-                        name: "arm.workspace.min_m",
-                    });
-                }
-                if !max_m.is_finite() {
-                    return Err(SimError::NonFiniteVector {
-                        name: "arm.workspace.max_m",
-                    });
-                }
+                check_vector_within("arm.workspace.min_m", *min_m, MAX_POSITION_M, "m")?;
+                check_vector_within("arm.workspace.max_m", *max_m, MAX_POSITION_M, "m")?;
                 if min_m.cmpgt(*max_m).any() {
                     return Err(SimError::InvertedBox);
                 }
                 Ok(())
             }
             Workspace::Sphere { center_m, radius_m } => {
-                if !center_m.is_finite() {
-                    return Err(SimError::NonFiniteVector {
-                        name: "arm.workspace.center_m",
-                    });
-                }
-                positive("arm.workspace.radius_m", *radius_m)
+                check_vector_within("arm.workspace.center_m", *center_m, MAX_POSITION_M, "m")?;
+                check_positive_at_most("arm.workspace.radius_m", *radius_m, MAX_POSITION_M, "m")
             }
             Workspace::Unbounded => Ok(()),
         }
@@ -259,7 +248,7 @@ impl SimArm {
     /// Checks the configuration and places the arm at rest at `start_m`.
     pub fn new(config: SimArmConfig, start_m: DVec3) -> Result<Self, SimError> {
         let arm = &config.arm;
-        positive("arm.mass_kg", arm.mass_kg)?;
+        check_positive_at_most("arm.mass_kg", arm.mass_kg, MAX_ARM_MASS_KG, "kg")?;
         non_negative("arm.damping_n_s_per_m", arm.damping_n_s_per_m)?;
         positive("arm.substeps_per_tick", f64::from(arm.substeps_per_tick))?;
         non_negative("arm.wall_stiffness_n_per_m", arm.wall_stiffness_n_per_m)?;
@@ -268,9 +257,7 @@ impl SimArm {
         positive("hand.stiffness_n_per_m", config.hand.stiffness_n_per_m)?;
         non_negative("hand.damping_n_s_per_m", config.hand.damping_n_s_per_m)?;
         config.path.validate()?;
-        if !start_m.is_finite() {
-            return Err(SimError::NonFiniteVector { name: "start_m" });
-        }
+        check_vector_within("start_m", start_m, MAX_POSITION_M, "m")?;
 
         let stiffness_total_n_per_m = config.hand.stiffness_n_per_m
             + if matches!(arm.workspace, Workspace::Unbounded) {

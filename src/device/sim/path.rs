@@ -6,6 +6,11 @@
 //! returns both the target position and its exact time derivative, so the hand's damper acts on the
 //! velocity error rather than fighting the motion.
 //!
+//! Limits: every parameter is finite, and within a range where a run means something (positions within a
+//! kilometre, speeds up to 100 m/s, times from a millisecond, forces up to 1 kN: the constants below); a value
+//! outside is refused with its key, its value and the range, since far outside it the path's arithmetic
+//! overflows (a speed of 1e300 m/s made every sample NaN) or asks for what no hand can do.
+//!
 //! Conventions: time before 0 (or non-finite) is treated as 0; paths that end (line, waypoints, raster) hold
 //! their last point afterwards; the circle repeats forever. Polylines (waypoints, raster) are walked at a
 //! constant speed along their arc length, with a velocity jump at each corner.
@@ -304,6 +309,105 @@ impl TryFrom<ForceProfileTable> for ForceProfile {
     }
 }
 
+/// Largest size of a coordinate of any position of a path, a workspace or a start point (m): a kilometre, far
+/// beyond any arm's reach, and small enough that squares and products of positions stay finite.
+pub const MAX_POSITION_M: f64 = 1e3;
+/// Fastest a path may move the hand (m/s): a human hand moves a few metres per second at most.
+pub const MAX_SPEED_M_PER_S: f64 = 100.0;
+/// Shortest and longest time of a path or force profile (a line's travel, a circle's period, a ramp) (s):
+/// below a millisecond the target's velocity (distance over time) leaves physical sense and, near zero,
+/// overflows; a circle's angle `2 pi t / period` loses all precision.
+pub const PATH_TIME_RANGE_S: (f64, f64) = (1e-3, 1e6);
+/// Largest size of a coordinate of a hand force (N): a hundred kilograms' weight, far beyond a hand's push.
+pub const MAX_HAND_FORCE_N: f64 = 1e3;
+/// Highest frequency of a sine force profile (Hz).
+pub const MAX_FREQUENCY_HZ: f64 = 1e4;
+/// Most waypoints, and most raster lines: every physics substep walks the path's vertices.
+pub const MAX_PATH_VERTICES: usize = 10_000;
+/// Heaviest simulated arm (kg): a tonne. Heavier, the arm does not move at any force a haptic loop renders.
+pub const MAX_ARM_MASS_KG: f64 = 1e3;
+
+/// Checks that `value` is finite, > 0 and at most `max`.
+pub(super) fn check_positive_at_most(
+    name: &'static str,
+    value: f64,
+    max: f64,
+    unit: &'static str,
+) -> Result<(), SimError> {
+    check_positive(name, value)?;
+    if value > max {
+        return Err(SimError::OutOfRange {
+            name,
+            value,
+            min: 0.0,
+            max,
+            min_excluded: true,
+            unit,
+        });
+    }
+    Ok(())
+}
+
+/// Checks that `value` is finite and within `[min, max]`.
+fn check_between(
+    name: &'static str,
+    value: f64,
+    (min, max): (f64, f64),
+    unit: &'static str,
+) -> Result<(), SimError> {
+    check_positive(name, value)?;
+    if !(min..=max).contains(&value) {
+        return Err(SimError::OutOfRange {
+            name,
+            value,
+            min,
+            max,
+            min_excluded: false,
+            unit,
+        });
+    }
+    Ok(())
+}
+
+/// Checks that every component of `value` is finite and at most `limit` in size.
+pub(super) fn check_vector_within(
+    name: &'static str,
+    value: DVec3,
+    limit: f64,
+    unit: &'static str,
+) -> Result<(), SimError> {
+    check_vector(name, value)?;
+    let largest = value.abs().max_element();
+    if largest > limit {
+        let value =
+            value.to_array().into_iter().fold(
+                0.0,
+                |worst: f64, c| {
+                    if c.abs() > worst.abs() {
+                        c
+                    } else {
+                        worst
+                    }
+                },
+            );
+        return Err(SimError::VectorOutOfRange {
+            name,
+            value,
+            limit,
+            unit,
+        });
+    }
+    Ok(())
+}
+
+fn check_position(name: &'static str, value: DVec3) -> Result<(), SimError> {
+    check_vector_within(name, value, MAX_POSITION_M, "m")
+}
+
+fn check_force(name: &'static str, value: DVec3) -> Result<(), SimError> {
+    check_vector_within(name, value, MAX_HAND_FORCE_N, "N")
+}
+
 fn check_positive(name: &'static str, value: f64) -> Result<(), SimError> {
     if value.is_finite() && value > 0.0 {
         Ok(())
@@ -364,15 +468,15 @@ impl HandPath {
     /// Checks that every parameter is finite and in range. [`SimArm::new`](super::SimArm::new) calls this.
     pub fn validate(&self) -> Result<(), SimError> {
         match self {
-            HandPath::Hold { at_m } => check_vector("path.at_m", *at_m),
+            HandPath::Hold { at_m } => check_position("path.at_m", *at_m),
             HandPath::Line {
                 from_m,
                 to_m,
                 duration_s,
             } => {
-                check_vector("path.from_m", *from_m)?;
-                check_vector("path.to_m", *to_m)?;
-                check_positive("path.duration_s", *duration_s)
+                check_position("path.from_m", *from_m)?;
+                check_position("path.to_m", *to_m)?;
+                check_between("path.duration_s", *duration_s, PATH_TIME_RANGE_S, "s")
             }
             HandPath::Waypoints {
                 points_m,
@@ -381,10 +485,22 @@ impl HandPath {
                 if points_m.is_empty() {
                     return Err(SimError::EmptyWaypoints);
                 }
-                for point in points_m {
-                    check_vector("path.points_m", *point)?;
+                if points_m.len() > MAX_PATH_VERTICES {
+                    return Err(SimError::TooMany {
+                        name: "path.points_m",
+                        count: points_m.len(),
+                        limit: MAX_PATH_VERTICES,
+                    });
                 }
-                check_positive("path.speed_m_per_s", *speed_m_per_s)
+                for point in points_m {
+                    check_position("path.points_m", *point)?;
+                }
+                check_positive_at_most(
+                    "path.speed_m_per_s",
+                    *speed_m_per_s,
+                    MAX_SPEED_M_PER_S,
+                    "m/s",
+                )
             }
             HandPath::Circle {
                 center_m,
@@ -392,11 +508,11 @@ impl HandPath {
                 normal,
                 period_s,
             } => {
-                check_vector("path.center_m", *center_m)?;
-                check_positive("path.radius_m", *radius_m)?;
+                check_position("path.center_m", *center_m)?;
+                check_positive_at_most("path.radius_m", *radius_m, MAX_POSITION_M, "m")?;
                 check_vector("path.normal", *normal)?;
                 check_positive("path.normal (length)", normal.length())?;
-                check_positive("path.period_s", *period_s)
+                check_between("path.period_s", *period_s, PATH_TIME_RANGE_S, "s")
             }
             HandPath::Raster {
                 origin_m,
@@ -405,11 +521,26 @@ impl HandPath {
                 lines,
                 speed_m_per_s,
             } => {
-                check_vector("path.origin_m", *origin_m)?;
-                check_vector("path.sweep_m", *sweep_m)?;
-                check_vector("path.step_m", *step_m)?;
+                check_position("path.origin_m", *origin_m)?;
+                check_position("path.sweep_m", *sweep_m)?;
+                check_position("path.step_m", *step_m)?;
                 check_positive("path.lines", f64::from(*lines))?;
-                check_positive("path.speed_m_per_s", *speed_m_per_s)
+                if *lines as usize > MAX_PATH_VERTICES {
+                    return Err(SimError::OutOfRange {
+                        name: "path.lines",
+                        value: f64::from(*lines),
+                        min: 1.0,
+                        max: MAX_PATH_VERTICES as f64,
+                        min_excluded: false,
+                        unit: "lines",
+                    });
+                }
+                check_positive_at_most(
+                    "path.speed_m_per_s",
+                    *speed_m_per_s,
+                    MAX_SPEED_M_PER_S,
+                    "m/s",
+                )
             }
             HandPath::Force { profile } => profile.validate(),
         }
@@ -504,24 +635,34 @@ impl ForceProfile {
     /// Checks that every parameter is finite and in range.
     pub fn validate(&self) -> Result<(), SimError> {
         match self {
-            ForceProfile::Constant { force_n } => check_vector("path.profile.force_n", *force_n),
+            ForceProfile::Constant { force_n } => check_force("path.profile.force_n", *force_n),
             ForceProfile::Ramp {
                 from_n,
                 to_n,
                 duration_s,
             } => {
-                check_vector("path.profile.from_n", *from_n)?;
-                check_vector("path.profile.to_n", *to_n)?;
-                check_positive("path.profile.duration_s", *duration_s)
+                check_force("path.profile.from_n", *from_n)?;
+                check_force("path.profile.to_n", *to_n)?;
+                check_between(
+                    "path.profile.duration_s",
+                    *duration_s,
+                    PATH_TIME_RANGE_S,
+                    "s",
+                )
             }
             ForceProfile::Sine {
                 offset_n,
                 amplitude_n,
                 frequency_hz,
             } => {
-                check_vector("path.profile.offset_n", *offset_n)?;
-                check_vector("path.profile.amplitude_n", *amplitude_n)?;
-                check_positive("path.profile.frequency_hz", *frequency_hz)
+                check_force("path.profile.offset_n", *offset_n)?;
+                check_force("path.profile.amplitude_n", *amplitude_n)?;
+                check_positive_at_most(
+                    "path.profile.frequency_hz",
+                    *frequency_hz,
+                    MAX_FREQUENCY_HZ,
+                    "Hz",
+                )
             }
         }
     }

@@ -143,7 +143,9 @@ enum State {
 /// The result of one Newton attempt.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Outcome {
-    /// The last point, and its certificate when one was computed there.
+    /// The last point a pass accepted (a step that raised the energy is not: its start stays), and its
+    /// certificate when one was computed there. `dual` holds the subgradients of the last pass, which may be at a
+    /// rejected point.
     pub x: DVec3,
     pub certificate: Option<Certificate>,
     /// O(N) passes run (each counts as a sweep against the budget).
@@ -411,6 +413,9 @@ impl Workspace {
                     if halvings > MAX_HALVINGS {
                         return outcome;
                     }
+                    // Until a shorter step is accepted, the last accepted point is the iteration's answer
+                    // (an exit here on the budget returns it, not the point of higher energy just checked).
+                    outcome.x = last.x;
                     self.restore_kinks(items, last.kinks, last.kink_count, last.x);
                     face = self.face(items);
                     let curvature = (model.energy_j - last.energy_j - last.slope_j * last.t)

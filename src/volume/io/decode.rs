@@ -217,6 +217,13 @@ pub(crate) fn inflate_skip(
         .take(limit)
         .read_to_end(&mut out)
         .map_err(LoadProblem::Decompress)?;
+    if skip > 0 && (out.len() as u64) < expected_bytes {
+        // Name the whole extent the header describes, skip included.
+        return Err(LoadProblem::Truncated {
+            expected_bytes: skip.saturating_add(expected_bytes),
+            actual_bytes: skip.saturating_add(out.len() as u64),
+        });
+    }
     Ok(out)
 }
 

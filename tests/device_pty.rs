@@ -52,11 +52,15 @@ fn clean_link_at_1_khz_loses_no_frames() {
     // Hello, a second first zero force or gives up on a State (each would add or move frames); the device's
     // own watchdog at its longest, 1 s. A host stalled longer than that still trips it, and the device then
     // sends one Fault frame: counted below, not a lost or extra frame.
-    let mut config = ProtocolConfig::default();
-    config.hello_timeout = Duration::from_secs(60);
-    config.connect_timeout = Duration::from_secs(60);
-    config.state_timeout = Duration::from_secs(60);
-    config.device_watchdog_us = 1_000_000;
+    // (The update keeps this compiling, with defaults, if the driver gains settings.)
+    #[allow(clippy::needless_update)]
+    let config = ProtocolConfig {
+        hello_timeout: Duration::from_secs(60),
+        connect_timeout: Duration::from_secs(60),
+        state_timeout: Duration::from_secs(60),
+        device_watchdog_us: 1_000_000,
+        ..ProtocolConfig::default()
+    };
     let mut device = open(&mock.path, config);
     device.enable().unwrap();
     let start = Instant::now();
@@ -176,10 +180,12 @@ fn device_drops_to_zero_force_within_its_watchdog_when_the_host_stops() {
     // The mock exits after 120 s, so a watchdog that never trips ends the test instead of hanging it.
     let mut mock = Mock::start(&["--pty", "--duration", "120"]);
     let watchdog_us = 20_000;
-    let mut config = ProtocolConfig::default();
-    config.device_watchdog_us = watchdog_us;
-    // A late answer on a loaded machine is not what this test is about: wait for it.
-    config.state_timeout = Duration::from_secs(60);
+    let config = ProtocolConfig {
+        device_watchdog_us: watchdog_us,
+        // A late answer on a loaded machine is not what this test is about: wait for it.
+        state_timeout: Duration::from_secs(60),
+        ..ProtocolConfig::default()
+    };
     let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
     let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
     device.open().unwrap();
@@ -210,10 +216,12 @@ fn device_drops_to_zero_force_within_its_watchdog_when_the_host_stops() {
 fn watchdog_fault_reaches_the_host_and_the_device_stays_disabled() {
     let mock = Mock::start(&["--pty"]);
     let watchdog_us = 10_000;
-    let mut config = ProtocolConfig::default();
-    config.device_watchdog_us = watchdog_us;
-    // A late answer on a loaded machine is not what this test is about: wait for it.
-    config.state_timeout = Duration::from_secs(60);
+    let config = ProtocolConfig {
+        device_watchdog_us: watchdog_us,
+        // A late answer on a loaded machine is not what this test is about: wait for it.
+        state_timeout: Duration::from_secs(60),
+        ..ProtocolConfig::default()
+    };
     let transport = SerialTransport::open(&mock.path, 1_000_000).unwrap();
     let mut device = ProtocolDevice::new(SerialLink::new(transport), config);
     device.open().unwrap();
@@ -264,8 +272,10 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
         "0.4",
     ]);
     let back_us = 1_000_000; // device time when the mock serves again
-    let mut protocol = ProtocolConfig::default();
-    protocol.state_timeout = Duration::from_millis(20);
+    let protocol = ProtocolConfig {
+        state_timeout: Duration::from_millis(20),
+        ..ProtocolConfig::default()
+    };
     let config = SupervisorConfig {
         safety: SafetyConfig {
             ramp_time_us: 50_000,
@@ -361,9 +371,11 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
 fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
     let mock = Mock::start(&["--pty", "--stop-after", "0.3"]);
     let path = mock.path.clone();
-    let mut protocol = ProtocolConfig::default();
-    protocol.state_timeout = Duration::from_micros(500);
-    protocol.hello_timeout = Duration::from_millis(50);
+    let protocol = ProtocolConfig {
+        state_timeout: Duration::from_micros(500),
+        hello_timeout: Duration::from_millis(50),
+        ..ProtocolConfig::default()
+    };
     let config = SupervisorConfig {
         reconnect_interval_us: 100_000,
         ..SupervisorConfig::default()

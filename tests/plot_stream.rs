@@ -65,6 +65,8 @@ fn write_trace(path: &Path, format: TraceFormat, seconds: u64) -> Vec<(&'static 
 }
 
 /// Runs `voxhap plot TRACE --out OUT --extents`; returns its stderr and its peak resident memory (KiB).
+// The child is waited for with wait4 (for its resource usage), which clippy cannot see.
+#[allow(clippy::zombie_processes)]
 fn plot(trace: &Path, out: &Path) -> (String, i64) {
     let child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
         .arg("plot")
@@ -103,7 +105,7 @@ fn plot(trace: &Path, out: &Path) -> (String, i64) {
         libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
         "voxhap plot failed ({status}): {text}"
     );
-    (text, i64::from(usage.ru_maxrss))
+    (text, usage.ru_maxrss)
 }
 
 /// `drawn NAME: LOW to HIGH UNIT` lines of `voxhap plot --extents`.

@@ -559,7 +559,7 @@ fn for_each_row(
     let mut row_number = 0usize;
     for batch in reader {
         let batch = batch.map_err(|e| problem(e.to_string()))?;
-        let columns = batch_columns(&batch).map_err(|e| problem(e))?;
+        let columns = batch_columns(&batch).map_err(problem)?;
         for i in 0..batch.num_rows() {
             row_number += 1;
             row.clear();
@@ -609,7 +609,7 @@ pub(crate) fn for_each_parquet_sample(
     let Ok(metadata) = ParquetMetaDataReader::new().parse_and_finish(&file) else {
         let mut trace = read_parquet_trace(path)?;
         let samples = std::mem::take(&mut trace.samples);
-        samples.iter().for_each(|sample| sink(sample));
+        samples.iter().for_each(&mut *sink);
         return Ok((trace, samples.len() as u64));
     };
     let embedded_sidecar = metadata

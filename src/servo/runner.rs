@@ -423,7 +423,7 @@ impl ServoLoop {
             hand_target_m: None,
         };
         self.io.snapshot.write(Some(snapshot));
-        if tick_index % self.scene_frame_every_ticks == 0 {
+        if tick_index.is_multiple_of(self.scene_frame_every_ticks) {
             // Before the tick's sample, so the recorder finds it when that sample arrives.
             let _ = self.io.scene_frames.push(snapshot);
         }

@@ -1037,7 +1037,7 @@ impl Device {
             if out.message_type != 0 && noisy {
                 self.frames_written += 1;
                 if let Some(every) = self.config.partial_frame_every {
-                    if every > 0 && self.frames_written % every == 0 {
+                    if every > 0 && self.frames_written.is_multiple_of(every) {
                         out.bytes.truncate(out.bytes.len() / 2);
                         out.intact = false;
                     }

@@ -607,7 +607,7 @@ impl HandPath {
                 let vertex = |j: usize| {
                     let row = j / 2;
                     let end_of_row = j % 2 == 1;
-                    let along = if (row % 2 == 0) == end_of_row {
+                    let along = if row.is_multiple_of(2) == end_of_row {
                         1.0
                     } else {
                         0.0

@@ -1,5 +1,5 @@
 //! `voxhap plot` on long traces, as a separate process: its peak memory does not grow with the trace's length
-//! (the child's maximum resident set, from wait4), and the extents it draws are the data's, computed here from
+//! (its VmHWM, read from /proc while it runs), and the extents it draws are the data's, computed here from
 //! the samples as they were written.
 
 use glam::DVec3;
@@ -64,11 +64,18 @@ fn write_trace(path: &Path, format: TraceFormat, seconds: u64) -> Vec<(&'static 
     extents
 }
 
-/// Runs `voxhap plot TRACE --out OUT --extents`; returns its stderr and its peak resident memory (KiB).
-// The child is waited for with wait4 (for its resource usage), which clippy cannot see.
-#[allow(clippy::zombie_processes)]
-fn plot(trace: &Path, out: &Path) -> (String, i64) {
-    let child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
+/// The process's peak resident memory so far (KiB), `VmHWM` in /proc/PID/status; `None` once it has exited.
+fn peak_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Runs `voxhap plot TRACE --out OUT --extents`; returns its stderr and its peak resident memory (KiB): the
+/// largest VmHWM read from /proc while it ran (every millisecond). VmHWM belongs to the program after exec;
+/// the child's rusage would also count the test process it was spawned from.
+fn plot(trace: &Path, out: &Path) -> (String, u64) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
         .arg("plot")
         .arg(trace)
         .arg("--out")
@@ -78,34 +85,34 @@ fn plot(trace: &Path, out: &Path) -> (String, i64) {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("run voxhap plot");
-    let pid = child.id() as libc::pid_t;
-    let mut stderr = child.stderr.expect("stderr is piped");
-    // Read stderr on a thread, so a full pipe never blocks the child while we wait for it.
+    let pid = child.id();
+    let mut stderr = child.stderr.take().expect("stderr is piped");
+    // Read stderr on a thread, so a full pipe never blocks the child while we watch it.
     let reader = std::thread::spawn(move || {
         let mut text = String::new();
         std::io::Read::read_to_string(&mut stderr, &mut text).unwrap();
         text
     });
-    let mut status = 0;
-    // SAFETY: an all-zero rusage is valid; wait4 fills it for this one child (the peak resident set of the
-    // process, as /proc/PID/status's VmHWM, which is gone once the process has exited).
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let waited = loop {
-        // SAFETY: pid is our child, not yet waited for; status and usage are valid for writing.
-        let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-        if waited == -1 && std::io::Error::last_os_error().kind() == std::io::ErrorKind::Interrupted
-        {
-            continue;
+    let mut peak = 0;
+    let status = loop {
+        // Before exec the child is a copy of this process: only values read after exec count, which the
+        // program's name in /proc tells.
+        let exec_done = std::fs::read_to_string(format!("/proc/{pid}/comm"))
+            .is_ok_and(|comm| comm.trim() == "voxhap");
+        if exec_done {
+            if let Some(kib) = peak_kib(pid) {
+                peak = peak.max(kib);
+            }
         }
-        break waited;
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
     };
-    assert_eq!(waited, pid, "wait4: {}", std::io::Error::last_os_error());
     let text = reader.join().unwrap();
-    assert!(
-        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
-        "voxhap plot failed ({status}): {text}"
-    );
-    (text, usage.ru_maxrss)
+    assert!(status.success(), "voxhap plot failed ({status}): {text}");
+    assert!(peak > 0, "no VmHWM read for voxhap plot");
+    (text, peak)
 }
 
 /// `drawn NAME: LOW to HIGH UNIT` lines of `voxhap plot --extents`.

@@ -483,6 +483,13 @@ const CASES: &[Case] = &[
         expected: "data is truncated: the header describes 268435464 bytes but only 268435456 are there",
     },
     Case {
+        input: "`plot --out` naming a dangling symlink",
+        setup: |dir| scenario_and_dangling_link(dir, "p.png"),
+        args: &["plot", "t.csv", "--out", "p.png"],
+        exit: 1,
+        expected: "p.png is a symbolic link; voxhap never writes a plot through one",
+    },
+    Case {
         input: "`sim --out` naming a dangling symlink",
         setup: |dir| scenario_and_dangling_link(dir, "t.csv"),
         args: &["sim", "scene.toml", "--out", "t.csv", "--force"],

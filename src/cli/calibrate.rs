@@ -180,16 +180,17 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     // The file must read back as a profile before it is written.
     DeviceProfile::parse(&text, &args.out.display().to_string())
         .context("the calibrated profile does not check (a bug)")?;
-    let mut options = std::fs::OpenOptions::new();
-    options.write(true);
-    if args.force {
-        options.create(true).truncate(true);
+    // Never through a symlink: O_EXCL refuses one, and with --force O_NOFOLLOW does.
+    let mut file = if args.force {
+        crate::record::create_or_replace_file(&args.out).map_err(anyhow::Error::from)
     } else {
-        options.create_new(true);
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&args.out)
+            .map_err(anyhow::Error::from)
     }
-    let mut file = options
-        .open(&args.out)
-        .with_context(|| format!("{}: could not create", args.out.display()))?;
+    .with_context(|| format!("{}: could not create", args.out.display()))?;
     file.write_all(text.as_bytes())
         .and_then(|()| file.sync_all())
         .with_context(|| format!("{}: could not write", args.out.display()))?;

@@ -209,8 +209,13 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         }
     }
     let summary_path = args.out_dir.join("sweep.csv");
-    std::fs::write(&summary_path, &table)
-        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    {
+        use std::io::Write;
+        crate::record::create_or_replace_file(&summary_path)
+            .map_err(anyhow::Error::from)
+            .and_then(|mut file| Ok(file.write_all(table.as_bytes())?))
+            .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    }
     super::print_out(&format_table(&table))?;
     super::print_out(&format!(
         "{} points ({} jobs) -> {} (summary {})",

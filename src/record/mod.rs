@@ -32,7 +32,9 @@ pub use self::mcap_trace::{
     parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
 };
 pub use self::meta::{sidecar_path, utc_now_ns, FlagDoc, Sidecar, TraceMeta, TRACE_FORMAT_VERSION};
-pub use self::output::{check_output_path, create_new_file, estimate_trace_bytes, OutputPolicy};
+pub use self::output::{
+    check_output_path, create_new_file, create_or_replace_file, estimate_trace_bytes, OutputPolicy,
+};
 pub use self::parquet_trace::{
     read_parquet_trace, ParquetTraceWriter, SIDECAR_KEY as PARQUET_SIDECAR_KEY,
 };

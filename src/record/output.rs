@@ -130,6 +130,20 @@ pub fn create_new_file(path: &Path) -> Result<std::fs::File, TraceError> {
         .map_err(|source| open_error(path, source))
 }
 
+/// Creates `path` for writing, or truncates the regular file already there (`O_CREAT | O_TRUNC |
+/// O_NOFOLLOW`): for outputs that a rerun replaces (a sweep's summary, a calibrated profile with `--force`,
+/// a volume received over OpenIGTLink). A symlink at `path`, dangling or not, is refused naming it.
+pub fn create_or_replace_file(path: &Path) -> Result<std::fs::File, TraceError> {
+    no_follow(
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true),
+    )
+    .open(path)
+    .map_err(|source| open_error(path, source))
+}
+
 /// Opens an existing output (a sidecar the writer created) for rewriting in place, never through a
 /// symlink and never creating it.
 pub(crate) fn open_existing_output(path: &Path) -> Result<std::fs::File, TraceError> {

@@ -631,8 +631,13 @@ pub(crate) fn for_each_parquet_sample(
         .build()
         .map_err(|e| problem(e.to_string()))?;
     let count = for_each_row(reader, &mode_names, &expected, start_utc_ns, &problem, sink)?;
-    let warnings =
-        super::sidecar_warnings(sidecar.as_ref(), path, TraceFormat::Parquet, &mode_names, count);
+    let warnings = super::sidecar_warnings(
+        sidecar.as_ref(),
+        path,
+        TraceFormat::Parquet,
+        &mode_names,
+        count,
+    );
     Ok((
         Trace {
             mode_names,

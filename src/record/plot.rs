@@ -75,6 +75,9 @@ pub enum PlotError {
     /// The output name does not end in `.png` or `.svg`.
     #[error("plot output {0}: the file name must end in .png or .svg")]
     UnsupportedFormat(PathBuf),
+    /// The output path is a symbolic link (dangling or not): a plot is never written through one.
+    #[error("plot output {0} is a symbolic link; voxhap never writes a plot through one (remove it or pick another --out)")]
+    Symlink(PathBuf),
     /// Width or height outside [`PLOT_WIDTH_PX`] x [`PLOT_HEIGHT_PX`].
     #[error(
         "plot size {width_px}x{height_px} px is out of range: width 400..=8192, height 300..=8192"
@@ -265,8 +268,12 @@ pub fn plot_data(
     }
 }
 
-/// The output format, `"png"` or `"svg"`, from the file name (checked before a trace is read).
+/// The output format, `"png"` or `"svg"`, from the file name (checked before a trace is read, and again
+/// just before drawing); a symbolic link at `out` is refused.
 pub fn check_output_name(out: &Path) -> Result<&'static str, PlotError> {
+    if std::fs::symlink_metadata(out).is_ok_and(|m| m.file_type().is_symlink()) {
+        return Err(PlotError::Symlink(out.to_path_buf()));
+    }
     match out
         .extension()
         .and_then(|e| e.to_str())

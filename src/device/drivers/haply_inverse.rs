@@ -32,7 +32,9 @@
 //! targets to a 0.10 m sphere). The device profile (the lead's workspace mapping) overrides both.
 
 use crate::device::transport::inverse_service::{self, ForceCommand, ServiceConfig, ServiceLink};
-use crate::device::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
+use crate::device::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount,
+};
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};

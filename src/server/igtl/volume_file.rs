@@ -83,11 +83,12 @@ impl ImageFolder {
         let data_path = self.path.join(format!("{name}.f32"));
         let header_path = self.path.join(format!("{name}.toml"));
         let write = |path: &Path, bytes: &[u8]| -> Result<(), VolumeFileError> {
-            let mut file =
-                std::fs::File::create(path).map_err(|source| VolumeFileError::Write {
+            let mut file = crate::record::create_or_replace_file(path).map_err(|error| {
+                VolumeFileError::Write {
                     path: path.to_path_buf(),
-                    source,
-                })?;
+                    source: std::io::Error::other(error.to_string()),
+                }
+            })?;
             file.write_all(bytes)
                 .map_err(|source| VolumeFileError::Write {
                     path: path.to_path_buf(),

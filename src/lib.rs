@@ -5,6 +5,7 @@
 //! the exact solver finds the proxy position where the primitives balance the virtual coupling, and
 //! the coupling force goes back to the device.
 
+pub mod api;
 pub mod cli;
 pub mod clock;
 pub mod device;
@@ -13,6 +14,7 @@ pub mod record;
 pub mod server;
 pub mod servo;
 pub mod sim;
+pub mod status;
 pub mod volume;
 
 /// The Rust examples in the documentation pages, compiled (and, unless marked `no_run`, run) by

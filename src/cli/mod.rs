@@ -43,6 +43,30 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
 
 /// Parses a byte count: a whole number with an optional suffix `K`, `M`, `G`, `T` (powers of 1024; `KiB`,
 /// `MiB`, `GiB`, `TiB` and `B` also accepted), e.g. `4G`, `512MiB`, `1000000`.
+/// `--solver`: one of the names of [`SolverKind`] (`exact`, `euler`, `constraint`), listed in `--help`.
+pub fn solver_kind_parser() -> impl clap::builder::TypedValueParser<Value = crate::haptics::tick::SolverKind> {
+    use crate::haptics::tick::SolverKind;
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(SolverKind::ALL.map(SolverKind::name)).map(|name| {
+        SolverKind::ALL
+            .into_iter()
+            .find(|kind| kind.name() == name)
+            .unwrap_or_default()
+    })
+}
+
+/// `--format`: `csv`, `mcap` or `parquet` ([`TraceFormat`](crate::record::TraceFormat)), listed in `--help`.
+pub fn trace_format_parser() -> impl clap::builder::TypedValueParser<Value = crate::record::TraceFormat> {
+    use crate::record::TraceFormat;
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(TraceFormat::ALL.map(TraceFormat::name)).map(|name| {
+        TraceFormat::ALL
+            .into_iter()
+            .find(|format| format.name() == name)
+            .unwrap_or(TraceFormat::Csv)
+    })
+}
+
 pub fn parse_bytes(text: &str) -> Result<u64, String> {
     let trimmed = text.trim();
     let split = trimmed

@@ -52,7 +52,7 @@ pub struct ServeArgs {
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Trace format (default: from the file name).
-    #[arg(long)]
+    #[arg(long, value_parser = super::trace_format_parser())]
     pub record_format: Option<TraceFormat>,
     /// Replace an existing --record trace (never an input of the run: the scene, a volume, a replayed
     /// trace).

@@ -31,10 +31,10 @@ pub struct SimArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Trace format; default: from the --out extension (.mcap is MCAP, .parquet Parquet, anything else CSV).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::trace_format_parser())]
     pub format: Option<TraceFormat>,
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::solver_kind_parser())]
     pub solver: Option<SolverKind>,
     /// Replace an existing trace (never the scenario or one of its volume files).
     #[arg(long)]

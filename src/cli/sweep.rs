@@ -35,7 +35,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub out_dir: PathBuf,
     /// Trace format of every point.
-    #[arg(long, value_enum, default_value_t = TraceFormat::Csv)]
+    #[arg(long, value_parser = super::trace_format_parser(), default_value_t = TraceFormat::Csv)]
     pub format: TraceFormat,
     /// Override the scenario's duration_s (s) for every point.
     #[arg(long)]
@@ -44,7 +44,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub rate: Option<f64>,
     /// Proxy solver; default: the scenario's.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::solver_kind_parser())]
     pub solver: Option<SolverKind>,
     /// Sims run at once; default: the available cores.
     #[arg(long)]

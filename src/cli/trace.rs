@@ -28,7 +28,7 @@ pub struct RepairArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Format of the repaired trace; default the input's.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::trace_format_parser())]
     pub format: Option<TraceFormat>,
     /// Replace an existing output file (never the input).
     #[arg(long)]

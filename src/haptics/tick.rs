@@ -31,10 +31,10 @@ use serde::{Deserialize, Serialize};
 /// Flag bits the tick sets, shared with the trace format: `FLAG_SOLVER_BUDGET_HIT` (the exact solver stopped
 /// on its budget before the certificate met its tolerance) and `FLAG_NON_FINITE_REPLACED` (the probe position
 /// or `dt_s` was not finite; the proxy was held and zero force sent).
-pub use crate::record::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT};
+pub use crate::status::flags::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT};
 
 /// Which proxy solver a tick runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SolverKind {
     /// The certified exact solver (DESIGN.md section 2).
@@ -47,6 +47,9 @@ pub enum SolverKind {
 }
 
 impl SolverKind {
+    /// Every kind, in declaration order.
+    pub const ALL: [SolverKind; 3] = [SolverKind::Exact, SolverKind::Euler, SolverKind::Constraint];
+
     pub fn name(self) -> &'static str {
         match self {
             SolverKind::Exact => "exact",
@@ -70,19 +73,6 @@ pub enum TickStatus {
     Uncertified,
     /// The input was not finite; the proxy was held and no force sent.
     InputRejected,
-}
-
-impl From<TickStatus> for crate::record::SolverStatus {
-    fn from(status: TickStatus) -> Self {
-        use crate::record::SolverStatus as S;
-        match status {
-            TickStatus::Certified => S::Certified,
-            TickStatus::BudgetExhausted => S::BudgetExhausted,
-            TickStatus::Stalled => S::Stalled,
-            TickStatus::Uncertified => S::Uncertified,
-            TickStatus::InputRejected => S::InputRejected,
-        }
-    }
 }
 
 /// What persists from tick to tick: the proxy and what modes remember. `Copy`, fixed size.

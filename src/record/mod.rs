@@ -40,54 +40,11 @@ pub use self::parquet_trace::{
 };
 
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
-use std::fmt;
 use std::path::{Path, PathBuf};
 
-/// The most haptic modes a trace records primitive counts for.
-pub const MAX_MODES: usize = 8;
-
-/// Flag bit: the solver stopped on its budget (sweeps or time) before its certificate met the tolerance.
-pub const FLAG_SOLVER_BUDGET_HIT: u32 = 1 << 0;
-/// Flag bit: the safety pipeline clamped the force to the device maximum (direction kept).
-pub const FLAG_FORCE_CLAMPED: u32 = 1 << 1;
-/// Flag bit: the probe was at or beyond the device's workspace limit (the simulated arm's wall pushed).
-pub const FLAG_WORKSPACE_LIMIT: u32 = 1 << 2;
-/// Flag bit: this tick started late; the schedule skipped the missed ticks (tick numbers jump).
-pub const FLAG_OVERRUN: u32 = 1 << 3;
-/// Flag bit: a non-finite value (probe position or force) was replaced by zero this tick.
-pub const FLAG_NON_FINITE_REPLACED: u32 = 1 << 4;
-/// Flag bit: the recorder ring was full and samples before this one were lost (tick numbers jump).
-pub const FLAG_SAMPLES_DROPPED: u32 = 1 << 5;
-/// Flag bit: the force output was ramping in (enable) or held at zero (watchdog, disconnect).
-pub const FLAG_FORCE_LIMITED_BY_SAFETY: u32 = 1 << 6;
-
-/// Flag bit: the tick's compute (modes and solve) took longer than its budget, so the last safe force was
-/// sent again instead of this tick's.
-pub const FLAG_COMPUTE_OVER_BUDGET: u32 = 1 << 7;
-/// Flag bit: the device was not accepting force (starting, recovering from its watchdog, faulted, or it
-/// refused Enable): zero was commanded, whatever the scene rendered.
-pub const FLAG_DEVICE_NOT_ENABLED: u32 = 1 << 8;
-/// Flag bit: the device was disconnected this tick (the force went nowhere; the probe is the last known).
-pub const FLAG_DEVICE_DISCONNECTED: u32 = 1 << 9;
-/// Flag bit: the probe velocity is the host's estimate from positions, not the device's report.
-pub const FLAG_VELOCITY_ESTIMATED: u32 = 1 << 10;
-/// Flag bit: the sample broke a trace rule (a non-finite or negative value, a mode count that differs
-/// from the trace's); it was recorded as it came (NaN stays NaN) so the trace goes on.
-pub const FLAG_INVALID_VALUES: u32 = 1 << 11;
-/// Flag bit: the device's position was implausible (a jump beyond its maximum speed, outside its workspace,
-/// not finite); the last accepted one was used.
-pub const FLAG_POSITION_REJECTED: u32 = 1 << 12;
-/// Flag bit: the device's reported velocity disagreed with its positions (or exceeded its maximum speed);
-/// the estimate from positions was used.
-pub const FLAG_VELOCITY_REPLACED: u32 = 1 << 13;
-/// Flag bit: the force's rise was limited by the slew rate.
-pub const FLAG_FORCE_SLEW_LIMITED: u32 = 1 << 14;
-/// Flag bit: no fresh device state for several periods; zero was commanded.
-pub const FLAG_STALE_STATE: u32 = 1 << 15;
-/// Flag bit: a fault that needs a person is active on the device.
-pub const FLAG_DEVICE_FAULTED: u32 = 1 << 16;
+pub use crate::haptics::modes::MAX_MODES;
+pub use crate::status::flags::*;
 
 const fn flag(bit: u32, name: &'static str, meaning: &'static str) -> FlagDoc {
     FlagDoc {
@@ -194,6 +151,19 @@ impl SolverStatus {
     }
 }
 
+impl From<crate::haptics::tick::TickStatus> for SolverStatus {
+    fn from(status: crate::haptics::tick::TickStatus) -> Self {
+        use SolverStatus as S;
+        match status {
+            crate::haptics::tick::TickStatus::Certified => S::Certified,
+            crate::haptics::tick::TickStatus::BudgetExhausted => S::BudgetExhausted,
+            crate::haptics::tick::TickStatus::Stalled => S::Stalled,
+            crate::haptics::tick::TickStatus::Uncertified => S::Uncertified,
+            crate::haptics::tick::TickStatus::InputRejected => S::InputRejected,
+        }
+    }
+}
+
 /// One servo tick, as recorded. `Copy` and heap-free: the servo thread writes it into an SPSC ring.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraceSample {
@@ -271,40 +241,7 @@ impl TraceSample {
     }
 }
 
-/// On-disk format of a trace. `--format csv|mcap` on the command line, `"csv"`/`"mcap"` in files.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum TraceFormat {
-    /// Comma-separated text, one row per tick.
-    Csv,
-    /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
-    /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
-    Mcap,
-    /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
-    /// pandas, polars and DuckDB.
-    Parquet,
-}
-
-impl TraceFormat {
-    /// Guesses the format from a file name: `.mcap` is MCAP, `.parquet` Parquet, anything else CSV.
-    pub fn from_path(path: &Path) -> Self {
-        match path.extension().and_then(|e| e.to_str()) {
-            Some(ext) if ext.eq_ignore_ascii_case("mcap") => TraceFormat::Mcap,
-            Some(ext) if ext.eq_ignore_ascii_case("parquet") => TraceFormat::Parquet,
-            _ => TraceFormat::Csv,
-        }
-    }
-}
-
-impl fmt::Display for TraceFormat {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            TraceFormat::Csv => "csv",
-            TraceFormat::Mcap => "mcap",
-            TraceFormat::Parquet => "parquet",
-        })
-    }
-}
+pub use crate::api::TraceFormat;
 
 /// What a finished trace wrote.
 #[derive(Clone, Debug, PartialEq, Eq)]

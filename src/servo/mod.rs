@@ -5,7 +5,9 @@
 //!
 //! - [`api`]: what the outside sees and may ask (snapshots, statistics, control commands).
 
-pub mod api;
+/// The session's outside face lives in [`crate::api`]; these names stay valid here.
+pub use crate::api;
+pub use crate::api::slice;
 pub mod baseline;
 
 pub use api::{
@@ -23,7 +25,6 @@ pub mod runner;
 pub mod schedule;
 pub mod session;
 pub mod setup;
-pub mod slice;
 pub mod stats;
 pub mod steal;
 

@@ -15,7 +15,6 @@ use crate::device::sim::{HandPath, SimArmConfig};
 use crate::haptics::modes::{ModeConfig, ModeError, ModeKind, RenderScene, TransferFunction};
 use crate::haptics::tick::{SolverKind, TickWorkspace};
 use crate::haptics::SolverConfig;
-use crate::servo::api::VolumeReport;
 use crate::sim::scenario::{Purpose, Scenario, ScenarioError, SolverSettings};
 use crate::volume::{io, procedural, AnyVolume};
 use glam::DVec3;
@@ -27,28 +26,7 @@ pub const BUILTIN_SCENE: &str = include_str!("../../sims/scenes/explore.toml");
 /// A scene file as written: the same type, and the same validator, as a `voxhap sim` scenario.
 pub type SceneFile = Scenario;
 
-/// A volume with where it came from.
-#[derive(Debug, Clone)]
-pub struct NamedVolume {
-    pub name: String,
-    pub source: String,
-    pub volume: AnyVolume,
-}
-
-impl NamedVolume {
-    pub fn report(&self) -> VolumeReport {
-        let grid = self.volume.grid();
-        let (min_m, max_m) = grid.bounds_world();
-        VolumeReport {
-            name: self.name.clone(),
-            source: self.source.clone(),
-            dims: grid.dims(),
-            kind: self.volume.kind(),
-            min_m,
-            max_m,
-        }
-    }
-}
+pub use crate::api::NamedVolume;
 
 /// A loaded, validated scene: what the control side keeps and edits, and rebuilds bundles from.
 #[derive(Debug, Clone)]

@@ -58,7 +58,7 @@ use serde::{Deserialize, Serialize};
 
 /// The most modes a scene holds: the width of the per-mode primitive counts in a tick's output and in
 /// traces (the trace format's limit).
-pub const MAX_MODES: usize = crate::record::MAX_MODES;
+pub const MAX_MODES: usize = 8;
 
 /// Smallest gradient, vector or curl magnitude (in the data's unit per metre, or its unit) that defines a
 /// direction. Below it the mode emits nothing.

@@ -1,7 +1,7 @@
 //! Slices of the scene's volumes for visualisers: a volume sampled on an axis-aligned plane through a point
 //! (usually the proxy), as a `size` x `size` image spanning the volume's bounding box.
 //!
-//! Off the real-time path: [`SessionApi::slice`](super::api::SessionApi::slice) clones the volume handle
+//! Off the real-time path: [`SessionApi::slice`](super::SessionApi::slice) clones the volume handle
 //! (the samples are shared through an `Arc`, so this copies no voxels) under the control lock, releases it,
 //! and samples here on the caller's thread. The servo thread is never involved.
 //!
@@ -9,8 +9,7 @@
 //! outside the box therefore shows the nearest face; a rotated grid's bounding box has clamped corners. A vector
 //! volume is shown as its magnitude.
 
-use super::api::{ControlError, Slice, SliceAxis, SliceRequest, SLICE_SIZE_RANGE};
-use super::setup::NamedVolume;
+use super::{ControlError, NamedVolume, Slice, SliceAxis, SliceRequest, SLICE_SIZE_RANGE};
 use crate::volume::AnyVolume;
 use glam::DVec3;
 

@@ -10,11 +10,13 @@
 //! The HTTP/WebSocket server (issue 6) is written against the [`SessionApi`] trait, so it can be tested
 //! against the real session and knows nothing about threads or rings.
 
-use crate::device::supervisor::OutputState;
+pub mod slice;
+
 use crate::haptics::modes::{ModeConfig, TransferFunction, MAX_MODES};
 use crate::haptics::tick::TickStatus;
 use crate::haptics::{Primitive, PrimitiveKind};
-use crate::record::TraceFormat;
+use crate::status::OutputState;
+use crate::volume::AnyVolume;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -450,6 +452,72 @@ pub struct Slice {
     pub volume_kind: &'static str,
     pub volume_min_m: DVec3,
     pub volume_max_m: DVec3,
+}
+
+/// On-disk format of a trace. `--format csv|mcap` on the command line, `"csv"`/`"mcap"` in files.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TraceFormat {
+    /// Comma-separated text, one row per tick.
+    Csv,
+    /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
+    /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
+    Mcap,
+    /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
+    /// pandas, polars and DuckDB.
+    Parquet,
+}
+
+impl TraceFormat {
+    /// Every format, in declaration order.
+    pub const ALL: [TraceFormat; 3] = [TraceFormat::Csv, TraceFormat::Mcap, TraceFormat::Parquet];
+
+    /// `csv`, `mcap` or `parquet`: the name on the command line and in files.
+    pub fn name(self) -> &'static str {
+        match self {
+            TraceFormat::Csv => "csv",
+            TraceFormat::Mcap => "mcap",
+            TraceFormat::Parquet => "parquet",
+        }
+    }
+
+    /// Guesses the format from a file name: `.mcap` is MCAP, `.parquet` Parquet, anything else CSV.
+    pub fn from_path(path: &std::path::Path) -> Self {
+        match path.extension().and_then(|e| e.to_str()) {
+            Some(ext) if ext.eq_ignore_ascii_case("mcap") => TraceFormat::Mcap,
+            Some(ext) if ext.eq_ignore_ascii_case("parquet") => TraceFormat::Parquet,
+            _ => TraceFormat::Csv,
+        }
+    }
+}
+
+impl std::fmt::Display for TraceFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A volume with where it came from.
+#[derive(Debug, Clone)]
+pub struct NamedVolume {
+    pub name: String,
+    pub source: String,
+    pub volume: AnyVolume,
+}
+
+impl NamedVolume {
+    pub fn report(&self) -> VolumeReport {
+        let grid = self.volume.grid();
+        let (min_m, max_m) = grid.bounds_world();
+        VolumeReport {
+            name: self.name.clone(),
+            source: self.source.clone(),
+            dims: grid.dims(),
+            kind: self.volume.kind(),
+            min_m,
+            max_m,
+        }
+    }
 }
 
 /// A running session as a server sees it. Every method is cheap and never blocks the servo thread.

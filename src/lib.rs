@@ -15,6 +15,7 @@ pub mod server;
 pub mod servo;
 pub mod sim;
 pub mod status;
+pub mod view;
 pub mod volume;
 
 /// The Rust examples in the documentation pages, compiled (and, unless marked `no_run`, run) by

@@ -15,10 +15,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
-use voxhap::record::foxglove_topics::{CameraFraming, VIEW_FRAME, VOLUME_FRAME};
 use voxhap::record::TraceFormat;
 use voxhap::server::foxglove::{FoxgloveConfig, FoxgloveServer};
 use voxhap::servo::{ControlCommand, SessionApi};
+use voxhap::view::topics::{CameraFraming, VIEW_FRAME, VOLUME_FRAME};
 
 /// Samples per side of the loaded ball volume, and their spacing (mm): 31 cm from the first to the last.
 const BALL_SAMPLES: usize = 32;

@@ -161,7 +161,7 @@ fn on_time_ticks_are_consecutive_and_safe() {
     assert!(snapshot.engaged && snapshot.connected);
     // The recorder's scene snapshots: every 17th tick at 1 kHz (58.8 Hz, under the recorded 60 Hz), each
     // the tick's full snapshot, the primitives of the surface the arm is pulled into among them.
-    let every = voxhap::record::foxglove_topics::scene_frame_interval_ticks(PERIOD_NS);
+    let every = voxhap::record::foxglove_scene::scene_frame_interval_ticks(PERIOD_NS);
     assert_eq!(every, 17);
     let mut frames = Vec::new();
     while let Ok(frame) = rig.scene_frames.pop() {

@@ -114,11 +114,30 @@ pub fn sample_slice(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::servo::setup::SceneSetup;
+
+    /// The built-in serve scene's volumes (sims/scenes/explore.toml): density (scalar) and flow (vector).
+    struct Volumes {
+        volumes: Vec<NamedVolume>,
+    }
+
+    fn builtin_scene() -> Volumes {
+        let built = crate::volume::procedural::builtin("density-flow").unwrap();
+        let named = |name: &str, volume| NamedVolume {
+            name: name.to_owned(),
+            source: "builtin:density-flow".to_owned(),
+            volume,
+        };
+        Volumes {
+            volumes: vec![
+                named("density", AnyVolume::Scalar(built.scalar.unwrap())),
+                named("flow", AnyVolume::Vector(built.vector.unwrap())),
+            ],
+        }
+    }
 
     #[test]
     fn a_slice_spans_the_bounding_box_and_is_row_major_v_outer() {
-        let setup = SceneSetup::builtin().unwrap();
+        let setup = builtin_scene();
         let named = pick_volume(&setup.volumes, None).unwrap();
         assert_eq!(named.name, "density");
         let mut request = SliceRequest::new(SliceAxis::Y);
@@ -144,7 +163,7 @@ mod tests {
 
     #[test]
     fn bad_requests_name_the_problem() {
-        let setup = SceneSetup::builtin().unwrap();
+        let setup = builtin_scene();
         let mut request = SliceRequest::new(SliceAxis::Z);
         request.size = 8;
         let err = check_request(&request).unwrap_err();

@@ -6,7 +6,7 @@
 //! steal time over the run ([`crate::servo::steal`]): on a virtual machine, the time the host ran something
 //! else while the guest's CPUs had work.
 
-use crate::servo::api::{HistogramReport, RealtimeReport};
+use crate::api::{HistogramReport, RealtimeReport};
 use crate::servo::baseline::run_empty_schedule;
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;

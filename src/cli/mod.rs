@@ -44,7 +44,8 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
 /// Parses a byte count: a whole number with an optional suffix `K`, `M`, `G`, `T` (powers of 1024; `KiB`,
 /// `MiB`, `GiB`, `TiB` and `B` also accepted), e.g. `4G`, `512MiB`, `1000000`.
 /// `--solver`: one of the names of [`SolverKind`] (`exact`, `euler`, `constraint`), listed in `--help`.
-pub fn solver_kind_parser() -> impl clap::builder::TypedValueParser<Value = crate::haptics::tick::SolverKind> {
+pub fn solver_kind_parser(
+) -> impl clap::builder::TypedValueParser<Value = crate::haptics::tick::SolverKind> {
     use crate::haptics::tick::SolverKind;
     use clap::builder::TypedValueParser as _;
     clap::builder::PossibleValuesParser::new(SolverKind::ALL.map(SolverKind::name)).map(|name| {
@@ -56,7 +57,8 @@ pub fn solver_kind_parser() -> impl clap::builder::TypedValueParser<Value = crat
 }
 
 /// `--format`: `csv`, `mcap` or `parquet` ([`TraceFormat`](crate::record::TraceFormat)), listed in `--help`.
-pub fn trace_format_parser() -> impl clap::builder::TypedValueParser<Value = crate::record::TraceFormat> {
+pub fn trace_format_parser(
+) -> impl clap::builder::TypedValueParser<Value = crate::record::TraceFormat> {
     use crate::record::TraceFormat;
     use clap::builder::TypedValueParser as _;
     clap::builder::PossibleValuesParser::new(TraceFormat::ALL.map(TraceFormat::name)).map(|name| {

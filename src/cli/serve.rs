@@ -17,10 +17,10 @@
 //! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
 //! finishes the trace, the statistics are printed, exit 0.
 
+use crate::api::{ConfinedVolumes, RecordDir, SessionApi, VolumeDirs};
 use crate::device::profile::{DeviceProfile, MappingChoice};
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};
-use crate::servo::api::{ConfinedVolumes, RecordDir, SessionApi, VolumeDirs};
 use crate::servo::device::DeviceSpec;
 use crate::servo::rt::RtMode;
 use crate::servo::session::check_record_path;
@@ -499,7 +499,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
 /// What `--fail-on` found in a finished session's statistics.
 fn serve_fail_on_findings(
     fail_on: &[super::sim::FailOn],
-    stats: &crate::servo::api::StatsReport,
+    stats: &crate::api::StatsReport,
     tolerance_m: f64,
 ) -> Vec<String> {
     use super::sim::FailOn;

@@ -54,14 +54,15 @@ use ::foxglove::Encode;
 
 use super::columns::{utc_cell, Cell};
 use super::csv::read_sidecar;
-use super::foxglove_topics::{
-    frame_transform, set_translation, vector3, RecordedScene, MEASURED_CP_TOPIC as PROBE_TOPIC,
-    PROBE_FRAME, PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
-};
+use super::foxglove_scene::RecordedScene;
 use super::output::{OutputFile, StopSwitch};
 use super::{
     sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat, TraceMeta,
     TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES, TRACE_FORMAT_VERSION,
+};
+use crate::view::topics::{
+    frame_transform, set_translation, vector3, MEASURED_CP_TOPIC as PROBE_TOPIC, PROBE_FRAME,
+    PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
 
 /// Topic of the per-tick state messages (positions and force).
@@ -265,7 +266,7 @@ pub struct McapTraceWriter {
     /// The scene topics (markers and primitives, volume, slices, bound, operating state, statistics).
     scene: RecordedScene,
     /// The servo's latest snapshot handed over for the scene topics (used with the sample of its tick).
-    frame: Option<crate::servo::Snapshot>,
+    frame: Option<crate::api::Snapshot>,
     /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
     wall_start_ns: u64,
     first_t_s: Option<f64>,
@@ -652,11 +653,11 @@ impl TraceWriter for McapTraceWriter {
         self.committed
     }
 
-    fn scene_frame(&mut self, frame: &crate::servo::Snapshot) {
+    fn scene_frame(&mut self, frame: &crate::api::Snapshot) {
         self.frame = Some(*frame);
     }
 
-    fn scene_changed(&mut self, change: &super::foxglove_topics::SceneChange) {
+    fn scene_changed(&mut self, change: &super::foxglove_scene::SceneChange) {
         self.scene.scene_changed(change);
     }
 }

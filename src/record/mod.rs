@@ -17,7 +17,7 @@ mod columns;
 pub mod compare;
 mod csv;
 mod error;
-pub mod foxglove_topics;
+pub mod foxglove_scene;
 mod mcap_trace;
 mod meta;
 mod output;
@@ -277,14 +277,14 @@ pub trait TraceWriter: Send {
     /// closed MCAP chunks): the count the sidecar gives, never samples still in a buffer.
     fn sample_count(&self) -> u64;
     /// The servo's snapshot of a tick whose sample comes next (the recorder hands one over at most
-    /// `foxglove_topics::RECORDED_SCENE_HZ` times a second of tick time, before that tick's sample): the
+    /// `foxglove_scene::RECORDED_SCENE_HZ` times a second of tick time, before that tick's sample): the
     /// MCAP writer draws the tick's primitives and operating state from it. Writers without scene topics
     /// ignore it.
-    fn scene_frame(&mut self, _frame: &crate::servo::Snapshot) {}
+    fn scene_frame(&mut self, _frame: &crate::api::Snapshot) {}
     /// The scene changed while recording (a volume loaded, a transfer function replaced): the MCAP writer
     /// draws the new volume picture with the first snapshot that shows `change.generation`. Writers
     /// without scene topics ignore it.
-    fn scene_changed(&mut self, _change: &foxglove_topics::SceneChange) {}
+    fn scene_changed(&mut self, _change: &foxglove_scene::SceneChange) {}
 }
 
 /// Creates `path` (and `path.json`) in `format` for a run described by `meta`, refusing to replace an

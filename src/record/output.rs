@@ -229,7 +229,7 @@ impl std::io::Seek for OutputFile {
 /// A generous estimate of the bytes a trace of `ticks` samples at `rate_hz` with `mode_count` modes takes
 /// in `format` (the sidecar not included). Measured row sizes with margin: CSV writes shortest round-trip
 /// floats (up to 24 characters each), MCAP five messages per tick plus the scene topics
-/// ([`super::foxglove_topics::recorded_scene_bytes`]: slices, scene updates, the volume picture).
+/// ([`super::foxglove_scene::recorded_scene_bytes`]: slices, scene updates, the volume picture).
 pub fn estimate_trace_bytes(
     format: TraceFormat,
     mode_count: usize,
@@ -248,7 +248,7 @@ pub fn estimate_trace_bytes(
         // Only MCAP carries the Foxglove scene topics.
         TraceFormat::Csv | TraceFormat::Parquet => 0,
         TraceFormat::Mcap => {
-            super::foxglove_topics::recorded_scene_bytes(ticks as f64 / rate_hz, mode_count)
+            super::foxglove_scene::recorded_scene_bytes(ticks as f64 / rate_hz, mode_count)
         }
     };
     4096u64

@@ -9,7 +9,7 @@
 //! topics no client subscribed to.
 //!
 //! Topics (frame `world` is voxhap's world space, RAS metres; pose, velocity and force topics carry CRTK
-//! names, see `crate::record::foxglove_topics` for the table with the old names):
+//! names, see `crate::view::topics` for the table with the old names):
 //!
 //! | topic | schema | rate |
 //! |---|---|---|
@@ -19,31 +19,30 @@
 //! | `/voxhap/operating_state` | `voxhap.OperatingState` (JSON, CRTK fields `state`, `is_homed`, `is_busy`) | sampled |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate`: probe, proxy, force arrow, the tick's primitives ([`messages`]) | sampled |
 //! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
-//! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`crate::servo::StatsReport`] | 1 Hz |
+//! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`crate::api::StatsReport`] | 1 Hz |
 //! | `/voxhap/volume` | `foxglove.SceneUpdate`: the volume's bounding box and iso-surface ([`volume`]) | on each scene change and each new subscriber |
-//! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre and frame `volume_view`, which the shipped layout's camera follows (`crate::record::foxglove_topics::CameraFraming`) | with `/voxhap/volume` |
+//! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre and frame `volume_view`, which the shipped layout's camera follows (`crate::view::topics::CameraFraming`) | with `/voxhap/volume` |
 //! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
 //! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
 //!
 //! Every topic but `measured_cv` and the deprecated names is also in MCAP traces
-//! (`crate::record::foxglove_topics::RecordedScene`), so a recording shows the shipped layout's picture.
+//! (`crate::record::foxglove_scene::RecordedScene`), so a recording shows the shipped layout's picture.
 //! Message timestamps and log times are wall-clock: the session's tick time plus the wall time at which the
 //! view first saw the session. The volume picture and the slices are computed on tokio's blocking pool, one
 //! at a time, never on the servo thread.
 
-pub mod messages;
-pub mod volume;
+pub use crate::view::{messages, volume};
 
 use self::messages::{scene_update, BoundMessage, OperatingStateMessage, StatsMessage};
 use self::volume::VolumePicture;
-use crate::record::foxglove_topics::{
+use crate::api::{SessionApi, Snapshot};
+use crate::view::topics::{
     frame_transform, set_translation, timestamp_from_ns, vector3, volume_frames, volume_scene,
     FORCE_TOPIC, MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME,
     PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC,
     VOLUME_TOPIC,
 };
-pub use crate::record::foxglove_topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
-use crate::servo::{SessionApi, Snapshot};
+pub use crate::view::topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
 use ::foxglove::messages::{FrameTransform, Grid, SceneUpdate, Vector3};
 use ::foxglove::websocket::{ChannelView, Client, ServerListener};
 use ::foxglove::{Channel, Context, WebSocketServerHandle};
@@ -62,12 +61,7 @@ pub const DEFAULT_ADDR: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALH
 pub const DEFAULT_RATE_HZ: u32 = 60;
 /// Accepted sampling rates (Hz).
 pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
-/// The slices through the proxy, normal to x, y and z (`foxglove.Grid`).
-pub const SLICE_TOPICS: [&str; 3] = [
-    "/voxhap/volume/slice_x",
-    "/voxhap/volume/slice_y",
-    "/voxhap/volume/slice_z",
-];
+pub use crate::view::topics::SLICE_TOPICS;
 /// Every topic the live view advertises.
 pub const TOPICS: [&str; 16] = [
     MEASURED_CP_TOPIC,
@@ -483,7 +477,7 @@ impl Publisher {
 }
 
 /// What the blocking pool is computing for the publisher.
-type Pending<T> = Option<JoinHandle<Result<T, crate::servo::ControlError>>>;
+type Pending<T> = Option<JoinHandle<Result<T, crate::api::ControlError>>>;
 
 /// The publisher task: samples `api` every `period` and publishes new ticks; statistics once a second; the
 /// volume picture when the scene changes (or a client subscribes to it); the slices every
@@ -658,7 +652,7 @@ mod tests {
         }
         // The camera: follows the position of the frame the framing places, with the camera state the
         // framing assumes (CameraFraming).
-        use crate::record::foxglove_topics as topics;
+        use crate::view::topics;
         let panel = &layout["configById"]["3D!voxhap"];
         assert_eq!(panel["followTf"], topics::VIEW_FRAME);
         assert_eq!(panel["followMode"], "follow-position");
@@ -672,7 +666,7 @@ mod tests {
         assert_eq!(camera["fovy"], topics::LAYOUT_CAMERA_FOVY_DEG);
         assert_eq!(camera["perspective"], true);
         assert_eq!(camera["targetOffset"], serde_json::json!([0, 0, 0]));
-        let colours = crate::server::palette::palette();
+        let colours = crate::view::palette::palette();
         let force = &layout["configById"]["Plot!force"]["paths"];
         for (axis, path) in force.as_array().unwrap().iter().enumerate() {
             assert_eq!(

@@ -3,7 +3,7 @@
 //!
 //! Every control endpoint follows one path ([`control_request`]): token check (401, nothing decoded), body
 //! read (413 over the limit), JSON decode naming the bad field (400), then the session's own validation
-//! ([`crate::servo::ControlError::http_status`]), run on the blocking pool because a command waits for the
+//! ([`crate::api::ControlError::http_status`]), run on the blocking pool because a command waits for the
 //! servo thread to apply it. A refused request changes nothing.
 
 use super::auth::check_bearer;
@@ -14,7 +14,7 @@ use super::messages::{
 };
 use super::origin::check_single;
 use super::{assets, ws, Shared};
-use crate::servo::api::{
+use crate::api::{
     ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
 };
 use axum::body::Bytes;

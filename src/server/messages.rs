@@ -8,13 +8,13 @@
 //! `k: invalid type: string "NaN", expected f64`. Tagged messages (`"type"`, `"command"`) are re-tagged
 //! externally before decoding, because serde loses the field path inside internally tagged enums.
 
-use crate::haptics::modes::{ModeConfig, TransferFunction};
-use crate::haptics::tick::TickStatus;
-use crate::record::TraceFormat;
-use crate::servo::api::{
+use crate::api::{
     ControlCommand, ControlReply, SceneReport, Slice, SliceAxis, SliceRequest, Snapshot,
     StatsReport, SLICE_SIZE_DEFAULT,
 };
+use crate::haptics::modes::{ModeConfig, TransferFunction};
+use crate::haptics::tick::TickStatus;
+use crate::record::TraceFormat;
 use base64::Engine as _;
 use glam::DVec3;
 use serde::de::DeserializeOwned;

@@ -1,7 +1,7 @@
 //! The visualiser servers that run on tokio inside `voxhap serve`: the axum HTTP/WebSocket server with the
 //! built-in page and the control API, the Foxglove live view, and the OpenIGTLink server for 3D Slicer
 //! ([`igtl`]). All read the servo only through
-//! [`crate::servo::SessionApi`] (triple-buffer snapshots and atomic statistics), so the servo thread never waits
+//! [`crate::api::SessionApi`] (triple-buffer snapshots and atomic statistics), so the servo thread never waits
 //! on them.
 //!
 //! The HTTP/WebSocket server is shaped like mini-redis: [`run`] takes a bound listener, the session and a
@@ -30,12 +30,12 @@ mod http;
 pub mod igtl;
 pub mod messages;
 pub mod origin;
-pub mod palette;
+pub use crate::view::palette;
 mod ws;
 
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};
 
-use crate::servo::api::{ControlError, SessionApi};
+use crate::api::{ControlError, SessionApi};
 use messages::ServerStats;
 use std::future::{Future, IntoFuture};
 use std::sync::atomic::{AtomicU64, Ordering};

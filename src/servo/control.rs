@@ -13,7 +13,7 @@ use super::runner::{
 use super::session::{trace_meta, SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
 use crate::device::mapping::WorkspaceMapping;
-use crate::record::foxglove_topics::SceneChange;
+use crate::record::foxglove_scene::SceneChange;
 use crate::record::{create_trace_writer, TraceFormat};
 use glam::DVec3;
 use std::path::PathBuf;

@@ -23,7 +23,7 @@
 
 use super::api::Snapshot;
 use super::stats::ServoStats;
-use crate::record::foxglove_topics::SceneChange;
+use crate::record::foxglove_scene::SceneChange;
 use crate::record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;

@@ -34,7 +34,7 @@ use crate::device::supervisor::{ClearFaultOutcome, SupervisorEvent, TickInput};
 use crate::device::DeviceState;
 use crate::haptics::modes::{ModeMemory, MAX_MODES};
 use crate::haptics::tick::{tick_timed, TickState, TickStatus};
-use crate::record::foxglove_topics::scene_frame_interval_ticks;
+use crate::record::foxglove_scene::scene_frame_interval_ticks;
 use crate::record::{
     TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_DEVICE_DISCONNECTED, FLAG_DEVICE_FAULTED,
     FLAG_DEVICE_NOT_ENABLED, FLAG_FORCE_CLAMPED, FLAG_FORCE_LIMITED_BY_SAFETY,

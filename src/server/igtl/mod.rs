@@ -77,8 +77,8 @@ pub mod volume_file;
 
 use self::codec::{status_code, Body, Header, Transform, HEADER_BYTES};
 use self::volume_file::ImageFolder;
+use crate::api::{ControlCommand, ControlError, SessionApi, Snapshot};
 use crate::server::auth::token_matches;
-use crate::servo::api::{ControlCommand, ControlError, SessionApi, Snapshot};
 use glam::DVec3;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::atomic::{AtomicBool, AtomicU16, AtomicU64, AtomicUsize, Ordering};
@@ -1282,7 +1282,7 @@ impl ClientSession {
 /// the range, the mode's largest strength at 50 %. Returns what was changed, for the STATUS text.
 fn refit_surfaces(api: &dyn SessionApi, replaced: Option<&str>, lo: f32, hi: f32) -> String {
     use crate::haptics::modes::{ModeKind, TransferFunction};
-    use crate::server::foxglove::volume::half_strength_value;
+    use crate::view::volume::half_strength_value;
     let scene = api.scene();
     let Some(name) = replaced.or_else(|| scene.volumes.first().map(|v| v.name.as_str())) else {
         return String::new();

@@ -1,5 +1,5 @@
 //! What the Foxglove live view publishes besides the probe, proxy and force (those are shared with the MCAP
-//! trace, in `crate::record::foxglove_topics`): the scene as a `foxglove.SceneUpdate`, the certificate
+//! trace, in `crate::view::topics`): the scene as a `foxglove.SceneUpdate`, the certificate
 //! bound and the loop statistics as JSON messages with JSON schemas.
 //!
 //! Where it sits: the publisher task (`super`) turns each sampled [`Snapshot`] into these messages off the
@@ -15,18 +15,18 @@
 //! | `force` | arrow from the proxy along the sent force, [`FORCE_ARROW_M_PER_N`] long per newton |
 //! | `primitive/I` | the I-th primitive of the tick in its mode's colour: point = sphere, line = segment, plane = thin translucent square, directed force = arrow from the proxy |
 //!
-//! Colours come from the one palette ([`crate::server::palette`], web/style.css), so Foxglove and the
+//! Colours come from the one palette ([`crate::view::palette`], web/style.css), so Foxglove and the
 //! built-in page draw each object in the same colour.
 //!
 //! Every update first deletes all earlier entities, so primitives that went away disappear.
 
+use crate::api::{PrimitiveView, Snapshot, StatsReport};
 use crate::haptics::PrimitiveKind;
-use crate::record::foxglove_topics::{
+use crate::view::palette::palette;
+use crate::view::topics::{
     arrow, color, entity, identity, marker_entities, metadata, pose, replace_all, rotation_to,
     sphere, FORCE_ARROW_M_PER_N,
 };
-use crate::server::palette::palette;
-use crate::servo::{PrimitiveView, Snapshot, StatsReport};
 use ::foxglove::bytes::BufMut;
 use ::foxglove::messages::{
     CubePrimitive, LinePrimitive, Point3, SceneEntity, SceneUpdate, Timestamp, Vector3,
@@ -35,7 +35,7 @@ use ::foxglove::{Encode, Schema};
 use glam::DVec3;
 use serde::Serialize;
 
-pub use crate::record::foxglove_topics::{MARKER_DIAMETER_M, MAX_ARROW_M};
+pub use crate::view::topics::{MARKER_DIAMETER_M, MAX_ARROW_M};
 
 /// Diameter of a point primitive's sphere (m).
 pub const POINT_DIAMETER_M: f64 = 0.0025;

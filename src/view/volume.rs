@@ -11,10 +11,10 @@
 //! usual ramp from 0 N at `x0` to `s` N at `x1` that is `(x0 + x1) / 2`, the middle of the shell in which
 //! the surface is felt.
 
+use crate::api::{ControlError, SessionApi, Slice, SliceAxis, SliceRequest};
 use crate::haptics::modes::{ModeKind, TransferFunction};
-use crate::record::foxglove_topics::{identity, pose, quaternion, timestamp_from_ns, WORLD_FRAME};
-use crate::server::palette::{palette, Rgb};
-use crate::servo::api::{ControlError, SessionApi, Slice, SliceAxis, SliceRequest};
+use crate::view::palette::{palette, Rgb};
+use crate::view::topics::{identity, pose, quaternion, timestamp_from_ns, WORLD_FRAME};
 use crate::volume::isosurface::{bounded_isosurface, Mesh, SampledGrid};
 use ::foxglove::messages::packed_element_field::NumericType;
 use ::foxglove::messages::{Grid, PackedElementField, Vector2};

@@ -3,10 +3,11 @@
 //! built-in page reads them in app.js, and voxhap reads the same lines here (from the embedded stylesheet)
 //! for the Foxglove scene and the layout file's plot colours, so the page and Foxglove always agree.
 //!
-//! Where it sits: the Foxglove messages (`super::foxglove::messages`, `crate::record::foxglove_topics`) ask
+//! Where it sits: the Foxglove messages (`super::foxglove::messages`, `crate::view::topics`) ask
 //! [`palette`] for colours; the stylesheet is parsed once, on first use.
 
-use super::assets::STYLE_CSS;
+/// The page's stylesheet, where the scene colours are defined (`--scene-*` variables).
+const STYLE_CSS: &str = include_str!("../../web/style.css");
 use std::sync::OnceLock;
 
 /// An sRGB colour, components in 0 ..= 1.
@@ -174,7 +175,7 @@ mod tests {
 
     #[test]
     fn the_page_script_takes_its_scene_colours_from_the_stylesheet() {
-        let script = super::super::assets::APP_JS;
+        let script = include_str!("../../web/app.js");
         assert!(script.contains("--scene-${name}"));
         let p = from_css(STYLE_CSS);
         for colour in [p.probe, p.proxy, p.hand, p.force] {

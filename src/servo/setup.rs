@@ -16,7 +16,8 @@ use crate::haptics::modes::{ModeConfig, ModeError, ModeKind, RenderScene, Transf
 use crate::haptics::tick::{SolverKind, TickWorkspace};
 use crate::haptics::SolverConfig;
 use crate::sim::scenario::{Purpose, Scenario, ScenarioError, SolverSettings};
-use crate::volume::{io, procedural, AnyVolume};
+use crate::volume::io;
+use crate::volume::{procedural, AnyVolume};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 

@@ -349,63 +349,6 @@ impl ServoStats {
     }
 }
 
-impl StatsReport {
-    /// The table `voxhap serve` prints on exit and `voxhap bench-loop` prints.
-    pub fn table(&self) -> String {
-        let row = |name: &str, h: &HistogramReport| {
-            format!(
-                "{name:<10} {:>10} {:>10.1} {:>10.1} {:>10.1} {:>10.1}\n",
-                h.count, h.p50_us, h.p99_us, h.p999_us, h.max_us
-            )
-        };
-        let mut text = format!(
-            "{:<10} {:>10} {:>10} {:>10} {:>10} {:>10}\n",
-            "(us)", "count", "p50", "p99", "p99.9", "max"
-        );
-        text += &row("lateness", &self.lateness);
-        text += &row("compute", &self.compute);
-        text += &row("device", &self.device);
-        text += &format!(
-            "rate {} Hz, ticks {}, overruns {} (skipped {} ticks), compute over budget {}\n",
-            self.rate_hz, self.ticks, self.overruns, self.skipped_ticks, self.budget_overruns
-        );
-        text += &format!(
-            "solver: max sweeps {}, worst certificate bound {:.3e} m\n",
-            self.max_sweeps, self.worst_error_bound_m
-        );
-        text += &format!(
-            "device errors {}, disconnects {}, recorder drops {}, recorder errors {}, commands applied {}\n",
-            self.device_errors,
-            self.disconnects,
-            self.recorder_drops,
-            self.recorder_errors,
-            self.commands_applied
-        );
-        let safety = &self.safety;
-        text += &format!(
-            "safety: output {} ({}); device faults {} (watchdog {}), refusals {}, enables {}, ticks not enabled {}, \
-             stale {}, positions rejected {}, velocities replaced {}, slew-limited {}, clamped {}, monitor stops {}, \
-             surplus device messages {}\n",
-            safety.output_state.name(),
-            safety.output_state_explanation,
-            safety.device_faults,
-            safety.device_watchdog_trips,
-            safety.device_rejections,
-            safety.enables,
-            safety.not_enabled_ticks,
-            safety.stale_ticks,
-            safety.positions_rejected,
-            safety.velocities_replaced,
-            safety.slew_limited_ticks,
-            safety.forces_clamped,
-            safety.monitor_stops,
-            safety.device_surplus,
-        );
-        text += &self.realtime.summary();
-        text
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

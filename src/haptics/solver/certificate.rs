@@ -3,7 +3,7 @@
 //!
 //! It sits at the end of every solve ([`super::Solver`]): every exit (certified, budget exhausted before or
 //! after a sweep, stalled, no primitives) returns a point together with a bound from [`certify`]. The argument
-//! is written out in the solver's module header ([`super`], "Why the bound never lies"); this file implements it.
+//! is written out in docs/solver.md ("Why the bound never lies"); this file implements it.
 //!
 //! In short, for the floating-point point `x` and dual values `u_i` (any values, feasible or not):
 //!
@@ -21,7 +21,7 @@
 //! - **A** takes the gap at `x` with all `v_i` projected, each primitive's share computed without cancellation
 //!   *plus* its own rounding error, so rounding only overstates it, and the kinks' *sharpness*: a kink whose
 //!   dual lies strictly inside its set holds the proxy like a spring with no give, and turns the square root of
-//!   the shares into a linear bound ([`sharp_distance_m`]; the argument is in the module header, item 3). A
+//!   the shares into a linear bound ([`sharp_distance_m`]; the argument is in docs/solver.md, "Certificate A"). A
 //!   needs no common point of the kinks, so it certifies what B must refuse: a proxy stuck on a friction point
 //!   that lies only within rounding of a tilted plane.
 
@@ -674,8 +674,8 @@ struct Partner {
 /// (`|v| = s`) has no margin of its own, yet with a plane pushing with room to spare it is sharp unless it
 /// pulls along the plane. A proxy resting on a tilted plane, held by a friction point 5.6e-17 m in front of it
 /// with 18 % of its strength to spare (so the minimiser is on the plane 1e-16 m from the point, which pulls with
-/// all of its strength), had a bound of 2.8e-10 m and ended `Stalled`; it is certified at 2.5e-15 m this way
-/// (2026-11-27, found by the friction property test, kept in its regression file). The point need not be among
+/// all of its strength) is certified at 2.5e-15 m this way, where the kinks' sharpness alone gives 2.8e-10 m (a
+/// case in the friction property test's regression file). The point need not be among
 /// the kinks; its offset `|e|` enters the slack.
 #[allow(clippy::too_many_arguments)]
 fn point_sharpness_distance_m(

@@ -155,7 +155,7 @@ pub(crate) struct Item {
     pub strength_n: f64,
 }
 
-/// The solver and its workspace (STYLE.md item 3: allocate up front, `clear()` instead of rebuild).
+/// The solver and its workspace (CONTRIBUTING.md item 3: allocate up front, `clear()` instead of rebuild).
 #[derive(Debug, Clone)]
 pub struct Solver {
     config: SolverConfig,

@@ -1,4 +1,4 @@
-//! Unit tests of the exact solver: closed-form cases, the hard cases of DESIGN.md section 2, and warm starts.
+//! Unit tests of the exact solver: closed-form cases, the hard cases of docs/solver.md ("The maths"), and warm starts.
 
 use super::*;
 use crate::haptics::bench_scenes::{random_primitives, random_scene, thin_wedge, SplitMix};

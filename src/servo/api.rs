@@ -7,7 +7,7 @@
 //! thread, then handed over through an SPSC ring and applied at a tick boundary. Nothing in this module
 //! runs on the servo thread except filling a `Snapshot` (`Copy`, no heap).
 //!
-//! The HTTP/WebSocket server (issue 6) is written against the [`SessionApi`] trait, so it can be tested
+//! The HTTP/WebSocket server is written against the [`SessionApi`] trait, so it can be tested
 //! against the real session and knows nothing about threads or rings.
 
 use crate::device::supervisor::OutputState;

@@ -355,7 +355,7 @@ impl Solver {
         let mut sweeps = 0u32;
         let mut rounds = 0u32;
         let mut total = self.dual.iter().copied().sum::<DVec3>();
-        // The start (module header, "Budget exits"), `previous_proxy_m` or `y`: an exit without a certified
+        // The start (module header, "Invariants"), `previous_proxy_m` or `y`: an exit without a certified
         // answer never returns a point of higher energy. Formed only at such an exit.
         let start_x = || problem.previous_proxy_m.unwrap_or(y);
         // The primal method's last accepted point, when it ran and did not certify (a candidate at such exits).
@@ -608,7 +608,7 @@ impl Solver {
         self.dual.iter().copied().sum()
     }
 
-    /// The answer of an exit without a certified point (module header, "Budget exits"): of the start `start_x`,
+    /// The answer of an exit without a certified point (module header, "Invariants"): of the start `start_x`,
     /// the best certified point `best` and the primal method's last accepted point `newton_x`, the one of least
     /// energy, a point replacing the one before it only where its energy is lower by more than both energies'
     /// rounding (so ties keep the start). Its bound is the smaller of the certificates with the current dual

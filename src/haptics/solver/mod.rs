@@ -13,22 +13,22 @@
 //!
 //! # The methods
 //!
-//! - **Primal Newton** ([`newton`]) runs first on cold and large solves: O(N) passes, a 3x3 Newton step on the
+//! - **Primal Newton** (`newton.rs`) runs first on cold and large solves: O(N) passes, a 3x3 Newton step on the
 //!   kinks the proxy is held on, an exact line search over the planes crossed, multipliers recovered at the end.
 //! - **Dual method**: block sweeps (each update a closed-form projection onto `U_i`) with an active-set finish
 //!   ([`active_set`]) for near-parallel planes. First for small scenes with last tick's structure (at most 16
 //!   non-directed primitives: the servo loop's usual tick), and the fallback when Newton does not certify.
-//! - The [`certificate`] checks every answer from scratch, whichever method produced it.
+//! - The certificate (`certificate.rs`) checks every answer from scratch, whichever method produced it.
 //!
 //! # Invariants a maintainer must keep
 //!
-//! - **The bound never lies.** Every reported bound comes from [`certificate`], over all primitives, from duals
+//! - **The bound never lies.** Every reported bound comes from `certificate.rs`, over all primitives, from duals
 //!   projected onto *this* tick's sets (a warm start's were projected onto last tick's), with every rounding
 //!   error bounded and added, never subtracted. A method may change without touching the certificate; a change
 //!   to the certificate keeps each step of docs/solver.md's argument true and passes tests/solver_props.rs.
 //! - **Every exit has a point and its bound**: certified, budget exhausted or stalled. An uncertified exit
 //!   returns the point of least energy among the start, the best certified point and Newton's last accepted
-//!   point ([`energy`], exact sum with a rounding bound), and replaces the start only where the energy is lower
+//!   point (`energy`, exact sum with a rounding bound), and replaces the start only where the energy is lower
 //!   by more than both roundings: never worse than where the solve began. A certified solve never takes it.
 //! - **Real time.** [`Solver`] owns its workspace: after the first solve with N primitives, solving any scene
 //!   of at most N allocates nothing (tests/alloc_free.rs). The budget bounds sweeps and, given a clock,
@@ -63,7 +63,7 @@ pub struct SolverConfig {
     /// Over-relaxation of the block updates, in `[1, 2)`: `u_i <- proj(u_i + w (u_i^best - u_i))`. 1 is plain
     /// block coordinate ascent.
     pub relaxation: f64,
-    /// Try the primal Newton method ([`newton`]) first; `false` runs the dual method alone (kept for comparison
+    /// Try the primal Newton method (`newton.rs`) first; `false` runs the dual method alone (kept for comparison
     /// in the benchmark).
     pub primal_newton: bool,
     /// Screen out planes that provably keep their side at the answer (primal Newton only).

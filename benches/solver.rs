@@ -14,7 +14,7 @@
 //! the 10 000-primitive case, once built). Times are medians of repeated solves measured in
 //! this process, one case after the other, so the ratios are side by side.
 //!
-//! It prints two tables: the summary (the exact solver against Euler at both stops, with issue 14's goal for the
+//! It prints two tables: the summary (the exact solver against Euler at both stops, with the speed goal for the
 //! case and whether this run met it, decided here from the measured median) and the full table. With
 //! `VOXHAP_BENCH_DOCS=1` it also writes them into README.md (the summary) and docs/solver.md (both), between
 //! the `<!-- solver-bench:... -->` markers, so the tables in the docs are the bench's output, never typed.
@@ -398,7 +398,7 @@ fn benches(_c: &mut Criterion) {
     );
     let mut summary = String::new();
     summary.push_str(&format!("{title}\n"));
-    summary.push_str("Median time per solve, cold start except the path; bounds and errors in m (errors against the double-double reference); goals from issue 14.\n\n");
+    summary.push_str("Median time per solve, cold start except the path; bounds and errors in m (errors against the double-double reference); goals are the solver's speed targets.\n\n");
     summary.push_str(&format!("{SUMMARY_HEADER}\n"));
     summary.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
     for r in &rows {

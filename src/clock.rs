@@ -1,4 +1,4 @@
-//! Time as an argument (STYLE.md item 2): a `Clock` trait, the real monotonic clock and a mock that tests
+//! Time as an argument (CONTRIBUTING.md item 2): a `Clock` trait, the real monotonic clock and a mock that tests
 //! advance by hand. Nothing on the servo path reads the OS clock directly; it is handed a `Clock`.
 
 use std::sync::atomic::{AtomicU64, Ordering};

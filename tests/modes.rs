@@ -1,4 +1,4 @@
-//! Behaviour of the haptic modes through the tick (DESIGN.md section 3, issue 3 item 8), with the probe
+//! Behaviour of the haptic modes through the tick (docs/modes.md), with the probe
 //! moved kinematically so that every number has a closed form: surfaces hold with force k times the
 //! penetration and yield at s/k, friction resists tangential motion up to mu N, a vortex line keeps the
 //! proxy on the core, and a multi-mode tick allocates nothing.

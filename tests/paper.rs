@@ -76,8 +76,8 @@ fn orthogonal_constraints_agree() {
     );
 }
 
-/// DESIGN.md section 2: the paper's Euler solver stalls at a kink and misplaces the proxy; the exact solver
-/// needs one projection. k = 500 N/m, a plane (2 N) and a point (0.5 N) at the previous proxy.
+/// docs/design.md ("Kinks are part of the answer"): the paper's Euler solver stalls at a kink and misplaces the
+/// proxy; the exact solver needs one projection. k = 500 N/m, a plane (2 N) and a point (0.5 N) at the previous proxy.
 #[test]
 fn euler_stalls_where_the_exact_solver_does_not() {
     let prims = [

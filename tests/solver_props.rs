@@ -572,7 +572,7 @@ impl voxhap::clock::Clock for SteppingClock {
     }
 }
 
-/// The energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` of DESIGN.md section 2 (directed forces included), by
+/// The energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` of docs/design.md (directed forces included), by
 /// the primitives' own energy terms (src/haptics/primitive.rs), not the solver's, and the size of its terms for
 /// the rounding slack of a comparison.
 fn energy_and_scale(k: f64, probe: DVec3, prims: &[Primitive], x: DVec3) -> (f64, f64) {

@@ -1,13 +1,13 @@
 //! The servo session's outside face: what a server, a CLI or a test reads from a running servo loop
 //! ([`Snapshot`], [`StatsReport`], [`SceneReport`], a [`Slice`] of a volume) and what it may ask of it ([`ControlCommand`]).
 //!
-//! Where it sits (DESIGN.md section 5): the servo thread publishes a [`Snapshot`] through a triple buffer
+//! Where it sits (docs/design.md, "Threads"): the servo thread publishes a [`Snapshot`] through a triple buffer
 //! every tick and keeps its statistics in atomics; [`SessionApi`] is the non-real-time side of those
 //! boundaries. Control commands are validated and turned into ready-built scenes here, off the servo
 //! thread, then handed over through an SPSC ring and applied at a tick boundary. Nothing in this module
 //! runs on the servo thread except filling a `Snapshot` (`Copy`, no heap).
 //!
-//! The HTTP/WebSocket server (issue 6) is written against the [`SessionApi`] trait, so it can be tested
+//! The HTTP/WebSocket server is written against the [`SessionApi`] trait, so it can be tested
 //! against the real session and knows nothing about threads or rings.
 
 pub mod slice;

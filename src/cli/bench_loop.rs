@@ -1,5 +1,5 @@
 //! `voxhap bench-loop`: runs the servo loop on the simulated arm with the built-in three-mode scene for a
-//! while and prints the lateness and compute histograms and the overrun count (the servo issue's benchmark).
+//! while and prints the lateness and compute histograms and the overrun count.
 //! `--load-threads N` adds N busy threads (at normal priority) to measure under load. `--baseline` alternates
 //! windows of the loop with windows of the same schedule with an empty tick on the same CPU
 //! ([`crate::servo::baseline`]), so stalls of the machine show apart from the loop's own. Both end with the

@@ -5,8 +5,8 @@
 //!
 //! Where it sits: the servo loop reads `DeviceInfo` once after open (it sizes the safety pipeline's clamp, the
 //! plausibility checks and the coupling caps), and a `DeviceState` every tick (the probe position). The status
-//! a device reports is the truth the supervisor acts on (DESIGN.md section 6): force is commanded only while the
-//! device says it is enabled. Units are SI.
+//! a device reports is the truth the supervisor acts on (docs/design.md, "The safety pipeline"): force is
+//! commanded only while the device says it is enabled. Units are SI.
 
 use glam::DVec3;
 

@@ -1,11 +1,12 @@
-//! The device lifecycle, enforced once for every driver (HAPI's UNINITIALIZED / INITIALIZED / ENABLED, STYLE.md 6):
+//! The device lifecycle, enforced once for every driver (HAPI's UNINITIALIZED / INITIALIZED / ENABLED;
+//! CONTRIBUTING.md item 6):
 //! `Closed --open--> Open --enable--> Enabled --disable--> Open --close--> Closed`.
 //!
 //! Where it sits: between the supervisor (src/device/supervisor.rs) and a driver. Forces are accepted only while
 //! enabled; while open the only force that may be written is zero (lockstep devices answer each write with a
 //! state, so the host watches the handle before enabling); states can be read while open or enabled. On every
 //! stop (disable, close, drop while open or enabled) the wrapper writes an explicit zero force first, because some
-//! devices keep their last force (DESIGN.md section 6), and close disables the device whether or not the host
+//! devices keep their last force (docs/design.md, "Devices"), and close disables the device whether or not the host
 //! believed it enabled (the device may know better).
 
 use super::error::{Error, ErrorKind};

@@ -1,6 +1,6 @@
 //! Haptic devices: the arms whose probe position feeds the servo loop and which render its force.
 //!
-//! Sits at both ends of the data flow in DESIGN.md section 5: a device reports the probe position to the
+//! Sits at both ends of the data flow in docs/design.md ("Threads"): a device reports the probe position to the
 //! servo thread and receives the rendered force. The layers, bottom up:
 //!
 //! - [`transport`]: bytes or reports to and from somewhere (serial port or pseudo-terminal, USB HID, in-memory

@@ -1,4 +1,4 @@
-//! Input plausibility: the "in" half of the safety pipeline (DESIGN.md section 6), applied by the supervisor to
+//! Input plausibility: the "in" half of the safety pipeline (docs/safety.md), applied by the supervisor to
 //! every sample a device reports, for every driver, before the servo loop uses it.
 //!
 //! Where it sits: on the servo thread, between a driver's `read_state` and the tick that renders the next force.

@@ -1059,7 +1059,7 @@ mod tests {
         }
     }
 
-    /// Issue 14: a value of the wrong type in any table of a profile is refused naming the key's full path.
+    /// A value of the wrong type in any table of a profile is refused naming the key's full path.
     #[test]
     fn every_table_names_the_key_of_a_wrong_typed_value() {
         for (text, expected) in [

@@ -1,6 +1,6 @@
-//! The host's safety pipeline, "out" half: every force passes through it before any driver (DESIGN.md section
-//! 6). The "in" half (position and velocity plausibility) is `device::plausibility`; the supervisor runs both,
-//! and decides from the device's reported status whether the device may receive force at all.
+//! The host's safety pipeline, "out" half: every force passes through it before any driver (docs/safety.md).
+//! The "in" half (position and velocity plausibility) is `device::plausibility`; the supervisor runs both, and
+//! decides from the device's reported status whether the device may receive force at all.
 //!
 //! Where it sits: on the servo thread, between the solver's coupling force and `write_force`. Per tick
 //! ([`SafetyPipeline::process`]) it applies, in order:

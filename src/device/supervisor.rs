@@ -3,8 +3,8 @@
 //! and the device's drive state, and turns every failure into a zero output and a report.
 //!
 //! Where it sits: on the servo thread. Each [`Supervisor::tick`] decides what may be sent, sends it, reads the
-//! state that answers it, checks that state, and moves the drive state machine (DESIGN.md section 6, "the
-//! device's reported status is the truth"):
+//! state that answers it, checks that state, and moves the drive state machine (docs/design.md, "The safety
+//! pipeline": the device's own status is the truth):
 //!
 //! ```text
 //!  attach ──> Starting ──(servo on time for `steady_ticks_before_enable` ticks)──> Enabled ──┐

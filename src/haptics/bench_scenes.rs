@@ -90,7 +90,7 @@ pub fn exploration_probe(tick: usize) -> DVec3 {
 }
 
 /// The primitives of the exploration path at one tick: the surface plane (2 N) and friction, a point at the
-/// previous proxy with strength `mu` times the plane's normal force last tick (DESIGN.md section 3).
+/// previous proxy with strength `mu` times the plane's normal force last tick (docs/modes.md).
 pub fn exploration_primitives(previous_proxy_m: DVec3, friction_strength_n: f64) -> [Primitive; 2] {
     [
         Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).expect("valid plane"),

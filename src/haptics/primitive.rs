@@ -4,8 +4,8 @@
 //! ([`crate::haptics::solver`]) then finds the proxy position where their forces balance the virtual coupling.
 //!
 //! Primitive i has a strength `s_i >= 0` in newtons and, where it has them, a position `x_i` (m) and a unit
-//! direction `q_i`. Its force on a proxy at `x` (paper eq. 8-13) and its energy term (DESIGN.md section 2), with
-//! `f_i = -grad E_i` wherever `E_i` is differentiable:
+//! direction `q_i`. Its force on a proxy at `x` (paper eq. 8-13) and its energy term (docs/design.md, "The
+//! proxy"), with `f_i = -grad E_i` wherever `E_i` is differentiable:
 //!
 //! | primitive | force `f_i(x)` | energy `E_i(x)` |
 //! |---|---|---|
@@ -199,7 +199,7 @@ impl Primitive {
         }
     }
 
-    /// The primitive's energy term at `x` in joules (DESIGN.md section 2).
+    /// The primitive's energy term at `x` in joules (docs/design.md, "The proxy").
     pub fn energy_j(&self, x: DVec3) -> f64 {
         let s = self.strength_n;
         match self.kind {
@@ -221,7 +221,7 @@ impl Primitive {
     }
 }
 
-/// Total energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` (DESIGN.md section 2), in joules.
+/// Total energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` (the energy of docs/design.md), in joules.
 pub fn total_energy_j(
     stiffness_n_per_m: f64,
     probe_m: DVec3,

@@ -1,7 +1,7 @@
-//! The servo tick as a pure function (STYLE.md item 1): state, probe position, scene, `dt` and a
+//! The servo tick as a pure function (CONTRIBUTING.md item 1): state, probe position, scene, `dt` and a
 //! caller-owned workspace in; proxy, device force and diagnostics out.
 //!
-//! Place in the data flow (DESIGN.md section 5): the servo thread (or `voxhap sim`, with a mock clock)
+//! Place in the data flow (docs/design.md, "Threads"): the servo thread (or `voxhap sim`, with a mock clock)
 //! reads the probe position and calls [`tick`]. The tick runs every mode of the [`RenderScene`] at the
 //! proxy position of the previous tick, collecting their primitives in the workspace's preallocated
 //! buffer, then solves for the new proxy with the chosen solver:
@@ -37,7 +37,7 @@ pub use crate::status::flags::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT}
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SolverKind {
-    /// The certified exact solver (DESIGN.md section 2).
+    /// The certified exact solver (docs/solver.md).
     #[default]
     Exact,
     /// The paper's adaptive Euler solver (baseline, uncertified).
@@ -279,7 +279,7 @@ fn tick_inner(
             (solution.proxy_m, TickStatus::Uncertified)
         }
     };
-    // Guard the numbers (STYLE.md item 8): a non-finite proxy from a baseline is never passed on.
+    // Guard the numbers (CONTRIBUTING.md item 8): a non-finite proxy from a baseline is never passed on.
     let proxy_m = if proxy_m.is_finite() {
         proxy_m
     } else {

@@ -1328,8 +1328,8 @@ mod tests {
     /// A crash can cut a tick in two. Besides every flush, the mcap writer closes a chunk when it passes its size
     /// limit (1 MiB), which may fall between one tick's messages; a kill before the next chunk is complete
     /// leaves the first part of that tick alone. Cut at every chunk's end (and a little past it, into the next
-    /// record), an unfinished file reads as a prefix of the samples, whole ticks only. (Regression: CI on
-    /// 2026-11-28, a killed `voxhap sim` read as "6772 state messages but 6771 solver messages".)
+    /// record), an unfinished file reads as a prefix of the samples, whole ticks only. (Regression: a
+    /// killed `voxhap sim` read as "6772 state messages but 6771 solver messages".)
     #[test]
     fn an_unfinished_file_cut_after_any_chunk_reads_whole_ticks() {
         let dir = tempfile::tempdir().unwrap();
@@ -1387,7 +1387,7 @@ mod tests {
     }
 
     /// Regression (fuzz target mcap_trace): a string length inside a record claiming gigabytes made the mcap
-    /// crate reserve them; every length-prefixed field is now checked against its record first.
+    /// crate reserve them; every length-prefixed field is checked against its record first.
     #[test]
     fn a_string_longer_than_its_record_is_an_error_not_an_allocation() {
         let dir = tempfile::tempdir().unwrap();

@@ -1,6 +1,6 @@
 //! Force traces: one record per servo tick, written as CSV or MCAP with a JSON sidecar, and read back.
 //!
-//! Where it sits (DESIGN.md section 5): the servo thread fills a [`TraceSample`] every tick (a `Copy`
+//! Where it sits (docs/design.md, "Threads"): the servo thread fills a [`TraceSample`] every tick (a `Copy`
 //! struct with no heap data, so it can travel through an SPSC ring without allocating) and the recorder
 //! thread drains the ring into a [`TraceWriter`] made by [`create_trace_writer`]. A trace `TRACE` always
 //! comes with a sidecar `TRACE.json` ([`Sidecar`]: the run's metadata, column units and flag bits).

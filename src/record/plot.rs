@@ -733,8 +733,7 @@ fn thin_path(points: Vec<(f64, f64)>, min_step: f64) -> Vec<(f64, f64)> {
 }
 
 /// Smallest span of each path view's axes (mm): a sub-millimetre wobble is drawn as the small motion it is,
-/// on readable millimetre ticks, instead of being blown up to fill the panel (issue 17: "the side view is
-/// unreadable for small motions").
+/// on readable millimetre ticks, instead of being blown up to fill the panel, where it is unreadable.
 pub const MIN_PATH_SPAN_MM: f64 = 5.0;
 
 /// `range` widened, about its centre, to at least `min_span` (a wider range is returned as it is).

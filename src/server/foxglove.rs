@@ -2,7 +2,7 @@
 //! `ws://127.0.0.1:8765`) and a publisher task that samples the running session and logs it on Foxglove
 //! channels, so Foxglove or Lichtblick shows the session in 3D with plots.
 //!
-//! Where it sits (DESIGN.md section 5): a task on `voxhap serve`'s tokio runtime. It reads the servo only
+//! Where it sits (docs/design.md, "Threads"): a task on `voxhap serve`'s tokio runtime. It reads the servo only
 //! through [`SessionApi`] (the triple-buffer snapshot and the atomic statistics), at `--foxglove-rate`
 //! (default 60 Hz), and only publishes when the tick advanced; the SDK queues messages per client and drops
 //! the oldest for a slow one, so no client can slow the servo thread. Nothing is read or encoded for

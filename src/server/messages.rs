@@ -144,7 +144,7 @@ pub struct SliceMessage<'a> {
 
 /// A slice as JSON text; with `u8` its values are 8-bit levels in base64 (`values_u8`, byte `b` stands for
 /// `min + b (max - min) / 255`, a non-finite value is 0) in place of `values`: about 23 KiB for 128 x 128
-/// samples instead of about 180 KiB of decimal numbers (the page asks for this; issue 17).
+/// samples instead of about 180 KiB of decimal numbers (the page asks for this).
 pub fn slice_json(slice: &Slice, u8_levels: bool) -> String {
     if !u8_levels {
         return serde_json::to_string(slice).unwrap_or_default();

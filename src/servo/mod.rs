@@ -1,4 +1,4 @@
-//! The real-time servo runtime (DESIGN.md section 5): the dedicated thread that reads the device, runs the
+//! The real-time servo runtime (docs/design.md, "Threads"): the dedicated thread that reads the device, runs the
 //! pure tick, passes the force through the safety pipeline and writes the device, on an absolute-deadline
 //! schedule; and the lock-free boundaries around it (state out through a triple buffer, samples to the
 //! recorder and commands in through SPSC rings).

@@ -1,6 +1,6 @@
 //! The monitor thread: the servo thread's watchdog that acts, and the reporter of device events.
 //!
-//! Where it sits: beside the servo thread in `voxhap serve` (DESIGN.md section 5, "around"). It never touches
+//! Where it sits: beside the servo thread in `voxhap serve` (docs/design.md, "Threads"). It never touches
 //! the device handle the servo thread owns. Twice per servo period (at least every millisecond) it:
 //!
 //! - **watches the tick counter.** When the servo thread has not ticked for `stall_periods` periods (default 20,

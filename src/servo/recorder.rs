@@ -1,7 +1,7 @@
 //! The recorder thread: drains the servo's sample ring into a trace file while recording, and discards
 //! samples otherwise.
 //!
-//! Where it sits (DESIGN.md section 5): the servo thread pushes a [`TraceSample`] per tick into an SPSC
+//! Where it sits (docs/design.md, "Threads"): the servo thread pushes a [`TraceSample`] per tick into an SPSC
 //! ring and never waits; this thread pops them every couple of milliseconds. Recording starts and stops on
 //! requests from the control side (`--record`, or `start_recording`/`stop_recording` commands): a start
 //! brings a ready writer and the first tick to record (samples already in the ring from before the request

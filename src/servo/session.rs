@@ -1,7 +1,7 @@
 //! A running servo session: the servo thread, the recorder thread, and the control side that a CLI or a
 //! server talks to ([`SessionApi`]).
 //!
-//! Threads and boundaries (DESIGN.md section 5):
+//! Threads and boundaries (docs/design.md, "Threads"):
 //!
 //! ```text
 //!  control side (any thread, a Mutex among themselves)      servo thread (ServoLoop)      recorder thread

@@ -1,6 +1,6 @@
 //! The headless sim loop: simulated arm -> tick -> simulated arm, recorded every tick.
 //!
-//! Place in the data flow (DESIGN.md section 5, with the device and the clock replaced): each servo tick
+//! Place in the data flow (docs/design.md, "Threads", with the device and the clock replaced): each servo tick
 //! the arm's position is the probe, [`tick`] renders the force, and the arm integrates one tick of
 //! physics (its own substeps) under that force. Time is the tick number divided by the rate (a mock clock
 //! nobody reads: the loop is the clock), so runs are deterministic and as fast as the machine allows.

@@ -641,7 +641,7 @@ duration_s = 0.5
         );
     }
 
-    /// Issue 14: a wrong-typed value, an unknown key, a key of another kind or a missing key in any table is
+    /// A wrong-typed value, an unknown key, a key of another kind or a missing key in any table is
     /// refused naming the key's full path (tables chosen by `kind`/`shape` included: device::sim::tagged).
     #[test]
     fn every_table_names_the_key_in_a_serde_error() {

@@ -18,9 +18,9 @@
 //! The wait spins only for its first [`REPLY_SPIN`] and then yields the CPU on every check
 //! (`sched_yield`): the answer needs two other threads to run (this I/O thread and the service), and on a
 //! loaded two-core machine a servo thread spinning for the whole wait kept them off the CPU it held, so the
-//! answer came only after the wait had ended (issue 13: 8-12 % of ticks found no state newer than 3 ticks
-//! under two busy loops, and the output took a second or never got enabled; with the yield, 0-0.1 %). Under
-//! `--rt` (SCHED_FIFO, pinned) the yield gives way to nobody, as before: the I/O thread runs on another CPU.
+//! answer came only after the wait had ended (under two busy loops, 8-12 % of ticks found no state newer than
+//! 3 ticks, and the output took a second or never got enabled; with the yield, 0-0.1 %). Under `--rt`
+//! (SCHED_FIFO, pinned) the yield gives way to nobody: the I/O thread runs on another CPU.
 //! A connection that ends (the service stopped
 //! or restarted) is reported as a disconnect: the supervisor closes this driver and opens a new one, which
 //! connects again. Every stop sends a zero force (the lifecycle wrapper's explicit zero, then the I/O thread's

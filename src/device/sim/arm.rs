@@ -216,7 +216,7 @@ pub struct SimArm {
     /// the hand with the mouse in the visualiser.
     hand_target_override_m: Option<DVec3>,
     /// When set, the scripted path is in the scene frame and this maps the arm's (device) frame into it
-    /// ([`SimArm::use_scene_frame`]); `None` for the identity, so such arms compute exactly as before.
+    /// ([`SimArm::use_scene_frame`]); `None` for the identity, so such arms compute exactly as unmapped ones.
     path_mapping: Option<WorkspaceMapping>,
 }
 

@@ -1,6 +1,6 @@
 //! The simulated arm: a point mass moved by a virtual hand, feeling the rendered force.
 //!
-//! In the data flow of DESIGN.md section 5 the simulated arm stands in for a real device: each servo tick
+//! In the data flow of docs/design.md ("Threads") the simulated arm stands in for a real device: each servo tick
 //! the loop reads [`SimArm::position_m`] as the probe position, computes the force, and hands it back with
 //! [`SimArm::step`], which advances the arm's physics by one tick. Time is passed in, so runs are
 //! deterministic and can go faster than real time.

@@ -1,6 +1,6 @@
 //! Transports: how bytes reach a device. A driver sits on a transport, so the same driver code runs against a
 //! serial port, a pseudo-terminal, a USB HID device, an in-memory pipe to a simulated device, or a scripted test
-//! double (STYLE.md 7).
+//! double (CONTRIBUTING.md item 7).
 //!
 //! [`inverse_service`] is a third kind: the Haply Inverse Service's JSON-over-WebSocket channel on its own I/O
 //! thread, handed to the servo thread through lock-free buffers.

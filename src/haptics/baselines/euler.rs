@@ -5,8 +5,8 @@
 //! does not reduce `|f_res|` is rejected and `h` halved; an accepted step lets `h` grow by 1.5 up to `1/k`.
 //! The loop ends when `|f_res| <= force_tolerance_n`, when `h` falls below `1e-9/k`, or after
 //! `max_iterations`. At a kink `f_res` has no zero in the paper's one-sided definition, so the loop stalls and
-//! returns a point near, not at, the balance (DESIGN.md section 2 quantifies this); that is why it stays here
-//! as a baseline.
+//! returns a point near, not at, the balance (docs/design.md and tests/paper.rs quantify this); that is why it
+//! stays here as a baseline.
 
 use super::BaselineSolution;
 use crate::haptics::primitive::{resultant_force_n, Primitive};
@@ -84,7 +84,7 @@ mod tests {
 
     #[test]
     fn stalls_near_a_kink() {
-        // The DESIGN.md example: a plane (2 N) and a point (0.5 N) at the proxy position, probe pushed in.
+        // The example of docs/design.md: a plane (2 N) and a point (0.5 N) at the proxy position, probe pushed in.
         let k = 500.0;
         let prims = [
             Primitive::plane(DVec3::ZERO, DVec3::Z, 2.0).unwrap(),

@@ -1,4 +1,4 @@
-//! Baselines kept for comparison, benchmarks and demonstrations (DESIGN.md section 2):
+//! Baselines kept for comparison, benchmarks and demonstrations (docs/design.md, "Baselines"):
 //!
 //! - [`euler`]: the paper's solver (section 4.3), Euler steps on `f_res` with an adaptive step length;
 //! - [`constraint`]: the constraint approach (paper section 2, eq. 1-2), whose non-orthogonal artifact the

@@ -1,4 +1,4 @@
-//! Haptic modes (DESIGN.md section 3): from volume data at the proxy to haptic primitives.
+//! Haptic modes (docs/modes.md): from volume data at the proxy to haptic primitives.
 //!
 //! Place in the data flow: each servo tick, [`crate::haptics::tick`] asks every mode of the
 //! [`RenderScene`] to sample its volume at the current proxy position (the proxy at the start of the
@@ -9,7 +9,7 @@
 //!
 //! What each mode emits (`x` the proxy at the start of the tick, `TF` the mode's [`TransferFunction`]).
 //! The start-of-tick proxy is where the previous tick left it, so "a point at the previous proxy
-//! position" (DESIGN.md) is a point at `x`, and it resists the proxy's motion during this tick:
+//! position" (docs/modes.md) is a point at `x`, and it resists the proxy's motion during this tick:
 //!
 //! | mode | reads | emits |
 //! |---|---|---|

@@ -1,4 +1,4 @@
-//! The active-set finish of the exact solver (DESIGN.md section 2, "Hard cases").
+//! The active-set finish of the exact solver (docs/solver.md, "The maths": "Active-set finish").
 //!
 //! Plain dual sweeps converge slowly when constraints are nearly parallel (a 1 degree wedge of planes behaves like
 //! alternating projections). This step guesses the answer's combinatorial structure instead and solves for it:

@@ -3,7 +3,7 @@
 //!
 //! It sits at the end of every solve ([`super::Solver`]): every exit (certified, budget exhausted before or
 //! after a sweep, stalled, no primitives) returns a point together with a bound from [`certify`]. The argument
-//! is written out in the solver's module header ([`super`], "Why the bound never lies"); this file implements it.
+//! is written out in docs/solver.md ("Why the bound never lies"); this file implements it.
 //!
 //! In short, for the floating-point point `x` and dual values `u_i` (any values, feasible or not):
 //!
@@ -21,7 +21,7 @@
 //! - **A** takes the gap at `x` with all `v_i` projected, each primitive's share computed without cancellation
 //!   *plus* its own rounding error, so rounding only overstates it, and the kinks' *sharpness*: a kink whose
 //!   dual lies strictly inside its set holds the proxy like a spring with no give, and turns the square root of
-//!   the shares into a linear bound ([`sharp_distance_m`]; the argument is in the module header, item 3). A
+//!   the shares into a linear bound ([`sharp_distance_m`]; the argument is in docs/solver.md, "Certificate A"). A
 //!   needs no common point of the kinks, so it certifies what B must refuse: a proxy stuck on a friction point
 //!   that lies only within rounding of a tilted plane.
 
@@ -364,7 +364,7 @@ impl Kinks {
     }
 
     /// Certificate A's sharpness at `x`: `(lambda, slack)` such that, for every `z`, the kinks' shares at `z`
-    /// add up to at least `lambda |z - x| - slack` (module header, "sharpness"). Each kink contributes its
+    /// add up to at least `lambda |z - x| - slack` (docs/solver.md, "Certificate A"). Each kink contributes its
     /// margin `m_i`, how far its projected dual lies inside its set: `lambda` is a lower bound on the smallest
     /// eigenvalue of `sum m_i P_i`, and `slack` bounds `sum m_i dist(x, kink set i)`.
     fn sharpness(&self, items: &[Item], dual: &[DVec3], x: DVec3, scale: f64) -> (f64, f64) {
@@ -455,7 +455,7 @@ fn normal_projector(item: &Item) -> DMat3 {
 
 /// A lower bound on how far a projected dual value lies inside its set, in the directions normal to the kink
 /// set (ball or disc: `s - |v|`; segment `{-t q : 0 <= t <= s}`: `min(t, s - t)`), less its rounding and the
-/// few ulps of `s` by which a rounded projection may lie off the set (module header, 2 (a)).
+/// few ulps of `s` by which a rounded projection may lie off the set (docs/solver.md, 2 (a)).
 fn dual_margin(item: &Item, v: DVec3) -> f64 {
     let s = item.strength_n;
     let inside = match item.kind {
@@ -574,7 +574,7 @@ pub(crate) fn certify_into(
             out[i] = used;
         }
     }
-    // Rounding of the dual values themselves, charged as a linear perturbation (module header): the projection
+    // Rounding of the dual values themselves, charged as a linear perturbation (docs/solver.md, 2 (a)): the projection
     // and the subgradients are exact to a few ulps of s.
     let dual_rounding_n = 8.0 * EPS * strength_sum;
     let n = items.len() as f64;
@@ -653,7 +653,7 @@ pub(crate) fn certify_into(
 }
 
 /// A plane or a line among the kinks, as a partner of a point in [`point_sharpness_distance_m`]: its share is
-/// at least `margin |P (z - x)| - slack` (module header, "sharpness").
+/// at least `margin |P (z - x)| - slack` (docs/solver.md, "Certificate A").
 #[derive(Debug, Clone, Copy, Default)]
 struct Partner {
     line: bool,
@@ -662,7 +662,7 @@ struct Partner {
     slack_j: f64,
 }
 
-/// Certificate A's distance with a point's own sharpness (module header, "sharpness", the point form): the
+/// Certificate A's distance with a point's own sharpness (docs/solver.md, "Certificate A"): the
 /// smallest over the point items, alone or with one plane or line among the kinks, of the largest `d` with
 /// `k d^2 + (lambda - residual) d <= shares + slack`.
 ///
@@ -674,8 +674,8 @@ struct Partner {
 /// (`|v| = s`) has no margin of its own, yet with a plane pushing with room to spare it is sharp unless it
 /// pulls along the plane. A proxy resting on a tilted plane, held by a friction point 5.6e-17 m in front of it
 /// with 18 % of its strength to spare (so the minimiser is on the plane 1e-16 m from the point, which pulls with
-/// all of its strength), had a bound of 2.8e-10 m and ended `Stalled`; it is certified at 2.5e-15 m this way
-/// (2026-11-27, found by the friction property test, kept in its regression file). The point need not be among
+/// all of its strength) is certified at 2.5e-15 m this way, where the kinks' sharpness alone gives 2.8e-10 m (a
+/// case in the friction property test's regression file). The point need not be among
 /// the kinks; its offset `|e|` enters the slack.
 #[allow(clippy::too_many_arguments)]
 fn point_sharpness_distance_m(
@@ -737,7 +737,7 @@ fn point_sharpness_distance_m(
 /// A lower bound on `s - dist(v, Z)`, `Z` the partner's segment `{t q : |t| <= m}` or, for a line, its disc of
 /// radius `m` across the line. The distance is measured to a point of `Z` (as computed, so within a few ulps of
 /// `|v| + m` of it), which can only overstate it; that rounding and the few ulps of `s` by which `v` may lie
-/// off its ball (module header, 2 (a)) are taken off.
+/// off its ball (docs/solver.md, "Why the bound never lies", 2 (a)) are taken off.
 fn point_lambda_n(s: f64, v: DVec3, partner: &Partner) -> f64 {
     let q = partner.direction;
     let m = partner.margin_n;
@@ -756,7 +756,7 @@ fn point_lambda_n(s: f64, v: DVec3, partner: &Partner) -> f64 {
     (s - distance) * (1.0 - 4.0 * EPS) - 8.0 * EPS * s
 }
 
-/// The largest `d >= 0` with `k d^2 + (sharpness - residual) d <= shares` (module header, "sharpness"), from
+/// The largest `d >= 0` with `k d^2 + (sharpness - residual) d <= shares` (docs/solver.md, "Certificate A"), from
 /// the root's two forms that add only non-negative terms; the caller adds its rounding.
 fn sharp_distance_m(k: f64, sharpness_n: f64, residual_n: f64, shares_j: f64) -> f64 {
     // A lower bound on sharpness - residual: d grows as it falls, so rounding it down only overstates d.
@@ -791,7 +791,7 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     let (codimension, point) = kinks.distinct(items);
     if point {
         // Every other kink set exactly contains the point: `x^` is the point. A point with any other kink is not
-        // transversal (module header), and left to certificate A's sharpness.
+        // transversal (docs/solver.md, "Certificate B"), and left to certificate A's sharpness.
         return (codimension == 3).then_some(kinks.distance_sum_m);
     }
     // One eigen-decomposition gives both the smallest positive eigenvalue and, when needed, the pseudo-inverse.
@@ -811,7 +811,7 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     }
     if codimension != rank {
         // Not transversal: the sets meet only if they pass through a common point, which floating point
-        // cannot confirm. Left to certificate A, whose sharpness needs no common point (module header).
+        // cannot confirm. Left to certificate A, whose sharpness needs no common point (docs/solver.md).
         return None;
     }
     // |M^+ sum_i P_i r_i| <= sum_i |P_i r_i| / sqrt(lambda_min^+), since P_i <= M; less what rounding can

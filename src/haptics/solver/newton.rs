@@ -49,7 +49,7 @@
 //!    multipliers come from the gradient the model predicts there (`g + H d`), the other primitives' duals are
 //!    the certificate's own exact subgradients there. This saves the pass that would only confirm the point;
 //!    if the certificate misses, the pass runs as usual.
-//!    *Third-order correction* (W empty, 2026-11-27): a full step that is short (`|d| <= clearance / 100`) but
+//!    *Third-order correction* (W empty): a full step that is short (`|d| <= clearance / 100`) but
 //!    not short enough for that has Newton's error `C |d|^2` still to lose. Its leading term is removed by
 //!    Chebyshev's correction `e = -H^-1 T[d, d] / 2`, `T` the third derivative of the smooth terms
 //!    ([`Workspace::third_order`]: for a point `D^3 (s |r|)[d, d]` in closed form, for a line the same in its
@@ -72,7 +72,7 @@
 //! `s` and becomes a constant term. This is the gap-safe screening of Fercoq, Gramfort and Salmon (2015) in its
 //! primal form; it removes work, never changes the answer, and the certificate still runs over every
 //! primitive. Scenes of at most 16 primitives in the passes are not screened: a screening costs about a pass
-//! over the planes, and on 10 primitives it was 468 of 13 659 instructions per solve for nothing saved.
+//! over the planes and saves nothing there (docs/solver.md, "Design notes and measurements").
 
 use super::active_set::kink_projector;
 use super::certificate::{
@@ -844,8 +844,8 @@ impl Workspace {
 
     /// Minimises the piecewise model along `d` over `t in [0, 1]` (module header, step 3).
     /// `slope` is the derivative along `d` on the face (the reduced gradient's, free of the kinks' part).
-    // Inlined, as it was before the iteration was compiled twice (the compiler then moved it out of line);
-    // measured level either way (1 000 random primitives 44.6 to 45.7 us inlined, 45.0 to 45.4 us called).
+    // Inlined by hand (the compiler moves it out of line); inlined or called measure the same on 1 000 random
+    // primitives.
     #[inline(always)]
     fn line_search(
         &mut self,
@@ -1336,12 +1336,9 @@ const JACOBI_START_MAX_ITEMS: usize = 128;
 /// the item would exert were it alone, and `m` of them pulling in unrelated directions add up to about
 /// `sqrt(m)` times one, far more than the coupling balances at the answer. Beyond that, one Gauss-Seidel
 /// sweep, where each projection sees the sum before it: a better start for many items, but a chain of
-/// dependent square roots and divisions, which on ten primitives was a fifth of the solve.
-/// Measured (2026-11-27, `solver_instructions seeds` and `timeseeds`, passes in all and median time per
-/// solve, sweep / Jacobi): 400 scenes of 5 985 / 1 058 passes, 382 / 370 ns; of 10 1 435 / 1 460, 723 / 674 ns;
-/// 200 of 30 1 010 / 956, 1 969 / 1 649 ns; 100 of 100 490 / 489, 5.34 / 4.69 us; 60 of 150 304 / 344,
-/// 8.3 / 7.8 us; 50 of 200 261 / 336, 10.4 / 14.5 us; 20 of 1 000 106 / 180. Undamped Jacobi (1 656 passes
-/// for the 400 of 10) and fixed factors (a half: 1 501 for those, 754 for the 100 of 100) did worse.
+/// dependent square roots and divisions, which on ten primitives was a fifth of the solve. The limit and the
+/// damping were chosen by pass counts and times over random scenes of 5 to 1 000 primitives (docs/solver.md,
+/// "Design notes and measurements").
 fn start_sum(items: &[Item], active: &[u32], y: DVec3, k: f64) -> DVec3 {
     let mut sum = DVec3::ZERO;
     if active.len() <= JACOBI_START_MAX_ITEMS {

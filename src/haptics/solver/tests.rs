@@ -1,4 +1,4 @@
-//! Unit tests of the exact solver: closed-form cases, the hard cases of DESIGN.md section 2, and warm starts.
+//! Unit tests of the exact solver: closed-form cases, the hard cases of docs/solver.md ("The maths"), and warm starts.
 
 use super::*;
 use crate::haptics::bench_scenes::{random_primitives, random_scene, thin_wedge, SplitMix};
@@ -439,9 +439,10 @@ fn cold_pass_counts(n: usize, others: u64) -> (u32, u32) {
 
 /// The primal method's pass count on the benchmark's 1 000 scene and on 20 others (`solver_instructions
 /// seeds 1000 20`), which the early leave of a single kink, the near-pass hold check and the parabola-shortened
-/// step brought down (newton.rs header). Measured: the benchmark's scene 9 passes (12 before; 12 without the
-/// hold check, 10 without the parabola), the 20 others 159 in all (251 before; 189 without the parabola, 190
-/// without the early leave, 220 with the early leave alone). So the test fails if any of the three is undone.
+/// step brought down (newton.rs header). Measured: the benchmark's scene 9 passes (12 without the hold check,
+/// 10 without the parabola, 12 without all three), the 20 others 159 in all (189 without the parabola, 190
+/// without the early leave, 220 with the early leave alone, 251 with none). So the test fails if any of the
+/// three is undone.
 /// Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
@@ -453,8 +454,7 @@ fn primal_newton_pass_counts_on_thousand_primitive_scenes() {
 /// The primal method's pass count on the benchmark's 10 scene and on 400 others (`solver_instructions seeds
 /// 10 400`), which the third-order correction of a short last step brought down (newton.rs header, step 5).
 /// Measured: the benchmark's scene 3 passes (4 without the correction), the 400 others 1 460 in all (1 682
-/// without it; from the damped Jacobi start, newton.rs `start_sum`; 1 435 and 1 661 from the Gauss-Seidel
-/// sweep it replaced for small scenes). So the test fails if the correction is undone. Every solve is certified.
+/// without it). So the test fails if the correction is undone. Every solve is certified.
 #[test]
 fn primal_newton_pass_counts_on_ten_primitive_scenes() {
     let (benchmark, others) = cold_pass_counts(10, 400);

@@ -1,7 +1,7 @@
 //! The OpenIGTLink server behind `voxhap serve --igtl`: voxhap as a tracked, force-rendering tool for 3D
 //! Slicer (OpenIGTLinkIF) and other OpenIGTLink clients, and a way for them to send a volume in.
 //!
-//! Where it sits (DESIGN.md section 5): tasks on `voxhap serve`'s tokio runtime that read the servo only
+//! Where it sits (docs/design.md, "Threads"): tasks on `voxhap serve`'s tokio runtime that read the servo only
 //! through [`SessionApi`] (the triple-buffer snapshot) and change it only through
 //! [`SessionApi::control`] on the blocking pool. A streamer task samples the session at `--igtl-rate`
 //! (default 60 Hz) and puts one encoded frame per new tick on a bounded broadcast queue

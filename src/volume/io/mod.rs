@@ -166,7 +166,7 @@ impl LoadProblem {
     }
 
     /// Attaches the file name.
-    pub(crate) fn at(self, path: &Path) -> LoadError {
+    pub fn at(self, path: &Path) -> LoadError {
         LoadError {
             path: path.to_path_buf(),
             problem: self,

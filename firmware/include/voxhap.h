@@ -292,6 +292,8 @@ typedef struct {
     uint16_t (*read_faults)(void *ctx);
     /* Optional (NULL = none): told of every accepted host message, before the session handles it (logging). */
     void (*on_message)(void *ctx, const voxhap_host_msg *msg, uint64_t now_us);
+    /* Optional (NULL = none): told of every reply just before it is framed and written (logging). */
+    void (*on_reply)(void *ctx, const voxhap_device_msg *msg, uint64_t now_us);
 } voxhap_hal;
 
 typedef struct {

@@ -101,6 +101,9 @@ void voxhap_fw_control(voxhap_fw *fw) {
         if (reply.type == VOXHAP_DEVICE_INFO) {
             frame[at++] = 0x00; /* SPEC 4.3: a delimiter before each DeviceInfo */
         }
+        if (fw->hal.on_reply) {
+            fw->hal.on_reply(fw->hal.ctx, &reply, now);
+        }
         len = voxhap_encode_device(&reply, frame + at, sizeof frame - at);
         if (len > 0) {
             fw->hal.uart_write(fw->hal.ctx, frame, at + len);

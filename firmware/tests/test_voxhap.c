@@ -960,6 +960,7 @@ static void test_firmware(void) {
     hal.write_force = fb_force;
     hal.read_faults = fb_faults;
     hal.on_message = fb_msg;
+    hal.on_reply = NULL;
     CHECK_EQ(voxhap_fw_init(&fw, &hal, &info, 1000.0f), VOXHAP_OK); /* rise at most 1 N per ms */
     voxhap_fw_start(&fw);
     /* SPEC 4.3: a lone 0x00 first, before any other byte; zero force written. */

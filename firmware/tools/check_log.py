@@ -13,15 +13,15 @@ firmware (device side)
     with code 0 comes in that same cycle), after any Fault, Disable or Hello;
   - the rise of |force| between control cycles is at most --max-rise N/s (the firmware's slew limit);
 host (as seen by the device)
-  - every SetForce is finite and at most max_force_n; |force| rises at most 0.5 N per SetForce (slew limit,
-    0.5 N/ms at 1 kHz; a gap in the sequence allows 0.5 N per missing SetForce);
+  - every SetForce is finite and at most max_force_n; |force| rises at most 0.5 N/ms, i.e. 0.5 N per SetForce at
+    --host-rate 1000 Hz (a gap in the sequence allows as much again per missing SetForce);
   - Enable only after a SetForce in each session; never ClearFault unless --operator-clears;
   - at most 4 non-zero SetForce in a row to a device that is not Enabled (the one in flight, plus a State used for
     at most 3 periods: section 7.1);
   - on a stop: a zero SetForce, then Disable.
 --expect adds scenario checks: engaged, watchdog, reconnect, fault, garbage, stopped.
 
-Usage: check_log.py LOG --max-force N [--max-rise N_PER_S] [--expect a,b,c] [--operator-clears]
+Usage: check_log.py LOG --max-force N [--max-rise N_PER_S] [--host-rate HZ] [--expect a,b,c] [--operator-clears]
 Exit status 0 when every check holds; 1 with one line per failure (the first 20) otherwise.
 """
 import argparse
@@ -31,7 +31,7 @@ import sys
 
 HELLO, ENABLE, DISABLE, HEARTBEAT, CLEAR_FAULT, SET_STATE_RATE = 0x01, 0x02, 0x03, 0x05, 0x06, 0x07
 DEVICE_INFO, HEARTBEAT_REPLY, FAULT, REJECTED = 0x81, 0x83, 0x84, 0x85
-HOST_SLEW_N_PER_SETFORCE = 0.5
+HOST_SLEW_N_PER_MS = 0.5
 SLEW_MARGIN_N = 0.01
 NOT_ENABLED_RUN_LIMIT = 4
 
@@ -45,7 +45,8 @@ def norm(v):
 
 
 class Checker:
-    def __init__(self, max_force, max_rise, operator_clears):
+    def __init__(self, max_force, max_rise, operator_clears, host_rate_hz=1000.0):
+        self.slew_per_setforce = HOST_SLEW_N_PER_MS * 1000.0 / host_rate_hz
         self.max_force = max_force
         self.max_rise = max_rise
         self.operator_clears = operator_clears
@@ -146,8 +147,9 @@ class Checker:
         if self.session_open and self.prev_s is not None:
             prev_seq, prev_mag = self.prev_s
             gap = max(1, (seq - prev_seq) % (1 << 32))
-            if gap < (1 << 31) and mag - prev_mag > HOST_SLEW_N_PER_SETFORCE * gap + SLEW_MARGIN_N:
-                self.fail(n, f"|SetForce| rose {mag - prev_mag:.4g} N over {gap} SetForce (host slew limit 0.5 N/ms)")
+            if gap < (1 << 31) and mag - prev_mag > self.slew_per_setforce * gap + SLEW_MARGIN_N:
+                self.fail(n, f"|SetForce| rose {mag - prev_mag:.4g} N over {gap} SetForce (host slew limit 0.5 N/ms: "
+                             f"{self.slew_per_setforce:g} N per SetForce)")
         if self.session_open:
             self.prev_s = (seq, mag)
             self.setforce_since_hello += 1
@@ -268,14 +270,17 @@ def main():
     ap.add_argument("log")
     ap.add_argument("--max-force", type=float, required=True, help="the device's max_force_n, N")
     ap.add_argument("--max-rise", type=float, default=0.0, help="the firmware's slew limit, N/s (0: not checked)")
+    ap.add_argument("--host-rate", type=float, default=1000.0, help="the host's servo rate, Hz (default 1000)")
     ap.add_argument("--expect", default="", help="comma-separated: engaged,watchdog,reconnect,fault,garbage,stopped")
     ap.add_argument("--operator-clears", action="store_true", help="an operator may have sent clear_fault")
     args = ap.parse_args()
-    c = Checker(args.max_force, args.max_rise, args.operator_clears)
+    c = Checker(args.max_force, args.max_rise, args.operator_clears, args.host_rate)
     last_s = None  # (line, |f|) of the last SetForce
     stop_ok = None
     with open(args.log, encoding="ascii", errors="replace") as f:
         for n, text in enumerate(f, 1):
+            if not text.endswith("\n"):
+                break  # a last line cut off when the device was stopped mid-write
             parts = text.split()
             if not parts:
                 continue

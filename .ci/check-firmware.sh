@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The reference firmware in C (firmware/), proven three ways against the real host:
 #   1. `make -C firmware test`: the library's unit tests (host gcc, -std=c99 -pedantic -Werror) against
-#      protocol/vectors and SPEC.md;
+#      protocol/vectors and SPEC.md (and the Arduino sketch compiled as C++ against a stub Arduino.h);
 #   2. the host port (firmware/ports/host): the library in a process behind a pseudo-terminal with a simulated arm;
 #      `voxhap serve --device serial:PTY` drives it through engage, rendering, garbage in both directions, a
 #      stalled host (SIGSTOP: the firmware's watchdog must trip), a board reset (a new pseudo-terminal: the host
@@ -10,7 +10,7 @@
 #      serve engages it, renders the built-in scene for several seconds and stops; the log the firmware writes on
 #      its second UART is checked the same way.
 #
-# In CI (CI=true) the tools are installed from Debian (make, gcc, gcc-arm-none-eabi, libnewlib-arm-none-eabi,
+# In CI (CI=true) the tools are installed from Debian (make, gcc, g++, gcc-arm-none-eabi, libnewlib-arm-none-eabi,
 # qemu-system-arm) and a failed install fails the check; elsewhere a missing tool skips visibly.
 # Environment: VOXHAP_BIN (a voxhap binary instead of building target/release/voxhap), FIRMWARE_SKIP_QEMU=1
 # (only parts 1 and 2, for a quick run by hand; never set in CI).
@@ -37,7 +37,7 @@ need_apt() {
   fi
 }
 
-need_apt make:make cc:gcc python3:python3
+need_apt make:make cc:gcc c++:g++ python3:python3
 make_work_dir voxhap-firmware
 trap 'exit 130' INT TERM
 started=$(date +%s)
@@ -45,6 +45,7 @@ started=$(date +%s)
 # ------------------------------------------------------------------------------------------ 1. unit tests
 make -s -C firmware test || fail "make -C firmware test failed"
 make -s -C firmware host || fail "make -C firmware host failed"
+make -s -C firmware sketch-check || fail "the Arduino sketch no longer compiles against the library (make -C firmware sketch-check)"
 find_voxhap "$name"
 
 PATIENCE=${FIRMWARE_PATIENCE:-120}  # seconds any one wait may take on a saturated machine; a quiet one needs ~2

@@ -144,11 +144,25 @@ static void write_force(void *ctx, const float f[3]) {
 static void on_message(void *ctx, const voxhap_host_msg *m, uint64_t t) { fwlog_message(&((board *)ctx)->log, m, t); }
 static void on_reply(void *ctx, const voxhap_device_msg *m, uint64_t t) { fwlog_reply(&((board *)ctx)->log, m, t); }
 
+/* Log lines are kept in RAM during a cycle and written to UART1 after the cycle's replies went out on UART0, so
+ * that logging never delays a State. A cycle writes a few lines; a full buffer drops the rest of the line. */
+static char log_buf[2048];
+static uint32_t log_len;
+
 static void log_write(void *ctx, const char *text, uint32_t len) {
     (void)ctx;
-    while (len--) {
-        uart_put(UART1, (uint8_t)*text++);
+    if (log_len + len <= sizeof log_buf) {
+        memcpy(log_buf + log_len, text, len);
+        log_len += len;
     }
+}
+
+static void log_flush(void) {
+    uint32_t i;
+    for (i = 0; i < log_len; i++) {
+        uart_put(UART1, (uint8_t)log_buf[i]);
+    }
+    log_len = 0;
 }
 
 static voxhap_device_info device_info(void) {
@@ -211,10 +225,12 @@ int main(void) {
     sim_arm_init(&the_board.arm);
     if (voxhap_fw_init(&fw, &hal, &info, 1000.0f) != VOXHAP_OK) {
         fwlog_event(&the_board.log, 'X', "bad_info", 0, 0);
+        log_flush();
         for (;;) {
         }
     }
     fwlog_event(&the_board.log, 'X', "reset", 5, now_us(0));
+    log_flush();
     voxhap_fw_start(&fw);
     interrupts_init();
     for (;;) {
@@ -238,6 +254,7 @@ int main(void) {
             }
             zero_logged = fw.applied_n[0] == 0.0f && fw.applied_n[1] == 0.0f && fw.applied_n[2] == 0.0f;
         }
+        log_flush();
     }
 }
 
@@ -314,6 +331,7 @@ int main(void) {
     hal.on_message = NULL;
     hal.on_reply = NULL;
     the_board.log.write = log_write;
+    log_flush();
     hal.uart_read = bench_read;
     hal.uart_write = bench_write;
     hal.read_sample = bench_sample;

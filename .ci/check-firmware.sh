@@ -44,6 +44,7 @@ started=$(date +%s)
 
 # ------------------------------------------------------------------------------------------ 1. unit tests
 make -s -C firmware test || fail "make -C firmware test failed"
+python3 firmware/tools/test_check_log.py || fail "firmware/tools/check_log.py misjudged a hand-written log"
 make -s -C firmware host || fail "make -C firmware host failed"
 make -s -C firmware sketch-check || fail "the Arduino sketch no longer compiles against the library (make -C firmware sketch-check)"
 find_voxhap "$name"

@@ -31,6 +31,7 @@ pub mod igtl;
 pub mod messages;
 pub mod origin;
 pub mod palette;
+mod response;
 mod ws;
 
 pub use config::{ConfigError, HttpArgs, HttpSettings, ServerConfig, DEFAULT_HTTP_ADDR};

@@ -5,7 +5,7 @@ use crate::util::count_allocations;
 use glam::DVec3;
 use std::cell::Cell;
 use std::rc::Rc;
-use voxhap::device::drivers::ReplayDevice;
+use voxhap::servo::device::ReplayDevice;
 use voxhap::device::safety::{SafetyConfig, SafetyPipeline};
 use voxhap::device::supervisor::{
     LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,

@@ -10,7 +10,7 @@ use crate::device::drivers::falcon::{Falcon, FalconConfig};
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
-use crate::device::drivers::replay::ReplayDevice;
+use super::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
 use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use crate::device::profile::{DeviceProfile, Kinematics};

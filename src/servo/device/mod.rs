@@ -10,14 +10,17 @@
 //! - [`factory`]: building the supervised device for a spec ([`open_device`]).
 //! - [`reconnect`]: the reconnecting wrapper whose connector thread reopens a lost device ([`Reconnecting`]).
 //! - [`sim`]: the in-process simulated arm as a device ([`SimDevice`]), the default.
+//! - [`replay`]: plays back the probe positions of a recorded force trace ([`ReplayDevice`], `replay:TRACE`).
 
 mod factory;
 mod reconnect;
+pub mod replay;
 mod sim;
 mod spec;
 
 pub use factory::{open_device, open_device_with_profile, spec_family, OpenError, OpenedDevice};
 pub use reconnect::Reconnecting;
+pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions};
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError};
 

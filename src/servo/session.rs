@@ -25,6 +25,7 @@ use super::api::{
 use super::control::{trace_meta, Control};
 pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
+use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
@@ -51,21 +52,6 @@ pub const COMMAND_RING: usize = 64;
 /// (the connector thread's share of it is at most `reconnect::CONNECTOR_STOP_BOUND`). Past it the session
 /// stops without it and says so in the summary's `recorder_error` (the trace cannot be finished then).
 pub const SERVO_STOP_BOUND: Duration = Duration::from_secs(3);
-
-/// Waits for `thread` to finish, at most `bound` (checked every 2 ms); gives the handle back if it did not.
-pub(crate) fn join_within<T>(
-    thread: JoinHandle<T>,
-    bound: Duration,
-) -> Result<std::thread::Result<T>, JoinHandle<T>> {
-    let start = std::time::Instant::now();
-    while !thread.is_finished() {
-        if start.elapsed() >= bound {
-            return Err(thread);
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    Ok(thread.join())
-}
 
 /// How to run a session.
 #[derive(Debug, Clone)]

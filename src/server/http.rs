@@ -14,7 +14,8 @@ use super::messages::{
 };
 use super::origin::check_single;
 use super::response::error_response;
-use super::{assets, ws, Shared};
+use super::shared::Shared;
+use super::{assets, ws};
 use crate::servo::api::{
     ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
 };

@@ -19,7 +19,7 @@ use super::messages::{
     State as StateMessage, DEFAULT_RATE_HZ, MAX_MESSAGE_BYTES, SCHEMA,
 };
 use super::response::error_response;
-use super::{ClientSlot, Shared, CLIENT_QUEUE_FRAMES};
+use super::shared::{ClientSlot, Shared, CLIENT_QUEUE_FRAMES};
 use axum::extract::rejection::QueryRejection;
 use axum::extract::ws::{
     rejection::WebSocketUpgradeRejection, CloseFrame, Message, WebSocket, WebSocketUpgrade,

@@ -216,8 +216,8 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             .and_then(|mut file| Ok(file.write_all(table.as_bytes())?))
             .with_context(|| format!("cannot write {}", summary_path.display()))?;
     }
-    super::print_out(&format_table(&table))?;
-    super::print_out(&format!(
+    super::common::print_out(&format_table(&table))?;
+    super::common::print_out(&format!(
         "{} points ({} jobs) -> {} (summary {})",
         points.len(),
         jobs,
@@ -228,7 +228,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         anyhow::bail!("{}", errors.join("\n"));
     }
     if !failures.is_empty() {
-        return Err(super::ExitWith {
+        return Err(super::common::ExitWith {
             code: EXIT_FAIL_ON,
             message: format!("--fail-on:\n{}", failures.join("\n")),
         }

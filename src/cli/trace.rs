@@ -55,7 +55,7 @@ fn run_repair(args: &RepairArgs) -> anyhow::Result<()> {
     for warning in &report.warnings {
         eprintln!("warning: {warning}");
     }
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "{}: {} samples recovered -> {}",
         args.file.display(),
         report.sample_count,

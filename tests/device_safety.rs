@@ -5,13 +5,13 @@ use crate::util::count_allocations;
 use glam::DVec3;
 use std::cell::Cell;
 use std::rc::Rc;
-use voxhap::device::drivers::ReplayDevice;
 use voxhap::device::safety::{SafetyConfig, SafetyPipeline};
 use voxhap::device::supervisor::{
     LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
 };
 use voxhap::device::{DeviceError, DeviceInfo, DeviceState, ErrorKind, HapticDevice};
 use voxhap::record::{Trace, TraceSample};
+use voxhap::servo::device::ReplayDevice;
 
 #[test]
 fn safety_pipeline_tick_does_not_allocate() {

@@ -24,7 +24,7 @@ use std::time::Duration;
 #[derive(Debug, Args)]
 pub struct BenchLoopArgs {
     /// How long to run (s), > 0 and <= 1e9.
-    #[arg(long, default_value_t = 10.0, value_parser = super::parse_seconds)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::common::parse_seconds)]
     pub seconds: f64,
     /// Servo rate (Hz), 100 to 10000.
     #[arg(long, default_value_t = 1000.0)]
@@ -88,9 +88,9 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
         stop_load_threads();
         let comparison = comparison?;
         return if args.json {
-            super::print_out(&serde_json::to_string_pretty(&comparison)?)
+            super::common::print_out(&serde_json::to_string_pretty(&comparison)?)
         } else {
-            super::print_out(&format!(
+            super::common::print_out(&format!(
                 "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}",
                 args.seconds,
                 args.rate,
@@ -108,9 +108,9 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     let decades = shared.servo_stats().lateness.counts().by_decade();
     stop_load_threads();
     if args.json {
-        super::print_out(&serde_json::to_string_pretty(&summary.stats)?)
+        super::common::print_out(&serde_json::to_string_pretty(&summary.stats)?)
     } else {
-        super::print_out(&format!(
+        super::common::print_out(&format!(
             "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}\n{}{}",
             args.seconds,
             args.rate,

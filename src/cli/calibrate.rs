@@ -33,7 +33,7 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub force: bool,
     /// How long to record (s): move the handle to every limit of its workspace meanwhile.
-    #[arg(long, default_value_t = 20.0, value_parser = super::parse_seconds)]
+    #[arg(long, default_value_t = 20.0, value_parser = super::common::parse_seconds)]
     pub seconds: f64,
     /// The profile's name (default: "calibrated DEVICE").
     #[arg(long)]
@@ -120,7 +120,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     device
         .connect(0)
         .with_context(|| format!("device {}: could not connect", args.device))?;
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "calibrating {}: move the handle slowly to every limit of its workspace (left, right, front, back, \
          up, down) for {} s; no force is applied",
         args.device, args.seconds
@@ -144,7 +144,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         if elapsed_s >= next_report_s && extents.samples > 0 {
             next_report_s += 1.0;
             let size = extents.max_m - extents.min_m;
-            super::print_out(&format!(
+            super::common::print_out(&format!(
                 "  {elapsed_s:4.0} s: box {:.1} x {:.1} x {:.1} mm from {} samples",
                 size.x * 1e3,
                 size.y * 1e3,
@@ -195,7 +195,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         .and_then(|()| file.sync_all())
         .with_context(|| format!("{}: could not write", args.out.display()))?;
     let size = extents.max_m - extents.min_m;
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "wrote {}: workspace {:.1} x {:.1} x {:.1} mm; use it with `voxhap serve --device {} --device-profile {}`",
         args.out.display(),
         size.x * 1e3,

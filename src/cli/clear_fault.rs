@@ -63,5 +63,5 @@ pub fn run(args: &ClearFaultArgs) -> anyhow::Result<()> {
     if status != 200 {
         bail!("the server refused clear_fault (HTTP {status}): {body}");
     }
-    super::print_out(&format!("clear_fault: {body}"))
+    super::common::print_out(&format!("clear_fault: {body}"))
 }

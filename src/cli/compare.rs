@@ -31,14 +31,14 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
     }
     let comparison = compare_traces(&a, &b, tolerances);
     if comparison.passed() {
-        super::print_out(comparison.report().trim_end())?;
-        super::print_out(&format!(
+        super::common::print_out(comparison.report().trim_end())?;
+        super::common::print_out(&format!(
             "{} matches {} within the tolerances",
             args.candidate.display(),
             args.reference.display()
         ))
     } else {
-        Err(super::ExitWith {
+        Err(super::common::ExitWith {
             code: 1,
             message: format!(
                 "{}{} differs from {} beyond the tolerances",

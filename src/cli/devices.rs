@@ -280,8 +280,8 @@ fn text(listing: &Listing, args: &DevicesArgs) -> String {
 pub fn run(args: &DevicesArgs) -> anyhow::Result<()> {
     let listing = collect(args);
     if args.json {
-        super::print_out(&serde_json::to_string_pretty(&listing)?)
+        super::common::print_out(&serde_json::to_string_pretty(&listing)?)
     } else {
-        super::print_out(&text(&listing, args))
+        super::common::print_out(&text(&listing, args))
     }
 }

@@ -19,7 +19,7 @@ pub struct InfoArgs {
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
-    pub limits: super::VolumeLimitArgs,
+    pub limits: super::common::VolumeLimitArgs,
 }
 
 /// What `info` prints for one volume; also the `--json` schema.
@@ -161,10 +161,10 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
             [one] => serde_json::to_string(one)?,
             many => serde_json::to_string(many)?,
         };
-        return super::print_out(&text);
+        return super::common::print_out(&text);
     }
     let text: String = reports.iter().map(|report| report.to_text()).collect();
-    super::print_out(text.trim_end())
+    super::common::print_out(text.trim_end())
 }
 
 #[cfg(test)]

@@ -91,10 +91,10 @@ pub fn run(args: &MockDeviceArgs) -> anyhow::Result<()> {
             MockEvent::StoppedAnswering => "stopped answering".to_string(),
             MockEvent::Disconnected => "disconnected".to_string(),
         };
-        let _ = super::print_out(&line);
+        let _ = super::common::print_out(&line);
     };
     let stats = run_mock(arm, faults, &serve, duration_us, &shutdown, &mut on_event)?;
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "done: {} ticks, {} frames received ({} dropped by the decoder), {} sent, {} dropped and {} bytes corrupted \
          by fault injection, {} watchdog trips",
         stats.ticks,

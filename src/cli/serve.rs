@@ -52,7 +52,7 @@ pub struct ServeArgs {
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Trace format (default: from the file name).
-    #[arg(long, value_parser = super::trace_format_parser())]
+    #[arg(long, value_parser = super::common::trace_format_parser())]
     pub record_format: Option<TraceFormat>,
     /// Replace an existing --record trace (never an input of the run: the scene, a volume, a replayed
     /// trace).
@@ -74,7 +74,7 @@ pub struct ServeArgs {
     #[arg(long, value_name = "SECONDS", default_value_t = 3.0, value_parser = parse_connect_timeout)]
     pub connect_timeout: f64,
     /// Stop after this many seconds, > 0 and <= 1e9 (default: run until Ctrl-C or SIGTERM).
-    #[arg(long, value_parser = super::parse_seconds)]
+    #[arg(long, value_parser = super::common::parse_seconds)]
     pub duration: Option<f64>,
     /// A folder the control API may load volume files from (`POST /api/volume`, `load_volume`); repeat for
     /// more. Without it the API loads only builtin:NAME volumes.
@@ -86,7 +86,7 @@ pub struct ServeArgs {
     #[arg(long, value_name = "DIR")]
     pub record_dir: Option<PathBuf>,
     #[command(flatten)]
-    pub limits: super::VolumeLimitArgs,
+    pub limits: super::common::VolumeLimitArgs,
     /// Device profile: a built-in name (sim, haply-inverse, haply2diy, woodenhaptics, woodenhaptics-hid,
     /// falcon) or a TOML file: workspace mapping, limits that only lower the device's, velocity filter,
     /// kinematics constants (docs/workspace.md). Replaces the scene's [device] table. Default: the scene's
@@ -322,13 +322,13 @@ async fn bind_http(
 }
 
 fn print_http(addr: SocketAddr, token: &str) -> anyhow::Result<()> {
-    super::print_out(&format!("http: listening on http://{addr}"))?;
-    super::print_out(&format!("http: control token {token}"))?;
-    super::print_out(&format!("http: open http://{addr}/?token={token}"))
+    super::common::print_out(&format!("http: listening on http://{addr}"))?;
+    super::common::print_out(&format!("http: control token {token}"))?;
+    super::common::print_out(&format!("http: open http://{addr}/?token={token}"))
 }
 
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
-    // Range-checked when parsed (super::parse_seconds), so the conversion cannot overflow.
+    // Range-checked when parsed (super::common::parse_seconds), so the conversion cannot overflow.
     let duration = args.duration.map(Duration::from_secs_f64);
     let http = args.http.resolve()?;
     let foxglove = args.foxglove.resolve()?;
@@ -385,14 +385,14 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     for notice in session.notices() {
         eprintln!("notice: {notice}");
     }
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "serving: device {device}, scene {label:?} ({modes} modes), {rate} Hz; Ctrl-C or SIGTERM to stop"
     ))?;
     if let Some((path, format)) = &record {
-        super::print_out(&format!("recording: {} ({format})", path.display()))?;
+        super::common::print_out(&format!("recording: {} ({format})", path.display()))?;
     }
     if let Some((servo, others)) = &reserved {
-        super::print_out(&format!(
+        super::common::print_out(&format!(
             "cpus: servo thread alone on CPU {servo}, other threads on {others:?}"
         ))?;
     }
@@ -417,7 +417,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         foxglove,
     ))?;
     if let Some(server) = &foxglove {
-        super::print_out(&format!(
+        super::common::print_out(&format!(
             "foxglove: listening on ws://{}",
             server.local_addr()
         ))?;
@@ -429,12 +429,12 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
                 &config,
                 token.clone(),
             ))?;
-            super::print_out(&format!(
+            super::common::print_out(&format!(
                 "igtl: listening on {} (OpenIGTLink, {} Hz)",
                 server.local_addr(),
                 config.rate_hz
             ))?;
-            super::print_out(&format!("igtl: control token {token}"))?;
+            super::common::print_out(&format!("igtl: control token {token}"))?;
             Some(server)
         }
         _ => None,
@@ -472,22 +472,22 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     }
     let tolerance_m = config_tolerance_m;
     let summary = session.stop();
-    super::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
+    super::common::print_out(&format!("stopped ({reason}): force zeroed, device closed"))?;
     if let Some(trace) = &summary.trace {
-        super::print_out(&format!(
+        super::common::print_out(&format!(
             "trace: {} samples in {} (sidecar {})",
             trace.sample_count,
             trace.trace_path.display(),
             trace.sidecar_path.display()
         ))?;
     }
-    super::print_out(&summary.stats.table())?;
+    super::common::print_out(&summary.stats.table())?;
     if let Some(error) = summary.recorder_error {
         bail!("recording failed: {error}");
     }
     let findings = serve_fail_on_findings(&args.fail_on, &summary.stats, tolerance_m);
     if !findings.is_empty() {
-        return Err(super::ExitWith {
+        return Err(super::common::ExitWith {
             code: super::sim::EXIT_FAIL_ON,
             message: format!("--fail-on: {}", findings.join("; ")),
         }

@@ -2,9 +2,9 @@
 //! (clap_mangen) generated from the same clap definitions that parse the command line, so they cannot drift
 //! from the flags. Output goes to stdout, or with `voxhap man --dir DIR` one page per command into DIR.
 
-use super::{print_out, Cli};
+use super::common::print_out;
 use anyhow::{bail, Context};
-use clap::{Args, CommandFactory, ValueEnum};
+use clap::{Args, ValueEnum};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -48,8 +48,7 @@ pub struct ManArgs {
 }
 
 /// The completion script for `shell`.
-pub fn completion_script(shell: Shell) -> Vec<u8> {
-    let mut command = Cli::command();
+pub fn completion_script(mut command: clap::Command, shell: Shell) -> Vec<u8> {
     let mut out = Vec::new();
     clap_complete::generate(
         clap_complete::Shell::from(shell),
@@ -61,8 +60,7 @@ pub fn completion_script(shell: Shell) -> Vec<u8> {
 }
 
 /// The man pages: (file name, roff text), voxhap.1 first, then one per subcommand.
-pub fn man_pages() -> anyhow::Result<Vec<(String, Vec<u8>)>> {
-    let command = Cli::command();
+pub fn man_pages(command: clap::Command) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
     let mut pages = Vec::new();
     let mut top = Vec::new();
     clap_mangen::Man::new(command.clone())
@@ -85,12 +83,12 @@ pub fn man_pages() -> anyhow::Result<Vec<(String, Vec<u8>)>> {
     Ok(pages)
 }
 
-pub fn run_completions(args: &CompletionsArgs) -> anyhow::Result<()> {
-    write_stdout(&completion_script(args.shell))
+pub fn run_completions(args: &CompletionsArgs, command: clap::Command) -> anyhow::Result<()> {
+    write_stdout(&completion_script(command, args.shell))
 }
 
-pub fn run_man(args: &ManArgs) -> anyhow::Result<()> {
-    let pages = man_pages()?;
+pub fn run_man(args: &ManArgs, command: clap::Command) -> anyhow::Result<()> {
+    let pages = man_pages(command)?;
     match &args.dir {
         None => write_stdout(&pages[0].1),
         Some(dir) => {
@@ -143,11 +141,13 @@ fn write_stdout(bytes: &[u8]) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use clap::CommandFactory;
 
     #[test]
     fn every_shell_gets_a_script_naming_the_subcommands() {
         for shell in Shell::value_variants() {
-            let script = String::from_utf8(completion_script(*shell)).unwrap();
+            let script =
+                String::from_utf8(completion_script(crate::cli::Cli::command(), *shell)).unwrap();
             for word in ["voxhap", "serve", "plot", "completions", "--scene"] {
                 assert!(script.contains(word), "{shell:?} script lacks {word}");
             }
@@ -156,7 +156,7 @@ mod tests {
 
     #[test]
     fn man_pages_cover_every_subcommand_and_never_replace_a_file() {
-        let pages = man_pages().unwrap();
+        let pages = man_pages(crate::cli::Cli::command()).unwrap();
         let names: Vec<&str> = pages.iter().map(|(n, _)| n.as_str()).collect();
         assert_eq!(names[0], "voxhap.1");
         for expected in ["voxhap-serve.1", "voxhap-plot.1", "voxhap-man.1"] {

@@ -31,10 +31,10 @@ pub struct SimArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Trace format; default: from the --out extension (.mcap is MCAP, .parquet Parquet, anything else CSV).
-    #[arg(long, value_parser = super::trace_format_parser())]
+    #[arg(long, value_parser = super::common::trace_format_parser())]
     pub format: Option<TraceFormat>,
     /// Proxy solver; default: the scenario's [solver] kind (exact unless it says otherwise).
-    #[arg(long, value_parser = super::solver_kind_parser())]
+    #[arg(long, value_parser = super::common::solver_kind_parser())]
     pub solver: Option<SolverKind>,
     /// Replace an existing trace (never the scenario or one of its volume files).
     #[arg(long)]
@@ -63,7 +63,7 @@ pub struct SimArgs {
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fail_on: Vec<FailOn>,
     #[command(flatten)]
-    pub limits: super::VolumeLimitArgs,
+    pub limits: super::common::VolumeLimitArgs,
 }
 
 /// Conditions `--fail-on` can make a run fail on.
@@ -225,7 +225,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         "none (uncertified solver)".to_owned()
     };
     let findings = fail_on_findings(&args.fail_on, &summary);
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
          largest force {:.3} N -> {} (+ {})",
         args.scenario.display(),
@@ -240,7 +240,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         written.sidecar_path.display(),
     ))?;
     if !findings.is_empty() {
-        return Err(super::ExitWith {
+        return Err(super::common::ExitWith {
             code: EXIT_FAIL_ON,
             message: format!("--fail-on: {}", findings.join("; ")),
         }

@@ -145,7 +145,7 @@ fn solve_timed(
 
 pub fn run(args: &SolveArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
-    super::print_out(&report(
+    super::common::print_out(&report(
         &scene,
         args.solver,
         args.json,

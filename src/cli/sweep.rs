@@ -35,7 +35,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub out_dir: PathBuf,
     /// Trace format of every point.
-    #[arg(long, value_parser = super::trace_format_parser(), default_value_t = TraceFormat::Csv)]
+    #[arg(long, value_parser = super::common::trace_format_parser(), default_value_t = TraceFormat::Csv)]
     pub format: TraceFormat,
     /// Override the scenario's duration_s (s) for every point.
     #[arg(long)]
@@ -44,7 +44,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub rate: Option<f64>,
     /// Proxy solver; default: the scenario's.
-    #[arg(long, value_parser = super::solver_kind_parser())]
+    #[arg(long, value_parser = super::common::solver_kind_parser())]
     pub solver: Option<SolverKind>,
     /// Sims run at once; default: the available cores.
     #[arg(long)]
@@ -216,8 +216,8 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             .and_then(|mut file| Ok(file.write_all(table.as_bytes())?))
             .with_context(|| format!("cannot write {}", summary_path.display()))?;
     }
-    super::print_out(&format_table(&table))?;
-    super::print_out(&format!(
+    super::common::print_out(&format_table(&table))?;
+    super::common::print_out(&format!(
         "{} points ({} jobs) -> {} (summary {})",
         points.len(),
         jobs,
@@ -228,7 +228,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         anyhow::bail!("{}", errors.join("\n"));
     }
     if !failures.is_empty() {
-        return Err(super::ExitWith {
+        return Err(super::common::ExitWith {
             code: EXIT_FAIL_ON,
             message: format!("--fail-on:\n{}", failures.join("\n")),
         }

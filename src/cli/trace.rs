@@ -28,7 +28,7 @@ pub struct RepairArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Format of the repaired trace; default the input's.
-    #[arg(long, value_parser = super::trace_format_parser())]
+    #[arg(long, value_parser = super::common::trace_format_parser())]
     pub format: Option<TraceFormat>,
     /// Replace an existing output file (never the input).
     #[arg(long)]
@@ -55,7 +55,7 @@ fn run_repair(args: &RepairArgs) -> anyhow::Result<()> {
     for warning in &report.warnings {
         eprintln!("warning: {warning}");
     }
-    super::print_out(&format!(
+    super::common::print_out(&format!(
         "{}: {} samples recovered -> {}",
         args.file.display(),
         report.sample_count,

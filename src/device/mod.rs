@@ -6,7 +6,7 @@
 //! - [`transport`]: bytes or reports to and from somewhere (serial port or pseudo-terminal, USB HID, in-memory
 //!   pipes and scripted test doubles);
 //! - [`drivers`]: one per device family, each on a transport (voxhap's own protocol over serial or HID,
-//!   WoodenHaptics 1.5, Haply 2DIY, a replay of a recorded trace); all implement [`HapticDevice`];
+//!   WoodenHaptics 1.5, Haply 2DIY, Novint Falcon); all implement [`HapticDevice`] (`traits.rs`);
 //! - [`Lifecycle`]: open → enabled → open → closed, enforced once for every driver;
 //! - [`plausibility`] and [`safety`]: the host's safety pipeline, applied to every sample a device reports and
 //!   to every force before any driver;
@@ -32,106 +32,10 @@ pub mod profile;
 pub mod safety;
 pub mod sim;
 pub mod supervisor;
+mod traits;
 pub mod transport;
 
 pub use error::{DeviceError, Error, ErrorKind};
 pub use info::{DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, SurplusCount};
 pub use lifecycle::{Lifecycle, LifecycleError, LifecycleState};
-
-use glam::DVec3;
-
-/// A haptic device driver: what it is, where its handle is, and which force to render.
-///
-/// Drivers implement the lifecycle hooks; the order (open, enable, forces, disable, close) is enforced by
-/// [`Lifecycle`], so a driver may assume it. `write_force` receives a force that the safety pipeline has already
-/// made finite and clamped; drivers still refuse a non-finite one.
-pub trait HapticDevice {
-    /// The driver's error type.
-    type Error: Error;
-
-    /// Capabilities. Valid after a successful [`HapticDevice::open`]; drivers that know them up front return them
-    /// at any time.
-    fn info(&self) -> &DeviceInfo;
-
-    /// Connects: handshake, setup commands. Forces stay zero.
-    fn open(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// Lets the device apply forces.
-    fn enable(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// Stops applying forces (the wrapper has already sent an explicit zero force).
-    fn disable(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// Releases the device.
-    fn close(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// Sends the force to render now (N, device frame).
-    fn write_force(&mut self, force_n: DVec3) -> Result<(), Self::Error>;
-
-    /// Reads the newest state of the handle.
-    fn read_state(&mut self) -> Result<DeviceState, Self::Error>;
-
-    /// How many servo ticks old the state the last `read_state` returned is: 0 when it answers this tick's
-    /// force (drivers that wait for their answer), `n` when the driver handed out the newest state it had and
-    /// that state answers the force of `n` ticks ago (the Haply Inverse3, whose replies may come late). The
-    /// supervisor counts it towards its staleness bound. Allocation-free.
-    fn state_age_ticks(&self) -> u32 {
-        0
-    }
-
-    /// The host's verdict on the state the last `read_state` returned: `accepted` is false when the input checks
-    /// (`plausibility`) rejected its position (held at the last accepted one, or unusable). The supervisor calls
-    /// it every tick on which `read_state` returned a state, after checking it and before the next
-    /// `write_force`. A driver that turns force into motor commands from a pose it read itself (joint angles,
-    /// a Jacobian) must convert only with a pose the host accepted: it keeps the newest reading as a
-    /// candidate, adopts it here when accepted, and keeps the last accepted pose when not; until a first pose
-    /// is accepted it sends zero. Allocation-free. The default does nothing (drivers whose device converts
-    /// force itself).
-    fn input_checked(&mut self, accepted: bool) {
-        let _ = accepted;
-    }
-
-    /// The next thing the device said outside its states (a fault, a refused command), if any. Drivers
-    /// queue these while reading states; the supervisor drains them every tick. Allocation-free.
-    fn take_event(&mut self) -> Option<DeviceEvent> {
-        None
-    }
-
-    /// Clears the device's latched faults, on an operator's explicit request only (never automatically).
-    fn clear_fault(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// Keeps an idle link alive (voxhap protocol: a Heartbeat) while the host is connected but not sending a
-    /// force every period; called off the servo thread, at most every 100 ms.
-    fn keep_alive(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-
-    /// A handle that brings the device to zero force from another thread, used by the stall monitor when
-    /// the servo thread stops ticking (see `servo::monitor`). `None` when the driver has no such path; the
-    /// device's own watchdog is then the only stop while the servo thread is stalled. Called off the servo
-    /// thread, after open.
-    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
-        None
-    }
-}
-
-/// A minimal stop channel to a device, usable from another thread while the servo thread owns the device.
-///
-/// It writes only a self-contained "zero force, then disable" sequence (for the voxhap protocol over serial:
-/// a delimiter that ends any frame the stalled servo thread left half-written, a zero SetForce and a Disable,
-/// on a second handle of the same port), so it is safe to call while the servo thread is stalled anywhere,
-/// even inside a write.
-pub trait EmergencyStop: Send {
-    /// Commands zero force and, where the device has it, disables. Must return within a few milliseconds.
-    fn stop(&mut self) -> Result<(), DeviceError>;
-}
+pub use traits::{EmergencyStop, HapticDevice};

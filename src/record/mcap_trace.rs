@@ -10,7 +10,7 @@
 //!   none), flag_bits). JSON has no NaN: a non-finite number in a sample flagged `invalid_values` is
 //!   written as `null` and read back as NaN;
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
-//!   (`super::foxglove_topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
+//!   (`crate::view::topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
 //!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
 //!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
 //!   in N), one message per tick. The transforms' own timestamps equal the log time;

@@ -9,11 +9,13 @@
 use super::auth::check_bearer;
 use super::messages::{
     decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
-    EnabledBody, ErrorBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody,
-    StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
+    EnabledBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody,
+    TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::origin::check_single;
-use super::{assets, ws, Shared};
+use super::response::error_response;
+use super::shared::Shared;
+use super::{assets, ws};
 use crate::api::{
     ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
 };
@@ -99,16 +101,6 @@ async fn check_host_and_origin(
 }
 
 /// `{"error": message}` with `status`.
-pub(crate) fn error_response(status: StatusCode, message: impl Into<String>) -> Response {
-    (
-        status,
-        Json(ErrorBody {
-            error: message.into(),
-        }),
-    )
-        .into_response()
-}
-
 fn control_failed(status: StatusCode, message: impl Into<String>) -> Response {
     (status, Json(ControlFailed::new(message))).into_response()
 }

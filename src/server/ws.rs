@@ -14,12 +14,12 @@
 //!   second, and is dropped otherwise.
 
 use super::auth::check_token;
-use super::http::error_response;
 use super::messages::{
     check_rate, decode_client_message, ClientMessage, ErrorMessage, Hello, Reply, SliceMessage,
     State as StateMessage, DEFAULT_RATE_HZ, MAX_MESSAGE_BYTES, SCHEMA,
 };
-use super::{ClientSlot, Shared, CLIENT_QUEUE_FRAMES};
+use super::response::error_response;
+use super::shared::{ClientSlot, Shared, CLIENT_QUEUE_FRAMES};
 use axum::extract::rejection::QueryRejection;
 use axum::extract::ws::{
     rejection::WebSocketUpgradeRejection, CloseFrame, Message, WebSocket, WebSocketUpgrade,

@@ -3,23 +3,46 @@
 //! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
 //! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
 
-use super::api::{ControlCommand, ControlError, ControlReply, SessionApi};
+use super::api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
 use super::device::HandTargetInput;
-use super::recorder::RecorderRequest;
+use super::recorder::{RecorderError, RecorderRequest};
 use super::runner::{
     CommandEnvelope, ServoCommand, CLEAR_FAULT_NOTHING, CLEAR_FAULT_NO_DEVICE,
     CLEAR_FAULT_REQUESTED,
 };
-use super::session::{trace_meta, SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
+use super::stats::ServoStats;
 use crate::device::mapping::WorkspaceMapping;
 use crate::record::foxglove_scene::SceneChange;
-use crate::record::{create_trace_writer, TraceFormat};
+use crate::record::{create_trace_writer, TraceFormat, TraceMeta};
 use glam::DVec3;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
+
+/// How long a control command waits for the servo thread to apply it.
+pub const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The farthest a hand target may be from the origin (m), for an unbounded workspace.
+pub const MAX_HAND_TARGET_M: f64 = 10.0;
+
+/// The part of a session that any thread may share (`Arc`); implements [`SessionApi`].
+pub struct SessionShared {
+    pub(super) stats: Arc<ServoStats>,
+    pub(super) snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
+    pub(super) control: Mutex<Control>,
+    pub(super) hand_target: Mutex<Option<DVec3>>,
+    pub(super) stop: Arc<AtomicBool>,
+    pub(super) servo_running: Arc<AtomicBool>,
+    pub(super) device_label: String,
+    pub(super) simulated: bool,
+    pub(super) max_stiffness_n_per_m: f64,
+    pub(super) rate_hz: f64,
+    pub(super) period_ns: u64,
+    pub(super) solver_budget_fraction: f64,
+    pub(super) recorder_error: RecorderError,
+}
 
 pub(super) struct Control {
     pub(super) commands: rtrb::Producer<CommandEnvelope>,
@@ -38,6 +61,34 @@ pub(super) struct Control {
 
 fn invalid(message: impl Into<String>) -> ControlError {
     ControlError::Invalid(message.into())
+}
+
+pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
+    let mode_names = setup
+        .modes
+        .iter()
+        .map(|m| m.display_name().to_owned())
+        .collect();
+    let scenario = serde_json::json!({
+        "session": setup.label,
+        "device": device,
+        "k_n_per_m": setup.stiffness_n_per_m,
+        "damping_n_s_per_m": setup.damping_n_s_per_m,
+        "modes": setup.modes,
+    });
+    let volume = setup
+        .volumes
+        .iter()
+        .map(|v| v.source.clone())
+        .collect::<Vec<_>>()
+        .join(", ");
+    TraceMeta::new(
+        mode_names,
+        rate_hz,
+        scenario,
+        volume,
+        setup.solver_kind().name(),
+    )
 }
 
 fn finite(name: &str, value: f64) -> Result<f64, ControlError> {

@@ -22,8 +22,10 @@ use super::api::{
     ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
     Snapshot, StatsReport,
 };
-use super::control::Control;
+use super::control::{trace_meta, Control};
+pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
+use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
@@ -34,7 +36,7 @@ use super::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
 use crate::device::safety::CouplingCaps;
 use crate::device::supervisor::{SupervisorConfig, TickInput};
-use crate::record::{TraceError, TraceFormat, TraceMeta, TraceSummary};
+use crate::record::{TraceError, TraceFormat, TraceSummary};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -46,27 +48,10 @@ use std::time::Duration;
 pub const RATE_RANGE_HZ: (f64, f64) = (100.0, 10_000.0);
 /// Capacity of the command and retire rings.
 pub const COMMAND_RING: usize = 64;
-/// How long a control command waits for the servo thread to apply it.
-pub const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
 /// Longest [`Session::stop`] waits for the servo thread to stop ticking, zero the force and close the device
 /// (the connector thread's share of it is at most `reconnect::CONNECTOR_STOP_BOUND`). Past it the session
 /// stops without it and says so in the summary's `recorder_error` (the trace cannot be finished then).
 pub const SERVO_STOP_BOUND: Duration = Duration::from_secs(3);
-
-/// Waits for `thread` to finish, at most `bound` (checked every 2 ms); gives the handle back if it did not.
-pub(crate) fn join_within<T>(
-    thread: JoinHandle<T>,
-    bound: Duration,
-) -> Result<std::thread::Result<T>, JoinHandle<T>> {
-    let start = std::time::Instant::now();
-    while !thread.is_finished() {
-        if start.elapsed() >= bound {
-            return Err(thread);
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    Ok(thread.join())
-}
 
 /// How to run a session.
 #[derive(Debug, Clone)]
@@ -126,9 +111,6 @@ impl SessionConfig {
     }
 }
 
-/// The farthest a hand target may be from the origin (m), for an unbounded workspace.
-pub const MAX_HAND_TARGET_M: f64 = 10.0;
-
 /// Why a session did not start.
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
@@ -160,23 +142,6 @@ pub struct SessionSummary {
     pub recorder_error: Option<String>,
 }
 
-/// The part of a session that any thread may share (`Arc`); implements [`SessionApi`].
-pub struct SessionShared {
-    pub(super) stats: Arc<ServoStats>,
-    pub(super) snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
-    pub(super) control: Mutex<Control>,
-    pub(super) hand_target: Mutex<Option<DVec3>>,
-    pub(super) stop: Arc<AtomicBool>,
-    pub(super) servo_running: Arc<AtomicBool>,
-    pub(super) device_label: String,
-    pub(super) simulated: bool,
-    pub(super) max_stiffness_n_per_m: f64,
-    pub(super) rate_hz: f64,
-    pub(super) period_ns: u64,
-    pub(super) solver_budget_fraction: f64,
-    pub(super) recorder_error: RecorderError,
-}
-
 /// A running session. Dropping it stops it (as [`Session::stop`] does, discarding the summary).
 pub struct Session {
     shared: Arc<SessionShared>,
@@ -185,34 +150,6 @@ pub struct Session {
     monitor: Option<Monitor>,
     /// What `serve` should tell the operator at start (coupling caps applied, ...).
     notices: Vec<String>,
-}
-
-pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
-    let mode_names = setup
-        .modes
-        .iter()
-        .map(|m| m.display_name().to_owned())
-        .collect();
-    let scenario = serde_json::json!({
-        "session": setup.label,
-        "device": device,
-        "k_n_per_m": setup.stiffness_n_per_m,
-        "damping_n_s_per_m": setup.damping_n_s_per_m,
-        "modes": setup.modes,
-    });
-    let volume = setup
-        .volumes
-        .iter()
-        .map(|v| v.source.clone())
-        .collect::<Vec<_>>()
-        .join(", ");
-    TraceMeta::new(
-        mode_names,
-        rate_hz,
-        scenario,
-        volume,
-        setup.solver_kind().name(),
-    )
 }
 
 impl Session {

@@ -11,13 +11,11 @@
 //!   and kinematics;
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
-//! - [`replay`]: plays back the probe positions of a recorded force trace.
 
 pub mod falcon;
 pub mod haply;
 pub mod haply_inverse;
 pub mod protocol;
-pub mod replay;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
 pub mod woodenhaptics_serial;
@@ -26,6 +24,5 @@ pub use falcon::{Falcon, FalconConfig};
 pub use haply::{Haply2Diy, Haply2DiyConfig};
 pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
-pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions};
 pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
 pub use woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel};

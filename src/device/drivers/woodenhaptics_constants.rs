@@ -4,12 +4,12 @@
 //! ([`super::woodenhaptics`], `[kinematics]` with `device = "woodenhaptics-hid"`).
 //!
 //! Where it sits: read from a profile and checked by `device::profile`, then laid over the driver's published
-//! constants, key by key, before the device opens ([`WoodenHapticsConstants::applied_to`] for the serial
-//! driver's model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID driver's configuration).
+//! constants, key by key, before the device opens ([`WoodenHapticsConstants::applied_to`], defined in the
+//! serial driver's module, for its model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID
+//! driver's configuration).
 //! Never on the servo path.
 
 use super::woodenhaptics::WoodenHapticsConfig;
-use super::woodenhaptics_serial::WoodyKinematics;
 
 /// Constants that replace a WoodenHaptics driver's published ones; `None` keeps the published value. Checked
 /// by `device::profile` (diameters, torque constants and counts finite and > 0, link lengths finite and > 0,
@@ -34,31 +34,13 @@ pub struct WoodenHapticsConstants {
     pub encoder_home_counts: Option<[i32; 3]>,
 }
 
-fn set<T: Copy>(target: &mut T, value: Option<T>) {
+pub(super) fn set<T: Copy>(target: &mut T, value: Option<T>) {
     if let Some(value) = value {
         *target = value;
     }
 }
 
 impl WoodenHapticsConstants {
-    /// A serial-firmware model's `kinematics` with the constants given here replaced.
-    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
-        set(&mut kinematics.capstan_diameter_m, self.capstan_diameter_m);
-        set(&mut kinematics.body_diameter_m, self.body_diameter_m);
-        set(&mut kinematics.link_length_m, self.link_length_m);
-        set(&mut kinematics.workspace_origin_m, self.workspace_origin_m);
-        set(
-            &mut kinematics.torque_constant_n_m_per_a,
-            self.torque_constant_n_m_per_a,
-        );
-        set(
-            &mut kinematics.counts_per_revolution,
-            self.counts_per_revolution,
-        );
-        set(&mut kinematics.encoder_home, self.encoder_home_counts);
-        kinematics
-    }
-
     /// The legacy HID driver's configuration with the constants given here replaced (`encoder_home_counts`
     /// has no counterpart there).
     pub fn apply_to_hid(&self, config: &mut WoodenHapticsConfig) {

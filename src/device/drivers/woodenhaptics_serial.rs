@@ -46,7 +46,7 @@
 //! scales the three currents together so none exceeds [`MAX_CURRENT_MA`] (keeping the force's direction, as
 //! libnifalcon does for the Falcon), where the firmware would zero a single motor.
 
-use super::woodenhaptics_constants::WoodenHapticsConstants;
+use super::woodenhaptics_constants::{set, WoodenHapticsConstants};
 use crate::device::transport::ByteTransport;
 use crate::device::{
     DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount,
@@ -155,6 +155,27 @@ pub struct WoodyKinematics {
     pub motor_and_body_aligned: [bool; 3],
     /// Encoder counts at the home pose, added to every reading (hfab_api.cpp:103-106).
     pub encoder_home: [i32; 3],
+}
+
+// Defined here rather than beside the type so that the constants module does not depend on this driver.
+impl WoodenHapticsConstants {
+    /// A serial-firmware model's `kinematics` with the constants given here replaced.
+    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
+        set(&mut kinematics.capstan_diameter_m, self.capstan_diameter_m);
+        set(&mut kinematics.body_diameter_m, self.body_diameter_m);
+        set(&mut kinematics.link_length_m, self.link_length_m);
+        set(&mut kinematics.workspace_origin_m, self.workspace_origin_m);
+        set(
+            &mut kinematics.torque_constant_n_m_per_a,
+            self.torque_constant_n_m_per_a,
+        );
+        set(
+            &mut kinematics.counts_per_revolution,
+            self.counts_per_revolution,
+        );
+        set(&mut kinematics.encoder_home, self.encoder_home_counts);
+        kinematics
+    }
 }
 
 impl WoodyKinematics {

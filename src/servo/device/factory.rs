@@ -2,7 +2,9 @@
 //! wraps it in a [`Supervisor`] (directly for in-process devices, through [`Reconnecting`] for devices that
 //! can be lost) and returns it as a `Box<dyn ServoDevice>`.
 
+use super::error::OpenError;
 use super::reconnect::Reconnecting;
+use super::replay::ReplayDevice;
 use super::sim::{HandTargetInput, SimDevice};
 use super::spec::DeviceSpec;
 use super::ServoDevice;
@@ -10,44 +12,16 @@ use crate::device::drivers::falcon::{Falcon, FalconConfig};
 use crate::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use crate::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use crate::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
-use crate::device::drivers::replay::ReplayDevice;
 use crate::device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
 use crate::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use crate::device::profile::{DeviceProfile, Kinematics};
-use crate::device::sim::{SimArmConfig, SimError};
-use crate::device::supervisor::{Supervisor, SupervisorConfig, SupervisorConfigError};
+use crate::device::sim::SimArmConfig;
+use crate::device::supervisor::{Supervisor, SupervisorConfig};
 use crate::device::transport::{HidTransport, SerialTransport};
 use crate::device::{DeviceError, HapticDevice};
 use crate::servo::mapped::{MappedDevice, SceneMappingSlot};
 use glam::DVec3;
-use std::path::PathBuf;
 use std::time::Duration;
-
-/// Why a device could not be set up. Each message holds its cause once: a variant either is its cause
-/// (`transparent`) or names it in its text without returning it from `source()`, so an error chain printed
-/// with `{:#}` never repeats it.
-#[derive(Debug, thiserror::Error)]
-pub enum OpenError {
-    #[error(transparent)]
-    Safety(#[from] SupervisorConfigError),
-    /// Every `SimError` message already starts with "simulated arm".
-    #[error("{0}")]
-    Sim(SimError),
-    #[error("replay trace {path}: {message}")]
-    Replay { path: PathBuf, message: String },
-    #[error("device path {0:?} is not valid UTF-8")]
-    Path(PathBuf),
-    #[error("could not start the connector thread: {0}")]
-    Thread(String),
-    #[error("{0}")]
-    Profile(String),
-}
-
-impl From<SimError> for OpenError {
-    fn from(error: SimError) -> Self {
-        OpenError::Sim(error)
-    }
-}
 
 /// An opened device spec: the servo's device, plus the hand-target input when it is the simulated arm.
 pub struct OpenedDevice {

@@ -13,7 +13,8 @@
 //!   then leaves it to finish on its own (its driver's handshake deadline ends it; a device it opens after the
 //!   stop is closed, never handed out).
 
-use super::{ConnectError, OpenError, ServoDevice};
+use super::error::{ConnectError, OpenError};
+use super::servo_device::ServoDevice;
 use crate::device::plausibility::InputCounters;
 use crate::device::supervisor::{
     ClearFaultOutcome, OutputState, Supervisor, SupervisorConfig, SupervisorCounters, TickInput,
@@ -166,7 +167,7 @@ impl<D: HapticDevice + Send + 'static> Reconnecting<D> {
         self.stop.store(true, Ordering::Release);
         if let Some(thread) = self.thread.take() {
             // Past the bound the thread is left to end on its own: its driver's open has a deadline.
-            let _ = crate::servo::session::join_within(thread, CONNECTOR_STOP_BOUND);
+            let _ = crate::servo::join::join_within(thread, CONNECTOR_STOP_BOUND);
         }
     }
 }

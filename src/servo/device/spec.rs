@@ -32,7 +32,7 @@ pub enum DeviceSpec {
         /// The trace file.
         path: PathBuf,
         /// Seek, speed and loop.
-        options: crate::device::drivers::replay::ReplayOptions,
+        options: super::replay::ReplayOptions,
     },
     /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
     HaplyInverse(String),
@@ -87,7 +87,7 @@ impl FromStr for DeviceSpec {
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
             "replay" => {
                 let (path, options) =
-                    crate::device::drivers::replay::parse_replay_spec(rest.unwrap_or(""))
+                    super::replay::parse_replay_spec(rest.unwrap_or(""))
                         .map_err(|problem| error(&problem))?;
                 Ok(DeviceSpec::Replay { path, options })
             }
@@ -167,7 +167,7 @@ impl std::fmt::Display for DeviceSpec {
             DeviceSpec::Haply2Diy(p) => write!(f, "haply2diy:{}", p.display()),
             DeviceSpec::Replay { path, options } => {
                 write!(f, "replay:{}", path.display())?;
-                let defaults = crate::device::drivers::replay::ReplayOptions::default();
+                let defaults = super::replay::ReplayOptions::default();
                 if options.seek_s != defaults.seek_s {
                     write!(f, ",seek={}", options.seek_s)?;
                 }

@@ -11,7 +11,7 @@ from collections import defaultdict
 
 VERB = os.environ.get('VERBOSE') == '1'
 src = sys.argv[1]
-tops = sys.argv[2:]
+tops = sys.argv[2:] or [None]  # no TOP: the whole crate, its root module included
 files = {}  # modpath tuple -> file
 for root, _, names in os.walk(src):
     for n in names:
@@ -189,10 +189,10 @@ def sccs(nodes, edges):
 for mode in ('all', 'non-test'):
     print(f'== cycles ({mode} edges) ==')
     for top in tops:
-        nodes = {m for m in files if m[:1] == (top,)}
+        nodes = {m for m in files if top is None or m[:1] == (top,)}
         edges = {f: [t for t, k in ts.items() if mode == 'all' or k - {'test'}] for f, ts in graph.items()}
         for comp in sccs(nodes, edges):
-            print(f'[{top}] cycle of {len(comp)}: ' + ', '.join(name(m) for m in comp))
+            print(f'[{top or src}] cycle of {len(comp)}: ' + ', '.join(name(m) for m in comp))
             cs = set(comp)
             for f in comp:
                 for t in sorted(edges.get(f, [])):
@@ -201,7 +201,7 @@ for mode in ('all', 'non-test'):
 
 bad = 0
 for top in tops:
-    nodes = {m for m in files if m[:1] == (top,)}
+    nodes = {m for m in files if top is None or m[:1] == (top,)}
     edges = {f: [t for t, k in ts.items() if k - {'test'}] for f, ts in graph.items()}
     bad += len(sccs(nodes, edges))
 sys.exit(1 if bad else 0)

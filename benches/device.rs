@@ -1,5 +1,5 @@
 //! Host round trip over a pseudo-terminal pair: write a force, read the State that answers it (lockstep), with the
-//! mock device (src/device/mock.rs, the simulated arm behind the real protocol) serving in a thread of this process.
+//! mock device (crates/device/src/mock.rs, the simulated arm behind the real protocol) serving in a thread of this process.
 //!
 //! Two measurements: criterion's timing of back-to-back round trips, and a paced run at 1 kHz (the servo rate)
 //! that prints the p50, p99 and maximum round-trip latency over 5 000 exchanges.

@@ -3,12 +3,12 @@
 //!
 //! Cases: a plane plus friction point along a 1 kHz exploration path (2000 ticks, warm start from the previous
 //! tick), thin wedges of 5 and 1 degrees, 10, 100 and 1000 random primitives and 3 000 and 10 000 mixed
-//! primitives (cold start; all four kinds, seeded, src/haptics/bench_scenes.rs).
+//! primitives (cold start; all four kinds, seeded, crates/solver/src/bench_scenes.rs).
 //!
 //! Columns: the exact solver with its defaults (certified to 1e-12 m); Euler with its defaults (the paper's stop,
 //! `|f_res| <= 1e-3 N` or 100 iterations); and Euler asked for the exact solver's accuracy (`|f_res| <= k 1e-12 m`,
 //! up to 10^5 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
-//! double-double reference minimiser (src/haptics/reference.rs), whose own bound is printed.
+//! double-double reference minimiser (crates/solver/src/reference.rs), whose own bound is printed.
 //!
 //! Run: `cargo bench --bench solver` (16 s on the 2-vCPU EPYC VM of 2026-11-27, most of it the dual method on
 //! the 10 000-primitive case, once built). Times are medians of repeated solves measured in

@@ -213,7 +213,7 @@ fn scene_json(
 /// The case: on 10 000 mixed primitives (the benchmark's scene) `solve --max-sweeps 2` returned a proxy
 /// 7.2 m away with 3.6 kN, and `--budget-ms 0.5` 3.6 kN, where the start (`y`, the probe plus the directed
 /// forces over k) was 0.32 m from the answer. Now every budget-cut answer has at most the start's energy
-/// (computed here from the primitives' energy terms, src/haptics/primitive.rs) and a bound that holds against
+/// (computed here from the primitives' energy terms, crates/solver/src/primitive.rs) and a bound that holds against
 /// the double-double reference minimiser.
 #[test]
 fn a_budget_cut_solve_returns_no_worse_a_point_than_its_start() {

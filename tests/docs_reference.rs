@@ -147,7 +147,7 @@ fn scene_markdown() -> String {
          Every key of a scene file (`voxhap serve --scene FILE`) or scenario (`voxhap sim FILE`): one TOML \
          file, one schema, one validator. Units are SI and named in the key; unknown keys are errors, and \
          errors name the key (`solver.max_sweeps: must be from 1 to 10000000, got 0`). The unit tests of \
-         `src/sim/schema.rs` hold this table against the parser and validator: each table's keys are the \
+         `crates/servo/src/sim/schema.rs` hold this table against the parser and validator: each table's keys are the \
          ones the parser accepts, a default written out equals the key left out, each range is accepted at \
          its edges, and values just outside it, NaN and infinity are refused. Guides with examples: \
          [Scenarios](../scenarios.md), [Haptic modes](../modes.md), [The simulated arm](../sim-arm.md), \

@@ -1,5 +1,5 @@
 //! Reproductions of the paper's figures that compare methods (the single-method ones, Figures 4 and 6, are unit
-//! tests of the solver in src/haptics/solver/tests.rs).
+//! tests of the solver in crates/solver/src/tests.rs).
 
 use glam::DVec3;
 use voxhap::haptics::baselines::{constraint, euler};

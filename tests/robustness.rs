@@ -250,7 +250,7 @@ fn replaying_dev_zero_is_refused_at_once() {
     assert!(started.elapsed() < Duration::from_secs(4));
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert_eq!(output.status.code(), Some(1), "{stderr}");
-    // The replay driver (src/device) reports the reader's error without its cause; the cause is
+    // The replay driver (crates/device/src) reports the reader's error without its cause; the cause is
     // checked on the reader above.
     assert!(stderr.contains("cannot read /dev/zero"), "{stderr}");
 }

@@ -842,7 +842,7 @@ fn a_scenario_over_the_16_mib_limit_is_refused_everywhere_it_is_read() {
 /// The servo tick with a budget cut short (one pass per tick, or a time budget spent after a few clock reads):
 /// on every tick of the multi-modal scene (surface, friction, vortex and the rest, the probe pushed through the
 /// sphere and along it), the new proxy has no higher energy than the previous proxy, the tick's start, for the
-/// tick's own primitives (their energy terms, src/haptics/primitive.rs), and the bound holds against the
+/// tick's own primitives (their energy terms, crates/solver/src/primitive.rs), and the bound holds against the
 /// double-double reference minimiser.
 #[test]
 fn a_budget_cut_tick_never_moves_the_proxy_to_higher_energy() {

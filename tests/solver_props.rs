@@ -1,5 +1,5 @@
 //! Property tests of the exact solver's certificate against the double-double reference minimiser
-//! (src/haptics/reference.rs), at the precision the certificate reports: cold solves on random scenes, and
+//! (crates/solver/src/reference.rs), at the precision the certificate reports: cold solves on random scenes, and
 //! warm-started tick sequences in which strengths, directions, positions and the probe change between ticks,
 //! solved with budgets of 0 to 6 sweeps. On every exit the true error must be at most the reported bound; the
 //! only slack is the reference's own bound (about 1e-16 m), not the 3e-8 m of an f64 reference.
@@ -573,7 +573,7 @@ impl voxhap::clock::Clock for SteppingClock {
 }
 
 /// The energy `E(x) = k/2 |x - probe|^2 + sum_i E_i(x)` of docs/design.md (directed forces included), by
-/// the primitives' own energy terms (src/haptics/primitive.rs), not the solver's, and the size of its terms for
+/// the primitives' own energy terms (crates/solver/src/primitive.rs), not the solver's, and the size of its terms for
 /// the rounding slack of a comparison.
 fn energy_and_scale(k: f64, probe: DVec3, prims: &[Primitive], x: DVec3) -> (f64, f64) {
     let energy = total_energy_j(k, probe, prims, x);

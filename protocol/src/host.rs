@@ -1,7 +1,7 @@
 //! The host side of the protocol as a sans-IO helper: the handshake, set-force sequence numbers, and tracking of
 //! the device's state frames (lost, stale, and how many set-forces the device has not yet acknowledged).
 //!
-//! Where it sits: voxhap's protocol driver (src/device/) builds outgoing [`HostToDevice`] messages here, encodes
+//! Where it sits: voxhap's protocol driver (crates/device/src/) builds outgoing [`HostToDevice`] messages here, encodes
 //! them with [`crate::serial`] or [`crate::hid`], and passes every decoded [`DeviceToHost`] to
 //! [`HostSession::on_message`], which classifies it. Safety (clamping, ramps, the host watchdog) stays in the host's
 //! safety pipeline; this only keeps protocol bookkeeping.

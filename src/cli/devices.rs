@@ -1,6 +1,6 @@
 //! `voxhap devices`: lists serial ports, HID devices and the Haply Inverse Service's arms, names the ones voxhap
 //! recognises with the `--device` value that drives them, and probes each recognised device that can answer
-//! without being driven (model, serial number, firmware) (src/device/discovery.rs). `--json` prints the same
+//! without being driven (model, serial number, firmware) (crates/device/src/discovery.rs). `--json` prints the same
 //! as one JSON document for scripts.
 
 use crate::device::discovery::{

@@ -1,5 +1,5 @@
 //! `voxhap mock-device`: the simulated arm behind voxhap's device protocol on a pseudo-terminal, with fault
-//! injection (src/device/mock.rs). Prints the path it serves on, then runs until killed or `--duration` ends.
+//! injection (crates/device/src/mock.rs). Prints the path it serves on, then runs until killed or `--duration` ends.
 
 use crate::device::mock::{default_arm_config, run_mock, FaultConfig, MockEvent, ServeOn};
 use crate::device::sim::SimArmConfig;

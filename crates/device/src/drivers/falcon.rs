@@ -1,0 +1,870 @@
+//! Novint Falcon through the FTDI serial port Linux's `ftdi_sio` driver exposes (`/dev/ttyUSBn`):
+//! `--device falcon[:SERIAL|:PATH][,firmware=FILE]`.
+//!
+//! Where it sits: a [`HapticDevice`] on a [`FalconPort`] (a [`SerialTransport`] on real hardware, a
+//! pseudo-terminal or an in-memory pipe in tests), under the supervisor's safety pipeline.
+//!
+//! Sources (libnifalcon/libnifalcon, BSD; cited as FILE:LINE):
+//! - Frames, 16 bytes both ways (src/firmware/FalconFirmwareNovintSDK.cpp:40-97): `<`, 12 bytes carrying three
+//!   16-bit values as four nibbles each, least significant first, every nibble plus 0x41, one control/status
+//!   byte (plus 0x41), one unused byte (0x41), `>`. Host to device: the values are motor commands; the control
+//!   byte holds the LED bits (green 0x2, blue 0x4, red 0x8; include/falcon/core/FalconFirmware.h:68-70) and the
+//!   homing-mode request in bit 0 (FalconFirmwareNovintSDK.cpp:92-93). Device to host: the values are the three
+//!   encoder counts (signed 16-bit), the status byte's bits 4-6 the homing state of motors 1-3, its low nibble
+//!   the grip (FalconFirmwareNovintSDK.cpp:51-62); the device answers each frame with one frame.
+//! - Homing (include/falcon/core/FalconFirmware.h:50-61): the homing-mode bit must be set in every frame for the
+//!   Falcon to stay homed; the user pulls the grip all the way out and pushes it in, until the three homing bits
+//!   are set; becoming homed resets the coordinate system, so no torque may be computed from positions before.
+//!   voxhap sets the bit in every frame, sends zero torque and lights the red LED until homed, then green, and
+//!   restarts its position estimate at the moment the Falcon becomes homed.
+//! - Kinematics (R. E. Stamper's delta-robot analysis as libnifalcon implements it,
+//!   src/kinematic/FalconKinematicStamper.cpp): leg angle from encoder counts
+//!   θ = count · (π·0.01425 / (320·4)) / (π·0.110/360) + 35° (include/falcon/core/FalconKinematic.h:59-62,
+//!   constants include/falcon/core/FalconGeometry.h:20-36); inverse kinematics per leg (IK, :28-94); the
+//!   Jacobian of joint rates by handle velocity, inverted (:101-142); forward kinematics by Newton steps on that
+//!   Jacobian from the previous position, step 0.5 halved on overshoot, stopping below 0.01 rad or after 15
+//!   tries (:149-225); torques τ = (J⁻¹)ᵀ f, scaled together so none exceeds 30, times 10 000, negated
+//!   (:227-281).
+//! - Firmware upload (src/core/FalconFirmware.cpp:89-167 and the libusb port's mode switches,
+//!   src/comm/FalconCommLibUSB.cpp:367-583), done here with termios on the `ftdi_sio` port: purge both
+//!   queues; 9600 baud 8N1, no flow control, RTS low, DTR low then high; send `0a 43 0d` until the bootloader
+//!   answers `0a 44 2c 0d` (up to 100 tries; libusb also sees FTDI's two status bytes, which `ftdi_sio`
+//!   removes); DTR low; FTDI divisor 0x15 (3 MHz / 21 = 142 857 baud; libnifalcon calls it 140 000); send `A`,
+//!   expect `A`; then the file in 62-byte pieces, each echoed back and compared; then normal mode: FTDI divisor
+//!   2 (1 500 000 baud) and both queues purged. libnifalcon also sets the FTDI latency timer (16 ms while
+//!   loading, 1 ms after): `ftdi_sio` exposes it as the sysfs attribute `latency_timer`, which
+//!   contrib/udev/70-voxhap.rules sets to 1 ms; it is not set from here.
+//!
+//! Which pose converts force: the position the forward kinematics found for the newest frame is a candidate
+//! until the host's input checks accept it ([`HapticDevice::input_checked`]); torques are computed only at the
+//! newest accepted position. After a rejected frame (an encoder glitch, a jump) the driver keeps the last
+//! accepted position, and restarts its forward-kinematics guess there; before any position was accepted, and
+//! again after homing resets the coordinates, it sends zero torque.
+//!
+//! No backlog: the Falcon answers each frame with one frame. Before each command the driver drops every frame
+//! already waiting (a reply whose read timed out, or frames nobody asked for, which are counted and reported,
+//! [`DeviceEvent::Surplus`]), so the frame read after the command answers it (at most one tick old).
+//!
+//! The firmware file is Novint's (for example `test_firmware.bin` of their SDK); voxhap never ships it.
+
+use crate::transport::{ByteTransport, SerialTransport};
+use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
+use glam::{DMat3, DVec3};
+use std::f64::consts::PI;
+use std::time::{Duration, Instant};
+
+/// USB vendor id of the Falcon's FTDI chip.
+pub const VENDOR_ID: u16 = 0x0403;
+/// USB product id of the Falcon.
+pub const PRODUCT_ID: u16 = 0xcb48;
+/// Frame length both ways.
+pub const FRAME_LEN: usize = 16;
+/// Baud rate in normal mode (FTDI divisor 2).
+pub const NORMAL_BAUD: u32 = 1_500_000;
+/// Baud rate of the bootloader check (FalconCommLibUSB.cpp:423-424).
+pub const BOOTLOADER_CHECK_BAUD: u32 = 9_600;
+/// Baud rate of the firmware upload (FTDI divisor 0x15).
+pub const UPLOAD_BAUD: u32 = 142_857;
+/// Bytes per firmware piece (FalconFirmware.cpp:115).
+pub const UPLOAD_CHUNK: usize = 62;
+/// Green LED bit.
+pub const LED_GREEN: u8 = 0x2;
+/// Blue LED bit.
+pub const LED_BLUE: u8 = 0x4;
+/// Red LED bit.
+pub const LED_RED: u8 = 0x8;
+/// Homing-mode request bit of the control byte.
+pub const HOMING_MODE: u8 = 0x1;
+/// All three motors homed.
+pub const ALL_HOMED: u8 = 0x7;
+
+/// The Falcon's kinematic constants as libnifalcon's kinematics use them (include/falcon/core/FalconGeometry.h
+/// lines 20-36; names as there, lengths in metres). A device profile may replace any of them
+/// (`[kinematics]` with `device = "falcon"`); [`FalconGeometry::LIBNIFALCON`] is the published set.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FalconGeometry {
+    /// Thigh length `a` (m).
+    pub a_m: f64,
+    /// Shin length `b` (m).
+    pub b_m: f64,
+    /// Knee offset `c` (m).
+    pub c_m: f64,
+    /// Shin spacing `d` (m).
+    pub d_m: f64,
+    /// Shin spacing `e` (m; libnifalcon sets e = d).
+    pub e_m: f64,
+    /// Ankle offset `f` (m; negative in libnifalcon).
+    pub f_m: f64,
+    /// Leg base radius `r` (m).
+    pub r_m: f64,
+    /// Leg base offset `s` (m; negative in libnifalcon).
+    pub s_m: f64,
+    /// Encoder wheel slots per revolution (`wheel_slots_number`; four counts per slot).
+    pub wheel_slots: f64,
+    /// Motor shaft diameter (`shaft_diameter`, m).
+    pub shaft_diameter_m: f64,
+    /// Diameter of the arm's drum the shaft drives (`small_arm_diameter`, m).
+    pub small_arm_diameter_m: f64,
+    /// Leg angle at encoder count 0 (`theta_offset_angle`, degrees).
+    pub theta_offset_deg: f64,
+}
+
+impl Default for FalconGeometry {
+    fn default() -> Self {
+        FalconGeometry::LIBNIFALCON
+    }
+}
+
+impl FalconGeometry {
+    /// libnifalcon's values (FalconGeometry.h:20-36).
+    pub const LIBNIFALCON: FalconGeometry = FalconGeometry {
+        a_m: 0.060,
+        b_m: 0.1025,
+        c_m: 0.01443,
+        d_m: 0.01125,
+        e_m: 0.01125,
+        f_m: -0.025,
+        r_m: 0.0400,
+        s_m: -0.02309,
+        wheel_slots: 320.0,
+        shaft_diameter_m: 0.01425,
+        small_arm_diameter_m: 0.110,
+        theta_offset_deg: 35.0,
+    };
+}
+
+const OFFSET_ANGLE: f64 = PI / 12.0;
+/// Each leg's angle about z (FalconKinematicStamper.cpp, the `phy` array).
+const PHY: [f64; 3] = [
+    PI / 2.0 + OFFSET_ANGLE,
+    -PI / 6.0 + OFFSET_ANGLE,
+    -5.0 * PI / 6.0 + OFFSET_ANGLE,
+];
+/// libnifalcon's torque limit before the ×10 000 (FalconKinematicStamper.cpp:253).
+const MAX_TORQUE: f64 = 30.0;
+/// libnifalcon's torque-to-command factor (FalconKinematicStamper.cpp:276).
+const TORQUE_TO_COMMAND: f64 = 10_000.0;
+
+/// Encodes a host frame: three motor commands, LED bits and the homing-mode request.
+pub fn encode_command(motor: [i16; 3], leds: u8, homing_mode: bool) -> [u8; FRAME_LEN] {
+    let mut out = [0u8; FRAME_LEN];
+    out[0] = b'<';
+    out[15] = b'>';
+    for (i, value) in motor.iter().enumerate() {
+        let v = *value as u16;
+        for nibble in 0..4 {
+            out[1 + 4 * i + nibble] = ((v >> (4 * nibble)) & 0xf) as u8;
+        }
+    }
+    out[13] = leds & (LED_GREEN | LED_BLUE | LED_RED);
+    if homing_mode {
+        out[13] |= HOMING_MODE;
+    }
+    for byte in &mut out[1..15] {
+        *byte += 0x41;
+    }
+    out
+}
+
+/// One decoded device frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FalconReply {
+    /// Encoder counts of motors 1-3.
+    pub encoders: [i16; 3],
+    /// Homing bits of motors 1-3 (bit 0 = motor 1).
+    pub homing: u8,
+    /// Grip bits.
+    pub grip: u8,
+}
+
+/// Decodes a device frame; `None` unless it is `<`…`>` (libnifalcon drops such frames as malformed).
+pub fn decode_reply(frame: &[u8; FRAME_LEN]) -> Option<FalconReply> {
+    if frame[0] != b'<' || frame[15] != b'>' {
+        return None;
+    }
+    let mut encoders = [0i16; 3];
+    for (i, encoder) in encoders.iter_mut().enumerate() {
+        let mut v = 0u16;
+        for nibble in 0..4 {
+            v |= u16::from(frame[1 + 4 * i + nibble].wrapping_sub(0x41) & 0xf) << (4 * nibble);
+        }
+        *encoder = v as i16;
+    }
+    let status = frame[13].wrapping_sub(0x41);
+    Some(FalconReply {
+        encoders,
+        homing: (status >> 4) & 7,
+        grip: status & 0x0f,
+    })
+}
+
+/// Leg angle (rad) of an encoder count (FalconKinematic.h:59-62), with libnifalcon's constants.
+pub fn leg_angle_rad(count: i16) -> f64 {
+    FalconGeometry::LIBNIFALCON.leg_angle_rad(count)
+}
+
+/// Inverse kinematics with libnifalcon's constants ([`FalconGeometry::inverse_kinematics`]).
+pub fn inverse_kinematics(p: DVec3) -> LegAngles {
+    FalconGeometry::LIBNIFALCON.inverse_kinematics(p)
+}
+
+/// [`FalconGeometry::jacobian_inverse`] with libnifalcon's constants.
+pub fn jacobian_inverse(angles: &LegAngles) -> Option<DMat3> {
+    FalconGeometry::LIBNIFALCON.jacobian_inverse(angles)
+}
+
+/// [`FalconGeometry::forward_kinematics`] with libnifalcon's constants.
+pub fn forward_kinematics(theta1: [f64; 3], guess: DVec3) -> (DVec3, bool) {
+    FalconGeometry::LIBNIFALCON.forward_kinematics(theta1, guess)
+}
+
+/// [`FalconGeometry::motor_commands`] with libnifalcon's constants.
+pub fn motor_commands(p: DVec3, force_n: DVec3) -> [i16; 3] {
+    FalconGeometry::LIBNIFALCON.motor_commands(p, force_n)
+}
+
+/// The three angles of each leg.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LegAngles {
+    /// Thigh angles (the motor angles).
+    pub theta1: [f64; 3],
+    /// Knee angles.
+    pub theta2: [f64; 3],
+    /// Shin angles.
+    pub theta3: [f64; 3],
+}
+
+impl FalconGeometry {
+    /// Leg angle (rad) of an encoder count (FalconKinematic.h:59-62): count · (π·shaft / (slots·4)) /
+    /// (π·small_arm / 360) + offset, in degrees.
+    pub fn leg_angle_rad(&self, count: i16) -> f64 {
+        let degrees = ((self.shaft_diameter_m * PI) / (self.wheel_slots * 4.0)) * f64::from(count)
+            / ((PI * self.small_arm_diameter_m) / 360.0)
+            + self.theta_offset_deg;
+        degrees.to_radians()
+    }
+
+    /// Inverse kinematics: leg angles at handle position `p` (m) (FalconKinematicStamper.cpp:28-94).
+    pub fn inverse_kinematics(&self, p: DVec3) -> LegAngles {
+        let mut angles = LegAngles {
+            theta1: [0.0; 3],
+            theta2: [0.0; 3],
+            theta3: [0.0; 3],
+        };
+        let (a, b, c, d, e, f, r, s_offset) = (
+            self.a_m, self.b_m, self.c_m, self.d_m, self.e_m, self.f_m, self.r_m, self.s_m,
+        );
+        for (leg, phy) in PHY.iter().enumerate() {
+            let (sin, cos) = phy.sin_cos();
+            // Rot * p + offset, Rot = [[cos, sin, 0], [-sin, cos, 0], [0, 0, 1]], offset (-r, -s, 0).
+            let pu = cos * p.x + sin * p.y - r;
+            let pv = -sin * p.x + cos * p.y - s_offset;
+            let pw = p.z;
+            let t3 = ((pv + f) / b).acos();
+            let sin3 = t3.sin();
+            let common = pw * pw + pu * pu + 2.0 * c * pu + a * a + c * c
+                - d * d
+                - e * e
+                - b * b * sin3 * sin3
+                - 2.0 * b * e * sin3
+                - 2.0 * b * d * sin3
+                - 2.0 * d * e;
+            let l0 = common - 2.0 * a * pu - 2.0 * a * c;
+            let l1 = -4.0 * a * pw;
+            let l2 = common + 2.0 * a * pu + 2.0 * a * c;
+            let t = (-l1 - (l1 * l1 - 4.0 * l0 * l2).sqrt()) / (2.0 * l2);
+            let t1 = t.atan() * 2.0;
+            let t2 = ((-pu + a * t1.cos() - c) / (-d - e - b * sin3)).acos();
+            angles.theta1[leg] = t1;
+            angles.theta2[leg] = t2;
+            angles.theta3[leg] = t3;
+        }
+        angles
+    }
+
+    /// The Jacobian mapping joint rates to handle velocity (the inverse of libnifalcon's rows of joint rate per
+    /// handle velocity; FalconKinematicStamper.cpp:101-142). `None` where it is singular.
+    pub fn jacobian_inverse(&self, angles: &LegAngles) -> Option<DMat3> {
+        let mut rows = [DVec3::ZERO; 3];
+        for (leg, row) in rows.iter_mut().enumerate() {
+            let (t1, t2, t3) = (angles.theta1[leg], angles.theta2[leg], angles.theta3[leg]);
+            let den = -self.a_m * t3.sin() * (t1.sin() * t2.cos() - t2.sin() * t1.cos());
+            let (sp, cp) = PHY[leg].sin_cos();
+            *row = DVec3::new(
+                cp * t2.cos() * t3.sin() / den - sp * t3.cos() / den,
+                sp * t2.cos() * t3.sin() / den + cp * t3.cos() / den,
+                (t2.sin() * t2.sin()) / den,
+            );
+        }
+        let j = DMat3::from_cols(rows[0], rows[1], rows[2]).transpose();
+        let det = j.determinant();
+        if !det.is_finite() || det.abs() < 1e-12 {
+            return None;
+        }
+        let inverse = j.inverse();
+        inverse.is_finite().then_some(inverse)
+    }
+
+    /// Forward kinematics: the handle position for motor angles `theta1`, by Newton steps from `guess`
+    /// (FalconKinematicStamper.cpp:149-225). Returns the guess unchanged when it does not converge.
+    pub fn forward_kinematics(&self, theta1: [f64; 3], guess: DVec3) -> (DVec3, bool) {
+        let mut previous = guess;
+        let mut previous_error = 10_000.0;
+        let mut step = 0.5;
+        for _ in 0..15 {
+            let angles = self.inverse_kinematics(previous);
+            let Some(j) = self.jacobian_inverse(&angles) else {
+                return (guess, false);
+            };
+            let delta = DVec3::new(
+                theta1[0] - angles.theta1[0],
+                theta1[1] - angles.theta1[1],
+                theta1[2] - angles.theta1[2],
+            );
+            let current = previous + j * delta * step;
+            let error = delta.length();
+            if !current.is_finite() {
+                return (guess, false);
+            }
+            previous = current;
+            if error < 0.01 {
+                return (previous, true);
+            }
+            if error > previous_error {
+                step /= 2.0;
+            }
+            previous_error = error;
+        }
+        (guess, false)
+    }
+
+    /// Motor commands for `force_n` at handle position `p` (FalconKinematicStamper.cpp:227-281), also scaled
+    /// together to fit 16 bits (libnifalcon masks to 16 bits, which would wrap). Zero where the pose is singular.
+    pub fn motor_commands(&self, p: DVec3, force_n: DVec3) -> [i16; 3] {
+        let angles = self.inverse_kinematics(p);
+        let Some(j) = self.jacobian_inverse(&angles) else {
+            return [0; 3];
+        };
+        let torque = j.transpose() * force_n;
+        if !torque.is_finite() {
+            return [0; 3];
+        }
+        let largest = torque.abs().max_element();
+        let mut torque = if largest > MAX_TORQUE {
+            torque / (largest / MAX_TORQUE)
+        } else {
+            torque
+        };
+        torque *= TORQUE_TO_COMMAND;
+        let largest = torque.abs().max_element();
+        if largest > f64::from(i16::MAX) {
+            torque *= f64::from(i16::MAX) / largest;
+        }
+        // C's int() truncates toward zero, as `as` does.
+        [-torque.x as i16, -torque.y as i16, -torque.z as i16]
+    }
+}
+
+/// A byte stream that can also change its line settings (baud rate, modem lines, queues), as the firmware
+/// upload needs. A serial port does it through termios; test doubles may ignore it.
+pub trait FalconPort: ByteTransport {
+    /// Sets the baud rate.
+    fn set_baud(&mut self, baud: u32) -> Result<(), DeviceError>;
+    /// Sets DTR and RTS.
+    fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError>;
+}
+
+impl FalconPort for SerialTransport {
+    fn set_baud(&mut self, baud: u32) -> Result<(), DeviceError> {
+        self.set_baud_rate(baud)
+    }
+    fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError> {
+        self.set_modem_lines(dtr, rts)
+    }
+}
+
+impl FalconPort for crate::transport::MemoryPipe {
+    fn set_baud(&mut self, _baud: u32) -> Result<(), DeviceError> {
+        Ok(())
+    }
+    fn set_modem(&mut self, _dtr: bool, _rts: bool) -> Result<(), DeviceError> {
+        Ok(())
+    }
+}
+
+fn read_exact_within<T: ByteTransport + ?Sized>(
+    port: &mut T,
+    buf: &mut [u8],
+    timeout: Duration,
+) -> Result<usize, DeviceError> {
+    let deadline = Instant::now() + timeout;
+    let mut filled = 0;
+    while filled < buf.len() {
+        let remaining = deadline.saturating_duration_since(Instant::now());
+        if remaining.is_zero() {
+            break;
+        }
+        let n = port.read(&mut buf[filled..], remaining)?;
+        if n == 0 {
+            break;
+        }
+        filled += n;
+    }
+    Ok(filled)
+}
+
+fn upload_error(what: &'static str) -> DeviceError {
+    DeviceError::Protocol { what }
+}
+
+/// Uploads `firmware` (FalconFirmware.cpp:89-167, FalconCommLibUSB.cpp:367-583), leaving the port in normal
+/// mode.
+pub fn upload_firmware<P: FalconPort + ?Sized>(
+    port: &mut P,
+    firmware: &[u8],
+) -> Result<(), DeviceError> {
+    if firmware.is_empty() {
+        return Err(DeviceError::Config {
+            what: "the Falcon firmware file is empty".to_owned(),
+        });
+    }
+    port.discard_input()?;
+    port.set_baud(BOOTLOADER_CHECK_BAUD)?;
+    port.set_modem(false, false)?;
+    port.set_modem(true, false)?;
+    let expected = [0x0a, 0x44, 0x2c, 0x0d];
+    let mut answered = false;
+    for _ in 0..100 {
+        port.write_all(&[0x0a, 0x43, 0x0d])?;
+        let mut reply = [0u8; 8];
+        let n = read_exact_within(port, &mut reply[..5], Duration::from_millis(100))?;
+        if reply[..n].windows(4).any(|w| w == expected) {
+            answered = true;
+            break;
+        }
+    }
+    if !answered {
+        return Err(upload_error(
+            "the Falcon's bootloader did not answer the check (0a 43 0d -> 0a 44 2c 0d); \
+             unplug the Falcon's USB and power, plug them in again, and retry",
+        ));
+    }
+    port.set_modem(false, false)?;
+    port.set_baud(UPLOAD_BAUD)?;
+    port.write_all(b"A")?;
+    let mut echo = [0u8; 1];
+    if read_exact_within(port, &mut echo, Duration::from_millis(1000))? != 1 || echo[0] != b'A' {
+        return Err(upload_error(
+            "the Falcon's bootloader did not echo 'A' at 142857 baud",
+        ));
+    }
+    let mut back = [0u8; UPLOAD_CHUNK];
+    for chunk in firmware.chunks(UPLOAD_CHUNK) {
+        port.write_all(chunk)?;
+        let got = read_exact_within(port, &mut back[..chunk.len()], Duration::from_millis(1000))?;
+        if got != chunk.len() {
+            return Err(upload_error(
+                "the Falcon stopped echoing the firmware during the upload",
+            ));
+        }
+        if back[..got] != *chunk {
+            return Err(upload_error(
+                "the Falcon echoed different firmware bytes (checksum mismatch)",
+            ));
+        }
+    }
+    port.set_baud(NORMAL_BAUD)?;
+    port.discard_input()
+}
+
+/// Settings of the driver.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FalconConfig {
+    /// Firmware to upload when none is running (Novint's file; never shipped with voxhap).
+    pub firmware: Option<std::path::PathBuf>,
+    /// Longest wait for the frame answering a command.
+    pub reply_timeout: Duration,
+    /// Largest force for the capability record (N); voxhap's choice.
+    pub max_force_n: f64,
+    /// Kinematic constants (libnifalcon's unless a device profile replaces some).
+    pub geometry: FalconGeometry,
+}
+
+impl Default for FalconConfig {
+    fn default() -> Self {
+        FalconConfig {
+            firmware: None,
+            reply_timeout: Duration::from_millis(5),
+            max_force_n: 5.0,
+            geometry: FalconGeometry::LIBNIFALCON,
+        }
+    }
+}
+
+/// A Novint Falcon on a [`FalconPort`].
+#[derive(Debug)]
+pub struct Falcon<P> {
+    port: P,
+    config: FalconConfig,
+    info: DeviceInfo,
+    /// The forward kinematics' newest estimate (its next guess).
+    position_m: DVec3,
+    /// The newest position the host accepted: the only one force is converted at.
+    accepted_m: Option<DVec3>,
+    /// The newest frame's position, until the host's verdict on it.
+    candidate_m: Option<DVec3>,
+    last_reply: Option<FalconReply>,
+    frame: [u8; 64],
+    frame_len: usize,
+    malformed: u64,
+    awaiting_reply: bool,
+    surplus: SurplusCount,
+    event: Option<DeviceEvent>,
+}
+
+impl<P: FalconPort> Falcon<P> {
+    /// A driver on `port`.
+    pub fn new(port: P, config: FalconConfig) -> Self {
+        let info = DeviceInfo {
+            model: "Novint Falcon".to_owned(),
+            serial_number: String::new(),
+            position_dof: 3,
+            force_dof: 3,
+            button_count: 4,
+            workspace_min_m: DVec3::new(-0.06, -0.06, 0.075),
+            workspace_max_m: DVec3::new(0.06, 0.06, 0.175),
+            max_force_n: config.max_force_n,
+            max_stiffness_n_per_m: 1000.0,
+            max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
+            reports_velocity: false,
+            state_rates_hz: Vec::new(),
+        };
+        Falcon {
+            port,
+            config,
+            info,
+            // libnifalcon's first guess (FalconKinematicStamper.cpp:20).
+            position_m: DVec3::new(0.0, 0.0, 0.08),
+            accepted_m: None,
+            candidate_m: None,
+            last_reply: None,
+            frame: [0; 64],
+            frame_len: 0,
+            malformed: 0,
+            awaiting_reply: false,
+            surplus: SurplusCount::default(),
+            event: None,
+        }
+    }
+
+    /// Frames the Falcon sent that no command asked for, dropped.
+    pub fn surplus_frames(&self) -> u64 {
+        self.surplus.total()
+    }
+
+    /// The position torques are computed at: the newest the host accepted (`None` before the first).
+    pub fn conversion_position(&self) -> Option<DVec3> {
+        self.accepted_m
+    }
+
+    /// Drops every frame already waiting before a command (bounded, so a flood cannot hold the tick).
+    fn drain_waiting(&mut self) -> Result<(), DeviceError> {
+        let mut surplus = 0;
+        for _ in 0..64 {
+            if self.read_frame(Duration::ZERO)?.is_none() {
+                break;
+            }
+            if !std::mem::take(&mut self.awaiting_reply) {
+                surplus += 1;
+            }
+        }
+        if self.read_frame(Duration::ZERO)?.is_some() {
+            // Still more: a flood. Throw the rest away.
+            self.port.discard_input()?;
+            self.frame_len = 0;
+            surplus += 1;
+        }
+        self.awaiting_reply = false;
+        if let Some(event) = self.surplus.add(surplus) {
+            self.event = Some(event);
+        }
+        Ok(())
+    }
+
+    /// Sets the serial number shown in the capability record (from the USB descriptor).
+    pub fn set_serial_number(&mut self, serial: &str) {
+        self.info.serial_number = serial.to_owned();
+    }
+
+    /// True once all three motors are homed.
+    pub fn is_homed(&self) -> bool {
+        self.last_reply.is_some_and(|r| r.homing == ALL_HOMED)
+    }
+
+    /// The newest device frame.
+    pub fn last_reply(&self) -> Option<FalconReply> {
+        self.last_reply
+    }
+
+    /// Frames dropped as malformed.
+    pub fn malformed_frames(&self) -> u64 {
+        self.malformed
+    }
+
+    /// The port.
+    pub fn port(&self) -> &P {
+        &self.port
+    }
+
+    fn send(&mut self, motor: [i16; 3]) -> Result<(), DeviceError> {
+        let leds = if self.is_homed() { LED_GREEN } else { LED_RED };
+        // Homing mode in every frame, or the Falcon does not stay homed (FalconFirmware.h:50).
+        self.port.write_all(&encode_command(motor, leds, true))
+    }
+
+    /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`.
+    /// With a zero timeout the port is still polled once (without waiting).
+    fn read_frame(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
+        let deadline = Instant::now() + timeout;
+        let mut polled = false;
+        loop {
+            while self.frame_len >= FRAME_LEN {
+                let mut candidate = [0u8; FRAME_LEN];
+                candidate.copy_from_slice(&self.frame[..FRAME_LEN]);
+                if let Some(reply) = decode_reply(&candidate) {
+                    self.frame.copy_within(FRAME_LEN..self.frame_len, 0);
+                    self.frame_len -= FRAME_LEN;
+                    return Ok(Some(reply));
+                }
+                // Resynchronise: drop up to the next '<'.
+                self.malformed += 1;
+                let skip = self.frame[1..self.frame_len]
+                    .iter()
+                    .position(|&b| b == b'<')
+                    .map_or(self.frame_len, |i| i + 1);
+                self.frame.copy_within(skip..self.frame_len, 0);
+                self.frame_len -= skip;
+            }
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            if remaining.is_zero() && polled {
+                return Ok(None);
+            }
+            polled = true;
+            let n = self
+                .port
+                .read(&mut self.frame[self.frame_len..], remaining)?;
+            if n == 0 {
+                return Ok(None);
+            }
+            self.frame_len += n;
+        }
+    }
+
+    fn exchange_zero(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
+        self.send([0; 3])?;
+        self.read_frame(timeout)
+    }
+}
+
+impl<P: FalconPort> HapticDevice for Falcon<P> {
+    type Error = DeviceError;
+
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    /// Normal mode; if no firmware answers, uploads the configured file (or says that one is needed).
+    fn open(&mut self) -> Result<(), DeviceError> {
+        self.port.set_baud(NORMAL_BAUD)?;
+        self.port.discard_input()?;
+        self.frame_len = 0;
+        // Surplus counts from this open (the supervisor sums over links).
+        self.surplus = SurplusCount::default();
+        self.accepted_m = None;
+        self.candidate_m = None;
+        self.awaiting_reply = false;
+        // libnifalcon's isFirmwareLoaded tries many exchanges (FalconFirmware.cpp:169-190); a few suffice here.
+        for _ in 0..10 {
+            if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
+                self.last_reply = Some(reply);
+                return Ok(());
+            }
+        }
+        let Some(path) = self.config.firmware.clone() else {
+            return Err(DeviceError::Open {
+                path: "Novint Falcon".to_owned(),
+                message: "no firmware is running on the Falcon: give Novint's firmware file with \
+                          falcon:...,firmware=FILE (voxhap does not ship it; see docs/devices/novint-falcon.md)"
+                    .to_owned(),
+            });
+        };
+        let firmware = std::fs::read(&path).map_err(|e| DeviceError::Open {
+            path: path.display().to_string(),
+            message: crate::transport::open_message(&e.to_string(), e.kind()),
+        })?;
+        if firmware.len() > 1 << 20 {
+            return Err(DeviceError::Config {
+                what: format!(
+                    "{} is {} bytes; a Falcon firmware file is a few kilobytes",
+                    path.display(),
+                    firmware.len()
+                ),
+            });
+        }
+        upload_firmware(&mut self.port, &firmware)?;
+        self.frame_len = 0;
+        for _ in 0..10 {
+            if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
+                self.last_reply = Some(reply);
+                return Ok(());
+            }
+        }
+        Err(DeviceError::Timeout {
+            waited_us: 200_000,
+            waiting_for: "a Falcon frame after the firmware upload",
+        })
+    }
+
+    /// Zero torque until homed; then (J⁻¹)ᵀ f at the last position.
+    fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        if !force_n.is_finite() {
+            return Err(DeviceError::InvalidData {
+                what: "force is not finite (the safety pipeline should have zeroed it)",
+            });
+        }
+        self.drain_waiting()?;
+        let motor = match self.accepted_m {
+            Some(position) if self.is_homed() => {
+                self.config.geometry.motor_commands(position, force_n)
+            }
+            _ => [0; 3],
+        };
+        self.send(motor)?;
+        self.awaiting_reply = true;
+        Ok(())
+    }
+
+    fn input_checked(&mut self, accepted: bool) {
+        match self.candidate_m.take() {
+            Some(position) if accepted => self.accepted_m = Some(position),
+            // A rejected frame may have led the iteration astray: restart it from the accepted position.
+            _ => {
+                if let Some(position) = self.accepted_m {
+                    self.position_m = position;
+                }
+            }
+        }
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        self.event.take()
+    }
+
+    /// The wrapper's zero torque went out: read the frame that answers it, so the Falcon has taken it before the
+    /// port closes.
+    fn disable(&mut self) -> Result<(), DeviceError> {
+        if let Some(reply) = self.read_frame(self.config.reply_timeout)? {
+            self.last_reply = Some(reply);
+        }
+        Ok(())
+    }
+
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        self.candidate_m = None;
+        let Some(reply) = self.read_frame(self.config.reply_timeout)? else {
+            return Err(DeviceError::Timeout {
+                waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
+                waiting_for: "a Falcon frame",
+            });
+        };
+        self.awaiting_reply = false;
+        let was_homed = self.is_homed();
+        self.last_reply = Some(reply);
+        if !was_homed && self.is_homed() {
+            // Homing resets the encoders' coordinate system: start the Newton iteration afresh, and convert no
+            // force until a position in the new coordinates is accepted.
+            self.position_m = DVec3::new(0.0, 0.0, 0.08);
+            self.accepted_m = None;
+        }
+        let geometry = self.config.geometry;
+        let theta = reply.encoders.map(|count| geometry.leg_angle_rad(count));
+        let (position, converged) = geometry.forward_kinematics(theta, self.position_m);
+        if converged {
+            self.position_m = position;
+            self.candidate_m = Some(position);
+        }
+        Ok(DeviceState {
+            position_m: self.position_m,
+            velocity_m_per_s: DVec3::ZERO,
+            // Grip buttons, as the firmware reports them (low nibble of the status byte).
+            buttons: u16::from(reply.grip),
+            device_time_us: None,
+            sequence: None,
+            status: None,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_round_trip_through_the_nibble_encoding() {
+        let frame = encode_command([-2, 0x1234, i16::MIN], LED_RED, true);
+        assert_eq!(frame[0], b'<');
+        assert_eq!(frame[15], b'>');
+        // -2 = 0xfffe: nibbles e, f, f, f (least significant first), each + 0x41.
+        assert_eq!(
+            &frame[1..5],
+            &[0x41 + 0xe, 0x41 + 0xf, 0x41 + 0xf, 0x41 + 0xf]
+        );
+        assert_eq!(frame[13], 0x41 + (LED_RED | HOMING_MODE));
+        assert_eq!(frame[14], 0x41);
+        assert!(frame[1..15].iter().all(|b| (0x41..=0x50).contains(b)));
+        let reply = decode_reply(&frame).unwrap();
+        assert_eq!(reply.encoders, [-2, 0x1234, i16::MIN]);
+        let mut bad = frame;
+        bad[15] = b'x';
+        assert!(decode_reply(&bad).is_none());
+    }
+
+    #[test]
+    fn leg_angle_of_count_zero_is_the_35_degree_offset() {
+        assert!((leg_angle_rad(0) - 35f64.to_radians()).abs() < 1e-12);
+        // One count: π·0.01425/1280 m of shaft travel over π·0.110/360 m per degree.
+        let per_count_deg = (0.01425 / 1280.0) / (0.110 / 360.0);
+        assert!((leg_angle_rad(1).to_degrees() - 35.0 - per_count_deg).abs() < 1e-9);
+    }
+
+    #[test]
+    fn forward_kinematics_inverts_inverse_kinematics_near_the_centre() {
+        for p in [
+            DVec3::new(0.0, 0.0, 0.11),
+            DVec3::new(0.02, -0.01, 0.12),
+            DVec3::new(-0.03, 0.02, 0.10),
+        ] {
+            let theta = inverse_kinematics(p).theta1;
+            assert!(theta.iter().all(|t| t.is_finite()), "{p}: {theta:?}");
+            let (found, converged) = forward_kinematics(theta, DVec3::new(0.0, 0.0, 0.11));
+            assert!(converged, "{p}");
+            // libnifalcon stops at a joint error below 0.01 rad: a few millimetres.
+            assert!((found - p).length() < 5e-3, "{p} -> {found}");
+        }
+    }
+
+    #[test]
+    fn torques_are_the_jacobian_transpose_negated_and_fit_sixteen_bits() {
+        let p = DVec3::new(0.0, 0.0, 0.11);
+        assert_eq!(motor_commands(p, DVec3::ZERO), [0, 0, 0]);
+        let up = motor_commands(p, DVec3::new(0.0, 0.0, 1.0));
+        assert!(up.iter().all(|&m| m != 0), "{up:?}");
+        // Symmetric legs at the centre: pushing along z loads the three motors alike.
+        assert!((i32::from(up[0]) - i32::from(up[1])).abs() <= 2, "{up:?}");
+        let opposite = motor_commands(p, DVec3::new(0.0, 0.0, -1.0));
+        assert_eq!(opposite, up.map(|m| -m));
+        let huge = motor_commands(p, DVec3::new(0.0, 0.0, 1e6));
+        assert!(huge.iter().all(|m| m.unsigned_abs() <= i16::MAX as u16));
+    }
+}

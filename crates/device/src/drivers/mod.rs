@@ -1,0 +1,28 @@
+//! Device drivers, one per family, each on a transport (crates/device/src/transport) and each a
+//! [`HapticDevice`](crate::HapticDevice):
+//!
+//! - [`protocol`]: voxhap's own wire protocol (protocol/SPEC.md) over serial or USB HID, for microcontroller arms
+//!   and for `voxhap mock-device`;
+//! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
+//!   (text lines over USB serial; kinematics from hfabapi);
+//! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
+//! - [`woodenhaptics_constants`]: the constants a device profile may replace, for both WoodenHaptics drivers;
+//! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
+//!   and kinematics;
+//! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
+//! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
+
+pub mod falcon;
+pub mod haply;
+pub mod haply_inverse;
+pub mod protocol;
+pub mod woodenhaptics;
+pub mod woodenhaptics_constants;
+pub mod woodenhaptics_serial;
+
+pub use falcon::{Falcon, FalconConfig};
+pub use haply::{Haply2Diy, Haply2DiyConfig};
+pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
+pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
+pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
+pub use woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel};

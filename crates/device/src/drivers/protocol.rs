@@ -1,0 +1,802 @@
+//! The driver for voxhap's own device protocol (protocol/SPEC.md), over serial ([`SerialLink`]) or USB HID
+//! ([`HidLink`]).
+//!
+//! Where it sits: under the lifecycle wrapper, on a transport. It wraps the protocol crate's sans-IO
+//! [`HostSession`]:
+//!
+//! - **open** discards stale input, sends a flush byte, then Hello followed at once by a Heartbeat whose counter
+//!   is a nonce of this open (the handshake's session id, see below). It waits for DeviceInfo for at most
+//!   `connect_timeout` (3 s by default): Hello is sent again when nothing usable came, after 100 ms, then after
+//!   waits that double up to 1 s (`hello_timeout` is the first wait), so a device that answers late (a
+//!   bootloader, a USB-serial adapter's latency timer, a loaded host) is still heard and a silent port costs a
+//!   handful of Hellos, not a flood. A device of another major version is refused with both versions named.
+//!   Then one zero SetForce in lockstep (sent again every `hello_timeout`), waited for up to `connect_timeout`
+//!   more, so the host sees the handle before enabling. Neither wait is the servo's per-tick budget.
+//! - **Which DeviceInfo counts.** DeviceInfo echoes nothing, so a late reply to a Hello of an earlier open (on
+//!   an earlier handle of the same port, or from an earlier process) cannot be told from a fresh one by itself.
+//!   The Heartbeat after each Hello can: the device answers in order, so a HeartbeatReply carrying one of this
+//!   open's nonces, with `SESSION_OPEN` set, comes after the DeviceInfo answering the Hello sent just before it.
+//!   The handshake takes the DeviceInfo that came last before such a reply (any other HeartbeatReply in between
+//!   clears it), and every State after that reply answers a SetForce of this open. Nonces come from a process-wide
+//!   counter started from the clock, so neither an earlier attempt nor an earlier process shares them.
+//! - **enable** sends Enable with the device watchdog timeout and returns at once: a refusal comes back as a
+//!   [`DeviceEvent::Rejected`], and the status bits of the next State say whether the device really is enabled.
+//! - every **write_force** sends one SetForce; **read_state** returns the newest State that arrived, waiting at
+//!   most `state_timeout` (half a servo period) for the one that echoes the last SetForce. Older or duplicate
+//!   States are skipped; when no State came but frames were dropped (CRC, COBS, length), the error is a
+//!   protocol error rather than a timeout, so the supervisor counts a corrupted link as such.
+//! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
+//! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
+//!   writes them on a second handle of the port, for the stall monitor.
+//!
+//! Per tick nothing allocates: frames are built on the stack and decoded by the crate's fixed-size decoder.
+
+use crate::info::DEFAULT_MAX_SPEED_M_PER_S;
+use crate::transport::{ByteTransport, ReportTransport};
+use crate::{
+    DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
+};
+use glam::DVec3;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+use voxhap_protocol::hid::REPORT_LEN;
+use voxhap_protocol::{
+    decode_report, encode_frame, encode_report, DecoderStats, DeviceToHost, ForceFlags,
+    FrameDecoder, Heartbeat, HostEvent, HostSession, HostToDevice, SetForce, StatusFlags,
+    MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
+};
+
+/// Moves protocol messages over some transport.
+pub trait MessageLink {
+    /// Sends one message.
+    fn send(&mut self, message: &HostToDevice) -> Result<(), DeviceError>;
+
+    /// The next valid message, waiting at most `timeout`; `Ok(None)` when none arrived. Dropped frames are
+    /// counted in [`MessageLink::stats`].
+    fn receive(&mut self, timeout: Duration) -> Result<Option<DeviceToHost>, DeviceError>;
+
+    /// Sent when a link (re)opens: forget any partial frame on both sides.
+    fn flush(&mut self) -> Result<(), DeviceError>;
+
+    /// What the decoder accepted and dropped.
+    fn stats(&self) -> DecoderStats;
+
+    /// Throws away what the device sent before now (stale replies of an earlier session).
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    /// A stop channel on a second handle of the link (see [`ProtocolDevice`]'s `emergency_stop`).
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        None
+    }
+}
+
+/// The stall monitor's stop for a serial link: fixed bytes on a second handle of the port.
+struct SerialStop {
+    writer: Box<dyn std::io::Write + Send>,
+    bytes: [u8; 2 * MAX_WIRE_FRAME_LEN + 1],
+    len: usize,
+}
+
+impl EmergencyStop for SerialStop {
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        self.writer
+            .write_all(&self.bytes[..self.len])
+            .and_then(|()| self.writer.flush())
+            .map_err(|error| DeviceError::from_io(&error, "writing the emergency stop"))
+    }
+}
+
+fn serial_stop(writer: Box<dyn std::io::Write + Send>) -> Option<Box<dyn EmergencyStop>> {
+    let mut bytes = [0u8; 2 * MAX_WIRE_FRAME_LEN + 1];
+    // A delimiter first: it ends any frame the stalled servo thread left half-written.
+    let mut len = 1;
+    let zero = HostToDevice::SetForce(SetForce {
+        sequence: 0,
+        force_n: [0.0; 3],
+        flags: ForceFlags::EMPTY,
+    });
+    for message in [zero, HostToDevice::Disable] {
+        len += encode_frame(&message, &mut bytes[len..]).ok()?;
+    }
+    Some(Box::new(SerialStop { writer, bytes, len }))
+}
+
+fn encode_error(_: voxhap_protocol::EncodeError) -> DeviceError {
+    DeviceError::InvalidData {
+        what: "refusing to send a message with a non-finite or out-of-range field",
+    }
+}
+
+/// Serial framing (COBS, CRC-16, 0x00 delimiter) over a byte stream.
+#[derive(Debug)]
+pub struct SerialLink<T> {
+    transport: T,
+    decoder: FrameDecoder<DeviceToHost>,
+    buffer: [u8; 512],
+    start: usize,
+    end: usize,
+}
+
+impl<T: ByteTransport> SerialLink<T> {
+    /// Frames messages over `transport`.
+    pub fn new(transport: T) -> Self {
+        SerialLink {
+            transport,
+            decoder: FrameDecoder::new(),
+            buffer: [0; 512],
+            start: 0,
+            end: 0,
+        }
+    }
+
+    /// The transport (to check a scripted double with `done()`).
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+}
+
+impl<T: ByteTransport> MessageLink for SerialLink<T> {
+    fn send(&mut self, message: &HostToDevice) -> Result<(), DeviceError> {
+        let mut frame = [0u8; MAX_WIRE_FRAME_LEN];
+        let len = encode_frame(message, &mut frame).map_err(encode_error)?;
+        self.transport.write_all(&frame[..len])
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<DeviceToHost>, DeviceError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            while self.start < self.end {
+                let byte = self.buffer[self.start];
+                self.start += 1;
+                if let Some(Ok(message)) = self.decoder.push(byte) {
+                    return Ok(Some(message));
+                }
+            }
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            let n = self.transport.read(&mut self.buffer, remaining)?;
+            self.start = 0;
+            self.end = n;
+            if n == 0 {
+                return Ok(None);
+            }
+        }
+    }
+
+    fn flush(&mut self) -> Result<(), DeviceError> {
+        self.decoder.reset();
+        self.start = 0;
+        self.end = 0;
+        self.transport
+            .write_all(&[voxhap_protocol::serial::DELIMITER])
+    }
+
+    fn stats(&self) -> DecoderStats {
+        *self.decoder.stats()
+    }
+
+    fn discard_input(&mut self) -> Result<(), DeviceError> {
+        self.transport.discard_input()
+    }
+
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        serial_stop(self.transport.try_clone_writer()?)
+    }
+}
+
+/// One message per 64-byte HID report.
+#[derive(Debug)]
+pub struct HidLink<T> {
+    transport: T,
+    stats: DecoderStats,
+}
+
+impl<T: ReportTransport> HidLink<T> {
+    /// Sends messages as reports over `transport`.
+    pub fn new(transport: T) -> Self {
+        HidLink {
+            transport,
+            stats: DecoderStats::default(),
+        }
+    }
+
+    /// The transport (to check a scripted double with `done()`).
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+}
+
+impl<T: ReportTransport> MessageLink for HidLink<T> {
+    fn send(&mut self, message: &HostToDevice) -> Result<(), DeviceError> {
+        let mut report = [0u8; REPORT_LEN];
+        encode_report(message, &mut report).map_err(encode_error)?;
+        self.transport.write_report(&report)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<DeviceToHost>, DeviceError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let mut report = [0u8; REPORT_LEN + 1];
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            let n = self.transport.read_report(&mut report, remaining)?;
+            if n == 0 {
+                return Ok(None);
+            }
+            let result = decode_report::<DeviceToHost>(&report[..n]);
+            self.stats.count_report(&result);
+            if let Ok(message) = result {
+                return Ok(Some(message));
+            }
+        }
+    }
+
+    fn flush(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.stats
+    }
+}
+
+/// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProtocolConfig {
+    /// How long open waits for DeviceInfo after the first Hello before sending another; each later wait is
+    /// twice the one before, up to 1 s (or this, if longer).
+    pub hello_timeout: Duration,
+    /// How long open waits in all for a DeviceInfo answering one of its Hellos, and then again for the State
+    /// answering its first zero force (`serve --connect-timeout`).
+    pub connect_timeout: Duration,
+    /// How long `read_state` waits for the State answering the last SetForce; at most a servo period, so
+    /// device I/O never holds up the servo thread for longer (`open_device` sets half a period).
+    pub state_timeout: Duration,
+    /// The device's own force watchdog, sent with Enable (µs, 1 000 ..= 1 000 000).
+    pub device_watchdog_us: u32,
+}
+
+/// The handshake's default patience for a device's answer (`serve --connect-timeout`).
+pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// The longest wait between two Hellos (unless `hello_timeout` is longer).
+const MAX_HELLO_INTERVAL: Duration = Duration::from_secs(1);
+
+impl Default for ProtocolConfig {
+    fn default() -> Self {
+        ProtocolConfig {
+            hello_timeout: Duration::from_millis(100),
+            connect_timeout: DEFAULT_CONNECT_TIMEOUT,
+            state_timeout: Duration::from_micros(500),
+            device_watchdog_us: 50_000,
+        }
+    }
+}
+
+impl ProtocolConfig {
+    /// The defaults for a servo loop of `period`: States are waited for at most half a period.
+    pub fn for_period(period: Duration) -> ProtocolConfig {
+        ProtocolConfig {
+            state_timeout: (period / 2).max(Duration::from_micros(50)),
+            ..ProtocolConfig::default()
+        }
+    }
+
+    /// How long open waits after each Hello: `hello_timeout`, then twice the last wait up to 1 s, until the
+    /// waits add up to `connect_timeout` (the last one cut short). At least one Hello is always sent.
+    pub fn hello_waits(&self) -> impl Iterator<Item = Duration> {
+        let first = self.hello_timeout.max(Duration::from_millis(1));
+        let cap = MAX_HELLO_INTERVAL.max(first);
+        let total = self.connect_timeout.max(first);
+        let mut spent = Duration::ZERO;
+        let mut next = first;
+        std::iter::from_fn(move || {
+            if spent >= total {
+                return None;
+            }
+            let wait = next.min(total - spent);
+            spent += wait;
+            next = (next * 2).min(cap);
+            Some(wait)
+        })
+    }
+}
+
+/// The next handshake nonce (a Heartbeat counter, SPEC section 3.1: "any value; echoed"). A process-wide
+/// counter, started from the clock and the process id the first time, so that a reply to another open's Hello
+/// (an earlier attempt, an earlier process) carries a nonce this open never sent.
+fn take_nonces(count: u32) -> u32 {
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let mut current = NEXT.load(Ordering::Relaxed);
+    if current == 0 {
+        let clock = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| {
+                d.subsec_nanos() ^ (d.as_secs() as u32).rotate_left(16)
+            });
+        let seed = (clock ^ std::process::id().rotate_left(7)).max(1);
+        current = match NEXT.compare_exchange(0, seed, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => seed,
+            Err(existing) => existing,
+        };
+    }
+    loop {
+        let next = current.wrapping_add(count).max(1);
+        match NEXT.compare_exchange_weak(current, next, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => return current,
+            Err(existing) => current = existing,
+        }
+    }
+}
+
+/// At most this many Hellos per open (a `connect_timeout` of 10 minutes needs 600 at the 1 s cap).
+const MAX_HELLOS: u32 = 1024;
+
+/// At most this many device events wait for the supervisor; further ones replace the newest.
+const EVENT_QUEUE: usize = 8;
+
+/// Counters of the protocol driver beyond the decoder's.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ProtocolCounters {
+    /// States skipped because they answered an older SetForce.
+    pub late_states: u64,
+    /// State frames missing from the device's sequence.
+    pub states_lost: u64,
+    /// Fault messages received.
+    pub faults: u64,
+    /// Times `read_state` found no answer in time.
+    pub timeouts: u64,
+    /// Hellos sent by open (more than one means retries).
+    pub hellos: u64,
+    /// Rejected messages received.
+    pub rejections: u64,
+}
+
+/// A device speaking voxhap's protocol.
+#[derive(Debug)]
+pub struct ProtocolDevice<L> {
+    link: L,
+    config: ProtocolConfig,
+    host: HostSession,
+    info: DeviceInfo,
+    last_sent_sequence: u32,
+    last_state: Option<DeviceState>,
+    last_fault: Option<voxhap_protocol::Fault>,
+    counters: ProtocolCounters,
+    events: [Option<DeviceEvent>; EVENT_QUEUE],
+    event_head: usize,
+    event_len: usize,
+    /// The first handshake nonce, when a test fixes it (`None`: drawn per open, [`take_nonces`]).
+    handshake_nonce: Option<u32>,
+}
+
+fn placeholder_info() -> DeviceInfo {
+    DeviceInfo {
+        model: String::from("voxhap protocol device (not open)"),
+        serial_number: String::new(),
+        position_dof: 0,
+        force_dof: 0,
+        button_count: 0,
+        workspace_min_m: DVec3::ZERO,
+        workspace_max_m: DVec3::ZERO,
+        max_force_n: 0.0,
+        max_stiffness_n_per_m: 0.0,
+        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
+        reports_velocity: true,
+        state_rates_hz: Vec::new(),
+    }
+}
+
+fn to_dvec3(v: [f32; 3]) -> DVec3 {
+    DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))
+}
+
+fn convert_info(info: &voxhap_protocol::DeviceInfo) -> DeviceInfo {
+    DeviceInfo {
+        model: info.model.as_str().to_string(),
+        serial_number: info.serial_number.as_str().to_string(),
+        position_dof: info.position_dof,
+        force_dof: info.force_dof,
+        button_count: info.button_count,
+        workspace_min_m: to_dvec3(info.workspace_min_m),
+        workspace_max_m: to_dvec3(info.workspace_max_m),
+        max_force_n: f64::from(info.max_force_n),
+        max_stiffness_n_per_m: f64::from(info.max_stiffness_n_per_m),
+        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
+        reports_velocity: true,
+        state_rates_hz: info.supported_rates.iter_hz().collect(),
+    }
+}
+
+/// A protocol State as the device layer's sample (the first State of an open and every later one).
+fn convert_state(state: &voxhap_protocol::State) -> DeviceState {
+    DeviceState {
+        position_m: to_dvec3(state.position_m),
+        velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
+        buttons: state.buttons,
+        device_time_us: Some(state.device_time_us),
+        sequence: Some(state.sequence),
+        status: Some(convert_status(state.status, state.faults.0)),
+    }
+}
+
+fn convert_status(status: StatusFlags, active_faults: u16) -> DeviceStatus {
+    DeviceStatus {
+        enabled: status.contains(StatusFlags::ENABLED),
+        faulted: status.contains(StatusFlags::FAULTED),
+        watchdog_tripped: status.contains(StatusFlags::WATCHDOG_TRIPPED),
+        force_clamped: status.contains(StatusFlags::FORCE_CLAMPED),
+        active_faults,
+    }
+}
+
+impl<L: MessageLink> ProtocolDevice<L> {
+    /// A driver on `link`, not yet open.
+    pub fn new(link: L, config: ProtocolConfig) -> Self {
+        ProtocolDevice {
+            link,
+            config,
+            host: HostSession::new(),
+            info: placeholder_info(),
+            last_sent_sequence: 0,
+            last_state: None,
+            last_fault: None,
+            counters: ProtocolCounters::default(),
+            events: [None; EVENT_QUEUE],
+            event_head: 0,
+            event_len: 0,
+            handshake_nonce: None,
+        }
+    }
+
+    /// Fixes the handshake's first Heartbeat counter (then +1 per Hello), so that a scripted test can spell
+    /// the bytes; by default each open draws fresh nonces that no other open uses.
+    pub fn with_handshake_nonce(mut self, first: u32) -> Self {
+        self.handshake_nonce = Some(first);
+        self
+    }
+
+    fn push_event(&mut self, event: DeviceEvent) {
+        if self.event_len == EVENT_QUEUE {
+            // Full: the newest slot is overwritten, so the first faults of a burst are the ones reported.
+            let newest = (self.event_head + EVENT_QUEUE - 1) % EVENT_QUEUE;
+            self.events[newest] = Some(event);
+            return;
+        }
+        self.events[(self.event_head + self.event_len) % EVENT_QUEUE] = Some(event);
+        self.event_len += 1;
+    }
+
+    /// The link (its transport, its decoder counters).
+    pub fn link(&self) -> &L {
+        &self.link
+    }
+
+    /// Decoder counters (CRC errors, dropped frames).
+    pub fn decoder_stats(&self) -> DecoderStats {
+        self.link.stats()
+    }
+
+    /// Driver counters.
+    pub fn counters(&self) -> ProtocolCounters {
+        self.counters
+    }
+
+    /// The last Fault message the device sent, if any.
+    pub fn last_fault(&self) -> Option<voxhap_protocol::Fault> {
+        self.last_fault
+    }
+
+    /// Set-forces the device has not acknowledged yet.
+    pub fn forces_in_flight(&self) -> u32 {
+        self.host.forces_in_flight()
+    }
+
+    /// Waits at most `timeout` for one message from the device and classifies it (for idle times: faults, late
+    /// states). `Ok(None)` when nothing came.
+    pub fn poll_event(&mut self, timeout: Duration) -> Result<Option<HostEvent>, DeviceError> {
+        match self.link.receive(timeout)? {
+            None => Ok(None),
+            Some(message) => self.handle(&message).map(Some),
+        }
+    }
+
+    /// Sends a Heartbeat and waits for its reply (device time and status bits).
+    pub fn heartbeat(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<voxhap_protocol::HeartbeatReply, DeviceError> {
+        let message = self.host.heartbeat();
+        let HostToDevice::Heartbeat(sent) = message else {
+            return Err(DeviceError::Protocol {
+                what: "host session built no heartbeat",
+            });
+        };
+        self.link.send(&message)?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            match self.link.receive(remaining)? {
+                None => {
+                    return Err(DeviceError::Timeout {
+                        waited_us: duration_us(timeout),
+                        waiting_for: "a heartbeat reply",
+                    })
+                }
+                Some(message) => {
+                    if let HostEvent::Heartbeat(reply) = self.handle(&message)? {
+                        if reply.counter == sent.counter {
+                            return Ok(reply);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Classifies one message; faults and rejections are queued as events for the supervisor.
+    fn handle(&mut self, message: &DeviceToHost) -> Result<HostEvent, DeviceError> {
+        let event = self.host.on_message(message);
+        match event {
+            HostEvent::Fault(fault) => {
+                self.counters.faults += 1;
+                self.last_fault = Some(fault);
+                self.push_event(DeviceEvent::Fault {
+                    code: fault.code.0,
+                    active_faults: fault.active_faults.0,
+                });
+            }
+            HostEvent::Rejected(rejected) => {
+                self.counters.rejections += 1;
+                self.push_event(DeviceEvent::Rejected {
+                    message_type: rejected.message_type,
+                    reason: rejected.reason.0,
+                });
+            }
+            HostEvent::State { lost, .. } => self.counters.states_lost += u64::from(lost),
+            _ => {}
+        }
+        Ok(event)
+    }
+
+    /// Hello (with its nonce Heartbeat) until a DeviceInfo is confirmed by a HeartbeatReply carrying one of
+    /// this open's nonces, or `connect_timeout` has passed (module header: which DeviceInfo counts).
+    fn handshake(&mut self) -> Result<(), DeviceError> {
+        let base = self
+            .handshake_nonce
+            .unwrap_or_else(|| take_nonces(MAX_HELLOS));
+        let started = Instant::now();
+        let mut sent: u32 = 0;
+        // The last DeviceInfo since the last HeartbeatReply.
+        let mut candidate: Option<voxhap_protocol::DeviceInfo> = None;
+        for wait in self.config.hello_waits().take(MAX_HELLOS as usize) {
+            let hello = self.host.hello();
+            self.counters.hellos += 1;
+            self.link.send(&hello)?;
+            self.link.send(&HostToDevice::Heartbeat(Heartbeat {
+                counter: base.wrapping_add(sent),
+            }))?;
+            sent += 1;
+            let answered = self.receive_for(wait, |this, message| {
+                match message {
+                    DeviceToHost::DeviceInfo(info) => match this.host.on_message(&message) {
+                        HostEvent::Incompatible(_) => {
+                            return Err(DeviceError::Incompatible {
+                                device_major: info.version.major,
+                                device_minor: info.version.minor,
+                                host_major: PROTOCOL_VERSION.major,
+                                host_minor: PROTOCOL_VERSION.minor,
+                            })
+                        }
+                        _ => candidate = Some(info),
+                    },
+                    DeviceToHost::Heartbeat(reply) => {
+                        let ours = reply.counter.wrapping_sub(base) < sent;
+                        let open = reply.status.contains(StatusFlags::SESSION_OPEN);
+                        match candidate.take() {
+                            Some(info) if ours && open => {
+                                this.info = convert_info(&info);
+                                return Ok(Some(()));
+                            }
+                            // A reply to another open's heartbeat, or one that says no session: the
+                            // DeviceInfo before it is not the answer to a Hello of ours.
+                            _ => {}
+                        }
+                    }
+                    // States, faults and refusals of an earlier session: the session is not ours yet.
+                    _ => {}
+                }
+                Ok(None)
+            })?;
+            if answered.is_some() {
+                return Ok(());
+            }
+        }
+        Err(DeviceError::NoAnswer {
+            waiting_for: "DeviceInfo answering Hello",
+            attempts: sent,
+            sent: "Hellos",
+            waited_us: duration_us(started.elapsed()),
+        })
+    }
+
+    /// Receives for `wait` (a transport timeout, `Ok(None)`, also ends it), handing each message to `take`
+    /// until it returns something: that, or `None` when the time is up. The handshake and the first State
+    /// both wait this way, one slot per message they sent.
+    fn receive_for<T>(
+        &mut self,
+        wait: Duration,
+        mut take: impl FnMut(&mut Self, DeviceToHost) -> Result<Option<T>, DeviceError>,
+    ) -> Result<Option<T>, DeviceError> {
+        let deadline = Instant::now() + wait;
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            let Some(message) = self.link.receive(remaining)? else {
+                return Ok(None);
+            };
+            if let Some(taken) = take(self, message)? {
+                return Ok(Some(taken));
+            }
+            if remaining.is_zero() {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// One zero force in lockstep, sent again every `hello_timeout`, until a State answers (every State after
+    /// the handshake's confirming HeartbeatReply answers a force of this open), for at most `connect_timeout`.
+    fn first_state(&mut self) -> Result<(), DeviceError> {
+        let started = Instant::now();
+        let mut sent: u32 = 0;
+        let slots = (self.config.connect_timeout.as_micros()
+            / self
+                .config
+                .hello_timeout
+                .max(Duration::from_millis(1))
+                .as_micros())
+        .clamp(1, u128::from(MAX_HELLOS)) as u32;
+        while sent < slots {
+            self.send_force(DVec3::ZERO)?;
+            sent += 1;
+            let answered = self.receive_for(self.config.hello_timeout, |this, message| {
+                let HostEvent::State { state, .. } = this.handle(&message)? else {
+                    return Ok(None);
+                };
+                this.last_state = Some(convert_state(&state));
+                Ok(Some(()))
+            })?;
+            if answered.is_some() {
+                return Ok(());
+            }
+        }
+        Err(DeviceError::NoAnswer {
+            waiting_for: "State answering a zero force after DeviceInfo",
+            attempts: sent,
+            sent: "zero forces",
+            waited_us: duration_us(started.elapsed()),
+        })
+    }
+
+    fn send_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        let force = [force_n.x as f32, force_n.y as f32, force_n.z as f32];
+        if force.iter().any(|f| !f.is_finite()) {
+            return Err(DeviceError::InvalidData {
+                what: "force is not finite (the safety pipeline should have zeroed it)",
+            });
+        }
+        let message = self.host.set_force(force, ForceFlags::EMPTY);
+        if let HostToDevice::SetForce(set_force) = message {
+            self.last_sent_sequence = set_force.sequence;
+        }
+        self.link.send(&message)
+    }
+}
+
+fn duration_us(duration: Duration) -> u64 {
+    u64::try_from(duration.as_micros()).unwrap_or(u64::MAX)
+}
+
+impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
+    type Error = DeviceError;
+
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    fn open(&mut self) -> Result<(), DeviceError> {
+        self.link.discard_input()?;
+        self.link.flush()?;
+        self.handshake()?;
+        // One zero force in lockstep: the device answers with a State, so the host sees the handle before
+        // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
+        self.first_state()
+    }
+
+    fn enable(&mut self) -> Result<(), DeviceError> {
+        let message = self.host.enable(self.config.device_watchdog_us);
+        self.link.send(&message)
+    }
+
+    fn disable(&mut self) -> Result<(), DeviceError> {
+        self.link.send(&HostToDevice::Disable)
+    }
+
+    fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        self.send_force(force_n)
+    }
+
+    fn take_event(&mut self) -> Option<DeviceEvent> {
+        if self.event_len == 0 {
+            return None;
+        }
+        let event = self.events[self.event_head].take();
+        self.event_head = (self.event_head + 1) % EVENT_QUEUE;
+        self.event_len -= 1;
+        event
+    }
+
+    fn clear_fault(&mut self) -> Result<(), DeviceError> {
+        self.link.send(&HostToDevice::ClearFault)
+    }
+
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
+        let message = self.host.heartbeat();
+        self.link.send(&message)?;
+        // Drain what came meanwhile (heartbeat replies, faults) without waiting.
+        while let Some(message) = self.link.receive(Duration::ZERO)? {
+            self.handle(&message)?;
+        }
+        Ok(())
+    }
+
+    fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
+        self.link.emergency_stop()
+    }
+
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        let deadline = Instant::now() + self.config.state_timeout;
+        let dropped_before = self.link.stats().dropped();
+        let mut newest: Option<DeviceState> = None;
+        loop {
+            // Wait only while nothing new came; once a State is in hand, take what is already there.
+            let remaining = if newest.is_some() {
+                Duration::ZERO
+            } else {
+                deadline.saturating_duration_since(Instant::now())
+            };
+            let Some(message) = self.link.receive(remaining)? else {
+                break;
+            };
+            if let HostEvent::State { state, .. } = self.handle(&message)? {
+                let sample = convert_state(&state);
+                self.last_state = Some(sample);
+                newest = Some(sample);
+                // Lockstep: the State answering the newest SetForce ends the wait; older ones are late.
+                if state
+                    .last_force_sequence
+                    .wrapping_sub(self.last_sent_sequence)
+                    == 0
+                {
+                    break;
+                }
+                self.counters.late_states += 1;
+                if Instant::now() >= deadline {
+                    break;
+                }
+            }
+        }
+        if let Some(sample) = newest {
+            return Ok(sample);
+        }
+        if self.link.stats().dropped() > dropped_before {
+            return Err(DeviceError::Protocol {
+                what: "frames from the device were dropped (CRC, framing or length) and no state arrived",
+            });
+        }
+        self.counters.timeouts += 1;
+        Err(DeviceError::Timeout {
+            waited_us: duration_us(self.config.state_timeout),
+            waiting_for: "the state answering the last force",
+        })
+    }
+}

@@ -1,0 +1,447 @@
+//! The mock device: the simulated arm ([`SimArm`]) behind voxhap's real device protocol on a pseudo-terminal,
+//! with fault injection. `voxhap mock-device` runs it as a separate process, so the host's serial driver, safety
+//! pipeline and reconnection are tested against a real peer over a real tty.
+//!
+//! Where it sits: on the device side of the wire (the role firmware plays). A 1 kHz control loop steps the arm
+//! with the force the protocol crate's [`DeviceSession`] says to apply (zero unless enabled, dropped by the
+//! device watchdog when the host stops sending), and the session answers each SetForce with a State as soon as it
+//! arrives (lockstep), so the round trip measures the link and not the control period.
+//!
+//! Faults, all driven by a seeded generator so runs repeat: each byte sent or received is corrupted (one bit
+//! flipped) with probability `corrupt_rate`; each outgoing frame is dropped with probability `drop_rate`;
+//! outgoing frames are delayed by `latency_us`; after `stop_after_us` the device keeps running but sends nothing;
+//! after `disconnect_after_us` the pseudo-terminal is closed (the host sees a hang-up), and after `down_for_us` a
+//! new one is opened and the link path re-pointed to it.
+
+use crate::sim::{SimArm, SimArmConfig, SimError};
+use glam::DVec3;
+use serialport::{SerialPort, TTYPort};
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use voxhap_protocol::{
+    encode_frame, DeviceInfo, DeviceSample, DeviceSession, FrameDecoder, HostToDevice, Label,
+    RateSet, MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
+};
+
+/// Fault injection settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaultConfig {
+    /// Probability that a byte (either direction) gets one bit flipped, 0..=1.
+    pub corrupt_rate: f64,
+    /// Probability that an outgoing frame is dropped, 0..=1.
+    pub drop_rate: f64,
+    /// Delay added to every outgoing frame (µs).
+    pub latency_us: u64,
+    /// Stop answering (send nothing) after this time (µs).
+    pub stop_after_us: Option<u64>,
+    /// Close the pseudo-terminal after this time (µs).
+    pub disconnect_after_us: Option<u64>,
+    /// Come back on a new pseudo-terminal this long after a disconnect (µs); `None` ends the run instead.
+    pub down_for_us: Option<u64>,
+    /// Seed of the fault generator.
+    pub seed: u64,
+}
+
+impl Default for FaultConfig {
+    fn default() -> Self {
+        FaultConfig {
+            corrupt_rate: 0.0,
+            drop_rate: 0.0,
+            latency_us: 0,
+            stop_after_us: None,
+            disconnect_after_us: None,
+            down_for_us: None,
+            seed: 1,
+        }
+    }
+}
+
+/// Why the mock device could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum MockError {
+    /// A fault setting is out of range.
+    #[error("mock device: {0}")]
+    Config(String),
+    /// The simulated arm's configuration is invalid.
+    #[error("mock device: {0}")]
+    Arm(#[from] SimError),
+    /// No pseudo-terminal could be opened.
+    #[error("mock device: cannot open a pseudo-terminal: {0}")]
+    Pty(String),
+    /// The link path could not be made.
+    #[error("mock device: cannot link {path} to the pseudo-terminal")]
+    Link {
+        /// The path asked for.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Reading or writing the pseudo-terminal failed.
+    #[error("mock device: pseudo-terminal I/O failed while {during}")]
+    Io {
+        /// What the mock was doing.
+        during: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// What the mock reports while it runs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MockEvent {
+    /// Serving on this path (the pseudo-terminal, or the link to it).
+    Serving(String),
+    /// The device watchdog dropped the force to zero at this device time (µs).
+    WatchdogTripped(u64),
+    /// The fault injector stopped all answers.
+    StoppedAnswering,
+    /// The pseudo-terminal was closed.
+    Disconnected,
+}
+
+/// Counters of a mock run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MockStats {
+    /// Messages received intact.
+    pub frames_ok: u64,
+    /// Frames dropped by the decoder (CRC, COBS, ...).
+    pub frames_dropped: u64,
+    /// Frames sent.
+    pub frames_sent: u64,
+    /// Frames dropped by fault injection.
+    pub frames_dropped_injected: u64,
+    /// Bytes corrupted by fault injection.
+    pub bytes_corrupted: u64,
+    /// Device watchdog trips.
+    pub watchdog_trips: u64,
+    /// Control ticks run.
+    pub ticks: u64,
+}
+
+/// Where the mock serves.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ServeOn {
+    /// A fresh pseudo-terminal; its path is reported in [`MockEvent::Serving`].
+    Pty,
+    /// A fresh pseudo-terminal with a symbolic link at this path (replaced on reconnect).
+    Link(PathBuf),
+}
+
+/// The device info the mock announces.
+pub fn mock_device_info() -> DeviceInfo {
+    DeviceInfo {
+        version: PROTOCOL_VERSION,
+        model: Label::new("voxhap-mock").unwrap_or_default(),
+        serial_number: Label::new("sim-0001").unwrap_or_default(),
+        position_dof: 3,
+        force_dof: 3,
+        button_count: 0,
+        supported_rates: RateSet::from_rates_hz(&[100, 200, 250, 500, 1000]).unwrap_or_default(),
+        workspace_min_m: [-0.1; 3],
+        workspace_max_m: [0.1; 3],
+        max_force_n: 5.0,
+        max_stiffness_n_per_m: 2000.0,
+    }
+}
+
+/// The default arm: a hand moving the handle round a 2 cm circle every 4 s.
+pub fn default_arm_config() -> SimArmConfig {
+    let text = r#"
+        [arm]
+        mass_kg = 0.1
+        damping_n_s_per_m = 1.0
+        workspace = { shape = "unbounded" }
+        [hand]
+        stiffness_n_per_m = 200.0
+        damping_n_s_per_m = 2.0
+        [path]
+        kind = "circle"
+        center_m = [0.0, 0.0, 0.0]
+        radius_m = 0.02
+        normal = [0.0, 0.0, 1.0]
+        period_s = 4.0
+    "#;
+    // The literal above is part of the program; a parse failure would be a build-time bug caught by the tests.
+    toml::from_str(text).unwrap_or_else(|error| panic!("built-in arm configuration: {error}"))
+}
+
+/// SplitMix64: a small, seedable generator for fault injection.
+#[derive(Debug, Clone)]
+struct Faults {
+    state: u64,
+}
+
+impl Faults {
+    fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn chance(&mut self, probability: f64) -> bool {
+        probability > 0.0 && ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64) < probability
+    }
+
+    fn corrupt(&mut self, bytes: &mut [u8], rate: f64) -> u64 {
+        let mut count = 0;
+        if rate > 0.0 {
+            for byte in bytes {
+                if self.chance(rate) {
+                    *byte ^= 1 << (self.next_u64() % 8);
+                    count += 1;
+                }
+            }
+        }
+        count
+    }
+}
+
+struct Pty {
+    master: TTYPort,
+    _slave: TTYPort,
+}
+
+fn open_pty(serve: &ServeOn) -> Result<(Pty, String), MockError> {
+    let (master, slave) = TTYPort::pair().map_err(|error| MockError::Pty(error.to_string()))?;
+    let pty_path = slave
+        .name()
+        .ok_or_else(|| MockError::Pty("the pseudo-terminal has no path".to_string()))?;
+    let shown = match serve {
+        ServeOn::Pty => pty_path,
+        ServeOn::Link(link) => {
+            remove_link(link)?;
+            std::os::unix::fs::symlink(&pty_path, link).map_err(|source| MockError::Link {
+                path: link.clone(),
+                source,
+            })?;
+            link.display().to_string()
+        }
+    };
+    Ok((
+        Pty {
+            master,
+            _slave: slave,
+        },
+        shown,
+    ))
+}
+
+/// Removes `link` if it is a symbolic link; refuses to remove anything else.
+fn remove_link(link: &Path) -> Result<(), MockError> {
+    match std::fs::symlink_metadata(link) {
+        Ok(meta) if meta.file_type().is_symlink() => {
+            std::fs::remove_file(link).map_err(|source| MockError::Link {
+                path: link.to_path_buf(),
+                source,
+            })
+        }
+        Ok(_) => Err(MockError::Link {
+            path: link.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "exists and is not a symbolic link; not replacing it",
+            ),
+        }),
+        Err(_) => Ok(()),
+    }
+}
+
+fn to_f32(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// Runs the mock device until `shutdown` is set, `duration_us` has passed, or it disconnects for good.
+pub fn run_mock(
+    arm_config: SimArmConfig,
+    faults: FaultConfig,
+    serve: &ServeOn,
+    duration_us: Option<u64>,
+    shutdown: &AtomicBool,
+    on_event: &mut dyn FnMut(MockEvent),
+) -> Result<MockStats, MockError> {
+    for (name, rate) in [
+        ("corrupt rate", faults.corrupt_rate),
+        ("drop rate", faults.drop_rate),
+    ] {
+        if !(0.0..=1.0).contains(&rate) {
+            return Err(MockError::Config(format!(
+                "{name} {rate} must be between 0 and 1"
+            )));
+        }
+    }
+    const TICK_US: u64 = 1_000;
+    let mut arm = SimArm::new(arm_config, DVec3::ZERO)?;
+    let mut session = DeviceSession::new(mock_device_info());
+    let mut decoder = FrameDecoder::<HostToDevice>::new();
+    let mut rng = Faults { state: faults.seed };
+    let mut stats = MockStats::default();
+    let mut delayed: VecDeque<(u64, [u8; MAX_WIRE_FRAME_LEN], usize)> = VecDeque::new();
+    let (mut pty, shown) = open_pty(serve)?;
+    on_event(MockEvent::Serving(shown));
+    let start = Instant::now();
+    let now_us = || u64::try_from(start.elapsed().as_micros()).unwrap_or(u64::MAX);
+    let mut next_tick_us = TICK_US;
+    let mut stopped = false;
+    let mut disconnected_at: Option<u64> = None;
+    let mut buffer = [0u8; 1024];
+
+    while !shutdown.load(Ordering::Relaxed) {
+        let now = now_us();
+        if duration_us.is_some_and(|limit| now >= limit) {
+            break;
+        }
+        if let Some(at) = faults.disconnect_after_us {
+            if disconnected_at.is_none() && now >= at {
+                disconnected_at = Some(now);
+                if let ServeOn::Link(link) = serve {
+                    remove_link(link)?;
+                }
+                let (fresh, shown) = match faults.down_for_us {
+                    None => {
+                        on_event(MockEvent::Disconnected);
+                        break;
+                    }
+                    Some(down_for_us) => {
+                        // Close the old terminal (the host sees a hang-up), wait, come back on a new one.
+                        drop(pty);
+                        on_event(MockEvent::Disconnected);
+                        std::thread::sleep(Duration::from_micros(down_for_us));
+                        open_pty(serve)?
+                    }
+                };
+                pty = fresh;
+                session = DeviceSession::new(mock_device_info());
+                decoder.reset();
+                delayed.clear();
+                on_event(MockEvent::Serving(shown));
+                next_tick_us = now_us() + TICK_US;
+                continue;
+            }
+        }
+        if !stopped && faults.stop_after_us.is_some_and(|at| now >= at) {
+            stopped = true;
+            on_event(MockEvent::StoppedAnswering);
+        }
+
+        let mut wait_us = next_tick_us.saturating_sub(now);
+        if let Some((release_us, _, _)) = delayed.front() {
+            wait_us = wait_us.min(release_us.saturating_sub(now));
+        }
+        pty.master
+            .set_timeout(Duration::from_micros(wait_us))
+            .map_err(|error| MockError::Pty(error.to_string()))?;
+        let received = match pty.master.read(&mut buffer) {
+            Ok(n) => n,
+            Err(error) if error.kind() == std::io::ErrorKind::TimedOut => 0,
+            Err(error) if error.kind() == std::io::ErrorKind::Interrupted => 0,
+            Err(source) => {
+                return Err(MockError::Io {
+                    during: "reading",
+                    source,
+                })
+            }
+        };
+        let now = now_us();
+        if received > 0 {
+            stats.bytes_corrupted += rng.corrupt(&mut buffer[..received], faults.corrupt_rate);
+            for &byte in &buffer[..received] {
+                if let Some(Ok(message)) = decoder.push(byte) {
+                    session.on_message(&message, now);
+                }
+            }
+            // Answer at once (lockstep): the control loop's sample is the arm's current state.
+            let sample = DeviceSample {
+                position_m: to_f32(arm.position_m()),
+                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
+                buttons: 0,
+            };
+            session.poll(now, &sample);
+        }
+        if now >= next_tick_us {
+            let force = session.force_n();
+            let force_n = DVec3::new(
+                f64::from(force[0]),
+                f64::from(force[1]),
+                f64::from(force[2]),
+            );
+            arm.step(now as f64 * 1e-6, TICK_US as f64 * 1e-6, force_n)?;
+            let sample = DeviceSample {
+                position_m: to_f32(arm.position_m()),
+                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
+                buttons: 0,
+            };
+            let trips = session.stats().watchdog_trips;
+            session.poll(now, &sample);
+            if session.stats().watchdog_trips > trips {
+                on_event(MockEvent::WatchdogTripped(now));
+            }
+            stats.ticks += 1;
+            // Never a burst of catch-up ticks: skip ahead when behind.
+            next_tick_us = if now - next_tick_us >= TICK_US {
+                now + TICK_US
+            } else {
+                next_tick_us + TICK_US
+            };
+        }
+        while let Some(reply) = session.poll_transmit() {
+            if stopped || rng.chance(faults.drop_rate) {
+                stats.frames_dropped_injected += 1;
+                continue;
+            }
+            let mut frame = [0u8; MAX_WIRE_FRAME_LEN];
+            let Ok(len) = encode_frame(&reply, &mut frame) else {
+                continue;
+            };
+            stats.bytes_corrupted += rng.corrupt(&mut frame[..len], faults.corrupt_rate);
+            delayed.push_back((now + faults.latency_us, frame, len));
+        }
+        while delayed
+            .front()
+            .is_some_and(|(release_us, _, _)| *release_us <= now)
+        {
+            if let Some((_, frame, len)) = delayed.pop_front() {
+                pty.master
+                    .write_all(&frame[..len])
+                    .map_err(|source| MockError::Io {
+                        during: "writing",
+                        source,
+                    })?;
+                stats.frames_sent += 1;
+            }
+        }
+    }
+    let decoded = decoder.stats();
+    stats.frames_ok = decoded.frames_ok;
+    stats.frames_dropped = decoded.dropped();
+    stats.watchdog_trips = session.stats().watchdog_trips;
+    if let ServeOn::Link(link) = serve {
+        let _ = remove_link(link);
+    }
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_arm_and_info_are_valid() {
+        SimArm::new(default_arm_config(), DVec3::ZERO).unwrap();
+        let info = mock_device_info();
+        assert_eq!(info.model.as_str(), "voxhap-mock");
+        assert!(info.supported_rates.contains_hz(1000));
+    }
+
+    #[test]
+    fn fault_generator_hits_its_rate() {
+        let mut faults = Faults { state: 7 };
+        let hits = (0..100_000).filter(|_| faults.chance(0.1)).count();
+        assert!((9_000..11_000).contains(&hits), "{hits}");
+        assert!(!(0..1000).any(|_| faults.chance(0.0)));
+    }
+}

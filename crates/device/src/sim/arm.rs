@@ -1,0 +1,808 @@
+//! The arm's parameters, its state and the fixed-step integrator (see the module header in `sim` for the
+//! model and the maths). `SimArm::step` runs on the servo thread: it does not allocate, lock or do I/O.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use super::path::{check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M};
+use super::tagged::{given_keys, KindKeys};
+use super::{HandDrive, HandPath, SimError};
+use crate::mapping::WorkspaceMapping;
+
+fn default_substeps_per_tick() -> u32 {
+    10
+}
+
+fn default_wall_stiffness_n_per_m() -> f64 {
+    5000.0
+}
+
+fn default_wall_damping_n_s_per_m() -> f64 {
+    10.0
+}
+
+/// Where the arm can go. A table with a `shape` key, e.g. `{ shape = "sphere", center_m = [0, 0, 0],
+/// radius_m = 0.1 }`, read through `WorkspaceTable` so that every error names its key (super::tagged).
+/// Outside it a stiff one-sided wall spring pushes the arm back (see [`ArmParams`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "shape", rename_all = "snake_case", try_from = "WorkspaceTable")]
+pub enum Workspace {
+    /// An axis-aligned box.
+    Box {
+        /// Lower corner (m).
+        min_m: DVec3,
+        /// Upper corner (m), >= `min_m` on every axis.
+        max_m: DVec3,
+    },
+    /// A ball.
+    Sphere {
+        /// Centre (m).
+        center_m: DVec3,
+        /// Radius (m), > 0.
+        radius_m: f64,
+    },
+    /// No limit.
+    Unbounded,
+}
+
+/// The `shape` of a [`Workspace`] table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WorkspaceShape {
+    Box,
+    Sphere,
+    Unbounded,
+}
+
+impl WorkspaceShape {
+    /// The name written in a scene file.
+    pub fn name(self) -> &'static str {
+        match self {
+            WorkspaceShape::Box => "box",
+            WorkspaceShape::Sphere => "sphere",
+            WorkspaceShape::Unbounded => "unbounded",
+        }
+    }
+
+    /// The keys a workspace of this shape takes (besides `shape`); all of them are needed.
+    pub fn keys(self) -> &'static [&'static str] {
+        match self {
+            WorkspaceShape::Box => &["min_m", "max_m"],
+            WorkspaceShape::Sphere => &["center_m", "radius_m"],
+            WorkspaceShape::Unbounded => &[],
+        }
+    }
+}
+
+/// An `[arm.workspace]` table as written: every key of every shape, checked against its `shape` by
+/// `Workspace::try_from` (super::tagged says why).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WorkspaceTable {
+    shape: WorkspaceShape,
+    min_m: Option<DVec3>,
+    max_m: Option<DVec3>,
+    center_m: Option<DVec3>,
+    radius_m: Option<f64>,
+}
+
+impl TryFrom<WorkspaceTable> for Workspace {
+    type Error = String;
+
+    fn try_from(table: WorkspaceTable) -> Result<Self, String> {
+        let given = given_keys!(table: min_m, max_m, center_m, radius_m);
+        let keys = KindKeys::new("shape", table.shape.name(), &given);
+        keys.only(table.shape.keys())?;
+        Ok(match table.shape {
+            WorkspaceShape::Box => Workspace::Box {
+                min_m: keys.need("min_m", table.min_m)?,
+                max_m: keys.need("max_m", table.max_m)?,
+            },
+            WorkspaceShape::Sphere => Workspace::Sphere {
+                center_m: keys.need("center_m", table.center_m)?,
+                radius_m: keys.need("radius_m", table.radius_m)?,
+            },
+            WorkspaceShape::Unbounded => Workspace::Unbounded,
+        })
+    }
+}
+
+impl Workspace {
+    fn validate(&self) -> Result<(), SimError> {
+        match self {
+            Workspace::Box { min_m, max_m } => {
+                check_vector_within("arm.workspace.min_m", *min_m, MAX_POSITION_M, "m")?;
+                check_vector_within("arm.workspace.max_m", *max_m, MAX_POSITION_M, "m")?;
+                if min_m.cmpgt(*max_m).any() {
+                    return Err(SimError::InvertedBox);
+                }
+                Ok(())
+            }
+            Workspace::Sphere { center_m, radius_m } => {
+                check_vector_within("arm.workspace.center_m", *center_m, MAX_POSITION_M, "m")?;
+                check_positive_at_most("arm.workspace.radius_m", *radius_m, MAX_POSITION_M, "m")
+            }
+            Workspace::Unbounded => Ok(()),
+        }
+    }
+
+    /// The point of the workspace closest to `position_m` (the point itself when inside).
+    pub fn closest_point_m(&self, position_m: DVec3) -> DVec3 {
+        match self {
+            Workspace::Box { min_m, max_m } => position_m.clamp(*min_m, *max_m),
+            Workspace::Sphere { center_m, radius_m } => {
+                let offset = position_m - *center_m;
+                let distance_m = offset.length();
+                if distance_m > *radius_m {
+                    *center_m + offset * (*radius_m / distance_m)
+                } else {
+                    position_m
+                }
+            }
+            Workspace::Unbounded => position_m,
+        }
+    }
+
+    /// Whether `position_m` is inside the workspace or at most `tolerance_m` outside it.
+    pub fn contains_m(&self, position_m: DVec3, tolerance_m: f64) -> bool {
+        (position_m - self.closest_point_m(position_m)).length() <= tolerance_m
+    }
+}
+
+/// The arm's own dynamics. Missing optional keys take the defaults noted.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmParams {
+    /// Moving mass at the end effector (kg), > 0.
+    pub mass_kg: f64,
+    /// Viscous damping to ground (N s/m), >= 0.
+    pub damping_n_s_per_m: f64,
+    /// Where the arm can go.
+    pub workspace: Workspace,
+    /// Physics substeps per servo tick, >= 1 (default 10).
+    #[serde(default = "default_substeps_per_tick")]
+    pub substeps_per_tick: u32,
+    /// Stiffness of the workspace wall (N/m), >= 0 (default 5000).
+    #[serde(default = "default_wall_stiffness_n_per_m")]
+    pub wall_stiffness_n_per_m: f64,
+    /// Damping of the workspace wall along its normal while outside (N s/m), >= 0 (default 10).
+    #[serde(default = "default_wall_damping_n_s_per_m")]
+    pub wall_damping_n_s_per_m: f64,
+}
+
+/// The virtual hand's grip: a spring-damper between the hand target and the arm.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandParams {
+    /// Spring stiffness (N/m), > 0.
+    pub stiffness_n_per_m: f64,
+    /// Damping on the velocity error (N s/m), >= 0.
+    pub damping_n_s_per_m: f64,
+}
+
+/// Everything that defines a simulated arm; deserialises from a scenario TOML table with `[arm]`,
+/// `[hand]` and `[path]` sub-tables.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimArmConfig {
+    /// The arm's dynamics and workspace.
+    pub arm: ArmParams,
+    /// The hand's grip.
+    pub hand: HandParams,
+    /// What the hand does over time.
+    pub path: HandPath,
+}
+
+/// What happened during one [`SimArm::step`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StepOutcome {
+    /// The arm was outside the workspace (the wall pushed) during at least one substep.
+    pub workspace_limit_hit: bool,
+    /// The rendered force had a non-finite component and was replaced by zero.
+    pub force_rejected: bool,
+}
+
+/// A simulated haptic arm: a damped point mass driven by a virtual hand. See the `sim` module header.
+#[derive(Clone, Debug)]
+pub struct SimArm {
+    config: SimArmConfig,
+    max_substep_s: f64,
+    position_m: DVec3,
+    velocity_m_per_s: DVec3,
+    hand_force_n: DVec3,
+    wall_force_n: DVec3,
+    rejected_force_count: u64,
+    /// When set, the hand pulls towards this point (at rest) instead of following its path: a user dragging
+    /// the hand with the mouse in the visualiser.
+    hand_target_override_m: Option<DVec3>,
+    /// When set, the scripted path is in the scene frame and this maps the arm's (device) frame into it
+    /// ([`SimArm::use_scene_frame`]); `None` for the identity, so such arms compute exactly as unmapped ones.
+    path_mapping: Option<WorkspaceMapping>,
+}
+
+fn positive(name: &'static str, value: f64) -> Result<(), SimError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(SimError::InvalidParameter {
+            name,
+            value,
+            requirement: "finite and > 0",
+        })
+    }
+}
+
+fn non_negative(name: &'static str, value: f64) -> Result<(), SimError> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(SimError::InvalidParameter {
+            name,
+            value,
+            requirement: "finite and >= 0",
+        })
+    }
+}
+
+impl SimArm {
+    /// Checks the configuration and places the arm at rest at `start_m`.
+    pub fn new(config: SimArmConfig, start_m: DVec3) -> Result<Self, SimError> {
+        let arm = &config.arm;
+        check_positive_at_most("arm.mass_kg", arm.mass_kg, MAX_ARM_MASS_KG, "kg")?;
+        non_negative("arm.damping_n_s_per_m", arm.damping_n_s_per_m)?;
+        positive("arm.substeps_per_tick", f64::from(arm.substeps_per_tick))?;
+        non_negative("arm.wall_stiffness_n_per_m", arm.wall_stiffness_n_per_m)?;
+        non_negative("arm.wall_damping_n_s_per_m", arm.wall_damping_n_s_per_m)?;
+        arm.workspace.validate()?;
+        positive("hand.stiffness_n_per_m", config.hand.stiffness_n_per_m)?;
+        non_negative("hand.damping_n_s_per_m", config.hand.damping_n_s_per_m)?;
+        config.path.validate()?;
+        check_vector_within("start_m", start_m, MAX_POSITION_M, "m")?;
+
+        let stiffness_total_n_per_m = config.hand.stiffness_n_per_m
+            + if matches!(arm.workspace, Workspace::Unbounded) {
+                0.0
+            } else {
+                arm.wall_stiffness_n_per_m
+            };
+        let damping_total_n_s_per_m =
+            arm.damping_n_s_per_m + config.hand.damping_n_s_per_m + arm.wall_damping_n_s_per_m;
+        let spring_limit_s = (arm.mass_kg / stiffness_total_n_per_m).sqrt();
+        let damping_limit_s = if damping_total_n_s_per_m > 0.0 {
+            arm.mass_kg / damping_total_n_s_per_m
+        } else {
+            f64::INFINITY
+        };
+        Ok(SimArm {
+            max_substep_s: spring_limit_s.min(damping_limit_s),
+            config,
+            position_m: start_m,
+            velocity_m_per_s: DVec3::ZERO,
+            hand_force_n: DVec3::ZERO,
+            wall_force_n: DVec3::ZERO,
+            rejected_force_count: 0,
+            hand_target_override_m: None,
+            path_mapping: None,
+        })
+    }
+
+    /// Advances the arm by one servo tick `[t_s, t_s + dt_s)` under the rendered force `rendered_force_n`
+    /// (the force the haptic loop sends to the device), in `substeps_per_tick` semi-implicit Euler steps.
+    ///
+    /// A rendered force with a non-finite component is replaced by zero, counted
+    /// ([`SimArm::rejected_force_count`]) and reported in the outcome. No allocation.
+    pub fn step(
+        &mut self,
+        t_s: f64,
+        dt_s: f64,
+        rendered_force_n: DVec3,
+    ) -> Result<StepOutcome, SimError> {
+        if !t_s.is_finite() || !dt_s.is_finite() || dt_s <= 0.0 {
+            return Err(SimError::InvalidTime { t_s, dt_s });
+        }
+        let substeps = self.config.arm.substeps_per_tick;
+        let substep_s = dt_s / f64::from(substeps);
+        if substep_s > self.max_substep_s {
+            return Err(SimError::SubstepTooLong {
+                substep_s,
+                max_substep_s: self.max_substep_s,
+            });
+        }
+        let mut outcome = StepOutcome::default();
+        let rendered_n = if rendered_force_n.is_finite() {
+            rendered_force_n
+        } else {
+            self.rejected_force_count += 1;
+            outcome.force_rejected = true;
+            DVec3::ZERO
+        };
+
+        let arm = self.config.arm;
+        let hand = self.config.hand;
+        let inverse_mass_per_kg = 1.0 / arm.mass_kg;
+        for i in 0..substeps {
+            let time_s = t_s + f64::from(i) * substep_s;
+            let x = self.position_m;
+            let v = self.velocity_m_per_s;
+            let drive = match self.hand_target_override_m {
+                Some(position_m) => HandDrive::Target {
+                    position_m,
+                    velocity_m_per_s: DVec3::ZERO,
+                },
+                None => self.scripted_drive_at(time_s),
+            };
+            self.hand_force_n = match drive {
+                HandDrive::Target {
+                    position_m,
+                    velocity_m_per_s,
+                } => {
+                    hand.stiffness_n_per_m * (position_m - x)
+                        + hand.damping_n_s_per_m * (velocity_m_per_s - v)
+                }
+                HandDrive::Force { force_n } => force_n,
+            };
+            self.wall_force_n = wall_force_n(&arm, x, v);
+            if self.wall_force_n != DVec3::ZERO || !arm.workspace.contains_m(x, 0.0) {
+                outcome.workspace_limit_hit = true;
+            }
+            let force_n =
+                rendered_n + self.hand_force_n + self.wall_force_n - arm.damping_n_s_per_m * v;
+            self.velocity_m_per_s = v + force_n * (inverse_mass_per_kg * substep_s);
+            self.position_m = x + self.velocity_m_per_s * substep_s;
+        }
+        Ok(outcome)
+    }
+
+    /// Reads the scripted path and the start point as scene positions under `mapping` (device frame to
+    /// scene frame, `x_scene = s R x_device + t`): the arm is placed at rest at the device point that maps to
+    /// `start_scene_m`, and from then on the hand follows the path's targets mapped into the device frame
+    /// (`Rᵀ (p - t) / s`, velocities `Rᵀ v / s`) or pushes with its scripted force rotated back (`Rᵀ f`, not
+    /// scaled, as every scene force). The workspace limit and a hand target set with
+    /// [`SimArm::set_hand_target_m`] stay in the device frame. Meant to be called before the first step; the
+    /// identity mapping leaves the path as it is. A start point that leaves f64's range in the device frame is refused
+    /// (nothing changes).
+    pub fn use_scene_frame(
+        &mut self,
+        mapping: WorkspaceMapping,
+        start_scene_m: DVec3,
+    ) -> Result<(), SimError> {
+        let start_m = mapping.to_device_position_m(start_scene_m);
+        if !start_m.is_finite() {
+            return Err(SimError::NonFiniteVector {
+                name: "start_m (mapped into the device frame)",
+            });
+        }
+        self.path_mapping = (!mapping.is_identity()).then_some(mapping);
+        self.position_m = start_m;
+        self.velocity_m_per_s = DVec3::ZERO;
+        self.hand_force_n = DVec3::ZERO;
+        self.wall_force_n = DVec3::ZERO;
+        Ok(())
+    }
+
+    /// The scripted path's drive at `time_s`, in the arm's (device) frame.
+    fn scripted_drive_at(&self, time_s: f64) -> HandDrive {
+        let drive = self.config.path.drive_at(time_s);
+        let Some(mapping) = self.path_mapping else {
+            return drive;
+        };
+        match drive {
+            HandDrive::Target {
+                position_m,
+                velocity_m_per_s,
+            } => HandDrive::Target {
+                position_m: mapping.to_device_position_m(position_m),
+                velocity_m_per_s: mapping.to_device_velocity_m_per_s(velocity_m_per_s),
+            },
+            HandDrive::Force { force_n } => HandDrive::Force {
+                force_n: mapping.to_device_force_n(force_n),
+            },
+        }
+    }
+
+    /// Makes the hand pull towards `target_m` (held still) instead of following its path, or, with `None`,
+    /// resume the path. A non-finite target is refused (returns false, nothing changes).
+    pub fn set_hand_target_m(&mut self, target_m: Option<DVec3>) -> bool {
+        if target_m.is_some_and(|t| !t.is_finite()) {
+            return false;
+        }
+        self.hand_target_override_m = target_m;
+        true
+    }
+
+    /// The hand target set by [`SimArm::set_hand_target_m`], if any.
+    pub fn hand_target_m(&self) -> Option<DVec3> {
+        self.hand_target_override_m
+    }
+
+    /// The end effector's position (m): the probe position the servo loop reads.
+    pub fn position_m(&self) -> DVec3 {
+        self.position_m
+    }
+
+    /// The end effector's velocity (m/s).
+    pub fn velocity_m_per_s(&self) -> DVec3 {
+        self.velocity_m_per_s
+    }
+
+    /// The force the hand applied during the last substep (N).
+    pub fn hand_force_n(&self) -> DVec3 {
+        self.hand_force_n
+    }
+
+    /// The force the workspace wall applied during the last substep (N); zero inside the workspace.
+    pub fn wall_force_n(&self) -> DVec3 {
+        self.wall_force_n
+    }
+
+    /// How many rendered forces were rejected as non-finite since the arm was built.
+    pub fn rejected_force_count(&self) -> u64 {
+        self.rejected_force_count
+    }
+
+    /// The longest stable physics substep for this configuration (s).
+    pub fn max_substep_s(&self) -> f64 {
+        self.max_substep_s
+    }
+
+    /// The configuration the arm was built with.
+    pub fn config(&self) -> &SimArmConfig {
+        &self.config
+    }
+}
+
+/// The one-sided wall force at `x` moving at `v`: `max(0, k_w d + b_w v.n)` along `-n` outside the
+/// workspace (d the distance outside, n the outward normal), zero inside.
+fn wall_force_n(arm: &ArmParams, x: DVec3, v: DVec3) -> DVec3 {
+    let outside = x - arm.workspace.closest_point_m(x);
+    let distance_m = outside.length();
+    if distance_m <= 0.0 {
+        return DVec3::ZERO;
+    }
+    let normal = outside / distance_m;
+    let push_n = (arm.wall_stiffness_n_per_m * distance_m
+        + arm.wall_damping_n_s_per_m * v.dot(normal))
+    .max(0.0);
+    -push_n * normal
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT_S: f64 = 1e-3;
+
+    fn config(path: HandPath, workspace: Workspace) -> SimArmConfig {
+        SimArmConfig {
+            arm: ArmParams {
+                mass_kg: 0.1,
+                damping_n_s_per_m: 1.0,
+                workspace,
+                substeps_per_tick: 10,
+                wall_stiffness_n_per_m: 5000.0,
+                wall_damping_n_s_per_m: 10.0,
+            },
+            hand: HandParams {
+                stiffness_n_per_m: 400.0,
+                damping_n_s_per_m: 8.0,
+            },
+            path,
+        }
+    }
+
+    fn big_box() -> Workspace {
+        Workspace::Box {
+            min_m: DVec3::splat(-1.0),
+            max_m: DVec3::splat(1.0),
+        }
+    }
+
+    /// Runs `ticks` ticks at 1 kHz with a rendered force given per tick; returns the final arm.
+    fn run(
+        mut arm: SimArm,
+        ticks: u64,
+        mut force: impl FnMut(u64, &SimArm) -> DVec3,
+    ) -> (SimArm, bool) {
+        let mut limit_hit = false;
+        for tick in 0..ticks {
+            let f = force(tick, &arm);
+            let outcome = arm.step(tick as f64 * DT_S, DT_S, f).expect("valid step");
+            limit_hit |= outcome.workspace_limit_hit;
+        }
+        (arm, limit_hit)
+    }
+
+    #[test]
+    fn hand_follows_a_line_with_the_documented_steady_state_lag() {
+        let from = DVec3::new(-0.05, 0.0, 0.0);
+        let to = DVec3::new(0.05, 0.02, 0.0);
+        let path = HandPath::Line {
+            from_m: from,
+            to_m: to,
+            duration_s: 2.0,
+        };
+        let cfg = config(path.clone(), big_box());
+        let arm = SimArm::new(cfg.clone(), from).unwrap();
+        // At t = 1 s (after 1000 ticks), transients (time constant 2 m / b = 22 ms) are gone.
+        let (arm, _) = run(arm, 1000, |_, _| DVec3::ZERO);
+        let velocity = (to - from) / 2.0;
+        let expected_lag = cfg.arm.damping_n_s_per_m * velocity / cfg.hand.stiffness_n_per_m;
+        let target = path.target_at(1.0).unwrap();
+        let error = target - arm.position_m();
+        assert!(
+            (error - expected_lag).length() < 1e-9,
+            "lag {error} expected {expected_lag}"
+        );
+        assert!((arm.velocity_m_per_s() - velocity).length() < 1e-9);
+    }
+
+    /// Scale 2, a quarter turn about z, a translation: the path and the start point are scene positions.
+    fn scene_mapping() -> WorkspaceMapping {
+        WorkspaceMapping::new(
+            crate::mapping::rotation_from_degrees([0.0, 0.0, 90.0]),
+            2.0,
+            DVec3::new(0.1, -0.05, 0.02),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_path_in_the_scene_frame_is_followed_through_the_mapping() {
+        let mapping = scene_mapping();
+        let (from, to) = (DVec3::new(0.0, 0.0, 0.02), DVec3::new(0.2, 0.04, 0.02));
+        let path = HandPath::Line {
+            from_m: from,
+            to_m: to,
+            duration_s: 2.0,
+        };
+        let cfg = config(path.clone(), big_box());
+        let mut arm = SimArm::new(cfg.clone(), from).unwrap();
+        arm.use_scene_frame(mapping, from).unwrap();
+        assert!((arm.position_m() - mapping.to_device_position_m(from)).length() < 1e-15);
+        // The documented steady-state lag, in the device frame: the device target moves at Rᵀ V / s.
+        let (arm, _) = run(arm, 1000, |_, _| DVec3::ZERO);
+        let device_velocity = mapping.to_device_velocity_m_per_s((to - from) / 2.0);
+        let expected_lag = cfg.arm.damping_n_s_per_m * device_velocity / cfg.hand.stiffness_n_per_m;
+        let device_target = mapping.to_device_position_m(path.target_at(1.0).unwrap());
+        let error = device_target - arm.position_m();
+        assert!(
+            (error - expected_lag).length() < 1e-9,
+            "lag {error} expected {expected_lag}"
+        );
+        // Seen from the scene, the arm ends where the scene path ends.
+        let (arm, _) = run(arm, 3000, |_, _| DVec3::ZERO);
+        let end = mapping.to_scene_position_m(arm.position_m());
+        assert!((end - to).length() < 1e-6, "{end}");
+    }
+
+    #[test]
+    fn a_scripted_force_in_the_scene_frame_is_rotated_back_not_scaled() {
+        let mapping = scene_mapping();
+        let force = DVec3::new(0.0, 0.1, 0.0);
+        let path = HandPath::Force {
+            profile: super::super::ForceProfile::Constant { force_n: force },
+        };
+        let cfg = config(path, big_box());
+        let mut arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        arm.use_scene_frame(mapping, mapping.translation_m())
+            .unwrap();
+        assert_eq!(arm.position_m(), DVec3::ZERO);
+        // Terminal velocity F / b (time constant m / b = 0.1 s), F = Rᵀ f: the scene's +y is the device's +x.
+        let (arm, _) = run(arm, 1500, |_, _| DVec3::ZERO);
+        let expected = DVec3::new(0.1, 0.0, 0.0) / cfg.arm.damping_n_s_per_m;
+        assert!(
+            (arm.velocity_m_per_s() - expected).length() < 1e-5,
+            "{}",
+            arm.velocity_m_per_s()
+        );
+        // A start point beyond f64's range in the device frame is refused, and nothing changes.
+        let mut tiny = SimArm::new(cfg, DVec3::ZERO).unwrap();
+        let shrink = WorkspaceMapping::new(glam::DMat3::IDENTITY, 1e-6, DVec3::ZERO).unwrap();
+        assert!(tiny.use_scene_frame(shrink, DVec3::splat(1e303)).is_err());
+        assert_eq!(tiny.position_m(), DVec3::ZERO);
+        assert!(tiny.path_mapping.is_none());
+    }
+
+    #[test]
+    fn constant_rendered_force_balances_the_hand_spring_at_f_over_k() {
+        let hold = DVec3::new(0.01, -0.02, 0.03);
+        let cfg = config(HandPath::Hold { at_m: hold }, big_box());
+        let arm = SimArm::new(cfg.clone(), hold).unwrap();
+        let force = DVec3::new(0.5, -1.0, 2.0);
+        let (arm, _) = run(arm, 2000, |_, _| force);
+        let expected = hold + force / cfg.hand.stiffness_n_per_m;
+        assert!(
+            (arm.position_m() - expected).length() < 1e-12,
+            "{} vs {expected}",
+            arm.position_m()
+        );
+    }
+
+    #[test]
+    fn workspace_box_limit_holds_within_force_over_wall_stiffness() {
+        let workspace = Workspace::Box {
+            min_m: DVec3::splat(-0.05),
+            max_m: DVec3::splat(0.05),
+        };
+        // The hand tries to drag the arm 0.1 m past the +x face.
+        let target = DVec3::new(0.15, 0.0, 0.0);
+        let cfg = config(HandPath::Hold { at_m: target }, workspace);
+        let arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        let mut deepest_m: f64 = 0.0;
+        let (arm, limit_hit) = run(arm, 3000, |_, arm| {
+            let x = arm.position_m();
+            deepest_m = deepest_m.max((x - workspace.closest_point_m(x)).length());
+            DVec3::ZERO
+        });
+        assert!(limit_hit);
+        // Dynamic bound: the energy E = m v^2/2 + k_h |x - target|^2/2 + k_w d^2/2 only decreases (the
+        // target is fixed and every damper dissipates), so k_w d^2/2 <= E(0) = k_h 0.15^2/2.
+        let k_h = cfg.hand.stiffness_n_per_m;
+        let k_w = cfg.arm.wall_stiffness_n_per_m;
+        let energy_bound_m = (k_h * 0.15 * 0.15 / k_w).sqrt();
+        assert!(
+            deepest_m <= energy_bound_m,
+            "{deepest_m} > {energy_bound_m}"
+        );
+        // At rest: k_h (0.15 - x) = k_w (x - 0.05), a penetration of F / k_w.
+        let rest_x = (k_h * 0.15 + k_w * 0.05) / (k_h + k_w);
+        assert!((arm.position_m().x - rest_x).abs() < 1e-9);
+    }
+
+    #[test]
+    fn workspace_sphere_limit_holds() {
+        let workspace = Workspace::Sphere {
+            center_m: DVec3::ZERO,
+            radius_m: 0.05,
+        };
+        let path = HandPath::Circle {
+            center_m: DVec3::ZERO,
+            radius_m: 0.08,
+            normal: DVec3::new(0.3, 0.1, 1.0),
+            period_s: 1.0,
+        };
+        let cfg = config(path, workspace);
+        let arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        let tolerance_m = cfg.hand.stiffness_n_per_m * 0.2 / cfg.arm.wall_stiffness_n_per_m;
+        let (arm, limit_hit) = run(arm, 3000, |_, arm| {
+            assert!(arm
+                .config()
+                .arm
+                .workspace
+                .contains_m(arm.position_m(), tolerance_m));
+            DVec3::ZERO
+        });
+        assert!(limit_hit);
+        assert!(arm.position_m().length() > 0.05);
+    }
+
+    #[test]
+    fn identical_runs_give_identical_bits() {
+        let path = HandPath::Raster {
+            origin_m: DVec3::new(-0.03, -0.03, 0.0),
+            sweep_m: DVec3::new(0.06, 0.0, 0.0),
+            step_m: DVec3::new(0.0, 0.06, 0.0),
+            lines: 4,
+            speed_m_per_s: 0.05,
+        };
+        let trajectory = || {
+            let mut arm = SimArm::new(config(path.clone(), big_box()), DVec3::ZERO).unwrap();
+            let mut bits = Vec::new();
+            for tick in 0..2000u64 {
+                let t = tick as f64 * DT_S;
+                let push = DVec3::new(0.0, 0.0, -(arm.position_m().z.min(0.0)) * 800.0);
+                arm.step(t, DT_S, push).unwrap();
+                let p = arm.position_m();
+                bits.extend([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]);
+            }
+            bits
+        };
+        assert_eq!(trajectory(), trajectory());
+    }
+
+    #[test]
+    fn non_finite_force_is_treated_as_zero_and_counted() {
+        let cfg = config(HandPath::Hold { at_m: DVec3::ZERO }, big_box());
+        let mut arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        let mut twin = SimArm::new(cfg, DVec3::ZERO).unwrap();
+        let outcome = arm.step(0.0, DT_S, DVec3::new(f64::NAN, 0.0, 1.0)).unwrap();
+        twin.step(0.0, DT_S, DVec3::ZERO).unwrap();
+        assert!(outcome.force_rejected);
+        arm.step(DT_S, DT_S, DVec3::new(0.0, f64::INFINITY, 0.0))
+            .unwrap();
+        twin.step(DT_S, DT_S, DVec3::ZERO).unwrap();
+        assert_eq!(arm.rejected_force_count(), 2);
+        assert_eq!(arm.position_m(), twin.position_m());
+        assert!(arm.position_m().is_finite());
+    }
+
+    #[test]
+    fn force_profile_drives_the_arm_against_its_damping() {
+        let profile = super::super::ForceProfile::Constant {
+            force_n: DVec3::new(0.2, 0.0, 0.0),
+        };
+        let cfg = config(HandPath::Force { profile }, Workspace::Unbounded);
+        let arm = SimArm::new(cfg.clone(), DVec3::ZERO).unwrap();
+        let (arm, _) = run(arm, 2000, |_, _| DVec3::ZERO);
+        // Terminal velocity F / b_arm.
+        let expected = 0.2 / cfg.arm.damping_n_s_per_m;
+        assert!((arm.velocity_m_per_s().x - expected).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bad_parameters_and_steps_are_rejected_with_their_names() {
+        let mut cfg = config(HandPath::Hold { at_m: DVec3::ZERO }, big_box());
+        cfg.arm.mass_kg = -1.0;
+        let message = SimArm::new(cfg.clone(), DVec3::ZERO)
+            .unwrap_err()
+            .to_string();
+        assert!(message.contains("arm.mass_kg"), "{message}");
+        cfg.arm.mass_kg = 0.1;
+        cfg.arm.workspace = Workspace::Box {
+            min_m: DVec3::ONE,
+            max_m: DVec3::ZERO,
+        };
+        assert_eq!(
+            SimArm::new(cfg.clone(), DVec3::ZERO).unwrap_err(),
+            SimError::InvertedBox
+        );
+        cfg.arm.workspace = big_box();
+        assert!(SimArm::new(cfg.clone(), DVec3::splat(f64::NAN)).is_err());
+        let mut arm = SimArm::new(cfg, DVec3::ZERO).unwrap();
+        assert!(matches!(
+            arm.step(0.0, 0.0, DVec3::ZERO),
+            Err(SimError::InvalidTime { .. })
+        ));
+        assert!(matches!(
+            arm.step(f64::NAN, DT_S, DVec3::ZERO),
+            Err(SimError::InvalidTime { .. })
+        ));
+        // A 1 s tick with 10 substeps is far beyond the stable limit.
+        assert!(matches!(
+            arm.step(0.0, 1.0, DVec3::ZERO),
+            Err(SimError::SubstepTooLong { .. })
+        ));
+    }
+
+    #[test]
+    fn config_parses_from_toml_with_defaults() {
+        let text = r#"
+            [arm]
+            mass_kg = 0.15
+            damping_n_s_per_m = 0.5
+            workspace = { shape = "box", min_m = [-0.1, -0.1, -0.1], max_m = [0.1, 0.1, 0.1] }
+
+            [hand]
+            stiffness_n_per_m = 300.0
+            damping_n_s_per_m = 5.0
+
+            [path]
+            kind = "waypoints"
+            points_m = [[0.0, 0.0, 0.0], [0.02, 0.0, -0.01]]
+            speed_m_per_s = 0.02
+        "#;
+        let cfg: SimArmConfig = toml::from_str(text).expect("parses");
+        assert_eq!(cfg.arm.substeps_per_tick, 10);
+        assert_eq!(cfg.arm.wall_stiffness_n_per_m, 5000.0);
+        assert!(SimArm::new(cfg, DVec3::ZERO).is_ok());
+    }
+
+    proptest::proptest! {
+        /// Any finite force sequence keeps the state finite (the stable-substep check holds).
+        #[test]
+        fn state_stays_finite_under_bounded_forces(
+            forces in proptest::collection::vec(
+                (-50.0f64..50.0, -50.0f64..50.0, -50.0f64..50.0), 1..300)
+        ) {
+            let workspace = Workspace::Sphere { center_m: DVec3::ZERO, radius_m: 0.05 };
+            let mut arm = SimArm::new(config(HandPath::Hold { at_m: DVec3::ZERO }, workspace), DVec3::ZERO)
+                .unwrap();
+            for (tick, (x, y, z)) in forces.into_iter().enumerate() {
+                arm.step(tick as f64 * DT_S, DT_S, DVec3::new(x, y, z)).unwrap();
+                proptest::prop_assert!(arm.position_m().is_finite());
+                // 50 N * sqrt(3) against the wall: well inside a 0.05 m tolerance.
+                proptest::prop_assert!(workspace.contains_m(arm.position_m(), 0.05));
+            }
+        }
+    }
+}

@@ -1,0 +1,873 @@
+//! The Haply Inverse Service's simulation channel (JSON over WebSocket), run on a dedicated I/O thread so the
+//! servo thread never touches a socket.
+//!
+//! Where it sits: under the Haply Inverse3 driver (crates/device/src/drivers/haply_inverse.rs). The servo thread pushes
+//! one force command per tick into a lock-free ring (rtrb) and reads the newest device state from a triple buffer,
+//! as the recorder hands trace rows to its writer thread (crates/servo/src/recorder.rs); this thread does the WebSocket
+//! exchange, parses JSON and allocates as it needs.
+//!
+//! Protocol (Haply's published service documentation, docs.haply.co/inverseSDK/service: "Simulation Channel",
+//! "WebSocket Protocol", "Control Commands", "Basis Permutation"): the service listens on ws://localhost:10001;
+//! on connect it sends one inventory message (`{"session_id":…, "inverse3":[{"device_id":"049D", "config":{…},
+//! "state":{…}, "status":{…}}]}`); after that it sends exactly one state update (device `state` and `status`) for
+//! every message the client sends. A force is the per-tick, non-persistent command
+//! `{"inverse3":[{"device_id":ID,"commands":{"set_cursor_force":{"vector":{"x":…,"y":…,"z":…}}}}]}` in newtons;
+//! when commands stop the device returns to idle. The first message may carry
+//! `"session":{"configure":{"profile":{"name":…},"basis":{"permutation":"XYZ"}}}`: voxhap asks for the identity
+//! basis, so positions (m), velocities (m/s) and forces (N) are in Haply's own right-handed frame (+X right,
+//! +Y forward, +Z up, origin on the mounting plate) whatever an earlier application configured; the device
+//! profile maps that frame onto the scene. State fields that are absent keep their previous value (the
+//! service's partial-update semantics).
+//!
+//! The thread sends a force as soon as one is queued (coalescing to the newest if several are: it never falls
+//! behind) and reads the reply. Its socket is non-blocking: it waits with poll(2), and before every send,
+//! right after it and while waiting for the reply it **drains** the socket, reading every complete message
+//! already there, so a service that sends more than one message per command (a second reply, unsolicited
+//! updates) builds no backlog: the state published is always the newest received. Invariants:
+//!
+//! - Replies are counted against the messages sent, in order. A message that arrives when every message
+//!   sent has had its reply is an **extra**: it updates the position, is counted (`extra`; the driver reports
+//!   it as [`crate::DeviceEvent::Surplus`]) and never advances the label below.
+//! - Each published state is labelled with the sequence of the force it answers at the latest: its reply's
+//!   message, but never a force sent after the socket was last found empty (`floor`). A reply that came after
+//!   `reply_timeout` (a busy service) is read later and labelled with its own, older sequence; a message
+//!   counted against the wrong force because of extras is at most as new as the newest force sent before the
+//!   drain that preceded it, since TCP keeps the order. So the age the driver reports is never younger than
+//!   the message is, whatever the service sends.
+//! - More than [`MAX_DRAIN_MESSAGES`] in one drain (a flood), a send that cannot leave within
+//!   [`WRITE_TIMEOUT`] (a service that reads nothing) or a socket error ends the thread and raises
+//!   `link_down`; the driver then reports a disconnect and the supervisor reconnects with a new driver (with
+//!   back-off, `servo::device::reconnect`). The stop therefore never waits on the service for more than a few
+//!   write timeouts.
+//! - The connect (TCP, WebSocket handshake, inventory, the answer to the session configuration) has one
+//!   overall deadline, `connect_timeout`: every read and write of it gets only the time left
+//!   ([`ServiceStream`]), so a service that sends its handshake one byte at a time fails the open at the
+//!   deadline.
+//!
+//! With no force for 100 ms the thread sends a zero-force keepalive (Haply's own tutorials do the same).
+//! Malformed frames (not JSON, binary, no state for our device) are counted and skipped. On stop the thread
+//! sends a zero force, then a WebSocket close.
+
+use crate::DeviceError;
+use glam::DVec3;
+use serde::Deserialize;
+use std::io::{Read, Write};
+use std::net::{TcpStream, ToSocketAddrs};
+use std::os::fd::AsRawFd;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tungstenite::protocol::WebSocketConfig;
+use tungstenite::{Message, WebSocket};
+
+/// The service's default simulation channel.
+pub const DEFAULT_URL: &str = "ws://127.0.0.1:10001";
+/// Largest message accepted from the service (bytes); an inventory of a few devices is a few kilobytes.
+pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
+/// With no force queued for this long the thread sends a zero-force keepalive.
+pub const KEEPALIVE_INTERVAL: Duration = Duration::from_millis(100);
+/// Capacity of the force ring (ticks): a full ring means the I/O thread has stalled this long.
+pub const FORCE_RING_CAPACITY: usize = 64;
+/// Longest a message to the service may take to leave (the socket's send buffer full because the service
+/// stopped reading): past it the link is dropped, so no stop waits on a service that reads nothing.
+pub const WRITE_TIMEOUT: Duration = Duration::from_millis(100);
+/// Most messages read in one drain: a service that always has more than this many waiting floods the link,
+/// which is then dropped (a message per command and a few unsolicited updates are a handful).
+pub const MAX_DRAIN_MESSAGES: usize = 1024;
+
+/// A vector as the service writes it.
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+pub struct WireVec3 {
+    /// x
+    #[serde(default)]
+    pub x: f64,
+    /// y
+    #[serde(default)]
+    pub y: f64,
+    /// z
+    #[serde(default)]
+    pub z: f64,
+}
+
+impl From<WireVec3> for DVec3 {
+    fn from(v: WireVec3) -> DVec3 {
+        DVec3::new(v.x, v.y, v.z)
+    }
+}
+
+/// The part of an Inverse3's `state` voxhap reads.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct WireState {
+    /// Handle position (m).
+    pub cursor_position: Option<WireVec3>,
+    /// Handle velocity (m/s).
+    pub cursor_velocity: Option<WireVec3>,
+}
+
+/// `config.device_info` of the inventory.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct WireDeviceInfo {
+    /// Firmware major version.
+    pub major_version: Option<u32>,
+    /// Firmware minor version.
+    pub minor_version: Option<u32>,
+    /// Device id.
+    pub id: Option<String>,
+    /// Device type code.
+    pub device_type: Option<u32>,
+}
+
+/// The part of an Inverse3's `config` voxhap reads (inventory only).
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct WireConfig {
+    /// "inverse3", "inverse3x", "minverse".
+    #[serde(rename = "type")]
+    pub device_type: Option<String>,
+    /// Firmware identity.
+    pub device_info: Option<WireDeviceInfo>,
+    /// "left" or "right".
+    pub handedness: Option<String>,
+}
+
+/// One Inverse3 in a message.
+#[derive(Debug, Clone, Deserialize)]
+pub struct WireInverse3 {
+    /// The id commands are addressed to.
+    pub device_id: String,
+    /// Configuration (inventory only).
+    pub config: Option<WireConfig>,
+    /// State.
+    pub state: Option<WireState>,
+}
+
+/// A message from the service (inventory or state update).
+#[derive(Debug, Clone, Deserialize)]
+pub struct WireFrame {
+    /// Session id (inventory).
+    pub session_id: Option<u64>,
+    /// Inverse3 devices (absent: none).
+    #[serde(default)]
+    pub inverse3: Vec<WireInverse3>,
+}
+
+/// The identity of the driven device, from the inventory.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceDevice {
+    /// The device id.
+    pub device_id: String,
+    /// "inverse3", "inverse3x", "minverse" (as the service says).
+    pub device_type: String,
+    /// Firmware version "major.minor", when reported.
+    pub firmware: Option<String>,
+    /// "left" / "right", when reported.
+    pub handedness: Option<String>,
+    /// The session the service assigned.
+    pub session_id: Option<u64>,
+}
+
+/// One force command from the servo thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForceCommand {
+    /// Tick sequence (starts at 1).
+    pub sequence: u64,
+    /// Force (N, Haply frame).
+    pub force_n: DVec3,
+}
+
+/// The newest state, published by the I/O thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServiceSnapshot {
+    /// Sequence of the command this state answers (0 before the first).
+    pub answers_sequence: u64,
+    /// Handle position (m).
+    pub position_m: DVec3,
+    /// Handle velocity (m/s).
+    pub velocity_m_per_s: DVec3,
+}
+
+/// Counters and flags shared by both threads.
+#[derive(Debug, Default)]
+pub struct ServiceShared {
+    /// Set by the driver to end the thread.
+    pub stop: AtomicBool,
+    /// Raised by the thread when the connection is gone.
+    pub link_down: AtomicBool,
+    /// Messages sent (forces and keepalives).
+    pub sent: AtomicU64,
+    /// State updates received and used.
+    pub states: AtomicU64,
+    /// Frames that could not be used (not JSON, binary, no state for our device).
+    pub malformed: AtomicU64,
+    /// Commands dropped because a newer one was queued behind them.
+    pub coalesced: AtomicU64,
+    /// Messages beyond the one reply per message sent (duplicates, unsolicited updates): read, used for the
+    /// position (the newest wins) and counted, never taken for the answer to a newer command.
+    pub extra: AtomicU64,
+    /// Raised with `link_down` when the link was dropped because the service flooded it
+    /// ([`MAX_DRAIN_MESSAGES`]).
+    pub flooded: AtomicBool,
+}
+
+/// The servo thread's end of the channel.
+pub struct ServiceLink {
+    /// Force commands to the I/O thread.
+    pub forces: rtrb::Producer<ForceCommand>,
+    /// Newest state from the I/O thread.
+    pub states: triple_buffer::Output<ServiceSnapshot>,
+    /// Flags and counters.
+    pub shared: Arc<ServiceShared>,
+    /// The I/O thread (unparked when a force is queued; joined on close).
+    pub thread: Option<JoinHandle<()>>,
+    /// The device this link drives.
+    pub device: ServiceDevice,
+}
+
+impl std::fmt::Debug for ServiceLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ServiceLink")
+            .field("device", &self.device)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ServiceLink {
+    /// Wakes the I/O thread (lock-free: an atomic and, if it sleeps, a futex wake).
+    pub fn wake(&self) {
+        if let Some(thread) = &self.thread {
+            thread.thread().unpark();
+        }
+    }
+
+    /// Stops the I/O thread (it sends a zero force and a close frame first) and waits for it.
+    pub fn shut_down(&mut self) {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            thread.thread().unpark();
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for ServiceLink {
+    fn drop(&mut self) {
+        self.shut_down();
+    }
+}
+
+/// Settings of a connection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServiceConfig {
+    /// `ws://HOST:PORT[/PATH]`.
+    pub url: String,
+    /// Drive this device id; `None` takes the first Inverse3 of the inventory.
+    pub device_id: Option<String>,
+    /// Time allowed for the TCP connect, the handshake and the inventory.
+    pub connect_timeout: Duration,
+    /// How long the I/O thread waits for the reply to a command before it counts it as lost.
+    pub reply_timeout: Duration,
+    /// Profile name shown in Haply Hub.
+    pub profile_name: String,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        ServiceConfig {
+            url: DEFAULT_URL.to_owned(),
+            device_id: None,
+            connect_timeout: Duration::from_secs(1),
+            reply_timeout: Duration::from_millis(20),
+            profile_name: "voxhap".to_owned(),
+        }
+    }
+}
+
+/// The TCP stream under the WebSocket. While `deadline` is set (connecting), every read and write is given
+/// only the time left before it, so a service that sends its handshake one byte at a time cannot stretch the
+/// connect past its deadline.
+#[derive(Debug)]
+pub struct ServiceStream {
+    stream: TcpStream,
+    deadline: Option<Instant>,
+}
+
+impl ServiceStream {
+    /// The time left before the deadline (`None`: no deadline); an error once it has passed.
+    fn time_left(&self) -> std::io::Result<Option<Duration>> {
+        let Some(deadline) = self.deadline else {
+            return Ok(None);
+        };
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the connect deadline passed",
+            ));
+        }
+        Ok(Some(left))
+    }
+}
+
+impl Read for ServiceStream {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if let Some(left) = self.time_left()? {
+            self.stream.set_read_timeout(Some(left))?;
+        }
+        self.stream.read(buf)
+    }
+}
+
+impl Write for ServiceStream {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if let Some(left) = self.time_left()? {
+            self.stream.set_write_timeout(Some(left))?;
+        }
+        self.stream.write(buf)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
+type Socket = WebSocket<ServiceStream>;
+
+fn open_error(url: &str, reason: &str, kind: std::io::ErrorKind) -> DeviceError {
+    let advice = match kind {
+        std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::TimedOut => {
+            "is the Haply Inverse Service running? (`systemctl status haply-inverse-service`, or open Haply \
+             Hub; docs/devices/haply-inverse3.md)"
+        }
+        _ => super::open_advice(kind),
+    };
+    DeviceError::Open {
+        path: url.to_owned(),
+        message: format!("{reason}: {advice}"),
+    }
+}
+
+/// `host:port` and the request path of a `ws://` URL.
+fn split_url(url: &str) -> Result<(&str, &str), DeviceError> {
+    let rest = url.strip_prefix("ws://").ok_or_else(|| DeviceError::Config {
+        what: format!("Inverse Service URL {url:?} must start with ws:// (the service speaks plain WebSocket on localhost)"),
+    })?;
+    let (authority, _) = rest.split_once('/').unwrap_or((rest, ""));
+    if authority.is_empty() || !authority.contains(':') {
+        return Err(DeviceError::Config {
+            what: format!("Inverse Service URL {url:?} needs HOST:PORT, e.g. {DEFAULT_URL}"),
+        });
+    }
+    Ok((authority, rest))
+}
+
+/// The JSON of one force command (and, on the first message, the session configuration).
+pub fn force_message(device_id: &str, force_n: DVec3, session: Option<&str>) -> String {
+    let mut message = serde_json::json!({
+        "inverse3": [{
+            "device_id": device_id,
+            "commands": {"set_cursor_force": {"vector": {"x": force_n.x, "y": force_n.y, "z": force_n.z}}}
+        }]
+    });
+    if let Some(profile) = session {
+        message["session"] = serde_json::json!({
+            "configure": {"profile": {"name": profile}, "basis": {"permutation": "XYZ"}}
+        });
+    }
+    message.to_string()
+}
+
+/// Reads the next text frame within `deadline`: `Ok(None)` on timeout; pings are answered by tungstenite.
+/// For the blocking socket of the connect phase.
+fn read_text(
+    socket: &mut Socket,
+    deadline: Instant,
+) -> Result<Option<Message>, tungstenite::Error> {
+    loop {
+        match socket.read() {
+            Ok(message @ (Message::Text(_) | Message::Binary(_))) => return Ok(Some(message)),
+            Ok(Message::Close(_)) => return Err(tungstenite::Error::ConnectionClosed),
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(error))
+                if matches!(
+                    error.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                if Instant::now() >= deadline {
+                    return Ok(None);
+                }
+            }
+            Err(error) => return Err(error),
+        }
+    }
+}
+
+fn parse_frame(message: &Message) -> Option<WireFrame> {
+    match message {
+        Message::Text(text) => serde_json::from_str(text.as_str()).ok(),
+        _ => None,
+    }
+}
+
+/// Reads the service's inventory and closes (`voxhap devices`): sends nothing but the WebSocket handshake.
+/// The whole exchange takes at most `timeout`.
+pub fn inventory(url: &str, timeout: Duration) -> Result<Vec<ServiceDevice>, DeviceError> {
+    let deadline = Instant::now() + timeout;
+    let (mut socket, frame) = connect_and_read_inventory(url, deadline, timeout)?;
+    let _ = socket.close(None);
+    let _ = socket.flush();
+    Ok(frame
+        .inverse3
+        .iter()
+        .map(|entry| service_device(entry, frame.session_id))
+        .collect())
+}
+
+fn service_device(entry: &WireInverse3, session_id: Option<u64>) -> ServiceDevice {
+    let info = entry.config.clone().unwrap_or_default();
+    ServiceDevice {
+        device_id: entry.device_id.clone(),
+        device_type: info.device_type.unwrap_or_else(|| "inverse3".to_owned()),
+        firmware: info.device_info.as_ref().and_then(|d| {
+            Some(format!(
+                "{}.{}",
+                d.major_version?,
+                d.minor_version.unwrap_or(0)
+            ))
+        }),
+        handedness: info.handedness,
+        session_id,
+    }
+}
+
+fn connect_timeout_error(timeout: Duration, waiting_for: &'static str) -> DeviceError {
+    DeviceError::Timeout {
+        waited_us: u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX),
+        waiting_for,
+    }
+}
+
+/// TCP connect, WebSocket handshake and the inventory, all before `deadline` (`timeout` is its length, for
+/// the error).
+fn connect_and_read_inventory(
+    url: &str,
+    deadline: Instant,
+    timeout: Duration,
+) -> Result<(Socket, WireFrame), DeviceError> {
+    let (authority, _) = split_url(url)?;
+    let address = authority
+        .to_socket_addrs()
+        .map_err(|e| open_error(url, &e.to_string(), e.kind()))?
+        .next()
+        .ok_or_else(|| {
+            open_error(
+                url,
+                "the host name has no address",
+                std::io::ErrorKind::NotFound,
+            )
+        })?;
+    let left = deadline.saturating_duration_since(Instant::now());
+    if left.is_zero() {
+        return Err(connect_timeout_error(
+            timeout,
+            "a TCP connection to the Inverse Service",
+        ));
+    }
+    let stream = TcpStream::connect_timeout(&address, left)
+        .map_err(|e| open_error(url, &e.to_string(), e.kind()))?;
+    let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
+    stream.set_nodelay(true).map_err(io)?;
+    let stream = ServiceStream {
+        stream,
+        deadline: Some(deadline),
+    };
+    let ws_config = WebSocketConfig::default()
+        .max_message_size(Some(MAX_MESSAGE_BYTES))
+        .max_frame_size(Some(MAX_MESSAGE_BYTES));
+    let (mut socket, _) = tungstenite::client::client_with_config(url, stream, Some(ws_config))
+        .map_err(|e| {
+            if Instant::now() >= deadline {
+                connect_timeout_error(timeout, "the Inverse Service's WebSocket handshake")
+            } else {
+                open_error(
+                    url,
+                    &format!("WebSocket handshake failed ({e})"),
+                    std::io::ErrorKind::InvalidData,
+                )
+            }
+        })?;
+    loop {
+        let message = read_text(&mut socket, deadline)
+            .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?
+            .ok_or(connect_timeout_error(
+                timeout,
+                "the Inverse Service's device inventory",
+            ))?;
+        if let Some(frame) = parse_frame(&message) {
+            return Ok((socket, frame));
+        }
+        if Instant::now() >= deadline {
+            return Err(DeviceError::Protocol {
+                what: "the Inverse Service's first message is not a device inventory",
+            });
+        }
+    }
+}
+
+/// Connects, reads the inventory, picks the device, configures the session (identity basis) with a zero force,
+/// and starts the I/O thread. Everything before the I/O thread starts (TCP connect, WebSocket handshake,
+/// inventory, the answer to the configuration) shares one deadline, `connect_timeout` from the start, however
+/// slowly the service sends its bytes.
+pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
+    let url = config.url.as_str();
+    let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
+    let deadline = Instant::now() + config.connect_timeout;
+    let (mut socket, inventory) =
+        connect_and_read_inventory(url, deadline, config.connect_timeout)?;
+    let entry = inventory
+        .inverse3
+        .iter()
+        .find(|d| config.device_id.as_deref().is_none_or(|id| id == d.device_id))
+        .ok_or_else(|| DeviceError::Open {
+            path: url.to_owned(),
+            message: match &config.device_id {
+                Some(id) => format!(
+                    "the Inverse Service lists no Inverse3 with id {id:?} (it lists {:?})",
+                    inventory.inverse3.iter().map(|d| &d.device_id).collect::<Vec<_>>()
+                ),
+                None => "the Inverse Service lists no Inverse3: is it plugged in, powered and shown in Haply Hub?"
+                    .to_owned(),
+            },
+        })?;
+    let device = service_device(entry, inventory.session_id);
+    let mut snapshot = ServiceSnapshot {
+        answers_sequence: 0,
+        position_m: DVec3::ZERO,
+        velocity_m_per_s: DVec3::ZERO,
+    };
+    apply_state(&mut snapshot, entry.state.as_ref());
+    // Configure the session and read the state that answers it.
+    socket
+        .send(Message::text(force_message(
+            &device.device_id,
+            DVec3::ZERO,
+            Some(&config.profile_name),
+        )))
+        .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?;
+    let reply = read_text(&mut socket, deadline)
+        .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?
+        .ok_or(connect_timeout_error(
+            config.connect_timeout,
+            "the Inverse Service's answer to the session configuration",
+        ))?;
+    if let Some(frame) = parse_frame(&reply) {
+        if let Some(entry) = frame
+            .inverse3
+            .iter()
+            .find(|d| d.device_id == device.device_id)
+        {
+            apply_state(&mut snapshot, entry.state.as_ref());
+        }
+    }
+    // From here on the I/O thread never blocks on the socket: it polls it (module docs).
+    socket.get_mut().deadline = None;
+    socket.get_ref().stream.set_nonblocking(true).map_err(io)?;
+
+    let (forces, force_rx) = rtrb::RingBuffer::new(FORCE_RING_CAPACITY);
+    let (mut state_tx, states) = triple_buffer::triple_buffer(&snapshot);
+    state_tx.write(snapshot);
+    let shared = Arc::new(ServiceShared::default());
+    let thread = {
+        let io_loop = IoLoop {
+            socket,
+            device_id: device.device_id.clone(),
+            states: state_tx,
+            snapshot,
+            shared: shared.clone(),
+            unanswered: std::collections::VecDeque::with_capacity(FORCE_RING_CAPACITY),
+            last_sent: 0,
+            floor: 0,
+        };
+        let reply_timeout = config.reply_timeout;
+        std::thread::Builder::new()
+            .name("voxhap-inverse-io".to_owned())
+            .spawn(move || io_loop.run(force_rx, reply_timeout))
+            .map_err(|e| open_error(url, &e.to_string(), e.kind()))?
+    };
+    Ok(ServiceLink {
+        forces,
+        states,
+        shared,
+        thread: Some(thread),
+        device,
+    })
+}
+
+/// Applies a state object (absent fields keep their value); false when there is none or it holds a
+/// non-finite position.
+fn apply_state(snapshot: &mut ServiceSnapshot, state: Option<&WireState>) -> bool {
+    let Some(state) = state else {
+        return false;
+    };
+    if let Some(p) = state.cursor_position {
+        let p = DVec3::from(p);
+        if !p.is_finite() {
+            return false;
+        }
+        snapshot.position_m = p;
+    }
+    if let Some(v) = state.cursor_velocity {
+        let v = DVec3::from(v);
+        if v.is_finite() {
+            snapshot.velocity_m_per_s = v;
+        }
+    }
+    true
+}
+
+fn is_would_block(error: &tungstenite::Error) -> bool {
+    matches!(error, tungstenite::Error::Io(e) if e.kind() == std::io::ErrorKind::WouldBlock)
+}
+
+/// Waits until the socket has `events` (`POLLIN`, `POLLOUT`) or `timeout` passes (rounded up to 1 ms).
+fn poll_socket(socket: &Socket, events: libc::c_short, timeout: Duration) {
+    let mut fd = libc::pollfd {
+        fd: socket.get_ref().stream.as_raw_fd(),
+        events,
+        revents: 0,
+    };
+    let ms = i32::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(i32::MAX);
+    // SAFETY: one valid pollfd for the duration of the call; the descriptor stays open (we own the socket).
+    unsafe {
+        libc::poll(&mut fd, 1, ms);
+    }
+}
+
+/// The I/O thread's state.
+struct IoLoop {
+    socket: Socket,
+    device_id: String,
+    states: triple_buffer::Input<ServiceSnapshot>,
+    snapshot: ServiceSnapshot,
+    shared: Arc<ServiceShared>,
+    /// Sequences of the messages sent whose replies have not come yet, oldest first.
+    unanswered: std::collections::VecDeque<u64>,
+    /// The newest force sequence sent.
+    last_sent: u64,
+    /// The newest force sequence sent before the socket was last found empty: every message read after
+    /// that was written by the service after that force was sent (a TCP stream keeps the order).
+    floor: u64,
+}
+
+impl IoLoop {
+    fn run(mut self, mut forces: rtrb::Consumer<ForceCommand>, reply_timeout: Duration) {
+        let result = self.exchange(&mut forces, reply_timeout);
+        let result = result.and_then(|()| {
+            // Stop: zero force, then close.
+            let zero = force_message(&self.device_id, DVec3::ZERO, None);
+            self.send(Message::text(zero))?;
+            let _ = self.socket.close(None);
+            let _ = self.flush_within(Instant::now() + WRITE_TIMEOUT);
+            Ok(())
+        });
+        if result.is_err() {
+            self.shared.link_down.store(true, Ordering::Release);
+        }
+    }
+
+    fn exchange(
+        &mut self,
+        forces: &mut rtrb::Consumer<ForceCommand>,
+        reply_timeout: Duration,
+    ) -> Result<(), tungstenite::Error> {
+        let mut last_send = Instant::now();
+        while !self.shared.stop.load(Ordering::Acquire) {
+            // Whatever came since the last look (a second reply, an unsolicited update) is read now, so the
+            // servo thread always gets the newest state and nothing queues up unread.
+            self.drain()?;
+            let mut newest = None;
+            while let Ok(command) = forces.pop() {
+                if newest.is_some() {
+                    self.shared.coalesced.fetch_add(1, Ordering::Relaxed);
+                }
+                newest = Some(command);
+            }
+            let (sequence, force_n) = match newest {
+                Some(command) => (command.sequence, command.force_n),
+                None if last_send.elapsed() >= KEEPALIVE_INTERVAL => (self.last_sent, DVec3::ZERO),
+                None => {
+                    std::thread::park_timeout(Duration::from_micros(500));
+                    continue;
+                }
+            };
+            // The driver refuses non-finite forces; a NaN must never reach the device all the same.
+            let force_n = if force_n.is_finite() {
+                force_n
+            } else {
+                DVec3::ZERO
+            };
+            let text = force_message(&self.device_id, force_n, None);
+            self.send(Message::text(text))?;
+            last_send = Instant::now();
+            self.last_sent = self.last_sent.max(sequence);
+            self.shared.sent.fetch_add(1, Ordering::Relaxed);
+            if self.unanswered.len() >= FORCE_RING_CAPACITY {
+                // The service has left this many messages unanswered: forget the oldest (the driver has long
+                // reported the missing states, and the link is dropped well before this in a session).
+                self.unanswered.pop_front();
+            }
+            self.unanswered.push_back(sequence);
+            // One reply per message, in the order sent: read until this message's reply has come (or
+            // `reply_timeout`: it may still come, and is then labelled with its own, older sequence).
+            let deadline = Instant::now() + reply_timeout;
+            loop {
+                self.drain()?;
+                let now = Instant::now();
+                if self.unanswered.is_empty()
+                    || now >= deadline
+                    || self.shared.stop.load(Ordering::Acquire)
+                {
+                    break;
+                }
+                poll_socket(
+                    &self.socket,
+                    libc::POLLIN,
+                    (deadline - now).min(Duration::from_millis(1)),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads every complete message already received, until the socket has nothing more; then raises
+    /// `floor`. A service that keeps more than [`MAX_DRAIN_MESSAGES`] coming is flooding the link: error.
+    fn drain(&mut self) -> Result<(), tungstenite::Error> {
+        for _ in 0..MAX_DRAIN_MESSAGES {
+            match self.socket.read() {
+                Ok(message @ (Message::Text(_) | Message::Binary(_))) => self.take(&message),
+                Ok(Message::Close(_)) => return Err(tungstenite::Error::ConnectionClosed),
+                Ok(_) => {}
+                Err(error) if is_would_block(&error) => {
+                    self.floor = self.last_sent;
+                    return Ok(());
+                }
+                Err(error) => return Err(error),
+            }
+        }
+        self.shared.flooded.store(true, Ordering::Release);
+        Err(tungstenite::Error::Io(std::io::Error::other(
+            "the Inverse Service sends more messages than voxhap can read",
+        )))
+    }
+
+    /// One message from the service: the reply to the oldest unanswered message, or an extra one.
+    fn take(&mut self, message: &Message) {
+        let answers = self.unanswered.pop_front();
+        if answers.is_none() {
+            self.shared.extra.fetch_add(1, Ordering::Relaxed);
+        }
+        let used = parse_frame(message)
+            .and_then(|frame| {
+                frame
+                    .inverse3
+                    .into_iter()
+                    .find(|d| d.device_id == self.device_id)
+            })
+            .is_some_and(|entry| apply_state(&mut self.snapshot, entry.state.as_ref()));
+        if used {
+            // The label says which force the state answers at the latest: the reply's own message, but never
+            // one sent after the socket was last found empty (a reply counted against the wrong message
+            // because the service sent extra ones is then at most as new as that). An extra message updates
+            // the position and keeps the label.
+            if let Some(answers) = answers {
+                let label = answers.min(self.floor);
+                self.snapshot.answers_sequence = self.snapshot.answers_sequence.max(label);
+            }
+            self.states.write(self.snapshot);
+            self.shared.states.fetch_add(1, Ordering::Relaxed);
+        } else {
+            self.shared.malformed.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Sends one message, waiting at most [`WRITE_TIMEOUT`] for room in the socket's send buffer.
+    fn send(&mut self, message: Message) -> Result<(), tungstenite::Error> {
+        match self.socket.send(message) {
+            Ok(()) => Ok(()),
+            Err(error) if is_would_block(&error) => {
+                self.flush_within(Instant::now() + WRITE_TIMEOUT)
+            }
+            Err(error) => Err(error),
+        }
+    }
+
+    fn flush_within(&mut self, deadline: Instant) -> Result<(), tungstenite::Error> {
+        loop {
+            match self.socket.flush() {
+                Ok(()) => return Ok(()),
+                Err(error) if is_would_block(&error) => {
+                    let now = Instant::now();
+                    if now >= deadline {
+                        return Err(tungstenite::Error::Io(std::io::Error::new(
+                            std::io::ErrorKind::TimedOut,
+                            "the Inverse Service reads nothing",
+                        )));
+                    }
+                    poll_socket(&self.socket, libc::POLLOUT, deadline - now);
+                }
+                Err(error) => return Err(error),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn force_messages_follow_the_documented_command_layout() {
+        let text = force_message("049D", DVec3::new(0.0, 0.5, 1.5), None);
+        let value: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let vector = &value["inverse3"][0]["commands"]["set_cursor_force"]["vector"];
+        assert_eq!(value["inverse3"][0]["device_id"], "049D");
+        assert_eq!(vector["y"], 0.5);
+        assert_eq!(vector["z"], 1.5);
+        assert!(value.get("session").is_none());
+        let first = force_message("0\"4", DVec3::ZERO, Some("voxhap"));
+        let value: serde_json::Value = serde_json::from_str(&first).unwrap();
+        assert_eq!(value["inverse3"][0]["device_id"], "0\"4");
+        assert_eq!(value["session"]["configure"]["basis"]["permutation"], "XYZ");
+        assert_eq!(value["session"]["configure"]["profile"]["name"], "voxhap");
+    }
+
+    #[test]
+    fn urls_must_be_plain_websocket_with_a_port() {
+        assert_eq!(
+            split_url("ws://127.0.0.1:10001").unwrap().0,
+            "127.0.0.1:10001"
+        );
+        assert_eq!(split_url("ws://localhost:9/x").unwrap().0, "localhost:9");
+        for bad in [
+            "http://localhost:10001",
+            "ws://",
+            "ws://localhost",
+            "wss://h:1",
+        ] {
+            assert!(split_url(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn absent_state_fields_keep_their_previous_value() {
+        let mut snapshot = ServiceSnapshot {
+            answers_sequence: 0,
+            position_m: DVec3::ONE,
+            velocity_m_per_s: DVec3::ONE,
+        };
+        let state: WireState = serde_json::from_str(r#"{"cursor_velocity":{"x":2.0}}"#).unwrap();
+        assert!(apply_state(&mut snapshot, Some(&state)));
+        assert_eq!(snapshot.position_m, DVec3::ONE);
+        assert_eq!(snapshot.velocity_m_per_s, DVec3::new(2.0, 0.0, 0.0));
+    }
+}

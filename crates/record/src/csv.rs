@@ -1,0 +1,877 @@
+//! CSV force traces: the writer ([`CsvTraceWriter`]) and the reader ([`read_csv_trace`]).
+//!
+//! Layout: a header line, then one line per tick, fields separated by `,` with no quoting (no field can
+//! contain a comma: mode names are restricted to `[A-Za-z0-9_-]`) and `\n` line ends. The columns are
+//! `super::columns::columns` (documented with units and types in the sidecar): tick and times, probe,
+//! velocity, proxy, rendered and sent force, per mode its primitive count and force, solver status,
+//! sweeps, bound, device sequence and time (empty when the device has none), `flag_bits` and one
+//! `true`/`false` column per flag. Floats are written with Rust's `{:?}` formatting, the shortest text
+//! that parses back to the same bits (`0.001`, `-0.0`, `1e-17`, `inf`, `NaN`), so write-then-read is
+//! exact.
+//!
+//! Crash safety: rows are formatted into a buffer and handed to the file only as whole lines (when the
+//! buffer passes 64 KiB, and on every flush), so a crash loses at most the lines since the last flush and
+//! leaves at most one partial line at the end. The reader skips such a partial last line with a warning
+//! (`Trace::warnings`); anywhere else a bad line is an error naming the line and column. A trace written
+//! in the old layout (format 1, column `flags`) is refused with an error saying so.
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use super::meta::is_valid_mode_name;
+use super::{
+    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
+    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
+    TRACE_FORMAT_VERSION,
+};
+
+/// Buffered bytes (whole lines) after which the writer hands them to the file.
+const WRITE_CHUNK_BYTES: usize = 64 * 1024;
+
+/// Writes a CSV trace and its sidecar.
+pub struct CsvTraceWriter {
+    path: PathBuf,
+    file: Option<File>,
+    buffer: Vec<u8>,
+    row: Vec<Cell>,
+    checker: SampleChecker,
+    /// Rows in `buffer`, not yet handed to the file.
+    buffered_rows: u64,
+    /// Rows whose whole line reached the file: the count the sidecar gives.
+    committed_rows: u64,
+    start_utc_ns: i64,
+    sidecar: Sidecar,
+}
+
+impl CsvTraceWriter {
+    /// Creates `path` and `path.json` (new files, never through a symlink), writes the header and a
+    /// provisional sidecar. `create_trace_writer_with` removes files that `--force` replaces first.
+    pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
+        meta.validate()?;
+        let io_error = |source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = super::create_new_file(path)?;
+        let header: Vec<String> = columns(&meta.mode_names)
+            .into_iter()
+            .map(|c| c.name.into_owned())
+            .collect();
+        file.write_all(format!("{}\n", header.join(",")).as_bytes())
+            .map_err(io_error)?;
+        let sidecar = Sidecar::new(meta, TraceFormat::Csv, path);
+        sidecar.write_new(&sidecar_path(path))?;
+        Ok(CsvTraceWriter {
+            path: path.to_path_buf(),
+            file: Some(file),
+            buffer: Vec::with_capacity(WRITE_CHUNK_BYTES + 4096),
+            row: Vec::with_capacity(128),
+            checker: SampleChecker::new(meta.mode_names.len()),
+            buffered_rows: 0,
+            committed_rows: 0,
+            start_utc_ns: meta.start_utc_ns,
+            sidecar,
+        })
+    }
+
+    fn io_error(&self, source: std::io::Error) -> TraceError {
+        TraceError::Io {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// Hands the buffered whole lines to the file, counting the lines that reached it. After a failed
+    /// write (a full disk takes part of the buffer, then refuses the rest) nothing more is written, and
+    /// only the lines that reached the file whole are counted (the reader skips the partial one).
+    fn write_buffer(&mut self) -> Result<(), TraceError> {
+        let Some(file) = self.file.as_mut() else {
+            return Err(TraceError::Finished);
+        };
+        let mut written = 0;
+        let mut result = Ok(());
+        while written < self.buffer.len() {
+            match file.write(&self.buffer[written..]) {
+                Ok(0) => {
+                    result = Err(std::io::Error::from(std::io::ErrorKind::WriteZero));
+                    break;
+                }
+                Ok(n) => written += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        match result {
+            Ok(()) => self.committed_rows += self.buffered_rows,
+            Err(_) => {
+                let whole_lines = self.buffer[..written]
+                    .iter()
+                    .filter(|&&b| b == b'\n')
+                    .count();
+                self.committed_rows += whole_lines as u64;
+                self.file = None;
+            }
+        }
+        self.buffered_rows = 0;
+        self.buffer.clear();
+        result.map_err(|e| self.io_error(e))
+    }
+}
+
+/// Appends one row of cells and a newline.
+fn write_cells(out: &mut Vec<u8>, row: &[Cell]) {
+    for (i, cell) in row.iter().enumerate() {
+        if i > 0 {
+            out.push(b',');
+        }
+        // Writing into a Vec cannot fail.
+        let _ = match cell {
+            Cell::U64(v) => write!(out, "{v}"),
+            Cell::I64(v) => write!(out, "{v}"),
+            Cell::F64(v) => write!(out, "{v:?}"),
+            Cell::Bool(v) => write!(out, "{v}"),
+            Cell::Text(v) => write!(out, "{v}"),
+            Cell::Missing => Ok(()),
+        };
+    }
+    out.push(b'\n');
+}
+
+#[cfg(test)]
+fn write_row(out: &mut Vec<u8>, s: &TraceSample, start_utc_ns: i64) {
+    let mut row = Vec::new();
+    cells(s, usize::from(s.mode_count), start_utc_ns, &mut row);
+    write_cells(out, &row);
+}
+
+impl TraceWriter for CsvTraceWriter {
+    fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
+        if self.file.is_none() {
+            return Err(TraceError::Finished);
+        }
+        let Some(sample) = self.checker.admit(sample)? else {
+            return Ok(());
+        };
+        self.row.clear();
+        cells(
+            &sample,
+            self.checker.mode_count,
+            self.start_utc_ns,
+            &mut self.row,
+        );
+        write_cells(&mut self.buffer, &self.row);
+        self.buffered_rows += 1;
+        if self.buffer.len() >= WRITE_CHUNK_BYTES {
+            self.write_buffer()?;
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), TraceError> {
+        if self.checker.finished {
+            return Err(TraceError::Finished);
+        }
+        self.write_buffer()
+    }
+
+    fn finish(&mut self) -> Result<TraceSummary, TraceError> {
+        if self.checker.finished {
+            return Err(TraceError::Finished);
+        }
+        self.write_buffer()?;
+        if let Some(file) = self.file.take() {
+            file.sync_all().map_err(|e| self.io_error(e))?;
+        }
+        self.checker.finished = true;
+        self.sidecar.samples_rejected = self.checker.rejected;
+        self.sidecar.complete(&self.path, self.committed_rows)
+    }
+
+    fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+        self.checker.finished = true;
+        self.file = None;
+        self.buffer.clear();
+        self.buffered_rows = 0;
+        self.sidecar.samples_rejected = self.checker.rejected;
+        self.sidecar.fail(&self.path, self.committed_rows, error)
+    }
+
+    fn sample_count(&self) -> u64 {
+        self.committed_rows
+    }
+}
+
+/// Reads a CSV trace, and its sidecar `path.json` when that file exists.
+pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
+    // A regular file only; reading stops at the size it had when opened.
+    let (file, size_bytes) = super::open_trace_file(path)?;
+    let sidecar = read_sidecar(&sidecar_path(path))?;
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let (mode_names, samples, warnings) = parse_csv_lines(
+        BufReader::new(std::io::Read::take(file, size_bytes)),
+        path,
+        start_utc_ns,
+    )?;
+    let trace = Trace {
+        mode_names,
+        samples,
+        sidecar,
+        warnings,
+    };
+    Ok(super::check_sidecar(trace, path, TraceFormat::Csv))
+}
+
+/// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.
+pub(crate) fn read_sidecar(path: &Path) -> Result<Option<Sidecar>, TraceReadError> {
+    let read = voxhap_io::read_regular(
+        path,
+        voxhap_io::MAX_TEXT_FILE_BYTES,
+        "a trace sidecar (16 MiB)",
+    )
+    .map_err(|error| match error {
+        voxhap_io::FileError::Io(source) => source,
+        other => std::io::Error::new(std::io::ErrorKind::InvalidInput, other.to_string()),
+    });
+    match read {
+        Ok(bytes) => {
+            serde_json::from_slice(&bytes)
+                .map(Some)
+                .map_err(|source| TraceReadError::Sidecar {
+                    path: path.to_path_buf(),
+                    source,
+                })
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(TraceReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+/// Parses CSV trace text from any reader; returns the mode names and the samples (a partial last line
+/// is skipped).
+pub fn parse_csv_trace(
+    reader: impl BufRead,
+) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
+    parse_csv_lines(reader, Path::new("<input>"), None).map(|(modes, samples, _)| (modes, samples))
+}
+
+type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
+
+fn parse_csv_lines(
+    reader: impl BufRead,
+    path: &Path,
+    start_utc_ns: Option<i64>,
+) -> Result<Parsed, TraceReadError> {
+    let mut samples = Vec::new();
+    let (mode_names, warnings, _) = for_each_csv_line(reader, path, start_utc_ns, &mut |sample| {
+        samples.push(*sample)
+    })?;
+    Ok((mode_names, samples, warnings))
+}
+
+/// Reads a CSV trace as [`read_csv_trace`] does, but hands each sample to `sink` in file order instead of
+/// collecting them (memory does not grow with the trace's length). Returns the trace without its samples,
+/// and how many were read.
+pub(crate) fn for_each_csv_sample(
+    path: &Path,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<(Trace, u64), TraceReadError> {
+    let (file, size_bytes) = super::open_trace_file(path)?;
+    let sidecar = read_sidecar(&sidecar_path(path))?;
+    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
+    let (mode_names, warnings, count) = for_each_csv_line(
+        BufReader::new(std::io::Read::take(file, size_bytes)),
+        path,
+        start_utc_ns,
+        sink,
+    )?;
+    let mut warnings = warnings;
+    warnings.extend(super::sidecar_warnings(
+        sidecar.as_ref(),
+        path,
+        super::TraceFormat::Csv,
+        &mode_names,
+        count,
+    ));
+    Ok((
+        Trace {
+            mode_names,
+            samples: Vec::new(),
+            sidecar,
+            warnings,
+        },
+        count,
+    ))
+}
+
+/// The mode names, the warnings and the count of samples handed to `sink`.
+type Streamed = (Vec<String>, Vec<String>, u64);
+
+fn for_each_csv_line(
+    mut reader: impl BufRead,
+    path: &Path,
+    start_utc_ns: Option<i64>,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<Streamed, TraceReadError> {
+    let mut buffer = Vec::new();
+    let mut line_number = 0usize;
+    // Returns the line number and whether the line ended with a newline.
+    let mut next_line = |buffer: &mut Vec<u8>| -> Result<Option<(usize, bool)>, TraceReadError> {
+        buffer.clear();
+        let read = reader
+            .read_until(b'\n', buffer)
+            .map_err(|source| TraceReadError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        if read == 0 {
+            return Ok(None);
+        }
+        line_number += 1;
+        let complete = buffer.last() == Some(&b'\n');
+        if complete {
+            buffer.pop();
+            if buffer.last() == Some(&b'\r') {
+                buffer.pop();
+            }
+        }
+        Ok(Some((line_number, complete)))
+    };
+
+    let Some(_) = next_line(&mut buffer)? else {
+        return Err(TraceReadError::Empty);
+    };
+    let header = std::str::from_utf8(&buffer).map_err(|_| TraceReadError::NotText { line: 1 })?;
+    let mode_names = parse_header(header, path)?;
+    let docs = columns(&mode_names);
+    let names: Vec<String> = docs.iter().map(|c| c.name.to_string()).collect();
+    let types: Vec<ColumnType> = docs.iter().map(|c| c.column_type).collect();
+
+    let mut count = 0u64;
+    let mut warnings = Vec::new();
+    let mut last_tick = None;
+    let mut row = Vec::with_capacity(names.len());
+    while let Some((line, complete)) = next_line(&mut buffer)? {
+        let parsed = std::str::from_utf8(&buffer)
+            .map_err(|_| TraceReadError::NotText { line })
+            .and_then(|text| {
+                let sample = parse_row(
+                    text,
+                    line,
+                    &names,
+                    &types,
+                    &mut row,
+                    mode_names.len(),
+                    start_utc_ns,
+                )?;
+                match check_sample(&sample, mode_names.len(), last_tick) {
+                    Ok(()) => Ok(sample),
+                    Err(problem) => Err(rule_error(problem, text, line, &names)),
+                }
+            });
+        match parsed {
+            Ok(sample) => {
+                last_tick = Some(sample.tick);
+                count += 1;
+                sink(&sample);
+            }
+            // A crash leaves at most one partial line, at the end and without a newline.
+            Err(error) if !complete => {
+                warnings.push(format!(
+                    "{}: skipped the partial last line {line} (the recording was cut off): {error}",
+                    path.display()
+                ));
+                break;
+            }
+            Err(error) => return Err(error),
+        }
+    }
+    Ok((mode_names, warnings, count))
+}
+
+fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError> {
+    let fields: Vec<&str> = header.split(',').collect();
+    if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {
+        return Err(TraceReadError::OldFormat {
+            path: path.to_path_buf(),
+            found: 1,
+            expected: TRACE_FORMAT_VERSION,
+            hint: "its last column is `flags`",
+        });
+    }
+    let mismatch = |column: usize, expected: &str| TraceReadError::Header {
+        column: column + 1,
+        expected: expected.to_string(),
+        found: fields.get(column).copied().unwrap_or("").to_string(),
+    };
+    let mut mode_names = Vec::new();
+    for (column, field) in fields.iter().enumerate() {
+        if let Some(name) = field.strip_prefix(PRIMITIVES_PREFIX) {
+            if !is_valid_mode_name(name) || mode_names.iter().any(|m| m == name) {
+                return Err(mismatch(
+                    column,
+                    "primitives_<mode> with a unique mode name of letters, digits, '_' or '-'",
+                ));
+            }
+            if mode_names.len() == MAX_MODES {
+                return Err(mismatch(column, "at most 8 primitives_<mode> columns"));
+            }
+            mode_names.push(name.to_string());
+        }
+    }
+    let expected = columns(&mode_names);
+    for (column, doc) in expected.iter().enumerate() {
+        if fields.get(column) != Some(&doc.name.as_ref()) {
+            return Err(mismatch(column, &doc.name));
+        }
+    }
+    if fields.len() > expected.len() {
+        return Err(mismatch(expected.len(), "the end of the line"));
+    }
+    Ok(mode_names)
+}
+
+/// Parses one field of a column of type `column_type`.
+fn parse_cell(text: &str, column_type: ColumnType) -> Result<Cell, &'static str> {
+    // Rust's integer parsing accepts a leading '+'; the format never writes one.
+    let integer = |problem| {
+        if text.starts_with('+') {
+            Err(problem)
+        } else {
+            Ok(())
+        }
+    };
+    match column_type {
+        ColumnType::U64 => {
+            integer("not an unsigned integer")?;
+            text.parse()
+                .map(Cell::U64)
+                .map_err(|_| "not an unsigned integer")
+        }
+        ColumnType::OptionalU64 if text.is_empty() => Ok(Cell::Missing),
+        ColumnType::OptionalU64 => {
+            integer("not an unsigned integer or empty")?;
+            text.parse()
+                .map(Cell::U64)
+                .map_err(|_| "not an unsigned integer or empty")
+        }
+        ColumnType::I64 if text.is_empty() => Ok(Cell::Missing),
+        ColumnType::I64 => {
+            integer("not an integer")?;
+            text.parse().map(Cell::I64).map_err(|_| "not an integer")
+        }
+        ColumnType::F64 => text.parse().map(Cell::F64).map_err(|_| "not a number"),
+        ColumnType::Bool => match text {
+            "true" => Ok(Cell::Bool(true)),
+            "false" => Ok(Cell::Bool(false)),
+            _ => Err("not true or false"),
+        },
+        ColumnType::Text => SolverStatus::from_name(text)
+            .map(|s| Cell::Text(s.name()))
+            .ok_or("not a solver status"),
+    }
+}
+
+fn parse_row(
+    text: &str,
+    line: usize,
+    names: &[String],
+    types: &[ColumnType],
+    row: &mut Vec<Cell>,
+    mode_count: usize,
+    start_utc_ns: Option<i64>,
+) -> Result<TraceSample, TraceReadError> {
+    let found = text.split(',').count();
+    if found != names.len() {
+        return Err(TraceReadError::FieldCount {
+            line,
+            expected: names.len(),
+            found,
+        });
+    }
+    let field_error = |index: usize, problem: &'static str| TraceReadError::Field {
+        line,
+        column: index + 1,
+        name: names[index].clone(),
+        value: text.split(',').nth(index).unwrap_or("").to_string(),
+        problem,
+    };
+    row.clear();
+    for (index, (field, column_type)) in text.split(',').zip(types).enumerate() {
+        row.push(parse_cell(field, *column_type).map_err(|problem| field_error(index, problem))?);
+    }
+    sample_from_cells(row, mode_count, start_utc_ns).map_err(|e| field_error(e.index, e.problem))
+}
+
+/// Turns a broken trace rule into an error naming the line and the first column concerned.
+fn rule_error(problem: TraceError, text: &str, line: usize, columns: &[String]) -> TraceReadError {
+    let (column_name, message): (&str, &'static str) = match problem {
+        TraceError::TickOrder { .. } => ("tick", "tick does not increase"),
+        TraceError::NegativeTime { .. } => ("t_s", "negative time"),
+        TraceError::InvalidErrorBound { .. } => ("error_bound_m", "must be >= 0 or inf"),
+        TraceError::NonFinite { field, .. } => (
+            match field {
+                "probe_m" => "probe_x_m",
+                "probe_velocity_m_per_s" => "probe_vx_m_per_s",
+                "proxy_m" => "proxy_x_m",
+                "rendered_force_n" => "rendered_force_x_n",
+                "force_n" => "force_x_n",
+                other => other,
+            },
+            "not finite without flag_invalid_values (checked from this column on)",
+        ),
+        _ => ("tick", "invalid sample"),
+    };
+    let index = columns.iter().position(|c| c == column_name).unwrap_or(0);
+    TraceReadError::Field {
+        line,
+        column: index + 1,
+        name: columns[index].clone(),
+        value: text.split(',').nth(index).unwrap_or("").to_string(),
+        problem: message,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::test_support::{meta, samples};
+    use super::super::{create_trace_writer, TraceFormat, FLAG_INVALID_VALUES};
+    use super::*;
+
+    fn write_csv(path: &Path, modes: &[&str], data: &[TraceSample]) {
+        let mut writer = create_trace_writer(path, TraceFormat::Csv, &meta(modes)).unwrap();
+        for sample in data {
+            writer.write_sample(sample).unwrap();
+        }
+        let summary = writer.finish().unwrap();
+        assert_eq!(summary.sample_count, data.len() as u64);
+    }
+
+    #[test]
+    fn write_then_read_round_trips_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.csv");
+        let data = samples(500, 3);
+        write_csv(&path, &["surface", "friction", "vector-follow"], &data);
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.mode_names, ["surface", "friction", "vector-follow"]);
+        assert_eq!(trace.samples.len(), data.len());
+        for (read, written) in trace.samples.iter().zip(&data) {
+            // Bit-exact, including -0.0 and inf.
+            assert_eq!(read.t_s.to_bits(), written.t_s.to_bits());
+            for (a, b) in [
+                (read.probe_m, written.probe_m),
+                (read.mode_force_n[2], written.mode_force_n[2]),
+                (read.proxy_m, written.proxy_m),
+                (read.force_n, written.force_n),
+            ] {
+                assert_eq!(
+                    a.to_array().map(f64::to_bits),
+                    b.to_array().map(f64::to_bits)
+                );
+            }
+            assert_eq!(
+                read.error_bound_m.to_bits(),
+                written.error_bound_m.to_bits()
+            );
+            assert_eq!(read, written);
+        }
+        let sidecar = trace.sidecar.expect("sidecar written");
+        assert!(sidecar.complete);
+        assert_eq!(sidecar.sample_count, 500);
+        assert_eq!(sidecar.trace_file, "run.csv");
+        assert_eq!(
+            sidecar.meta,
+            meta(&["surface", "friction", "vector-follow"])
+        );
+        assert_eq!(
+            sidecar.columns.len(),
+            columns(&["surface".into(), "friction".into(), "vector-follow".into()]).len()
+        );
+    }
+
+    #[test]
+    fn zero_modes_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("none.csv");
+        let data = samples(10, 0);
+        write_csv(&path, &[], &data);
+        let trace = read_csv_trace(&path).unwrap();
+        assert!(trace.mode_names.is_empty());
+        assert_eq!(trace.samples, data);
+    }
+
+    #[test]
+    fn two_identical_runs_give_identical_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = samples(300, 2);
+        let a = dir.path().join("a.csv");
+        let b = dir.path().join("b.csv");
+        write_csv(&a, &["surface", "viscosity"], &data);
+        write_csv(&b, &["surface", "viscosity"], &data);
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        // The sidecars differ only in the trace file name.
+        let sa = std::fs::read_to_string(sidecar_path(&a)).unwrap();
+        let sb = std::fs::read_to_string(sidecar_path(&b)).unwrap();
+        assert_eq!(sa.replace("a.csv", "b.csv"), sb);
+    }
+
+    #[test]
+    fn bad_samples_are_recorded_flagged_and_never_end_the_trace() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.csv");
+        let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        let mut sample = TraceSample::zeroed(1);
+        sample.tick = 5;
+        writer.write_sample(&sample).unwrap();
+        // A repeated tick is left out and counted.
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 6;
+        sample.proxy_m.y = f64::NAN;
+        sample.error_bound_m = f64::NAN;
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 7;
+        sample.proxy_m.y = 1e300;
+        sample.mode_count = 2;
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 8;
+        sample.mode_count = 1;
+        sample.error_bound_m = -1.0;
+        writer.write_sample(&sample).unwrap();
+        sample.tick = 9;
+        sample.error_bound_m = 0.0;
+        writer.write_sample(&sample).unwrap();
+        let summary = writer.finish().unwrap();
+        assert_eq!(summary.sample_count, 5);
+        assert!(matches!(
+            writer.write_sample(&sample),
+            Err(TraceError::Finished)
+        ));
+        let trace = read_csv_trace(&path).unwrap();
+        let flagged: Vec<u64> = trace
+            .samples
+            .iter()
+            .filter(|s| s.flags & FLAG_INVALID_VALUES != 0)
+            .map(|s| s.tick)
+            .collect();
+        assert_eq!(flagged, [6, 7, 8]);
+        assert!(trace.samples[1].proxy_m.y.is_nan());
+        assert_eq!(trace.samples.last().unwrap().tick, 9);
+        assert_eq!(trace.sidecar.unwrap().samples_rejected, 1);
+    }
+
+    fn valid_text() -> String {
+        let mut out = Vec::new();
+        let header: Vec<String> = columns(&["surface".to_string()])
+            .into_iter()
+            .map(|c| c.name.into_owned())
+            .collect();
+        writeln!(out, "{}", header.join(",")).unwrap();
+        for sample in samples(4, 1) {
+            write_row(&mut out, &sample, 0);
+        }
+        String::from_utf8(out).unwrap()
+    }
+
+    fn read_err(text: &str) -> String {
+        parse_csv_trace(text.as_bytes()).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn malformed_csv_errors_name_the_line_and_column() {
+        let good = valid_text();
+        assert_eq!(parse_csv_trace(good.as_bytes()).unwrap().1.len(), 4);
+
+        let lines: Vec<&str> = good.lines().collect();
+        // A bad float on line 3, column 5 (probe_y_m).
+        let mut fields: Vec<&str> = lines[2].split(',').collect();
+        fields[4] = "0.0x1";
+        let broken = [lines[0], lines[1], &fields.join(","), lines[3]].join("\n") + "\n";
+        let err = read_err(&broken);
+        assert!(
+            err.contains("line 3, column 5 (probe_y_m)") && err.contains("0.0x1"),
+            "{err}"
+        );
+        // A missing field on line 3 (not the last line).
+        let short = lines[2].rsplit_once(',').unwrap().0;
+        let err = read_err(&([lines[0], lines[1], short, lines[3]].join("\n") + "\n"));
+        assert!(err.contains("line 3") && err.contains("fields"), "{err}");
+        // Ticks going backwards on line 3.
+        let err = read_err(&([lines[0], lines[2], lines[1]].join("\n") + "\n"));
+        assert!(err.contains("line 3") && err.contains("tick"), "{err}");
+        // A NaN position without the invalid-values flag.
+        let nan_row = lines[1].replacen(",0.02,", ",NaN,", 1);
+        assert_ne!(nan_row, lines[1]);
+        let err = read_err(&([lines[0], &nan_row].join("\n") + "\n"));
+        assert!(
+            err.contains("line 2") && err.contains("not finite"),
+            "{err}"
+        );
+        // A wrong header.
+        let err = read_err(&good.replacen("probe_x_m", "probe_x_mm", 1));
+        assert!(err.contains("line 1, column 4"), "{err}");
+        // An empty file.
+        assert!(matches!(
+            parse_csv_trace(&b""[..]),
+            Err(TraceReadError::Empty)
+        ));
+        // Negative primitive count.
+        let index = columns(&["surface".to_string()])
+            .iter()
+            .position(|c| c.name == "primitives_surface")
+            .unwrap();
+        let mut fields: Vec<&str> = lines[1].split(',').collect();
+        fields[index] = "-1";
+        let err = read_err(&([lines[0], &fields.join(",")].join("\n") + "\n"));
+        assert!(
+            err.contains(&format!("column {} (primitives_surface)", index + 1)),
+            "{err}"
+        );
+        // A flag column that disagrees with flag_bits.
+        let flipped = lines[1].replacen(",false", ",true", 1);
+        let err = read_err(&([lines[0], &flipped].join("\n") + "\n"));
+        assert!(err.contains("disagrees with flag_bits"), "{err}");
+    }
+
+    #[test]
+    fn a_partial_last_line_is_skipped_with_a_warning() {
+        let good = valid_text();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cut.csv");
+        // Cut in the middle of the last line, as a crash leaves it.
+        let cut = good.len() - 9;
+        std::fs::write(&path, &good[..cut]).unwrap();
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 3);
+        assert_eq!(trace.warnings.len(), 1);
+        assert!(
+            trace.warnings[0].contains("partial last line 5"),
+            "{:?}",
+            trace.warnings
+        );
+        // The same damage in the middle of the file is an error.
+        let lines: Vec<&str> = good.lines().collect();
+        let middle = [lines[0], &lines[1][..20], lines[2]].join("\n") + "\n";
+        assert!(parse_csv_trace(middle.as_bytes()).is_err());
+    }
+
+    #[test]
+    fn an_old_format_trace_is_refused_with_a_clear_error() {
+        let old = "tick,t_s,probe_x_m,probe_y_m,probe_z_m,proxy_x_m,proxy_y_m,proxy_z_m,force_x_n,force_y_n,force_z_n,primitives_surface,sweeps,error_bound_m,flags\n0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,1,2,0.0,0\n";
+        let err = read_err(old);
+        assert!(
+            err.contains("older voxhap") && err.contains("format 1"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn lines_reach_the_file_whole_on_flush() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("live.csv");
+        let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        for sample in samples(10, 1) {
+            writer.write_sample(&sample).unwrap();
+        }
+        writer.flush().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.ends_with('\n'));
+        assert_eq!(text.lines().count(), 11);
+        // Readable while the writer is still open (the sidecar says incomplete).
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 10);
+        assert!(!trace.sidecar.unwrap().complete);
+    }
+
+    /// A full disk mid-trace: the rows flushed before it stay, the sidecar counts exactly the rows a reader
+    /// gets back, and nothing is written after the failure. The writer's file is switched to /dev/full
+    /// (which fails every write with ENOSPC, as a full disk does) after 1000 rows were flushed.
+    #[test]
+    fn a_full_disk_is_an_error_with_the_os_reason_and_the_sidecar_counts_what_reached_the_file() {
+        use std::os::unix::io::AsRawFd;
+        let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") else {
+            eprintln!("skipped: /dev/full cannot be opened on this system");
+            return;
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("full.csv");
+        let mut writer = CsvTraceWriter::create(&path, &meta(&["surface"])).unwrap();
+        let data = samples(3000, 1);
+        for sample in &data[..1000] {
+            writer.write_sample(sample).unwrap();
+        }
+        writer.flush().unwrap();
+        let fd = writer.file.as_ref().unwrap().as_raw_fd();
+        // SAFETY: both descriptors are open; dup2 makes the writer's descriptor refer to /dev/full.
+        assert_eq!(unsafe { libc::dup2(full.as_raw_fd(), fd) }, fd);
+        let mut failure = None;
+        for sample in &data[1000..] {
+            if let Err(error) = writer.write_sample(sample) {
+                failure = Some(error);
+                break;
+            }
+        }
+        let error = match failure {
+            Some(error) => error,
+            None => writer.flush().unwrap_err(),
+        };
+        let text = super::super::error_chain(&error);
+        assert!(text.contains("No space left on device"), "{text}");
+        writer.fail(&text).unwrap();
+        let trace = read_csv_trace(&path).unwrap();
+        assert_eq!(trace.samples.len(), 1000);
+        let sidecar = trace.sidecar.unwrap();
+        assert!(!sidecar.complete);
+        assert_eq!(
+            sidecar.sample_count, 1000,
+            "rows buffered when the disk filled are not counted"
+        );
+        assert!(sidecar.error.unwrap().contains("No space left on device"));
+    }
+
+    #[test]
+    fn crlf_line_ends_are_accepted() {
+        let text = valid_text().replace('\n', "\r\n");
+        assert_eq!(parse_csv_trace(text.as_bytes()).unwrap().1.len(), 4);
+    }
+
+    proptest::proptest! {
+        /// Arbitrary bytes never panic the reader.
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..400)) {
+            let _ = parse_csv_trace(&bytes[..]);
+        }
+
+        /// A valid trace with bytes overwritten, inserted or deleted never panics the reader, and
+        /// whatever it accepts obeys the trace rules.
+        #[test]
+        fn mutated_traces_never_panic(
+            edits in proptest::collection::vec((0usize..10_000, proptest::prelude::any::<u8>(), 0u8..3), 1..8)
+        ) {
+            let mut bytes = valid_text().into_bytes();
+            for (position, byte, kind) in edits {
+                let at = position % (bytes.len() + 1);
+                match kind {
+                    0 if at < bytes.len() => bytes[at] = byte,
+                    1 => bytes.insert(at, byte),
+                    _ if at < bytes.len() => { bytes.remove(at); }
+                    _ => {}
+                }
+            }
+            if let Ok((modes, samples)) = parse_csv_trace(&bytes[..]) {
+                let mut last = None;
+                for sample in &samples {
+                    proptest::prop_assert!(check_sample(sample, modes.len(), last).is_ok());
+                    last = Some(sample.tick);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,519 @@
+//! The axum router: the embedded page, the read endpoints (`/api/state`, `/api/stats`, `/api/scene`,
+//! `/api/slice`), the control endpoints (bearer token, JSON bodies of at most 64 KiB) and the WebSocket route.
+//!
+//! Every control endpoint follows one path ([`control_request`]): token check (401, nothing decoded), body
+//! read (413 over the limit), JSON decode naming the bad field (400), then the session's own validation
+//! ([`voxhap_api::ControlError::http_status`]), run on the blocking pool because a command waits for the
+//! servo thread to apply it. A refused request changes nothing.
+
+use super::auth::check_bearer;
+use super::messages::{
+    decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
+    EnabledBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody,
+    TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
+};
+use super::origin::check_single;
+use super::response::error_response;
+use super::shared::Shared;
+use super::{assets, ws};
+use axum::body::Bytes;
+use axum::extract::rejection::{BytesRejection, PathRejection, QueryRejection};
+use axum::extract::{DefaultBodyLimit, Path, Query, State};
+use axum::http::{header, HeaderMap, Method, StatusCode, Uri};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{delete, get, post};
+use axum::{Json, Router};
+use glam::DVec3;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::sync::Arc;
+use voxhap_api::{
+    ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
+};
+
+type Shared_ = State<Arc<Shared>>;
+
+/// The whole HTTP surface.
+pub(crate) fn router(shared: Arc<Shared>) -> Router {
+    Router::new()
+        .route("/", get(assets::index))
+        .route("/app.js", get(assets::app_js))
+        .route("/style.css", get(assets::style_css))
+        .route("/api/state", get(state))
+        .route("/api/stats", get(stats))
+        .route("/api/scene", get(scene))
+        .route("/api/slice", get(slice))
+        .route("/api/stiffness", post(stiffness))
+        .route("/api/modes", post(add_mode))
+        .route("/api/modes/{name}", delete(remove_mode))
+        .route("/api/modes/{name}/transfer", post(set_transfer))
+        .route("/api/modes/{name}/enabled", post(set_mode_enabled))
+        .route("/api/volume", post(load_volume))
+        .route("/api/record/start", post(record_start))
+        .route("/api/record/stop", post(record_stop))
+        .route("/api/hand", post(hand))
+        .route("/api/control", post(control))
+        .route("/ws", get(ws::upgrade))
+        .fallback(not_found)
+        .layer(DefaultBodyLimit::max(MAX_MESSAGE_BYTES))
+        .layer(axum::middleware::from_fn_with_state(
+            shared.clone(),
+            check_host_and_origin,
+        ))
+        .with_state(shared)
+}
+
+/// The Host check on every request, and the Origin check on `/ws` and every request that is not GET or
+/// HEAD ([`super::origin`]); a request with more than one Host or Origin header is refused (400) before
+/// either; 403 with the reason otherwise.
+async fn check_host_and_origin(
+    State(shared): Shared_,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let verdict = {
+        let headers = request.headers();
+        let text = |name: header::HeaderName| {
+            headers
+                .get(name)
+                .map(|value| value.to_str().unwrap_or("(not text)"))
+        };
+        let host = text(header::HOST);
+        let changes_state = !matches!(*request.method(), Method::GET | Method::HEAD);
+        check_single("Host", headers.get_all(header::HOST).iter().count())
+            .and_then(|()| check_single("Origin", headers.get_all(header::ORIGIN).iter().count()))
+            .and_then(|()| shared.origin.check_host(host))
+            .and_then(|()| {
+                if changes_state || request.uri().path() == "/ws" {
+                    shared.origin.check_origin(text(header::ORIGIN), host)
+                } else {
+                    Ok(())
+                }
+            })
+    };
+    match verdict {
+        Ok(()) => next.run(request).await,
+        Err(error) => {
+            let status = StatusCode::from_u16(error.http_status()).unwrap_or(StatusCode::FORBIDDEN);
+            error_response(status, error.to_string())
+        }
+    }
+}
+
+/// `{"error": message}` with `status`.
+fn control_failed(status: StatusCode, message: impl Into<String>) -> Response {
+    (status, Json(ControlFailed::new(message))).into_response()
+}
+
+fn control_error(error: &ControlError) -> Response {
+    let status =
+        StatusCode::from_u16(error.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+    control_failed(status, error.to_string())
+}
+
+/// A pre-serialised JSON body.
+fn json_text(status: StatusCode, text: String) -> Response {
+    (status, [(header::CONTENT_TYPE, "application/json")], text).into_response()
+}
+
+async fn not_found(method: Method, uri: Uri) -> Response {
+    error_response(
+        StatusCode::NOT_FOUND,
+        format!("no such endpoint: {method} {}", uri.path()),
+    )
+}
+
+async fn state(State(shared): Shared_) -> Response {
+    match shared.api.snapshot() {
+        Some(snapshot) => Json(StateMessage::new(&snapshot, 0)).into_response(),
+        None => error_response(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "no state yet: the servo loop has not ticked",
+        ),
+    }
+}
+
+async fn stats(State(shared): Shared_) -> Response {
+    Json(StatsBody {
+        servo: shared.api.stats(),
+        server: shared.stats(),
+    })
+    .into_response()
+}
+
+async fn scene(State(shared): Shared_) -> Response {
+    match shared.blocking(false, |api| api.scene()).await {
+        Ok(scene) => Json(scene).into_response(),
+        Err(error) => error_response(StatusCode::SERVICE_UNAVAILABLE, error.to_string()),
+    }
+}
+
+/// Parses `x,y,z` (metres).
+fn parse_point(text: &str) -> Result<DVec3, String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let numbers: Result<Vec<f64>, _> = parts.iter().map(|p| p.trim().parse::<f64>()).collect();
+    match numbers {
+        Ok(n) if n.len() == 3 && n.iter().all(|v| v.is_finite()) => {
+            Ok(DVec3::new(n[0], n[1], n[2]))
+        }
+        _ => Err(format!(
+            "at must be three finite numbers x,y,z in metres, got {text:?}"
+        )),
+    }
+}
+
+/// The slice request of a `GET /api/slice` query.
+fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, String> {
+    for key in params.keys() {
+        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume" | "encoding") {
+            return Err(format!(
+                "unknown query parameter {key:?}; expected axis, size, at, volume, encoding"
+            ));
+        }
+    }
+    let axis = match params.get("axis") {
+        Some(text) => text.parse::<SliceAxis>().map_err(|e| e.to_string())?,
+        None => SliceAxis::Z,
+    };
+    let size = match params.get("size") {
+        Some(text) => text
+            .parse::<usize>()
+            .map_err(|_| format!("invalid: size must be a whole number, got {text:?}"))?,
+        None => SLICE_SIZE_DEFAULT,
+    };
+    let at_m = match params.get("at") {
+        Some(text) => Some(parse_point(text).map_err(|e| format!("invalid: {e}"))?),
+        None => None,
+    };
+    Ok(SliceRequest {
+        axis,
+        size,
+        at_m,
+        volume: params.get("volume").cloned(),
+    })
+}
+
+async fn slice(
+    State(shared): Shared_,
+    query: Result<Query<HashMap<String, String>>, QueryRejection>,
+) -> Response {
+    let params = match query {
+        Ok(Query(params)) => params,
+        Err(rejection) => return error_response(rejection.status(), rejection.body_text()),
+    };
+    let request = match slice_request(&params) {
+        Ok(request) => request,
+        Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
+    };
+    let u8_levels = match params.get("encoding").map(String::as_str) {
+        None | Some("f32") => false,
+        Some("u8") => true,
+        Some(other) => {
+            return error_response(
+                StatusCode::BAD_REQUEST,
+                format!("invalid: encoding must be f32 or u8, got {other:?}"),
+            )
+        }
+    };
+    let result = shared
+        .blocking(true, move |api| {
+            api.slice(request)
+                .map(|slice| slice_json(&slice, u8_levels))
+        })
+        .await
+        .and_then(|r| r);
+    match result {
+        Ok(text) => json_text(StatusCode::OK, text),
+        Err(error) => error_response(
+            StatusCode::from_u16(error.http_status()).unwrap_or(StatusCode::BAD_REQUEST),
+            error.to_string(),
+        ),
+    }
+}
+
+/// What a control endpoint makes of its (decoded) body.
+type Decode = Box<dyn FnOnce(Value) -> Result<Vec<ControlCommand>, String> + Send>;
+
+/// The shared path of every control endpoint: token, body, decode, apply (all commands or none refused).
+async fn control_request(
+    shared: &Arc<Shared>,
+    headers: &HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+    empty_ok: bool,
+    decode: Decode,
+) -> Response {
+    if let Err(error) = check_bearer(&shared.config.token, headers) {
+        return control_failed(StatusCode::UNAUTHORIZED, error.to_string());
+    }
+    let bytes = match body {
+        Ok(bytes) => bytes,
+        Err(rejection) => {
+            return control_failed(
+                rejection.status(),
+                format!("invalid: the request body: {}", rejection.body_text()),
+            )
+        }
+    };
+    let value = if empty_ok && bytes.iter().all(u8::is_ascii_whitespace) {
+        Value::Object(serde_json::Map::new())
+    } else {
+        match parse_json(&bytes) {
+            Ok(value) => value,
+            Err(message) => {
+                return control_failed(StatusCode::BAD_REQUEST, format!("invalid: {message}"))
+            }
+        }
+    };
+    let commands = match decode(value) {
+        Ok(commands) => commands,
+        Err(message) => {
+            return control_failed(StatusCode::BAD_REQUEST, format!("invalid: {message}"))
+        }
+    };
+    let applied = shared
+        .blocking(false, move |api| {
+            let mut replies: Vec<ControlReply> = Vec::with_capacity(commands.len());
+            for command in commands {
+                replies.push(api.control(command)?);
+            }
+            Ok::<_, ControlError>(replies)
+        })
+        .await
+        .and_then(|r| r);
+    match applied {
+        Ok(replies) => {
+            let message = replies
+                .iter()
+                .map(|r| r.message.as_str())
+                .collect::<Vec<_>>()
+                .join("; ");
+            let scene_generation = replies
+                .iter()
+                .map(|r| r.scene_generation)
+                .max()
+                .unwrap_or(0);
+            Json(ControlOk::from(ControlReply {
+                message,
+                scene_generation,
+            }))
+            .into_response()
+        }
+        Err(error) => control_error(&error),
+    }
+}
+
+fn one(command: ControlCommand) -> Result<Vec<ControlCommand>, String> {
+    Ok(vec![command])
+}
+
+async fn stiffness(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let body: StiffnessBody = decode_value(value)?;
+        if body.k.is_none() && body.damping.is_none() {
+            return Err("give \"k\" (N/m) and/or \"damping\" (N s/m)".to_owned());
+        }
+        // Checked before k is applied, so a bad damping does not leave a changed k behind.
+        if let Some(damping) = body.damping {
+            if !(damping.is_finite() && damping >= 0.0) {
+                return Err(format!(
+                    "damping must be a finite number >= 0 N s/m, got {damping}"
+                ));
+            }
+        }
+        let mut commands = Vec::with_capacity(2);
+        if let Some(k) = body.k {
+            commands.push(ControlCommand::SetStiffness { k });
+        }
+        if let Some(damping) = body.damping {
+            commands.push(ControlCommand::SetDamping { damping });
+        }
+        Ok(commands)
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+async fn add_mode(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let body: ModeBody = decode_value(value)?;
+        one(ControlCommand::AddMode { mode: body.mode })
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+fn bad_path(rejection: &PathRejection) -> Response {
+    control_failed(rejection.status(), rejection.body_text())
+}
+
+async fn remove_mode(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let name = match name {
+        Ok(Path(name)) => name,
+        Err(rejection) => return bad_path(&rejection),
+    };
+    let decode: Decode = Box::new(move |value| {
+        let EmptyBody {} = decode_value(value)?;
+        one(ControlCommand::RemoveMode { name })
+    });
+    control_request(&shared, &headers, body, true, decode).await
+}
+
+async fn set_transfer(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    mode_request(&shared, &headers, name, body, |mode, value| {
+        let body: TransferBody = decode_value(value)?;
+        Ok(ControlCommand::SetTransfer {
+            mode,
+            transfer: body.transfer,
+        })
+    })
+    .await
+}
+
+async fn set_mode_enabled(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    mode_request(&shared, &headers, name, body, |mode, value| {
+        let body: EnabledBody = decode_value(value)?;
+        Ok(ControlCommand::SetModeEnabled {
+            mode,
+            enabled: body.enabled,
+        })
+    })
+    .await
+}
+
+/// A control endpoint on one mode (`/api/modes/{name}/...`): the mode's name from the path, then `command`
+/// makes the command from it and the body.
+async fn mode_request(
+    shared: &Arc<Shared>,
+    headers: &HeaderMap,
+    name: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+    command: fn(String, Value) -> Result<ControlCommand, String>,
+) -> Response {
+    let mode = match name {
+        Ok(Path(name)) => name,
+        Err(rejection) => return bad_path(&rejection),
+    };
+    let decode: Decode = Box::new(move |value| one(command(mode, value)?));
+    control_request(shared, headers, body, false, decode).await
+}
+
+async fn load_volume(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let body: VolumeBody = decode_value(value)?;
+        one(ControlCommand::LoadVolume {
+            path: body.path,
+            name: body.name,
+        })
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+async fn record_start(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let body: RecordBody = decode_value(value)?;
+        one(ControlCommand::StartRecording {
+            path: body.path,
+            format: body.format,
+        })
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+async fn record_stop(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let EmptyBody {} = decode_value(value)?;
+        one(ControlCommand::StopRecording)
+    });
+    control_request(&shared, &headers, body, true, decode).await
+}
+
+async fn hand(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        let body: HandBody = decode_value(value)?;
+        one(ControlCommand::SetHandTarget {
+            position_m: body.position_m,
+        })
+    });
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+async fn control(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| decode_command(value).map(|c| vec![c]));
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params(pairs: &[(&str, &str)]) -> HashMap<String, String> {
+        pairs
+            .iter()
+            .map(|(k, v)| ((*k).to_owned(), (*v).to_owned()))
+            .collect()
+    }
+
+    #[test]
+    fn slice_queries_parse_or_say_why() {
+        let request = slice_request(&params(&[
+            ("axis", "x"),
+            ("size", "64"),
+            ("at", "0,0.01,-0.02"),
+        ]))
+        .unwrap();
+        assert_eq!(request.axis, SliceAxis::X);
+        assert_eq!(request.size, 64);
+        assert_eq!(request.at_m, Some(DVec3::new(0.0, 0.01, -0.02)));
+        let request = slice_request(&params(&[])).unwrap();
+        assert_eq!((request.axis, request.size), (SliceAxis::Z, 128));
+        let err = slice_request(&params(&[("axis", "w")])).unwrap_err();
+        assert!(err.contains("axis must be x, y or z"), "{err}");
+        let err = slice_request(&params(&[("at", "1,2")])).unwrap_err();
+        assert!(err.contains("at must be three finite numbers"), "{err}");
+        let err = slice_request(&params(&[("at", "1,2,NaN")])).unwrap_err();
+        assert!(err.contains("at must be"), "{err}");
+        let err = slice_request(&params(&[("sise", "1")])).unwrap_err();
+        assert!(err.contains("unknown query parameter \"sise\""), "{err}");
+    }
+}

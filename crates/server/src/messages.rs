@@ -1,0 +1,691 @@
+//! The JSON of the visualiser protocol `voxhap.visualiser.v1` (protocol/VISUALISER.md): what the server sends
+//! over the WebSocket and REST API, what clients may send, and decoders that name the problem in a bad message.
+//!
+//! Outgoing messages borrow the session's data ([`State::new`] reads a [`Snapshot`] without copying its
+//! primitives into a `Vec`). Incoming messages are decoded in two steps: the text to a JSON value (a syntax
+//! error is "malformed JSON"), then the value to a typed message with the path of a bad field
+//! (`serde_path_to_error`), so `{"command":"set_stiffness","k":"NaN"}` is refused with
+//! `k: invalid type: string "NaN", expected f64`. Tagged messages (`"type"`, `"command"`) are re-tagged
+//! externally before decoding, because serde loses the field path inside internally tagged enums.
+
+use base64::Engine as _;
+use glam::DVec3;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize, Serializer};
+use serde_json::Value;
+use std::path::PathBuf;
+use voxhap_api::{
+    ControlCommand, ControlReply, SceneReport, Slice, SliceAxis, SliceRequest, Snapshot,
+    StatsReport, SLICE_SIZE_DEFAULT,
+};
+use voxhap_core::haptics::modes::{ModeConfig, TransferFunction};
+use voxhap_core::haptics::tick::TickStatus;
+use voxhap_record::TraceFormat;
+
+/// The protocol's name and version, sent in `hello`.
+pub const SCHEMA: &str = "voxhap.visualiser.v1";
+/// Largest message a client may send (WebSocket; larger closes with 1009) and largest REST body (413).
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
+/// State stream rates a client may ask for (Hz).
+pub const RATE_RANGE_HZ: (f64, f64) = (1.0, 1000.0);
+/// State stream rate without `?rate=` (Hz).
+pub const DEFAULT_RATE_HZ: f64 = 60.0;
+
+/// Checks a requested stream rate.
+pub fn check_rate(rate_hz: f64) -> Result<f64, String> {
+    let (min, max) = RATE_RANGE_HZ;
+    if rate_hz.is_finite() && (min..=max).contains(&rate_hz) {
+        Ok(rate_hz)
+    } else {
+        Err(format!("rate must be {min} ..= {max} Hz, got {rate_hz}"))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Server to client.
+
+/// First message on a WebSocket.
+#[derive(Debug, Serialize)]
+#[serde(tag = "type", rename = "hello")]
+pub struct Hello<'a> {
+    pub schema: &'static str,
+    /// The state rate this client gets (Hz).
+    pub rate_hz: f64,
+    /// The servo loop's rate (Hz).
+    pub servo_rate_hz: f64,
+    pub scene: &'a SceneReport,
+}
+
+/// The servo's newest state (WebSocket `state`, and `GET /api/state`).
+#[derive(Debug, Serialize)]
+#[serde(tag = "type", rename = "state")]
+pub struct State<'a> {
+    pub tick: u64,
+    pub t_s: f64,
+    pub probe_m: DVec3,
+    pub proxy_m: DVec3,
+    /// Force sent to the device, after the safety pipeline (N).
+    pub force_n: DVec3,
+    /// Force the tick rendered, before safety (N).
+    pub rendered_force_n: DVec3,
+    #[serde(serialize_with = "primitives")]
+    pub primitives: &'a Snapshot,
+    /// `null` when the tick has no certificate.
+    pub error_bound_m: Option<f64>,
+    pub status: TickStatus,
+    pub sweeps: u32,
+    pub stiffness_n_per_m: f64,
+    pub damping_n_s_per_m: f64,
+    pub connected: bool,
+    pub engaged: bool,
+    pub scene_generation: u64,
+    pub hand_target_m: Option<DVec3>,
+    /// State frames this client lost because it read too slowly (0 over REST).
+    pub frames_dropped: u64,
+}
+
+fn primitives<S: Serializer>(snapshot: &&Snapshot, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.collect_seq(snapshot.primitives().copied())
+}
+
+impl<'a> State<'a> {
+    pub fn new(snapshot: &'a Snapshot, frames_dropped: u64) -> Self {
+        State {
+            tick: snapshot.tick,
+            t_s: snapshot.t_s,
+            probe_m: snapshot.probe_m,
+            proxy_m: snapshot.proxy_m,
+            force_n: snapshot.sent_force_n,
+            rendered_force_n: snapshot.rendered_force_n,
+            primitives: snapshot,
+            error_bound_m: snapshot
+                .error_bound_m
+                .is_finite()
+                .then_some(snapshot.error_bound_m),
+            status: snapshot.status,
+            sweeps: snapshot.sweeps,
+            stiffness_n_per_m: snapshot.stiffness_n_per_m,
+            damping_n_s_per_m: snapshot.damping_n_s_per_m,
+            connected: snapshot.connected,
+            engaged: snapshot.engaged,
+            scene_generation: snapshot.scene_generation,
+            hand_target_m: snapshot.hand_target_m,
+            frames_dropped,
+        }
+    }
+}
+
+/// A control command (or rate change) succeeded.
+#[derive(Debug, Serialize)]
+#[serde(tag = "type", rename = "reply")]
+pub struct Reply<'a> {
+    pub id: &'a Value,
+    pub ok: bool,
+    pub message: &'a str,
+    pub scene_generation: u64,
+}
+
+/// A client message was refused; the connection stays open.
+#[derive(Debug, Serialize)]
+#[serde(tag = "type", rename = "error")]
+pub struct ErrorMessage<'a> {
+    pub id: &'a Value,
+    pub error: &'a str,
+}
+
+/// A slice, answering a client's `slice` request.
+#[derive(Debug, Serialize)]
+#[serde(tag = "type", rename = "slice")]
+pub struct SliceMessage<'a> {
+    pub id: &'a Value,
+    #[serde(flatten)]
+    pub slice: &'a Slice,
+}
+
+/// A slice as JSON text; with `u8` its values are 8-bit levels in base64 (`values_u8`, byte `b` stands for
+/// `min + b (max - min) / 255`, a non-finite value is 0) in place of `values`: about 23 KiB for 128 x 128
+/// samples instead of about 180 KiB of decimal numbers (the page asks for this).
+pub fn slice_json(slice: &Slice, u8_levels: bool) -> String {
+    if !u8_levels {
+        return serde_json::to_string(slice).unwrap_or_default();
+    }
+    let mut value = serde_json::to_value(slice).unwrap_or_default();
+    if let Some(object) = value.as_object_mut() {
+        object.remove("values");
+        let levels = quantise_u8(&slice.values, slice.min, slice.max);
+        object.insert(
+            "values_u8".to_owned(),
+            Value::String(base64::engine::general_purpose::STANDARD.encode(levels)),
+        );
+    }
+    value.to_string()
+}
+
+/// `values` mapped linearly from `min..=max` to 0..=255 (rounded); non-finite values and a flat range give 0.
+pub fn quantise_u8(values: &[f32], min: f32, max: f32) -> Vec<u8> {
+    let span = max - min;
+    values
+        .iter()
+        .map(|&v| {
+            let level = (v - min) / span * 255.0;
+            if level.is_finite() {
+                // In range by construction; the clamp guards rounding at the ends.
+                level.round().clamp(0.0, 255.0) as u8
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+/// `{"ok": true, ...}` of a REST control request.
+#[derive(Debug, Serialize)]
+pub struct ControlOk {
+    pub ok: bool,
+    pub message: String,
+    pub scene_generation: u64,
+}
+
+impl From<ControlReply> for ControlOk {
+    fn from(reply: ControlReply) -> Self {
+        ControlOk {
+            ok: true,
+            message: reply.message,
+            scene_generation: reply.scene_generation,
+        }
+    }
+}
+
+/// `{"ok": false, "error": ...}` of a refused REST control request.
+#[derive(Debug, Serialize)]
+pub struct ControlFailed {
+    pub ok: bool,
+    pub error: String,
+}
+
+impl ControlFailed {
+    pub fn new(error: impl Into<String>) -> Self {
+        ControlFailed {
+            ok: false,
+            error: error.into(),
+        }
+    }
+}
+
+/// `{"error": ...}` of a failed read request.
+#[derive(Debug, Serialize)]
+pub struct ErrorBody {
+    pub error: String,
+}
+
+/// The server's own counters (`GET /api/stats` → `server`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub struct ServerStats {
+    /// WebSocket clients connected now.
+    pub clients: usize,
+    pub max_clients: usize,
+    /// State frames written to clients.
+    pub frames_sent: u64,
+    /// State frames dropped because a client's queue was full.
+    pub frames_dropped: u64,
+    /// WebSocket upgrades refused because `max_clients` were connected.
+    pub clients_refused: u64,
+    /// Most TCP connections open at once (`max_clients` plus room for page and REST requests).
+    pub max_connections: usize,
+    /// Connections closed at once because `max_connections` were open.
+    pub connections_refused: u64,
+    /// Connections closed because nothing was read or written on them for the idle timeout.
+    pub idle_closed: u64,
+}
+
+/// `GET /api/stats`.
+#[derive(Debug, Serialize)]
+pub struct StatsBody {
+    pub servo: StatsReport,
+    pub server: ServerStats,
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Client to server.
+
+/// A decoded WebSocket message from a client. `id` is echoed in the answer (any JSON value, `null` if absent).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ClientMessage {
+    Rate {
+        id: Value,
+        rate_hz: f64,
+    },
+    Control {
+        id: Value,
+        token: Option<String>,
+        command: ControlCommand,
+    },
+    Slice {
+        id: Value,
+        request: SliceRequest,
+    },
+}
+
+/// A client message that could not be decoded, with the `id` it carried (if any could be read).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodeError {
+    pub id: Value,
+    pub message: String,
+}
+
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+enum ClientWire {
+    Rate {
+        #[serde(default)]
+        id: Value,
+        rate_hz: f64,
+    },
+    Control {
+        #[serde(default)]
+        id: Value,
+        #[serde(default)]
+        token: Option<String>,
+        command: Value,
+    },
+    Slice {
+        #[serde(default)]
+        id: Value,
+        #[serde(default)]
+        axis: Option<SliceAxis>,
+        #[serde(default)]
+        size: Option<usize>,
+        #[serde(default)]
+        at: Option<[f64; 3]>,
+        #[serde(default)]
+        volume: Option<String>,
+    },
+}
+
+/// [`ControlCommand`] with an external tag, so a bad field's path survives decoding. Kept in step with
+/// `ControlCommand` by the exhaustive match in [`CommandWire::from_command`] (a test round-trips every variant).
+#[derive(Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+enum CommandWire {
+    SetStiffness {
+        k: f64,
+    },
+    SetDamping {
+        damping: f64,
+    },
+    SetTransfer {
+        mode: String,
+        transfer: TransferFunction,
+    },
+    SetModeEnabled {
+        mode: String,
+        enabled: bool,
+    },
+    AddMode {
+        mode: ModeConfig,
+    },
+    RemoveMode {
+        name: String,
+    },
+    LoadVolume {
+        path: PathBuf,
+        #[serde(default)]
+        name: Option<String>,
+    },
+    StartRecording {
+        path: PathBuf,
+        #[serde(default)]
+        format: Option<TraceFormat>,
+    },
+    StopRecording {},
+    SetHandTarget {
+        position_m: Option<[f64; 3]>,
+    },
+    ClearFault {},
+}
+
+impl CommandWire {
+    fn into_command(self) -> ControlCommand {
+        match self {
+            CommandWire::SetStiffness { k } => ControlCommand::SetStiffness { k },
+            CommandWire::SetDamping { damping } => ControlCommand::SetDamping { damping },
+            CommandWire::SetTransfer { mode, transfer } => {
+                ControlCommand::SetTransfer { mode, transfer }
+            }
+            CommandWire::SetModeEnabled { mode, enabled } => {
+                ControlCommand::SetModeEnabled { mode, enabled }
+            }
+            CommandWire::AddMode { mode } => ControlCommand::AddMode { mode },
+            CommandWire::RemoveMode { name } => ControlCommand::RemoveMode { name },
+            CommandWire::LoadVolume { path, name } => ControlCommand::LoadVolume { path, name },
+            CommandWire::StartRecording { path, format } => {
+                ControlCommand::StartRecording { path, format }
+            }
+            CommandWire::StopRecording {} => ControlCommand::StopRecording,
+            CommandWire::SetHandTarget { position_m } => {
+                ControlCommand::SetHandTarget { position_m }
+            }
+            CommandWire::ClearFault {} => ControlCommand::ClearFault,
+        }
+    }
+
+    #[cfg(test)]
+    fn from_command(command: ControlCommand) -> Self {
+        match command {
+            ControlCommand::SetStiffness { k } => CommandWire::SetStiffness { k },
+            ControlCommand::SetDamping { damping } => CommandWire::SetDamping { damping },
+            ControlCommand::SetTransfer { mode, transfer } => {
+                CommandWire::SetTransfer { mode, transfer }
+            }
+            ControlCommand::SetModeEnabled { mode, enabled } => {
+                CommandWire::SetModeEnabled { mode, enabled }
+            }
+            ControlCommand::AddMode { mode } => CommandWire::AddMode { mode },
+            ControlCommand::RemoveMode { name } => CommandWire::RemoveMode { name },
+            ControlCommand::LoadVolume { path, name } => CommandWire::LoadVolume { path, name },
+            ControlCommand::StartRecording { path, format } => {
+                CommandWire::StartRecording { path, format }
+            }
+            ControlCommand::StopRecording => CommandWire::StopRecording {},
+            ControlCommand::SetHandTarget { position_m } => {
+                CommandWire::SetHandTarget { position_m }
+            }
+            ControlCommand::ClearFault => CommandWire::ClearFault {},
+        }
+    }
+}
+
+/// Parses JSON text; a syntax error is "malformed JSON: ...".
+pub fn parse_json(bytes: &[u8]) -> Result<Value, String> {
+    if bytes.iter().all(u8::is_ascii_whitespace) {
+        return Err("the body is empty; expected a JSON object".to_owned());
+    }
+    serde_json::from_slice(bytes).map_err(|e| format!("malformed JSON: {e}"))
+}
+
+/// Decodes `value` as `T`, naming the path of a bad field (`k: invalid type: ...`).
+pub fn decode_value<T: DeserializeOwned>(value: Value) -> Result<T, String> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let mut path = e.path().to_string();
+        let inner = e.into_inner().to_string();
+        // An unknown field's path ends with the field itself, which the message already names.
+        if let Some(field) = inner
+            .strip_prefix("unknown field `")
+            .and_then(|rest| rest.split('`').next())
+        {
+            if let Some(parent) = path.strip_suffix(field) {
+                path = parent.trim_end_matches('.').to_owned();
+            }
+        }
+        if path.is_empty() || path == "." || path == "?" {
+            inner
+        } else {
+            format!("{path}: {inner}")
+        }
+    })
+}
+
+/// Turns `{"<tag_key>": "name", rest...}` into `{"name": {rest...}}`, decodes it as the externally tagged
+/// `T`, and reports errors without the tag in the path.
+fn decode_tagged<T: DeserializeOwned>(value: Value, tag_key: &str) -> Result<T, String> {
+    let Value::Object(mut object) = value else {
+        return Err(format!("expected a JSON object with a {tag_key:?} field"));
+    };
+    let tag = match object.remove(tag_key) {
+        Some(Value::String(tag)) => tag,
+        Some(other) => return Err(format!("{tag_key:?} must be a string, got {other}")),
+        None => return Err(format!("missing field `{tag_key}`")),
+    };
+    let prefix = format!("{tag}.");
+    let mut wrapped = serde_json::Map::new();
+    wrapped.insert(tag.clone(), Value::Object(object));
+    decode_value(Value::Object(wrapped)).map_err(|message| match message.strip_prefix(&prefix) {
+        Some(rest) => format!("{tag_key} {tag:?}: {rest}"),
+        None => match message.strip_prefix(&format!("{tag}: ")) {
+            Some(rest) => format!("{tag_key} {tag:?}: {rest}"),
+            None => message,
+        },
+    })
+}
+
+/// Decodes a control command (`{"command": "set_stiffness", "k": 400}`).
+pub fn decode_command(value: Value) -> Result<ControlCommand, String> {
+    decode_tagged::<CommandWire>(value, "command").map(CommandWire::into_command)
+}
+
+/// Decodes a WebSocket text message from a client.
+pub fn decode_client_message(text: &str) -> Result<ClientMessage, DecodeError> {
+    let value = parse_json(text.as_bytes()).map_err(|message| DecodeError {
+        id: Value::Null,
+        message,
+    })?;
+    let id = value.get("id").cloned().unwrap_or(Value::Null);
+    let fail = |message: String| DecodeError {
+        id: id.clone(),
+        message,
+    };
+    let wire = decode_tagged::<ClientWire>(value, "type").map_err(fail)?;
+    Ok(match wire {
+        ClientWire::Rate { id, rate_hz } => ClientMessage::Rate { id, rate_hz },
+        ClientWire::Control { id, token, command } => ClientMessage::Control {
+            token,
+            command: decode_command(command).map_err(|e| DecodeError {
+                id: id.clone(),
+                message: format!("command: {e}"),
+            })?,
+            id,
+        },
+        ClientWire::Slice {
+            id,
+            axis,
+            size,
+            at,
+            volume,
+        } => ClientMessage::Slice {
+            id,
+            request: SliceRequest {
+                axis: axis.unwrap_or(SliceAxis::Z),
+                size: size.unwrap_or(SLICE_SIZE_DEFAULT),
+                at_m: at.map(DVec3::from_array),
+                volume,
+            },
+        },
+    })
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// REST bodies.
+
+/// `POST /api/stiffness`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StiffnessBody {
+    #[serde(default)]
+    pub k: Option<f64>,
+    #[serde(default)]
+    pub damping: Option<f64>,
+}
+
+/// `POST /api/modes`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeBody {
+    pub mode: ModeConfig,
+}
+
+/// `POST /api/modes/{name}/transfer`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransferBody {
+    pub transfer: TransferFunction,
+}
+
+/// `POST /api/modes/{name}/enabled`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnabledBody {
+    pub enabled: bool,
+}
+
+/// `POST /api/volume`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeBody {
+    pub path: PathBuf,
+    #[serde(default)]
+    pub name: Option<String>,
+}
+
+/// `POST /api/record/start`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordBody {
+    pub path: PathBuf,
+    #[serde(default)]
+    pub format: Option<TraceFormat>,
+}
+
+/// `POST /api/hand`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandBody {
+    pub position_m: Option<[f64; 3]>,
+}
+
+/// `POST /api/record/stop` (an empty body or `{}`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmptyBody {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+    use voxhap_core::haptics::modes::ModeKind;
+
+    #[test]
+    fn every_command_round_trips_through_the_wire_form() {
+        let commands = vec![
+            ControlCommand::SetStiffness { k: 400.0 },
+            ControlCommand::SetDamping { damping: 1.5 },
+            ControlCommand::SetTransfer {
+                mode: "surface".into(),
+                transfer: TransferFunction::new(vec![[0.0, 0.0], [1.0, 2.0]]).unwrap(),
+            },
+            ControlCommand::SetModeEnabled {
+                mode: "surface".into(),
+                enabled: false,
+            },
+            ControlCommand::AddMode {
+                mode: ModeConfig::new(ModeKind::Viscosity),
+            },
+            ControlCommand::RemoveMode { name: "v".into() },
+            ControlCommand::LoadVolume {
+                path: "a.nrrd".into(),
+                name: Some("density".into()),
+            },
+            ControlCommand::StartRecording {
+                path: "t.mcap".into(),
+                format: Some(TraceFormat::Mcap),
+            },
+            ControlCommand::StopRecording,
+            ControlCommand::SetHandTarget {
+                position_m: Some([0.01, 0.0, 0.02]),
+            },
+            ControlCommand::SetHandTarget { position_m: None },
+        ];
+        for command in commands {
+            // The library's own (internally tagged) JSON decodes to the same command ...
+            let text = serde_json::to_value(&command).unwrap();
+            assert_eq!(decode_command(text).unwrap(), command);
+            // ... and the wire form covers every variant.
+            let wire = CommandWire::from_command(command.clone());
+            assert_eq!(wire.into_command(), command);
+        }
+    }
+
+    #[test]
+    fn slices_quantise_to_eight_bits() {
+        assert_eq!(
+            quantise_u8(&[0.0, 0.5, 1.0, f32::NAN, 2.0, -1.0], 0.0, 1.0),
+            [0, 128, 255, 0, 255, 0]
+        );
+        assert_eq!(quantise_u8(&[3.0, 3.0], 3.0, 3.0), [0, 0], "a flat slice");
+    }
+
+    #[test]
+    fn bad_commands_name_the_field() {
+        let err = decode_command(json!({"command": "set_stiffness", "k": "NaN"})).unwrap_err();
+        assert!(
+            err.starts_with("command \"set_stiffness\": k: invalid type: string \"NaN\""),
+            "{err}"
+        );
+        let err = decode_command(json!({"command": "set_stiffness", "kk": 4})).unwrap_err();
+        assert!(err.contains("unknown field `kk`"), "{err}");
+        let err = decode_command(json!({"command": "set_stifness", "k": 4})).unwrap_err();
+        assert!(err.contains("unknown variant `set_stifness`"), "{err}");
+        let err = decode_command(json!({"k": 4})).unwrap_err();
+        assert_eq!(err, "missing field `command`");
+        let err =
+            decode_command(json!({"command": "add_mode", "mode": {"kind": "surface", "bogus": 1}}))
+                .unwrap_err();
+        assert!(err.contains("mode: unknown field `bogus`"), "{err}");
+    }
+
+    #[test]
+    fn client_messages_decode_or_say_why() {
+        let m = decode_client_message(r#"{"type":"rate","rate_hz":200}"#).unwrap();
+        assert_eq!(
+            m,
+            ClientMessage::Rate {
+                id: Value::Null,
+                rate_hz: 200.0
+            }
+        );
+        let m = decode_client_message(
+            r#"{"type":"control","id":7,"token":"t","command":{"command":"set_stiffness","k":400}}"#,
+        )
+        .unwrap();
+        assert!(matches!(
+            m,
+            ClientMessage::Control { id: Value::Number(_), command: ControlCommand::SetStiffness { k }, .. } if k == 400.0
+        ));
+        let m = decode_client_message(
+            r#"{"type":"slice","id":"a","axis":"x","size":64,"at":[0,0,0.01]}"#,
+        )
+        .unwrap();
+        let ClientMessage::Slice { id, request } = m else {
+            panic!("a slice")
+        };
+        assert_eq!(id, json!("a"));
+        assert_eq!(request.axis, SliceAxis::X);
+        assert_eq!(request.size, 64);
+        let err = decode_client_message("{nope").unwrap_err();
+        assert!(err.message.starts_with("malformed JSON"), "{err:?}");
+        let err = decode_client_message(
+            r#"{"type":"control","id":3,"command":{"command":"set_damping","damping":"x"}}"#,
+        )
+        .unwrap_err();
+        assert_eq!(err.id, json!(3));
+        assert!(err.message.contains("damping: invalid type"), "{err:?}");
+        let err = decode_client_message(r#"{"type":"dance","id":4}"#).unwrap_err();
+        assert!(err.message.contains("unknown variant `dance`"), "{err:?}");
+        assert_eq!(err.id, json!(4));
+    }
+
+    #[test]
+    fn state_serialises_the_contract_fields() {
+        let snapshot = Snapshot {
+            sent_force_n: DVec3::Z * 0.5,
+            error_bound_m: f64::INFINITY,
+            ..Snapshot::example()
+        };
+        let value = serde_json::to_value(State::new(&snapshot, 3)).unwrap();
+        assert_eq!(value["type"], "state");
+        assert_eq!(value["force_n"], json!([0.0, 0.0, 0.5]));
+        assert_eq!(value["error_bound_m"], Value::Null);
+        assert_eq!(value["primitives"], json!([]));
+        assert_eq!(value["frames_dropped"], 3);
+        assert_eq!(value["hand_target_m"], Value::Null);
+    }
+}

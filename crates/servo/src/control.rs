@@ -1,0 +1,493 @@
+//! The control-command interpreter: turns a client's [`ControlCommand`] (CLI, REST, WebSocket) into a
+//! checked change of the session's scene setup and the [`ServoCommand`] that carries it to the servo thread
+//! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
+//! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
+
+use super::api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
+use super::device::HandTargetInput;
+use super::recorder::{RecorderError, RecorderRequest};
+use super::runner::{
+    CommandEnvelope, ServoCommand, CLEAR_FAULT_NOTHING, CLEAR_FAULT_NO_DEVICE,
+    CLEAR_FAULT_REQUESTED,
+};
+use super::setup::{load_volume_arg, ReplaceVolumeError, SceneBundle, SceneSetup};
+use super::stats::ServoStats;
+use glam::DVec3;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
+use voxhap_device::mapping::WorkspaceMapping;
+use voxhap_record::foxglove_scene::SceneChange;
+use voxhap_record::{create_trace_writer, TraceFormat, TraceMeta};
+
+/// How long a control command waits for the servo thread to apply it.
+pub const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The farthest a hand target may be from the origin (m), for an unbounded workspace.
+pub const MAX_HAND_TARGET_M: f64 = 10.0;
+
+/// The part of a session that any thread may share (`Arc`); implements [`SessionApi`].
+pub struct SessionShared {
+    pub(super) stats: Arc<ServoStats>,
+    pub(super) snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
+    pub(super) control: Mutex<Control>,
+    pub(super) hand_target: Mutex<Option<DVec3>>,
+    pub(super) stop: Arc<AtomicBool>,
+    pub(super) servo_running: Arc<AtomicBool>,
+    pub(super) device_label: String,
+    pub(super) simulated: bool,
+    pub(super) max_stiffness_n_per_m: f64,
+    pub(super) rate_hz: f64,
+    pub(super) period_ns: u64,
+    pub(super) solver_budget_fraction: f64,
+    pub(super) recorder_error: RecorderError,
+}
+
+pub(super) struct Control {
+    pub(super) commands: rtrb::Producer<CommandEnvelope>,
+    /// The id of the last command decided (applied by the servo thread or cancelled here).
+    pub(super) claim: Arc<AtomicU64>,
+    pub(super) retired: rtrb::Consumer<Box<SceneBundle>>,
+    pub(super) sent: u64,
+    pub(super) setup: SceneSetup,
+    pub(super) generation: u64,
+    pub(super) recorder: mpsc::Sender<RecorderRequest>,
+    pub(super) recording: Option<PathBuf>,
+    pub(super) hand: Option<HandTargetInput>,
+    /// Device frame -> scene frame of the session (a hand target is given in the scene, moved in the device).
+    pub(super) hand_mapping: WorkspaceMapping,
+}
+
+fn invalid(message: impl Into<String>) -> ControlError {
+    ControlError::Invalid(message.into())
+}
+
+pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> TraceMeta {
+    let mode_names = setup
+        .modes
+        .iter()
+        .map(|m| m.display_name().to_owned())
+        .collect();
+    let scenario = serde_json::json!({
+        "session": setup.label,
+        "device": device,
+        "k_n_per_m": setup.stiffness_n_per_m,
+        "damping_n_s_per_m": setup.damping_n_s_per_m,
+        "modes": setup.modes,
+    });
+    let volume = setup
+        .volumes
+        .iter()
+        .map(|v| v.source.clone())
+        .collect::<Vec<_>>()
+        .join(", ");
+    TraceMeta::new(
+        mode_names,
+        rate_hz,
+        scenario,
+        volume,
+        setup.solver_kind().name(),
+    )
+}
+
+fn finite(name: &str, value: f64) -> Result<f64, ControlError> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(invalid(format!(
+            "{name} must be a finite number, got {value}"
+        )))
+    }
+}
+
+impl SessionShared {
+    fn drain_retired(control: &mut Control) {
+        while let Ok(old) = control.retired.pop() {
+            drop(old);
+        }
+    }
+
+    /// Pushes `command` and waits until the servo thread has applied it.
+    fn send(&self, control: &mut Control, command: ServoCommand) -> Result<(), ControlError> {
+        if !self.servo_running.load(Ordering::Acquire) {
+            return Err(ControlError::Unavailable(
+                "the servo loop is not running".to_owned(),
+            ));
+        }
+        let id = control.sent + 1;
+        if control
+            .commands
+            .push(CommandEnvelope { id, command })
+            .is_err()
+        {
+            return Err(ControlError::Unavailable(
+                "the servo command queue is full; try again".to_owned(),
+            ));
+        }
+        control.sent = id;
+        let started = Instant::now();
+        loop {
+            if control.claim.load(Ordering::Acquire) >= id {
+                // Decided by the servo thread (this side cancels only below, and then returns).
+                break;
+            }
+            if started.elapsed() > APPLY_TIMEOUT || !self.servo_running.load(Ordering::Acquire) {
+                // Cancel: whoever moves the claim from id - 1 to id decides. If the servo thread got there
+                // first the command was applied after all, and that is what the caller is told.
+                if control
+                    .claim
+                    .compare_exchange(id - 1, id, Ordering::AcqRel, Ordering::Acquire)
+                    .is_ok()
+                {
+                    return Err(ControlError::Unavailable(
+                        "the servo loop did not take the command in time; it was withdrawn and will not be \
+                         applied"
+                            .to_owned(),
+                    ));
+                }
+                break;
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        Self::drain_retired(control);
+        Ok(())
+    }
+
+    /// Waits briefly (at most 100 ms) until the servo thread's snapshot shows scene `generation`. The servo
+    /// thread takes a command at the start of a tick and publishes that tick's snapshot at its end, so without
+    /// this a client reading the snapshot right after the reply could still see the old values.
+    fn wait_for_snapshot(&self, generation: u64) {
+        let deadline = Instant::now() + Duration::from_millis(100);
+        while Instant::now() < deadline && self.servo_running.load(Ordering::Acquire) {
+            if self
+                .snapshot()
+                .is_some_and(|s| s.scene_generation >= generation)
+            {
+                return;
+            }
+            std::thread::sleep(Duration::from_micros(100));
+        }
+    }
+
+    /// Builds `setup` into a bundle, swaps it in, and keeps `setup` as the current one.
+    fn swap(
+        &self,
+        control: &mut Control,
+        setup: SceneSetup,
+        message: String,
+    ) -> Result<ControlReply, ControlError> {
+        let generation = control.generation + 1;
+        let bundle = setup
+            .bundle(self.period_ns, self.solver_budget_fraction, generation)
+            .map_err(|e| invalid(e.to_string()))?;
+        // While recording, the recording redraws the volume: meshed here, before the swap, so the recorder
+        // thread never stalls on it.
+        let redraw = control.recording.as_ref().and_then(|_| {
+            SceneChange::between(
+                (&control.setup.volumes[..], &control.setup.modes[..]),
+                (&setup.volumes[..], &setup.modes[..]),
+                generation,
+            )
+        });
+        self.send(control, ServoCommand::SwapScene(Box::new(bundle)))?;
+        self.wait_for_snapshot(generation);
+        if let Some(redraw) = redraw {
+            // A recorder that stopped has nothing to draw it in.
+            let _ = control
+                .recorder
+                .send(RecorderRequest::SceneChanged(Box::new(redraw)));
+        }
+        control.setup = setup;
+        control.generation = generation;
+        Ok(ControlReply {
+            message,
+            scene_generation: generation,
+        })
+    }
+
+    fn coupling(
+        &self,
+        control: &mut Control,
+        k: f64,
+        damping: f64,
+        message: String,
+    ) -> Result<ControlReply, ControlError> {
+        let generation = control.generation + 1;
+        self.send(
+            control,
+            ServoCommand::SetCoupling {
+                stiffness_n_per_m: k,
+                damping_n_s_per_m: damping,
+                generation,
+            },
+        )?;
+        self.wait_for_snapshot(generation);
+        control.setup.stiffness_n_per_m = k;
+        control.setup.damping_n_s_per_m = damping;
+        control.generation = generation;
+        Ok(ControlReply {
+            message,
+            scene_generation: generation,
+        })
+    }
+
+    fn mode_index(setup: &SceneSetup, name: &str) -> Result<usize, ControlError> {
+        setup
+            .modes
+            .iter()
+            .position(|m| m.display_name() == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = setup.modes.iter().map(|m| m.display_name()).collect();
+                ControlError::NotFound(format!("no mode named {name:?} (modes: {names:?})"))
+            })
+    }
+
+    fn refuse_while_recording(control: &Control, what: &str) -> Result<(), ControlError> {
+        match &control.recording {
+            Some(path) => Err(ControlError::Conflict(format!(
+                "cannot {what} while recording to {} (a trace has a fixed set of mode columns); stop recording first",
+                path.display()
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    pub(super) fn apply(
+        &self,
+        control: &mut Control,
+        command: ControlCommand,
+    ) -> Result<ControlReply, ControlError> {
+        Self::drain_retired(control);
+        match command {
+            ControlCommand::SetStiffness { k } => {
+                let k = finite("k", k)?;
+                if k <= 0.0 || k > self.max_stiffness_n_per_m {
+                    return Err(invalid(format!(
+                        "k must be > 0 and at most the device's {} N/m, got {k}",
+                        self.max_stiffness_n_per_m
+                    )));
+                }
+                let damping = control.setup.damping_n_s_per_m;
+                self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
+            }
+            ControlCommand::SetDamping { damping } => {
+                let damping = finite("damping", damping)?;
+                if damping < 0.0 {
+                    return Err(invalid(format!(
+                        "damping must be >= 0 N s/m, got {damping}"
+                    )));
+                }
+                let k = control.setup.stiffness_n_per_m;
+                self.coupling(
+                    control,
+                    k,
+                    damping,
+                    format!("damping set to {damping} N s/m"),
+                )
+            }
+            ControlCommand::SetTransfer { mode, transfer } => {
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &mode)?;
+                if setup.modes[index].transfer.is_none() {
+                    return Err(invalid(format!("mode {mode:?} has no transfer function")));
+                }
+                setup.modes[index].transfer = Some(transfer);
+                self.swap(
+                    control,
+                    setup,
+                    format!("transfer function of {mode:?} replaced"),
+                )
+            }
+            ControlCommand::SetModeEnabled { mode, enabled } => {
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &mode)?;
+                setup.modes[index].enabled = (!enabled).then_some(false);
+                let state = if enabled { "on" } else { "off" };
+                self.swap(control, setup, format!("mode {mode:?} switched {state}"))
+            }
+            ControlCommand::AddMode { mode } => {
+                Self::refuse_while_recording(control, "add a mode")?;
+                let mut setup = control.setup.clone();
+                let name = mode.display_name().to_owned();
+                setup.modes.push(mode);
+                self.swap(control, setup, format!("mode {name:?} added"))
+            }
+            ControlCommand::RemoveMode { name } => {
+                Self::refuse_while_recording(control, "remove a mode")?;
+                let mut setup = control.setup.clone();
+                let index = Self::mode_index(&setup, &name)?;
+                setup.modes.remove(index);
+                self.swap(control, setup, format!("mode {name:?} removed"))
+            }
+            ControlCommand::LoadVolume { path, name } => {
+                let text = path.to_str().ok_or_else(|| {
+                    invalid(format!("volume path {} is not UTF-8", path.display()))
+                })?;
+                // `builtin:NAME` is not a file; `load_volume_arg` checks the name.
+                if !text.starts_with("builtin:") && !path.exists() {
+                    return Err(ControlError::NotFound(format!(
+                        "volume file {} does not exist",
+                        path.display()
+                    )));
+                }
+                let (volume, source) = load_volume_arg(text).map_err(|e| invalid(e.to_string()))?;
+                let mut setup = control.setup.clone();
+                setup
+                    .replace_volume(name.as_deref(), volume, source)
+                    .map_err(|error| match error {
+                        ReplaceVolumeError::NoSuchVolume { .. } => {
+                            ControlError::NotFound(error.to_string())
+                        }
+                        ReplaceVolumeError::NoVolume | ReplaceVolumeError::Modes(_) => {
+                            invalid(error.to_string())
+                        }
+                    })?;
+                self.swap(control, setup, format!("volume {} loaded", path.display()))
+            }
+            ControlCommand::StartRecording { path, format } => {
+                if let Some(current) = &control.recording {
+                    return Err(ControlError::Conflict(format!(
+                        "already recording to {}",
+                        current.display()
+                    )));
+                }
+                let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+                if let Some(parent) = parent {
+                    if !parent.is_dir() {
+                        return Err(ControlError::NotFound(format!(
+                            "directory {} does not exist",
+                            parent.display()
+                        )));
+                    }
+                }
+                let format = format.unwrap_or_else(|| TraceFormat::from_path(&path));
+                let mut meta = trace_meta(&control.setup, self.rate_hz, &self.device_label);
+                // Ticks count from the session's start: date the trace's t_s = 0 there.
+                if let Some(snapshot) = self.snapshot() {
+                    meta.start_utc_ns -= (snapshot.t_s * 1e9).round() as i64;
+                }
+                let writer = create_trace_writer(&path, format, &meta)
+                    .map_err(|e| invalid(e.to_string()))?;
+                let first_tick = self.snapshot().map_or(0, |s| s.tick + 1);
+                control
+                    .recorder
+                    .send(RecorderRequest::Start { writer, first_tick })
+                    .map_err(|_| {
+                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
+                    })?;
+                control.recording = Some(path.clone());
+                Ok(ControlReply {
+                    message: format!("recording to {} ({format})", path.display()),
+                    scene_generation: 0,
+                })
+            }
+            ControlCommand::StopRecording => {
+                let Some(path) = control.recording.clone() else {
+                    return Err(ControlError::Conflict("not recording".to_owned()));
+                };
+                let (reply_tx, reply_rx) = mpsc::channel();
+                control
+                    .recorder
+                    .send(RecorderRequest::Stop { reply: reply_tx })
+                    .map_err(|_| {
+                        ControlError::Unavailable("the recorder thread has stopped".to_owned())
+                    })?;
+                control.recording = None;
+                match reply_rx.recv_timeout(Duration::from_secs(10)) {
+                    Ok(Ok(Some(summary))) => Ok(ControlReply {
+                        message: format!(
+                            "recording stopped: {} samples in {}",
+                            summary.sample_count,
+                            summary.trace_path.display()
+                        ),
+                        scene_generation: 0,
+                    }),
+                    Ok(Ok(None)) => Err(ControlError::Conflict(format!(
+                        "the recording to {} had already stopped: {}",
+                        path.display(),
+                        self.recorder_error
+                            .lock()
+                            .ok()
+                            .and_then(|e| e.clone())
+                            .unwrap_or_default()
+                    ))),
+                    Ok(Err(error)) => Err(ControlError::Unavailable(format!(
+                        "finishing {}: {error}",
+                        path.display()
+                    ))),
+                    Err(_) => Err(ControlError::Unavailable(
+                        "the recorder did not answer in time".to_owned(),
+                    )),
+                }
+            }
+            ControlCommand::ClearFault => {
+                self.send(control, ServoCommand::ClearFault)?;
+                let message = match self.stats.clear_fault_outcome.load(Ordering::Acquire) {
+                    CLEAR_FAULT_REQUESTED => {
+                        "ClearFault sent; the device is enabled again once the link is healthy, and forces ramp in"
+                    }
+                    CLEAR_FAULT_NOTHING => "no fault to clear",
+                    CLEAR_FAULT_NO_DEVICE => "no device connected",
+                    _ => "clear_fault applied",
+                };
+                Ok(ControlReply {
+                    message: message.to_owned(),
+                    scene_generation: 0,
+                })
+            }
+            ControlCommand::SetHandTarget { position_m } => {
+                let Some(hand) = control.hand.as_mut() else {
+                    return Err(ControlError::Conflict(format!(
+                        "the device {} is not the simulated arm; only its hand can be moved",
+                        self.device_label
+                    )));
+                };
+                // `position_m` is in the scene frame; the hand moves in the device frame.
+                let (scene_target, device_target) = match position_m {
+                    Some([x, y, z]) => {
+                        let scene = DVec3::new(x, y, z);
+                        if !scene.is_finite() {
+                            return Err(invalid("position_m must be three finite numbers"));
+                        }
+                        let device = control.hand_mapping.to_device_position_m(scene);
+                        // Inside the arm's workspace, and (for an unbounded one) within 10 m: a
+                        // far target (1e308) would overflow the hand spring into NaN.
+                        let workspace = &control.setup.arm.arm.workspace;
+                        if !device.is_finite()
+                            || !workspace.contains_m(device, 0.0)
+                            || device.length() > MAX_HAND_TARGET_M
+                        {
+                            let frame = if control.hand_mapping.is_identity() {
+                                String::new()
+                            } else {
+                                format!(
+                                    " (scene position; {:?} m in the device frame under the workspace mapping)",
+                                    device.to_array()
+                                )
+                            };
+                            return Err(invalid(format!(
+                                "position_m {:?} m{frame} is outside the simulated arm's workspace ({workspace:?}, and at most {MAX_HAND_TARGET_M} m from the device origin)",
+                                scene.to_array()
+                            )));
+                        }
+                        (Some(scene), Some(device))
+                    }
+                    None => (None, None),
+                };
+                let target = scene_target;
+                hand.write(device_target);
+                if let Ok(mut slot) = self.hand_target.lock() {
+                    *slot = scene_target;
+                }
+                Ok(ControlReply {
+                    message: match target {
+                        Some(t) => format!("hand target set to {:?} m", t.to_array()),
+                        None => "hand follows its path again".to_owned(),
+                    },
+                    scene_generation: 0,
+                })
+            }
+        }
+    }
+}

@@ -1,0 +1,113 @@
+//! [`ServoDevice`]: the device as the servo thread sees it, and its implementation for every supervised driver.
+
+use super::error::ConnectError;
+use crate::monitor::StopSlot;
+use std::sync::Arc;
+use voxhap_device::mapping::WorkspaceMapping;
+use voxhap_device::plausibility::InputCounters;
+use voxhap_device::supervisor::{
+    ClearFaultOutcome, OutputState, Supervisor, SupervisorCounters, TickInput, TickOutput,
+};
+use voxhap_device::{DeviceError, DeviceInfo, HapticDevice};
+
+/// The device as the servo thread sees it: one exchange per tick, plus a few queries.
+pub trait ServoDevice: Send {
+    /// Makes the tick's force safe, sends it and reads the answering state (see [`Supervisor::tick`]).
+    fn exchange(&mut self, input: TickInput) -> TickOutput;
+    /// The supervisor's counters.
+    fn counters(&self) -> SupervisorCounters;
+    /// The input checks' counters.
+    fn input_counters(&self) -> InputCounters;
+    /// True once the safety pipeline passes forces at full strength.
+    fn engaged(&self) -> bool;
+    /// Where the output stands.
+    fn output_state(&self) -> OutputState;
+    /// The operator's `clear_fault` (ClearFault goes out on the next tick).
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome;
+    /// Zero force, disable, close.
+    fn stop(&mut self);
+    /// Opens the device now (before the loop starts), so a missing device fails `serve` at once.
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError>;
+    /// The device's capabilities, while connected.
+    fn info(&self) -> Option<DeviceInfo>;
+    /// The servo period (µs), for the slew limit.
+    fn set_period_us(&mut self, period_us: u64);
+    /// Where the stall monitor finds the device's stop channel, and the flag it raises after using it.
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>);
+    /// The connected device's declared maximum stiffness at 1 kHz (N/m), without allocating.
+    fn max_stiffness_n_per_m(&self) -> Option<f64>;
+    /// Lines for the operator from the device profile (`servo::mapped`): how the workspace is mapped into the
+    /// scene when that is not the identity, and limits the profile asks for above the device's own.
+    fn profile_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
+    /// A damping limit below the passivity bound (N s/m, scene units), from a device profile.
+    fn max_damping_n_s_per_m(&self) -> Option<f64> {
+        None
+    }
+    /// The mapping from the device frame into the scene in force (after `connect`; `servo::mapped`): the
+    /// control side maps a client's hand target (scene frame) through it into the device frame.
+    fn workspace_mapping(&self) -> WorkspaceMapping {
+        WorkspaceMapping::IDENTITY
+    }
+}
+
+impl<D, F> ServoDevice for Supervisor<D, F>
+where
+    D: HapticDevice + Send,
+    F: FnMut() -> Result<D, DeviceError> + Send,
+{
+    fn exchange(&mut self, input: TickInput) -> TickOutput {
+        self.tick(input)
+    }
+
+    fn counters(&self) -> SupervisorCounters {
+        Supervisor::counters(self)
+    }
+
+    fn input_counters(&self) -> InputCounters {
+        Supervisor::input_counters(self)
+    }
+
+    fn engaged(&self) -> bool {
+        self.safety().is_engaged()
+    }
+
+    fn output_state(&self) -> OutputState {
+        Supervisor::output_state(self)
+    }
+
+    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
+        Supervisor::request_clear_fault(self)
+    }
+
+    fn stop(&mut self) {
+        Supervisor::stop(self);
+    }
+
+    fn connect(&mut self, now_us: u64) -> Result<(), ConnectError> {
+        Supervisor::connect(self, now_us).map_err(|kind| ConnectError {
+            kind,
+            message: format!("could not open the device ({kind:?})"),
+        })
+    }
+
+    fn info(&self) -> Option<DeviceInfo> {
+        self.device().map(|d| d.info().clone())
+    }
+
+    fn set_period_us(&mut self, period_us: u64) {
+        Supervisor::set_period_us(self, period_us);
+    }
+
+    fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {
+        if let Some(device) = self.device() {
+            slot.install(device.emergency_stop());
+        }
+        self.set_stall_flag(slot.tripped_flag());
+    }
+
+    fn max_stiffness_n_per_m(&self) -> Option<f64> {
+        self.device().map(|d| d.info().max_stiffness_n_per_m)
+    }
+}

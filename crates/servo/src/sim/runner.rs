@@ -1,0 +1,123 @@
+//! The headless sim loop: simulated arm -> tick -> simulated arm, recorded every tick.
+//!
+//! Place in the data flow (docs/design.md, "Threads", with the device and the clock replaced): each servo tick
+//! the arm's position is the probe, [`tick`] renders the force, and the arm integrates one tick of
+//! physics (its own substeps) under that force. Time is the tick number divided by the rate (a mock clock
+//! nobody reads: the loop is the clock), so runs are deterministic and as fast as the machine allows.
+//! Each tick becomes a [`TraceSample`] handed to the caller's [`TraceWriter`]; the tick itself stays pure
+//! and allocation-free, the writer does the I/O. The writer is flushed every [`FLUSH_EVERY_TICKS`] ticks
+//! (whole CSV lines, a closed MCAP chunk), so a sim killed half-way leaves a trace readable up to at most
+//! that many ticks before the kill; the flush points depend only on the tick count, so runs stay
+//! byte-for-byte deterministic. The sim arm is exact, so the trace's velocity is the arm's own (reported,
+//! not estimated), and with no safety pipeline in a sim the rendered force is the force sent.
+
+use super::scenario::LoadedScenario;
+use voxhap_core::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
+use voxhap_device::sim::{SimArm, SimError};
+use voxhap_record::{
+    TraceError, TraceSample, TraceWriter, FLAG_NON_FINITE_REPLACED, FLAG_WORKSPACE_LIMIT,
+};
+
+/// Ticks between two flushes of the trace writer.
+pub const FLUSH_EVERY_TICKS: u64 = 1000;
+
+/// Why a run stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum SimRunError {
+    #[error(transparent)]
+    Arm(#[from] SimError),
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+}
+
+/// What a run did, for the summary line and the tests.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimSummary {
+    pub ticks: u64,
+    /// Ticks whose exact solve met the tolerance.
+    pub certified_ticks: u64,
+    /// The largest certificate bound of the run (m); `+inf` when a baseline solver ran.
+    pub max_error_bound_m: f64,
+    /// The most sweeps one tick took.
+    pub max_sweeps: u32,
+    /// The largest force magnitude sent (N).
+    pub max_force_n: f64,
+    /// Ticks with the probe at the workspace limit.
+    pub workspace_limit_ticks: u64,
+    /// Ticks whose force was not finite and was replaced by zero (by the tick or the arm).
+    pub non_finite_ticks: u64,
+}
+
+/// Runs `scenario` with `solver`, writing every tick to `writer`; `progress(ticks_done)` is called every
+/// 1000 ticks and at the end. The writer is not finished here (the caller owns it).
+pub fn run(
+    scenario: &LoadedScenario,
+    solver: SolverKind,
+    writer: &mut dyn TraceWriter,
+    mut progress: impl FnMut(u64),
+) -> Result<SimSummary, SimRunError> {
+    let scene = &scenario.scene;
+    let settings = &scenario.scenario;
+    let ticks = settings.tick_count();
+    let dt_s = settings.dt_s();
+    let mut arm = SimArm::new(scenario.arm.clone(), scenario.start_m)?;
+    let mut state = TickState::new(arm.position_m());
+    let mut workspace = TickWorkspace::new(scene, solver, settings.solver.solver_config());
+    let mut summary = SimSummary {
+        ticks,
+        certified_ticks: 0,
+        max_error_bound_m: 0.0,
+        max_sweeps: 0,
+        max_force_n: 0.0,
+        workspace_limit_ticks: 0,
+        non_finite_ticks: 0,
+    };
+    for index in 0..ticks {
+        let t_s = index as f64 * dt_s;
+        let probe_m = arm.position_m();
+        let probe_velocity_m_per_s = arm.velocity_m_per_s();
+        let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
+        let outcome = arm.step(t_s, dt_s, out.force_n)?;
+        let mut flags = out.flags;
+        if outcome.workspace_limit_hit {
+            flags |= FLAG_WORKSPACE_LIMIT;
+            summary.workspace_limit_ticks += 1;
+        }
+        if outcome.force_rejected {
+            flags |= FLAG_NON_FINITE_REPLACED;
+        }
+        if flags & FLAG_NON_FINITE_REPLACED != 0 {
+            summary.non_finite_ticks += 1;
+        }
+        writer.write_sample(&TraceSample {
+            tick: index,
+            t_s,
+            probe_m,
+            probe_velocity_m_per_s,
+            proxy_m: out.proxy_m,
+            rendered_force_n: out.force_n,
+            force_n: out.force_n,
+            mode_force_n: out.mode_force_n,
+            primitives_per_mode: out.primitives_per_mode,
+            mode_count: out.mode_count,
+            solver_status: out.status.into(),
+            sweeps: out.sweeps,
+            error_bound_m: out.error_bound_m,
+            device_sequence: None,
+            device_time_us: None,
+            flags,
+        })?;
+        if (index + 1) % FLUSH_EVERY_TICKS == 0 {
+            writer.flush()?;
+        }
+        summary.certified_ticks += u64::from(out.status == TickStatus::Certified);
+        summary.max_error_bound_m = summary.max_error_bound_m.max(out.error_bound_m);
+        summary.max_sweeps = summary.max_sweeps.max(out.sweeps);
+        summary.max_force_n = summary.max_force_n.max(out.force_n.length());
+        if (index + 1) % 1000 == 0 {
+            progress(index + 1);
+        }
+    }
+    progress(ticks);
+    Ok(summary)
+}

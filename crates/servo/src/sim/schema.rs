@@ -1,0 +1,847 @@
+//! The scene file schema as a table: every key of a scene (scenario) file with its unit, default, accepted
+//! values and meaning, for the generated reference page docs/reference/scene.md.
+//!
+//! Where it sits: documentation of [`super::scenario::Scenario`], the one type and validator of scene files
+//! (`voxhap sim`, `voxhap serve --scene`). Nothing reads scene files through this table; instead the unit tests
+//! below hold it against the real parser and validator, so the page cannot drift from the code:
+//!
+//! - the keys of each table are exactly the fields serde accepts there (read from the parser's own "unknown
+//!   field, expected one of ..." message);
+//! - writing a key's default explicitly gives the same scenario as leaving the key out;
+//! - every accepted range holds at its edges: the bounds are accepted, values just outside, NaN and infinity are
+//!   refused with a message naming the key.
+//!
+//! The numeric limits are the validator's own constants ([`MAX_DURATION_S`], [`RATE_HZ_RANGE`],
+//! [`TOLERANCE_RANGE_M`], [`MAX_SWEEPS_LIMIT`], [`SUBSTEPS_PER_TICK_RANGE`]). The page is rendered by
+//! tests/docs_reference.rs.
+
+use super::scenario::{
+    MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
+    SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
+};
+use voxhap_core::volume::procedural::BUILTIN_NAMES;
+use voxhap_device::sim::{
+    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M,
+    MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
+};
+
+/// What a key's value may be.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Accepts {
+    /// Any string.
+    Text,
+    /// One of these strings.
+    OneOf(&'static [&'static str]),
+    /// `true` or `false`.
+    Bool,
+    /// A finite number > 0.
+    Positive,
+    /// A finite number > 0 and at most this.
+    PositiveAtMost(f64),
+    /// A finite number >= 0.
+    NonNegative,
+    /// A finite number from `.0` to `.1`, both included.
+    Between(f64, f64),
+    /// A whole number from `.0` to `.1`, both included.
+    Count(u64, u64),
+    /// Three finite numbers.
+    Vector,
+    /// Three finite numbers, each from `-.0` to `.0`.
+    VectorWithin(f64),
+    /// Three finite numbers, not all zero.
+    Direction,
+    /// A list of at least one vector of three finite numbers.
+    Points,
+    /// A list of 1 to `.1` vectors of three finite numbers, each from `-.0` to `.0`.
+    PointsWithin(f64, u64),
+    /// A transfer function: `[[value, newtons], ...]`, values strictly increasing, newtons >= 0.
+    Transfer,
+    /// A table, described in the section with this title.
+    Table(&'static str),
+}
+
+impl Accepts {
+    /// The accepted values in words, for the reference page.
+    pub fn describe(&self) -> String {
+        match self {
+            Accepts::Text => "text".to_owned(),
+            Accepts::OneOf(names) => names
+                .iter()
+                .map(|n| format!("`{n}`"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            Accepts::Bool => "`true`, `false`".to_owned(),
+            Accepts::Positive => "> 0".to_owned(),
+            Accepts::PositiveAtMost(hi) => format!("> 0, at most {hi}"),
+            Accepts::NonNegative => ">= 0".to_owned(),
+            Accepts::Between(lo, hi) => format!("{} to {}", plain(*lo), plain(*hi)),
+            Accepts::Count(lo, hi) => format!("whole number, {lo} to {hi}"),
+            Accepts::Vector => "`[x, y, z]`".to_owned(),
+            Accepts::VectorWithin(limit) => {
+                format!(
+                    "`[x, y, z]`, each from -{} to {}",
+                    plain(*limit),
+                    plain(*limit)
+                )
+            }
+            Accepts::Direction => "`[x, y, z]`, not zero".to_owned(),
+            Accepts::Points => "`[[x, y, z], ...]`, at least one".to_owned(),
+            Accepts::PointsWithin(limit, most) => format!(
+                "`[[x, y, z], ...]`, 1 to {most}, each coordinate from -{} to {}",
+                plain(*limit),
+                plain(*limit)
+            ),
+            Accepts::Transfer => {
+                "`[[value, N], ...]`: values strictly increasing, N >= 0".to_owned()
+            }
+            Accepts::Table(title) => format!("a table: see {title}"),
+        }
+    }
+}
+
+/// A limit as a reader writes it: whole numbers in full (`100000`), others in exponent form (`1e-12`).
+fn plain(x: f64) -> String {
+    if x.fract() == 0.0 && x.abs() < 1e7 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// A key's default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum KeyDefault {
+    /// The key must be given.
+    Required,
+    /// Left out, the key has this value (TOML syntax).
+    Value(&'static str),
+    /// Left out, this happens (words).
+    Otherwise(&'static str),
+}
+
+/// One key of a scene file table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SchemaKey {
+    pub name: &'static str,
+    /// SI unit, or "" for none.
+    pub unit: &'static str,
+    pub default: KeyDefault,
+    pub accepts: Accepts,
+    /// A valid value in TOML syntax (the tests write it).
+    pub example: &'static str,
+    pub meaning: &'static str,
+}
+
+/// One table of a scene file (or one variant of a table chosen by its `kind`/`shape` key).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SchemaSection {
+    /// The heading on the reference page.
+    pub title: &'static str,
+    /// What the table is for (Markdown).
+    pub intro: &'static str,
+    /// The TOML header the keys go under ("" for the top level).
+    pub header: &'static str,
+    /// Valid lines always written under the header (the table's required keys), each `key = value`.
+    pub base: &'static str,
+    /// Which serde type the keys belong to: sections with the same group together list its fields.
+    pub group: &'static str,
+    pub keys: &'static [SchemaKey],
+}
+
+const fn key(
+    name: &'static str,
+    unit: &'static str,
+    default: KeyDefault,
+    accepts: Accepts,
+    example: &'static str,
+    meaning: &'static str,
+) -> SchemaKey {
+    SchemaKey {
+        name,
+        unit,
+        default,
+        accepts,
+        example,
+        meaning,
+    }
+}
+
+use Accepts::*;
+use KeyDefault::*;
+
+/// The kinds of `[[modes]]`.
+pub const MODE_KINDS: &[&str] = &[
+    "surface",
+    "friction",
+    "viscosity",
+    "vector_follow",
+    "vortex",
+    "vector_force",
+    "gradient_force",
+    "support_plane",
+];
+
+const SERVE_ARM: KeyDefault =
+    Otherwise("the simulated arm of `voxhap serve` (sims/scenes/explore.toml)");
+
+/// Every table of a scene file, in the order of the reference page.
+pub const SCENE_SCHEMA: &[SchemaSection] = &[
+    SchemaSection {
+        title: "Top level",
+        intro: "Keys before the first table. A scene file for `voxhap serve --scene` and a scenario for \
+                `voxhap sim` are the same file; `sim` needs `duration_s`, `serve` ignores it.",
+        header: "",
+        base: "k_n_per_m = 500.0\nduration_s = 1.0",
+        group: "scenario",
+        keys: &[
+            key("name", "", Otherwise("no label"), Text, "\"demo\"", "a label for traces and plot titles"),
+            key("description", "", Otherwise("none"), Text, "\"a ball\"", "what the scene shows (free text)"),
+            key("duration_s", "s", Otherwise("needed by `voxhap sim`; ignored by `serve`"), PositiveAtMost(MAX_DURATION_S), "2.0", "simulated time of a `voxhap sim` run"),
+            key("rate_hz", "Hz", Value("1000.0"), Between(*RATE_HZ_RANGE.start(), *RATE_HZ_RANGE.end()), "500.0", "servo rate"),
+            key("k_n_per_m", "N/m", Required, Between(STIFFNESS_RANGE_N_PER_M.0, STIFFNESS_RANGE_N_PER_M.1), "400.0", "coupling stiffness k between probe and proxy"),
+            key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping; rendered by `serve`, refused by `sim` when not 0"),
+            key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
+            key("solver", "", Otherwise("all of `[solver]`'s defaults"), Table("`[solver]`"), "", "which solver, and the exact solver's budget"),
+            key("volumes", "", Required, Table("`[[volumes]]`"), "", "the volumes, by name (may be empty: `volumes = []`)"),
+            key("modes", "", Otherwise("no modes"), Table("`[[modes]]`"), "", "the haptic modes, at most 8, in trace column order"),
+            key("arm", "", SERVE_ARM, Table("`[arm]`"), "", "the simulated arm's dynamics"),
+            key("hand", "", SERVE_ARM, Table("`[hand]`"), "", "the virtual hand's grip"),
+            key("path", "", SERVE_ARM, Table("`[path]`"), "", "what the virtual hand does over time (scene positions and forces)"),
+            key("device", "", Otherwise("no profile"), Table("[device profiles](../workspace.md)"), "", "a device profile for `serve` (`--device-profile` replaces it)"),
+        ],
+    },
+    SchemaSection {
+        title: "`[solver]`",
+        intro: "Which solver ticks, and the exact solver's budget ([The exact solver](../solver.md)).",
+        header: "[solver]",
+        base: "",
+        group: "solver",
+        keys: &[
+            key("kind", "", Value("\"exact\""), OneOf(&["exact", "euler", "constraint"]), "\"euler\"", "the certified exact solver, or a baseline of the paper (uncertified); `voxhap sim --solver` overrides it"),
+            key("tolerance_m", "m", Value("1e-12"), Between(TOLERANCE_RANGE_M.0, TOLERANCE_RANGE_M.1), "1e-9", "stop when the certified error bound is at most this"),
+            key("max_sweeps", "", Value("10000"), Count(1, MAX_SWEEPS_LIMIT as u64), "50", "most solver passes per tick (a tick over budget sets flag bit 0)"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[volumes]]`",
+        intro: "One table per volume. Give `builtin` or `file`, not both. More in [Volumes](../volumes.md).",
+        header: "[[volumes]]",
+        base: "name = \"extra\"\nbuiltin = \"sphere\"",
+        group: "volume",
+        keys: &[
+            key("name", "", Required, Text, "\"ball\"", "the name modes use"),
+            key("builtin", "", Otherwise("give `file`"), OneOf(&BUILTIN_NAMES), "\"torus\"", "a built-in procedural volume (`voxhap info builtin:NAME`)"),
+            key("file", "", Otherwise("give `builtin`"), Text, "", "a volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, raw .toml), relative to the scene file"),
+            key("part", "", Otherwise("the only field; needed for `density-flow`"), OneOf(&["scalar", "vector"]), "\"scalar\"", "which field of a two-field built-in"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]`: every kind",
+        intro: "One table per haptic mode ([Haptic modes](../modes.md)). Every mode takes these keys; the \
+                others depend on its `kind` (below), and a key the kind does not use is an error.",
+        header: "[[modes]]",
+        base: "kind = \"surface\"\nvolume = \"density\"\ntransfer = [[0.45, 0.0], [0.5, 2.0]]",
+        group: "mode",
+        keys: &[
+            key("kind", "", Required, OneOf(MODE_KINDS), "\"surface\"", "what the mode does"),
+            key("name", "", Otherwise("its kind"), Text, "\"skin\"", "unique in the scene; names the mode's trace column"),
+            key("enabled", "", Value("true"), Bool, "false", "`false` keeps the settings and the trace column but renders no force"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"surface\"`",
+        intro: "A plane through the proxy, facing along the volume's gradient.",
+        header: "[[modes]]",
+        base: "kind = \"surface\"\nvolume = \"density\"\ntransfer = [[0.45, 0.0], [0.5, 2.0]]",
+        group: "mode",
+        keys: &[
+            key("volume", "", Required, Text, "\"density\"", "a scalar volume's name"),
+            key("transfer", "value -> N", Required, Transfer, "[[0.4, 0.0], [0.5, 3.0]]", "data value to strength"),
+            key("side", "", Value("\"outward\""), OneOf(&["outward", "inward"]), "\"inward\"", "`outward` pushes towards lower values (out of a density), `inward` towards higher"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"friction\"`",
+        intro: "A point at the proxy, as strong as `mu` times a surface mode's normal force.",
+        header: "[[modes]]\nkind = \"surface\"\nvolume = \"density\"\ntransfer = [[0.45, 0.0], [0.5, 2.0]]\n[[modes]]",
+        base: "kind = \"friction\"\nsurface = \"surface\"\nmu = 0.5",
+        group: "mode",
+        keys: &[
+            key("surface", "", Required, Text, "\"surface\"", "the name of a surface mode"),
+            key("mu", "", Required, NonNegative, "0.3", "friction coefficient"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"viscosity\"`, `\"vector_follow\"`, `\"vortex\"`, `\"vector_force\"`, `\"gradient_force\"`",
+        intro: "A primitive sampled from a volume: viscosity and gradient force read a scalar volume, the others a \
+                vector volume.",
+        header: "[[modes]]",
+        base: "kind = \"viscosity\"\nvolume = \"density\"\ntransfer = [[0.0, 0.0], [1.0, 0.3]]",
+        group: "mode",
+        keys: &[
+            key("volume", "", Required, Text, "\"density\"", "the volume's name"),
+            key("transfer", "value -> N", Required, Transfer, "[[0.0, 0.0], [1.0, 0.5]]", "data value (or its magnitude, curl or gradient) to strength"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"support_plane\"`",
+        intro: "A fixed plane, placed by the user (a table to rest on).",
+        header: "[[modes]]",
+        base: "kind = \"support_plane\"\npoint_m = [0.0, 0.0, -0.04]\nnormal = [0.0, 0.0, 1.0]\nstrength_n = 3.0",
+        group: "mode",
+        keys: &[
+            key("point_m", "m", Required, Vector, "[0.0, 0.0, -0.03]", "a point on the plane"),
+            key("normal", "", Required, Direction, "[0.0, 1.0, 1.0]", "the side the plane pushes towards (any length)"),
+            key("strength_n", "N", Required, NonNegative, "2.0", "the plane's strength"),
+        ],
+    },
+    SchemaSection {
+        title: "`[arm]`",
+        intro: "The simulated arm: a damped point mass ([The simulated arm](../sim-arm.md)). Left out, the \
+                whole table is `voxhap serve`'s arm.",
+        header: "[arm]",
+        base: "mass_kg = 0.1\ndamping_n_s_per_m = 1.0\nworkspace = { shape = \"unbounded\" }",
+        group: "arm",
+        keys: &[
+            key("mass_kg", "kg", Required, PositiveAtMost(MAX_ARM_MASS_KG), "0.2", "moving mass at the end effector"),
+            key("damping_n_s_per_m", "N s/m", Required, NonNegative, "2.0", "viscous damping to ground"),
+            key("workspace", "", Required, Table("`[arm.workspace]`"), "", "where the arm can go"),
+            key("substeps_per_tick", "", Value("10"), Count(*SUBSTEPS_PER_TICK_RANGE.start() as u64, *SUBSTEPS_PER_TICK_RANGE.end() as u64), "20", "physics steps per servo tick"),
+            key("wall_stiffness_n_per_m", "N/m", Value("5000.0"), NonNegative, "2000.0", "stiffness of the workspace wall"),
+            key("wall_damping_n_s_per_m", "N s/m", Value("10.0"), NonNegative, "5.0", "damping of the workspace wall, outside it"),
+        ],
+    },
+    SchemaSection {
+        title: "`[arm.workspace]`",
+        intro: "Where the arm can go; outside it a one-sided wall spring pushes back. `shape = \"unbounded\"` \
+                takes no other key.",
+        header: "[arm]\nmass_kg = 0.1\ndamping_n_s_per_m = 1.0\n[arm.workspace]",
+        base: "shape = \"box\"\nmin_m = [-0.1, -0.1, -0.1]\nmax_m = [0.1, 0.1, 0.1]",
+        group: "workspace",
+        keys: &[
+            key("shape", "", Required, OneOf(&["box", "sphere", "unbounded"]), "\"box\"", "the workspace's shape"),
+            key("min_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
+            key("max_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.2, 0.1, 0.1]", "`box`: upper corner, >= `min_m` on every axis"),
+        ],
+    },
+    SchemaSection {
+        title: "`[arm.workspace]` `shape = \"sphere\"`",
+        intro: "A ball.",
+        header: "[arm]\nmass_kg = 0.1\ndamping_n_s_per_m = 1.0\n[arm.workspace]",
+        base: "shape = \"sphere\"\ncenter_m = [0.0, 0.0, 0.0]\nradius_m = 0.1",
+        group: "workspace",
+        keys: &[
+            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
+            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.2", "radius"),
+        ],
+    },
+    SchemaSection {
+        title: "`[hand]`",
+        intro: "The virtual hand's grip: a spring-damper pulling the arm towards the path's target.",
+        header: "[hand]",
+        base: "stiffness_n_per_m = 300.0\ndamping_n_s_per_m = 3.0",
+        group: "hand",
+        keys: &[
+            key("stiffness_n_per_m", "N/m", Required, Positive, "200.0", "spring stiffness"),
+            key("damping_n_s_per_m", "N s/m", Required, NonNegative, "1.0", "damping on the velocity error"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"hold\"`",
+        intro: "What the virtual hand does over time: a table with a `kind` key. `hold`: stay at one point.",
+        header: "[path]",
+        base: "kind = \"hold\"\nat_m = [0.0, 0.0, 0.04]",
+        group: "path",
+        keys: &[
+            key("kind", "", Required, OneOf(&["hold", "line", "waypoints", "circle", "raster", "force"]), "\"hold\"", "the kind of path"),
+            key("at_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "the point"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"line\"`",
+        intro: "From `from_m` to `to_m` at constant speed, then hold.",
+        header: "[path]",
+        base: "kind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\nduration_s = 2.0",
+        group: "path",
+        keys: &[
+            key("from_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "start point"),
+            key("to_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.0]", "end point"),
+            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "travel time"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"waypoints\"`",
+        intro: "Visit the points in order at constant speed, then hold at the last.",
+        header: "[path]",
+        base: "kind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, 0.0, 0.0]]\nspeed_m_per_s = 0.02",
+        group: "path",
+        keys: &[
+            key("points_m", "m", Required, PointsWithin(MAX_POSITION_M, MAX_PATH_VERTICES as u64), "[[0.0, 0.0, 0.04]]", "the points"),
+            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.05", "speed along the polyline"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"circle\"`",
+        intro: "Go round a circle forever.",
+        header: "[path]",
+        base: "kind = \"circle\"\ncenter_m = [0.0, 0.0, 0.02]\nradius_m = 0.02\nnormal = [0.0, 0.0, 1.0]\nperiod_s = 3.0",
+        group: "path",
+        keys: &[
+            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
+            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.01", "radius"),
+            key("normal", "", Required, Direction, "[0.0, 1.0, 0.0]", "the circle's axis (any length)"),
+            key("period_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "4.0", "time for one turn"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"raster\"`",
+        intro: "A lawn-mower sweep: `lines` passes along `sweep_m`, stepping across by `step_m / (lines - 1)`, \
+                then hold.",
+        header: "[path]",
+        base: "kind = \"raster\"\norigin_m = [-0.02, -0.02, 0.0]\nsweep_m = [0.04, 0.0, 0.0]\nstep_m = [0.0, 0.04, 0.0]\nlines = 5\nspeed_m_per_s = 0.05",
+        group: "path",
+        keys: &[
+            key("origin_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.01, -0.02, 0.0]", "start corner"),
+            key("sweep_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.02, 0.0, 0.0]", "one pass: direction and length"),
+            key("step_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.02, 0.0]", "offset from the first pass to the last"),
+            key("lines", "", Required, Count(1, MAX_PATH_VERTICES as u64), "3", "number of passes"),
+            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.02", "speed along the path"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path]` `kind = \"force\"`",
+        intro: "Push the arm with a force profile instead of a target (needs `start_m`).",
+        header: "[path]",
+        base: "kind = \"force\"\nprofile = { shape = \"constant\", force_n = [0.0, 0.0, -1.0] }",
+        group: "path",
+        keys: &[key("profile", "", Required, Table("`[path.profile]`"), "", "the force over time")],
+    },
+    SchemaSection {
+        title: "`[path.profile]` `shape = \"constant\"`",
+        intro: "The force of a `force` path: a table with a `shape` key. `constant`: the same force always.",
+        header: "[path]\nkind = \"force\"\n[path.profile]",
+        base: "shape = \"constant\"\nforce_n = [0.0, 0.0, -1.0]",
+        group: "profile",
+        keys: &[
+            key("shape", "", Required, OneOf(&["constant", "ramp", "sine"]), "\"constant\"", "the kind of profile"),
+            key("force_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.5, -1.0]", "the force"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path.profile]` `shape = \"ramp\"`",
+        intro: "Linear from `from_n` at t = 0 to `to_n` at `duration_s`, then constant.",
+        header: "[path]\nkind = \"force\"\n[path.profile]",
+        base: "shape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -2.0]\nduration_s = 2.0",
+        group: "profile",
+        keys: &[
+            key("from_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "force at t = 0"),
+            key("to_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
+            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "ramp time"),
+        ],
+    },
+    SchemaSection {
+        title: "`[path.profile]` `shape = \"sine\"`",
+        intro: "`offset_n + amplitude_n sin(2 pi frequency_hz t)`, per axis.",
+        header: "[path]\nkind = \"force\"\n[path.profile]",
+        base: "shape = \"sine\"\noffset_n = [0.0, 0.0, -1.0]\namplitude_n = [0.0, 0.0, 0.5]\nfrequency_hz = 2.0",
+        group: "profile",
+        keys: &[
+            key("offset_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "mean force"),
+            key("amplitude_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.1, 0.0, 0.5]", "amplitude"),
+            key("frequency_hz", "Hz", Required, PositiveAtMost(MAX_FREQUENCY_HZ), "1.0", "frequency"),
+        ],
+    },
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::scenario::{LoadedScenario, Purpose, Scenario};
+    use std::collections::BTreeSet;
+    use voxhap_record::error_chain as chain;
+
+    /// Volumes every test document has (modes refer to them by name).
+    const VOLUMES: &str = "[[volumes]]\nname = \"density\"\nbuiltin = \"sphere\"\n\n\
+                           [[volumes]]\nname = \"flow\"\nbuiltin = \"burgers\"\n";
+    /// Top-level keys of every document but the top level's own.
+    const TOP: &str = "k_n_per_m = 500.0\nduration_s = 1.0\nstart_m = [0.0, 0.0, 0.04]";
+
+    /// The section's base lines with `changes` applied: `Some(value)` sets a key, `None` removes it.
+    fn body(section: &SchemaSection, changes: &[(&str, Option<&str>)]) -> String {
+        let name_of = |line: &str| line.split('=').next().unwrap_or("").trim().to_owned();
+        let mut lines: Vec<String> = section
+            .base
+            .lines()
+            .filter(|line| !changes.iter().any(|(k, _)| *k == name_of(line)))
+            .map(str::to_owned)
+            .collect();
+        for (k, v) in changes {
+            if let Some(v) = v {
+                lines.push(format!("{k} = {v}"));
+            }
+        }
+        lines.join("\n")
+    }
+
+    fn document(section: &SchemaSection, changes: &[(&str, Option<&str>)]) -> String {
+        if section.header.is_empty() {
+            format!("{}\n\n{VOLUMES}", body(section, changes))
+        } else {
+            format!(
+                "{TOP}\n\n{VOLUMES}\n{}\n{}\n",
+                section.header,
+                body(section, changes)
+            )
+        }
+    }
+
+    /// Parses, validates and loads `text` as `sim` (or `serve`) does.
+    fn load(text: &str, purpose: Purpose) -> Result<LoadedScenario, String> {
+        let scenario = Scenario::parse_for(text, "t.toml", purpose).map_err(|e| chain(&e))?;
+        scenario
+            .load(std::path::Path::new("."), "t.toml")
+            .map_err(|e| chain(&e))
+    }
+
+    /// `sim` refuses coupling damping, so that key is checked as `serve` reads it.
+    fn purpose_for(section: &SchemaSection, key: &SchemaKey) -> Purpose {
+        if section.header.is_empty() && key.name == "damping_n_s_per_m" {
+            Purpose::Serve
+        } else {
+            Purpose::Sim
+        }
+    }
+
+    #[test]
+    fn every_base_document_loads() {
+        for section in SCENE_SCHEMA {
+            let text = document(section, &[]);
+            load(&text, Purpose::Sim).unwrap_or_else(|e| panic!("{}: {e}\n{text}", section.title));
+        }
+    }
+
+    #[test]
+    fn the_keys_are_the_fields_the_parser_accepts() {
+        let groups: BTreeSet<&str> = SCENE_SCHEMA.iter().map(|s| s.group).collect();
+        for group in groups {
+            let sections: Vec<&SchemaSection> =
+                SCENE_SCHEMA.iter().filter(|s| s.group == group).collect();
+            let documented: BTreeSet<&str> = sections
+                .iter()
+                .flat_map(|s| s.keys.iter().map(|k| k.name))
+                .collect();
+            let text = document(sections[0], &[("zzz_unknown", Some("1"))]);
+            let error = load(&text, Purpose::Sim).expect_err("an unknown key is refused");
+            let expected = error
+                .split("expected")
+                .nth(1)
+                .unwrap_or_else(|| panic!("{group}: no field list in {error:?}"));
+            let accepted: BTreeSet<&str> = expected.split('`').skip(1).step_by(2).collect();
+            assert_eq!(
+                documented, accepted,
+                "{group}: the table's keys against the parser's ({error})"
+            );
+        }
+    }
+
+    /// The tables read by `kind` or `shape` (device::sim::tagged): each section lists exactly the keys of
+    /// its kind (the first section of a table also lists the tag).
+    const TAGGED_GROUPS: &[&str] = &["workspace", "path", "profile"];
+
+    #[test]
+    fn a_key_of_another_kind_is_refused_by_name() {
+        let mut checked = 0;
+        for section in SCENE_SCHEMA
+            .iter()
+            .filter(|s| TAGGED_GROUPS.contains(&s.group))
+        {
+            let takes: BTreeSet<&str> = section.keys.iter().map(|k| k.name).collect();
+            let others = SCENE_SCHEMA
+                .iter()
+                .filter(|s| s.group == section.group)
+                .flat_map(|s| s.keys.iter())
+                .filter(|k| !takes.contains(k.name) && !["kind", "shape"].contains(&k.name))
+                .filter(|k| !k.example.is_empty());
+            for other in others {
+                let text = document(section, &[(other.name, Some(other.example))]);
+                let error = load(&text, Purpose::Sim).expect_err("a key of another kind");
+                let table = table_of(&text);
+                assert!(
+                    error.contains(&format!("{table}: "))
+                        && error.contains(&format!("takes no key `{}`", other.name)),
+                    "{}: {} = {}: {error}",
+                    section.title,
+                    other.name,
+                    other.example
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 40, "{checked} keys checked");
+    }
+
+    #[test]
+    fn a_default_written_out_is_the_same_as_leaving_the_key_out() {
+        let mut checked = 0;
+        for section in SCENE_SCHEMA {
+            for key in section.keys {
+                let KeyDefault::Value(value) = key.default else {
+                    continue;
+                };
+                let purpose = purpose_for(section, key);
+                let written = load(&document(section, &[(key.name, Some(value))]), purpose)
+                    .unwrap_or_else(|e| panic!("{}.{} = {value}: {e}", section.title, key.name));
+                let left_out = load(&document(section, &[(key.name, None)]), purpose)
+                    .unwrap_or_else(|e| panic!("{} without {}: {e}", section.title, key.name));
+                let same = written.scenario == left_out.scenario || {
+                    // `Option` fields (a mode's `side`, `enabled`): compare the built modes.
+                    let mut a = written.scenario.clone();
+                    let mut b = left_out.scenario.clone();
+                    a.modes.clear();
+                    b.modes.clear();
+                    a == b && written.scene.modes() == left_out.scene.modes()
+                };
+                assert!(
+                    same,
+                    "{}: {} = {value} is not the default",
+                    section.title, key.name
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 9, "{checked} defaults checked");
+    }
+
+    /// Values a key must accept and refuse, from its `Accepts`.
+    fn edges(accepts: Accepts, example: &str) -> (Vec<String>, Vec<String>) {
+        let number = |x: f64| format!("{x:?}");
+        let bad_numbers = || vec!["nan".to_owned(), "inf".to_owned()];
+        match accepts {
+            Positive => (
+                vec![example.to_owned()],
+                [bad_numbers(), vec![number(0.0), number(-1.0)]].concat(),
+            ),
+            PositiveAtMost(hi) => (
+                vec![number(hi), example.to_owned()],
+                [
+                    bad_numbers(),
+                    vec![number(0.0), number(-1.0), number(hi * 1.5)],
+                ]
+                .concat(),
+            ),
+            NonNegative => (
+                vec![number(0.0), example.to_owned()],
+                [bad_numbers(), vec![number(-1e-6)]].concat(),
+            ),
+            Between(lo, hi) => (
+                vec![number(lo), number(hi)],
+                [
+                    bad_numbers(),
+                    vec![number(lo * 0.5), number(hi * 2.0), number(-lo)],
+                ]
+                .concat(),
+            ),
+            Count(lo, hi) => {
+                let mut refused = vec![(hi + 1).to_string(), "-1".to_owned(), "1.5".to_owned()];
+                if lo > 0 {
+                    refused.push((lo - 1).to_string());
+                }
+                (vec![lo.to_string(), hi.to_string()], refused)
+            }
+            Vector => (
+                vec![example.to_owned()],
+                vec!["[nan, 0.0, 0.0]".to_owned(), "[0.0, 0.0]".to_owned()],
+            ),
+            Direction => (
+                vec![example.to_owned()],
+                vec!["[0.0, 0.0, 0.0]".to_owned(), "[inf, 0.0, 0.0]".to_owned()],
+            ),
+            Points => (
+                vec![example.to_owned()],
+                vec!["[]".to_owned(), "[[0.0, nan, 0.0]]".to_owned()],
+            ),
+            VectorWithin(limit) => (
+                vec![example.to_owned(), at_limit(example, limit)],
+                vec![
+                    "[nan, 0.0, 0.0]".to_owned(),
+                    "[0.0, 0.0]".to_owned(),
+                    format!("[{:?}, 0.0, 0.0]", limit * 2.0),
+                    format!("[0.0, 0.0, {:?}]", -limit * 1.001),
+                ],
+            ),
+            PointsWithin(limit, most) => {
+                let point = example.trim_start_matches('[').trim_end_matches(']');
+                let many = vec![format!("[{point}]"); most as usize + 1].join(", ");
+                let full = vec![format!("[{point}]"); most as usize].join(", ");
+                (
+                    vec![
+                        example.to_owned(),
+                        format!("[{}]", at_limit(&format!("[{point}]"), limit)),
+                        format!("[{full}]"),
+                    ],
+                    vec![
+                        "[]".to_owned(),
+                        "[[0.0, nan, 0.0]]".to_owned(),
+                        format!("[[{:?}, 0.0, 0.0]]", limit * 2.0),
+                        format!("[{many}]"),
+                    ],
+                )
+            }
+            Transfer => (
+                vec![example.to_owned()],
+                vec![
+                    "[[0.5, 1.0], [0.2, 2.0]]".to_owned(),
+                    "[[0.0, -1.0]]".to_owned(),
+                ],
+            ),
+            // The list itself is compared with the parser's in `the_choices_are_the_parsers`.
+            OneOf(_) => (
+                vec![example.to_owned()],
+                vec!["\"no-such-value\"".to_owned()],
+            ),
+            Bool => (
+                vec!["true".to_owned(), "false".to_owned()],
+                vec!["1".to_owned()],
+            ),
+            Text | Table(_) => (Vec::new(), Vec::new()),
+        }
+    }
+
+    /// The example vector `[x, y, z]` with each non-zero coordinate moved out to `limit`, keeping its sign (so a
+    /// box's corners stay ordered).
+    fn at_limit(example: &str, limit: f64) -> String {
+        let coordinates: Vec<String> = example
+            .trim_matches(['[', ']'])
+            .split(',')
+            .map(|c| {
+                let c: f64 = c.trim().parse().expect("an example coordinate");
+                format!("{:?}", limit * c.signum() * f64::from(u8::from(c != 0.0)))
+            })
+            .collect();
+        format!("[{}]", coordinates.join(", "))
+    }
+
+    /// The table a document's last lines are in, as an error names it (`path.profile`, `modes[1]`).
+    fn table_of(text: &str) -> String {
+        let header = text
+            .lines()
+            .rfind(|line| line.starts_with('['))
+            .unwrap_or_default();
+        match header.strip_prefix("[[").and_then(|h| h.strip_suffix("]]")) {
+            Some(name) => {
+                let index = text.lines().filter(|line| *line == header).count() - 1;
+                format!("{name}[{index}]")
+            }
+            None => header.trim_matches(['[', ']']).to_owned(),
+        }
+    }
+
+    /// The full path of `key` of `section` in its document `text` (`path.profile.force_n`, `modes[1].mu`).
+    fn key_path(section: &SchemaSection, text: &str, key: &str) -> String {
+        if section.header.is_empty() {
+            return key.to_owned();
+        }
+        format!("{}.{key}", table_of(text))
+    }
+
+    /// Whether `error` names `path` as a whole key (not as the end of a longer one, `path.duration_s` for
+    /// `duration_s`).
+    fn names_key(error: &str, path: &str) -> bool {
+        error.match_indices(path).any(|(at, _)| {
+            let before = error[..at].chars().next_back();
+            let after = error[at + path.len()..].chars().next();
+            !before.is_some_and(|c| c.is_alphanumeric() || "_.]".contains(c))
+                && !after.is_some_and(|c| c.is_alphanumeric() || c == '_')
+        })
+    }
+
+    #[test]
+    fn every_range_holds_at_its_edges() {
+        let mut checked = 0;
+        let mut wrong = Vec::new();
+        for section in SCENE_SCHEMA {
+            for key in section.keys {
+                // A `kind` or `shape` changes which other keys the table needs: its values are checked
+                // by the sections of each kind loading.
+                if ["kind", "shape"].contains(&key.name) {
+                    continue;
+                }
+                let purpose = purpose_for(section, key);
+                let (accepted, refused) = edges(key.accepts, key.example);
+                for value in &accepted {
+                    let text = document(section, &[(key.name, Some(value))]);
+                    if let Err(e) = load(&text, purpose) {
+                        wrong.push(format!(
+                            "{}: {} = {value} should be accepted: {e}",
+                            section.title, key.name
+                        ));
+                    }
+                    checked += 1;
+                }
+                for value in &refused {
+                    let text = document(section, &[(key.name, Some(value))]);
+                    match load(&text, purpose) {
+                        Ok(_) => wrong.push(format!(
+                            "{}: {} = {value} should be refused",
+                            section.title, key.name
+                        )),
+                        Err(e) if names_key(&e, &key_path(section, &text, key.name)) => {}
+                        Err(e) => wrong.push(format!(
+                            "{}: {} = {value}: the error does not name the key {}: {e}",
+                            section.title,
+                            key.name,
+                            key_path(section, &text, key.name)
+                        )),
+                    }
+                    checked += 1;
+                }
+            }
+        }
+        assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+        assert!(checked >= 150, "{checked} values checked");
+    }
+
+    #[test]
+    fn the_choices_are_the_parsers() {
+        let mut checked = 0;
+        for section in SCENE_SCHEMA {
+            for key in section.keys {
+                let OneOf(names) = key.accepts else {
+                    continue;
+                };
+                let text = document(section, &[(key.name, Some("\"no-such-value\""))]);
+                let error = load(&text, purpose_for(section, key)).expect_err("refused");
+                let Some(list) = error.split("expected").nth(1) else {
+                    continue; // checked by code, not by serde (a built-in volume's name)
+                };
+                let parsed: BTreeSet<&str> = list.split('`').skip(1).step_by(2).collect();
+                let documented: BTreeSet<&str> = names.iter().copied().collect();
+                assert_eq!(
+                    documented, parsed,
+                    "{}: {} ({error})",
+                    section.title, key.name
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 5, "{checked} lists checked");
+    }
+
+    #[test]
+    fn examples_load_and_every_key_is_described() {
+        for section in SCENE_SCHEMA {
+            for key in section.keys {
+                assert!(!key.meaning.is_empty(), "{}.{}", section.title, key.name);
+                if !matches!(key.accepts, Table(_)) && !key.example.is_empty() {
+                    let text = document(section, &[(key.name, Some(key.example))]);
+                    load(&text, purpose_for(section, key)).unwrap_or_else(|e| {
+                        panic!(
+                            "{}: example {} = {}: {e}",
+                            section.title, key.name, key.example
+                        )
+                    });
+                }
+            }
+        }
+    }
+}

@@ -116,29 +116,52 @@ impl std::fmt::Display for ExitWith {
 
 impl std::error::Error for ExitWith {}
 
-/// `--solver`: one of the names of [`SolverKind`](crate::haptics::tick::SolverKind) (`exact`, `euler`,
-/// `constraint`), listed in `--help`.
+/// `--solver` on the command line: the kinds of [`SolverKind`](crate::haptics::tick::SolverKind), with the
+/// help text `--help` shows for each.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SolverArg {
+    /// The certified exact solver (docs/solver.md).
+    Exact,
+    /// The paper's adaptive Euler solver (baseline, uncertified).
+    Euler,
+    /// The constraint approach (baseline, uncertified; shows the non-orthogonal artifact).
+    Constraint,
+}
+
+/// `--solver`: `exact`, `euler` or `constraint`, listed with their help in `--help`.
 pub fn solver_kind_parser(
 ) -> impl clap::builder::TypedValueParser<Value = crate::haptics::tick::SolverKind> {
     use crate::haptics::tick::SolverKind;
     use clap::builder::TypedValueParser as _;
-    clap::builder::PossibleValuesParser::new(SolverKind::ALL.map(SolverKind::name)).map(|name| {
-        SolverKind::ALL
-            .into_iter()
-            .find(|kind| kind.name() == name)
-            .unwrap_or_default()
+    clap::builder::EnumValueParser::<SolverArg>::new().map(|arg| match arg {
+        SolverArg::Exact => SolverKind::Exact,
+        SolverArg::Euler => SolverKind::Euler,
+        SolverArg::Constraint => SolverKind::Constraint,
     })
 }
 
-/// `--format`: `csv`, `mcap` or `parquet` ([`TraceFormat`](crate::record::TraceFormat)), listed in `--help`.
+/// `--format` on the command line: the formats of [`TraceFormat`](crate::record::TraceFormat), with the help
+/// text `--help` shows for each.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum TraceFormatArg {
+    /// Comma-separated text, one row per tick.
+    Csv,
+    /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
+    /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
+    Mcap,
+    /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
+    /// pandas, polars and DuckDB.
+    Parquet,
+}
+
+/// `--format`: `csv`, `mcap` or `parquet`, listed with their help in `--help`.
 pub fn trace_format_parser(
 ) -> impl clap::builder::TypedValueParser<Value = crate::record::TraceFormat> {
     use crate::record::TraceFormat;
     use clap::builder::TypedValueParser as _;
-    clap::builder::PossibleValuesParser::new(TraceFormat::ALL.map(TraceFormat::name)).map(|name| {
-        TraceFormat::ALL
-            .into_iter()
-            .find(|format| format.name() == name)
-            .unwrap_or(TraceFormat::Csv)
+    clap::builder::EnumValueParser::<TraceFormatArg>::new().map(|arg| match arg {
+        TraceFormatArg::Csv => TraceFormat::Csv,
+        TraceFormatArg::Mcap => TraceFormat::Mcap,
+        TraceFormatArg::Parquet => TraceFormat::Parquet,
     })
 }

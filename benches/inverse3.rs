@@ -7,7 +7,7 @@
 //! criterion's timing of back-to-back round trips (short: 1 s warm-up, 3 s measurement), and a paced run at
 //! 1 kHz (the servo rate) printing p50, p99 and the maximum over 2 000 exchanges.
 //!
-//! Then the servo loop itself (issue 13's Performance section): a `voxhap serve` session (the built-in scene,
+//! Then the servo loop itself (docs/performance.md quotes its output): a `voxhap serve` session (the built-in scene,
 //! 1 kHz, best-effort real time) on the simulated arm and on the Inverse3 through the same double, side by side
 //! in one run, in alternating windows (sim, Inverse3, sim, Inverse3; 2 s each), printing the servo's lateness
 //! p50/p99/max and the device exchange's p50/p99 of each window.

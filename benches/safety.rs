@@ -1,4 +1,4 @@
-//! What the safety pipeline costs per tick (issue 12: at most about 200 ns): one device exchange through the
+//! What the safety pipeline costs per tick (the goal: at most about 200 ns): one device exchange through the
 //! supervisor (device status, input plausibility and velocity estimate, clamp, slew limit, engage rule, link
 //! health, events) against the same exchange written straight to the driver, side by side in one run.
 //!

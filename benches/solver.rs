@@ -10,8 +10,8 @@
 //! up to 10^5 iterations), which it reaches only where nothing sits on a kink. Errors are true errors against the
 //! double-double reference minimiser (crates/solver/src/reference.rs), whose own bound is printed.
 //!
-//! Run: `cargo bench --bench solver` (16 s on the 2-vCPU EPYC VM of 2026-11-27, most of it the dual method on
-//! the 10 000-primitive case, once built). Times are medians of repeated solves measured in
+//! Run: `cargo bench --bench solver` (about 16 s on a 2-vCPU EPYC VM once built, most of it the dual method on
+//! the 10 000-primitive case). Times are medians of repeated solves measured in
 //! this process, one case after the other, so the ratios are side by side.
 //!
 //! It prints two tables: the summary (the exact solver against Euler at both stops, with the speed goal for the
@@ -37,7 +37,7 @@ use util::timing::{batch_for, median_ns};
 const K: f64 = 500.0;
 const PATH_TICKS: usize = 2000;
 const FRICTION_MU: f64 = 0.4;
-/// The exact solver as it was before the primal Newton method: dual block sweeps and the dual active-set finish.
+/// The exact solver without its primal Newton method: dual block sweeps and the dual active-set finish.
 const DUAL_ONLY: SolverConfig = SolverConfig {
     primal_newton: false,
     ..SOLVER_DEFAULTS

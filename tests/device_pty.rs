@@ -473,8 +473,8 @@ fn summary_number(text: &str, label: &str) -> u64 {
         .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
 }
 
-/// Regression (issue 18): replies 5 ms late made connect fail with a "permissions?" message. The handshake
-/// waits 100 ms per Hello and the servo reads pipelined states, so the session runs and engages.
+/// Regression: replies 5 ms late must not make connect fail (with a misleading "permissions?" message). The
+/// handshake waits 100 ms per Hello and the servo reads pipelined states, so the session runs and engages.
 #[test]
 fn a_device_answering_5_ms_late_connects_and_engages() {
     let mock = Mock::start(&["--pty", "--latency-ms", "5"]);
@@ -486,8 +486,8 @@ fn a_device_answering_5_ms_late_connects_and_engages() {
     assert!(!text.contains("permission"), "{text}");
 }
 
-/// Regression (issue 18): with 1 % of the bytes corrupted, 73 % of the ticks were skipped. Device I/O now
-/// waits at most half a period, so ticks keep their rate; the safety rules keep the force at zero or hold.
+/// Regression: with 1 % of the bytes corrupted, a device read that waits too long skips most ticks (73 % when
+/// this test was written). Device I/O waits at most half a period, so ticks keep their rate; the safety rules keep the force at zero or hold.
 #[test]
 fn a_lossy_link_keeps_the_tick_rate() {
     let mock = Mock::start(&["--pty", "--corrupt-rate", "0.01", "--seed", "7"]);
@@ -495,7 +495,7 @@ fn a_lossy_link_keeps_the_tick_rate() {
     assert!(ok, "{text}");
     let ticks = summary_number(&text, "ticks ");
     let skipped = summary_number(&text, "(skipped ");
-    // Generous for a shared machine: before the fix 73 % were skipped.
+    // Generous for a shared machine; a read without the half-period limit skips most ticks.
     assert!(
         skipped * 10 < ticks,
         "{skipped} of {ticks} ticks skipped: {text}"

@@ -1,10 +1,10 @@
-//! Hand targets from the control API are validated (issue 15, item 1): a real HTTP client sends targets
-//! that are huge (1e308, which once overflowed the simulated arm's hand spring into NaN for the rest of the
+//! Hand targets from the control API are validated: a real HTTP client sends targets
+//! that are huge (1e308, which would overflow the simulated arm's hand spring into NaN for the rest of the
 //! session), outside the arm's workspace (for the unbounded built-in arm: more than 10 m from the origin),
 //! out of JSON's range or malformed. Each is refused with 400 and a
 //! message naming the problem, and the session goes on: ticks keep coming, the arm's probe, proxy and
 //! force stay finite, and a valid target is still obeyed afterwards. Targets are scene positions: under a
-//! workspace mapping (issue 13) the hand is moved to the device point that maps there.
+//! workspace mapping (docs/workspace.md) the hand is moved to the device point that maps there.
 
 use crate::util::server::TestServer;
 use serde_json::{json, Value};

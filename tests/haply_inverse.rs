@@ -106,8 +106,8 @@ fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
 
 /// A reply that comes after the I/O thread stopped waiting for it (a busy service) answers an older command,
 /// and is labelled so: afterwards, every state the driver gives as answering this tick's force (age 0) holds
-/// the position set before that force, never the one of a tick before. (Before issue 13's fix, each late
-/// reply shifted every later state by one command for the rest of the session.)
+/// the position set before that force, never the one of a tick before. (A driver that takes a late
+/// reply for the newest shifts every later state by one command for the rest of the session.)
 #[test]
 fn a_reply_that_comes_late_is_never_taken_for_a_newer_one() {
     let service = InverseService::start();
@@ -284,9 +284,9 @@ fn nothing_listening_is_an_open_error_that_says_what_to_do() {
 /// its index in its position. The driver must read them all (no backlog), report them, and every force that
 /// leaves the host must come from a position the service wrote after the tick at most 4 before it had begun
 /// (the state read at the previous tick, within the staleness bound of 3, docs/safety.md): whatever the
-/// timing, since a TCP stream keeps the order. Before the drain, the driver read one message per command, so
-/// the rendered position fell one message further behind on every tick (positions seconds old after a few
-/// thousand ticks, while the labels said "fresh").
+/// timing, since a TCP stream keeps the order. A driver that reads one message per command lets the rendered
+/// position fall one message further behind on every tick (positions seconds old after a few thousand ticks,
+/// while the labels say "fresh").
 #[test]
 fn extra_messages_from_the_service_never_make_force_from_stale_positions() {
     let service = InverseService::start();
@@ -443,7 +443,7 @@ const STOP_MARGIN: Duration = Duration::from_secs(10);
 /// `voxhap serve` on the Inverse3 behind the double; the double then stops answering (the link is dropped) and
 /// answers every new connection's handshake one byte per 100 ms, without end. SIGINT while the connector is
 /// inside that handshake: serve exits cleanly within the documented bound, and the last force the service
-/// received is zero. Before the fix it waited for the handshake, which has no end (over 60 s).
+/// received is zero. Serve must not wait for the handshake, which has no end.
 #[test]
 fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     use std::io::Read as _;

@@ -1,4 +1,4 @@
-//! Late device answers (issue 13): the supervisor with a device double whose answers come late or not at all,
+//! Late device answers: the supervisor with a device double whose answers come late or not at all,
 //! following a script. A lab user's PC is loaded now and then, and a device behind a service (the Haply Inverse
 //! Service) then answers a tick or two late. The host must still enable the output on such a link, and must
 //! never send force computed from a state older than the staleness bound (3 periods, docs/safety.md), counted

@@ -1,6 +1,6 @@
-//! Regression tests for issue 18: every crash, hang and leak the issue found, named after what it fixes.
+//! Regression tests for crashes, hangs and leaks on hostile inputs, each named after what it fixes.
 //! Inputs are real files in temporary folders (FIFOs made with mkfifo), the real `voxhap` binary (under a
-//! memory cap where the issue saw an abort), a real session and server on 127.0.0.1:0.
+//! memory cap where an unbounded allocation would abort), a real session and server on 127.0.0.1:0.
 
 use crate::util::server::{http, TestServer, TOKEN};
 use std::io::Write;
@@ -17,7 +17,7 @@ fn voxhap() -> Command {
     Command::new(env!("CARGO_BIN_EXE_voxhap"))
 }
 
-/// Runs `voxhap ARGS` with its address space capped at `cap_mib` (as the issue's memory cap did), killed
+/// Runs `voxhap ARGS` with its address space capped at `cap_mib` (`RLIMIT_AS`), killed
 /// after 20 s; returns its output.
 fn run_capped(args: &[&str], cap_mib: u64, dir: &Path) -> Output {
     let quoted: Vec<String> = args.iter().map(|a| format!("'{a}'")).collect();
@@ -212,7 +212,7 @@ fn an_mcap_with_8_corrupted_length_bytes_is_an_error_not_a_huge_allocation() {
         at += 9 + length as usize;
     }
     assert!(edited >= 5, "only {edited} records");
-    // The command the issue ran, under a 1 GiB memory cap: a clean error.
+    // `voxhap plot` on the damaged trace, under a 1 GiB memory cap: a clean error.
     let mut bytes = good.clone();
     bytes[9..17].copy_from_slice(&4_300_000_000u64.to_le_bytes());
     std::fs::write(&path, &bytes).unwrap();

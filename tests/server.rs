@@ -421,8 +421,8 @@ async fn a_valid_change_takes_effect_in_the_next_state() {
         )
         .await;
     assert_eq!(status, 200, "{reply}");
-    // Switched off and on again: the breakpoints survive (issue 17: a strength of 0 and back used to
-    // flatten them), and the scene says which modes are off.
+    // Switched off and on again: the breakpoints survive (a strength of 0 and back must not flatten them),
+    // and the scene says which modes are off.
     let mode_named = |scene: &Value, name: &str| {
         scene["modes"]
             .as_array()

@@ -436,7 +436,7 @@ fn brain_surface_exploration_on_the_mni_template() {
     }
     let dir = tempfile::tempdir().unwrap();
     // The scenario names a file outside its folder, which the loader refuses without
-    // --allow-outside-paths (issue 18): run a copy beside a copy of the data instead.
+    // --allow-outside-paths (docs/bad-inputs.md): run a copy beside a copy of the data instead.
     let scenario = std::fs::read_to_string(sims_dir().join("brain_surface.toml"))
         .unwrap()
         .replace(
@@ -672,8 +672,8 @@ fn sweep_runs_every_combination_in_parallel() {
 
 /// Finite values that make a run meaningless (they overflow to infinity or NaN within the run, or ask for
 /// more than any arm or hand can do) are refused by `sim`, `sim --set` and `sweep`, before any trace is
-/// written, with the key, the value and the allowed range. Before the limits, a path speed of 1e300 m/s ran
-/// with exit 0 and wrote a trace whose every sample was NaN.
+/// written, with the key, the value and the allowed range. Without the limits, a path speed of 1e300 m/s runs
+/// with exit 0 and writes a trace whose every sample is NaN.
 #[test]
 fn degenerate_values_are_refused_with_the_key_the_value_and_the_range() {
     let dir = tempfile::tempdir().unwrap();
@@ -786,7 +786,6 @@ fn degenerate_values_are_refused_with_the_key_the_value_and_the_range() {
 /// A scenario file larger than the documented 16 MiB limit is refused, naming the file and the limit, by
 /// `sim` with and without `--set` and by `sweep`, without reading it, and by the library call the Python
 /// `voxhap.sim` makes (`voxhap::cli::sim::load_scenario`). The file is sparse: 629 MB on paper, no disk used.
-/// Before, `sim --set`, `sweep` and `voxhap.sim` read any size (a 629 MB file was read whole).
 #[test]
 fn a_scenario_over_the_16_mib_limit_is_refused_everywhere_it_is_read() {
     let dir = tempfile::tempdir().unwrap();

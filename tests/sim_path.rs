@@ -1,8 +1,8 @@
-//! The simulated arm's scripted path and start point are scene positions (issue 13, workspace mapping): under a
+//! The simulated arm's scripted path and start point are scene positions (workspace mapping, docs/workspace.md): under a
 //! mapping (a fixed one with scale 2 and a translation, or the one `--fit-volume` computes when the device
 //! connects) a `hold` path at a scene point brings the probe, which the session reports in the scene frame, to
 //! that point, and an arm pushed by no force stays at its scene start point. With the identity mapping (the
-//! default for the simulated arm) the same scene behaves as before. Read through a real session's
+//! default for the simulated arm) scene and device positions are the same. Read through a real session's
 //! `SessionApi::snapshot`.
 
 use glam::{DMat3, DVec3};

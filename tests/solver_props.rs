@@ -204,7 +204,7 @@ proptest! {
     }
 }
 
-/// The solver as it was before the primal Newton method: dual block sweeps and the dual active-set finish.
+/// The solver without its primal Newton method: dual block sweeps and the dual active-set finish.
 fn dual_method() -> Solver {
     Solver::new(SolverConfig {
         primal_newton: false,
@@ -274,7 +274,7 @@ proptest! {
     }
 }
 
-/// The reproductions: a warm start whose duals are infeasible for this tick, with no sweep allowed.
+/// A warm start whose duals are infeasible for this tick, with no sweep allowed: the bound must still be honest.
 fn warm_then(first: &[Primitive], second: &[Primitive], probe: DVec3, config: SolverConfig) {
     let k = 500.0;
     let mut solver = Solver::default();
@@ -307,7 +307,7 @@ fn warm_then(first: &[Primitive], second: &[Primitive], probe: DVec3, config: So
 
 #[test]
 fn a_weakened_plane_with_no_sweep_reports_an_honest_bound() {
-    // The case: a plane at 2 N holding a point's pull, weakened to 0.1 N; budget exhausted before the
+    // A plane at 2 N holding a point's pull, weakened to 0.1 N; budget exhausted before the
     // first sweep (sweeps or time).
     let plane = |s| Primitive::plane(DVec3::ZERO, DVec3::Z, s).unwrap();
     let point = Primitive::point(DVec3::new(0.002, 0.0, -0.01), 1.5).unwrap();
@@ -381,10 +381,9 @@ fn a_time_budget_spent_before_the_first_sweep_reports_an_honest_bound() {
 }
 
 /// A proxy sticks on a tilted plane through a friction point that lies 3.8e-17 m off the plane, inside the
-/// certificate's 16-ulp kink threshold. Certificate B once took the point as the exact common point of the two
-/// kink sets and reported 8.1e-18 m while the true minimiser is on the plane, 3.96e-17 m away (found
-/// 2026-11-25 by a property test; the values are its shrink). Now B refuses kinks that are not transversal and
-/// certificate A's sharpness (the point's dual lies strictly inside its ball) gives a bound linear in that
+/// certificate's 16-ulp kink threshold (the values are a property test's shrink). A certificate B that took the
+/// point as the exact common point of the two kink sets would report 8.1e-18 m while the true minimiser is on
+/// the plane, 3.96e-17 m away. B refuses kinks that are not transversal and certificate A's sharpness (the point's dual lies strictly inside its ball) gives a bound linear in that
 /// distance: every tick must be honest against the double-double reference, and certified.
 #[test]
 fn a_friction_point_within_rounding_of_a_tilted_plane_is_not_taken_as_on_it() {
@@ -484,7 +483,7 @@ proptest! {
     /// The servo loop's usual tick: random tilted planes, strengths, friction coefficients and probe paths,
     /// warm-started tick after tick as the exploration path is, with the friction point at the previous proxy
     /// and its strength mu times the last normal force. The friction point lies on the plane only to within
-    /// rounding, so sticking ticks are the case the defect fixed on 2026-11-25 came from. The bound holds and
+    /// rounding, so sticking ticks meet the near-kink case of the test above. The bound holds and
     /// certifies on every tick, and the proxy slides on some.
     #[test]
     fn the_bound_holds_on_a_plane_with_friction_tick_after_tick(
@@ -544,10 +543,10 @@ proptest! {
         let sol = solver.solve(&Problem { stiffness_n_per_m: k, probe_m: probe, previous_proxy_m: None, primitives: &prims }).unwrap();
         let reference = reference::minimise(k, probe, &prims);
         let error = reference.distance_m(sol.proxy_m);
-        // The slack is the reference's bound plus 4 ulps of the coordinates. (Before the reference polished its
-        // answer along the face, a plane and a line through the origin with the probe at the origin left it
-        // 1.35e-13 m from a minimiser within about 1e-18 m of the origin, with a bound of 1.3e-17 m; kept in the
-        // regression file.)
+        // The slack is the reference's bound plus 4 ulps of the coordinates. (The regression file keeps a plane
+        // and a line through the origin with the probe at the origin: a reference that does not polish its
+        // answer along the face ends 1.35e-13 m from a minimiser within about 1e-18 m of the origin, with a
+        // bound of 1.3e-17 m.)
         let ulps = 4.0 * f64::EPSILON * (probe.length() + sol.proxy_m.length());
         prop_assert!(
             error <= sol.error_bound_m + reference.error_bound_m + ulps,
@@ -618,8 +617,8 @@ fn assert_no_worse_than_the_start(
 
 /// Budget-cut solves of large random scenes (the benchmark's generator, other seeds), cold and warm, with sweep
 /// budgets of 1 to 4 passes and time budgets that run out after a few clock reads: the answer is never of higher
-/// energy than the start (`y = probe + directed / k` cold, the previous proxy warm), and its bound holds. Before
-/// the least-energy exit, `--max-sweeps 2` on 10 000 primitives returned a proxy 7.2 m away (3.6 kN). Checked
+/// energy than the start (`y = probe + directed / k` cold, the previous proxy warm), and its bound holds. Without
+/// the least-energy exit, `--max-sweeps 2` on 10 000 primitives returns a proxy 7.2 m away (3.6 kN). Checked
 /// with the exit switched off: this test, `cli_solve::a_budget_cut_solve_returns_no_worse_a_point_than_its_start`
 /// and `sim::a_budget_cut_tick_never_moves_the_proxy_to_higher_energy` all fail (here: seed 11, 1 000
 /// primitives, one clock read, 705 J at the answer against 14.1 J at the start).

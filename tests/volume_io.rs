@@ -758,8 +758,8 @@ fn info_with_memory_limit(args: &[&str], limit_bytes: u64) -> std::process::Outp
 /// A crafted gzip NRRD whose byte skip (1.27 GB) is zeros that compress to about 1.2 MB (19 gzip
 /// members of 64 MiB each, which NRRD's gzip encoding allows): the loader skips the inflated bytes in
 /// bounded chunks without keeping them, so `voxhap info` inside a 768 MiB address space ends with the
-/// truncation error (no data after the skip), never an allocation failure. Checked to fail before the
-/// fix: the loader inflated the skip into memory and aborted ("memory allocation of 2147483648 bytes
+/// truncation error (no data after the skip), never an allocation failure. Checked to fail with a
+/// loader that inflates the skip into memory: it aborted ("memory allocation of 2147483648 bytes
 /// failed"). The same holds for a detached raw file with a byte skip past its end (sought, not read).
 #[test]
 fn a_huge_byte_skip_allocates_nothing_like_it() {

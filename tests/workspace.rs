@@ -357,8 +357,8 @@ fn a_real_device_gets_its_builtin_profile_and_an_out_of_reach_volume_is_fitted()
     );
 }
 
-/// Regression (issue 13): `serve` printed a device's open error twice ("device sim: X: X"), because the
-/// error named its cause and also returned it as its source. Each cause is now printed once.
+/// Regression: `serve` prints a device's open error's cause once, never twice ("device sim: X: X", as when an
+/// error names its cause and also returns it as its source).
 #[test]
 fn serve_prints_a_device_open_error_once() {
     let dir = tempfile::tempdir().unwrap();

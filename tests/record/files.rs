@@ -255,8 +255,8 @@ fn assert_exact_after_failure(out: &Path) -> u64 {
 }
 
 /// A sim whose trace file hits the size limit mid-run: exit non-zero naming the reason, and a trace
-/// whose sidecar counts exactly what reached the file. Checked to fail before the fix (the sidecar
-/// counted the samples still in the writer's buffers: 1000 more in Parquet).
+/// whose sidecar counts exactly what reached the file. Fails when the sidecar counts the samples still
+/// in the writer's buffers (1000 more in Parquet).
 #[test]
 fn a_full_disk_stops_a_sim_and_the_sidecar_counts_what_reached_the_file() {
     let dir = tempfile::tempdir().unwrap();

@@ -37,9 +37,8 @@ fn load_scenario(
         return LoadedScenario::from_file(path).map_err(|e| error(&e));
     }
     let origin = path.display().to_string();
-    let text = voxhap_io::read_text_file(path).map_err(|e| {
-        PyValueError::new_err(format!("cannot read scenario file {origin}: {e}"))
-    })?;
+    let text = voxhap_io::read_text_file(path)
+        .map_err(|e| PyValueError::new_err(format!("cannot read scenario file {origin}: {e}")))?;
     let text = voxhap_servo::sim::overrides::apply_overrides(&text, &overrides)
         .map_err(|e| PyValueError::new_err(format!("{origin}: overrides: {}", error_chain(&e))))?;
     let scenario =

@@ -113,13 +113,14 @@ impl NativeSession {
                 .map_err(|e| PyValueError::new_err(format!("trace {}: {e}", path.display())))?;
             config.record = Some((path, TraceFormat::Csv));
         }
-        let session =
-            py.detach(move || Session::start(config))
-                .map_err(|e| match e {
-                    voxhap_servo::SessionError::Rate(_)
-                    | voxhap_servo::SessionError::Scene(_) => PyValueError::new_err(e.to_string()),
-                    other => PyRuntimeError::new_err(other.to_string()),
-                })?;
+        let session = py
+            .detach(move || Session::start(config))
+            .map_err(|e| match e {
+                voxhap_servo::SessionError::Rate(_) | voxhap_servo::SessionError::Scene(_) => {
+                    PyValueError::new_err(e.to_string())
+                }
+                other => PyRuntimeError::new_err(other.to_string()),
+            })?;
         for notice in session.notices() {
             eprintln!("voxhap: notice: {notice}");
         }

@@ -83,13 +83,7 @@ pub fn sidecar_check(
         // A malformed embedded sidecar is ignored, as voxhap's Parquet reader ignores it.
         None => embedded.and_then(|json| serde_json::from_str::<Sidecar>(json).ok()),
     };
-    let warnings = sidecar_warnings(
-        sidecar.as_ref(),
-        &path,
-        format,
-        &mode_names,
-        sample_count,
-    );
+    let warnings = sidecar_warnings(sidecar.as_ref(), &path, format, &mode_names, sample_count);
     let json = sidecar
         .map(|s| serde_json::to_string(&s))
         .transpose()

@@ -27,6 +27,7 @@ import warnings
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from . import _voxhap
@@ -123,9 +124,8 @@ def _read_parquet(path):
         path, "parquet", _mode_names(names), table.num_rows,
         embedded.decode("utf-8", "replace") if embedded else None,
     )
+    _check_samples(table, path, kinds, _start_utc_ns(sidecar_json))
     frame = _to_frame(table, kinds)
-    del table
-    _check_samples(frame, path, kinds, _start_utc_ns(sidecar_json))
     return _finish(frame, sidecar_json, reader_warnings)
 
 
@@ -194,7 +194,9 @@ def _read_csv(path):
     utc = frame["utc_ns"]
     if not utc.hasnans:
         frame["utc_ns"] = utc.to_numpy(dtype="int64")
-    _check_samples(frame, path, kinds, _start_utc_ns(sidecar_json))
+    # As Arrow arrays for the checks; NaN stays NaN (pyarrow's pandas conversion would make it null).
+    table = pa.table({name: pa.array(frame[name], from_pandas=kind != "f64") for name, kind in kinds})
+    _check_samples(table, path, kinds, _start_utc_ns(sidecar_json))
     return _finish(frame, sidecar_json, reader_warnings)
 
 
@@ -230,68 +232,71 @@ def _start_utc_ns(sidecar_json):
     return json.loads(sidecar_json).get("start_utc_ns")
 
 
-def _fail(path, frame, row, what):
-    tick = frame["tick"].iloc[row]
-    raise ValueError(f"{path}: row {row + 1} (tick {tick}): {what}")
+def _fail(path, table, mask, what):
+    """Raises the error for the first row where `mask` (a boolean Arrow array) is true."""
+    row = pc.index(mask, True).as_py()
+    tick = table.column("tick")[row].as_py()
+    value = what(row) if callable(what) else what
+    raise ValueError(f"{path}: row {row + 1} (tick {tick}): {value}")
 
 
-def _check_samples(frame, path, kinds, start_utc_ns):
-    """The sample rules of voxhap's readers (see the module header), vectorised; the first broken rule is
-    a `ValueError` naming the row, its tick and the column."""
-    if not len(frame):
+def _check_samples(table, path, kinds, start_utc_ns):
+    """The sample rules of voxhap's readers (see the module header) on the Arrow table, with Arrow's
+    compute kernels (no copy of a column); the first broken rule is a `ValueError` naming the row, its tick
+    and the column."""
+    if not table.num_rows:
         return
-    tick = frame["tick"].to_numpy()
-    order = tick[1:] > tick[:-1]
-    if not order.all():
-        row = int(np.argmin(order)) + 1
-        _fail(path, frame, row, f"follows tick {tick[row - 1]}: ticks must strictly increase")
-    valid = ~frame["flag_invalid_values"].to_numpy()
+    column = table.column
+    tick = column("tick")
+    if table.num_rows > 1:
+        later = pc.greater(tick.slice(1), tick.slice(0, table.num_rows - 1))
+        if not pc.all(later).as_py():
+            before = pc.invert(pc.fill_null(later, True))
+            row = pc.index(before, True).as_py() + 1
+            raise ValueError(
+                f"{path}: row {row + 1} (tick {tick[row].as_py()}): follows tick {tick[row - 1].as_py()}: "
+                "ticks must strictly increase"
+            )
+    valid = pc.invert(column("flag_invalid_values"))
     for name, kind in kinds:
         if kind != "f64" or not name.startswith(_FINITE_PREFIXES):
             continue
-        values = frame[name].to_numpy()
-        # A finite sum means every value is finite (NaN and infinities propagate); only then is it quick.
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.isfinite(values.sum()):
-                continue
-        bad = ~np.isfinite(values) & valid
-        if bad.any():
-            _fail(path, frame, int(np.argmax(bad)), f"{name} = {values[np.argmax(bad)]} is not finite")
-    t_s = frame["t_s"].to_numpy()
-    bad = (t_s < 0) & valid
-    if bad.any():
-        _fail(path, frame, int(np.argmax(bad)), f"t_s = {t_s[np.argmax(bad)]} is negative")
-    bound = frame["error_bound_m"].to_numpy()
-    with np.errstate(invalid="ignore"):
-        bad = ~(bound >= 0) & valid
-    if bad.any():
-        _fail(path, frame, int(np.argmax(bad)), f"error_bound_m = {bound[np.argmax(bad)]} must be >= 0 (or +inf)")
+        values = column(name)
+        # A finite sum means every value is finite (NaN and infinities propagate): one pass, no copy.
+        total = pc.sum(values).as_py()
+        if total is not None and np.isfinite(total):
+            continue
+        bad = pc.and_(pc.invert(pc.is_finite(values)), valid)
+        if pc.any(bad).as_py():
+            _fail(path, table, bad, lambda row: f"{name} = {values[row].as_py()} is not finite")
+    t_s = column("t_s")
+    bad = pc.and_(pc.less(t_s, 0.0), valid)
+    if pc.any(bad).as_py():
+        _fail(path, table, bad, lambda row: f"t_s = {t_s[row].as_py()} is negative")
+    bound = column("error_bound_m")
+    bad = pc.and_(pc.invert(pc.greater_equal(bound, 0.0)), valid)  # NaN compares false
+    if pc.any(bad).as_py():
+        _fail(path, table, bad, lambda row: f"error_bound_m = {bound[row].as_py()} must be >= 0 (or +inf)")
     for name, kind in kinds:
         if kind == "u64" and (name.startswith("primitives_") or name in ("sweeps", "flag_bits")):
             limit = 0xFFFF if name.startswith("primitives_") else 0xFFFF_FFFF
-            values = frame[name].to_numpy()
-            if values.max() > limit:
-                _fail(path, frame, int(np.argmax(values > limit)), f"{name} is above {limit}")
-    bits = frame["flag_bits"].to_numpy()
+            if pc.max(column(name)).as_py() > limit:
+                _fail(path, table, pc.greater(column(name), limit), f"{name} is above {limit}")
+    bits = column("flag_bits")
     for bit, name in enumerate(_flag_names(kinds)):
         if name is None:
             continue
-        agree = ((bits >> np.uint64(bit)) & np.uint64(1)).astype(bool) == frame[name].to_numpy()
-        if not agree.all():
-            _fail(path, frame, int(np.argmin(agree)), f"{name} disagrees with flag_bits")
+        wrong = pc.xor(pc.not_equal(pc.bit_wise_and(bits, pa.scalar(1 << bit, pa.uint64())), 0), column(name))
+        if pc.any(wrong).as_py():
+            _fail(path, table, wrong, f"{name} disagrees with flag_bits")
     if start_utc_ns is not None:
-        utc = frame["utc_ns"]
-        finite = np.isfinite(t_s)
-        # Rust's f64::round: halves away from zero (numpy's round takes halves to even).
-        nanos = t_s[finite] * 1e9
-        whole = np.trunc(nanos)
-        whole += np.where(np.abs(nanos - whole) >= 0.5, np.sign(nanos), 0.0)
-        want = np.int64(start_utc_ns) + whole.astype(np.int64)
-        got = utc.to_numpy()[finite] if not utc.hasnans else utc[finite].to_numpy(dtype="int64", na_value=-1)
-        agree = got == want
-        if not agree.all():
-            row = int(np.flatnonzero(finite)[np.argmin(agree)])
-            _fail(path, frame, row, "utc_ns disagrees with the sidecar's start_utc_ns + t_s")
+        # start + round(t_s * 1e9), halves away from zero (Rust's f64::round), where t_s is finite.
+        nanos = pc.round(pc.multiply(t_s, 1e9), round_mode="half_towards_infinity")
+        finite = pc.is_finite(t_s)
+        want = pc.add(pc.cast(pc.if_else(finite, nanos, 0.0), pa.int64()), pa.scalar(start_utc_ns, pa.int64()))
+        wrong = pc.and_(finite, pc.fill_null(pc.not_equal(column("utc_ns"), want), True))
+        if pc.any(wrong).as_py():
+            _fail(path, table, wrong, "utc_ns disagrees with the sidecar's start_utc_ns + t_s")
 
 
 def _flag_names(kinds):

@@ -9,7 +9,7 @@
 # reuse the dependency builds of the README's commands, which build in the release profile), timed, and fails if
 # the build changed a tracked file (python/Cargo.lock is used --locked). In CI (CI set) a failed install fails the
 # check; elsewhere it skips with a visible message when pip or maturin cannot be had. Then times
-# voxhap.read_trace against pd.read_parquet on a one-minute trace (python/bench/load_trace.py --read-trace;
+# voxhap.read_trace against pd.read_parquet on a ten-minute trace (python/bench/load_trace.py --read-trace;
 # printed, and failing above VOXHAP_READ_TRACE_MAX_RATIO when that is set: on a shared runner the ratio is
 # noisy).
 #
@@ -36,13 +36,13 @@ tracked_after=$(git status --porcelain --untracked-files=no 2>/dev/null || true)
 [ "$tracked_before" = "$tracked_after" ] \
   || fail "pip install ./python changed tracked files: $(diff <(echo "$tracked_before") <(echo "$tracked_after"))"
 python3 -m pytest -q python/tests || fail "pytest python/tests failed"
-echo "$name: voxhap.read_trace against pd.read_parquet on a one-minute trace"
+echo "$name: voxhap.read_trace against pd.read_parquet on a ten-minute trace"
 make_work_dir voxhap-read-trace
-"$VOXHAP_BIN" sim sims/multimodal.toml --out "$WORK/minute.parquet" --duration 60 >/dev/null \
-  || fail "voxhap sim for the one-minute trace failed"
+"$VOXHAP_BIN" sim sims/multimodal.toml --out "$WORK/ten.parquet" --duration 600 >/dev/null \
+  || fail "voxhap sim for the ten-minute trace failed"
 ratio_args=()
 [ -z "${VOXHAP_READ_TRACE_MAX_RATIO:-}" ] || ratio_args=(--max-ratio "$VOXHAP_READ_TRACE_MAX_RATIO")
-python3 python/bench/load_trace.py "$WORK/minute.parquet" --repeat 5 --read-trace "${ratio_args[@]}" \
+python3 python/bench/load_trace.py "$WORK/ten.parquet" --repeat 5 --read-trace "${ratio_args[@]}" \
   || fail "voxhap.read_trace against pd.read_parquet failed"
 rm -rf "$WORK"
 echo "$name: examples/figure7_force_penetration.ipynb"

@@ -187,6 +187,7 @@ def edited_csv(traces, tmp_path, row, column, value):
         ("error_bound_m", "-1.0", "error_bound_m = -1.0 must be >= 0"),
         ("tick", "3", "ticks must strictly increase"),
         ("flag_bits", "1", "disagrees with flag_bits"),
+        ("flag_device_faulted", "true", "flag_device_faulted disagrees with flag_bits"),
         ("utc_ns", "5", "utc_ns disagrees"),
         ("sweeps", "x", "CSV trace"),
     ],

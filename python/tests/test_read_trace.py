@@ -211,3 +211,10 @@ def test_old_format_and_foreign_files_are_refused(tmp_path):
         voxhap.read_trace(other)
     with pytest.raises(ValueError, match="cannot read"):
         voxhap.read_trace(tmp_path / "missing.parquet")
+
+
+def test_an_empty_csv_file_is_refused(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_bytes(b"")
+    with pytest.raises(ValueError, match="CSV trace is empty"):
+        voxhap.read_trace(empty)

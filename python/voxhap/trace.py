@@ -13,7 +13,8 @@ agree with `flag_bits`; `utc_ns` is the sidecar's `start_utc_ns` plus `t_s`). A 
 (by a crash) is read up to its last whole line, with a warning.
 
 Column types (docs/traces.md): `u64` columns are `uint64`, `utc_ns` is `int64` (pandas' nullable `Int64`
-only in a trace where a flagged sample has no finite time), `f64` columns `float64`, flags `bool`,
+only in a trace where a flagged sample has no finite time, or an MCAP trace without its sidecar, which
+alone dates the samples), `f64` columns `float64`, flags `bool`,
 `solver_status` pandas' default string type, `device_sequence` and `device_time_us` pandas' nullable
 `UInt64` (`<NA>` where the device sent none). The three formats give equal frames.
 """
@@ -151,6 +152,8 @@ def _read_csv(path):
     with open(path, "rb") as handle:
         size = os.fstat(handle.fileno()).st_size
         header = handle.readline(1 << 20)
+        if not header:
+            raise ValueError(f"{path}: CSV trace is empty: no header line")
         modes = _voxhap.csv_mode_names(path, header)
         kinds = _voxhap.trace_columns(modes)
         # A crash leaves at most one partial line, at the end and without a newline: find where the whole

@@ -218,3 +218,14 @@ def test_an_empty_csv_file_is_refused(tmp_path):
     empty.write_bytes(b"")
     with pytest.raises(ValueError, match="CSV trace is empty"):
         voxhap.read_trace(empty)
+
+
+def test_a_line_with_a_field_too_many_is_refused(traces, tmp_path):
+    lines = traces["csv"].read_text().splitlines(keepends=True)
+    for row in (0, 700):
+        edited = list(lines)
+        edited[row + 1] = edited[row + 1].rstrip("\n") + ",1\n"
+        out = tmp_path / f"extra{row}.csv"
+        out.write_text("".join(edited))
+        with pytest.raises(ValueError, match="fields"):
+            voxhap.read_trace(out)

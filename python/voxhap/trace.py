@@ -156,6 +156,12 @@ def _read_csv(path):
             raise ValueError(f"{path}: CSV trace is empty: no header line")
         modes = _voxhap.csv_mode_names(path, header)
         kinds = _voxhap.trace_columns(modes)
+        # pandas would take a first data line with a field too many for an index column: say what it is.
+        first = handle.readline(1 << 20)
+        if first.endswith(b"\n") and first.count(b",") + 1 != len(kinds):
+            raise ValueError(
+                f"CSV trace {path}: line 2: {first.count(b',') + 1} fields, expected {len(kinds)}"
+            )
         # A crash leaves at most one partial line, at the end and without a newline: find where the whole
         # lines end (the size is taken once, so a trace still being written is read up to that point).
         tail = b""
@@ -177,15 +183,15 @@ def _read_csv(path):
         except (ValueError, TypeError) as error:
             raise ValueError(f"CSV trace {path}: {error}") from error
     reader_warnings = []
-    if list(frame.columns) != [name for name, _ in kinds]:
-        raise ValueError(f"CSV trace {path}: the columns read differ from the header")
+    if list(frame.columns) != [name for name, _ in kinds] or not isinstance(frame.index, pd.RangeIndex):
+        raise ValueError(f"CSV trace {path}: line 2 has more fields than the header")
     if tail:
         line = int(len(frame)) + 2
         try:
             last_row = pd.read_csv(io.BytesIO(header + tail), **options)
             # A line cut short has too few fields (a missing value where none may be) or a cut-off last
             # value (a flag that is neither true nor false): pandas refuses both.
-            if len(last_row) != 1:
+            if len(last_row) != 1 or not isinstance(last_row.index, pd.RangeIndex):
                 raise ValueError("not one line")
             frame = pd.concat([frame, last_row], ignore_index=True)
         except (ValueError, TypeError) as error:

@@ -35,6 +35,19 @@ echo "$name: pip install ./python took $(($(date +%s) - started)) s (load averag
 tracked_after=$(git status --porcelain --untracked-files=no 2>/dev/null || true)
 [ "$tracked_before" = "$tracked_after" ] \
   || fail "pip install ./python changed tracked files: $(diff <(echo "$tracked_before") <(echo "$tracked_after"))"
+# The installed module carries no debug information: no .debug_* section in its ELF section table.
+python3 - <<'PY' || fail "the installed voxhap._voxhap carries debug information"
+import os, struct, sys, voxhap._voxhap as m
+data = open(m.__file__, "rb").read()
+shoff, = struct.unpack_from("<Q", data, 0x28)
+shentsize, shnum, shstrndx = struct.unpack_from("<HHH", data, 0x3A)
+names_at = struct.unpack_from("<Q", data, shoff + shstrndx * shentsize + 0x18)[0]
+names = [data[names_at + struct.unpack_from("<I", data, shoff + i * shentsize)[0]:].split(b"\0", 1)[0].decode()
+         for i in range(shnum)]
+debug = [n for n in names if n.startswith(".debug")]
+print(f"check-python: installed {os.path.basename(m.__file__)}: {len(data) / 1e6:.1f} MB, debug sections: {debug or 'none'}")
+sys.exit(1 if debug else 0)
+PY
 python3 -m pytest -q python/tests || fail "pytest python/tests failed"
 echo "$name: voxhap.read_trace against pd.read_parquet on a ten-minute trace"
 make_work_dir voxhap-read-trace

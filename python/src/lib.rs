@@ -1,48 +1,60 @@
-//! `voxhap._voxhap`: the native half of the `voxhap` Python package (python/voxhap/__init__.py is the
-//! other half). It exposes the library's own trace reader and sim loop; Python turns their Parquet output
-//! into pandas DataFrames. Where it sits: beside the `voxhap` command, over the same library calls
-//! (`voxhap::record`, `voxhap::sim`), so a trace read or a sim run from Python is exactly what the CLI gives.
-//! `session.rs` runs a live session with the simulated arm (`voxhap.Session`).
+//! `voxhap._voxhap`: the native half of the `voxhap` Python package (python/voxhap/ is the other half).
+//! It exposes the library's own sim loop, solver and live session, and the parts of its trace code that
+//! `voxhap.read_trace` needs (`trace.rs`): pandas and pyarrow read Parquet and CSV traces themselves, and
+//! this module reads MCAP (and cut-off Parquet) traces into columns in memory. Where it sits: beside the
+//! `voxhap` command, over the same library crates (voxhap-servo, voxhap-record, voxhap-io, voxhap-core;
+//! not the HTTP server nor the command line), so a trace read or a sim run from Python is exactly what the
+//! CLI gives. `session.rs` runs a live session with the simulated arm (`voxhap.Session`).
 
 mod session;
+mod solve;
+mod trace;
 
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
-use std::path::PathBuf;
-use voxhap::record::{
-    create_trace_writer_with, error_chain, read_trace, OutputPolicy, TraceFormat, TraceMeta,
-};
+use std::path::{Path, PathBuf};
+use voxhap_core::haptics::tick::SolverKind;
+use voxhap_record::{create_trace_writer_with, error_chain, OutputPolicy, TraceFormat, TraceMeta};
+use voxhap_servo::sim::LoadedScenario;
 
-/// Reads a trace (CSV, MCAP or Parquet, also one cut off by a crash) and writes it as a finished Parquet
-/// file at `out`. Returns the reader's warnings (what was skipped and why).
-#[pyfunction]
-fn trace_to_parquet(path: PathBuf, out: PathBuf) -> PyResult<Vec<String>> {
-    let trace = read_trace(&path).map_err(|e| PyValueError::new_err(error_chain(&e)))?;
-    let meta = match &trace.sidecar {
-        Some(sidecar) => sidecar.meta.clone(),
-        None => TraceMeta::new(
-            trace.mode_names.clone(),
-            1000.0,
-            serde_json::Value::Null,
-            "unknown (no sidecar)",
-            "unknown (no sidecar)",
-        ),
-    };
-    let policy = OutputPolicy {
-        overwrite: true,
-        inputs: vec![path.clone()],
-    };
-    let mut writer = create_trace_writer_with(&out, TraceFormat::Parquet, &meta, &policy)
-        .map_err(|e| PyOSError::new_err(error_chain(&e)))?;
-    for sample in &trace.samples {
-        writer
-            .write_sample(sample)
-            .map_err(|e| PyOSError::new_err(error_chain(&e)))?;
+/// The scenario file with `overrides` (`key=value`), `duration_s` and `rate_hz` applied, validated and
+/// loaded, as `voxhap sim --set/--duration/--rate` loads it (errors name the file and the key).
+fn load_scenario(
+    path: &Path,
+    set: &[String],
+    duration_s: Option<f64>,
+    rate_hz: Option<f64>,
+) -> PyResult<LoadedScenario> {
+    let error = |e: &dyn std::error::Error| PyValueError::new_err(error_chain(e));
+    let mut overrides = set.to_vec();
+    if let Some(duration) = duration_s {
+        overrides.push(format!("duration_s={duration:?}"));
     }
-    writer
-        .finish()
-        .map_err(|e| PyOSError::new_err(error_chain(&e)))?;
-    Ok(trace.warnings)
+    if let Some(rate) = rate_hz {
+        overrides.push(format!("rate_hz={rate:?}"));
+    }
+    if overrides.is_empty() {
+        return LoadedScenario::from_file(path).map_err(|e| error(&e));
+    }
+    let origin = path.display().to_string();
+    let text = voxhap_io::read_text_file(path)
+        .map_err(|e| PyValueError::new_err(format!("cannot read scenario file {origin}: {e}")))?;
+    let text = voxhap_servo::sim::overrides::apply_overrides(&text, &overrides)
+        .map_err(|e| PyValueError::new_err(format!("{origin}: overrides: {}", error_chain(&e))))?;
+    let scenario =
+        voxhap_servo::sim::Scenario::parse_edited(&text, &format!("{origin} (with --set)"))
+            .map_err(|e| error(&e))?;
+    let base_dir = path.parent().unwrap_or(Path::new(""));
+    scenario.load(base_dir, &origin).map_err(|e| error(&e))
+}
+
+/// The solver label recorded in the trace metadata (as `voxhap sim` records it).
+fn solver_label(solver: SolverKind) -> &'static str {
+    match solver {
+        SolverKind::Exact => "exact-dual",
+        SolverKind::Euler => "euler-baseline",
+        SolverKind::Constraint => "constraint-baseline",
+    }
 }
 
 /// Runs the sim `scenario` (a TOML file) with `overrides` (`key=value`, as `voxhap sim --set`) and writes
@@ -56,8 +68,7 @@ fn sim(
     duration_s: Option<f64>,
     rate_hz: Option<f64>,
 ) -> PyResult<(u64, u64, f64)> {
-    let loaded = voxhap::cli::sim::load_scenario(&scenario, &overrides, duration_s, rate_hz)
-        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+    let loaded = load_scenario(&scenario, &overrides, duration_s, rate_hz)?;
     let solver = loaded.scenario.solver.kind;
     let scenario_json =
         serde_json::to_value(&loaded.scenario).map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -66,15 +77,25 @@ fn sim(
         loaded.scenario.rate_hz,
         scenario_json,
         loaded.volume_description.clone(),
-        voxhap::cli::sim::solver_label(solver),
+        solver_label(solver),
+    );
+    // The run's inputs (the scenario and the volume files it names) are never an output.
+    let base = scenario.parent().unwrap_or(Path::new(""));
+    let mut inputs = vec![scenario.clone()];
+    inputs.extend(
+        loaded
+            .scenario
+            .volumes
+            .iter()
+            .filter_map(|v| v.file.as_ref().map(|f| base.join(f))),
     );
     let policy = OutputPolicy {
         overwrite: true,
-        inputs: voxhap::cli::sim::scenario_inputs(&scenario, &loaded),
+        inputs,
     };
     let mut writer = create_trace_writer_with(&out, TraceFormat::Parquet, &meta, &policy)
         .map_err(|e| PyOSError::new_err(error_chain(&e)))?;
-    let summary = voxhap::sim::run(&loaded, solver, writer.as_mut(), |_| {})
+    let summary = voxhap_servo::sim::run(&loaded, solver, writer.as_mut(), |_| {})
         .map_err(|e| PyValueError::new_err(error_chain(&e)))?;
     writer
         .finish()
@@ -82,38 +103,15 @@ fn sim(
     Ok((summary.ticks, summary.certified_ticks, summary.max_force_n))
 }
 
-/// Solves the one proxy problem of a JSON scene file (as `voxhap solve SCENE --json`) with `solver`
-/// (`exact`, `euler` or `constraint`) and returns the answer as JSON text: proxy, force, status, bound.
-#[pyfunction]
-#[pyo3(signature = (scene, solver = "exact"))]
-fn solve(scene: PathBuf, solver: &str) -> PyResult<String> {
-    use voxhap::cli::solve::SolverChoice;
-    let choice = match solver {
-        "exact" => SolverChoice::Exact,
-        "euler" => SolverChoice::Euler,
-        "constraint" => SolverChoice::Constraint,
-        other => {
-            return Err(PyValueError::new_err(format!(
-                "solver {other:?}: expected exact, euler or constraint"
-            )))
-        }
-    };
-    let scene = voxhap::haptics::scene::Scene::load(&scene)
-        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
-    voxhap::cli::solve::report(
-        &scene,
-        choice,
-        true,
-        voxhap::haptics::solver::SolverConfig::default(),
-    )
-    .map_err(|e| PyValueError::new_err(format!("{e:#}")))
-}
-
 #[pymodule]
 fn _voxhap(module: &Bound<'_, PyModule>) -> PyResult<()> {
-    module.add_function(wrap_pyfunction!(trace_to_parquet, module)?)?;
+    module.add_function(wrap_pyfunction!(trace::read_trace_columns, module)?)?;
+    module.add_function(wrap_pyfunction!(trace::trace_columns, module)?)?;
+    module.add_function(wrap_pyfunction!(trace::csv_mode_names, module)?)?;
+    module.add_function(wrap_pyfunction!(trace::sidecar_check, module)?)?;
+    module.add_function(wrap_pyfunction!(trace::flag_bits, module)?)?;
     module.add_function(wrap_pyfunction!(sim, module)?)?;
-    module.add_function(wrap_pyfunction!(solve, module)?)?;
+    module.add_function(wrap_pyfunction!(solve::solve, module)?)?;
     module.add_class::<session::NativeSession>()?;
     Ok(())
 }

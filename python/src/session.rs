@@ -3,7 +3,7 @@
 //! and the trace as a DataFrame.
 //!
 //! Where it sits: the same library calls as `voxhap serve --device sim` without the HTTP server. The servo
-//! loop runs on its own thread ([`voxhap::servo::Session`], real time, SCHED_FIFO where permitted); Python
+//! loop runs on its own thread ([`voxhap_servo::Session`], real time, SCHED_FIFO where permitted); Python
 //! reaches it only through [`SessionApi`]: the latest snapshot, the statistics, and control commands
 //! (validated exactly as the HTTP API validates them: a hand target must be finite and inside the arm's
 //! workspace). Every call that waits (starting, waiting for ticks, stopping) releases the GIL.
@@ -13,11 +13,11 @@ use pyo3::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use voxhap::record::TraceFormat;
-use voxhap::servo::api::{ControlCommand, ControlError, SessionApi};
-use voxhap::servo::device::DeviceSpec;
-use voxhap::servo::setup::{SceneSetup, BUILTIN_SCENE};
-use voxhap::servo::{Session, SessionConfig, SessionShared};
+use voxhap_record::TraceFormat;
+use voxhap_servo::api::{ControlCommand, ControlError, SessionApi};
+use voxhap_servo::device::DeviceSpec;
+use voxhap_servo::setup::{SceneSetup, BUILTIN_SCENE};
+use voxhap_servo::{Session, SessionConfig, SessionShared};
 
 /// How long one wait releases the GIL before it looks for Ctrl-C (a pending Python signal).
 const SIGNAL_CHECK_INTERVAL: Duration = Duration::from_millis(50);
@@ -42,7 +42,7 @@ fn control_error(error: ControlError) -> PyErr {
 fn load_setup(scene: Option<&Path>, overrides: &[String]) -> PyResult<SceneSetup> {
     let (text, origin, base_dir) = match scene {
         Some(path) => (
-            voxhap::volume::io::read_text_file(path)
+            voxhap_io::read_text_file(path)
                 .map_err(|e| PyValueError::new_err(format!("scene {}: {e}", path.display())))?,
             path.display().to_string(),
             path.parent().unwrap_or(Path::new("")).to_path_buf(),
@@ -53,7 +53,7 @@ fn load_setup(scene: Option<&Path>, overrides: &[String]) -> PyResult<SceneSetup
             PathBuf::from("."),
         ),
     };
-    let text = voxhap::sim::overrides::apply_overrides(&text, overrides)
+    let text = voxhap_servo::sim::overrides::apply_overrides(&text, overrides)
         .map_err(|e| PyValueError::new_err(format!("{origin}: {e}")))?;
     SceneSetup::parse(&text, &origin, &base_dir).map_err(|e| PyValueError::new_err(e.to_string()))
 }
@@ -105,21 +105,22 @@ impl NativeSession {
             config.rate_hz = rate_hz;
         }
         if let Some(path) = trace_csv {
-            config.record_policy = voxhap::record::OutputPolicy {
+            config.record_policy = voxhap_record::OutputPolicy {
                 overwrite: false,
                 inputs: scene.iter().cloned().collect(),
             };
-            voxhap::record::check_output_path(&path, &config.record_policy)
+            voxhap_record::check_output_path(&path, &config.record_policy)
                 .map_err(|e| PyValueError::new_err(format!("trace {}: {e}", path.display())))?;
             config.record = Some((path, TraceFormat::Csv));
         }
-        let session =
-            py.detach(move || Session::start(config))
-                .map_err(|e| match e {
-                    voxhap::servo::SessionError::Rate(_)
-                    | voxhap::servo::SessionError::Scene(_) => PyValueError::new_err(e.to_string()),
-                    other => PyRuntimeError::new_err(other.to_string()),
-                })?;
+        let session = py
+            .detach(move || Session::start(config))
+            .map_err(|e| match e {
+                voxhap_servo::SessionError::Rate(_) | voxhap_servo::SessionError::Scene(_) => {
+                    PyValueError::new_err(e.to_string())
+                }
+                other => PyRuntimeError::new_err(other.to_string()),
+            })?;
         for notice in session.notices() {
             eprintln!("voxhap: notice: {notice}");
         }
@@ -233,7 +234,7 @@ impl NativeSession {
     /// The flag names, lowest bit first (bit n of `flags` is `flag_names()[n]`).
     #[staticmethod]
     fn flag_names() -> Vec<String> {
-        voxhap::record::FLAG_DOCS
+        voxhap_record::FLAG_DOCS
             .iter()
             .map(|doc| doc.name.to_string())
             .collect()

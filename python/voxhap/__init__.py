@@ -1,9 +1,10 @@
 """voxhap from Python: read force traces, run sims into pandas DataFrames, and drive a live session.
 
-`read_trace(path)` reads a CSV, MCAP or Parquet trace (also one cut off by a crash, with a warning) with
-voxhap's own reader; `sim(scenario, overrides)` runs a sim scenario and returns its trace. Both return a
-pandas DataFrame with the trace's columns (docs/traces.md): flags as boolean `flag_<name>` columns, missing
-device values as nulls. `df.attrs["sidecar"]` holds the trace's metadata and `df.attrs["warnings"]` what the
+`read_trace(path)` reads a CSV, MCAP or Parquet trace (also one cut off by a crash, with a warning): Parquet
+and CSV with pyarrow's and pandas' own readers, MCAP with voxhap's (voxhap/trace.py); `sim(scenario,
+overrides)` runs a sim scenario and returns its trace. Both return a pandas DataFrame with the trace's
+columns (docs/traces.md): integer columns as integers, flags as boolean `flag_<name>` columns, missing
+device values as `<NA>`. `df.attrs["sidecar"]` holds the trace's metadata and `df.attrs["warnings"]` what the
 reader skipped. `Session(scene)` runs a live servo session with the simulated arm in this process, for
 integration tests: move the hand, wait for ticks, read the forces (voxhap/session.py).
 """
@@ -11,12 +12,9 @@ integration tests: move the hand, wait for ticks, read the forces (voxhap/sessio
 import json
 import os
 import tempfile
-import warnings
-
-import pandas as pd
-import pyarrow.parquet as pq
 
 from . import _voxhap
+from .trace import read_trace
 
 __all__ = ["Session", "State", "read_trace", "sim", "solve"]
 
@@ -27,26 +25,6 @@ def solve(scene, solver="exact"):
     Returns a dict: `proxy` and `force` ([x, y, z], m and N), `status` and `error_bound` (exact solver), the
     iteration counts and the median solve time in ns."""
     return json.loads(_voxhap.solve(os.fspath(scene), solver))
-
-
-def _frame(parquet_path, reader_warnings=()):
-    frame = pd.read_parquet(parquet_path, engine="pyarrow")
-    metadata = pq.ParquetFile(parquet_path).metadata.metadata or {}
-    sidecar = metadata.get(b"voxhap.sidecar")
-    frame.attrs["sidecar"] = json.loads(sidecar) if sidecar else None
-    frame.attrs["warnings"] = list(reader_warnings)
-    for text in reader_warnings:
-        warnings.warn(text, stacklevel=3)
-    return frame
-
-
-def read_trace(path):
-    """The trace at `path` (CSV, MCAP or Parquet) as a pandas DataFrame."""
-    path = os.fspath(path)
-    with tempfile.TemporaryDirectory(prefix="voxhap-") as work:
-        out = os.path.join(work, "trace.parquet")
-        reader_warnings = _voxhap.trace_to_parquet(path, out)
-        return _frame(out, reader_warnings)
 
 
 def sim(scenario, overrides=None, duration_s=None, rate_hz=None):
@@ -62,7 +40,7 @@ def sim(scenario, overrides=None, duration_s=None, rate_hz=None):
         ticks, certified, max_force_n = _voxhap.sim(
             os.fspath(scenario), out, sets, duration_s, rate_hz
         )
-        frame = _frame(out)
+        frame = read_trace(out)
     frame.attrs["summary"] = {
         "ticks": ticks,
         "certified_ticks": certified,

@@ -448,7 +448,7 @@ const STOP_MARGIN: Duration = Duration::from_secs(10);
 fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     use std::io::Read as _;
     use std::process::{Command, Stdio};
-    let _turn = crate::device_spec::take_turn();
+    let _turn = crate::util::spec_serve::take_turn();
     let service = InverseService::start();
     let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
         .args([

@@ -7,7 +7,8 @@
 //! [`spec_device`] is a voxhap-protocol device written from protocol/SPEC.md alone, on a pseudo-terminal, that logs
 //! every force the host sends it and misbehaves on request (tests/device_spec/), and
 //! [`spec_serve`] runs `voxhap serve` against it and waits for what a test checks. [`scene_strategies`] draws
-//! the solver property tests' random scenes. [`igtl_client`] is an OpenIGTLink client
+//! the solver property tests' random scenes. [`supervised`] holds what the serial-arm tests share (the
+//! supervisor's test configuration, the glitch drive, a bounded wait). [`igtl_client`] is an OpenIGTLink client
 //! written from the specification, [`sim`] runs sims/ scenarios, and [`volume_files`] writes and finds the volume
 //! files the loader tests read.
 
@@ -17,7 +18,25 @@ pub mod server;
 pub mod sim;
 pub mod spec_device;
 pub mod spec_serve;
+pub mod supervised;
 pub mod volume_files;
+
+/// `voxhap serve --device DEVICE` without servers or real-time scheduling (`--no-http --no-foxglove --rt off`);
+/// the caller adds the rest (scene, duration, recording, output pipes).
+pub fn serve_headless(device: &str) -> std::process::Command {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_voxhap"));
+    command
+        .args([
+            "serve",
+            "--no-http",
+            "--no-foxglove",
+            "--rt",
+            "off",
+            "--device",
+        ])
+        .arg(device);
+    command
+}
 
 /// Runs `f` and returns how many allocation events (alloc, realloc, free) the current thread made meanwhile.
 pub fn count_allocations(f: impl FnOnce()) -> u64 {

@@ -18,13 +18,14 @@
 //! else), so that the handle is in free space (zero rendered force) at x = 4.5 cm and 1 cm inside the wall at
 //! x = 2 cm, and the force the host renders there is known (about 5 N before any cap).
 
+use crate::util::serve_headless;
 use crate::util::spec_device::{
     Callback, ForceRecord, HandleFn, HandleTime, HostMessage, MessageRecord, SpecDevice,
     SpecDeviceConfig, SpecDeviceHandle, Trigger, TriggerRecord,
 };
 use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicI32, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -155,18 +156,8 @@ impl Serve {
         duration_s: Option<f64>,
         extra: &[&str],
     ) -> Serve {
-        let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
-        command
-            .args([
-                "serve",
-                "--no-http",
-                "--no-foxglove",
-                "--rt",
-                "off",
-                "--device",
-            ])
-            .arg(format!("serial:{path}"))
-            .args(extra);
+        let mut command = serve_headless(&format!("serial:{path}"));
+        command.args(extra);
         if let Some(scene) = scene {
             command.arg("--scene").arg(scene);
         }

@@ -8,13 +8,13 @@
 //! what `serve` said and how long it took to give up. `serve` runs one at a time with the other device tests
 //! (`take_turn`); waits end as soon as their condition holds, up to [`PATIENCE`].
 
-use crate::device_spec::{
+use crate::util::pty::PtyDevice;
+use crate::util::spec_device::{HostMessage, SpecDeviceConfig, SpecDeviceHandle};
+use crate::util::spec_serve::{
     assert_force_invariants, assert_force_invariants_across_a_reset, assert_slew_limited,
     enable_after, enabled_again_after_trigger, run_until, summary, take_turn, tapping_until, Serve,
     FLOWING, INSIDE_X_M, PATIENCE,
 };
-use crate::util::pty::PtyDevice;
-use crate::util::spec_device::{HostMessage, SpecDeviceConfig, SpecDeviceHandle};
 use std::process::ExitStatus;
 use std::time::{Duration, Instant};
 

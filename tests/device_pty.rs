@@ -3,7 +3,6 @@
 
 use crate::util::mock_process::MockProcess as Mock;
 use glam::DVec3;
-use std::process::Command;
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::safety::SafetyConfig;
@@ -440,17 +439,8 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
 
 /// Runs `voxhap serve` on the mock device at `path` for `seconds`; returns its stdout and stderr.
 fn serve_on(path: &str, seconds: &str) -> (bool, String) {
-    let output = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args(["serve", "--device"])
-        .arg(format!("mock:{path}"))
-        .args([
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--duration",
-            seconds,
-        ])
+    let output = crate::util::serve_headless(&format!("mock:{path}"))
+        .args(["--duration", seconds])
         .output()
         .expect("run voxhap serve");
     let text = format!(

@@ -360,5 +360,5 @@ fn solver_tables_are_the_benchmarks_output() {
             );
         }
     }
-    assert_eq!(goals, 5, "issue 14 sets goals for five cases");
+    assert_eq!(goals, 5, "the solver has speed goals for five cases");
 }

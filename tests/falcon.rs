@@ -3,14 +3,14 @@
 //! stop), and the firmware upload over an in-memory pipe.
 
 use crate::util::falcon_firmware::{Bootloader, FalconDevice};
+use crate::util::supervised::{angle_deg, drive_through_glitches, supervisor_config, wait_for};
 use glam::{DMat3, DVec3};
 use std::sync::atomic::Ordering;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use voxhap::device::drivers::falcon::{
     forward_kinematics, leg_angle_rad, Falcon, FalconConfig, LED_GREEN, LED_RED,
 };
-use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{OutputState, Supervisor, SupervisorConfig, TickInput};
+use voxhap::device::supervisor::{Supervisor, TickInput};
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{DeviceEvent, Lifecycle};
 
@@ -93,14 +93,6 @@ fn nifalcon_exerted_force(p: DVec3, motor: [i16; 3]) -> DVec3 {
     ) / 10_000.0;
     let rows: DMat3 = nifalcon::joint_rate_rows(nifalcon::ik(p));
     rows.transpose() * tau
-}
-
-fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !done() {
-        assert!(Instant::now() < deadline, "waited 20 s for {what}");
-        std::thread::sleep(Duration::from_millis(1));
-    }
 }
 
 fn open(path: &str) -> Lifecycle<Falcon<SerialTransport>> {
@@ -189,16 +181,7 @@ fn the_supervisor_bounds_forces_and_ends_with_zero_torque() {
     let falcon = FalconDevice::start();
     *falcon.shared.homing.lock().unwrap() = 0x7;
     let path = falcon.path().to_string();
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 2.0,
-            ..SafetyConfig::default()
-        },
-        // Enable after 5 steady ticks (the default 50 is for real sessions).
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let config = supervisor_config(2.0, 20_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 1_500_000)?;
         Ok(Falcon::new(transport, FalconConfig::default()))
@@ -275,15 +258,7 @@ fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
     let falcon = FalconDevice::start();
     *falcon.shared.homing.lock().unwrap() = 0x7;
     let path = falcon.path().to_string();
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 2.0,
-            ..SafetyConfig::default()
-        },
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let config = supervisor_config(2.0, 20_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 1_500_000)?;
         Ok(Falcon::new(transport, FalconConfig::default()))
@@ -296,10 +271,7 @@ fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
         DVec3::new(0.01 * phase.sin(), 0.01 * phase.cos(), 0.11)
     };
     let mut true_positions = std::collections::HashMap::new();
-    let mut output = OutputState::Starting;
-    let mut forced_ticks = 0;
-    let mut tick = 0u64;
-    while forced_ticks < 600 && tick < 200_000 {
+    drive_through_glitches(&mut supervisor, asked, |tick| {
         let p = truth(tick);
         let counts = nifalcon::ik(p).map(|leg| nifalcon::count(leg[0]));
         true_positions.insert(counts, p);
@@ -312,24 +284,7 @@ fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
                 _ => glitches.extend([[counts[0], counts[1] - 500, counts[2] + 500]; 2]),
             }
         }
-        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
-        let force = if on { asked * 500.0 } else { DVec3::ZERO };
-        output = supervisor
-            .tick(TickInput::at(force, tick * 1000))
-            .output_state;
-        forced_ticks += u32::from(on);
-        tick += 1;
-    }
-    supervisor.stop();
-    assert_eq!(
-        forced_ticks, 600,
-        "force was on for only {forced_ticks} of {tick} ticks"
-    );
-    assert!(
-        supervisor.input_counters().positions_rejected >= 5,
-        "{:?}",
-        supervisor.input_counters()
-    );
+    });
     let applied = falcon.shared.applied.lock().unwrap().clone();
     let mut strong = 0;
     let mut worst_angle = 0.0f64;
@@ -351,12 +306,7 @@ fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
             command.motor
         );
         if exerted.length() > 0.2 {
-            let angle = exerted
-                .normalize()
-                .dot(asked)
-                .clamp(-1.0, 1.0)
-                .acos()
-                .to_degrees();
+            let angle = angle_deg(exerted, asked);
             worst_angle = worst_angle.max(angle);
             assert!(
                 angle < 3.0,

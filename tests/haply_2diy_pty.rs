@@ -3,12 +3,11 @@
 //! short (its rest arriving late) or a stray byte the driver gets back onto reply boundaries within a few ticks.
 
 use crate::util::haply_board::{Fault, HaplyBoard, ANGLES_DEG};
+use crate::util::supervised::{angle_deg, drive_through_glitches, supervisor_config, wait_for};
 use glam::DVec3;
 use std::sync::atomic::Ordering;
-use std::time::{Duration, Instant};
 use voxhap::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
-use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{OutputState, Supervisor, SupervisorConfig, TickInput};
+use voxhap::device::supervisor::Supervisor;
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{DeviceEvent, Lifecycle};
 
@@ -60,14 +59,6 @@ fn haply_exerted_force(theta_deg: [f64; 2], tau: [f64; 2]) -> DVec3 {
     let fx = (tau[0] * j2[1] - tau[1] * j1[1]) / det;
     let fy = (j1[0] * tau[1] - j2[0] * tau[0]) / det;
     DVec3::new(fx, fy, 0.0)
-}
-
-fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !done() {
-        assert!(Instant::now() < deadline, "waited 20 s for {what}");
-        std::thread::sleep(Duration::from_millis(1));
-    }
 }
 
 fn expected_position() -> DVec3 {
@@ -154,15 +145,7 @@ fn a_partial_or_shifted_reply_costs_a_few_ticks_then_replies_are_aligned_again()
 fn rejected_readings_never_steer_the_force_the_pantograph_exerts() {
     let board = HaplyBoard::start(&[]);
     let path = board.path().to_string();
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 2.0,
-            ..SafetyConfig::default()
-        },
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let config = supervisor_config(2.0, 20_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 0)?;
         Ok(Haply2Diy::new(transport, Haply2DiyConfig::default()))
@@ -175,10 +158,7 @@ fn rejected_readings_never_steer_the_force_the_pantograph_exerts() {
         let phase = tick as f64 * 2.0 * std::f64::consts::PI / 2000.0;
         [45.0 + 8.0 * phase.cos(), 135.0 + 10.0 * phase.sin()]
     };
-    let mut output = OutputState::Starting;
-    let mut forced_ticks = 0;
-    let mut tick = 0u64;
-    while forced_ticks < 600 && tick < 200_000 {
+    drive_through_glitches(&mut supervisor, asked, |tick| {
         let angles = truth(tick);
         let true_f32 = [angles[0] as f32, angles[1] as f32];
         *board.shared.true_angles_deg.lock().unwrap() = Some(true_f32);
@@ -193,24 +173,7 @@ fn rejected_readings_never_steer_the_force_the_pantograph_exerts() {
                 _ => readings.extend([[true_f32[0] - 80.0, true_f32[1] + 80.0], [f32::NAN; 2]]),
             }
         }
-        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
-        let force = if on { asked * 500.0 } else { DVec3::ZERO };
-        output = supervisor
-            .tick(TickInput::at(force, tick * 1000))
-            .output_state;
-        forced_ticks += u32::from(on);
-        tick += 1;
-    }
-    supervisor.stop();
-    assert_eq!(
-        forced_ticks, 600,
-        "force was on for only {forced_ticks} of {tick} ticks"
-    );
-    assert!(
-        supervisor.input_counters().positions_rejected >= 5,
-        "{:?}",
-        supervisor.input_counters()
-    );
+    });
     let applied = board.shared.applied.lock().unwrap().clone();
     let mut strong = 0;
     let mut worst_angle = 0.0f64;
@@ -228,12 +191,7 @@ fn rejected_readings_never_steer_the_force_the_pantograph_exerts() {
             exerted.length()
         );
         if exerted.length() > 0.2 {
-            let angle = exerted
-                .normalize()
-                .dot(asked.normalize())
-                .clamp(-1.0, 1.0)
-                .acos()
-                .to_degrees();
+            let angle = angle_deg(exerted, asked);
             worst_angle = worst_angle.max(angle);
             assert!(
                 angle < 2.0,

@@ -447,19 +447,10 @@ const STOP_MARGIN: Duration = Duration::from_secs(10);
 #[test]
 fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     use std::io::Read as _;
-    use std::process::{Command, Stdio};
-    let _turn = crate::device_spec::take_turn();
+    use std::process::Stdio;
+    let _turn = crate::util::spec_serve::take_turn();
     let service = InverseService::start();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args([
-            "serve",
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--device",
-        ])
-        .arg(format!("haply-inverse:{}", service.url()))
+    let mut child = crate::util::serve_headless(&format!("haply-inverse:{}", service.url()))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

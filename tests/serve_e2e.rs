@@ -20,16 +20,7 @@ fn serve_against_the_mock_device_records_a_clean_trace_and_stops_on_sigterm() {
     mock_out.read_line(&mut line).unwrap();
     let pty = line.trim().strip_prefix("serving ").unwrap().to_owned();
 
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_voxhap"))
-        .args([
-            "serve",
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--device",
-        ])
-        .arg(format!("mock:{pty}"))
+    let mut serve = crate::util::serve_headless(&format!("mock:{pty}"))
         .arg("--record")
         .arg(&trace_path)
         .stdout(Stdio::piped())

@@ -3,15 +3,14 @@
 //! supervisor's full safety pipeline. Safety is checked from the device's side: the double's log of currents,
 //! turned into the force the arm exerts at its true pose with hfabapi's own kinematics (below, not voxhap's).
 
+use crate::util::supervised::{angle_deg, drive_through_glitches, supervisor_config, wait_for};
 use crate::util::woody_firmware::{FirmwareEvent, Glitch, WoodyFirmware};
 use glam::{DMat3, DVec3};
 use std::f64::consts::PI;
 use std::sync::atomic::Ordering;
-use std::time::{Duration, Instant};
 use voxhap::device::drivers::woodenhaptics_serial::{
     WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel, MAX_CURRENT_MA,
 };
-use voxhap::device::safety::SafetyConfig;
 use voxhap::device::supervisor::{
     OutputState, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
 };
@@ -79,22 +78,6 @@ fn hfab_exerted_force(raw: [i32; 3], currents_ma: [i32; 3]) -> DVec3 {
     ];
     let jt = DMat3::from_cols(rows[0], rows[1], rows[2]).transpose();
     jt.inverse() * DVec3::from_array(joint)
-}
-
-fn angle_deg(a: DVec3, b: DVec3) -> f64 {
-    a.normalize()
-        .dot(b.normalize())
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees()
-}
-
-fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !done() {
-        assert!(Instant::now() < deadline, "waited 20 s for {what}");
-        std::thread::sleep(Duration::from_millis(1));
-    }
 }
 
 fn open(path: &str) -> Lifecycle<WoodenHapticsSerial<SerialTransport>> {
@@ -174,16 +157,7 @@ fn encoders_give_the_hfabapi_position_and_forces_the_jacobian_transpose_currents
 fn with_the_safety_pipeline_currents_ramp_in_stay_bounded_and_end_at_zero() {
     let firmware = WoodyFirmware::start(3);
     let path = firmware.path().to_string();
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 50_000,
-            max_force_n: 3.0,
-            ..SafetyConfig::default()
-        },
-        // Enable after 5 steady ticks (the default 50 is for real sessions).
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let config = supervisor_config(3.0, 50_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 115_200)?;
         Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
@@ -246,15 +220,7 @@ fn with_the_safety_pipeline_currents_ramp_in_stay_bounded_and_end_at_zero() {
 fn rejected_readings_never_steer_the_force_the_arm_exerts() {
     let firmware = WoodyFirmware::start(3);
     let path = firmware.path().to_string();
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 3.0,
-            ..SafetyConfig::default()
-        },
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let config = supervisor_config(3.0, 20_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 115_200)?;
         Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
@@ -271,10 +237,7 @@ fn rejected_readings_never_steer_the_force_the_arm_exerts() {
             500,
         ]
     };
-    let mut output = OutputState::Starting;
-    let mut forced_ticks = 0;
-    let mut tick = 0u64;
-    while forced_ticks < 600 && tick < 200_000 {
+    drive_through_glitches(&mut supervisor, asked, |tick| {
         let counts = true_counts(tick);
         firmware.set_encoders([counts[0], counts[1], counts[2], 0, 0, 0]);
         if tick % 37 == 11 {
@@ -292,24 +255,7 @@ fn rejected_readings_never_steer_the_force_the_arm_exerts() {
                 ]),
             }
         }
-        let on = matches!(output, OutputState::RampingIn | OutputState::Engaged);
-        let force = if on { asked * 500.0 } else { DVec3::ZERO };
-        output = supervisor
-            .tick(TickInput::at(force, tick * 1000))
-            .output_state;
-        forced_ticks += u32::from(on);
-        tick += 1;
-    }
-    supervisor.stop();
-    assert_eq!(
-        forced_ticks, 600,
-        "force was on for only {forced_ticks} of {tick} ticks"
-    );
-    assert!(
-        supervisor.input_counters().positions_rejected >= 5,
-        "{:?}",
-        supervisor.input_counters()
-    );
+    });
     let applied = firmware.shared.applied.lock().unwrap().clone();
     let mut strong = 0;
     let mut worst_angle = 0.0f64;

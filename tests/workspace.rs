@@ -216,19 +216,9 @@ fn stop_and_read(mut serve: std::process::Child) -> (std::process::ExitStatus, S
 
 /// `voxhap serve` on the Inverse Service double at `url` with `scene`, for `seconds`, without servers.
 fn serve_inverse3(url: &str, scene: &std::path::Path, seconds: &str) -> Command {
-    let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
+    let mut command = crate::util::serve_headless(&format!("haply-inverse:{url}"));
     command
-        .args([
-            "serve",
-            "--no-http",
-            "--no-foxglove",
-            "--rt",
-            "off",
-            "--duration",
-            seconds,
-        ])
-        .arg("--device")
-        .arg(format!("haply-inverse:{url}"))
+        .args(["--duration", seconds])
         .arg("--scene")
         .arg(scene);
     command

@@ -51,7 +51,7 @@ pub enum FrameError {
         len: usize,
     },
     /// The frame is longer than the largest message this protocol defines; its bytes were skipped.
-    #[error("frame longer than the {max}-byte maximum; skipped to the next delimiter", max = crate::serial::MAX_FRAME_LEN)]
+    #[error("frame longer than the {max}-byte maximum; skipped to the next delimiter", max = crate::wire::MAX_FRAME_LEN)]
     Oversize,
     /// The CRC in the frame does not match the CRC of its contents.
     #[error("CRC mismatch: frame says 0x{received:04x}, contents give 0x{computed:04x}")]

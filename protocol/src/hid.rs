@@ -5,15 +5,10 @@
 //! [`encode_report`] fills one, [`decode_report`] parses one. Report id 1 carries host-to-device messages (HID
 //! output reports), report id 2 device-to-host messages (input reports); [`REPORT_DESCRIPTOR`] declares both.
 
-use crate::error::{EncodeError, ReportError};
-use crate::message::{Message, MAX_PAYLOAD_LEN};
-
-/// Size of every report, report id included (one full-speed interrupt packet).
-pub const REPORT_LEN: usize = 64;
-/// Report id of host-to-device (output) reports.
-pub const HOST_TO_DEVICE_REPORT_ID: u8 = 0x01;
-/// Report id of device-to-host (input) reports.
-pub const DEVICE_TO_HOST_REPORT_ID: u8 = 0x02;
+use crate::error::{EncodeError, PayloadError, ReportError};
+use crate::message::Message;
+use crate::wire::MAX_PAYLOAD_LEN;
+pub use crate::wire::{DEVICE_TO_HOST_REPORT_ID, HOST_TO_DEVICE_REPORT_ID, REPORT_LEN};
 
 /// A vendor-defined HID report descriptor declaring input report 2 and output report 1, 63 data bytes each.
 /// Firmware can return it as is.
@@ -69,7 +64,7 @@ pub fn decode_report<M: Message>(report: &[u8]) -> Result<M, ReportError> {
         });
     }
     let payload_len = M::payload_len(message_type).ok_or(ReportError::Payload(
-        crate::PayloadError::UnknownType(message_type),
+        PayloadError::UnknownType(message_type),
     ))?;
     let payload = rest
         .get(..payload_len)

@@ -25,6 +25,7 @@ pub mod hid;
 pub mod host;
 pub mod message;
 pub mod serial;
+pub mod wire;
 
 pub use device::{
     DeviceSample, DeviceSession, DeviceStats, DriveState, DEFAULT_WATCHDOG_TIMEOUT_US,

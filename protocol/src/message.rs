@@ -12,8 +12,7 @@ use crate::fields::{
     LABEL_LEN,
 };
 
-/// Largest payload of any message: it fills a 64-byte HID report after the report id and type bytes.
-pub const MAX_PAYLOAD_LEN: usize = 62;
+pub use crate::wire::MAX_PAYLOAD_LEN;
 
 /// The type byte of every message. Host-to-device types are 0x01..=0x7F, device-to-host types 0x81..=0xFF.
 pub mod message_type {
@@ -335,7 +334,7 @@ fn in_range(message_type: u8, field: &'static str, ok: bool) -> Result<(), Paylo
 // ---------------------------------------------------------------- host to device codec
 
 impl Message for HostToDevice {
-    const HID_REPORT_ID: u8 = crate::hid::HOST_TO_DEVICE_REPORT_ID;
+    const HID_REPORT_ID: u8 = crate::wire::HOST_TO_DEVICE_REPORT_ID;
 
     fn message_type(&self) -> u8 {
         match self {
@@ -448,7 +447,7 @@ impl DeviceInfo {
 }
 
 impl Message for DeviceToHost {
-    const HID_REPORT_ID: u8 = crate::hid::DEVICE_TO_HOST_REPORT_ID;
+    const HID_REPORT_ID: u8 = crate::wire::DEVICE_TO_HOST_REPORT_ID;
 
     fn message_type(&self) -> u8 {
         match self {

@@ -22,12 +22,12 @@ const _: () = assert!(
 );
 use crate::crc::crc16;
 use crate::error::{EncodeError, FrameError, PayloadError, ReportError};
-use crate::message::{Message, MAX_PAYLOAD_LEN};
+use crate::message::Message;
+pub use crate::wire::MAX_FRAME_LEN;
+use crate::wire::MAX_PAYLOAD_LEN;
 
 /// Frame delimiter on the wire.
 pub const DELIMITER: u8 = 0x00;
-/// Largest unstuffed frame: type byte, largest payload, CRC.
-pub const MAX_FRAME_LEN: usize = 1 + MAX_PAYLOAD_LEN + 2;
 /// Largest stuffed frame (without the delimiter).
 const MAX_STUFFED_LEN: usize = max_encoded_len(MAX_FRAME_LEN);
 /// Largest frame on the wire: stuffed bytes plus the delimiter. An output buffer this big fits any message.

@@ -1,7 +1,7 @@
 //! Helpers for the visualiser server tests: a real session on the simulated arm with the server on
 //! 127.0.0.1:0, a minimal HTTP/1.1 client over a TcpStream, and WebSocket helpers (tokio-tungstenite).
 
-use futures_util::StreamExt;
+use futures_util::{SinkExt, StreamExt};
 use serde_json::Value;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -225,6 +225,13 @@ fn dechunk(mut body: &str) -> String {
         body = &rest[size + 2..];
     }
     out
+}
+
+/// Sends `value` as one JSON text message.
+pub async fn send_json(ws: &mut Ws, value: Value) {
+    ws.send(Message::Text(value.to_string().into()))
+        .await
+        .unwrap();
 }
 
 /// The next text message as JSON (panics after 5 s, or on a close).

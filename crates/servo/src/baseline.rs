@@ -8,7 +8,7 @@
 //! the virtual machine), so when the baseline shows the same stalls as the loop, removing them is a matter for
 //! the machine (an isolated core, a host without CPU overcommit), not for the tick.
 
-use super::api::RealtimeReport;
+use voxhap_api::RealtimeReport;
 use super::rt::{self, RtMode};
 use super::schedule::{Schedule, SpinSleepWaiter, Waiter};
 use super::stats::Histogram;

@@ -3,7 +3,7 @@
 //! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
 //! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
 
-use super::api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
+use voxhap_api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
 use super::device::HandTargetInput;
 use super::recorder::{RecorderError, RecorderRequest};
 use super::runner::{

@@ -21,7 +21,7 @@
 //! trace is flushed every [`FLUSH_INTERVAL`] (whole CSV lines, closed MCAP chunks and Parquet row groups
 //! at most a second old), so an error or a crash is noticed, and loses, at most that much.
 
-use super::api::Snapshot;
+use voxhap_api::Snapshot;
 use super::stats::ServoStats;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;

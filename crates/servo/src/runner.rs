@@ -23,7 +23,7 @@
 //!
 //! [`MockWaiter`]: super::schedule::MockWaiter
 
-use super::api::{PrimitiveView, Snapshot};
+use voxhap_api::{PrimitiveView, Snapshot};
 use super::device::ServoDevice;
 use super::monitor::DeviceReport;
 use super::schedule::{Schedule, Waiter};

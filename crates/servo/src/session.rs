@@ -18,7 +18,7 @@
 //! snapshot buffer is wait-free. A control command returns once the servo thread has applied it (it polls
 //! the applied-command counter), or with an error that says why and changes nothing.
 
-use super::api::{
+use voxhap_api::{
     ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
     Snapshot, StatsReport,
 };
@@ -32,7 +32,7 @@ use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
 use super::schedule::{SpinSleepWaiter, Waiter};
 use super::setup::SceneSetup;
-use super::slice::{check_request, pick_volume, sample_slice};
+use voxhap_api::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
 use glam::DVec3;
 use std::path::{Path, PathBuf};

@@ -21,12 +21,12 @@
 //! trace is flushed every [`FLUSH_INTERVAL`] (whole CSV lines, closed MCAP chunks and Parquet row groups
 //! at most a second old), so an error or a crash is noticed, and loses, at most that much.
 
-use voxhap_api::Snapshot;
 use super::stats::ServoStats;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use voxhap_api::Snapshot;
 use voxhap_record::foxglove_scene::SceneChange;
 use voxhap_record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
 

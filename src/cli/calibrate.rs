@@ -24,7 +24,7 @@ pub const MIN_SAMPLES: u64 = 100;
 #[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
     /// The device, as for `serve --device` (sim, haply2diy:PATH, haply-inverse, falcon, ...).
-    #[arg(long, default_value = "sim", value_parser = parse_device)]
+    #[arg(long, default_value = "sim")]
     pub device: DeviceSpec,
     /// Where to write the profile (TOML).
     #[arg(long, value_name = "FILE")]
@@ -38,11 +38,6 @@ pub struct CalibrateArgs {
     /// The profile's name (default: "calibrated DEVICE").
     #[arg(long)]
     pub name: Option<String>,
-}
-
-fn parse_device(text: &str) -> Result<DeviceSpec, String> {
-    text.parse()
-        .map_err(|e: crate::servo::device::DeviceSpecError| e.to_string())
 }
 
 /// The box the accepted samples span.

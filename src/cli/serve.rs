@@ -36,7 +36,7 @@ use std::time::Duration;
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | falcon[:SERIAL|:PATH][,firmware=FILE] | replay:TRACE[,seek=S][,speed=X][,loop]
-    #[arg(long, default_value = "sim", value_parser = parse_device)]
+    #[arg(long, default_value = "sim")]
     pub device: DeviceSpec,
     /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml) or builtin:NAME; with --scene it
     /// replaces the scene's first volume, alone it is rendered as a surface at mid-range.
@@ -142,11 +142,6 @@ fn parse_connect_timeout(text: &str) -> Result<f64, String> {
     } else {
         Err(format!("{text} s is outside {min} ..= {max} s"))
     }
-}
-
-fn parse_device(text: &str) -> Result<DeviceSpec, String> {
-    text.parse()
-        .map_err(|e: crate::servo::device::DeviceSpecError| e.to_string())
 }
 
 /// Builds the session configuration from the flags (loads the scene and volumes).

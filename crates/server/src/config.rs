@@ -106,18 +106,8 @@ pub enum ConfigError {
 }
 
 /// Parses `--http`: `IP:PORT`, `[IPv6]:PORT`, or `localhost:PORT`.
-fn parse_addr(text: &str) -> Result<SocketAddr, String> {
-    if let Ok(addr) = text.parse::<SocketAddr>() {
-        return Ok(addr);
-    }
-    if let Some(port) = text.strip_prefix("localhost:") {
-        if let Ok(port) = port.parse::<u16>() {
-            return Ok(SocketAddr::new(Ipv4Addr::LOCALHOST.into(), port));
-        }
-    }
-    Err(format!(
-        "expected IP:PORT (e.g. 127.0.0.1:8080) or localhost:PORT, got {text:?}"
-    ))
+fn parse_addr(text: &str) -> Result<SocketAddr, crate::addr::ListenAddrError> {
+    crate::addr::parse_listen_addr(text, DEFAULT_HTTP_ADDR.port())
 }
 
 /// 32 hex digits from the OS's random source.

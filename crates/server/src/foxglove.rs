@@ -108,15 +108,8 @@ pub struct FoxgloveArgs {
     pub no_foxglove: bool,
 }
 
-fn parse_addr(text: &str) -> Result<SocketAddr, String> {
-    if let Some(port) = text.strip_prefix("localhost:") {
-        let port = port
-            .parse::<u16>()
-            .map_err(|_| format!("{port:?} is not a port number"))?;
-        return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
-    }
-    text.parse()
-        .map_err(|_| format!("expected IP:PORT such as 127.0.0.1:8765 or [::1]:8765, got {text:?}"))
+fn parse_addr(text: &str) -> Result<SocketAddr, crate::addr::ListenAddrError> {
+    crate::addr::parse_listen_addr(text, DEFAULT_ADDR.port())
 }
 
 /// A checked live-view configuration.

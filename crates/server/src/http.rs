@@ -9,8 +9,8 @@
 use super::auth::check_bearer;
 use super::messages::{
     decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
-    EnabledBody, HandBody, ModeBody, RecordBody, State as StateMessage, StatsBody, StiffnessBody,
-    TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
+    EnabledBody, HandBody, MessageError, ModeBody, RecordBody, State as StateMessage, StatsBody,
+    StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::origin::check_single;
 use super::response::error_response;
@@ -44,14 +44,20 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/scene", get(scene))
         .route("/api/slice", get(slice))
         .route("/api/stiffness", post(stiffness))
-        .route("/api/modes", post(add_mode))
-        .route("/api/modes/{name}", delete(remove_mode))
-        .route("/api/modes/{name}/transfer", post(set_transfer))
-        .route("/api/modes/{name}/enabled", post(set_mode_enabled))
-        .route("/api/volume", post(load_volume))
-        .route("/api/record/start", post(record_start))
-        .route("/api/record/stop", post(record_stop))
-        .route("/api/hand", post(hand))
+        .route("/api/modes", post(body_command::<ModeBody>))
+        .route("/api/modes/{name}", delete(mode_command::<EmptyBody>))
+        .route(
+            "/api/modes/{name}/transfer",
+            post(mode_command::<TransferBody>),
+        )
+        .route(
+            "/api/modes/{name}/enabled",
+            post(mode_command::<EnabledBody>),
+        )
+        .route("/api/volume", post(body_command::<VolumeBody>))
+        .route("/api/record/start", post(body_command::<RecordBody>))
+        .route("/api/record/stop", post(body_command::<EmptyBody>))
+        .route("/api/hand", post(body_command::<HandBody>))
         .route("/api/control", post(control))
         .route("/ws", get(ws::upgrade))
         .fallback(not_found)
@@ -148,41 +154,51 @@ async fn scene(State(shared): Shared_) -> Response {
     }
 }
 
+/// Why a `GET /api/slice` query was refused: the parameter and the value given.
+#[derive(Debug, thiserror::Error)]
+enum SliceQueryError {
+    #[error("unknown query parameter {0:?}; expected axis, size, at, volume, encoding")]
+    Unknown(String),
+    #[error(transparent)]
+    Axis(ControlError),
+    #[error("invalid: size must be a whole number, got {0:?}")]
+    Size(String),
+    #[error("invalid: at must be three finite numbers x,y,z in metres, got {0:?}")]
+    Point(String),
+}
+
 /// Parses `x,y,z` (metres).
-fn parse_point(text: &str) -> Result<DVec3, String> {
+fn parse_point(text: &str) -> Result<DVec3, SliceQueryError> {
     let parts: Vec<&str> = text.split(',').collect();
     let numbers: Result<Vec<f64>, _> = parts.iter().map(|p| p.trim().parse::<f64>()).collect();
     match numbers {
         Ok(n) if n.len() == 3 && n.iter().all(|v| v.is_finite()) => {
             Ok(DVec3::new(n[0], n[1], n[2]))
         }
-        _ => Err(format!(
-            "at must be three finite numbers x,y,z in metres, got {text:?}"
-        )),
+        _ => Err(SliceQueryError::Point(text.to_owned())),
     }
 }
 
 /// The slice request of a `GET /api/slice` query.
-fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, String> {
-    for key in params.keys() {
-        if !matches!(key.as_str(), "axis" | "size" | "at" | "volume" | "encoding") {
-            return Err(format!(
-                "unknown query parameter {key:?}; expected axis, size, at, volume, encoding"
-            ));
-        }
+fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, SliceQueryError> {
+    if let Some(key) = params
+        .keys()
+        .find(|key| !matches!(key.as_str(), "axis" | "size" | "at" | "volume" | "encoding"))
+    {
+        return Err(SliceQueryError::Unknown(key.clone()));
     }
     let axis = match params.get("axis") {
-        Some(text) => text.parse::<SliceAxis>().map_err(|e| e.to_string())?,
+        Some(text) => text.parse::<SliceAxis>().map_err(SliceQueryError::Axis)?,
         None => SliceAxis::Z,
     };
     let size = match params.get("size") {
         Some(text) => text
             .parse::<usize>()
-            .map_err(|_| format!("invalid: size must be a whole number, got {text:?}"))?,
+            .map_err(|_| SliceQueryError::Size(text.clone()))?,
         None => SLICE_SIZE_DEFAULT,
     };
     let at_m = match params.get("at") {
-        Some(text) => Some(parse_point(text).map_err(|e| format!("invalid: {e}"))?),
+        Some(text) => Some(parse_point(text)?),
         None => None,
     };
     Ok(SliceRequest {
@@ -203,7 +219,7 @@ async fn slice(
     };
     let request = match slice_request(&params) {
         Ok(request) => request,
-        Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
+        Err(error) => return error_response(StatusCode::BAD_REQUEST, error.to_string()),
     };
     let u8_levels = match params.get("encoding").map(String::as_str) {
         None | Some("f32") => false,
@@ -232,7 +248,7 @@ async fn slice(
 }
 
 /// What a control endpoint makes of its (decoded) body.
-type Decode = Box<dyn FnOnce(Value) -> Result<Vec<ControlCommand>, String> + Send>;
+type Decode = Box<dyn FnOnce(Value) -> Result<Vec<ControlCommand>, MessageError> + Send>;
 
 /// The shared path of every control endpoint: token, body, decode, apply (all commands or none refused).
 async fn control_request(
@@ -302,7 +318,7 @@ async fn control_request(
     }
 }
 
-fn one(command: ControlCommand) -> Result<Vec<ControlCommand>, String> {
+fn one(command: ControlCommand) -> Result<Vec<ControlCommand>, MessageError> {
     Ok(vec![command])
 }
 
@@ -314,14 +330,12 @@ async fn stiffness(
     let decode: Decode = Box::new(|value| {
         let body: StiffnessBody = decode_value(value)?;
         if body.k.is_none() && body.damping.is_none() {
-            return Err("give \"k\" (N/m) and/or \"damping\" (N s/m)".to_owned());
+            return Err(MessageError::NoStiffness);
         }
         // Checked before k is applied, so a bad damping does not leave a changed k behind.
         if let Some(damping) = body.damping {
             if !(damping.is_finite() && damping >= 0.0) {
-                return Err(format!(
-                    "damping must be a finite number >= 0 N s/m, got {damping}"
-                ));
+                return Err(MessageError::Damping(damping));
             }
         }
         let mut commands = Vec::with_capacity(2);
@@ -336,142 +350,110 @@ async fn stiffness(
     control_request(&shared, &headers, body, false, decode).await
 }
 
-async fn add_mode(
+/// The body of a control endpoint that makes one command from its body alone.
+trait BodyCommand: serde::de::DeserializeOwned + 'static {
+    /// Whether an empty body stands for `{}`.
+    const EMPTY_OK: bool = false;
+    fn command(self) -> ControlCommand;
+}
+
+impl BodyCommand for ModeBody {
+    fn command(self) -> ControlCommand {
+        ControlCommand::AddMode { mode: self.mode }
+    }
+}
+
+impl BodyCommand for VolumeBody {
+    fn command(self) -> ControlCommand {
+        ControlCommand::LoadVolume {
+            path: self.path,
+            name: self.name,
+        }
+    }
+}
+
+impl BodyCommand for RecordBody {
+    fn command(self) -> ControlCommand {
+        ControlCommand::StartRecording {
+            path: self.path,
+            format: self.format,
+        }
+    }
+}
+
+impl BodyCommand for EmptyBody {
+    const EMPTY_OK: bool = true;
+    fn command(self) -> ControlCommand {
+        ControlCommand::StopRecording
+    }
+}
+
+impl BodyCommand for HandBody {
+    fn command(self) -> ControlCommand {
+        ControlCommand::SetHandTarget {
+            position_m: self.position_m,
+        }
+    }
+}
+
+/// `POST /api/modes`, `/api/volume`, `/api/record/start`, `/api/record/stop`, `/api/hand`: the body as `B`,
+/// one command.
+async fn body_command<B: BodyCommand>(
     State(shared): Shared_,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
-    let decode: Decode = Box::new(|value| {
-        let body: ModeBody = decode_value(value)?;
-        one(ControlCommand::AddMode { mode: body.mode })
-    });
-    control_request(&shared, &headers, body, false, decode).await
+    let decode: Decode = Box::new(|value| one(decode_value::<B>(value)?.command()));
+    control_request(&shared, &headers, body, B::EMPTY_OK, decode).await
 }
 
-fn bad_path(rejection: &PathRejection) -> Response {
-    control_failed(rejection.status(), rejection.body_text())
+/// The body of a control endpoint on one mode (`/api/modes/{name}...`): the command from the mode's name
+/// and the body.
+trait ModeCommand: serde::de::DeserializeOwned + 'static {
+    /// Whether an empty body stands for `{}`.
+    const EMPTY_OK: bool = false;
+    fn command(self, mode: String) -> ControlCommand;
 }
 
-async fn remove_mode(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    name: Result<Path<String>, PathRejection>,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let name = match name {
-        Ok(Path(name)) => name,
-        Err(rejection) => return bad_path(&rejection),
-    };
-    let decode: Decode = Box::new(move |value| {
-        let EmptyBody {} = decode_value(value)?;
-        one(ControlCommand::RemoveMode { name })
-    });
-    control_request(&shared, &headers, body, true, decode).await
+impl ModeCommand for EmptyBody {
+    const EMPTY_OK: bool = true;
+    fn command(self, name: String) -> ControlCommand {
+        ControlCommand::RemoveMode { name }
+    }
 }
 
-async fn set_transfer(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    name: Result<Path<String>, PathRejection>,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    mode_request(&shared, &headers, name, body, |mode, value| {
-        let body: TransferBody = decode_value(value)?;
-        Ok(ControlCommand::SetTransfer {
+impl ModeCommand for TransferBody {
+    fn command(self, mode: String) -> ControlCommand {
+        ControlCommand::SetTransfer {
             mode,
-            transfer: body.transfer,
-        })
-    })
-    .await
+            transfer: self.transfer,
+        }
+    }
 }
 
-async fn set_mode_enabled(
+impl ModeCommand for EnabledBody {
+    fn command(self, mode: String) -> ControlCommand {
+        ControlCommand::SetModeEnabled {
+            mode,
+            enabled: self.enabled,
+        }
+    }
+}
+
+/// `DELETE /api/modes/{name}`, `POST /api/modes/{name}/transfer`, `POST /api/modes/{name}/enabled`: the
+/// mode's name from the path, then the body as `B`.
+async fn mode_command<B: ModeCommand>(
     State(shared): Shared_,
     headers: HeaderMap,
     name: Result<Path<String>, PathRejection>,
     body: Result<Bytes, BytesRejection>,
-) -> Response {
-    mode_request(&shared, &headers, name, body, |mode, value| {
-        let body: EnabledBody = decode_value(value)?;
-        Ok(ControlCommand::SetModeEnabled {
-            mode,
-            enabled: body.enabled,
-        })
-    })
-    .await
-}
-
-/// A control endpoint on one mode (`/api/modes/{name}/...`): the mode's name from the path, then `command`
-/// makes the command from it and the body.
-async fn mode_request(
-    shared: &Arc<Shared>,
-    headers: &HeaderMap,
-    name: Result<Path<String>, PathRejection>,
-    body: Result<Bytes, BytesRejection>,
-    command: fn(String, Value) -> Result<ControlCommand, String>,
 ) -> Response {
     let mode = match name {
         Ok(Path(name)) => name,
-        Err(rejection) => return bad_path(&rejection),
+        Err(rejection) => return control_failed(rejection.status(), rejection.body_text()),
     };
-    let decode: Decode = Box::new(move |value| one(command(mode, value)?));
-    control_request(shared, headers, body, false, decode).await
-}
-
-async fn load_volume(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let decode: Decode = Box::new(|value| {
-        let body: VolumeBody = decode_value(value)?;
-        one(ControlCommand::LoadVolume {
-            path: body.path,
-            name: body.name,
-        })
-    });
-    control_request(&shared, &headers, body, false, decode).await
-}
-
-async fn record_start(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let decode: Decode = Box::new(|value| {
-        let body: RecordBody = decode_value(value)?;
-        one(ControlCommand::StartRecording {
-            path: body.path,
-            format: body.format,
-        })
-    });
-    control_request(&shared, &headers, body, false, decode).await
-}
-
-async fn record_stop(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let decode: Decode = Box::new(|value| {
-        let EmptyBody {} = decode_value(value)?;
-        one(ControlCommand::StopRecording)
-    });
-    control_request(&shared, &headers, body, true, decode).await
-}
-
-async fn hand(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let decode: Decode = Box::new(|value| {
-        let body: HandBody = decode_value(value)?;
-        one(ControlCommand::SetHandTarget {
-            position_m: body.position_m,
-        })
-    });
-    control_request(&shared, &headers, body, false, decode).await
+    let decode: Decode = Box::new(move |value| one(decode_value::<B>(value)?.command(mode)));
+    control_request(&shared, &headers, body, B::EMPTY_OK, decode).await
 }
 
 async fn control(
@@ -507,13 +489,21 @@ mod tests {
         assert_eq!(request.at_m, Some(DVec3::new(0.0, 0.01, -0.02)));
         let request = slice_request(&params(&[])).unwrap();
         assert_eq!((request.axis, request.size), (SliceAxis::Z, 128));
-        let err = slice_request(&params(&[("axis", "w")])).unwrap_err();
+        let err = slice_request(&params(&[("axis", "w")]))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("axis must be x, y or z"), "{err}");
-        let err = slice_request(&params(&[("at", "1,2")])).unwrap_err();
+        let err = slice_request(&params(&[("at", "1,2")]))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("at must be three finite numbers"), "{err}");
-        let err = slice_request(&params(&[("at", "1,2,NaN")])).unwrap_err();
+        let err = slice_request(&params(&[("at", "1,2,NaN")]))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("at must be"), "{err}");
-        let err = slice_request(&params(&[("sise", "1")])).unwrap_err();
+        let err = slice_request(&params(&[("sise", "1")]))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("unknown query parameter \"sise\""), "{err}");
     }
 }

@@ -22,6 +22,7 @@
 //! handlers), `ws` (the client task), `shared` (what handlers and client tasks share), `response` (the JSON
 //! error response), [`assets`] (the embedded page).
 
+pub mod addr;
 pub mod assets;
 pub mod auth;
 pub mod config;

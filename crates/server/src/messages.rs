@@ -31,13 +31,67 @@ pub const RATE_RANGE_HZ: (f64, f64) = (1.0, 1000.0);
 /// State stream rate without `?rate=` (Hz).
 pub const DEFAULT_RATE_HZ: f64 = 60.0;
 
+/// Why a client's message, request body or query was refused: the part at fault and what was wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MessageError {
+    /// The body has no JSON at all.
+    #[error("the body is empty; expected a JSON object")]
+    Empty,
+    /// The text is not JSON (serde_json's message, with line and column).
+    #[error("malformed JSON: {0}")]
+    Malformed(String),
+    /// A field does not decode: where it is (empty for the whole message) and serde's message.
+    #[error("{}", located(.at, .message))]
+    Field {
+        /// The path of the field, e.g. `k` or `command "set_stiffness": k`.
+        at: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A tagged message that is not a JSON object.
+    #[error("expected a JSON object with a {0:?} field")]
+    NotAnObject(&'static str),
+    /// The tag (`"type"`, `"command"`) is not a string.
+    #[error("{tag_key:?} must be a string, got {got}")]
+    TagNotString {
+        /// The tag's key.
+        tag_key: &'static str,
+        /// The value given.
+        got: Value,
+    },
+    /// The tag is missing.
+    #[error("missing field `{0}`")]
+    MissingTag(&'static str),
+    /// A stream rate that is not a number.
+    #[error("rate must be a number of Hz, got {0:?}")]
+    RateNotANumber(String),
+    /// A stream rate outside [`RATE_RANGE_HZ`].
+    #[error("rate must be {min} ..= {max} Hz, got {0}", min = RATE_RANGE_HZ.0, max = RATE_RANGE_HZ.1)]
+    Rate(f64),
+    /// `POST /api/stiffness` with neither value.
+    #[error("give \"k\" (N/m) and/or \"damping\" (N s/m)")]
+    NoStiffness,
+    /// `POST /api/stiffness` with a negative or non-finite damping.
+    #[error("damping must be a finite number >= 0 N s/m, got {0}")]
+    Damping(f64),
+}
+
+/// `at: message`, or the message alone when `at` is empty.
+fn located(at: &str, message: &str) -> String {
+    if at.is_empty() {
+        message.to_owned()
+    } else {
+        format!("{at}: {message}")
+    }
+}
+
 /// Checks a requested stream rate.
-pub fn check_rate(rate_hz: f64) -> Result<f64, String> {
+pub fn check_rate(rate_hz: f64) -> Result<f64, MessageError> {
     let (min, max) = RATE_RANGE_HZ;
     if rate_hz.is_finite() && (min..=max).contains(&rate_hz) {
         Ok(rate_hz)
     } else {
-        Err(format!("rate must be {min} ..= {max} Hz, got {rate_hz}"))
+        Err(MessageError::Rate(rate_hz))
     }
 }
 
@@ -396,20 +450,20 @@ impl CommandWire {
 }
 
 /// Parses JSON text; a syntax error is "malformed JSON: ...".
-pub fn parse_json(bytes: &[u8]) -> Result<Value, String> {
+pub fn parse_json(bytes: &[u8]) -> Result<Value, MessageError> {
     if bytes.iter().all(u8::is_ascii_whitespace) {
-        return Err("the body is empty; expected a JSON object".to_owned());
+        return Err(MessageError::Empty);
     }
-    serde_json::from_slice(bytes).map_err(|e| format!("malformed JSON: {e}"))
+    serde_json::from_slice(bytes).map_err(|e| MessageError::Malformed(e.to_string()))
 }
 
 /// Decodes `value` as `T`, naming the path of a bad field (`k: invalid type: ...`).
-pub fn decode_value<T: DeserializeOwned>(value: Value) -> Result<T, String> {
+pub fn decode_value<T: DeserializeOwned>(value: Value) -> Result<T, MessageError> {
     serde_path_to_error::deserialize(value).map_err(|e| {
         let mut path = e.path().to_string();
-        let inner = e.into_inner().to_string();
+        let message = e.into_inner().to_string();
         // An unknown field's path ends with the field itself, which the message already names.
-        if let Some(field) = inner
+        if let Some(field) = message
             .strip_prefix("unknown field `")
             .and_then(|rest| rest.split('`').next())
         {
@@ -417,52 +471,67 @@ pub fn decode_value<T: DeserializeOwned>(value: Value) -> Result<T, String> {
                 path = parent.trim_end_matches('.').to_owned();
             }
         }
-        if path.is_empty() || path == "." || path == "?" {
-            inner
-        } else {
-            format!("{path}: {inner}")
+        if path == "." || path == "?" {
+            path.clear();
         }
+        MessageError::Field { at: path, message }
     })
 }
 
 /// Turns `{"<tag_key>": "name", rest...}` into `{"name": {rest...}}`, decodes it as the externally tagged
 /// `T`, and reports errors without the tag in the path.
-fn decode_tagged<T: DeserializeOwned>(value: Value, tag_key: &str) -> Result<T, String> {
+fn decode_tagged<T: DeserializeOwned>(
+    value: Value,
+    tag_key: &'static str,
+) -> Result<T, MessageError> {
     let Value::Object(mut object) = value else {
-        return Err(format!("expected a JSON object with a {tag_key:?} field"));
+        return Err(MessageError::NotAnObject(tag_key));
     };
     let tag = match object.remove(tag_key) {
         Some(Value::String(tag)) => tag,
-        Some(other) => return Err(format!("{tag_key:?} must be a string, got {other}")),
-        None => return Err(format!("missing field `{tag_key}`")),
+        Some(got) => return Err(MessageError::TagNotString { tag_key, got }),
+        None => return Err(MessageError::MissingTag(tag_key)),
     };
-    let prefix = format!("{tag}.");
     let mut wrapped = serde_json::Map::new();
     wrapped.insert(tag.clone(), Value::Object(object));
-    decode_value(Value::Object(wrapped)).map_err(|message| match message.strip_prefix(&prefix) {
-        Some(rest) => format!("{tag_key} {tag:?}: {rest}"),
-        None => match message.strip_prefix(&format!("{tag}: ")) {
-            Some(rest) => format!("{tag_key} {tag:?}: {rest}"),
-            None => message,
-        },
+    decode_value(Value::Object(wrapped)).map_err(|error| match error {
+        MessageError::Field { at, message } => {
+            let inner = if at == tag {
+                Some("")
+            } else {
+                at.strip_prefix(&format!("{tag}."))
+            };
+            match inner {
+                Some("") => MessageError::Field {
+                    at: format!("{tag_key} {tag:?}"),
+                    message,
+                },
+                Some(inner) => MessageError::Field {
+                    at: format!("{tag_key} {tag:?}: {inner}"),
+                    message,
+                },
+                None => MessageError::Field { at, message },
+            }
+        }
+        other => other,
     })
 }
 
 /// Decodes a control command (`{"command": "set_stiffness", "k": 400}`).
-pub fn decode_command(value: Value) -> Result<ControlCommand, String> {
+pub fn decode_command(value: Value) -> Result<ControlCommand, MessageError> {
     decode_tagged::<CommandWire>(value, "command").map(CommandWire::into_command)
 }
 
 /// Decodes a WebSocket text message from a client.
 pub fn decode_client_message(text: &str) -> Result<ClientMessage, DecodeError> {
-    let value = parse_json(text.as_bytes()).map_err(|message| DecodeError {
+    let value = parse_json(text.as_bytes()).map_err(|error| DecodeError {
         id: Value::Null,
-        message,
+        message: error.to_string(),
     })?;
     let id = value.get("id").cloned().unwrap_or(Value::Null);
-    let fail = |message: String| DecodeError {
+    let fail = |error: MessageError| DecodeError {
         id: id.clone(),
-        message,
+        message: error.to_string(),
     };
     let wire = decode_tagged::<ClientWire>(value, "type").map_err(fail)?;
     Ok(match wire {
@@ -615,20 +684,27 @@ mod tests {
 
     #[test]
     fn bad_commands_name_the_field() {
-        let err = decode_command(json!({"command": "set_stiffness", "k": "NaN"})).unwrap_err();
+        let err = decode_command(json!({"command": "set_stiffness", "k": "NaN"}))
+            .unwrap_err()
+            .to_string();
         assert!(
             err.starts_with("command \"set_stiffness\": k: invalid type: string \"NaN\""),
             "{err}"
         );
-        let err = decode_command(json!({"command": "set_stiffness", "kk": 4})).unwrap_err();
+        let err = decode_command(json!({"command": "set_stiffness", "kk": 4}))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("unknown field `kk`"), "{err}");
-        let err = decode_command(json!({"command": "set_stifness", "k": 4})).unwrap_err();
+        let err = decode_command(json!({"command": "set_stifness", "k": 4}))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("unknown variant `set_stifness`"), "{err}");
-        let err = decode_command(json!({"k": 4})).unwrap_err();
+        let err = decode_command(json!({"k": 4})).unwrap_err().to_string();
         assert_eq!(err, "missing field `command`");
         let err =
             decode_command(json!({"command": "add_mode", "mode": {"kind": "surface", "bogus": 1}}))
-                .unwrap_err();
+                .unwrap_err()
+                .to_string();
         assert!(err.contains("mode: unknown field `bogus`"), "{err}");
     }
 

@@ -15,8 +15,8 @@
 
 use super::auth::check_token;
 use super::messages::{
-    check_rate, decode_client_message, ClientMessage, ErrorMessage, Hello, Reply, SliceMessage,
-    State as StateMessage, DEFAULT_RATE_HZ, MAX_MESSAGE_BYTES, SCHEMA,
+    check_rate, decode_client_message, ClientMessage, ErrorMessage, Hello, MessageError, Reply,
+    SliceMessage, State as StateMessage, DEFAULT_RATE_HZ, MAX_MESSAGE_BYTES, SCHEMA,
 };
 use super::response::error_response;
 use super::shared::{ClientSlot, Shared, CLIENT_QUEUE_FRAMES};
@@ -60,13 +60,11 @@ pub(crate) async fn upgrade(
         None => DEFAULT_RATE_HZ,
         Some(text) => match text
             .parse::<f64>()
-            .map_err(|_| format!("rate must be a number of Hz, got {text:?}"))
+            .map_err(|_| MessageError::RateNotANumber(text.clone()))
+            .and_then(check_rate)
         {
-            Ok(rate) => match check_rate(rate) {
-                Ok(rate) => rate,
-                Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
-            },
-            Err(message) => return error_response(StatusCode::BAD_REQUEST, message),
+            Ok(rate) => rate,
+            Err(error) => return error_response(StatusCode::BAD_REQUEST, error.to_string()),
         },
     };
     let upgrade = match upgrade {
@@ -166,7 +164,7 @@ fn handle_text(shared: &Arc<Shared>, text: &str, rate: &watch::Sender<f64>) -> H
                     scene_generation: 0,
                 }))
             }
-            Err(message) => Handled::Answer(error_text(&id, &format!("invalid: {message}"))),
+            Err(error) => Handled::Answer(error_text(&id, &format!("invalid: {error}"))),
         },
         ClientMessage::Control { id, token, command } => {
             if let Err(error) = check_token(&shared.config.token, token.as_deref()) {

@@ -8,12 +8,12 @@
 //! the virtual machine), so when the baseline shows the same stalls as the loop, removing them is a matter for
 //! the machine (an isolated core, a host without CPU overcommit), not for the tick.
 
-use super::api::RealtimeReport;
 use super::rt::{self, RtMode};
 use super::schedule::{Schedule, SpinSleepWaiter, Waiter};
 use super::stats::Histogram;
 use serde::Serialize;
 use std::sync::Arc;
+use voxhap_api::RealtimeReport;
 
 /// What one run of the empty schedule counted (its lateness goes into the histogram the caller gives).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

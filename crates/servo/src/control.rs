@@ -3,7 +3,6 @@
 //! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
 //! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
 
-use super::api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
 use super::device::HandTargetInput;
 use super::recorder::{RecorderError, RecorderRequest};
 use super::runner::{
@@ -17,6 +16,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
+use voxhap_api::{ControlCommand, ControlError, ControlReply, SessionApi, Snapshot};
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_record::foxglove_scene::SceneChange;
 use voxhap_record::{create_trace_writer, TraceFormat, TraceMeta};

@@ -21,12 +21,12 @@
 //! trace is flushed every [`FLUSH_INTERVAL`] (whole CSV lines, closed MCAP chunks and Parquet row groups
 //! at most a second old), so an error or a crash is noticed, and loses, at most that much.
 
-use super::api::Snapshot;
 use super::stats::ServoStats;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use voxhap_api::Snapshot;
 use voxhap_record::foxglove_scene::SceneChange;
 use voxhap_record::{error_chain, TraceError, TraceSample, TraceSummary, TraceWriter};
 
@@ -188,6 +188,26 @@ mod tests {
     use glam::DVec3;
     use voxhap_record::{read_trace, CsvTraceWriter, TraceMeta, FLAG_INVALID_VALUES};
 
+    /// A sample ring and a request channel on which `writer` is already asked to start at tick 0.
+    fn started(
+        writer: Box<dyn TraceWriter>,
+    ) -> (
+        rtrb::Producer<TraceSample>,
+        rtrb::Consumer<TraceSample>,
+        mpsc::Sender<RecorderRequest>,
+        mpsc::Receiver<RecorderRequest>,
+    ) {
+        let (producer, consumer) = rtrb::RingBuffer::new(4096);
+        let (requests_tx, requests_rx) = mpsc::channel();
+        requests_tx
+            .send(RecorderRequest::Start {
+                writer,
+                first_tick: 0,
+            })
+            .unwrap();
+        (producer, consumer, requests_tx, requests_rx)
+    }
+
     fn meta() -> TraceMeta {
         TraceMeta::new(
             vec!["surface".into()],
@@ -212,14 +232,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.csv");
         let writer = CsvTraceWriter::create(&path, &meta()).unwrap();
-        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
-        let (requests_tx, requests_rx) = mpsc::channel();
-        requests_tx
-            .send(RecorderRequest::Start {
-                writer: Box::new(writer),
-                first_tick: 0,
-            })
-            .unwrap();
+        let (mut producer, consumer, _requests_tx, requests_rx) = started(Box::new(writer));
         for tick in 0..3000 {
             let mut s = sample(tick);
             if tick == 1000 {
@@ -289,14 +302,7 @@ mod tests {
             written: 0,
             failed_with: Arc::clone(&failed_with),
         };
-        let (mut producer, consumer) = rtrb::RingBuffer::new(4096);
-        let (requests_tx, requests_rx) = mpsc::channel();
-        requests_tx
-            .send(RecorderRequest::Start {
-                writer: Box::new(writer),
-                first_tick: 0,
-            })
-            .unwrap();
+        let (mut producer, consumer, _requests_tx, requests_rx) = started(Box::new(writer));
         let slot: RecorderError = Arc::default();
         let stats = Arc::new(ServoStats::new(1000.0));
         let thread = {

@@ -6,7 +6,7 @@
 //! refused: `strict` refuses to start, `best-effort` (the default) warns and goes on without it, `off` does
 //! not ask. The README's "Real-time setup" section shows the limits to grant.
 
-use super::api::RealtimeReport;
+use voxhap_api::RealtimeReport;
 
 /// What the servo thread asks of the OS.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]

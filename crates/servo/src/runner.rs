@@ -23,7 +23,6 @@
 //!
 //! [`MockWaiter`]: super::schedule::MockWaiter
 
-use super::api::{PrimitiveView, Snapshot};
 use super::device::ServoDevice;
 use super::monitor::DeviceReport;
 use super::schedule::{Schedule, Waiter};
@@ -32,6 +31,7 @@ use super::stats::ServoStats;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use voxhap_api::{PrimitiveView, Snapshot};
 use voxhap_core::haptics::modes::{ModeMemory, MAX_MODES};
 use voxhap_core::haptics::tick::{tick_timed, TickState, TickStatus};
 use voxhap_device::safety::{CouplingCaps, SafetyFlags};

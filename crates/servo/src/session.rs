@@ -18,10 +18,6 @@
 //! snapshot buffer is wait-free. A control command returns once the servo thread has applied it (it polls
 //! the applied-command counter), or with an error that says why and changes nothing.
 
-use super::api::{
-    ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
-    Snapshot, StatsReport,
-};
 use super::control::{trace_meta, Control};
 pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
@@ -32,7 +28,6 @@ use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
 use super::schedule::{SpinSleepWaiter, Waiter};
 use super::setup::SceneSetup;
-use super::slice::{check_request, pick_volume, sample_slice};
 use super::stats::ServoStats;
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -40,6 +35,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
+use voxhap_api::slice::{check_request, pick_volume, sample_slice};
+use voxhap_api::{
+    ControlCommand, ControlError, ControlReply, SceneReport, SessionApi, Slice, SliceRequest,
+    Snapshot, StatsReport,
+};
 use voxhap_device::safety::CouplingCaps;
 use voxhap_device::supervisor::{SupervisorConfig, TickInput};
 use voxhap_record::{TraceError, TraceFormat, TraceSummary};
@@ -544,12 +544,20 @@ impl SessionApi for SessionShared {
     }
 }
 
+/// A `--record` path whose directory does not exist.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("directory {} does not exist", .directory.display())]
+pub struct MissingRecordDirectory {
+    /// The directory the trace would be written in.
+    pub directory: PathBuf,
+}
+
 /// Checks that `path`'s directory exists (for `--record`, before anything starts).
-pub fn check_record_path(path: &Path) -> Result<(), String> {
+pub fn check_record_path(path: &Path) -> Result<(), MissingRecordDirectory> {
     match path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        Some(parent) if !parent.is_dir() => {
-            Err(format!("directory {} does not exist", parent.display()))
-        }
+        Some(parent) if !parent.is_dir() => Err(MissingRecordDirectory {
+            directory: parent.to_path_buf(),
+        }),
         _ => Ok(()),
     }
 }

@@ -12,9 +12,9 @@
 //! maximum is kept exactly). Values up to 2^40 ns (18 minutes) are resolved; larger ones land in the last
 //! bucket.
 
-use super::api::{HistogramReport, RealtimeReport, SafetyReport, StatsReport};
 use std::sync::atomic::{AtomicU32, AtomicU64, AtomicU8, Ordering};
 use std::sync::Mutex;
+use voxhap_api::{HistogramReport, RealtimeReport, SafetyReport, StatsReport};
 use voxhap_device::supervisor::OutputState;
 
 const SUB_BUCKETS: usize = 16;

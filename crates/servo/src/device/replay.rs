@@ -49,33 +49,55 @@ impl Default for ReplayOptions {
     }
 }
 
+/// Why a replay spec or its options were refused: each names the option and the value given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReplaySpecError {
+    /// No trace file before the first comma.
+    #[error("replay: needs a trace file: replay:TRACE[,seek=S][,speed=X][,loop]")]
+    NoTrace,
+    /// `seek=` or `speed=` is not a finite number.
+    #[error("replay {name}={value:?}: not a finite number")]
+    NotANumber {
+        /// `seek` or `speed`.
+        name: &'static str,
+        /// The value given.
+        value: String,
+    },
+    /// An option that is not `seek=S`, `speed=X` or `loop`.
+    #[error("replay option {0:?}: expected seek=S, speed=X or loop")]
+    UnknownOption(String),
+    /// The speed is not in (0, [`MAX_REPLAY_SPEED`]].
+    #[error("replay speed {0} must be > 0 and at most {max}", max = MAX_REPLAY_SPEED)]
+    Speed(f64),
+    /// The seek time is negative or not finite.
+    #[error("replay seek {0} s must be >= 0")]
+    Seek(f64),
+}
+
 /// Parses `TRACE[,seek=S][,speed=X][,loop]` (what follows `replay:` in `--device`).
-pub fn parse_replay_spec(text: &str) -> Result<(PathBuf, ReplayOptions), String> {
+pub fn parse_replay_spec(text: &str) -> Result<(PathBuf, ReplayOptions), ReplaySpecError> {
     let mut parts = text.split(',');
     let path = parts.next().unwrap_or("");
     if path.is_empty() {
-        return Err(
-            "replay: needs a trace file: replay:TRACE[,seek=S][,speed=X][,loop]".to_owned(),
-        );
+        return Err(ReplaySpecError::NoTrace);
     }
     let mut options = ReplayOptions::default();
     for part in parts {
-        let number = |value: &str, name: &str| {
+        let number = |value: &str, name: &'static str| {
             value
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("replay {name}={value:?}: not a finite number"))
+                .ok_or_else(|| ReplaySpecError::NotANumber {
+                    name,
+                    value: value.to_owned(),
+                })
         };
         match part.split_once('=') {
             Some(("seek", value)) => options.seek_s = number(value, "seek")?,
             Some(("speed", value)) => options.speed = number(value, "speed")?,
             None if part == "loop" => options.looped = true,
-            _ => {
-                return Err(format!(
-                    "replay option {part:?}: expected seek=S, speed=X or loop"
-                ))
-            }
+            _ => return Err(ReplaySpecError::UnknownOption(part.to_owned())),
         }
     }
     options.check()?;
@@ -83,15 +105,12 @@ pub fn parse_replay_spec(text: &str) -> Result<(PathBuf, ReplayOptions), String>
 }
 
 impl ReplayOptions {
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), ReplaySpecError> {
         if !(self.speed > 0.0 && self.speed <= MAX_REPLAY_SPEED) {
-            return Err(format!(
-                "replay speed {} must be > 0 and at most {MAX_REPLAY_SPEED}",
-                self.speed
-            ));
+            return Err(ReplaySpecError::Speed(self.speed));
         }
         if !self.seek_s.is_finite() || self.seek_s < 0.0 {
-            return Err(format!("replay seek {} s must be >= 0", self.seek_s));
+            return Err(ReplaySpecError::Seek(self.seek_s));
         }
         Ok(())
     }
@@ -134,9 +153,9 @@ impl ReplayDevice {
         trace: &Trace,
         options: ReplayOptions,
     ) -> Result<ReplayDevice, DeviceError> {
-        options
-            .check()
-            .map_err(|what| DeviceError::Config { what })?;
+        options.check().map_err(|problem| DeviceError::Config {
+            what: problem.to_string(),
+        })?;
         let mut positions_m = Vec::with_capacity(trace.samples.len());
         let mut times_s = Vec::with_capacity(trace.samples.len());
         let mut skipped_samples = 0;
@@ -461,10 +480,12 @@ mod tests {
         );
         assert!(parse_replay_spec("run.csv,speed=0")
             .unwrap_err()
+            .to_string()
             .contains("speed"));
         assert!(parse_replay_spec("run.csv,speed=nan").is_err());
         assert!(parse_replay_spec("run.csv,fast")
             .unwrap_err()
+            .to_string()
             .contains("fast"));
         assert!(parse_replay_spec("").is_err());
     }

@@ -46,24 +46,66 @@ pub enum DeviceSpec {
 }
 
 /// Why `--device` was not understood.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE[,seek=S][,speed=X][,loop]")]
 pub struct DeviceSpecError {
+    /// The `--device` text as given.
     pub given: String,
-    pub problem: String,
+    /// What is wrong with it.
+    pub problem: DeviceSpecProblem,
+}
+
+/// What is wrong with a `--device` text.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DeviceSpecProblem {
+    /// `KIND:` with nothing after the colon.
+    #[error("a path is needed after the colon")]
+    NoPath,
+    /// `woodenhaptics` without a port.
+    #[error(
+        "needs the serial port of the Teensy firmware, e.g. woodenhaptics:/dev/ttyACM0 \
+         (the retired mbed HID firmware is woodenhaptics-hid)"
+    )]
+    WoodenHapticsNeedsPort,
+    /// A replay spec that does not parse.
+    #[error(transparent)]
+    Replay(#[from] super::replay::ReplaySpecError),
+    /// `haply-inverse:` followed by something that is not `ws://HOST:PORT`.
+    #[error("the Inverse Service address must be ws://HOST:PORT (default ws://127.0.0.1:10001)")]
+    InverseUrl,
+    /// `hid` without ids.
+    #[error("hid needs VID:PID")]
+    HidNeedsIds,
+    /// A vendor or product id that is not a 16-bit hex number.
+    #[error("{what} {part:?} is not a 16-bit hex number")]
+    HexId {
+        /// `vendor id` or `product id`.
+        what: &'static str,
+        /// The text given.
+        part: String,
+    },
+    /// An argument after a kind that takes none.
+    #[error("takes no argument")]
+    TakesNoArgument,
+    /// The kind before the colon is unknown.
+    #[error("unknown device kind")]
+    UnknownKind,
+    /// A falcon option other than `firmware=FILE`.
+    #[error("unknown falcon option {0:?} (the only one is firmware=FILE)")]
+    FalconOption(String),
 }
 
 impl FromStr for DeviceSpec {
     type Err = DeviceSpecError;
 
     fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let error = |problem: &str| DeviceSpecError {
+        let error = |problem: DeviceSpecProblem| DeviceSpecError {
             given: text.to_owned(),
-            problem: problem.to_owned(),
+            problem,
         };
         if let Some(rest) = text.strip_prefix("falcon") {
             if rest.is_empty() || rest.starts_with(':') || rest.starts_with(',') {
-                return parse_falcon(rest).map_err(|problem| error(&problem));
+                return parse_falcon(rest).map_err(error);
             }
         }
         let (kind, rest) = match text.split_once(':') {
@@ -72,23 +114,21 @@ impl FromStr for DeviceSpec {
         };
         let path = |rest: Option<&str>| match rest {
             Some(p) if !p.is_empty() => Ok(PathBuf::from(p)),
-            _ => Err(error("a path is needed after the colon")),
+            _ => Err(error(DeviceSpecProblem::NoPath)),
         };
         match kind {
             "sim" if rest.is_none() => Ok(DeviceSpec::Sim),
             "woodenhaptics-hid" if rest.is_none() => Ok(DeviceSpec::WoodenHaptics),
-            "woodenhaptics" if rest.is_none() => Err(error(
-                "needs the serial port of the Teensy firmware, e.g. woodenhaptics:/dev/ttyACM0 \
-                 (the retired mbed HID firmware is woodenhaptics-hid)",
-            )),
+            "woodenhaptics" if rest.is_none() => {
+                Err(error(DeviceSpecProblem::WoodenHapticsNeedsPort))
+            }
             "woodenhaptics" => Ok(DeviceSpec::WoodenHapticsSerial(path(rest)?)),
             "mock" => Ok(DeviceSpec::Mock(path(rest)?)),
             "serial" => Ok(DeviceSpec::Serial(path(rest)?)),
             "haply2diy" => Ok(DeviceSpec::Haply2Diy(path(rest)?)),
             "replay" => {
-                let (path, options) =
-                    super::replay::parse_replay_spec(rest.unwrap_or(""))
-                        .map_err(|problem| error(&problem))?;
+                let (path, options) = super::replay::parse_replay_spec(rest.unwrap_or(""))
+                    .map_err(|problem| error(problem.into()))?;
                 Ok(DeviceSpec::Replay { path, options })
             }
             "haply-inverse" => match rest {
@@ -98,18 +138,20 @@ impl FromStr for DeviceSpec {
                 Some(url) if url.starts_with("ws://") && url.len() > "ws://".len() => {
                     Ok(DeviceSpec::HaplyInverse(url.to_owned()))
                 }
-                Some(_) => Err(error(
-                    "the Inverse Service address must be ws://HOST:PORT (default ws://127.0.0.1:10001)",
-                )),
+                Some(_) => Err(error(DeviceSpecProblem::InverseUrl)),
             },
             "hid" => {
-                let rest = rest.ok_or_else(|| error("hid needs VID:PID"))?;
+                let rest = rest.ok_or_else(|| error(DeviceSpecProblem::HidNeedsIds))?;
                 let mut parts = rest.splitn(3, ':');
-                let mut id = |what: &str| {
+                let mut id = |what: &'static str| {
                     let part = parts.next().unwrap_or("");
                     let digits = part.trim_start_matches("0x");
-                    u16::from_str_radix(digits, 16)
-                        .map_err(|_| error(&format!("{what} {part:?} is not a 16-bit hex number")))
+                    u16::from_str_radix(digits, 16).map_err(|_| {
+                        error(DeviceSpecProblem::HexId {
+                            what,
+                            part: part.to_owned(),
+                        })
+                    })
                 };
                 let vendor_id = id("vendor id")?;
                 let product_id = id("product id")?;
@@ -120,14 +162,14 @@ impl FromStr for DeviceSpec {
                     serial,
                 })
             }
-            "sim" | "woodenhaptics-hid" => Err(error("takes no argument")),
-            _ => Err(error("unknown device kind")),
+            "sim" | "woodenhaptics-hid" => Err(error(DeviceSpecProblem::TakesNoArgument)),
+            _ => Err(error(DeviceSpecProblem::UnknownKind)),
         }
     }
 }
 
 /// The part of a `falcon` spec after the word: `[:SERIAL|:PATH][,firmware=FILE]`.
-fn parse_falcon(rest: &str) -> Result<DeviceSpec, String> {
+fn parse_falcon(rest: &str) -> Result<DeviceSpec, DeviceSpecProblem> {
     let rest = rest.strip_prefix(':').unwrap_or(rest);
     let mut parts = rest.split(',');
     let select = parts.next().filter(|s| !s.is_empty()).map(str::to_owned);
@@ -135,11 +177,7 @@ fn parse_falcon(rest: &str) -> Result<DeviceSpec, String> {
     for option in parts {
         match option.split_once('=') {
             Some(("firmware", path)) if !path.is_empty() => firmware = Some(PathBuf::from(path)),
-            _ => {
-                return Err(format!(
-                    "unknown falcon option {option:?} (the only one is firmware=FILE)"
-                ))
-            }
+            _ => return Err(DeviceSpecProblem::FalconOption(option.to_owned())),
         }
     }
     Ok(DeviceSpec::Falcon { select, firmware })

@@ -12,5 +12,6 @@ pub mod schema;
 
 pub use runner::{run, SimRunError, SimSummary};
 pub use scenario::{
-    LoadedScenario, Scenario, ScenarioError, SolverSettings, VolumePart, VolumeSpec,
+    LoadedScenario, Scenario, ScenarioError, ScenarioValueError, SolverSettings,
+    SolverSettingsError, VolumePart, VolumeSpec,
 };

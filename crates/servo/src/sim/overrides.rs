@@ -22,11 +22,76 @@ pub enum OverrideError {
         /// The override as given.
         text: String,
         /// What is wrong.
-        problem: String,
+        problem: KeyError,
     },
     /// The scenario text is not TOML.
     #[error("the scenario is not valid TOML: {0}")]
     Scenario(String),
+}
+
+/// Why a key path cannot be set in a scenario table.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum KeyError {
+    /// A part of the path is not a key name.
+    #[error("{part:?} is not a key name (letters, digits, '_', '-')")]
+    BadName {
+        /// The part as given.
+        part: String,
+    },
+    /// An index is opened and never closed.
+    #[error("{part:?}: '[' without ']'")]
+    Unclosed {
+        /// The part as given.
+        part: String,
+    },
+    /// What is between the brackets is not a number.
+    #[error("{part:?}: {index:?} is not an array index")]
+    BadIndex {
+        /// The part as given.
+        part: String,
+        /// The text between the brackets.
+        index: String,
+    },
+    /// Text follows a closing bracket.
+    #[error("{part:?}: unexpected {rest:?} after ']'")]
+    Trailing {
+        /// The part as given.
+        part: String,
+        /// The text after the bracket.
+        rest: String,
+    },
+    /// The path walks into a value that is not a table.
+    #[error("{walked} is not a table, so it has no key {name:?}")]
+    NotATable {
+        /// The path up to the value.
+        walked: String,
+        /// The key asked of it.
+        name: String,
+    },
+    /// The path indexes a value that is not an array.
+    #[error("{walked} is not an array, so it has no [{index}]")]
+    NotAnArray {
+        /// The path up to the value.
+        walked: String,
+        /// The index asked of it.
+        index: usize,
+    },
+    /// The index is past the end of the array.
+    #[error("{walked}[{index}]: {walked} has {len} elements (indices from 0)")]
+    OutOfRange {
+        /// The path up to the array.
+        walked: String,
+        /// The index asked.
+        index: usize,
+        /// The array's length.
+        len: usize,
+    },
+    /// The key has no steps.
+    #[error("{key:?}: empty key")]
+    Empty {
+        /// The key as given.
+        key: String,
+    },
 }
 
 /// One step of a key path.
@@ -36,7 +101,7 @@ enum Step {
     Index(usize),
 }
 
-fn parse_path(key: &str) -> Result<Vec<Step>, String> {
+fn parse_path(key: &str) -> Result<Vec<Step>, KeyError> {
     let mut steps = Vec::new();
     for part in key.split('.') {
         let (name, mut rest) = match part.find('[') {
@@ -48,22 +113,26 @@ fn parse_path(key: &str) -> Result<Vec<Step>, String> {
                 .bytes()
                 .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
         {
-            return Err(format!(
-                "{part:?} is not a key name (letters, digits, '_', '-')"
-            ));
+            return Err(KeyError::BadName {
+                part: part.to_owned(),
+            });
         }
         steps.push(Step::Key(name.to_owned()));
         while !rest.is_empty() {
-            let close = rest
-                .find(']')
-                .ok_or_else(|| format!("{part:?}: '[' without ']'"))?;
-            let index: usize = rest[1..close]
-                .parse()
-                .map_err(|_| format!("{part:?}: {:?} is not an array index", &rest[1..close]))?;
+            let close = rest.find(']').ok_or_else(|| KeyError::Unclosed {
+                part: part.to_owned(),
+            })?;
+            let index: usize = rest[1..close].parse().map_err(|_| KeyError::BadIndex {
+                part: part.to_owned(),
+                index: rest[1..close].to_owned(),
+            })?;
             steps.push(Step::Index(index));
             rest = &rest[close + 1..];
             if !rest.is_empty() && !rest.starts_with('[') {
-                return Err(format!("{part:?}: unexpected {rest:?} after ']'"));
+                return Err(KeyError::Trailing {
+                    part: part.to_owned(),
+                    rest: rest.to_owned(),
+                });
             }
         }
     }
@@ -93,7 +162,7 @@ pub fn split_override(text: &str) -> Result<(&str, &str), OverrideError> {
 }
 
 /// Sets `key` (a dotted path with indices) to `value` in `table`.
-pub fn set_value(table: &mut Table, key: &str, value: Value) -> Result<(), String> {
+pub fn set_value(table: &mut Table, key: &str, value: Value) -> Result<(), KeyError> {
     let steps = parse_path(key)?;
     let mut root = Value::Table(std::mem::take(table));
     let result = set_in(&mut root, &steps, value, key);
@@ -103,7 +172,7 @@ pub fn set_value(table: &mut Table, key: &str, value: Value) -> Result<(), Strin
     result
 }
 
-fn set_in(node: &mut Value, steps: &[Step], value: Value, key: &str) -> Result<(), String> {
+fn set_in(node: &mut Value, steps: &[Step], value: Value, key: &str) -> Result<(), KeyError> {
     let mut current: &mut Value = node;
     let mut walked = String::new();
     for (i, step) in steps.iter().enumerate() {
@@ -111,9 +180,10 @@ fn set_in(node: &mut Value, steps: &[Step], value: Value, key: &str) -> Result<(
         match step {
             Step::Key(name) => {
                 let Value::Table(table) = current else {
-                    return Err(format!(
-                        "{walked} is not a table, so it has no key {name:?}"
-                    ));
+                    return Err(KeyError::NotATable {
+                        walked,
+                        name: name.clone(),
+                    });
                 };
                 if !walked.is_empty() {
                     walked.push('.');
@@ -129,12 +199,19 @@ fn set_in(node: &mut Value, steps: &[Step], value: Value, key: &str) -> Result<(
             }
             Step::Index(index) => {
                 let Value::Array(array) = current else {
-                    return Err(format!("{walked} is not an array, so it has no [{index}]"));
+                    return Err(KeyError::NotAnArray {
+                        walked,
+                        index: *index,
+                    });
                 };
                 let len = array.len();
-                let slot = array.get_mut(*index).ok_or_else(|| {
-                    format!("{walked}[{index}]: {walked} has {len} elements (indices from 0)")
-                })?;
+                let Some(slot) = array.get_mut(*index) else {
+                    return Err(KeyError::OutOfRange {
+                        walked,
+                        index: *index,
+                        len,
+                    });
+                };
                 walked.push_str(&format!("[{index}]"));
                 if last {
                     *slot = value;
@@ -144,7 +221,9 @@ fn set_in(node: &mut Value, steps: &[Step], value: Value, key: &str) -> Result<(
             }
         }
     }
-    Err(format!("{key:?}: empty key"))
+    Err(KeyError::Empty {
+        key: key.to_owned(),
+    })
 }
 
 /// Applies `overrides` (`KEY=VALUE` each, in order) to scenario text; returns the new text.

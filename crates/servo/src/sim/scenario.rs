@@ -144,19 +144,13 @@ pub const MAX_SWEEPS_LIMIT: u32 = 10_000_000;
 
 impl SolverSettings {
     /// Checks the settings; the message names the key (`solver.max_sweeps: ...`).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SolverSettingsError> {
         let (lo, hi) = TOLERANCE_RANGE_M;
         if !(self.tolerance_m.is_finite() && self.tolerance_m >= lo && self.tolerance_m <= hi) {
-            return Err(format!(
-                "solver.tolerance_m: must be a number from {lo:e} to {hi:e} m, got {}",
-                self.tolerance_m
-            ));
+            return Err(SolverSettingsError::Tolerance(self.tolerance_m));
         }
         if self.max_sweeps == 0 || self.max_sweeps > MAX_SWEEPS_LIMIT {
-            return Err(format!(
-                "solver.max_sweeps: must be from 1 to {MAX_SWEEPS_LIMIT}, got {}",
-                self.max_sweeps
-            ));
+            return Err(SolverSettingsError::MaxSweeps(self.max_sweeps));
         }
         Ok(())
     }
@@ -169,6 +163,82 @@ impl SolverSettings {
             ..SolverConfig::default()
         }
     }
+}
+
+/// What is wrong with a `[solver]` table: the key and the value given.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum SolverSettingsError {
+    /// `tolerance_m` is outside [`TOLERANCE_RANGE_M`].
+    #[error("solver.tolerance_m: must be a number from {lo:e} to {hi:e} m, got {0}", lo = TOLERANCE_RANGE_M.0, hi = TOLERANCE_RANGE_M.1)]
+    Tolerance(f64),
+    /// `max_sweeps` is 0 or above [`MAX_SWEEPS_LIMIT`].
+    #[error("solver.max_sweeps: must be from 1 to {max}, got {0}", max = MAX_SWEEPS_LIMIT)]
+    MaxSweeps(u32),
+}
+
+/// What is wrong with a scenario's values: each names the key and the value given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScenarioValueError {
+    /// A key that must be a finite positive number is not.
+    #[error("{key}: must be a finite number > 0, got {value}")]
+    NotPositive {
+        /// The key.
+        key: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// `voxhap sim` needs `duration_s`.
+    #[error("duration_s: missing (voxhap sim needs it)")]
+    MissingDuration,
+    /// `voxhap sim` was given coupling damping it does not render.
+    #[error(
+        "damping_n_s_per_m: voxhap sim does not render coupling damping; remove it or use serve"
+    )]
+    DampingInSim,
+    /// `damping_n_s_per_m` is negative or not finite.
+    #[error("damping_n_s_per_m: must be a finite number >= 0, got {0}")]
+    Damping(f64),
+    /// `duration_s` is above [`MAX_DURATION_S`].
+    #[error("duration_s: {0} s is longer than the {max} s limit", max = MAX_DURATION_S)]
+    TooLong(f64),
+    /// `rate_hz` is outside [`RATE_HZ_RANGE`].
+    #[error("rate_hz: {0} Hz is out of range {lo}..={hi} Hz", lo = RATE_HZ_RANGE.start(), hi = RATE_HZ_RANGE.end())]
+    Rate(f64),
+    /// `arm.substeps_per_tick` is outside [`SUBSTEPS_PER_TICK_RANGE`].
+    #[error("arm.substeps_per_tick: {0} is out of range {lo}..={hi}", lo = SUBSTEPS_PER_TICK_RANGE.start(), hi = SUBSTEPS_PER_TICK_RANGE.end())]
+    Substeps(u32),
+    /// `k_n_per_m` is outside [`STIFFNESS_RANGE_N_PER_M`].
+    #[error("k_n_per_m: {k} N/m is out of range: give a number from {lo} to {hi} N/m", k = readable(*.0), lo = readable(STIFFNESS_RANGE_N_PER_M.0), hi = readable(STIFFNESS_RANGE_N_PER_M.1))]
+    Stiffness(f64),
+    /// The `[solver]` table.
+    #[error(transparent)]
+    Solver(#[from] SolverSettingsError),
+    /// `duration_s x rate_hz` is above [`MAX_TICKS`].
+    #[error("duration_s x rate_hz: {0} ticks is more than the {max}-tick limit", max = MAX_TICKS)]
+    TooManyTicks(u64),
+    /// `duration_s` at `rate_hz` rounds to no tick.
+    #[error("duration_s: {duration_s} s at {rate_hz} Hz is less than one tick")]
+    LessThanOneTick {
+        /// The duration given (s).
+        duration_s: f64,
+        /// The rate given (Hz).
+        rate_hz: f64,
+    },
+    /// `start_m` is not finite or outside [`MAX_POSITION_M`].
+    #[error("start_m: must be three finite numbers from -{max} to {max} m, got {got:?}", max = MAX_POSITION_M, got = .0.to_array())]
+    Start(DVec3),
+    /// Modes name volumes but there are none.
+    #[error("volumes: modes name volumes but none are given")]
+    NoVolumes,
+    /// `volumes[i]` has both a builtin and a file.
+    #[error("volumes[{0}]: give one of builtin and file, not both")]
+    BuiltinAndFile(usize),
+    /// `volumes[i]` has neither a builtin nor a file.
+    #[error("volumes[{0}]: needs builtin or file")]
+    NoSource(usize),
+    /// `volumes[i].part` is set on a file volume.
+    #[error("volumes[{0}].part: only used with a two-field builtin")]
+    PartWithFile(usize),
 }
 
 /// `[[volumes]]`: a named volume from a built-in generator or a file. Exactly one of `builtin`, `file`.
@@ -359,7 +429,9 @@ impl Scenario {
                 format!("{path}: {message}")
             })
         })?;
-        scenario.validate(purpose).map_err(invalid)?;
+        scenario
+            .validate(purpose)
+            .map_err(|problem| invalid(problem.to_string()))?;
         Ok(scenario)
     }
 
@@ -373,104 +445,65 @@ impl Scenario {
     }
 
     /// The one validator of scene files (module docs).
-    pub fn validate(&self, purpose: Purpose) -> Result<(), String> {
-        let positive = |key: &str, value: f64| {
+    pub fn validate(&self, purpose: Purpose) -> Result<(), ScenarioValueError> {
+        use ScenarioValueError as E;
+        let positive = |key: &'static str, value: f64| {
             if value.is_finite() && value > 0.0 {
                 Ok(())
             } else {
-                Err(format!("{key}: must be a finite number > 0, got {value}"))
+                Err(E::NotPositive { key, value })
             }
         };
         if purpose == Purpose::Sim && self.duration_s == 0.0 {
-            return Err("duration_s: missing (voxhap sim needs it)".to_owned());
+            return Err(E::MissingDuration);
         }
         if purpose == Purpose::Sim || self.duration_s != 0.0 {
             positive("duration_s", self.duration_s)?;
         }
         if self.damping_n_s_per_m != 0.0 && purpose == Purpose::Sim {
-            return Err(
-                "damping_n_s_per_m: voxhap sim does not render coupling damping; remove it or use serve"
-                    .to_owned(),
-            );
+            return Err(E::DampingInSim);
         }
         if !(self.damping_n_s_per_m.is_finite() && self.damping_n_s_per_m >= 0.0) {
-            return Err(format!(
-                "damping_n_s_per_m: must be a finite number >= 0, got {}",
-                self.damping_n_s_per_m
-            ));
+            return Err(E::Damping(self.damping_n_s_per_m));
         }
         if self.duration_s > MAX_DURATION_S {
-            return Err(format!(
-                "duration_s: {} s is longer than the {MAX_DURATION_S} s limit",
-                self.duration_s
-            ));
+            return Err(E::TooLong(self.duration_s));
         }
         positive("rate_hz", self.rate_hz)?;
         if !RATE_HZ_RANGE.contains(&self.rate_hz) {
-            return Err(format!(
-                "rate_hz: {} Hz is out of range {}..={} Hz",
-                self.rate_hz,
-                RATE_HZ_RANGE.start(),
-                RATE_HZ_RANGE.end()
-            ));
+            return Err(E::Rate(self.rate_hz));
         }
         if !SUBSTEPS_PER_TICK_RANGE.contains(&self.arm.substeps_per_tick) {
-            return Err(format!(
-                "arm.substeps_per_tick: {} is out of range {}..={}",
-                self.arm.substeps_per_tick,
-                SUBSTEPS_PER_TICK_RANGE.start(),
-                SUBSTEPS_PER_TICK_RANGE.end()
-            ));
+            return Err(E::Substeps(self.arm.substeps_per_tick));
         }
         positive("k_n_per_m", self.k_n_per_m)?;
         let (k_min, k_max) = STIFFNESS_RANGE_N_PER_M;
         if !(k_min..=k_max).contains(&self.k_n_per_m) {
-            return Err(format!(
-                "k_n_per_m: {} N/m is out of range: give a number from {} to {} N/m",
-                readable(self.k_n_per_m),
-                readable(k_min),
-                readable(k_max)
-            ));
+            return Err(E::Stiffness(self.k_n_per_m));
         }
         self.solver.validate()?;
         if self.tick_count() > MAX_TICKS {
-            return Err(format!(
-                "duration_s x rate_hz: {} ticks is more than the {MAX_TICKS}-tick limit",
-                self.tick_count()
-            ));
+            return Err(E::TooManyTicks(self.tick_count()));
         }
         if purpose == Purpose::Sim && self.tick_count() == 0 {
-            return Err(format!(
-                "duration_s: {} s at {} Hz is less than one tick",
-                self.duration_s, self.rate_hz
-            ));
+            return Err(E::LessThanOneTick {
+                duration_s: self.duration_s,
+                rate_hz: self.rate_hz,
+            });
         }
         if let Some(start) = self.start_m {
             if !(start.is_finite() && start.abs().max_element() <= MAX_POSITION_M) {
-                return Err(format!(
-                    "start_m: must be three finite numbers from -{MAX_POSITION_M} to {MAX_POSITION_M} m, got {:?}",
-                    start.to_array()
-                ));
+                return Err(E::Start(start));
             }
         }
         if self.volumes.is_empty() && self.modes.iter().any(|m| m.volume.is_some()) {
-            return Err("volumes: modes name volumes but none are given".to_owned());
+            return Err(E::NoVolumes);
         }
         for (index, volume) in self.volumes.iter().enumerate() {
             match (&volume.builtin, &volume.file) {
-                (Some(_), Some(_)) => {
-                    return Err(format!(
-                        "volumes[{index}]: give one of builtin and file, not both"
-                    ))
-                }
-                (None, None) => {
-                    return Err(format!("volumes[{index}]: needs builtin or file"));
-                }
-                (None, Some(_)) if volume.part.is_some() => {
-                    return Err(format!(
-                        "volumes[{index}].part: only used with a two-field builtin"
-                    ))
-                }
+                (Some(_), Some(_)) => return Err(E::BuiltinAndFile(index)),
+                (None, None) => return Err(E::NoSource(index)),
+                (None, Some(_)) if volume.part.is_some() => return Err(E::PartWithFile(index)),
                 _ => {}
             }
         }
@@ -542,285 +575,5 @@ impl LoadedScenario {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use proptest::prelude::*;
-
-    const MINIMAL: &str = r#"
-duration_s = 0.5
-k_n_per_m = 500.0
-
-[[volumes]]
-name = "density"
-builtin = "sphere"
-
-[[modes]]
-kind = "surface"
-volume = "density"
-transfer = [[0.45, 0.0], [0.5, 2.0]]
-
-[arm]
-mass_kg = 0.1
-damping_n_s_per_m = 1.0
-workspace = { shape = "unbounded" }
-
-[hand]
-stiffness_n_per_m = 300.0
-damping_n_s_per_m = 3.0
-
-[path]
-kind = "line"
-from_m = [0.0, 0.0, 0.045]
-to_m = [0.0, 0.0, 0.02]
-duration_s = 0.5
-"#;
-
-    /// The error with its sources, as `voxhap` prints it.
-    fn chain(err: &dyn std::error::Error) -> String {
-        let mut text = err.to_string();
-        let mut source = err.source();
-        while let Some(inner) = source {
-            text = format!("{text}: {inner}");
-            source = inner.source();
-        }
-        text
-    }
-
-    fn error_of(text: &str) -> String {
-        Scenario::parse(text, "test.toml").unwrap_err().to_string()
-    }
-
-    #[test]
-    fn minimal_scenario_parses_and_loads() {
-        let scenario = Scenario::parse(MINIMAL, "test.toml").unwrap();
-        assert_eq!(scenario.tick_count(), 500);
-        assert_eq!(scenario.rate_hz, 1000.0);
-        let loaded = scenario.load(Path::new("."), "test.toml").unwrap();
-        assert_eq!(loaded.scene.mode_names(), ["surface"]);
-        assert_eq!(loaded.start_m, DVec3::new(0.0, 0.0, 0.045));
-        assert_eq!(loaded.volume_description, "builtin:sphere");
-    }
-
-    #[test]
-    fn errors_name_the_key() {
-        let typo = MINIMAL.replace("k_n_per_m", "k_n_per_mm");
-        assert!(
-            error_of(&typo).contains("k_n_per_mm"),
-            "{}",
-            error_of(&typo)
-        );
-        let bad_tf = MINIMAL.replace("[[0.45, 0.0], [0.5, 2.0]]", "[[0.5, 0.0], [0.45, 2.0]]");
-        let message = error_of(&bad_tf);
-        assert!(
-            message.contains("modes[0].transfer") && message.contains("x must increase"),
-            "{message}"
-        );
-        let unknown_mode_key =
-            MINIMAL.replace("kind = \"surface\"", "kind = \"surface\"\nstiffness = 3");
-        assert!(
-            error_of(&unknown_mode_key).contains("stiffness"),
-            "{}",
-            error_of(&unknown_mode_key)
-        );
-        let negative = MINIMAL.replace("duration_s = 0.5\nk_n", "duration_s = -1.0\nk_n");
-        assert!(
-            error_of(&negative).starts_with("test.toml: duration_s: must be"),
-            "{}",
-            error_of(&negative)
-        );
-        let both = MINIMAL.replace(
-            "builtin = \"sphere\"",
-            "builtin = \"sphere\"\nfile = \"x.nii\"",
-        );
-        assert!(error_of(&both).contains("volumes[0]: give one of builtin and file"));
-        let missing_arm = MINIMAL.replace("mass_kg = 0.1\n", "");
-        assert!(
-            error_of(&missing_arm).contains("mass_kg"),
-            "{}",
-            error_of(&missing_arm)
-        );
-    }
-
-    /// A wrong-typed value, an unknown key, a key of another kind or a missing key in any table is
-    /// refused naming the key's full path (tables chosen by `kind`/`shape` included: device::sim::tagged).
-    #[test]
-    fn every_table_names_the_key_in_a_serde_error() {
-        let path_line = "[path]\nkind = \"line\"\nfrom_m = [0.0, 0.0, 0.045]\nto_m = [0.0, 0.0, 0.02]\nduration_s = 0.5\n";
-        let with_path = |path: &str| MINIMAL.replace(path_line, path);
-        let with_workspace =
-            |workspace: &str| MINIMAL.replace("workspace = { shape = \"unbounded\" }", workspace);
-        let cases: Vec<(String, &str)> = vec![
-            (
-                MINIMAL.replace("k_n_per_m = 500.0", "k_n_per_m = \"stiff\""),
-                "test.toml: k_n_per_m: invalid type: string \"stiff\", expected f64 (line 3, column 13)",
-            ),
-            (
-                format!("{MINIMAL}\n[solver]\nmax_sweeps = \"many\"\n"),
-                "test.toml: solver.max_sweeps: invalid type: string \"many\", expected u32 (line ",
-            ),
-            (
-                MINIMAL.replace("builtin = \"sphere\"", "builtin = \"sphere\"\npart = 3"),
-                "test.toml: volumes[0].part: wanted string or table (line 8, column 8)",
-            ),
-            (
-                MINIMAL.replace("kind = \"surface\"", "kind = \"surface\"\nenabled = \"yes\""),
-                "test.toml: modes[0].enabled: invalid type: string \"yes\", expected a boolean",
-            ),
-            (
-                MINIMAL.replace("mass_kg = 0.1", "mass_kg = \"heavy\""),
-                "test.toml: arm.mass_kg: invalid type: string \"heavy\", expected f64",
-            ),
-            (
-                with_workspace("workspace = { shape = \"sphere\", center_m = [0.0, 0.0, 0.0], radius_m = \"big\" }"),
-                "test.toml: arm.workspace.radius_m: invalid type: string \"big\", expected f64",
-            ),
-            (
-                with_workspace("workspace = { shape = \"box\", min_m = [0.0, 0.0], max_m = [0.1, 0.1, 0.1] }"),
-                "test.toml: arm.workspace.min_m: invalid length 2",
-            ),
-            (
-                with_workspace("workspace = { shape = \"unbounded\", radius = 0.1 }"),
-                "test.toml: arm.workspace.radius: unknown field `radius`, expected one of `shape`, `min_m`, `max_m`, `center_m`, `radius_m`",
-            ),
-            (
-                with_workspace("workspace = { shape = \"unbounded\", radius_m = 0.1 }"),
-                "test.toml: arm.workspace: shape = \"unbounded\" takes no key `radius_m` (it takes none)",
-            ),
-            (
-                with_workspace("workspace = { shape = \"ball\" }"),
-                "test.toml: arm.workspace.shape: unknown variant `ball`, expected one of `box`, `sphere`, `unbounded`",
-            ),
-            (
-                MINIMAL.replace("stiffness_n_per_m = 300.0", "stiffness_n_per_m = [300.0]"),
-                "test.toml: hand.stiffness_n_per_m: invalid type: sequence, expected f64",
-            ),
-            (
-                with_path("[path]\nkind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04]]\nspeed_m_per_s = \"fast\"\n"),
-                "test.toml: path.speed_m_per_s: invalid type: string \"fast\", expected f64",
-            ),
-            (
-                with_path("[path]\nkind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, \"y\", 0.0]]\nspeed_m_per_s = 0.1\n"),
-                "test.toml: path.points_m[1]",
-            ),
-            (
-                with_path("[path]\nkind = \"raster\"\norigin_m = [0.0, 0.0, 0.0]\nsweep_m = [0.01, 0.0, 0.0]\nstep_m = [0.0, 0.01, 0.0]\nlines = -2\nspeed_m_per_s = 0.1\n"),
-                "test.toml: path.lines: invalid value: integer `-2`, expected u32",
-            ),
-            (
-                with_path("[path]\nkind = \"hold\"\nat_m = [0.0, 0.0, 0.04]\nspeed = 2\n"),
-                "test.toml: path.speed: unknown field `speed`, expected one of `kind`, `at_m`,",
-            ),
-            (
-                with_path("[path]\nkind = \"hold\"\nat_m = [0.0, 0.0, 0.04]\nradius_m = 0.1\n"),
-                "test.toml: path: kind = \"hold\" takes no key `radius_m` (its keys: `at_m`)",
-            ),
-            (
-                with_path("[path]\nkind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\n"),
-                "test.toml: path: missing field `duration_s` (kind = \"line\" needs it)",
-            ),
-            (
-                with_path("[path]\nkind = \"walk\"\n"),
-                "test.toml: path.kind: unknown variant `walk`, expected one of `hold`, `line`, `waypoints`, `circle`, `raster`, `force`",
-            ),
-            (
-                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -1.0]\nduration_s = \"slow\"\n"),
-                "test.toml: path.profile.duration_s: invalid type: string \"slow\", expected f64",
-            ),
-            (
-                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"constant\"\nforce_n = [0.0, 0.0, -1.0]\nfrequency_hz = 2.0\n"),
-                "test.toml: path.profile: shape = \"constant\" takes no key `frequency_hz` (its keys: `force_n`)",
-            ),
-            (
-                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"sine\"\noffset_n = [0.0, 0.0, 0.0]\namplitude_n = [0.0, 0.0, 1.0]\n"),
-                "test.toml: path.profile: missing field `frequency_hz` (shape = \"sine\" needs it)",
-            ),
-            (
-                with_path("[path]\nkind = \"force\"\n[path.profile]\nshape = \"constant\"\nforce = [0.0, 0.0, -1.0]\n"),
-                "test.toml: path.profile.force: unknown field `force`, expected one of `shape`, `force_n`,",
-            ),
-        ];
-        for (text, expected) in &cases {
-            let message = error_of(text);
-            assert!(
-                message.contains(expected),
-                "expected {expected:?}\n     got {message:?}"
-            );
-            assert!(!message.contains('\n'), "one line: {message:?}");
-        }
-        // Text rewritten by --set: no line and column (they would point into the rewritten text).
-        let edited = Scenario::parse_edited(&cases[0].0, "test.toml (with --set)")
-            .unwrap_err()
-            .to_string();
-        assert_eq!(
-            edited,
-            "test.toml (with --set): k_n_per_m: invalid type: string \"stiff\", expected f64"
-        );
-    }
-
-    #[test]
-    fn load_errors_name_the_volume_and_mode() {
-        let wrong_kind = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"rankine\"");
-        let err = Scenario::parse(&wrong_kind, "t.toml")
-            .unwrap()
-            .load(Path::new("."), "t.toml")
-            .unwrap_err();
-        let err = chain(&err);
-        assert!(
-            err.contains("modes[0].volume") && err.contains("vector volume"),
-            "{err}"
-        );
-        let missing_file = MINIMAL.replace("builtin = \"sphere\"", "file = \"no-such.nii.gz\"");
-        let err = Scenario::parse(&missing_file, "t.toml")
-            .unwrap()
-            .load(Path::new("/nonexistent-dir"), "t.toml")
-            .unwrap_err();
-        let err = chain(&err);
-        assert!(
-            err.contains("volumes[0] (density)") && err.contains("/nonexistent-dir/no-such.nii.gz"),
-            "{err}"
-        );
-        let two_fields = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"density-flow\"");
-        let err = Scenario::parse(&two_fields, "t.toml")
-            .unwrap()
-            .load(Path::new("."), "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("set part"), "{err}");
-        let bad_arm = MINIMAL.replace("mass_kg = 0.1", "mass_kg = -0.1");
-        let err = Scenario::parse(&bad_arm, "t.toml")
-            .unwrap()
-            .load(Path::new("."), "t.toml")
-            .unwrap_err();
-        assert_eq!(
-            chain(&err),
-            "t.toml: simulated arm parameter arm.mass_kg = -0.1 must be finite and > 0"
-        );
-    }
-
-    proptest! {
-        /// Arbitrary text never panics the parser.
-        #[test]
-        fn arbitrary_text_never_panics(text in "\\PC{0,400}") {
-            let _ = Scenario::parse(&text, "fuzz.toml");
-        }
-
-        /// Mutations of a valid scenario (bytes replaced, cut, or spliced) are parsed or refused, never panic,
-        /// and whatever parses also loads or is refused cleanly.
-        #[test]
-        fn mutated_scenarios_never_panic(
-            edits in proptest::collection::vec((0usize..2000, any::<u8>()), 0..6),
-            cut in 0usize..2000,
-        ) {
-            let mut bytes = MINIMAL.as_bytes().to_vec();
-            for (at, byte) in edits {
-                let at = at % bytes.len();
-                bytes[at] = byte;
-            }
-            bytes.truncate(cut.max(1).min(bytes.len()));
-            let text = String::from_utf8_lossy(&bytes);
-            if let Ok(scenario) = Scenario::parse(&text, "fuzz.toml") {
-                let _ = scenario.load(Path::new("/nonexistent-dir"), "fuzz.toml");
-            }
-        }
-    }
-}
+#[path = "scenario_tests.rs"]
+mod tests;

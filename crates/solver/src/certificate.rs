@@ -27,6 +27,7 @@
 
 use super::linalg::outer;
 use super::{project, Item};
+use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
 use glam::{DMat3, DVec3};
 
@@ -603,7 +604,7 @@ pub(crate) fn certify_into(
             let shares = shares_b * (1.0 + (n + 2.0) * EPS) + moved_share_weight * shift_m;
             let residual = residual_bound(&total_b) + k * shift_m;
             let bound_b = 2.0 * shift_m
-                + (2.0 * shares / k).sqrt()
+                + sqrt(2.0 * shares / k)
                 + residual / k
                 + linear_m
                 + (subgradient_sensitivity * shift_m + direction_rounding_n) / k;
@@ -761,7 +762,7 @@ fn point_lambda_n(s: f64, v: DVec3, partner: &Partner) -> f64 {
 fn sharp_distance_m(k: f64, sharpness_n: f64, residual_n: f64, shares_j: f64) -> f64 {
     // A lower bound on sharpness - residual: d grows as it falls, so rounding it down only overstates d.
     let beta = (sharpness_n - residual_n) - 2.0 * EPS * (sharpness_n + residual_n);
-    let root = (beta * beta + 4.0 * k * shares_j).sqrt();
+    let root = sqrt(beta * beta + 4.0 * k * shares_j);
     if beta > 0.0 {
         2.0 * shares_j / (beta + root)
     } else {
@@ -817,5 +818,5 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     // |M^+ sum_i P_i r_i| <= sum_i |P_i r_i| / sqrt(lambda_min^+), since P_i <= M; less what rounding can
     // have added to the eigenvalue.
     let lower = smallest_positive - eigenvalue_error(system, kinks.count);
-    (lower > 0.0).then(|| kinks.distance_sum_m / lower.sqrt())
+    (lower > 0.0).then(|| kinks.distance_sum_m / sqrt(lower))
 }

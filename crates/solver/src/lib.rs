@@ -34,21 +34,40 @@
 //!   of at most N allocates nothing (tests/alloc_free.rs). The budget bounds sweeps and, given a clock,
 //!   nanoseconds.
 
+#![cfg_attr(not(feature = "std"), no_std)]
+
+#[cfg(feature = "alloc")]
+extern crate alloc;
+
 pub mod active_set;
+#[cfg(feature = "std")]
 pub mod bench_scenes;
 mod certificate;
 pub mod clock;
 pub mod linalg;
+mod math;
 mod newton;
 pub mod primitive;
+#[cfg(feature = "std")]
 pub mod reference;
+pub mod storage;
 
 use crate::clock::Clock;
 use crate::primitive::PrimitiveKind;
 pub use crate::primitive::{Primitive, PrimitiveError};
+#[cfg(feature = "alloc")]
+use crate::storage::Heap;
+use crate::storage::{Buffer, Storage};
 use certificate::{certify, CompensatedSum, Frame};
 use glam::DVec3;
 use serde::Serialize;
+
+/// The storage a plain `Solver` uses: growable with `alloc`, else 64 primitives in arrays.
+#[cfg(feature = "alloc")]
+pub type DefaultStorage = Heap;
+/// The storage a plain `Solver` uses: growable with `alloc`, else 64 primitives in arrays.
+#[cfg(not(feature = "alloc"))]
+pub type DefaultStorage = storage::Fixed<64>;
 
 /// Solver settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -115,6 +134,8 @@ pub enum SolveError {
     BadProbe([f64; 3]),
     #[error("previous proxy position must be three finite numbers (m), got {0:?}")]
     BadPreviousProxy([f64; 3]),
+    #[error("{given} non-directed primitives given, but this solver's fixed storage holds at most {capacity}")]
+    TooManyPrimitives { given: usize, capacity: usize },
 }
 
 /// How a solve ended.
@@ -160,18 +181,31 @@ pub(crate) struct Item {
     pub strength_n: f64,
 }
 
-/// The solver and its workspace (CONTRIBUTING.md item 3: allocate up front, `clear()` instead of rebuild).
+/// What an unused slot of a fixed-size workspace holds: a primitive of no strength.
+impl Default for Item {
+    fn default() -> Self {
+        Self {
+            kind: PrimitiveKind::Directed,
+            position_m: DVec3::ZERO,
+            direction: DVec3::ZERO,
+            strength_n: 0.0,
+        }
+    }
+}
+
+/// The solver and its workspace (CONTRIBUTING.md item 3: allocate up front, `clear()` instead of rebuild), kept
+/// in `S`: [`storage::Heap`] grows it, [`storage::Fixed`] holds it in arrays (no allocator).
 #[derive(Debug, Clone)]
-pub struct Solver {
+pub struct Solver<S: Storage = DefaultStorage> {
     config: SolverConfig,
-    items: Vec<Item>,
-    dual: Vec<DVec3>,
+    items: S::Buf<Item>,
+    dual: S::Buf<DVec3>,
     /// The active-set attempt writes here; it replaces `dual` only if it certifies a better point.
-    candidate_dual: Vec<DVec3>,
+    candidate_dual: S::Buf<DVec3>,
     /// Whether `items` and `dual` hold the previous solve's values (false after `reset`).
     has_previous_dual: bool,
-    active_set: active_set::Workspace,
-    newton: newton::Workspace,
+    active_set: active_set::Workspace<S>,
+    newton: newton::Workspace<S>,
 }
 
 /// A primal point with its certificate.
@@ -202,24 +236,64 @@ impl Clock for NoClock {
     }
 }
 
-impl Default for Solver {
+#[cfg(feature = "alloc")]
+impl Default for Solver<Heap> {
     fn default() -> Self {
         Self::new(SolverConfig::default())
     }
 }
 
-impl Solver {
+#[cfg(feature = "alloc")]
+impl Solver<Heap> {
     pub fn new(config: SolverConfig) -> Self {
         Self::with_capacity(config, 16)
     }
 
     /// A solver whose workspace already holds `max_primitives`, so that no solve of that size allocates.
     pub fn with_capacity(config: SolverConfig, max_primitives: usize) -> Self {
+        Self::new_in(config, max_primitives)
+    }
+}
+
+/// `solve` and `solve_with_clock`, not generic, for each storage: so that the solve is compiled once, in this
+/// crate, rather than again in each crate that calls it (the generic code compiled there was up to 5 % slower in
+/// instructions: other inlining).
+macro_rules! solve_methods {
+    () => {
+        /// Solves with the sweep budget only (deterministic).
+        pub fn solve(&mut self, problem: &Problem) -> Result<Solution, SolveError> {
+            self.solve_inner(problem, &NoClock, false)
+        }
+
+        /// Solves with the sweep budget and the time budget `config.max_time_ns`, measured on `clock`.
+        pub fn solve_with_clock(
+            &mut self,
+            problem: &Problem,
+            clock: &dyn Clock,
+        ) -> Result<Solution, SolveError> {
+            self.solve_inner(problem, clock, true)
+        }
+    };
+}
+
+#[cfg(feature = "alloc")]
+impl Solver<Heap> {
+    solve_methods!();
+}
+
+impl<const N: usize> Solver<storage::Fixed<N>> {
+    solve_methods!();
+}
+
+impl<S: Storage> Solver<S> {
+    /// A solver in storage `S` with room for `max_primitives` (a hint for [`storage::Heap`]; a
+    /// [`storage::Fixed`] storage always holds its capacity).
+    pub fn new_in(config: SolverConfig, max_primitives: usize) -> Self {
         Self {
             config,
-            items: Vec::with_capacity(max_primitives),
-            dual: Vec::with_capacity(max_primitives),
-            candidate_dual: Vec::with_capacity(max_primitives),
+            items: Buffer::with_capacity(max_primitives),
+            dual: Buffer::with_capacity(max_primitives),
+            candidate_dual: Buffer::with_capacity(max_primitives),
             has_previous_dual: false,
             active_set: active_set::Workspace::with_capacity(max_primitives),
             newton: newton::Workspace::with_capacity(max_primitives),
@@ -246,20 +320,6 @@ impl Solver {
         self.has_previous_dual = false;
     }
 
-    /// Solves with the sweep budget only (deterministic).
-    pub fn solve(&mut self, problem: &Problem) -> Result<Solution, SolveError> {
-        self.solve_inner(problem, &NoClock, false)
-    }
-
-    /// Solves with the sweep budget and the time budget `config.max_time_ns`, measured on `clock`.
-    pub fn solve_with_clock(
-        &mut self,
-        problem: &Problem,
-        clock: &dyn Clock,
-    ) -> Result<Solution, SolveError> {
-        self.solve_inner(problem, clock, true)
-    }
-
     fn solve_inner(
         &mut self,
         problem: &Problem,
@@ -276,6 +336,17 @@ impl Solver {
         if let Some(prev) = problem.previous_proxy_m {
             if !prev.is_finite() {
                 return Err(SolveError::BadPreviousProxy(prev.to_array()));
+            }
+        }
+        if let Some(capacity) = S::fits(problem.primitives.len()) {
+            // Only a fixed storage gets here (a growable one fits anything); counted only then.
+            let given = problem
+                .primitives
+                .iter()
+                .filter(|p| p.kind() != PrimitiveKind::Directed)
+                .count();
+            if given > capacity {
+                return Err(SolveError::TooManyPrimitives { given, capacity });
             }
         }
         let start_ns = if timed { clock.now_ns() } else { 0 };
@@ -351,7 +422,7 @@ impl Solver {
             match problem.previous_proxy_m {
                 Some(x) => self
                     .dual
-                    .extend(self.items.iter().map(|item| subgradient(item, x))),
+                    .extend_iter(self.items.iter().map(|item| subgradient(item, x))),
                 None => self.dual.resize(self.items.len(), DVec3::ZERO),
             }
         }
@@ -554,7 +625,7 @@ impl Solver {
                         gap_j: gap,
                         bound_m: bound,
                     };
-                    std::mem::swap(&mut self.dual, &mut self.candidate_dual);
+                    core::mem::swap(&mut self.dual, &mut self.candidate_dual);
                     total = candidate_total;
                     retry_from_sweeps = false;
                 }
@@ -586,7 +657,7 @@ impl Solver {
                             bound_m: checked.bound_m,
                         };
                         best_at_sweep = sweeps;
-                        std::mem::swap(&mut self.dual, &mut self.candidate_dual);
+                        core::mem::swap(&mut self.dual, &mut self.candidate_dual);
                         total = self.dual.iter().copied().sum::<DVec3>();
                     }
                 }
@@ -649,7 +720,7 @@ impl Solver {
         };
         self.candidate_dual.clear();
         self.candidate_dual
-            .extend(self.items.iter().map(|item| subgradient(item, x)));
+            .extend_iter(self.items.iter().map(|item| subgradient(item, x)));
         let own = certify(
             &self.items,
             &self.candidate_dual,
@@ -658,7 +729,7 @@ impl Solver {
             self.config.tolerance_m,
         );
         if own.bound_m < chosen.bound_m {
-            std::mem::swap(&mut self.dual, &mut self.candidate_dual);
+            core::mem::swap(&mut self.dual, &mut self.candidate_dual);
             chosen = Candidate {
                 x,
                 gap_j: own.gap_j,
@@ -671,8 +742,7 @@ impl Solver {
     #[cold]
     #[inline(never)]
     fn grow_candidate_dual(&mut self, count: usize) {
-        let len = self.candidate_dual.len();
-        self.candidate_dual.reserve(count.saturating_sub(len));
+        self.candidate_dual.reserve_total(count);
     }
 
     /// `x` with its certificate from the current dual.

@@ -80,7 +80,9 @@ use super::certificate::{
 };
 use super::linalg::{psd_pseudo_inverse, SpdCofactors};
 use super::{block_update, project, Item};
+use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
+use crate::storage::{Buffer, Storage};
 use glam::{DMat3, DVec3};
 
 const EPS: f64 = f64::EPSILON;
@@ -121,9 +123,10 @@ const CORRECT_BELOW: f64 = 1e-2;
 const INLINE_PASS_MAX_ITEMS: usize = 16;
 
 /// What a primitive is to the iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 enum State {
     /// Zero strength: exerts nothing, never in a pass.
+    #[default]
     Inactive,
     /// A point or line off its kink.
     Smooth,
@@ -200,18 +203,18 @@ struct Previous {
 }
 
 /// The Newton attempt's workspace, kept between solves (allocation-free once grown to the scene size).
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Workspace {
-    state: Vec<State>,
-    drops: Vec<u8>,
+#[derive(Debug, Clone)]
+pub(crate) struct Workspace<S: Storage> {
+    state: S::Buf<State>,
+    drops: S::Buf<u8>,
     /// Items that take part in passes: not inactive, not screened (W members included, skipped by state).
-    active: Vec<u32>,
+    active: S::Buf<u32>,
     /// Line-search breakpoints: (the bits of the step fraction, item). A plane's slope jump is recomputed when
     /// the walk reaches it, which keeps the sorted elements small.
-    breakpoints: Vec<(u64, u32)>,
+    breakpoints: S::Buf<(u64, u32)>,
     /// Each item's distance to its kink set at the last pass's `x` (m), by item index: the line search skips
     /// every item farther than the step is long (it can neither cross nor pass near its kink).
-    kink_distance_m: Vec<f64>,
+    kink_distance_m: S::Buf<f64>,
     kinks: [u32; MAX_KINKS],
     kink_count: usize,
     /// Sum of the screened planes' constant gradients `-s q` (N).
@@ -219,7 +222,7 @@ pub(crate) struct Workspace {
     /// Sum of the screened planes' `s q.c`: with `fixed_gradient_n . x` their energy (J).
     fixed_energy_j: f64,
     /// Certificate B's dual at a point certified ahead (`Self::certify_ahead`), adopted when B certifies.
-    b_dual: Vec<DVec3>,
+    b_dual: S::Buf<DVec3>,
 }
 
 /// Budget and settings of one attempt.
@@ -230,16 +233,19 @@ pub(crate) struct Limits {
     pub screening: bool,
 }
 
-impl Workspace {
+impl<S: Storage> Workspace<S> {
     pub fn with_capacity(n: usize) -> Self {
         Self {
-            state: Vec::with_capacity(n),
-            drops: Vec::with_capacity(n),
-            active: Vec::with_capacity(n),
-            breakpoints: Vec::with_capacity(n),
-            kink_distance_m: Vec::with_capacity(n),
-            b_dual: Vec::with_capacity(n),
-            ..Self::default()
+            state: Buffer::with_capacity(n),
+            drops: Buffer::with_capacity(n),
+            active: Buffer::with_capacity(n),
+            breakpoints: Buffer::with_capacity(n),
+            kink_distance_m: Buffer::with_capacity(n),
+            kinks: [0; MAX_KINKS],
+            kink_count: 0,
+            fixed_gradient_n: DVec3::ZERO,
+            fixed_energy_j: 0.0,
+            b_dual: Buffer::with_capacity(n),
         }
     }
 
@@ -570,11 +576,7 @@ impl Workspace {
             } else if let (true, Some(cofactors)) = (
                 full && d_squared
                     <= CORRECT_BELOW * CORRECT_BELOW * model.clearance_m * model.clearance_m
-                    && chebyshev_may_certify(
-                        d_squared.sqrt(),
-                        last_full_step_m,
-                        limits.tolerance_m,
-                    ),
+                    && chebyshev_may_certify(sqrt(d_squared), last_full_step_m, limits.tolerance_m),
                 newton_cofactors,
             ) {
                 // Short, but not short enough for Newton's error alone: the third-order (Chebyshev) correction
@@ -585,7 +587,7 @@ impl Workspace {
                 let corrected = d + correction;
                 if corrected.is_finite()
                     && correction.length_squared()
-                        <= SPECULATE_BELOW * limits.tolerance_m * d_squared.sqrt()
+                        <= SPECULATE_BELOW * limits.tolerance_m * sqrt(d_squared)
                 {
                     taken = corrected;
                     taken_t = 1.0;
@@ -682,24 +684,24 @@ impl Workspace {
     /// (more instructions, fewer waits). On large scenes the loop's own code is what counts, and inlined it
     /// took more instructions (9 % on 100 random primitives, which were 4 % slower), so they call it.
     #[inline(never)]
-    fn pass_out_of_line<S: GradientSum>(
+    fn pass_out_of_line<G: GradientSum>(
         &mut self,
         items: &[Item],
         frame: &Frame,
         x: DVec3,
         dual: &mut [DVec3],
     ) -> Model {
-        self.pass::<S>(items, frame, x, dual)
+        self.pass::<G>(items, frame, x, dual)
     }
 
     /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are
     /// left to [`Self::multipliers`]). Inlined into the iteration for small scenes; see
     /// [`Self::pass_out_of_line`].
-    /// `S` is how the gradient is summed: [`CompensatedSum`] near the answer, where the gradient is the small
+    /// `G` is how the gradient is summed: [`CompensatedSum`] near the answer, where the gradient is the small
     /// difference of many forces and a plain sum's rounding (about sqrt(N) eps of their magnitudes) would be
     /// what Newton converges to; [`PlainSum`] before that, where only the step's direction matters.
     #[inline(always)]
-    fn pass<S: GradientSum>(
+    fn pass<G: GradientSum>(
         &mut self,
         items: &[Item],
         frame: &Frame,
@@ -708,7 +710,7 @@ impl Workspace {
     ) -> Model {
         let Frame { y, k, .. } = *frame;
         let offset = x - y;
-        let mut gradient = S::default();
+        let mut gradient = G::default();
         gradient.add(k * offset);
         gradient.add(self.fixed_gradient_n);
         let mut energy =
@@ -719,7 +721,7 @@ impl Workspace {
         let mut b = [0.0f64; 6];
         let mut clearance = f64::INFINITY;
         let mut on_unlisted_kink = None;
-        for &index in &self.active {
+        for &index in self.active.iter() {
             let i = index as usize;
             let item = &items[i];
             let state = self.state[i];
@@ -763,7 +765,7 @@ impl Workspace {
                         clearance = 0.0;
                         continue;
                     }
-                    let rho = rho_squared.sqrt();
+                    let rho = sqrt(rho_squared);
                     self.kink_distance_m[i] = rho;
                     let inverse = 1.0 / rho;
                     let normal = perpendicular * inverse;
@@ -818,7 +820,7 @@ impl Workspace {
     /// `b = f.d'` that is `-(1 / rho^2) (2 b d' + |d'|^2 f) + 3 b^2 / (rho^2 s^2) f`, one division per item.
     fn third_order(&self, items: &[Item], dual: &[DVec3], d: DVec3) -> DVec3 {
         let mut sum = DVec3::ZERO;
-        for &index in &self.active {
+        for &index in self.active.iter() {
             let i = index as usize;
             if self.state[i] != State::Smooth {
                 continue;
@@ -875,7 +877,7 @@ impl Workspace {
         // rho^2 <= -r.step <= rho |d|. So items farther than |d| from their kink (measured by the pass at this same
         // x) are skipped unread; the margin covers the rounding of those comparisons.
         let reach_m = d.length() * (1.0 + 1e-9);
-        for &index in &self.active {
+        for &index in self.active.iter() {
             let i = index as usize;
             if self.kink_distance_m[i] > reach_m {
                 continue;
@@ -926,7 +928,7 @@ impl Workspace {
         let mut jumps = 0.0;
         // The planes crossed so far, as the change they make to the gradient (for the near-pass test).
         let mut jump_gradient = DVec3::ZERO;
-        for &(t_bits, index) in &self.breakpoints {
+        for &(t_bits, index) in self.breakpoints.iter() {
             let t = f64::from_bits(t_bits);
             let unconstrained = -(slope + jumps) / curvature;
             if unconstrained < t {
@@ -950,7 +952,8 @@ impl Workspace {
                 let normal = before / rho;
                 let s = item.strength_n;
                 let own_slope = s * normal.dot(step);
-                let own_curvature = s / rho * (step.length_squared() - normal.dot(step).powi(2));
+                let along = normal.dot(step);
+                let own_curvature = s / rho * (step.length_squared() - along * along);
                 let others = slope - own_slope + t * (curvature - own_curvature) + jumps;
                 if others.abs() <= s * step.length()
                     && (self.kink_count > 0
@@ -1356,7 +1359,7 @@ fn start_sum(items: &[Item], active: &[u32], y: DVec3, k: f64) -> DVec3 {
 
 /// The Jacobi start's damping for `m` items, `min(1, 2 / sqrt(m))` ([`start_sum`]).
 fn jacobi_damping(m: usize) -> f64 {
-    (2.0 / (m as f64).sqrt()).min(1.0)
+    (2.0 / sqrt(m as f64)).min(1.0)
 }
 
 /// The state of an item off W at `x`.
@@ -1452,7 +1455,7 @@ mod tests {
                 .collect();
             let x = rng.vec(0.01);
             let d = rng.vec(1e-3);
-            let mut workspace = Workspace::with_capacity(items.len());
+            let mut workspace = Workspace::<crate::storage::Heap>::with_capacity(items.len());
             // A pass at x writes each smooth item's force there (its subgradient) as its dual value.
             let dual: Vec<DVec3> = items.iter().map(|item| subgradient(item, x)).collect();
             for (i, item) in items.iter().enumerate() {
@@ -1508,7 +1511,8 @@ mod tests {
             };
             for start in [None, Some(probe + DVec3::new(1e-3, -2e-3, 5e-4))] {
                 let run = |inline: bool| {
-                    let mut workspace = Workspace::with_capacity(items.len());
+                    let mut workspace =
+                        Workspace::<crate::storage::Heap>::with_capacity(items.len());
                     let mut dual = vec![DVec3::splat(f64::NAN); items.len()];
                     let outcome = if inline {
                         workspace.solve_with::<true>(

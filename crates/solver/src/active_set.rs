@@ -23,7 +23,7 @@
 //! workspace has grown to the scene size.
 
 use super::linalg::{outer, psd_pseudo_inverse};
-use super::{project, Item};
+use crate::item::{project, Item};
 use crate::primitive::PrimitiveKind;
 use crate::storage::{Buffer, Storage};
 use glam::{DMat3, DVec3};

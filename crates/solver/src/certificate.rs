@@ -26,7 +26,7 @@
 //!   that lies only within rounding of a tilted plane.
 
 use super::linalg::outer;
-use super::{project, Item};
+use crate::item::{project, Item};
 use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
 use glam::{DMat3, DVec3};

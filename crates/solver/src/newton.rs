@@ -79,7 +79,7 @@ use super::certificate::{
     certify, certify_into, Certificate, CompensatedSum, Frame, GradientSum, PlainSum,
 };
 use super::linalg::{psd_pseudo_inverse, SpdCofactors};
-use super::{block_update, project, Item};
+use crate::item::{block_update, project, Item};
 use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
 use crate::storage::{Buffer, Storage};
@@ -1423,7 +1423,7 @@ fn kink_distance_squared(item: &Item, x: DVec3) -> f64 {
 mod tests {
     use super::*;
     use crate::bench_scenes::{random_scene, SplitMix};
-    use crate::subgradient;
+    use crate::item::subgradient;
 
     /// The gradient of the smooth terms at `x` (points and lines off their kink: their subgradient), for
     /// finite differences.

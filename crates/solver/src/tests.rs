@@ -3,6 +3,7 @@
 use super::*;
 use crate::bench_scenes::{random_primitives, random_scene, thin_wedge, SplitMix};
 use crate::primitive::total_energy_j;
+use crate::primitive::Primitive;
 use crate::reference;
 
 const K: f64 = 500.0;

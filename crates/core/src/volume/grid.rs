@@ -14,7 +14,7 @@
 //! Derivatives go the other way: for a field `f(u(p))` with `u = L⁻¹ (p - origin)`, the chain rule gives
 //! `∇_world f = L⁻ᵀ ∇_index f`, so the grid keeps `L⁻¹` and `L⁻ᵀ` precomputed for the samplers.
 
-use super::VolumeError;
+use super::error::VolumeError;
 use glam::{DMat3, DMat4, DVec3, DVec4};
 
 /// Tolerance on the length of a direction cosine column (they must be unit vectors).

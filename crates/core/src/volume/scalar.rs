@@ -6,8 +6,9 @@
 //! central-difference gradient mapped to world axes by `L⁻ᵀ`, clamp-to-edge outside, 0 for
 //! non-finite positions).
 
+use super::error::VolumeError;
+use super::grid::Grid;
 use super::sampling::{index_derivatives, locate, trilinear};
-use super::{Grid, VolumeError};
 use glam::DVec3;
 use std::sync::Arc;
 

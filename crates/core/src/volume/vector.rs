@@ -13,8 +13,9 @@
 //!
 //! All samplers are allocation-free and return zero for non-finite positions.
 
+use super::error::VolumeError;
+use super::grid::Grid;
 use super::sampling::{index_derivatives, locate, trilinear};
-use super::{Grid, VolumeError};
 use glam::{DMat3, DVec3};
 use std::sync::Arc;
 

@@ -54,6 +54,7 @@ mod problem;
 pub mod reference;
 mod solver;
 pub mod storage;
+mod sum;
 
 pub use primitive::{Primitive, PrimitiveError};
 pub use problem::{Problem, Solution, SolveError, SolveStatus, SolverConfig};

@@ -1,6 +1,6 @@
 //! The solver: its workspace, the choice between the methods (crate header, "The methods"), and the exits.
 
-use crate::certificate::{certify, CompensatedSum, Frame};
+use crate::certificate::{certify, Frame};
 use crate::clock::Clock;
 use crate::item::{block_update, project, subgradient, Item};
 use crate::primitive::PrimitiveKind;
@@ -8,6 +8,7 @@ use crate::problem::{Problem, Solution, SolveError, SolveStatus, SolverConfig};
 #[cfg(feature = "alloc")]
 use crate::storage::Heap;
 use crate::storage::{self, Buffer, Storage};
+use crate::sum::CompensatedSum;
 use crate::{active_set, newton};
 use glam::DVec3;
 

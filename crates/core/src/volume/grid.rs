@@ -159,6 +159,18 @@ impl Grid {
         self.dims[0] * self.dims[1] * self.dims[2]
     }
 
+    /// Whether `len` values, one per voxel, fill this grid: [`VolumeError::DataLength`] if not.
+    pub(crate) fn check_data_length(&self, len: usize) -> Result<(), VolumeError> {
+        let expected = self.voxel_count();
+        if len != expected {
+            return Err(VolumeError::DataLength {
+                expected,
+                actual: len,
+            });
+        }
+        Ok(())
+    }
+
     /// Distance between voxel centres along each index axis, metres.
     pub fn spacing_m(&self) -> DVec3 {
         self.spacing_m

@@ -26,13 +26,7 @@ impl ScalarVolume {
     /// Wraps `data` (x fastest) on `grid`. Rejects a length other than the voxel count and any
     /// non-finite value.
     pub fn new(grid: Grid, data: Vec<f32>) -> Result<ScalarVolume, VolumeError> {
-        let expected = grid.voxel_count();
-        if data.len() != expected {
-            return Err(VolumeError::DataLength {
-                expected,
-                actual: data.len(),
-            });
-        }
+        grid.check_data_length(data.len())?;
         let mut min = f32::INFINITY;
         let mut max = f32::NEG_INFINITY;
         for (index, &value) in data.iter().enumerate() {

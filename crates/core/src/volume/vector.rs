@@ -33,13 +33,7 @@ impl VectorVolume {
     /// Wraps `data` (x fastest) on `grid`. Rejects a length other than the voxel count and any
     /// non-finite component.
     pub fn new(grid: Grid, data: Vec<[f32; 3]>) -> Result<VectorVolume, VolumeError> {
-        let expected = grid.voxel_count();
-        if data.len() != expected {
-            return Err(VolumeError::DataLength {
-                expected,
-                actual: data.len(),
-            });
-        }
+        grid.check_data_length(data.len())?;
         let mut min = f32::INFINITY;
         let mut max = f32::NEG_INFINITY;
         for (index, value) in data.iter().enumerate() {

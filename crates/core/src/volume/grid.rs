@@ -159,6 +159,22 @@ impl Grid {
         self.dims[0] * self.dims[1] * self.dims[2]
     }
 
+    /// `field` at every voxel centre, in the volumes' layout (x fastest).
+    pub(crate) fn sample_centres<T>(&self, field: impl Fn(DVec3) -> T) -> Vec<T> {
+        let [nx, ny, nz] = self.dims();
+        let mut data = Vec::with_capacity(self.voxel_count());
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    data.push(field(
+                        self.index_to_world(DVec3::new(i as f64, j as f64, k as f64)),
+                    ));
+                }
+            }
+        }
+        data
+    }
+
     /// Whether `len` values, one per voxel, fill this grid: [`VolumeError::DataLength`] if not.
     pub(crate) fn check_data_length(&self, len: usize) -> Result<(), VolumeError> {
         let expected = self.voxel_count();

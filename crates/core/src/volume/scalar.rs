@@ -45,16 +45,7 @@ impl ScalarVolume {
 
     /// Samples `field(p_world)` at every voxel centre.
     pub fn from_fn(grid: Grid, field: impl Fn(DVec3) -> f64) -> Result<ScalarVolume, VolumeError> {
-        let [nx, ny, nz] = grid.dims();
-        let mut data = Vec::with_capacity(grid.voxel_count());
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let p = grid.index_to_world(DVec3::new(i as f64, j as f64, k as f64));
-                    data.push(field(p) as f32);
-                }
-            }
-        }
+        let data = grid.sample_centres(|p| field(p) as f32);
         ScalarVolume::new(grid, data)
     }
 

@@ -57,16 +57,7 @@ impl VectorVolume {
         grid: Grid,
         field: impl Fn(DVec3) -> DVec3,
     ) -> Result<VectorVolume, VolumeError> {
-        let [nx, ny, nz] = grid.dims();
-        let mut data = Vec::with_capacity(grid.voxel_count());
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let p = grid.index_to_world(DVec3::new(i as f64, j as f64, k as f64));
-                    data.push(field(p).as_vec3().to_array());
-                }
-            }
-        }
+        let data = grid.sample_centres(|p| field(p).as_vec3().to_array());
         VectorVolume::new(grid, data)
     }
 

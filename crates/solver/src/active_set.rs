@@ -23,13 +23,15 @@
 //! workspace has grown to the scene size.
 
 use super::linalg::{outer, psd_pseudo_inverse};
-use super::{project, Item};
+use crate::item::{project, Item};
 use crate::primitive::PrimitiveKind;
+use crate::storage::{Buffer, Storage};
 use glam::{DMat3, DVec3};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub(crate) enum Status {
     /// Zero strength: exerts nothing.
+    #[default]
     Inactive,
     /// At the kink: on the point, on the line, or on the plane with a force in `[0, s]`.
     Kink,
@@ -42,11 +44,11 @@ pub(crate) enum Status {
 }
 
 /// Per-primitive statuses, kept between solves so that no allocation happens on the servo path.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Workspace {
-    status: Vec<Status>,
+#[derive(Debug, Clone)]
+pub(crate) struct Workspace<S: Storage> {
+    status: S::Buf<Status>,
     /// Dual flips of each primitive in the current attempt (cycle guard).
-    flips: Vec<u8>,
+    flips: S::Buf<u8>,
 }
 
 /// Relative tolerance when deciding a dual variable is strictly inside its bound.
@@ -60,11 +62,11 @@ const MAX_KINK_CANDIDATES: usize = 12;
 /// Dual flips one primitive may make in one attempt before the attempt is abandoned as cycling.
 const MAX_FLIPS_PER_PRIMITIVE: u8 = 2;
 
-impl Workspace {
+impl<S: Storage> Workspace<S> {
     pub fn with_capacity(n: usize) -> Self {
         Self {
-            status: Vec::with_capacity(n),
-            flips: Vec::with_capacity(n),
+            status: Buffer::with_capacity(n),
+            flips: Buffer::with_capacity(n),
         }
     }
 
@@ -81,7 +83,7 @@ impl Workspace {
         self.flips.clear();
         self.flips.resize(items.len(), 0);
         self.status.clear();
-        self.status.extend(
+        self.status.extend_iter(
             items
                 .iter()
                 .zip(dual.iter())
@@ -100,7 +102,7 @@ impl Workspace {
             if rank > 0 {
                 x += pinv * (b - m * x);
             }
-            let consistent = items.iter().zip(&self.status).all(|(item, status)| {
+            let consistent = items.iter().zip(self.status.iter()).all(|(item, status)| {
                 *status != Status::Kink
                     || (kink_projector(item) * (x - item.position_m)).length() <= 1e-12 * scale
             });
@@ -180,7 +182,7 @@ impl Workspace {
             let (g, _) = self.smooth_model(items, y, k, x);
             let w = pinv * (-g);
             let mut worst: Option<(usize, f64, Status, DVec3)> = None;
-            for (i, (item, status)) in items.iter().zip(&self.status).enumerate() {
+            for (i, (item, status)) in items.iter().zip(self.status.iter()).enumerate() {
                 if *status != Status::Kink {
                     continue;
                 }
@@ -222,7 +224,7 @@ impl Workspace {
                 continue;
             }
 
-            for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+            for ((item, status), u) in items.iter().zip(self.status.iter()).zip(dual.iter_mut()) {
                 *u = match status {
                     Status::Inactive | Status::Candidate => DVec3::ZERO,
                     Status::Kink => project(item, *u),
@@ -246,7 +248,7 @@ impl Workspace {
     /// by projected block sweeps over the kinks. Returns true (with the split in `dual`) when it finds one.
     fn feasible_split(&self, items: &[Item], g: DVec3, tolerance: f64, dual: &mut [DVec3]) -> bool {
         let mut sum = DVec3::ZERO;
-        for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+        for ((item, status), u) in items.iter().zip(self.status.iter()).zip(dual.iter_mut()) {
             if *status == Status::Kink {
                 *u = project(item, *u);
                 sum += *u;
@@ -256,7 +258,7 @@ impl Workspace {
             if (sum + g).length() <= tolerance {
                 return true;
             }
-            for ((item, status), u) in items.iter().zip(&self.status).zip(dual.iter_mut()) {
+            for ((item, status), u) in items.iter().zip(self.status.iter()).zip(dual.iter_mut()) {
                 if *status == Status::Kink {
                     let others = sum - *u;
                     *u = project(item, -g - others);
@@ -293,7 +295,7 @@ impl Workspace {
             tried += 1;
             let nearest = items
                 .iter()
-                .zip(&self.status)
+                .zip(self.status.iter())
                 .enumerate()
                 .filter(|(_, (_, status))| **status == Status::Candidate)
                 .map(|(i, (item, _))| (i, (kink_projector(item) * (x - item.position_m)).length()))
@@ -305,7 +307,7 @@ impl Workspace {
             let (pinv, _, _) = psd_pseudo_inverse(m_try, RANK_TOLERANCE);
             let projected = x + pinv * (b_try - m_try * x);
             self.status[i] = Status::Kink;
-            let consistent = items.iter().zip(&self.status).all(|(item, status)| {
+            let consistent = items.iter().zip(self.status.iter()).all(|(item, status)| {
                 *status != Status::Kink
                     || (kink_projector(item) * (projected - item.position_m)).length()
                         <= 1e-12 * scale
@@ -322,7 +324,7 @@ impl Workspace {
     fn kink_system(&self, items: &[Item]) -> (DMat3, DVec3) {
         let mut m = DMat3::ZERO;
         let mut b = DVec3::ZERO;
-        for (item, status) in items.iter().zip(&self.status) {
+        for (item, status) in items.iter().zip(self.status.iter()) {
             if *status == Status::Kink {
                 let p = kink_projector(item);
                 m += p;
@@ -336,7 +338,7 @@ impl Workspace {
     fn smooth_model(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> (DVec3, DMat3) {
         let mut g = k * (x - y);
         let mut h = DMat3::from_diagonal(DVec3::splat(k));
-        for (item, status) in items.iter().zip(&self.status) {
+        for (item, status) in items.iter().zip(self.status.iter()) {
             match (status, item.kind) {
                 (Status::Off, PrimitiveKind::Point | PrimitiveKind::Line) => {
                     let r = perpendicular(item, x - item.position_m);
@@ -358,7 +360,7 @@ impl Workspace {
     /// The smooth model's energy (the kink terms are zero on the affine set).
     fn model_energy(&self, items: &[Item], y: DVec3, k: f64, x: DVec3) -> f64 {
         let mut e = 0.5 * k * (x - y).length_squared();
-        for (item, status) in items.iter().zip(&self.status) {
+        for (item, status) in items.iter().zip(self.status.iter()) {
             match (status, item.kind) {
                 (Status::Off, PrimitiveKind::Point | PrimitiveKind::Line) => {
                     e += item.strength_n * perpendicular(item, x - item.position_m).length();
@@ -375,7 +377,7 @@ impl Workspace {
     /// offset turning round), where the fraction is the closest approach.
     fn first_crossing(&self, items: &[Item], x: DVec3, d: DVec3) -> Option<(usize, f64)> {
         let mut first: Option<(usize, f64)> = None;
-        for (i, (item, status)) in items.iter().zip(&self.status).enumerate() {
+        for (i, (item, status)) in items.iter().zip(self.status.iter()).enumerate() {
             let tau = match (*status, item.kind) {
                 (Status::Off, PrimitiveKind::Plane) | (Status::Full, PrimitiveKind::Plane) => {
                     let before = item.direction.dot(x - item.position_m);

@@ -26,8 +26,10 @@
 //!   that lies only within rounding of a tilted plane.
 
 use super::linalg::outer;
-use super::{project, Item};
+use crate::item::{project, Item};
+use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
+use crate::sum::CompensatedSum;
 use glam::{DMat3, DVec3};
 
 const EPS: f64 = f64::EPSILON;
@@ -58,67 +60,6 @@ pub(crate) struct Frame {
     pub y_error_m: f64,
     /// `sum s_i / k` over the items (m).
     pub strength_over_k_m: f64,
-}
-
-/// Neumaier's compensated sum of 3-vectors: the error is about 2 eps of the result plus n eps^2 of the sum of
-/// magnitudes, instead of n eps of the sum of magnitudes. Each step's rounding error is computed exactly (by
-/// Knuth's TwoSum, branch-free), so the sums, and the bounds built on them, are those of Neumaier's algorithm.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct CompensatedSum {
-    sum: DVec3,
-    compensation: DVec3,
-}
-
-/// A running sum of 3-vectors: [`CompensatedSum`] or [`PlainSum`] (the primal Newton passes pick one).
-pub(crate) trait GradientSum: Default {
-    fn add(&mut self, v: DVec3);
-    fn value(&self) -> DVec3;
-}
-
-/// A plain running sum (error up to n eps of the sum of magnitudes).
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct PlainSum(DVec3);
-
-impl GradientSum for PlainSum {
-    #[inline]
-    fn add(&mut self, v: DVec3) {
-        self.0 += v;
-    }
-
-    #[inline]
-    fn value(&self) -> DVec3 {
-        self.0
-    }
-}
-
-impl GradientSum for CompensatedSum {
-    #[inline]
-    fn add(&mut self, v: DVec3) {
-        CompensatedSum::add(self, v);
-    }
-
-    #[inline]
-    fn value(&self) -> DVec3 {
-        CompensatedSum::value(self)
-    }
-}
-
-impl CompensatedSum {
-    #[inline]
-    pub(crate) fn add(&mut self, v: DVec3) {
-        // Knuth's TwoSum: `lost` is the rounding error of `t` exactly (as in Neumaier's branch on the larger
-        // magnitude, which gives the same value), in six operations per coordinate and no comparison.
-        let t = self.sum + v;
-        let v_part = t - self.sum;
-        let sum_part = t - v_part;
-        let lost = (self.sum - sum_part) + (v - v_part);
-        self.compensation += lost;
-        self.sum = t;
-    }
-
-    pub(crate) fn value(&self) -> DVec3 {
-        self.sum + self.compensation
-    }
 }
 
 /// The distance from `x` to an item's kink set, with an upper bound on its rounding error (`4 eps |r|`, with
@@ -603,7 +544,7 @@ pub(crate) fn certify_into(
             let shares = shares_b * (1.0 + (n + 2.0) * EPS) + moved_share_weight * shift_m;
             let residual = residual_bound(&total_b) + k * shift_m;
             let bound_b = 2.0 * shift_m
-                + (2.0 * shares / k).sqrt()
+                + sqrt(2.0 * shares / k)
                 + residual / k
                 + linear_m
                 + (subgradient_sensitivity * shift_m + direction_rounding_n) / k;
@@ -761,7 +702,7 @@ fn point_lambda_n(s: f64, v: DVec3, partner: &Partner) -> f64 {
 fn sharp_distance_m(k: f64, sharpness_n: f64, residual_n: f64, shares_j: f64) -> f64 {
     // A lower bound on sharpness - residual: d grows as it falls, so rounding it down only overstates d.
     let beta = (sharpness_n - residual_n) - 2.0 * EPS * (sharpness_n + residual_n);
-    let root = (beta * beta + 4.0 * k * shares_j).sqrt();
+    let root = sqrt(beta * beta + 4.0 * k * shares_j);
     if beta > 0.0 {
         2.0 * shares_j / (beta + root)
     } else {
@@ -817,5 +758,5 @@ fn kink_shift_m(items: &[Item], kinks: &Kinks, x: DVec3, scale: f64) -> Option<f
     // |M^+ sum_i P_i r_i| <= sum_i |P_i r_i| / sqrt(lambda_min^+), since P_i <= M; less what rounding can
     // have added to the eigenvalue.
     let lower = smallest_positive - eigenvalue_error(system, kinks.count);
-    (lower > 0.0).then(|| kinks.distance_sum_m / lower.sqrt())
+    (lower > 0.0).then(|| kinks.distance_sum_m / sqrt(lower))
 }

@@ -1,7 +1,9 @@
 //! Time as an argument (CONTRIBUTING.md item 2): a `Clock` trait, the real monotonic clock and a mock that tests
 //! advance by hand. Nothing on the servo path reads the OS clock directly; it is handed a `Clock`.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+#[cfg(target_has_atomic = "64")]
+use core::sync::atomic::{AtomicU64, Ordering};
+#[cfg(feature = "std")]
 use std::time::Instant;
 
 /// A monotonic clock reporting nanoseconds since an arbitrary fixed origin.
@@ -10,11 +12,13 @@ pub trait Clock {
 }
 
 /// The OS monotonic clock (`Instant`), counted from the moment this value was made.
+#[cfg(feature = "std")]
 #[derive(Debug, Clone, Copy)]
 pub struct MonotonicClock {
     origin: Instant,
 }
 
+#[cfg(feature = "std")]
 impl MonotonicClock {
     pub fn new() -> Self {
         Self {
@@ -23,12 +27,14 @@ impl MonotonicClock {
     }
 }
 
+#[cfg(feature = "std")]
 impl Default for MonotonicClock {
     fn default() -> Self {
         Self::new()
     }
 }
 
+#[cfg(feature = "std")]
 impl Clock for MonotonicClock {
     fn now_ns(&self) -> u64 {
         u64::try_from(self.origin.elapsed().as_nanos()).unwrap_or(u64::MAX)
@@ -36,11 +42,13 @@ impl Clock for MonotonicClock {
 }
 
 /// A clock that only moves when told to: deterministic sims and tests.
+#[cfg(target_has_atomic = "64")]
 #[derive(Debug, Default)]
 pub struct MockClock {
     now_ns: AtomicU64,
 }
 
+#[cfg(target_has_atomic = "64")]
 impl MockClock {
     pub fn new(start_ns: u64) -> Self {
         Self {
@@ -57,6 +65,7 @@ impl MockClock {
     }
 }
 
+#[cfg(target_has_atomic = "64")]
 impl Clock for MockClock {
     fn now_ns(&self) -> u64 {
         self.now_ns.load(Ordering::Relaxed)

@@ -4,6 +4,7 @@
 //! Jacobi is chosen over a closed-form cubic because it stays accurate for nearly repeated eigenvalues,
 //! which is exactly the case of near-parallel planes (a 1 degree wedge gives eigenvalues about 2 and 1.5e-4).
 
+use crate::math::sqrt;
 use glam::{DMat3, DVec3};
 
 /// Eigenvalues and orthonormal eigenvectors (the columns of `vectors`) of a symmetric matrix.
@@ -39,8 +40,8 @@ pub fn symmetric_eigen3(m: DMat3) -> SymmetricEigen3 {
             }
             let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
             // f64::signum(+0.0) is 1.0, so theta == 0 gives t = 1 (a 45 degree rotation), as it should.
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let c = 1.0 / (t * t + 1.0).sqrt();
+            let t = theta.signum() / (theta.abs() + sqrt(theta * theta + 1.0));
+            let c = 1.0 / sqrt(t * t + 1.0);
             let s = t * c;
             for row in a.iter_mut() {
                 let (akp, akq) = (row[p], row[q]);

@@ -75,13 +75,17 @@
 //! over the planes and saves nothing there (docs/solver.md, "Design notes and measurements").
 
 use super::active_set::kink_projector;
-use super::certificate::{
-    certify, certify_into, Certificate, CompensatedSum, Frame, GradientSum, PlainSum,
-};
+use super::certificate::{certify, certify_into, Certificate, Frame};
 use super::linalg::{psd_pseudo_inverse, SpdCofactors};
-use super::{block_update, project, Item};
+use crate::item::{block_update, project, Item};
+use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
+use crate::storage::{Buffer, Storage};
+use crate::sum::{CompensatedSum, GradientSum, PlainSum};
 use glam::{DMat3, DVec3};
+
+mod kinks;
+mod pass;
 
 const EPS: f64 = f64::EPSILON;
 /// Most kinks held at once. R^3 has room for three independent ones; degenerate scenes (a pyramid's apex, a
@@ -121,9 +125,10 @@ const CORRECT_BELOW: f64 = 1e-2;
 const INLINE_PASS_MAX_ITEMS: usize = 16;
 
 /// What a primitive is to the iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 enum State {
     /// Zero strength: exerts nothing, never in a pass.
+    #[default]
     Inactive,
     /// A point or line off its kink.
     Smooth,
@@ -200,18 +205,18 @@ struct Previous {
 }
 
 /// The Newton attempt's workspace, kept between solves (allocation-free once grown to the scene size).
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Workspace {
-    state: Vec<State>,
-    drops: Vec<u8>,
+#[derive(Debug, Clone)]
+pub(crate) struct Workspace<S: Storage> {
+    state: S::Buf<State>,
+    drops: S::Buf<u8>,
     /// Items that take part in passes: not inactive, not screened (W members included, skipped by state).
-    active: Vec<u32>,
+    active: S::Buf<u32>,
     /// Line-search breakpoints: (the bits of the step fraction, item). A plane's slope jump is recomputed when
     /// the walk reaches it, which keeps the sorted elements small.
-    breakpoints: Vec<(u64, u32)>,
+    breakpoints: S::Buf<(u64, u32)>,
     /// Each item's distance to its kink set at the last pass's `x` (m), by item index: the line search skips
     /// every item farther than the step is long (it can neither cross nor pass near its kink).
-    kink_distance_m: Vec<f64>,
+    kink_distance_m: S::Buf<f64>,
     kinks: [u32; MAX_KINKS],
     kink_count: usize,
     /// Sum of the screened planes' constant gradients `-s q` (N).
@@ -219,7 +224,7 @@ pub(crate) struct Workspace {
     /// Sum of the screened planes' `s q.c`: with `fixed_gradient_n . x` their energy (J).
     fixed_energy_j: f64,
     /// Certificate B's dual at a point certified ahead (`Self::certify_ahead`), adopted when B certifies.
-    b_dual: Vec<DVec3>,
+    b_dual: S::Buf<DVec3>,
 }
 
 /// Budget and settings of one attempt.
@@ -230,16 +235,19 @@ pub(crate) struct Limits {
     pub screening: bool,
 }
 
-impl Workspace {
+impl<S: Storage> Workspace<S> {
     pub fn with_capacity(n: usize) -> Self {
         Self {
-            state: Vec::with_capacity(n),
-            drops: Vec::with_capacity(n),
-            active: Vec::with_capacity(n),
-            breakpoints: Vec::with_capacity(n),
-            kink_distance_m: Vec::with_capacity(n),
-            b_dual: Vec::with_capacity(n),
-            ..Self::default()
+            state: Buffer::with_capacity(n),
+            drops: Buffer::with_capacity(n),
+            active: Buffer::with_capacity(n),
+            breakpoints: Buffer::with_capacity(n),
+            kink_distance_m: Buffer::with_capacity(n),
+            kinks: [0; MAX_KINKS],
+            kink_count: 0,
+            fixed_gradient_n: DVec3::ZERO,
+            fixed_energy_j: 0.0,
+            b_dual: Buffer::with_capacity(n),
         }
     }
 
@@ -570,11 +578,7 @@ impl Workspace {
             } else if let (true, Some(cofactors)) = (
                 full && d_squared
                     <= CORRECT_BELOW * CORRECT_BELOW * model.clearance_m * model.clearance_m
-                    && chebyshev_may_certify(
-                        d_squared.sqrt(),
-                        last_full_step_m,
-                        limits.tolerance_m,
-                    ),
+                    && chebyshev_may_certify(sqrt(d_squared), last_full_step_m, limits.tolerance_m),
                 newton_cofactors,
             ) {
                 // Short, but not short enough for Newton's error alone: the third-order (Chebyshev) correction
@@ -585,7 +589,7 @@ impl Workspace {
                 let corrected = d + correction;
                 if corrected.is_finite()
                     && correction.length_squared()
-                        <= SPECULATE_BELOW * limits.tolerance_m * d_squared.sqrt()
+                        <= SPECULATE_BELOW * limits.tolerance_m * sqrt(d_squared)
                 {
                     taken = corrected;
                     taken_t = 1.0;
@@ -674,645 +678,6 @@ impl Workspace {
         }
         Some(certificate)
     }
-
-    /// [`Self::pass`] as a call, for scenes of more than [`INLINE_PASS_MAX_ITEMS`] primitives. Out of line, the
-    /// pass's `Model` comes back through memory, and the iteration read parts of it with loads that span two of
-    /// the pass's stores (its 3x3 Hessian's columns are 24 bytes), which the processor cannot forward from the
-    /// stores and waits out: on ten primitives, three passes, the inlined pass was about 4 % faster in time
-    /// (more instructions, fewer waits). On large scenes the loop's own code is what counts, and inlined it
-    /// took more instructions (9 % on 100 random primitives, which were 4 % slower), so they call it.
-    #[inline(never)]
-    fn pass_out_of_line<S: GradientSum>(
-        &mut self,
-        items: &[Item],
-        frame: &Frame,
-        x: DVec3,
-        dual: &mut [DVec3],
-    ) -> Model {
-        self.pass::<S>(items, frame, x, dual)
-    }
-
-    /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are
-    /// left to [`Self::multipliers`]). Inlined into the iteration for small scenes; see
-    /// [`Self::pass_out_of_line`].
-    /// `S` is how the gradient is summed: [`CompensatedSum`] near the answer, where the gradient is the small
-    /// difference of many forces and a plain sum's rounding (about sqrt(N) eps of their magnitudes) would be
-    /// what Newton converges to; [`PlainSum`] before that, where only the step's direction matters.
-    #[inline(always)]
-    fn pass<S: GradientSum>(
-        &mut self,
-        items: &[Item],
-        frame: &Frame,
-        x: DVec3,
-        dual: &mut [DVec3],
-    ) -> Model {
-        let Frame { y, k, .. } = *frame;
-        let offset = x - y;
-        let mut gradient = S::default();
-        gradient.add(k * offset);
-        gradient.add(self.fixed_gradient_n);
-        let mut energy =
-            0.5 * k * offset.length_squared() + self.fixed_gradient_n.dot(x) + self.fixed_energy_j;
-        let mut energy_scale = energy.abs();
-        // Hessian of the distance terms: a I - B, with B symmetric (xx, xy, xz, yy, yz, zz).
-        let mut a = 0.0;
-        let mut b = [0.0f64; 6];
-        let mut clearance = f64::INFINITY;
-        let mut on_unlisted_kink = None;
-        for &index in &self.active {
-            let i = index as usize;
-            let item = &items[i];
-            let state = self.state[i];
-            if state == State::Kink {
-                continue;
-            }
-            let s = item.strength_n;
-            let r = x - item.position_m;
-            match item.kind {
-                PrimitiveKind::Plane => {
-                    let q = item.direction;
-                    let sigma = q.dot(r);
-                    let full = sigma < 0.0 || (sigma == 0.0 && state == State::Full);
-                    if full {
-                        gradient.add(-s * q);
-                        energy -= s * sigma;
-                        energy_scale -= s * sigma;
-                        dual[i] = -s * q;
-                        self.state[i] = State::Full;
-                    } else {
-                        dual[i] = DVec3::ZERO;
-                        self.state[i] = State::Off;
-                    }
-                    let distance = sigma.abs();
-                    self.kink_distance_m[i] = distance;
-                    // A comparison, not `f64::min` (whose NaN rule costs a few instructions per item): a NaN
-                    // distance is skipped either way.
-                    if distance < clearance {
-                        clearance = distance;
-                    }
-                }
-                PrimitiveKind::Point | PrimitiveKind::Line => {
-                    let line = item.kind == PrimitiveKind::Line;
-                    let q = item.direction;
-                    let perpendicular = if line { r - q * q.dot(r) } else { r };
-                    let rho_squared = perpendicular.length_squared();
-                    if rho_squared == 0.0 {
-                        on_unlisted_kink = Some(i);
-                        dual[i] = DVec3::ZERO;
-                        self.kink_distance_m[i] = 0.0;
-                        clearance = 0.0;
-                        continue;
-                    }
-                    let rho = rho_squared.sqrt();
-                    self.kink_distance_m[i] = rho;
-                    let inverse = 1.0 / rho;
-                    let normal = perpendicular * inverse;
-                    let force = s * normal;
-                    gradient.add(force);
-                    dual[i] = force;
-                    energy += s * rho;
-                    energy_scale += s * rho;
-                    let w = s * inverse;
-                    a += w;
-                    b[0] += w * normal.x * normal.x;
-                    b[1] += w * normal.x * normal.y;
-                    b[2] += w * normal.x * normal.z;
-                    b[3] += w * normal.y * normal.y;
-                    b[4] += w * normal.y * normal.z;
-                    b[5] += w * normal.z * normal.z;
-                    if line {
-                        b[0] += w * q.x * q.x;
-                        b[1] += w * q.x * q.y;
-                        b[2] += w * q.x * q.z;
-                        b[3] += w * q.y * q.y;
-                        b[4] += w * q.y * q.z;
-                        b[5] += w * q.z * q.z;
-                    }
-                    if rho < clearance {
-                        clearance = rho;
-                    }
-                }
-                PrimitiveKind::Directed => {}
-            }
-        }
-        let diagonal = k + a;
-        let hessian = DMat3::from_cols(
-            DVec3::new(diagonal - b[0], -b[1], -b[2]),
-            DVec3::new(-b[1], diagonal - b[3], -b[4]),
-            DVec3::new(-b[2], -b[4], diagonal - b[5]),
-        );
-        Model {
-            gradient: gradient.value(),
-            hessian,
-            energy_j: energy,
-            energy_scale_j: energy_scale,
-            clearance_m: clearance,
-            on_unlisted_kink,
-        }
-    }
-
-    /// `T[d, d]`, the third derivative of the smooth terms at `x` applied twice to `d` (W empty): for a point at
-    /// distance `rho` in direction `n` (for a line, `n` normal to it and `d` replaced by its part `d'` across the
-    /// line), `D^3 (s |r|)[d, d] = -(s / rho^2) (2 a d' + (|d'|^2 - 3 a^2) n)` with `a = n.d'`; planes are
-    /// linear. Read from the last pass at `x`: its force `f = s n` (`dual`) and `rho` (`kink_distance_m`), with
-    /// `b = f.d'` that is `-(1 / rho^2) (2 b d' + |d'|^2 f) + 3 b^2 / (rho^2 s^2) f`, one division per item.
-    fn third_order(&self, items: &[Item], dual: &[DVec3], d: DVec3) -> DVec3 {
-        let mut sum = DVec3::ZERO;
-        for &index in &self.active {
-            let i = index as usize;
-            if self.state[i] != State::Smooth {
-                continue;
-            }
-            let item = &items[i];
-            let along = if item.kind == PrimitiveKind::Line {
-                let q = item.direction;
-                d - q * q.dot(d)
-            } else {
-                d
-            };
-            let f = dual[i];
-            let b = f.dot(along);
-            let rho = self.kink_distance_m[i];
-            let s_squared = item.strength_n * item.strength_n;
-            // 1 / (rho^2 s^2); times s^2 it is 1 / rho^2.
-            let inverse = 1.0 / (rho * rho * s_squared);
-            sum += (3.0 * b * b * inverse) * f
-                - (s_squared * inverse) * (2.0 * b * along + along.length_squared() * f);
-        }
-        sum
-    }
-
-    /// Minimises the piecewise model along `d` over `t in [0, 1]` (module header, step 3).
-    /// `slope` is the derivative along `d` on the face (the reduced gradient's, free of the kinks' part).
-    // Inlined by hand (the compiler moves it out of line); inlined or called measure the same on 1 000 random
-    // primitives.
-    #[inline(always)]
-    fn line_search(
-        &mut self,
-        items: &[Item],
-        x: DVec3,
-        d: DVec3,
-        slope: f64,
-        model: &Model,
-    ) -> Step {
-        let curvature = d.dot(model.hessian * d).max(f64::MIN_POSITIVE);
-        // `min(1, -slope / curvature)`, with the division (about 1 to rounding for a Newton step) off the
-        // iteration's critical path: a comparison decides the common case. A NaN slope gives 1, as `min` did.
-        let smooth_t = if -slope < curvature {
-            -slope / curvature
-        } else {
-            1.0
-        };
-        if d.length_squared() < model.clearance_m * model.clearance_m {
-            // No kink within reach of the step.
-            return Step {
-                t: smooth_t.max(0.0),
-                kink: None,
-            };
-        }
-        self.breakpoints.clear();
-        // A plane crosses at t <= 1 only if |q.r| <= |q.d| <= |d|; a point or line turns round only if
-        // rho^2 <= -r.step <= rho |d|. So items farther than |d| from their kink (measured by the pass at this same
-        // x) are skipped unread; the margin covers the rounding of those comparisons.
-        let reach_m = d.length() * (1.0 + 1e-9);
-        for &index in &self.active {
-            let i = index as usize;
-            if self.kink_distance_m[i] > reach_m {
-                continue;
-            }
-            let item = &items[i];
-            let state = self.state[i];
-            let r = x - item.position_m;
-            match (item.kind, state) {
-                (PrimitiveKind::Plane, State::Off | State::Full) => {
-                    let q = item.direction;
-                    let qd = q.dot(d);
-                    let crosses = if state == State::Off {
-                        qd < 0.0
-                    } else {
-                        qd > 0.0
-                    };
-                    if !crosses {
-                        continue;
-                    }
-                    let t = (-q.dot(r) / qd).max(0.0) + 0.0;
-                    if t <= 1.0 {
-                        self.breakpoints.push((t.to_bits(), index));
-                    }
-                }
-                (PrimitiveKind::Point | PrimitiveKind::Line, State::Smooth) => {
-                    // A step that turns the offset round and comes within a tenth of the starting distance
-                    // passes close to the kink; whether it should stop there is decided in the walk below.
-                    let line = item.kind == PrimitiveKind::Line;
-                    let q = item.direction;
-                    let before = if line { r - q * q.dot(r) } else { r };
-                    let step = if line { d - q * q.dot(d) } else { d };
-                    if before.dot(before + step) > 0.0 {
-                        continue;
-                    }
-                    let tau = (-before.dot(step) / step.length_squared()).clamp(0.0, 1.0) + 0.0;
-                    if (before + tau * step).length() > 0.1 * before.length() {
-                        continue;
-                    }
-                    // A point or line marks a near pass rather than a slope change.
-                    self.breakpoints.push((tau.to_bits(), index));
-                }
-                _ => {}
-            }
-        }
-        // Every step fraction is >= +0.0 (pushed as `max(0.0) + 0.0`, which turns -0.0 into +0.0), and the bits of
-        // non-negative floats order as the floats do: an integer key is cheaper to compare than `total_cmp`.
-        self.breakpoints.sort_unstable_by_key(|b| b.0);
-        let mut jumps = 0.0;
-        // The planes crossed so far, as the change they make to the gradient (for the near-pass test).
-        let mut jump_gradient = DVec3::ZERO;
-        for &(t_bits, index) in &self.breakpoints {
-            let t = f64::from_bits(t_bits);
-            let unconstrained = -(slope + jumps) / curvature;
-            if unconstrained < t {
-                return Step {
-                    t: unconstrained.max(0.0),
-                    kink: None,
-                };
-            }
-            let item = &items[index as usize];
-            if item.kind != PrimitiveKind::Plane {
-                // A near pass of a point or line: stop on it if, along the step, the other terms' slope there
-                // is within what the primitive can hold (`s |step|` either way): the minimum along the line
-                // is at the kink. The model's slope there is corrected for the primitive's own share, which the
-                // quadratic model spreads over the whole step.
-                let line = item.kind == PrimitiveKind::Line;
-                let q = item.direction;
-                let r = x - item.position_m;
-                let before = if line { r - q * q.dot(r) } else { r };
-                let step = if line { d - q * q.dot(d) } else { d };
-                let rho = before.length();
-                let normal = before / rho;
-                let s = item.strength_n;
-                let own_slope = s * normal.dot(step);
-                let own_curvature = s / rho * (step.length_squared() - normal.dot(step).powi(2));
-                let others = slope - own_slope + t * (curvature - own_curvature) + jumps;
-                if others.abs() <= s * step.length()
-                    && (self.kink_count > 0
-                        || self.could_hold(item, model, d, t, normal, step, rho, jump_gradient))
-                {
-                    return Step {
-                        t,
-                        kink: Some(index as usize),
-                    };
-                }
-                continue;
-            }
-            let plane = item;
-            jumps += plane.strength_n * plane.direction.dot(d).abs();
-            jump_gradient += if self.state[index as usize] == State::Off {
-                -plane.strength_n * plane.direction
-            } else {
-                plane.strength_n * plane.direction
-            };
-            if slope + t * curvature + jumps >= 0.0 {
-                return Step {
-                    t,
-                    kink: Some(index as usize),
-                };
-            }
-        }
-        Step {
-            t: (-(slope + jumps) / curvature).clamp(0.0, 1.0),
-            kink: None,
-        }
-    }
-
-    /// Whether a point or line passed near at step fraction `t` could hold the proxy there, W being empty: the
-    /// whole force the other terms' model puts on it there (not only its part along the step) is within
-    /// [`NEAR_PASS_HOLD`] times its strength. (Without this a point could join W with a multiplier a thousand
-    /// times its strength, and leaving it again threw the proxy far off.) `normal`, `step` and `rho` are its
-    /// offset's direction, the step's part across it and its distance, at `x`.
-    #[allow(clippy::too_many_arguments)]
-    fn could_hold(
-        &self,
-        item: &Item,
-        model: &Model,
-        d: DVec3,
-        t: f64,
-        normal: DVec3,
-        step: DVec3,
-        rho: f64,
-        jump_gradient: DVec3,
-    ) -> bool {
-        let s = item.strength_n;
-        let own_gradient = s * normal;
-        let own_hessian_d = s / rho * (step - normal * normal.dot(step));
-        let mut others =
-            model.gradient - own_gradient + t * (model.hessian * d - own_hessian_d) + jump_gradient;
-        if item.kind == PrimitiveKind::Line {
-            let q = item.direction;
-            others -= q * q.dot(others);
-        }
-        others.length() <= NEAR_PASS_HOLD * s
-    }
-
-    /// Recovers the kink multipliers (module header, step 4) into `dual`, each in its set. On failure returns
-    /// the worst violation: the item, its multiplier, and the label it leaves W with.
-    fn multipliers(
-        &self,
-        items: &[Item],
-        face: &Face,
-        gradient: DVec3,
-        dual: &mut [DVec3],
-    ) -> Result<(), (usize, DVec3, State)> {
-        if self.kink_count == 0 {
-            return Ok(());
-        }
-        let needed = -gradient;
-        if face.point.is_none() {
-            // The minimum-norm split.
-            let w = face.pinv * needed;
-            let mut worst: Option<(usize, f64, DVec3, State)> = None;
-            for &index in &self.kinks[..self.kink_count] {
-                let i = index as usize;
-                let item = &items[i];
-                let u = kink_projector(item) * w;
-                dual[i] = project(item, u);
-                if let Some((violation, label)) = violation(item, u) {
-                    if worst.is_none_or(|(_, v, _, _)| violation > v) {
-                        worst = Some((i, violation, u, label));
-                    }
-                }
-            }
-            match worst {
-                None => return Ok(()),
-                Some((i, _, u, label)) => {
-                    if self.kink_count == 1 {
-                        return Err((i, u, label));
-                    }
-                    // Dependent kinks can split the force another way: try the sweeps below.
-                    let _ = (i, u, label);
-                }
-            }
-        } else {
-            for &index in &self.kinks[..self.kink_count] {
-                dual[index as usize] = DVec3::ZERO;
-            }
-        }
-        // Dependent kinks: look for a feasible split by projected block sweeps over W alone.
-        let tolerance = 8.0 * EPS * needed.length().max(f64::MIN_POSITIVE);
-        let mut sum = DVec3::ZERO;
-        for &index in &self.kinks[..self.kink_count] {
-            let i = index as usize;
-            dual[i] = project(&items[i], dual[i]);
-            sum += dual[i];
-        }
-        for _ in 0..MAX_SPLIT_SWEEPS {
-            let sum_before = sum;
-            let mut changed = false;
-            for &index in &self.kinks[..self.kink_count] {
-                let i = index as usize;
-                let others = sum - dual[i];
-                let u = project(&items[i], needed - others);
-                changed |= u != dual[i];
-                dual[i] = u;
-                sum = others + u;
-            }
-            if (sum - needed).length() <= tolerance {
-                return Ok(());
-            }
-            if !changed && sum == sum_before {
-                // A fixed point (one kink reaches it in one sweep): further sweeps would repeat this one.
-                break;
-            }
-        }
-        // No feasible split found: the kink whose unconstrained share most exceeds its set leaves.
-        let mut worst: Option<(usize, f64, DVec3, State)> = None;
-        for &index in &self.kinks[..self.kink_count] {
-            let i = index as usize;
-            let others = sum - dual[i];
-            let u = kink_projector(&items[i]) * (needed - others);
-            if let Some((violation, label)) = violation(&items[i], u) {
-                if worst.is_none_or(|(_, v, _, _)| violation > v) {
-                    worst = Some((i, violation, u, label));
-                }
-            }
-        }
-        let (i, _, u, label) = worst.unwrap_or_else(|| {
-            // Every share is feasible on its own yet they do not add up: drop the last kink added.
-            let i = self.kinks[self.kink_count - 1] as usize;
-            (i, 0.0, dual[i], leave_label(&items[i], dual[i]))
-        });
-        Err((i, u, label))
-    }
-
-    /// Gap-safe screening (module header): drops the planes that keep their side on the ball of radius
-    /// `radius` around `x`, which is proven to hold the answer. Runs only when the radius has shrunk by 4
-    /// since the last screening.
-    fn screen(
-        &mut self,
-        items: &[Item],
-        x: DVec3,
-        radius: f64,
-        screened_radius_m: &mut f64,
-        dual: &mut [DVec3],
-    ) {
-        // (A NaN radius screens nothing.)
-        if radius.is_nan() || radius >= 0.25 * *screened_radius_m {
-            return;
-        }
-        *screened_radius_m = radius;
-        let scale = x.abs().max_element();
-        let mut kept = 0;
-        for slot in 0..self.active.len() {
-            let index = self.active[slot];
-            let i = index as usize;
-            let item = &items[i];
-            let state = self.state[i];
-            if item.kind == PrimitiveKind::Plane && matches!(state, State::Off | State::Full) {
-                let sigma = item.direction.dot(x - item.position_m);
-                let rounding = 8.0 * EPS * (scale + item.position_m.abs().max_element());
-                if sigma.abs() > radius + rounding {
-                    if sigma < 0.0 {
-                        self.state[i] = State::ScreenedFull;
-                        self.fixed_gradient_n -= item.strength_n * item.direction;
-                        self.fixed_energy_j +=
-                            item.strength_n * item.direction.dot(item.position_m);
-                        dual[i] = -item.strength_n * item.direction;
-                    } else {
-                        self.state[i] = State::ScreenedOff;
-                        dual[i] = DVec3::ZERO;
-                    }
-                    continue;
-                }
-            }
-            self.active[kept] = index;
-            kept += 1;
-        }
-        self.active.truncate(kept);
-    }
-
-    /// The affine set of W.
-    fn face(&self, items: &[Item]) -> Face {
-        let kinks = &self.kinks[..self.kink_count];
-        if let Some(&p) = kinks
-            .iter()
-            .find(|&&i| items[i as usize].kind == PrimitiveKind::Point)
-        {
-            return Face {
-                pinv: DMat3::ZERO,
-                null: DMat3::ZERO,
-                point: Some(p as usize),
-            };
-        }
-        match kinks {
-            [] => Face {
-                pinv: DMat3::ZERO,
-                null: DMat3::IDENTITY,
-                point: None,
-            },
-            [only] => {
-                let p = kink_projector(&items[*only as usize]);
-                Face {
-                    pinv: p,
-                    null: DMat3::IDENTITY - p,
-                    point: None,
-                }
-            }
-            _ => {
-                let m = kinks
-                    .iter()
-                    .map(|&i| kink_projector(&items[i as usize]))
-                    .fold(DMat3::ZERO, |m, p| m + p);
-                let (pinv, null, _) = psd_pseudo_inverse(m, RANK_TOLERANCE);
-                Face {
-                    pinv,
-                    null,
-                    point: None,
-                }
-            }
-        }
-    }
-
-    /// Moves `x` onto the affine set of W (two rounds: the second removes the first's rounding). Returns whether
-    /// every kink then holds it (the set is consistent).
-    fn project_onto_face(&self, items: &[Item], face: &Face, x: &mut DVec3, scale: f64) -> bool {
-        if self.kink_count == 0 {
-            return true;
-        }
-        if let Some(p) = face.point {
-            *x = items[p].position_m;
-        } else {
-            for _ in 0..2 {
-                let mut residual = DVec3::ZERO;
-                for &index in &self.kinks[..self.kink_count] {
-                    let item = &items[index as usize];
-                    residual += kink_projector(item) * (item.position_m - *x);
-                }
-                *x += face.pinv * residual;
-            }
-        }
-        let tolerance = 64.0 * EPS * scale;
-        self.kinks[..self.kink_count]
-            .iter()
-            .all(|&i| kink_distance_squared(&items[i as usize], *x) <= tolerance * tolerance)
-    }
-
-    /// Adds item `i` to W if the enlarged set is consistent, moving `x` onto it, and returns the new face;
-    /// otherwise leaves W and `x`.
-    fn try_add_kink(
-        &mut self,
-        items: &[Item],
-        i: usize,
-        x: &mut DVec3,
-        scale: f64,
-    ) -> Option<Face> {
-        if self.kink_count == MAX_KINKS || self.state[i] == State::Kink {
-            return None;
-        }
-        self.kinks[self.kink_count] = i as u32;
-        self.kink_count += 1;
-        let face = self.face(items);
-        let mut moved = *x;
-        if self.project_onto_face(items, &face, &mut moved, scale) {
-            self.state[i] = State::Kink;
-            *x = moved;
-            Some(face)
-        } else {
-            self.kink_count -= 1;
-            None
-        }
-    }
-
-    /// Takes kink `i`, whose multiplier `u` lies outside its set, out of W with `label` (a point or line is
-    /// moved off its kink the way the excess force pushes, by what the coupling alone would yield to it).
-    /// Returns false when `i` has left W too often in this solve (the attempt is then abandoned as cycling).
-    #[allow(clippy::too_many_arguments)]
-    fn leave(
-        &mut self,
-        items: &[Item],
-        i: usize,
-        u: DVec3,
-        label: State,
-        x: &mut DVec3,
-        k: f64,
-        scale: f64,
-    ) -> bool {
-        self.drops[i] = self.drops[i].saturating_add(1);
-        if self.drops[i] > MAX_DROPS_PER_PRIMITIVE {
-            return false;
-        }
-        self.remove_kink(i, label);
-        let item = &items[i];
-        if item.kind != PrimitiveKind::Plane {
-            let excess = u.length() - item.strength_n;
-            *x += u.normalize_or_zero() * (excess / k).max(1e-9 * scale);
-        }
-        true
-    }
-
-    /// Step 4 ahead of time: with one kink in W (a plane or a line), its multiplier at the minimiser of the
-    /// face's model, from the gradient the model predicts there (`g + H d`). If that lies far outside its set
-    /// (by more than [`EARLY_LEAVE`] of the strength), converging on the face would only end in the kink
-    /// leaving: returns it, its multiplier and its label, so that it leaves now.
-    fn early_leave(
-        &self,
-        items: &[Item],
-        face: &Face,
-        predicted: DVec3,
-    ) -> Option<(usize, DVec3, State)> {
-        if self.kink_count != 1 || face.point.is_some() {
-            return None;
-        }
-        let i = self.kinks[0] as usize;
-        let item = &items[i];
-        let u = kink_projector(item) * -predicted;
-        let (amount, label) = violation(item, u)?;
-        (amount > EARLY_LEAVE).then_some((i, u, label))
-    }
-
-    /// Removes item `i` from W with the given label.
-    fn remove_kink(&mut self, i: usize, label: State) {
-        if let Some(slot) = self.kinks[..self.kink_count]
-            .iter()
-            .position(|&k| k as usize == i)
-        {
-            self.kinks.copy_within(slot + 1..self.kink_count, slot);
-            self.kink_count -= 1;
-        }
-        self.state[i] = label;
-    }
-
-    /// Puts W back as it was before a step that is being halved.
-    fn restore_kinks(&mut self, items: &[Item], kinks: [u32; MAX_KINKS], count: usize, x: DVec3) {
-        for slot in 0..self.kink_count {
-            let i = self.kinks[slot] as usize;
-            if !kinks[..count].contains(&(i as u32)) {
-                self.state[i] = start_state(&items[i], x);
-            }
-        }
-        self.kinks = kinks;
-        self.kink_count = count;
-        for &i in &kinks[..count] {
-            self.state[i as usize] = State::Kink;
-        }
-    }
 }
 
 /// Whether a full step of length `step_m` after a full step of `last_step_m`, with its third-order correction,
@@ -1356,7 +721,7 @@ fn start_sum(items: &[Item], active: &[u32], y: DVec3, k: f64) -> DVec3 {
 
 /// The Jacobi start's damping for `m` items, `min(1, 2 / sqrt(m))` ([`start_sum`]).
 fn jacobi_damping(m: usize) -> f64 {
-    (2.0 / (m as f64).sqrt()).min(1.0)
+    (2.0 / sqrt(m as f64)).min(1.0)
 }
 
 /// The state of an item off W at `x`.
@@ -1417,141 +782,4 @@ fn kink_distance_squared(item: &Item, x: DVec3) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::bench_scenes::{random_scene, SplitMix};
-    use crate::subgradient;
-
-    /// The gradient of the smooth terms at `x` (points and lines off their kink: their subgradient), for
-    /// finite differences.
-    fn smooth_gradient(items: &[Item], x: DVec3) -> DVec3 {
-        items.iter().map(|item| subgradient(item, x)).sum()
-    }
-
-    /// `third_order` is the third derivative applied twice: it matches the second central difference of the
-    /// gradient along `d`, `(g(x + h d) - 2 g(x) + g(x - h d)) / h^2`, on random points and lines.
-    #[test]
-    fn third_order_matches_finite_differences_of_the_gradient() {
-        let mut rng = SplitMix(42);
-        for scene in 0..50 {
-            let items: Vec<Item> = (0..6)
-                .map(|i| Item {
-                    kind: if i % 2 == 0 {
-                        PrimitiveKind::Point
-                    } else {
-                        PrimitiveKind::Line
-                    },
-                    position_m: rng.vec(0.01),
-                    direction: if i % 2 == 0 {
-                        DVec3::ZERO
-                    } else {
-                        rng.vec(1.0).normalize()
-                    },
-                    strength_n: rng.range(0.1, 2.0),
-                })
-                .collect();
-            let x = rng.vec(0.01);
-            let d = rng.vec(1e-3);
-            let mut workspace = Workspace::with_capacity(items.len());
-            // A pass at x writes each smooth item's force there (its subgradient) as its dual value.
-            let dual: Vec<DVec3> = items.iter().map(|item| subgradient(item, x)).collect();
-            for (i, item) in items.iter().enumerate() {
-                workspace.active.push(i as u32);
-                workspace.state.push(State::Smooth);
-                workspace
-                    .kink_distance_m
-                    .push(kink_distance_squared(item, x).sqrt());
-            }
-            let analytic = workspace.third_order(&items, &dual, d);
-            let h = 1e-3;
-            let numeric = (smooth_gradient(&items, x + h * d) - 2.0 * smooth_gradient(&items, x)
-                + smooth_gradient(&items, x - h * d))
-                / (h * h);
-            let error = (analytic - numeric).length();
-            assert!(
-                error <= 1e-4 * analytic.length(),
-                "scene {scene}: analytic {analytic:?}, numeric {numeric:?}"
-            );
-        }
-    }
-
-    /// The iteration compiled with the pass inlined (scenes of up to `INLINE_PASS_MAX_ITEMS`) and with it called
-    /// (larger scenes) is the same computation: on small random scenes, cold and warm, both give the same point,
-    /// dual, passes and certificate to the bit. Fails if either copy's pass or iteration drifts from the other.
-    #[test]
-    fn the_inlined_and_the_called_pass_iterate_alike() {
-        let k = 500.0;
-        let mut certified = 0;
-        for seed in 1..=300u64 {
-            let n = 1 + (seed as usize) % INLINE_PASS_MAX_ITEMS;
-            let (probe, primitives) = random_scene(seed * 7_919 + n as u64, n);
-            let items: Vec<Item> = primitives
-                .iter()
-                .filter(|p| p.kind() != PrimitiveKind::Directed)
-                .map(|p| Item {
-                    kind: p.kind(),
-                    position_m: p.position_m(),
-                    direction: p.direction(),
-                    strength_n: p.strength_n(),
-                })
-                .collect();
-            let frame = Frame {
-                y: probe,
-                k,
-                y_error_m: 0.0,
-                strength_over_k_m: items.iter().map(|item| item.strength_n).sum::<f64>() / k,
-            };
-            let limits = Limits {
-                tolerance_m: 1e-12,
-                max_passes: 60,
-                screening: true,
-            };
-            for start in [None, Some(probe + DVec3::new(1e-3, -2e-3, 5e-4))] {
-                let run = |inline: bool| {
-                    let mut workspace = Workspace::with_capacity(items.len());
-                    let mut dual = vec![DVec3::splat(f64::NAN); items.len()];
-                    let outcome = if inline {
-                        workspace.solve_with::<true>(
-                            &items,
-                            &frame,
-                            start,
-                            limits,
-                            &mut dual,
-                            &mut || false,
-                        )
-                    } else {
-                        workspace.solve_with::<false>(
-                            &items,
-                            &frame,
-                            start,
-                            limits,
-                            &mut dual,
-                            &mut || false,
-                        )
-                    };
-                    (outcome, dual)
-                };
-                let ((inlined, inlined_dual), (called, called_dual)) = (run(true), run(false));
-                let bits = |v: DVec3| v.to_array().map(f64::to_bits);
-                let context = format!("seed {seed}, {} items, start {start:?}", items.len());
-                assert_eq!(bits(inlined.x), bits(called.x), "{context}");
-                assert_eq!(inlined.passes, called.passes, "{context}");
-                assert_eq!(inlined.certified, called.certified, "{context}");
-                assert_eq!(
-                    inlined.certificate.map(|c| c.bound_m.to_bits()),
-                    called.certificate.map(|c| c.bound_m.to_bits()),
-                    "{context}"
-                );
-                let dual_bits = |dual: &[DVec3]| dual.iter().map(|&u| bits(u)).collect::<Vec<_>>();
-                assert_eq!(
-                    dual_bits(&inlined_dual),
-                    dual_bits(&called_dual),
-                    "{context}"
-                );
-                certified += usize::from(inlined.certified);
-            }
-        }
-        // Most attempts certify: the comparison covers whole iterations, not only first passes.
-        assert!(certified >= 500, "{certified} of 600 attempts certified");
-    }
-}
+mod tests;

@@ -3,6 +3,7 @@
 use super::*;
 use crate::bench_scenes::{random_primitives, random_scene, thin_wedge, SplitMix};
 use crate::primitive::total_energy_j;
+use crate::primitive::Primitive;
 use crate::reference;
 
 const K: f64 = 500.0;
@@ -460,4 +461,63 @@ fn primal_newton_pass_counts_on_ten_primitive_scenes() {
     let (benchmark, others) = cold_pass_counts(10, 400);
     assert!(benchmark <= 3, "benchmark scene: {benchmark} passes");
     assert!(others <= 1480, "400 other scenes: {others} passes");
+}
+
+/// A solver in fixed arrays holds a floor probe on the surface (the plane's 10 N exceed the 0.5 N the coupling
+/// pulls with, so the proxy sits at z = 0), and returns the same answer, bit for bit, as the growable solver on
+/// random scenes, warm and cold: the storage changes where the workspace lives, not the arithmetic.
+#[test]
+fn a_fixed_storage_solver_matches_the_growable_one() {
+    use crate::storage::Fixed;
+    let floor = [Primitive::plane(DVec3::ZERO, DVec3::Z, 10.0).unwrap()];
+    let mut fixed: Solver<Fixed<12>> = Solver::new_in(SolverConfig::default(), 12);
+    let sol = fixed
+        .solve(&problem(DVec3::new(0.002, 0.0, -0.001), &floor, None))
+        .unwrap();
+    assert_certified_near(&sol, DVec3::new(0.002, 0.0, 0.0));
+    let mut heap = Solver::default();
+    for seed in 0..20 {
+        let (probe, primitives) = random_scene(seed, 12);
+        let previous = (seed % 2 == 1).then_some(probe + DVec3::splat(1e-4));
+        let a = fixed.solve(&problem(probe, &primitives, previous));
+        let b = heap.solve(&problem(probe, &primitives, previous));
+        assert_eq!(a, b, "seed {seed}");
+        assert!(fixed.primitive_forces_n().eq(heap.primitive_forces_n()));
+    }
+}
+
+/// A scene larger than a fixed storage is refused with both counts, before any work; directed primitives take
+/// no slot, so they do not count.
+#[test]
+fn a_fixed_storage_solver_refuses_a_scene_it_cannot_hold() {
+    use crate::storage::Fixed;
+    let mut solver: Solver<Fixed<2>> = Solver::new_in(SolverConfig::default(), 2);
+    let plane = Primitive::plane(DVec3::ZERO, DVec3::Z, 1.0).unwrap();
+    let push = Primitive::directed(DVec3::X, 1.0).unwrap();
+    let three_planes = [plane, plane, plane];
+    assert_eq!(
+        solver.solve(&problem(DVec3::ZERO, &three_planes, None)),
+        Err(SolveError::TooManyPrimitives {
+            given: 3,
+            capacity: 2
+        })
+    );
+    let two_planes_two_pushes = [plane, push, plane, push];
+    let sol = solver
+        .solve(&problem(DVec3::ZERO, &two_planes_two_pushes, None))
+        .unwrap();
+    assert_eq!(sol.status, SolveStatus::Certified);
+}
+
+fn problem(
+    probe_m: DVec3,
+    primitives: &[Primitive],
+    previous_proxy_m: Option<DVec3>,
+) -> Problem<'_> {
+    Problem {
+        stiffness_n_per_m: K,
+        probe_m,
+        previous_proxy_m,
+        primitives,
+    }
 }

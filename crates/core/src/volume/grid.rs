@@ -14,7 +14,7 @@
 //! Derivatives go the other way: for a field `f(u(p))` with `u = L⁻¹ (p - origin)`, the chain rule gives
 //! `∇_world f = L⁻ᵀ ∇_index f`, so the grid keeps `L⁻¹` and `L⁻ᵀ` precomputed for the samplers.
 
-use super::VolumeError;
+use super::error::VolumeError;
 use glam::{DMat3, DMat4, DVec3, DVec4};
 
 /// Tolerance on the length of a direction cosine column (they must be unit vectors).
@@ -157,6 +157,34 @@ impl Grid {
     /// Total number of voxels `nx · ny · nz` (cannot overflow: checked in [`Grid::new`]).
     pub fn voxel_count(&self) -> usize {
         self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// `field` at every voxel centre, in the volumes' layout (x fastest).
+    pub(crate) fn sample_centres<T>(&self, field: impl Fn(DVec3) -> T) -> Vec<T> {
+        let [nx, ny, nz] = self.dims();
+        let mut data = Vec::with_capacity(self.voxel_count());
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    data.push(field(
+                        self.index_to_world(DVec3::new(i as f64, j as f64, k as f64)),
+                    ));
+                }
+            }
+        }
+        data
+    }
+
+    /// Whether `len` values, one per voxel, fill this grid: [`VolumeError::DataLength`] if not.
+    pub(crate) fn check_data_length(&self, len: usize) -> Result<(), VolumeError> {
+        let expected = self.voxel_count();
+        if len != expected {
+            return Err(VolumeError::DataLength {
+                expected,
+                actual: len,
+            });
+        }
+        Ok(())
     }
 
     /// Distance between voxel centres along each index axis, metres.

@@ -23,6 +23,8 @@
 //!   samples 0 (zero vector, zero gradient, zero Jacobian). No sampler panics or returns NaN: stored
 //!   values are checked finite on construction.
 
+mod any;
+mod error;
 pub mod grid;
 pub mod isosurface;
 pub mod procedural;
@@ -30,70 +32,8 @@ mod sampling;
 pub mod scalar;
 pub mod vector;
 
+pub use any::AnyVolume;
+pub use error::VolumeError;
 pub use grid::Grid;
 pub use scalar::ScalarVolume;
 pub use vector::VectorVolume;
-
-use glam::DVec3;
-
-/// A volume of either kind, as loaded from a file.
-#[derive(Debug, Clone, PartialEq)]
-pub enum AnyVolume {
-    Scalar(ScalarVolume),
-    Vector(VectorVolume),
-}
-
-impl AnyVolume {
-    /// The volume's grid.
-    pub fn grid(&self) -> &Grid {
-        match self {
-            AnyVolume::Scalar(volume) => volume.grid(),
-            AnyVolume::Vector(volume) => volume.grid(),
-        }
-    }
-
-    /// `"scalar"` or `"vector"`.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            AnyVolume::Scalar(_) => "scalar",
-            AnyVolume::Vector(_) => "vector",
-        }
-    }
-
-    /// Value range: the stored minimum and maximum for a scalar volume, the minimum and maximum
-    /// vector magnitude for a vector volume.
-    pub fn value_range(&self) -> (f32, f32) {
-        match self {
-            AnyVolume::Scalar(volume) => volume.value_range(),
-            AnyVolume::Vector(volume) => volume.magnitude_range(),
-        }
-    }
-}
-
-/// Errors building a volume in memory (bad grid, data of the wrong length, non-finite values,
-/// unknown built-in name).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum VolumeError {
-    #[error("grid dimensions {dims:?} are invalid: every dimension must be at least 1 (2 for a procedural cube)")]
-    ZeroDimension { dims: [usize; 3] },
-    #[error("grid dimensions {dims:?} give more voxels than this machine can address")]
-    TooManyVoxels { dims: [usize; 3] },
-    #[error("grid spacing {spacing_m} m is invalid: it must be finite and positive on every axis")]
-    BadSpacing { spacing_m: DVec3 },
-    #[error("grid origin {origin_m} m is not finite")]
-    BadOrigin { origin_m: DVec3 },
-    #[error("grid direction matrix is invalid: {reason}")]
-    BadDirection { reason: &'static str },
-    #[error("volume data has {actual} elements but the grid has {expected} voxels")]
-    DataLength { expected: usize, actual: usize },
-    #[error("volume data has a non-finite value at element {index}")]
-    NonFiniteValue { index: usize },
-    #[error("parameter {name} = {value} is invalid: {reason}")]
-    BadParameter {
-        name: &'static str,
-        value: f64,
-        reason: &'static str,
-    },
-    #[error("unknown built-in volume {name:?}; known: {}", procedural::BUILTIN_NAMES.join(", "))]
-    UnknownBuiltin { name: String },
-}

@@ -17,19 +17,14 @@
 //!   `v_r = -α r / 2`, `v_z = α z`, `v_θ = Γ / (2π r) · (1 - exp(-r²/δ²))`. Divergence
 //!   `-α + α = 0`; axial vorticity `Γ/(π δ²) · exp(-r²/δ²)`.
 
-use super::{AnyVolume, Grid, ScalarVolume, VectorVolume, VolumeError};
+use super::any::AnyVolume;
+use super::error::VolumeError;
+pub use super::error::BUILTIN_NAMES;
+use super::grid::Grid;
+use super::scalar::ScalarVolume;
+use super::vector::VectorVolume;
 use glam::DVec3;
 use std::f64::consts::PI;
-
-/// Names accepted by [`builtin`].
-pub const BUILTIN_NAMES: [&str; 6] = [
-    "sphere",
-    "torus",
-    "shells",
-    "rankine",
-    "burgers",
-    "density-flow",
-];
 
 /// Default grid of the built-in volumes: 64³ voxels.
 pub const BUILTIN_DIMS: [usize; 3] = [64; 3];

@@ -14,7 +14,7 @@
 //! per-voxel derivatives are interpolated with the same trilinear weights. Both steps reproduce a
 //! linear field exactly. For an axis with one voxel the derivative is zero.
 
-use super::Grid;
+use super::grid::Grid;
 use glam::DVec3;
 use std::ops::{Add, Mul, Sub};
 

@@ -6,8 +6,9 @@
 //! central-difference gradient mapped to world axes by `L⁻ᵀ`, clamp-to-edge outside, 0 for
 //! non-finite positions).
 
+use super::error::VolumeError;
+use super::grid::Grid;
 use super::sampling::{index_derivatives, locate, trilinear};
-use super::{Grid, VolumeError};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -25,13 +26,7 @@ impl ScalarVolume {
     /// Wraps `data` (x fastest) on `grid`. Rejects a length other than the voxel count and any
     /// non-finite value.
     pub fn new(grid: Grid, data: Vec<f32>) -> Result<ScalarVolume, VolumeError> {
-        let expected = grid.voxel_count();
-        if data.len() != expected {
-            return Err(VolumeError::DataLength {
-                expected,
-                actual: data.len(),
-            });
-        }
+        grid.check_data_length(data.len())?;
         let mut min = f32::INFINITY;
         let mut max = f32::NEG_INFINITY;
         for (index, &value) in data.iter().enumerate() {
@@ -50,16 +45,7 @@ impl ScalarVolume {
 
     /// Samples `field(p_world)` at every voxel centre.
     pub fn from_fn(grid: Grid, field: impl Fn(DVec3) -> f64) -> Result<ScalarVolume, VolumeError> {
-        let [nx, ny, nz] = grid.dims();
-        let mut data = Vec::with_capacity(grid.voxel_count());
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let p = grid.index_to_world(DVec3::new(i as f64, j as f64, k as f64));
-                    data.push(field(p) as f32);
-                }
-            }
-        }
+        let data = grid.sample_centres(|p| field(p) as f32);
         ScalarVolume::new(grid, data)
     }
 

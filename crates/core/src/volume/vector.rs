@@ -13,8 +13,9 @@
 //!
 //! All samplers are allocation-free and return zero for non-finite positions.
 
+use super::error::VolumeError;
+use super::grid::Grid;
 use super::sampling::{index_derivatives, locate, trilinear};
-use super::{Grid, VolumeError};
 use glam::{DMat3, DVec3};
 use std::sync::Arc;
 
@@ -32,13 +33,7 @@ impl VectorVolume {
     /// Wraps `data` (x fastest) on `grid`. Rejects a length other than the voxel count and any
     /// non-finite component.
     pub fn new(grid: Grid, data: Vec<[f32; 3]>) -> Result<VectorVolume, VolumeError> {
-        let expected = grid.voxel_count();
-        if data.len() != expected {
-            return Err(VolumeError::DataLength {
-                expected,
-                actual: data.len(),
-            });
-        }
+        grid.check_data_length(data.len())?;
         let mut min = f32::INFINITY;
         let mut max = f32::NEG_INFINITY;
         for (index, value) in data.iter().enumerate() {
@@ -62,16 +57,7 @@ impl VectorVolume {
         grid: Grid,
         field: impl Fn(DVec3) -> DVec3,
     ) -> Result<VectorVolume, VolumeError> {
-        let [nx, ny, nz] = grid.dims();
-        let mut data = Vec::with_capacity(grid.voxel_count());
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let p = grid.index_to_world(DVec3::new(i as f64, j as f64, k as f64));
-                    data.push(field(p).as_vec3().to_array());
-                }
-            }
-        }
+        let data = grid.sample_centres(|p| field(p).as_vec3().to_array());
         VectorVolume::new(grid, data)
     }
 

@@ -7,8 +7,8 @@
 //! the tick runs. Every error names the key, e.g. `modes[1].transfer: x must increase (...)` or
 //! `modes[2].mu: a surface mode does not use this key`.
 
+use super::mode::{Mode, ModeError, SurfaceSide};
 use super::transfer::TransferFunction;
-use super::{Mode, ModeError, SurfaceSide};
 use crate::haptics::Primitive;
 use crate::volume::AnyVolume;
 use glam::DVec3;

@@ -1,7 +1,9 @@
 //! Unit tests of the modes: what each emits for known fields.
 
 use super::*;
-use crate::volume::{procedural, Grid};
+use crate::haptics::Primitive;
+use crate::volume::{procedural, AnyVolume, Grid, ScalarVolume, VectorVolume};
+use glam::DVec3;
 
 fn sphere_volume() -> AnyVolume {
     AnyVolume::Scalar(procedural::sphere(0.03, [32; 3], 0.05).unwrap())

@@ -28,6 +28,7 @@ mod haply_2diy_pty;
 mod haply_inverse;
 mod igtl;
 mod late_states;
+mod layers;
 mod modes;
 mod paper;
 mod plot_stream;

@@ -384,6 +384,7 @@ impl FalconPort for SerialTransport {
     }
 }
 
+#[cfg(any(test, feature = "test-support"))]
 impl FalconPort for crate::transport::MemoryPipe {
     fn set_baud(&mut self, _baud: u32) -> Result<(), DeviceError> {
         Ok(())

@@ -7,6 +7,8 @@
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
 //! - [`woodenhaptics_constants`]: the constants a device profile may replace, for both WoodenHaptics drivers;
+//! - [`woodenhaptics_kinematics`]: the WoodenHaptics kinematics (capstan drive, serial chain, Polhem), used by
+//!   both WoodenHaptics drivers;
 //! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
 //!   and kinematics;
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
@@ -18,6 +20,7 @@ pub mod haply_inverse;
 pub mod protocol;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
+pub mod woodenhaptics_kinematics;
 pub mod woodenhaptics_serial;
 
 pub use falcon::{Falcon, FalconConfig};

@@ -32,6 +32,8 @@ pub mod profile;
 pub mod safety;
 pub mod sim;
 pub mod supervisor;
+mod supervisor_config;
+mod supervisor_tick;
 mod traits;
 pub mod transport;
 

@@ -4,7 +4,7 @@
 //! `test-support` feature (off by default; the root package's tests and benches switch it on).
 //!
 //! [`inverse_service`] is a third kind: the Haply Inverse Service's JSON-over-WebSocket channel on its own I/O
-//! thread, handed to the servo thread through lock-free buffers.
+//! thread, handed to the servo thread through lock-free buffers; [`inverse_wire`] holds its JSON messages.
 //!
 //! Two shapes: [`ByteTransport`] is a byte stream (UART, USB CDC-ACM, pseudo-terminal) whose framing the driver
 //! does; [`ReportTransport`] moves whole HID reports. Reads take a timeout and return `Ok(0)` when nothing came,
@@ -12,6 +12,7 @@
 
 pub mod hid;
 pub mod inverse_service;
+pub mod inverse_wire;
 #[cfg(any(test, feature = "test-support"))]
 pub mod memory;
 pub mod serial;

@@ -497,11 +497,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
 
     /// Zero torque until homed; then (J⁻¹)ᵀ f at the last position.
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         let motor = match self.accepted_m {
             Some(position) if self.is_homed() => {

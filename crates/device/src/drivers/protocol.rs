@@ -483,11 +483,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
 
     fn send_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         let force = [force_n.x as f32, force_n.y as f32, force_n.z as f32];
-        if force.iter().any(|f| !f.is_finite()) {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        // Checked after the conversion: a finite f64 beyond f32's range becomes infinite.
+        DeviceError::check_finite_force(force.map(f64::from))?;
         let message = self.host.set_force(force, ForceFlags::EMPTY);
         if let HostToDevice::SetForce(set_force) = message {
             self.last_sent_sequence = set_force.sequence;

@@ -290,11 +290,7 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         // Only a pose the host accepted converts force; none yet means zero.
         let currents = match self.theta {
             Some(theta) => self.config.currents_ma(theta, force_n),

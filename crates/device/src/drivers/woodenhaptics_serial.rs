@@ -450,11 +450,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         // Only a pose the host accepted converts force; none yet means zero.
         let currents = match self.theta {

@@ -7,6 +7,10 @@
 //! mapping and coupling caps go into `servo::mapped::MappedDevice`, its kinematics into the driver's config.
 //! `voxhap calibrate` writes one. docs/workspace.md is the user's reference; every key is listed there.
 //!
+//! Parts: `schema` holds the file as written and the checked [`DeviceProfile`], `check` turns one into the other
+//! (every error names the profile and the key); this module finds a profile by name or file, lays it over a
+//! built-in, and applies it to the supervisor's and the drivers' configurations.
+//!
 //! ```toml
 //! device = "haply2diy"           # which family the kinematics are for (optional otherwise)
 //! base = "haply2diy"             # start from a built-in profile, override what follows (optional)

@@ -139,6 +139,18 @@ fn seconds(us: u64) -> String {
 }
 
 impl DeviceError {
+    /// Every driver's last check before a force goes out: a non-finite component is refused (the safety
+    /// pipeline zeroes such forces before any driver, so this only fires on a bug upstream).
+    pub(crate) fn check_finite_force(components: [f64; 3]) -> Result<(), DeviceError> {
+        if components.iter().all(|c| c.is_finite()) {
+            Ok(())
+        } else {
+            Err(DeviceError::InvalidData {
+                what: "force is not finite (the safety pipeline should have zeroed it)",
+            })
+        }
+    }
+
     /// Classifies an OS I/O error: hang-ups and broken pipes are disconnects, the rest are I/O errors.
     pub fn from_io(error: &io::Error, during: &'static str) -> DeviceError {
         let kind = error.kind();

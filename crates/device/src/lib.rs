@@ -3,8 +3,8 @@
 //! Sits at both ends of the data flow in docs/design.md ("Threads"): a device reports the probe position to the
 //! servo thread and receives the rendered force. The layers, bottom up:
 //!
-//! - [`transport`]: bytes or reports to and from somewhere (serial port or pseudo-terminal, USB HID, in-memory
-//!   pipes and scripted test doubles);
+//! - [`transport`]: bytes or reports to and from somewhere (serial port or pseudo-terminal, USB HID; with the
+//!   `test-support` feature also in-memory pipes and scripted test doubles);
 //! - [`drivers`]: one per device family, each on a transport (voxhap's own protocol over serial or HID,
 //!   WoodenHaptics 1.5, Haply 2DIY, Novint Falcon); all implement [`HapticDevice`] (`traits.rs`);
 //! - [`Lifecycle`]: open → enabled → open → closed, enforced once for every driver;
@@ -32,6 +32,8 @@ pub mod profile;
 pub mod safety;
 pub mod sim;
 pub mod supervisor;
+mod supervisor_config;
+mod supervisor_tick;
 mod traits;
 pub mod transport;
 

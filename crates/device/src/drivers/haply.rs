@@ -342,11 +342,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
 
     /// Sends the torques for `force_n` (z dropped). The board answers with the angles, read by `read_state`.
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         // Only a pose the host accepted converts force; none yet means zero torque.
         let Some([[j11, j12], [j21, j22]]) = self.jacobian else {

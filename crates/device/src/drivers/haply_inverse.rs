@@ -157,11 +157,7 @@ impl HapticDevice for HaplyInverse {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         let sequence = self.sequence + 1;
         let link = self.link_mut()?;
         if link.shared.link_down.load(Ordering::Acquire) {

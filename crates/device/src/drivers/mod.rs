@@ -3,21 +3,28 @@
 //!
 //! - [`protocol`]: voxhap's own wire protocol (protocol/SPEC.md) over serial or USB HID, for microcontroller arms
 //!   and for `voxhap mock-device`;
+//! - [`protocol_link`]: the links that driver talks through (framed serial, HID reports);
 //! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
 //! - [`woodenhaptics_constants`]: the constants a device profile may replace, for both WoodenHaptics drivers;
+//! - [`woodenhaptics_kinematics`]: the WoodenHaptics kinematics (capstan drive, serial chain, Polhem), used by
+//!   both WoodenHaptics drivers;
 //! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
 //!   and kinematics;
+//! - [`falcon_kinematics`]: the Falcon's kinematics (libnifalcon's delta-robot solution);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
 pub mod falcon;
+pub mod falcon_kinematics;
 pub mod haply;
 pub mod haply_inverse;
 pub mod protocol;
+pub mod protocol_link;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
+pub mod woodenhaptics_kinematics;
 pub mod woodenhaptics_serial;
 
 pub use falcon::{Falcon, FalconConfig};

@@ -33,9 +33,12 @@
 //! (τ_A d_capA/d_bodyA, -τ_B d_capB/d_bodyB, -τ_C d_capC/d_bodyC); currents I = τ_motor / k_t clamped to ±3 A,
 //! sent as whole milliamperes (truncated toward zero, as C's `short(...)` does).
 
+use super::woodenhaptics_kinematics::{
+    drum_angle_rad, motor_torque_n_m, relative_to, serial_chain_jacobian, serial_chain_point,
+};
 use crate::transport::ReportTransport;
 use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use std::f64::consts::PI;
 use std::time::Duration;
 
@@ -132,51 +135,36 @@ impl WoodenHapticsConfig {
 
     /// Joint angles (θA, θB, θC after the π/2 shift) from the three encoder counts of a report.
     pub fn joint_angles_rad(&self, counts: [i16; 3]) -> [f64; 3] {
+        // CWoodenDevice.cpp: counts (-e_a, e_b, e_c) over gear ratios (+, -, +) d_body / d_capstan; the sign of
+        // B's ratio is folded into its count here.
         let encoder = [
             -f64::from(counts[0]),
-            f64::from(counts[1]),
+            -f64::from(counts[1]),
             f64::from(counts[2]),
         ];
-        let gear = [
-            self.body_diameter_m[0] / self.capstan_diameter_m[0],
-            -self.body_diameter_m[1] / self.capstan_diameter_m[1],
-            self.body_diameter_m[2] / self.capstan_diameter_m[2],
-        ];
-        let angle = |i: usize| 2.0 * PI * encoder[i] / self.counts_per_revolution[i] / gear[i];
+        let angle = |i: usize| {
+            drum_angle_rad(
+                encoder[i],
+                self.counts_per_revolution[i],
+                self.capstan_diameter_m[i],
+                self.body_diameter_m[i],
+            )
+        };
         [angle(0), angle(1), PI / 2.0 - angle(2)]
     }
 
     /// Handle position (m) at joint angles `theta`.
     pub fn position_m(&self, theta: [f64; 3]) -> DVec3 {
-        let [la, lb, lc] = self.link_length_m;
-        let [ta, tb, tc] = theta;
-        let reach = lb * tb.sin() + lc * tc.sin();
-        DVec3::new(
-            ta.cos() * reach - self.workspace_origin_m[0],
-            ta.sin() * reach - self.workspace_origin_m[1],
-            la + lb * tb.cos() - lc * tc.cos() - self.workspace_origin_m[2],
+        relative_to(
+            serial_chain_point(self.link_length_m, theta),
+            self.workspace_origin_m,
         )
     }
 
     /// Motor currents (mA, as sent) that render `force_n` at joint angles `theta`.
     pub fn currents_ma(&self, theta: [f64; 3], force_n: DVec3) -> [i16; 3] {
-        let [_, lb, lc] = self.link_length_m;
-        let [ta, tb, tc] = theta;
-        let reach = lb * tb.sin() + lc * tc.sin();
-        // Rows of J as in CWoodenDevice.cpp; glam matrices are built from columns.
-        let jacobian = DMat3::from_cols(
-            DVec3::new(-ta.sin() * reach, ta.cos() * reach, 0.0),
-            DVec3::new(
-                lb * ta.cos() * tb.cos(),
-                lb * ta.sin() * tb.cos(),
-                -lb * tb.sin(),
-            ),
-            DVec3::new(
-                lc * ta.cos() * tc.cos(),
-                lc * ta.sin() * tc.cos(),
-                lc * tc.sin(),
-            ),
-        );
+        let [_, tb, tc] = theta;
+        let jacobian = serial_chain_jacobian(self.link_length_m, theta);
         let [mb, mc] = self.body_mass_kg;
         let [lb_cm, lc_cm] = self.center_of_mass_m;
         let gravity = -self.gravity_m_per_s2
@@ -186,14 +174,15 @@ impl WoodenHapticsConfig {
                 mc * lc_cm * tc.sin(),
             );
         let joint_torque = jacobian.transpose() * force_n + gravity;
-        let motor_torque = [
-            joint_torque.x * self.capstan_diameter_m[0] / self.body_diameter_m[0],
-            -joint_torque.y * self.capstan_diameter_m[1] / self.body_diameter_m[1],
-            -joint_torque.z * self.capstan_diameter_m[2] / self.body_diameter_m[2],
-        ];
+        let direction = [1.0, -1.0, -1.0];
         let mut currents = [0i16; 3];
         for (i, current) in currents.iter_mut().enumerate() {
-            let amperes = (motor_torque[i] / self.torque_constant_n_m_per_a[i])
+            let motor_torque = motor_torque_n_m(
+                direction[i] * joint_torque[i],
+                self.capstan_diameter_m[i],
+                self.body_diameter_m[i],
+            );
+            let amperes = (motor_torque / self.torque_constant_n_m_per_a[i])
                 .clamp(-MAX_CURRENT_A, MAX_CURRENT_A);
             // Truncation toward zero, as `short(motorAmpere*1000)`; |value| <= 3000 fits.
             *current = (amperes * 1000.0) as i16;
@@ -301,11 +290,7 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !force_n.is_finite() {
-            return Err(DeviceError::InvalidData {
-                what: "force is not finite (the safety pipeline should have zeroed it)",
-            });
-        }
+        DeviceError::check_finite_force(force_n.to_array())?;
         // Only a pose the host accepted converts force; none yet means zero.
         let currents = match self.theta {
             Some(theta) => self.config.currents_ma(theta, force_n),

@@ -4,12 +4,12 @@
 //! ([`super::woodenhaptics`], `[kinematics]` with `device = "woodenhaptics-hid"`).
 //!
 //! Where it sits: read from a profile and checked by `device::profile`, then laid over the driver's published
-//! constants, key by key, before the device opens ([`WoodenHapticsConstants::applied_to`], defined in the
-//! serial driver's module, for its model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID
-//! driver's configuration).
+//! constants, key by key, before the device opens ([`WoodenHapticsConstants::applied_to`] for the serial
+//! firmware's model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID driver's configuration).
 //! Never on the servo path.
 
 use super::woodenhaptics::WoodenHapticsConfig;
+use super::woodenhaptics_kinematics::WoodyKinematics;
 
 /// Constants that replace a WoodenHaptics driver's published ones; `None` keeps the published value. Checked
 /// by `device::profile` (diameters, torque constants and counts finite and > 0, link lengths finite and > 0,
@@ -34,27 +34,53 @@ pub struct WoodenHapticsConstants {
     pub encoder_home_counts: Option<[i32; 3]>,
 }
 
-pub(super) fn set<T: Copy>(target: &mut T, value: Option<T>) {
+fn set<T: Copy>(target: &mut T, value: Option<T>) {
     if let Some(value) = value {
         *target = value;
     }
 }
 
 impl WoodenHapticsConstants {
+    /// Replaces the constants both drivers have, in the order capstan diameters, body diameters, link lengths,
+    /// workspace origin, torque constants, counts per revolution.
+    fn replace_shared(&self, targets: [&mut [f64; 3]; 6]) {
+        let values = [
+            self.capstan_diameter_m,
+            self.body_diameter_m,
+            self.link_length_m,
+            self.workspace_origin_m,
+            self.torque_constant_n_m_per_a,
+            self.counts_per_revolution,
+        ];
+        for (target, value) in targets.into_iter().zip(values) {
+            set(target, value);
+        }
+    }
+
     /// The legacy HID driver's configuration with the constants given here replaced (`encoder_home_counts`
     /// has no counterpart there).
     pub fn apply_to_hid(&self, config: &mut WoodenHapticsConfig) {
-        set(&mut config.capstan_diameter_m, self.capstan_diameter_m);
-        set(&mut config.body_diameter_m, self.body_diameter_m);
-        set(&mut config.link_length_m, self.link_length_m);
-        set(&mut config.workspace_origin_m, self.workspace_origin_m);
-        set(
+        self.replace_shared([
+            &mut config.capstan_diameter_m,
+            &mut config.body_diameter_m,
+            &mut config.link_length_m,
+            &mut config.workspace_origin_m,
             &mut config.torque_constant_n_m_per_a,
-            self.torque_constant_n_m_per_a,
-        );
-        set(
             &mut config.counts_per_revolution,
-            self.counts_per_revolution,
-        );
+        ]);
+    }
+
+    /// A serial-firmware model's `kinematics` with the constants given here replaced.
+    pub fn applied_to(&self, mut kinematics: WoodyKinematics) -> WoodyKinematics {
+        self.replace_shared([
+            &mut kinematics.capstan_diameter_m,
+            &mut kinematics.body_diameter_m,
+            &mut kinematics.link_length_m,
+            &mut kinematics.workspace_origin_m,
+            &mut kinematics.torque_constant_n_m_per_a,
+            &mut kinematics.counts_per_revolution,
+        ]);
+        set(&mut kinematics.encoder_home, self.encoder_home_counts);
+        kinematics
     }
 }

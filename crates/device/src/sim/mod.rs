@@ -45,3 +45,4 @@ pub use path::{
     MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M, MAX_SPEED_M_PER_S,
     PATH_TIME_RANGE_S,
 };
+pub use tagged::TaggedTableError;

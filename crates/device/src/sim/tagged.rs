@@ -42,34 +42,71 @@ impl<'a> KindKeys<'a> {
     }
 
     /// Refuses a key given that is not one of `takes` (the keys of this kind), naming it and the kind's keys.
-    pub(super) fn only(&self, takes: &[&str]) -> Result<(), String> {
-        let Some((key, _)) = self
+    pub(super) fn only(&self, takes: &'static [&'static str]) -> Result<(), TaggedTableError> {
+        match self
             .given
             .iter()
             .find(|(key, given)| *given && !takes.contains(key))
-        else {
-            return Ok(());
-        };
-        let keys = if takes.is_empty() {
-            "it takes none".to_owned()
-        } else {
-            let quoted: Vec<String> = takes.iter().map(|k| format!("`{k}`")).collect();
-            format!("its keys: {}", quoted.join(", "))
-        };
-        Err(format!(
-            "{} = \"{}\" takes no key `{key}` ({keys})",
-            self.tag, self.kind
-        ))
+        {
+            Some(&(key, _)) => Err(TaggedTableError::KeyOfAnotherKind {
+                tag: self.tag,
+                kind: self.kind,
+                key,
+                takes,
+            }),
+            None => Ok(()),
+        }
     }
 
     /// The value of `key`, which this kind needs.
-    pub(super) fn need<T>(&self, key: &str, value: Option<T>) -> Result<T, String> {
-        value.ok_or_else(|| {
-            format!(
-                "missing field `{key}` ({} = \"{}\" needs it)",
-                self.tag, self.kind
-            )
+    pub(super) fn need<T>(
+        &self,
+        key: &'static str,
+        value: Option<T>,
+    ) -> Result<T, TaggedTableError> {
+        value.ok_or(TaggedTableError::MissingKey {
+            tag: self.tag,
+            kind: self.kind,
+            key,
         })
+    }
+}
+
+/// Why a tagged table (`[path]`, `[path.profile]`, `[arm.workspace]`) does not fit its kind. serde puts the
+/// table's path in front (`path: ...`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum TaggedTableError {
+    /// A key was given that this kind does not take.
+    #[error("{tag} = \"{kind}\" takes no key `{key}` ({})", describe_keys(.takes))]
+    KeyOfAnotherKind {
+        /// The tag key: `kind` or `shape`.
+        tag: &'static str,
+        /// The tag's value.
+        kind: &'static str,
+        /// The key given.
+        key: &'static str,
+        /// The keys this kind takes.
+        takes: &'static [&'static str],
+    },
+    /// A key this kind needs is missing.
+    #[error("missing field `{key}` ({tag} = \"{kind}\" needs it)")]
+    MissingKey {
+        /// The tag key: `kind` or `shape`.
+        tag: &'static str,
+        /// The tag's value.
+        kind: &'static str,
+        /// The key missing.
+        key: &'static str,
+    },
+}
+
+/// "its keys: `a`, `b`", or "it takes none".
+fn describe_keys(takes: &[&str]) -> String {
+    if takes.is_empty() {
+        "it takes none".to_owned()
+    } else {
+        let quoted: Vec<String> = takes.iter().map(|k| format!("`{k}`")).collect();
+        format!("its keys: {}", quoted.join(", "))
     }
 }
 
@@ -82,16 +119,18 @@ mod tests {
         let given = [("at_m", false), ("from_m", true), ("radius_m", true)];
         let keys = KindKeys::new("kind", "line", &given);
         assert_eq!(
-            keys.only(&["from_m", "to_m"]),
+            keys.only(&["from_m", "to_m"]).map_err(|e| e.to_string()),
             Err("kind = \"line\" takes no key `radius_m` (its keys: `from_m`, `to_m`)".to_owned())
         );
         assert_eq!(keys.only(&["from_m", "radius_m"]), Ok(()));
         assert_eq!(
-            KindKeys::new("shape", "unbounded", &given).only(&[]),
+            KindKeys::new("shape", "unbounded", &given)
+                .only(&[])
+                .map_err(|e| e.to_string()),
             Err("shape = \"unbounded\" takes no key `from_m` (it takes none)".to_owned())
         );
         assert_eq!(
-            keys.need("to_m", None::<f64>),
+            keys.need("to_m", None::<f64>).map_err(|e| e.to_string()),
             Err("missing field `to_m` (kind = \"line\" needs it)".to_owned())
         );
         assert_eq!(keys.need("from_m", Some(1.0)), Ok(1.0));

@@ -3,7 +3,8 @@
 //! simulated device in the same process.
 //!
 //! The scripted doubles panic on an unexpected call, with a message naming the step: that is their purpose (a
-//! test double that tolerated a wrong byte would hide a driver bug). They are not used outside tests and benches.
+//! test double that tolerated a wrong byte would hide a driver bug). They are not used outside tests and benches:
+//! they exist only in this crate's own tests and with the `test-support` feature.
 
 use super::{ByteTransport, ReportTransport};
 use crate::DeviceError;

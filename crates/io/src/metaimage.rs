@@ -12,11 +12,12 @@
 //! vector components are flipped to RAS and scaled to metres. Unsupported (clear errors): ASCII data
 //! (`BinaryData = False`), file lists, other dimensionalities.
 
-use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::source::{
+use crate::decode::{decode_samples, inflate, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
+use crate::source::{
     check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
-use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -100,7 +101,7 @@ pub fn parse_with(
     };
     let voxels = checked_voxel_count(dims, components as u64)?;
     let count = voxels * components;
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     check_budget(expected_bytes, count as u64, options)?;
     let grid = grid(&header, dims)?;
 

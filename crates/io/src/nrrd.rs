@@ -11,12 +11,13 @@
 //! [`super`]). Unsupported (clear errors): bzip2 and hex encodings, `block` type, multi-file `data
 //! file` lists, time axes.
 
-use super::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
-use super::source::{
-    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
+use crate::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{
+    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
 };
-use super::{
-    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadProblem, LoadedVolume,
+use crate::source::{
+    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
 use glam::{DMat3, DVec3};
 use std::path::Path;
@@ -108,7 +109,7 @@ pub fn parse_with(
     };
     let grid = grid(&header, components, dims)?;
     let flip = header.space_flip.unwrap_or([1.0; 3]);
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     // What the reader must read or inflate: the byte skip, then the data. ASCII data is text, several
     // bytes a value: its file size is bounded by the volume file limit instead.
     let byte_skip = u64::try_from(header.byte_skip).unwrap_or(0);

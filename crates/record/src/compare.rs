@@ -1,13 +1,14 @@
 //! Comparing two traces within tolerances, for `voxhap compare A B --tol force=1e-6,...` in CI: a new run
 //! against a reference trace.
 //!
-//! Where it sits: after two traces were read ([`super::read_trace`]), [`compare_traces`] pairs their samples
+//! Where it sits: after two traces were read ([`crate::formats::read_trace`]), [`compare_traces`] pairs their samples
 //! by position, checks that they cover the same ticks with the same modes, and reports, for every quantity,
 //! the largest difference and the tick where it occurs. Floating-point quantities pass within an absolute
 //! tolerance (default 0: identical); counts, flags and solver status must be equal. NaN equals NaN and
 //! +inf equals +inf (a missing certificate on both sides is no difference).
 
-use super::{Trace, TraceSample};
+use crate::sample::TraceSample;
+use crate::trace::Trace;
 use glam::DVec3;
 use std::fmt::Write;
 
@@ -214,8 +215,8 @@ pub fn compare_traces(a: &Trace, b: &Trace, tolerances: Tolerances) -> Compariso
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_support::samples;
     use super::*;
+    use crate::test_support::samples;
 
     fn trace(data: Vec<TraceSample>) -> Trace {
         Trace {

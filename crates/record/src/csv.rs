@@ -2,7 +2,7 @@
 //!
 //! Layout: a header line, then one line per tick, fields separated by `,` with no quoting (no field can
 //! contain a comma: mode names are restricted to `[A-Za-z0-9_-]`) and `\n` line ends. The columns are
-//! `super::columns::columns` (documented with units and types in the sidecar): tick and times, probe,
+//! `crate::columns::columns` (documented with units and types in the sidecar): tick and times, probe,
 //! velocity, proxy, rendered and sent force, per mode its primitive count and force, solver status,
 //! sweeps, bound, device sequence and time (empty when the device has none), `flag_bits` and one
 //! `true`/`false` column per flag. Floats are written with Rust's `{:?}` formatting, the shortest text
@@ -19,13 +19,16 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
-use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
-use super::meta::is_valid_mode_name;
-use super::{
-    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
-    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
-    TRACE_FORMAT_VERSION,
-};
+use crate::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use crate::error::{TraceError, TraceReadError};
+use crate::meta::is_valid_mode_name;
+use crate::meta::{Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
+use crate::output::sidecar_path;
+use crate::sample::{check_sample, SampleChecker, SolverStatus, TraceSample};
+use crate::trace::Trace;
+use crate::writer::TraceWriter;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
 
 /// Buffered bytes (whole lines) after which the writer hands them to the file.
 const WRITE_CHUNK_BYTES: usize = 64 * 1024;
@@ -54,7 +57,7 @@ impl CsvTraceWriter {
             path: path.to_path_buf(),
             source,
         };
-        let mut file = super::create_new_file(path)?;
+        let mut file = crate::output::create_new_file(path)?;
         let header: Vec<String> = columns(&meta.mode_names)
             .into_iter()
             .map(|c| c.name.into_owned())
@@ -209,7 +212,7 @@ impl TraceWriter for CsvTraceWriter {
 /// Reads a CSV trace, and its sidecar `path.json` when that file exists.
 pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
     // A regular file only; reading stops at the size it had when opened.
-    let (file, size_bytes) = super::open_trace_file(path)?;
+    let (file, size_bytes) = crate::trace::open_trace_file(path)?;
     let sidecar = read_sidecar(&sidecar_path(path))?;
     let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
     let (mode_names, samples, warnings) = parse_csv_lines(
@@ -223,7 +226,7 @@ pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
         sidecar,
         warnings,
     };
-    Ok(super::check_sidecar(trace, path, TraceFormat::Csv))
+    Ok(crate::trace::check_sidecar(trace, path, TraceFormat::Csv))
 }
 
 /// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.
@@ -283,7 +286,7 @@ pub(crate) fn for_each_csv_sample(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),
 ) -> Result<(Trace, u64), TraceReadError> {
-    let (file, size_bytes) = super::open_trace_file(path)?;
+    let (file, size_bytes) = crate::trace::open_trace_file(path)?;
     let sidecar = read_sidecar(&sidecar_path(path))?;
     let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
     let (mode_names, warnings, count) = for_each_csv_line(
@@ -293,10 +296,10 @@ pub(crate) fn for_each_csv_sample(
         sink,
     )?;
     let mut warnings = warnings;
-    warnings.extend(super::sidecar_warnings(
+    warnings.extend(crate::trace::sidecar_warnings(
         sidecar.as_ref(),
         path,
-        super::TraceFormat::Csv,
+        voxhap_api::TraceFormat::Csv,
         &mode_names,
         count,
     ));
@@ -541,9 +544,9 @@ fn rule_error(problem: TraceError, text: &str, line: usize, columns: &[String]) 
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, TraceFormat, FLAG_INVALID_VALUES};
     use super::*;
+    use crate::test_support::{meta, samples};
+    use crate::{create_trace_writer, TraceFormat, FLAG_INVALID_VALUES};
 
     fn write_csv(path: &Path, modes: &[&str], data: &[TraceSample]) {
         let mut writer = create_trace_writer(path, TraceFormat::Csv, &meta(modes)).unwrap();
@@ -822,7 +825,7 @@ mod tests {
             Some(error) => error,
             None => writer.flush().unwrap_err(),
         };
-        let text = super::super::error_chain(&error);
+        let text = crate::error_chain(&error);
         assert!(text.contains("No space left on device"), "{text}");
         writer.fail(&text).unwrap();
         let trace = read_csv_trace(&path).unwrap();

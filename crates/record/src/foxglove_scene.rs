@@ -67,12 +67,12 @@ pub struct RecordedVolume {
 impl RecordedVolume {
     /// The picture of `meta`'s volumes; `None` when none of them loads as a scalar volume (then a
     /// recording simply has no volume topic messages).
-    pub fn from_meta(meta: &super::TraceMeta) -> Option<RecordedVolume> {
+    pub fn from_meta(meta: &crate::meta::TraceMeta) -> Option<RecordedVolume> {
         Self::load(meta).map(|(picture, _)| picture)
     }
 
     /// The picture and the volume it shows (which the recorded slices sample).
-    fn load(meta: &super::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
+    fn load(meta: &crate::meta::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
         use voxhap_core::haptics::modes::ModeConfig;
         let volume = meta.volume.split(", ").find_map(|source| {
             let loaded = match source.strip_prefix("builtin:") {
@@ -165,7 +165,7 @@ fn surface_iso(modes: &[voxhap_core::haptics::modes::ModeConfig]) -> Option<(Rgb
 /// effect). The control side builds it ([`SceneChange::between`], so neither the servo nor the recorder
 /// thread meshes) and sends it to the recorder thread
 /// (`voxhap_servo::recorder::RecorderRequest::SceneChanged`), which hands it to the trace writer
-/// ([`super::TraceWriter::scene_changed`]).
+/// ([`crate::writer::TraceWriter::scene_changed`]).
 #[derive(Debug, Clone)]
 pub struct SceneChange {
     pub generation: u64,
@@ -248,7 +248,8 @@ fn trace_stats_schema() -> serde_json::Value {
 /// Encodes one message into the buffer it is given.
 pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), String> + 'a;
 /// Writes one message: the channel and its encoder.
-pub type ScenePut<'a> = dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), super::TraceError> + 'a;
+pub type ScenePut<'a> =
+    dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), crate::error::TraceError> + 'a;
 
 /// The scene channels of an MCAP trace and what they need between samples.
 pub struct RecordedScene {
@@ -282,7 +283,7 @@ impl RecordedScene {
     /// picture of `meta`.
     pub fn add<W: std::io::Write + std::io::Seek>(
         writer: &mut mcap::Writer<W>,
-        meta: &super::TraceMeta,
+        meta: &crate::meta::TraceMeta,
     ) -> Result<RecordedScene, mcap::McapError> {
         use ::foxglove::Encode;
         use voxhap_view::messages::{bound_schema, operating_state_schema};
@@ -350,11 +351,11 @@ impl RecordedScene {
     /// [`RECORDED_SLICE_INTERVAL_S`]; statistics once a second. `put(channel, encode)` writes one message.
     pub fn write(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         frame: Option<&Snapshot>,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
@@ -437,7 +438,11 @@ impl RecordedScene {
 
     /// Writes the volume picture (bounds, iso-surface) and the volume's frames ([`volume_frames`]), when
     /// there is a picture.
-    fn write_picture(&self, time_ns: u64, put: &mut ScenePut<'_>) -> Result<(), super::TraceError> {
+    fn write_picture(
+        &self,
+        time_ns: u64,
+        put: &mut ScenePut<'_>,
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let Some(picture) = &self.picture else {
             return Ok(());
@@ -461,7 +466,7 @@ impl RecordedScene {
     }
 
     /// Adds `sample` to the statistics.
-    fn count(&mut self, sample: &super::TraceSample) {
+    fn count(&mut self, sample: &crate::sample::TraceSample) {
         let t = &mut self.totals;
         t.t_s = sample.t_s;
         t.ticks += 1;
@@ -469,10 +474,10 @@ impl RecordedScene {
         self.worst_bound_m = self.worst_bound_m.max(sample.error_bound_m);
         t.worst_error_bound_m = self.worst_bound_m.is_finite().then_some(self.worst_bound_m);
         let flag = |bit: u32| u64::from(sample.flags & bit != 0);
-        t.overruns += flag(super::FLAG_OVERRUN);
-        t.solver_budget_hits += flag(super::FLAG_SOLVER_BUDGET_HIT);
-        t.force_clamped += flag(super::FLAG_FORCE_CLAMPED);
-        t.samples_dropped += flag(super::FLAG_SAMPLES_DROPPED);
+        t.overruns += flag(crate::flags::FLAG_OVERRUN);
+        t.solver_budget_hits += flag(crate::flags::FLAG_SOLVER_BUDGET_HIT);
+        t.force_clamped += flag(crate::flags::FLAG_FORCE_CLAMPED);
+        t.samples_dropped += flag(crate::flags::FLAG_SAMPLES_DROPPED);
     }
 
     /// The scene update, bound and operating state as far as the trace sample tells them: markers without
@@ -480,10 +485,10 @@ impl RecordedScene {
     /// disconnected or not enabled.
     fn write_from_sample(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let update = replace_all(
@@ -507,7 +512,7 @@ impl RecordedScene {
                 .is_finite()
                 .then_some(sample.error_bound_m),
             sweeps: sample.sweeps,
-            status: if sample.flags & super::FLAG_SOLVER_BUDGET_HIT != 0 {
+            status: if sample.flags & crate::flags::FLAG_SOLVER_BUDGET_HIT != 0 {
                 "budget_exhausted"
             } else if sample.error_bound_m.is_finite() {
                 "certified"
@@ -518,7 +523,8 @@ impl RecordedScene {
         put(self.bound, &|m| {
             serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
         })?;
-        let disabled = super::FLAG_DEVICE_DISCONNECTED | super::FLAG_DEVICE_NOT_ENABLED;
+        let disabled =
+            crate::flags::FLAG_DEVICE_DISCONNECTED | crate::flags::FLAG_DEVICE_NOT_ENABLED;
         let state = OperatingStateMessage {
             state: if sample.flags & disabled == 0 {
                 "ENABLED"
@@ -537,10 +543,10 @@ impl RecordedScene {
     /// recording has a volume picture and the proxy is a finite point.
     fn write_slices(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         use voxhap_api::{SliceAxis, SliceRequest};
         let Some(volume) = &self.slice_volume else {

@@ -52,14 +52,18 @@ use serde::{Deserialize, Serialize, Serializer};
 use ::foxglove::messages::{FrameTransform, Vector3};
 use ::foxglove::Encode;
 
-use super::columns::{utc_cell, Cell};
-use super::csv::read_sidecar;
-use super::foxglove_scene::RecordedScene;
-use super::output::{OutputFile, StopSwitch};
-use super::{
-    sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError, TraceFormat, TraceMeta,
-    TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES, TRACE_FORMAT_VERSION,
-};
+use crate::columns::{utc_cell, Cell};
+use crate::csv::read_sidecar;
+use crate::error::{TraceError, TraceReadError};
+use crate::foxglove_scene::RecordedScene;
+use crate::meta::{Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
+use crate::output::sidecar_path;
+use crate::output::{OutputFile, StopSwitch};
+use crate::sample::{SampleChecker, SolverStatus, TraceSample};
+use crate::trace::Trace;
+use crate::writer::TraceWriter;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
 use voxhap_view::topics::{
     frame_transform, set_translation, vector3, MEASURED_CP_TOPIC as PROBE_TOPIC, PROBE_FRAME,
     PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
@@ -351,7 +355,7 @@ impl McapTraceWriter {
             source,
         };
         let stop = StopSwitch::default();
-        let file = OutputFile::new(super::create_new_file(path)?, &stop);
+        let file = OutputFile::new(crate::output::create_new_file(path)?, &stop);
         // Chunks close only between ticks (on a flush, or past CHUNK_BYTES after a whole tick), so the
         // samples in closed chunks are exactly what a reader recovers from a file cut after one.
         let options = mcap::WriteOptions::new()
@@ -657,7 +661,7 @@ impl TraceWriter for McapTraceWriter {
         self.frame = Some(*frame);
     }
 
-    fn scene_changed(&mut self, change: &super::foxglove_scene::SceneChange) {
+    fn scene_changed(&mut self, change: &crate::foxglove_scene::SceneChange) {
         self.scene.scene_changed(change);
     }
 }
@@ -666,7 +670,7 @@ impl TraceWriter for McapTraceWriter {
 /// from the two channels joined by tick), and its sidecar when `path.json` exists. A file the writer never
 /// finished (no end magic: a crash) is read up to its last complete chunk, with a warning.
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let bytes = super::read_trace_file(path)?;
+    let bytes = crate::trace::read_trace_file(path)?;
     let (mode_names, samples, warnings) = parse_mcap_bytes(&bytes, path)?;
     let trace = Trace {
         mode_names,
@@ -674,11 +678,11 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
         sidecar: read_sidecar(&sidecar_path(path))?,
         warnings,
     };
-    Ok(super::check_sidecar(trace, path, TraceFormat::Mcap))
+    Ok(crate::trace::check_sidecar(trace, path, TraceFormat::Mcap))
 }
 
 /// Parses an MCAP trace held in memory; returns the mode names and the samples (as
-/// [`super::parse_csv_trace`] does for CSV).
+/// [`crate::csv::parse_csv_trace`] does for CSV).
 pub fn parse_mcap_trace(bytes: &[u8]) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
     parse_mcap_bytes(bytes, Path::new("<input>")).map(|(modes, samples, _)| (modes, samples))
 }
@@ -1098,7 +1102,8 @@ fn read_samples(
         sample.device_sequence = solver.device_sequence;
         sample.device_time_us = solver.device_time_us;
         sample.flags = solver.flag_bits;
-        super::check_sample(&sample, mode_names.len(), last_tick).map_err(|e| e.to_string())?;
+        crate::sample::check_sample(&sample, mode_names.len(), last_tick)
+            .map_err(|e| e.to_string())?;
         last_tick = Some(sample.tick);
         samples.push(sample);
     }
@@ -1107,9 +1112,9 @@ fn read_samples(
 
 #[cfg(test)]
 mod tests {
-    use super::super::read_trace;
-    use super::super::test_support::{meta, samples};
     use super::*;
+    use crate::read_trace;
+    use crate::test_support::{meta, samples};
 
     /// Wall-clock time of the first sample in the tests' traces (2023-11-14T22:13:20Z).
     const WALL_START_NS: u64 = 1_700_000_000_000_000_000;

@@ -1,7 +1,7 @@
 //! Parquet force traces: the writer ([`ParquetTraceWriter`]) and the reader ([`read_parquet_trace`]).
 //!
-//! Where it sits: one of the three trace formats behind [`super::TraceWriter`] (chosen by a `.parquet`
-//! name or `--format parquet`). The columns are `super::columns::columns`, the same names, order and
+//! Where it sits: one of the three trace formats behind [`crate::writer::TraceWriter`] (chosen by a `.parquet`
+//! name or `--format parquet`). The columns are `crate::columns::columns`, the same names, order and
 //! values as CSV, with Parquet types: `UInt64` counts and ticks, `Int64` `utc_ns` (null when `t_s` is not
 //! finite), `Float64` quantities (NaN and infinities kept), `Boolean` flag columns, a UTF-8
 //! `solver_status`, and nullable `UInt64` device sequence and time. The finished file's metadata holds
@@ -50,14 +50,18 @@ use parquet::file::metadata::{
 };
 use parquet::file::properties::WriterProperties;
 
-use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
-use super::csv::read_sidecar;
-use super::meta::is_valid_mode_name;
-use super::output::{OutputFile, StopSwitch};
-use super::{
-    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
-    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
-};
+use crate::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use crate::csv::read_sidecar;
+use crate::error::{TraceError, TraceReadError};
+use crate::meta::is_valid_mode_name;
+use crate::meta::{Sidecar, TraceMeta, TraceSummary};
+use crate::output::sidecar_path;
+use crate::output::{OutputFile, StopSwitch};
+use crate::sample::{check_sample, SampleChecker, SolverStatus, TraceSample};
+use crate::trace::Trace;
+use crate::writer::TraceWriter;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
 
 /// The file-metadata key holding the sidecar's JSON (the final sidecar, in a finished file).
 pub const SIDECAR_KEY: &str = "voxhap.sidecar";
@@ -175,7 +179,7 @@ impl ParquetTraceWriter {
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         meta.validate()?;
         let stop = StopSwitch::default();
-        let file = OutputFile::new(super::create_new_file(path)?, &stop);
+        let file = OutputFile::new(crate::output::create_new_file(path)?, &stop);
         let schema = arrow_schema(&meta.mode_names);
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
@@ -289,8 +293,8 @@ fn compact(path: &Path, schema: &SchemaRef) -> Result<(), parquet::errors::Parqu
     temporary_name.push(format!(".compacting.{}", std::process::id()));
     let temporary = path.with_file_name(temporary_name);
     let result = (|| {
-        let output = super::create_new_file(&temporary)
-            .map_err(|e| parquet::errors::ParquetError::General(super::error_chain(&e)))?;
+        let output = crate::output::create_new_file(&temporary)
+            .map_err(|e| parquet::errors::ParquetError::General(crate::error::error_chain(&e)))?;
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
             .set_max_row_group_row_count(Some(COMPACT_ROW_GROUP_ROWS))
@@ -433,7 +437,7 @@ impl TraceWriter for ParquetTraceWriter {
 /// Reads a Parquet trace, and its sidecar `path.json` when that file exists. A file without its final
 /// footer (cut off by a crash) is read up to its last complete row group, with a warning.
 pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let bytes = Bytes::from(super::read_trace_file(path)?);
+    let bytes = Bytes::from(crate::trace::read_trace_file(path)?);
     let sidecar = read_sidecar(&sidecar_path(path))?;
     let problem = |problem: String| TraceReadError::Parquet {
         path: path.to_path_buf(),
@@ -478,7 +482,11 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
             sidecar: Some(sidecar),
             warnings,
         };
-        return Ok(super::check_sidecar(trace, path, TraceFormat::Parquet));
+        return Ok(crate::trace::check_sidecar(
+            trace,
+            path,
+            TraceFormat::Parquet,
+        ));
     };
     check_claimed_sizes(&metadata, bytes.len() as u64).map_err(problem)?;
     let reader_metadata =
@@ -505,7 +513,11 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
         sidecar,
         warnings,
     };
-    Ok(super::check_sidecar(trace, path, TraceFormat::Parquet))
+    Ok(crate::trace::check_sidecar(
+        trace,
+        path,
+        TraceFormat::Parquet,
+    ))
 }
 
 /// Checks that `schema` is a voxhap trace's (every column named and typed as written); returns the mode names
@@ -601,7 +613,7 @@ pub(crate) fn for_each_parquet_sample(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),
 ) -> Result<(Trace, u64), TraceReadError> {
-    let (file, _) = super::open_trace_file(path)?;
+    let (file, _) = crate::trace::open_trace_file(path)?;
     let problem = |problem: String| TraceReadError::Parquet {
         path: path.to_path_buf(),
         problem,
@@ -631,7 +643,7 @@ pub(crate) fn for_each_parquet_sample(
         .build()
         .map_err(|e| problem(e.to_string()))?;
     let count = for_each_row(reader, &mode_names, &expected, start_utc_ns, &problem, sink)?;
-    let warnings = super::sidecar_warnings(
+    let warnings = crate::trace::sidecar_warnings(
         sidecar.as_ref(),
         path,
         TraceFormat::Parquet,
@@ -838,9 +850,9 @@ fn footer_ending_at(bytes: &[u8], end: usize) -> Option<(RowGroupMetaData, usize
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
     use super::*;
+    use crate::test_support::{meta, samples};
+    use crate::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
 
     fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
         let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(modes)).unwrap();
@@ -950,13 +962,9 @@ mod tests {
 
         // `voxhap trace repair` writes what was recovered as a finished Parquet file, never over the input.
         let repaired = dir.path().join("t.repaired.parquet");
-        let report = super::super::repair::repair_trace(
-            &path,
-            &repaired,
-            None,
-            &super::super::OutputPolicy::default(),
-        )
-        .unwrap();
+        let report =
+            crate::repair::repair_trace(&path, &repaired, None, &crate::OutputPolicy::default())
+                .unwrap();
         assert_eq!(report.sample_count, 3000);
         assert_eq!(report.warnings.len(), 1);
         let trace = read_parquet_trace(&repaired).unwrap();

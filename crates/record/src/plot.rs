@@ -33,7 +33,9 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Trace, TraceReadError, TraceSample};
+use crate::error::TraceReadError;
+use crate::sample::TraceSample;
+use crate::trace::Trace;
 
 const FONT: &str = "sans-serif";
 const PROBE_COLOR: RGBColor = RGBColor(31, 119, 180);
@@ -55,15 +57,15 @@ const MAX_SHADED_PERIODS: usize = 500;
 /// The flag bits whose periods are shaded, with the legend text and colour.
 const SHADED_FLAGS: [(u32, &str, RGBColor); 2] = [
     (
-        super::FLAG_FORCE_LIMITED_BY_SAFETY,
+        crate::flags::FLAG_FORCE_LIMITED_BY_SAFETY,
         "force held back (ramp-in, engage, slew)",
         SAFETY_SHADE,
     ),
     (
-        super::FLAG_DEVICE_DISCONNECTED
-            | super::FLAG_DEVICE_NOT_ENABLED
-            | super::FLAG_DEVICE_FAULTED
-            | super::FLAG_STALE_STATE,
+        crate::flags::FLAG_DEVICE_DISCONNECTED
+            | crate::flags::FLAG_DEVICE_NOT_ENABLED
+            | crate::flags::FLAG_DEVICE_FAULTED
+            | crate::flags::FLAG_STALE_STATE,
         "device away (disconnected, not enabled, faulted)",
         DEVICE_SHADE,
     ),
@@ -193,12 +195,12 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
     let mut data = PlotData::new(width_px);
     let mut sink = |sample: &TraceSample| data.push(sample);
     let (trace, _) = match sniff_format(path)? {
-        super::TraceFormat::Parquet => {
-            super::parquet_trace::for_each_parquet_sample(path, &mut sink)?
+        voxhap_api::TraceFormat::Parquet => {
+            crate::parquet_trace::for_each_parquet_sample(path, &mut sink)?
         }
-        super::TraceFormat::Csv => super::csv::for_each_csv_sample(path, &mut sink)?,
-        super::TraceFormat::Mcap => {
-            let mut trace = super::read_trace(path)?;
+        voxhap_api::TraceFormat::Csv => crate::csv::for_each_csv_sample(path, &mut sink)?,
+        voxhap_api::TraceFormat::Mcap => {
+            let mut trace = crate::formats::read_trace(path)?;
             let samples = std::mem::take(&mut trace.samples);
             samples.iter().for_each(&mut sink);
             (trace, samples.len() as u64)
@@ -207,11 +209,11 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
     Ok((trace, data))
 }
 
-/// The trace's format from its first bytes (the MCAP magic, `PAR1`, else CSV), as [`super::read_trace`]
+/// The trace's format from its first bytes (the MCAP magic, `PAR1`, else CSV), as [`crate::formats::read_trace`]
 /// chooses.
-fn sniff_format(path: &Path) -> Result<super::TraceFormat, TraceReadError> {
+fn sniff_format(path: &Path) -> Result<voxhap_api::TraceFormat, TraceReadError> {
     use std::io::Read;
-    let (file, _) = super::open_trace_file(path)?;
+    let (file, _) = crate::trace::open_trace_file(path)?;
     let mut magic = Vec::with_capacity(8);
     file.take(8)
         .read_to_end(&mut magic)
@@ -220,11 +222,11 @@ fn sniff_format(path: &Path) -> Result<super::TraceFormat, TraceReadError> {
             source,
         })?;
     Ok(if magic[..] == *mcap::MAGIC {
-        super::TraceFormat::Mcap
+        voxhap_api::TraceFormat::Mcap
     } else if magic.starts_with(b"PAR1") {
-        super::TraceFormat::Parquet
+        voxhap_api::TraceFormat::Parquet
     } else {
-        super::TraceFormat::Csv
+        voxhap_api::TraceFormat::Csv
     })
 }
 
@@ -1239,8 +1241,8 @@ impl PlotData {
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_support::samples;
     use super::*;
+    use crate::test_support::samples;
 
     fn trace(count: u64) -> Trace {
         Trace {

@@ -4,7 +4,8 @@
 
 use crate::csv::{read_csv_trace, CsvTraceWriter};
 use crate::error::{TraceError, TraceReadError};
-use crate::mcap_trace::{read_mcap_trace, McapTraceWriter};
+use crate::mcap_read::read_mcap_trace;
+use crate::mcap_trace::McapTraceWriter;
 use crate::meta::TraceMeta;
 use crate::output::{self, check_output_path, OutputPolicy};
 use crate::parquet_trace::{read_parquet_trace, ParquetTraceWriter};

@@ -20,6 +20,8 @@ mod error;
 mod flags;
 mod formats;
 pub mod foxglove_scene;
+mod mcap_check;
+mod mcap_read;
 mod mcap_trace;
 mod meta;
 mod output;
@@ -39,9 +41,8 @@ pub use self::flags::{FlagDoc, FLAG_COUNT, FLAG_DOCS};
 pub use self::formats::{
     create_trace_writer, create_trace_writer_with, estimate_trace_bytes, read_trace,
 };
-pub use self::mcap_trace::{
-    parse_mcap_trace, read_mcap_trace, McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC,
-};
+pub use self::mcap_read::{parse_mcap_trace, read_mcap_trace};
+pub use self::mcap_trace::{McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
 pub use self::meta::{utc_now_ns, Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
 pub use self::output::{
     check_output_path, create_new_file, create_or_replace_file, sidecar_path, OutputPolicy,

@@ -1,6 +1,7 @@
 //! Tests of [`super`].
 
 use super::*;
+use crate::mcap_read::*;
 use crate::read_trace;
 use crate::test_support::{meta, samples};
 

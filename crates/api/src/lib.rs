@@ -593,6 +593,19 @@ pub trait SessionApi: Send + Sync + 'static {
     fn slice(&self, request: SliceRequest) -> Result<Slice, ControlError>;
 }
 
+/// A folder given on the command line (`--volume-dir`, `--record-dir`) that cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FolderError {
+    /// The path does not exist or is not a folder.
+    #[error("{flag} {}: not a folder", path.display())]
+    NotAFolder {
+        /// The option that named it.
+        flag: &'static str,
+        /// The path as given.
+        path: PathBuf,
+    },
+}
+
 /// The folders the control API may load volume files from (`voxhap serve --volume-dir DIR`), checked before
 /// a `load_volume` command reaches the session: a relative path is looked up in each folder in turn, an
 /// absolute one must lie in one of them, both after following symlinks. `builtin:NAME` always passes.
@@ -606,14 +619,17 @@ pub struct VolumeDirs {
 
 impl VolumeDirs {
     /// The folders, each of which must exist; errors name the folder.
-    pub fn new(dirs: &[PathBuf]) -> Result<VolumeDirs, String> {
+    pub fn new(dirs: &[PathBuf]) -> Result<VolumeDirs, FolderError> {
         let dirs = dirs
             .iter()
             .map(|dir| {
                 dir.canonicalize()
                     .ok()
                     .filter(|d| d.is_dir())
-                    .ok_or_else(|| format!("--volume-dir {}: not a folder", dir.display()))
+                    .ok_or_else(|| FolderError::NotAFolder {
+                        flag: "--volume-dir",
+                        path: dir.clone(),
+                    })
             })
             .collect::<Result<_, _>>()?;
         Ok(VolumeDirs { dirs })
@@ -675,7 +691,7 @@ pub struct RecordDir {
 
 impl RecordDir {
     /// The folder `dir` (it must exist), or API recording off for `None`; errors name the folder.
-    pub fn new(dir: Option<&std::path::Path>) -> Result<RecordDir, String> {
+    pub fn new(dir: Option<&std::path::Path>) -> Result<RecordDir, FolderError> {
         let Some(dir) = dir else {
             return Ok(RecordDir::default());
         };
@@ -683,7 +699,10 @@ impl RecordDir {
             .canonicalize()
             .ok()
             .filter(|d| d.is_dir())
-            .ok_or_else(|| format!("--record-dir {}: not a folder", dir.display()))?;
+            .ok_or_else(|| FolderError::NotAFolder {
+                flag: "--record-dir",
+                path: dir.to_path_buf(),
+            })?;
         Ok(RecordDir {
             dir: Some(canonical),
         })

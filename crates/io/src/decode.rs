@@ -1,7 +1,7 @@
 //! Element decoding shared by every loader: scalar types, byte order, gzip/zlib inflation with a
 //! size limit, and conversion of stored values to `f32` with NaN/infinity quarantine.
 
-use super::LoadProblem;
+use crate::error::LoadProblem;
 use std::io::Read;
 
 /// The element type stored in a file.

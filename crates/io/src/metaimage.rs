@@ -12,11 +12,12 @@
 //! vector components are flipped to RAS and scaled to metres. Unsupported (clear errors): ASCII data
 //! (`BinaryData = False`), file lists, other dimensionalities.
 
-use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::source::{
+use crate::decode::{decode_samples, inflate, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
+use crate::source::{
     check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
-use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -100,7 +101,7 @@ pub fn parse_with(
     };
     let voxels = checked_voxel_count(dims, components as u64)?;
     let count = voxels * components;
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     check_budget(expected_bytes, count as u64, options)?;
     let grid = grid(&header, dims)?;
 
@@ -225,10 +226,37 @@ pub fn parse_header(bytes: &[u8]) -> Result<MetaImageHeader, LoadProblem> {
     }
 }
 
-fn parse_field(header: &mut MetaImageHeader, key: &str, value: &str) -> Result<(), String> {
+/// What is wrong with the value of one MetaImage header field (the line and key are added by the caller).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MetaImageFieldError {
+    #[error("ObjectType {value:?} is not Image")]
+    NotImage { value: String },
+    #[error("{value:?} is not a valid number")]
+    NotANumber { value: String },
+    #[error("spacing {spacing:?} must be finite and positive")]
+    SpacingNotPositive { spacing: Vec<f64> },
+    #[error("{value:?} has non-finite numbers")]
+    NonFinite { value: String },
+    #[error("{value:?} is not True or False")]
+    NotBoolean { value: String },
+    #[error("ElementType {value:?} is not supported")]
+    UnsupportedElementType { value: String },
+    #[error("HeaderSize {size} must be >= -1")]
+    HeaderSize { size: i64 },
+    #[error("multi-file data {value:?} is not supported")]
+    MultiFile { value: String },
+}
+
+fn parse_field(
+    header: &mut MetaImageHeader,
+    key: &str,
+    value: &str,
+) -> Result<(), MetaImageFieldError> {
     match key {
         "objecttype" if !value.eq_ignore_ascii_case("image") => {
-            return Err(format!("ObjectType {value:?} is not Image"))
+            return Err(MetaImageFieldError::NotImage {
+                value: value.to_owned(),
+            })
         }
         "ndims" => header.ndims = Some(number(value)?),
         "dimsize" => header.dims = Some(numbers(value)?),
@@ -237,7 +265,7 @@ fn parse_field(header: &mut MetaImageHeader, key: &str, value: &str) -> Result<(
         "elementspacing" => {
             let spacing: Vec<f64> = numbers(value)?;
             if spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-                return Err(format!("spacing {spacing:?} must be finite and positive"));
+                return Err(MetaImageFieldError::SpacingNotPositive { spacing });
             }
             header.spacing = Some(spacing)
         }
@@ -251,7 +279,7 @@ fn parse_field(header: &mut MetaImageHeader, key: &str, value: &str) -> Result<(
         "headersize" => {
             let size: i64 = number(value)?;
             if size < -1 {
-                return Err(format!("HeaderSize {size} must be >= -1"));
+                return Err(MetaImageFieldError::HeaderSize { size });
             }
             header.header_size = size
         }
@@ -262,7 +290,9 @@ fn parse_field(header: &mut MetaImageHeader, key: &str, value: &str) -> Result<(
                 || value.contains('%')
                 || value.split_whitespace().count() != 1
             {
-                return Err(format!("multi-file data {value:?} is not supported"));
+                return Err(MetaImageFieldError::MultiFile {
+                    value: value.to_owned(),
+                });
             } else {
                 header.data_file = Some(value.to_owned());
             }
@@ -272,35 +302,41 @@ fn parse_field(header: &mut MetaImageHeader, key: &str, value: &str) -> Result<(
     Ok(())
 }
 
-fn number<T: std::str::FromStr>(value: &str) -> Result<T, String> {
+fn number<T: std::str::FromStr>(value: &str) -> Result<T, MetaImageFieldError> {
     value
         .trim()
         .parse()
-        .map_err(|_| format!("{value:?} is not a valid number"))
+        .map_err(|_| MetaImageFieldError::NotANumber {
+            value: value.to_owned(),
+        })
 }
 
-fn numbers<T: std::str::FromStr>(value: &str) -> Result<Vec<T>, String> {
+fn numbers<T: std::str::FromStr>(value: &str) -> Result<Vec<T>, MetaImageFieldError> {
     value.split_whitespace().map(number).collect()
 }
 
-fn finite_numbers(value: &str) -> Result<Vec<f64>, String> {
+fn finite_numbers(value: &str) -> Result<Vec<f64>, MetaImageFieldError> {
     let values: Vec<f64> = numbers(value)?;
     if values.iter().all(|v| v.is_finite()) {
         Ok(values)
     } else {
-        Err(format!("{value:?} has non-finite numbers"))
+        Err(MetaImageFieldError::NonFinite {
+            value: value.to_owned(),
+        })
     }
 }
 
-fn boolean(value: &str) -> Result<bool, String> {
+fn boolean(value: &str) -> Result<bool, MetaImageFieldError> {
     match value.to_ascii_lowercase().as_str() {
         "true" | "1" => Ok(true),
         "false" | "0" => Ok(false),
-        _ => Err(format!("{value:?} is not True or False")),
+        _ => Err(MetaImageFieldError::NotBoolean {
+            value: value.to_owned(),
+        }),
     }
 }
 
-fn element_type(value: &str) -> Result<ScalarType, String> {
+fn element_type(value: &str) -> Result<ScalarType, MetaImageFieldError> {
     let name = value.to_ascii_uppercase();
     let name = name.strip_suffix("_ARRAY").unwrap_or(&name);
     Ok(match name {
@@ -314,7 +350,11 @@ fn element_type(value: &str) -> Result<ScalarType, String> {
         "MET_ULONG_LONG" => ScalarType::U64,
         "MET_FLOAT" => ScalarType::F32,
         "MET_DOUBLE" => ScalarType::F64,
-        _ => return Err(format!("ElementType {value:?} is not supported")),
+        _ => {
+            return Err(MetaImageFieldError::UnsupportedElementType {
+                value: value.to_owned(),
+            })
+        }
     })
 }
 

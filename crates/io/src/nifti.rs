@@ -15,9 +15,10 @@
 //! NIfTI world space is RAS+ already. The affine is scaled from the file's units to metres.
 //! Not supported (clear errors): NIfTI-2, `.hdr`/`.img` pairs, complex and RGB types, 4-D series.
 
-use super::decode::{decode_samples, inflate_skip, Endian, ScalarType};
-use super::source::{check_budget, read_volume_file, LoadOptions};
-use super::{assemble, checked_voxel_count, FileFormat, Layout, LoadProblem, LoadedVolume};
+use crate::decode::{decode_samples, inflate_skip, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
+use crate::source::{check_budget, read_volume_file, LoadOptions};
 use glam::{DMat3, DMat4, DVec3};
 use nifti::{NiftiHeader, NiftiType};
 use std::path::Path;
@@ -203,7 +204,7 @@ fn plan(header: &NiftiHeader) -> Result<Plan, LoadProblem> {
     }
     // A whole number >= 348 below 2^64 (f32 holds at most 2^128; larger values fail the conversion).
     let data_offset = vox_offset as u64;
-    let data_bytes = super::data_bytes(voxels * components, scalar_type)?;
+    let data_bytes = crate::loaded::data_bytes(voxels * components, scalar_type)?;
     let slope = f64::from(header.scl_slope);
     let intercept = f64::from(header.scl_inter);
     let scale = (slope.is_finite() && slope != 0.0 && !(slope == 1.0 && intercept == 0.0))

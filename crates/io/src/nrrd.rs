@@ -11,12 +11,13 @@
 //! [`super`]). Unsupported (clear errors): bzip2 and hex encodings, `block` type, multi-file `data
 //! file` lists, time axes.
 
-use super::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
-use super::source::{
-    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
+use crate::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{
+    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
 };
-use super::{
-    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadProblem, LoadedVolume,
+use crate::source::{
+    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
 };
 use glam::{DMat3, DVec3};
 use std::path::Path;
@@ -108,7 +109,7 @@ pub fn parse_with(
     };
     let grid = grid(&header, components, dims)?;
     let flip = header.space_flip.unwrap_or([1.0; 3]);
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     // What the reader must read or inflate: the byte skip, then the data. ASCII data is text, several
     // bytes a value: its file size is bounded by the volume file limit instead.
     let byte_skip = u64::try_from(header.byte_skip).unwrap_or(0);
@@ -398,7 +399,38 @@ pub fn parse_header(bytes: &[u8]) -> Result<NrrdHeader, LoadProblem> {
     Ok(header)
 }
 
-fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), String> {
+/// What is wrong with the value of one NRRD header field (the line and field are added by the caller).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NrrdFieldError {
+    #[error("{value:?} is not a valid number")]
+    NotANumber { value: String },
+    #[error("{value:?} must be finite and positive")]
+    NotPositive { value: String },
+    #[error("{values:?} is not a finite 3-vector")]
+    NotAVector3 { values: Vec<f64> },
+    #[error("unclosed '('")]
+    UnclosedParenthesis,
+    #[error("expected a vector \"(x,y,z)\" or none at {rest:?}")]
+    ExpectedVector { rest: String },
+    #[error("expected one vector (x,y,z)")]
+    ExpectedOneVector,
+    #[error("encoding {value:?} is not supported (raw, gzip, ascii)")]
+    UnsupportedEncoding { value: String },
+    #[error("unknown endian {value:?}")]
+    UnknownEndian { value: String },
+    #[error("only 3-D spaces are supported")]
+    NotThreeDimensional,
+    #[error("space {value:?} is not supported (RAS, LAS, LPS, scanner-xyz, 3D-right-handed)")]
+    UnsupportedSpace { value: String },
+    #[error("type {value:?} is not supported")]
+    UnsupportedType { value: String },
+    #[error("multi-file data ({value:?}) is not supported: use one data file")]
+    MultiFile { value: String },
+    #[error("byte skip {skip} must be >= -1")]
+    ByteSkip { skip: i64 },
+}
+
+fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), NrrdFieldError> {
     match key {
         "type" => header.scalar_type = Some(parse_type(value)?),
         "dimension" => header.dimension = Some(parse_number(value)?),
@@ -414,9 +446,9 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
                 "gzip" | "gz" => Encoding::Gzip,
                 "ascii" | "text" | "txt" => Encoding::Ascii,
                 other => {
-                    return Err(format!(
-                        "encoding {other:?} is not supported (raw, gzip, ascii)"
-                    ))
+                    return Err(NrrdFieldError::UnsupportedEncoding {
+                        value: other.to_owned(),
+                    })
                 }
             })
         }
@@ -424,13 +456,17 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
             header.endian = Some(match value.to_ascii_lowercase().as_str() {
                 "little" => Endian::Little,
                 "big" => Endian::Big,
-                other => return Err(format!("unknown endian {other:?}")),
+                other => {
+                    return Err(NrrdFieldError::UnknownEndian {
+                        value: other.to_owned(),
+                    })
+                }
             })
         }
         "space" => header.space_flip = Some(parse_space(value)?),
         "space dimension" => {
             if parse_number::<usize>(value)? != 3 {
-                return Err("only 3-D spaces are supported".into());
+                return Err(NrrdFieldError::NotThreeDimensional);
             }
             header.space_flip.get_or_insert([1.0; 3]);
         }
@@ -446,7 +482,7 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
             let mut vectors = parse_vectors(value)?;
             match (vectors.pop(), vectors.is_empty()) {
                 (Some(Some(v)), true) => header.space_origin = Some(vector3(v)?),
-                _ => return Err("expected one vector (x,y,z)".into()),
+                _ => return Err(NrrdFieldError::ExpectedOneVector),
             }
         }
         "space units" => {
@@ -472,9 +508,9 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
         }
         "data file" | "datafile" => {
             if value.split_whitespace().count() != 1 || value.eq_ignore_ascii_case("list") {
-                return Err(format!(
-                    "multi-file data ({value:?}) is not supported: use one data file"
-                ));
+                return Err(NrrdFieldError::MultiFile {
+                    value: value.to_owned(),
+                });
             }
             header.data_file = Some(value.to_owned())
         }
@@ -482,7 +518,7 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
         "byte skip" | "byteskip" => {
             let skip: i64 = parse_number(value)?;
             if skip < -1 {
-                return Err(format!("byte skip {skip} must be >= -1"));
+                return Err(NrrdFieldError::ByteSkip { skip });
             }
             header.byte_skip = skip
         }
@@ -491,36 +527,40 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), St
     Ok(())
 }
 
-fn parse_number<T: std::str::FromStr>(value: &str) -> Result<T, String> {
+fn parse_number<T: std::str::FromStr>(value: &str) -> Result<T, NrrdFieldError> {
     value
         .trim()
         .parse()
-        .map_err(|_| format!("{value:?} is not a valid number"))
+        .map_err(|_| NrrdFieldError::NotANumber {
+            value: value.to_owned(),
+        })
 }
 
-fn parse_positive(value: &str) -> Result<f64, String> {
+fn parse_positive(value: &str) -> Result<f64, NrrdFieldError> {
     let number: f64 = parse_number(value)?;
     if number.is_finite() && number > 0.0 {
         Ok(number)
     } else {
-        Err(format!("{value:?} must be finite and positive"))
+        Err(NrrdFieldError::NotPositive {
+            value: value.to_owned(),
+        })
     }
 }
 
-fn vector3(values: Vec<f64>) -> Result<DVec3, String> {
+fn vector3(values: Vec<f64>) -> Result<DVec3, NrrdFieldError> {
     match values.as_slice() {
         &[x, y, z] if x.is_finite() && y.is_finite() && z.is_finite() => Ok(DVec3::new(x, y, z)),
-        _ => Err(format!("{values:?} is not a finite 3-vector")),
+        _ => Err(NrrdFieldError::NotAVector3 { values }),
     }
 }
 
 /// Parses `(1,0,0) none (0, 1, 0)`: a list of parenthesised vectors or `none`.
-fn parse_vectors(value: &str) -> Result<Vec<Option<Vec<f64>>>, String> {
+fn parse_vectors(value: &str) -> Result<Vec<Option<Vec<f64>>>, NrrdFieldError> {
     let mut vectors = Vec::new();
     let mut rest = value.trim();
     while !rest.is_empty() {
         if let Some(inner) = rest.strip_prefix('(') {
-            let close = inner.find(')').ok_or("unclosed '('")?;
+            let close = inner.find(')').ok_or(NrrdFieldError::UnclosedParenthesis)?;
             let numbers = inner[..close]
                 .split(',')
                 .map(parse_number)
@@ -534,26 +574,28 @@ fn parse_vectors(value: &str) -> Result<Vec<Option<Vec<f64>>>, String> {
             vectors.push(None);
             rest = rest[4..].trim_start();
         } else {
-            return Err(format!("expected a vector \"(x,y,z)\" or none at {rest:?}"));
+            return Err(NrrdFieldError::ExpectedVector {
+                rest: rest.to_owned(),
+            });
         }
     }
     Ok(vectors)
 }
 
-fn parse_space(value: &str) -> Result<[f64; 3], String> {
+fn parse_space(value: &str) -> Result<[f64; 3], NrrdFieldError> {
     match value.to_ascii_lowercase().as_str() {
         "right-anterior-superior" | "ras" | "scanner-xyz" | "3d-right-handed" => {
             Ok([1.0, 1.0, 1.0])
         }
         "left-anterior-superior" | "las" => Ok([-1.0, 1.0, 1.0]),
         "left-posterior-superior" | "lps" => Ok([-1.0, -1.0, 1.0]),
-        other => Err(format!(
-            "space {other:?} is not supported (RAS, LAS, LPS, scanner-xyz, 3D-right-handed)"
-        )),
+        other => Err(NrrdFieldError::UnsupportedSpace {
+            value: other.to_owned(),
+        }),
     }
 }
 
-fn parse_type(value: &str) -> Result<ScalarType, String> {
+fn parse_type(value: &str) -> Result<ScalarType, NrrdFieldError> {
     let normalised = value
         .split_whitespace()
         .collect::<Vec<_>>()
@@ -582,7 +624,11 @@ fn parse_type(value: &str) -> Result<ScalarType, String> {
         }
         "float" => ScalarType::F32,
         "double" => ScalarType::F64,
-        other => return Err(format!("type {other:?} is not supported")),
+        other => {
+            return Err(NrrdFieldError::UnsupportedType {
+                value: other.to_owned(),
+            })
+        }
     })
 }
 

@@ -18,13 +18,14 @@
 //!
 //! The world frame is taken to be RAS as written (no flip).
 
-use super::decode::{decode_samples, inflate, Endian, ScalarType};
-use super::source::{
+use crate::decode::{decode_samples, inflate, Endian, ScalarType};
+use crate::error::LoadProblem;
+use crate::loaded::{
+    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
+};
+use crate::source::{
     check_budget, data_file_path, read_data_file, read_regular, DataRange, LoadOptions,
     MAX_HEADER_BYTES,
-};
-use super::{
-    assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadProblem, LoadedVolume,
 };
 use glam::{DMat3, DVec3};
 use serde::Deserialize;
@@ -75,7 +76,7 @@ pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, Loa
     })?;
     let voxels = checked_voxel_count(header.dims, header.components.max(1) as u64)?;
     let count = voxels * header.components.max(1);
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     check_budget(expected_bytes, count as u64, options)?;
     let data_path = data_file_path(path, &header.data_file, options)?;
     let compressed = !matches!(header.compression.as_deref(), None | Some("none"));
@@ -158,7 +159,7 @@ pub fn decode_with_header(
             expected_bytes: header.header_bytes as u64,
             actual_bytes: data.len() as u64,
         })?;
-    let expected_bytes = super::data_bytes(count, scalar_type)?;
+    let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
     let inflated;
     let data = match header.compression.as_deref() {
         None | Some("none") => data,

@@ -102,7 +102,7 @@ struct PrimitiveSpec {
 impl Scene {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = crate::read_text_file(path).map_err(|source| SceneError::Io {
+        let text = crate::source::read_text_file(path).map_err(|source| SceneError::Io {
             path: path.display().to_string(),
             source,
         })?;

@@ -16,7 +16,8 @@
 //!   must resolve, after symlinks, inside the header's own folder unless
 //!   [`LoadOptions::allow_outside_paths`]; the same rule holds for volume files named in scene files.
 
-use super::LoadProblem;
+pub use crate::error::FileError;
+use crate::error::LoadProblem;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -61,27 +62,6 @@ pub fn process_options() -> LoadOptions {
         max_volume_bytes: PROCESS_MAX_VOLUME_BYTES.load(Ordering::Relaxed),
         allow_outside_paths: PROCESS_ALLOW_OUTSIDE_PATHS.load(Ordering::Relaxed),
     }
-}
-
-/// Why a file cannot be opened as a plain file.
-#[derive(Debug, thiserror::Error)]
-pub enum FileError {
-    #[error("{0}")]
-    Io(#[from] std::io::Error),
-    #[error("it is a {kind}, not a regular file (only regular files are read)")]
-    NotRegular { kind: &'static str },
-    #[error("it is {size_bytes} bytes, more than the {limit_bytes}-byte limit for {what}")]
-    TooLong {
-        size_bytes: u64,
-        limit_bytes: u64,
-        what: &'static str,
-    },
-    #[error(
-        "it resolves to {}, outside the folder {} (add --allow-outside-paths to allow this)",
-        resolved.display(),
-        folder.display()
-    )]
-    Outside { resolved: PathBuf, folder: PathBuf },
 }
 
 /// What kind of file `metadata` describes, for messages.

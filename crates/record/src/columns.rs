@@ -7,10 +7,12 @@
 //! `mcap_trace.rs`). Names are safe for pandas: no name collides with a `DataFrame` attribute (the flag bit
 //! set is `flag_bits`, not `flags`), and every flag also gets a boolean column `flag_<name>`.
 
-use super::{SolverStatus, TraceSample, FLAG_DOCS, MAX_MODES};
+use crate::flags::FLAG_DOCS;
+use crate::sample::{SolverStatus, TraceSample};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
+use voxhap_core::haptics::modes::MAX_MODES;
 
 /// The value type of a column.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

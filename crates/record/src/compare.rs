@@ -1,13 +1,14 @@
 //! Comparing two traces within tolerances, for `voxhap compare A B --tol force=1e-6,...` in CI: a new run
 //! against a reference trace.
 //!
-//! Where it sits: after two traces were read ([`super::read_trace`]), [`compare_traces`] pairs their samples
+//! Where it sits: after two traces were read ([`crate::formats::read_trace`]), [`compare_traces`] pairs their samples
 //! by position, checks that they cover the same ticks with the same modes, and reports, for every quantity,
 //! the largest difference and the tick where it occurs. Floating-point quantities pass within an absolute
 //! tolerance (default 0: identical); counts, flags and solver status must be equal. NaN equals NaN and
 //! +inf equals +inf (a missing certificate on both sides is no difference).
 
-use super::{Trace, TraceSample};
+use crate::sample::TraceSample;
+use crate::trace::Trace;
 use glam::DVec3;
 use std::fmt::Write;
 
@@ -27,26 +28,50 @@ pub const QUANTITIES: [(&str, &str); 8] = [
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Tolerances(pub [f64; QUANTITIES.len()]);
 
+/// What is wrong with a `--tol` list.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ToleranceError {
+    /// An item without `=`.
+    #[error("{item:?}: expected NAME=TOLERANCE, e.g. force=1e-6")]
+    MissingEquals { item: String },
+    /// A tolerance that is not a finite number >= 0.
+    #[error("{item:?}: the tolerance must be a number >= 0")]
+    BadValue { item: String },
+    /// A name that is not in [`QUANTITIES`] (nor `all`).
+    #[error("{name:?} is not a quantity; use one of {} or all", quantity_names())]
+    UnknownQuantity { name: String },
+}
+
+/// The quantity names, comma-separated, for messages.
+fn quantity_names() -> String {
+    let names: Vec<&str> = QUANTITIES.iter().map(|(q, _)| *q).collect();
+    names.join(", ")
+}
+
 impl Tolerances {
     /// Parses `name=value,name=value` (names from [`QUANTITIES`]; `all=value` sets every one).
-    pub fn parse(text: &str) -> Result<Tolerances, String> {
+    pub fn parse(text: &str) -> Result<Tolerances, ToleranceError> {
         let mut tolerances = Tolerances::default();
         tolerances.apply(text)?;
         Ok(tolerances)
     }
 
     /// Applies `name=value,...` on top of these tolerances.
-    pub fn apply(&mut self, text: &str) -> Result<(), String> {
+    pub fn apply(&mut self, text: &str) -> Result<(), ToleranceError> {
         for item in text.split(',').filter(|s| !s.trim().is_empty()) {
-            let (name, value) = item
-                .split_once('=')
-                .ok_or_else(|| format!("{item:?}: expected NAME=TOLERANCE, e.g. force=1e-6"))?;
+            let (name, value) =
+                item.split_once('=')
+                    .ok_or_else(|| ToleranceError::MissingEquals {
+                        item: item.to_owned(),
+                    })?;
             let value: f64 = value
                 .trim()
                 .parse()
                 .ok()
                 .filter(|v: &f64| v.is_finite() && *v >= 0.0)
-                .ok_or_else(|| format!("{item:?}: the tolerance must be a number >= 0"))?;
+                .ok_or_else(|| ToleranceError::BadValue {
+                    item: item.to_owned(),
+                })?;
             let name = name.trim();
             if name == "all" {
                 self.0 = [value; QUANTITIES.len()];
@@ -55,12 +80,8 @@ impl Tolerances {
             let index = QUANTITIES
                 .iter()
                 .position(|(q, _)| *q == name)
-                .ok_or_else(|| {
-                    let names: Vec<&str> = QUANTITIES.iter().map(|(q, _)| *q).collect();
-                    format!(
-                        "{name:?} is not a quantity; use one of {} or all",
-                        names.join(", ")
-                    )
+                .ok_or_else(|| ToleranceError::UnknownQuantity {
+                    name: name.to_owned(),
                 })?;
             self.0[index] = value;
         }
@@ -214,8 +235,8 @@ pub fn compare_traces(a: &Trace, b: &Trace, tolerances: Tolerances) -> Compariso
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_support::samples;
     use super::*;
+    use crate::test_support::samples;
 
     fn trace(data: Vec<TraceSample>) -> Trace {
         Trace {
@@ -257,7 +278,10 @@ mod tests {
 
     #[test]
     fn bad_tolerances_are_refused_with_the_names() {
-        assert!(Tolerances::parse("forse=1").unwrap_err().contains("force"));
+        assert!(Tolerances::parse("forse=1")
+            .unwrap_err()
+            .to_string()
+            .contains("force"));
         assert!(Tolerances::parse("force=-1").is_err());
         assert!(Tolerances::parse("force").is_err());
     }

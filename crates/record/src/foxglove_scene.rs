@@ -67,12 +67,12 @@ pub struct RecordedVolume {
 impl RecordedVolume {
     /// The picture of `meta`'s volumes; `None` when none of them loads as a scalar volume (then a
     /// recording simply has no volume topic messages).
-    pub fn from_meta(meta: &super::TraceMeta) -> Option<RecordedVolume> {
+    pub fn from_meta(meta: &crate::meta::TraceMeta) -> Option<RecordedVolume> {
         Self::load(meta).map(|(picture, _)| picture)
     }
 
     /// The picture and the volume it shows (which the recorded slices sample).
-    fn load(meta: &super::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
+    fn load(meta: &crate::meta::TraceMeta) -> Option<(RecordedVolume, NamedVolume)> {
         use voxhap_core::haptics::modes::ModeConfig;
         let volume = meta.volume.split(", ").find_map(|source| {
             let loaded = match source.strip_prefix("builtin:") {
@@ -165,7 +165,7 @@ fn surface_iso(modes: &[voxhap_core::haptics::modes::ModeConfig]) -> Option<(Rgb
 /// effect). The control side builds it ([`SceneChange::between`], so neither the servo nor the recorder
 /// thread meshes) and sends it to the recorder thread
 /// (`voxhap_servo::recorder::RecorderRequest::SceneChanged`), which hands it to the trace writer
-/// ([`super::TraceWriter::scene_changed`]).
+/// ([`crate::writer::TraceWriter::scene_changed`]).
 #[derive(Debug, Clone)]
 pub struct SceneChange {
     pub generation: u64,
@@ -245,10 +245,28 @@ fn trace_stats_schema() -> serde_json::Value {
     })
 }
 
+/// Why a scene message could not be encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneEncodeError {
+    /// A Foxglove protobuf message.
+    #[error("{0}")]
+    Protobuf(Box<dyn std::error::Error + Send + Sync>),
+    /// A JSON message.
+    #[error("{0}")]
+    Json(#[from] serde_json::Error),
+}
+
+impl SceneEncodeError {
+    fn protobuf(error: impl std::error::Error + Send + Sync + 'static) -> Self {
+        SceneEncodeError::Protobuf(Box::new(error))
+    }
+}
+
 /// Encodes one message into the buffer it is given.
-pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), String> + 'a;
+pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), SceneEncodeError> + 'a;
 /// Writes one message: the channel and its encoder.
-pub type ScenePut<'a> = dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), super::TraceError> + 'a;
+pub type ScenePut<'a> =
+    dyn FnMut(u16, &SceneEncode<'_>) -> Result<(), crate::error::TraceError> + 'a;
 
 /// The scene channels of an MCAP trace and what they need between samples.
 pub struct RecordedScene {
@@ -282,7 +300,7 @@ impl RecordedScene {
     /// picture of `meta`.
     pub fn add<W: std::io::Write + std::io::Seek>(
         writer: &mut mcap::Writer<W>,
-        meta: &super::TraceMeta,
+        meta: &crate::meta::TraceMeta,
     ) -> Result<RecordedScene, mcap::McapError> {
         use ::foxglove::Encode;
         use voxhap_view::messages::{bound_schema, operating_state_schema};
@@ -350,11 +368,11 @@ impl RecordedScene {
     /// [`RECORDED_SLICE_INTERVAL_S`]; statistics once a second. `put(channel, encode)` writes one message.
     pub fn write(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         frame: Option<&Snapshot>,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
@@ -398,15 +416,15 @@ impl RecordedScene {
             self.last_scene_ns = Some(time_ns);
             let update = scene_update(frame, timestamp);
             put(self.primitives, &|m| {
-                update.encode(m).map_err(|e| e.to_string())
+                update.encode(m).map_err(SceneEncodeError::protobuf)
             })?;
             let bound = BoundMessage::new(frame);
             put(self.bound, &|m| {
-                serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
+                serde_json::to_writer(m, &bound).map_err(SceneEncodeError::Json)
             })?;
             let state = OperatingStateMessage::new(frame);
             put(self.operating_state, &|m| {
-                serde_json::to_writer(m, &state).map_err(|e| e.to_string())
+                serde_json::to_writer(m, &state).map_err(SceneEncodeError::Json)
             })?;
         } else if from_sample {
             self.last_scene_ns = Some(time_ns);
@@ -419,7 +437,7 @@ impl RecordedScene {
             *due = sample.t_s + 1.0;
             let totals = &self.totals;
             put(self.stats, &|m| {
-                serde_json::to_writer(m, totals).map_err(|e| e.to_string())
+                serde_json::to_writer(m, totals).map_err(SceneEncodeError::Json)
             })?;
         }
         Ok(())
@@ -437,7 +455,11 @@ impl RecordedScene {
 
     /// Writes the volume picture (bounds, iso-surface) and the volume's frames ([`volume_frames`]), when
     /// there is a picture.
-    fn write_picture(&self, time_ns: u64, put: &mut ScenePut<'_>) -> Result<(), super::TraceError> {
+    fn write_picture(
+        &self,
+        time_ns: u64,
+        put: &mut ScenePut<'_>,
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let Some(picture) = &self.picture else {
             return Ok(());
@@ -450,18 +472,18 @@ impl RecordedScene {
             timestamp_from_ns(time_ns),
         );
         put(self.volume, &|m| {
-            update.encode(m).map_err(|e| e.to_string())
+            update.encode(m).map_err(SceneEncodeError::protobuf)
         })?;
         for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
             put(self.volume_frame, &|m| {
-                frame.encode(m).map_err(|e| e.to_string())
+                frame.encode(m).map_err(SceneEncodeError::protobuf)
             })?;
         }
         Ok(())
     }
 
     /// Adds `sample` to the statistics.
-    fn count(&mut self, sample: &super::TraceSample) {
+    fn count(&mut self, sample: &crate::sample::TraceSample) {
         let t = &mut self.totals;
         t.t_s = sample.t_s;
         t.ticks += 1;
@@ -469,10 +491,10 @@ impl RecordedScene {
         self.worst_bound_m = self.worst_bound_m.max(sample.error_bound_m);
         t.worst_error_bound_m = self.worst_bound_m.is_finite().then_some(self.worst_bound_m);
         let flag = |bit: u32| u64::from(sample.flags & bit != 0);
-        t.overruns += flag(super::FLAG_OVERRUN);
-        t.solver_budget_hits += flag(super::FLAG_SOLVER_BUDGET_HIT);
-        t.force_clamped += flag(super::FLAG_FORCE_CLAMPED);
-        t.samples_dropped += flag(super::FLAG_SAMPLES_DROPPED);
+        t.overruns += flag(crate::flags::FLAG_OVERRUN);
+        t.solver_budget_hits += flag(crate::flags::FLAG_SOLVER_BUDGET_HIT);
+        t.force_clamped += flag(crate::flags::FLAG_FORCE_CLAMPED);
+        t.samples_dropped += flag(crate::flags::FLAG_SAMPLES_DROPPED);
     }
 
     /// The scene update, bound and operating state as far as the trace sample tells them: markers without
@@ -480,10 +502,10 @@ impl RecordedScene {
     /// disconnected or not enabled.
     fn write_from_sample(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let update = replace_all(
@@ -497,7 +519,7 @@ impl RecordedScene {
             timestamp,
         );
         put(self.primitives, &|m| {
-            update.encode(m).map_err(|e| e.to_string())
+            update.encode(m).map_err(SceneEncodeError::protobuf)
         })?;
         let bound = RecordedBound {
             tick: sample.tick,
@@ -507,7 +529,7 @@ impl RecordedScene {
                 .is_finite()
                 .then_some(sample.error_bound_m),
             sweeps: sample.sweeps,
-            status: if sample.flags & super::FLAG_SOLVER_BUDGET_HIT != 0 {
+            status: if sample.flags & crate::flags::FLAG_SOLVER_BUDGET_HIT != 0 {
                 "budget_exhausted"
             } else if sample.error_bound_m.is_finite() {
                 "certified"
@@ -516,9 +538,10 @@ impl RecordedScene {
             },
         };
         put(self.bound, &|m| {
-            serde_json::to_writer(m, &bound).map_err(|e| e.to_string())
+            serde_json::to_writer(m, &bound).map_err(SceneEncodeError::Json)
         })?;
-        let disabled = super::FLAG_DEVICE_DISCONNECTED | super::FLAG_DEVICE_NOT_ENABLED;
+        let disabled =
+            crate::flags::FLAG_DEVICE_DISCONNECTED | crate::flags::FLAG_DEVICE_NOT_ENABLED;
         let state = OperatingStateMessage {
             state: if sample.flags & disabled == 0 {
                 "ENABLED"
@@ -529,7 +552,7 @@ impl RecordedScene {
             is_busy: false,
         };
         put(self.operating_state, &|m| {
-            serde_json::to_writer(m, &state).map_err(|e| e.to_string())
+            serde_json::to_writer(m, &state).map_err(SceneEncodeError::Json)
         })
     }
 
@@ -537,10 +560,10 @@ impl RecordedScene {
     /// recording has a volume picture and the proxy is a finite point.
     fn write_slices(
         &mut self,
-        sample: &super::TraceSample,
+        sample: &crate::sample::TraceSample,
         time_ns: u64,
         put: &mut ScenePut<'_>,
-    ) -> Result<(), super::TraceError> {
+    ) -> Result<(), crate::error::TraceError> {
         use ::foxglove::Encode;
         use voxhap_api::{SliceAxis, SliceRequest};
         let Some(volume) = &self.slice_volume else {
@@ -568,231 +591,14 @@ impl RecordedScene {
                 continue;
             };
             let grid = slice_grid(&slice, time_ns);
-            put(channel, &|m| grid.encode(m).map_err(|e| e.to_string()))?;
+            put(channel, &|m| {
+                grid.encode(m).map_err(SceneEncodeError::protobuf)
+            })?;
         }
         Ok(())
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use ::foxglove::Decode;
-
-    #[test]
-    fn a_recording_of_a_builtin_sphere_gets_its_bounds_and_a_mesh_at_the_surface_threshold() {
-        let mut meta = crate::test_support::meta(&["surface"]);
-        meta.volume = "builtin:sphere".to_owned();
-        meta.scenario = serde_json::json!({
-            "modes": [{"kind": "surface", "volume": "v", "transfer": [[0.45, 0.0], [0.55, 2.0]]}]
-        });
-        let picture = RecordedVolume::from_meta(&meta).expect("a picture");
-        assert!(
-            picture.min_m.x < -0.03 && picture.max_m.x > 0.03,
-            "{picture:?}"
-        );
-        let (mesh, colour, iso) = picture.surface.expect("a surface mesh");
-        assert!((iso - 0.5).abs() < 1e-12);
-        assert_eq!(colour, palette().mode(0));
-        assert!(!mesh.triangles.is_empty() && mesh.triangles.len() <= RECORDED_MAX_TRIANGLES);
-        // The half-density shell of the radius-3 cm ball.
-        for v in &mesh.vertices {
-            assert!(
-                (v.length() - 0.03).abs() < 0.003,
-                "vertex at {} m",
-                v.length()
-            );
-        }
-        meta.volume = "procedural:sphere, /no/such/file.nii".to_owned();
-        assert_eq!(RecordedVolume::from_meta(&meta), None);
-    }
-
-    /// A one-mode sample of tick `tick` at 1 kHz.
-    fn sample_at(tick: u64) -> crate::TraceSample {
-        let mut sample = crate::TraceSample::zeroed(1);
-        sample.tick = tick;
-        sample.t_s = tick as f64 * 1e-3;
-        sample
-    }
-
-    /// Writes 3 s of 1 kHz samples through a [`RecordedScene`], with the servo's snapshots every 17th tick
-    /// for the first second only; returns how many messages each channel got and the last statistics.
-    fn record_with_frames_for_one_second() -> (RecordedScene, Vec<u16>, serde_json::Value) {
-        let mut meta = crate::test_support::meta(&["surface"]);
-        meta.volume = "builtin:sphere".to_owned();
-        let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
-        let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
-        let mut channels = Vec::new();
-        let mut last_stats = serde_json::Value::Null;
-        let every = scene_frame_interval_ticks(1_000_000);
-        for tick in 0..3000u64 {
-            let sample = sample_at(tick);
-            let frame = Snapshot {
-                tick,
-                t_s: sample.t_s,
-                connected: true,
-                engaged: true,
-                ..Snapshot::example()
-            };
-            let frame = (tick < 1000 && tick % every == 0).then_some(&frame);
-            let stats_channel = scene.stats;
-            scene
-                .write(&sample, frame, tick * 1_000_000, &mut |channel, encode| {
-                    let mut bytes = Vec::new();
-                    encode(&mut bytes).unwrap();
-                    if channel == stats_channel {
-                        last_stats = serde_json::from_slice(&bytes).unwrap();
-                    }
-                    channels.push(channel);
-                    Ok(())
-                })
-                .unwrap();
-        }
-        (scene, channels, last_stats)
-    }
-
-    #[test]
-    fn snapshots_drive_the_scene_updates_and_missing_ones_are_drawn_from_samples_and_counted() {
-        let (scene, channels, stats) = record_with_frames_for_one_second();
-        let count = |channel: u16| channels.iter().filter(|&&c| c == channel).count();
-        // 59 snapshots in the first second (ticks 0, 17, ..., 986); then none: one update per 3 intervals
-        // (50 ms) from the samples, 40 in the last two seconds.
-        assert_eq!(count(scene.primitives), 59 + 40);
-        assert_eq!(count(scene.bound), count(scene.primitives));
-        assert_eq!(count(scene.operating_state), count(scene.primitives));
-        // The last statistics (at 2 s) count the 20 updates drawn from samples by then (ticks 1036 ..= 1986).
-        assert_eq!(stats["t_s"], 2.0);
-        assert_eq!(stats["scene_frames_missing"], 20, "{stats}");
-        // Slices every 0.25 s, the volume picture once, statistics once a second (at 1 s and 2 s).
-        for channel in scene.slices {
-            assert_eq!(count(channel), 12);
-        }
-        assert_eq!(count(scene.volume), 1);
-        assert_eq!(
-            count(scene.volume_frame),
-            2,
-            "frames volume and volume_view"
-        );
-        assert_eq!(count(scene.stats), 2);
-    }
-
-    /// A scene change while recording: the new volume's picture and frames are written with the first
-    /// snapshot of the new generation, slices switch to it, and an unchanged scene draws nothing.
-    #[test]
-    fn a_scene_change_redraws_the_volume_with_the_first_snapshot_of_its_generation() {
-        use voxhap_core::haptics::modes::ModeConfig;
-        let mut meta = crate::test_support::meta(&["surface"]);
-        meta.volume = "builtin:sphere".to_owned();
-        let modes: Vec<ModeConfig> = serde_json::from_value(serde_json::json!([
-            {"kind": "surface", "volume": "v", "transfer": [[0.45, 0.0], [0.55, 2.0]]}
-        ]))
-        .unwrap();
-        meta.scenario = serde_json::json!({ "modes": modes });
-        let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
-        let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
-        // A 10 cm ball in a 40 cm cube.
-        let big = voxhap_core::volume::procedural::sphere(0.1, [24; 3], 0.2).unwrap();
-        let (big_min_m, big_max_m) = big.grid().bounds_world();
-        assert!((big_max_m - big_min_m - DVec3::splat(0.4)).length() < 0.05);
-        let sphere = NamedVolume {
-            name: "v".to_owned(),
-            source: "builtin:sphere".to_owned(),
-            volume: voxhap_core::volume::AnyVolume::Scalar(
-                voxhap_core::volume::procedural::builtin("sphere")
-                    .unwrap()
-                    .scalar
-                    .unwrap(),
-            ),
-        };
-        let ball = NamedVolume {
-            name: "v".to_owned(),
-            source: "big.mha".to_owned(),
-            volume: voxhap_core::volume::AnyVolume::Scalar(big),
-        };
-        let before = (std::slice::from_ref(&sphere), &modes[..]);
-        // The same scene draws nothing new.
-        assert!(SceneChange::between(before, before, 2).is_none());
-        let change =
-            SceneChange::between(before, (std::slice::from_ref(&ball), &modes[..]), 2).unwrap();
-        // A new iso-value redraws the same volume.
-        let mut steeper = modes.clone();
-        steeper[0].transfer =
-            Some(voxhap_core::haptics::modes::TransferFunction::ramp(0.2, 0.3, 2.0).unwrap());
-        let redrawn =
-            SceneChange::between(before, (std::slice::from_ref(&sphere), &steeper[..]), 3);
-        assert!((redrawn.unwrap().picture.surface.unwrap().2 - 0.25).abs() < 1e-12);
-        let every = scene_frame_interval_ticks(1_000_000);
-        let mut written: Vec<(u16, u64, Vec<u8>)> = Vec::new();
-        for tick in 0..1000u64 {
-            if tick == 400 {
-                scene.scene_changed(&change);
-            }
-            let sample = sample_at(tick);
-            // The servo took the change at tick 410.
-            let frame = Snapshot {
-                tick,
-                t_s: sample.t_s,
-                scene_generation: if tick >= 410 { 2 } else { 1 },
-                ..Snapshot::example()
-            };
-            let frame = (tick % every == 0).then_some(&frame);
-            let time_ns = tick * 1_000_000;
-            scene
-                .write(&sample, frame, time_ns, &mut |channel, encode| {
-                    let mut bytes = Vec::new();
-                    encode(&mut bytes).unwrap();
-                    written.push((channel, time_ns, bytes));
-                    Ok(())
-                })
-                .unwrap();
-        }
-        let pictures: Vec<_> = written.iter().filter(|m| m.0 == scene.volume).collect();
-        assert_eq!(pictures.len(), 2);
-        // The first snapshot of generation 2 is tick 425 (every 17th tick).
-        assert_eq!((pictures[0].1, pictures[1].1), (0, 425_000_000));
-        let second = SceneUpdate::decode(&pictures[1].2[..]).unwrap();
-        let meta_of = |key: &str| {
-            second.entities[0]
-                .metadata
-                .iter()
-                .find(|kv| kv.key == key)
-                .unwrap()
-                .value
-                .clone()
-        };
-        assert_eq!(meta_of("volume"), "big.mha");
-        let expected = CameraFraming::of_bounds(big_min_m, big_max_m);
-        let max_m: Vec<f64> = serde_json::from_str(&meta_of("max_m")).unwrap();
-        assert_eq!(max_m, big_max_m.to_array());
-        assert!(
-            (meta_of("camera_distance_m").parse::<f64>().unwrap() - expected.distance_m).abs()
-                < 1e-9
-        );
-        let mesh = &second.entities[1].triangles[0];
-        let reach = mesh
-            .points
-            .iter()
-            .map(|p| DVec3::new(p.x, p.y, p.z).length())
-            .fold(0.0, f64::max);
-        assert!(
-            (reach - 0.1).abs() < 0.02,
-            "the new ball's surface reaches {reach} m"
-        );
-        // Two frames per picture; the slices after the change sample the new 40 cm volume.
-        assert_eq!(
-            written.iter().filter(|m| m.0 == scene.volume_frame).count(),
-            4
-        );
-        let slice = written
-            .iter()
-            .find(|m| m.0 == scene.slices[2] && m.1 >= 425_000_000)
-            .unwrap();
-        assert_eq!(slice.1, 425_000_000, "slices of the new volume at once");
-        let grid = Grid::decode(&slice.2[..]).unwrap();
-        let cell = grid.cell_size.unwrap().x;
-        assert!(
-            (cell * RECORDED_SLICE_SAMPLES as f64 - 0.4).abs() < 0.05,
-            "cell {cell} m"
-        );
-    }
-}
+#[path = "foxglove_scene_tests.rs"]
+mod tests;

@@ -7,12 +7,15 @@
 //! `created_utc` and `start_utc_ns` are the only fields that depend on the wall clock.
 
 use serde::{Deserialize, Serialize};
-use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use super::columns::{columns, ColumnDoc};
-use super::{TraceError, TraceFormat, FLAG_DOCS, MAX_MODES};
+use crate::columns::{columns, ColumnDoc};
+use crate::error::TraceError;
+use crate::flags::{FlagDoc, FLAG_DOCS};
+use crate::output::sidecar_path;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
 
 /// Version of the trace layout (columns, topics, sidecar keys); bumped on incompatible changes.
 /// Version 2 (this one) added the velocity, rendered force, per-mode force, solver status, device sequence
@@ -103,15 +106,15 @@ pub(crate) fn is_valid_mode_name(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
 }
 
-/// One flag bit.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct FlagDoc {
-    /// Bit index (value `1 << bit`).
-    pub bit: u32,
-    /// Short name.
-    pub name: Cow<'static, str>,
-    /// What it means when set.
-    pub meaning: Cow<'static, str>,
+/// What a finished trace wrote.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TraceSummary {
+    /// The trace file.
+    pub trace_path: PathBuf,
+    /// Its JSON sidecar.
+    pub sidecar_path: PathBuf,
+    /// Samples written.
+    pub sample_count: u64,
 }
 
 /// The JSON sidecar `TRACE.json`: the metadata plus what a reader needs to interpret the trace.
@@ -168,12 +171,12 @@ impl Sidecar {
         &mut self,
         trace_path: &Path,
         sample_count: u64,
-    ) -> Result<super::TraceSummary, TraceError> {
+    ) -> Result<TraceSummary, TraceError> {
         self.complete = true;
         self.sample_count = sample_count;
         let sidecar_path = sidecar_path(trace_path);
         self.write(&sidecar_path)?;
-        Ok(super::TraceSummary {
+        Ok(TraceSummary {
             trace_path: trace_path.to_path_buf(),
             sidecar_path,
             sample_count,
@@ -204,7 +207,7 @@ impl Sidecar {
     /// Writes the first (provisional) sidecar into a new file at `path` (never over an existing file, never
     /// through a symlink).
     pub(crate) fn write_new(&self, path: &Path) -> Result<(), TraceError> {
-        let file = super::output::create_new_file(path)?;
+        let file = crate::output::create_new_file(path)?;
         self.write_into(file, path)
     }
 
@@ -213,7 +216,7 @@ impl Sidecar {
     /// needs no new disk space. The first version is padded with [`SIDECAR_RESERVE`] spaces for that. The
     /// file must exist ([`Sidecar::write_new`] made it) and is not opened through a symlink.
     pub(crate) fn write(&self, path: &Path) -> Result<(), TraceError> {
-        let file = super::output::open_existing_output(path)?;
+        let file = crate::output::open_existing_output(path)?;
         self.write_into(file, path)
     }
 
@@ -246,13 +249,6 @@ impl Sidecar {
 const SIDECAR_RESERVE: usize = 1024;
 /// The longest error text a sidecar keeps.
 const MAX_ERROR_TEXT: usize = 600;
-
-/// The sidecar's path for a trace: the trace path with `.json` appended (`run.csv` -> `run.csv.json`).
-pub fn sidecar_path(trace_path: &Path) -> PathBuf {
-    let mut name = trace_path.as_os_str().to_os_string();
-    name.push(".json");
-    PathBuf::from(name)
-}
 
 /// The current time as RFC 3339 UTC with whole seconds, e.g. `2026-01-31T12:00:00Z`.
 pub(crate) fn utc_now_rfc3339() -> String {

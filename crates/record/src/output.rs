@@ -16,7 +16,7 @@
 //! link to the old file keeps its contents. Rewriting the sidecar later opens the file the writer
 //! created, again without following a symlink.
 
-use super::{sidecar_path, TraceError, TraceFormat};
+use crate::error::TraceError;
 use std::path::{Path, PathBuf};
 
 /// What a new trace may replace.
@@ -226,34 +226,11 @@ impl std::io::Seek for OutputFile {
     }
 }
 
-/// A generous estimate of the bytes a trace of `ticks` samples at `rate_hz` with `mode_count` modes takes
-/// in `format` (the sidecar not included). Measured row sizes with margin: CSV writes shortest round-trip
-/// floats (up to 24 characters each), MCAP five messages per tick plus the scene topics
-/// ([`super::foxglove_scene::recorded_scene_bytes`]: slices, scene updates, the volume picture).
-pub fn estimate_trace_bytes(
-    format: TraceFormat,
-    mode_count: usize,
-    ticks: u64,
-    rate_hz: f64,
-) -> u64 {
-    let per_tick: u64 = match format {
-        // 23 float columns + 4 per mode at up to 24 bytes, integers, status, 12 flags at 6 bytes.
-        TraceFormat::Csv => 23 * 24 + mode_count as u64 * (4 * 24) + 60 + 12 * 6,
-        // JSON state and solver messages plus three protobuf messages and their record headers.
-        TraceFormat::Mcap => 900 + mode_count as u64 * 90,
-        // Uncompressed column values (8 bytes per number) plus row-group footers; Snappy makes it smaller.
-        TraceFormat::Parquet => 23 * 8 + mode_count as u64 * (4 * 8) + 60 + 17,
-    };
-    let scene = match format {
-        // Only MCAP carries the Foxglove scene topics.
-        TraceFormat::Csv | TraceFormat::Parquet => 0,
-        TraceFormat::Mcap => {
-            super::foxglove_scene::recorded_scene_bytes(ticks as f64 / rate_hz, mode_count)
-        }
-    };
-    4096u64
-        .saturating_add(per_tick.saturating_mul(ticks))
-        .saturating_add(scene)
+/// The sidecar's path for a trace: the trace path with `.json` appended (`run.csv` -> `run.csv.json`).
+pub fn sidecar_path(trace_path: &Path) -> PathBuf {
+    let mut name = trace_path.as_os_str().to_os_string();
+    name.push(".json");
+    PathBuf::from(name)
 }
 
 #[cfg(test)]
@@ -303,18 +280,5 @@ mod tests {
             inputs: vec![sidecar_path(&sidecar_target)],
         };
         assert!(check_output_path(&sidecar_target, &guarded).is_err());
-    }
-
-    #[test]
-    fn estimates_grow_with_ticks_and_modes() {
-        let small = estimate_trace_bytes(TraceFormat::Csv, 1, 1000, 1000.0);
-        assert!(small > 1000 * 500);
-        assert!(estimate_trace_bytes(TraceFormat::Csv, 3, 1000, 1000.0) > small);
-        // 1e9 Hz for 60 s would be hundreds of GB: far over a 2 GB limit.
-        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 60_000_000_000, 1e9) > 2_000_000_000);
-        // The scene topics are per second, not per tick: the same ticks at a tenth of the rate last ten
-        // times as long and carry ten times the slices.
-        let fast = estimate_trace_bytes(TraceFormat::Mcap, 1, 10_000, 1000.0);
-        assert!(estimate_trace_bytes(TraceFormat::Mcap, 1, 10_000, 100.0) > fast + 9 * 390_000);
     }
 }

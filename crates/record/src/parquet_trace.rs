@@ -1,7 +1,7 @@
 //! Parquet force traces: the writer ([`ParquetTraceWriter`]) and the reader ([`read_parquet_trace`]).
 //!
-//! Where it sits: one of the three trace formats behind [`super::TraceWriter`] (chosen by a `.parquet`
-//! name or `--format parquet`). The columns are `super::columns::columns`, the same names, order and
+//! Where it sits: one of the three trace formats behind [`crate::writer::TraceWriter`] (chosen by a `.parquet`
+//! name or `--format parquet`). The columns are `crate::columns::columns`, the same names, order and
 //! values as CSV, with Parquet types: `UInt64` counts and ticks, `Int64` `utc_ns` (null when `t_s` is not
 //! finite), `Float64` quantities (NaN and infinities kept), `Boolean` flag columns, a UTF-8
 //! `solver_status`, and nullable `UInt64` device sequence and time. The finished file's metadata holds
@@ -50,14 +50,18 @@ use parquet::file::metadata::{
 };
 use parquet::file::properties::WriterProperties;
 
-use super::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
-use super::csv::read_sidecar;
-use super::meta::is_valid_mode_name;
-use super::output::{OutputFile, StopSwitch};
-use super::{
-    check_sample, sidecar_path, SampleChecker, Sidecar, SolverStatus, Trace, TraceError,
-    TraceFormat, TraceMeta, TraceReadError, TraceSample, TraceSummary, TraceWriter, MAX_MODES,
-};
+use crate::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use crate::csv::read_sidecar;
+use crate::error::{TraceError, TraceReadError};
+use crate::meta::is_valid_mode_name;
+use crate::meta::{Sidecar, TraceMeta, TraceSummary};
+use crate::output::sidecar_path;
+use crate::output::{OutputFile, StopSwitch};
+use crate::sample::{check_sample, SampleChecker, SolverStatus, TraceSample};
+use crate::trace::Trace;
+use crate::writer::TraceWriter;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
 
 /// The file-metadata key holding the sidecar's JSON (the final sidecar, in a finished file).
 pub const SIDECAR_KEY: &str = "voxhap.sidecar";
@@ -175,7 +179,7 @@ impl ParquetTraceWriter {
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         meta.validate()?;
         let stop = StopSwitch::default();
-        let file = OutputFile::new(super::create_new_file(path)?, &stop);
+        let file = OutputFile::new(crate::output::create_new_file(path)?, &stop);
         let schema = arrow_schema(&meta.mode_names);
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
@@ -289,8 +293,8 @@ fn compact(path: &Path, schema: &SchemaRef) -> Result<(), parquet::errors::Parqu
     temporary_name.push(format!(".compacting.{}", std::process::id()));
     let temporary = path.with_file_name(temporary_name);
     let result = (|| {
-        let output = super::create_new_file(&temporary)
-            .map_err(|e| parquet::errors::ParquetError::General(super::error_chain(&e)))?;
+        let output = crate::output::create_new_file(&temporary)
+            .map_err(|e| parquet::errors::ParquetError::General(crate::error::error_chain(&e)))?;
         let properties = WriterProperties::builder()
             .set_compression(Compression::SNAPPY)
             .set_max_row_group_row_count(Some(COMPACT_ROW_GROUP_ROWS))
@@ -433,7 +437,7 @@ impl TraceWriter for ParquetTraceWriter {
 /// Reads a Parquet trace, and its sidecar `path.json` when that file exists. A file without its final
 /// footer (cut off by a crash) is read up to its last complete row group, with a warning.
 pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let bytes = Bytes::from(super::read_trace_file(path)?);
+    let bytes = Bytes::from(crate::trace::read_trace_file(path)?);
     let sidecar = read_sidecar(&sidecar_path(path))?;
     let problem = |problem: String| TraceReadError::Parquet {
         path: path.to_path_buf(),
@@ -478,7 +482,11 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
             sidecar: Some(sidecar),
             warnings,
         };
-        return Ok(super::check_sidecar(trace, path, TraceFormat::Parquet));
+        return Ok(crate::trace::check_sidecar(
+            trace,
+            path,
+            TraceFormat::Parquet,
+        ));
     };
     check_claimed_sizes(&metadata, bytes.len() as u64).map_err(problem)?;
     let reader_metadata =
@@ -505,7 +513,11 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
         sidecar,
         warnings,
     };
-    Ok(super::check_sidecar(trace, path, TraceFormat::Parquet))
+    Ok(crate::trace::check_sidecar(
+        trace,
+        path,
+        TraceFormat::Parquet,
+    ))
 }
 
 /// Checks that `schema` is a voxhap trace's (every column named and typed as written); returns the mode names
@@ -601,7 +613,7 @@ pub(crate) fn for_each_parquet_sample(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),
 ) -> Result<(Trace, u64), TraceReadError> {
-    let (file, _) = super::open_trace_file(path)?;
+    let (file, _) = crate::trace::open_trace_file(path)?;
     let problem = |problem: String| TraceReadError::Parquet {
         path: path.to_path_buf(),
         problem,
@@ -631,7 +643,7 @@ pub(crate) fn for_each_parquet_sample(
         .build()
         .map_err(|e| problem(e.to_string()))?;
     let count = for_each_row(reader, &mode_names, &expected, start_utc_ns, &problem, sink)?;
-    let warnings = super::sidecar_warnings(
+    let warnings = crate::trace::sidecar_warnings(
         sidecar.as_ref(),
         path,
         TraceFormat::Parquet,
@@ -837,154 +849,5 @@ fn footer_ending_at(bytes: &[u8], end: usize) -> Option<(RowGroupMetaData, usize
 }
 
 #[cfg(test)]
-mod tests {
-    use super::super::test_support::{meta, samples};
-    use super::super::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
-    use super::*;
-
-    fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
-        let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(modes)).unwrap();
-        for s in samples {
-            writer.write_sample(s).unwrap();
-        }
-        writer.finish().unwrap()
-    }
-
-    #[test]
-    fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.parquet");
-        // 2 500 samples 1 ms apart at even ticks: 2.5 s of trace time.
-        let written = samples(2500, 2);
-        let summary = write(&path, &["surface", "friction"], &written);
-        assert_eq!(summary.sample_count, 2500);
-        let trace = read_trace(&path).unwrap();
-        assert!(trace.warnings.is_empty(), "{:?}", trace.warnings);
-        assert_eq!(trace.mode_names, ["surface", "friction"]);
-        assert_eq!(trace.samples.len(), written.len());
-        for (a, b) in trace.samples.iter().zip(&written) {
-            // Bit-exact, including -0.0 and infinite bounds.
-            assert_eq!(format!("{a:?}"), format!("{b:?}"));
-        }
-        let metadata = ParquetMetaDataReader::new()
-            .parse_and_finish(&Bytes::from(std::fs::read(&path).unwrap()))
-            .unwrap();
-        // Written as three one-second row groups, compacted into one when finished.
-        assert_eq!(metadata.num_row_groups(), 1);
-        assert_eq!(
-            std::fs::read_dir(dir.path()).unwrap().count(),
-            2,
-            "trace and sidecar only, no temporary file left"
-        );
-        let embedded = metadata
-            .file_metadata()
-            .key_value_metadata()
-            .unwrap()
-            .iter()
-            .find(|kv| kv.key == SIDECAR_KEY)
-            .unwrap();
-        let sidecar: Sidecar = serde_json::from_str(embedded.value.as_deref().unwrap()).unwrap();
-        assert!(sidecar.complete);
-        assert_eq!(sidecar.sample_count, 2500);
-        assert_eq!(sidecar.trace_format, TraceFormat::Parquet);
-    }
-
-    #[test]
-    fn a_bad_sample_is_flagged_and_kept() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.parquet");
-        let mut written = samples(5, 1);
-        written[2].force_n.x = f64::NAN;
-        written[3].t_s = f64::INFINITY;
-        write(&path, &["surface"], &written);
-        let trace = read_trace(&path).unwrap();
-        assert_eq!(trace.samples.len(), 5);
-        assert!(trace.samples[2].force_n.x.is_nan());
-        assert_ne!(trace.samples[2].flags & FLAG_INVALID_VALUES, 0);
-        assert_eq!(trace.samples[3].t_s, f64::INFINITY);
-    }
-
-    #[test]
-    fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.parquet");
-        let written = samples(3500, 1);
-        let mut writer =
-            create_trace_writer(&path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
-        for s in &written {
-            writer.write_sample(s).unwrap();
-        }
-        // Three row groups (1 s each) are on disk; the last 500 samples are still buffered. A crash now
-        // (nothing more is written):
-        std::mem::forget(writer);
-        let bytes = std::fs::read(&path).unwrap();
-        let cut = dir.path().join("cut.parquet");
-        std::fs::copy(sidecar_path(&path), sidecar_path(&cut)).unwrap();
-        let mut previous = usize::MAX;
-        for length in [
-            bytes.len(),
-            bytes.len() - 1,
-            bytes.len() * 2 / 3,
-            bytes.len() / 3,
-            4,
-            0,
-        ] {
-            std::fs::write(&cut, &bytes[..length]).unwrap();
-            let result = read_parquet_trace(&cut);
-            if length < 4 {
-                assert!(result.is_err());
-                continue;
-            }
-            let trace = result.unwrap();
-            assert_eq!(trace.warnings.len(), 1, "{:?}", trace.warnings);
-            let n = trace.samples.len();
-            assert_eq!(n % 1000, 0, "whole row groups only: {n} at {length} bytes");
-            assert!(n <= previous);
-            previous = n;
-            assert_eq!(trace.samples[..], written[..n]);
-            if length == bytes.len() {
-                assert_eq!(n, 3000);
-            }
-        }
-        assert_eq!(previous, 0);
-
-        // `voxhap trace repair` writes what was recovered as a finished Parquet file, never over the input.
-        let repaired = dir.path().join("t.repaired.parquet");
-        let report = super::super::repair::repair_trace(
-            &path,
-            &repaired,
-            None,
-            &super::super::OutputPolicy::default(),
-        )
-        .unwrap();
-        assert_eq!(report.sample_count, 3000);
-        assert_eq!(report.warnings.len(), 1);
-        let trace = read_parquet_trace(&repaired).unwrap();
-        assert!(trace.warnings.is_empty());
-        assert_eq!(trace.samples[..], written[..3000]);
-        let sidecar = trace.sidecar.unwrap();
-        assert!(sidecar.complete);
-        assert!(sidecar.repaired.unwrap().contains("recovered 3000 samples"));
-        assert_eq!(std::fs::read(&path).unwrap(), bytes);
-    }
-
-    #[test]
-    fn damaged_files_are_errors_not_panics() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.parquet");
-        write(&path, &["surface"], &samples(1200, 1));
-        let bytes = std::fs::read(&path).unwrap();
-        let bad = dir.path().join("bad.parquet");
-        std::fs::write(&bad, b"PAR1 this is not parquet").unwrap();
-        // No sidecar and nothing complete: an error naming the problem.
-        let error = read_parquet_trace(&bad).unwrap_err().to_string();
-        assert!(error.contains("no complete row group"), "{error}");
-        // Flipped bytes in the middle: an error or fewer samples, never a panic.
-        for position in (4..bytes.len()).step_by(997) {
-            let mut damaged = bytes.clone();
-            damaged[position] ^= 0x5a;
-            std::fs::write(&bad, &damaged).unwrap();
-            let _ = read_parquet_trace(&bad);
-        }
-    }
-}
+#[path = "parquet_trace_tests.rs"]
+mod tests;

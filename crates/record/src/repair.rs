@@ -7,11 +7,12 @@
 //! was recovered (`repaired`) and the run's metadata from the old sidecar (or, without one, what the
 //! trace itself says).
 
-use super::{
-    create_trace_writer_with, error_chain, read_trace, sidecar_path, OutputPolicy, Sidecar,
-    TraceError, TraceFormat, TraceMeta, TraceReadError,
-};
+use crate::error::{error_chain, TraceError, TraceReadError};
+use crate::formats::{create_trace_writer_with, read_trace};
+use crate::meta::{Sidecar, TraceMeta};
+use crate::output::{sidecar_path, OutputPolicy};
 use std::path::{Path, PathBuf};
+use voxhap_api::TraceFormat;
 
 /// Why a repair failed.
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,321 @@
+//! Reading an MCAP trace back: the mode names from the metadata record, the samples from the state and
+//! solver channels joined by tick, after [`crate::mcap_check`] has checked the file's structure.
+
+use crate::csv::read_sidecar;
+use crate::error::{TraceError, TraceReadError};
+use crate::mcap_check::check_record_lengths;
+#[cfg(doc)]
+use crate::mcap_trace::McapTraceWriter;
+use crate::mcap_trace::{METADATA_NAME, SOLVER_TOPIC, STATE_TOPIC};
+use crate::meta::TRACE_FORMAT_VERSION;
+use crate::output::sidecar_path;
+use crate::sample::{SolverStatus, TraceSample};
+use crate::trace::Trace;
+use glam::DVec3;
+use serde::Deserialize;
+use std::path::Path;
+use voxhap_api::TraceFormat;
+use voxhap_core::haptics::modes::MAX_MODES;
+
+/// What is wrong with the content of an MCAP trace whose structure passed the checks.
+#[derive(Debug, thiserror::Error)]
+pub enum McapContentError {
+    /// The mcap library refused a record.
+    #[error("{0}")]
+    Library(#[from] mcap::McapError),
+    #[error("metadata record has no format_version")]
+    NoFormatVersion,
+    #[error("metadata record has no mode_names")]
+    NoModeNames,
+    #[error("metadata mode_names: {0}")]
+    BadModeNames(serde_json::Error),
+    #[error("{count} modes, at most {MAX_MODES}")]
+    TooManyModes { count: usize },
+    #[error("no {METADATA_NAME:?} metadata record: not a voxhap trace")]
+    NotVoxhap,
+    #[error("{topic} message {sequence}: {source}")]
+    BadMessage {
+        topic: &'static str,
+        sequence: u32,
+        source: serde_json::Error,
+    },
+    #[error("{states} state messages but {solvers} solver messages")]
+    Unpaired { states: usize, solvers: usize },
+    #[error("state tick {state_tick} (t_s {state_t_s}) paired with solver tick {solver_tick} (t_s {solver_t_s:?})")]
+    Mismatched {
+        state_tick: u64,
+        state_t_s: f64,
+        solver_tick: u64,
+        solver_t_s: Option<f64>,
+    },
+    #[error("tick {tick}: no valid primitive count for {mode}")]
+    NoPrimitiveCount { tick: u64, mode: String },
+    #[error("tick {tick}: no valid mode force for {mode}")]
+    NoModeForce { tick: u64, mode: String },
+    #[error("tick {tick}: unknown solver_status {status:?}")]
+    UnknownStatus { tick: u64, status: String },
+    /// A sample that breaks a trace rule.
+    #[error("{0}")]
+    Sample(#[from] TraceError),
+}
+
+/// A vector as read back: `null` (a non-finite value written by JSON) becomes NaN.
+type ReadVector = [Option<f64>; 3];
+
+fn read_vector(v: ReadVector) -> DVec3 {
+    DVec3::from_array(v.map(|x| x.unwrap_or(f64::NAN)))
+}
+
+#[derive(Deserialize)]
+struct StateMessageOwned {
+    tick: u64,
+    t_s: Option<f64>,
+    probe_m: ReadVector,
+    probe_velocity_m_per_s: ReadVector,
+    proxy_m: ReadVector,
+    rendered_force_n: ReadVector,
+    force_n: ReadVector,
+}
+
+#[derive(Deserialize)]
+struct SolverMessageOwned {
+    tick: u64,
+    t_s: Option<f64>,
+    primitives: serde_json::Map<String, serde_json::Value>,
+    mode_force_n: serde_json::Map<String, serde_json::Value>,
+    solver_status: String,
+    sweeps: u32,
+    error_bound_m: Option<f64>,
+    device_sequence: Option<u64>,
+    device_time_us: Option<u64>,
+    flag_bits: u32,
+}
+
+/// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
+/// from the two channels joined by tick), and its sidecar when `path.json` exists. A file the writer never
+/// finished (no end magic: a crash) is read up to its last complete chunk, with a warning.
+pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
+    let bytes = crate::trace::read_trace_file(path)?;
+    let (mode_names, samples, warnings) = parse_mcap_bytes(&bytes, path)?;
+    let trace = Trace {
+        mode_names,
+        samples,
+        sidecar: read_sidecar(&sidecar_path(path))?,
+        warnings,
+    };
+    Ok(crate::trace::check_sidecar(trace, path, TraceFormat::Mcap))
+}
+
+/// Parses an MCAP trace held in memory; returns the mode names and the samples (as
+/// [`crate::csv::parse_csv_trace`] does for CSV).
+pub fn parse_mcap_trace(bytes: &[u8]) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
+    parse_mcap_bytes(bytes, Path::new("<input>")).map(|(modes, samples, _)| (modes, samples))
+}
+
+type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
+
+fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError> {
+    let problem = |problem: String| TraceReadError::Mcap {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let finished = bytes.len() >= 2 * mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC);
+    // Every length in the file is checked against the file's size before the mcap crate sees it: its
+    // reader sizes a buffer from a record's length field, so 8 damaged bytes could ask for gigabytes. An
+    // unfinished file is read up to its last complete record.
+    let readable = check_record_lengths(bytes, finished).map_err(|e| problem(e.to_string()))?;
+    // An unfinished file is closed in memory (its complete records, then DataEnd, a Footer and the end magic)
+    // and checked again as a finished one, so the mcap crate only ever reads files of the shape the checks
+    // were written for (the fuzzer found an allocation its lenient mode made on a damaged unfinished file).
+    let closed;
+    let bytes: &[u8] = if finished {
+        bytes
+    } else {
+        let mut owned = Vec::with_capacity(readable + 9 + 4 + 9 + 20 + mcap::MAGIC.len());
+        owned.extend_from_slice(&bytes[..readable]);
+        owned.push(0x0F); // DataEnd: a CRC of 0 means "not computed"
+        owned.extend_from_slice(&4u64.to_le_bytes());
+        owned.extend_from_slice(&0u32.to_le_bytes());
+        owned.push(0x02); // Footer: no summary section
+        owned.extend_from_slice(&20u64.to_le_bytes());
+        owned.extend_from_slice(&[0u8; 20]);
+        owned.extend_from_slice(mcap::MAGIC);
+        check_record_lengths(&owned, true).map_err(|e| problem(e.to_string()))?;
+        closed = owned;
+        &closed
+    };
+    // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
+    // chunk, found by the proptest below); a damaged file must be an error, not a crash.
+    let parsed = std::panic::catch_unwind(|| {
+        let (mode_names, version) = read_mode_names(bytes)?;
+        if version != TRACE_FORMAT_VERSION {
+            return Ok(Err(version));
+        }
+        let samples = read_samples(bytes, &mode_names, !finished)?;
+        let cut = (!finished).then(|| "the file ends without its summary".to_owned());
+        Ok::<_, McapContentError>(Ok((mode_names, samples, cut)))
+    });
+    let (mode_names, samples, cut) = match parsed {
+        Ok(Ok(Ok(result))) => result,
+        Ok(Ok(Err(found))) => {
+            return Err(TraceReadError::OldFormat {
+                path: path.to_path_buf(),
+                found,
+                expected: TRACE_FORMAT_VERSION,
+                hint: "its metadata record says so",
+            })
+        }
+        Ok(Err(error)) => return Err(problem(error.to_string())),
+        Err(_) => {
+            return Err(problem(
+                "damaged file: the MCAP library failed while parsing it".to_string(),
+            ))
+        }
+    };
+    let mut warnings = Vec::new();
+    if let Some(reason) = cut {
+        warnings.push(format!(
+            "{}: the file was not finished (the recording was cut off); read {} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
+            path.display(),
+            samples.len()
+        ));
+    }
+    Ok((mode_names, samples, warnings))
+}
+
+/// The mode names and the trace format version from the metadata record.
+fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), McapContentError> {
+    for record in mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )? {
+        let Ok(record) = record else {
+            break;
+        };
+        if let mcap::records::Record::Metadata(metadata) = record {
+            if metadata.name == METADATA_NAME {
+                let version: u32 = metadata
+                    .metadata
+                    .get("format_version")
+                    .and_then(|v| v.parse().ok())
+                    .ok_or(McapContentError::NoFormatVersion)?;
+                if version != TRACE_FORMAT_VERSION {
+                    return Ok((Vec::new(), version));
+                }
+                let text = metadata
+                    .metadata
+                    .get("mode_names")
+                    .ok_or(McapContentError::NoModeNames)?;
+                let names: Vec<String> =
+                    serde_json::from_str(text).map_err(McapContentError::BadModeNames)?;
+                if names.len() > MAX_MODES {
+                    return Err(McapContentError::TooManyModes { count: names.len() });
+                }
+                return Ok((names, version));
+            }
+        }
+    }
+    Err(McapContentError::NotVoxhap)
+}
+
+/// The samples of a finished file's bytes (an unfinished file is closed in memory first, [`parse_mcap_bytes`]).
+/// `cut_off`: the file on disk was unfinished, so its last tick may have lost its second message (the writer
+/// also closes a chunk when it passes its size limit, which may fall inside a tick): the samples end at the
+/// last tick with both.
+fn read_samples(
+    bytes: &[u8],
+    mode_names: &[String],
+    cut_off: bool,
+) -> Result<Vec<TraceSample>, McapContentError> {
+    let mut states: Vec<StateMessageOwned> = Vec::new();
+    let mut solvers: Vec<SolverMessageOwned> = Vec::new();
+    for message in mcap::MessageStream::new(bytes)? {
+        let message = message?;
+        let topic = message.channel.topic.as_str();
+        if topic == STATE_TOPIC {
+            states.push(serde_json::from_slice(&message.data).map_err(|source| {
+                McapContentError::BadMessage {
+                    topic: STATE_TOPIC,
+                    sequence: message.sequence,
+                    source,
+                }
+            })?);
+        } else if topic == SOLVER_TOPIC {
+            solvers.push(serde_json::from_slice(&message.data).map_err(|source| {
+                McapContentError::BadMessage {
+                    topic: SOLVER_TOPIC,
+                    sequence: message.sequence,
+                    source,
+                }
+            })?);
+        }
+    }
+    if states.len() != solvers.len() {
+        if !cut_off {
+            return Err(McapContentError::Unpaired {
+                states: states.len(),
+                solvers: solvers.len(),
+            });
+        }
+        // The pairing below still checks that the kept messages belong together, tick by tick.
+        let keep = states.len().min(solvers.len());
+        states.truncate(keep);
+        solvers.truncate(keep);
+    }
+    let mut samples = Vec::with_capacity(states.len());
+    let mut last_tick = None;
+    for (state, solver) in states.into_iter().zip(solvers) {
+        let t_s = state.t_s.unwrap_or(f64::NAN);
+        if state.tick != solver.tick || t_s.to_bits() != solver.t_s.unwrap_or(f64::NAN).to_bits() {
+            return Err(McapContentError::Mismatched {
+                state_tick: state.tick,
+                state_t_s: t_s,
+                solver_tick: solver.tick,
+                solver_t_s: solver.t_s,
+            });
+        }
+        let mut sample = TraceSample::zeroed(mode_names.len() as u8);
+        for (mode, name) in mode_names.iter().enumerate() {
+            sample.primitives_per_mode[mode] = solver
+                .primitives
+                .get(name)
+                .and_then(|v| v.as_u64())
+                .and_then(|v| u16::try_from(v).ok())
+                .ok_or_else(|| McapContentError::NoPrimitiveCount {
+                    tick: state.tick,
+                    mode: name.clone(),
+                })?;
+            let force: ReadVector = solver
+                .mode_force_n
+                .get(name)
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .ok_or_else(|| McapContentError::NoModeForce {
+                    tick: state.tick,
+                    mode: name.clone(),
+                })?;
+            sample.mode_force_n[mode] = read_vector(force);
+        }
+        sample.tick = state.tick;
+        sample.t_s = t_s;
+        sample.probe_m = read_vector(state.probe_m);
+        sample.probe_velocity_m_per_s = read_vector(state.probe_velocity_m_per_s);
+        sample.proxy_m = read_vector(state.proxy_m);
+        sample.rendered_force_n = read_vector(state.rendered_force_n);
+        sample.force_n = read_vector(state.force_n);
+        sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
+            McapContentError::UnknownStatus {
+                tick: state.tick,
+                status: solver.solver_status.clone(),
+            }
+        })?;
+        sample.sweeps = solver.sweeps;
+        sample.error_bound_m = solver.error_bound_m.unwrap_or(f64::INFINITY);
+        sample.device_sequence = solver.device_sequence;
+        sample.device_time_us = solver.device_time_us;
+        sample.flags = solver.flag_bits;
+        crate::sample::check_sample(&sample, mode_names.len(), last_tick)?;
+        last_tick = Some(sample.tick);
+        samples.push(sample);
+    }
+    Ok(samples)
+}

@@ -1,0 +1,270 @@
+//! One recorded tick ([`TraceSample`], with its [`SolverStatus`]) and the rules every sample obeys:
+//! [`SampleChecker`] on the way into a writer, [`check_sample`] on the way out of a reader.
+//!
+//! Invariant: `TraceSample` is `Copy` and heap-free, so the servo thread can push it through an SPSC ring
+//! without allocating.
+
+use crate::error::TraceError;
+use crate::flags::FLAG_INVALID_VALUES;
+use glam::DVec3;
+use voxhap_core::haptics::modes::MAX_MODES;
+
+/// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
+/// `voxhap_core::haptics::tick::TickStatus`; `Unknown` for producers that do not say.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SolverStatus {
+    /// Not reported.
+    #[default]
+    Unknown,
+    /// The exact solver certified its answer within tolerance.
+    Certified,
+    /// The exact solver ran out of budget; the bound is honest but above tolerance.
+    BudgetExhausted,
+    /// The exact solver's bound stopped improving (f64 limit).
+    Stalled,
+    /// A baseline solver ran: no certificate.
+    Uncertified,
+    /// The tick's input was not finite; the proxy was held and no force sent.
+    InputRejected,
+}
+
+impl SolverStatus {
+    /// Every status, in code order.
+    pub const ALL: [SolverStatus; 6] = [
+        SolverStatus::Unknown,
+        SolverStatus::Certified,
+        SolverStatus::BudgetExhausted,
+        SolverStatus::Stalled,
+        SolverStatus::Uncertified,
+        SolverStatus::InputRejected,
+    ];
+
+    /// The name written in traces.
+    pub fn name(self) -> &'static str {
+        match self {
+            SolverStatus::Unknown => "unknown",
+            SolverStatus::Certified => "certified",
+            SolverStatus::BudgetExhausted => "budget_exhausted",
+            SolverStatus::Stalled => "stalled",
+            SolverStatus::Uncertified => "uncertified",
+            SolverStatus::InputRejected => "input_rejected",
+        }
+    }
+
+    /// The status with this name.
+    pub fn from_name(name: &str) -> Option<SolverStatus> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+}
+
+impl From<voxhap_core::haptics::tick::TickStatus> for SolverStatus {
+    fn from(status: voxhap_core::haptics::tick::TickStatus) -> Self {
+        use SolverStatus as S;
+        match status {
+            voxhap_core::haptics::tick::TickStatus::Certified => S::Certified,
+            voxhap_core::haptics::tick::TickStatus::BudgetExhausted => S::BudgetExhausted,
+            voxhap_core::haptics::tick::TickStatus::Stalled => S::Stalled,
+            voxhap_core::haptics::tick::TickStatus::Uncertified => S::Uncertified,
+            voxhap_core::haptics::tick::TickStatus::InputRejected => S::InputRejected,
+        }
+    }
+}
+
+/// One servo tick, as recorded. `Copy` and heap-free: the servo thread writes it into an SPSC ring.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceSample {
+    /// Tick number since the run started; strictly increasing in a trace (gaps mean skipped ticks).
+    pub tick: u64,
+    /// Time of the tick since the run started (s), >= 0 (monotonic: the schedule's time, never stepped).
+    /// The wall-clock UTC column is `TraceMeta::start_utc_ns + t_s`.
+    pub t_s: f64,
+    /// Probe (device) position (m).
+    pub probe_m: DVec3,
+    /// Probe velocity (m/s): the device's report, or the host's estimate when
+    /// [`FLAG_VELOCITY_ESTIMATED`](crate::flags::FLAG_VELOCITY_ESTIMATED) is set.
+    pub probe_velocity_m_per_s: DVec3,
+    /// Proxy position after the solve (m).
+    pub proxy_m: DVec3,
+    /// Force the renderer asked for, before the safety pipeline (N): coupling plus damping.
+    pub rendered_force_n: DVec3,
+    /// Force sent to the device, after the safety pipeline (N).
+    pub force_n: DVec3,
+    /// Force each mode's primitives exerted on the proxy at the solution (N); they sum to the coupling
+    /// force `k (proxy - probe)` (exactly for the baselines, within `k error_bound_m` for the exact
+    /// solver). Slots at and past `mode_count` are ignored and read back as 0.
+    pub mode_force_n: [DVec3; MAX_MODES],
+    /// Primitives each mode emitted this tick; slots at and past `mode_count` are ignored and read back
+    /// as 0.
+    pub primitives_per_mode: [u16; MAX_MODES],
+    /// How many modes the scene has; must equal the trace's `TraceMeta::mode_names` length.
+    pub mode_count: u8,
+    /// How the solve ended.
+    pub solver_status: SolverStatus,
+    /// Solver sweeps this tick.
+    pub sweeps: u32,
+    /// Certificate bound on the proxy's distance from the exact equilibrium (m), >= 0; `+inf` when the
+    /// solver produced no certificate.
+    pub error_bound_m: f64,
+    /// The device's own sequence number of the state this tick used, where the device sends one.
+    pub device_sequence: Option<u64>,
+    /// The device's clock at that state (us), where the device has one.
+    pub device_time_us: Option<u64>,
+    /// Bit set of `FLAG_*` constants.
+    pub flags: u32,
+}
+
+impl TraceSample {
+    /// A sample with every number zero for `mode_count` modes (tests and ring initialisation).
+    pub fn zeroed(mode_count: u8) -> Self {
+        TraceSample {
+            tick: 0,
+            t_s: 0.0,
+            probe_m: DVec3::ZERO,
+            probe_velocity_m_per_s: DVec3::ZERO,
+            proxy_m: DVec3::ZERO,
+            rendered_force_n: DVec3::ZERO,
+            force_n: DVec3::ZERO,
+            mode_force_n: [DVec3::ZERO; MAX_MODES],
+            primitives_per_mode: [0; MAX_MODES],
+            mode_count,
+            solver_status: SolverStatus::Unknown,
+            sweeps: 0,
+            error_bound_m: 0.0,
+            device_sequence: None,
+            device_time_us: None,
+            flags: 0,
+        }
+    }
+
+    /// The primitive counts of the modes in use.
+    pub fn primitives(&self) -> &[u16] {
+        &self.primitives_per_mode[..usize::from(self.mode_count).min(MAX_MODES)]
+    }
+
+    /// The per-mode forces of the modes in use.
+    pub fn mode_forces(&self) -> &[DVec3] {
+        &self.mode_force_n[..usize::from(self.mode_count).min(MAX_MODES)]
+    }
+}
+
+/// Applies the trace rules to samples on their way into a writer; shared by every writer.
+#[derive(Clone, Debug)]
+pub(crate) struct SampleChecker {
+    pub(crate) mode_count: usize,
+    last_tick: Option<u64>,
+    pub(crate) count: u64,
+    pub(crate) rejected: u64,
+    pub(crate) finished: bool,
+}
+
+impl SampleChecker {
+    pub(crate) fn new(mode_count: usize) -> Self {
+        SampleChecker {
+            mode_count,
+            last_tick: None,
+            count: 0,
+            rejected: 0,
+            finished: false,
+        }
+    }
+
+    /// The sample to record (flagged [`FLAG_INVALID_VALUES`] if it broke a value rule), or `None` when
+    /// its tick does not increase (counted in `rejected`).
+    pub(crate) fn admit(
+        &mut self,
+        sample: &TraceSample,
+    ) -> Result<Option<TraceSample>, TraceError> {
+        if self.finished {
+            return Err(TraceError::Finished);
+        }
+        if let Some(previous) = self.last_tick {
+            if sample.tick <= previous {
+                self.rejected += 1;
+                return Ok(None);
+            }
+        }
+        let mut sample = *sample;
+        if usize::from(sample.mode_count) != self.mode_count {
+            // Record the trace's modes; counts and forces past the sample's own are zero.
+            for slot in usize::from(sample.mode_count).min(MAX_MODES)..MAX_MODES {
+                sample.primitives_per_mode[slot] = 0;
+                sample.mode_force_n[slot] = DVec3::ZERO;
+            }
+            sample.mode_count = self.mode_count as u8;
+            sample.flags |= FLAG_INVALID_VALUES;
+        }
+        if check_values(&sample).is_err() {
+            sample.flags |= FLAG_INVALID_VALUES;
+        }
+        self.last_tick = Some(sample.tick);
+        self.count += 1;
+        Ok(Some(sample))
+    }
+}
+
+/// The value rules of a sample: finite time, positions, velocity and forces, `t_s >= 0`, and a bound that
+/// is `>= 0` or `+inf`.
+fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
+    let tick = sample.tick;
+    let finite_fields: [(&'static str, bool); 6] = [
+        ("t_s", sample.t_s.is_finite()),
+        ("probe_m", sample.probe_m.is_finite()),
+        (
+            "probe_velocity_m_per_s",
+            sample.probe_velocity_m_per_s.is_finite(),
+        ),
+        ("proxy_m", sample.proxy_m.is_finite()),
+        ("rendered_force_n", sample.rendered_force_n.is_finite()),
+        ("force_n", sample.force_n.is_finite()),
+    ];
+    for (field, finite) in finite_fields {
+        if !finite {
+            return Err(TraceError::NonFinite { tick, field });
+        }
+    }
+    if !sample.mode_forces().iter().all(|f| f.is_finite()) {
+        return Err(TraceError::NonFinite {
+            tick,
+            field: "mode_force_n",
+        });
+    }
+    if sample.t_s < 0.0 {
+        return Err(TraceError::NegativeTime {
+            tick,
+            t_s: sample.t_s,
+        });
+    }
+    if sample.error_bound_m.is_nan() || sample.error_bound_m < 0.0 {
+        return Err(TraceError::InvalidErrorBound {
+            tick,
+            value: sample.error_bound_m,
+        });
+    }
+    Ok(())
+}
+
+/// The rules every sample read back obeys: the mode count, increasing ticks, and the value rules unless
+/// the sample is flagged [`FLAG_INVALID_VALUES`] (then its values are kept as recorded).
+pub(crate) fn check_sample(
+    sample: &TraceSample,
+    mode_count: usize,
+    last_tick: Option<u64>,
+) -> Result<(), TraceError> {
+    let tick = sample.tick;
+    if usize::from(sample.mode_count) != mode_count {
+        return Err(TraceError::ModeCountMismatch {
+            tick,
+            expected: mode_count,
+            found: usize::from(sample.mode_count),
+        });
+    }
+    if let Some(previous) = last_tick {
+        if tick <= previous {
+            return Err(TraceError::TickOrder { previous, tick });
+        }
+    }
+    if sample.flags & FLAG_INVALID_VALUES != 0 {
+        return Ok(());
+    }
+    check_values(sample)
+}

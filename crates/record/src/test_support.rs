@@ -1,0 +1,78 @@
+//! Deterministic synthetic traces for the writer and reader tests.
+
+use crate::flags::FLAG_DEVICE_NOT_ENABLED;
+use crate::meta::TraceMeta;
+use crate::sample::{SolverStatus, TraceSample};
+use glam::DVec3;
+use voxhap_core::haptics::modes::MAX_MODES;
+
+/// A `TraceMeta` with a fixed creation time, so files are comparable byte for byte.
+pub fn meta(mode_names: &[&str]) -> TraceMeta {
+    let mut meta = TraceMeta::new(
+        mode_names.iter().map(|s| s.to_string()).collect(),
+        1000.0,
+        serde_json::json!({"name": "unit-test", "arm": {"mass_kg": 0.1}}),
+        "procedural:sphere",
+        "exact-dual",
+    );
+    meta.created_utc = "2000-01-01T00:00:00Z".to_string();
+    meta.start_utc_ns = 946_684_800_000_000_000;
+    meta
+}
+
+/// `count` samples of a probe circling a plane, with awkward floats (negative zero, tiny bounds,
+/// an infinite bound) to exercise exact round-trips.
+pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
+    (0..count)
+        .map(|i| {
+            let t_s = i as f64 * 1e-3;
+            let angle = t_s * 7.0;
+            let probe_m = DVec3::new(0.02 * angle.cos(), 0.02 * angle.sin(), -0.001 * t_s);
+            let proxy_m = DVec3::new(probe_m.x, probe_m.y, probe_m.z.max(0.0));
+            let mut primitives_per_mode = [0u16; MAX_MODES];
+            for (m, slot) in primitives_per_mode
+                .iter_mut()
+                .take(usize::from(mode_count))
+                .enumerate()
+            {
+                *slot = ((i as usize + m) % 3) as u16;
+            }
+            let force_n = (proxy_m - probe_m) * 500.0 + DVec3::new(-0.0, 1e-300, 0.1);
+            let mut mode_force_n = [DVec3::ZERO; MAX_MODES];
+            for (m, slot) in mode_force_n
+                .iter_mut()
+                .take(usize::from(mode_count))
+                .enumerate()
+            {
+                *slot = force_n * (m as f64 + 1.0) / 3.0;
+            }
+            TraceSample {
+                tick: i * 2,
+                t_s,
+                probe_m,
+                probe_velocity_m_per_s: DVec3::new(-0.14 * angle.sin(), 0.14 * angle.cos(), -0.001),
+                proxy_m,
+                rendered_force_n: force_n * 1.5,
+                force_n,
+                mode_force_n,
+                primitives_per_mode,
+                mode_count,
+                solver_status: SolverStatus::ALL[(i % 6) as usize],
+                sweeps: (i % 5) as u32,
+                error_bound_m: if i % 7 == 3 {
+                    f64::INFINITY
+                } else {
+                    1e-17 * (i as f64 + 1.0).powi(3)
+                },
+                device_sequence: (i % 3 != 0).then_some(i * 10),
+                device_time_us: (i % 2 == 0).then_some(i * 1000 + 17),
+                flags: (i % 4) as u32
+                    | if i % 11 == 5 {
+                        FLAG_DEVICE_NOT_ENABLED
+                    } else {
+                        0
+                    },
+            }
+        })
+        .collect()
+}

@@ -52,7 +52,11 @@ fn no_module_imports_a_module_that_imports_it_back() {
             ));
         }
     }
-    assert!(failures.is_empty(), "module cycles:\n{}", failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "module cycles:\n{}",
+        failures.join("\n")
+    );
 }
 
 /// The checker finds a cycle when there is one: two modules that import each other.
@@ -66,7 +70,11 @@ fn the_cycle_check_sees_a_cycle() {
     let src = dir.path();
     std::fs::write(src.join("lib.rs"), "mod a;\nmod b;\n").unwrap();
     std::fs::write(src.join("a.rs"), "use crate::b::B;\npub struct A(B);\n").unwrap();
-    std::fs::write(src.join("b.rs"), "use super::a::A;\npub struct B;\npub fn f(_: &A) {}\n").unwrap();
+    std::fs::write(
+        src.join("b.rs"),
+        "use super::a::A;\npub struct B;\npub fn f(_: &A) {}\n",
+    )
+    .unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let output = Command::new("python3")
         .arg(root.join(".ci/module-cycles.py"))

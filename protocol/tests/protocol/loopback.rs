@@ -37,7 +37,7 @@ impl SerialPipe {
         let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
         let len = encode_frame(message, &mut buf).expect("sessions only produce valid messages");
         self.frames += 1;
-        if self.noise_every != 0 && self.frames % self.noise_every == 0 {
+        if self.noise_every != 0 && self.frames.is_multiple_of(self.noise_every) {
             buf[len / 2] ^= 0x5A;
         }
         self.bytes.extend_from_slice(&buf[..len]);

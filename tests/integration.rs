@@ -17,6 +17,7 @@ mod device_pty;
 mod device_safety;
 mod device_spec;
 mod docs_links;
+mod docs_outputs;
 mod docs_reference;
 mod drivers_alloc_free;
 mod falcon;

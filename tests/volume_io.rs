@@ -1,4 +1,4 @@
-//! Volume loaders end to end: the real scans in ../shared/data against numbers from independent
+//! Volume loaders end to end: the real scans in data/ against numbers from independent
 //! readers, every format/encoding/endianness/type combination written here into a temp dir, and the
 //! `voxhap info` binary.
 //!

@@ -1,9 +1,11 @@
 //! `voxhap info VOLUME [--json]`: prints what the loader read from a volume file (or a built-in
 //! procedural volume, `builtin:NAME`): dimensions, spacing, the index-to-world affine, the stored
-//! type and the value range. A thin reporting layer over [`crate::volume::io::load`] and
-//! [`crate::volume::procedural::builtin`].
+//! type, the value range, and the figures that help choose a surface level (percentiles, a histogram,
+//! Otsu's threshold; definitions in [`crate::volume::levels`]). A thin reporting layer over
+//! [`crate::volume::io::load`] and [`crate::volume::procedural::builtin`].
 
 use crate::volume::io::{self, FileFormat, LoadedVolume, ScalarType};
+use crate::volume::levels::{ValueLevels, OTSU_BINS};
 use crate::volume::{procedural, AnyVolume};
 use anyhow::Context;
 use serde::Serialize;
@@ -48,7 +50,25 @@ pub struct VolumeReport {
     pub non_finite_replaced: usize,
     /// Values that f32 could not hold exactly and were rounded.
     pub rounded_values: usize,
+    /// Nearest-rank percentiles of the values (magnitudes for a vector volume): `[p, value]` pairs.
+    pub percentiles: Vec<(f64, f32)>,
+    /// A histogram of the values over `min..max` in equal bins.
+    pub histogram: HistogramReport,
+    /// Otsu's threshold over 256 bins: the suggested surface level (`null` for a constant volume).
+    pub otsu_level: Option<f64>,
 }
+
+/// The histogram in a [`VolumeReport`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HistogramReport {
+    /// Bin edges, one more than the bins.
+    pub edges: Vec<f64>,
+    /// Values per bin.
+    pub counts: Vec<u64>,
+}
+
+/// Bins of the histogram `info` prints.
+pub const DISPLAY_BINS: usize = 16;
 
 impl VolumeReport {
     fn new(
@@ -62,6 +82,7 @@ impl VolumeReport {
         let (min, max) = volume.value_range();
         // glam stores columns; the report wants rows.
         let affine = grid.affine().transpose().to_cols_array_2d();
+        let levels = ValueLevels::of(volume, DISPLAY_BINS);
         VolumeReport {
             path: path.to_owned(),
             format: format.to_owned(),
@@ -74,6 +95,12 @@ impl VolumeReport {
             max,
             non_finite_replaced: counts.0,
             rounded_values: counts.1,
+            percentiles: levels.percentiles,
+            histogram: HistogramReport {
+                edges: levels.histogram.edges,
+                counts: levels.histogram.counts,
+            },
+            otsu_level: levels.otsu,
         }
     }
 
@@ -117,6 +144,7 @@ impl VolumeReport {
             "type:     {}\n{range_label:<10}{} .. {}\n",
             self.scalar_type, self.min, self.max
         );
+        text += &self.levels_text();
         if self.non_finite_replaced > 0 {
             text += &format!(
                 "warning:  {} non-finite values were replaced by 0\n",
@@ -130,6 +158,66 @@ impl VolumeReport {
             );
         }
         text
+    }
+}
+
+impl VolumeReport {
+    /// Percentiles, the histogram as bars, and the suggested surface level.
+    fn levels_text(&self) -> String {
+        let what = if self.kind == "vector" { "|v| " } else { "" };
+        let mut text = format!("{what}percentiles:");
+        for (p, value) in &self.percentiles {
+            text += &format!(" p{p} {value}");
+        }
+        text += "\n";
+        let widest = self
+            .histogram
+            .counts
+            .iter()
+            .copied()
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        text += &format!(
+            "histogram ({} bins, voxels per bin):\n",
+            self.histogram.counts.len()
+        );
+        for (i, &count) in self.histogram.counts.iter().enumerate() {
+            // Bars are 40 characters at the fullest bin; any non-empty bin shows at least one.
+            let bar = if count == 0 {
+                0
+            } else {
+                ((count as f64 / widest as f64) * 40.0).ceil() as usize
+            };
+            text += &format!(
+                "  {:>12} .. {:<12} {:<40} {count}\n",
+                short(self.histogram.edges[i]),
+                short(self.histogram.edges[i + 1]),
+                "#".repeat(bar)
+            );
+        }
+        match self.otsu_level {
+            Some(level) => {
+                text += &format!(
+                    "surface level: {} (Otsu's threshold, {OTSU_BINS} bins: where `serve --volume` puts the \
+                     surface)\n",
+                    short(level)
+                )
+            }
+            None => text += "surface level: none (every value is the same)\n",
+        }
+        text
+    }
+}
+
+/// A bin edge or level with at most four decimals and no trailing zeros.
+fn short(value: f64) -> String {
+    let text = format!("{value:.4}");
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    if text == "-0" {
+        "0".to_owned()
+    } else {
+        text.to_owned()
     }
 }
 
@@ -185,7 +273,18 @@ mod tests {
         assert_eq!(sphere.affine[0][0], sphere.spacing[0]);
         let json: serde_json::Value = serde_json::to_value(sphere).unwrap();
         for key in [
-            "dims", "spacing", "affine", "type", "min", "max", "format", "kind", "path",
+            "dims",
+            "spacing",
+            "affine",
+            "type",
+            "min",
+            "max",
+            "format",
+            "kind",
+            "path",
+            "percentiles",
+            "histogram",
+            "otsu_level",
         ] {
             assert!(json.get(key).is_some(), "missing {key}");
         }

@@ -39,9 +39,20 @@ pub struct ServeArgs {
     #[arg(long, default_value = "sim")]
     pub device: DeviceSpec,
     /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml) or builtin:NAME; with --scene it
-    /// replaces the scene's first volume, alone it is rendered as a surface at mid-range.
+    /// replaces the scene's first volume (which is then not loaded); alone, a scalar volume is rendered as a
+    /// surface at --iso or at Otsu's threshold of its values (`voxhap info` prints it), a vector volume is
+    /// followed (vector_follow).
     #[arg(long)]
     pub volume: Option<String>,
+    /// The value where a lone --volume's surface starts (0 N there, 2 N at 5 % of the value range above);
+    /// default: Otsu's threshold of the volume's values.
+    #[arg(
+        long,
+        requires = "volume",
+        conflicts_with = "scene",
+        allow_negative_numbers = true
+    )]
+    pub iso: Option<f64>,
     /// Scene file (TOML: k, modes, transfer functions, volumes, simulated arm); any sim scenario works.
     #[arg(long)]
     pub scene: Option<PathBuf>,
@@ -147,7 +158,7 @@ fn parse_connect_timeout(text: &str) -> Result<f64, String> {
 /// Builds the session configuration from the flags (loads the scene and volumes).
 pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     args.limits.apply();
-    let setup = setup::resolve(args.scene.as_ref(), args.volume.as_deref())?;
+    let setup = setup::resolve(args.scene.as_ref(), args.volume.as_deref(), args.iso)?;
     let mut config = SessionConfig::new(args.device.clone(), setup);
     if let Some(rate) = args.rate {
         config.rate_hz = rate;

@@ -1,7 +1,7 @@
 //! Every claim sims/README.md makes about a scenario, asserted on its trace: every shipped scenario parses and the
 //! procedural ones run certified, the sphere yields at s, friction slips at mu N, the vortex proxy stays on the
 //! core, viscosity drags in each shell, the multi-modal scene is certified on every tick while the constraint
-//! approach sinks, and the MRI brain sim runs when the shared data is there (skips otherwise).
+//! approach sinks, and the MRI brain sim runs on the template shipped in data/.
 
 use crate::util::sim::{run_to, sims_dir};
 use std::path::Path;
@@ -22,7 +22,7 @@ fn every_shipped_scenario_parses_and_the_procedural_ones_run_certified() {
     for name in &names {
         voxhap::sim::Scenario::read(&sims_dir().join(name)).unwrap();
         if name.starts_with("brain") {
-            continue; // needs the shared data; see the brain test
+            continue; // a real MRI scan and a 12 s raster: the brain test below runs it
         }
         let (summary, trace) = run_to(
             name,
@@ -309,23 +309,18 @@ fn multimodal_exact_trace_is_certified_and_the_constraint_approach_loses_the_sur
 
 #[test]
 fn brain_surface_exploration_on_the_mni_template() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mni152_t1_1mm.nii.gz");
-    if !data.exists() {
-        eprintln!(
-            "skipping brain_surface_exploration_on_the_mni_template: {} is absent",
-            data.display()
-        );
-        return;
-    }
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/mni152_t1_1mm.nii.gz");
+    assert!(
+        data.is_file(),
+        "{} is missing: the real scans are part of the repository (data/NOTICE.md)",
+        data.display()
+    );
     let dir = tempfile::tempdir().unwrap();
     // The scenario names a file outside its folder, which the loader refuses without
     // --allow-outside-paths (docs/bad-inputs.md): run a copy beside a copy of the data instead.
     let scenario = std::fs::read_to_string(sims_dir().join("brain_surface.toml"))
         .unwrap()
-        .replace(
-            "../../shared/data/mni152_t1_1mm.nii.gz",
-            "mni152_t1_1mm.nii.gz",
-        );
+        .replace("../data/mni152_t1_1mm.nii.gz", "mni152_t1_1mm.nii.gz");
     std::fs::write(dir.path().join("brain_surface.toml"), scenario).unwrap();
     std::fs::copy(&data, dir.path().join("mni152_t1_1mm.nii.gz")).unwrap();
     let loaded = LoadedScenario::from_file(&dir.path().join("brain_surface.toml")).unwrap();

@@ -1,4 +1,4 @@
-//! Helpers of the volume loader tests (tests/volume_io/): where the shared real scans are, and the synthetic volume
+//! Helpers of the volume loader tests (tests/volume_io/): where the repository's real scans are, and the synthetic volume
 //! every written test file describes (its grid, its values per scalar type, their bytes in either byte order, and
 //! the header fields each format names the types by).
 
@@ -8,19 +8,18 @@ use std::path::{Path, PathBuf};
 use voxhap::volume::io::{LoadedVolume, ScalarType};
 use voxhap::volume::AnyVolume;
 
-pub fn shared_data(name: &str) -> Option<PathBuf> {
+/// A real scan shipped in the repository's `data/` folder (data/NOTICE.md says where each comes from).
+/// It is part of the repository, so a missing file fails the test instead of skipping it.
+pub fn real_scan(name: &str) -> PathBuf {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
+        .join("data")
         .join(name);
-    if path.exists() {
-        Some(path)
-    } else {
-        eprintln!(
-            "SKIPPED: {} is absent (real volumes live in ../shared/data)",
-            path.display()
-        );
-        None
-    }
+    assert!(
+        path.is_file(),
+        "{} is missing: the real scans are part of the repository (data/NOTICE.md)",
+        path.display()
+    );
+    path
 }
 
 pub fn scalar(loaded: &LoadedVolume) -> &voxhap::volume::ScalarVolume {

@@ -1,7 +1,6 @@
-//! The real scans in ../shared/data against numbers from independent readers (nibabel, pynrrd); each test skips
-//! visibly when the data is not there.
+//! The real scans in the repository's data/ folder against numbers from independent readers (nibabel, pynrrd).
 
-use crate::util::volume_files::{scalar, shared_data};
+use crate::util::volume_files::{real_scan, scalar};
 use glam::{DMat4, DVec3, DVec4};
 use voxhap::volume::io::{load, FileFormat, ScalarType};
 
@@ -25,9 +24,7 @@ fn sum(values: &[f32]) -> f64 {
 
 #[test]
 fn mni152_t1_nifti_matches_nibabel() {
-    let Some(path) = shared_data("mni152_t1_1mm.nii.gz") else {
-        return;
-    };
+    let path = real_scan("mni152_t1_1mm.nii.gz");
     let loaded = load(&path).unwrap();
     assert_eq!(loaded.format, FileFormat::Nifti);
     assert_eq!(loaded.source_type, ScalarType::U8);
@@ -61,9 +58,7 @@ fn mni152_t1_nifti_matches_nibabel() {
 
 #[test]
 fn nibabel_anatomical_big_endian_nifti_matches_nibabel() {
-    let Some(path) = shared_data("nibabel_anatomical.nii") else {
-        return;
-    };
+    let path = real_scan("nibabel_anatomical.nii");
     let loaded = load(&path).unwrap();
     assert_eq!(loaded.source_type, ScalarType::I16);
     let volume = scalar(&loaded);
@@ -94,9 +89,7 @@ fn nibabel_anatomical_big_endian_nifti_matches_nibabel() {
 
 #[test]
 fn mni152_white_matter_nrrd_matches_pynrrd() {
-    let Some(path) = shared_data("mni152_wm_1mm.nrrd") else {
-        return;
-    };
+    let path = real_scan("mni152_wm_1mm.nrrd");
     let loaded = load(&path).unwrap();
     assert_eq!(loaded.format, FileFormat::Nrrd);
     assert_eq!(loaded.source_type, ScalarType::U8);

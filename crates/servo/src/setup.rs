@@ -8,7 +8,9 @@
 //! optional `damping_n_s_per_m`, `[solver]`, `[[volumes]]`, `[[modes]]`, and for the simulated arm `start_m`,
 //! `[arm]`, `[hand]`, `[path]`. Any `voxhap sim` scenario file is also a valid scene (its `duration_s` is
 //! ignored). Without `--scene`, the built-in sims/scenes/explore.toml is used; `--volume` alone renders a surface of
-//! that volume at the middle of its value range, with the arm circling through its centre.
+//! that volume at `--iso` or else at Otsu's threshold of its values (voxhap_core::volume::levels), with the arm
+//! circling through its centre; a vector volume alone is followed (vector_follow). `--scene X --volume V` renders X
+//! with V in place of X's first volume, which is then never loaded.
 
 use crate::sim::scenario::{Purpose, Scenario, ScenarioError, SolverSettings};
 use glam::DVec3;
@@ -16,6 +18,7 @@ use std::path::{Path, PathBuf};
 use voxhap_core::haptics::modes::{ModeConfig, ModeError, ModeKind, RenderScene, TransferFunction};
 use voxhap_core::haptics::tick::{SolverKind, TickWorkspace};
 use voxhap_core::haptics::SolverConfig;
+use voxhap_core::volume::levels::ValueLevels;
 use voxhap_core::volume::{procedural, AnyVolume};
 use voxhap_device::mock::default_arm_config;
 use voxhap_device::sim::{HandPath, SimArmConfig};
@@ -77,6 +80,9 @@ pub enum SetupError {
     Modes { origin: String, source: ModeError },
     #[error("{origin}: {message}")]
     Invalid { origin: String, message: String },
+    /// `--iso` cannot place a surface in this volume.
+    #[error("--iso {level}: {reason}")]
+    Iso { level: f64, reason: String },
 }
 
 /// Why a `--volume` / `load_volume` argument gave no volume.
@@ -131,14 +137,34 @@ impl SceneSetup {
     /// Parses and loads a scene file's text (`origin` names it in errors; volume files relative to
     /// `base_dir`).
     pub fn parse(text: &str, origin: &str, base_dir: &Path) -> Result<SceneSetup, SetupError> {
+        Self::parse_with(text, origin, base_dir, None)
+    }
+
+    /// [`SceneSetup::parse`], with `first` (a volume and its source) in place of the file's first volume,
+    /// which is then not loaded at all.
+    fn parse_with(
+        text: &str,
+        origin: &str,
+        base_dir: &Path,
+        mut first: Option<(AnyVolume, String)>,
+    ) -> Result<SceneSetup, SetupError> {
         let file = Scenario::parse_for(text, origin, Purpose::Serve)?;
         let mut volumes = Vec::with_capacity(file.volumes.len());
         for (index, spec) in file.volumes.iter().enumerate() {
-            let (volume, source) = spec.load(index, base_dir, origin)?;
+            let (volume, source) = match first.take() {
+                Some(replacement) if index == 0 => replacement,
+                _ => spec.load(index, base_dir, origin)?,
+            };
             volumes.push(NamedVolume {
                 name: spec.name.clone(),
                 source,
                 volume,
+            });
+        }
+        if let Some((_, given)) = first {
+            return Err(SetupError::ReplaceVolume {
+                given,
+                source: ReplaceVolumeError::NoVolume,
             });
         }
         let arm = SimArmConfig {
@@ -170,12 +196,25 @@ impl SceneSetup {
 
     /// Reads a scene file.
     pub fn read(path: &Path) -> Result<SceneSetup, SetupError> {
+        Self::read_with(path, None)
+    }
+
+    /// Reads a scene file, with `first` in place of its first volume (see [`SceneSetup::parse_with`]).
+    fn read_with(
+        path: &Path,
+        first: Option<(AnyVolume, String)>,
+    ) -> Result<SceneSetup, SetupError> {
         let origin = path.display().to_string();
         let text = voxhap_io::read_text_file(path).map_err(|source| SetupError::Read {
             origin: origin.clone(),
             source,
         })?;
-        Self::parse(&text, &origin, path.parent().unwrap_or(Path::new("")))
+        Self::parse_with(
+            &text,
+            &origin,
+            path.parent().unwrap_or(Path::new("")),
+            first,
+        )
     }
 
     /// The built-in scene (sims/scenes/explore.toml).
@@ -187,16 +226,56 @@ impl SceneSetup {
         )
     }
 
-    /// A scene for a lone `--volume`: a surface at the middle of the value range (0 N at 45 % of the range, 2 N
-    /// at 50 %), k = 500 N/m, the arm circling through the volume's centre with a radius of a third of its
-    /// smallest half-extent. A vector volume gets a vector-follow mode instead.
-    pub fn for_volume(volume: AnyVolume, source: String) -> Result<SceneSetup, SetupError> {
+    /// A scene for a lone `--volume`: a surface that starts at `iso` (or, without it, at Otsu's threshold of the
+    /// values; the middle of the range for a constant volume) with 0 N and stiffens to 2 N over 5 % of the
+    /// value range above it, k = 500 N/m, the arm circling through the volume's centre with a radius of a
+    /// third of its smallest half-extent. A vector volume gets a vector-follow mode instead (and refuses
+    /// `iso`).
+    pub fn for_volume(
+        volume: AnyVolume,
+        source: String,
+        iso: Option<f64>,
+    ) -> Result<SceneSetup, SetupError> {
         let (min_m, max_m) = volume.grid().bounds_world();
         let centre = (min_m + max_m) * 0.5;
         let half = ((max_m - min_m) * 0.5).min_element().max(1e-3);
         let (lo, hi) = volume.value_range();
         let (lo, hi) = (f64::from(lo), f64::from(hi));
         let span = if hi > lo { hi - lo } else { 1.0 };
+        let (level, label) = match (&volume, iso) {
+            (AnyVolume::Vector(_), Some(level)) => {
+                return Err(SetupError::Iso {
+                    level,
+                    reason: format!(
+                        "{source} is a vector volume, which is followed (vector_follow), not given a surface: \
+                         --iso applies to a scalar volume"
+                    ),
+                })
+            }
+            (AnyVolume::Vector(_), None) => (0.0, format!("vector_follow along {source}")),
+            (AnyVolume::Scalar(_), Some(level)) => {
+                if !(level.is_finite() && lo <= level && level < hi) {
+                    return Err(SetupError::Iso {
+                        level,
+                        reason: format!(
+                            "outside {source}'s values {lo} .. {hi}: give a level at least {lo} and below {hi} \
+                             (`voxhap info` suggests one)"
+                        ),
+                    });
+                }
+                (level, format!("surface of {source} at level {level} (--iso)"))
+            }
+            (AnyVolume::Scalar(_), None) => match ValueLevels::of(&volume, 1).otsu {
+                Some(level) => (
+                    level,
+                    format!("surface of {source} at level {level} (Otsu's threshold)"),
+                ),
+                None => (
+                    lo + 0.5 * span,
+                    format!("surface of {source} (a constant volume: no surface to feel)"),
+                ),
+            },
+        };
         let transfer = |points: Vec<[f64; 2]>| {
             TransferFunction::new(points).map_err(|e| SetupError::Invalid {
                 origin: source.clone(),
@@ -206,10 +285,7 @@ impl SceneSetup {
         let mode = match volume {
             AnyVolume::Scalar(_) => ModeConfig {
                 kind: ModeKind::Surface,
-                transfer: Some(transfer(vec![
-                    [lo + 0.45 * span, 0.0],
-                    [lo + 0.5 * span, 2.0],
-                ])?),
+                transfer: Some(transfer(vec![[level, 0.0], [level + 0.05 * span, 2.0]])?),
                 ..ModeConfig::new(ModeKind::Surface)
             },
             AnyVolume::Vector(_) => ModeConfig {
@@ -231,7 +307,7 @@ impl SceneSetup {
         };
         let start_m = arm.path.target_at(0.0).unwrap_or(centre);
         let setup = SceneSetup {
-            label: format!("surface of {source}"),
+            label,
             stiffness_n_per_m: 500.0,
             damping_n_s_per_m: 0.0,
             solver: SolverSettings::default(),
@@ -334,24 +410,32 @@ impl SceneSetup {
 }
 
 /// Where `serve` gets its scene from: `--scene` and `--volume`.
-pub fn resolve(scene: Option<&PathBuf>, volume: Option<&str>) -> Result<SceneSetup, SetupError> {
+/// `iso` (`serve --iso`) places a lone `--volume`'s surface; the command line lets it only with `--volume`
+/// and without `--scene`.
+pub fn resolve(
+    scene: Option<&PathBuf>,
+    volume: Option<&str>,
+    iso: Option<f64>,
+) -> Result<SceneSetup, SetupError> {
     match (scene, volume) {
         (Some(path), None) => SceneSetup::read(path),
         (None, None) => SceneSetup::builtin(),
         (None, Some(volume)) => {
             let (volume, source) = load_volume_arg(volume)?;
-            SceneSetup::for_volume(volume, source)
+            SceneSetup::for_volume(volume, source, iso)
         }
         (Some(path), Some(spec)) => {
-            let mut setup = SceneSetup::read(path)?;
             let (volume, source) = load_volume_arg(spec)?;
-            setup
-                .replace_volume(None, volume, source)
-                .map_err(|source| SetupError::ReplaceVolume {
+            // The scene's own first volume is never loaded (it may not even exist here): V takes its place
+            // before the modes are built, so a shipped sim is a template for one's own scan.
+            let replaced = SceneSetup::read_with(path, Some((volume, source)));
+            match replaced {
+                Err(SetupError::Modes { source, .. }) => Err(SetupError::ReplaceVolume {
                     given: spec.to_owned(),
-                    source,
-                })?;
-            Ok(setup)
+                    source: ReplaceVolumeError::Modes(source),
+                }),
+                other => other,
+            }
         }
     }
 }
@@ -368,6 +452,81 @@ mod tests {
         let bundle = setup.bundle(1_000_000, 0.25, 1).unwrap();
         assert_eq!(bundle.scene.modes().len(), 3);
         assert_eq!(bundle.generation, 1);
+    }
+
+    /// A 4 x 4 x 4 volume, half 0 and half 100 (split along k).
+    fn two_valued() -> AnyVolume {
+        use voxhap_core::volume::{Grid, ScalarVolume};
+        let grid = Grid::new(
+            [4, 4, 4],
+            DVec3::splat(0.01),
+            glam::DMat3::IDENTITY,
+            DVec3::ZERO,
+        )
+        .unwrap();
+        let data = (0..64).map(|n| if n < 32 { 0.0 } else { 100.0 }).collect();
+        AnyVolume::Scalar(ScalarVolume::new(grid, data).unwrap())
+    }
+
+    fn first_transfer(setup: &SceneSetup) -> Vec<[f64; 2]> {
+        setup.modes[0].transfer.as_ref().unwrap().points().to_vec()
+    }
+
+    #[test]
+    fn a_lone_volume_gets_its_surface_at_otsus_level_or_at_iso() {
+        // Otsu on two values 0 and 100 in 256 bins: every split between them is perfect, the first wins, so the
+        // level is the centre of bin 0, 100 / 512 (Otsu 1979; scikit-image's threshold_otsu gives the same).
+        let setup = SceneSetup::for_volume(two_valued(), "two.nii".into(), None).unwrap();
+        assert_eq!(
+            first_transfer(&setup),
+            vec![[100.0 / 512.0, 0.0], [100.0 / 512.0 + 5.0, 2.0]]
+        );
+        assert!(setup.label.contains("Otsu"), "{}", setup.label);
+        let setup = SceneSetup::for_volume(two_valued(), "two.nii".into(), Some(40.0)).unwrap();
+        assert_eq!(first_transfer(&setup), vec![[40.0, 0.0], [45.0, 2.0]]);
+        for bad in [100.0, -1.0, f64::NAN] {
+            let err =
+                SceneSetup::for_volume(two_valued(), "two.nii".into(), Some(bad)).unwrap_err();
+            let text = err.to_string();
+            assert!(
+                text.contains("--iso") && text.contains("0 .. 100"),
+                "{text}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_lone_vector_volume_says_it_is_followed_and_refuses_iso() {
+        let (volume, source) = load_volume_arg("builtin:rankine").unwrap();
+        let setup = SceneSetup::for_volume(volume.clone(), source.clone(), None).unwrap();
+        assert!(setup.label.contains("vector_follow"), "{}", setup.label);
+        let err = SceneSetup::for_volume(volume, source, Some(1.0)).unwrap_err();
+        assert!(err.to_string().contains("vector volume"), "{err}");
+    }
+
+    #[test]
+    fn a_scene_with_a_volume_argument_never_loads_its_own_first_volume() {
+        // The scene names a file that does not exist: with --volume in its place it must still load.
+        let dir = tempfile::tempdir().unwrap();
+        let scene = dir.path().join("scene.toml");
+        std::fs::write(
+            &scene,
+            "k_n_per_m = 300\n[[volumes]]\nname = \"t1\"\nfile = \"absent.nii.gz\"\n[[modes]]\nkind = \"surface\"\n\
+             volume = \"t1\"\ntransfer = [[0.2, 0.0], [0.6, 2.0]]\n",
+        )
+        .unwrap();
+        assert!(
+            resolve(Some(&scene), None, None).is_err(),
+            "the file is absent"
+        );
+        let setup = resolve(Some(&scene), Some("builtin:sphere"), None).unwrap();
+        assert_eq!(setup.volumes[0].source, "builtin:sphere");
+        assert_eq!(setup.volumes[0].name, "t1");
+        assert_eq!(setup.stiffness_n_per_m, 300.0);
+        // A scene without a volume has nothing to replace.
+        std::fs::write(&scene, "k_n_per_m = 300\nvolumes = []\n").unwrap();
+        let err = resolve(Some(&scene), Some("builtin:sphere"), None).unwrap_err();
+        assert!(err.to_string().contains("has no volume"), "{err}");
     }
 
     #[test]
@@ -418,12 +577,23 @@ mod tests {
     }
 
     #[test]
-    fn a_lone_volume_gets_a_surface_at_mid_range() {
-        let setup = resolve(None, Some("builtin:sphere")).unwrap();
+    fn a_lone_volume_gets_one_surface_mode() {
+        let setup = resolve(None, Some("builtin:sphere"), None).unwrap();
         assert_eq!(setup.modes.len(), 1);
         assert_eq!(setup.modes[0].kind, ModeKind::Surface);
         assert!(setup.build_scene().is_ok());
-        let err = resolve(None, Some("builtin:nonesuch")).unwrap_err();
+        // The shipped MNI T1 template: Otsu's level over 256 bins of 0..255 is the centre of bin 89,
+        // 89.5 * 255 / 256 (scikit-image 0.26.0's threshold_otsu on the same file gives 89.15039).
+        let t1 = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../data/mni152_t1_1mm.nii.gz"
+        );
+        let setup = resolve(None, Some(t1), None).unwrap();
+        assert_eq!(
+            setup.label,
+            format!("surface of {t1} at level 89.150390625 (Otsu's threshold)")
+        );
+        let err = resolve(None, Some("builtin:nonesuch"), None).unwrap_err();
         assert!(
             err.to_string().starts_with("--volume builtin:nonesuch"),
             "{err}"

@@ -27,6 +27,7 @@ mod any;
 mod error;
 pub mod grid;
 pub mod isosurface;
+pub mod levels;
 pub mod procedural;
 mod sampling;
 pub mod scalar;

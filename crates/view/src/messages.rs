@@ -352,7 +352,7 @@ impl Encode for StatsMessage {
     /// The report as JSON with every `null` field left out (an infinite worst bound, no pinned core): the
     /// schema's types are plain, as Foxglove and Lichtblick require.
     fn encode(&self, buf: &mut impl BufMut) -> Result<(), Self::Error> {
-        let mut value = serde_json::to_value(&self.0)?;
+        let mut value = serde_json::to_value(self.0)?;
         drop_null_fields(&mut value);
         serde_json::to_writer(buf.writer(), &value)
     }

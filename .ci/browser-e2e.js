@@ -117,6 +117,55 @@ async function phone(browser, check) {
   await page.close();
 }
 
+// The badge follows rate changes; while the WebSocket is down the status panel says its numbers are stale, and
+// live again it does not; a recording that stopped on an error shows the server's recording_error (the page is
+// given one through /api/stats and /api/scene answers rewritten in the browser: no disk is filled here).
+async function badgeStaleAndRecordingError(browser, check) {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
+  const pageErrors = [];
+  page.on('pageerror', (e) => pageErrors.push(String(e)));
+  await page.goto(base + '/?token=' + encodeURIComponent(token));
+  await until('a state on the page', async () => page.evaluate(() => Number(document.getElementById('st-tick').dataset.tick) > 0));
+  await until('the badge at 60 Hz', async () => /60 Hz/.test(await page.textContent('#conn-text')));
+  await page.selectOption('#rate', '30');
+  const badge = await until('the badge at 30 Hz', async () => {
+    const text = await page.textContent('#conn-text');
+    return /30 Hz/.test(text) ? text : null;
+  });
+  check(true, 'the badge follows the rate change: ' + JSON.stringify(badge));
+  await page.evaluate(() => window.voxhapPage.dropConnection());
+  const stale = await until('the status panel marked stale', async () => {
+    const heading = await page.textContent('#status-h');
+    const marked = await page.evaluate(() => document.querySelector('dl.status').classList.contains('stale'));
+    return marked && /stale/.test(heading) ? heading : null;
+  });
+  check(true, 'disconnected, the status panel says ' + JSON.stringify(stale));
+  await until('live again and not stale', async () => (await page.textContent('#status-h')) === 'Status' &&
+    /^live/.test(await page.textContent('#conn-text')));
+  check(true, 'reconnected, the stale mark is gone');
+  const reason = 'cannot write /tmp/x.mcap: No space left on device (os error 28)';
+  await page.route('**/api/stats', async (route) => {
+    const res = await route.fetch();
+    const body = await res.json();
+    body.servo = Object.assign({}, body.servo, { recorder_errors: 1 });
+    await route.fulfill({ response: res, json: body });
+  });
+  await page.route('**/api/scene', async (route) => {
+    const res = await route.fetch();
+    const body = await res.json();
+    body.recording = '/tmp/x.mcap';
+    body.recording_error = reason;
+    await route.fulfill({ response: res, json: body });
+  });
+  const shown = await until('the recording error on the page', async () => {
+    const text = await page.textContent('#st-rec');
+    return text.includes(reason) ? text : null;
+  });
+  check(/STOPPED/.test(shown), 'the page shows the recording error: ' + JSON.stringify(shown));
+  check(pageErrors.length === 0, 'no script errors' + (pageErrors.length ? ': ' + pageErrors.join('; ') : ''));
+  await page.close();
+}
+
 // The probe and proxy markers (issue 17: they overlapped at the proxy). The proxy is drawn last, a filled dot
 // inside the probe's hollow ring, and a view says "proxy on probe" when they coincide. Checked on the page's
 // own layout numbers and on the canvas pixels, with the simulated hand held in free space (no contact, so the
@@ -125,7 +174,11 @@ async function markers(browser, check) {
   const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
   await page.goto(base + '/?token=' + encodeURIComponent(token));
   await page.waitForFunction(() => Number(document.getElementById('st-tick').dataset.tick) > 0, null, { timeout: 60000 });
-  const geometry = await page.evaluate(() => window.voxhapPage.markerLayout([100, 100], [100, 100]));
+  const geometry = await page.evaluate(() => window.voxhapPage.markerLayout([100, 100], [100, 100], 0, 0));
+  // In contact the markers may overlap on screen with the proxy 916 um away and 0.46 N sent: not "on probe".
+  const contact = await page.evaluate(() => window.voxhapPage.markerLayout([100, 100], [101, 100], 916e-6, 0.46));
+  check(contact.label !== 'proxy on probe' && /in contact/.test(contact.label),
+    'overlapping markers in contact (916 um, 0.46 N) are labelled ' + JSON.stringify(contact.label));
   // The ring's inner edge (radius less half its line and its 1.25 px outline) clears the dot and its outline.
   const clearance = geometry.probeRadius - geometry.probeLine / 2 - 1.25 - (geometry.proxyRadius + geometry.proxyLine / 2);
   check(clearance >= 1 && geometry.label === 'proxy on probe',
@@ -288,6 +341,7 @@ async function refusedToken(browser, check) {
     await page.close();
 
     await markers(browser, check);
+    await badgeStaleAndRecordingError(browser, check);
     await phone(browser, check);
     await refusedToken(browser, check);
   } catch (e) {

@@ -29,9 +29,37 @@ const FORCE = "/voxhap/servo_cf";
 const VOLUME = "/voxhap/volume";
 const VOLUME_FRAME = "/voxhap/volume_frame";
 const SLICES = ["/voxhap/volume/slice_x", "/voxhap/volume/slice_y", "/voxhap/volume/slice_z"];
-// The foxglove SDK's server speaks `foxglove.sdk.v1` (the same messages as the older
-// `foxglove.websocket.v1`, which @foxglove/ws-protocol names as its default and the SDK refuses).
-const SUBPROTOCOL = "foxglove.sdk.v1";
+// The subprotocol @foxglove/ws-protocol's client offers by default (`foxglove.websocket.v1`, the older name of
+// the protocol the foxglove SDK calls `foxglove.sdk.v1`): voxhap accepts both and answers with the name asked.
+const SUBPROTOCOL = FoxgloveClient.SUPPORTED_SUBPROTOCOL;
+
+/** What Lichtblick's / Foxglove Studio's parseJsonSchema (packages/mcap-support) refuses in a JSON schema, or
+ * null: the root and every nested object is "type": "object" with "properties"; each field's type is one of
+ * boolean, string, number, integer, object, array (a list such as ["number", "null"] or no type is refused, and
+ * the viewer drops the topic); array items likewise. */
+function jsonSchemaProblem(schema, path) {
+  const scalars = ["boolean", "string", "number", "integer"];
+  if (schema.type !== "object") return `${path}: type ${JSON.stringify(schema.type)}, not "object"`;
+  if (!schema.properties || typeof schema.properties !== "object") return `${path}: an object without properties`;
+  for (const [name, field] of Object.entries(schema.properties)) {
+    const at = `${path}.${name}`;
+    if (field.type === "object") {
+      const problem = jsonSchemaProblem(field, at);
+      if (problem) return problem;
+    } else if (field.type === "array") {
+      const items = field.items ?? {};
+      if (items.type === "object") {
+        const problem = jsonSchemaProblem(items, at);
+        if (problem) return problem;
+      } else if (!scalars.includes(items.type)) {
+        return `${at}: array item type ${JSON.stringify(items.type)}`;
+      }
+    } else if (!scalars.includes(field.type)) {
+      return `${at}: field type ${JSON.stringify(field.type)}`;
+    }
+  }
+  return null;
+}
 
 if (!url || !layoutPath) {
   console.error("usage: node foxglove-subscribe.mjs ws://HOST:PORT LAYOUT.json [N] [TIMEOUT_MS]");
@@ -146,6 +174,13 @@ client.on("advertise", (channels) => {
   for (const channel of channels) {
     if (channelsByTopic.has(channel.topic)) continue;
     channelsByTopic.set(channel.topic, channel);
+    if (channel.schemaEncoding === "jsonschema") {
+      const problem = jsonSchemaProblem(JSON.parse(channel.schema), channel.schemaName);
+      if (problem) {
+        finish(false, `${channel.topic}: Foxglove and Lichtblick refuse its JSON schema: ${problem}`);
+        return;
+      }
+    }
     if (channel.topic === FORCE && (channel.schemaName !== "foxglove.Vector3" || channel.encoding !== "protobuf")) {
       finish(false, `${FORCE} advertised as ${channel.schemaName} (${channel.encoding}), expected foxglove.Vector3`);
       return;

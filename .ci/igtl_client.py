@@ -3,8 +3,10 @@
 `voxhap serve --igtl ... --http ...` and checks what docs/slicer.md promises.
 
 - The stream: TRANSFORM Probe, Proxy, ProbeVelocity, Force and STATUS, every message's CRC-64 checked with
-  pyigtl's own CRC function, header version 1 until the client speaks version 2; the Probe rate near
-  --igtl-rate.
+  pyigtl's own CRC function, header version 1 until the client speaks version 2; the Probe rate at most
+  --igtl-rate (best-effort: a busy machine sends fewer, so no lower bound is checked).
+- pyigtl has no STATUS message class (it decodes IMAGE, POINT, POSITION, STRING, TRANSFORM), so its client
+  cannot show voxhap's STATUS replies: this script reads them from a raw socket (docs/slicer.md says so).
 - RAS millimetres: with the simulated hand held at a target by ProbeTarget, Probe equals the HTTP state's
   probe_m x 1000; Force equals k (Proxy - Probe) / 1000 (newtons, RAS).
 - IMAGE: refused (STATUS 5) without the token, the scene unchanged: the 96 kB ball is over the 64 KiB a
@@ -184,7 +186,10 @@ def main():
         check(wanted in seen, f"{wanted} never arrived (saw {sorted(seen)})")
     check(versions == {1}, f"header versions {versions}, expected only 1 before the client speaks version 2")
     measured = probes / elapsed
-    check(0.6 * rate_hz <= measured <= 1.15 * rate_hz, f"Probe at {measured:.1f} Hz, asked for {rate_hz} Hz")
+    # Best-effort (docs/slicer.md): never above the asked rate, fewer on a busy machine.
+    check(probes > 0 and measured <= 1.15 * rate_hz, f"Probe at {measured:.1f} Hz, asked for {rate_hz} Hz")
+    check(pyigtl.messages.MessageBase.create_message("STATUS") is None,
+          "pyigtl now decodes STATUS: docs/slicer.md says it cannot show STATUS replies")
     print(f"igtl_client: stream OK: {probes} Probe messages in {elapsed:.2f} s ({measured:.1f} Hz, asked {rate_hz})")
 
     # 3. IMAGE without the token is refused and changes nothing.

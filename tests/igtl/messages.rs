@@ -146,6 +146,27 @@ fn an_image_needs_the_token_and_then_replaces_the_first_volume() {
     assert_eq!(transfer(&fixture.api), vec![[1044.55, 0.0], [1049.5, 2.0]]);
 }
 
+/// An IMAGE whose metadata `volume` names no volume of the scene is answered with STATUS 4 (not found, the
+/// OpenIGTLink STATUS code table) naming the volumes there are, and nothing is loaded (docs/slicer.md lists it).
+#[test]
+fn an_image_for_a_volume_the_scene_lacks_is_answered_with_status_4() {
+    let fixture = Fixture::start();
+    let mut stream = fixture.connect();
+    let before = fixture.api.scene().volumes.clone();
+    let image = pack(
+        2,
+        "IMAGE",
+        "CT",
+        &image_content([10.0, 0.0, 0.0], 0),
+        &[("token", TOKEN), ("volume", "nothing")],
+    );
+    stream.write_all(&image).unwrap();
+    let (code, message) = status(&mut stream, "CT");
+    assert_eq!(code, 4, "{message}");
+    assert!(message.contains("nothing"), "{message}");
+    assert_eq!(fixture.api.scene().volumes, before);
+}
+
 #[test]
 fn a_protocol_3_probe_target_with_a_metadata_token_moves_the_hand() {
     let fixture = Fixture::start();

@@ -222,6 +222,37 @@ async fn a_request_with_two_host_or_two_origin_headers_is_refused() {
     assert_eq!(status, 200, "{body}");
 }
 
+/// A request without a Host header is refused with 400 naming it (RFC 9112 section 3.2: "A server MUST respond
+/// with a 400 (Bad Request) status code to any HTTP/1.1 request message that lacks a Host header field"), for
+/// HTTP/1.1 and HTTP/1.0 alike, and changes nothing; with one it is answered. Before the fix it was answered
+/// 200.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_request_without_a_host_header_is_refused() {
+    use voxhap::servo::SessionApi as _;
+    let server = TestServer::start(4).await;
+    let addr = server.addr;
+    for version in ["HTTP/1.1", "HTTP/1.0"] {
+        let request = format!("GET /api/state {version}\r\nConnection: close\r\n\r\n");
+        let (status, body) = raw_request(addr, request.as_bytes()).await;
+        assert_eq!(status, 400, "{version}: {body}");
+        assert!(body.contains("no Host header"), "{body}");
+    }
+    let k_before = server.api.snapshot().unwrap().stiffness_n_per_m;
+    let post = format!(
+        "POST /api/stiffness HTTP/1.1\r\nAuthorization: Bearer {TOKEN}\r\n\
+         Content-Type: application/json\r\nContent-Length: 10\r\nConnection: close\r\n\r\n{{\"k\": 321}}"
+    );
+    let (status, body) = raw_request(addr, post.as_bytes()).await;
+    assert_eq!(status, 400, "{body}");
+    assert_eq!(server.api.snapshot().unwrap().stiffness_n_per_m, k_before);
+    let (status, body) = raw_request(
+        addr,
+        format!("GET /api/state HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").as_bytes(),
+    )
+    .await;
+    assert_eq!(status, 200, "{body}");
+}
+
 /// What a client can make the server buffer before a request is even routed: a request head is bounded by
 /// the HTTP parser's buffer (about 400 KiB; hyper's default of 8 KiB + 100 x 4 KiB): 20 clients each sending
 /// 8 MiB of header lines are answered 431 (or closed) long before the 160 MiB arrive, and this process (the

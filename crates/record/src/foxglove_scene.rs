@@ -204,6 +204,7 @@ impl SceneChange {
 struct RecordedBound {
     tick: u64,
     t_s: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
     error_bound_m: Option<f64>,
     sweeps: u32,
     status: &'static str,
@@ -216,6 +217,7 @@ struct RecordedStats {
     t_s: f64,
     ticks: u64,
     max_sweeps: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
     worst_error_bound_m: Option<f64>,
     overruns: u64,
     solver_budget_hits: u64,
@@ -235,7 +237,7 @@ fn trace_stats_schema() -> serde_json::Value {
             "t_s": {"type": "number", "description": "tick time of the latest tick counted (s)"},
             "ticks": count("ticks recorded so far"),
             "max_sweeps": count("most solver sweeps in one tick"),
-            "worst_error_bound_m": {"type": ["number", "null"], "description": "worst certificate bound (m); null = a tick without one"},
+            "worst_error_bound_m": {"type": "number", "description": "worst certificate bound (m); omitted = a tick without one"},
             "overruns": count("ticks flagged overrun"),
             "solver_budget_hits": count("ticks flagged solver_budget_hit"),
             "force_clamped": count("ticks flagged force_clamped"),

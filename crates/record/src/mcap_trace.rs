@@ -6,9 +6,11 @@
 //!   [`STATE_TOPIC`] (`voxhap.State`: tick, t_s, utc_ns, probe_m, probe_velocity_m_per_s, proxy_m,
 //!   rendered_force_n, force_n, vectors as `[x, y, z]`) and [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s,
 //!   primitives and mode_force_n as objects keyed by mode name in mode order, solver_status, sweeps,
-//!   error_bound_m (`null` when +inf), device_sequence and device_time_us (`null` when the device has
-//!   none), flag_bits). JSON has no NaN: a non-finite number in a sample flagged `invalid_values` is
-//!   written as `null` and read back as NaN;
+//!   error_bound_m (omitted when +inf), device_sequence and device_time_us (omitted when the device has
+//!   none), flag_bits). The schemas use only the plain types Foxglove and Lichtblick accept (no
+//!   `["number", "null"]` unions): a value that may be absent is an optional field, left out when absent.
+//!   JSON has no NaN: a non-finite number in a sample flagged `invalid_values` is written as `null` and
+//!   read back as NaN;
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
 //!   (`voxhap_view::topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
 //!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
@@ -90,14 +92,14 @@ fn state_schema() -> serde_json::Value {
         "properties": {
             "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
             "t_s": {"type": "number", "description": "tick time since the run started (s)"},
-            "utc_ns": {"type": ["integer", "null"], "description": "wall-clock UTC of the tick (ns since 1970)"},
+            "utc_ns": {"type": "integer", "description": "wall-clock UTC of the tick (ns since 1970); omitted when the run has no start time"},
             "probe_m": vector("probe (device) position [x, y, z] (m)"),
             "probe_velocity_m_per_s": vector("probe velocity [x, y, z] (m/s), reported or estimated"),
             "proxy_m": vector("proxy position [x, y, z] (m)"),
             "rendered_force_n": vector("force rendered before the safety pipeline [x, y, z] (N)"),
             "force_n": vector("force sent to the device [x, y, z] (N)")
         },
-        "required": ["tick", "t_s", "utc_ns", "probe_m", "probe_velocity_m_per_s", "proxy_m", "rendered_force_n", "force_n"]
+        "required": ["tick", "t_s", "probe_m", "probe_velocity_m_per_s", "proxy_m", "rendered_force_n", "force_n"]
     })
 }
 
@@ -116,7 +118,10 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
         .map(|name| {
             (
                 name.clone(),
-                serde_json::json!({"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3}),
+                serde_json::json!({
+                    "type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
+                    "description": "null for a non-finite value in a sample flagged invalid_values"
+                }),
             )
         })
         .collect();
@@ -136,17 +141,17 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
                 "type": "object", "properties": mode_forces, "additionalProperties": false,
                 "description": "force each mode's primitives exert on the proxy [x, y, z] (N)"
             },
-            "solver_status": {"enum": statuses, "description": "how the solve ended"},
+            "solver_status": {"type": "string", "enum": statuses, "description": "how the solve ended"},
             "sweeps": {"type": "integer", "minimum": 0, "description": "solver sweeps"},
             "error_bound_m": {
-                "type": ["number", "null"], "minimum": 0,
-                "description": "certificate bound on the proxy's distance from the equilibrium (m); null = none"
+                "type": "number", "minimum": 0,
+                "description": "certificate bound on the proxy's distance from the equilibrium (m); omitted = none"
             },
-            "device_sequence": {"type": ["integer", "null"], "minimum": 0, "description": "the device's sequence number; null = none"},
-            "device_time_us": {"type": ["integer", "null"], "minimum": 0, "description": "the device's clock (us); null = none"},
+            "device_sequence": {"type": "integer", "minimum": 0, "description": "the device's sequence number; omitted = none"},
+            "device_time_us": {"type": "integer", "minimum": 0, "description": "the device's clock (us); omitted = none"},
             "flag_bits": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"}
         },
-        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "error_bound_m", "device_sequence", "device_time_us", "flag_bits"]
+        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "flag_bits"]
     })
 }
 
@@ -154,6 +159,7 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
 struct StateMessage {
     tick: u64,
     t_s: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
     utc_ns: Option<i64>,
     probe_m: [f64; 3],
     probe_velocity_m_per_s: [f64; 3],
@@ -202,8 +208,11 @@ struct SolverMessage<'a> {
     mode_force_n: ModeForces<'a>,
     solver_status: &'static str,
     sweeps: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
     error_bound_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     device_sequence: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     device_time_us: Option<u64>,
     flag_bits: u32,
 }
@@ -219,12 +228,16 @@ pub struct McapTraceWriter {
     /// Samples written into the open chunk, and that chunk's message bytes.
     pending: u64,
     chunk_bytes: u64,
-    state_channel: u16,
-    solver_channel: u16,
-    /// The Foxglove channels and the reusable messages for them.
-    probe_channel: u16,
-    proxy_channel: u16,
-    force_channel: u16,
+    /// The schemas and channels, added with the first sample so that they share its chunk: a chunk holding
+    /// only schemas and channels has no message index and no message times, which Foxglove Studio and
+    /// Lichtblick's `@mcap/core` refuse ("Chunks without message indexes are not currently supported") or
+    /// date to 1970.
+    channels: Option<Channels>,
+    /// What the channels are made from.
+    meta: TraceMeta,
+    /// A scene change handed over before the first sample, for the scene once it exists.
+    early_change: Option<crate::foxglove_scene::SceneChange>,
+    /// The reusable Foxglove messages.
     probe_transform: FrameTransform,
     proxy_transform: FrameTransform,
     mode_names: Vec<String>,
@@ -232,13 +245,54 @@ pub struct McapTraceWriter {
     message: Vec<u8>,
     checker: SampleChecker,
     sidecar: Sidecar,
-    /// The scene topics (markers and primitives, volume, slices, bound, operating state, statistics).
-    scene: RecordedScene,
     /// The servo's latest snapshot handed over for the scene topics (used with the sample of its tick).
     frame: Option<voxhap_api::Snapshot>,
     /// Wall-clock time (ns since the Unix epoch) of the first sample: log times are UTC wall clock.
     wall_start_ns: u64,
     first_t_s: Option<f64>,
+}
+
+/// The channel ids of a trace and its scene topics.
+struct Channels {
+    state: u16,
+    solver: u16,
+    probe: u16,
+    proxy: u16,
+    force: u16,
+    /// The scene topics (markers and primitives, volume, slices, bound, operating state, statistics).
+    scene: RecordedScene,
+}
+
+impl Channels {
+    /// Adds the schemas and channels to `writer`.
+    fn add<W: std::io::Write + std::io::Seek>(
+        writer: &mut mcap::Writer<W>,
+        meta: &TraceMeta,
+    ) -> Result<Channels, mcap::McapError> {
+        let state_schema = writer.add_schema(
+            STATE_SCHEMA_NAME,
+            "jsonschema",
+            state_schema().to_string().as_bytes(),
+        )?;
+        let solver_schema = writer.add_schema(
+            SOLVER_SCHEMA_NAME,
+            "jsonschema",
+            solver_schema(&meta.mode_names).to_string().as_bytes(),
+        )?;
+        let no_metadata = BTreeMap::new();
+        let state = writer.add_channel(state_schema, STATE_TOPIC, "json", &no_metadata)?;
+        let solver = writer.add_channel(solver_schema, SOLVER_TOPIC, "json", &no_metadata)?;
+        let (probe, proxy, force) = add_foxglove_channels(writer)?;
+        let scene = RecordedScene::add(writer, meta)?;
+        Ok(Channels {
+            state,
+            solver,
+            probe,
+            proxy,
+            force,
+            scene,
+        })
+    }
 }
 
 /// A chunk is closed after the first whole tick that takes it past this many message bytes (besides every
@@ -301,8 +355,8 @@ pub fn unix_now_ns() -> u64 {
 }
 
 impl McapTraceWriter {
-    /// Creates (truncates) `path` and `path.json`; writes the header, schemas, channels, the metadata
-    /// record and a provisional sidecar.
+    /// Creates `path` and `path.json`; writes the header, the metadata record and a provisional sidecar.
+    /// The schemas and channels follow with the first sample, in its chunk.
     pub fn create(path: &Path, meta: &TraceMeta) -> Result<Self, TraceError> {
         Self::create_at(path, meta, log_time_start_ns(meta, unix_now_ns()))
     }
@@ -329,30 +383,7 @@ impl McapTraceWriter {
             .profile("")
             .library(format!("voxhap {}", env!("CARGO_PKG_VERSION")));
         let mut writer = options.create(BufWriter::new(file)).map_err(mcap_error)?;
-        let state_schema = writer
-            .add_schema(
-                STATE_SCHEMA_NAME,
-                "jsonschema",
-                state_schema().to_string().as_bytes(),
-            )
-            .map_err(mcap_error)?;
-        let solver_schema = writer
-            .add_schema(
-                SOLVER_SCHEMA_NAME,
-                "jsonschema",
-                solver_schema(&meta.mode_names).to_string().as_bytes(),
-            )
-            .map_err(mcap_error)?;
-        let no_metadata = BTreeMap::new();
-        let state_channel = writer
-            .add_channel(state_schema, STATE_TOPIC, "json", &no_metadata)
-            .map_err(mcap_error)?;
-        let solver_channel = writer
-            .add_channel(solver_schema, SOLVER_TOPIC, "json", &no_metadata)
-            .map_err(mcap_error)?;
-        let (probe_channel, proxy_channel, force_channel) =
-            add_foxglove_channels(&mut writer).map_err(mcap_error)?;
-        let scene = RecordedScene::add(&mut writer, meta).map_err(mcap_error)?;
+        // The metadata goes before any chunk: written later it would close the open chunk.
         writer
             .write_metadata(&mcap::records::Metadata {
                 name: METADATA_NAME.to_string(),
@@ -368,11 +399,9 @@ impl McapTraceWriter {
             committed: 0,
             pending: 0,
             chunk_bytes: 0,
-            state_channel,
-            solver_channel,
-            probe_channel,
-            proxy_channel,
-            force_channel,
+            channels: None,
+            meta: meta.clone(),
+            early_change: None,
             probe_transform: frame_transform(PROBE_FRAME, DVec3::ZERO, 0),
             proxy_transform: frame_transform(PROXY_FRAME, DVec3::ZERO, 0),
             mode_names: meta.mode_names.clone(),
@@ -380,7 +409,6 @@ impl McapTraceWriter {
             message: Vec::with_capacity(512),
             checker: SampleChecker::new(meta.mode_names.len()),
             sidecar,
-            scene,
             frame: None,
             wall_start_ns,
             first_t_s: None,
@@ -481,6 +509,21 @@ impl TraceWriter for McapTraceWriter {
             return Ok(());
         };
         let sample = &sample;
+        if self.channels.is_none() {
+            let writer = self.writer.as_mut().ok_or(TraceError::Finished)?;
+            let mut channels =
+                Channels::add(writer, &self.meta).map_err(|source| TraceError::Mcap {
+                    path: self.path.clone(),
+                    source,
+                })?;
+            if let Some(change) = self.early_change.take() {
+                channels.scene.scene_changed(&change);
+            }
+            self.channels = Some(channels);
+        }
+        let Some(channels) = self.channels.as_mut() else {
+            return Err(TraceError::Finished);
+        };
         let sequence = (self.checker.count - 1) as u32;
         // Log times are wall-clock UTC (the run's start plus the sample's time); a non-finite or negative time
         // (a sample flagged invalid) is logged at the start.
@@ -543,26 +586,27 @@ impl TraceWriter for McapTraceWriter {
         };
         let json_error =
             |e: serde_json::Error| TraceError::Meta(format!("cannot encode a message: {e}"));
-        put(self.state_channel, &|m| {
+        put(channels.state, &|m| {
             serde_json::to_writer(m, &state).map_err(json_error)
         })?;
-        put(self.solver_channel, &|m| {
+        put(channels.solver, &|m| {
             serde_json::to_writer(m, &solver).map_err(json_error)
         })?;
         // The Foxglove topics: protobuf through the SDK's `Encode`.
         set_translation(&mut self.probe_transform, sample.probe_m, time_ns);
         set_translation(&mut self.proxy_transform, sample.proxy_m, time_ns);
-        put(self.probe_channel, &|m| {
+        put(channels.probe, &|m| {
             self.probe_transform.encode(m).map_err(encode_error)
         })?;
-        put(self.proxy_channel, &|m| {
+        put(channels.proxy, &|m| {
             self.proxy_transform.encode(m).map_err(encode_error)
         })?;
-        put(self.force_channel, &|m| {
+        put(channels.force, &|m| {
             vector3(sample.force_n).encode(m).map_err(encode_error)
         })?;
         let frame = self.frame.take_if(|frame| frame.tick <= sample.tick);
-        self.scene
+        channels
+            .scene
             .write(sample, frame.as_ref(), time_ns, &mut |channel, encode| {
                 put(channel, &|m| encode(m).map_err(encode_error))
             })?;
@@ -575,6 +619,8 @@ impl TraceWriter for McapTraceWriter {
 
     fn flush(&mut self) -> Result<(), TraceError> {
         let result = match self.writer.as_mut() {
+            // No chunk is ever open without a sample in it (the channels come with the first sample), so
+            // this never closes a chunk without messages.
             Some(writer) => writer.flush(),
             None => return Err(TraceError::Finished),
         };
@@ -627,7 +673,10 @@ impl TraceWriter for McapTraceWriter {
     }
 
     fn scene_changed(&mut self, change: &crate::foxglove_scene::SceneChange) {
-        self.scene.scene_changed(change);
+        match self.channels.as_mut() {
+            Some(channels) => channels.scene.scene_changed(change),
+            None => self.early_change = Some(change.clone()),
+        }
     }
 }
 

@@ -357,3 +357,120 @@ proptest::proptest! {
         let _ = read_mcap_trace(&path);
     }
 }
+
+/// Lichtblick's and Foxglove Studio's JSON-schema reader (`parseJsonSchema` in their `mcap-support`
+/// package), rule for rule: the root and every nested object is `"type": "object"` with `properties`; a
+/// field's `type` is one of boolean, string, number, integer, object, array (one string: a list such as
+/// `["number", "null"]` or a missing type is refused, which drops the whole topic); an array's `items` has
+/// one of boolean, string, number, integer, object. Returns the first problem.
+pub(crate) fn viewer_refuses(schema: &serde_json::Value, path: &str) -> Option<String> {
+    if schema["type"] != "object" {
+        return Some(format!(
+            "{path}: \"type\" is {} (not \"object\")",
+            schema["type"]
+        ));
+    }
+    let Some(properties) = schema["properties"].as_object() else {
+        return Some(format!("{path}: an object without \"properties\""));
+    };
+    for (name, field) in properties {
+        let at = format!("{path}.{name}");
+        match field["type"].as_str() {
+            Some("boolean" | "string" | "number" | "integer") => {}
+            Some("object") => {
+                if let Some(problem) = viewer_refuses(field, &at) {
+                    return Some(problem);
+                }
+            }
+            Some("array") => match field["items"]["type"].as_str() {
+                Some("boolean" | "string" | "number" | "integer") => {}
+                Some("object") => {
+                    if let Some(problem) = viewer_refuses(&field["items"], &at) {
+                        return Some(problem);
+                    }
+                }
+                _ => return Some(format!("{at}: array item type {}", field["items"]["type"])),
+            },
+            _ => return Some(format!("{at}: field type {}", field["type"])),
+        }
+    }
+    None
+}
+
+#[test]
+fn the_viewer_rule_refuses_what_lichtblick_refuses() {
+    let ok = serde_json::json!({"type": "object", "properties": {"a": {"type": "number"}}});
+    assert_eq!(viewer_refuses(&ok, "t"), None);
+    for field in [
+        serde_json::json!({"type": ["number", "null"]}),
+        serde_json::json!({"enum": ["a", "b"]}),
+        serde_json::json!({"type": "array", "items": {"type": ["integer", "null"]}}),
+        serde_json::json!({"type": "null"}),
+    ] {
+        let schema = serde_json::json!({"type": "object", "properties": {"a": field}});
+        assert!(viewer_refuses(&schema, "t").is_some(), "{schema}");
+    }
+}
+
+/// Foxglove Studio and the `@mcap/core` Lichtblick pins stop on a chunk without a message index ("Chunks
+/// without message indexes are not currently supported") and take the smallest chunk start time as the
+/// recording's start: every chunk must hold messages, with their index, and start at its first message;
+/// the statistics' start and end are the first and last message's log times. Every JSON schema passes the
+/// viewers' reader. Without the fix (metadata written after the channels) the first chunk held only the
+/// schemas and channels, with start time 0.
+#[test]
+fn every_chunk_holds_indexed_messages_and_the_times_are_the_messages_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = samples(300, 2);
+    let path = dir.path().join("v.mcap");
+    write_mcap(&path, &["surface", "friction"], &data);
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    assert!(
+        summary.chunk_indexes.len() >= 2,
+        "{}",
+        summary.chunk_indexes.len()
+    );
+    let log_times: Vec<u64> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap().log_time)
+        .collect();
+    let (first, last) = (log_times[0], *log_times.last().unwrap());
+    assert_eq!(first, WALL_START_NS);
+    for chunk in &summary.chunk_indexes {
+        assert!(!chunk.message_index_offsets.is_empty(), "{chunk:?}");
+        assert!(chunk.message_start_time >= first, "{chunk:?}");
+        assert!(chunk.message_end_time <= last, "{chunk:?}");
+    }
+    assert_eq!(summary.chunk_indexes[0].message_start_time, first);
+    let stats = summary.stats.unwrap();
+    assert_eq!(
+        (stats.message_start_time, stats.message_end_time),
+        (first, last)
+    );
+    assert_eq!(stats.message_count, log_times.len() as u64);
+    for schema in summary.schemas.values() {
+        if schema.encoding == "jsonschema" {
+            let value: serde_json::Value = serde_json::from_slice(&schema.data).unwrap();
+            assert_eq!(viewer_refuses(&value, &schema.name), None);
+        }
+    }
+}
+
+/// A recording stopped before its first sample has no chunk at all (not one without messages).
+#[test]
+fn a_trace_without_samples_has_no_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("none.mcap");
+    let mut writer = McapTraceWriter::create_at(&path, &meta(&["surface"]), WALL_START_NS).unwrap();
+    writer.flush().unwrap();
+    assert_eq!(writer.finish().unwrap().sample_count, 0);
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    assert!(
+        summary.chunk_indexes.is_empty(),
+        "{:?}",
+        summary.chunk_indexes
+    );
+    assert_eq!(summary.stats.unwrap().metadata_count, 1);
+}

@@ -1,4 +1,5 @@
-//! The Foxglove live view: the `foxglove` SDK's WebSocket server (protocol `foxglove.sdk.v1`, default
+//! The Foxglove live view: the `foxglove` SDK's WebSocket server (protocol `foxglove.sdk.v1`, and the same protocol
+//! under its older name `foxglove.websocket.v1` through [`crate::foxglove_relay`]; default
 //! `ws://127.0.0.1:8765`) and a publisher task that samples the running session and logs it on Foxglove
 //! channels, so Foxglove or Lichtblick shows the session in 3D with plots.
 //!
@@ -196,6 +197,8 @@ pub struct FoxgloveServer {
     addr: SocketAddr,
     stop: oneshot::Sender<()>,
     publisher: JoinHandle<()>,
+    /// The front door on the public address (both subprotocol names).
+    relay: JoinHandle<()>,
 }
 
 impl FoxgloveServer {
@@ -211,7 +214,28 @@ impl FoxgloveServer {
         let context = Context::new();
         let channels = Channels::new(&context);
         let resend = Arc::new(ResendOnSubscribe::default());
-        let host = match config.addr.ip() {
+        // The public address is the relay's (crate::foxglove_relay: both subprotocol names); the SDK's
+        // server listens behind it on a loopback port.
+        let listener = match tokio::net::TcpListener::bind(config.addr).await {
+            Ok(listener) => listener,
+            Err(error) if error.kind() == std::io::ErrorKind::AddrInUse => {
+                return Err(LiveViewError::AddressInUse { addr: config.addr })
+            }
+            Err(error) => {
+                return Err(LiveViewError::Start {
+                    addr: config.addr,
+                    source: ::foxglove::FoxgloveError::Bind(error),
+                })
+            }
+        };
+        let public = listener
+            .local_addr()
+            .map_err(|error| LiveViewError::Start {
+                addr: config.addr,
+                source: ::foxglove::FoxgloveError::Bind(error),
+            })?;
+        let inner = crate::foxglove_relay::inner_addr(config.addr);
+        let host = match inner.ip() {
             IpAddr::V4(ip) => ip.to_string(),
             IpAddr::V6(ip) => format!("[{ip}]"),
         };
@@ -219,7 +243,7 @@ impl FoxgloveServer {
             .websocket_server()
             .name(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
             .listener(resend.clone())
-            .bind(host, config.addr.port())
+            .bind(host, inner.port())
             .start()
             .await;
         let handle = match started {
@@ -236,7 +260,11 @@ impl FoxgloveServer {
                 })
             }
         };
-        let addr = SocketAddr::new(config.addr.ip(), handle.port());
+        let relay = tokio::spawn(crate::foxglove_relay::run(
+            listener,
+            SocketAddr::new(inner.ip(), handle.port()),
+        ));
+        let addr = public;
         let (stop, stopped) = oneshot::channel();
         let period = Duration::from_secs_f64(1.0 / f64::from(config.rate_hz));
         let publisher = tokio::spawn(publish(api, channels, resend, period, stopped));
@@ -246,6 +274,7 @@ impl FoxgloveServer {
             addr,
             stop,
             publisher,
+            relay,
         })
     }
 
@@ -265,6 +294,8 @@ impl FoxgloveServer {
         let _ = self.stop.send(());
         let _ = self.publisher.await;
         let _ = tokio::time::timeout(STOP_TIMEOUT, self.handle.stop().wait()).await;
+        self.relay.abort();
+        let _ = self.relay.await;
     }
 }
 

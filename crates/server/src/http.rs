@@ -70,8 +70,8 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
 }
 
 /// The Host check on every request, and the Origin check on `/ws` and every request that is not GET or
-/// HEAD ([`super::origin`]); a request with more than one Host or Origin header is refused (400) before
-/// either; 403 with the reason otherwise.
+/// HEAD ([`super::origin`]); a request without a Host header, or with more than one Host or Origin header,
+/// is refused (400) before either; 403 with the reason otherwise.
 async fn check_host_and_origin(
     State(shared): Shared_,
     request: axum::extract::Request,

@@ -27,6 +27,7 @@ pub mod assets;
 pub mod auth;
 pub mod config;
 pub mod foxglove;
+pub mod foxglove_relay;
 pub mod guard;
 mod http;
 pub mod igtl;

@@ -10,8 +10,10 @@
 //!
 //! - **Host** must name the listening address: its IP literal (any IP literal when listening on 0.0.0.0 or
 //!   `::`, since rebinding needs a DNS name), `localhost` when listening on loopback, or a name given with
-//!   `--allow-host`; and the port must be the listening port. Requests without a Host header (HTTP/1.0
-//!   tools; browsers always send one) pass.
+//!   `--allow-host`; and the port must be the listening port. A request without a Host header is refused
+//!   with 400 (RFC 9112 section 3.2: a server "MUST respond with a 400 (Bad Request) status code to any
+//!   HTTP/1.1 request message that lacks a Host header field"; HTTP/1.0 requests are held to the same, since
+//!   the Host check is what stops a DNS-rebinding page, and curl, browsers and scripts always send one).
 //! - **Origin**, on `/ws` and on every request that is not GET or HEAD, must be `http://` + the request's
 //!   own Host (same origin), or one given with `--allow-origin`. Requests without an Origin header
 //!   (curl, scripts) pass: they are not a browser acting for a web page.
@@ -31,11 +33,14 @@ pub struct OriginPolicy {
     allowed_origins: Vec<String>,
 }
 
-/// Why a request was refused (HTTP 403, or 400 for a repeated header: [`OriginError::http_status`]).
+/// Why a request was refused (HTTP 403, or 400 for a repeated or missing Host header:
+/// [`OriginError::http_status`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum OriginError {
     #[error("bad request: {count} {header} headers; a request carries at most one (with two, a check could read one and another part of the server the other)")]
     Repeated { header: &'static str, count: usize },
+    #[error("bad request: no Host header; every request must name the server it is for (RFC 9112 section 3.2)")]
+    MissingHost,
     #[error("forbidden: Host {host:?} is not this server's address {listen} (a DNS-rebinding page would send its own name); start voxhap with --allow-host NAME to serve that name")]
     Host { host: String, listen: SocketAddr },
     #[error("forbidden: Origin {origin:?} is not this server's page (http://{host}); only the page served here may open /ws or change the session; start voxhap with --allow-origin ORIGIN to allow another")]
@@ -46,7 +51,7 @@ impl OriginError {
     /// The HTTP status that answers it: 400 for a repeated header, 403 otherwise.
     pub fn http_status(&self) -> u16 {
         match self {
-            OriginError::Repeated { .. } => 400,
+            OriginError::Repeated { .. } | OriginError::MissingHost => 400,
             OriginError::Host { .. } | OriginError::Origin { .. } => 403,
         }
     }
@@ -77,10 +82,10 @@ impl OriginPolicy {
         }
     }
 
-    /// Checks a request's Host header (`None`: no header).
+    /// Checks a request's Host header (`None`: no header, refused).
     pub fn check_host(&self, host: Option<&str>) -> Result<(), OriginError> {
         let Some(host) = host else {
-            return Ok(());
+            return Err(OriginError::MissingHost);
         };
         if self.host_allowed(host) {
             Ok(())
@@ -170,7 +175,9 @@ mod tests {
         ] {
             assert!(loopback.check_host(Some(ok)).is_ok(), "{ok}");
         }
-        assert!(loopback.check_host(None).is_ok());
+        // RFC 9112 section 3.2: a request without Host is answered 400.
+        assert_eq!(loopback.check_host(None), Err(OriginError::MissingHost));
+        assert_eq!(OriginError::MissingHost.http_status(), 400);
         for bad in [
             "evil.example:8080",
             "127.0.0.1:9090",

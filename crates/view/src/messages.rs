@@ -139,7 +139,8 @@ pub struct BoundMessage {
     pub tick: u64,
     /// Tick time since the session started (s).
     pub t_s: f64,
-    /// Certified bound on the proxy's distance from the exact equilibrium (m); `null` without a certificate.
+    /// Certified bound on the proxy's distance from the exact equilibrium (m); omitted without a certificate.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub error_bound_m: Option<f64>,
     /// Solver sweeps this tick.
     pub sweeps: u32,
@@ -172,8 +173,8 @@ pub fn bound_schema() -> serde_json::Value {
             "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
             "t_s": {"type": "number", "description": "tick time since the session started (s)"},
             "error_bound_m": {
-                "type": ["number", "null"], "minimum": 0,
-                "description": "certified bound on the proxy's distance from the exact equilibrium (m); null = no certificate"
+                "type": "number", "minimum": 0,
+                "description": "certified bound on the proxy's distance from the exact equilibrium (m); omitted = no certificate"
             },
             "sweeps": {"type": "integer", "minimum": 0, "description": "solver sweeps this tick"},
             "status": {
@@ -182,7 +183,7 @@ pub fn bound_schema() -> serde_json::Value {
                 "description": "how the solve ended"
             }
         },
-        "required": ["tick", "t_s", "error_bound_m", "sweeps", "status"]
+        "required": ["tick", "t_s", "sweeps", "status"]
     })
 }
 
@@ -263,8 +264,8 @@ pub fn stats_schema() -> serde_json::Value {
             "budget_overruns": count("ticks whose compute exceeded its budget"),
             "max_sweeps": count("most solver sweeps in one tick"),
             "worst_error_bound_m": {
-                "type": ["number", "null"],
-                "description": "worst certificate bound of a tick (m); null = a tick without a certificate"
+                "type": "number",
+                "description": "worst certificate bound of a tick (m); omitted = a tick without a certificate"
             },
             "device_errors": count("device errors"),
             "disconnects": count("device disconnects"),
@@ -299,7 +300,7 @@ pub fn stats_schema() -> serde_json::Value {
                 "properties": {
                     "sched_fifo": {"type": "boolean"},
                     "memory_locked": {"type": "boolean"},
-                    "pinned_cpu": {"type": ["integer", "null"]}
+                    "pinned_cpu": {"type": "integer", "description": "omitted = not pinned"}
                 }
             }
         }
@@ -332,7 +333,42 @@ macro_rules! json_encode {
 }
 
 json_encode!(BoundMessage, "voxhap.Bound", bound_schema());
-json_encode!(StatsMessage, "voxhap.Stats", stats_schema());
+
+impl Encode for StatsMessage {
+    type Error = serde_json::Error;
+
+    fn get_schema() -> Option<Schema> {
+        Some(Schema::new(
+            "voxhap.Stats",
+            "jsonschema",
+            stats_schema().to_string().into_bytes(),
+        ))
+    }
+
+    fn get_message_encoding() -> String {
+        "json".to_owned()
+    }
+
+    /// The report as JSON with every `null` field left out (an infinite worst bound, no pinned core): the
+    /// schema's types are plain, as Foxglove and Lichtblick require.
+    fn encode(&self, buf: &mut impl BufMut) -> Result<(), Self::Error> {
+        let mut value = serde_json::to_value(self.0)?;
+        drop_null_fields(&mut value);
+        serde_json::to_writer(buf.writer(), &value)
+    }
+}
+
+/// Removes the fields whose value is `null` from every object in `value`.
+fn drop_null_fields(value: &mut serde_json::Value) {
+    match value {
+        serde_json::Value::Object(fields) => {
+            fields.retain(|_, field| !field.is_null());
+            fields.values_mut().for_each(drop_null_fields);
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(drop_null_fields),
+        _ => {}
+    }
+}
 json_encode!(
     OperatingStateMessage,
     "voxhap.OperatingState",
@@ -446,7 +482,7 @@ mod tests {
         let mut bytes = Vec::new();
         bound.encode(&mut bytes).unwrap();
         let value: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
-        assert_eq!(value["error_bound_m"], serde_json::Value::Null);
+        assert!(value.get("error_bound_m").is_none(), "{value}");
         assert_eq!(value["status"], "budget_exhausted");
         assert_eq!(value["sweeps"], 7);
         let schema = BoundMessage::get_schema().unwrap();
@@ -471,5 +507,40 @@ mod tests {
             keys.keys().collect::<Vec<_>>(),
             properties.keys().collect::<Vec<_>>()
         );
+    }
+
+    /// Every field of the live view's JSON schemas has one plain type: Foxglove Studio and Lichtblick
+    /// (`parseJsonSchema`) refuse a type list such as `["number", "null"]` or a field without a type, and
+    /// drop the topic. (The recorded schemas are checked rule for rule in the record crate.)
+    #[test]
+    fn live_json_schemas_use_only_types_the_viewers_accept() {
+        fn check(schema: &serde_json::Value, path: &str) {
+            assert_eq!(schema["type"], "object", "{path}");
+            for (name, field) in schema["properties"].as_object().unwrap() {
+                let at = format!("{path}.{name}");
+                let kind = field["type"]
+                    .as_str()
+                    .unwrap_or_else(|| panic!("{at}: {field}"));
+                match kind {
+                    "object" => check(field, &at),
+                    "array" => assert!(field["items"]["type"].is_string(), "{at}"),
+                    _ => assert!(
+                        ["boolean", "string", "number", "integer"].contains(&kind),
+                        "{at}"
+                    ),
+                }
+            }
+        }
+        check(&bound_schema(), "voxhap.Bound");
+        check(&stats_schema(), "voxhap.Stats");
+        check(&operating_state_schema(), "voxhap.OperatingState");
+        let stats = StatsMessage(StatsReport {
+            worst_error_bound_m: f64::INFINITY,
+            ..StatsReport::default()
+        });
+        let mut bytes = Vec::new();
+        stats.encode(&mut bytes).unwrap();
+        let text = String::from_utf8(bytes).unwrap();
+        assert!(!text.contains("null"), "{text}");
     }
 }

@@ -26,7 +26,7 @@ pub const MAX_TRIANGLES: usize = 60_000;
 pub const ISOSURFACE_SAMPLES: usize = 64;
 /// Samples per side of a slice.
 pub const SLICE_SAMPLES: usize = 128;
-/// Opacity of the slice planes (0 ..= 255).
+/// Opacity of a slice's brightest cells (0 ..= 255); darker cells are more transparent, the darkest fully.
 pub const SLICE_ALPHA: u8 = 210;
 
 /// The volume picture of one scene.
@@ -181,7 +181,29 @@ pub fn slice_grids(
 }
 
 /// A slice as a `foxglove.Grid` in [`WORLD_FRAME`]: one cell per sample, fields `value` (float32) and
-/// `red`, `green`, `blue`, `alpha` (uint8: the value as grey between the slice's minimum and maximum).
+/// `red`, `green`, `blue`, `alpha` (uint8). Each cell's level `t` is its value between the slice's minimum
+/// (0) and maximum (1); grey is `t` x 255 and the opacity follows the data too, `t` x [`SLICE_ALPHA`], so
+/// empty space (the minimum) is fully transparent and the iso-surface behind it stays visible. A constant
+/// slice has no range of its own and is measured against zero: a positive constant is material everywhere
+/// on the plane (`t` = 1, white), zero or a negative constant nothing (`t` = 0, transparent), never a
+/// mid-grey that would read as half-density material.
+pub fn slice_level(value: f32, min: f32, max: f32) -> f32 {
+    let span = max - min;
+    let t = if span > 0.0 {
+        (value - min) / span
+    } else if value > 0.0 {
+        1.0
+    } else {
+        0.0
+    };
+    if t.is_nan() {
+        0.0
+    } else {
+        t.clamp(0.0, 1.0)
+    }
+}
+
+/// The slice `slice` as a grid (see [`slice_level`] for its colours).
 pub fn slice_grid(slice: &Slice, time_ns: u64) -> Grid {
     let (u_len, v_len) = (slice.u_m.length(), slice.v_m.length());
     let u_dir = slice.u_m.try_normalize().unwrap_or(DVec3::X);
@@ -189,18 +211,13 @@ pub fn slice_grid(slice: &Slice, time_ns: u64) -> Grid {
     let rotation = DQuat::from_mat3(&DMat3::from_cols(u_dir, v_dir, u_dir.cross(v_dir)));
     // Cells are centred on the samples: the grid's corner is half a cell before sample (0, 0).
     let corner = slice.origin_m - 0.5 * (slice.u_m + slice.v_m);
-    let span = slice.max - slice.min;
     let mut data = Vec::with_capacity(slice.values.len() * 8);
     for &value in &slice.values {
-        let grey = if span > 0.0 {
-            (((value - slice.min) / span) * 255.0)
-                .round()
-                .clamp(0.0, 255.0) as u8
-        } else {
-            128
-        };
+        let t = slice_level(value, slice.min, slice.max);
+        let grey = (t * 255.0).round() as u8;
+        let alpha = (t * f32::from(SLICE_ALPHA)).round() as u8;
         data.extend_from_slice(&value.to_le_bytes());
-        data.extend_from_slice(&[grey, grey, grey, SLICE_ALPHA]);
+        data.extend_from_slice(&[grey, grey, grey, alpha]);
     }
     let field = |name: &str, offset: u32, kind: NumericType| PackedElementField {
         name: name.to_owned(),
@@ -254,6 +271,36 @@ mod tests {
         );
     }
 
+    /// A constant slice is drawn as what it is: material (a positive constant) white and opaque, empty space
+    /// (zero, or a negative constant such as air in CT numbers) transparent; never the mid-grey (128) it was
+    /// drawn as before, which reads as half-density material.
+    #[test]
+    fn a_constant_slice_is_material_or_nothing_not_mid_grey() {
+        let constant = |value: f32| Slice {
+            axis: SliceAxis::Z,
+            width: 2,
+            height: 1,
+            origin_m: DVec3::ZERO,
+            u_m: DVec3::X * 0.001,
+            v_m: DVec3::Y * 0.001,
+            min: value,
+            max: value,
+            values: vec![value; 2],
+            volume: "v".to_owned(),
+            volume_kind: "scalar",
+            volume_min_m: DVec3::ZERO,
+            volume_max_m: DVec3::ONE,
+        };
+        let cell = |grid: &Grid| grid.data[4..8].to_vec();
+        assert_eq!(
+            cell(&slice_grid(&constant(0.7), 0)),
+            [255, 255, 255, SLICE_ALPHA]
+        );
+        assert_eq!(cell(&slice_grid(&constant(0.0), 0)), [0, 0, 0, 0]);
+        assert_eq!(cell(&slice_grid(&constant(-1000.0), 0)), [0, 0, 0, 0]);
+        assert_eq!(slice_level(f32::NAN, 0.0, 1.0), 0.0);
+    }
+
     #[test]
     fn a_z_slice_grid_lies_flat_and_an_x_slice_stands_in_the_y_z_plane() {
         let slice = |axis, u_m: DVec3, v_m: DVec3| Slice {
@@ -277,6 +324,9 @@ mod tests {
         assert_eq!(flat.cell_size, Some(Vector2 { x: 0.001, y: 0.002 }));
         assert_eq!(flat.data.len(), 4 * 8);
         assert_eq!(&flat.data[12..16], &[255, 255, 255, SLICE_ALPHA]);
+        // The transparency follows the data: the minimum is invisible, half-way is half as opaque.
+        assert_eq!(&flat.data[4..8], &[0, 0, 0, 0]);
+        assert_eq!(&flat.data[20..24], &[128, 128, 128, 105]);
         let standing = slice_grid(&slice(SliceAxis::X, DVec3::Y * 0.001, DVec3::Z * 0.001), 0);
         let q = standing
             .pose

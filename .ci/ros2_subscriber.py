@@ -197,8 +197,10 @@ def main():
 
     # 2. The rate (printed only).
     readers["measured_cp"].take(N=1000)
-    time.sleep(2.0)
-    count = len(readers["measured_cp"].take(N=10000))
+    count, end = 0, time.monotonic() + 2.0
+    while time.monotonic() < end:
+        count += len(readers["measured_cp"].take(N=1000))
+        time.sleep(0.02)
     print(f"ros2_subscriber: measured_cp at {count / 2.0:.1f} Hz over 2 s")
     check(count > 0, "no measured_cp in 2 s")
 
@@ -234,7 +236,7 @@ def main():
     setpoint = newest(readers["setpoint_cf"], "setpoint_cf").wrench
     after = http_json(f"{http}/api/state")
     drift = max(abs(a - b) for a, b in zip(before["force_n"], after["force_n"]))
-    check(math.hypot(*before["force_n"]) > 0.3, f"no force inside the ball: /api/state force_n {before['force_n']}")
+    check(math.hypot(*before["force_n"]) > 0.1, f"no force inside the ball: /api/state force_n {before['force_n']}")
     check(close(measured, before["rendered_force_n"], 1e-6 + drift),
           f"measured_cf {measured} N against /api/state rendered_force_n {before['rendered_force_n']} N")
     check(close(vec(setpoint.force), before["force_n"], 1e-6 + drift),

@@ -472,7 +472,11 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         eprintln!("second interrupt: stopping now (force zeroed, device disabled)");
     }
     if let Some(output) = ros2 {
-        output.stop();
+        let published = output.stop();
+        super::common::print_out(&format!(
+            "ros2: {} ticks published, {} writes dropped",
+            published.ticks_published, published.failed_writes
+        ))?;
     }
     let tolerance_m = config_tolerance_m;
     let summary = session.stop();
@@ -506,7 +510,7 @@ fn start_ros2(
     rate_hz: f64,
     session: &Session,
 ) -> anyhow::Result<Option<voxhap_ros2::Ros2Output>> {
-    let Some(settings) = args.resolve() else {
+    let Some(settings) = args.resolve()? else {
         return Ok(None);
     };
     let api = session.api();

@@ -22,6 +22,12 @@ pub enum Ros2Error {
     /// The publishing thread could not be started.
     #[error("ros2: cannot start the publishing thread: {0}")]
     Thread(#[source] std::io::Error),
+    /// `ROS_DOMAIN_ID` holds no domain id.
+    #[error("ros2: ROS_DOMAIN_ID={value:?} is not a ROS 2 domain id (0 to 232); set it or give --ros2-domain ID")]
+    DomainEnv {
+        /// The variable's value.
+        value: String,
+    },
     /// The servo rate is not a positive finite number.
     #[error("ros2: the servo rate {rate_hz} Hz is not a positive finite number")]
     Rate {

@@ -54,35 +54,28 @@ impl TopicSpec {
     }
 }
 
-pub const MEASURED_CP: TopicSpec = TopicSpec {
-    name: "measured_cp",
-    package: "geometry_msgs",
-    type_name: "PoseStamped",
-    latched: false,
-};
-pub const MEASURED_CV: TopicSpec = TopicSpec {
-    name: "measured_cv",
-    package: "geometry_msgs",
-    type_name: "TwistStamped",
-    latched: false,
-};
-pub const MEASURED_CF: TopicSpec = TopicSpec {
-    name: "measured_cf",
-    package: "geometry_msgs",
-    type_name: "WrenchStamped",
-    latched: false,
-};
-pub const SETPOINT_CF: TopicSpec = TopicSpec {
-    name: "setpoint_cf",
-    package: "geometry_msgs",
-    type_name: "WrenchStamped",
-    latched: false,
-};
+/// A stream topic (not latched).
+const fn stream(name: &'static str, package: &'static str, type_name: &'static str) -> TopicSpec {
+    TopicSpec {
+        name,
+        package,
+        type_name,
+        latched: false,
+    }
+}
+
+/// The probe position.
+pub const MEASURED_CP: TopicSpec = stream("measured_cp", "geometry_msgs", "PoseStamped");
+/// The probe velocity.
+pub const MEASURED_CV: TopicSpec = stream("measured_cv", "geometry_msgs", "TwistStamped");
+/// The rendered force.
+pub const MEASURED_CF: TopicSpec = stream("measured_cf", "geometry_msgs", "WrenchStamped");
+/// The force sent.
+pub const SETPOINT_CF: TopicSpec = stream("setpoint_cf", "geometry_msgs", "WrenchStamped");
+/// The CRTK operating state (latched).
 pub const OPERATING_STATE: TopicSpec = TopicSpec {
-    name: "operating_state",
-    package: "crtk_msgs",
-    type_name: "OperatingState",
     latched: true,
+    ..stream("operating_state", "crtk_msgs", "OperatingState")
 };
 
 /// Every topic, in the order they are created.

@@ -244,11 +244,10 @@ fn run(
     let mut last_tick = None;
     let mut last_state: Option<(OperatingState, Instant)> = None;
     let mut next = Instant::now();
-    loop {
-        match stopped.recv_timeout(next.saturating_duration_since(Instant::now())) {
-            Err(RecvTimeoutError::Timeout) => {}
-            Ok(()) | Err(RecvTimeoutError::Disconnected) => break,
-        }
+    // Until `stop` (a message, or the sender dropped).
+    while let Err(RecvTimeoutError::Timeout) =
+        stopped.recv_timeout(next.saturating_duration_since(Instant::now()))
+    {
         let now = Instant::now();
         next += period;
         if next < now {

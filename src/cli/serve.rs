@@ -335,6 +335,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
     let record_dir = RecordDir::new(args.record_dir.as_deref()).map_err(anyhow::Error::msg)?;
     let igtl = args.igtl.resolve()?;
+    let ros2 = args.ros2.resolve()?;
     // The OpenIGTLink server takes the HTTP server's control token; with --no-http, --token (checked by
     // the same rules) or a random one.
     let igtl_token = match (&igtl, &http) {
@@ -439,7 +440,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         }
         _ => None,
     };
-    let ros2 = start_ros2(&args.ros2, rate, &session)?;
+    let ros2 = start_ros2(ros2, rate, &session)?;
     let reason = runtime.block_on(signals.wait(duration));
     // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream. A second
     // Ctrl-C skips the wait for the clients; the servo still zeroes the force and disables the device.
@@ -506,11 +507,11 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
 
 /// Starts the ROS 2 output when `--ros2` is given, fed by the session's snapshots.
 fn start_ros2(
-    args: &voxhap_ros2::Ros2Args,
+    settings: Option<voxhap_ros2::Ros2Settings>,
     rate_hz: f64,
     session: &Session,
 ) -> anyhow::Result<Option<voxhap_ros2::Ros2Output>> {
-    let Some(settings) = args.resolve()? else {
+    let Some(settings) = settings else {
         return Ok(None);
     };
     let api = session.api();

@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Checks `voxhap serve --ros2` with an independent DDS: Eclipse Cyclone DDS's Python package (PyPI
+# `cyclonedds`, which ships its own libddsc) runs .ci/ros2_subscriber.py: the five CRTK writers under their
+# ROS 2 DDS names, types and QoS, and their values against /api/state of the same server.
+#
+# Nothing leaves this machine: voxhap runs with --ros2-localhost-only (RustDDS on the loopback interface
+# only), Cyclone with CYCLONEDDS_URI below (loopback interface, no multicast, unicast discovery to
+# 127.0.0.1), on a domain id of its own.
+#
+# Installs cyclonedds with pip. In CI (CI=true) a failed install fails the check; elsewhere it skips with a
+# message. Takes about 30 s once voxhap is built.
+#
+# Environment: VOXHAP_BIN (a voxhap binary to use instead of building target/release/voxhap),
+# VOXHAP_ROS2_DOMAIN (default 150 + this shell's pid modulo 50).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+name=check-ros2
+. .ci/lib.sh
+
+need_python "cyclonedds" cyclonedds
+echo "$name: $(python3 -c 'from importlib.metadata import version as v; print("cyclonedds", v("cyclonedds"))')"
+
+make_work_dir voxhap-ros2
+trap 'exit 130' INT TERM
+find_voxhap "$name"
+
+token=ros2-check-token-0123
+domain=${VOXHAP_ROS2_DOMAIN:-$((150 + $$ % 50))}
+export CYCLONEDDS_URI='<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>'
+serve_args=(serve --ros2 --ros2-domain "$domain" --ros2-localhost-only --http 127.0.0.1:0 --token "$token"
+  --no-foxglove --duration 150)
+echo "$name: starting $VOXHAP ${serve_args[*]}"
+"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
+SERVER_PID=$!
+
+http=""
+for _ in $(seq 1 150); do
+  http=$(sed -n 's/^http: listening on \(http:[^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
+  grep -q '^ros2: publishing' "$WORK/serve.out" && [ -n "$http" ] && break
+  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
+    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
+    fail "voxhap serve exited before its ROS 2 output started"
+  fi
+  sleep 0.1
+done
+grep -q '^ros2: publishing' "$WORK/serve.out" && [ -n "$http" ] \
+  || fail "voxhap serve did not print its http address and 'ros2: publishing' within 15 s"
+echo "$name: voxhap serve: $(grep '^ros2: publishing' "$WORK/serve.out"); HTTP on $http"
+
+if ! timeout 140 python3 .ci/ros2_subscriber.py "$domain" "$http" "$token"; then
+  sed "s/^/$name: serve: /" "$WORK/serve.err" >&2
+  fail "the Cyclone DDS subscriber's checks failed (see above)"
+fi
+echo "$name: passed"

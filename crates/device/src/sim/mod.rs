@@ -32,13 +32,18 @@
 //! loop's stability is the servo's business.
 
 mod arm;
+pub mod effects;
 mod error;
 mod path;
+pub mod preset;
 mod tagged;
+pub mod zoh;
 
 pub use arm::{
-    ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace, WorkspaceShape,
+    MissingArmKey, ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace, WorkspaceShape,
 };
+pub use effects::DeviceEffects;
+pub use preset::{ArmPreset, PresetFigures};
 pub use error::{readable, SimError};
 pub use path::{
     ForceProfile, ForceProfileShape, HandDrive, HandPath, HandPathKind, MAX_ARM_MASS_KG,
@@ -46,3 +51,7 @@ pub use path::{
     PATH_TIME_RANGE_S,
 };
 pub use tagged::TaggedTableError;
+
+#[cfg(test)]
+#[path = "boundary_tests.rs"]
+mod boundary_tests;

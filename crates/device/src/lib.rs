@@ -28,6 +28,7 @@ pub mod lifecycle;
 pub mod mapping;
 pub mod mock;
 pub mod plausibility;
+pub mod physics;
 pub mod profile;
 pub mod safety;
 pub mod sim;

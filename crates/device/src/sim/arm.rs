@@ -293,6 +293,20 @@ pub struct SimArmConfig {
     pub path: HandPath,
 }
 
+impl SimArmConfig {
+    /// The arm's physics as the coupling caps see it (crate::physics): the arm's own damping (the hand
+    /// may let go, so its damping does not count), its latency and resolution; no Coulomb friction.
+    pub fn physics(&self) -> crate::physics::DevicePhysics {
+        crate::physics::DevicePhysics {
+            damping_n_s_per_m: self.arm.damping_n_s_per_m,
+            latency_s: self.arm.effects.latency_s,
+            position_resolution_m: self.arm.effects.position_resolution_m,
+            coulomb_friction_n: 0.0,
+            source: "the simulated arm's [arm] table",
+        }
+    }
+}
+
 /// What happened during one [`SimArm::step`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StepOutcome {

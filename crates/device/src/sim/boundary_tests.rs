@@ -174,3 +174,28 @@ fn with_latency_the_sim_arm_boundary_is_within_5_percent_of_the_exact_analysis()
         }
     }
 }
+
+/// The physics cap (b / (T/2 + tau)) never exceeds the exact boundary and stays within 5 % of it for the
+/// released arm: the caps are safe and not needlessly low.
+#[test]
+fn the_physics_cap_sits_just_inside_the_exact_boundary() {
+    let (m, b) = (0.1, 1.0);
+    for rate_hz in [250.0, 1000.0, 4000.0] {
+        let t = 1.0 / rate_hz;
+        for ticks in [0usize, 1, 2] {
+            let physics = crate::physics::DevicePhysics {
+                damping_n_s_per_m: b,
+                latency_s: ticks as f64 * t,
+                position_resolution_m: 0.0,
+                coulomb_friction_n: 0.0,
+                source: "test",
+            };
+            let cap = physics.max_stiffness_n_per_m(t);
+            let exact = exact_boundary(m, b, t, ticks);
+            assert!(
+                cap <= exact && cap > 0.95 * exact,
+                "{rate_hz} Hz, {ticks} ticks: cap {cap:.1}, exact {exact:.1}"
+            );
+        }
+    }
+}

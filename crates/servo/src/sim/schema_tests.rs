@@ -178,6 +178,10 @@ fn edges(accepts: Accepts, example: &str) -> (Vec<String>, Vec<String>) {
             vec![number(0.0), example.to_owned()],
             [bad_numbers(), vec![number(-1e-6)]].concat(),
         ),
+        NonNegativeAtMost(hi) => (
+            vec![number(0.0), number(hi), example.to_owned()],
+            [bad_numbers(), vec![number(-1e-6), number(hi * 1.5)]].concat(),
+        ),
         Between(lo, hi) => (
             vec![number(lo), number(hi)],
             [

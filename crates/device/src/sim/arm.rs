@@ -198,7 +198,7 @@ struct ArmTable {
     #[serde(default)]
     period_jitter_s: f64,
     #[serde(default)]
-    jitter_seed: u64,
+    jitter_seed: u32,
     #[serde(default)]
     velocity_window_ticks: u32,
 }

@@ -42,7 +42,7 @@ pub struct DeviceEffects {
     /// Each sample instant is off its nominal time by up to this, uniformly (s); below half a tick.
     pub period_jitter_s: f64,
     /// Seed of the jitter's generator (the same seed, the same run).
-    pub jitter_seed: u64,
+    pub jitter_seed: u32,
     /// 0: report the exact velocity; n >= 1: estimate it from the reported positions n samples apart.
     pub velocity_window_ticks: u32,
 }
@@ -146,7 +146,7 @@ impl EffectsState {
             samples: vec![(0.0, DVec3::ZERO); effects.velocity_window_ticks as usize + 1],
             samples_next: 0,
             samples_len: 0,
-            rng: effects.jitter_seed ^ 0x9E37_79B9_7F4A_7C15,
+            rng: u64::from(effects.jitter_seed) ^ 0x9E37_79B9_7F4A_7C15,
         }
     }
 

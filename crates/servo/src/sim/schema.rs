@@ -320,7 +320,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("position_resolution_m", "m", Value("0.0"), NonNegativeAtMost(MAX_POSITION_RESOLUTION_M), "1e-5", "reported positions are rounded to this"),
             key("force_resolution_n", "N", Value("0.0"), NonNegativeAtMost(MAX_FORCE_RESOLUTION_N), "0.01", "applied forces are rounded to this"),
             key("period_jitter_s", "s", Value("0.0"), NonNegativeAtMost(MAX_LATENCY_S), "1e-5", "sample instants vary by up to this (below half a tick)"),
-            key("jitter_seed", "", Value("0"), Count(0, i64::MAX as u64), "7", "seed of the jitter"),
+            key("jitter_seed", "", Value("0"), Count(0, u32::MAX as u64), "7", "seed of the jitter"),
             key("velocity_window_ticks", "", Value("0"), Count(0, MAX_VELOCITY_WINDOW_TICKS as u64), "5", "0: exact velocity; n: estimated from positions n ticks apart"),
         ],
     },

@@ -220,3 +220,7 @@ impl EffectsState {
         self.samples_len = 0;
     }
 }
+
+#[cfg(test)]
+#[path = "effects_tests.rs"]
+mod tests;

@@ -23,7 +23,11 @@ fn run(k: &str, fail_on: &str, out: &std::path::Path) -> std::process::Output {
 #[test]
 fn below_the_zoh_boundary_contact_settles_and_passes_fail_on_active_and_oscillation() {
     let dir = tempfile::tempdir().unwrap();
-    let out = run("1500", "active,oscillation,beyond-bound", &dir.path().join("t.csv"));
+    let out = run(
+        "1500",
+        "active,oscillation,beyond-bound",
+        &dir.path().join("t.csv"),
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(!stderr.contains("passivity bound"), "{stderr}");
@@ -54,7 +58,10 @@ fn fail_on_beyond_bound_refuses_to_start() {
     let out = run("2600", "beyond-bound", &trace);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(3), "{stderr}");
-    assert!(stderr.contains("--fail-on: beyond-bound: k_n_per_m = 2600 N/m"), "{stderr}");
+    assert!(
+        stderr.contains("--fail-on: beyond-bound: k_n_per_m = 2600 N/m"),
+        "{stderr}"
+    );
     assert!(!trace.exists());
 }
 

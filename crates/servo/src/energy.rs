@@ -180,7 +180,14 @@ mod tests {
         for i in 0..=n {
             let x = i as f64 * dx;
             let force = DVec3::new(-k * x, 0.0, 0.0);
-            totals = ledger.record(i as f64 * 1e-3, 1e-3, DVec3::new(x, 0.0, 0.0), force, DVec3::ZERO, 0.5 * k * x * x);
+            totals = ledger.record(
+                i as f64 * 1e-3,
+                1e-3,
+                DVec3::new(x, 0.0, 0.0),
+                force,
+                DVec3::ZERO,
+                0.5 * k * x * x,
+            );
         }
         // W = -k dx^2 (0 + 1 + ... + (n-1)) = -k dx^2 n (n - 1) / 2; E_c = k (n dx)^2 / 2.
         let expected = 0.5 * k * dx * dx * n as f64;
@@ -216,7 +223,14 @@ mod tests {
                 for i in 0..20 {
                     let t = (cycle * 20 + i) as f64 * 1e-3;
                     let f = if i < 10 { peak } else { 0.0 };
-                    totals = ledger.record(t, 1e-3, DVec3::ZERO, DVec3::new(f, 0.0, 0.0), DVec3::ZERO, 0.0);
+                    totals = ledger.record(
+                        t,
+                        1e-3,
+                        DVec3::ZERO,
+                        DVec3::new(f, 0.0, 0.0),
+                        DVec3::ZERO,
+                        0.0,
+                    );
                 }
                 peak *= decay;
             }

@@ -5,12 +5,12 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::effects::{DeviceEffects, EffectsState};
-use super::preset::{ArmPreset, PresetFigures};
 use super::path::{
     check_positive, check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M,
 };
-use super::zoh::SubstepMapCache;
+use super::preset::{ArmPreset, PresetFigures};
 use super::tagged::{given_keys, KindKeys, TaggedTableError};
+use super::zoh::SubstepMapCache;
 use super::{HandDrive, HandPath, SimError};
 use crate::mapping::WorkspaceMapping;
 
@@ -387,7 +387,8 @@ impl SimArm {
             };
             spring_limit_s.min(damping_limit_s)
         };
-        let reported_position_m = DeviceEffects::quantise(start_m, arm.effects.position_resolution_m);
+        let reported_position_m =
+            DeviceEffects::quantise(start_m, arm.effects.position_resolution_m);
         let effects = EffectsState::new(&arm.effects);
         Ok(SimArm {
             max_substep_s,

@@ -47,12 +47,7 @@ pub struct DeviceEffects {
     pub velocity_window_ticks: u32,
 }
 
-fn within(
-    name: &'static str,
-    value: f64,
-    max: f64,
-    unit: &'static str,
-) -> Result<(), SimError> {
+fn within(name: &'static str, value: f64, max: f64, unit: &'static str) -> Result<(), SimError> {
     if value.is_finite() && (0.0..=max).contains(&value) {
         Ok(())
     } else {
@@ -83,7 +78,12 @@ impl DeviceEffects {
             MAX_FORCE_RESOLUTION_N,
             "N",
         )?;
-        within("arm.period_jitter_s", self.period_jitter_s, MAX_LATENCY_S, "s")?;
+        within(
+            "arm.period_jitter_s",
+            self.period_jitter_s,
+            MAX_LATENCY_S,
+            "s",
+        )?;
         if self.velocity_window_ticks > MAX_VELOCITY_WINDOW_TICKS {
             return Err(SimError::OutOfRange {
                 name: "arm.velocity_window_ticks",

@@ -43,7 +43,10 @@ fn reported_positions_are_rounded_to_the_resolution_and_the_truth_is_kept() {
         start,
     );
     let reported = arm.position_m();
-    assert!((reported - DVec3::new(0.0123, -0.0001, 0.0)).length() < 1e-15, "{reported}");
+    assert!(
+        (reported - DVec3::new(0.0123, -0.0001, 0.0)).length() < 1e-15,
+        "{reported}"
+    );
     assert_eq!(arm.true_position_m(), start);
 }
 
@@ -75,7 +78,8 @@ fn applied_forces_are_rounded_to_the_force_resolution() {
         },
         DVec3::ZERO,
     );
-    arm.step(0.0, DT_S, DVec3::new(0.0149, 0.0151, 0.004)).unwrap();
+    arm.step(0.0, DT_S, DVec3::new(0.0149, 0.0151, 0.004))
+        .unwrap();
     let expected = DVec3::new(0.01, 0.02, 0.0) * (DT_S * DT_S / (2.0 * MASS_KG));
     assert!((arm.true_position_m() - expected).length() < 1e-18);
 }
@@ -98,7 +102,10 @@ fn the_velocity_estimate_is_the_difference_of_reported_positions_over_the_window
     let v_true = DT_S / MASS_KG;
     let estimate = arm.velocity_m_per_s().x;
     // Within one resolution step over the window, and not the exact velocity (it is quantised).
-    assert!((estimate - v_true).abs() <= 1e-5 / (5.0 * DT_S) + 1e-12, "{estimate}");
+    assert!(
+        (estimate - v_true).abs() <= 1e-5 / (5.0 * DT_S) + 1e-12,
+        "{estimate}"
+    );
     assert!((arm.true_velocity_m_per_s().x - v_true).abs() < 1e-15);
 }
 
@@ -115,7 +122,8 @@ fn jittered_samples_stay_within_the_jitter_and_a_large_jitter_is_refused() {
     );
     // Start the motion with one tick of force, then coast at constant speed v: each tick's length
     // T + j_{n+1} - j_n is read back from the distance covered.
-    arm.step(0.0, DT_S, DVec3::new(MASS_KG / DT_S, 0.0, 0.0)).unwrap();
+    arm.step(0.0, DT_S, DVec3::new(MASS_KG / DT_S, 0.0, 0.0))
+        .unwrap();
     let v = arm.true_velocity_m_per_s().x;
     let mut offsets = Vec::new();
     let mut previous = arm.true_position_m().x;
@@ -126,7 +134,10 @@ fn jittered_samples_stay_within_the_jitter_and_a_large_jitter_is_refused() {
         previous = x;
     }
     assert!(offsets.iter().all(|d| d.abs() <= 2.0 * jitter + 1e-12));
-    assert!(offsets.iter().any(|d| d.abs() > 1e-6), "the period does vary");
+    assert!(
+        offsets.iter().any(|d| d.abs() > 1e-6),
+        "the period does vary"
+    );
     let mut bad = free_arm(
         DeviceEffects {
             period_jitter_s: 5e-4,
@@ -140,9 +151,10 @@ fn jittered_samples_stay_within_the_jitter_and_a_large_jitter_is_refused() {
 
 #[test]
 fn a_preset_fills_only_its_sourced_figures_and_names_what_it_lacks() {
-    let touch: ArmParams =
-        toml::from_str("preset = \"touch\"\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }")
-            .unwrap();
+    let touch: ArmParams = toml::from_str(
+        "preset = \"touch\"\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }",
+    )
+    .unwrap();
     assert_eq!(touch.mass_kg, 0.045);
     assert_eq!(touch.effects.position_resolution_m, 0.055e-3);
     let written: ArmParams = toml::from_str(

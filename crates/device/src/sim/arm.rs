@@ -321,12 +321,13 @@ pub struct StepOutcome {
 pub struct SimArm {
     config: SimArmConfig,
     max_substep_s: f64,
-    position_m: DVec3,
-    velocity_m_per_s: DVec3,
+    /// The true state: position (m) and velocity (m/s).
+    x_m: DVec3,
+    v_m_per_s: DVec3,
     /// The position as the device reports it (rounded to `position_resolution_m`).
-    reported_position_m: DVec3,
+    position_m: DVec3,
     /// The velocity as the device reports it (exact, or estimated from reported positions).
-    reported_velocity_m_per_s: DVec3,
+    v_reported_m_per_s: DVec3,
     /// How far this tick's sample instant is off its nominal time (s): the period jitter.
     jitter_offset_s: f64,
     effects: EffectsState,
@@ -393,10 +394,10 @@ impl SimArm {
         Ok(SimArm {
             max_substep_s,
             config,
-            position_m: start_m,
-            velocity_m_per_s: DVec3::ZERO,
-            reported_position_m,
-            reported_velocity_m_per_s: DVec3::ZERO,
+            x_m: start_m,
+            v_m_per_s: DVec3::ZERO,
+            position_m: reported_position_m,
+            v_reported_m_per_s: DVec3::ZERO,
             jitter_offset_s: 0.0,
             effects,
             maps: SubstepMapCache::default(),
@@ -475,13 +476,12 @@ impl SimArm {
             }
         }
         self.jitter_offset_s = next_offset_s;
-        self.reported_position_m =
-            DeviceEffects::quantise(self.position_m, effects.position_resolution_m);
-        self.reported_velocity_m_per_s = if effects.velocity_window_ticks == 0 {
-            self.velocity_m_per_s
+        self.position_m = DeviceEffects::quantise(self.x_m, effects.position_resolution_m);
+        self.v_reported_m_per_s = if effects.velocity_window_ticks == 0 {
+            self.v_m_per_s
         } else {
             self.effects
-                .record(end_s, self.reported_position_m)
+                .record(end_s, self.position_m)
                 .unwrap_or(DVec3::ZERO)
         };
         Ok(outcome)
@@ -492,8 +492,8 @@ impl SimArm {
     fn advance_piece(&mut self, time_s: f64, h_s: f64, acting_n: DVec3, outcome: &mut StepOutcome) {
         let arm = self.config.arm;
         let hand = self.config.hand;
-        let x = self.position_m;
-        let v = self.velocity_m_per_s;
+        let x = self.x_m;
+        let v = self.v_m_per_s;
         let drive = match self.hand_target_override_m {
             Some(position_m) => HandDrive::Target {
                 position_m,
@@ -537,8 +537,8 @@ impl SimArm {
         let (x0, v0) = map.apply(x.x, v.x, u0.x, slope.x);
         let (x1, v1) = map.apply(x.y, v.y, u0.y, slope.y);
         let (x2, v2) = map.apply(x.z, v.z, u0.z, slope.z);
-        self.position_m = DVec3::new(x0, x1, x2);
-        self.velocity_m_per_s = DVec3::new(v0, v1, v2);
+        self.x_m = DVec3::new(x0, x1, x2);
+        self.v_m_per_s = DVec3::new(v0, v1, v2);
     }
 
     /// Reads the scripted path and the start point as scene positions under `mapping` (device frame to
@@ -561,11 +561,11 @@ impl SimArm {
             });
         }
         self.path_mapping = (!mapping.is_identity()).then_some(mapping);
-        self.position_m = start_m;
-        self.velocity_m_per_s = DVec3::ZERO;
-        self.reported_position_m =
+        self.x_m = start_m;
+        self.v_m_per_s = DVec3::ZERO;
+        self.position_m =
             DeviceEffects::quantise(start_m, self.config.arm.effects.position_resolution_m);
-        self.reported_velocity_m_per_s = DVec3::ZERO;
+        self.v_reported_m_per_s = DVec3::ZERO;
         self.jitter_offset_s = 0.0;
         self.effects.reset();
         self.hand_force_n = DVec3::ZERO;
@@ -611,23 +611,23 @@ impl SimArm {
     /// The end effector's position as the device reports it (m): the probe position the servo loop reads
     /// (the true position rounded to `position_resolution_m`).
     pub fn position_m(&self) -> DVec3 {
-        self.reported_position_m
+        self.position_m
     }
 
     /// The end effector's velocity as the device reports it (m/s): the true velocity, or with
     /// `velocity_window_ticks` an estimate from reported positions.
     pub fn velocity_m_per_s(&self) -> DVec3 {
-        self.reported_velocity_m_per_s
+        self.v_reported_m_per_s
     }
 
     /// The end effector's true position (m), before quantisation.
     pub fn true_position_m(&self) -> DVec3 {
-        self.position_m
+        self.x_m
     }
 
     /// The end effector's true velocity (m/s).
     pub fn true_velocity_m_per_s(&self) -> DVec3 {
-        self.velocity_m_per_s
+        self.v_m_per_s
     }
 
     /// The force the hand applied during the last substep (N).

@@ -73,10 +73,15 @@ fn exact_boundary(m: f64, b: f64, t: f64, d: usize) -> f64 {
     lo
 }
 
-/// Does the released arm under the sampled spring `k` settle? A run of 4000 ticks from 1 mm: the largest
-/// excursion in the last 500 ticks against the first 500.
-fn arm_is_stable(m: f64, b: f64, rate_hz: f64, substeps: u32, latency_s: f64, k: f64) -> bool {
-    let dt = 1.0 / rate_hz;
+/// A released arm (no hand spring, no workspace wall) of mass `m` and damping `b` with these effects: the
+/// plant `m x'' + b x' = F` of the analyses (shared with the effects tests).
+pub(super) fn released_arm(
+    m: f64,
+    b: f64,
+    substeps: u32,
+    effects: DeviceEffects,
+    start_m: DVec3,
+) -> SimArm {
     let config = SimArmConfig {
         arm: ArmParams {
             mass_kg: m,
@@ -85,10 +90,7 @@ fn arm_is_stable(m: f64, b: f64, rate_hz: f64, substeps: u32, latency_s: f64, k:
             substeps_per_tick: substeps,
             wall_stiffness_n_per_m: 0.0,
             wall_damping_n_s_per_m: 0.0,
-            effects: DeviceEffects {
-                latency_s,
-                ..DeviceEffects::default()
-            },
+            effects,
         },
         hand: HandParams {
             stiffness_n_per_m: 1.0,
@@ -100,7 +102,18 @@ fn arm_is_stable(m: f64, b: f64, rate_hz: f64, substeps: u32, latency_s: f64, k:
             },
         },
     };
-    let mut arm = SimArm::new(config, DVec3::new(1e-3, 0.0, 0.0)).unwrap();
+    SimArm::new(config, start_m).unwrap()
+}
+
+/// Does the released arm under the sampled spring `k` settle? A run of 4000 ticks from 1 mm: the largest
+/// excursion in the last 500 ticks against the first 500.
+fn arm_is_stable(m: f64, b: f64, rate_hz: f64, substeps: u32, latency_s: f64, k: f64) -> bool {
+    let dt = 1.0 / rate_hz;
+    let effects = DeviceEffects {
+        latency_s,
+        ..DeviceEffects::default()
+    };
+    let mut arm = released_arm(m, b, substeps, effects, DVec3::new(1e-3, 0.0, 0.0));
     let ticks = 4000;
     let (mut first, mut last) = (0.0f64, 0.0f64);
     for n in 0..ticks {

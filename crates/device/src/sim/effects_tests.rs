@@ -2,34 +2,14 @@
 //! (`x = x0 + v0 t + F t^2 / (2 m)`), so the expected values come from the equations, not the integrator.
 
 use super::*;
-use crate::sim::{ArmParams, ForceProfile, HandParams, HandPath, SimArm, SimArmConfig, Workspace};
+use crate::sim::{ArmParams, SimArm};
 
 const DT_S: f64 = 1e-3;
 const MASS_KG: f64 = 0.2;
 
 /// A free mass (no damping, no hand, unbounded) with these effects.
 fn free_arm(effects: DeviceEffects, start_m: DVec3) -> SimArm {
-    let config = SimArmConfig {
-        arm: ArmParams {
-            mass_kg: MASS_KG,
-            damping_n_s_per_m: 0.0,
-            workspace: Workspace::Unbounded,
-            substeps_per_tick: 3,
-            wall_stiffness_n_per_m: 0.0,
-            wall_damping_n_s_per_m: 0.0,
-            effects,
-        },
-        hand: HandParams {
-            stiffness_n_per_m: 1.0,
-            damping_n_s_per_m: 0.0,
-        },
-        path: HandPath::Force {
-            profile: ForceProfile::Constant {
-                force_n: DVec3::ZERO,
-            },
-        },
-    };
-    SimArm::new(config, start_m).unwrap()
+    crate::sim::boundary_tests::released_arm(MASS_KG, 0.0, 3, effects, start_m)
 }
 
 #[test]

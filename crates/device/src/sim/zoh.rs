@@ -146,8 +146,8 @@ mod tests {
     /// An undamped spring released at rest: x = x0 cos(w h), v = -x0 w sin(w h), w = sqrt(k / m).
     #[test]
     fn an_undamped_spring_follows_its_cosine() {
-        let (m, k, h) = (0.1, 2000.0, 0.0137);
-        let w = (k / m as f64).sqrt();
+        let (m, k, h): (f64, f64, f64) = (0.1, 2000.0, 0.0137);
+        let w = (k / m).sqrt();
         let (x, v) = SubstepMap::new(m, k, 0.0, h).apply(0.01, 0.0, 0.0, 0.0);
         assert!((x - 0.01 * (w * h).cos()).abs() < 1e-13, "{x}");
         assert!((v + 0.01 * w * (w * h).sin()).abs() < 1e-11, "{v}");

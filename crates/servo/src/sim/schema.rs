@@ -205,7 +205,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("duration_s", "s", Otherwise("needed by `voxhap sim`; ignored by `serve`"), PositiveAtMost(MAX_DURATION_S), "2.0", "simulated time of a `voxhap sim` run"),
             key("rate_hz", "Hz", Value("1000.0"), Between(*RATE_HZ_RANGE.start(), *RATE_HZ_RANGE.end()), "500.0", "servo rate"),
             key("k_n_per_m", "N/m", Required, Between(STIFFNESS_RANGE_N_PER_M.0, STIFFNESS_RANGE_N_PER_M.1), "400.0", "coupling stiffness k between probe and proxy"),
-            key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping; rendered by `serve`, refused by `sim` when not 0"),
+            key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping B (v_proxy - v_probe); rendered by `serve` and `sim`"),
             key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
             key("solver", "", Otherwise("all of `[solver]`'s defaults"), Table("`[solver]`"), "", "which solver, and the exact solver's budget"),
             key("volumes", "", Required, Table("`[[volumes]]`"), "", "the volumes, by name (may be empty: `volumes = []`)"),

@@ -147,14 +147,17 @@ fn arm_boundary(m: f64, b: f64, rate_hz: f64, substeps: u32, latency_s: f64, gue
     (lo * hi).sqrt()
 }
 
-/// The closed form agrees with the polynomial test (a check of the test's own two analyses) and with the
-/// 2 003 N/m of the released default arm at 1 kHz.
+/// The closed form agrees with the polynomial test (a check of the test's own two analyses), with the
+/// 2 003 N/m of the released default arm at 1 kHz, and with an independent root computation for 1 ms latency.
 #[test]
 fn the_two_exact_analyses_agree() {
     let closed = exact_boundary_no_delay(0.1, 1.0, 1e-3);
     assert!((closed - 2003.3).abs() < 0.5, "{closed}");
     let polynomial = exact_boundary(0.1, 1.0, 1e-3, 0);
     assert!((polynomial / closed - 1.0).abs() < 1e-9, "{polynomial}");
+    // One tick of latency: 668.51 N/m (numpy's polynomial roots, bisected, give 668.513).
+    let one_tick = exact_boundary(0.1, 1.0, 1e-3, 1);
+    assert!((one_tick - 668.513).abs() < 0.01, "{one_tick}");
 }
 
 #[test]

@@ -21,6 +21,7 @@ fn arm(path: HandPath, substeps_per_tick: u32) -> SimArm {
             substeps_per_tick,
             wall_stiffness_n_per_m: 5000.0,
             wall_damping_n_s_per_m: 10.0,
+            effects: Default::default(),
         },
         hand: HandParams {
             stiffness_n_per_m: 400.0,

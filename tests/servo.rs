@@ -329,7 +329,8 @@ fn commands_apply_at_the_next_tick_boundary() {
     rig.commands
         .push(ServoCommand::SetCoupling {
             stiffness_n_per_m: 250.0,
-            damping_n_s_per_m: 1.5,
+            // Below the simulated arm's damping cap b - K T / 2 = 1 - 0.125 N s/m.
+            damping_n_s_per_m: 0.5,
             generation: 2,
         })
         .unwrap();
@@ -344,7 +345,7 @@ fn commands_apply_at_the_next_tick_boundary() {
             snapshot.damping_n_s_per_m,
             snapshot.scene_generation
         ),
-        (250.0, 1.5, 2)
+        (250.0, 0.5, 2)
     );
     // A bad value slipped past the control side is still refused by the servo.
     rig.commands

@@ -59,7 +59,9 @@ pub struct SimArgs {
     /// Exit with code 3 (after writing the trace) when any of these occurred: uncertified (a tick the
     /// exact solver did not certify, or any tick of a baseline solver), device-error (a non-finite force
     /// or probe replaced by zero), disconnect, overrun (never in a sim: it has no device link and no
-    /// clock). Comma-separated.
+    /// clock), active (the coupling's net generated energy rose by more than 0.1 mJ), oscillation (a
+    /// contact limit cycle); beyond-bound refuses to start (exit 3, nothing written) when k_n_per_m is
+    /// above the arm's passivity bound b / (T/2 + tau). Comma-separated.
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fail_on: Vec<FailOn>,
     #[command(flatten)]
@@ -77,6 +79,12 @@ pub enum FailOn {
     DeviceError,
     /// A tick started late (the schedule skipped).
     Overrun,
+    /// The coupling generated energy: its net generated energy rose by more than 0.1 mJ over some window.
+    Active,
+    /// A contact limit cycle: contact lost and regained repeatedly with undecaying force.
+    Oscillation,
+    /// The scenario's stiffness is above the arm's passivity bound (checked before the run).
+    BeyondBound,
 }
 
 /// Exit code of a run that finished but met a `--fail-on` condition.
@@ -124,6 +132,15 @@ pub fn fail_on_findings(fail_on: &[FailOn], summary: &crate::sim::SimSummary) ->
                 "device-error: {} ticks with a non-finite force or probe replaced by zero",
                 summary.non_finite_ticks
             )),
+            FailOn::Active if summary.energy.active() => found.push(format!(
+                "active: the coupling's net generated energy rose by {:.3} mJ (tolerance {} mJ)",
+                summary.energy.largest_rise_j * 1e3,
+                crate::servo::energy::ACTIVE_TOLERANCE_J * 1e3
+            )),
+            FailOn::Oscillation if summary.energy.oscillating() => found.push(format!(
+                "oscillation: {} undecaying contacts in a row ({} contacts in all)",
+                summary.energy.longest_cycle_run, summary.energy.contacts
+            )),
             _ => {}
         }
     }
@@ -147,9 +164,33 @@ pub fn scenario_inputs(scenario_path: &std::path::Path, loaded: &LoadedScenario)
     inputs
 }
 
+/// The warning when the scenario's stiffness is above the arm's passivity bound (`None` when within).
+pub fn stiffness_warning(loaded: &LoadedScenario) -> Option<String> {
+    let period_s = loaded.scenario.dt_s();
+    let physics = loaded.arm.physics();
+    let bound = physics.max_stiffness_n_per_m(period_s);
+    let k = loaded.scenario.k_n_per_m;
+    (k > bound).then(|| {
+        format!(
+            "k_n_per_m = {k} N/m is above the arm's passivity bound: {}; contact may bounce",
+            physics.notice(period_s)
+        )
+    })
+}
+
 pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     args.limits.apply();
     let loaded = load_scenario(&args.scenario, &args.set, args.duration, args.rate)?;
+    if let Some(warning) = stiffness_warning(&loaded) {
+        if args.fail_on.contains(&FailOn::BeyondBound) {
+            return Err(super::common::ExitWith {
+                code: EXIT_FAIL_ON,
+                message: format!("--fail-on: beyond-bound: {warning}"),
+            }
+            .into());
+        }
+        eprintln!("warning: {warning}");
+    }
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args
         .format
@@ -227,7 +268,8 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     let findings = fail_on_findings(&args.fail_on, &summary);
     super::common::print_out(&format!(
         "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
-         largest force {:.3} N -> {} (+ {})",
+         largest force {:.3} N, generated {:.4} mJ (net of the arm's damping {:.4} mJ, active work {:.4} mJ), \
+         {} contacts -> {} (+ {})",
         args.scenario.display(),
         summary.ticks,
         loaded.scenario.duration_s,
@@ -236,6 +278,10 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         summary.certified_ticks,
         summary.max_sweeps,
         summary.max_force_n,
+        summary.energy.generated_j * 1e3,
+        summary.energy.net_generated_j * 1e3,
+        summary.energy.active_work_j * 1e3,
+        summary.energy.contacts,
         written.trace_path.display(),
         written.sidecar_path.display(),
     ))?;

@@ -30,6 +30,7 @@ fn scenario() -> SimArmConfig {
             substeps_per_tick: 8,
             wall_stiffness_n_per_m: 4000.0,
             wall_damping_n_s_per_m: 5.0,
+            effects: Default::default(),
         },
         hand: HandParams {
             stiffness_n_per_m: 300.0,

@@ -27,6 +27,7 @@ pub mod info;
 pub mod lifecycle;
 pub mod mapping;
 pub mod mock;
+pub mod physics;
 pub mod plausibility;
 pub mod profile;
 pub mod safety;

@@ -17,6 +17,7 @@ pub use api::{
 };
 mod control;
 pub mod device;
+pub mod energy;
 mod join;
 pub mod mapped;
 pub mod monitor;

@@ -4,10 +4,13 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use super::effects::{DeviceEffects, EffectsState};
 use super::path::{
     check_positive, check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M,
 };
+use super::preset::{ArmPreset, PresetFigures};
 use super::tagged::{given_keys, KindKeys, TaggedTableError};
+use super::zoh::SubstepMapCache;
 use super::{HandDrive, HandPath, SimError};
 use crate::mapping::WorkspaceMapping;
 
@@ -151,9 +154,10 @@ impl Workspace {
     }
 }
 
-/// The arm's own dynamics. Missing optional keys take the defaults noted.
+/// The arm's own dynamics. Missing optional keys take the defaults noted; `preset` fills the keys it has a
+/// sourced figure for (super::preset), and a key written beside it wins.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "ArmTable")]
 pub struct ArmParams {
     /// Moving mass at the end effector (kg), > 0.
     pub mass_kg: f64,
@@ -162,14 +166,108 @@ pub struct ArmParams {
     /// Where the arm can go.
     pub workspace: Workspace,
     /// Physics substeps per servo tick, >= 1 (default 10).
-    #[serde(default = "default_substeps_per_tick")]
     pub substeps_per_tick: u32,
     /// Stiffness of the workspace wall (N/m), >= 0 (default 5000).
-    #[serde(default = "default_wall_stiffness_n_per_m")]
     pub wall_stiffness_n_per_m: f64,
     /// Damping of the workspace wall along its normal while outside (N s/m), >= 0 (default 10).
-    #[serde(default = "default_wall_damping_n_s_per_m")]
     pub wall_damping_n_s_per_m: f64,
+    /// Latency, quantisation, jitter, velocity estimation and the preset (all off by default;
+    /// super::effects).
+    #[serde(flatten)]
+    pub effects: DeviceEffects,
+}
+
+/// An `[arm]` table as written: the preset's figures fill what is left out.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ArmTable {
+    preset: Option<ArmPreset>,
+    mass_kg: Option<f64>,
+    damping_n_s_per_m: Option<f64>,
+    workspace: Workspace,
+    #[serde(default = "default_substeps_per_tick")]
+    substeps_per_tick: u32,
+    #[serde(default = "default_wall_stiffness_n_per_m")]
+    wall_stiffness_n_per_m: f64,
+    #[serde(default = "default_wall_damping_n_s_per_m")]
+    wall_damping_n_s_per_m: f64,
+    latency_s: Option<f64>,
+    position_resolution_m: Option<f64>,
+    #[serde(default)]
+    force_resolution_n: f64,
+    #[serde(default)]
+    period_jitter_s: f64,
+    #[serde(default)]
+    jitter_seed: u32,
+    #[serde(default)]
+    velocity_window_ticks: u32,
+}
+
+/// An `[arm]` table that leaves out a key no preset gives.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("missing field `{key}`{}", preset_note(*.preset))]
+pub struct MissingArmKey {
+    /// The key.
+    pub key: &'static str,
+    /// The preset named, if any.
+    pub preset: Option<ArmPreset>,
+}
+
+fn preset_note(preset: Option<ArmPreset>) -> String {
+    match preset {
+        Some(p) => format!(
+            " (preset \"{}\" has no sourced figure for it: {}; give it)",
+            p.name(),
+            p.figures().source
+        ),
+        None => String::new(),
+    }
+}
+
+impl TryFrom<ArmTable> for ArmParams {
+    type Error = MissingArmKey;
+
+    fn try_from(table: ArmTable) -> Result<Self, MissingArmKey> {
+        let figures = table.preset.map(ArmPreset::figures);
+        let pick = |given: Option<f64>,
+                    from_preset: fn(&PresetFigures) -> Option<f64>,
+                    key: &'static str| {
+            given
+                .or_else(|| figures.as_ref().and_then(from_preset))
+                .ok_or(MissingArmKey {
+                    key,
+                    preset: table.preset,
+                })
+        };
+        let optional = |given: Option<f64>, from_preset: fn(&PresetFigures) -> Option<f64>| {
+            given
+                .or_else(|| figures.as_ref().and_then(from_preset))
+                .unwrap_or(0.0)
+        };
+        Ok(ArmParams {
+            mass_kg: pick(table.mass_kg, |f| f.mass_kg, "mass_kg")?,
+            damping_n_s_per_m: pick(
+                table.damping_n_s_per_m,
+                |f| f.damping_n_s_per_m,
+                "damping_n_s_per_m",
+            )?,
+            workspace: table.workspace,
+            substeps_per_tick: table.substeps_per_tick,
+            wall_stiffness_n_per_m: table.wall_stiffness_n_per_m,
+            wall_damping_n_s_per_m: table.wall_damping_n_s_per_m,
+            effects: DeviceEffects {
+                preset: table.preset,
+                latency_s: optional(table.latency_s, |f| f.latency_s),
+                position_resolution_m: optional(table.position_resolution_m, |f| {
+                    f.position_resolution_m
+                }),
+                force_resolution_n: table.force_resolution_n,
+                period_jitter_s: table.period_jitter_s,
+                jitter_seed: table.jitter_seed,
+                velocity_window_ticks: table.velocity_window_ticks,
+            },
+        })
+    }
 }
 
 /// The virtual hand's grip: a spring-damper between the hand target and the arm.
@@ -195,6 +293,20 @@ pub struct SimArmConfig {
     pub path: HandPath,
 }
 
+impl SimArmConfig {
+    /// The arm's physics as the coupling caps see it (crate::physics): the arm's own damping (the hand
+    /// may let go, so its damping does not count), its latency and resolution; no Coulomb friction.
+    pub fn physics(&self) -> crate::physics::DevicePhysics {
+        crate::physics::DevicePhysics {
+            damping_n_s_per_m: self.arm.damping_n_s_per_m,
+            latency_s: self.arm.effects.latency_s,
+            position_resolution_m: self.arm.effects.position_resolution_m,
+            coulomb_friction_n: 0.0,
+            source: "the simulated arm's [arm] table",
+        }
+    }
+}
+
 /// What happened during one [`SimArm::step`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StepOutcome {
@@ -209,8 +321,17 @@ pub struct StepOutcome {
 pub struct SimArm {
     config: SimArmConfig,
     max_substep_s: f64,
+    /// The true state: position (m) and velocity (m/s).
+    x_m: DVec3,
+    v_m_per_s: DVec3,
+    /// The position as the device reports it (rounded to `position_resolution_m`).
     position_m: DVec3,
-    velocity_m_per_s: DVec3,
+    /// The velocity as the device reports it (exact, or estimated from reported positions).
+    v_reported_m_per_s: DVec3,
+    /// How far this tick's sample instant is off its nominal time (s): the period jitter.
+    jitter_offset_s: f64,
+    effects: EffectsState,
+    maps: SubstepMapCache,
     hand_force_n: DVec3,
     wall_force_n: DVec3,
     rejected_force_count: u64,
@@ -244,30 +365,42 @@ impl SimArm {
         non_negative("arm.wall_stiffness_n_per_m", arm.wall_stiffness_n_per_m)?;
         non_negative("arm.wall_damping_n_s_per_m", arm.wall_damping_n_s_per_m)?;
         arm.workspace.validate()?;
+        arm.effects.validate()?;
         check_positive("hand.stiffness_n_per_m", config.hand.stiffness_n_per_m)?;
         non_negative("hand.damping_n_s_per_m", config.hand.damping_n_s_per_m)?;
         config.path.validate()?;
         check_vector_within("start_m", start_m, MAX_POSITION_M, "m")?;
 
-        let stiffness_total_n_per_m = config.hand.stiffness_n_per_m
-            + if matches!(arm.workspace, Workspace::Unbounded) {
-                0.0
-            } else {
-                arm.wall_stiffness_n_per_m
-            };
-        let damping_total_n_s_per_m =
-            arm.damping_n_s_per_m + config.hand.damping_n_s_per_m + arm.wall_damping_n_s_per_m;
-        let spring_limit_s = (arm.mass_kg / stiffness_total_n_per_m).sqrt();
-        let damping_limit_s = if damping_total_n_s_per_m > 0.0 {
-            arm.mass_kg / damping_total_n_s_per_m
-        } else {
+        // The mass, its damping and the hand are integrated exactly (super::zoh); only the workspace wall,
+        // a one-sided spring held over each substep, limits the substep.
+        let max_substep_s = if matches!(arm.workspace, Workspace::Unbounded) {
             f64::INFINITY
+        } else {
+            let spring_limit_s = if arm.wall_stiffness_n_per_m > 0.0 {
+                (arm.mass_kg / arm.wall_stiffness_n_per_m).sqrt()
+            } else {
+                f64::INFINITY
+            };
+            let damping_limit_s = if arm.wall_damping_n_s_per_m > 0.0 {
+                arm.mass_kg / arm.wall_damping_n_s_per_m
+            } else {
+                f64::INFINITY
+            };
+            spring_limit_s.min(damping_limit_s)
         };
+        let reported_position_m =
+            DeviceEffects::quantise(start_m, arm.effects.position_resolution_m);
+        let effects = EffectsState::new(&arm.effects);
         Ok(SimArm {
-            max_substep_s: spring_limit_s.min(damping_limit_s),
+            max_substep_s,
             config,
-            position_m: start_m,
-            velocity_m_per_s: DVec3::ZERO,
+            x_m: start_m,
+            v_m_per_s: DVec3::ZERO,
+            position_m: reported_position_m,
+            v_reported_m_per_s: DVec3::ZERO,
+            jitter_offset_s: 0.0,
+            effects,
+            maps: SubstepMapCache::default(),
             hand_force_n: DVec3::ZERO,
             wall_force_n: DVec3::ZERO,
             rejected_force_count: 0,
@@ -277,10 +410,13 @@ impl SimArm {
     }
 
     /// Advances the arm by one servo tick `[t_s, t_s + dt_s)` under the rendered force `rendered_force_n`
-    /// (the force the haptic loop sends to the device), in `substeps_per_tick` semi-implicit Euler steps.
+    /// (the force the haptic loop sends to the device), in `substeps_per_tick` substeps integrated exactly
+    /// (super::zoh).
     ///
-    /// A rendered force with a non-finite component is replaced by zero, counted
-    /// ([`SimArm::rejected_force_count`]) and reported in the outcome. No allocation.
+    /// The force is rounded to `force_resolution_n` and acts from `latency_s` after this tick's sample
+    /// instant until the next force takes over (zero-order hold); with `period_jitter_s` the tick runs
+    /// between two jittered sample instants. A rendered force with a non-finite component is replaced by
+    /// zero, counted ([`SimArm::rejected_force_count`]) and reported in the outcome. No allocation.
     pub fn step(
         &mut self,
         t_s: f64,
@@ -290,8 +426,19 @@ impl SimArm {
         if !t_s.is_finite() || !dt_s.is_finite() || dt_s <= 0.0 {
             return Err(SimError::InvalidTime { t_s, dt_s });
         }
-        let substeps = self.config.arm.substeps_per_tick;
-        let substep_s = dt_s / f64::from(substeps);
+        let arm = self.config.arm;
+        let effects = arm.effects;
+        if effects.period_jitter_s > 0.0 && effects.period_jitter_s * 2.0 >= dt_s {
+            return Err(SimError::JitterTooLarge {
+                jitter_s: effects.period_jitter_s,
+                dt_s,
+            });
+        }
+        let substeps = arm.substeps_per_tick;
+        let start_s = t_s + self.jitter_offset_s;
+        let next_offset_s = self.effects.next_jitter_s(effects.period_jitter_s);
+        let end_s = t_s + dt_s + next_offset_s;
+        let substep_s = (end_s - start_s) / f64::from(substeps);
         if substep_s > self.max_substep_s {
             return Err(SimError::SubstepTooLong {
                 substep_s,
@@ -306,41 +453,92 @@ impl SimArm {
             outcome.force_rejected = true;
             DVec3::ZERO
         };
+        self.effects.send(
+            start_s + effects.latency_s,
+            DeviceEffects::quantise(rendered_n, effects.force_resolution_n),
+        );
 
+        for i in 0..substeps {
+            let mut a_s = start_s + f64::from(i) * substep_s;
+            let b_s = if i + 1 == substeps {
+                end_s
+            } else {
+                a_s + substep_s
+            };
+            // A substep is cut where a delayed force takes over, so each piece sees one held force.
+            while a_s < b_s {
+                let (acting_n, next_s) = self.effects.acting_at(a_s);
+                let piece_end_s = if next_s < b_s { next_s } else { b_s };
+                if piece_end_s > a_s {
+                    self.advance_piece(a_s, piece_end_s - a_s, acting_n, &mut outcome);
+                }
+                a_s = piece_end_s;
+            }
+        }
+        self.jitter_offset_s = next_offset_s;
+        self.position_m = DeviceEffects::quantise(self.x_m, effects.position_resolution_m);
+        self.v_reported_m_per_s = if effects.velocity_window_ticks == 0 {
+            self.v_m_per_s
+        } else {
+            self.effects
+                .record(end_s, self.position_m)
+                .unwrap_or(DVec3::ZERO)
+        };
+        Ok(outcome)
+    }
+
+    /// Integrates `[time_s, time_s + h_s)` exactly under the held force `acting_n`, the hand (its target
+    /// moving along a straight line) and the wall (held at its value at the piece's start).
+    fn advance_piece(&mut self, time_s: f64, h_s: f64, acting_n: DVec3, outcome: &mut StepOutcome) {
         let arm = self.config.arm;
         let hand = self.config.hand;
-        let inverse_mass_per_kg = 1.0 / arm.mass_kg;
-        for i in 0..substeps {
-            let time_s = t_s + f64::from(i) * substep_s;
-            let x = self.position_m;
-            let v = self.velocity_m_per_s;
-            let drive = match self.hand_target_override_m {
-                Some(position_m) => HandDrive::Target {
-                    position_m,
-                    velocity_m_per_s: DVec3::ZERO,
-                },
-                None => self.scripted_drive_at(time_s),
-            };
-            self.hand_force_n = match drive {
-                HandDrive::Target {
-                    position_m,
-                    velocity_m_per_s,
-                } => {
-                    hand.stiffness_n_per_m * (position_m - x)
-                        + hand.damping_n_s_per_m * (velocity_m_per_s - v)
-                }
-                HandDrive::Force { force_n } => force_n,
-            };
-            self.wall_force_n = wall_force_n(&arm, x, v);
-            if self.wall_force_n != DVec3::ZERO || !arm.workspace.contains_m(x, 0.0) {
-                outcome.workspace_limit_hit = true;
-            }
-            let force_n =
-                rendered_n + self.hand_force_n + self.wall_force_n - arm.damping_n_s_per_m * v;
-            self.velocity_m_per_s = v + force_n * (inverse_mass_per_kg * substep_s);
-            self.position_m = x + self.velocity_m_per_s * substep_s;
+        let x = self.x_m;
+        let v = self.v_m_per_s;
+        let drive = match self.hand_target_override_m {
+            Some(position_m) => HandDrive::Target {
+                position_m,
+                velocity_m_per_s: DVec3::ZERO,
+            },
+            None => self.scripted_drive_at(time_s),
+        };
+        self.wall_force_n = wall_force_n(&arm, x, v);
+        if self.wall_force_n != DVec3::ZERO || !arm.workspace.contains_m(x, 0.0) {
+            outcome.workspace_limit_hit = true;
         }
-        Ok(outcome)
+        // m x'' = -k x - c x' + u0 + s (t - time_s), per axis.
+        let (k, c, u0, slope) = match drive {
+            HandDrive::Target {
+                position_m,
+                velocity_m_per_s,
+            } => {
+                self.hand_force_n = hand.stiffness_n_per_m * (position_m - x)
+                    + hand.damping_n_s_per_m * (velocity_m_per_s - v);
+                (
+                    hand.stiffness_n_per_m,
+                    arm.damping_n_s_per_m + hand.damping_n_s_per_m,
+                    acting_n
+                        + self.wall_force_n
+                        + hand.stiffness_n_per_m * position_m
+                        + hand.damping_n_s_per_m * velocity_m_per_s,
+                    hand.stiffness_n_per_m * velocity_m_per_s,
+                )
+            }
+            HandDrive::Force { force_n } => {
+                self.hand_force_n = force_n;
+                (
+                    0.0,
+                    arm.damping_n_s_per_m,
+                    acting_n + self.wall_force_n + force_n,
+                    DVec3::ZERO,
+                )
+            }
+        };
+        let map = self.maps.get(arm.mass_kg, k, c, h_s);
+        let (x0, v0) = map.apply(x.x, v.x, u0.x, slope.x);
+        let (x1, v1) = map.apply(x.y, v.y, u0.y, slope.y);
+        let (x2, v2) = map.apply(x.z, v.z, u0.z, slope.z);
+        self.x_m = DVec3::new(x0, x1, x2);
+        self.v_m_per_s = DVec3::new(v0, v1, v2);
     }
 
     /// Reads the scripted path and the start point as scene positions under `mapping` (device frame to
@@ -363,8 +561,13 @@ impl SimArm {
             });
         }
         self.path_mapping = (!mapping.is_identity()).then_some(mapping);
-        self.position_m = start_m;
-        self.velocity_m_per_s = DVec3::ZERO;
+        self.x_m = start_m;
+        self.v_m_per_s = DVec3::ZERO;
+        self.position_m =
+            DeviceEffects::quantise(start_m, self.config.arm.effects.position_resolution_m);
+        self.v_reported_m_per_s = DVec3::ZERO;
+        self.jitter_offset_s = 0.0;
+        self.effects.reset();
         self.hand_force_n = DVec3::ZERO;
         self.wall_force_n = DVec3::ZERO;
         Ok(())
@@ -405,14 +608,26 @@ impl SimArm {
         self.hand_target_override_m
     }
 
-    /// The end effector's position (m): the probe position the servo loop reads.
+    /// The end effector's position as the device reports it (m): the probe position the servo loop reads
+    /// (the true position rounded to `position_resolution_m`).
     pub fn position_m(&self) -> DVec3 {
         self.position_m
     }
 
-    /// The end effector's velocity (m/s).
+    /// The end effector's velocity as the device reports it (m/s): the true velocity, or with
+    /// `velocity_window_ticks` an estimate from reported positions.
     pub fn velocity_m_per_s(&self) -> DVec3 {
-        self.velocity_m_per_s
+        self.v_reported_m_per_s
+    }
+
+    /// The end effector's true position (m), before quantisation.
+    pub fn true_position_m(&self) -> DVec3 {
+        self.x_m
+    }
+
+    /// The end effector's true velocity (m/s).
+    pub fn true_velocity_m_per_s(&self) -> DVec3 {
+        self.v_m_per_s
     }
 
     /// The force the hand applied during the last substep (N).
@@ -430,7 +645,8 @@ impl SimArm {
         self.rejected_force_count
     }
 
-    /// The longest stable physics substep for this configuration (s).
+    /// The longest stable physics substep for this configuration (s): the workspace wall's limit (infinite for
+    /// an unbounded workspace; the rest of the arm is integrated exactly).
     pub fn max_substep_s(&self) -> f64 {
         self.max_substep_s
     }

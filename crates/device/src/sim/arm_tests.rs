@@ -1,6 +1,7 @@
 //! Unit tests of `arm`.
 
 use super::*;
+use crate::sim::DeviceEffects;
 
 const DT_S: f64 = 1e-3;
 
@@ -13,6 +14,7 @@ fn config(path: HandPath, workspace: Workspace) -> SimArmConfig {
             substeps_per_tick: 10,
             wall_stiffness_n_per_m: 5000.0,
             wall_damping_n_s_per_m: 10.0,
+            effects: DeviceEffects::default(),
         },
         hand: HandParams {
             stiffness_n_per_m: 400.0,

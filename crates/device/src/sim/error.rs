@@ -112,4 +112,14 @@ pub enum SimError {
         /// The longest stable substep (s).
         max_substep_s: f64,
     },
+    /// `period_jitter_s` is half a tick or more: sample instants could cross.
+    #[error(
+        "simulated arm parameter arm.period_jitter_s = {jitter_s} must be below half the tick ({dt_s} s)"
+    )]
+    JitterTooLarge {
+        /// The jitter given (s).
+        jitter_s: f64,
+        /// The tick (s).
+        dt_s: f64,
+    },
 }

@@ -32,17 +32,27 @@
 //! loop's stability is the servo's business.
 
 mod arm;
+pub mod effects;
 mod error;
 mod path;
+pub mod preset;
 mod tagged;
+pub mod zoh;
 
 pub use arm::{
-    ArmParams, HandParams, SimArm, SimArmConfig, StepOutcome, Workspace, WorkspaceShape,
+    ArmParams, HandParams, MissingArmKey, SimArm, SimArmConfig, StepOutcome, Workspace,
+    WorkspaceShape,
 };
+pub use effects::DeviceEffects;
 pub use error::{readable, SimError};
 pub use path::{
     ForceProfile, ForceProfileShape, HandDrive, HandPath, HandPathKind, MAX_ARM_MASS_KG,
     MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M, MAX_SPEED_M_PER_S,
     PATH_TIME_RANGE_S,
 };
+pub use preset::{ArmPreset, PresetFigures};
 pub use tagged::TaggedTableError;
+
+#[cfg(test)]
+#[path = "boundary_tests.rs"]
+mod boundary_tests;

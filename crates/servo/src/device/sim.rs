@@ -38,6 +38,12 @@ impl SimDevice {
         start_m: DVec3,
         dt_s: f64,
     ) -> Result<(SimDevice, HandTargetInput), SimError> {
+        // The stiffness cap follows the arm's [arm] table (voxhap_device::physics): declared so that the
+        // session's `CouplingCaps` caps at b / (T/2 + tau) at this period.
+        let declared_n_per_m = config
+            .physics()
+            .declared_at_1khz_n_per_m(dt_s)
+            .max(f64::MIN_POSITIVE);
         let arm = SimArm::new(config, start_m)?;
         // Check the tick length now: `step` would refuse it on every tick otherwise.
         arm.clone().step(0.0, dt_s, DVec3::ZERO)?;
@@ -51,7 +57,7 @@ impl SimDevice {
             workspace_min_m: DVec3::splat(-1.0),
             workspace_max_m: DVec3::splat(1.0),
             max_force_n: 10.0,
-            max_stiffness_n_per_m: 5000.0,
+            max_stiffness_n_per_m: declared_n_per_m,
             max_speed_m_per_s: voxhap_device::info::DEFAULT_MAX_SPEED_M_PER_S,
             reports_velocity: true,
             state_rates_hz: Vec::new(),

@@ -8,10 +8,15 @@
 //! and allocation-free, the writer does the I/O. The writer is flushed every [`FLUSH_EVERY_TICKS`] ticks
 //! (whole CSV lines, a closed MCAP chunk), so a sim killed half-way leaves a trace readable up to at most
 //! that many ticks before the kill; the flush points depend only on the tick count, so runs stay
-//! byte-for-byte deterministic. The sim arm is exact, so the trace's velocity is the arm's own (reported,
-//! not estimated), and with no safety pipeline in a sim the rendered force is the force sent.
+//! byte-for-byte deterministic. The trace's velocity is the one the arm reports (exact, or estimated from
+//! quantised positions with `[arm] velocity_window_ticks`); the coupling damping acts on it as in `serve`, and
+//! with no safety pipeline in a sim the rendered force is the force sent. Every tick is booked in the energy
+//! ledger (crate::energy), whose totals end in the summary.
 
 use super::scenario::LoadedScenario;
+use crate::energy::{EnergyLedger, EnergyTotals};
+use glam::DVec3;
+use voxhap_core::haptics::modes::ModeKind;
 use voxhap_core::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
 use voxhap_device::sim::{SimArm, SimError};
 use voxhap_record::{
@@ -46,6 +51,8 @@ pub struct SimSummary {
     pub workspace_limit_ticks: u64,
     /// Ticks whose force was not finite and was replaced by zero (by the tick or the arm).
     pub non_finite_ticks: u64,
+    /// The energy ledger's totals at the end (crate::energy).
+    pub energy: EnergyTotals,
 }
 
 /// Runs `scenario` with `solver`, writing every tick to `writer`; `progress(ticks_done)` is called every
@@ -71,13 +78,33 @@ pub fn run(
         max_force_n: 0.0,
         workspace_limit_ticks: 0,
         non_finite_ticks: 0,
+        energy: EnergyTotals::default(),
     };
+    let damping_n_s_per_m = settings.damping_n_s_per_m;
+    let mut ledger = EnergyLedger::new(settings.arm.damping_n_s_per_m);
+    // The directed-force modes, whose work on the hand is intended (crate::energy).
+    let mut active = [false; voxhap_record::MAX_MODES];
+    for (slot, mode) in active.iter_mut().zip(&settings.modes) {
+        *slot = matches!(mode.kind, ModeKind::VectorForce | ModeKind::GradientForce);
+    }
     for index in 0..ticks {
         let t_s = index as f64 * dt_s;
         let probe_m = arm.position_m();
         let probe_velocity_m_per_s = arm.velocity_m_per_s();
         let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
-        let outcome = arm.step(t_s, dt_s, out.force_n)?;
+        let rendered_n =
+            out.force_n + damping_n_s_per_m * (out.proxy_velocity_m_per_s - probe_velocity_m_per_s);
+        let outcome = arm.step(t_s, dt_s, rendered_n)?;
+        let active_n: DVec3 = out
+            .mode_force_n
+            .iter()
+            .zip(&active)
+            .filter(|(_, a)| **a)
+            .map(|(f, _)| *f)
+            .sum();
+        let stretch_m = out.proxy_m - probe_m;
+        let coupling_j = 0.5 * scene.stiffness_n_per_m() * stretch_m.length_squared();
+        summary.energy = ledger.record(t_s, dt_s, probe_m, rendered_n, active_n, coupling_j);
         let mut flags = out.flags;
         if outcome.workspace_limit_hit {
             flags |= FLAG_WORKSPACE_LIMIT;
@@ -95,8 +122,8 @@ pub fn run(
             probe_m,
             probe_velocity_m_per_s,
             proxy_m: out.proxy_m,
-            rendered_force_n: out.force_n,
-            force_n: out.force_n,
+            rendered_force_n: rendered_n,
+            force_n: rendered_n,
             mode_force_n: out.mode_force_n,
             primitives_per_mode: out.primitives_per_mode,
             mode_count: out.mode_count,
@@ -113,7 +140,7 @@ pub fn run(
         summary.certified_ticks += u64::from(out.status == TickStatus::Certified);
         summary.max_error_bound_m = summary.max_error_bound_m.max(out.error_bound_m);
         summary.max_sweeps = summary.max_sweeps.max(out.sweeps);
-        summary.max_force_n = summary.max_force_n.max(out.force_n.length());
+        summary.max_force_n = summary.max_force_n.max(rendered_n.length());
         if (index + 1) % 1000 == 0 {
             progress(index + 1);
         }

@@ -5,8 +5,8 @@
 //! (crate::setup builds its scene from it), and [`Scenario::validate`] checks both, the solver settings
 //! included ([`SolverSettings::validate`]). The only difference is that `sim` needs `duration_s`
 //! ([`Purpose::Sim`]); `serve` ignores it. `[arm]`, `[hand]` and `[path]` default to the simulated arm of
-//! `voxhap serve` when left out. `damping_n_s_per_m` is rendered by `serve`; `sim` refuses a non-zero one
-//! rather than ignore it.
+//! `voxhap serve` when left out. `damping_n_s_per_m` is rendered by both, from the probe velocity the arm
+//! reports (exact, or estimated with `[arm] velocity_window_ticks`).
 //!
 //! Off the servo path: a scenario is read and validated once ([`Scenario::parse`]), its volumes are loaded
 //! or generated ([`Scenario::load`]) into a [`RenderScene`], and the runner ([`super::runner`]) ticks it.
@@ -55,7 +55,7 @@ pub struct Scenario {
     pub rate_hz: f64,
     /// Coupling stiffness k (N/m), > 0.
     pub k_n_per_m: f64,
-    /// Coupling damping (N s/m), >= 0; default 0. Rendered by `serve`; `sim` refuses a non-zero one.
+    /// Coupling damping (N s/m), >= 0; default 0. Rendered by `serve` and `sim`.
     #[serde(default)]
     pub damping_n_s_per_m: f64,
     /// Where the arm starts at rest (m); default: the hand path's target at t = 0.
@@ -190,11 +190,6 @@ pub enum ScenarioValueError {
     /// `voxhap sim` needs `duration_s`.
     #[error("duration_s: missing (voxhap sim needs it)")]
     MissingDuration,
-    /// `voxhap sim` was given coupling damping it does not render.
-    #[error(
-        "damping_n_s_per_m: voxhap sim does not render coupling damping; remove it or use serve"
-    )]
-    DampingInSim,
     /// `damping_n_s_per_m` is negative or not finite.
     #[error("damping_n_s_per_m: must be a finite number >= 0, got {0}")]
     Damping(f64),
@@ -459,9 +454,6 @@ impl Scenario {
         }
         if purpose == Purpose::Sim || self.duration_s != 0.0 {
             positive("duration_s", self.duration_s)?;
-        }
-        if self.damping_n_s_per_m != 0.0 && purpose == Purpose::Sim {
-            return Err(E::DampingInSim);
         }
         if !(self.damping_n_s_per_m.is_finite() && self.damping_n_s_per_m >= 0.0) {
             return Err(E::Damping(self.damping_n_s_per_m));

@@ -20,6 +20,9 @@ use super::scenario::{
     SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
 };
 use voxhap_core::volume::procedural::BUILTIN_NAMES;
+use voxhap_device::sim::effects::{
+    MAX_FORCE_RESOLUTION_N, MAX_LATENCY_S, MAX_POSITION_RESOLUTION_M, MAX_VELOCITY_WINDOW_TICKS,
+};
 use voxhap_device::sim::{
     MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M,
     MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
@@ -40,6 +43,8 @@ pub enum Accepts {
     PositiveAtMost(f64),
     /// A finite number >= 0.
     NonNegative,
+    /// A finite number >= 0 and at most this.
+    NonNegativeAtMost(f64),
     /// A finite number from `.0` to `.1`, both included.
     Between(f64, f64),
     /// A whole number from `.0` to `.1`, both included.
@@ -74,6 +79,7 @@ impl Accepts {
             Accepts::Positive => "> 0".to_owned(),
             Accepts::PositiveAtMost(hi) => format!("> 0, at most {hi}"),
             Accepts::NonNegative => ">= 0".to_owned(),
+            Accepts::NonNegativeAtMost(hi) => format!(">= 0, at most {}", plain(*hi)),
             Accepts::Between(lo, hi) => format!("{} to {}", plain(*lo), plain(*hi)),
             Accepts::Count(lo, hi) => format!("whole number, {lo} to {hi}"),
             Accepts::Vector => "`[x, y, z]`".to_owned(),
@@ -199,7 +205,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("duration_s", "s", Otherwise("needed by `voxhap sim`; ignored by `serve`"), PositiveAtMost(MAX_DURATION_S), "2.0", "simulated time of a `voxhap sim` run"),
             key("rate_hz", "Hz", Value("1000.0"), Between(*RATE_HZ_RANGE.start(), *RATE_HZ_RANGE.end()), "500.0", "servo rate"),
             key("k_n_per_m", "N/m", Required, Between(STIFFNESS_RANGE_N_PER_M.0, STIFFNESS_RANGE_N_PER_M.1), "400.0", "coupling stiffness k between probe and proxy"),
-            key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping; rendered by `serve`, refused by `sim` when not 0"),
+            key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping B (v_proxy - v_probe); rendered by `serve` and `sim`"),
             key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
             key("solver", "", Otherwise("all of `[solver]`'s defaults"), Table("`[solver]`"), "", "which solver, and the exact solver's budget"),
             key("volumes", "", Required, Table("`[[volumes]]`"), "", "the volumes, by name (may be empty: `volumes = []`)"),
@@ -309,6 +315,13 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("substeps_per_tick", "", Value("10"), Count(*SUBSTEPS_PER_TICK_RANGE.start() as u64, *SUBSTEPS_PER_TICK_RANGE.end() as u64), "20", "physics steps per servo tick"),
             key("wall_stiffness_n_per_m", "N/m", Value("5000.0"), NonNegative, "2000.0", "stiffness of the workspace wall"),
             key("wall_damping_n_s_per_m", "N s/m", Value("10.0"), NonNegative, "5.0", "damping of the workspace wall, outside it"),
+            key("preset", "", Otherwise("none"), OneOf(&["inverse3", "falcon", "touch", "woodenhaptics"]), "\"touch\"", "a device's sourced figures for the keys left out ([The simulated arm](../sim-arm.md))"),
+            key("latency_s", "s", Value("0.0"), NonNegativeAtMost(MAX_LATENCY_S), "0.002", "time from a force being sent to it acting"),
+            key("position_resolution_m", "m", Value("0.0"), NonNegativeAtMost(MAX_POSITION_RESOLUTION_M), "1e-5", "reported positions are rounded to this"),
+            key("force_resolution_n", "N", Value("0.0"), NonNegativeAtMost(MAX_FORCE_RESOLUTION_N), "0.01", "applied forces are rounded to this"),
+            key("period_jitter_s", "s", Value("0.0"), NonNegativeAtMost(MAX_LATENCY_S), "1e-5", "sample instants vary by up to this (below half a tick)"),
+            key("jitter_seed", "", Value("0"), Count(0, u32::MAX as u64), "7", "seed of the jitter"),
+            key("velocity_window_ticks", "", Value("0"), Count(0, MAX_VELOCITY_WINDOW_TICKS as u64), "5", "0: exact velocity; n: estimated from positions n ticks apart"),
         ],
     },
     SchemaSection {

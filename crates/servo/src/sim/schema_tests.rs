@@ -48,13 +48,9 @@ fn load(text: &str, purpose: Purpose) -> Result<LoadedScenario, String> {
         .map_err(|e| chain(&e))
 }
 
-/// `sim` refuses coupling damping, so that key is checked as `serve` reads it.
-fn purpose_for(section: &SchemaSection, key: &SchemaKey) -> Purpose {
-    if section.header.is_empty() && key.name == "damping_n_s_per_m" {
-        Purpose::Serve
-    } else {
-        Purpose::Sim
-    }
+/// Every key is checked as `sim` reads it (`serve` reads the same keys; it only does not need `duration_s`).
+fn purpose_for(_section: &SchemaSection, _key: &SchemaKey) -> Purpose {
+    Purpose::Sim
 }
 
 #[test]
@@ -177,6 +173,10 @@ fn edges(accepts: Accepts, example: &str) -> (Vec<String>, Vec<String>) {
         NonNegative => (
             vec![number(0.0), example.to_owned()],
             [bad_numbers(), vec![number(-1e-6)]].concat(),
+        ),
+        NonNegativeAtMost(hi) => (
+            vec![number(0.0), number(hi), example.to_owned()],
+            [bad_numbers(), vec![number(-1e-6), number(hi * 1.5)]].concat(),
         ),
         Between(lo, hi) => (
             vec![number(lo), number(hi)],

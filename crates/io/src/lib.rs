@@ -42,6 +42,7 @@ pub mod nifti;
 pub mod nrrd;
 pub mod raw;
 pub mod scene;
+pub mod scene_solve;
 pub mod source;
 
 pub use decode::{decode_samples, Decoded, Endian, ScalarType};

@@ -36,6 +36,7 @@
 
 mod decode;
 mod error;
+mod header_lines;
 mod loaded;
 pub mod metaimage;
 pub mod nifti;

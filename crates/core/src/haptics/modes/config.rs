@@ -218,6 +218,16 @@ impl ModeConfig {
         }
         let missing =
             |key: &'static str| invalid(key, format!("a {} mode needs this key", self.kind.name()));
+        let out_of_range = |key: &'static str, value: f64, max: f64, unit: &str| {
+            invalid(
+                key,
+                format!(
+                    "must be a finite number from 0 to {}{unit}, got {}",
+                    readable(max),
+                    readable(value)
+                ),
+            )
+        };
         let volume_index = || -> Result<usize, ModeError> {
             let name = self.volume.as_deref().ok_or_else(|| missing("volume"))?;
             let wanted = self.kind.volume_kind().unwrap_or("scalar");
@@ -281,14 +291,7 @@ impl ModeConfig {
                 let surface = self.surface.as_deref().ok_or_else(|| missing("surface"))?;
                 let mu = self.mu.ok_or_else(|| missing("mu"))?;
                 if !(0.0..=MAX_FRICTION_MU).contains(&mu) {
-                    return Err(invalid(
-                        "mu",
-                        format!(
-                            "must be a finite number from 0 to {}, got {}",
-                            readable(MAX_FRICTION_MU),
-                            readable(mu)
-                        ),
-                    ));
+                    return Err(out_of_range("mu", mu, MAX_FRICTION_MU, ""));
                 }
                 let surface_mode = names
                     .iter()
@@ -311,14 +314,7 @@ impl ModeConfig {
                 let normal = self.normal.ok_or_else(|| missing("normal"))?;
                 let strength = self.strength_n.ok_or_else(|| missing("strength_n"))?;
                 if !(0.0..=MAX_STRENGTH_N).contains(&strength) {
-                    return Err(invalid(
-                        "strength_n",
-                        format!(
-                            "must be a finite number from 0 to {} N, got {}",
-                            readable(MAX_STRENGTH_N),
-                            readable(strength)
-                        ),
-                    ));
+                    return Err(out_of_range("strength_n", strength, MAX_STRENGTH_N, " N"));
                 }
                 if !point.iter().all(|c| c.abs() <= MAX_COORDINATE_M) {
                     return Err(invalid(

@@ -307,6 +307,72 @@ const CASES: &[Case] = &[
         expected: "path.speed_m_per_s = 1e300 is out of range: give a number > 0 and at most 100 m/s",
     },
     Case {
+        input: "a scenario whose surface transfer function reaches `1e300` N",
+        setup: |dir| scenario(dir, "[0.5, 2.0]]", "[0.5, 1e300]]"),
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[0].transfer: strength must be from 0 to 1000000 N (breakpoint 1: 1e300)",
+    },
+    Case {
+        input: "`sim --set modes[0].transfer[0][0]=-1e308` (breakpoints whose span overflows)",
+        setup: |dir| scenario(dir, "", ""),
+        args: &["sim", "scene.toml", "--set", "modes[0].transfer[0][0]=-1e308", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[0].transfer: x must be from -1e300 to 1e300 (breakpoint 0: -1e308)",
+    },
+    Case {
+        input: "a scenario with friction `mu = 1e300`",
+        setup: |dir| {
+            scenario(
+                dir,
+                "[arm]",
+                "[[modes]]\nkind = \"friction\"\nsurface = \"surface\"\nmu = 1e300\n\n[arm]",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[1].mu: must be a finite number from 0 to 10, got 1e300",
+    },
+    Case {
+        input: "a support plane of `strength_n = 1e300`",
+        setup: |dir| {
+            scenario(
+                dir,
+                "[arm]",
+                "[[modes]]\nkind = \"support_plane\"\npoint_m = [0.0, 0.0, -0.04]\nnormal = [0.0, 0.0, 1.0]\nstrength_n = 1e300\n\n[arm]",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[1].strength_n: must be a finite number from 0 to 1000000 N, got 1e300",
+    },
+    Case {
+        input: "a support plane through a point `1e300` m away",
+        setup: |dir| {
+            scenario(
+                dir,
+                "[arm]",
+                "[[modes]]\nkind = \"support_plane\"\npoint_m = [0.0, 0.0, 1e300]\nnormal = [0.0, 0.0, 1.0]\nstrength_n = 2.0\n\n[arm]",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[1].point_m: must be three finite numbers, each from -1000 to 1000 m, got [0, 0, 1e300]",
+    },
+    Case {
+        input: "a support plane with a zero normal",
+        setup: |dir| {
+            scenario(
+                dir,
+                "[arm]",
+                "[[modes]]\nkind = \"support_plane\"\npoint_m = [0.0, 0.0, -0.04]\nnormal = [0.0, 0.0, 0.0]\nstrength_n = 2.0\n\n[arm]",
+            )
+        },
+        args: &["sim", "scene.toml", "--out", "t.csv"],
+        exit: 1,
+        expected: "modes[1].normal: direction must not be zero",
+    },
+    Case {
         input: "`sim --set k_n_per_m=1e300`",
         setup: |dir| scenario(dir, "", ""),
         args: &["sim", "scene.toml", "--set", "k_n_per_m=1e300", "--out", "t.csv"],
@@ -572,6 +638,18 @@ const REQUESTS: &[RequestCase] = &[
         request: "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nOrigin: http://{addr}\r\nOrigin: https://evil.example\r\nContent-Length: 10\r\nConnection: close\r\n\r\n{\"k\": 450}",
         status: 400,
         expected: "bad request: 2 Origin headers; a request carries at most one",
+    },
+    RequestCase {
+        input: "a friction mode with `mu = 1e300` added through the API",
+        request: "POST /api/modes HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 65\r\nConnection: close\r\n\r\n{\"mode\": {\"kind\": \"friction\", \"surface\": \"surface\", \"mu\": 1e300}}",
+        status: 400,
+        expected: ".mu: must be a finite number from 0 to 10, got 1e300",
+    },
+    RequestCase {
+        input: "a transfer function of `1e300` N set through the API",
+        request: "POST /api/modes/surface/transfer HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 28\r\nConnection: close\r\n\r\n{\"transfer\": [[0.0, 1e300]]}",
+        status: 400,
+        expected: "strength must be from 0 to 1000000 N (breakpoint 0: 1e300)",
     },
     RequestCase {
         input: "a volume file outside the `--volume-dir` folders",

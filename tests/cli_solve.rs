@@ -42,6 +42,36 @@ fn solve_prints_json_with_the_documented_keys() {
     assert_eq!(v["status"], "certified");
 }
 
+/// `docs/solve.md`'s Output block with the figures that vary from run to run (time, gap, bound) left out.
+fn masked(text: &str) -> Vec<String> {
+    text.lines()
+        .map(|line| match line.split_once(' ') {
+            Some((key @ ("time" | "gap" | "error"), _)) => key.to_owned(),
+            _ => line.to_owned(),
+        })
+        .collect()
+}
+
+#[test]
+fn solve_prints_the_text_report_docs_solve_md_shows() {
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/solve.md")).unwrap();
+    let block = doc
+        .split("## Output\n\n```\n")
+        .nth(1)
+        .and_then(|rest| rest.split("\n```").next())
+        .expect("docs/solve.md has an Output block");
+    let out = voxhap(&["solve", "--scene", &example()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(masked(&text), masked(block));
+    assert!(text.trim_end().ends_with("m (certified)"), "{text}");
+}
+
 #[test]
 fn baselines_print_json_without_a_certificate() {
     for solver in ["euler", "constraint"] {

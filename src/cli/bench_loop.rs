@@ -87,17 +87,7 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
         let comparison = side_by_side(args, &config);
         stop_load_threads();
         let comparison = comparison?;
-        return if args.json {
-            super::common::print_out(&serde_json::to_string_pretty(&comparison)?)
-        } else {
-            super::common::print_out(&format!(
-                "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}",
-                args.seconds,
-                args.rate,
-                args.load_threads,
-                comparison.table()
-            ))
-        };
+        return print_report(args, &comparison, || comparison.table());
     }
     let steal_before = steal::sample();
     let session = Session::start(config)?;
@@ -107,19 +97,32 @@ pub fn run(args: &BenchLoopArgs) -> anyhow::Result<()> {
     let steal = steal::since(steal_before.as_ref(), summary.stats.realtime.pinned_cpu);
     let decades = shared.servo_stats().lateness.counts().by_decade();
     stop_load_threads();
-    if args.json {
-        super::common::print_out(&serde_json::to_string_pretty(&summary.stats)?)
-    } else {
-        super::common::print_out(&format!(
-            "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}\n{}{}",
-            args.seconds,
-            args.rate,
-            args.load_threads,
+    print_report(args, &summary.stats, || {
+        format!(
+            "{}\n{}{}",
             summary.stats.table(),
             decade_table(&[("ticks", &decades)]),
             steal::describe(steal.as_ref())
-        ))
+        )
+    })
+}
+
+/// Prints `report` as JSON (`--json`), or as its text `table` under the run's header line.
+fn print_report(
+    args: &BenchLoopArgs,
+    report: &impl Serialize,
+    table: impl FnOnce() -> String,
+) -> anyhow::Result<()> {
+    if args.json {
+        return super::common::print_out(&serde_json::to_string_pretty(report)?);
     }
+    super::common::print_out(&format!(
+        "bench-loop: simulated arm, built-in 3-mode scene, {} s at {} Hz, {} load threads\n{}",
+        args.seconds,
+        args.rate,
+        args.load_threads,
+        table()
+    ))
 }
 
 /// Longest window of `--baseline`'s alternation (s).

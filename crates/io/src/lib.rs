@@ -36,12 +36,14 @@
 
 mod decode;
 mod error;
+mod header_lines;
 mod loaded;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
 pub mod raw;
 pub mod scene;
+pub mod scene_solve;
 pub mod source;
 
 pub use decode::{decode_samples, Decoded, Endian, ScalarType};

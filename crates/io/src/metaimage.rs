@@ -14,6 +14,7 @@
 
 use crate::decode::{decode_samples, inflate, Endian, ScalarType};
 use crate::error::LoadProblem;
+use crate::header_lines::HeaderLines;
 use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
 use crate::source::{
     check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
@@ -192,19 +193,13 @@ pub fn parse_header(bytes: &[u8]) -> Result<MetaImageHeader, LoadProblem> {
         binary: true,
         ..MetaImageHeader::default()
     };
-    let mut position = 0;
-    let mut line_number = 0;
+    let mut lines = HeaderLines::new(bytes);
     loop {
-        let Some(rest) = bytes.get(position..).filter(|r| !r.is_empty()) else {
+        let Some(line) = lines.next() else {
             return Err(missing("ElementDataFile (it must be the last header line)"));
         };
-        let end = rest.iter().position(|&b| b == b'\n');
-        let raw_line = &rest[..end.unwrap_or(rest.len())];
-        position += end.map_or(rest.len(), |e| e + 1);
-        line_number += 1;
-        let line = std::str::from_utf8(raw_line)
-            .map_err(|_| LoadProblem::header(format!("line {line_number} is not text")))?
-            .trim();
+        let line = line?.trim();
+        let line_number = lines.line_number();
         if line.is_empty() {
             continue;
         }
@@ -220,7 +215,7 @@ pub fn parse_header(bytes: &[u8]) -> Result<MetaImageHeader, LoadProblem> {
             LoadProblem::header(format!("line {line_number} ({}): {message}", key))
         })?;
         if done {
-            header.header_bytes = position;
+            header.header_bytes = lines.position();
             return Ok(header);
         }
     }

@@ -13,6 +13,7 @@
 
 use crate::decode::{decode_samples, inflate_skip, Decoded, Endian, ScalarType};
 use crate::error::LoadProblem;
+use crate::header_lines::HeaderLines;
 use crate::loaded::{
     assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
 };
@@ -349,20 +350,14 @@ fn grid(header: &NrrdHeader, components: usize, dims: [u64; 3]) -> Result<Grid, 
 /// Parses the header (up to the first blank line, or the whole input for a detached header).
 pub fn parse_header(bytes: &[u8]) -> Result<NrrdHeader, LoadProblem> {
     let mut header = NrrdHeader::default();
-    let mut position = 0;
-    let mut line_number = 0;
+    let mut lines = HeaderLines::new(bytes);
     loop {
-        let Some(rest) = bytes.get(position..).filter(|r| !r.is_empty()) else {
+        let Some(line) = lines.next() else {
             header.header_bytes = bytes.len();
             break;
         };
-        let end = rest.iter().position(|&b| b == b'\n');
-        let raw_line = &rest[..end.unwrap_or(rest.len())];
-        position += end.map_or(rest.len(), |e| e + 1);
-        line_number += 1;
-        let line = std::str::from_utf8(raw_line)
-            .map_err(|_| LoadProblem::header(format!("line {line_number} is not text")))?
-            .trim_end_matches('\r');
+        let line = line?.trim_end_matches('\r');
+        let line_number = lines.line_number();
         if line_number == 1 {
             let version = line
                 .strip_prefix("NRRD000")
@@ -375,7 +370,7 @@ pub fn parse_header(bytes: &[u8]) -> Result<NrrdHeader, LoadProblem> {
             continue;
         }
         if line.is_empty() {
-            header.header_bytes = position;
+            header.header_bytes = lines.position();
             break;
         }
         if line.starts_with('#') {

@@ -21,27 +21,18 @@
 use glam::DVec3;
 use serde::Deserialize;
 use std::path::Path;
+use voxhap_core::haptics::modes::limits::readable;
 use voxhap_solver::primitive::{Primitive, PrimitiveError};
 
 /// Coupling stiffness a scene or scenario may ask for (N/m): below a millinewton per metre the directed forces
 /// over `k` put the proxy kilometres away; above 10 MN/m (a thousand times the stiffest haptic device) the
 /// coupling force of a millimetre is 10 kN.
 pub const STIFFNESS_RANGE_N_PER_M: (f64, f64) = (1e-3, 1e7);
-/// Largest size of a coordinate of a scene's positions (probe, previous proxy, primitives) (m).
-pub const MAX_SCENE_COORDINATE_M: f64 = 1e3;
-/// Largest strength of a scene's primitive (N).
-pub const MAX_SCENE_STRENGTH_N: f64 = 1e6;
-
-/// A number as a reader writes it: `0.02`, but `1e300` (Rust's `Display` writes every digit of a large float).
-fn readable(x: f64) -> String {
-    if x.fract() == 0.0 && x.abs() < 1e16 {
-        format!("{x:.0}")
-    } else if x != 0.0 && !(1e-3..=1e7).contains(&x.abs()) {
-        format!("{x:e}")
-    } else {
-        format!("{x}")
-    }
-}
+/// Largest size of a coordinate of a scene's positions (probe, previous proxy, primitives) (m): the limit a
+/// support plane's point has too.
+pub const MAX_SCENE_COORDINATE_M: f64 = voxhap_core::haptics::modes::MAX_COORDINATE_M;
+/// Largest strength of a scene's primitive (N): the limit of a mode's strengths too.
+pub const MAX_SCENE_STRENGTH_N: f64 = voxhap_core::haptics::modes::MAX_STRENGTH_N;
 
 /// A parsed, validated scene.
 #[derive(Debug, Clone, PartialEq)]

@@ -91,7 +91,11 @@ fn check_direction(direction: DVec3) -> Result<DVec3, PrimitiveError> {
         return Err(PrimitiveError::BadDirection(direction.to_array()));
     }
     let length = direction.length();
-    if length.is_nan() || length < MIN_DIRECTION_LENGTH || !length.is_finite() {
+    if length.is_infinite() {
+        // Finite components whose squares overflow (1e200): scaled down first, the direction is the same.
+        return check_direction(direction / direction.abs().max_element());
+    }
+    if length.is_nan() || length < MIN_DIRECTION_LENGTH {
         return Err(PrimitiveError::ZeroDirection(length));
     }
     Ok(direction / length)
@@ -294,6 +298,9 @@ mod tests {
     fn directions_are_normalised() {
         let p = Primitive::line(DVec3::ZERO, DVec3::new(0.0, 3.0, 4.0), 1.0).unwrap();
         assert!((p.direction().length() - 1.0).abs() < 1e-15);
+        // Finite but so long that the squared length overflows: the same direction, 3-4-5.
+        let p = Primitive::plane(DVec3::ZERO, DVec3::new(0.0, 3e200, 4e200), 1.0).unwrap();
+        assert!((p.direction() - DVec3::new(0.0, 0.6, 0.8)).length() < 1e-15);
     }
 
     #[test]

@@ -19,6 +19,9 @@ use super::scenario::{
     MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
     SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
 };
+use voxhap_core::haptics::modes::{
+    MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N, MAX_TRANSFER_VALUE,
+};
 use voxhap_core::volume::procedural::BUILTIN_NAMES;
 use voxhap_device::sim::effects::{
     MAX_FORCE_RESOLUTION_N, MAX_LATENCY_S, MAX_POSITION_RESOLUTION_M, MAX_VELOCITY_WINDOW_TICKS,
@@ -59,7 +62,8 @@ pub enum Accepts {
     Points,
     /// A list of 1 to `.1` vectors of three finite numbers, each from `-.0` to `.0`.
     PointsWithin(f64, u64),
-    /// A transfer function: `[[value, newtons], ...]`, values strictly increasing, newtons >= 0.
+    /// A transfer function: `[[value, newtons], ...]`, values strictly increasing within
+    /// `MAX_TRANSFER_VALUE` of 0, newtons from 0 to `MAX_STRENGTH_N`.
     Transfer,
     /// A table, described in the section with this title.
     Table(&'static str),
@@ -97,9 +101,12 @@ impl Accepts {
                 plain(*limit),
                 plain(*limit)
             ),
-            Accepts::Transfer => {
-                "`[[value, N], ...]`: values strictly increasing, N >= 0".to_owned()
-            }
+            Accepts::Transfer => format!(
+                "`[[value, N], ...]`: values strictly increasing, each from -{} to {}; N from 0 to {}",
+                plain(MAX_TRANSFER_VALUE),
+                plain(MAX_TRANSFER_VALUE),
+                plain(MAX_STRENGTH_N)
+            ),
             Accepts::Table(title) => format!("a table: see {title}"),
         }
     }
@@ -274,7 +281,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "mode",
         keys: &[
             key("surface", "", Required, Text, "\"surface\"", "the name of a surface mode"),
-            key("mu", "", Required, NonNegative, "0.3", "friction coefficient"),
+            key("mu", "", Required, Between(0.0, MAX_FRICTION_MU), "0.3", "friction coefficient"),
         ],
     },
     SchemaSection {
@@ -296,9 +303,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"support_plane\"\npoint_m = [0.0, 0.0, -0.04]\nnormal = [0.0, 0.0, 1.0]\nstrength_n = 3.0",
         group: "mode",
         keys: &[
-            key("point_m", "m", Required, Vector, "[0.0, 0.0, -0.03]", "a point on the plane"),
+            key("point_m", "m", Required, VectorWithin(MAX_COORDINATE_M), "[0.0, 0.0, -0.03]", "a point on the plane"),
             key("normal", "", Required, Direction, "[0.0, 1.0, 1.0]", "the side the plane pushes towards (any length)"),
-            key("strength_n", "N", Required, NonNegative, "2.0", "the plane's strength"),
+            key("strength_n", "N", Required, Between(0.0, MAX_STRENGTH_N), "2.0", "the plane's strength"),
         ],
     },
     SchemaSection {

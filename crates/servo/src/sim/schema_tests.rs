@@ -178,6 +178,11 @@ fn edges(accepts: Accepts, example: &str) -> (Vec<String>, Vec<String>) {
             vec![number(0.0), number(hi), example.to_owned()],
             [bad_numbers(), vec![number(-1e-6), number(hi * 1.5)]].concat(),
         ),
+        // A range from 0 (a coefficient, a strength) is left just below 0.
+        Between(lo, hi) if lo == 0.0 => (
+            vec![number(lo), number(hi)],
+            [bad_numbers(), vec![number(-1e-6), number(hi * 2.0)]].concat(),
+        ),
         Between(lo, hi) => (
             vec![number(lo), number(hi)],
             [
@@ -237,6 +242,8 @@ fn edges(accepts: Accepts, example: &str) -> (Vec<String>, Vec<String>) {
             vec![
                 "[[0.5, 1.0], [0.2, 2.0]]".to_owned(),
                 "[[0.0, -1.0]]".to_owned(),
+                "[[0.0, 1000000.1]]".to_owned(),
+                "[[-1e301, 0.0], [0.0, 1.0]]".to_owned(),
             ],
         ),
         // The list itself is compared with the parser's in `the_choices_are_the_parsers`.

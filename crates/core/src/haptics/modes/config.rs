@@ -7,6 +7,7 @@
 //! the tick runs. Every error names the key, e.g. `modes[1].transfer: x must increase (...)` or
 //! `modes[2].mu: a surface mode does not use this key`.
 
+use super::limits::{readable, MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N};
 use super::mode::{Mode, ModeError, SurfaceSide};
 use super::transfer::TransferFunction;
 use crate::haptics::Primitive;
@@ -84,16 +85,16 @@ pub struct ModeConfig {
     /// Friction: the name of the surface mode whose normal force it scales.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub surface: Option<String>,
-    /// Friction: coefficient (dimensionless, >= 0).
+    /// Friction: coefficient (dimensionless, 0 to [`MAX_FRICTION_MU`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mu: Option<f64>,
-    /// Support plane: a point on the plane (m).
+    /// Support plane: a point on the plane (m, each coordinate within [`MAX_COORDINATE_M`] of 0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub point_m: Option<[f64; 3]>,
     /// Support plane: the side the plane pushes towards (any non-zero length).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normal: Option<[f64; 3]>,
-    /// Support plane: strength (N).
+    /// Support plane: strength (N, 0 to [`MAX_STRENGTH_N`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub strength_n: Option<f64>,
     /// `Some(false)`: the mode is switched off (renders no force) but keeps every other setting. `None`
@@ -217,6 +218,16 @@ impl ModeConfig {
         }
         let missing =
             |key: &'static str| invalid(key, format!("a {} mode needs this key", self.kind.name()));
+        let out_of_range = |key: &'static str, value: f64, max: f64, unit: &str| {
+            invalid(
+                key,
+                format!(
+                    "must be a finite number from 0 to {}{unit}, got {}",
+                    readable(max),
+                    readable(value)
+                ),
+            )
+        };
         let volume_index = || -> Result<usize, ModeError> {
             let name = self.volume.as_deref().ok_or_else(|| missing("volume"))?;
             let wanted = self.kind.volume_kind().unwrap_or("scalar");
@@ -279,11 +290,8 @@ impl ModeConfig {
             ModeKind::Friction => {
                 let surface = self.surface.as_deref().ok_or_else(|| missing("surface"))?;
                 let mu = self.mu.ok_or_else(|| missing("mu"))?;
-                if !(mu.is_finite() && mu >= 0.0) {
-                    return Err(invalid(
-                        "mu",
-                        format!("must be a finite number >= 0, got {mu}"),
-                    ));
+                if !(0.0..=MAX_FRICTION_MU).contains(&mu) {
+                    return Err(out_of_range("mu", mu, MAX_FRICTION_MU, ""));
                 }
                 let surface_mode = names
                     .iter()
@@ -305,11 +313,20 @@ impl ModeConfig {
                 let point = self.point_m.ok_or_else(|| missing("point_m"))?;
                 let normal = self.normal.ok_or_else(|| missing("normal"))?;
                 let strength = self.strength_n.ok_or_else(|| missing("strength_n"))?;
-                let strength = if enabled || !strength.is_finite() {
-                    strength
-                } else {
-                    0.0
-                };
+                if !(0.0..=MAX_STRENGTH_N).contains(&strength) {
+                    return Err(out_of_range("strength_n", strength, MAX_STRENGTH_N, " N"));
+                }
+                if !point.iter().all(|c| c.abs() <= MAX_COORDINATE_M) {
+                    return Err(invalid(
+                        "point_m",
+                        format!(
+                            "must be three finite numbers, each from -{0} to {0} m, got [{1}]",
+                            readable(MAX_COORDINATE_M),
+                            point.map(readable).join(", ")
+                        ),
+                    ));
+                }
+                let strength = if enabled { strength } else { 0.0 };
                 let plane = Primitive::plane(
                     DVec3::from_array(point),
                     DVec3::from_array(normal),

@@ -46,11 +46,13 @@
 //! All sampling is allocation-free; so is [`RenderScene::emit`].
 
 mod config;
+pub mod limits;
 mod mode;
 mod scene;
 pub mod transfer;
 
 pub use config::{ModeConfig, ModeKind};
+pub use limits::{MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N, MAX_TRANSFER_VALUE};
 pub use mode::{Mode, ModeError, SurfaceSide, MAX_MODES, MIN_DIRECTION_MAGNITUDE};
 pub use scene::{ModeMemory, RenderScene};
 pub use transfer::{TransferError, TransferFunction};

@@ -213,6 +213,35 @@ fn build_errors_name_the_key() {
     ])
     .starts_with("modes[1].name: \"surface\" is used by another mode"));
     assert!(err(&[ModeConfig::friction("surface", -1.0)]).starts_with("modes[0].mu"));
+    // The documented limits (docs/reference/scene.md): mu up to 10, a support plane up to 1e6 N and 1000 m.
+    assert_eq!(
+        err(&[ModeConfig::friction("surface", 1e300)]),
+        "modes[0].mu: must be a finite number from 0 to 10, got 1e300"
+    );
+    assert_eq!(
+        err(&[ModeConfig::friction("surface", 10.5)]),
+        "modes[0].mu: must be a finite number from 0 to 10, got 10.5"
+    );
+    let plane = |point: DVec3, strength: f64| ModeConfig::support_plane(point, DVec3::Z, strength);
+    assert_eq!(
+        err(&[plane(DVec3::ZERO, 2e6)]),
+        "modes[0].strength_n: must be a finite number from 0 to 1000000 N, got 2000000"
+    );
+    assert_eq!(
+        err(&[plane(DVec3::ZERO, f64::INFINITY)]),
+        "modes[0].strength_n: must be a finite number from 0 to 1000000 N, got inf"
+    );
+    assert_eq!(
+        err(&[plane(DVec3::new(0.0, 0.0, -1e300), 1.0)]),
+        "modes[0].point_m: must be three finite numbers, each from -1000 to 1000 m, got [0, 0, -1e300]"
+    );
+    assert!(RenderScene::new(500.0, volumes(), &[plane(DVec3::splat(1e3), 1e6)]).is_ok());
+    // A switched-off mode keeps its settings, so they are checked too.
+    let off = ModeConfig {
+        enabled: Some(false),
+        ..plane(DVec3::ZERO, 1e300)
+    };
+    assert!(err(&[off]).starts_with("modes[0].strength_n"));
     assert!(
         err(&[ModeConfig::support_plane(DVec3::ZERO, DVec3::ZERO, 1.0)])
             .starts_with("modes[0].normal")

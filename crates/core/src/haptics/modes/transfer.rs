@@ -8,9 +8,11 @@
 //!
 //! In a scenario file a transfer function is a list of pairs, `transfer = [[0.2, 0.0], [0.6, 2.5]]`.
 //! Validation (at load time, never on the servo thread) requires at least one breakpoint, finite numbers,
-//! strictly increasing `x` and `y >= 0`, so [`TransferFunction::eval`] always returns a finite strength
-//! `>= 0` for a finite input, and 0 for a non-finite one. It does not allocate.
+//! strictly increasing `x` within [`MAX_TRANSFER_VALUE`] of 0 and `y` from 0 to [`MAX_STRENGTH_N`], so
+//! [`TransferFunction::eval`] always returns a finite strength `>= 0` for a finite input, and 0 for a
+//! non-finite one. It does not allocate.
 
+use super::limits::{readable, MAX_STRENGTH_N, MAX_TRANSFER_VALUE};
 use serde::{Deserialize, Serialize};
 
 /// Why a transfer function was refused. Messages read well after a field path, e.g.
@@ -27,8 +29,12 @@ pub enum TransferError {
         previous_x: f64,
         x: f64,
     },
-    #[error("strength must be >= 0 N (breakpoint {index}: {y})")]
+    #[error("x must be from -{max} to {max} (breakpoint {index}: {})", readable(*.x), max = readable(MAX_TRANSFER_VALUE))]
+    ValueOutOfRange { index: usize, x: f64 },
+    #[error("strength must be from 0 to {max} N (breakpoint {index}: {})", readable(*.y), max = readable(MAX_STRENGTH_N))]
     NegativeStrength { index: usize, y: f64 },
+    #[error("strength must be from 0 to {max} N (breakpoint {index}: {})", readable(*.y), max = readable(MAX_STRENGTH_N))]
+    TooStrong { index: usize, y: f64 },
 }
 
 /// A validated piecewise-linear transfer function, value -> newtons, clamped at both ends.
@@ -49,8 +55,14 @@ impl TransferFunction {
             if !(x.is_finite() && y.is_finite()) {
                 return Err(TransferError::NonFinite { index, x, y });
             }
+            if x.abs() > MAX_TRANSFER_VALUE {
+                return Err(TransferError::ValueOutOfRange { index, x });
+            }
             if y < 0.0 {
                 return Err(TransferError::NegativeStrength { index, y });
+            }
+            if y > MAX_STRENGTH_N {
+                return Err(TransferError::TooStrong { index, y });
             }
             if index > 0 {
                 let previous_x = points[index - 1][0];
@@ -81,8 +93,9 @@ impl TransferFunction {
         &self.points
     }
 
-    /// The same breakpoints with every strength multiplied by `factor` (a factor that is not a finite number
-    /// >= 0 is taken as 0, so the result is always valid). `scaled(0.0)` is the mode switched off.
+    /// The same breakpoints with every strength multiplied by `factor` and held at [`MAX_STRENGTH_N`] (a
+    /// factor that is not a finite number >= 0 is taken as 0, so the result is always valid). `scaled(0.0)` is
+    /// the mode switched off.
     pub fn scaled(&self, factor: f64) -> Self {
         let factor = if factor.is_finite() && factor >= 0.0 {
             factor
@@ -92,7 +105,7 @@ impl TransferFunction {
         let points = self
             .points
             .iter()
-            .map(|&[x, y]| [x, (y * factor).min(f64::MAX)])
+            .map(|&[x, y]| [x, (y * factor).min(MAX_STRENGTH_N)])
             .collect();
         Self { points }
     }
@@ -169,8 +182,8 @@ mod tests {
         for bad in [f64::NAN, -1.0, f64::NEG_INFINITY, f64::INFINITY] {
             assert_eq!(tf.scaled(bad).max_strength_n(), 0.0);
         }
-        let huge = TransferFunction::constant(1e300).unwrap().scaled(1e10);
-        assert_eq!(huge.max_strength_n(), f64::MAX);
+        let huge = TransferFunction::constant(1e6).unwrap().scaled(1e10);
+        assert_eq!(huge.max_strength_n(), 1e6);
     }
 
     #[test]
@@ -201,6 +214,34 @@ mod tests {
             TransferFunction::new(vec![[0.0, 1.0], [f64::NAN, 1.0]]),
             Err(TransferError::NonFinite { index: 1, .. })
         ));
+        // The documented limits: 1e6 N and |x| <= 1e300 are accepted, just beyond them refused.
+        assert!(TransferFunction::new(vec![[-1e300, 0.0], [1e300, 1e6]]).is_ok());
+        assert_eq!(
+            TransferFunction::new(vec![[0.0, 1.0], [1.0, 1.0000001e6]])
+                .unwrap_err()
+                .to_string(),
+            "strength must be from 0 to 1000000 N (breakpoint 1: 1000000.1)"
+        );
+        assert_eq!(
+            TransferFunction::new(vec![[0.0, -1.0]])
+                .unwrap_err()
+                .to_string(),
+            "strength must be from 0 to 1000000 N (breakpoint 0: -1)"
+        );
+        assert_eq!(
+            TransferFunction::new(vec![[-1e308, 0.0], [0.0, 1.0]])
+                .unwrap_err()
+                .to_string(),
+            "x must be from -1e300 to 1e300 (breakpoint 0: -1e308)"
+        );
+    }
+
+    #[test]
+    fn breakpoints_at_the_value_limit_give_finite_strengths_between_them() {
+        // The span of the two breakpoints is 2e300 (finite), so the interpolation is exact: halfway is half.
+        let tf = TransferFunction::new(vec![[-1e300, 0.0], [1e300, 2.0]]).unwrap();
+        assert_eq!(tf.eval(0.0), 1.0);
+        assert_eq!(tf.eval(9e299), 1.9);
     }
 
     #[test]

@@ -258,6 +258,12 @@ impl<T: ByteTransport> Haply2Diy<T> {
         }
     }
 
+    /// How long `read_state` waits for the board's reply (10 ms unless set here).
+    pub fn with_reply_timeout(mut self, reply_timeout: Duration) -> Self {
+        self.reply_timeout = reply_timeout;
+        self
+    }
+
     /// Replies the board sent that no command asked for (counted in whole replies), dropped.
     pub fn surplus_replies(&self) -> u64 {
         self.surplus.total()

@@ -18,7 +18,7 @@ use voxhap::device::supervisor::{
     OutputState, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
 };
 use voxhap::device::transport::SerialTransport;
-use voxhap::device::{DeviceEvent, Lifecycle};
+use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
 
 // hfabapi's WoodenHaptics (firmware model 3): `woodenhaptics_v2015()`, hfab_math.h:306-317, read in the order of
 // the `configuration` constructor (hfab_math.h:252-271); the home offset of hfab_api.cpp:106.
@@ -311,6 +311,11 @@ fn a_firmware_that_answers_twice_or_floods_builds_no_backlog_and_is_reported() {
             // Every message so far is answered (the test is the only writer): the newest answer is this one.
             let newest = firmware.shared.answered.load(Ordering::Acquire);
             device.read_state().unwrap();
+            // A device that answers more than asked may have its extra answer taken for the next reply, one tick
+            // old: from the second tick on, the driver says so.
+            if tick > 0 {
+                assert_eq!(device.device().state_age_ticks(), 1, "tick {tick}");
+            }
             device.input_checked(true);
             // Encoder 3 carries the number of the message the reply answers.
             let answered = device.device().last_report().unwrap().encoders[3];
@@ -400,4 +405,86 @@ fn a_silent_device_times_out_and_stale_replies_are_discarded_on_open() {
     let mut device = open(firmware.path());
     assert_eq!(device.device().model(), Some(WoodyModel::WoodenHaptics));
     device.close().unwrap();
+}
+
+/// A firmware that misses three replies in a row (muted) and then answers again: the first state after it may be
+/// the late reply of the first of the three commands, three commands old, and the driver says so
+/// (`state_age_ticks`, which the supervisor holds to its staleness bound of 3 ticks); the next clean exchange
+/// is fresh again. Each step waits for the double, so this holds whatever the load.
+#[test]
+fn after_missed_replies_the_driver_reports_how_old_the_state_may_be() {
+    let firmware = WoodyFirmware::start(3);
+    let mut device = open(firmware.path());
+    device.enable().unwrap();
+    let exchange = |device: &mut Lifecycle<WoodenHapticsSerial<SerialTransport>>| {
+        device.write_force(DVec3::ZERO).unwrap();
+        device.read_state()
+    };
+    exchange(&mut device).unwrap();
+    assert_eq!(device.device().state_age_ticks(), 0);
+    firmware.shared.mute.store(true, Ordering::Release);
+    for _ in 0..3 {
+        assert!(exchange(&mut device).is_err(), "a muted firmware answered");
+    }
+    firmware.shared.mute.store(false, Ordering::Release);
+    exchange(&mut device).unwrap();
+    assert_eq!(device.device().state_age_ticks(), 3);
+    exchange(&mut device).unwrap();
+    assert_eq!(device.device().state_age_ticks(), 0);
+}
+
+/// Under the supervisor: a state that may be older than the staleness bound (3 ticks) never computes force.
+/// The firmware misses four replies in a row and answers again; the state after the gap may be the late reply
+/// of the first missed command, four ticks old, so the supervisor holds the output at `StaleState` and the
+/// next tick sends zero current, however hard the scene pushes. Ticks run on a virtual clock and each waits
+/// for the double (2 s reply timeout), so this holds whatever the load.
+#[test]
+fn a_state_older_than_the_staleness_bound_never_computes_force() {
+    let firmware = WoodyFirmware::start(3);
+    let path = firmware.path().to_string();
+    let mut config = supervisor_config(3.0, 0);
+    config.max_consecutive_errors = 100;
+    config.link_timeout_us = 1_000_000;
+    let mut supervisor = Supervisor::new(config, move || {
+        let transport = SerialTransport::open(&path, 115_200)?;
+        Ok(WoodenHapticsSerial::new(
+            transport,
+            WoodyConfig {
+                reply_timeout: Duration::from_millis(200),
+                ..WoodyConfig::default()
+            },
+        ))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    firmware.set_encoders([300, -400, 500, 0, 0, 0]);
+    let push = DVec3::new(0.0, 0.0, 1.0);
+    let mut tick = 0u64;
+    let mut step = |supervisor: &mut Supervisor<_, _>, force: DVec3| {
+        tick += 1;
+        supervisor.tick(TickInput::at(force, tick * 1000))
+    };
+    // Engage: zero until engaged, then a push.
+    let mut engaged = false;
+    for _ in 0..5_000 {
+        if step(&mut supervisor, DVec3::ZERO).output_state == OutputState::Engaged {
+            engaged = true;
+            break;
+        }
+    }
+    assert!(engaged, "never engaged");
+    // The slew limit lets the push rise over a few ticks.
+    let pushing = (0..1_000).any(|_| step(&mut supervisor, push).sent_force_n.length() > 0.5);
+    assert!(pushing, "the push never reached the device");
+    firmware.shared.mute.store(true, Ordering::Release);
+    for _ in 0..4 {
+        step(&mut supervisor, push);
+    }
+    firmware.shared.mute.store(false, Ordering::Release);
+    let after_gap = step(&mut supervisor, push);
+    assert!(after_gap.state.is_some(), "{after_gap:?}");
+    assert_eq!(after_gap.output_state, OutputState::StaleState);
+    let next = step(&mut supervisor, push);
+    assert_eq!(next.sent_force_n, DVec3::ZERO, "{next:?}");
+    supervisor.stop();
 }

@@ -16,13 +16,13 @@ use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, 
 use voxhap::device::transport::inverse_service::ServiceConfig;
 use voxhap::device::{HapticDevice, Lifecycle};
 
-/// Waits (up to 2 s) until the service's log satisfies `done`: the service reads our last messages on its own
+/// Waits (up to 20 s) until the service's log satisfies `done`: the service reads our last messages on its own
 /// thread, after `close` has returned.
 fn settle(service: &InverseService, done: impl Fn(&[[f64; 3]]) -> bool) -> Vec<[f64; 3]> {
     let start = Instant::now();
     loop {
         let forces = service.forces();
-        if done(&forces) || start.elapsed() > Duration::from_secs(2) {
+        if done(&forces) || start.elapsed() > Duration::from_secs(20) {
             return forces;
         }
         std::thread::sleep(Duration::from_millis(5));
@@ -39,6 +39,17 @@ fn config(url: &str) -> HaplyInverseConfig {
         reply_wait: Duration::from_millis(20),
         ..HaplyInverseConfig::default()
     }
+}
+
+/// A driver that waits for every answer as long as a loaded machine may need (1 s per state, 50 times the
+/// usual test wait, in `read_state` and in the I/O thread): the tests that check what the service receives and
+/// what comes back, not the timing, use it, so a busy machine does not turn a late answer into a timeout or a
+/// dropped link. An answer that never comes (a malformed frame) costs that second.
+fn patient_config(url: &str) -> HaplyInverseConfig {
+    let mut config = config(url);
+    config.reply_wait = Duration::from_secs(1);
+    config.service.reply_timeout = Duration::from_secs(1);
+    config
 }
 
 #[test]
@@ -72,7 +83,7 @@ fn open_reads_the_inventory_and_configures_the_identity_basis() {
 #[test]
 fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
     let service = InverseService::start();
-    let mut device = Lifecycle::new(HaplyInverse::new(config(&service.url())));
+    let mut device = Lifecycle::new(HaplyInverse::new(patient_config(&service.url())));
     device.open().unwrap();
     device.enable().unwrap();
     let before = service.forces().len();
@@ -91,17 +102,22 @@ fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
     device.disable().unwrap();
     device.close().unwrap();
     // 50 ticks, then zeros: disable's, close's (the wrapper zeroes on every stop) and the I/O thread's own; the
-    // I/O thread may coalesce queued zeros into one message.
+    // I/O thread may coalesce queued zeros into one message, and sends a zero keepalive whenever no force came
+    // for 100 ms (a descheduled test thread), so the zeros are told apart from the ticks by value.
     let forces = settle(&service, |f| {
         f.len() >= before + 51 && f.last() == Some(&[0.0; 3])
     });
-    let ticks = &forces[before..before + 50];
-    for (i, f) in ticks.iter().enumerate() {
-        assert_eq!(*f, [0.01 * i as f64, 0.0, 0.5], "tick {i}");
-    }
+    let ticks: Vec<[f64; 3]> = forces[before..]
+        .iter()
+        .copied()
+        .filter(|f| *f != [0.0; 3])
+        .collect();
+    let expected: Vec<[f64; 3]> = (0..50).map(|i| [0.01 * i as f64, 0.0, 0.5]).collect();
+    assert_eq!(ticks, expected, "one force per tick, in order");
     // Every stop ends at zero, and nothing but zeros follows the last tick.
     assert_eq!(forces[forces.len() - 1], [0.0; 3]);
-    assert!(forces[before + 50..].iter().all(|f| *f == [0.0; 3]));
+    let last_tick = forces.iter().rposition(|f| *f == expected[49]).unwrap();
+    assert!(forces[last_tick + 1..].iter().all(|f| *f == [0.0; 3]));
 }
 
 /// A reply that comes after the I/O thread stopped waiting for it (a busy service) answers an older command,
@@ -144,8 +160,10 @@ fn a_reply_that_comes_late_is_never_taken_for_a_newer_one() {
     assert!(checked > 100, "only {checked} ticks answered in time");
 }
 
+/// The supervisor over the driver, with `driver` (`config` or `patient_config`) for each connection.
 fn supervisor(
     url: &str,
+    driver: fn(&str) -> HaplyInverseConfig,
 ) -> Supervisor<HaplyInverse, impl FnMut() -> Result<HaplyInverse, voxhap::device::DeviceError>> {
     let url = url.to_owned();
     let config = SupervisorConfig {
@@ -159,13 +177,13 @@ fn supervisor(
         steady_ticks_before_enable: 5,
         ..SupervisorConfig::default()
     };
-    Supervisor::new(config, move || Ok(HaplyInverse::new(self::config(&url)))).unwrap()
+    Supervisor::new(config, move || Ok(HaplyInverse::new(driver(&url)))).unwrap()
 }
 
 #[test]
 fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are_skipped() {
     let service = InverseService::start();
-    let mut supervisor = supervisor(&service.url());
+    let mut supervisor = supervisor(&service.url(), patient_config);
     supervisor.connect(0).unwrap();
     let mut events = Vec::new();
     for tick in 0..400u64 {
@@ -217,7 +235,7 @@ fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are
 #[test]
 fn a_service_restart_drops_the_link_and_the_driver_reconnects() {
     let mut service = InverseService::start();
-    let mut supervisor = supervisor(&service.url());
+    let mut supervisor = supervisor(&service.url(), config);
     supervisor.connect(0).unwrap();
     let start = Instant::now();
     let (mut lost_at, mut back_at) = (None, None);
@@ -299,7 +317,7 @@ fn extra_messages_from_the_service_never_make_force_from_stale_positions() {
         .shared
         .unsolicited_every_ms
         .store(100, Ordering::Release);
-    let mut supervisor = supervisor(&service.url());
+    let mut supervisor = supervisor(&service.url(), config);
     supervisor.connect(0).unwrap();
     // written_before[t]: the index of the newest message the service had finished writing when tick t began.
     let mut written_before = vec![0u64];
@@ -523,4 +541,40 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
         let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
         assert!(norm.is_finite() && norm <= 3.0 + 1e-9, "{f:?}");
     }
+}
+
+/// `serve --connect-timeout` reaches the Inverse3's connect: through the servo's own device wiring, a service
+/// whose handshake comes one byte per 100 ms without end is given up on after the configured 2.5 s, and the
+/// error says so (the driver's own default is 1 s).
+#[test]
+fn the_connect_timeout_reaches_the_inverse_connect() {
+    use voxhap::servo::device::{open_device, DeviceSpec};
+    use voxhap::servo::setup::SceneSetup;
+    let service = InverseService::start();
+    service
+        .shared
+        .slow_handshake_from
+        .store(1, Ordering::Release);
+    let setup = SceneSetup::builtin().unwrap();
+    let config = SupervisorConfig {
+        connect_timeout_us: 2_500_000,
+        ..SupervisorConfig::default()
+    };
+    let mut device = open_device(
+        &DeviceSpec::HaplyInverse(service.url()),
+        config,
+        (setup.arm.clone(), setup.start_m),
+        1e-3,
+    )
+    .unwrap()
+    .device;
+    let error = device
+        .connect(0)
+        .expect_err("the handshake never ends")
+        .to_string();
+    device.stop();
+    assert!(
+        error.contains("2500000 µs"),
+        "the error names another deadline: {error}"
+    );
 }

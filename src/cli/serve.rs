@@ -81,10 +81,11 @@ pub struct ServeArgs {
     /// CPU to pin the servo thread to (default: the last one).
     #[arg(long)]
     pub cpu: Option<usize>,
-    /// How long connecting to the device waits for its answer, in seconds, 0.1 to 600: for a voxhap-protocol
-    /// device, for the DeviceInfo answering Hello (Hello sent again after 0.1, 0.2, 0.4, 0.8 s, then every
-    /// second), then as long again for the State answering the first zero force; on every reconnect too. A port
-    /// where nothing answers fails `serve` after this long; a missing port fails at once.
+    /// How long connecting to the device may take in all, in seconds, 0.1 to 600: for a voxhap-protocol
+    /// device, the DeviceInfo answering Hello (Hello sent again after 0.1, 0.2, 0.4, 0.8 s, then every
+    /// second) and the State answering the first zero force; for the Haply Inverse3, the whole connect to the
+    /// service; on every reconnect too. A port where nothing answers fails `serve` after this long; a missing
+    /// port fails at once.
     #[arg(long, value_name = "SECONDS", default_value_t = 3.0, value_parser = parse_connect_timeout)]
     pub connect_timeout: f64,
     /// Stop after this many seconds, > 0 and <= 1e9 (default: run until Ctrl-C or SIGTERM).

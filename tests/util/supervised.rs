@@ -78,3 +78,64 @@ pub fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
         std::thread::sleep(Duration::from_millis(1));
     }
 }
+
+/// What [`check_exerted_forces`] holds every command to.
+pub struct ExertedBounds {
+    /// The force limit the supervisor enforces (N).
+    pub limit_n: f64,
+    /// What the limit may be exceeded by: rounding of whole milliamperes, a kinematic estimate's error (N).
+    pub tolerance_n: f64,
+    /// Forces above this are checked for direction (N).
+    pub direction_from_n: f64,
+    /// The largest angle to the request allowed above `direction_from_n` (degrees).
+    pub max_angle_deg: f64,
+    /// A force above this counts as near the limit (N); at least 100 commands must be.
+    pub strong_from_n: f64,
+}
+
+/// Checks the force the arm exerted at its true pose for every command a double logged: `exerted` gives it
+/// (`None` for a command sent before the test set a true pose; those must have been zero, which the caller's
+/// closure checks) and `describe` says where, for the failure message. Every force stays within the limit and,
+/// when not small, within `max_angle_deg` of `asked`; at least 100 commands come near the limit (so the glitch
+/// drive really pushed). Prints the worst angle and the largest force.
+pub fn check_exerted_forces<C>(
+    commands: &[C],
+    asked: DVec3,
+    bounds: &ExertedBounds,
+    exerted: impl Fn(&C) -> Option<DVec3>,
+    describe: impl Fn(&C) -> String,
+) {
+    let mut strong = 0;
+    let mut worst_angle = 0.0f64;
+    let mut largest = 0.0f64;
+    for command in commands {
+        let Some(force) = exerted(command) else {
+            continue;
+        };
+        largest = largest.max(force.length());
+        assert!(
+            force.length() <= bounds.limit_n + bounds.tolerance_n,
+            "{force} ({} N) {}",
+            force.length(),
+            describe(command)
+        );
+        if force.length() > bounds.direction_from_n {
+            let angle = angle_deg(force, asked);
+            worst_angle = worst_angle.max(angle);
+            assert!(
+                angle < bounds.max_angle_deg,
+                "{force} is {angle:.1}° off the request {}",
+                describe(command)
+            );
+        }
+        strong += u32::from(force.length() > bounds.strong_from_n);
+    }
+    assert!(
+        strong >= 100,
+        "only {strong} commands near the limit (largest {largest} N)"
+    );
+    eprintln!(
+        "worst angle {worst_angle:.3}°, largest {largest:.3} N, {strong} commands near {} N",
+        bounds.limit_n
+    );
+}

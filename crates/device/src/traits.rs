@@ -43,10 +43,12 @@ pub trait HapticDevice {
     /// Reads the newest state of the handle.
     fn read_state(&mut self) -> Result<DeviceState, Self::Error>;
 
-    /// How many servo ticks old the state the last `read_state` returned is: 0 when it answers this tick's
-    /// force (drivers that wait for their answer), `n` when the driver handed out the newest state it had and
-    /// that state answers the force of `n` ticks ago (the Haply Inverse3, whose replies may come late). The
-    /// supervisor counts it towards its staleness bound. Allocation-free.
+    /// How many servo ticks old the state the last `read_state` returned may be: 0 when it answers this tick's
+    /// force, `n` when it may answer the force of `n` ticks ago: the Haply Inverse3 labels each state with the
+    /// command it answers; drivers whose replies carry no sequence number report the oldest it may be
+    /// (`drivers::reply_age`: after missed replies, or from a device that sends more than asked). The
+    /// supervisor counts it towards its staleness bound, so a state older than `stale_state_ticks` never
+    /// computes force. Allocation-free.
     fn state_age_ticks(&self) -> u32 {
         0
     }

@@ -51,6 +51,7 @@ pub use super::falcon_kinematics::{
     forward_kinematics, inverse_kinematics, jacobian_inverse, leg_angle_rad, motor_commands,
     FalconGeometry, LegAngles,
 };
+use super::reply_age::ReplyAge;
 use crate::transport::{ByteTransport, SerialTransport};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
@@ -290,6 +291,8 @@ pub struct Falcon<P> {
     awaiting_reply: bool,
     surplus: SurplusCount,
     event: Option<DeviceEvent>,
+    /// How old the reply handed out may be.
+    age: ReplyAge,
 }
 
 impl<P: FalconPort> Falcon<P> {
@@ -324,6 +327,7 @@ impl<P: FalconPort> Falcon<P> {
             awaiting_reply: false,
             surplus: SurplusCount::default(),
             event: None,
+            age: ReplyAge::default(),
         }
     }
 
@@ -344,7 +348,9 @@ impl<P: FalconPort> Falcon<P> {
             if self.read_frame(Duration::ZERO)?.is_none() {
                 break;
             }
-            if !std::mem::take(&mut self.awaiting_reply) {
+            if std::mem::take(&mut self.awaiting_reply) {
+                self.age.late_reply_dropped();
+            } else {
                 surplus += 1;
             }
         }
@@ -353,6 +359,9 @@ impl<P: FalconPort> Falcon<P> {
             self.port.discard_input()?;
             self.frame_len = 0;
             surplus += 1;
+        }
+        if surplus > 0 {
+            self.age.surplus_dropped();
         }
         self.awaiting_reply = false;
         if let Some(event) = self.surplus.add(surplus) {
@@ -450,6 +459,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.frame_len = 0;
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
+        self.age = ReplyAge::default();
         self.accepted_m = None;
         self.candidate_m = None;
         self.awaiting_reply = false;
@@ -507,6 +517,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         };
         self.send(motor)?;
         self.awaiting_reply = true;
+        self.age.command_sent();
         Ok(())
     }
 
@@ -520,6 +531,11 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
                 }
             }
         }
+    }
+
+    /// The oldest the frame may be ([`ReplyAge`]): more than 0 after missed frames or frames nobody asked for.
+    fn state_age_ticks(&self) -> u32 {
+        self.age.age()
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {
@@ -544,6 +560,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             });
         };
         self.awaiting_reply = false;
+        self.age.reply_read();
         let was_homed = self.is_homed();
         self.last_reply = Some(reply);
         if !was_homed && self.is_homed() {

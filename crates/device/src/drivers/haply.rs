@@ -31,6 +31,7 @@
 //! torques are zero. Velocity is not measured: `read_state` reports zero and the
 //! host's safety pipeline estimates it from positions.
 
+use super::reply_age::ReplyAge;
 use crate::transport::ByteTransport;
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
@@ -224,6 +225,8 @@ pub struct Haply2Diy<T> {
     resyncs: u64,
     surplus: SurplusCount,
     event: Option<DeviceEvent>,
+    /// How old the reply handed out may be.
+    age: ReplyAge,
 }
 
 impl<T: ByteTransport> Haply2Diy<T> {
@@ -255,7 +258,14 @@ impl<T: ByteTransport> Haply2Diy<T> {
             resyncs: 0,
             surplus: SurplusCount::default(),
             event: None,
+            age: ReplyAge::default(),
         }
+    }
+
+    /// How long `read_state` waits for the board's reply (10 ms unless set here).
+    pub fn with_reply_timeout(mut self, reply_timeout: Duration) -> Self {
+        self.reply_timeout = reply_timeout;
+        self
     }
 
     /// Replies the board sent that no command asked for (counted in whole replies), dropped.
@@ -266,9 +276,12 @@ impl<T: ByteTransport> Haply2Diy<T> {
     /// Drops whatever is waiting before a command. Without an overdue reply, those bytes were not asked for.
     fn drain_waiting(&mut self) -> Result<(), DeviceError> {
         if self.resync_needed {
+            // The timed-out or shifted reply is thrown away with whatever came with it (or comes later, and is
+            // then taken for the next: either way the next reply may be a tick old).
             self.transport.discard_input()?;
             self.resync_needed = false;
             self.resyncs += 1;
+            self.age.late_reply_dropped();
             return Ok(());
         }
         let mut scratch = [0u8; 64];
@@ -282,6 +295,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
             bytes += n as u64;
         }
         if bytes > 0 {
+            self.age.surplus_dropped();
             if let Some(event) = self.surplus.add(bytes.div_ceil(9)) {
                 self.event = Some(event);
             }
@@ -333,6 +347,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         self.resync_needed = false;
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
+        self.age = ReplyAge::default();
         self.jacobian = None;
         self.candidate = None;
         self.transport
@@ -345,6 +360,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         // Only a pose the host accepted converts force; none yet means zero torque.
+        self.age.command_sent();
         let Some([[j11, j12], [j21, j22]]) = self.jacobian else {
             return self
                 .transport
@@ -362,6 +378,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         self.candidate = None;
         let reply = self.read_reply()?;
+        self.age.reply_read();
         let angles = self.config.parse_reply(&reply).inspect_err(|_| {
             // A wrong id or a non-finite angle: most likely a reply shifted by lost or extra bytes.
             self.resync_needed = true;
@@ -384,6 +401,11 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
             Some(jacobian) if accepted => self.jacobian = Some(jacobian),
             _ => {}
         }
+    }
+
+    /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or bytes nobody asked for.
+    fn state_age_ticks(&self) -> u32 {
+        self.age.age()
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

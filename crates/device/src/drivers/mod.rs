@@ -14,6 +14,7 @@
 //!   and kinematics;
 //! - [`falcon_kinematics`]: the Falcon's kinematics (libnifalcon's delta-robot solution);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
+//! - [`reply_age`]: how old a request/reply driver's state may be, for devices without sequence numbers;
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
 pub mod falcon;
@@ -22,6 +23,7 @@ pub mod haply;
 pub mod haply_inverse;
 pub mod protocol;
 pub mod protocol_link;
+pub mod reply_age;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
 pub mod woodenhaptics_kinematics;

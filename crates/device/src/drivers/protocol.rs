@@ -10,8 +10,9 @@
 //!   waits that double up to 1 s (`hello_timeout` is the first wait), so a device that answers late (a
 //!   bootloader, a USB-serial adapter's latency timer, a loaded host) is still heard and a silent port costs a
 //!   handful of Hellos, not a flood. A device of another major version is refused with both versions named.
-//!   Then one zero SetForce in lockstep (sent again every `hello_timeout`), waited for up to `connect_timeout`
-//!   more, so the host sees the handle before enabling. Neither wait is the servo's per-tick budget.
+//!   Then one zero SetForce in lockstep (sent again every `hello_timeout`), so the host sees the handle before
+//!   enabling. Both share one overall deadline: open gives up `connect_timeout` after it started, however the
+//!   device answers (late, corrupted, a byte at a time). Neither wait is the servo's per-tick budget.
 //! - **Which DeviceInfo counts.** DeviceInfo echoes nothing, so a late reply to a Hello of an earlier open (on
 //!   an earlier handle of the same port, or from an earlier process) cannot be told from a fresh one by itself.
 //!   The Heartbeat after each Hello can: the device answers in order, so a HeartbeatReply carrying one of this
@@ -172,6 +173,9 @@ pub struct ProtocolDevice<L> {
     event_len: usize,
     /// The first handshake nonce, when a test fixes it (`None`: drawn per open, [`take_nonces`]).
     handshake_nonce: Option<u32>,
+    /// While `open` runs: when it gives up, `connect_timeout` after it started (the handshake and the first
+    /// State share it, however the device trickles its bytes).
+    open_deadline: Option<Instant>,
 }
 
 fn placeholder_info() -> DeviceInfo {
@@ -250,6 +254,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
             event_head: 0,
             event_len: 0,
             handshake_nonce: None,
+            open_deadline: None,
         }
     }
 
@@ -374,6 +379,9 @@ impl<L: MessageLink> ProtocolDevice<L> {
         // The last DeviceInfo since the last HeartbeatReply.
         let mut candidate: Option<voxhap_protocol::DeviceInfo> = None;
         for wait in self.config.hello_waits().take(MAX_HELLOS as usize) {
+            if self.open_time_is_up() {
+                break;
+            }
             let hello = self.host.hello();
             self.counters.hellos += 1;
             self.link.send(&hello)?;
@@ -432,7 +440,10 @@ impl<L: MessageLink> ProtocolDevice<L> {
         wait: Duration,
         mut take: impl FnMut(&mut Self, DeviceToHost) -> Result<Option<T>, DeviceError>,
     ) -> Result<Option<T>, DeviceError> {
-        let deadline = Instant::now() + wait;
+        let mut deadline = Instant::now() + wait;
+        if let Some(open_deadline) = self.open_deadline {
+            deadline = deadline.min(open_deadline);
+        }
         loop {
             let remaining = deadline.saturating_duration_since(Instant::now());
             let Some(message) = self.link.receive(remaining)? else {
@@ -459,7 +470,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 .max(Duration::from_millis(1))
                 .as_micros())
         .clamp(1, u128::from(MAX_HELLOS)) as u32;
-        while sent < slots {
+        while sent < slots && !self.open_time_is_up() {
             self.send_force(DVec3::ZERO)?;
             sent += 1;
             let answered = self.receive_for(self.config.hello_timeout, |this, message| {
@@ -479,6 +490,21 @@ impl<L: MessageLink> ProtocolDevice<L> {
             sent: "zero forces",
             waited_us: duration_us(started.elapsed()),
         })
+    }
+
+    fn open_within_deadline(&mut self) -> Result<(), DeviceError> {
+        self.link.discard_input()?;
+        self.link.flush()?;
+        self.handshake()?;
+        // One zero force in lockstep: the device answers with a State, so the host sees the handle before
+        // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
+        self.first_state()
+    }
+
+    /// True once `open`'s overall deadline has passed.
+    fn open_time_is_up(&self) -> bool {
+        self.open_deadline
+            .is_some_and(|deadline| Instant::now() >= deadline)
     }
 
     fn send_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
@@ -504,13 +530,12 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         &self.info
     }
 
+    /// Bounded as a whole by `connect_timeout` (plus the last write's own bound).
     fn open(&mut self) -> Result<(), DeviceError> {
-        self.link.discard_input()?;
-        self.link.flush()?;
-        self.handshake()?;
-        // One zero force in lockstep: the device answers with a State, so the host sees the handle before
-        // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
-        self.first_state()
+        self.open_deadline = Some(Instant::now() + self.config.connect_timeout);
+        let opened = self.open_within_deadline();
+        self.open_deadline = None;
+        opened
     }
 
     fn enable(&mut self) -> Result<(), DeviceError> {

@@ -4,7 +4,10 @@
 //!
 //! Latency: the firmware streams reports faster than a host may read them, and the kernel queues them; reading
 //! one per tick would fall behind by up to the whole queue (~64 reports, ~64 ms). `read_state` therefore drains
-//! the queue and keeps the newest report, as chai3d's USB branch does on every read.
+//! the queue and keeps the newest report, as chai3d's USB branch does on every read. Its age
+//! ([`HapticDevice::state_age_ticks`]) is 0: the report handed out is the newest the device has sent, read this
+//! tick (a stalled stream is a timeout, never an old report handed out again), and reports carry no command
+//! they answer, so there is no older command it could stand for.
 //!
 //! Sources (public): the firmware `mbed-code/main.cpp` in WoodenHaptics/woody-experimental (8-byte reports both
 //! ways: `pc_to_hid_message` = three `short` motor currents in mA then a debug word; `hid_to_pc_message` = three

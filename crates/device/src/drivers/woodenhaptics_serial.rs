@@ -38,14 +38,17 @@
 //! answer, a flood) and drops them; after the reply to the command it drops any further lines already waiting.
 //! Lines nobody asked for are counted and reported ([`DeviceEvent::Surplus`]); a flood larger than
 //! [`MAX_LINES_DRAINED`] lines per tick is discarded wholesale. The state handed out is the first reply after the
-//! command (at most one tick old when a second answer of the previous command slipped in behind the drain), so
-//! positions never queue up: the supervisor's staleness bound (`stale_state_ticks`) counts from there.
+//! command, so positions never queue up; its age ([`HapticDevice::state_age_ticks`], see
+//! [`super::reply_age`]) is the oldest it may be: 0 in lockstep, more after missed replies or lines nobody asked
+//! for (a second answer may have slipped in behind the drain), and the supervisor's staleness bound
+//! (`stale_state_ticks`) counts from there.
 //!
 //! Frame: hfabapi's device frame in metres with its workspace origin subtracted (for a WoodenHaptics: x forward
 //! from the base axis, y to the side, z up). The supervisor's safety pipeline bounds the force; this driver also
 //! scales the three currents together so none exceeds [`MAX_CURRENT_MA`] (keeping the force's direction, as
 //! libnifalcon does for the Falcon), where the firmware would zero a single motor.
 
+use super::reply_age::ReplyAge;
 use super::woodenhaptics_constants::WoodenHapticsConstants;
 use crate::transport::ByteTransport;
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
@@ -222,6 +225,7 @@ pub struct WoodenHapticsSerial<T> {
     late_replies: u64,
     surplus: SurplusCount,
     event: Option<DeviceEvent>,
+    age: ReplyAge,
 }
 
 impl<T: ByteTransport> WoodenHapticsSerial<T> {
@@ -245,6 +249,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             late_replies: 0,
             surplus: SurplusCount::default(),
             event: None,
+            age: ReplyAge::default(),
         }
     }
 
@@ -264,6 +269,9 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
     }
 
     fn count_surplus(&mut self, n: u64) {
+        if n > 0 {
+            self.age.surplus_dropped();
+        }
         if let Some(event) = self.surplus.add(n) {
             self.event = Some(event);
         }
@@ -289,6 +297,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             lines += 1;
             if std::mem::take(&mut self.awaiting_reply) {
                 self.late_replies += 1;
+                self.age.late_reply_dropped();
             } else {
                 surplus += 1;
             }
@@ -430,6 +439,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         self.theta = None;
         self.candidate = None;
         self.awaiting_reply = false;
+        self.age = ReplyAge::default();
         let mut last_error = None;
         for _ in 0..self.config.hello_attempts.max(1) {
             self.send_currents([0; 3])?;
@@ -461,6 +471,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         };
         self.send_currents(currents)?;
         self.awaiting_reply = true;
+        self.age.command_sent();
         Ok(())
     }
 
@@ -475,6 +486,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
             });
         };
         self.awaiting_reply = false;
+        self.age.reply_read();
         let mut state = self.accept(report)?;
         // Lines already waiting behind the reply were not asked for; the newest good one is the freshest pose.
         let mut surplus = 0;
@@ -500,6 +512,11 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
             Some(theta) if accepted => self.theta = Some(theta),
             _ => {}
         }
+    }
+
+    /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or lines nobody asked for.
+    fn state_age_ticks(&self) -> u32 {
+        self.age.age()
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

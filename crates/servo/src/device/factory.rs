@@ -196,6 +196,9 @@ fn open_supervised(
         DeviceSpec::HaplyInverse(url) => {
             let mut driver_config = HaplyInverseConfig::default();
             driver_config.service.url = url.clone();
+            // `serve --connect-timeout`: the whole connect (TCP, WebSocket upgrade, inventory, session) shares it.
+            driver_config.service.connect_timeout =
+                Duration::from_micros(config.connect_timeout_us);
             reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
         }
         DeviceSpec::Falcon { select, firmware } => {

@@ -1,0 +1,99 @@
+//! How old the state a request/reply driver hands out may be, for devices whose replies carry no sequence
+//! number (WoodenHaptics serial, Haply 2DIY, Novint Falcon): one reply per command, in order.
+//!
+//! A reply read after command n answers n, or an earlier command whose reply missed its read (it timed out and
+//! the reply came later), or, from a device that answers more than once, an earlier command answered again. The
+//! bytes cannot tell these apart, so the driver reports the oldest the reply may be, in commands (servo ticks):
+//! the commands in a row before n whose reply never came, plus one when the device was out of step just
+//! before (a late reply or lines nobody asked for were dropped since the last reply). A clean exchange reports
+//! 0; a device that answers twice reports 1 on every tick; after `k` missed replies the next state reports `k`
+//! (or more). The supervisor counts this age towards its staleness bound (`stale_state_ticks`): a state it says
+//! is older than the bound is never used to compute force. Allocation-free, no clock.
+
+/// The age bookkeeping of one link (module docs). Reset on every open.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct ReplyAge {
+    /// Commands in a row, before the one awaited, whose reply never came.
+    missed: u32,
+    /// A command was sent and its reply not read yet.
+    awaiting: bool,
+    /// Lines nobody asked for, or a late reply, were dropped since the last reply.
+    out_of_step: bool,
+    /// The age of the last reply read (commands).
+    age: u32,
+}
+
+impl ReplyAge {
+    /// A command went out. The one before it, if its reply is still awaited, missed it.
+    pub fn command_sent(&mut self) {
+        if self.awaiting {
+            self.missed = self.missed.saturating_add(1);
+        }
+        self.awaiting = true;
+    }
+
+    /// A reply that came after its read had timed out was dropped (before the next command): the command it
+    /// answers is accounted for, but the device is out of step.
+    pub fn late_reply_dropped(&mut self) {
+        if self.awaiting {
+            self.awaiting = false;
+        } else {
+            self.missed = self.missed.saturating_sub(1);
+        }
+        self.out_of_step = true;
+    }
+
+    /// Lines nobody asked for were dropped (before a command or behind a reply).
+    pub fn surplus_dropped(&mut self) {
+        self.out_of_step = true;
+    }
+
+    /// A reply was read: returns its age (module docs); the bookkeeping starts over from it.
+    pub fn reply_read(&mut self) -> u32 {
+        self.age = self.missed.saturating_add(u32::from(self.out_of_step));
+        *self = ReplyAge {
+            age: self.age,
+            ..ReplyAge::default()
+        };
+        self.age
+    }
+
+    /// The age of the last reply read.
+    pub fn age(&self) -> u32 {
+        self.age
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ReplyAge;
+
+    /// The cases of the module docs, each worked out by hand from one reply per command, in order.
+    #[test]
+    fn ages_follow_the_commands_a_reply_may_answer() {
+        let mut age = ReplyAge::default();
+        // Clean lockstep.
+        age.command_sent();
+        assert_eq!(age.reply_read(), 0);
+        // Two replies missed; the reply read after the third command may answer the first of them, two
+        // commands before it.
+        age.command_sent();
+        age.command_sent();
+        age.command_sent();
+        assert_eq!(age.reply_read(), 2);
+        // Back in step.
+        age.command_sent();
+        assert_eq!(age.reply_read(), 0);
+        // A second answer dropped before the command: the reply read may be another one (one tick old).
+        age.command_sent();
+        age.surplus_dropped();
+        assert_eq!(age.reply_read(), 1);
+        // A reply that missed its read came before the next command and was dropped: the next reply may be
+        // late too.
+        age.command_sent();
+        age.late_reply_dropped();
+        age.command_sent();
+        assert_eq!(age.reply_read(), 1);
+        assert_eq!(age.age(), 1);
+    }
+}

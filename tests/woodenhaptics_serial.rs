@@ -320,9 +320,11 @@ fn a_firmware_that_answers_twice_or_floods_builds_no_backlog_and_is_reported() {
             device.input_checked(true);
             // Encoder 3 carries the number of the message the reply answers.
             let answered = device.device().last_report().unwrap().encoders[3];
-            assert_eq!(
-                i64::from(answered),
-                newest as i64,
+            // No backlog: the state answers the newest message, or (when the previous message's extra answer
+            // was still on its way at the drain, which scheduling decides) the one before; never older.
+            let lag = newest as i64 - i64::from(answered);
+            assert!(
+                lag == 0 || lag == 1,
                 "answers {answers}, flood {flood}, tick {tick}: the state answers message {answered}, the \
                  newest is {newest}"
             );

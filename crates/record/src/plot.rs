@@ -122,7 +122,7 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
     let mut sink = |sample: &TraceSample| data.push(sample);
     let (trace, _) = match sniff_format(path)? {
         voxhap_api::TraceFormat::Parquet => {
-            crate::parquet_trace::for_each_parquet_sample(path, &mut sink)?
+            crate::parquet_read::for_each_parquet_sample(path, &mut sink)?
         }
         voxhap_api::TraceFormat::Csv => crate::csv::for_each_csv_sample(path, &mut sink)?,
         voxhap_api::TraceFormat::Mcap => {

@@ -32,10 +32,7 @@ const BATCH_ROWS: usize = 8 * 1024;
 /// Reads a Parquet trace, and its sidecar `path.json` when that file exists. A file without its final
 /// footer (cut off by a crash) is read up to its last complete row group, with a warning.
 pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let mut samples = Vec::new();
-    let (mut trace, _) = for_each_parquet_sample(path, &mut |sample| samples.push(*sample))?;
-    trace.samples = samples;
-    Ok(trace)
+    crate::trace::collect_samples(path, for_each_parquet_sample)
 }
 
 /// Reads a Parquet trace as [`read_parquet_trace`] does, but hands each sample to `sink` in file order

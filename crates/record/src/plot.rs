@@ -113,10 +113,10 @@ pub fn plot_trace(
     plot_data(&data, trace, title, out, width_px, height_px)
 }
 
-/// Reads the trace at `path` in batches (Parquet pages, CSV lines) into a [`PlotData`] for a plot `width_px`
-/// wide, so that memory does not grow with the trace's length; returns the trace without its samples (mode
-/// names, sidecar, warnings) and the reduction. An MCAP trace, and a Parquet file cut off before its footer,
-/// are read whole first.
+/// Reads the trace at `path` in batches (Parquet pages, CSV lines, MCAP messages) into a [`PlotData`] for a
+/// plot `width_px` wide, so that memory does not grow with the number of samples; returns the trace without
+/// its samples (mode names, sidecar, warnings) and the reduction. An MCAP trace's file is held in memory while
+/// it is read (its samples are not).
 pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), TraceReadError> {
     let mut data = PlotData::new(width_px);
     let mut sink = |sample: &TraceSample| data.push(sample);
@@ -125,12 +125,7 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
             crate::parquet_read::for_each_parquet_sample(path, &mut sink)?
         }
         voxhap_api::TraceFormat::Csv => crate::csv::for_each_csv_sample(path, &mut sink)?,
-        voxhap_api::TraceFormat::Mcap => {
-            let mut trace = crate::formats::read_trace(path)?;
-            let samples = std::mem::take(&mut trace.samples);
-            samples.iter().for_each(&mut sink);
-            (trace, samples.len() as u64)
-        }
+        voxhap_api::TraceFormat::Mcap => crate::mcap_read::for_each_mcap_sample(path, &mut sink)?,
     };
     Ok((trace, data))
 }

@@ -80,10 +80,7 @@ impl CsvTraceWriter {
     }
 
     fn io_error(&self, source: std::io::Error) -> TraceError {
-        TraceError::Io {
-            path: self.path.clone(),
-            source,
-        }
+        TraceError::io(&self.path, source)
     }
 
     /// Hands the buffered whole lines to the file, counting the lines that reached it. After a failed

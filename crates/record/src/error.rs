@@ -108,6 +108,16 @@ pub enum TraceError {
     },
 }
 
+impl TraceError {
+    /// A write error on the trace file (or sidecar) at `path`.
+    pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Self {
+        TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
 /// An error and its sources joined with `: `, as `voxhap` prints them (`cannot write the trace file
 /// x.csv: No space left on device (os error 28)`).
 pub fn error_chain(error: &dyn std::error::Error) -> String {

@@ -184,10 +184,7 @@ impl ParquetTraceWriter {
     }
 
     fn io_error(&self, source: std::io::Error) -> TraceError {
-        TraceError::Io {
-            path: self.path.clone(),
-            source,
-        }
+        TraceError::io(&self.path, source)
     }
 
     /// Writes the buffered rows as one row group, then its row-group footer, and hands the bytes to the

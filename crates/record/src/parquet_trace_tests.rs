@@ -15,6 +15,15 @@ fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
     writer.finish().unwrap()
 }
 
+/// Writes `samples` and then crashes: nothing more is written (no final footer, the open row group lost).
+fn write_and_crash(path: &Path, samples: &[TraceSample]) {
+    let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
+    for s in samples {
+        writer.write_sample(s).unwrap();
+    }
+    std::mem::forget(writer);
+}
+
 #[test]
 fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
     let dir = tempfile::tempdir().unwrap();
@@ -74,13 +83,8 @@ fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.parquet");
     let written = samples(3500, 1);
-    let mut writer = create_trace_writer(&path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
-    for s in &written {
-        writer.write_sample(s).unwrap();
-    }
-    // Three row groups (1 s each) are on disk; the last 500 samples are still buffered. A crash now
-    // (nothing more is written):
-    std::mem::forget(writer);
+    // Three row groups (1 s each) are on disk; the last 500 samples are still buffered.
+    write_and_crash(&path, &written);
     let bytes = std::fs::read(&path).unwrap();
     let cut = dir.path().join("cut.parquet");
     std::fs::copy(sidecar_path(&path), sidecar_path(&cut)).unwrap();
@@ -195,11 +199,7 @@ fn a_cut_off_file_streams_its_complete_row_groups() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.parquet");
     let written = samples(3500, 1);
-    let mut writer = create_trace_writer(&path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
-    for s in &written {
-        writer.write_sample(s).unwrap();
-    }
-    std::mem::forget(writer); // a crash: three one-second row groups on disk, no final footer
+    write_and_crash(&path, &written); // three one-second row groups on disk, no final footer
     let mut streamed = Vec::new();
     let (trace, count) =
         crate::parquet_read::for_each_parquet_sample(&path, &mut |s| streamed.push(*s)).unwrap();

@@ -303,10 +303,8 @@ fn row_group_footer(group: RowGroupMetaData) -> Result<Vec<u8>, parquet::errors:
 
 impl TraceWriter for ParquetTraceWriter {
     fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
-        if self.writer.is_none() {
-            return Err(TraceError::Finished);
-        }
-        let Some(sample) = self.checker.admit(sample)? else {
+        let open = self.writer.is_some();
+        let Some(sample) = self.checker.admit_to(open, sample)? else {
             return Ok(());
         };
         // A sample more than a second after the group's first closes the group first (a NaN time never

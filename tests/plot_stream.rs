@@ -11,6 +11,17 @@ use voxhap::record::{create_trace_writer, TraceFormat, TraceMeta, TraceSample};
 /// in z, the proxy follows 1 mm below, and the force is a slowly modulated spring. Returns the smallest and
 /// largest value of each series `voxhap plot --extents` names, in its order.
 fn write_trace(path: &Path, format: TraceFormat, seconds: u64) -> Vec<(&'static str, f64, f64)> {
+    write_trace_ending(path, format, seconds, true)
+}
+
+/// [`write_trace`], finished or (`finish` false) left as a crash leaves it: what reached the file, no final
+/// footer or summary.
+fn write_trace_ending(
+    path: &Path,
+    format: TraceFormat,
+    seconds: u64,
+    finish: bool,
+) -> Vec<(&'static str, f64, f64)> {
     let meta = TraceMeta::new(
         vec!["surface".to_string()],
         1000.0,
@@ -60,7 +71,12 @@ fn write_trace(path: &Path, format: TraceFormat, seconds: u64) -> Vec<(&'static 
         }
         writer.write_sample(&sample).unwrap();
     }
-    writer.finish().unwrap();
+    if finish {
+        writer.finish().unwrap();
+    } else {
+        writer.flush().unwrap();
+        std::mem::forget(writer);
+    }
     extents
 }
 
@@ -173,6 +189,60 @@ fn plotting_a_long_csv_trace_draws_the_data_extents() {
     eprintln!("voxhap plot peak memory, 5 minutes of CSV: {kib} KiB");
     assert!(text.contains("(300000 samples)"), "{text}");
     assert!(kib < 128 * 1024, "peak memory {kib} KiB");
+    let drawn = drawn_extents(&text);
+    assert_eq!(drawn.len(), expected.len(), "{text}");
+    for ((name, low, high), (want, want_low, want_high)) in drawn.iter().zip(&expected) {
+        assert_eq!(name, want);
+        assert_eq!((*low, *high), (*want_low, *want_high), "{name}");
+    }
+}
+
+/// A Parquet trace cut off by a crash (no final footer: 1 200 one-second row groups, each followed by its
+/// row-group footer) streams like a finished one. Fails when such a file is read whole (about 0.9 GB of
+/// samples for these 20 minutes).
+#[test]
+fn plotting_a_long_cut_off_parquet_trace_streams_in_bounded_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = dir.path().join("short.parquet");
+    let long = dir.path().join("long.parquet");
+    write_trace_ending(&short, TraceFormat::Parquet, 60, false);
+    write_trace_ending(&long, TraceFormat::Parquet, 1200, false);
+    let (_, short_kib) = plot(&short, &dir.path().join("short.png"));
+    let (text, long_kib) = plot(&long, &dir.path().join("long.png"));
+    eprintln!(
+        "voxhap plot peak memory, cut off: 1 minute {short_kib} KiB, 20 minutes {long_kib} KiB"
+    );
+    assert!(text.contains("no final footer"), "{text}");
+    // The last second may still have been in the writer's buffer: at least 1199 whole row groups.
+    assert!(
+        text.contains("(1199000 samples)") || text.contains("(1200000 samples)"),
+        "{text}"
+    );
+    assert!(
+        long_kib <= short_kib + 48 * 1024,
+        "peak memory grew with the trace: {short_kib} KiB for 1 minute, {long_kib} KiB for 20"
+    );
+}
+
+/// An MCAP trace's file is held while it is read, its samples are not: plotting 5 minutes of MCAP needs at
+/// most the file's size plus 64 MiB more than plotting 10 seconds. Fails when the samples are collected (300 000
+/// of them, about 0.2 GB, plus their decoded messages).
+#[test]
+fn plotting_an_mcap_trace_holds_its_file_not_its_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = dir.path().join("short.mcap");
+    let long = dir.path().join("long.mcap");
+    write_trace(&short, TraceFormat::Mcap, 10);
+    let expected = write_trace(&long, TraceFormat::Mcap, 300);
+    let (_, short_kib) = plot(&short, &dir.path().join("short.png"));
+    let (text, long_kib) = plot(&long, &dir.path().join("long.png"));
+    let file_kib = std::fs::metadata(&long).unwrap().len() / 1024;
+    eprintln!("voxhap plot peak memory, MCAP: 10 s {short_kib} KiB, 5 minutes {long_kib} KiB (file {file_kib} KiB)");
+    assert!(text.contains("(300000 samples)"), "{text}");
+    assert!(
+        long_kib <= short_kib + file_kib + 64 * 1024,
+        "peak memory {long_kib} KiB against {short_kib} KiB for 10 s and a {file_kib} KiB file"
+    );
     let drawn = drawn_extents(&text);
     assert_eq!(drawn.len(), expected.len(), "{text}");
     for ((name, low, high), (want, want_low, want_high)) in drawn.iter().zip(&expected) {

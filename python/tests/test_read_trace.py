@@ -149,6 +149,34 @@ def test_a_sidecar_that_lies_is_a_warning(traces, tmp_path, ext):
     assert df.attrs["sidecar"]["sample_count"] == 7921
 
 
+@pytest.mark.parametrize("ext", FORMATS)
+def test_a_sidecar_lying_about_modes_format_and_version_warns_of_each(traces, tmp_path, ext):
+    """Every contradiction between the sidecar and the data is its own warning (docs/traces.md, "Sidecar"):
+    the modes it names, the format it claims and the trace format version; the trace's data are used."""
+    import json
+
+    out = tmp_path / f"lie.{ext}"
+    out.write_bytes(traces[ext].read_bytes())
+    sidecar = json.loads(pathlib.Path(f"{traces[ext]}.json").read_text())
+    honest_modes = sidecar["mode_names"]
+    sidecar["mode_names"] = ["surface"]
+    sidecar["trace_format"] = "csv" if ext != "csv" else "mcap"
+    sidecar["format_version"] = 99
+    pathlib.Path(f"{out}.json").write_text(json.dumps(sidecar))
+    with pytest.warns(UserWarning) as caught:
+        df = voxhap.read_trace(out)
+    texts = [str(w.message) for w in caught]
+    expected = [
+        f"it names the modes [\"surface\"], the trace has {json.dumps(honest_modes)}",
+        f"it says trace_format {sidecar['trace_format']}, the file is {ext}",
+        "it says format_version 99, this reader reads",
+    ]
+    for text in expected:
+        assert any(text in t for t in texts), (text, texts)
+    assert len(df) == 1500
+    assert [c for c in df.columns if c.startswith("primitives_")] == [f"primitives_{m}" for m in honest_modes]
+
+
 def test_a_cut_off_parquet_trace_is_read_with_a_warning(traces, tmp_path):
     data = traces["parquet"].read_bytes()
     out = tmp_path / "cut.parquet"

@@ -12,7 +12,7 @@ use super::sim::{fail_on_findings, load_scenario, solver_label, FailOn, EXIT_FAI
 use crate::haptics::tick::SolverKind;
 use crate::record::{
     create_trace_writer_with, error_chain, estimate_trace_bytes, OutputPolicy, TraceFormat,
-    TraceMeta,
+    TraceMeta, TraceWriter,
 };
 use crate::sim::overrides::{split_override, split_values};
 use crate::sim::{self, LoadedScenario, SimSummary};
@@ -304,21 +304,31 @@ fn run_point(
         bar.inc(done - reported);
         reported = done;
     });
-    match result {
-        Ok(summary) => {
-            writer.finish()?;
-            Ok(summary)
-        }
-        Err(error) => {
-            let _ = writer.fail(&error_chain(&error));
-            Err(error.into())
-        }
-    }
+    end_point(writer.as_mut(), result)
+}
+
+/// Ends a point's trace: finished when its run succeeded; otherwise, or when finishing fails (a full disk),
+/// marked failed in its sidecar with the error (`complete: false`, the samples that reached the file), so no
+/// point's sidecar claims a trace it does not have.
+fn end_point<T, E>(writer: &mut dyn TraceWriter, result: Result<T, E>) -> anyhow::Result<T>
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
+    let (message, error) = match result {
+        Ok(value) => match writer.finish() {
+            Ok(_) => return Ok(value),
+            Err(error) => (error_chain(&error), anyhow::Error::from(error)),
+        },
+        Err(error) => (error_chain(&error), anyhow::Error::from(error)),
+    };
+    let _ = writer.fail(&message);
+    Err(error)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::TraceError;
 
     #[test]
     fn points_are_the_cartesian_product() {
@@ -328,6 +338,47 @@ mod tests {
         assert_eq!(points[0], ["k_n_per_m=200", "modes[1].mu=0.3"]);
         assert_eq!(points[5], ["k_n_per_m=500", "modes[1].mu=0.7"]);
         assert!(sweep_points(&["k=1,,2".into()]).is_err());
+    }
+
+    /// A writer whose `finish` fails as on a full disk, recording what it is told.
+    #[derive(Default)]
+    struct FullDisk {
+        failed_with: Option<String>,
+    }
+
+    impl TraceWriter for FullDisk {
+        fn write_sample(&mut self, _: &crate::record::TraceSample) -> Result<(), TraceError> {
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), TraceError> {
+            Ok(())
+        }
+        fn finish(&mut self) -> Result<crate::record::TraceSummary, TraceError> {
+            Err(TraceError::Io {
+                path: "point-000.csv".into(),
+                source: std::io::Error::from_raw_os_error(28), // ENOSPC
+            })
+        }
+        fn fail(&mut self, error: &str) -> Result<(), TraceError> {
+            self.failed_with = Some(error.to_owned());
+            Ok(())
+        }
+        fn sample_count(&self) -> u64 {
+            0
+        }
+    }
+
+    #[test]
+    fn a_point_whose_finish_fails_is_marked_failed() {
+        let mut writer = FullDisk::default();
+        let result = end_point(&mut writer, Ok::<_, std::io::Error>(7));
+        let error = format!("{:#}", result.unwrap_err());
+        assert!(error.contains("point-000.csv"), "{error}");
+        let failed_with = writer.failed_with.expect("the sidecar is marked failed");
+        assert!(
+            failed_with.contains("No space left on device"),
+            "{failed_with}"
+        );
     }
 
     #[test]

@@ -363,3 +363,107 @@ fn readers_warn_on_a_lying_sidecar() {
         );
     }
 }
+
+/// One HTTP request to a server at `addr`; returns the status and the body.
+fn http(addr: &str, request: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    stream.write_all(request.as_bytes()).unwrap();
+    let mut response = String::new();
+    stream.read_to_string(&mut response).unwrap();
+    let status = response
+        .split(' ')
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
+    let body = response
+        .split_once("\r\n\r\n")
+        .map_or(String::new(), |(_, b)| b.to_owned());
+    (status, body)
+}
+
+/// After a recording started through the API fails (the file hits its size limit, as on a full disk), a new
+/// recording starts at once, without a stop first. Fails when the control side still counts the failed
+/// recording as running ("already recording to").
+#[test]
+fn a_new_recording_starts_after_a_failed_one() {
+    use std::io::BufRead;
+    let dir = tempfile::tempdir().unwrap();
+    let mut command = Command::new(env!("CARGO_BIN_EXE_voxhap"));
+    command
+        .args([
+            "serve",
+            "--http",
+            "127.0.0.1:0",
+            "--no-foxglove",
+            "--duration",
+            "60",
+        ])
+        .arg("--record-dir")
+        .arg(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    // SAFETY: only async-signal-safe calls (signal, setrlimit) between fork and exec.
+    unsafe {
+        command.pre_exec(|| {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            let limit = libc::rlimit {
+                rlim_cur: 64 * 1024,
+                rlim_max: 64 * 1024,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = command.spawn().unwrap();
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let (mut addr, mut token) = (None, None);
+    while addr.is_none() || token.is_none() {
+        let line = lines
+            .next()
+            .expect("serve printed its address and token")
+            .unwrap();
+        if let Some(rest) = line.strip_prefix("http: listening on http://") {
+            addr = Some(rest.trim_end_matches('/').to_owned());
+        } else if let Some(rest) = line.strip_prefix("http: control token ") {
+            token = Some(rest.trim().to_owned());
+        }
+    }
+    let (addr, token) = (addr.unwrap(), token.unwrap());
+    let start = |name: &str| {
+        let body = format!("{{\"path\": \"{name}\"}}");
+        http(
+            &addr,
+            &format!(
+                "POST /api/record/start HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                body.len()
+            ),
+        )
+    };
+    let (status, body) = start("first.csv");
+    assert_eq!(status, 200, "{body}");
+    // Wait (as long as it takes) for the first recording to fail: its sidecar then names the error.
+    let first = dir.path().join("first.csv");
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while std::fs::read(sidecar_path(&first))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
+        .is_none_or(|s| s.error.is_none())
+    {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the first recording never failed"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let (status, body) = start("second.csv");
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let output = child.wait_with_output().unwrap();
+    assert_eq!(status, 200, "{body}\n{}", stderr(&output));
+    assert!(body.contains("second.csv"), "{body}");
+    assert!(dir.path().join("second.csv").exists());
+    assert_exact_after_failure(&first);
+}

@@ -80,10 +80,7 @@ impl CsvTraceWriter {
     }
 
     fn io_error(&self, source: std::io::Error) -> TraceError {
-        TraceError::Io {
-            path: self.path.clone(),
-            source,
-        }
+        TraceError::io(&self.path, source)
     }
 
     /// Hands the buffered whole lines to the file, counting the lines that reached it. After a failed
@@ -154,10 +151,8 @@ fn write_row(out: &mut Vec<u8>, s: &TraceSample, start_utc_ns: i64) {
 
 impl TraceWriter for CsvTraceWriter {
     fn write_sample(&mut self, sample: &TraceSample) -> Result<(), TraceError> {
-        if self.file.is_none() {
-            return Err(TraceError::Finished);
-        }
-        let Some(sample) = self.checker.admit(sample)? else {
+        let open = self.file.is_some();
+        let Some(sample) = self.checker.admit_to(open, sample)? else {
             return Ok(());
         };
         self.row.clear();

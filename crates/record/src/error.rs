@@ -108,6 +108,16 @@ pub enum TraceError {
     },
 }
 
+impl TraceError {
+    /// A write error on the trace file (or sidecar) at `path`.
+    pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Self {
+        TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
 /// An error and its sources joined with `: `, as `voxhap` prints them (`cannot write the trace file
 /// x.csv: No space left on device (os error 28)`).
 pub fn error_chain(error: &dyn std::error::Error) -> String {
@@ -209,6 +219,189 @@ pub enum TraceReadError {
         /// The file.
         path: PathBuf,
         /// What is wrong.
-        problem: String,
+        problem: Box<ParquetProblem>,
+    },
+}
+
+/// What is wrong with a Parquet trace (the problem of [`TraceReadError::Parquet`]).
+#[derive(Debug, thiserror::Error)]
+pub enum ParquetProblem {
+    /// Neither a final footer nor the `PAR1` start of a Parquet file.
+    #[error("not a Parquet file ({0})")]
+    NotParquet(parquet::errors::ParquetError),
+    /// A file cut off before its first complete row group, with no sidecar to name its modes.
+    #[error("no complete row group and no sidecar to name its modes")]
+    NothingToRead,
+    /// The Parquet library refused the file.
+    #[error(transparent)]
+    Library(#[from] parquet::errors::ParquetError),
+    /// The Arrow decoder refused a batch.
+    #[error(transparent)]
+    Arrow(#[from] arrow_schema::ArrowError),
+    /// Reading the file failed.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// A column chunk the footer describes does not lie inside the file.
+    #[error(
+        "row group {group}, column {column}: {compressed} bytes at offset {start} run past the end of the \
+         {file_bytes}-byte file"
+    )]
+    ChunkPastEnd {
+        /// Row group (0-based).
+        group: usize,
+        /// Column (0-based).
+        column: usize,
+        /// Compressed bytes claimed.
+        compressed: u64,
+        /// Where the chunk starts.
+        start: u64,
+        /// The file's real size.
+        file_bytes: u64,
+    },
+    /// A column chunk claims more uncompressed bytes than its compressed bytes can hold.
+    #[error(
+        "row group {group}, column {column}: claims {uncompressed} uncompressed bytes from {compressed} \
+         compressed (more than a {ratio}:1 expansion)"
+    )]
+    ChunkExpansion {
+        /// Row group (0-based).
+        group: usize,
+        /// Column (0-based).
+        column: usize,
+        /// Uncompressed bytes claimed.
+        uncompressed: u64,
+        /// Compressed bytes claimed.
+        compressed: u64,
+        /// The largest expansion accepted.
+        ratio: u64,
+    },
+    /// A page header claims more uncompressed bytes than its compressed bytes can hold: decoding it would
+    /// allocate what the file cannot justify.
+    #[error(
+        "row group {group}, column {column}, page at offset {offset}: its header claims {uncompressed} \
+         uncompressed bytes from {compressed} compressed (more than a {ratio}:1 expansion)"
+    )]
+    PageExpansion {
+        /// Row group (0-based).
+        group: usize,
+        /// Column (0-based).
+        column: usize,
+        /// Where the page header starts in the file.
+        offset: u64,
+        /// Uncompressed bytes claimed.
+        uncompressed: u64,
+        /// Compressed bytes claimed.
+        compressed: u64,
+        /// The largest expansion accepted.
+        ratio: u64,
+    },
+    /// A page runs past the end of its column chunk.
+    #[error(
+        "row group {group}, column {column}, page at offset {offset}: {compressed} compressed bytes run \
+         past the end of the column chunk at offset {chunk_end}"
+    )]
+    PagePastChunk {
+        /// Row group (0-based).
+        group: usize,
+        /// Column (0-based).
+        column: usize,
+        /// Where the page header starts in the file.
+        offset: u64,
+        /// Compressed bytes claimed.
+        compressed: u64,
+        /// Where the column chunk ends.
+        chunk_end: u64,
+    },
+    /// A page header that does not decode.
+    #[error("row group {group}, column {column}, page header at offset {offset}: {problem}")]
+    PageHeader {
+        /// Row group (0-based).
+        group: usize,
+        /// Column (0-based).
+        column: usize,
+        /// Where the page header starts in the file.
+        offset: u64,
+        /// What is wrong with it.
+        problem: &'static str,
+    },
+    /// A column named or typed otherwise than a voxhap trace's.
+    #[error("column {index} is {found} ({found_type}), expected {expected} ({expected_type})")]
+    ColumnMismatch {
+        /// 1-based column.
+        index: usize,
+        /// The file's column name.
+        found: String,
+        /// The file's column type.
+        found_type: arrow_schema::DataType,
+        /// The name expected there.
+        expected: String,
+        /// The type expected there.
+        expected_type: arrow_schema::DataType,
+    },
+    /// The file has fewer columns than the trace's.
+    #[error("column {index} missing, expected {expected}")]
+    ColumnMissing {
+        /// 1-based column.
+        index: usize,
+        /// The name expected there.
+        expected: String,
+    },
+    /// The file has more columns than the trace's.
+    #[error("{found} columns, expected {expected}")]
+    ColumnCount {
+        /// Columns in the file.
+        found: usize,
+        /// Columns of a trace with these modes.
+        expected: usize,
+    },
+    /// A `primitives_<mode>` column whose mode name is invalid or repeated.
+    #[error("column {0:?}: not a unique valid mode name")]
+    BadModeColumn(String),
+    /// More modes than a trace can hold.
+    #[error("{count} modes, at most {max}")]
+    TooManyModes {
+        /// Modes in the file.
+        count: usize,
+        /// The most a trace holds.
+        max: usize,
+    },
+    /// The first column is not `tick`.
+    #[error("not a voxhap trace: the first column is not tick")]
+    NotVoxhap,
+    /// A column whose Arrow type no trace column has.
+    #[error("column {column}: unexpected type {data_type}")]
+    UnexpectedType {
+        /// 1-based column.
+        column: usize,
+        /// Its type.
+        data_type: arrow_schema::DataType,
+    },
+    /// A `solver_status` that names no status.
+    #[error("row {row}: unknown solver status {status:?}")]
+    UnknownStatus {
+        /// 1-based row.
+        row: usize,
+        /// The text found.
+        status: String,
+    },
+    /// A cell that does not fit its column (a missing value, a flag that contradicts `flag_bits`).
+    #[error("row {row}, column {column} ({name}): {problem}")]
+    BadCell {
+        /// 1-based row.
+        row: usize,
+        /// 1-based column.
+        column: usize,
+        /// Column name.
+        name: String,
+        /// What is wrong.
+        problem: &'static str,
+    },
+    /// A row that breaks a trace rule (tick order, mode count).
+    #[error("row {row}: {rule}")]
+    BadSample {
+        /// 1-based row.
+        row: usize,
+        /// The rule broken.
+        rule: TraceError,
     },
 }

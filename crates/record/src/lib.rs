@@ -25,6 +25,10 @@ mod mcap_read;
 mod mcap_trace;
 mod meta;
 mod output;
+mod parquet_limits;
+mod parquet_read;
+mod parquet_recover;
+mod parquet_schema;
 mod parquet_trace;
 pub mod plot;
 pub mod repair;
@@ -36,7 +40,7 @@ mod writer;
 
 pub use self::columns::{columns, ColumnDoc, ColumnType};
 pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
-pub use self::error::{error_chain, TraceError, TraceReadError};
+pub use self::error::{error_chain, ParquetProblem, TraceError, TraceReadError};
 pub use self::flags::{FlagDoc, FLAG_COUNT, FLAG_DOCS};
 pub use self::formats::{
     create_trace_writer, create_trace_writer_with, estimate_trace_bytes, read_trace,
@@ -47,9 +51,9 @@ pub use self::meta::{utc_now_ns, Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_
 pub use self::output::{
     check_output_path, create_new_file, create_or_replace_file, sidecar_path, OutputPolicy,
 };
-pub use self::parquet_trace::{
-    read_parquet_trace, ParquetTraceWriter, SIDECAR_KEY as PARQUET_SIDECAR_KEY,
-};
+pub use self::parquet_read::read_parquet_trace;
+pub use self::parquet_schema::SIDECAR_KEY as PARQUET_SIDECAR_KEY;
+pub use self::parquet_trace::ParquetTraceWriter;
 pub use self::sample::{SolverStatus, TraceSample};
 pub use self::trace::{sidecar_warnings, Trace};
 pub use self::writer::TraceWriter;

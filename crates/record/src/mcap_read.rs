@@ -13,6 +13,7 @@ use crate::sample::{SolverStatus, TraceSample};
 use crate::trace::Trace;
 use glam::DVec3;
 use serde::Deserialize;
+use std::collections::VecDeque;
 use std::path::Path;
 use voxhap_api::TraceFormat;
 use voxhap_core::haptics::modes::MAX_MODES;
@@ -95,26 +96,54 @@ struct SolverMessageOwned {
 /// from the two channels joined by tick), and its sidecar when `path.json` exists. A file the writer never
 /// finished (no end magic: a crash) is read up to its last complete chunk, with a warning.
 pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
+    crate::trace::collect_samples(path, for_each_mcap_sample)
+}
+
+/// Reads an MCAP trace as [`read_mcap_trace`] does, but hands each sample to `sink` in file order instead of
+/// collecting them (`voxhap plot`): the file's bytes are held (MCAP's checks and the mcap crate read it from
+/// memory), its decoded samples and messages are not. Returns the trace without its samples, and how many
+/// were read.
+pub(crate) fn for_each_mcap_sample(
+    path: &Path,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<(Trace, u64), TraceReadError> {
     let bytes = crate::trace::read_trace_file(path)?;
-    let (mode_names, samples, warnings) = parse_mcap_bytes(&bytes, path)?;
-    let trace = Trace {
+    let (mode_names, count, warnings) = parse_mcap_bytes(&bytes, path, sink)?;
+    let sidecar = read_sidecar(&sidecar_path(path))?;
+    let mut trace = Trace {
         mode_names,
-        samples,
-        sidecar: read_sidecar(&sidecar_path(path))?,
+        samples: Vec::new(),
+        sidecar,
         warnings,
     };
-    Ok(crate::trace::check_sidecar(trace, path, TraceFormat::Mcap))
+    trace.warnings.extend(crate::trace::sidecar_warnings(
+        trace.sidecar.as_ref(),
+        path,
+        TraceFormat::Mcap,
+        &trace.mode_names,
+        count,
+    ));
+    Ok((trace, count))
 }
 
 /// Parses an MCAP trace held in memory; returns the mode names and the samples (as
 /// [`crate::csv::parse_csv_trace`] does for CSV).
 pub fn parse_mcap_trace(bytes: &[u8]) -> Result<(Vec<String>, Vec<TraceSample>), TraceReadError> {
-    parse_mcap_bytes(bytes, Path::new("<input>")).map(|(modes, samples, _)| (modes, samples))
+    let mut samples = Vec::new();
+    let (modes, _, _) = parse_mcap_bytes(bytes, Path::new("<input>"), &mut |sample| {
+        samples.push(*sample)
+    })?;
+    Ok((modes, samples))
 }
 
-type Parsed = (Vec<String>, Vec<TraceSample>, Vec<String>);
+/// The mode names, the count of samples handed to the sink, and the warnings.
+type Parsed = (Vec<String>, u64, Vec<String>);
 
-fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError> {
+fn parse_mcap_bytes(
+    bytes: &[u8],
+    path: &Path,
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<Parsed, TraceReadError> {
     let problem = |problem: String| TraceReadError::Mcap {
         path: path.to_path_buf(),
         problem,
@@ -146,15 +175,15 @@ fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError>
     };
     // The mcap crate (0.26) can panic on damaged files (an integer overflow on a record longer than its
     // chunk, found by the proptest below); a damaged file must be an error, not a crash.
-    let parsed = std::panic::catch_unwind(|| {
+    let parsed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let (mode_names, version) = read_mode_names(bytes)?;
         if version != TRACE_FORMAT_VERSION {
             return Ok(Err(version));
         }
-        let samples = read_samples(bytes, &mode_names, !finished)?;
+        let samples = read_samples(bytes, &mode_names, !finished, sink)?;
         let cut = (!finished).then(|| "the file ends without its summary".to_owned());
         Ok::<_, McapContentError>(Ok((mode_names, samples, cut)))
-    });
+    }));
     let (mode_names, samples, cut) = match parsed {
         Ok(Ok(Ok(result))) => result,
         Ok(Ok(Err(found))) => {
@@ -175,9 +204,8 @@ fn parse_mcap_bytes(bytes: &[u8], path: &Path) -> Result<Parsed, TraceReadError>
     let mut warnings = Vec::new();
     if let Some(reason) = cut {
         warnings.push(format!(
-            "{}: the file was not finished (the recording was cut off); read {} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
+            "{}: the file was not finished (the recording was cut off); read {samples} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
             path.display(),
-            samples.len()
         ));
     }
     Ok((mode_names, samples, warnings))
@@ -218,104 +246,116 @@ fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), McapContentError>
     Err(McapContentError::NotVoxhap)
 }
 
-/// The samples of a finished file's bytes (an unfinished file is closed in memory first, [`parse_mcap_bytes`]).
-/// `cut_off`: the file on disk was unfinished, so its last tick may have lost its second message (the writer
-/// also closes a chunk when it passes its size limit, which may fall inside a tick): the samples end at the
-/// last tick with both.
+/// The samples of a finished file's bytes (an unfinished file is closed in memory first, [`parse_mcap_bytes`]),
+/// handed to `sink` in order; returns how many. The writer writes each tick's state message and then its
+/// solver message, so the n-th state pairs with the n-th solver: messages wait in two queues only until their
+/// partner arrives. `cut_off`: the file on disk was unfinished, so its last tick may have lost its second
+/// message (the writer also closes a chunk when it passes its size limit, which may fall inside a tick): the
+/// samples end at the last tick with both.
 fn read_samples(
     bytes: &[u8],
     mode_names: &[String],
     cut_off: bool,
-) -> Result<Vec<TraceSample>, McapContentError> {
-    let mut states: Vec<StateMessageOwned> = Vec::new();
-    let mut solvers: Vec<SolverMessageOwned> = Vec::new();
+    sink: &mut dyn FnMut(&TraceSample),
+) -> Result<u64, McapContentError> {
+    let mut states: VecDeque<StateMessageOwned> = VecDeque::new();
+    let mut solvers: VecDeque<SolverMessageOwned> = VecDeque::new();
+    let (mut state_count, mut solver_count) = (0usize, 0usize);
+    let mut last_tick = None;
+    let mut count = 0u64;
     for message in mcap::MessageStream::new(bytes)? {
         let message = message?;
         let topic = message.channel.topic.as_str();
+        let bad_message = |topic, source| McapContentError::BadMessage {
+            topic,
+            sequence: message.sequence,
+            source,
+        };
         if topic == STATE_TOPIC {
-            states.push(serde_json::from_slice(&message.data).map_err(|source| {
-                McapContentError::BadMessage {
-                    topic: STATE_TOPIC,
-                    sequence: message.sequence,
-                    source,
-                }
-            })?);
+            states.push_back(
+                serde_json::from_slice(&message.data).map_err(|e| bad_message(STATE_TOPIC, e))?,
+            );
+            state_count += 1;
         } else if topic == SOLVER_TOPIC {
-            solvers.push(serde_json::from_slice(&message.data).map_err(|source| {
-                McapContentError::BadMessage {
-                    topic: SOLVER_TOPIC,
-                    sequence: message.sequence,
-                    source,
-                }
-            })?);
+            solvers.push_back(
+                serde_json::from_slice(&message.data).map_err(|e| bad_message(SOLVER_TOPIC, e))?,
+            );
+            solver_count += 1;
+        }
+        while !states.is_empty() && !solvers.is_empty() {
+            let (Some(state), Some(solver)) = (states.pop_front(), solvers.pop_front()) else {
+                break;
+            };
+            let sample = join(state, solver, mode_names)?;
+            crate::sample::check_sample(&sample, mode_names.len(), last_tick)?;
+            last_tick = Some(sample.tick);
+            count += 1;
+            sink(&sample);
         }
     }
-    if states.len() != solvers.len() {
-        if !cut_off {
-            return Err(McapContentError::Unpaired {
-                states: states.len(),
-                solvers: solvers.len(),
-            });
-        }
-        // The pairing below still checks that the kept messages belong together, tick by tick.
-        let keep = states.len().min(solvers.len());
-        states.truncate(keep);
-        solvers.truncate(keep);
+    // Left unpaired: the pairing above already checked, tick by tick, that the kept messages belong together.
+    if state_count != solver_count && !cut_off {
+        return Err(McapContentError::Unpaired {
+            states: state_count,
+            solvers: solver_count,
+        });
     }
-    let mut samples = Vec::with_capacity(states.len());
-    let mut last_tick = None;
-    for (state, solver) in states.into_iter().zip(solvers) {
-        let t_s = state.t_s.unwrap_or(f64::NAN);
-        if state.tick != solver.tick || t_s.to_bits() != solver.t_s.unwrap_or(f64::NAN).to_bits() {
-            return Err(McapContentError::Mismatched {
-                state_tick: state.tick,
-                state_t_s: t_s,
-                solver_tick: solver.tick,
-                solver_t_s: solver.t_s,
-            });
-        }
-        let mut sample = TraceSample::zeroed(mode_names.len() as u8);
-        for (mode, name) in mode_names.iter().enumerate() {
-            sample.primitives_per_mode[mode] = solver
-                .primitives
-                .get(name)
-                .and_then(|v| v.as_u64())
-                .and_then(|v| u16::try_from(v).ok())
-                .ok_or_else(|| McapContentError::NoPrimitiveCount {
-                    tick: state.tick,
-                    mode: name.clone(),
-                })?;
-            let force: ReadVector = solver
-                .mode_force_n
-                .get(name)
-                .and_then(|v| serde_json::from_value(v.clone()).ok())
-                .ok_or_else(|| McapContentError::NoModeForce {
-                    tick: state.tick,
-                    mode: name.clone(),
-                })?;
-            sample.mode_force_n[mode] = read_vector(force);
-        }
-        sample.tick = state.tick;
-        sample.t_s = t_s;
-        sample.probe_m = read_vector(state.probe_m);
-        sample.probe_velocity_m_per_s = read_vector(state.probe_velocity_m_per_s);
-        sample.proxy_m = read_vector(state.proxy_m);
-        sample.rendered_force_n = read_vector(state.rendered_force_n);
-        sample.force_n = read_vector(state.force_n);
-        sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
-            McapContentError::UnknownStatus {
+    Ok(count)
+}
+
+/// One tick's sample from its state and solver messages (which must be the same tick's).
+fn join(
+    state: StateMessageOwned,
+    solver: SolverMessageOwned,
+    mode_names: &[String],
+) -> Result<TraceSample, McapContentError> {
+    let t_s = state.t_s.unwrap_or(f64::NAN);
+    if state.tick != solver.tick || t_s.to_bits() != solver.t_s.unwrap_or(f64::NAN).to_bits() {
+        return Err(McapContentError::Mismatched {
+            state_tick: state.tick,
+            state_t_s: t_s,
+            solver_tick: solver.tick,
+            solver_t_s: solver.t_s,
+        });
+    }
+    let mut sample = TraceSample::zeroed(mode_names.len() as u8);
+    for (mode, name) in mode_names.iter().enumerate() {
+        sample.primitives_per_mode[mode] = solver
+            .primitives
+            .get(name)
+            .and_then(|v| v.as_u64())
+            .and_then(|v| u16::try_from(v).ok())
+            .ok_or_else(|| McapContentError::NoPrimitiveCount {
                 tick: state.tick,
-                status: solver.solver_status.clone(),
-            }
-        })?;
-        sample.sweeps = solver.sweeps;
-        sample.error_bound_m = solver.error_bound_m.unwrap_or(f64::INFINITY);
-        sample.device_sequence = solver.device_sequence;
-        sample.device_time_us = solver.device_time_us;
-        sample.flags = solver.flag_bits;
-        crate::sample::check_sample(&sample, mode_names.len(), last_tick)?;
-        last_tick = Some(sample.tick);
-        samples.push(sample);
+                mode: name.clone(),
+            })?;
+        let force: ReadVector = solver
+            .mode_force_n
+            .get(name)
+            .and_then(|v| serde_json::from_value(v.clone()).ok())
+            .ok_or_else(|| McapContentError::NoModeForce {
+                tick: state.tick,
+                mode: name.clone(),
+            })?;
+        sample.mode_force_n[mode] = read_vector(force);
     }
-    Ok(samples)
+    sample.tick = state.tick;
+    sample.t_s = t_s;
+    sample.probe_m = read_vector(state.probe_m);
+    sample.probe_velocity_m_per_s = read_vector(state.probe_velocity_m_per_s);
+    sample.proxy_m = read_vector(state.proxy_m);
+    sample.rendered_force_n = read_vector(state.rendered_force_n);
+    sample.force_n = read_vector(state.force_n);
+    sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
+        McapContentError::UnknownStatus {
+            tick: state.tick,
+            status: solver.solver_status.clone(),
+        }
+    })?;
+    sample.sweeps = solver.sweeps;
+    sample.error_bound_m = solver.error_bound_m.unwrap_or(f64::INFINITY);
+    sample.device_sequence = solver.device_sequence;
+    sample.device_time_us = solver.device_time_us;
+    sample.flags = solver.flag_bits;
+    Ok(sample)
 }

@@ -1,8 +1,11 @@
 //! Tests of [`super`].
 
 use super::*;
+use crate::parquet_read::read_parquet_trace;
 use crate::test_support::{meta, samples};
 use crate::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
+use bytes::Bytes;
+use parquet::file::metadata::ParquetMetaDataReader;
 
 fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
     let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(modes)).unwrap();
@@ -10,6 +13,15 @@ fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
         writer.write_sample(s).unwrap();
     }
     writer.finish().unwrap()
+}
+
+/// Writes `samples` and then crashes: nothing more is written (no final footer, the open row group lost).
+fn write_and_crash(path: &Path, samples: &[TraceSample]) {
+    let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
+    for s in samples {
+        writer.write_sample(s).unwrap();
+    }
+    std::mem::forget(writer);
 }
 
 #[test]
@@ -71,13 +83,8 @@ fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.parquet");
     let written = samples(3500, 1);
-    let mut writer = create_trace_writer(&path, TraceFormat::Parquet, &meta(&["surface"])).unwrap();
-    for s in &written {
-        writer.write_sample(s).unwrap();
-    }
-    // Three row groups (1 s each) are on disk; the last 500 samples are still buffered. A crash now
-    // (nothing more is written):
-    std::mem::forget(writer);
+    // Three row groups (1 s each) are on disk; the last 500 samples are still buffered.
+    write_and_crash(&path, &written);
     let bytes = std::fs::read(&path).unwrap();
     let cut = dir.path().join("cut.parquet");
     std::fs::copy(sidecar_path(&path), sidecar_path(&cut)).unwrap();
@@ -143,4 +150,65 @@ fn damaged_files_are_errors_not_panics() {
         std::fs::write(&bad, &damaged).unwrap();
         let _ = read_parquet_trace(&bad);
     }
+}
+
+/// A page header that claims far more uncompressed bytes than its compressed bytes can hold is refused,
+/// naming the page, before the Parquet library sizes a buffer from it. The header is patched in place by the
+/// Thrift compact protocol's layout (parquet-format's `PageHeader`: `0x15` opens i32 field 1, the page type,
+/// then `0x15` opens field 2, `uncompressed_page_size`, a zigzag varint), keeping the varint's length so every
+/// offset in the file stays right.
+#[test]
+fn a_page_header_claiming_a_huge_page_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.parquet");
+    write(&path, &["surface"], &samples(1000, 1));
+    let mut bytes = std::fs::read(&path).unwrap();
+    let metadata = ParquetMetaDataReader::new()
+        .parse_and_finish(&Bytes::from(bytes.clone()))
+        .unwrap();
+    // A page whose uncompressed size takes a two-byte varint and whose compressed size is small: patch its
+    // claim to 8191 bytes, the largest two-byte value (zigzag 16382 = 0xFE 0x7F).
+    let mut patched = None;
+    for column in metadata.row_group(0).columns() {
+        let at = column.byte_range().0 as usize;
+        let h: [u8; 8] = bytes[at..at + 8].try_into().unwrap();
+        let two_byte_claim = h[0] == 0x15 && h[2] == 0x15 && h[3] >= 0x80 && h[4] < 0x80;
+        // Field 3, compressed_page_size, a one-byte varint: under 64 bytes.
+        if two_byte_claim && h[5] == 0x15 && h[6] < 0x80 {
+            bytes[at + 3] = 0xFE;
+            bytes[at + 4] = 0x7F;
+            patched = Some((at, u64::from(h[6] >> 1)));
+            break;
+        }
+    }
+    let (at, compressed) = patched.expect("a small page with a two-byte size in the test trace");
+    std::fs::write(&path, &bytes).unwrap();
+    let error = read_parquet_trace(&path).unwrap_err().to_string();
+    assert!(
+        error.contains(&format!(
+            "page at offset {at}: its header claims 8191 uncompressed bytes from {compressed} compressed"
+        )),
+        "{error}"
+    );
+}
+
+/// A trace cut off before its final footer streams batch by batch like a finished one: the same samples,
+/// handed over one at a time, and the same warning as the whole read.
+#[test]
+fn a_cut_off_file_streams_its_complete_row_groups() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.parquet");
+    let written = samples(3500, 1);
+    write_and_crash(&path, &written); // three one-second row groups on disk, no final footer
+    let mut streamed = Vec::new();
+    let (trace, count) =
+        crate::parquet_read::for_each_parquet_sample(&path, &mut |s| streamed.push(*s)).unwrap();
+    assert_eq!(count, 3000);
+    assert_eq!(streamed[..], written[..3000]);
+    assert!(trace.samples.is_empty());
+    assert!(
+        trace.warnings[0].contains("no final footer"),
+        "{:?}",
+        trace.warnings
+    );
 }

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::test_support::samples;
+use std::ops::Range;
 
 fn trace(count: u64) -> Trace {
     Trace {

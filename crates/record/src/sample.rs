@@ -168,6 +168,19 @@ impl SampleChecker {
         }
     }
 
+    /// [`Self::admit`] for a writer whose file is `open`: a writer whose file is gone (finished, failed) is
+    /// [`TraceError::Finished`].
+    pub(crate) fn admit_to(
+        &mut self,
+        open: bool,
+        sample: &TraceSample,
+    ) -> Result<Option<TraceSample>, TraceError> {
+        if !open {
+            return Err(TraceError::Finished);
+        }
+        self.admit(sample)
+    }
+
     /// The sample to record (flagged [`FLAG_INVALID_VALUES`] if it broke a value rule), or `None` when
     /// its tick does not increase (counted in `rejected`).
     pub(crate) fn admit(

@@ -76,6 +76,23 @@ pub fn sidecar_warnings(
     warnings
 }
 
+/// A streaming reader: hands every sample of the trace at the path to the sink, and returns the trace without
+/// its samples and how many there were.
+pub(crate) type ForEachSample =
+    fn(&Path, &mut dyn FnMut(&TraceSample)) -> Result<(Trace, u64), TraceReadError>;
+
+/// A whole trace from a streaming reader (`for_each(path, sink)` hands every sample to `sink` and returns the
+/// trace without its samples): the samples collected.
+pub(crate) fn collect_samples(
+    path: &Path,
+    for_each: ForEachSample,
+) -> Result<Trace, TraceReadError> {
+    let mut samples = Vec::new();
+    let (mut trace, _) = for_each(path, &mut |sample| samples.push(*sample))?;
+    trace.samples = samples;
+    Ok(trace)
+}
+
 /// Adds [`sidecar_warnings`] for a trace just read from `path` to its warnings.
 pub(crate) fn check_sidecar(mut trace: Trace, path: &Path, format: TraceFormat) -> Trace {
     let found = sidecar_warnings(

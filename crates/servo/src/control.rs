@@ -54,6 +54,9 @@ pub(super) struct Control {
     pub(super) generation: u64,
     pub(super) recorder: mpsc::Sender<RecorderRequest>,
     pub(super) recording: Option<PathBuf>,
+    /// The recorder's failure count (`ServoStats::recorder_errors`) when `recording` started: a higher count
+    /// means a write error ended it.
+    pub(super) recorder_errors_at_start: u64,
     pub(super) hand: Option<HandTargetInput>,
     /// Device frame -> scene frame of the session (a hand target is given in the scene, moved in the device).
     pub(super) hand_mapping: WorkspaceMapping,
@@ -346,11 +349,15 @@ impl SessionShared {
                 self.swap(control, setup, format!("volume {} loaded", path.display()))
             }
             ControlCommand::StartRecording { path, format } => {
+                // A recording that a write error ended (a full disk) is over: a new one may start at once.
+                let failures = self.stats.recorder_errors.load(Ordering::Acquire);
                 if let Some(current) = &control.recording {
-                    return Err(ControlError::Conflict(format!(
-                        "already recording to {}",
-                        current.display()
-                    )));
+                    if failures == control.recorder_errors_at_start {
+                        return Err(ControlError::Conflict(format!(
+                            "already recording to {}",
+                            current.display()
+                        )));
+                    }
                 }
                 let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
                 if let Some(parent) = parent {
@@ -377,6 +384,7 @@ impl SessionShared {
                         ControlError::Unavailable("the recorder thread has stopped".to_owned())
                     })?;
                 control.recording = Some(path.clone());
+                control.recorder_errors_at_start = failures;
                 Ok(ControlReply {
                     message: format!("recording to {} ({format})", path.display()),
                     scene_generation: 0,

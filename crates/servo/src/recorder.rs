@@ -17,7 +17,9 @@
 //! space left on device (os error 28)`), counts it in the statistics (`recorder_errors`), keeps the
 //! message for the control side (`recording_error` in `/api/scene`; `voxhap serve` exits non-zero at the
 //! end with it), and marks the sidecar (`complete: false`, `error`, and the count of samples that reached
-//! the file: exactly what a reader gets back). Nothing more is written to the trace after the error. The
+//! the file: exactly what a reader gets back). Nothing more is written to the trace after the error, and the
+//! recording is over: the control side counts the failures (`recorder_errors`), so a new start is accepted at
+//! once, without a stop. The
 //! trace is flushed every [`FLUSH_INTERVAL`] (whole CSV lines, closed MCAP chunks and Parquet row groups
 //! at most a second old), so an error or a crash is noticed, and loses, at most that much.
 

@@ -366,6 +366,7 @@ impl Session {
                 generation: 1,
                 recorder: recorder_tx,
                 recording,
+                recorder_errors_at_start: 0,
                 hand: opened.hand_target,
                 hand_mapping,
             }),

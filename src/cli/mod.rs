@@ -54,7 +54,7 @@ pub enum Command {
     Solve(solve::SolveArgs),
     /// Print what the loader reads from a volume file (or builtin:NAME).
     Info(info::InfoArgs),
-    /// Plot a recorded force trace (CSV or MCAP) to a PNG or SVG image.
+    /// Plot a recorded force trace (CSV, MCAP or Parquet) to a PNG or SVG image.
     Plot(plot::PlotArgs),
     /// List serial ports and HID devices, naming the haptic devices voxhap recognises.
     Devices(devices::DevicesArgs),

@@ -49,13 +49,7 @@ fn info_levels_match_scikit_image_and_numpy() {
         ),
     ] {
         let path = real_scan(name);
-        let output = info(&[path.to_str().unwrap(), "--json"]);
-        assert!(
-            output.status.success(),
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        let json = info_json(&path);
         let level = json["otsu_level"].as_f64().unwrap();
         // scikit-image prints float32; a different bin would be off by a whole bin width (about 1 or 121).
         assert!(
@@ -134,13 +128,7 @@ fn info_json_on_real_files() {
         ("nibabel_anatomical.nii", "nifti", 30393.0, 0.032),
     ] {
         let path = real_scan(name);
-        let output = info(&[path.to_str().unwrap(), "--json"]);
-        assert!(
-            output.status.success(),
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        let json = info_json(&path);
         assert_eq!(json["format"], format);
         assert_eq!(json["kind"], "scalar");
         assert_eq!(json["max"], expected_max);
@@ -157,6 +145,17 @@ fn info_json_on_real_files() {
     let text = String::from_utf8(output.stdout).unwrap();
     assert!(text.contains("33 x 41 x 25"), "{text}");
     assert!(text.contains("type:     i16"), "{text}");
+}
+
+/// `voxhap info PATH --json`, which must succeed.
+fn info_json(path: &std::path::Path) -> serde_json::Value {
+    let output = info(&[path.to_str().unwrap(), "--json"]);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).unwrap()
 }
 
 #[test]

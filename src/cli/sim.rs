@@ -269,7 +269,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     super::common::print_out(&format!(
         "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
          largest force {:.3} N, generated {:.4} mJ (net of the arm's damping {:.4} mJ, active work {:.4} mJ), \
-         {} contacts -> {} (+ {})",
+         {} contact{} -> {} (+ {})",
         args.scenario.display(),
         summary.ticks,
         loaded.scenario.duration_s,
@@ -282,6 +282,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         summary.energy.net_generated_j * 1e3,
         summary.energy.active_work_j * 1e3,
         summary.energy.contacts,
+        if summary.energy.contacts == 1 { "" } else { "s" },
         written.trace_path.display(),
         written.sidecar_path.display(),
     ))?;

@@ -11,7 +11,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use voxhap::servo::api::VolumeDirs;
 
 mod requests;
-use requests::{RequestCase, REQUESTS};
+use requests::REQUESTS;
 
 /// One bad input given to a command.
 struct Case {

@@ -50,12 +50,12 @@ impl ReplyAge {
 
     /// A reply was read: returns its age (module docs); the bookkeeping starts over from it.
     pub fn reply_read(&mut self) -> u32 {
-        self.age = self.missed.saturating_add(u32::from(self.out_of_step));
+        let age = self.missed.saturating_add(u32::from(self.out_of_step));
         *self = ReplyAge {
-            age: self.age,
+            age,
             ..ReplyAge::default()
         };
-        self.age
+        age
     }
 
     /// The age of the last reply read.

@@ -13,6 +13,7 @@ pub mod devices;
 pub mod info;
 pub mod mock_device;
 pub mod plot;
+pub mod ros2_output;
 pub mod serve;
 pub mod shell;
 pub mod sim;

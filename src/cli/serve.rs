@@ -12,7 +12,7 @@
 //! 127.0.0.1:18944), which takes the same control token (printed as `igtl: control token T`, also with
 //! `--no-http`).
 //!
-//! With `--ros2` it also publishes the CRTK topics over ROS 2 (DDS; [`voxhap_ros2`], docs/ros2.md) from a
+//! With `--ros2` it also publishes the CRTK topics over ROS 2 (DDS; [`super::ros2_output`], docs/ros2.md) from a
 //! thread of its own, reading the same snapshots.
 //!
 //! Shutdown order on a signal: the visualiser server closes its clients (1001) and stops, the Foxglove view
@@ -130,7 +130,7 @@ pub struct ServeArgs {
     #[command(flatten)]
     pub igtl: crate::server::igtl::IgtlArgs,
     #[command(flatten)]
-    pub ros2: voxhap_ros2::Ros2Args,
+    pub ros2: super::ros2_output::Ros2Args,
 }
 
 /// `voxhap serve` with no flags (what `voxhap` alone runs).
@@ -347,7 +347,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let volume_dirs = VolumeDirs::new(&args.volume_dir).map_err(anyhow::Error::msg)?;
     let record_dir = RecordDir::new(args.record_dir.as_deref()).map_err(anyhow::Error::msg)?;
     let igtl = args.igtl.resolve()?;
-    let ros2 = args.ros2.resolve()?;
+    let ros2 = super::ros2_output::resolve(&args.ros2)?;
     // The OpenIGTLink server takes the HTTP server's control token; with --no-http, --token (checked by
     // the same rules) or a random one.
     let igtl_token = match (&igtl, &http) {
@@ -452,7 +452,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         }
         _ => None,
     };
-    let ros2 = start_ros2(ros2, rate, &session)?;
+    let ros2 = super::ros2_output::start(ros2, rate, &session)?;
     let reason = runtime.block_on(signals.wait(duration));
     // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream. A second
     // Ctrl-C skips the wait for the clients; the servo still zeroes the force and disables the device.
@@ -485,11 +485,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         eprintln!("second interrupt: stopping now (force zeroed, device disabled)");
     }
     if let Some(output) = ros2 {
-        let published = output.stop();
-        super::common::print_out(&format!(
-            "ros2: {} ticks published, {} writes dropped",
-            published.ticks_published, published.failed_writes
-        ))?;
+        super::ros2_output::stop(output)?;
     }
     let tolerance_m = config_tolerance_m;
     let summary = session.stop();
@@ -515,30 +511,6 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         .into());
     }
     Ok(())
-}
-
-/// Starts the ROS 2 output when `--ros2` is given, fed by the session's snapshots.
-fn start_ros2(
-    settings: Option<voxhap_ros2::Ros2Settings>,
-    rate_hz: f64,
-    session: &Session,
-) -> anyhow::Result<Option<voxhap_ros2::Ros2Output>> {
-    let Some(settings) = settings else {
-        return Ok(None);
-    };
-    let api = session.api();
-    let output = voxhap_ros2::Ros2Output::start(
-        settings,
-        rate_hz,
-        Box::new(move || crate::api::SessionApi::snapshot(&*api)),
-    )?;
-    super::common::print_out(&format!(
-        "ros2: publishing /voxhap/measured_cp, measured_cv, measured_cf, setpoint_cf, operating_state on domain {} at {:.1} Hz{}",
-        settings.domain_id,
-        1.0 / output.period().as_secs_f64(),
-        if settings.localhost_only { " (localhost only)" } else { "" }
-    ))?;
-    Ok(Some(output))
 }
 
 /// What `--fail-on` found in a finished session's statistics.

@@ -523,6 +523,10 @@ fn a_session_takes_valid_commands_and_refuses_bad_ones_unchanged() {
             matches!(e, ControlError::Invalid(_))
         }),
         (
+            ControlCommand::SetDamping { damping: 1e6 },
+            |e| matches!(e, ControlError::Invalid(m) if m.contains("damping must be at most")),
+        ),
+        (
             ControlCommand::RemoveMode {
                 name: "nope".into(),
             },

@@ -42,6 +42,13 @@ pub(super) const REQUESTS: &[RequestCase] = &[
         expected: "bad request: 2 Origin headers; a request carries at most one",
     },
     RequestCase {
+        input: "a coupling damping above the device's passivity bound",
+        request: "POST /api/stiffness HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 16\r\nConnection: close\r\n\r\n{\"damping\": 1e6}",
+        status: 400,
+        // The built-in scene's k = 500 N/m on the simulated arm (b = 1 N s/m) at 1 kHz: 1 - 500 * 0.001 / 2.
+        expected: "damping must be at most 0.75 N s/m",
+    },
+    RequestCase {
         input: "a friction mode with `mu = 1e300` added through the API",
         request: "POST /api/modes HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer TOKEN\r\nContent-Length: 65\r\nConnection: close\r\n\r\n{\"mode\": {\"kind\": \"friction\", \"surface\": \"surface\", \"mu\": 1e300}}",
         status: 400,

@@ -38,6 +38,8 @@ pub struct SessionShared {
     pub(super) device_label: String,
     pub(super) simulated: bool,
     pub(super) max_stiffness_n_per_m: f64,
+    /// The device's coupling caps at this rate: the largest damping the control API accepts at a stiffness.
+    pub(super) coupling_caps: voxhap_device::safety::CouplingCaps,
     pub(super) rate_hz: f64,
     pub(super) period_ns: u64,
     pub(super) solver_budget_fraction: f64,
@@ -282,6 +284,15 @@ impl SessionShared {
                     )));
                 }
                 let k = control.setup.stiffness_n_per_m;
+                let cap = self.coupling_caps.max_damping_n_s_per_m(k);
+                if damping > cap {
+                    let caps = &self.coupling_caps;
+                    return Err(invalid(format!(
+                        "damping must be at most {cap} N s/m with the stiffness in use ({k} N/m): the \
+                         passivity bound b - k T/2 with the device's b = {} N s/m and T = {} s, got {damping}",
+                        caps.device_damping_n_s_per_m, caps.period_s
+                    )));
+                }
                 self.coupling(
                     control,
                     k,

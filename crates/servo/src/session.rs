@@ -376,6 +376,7 @@ impl Session {
             device_label: spec_label,
             simulated,
             max_stiffness_n_per_m,
+            coupling_caps: caps,
             rate_hz: config.rate_hz,
             period_ns,
             solver_budget_fraction: config.solver_budget_fraction,

@@ -62,6 +62,10 @@ pub struct LoopEnergy {
     pub duration_s: f64,
     /// The largest force sent during the loop (N).
     pub max_force_n: f64,
+    /// `k/2 Σ |p_{n+1} - p_n|²` over the loop (J): what a sampled spring of the coupling's stiffness held
+    /// against this hand generates at most over a closed loop (for `F_n = -k p_n`, `Σ F_n . Δp_n` is exactly
+    /// this), the zero-order hold's own share that a device's damping must take.
+    pub hold_bound_j: f64,
 }
 
 impl ClosedLoop {
@@ -107,11 +111,14 @@ impl ClosedLoop {
         let mut workspace = TickWorkspace::new(scene, SolverKind::Exact, SolverConfig::default());
         let mut work_j = 0.0;
         let mut max_force_n: f64 = 0.0;
+        let mut squared_steps_m2 = 0.0;
         for n in 0..2 * steps {
             let probe_m = at(n);
             let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
             if n >= steps {
-                work_j += out.force_n.dot(at(n + 1) - probe_m);
+                let step_m = at(n + 1) - probe_m;
+                work_j += out.force_n.dot(step_m);
+                squared_steps_m2 += step_m.length_squared();
                 max_force_n = max_force_n.max(out.force_n.length());
             }
         }
@@ -119,6 +126,7 @@ impl ClosedLoop {
             work_j,
             duration_s: steps as f64 * dt_s,
             max_force_n,
+            hold_bound_j: 0.5 * scene.stiffness_n_per_m() * squared_steps_m2,
         })
     }
 }

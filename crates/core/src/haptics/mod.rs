@@ -7,6 +7,7 @@
 //! scene files of `voxhap solve`.
 
 pub mod baselines;
+pub mod loops;
 pub mod modes;
 pub mod tick;
 

@@ -13,17 +13,30 @@
 //!   previous proxy. They have no certificate: the output's `error_bound_m` is `+inf` (the trace
 //!   convention for "no certificate") and its status [`TickStatus::Uncertified`].
 //!
+//! **Viscosity** is rendered implicitly (backward Euler): a viscosity mode with damping `b_i = TF(V)` (N s/m)
+//! at the start-of-tick proxy `x0` adds the energy `c_i/2 |x - x0|²`, `c_i = b_i / dt`, to the proxy's, a
+//! damper between the proxy and where it was. With `c = Σ c_i` the coupling and the damper together are one
+//! spring of stiffness `k + c` towards `(k probe + c x0) / (k + c)` plus a constant, so every solver solves
+//! that problem unchanged, and its certificate bounds the distance to the damped equilibrium. The mode's
+//! force on the proxy is `c_i (x0 - x) = -b_i v_proxy`; in steady motion the hand feels exactly `-b v`, and
+//! every tick the damper dissipates `c |x - x0|²`.
+//!
+//! **Active modes** (`vector_force`, `gradient_force`) sample their field at the hand, half-way through the
+//! tick their force is held for ([`ModeInput`]), not at the proxy the force itself displaced: a conservative
+//! field then does no work over a closed loop, to second order in the step.
+//!
 //! The device force is the coupling `k (proxy - probe)`. A tick reads no clock, does no I/O, takes no
 //! lock and allocates nothing once the workspace was made for the scene ([`TickWorkspace::new`]); a
-//! counting-allocator integration test runs thousands of multi-mode ticks to prove it. `dt_s` is used only
-//! for the proxy velocity in the output; time never enters the modes, so a run is deterministic.
+//! counting-allocator integration test runs thousands of multi-mode ticks to prove it. `dt_s` enters the
+//! viscous damper, the hand's velocity (active modes' budgets) and the proxy velocity in the output; the tick
+//! reads no clock, so a run is deterministic.
 //!
 //! A non-finite probe position (a device glitch) or a bad `dt_s` leaves the proxy where it was, sends zero
 //! force and sets [`FLAG_NON_FINITE_REPLACED`].
 
 use crate::clock::Clock;
 use crate::haptics::baselines::{constraint, euler};
-use crate::haptics::modes::{ModeMemory, RenderScene, MAX_MODES};
+use crate::haptics::modes::{ModeInput, ModeMemory, RenderScene, MAX_MODES};
 use crate::haptics::{Primitive, Problem, SolveStatus, Solver, SolverConfig};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -203,12 +216,38 @@ fn tick_inner(
     if !(probe_m.is_finite() && dt_s.is_finite() && dt_s > 0.0) {
         output.flags |= FLAG_NON_FINITE_REPLACED;
         state.memory.previous_force_n = DVec3::ZERO;
+        state.memory.previous_probe_m = None;
         return output;
     }
     let previous_proxy_m = state.proxy_m;
     let k = scene.stiffness_n_per_m();
 
     workspace.primitives.clear();
+    let at = ModeInput::new(
+        previous_proxy_m,
+        probe_m,
+        state.memory.previous_probe_m,
+        dt_s,
+    );
+    state.memory.previous_probe_m = Some(probe_m);
+    // Viscous dampers (module docs): c_i = b_i / dt per mode, c their sum.
+    let mut damper_n_per_m = [0.0; MAX_MODES];
+    for (index, slot) in damper_n_per_m.iter_mut().enumerate().take(mode_count) {
+        let c = scene.damping_n_s_per_m(index, previous_proxy_m) / dt_s;
+        *slot = if c.is_finite() { c } else { 0.0 };
+    }
+    let damper_total: f64 = damper_n_per_m.iter().sum();
+    let (solve_k, solve_probe_m) = if damper_total > 0.0 {
+        let total = k + damper_total;
+        let target = (k * probe_m + damper_total * previous_proxy_m) / total;
+        if total.is_finite() && target.is_finite() {
+            (total, target)
+        } else {
+            (k, probe_m)
+        }
+    } else {
+        (k, probe_m)
+    };
     let mut normals = [DVec3::ZERO; MAX_MODES];
     for (index, (count_slot, normal_slot)) in output
         .primitives_per_mode
@@ -217,12 +256,7 @@ fn tick_inner(
         .take(mode_count)
         .enumerate()
     {
-        let (count, normal) = scene.emit(
-            index,
-            previous_proxy_m,
-            &state.memory,
-            &mut workspace.primitives,
-        );
+        let (count, normal) = scene.emit(index, &at, &state.memory, &mut workspace.primitives);
         *count_slot = count;
         *normal_slot = normal;
     }
@@ -231,8 +265,8 @@ fn tick_inner(
     let (proxy_m, status) = match workspace.solver_kind {
         SolverKind::Exact => {
             let problem = Problem {
-                stiffness_n_per_m: k,
-                probe_m,
+                stiffness_n_per_m: solve_k,
+                probe_m: solve_probe_m,
                 previous_proxy_m: Some(previous_proxy_m),
                 primitives,
             };
@@ -264,8 +298,8 @@ fn tick_inner(
         }
         SolverKind::Euler => {
             let solution = euler::solve(
-                k,
-                probe_m,
+                solve_k,
+                solve_probe_m,
                 previous_proxy_m,
                 primitives,
                 &workspace.euler_config,
@@ -274,7 +308,7 @@ fn tick_inner(
             (solution.proxy_m, TickStatus::Uncertified)
         }
         SolverKind::Constraint => {
-            let solution = constraint::solve(k, probe_m, previous_proxy_m, primitives);
+            let solution = constraint::solve(solve_k, solve_probe_m, previous_proxy_m, primitives);
             output.sweeps = solution.iterations;
             (solution.proxy_m, TickStatus::Uncertified)
         }
@@ -301,6 +335,7 @@ fn tick_inner(
                 };
                 output.mode_force_n[mode] += force;
             }
+            output.mode_force_n[mode] += damper_n_per_m[mode] * (previous_proxy_m - proxy_m);
         }
     }
     output.proxy_m = proxy_m;

@@ -36,5 +36,6 @@ pub mod vector;
 pub use any::AnyVolume;
 pub use error::VolumeError;
 pub use grid::Grid;
+pub use sampling::FADE_MARGIN_VOXELS;
 pub use scalar::ScalarVolume;
 pub use vector::VectorVolume;

@@ -1,7 +1,8 @@
-//! Shared sampling kernels: cell location with the clamp-to-edge rule, trilinear interpolation and
-//! interpolated central differences, generic over the value type (`f64` for scalar volumes, `DVec3`
-//! for vector volumes). Used by [`super::scalar`] and [`super::vector`] on the servo thread: no
-//! allocation, no panics (every index is clamped into the grid before it is used).
+//! Shared sampling kernels: cell location with the clamp-to-edge rule and the fade outside the grid,
+//! trilinear interpolation, interpolated central differences and the cubic B-spline gradient, generic over
+//! the value type (`f64` for scalar volumes, `DVec3` for vector volumes). Used by [`super::scalar`] and
+//! [`super::vector`] on the servo thread: no allocation, no panics (every index is clamped into the grid
+//! before it is used).
 //!
 //! Maths. In index space, with the cell corner `c = floor(u)` and fractions `t = u - c`,
 //!
@@ -13,6 +14,20 @@
 //! difference `V[v + e_a] - V[v]` / `V[v] - V[v - e_a]` on the first / last voxel of the axis; these
 //! per-voxel derivatives are interpolated with the same trilinear weights. Both steps reproduce a
 //! linear field exactly. For an axis with one voxel the derivative is zero.
+//!
+//! The cubic B-spline gradient ([`bspline_derivatives`]) is the exact derivative of the uniform cubic
+//! B-spline through the 4×4×4 voxels around the position, `Σ B'(t_x) B(t_y) B(t_z) V[...]` (and the two
+//! other axes), with `B` the four cubic B-spline weights. It is C² across cell faces, smooths the grid's
+//! staircase, and reproduces a linear field exactly: a voxel one step outside the grid (needed within a
+//! voxel of the edge) is the linear extrapolation `2 V[0] - V[1]` (`2 V[n-1] - V[n-2]`), folded into the
+//! weights of the two voxels it is made of.
+//!
+//! The fade ([`Cell::fade`]): with `o_a` the distance outside the grid along index axis `a` in voxels (0
+//! inside) and `M` = [`FADE_MARGIN_VOXELS`], the field outside is the clamp-to-edge field times
+//! `w = Π_a s(o_a / M)`, `s(t) = 1 - t²(3 - 2t)` for `t < 1` and 0 beyond: 1 on the grid, 0 from `M`
+//! voxels out, continuous with a continuous derivative. Axes with a single voxel do not fade (a slice is
+//! extruded). Samplers multiply values by `w` and add `value ⊗ ∇w` to derivatives (product rule), so the
+//! gradient is that of the faded field.
 
 use super::grid::Grid;
 use glam::DVec3;
@@ -43,6 +58,23 @@ pub(crate) struct Cell {
     /// Per axis: 1.0 where the position was inside the grid's extent, 0.0 where it was clamped.
     /// Derivatives along clamped axes are multiplied by this.
     inside: [f64; 3],
+    /// The fade weight `w` (module docs): 1 on the grid, 0 from [`FADE_MARGIN_VOXELS`] out.
+    pub(crate) fade: f64,
+    /// `∂w/∂u` along each index axis.
+    pub(crate) fade_gradient: [f64; 3],
+}
+
+/// How far outside the grid (in voxels along each index axis) the sampled field fades to zero.
+pub const FADE_MARGIN_VOXELS: f64 = 2.0;
+
+/// `s(t) = 1 - t²(3 - 2t)` on `[0, 1)`, 0 beyond, and its derivative.
+#[inline]
+fn fade_step(t: f64) -> (f64, f64) {
+    if t >= 1.0 {
+        (0.0, 0.0)
+    } else {
+        (1.0 - t * t * (3.0 - 2.0 * t), -6.0 * t * (1.0 - t))
+    }
 }
 
 /// Locates `p_world` in the grid, applying clamp-to-edge. `None` for non-finite positions.
@@ -65,7 +97,10 @@ pub(crate) fn locate(grid: &Grid, p_world: DVec3) -> Option<Cell> {
         lower: [0; 3],
         dims,
         inside: [1.0; 3],
+        fade: 1.0,
+        fade_gradient: [0.0; 3],
     };
+    let mut steps = [(1.0, 0.0); 3];
     for axis in 0..3 {
         let last = last_index[axis];
         let u = index[axis];
@@ -74,6 +109,13 @@ pub(crate) fn locate(grid: &Grid, p_world: DVec3) -> Option<Cell> {
         }
         if dims[axis] == 1 {
             continue;
+        }
+        if u < 0.0 {
+            let (s, ds) = fade_step(-u / FADE_MARGIN_VOXELS);
+            steps[axis] = (s, -ds / FADE_MARGIN_VOXELS);
+        } else if u > last {
+            let (s, ds) = fade_step((u - last) / FADE_MARGIN_VOXELS);
+            steps[axis] = (s, ds / FADE_MARGIN_VOXELS);
         }
         let u = u.clamp(0.0, last);
         // `u` is in [0, n-1]: truncation is floor. The upper cell is reused at u = n-1.
@@ -84,7 +126,128 @@ pub(crate) fn locate(grid: &Grid, p_world: DVec3) -> Option<Cell> {
         cell.step[axis] = strides[axis];
         cell.lower[axis] = lower;
     }
+    cell.fade = steps[0].0 * steps[1].0 * steps[2].0;
+    cell.fade_gradient = [
+        steps[0].1 * steps[1].0 * steps[2].0,
+        steps[0].0 * steps[1].1 * steps[2].0,
+        steps[0].0 * steps[1].0 * steps[2].1,
+    ];
     Some(cell)
+}
+
+impl Cell {
+    /// The faded value `w V` and index derivatives `w dV + V ∇w` from the clamp-to-edge ones.
+    #[inline]
+    pub(crate) fn faded<T: Interpolate>(&self, value: T, derivatives: [T; 3]) -> (T, [T; 3]) {
+        let w = self.fade;
+        let g = self.fade_gradient;
+        (
+            value * w,
+            [
+                derivatives[0] * w + value * g[0],
+                derivatives[1] * w + value * g[1],
+                derivatives[2] * w + value * g[2],
+            ],
+        )
+    }
+
+    /// True where the field has faded to zero (more than the margin outside the grid).
+    #[inline]
+    pub(crate) fn faded_out(&self) -> bool {
+        self.fade == 0.0
+    }
+}
+
+/// Cubic B-spline weights and their derivatives at fraction `t` for the taps `-1, 0, 1, 2`.
+#[inline]
+fn bspline_weights(t: f64) -> ([f64; 4], [f64; 4]) {
+    let t2 = t * t;
+    let t3 = t2 * t;
+    let u = 1.0 - t;
+    (
+        [
+            u * u * u / 6.0,
+            (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0,
+            (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0,
+            t3 / 6.0,
+        ],
+        [
+            -u * u / 2.0,
+            (3.0 * t2 - 4.0 * t) / 2.0,
+            (-3.0 * t2 + 2.0 * t + 1.0) / 2.0,
+            t2 / 2.0,
+        ],
+    )
+}
+
+/// One axis of the B-spline stencil: data offsets of the four taps and their value and derivative
+/// weights, with the linear extrapolation outside the grid folded in (module docs).
+#[inline]
+fn bspline_axis(cell: &Cell, axis: usize) -> ([usize; 4], [f64; 4], [f64; 4]) {
+    let n = cell.dims[axis];
+    if n == 1 {
+        return ([0; 4], [1.0, 0.0, 0.0, 0.0], [0.0; 4]);
+    }
+    let stride = cell.step[axis];
+    let lower = cell.lower[axis];
+    let (mut w, mut dw) = bspline_weights(cell.fraction[axis]);
+    let mut index = [0usize; 4];
+    for (m, slot) in index.iter_mut().enumerate() {
+        // Tap m sits at voxel lower - 1 + m; taps 1 and 2 (lower, lower + 1) are always in the grid.
+        *slot = (lower + m).saturating_sub(1).min(n - 1) * stride;
+    }
+    if lower == 0 {
+        // Tap 0 is voxel -1 = 2 V[0] - V[1]: voxel 0 is tap 1, voxel 1 tap 2.
+        for weights in [&mut w, &mut dw] {
+            let ghost = weights[0];
+            weights[1] += 2.0 * ghost;
+            weights[2] -= ghost;
+            weights[0] = 0.0;
+        }
+    }
+    if lower + 2 >= n {
+        // Tap 3 is voxel n = 2 V[n-1] - V[n-2]: voxel n-1 is tap 2, voxel n-2 tap 1.
+        for weights in [&mut w, &mut dw] {
+            let ghost = weights[3];
+            weights[2] += 2.0 * ghost;
+            weights[1] -= ghost;
+            weights[3] = 0.0;
+        }
+    }
+    for d in &mut dw {
+        *d *= cell.inside[axis];
+    }
+    (index, w, dw)
+}
+
+/// Index-space derivatives `[∂/∂i, ∂/∂j, ∂/∂k]` of the cubic B-spline through the 4×4×4 voxels around the
+/// cell (module docs), zeroed along clamped axes. 64 fetches.
+#[inline]
+pub(crate) fn bspline_derivatives<T: Interpolate>(
+    cell: &Cell,
+    fetch: impl Fn(usize) -> T,
+) -> [T; 3] {
+    let (ix, wx, dx) = bspline_axis(cell, 0);
+    let (iy, wy, dy) = bspline_axis(cell, 1);
+    let (iz, wz, dz) = bspline_axis(cell, 2);
+    let zero = fetch(ix[1] + iy[1] + iz[1]) * 0.0;
+    let mut out = [zero; 3];
+    for c in 0..4 {
+        for b in 0..4 {
+            let (yz_offset, wyz, dyz, wdz) =
+                (iy[b] + iz[c], wy[b] * wz[c], dy[b] * wz[c], wy[b] * dz[c]);
+            if wyz == 0.0 && dyz == 0.0 && wdz == 0.0 {
+                continue;
+            }
+            for a in 0..4 {
+                let v = fetch(ix[a] + yz_offset);
+                out[0] = out[0] + v * (dx[a] * wyz);
+                out[1] = out[1] + v * (wx[a] * dyz);
+                out[2] = out[2] + v * (wx[a] * wdz);
+            }
+        }
+    }
+    out
 }
 
 /// Trilinear interpolation of `fetch(offset)` over the cell's 8 corners.

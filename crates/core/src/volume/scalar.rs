@@ -2,13 +2,13 @@
 //!
 //! The surface, viscosity and gradient-force modes call [`ScalarVolume::sample`] and
 //! [`ScalarVolume::sample_with_gradient`] at the proxy every servo tick; both are allocation-free and
-//! defined for every input (rules in the [`crate::volume`] header: trilinear values, interpolated
-//! central-difference gradient mapped to world axes by `L⁻ᵀ`, clamp-to-edge outside, 0 for
-//! non-finite positions).
+//! defined for every input (rules in the [`crate::volume`] header: trilinear values, the cubic B-spline
+//! gradient mapped to world axes by `L⁻ᵀ`, outside the grid the clamp-to-edge field fading to 0 over
+//! [`FADE_MARGIN_VOXELS`](crate::volume::FADE_MARGIN_VOXELS) voxels, 0 for non-finite positions).
 
 use super::error::VolumeError;
 use super::grid::Grid;
-use super::sampling::{index_derivatives, locate, trilinear};
+use super::sampling::{bspline_derivatives, index_derivatives, locate, trilinear};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -75,39 +75,50 @@ impl ScalarVolume {
         f64::from(self.data[offset])
     }
 
-    /// Trilinear value at a world position (metres). Clamp-to-edge outside; 0 for non-finite input.
+    /// Trilinear value at a world position (metres). Outside the grid the clamp-to-edge value fades to 0
+    /// over [`FADE_MARGIN_VOXELS`](crate::volume::FADE_MARGIN_VOXELS) voxels ([`crate::volume`]); 0 for non-finite input.
     #[inline]
     pub fn sample(&self, p_world: DVec3) -> f64 {
         match locate(&self.grid, p_world) {
-            Some(cell) => trilinear(&cell, |offset| self.fetch(offset)),
-            None => 0.0,
+            Some(cell) if !cell.faded_out() => {
+                trilinear(&cell, |offset| self.fetch(offset)) * cell.fade
+            }
+            _ => 0.0,
         }
     }
 
-    /// Gradient (value per metre, world axes): central differences at the voxels, interpolated
-    /// trilinearly. Zero along axes where the position is outside the grid, zero for non-finite input.
+    /// Gradient (value per metre, world axes): the derivative of the cubic B-spline through the 4×4×4
+    /// voxels around the position ([`crate::volume`]), continuous across cell faces; outside the grid, the
+    /// gradient of the faded field. Zero for non-finite input.
     #[inline]
     pub fn gradient(&self, p_world: DVec3) -> DVec3 {
-        match locate(&self.grid, p_world) {
-            Some(cell) => {
-                let d = index_derivatives(&cell, |offset| self.fetch(offset));
-                self.grid.gradient_to_world() * DVec3::from_array(d)
-            }
-            None => DVec3::ZERO,
-        }
+        self.sample_with_gradient(p_world).1
     }
 
     /// [`sample`](Self::sample) and [`gradient`](Self::gradient) together, locating the cell once.
     #[inline]
     pub fn sample_with_gradient(&self, p_world: DVec3) -> (f64, DVec3) {
         match locate(&self.grid, p_world) {
-            Some(cell) => {
+            Some(cell) if !cell.faded_out() => {
                 let fetch = |offset| self.fetch(offset);
                 let value = trilinear(&cell, fetch);
-                let d = index_derivatives(&cell, fetch);
+                let d = bspline_derivatives(&cell, fetch);
+                let (value, d) = cell.faded(value, d);
                 (value, self.grid.gradient_to_world() * DVec3::from_array(d))
             }
-            None => (0.0, DVec3::ZERO),
+            _ => (0.0, DVec3::ZERO),
+        }
+    }
+
+    /// The gradient as the samplers computed it before the B-spline estimator: central differences at the
+    /// voxels, interpolated trilinearly (clamp-to-edge, no fade). Kept to compare estimators in tests.
+    pub fn central_difference_gradient(&self, p_world: DVec3) -> DVec3 {
+        match locate(&self.grid, p_world) {
+            Some(cell) => {
+                let d = index_derivatives(&cell, |offset| self.fetch(offset));
+                self.grid.gradient_to_world() * DVec3::from_array(d)
+            }
+            None => DVec3::ZERO,
         }
     }
 }
@@ -165,21 +176,49 @@ mod tests {
     }
 
     #[test]
-    fn outside_rule_is_clamp_to_edge_with_vanishing_normal_gradient() {
-        let (volume, slope, _) = linear_field();
+    fn outside_the_grid_the_field_fades_to_zero_over_the_margin() {
+        let (volume, slope, constant) = linear_field();
         let grid = volume.grid().clone();
-        // A point beyond the +i face: index (7.5, 2, 1.5) clamps to (5, 2, 1.5).
-        let outside = grid.index_to_world(DVec3::new(7.5, 2.0, 1.5));
         let edge = grid.index_to_world(DVec3::new(5.0, 2.0, 1.5));
-        assert!((volume.sample(outside) - volume.sample(edge)).abs() < 1e-9);
-        // The gradient has no component along the clamped index axis (in index space)...
-        let gradient = volume.gradient(outside);
-        let index_gradient = grid.linear().transpose() * gradient;
-        assert!(index_gradient.x.abs() < 1e-9, "{index_gradient}");
-        // ...and keeps the others.
-        let full = grid.linear().transpose() * slope;
-        assert!((index_gradient.y - full.y).abs() < 1e-6);
-        assert!((index_gradient.z - full.z).abs() < 1e-6);
+        let edge_value = constant + slope.dot(edge);
+        // One voxel beyond the +i face (last index 5) is half the margin: s(1/2) = 1 - (1/4)(3 - 1) = 1/2.
+        let half = grid.index_to_world(DVec3::new(6.0, 2.0, 1.5));
+        assert!((volume.sample(half) - 0.5 * edge_value).abs() < 1e-5);
+        // Two voxels out and beyond, and diagonally past a corner: nothing, value and gradient.
+        for index in [
+            DVec3::new(7.0, 2.0, 1.5),
+            DVec3::new(7.5, 2.0, 1.5),
+            DVec3::new(-2.0, 2.0, 1.5),
+            DVec3::new(2.0, 2.0, 50.0),
+            DVec3::new(1e6, -1e6, 1e6),
+        ] {
+            let p = grid.index_to_world(index);
+            assert_eq!(
+                volume.sample_with_gradient(p),
+                (0.0, DVec3::ZERO),
+                "{index}"
+            );
+        }
+        // In the margin the gradient is that of the faded field: compare with finite differences of the
+        // sampled values (an estimate independent of the product rule the sampler uses).
+        for index in [
+            DVec3::new(5.7, 2.0, 1.5),
+            DVec3::new(6.3, 3.2, -0.8),
+            DVec3::new(-1.2, 0.5, 3.9),
+        ] {
+            let p = grid.index_to_world(index);
+            let h = 1e-7;
+            let numeric = DVec3::new(
+                volume.sample(p + DVec3::X * h) - volume.sample(p - DVec3::X * h),
+                volume.sample(p + DVec3::Y * h) - volume.sample(p - DVec3::Y * h),
+                volume.sample(p + DVec3::Z * h) - volume.sample(p - DVec3::Z * h),
+            ) / (2.0 * h);
+            let gradient = volume.gradient(p);
+            assert!(
+                (gradient - numeric).length() < 1e-4 * slope.length(),
+                "{index}: {gradient} vs {numeric}"
+            );
+        }
     }
 
     #[test]
@@ -203,8 +242,10 @@ mod tests {
         let volume = ScalarVolume::new(grid, vec![1.0, 2.0, 4.0]).unwrap();
         assert_eq!(volume.sample(DVec3::new(3.0, 1.5, -2.0)), 3.0);
         assert_eq!(volume.gradient(DVec3::new(3.0, 1.5, -2.0)).x, 0.0);
-        // One-sided difference at voxel 0 (1), central at voxel 1 (1.5), interpolated half way.
-        assert_eq!(volume.gradient(DVec3::new(0.0, 0.5, 0.0)).y, 1.25);
+        // The cubic B-spline over 0, 1, 2, 4, 6 (the voxels 1, 2, 4 with the linear extrapolations
+        // 2·1 - 2 = 0 and 2·4 - 2 = 6 beyond them) at t = 1/2 between voxels 0 and 1: the derivative weights
+        // (-(1-t)²/2, (3t² - 4t)/2, (-3t² + 2t + 1)/2, t²/2) = (-1/8, -5/8, 5/8, 1/8) on 0, 1, 2, 4 give 9/8.
+        assert_eq!(volume.gradient(DVec3::new(0.0, 0.5, 0.0)).y, 1.125);
     }
 
     proptest! {

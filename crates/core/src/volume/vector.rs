@@ -88,25 +88,34 @@ impl VectorVolume {
         DVec3::new(x.into(), y.into(), z.into())
     }
 
-    /// Trilinear vector at a world position. Clamp-to-edge outside; zero for non-finite input.
+    /// Trilinear vector at a world position. Outside the grid the clamp-to-edge vector fades to zero over
+    /// [`FADE_MARGIN_VOXELS`](crate::volume::FADE_MARGIN_VOXELS) voxels ([`crate::volume`]); zero for non-finite input.
     #[inline]
     pub fn sample(&self, p_world: DVec3) -> DVec3 {
         match locate(&self.grid, p_world) {
-            Some(cell) => trilinear(&cell, |offset| self.fetch(offset)),
-            None => DVec3::ZERO,
+            Some(cell) if !cell.faded_out() => {
+                trilinear(&cell, |offset| self.fetch(offset)) * cell.fade
+            }
+            _ => DVec3::ZERO,
         }
     }
 
     /// World-axis Jacobian, `jacobian(p).col(b)[a] = ∂v_a/∂x_b` (per metre). Derivatives along
-    /// index axes where the position is outside the grid are zero; zero for non-finite input.
+    /// index axes where the position is outside the grid are those of the fade (the Jacobian of the faded
+    /// field); zero for non-finite input.
     #[inline]
     pub fn jacobian(&self, p_world: DVec3) -> DMat3 {
         match locate(&self.grid, p_world) {
-            Some(cell) => {
-                let [d_di, d_dj, d_dk] = index_derivatives(&cell, |offset| self.fetch(offset));
+            Some(cell) if !cell.faded_out() => {
+                let fetch = |offset| self.fetch(offset);
+                let mut d = index_derivatives(&cell, fetch);
+                if cell.fade < 1.0 {
+                    d = cell.faded(trilinear(&cell, fetch), d).1;
+                }
+                let [d_di, d_dj, d_dk] = d;
                 DMat3::from_cols(d_di, d_dj, d_dk) * self.grid.linear_inverse()
             }
-            None => DMat3::ZERO,
+            _ => DMat3::ZERO,
         }
     }
 
@@ -205,6 +214,21 @@ mod tests {
             prop_assert!(volume.jacobian(p).is_finite());
             prop_assert!(volume.curl(p).is_finite());
             prop_assert!(volume.divergence(p).is_finite());
+        }
+    }
+
+    #[test]
+    fn the_flow_ends_two_voxels_outside_the_grid() {
+        let (volume, _) = affine_field();
+        let grid = volume.grid().clone();
+        // Last index along j is 5: one voxel out the field is half the edge's (s(1/2) = 1/2), two out nothing.
+        let edge = volume.sample(grid.index_to_world(DVec3::new(2.0, 5.0, 3.0)));
+        let half = volume.sample(grid.index_to_world(DVec3::new(2.0, 6.0, 3.0)));
+        assert!((half - 0.5 * edge).length() < 1e-6, "{half} vs {edge}");
+        for index in [DVec3::new(2.0, 7.0, 3.0), DVec3::new(-30.0, 2.0, 3.0)] {
+            let p = grid.index_to_world(index);
+            assert_eq!(volume.sample(p), DVec3::ZERO);
+            assert_eq!(volume.jacobian(p), DMat3::ZERO);
         }
     }
 

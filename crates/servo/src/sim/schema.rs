@@ -20,7 +20,7 @@ use super::scenario::{
     SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
 };
 use voxhap_core::haptics::modes::{
-    MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N, MAX_TRANSFER_VALUE,
+    MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_POWER_BUDGET_W, MAX_STRENGTH_N, MAX_TRANSFER_VALUE,
 };
 use voxhap_core::volume::procedural::BUILTIN_NAMES;
 use voxhap_device::sim::effects::{
@@ -187,6 +187,7 @@ pub const MODE_KINDS: &[&str] = &[
     "surface",
     "friction",
     "viscosity",
+    "coulomb_drag",
     "vector_follow",
     "vortex",
     "vector_force",
@@ -285,15 +286,39 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         ],
     },
     SchemaSection {
-        title: "`[[modes]]` `kind = \"viscosity\"`, `\"vector_follow\"`, `\"vortex\"`, `\"vector_force\"`, `\"gradient_force\"`",
-        intro: "A primitive sampled from a volume: viscosity and gradient force read a scalar volume, the others a \
-                vector volume.",
+        title: "`[[modes]]` `kind = \"viscosity\"`",
+        intro: "Viscous drag `b v` on the proxy's motion, with the damping `b` read from a scalar volume.",
         header: "[[modes]]",
-        base: "kind = \"viscosity\"\nvolume = \"density\"\ntransfer = [[0.0, 0.0], [1.0, 0.3]]",
+        base: "kind = \"viscosity\"\nvolume = \"density\"\ntransfer = [[0.0, 0.0], [1.0, 3.0]]",
+        group: "mode",
+        keys: &[
+            key("volume", "", Required, Text, "\"density\"", "a scalar volume's name"),
+            key("transfer", "value -> N s/m", Required, Transfer, "[[0.0, 0.0], [1.0, 5.0]]", "data value to damping b"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"coulomb_drag\"`, `\"vector_follow\"`, `\"vortex\"`",
+        intro: "A primitive sampled from a volume: Coulomb drag (a constant-magnitude drag) reads a scalar volume, \
+                the others a vector volume.",
+        header: "[[modes]]",
+        base: "kind = \"coulomb_drag\"\nvolume = \"density\"\ntransfer = [[0.0, 0.0], [1.0, 0.3]]",
         group: "mode",
         keys: &[
             key("volume", "", Required, Text, "\"density\"", "the volume's name"),
-            key("transfer", "value -> N", Required, Transfer, "[[0.0, 0.0], [1.0, 0.5]]", "data value (or its magnitude, curl or gradient) to strength"),
+            key("transfer", "value -> N", Required, Transfer, "[[0.0, 0.0], [1.0, 0.5]]", "data value (or its magnitude or curl) to strength"),
+        ],
+    },
+    SchemaSection {
+        title: "`[[modes]]` `kind = \"vector_force\"`, `\"gradient_force\"`",
+        intro: "An active mode: a force along a vector volume's vectors or a scalar volume's gradient, sampled at \
+                the hand, with the power it may put into the hand bounded.",
+        header: "[[modes]]",
+        base: "kind = \"gradient_force\"\nvolume = \"density\"\ntransfer = [[0.0, 0.0], [500.0, 1.0]]",
+        group: "mode",
+        keys: &[
+            key("volume", "", Required, Text, "\"density\"", "the volume's name"),
+            key("transfer", "value -> N", Required, Transfer, "[[0.0, 0.0], [100.0, 0.5]]", "vector magnitude or gradient magnitude to strength"),
+            key("power_budget_w", "W", Value("0.05"), Between(0.0, MAX_POWER_BUDGET_W), "0.2", "the most power the mode puts into a hand moving with its force"),
         ],
     },
     SchemaSection {

@@ -7,7 +7,10 @@
 //! the tick runs. Every error names the key, e.g. `modes[1].transfer: x must increase (...)` or
 //! `modes[2].mu: a surface mode does not use this key`.
 
-use super::limits::{readable, MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N};
+use super::limits::{
+    readable, DEFAULT_POWER_BUDGET_W, MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_POWER_BUDGET_W,
+    MAX_STRENGTH_N,
+};
 use super::mode::{Mode, ModeError, SurfaceSide};
 use super::transfer::TransferFunction;
 use crate::haptics::Primitive;
@@ -22,6 +25,7 @@ pub enum ModeKind {
     Surface,
     Friction,
     Viscosity,
+    CoulombDrag,
     VectorFollow,
     Vortex,
     VectorForce,
@@ -36,6 +40,7 @@ impl ModeKind {
             ModeKind::Surface => "surface",
             ModeKind::Friction => "friction",
             ModeKind::Viscosity => "viscosity",
+            ModeKind::CoulombDrag => "coulomb_drag",
             ModeKind::VectorFollow => "vector_follow",
             ModeKind::Vortex => "vortex",
             ModeKind::VectorForce => "vector_force",
@@ -44,10 +49,32 @@ impl ModeKind {
         }
     }
 
+    /// Every kind, in declaration order.
+    pub const ALL: [ModeKind; 9] = [
+        ModeKind::Surface,
+        ModeKind::Friction,
+        ModeKind::Viscosity,
+        ModeKind::CoulombDrag,
+        ModeKind::VectorFollow,
+        ModeKind::Vortex,
+        ModeKind::VectorForce,
+        ModeKind::GradientForce,
+        ModeKind::SupportPlane,
+    ];
+
+    /// True for the active (directed-force) modes, whose work on the hand is intended and bounded by their
+    /// power budget: `vector_force` and `gradient_force`.
+    pub fn is_active(self) -> bool {
+        matches!(self, ModeKind::VectorForce | ModeKind::GradientForce)
+    }
+
     /// The volume kind the mode reads, if any.
     fn volume_kind(self) -> Option<&'static str> {
         match self {
-            ModeKind::Surface | ModeKind::Viscosity | ModeKind::GradientForce => Some("scalar"),
+            ModeKind::Surface
+            | ModeKind::Viscosity
+            | ModeKind::CoulombDrag
+            | ModeKind::GradientForce => Some("scalar"),
             ModeKind::VectorFollow | ModeKind::Vortex | ModeKind::VectorForce => Some("vector"),
             ModeKind::Friction | ModeKind::SupportPlane => None,
         }
@@ -60,7 +87,9 @@ impl ModeKind {
 /// |---|---|
 /// | `surface` | `volume`, `transfer`, optional `side` (`"outward"`, default, or `"inward"`) |
 /// | `friction` | `surface` (the name of a surface mode), `mu` |
-/// | `viscosity`, `vector_follow`, `vortex`, `vector_force`, `gradient_force` | `volume`, `transfer` |
+/// | `viscosity` | `volume`, `transfer` (value -> damping in N s/m) |
+/// | `coulomb_drag`, `vector_follow`, `vortex` | `volume`, `transfer` |
+/// | `vector_force`, `gradient_force` | `volume`, `transfer`, optional `power_budget_w` (default [`DEFAULT_POWER_BUDGET_W`]) |
 /// | `support_plane` | `point_m`, `normal`, `strength_n` |
 ///
 /// Every mode takes an optional `name` (default: its kind), unique within the scene; it labels the
@@ -88,6 +117,10 @@ pub struct ModeConfig {
     /// Friction: coefficient (dimensionless, 0 to [`MAX_FRICTION_MU`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mu: Option<f64>,
+    /// Active modes (`vector_force`, `gradient_force`): the most power the mode may put into the hand (W,
+    /// 0 to [`MAX_POWER_BUDGET_W`]; default [`DEFAULT_POWER_BUDGET_W`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub power_budget_w: Option<f64>,
     /// Support plane: a point on the plane (m, each coordinate within [`MAX_COORDINATE_M`] of 0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub point_m: Option<[f64; 3]>,
@@ -114,6 +147,7 @@ impl ModeConfig {
             side: None,
             surface: None,
             mu: None,
+            power_budget_w: None,
             point_m: None,
             normal: None,
             strength_n: None,
@@ -172,13 +206,14 @@ impl ModeConfig {
     }
 
     /// Keys that are set, for the "does not use this key" check.
-    fn set_keys(&self) -> [(&'static str, bool); 8] {
+    fn set_keys(&self) -> [(&'static str, bool); 9] {
         [
             ("volume", self.volume.is_some()),
             ("transfer", self.transfer.is_some()),
             ("side", self.side.is_some()),
             ("surface", self.surface.is_some()),
             ("mu", self.mu.is_some()),
+            ("power_budget_w", self.power_budget_w.is_some()),
             ("point_m", self.point_m.is_some()),
             ("normal", self.normal.is_some()),
             ("strength_n", self.strength_n.is_some()),
@@ -190,6 +225,9 @@ impl ModeConfig {
             ModeKind::Surface => &["volume", "transfer", "side"],
             ModeKind::Friction => &["surface", "mu"],
             ModeKind::SupportPlane => &["point_m", "normal", "strength_n"],
+            ModeKind::VectorForce | ModeKind::GradientForce => {
+                &["volume", "transfer", "power_budget_w"]
+            }
             _ => &["volume", "transfer"],
         }
     }
@@ -261,6 +299,18 @@ impl ModeConfig {
                 Ok(transfer.scaled(0.0))
             }
         };
+        let power_budget_w = || -> Result<f64, ModeError> {
+            let budget = self.power_budget_w.unwrap_or(DEFAULT_POWER_BUDGET_W);
+            if !(0.0..=MAX_POWER_BUDGET_W).contains(&budget) {
+                return Err(out_of_range(
+                    "power_budget_w",
+                    budget,
+                    MAX_POWER_BUDGET_W,
+                    " W",
+                ));
+            }
+            Ok(budget)
+        };
         Ok(match self.kind {
             ModeKind::Surface => Mode::Surface {
                 volume: volume_index()?,
@@ -271,9 +321,14 @@ impl ModeConfig {
                 volume: volume_index()?,
                 transfer: transfer()?,
             },
+            ModeKind::CoulombDrag => Mode::CoulombDrag {
+                volume: volume_index()?,
+                transfer: transfer()?,
+            },
             ModeKind::GradientForce => Mode::GradientForce {
                 volume: volume_index()?,
                 transfer: transfer()?,
+                power_budget_w: power_budget_w()?,
             },
             ModeKind::VectorFollow => Mode::VectorFollow {
                 volume: volume_index()?,
@@ -286,6 +341,7 @@ impl ModeConfig {
             ModeKind::VectorForce => Mode::VectorForce {
                 volume: volume_index()?,
                 transfer: transfer()?,
+                power_budget_w: power_budget_w()?,
             },
             ModeKind::Friction => {
                 let surface = self.surface.as_deref().ok_or_else(|| missing("surface"))?;

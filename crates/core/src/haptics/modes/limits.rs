@@ -15,6 +15,14 @@ pub const MAX_COORDINATE_M: f64 = 1e3;
 /// already sticks wherever the surface pushes.
 pub const MAX_FRICTION_MU: f64 = 10.0;
 
+/// Largest power budget of an active (directed-force) mode (W): ten watts is a 10 N push on a hand moving at
+/// 1 m/s, beyond any haptic device's continuous output.
+pub const MAX_POWER_BUDGET_W: f64 = 10.0;
+
+/// The power budget of an active mode when its `power_budget_w` key is left out (W): 50 mW, a 1 N push on
+/// a hand moving with it at 5 cm/s.
+pub const DEFAULT_POWER_BUDGET_W: f64 = 0.05;
+
 /// Largest size of a transfer function's data value `x` (in the data's unit): within it the span of two
 /// breakpoints, and the distance of any value between them from either, stay finite.
 pub const MAX_TRANSFER_VALUE: f64 = 1e300;

@@ -52,10 +52,15 @@ mod scene;
 pub mod transfer;
 
 pub use config::{ModeConfig, ModeKind};
-pub use limits::{MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_STRENGTH_N, MAX_TRANSFER_VALUE};
+pub use limits::{
+    DEFAULT_POWER_BUDGET_W, MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_POWER_BUDGET_W, MAX_STRENGTH_N,
+    MAX_TRANSFER_VALUE,
+};
 pub use mode::{Mode, ModeError, SurfaceSide, MAX_MODES, MIN_DIRECTION_MAGNITUDE};
-pub use scene::{ModeMemory, RenderScene};
+pub use scene::{ModeInput, ModeMemory, RenderScene};
 pub use transfer::{TransferError, TransferFunction};
 
+#[cfg(test)]
+mod physics_tests;
 #[cfg(test)]
 mod tests;

@@ -37,7 +37,13 @@ pub enum Mode {
         surface_mode: usize,
         mu: f64,
     },
+    /// Viscous drag: `transfer` maps the value to a damping coefficient `b` in N s/m.
     Viscosity {
+        volume: usize,
+        transfer: TransferFunction,
+    },
+    /// Constant-magnitude (Coulomb) drag: a point at the proxy of strength `transfer(V)` N.
+    CoulombDrag {
         volume: usize,
         transfer: TransferFunction,
     },
@@ -52,10 +58,14 @@ pub enum Mode {
     VectorForce {
         volume: usize,
         transfer: TransferFunction,
+        /// The most power (W) the mode may put into the hand.
+        power_budget_w: f64,
     },
     GradientForce {
         volume: usize,
         transfer: TransferFunction,
+        /// The most power (W) the mode may put into the hand.
+        power_budget_w: f64,
     },
     SupportPlane {
         plane: Primitive,

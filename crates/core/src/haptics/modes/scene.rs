@@ -23,6 +23,9 @@ pub struct ModeMemory {
     pub plane_normals: [DVec3; MAX_MODES],
     /// The device force of the previous tick (N).
     pub previous_force_n: DVec3,
+    /// The probe position of the previous tick (m), `None` on the first tick of a scene (then the hand's
+    /// velocity is taken as zero).
+    pub previous_probe_m: Option<DVec3>,
 }
 
 impl Default for ModeMemory {
@@ -30,6 +33,53 @@ impl Default for ModeMemory {
         Self {
             plane_normals: [DVec3::ZERO; MAX_MODES],
             previous_force_n: DVec3::ZERO,
+            previous_probe_m: None,
+        }
+    }
+}
+
+/// Where a tick's modes sample: the proxy (passive modes) and the hand (active modes).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModeInput {
+    /// The proxy at the start of the tick (m): where the last tick left it.
+    pub proxy_m: DVec3,
+    /// Where the hand is expected half-way through the period this tick's force is held for (m): the probe
+    /// plus half its last displacement. Active modes sample their field here (module docs of `modes`).
+    pub hand_m: DVec3,
+    /// The hand's velocity over the last tick (m/s): zero on the first tick.
+    pub hand_velocity_m_per_s: DVec3,
+}
+
+impl ModeInput {
+    /// The input for a tick with the proxy at `proxy_m`, the probe at `probe_m` and the previous probe at
+    /// `previous_probe_m`, `dt_s` apart. Without a previous probe (or a usable `dt_s`) the hand is taken at
+    /// rest at the probe.
+    pub fn new(proxy_m: DVec3, probe_m: DVec3, previous_probe_m: Option<DVec3>, dt_s: f64) -> Self {
+        let step_m = match previous_probe_m {
+            Some(previous) if dt_s.is_finite() && dt_s > 0.0 && previous.is_finite() => {
+                probe_m - previous
+            }
+            _ => DVec3::ZERO,
+        };
+        let velocity = step_m / dt_s;
+        let (step_m, velocity) = if velocity.is_finite() {
+            (step_m, velocity)
+        } else {
+            (DVec3::ZERO, DVec3::ZERO)
+        };
+        Self {
+            proxy_m,
+            hand_m: probe_m + 0.5 * step_m,
+            hand_velocity_m_per_s: velocity,
+        }
+    }
+
+    /// A tick with the hand at rest at the proxy (tests, warm-up).
+    pub fn at_rest(proxy_m: DVec3) -> Self {
+        Self {
+            proxy_m,
+            hand_m: proxy_m,
+            hand_velocity_m_per_s: DVec3::ZERO,
         }
     }
 }
@@ -146,17 +196,29 @@ impl RenderScene {
             .sum()
     }
 
-    /// Runs mode `index` at `proxy_m`, the proxy at the start of the tick (where the last tick left it),
+    /// The viscous damping (N s/m) mode `index` puts on the proxy at `proxy_m`: `TF(V)` for a viscosity
+    /// mode, 0 for every other kind. The tick renders it implicitly (its module docs).
+    pub fn damping_n_s_per_m(&self, index: usize, proxy_m: DVec3) -> f64 {
+        match &self.modes[index] {
+            Mode::Viscosity { volume, transfer } => self
+                .scalar(*volume)
+                .map_or(0.0, |v| transfer.eval(v.sample(proxy_m))),
+            _ => 0.0,
+        }
+    }
+
+    /// Runs mode `index` for a tick at `at` (passive modes sample at the proxy, active ones at the hand),
     /// with `memory` from the previous tick: pushes at most one primitive onto `out` and returns how many it
     /// pushed, and the normal of the plane it emitted (surface modes), or zero. No allocation while `out`
-    /// has capacity.
+    /// has capacity. Viscosity emits no primitive (see [`Self::damping_n_s_per_m`]).
     pub fn emit(
         &self,
         index: usize,
-        proxy_m: DVec3,
+        at: &ModeInput,
         memory: &ModeMemory,
         out: &mut Vec<Primitive>,
     ) -> (u16, DVec3) {
+        let proxy_m = at.proxy_m;
         let mut normal_out = DVec3::ZERO;
         let primitive = match &self.modes[index] {
             Mode::Surface {
@@ -183,16 +245,21 @@ impl RenderScene {
                 let normal_force_n = normal.dot(memory.previous_force_n).max(0.0);
                 nonzero(mu * normal_force_n).and_then(|s| Primitive::point(proxy_m, s).ok())
             }
-            Mode::Viscosity { volume, transfer } => self.scalar(*volume).and_then(|v| {
+            Mode::Viscosity { .. } => None,
+            Mode::CoulombDrag { volume, transfer } => self.scalar(*volume).and_then(|v| {
                 nonzero(transfer.eval(v.sample(proxy_m)))
                     .and_then(|s| Primitive::point(proxy_m, s).ok())
             }),
-            Mode::GradientForce { volume, transfer } => self.scalar(*volume).and_then(|v| {
-                let gradient = v.gradient(proxy_m);
-                let magnitude = gradient.length();
-                direction_of(gradient)
-                    .and_then(|_| nonzero(transfer.eval(magnitude)))
-                    .and_then(|s| Primitive::directed(gradient, s).ok())
+            Mode::GradientForce {
+                volume,
+                transfer,
+                power_budget_w,
+            } => self.scalar(*volume).and_then(|v| {
+                let gradient = v.gradient(at.hand_m);
+                let direction = direction_of(gradient)?;
+                let strength = transfer.eval(gradient.length());
+                let strength = within_budget(strength, direction, at, *power_budget_w);
+                nonzero(strength).and_then(|s| Primitive::directed(direction, s).ok())
             }),
             Mode::VectorFollow { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let velocity = v.sample(proxy_m);
@@ -200,11 +267,16 @@ impl RenderScene {
                     .and_then(|_| nonzero(transfer.eval(velocity.length())))
                     .and_then(|s| Primitive::line(proxy_m, velocity, s).ok())
             }),
-            Mode::VectorForce { volume, transfer } => self.vector(*volume).and_then(|v| {
-                let velocity = v.sample(proxy_m);
-                direction_of(velocity)
-                    .and_then(|_| nonzero(transfer.eval(velocity.length())))
-                    .and_then(|s| Primitive::directed(velocity, s).ok())
+            Mode::VectorForce {
+                volume,
+                transfer,
+                power_budget_w,
+            } => self.vector(*volume).and_then(|v| {
+                let velocity = v.sample(at.hand_m);
+                let direction = direction_of(velocity)?;
+                let strength = transfer.eval(velocity.length());
+                let strength = within_budget(strength, direction, at, *power_budget_w);
+                nonzero(strength).and_then(|s| Primitive::directed(direction, s).ok())
             }),
             Mode::Vortex { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let jacobian = v.jacobian(proxy_m);
@@ -230,6 +302,18 @@ impl RenderScene {
 fn direction_of(v: DVec3) -> Option<DVec3> {
     let length = v.length();
     (length.is_finite() && length > MIN_DIRECTION_MAGNITUDE).then(|| v / length)
+}
+
+/// An active mode's strength held to its power budget: a force `s q` on a hand moving at `v` delivers
+/// `s q.v`; where that exceeds `budget_w` the strength is cut to `budget_w / q.v`. A hand moving against the
+/// force (or at rest) takes the full strength: the mode then does no positive work.
+fn within_budget(strength_n: f64, direction: DVec3, at: &ModeInput, budget_w: f64) -> f64 {
+    let along_m_per_s = direction.dot(at.hand_velocity_m_per_s);
+    if along_m_per_s > 0.0 && strength_n * along_m_per_s > budget_w {
+        budget_w / along_m_per_s
+    } else {
+        strength_n
+    }
 }
 
 fn nonzero(strength_n: f64) -> Option<f64> {

@@ -28,7 +28,7 @@ fn emit_one(
     memory: &ModeMemory,
 ) -> Vec<Primitive> {
     let mut out = Vec::new();
-    let (count, _) = scene.emit(index, proxy, memory, &mut out);
+    let (count, _) = scene.emit(index, &ModeInput::at_rest(proxy), memory, &mut out);
     assert_eq!(usize::from(count), out.len());
     out
 }

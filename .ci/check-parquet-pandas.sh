@@ -11,6 +11,8 @@
 #     sweep.csv gives (rows = ticks, certified rows, largest force) and the sidecar (embedded in each file's
 #     key-value metadata) holding the point's swept values; polars and pyarrow read the same rows. DuckDB and
 #     polars are pip-installed; in CI a failed install fails the check, elsewhere this part skips visibly.
+#  4. Parquet column encodings and codecs (plain, dictionary, BYTE_STREAM_SPLIT; none, Snappy, zstd) measured on
+#     a moving one-hour trace by python/bench/parquet_encodings.py, with its size per hour and ratio to CSV.
 # (The example notebook needs the voxhap Python package: .ci/check-python.sh runs it.)
 #
 # Installs pandas and pyarrow with pip (into the user's Python, like .ci/run does for mcap). In CI (CI set) a
@@ -71,6 +73,20 @@ if [ -n "${VOXHAP_PARQUET_LOAD_MAX_S:-}" ]; then
 else
   python3 python/bench/load_trace.py "$WORK/hour.parquet" --repeat 3 || fail "loading the one-hour trace failed"
 fi
+
+# Column encodings and codecs measured on a MOVING hour (sims/multimodal.toml: the hand circles the ball for
+# the whole hour; the sphere sim's hand stops after 6 s and says little about a real session), against the
+# CSV trace of the same run: the figures of docs/traces.md. Fails when the writer's choice (float columns
+# BYTE_STREAM_SPLIT, integers DELTA_BINARY_PACKED, Snappy) is not the smallest among the codecs it has.
+echo "$name: Parquet encodings on a moving one-hour trace"
+rm -f "$WORK/hour.parquet" "$WORK/hour.parquet.json"
+"$VOXHAP" sim sims/multimodal.toml --out "$WORK/moving.parquet" --duration 3600 --max-trace-bytes 100000000000 \
+  || fail "voxhap sim sims/multimodal.toml --duration 3600 --out moving.parquet"
+"$VOXHAP" sim sims/multimodal.toml --out "$WORK/moving.csv" --duration 3600 --max-trace-bytes 100000000000 >/dev/null \
+  || fail "voxhap sim sims/multimodal.toml --duration 3600 --out moving.csv"
+python3 python/bench/parquet_encodings.py "$WORK/moving.parquet" --csv "$WORK/moving.csv" \
+  --expect-best bss+delta/snappy || fail "the Parquet encodings measurement"
+rm -f "$WORK/moving.parquet" "$WORK/moving.csv" "$WORK/moving.parquet.json" "$WORK/moving.csv.json"
 
 echo "$name: voxhap sweep --format parquet as one dataset (DuckDB, polars, pyarrow)"
 if ! python3 -c "import duckdb, polars" >/dev/null 2>&1; then

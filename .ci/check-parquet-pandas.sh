@@ -6,6 +6,13 @@
 #  2. a one-hour 1 kHz sim trace (3.6 M rows) loads with pandas.read_parquet, timed by
 #     python/bench/load_trace.py (median of 3 loads; the target is 5 s, see docs/traces.md for the figures
 #     measured). The time is printed; it fails the check only when VOXHAP_PARQUET_LOAD_MAX_S is set.
+#  3. `voxhap sweep --format parquet` writes one partitioned dataset: DuckDB (from PyPI) reads DIR/points as one
+#     table with the swept keys as partition columns and finds, point by point, the figures the sweep's own
+#     sweep.csv gives (rows = ticks, certified rows, largest force) and the sidecar (embedded in each file's
+#     key-value metadata) holding the point's swept values; polars and pyarrow read the same rows. DuckDB and
+#     polars are pip-installed; in CI a failed install fails the check, elsewhere this part skips visibly.
+#  4. Parquet column encodings and codecs (plain, dictionary, BYTE_STREAM_SPLIT; none, Snappy, zstd) measured on
+#     a moving one-hour trace by python/bench/parquet_encodings.py, with its size per hour and ratio to CSV.
 # (The example notebook needs the voxhap Python package: .ci/check-python.sh runs it.)
 #
 # Installs pandas and pyarrow with pip (into the user's Python, like .ci/run does for mcap). In CI (CI set) a
@@ -65,5 +72,73 @@ if [ -n "${VOXHAP_PARQUET_LOAD_MAX_S:-}" ]; then
     || fail "loading the one-hour trace took more than VOXHAP_PARQUET_LOAD_MAX_S=$VOXHAP_PARQUET_LOAD_MAX_S s"
 else
   python3 python/bench/load_trace.py "$WORK/hour.parquet" --repeat 3 || fail "loading the one-hour trace failed"
+fi
+
+# Column encodings and codecs measured on a MOVING hour (sims/multimodal.toml: the hand circles the ball for
+# the whole hour; the sphere sim's hand stops after 6 s and says little about a real session), against the
+# CSV trace of the same run: the figures of docs/traces.md. Fails when the writer's choice (float columns
+# BYTE_STREAM_SPLIT, integers DELTA_BINARY_PACKED, Snappy) is not the smallest among the codecs it has.
+echo "$name: Parquet encodings on a moving one-hour trace"
+rm -f "$WORK/hour.parquet" "$WORK/hour.parquet.json"
+"$VOXHAP" sim sims/multimodal.toml --out "$WORK/moving.parquet" --duration 3600 --max-trace-bytes 100000000000 \
+  || fail "voxhap sim sims/multimodal.toml --duration 3600 --out moving.parquet"
+"$VOXHAP" sim sims/multimodal.toml --out "$WORK/moving.csv" --duration 3600 --max-trace-bytes 100000000000 >/dev/null \
+  || fail "voxhap sim sims/multimodal.toml --duration 3600 --out moving.csv"
+python3 python/bench/parquet_encodings.py "$WORK/moving.parquet" --csv "$WORK/moving.csv" \
+  --expect-best bss+delta/snappy || fail "the Parquet encodings measurement"
+rm -f "$WORK/moving.parquet" "$WORK/moving.csv" "$WORK/moving.parquet.json" "$WORK/moving.csv.json"
+
+echo "$name: voxhap sweep --format parquet as one dataset (DuckDB, polars, pyarrow)"
+if ! python3 -c "import duckdb, polars" >/dev/null 2>&1; then
+  echo "$name: installing duckdb polars with pip"
+  python3 -m pip install --quiet --disable-pip-version-check duckdb polars \
+    || { in_ci && fail "pip install duckdb polars failed (CI needs it)"; }
+fi
+if python3 -c "import duckdb, polars" >/dev/null 2>&1; then
+  "$VOXHAP" sweep sims/friction_sliding.toml --set k_n_per_m=200,500,1000 --set 'modes[1].mu=0.3,0.5' --duration 1 \
+    --format parquet --out-dir "$WORK/sw" >/dev/null || fail "voxhap sweep --format parquet"
+  python3 - "$WORK/sw" <<'PY' || fail "the sweep's Parquet dataset reads differently from its sweep.csv"
+import csv, json, os, sys
+import duckdb, polars as pl, pyarrow.dataset as ds
+sw = sys.argv[1]
+os.chdir(sw)
+expected = {int(r["point"]): r for r in csv.DictReader(open("sweep.csv"))}
+assert len(expected) == 6, expected
+rows = duckdb.sql("""
+    SELECT k_n_per_m, modes_1_mu, filename, count(*) AS ticks,
+           count(*) FILTER (WHERE solver_status = 'certified') AS certified,
+           max(sqrt(force_x_n * force_x_n + force_y_n * force_y_n + force_z_n * force_z_n)) AS max_force_n
+    FROM read_parquet('points/**/*.parquet', hive_partitioning = true, filename = true)
+    GROUP BY ALL ORDER BY filename""").fetchall()
+assert len(rows) == 6, rows
+kv = {f: json.loads(v) for f, v in duckdb.sql(
+    "SELECT file_name, value FROM parquet_kv_metadata('points/**/*.parquet') WHERE key = 'voxhap.sidecar'").fetchall()}
+for k, mu, filename, ticks, certified, max_force in rows:
+    point = int(filename.rsplit("point-", 1)[1].split(".")[0])
+    want = expected[point]
+    assert want["trace"].endswith(filename), (want["trace"], filename)
+    assert want["settings"] == f"k_n_per_m={k} modes[1].mu={mu}", (want["settings"], k, mu)
+    assert ticks == int(want["ticks"]) and certified == int(want["certified"]), (point, ticks, certified, want)
+    assert f"{max_force:.6f}" == want["max_force_n"], (point, max_force, want["max_force_n"])
+    scenario = kv[filename]["scenario"]
+    assert scenario["k_n_per_m"] == k and str(scenario["modes"][1]["mu"]) == mu, (point, scenario)
+# points.parquet: one row per point, the same figures, joinable on the partition columns.
+joined = duckdb.sql("""
+    SELECT p.point, p.ticks, d.n FROM 'points.parquet' p
+    JOIN (SELECT k_n_per_m, CAST(modes_1_mu AS DOUBLE) AS mu, count(*) AS n
+          FROM read_parquet('points/**/*.parquet', hive_partitioning = true) GROUP BY ALL) d
+      ON p.k_n_per_m = d.k_n_per_m AND p.modes_1_mu = d.mu ORDER BY p.point""").fetchall()
+assert [(p, t) for p, t, _ in joined] == [(i, int(expected[i]["ticks"])) for i in range(6)], joined
+assert all(t == n for _, t, n in joined), joined
+total = sum(int(r["ticks"]) for r in expected.values())
+polars_rows = pl.scan_parquet("points/**/*.parquet", hive_partitioning=True).select(pl.len()).collect().item()
+arrow = ds.dataset("points", format="parquet", partitioning="hive", exclude_invalid_files=True).to_table()
+assert polars_rows == arrow.num_rows == total, (polars_rows, arrow.num_rows, total)
+assert {"k_n_per_m", "modes_1_mu"} <= set(arrow.schema.names)
+print(f"DuckDB reads the sweep's 6 points ({total} rows) as one table, equal to sweep.csv and the sidecars; "
+      f"polars and pyarrow read {polars_rows} rows (duckdb {duckdb.__version__}, polars {pl.__version__})")
+PY
+else
+  echo "$name: SKIPPED the sweep dataset part: duckdb and polars could not be installed"
 fi
 echo "$name: passed"

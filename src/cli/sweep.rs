@@ -4,7 +4,9 @@
 //! `DIR/sweep.csv`).
 //!
 //! Each point is `voxhap sim` with its `--set` overrides ([`super::sim::load_scenario`]); its trace is
-//! `DIR/point-NNN.EXT` with its sidecar, whose scenario records the values used. A progress bar over all
+//! `DIR/point-NNN.EXT` with its sidecar, whose scenario records the values used; with `--format parquet`
+//! the traces form one partitioned dataset under `DIR/points` plus a `DIR/points.parquet` table
+//! ([`dataset`]). A progress bar over all
 //! points' ticks shows on a terminal. `--fail-on` applies to every point; the sweep exits with code 3 when
 //! any point met a condition (all traces are still written).
 
@@ -22,6 +24,8 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
+
+pub mod dataset;
 
 #[derive(Debug, Args)]
 pub struct SweepArgs {
@@ -97,12 +101,14 @@ struct Point {
 
 pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     let overrides = sweep_points(&args.set)?;
+    let parquet = args.format == TraceFormat::Parquet;
     std::fs::create_dir_all(&args.out_dir)
         .with_context(|| format!("cannot create {}", args.out_dir.display()))?;
     // Load and check every point before running any.
     let mut points = Vec::with_capacity(overrides.len());
     let mut total_bytes = 0u64;
     let mut total_ticks = 0u64;
+    let mut partitions = Vec::new();
     for (index, overrides) in overrides.into_iter().enumerate() {
         let loaded = load_scenario(&args.scenario, &overrides, args.duration, args.rate)
             .with_context(|| format!("point {index} ({})", overrides.join(" ")))?;
@@ -114,9 +120,19 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             ticks,
             loaded.scenario.rate_hz,
         ));
-        let out = args
-            .out_dir
-            .join(format!("point-{index:03}.{}", args.format));
+        if parquet && index == 0 {
+            let trace_columns: Vec<String> = crate::record::columns(loaded.scene.mode_names())
+                .into_iter()
+                .map(|c| c.name.into_owned())
+                .collect();
+            partitions = dataset::partition_columns(&args.set, &trace_columns)?;
+        }
+        let out = if parquet {
+            dataset::point_path(&args.out_dir, &partitions, &overrides, index)
+        } else {
+            args.out_dir
+                .join(format!("point-{index:03}.{}", args.format))
+        };
         points.push(Point {
             overrides,
             loaded,
@@ -140,6 +156,10 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         inputs,
     };
     for point in &points {
+        if let Some(parent) = point.out.parent() {
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("cannot create {}", parent.display()))?;
+        }
         crate::record::check_output_path(&point.out, &policy)
             .map_err(|e| anyhow::anyhow!("{}", error_chain(&e)))?;
     }
@@ -187,7 +207,8 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     );
     let mut failures = Vec::new();
     let mut errors = Vec::new();
-    for (index, (point, result)) in points.iter().zip(results).enumerate() {
+    let mut rows = Vec::with_capacity(points.len());
+    for (index, (point, result)) in points.iter().zip(&results).enumerate() {
         let settings = point.overrides.join(" ");
         match result {
             Some(Ok(summary)) => {
@@ -200,13 +221,27 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     summary.max_error_bound_m,
                     point.out.display()
                 );
-                for finding in fail_on_findings(&args.fail_on, &summary) {
+                for finding in fail_on_findings(&args.fail_on, summary) {
                     failures.push(format!("point {index} ({settings}): {finding}"));
                 }
             }
             Some(Err(error)) => errors.push(format!("point {index} ({settings}): {error:#}")),
             None => errors.push(format!("point {index} ({settings}): did not run")),
         }
+        rows.push(dataset::PointRow {
+            overrides: &point.overrides,
+            trace: &point.out,
+            result: match result {
+                Some(Ok(summary)) => Ok(summary),
+                Some(Err(error)) => Err(format!("{error:#}")),
+                None => Err("did not run".to_owned()),
+            },
+        });
+    }
+    let points_table = args.out_dir.join(dataset::POINTS_TABLE);
+    if parquet {
+        dataset::write_points_table(&points_table, &args.out_dir, &partitions, &rows)
+            .with_context(|| format!("cannot write {}", points_table.display()))?;
     }
     let summary_path = args.out_dir.join("sweep.csv");
     {
@@ -217,8 +252,17 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", summary_path.display()))?;
     }
     super::common::print_out(&format_table(&table))?;
+    let dataset_note = if parquet {
+        format!(
+            "; dataset {}, points {}",
+            args.out_dir.join(dataset::DATASET_DIR).display(),
+            points_table.display()
+        )
+    } else {
+        String::new()
+    };
     super::common::print_out(&format!(
-        "{} points ({} jobs) -> {} (summary {})",
+        "{} points ({} jobs) -> {} (summary {}{dataset_note})",
         points.len(),
         jobs,
         args.out_dir.display(),

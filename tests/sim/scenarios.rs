@@ -174,8 +174,8 @@ fn friction_slips_at_mu_times_the_normal_force() {
     );
 }
 
-/// sims/README.md: the proxy stays within 0.15 mm of the vortex core (the z axis) while the probe wanders
-/// up to 2 mm off it.
+/// sims/README.md: the proxy stays within 0.15 mm of the vortex core (the z axis) while the probe goes
+/// more than 1.8 mm off it (and travels more than 5 cm along it).
 #[test]
 fn vortex_proxy_stays_on_the_core() {
     let dir = tempfile::tempdir().unwrap();

@@ -6,7 +6,8 @@
 //! finite), `Float64` quantities (NaN and infinities kept), `Boolean` flag columns, a UTF-8
 //! `solver_status`, and nullable `UInt64` device sequence and time. The finished file's metadata holds
 //! the sidecar's JSON under the key [`SIDECAR_KEY`] ([`crate::parquet_schema`]), so a Parquet trace describes itself even without its
-//! `TRACE.json`. Pages are Snappy-compressed (what pandas and pyarrow write by default).
+//! `TRACE.json`. Pages are Snappy-compressed (what pandas and pyarrow write by default); float columns are
+//! BYTE_STREAM_SPLIT, integer columns DELTA_BINARY_PACKED ([`writer_properties`], measured).
 //!
 //! Crash safety: rows are buffered and written as one row group per second of trace time (at most
 //! [`ROW_GROUP_MAX_ROWS`] rows, and at most about one second of wall-clock time when the recorder
@@ -35,14 +36,16 @@ use arrow_array::builder::{
     BooleanBuilder, Float64Builder, Int64Builder, StringBuilder, UInt64Builder,
 };
 use arrow_array::{ArrayRef, RecordBatch};
+use arrow_schema::DataType;
 use arrow_schema::SchemaRef;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::arrow::ArrowWriter;
-use parquet::basic::Compression;
+use parquet::basic::{Compression, Encoding};
 use parquet::file::metadata::{
     FileMetaData, KeyValue, ParquetMetaData, ParquetMetaDataWriter, RowGroupMetaData,
 };
 use parquet::file::properties::WriterProperties;
+use parquet::schema::types::ColumnPath;
 
 use crate::columns::{cells, columns, Cell, ColumnType};
 use crate::error::TraceError;
@@ -139,11 +142,7 @@ impl ParquetTraceWriter {
         let stop = StopSwitch::default();
         let file = OutputFile::new(crate::output::create_new_file(path)?, &stop);
         let schema = arrow_schema(&meta.mode_names);
-        let properties = WriterProperties::builder()
-            .set_compression(Compression::SNAPPY)
-            .set_max_row_group_row_count(Some(ROW_GROUP_MAX_ROWS))
-            .set_created_by(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
-            .build();
+        let properties = writer_properties(&schema, ROW_GROUP_MAX_ROWS);
         let writer = ArrowWriter::try_new(
             BufWriter::with_capacity(256 * 1024, file),
             schema.clone(),
@@ -227,6 +226,34 @@ impl ParquetTraceWriter {
     }
 }
 
+/// The writer's properties: Snappy pages, row groups of up to `max_rows` rows, and per column the encoding
+/// that stores a moving trace smallest among those measured (`python/bench/parquet_encodings.py` on a
+/// one-hour sims/multimodal.toml trace, docs/traces.md): float columns BYTE_STREAM_SPLIT (their bytes
+/// regrouped by significance, which Snappy then compresses; dictionaries of float time series overflow and
+/// fall back to PLAIN), integer columns DELTA_BINARY_PACKED (ticks, times and counts change by small
+/// steps), no dictionary but for the text column (`solver_status`, a handful of values).
+fn writer_properties(schema: &SchemaRef, max_rows: usize) -> WriterProperties {
+    let mut builder = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .set_max_row_group_row_count(Some(max_rows))
+        .set_created_by(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
+        .set_dictionary_enabled(false);
+    for field in schema.fields() {
+        let path = ColumnPath::from(field.name().as_str());
+        builder = match field.data_type() {
+            DataType::Float64 | DataType::Float32 => {
+                builder.set_column_encoding(path, Encoding::BYTE_STREAM_SPLIT)
+            }
+            DataType::Int64 | DataType::UInt64 => {
+                builder.set_column_encoding(path, Encoding::DELTA_BINARY_PACKED)
+            }
+            DataType::Utf8 => builder.set_column_dictionary_enabled(path, true),
+            _ => builder,
+        };
+    }
+    builder.build()
+}
+
 /// Rewrites the finished Parquet file at `path` with row groups of up to [`COMPACT_ROW_GROUP_ROWS`] rows
 /// (same schema, values and key-value metadata), through a temporary file renamed over it. A file with one
 /// row group or none is left as it is.
@@ -250,11 +277,7 @@ fn compact(path: &Path, schema: &SchemaRef) -> Result<(), parquet::errors::Parqu
     let result = (|| {
         let output = crate::output::create_new_file(&temporary)
             .map_err(|e| parquet::errors::ParquetError::General(crate::error::error_chain(&e)))?;
-        let properties = WriterProperties::builder()
-            .set_compression(Compression::SNAPPY)
-            .set_max_row_group_row_count(Some(COMPACT_ROW_GROUP_ROWS))
-            .set_created_by(format!("voxhap {}", env!("CARGO_PKG_VERSION")))
-            .build();
+        let properties = writer_properties(schema, COMPACT_ROW_GROUP_ROWS);
         let mut writer = ArrowWriter::try_new(
             BufWriter::with_capacity(256 * 1024, output),
             schema.clone(),

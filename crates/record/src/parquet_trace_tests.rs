@@ -63,6 +63,41 @@ fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
     assert_eq!(sidecar.trace_format, TraceFormat::Parquet);
 }
 
+/// Every column chunk, in the row-group footers while recording and after compaction, carries the encoding
+/// measured smallest for it: BYTE_STREAM_SPLIT for floats, DELTA_BINARY_PACKED for integers, a dictionary
+/// only for the text column.
+#[test]
+fn columns_are_written_with_the_measured_encodings() {
+    use parquet::basic::{Encoding, Type};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.parquet");
+    write(&path, &["surface"], &samples(2500, 1));
+    let metadata = ParquetMetaDataReader::new()
+        .parse_and_finish(&Bytes::from(std::fs::read(&path).unwrap()))
+        .unwrap();
+    let group = metadata.row_group(0);
+    for column in group.columns() {
+        let name = column.column_path().string();
+        let encodings: Vec<Encoding> = column.encodings().collect();
+        let expected = match column.column_type() {
+            Type::DOUBLE => Some(Encoding::BYTE_STREAM_SPLIT),
+            Type::INT64 => Some(Encoding::DELTA_BINARY_PACKED),
+            Type::BYTE_ARRAY => Some(Encoding::RLE_DICTIONARY),
+            _ => None,
+        };
+        if let Some(expected) = expected {
+            assert!(encodings.contains(&expected), "{name}: {encodings:?}");
+        }
+        if column.column_type() != Type::BYTE_ARRAY {
+            assert!(
+                !encodings.contains(&Encoding::RLE_DICTIONARY),
+                "{name}: {encodings:?}"
+            );
+        }
+        assert_eq!(column.compression(), parquet::basic::Compression::SNAPPY);
+    }
+}
+
 #[test]
 fn a_bad_sample_is_flagged_and_kept() {
     let dir = tempfile::tempdir().unwrap();

@@ -15,7 +15,8 @@ use std::time::Duration;
 use voxhap::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::drivers::woodenhaptics::{
-    decode_input, encode_output, WoodenHaptics, WoodenHapticsConfig,
+    decode_input, encode_output, hfab_counts, WoodenHaptics, KINEMATICS as WOODENHAPTICS_HID,
+    MAX_CURRENT_MA as WOODENHAPTICS_HID_MAX_MA,
 };
 use voxhap::device::drivers::HidLink;
 use voxhap::device::transport::memory::{ScriptedReports, ScriptedStream, Transaction};
@@ -309,21 +310,25 @@ fn woodenhaptics_reports_match_the_firmware_structs() {
 #[test]
 fn woodenhaptics_kinematics_at_zero_counts() {
     // At zero counts θA = θB = 0 and θC = π/2: x = Lc - ox, y = -oy, z = La + Lb - oz (CWoodenDevice.cpp).
-    let config = WoodenHapticsConfig::default();
-    let theta = config.joint_angles_rad([0, 0, 0]);
-    let p = config.position_m(theta);
+    let config = WOODENHAPTICS_HID;
+    let theta = config.joint_angles_rad(hfab_counts([0, 0, 0]));
+    let p = config.position_m(theta).unwrap();
     assert!((p.x - (0.245 - 0.220)).abs() < 1e-12);
     assert!(p.y.abs() < 1e-12);
     assert!((p.z - (0.080 + 0.205 - 0.080)).abs() < 1e-12);
     // A force along +z there: J row for z is (0, -Lb sin θB, Lc sin θC) = (0, 0, Lc): τC = Lc Fz; the motor C
     // current is -τC dcap/dbody / kt = -(0.245 · 1 · 0.010/0.120)/0.0259 A = -0.788 A -> -788 mA.
     assert_eq!(
-        config.currents_ma(theta, DVec3::new(0.0, 0.0, 1.0)),
+        config.currents_ma(theta, DVec3::new(0.0, 0.0, 1.0), WOODENHAPTICS_HID_MAX_MA),
         [0, 0, -788]
     );
     // A huge force saturates at 3 A.
     assert_eq!(
-        config.currents_ma(theta, DVec3::new(0.0, 0.0, 1000.0))[2],
+        config.currents_ma(
+            theta,
+            DVec3::new(0.0, 0.0, 1000.0),
+            WOODENHAPTICS_HID_MAX_MA
+        )[2],
         -3000
     );
 }
@@ -335,7 +340,7 @@ fn woodenhaptics_driver_reads_counts_and_writes_currents() {
         Transaction::write(&encode_output([0, 0, -788], 0)),
         Transaction::ReadTimeout,
     ]);
-    let mut device = WoodenHaptics::new(reports, WoodenHapticsConfig::default()).unwrap();
+    let mut device = WoodenHaptics::new(reports, WOODENHAPTICS_HID).unwrap();
     let state = device.read_state().unwrap();
     assert!((state.position_m.z - 0.205).abs() < 1e-12);
     assert_eq!(device.last_counter(), Some(1));
@@ -496,8 +501,10 @@ proptest! {
         let result = decode_input(&bytes);
         prop_assert_eq!(result.is_ok(), bytes.len() == 8);
         if let Ok((counts, _)) = result {
-            let config = WoodenHapticsConfig::default();
-            prop_assert!(config.position_m(config.joint_angles_rad(counts)).is_finite());
+            let config = WOODENHAPTICS_HID;
+            prop_assert!(config
+                .position_m(config.joint_angles_rad(hfab_counts(counts)))
+                .is_some_and(|p| p.is_finite()));
         }
     }
 

@@ -2,14 +2,14 @@
 //! this thread only; the device doubles answer from their own threads). WoodenHaptics (Teensy), Haply 2DIY, Falcon
 //! and the voxhap protocol over serial run over in-memory pipes, the voxhap protocol over HID over an in-memory
 //! report pipe, the Inverse3 over a loopback WebSocket, the legacy WoodenHaptics HID driver over a fixed report
-//! source.
+//! source; both HID links through the real HID transport over doubles that wait in whole milliseconds, as hidapi.
 //!
 //! Each driver is checked twice: bare (`write_force` + `read_state`), and the way the servo thread holds it, inside
 //! the reconnecting wrapper (`servo::device::Reconnecting`: connector thread, supervisor with its lifecycle, link
 //! health and safety pipeline), connected, enabled and engaged, one `ServoDevice::exchange` per tick.
 
 use crate::util::alloc::count_allocations;
-use crate::util::falcon_firmware::Bootloader;
+use crate::util::falcon_firmware::{Bootloader, FalconLine};
 use crate::util::inverse_service::InverseService;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,11 +19,11 @@ use voxhap::device::drivers::falcon::{Falcon, FalconConfig};
 use voxhap::device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap::device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
-use voxhap::device::drivers::woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
+use voxhap::device::drivers::woodenhaptics::{WoodenHaptics, KINEMATICS as WOODENHAPTICS_HID};
 use voxhap::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use voxhap::device::supervisor::{SupervisorConfig, TickInput};
 use voxhap::device::transport::inverse_service::ServiceConfig;
-use voxhap::device::transport::{ByteTransport, MemoryPipe, ReportTransport};
+use voxhap::device::transport::{ByteTransport, HidTransport, MemoryPipe, MillisecondHid};
 use voxhap::device::{DeviceError, HapticDevice};
 use voxhap::servo::device::{Reconnecting, ServoDevice};
 use voxhap::servo::monitor::StopSlot;
@@ -160,7 +160,7 @@ fn haply_2diy_ticks_allocate_nothing() {
 
 /// A Falcon driver on the bootloader double, which runs its firmware once it has 1 byte of "firmware" (uploaded
 /// at open). The bootloader handle and the firmware file must live as long as the driver.
-fn falcon() -> (Falcon<MemoryPipe>, Bootloader, tempfile::TempDir) {
+fn falcon() -> (Falcon<FalconLine>, Bootloader, tempfile::TempDir) {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("fw.bin");
     std::fs::write(&file, [0x5a]).unwrap();
@@ -213,19 +213,20 @@ fn haply_inverse_ticks_allocate_nothing() {
     );
 }
 
-/// A HID source that always has the same two reports queued (so every read drains one stale report).
+/// A HID source that always has the same two reports queued (so every read drains one stale report); it reads
+/// like hidapi (waits in whole milliseconds) and runs under the real HID transport.
 struct FixedReports {
     queued: u8,
     /// The three encoder counts (little-endian i16 each) every report carries.
     counts: [u8; 6],
 }
 
-impl ReportTransport for FixedReports {
-    fn write_report(&mut self, _report: &[u8]) -> Result<(), DeviceError> {
+impl MillisecondHid for FixedReports {
+    fn write(&mut self, report: &[u8]) -> Result<usize, DeviceError> {
         self.queued = 2;
-        Ok(())
+        Ok(report.len())
     }
-    fn read_report(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, DeviceError> {
+    fn read_timeout(&mut self, buf: &mut [u8], _timeout_ms: i32) -> Result<usize, DeviceError> {
         if self.queued == 0 {
             return Ok(0);
         }
@@ -238,22 +239,23 @@ impl ReportTransport for FixedReports {
 
 #[test]
 fn woodenhaptics_hid_ticks_allocate_nothing_and_keep_the_newest_report() {
-    let reports = FixedReports {
+    let reports = HidTransport::on(FixedReports {
         queued: 0,
         counts: [10, 0, 20, 0, 30, 0],
-    };
-    let mut driver = WoodenHaptics::new(reports, WoodenHapticsConfig::default()).unwrap();
+    });
+    let mut driver = WoodenHaptics::new(reports, WOODENHAPTICS_HID).unwrap();
     assert_eq!(ticks_allocate(&mut driver, 10, 1000), 0);
     // Two reports were queued per tick; the newest (counter 0) was kept, the older one skipped.
     assert_eq!(driver.last_counter(), Some(0));
     assert_eq!(driver.drained_reports(), 1010);
-    // Supervised: the handle inside the device's workspace, at counts (0, -240, 2000), about (5, 0, 82) mm (the
-    // counts above lie outside it, and the input checks would drop the link after a run of them).
-    let reports = FixedReports {
+    // Supervised: the handle at the arm's power-up pose (all encoder counts zero; chai3d's CWoodenDevice.cpp
+    // zeroes the encoders there), (0.025, 0, 0.205) m, which the workspace the driver declares must contain, or
+    // the input checks would drop the link after a run of such reports.
+    let reports = HidTransport::on(FixedReports {
         queued: 0,
-        counts: [0, 0, 16, 255, 208, 7],
-    };
-    let driver = WoodenHaptics::new(reports, WoodenHapticsConfig::default()).unwrap();
+        counts: [0; 6],
+    });
+    let driver = WoodenHaptics::new(reports, WOODENHAPTICS_HID).unwrap();
     assert_eq!(
         supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
         0
@@ -449,19 +451,21 @@ impl ReportQueue {
     }
 }
 
-/// The host's end of an in-memory HID link.
+/// The host's end of an in-memory HID link, read like hidapi (waits in whole milliseconds only) and used under
+/// the real HID transport, which must wait out the driver's sub-millisecond waits itself.
 struct ReportPipe {
     to_device: ReportQueue,
     to_host: ReportQueue,
 }
 
-impl ReportTransport for ReportPipe {
-    fn write_report(&mut self, report: &[u8]) -> Result<(), DeviceError> {
+impl MillisecondHid for ReportPipe {
+    fn write(&mut self, report: &[u8]) -> Result<usize, DeviceError> {
         self.to_device.push(report);
-        Ok(())
+        Ok(report.len())
     }
 
-    fn read_report(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+    fn read_timeout(&mut self, buf: &mut [u8], timeout_ms: i32) -> Result<usize, DeviceError> {
+        let timeout = Duration::from_millis(u64::try_from(timeout_ms).unwrap_or(0));
         match self.to_host.pop(timeout) {
             Some(report) => {
                 let n = buf.len().min(REPORT_LEN);
@@ -496,7 +500,7 @@ fn supervised_protocol_hid_exchanges_allocate_nothing() {
         }
     });
     let driver = ProtocolDevice::new(
-        HidLink::new(ReportPipe { to_device, to_host }),
+        HidLink::new(HidTransport::on(ReportPipe { to_device, to_host })),
         ProtocolConfig::default(),
     );
     assert_eq!(

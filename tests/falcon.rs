@@ -1,6 +1,6 @@
 //! The Novint Falcon driver against doubles written from libnifalcon (tests/util/falcon_firmware.rs): the
 //! 16-byte frames over a real pseudo-terminal (homing, LEDs, torques, positions, the safety pipeline's zero on
-//! stop), and the firmware upload over an in-memory pipe.
+//! stop), and the firmware upload over an in-memory line that carries baud rate, DTR, RTS and the latency timer.
 
 use crate::util::falcon_firmware::{Bootloader, FalconDevice};
 use crate::util::supervised::{
@@ -10,10 +10,10 @@ use glam::{DMat3, DVec3};
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 use voxhap::device::drivers::falcon::{
-    forward_kinematics, leg_angle_rad, Falcon, FalconConfig, LED_GREEN, LED_RED,
+    upload_firmware, Falcon, FalconConfig, FalconPort, LED_GREEN, LED_RED,
 };
 use voxhap::device::supervisor::{Supervisor, TickInput};
-use voxhap::device::transport::SerialTransport;
+use voxhap::device::transport::{ByteTransport, SerialTransport};
 use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
 
 // libnifalcon's geometry, include/falcon/core/FalconGeometry.h:20-36.
@@ -99,7 +99,7 @@ fn nifalcon_exerted_force(p: DVec3, motor: [i16; 3]) -> DVec3 {
 
 fn open(path: &str) -> Lifecycle<Falcon<SerialTransport>> {
     let transport = SerialTransport::open(path, 1_500_000).unwrap();
-    let mut device = Lifecycle::new(Falcon::new(transport, FalconConfig::default()));
+    let mut device = Lifecycle::new(Falcon::new(transport, patient_config()));
     device.open().unwrap();
     device
 }
@@ -155,8 +155,11 @@ fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() 
 
 #[test]
 fn encoder_counts_become_the_libnifalcon_position() {
+    // A true handle position, its leg angles from libnifalcon's inverse kinematics (reimplemented above from
+    // FalconKinematicStamper.cpp, not the driver's) and the encoder counts that give them (FalconKinematic.h).
+    let expected = DVec3::new(0.01, -0.005, 0.12);
+    let counts = nifalcon::ik(expected).map(|[theta1, _, _]| nifalcon::count(theta1));
     let falcon = FalconDevice::start();
-    let counts = [-500i16, 300, 200];
     *falcon.shared.encoders.lock().unwrap() = counts;
     *falcon.shared.homing.lock().unwrap() = 0x7;
     let mut device = open(falcon.path());
@@ -167,9 +170,6 @@ fn encoder_counts_become_the_libnifalcon_position() {
         device.write_force(DVec3::ZERO).unwrap();
         state = Some(device.read_state().unwrap());
     }
-    let theta = counts.map(leg_angle_rad);
-    let (expected, converged) = forward_kinematics(theta, DVec3::new(0.0, 0.0, 0.08));
-    assert!(converged);
     let position = state.unwrap().position_m;
     assert!(
         (position - expected).length() < 5e-3,
@@ -186,7 +186,7 @@ fn the_supervisor_bounds_forces_and_ends_with_zero_torque() {
     let config = supervisor_config(2.0, 20_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 1_500_000)?;
-        Ok(Falcon::new(transport, FalconConfig::default()))
+        Ok(Falcon::new(transport, patient_config()))
     })
     .unwrap();
     supervisor.connect(0).unwrap();
@@ -246,10 +246,84 @@ fn the_firmware_upload_follows_libnifalcons_procedure_then_frames_flow() {
     let mut device = Lifecycle::new(Falcon::new(pipe, config));
     device.open().unwrap();
     assert_eq!(*bootloader.shared.firmware.lock().unwrap(), firmware);
+    // libnifalcon's latency timer: 16 ms for the load, 1 ms after (FalconComm.h:48, :72); both queues purged
+    // before the load and after it (:47, :74).
+    let line = &device.device().port().state;
+    let latency = line.latency_ms.lock().unwrap().clone();
+    assert_eq!(latency[latency.len() - 2..], [16, 1], "{latency:?}");
+    assert!(line.purges.load(std::sync::atomic::Ordering::Acquire) >= 2);
     device.enable().unwrap();
     device.write_force(DVec3::ZERO).unwrap();
     device.read_state().unwrap();
     assert!(device.device().is_homed());
+}
+
+/// A port that gets one line setting wrong: DTR never pulsed low (`skip_dtr`), or the upload rate libnifalcon
+/// calls 140 000 taken literally instead of FTDI divisor 0x15 (3 MHz / 21 = 142 857 baud).
+struct WrongLine {
+    line: crate::util::falcon_firmware::FalconLine,
+    skip_dtr: bool,
+    round_upload_baud: bool,
+}
+
+impl ByteTransport for WrongLine {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), voxhap::device::DeviceError> {
+        self.line.write_all(bytes)
+    }
+    fn read(
+        &mut self,
+        buf: &mut [u8],
+        timeout: Duration,
+    ) -> Result<usize, voxhap::device::DeviceError> {
+        self.line.read(buf, timeout)
+    }
+}
+
+impl FalconPort for WrongLine {
+    fn set_baud(&mut self, baud: u32) -> Result<(), voxhap::device::DeviceError> {
+        let baud = if self.round_upload_baud && baud == 142_857 {
+            140_000
+        } else {
+            baud
+        };
+        self.line.set_baud(baud)
+    }
+    fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), voxhap::device::DeviceError> {
+        if self.skip_dtr {
+            return Ok(());
+        }
+        self.line.set_modem(dtr, rts)
+    }
+    fn purge(&mut self) -> Result<(), voxhap::device::DeviceError> {
+        self.line.purge()
+    }
+    fn set_latency_timer(&mut self, ms: u8) -> Result<bool, voxhap::device::DeviceError> {
+        self.line.set_latency_timer(ms)
+    }
+    fn check_latency_timer(&self) -> Result<(), voxhap::device::DeviceError> {
+        self.line.check_latency_timer()
+    }
+}
+
+/// The bootloader double can see a wrong line setting: without the DTR pulse the check is never answered,
+/// at 140 000 baud the `A` is never echoed.
+#[test]
+fn the_bootloader_double_refuses_a_wrong_dtr_or_baud() {
+    for (skip_dtr, round_upload_baud, expected) in [
+        (true, false, "did not answer the check"),
+        (false, true, "did not echo 'A'"),
+    ] {
+        let (_bootloader, line) = Bootloader::start(4);
+        let mut port = WrongLine {
+            line,
+            skip_dtr,
+            round_upload_baud,
+        };
+        let error = upload_firmware(&mut port, &[1, 2, 3, 4])
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains(expected), "{error}");
+    }
 }
 
 /// A constant request far above the 2 N limit: at every command the Falcon receives, the force it exerts at its
@@ -368,4 +442,13 @@ fn a_falcon_that_answers_twice_builds_no_backlog_and_is_reported() {
     );
     assert!(device.device().surplus_frames() >= 299);
     assert!(reported.len() >= 2 && reported.len() <= 10, "{reported:?}");
+}
+
+/// The driver's settings with the frame wait these tests were written for (5 ms, the old default): what they
+/// check is not the link's timing. The servo's own wait derives from its period (`FalconConfig::for_period`).
+fn patient_config() -> FalconConfig {
+    FalconConfig {
+        reply_timeout: Duration::from_millis(5),
+        ..FalconConfig::default()
+    }
 }

@@ -12,7 +12,7 @@ use std::f64::consts::PI;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 use voxhap::device::drivers::woodenhaptics_serial::{
-    WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel, MAX_CURRENT_MA,
+    WoodenHapticsSerial, WoodyConfig, WoodyModel, MAX_CURRENT_MA,
 };
 use voxhap::device::supervisor::{
     OutputState, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
@@ -30,6 +30,19 @@ const HFAB_TORQUE_CONSTANT: [f64; 3] = [0.0259, 0.0259, 0.0259];
 const HFAB_CPR: [f64; 3] = [2000.0, 2000.0, 2000.0];
 const HFAB_MOTOR_AND_BODY_ALIGNED: [bool; 3] = [false, true, true];
 const HFAB_HOME: [i32; 3] = [0, 0, -6000];
+const HFAB_LN_M: f64 = 0.080;
+const HFAB_ORIGIN_M: [f64; 3] = [0.220, 0.000, 0.080];
+
+/// The handle position at raw counts, hfab_kinematics.cpp:229-231 (the serial chain, origin subtracted).
+fn hfab_position(raw: [i32; 3]) -> DVec3 {
+    let [ta, tb, tc] = hfab_body_angles(raw);
+    let reach = HFAB_LB_M * tb.sin() + HFAB_LC_M * tc.sin();
+    DVec3::new(
+        ta.cos() * reach - HFAB_ORIGIN_M[0],
+        ta.sin() * reach - HFAB_ORIGIN_M[1],
+        HFAB_LN_M + HFAB_LB_M * tb.cos() - HFAB_LC_M * tc.cos() - HFAB_ORIGIN_M[2],
+    )
+}
 
 /// Body angles at raw encoder counts: hfab_api.cpp adds the home offset, then hfab_kinematics.cpp:109-111
 /// (motor angle 2π e / cpr), 122-124 (dir = -1 where motor and body are aligned) and 137-139
@@ -85,7 +98,7 @@ fn hfab_exerted_force(raw: [i32; 3], currents_ma: [i32; 3]) -> DVec3 {
 
 fn open(path: &str) -> Lifecycle<WoodenHapticsSerial<SerialTransport>> {
     let transport = SerialTransport::open(path, 115_200).unwrap();
-    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, WoodyConfig::default()));
+    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, patient_config()));
     device.open().unwrap();
     device
 }
@@ -110,7 +123,7 @@ fn the_model_comes_from_the_devices_report() {
 fn an_unknown_model_is_refused_at_open() {
     let firmware = WoodyFirmware::start(7);
     let transport = SerialTransport::open(firmware.path(), 115_200).unwrap();
-    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, WoodyConfig::default()));
+    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, patient_config()));
     let error = device.open().unwrap_err().to_string();
     assert!(error.contains("unknown model"), "{error}");
 }
@@ -141,8 +154,7 @@ fn encoders_give_the_hfabapi_position_and_forces_the_jacobian_transpose_currents
     device.read_state().unwrap(); // answers with the new counts
     device.write_force(DVec3::ZERO).unwrap();
     let moved = device.read_state().unwrap();
-    let k = WoodyKinematics::WOODENHAPTICS_V2015;
-    let expected = k.position_m(k.joint_angles_rad([1000, 0, 0])).unwrap();
+    let expected = hfab_position([1000, 0, 0]);
     assert!((moved.position_m - expected).length() < 1e-12);
     device.disable().unwrap();
     device.close().unwrap();
@@ -163,7 +175,7 @@ fn with_the_safety_pipeline_currents_ramp_in_stay_bounded_and_end_at_zero() {
     let config = supervisor_config(3.0, 50_000);
     let mut supervisor = Supervisor::new(config, move || {
         let transport = SerialTransport::open(&path, 115_200)?;
-        Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+        Ok(WoodenHapticsSerial::new(transport, patient_config()))
     })
     .unwrap();
     supervisor.connect(0).unwrap();
@@ -360,7 +372,7 @@ fn surplus_replies_reach_the_supervisors_events_and_counters() {
     let path = firmware.path().to_string();
     let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
         let transport = SerialTransport::open(&path, 115_200)?;
-        Ok(WoodenHapticsSerial::new(transport, WoodyConfig::default()))
+        Ok(WoodenHapticsSerial::new(transport, patient_config()))
     })
     .unwrap();
     supervisor.connect(0).unwrap();
@@ -421,7 +433,15 @@ fn a_silent_device_times_out_and_stale_replies_are_discarded_on_open() {
 #[test]
 fn after_missed_replies_the_driver_reports_how_old_the_state_may_be() {
     let firmware = WoodyFirmware::start(3);
-    let mut device = open(firmware.path());
+    // A reply waited for 1 s: the muted firmware never answers (each muted exchange costs the wait), and an
+    // answering one must not time out on a loaded machine.
+    let transport = SerialTransport::open(firmware.path(), 115_200).unwrap();
+    let config = WoodyConfig {
+        reply_timeout: Duration::from_secs(1),
+        ..WoodyConfig::default()
+    };
+    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, config));
+    device.open().unwrap();
     device.enable().unwrap();
     let exchange = |device: &mut Lifecycle<WoodenHapticsSerial<SerialTransport>>| {
         device.write_force(DVec3::ZERO).unwrap();
@@ -494,4 +514,14 @@ fn a_state_older_than_the_staleness_bound_never_computes_force() {
     let next = step(&mut supervisor, push);
     assert_eq!(next.sent_force_n, DVec3::ZERO, "{next:?}");
     supervisor.stop();
+}
+
+/// The driver's settings with the reply wait these tests were written for (5 ms, the old default): what they
+/// check is not the link's timing, and a busy machine must not turn a late reply into a failure. The servo's
+/// own wait derives from its period (`WoodyConfig::for_period`).
+fn patient_config() -> WoodyConfig {
+    WoodyConfig {
+        reply_timeout: Duration::from_millis(5),
+        ..WoodyConfig::default()
+    }
 }

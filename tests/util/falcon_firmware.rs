@@ -5,9 +5,12 @@
 //!
 //! [`FalconDevice`] is the Falcon with its firmware running, on a pseudo-terminal: it answers each well-formed
 //! host frame with one frame of encoder counts and status, and logs every motor command with its LED and
-//! homing bits. [`Bootloader`] is the Falcon before its firmware is loaded, on an in-memory pipe (a
-//! pseudo-terminal has no baud rate or DTR line to switch): it answers the `0a 43 0d` check, echoes `A`, echoes
-//! the firmware, then runs like [`FalconDevice`].
+//! homing bits. [`Bootloader`] is the Falcon before its firmware is loaded, on an in-memory line that carries
+//! the baud rate, DTR, RTS, purges and the FTDI latency timer ([`FalconLine`]; a pseudo-terminal has no baud rate
+//! or DTR line to switch): as FalconComm.h:45-66 describes, it answers the `0a 43 0d` check only at 9600 baud
+//! with RTS low after DTR went low then high, echoes `A` only at 142 857 baud (FTDI divisor 0x15) with DTR low,
+//! echoes the firmware at that rate, then runs like [`FalconDevice`] only at 1 500 000 baud (divisor 2). At any
+//! other setting the bytes are garbled on a real line: the double drops them and answers nothing.
 //!
 //! Misbehaviour a test can ask for: frames whose encoder counts are not the true ones (glitches, jumps) while
 //! every command is logged with the true counts ([`Applied`]), and more than one answer per frame.
@@ -18,7 +21,64 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
+use voxhap::device::drivers::falcon::FalconPort;
 use voxhap::device::transport::{ByteTransport, MemoryPipe};
+use voxhap::device::DeviceError;
+
+/// The line settings the host made, as the Falcon's end of the cable sees them.
+#[derive(Debug, Default)]
+pub struct LineState {
+    pub baud: AtomicU32,
+    pub dtr: AtomicBool,
+    pub rts: AtomicBool,
+    /// DTR went low and then high since the last check answer (the bootloader's reset, FalconComm.h:53-54).
+    pub dtr_pulsed: AtomicBool,
+    /// Every latency timer the host set (ms), in order.
+    pub latency_ms: Mutex<Vec<u8>>,
+    /// Purges of both queues.
+    pub purges: AtomicU32,
+}
+
+/// The host's end of the Falcon's line: a byte pipe plus the settings the double reads.
+pub struct FalconLine {
+    pipe: MemoryPipe,
+    pub state: Arc<LineState>,
+}
+
+impl ByteTransport for FalconLine {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), DeviceError> {
+        self.pipe.write_all(bytes)
+    }
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        self.pipe.read(buf, timeout)
+    }
+}
+
+impl FalconPort for FalconLine {
+    fn set_baud(&mut self, baud: u32) -> Result<(), DeviceError> {
+        self.state.baud.store(baud, Ordering::Release);
+        Ok(())
+    }
+    fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError> {
+        let was = self.state.dtr.swap(dtr, Ordering::AcqRel);
+        if dtr && !was {
+            self.state.dtr_pulsed.store(true, Ordering::Release);
+        }
+        self.state.rts.store(rts, Ordering::Release);
+        Ok(())
+    }
+    fn purge(&mut self) -> Result<(), DeviceError> {
+        self.state.purges.fetch_add(1, Ordering::AcqRel);
+        self.pipe.discard_input()
+    }
+    fn set_latency_timer(&mut self, ms: u8) -> Result<bool, DeviceError> {
+        self.state.latency_ms.lock().unwrap().push(ms);
+        Ok(true)
+    }
+    fn check_latency_timer(&self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+}
 
 /// One host frame, as the Falcon decoded it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -194,10 +254,15 @@ pub struct Bootloader {
 }
 
 impl Bootloader {
-    /// Starts the double; returns it and the host's end of the pipe.
-    pub fn start(firmware_len: usize) -> (Bootloader, MemoryPipe) {
+    /// Starts the double; returns it and the host's end of the line.
+    pub fn start(firmware_len: usize) -> (Bootloader, FalconLine) {
         let (host, mut device) = MemoryPipe::pair();
         let shared = Arc::new(FalconShared::default());
+        let line = Arc::new(LineState::default());
+        let host = FalconLine {
+            pipe: host,
+            state: line.clone(),
+        };
         let thread = {
             let shared = shared.clone();
             std::thread::spawn(move || {
@@ -212,29 +277,48 @@ impl Bootloader {
                 let mut pending = Vec::new();
                 let mut chunk = [0u8; 256];
                 while !shared.stop.load(Ordering::Acquire) {
-                    match device.read(&mut chunk, Duration::from_millis(2)) {
-                        Ok(n) => pending.extend_from_slice(&chunk[..n]),
+                    let n = match device.read(&mut chunk, Duration::from_millis(2)) {
+                        Ok(n) => n,
                         Err(_) => return,
+                    };
+                    let baud = line.baud.load(Ordering::Acquire);
+                    let dtr = line.dtr.load(Ordering::Acquire);
+                    // The rate each stage listens at (FalconComm.h:50, :56, :73); at any other rate the bytes
+                    // arrive garbled and are dropped.
+                    let expected_baud = match stage {
+                        Stage::Check => 9_600,
+                        Stage::WaitA | Stage::Firmware => 142_857,
+                        Stage::Running => 1_500_000,
+                    };
+                    if baud != expected_baud {
+                        pending.clear();
+                        continue;
                     }
+                    pending.extend_from_slice(&chunk[..n]);
                     let reply: Vec<u8> = match stage {
                         Stage::Check => {
-                            // Until firmware runs, normal frames get no answer; the check gets the bootloader's.
+                            // Until firmware runs, normal frames get no answer; the check gets the bootloader's,
+                            // after DTR went low then high with RTS low (FalconComm.h:52-54).
+                            let reset = dtr
+                                && !line.rts.load(Ordering::Acquire)
+                                && line.dtr_pulsed.load(Ordering::Acquire);
                             match pending.windows(3).position(|w| w == [0x0a, 0x43, 0x0d]) {
-                                Some(at) => {
+                                Some(at) if reset => {
                                     pending.drain(..at + 3);
                                     stage = Stage::WaitA;
                                     vec![0x0a, 0x44, 0x2c, 0x0d]
                                 }
-                                None => Vec::new(),
+                                _ => Vec::new(),
                             }
                         }
+                        // DTR low before the rate change (FalconComm.h:57).
                         Stage::WaitA => match pending.iter().position(|&b| b == b'A') {
-                            Some(at) => {
+                            Some(at) if !dtr => {
                                 pending.drain(..=at);
                                 stage = Stage::Firmware;
                                 vec![b'A']
                             }
-                            None => Vec::new(),
+                            _ => Vec::new(),
                         },
                         Stage::Firmware => {
                             let mut firmware = shared.firmware.lock().unwrap();

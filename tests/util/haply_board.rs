@@ -1,7 +1,14 @@
-//! A test double of the Haply 2DIY board (Haply-API-cpp V2.1.0 `src/Haply/Board.cpp`, `src/Haply/Device.cpp`):
-//! commands are `[type][device id][bytes…]` (type 0 reset: 2 bytes; type 1 setup: 26 bytes for two ports; type 2
-//! torques: id then two little-endian f32 in port order), and a torque command is answered by
-//! `[device id][f32 angle port 1][f32 angle port 2]` (degrees). Served on a pseudo-terminal. It logs every torque
+//! A test double of the Haply 2DIY board, parsing commands the way the board's firmware does
+//! (Haply_Arduino_Firmware.h V1.5.0, S. Ding and C. Gallacher; the host side is Haply-API-cpp V2.1.0
+//! `src/Haply/Board.cpp`, `src/Haply/Device.cpp`): a command starts with its type (`command_instructions`);
+//! reset (0) is followed by the device address (`reset_haply`); setup (1) by the address, the motor mask and one
+//! direction byte per motor set in it (`mtr_parameters`), the encoder mask and one direction byte per encoder
+//! (`enc_parameters`), a sensor count and that many sensor ports, a PWM count and that many pins, then offset and
+//! resolution (two little-endian f32) per encoder (`setup_device`); torques (2) by the address, one pulse byte per
+//! PWM pin set up, and one f32 per motor (`write_states`), answered by the address then one f32 per analogue
+//! sensor and per encoder (`read_states`). So the lengths come from the setup the host sent, never from voxhap's
+//! driver. Each motor's torque is clamped at `MAX_TORQUE` = 0.123 N m on its own (`create_torque`); the double
+//! records what the motors then exert ([`BoardShared::exerted`]). Served on a pseudo-terminal. It logs every torque
 //! pair, and can misbehave the way a USB serial link does: stale bytes before the host opens, a reply cut short
 //! whose rest arrives late, and a stray extra byte. It can also report readings that are not the pantograph's
 //! true angles (glitches, NaN) while logging every torque pair with the true angles ([`Applied`]), and answer
@@ -44,6 +51,10 @@ pub struct BoardShared {
     pub answered: AtomicU64,
     /// Torque pairs received (port order), in order.
     pub torques: Mutex<Vec<[f32; 2]>>,
+    /// The torque pairs the motors exert after the firmware's per-motor clamp (port order), in order.
+    pub exerted: Mutex<Vec<[f32; 2]>>,
+    /// The setup the host sent, as the firmware parsed it (`None` before one).
+    pub setup: Mutex<Option<Setup>>,
     /// Resets and setups received.
     pub setups: Mutex<u32>,
     /// Faults to apply to the next replies, in order.
@@ -57,7 +68,56 @@ pub struct HaplyBoard {
     thread: Option<JoinHandle<()>>,
 }
 
-pub const DEVICE_ID: u8 = 5;
+/// The firmware's per-motor torque limit (N m), Haply_Arduino_Firmware.h `MAX_TORQUE`.
+pub const MAX_TORQUE: f32 = 0.123;
+
+/// A setup command as `setup_device` parses it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Setup {
+    pub address: u8,
+    pub motor_directions: Vec<u8>,
+    pub encoder_directions: Vec<u8>,
+    pub sensor_ports: Vec<u8>,
+    pub pwm_pins: Vec<u8>,
+    /// (offset degrees, resolution) per encoder.
+    pub encoder_parameters: Vec<(f32, f32)>,
+}
+
+/// Parses a setup command (type byte first) the way `setup_device` reads it; `None` until all of it is there.
+/// Returns the setup and its length.
+pub fn parse_setup(bytes: &[u8]) -> Option<(Setup, usize)> {
+    let mut at = 1;
+    let mut next = |n: usize| {
+        let slice = bytes.get(at..at + n)?;
+        at += n;
+        Some(slice.to_vec())
+    };
+    let address = next(1)?[0];
+    let motor_mask = next(1)?[0];
+    let motor_directions = next((motor_mask & 0xf).count_ones() as usize)?;
+    let encoder_mask = next(1)?[0];
+    let encoder_directions = next((encoder_mask & 0xf).count_ones() as usize)?;
+    let sensors = next(1)?[0] as usize;
+    let sensor_ports = next(sensors)?;
+    let pwms = next(1)?[0] as usize;
+    let pwm_pins = next(pwms)?;
+    let raw = next(encoder_directions.len() * 8)?;
+    let float = |i: usize| f32::from_le_bytes([raw[i], raw[i + 1], raw[i + 2], raw[i + 3]]);
+    let encoder_parameters = (0..encoder_directions.len())
+        .map(|e| (float(8 * e), float(8 * e + 4)))
+        .collect();
+    Some((
+        Setup {
+            address,
+            motor_directions,
+            encoder_directions,
+            sensor_ports,
+            pwm_pins,
+            encoder_parameters,
+        },
+        at,
+    ))
+}
 /// Angles reported (degrees, port 1 then port 2): a symmetric pose.
 pub const ANGLES_DEG: [f32; 2] = [45.0, 135.0];
 
@@ -97,9 +157,10 @@ impl Drop for HaplyBoard {
     }
 }
 
-fn reply(angles: [f32; 2]) -> [u8; 9] {
+/// `read_states`: the address the torques came with, then one f32 per encoder (no analogue sensors here).
+fn reply(address: u8, angles: [f32; 2]) -> [u8; 9] {
     let mut out = [0u8; 9];
-    out[0] = DEVICE_ID;
+    out[0] = address;
     out[1..5].copy_from_slice(&angles[0].to_le_bytes());
     out[5..9].copy_from_slice(&angles[1].to_le_bytes());
     out
@@ -124,12 +185,20 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
             }
         }
         while let Some(&kind) = pending.first() {
-            let len = match kind {
-                0 => 2,
-                1 => 26,
-                2 => 10,
+            let setup = shared.setup.lock().unwrap().clone();
+            let len = match (kind, &setup) {
+                (0, _) => 2,
+                (1, _) => match parse_setup(&pending) {
+                    Some((setup, len)) => {
+                        *shared.setup.lock().unwrap() = Some(setup);
+                        len
+                    }
+                    None => break,
+                },
+                (2, Some(setup)) => 2 + setup.pwm_pins.len() + 4 * setup.motor_directions.len(),
                 _ => {
-                    // Not a command start: the board's parser would be lost too; drop the byte.
+                    // Not a command start (or torques before any setup): the board's parser would be lost
+                    // too; drop the byte.
                     pending.remove(0);
                     continue;
                 }
@@ -141,6 +210,8 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
             match kind {
                 0 | 1 => *shared.setups.lock().unwrap() += 1,
                 _ => {
+                    let setup = setup.expect("torques parsed only after a setup");
+                    let first = 2 + setup.pwm_pins.len();
                     let f = |i: usize| {
                         f32::from_le_bytes([
                             command[i],
@@ -149,10 +220,19 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
                             command[i + 3],
                         ])
                     };
-                    shared.torques.lock().unwrap().push([f(2), f(6)]);
+                    // A 2DIY: two motors, two encoders; other setups are recorded but not served.
+                    assert_eq!(setup.motor_directions.len(), 2, "{setup:?}");
+                    assert_eq!(setup.encoder_directions.len(), 2, "{setup:?}");
+                    let torques = [f(first), f(first + 4)];
+                    shared.torques.lock().unwrap().push(torques);
+                    shared
+                        .exerted
+                        .lock()
+                        .unwrap()
+                        .push(torques.map(|t| t.clamp(-MAX_TORQUE, MAX_TORQUE)));
                     let truth = shared.true_angles_deg.lock().unwrap().unwrap_or(ANGLES_DEG);
                     shared.applied.lock().unwrap().push(Applied {
-                        torques: [f(2), f(6)],
+                        torques,
                         true_angles_deg: truth,
                     });
                     let fault = {
@@ -160,7 +240,7 @@ fn run(pty: &mut PtyDevice, shared: &BoardShared) {
                         (!faults.is_empty()).then(|| faults.remove(0))
                     };
                     let reading = shared.readings.lock().unwrap().pop_front().unwrap_or(truth);
-                    let answer = reply(reading);
+                    let answer = reply(command[1], reading);
                     let extra = shared.extra_answers.load(Ordering::Acquire) as usize;
                     let _ = match fault {
                         None => pty.write(&answer.repeat(1 + extra)),

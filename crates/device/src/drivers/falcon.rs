@@ -31,9 +31,10 @@
 //!   answers `0a 44 2c 0d` (up to 100 tries; libusb also sees FTDI's two status bytes, which `ftdi_sio`
 //!   removes); DTR low; FTDI divisor 0x15 (3 MHz / 21 = 142 857 baud; libnifalcon calls it 140 000); send `A`,
 //!   expect `A`; then the file in 62-byte pieces, each echoed back and compared; then normal mode: FTDI divisor
-//!   2 (1 500 000 baud) and both queues purged. libnifalcon also sets the FTDI latency timer (16 ms while
-//!   loading, 1 ms after): `ftdi_sio` exposes it as the sysfs attribute `latency_timer`, which
-//!   contrib/udev/70-voxhap.rules sets to 1 ms; it is not set from here.
+//!   2 (1 500 000 baud) and both queues purged. The FTDI latency timer is set as libnifalcon sets it (16 ms
+//!   while loading, 1 ms after; FalconCommLibUSB.cpp:407-413, :560-564) through `ftdi_sio`'s sysfs attribute
+//!   `latency_timer` where voxhap may write it ([`ftdi_latency`]; contrib/udev/70-voxhap.rules sets 1 ms at
+//!   plug-in), and `open` refuses a timer above 1 ms with a message naming the value and the fix.
 //!
 //! Which pose converts force: the position the forward kinematics found for the newest frame is a candidate
 //! until the host's input checks accept it ([`HapticDevice::input_checked`]); torques are computed only at the
@@ -52,7 +53,7 @@ pub use super::falcon_kinematics::{
     FalconGeometry, LegAngles,
 };
 use super::reply_age::ReplyAge;
-use crate::transport::{ByteTransport, SerialTransport};
+use crate::transport::{ftdi_latency, ByteTransport, SerialTransport};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
 use std::time::{Duration, Instant};
@@ -135,13 +136,23 @@ pub fn decode_reply(frame: &[u8; FRAME_LEN]) -> Option<FalconReply> {
     })
 }
 
-/// A byte stream that can also change its line settings (baud rate, modem lines, queues), as the firmware
-/// upload needs. A serial port does it through termios; test doubles may ignore it.
+/// A byte stream that can also change its line settings (baud rate, modem lines, queues, the FTDI latency
+/// timer), as the firmware upload needs. A serial port does it through termios and sysfs; a test double must
+/// model what a wrong setting does (the bootloader does not answer at another baud rate).
 pub trait FalconPort: ByteTransport {
     /// Sets the baud rate.
     fn set_baud(&mut self, baud: u32) -> Result<(), DeviceError>;
     /// Sets DTR and RTS.
     fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError>;
+    /// Throws away both queues: bytes the host has not sent yet and bytes the device sent (libnifalcon purges
+    /// RX and TX before the firmware load and after it, src/comm/FalconCommLibUSB.cpp:393-402 and :571-580).
+    fn purge(&mut self) -> Result<(), DeviceError>;
+    /// Sets the FTDI latency timer (ms); false when the port has none or it may not be set here
+    /// ([`ftdi_latency`]).
+    fn set_latency_timer(&mut self, ms: u8) -> Result<bool, DeviceError>;
+    /// Checks the FTDI latency timer is at most 1 ms: an error naming the value and the fix otherwise. A port
+    /// without one passes.
+    fn check_latency_timer(&self) -> Result<(), DeviceError>;
 }
 
 impl FalconPort for SerialTransport {
@@ -151,15 +162,26 @@ impl FalconPort for SerialTransport {
     fn set_modem(&mut self, dtr: bool, rts: bool) -> Result<(), DeviceError> {
         self.set_modem_lines(dtr, rts)
     }
-}
-
-#[cfg(any(test, feature = "test-support"))]
-impl FalconPort for crate::transport::MemoryPipe {
-    fn set_baud(&mut self, _baud: u32) -> Result<(), DeviceError> {
-        Ok(())
+    fn purge(&mut self) -> Result<(), DeviceError> {
+        self.purge_both()
     }
-    fn set_modem(&mut self, _dtr: bool, _rts: bool) -> Result<(), DeviceError> {
-        Ok(())
+    fn set_latency_timer(&mut self, ms: u8) -> Result<bool, DeviceError> {
+        match self
+            .name()
+            .and_then(|name| ftdi_latency::attribute_for(&name))
+        {
+            Some(attribute) => ftdi_latency::try_set_ms(&attribute, ms),
+            None => Ok(false),
+        }
+    }
+    fn check_latency_timer(&self) -> Result<(), DeviceError> {
+        match self
+            .name()
+            .and_then(|name| ftdi_latency::attribute_for(&name))
+        {
+            Some(attribute) => ftdi_latency::check_normal(&attribute),
+            None => Ok(()),
+        }
     }
 }
 
@@ -199,7 +221,11 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
             what: "the Falcon firmware file is empty".to_owned(),
         });
     }
-    port.discard_input()?;
+    // FalconComm.h:47-55: purge, latency timer 16 ms ("otherwise firmware checks tend to always fail",
+    // FalconCommLibUSB.cpp:407), 9600 8N1, RTS low, DTR low then high. Without permission to set the timer
+    // (no root, the udev rule sets 1 ms) the load is tried anyway.
+    port.purge()?;
+    port.set_latency_timer(ftdi_latency::FIRMWARE_LOAD_MS)?;
     port.set_baud(BOOTLOADER_CHECK_BAUD)?;
     port.set_modem(false, false)?;
     port.set_modem(true, false)?;
@@ -244,8 +270,10 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
             ));
         }
     }
+    // Normal mode (FalconComm.h:71-74): latency timer 1 ms, baud divisor 2, both queues purged.
+    port.set_latency_timer(ftdi_latency::NORMAL_MS)?;
     port.set_baud(NORMAL_BAUD)?;
-    port.discard_input()
+    port.purge()
 }
 
 /// Settings of the driver.
@@ -253,7 +281,8 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
 pub struct FalconConfig {
     /// Firmware to upload when none is running (Novint's file; never shipped with voxhap).
     pub firmware: Option<std::path::PathBuf>,
-    /// Longest wait for the frame answering a command.
+    /// Longest wait for the frame answering a command (derived from the servo period:
+    /// [`reply_wait`](super::reply_age::reply_wait)).
     pub reply_timeout: Duration,
     /// Largest force for the capability record (N); voxhap's choice.
     pub max_force_n: f64,
@@ -265,9 +294,20 @@ impl Default for FalconConfig {
     fn default() -> Self {
         FalconConfig {
             firmware: None,
-            reply_timeout: Duration::from_millis(5),
+            reply_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             max_force_n: 5.0,
             geometry: FalconGeometry::LIBNIFALCON,
+        }
+    }
+}
+
+impl FalconConfig {
+    /// The defaults for a servo loop of `period`: a frame is waited for at most
+    /// [`reply_wait`](super::reply_age::reply_wait)`(period)`, so a lost frame costs at most one tick.
+    pub fn for_period(period: Duration) -> FalconConfig {
+        FalconConfig {
+            reply_timeout: super::reply_age::reply_wait(period),
+            ..FalconConfig::default()
         }
     }
 }
@@ -454,8 +494,12 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
 
     /// Normal mode; if no firmware answers, uploads the configured file (or says that one is needed).
     fn open(&mut self) -> Result<(), DeviceError> {
+        // Normal mode as libnifalcon sets it (FalconComm.h:71-74), then the latency timer checked: at ftdi_sio's
+        // default 16 ms every frame would come up to 16 ms late.
+        self.port.set_latency_timer(ftdi_latency::NORMAL_MS)?;
         self.port.set_baud(NORMAL_BAUD)?;
-        self.port.discard_input()?;
+        self.port.purge()?;
+        self.port.check_latency_timer()?;
         self.frame_len = 0;
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();

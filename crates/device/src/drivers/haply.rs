@@ -14,7 +14,8 @@
 //! A = l(cos θ1, sin θ1) and B = (d + l cos θ2, l sin θ2); the handle P is the intersection of the circles of radius
 //! L about A and B on the far side, found from h = B - A, cos β = (|h|² + L² - L²)/(2 L |h|), h1 = L cos β h/|h| and
 //! the perpendicular L sin β (-h1y, h1x)/|h1|. The Jacobian J follows from the same construction (η, ν there), and
-//! torques are τ1 = J11 fx + J12 fy, τ2 = J21 fx + J22 fy (gain 1). The device is planar: z is reported as 0 and
+//! torques are τ1 = J11 fx + J12 fy, τ2 = J21 fx + J22 fy (gain 1), scaled together so neither exceeds the
+//! firmware's 0.123 N m per motor ([`FIRMWARE_MAX_TORQUE_N_M`]), which keeps the force's direction. The device is planar: z is reported as 0 and
 //! the z force is dropped.
 //!
 //! Framing: a reply has no start marker or checksum, so a reply cut short (a timeout) or a late one would shift
@@ -36,6 +37,24 @@ use crate::transport::ByteTransport;
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
 use std::time::{Duration, Instant};
+
+/// The firmware's limit per motor (N m). Haply's board firmware (`create_torque` in Haply_Arduino_Control.h,
+/// V0.1.0, S. Ding and C. Gallacher, and the same function in the M0 board firmware) takes |τ|, clamps it at
+/// 0.123 and sets the PWM duty 4095·|τ|/0.123, each motor on its own: a pair with one motor over the limit would
+/// come out in another ratio, so the force would change direction. [`saturate_torques`] scales the pair first.
+pub const FIRMWARE_MAX_TORQUE_N_M: f64 = 0.123;
+
+/// Scales the motor torque pair `tau` together so that neither exceeds `limit_n_m` (N m), keeping their ratio
+/// and so the direction of the force they render; a pair within the limit is returned unchanged.
+pub fn saturate_torques(tau: [f64; 2], limit_n_m: f64) -> [f64; 2] {
+    let largest = tau[0].abs().max(tau[1].abs());
+    if largest > limit_n_m {
+        let scale = limit_n_m / largest;
+        [tau[0] * scale, tau[1] * scale]
+    } else {
+        tau
+    }
+}
 
 /// Communication type of the reset command.
 pub const RESET: u8 = 0;
@@ -253,7 +272,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
             info,
             jacobian: None,
             candidate: None,
-            reply_timeout: Duration::from_millis(10),
+            reply_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             resync_needed: false,
             resyncs: 0,
             surplus: SurplusCount::default(),
@@ -262,7 +281,9 @@ impl<T: ByteTransport> Haply2Diy<T> {
         }
     }
 
-    /// How long `read_state` waits for the board's reply (10 ms unless set here).
+    /// How long `read_state` waits for the board's reply: [`reply_wait`](super::reply_age::reply_wait) of the
+    /// servo period, so a lost reply costs at most one tick (the 1 kHz value,
+    /// [`DEFAULT_REPLY_WAIT`](super::reply_age::DEFAULT_REPLY_WAIT), unless set here).
     pub fn with_reply_timeout(mut self, reply_timeout: Duration) -> Self {
         self.reply_timeout = reply_timeout;
         self
@@ -366,8 +387,13 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
                 .transport
                 .write_all(&self.config.torque_command([0.0, 0.0]));
         };
-        let tau1 = j11 * force_n.x + j12 * force_n.y;
-        let tau2 = j21 * force_n.x + j22 * force_n.y;
+        let [tau1, tau2] = saturate_torques(
+            [
+                j11 * force_n.x + j12 * force_n.y,
+                j21 * force_n.x + j22 * force_n.y,
+            ],
+            FIRMWARE_MAX_TORQUE_N_M,
+        );
         // `+ 0.0` turns a -0.0 (a zero force through a negative Jacobian entry) into the plain zero the board expects.
         let command = self
             .config
@@ -415,5 +441,28 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The board keeps its last torque: the wrapper's zero force went out; drain its angle reply.
         self.read_reply().map(|_| ())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{saturate_torques, FIRMWARE_MAX_TORQUE_N_M};
+
+    /// Worked by hand: a pair twice over the limit on motor 1 is halved (its ratio, -4, kept); a pair within the
+    /// limit passes unchanged. Clamping each motor on its own, as the firmware does, would give (0.123, -0.0615):
+    /// ratio -2, another direction.
+    #[test]
+    fn the_pair_is_scaled_together() {
+        let [a, b] = saturate_torques([0.246, -0.0615], FIRMWARE_MAX_TORQUE_N_M);
+        assert!(
+            (a - 0.123).abs() < 1e-12 && (b + 0.030_75).abs() < 1e-12,
+            "{a} {b}"
+        );
+        assert_eq!(saturate_torques([0.1, -0.05], 0.123), [0.1, -0.05]);
+        let [a, b] = saturate_torques([-0.01, 0.5], 0.123);
+        assert!(
+            (b - 0.123).abs() < 1e-12 && (a + 0.00246).abs() < 1e-12,
+            "{a} {b}"
+        );
     }
 }

@@ -8,8 +8,9 @@
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
 //! - [`woodenhaptics_constants`]: the constants a device profile may replace, for both WoodenHaptics drivers;
-//! - [`woodenhaptics_kinematics`]: the WoodenHaptics kinematics (capstan drive, serial chain, Polhem), used by
-//!   both WoodenHaptics drivers;
+//! - [`woodenhaptics_kinematics`]: the WoodenHaptics kinematics (capstan drive, serial chain, Polhem), one
+//!   type used by both WoodenHaptics drivers;
+//! - [`woodenhaptics_gravity`]: Polhem's gravity compensation, as hfabapi computes it;
 //! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
 //!   and kinematics;
 //! - [`falcon_kinematics`]: the Falcon's kinematics (libnifalcon's delta-robot solution);
@@ -26,6 +27,7 @@ pub mod protocol_link;
 pub mod reply_age;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
+pub mod woodenhaptics_gravity;
 pub mod woodenhaptics_kinematics;
 pub mod woodenhaptics_serial;
 
@@ -33,5 +35,5 @@ pub use falcon::{Falcon, FalconConfig};
 pub use haply::{Haply2Diy, Haply2DiyConfig};
 pub use haply_inverse::{HaplyInverse, HaplyInverseConfig};
 pub use protocol::{HidLink, MessageLink, ProtocolConfig, ProtocolDevice, SerialLink};
-pub use woodenhaptics::{WoodenHaptics, WoodenHapticsConfig};
+pub use woodenhaptics::WoodenHaptics;
 pub use woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyKinematics, WoodyModel};

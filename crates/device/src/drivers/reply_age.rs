@@ -9,6 +9,24 @@
 //! 0; a device that answers twice reports 1 on every tick; after `k` missed replies the next state reports `k`
 //! (or more). The supervisor counts this age towards its staleness bound (`stale_state_ticks`): a state it says
 //! is older than the bound is never used to compute force. Allocation-free, no clock.
+//!
+//! How long a driver waits for the reply to this tick's command ([`reply_wait`]) derives from the servo
+//! period: three quarters of it, so a reply that never comes costs at most one tick (the supervisor writes the
+//! command and then reads the state in the same tick; the rest of the tick is the solve's).
+
+use std::time::Duration;
+
+/// The shortest reply wait, whatever the period (a reply wait of zero would only poll).
+pub const MIN_REPLY_WAIT: Duration = Duration::from_micros(50);
+
+/// The reply wait at the default 1 kHz servo rate: [`reply_wait`] of 1 ms.
+pub const DEFAULT_REPLY_WAIT: Duration = Duration::from_micros(750);
+
+/// The longest a request/reply driver waits for the reply to this tick's command in a servo loop of `period`:
+/// three quarters of the period, at least [`MIN_REPLY_WAIT`].
+pub fn reply_wait(period: Duration) -> Duration {
+    (period * 3 / 4).max(MIN_REPLY_WAIT)
+}
 
 /// The age bookkeeping of one link (module docs). Reset on every open.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -66,7 +84,20 @@ impl ReplyAge {
 
 #[cfg(test)]
 mod tests {
-    use super::ReplyAge;
+    use super::{reply_wait, ReplyAge, DEFAULT_REPLY_WAIT, MIN_REPLY_WAIT};
+    use std::time::Duration;
+
+    /// A lost reply costs less than one tick at any period, and the default is the 1 kHz value.
+    #[test]
+    fn the_reply_wait_fits_in_one_tick() {
+        for period_us in [100u64, 250, 500, 1_000, 2_000, 4_000] {
+            let period = Duration::from_micros(period_us);
+            assert!(reply_wait(period) < period, "{period:?}");
+            assert!(reply_wait(period) >= MIN_REPLY_WAIT);
+        }
+        assert_eq!(reply_wait(Duration::from_millis(1)), DEFAULT_REPLY_WAIT);
+        assert_eq!(reply_wait(Duration::from_micros(20)), MIN_REPLY_WAIT);
+    }
 
     /// The cases of the module docs, each worked out by hand from one reply per command, in order.
     #[test]

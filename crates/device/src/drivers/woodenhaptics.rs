@@ -21,28 +21,17 @@
 //! angles (after a rejected report, the last accepted), and before any report was accepted the currents are
 //! zero. The firmware streams reports, so more reports than commands are expected here, not surplus.
 //!
-//! Maths (all from CWoodenDevice.cpp, USB branch). Encoder counts e = (-e_a, e_b, e_c); gear ratios
-//! g = (d_bodyA/d_capA, -d_bodyB/d_capB, d_bodyC/d_capC); joint angles θ_i = 2π e_i / (cpr_i g_i), then
-//! θ_C ← π/2 - θ_C. Forward kinematics with link lengths L_a, L_b, L_c and workspace origin o:
-//!
-//! ```text
-//! x = cos θA (Lb sin θB + Lc sin θC) - o_x
-//! y = sin θA (Lb sin θB + Lc sin θC) - o_y
-//! z = La + Lb cos θB - Lc cos θC     - o_z
-//! ```
-//!
-//! Torques τ = Jᵀ f with J the Jacobian of that map, plus gravity compensation
-//! -g (0, m_B l_B sin θB + m_C (l_B + l_C) sin θC, m_C l_C sin θC); motor torques through the capstans
-//! (τ_A d_capA/d_bodyA, -τ_B d_capB/d_bodyB, -τ_C d_capC/d_bodyC); currents I = τ_motor / k_t clamped to ±3 A,
-//! sent as whole milliamperes (truncated toward zero, as C's `short(...)` does).
+//! Maths: one implementation for both WoodenHaptics drivers ([`WoodyKinematics`], hfabapi's equations). chai3d's
+//! USB branch (CWoodenDevice.cpp) writes the same chain with encoder A negated and θC = π/2 - θ: with the
+//! counts in hfabapi's convention ([`hfab_counts`]) and `woodenhaptics_v2015()`'s home offset (0, 0, -6000)
+//! both give the same angles, positions and motor currents (τ = Jᵀ f, through the capstans, I = τ_motor / k_t).
+//! Currents are scaled together so none exceeds 3 A (chai3d clamps each motor alone, which changes the force's
+//! direction) and sent as whole milliamperes, truncated toward zero as C's `short(...)` does.
 
-use super::woodenhaptics_kinematics::{
-    drum_angle_rad, motor_torque_n_m, relative_to, serial_chain_jacobian, serial_chain_point,
-};
+use super::woodenhaptics_kinematics::WoodyKinematics;
 use crate::transport::ReportTransport;
 use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::DVec3;
-use std::f64::consts::PI;
 use std::time::Duration;
 
 /// USB vendor id of the WoodenHapticsHID firmware (mbed USBHID default).
@@ -54,143 +43,40 @@ pub const REPORT_LEN: usize = 8;
 /// Largest motor current the host sends (A); the firmware maps 3 A to 90 % PWM.
 pub const MAX_CURRENT_A: f64 = 3.0;
 
-/// Mechanical configuration (chai3d's `cWoodenDevice::configuration`, the subset the USB path uses).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WoodenHapticsConfig {
-    /// Capstan diameters of motors A, B, C (m).
-    pub capstan_diameter_m: [f64; 3],
-    /// Body (drum) diameters A, B, C (m).
-    pub body_diameter_m: [f64; 3],
-    /// Link lengths A (height of the first axis), B, C (m).
-    pub link_length_m: [f64; 3],
-    /// Workspace origin subtracted from the position (m).
-    pub workspace_origin_m: [f64; 3],
-    /// Workspace radius, for the capability record (m).
-    pub workspace_radius_m: f64,
-    /// Motor torque constants (N m / A).
-    pub torque_constant_n_m_per_a: [f64; 3],
-    /// Encoder counts per revolution (quadrature counted).
-    pub counts_per_revolution: [f64; 3],
-    /// Largest force (N).
-    pub max_force_n: f64,
-    /// Largest stable stiffness (N/m).
-    pub max_stiffness_n_per_m: f64,
-    /// Masses of bodies B and C (kg), for gravity compensation.
-    pub body_mass_kg: [f64; 2],
-    /// Distances to the centres of mass of bodies B and C (m).
-    pub center_of_mass_m: [f64; 2],
-    /// Gravity for compensation (m/s²); 0 disables it.
-    pub gravity_m_per_s2: f64,
+/// Room kept around the power-up pose in the declared workspace (m).
+pub const POWER_UP_MARGIN_M: f64 = 0.02;
+
+/// The largest current this driver sends (mA): [`MAX_CURRENT_A`].
+pub const MAX_CURRENT_MA: i32 = 3000;
+
+/// The kinematics of a WoodenHaptics 1.5 on this firmware: chai3d's `default_woody()` (CWoodenDevice.cpp), whose
+/// constants and chain are hfabapi's `woodenhaptics_v2015()` (hfab_math.h:306-317) once the firmware's counts are
+/// put in hfabapi's convention ([`hfab_counts`]): the home offset (0, 0, -6000) is chai3d's θC = π/2 - θ.
+pub const KINEMATICS: WoodyKinematics = WoodyKinematics::WOODENHAPTICS_V2015;
+
+/// The firmware's encoder counts in hfabapi's convention: chai3d's USB branch negates encoder A (and turns B
+/// through a negative gear ratio, which hfabapi's `motor_and_body_aligned_b` does), so A is negated here.
+pub fn hfab_counts(counts: [i16; 3]) -> [i32; 3] {
+    [
+        -i32::from(counts[0]),
+        i32::from(counts[1]),
+        i32::from(counts[2]),
+    ]
 }
 
-impl Default for WoodenHapticsConfig {
-    /// `default_woody()` of forsslund/chai3d src/devices/CWoodenDevice.cpp.
-    fn default() -> Self {
-        WoodenHapticsConfig {
-            capstan_diameter_m: [0.010, 0.010, 0.010],
-            body_diameter_m: [0.160, 0.120, 0.120],
-            link_length_m: [0.080, 0.205, 0.245],
-            workspace_origin_m: [0.220, 0.000, 0.080],
-            workspace_radius_m: 0.100,
-            torque_constant_n_m_per_a: [0.0259, 0.0259, 0.0259],
-            counts_per_revolution: [2000.0, 2000.0, 2000.0],
-            max_force_n: 5.0,
-            max_stiffness_n_per_m: 1000.0,
-            body_mass_kg: [0.170, 0.110],
-            center_of_mass_m: [0.051, 0.091],
-            gravity_m_per_s2: 0.0,
-        }
-    }
-}
-
-impl WoodenHapticsConfig {
-    fn validate(&self) -> Result<(), DeviceError> {
-        let positive = self
-            .capstan_diameter_m
-            .iter()
-            .chain(&self.body_diameter_m)
-            .chain(&self.torque_constant_n_m_per_a)
-            .chain(&self.counts_per_revolution)
-            .all(|v| v.is_finite() && *v > 0.0);
-        let finite = self
-            .link_length_m
-            .iter()
-            .chain(&self.workspace_origin_m)
-            .chain(&self.body_mass_kg)
-            .chain(&self.center_of_mass_m)
-            .chain([
-                &self.workspace_radius_m,
-                &self.max_force_n,
-                &self.max_stiffness_n_per_m,
-                &self.gravity_m_per_s2,
-            ])
-            .all(|v| v.is_finite());
-        if positive && finite {
-            Ok(())
-        } else {
-            Err(DeviceError::Config {
-                what: "WoodenHaptics configuration: diameters, torque constants and counts must be finite and > 0, \
-                       every other value finite"
-                    .to_string(),
-            })
-        }
-    }
-
-    /// Joint angles (θA, θB, θC after the π/2 shift) from the three encoder counts of a report.
-    pub fn joint_angles_rad(&self, counts: [i16; 3]) -> [f64; 3] {
-        // CWoodenDevice.cpp: counts (-e_a, e_b, e_c) over gear ratios (+, -, +) d_body / d_capstan; the sign of
-        // B's ratio is folded into its count here.
-        let encoder = [
-            -f64::from(counts[0]),
-            -f64::from(counts[1]),
-            f64::from(counts[2]),
-        ];
-        let angle = |i: usize| {
-            drum_angle_rad(
-                encoder[i],
-                self.counts_per_revolution[i],
-                self.capstan_diameter_m[i],
-                self.body_diameter_m[i],
-            )
-        };
-        [angle(0), angle(1), PI / 2.0 - angle(2)]
-    }
-
-    /// Handle position (m) at joint angles `theta`.
-    pub fn position_m(&self, theta: [f64; 3]) -> DVec3 {
-        relative_to(
-            serial_chain_point(self.link_length_m, theta),
-            self.workspace_origin_m,
-        )
-    }
-
-    /// Motor currents (mA, as sent) that render `force_n` at joint angles `theta`.
-    pub fn currents_ma(&self, theta: [f64; 3], force_n: DVec3) -> [i16; 3] {
-        let [_, tb, tc] = theta;
-        let jacobian = serial_chain_jacobian(self.link_length_m, theta);
-        let [mb, mc] = self.body_mass_kg;
-        let [lb_cm, lc_cm] = self.center_of_mass_m;
-        let gravity = -self.gravity_m_per_s2
-            * DVec3::new(
-                0.0,
-                mb * lb_cm * tb.sin() + mc * (lb_cm + lc_cm) * tc.sin(),
-                mc * lc_cm * tc.sin(),
-            );
-        let joint_torque = jacobian.transpose() * force_n + gravity;
-        let direction = [1.0, -1.0, -1.0];
-        let mut currents = [0i16; 3];
-        for (i, current) in currents.iter_mut().enumerate() {
-            let motor_torque = motor_torque_n_m(
-                direction[i] * joint_torque[i],
-                self.capstan_diameter_m[i],
-                self.body_diameter_m[i],
-            );
-            let amperes = (motor_torque / self.torque_constant_n_m_per_a[i])
-                .clamp(-MAX_CURRENT_A, MAX_CURRENT_A);
-            // Truncation toward zero, as `short(motorAmpere*1000)`; |value| <= 3000 fits.
-            *current = (amperes * 1000.0) as i16;
-        }
-        currents
+/// The workspace the driver declares (m): the cube of `workspace_radius_m` about the workspace origin, grown to
+/// hold the power-up pose (where the incremental encoders read zero: (0.025, 0, 0.205) m with
+/// `default_woody()`) with [`POWER_UP_MARGIN_M`] around it, so the arm where it starts is never taken for an
+/// implausible reading.
+pub fn workspace_box_m(kinematics: &WoodyKinematics) -> (DVec3, DVec3) {
+    let radius = DVec3::splat(kinematics.workspace_radius_m);
+    let margin = DVec3::splat(POWER_UP_MARGIN_M);
+    match kinematics.position_m(kinematics.joint_angles_rad(hfab_counts([0; 3]))) {
+        Some(power_up) => (
+            (-radius).min(power_up - margin),
+            radius.max(power_up + margin),
+        ),
+        None => (-radius, radius),
     }
 }
 
@@ -227,7 +113,7 @@ pub fn decode_input(report: &[u8]) -> Result<([i16; 3], u16), DeviceError> {
 #[derive(Debug)]
 pub struct WoodenHaptics<T> {
     transport: T,
-    config: WoodenHapticsConfig,
+    kinematics: WoodyKinematics,
     info: DeviceInfo,
     /// Joint angles of the newest report the host accepted: the only pose force is converted with.
     theta: Option<[f64; 3]>,
@@ -239,34 +125,42 @@ pub struct WoodenHaptics<T> {
 }
 
 impl<T: ReportTransport> WoodenHaptics<T> {
-    /// A driver with `config` on `transport`.
-    pub fn new(transport: T, config: WoodenHapticsConfig) -> Result<Self, DeviceError> {
-        config.validate()?;
-        let radius = config.workspace_radius_m;
+    /// A driver with `kinematics` ([`KINEMATICS`] unless a device profile replaced some constants) on
+    /// `transport`.
+    pub fn new(transport: T, kinematics: WoodyKinematics) -> Result<Self, DeviceError> {
+        kinematics.validate()?;
+        let (workspace_min_m, workspace_max_m) = workspace_box_m(&kinematics);
         let info = DeviceInfo {
             model: String::from("WoodenHaptics 1.5 (legacy HID firmware)"),
             serial_number: String::new(),
             position_dof: 3,
             force_dof: 3,
             button_count: 0,
-            workspace_min_m: DVec3::splat(-radius),
-            workspace_max_m: DVec3::splat(radius),
-            max_force_n: config.max_force_n,
-            max_stiffness_n_per_m: config.max_stiffness_n_per_m,
+            workspace_min_m,
+            workspace_max_m,
+            max_force_n: kinematics.max_force_n,
+            max_stiffness_n_per_m: kinematics.max_stiffness_n_per_m,
             max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
             reports_velocity: false,
             state_rates_hz: Vec::new(),
         };
         Ok(WoodenHaptics {
             transport,
-            config,
+            kinematics,
             info,
             theta: None,
             candidate: None,
-            read_timeout: Duration::from_millis(5),
+            read_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             last_counter: None,
             drained_reports: 0,
         })
+    }
+
+    /// How long `read_state` waits for a report: [`reply_wait`](super::reply_age::reply_wait) of the servo
+    /// period, so a stalled stream costs at most one tick (the 1 kHz value unless set here).
+    pub fn with_reply_wait(mut self, wait: Duration) -> Self {
+        self.read_timeout = wait;
+        self
     }
 
     /// The transport (to check a scripted double with `done()`).
@@ -296,7 +190,11 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
         DeviceError::check_finite_force(force_n.to_array())?;
         // Only a pose the host accepted converts force; none yet means zero.
         let currents = match self.theta {
-            Some(theta) => self.config.currents_ma(theta, force_n),
+            // |current| <= MAX_CURRENT_MA, so it fits the firmware's `short`.
+            Some(theta) => self
+                .kinematics
+                .currents_ma(theta, force_n, MAX_CURRENT_MA)
+                .map(|ma| ma as i16),
             None => [0; 3],
         };
         self.transport.write_report(&encode_output(currents, 0))
@@ -326,9 +224,13 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
         }
         let (counts, counter) = decode_input(&report[..newest])?;
         self.last_counter = Some(counter);
-        let theta = self.config.joint_angles_rad(counts);
+        let theta = self.kinematics.joint_angles_rad(hfab_counts(counts));
+        let Some(position_m) = self.kinematics.position_m(theta) else {
+            return Err(DeviceError::InvalidData {
+                what: "WoodenHaptics encoder counts put the arm where its links cannot reach",
+            });
+        };
         self.candidate = Some(theta);
-        let position_m = self.config.position_m(theta);
         Ok(DeviceState::at_rest(position_m))
     }
 

@@ -8,7 +8,6 @@
 //! firmware's model constants, [`WoodenHapticsConstants::apply_to_hid`] for the HID driver's configuration).
 //! Never on the servo path.
 
-use super::woodenhaptics::WoodenHapticsConfig;
 use super::woodenhaptics_kinematics::WoodyKinematics;
 
 /// Constants that replace a WoodenHaptics driver's published ones; `None` keeps the published value. Checked
@@ -41,7 +40,7 @@ fn set<T: Copy>(target: &mut T, value: Option<T>) {
 }
 
 impl WoodenHapticsConstants {
-    /// Replaces the constants both drivers have, in the order capstan diameters, body diameters, link lengths,
+    /// Replaces the shared constants, in the order capstan diameters, body diameters, link lengths,
     /// workspace origin, torque constants, counts per revolution.
     fn replace_shared(&self, targets: [&mut [f64; 3]; 6]) {
         let values = [
@@ -57,17 +56,14 @@ impl WoodenHapticsConstants {
         }
     }
 
-    /// The legacy HID driver's configuration with the constants given here replaced (`encoder_home_counts`
-    /// has no counterpart there).
-    pub fn apply_to_hid(&self, config: &mut WoodenHapticsConfig) {
-        self.replace_shared([
-            &mut config.capstan_diameter_m,
-            &mut config.body_diameter_m,
-            &mut config.link_length_m,
-            &mut config.workspace_origin_m,
-            &mut config.torque_constant_n_m_per_a,
-            &mut config.counts_per_revolution,
-        ]);
+    /// The legacy HID driver's kinematics with the constants given here replaced (`encoder_home_counts` is
+    /// not taken: that firmware's home offset is fixed, and `device::profile` refuses it there).
+    pub fn apply_to_hid(&self, kinematics: &mut WoodyKinematics) {
+        *kinematics = WoodenHapticsConstants {
+            encoder_home_counts: None,
+            ..*self
+        }
+        .applied_to(*kinematics);
     }
 
     /// A serial-firmware model's `kinematics` with the constants given here replaced.

@@ -1,8 +1,9 @@
 //! WoodenHaptics kinematics, once for every WoodenHaptics driver: encoder counts to joint angles through the
 //! capstan drive, the serial chain's position and Jacobian (WoodenHaptics and retrofitted PHANTOMs), Polhem's
-//! closed chain, and joint torques to motor currents. The Teensy serial driver
-//! ([`super::woodenhaptics_serial`]) uses [`WoodyKinematics`]; the legacy HID driver ([`super::woodenhaptics`])
-//! uses the same chain functions with its own sign conventions and current limit.
+//! closed chain, gravity compensation, and joint torques to motor currents. Both drivers use [`WoodyKinematics`]:
+//! the Teensy serial driver ([`super::woodenhaptics_serial`]) with the model's published constants, the legacy
+//! HID driver ([`super::woodenhaptics`]) with `woodenhaptics_v2015()` and its firmware's counts put in hfabapi's
+//! convention.
 //!
 //! Sources: hfabapi (hfab_kinematics.cpp, hfab_polhem.h, hfab_math.h, hfab_api.cpp) and chai3d's
 //! CWoodenDevice.cpp, which write the same serial chain; the line numbers cited are hfabapi's (see
@@ -107,6 +108,14 @@ pub struct WoodyKinematics {
     pub motor_and_body_aligned: [bool; 3],
     /// Encoder counts at the home pose, added to every reading (hfab_api.cpp:103-106).
     pub encoder_home: [i32; 3],
+    /// Masses of bodies B and C (kg), for the serial chain's gravity compensation (`mass_body_b/c`).
+    pub body_mass_kg: [f64; 2],
+    /// Distances to the centres of mass of bodies B and C (m) (`length_cm_body_b/c`).
+    pub center_of_mass_m: [f64; 2],
+    /// Gravity for compensation (m/s²; `g_constant`, 0 in every published serial-chain configuration, which
+    /// turns it off). Polhem's compensation uses its own body table ([`super::woodenhaptics_gravity`]) and
+    /// this value.
+    pub gravity_m_per_s2: f64,
 }
 
 impl WoodyKinematics {
@@ -124,6 +133,9 @@ impl WoodyKinematics {
         max_stiffness_n_per_m: 1000.0,
         motor_and_body_aligned: [false, true, true],
         encoder_home: [0, 0, -6000],
+        body_mass_kg: [0.170, 0.110],
+        center_of_mass_m: [0.051, 0.091],
+        gravity_m_per_s2: 0.0,
     };
 
     /// hfab_math.h:347-358 (`polhem_v3()`), home from hfab_api.cpp:105.
@@ -140,6 +152,10 @@ impl WoodyKinematics {
         max_stiffness_n_per_m: 2000.0,
         motor_and_body_aligned: [false, true, false],
         encoder_home: [8312, -10366, 19764],
+        body_mass_kg: [0.0, 0.0],
+        center_of_mass_m: [0.0, 0.0],
+        // hfab_polhem.h:13: Polhem's direct compensation is always on in hfabapi (hfab_kinematics.cpp:9).
+        gravity_m_per_s2: super::woodenhaptics_gravity::G_M_PER_S2,
     };
 
     /// hfab_math.h:374-385 (`vintage()`), home from hfab_api.cpp:103.
@@ -156,6 +172,9 @@ impl WoodyKinematics {
         max_stiffness_n_per_m: 800.0,
         motor_and_body_aligned: [true, false, true],
         encoder_home: [0, 7700, 0],
+        body_mass_kg: [0.170, 0.110],
+        center_of_mass_m: [0.051, 0.091],
+        gravity_m_per_s2: 0.0,
     };
 
     fn direction(&self, i: usize) -> f64 {
@@ -221,11 +240,77 @@ impl WoodyKinematics {
         }
     }
 
-    /// Motor currents (mA, as sent) that render `force_n` at joint angles `theta`: τ = Jᵀ f, through the
-    /// capstans and torque constants, truncated toward zero as `int(A·1000)`; scaled together so none exceeds
-    /// `max_current_ma`. A non-finite torque (a singular pose) gives zero currents.
+    /// The joint torques that hold the arm's own weight at `theta`, as hfabapi adds them to Jᵀ f: for the
+    /// serial chain g (0, m_B l_B sin θB + m_C (l_B + l_C) sin θC, m_C l_C sin θC) (hfab_kinematics.cpp:271-280),
+    /// for Polhem its four-body compensation ([`super::woodenhaptics_gravity`]) scaled by
+    /// `gravity_m_per_s2` / 9.81.
+    pub fn gravity_torque(&self, theta: [f64; 3]) -> DVec3 {
+        let g = self.gravity_m_per_s2;
+        if g == 0.0 {
+            return DVec3::ZERO;
+        }
+        let [_, tb, tc] = theta;
+        match self.chain {
+            Chain::Serial => {
+                let [mb, mc] = self.body_mass_kg;
+                let [lb_cm, lc_cm] = self.center_of_mass_m;
+                g * DVec3::new(
+                    0.0,
+                    mb * lb_cm * tb.sin() + mc * (lb_cm + lc_cm) * tc.sin(),
+                    mc * lc_cm * tc.sin(),
+                )
+            }
+            Chain::Polhem => {
+                super::woodenhaptics_gravity::polhem_gravity_torque(theta) * g
+                    / super::woodenhaptics_gravity::G_M_PER_S2
+            }
+        }
+    }
+
+    /// Checks the constants a driver computes with: diameters, torque constants and counts finite and > 0,
+    /// every other number finite.
+    pub fn validate(&self) -> Result<(), crate::DeviceError> {
+        let positive = self
+            .capstan_diameter_m
+            .iter()
+            .chain(&self.body_diameter_m)
+            .chain(&self.torque_constant_n_m_per_a)
+            .chain(&self.counts_per_revolution)
+            .all(|v| v.is_finite() && *v > 0.0);
+        let finite = self
+            .link_length_m
+            .iter()
+            .chain(&self.workspace_origin_m)
+            .chain(&self.body_mass_kg)
+            .chain(&self.center_of_mass_m)
+            .chain([
+                &self.workspace_radius_m,
+                &self.max_force_n,
+                &self.max_stiffness_n_per_m,
+                &self.gravity_m_per_s2,
+            ])
+            .all(|v| v.is_finite());
+        if positive && finite {
+            Ok(())
+        } else {
+            Err(crate::DeviceError::Config {
+                what: "WoodenHaptics configuration: diameters, torque constants and counts must be finite and > 0, \
+                       every other value finite"
+                    .to_string(),
+            })
+        }
+    }
+
+    /// Motor currents (mA, as sent) that render `force_n` at joint angles `theta`: τ = Jᵀ f plus the
+    /// [`gravity_torque`](Self::gravity_torque), through the capstans and torque constants, truncated toward
+    /// zero as `int(A·1000)`; scaled together so none exceeds `max_current_ma`. A non-finite Jᵀ f (a singular
+    /// pose) gives zero currents, without gravity compensation (hfab_polhem.h:260-266).
     pub fn currents_ma(&self, theta: [f64; 3], force_n: DVec3, max_current_ma: i32) -> [i32; 3] {
         let torque = self.jacobian(theta).transpose() * force_n;
+        if !torque.is_finite() {
+            return [0; 3];
+        }
+        let torque = torque + self.gravity_torque(theta);
         if !torque.is_finite() {
             return [0; 3];
         }

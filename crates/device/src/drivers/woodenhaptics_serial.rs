@@ -23,9 +23,13 @@
 //!   (hfab_api.cpp:243-247); Polhem's closed-chain position (hfab_polhem.h:84-89, 175-206) and its Jacobian by
 //!   central differences with h = 1e-5 (hfab_polhem.h:227-256), a NaN torque replaced by zero (260-266).
 //!
-//! Not implemented: hfabapi's gravity compensation (0 for models 2 and 3 in their configurations; Polhem's
-//! direct compensation, hfab_polhem.h:276-333, is left out, so a Polhem feels its own weight), and the gimbal
-//! encoders 3-5 (reported by the firmware, not used: voxhap renders 3-DOF forces).
+//! Gravity compensation as hfabapi does it: off for models 2 and 3 (`g_constant` 0 in their configurations,
+//! hfab_math.h), Polhem's direct four-body compensation always on (hfab_polhem.h:276-333,
+//! [`super::woodenhaptics_gravity`]), added to Jᵀ f, so a released Polhem holds its pose instead of dropping:
+//! while the host asks for zero force the motors still carry the arm's weight (the firmware's 100 ms watchdog
+//! cuts the amplifiers when messages stop).
+//!
+//! Not implemented: the gimbal encoders 3-5 (reported by the firmware, not used: voxhap renders 3-DOF forces).
 //!
 //! Which pose converts force: the driver keeps the newest report's joint angles as a candidate and converts
 //! force with them only once the host's input checks accepted that report ([`HapticDevice::input_checked`]);
@@ -178,7 +182,8 @@ pub fn format_command(currents_ma: [i32; 3], out: &mut [u8; 40]) -> usize {
 /// Settings of the driver.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WoodyConfig {
-    /// How long `read_state` waits for the reply line (the firmware answers within about 1 ms).
+    /// How long `read_state` waits for the reply line: [`reply_wait`](super::reply_age::reply_wait) of the
+    /// servo period, so a lost reply costs at most one tick.
     pub reply_timeout: Duration,
     /// How long `open` waits for the first report, per attempt.
     pub hello_timeout: Duration,
@@ -196,12 +201,22 @@ pub struct WoodyConfig {
 impl Default for WoodyConfig {
     fn default() -> Self {
         WoodyConfig {
-            reply_timeout: Duration::from_millis(5),
+            reply_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             hello_timeout: Duration::from_millis(100),
             hello_attempts: 5,
             max_current_ma: MAX_CURRENT_MA,
             kinematics_override: None,
             model_constants: [WoodenHapticsConstants::default(); 3],
+        }
+    }
+}
+
+impl WoodyConfig {
+    /// The defaults for a servo loop of `period` (the reply wait derived from it).
+    pub fn for_period(period: Duration) -> WoodyConfig {
+        WoodyConfig {
+            reply_timeout: super::reply_age::reply_wait(period),
+            ..WoodyConfig::default()
         }
     }
 }

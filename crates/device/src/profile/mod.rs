@@ -39,7 +39,7 @@ mod schema;
 
 use super::drivers::falcon::FalconConfig;
 use super::drivers::haply::Haply2DiyConfig;
-use super::drivers::woodenhaptics::WoodenHapticsConfig;
+use super::drivers::woodenhaptics_kinematics::WoodyKinematics;
 use super::drivers::woodenhaptics_serial::{WoodyConfig, WoodyModel};
 use super::mapping::{MappingError, WorkspaceMapping};
 use super::supervisor::SupervisorConfig;
@@ -317,8 +317,8 @@ impl DeviceProfile {
         }
     }
 
-    /// Applies the WoodenHaptics (HID) kinematics constants (where given) to a driver config.
-    pub fn apply_woodenhaptics_hid(&self, config: &mut WoodenHapticsConfig) {
+    /// Applies the WoodenHaptics (HID) kinematics constants (where given) to the driver's kinematics.
+    pub fn apply_woodenhaptics_hid(&self, config: &mut WoodyKinematics) {
         if let Kinematics::WoodenHapticsHid(constants) = &self.kinematics {
             constants.apply_to_hid(config);
         }

@@ -10,6 +10,7 @@
 //! does; [`ReportTransport`] moves whole HID reports. Reads take a timeout and return `Ok(0)` when nothing came,
 //! so a timeout is the driver's decision, not the transport's; a hang-up is `DeviceError::Disconnected`.
 
+pub mod ftdi_latency;
 pub mod hid;
 pub mod inverse_service;
 pub mod inverse_wire;
@@ -18,7 +19,7 @@ pub mod memory;
 pub mod serial;
 mod traits;
 
-pub use hid::HidTransport;
+pub use hid::{HidTransport, MillisecondHid};
 #[cfg(any(test, feature = "test-support"))]
 pub use memory::{MemoryPipe, ScriptedReports, ScriptedStream};
 pub use serial::SerialTransport;

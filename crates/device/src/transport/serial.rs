@@ -64,6 +64,18 @@ impl SerialTransport {
         }
     }
 
+    /// Throws away both kernel queues (bytes not yet sent and bytes received), then drains what arrives
+    /// meanwhile.
+    pub fn purge_both(&mut self) -> Result<(), DeviceError> {
+        self.port
+            .clear(serialport::ClearBuffer::All)
+            .map_err(|_| DeviceError::Io {
+                during: "purging the serial queues",
+                kind: std::io::ErrorKind::Other,
+            })?;
+        self.discard_input()
+    }
+
     /// The port's path, when it has one.
     pub fn name(&self) -> Option<String> {
         self.port.name()

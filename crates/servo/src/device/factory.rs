@@ -15,7 +15,7 @@ use voxhap_device::drivers::falcon::{Falcon, FalconConfig};
 use voxhap_device::drivers::haply::{Haply2Diy, Haply2DiyConfig};
 use voxhap_device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap_device::drivers::protocol::{HidLink, ProtocolConfig, ProtocolDevice, SerialLink};
-use voxhap_device::drivers::woodenhaptics::{self, WoodenHaptics, WoodenHapticsConfig};
+use voxhap_device::drivers::woodenhaptics::{self, WoodenHaptics};
 use voxhap_device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use voxhap_device::profile::{DeviceProfile, Kinematics};
 use voxhap_device::sim::SimArmConfig;
@@ -126,6 +126,9 @@ fn open_supervised(
         connect_timeout: Duration::from_micros(config.connect_timeout_us),
         ..ProtocolConfig::for_period(Duration::from_secs_f64(period_s))
     };
+    // Request/reply drivers wait for a reply at most this long, so a lost one costs at most one tick.
+    let period = Duration::from_secs_f64(period_s);
+    let reply_wait = voxhap_device::drivers::reply_age::reply_wait(period);
     let mut hand_target = None;
     let device = match spec {
         DeviceSpec::Sim => {
@@ -163,20 +166,23 @@ fn open_supervised(
                 Ok(ProtocolDevice::new(HidLink::new(transport), protocol))
             })?
         }
-        DeviceSpec::WoodenHaptics => reconnecting(config, {
-            let mut woodenhaptics_config = WoodenHapticsConfig::default();
-            profile.apply_woodenhaptics_hid(&mut woodenhaptics_config);
-            move || {
-                let transport = HidTransport::open_vid_pid(
-                    woodenhaptics::VENDOR_ID,
-                    woodenhaptics::PRODUCT_ID,
-                )?;
-                WoodenHaptics::new(transport, woodenhaptics_config)
-            }
-        })?,
+        DeviceSpec::WoodenHaptics => {
+            reconnecting(config, {
+                let mut woodenhaptics_config = woodenhaptics::KINEMATICS;
+                profile.apply_woodenhaptics_hid(&mut woodenhaptics_config);
+                move || {
+                    let transport = HidTransport::open_vid_pid(
+                        woodenhaptics::VENDOR_ID,
+                        woodenhaptics::PRODUCT_ID,
+                    )?;
+                    Ok(WoodenHaptics::new(transport, woodenhaptics_config)?
+                        .with_reply_wait(reply_wait))
+                }
+            })?
+        }
         DeviceSpec::WoodenHapticsSerial(path) => {
             let path = path_str(path)?;
-            let mut woody_config = WoodyConfig::default();
+            let mut woody_config = WoodyConfig::for_period(period);
             profile.apply_woodenhaptics(&mut woody_config);
             reconnecting(config, move || {
                 // USB CDC-ACM (Teensy) ignores the rate; the firmware calls Serial.begin(115200).
@@ -190,7 +196,7 @@ fn open_supervised(
             profile.apply_haply2diy(&mut haply_config);
             reconnecting(config, move || {
                 let transport = SerialTransport::open(&path, 0)?;
-                Ok(Haply2Diy::new(transport, haply_config))
+                Ok(Haply2Diy::new(transport, haply_config).with_reply_timeout(reply_wait))
             })?
         }
         DeviceSpec::HaplyInverse(url) => {
@@ -203,7 +209,7 @@ fn open_supervised(
         }
         DeviceSpec::Falcon { select, firmware } => {
             let (select, firmware) = (select.clone(), firmware.clone());
-            let mut falcon_config = FalconConfig::default();
+            let mut falcon_config = FalconConfig::for_period(period);
             profile.apply_falcon(&mut falcon_config);
             reconnecting(config, move || {
                 let (path, serial) = voxhap_device::discovery::find_falcon(select.as_deref())?;

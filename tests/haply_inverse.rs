@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap::device::safety::SafetyConfig;
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
-use voxhap::device::transport::inverse_service::ServiceConfig;
+use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
 use voxhap::device::{HapticDevice, Lifecycle};
 
 /// Waits (up to 20 s) until the service's log satisfies `done`: the service reads our last messages on its own
@@ -29,10 +29,11 @@ fn settle(service: &InverseService, done: impl Fn(&[[f64; 3]]) -> bool) -> Vec<[
     }
 }
 
-fn config(url: &str) -> HaplyInverseConfig {
+fn config(url: &str, events_url: &str) -> HaplyInverseConfig {
     HaplyInverseConfig {
         service: ServiceConfig {
             url: url.to_owned(),
+            events_url: Some(events_url.to_owned()),
             ..ServiceConfig::default()
         },
         // Generous for a shared 2-core test machine; the default is 0.4 ms.
@@ -45,8 +46,8 @@ fn config(url: &str) -> HaplyInverseConfig {
 /// usual test wait, in `read_state` and in the I/O thread): the tests that check what the service receives and
 /// what comes back, not the timing, use it, so a busy machine does not turn a late answer into a timeout or a
 /// dropped link. An answer that never comes (a malformed frame) costs that second.
-fn patient_config(url: &str) -> HaplyInverseConfig {
-    let mut config = config(url);
+fn patient_config(url: &str, events_url: &str) -> HaplyInverseConfig {
+    let mut config = config(url, events_url);
     config.reply_wait = Duration::from_secs(1);
     config.service.reply_timeout = Duration::from_secs(1);
     config
@@ -55,13 +56,24 @@ fn patient_config(url: &str) -> HaplyInverseConfig {
 #[test]
 fn open_reads_the_inventory_and_configures_the_identity_basis() {
     let service = InverseService::start();
-    let mut device = Lifecycle::new(HaplyInverse::new(config(&service.url())));
+    let mut device = Lifecycle::new(HaplyInverse::new(config(
+        &service.url(),
+        &service.events_url(),
+    )));
     device.open().unwrap();
     assert_eq!(device.info().serial_number, DEVICE_ID);
     assert_eq!(device.info().model, "Haply inverse3 (Inverse Service)");
     let link = device.device().link().unwrap();
     assert_eq!(link.device.firmware.as_deref(), Some("7.4"));
-    assert_eq!(link.device.session_id, Some(7));
+    assert_eq!(link.device.session_id.as_deref(), Some("7"));
+    // The read-back confirmed Haply's default frame, and reported the filters as the service has them.
+    assert_eq!(link.device.configuration, Configuration::Confirmed);
+    assert!(link
+        .device
+        .filters
+        .as_deref()
+        .unwrap()
+        .contains("force_gate"));
     device.close().unwrap();
     let events = service.events();
     let session = events
@@ -72,6 +84,14 @@ fn open_reads_the_inventory_and_configures_the_identity_basis() {
         })
         .expect("the first message configures the session");
     assert_eq!(session["configure"]["basis"]["permutation"], "XYZ");
+    // The device's own configure block: preset and basis (never a mount beside a preset: tutorial 07).
+    assert!(events
+        .iter()
+        .any(|e| matches!(e, ServiceEvent::Configure(block)
+        if block["preset"]["preset"] == "defaults" && block["basis"]["permutation"] == "XYZ")));
+    assert!(!events
+        .iter()
+        .any(|e| matches!(e, ServiceEvent::ConfigureRefused(_))));
     // open's zero force with the session, and the I/O thread's zero before closing.
     let forces = settle(&service, |f| f.len() >= 2);
     assert!(
@@ -83,7 +103,10 @@ fn open_reads_the_inventory_and_configures_the_identity_basis() {
 #[test]
 fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
     let service = InverseService::start();
-    let mut device = Lifecycle::new(HaplyInverse::new(patient_config(&service.url())));
+    let mut device = Lifecycle::new(HaplyInverse::new(patient_config(
+        &service.url(),
+        &service.events_url(),
+    )));
     device.open().unwrap();
     device.enable().unwrap();
     let before = service.forces().len();
@@ -127,7 +150,10 @@ fn one_force_per_tick_reaches_the_service_and_its_state_comes_back() {
 #[test]
 fn a_reply_that_comes_late_is_never_taken_for_a_newer_one() {
     let service = InverseService::start();
-    let mut device = Lifecycle::new(HaplyInverse::new(config(&service.url())));
+    let mut device = Lifecycle::new(HaplyInverse::new(config(
+        &service.url(),
+        &service.events_url(),
+    )));
     device.open().unwrap();
     device.enable().unwrap();
     let position = |i: u32| [0.0001 * f64::from(i), -0.12, 0.15];
@@ -162,10 +188,10 @@ fn a_reply_that_comes_late_is_never_taken_for_a_newer_one() {
 
 /// The supervisor over the driver, with `driver` (`config` or `patient_config`) for each connection.
 fn supervisor(
-    url: &str,
-    driver: fn(&str) -> HaplyInverseConfig,
+    service: &InverseService,
+    driver: fn(&str, &str) -> HaplyInverseConfig,
 ) -> Supervisor<HaplyInverse, impl FnMut() -> Result<HaplyInverse, voxhap::device::DeviceError>> {
-    let url = url.to_owned();
+    let (url, events_url) = (service.url(), service.events_url());
     let config = SupervisorConfig {
         safety: SafetyConfig {
             ramp_time_us: 50_000,
@@ -177,13 +203,16 @@ fn supervisor(
         steady_ticks_before_enable: 5,
         ..SupervisorConfig::default()
     };
-    Supervisor::new(config, move || Ok(HaplyInverse::new(driver(&url)))).unwrap()
+    Supervisor::new(config, move || {
+        Ok(HaplyInverse::new(driver(&url, &events_url)))
+    })
+    .unwrap()
 }
 
 #[test]
 fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are_skipped() {
     let service = InverseService::start();
-    let mut supervisor = supervisor(&service.url(), patient_config);
+    let mut supervisor = supervisor(&service, patient_config);
     supervisor.connect(0).unwrap();
     let mut events = Vec::new();
     for tick in 0..400u64 {
@@ -235,7 +264,7 @@ fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are
 #[test]
 fn a_service_restart_drops_the_link_and_the_driver_reconnects() {
     let mut service = InverseService::start();
-    let mut supervisor = supervisor(&service.url(), config);
+    let mut supervisor = supervisor(&service, config);
     supervisor.connect(0).unwrap();
     let start = Instant::now();
     let (mut lost_at, mut back_at) = (None, None);
@@ -292,7 +321,8 @@ fn nothing_listening_is_an_open_error_that_says_what_to_do() {
         .local_addr()
         .unwrap()
         .port();
-    let mut device = HaplyInverse::new(config(&format!("ws://127.0.0.1:{port}")));
+    let url = format!("ws://127.0.0.1:{port}");
+    let mut device = HaplyInverse::new(config(&url, &url));
     let message = device.open().unwrap_err().to_string();
     assert!(message.contains("refused"), "{message}");
     assert!(message.contains("Inverse Service running"), "{message}");
@@ -317,7 +347,7 @@ fn extra_messages_from_the_service_never_make_force_from_stale_positions() {
         .shared
         .unsolicited_every_ms
         .store(100, Ordering::Release);
-    let mut supervisor = supervisor(&service.url(), config);
+    let mut supervisor = supervisor(&service, config);
     supervisor.connect(0).unwrap();
     // written_before[t]: the index of the newest message the service had finished writing when tick t began.
     let mut written_before = vec![0u64];
@@ -403,7 +433,7 @@ fn most_attempts_within(window: Duration, interval: Duration) -> u32 {
 /// millisecond; returns the TCP connections the service accepted.
 fn connections_within(service: &InverseService, window: Duration) -> u32 {
     use voxhap::servo::device::{Reconnecting, ServoDevice};
-    let url = service.url();
+    let (url, events_url) = (service.url(), service.events_url());
     let config = SupervisorConfig {
         reconnect_interval_us: 50_000,
         steady_ticks_before_enable: 5,
@@ -411,7 +441,7 @@ fn connections_within(service: &InverseService, window: Duration) -> u32 {
     };
     let mut device = Reconnecting::new(
         config,
-        Box::new(move || Ok(HaplyInverse::new(self::config(&url)))),
+        Box::new(move || Ok(HaplyInverse::new(self::config(&url, &events_url)))),
     )
     .unwrap();
     let start = Instant::now();

@@ -27,6 +27,7 @@ mod fuzz_corpus;
 mod hand_target;
 mod haply_2diy_pty;
 mod haply_inverse;
+mod haply_inverse_frame;
 mod igtl;
 mod late_states;
 mod layers;

@@ -201,6 +201,8 @@ pub fn fault_name(code: u8) -> &'static str {
         5 => "amplifier fault",
         6 => "supply voltage fault",
         7 => "internal fault",
+        8 => "motor stall",
+        9 => "stability ceiling reached",
         _ => "unknown fault",
     }
 }

@@ -26,11 +26,19 @@
 //! connects again. Every stop sends a zero force (the lifecycle wrapper's explicit zero, then the I/O thread's
 //! own zero before it closes the socket); when commands stop, the service returns the device to idle on its own.
 //!
-//! Capabilities: Haply's documentation does not publish a force limit or workspace box for the service, so the
-//! capability record is conservative and stated as voxhap's, not Haply's: [`DEFAULT_MAX_FORCE_N`] and a box of
-//! ±[`WORKSPACE_HALF_EXTENT_M`] around the origin of the service's frame (Haply's tutorial 06 clamps Inverse3
-//! targets to a 0.10 m sphere). The device profile (the lead's workspace mapping) overrides both.
+//! Capabilities ([`limits::LIMITS`], every number with its vendor source): the workspace box is the Inverse3's
+//! measured reachable box in Haply's default frame, so the host's input checks accept a handle anywhere the
+//! arm can go; the force cap is voxhap's (Haply publishes none). The device profile may lower both.
+//!
+//! Safety events: the link's events channel ([`crate::transport::inverse_service::events`]) hands e-brake,
+//! stall and stability-ceiling events to `take_event` as [`DeviceEvent::Fault`] (codes
+//! [`FAULT_EMERGENCY_STOP`], [`FAULT_MOTOR_STALL`], [`FAULT_STABILITY_CEILING`]): the supervisor zeroes the force
+//! on the tick it reads them and stays faulted until the operator clears it.
 
+#[path = "haply_inverse_limits.rs"]
+pub mod limits;
+
+use crate::transport::inverse_service::events::SafetyEvent;
 use crate::transport::inverse_service::{self, ForceCommand, ServiceConfig, ServiceLink};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
@@ -38,9 +46,13 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 /// voxhap's default force cap for the Inverse3 (N); a profile may lower it.
-pub const DEFAULT_MAX_FORCE_N: f64 = 3.0;
-/// Half the edge of the capability record's workspace box (m).
-pub const WORKSPACE_HALF_EXTENT_M: f64 = 0.10;
+pub const DEFAULT_MAX_FORCE_N: f64 = limits::DEFAULT_MAX_FORCE_N;
+/// Fault code of a Haply e-brake (`ebrake_triggered`): voxhap's "emergency stop".
+pub const FAULT_EMERGENCY_STOP: u8 = 1;
+/// Fault code of a Haply motor stall (`stall_detected`).
+pub const FAULT_MOTOR_STALL: u8 = 8;
+/// Fault code of Haply's stability ceiling (`stability_ceiling`).
+pub const FAULT_STABILITY_CEILING: u8 = 9;
 /// How long `read_state` spins before it starts yielding the CPU while it waits for the answer.
 pub const REPLY_SPIN: Duration = Duration::from_micros(20);
 
@@ -82,6 +94,10 @@ pub struct HaplyInverse {
     surplus: SurplusCount,
     /// A report waiting for [`HapticDevice::take_event`].
     pending_event: Option<DeviceEvent>,
+    /// Fault bits latched by the service's safety events on this link.
+    active_faults: u16,
+    /// The force that reached the arm (the service's `current_cursor_force`) in the last state read.
+    arm_force_n: Option<DVec3>,
 }
 
 impl HaplyInverse {
@@ -93,11 +109,10 @@ impl HaplyInverse {
             position_dof: 3,
             force_dof: 3,
             button_count: 0,
-            workspace_min_m: DVec3::splat(-WORKSPACE_HALF_EXTENT_M),
-            workspace_max_m: DVec3::splat(WORKSPACE_HALF_EXTENT_M),
+            workspace_min_m: DVec3::from_array(limits::REACHABLE_MIN_M),
+            workspace_max_m: DVec3::from_array(limits::REACHABLE_MAX_M),
             max_force_n: config.max_force_n,
-            // Not published by Haply; the host's default cap.
-            max_stiffness_n_per_m: 1000.0,
+            max_stiffness_n_per_m: limits::MAX_STIFFNESS_N_PER_M,
             max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
             reports_velocity: true,
             state_rates_hz: Vec::new(),
@@ -110,7 +125,15 @@ impl HaplyInverse {
             state_age_ticks: 0,
             surplus: SurplusCount::default(),
             pending_event: None,
+            active_faults: 0,
+            arm_force_n: None,
         }
+    }
+
+    /// The force that reached the arm after the service's filters, as the service reported it with the last
+    /// state read (`current_cursor_force`, N, Haply's frame); `None` until it reports one.
+    pub fn arm_force_n(&self) -> Option<DVec3> {
+        self.arm_force_n
     }
 
     /// The connection, while open (counters, device identity).
@@ -145,6 +168,16 @@ impl HapticDevice for HaplyInverse {
         self.sequence = 0;
         self.surplus = SurplusCount::default();
         self.pending_event = None;
+        self.active_faults = 0;
+        self.arm_force_n = None;
+        if let inverse_service::Configuration::Unconfirmed(why) = &device.configuration {
+            eprintln!(
+                "voxhap: Haply Inverse Service: the session's frame (preset {:?}, basis {:?}, no mount) is set but \
+                 not confirmed: {why}",
+                inverse_service::SESSION_PRESET,
+                inverse_service::SESSION_BASIS
+            );
+        }
         self.link = Some(link);
         Ok(())
     }
@@ -210,6 +243,7 @@ impl HapticDevice for HaplyInverse {
             {
                 let age = wanted.saturating_sub(snapshot.answers_sequence);
                 self.state_age_ticks = u32::try_from(age).unwrap_or(u32::MAX);
+                self.arm_force_n = snapshot.arm_force_n;
                 return Ok(DeviceState {
                     position_m: snapshot.position_m,
                     velocity_m_per_s: snapshot.velocity_m_per_s,
@@ -220,6 +254,14 @@ impl HapticDevice for HaplyInverse {
                 });
             }
             if now >= deadline {
+                if link.shared.drifted.load(Ordering::Relaxed) > 0 {
+                    // Not a slow service: its messages have a field in another type than Haply documents
+                    // (the reconnect's open names the field).
+                    return Err(DeviceError::Protocol {
+                        what: "the Inverse Service's state updates carry a field voxhap uses in another JSON \
+                               type than Haply documents",
+                    });
+                }
                 return Err(DeviceError::Timeout {
                     waited_us: u64::try_from(wait.as_micros()).unwrap_or(u64::MAX),
                     waiting_for: "the Inverse Service's state update",
@@ -239,7 +281,20 @@ impl HapticDevice for HaplyInverse {
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {
-        self.pending_event.take()
+        if let Some(event) = self.pending_event.take() {
+            return Some(event);
+        }
+        let event = self.link.as_mut()?.events.pop()?;
+        let code = match event {
+            SafetyEvent::EbrakeTriggered => FAULT_EMERGENCY_STOP,
+            SafetyEvent::StallDetected => FAULT_MOTOR_STALL,
+            SafetyEvent::StabilityCeiling => FAULT_STABILITY_CEILING,
+        };
+        self.active_faults |= 1 << code;
+        Some(DeviceEvent::Fault {
+            code,
+            active_faults: self.active_faults,
+        })
     }
 }
 

@@ -48,21 +48,31 @@
 //! Malformed frames (not JSON, binary, no state for our device) are counted and skipped. On stop the thread
 //! sends a zero force, then a WebSocket close.
 
-use super::inverse_wire::parse_frame;
 pub use super::inverse_wire::{
-    force_message, WireConfig, WireDeviceInfo, WireFrame, WireInverse3, WireState, WireVec3,
+    force_message, parse_frame_text, setup_message, WireConfig, WireError, WireFrame, WireInverse3,
+    WireState, WireTransform, SESSION_BASIS, SESSION_PRESET,
 };
 use crate::DeviceError;
 use glam::DVec3;
 use std::io::{Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
-use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Message, WebSocket};
+
+#[path = "inverse_events.rs"]
+pub mod events;
+#[path = "inverse_io.rs"]
+mod io;
+#[cfg(test)]
+#[path = "inverse_service_tests.rs"]
+mod tests;
+
+/// The service's default events channel port (docs.haply.co "Events Channel": ws://localhost:10020).
+pub const DEFAULT_EVENTS_PORT: u16 = 10020;
 
 /// The service's default simulation channel.
 pub const DEFAULT_URL: &str = "ws://127.0.0.1:10001";
@@ -90,8 +100,23 @@ pub struct ServiceDevice {
     pub firmware: Option<String>,
     /// "left" / "right", when reported.
     pub handedness: Option<String>,
-    /// The session the service assigned.
-    pub session_id: Option<u64>,
+    /// The session the service assigned (a string whatever its JSON type).
+    pub session_id: Option<String>,
+    /// What the session's configuration read-back showed.
+    pub configuration: Configuration,
+    /// The service's filters (force gate, damping) as it reported them in the read-back, when it did.
+    pub filters: Option<String>,
+}
+
+/// What the read-back of the session's configuration showed (`connect` fails on a mismatch instead).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Configuration {
+    /// The service reported the preset, basis and an identity mount and workspace transform: positions and
+    /// forces are in Haply's documented frame, unscaled.
+    Confirmed,
+    /// The service's answer did not carry its configuration (an older service): the frame is as asked for
+    /// but not confirmed; what was missing.
+    Unconfirmed(String),
 }
 
 /// One force command from the servo thread.
@@ -112,6 +137,8 @@ pub struct ServiceSnapshot {
     pub position_m: DVec3,
     /// Handle velocity (m/s).
     pub velocity_m_per_s: DVec3,
+    /// The force that reached the arm after the service's filters (`current_cursor_force`, N), once reported.
+    pub arm_force_n: Option<DVec3>,
 }
 
 /// Counters and flags shared by both threads.
@@ -135,6 +162,11 @@ pub struct ServiceShared {
     /// Raised with `link_down` when the link was dropped because the service flooded it
     /// ([`MAX_DRAIN_MESSAGES`]).
     pub flooded: AtomicBool,
+    /// Messages with a field voxhap uses in another JSON type than Haply documents (counted in `malformed`
+    /// too); the first one's description is kept in `first_drift`.
+    pub drifted: AtomicU64,
+    /// What the first type drift was (written by the I/O thread only).
+    pub first_drift: Mutex<Option<String>>,
 }
 
 /// The servo thread's end of the channel.
@@ -149,6 +181,8 @@ pub struct ServiceLink {
     pub thread: Option<JoinHandle<()>>,
     /// The device this link drives.
     pub device: ServiceDevice,
+    /// The service's events channel (e-brake, stall, stability ceiling, rate warnings).
+    pub events: events::EventChannel,
 }
 
 impl std::fmt::Debug for ServiceLink {
@@ -169,6 +203,7 @@ impl ServiceLink {
 
     /// Stops the I/O thread (it sends a zero force and a close frame first) and waits for it.
     pub fn shut_down(&mut self) {
+        self.events.shut_down();
         self.shared.stop.store(true, Ordering::Release);
         if let Some(thread) = self.thread.take() {
             thread.thread().unpark();
@@ -196,6 +231,8 @@ pub struct ServiceConfig {
     pub reply_timeout: Duration,
     /// Profile name shown in Haply Hub.
     pub profile_name: String,
+    /// The events channel; `None`: the simulation channel's host on port [`DEFAULT_EVENTS_PORT`].
+    pub events_url: Option<String>,
 }
 
 impl Default for ServiceConfig {
@@ -206,6 +243,7 @@ impl Default for ServiceConfig {
             connect_timeout: Duration::from_secs(1),
             reply_timeout: Duration::from_millis(20),
             profile_name: "voxhap".to_owned(),
+            events_url: None,
         }
     }
 }
@@ -324,25 +362,70 @@ pub fn inventory(url: &str, timeout: Duration) -> Result<Vec<ServiceDevice>, Dev
     Ok(frame
         .inverse3
         .iter()
-        .map(|entry| service_device(entry, frame.session_id))
+        .map(|entry| service_device(entry, frame.session_id.clone()))
         .collect())
 }
 
-fn service_device(entry: &WireInverse3, session_id: Option<u64>) -> ServiceDevice {
+fn service_device(entry: &WireInverse3, session_id: Option<String>) -> ServiceDevice {
     let info = entry.config.clone().unwrap_or_default();
     ServiceDevice {
         device_id: entry.device_id.clone(),
         device_type: info.device_type.unwrap_or_else(|| "inverse3".to_owned()),
-        firmware: info.device_info.as_ref().and_then(|d| {
-            Some(format!(
-                "{}.{}",
-                d.major_version?,
-                d.minor_version.unwrap_or(0)
-            ))
-        }),
+        firmware: info.firmware,
         handedness: info.handedness,
         session_id,
+        configuration: Configuration::Unconfirmed("not read back yet".to_owned()),
+        filters: info.filters,
     }
+}
+
+/// Checks the configuration the service reports after the session set-up against what voxhap asked for
+/// ([`SESSION_PRESET`], [`SESSION_BASIS`], no mount, no workspace transform). `Err` lists every difference.
+pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, String> {
+    let mut wrong = Vec::new();
+    let mut missing = Vec::new();
+    match entry.config.as_ref() {
+        Some(config) => {
+            match config.preset.as_deref() {
+                Some(SESSION_PRESET) => {}
+                Some(other) => {
+                    wrong.push(format!("preset {other:?} (asked for {SESSION_PRESET:?})"))
+                }
+                None => missing.push("preset"),
+            }
+            match config.basis.as_deref() {
+                Some(SESSION_BASIS) => {}
+                Some(other) => wrong.push(format!("basis {other:?} (asked for {SESSION_BASIS:?})")),
+                None => missing.push("basis"),
+            }
+            match config.mount {
+                Some(mount) if !mount.is_identity() => {
+                    wrong.push(format!("mount {mount} (asked for none: the preset's own)"))
+                }
+                Some(_) => {}
+                None => missing.push("mount"),
+            }
+        }
+        None => missing.push("config"),
+    }
+    if let Some(transform) = entry.state.and_then(|s| s.transform) {
+        if !transform.is_identity() {
+            wrong.push(format!(
+                "workspace transform {transform} (voxhap expects the identity)"
+            ));
+        }
+    }
+    if !wrong.is_empty() {
+        return Err(wrong.join("; "));
+    }
+    Ok(if missing.is_empty() {
+        Configuration::Confirmed
+    } else {
+        Configuration::Unconfirmed(format!(
+            "the service's answer did not include {}",
+            missing.join(", ")
+        ))
+    })
 }
 
 fn connect_timeout_error(timeout: Duration, waiting_for: &'static str) -> DeviceError {
@@ -408,8 +491,19 @@ fn connect_and_read_inventory(
                 timeout,
                 "the Inverse Service's device inventory",
             ))?;
-        if let Some(frame) = parse_frame(&message) {
-            return Ok((socket, frame));
+        if let Message::Text(text) = &message {
+            match parse_frame_text(text.as_str()) {
+                Ok(frame) => return Ok((socket, frame)),
+                Err(error @ WireError::TypeDrift { .. }) => {
+                    return Err(DeviceError::Open {
+                        path: url.to_owned(),
+                        message: format!(
+                            "the Inverse Service's device inventory cannot be read: {error}"
+                        ),
+                    })
+                }
+                Err(WireError::NotJson { .. }) => {}
+            }
         }
         if Instant::now() >= deadline {
             return Err(DeviceError::Protocol {
@@ -444,19 +538,19 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
                     .to_owned(),
             },
         })?;
-    let device = service_device(entry, inventory.session_id);
+    let mut device = service_device(entry, inventory.session_id.clone());
     let mut snapshot = ServiceSnapshot {
         answers_sequence: 0,
         position_m: DVec3::ZERO,
         velocity_m_per_s: DVec3::ZERO,
+        arm_force_n: None,
     };
-    apply_state(&mut snapshot, entry.state.as_ref());
-    // Configure the session and read the state that answers it.
+    io::apply_state(&mut snapshot, entry.state.as_ref());
+    // Configure the session (profile, basis, preset, full state) and read back what the service now uses.
     socket
-        .send(Message::text(force_message(
+        .send(Message::text(setup_message(
             &device.device_id,
-            DVec3::ZERO,
-            Some(&config.profile_name),
+            &config.profile_name,
         )))
         .map_err(|e| open_error(url, &e.to_string(), std::io::ErrorKind::ConnectionReset))?;
     let reply = read_text(&mut socket, deadline)
@@ -465,15 +559,33 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
             config.connect_timeout,
             "the Inverse Service's answer to the session configuration",
         ))?;
-    if let Some(frame) = parse_frame(&reply) {
-        if let Some(entry) = frame
-            .inverse3
-            .iter()
-            .find(|d| d.device_id == device.device_id)
-        {
-            apply_state(&mut snapshot, entry.state.as_ref());
-        }
+    let unreadable = |what: String| DeviceError::Open {
+        path: url.to_owned(),
+        message: format!("the Inverse Service's answer to the session configuration {what}"),
+    };
+    let frame = match &reply {
+        Message::Text(text) => parse_frame_text(text.as_str())
+            .map_err(|e| unreadable(format!("cannot be read: {e}")))?,
+        _ => return Err(unreadable("is not a text message".to_owned())),
+    };
+    let answer = frame
+        .inverse3
+        .iter()
+        .find(|d| d.device_id == device.device_id)
+        .ok_or_else(|| unreadable(format!("has no state for device {:?}", device.device_id)))?;
+    device.configuration = check_configuration(answer).map_err(|wrong| DeviceError::Open {
+        path: url.to_owned(),
+        message: format!(
+            "the Inverse Service keeps a configuration for {} that voxhap did not ask for and could not \
+             replace: {wrong}. Positions and forces would be moved or scaled; reset the device's mount, preset \
+             and workspace transform in Haply Hub (or the service's HTTP API), or stop the program that sets them",
+            device.device_id
+        ),
+    })?;
+    if let Some(filters) = answer.config.as_ref().and_then(|c| c.filters.clone()) {
+        device.filters = Some(filters);
     }
+    io::apply_state(&mut snapshot, answer.state.as_ref());
     // From here on the I/O thread never blocks on the socket: it polls it (module docs).
     socket.get_mut().deadline = None;
     socket.get_ref().stream.set_nonblocking(true).map_err(io)?;
@@ -483,7 +595,7 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
     state_tx.write(snapshot);
     let shared = Arc::new(ServiceShared::default());
     let thread = {
-        let io_loop = IoLoop {
+        let io_loop = io::IoLoop {
             socket,
             device_id: device.device_id.clone(),
             states: state_tx,
@@ -499,280 +611,17 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
             .spawn(move || io_loop.run(force_rx, reply_timeout))
             .map_err(|e| open_error(url, &e.to_string(), e.kind()))?
     };
+    let events_url = config
+        .events_url
+        .clone()
+        .unwrap_or_else(|| events::default_events_url(url));
+    let events = events::EventChannel::start(events_url, device.device_id.clone());
     Ok(ServiceLink {
         forces,
         states,
         shared,
         thread: Some(thread),
         device,
-    })
-}
-
-/// Applies a state object (absent fields keep their value); false when there is none or it holds a
-/// non-finite position.
-fn apply_state(snapshot: &mut ServiceSnapshot, state: Option<&WireState>) -> bool {
-    let Some(state) = state else {
-        return false;
-    };
-    if let Some(p) = state.cursor_position {
-        let p = DVec3::from(p);
-        if !p.is_finite() {
-            return false;
-        }
-        snapshot.position_m = p;
-    }
-    if let Some(v) = state.cursor_velocity {
-        let v = DVec3::from(v);
-        if v.is_finite() {
-            snapshot.velocity_m_per_s = v;
-        }
-    }
-    true
-}
-
-fn is_would_block(error: &tungstenite::Error) -> bool {
-    matches!(error, tungstenite::Error::Io(e) if e.kind() == std::io::ErrorKind::WouldBlock)
-}
-
-/// Waits until the socket has `events` (`POLLIN`, `POLLOUT`) or `timeout` passes (rounded up to 1 ms).
-fn poll_socket(socket: &Socket, events: libc::c_short, timeout: Duration) {
-    let mut fd = libc::pollfd {
-        fd: socket.get_ref().stream.as_raw_fd(),
         events,
-        revents: 0,
-    };
-    let ms = i32::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(i32::MAX);
-    // SAFETY: one valid pollfd for the duration of the call; the descriptor stays open (we own the socket).
-    unsafe {
-        libc::poll(&mut fd, 1, ms);
-    }
-}
-
-/// The I/O thread's state.
-struct IoLoop {
-    socket: Socket,
-    device_id: String,
-    states: triple_buffer::Input<ServiceSnapshot>,
-    snapshot: ServiceSnapshot,
-    shared: Arc<ServiceShared>,
-    /// Sequences of the messages sent whose replies have not come yet, oldest first.
-    unanswered: std::collections::VecDeque<u64>,
-    /// The newest force sequence sent.
-    last_sent: u64,
-    /// The newest force sequence sent before the socket was last found empty: every message read after
-    /// that was written by the service after that force was sent (a TCP stream keeps the order).
-    floor: u64,
-}
-
-impl IoLoop {
-    fn run(mut self, mut forces: rtrb::Consumer<ForceCommand>, reply_timeout: Duration) {
-        let result = self.exchange(&mut forces, reply_timeout);
-        let result = result.and_then(|()| {
-            // Stop: zero force, then close.
-            let zero = force_message(&self.device_id, DVec3::ZERO, None);
-            self.send(Message::text(zero))?;
-            let _ = self.socket.close(None);
-            let _ = self.flush_within(Instant::now() + WRITE_TIMEOUT);
-            Ok(())
-        });
-        if result.is_err() {
-            self.shared.link_down.store(true, Ordering::Release);
-        }
-    }
-
-    fn exchange(
-        &mut self,
-        forces: &mut rtrb::Consumer<ForceCommand>,
-        reply_timeout: Duration,
-    ) -> Result<(), tungstenite::Error> {
-        let mut last_send = Instant::now();
-        while !self.shared.stop.load(Ordering::Acquire) {
-            // Whatever came since the last look (a second reply, an unsolicited update) is read now, so the
-            // servo thread always gets the newest state and nothing queues up unread.
-            self.drain()?;
-            let mut newest = None;
-            while let Ok(command) = forces.pop() {
-                if newest.is_some() {
-                    self.shared.coalesced.fetch_add(1, Ordering::Relaxed);
-                }
-                newest = Some(command);
-            }
-            let (sequence, force_n) = match newest {
-                Some(command) => (command.sequence, command.force_n),
-                None if last_send.elapsed() >= KEEPALIVE_INTERVAL => (self.last_sent, DVec3::ZERO),
-                None => {
-                    std::thread::park_timeout(Duration::from_micros(500));
-                    continue;
-                }
-            };
-            // The driver refuses non-finite forces; a NaN must never reach the device all the same.
-            let force_n = if force_n.is_finite() {
-                force_n
-            } else {
-                DVec3::ZERO
-            };
-            let text = force_message(&self.device_id, force_n, None);
-            self.send(Message::text(text))?;
-            last_send = Instant::now();
-            self.last_sent = self.last_sent.max(sequence);
-            self.shared.sent.fetch_add(1, Ordering::Relaxed);
-            if self.unanswered.len() >= FORCE_RING_CAPACITY {
-                // The service has left this many messages unanswered: forget the oldest (the driver has long
-                // reported the missing states, and the link is dropped well before this in a session).
-                self.unanswered.pop_front();
-            }
-            self.unanswered.push_back(sequence);
-            // One reply per message, in the order sent: read until this message's reply has come (or
-            // `reply_timeout`: it may still come, and is then labelled with its own, older sequence).
-            let deadline = Instant::now() + reply_timeout;
-            loop {
-                self.drain()?;
-                let now = Instant::now();
-                if self.unanswered.is_empty()
-                    || now >= deadline
-                    || self.shared.stop.load(Ordering::Acquire)
-                {
-                    break;
-                }
-                poll_socket(
-                    &self.socket,
-                    libc::POLLIN,
-                    (deadline - now).min(Duration::from_millis(1)),
-                );
-            }
-        }
-        Ok(())
-    }
-
-    /// Reads every complete message already received, until the socket has nothing more; then raises
-    /// `floor`. A service that keeps more than [`MAX_DRAIN_MESSAGES`] coming is flooding the link: error.
-    fn drain(&mut self) -> Result<(), tungstenite::Error> {
-        for _ in 0..MAX_DRAIN_MESSAGES {
-            match self.socket.read() {
-                Ok(message @ (Message::Text(_) | Message::Binary(_))) => self.take(&message),
-                Ok(Message::Close(_)) => return Err(tungstenite::Error::ConnectionClosed),
-                Ok(_) => {}
-                Err(error) if is_would_block(&error) => {
-                    self.floor = self.last_sent;
-                    return Ok(());
-                }
-                Err(error) => return Err(error),
-            }
-        }
-        self.shared.flooded.store(true, Ordering::Release);
-        Err(tungstenite::Error::Io(std::io::Error::other(
-            "the Inverse Service sends more messages than voxhap can read",
-        )))
-    }
-
-    /// One message from the service: the reply to the oldest unanswered message, or an extra one.
-    fn take(&mut self, message: &Message) {
-        let answers = self.unanswered.pop_front();
-        if answers.is_none() {
-            self.shared.extra.fetch_add(1, Ordering::Relaxed);
-        }
-        let used = parse_frame(message)
-            .and_then(|frame| {
-                frame
-                    .inverse3
-                    .into_iter()
-                    .find(|d| d.device_id == self.device_id)
-            })
-            .is_some_and(|entry| apply_state(&mut self.snapshot, entry.state.as_ref()));
-        if used {
-            // The label says which force the state answers at the latest: the reply's own message, but never
-            // one sent after the socket was last found empty (a reply counted against the wrong message
-            // because the service sent extra ones is then at most as new as that). An extra message updates
-            // the position and keeps the label.
-            if let Some(answers) = answers {
-                let label = answers.min(self.floor);
-                self.snapshot.answers_sequence = self.snapshot.answers_sequence.max(label);
-            }
-            self.states.write(self.snapshot);
-            self.shared.states.fetch_add(1, Ordering::Relaxed);
-        } else {
-            self.shared.malformed.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Sends one message, waiting at most [`WRITE_TIMEOUT`] for room in the socket's send buffer.
-    fn send(&mut self, message: Message) -> Result<(), tungstenite::Error> {
-        match self.socket.send(message) {
-            Ok(()) => Ok(()),
-            Err(error) if is_would_block(&error) => {
-                self.flush_within(Instant::now() + WRITE_TIMEOUT)
-            }
-            Err(error) => Err(error),
-        }
-    }
-
-    fn flush_within(&mut self, deadline: Instant) -> Result<(), tungstenite::Error> {
-        loop {
-            match self.socket.flush() {
-                Ok(()) => return Ok(()),
-                Err(error) if is_would_block(&error) => {
-                    let now = Instant::now();
-                    if now >= deadline {
-                        return Err(tungstenite::Error::Io(std::io::Error::new(
-                            std::io::ErrorKind::TimedOut,
-                            "the Inverse Service reads nothing",
-                        )));
-                    }
-                    poll_socket(&self.socket, libc::POLLOUT, deadline - now);
-                }
-                Err(error) => return Err(error),
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn force_messages_follow_the_documented_command_layout() {
-        let text = force_message("049D", DVec3::new(0.0, 0.5, 1.5), None);
-        let value: serde_json::Value = serde_json::from_str(&text).unwrap();
-        let vector = &value["inverse3"][0]["commands"]["set_cursor_force"]["vector"];
-        assert_eq!(value["inverse3"][0]["device_id"], "049D");
-        assert_eq!(vector["y"], 0.5);
-        assert_eq!(vector["z"], 1.5);
-        assert!(value.get("session").is_none());
-        let first = force_message("0\"4", DVec3::ZERO, Some("voxhap"));
-        let value: serde_json::Value = serde_json::from_str(&first).unwrap();
-        assert_eq!(value["inverse3"][0]["device_id"], "0\"4");
-        assert_eq!(value["session"]["configure"]["basis"]["permutation"], "XYZ");
-        assert_eq!(value["session"]["configure"]["profile"]["name"], "voxhap");
-    }
-
-    #[test]
-    fn urls_must_be_plain_websocket_with_a_port() {
-        assert_eq!(
-            split_url("ws://127.0.0.1:10001").unwrap().0,
-            "127.0.0.1:10001"
-        );
-        assert_eq!(split_url("ws://localhost:9/x").unwrap().0, "localhost:9");
-        for bad in [
-            "http://localhost:10001",
-            "ws://",
-            "ws://localhost",
-            "wss://h:1",
-        ] {
-            assert!(split_url(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn absent_state_fields_keep_their_previous_value() {
-        let mut snapshot = ServiceSnapshot {
-            answers_sequence: 0,
-            position_m: DVec3::ONE,
-            velocity_m_per_s: DVec3::ONE,
-        };
-        let state: WireState = serde_json::from_str(r#"{"cursor_velocity":{"x":2.0}}"#).unwrap();
-        assert!(apply_state(&mut snapshot, Some(&state)));
-        assert_eq!(snapshot.position_m, DVec3::ONE);
-        assert_eq!(snapshot.velocity_m_per_s, DVec3::new(2.0, 0.0, 0.0));
-    }
+    })
 }

@@ -1,0 +1,265 @@
+//! The Haply Inverse3 against the Inverse Service double (tests/util/inverse_service.rs, written from Haply's
+//! documents) on what Haply documents about frames, configuration and safety: a handle anywhere in the
+//! reachable box is never refused; a mount or workspace transform "another program" left is replaced by the
+//! session's preset or reported, never silently used; a type drift is named; the force that reached the arm is
+//! read beside the commanded one; an e-brake on the events channel zeroes the force on the next tick, as a
+//! device fault that says it was an emergency stop.
+
+use crate::util::inverse_service::{InverseService, Transform, REACHABLE_MAX_M, REACHABLE_MIN_M};
+use glam::{DQuat, DVec3};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+use voxhap::device::drivers::haply_inverse::{
+    HaplyInverse, HaplyInverseConfig, FAULT_EMERGENCY_STOP,
+};
+use voxhap::device::safety::{SafetyConfig, SafetyFlags};
+use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
+use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
+use voxhap::device::{HapticDevice, Lifecycle};
+
+fn config(service: &InverseService) -> HaplyInverseConfig {
+    HaplyInverseConfig {
+        service: ServiceConfig {
+            url: service.url(),
+            events_url: Some(service.events_url()),
+            // Patient: these tests check what comes back, not how fast.
+            reply_timeout: Duration::from_secs(1),
+            ..ServiceConfig::default()
+        },
+        reply_wait: Duration::from_secs(1),
+        ..HaplyInverseConfig::default()
+    }
+}
+
+/// Haply's documented example pose (docs.haply.co "WebSocket Protocol", step 1), where the double starts.
+const DOCUMENTED_POSE_M: [f64; 3] = [0.0, -0.12, 0.15];
+
+#[test]
+fn a_mount_another_program_left_is_replaced_by_the_sessions_preset() {
+    let service = InverseService::start();
+    // Haply Hub (or another program) mounted the device turned and scaled, and it persists.
+    service.set_mount(Transform {
+        position: DVec3::new(0.05, 0.0, -0.1),
+        rotation: DQuat::from_rotation_z(0.5),
+        scale: DVec3::splat(2.0),
+    });
+    let mut device = Lifecycle::new(HaplyInverse::new(config(&service)));
+    device.open().unwrap();
+    let link = device.device().link().unwrap();
+    assert_eq!(link.device.configuration, Configuration::Confirmed);
+    assert_eq!(service.configuration().mount, Transform::IDENTITY);
+    assert_eq!(service.configuration().preset, "defaults");
+    device.enable().unwrap();
+    device.write_force(DVec3::ZERO).unwrap();
+    let state = device.read_state().unwrap();
+    device.close().unwrap();
+    // The position is Haply's default frame's, not the mounted one (which would be about twice as far).
+    assert!(
+        (state.position_m - DVec3::from_array(DOCUMENTED_POSE_M)).length() < 1e-12,
+        "{state:?}"
+    );
+}
+
+#[test]
+fn a_configuration_the_service_keeps_is_reported_and_not_used() {
+    let cases: [(&str, fn(&InverseService)); 2] = [
+        ("mount", |service| {
+            service.set_mount(Transform {
+                position: DVec3::new(0.05, 0.0, 0.0),
+                ..Transform::IDENTITY
+            })
+        }),
+        ("workspace transform", |service| {
+            service.set_workspace_transform(Transform {
+                scale: DVec3::splat(2.0),
+                ..Transform::IDENTITY
+            })
+        }),
+    ];
+    for (what, set) in cases {
+        let service = InverseService::start();
+        // A service that ignores the session's configure (or a program that puts its own back at once).
+        service
+            .shared
+            .keep_configuration
+            .store(true, Ordering::Release);
+        set(&service);
+        let mut device = HaplyInverse::new(config(&service));
+        let message = device.open().unwrap_err().to_string();
+        assert!(message.contains(what), "{what}: {message}");
+        assert!(message.contains("did not ask for"), "{message}");
+        assert!(message.contains("Haply Hub"), "{message}");
+        // Nothing but the set-up's zero force was ever sent.
+        assert!(service.forces().iter().all(|f| *f == [0.0; 3]));
+    }
+}
+
+#[test]
+fn a_type_drift_is_named_not_reported_as_a_timeout() {
+    let service = InverseService::start();
+    service
+        .shared
+        .drift_position_type
+        .store(true, Ordering::Release);
+    let mut device = HaplyInverse::new(config(&service));
+    let message = device.open().unwrap_err().to_string();
+    assert!(message.contains("cursor_position"), "{message}");
+    assert!(message.contains("is a string"), "{message}");
+    assert!(!message.contains("µs"), "{message}");
+}
+
+#[test]
+fn the_force_that_reached_the_arm_is_read_beside_the_commanded_one() {
+    let service = InverseService::start();
+    let mut device = Lifecycle::new(HaplyInverse::new(config(&service)));
+    device.open().unwrap();
+    device.enable().unwrap();
+    let commanded = DVec3::new(0.2, -0.1, 0.7);
+    device.write_force(commanded).unwrap();
+    device.read_state().unwrap();
+    // The double's arm got what was commanded (identity frame) and reported it as current_cursor_force.
+    assert_eq!(service.arm_force(), commanded);
+    assert_eq!(device.device().arm_force_n(), Some(commanded));
+    // After an e-brake the arm is locked and takes nothing, whatever is commanded.
+    service.ebrake();
+    device.write_force(commanded).unwrap();
+    device.read_state().unwrap();
+    assert_eq!(device.device().arm_force_n(), Some(DVec3::ZERO));
+    device.close().unwrap();
+}
+
+#[test]
+fn an_ebrake_event_zeroes_the_force_on_the_next_tick_as_an_emergency_stop() {
+    let service = InverseService::start();
+    let url = (service.url(), service.events_url());
+    let supervisor_config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 2.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(supervisor_config, move || {
+        let mut config = HaplyInverseConfig::default();
+        config.service.url = url.0.clone();
+        config.service.events_url = Some(url.1.clone());
+        config.reply_wait = Duration::from_millis(20);
+        Ok(HaplyInverse::new(config))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    let start = Instant::now();
+    let (mut tick, mut braked, mut faulted_at) = (0u64, false, None);
+    let mut after_fault = Vec::new();
+    while start.elapsed() < Duration::from_secs(30) {
+        tick += 1;
+        let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
+        if let Some(at) = faulted_at {
+            after_fault.push((tick - at, out.sent_force_n, out.flags));
+            if after_fault.len() >= 200 {
+                break;
+            }
+        }
+        // Brake once the force flows at full strength and the events channel is connected.
+        if !braked
+            && out.sent_force_n.z > 0.99
+            && service
+                .shared
+                .event_clients_accepted
+                .load(Ordering::Acquire)
+                > 0
+        {
+            service.ebrake();
+            braked = true;
+        }
+        for event in out.events.iter() {
+            if let SupervisorEvent::Fault { code, .. } = event {
+                assert_eq!(code, FAULT_EMERGENCY_STOP);
+                faulted_at.get_or_insert(tick);
+            }
+        }
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    supervisor.stop();
+    assert!(braked, "the force never flowed");
+    assert!(
+        faulted_at.is_some(),
+        "the e-brake never reached the fault path"
+    );
+    assert_eq!(
+        voxhap::device::info::fault_name(FAULT_EMERGENCY_STOP),
+        "emergency stop"
+    );
+    // From the tick after the one that read the event: zero force, flagged as a device fault.
+    assert_eq!(after_fault.len(), 200);
+    for (ticks_after, force, flags) in after_fault {
+        assert_eq!(force, DVec3::ZERO, "{ticks_after} ticks after the e-brake");
+        assert!(
+            flags.contains(SafetyFlags::DEVICE_FAULTED),
+            "{ticks_after}: {flags:?}"
+        );
+    }
+}
+
+/// `voxhap serve` against the double while the handle sweeps the whole reachable box: no position is refused
+/// as implausible and the link is never dropped (the capability box was ±0.10 m about the origin, which
+/// refused Haply's own documented pose and reconnected about every 10 ms). Count-based: it runs until every
+/// face of the box has been reported (within 2 mm), however slow the machine.
+#[test]
+fn serve_keeps_the_link_while_the_handle_sweeps_the_whole_reachable_box() {
+    use std::io::Read as _;
+    use std::process::Stdio;
+    let _turn = crate::util::spec_serve::take_turn();
+    let service = InverseService::start();
+    service.sweep();
+    let mut child = crate::util::serve_headless(&format!("haply-inverse:{}", service.url()))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start voxhap serve");
+    let covered = || {
+        let (low, high) = service.reached();
+        (0..3).all(|axis| {
+            low[axis] <= REACHABLE_MIN_M[axis] + 2e-3 && high[axis] >= REACHABLE_MAX_M[axis] - 2e-3
+        })
+    };
+    let start = Instant::now();
+    while !covered() {
+        if child.try_wait().unwrap().is_some() || start.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "serve exited or 120 s passed; reached {:?}",
+                service.reached()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: plain kill(2) on our own child's pid.
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+        0
+    );
+    let status = child.wait().unwrap();
+    let mut said = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut said)
+        .unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut said)
+        .unwrap();
+    assert!(status.success(), "{said}");
+    assert!(said.contains("positions rejected 0,"), "{said}");
+    assert!(said.contains("disconnects 0,"), "{said}");
+    assert!(!said.contains("implausible positions"), "{said}");
+    assert_eq!(service.shared.accepted.load(Ordering::Acquire), 1, "{said}");
+    assert!(service.forces().len() > 100, "{said}");
+}

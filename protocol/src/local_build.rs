@@ -116,12 +116,9 @@ pub fn build_local_model(
     let limit = params.force_limit_n;
     check("force_limit_n", limit, limit >= 0.0, ">= 0 N")?;
     for (i, c) in params.anchor_m.iter().enumerate() {
-        check(
-            ["anchor_m.x", "anchor_m.y", "anchor_m.z"][i],
-            *c,
-            true,
-            "finite",
-        )?;
+        // Sent as f32: finite there too.
+        let name = ["anchor_m.x", "anchor_m.y", "anchor_m.z"][i];
+        check(name, *c, (*c as f32).is_finite(), "finite as an f32")?;
     }
     let mut saturated = false;
     let mut fixed = |value, unit| {

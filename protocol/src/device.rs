@@ -14,10 +14,12 @@
 //! must enable again, so a stalled host that wakes up never resumes with a stale force.
 
 use crate::fields::{FaultCode, FaultFlags, ForceFlags, RejectReason, StatusFlags};
+use crate::local::{LocalModel, LocalState, LocalStatus};
 use crate::message::{
     message_type, DeviceInfo, DeviceToHost, Fault, HeartbeatReply, HostToDevice, Rejected,
     SetForce, State,
 };
+use crate::num::sqrt;
 
 /// Watchdog timeout when enable asks for 0 (the default), microseconds.
 pub const DEFAULT_WATCHDOG_TIMEOUT_US: u32 = 50_000;
@@ -61,6 +63,35 @@ pub struct DeviceStats {
     pub states_queued: u64,
     /// Outgoing messages dropped because the outbox was full.
     pub outbox_overflows: u64,
+    /// Local models dropped because this device was built without the capability (as an unknown type).
+    pub local_models_ignored: u64,
+}
+
+/// One cycle of the device's local loop, as the loop reports it to the session ([`DeviceSession::record_local_tick`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LocalTick {
+    /// Sequence of the model in use (0: none).
+    pub model_sequence: u32,
+    /// Microseconds since that model was received.
+    pub model_age_us: u32,
+    /// The device-side proxy, metres.
+    pub proxy_m: [f32; 3],
+    /// The force applied this cycle, newtons.
+    pub force_n: [f32; 3],
+    /// The solve's certified bound, metres.
+    pub bound_m: f32,
+    /// What the loop did this cycle.
+    pub status: LocalStatus,
+}
+
+/// The local ticks since the last LocalState: the latest, and the worst over all of them.
+#[derive(Debug, Clone, Copy, Default)]
+struct LocalReport {
+    last: LocalTick,
+    worst_bound_m: f32,
+    peak_force_n: f32,
+    events: LocalStatus,
+    solves: u16,
 }
 
 /// A fixed ring of outgoing messages.
@@ -120,6 +151,11 @@ pub struct DeviceSession {
     state_requested: bool,
     outbox: Outbox,
     stats: DeviceStats,
+    /// Built with the local-model capability (SPEC section 10).
+    local_capable: bool,
+    /// The local model in use and when it arrived (µs); only while Enabled and in local mode.
+    local: Option<(LocalModel, u64)>,
+    report: LocalReport,
 }
 
 impl DeviceSession {
@@ -143,7 +179,111 @@ impl DeviceSession {
             state_requested: false,
             outbox: Outbox::new(),
             stats: DeviceStats::default(),
+            local_capable: false,
+            local: None,
+            report: LocalReport {
+                last: LocalTick {
+                    model_sequence: 0,
+                    model_age_us: 0,
+                    proxy_m: [0.0; 3],
+                    force_n: [0.0; 3],
+                    bound_m: 0.0,
+                    status: LocalStatus::EMPTY,
+                },
+                worst_bound_m: 0.0,
+                peak_force_n: 0.0,
+                events: LocalStatus::EMPTY,
+                solves: 0,
+            },
         }
+    }
+
+    /// A powered-up device with the local-model capability (SPEC section 10): it sets
+    /// [`StatusFlags::LOCAL_MODEL`], takes LocalModel messages, and sends a LocalState after each State once its
+    /// local loop ran ([`Self::record_local_tick`]).
+    pub fn with_local_model(info: DeviceInfo) -> Self {
+        Self {
+            local_capable: true,
+            ..Self::new(info)
+        }
+    }
+
+    /// True if built with [`Self::with_local_model`].
+    pub fn has_local_model_capability(&self) -> bool {
+        self.local_capable
+    }
+
+    /// The local model to render and the device time it arrived (µs): `Some` only while Enabled and the last
+    /// force command was a LocalModel. Call [`Self::poll`] first so that the watchdog has run.
+    pub fn local_model(&self) -> Option<(&LocalModel, u64)> {
+        match (&self.local, self.drive) {
+            (Some((model, at)), DriveState::Enabled) => Some((model, *at)),
+            _ => None,
+        }
+    }
+
+    /// Records one cycle of the local loop; the next State is followed by a LocalState summarising the cycles
+    /// since the previous one (the latest cycle, the largest bound and force, the events, the count).
+    pub fn record_local_tick(&mut self, tick: &LocalTick) {
+        let r = &mut self.report;
+        let force = tick.force_n.iter().map(|f| f * f).sum::<f32>();
+        let force = if force.is_finite() {
+            crate::num::sqrt(f64::from(force)) as f32
+        } else {
+            f32::MAX
+        };
+        r.peak_force_n = if r.solves == 0 {
+            force
+        } else {
+            r.peak_force_n.max(force)
+        };
+        let bound = if tick.bound_m.is_finite() {
+            tick.bound_m.max(0.0)
+        } else {
+            f32::MAX
+        };
+        r.worst_bound_m = if r.solves == 0 {
+            bound
+        } else {
+            r.worst_bound_m.max(bound)
+        };
+        r.events = if r.solves == 0 {
+            tick.status
+        } else {
+            r.events | tick.status
+        };
+        r.solves = r.solves.saturating_add(1);
+        r.last = *tick;
+    }
+
+    fn local_state(&mut self) -> Option<LocalState> {
+        if !self.local_capable || self.report.solves == 0 {
+            return None;
+        }
+        let r = core::mem::take(&mut self.report);
+        let finite = |v: [f32; 3]| v.map(|c| if c.is_finite() { c } else { 0.0 });
+        // Events over the interval; the state bits (active, expired, engaging, truncated) of the latest cycle.
+        let state_bits = LocalStatus::ACTIVE.0
+            | LocalStatus::EXPIRED.0
+            | LocalStatus::ENGAGING.0
+            | LocalStatus::TRUNCATED.0;
+        let status = LocalStatus((r.events.0 & !state_bits) | (r.last.status.0 & state_bits));
+        Some(LocalState {
+            state_sequence: self.state_sequence,
+            model_sequence: r.last.model_sequence,
+            model_age_us: r.last.model_age_us,
+            proxy_m: finite(r.last.proxy_m),
+            force_n: finite(r.last.force_n),
+            bound_m: if r.last.bound_m.is_finite() {
+                r.last.bound_m.max(0.0)
+            } else {
+                f32::MAX
+            },
+            worst_bound_m: r.worst_bound_m,
+            peak_force_n: r.peak_force_n,
+            status,
+            solves: r.solves,
+        })
     }
 
     /// The device description sent in answer to hello.
@@ -189,6 +329,7 @@ impl DeviceSession {
                 self.force_clamped && self.drive == DriveState::Enabled,
             )
             .with(StatusFlags::LOCKSTEP, self.state_rate_hz == 0)
+            .with(StatusFlags::LOCAL_MODEL, self.local_capable)
     }
 
     /// Latched faults.
@@ -224,6 +365,7 @@ impl DeviceSession {
             self.drive = DriveState::Idle;
         }
         self.force_n = [0.0; 3];
+        self.local = None;
     }
 
     /// Handles one message from the host, received at `now_us`. Replies are queued for [`Self::poll_transmit`].
@@ -254,7 +396,7 @@ impl DeviceSession {
         }
         if !self.session_open {
             // Set-force arrives at the servo rate: count it rather than answer each one.
-            if let HostToDevice::SetForce(_) = message {
+            if let HostToDevice::SetForce(_) | HostToDevice::LocalModel(_) = message {
                 self.stats.forces_ignored = self.stats.forces_ignored.wrapping_add(1);
             } else {
                 self.reject(
@@ -269,6 +411,7 @@ impl DeviceSession {
             HostToDevice::Enable(enable) => self.enable(enable.watchdog_timeout_us, now_us),
             HostToDevice::Disable => self.go_idle(),
             HostToDevice::SetForce(set_force) => self.set_force(&set_force, now_us),
+            HostToDevice::LocalModel(model) => self.local_model_message(&model, now_us),
             HostToDevice::ClearFault => {
                 if self.drive == DriveState::Faulted {
                     self.faults = FaultFlags::EMPTY;
@@ -302,6 +445,27 @@ impl DeviceSession {
         self.force_n = [0.0; 3];
         self.force_clamped = false;
         self.watchdog_tripped = false;
+        self.local = None;
+    }
+
+    fn local_model_message(&mut self, model: &LocalModel, now_us: u64) {
+        if !self.local_capable {
+            // A device without the capability drops the type unread (SPEC section 10.1).
+            self.stats.local_models_ignored = self.stats.local_models_ignored.wrapping_add(1);
+            return;
+        }
+        self.last_force_sequence = model.sequence;
+        if self.state_rate_hz == 0 {
+            self.state_requested = true;
+        }
+        if self.drive != DriveState::Enabled {
+            self.stats.forces_ignored = self.stats.forces_ignored.wrapping_add(1);
+            return;
+        }
+        self.local = Some((*model, now_us));
+        self.force_n = [0.0; 3];
+        self.force_clamped = false;
+        self.last_force_us = now_us;
     }
 
     fn set_force(&mut self, set_force: &SetForce, now_us: u64) {
@@ -315,6 +479,7 @@ impl DeviceSession {
             return;
         }
         let (force_n, clamped) = clamp_magnitude(set_force.force_n, self.info.max_force_n);
+        self.local = None;
         self.force_n = force_n;
         self.force_clamped = clamped;
         self.last_force_us = now_us;
@@ -333,6 +498,7 @@ impl DeviceSession {
             self.faults = self.faults | FaultFlags::of(code);
             self.drive = DriveState::Faulted;
             self.force_n = [0.0; 3];
+            self.local = None;
         } else {
             self.watchdog_tripped = true;
             self.go_idle();
@@ -379,6 +545,9 @@ impl DeviceSession {
             };
             self.stats.states_queued = self.stats.states_queued.wrapping_add(1);
             self.send(DeviceToHost::State(state));
+            if let Some(local) = self.local_state() {
+                self.send(DeviceToHost::LocalState(local));
+            }
         }
         self.force_n()
     }
@@ -421,24 +590,11 @@ fn clamp_magnitude(force_n: [f32; 3], max_n: f32) -> ([f32; 3], bool) {
     (force_n.map(|f| (f64::from(f) * scale) as f32), true)
 }
 
-/// Square root for positive finite `x` without `std` (core has no `sqrt` on stable): a bit-level first guess
-/// (halved exponent, error below 6 %), then Newton steps `y <- (y + x/y)/2`, each of which squares the relative error;
-/// five reach f64 precision.
-fn sqrt(x: f64) -> f64 {
-    if x <= 0.0 || !x.is_finite() {
-        return x.max(0.0);
-    }
-    let mut y = f64::from_bits((x.to_bits() >> 1) + 0x1FF8_0000_0000_0000);
-    for _ in 0..5 {
-        y = 0.5 * (y + x / y);
-    }
-    y
-}
-
 #[cfg(test)]
 mod tests {
     extern crate std;
     use super::*;
+    use crate::num::sqrt;
     use proptest::prelude::*;
 
     proptest! {

@@ -57,6 +57,7 @@ macro_rules! bit_set {
         }
     };
 }
+pub(crate) use bit_set;
 
 bit_set! {
     /// Flags of a set-force message. Senders write unknown bits as zero; receivers ignore them.
@@ -81,6 +82,9 @@ bit_set! {
         FORCE_CLAMPED = 1 << 4;
         /// State frames answer set-force messages (state rate 0) instead of streaming at a fixed rate.
         LOCKSTEP = 1 << 5;
+        /// The device implements the local-model capability (SPEC section 10): it accepts LocalModel messages and
+        /// reports its local loop in LocalState. Set in every State and HeartbeatReply of a capable device.
+        LOCAL_MODEL = 1 << 6;
     }
 }
 

@@ -11,6 +11,9 @@
 //! counted and reported as stale so that the caller never steps time backwards.
 
 use crate::fields::{ForceFlags, PROTOCOL_VERSION};
+use crate::local::LocalState;
+use crate::local::SiPrimitive;
+use crate::local_build::{build_local_model, LocalBuildError, LocalModelParams};
 use crate::message::{
     DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello, HostToDevice,
     Rejected, SetForce, SetStateRate, State,
@@ -64,6 +67,8 @@ pub enum HostEvent {
     Fault(Fault),
     /// The device refused a message.
     Rejected(Rejected),
+    /// The device's local loop (local-model capability), reported right after a State.
+    LocalState(LocalState),
 }
 
 /// Host-side protocol bookkeeping for one device.
@@ -151,6 +156,23 @@ impl HostSession {
         })
     }
 
+    /// A local model for a capable device (SPEC section 10), numbered in the set-force sequence (the
+    /// `sequence` in `params` is replaced). A model that cannot be built takes no sequence number.
+    pub fn local_model(
+        &mut self,
+        params: &LocalModelParams,
+        primitives: &[SiPrimitive],
+    ) -> Result<HostToDevice, LocalBuildError> {
+        let sequence = self.last_force_sequence.wrapping_add(1);
+        let params = LocalModelParams {
+            sequence,
+            ..*params
+        };
+        let model = build_local_model(&params, primitives)?;
+        self.last_force_sequence = sequence;
+        Ok(HostToDevice::LocalModel(model))
+    }
+
     /// The next heartbeat, with a fresh counter.
     pub fn heartbeat(&mut self) -> HostToDevice {
         self.last_heartbeat = self.last_heartbeat.wrapping_add(1);
@@ -188,6 +210,7 @@ impl HostSession {
                 self.stats.rejections = self.stats.rejections.wrapping_add(1);
                 HostEvent::Rejected(rejected)
             }
+            DeviceToHost::LocalState(local) => HostEvent::LocalState(local),
         }
     }
 

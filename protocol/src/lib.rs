@@ -18,17 +18,21 @@
 
 pub mod cobs;
 pub mod crc;
+mod cursor;
 pub mod device;
 pub mod error;
 pub mod fields;
 pub mod hid;
 pub mod host;
+pub mod local;
+pub mod local_build;
 pub mod message;
+mod num;
 pub mod serial;
 pub mod wire;
 
 pub use device::{
-    DeviceSample, DeviceSession, DeviceStats, DriveState, DEFAULT_WATCHDOG_TIMEOUT_US,
+    DeviceSample, DeviceSession, DeviceStats, DriveState, LocalTick, DEFAULT_WATCHDOG_TIMEOUT_US,
     MAX_WATCHDOG_TIMEOUT_US, MIN_WATCHDOG_TIMEOUT_US,
 };
 pub use error::{EncodeError, FrameError, PayloadError, ReportError};
@@ -38,6 +42,11 @@ pub use fields::{
 };
 pub use hid::{decode_report, encode_report};
 pub use host::{HostEvent, HostPhase, HostSession, HostStats};
+pub use local::{
+    LocalKind, LocalModel, LocalPrimitive, LocalState, LocalStatus, ModelFlags, SiPrimitive,
+    MAX_LOCAL_PRIMITIVES,
+};
+pub use local_build::{build_local_model, LocalBuildError, LocalModelParams};
 pub use message::{
     message_type, DeviceInfo, DeviceToHost, Enable, Fault, Heartbeat, HeartbeatReply, Hello,
     HostToDevice, Message, Rejected, SetForce, SetStateRate, State, MAX_PAYLOAD_LEN,

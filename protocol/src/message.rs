@@ -6,11 +6,13 @@
 //! printable, ranges documented per field), and encoding runs the same checks, so an encoder never emits a message
 //! its decoder would refuse.
 
+use crate::cursor::{check_length, finite, in_range, Reader, Writer};
 use crate::error::PayloadError;
 use crate::fields::{
     FaultCode, FaultFlags, ForceFlags, Label, RateSet, RejectReason, StatusFlags, Version,
     LABEL_LEN,
 };
+use crate::local::{LocalModel, LocalState};
 
 pub use crate::wire::MAX_PAYLOAD_LEN;
 
@@ -30,6 +32,8 @@ pub mod message_type {
     pub const CLEAR_FAULT: u8 = 0x06;
     /// [`crate::HostToDevice::SetStateRate`]
     pub const SET_STATE_RATE: u8 = 0x07;
+    /// [`crate::HostToDevice::LocalModel`] (the local-model capability, SPEC section 10)
+    pub const LOCAL_MODEL: u8 = crate::local::LOCAL_MODEL_TYPE;
     /// [`crate::DeviceToHost::DeviceInfo`]
     pub const DEVICE_INFO: u8 = 0x81;
     /// [`crate::DeviceToHost::State`]
@@ -40,6 +44,8 @@ pub mod message_type {
     pub const FAULT: u8 = 0x84;
     /// [`crate::DeviceToHost::Rejected`]
     pub const REJECTED: u8 = 0x85;
+    /// [`crate::DeviceToHost::LocalState`] (the local-model capability, SPEC section 10)
+    pub const LOCAL_STATE: u8 = crate::local::LOCAL_STATE_TYPE;
 }
 use message_type as ty;
 
@@ -124,6 +130,8 @@ pub enum HostToDevice {
     ClearFault,
     /// Type 0x07, 2-byte payload.
     SetStateRate(SetStateRate),
+    /// Type 0x08, 62-byte payload: one tick's local model, for a device with the capability.
+    LocalModel(LocalModel),
 }
 
 // ---------------------------------------------------------------- device to host
@@ -220,115 +228,8 @@ pub enum DeviceToHost {
     Fault(Fault),
     /// Type 0x85, 2-byte payload.
     Rejected(Rejected),
-}
-
-// ---------------------------------------------------------------- little-endian cursors
-
-struct Writer<'a> {
-    out: &'a mut [u8; MAX_PAYLOAD_LEN],
-    pos: usize,
-}
-
-impl<'a> Writer<'a> {
-    fn new(out: &'a mut [u8; MAX_PAYLOAD_LEN]) -> Self {
-        Self { out, pos: 0 }
-    }
-    fn bytes<const N: usize>(&mut self, bytes: [u8; N]) {
-        self.out[self.pos..self.pos + N].copy_from_slice(&bytes);
-        self.pos += N;
-    }
-    fn u8(&mut self, value: u8) {
-        self.bytes([value]);
-    }
-    fn u16(&mut self, value: u16) {
-        self.bytes(value.to_le_bytes());
-    }
-    fn u32(&mut self, value: u32) {
-        self.bytes(value.to_le_bytes());
-    }
-    fn u64(&mut self, value: u64) {
-        self.bytes(value.to_le_bytes());
-    }
-    fn f32(&mut self, value: f32) {
-        self.bytes(value.to_le_bytes());
-    }
-    fn vec3(&mut self, value: [f32; 3]) {
-        value.into_iter().for_each(|v| self.f32(v));
-    }
-}
-
-/// Reads a payload whose length the caller has checked against the layout.
-struct Reader<'a> {
-    payload: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Reader<'a> {
-    fn new(payload: &'a [u8]) -> Self {
-        Self { payload, pos: 0 }
-    }
-    fn bytes<const N: usize>(&mut self) -> [u8; N] {
-        let mut out = [0u8; N];
-        out.copy_from_slice(&self.payload[self.pos..self.pos + N]);
-        self.pos += N;
-        out
-    }
-    fn u8(&mut self) -> u8 {
-        self.bytes::<1>()[0]
-    }
-    fn u16(&mut self) -> u16 {
-        u16::from_le_bytes(self.bytes())
-    }
-    fn u32(&mut self) -> u32 {
-        u32::from_le_bytes(self.bytes())
-    }
-    fn u64(&mut self) -> u64 {
-        u64::from_le_bytes(self.bytes())
-    }
-    fn f32(&mut self) -> f32 {
-        f32::from_le_bytes(self.bytes())
-    }
-    fn vec3(&mut self) -> [f32; 3] {
-        [self.f32(), self.f32(), self.f32()]
-    }
-}
-
-fn check_length(
-    message_type: u8,
-    expected: Option<usize>,
-    actual: usize,
-) -> Result<(), PayloadError> {
-    match expected {
-        None => Err(PayloadError::UnknownType(message_type)),
-        Some(expected) if expected != actual => Err(PayloadError::BadLength {
-            message_type,
-            expected,
-            actual,
-        }),
-        Some(_) => Ok(()),
-    }
-}
-
-fn finite(message_type: u8, field: &'static str, values: &[f32]) -> Result<(), PayloadError> {
-    if values.iter().all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(PayloadError::NonFinite {
-            message_type,
-            field,
-        })
-    }
-}
-
-fn in_range(message_type: u8, field: &'static str, ok: bool) -> Result<(), PayloadError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(PayloadError::InvalidValue {
-            message_type,
-            field,
-        })
-    }
+    /// Type 0x86, 52-byte payload: the device's local loop, after a State (local-model capability).
+    LocalState(LocalState),
 }
 
 // ---------------------------------------------------------------- host to device codec
@@ -345,6 +246,7 @@ impl Message for HostToDevice {
             HostToDevice::Heartbeat(_) => ty::HEARTBEAT,
             HostToDevice::ClearFault => ty::CLEAR_FAULT,
             HostToDevice::SetStateRate(_) => ty::SET_STATE_RATE,
+            HostToDevice::LocalModel(_) => ty::LOCAL_MODEL,
         }
     }
 
@@ -357,6 +259,7 @@ impl Message for HostToDevice {
             ty::HEARTBEAT => 4,
             ty::CLEAR_FAULT => 0,
             ty::SET_STATE_RATE => 2,
+            ty::LOCAL_MODEL => crate::local::LOCAL_MODEL_LEN,
             _ => return None,
         })
     }
@@ -364,6 +267,7 @@ impl Message for HostToDevice {
     fn validate(&self) -> Result<(), PayloadError> {
         match self {
             HostToDevice::SetForce(m) => finite(ty::SET_FORCE, "force_n", &m.force_n),
+            HostToDevice::LocalModel(m) => m.validate(),
             _ => Ok(()),
         }
     }
@@ -384,6 +288,7 @@ impl Message for HostToDevice {
             }
             HostToDevice::Heartbeat(m) => w.u32(m.counter),
             HostToDevice::SetStateRate(m) => w.u16(m.state_rate_hz),
+            HostToDevice::LocalModel(m) => m.write(&mut w),
         }
         w.pos
     }
@@ -412,6 +317,7 @@ impl Message for HostToDevice {
             ty::SET_STATE_RATE => HostToDevice::SetStateRate(SetStateRate {
                 state_rate_hz: r.u16(),
             }),
+            ty::LOCAL_MODEL => HostToDevice::LocalModel(LocalModel::read(&mut r)?),
             _ => return Err(PayloadError::UnknownType(message_type)),
         };
         message.validate()?;
@@ -456,6 +362,7 @@ impl Message for DeviceToHost {
             DeviceToHost::Heartbeat(_) => ty::HEARTBEAT_REPLY,
             DeviceToHost::Fault(_) => ty::FAULT,
             DeviceToHost::Rejected(_) => ty::REJECTED,
+            DeviceToHost::LocalState(_) => ty::LOCAL_STATE,
         }
     }
 
@@ -466,6 +373,7 @@ impl Message for DeviceToHost {
             ty::HEARTBEAT_REPLY => 14,
             ty::FAULT => 11,
             ty::REJECTED => 2,
+            ty::LOCAL_STATE => crate::local::LOCAL_STATE_LEN,
             _ => return None,
         })
     }
@@ -478,6 +386,7 @@ impl Message for DeviceToHost {
                 finite(ty::STATE, "velocity_m_per_s", &m.velocity_m_per_s)
             }
             DeviceToHost::Fault(m) => in_range(ty::FAULT, "code", m.code.0 <= FaultCode::MAX),
+            DeviceToHost::LocalState(m) => m.validate(),
             DeviceToHost::Heartbeat(_) | DeviceToHost::Rejected(_) => Ok(()),
         }
     }
@@ -523,6 +432,7 @@ impl Message for DeviceToHost {
                 w.u8(m.message_type);
                 w.u8(m.reason.0);
             }
+            DeviceToHost::LocalState(m) => m.write(&mut w),
         }
         w.pos
     }
@@ -582,6 +492,7 @@ impl Message for DeviceToHost {
                 message_type: r.u8(),
                 reason: RejectReason(r.u8()),
             }),
+            ty::LOCAL_STATE => DeviceToHost::LocalState(LocalState::read(&mut r)),
             _ => return Err(PayloadError::UnknownType(message_type)),
         };
         message.validate()?;

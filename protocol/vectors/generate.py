@@ -122,18 +122,97 @@ VECTORS = [
 ]
 
 
+def oct_encode(direction):
+    """SPEC section 10.3: octahedral unit vector, 16 bits a component (an independent reading of the text)."""
+    x, y, z = direction
+    l1 = abs(x) + abs(y) + abs(z)
+    x, y, z = x / l1, y / l1, z / l1
+    if z < 0:
+        x, y = (1 - abs(y)) * (1 if x >= 0 else -1), (1 - abs(x)) * (1 if y >= 0 else -1)
+
+    def q(c):
+        r = c * 32767
+        return int(r + 0.5) if r >= 0 else -int(-r + 0.5)
+
+    return q(x), q(y)
+
+
+def local_model(sequence, expiry_us, flags, stiffness, damping_mns, limit_mn, anchor, slots):
+    """SPEC section 10.2: the 62-byte LocalModel payload; slots are (kind, offset_um, direction or None, strength_mn)."""
+    kinds = 0
+    body = b""
+    for i in range(3):
+        if i < len(slots):
+            kind, offset, direction, strength = slots[i]
+            kinds |= kind << (3 * i)
+            oct_uv = oct_encode(direction) if direction else (0, 0)
+            body += struct.pack("<3h2hH", *offset, *oct_uv, strength)
+        else:
+            body += bytes(12)
+    head = struct.pack("<IHHHHH3f", sequence, expiry_us, flags | kinds, stiffness, damping_mns, limit_mn, *anchor)
+    payload = head + body
+    assert len(payload) == 62
+    return payload
+
+
+DIRECTED, POINT, LINE, PLANE = 1, 2, 3, 4
+TRUNCATED = 0x8000
+
+# The optional local-model capability (SPEC section 10): in vectors/local/, so that a firmware without the
+# capability checks the top folder alone.
+LOCAL_VECTORS = [
+    (
+        "local_model",
+        HOST,
+        0x08,
+        local_model(
+            1234, 5000, TRUNCATED, 20000, 2500, 4000, (0.01, -0.02, 0.03),
+            [
+                (DIRECTED, (0, 0, 0), (-1.0, 0.0, 0.0), 250),
+                (PLANE, (0, 0, -150), (0.0, 0.6, -0.8), 10000),
+                (POINT, (100, -200, 300), None, 1500),
+            ],
+        ),
+        "LocalModel: sequence 1234, expiry 5000 us, flags TRUNCATED, stiffness 20000 N/m, damping 2.5 N s/m, "
+        "force limit 4.0 N, anchor (0.01, -0.02, 0.03) m; slot 0 directed (-1, 0, 0) 0.25 N; slot 1 plane at offset "
+        "(0, 0, -150) um, normal (0, 0.6, -0.8), 10 N; slot 2 point at offset (100, -200, 300) um, 1.5 N",
+    ),
+    (
+        "local_model_empty",
+        HOST,
+        0x08,
+        local_model(7, 1000, 0, 1, 0, 0, (0.0, 0.0, 0.0), []),
+        "LocalModel: sequence 7, expiry 1000 us, no flags, stiffness 1 N/m, damping 0, force limit 0 N, anchor "
+        "(0, 0, 0) m, no primitives (free space)",
+    ),
+    (
+        "local_state",
+        DEVICE,
+        0x86,
+        struct.pack(
+            "<III3f3ffffHH", 1000, 1234, 700, 0.01, -0.02, 0.0298, 0.0, 0.0, 3.5, 1e-9, 2e-9, 3.75, 0x0009, 10
+        ),
+        "LocalState: state sequence 1000, model sequence 1234, model age 700 us, proxy (0.01, -0.02, 0.0298) m, "
+        "force (0, 0, 3.5) N, bound 1e-9 m, worst bound 2e-9 m, peak force 3.75 N, status ACTIVE|CLAMPED, 10 solves",
+    ),
+]
+
+
 def hex_bytes(data):
     return " ".join(f"{b:02x}" for b in data)
 
 
 def main():
-    for name, report_id, msg_type, payload, description in VECTORS:
+    os.makedirs(os.path.join(HERE, "local"), exist_ok=True)
+    for name, report_id, msg_type, payload, description in VECTORS + [
+        (os.path.join("local", v[0]),) + v[1:] for v in LOCAL_VECTORS
+    ]:
         path = os.path.join(HERE, f"{name}.hex")
         with open(path, "w") as f:
             f.write(f"# {description}\n")
             f.write(f"serial: {hex_bytes(serial_frame(msg_type, payload))}\n")
             f.write(f"hid: {hex_bytes(hid_report(report_id, msg_type, payload))}\n")
-    print(f"wrote {len(VECTORS)} vectors to {HERE}")
+    print(f"wrote {len(VECTORS) + len(LOCAL_VECTORS)} vectors to {HERE}")
 
 
 if __name__ == "__main__":

@@ -29,12 +29,40 @@ pub fn run(data: &[u8]) {
     }
 
     // Drive a device session with whatever decoded; the force it commands must stay finite and bounded.
+    // Both with and without the local-model capability (SPEC section 10); the capable one also records a loop
+    // cycle per message, so its LocalState replies are encoded too.
     let info = fuzz_device_info();
-    let mut device = DeviceSession::new(info);
+    for capable in [false, true] {
+        drive_device(info, capable, data, &host_messages);
+    }
+    let mut host = HostSession::new();
+    for message in &device_messages {
+        host.on_message(message);
+    }
+    let stats = host.stats();
+    assert!(stats.states_received + stats.states_stale <= device_messages.len() as u64);
+}
+
+fn drive_device(info: DeviceInfo, capable: bool, data: &[u8], host_messages: &[HostToDevice]) {
+    let mut device = if capable {
+        DeviceSession::with_local_model(info)
+    } else {
+        DeviceSession::new(info)
+    };
     let mut now_us = 0u64;
     for (index, message) in host_messages.iter().enumerate() {
         now_us += 1 + u64::from(data.get(index).copied().unwrap_or(0)) * 500;
         device.on_message(message, now_us);
+        if let Some((model, at_us)) = device.local_model() {
+            assert!(model
+                .si_primitives()
+                .all(|p| p.direction.iter().all(|c| c.is_finite())));
+            device.record_local_tick(&voxhap_protocol::LocalTick {
+                model_sequence: model.sequence,
+                model_age_us: (now_us - at_us) as u32,
+                ..Default::default()
+            });
+        }
         let force_n = device.poll(now_us, &DeviceSample::default());
         let norm = force_n.iter().map(|f| f * f).sum::<f32>().sqrt();
         assert!(
@@ -46,12 +74,6 @@ pub fn run(data: &[u8]) {
             encode_frame(&reply, &mut buf).expect("the device session only queues valid messages");
         }
     }
-    let mut host = HostSession::new();
-    for message in &device_messages {
-        host.on_message(message);
-    }
-    let stats = host.stats();
-    assert!(stats.states_received + stats.states_stale <= device_messages.len() as u64);
 }
 
 fn fuzz_device_info() -> DeviceInfo {

@@ -3,6 +3,7 @@
 //! talking to each other over real encoded bytes.
 
 mod fuzz_body;
+mod local;
 mod loopback;
 mod robustness;
 mod roundtrip;

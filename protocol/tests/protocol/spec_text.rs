@@ -52,6 +52,8 @@ fn name(message_type: u8) -> &'static str {
         0x83 => "HeartbeatReply",
         0x84 => "Fault",
         0x85 => "Rejected",
+        0x08 => "LocalModel",
+        0x86 => "LocalState",
         other => panic!("unknown type {other:#04x}"),
     }
 }
@@ -77,7 +79,7 @@ fn check<M: Message>(message: &M, rows: &[(String, [usize; 4])]) {
 fn the_sizes_table_matches_the_encoder() {
     let spec = spec_text();
     let rows = size_rows(&spec);
-    assert_eq!(rows.len(), 8, "{rows:?}");
+    assert_eq!(rows.len(), 10, "{rows:?}");
     let vectors = crate::vectors::expected_vectors();
     assert!(vectors.len() >= 12);
     for (_, expected) in &vectors {

@@ -114,6 +114,9 @@ pub(crate) fn expected_vectors() -> Vec<(&'static str, Expected)> {
             })),
         ),
     ]
+    .into_iter()
+    .chain(crate::local::expected_local_vectors())
+    .collect()
 }
 
 fn vectors_dir() -> PathBuf {
@@ -202,14 +205,20 @@ fn every_vector_decodes_and_encodes_exactly() {
 fn every_vector_file_is_checked() {
     let listed: Vec<&str> = expected_vectors().iter().map(|(name, _)| *name).collect();
     let mut found = 0;
-    for entry in std::fs::read_dir(vectors_dir()).expect("protocol/vectors exists") {
-        let path = entry.expect("readable directory").path();
+    // The top folder, and local/ (the optional local-model capability, SPEC section 10).
+    let folders = [("", vectors_dir()), ("local/", vectors_dir().join("local"))];
+    let entries = folders.iter().flat_map(|(prefix, dir)| {
+        std::fs::read_dir(dir)
+            .expect("protocol/vectors and protocol/vectors/local exist")
+            .map(move |entry| (*prefix, entry.expect("readable directory").path()))
+    });
+    for (prefix, path) in entries {
         if path.extension().is_some_and(|e| e == "hex") {
             let stem = path
                 .file_stem()
                 .and_then(|s| s.to_str())
-                .unwrap_or_default()
-                .to_owned();
+                .map(|s| format!("{prefix}{s}"))
+                .unwrap_or_default();
             assert!(
                 listed.contains(&stem.as_str()),
                 "{} has no expected message in vectors.rs",

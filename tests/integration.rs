@@ -42,6 +42,7 @@ mod safety_props;
 mod serve_e2e;
 mod server;
 mod servo;
+mod servo_truth;
 mod sim;
 mod sim_path;
 mod solver_props;

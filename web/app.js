@@ -915,6 +915,14 @@
     setText($('st-proxy'), at(s.proxy_m) + ', ' + length(norm([0, 1, 2].map((i) => s.proxy_m[i] - s.probe_m[i]))) + ' from the probe');
     setFlag($('st-device'), s.connected, 'connected', 'disconnected');
     setFlag($('st-engaged'), s.engaged, 'engaged', 'not engaged (no force sent)');
+    // Why the force is off (none: the safety pipeline passes it), with the device's latched fault bits.
+    const cause = typeof s.force_off_cause === 'string' ? s.force_off_cause : null;
+    setText(
+      $('st-force-off'),
+      cause === null ? '–' : cause === 'none' ? 'nothing (forces pass)' :
+        cause.replace(/_/g, ' ') + (s.device_fault_bits ? ' (fault bits 0x' + s.device_fault_bits.toString(16) + ')' : '')
+    );
+    setText($('st-age'), typeof s.sample_age_ticks === 'number' ? s.sample_age_ticks + ' ticks' : '–');
     setText($('st-solve'), String(s.status || '–').replace(/_/g, ' ') + ', ' + (s.sweeps === undefined ? '–' : s.sweeps) + ' sweeps');
     setText($('st-bound'), typeof s.error_bound_m === 'number' ? '≤ ' + length(s.error_bound_m) : 'none (uncertified)');
     setText($('st-k'), num(s.stiffness_n_per_m, 0) + ' N/m');
@@ -947,6 +955,15 @@
         $('st-overruns'),
         (servo.ticks === undefined ? '–' : servo.ticks) + ' / ' + (servo.overruns === undefined ? '–' : servo.overruns) +
           (servo.rate_hz ? ' at ' + servo.rate_hz + ' Hz' : '')
+      );
+      // The energy ledger's totals (J shown in mJ) and its verdicts.
+      const energy = servo.energy || {};
+      const mj = (j) => (typeof j === 'number' ? num(j * 1e3, 3) + ' mJ' : '–');
+      setText(
+        $('st-energy'),
+        'generated ' + mj(energy.generated_j) + ', net ' + mj(energy.net_generated_j) + ', work on probe ' +
+          mj(energy.work_on_probe_j) + ', coupling ' + mj(energy.coupling_energy_j) +
+          (energy.active ? ', ACTIVE' : '') + (energy.oscillating ? ', OSCILLATION' : '')
       );
       const rt = servo.realtime || {};
       setText(

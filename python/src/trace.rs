@@ -12,8 +12,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use std::path::{Path, PathBuf};
 use voxhap_record::{
-    columns, error_chain, sidecar_path, sidecar_warnings, ColumnType, Sidecar, SolverStatus,
-    TraceFormat, TraceMeta, TraceReadError, TraceSample, FLAG_DOCS, MAX_MODES,
+    columns, error_chain, sidecar_path, sidecar_warnings, ColumnType, ForceOffCause, Sidecar,
+    SolverStatus, TraceFormat, TraceMeta, TraceReadError, TraceSample, FLAG_DOCS, MAX_MODES,
 };
 
 /// The name of a column type as the sidecar writes it (`u64`, `i64`, `f64`, `bool`, `text`,
@@ -126,7 +126,7 @@ enum Column {
     I64(Vec<u8>, Vec<u8>),
     F64(Vec<u8>),
     Bool(Vec<u8>),
-    /// Indices into [`SolverStatus::ALL`].
+    /// Indices into the text names: [`SolverStatus::ALL`], then [`ForceOffCause::ALL`].
     Text(Vec<u8>),
     OptionalU64(Vec<u8>, Vec<u8>),
 }
@@ -212,6 +212,13 @@ impl RowWriter<'_> {
     }
     fn status(&mut self, value: SolverStatus) {
         let code = SolverStatus::ALL.iter().position(|s| *s == value);
+        self.text(code);
+    }
+    /// A force-off cause: its code after the solver statuses in the one text dictionary (`text_names`).
+    fn cause(&mut self, value: ForceOffCause) {
+        self.text(Some(SolverStatus::ALL.len() + value as usize));
+    }
+    fn text(&mut self, code: Option<usize>) {
         match (self.next(), code) {
             (Some(Column::Text(data)), Some(code)) => data.push(code as u8),
             _ => self.fail(),
@@ -250,6 +257,21 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     for doc in FLAG_DOCS.iter() {
         row.bool(s.flags & (1 << doc.bit) != 0);
     }
+    // The tick's truth (voxhap_record's truth columns, in their order).
+    let energy = &s.truth.energy;
+    for value in [
+        energy.work_on_probe_j,
+        energy.coupling_energy_j,
+        energy.generated_j,
+        energy.active_work_j,
+        energy.device_dissipation_j,
+        energy.net_generated_j,
+    ] {
+        row.f64(value);
+    }
+    row.cause(s.truth.force_off_cause);
+    row.u64(u64::from(s.truth.device_fault_bits));
+    row.u64(u64::from(s.truth.sample_age_ticks));
     if row.index != row.columns.len() && row.mismatch.is_none() {
         row.mismatch = Some(row.index);
     }
@@ -307,7 +329,12 @@ pub fn read_trace_columns<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound
         ));
     }
     out.set_item("columns", list)?;
-    let statuses: Vec<&str> = SolverStatus::ALL.iter().map(|s| s.name()).collect();
+    // The names the text columns' codes index: the solver statuses, then the force-off causes.
+    let statuses: Vec<&str> = SolverStatus::ALL
+        .iter()
+        .map(|s| s.name())
+        .chain(ForceOffCause::ALL.iter().map(|c| c.name()))
+        .collect();
     out.set_item("statuses", statuses)?;
     let sidecar = trace
         .sidecar

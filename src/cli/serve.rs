@@ -119,8 +119,9 @@ pub struct ServeArgs {
     #[arg(long)]
     pub no_fit_volume: bool,
     /// Exit with code 3 after a clean stop when any of these occurred: uncertified (some tick's bound
-    /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun.
-    /// Comma-separated.
+    /// above the solver tolerance, or a baseline solver), disconnect, device-error, overrun, active (the
+    /// energy ledger's net generated energy rose by more than 0.1 mJ over some window), oscillation (a
+    /// contact limit cycle). beyond-bound applies to `sim` only. Comma-separated.
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fail_on: Vec<super::sim::FailOn>,
     #[command(flatten)]
@@ -536,6 +537,9 @@ fn serve_fail_on_findings(
             FailOn::Overrun if stats.overruns > 0 => {
                 found.push(format!("overrun: {} ticks started late", stats.overruns))
             }
+            FailOn::Active | FailOn::Oscillation => {
+                found.extend(super::sim::energy_finding(*condition, &stats.energy))
+            }
             _ => {}
         }
     }
@@ -581,5 +585,32 @@ mod tests {
         drop(taken);
         let bound = runtime.block_on(bind_http(settings(addr, true))).unwrap();
         assert!(bound.is_some());
+    }
+
+    /// `serve --fail-on active` and `--fail-on oscillation` read the energy ledger's verdicts in the
+    /// statistics, as `sim` does, and say what they found; without the verdicts they find nothing.
+    #[test]
+    fn fail_on_active_and_oscillation_read_the_energy_ledger() {
+        use crate::api::{EnergyReport, StatsReport};
+        use super::super::sim::FailOn;
+        let both = [FailOn::Active, FailOn::Oscillation];
+        let quiet = StatsReport::default();
+        assert!(serve_fail_on_findings(&both, &quiet, 1e-12).is_empty());
+        let loud = StatsReport {
+            energy: EnergyReport {
+                largest_rise_j: 2.5e-3,
+                contacts: 41,
+                longest_cycle_run: 40,
+                active: true,
+                oscillating: true,
+                ..EnergyReport::default()
+            },
+            ..StatsReport::default()
+        };
+        let found = serve_fail_on_findings(&both, &loud, 1e-12);
+        assert_eq!(found.len(), 2, "{found:?}");
+        assert!(found[0].starts_with("active: ") && found[0].contains("2.500 mJ"), "{found:?}");
+        assert!(found[1].starts_with("oscillation: 40 undecaying"), "{found:?}");
+        assert!(serve_fail_on_findings(&[FailOn::Overrun], &loud, 1e-12).is_empty());
     }
 }

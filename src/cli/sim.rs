@@ -132,19 +132,30 @@ pub fn fail_on_findings(fail_on: &[FailOn], summary: &crate::sim::SimSummary) ->
                 "device-error: {} ticks with a non-finite force or probe replaced by zero",
                 summary.non_finite_ticks
             )),
-            FailOn::Active if summary.energy.active() => found.push(format!(
-                "active: the coupling's net generated energy rose by {:.3} mJ (tolerance {} mJ)",
-                summary.energy.largest_rise_j * 1e3,
-                crate::servo::energy::ACTIVE_TOLERANCE_J * 1e3
-            )),
-            FailOn::Oscillation if summary.energy.oscillating() => found.push(format!(
-                "oscillation: {} undecaying contacts in a row ({} contacts in all)",
-                summary.energy.longest_cycle_run, summary.energy.contacts
-            )),
+            FailOn::Active | FailOn::Oscillation => {
+                found.extend(energy_finding(*condition, &summary.energy.report()))
+            }
             _ => {}
         }
     }
     found
+}
+
+/// What `--fail-on active` or `--fail-on oscillation` found in the energy ledger's totals (`sim`, `sweep`
+/// and `serve`), as a sentence; `None` when the condition was not met or is not an energy condition.
+pub fn energy_finding(condition: FailOn, energy: &crate::api::EnergyReport) -> Option<String> {
+    match condition {
+        FailOn::Active if energy.active => Some(format!(
+            "active: the coupling's net generated energy rose by {:.3} mJ (tolerance {} mJ)",
+            energy.largest_rise_j * 1e3,
+            crate::servo::energy::ACTIVE_TOLERANCE_J * 1e3
+        )),
+        FailOn::Oscillation if energy.oscillating => Some(format!(
+            "oscillation: {} undecaying contacts in a row ({} contacts in all)",
+            energy.longest_cycle_run, energy.contacts
+        )),
+        _ => None,
+    }
 }
 
 /// Default of `--max-trace-bytes`: 2 GB.

@@ -80,6 +80,7 @@ fn run_scenario() -> Vec<TraceSample> {
             device_sequence: Some(tick),
             device_time_us: Some(tick * 1000),
             flags: limit_flag,
+            truth: Default::default(),
         });
         force_n = COUPLING_N_PER_M * (proxy_m - probe_m);
         let outcome = arm.step(t_s, dt_s, force_n).unwrap();

@@ -137,9 +137,42 @@ async fn the_page_and_the_read_endpoints() {
     assert_eq!(status, 200);
     assert_eq!(state["type"], "state");
     assert_eq!(state["frames_dropped"], 0);
+    // The tick's truth, over the socket: why the force is off (a name from the documented list), the device's
+    // fault bits, the rendered sample's age and the energy ledger's totals.
+    let causes = voxhap::record::ForceOffCause::ALL.map(|c| c.name());
+    assert!(
+        causes.contains(&state["force_off_cause"].as_str().unwrap()),
+        "{state}"
+    );
+    assert!(state["device_fault_bits"].is_u64(), "{state}");
+    assert!(state["sample_age_ticks"].is_u64(), "{state}");
     let (status, stats) = server.get("/api/stats").await;
     assert_eq!(status, 200);
     assert_eq!(stats["servo"]["rate_hz"], 1000.0);
+    let energy = &stats["servo"]["energy"];
+    for key in [
+        "work_on_probe_j",
+        "coupling_energy_j",
+        "generated_j",
+        "active_work_j",
+        "device_dissipation_j",
+        "net_generated_j",
+        "largest_rise_j",
+    ] {
+        assert!(energy[key].as_f64().unwrap().is_finite(), "{key}: {energy}");
+        assert!(
+            state["energy"][key].is_f64() || key == "largest_rise_j",
+            "{key}: {state}"
+        );
+    }
+    assert!(
+        energy["contacts"].is_u64() && energy["longest_cycle_run"].is_u64(),
+        "{energy}"
+    );
+    assert!(
+        energy["active"].is_boolean() && energy["oscillating"].is_boolean(),
+        "{energy}"
+    );
     for key in [
         "clients",
         "max_clients",

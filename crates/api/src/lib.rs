@@ -11,6 +11,9 @@
 //! against the real session and knows nothing about threads or rings.
 
 pub mod slice;
+pub mod truth;
+
+pub use truth::{crtk_operating_state, EnergyReport, ForceOffCause, TickEnergy, TickTruth};
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -96,6 +99,8 @@ pub struct Snapshot {
     pub scene_generation: u64,
     /// Simulated arm only: where the virtual hand is being pulled to (m, scene frame), when a client set it.
     pub hand_target_m: Option<DVec3>,
+    /// The tick's truth: energy ledger, force-off cause, device faults, sample age ([`truth`]).
+    pub truth: TickTruth,
 }
 
 #[cfg(any(test, feature = "test-support"))]
@@ -125,6 +130,7 @@ impl Snapshot {
             flags: 0,
             scene_generation: 1,
             hand_target_m: None,
+            truth: TickTruth::default(),
         }
     }
 }
@@ -188,6 +194,8 @@ pub struct StatsReport {
     pub realtime: RealtimeReport,
     /// What the safety pipeline and the device's status did (README "Safety").
     pub safety: SafetyReport,
+    /// The energy ledger's totals and verdicts so far ([`truth`]).
+    pub energy: EnergyReport,
 }
 
 /// The safety side of the statistics: where the output stands and what every safety rule did so far.
@@ -300,6 +308,7 @@ impl StatsReport {
             safety.monitor_stops,
             safety.device_surplus,
         );
+        text += &self.energy.summary();
         text += &self.realtime.summary();
         text
     }

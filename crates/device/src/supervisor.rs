@@ -181,6 +181,12 @@ where
         self.device.is_some()
     }
 
+    /// Age (servo periods) of the newest state the next force is rendered from, counted from the force it
+    /// answers: what the staleness bound (`stale_state_ticks`) is compared with.
+    pub fn state_age_ticks(&self) -> u32 {
+        self.ticks_since_fresh
+    }
+
     /// Where the output stands.
     pub fn output_state(&self) -> OutputState {
         if self.device.is_none() {

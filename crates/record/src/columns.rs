@@ -57,7 +57,12 @@ pub(crate) enum Cell {
     Missing,
 }
 
-fn col(name: &'static str, unit: &'static str, meaning: &'static str, t: ColumnType) -> ColumnDoc {
+pub(crate) fn col(
+    name: &'static str,
+    unit: &'static str,
+    meaning: &'static str,
+    t: ColumnType,
+) -> ColumnDoc {
     ColumnDoc {
         name: Cow::Borrowed(name),
         unit: Cow::Borrowed(unit),
@@ -185,6 +190,7 @@ pub fn columns(mode_names: &[String]) -> Vec<ColumnDoc> {
             column_type: Bool,
         });
     }
+    crate::truth_columns::truth_columns(&mut c);
     c
 }
 
@@ -221,6 +227,7 @@ pub(crate) fn cells(
     for doc in FLAG_DOCS.iter() {
         out.push(Cell::Bool(sample.flags & (1 << doc.bit) != 0));
     }
+    crate::truth_columns::truth_cells(sample, out);
 }
 
 /// The UTC cell: `start_utc_ns + round(t_s * 1e9)`, saturating; missing when `t_s` is not finite.
@@ -292,7 +299,9 @@ pub(crate) fn sample_from_cells(
         sample.mode_force_n[mode] = vector(&mut next)?;
     }
     sample.solver_status = match next() {
-        (_, Cell::Text(text)) => SolverStatus::from_name(text).unwrap_or_default(),
+        (i, Cell::Text(text)) => {
+            SolverStatus::from_name(text).ok_or(err(i, "not a solver status"))?
+        }
         (i, _) => return Err(err(i, "not a solver status")),
     };
     let (i, sweeps) = next();
@@ -320,6 +329,7 @@ pub(crate) fn sample_from_cells(
             (i, _) => return Err(err(i, "not true or false")),
         }
     }
+    sample.truth = crate::truth_columns::truth_from_cells(&mut next)?;
     if let Some(start) = start_utc_ns {
         if utc != utc_cell(start, t_s) {
             return Err(err(utc_index, "disagrees with start_utc_ns + t_s"));
@@ -362,6 +372,10 @@ mod tests {
         sample.device_time_us = Some(99);
         sample.flags = 0b101;
         sample.solver_status = SolverStatus::Certified;
+        sample.truth.energy.generated_j = 0.25;
+        sample.truth.force_off_cause = voxhap_api::ForceOffCause::StaleLink;
+        sample.truth.device_fault_bits = 0b100;
+        sample.truth.sample_age_ticks = 4;
         let mut row = Vec::new();
         cells(&sample, 2, 1_000, &mut row);
         assert_eq!(row.len(), columns(&["a".into(), "b".into()]).len());

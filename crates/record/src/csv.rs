@@ -24,7 +24,7 @@ use crate::error::{TraceError, TraceReadError};
 use crate::meta::is_valid_mode_name;
 use crate::meta::{Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
 use crate::output::sidecar_path;
-use crate::sample::{check_sample, SampleChecker, SolverStatus, TraceSample};
+use crate::sample::{check_sample, SampleChecker, TraceSample};
 use crate::trace::Trace;
 use crate::writer::TraceWriter;
 use voxhap_api::TraceFormat;
@@ -396,6 +396,14 @@ fn for_each_csv_line(
 
 fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError> {
     let fields: Vec<&str> = header.split(',').collect();
+    if fields.contains(&"flag_bits") && !fields.contains(&crate::truth_columns::FORCE_OFF_CAUSE) {
+        return Err(TraceReadError::OldFormat {
+            path: path.to_path_buf(),
+            found: 2,
+            expected: TRACE_FORMAT_VERSION,
+            hint: "it has no energy ledger or force_off_cause columns",
+        });
+    }
     if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {
         return Err(TraceReadError::OldFormat {
             path: path.to_path_buf(),
@@ -471,9 +479,9 @@ fn parse_cell(text: &str, column_type: ColumnType) -> Result<Cell, &'static str>
             "false" => Ok(Cell::Bool(false)),
             _ => Err("not true or false"),
         },
-        ColumnType::Text => SolverStatus::from_name(text)
-            .map(|s| Cell::Text(s.name()))
-            .ok_or("not a solver status"),
+        ColumnType::Text => crate::truth_columns::static_text(text)
+            .map(Cell::Text)
+            .ok_or("not a solver status or force-off cause"),
     }
 }
 

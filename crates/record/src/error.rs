@@ -376,8 +376,8 @@ pub enum ParquetProblem {
         /// Its type.
         data_type: arrow_schema::DataType,
     },
-    /// A `solver_status` that names no status.
-    #[error("row {row}: unknown solver status {status:?}")]
+    /// A `solver_status` or `force_off_cause` that names no status or cause.
+    #[error("row {row}: {status:?} is neither a solver status nor a force-off cause")]
     UnknownStatus {
         /// 1-based row.
         row: usize,

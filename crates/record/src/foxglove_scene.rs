@@ -544,15 +544,7 @@ impl RecordedScene {
         })?;
         let disabled =
             crate::flags::FLAG_DEVICE_DISCONNECTED | crate::flags::FLAG_DEVICE_NOT_ENABLED;
-        let state = OperatingStateMessage {
-            state: if sample.flags & disabled == 0 {
-                "ENABLED"
-            } else {
-                "DISABLED"
-            },
-            is_homed: true,
-            is_busy: false,
-        };
+        let state = OperatingStateMessage::from_truth(sample.flags & disabled == 0, &sample.truth);
         put(self.operating_state, &|m| {
             serde_json::to_writer(m, &state).map_err(SceneEncodeError::Json)
         })

@@ -36,6 +36,7 @@ mod sample;
 #[cfg(test)]
 mod test_support;
 mod trace;
+mod truth_columns;
 mod writer;
 
 pub use self::columns::{columns, ColumnDoc, ColumnType};
@@ -57,6 +58,7 @@ pub use self::parquet_trace::ParquetTraceWriter;
 pub use self::sample::{SolverStatus, TraceSample};
 pub use self::trace::{sidecar_warnings, Trace};
 pub use self::writer::TraceWriter;
+pub use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
 
 pub use voxhap_api::TraceFormat;
 pub use voxhap_core::haptics::modes::MAX_MODES;

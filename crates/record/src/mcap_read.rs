@@ -55,6 +55,8 @@ pub enum McapContentError {
     NoModeForce { tick: u64, mode: String },
     #[error("tick {tick}: unknown solver_status {status:?}")]
     UnknownStatus { tick: u64, status: String },
+    #[error("tick {tick}: unknown force_off_cause {cause:?}")]
+    UnknownForceOffCause { tick: u64, cause: String },
     /// A sample that breaks a trace rule.
     #[error("{0}")]
     Sample(#[from] TraceError),
@@ -90,6 +92,7 @@ struct SolverMessageOwned {
     device_sequence: Option<u64>,
     device_time_us: Option<u64>,
     flag_bits: u32,
+    truth: crate::truth_columns::TruthMessageOwned,
 }
 
 /// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
@@ -357,5 +360,13 @@ fn join(
     sample.device_sequence = solver.device_sequence;
     sample.device_time_us = solver.device_time_us;
     sample.flags = solver.flag_bits;
+    sample.truth =
+        solver
+            .truth
+            .truth()
+            .map_err(|cause| McapContentError::UnknownForceOffCause {
+                tick: state.tick,
+                cause,
+            })?;
     Ok(sample)
 }

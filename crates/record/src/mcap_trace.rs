@@ -7,7 +7,8 @@
 //!   rendered_force_n, force_n, vectors as `[x, y, z]`) and [`SOLVER_TOPIC`] (`voxhap.Solver`: tick, t_s,
 //!   primitives and mode_force_n as objects keyed by mode name in mode order, solver_status, sweeps,
 //!   error_bound_m (omitted when +inf), device_sequence and device_time_us (omitted when the device has
-//!   none), flag_bits). The schemas use only the plain types Foxglove and Lichtblick accept (no
+//!   none), flag_bits, truth: the tick's energy ledger, force-off cause, device fault bits and sample age,
+//!   named as the CSV columns). The schemas use only the plain types Foxglove and Lichtblick accept (no
 //!   `["number", "null"]` unions): a value that may be absent is an optional field, left out when absent.
 //!   JSON has no NaN: a non-finite number in a sample flagged `invalid_values` is written as `null` and
 //!   read back as NaN;
@@ -149,9 +150,10 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
             },
             "device_sequence": {"type": "integer", "minimum": 0, "description": "the device's sequence number; omitted = none"},
             "device_time_us": {"type": "integer", "minimum": 0, "description": "the device's clock (us); omitted = none"},
-            "flag_bits": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"}
+            "flag_bits": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"},
+            "truth": crate::truth_columns::truth_schema()
         },
-        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "flag_bits"]
+        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "flag_bits", "truth"]
     })
 }
 
@@ -215,6 +217,7 @@ struct SolverMessage<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     device_time_us: Option<u64>,
     flag_bits: u32,
+    truth: crate::truth_columns::TruthMessage,
 }
 
 /// Writes an MCAP trace and its sidecar.
@@ -567,6 +570,7 @@ impl TraceWriter for McapTraceWriter {
             device_sequence: sample.device_sequence,
             device_time_us: sample.device_time_us,
             flag_bits: sample.flags,
+            truth: crate::truth_columns::TruthMessage::new(&sample.truth),
         };
         // Every channel's message is encoded into the one reusable buffer, then written.
         let (writer, path, message, chunk_bytes) = (

@@ -22,7 +22,7 @@ use crate::error::{ParquetProblem, TraceReadError};
 use crate::output::sidecar_path;
 use crate::parquet_limits::{check_claimed_sizes, check_page_headers};
 use crate::parquet_schema::{embedded_sidecar, trace_schema, MAGIC};
-use crate::sample::{check_sample, SolverStatus, TraceSample};
+use crate::sample::{check_sample, TraceSample};
 use crate::trace::Trace;
 use voxhap_api::TraceFormat;
 
@@ -191,8 +191,8 @@ impl TypedColumn<'_> {
             TypedColumn::Bool(a) => Cell::Bool(a.value(i)),
             TypedColumn::Text(a) => {
                 let text = a.value(i);
-                match SolverStatus::from_name(text) {
-                    Some(status) => Cell::Text(status.name()),
+                match crate::truth_columns::static_text(text) {
+                    Some(name) => Cell::Text(name),
                     None => {
                         return Err(ParquetProblem::UnknownStatus {
                             row,

@@ -7,6 +7,7 @@
 use crate::error::TraceError;
 use crate::flags::FLAG_INVALID_VALUES;
 use glam::DVec3;
+use voxhap_api::TickTruth;
 use voxhap_core::haptics::modes::MAX_MODES;
 
 /// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
@@ -111,6 +112,9 @@ pub struct TraceSample {
     pub device_time_us: Option<u64>,
     /// Bit set of `FLAG_*` constants.
     pub flags: u32,
+    /// The tick's truth: energy ledger totals, force-off cause, device faults, sample age (the last
+    /// columns, `truth_columns.rs`).
+    pub truth: TickTruth,
 }
 
 impl TraceSample {
@@ -133,6 +137,7 @@ impl TraceSample {
             device_sequence: None,
             device_time_us: None,
             flags: 0,
+            truth: TickTruth::default(),
         }
     }
 
@@ -234,6 +239,12 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
         if !finite {
             return Err(TraceError::NonFinite { tick, field });
         }
+    }
+    if !crate::truth_columns::energy_is_finite(&sample.truth) {
+        return Err(TraceError::NonFinite {
+            tick,
+            field: "energy",
+        });
     }
     if !sample.mode_forces().iter().all(|f| f.is_finite()) {
         return Err(TraceError::NonFinite {

@@ -72,6 +72,20 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                     } else {
                         0
                     },
+                truth: voxhap_api::TickTruth {
+                    energy: voxhap_api::TickEnergy {
+                        work_on_probe_j: -1e-3 * i as f64,
+                        coupling_energy_j: 1e-4 * (i % 9) as f64,
+                        generated_j: 1e-5 * i as f64 - 0.1,
+                        active_work_j: 0.0,
+                        device_dissipation_j: 2.5e-6 * i as f64,
+                        net_generated_j: -1e-7 * (i as f64).sqrt(),
+                    },
+                    force_off_cause: voxhap_api::ForceOffCause::ALL
+                        [(i % voxhap_api::ForceOffCause::ALL.len() as u64) as usize],
+                    device_fault_bits: (i % 5) as u16,
+                    sample_age_ticks: (i % 4) as u32,
+                },
             }
         })
         .collect()

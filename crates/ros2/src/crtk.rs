@@ -20,14 +20,10 @@ use voxhap_core::status::OutputState;
 pub const FRAME_ID: &str = "world";
 
 /// CRTK's standard operating states.
-pub mod state {
-    pub const DISABLED: &str = "DISABLED";
-    pub const ENABLED: &str = "ENABLED";
-    pub const PAUSED: &str = "PAUSED";
-    pub const FAULT: &str = "FAULT";
-}
+pub use voxhap_api::truth::crtk_state as state;
 
-/// The CRTK state, `is_homed` and `is_busy` for `output` (`None`: the servo loop has not ticked yet).
+/// The CRTK state, `is_homed` and `is_busy` for `output` (`None`: the servo loop has not ticked yet), with
+/// no force-off cause: [`voxhap_api::crtk_operating_state`], which the Foxglove view uses too.
 ///
 /// FAULT is a fault that needs a person (`faulted`, `enable_refused`: the operator's `clear_fault`);
 /// ENABLED is force reaching the hand or about to (`engaged`; `waiting_to_engage` and `ramping_in` are
@@ -35,20 +31,7 @@ pub mod state {
 /// (`starting`, `recovering`, `stale_state`). `is_homed` is true while a device is connected: voxhap's
 /// devices report calibrated positions from connection on.
 pub fn operating_state(output: Option<OutputState>) -> (&'static str, bool, bool) {
-    let Some(output) = output else {
-        return (state::DISABLED, false, true);
-    };
-    let homed = output != OutputState::Disconnected;
-    let (name, busy) = match output {
-        OutputState::Faulted | OutputState::EnableRefused => (state::FAULT, false),
-        OutputState::Engaged => (state::ENABLED, false),
-        OutputState::WaitingToEngage | OutputState::RampingIn => (state::ENABLED, true),
-        OutputState::Starting | OutputState::Recovering | OutputState::StaleState => {
-            (state::DISABLED, true)
-        }
-        OutputState::Disconnected => (state::DISABLED, false),
-    };
-    (name, homed, busy)
+    voxhap_api::crtk_operating_state(output.map(|o| (o, voxhap_api::ForceOffCause::None)))
 }
 
 /// The five CRTK messages of one tick. A vector that is not finite leaves its message out (`None`): no NaN
@@ -85,7 +68,10 @@ fn wrench(stamp: Time, force_n: DVec3) -> Option<WrenchStamped> {
 
 /// The operating state message for `snapshot` (`None`: not ticked yet).
 pub fn operating_state_message(snapshot: Option<&Snapshot>, stamp: Time) -> OperatingState {
-    let (state, is_homed, is_busy) = operating_state(snapshot.map(|s| s.output_state));
+    // FAULT whenever the safety pipeline is faulted: the output state or the tick's force-off cause.
+    let (state, is_homed, is_busy) = voxhap_api::crtk_operating_state(
+        snapshot.map(|s| (s.output_state, s.truth.force_off_cause)),
+    );
     OperatingState {
         header: header(stamp),
         state: state.to_owned(),

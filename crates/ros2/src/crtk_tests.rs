@@ -89,3 +89,26 @@ fn time_splits_nanoseconds_like_builtin_interfaces() {
     );
     assert_eq!(Time::from_unix_ns(u64::MAX).sec, i32::MAX);
 }
+
+/// The safety pipeline faulted (a latched device fault, its force-off cause `device_fault`) is FAULT on
+/// `operating_state` whatever output state the snapshot carries: CRTK "Robot API status", FAULT is a state
+/// the robot does not leave without the operator.
+#[test]
+fn a_faulted_safety_pipeline_publishes_fault() {
+    for output in OutputState::ALL {
+        let s = Snapshot {
+            truth: voxhap_api::TickTruth {
+                force_off_cause: voxhap_api::ForceOffCause::DeviceFault,
+                device_fault_bits: 0b10,
+                ..voxhap_api::TickTruth::default()
+            },
+            ..snapshot(output)
+        };
+        let m = operating_state_message(Some(&s), Time::default());
+        assert_eq!(m.state, "FAULT", "{output:?}");
+        assert!(!m.is_busy);
+    }
+    // And the faulted output state alone, as the supervisor reports it.
+    let m = operating_state_message(Some(&snapshot(OutputState::Faulted)), Time::default());
+    assert_eq!(m.state, "FAULT");
+}

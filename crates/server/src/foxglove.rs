@@ -17,7 +17,7 @@
 //! | `/voxhap/measured_cp`, `/voxhap/setpoint_cp` | `foxglove.FrameTransform` (frames `probe`, `proxy` in `world`) | sampled |
 //! | `/voxhap/measured_cv` | `foxglove.Vector3`: probe velocity (m/s) | sampled |
 //! | `/voxhap/servo_cf` | `foxglove.Vector3`: force sent to the device (N) | sampled |
-//! | `/voxhap/operating_state` | `voxhap.OperatingState` (JSON, CRTK fields `state`, `is_homed`, `is_busy`) | sampled |
+//! | `/voxhap/operating_state` | `voxhap.OperatingState` (JSON, CRTK fields `state`, `is_homed`, `is_busy`; the tick's truth) | sampled |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate`: probe, proxy, force arrow, the tick's primitives ([`messages`]) | sampled |
 //! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
 //! | [`STATS_TOPIC`] | `voxhap.Stats` (JSON): the [`voxhap_api::StatsReport`] | 1 Hz |

@@ -16,7 +16,7 @@ use serde_json::Value;
 use std::path::PathBuf;
 use voxhap_api::{
     ControlCommand, ControlReply, SceneReport, Slice, SliceAxis, SliceRequest, Snapshot,
-    StatsReport, SLICE_SIZE_DEFAULT,
+    StatsReport, TickTruth, SLICE_SIZE_DEFAULT,
 };
 use voxhap_core::haptics::modes::{ModeConfig, TransferFunction};
 use voxhap_core::haptics::tick::TickStatus;
@@ -136,6 +136,10 @@ pub struct State<'a> {
     pub hand_target_m: Option<DVec3>,
     /// State frames this client lost because it read too slowly (0 over REST).
     pub frames_dropped: u64,
+    /// The tick's truth: `energy` (the ledger's totals, J), `force_off_cause`, `device_fault_bits`,
+    /// `sample_age_ticks`.
+    #[serde(flatten)]
+    pub truth: TickTruth,
 }
 
 fn primitives<S: Serializer>(snapshot: &&Snapshot, serializer: S) -> Result<S::Ok, S::Error> {
@@ -165,6 +169,7 @@ impl<'a> State<'a> {
             scene_generation: snapshot.scene_generation,
             hand_target_m: snapshot.hand_target_m,
             frames_dropped,
+            truth: snapshot.truth,
         }
     }
 }
@@ -763,5 +768,23 @@ mod tests {
         assert_eq!(value["primitives"], json!([]));
         assert_eq!(value["frames_dropped"], 3);
         assert_eq!(value["hand_target_m"], Value::Null);
+        // The tick's truth, with its names as the docs give them.
+        assert_eq!(value["force_off_cause"], "none");
+        assert_eq!(value["device_fault_bits"], 0);
+        assert_eq!(value["sample_age_ticks"], 0);
+        assert_eq!(value["energy"]["net_generated_j"], 0.0);
+        let faulted = Snapshot {
+            truth: TickTruth {
+                force_off_cause: voxhap_api::ForceOffCause::StaleLink,
+                device_fault_bits: 0b10,
+                sample_age_ticks: 5,
+                ..TickTruth::default()
+            },
+            ..Snapshot::example()
+        };
+        let value = serde_json::to_value(State::new(&faulted, 0)).unwrap();
+        assert_eq!(value["force_off_cause"], "stale_link");
+        assert_eq!(value["device_fault_bits"], 2);
+        assert_eq!(value["sample_age_ticks"], 5);
     }
 }

@@ -1,8 +1,14 @@
 //! The energy ledger: every tick, from what was sent and what the device reported, how much energy the
 //! renderer put into the hand, and whether contact has become a limit cycle.
 //!
-//! Where it sits: after a tick's force is known and before the next probe position is read (the sim runner,
-//! `super::sim::runner`). Allocation-free, a few additions per tick.
+//! Where it sits: after a tick's force is known and before the next probe position is read: in the sim
+//! runner (`super::sim::runner`, the force rendered is the force sent) and in the servo tick of `serve`
+//! (`super::runner`, booked from the position the device reported and the force the safety pipeline sent,
+//! every device; a tick without a device state is a gap). Allocation-free, a few additions per tick; the
+//! totals reach the trace columns, the snapshot and [`EnergyStats`] (`/api/stats`, the run summary).
+//!
+//! In `serve` the device damping `b` below is the damping the device's declared stiffness implies
+//! (`CouplingCaps::device_damping_n_s_per_m`, docs/safety.md); in a sim it is the arm's `[arm]` damping.
 //!
 //! The books (SI, joules; `x_n` the reported probe position at tick `n`, `F_n` the force sent at tick `n`
 //! and held until the next, as a device's amplifier does):
@@ -28,6 +34,8 @@
 //! with a peak force at least [`UNDECAYING_RATIO`] of the previous one's (undecaying).
 
 use glam::DVec3;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use voxhap_api::{EnergyReport, TickEnergy};
 
 /// Rise of the net generated energy that counts as active (J): 0.1 mJ.
 pub const ACTIVE_TOLERANCE_J: f64 = 1e-4;
@@ -147,6 +155,91 @@ impl EnergyLedger {
     /// The totals so far.
     pub fn totals(&self) -> EnergyTotals {
         self.totals
+    }
+
+    /// The device's own damping changed (a reconnected device declares another).
+    pub fn set_device_damping(&mut self, device_damping_n_s_per_m: f64) {
+        self.device_damping_n_s_per_m = device_damping_n_s_per_m;
+    }
+
+    /// A tick without a probe position to book (no device, no state yet): the next booked tick starts a new
+    /// step instead of spanning the gap (a reconnected device's position may have jumped).
+    pub fn gap(&mut self) {
+        self.last = None;
+    }
+}
+
+impl EnergyTotals {
+    /// The per-tick quantities (trace columns, snapshot).
+    pub fn tick_energy(&self) -> TickEnergy {
+        TickEnergy {
+            work_on_probe_j: self.work_on_probe_j,
+            coupling_energy_j: self.coupling_energy_j,
+            generated_j: self.generated_j,
+            active_work_j: self.active_work_j,
+            device_dissipation_j: self.device_dissipation_j,
+            net_generated_j: self.net_generated_j,
+        }
+    }
+
+    /// The totals with their verdicts (`/api/stats`, the run summary).
+    pub fn report(&self) -> EnergyReport {
+        EnergyReport {
+            totals: self.tick_energy(),
+            largest_rise_j: self.largest_rise_j,
+            contacts: self.contacts,
+            longest_cycle_run: self.longest_cycle_run,
+            active: self.active(),
+            oscillating: self.oscillating(),
+        }
+    }
+}
+
+/// The ledger's totals as atomics: the servo thread stores them every tick (a few relaxed stores, no
+/// allocation), `/api/stats` and the run summary read them.
+#[derive(Debug, Default)]
+pub struct EnergyStats {
+    work_on_probe_j: AtomicU64,
+    coupling_energy_j: AtomicU64,
+    generated_j: AtomicU64,
+    active_work_j: AtomicU64,
+    device_dissipation_j: AtomicU64,
+    net_generated_j: AtomicU64,
+    largest_rise_j: AtomicU64,
+    contacts: AtomicU64,
+    longest_cycle_run: AtomicU32,
+}
+
+impl EnergyStats {
+    /// Stores `totals` (servo thread).
+    pub fn store(&self, totals: &EnergyTotals) {
+        let put = |a: &AtomicU64, v: f64| a.store(v.to_bits(), Ordering::Relaxed);
+        put(&self.work_on_probe_j, totals.work_on_probe_j);
+        put(&self.coupling_energy_j, totals.coupling_energy_j);
+        put(&self.generated_j, totals.generated_j);
+        put(&self.active_work_j, totals.active_work_j);
+        put(&self.device_dissipation_j, totals.device_dissipation_j);
+        put(&self.net_generated_j, totals.net_generated_j);
+        put(&self.largest_rise_j, totals.largest_rise_j);
+        self.contacts.store(totals.contacts, Ordering::Relaxed);
+        self.longest_cycle_run
+            .store(totals.longest_cycle_run, Ordering::Relaxed);
+    }
+
+    /// The totals last stored.
+    pub fn load(&self) -> EnergyTotals {
+        let get = |a: &AtomicU64| f64::from_bits(a.load(Ordering::Relaxed));
+        EnergyTotals {
+            work_on_probe_j: get(&self.work_on_probe_j),
+            coupling_energy_j: get(&self.coupling_energy_j),
+            generated_j: get(&self.generated_j),
+            active_work_j: get(&self.active_work_j),
+            device_dissipation_j: get(&self.device_dissipation_j),
+            net_generated_j: get(&self.net_generated_j),
+            largest_rise_j: get(&self.largest_rise_j),
+            contacts: self.contacts.load(Ordering::Relaxed),
+            longest_cycle_run: self.longest_cycle_run.load(Ordering::Relaxed),
+        }
     }
 }
 

@@ -18,6 +18,7 @@ pub use api::{
 mod control;
 pub mod device;
 pub mod energy;
+pub mod force_off;
 mod join;
 pub mod mapped;
 pub mod monitor;

@@ -128,6 +128,10 @@ impl ServoDevice for MappedDevice {
         self.inner.output_state()
     }
 
+    fn state_age_ticks(&self) -> u32 {
+        self.inner.state_age_ticks()
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.inner.request_clear_fault()
     }

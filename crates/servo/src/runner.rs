@@ -24,6 +24,8 @@
 //! [`MockWaiter`]: super::schedule::MockWaiter
 
 use super::device::ServoDevice;
+use super::energy::EnergyLedger;
+use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
@@ -31,8 +33,8 @@ use super::stats::ServoStats;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
-use voxhap_api::{PrimitiveView, Snapshot};
-use voxhap_core::haptics::modes::{ModeMemory, MAX_MODES};
+use voxhap_api::{PrimitiveView, Snapshot, TickTruth};
+use voxhap_core::haptics::modes::{Mode, ModeMemory, MAX_MODES};
 use voxhap_core::haptics::tick::{tick_timed, TickState, TickStatus};
 use voxhap_device::safety::{CouplingCaps, SafetyFlags};
 use voxhap_device::supervisor::{ClearFaultOutcome, SupervisorEvent, TickInput};
@@ -123,6 +125,10 @@ pub struct ServoLoop {
     last_state_fresh: bool,
     /// Ticks between two snapshots handed to the recorder ([`scene_frame_interval_ticks`]).
     scene_frame_every_ticks: u64,
+    /// The energy ledger of the run (crate::energy).
+    ledger: EnergyLedger,
+    /// Why the force is off (crate::force_off).
+    force_off: ForceOffTracker,
 }
 
 impl ServoLoop {
@@ -163,6 +169,8 @@ impl ServoLoop {
             caps,
             last_state_fresh: false,
             scene_frame_every_ticks: scene_frame_interval_ticks(timing.period_ns),
+            ledger: EnergyLedger::new(caps.device_damping_n_s_per_m),
+            force_off: ForceOffTracker::default(),
         };
         servo.apply_caps();
         servo
@@ -337,6 +345,9 @@ impl ServoLoop {
             && flags & (FLAG_NON_FINITE_REPLACED | FLAG_COMPUTE_OVER_BUDGET) == 0;
 
         let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
+        // The state this tick rendered from, and its age, before the exchange replaces it.
+        let rendered_from_state = self.last_state.is_some();
+        let sample_age_ticks = self.device.state_age_ticks();
         let exchange_start_ns = waiter.now_ns();
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
@@ -354,6 +365,20 @@ impl ServoLoop {
         }
         flags |= trace_flags(device_out.flags);
         let end_ns = waiter.now_ns();
+        let t_s = tick_index as f64 * period_s;
+        let truth = self.book_truth(
+            &device_out,
+            &out,
+            TruthInput {
+                t_s,
+                dt_s,
+                probe_m,
+                rendered_from_state,
+                sample_age_ticks,
+                force_replaced: flags & FLAG_NON_FINITE_REPLACED != 0,
+            },
+        );
+        let bundle = &mut *self.bundle;
 
         // Statistics.
         let stats = &*self.stats;
@@ -378,7 +403,6 @@ impl ServoLoop {
         self.last_disconnects = counters.disconnects;
 
         // Publish.
-        let t_s = tick_index as f64 * period_s;
         let workspace_primitives = bundle.workspace.primitives();
         let mut primitive_slots = [None; MAX_MODES];
         let mut slot = 0;
@@ -421,6 +445,7 @@ impl ServoLoop {
             flags,
             scene_generation: bundle.generation,
             hand_target_m: None,
+            truth,
         };
         self.io.snapshot.write(Some(snapshot));
         if tick_index.is_multiple_of(self.scene_frame_every_ticks) {
@@ -450,6 +475,7 @@ impl ServoLoop {
             device_sequence: self.last_state.and_then(|s| s.sequence).map(u64::from),
             device_time_us: self.last_state.and_then(|s| s.device_time_us),
             flags,
+            truth,
         };
         if self.io.samples.push(sample).is_err() {
             stats.recorder_drops.fetch_add(1, Ordering::Relaxed);
@@ -469,6 +495,48 @@ impl ServoLoop {
             self.overrun_pending = true;
         }
         tick_index
+    }
+
+    /// Books the tick in the energy ledger (from the position the tick rendered from and the force the
+    /// safety pipeline sent) and names why the force is off: the tick's truth.
+    fn book_truth(
+        &mut self,
+        device_out: &voxhap_device::supervisor::TickOutput,
+        out: &voxhap_core::haptics::tick::TickOutput,
+        input: TruthInput,
+    ) -> TickTruth {
+        let totals = if input.rendered_from_state {
+            // The directed-force modes' share of the force is intended work (crate::energy).
+            let mut active_n = DVec3::ZERO;
+            for (mode, force) in self.bundle.scene.modes().iter().zip(out.mode_force_n) {
+                if matches!(mode, Mode::VectorForce { .. } | Mode::GradientForce { .. }) {
+                    active_n += force;
+                }
+            }
+            let stretch_m = out.proxy_m - input.probe_m;
+            let coupling_j =
+                0.5 * self.bundle.scene.stiffness_n_per_m() * stretch_m.length_squared();
+            self.ledger.record(
+                input.t_s,
+                input.dt_s,
+                input.probe_m,
+                device_out.sent_force_n,
+                active_n,
+                coupling_j,
+            )
+        } else {
+            self.ledger.gap();
+            self.ledger.totals()
+        };
+        self.stats.energy.store(&totals);
+        TickTruth {
+            energy: totals.tick_energy(),
+            force_off_cause: self
+                .force_off
+                .cause(device_out, out.status, input.force_replaced),
+            device_fault_bits: device_out.active_faults,
+            sample_age_ticks: input.sample_age_ticks,
+        }
     }
 
     /// Hands the tick's device events to the monitor and stores the safety counters; caps the coupling again
@@ -498,6 +566,8 @@ impl ServoLoop {
             self.caps =
                 CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)
                     .with_damping_limit(self.device.max_damping_n_s_per_m());
+            self.ledger
+                .set_device_damping(self.caps.device_damping_n_s_per_m);
             self.apply_caps();
         }
         let stats = &*self.stats;
@@ -543,6 +613,19 @@ impl ServoLoop {
     pub fn shutdown(&mut self) {
         self.device.stop();
     }
+}
+
+/// What [`ServoLoop::book_truth`] needs from the tick besides the exchange and the solve.
+#[derive(Debug, Clone, Copy)]
+struct TruthInput {
+    t_s: f64,
+    dt_s: f64,
+    /// The probe position the tick rendered from.
+    probe_m: DVec3,
+    /// The tick had a device state to render from (else the ledger books a gap).
+    rendered_from_state: bool,
+    sample_age_ticks: u32,
+    force_replaced: bool,
 }
 
 /// The trace's flag bits for what the safety stages did this tick.

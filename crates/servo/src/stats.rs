@@ -253,6 +253,8 @@ pub struct ServoStats {
     pub clear_fault_outcome: AtomicU8,
     /// The safety side, copied from the device's counters every tick by the servo thread.
     pub safety: SafetyStats,
+    /// The energy ledger's totals, stored every tick by the servo thread (crate::energy).
+    pub energy: crate::energy::EnergyStats,
     realtime: Mutex<RealtimeReport>,
 }
 
@@ -321,6 +323,7 @@ impl ServoStats {
             commands_applied: load(&self.commands_applied),
             realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
             safety: self.safety_report(),
+            energy: self.energy.load().report(),
         }
     }
 

@@ -32,7 +32,12 @@ use ::foxglove::messages::{
 use ::foxglove::{Encode, Schema};
 use glam::DVec3;
 use serde::Serialize;
-use voxhap_api::{PrimitiveView, Snapshot, StatsReport};
+#[cfg(doc)]
+use voxhap_api::EnergyReport;
+use voxhap_api::{
+    crtk_operating_state, ForceOffCause, PrimitiveView, Snapshot, StatsReport, TickEnergy,
+    TickTruth,
+};
 use voxhap_core::haptics::PrimitiveKind;
 
 pub use crate::topics::{MARKER_DIAMETER_M, MAX_ARROW_M};
@@ -187,26 +192,56 @@ pub fn bound_schema() -> serde_json::Value {
     })
 }
 
-/// `/voxhap/operating_state`: the CRTK operating state (JSON, schema `voxhap.OperatingState`): `state` is
-/// `ENABLED` while the device is connected and enabled, else `DISABLED`; `is_homed` is always true (voxhap's
-/// devices need no homing); `is_busy` is true while forces ramp in (not yet engaged).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+/// `/voxhap/operating_state`: the CRTK operating state (JSON, schema `voxhap.OperatingState`) as the ROS 2
+/// output computes it ([`crtk_operating_state`]: `FAULT` whenever the safety pipeline is faulted,
+/// `ENABLED` while force reaches the hand or is about to, else `DISABLED`; `is_busy` while voxhap is bringing
+/// the device up or forces ramp in; `is_homed` while a device is connected), and the tick's truth:
+/// `force_off_cause`, `device_fault_bits`, `sample_age_ticks` and the energy ledger's totals (`energy`, J).
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct OperatingStateMessage {
     pub state: &'static str,
     pub is_homed: bool,
     pub is_busy: bool,
+    pub force_off_cause: &'static str,
+    pub device_fault_bits: u16,
+    pub sample_age_ticks: u32,
+    pub energy: TickEnergy,
 }
 
 impl OperatingStateMessage {
     pub fn new(snapshot: &Snapshot) -> Self {
+        let (state, is_homed, is_busy) = crtk_operating_state(Some((
+            snapshot.output_state,
+            snapshot.truth.force_off_cause,
+        )));
+        Self::with_state((state, is_homed, is_busy), &snapshot.truth)
+    }
+
+    /// The message for a recorded tick without a snapshot (a sim's trace): the CRTK state from whether the
+    /// device was `enabled` and the tick's force-off cause.
+    pub fn from_truth(enabled: bool, truth: &TickTruth) -> Self {
+        let crtk = if truth.force_off_cause.is_fault() {
+            ("FAULT", true, false)
+        } else if enabled {
+            ("ENABLED", true, false)
+        } else {
+            ("DISABLED", true, false)
+        };
+        Self::with_state(crtk, truth)
+    }
+
+    fn with_state(
+        (state, is_homed, is_busy): (&'static str, bool, bool),
+        truth: &TickTruth,
+    ) -> Self {
         OperatingStateMessage {
-            state: if snapshot.connected {
-                "ENABLED"
-            } else {
-                "DISABLED"
-            },
-            is_homed: true,
-            is_busy: snapshot.connected && !snapshot.engaged,
+            state,
+            is_homed,
+            is_busy,
+            force_off_cause: truth.force_off_cause.name(),
+            device_fault_bits: truth.device_fault_bits,
+            sample_age_ticks: truth.sample_age_ticks,
+            energy: truth.energy,
         }
     }
 }
@@ -219,12 +254,53 @@ pub fn operating_state_schema() -> serde_json::Value {
         "description": "CRTK operating_state",
         "type": "object",
         "properties": {
-            "state": {"type": "string", "enum": ["ENABLED", "DISABLED"]},
-            "is_homed": {"type": "boolean"},
-            "is_busy": {"type": "boolean", "description": "forces ramping in"}
+            "state": {"type": "string", "enum": ["ENABLED", "DISABLED", "PAUSED", "FAULT"]},
+            "is_homed": {"type": "boolean", "description": "a device is connected"},
+            "is_busy": {"type": "boolean", "description": "voxhap is bringing the device up, or forces ramp in"},
+            "force_off_cause": {
+                "type": "string",
+                "enum": ForceOffCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>(),
+                "description": "why the force is off (none: the safety pipeline passes it)"
+            },
+            "device_fault_bits": {"type": "integer", "minimum": 0, "maximum": 65535, "description": "the device's latched faults, bit n = fault code n"},
+            "sample_age_ticks": {"type": "integer", "minimum": 0, "description": "age of the device state the tick rendered from (servo periods)"},
+            "energy": energy_schema()
         },
-        "required": ["state", "is_homed", "is_busy"]
+        "required": ["state", "is_homed", "is_busy", "force_off_cause", "device_fault_bits", "sample_age_ticks", "energy"]
     })
+}
+
+/// The JSON schema of the energy ledger's totals ([`TickEnergy`]; in [`EnergyReport`] with its verdicts).
+fn energy_schema() -> serde_json::Value {
+    let joules =
+        |what: &str| serde_json::json!({"type": "number", "description": format!("{what} (J)")});
+    serde_json::json!({
+        "type": "object",
+        "description": "the energy ledger's totals (zero-order hold, from what the device reported and what was sent)",
+        "properties": {
+            "work_on_probe_j": joules("work the sent force did on the probe"),
+            "coupling_energy_j": joules("energy the coupling spring holds now"),
+            "generated_j": joules("energy the renderer generated"),
+            "active_work_j": joules("work of the directed-force modes"),
+            "device_dissipation_j": joules("the least the device's damping dissipated"),
+            "net_generated_j": joules("generated less active work and device dissipation")
+        }
+    })
+}
+
+/// The JSON schema of [`EnergyReport`]: the totals and the `--fail-on` verdicts.
+fn energy_report_schema() -> serde_json::Value {
+    let mut schema = energy_schema();
+    let properties = &mut schema["properties"];
+    properties["largest_rise_j"] = serde_json::json!({"type": "number", "description": "largest rise of the net generated energy over any window (J)"});
+    properties["contacts"] =
+        serde_json::json!({"type": "integer", "minimum": 0, "description": "contacts begun"});
+    properties["longest_cycle_run"] = serde_json::json!({"type": "integer", "minimum": 0, "description": "longest run of undecaying contacts in quick succession"});
+    properties["active"] =
+        serde_json::json!({"type": "boolean", "description": "--fail-on active would be met"});
+    properties["oscillating"] =
+        serde_json::json!({"type": "boolean", "description": "--fail-on oscillation would be met"});
+    schema
 }
 
 /// `/voxhap/stats`: the servo loop's [`StatsReport`] (JSON, schema `voxhap.Stats`), once a second.
@@ -294,6 +370,7 @@ pub fn stats_schema() -> serde_json::Value {
                     "device_surplus": count("messages the device sent beyond its answers (the newest used)")
                 }
             },
+            "energy": energy_report_schema(),
             "realtime": {
                 "type": "object",
                 "description": "real-time features the servo thread got",
@@ -507,6 +584,48 @@ mod tests {
             keys.keys().collect::<Vec<_>>(),
             properties.keys().collect::<Vec<_>>()
         );
+    }
+
+    /// The Foxglove view's operating state is CRTK's, as the ROS 2 output publishes it: FAULT whenever the
+    /// safety pipeline is faulted (the supervisor's faulted state, or a tick whose force is off for a device
+    /// fault), never ENABLED then; it carries the tick's truth under the names its schema requires.
+    #[test]
+    fn the_operating_state_is_fault_whenever_the_safety_pipeline_is_faulted() {
+        use voxhap_core::status::OutputState;
+        let faulted = Snapshot {
+            output_state: OutputState::Faulted,
+            connected: true,
+            engaged: false,
+            ..snapshot()
+        };
+        assert_eq!(OperatingStateMessage::new(&faulted).state, "FAULT");
+        for output in OutputState::ALL {
+            let snap = Snapshot {
+                output_state: output,
+                connected: true,
+                truth: TickTruth {
+                    force_off_cause: ForceOffCause::DeviceFault,
+                    device_fault_bits: 0b100,
+                    ..TickTruth::default()
+                },
+                ..snapshot()
+            };
+            let message = OperatingStateMessage::new(&snap);
+            assert_eq!(message.state, "FAULT", "{output:?}");
+            let mut bytes = Vec::new();
+            message.encode(&mut bytes).unwrap();
+            let value: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+            assert_eq!(value["force_off_cause"], "device_fault");
+            assert_eq!(value["device_fault_bits"], 4);
+            for key in operating_state_schema()["required"].as_array().unwrap() {
+                assert!(value.get(key.as_str().unwrap()).is_some(), "{key}");
+            }
+        }
+        let engaged = Snapshot {
+            output_state: OutputState::Engaged,
+            ..snapshot()
+        };
+        assert_eq!(OperatingStateMessage::new(&engaged).state, "ENABLED");
     }
 
     /// Every field of the live view's JSON schemas has one plain type: Foxglove Studio and Lichtblick

@@ -321,6 +321,10 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         self.supervisor.output_state()
     }
 
+    fn state_age_ticks(&self) -> u32 {
+        self.supervisor.state_age_ticks()
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.supervisor.request_clear_fault()
     }

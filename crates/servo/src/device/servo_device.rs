@@ -22,6 +22,10 @@ pub trait ServoDevice: Send {
     fn engaged(&self) -> bool;
     /// Where the output stands.
     fn output_state(&self) -> OutputState;
+    /// Age (servo periods) of the state the next force is rendered from ([`Supervisor::state_age_ticks`]).
+    fn state_age_ticks(&self) -> u32 {
+        0
+    }
     /// The operator's `clear_fault` (ClearFault goes out on the next tick).
     fn request_clear_fault(&mut self) -> ClearFaultOutcome;
     /// Zero force, disable, close.
@@ -75,6 +79,10 @@ where
 
     fn output_state(&self) -> OutputState {
         Supervisor::output_state(self)
+    }
+
+    fn state_age_ticks(&self) -> u32 {
+        Supervisor::state_age_ticks(self)
     }
 
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {

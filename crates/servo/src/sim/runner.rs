@@ -133,6 +133,10 @@ pub fn run(
             device_sequence: None,
             device_time_us: None,
             flags,
+            truth: voxhap_api::TickTruth {
+                energy: summary.energy.tick_energy(),
+                ..voxhap_api::TickTruth::default()
+            },
         })?;
         if (index + 1) % FLUSH_EVERY_TICKS == 0 {
             writer.flush()?;

@@ -1,0 +1,237 @@
+//! The tick's truth in the tabular formats (CSV, Parquet; the sidecar's column list): the energy ledger's
+//! totals, the force-off cause, the device's latched faults and the age of the rendered sample. One place
+//! for every column added after the flag columns, so a new one appears in every tabular format at once;
+//! MCAP carries the same values in the solver message's `truth` object (`mcap_trace.rs`).
+//!
+//! These columns come last (after `flag_<name>`), so the columns before them keep their places.
+
+use crate::columns::{col, Cell, CellError, ColumnDoc, ColumnType};
+use crate::sample::TraceSample;
+use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
+
+/// The energy columns: name, meaning, and the field they hold.
+type EnergyColumn = (&'static str, &'static str, fn(&mut TickEnergy) -> &mut f64);
+
+const ENERGY_COLUMNS: [EnergyColumn; 6] = [
+    (
+        "work_on_probe_j",
+        "work the sent force did on the probe since the run started (zero-order hold)",
+        |e| &mut e.work_on_probe_j,
+    ),
+    (
+        "coupling_energy_j",
+        "energy the coupling spring holds at this tick, k/2 |proxy - probe|^2",
+        |e| &mut e.coupling_energy_j,
+    ),
+    (
+        "generated_energy_j",
+        "energy the renderer generated: work on the probe plus the change of the coupling energy",
+        |e| &mut e.generated_j,
+    ),
+    (
+        "active_work_j",
+        "work of the directed-force modes (vector_force, gradient_force) on the probe",
+        |e| &mut e.active_work_j,
+    ),
+    (
+        "device_dissipation_j",
+        "the least the device's own damping dissipated",
+        |e| &mut e.device_dissipation_j,
+    ),
+    (
+        "net_generated_j",
+        "generated energy less active work and device dissipation",
+        |e| &mut e.net_generated_j,
+    ),
+];
+
+/// Name of the force-off cause column.
+pub(crate) const FORCE_OFF_CAUSE: &str = "force_off_cause";
+
+/// Appends the truth columns.
+pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
+    use ColumnType::*;
+    for (name, meaning, _) in ENERGY_COLUMNS {
+        c.push(col(name, "J", meaning, F64));
+    }
+    c.extend([
+        col(
+            FORCE_OFF_CAUSE,
+            "-",
+            "why the force is off: none, disconnected, not_enabled, not_engaged, device_fault, enable_refused, \
+             device_watchdog, device_dropped_out, monitor_stop, watchdog, stale_link, implausible_input or \
+             invalid_force",
+            Text,
+        ),
+        col(
+            "device_fault_bits",
+            "bits",
+            "the device's latched faults (bit n = fault code n); 0 when none or unknown",
+            U64,
+        ),
+        col(
+            "sample_age_ticks",
+            "count",
+            "age of the device state the tick rendered from, in servo periods from the force it answers; \
+             0 for drivers that cannot tell",
+            U64,
+        ),
+    ]);
+}
+
+/// Appends the truth cells of `sample`.
+pub(crate) fn truth_cells(sample: &TraceSample, out: &mut Vec<Cell>) {
+    let mut energy = sample.truth.energy;
+    for (_, _, field) in ENERGY_COLUMNS {
+        out.push(Cell::F64(*field(&mut energy)));
+    }
+    out.push(Cell::Text(sample.truth.force_off_cause.name()));
+    out.push(Cell::U64(u64::from(sample.truth.device_fault_bits)));
+    out.push(Cell::U64(u64::from(sample.truth.sample_age_ticks)));
+}
+
+/// Reads the truth cells (the inverse of [`truth_cells`]); `next` hands out the row's cells in order.
+pub(crate) fn truth_from_cells(
+    next: &mut dyn FnMut() -> (usize, Cell),
+) -> Result<TickTruth, CellError> {
+    let err = |index, problem| CellError { index, problem };
+    let mut truth = TickTruth::default();
+    for (_, _, field) in ENERGY_COLUMNS {
+        *field(&mut truth.energy) = match next() {
+            (_, Cell::F64(v)) => v,
+            (i, _) => return Err(err(i, "not a number")),
+        };
+    }
+    truth.force_off_cause = match next() {
+        (i, Cell::Text(text)) => {
+            ForceOffCause::from_name(text).ok_or(err(i, "not a force-off cause"))?
+        }
+        (i, _) => return Err(err(i, "not a force-off cause")),
+    };
+    truth.device_fault_bits = match next() {
+        (i, Cell::U64(v)) => {
+            u16::try_from(v).map_err(|_| err(i, "not an integer from 0 to 65535"))?
+        }
+        (i, _) => return Err(err(i, "not an integer from 0 to 65535")),
+    };
+    truth.sample_age_ticks = match next() {
+        (i, Cell::U64(v)) => {
+            u32::try_from(v).map_err(|_| err(i, "not an unsigned 32-bit integer"))?
+        }
+        (i, _) => return Err(err(i, "not an unsigned 32-bit integer")),
+    };
+    Ok(truth)
+}
+
+/// The text of a text cell as one of the fixed names (solver statuses, force-off causes), so a cell can
+/// hold a `&'static str`.
+pub(crate) fn static_text(text: &str) -> Option<&'static str> {
+    crate::sample::SolverStatus::from_name(text)
+        .map(|s| s.name())
+        .or_else(|| ForceOffCause::from_name(text).map(|c| c.name()))
+}
+
+/// True when a sample's energy values are finite (the value rules).
+pub(crate) fn energy_is_finite(truth: &TickTruth) -> bool {
+    let mut energy = truth.energy;
+    ENERGY_COLUMNS
+        .iter()
+        .all(|(_, _, field)| field(&mut energy).is_finite())
+}
+
+/// The truth in an MCAP trace: the solver message's `truth` object (same names as the columns).
+#[derive(serde::Serialize)]
+pub(crate) struct TruthMessage {
+    work_on_probe_j: f64,
+    coupling_energy_j: f64,
+    generated_energy_j: f64,
+    active_work_j: f64,
+    device_dissipation_j: f64,
+    net_generated_j: f64,
+    force_off_cause: &'static str,
+    device_fault_bits: u16,
+    sample_age_ticks: u32,
+}
+
+impl TruthMessage {
+    pub(crate) fn new(truth: &TickTruth) -> Self {
+        let e = &truth.energy;
+        TruthMessage {
+            work_on_probe_j: e.work_on_probe_j,
+            coupling_energy_j: e.coupling_energy_j,
+            generated_energy_j: e.generated_j,
+            active_work_j: e.active_work_j,
+            device_dissipation_j: e.device_dissipation_j,
+            net_generated_j: e.net_generated_j,
+            force_off_cause: truth.force_off_cause.name(),
+            device_fault_bits: truth.device_fault_bits,
+            sample_age_ticks: truth.sample_age_ticks,
+        }
+    }
+}
+
+/// The solver message's `truth` object as read back: `null` (a non-finite value) becomes NaN.
+#[derive(serde::Deserialize)]
+pub(crate) struct TruthMessageOwned {
+    work_on_probe_j: Option<f64>,
+    coupling_energy_j: Option<f64>,
+    generated_energy_j: Option<f64>,
+    active_work_j: Option<f64>,
+    device_dissipation_j: Option<f64>,
+    net_generated_j: Option<f64>,
+    force_off_cause: String,
+    device_fault_bits: u16,
+    sample_age_ticks: u32,
+}
+
+impl TruthMessageOwned {
+    /// The truth, or the unknown force-off cause's name.
+    pub(crate) fn truth(&self) -> Result<TickTruth, String> {
+        let v = |x: Option<f64>| x.unwrap_or(f64::NAN);
+        Ok(TickTruth {
+            energy: TickEnergy {
+                work_on_probe_j: v(self.work_on_probe_j),
+                coupling_energy_j: v(self.coupling_energy_j),
+                generated_j: v(self.generated_energy_j),
+                active_work_j: v(self.active_work_j),
+                device_dissipation_j: v(self.device_dissipation_j),
+                net_generated_j: v(self.net_generated_j),
+            },
+            force_off_cause: ForceOffCause::from_name(&self.force_off_cause)
+                .ok_or_else(|| self.force_off_cause.clone())?,
+            device_fault_bits: self.device_fault_bits,
+            sample_age_ticks: self.sample_age_ticks,
+        })
+    }
+}
+
+/// The JSON schema of the `truth` object (plain types only: Foxglove and Lichtblick refuse `null` unions).
+pub(crate) fn truth_schema() -> serde_json::Value {
+    let mut properties = serde_json::Map::new();
+    for (name, meaning, _) in ENERGY_COLUMNS {
+        properties.insert(
+            name.to_owned(),
+            serde_json::json!({"type": "number", "description": format!("{meaning} (J)")}),
+        );
+    }
+    let causes: Vec<&str> = ForceOffCause::ALL.iter().map(|c| c.name()).collect();
+    properties.insert(
+        FORCE_OFF_CAUSE.to_owned(),
+        serde_json::json!({"type": "string", "enum": causes, "description": "why the force is off"}),
+    );
+    properties.insert(
+        "device_fault_bits".to_owned(),
+        serde_json::json!({"type": "integer", "minimum": 0, "maximum": 65535, "description": "the device's latched faults (bit n = fault code n)"}),
+    );
+    properties.insert(
+        "sample_age_ticks".to_owned(),
+        serde_json::json!({"type": "integer", "minimum": 0, "description": "age of the rendered device state (servo periods)"}),
+    );
+    let required: Vec<String> = properties.keys().cloned().collect();
+    serde_json::json!({
+        "type": "object",
+        "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age",
+        "properties": properties,
+        "required": required,
+    })
+}

@@ -15,12 +15,14 @@ pub use api::{
     SafetyReport, SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport,
     VolumeReport,
 };
+mod commands;
 mod control;
 pub mod device;
 pub mod energy;
 mod join;
 pub mod mapped;
 pub mod monitor;
+pub mod passivity;
 pub mod recorder;
 pub mod rt;
 pub mod runner;

@@ -286,7 +286,9 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         written.trace_path.display(),
         written.sidecar_path.display(),
     ))?;
-    if summary.passivity_mode == crate::servo::passivity::PassivityMode::Control || summary.events_applied > 0 {
+    if summary.passivity_mode == crate::servo::passivity::PassivityMode::Control
+        || summary.events_applied > 0
+    {
         eprintln!(
             "passivity: {}, dissipated {:.4} mJ in {} ticks (largest force {:.3} N); {} event(s) applied, {} introduced passively",
             summary.passivity_mode.name(),

@@ -57,7 +57,11 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     let (b, period_s, latency_s) = (1.0, 1e-3, 1e-3);
     let bound = b / (period_s / 2.0 + latency_s);
     let (summary, samples, scenario) = run("passivity_latency.toml", |t| t);
-    assert!((scenario.k_n_per_m - 3.0 * bound).abs() < 1.0, "{}", scenario.k_n_per_m);
+    assert!(
+        (scenario.k_n_per_m - 3.0 * bound).abs() < 1.0,
+        "{}",
+        scenario.k_n_per_m
+    );
     assert!(!summary.energy.oscillating(), "{:?}", summary.energy);
     let k = scenario.k_n_per_m;
     let generated = generated_j(&samples, 1, k, k);
@@ -65,9 +69,18 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     // The last half second: in contact every tick, the force the hand's 1 N push within 1 %.
     let last = &samples[samples.len() - 500..];
     for s in last {
-        assert!((s.force_n.z - 1.0).abs() < 0.01, "t = {}: {}", s.t_s, s.force_n);
+        assert!(
+            (s.force_n.z - 1.0).abs() < 0.01,
+            "t = {}: {}",
+            s.t_s,
+            s.force_n
+        );
     }
-    assert!(summary.passivity.dissipated_j > 0.0, "{:?}", summary.passivity);
+    assert!(
+        summary.passivity.dissipated_j > 0.0,
+        "{:?}",
+        summary.passivity
+    );
     assert!(
         (summary.energy.passivity_dissipated_j - summary.passivity.dissipated_j).abs() < 1e-15,
         "the ledger books the controller's dissipation"
@@ -77,12 +90,19 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     let (off, samples, _) = run("passivity_latency.toml", set_mode("off"));
     assert!(off.energy.oscillating(), "{:?}", off.energy);
     let last = &samples[samples.len() - 500..];
-    assert!(last.iter().any(|s| s.force_n.z < 1e-3), "contact is lost in the last 0.5 s");
+    assert!(
+        last.iter().any(|s| s.force_n.z < 1e-3),
+        "contact is lost in the last 0.5 s"
+    );
     // Observe only: books the same bouncing, dissipates nothing.
     let (observed, _, _) = run("passivity_latency.toml", set_mode("observe"));
     assert!(observed.energy.oscillating());
     assert_eq!(observed.passivity.dissipated_j, 0.0);
-    assert!(observed.passivity.generated_j > 1e-4, "{:?}", observed.passivity);
+    assert!(
+        observed.passivity.generated_j > 1e-4,
+        "{:?}",
+        observed.passivity
+    );
 }
 
 fn without_events(text: String) -> String {
@@ -112,7 +132,10 @@ fn a_stiffness_raised_in_contact_injects_no_energy_over_the_cycle() {
     let (at_once, samples, _) = run("stiffen_in_contact.toml", passivity_off);
     let at_once_j = generated_j(&samples, 0, 500.0, 4000.0);
     assert_eq!(at_once.changes_introduced, 0);
-    assert!(at_once_j > without + 1e-3, "at once {at_once_j} J, without {without} J");
+    assert!(
+        at_once_j > without + 1e-3,
+        "at once {at_once_j} J, without {without} J"
+    );
 }
 
 /// A plane switched on 3 mm above a probe already below it, then the hand lifts out: no more energy than the
@@ -128,7 +151,10 @@ fn a_plane_appearing_above_the_probe_engages_without_pushing() {
     assert!(with <= without + 5e-5, "with {with} J, without {without} J");
     let (_, samples, _) = run("plane_appears.toml", passivity_off);
     let at_once_j = generated_j(&samples, 0, 500.0, 500.0);
-    assert!(at_once_j > without + 1e-3, "at once {at_once_j} J, without {without} J");
+    assert!(
+        at_once_j > without + 1e-3,
+        "at once {at_once_j} J, without {without} J"
+    );
 }
 
 /// The CLI runs the sims, and `--set passivity.mode=off` is the uncompensated scene `--fail-on

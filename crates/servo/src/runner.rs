@@ -24,8 +24,8 @@
 //! [`MockWaiter`]: super::schedule::MockWaiter
 
 use super::device::ServoDevice;
-use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
 use super::monitor::DeviceReport;
+use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
 use super::stats::ServoStats;
@@ -124,7 +124,7 @@ pub struct ServoLoop {
     last_state_fresh: bool,
     /// Ticks between two snapshots handed to the recorder ([`scene_frame_interval_ticks`]).
     scene_frame_every_ticks: u64,
-    /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::with_passivity`]).
+    /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
     transition: CouplingTransition,
@@ -191,9 +191,8 @@ impl ServoLoop {
     /// Runs `controller` in every tick (crate::passivity): its observer books what was sent and reported,
     /// its controller's force is added before the safety pipeline, and (unless its mode is `off`) changes
     /// applied in contact are introduced passively.
-    pub fn with_passivity(mut self, controller: PassivityController) -> Self {
+    pub fn set_passivity(&mut self, controller: PassivityController) {
         self.passivity = controller;
-        self
     }
 
     /// The passivity observer's and controller's totals (for tests and the summary).

@@ -340,8 +340,8 @@ impl Session {
                     timing,
                     origin_ns,
                     first_state,
-                )
-                .with_passivity(passivity);
+                );
+                servo.set_passivity(passivity);
                 servo.run(&mut waiter, &thread_stop);
                 running.store(false, Ordering::Release);
             })

@@ -22,7 +22,10 @@ fn press(mode: PassivityMode, latency_ticks: usize, ticks: u64) -> (PassivityTot
 #[test]
 fn the_observer_books_the_zero_order_hold_excess() {
     let (totals, half_k_dx2) = press(PassivityMode::Observe, 0, 200);
-    assert!((totals.generated_j - 200.0 * half_k_dx2).abs() < 1e-15, "{totals:?}");
+    assert!(
+        (totals.generated_j - 200.0 * half_k_dx2).abs() < 1e-15,
+        "{totals:?}"
+    );
     assert_eq!(totals.active_ticks, 0);
     assert_eq!(totals.dissipated_j, 0.0);
 }
@@ -33,7 +36,10 @@ fn the_observer_books_the_zero_order_hold_excess() {
 fn the_observer_pairs_each_step_with_the_force_that_acted_over_it() {
     let (totals, half_k_dx2) = press(PassivityMode::Observe, 1, 200);
     let expected = half_k_dx2 + 3.0 * half_k_dx2 * 199.0;
-    assert!((totals.generated_j - expected).abs() < 1e-15, "{totals:?} vs {expected}");
+    assert!(
+        (totals.generated_j - expected).abs() < 1e-15,
+        "{totals:?} vs {expected}"
+    );
 }
 
 /// In control the damper takes, each step, what the observer saw generated: the excess never builds
@@ -43,10 +49,19 @@ fn the_controller_dissipates_the_excess_as_it_comes() {
     for latency in [0, 1, 3] {
         let (totals, half_k_dx2) = press(PassivityMode::Control, latency, 400);
         let per_step = if latency == 0 { 1.0 } else { 3.0 } * half_k_dx2;
-        assert!(totals.excess_j <= 2.0 * per_step + 1e-6, "latency {latency}: {totals:?}");
-        assert!(totals.dissipated_j > 0.0 && totals.active_ticks > 0, "{totals:?}");
+        assert!(
+            totals.excess_j <= 2.0 * per_step + 1e-6,
+            "latency {latency}: {totals:?}"
+        );
+        assert!(
+            totals.dissipated_j > 0.0 && totals.active_ticks > 0,
+            "{totals:?}"
+        );
         // What stays generated is at most the excess plus the threshold's dead band.
-        assert!(totals.generated_j <= totals.excess_j + 1e-6 + 1e-12, "{totals:?}");
+        assert!(
+            totals.generated_j <= totals.excess_j + 1e-6 + 1e-12,
+            "{totals:?}"
+        );
         // Broken controller (observe only): the same press keeps all of it.
         let (observed, _) = press(PassivityMode::Observe, latency, 400);
         assert!(observed.generated_j > 300.0 * half_k_dx2, "{observed:?}");
@@ -65,11 +80,19 @@ fn parameters_out_of_range_name_their_key() {
         max_damping_n_s_per_m: f64::NAN,
         ..PassivitySettings::default()
     };
-    assert!(bad.validate().unwrap_err().to_string().starts_with("passivity.max_damping_n_s_per_m:"));
+    assert!(bad
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .starts_with("passivity.max_damping_n_s_per_m:"));
     let bad = PassivitySettings {
         threshold_j: -1.0,
         ..PassivitySettings::default()
     };
-    assert!(bad.validate().unwrap_err().to_string().starts_with("passivity.threshold_j:"));
+    assert!(bad
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .starts_with("passivity.threshold_j:"));
     assert!(PassivitySettings::default().validate().is_ok());
 }

@@ -10,7 +10,9 @@ fn leave(transition: &mut CouplingTransition, k: f64, proxy_z: f64, from_z: f64,
     for i in 1..=steps {
         let probe = DVec3::new(0.0, 0.0, z);
         let proxy = DVec3::new(0.0, 0.0, proxy_z.max(z));
-        let anchor = transition.anchor(probe, proxy, 1e-3).map_or(proxy, |(a, _)| a);
+        let anchor = transition
+            .anchor(probe, proxy, 1e-3)
+            .map_or(proxy, |(a, _)| a);
         let force = k * (anchor - probe);
         let next = from_z + (to_z - from_z) * i as f64 / steps as f64;
         work += force.z * (next - z);
@@ -29,11 +31,17 @@ fn a_stiffer_spring_in_contact_gives_back_no_more_than_the_old_one_held() {
     transition.begin(probe, DVec3::ZERO, k0, DVec3::ZERO, k1);
     assert!(transition.active());
     let (anchor, velocity) = transition.anchor(probe, DVec3::ZERO, 1e-3).unwrap();
-    assert!((k1 * (anchor - probe).z - k0 * s0).abs() < 1e-12, "force kept: {anchor}");
+    assert!(
+        (k1 * (anchor - probe).z - k0 * s0).abs() < 1e-12,
+        "force kept: {anchor}"
+    );
     assert_eq!(velocity, DVec3::ZERO);
     let given_back = leave(&mut transition, k1, 0.0, -s0, 0.001);
     let expected = k0 * k0 * s0 * s0 / (2.0 * k1);
-    assert!((given_back - expected).abs() < 1e-3 * expected, "{given_back} vs {expected}");
+    assert!(
+        (given_back - expected).abs() < 1e-3 * expected,
+        "{given_back} vs {expected}"
+    );
     assert!(!transition.active());
     // Applied at once (the check can fail): the new spring gives back k1 s0^2 / 2.
     let at_once = leave(&mut CouplingTransition::new(), k1, 0.0, -s0, 0.001);

@@ -68,9 +68,17 @@ impl Serialize for SimEvent {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EventError {
     #[error("events[{index}].t_s: must be a finite number from 0 to duration_s = {duration_s} s, got {t_s}")]
-    Time { index: usize, t_s: f64, duration_s: f64 },
+    Time {
+        index: usize,
+        t_s: f64,
+        duration_s: f64,
+    },
     #[error("events[{index}].t_s: {t_s} s is before the previous event's {previous_s} s; list events in time order")]
-    Order { index: usize, t_s: f64, previous_s: f64 },
+    Order {
+        index: usize,
+        t_s: f64,
+        previous_s: f64,
+    },
     #[error("events[{index}]: {source}")]
     Command { index: usize, source: ControlError },
     #[error("events[{index}]: command {command:?} is not available in `voxhap sim` ({why})")]

@@ -145,12 +145,8 @@ pub fn run(
             spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
         let stretch_m = anchor_m - probe_m;
         let coupling_j = 0.5 * k * stretch_m.length_squared();
-        let control_n = passivity.observe_and_control(
-            probe_m,
-            probe_velocity_m_per_s,
-            coupling_j,
-            dt_s,
-        );
+        let control_n =
+            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, coupling_j, dt_s);
         if control_n != DVec3::ZERO {
             rendered_n += control_n;
         }

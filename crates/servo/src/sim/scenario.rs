@@ -14,6 +14,8 @@
 //! `arm: missing field mass_kg`). Relative volume file paths are resolved against the directory of the
 //! scenario file (not the working directory), so a scenario runs the same from anywhere.
 
+use super::events::{self, EventError, PlannedEvent, SimEvent};
+use crate::passivity::{PassivitySettings, PassivitySettingsError};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -25,8 +27,6 @@ pub use voxhap_device::sim::MAX_POSITION_M;
 use voxhap_device::sim::{
     readable, ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError,
 };
-use super::events::{self, EventError, PlannedEvent, SimEvent};
-use crate::passivity::{PassivitySettings, PassivitySettingsError};
 use voxhap_io as io;
 pub use voxhap_io::scene::STIFFNESS_RANGE_N_PER_M;
 

@@ -16,6 +16,7 @@ use voxhap::record::{
     FLAG_SAMPLES_DROPPED,
 };
 use voxhap::servo::device::{open_device, DeviceSpec};
+use voxhap::servo::passivity::{PassivityController, PassivityMode, PassivitySettings};
 use voxhap::servo::runner::{CommandEnvelope, LoopIo, LoopTiming, ServoCommand, ServoLoop};
 use voxhap::servo::schedule::{MockWaiter, Waiter};
 use voxhap::servo::setup::{load_volume_arg, SceneBundle, SceneSetup};
@@ -423,6 +424,13 @@ fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
         .collect();
     bundles.reverse();
     let mut graveyard: Vec<Box<SceneBundle>> = Vec::with_capacity(64);
+    // The passivity controller on, as on a real device, with a tick of latency: its observer, controller and
+    // the passive introduction of the changes below run inside the count.
+    rig.servo.set_passivity(PassivityController::new(
+        PassivityMode::Control,
+        &PassivitySettings::default(),
+        1,
+    ));
     let mut samples_seen = 0u64;
     let mut generations_seen = 0u64;
     let mut last_generation = 0;
@@ -458,6 +466,11 @@ fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
         }
     });
     assert_eq!(allocations, 0, "the servo loop allocated or freed");
+    let passivity = rig.servo.passivity().totals();
+    assert!(
+        passivity.generated_j != 0.0 && passivity.generated_j.is_finite(),
+        "the observer ran: {passivity:?}"
+    );
     assert_eq!(samples_seen, 10_000);
     assert_eq!(rig.stats.commands_applied.load(Ordering::Relaxed), 30);
     assert_eq!(

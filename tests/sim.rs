@@ -9,5 +9,6 @@
 
 mod cli;
 mod limits;
+mod passivity;
 mod scenarios;
 mod stability;

@@ -297,6 +297,19 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         written.trace_path.display(),
         written.sidecar_path.display(),
     ))?;
+    if summary.passivity_mode == crate::servo::passivity::PassivityMode::Control
+        || summary.events_applied > 0
+    {
+        eprintln!(
+            "passivity: {}, dissipated {:.4} mJ in {} ticks (largest force {:.3} N); {} event(s) applied, {} introduced passively",
+            summary.passivity_mode.name(),
+            summary.passivity.dissipated_j * 1e3,
+            summary.passivity.active_ticks,
+            summary.passivity.max_force_n,
+            summary.events_applied,
+            summary.changes_introduced,
+        );
+    }
     if !findings.is_empty() {
         return Err(super::common::ExitWith {
             code: EXIT_FAIL_ON,

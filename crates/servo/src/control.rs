@@ -3,6 +3,7 @@
 //! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
 //! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
 
+use super::commands;
 use super::device::HandTargetInput;
 use super::recorder::{RecorderError, RecorderRequest};
 use super::runner::{
@@ -94,16 +95,6 @@ pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> Trac
         volume,
         setup.solver_kind().name(),
     )
-}
-
-fn finite(name: &str, value: f64) -> Result<f64, ControlError> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
-        Err(invalid(format!(
-            "{name} must be a finite number, got {value}"
-        )))
-    }
 }
 
 impl SessionShared {
@@ -237,17 +228,6 @@ impl SessionShared {
         })
     }
 
-    fn mode_index(setup: &SceneSetup, name: &str) -> Result<usize, ControlError> {
-        setup
-            .modes
-            .iter()
-            .position(|m| m.display_name() == name)
-            .ok_or_else(|| {
-                let names: Vec<&str> = setup.modes.iter().map(|m| m.display_name()).collect();
-                ControlError::NotFound(format!("no mode named {name:?} (modes: {names:?})"))
-            })
-    }
-
     fn refuse_while_recording(control: &Control, what: &str) -> Result<(), ControlError> {
         match &control.recording {
             Some(path) => Err(ControlError::Conflict(format!(
@@ -266,23 +246,12 @@ impl SessionShared {
         Self::drain_retired(control);
         match command {
             ControlCommand::SetStiffness { k } => {
-                let k = finite("k", k)?;
-                if k <= 0.0 || k > self.max_stiffness_n_per_m {
-                    return Err(invalid(format!(
-                        "k must be > 0 and at most the device's {} N/m, got {k}",
-                        self.max_stiffness_n_per_m
-                    )));
-                }
+                let k = commands::check_stiffness(k, self.max_stiffness_n_per_m, "the device's")?;
                 let damping = control.setup.damping_n_s_per_m;
                 self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
             }
             ControlCommand::SetDamping { damping } => {
-                let damping = finite("damping", damping)?;
-                if damping < 0.0 {
-                    return Err(invalid(format!(
-                        "damping must be >= 0 N s/m, got {damping}"
-                    )));
-                }
+                let damping = commands::check_damping(damping)?;
                 let k = control.setup.stiffness_n_per_m;
                 let cap = self.coupling_caps.max_damping_n_s_per_m(k);
                 if damping > cap {
@@ -302,23 +271,13 @@ impl SessionShared {
             }
             ControlCommand::SetTransfer { mode, transfer } => {
                 let mut setup = control.setup.clone();
-                let index = Self::mode_index(&setup, &mode)?;
-                if setup.modes[index].transfer.is_none() {
-                    return Err(invalid(format!("mode {mode:?} has no transfer function")));
-                }
-                setup.modes[index].transfer = Some(transfer);
-                self.swap(
-                    control,
-                    setup,
-                    format!("transfer function of {mode:?} replaced"),
-                )
+                let message = commands::set_transfer(&mut setup.modes, &mode, transfer)?;
+                self.swap(control, setup, message)
             }
             ControlCommand::SetModeEnabled { mode, enabled } => {
                 let mut setup = control.setup.clone();
-                let index = Self::mode_index(&setup, &mode)?;
-                setup.modes[index].enabled = (!enabled).then_some(false);
-                let state = if enabled { "on" } else { "off" };
-                self.swap(control, setup, format!("mode {mode:?} switched {state}"))
+                let message = commands::set_mode_enabled(&mut setup.modes, &mode, enabled)?;
+                self.swap(control, setup, message)
             }
             ControlCommand::AddMode { mode } => {
                 Self::refuse_while_recording(control, "add a mode")?;
@@ -330,7 +289,7 @@ impl SessionShared {
             ControlCommand::RemoveMode { name } => {
                 Self::refuse_while_recording(control, "remove a mode")?;
                 let mut setup = control.setup.clone();
-                let index = Self::mode_index(&setup, &name)?;
+                let index = commands::mode_index(&setup.modes, &name)?;
                 setup.modes.remove(index);
                 self.swap(control, setup, format!("mode {name:?} removed"))
             }

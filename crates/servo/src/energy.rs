@@ -69,6 +69,8 @@ pub struct EnergyTotals {
     pub contacts: u64,
     /// The longest run of undecaying contacts in quick succession.
     pub longest_cycle_run: u32,
+    /// Work the passivity controller's damping took from the probe (J; crate::passivity).
+    pub passivity_dissipated_j: f64,
 }
 
 /// The energy ledger of one run.
@@ -150,6 +152,12 @@ impl EnergyLedger {
         }
         self.in_contact = touching;
         *t
+    }
+
+    /// Books what the passivity controller has dissipated so far (J; crate::passivity); part of every
+    /// totals returned after.
+    pub fn book_passivity(&mut self, dissipated_j: f64) {
+        self.totals.passivity_dissipated_j = dissipated_j;
     }
 
     /// The totals so far.

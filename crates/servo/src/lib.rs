@@ -15,6 +15,7 @@ pub use api::{
     SafetyReport, SceneReport, SessionApi, Slice, SliceAxis, SliceRequest, Snapshot, StatsReport,
     VolumeReport,
 };
+mod commands;
 mod control;
 pub mod device;
 pub mod energy;
@@ -22,6 +23,7 @@ pub mod force_off;
 mod join;
 pub mod mapped;
 pub mod monitor;
+pub mod passivity;
 pub mod recorder;
 pub mod rt;
 pub mod runner;

@@ -27,6 +27,7 @@ use super::device::ServoDevice;
 use super::energy::EnergyLedger;
 use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
+use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
 use super::stats::ServoStats;
@@ -129,6 +130,15 @@ pub struct ServoLoop {
     ledger: EnergyLedger,
     /// Why the force is off (crate::force_off).
     force_off: ForceOffTracker,
+    /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
+    passivity: PassivityController,
+    /// The passive introduction of a change applied in contact (crate::passivity::transition).
+    transition: CouplingTransition,
+    /// A command changed the coupling or the scene at the start of this tick.
+    changed: bool,
+    /// The point the coupling spring pulled towards last tick, and its stiffness then.
+    last_anchor_m: DVec3,
+    last_k: f64,
 }
 
 impl ServoLoop {
@@ -171,9 +181,31 @@ impl ServoLoop {
             scene_frame_every_ticks: scene_frame_interval_ticks(timing.period_ns),
             ledger: EnergyLedger::new(caps.device_damping_n_s_per_m),
             force_off: ForceOffTracker::default(),
+            passivity: PassivityController::new(
+                PassivityMode::Off,
+                &PassivitySettings::default(),
+                0,
+            ),
+            transition: CouplingTransition::new(),
+            changed: false,
+            last_anchor_m: start_m,
+            last_k: 0.0,
         };
         servo.apply_caps();
+        servo.last_k = servo.bundle.scene.stiffness_n_per_m();
         servo
+    }
+
+    /// Runs `controller` in every tick (crate::passivity): its observer books what was sent and reported,
+    /// its controller's force is added before the safety pipeline, and (unless its mode is `off`) changes
+    /// applied in contact are introduced passively.
+    pub fn set_passivity(&mut self, controller: PassivityController) {
+        self.passivity = controller;
+    }
+
+    /// The passivity observer's and controller's totals (for tests and the summary).
+    pub fn passivity(&self) -> &PassivityController {
+        &self.passivity
     }
 
     /// Caps the scene's coupling by the device's limits.
@@ -236,6 +268,7 @@ impl ServoLoop {
                     if self.bundle.scene.set_stiffness_n_per_m(k).is_ok() {
                         self.bundle.damping_n_s_per_m = damping;
                         self.bundle.generation = generation;
+                        self.changed = true;
                     }
                 }
                 ServoCommand::ClearFault if claimed => {
@@ -252,6 +285,7 @@ impl ServoLoop {
                     let retire = if claimed {
                         let old = std::mem::replace(&mut self.bundle, bundle);
                         self.apply_caps();
+                        self.changed = true;
                         // Modes changed: what they remembered (surface normals) no longer applies.
                         self.state.memory = ModeMemory {
                             previous_force_n: self.state.memory.previous_force_n,
@@ -323,9 +357,31 @@ impl ServoLoop {
         );
         flags |= out.flags;
         let damping = bundle.damping_n_s_per_m;
-        let mut rendered_n = out.force_n + damping * (out.proxy_velocity_m_per_s - probe_velocity);
+        // A change applied in contact is introduced passively (crate::passivity::transition).
+        let k = bundle.scene.stiffness_n_per_m();
+        if std::mem::take(&mut self.changed) && self.passivity.mode() != PassivityMode::Off {
+            self.transition
+                .begin(probe_m, self.last_anchor_m, self.last_k, out.proxy_m, k);
+        }
+        let (anchor_m, spring_n, anchor_velocity) =
+            match self.transition.anchor(probe_m, out.proxy_m, dt_s) {
+                Some((anchor_m, velocity)) => (anchor_m, k * (anchor_m - probe_m), velocity),
+                None => (out.proxy_m, out.force_n, out.proxy_velocity_m_per_s),
+            };
+        self.last_anchor_m = anchor_m;
+        self.last_k = k;
+        let mut rendered_n = spring_n + damping * (anchor_velocity - probe_velocity);
         if self.last_state.is_none() || out.status == TickStatus::InputRejected {
             rendered_n = DVec3::ZERO;
+        } else {
+            // The passivity controller, before the safety pipeline (docs/safety.md).
+            let reference_j = 0.5 * k * (anchor_m - probe_m).length_squared();
+            let control_n =
+                self.passivity
+                    .observe_and_control(probe_m, probe_velocity, reference_j, dt_s);
+            if control_n != DVec3::ZERO {
+                rendered_n += control_n;
+            }
         }
         if !rendered_n.is_finite() {
             rendered_n = DVec3::ZERO;
@@ -356,6 +412,7 @@ impl ServoLoop {
             force_valid,
         });
         self.last_safe_force_n = device_out.sent_force_n;
+        self.passivity.sent(rendered_n, device_out.sent_force_n);
         if device_out.state.is_some() {
             self.last_state = device_out.state;
         }

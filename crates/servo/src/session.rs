@@ -23,6 +23,7 @@ pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
 use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
+use super::passivity::PassivityController;
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
@@ -232,6 +233,19 @@ impl Session {
         let bundle = setup
             .bundle(period_ns, config.solver_budget_fraction, 1)
             .map_err(|e| SessionError::Scene(e.to_string()))?;
+        // The passivity controller: `control` for a real device unless the scene says otherwise; the
+        // simulated arm's force acts its `[arm] latency_s` late (a real device's latency is not known here).
+        let simulated_arm = opened.hand_target.is_some();
+        let passivity_mode = setup.passivity.mode_for(simulated_arm);
+        let latency_ticks = if simulated_arm {
+            PassivityController::latency_ticks(
+                setup.arm.arm.effects.latency_s,
+                period_ns as f64 * 1e-9,
+            )
+        } else {
+            0
+        };
+        let passivity = PassivityController::new(passivity_mode, &setup.passivity, latency_ticks);
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
@@ -327,6 +341,7 @@ impl Session {
                     origin_ns,
                     first_state,
                 );
+                servo.set_passivity(passivity);
                 servo.run(&mut waiter, &thread_stop);
                 running.store(false, Ordering::Release);
             })
@@ -353,7 +368,7 @@ impl Session {
             event_rx,
         )
         .map_err(SessionError::Thread)?;
-        let simulated = opened.hand_target.is_some();
+        let simulated = simulated_arm;
         let shared = Arc::new(SessionShared {
             stats,
             snapshot: Mutex::new(snapshot_out),

@@ -12,6 +12,7 @@
 //! circling through its centre; a vector volume alone is followed (vector_follow). `--scene X --volume V` renders X
 //! with V in place of X's first volume, which is then never loaded.
 
+use crate::passivity::PassivitySettings;
 use crate::sim::scenario::{Purpose, Scenario, ScenarioError, SolverSettings};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -45,6 +46,8 @@ pub struct SceneSetup {
     pub arm: SimArmConfig,
     pub start_m: DVec3,
     pub rate_hz: Option<f64>,
+    /// `[passivity]` (crate::passivity): the mode left out is decided by the device.
+    pub passivity: PassivitySettings,
 }
 
 /// A scene ready for the servo thread: built off the real-time thread, swapped in at a tick boundary.
@@ -186,6 +189,7 @@ impl SceneSetup {
             arm,
             start_m,
             rate_hz: Some(file.rate_hz),
+            passivity: file.passivity,
         };
         setup.build_scene().map_err(|source| SetupError::Modes {
             origin: origin.to_owned(),
@@ -320,6 +324,7 @@ impl SceneSetup {
             arm,
             start_m,
             rate_hz: None,
+            passivity: PassivitySettings::default(),
         };
         setup
             .build_scene()

@@ -5,6 +5,7 @@
 //! and the arm; [`runner`] closes the loop simulated arm -> [`voxhap_core::haptics::tick::tick`] -> simulated arm
 //! with a mock clock (the tick counter) and hands every tick to a [`voxhap_record::TraceWriter`].
 
+pub mod events;
 pub mod overrides;
 pub mod runner;
 pub mod scenario;

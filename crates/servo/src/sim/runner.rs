@@ -15,8 +15,9 @@
 
 use super::scenario::LoadedScenario;
 use crate::energy::{EnergyLedger, EnergyTotals};
+use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
 use glam::DVec3;
-use voxhap_core::haptics::modes::ModeKind;
+use voxhap_core::haptics::modes::{ModeKind, ModeMemory};
 use voxhap_core::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
 use voxhap_device::sim::{SimArm, SimError};
 use voxhap_record::{
@@ -53,6 +54,14 @@ pub struct SimSummary {
     pub non_finite_ticks: u64,
     /// The energy ledger's totals at the end (crate::energy).
     pub energy: EnergyTotals,
+    /// The passivity observer's and controller's totals (crate::passivity).
+    pub passivity: PassivityTotals,
+    /// The mode the passivity controller ran in.
+    pub passivity_mode: PassivityMode,
+    /// Changes made in contact by `[[events]]` that were introduced gradually (crate::passivity::transition).
+    pub changes_introduced: u64,
+    /// `[[events]]` applied.
+    pub events_applied: u64,
 }
 
 /// Runs `scenario` with `solver`, writing every tick to `writer`; `progress(ticks_done)` is called every
@@ -69,7 +78,6 @@ pub fn run(
     let dt_s = settings.dt_s();
     let mut arm = SimArm::new(scenario.arm.clone(), scenario.start_m)?;
     let mut state = TickState::new(arm.position_m());
-    let mut workspace = TickWorkspace::new(scene, solver, settings.solver.solver_config());
     let mut summary = SimSummary {
         ticks,
         certified_ticks: 0,
@@ -79,22 +87,78 @@ pub fn run(
         workspace_limit_ticks: 0,
         non_finite_ticks: 0,
         energy: EnergyTotals::default(),
+        passivity: PassivityTotals::default(),
+        passivity_mode: PassivityMode::Off,
+        changes_introduced: 0,
+        events_applied: 0,
     };
-    let damping_n_s_per_m = settings.damping_n_s_per_m;
     let mut ledger = EnergyLedger::new(settings.arm.damping_n_s_per_m);
     // The directed-force modes, whose work on the hand is intended (crate::energy).
     let mut active = [false; voxhap_record::MAX_MODES];
     for (slot, mode) in active.iter_mut().zip(&settings.modes) {
         *slot = mode.kind.is_active();
     }
+    // The passivity observer and controller, and the passive introduction of changes (crate::passivity):
+    // the simulated arm's force acts `latency_s` after it was sent, in whole ticks.
+    let passivity_mode = settings.passivity.mode_for(true);
+    let latency_ticks = PassivityController::latency_ticks(settings.arm.effects.latency_s, dt_s);
+    let mut passivity =
+        PassivityController::new(passivity_mode, &settings.passivity, latency_ticks);
+    let mut transition = CouplingTransition::new();
+    // The scenes of the run: the scenario's, then each event's, with their workspaces (built before it).
+    let mut workspaces: Vec<TickWorkspace> = std::iter::once(scene)
+        .chain(scenario.events.iter().map(|e| &e.scene))
+        .map(|s| TickWorkspace::new(s, solver, settings.solver.solver_config()))
+        .collect();
+    let mut scene = scene;
+    let mut current = 0;
+    let mut damping_n_s_per_m = settings.damping_n_s_per_m;
+    let mut last_anchor_m = state.proxy_m;
+    let mut last_k = scene.stiffness_n_per_m();
     for index in 0..ticks {
         let t_s = index as f64 * dt_s;
+        let mut changed = false;
+        while let Some(event) = scenario.events.get(current).filter(|e| e.tick <= index) {
+            scene = &event.scene;
+            damping_n_s_per_m = event.damping_n_s_per_m;
+            current += 1;
+            changed = true;
+            // As `serve` does on a scene swap: what the modes remembered no longer applies.
+            state.memory = ModeMemory {
+                previous_force_n: state.memory.previous_force_n,
+                ..ModeMemory::default()
+            };
+        }
         let probe_m = arm.position_m();
         let probe_velocity_m_per_s = arm.velocity_m_per_s();
-        let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
-        let rendered_n =
-            out.force_n + damping_n_s_per_m * (out.proxy_velocity_m_per_s - probe_velocity_m_per_s);
+        let out = tick(&mut state, scene, probe_m, dt_s, &mut workspaces[current]);
+        let k = scene.stiffness_n_per_m();
+        if changed && passivity_mode != PassivityMode::Off {
+            transition.begin(probe_m, last_anchor_m, last_k, out.proxy_m, k);
+        }
+        let (anchor_m, spring_n, anchor_velocity) =
+            match transition.anchor(probe_m, out.proxy_m, dt_s) {
+                Some((anchor_m, velocity)) => (anchor_m, k * (anchor_m - probe_m), velocity),
+                None => (out.proxy_m, out.force_n, out.proxy_velocity_m_per_s),
+            };
+        let mut rendered_n =
+            spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
+        let stretch_m = anchor_m - probe_m;
+        let coupling_j = 0.5 * k * stretch_m.length_squared();
+        let control_n =
+            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, coupling_j, dt_s);
+        if control_n != DVec3::ZERO {
+            rendered_n += control_n;
+        }
         let outcome = arm.step(t_s, dt_s, rendered_n)?;
+        let sent_n = if outcome.force_rejected {
+            DVec3::ZERO
+        } else {
+            rendered_n
+        };
+        passivity.sent(rendered_n, sent_n);
+        last_anchor_m = anchor_m;
+        last_k = k;
         let active_n: DVec3 = out
             .mode_force_n
             .iter()
@@ -102,8 +166,7 @@ pub fn run(
             .filter(|(_, a)| **a)
             .map(|(f, _)| *f)
             .sum();
-        let stretch_m = out.proxy_m - probe_m;
-        let coupling_j = 0.5 * scene.stiffness_n_per_m() * stretch_m.length_squared();
+        ledger.book_passivity(passivity.totals().dissipated_j);
         summary.energy = ledger.record(t_s, dt_s, probe_m, rendered_n, active_n, coupling_j);
         let mut flags = out.flags;
         if outcome.workspace_limit_hit {
@@ -150,5 +213,9 @@ pub fn run(
         }
     }
     progress(ticks);
+    summary.passivity = passivity.totals();
+    summary.passivity_mode = passivity_mode;
+    summary.changes_introduced = transition.introduced();
+    summary.events_applied = current as u64;
     Ok(summary)
 }

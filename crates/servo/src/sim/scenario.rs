@@ -14,6 +14,8 @@
 //! `arm: missing field mass_kg`). Relative volume file paths are resolved against the directory of the
 //! scenario file (not the working directory), so a scenario runs the same from anywhere.
 
+use super::events::{self, EventError, PlannedEvent, SimEvent};
+use crate::passivity::{PassivitySettings, PassivitySettingsError};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -78,6 +80,12 @@ pub struct Scenario {
     /// `[device]`: a device profile for `serve` (device::profile; `--device-profile` replaces it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device: Option<toml::Table>,
+    /// `[passivity]`: the passivity observer and controller (crate::passivity).
+    #[serde(default)]
+    pub passivity: PassivitySettings,
+    /// `[[events]]`: control commands at given times (`sim` only; `serve` refuses them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<SimEvent>,
 }
 
 fn default_arm() -> ArmParams {
@@ -231,6 +239,15 @@ pub enum ScenarioValueError {
     /// `volumes[i]` has neither a builtin nor a file.
     #[error("volumes[{0}]: needs builtin or file")]
     NoSource(usize),
+    /// The `[passivity]` table.
+    #[error(transparent)]
+    Passivity(#[from] PassivitySettingsError),
+    /// An `[[events]]` table.
+    #[error(transparent)]
+    Event(#[from] EventError),
+    /// `[[events]]` in a scene file for `serve`.
+    #[error("events: scripted events are for `voxhap sim`; send commands to a running `serve` through its control API")]
+    EventsInServe,
     /// `volumes[i].part` is set on a file volume.
     #[error("volumes[{0}].part: only used with a two-field builtin")]
     PartWithFile(usize),
@@ -363,6 +380,8 @@ pub struct LoadedScenario {
     pub start_m: DVec3,
     /// The volumes as a short description for traces, e.g. `builtin:sphere` or a file path.
     pub volume_description: String,
+    /// The `[[events]]`, checked and with their scenes built (sim::events).
+    pub events: Vec<PlannedEvent>,
 }
 
 impl Scenario {
@@ -474,6 +493,11 @@ impl Scenario {
             return Err(E::Stiffness(self.k_n_per_m));
         }
         self.solver.validate()?;
+        self.passivity.validate()?;
+        if purpose == Purpose::Serve && !self.events.is_empty() {
+            return Err(E::EventsInServe);
+        }
+        events::check_times(&self.events, self.duration_s)?;
         if self.tick_count() > MAX_TICKS {
             return Err(E::TooManyTicks(self.tick_count()));
         }
@@ -547,12 +571,25 @@ impl Scenario {
             origin: origin.to_owned(),
             source,
         })?;
+        let events = events::plan(
+            &self.events,
+            &scene,
+            &self.modes,
+            self.k_n_per_m,
+            self.damping_n_s_per_m,
+            self.rate_hz,
+        )
+        .map_err(|problem| ScenarioError::Invalid {
+            origin: origin.to_owned(),
+            message: problem.to_string(),
+        })?;
         Ok(LoadedScenario {
             scenario: self,
             scene,
             arm,
             start_m,
             volume_description: descriptions.join(", "),
+            events,
         })
     }
 }

@@ -19,6 +19,7 @@ use super::scenario::{
     MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
     SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
 };
+use crate::passivity::settings::{MAX_CONTROLLER_DAMPING_N_S_PER_M, MAX_THRESHOLD_J};
 use voxhap_core::haptics::modes::{
     MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_POWER_BUDGET_W, MAX_STRENGTH_N, MAX_TRANSFER_VALUE,
 };
@@ -222,6 +223,21 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("hand", "", SERVE_ARM, Table("`[hand]`"), "", "the virtual hand's grip"),
             key("path", "", SERVE_ARM, Table("`[path]`"), "", "what the virtual hand does over time (scene positions and forces)"),
             key("device", "", Otherwise("no profile"), Table("[device profiles](../workspace.md)"), "", "a device profile for `serve` (`--device-profile` replaces it)"),
+            key("passivity", "", Otherwise("all of `[passivity]`'s defaults"), Table("`[passivity]`"), "", "the passivity observer and controller ([Stability](../stability.md))"),
+            key("events", "", Otherwise("no events"), Table("[Scenario files](../scenarios.md)"), "", "`voxhap sim` only: control commands at given times, `t_s` beside the command as the control API spells it"),
+        ],
+    },
+    SchemaSection {
+        title: "`[passivity]`",
+        intro: "The passivity observer and controller on the coupling, and the passive introduction of changes \
+                made in contact ([Stability](../stability.md)).",
+        header: "[passivity]",
+        base: "",
+        group: "passivity",
+        keys: &[
+            key("mode", "", Otherwise("`control` for every real device, `observe` for the simulated arm (`voxhap sim`, and `serve` on the simulated arm)"), OneOf(&["off", "observe", "control"]), "\"control\"", "`off`: nothing, changes apply at once; `observe`: the observer books, changes in contact are introduced passively; `control`: the controller also dissipates what the coupling generates"),
+            key("max_damping_n_s_per_m", "N s/m", Value("20.0"), PositiveAtMost(MAX_CONTROLLER_DAMPING_N_S_PER_M), "10.0", "the most damping the controller adds in a tick"),
+            key("threshold_j", "J", Value("1e-6"), Between(0.0, MAX_THRESHOLD_J), "1e-5", "energy generated beyond the reference that the controller lets pass before it acts"),
         ],
     },
     SchemaSection {

@@ -1,0 +1,98 @@
+use super::*;
+
+/// Presses a spring of stiffness `k` at constant speed (`dx` per tick of `dt`), the force the spring's
+/// sampled value plus the controller's, for `ticks` ticks; returns the totals.
+fn press(mode: PassivityMode, latency_ticks: usize, ticks: u64) -> (PassivityTotals, f64) {
+    let (k, dx, dt) = (1000.0, 1e-5, 1e-3);
+    let settings = PassivitySettings::default();
+    let mut pc = PassivityController::new(mode, &settings, latency_ticks);
+    let velocity = DVec3::new(dx / dt, 0.0, 0.0);
+    for n in 0..=ticks {
+        let x = DVec3::new(n as f64 * dx, 0.0, 0.0);
+        let spring = -k * x;
+        let reference = 0.5 * k * x.length_squared();
+        let control = pc.observe_and_control(x, velocity, reference, dt);
+        pc.sent(spring + control, spring + control);
+    }
+    (pc.totals(), 0.5 * k * dx * dx)
+}
+
+/// Without latency a sampled spring pressed at constant speed generates `k dx^2 / 2` a step beyond its
+/// stored energy (the force held over the step is the one from its start): the zero-order hold's excess.
+#[test]
+fn the_observer_books_the_zero_order_hold_excess() {
+    let (totals, half_k_dx2) = press(PassivityMode::Observe, 0, 200);
+    assert!(
+        (totals.generated_j - 200.0 * half_k_dx2).abs() < 1e-15,
+        "{totals:?}"
+    );
+    assert_eq!(totals.active_ticks, 0);
+    assert_eq!(totals.dissipated_j, 0.0);
+}
+
+/// With one tick of latency the step from `x_{n-1}` to `x_n` moves under `F_{n-2} = -k x_{n-2}`: each step
+/// generates `k dx (x_{n-1} - x_{n-2}) + k dx^2 / 2 = 3 k dx^2 / 2`, the first one (no force yet) `k dx^2 / 2`.
+#[test]
+fn the_observer_pairs_each_step_with_the_force_that_acted_over_it() {
+    let (totals, half_k_dx2) = press(PassivityMode::Observe, 1, 200);
+    let expected = half_k_dx2 + 3.0 * half_k_dx2 * 199.0;
+    assert!(
+        (totals.generated_j - expected).abs() < 1e-15,
+        "{totals:?} vs {expected}"
+    );
+}
+
+/// In control the damper takes, each step, what the observer saw generated: the excess never builds
+/// beyond one step's generation and what was generated is dissipated, with or without latency.
+#[test]
+fn the_controller_dissipates_the_excess_as_it_comes() {
+    for latency in [0, 1, 3] {
+        let (totals, half_k_dx2) = press(PassivityMode::Control, latency, 400);
+        let per_step = if latency == 0 { 1.0 } else { 3.0 } * half_k_dx2;
+        assert!(
+            totals.excess_j <= 2.0 * per_step + 1e-6,
+            "latency {latency}: {totals:?}"
+        );
+        assert!(
+            totals.dissipated_j > 0.0 && totals.active_ticks > 0,
+            "{totals:?}"
+        );
+        // What stays generated is at most the excess plus the threshold's dead band.
+        assert!(
+            totals.generated_j <= totals.excess_j + 1e-6 + 1e-12,
+            "{totals:?}"
+        );
+        // Broken controller (observe only): the same press keeps all of it.
+        let (observed, _) = press(PassivityMode::Observe, latency, 400);
+        assert!(observed.generated_j > 300.0 * half_k_dx2, "{observed:?}");
+    }
+}
+
+#[test]
+fn off_books_nothing_and_adds_no_force() {
+    let (totals, _) = press(PassivityMode::Off, 0, 50);
+    assert_eq!(totals, PassivityTotals::default());
+}
+
+#[test]
+fn parameters_out_of_range_name_their_key() {
+    let bad = PassivitySettings {
+        max_damping_n_s_per_m: f64::NAN,
+        ..PassivitySettings::default()
+    };
+    assert!(bad
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .starts_with("passivity.max_damping_n_s_per_m:"));
+    let bad = PassivitySettings {
+        threshold_j: -1.0,
+        ..PassivitySettings::default()
+    };
+    assert!(bad
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .starts_with("passivity.threshold_j:"));
+    assert!(PassivitySettings::default().validate().is_ok());
+}

@@ -214,6 +214,7 @@ pub struct EnergyStats {
     device_dissipation_j: AtomicU64,
     net_generated_j: AtomicU64,
     largest_rise_j: AtomicU64,
+    passivity_dissipated_j: AtomicU64,
     contacts: AtomicU64,
     longest_cycle_run: AtomicU32,
 }
@@ -229,6 +230,7 @@ impl EnergyStats {
         put(&self.device_dissipation_j, totals.device_dissipation_j);
         put(&self.net_generated_j, totals.net_generated_j);
         put(&self.largest_rise_j, totals.largest_rise_j);
+        put(&self.passivity_dissipated_j, totals.passivity_dissipated_j);
         self.contacts.store(totals.contacts, Ordering::Relaxed);
         self.longest_cycle_run
             .store(totals.longest_cycle_run, Ordering::Relaxed);
@@ -245,6 +247,7 @@ impl EnergyStats {
             device_dissipation_j: get(&self.device_dissipation_j),
             net_generated_j: get(&self.net_generated_j),
             largest_rise_j: get(&self.largest_rise_j),
+            passivity_dissipated_j: get(&self.passivity_dissipated_j),
             contacts: self.contacts.load(Ordering::Relaxed),
             longest_cycle_run: self.longest_cycle_run.load(Ordering::Relaxed),
         }

@@ -2,7 +2,9 @@
 //! this thread only; the device doubles answer from their own threads). WoodenHaptics (Teensy), Haply 2DIY, Falcon
 //! and the voxhap protocol over serial run over in-memory pipes, the voxhap protocol over HID over an in-memory
 //! report pipe, the Inverse3 over a loopback WebSocket, the legacy WoodenHaptics HID driver over a fixed report
-//! source; both HID links through the real HID transport over doubles that wait in whole milliseconds, as hidapi.
+//! source; both HID links through the real HID transport over doubles that wait in whole milliseconds, as hidapi;
+//! the 2DIY (with its resync) and WoodenHaptics drivers also through the real serial transport on a
+//! pseudo-terminal.
 //!
 //! Each driver is checked twice: bare (`write_force` + `read_state`), and the way the servo thread holds it, inside
 //! the reconnecting wrapper (`servo::device::Reconnecting`: connector thread, supervisor with its lifecycle, link
@@ -10,7 +12,9 @@
 
 use crate::util::alloc::count_allocations;
 use crate::util::falcon_firmware::{Bootloader, FalconLine};
+use crate::util::haply_board::{Fault, HaplyBoard};
 use crate::util::inverse_service::InverseService;
+use crate::util::woody_firmware::WoodyFirmware;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -23,7 +27,9 @@ use voxhap::device::drivers::woodenhaptics::{WoodenHaptics, KINEMATICS as WOODEN
 use voxhap::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig};
 use voxhap::device::supervisor::{SupervisorConfig, TickInput};
 use voxhap::device::transport::inverse_service::ServiceConfig;
-use voxhap::device::transport::{ByteTransport, HidTransport, MemoryPipe, MillisecondHid};
+use voxhap::device::transport::{
+    ByteTransport, HidTransport, MemoryPipe, MillisecondHid, SerialTransport,
+};
 use voxhap::device::{DeviceError, HapticDevice};
 use voxhap::servo::device::{Reconnecting, ServoDevice};
 use voxhap::servo::monitor::StopSlot;
@@ -508,4 +514,58 @@ fn supervised_protocol_hid_exchanges_allocate_nothing() {
         0
     );
     stop.store(true, Ordering::Release);
+}
+
+/// One tick as the supervisor makes it, whatever the link does (timeouts and shifted replies are errors that
+/// allocate nothing either).
+fn tolerant_tick<D: HapticDevice>(device: &mut D) {
+    let _ = device.write_force(DVec3::new(0.1, 0.0, 0.2));
+    if device.read_state().is_ok() {
+        device.input_checked(true);
+    }
+}
+
+/// The 2DIY over a real pseudo-terminal (SerialTransport's ppoll wait and its input discard), through the resync
+/// a reply cut short and a reply shifted by a stray byte take: nothing allocates.
+#[test]
+fn haply_2diy_over_a_pty_resyncs_without_allocating() {
+    let board = HaplyBoard::start(&[]);
+    let transport = SerialTransport::open(board.path(), 0).unwrap();
+    let mut driver = Haply2Diy::new(transport, Haply2DiyConfig::default());
+    driver.open().unwrap();
+    for _ in 0..50 {
+        tolerant_tick(&mut driver);
+    }
+    let resyncs = driver.resync_count();
+    board
+        .shared
+        .faults
+        .lock()
+        .unwrap()
+        .extend([Fault::Partial, Fault::ExtraByte]);
+    let ((), allocations) = count_allocations(|| {
+        for _ in 0..300 {
+            tolerant_tick(&mut driver);
+        }
+    });
+    assert_eq!(allocations, 0);
+    assert!(driver.resync_count() > resyncs, "no resync happened");
+}
+
+/// The WoodenHaptics Teensy driver over a real pseudo-terminal: nothing allocates.
+#[test]
+fn woodenhaptics_serial_over_a_pty_allocates_nothing() {
+    let firmware = WoodyFirmware::start(3);
+    let transport = SerialTransport::open(firmware.path(), 115_200).unwrap();
+    let mut driver = WoodenHapticsSerial::new(transport, WoodyConfig::default());
+    driver.open().unwrap();
+    for _ in 0..50 {
+        tolerant_tick(&mut driver);
+    }
+    let ((), allocations) = count_allocations(|| {
+        for _ in 0..300 {
+            tolerant_tick(&mut driver);
+        }
+    });
+    assert_eq!(allocations, 0);
 }

@@ -48,6 +48,10 @@
 //!
 //! The firmware file is Novint's (for example `test_firmware.bin` of their SDK); voxhap never ships it.
 
+pub use super::falcon_frames::{
+    decode_reply, encode_command, FalconReply, FrameAssembler, ALL_HOMED, FRAME_LEN, HOMING_MODE,
+    LED_BLUE, LED_GREEN, LED_RED,
+};
 pub use super::falcon_kinematics::{
     forward_kinematics, inverse_kinematics, jacobian_inverse, leg_angle_rad, motor_commands,
     FalconGeometry, LegAngles,
@@ -62,8 +66,6 @@ use std::time::{Duration, Instant};
 pub const VENDOR_ID: u16 = 0x0403;
 /// USB product id of the Falcon.
 pub const PRODUCT_ID: u16 = 0xcb48;
-/// Frame length both ways.
-pub const FRAME_LEN: usize = 16;
 /// Baud rate in normal mode (FTDI divisor 2).
 pub const NORMAL_BAUD: u32 = 1_500_000;
 /// Baud rate of the bootloader check (FalconCommLibUSB.cpp:423-424).
@@ -72,69 +74,6 @@ pub const BOOTLOADER_CHECK_BAUD: u32 = 9_600;
 pub const UPLOAD_BAUD: u32 = 142_857;
 /// Bytes per firmware piece (FalconFirmware.cpp:115).
 pub const UPLOAD_CHUNK: usize = 62;
-/// Green LED bit.
-pub const LED_GREEN: u8 = 0x2;
-/// Blue LED bit.
-pub const LED_BLUE: u8 = 0x4;
-/// Red LED bit.
-pub const LED_RED: u8 = 0x8;
-/// Homing-mode request bit of the control byte.
-pub const HOMING_MODE: u8 = 0x1;
-/// All three motors homed.
-pub const ALL_HOMED: u8 = 0x7;
-
-/// Encodes a host frame: three motor commands, LED bits and the homing-mode request.
-pub fn encode_command(motor: [i16; 3], leds: u8, homing_mode: bool) -> [u8; FRAME_LEN] {
-    let mut out = [0u8; FRAME_LEN];
-    out[0] = b'<';
-    out[15] = b'>';
-    for (i, value) in motor.iter().enumerate() {
-        let v = *value as u16;
-        for nibble in 0..4 {
-            out[1 + 4 * i + nibble] = ((v >> (4 * nibble)) & 0xf) as u8;
-        }
-    }
-    out[13] = leds & (LED_GREEN | LED_BLUE | LED_RED);
-    if homing_mode {
-        out[13] |= HOMING_MODE;
-    }
-    for byte in &mut out[1..15] {
-        *byte += 0x41;
-    }
-    out
-}
-
-/// One decoded device frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct FalconReply {
-    /// Encoder counts of motors 1-3.
-    pub encoders: [i16; 3],
-    /// Homing bits of motors 1-3 (bit 0 = motor 1).
-    pub homing: u8,
-    /// Grip bits.
-    pub grip: u8,
-}
-
-/// Decodes a device frame; `None` unless it is `<`…`>` (libnifalcon drops such frames as malformed).
-pub fn decode_reply(frame: &[u8; FRAME_LEN]) -> Option<FalconReply> {
-    if frame[0] != b'<' || frame[15] != b'>' {
-        return None;
-    }
-    let mut encoders = [0i16; 3];
-    for (i, encoder) in encoders.iter_mut().enumerate() {
-        let mut v = 0u16;
-        for nibble in 0..4 {
-            v |= u16::from(frame[1 + 4 * i + nibble].wrapping_sub(0x41) & 0xf) << (4 * nibble);
-        }
-        *encoder = v as i16;
-    }
-    let status = frame[13].wrapping_sub(0x41);
-    Some(FalconReply {
-        encoders,
-        homing: (status >> 4) & 7,
-        grip: status & 0x0f,
-    })
-}
 
 /// A byte stream that can also change its line settings (baud rate, modem lines, queues, the FTDI latency
 /// timer), as the firmware upload needs. A serial port does it through termios and sysfs; a test double must
@@ -325,9 +264,8 @@ pub struct Falcon<P> {
     /// The newest frame's position, until the host's verdict on it.
     candidate_m: Option<DVec3>,
     last_reply: Option<FalconReply>,
-    frame: [u8; 64],
-    frame_len: usize,
-    malformed: u64,
+    /// The receive side's protocol state: bytes in, frames out (no I/O).
+    frames: FrameAssembler,
     awaiting_reply: bool,
     surplus: SurplusCount,
     event: Option<DeviceEvent>,
@@ -361,9 +299,7 @@ impl<P: FalconPort> Falcon<P> {
             accepted_m: None,
             candidate_m: None,
             last_reply: None,
-            frame: [0; 64],
-            frame_len: 0,
-            malformed: 0,
+            frames: FrameAssembler::new(),
             awaiting_reply: false,
             surplus: SurplusCount::default(),
             event: None,
@@ -397,7 +333,7 @@ impl<P: FalconPort> Falcon<P> {
         if self.read_frame(Duration::ZERO)?.is_some() {
             // Still more: a flood. Throw the rest away.
             self.port.discard_input()?;
-            self.frame_len = 0;
+            self.frames.clear();
             surplus += 1;
         }
         if surplus > 0 {
@@ -427,7 +363,7 @@ impl<P: FalconPort> Falcon<P> {
 
     /// Frames dropped as malformed.
     pub fn malformed_frames(&self) -> u64 {
-        self.malformed
+        self.frames.malformed()
     }
 
     /// The port.
@@ -447,35 +383,19 @@ impl<P: FalconPort> Falcon<P> {
         let deadline = Instant::now() + timeout;
         let mut polled = false;
         loop {
-            while self.frame_len >= FRAME_LEN {
-                let mut candidate = [0u8; FRAME_LEN];
-                candidate.copy_from_slice(&self.frame[..FRAME_LEN]);
-                if let Some(reply) = decode_reply(&candidate) {
-                    self.frame.copy_within(FRAME_LEN..self.frame_len, 0);
-                    self.frame_len -= FRAME_LEN;
-                    return Ok(Some(reply));
-                }
-                // Resynchronise: drop up to the next '<'.
-                self.malformed += 1;
-                let skip = self.frame[1..self.frame_len]
-                    .iter()
-                    .position(|&b| b == b'<')
-                    .map_or(self.frame_len, |i| i + 1);
-                self.frame.copy_within(skip..self.frame_len, 0);
-                self.frame_len -= skip;
+            if let Some(reply) = self.frames.next_frame() {
+                return Ok(Some(reply));
             }
             let remaining = deadline.saturating_duration_since(Instant::now());
             if remaining.is_zero() && polled {
                 return Ok(None);
             }
             polled = true;
-            let n = self
-                .port
-                .read(&mut self.frame[self.frame_len..], remaining)?;
+            let n = self.port.read(self.frames.space(), remaining)?;
             if n == 0 {
                 return Ok(None);
             }
-            self.frame_len += n;
+            self.frames.filled(n);
         }
     }
 
@@ -500,7 +420,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.port.set_baud(NORMAL_BAUD)?;
         self.port.purge()?;
         self.port.check_latency_timer()?;
-        self.frame_len = 0;
+        self.frames.clear();
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
         self.age = ReplyAge::default();
@@ -536,7 +456,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             });
         }
         upload_firmware(&mut self.port, &firmware)?;
-        self.frame_len = 0;
+        self.frames.clear();
         for _ in 0..10 {
             if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
                 self.last_reply = Some(reply);
@@ -629,30 +549,5 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             sequence: None,
             status: None,
         })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn frames_round_trip_through_the_nibble_encoding() {
-        let frame = encode_command([-2, 0x1234, i16::MIN], LED_RED, true);
-        assert_eq!(frame[0], b'<');
-        assert_eq!(frame[15], b'>');
-        // -2 = 0xfffe: nibbles e, f, f, f (least significant first), each + 0x41.
-        assert_eq!(
-            &frame[1..5],
-            &[0x41 + 0xe, 0x41 + 0xf, 0x41 + 0xf, 0x41 + 0xf]
-        );
-        assert_eq!(frame[13], 0x41 + (LED_RED | HOMING_MODE));
-        assert_eq!(frame[14], 0x41);
-        assert!(frame[1..15].iter().all(|b| (0x41..=0x50).contains(b)));
-        let reply = decode_reply(&frame).unwrap();
-        assert_eq!(reply.encoders, [-2, 0x1234, i16::MIN]);
-        let mut bad = frame;
-        bad[15] = b'x';
-        assert!(decode_reply(&bad).is_none());
     }
 }

@@ -13,12 +13,14 @@
 //! - [`woodenhaptics_gravity`]: Polhem's gravity compensation, as hfabapi computes it;
 //! - [`falcon`]: Novint Falcon over the FTDI serial port (`ftdi_sio`), with libnifalcon's frames, firmware upload
 //!   and kinematics;
+//! - [`falcon_frames`]: the Falcon's frames and their assembly from bytes (a protocol core without I/O);
 //! - [`falcon_kinematics`]: the Falcon's kinematics (libnifalcon's delta-robot solution);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`reply_age`]: how old a request/reply driver's state may be, for devices without sequence numbers;
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
 pub mod falcon;
+pub mod falcon_frames;
 pub mod falcon_kinematics;
 pub mod haply;
 pub mod haply_inverse;

@@ -30,6 +30,7 @@ mod haply_inverse;
 mod igtl;
 mod late_states;
 mod layers;
+mod local_model_pty;
 mod modes;
 mod paper;
 mod plot_stream;

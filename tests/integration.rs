@@ -31,6 +31,7 @@ mod haply_inverse_frame;
 mod igtl;
 mod late_states;
 mod layers;
+mod local_model_pty;
 mod mode_loops;
 mod modes;
 mod paper;

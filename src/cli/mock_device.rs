@@ -1,7 +1,9 @@
 //! `voxhap mock-device`: the simulated arm behind voxhap's device protocol on a pseudo-terminal, with fault
 //! injection (crates/device/src/mock.rs). Prints the path it serves on, then runs until killed or `--duration` ends.
 
-use crate::device::mock::{default_arm_config, run_mock, FaultConfig, MockEvent, ServeOn};
+use crate::device::mock::{
+    default_arm_config, run_mock_with, FaultConfig, LocalModelConfig, MockEvent, ServeOn,
+};
 use crate::device::sim::SimArmConfig;
 use anyhow::Context;
 use clap::Args;
@@ -44,6 +46,22 @@ pub struct MockDeviceArgs {
     /// Seed of the fault generator.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Offer the local-model capability (protocol/SPEC.md section 10): take LocalModel messages and solve the
+    /// proxy on the device with its own loop (docs/local-model.md).
+    #[arg(long)]
+    pub local_model: bool,
+    /// Rate of the device's control loop (and local loop) with --local-model, Hz (100 to 20000).
+    #[arg(
+        long,
+        default_value_t = 10_000,
+        value_name = "HZ",
+        requires = "local_model"
+    )]
+    pub local_rate_hz: u32,
+    /// With --local-model, write the device's own log here: one CSV line per control cycle (time, mode, force,
+    /// limit, model sequence, age and expiry, local status, ramp).
+    #[arg(long, value_name = "FILE", requires = "local_model")]
+    pub log: Option<PathBuf>,
 }
 
 fn seconds_to_us(name: &str, seconds: Option<f64>) -> anyhow::Result<Option<u64>> {
@@ -93,7 +111,19 @@ pub fn run(args: &MockDeviceArgs) -> anyhow::Result<()> {
         };
         let _ = super::common::print_out(&line);
     };
-    let stats = run_mock(arm, faults, &serve, duration_us, &shutdown, &mut on_event)?;
+    let local = args.local_model.then(|| LocalModelConfig {
+        rate_hz: args.local_rate_hz,
+        log: args.log.clone(),
+    });
+    let stats = run_mock_with(
+        arm,
+        faults,
+        &serve,
+        duration_us,
+        local.as_ref(),
+        &shutdown,
+        &mut on_event,
+    )?;
     super::common::print_out(&format!(
         "done: {} ticks, {} frames received ({} dropped by the decoder), {} sent, {} dropped and {} bytes corrupted \
          by fault injection, {} watchdog trips",

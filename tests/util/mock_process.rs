@@ -34,6 +34,11 @@ impl MockProcess {
         }
     }
 
+    /// True once the process has exited (its stdout may still hold lines to read).
+    pub fn has_exited(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(Some(_)))
+    }
+
     pub fn next_line(&mut self) -> String {
         let mut line = String::new();
         self.stdout.read_line(&mut line).unwrap();

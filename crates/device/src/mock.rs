@@ -21,9 +21,10 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
+use voxhap_local::{LocalLoop, LoopConfig};
 use voxhap_protocol::{
-    encode_frame, DeviceInfo, DeviceSample, DeviceSession, FrameDecoder, HostToDevice, Label,
-    RateSet, MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
+    encode_frame, DeviceInfo, DeviceSample, DeviceSession, DriveState, FrameDecoder, HostToDevice,
+    Label, RateSet, MAX_WIRE_FRAME_LEN, PROTOCOL_VERSION,
 };
 
 /// Fault injection settings.
@@ -75,6 +76,14 @@ pub enum MockError {
     #[error("mock device: cannot link {path} to the pseudo-terminal")]
     Link {
         /// The path asked for.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The device log could not be written.
+    #[error("mock device: cannot write the device log {path}")]
+    Log {
+        /// The log's path.
         path: PathBuf,
         /// The OS error.
         source: std::io::Error,
@@ -251,9 +260,106 @@ fn remove_link(link: &Path) -> Result<(), MockError> {
     }
 }
 
+/// The device's own log (one CSV line per control cycle), buffered; flushed at the end of the run.
+struct DeviceLog {
+    out: std::io::BufWriter<std::fs::File>,
+    path: PathBuf,
+}
+
+impl DeviceLog {
+    fn create(path: &Path) -> Result<Self, MockError> {
+        // A new file only: an existing one is never replaced.
+        let file = std::fs::File::options()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|source| MockError::Log {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let mut log = DeviceLog {
+            out: std::io::BufWriter::with_capacity(1 << 16, file),
+            path: path.to_path_buf(),
+        };
+        log.line(format_args!("{LOCAL_LOG_HEADER}"))?;
+        Ok(log)
+    }
+
+    fn line(&mut self, args: std::fmt::Arguments) -> Result<(), MockError> {
+        writeln!(self.out, "{args}").map_err(|source| MockError::Log {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    fn cycle(
+        &mut self,
+        now_us: u64,
+        session: &DeviceSession,
+        local: &LocalLoop,
+        force: [f32; 3],
+    ) -> Result<(), MockError> {
+        let magnitude = force
+            .iter()
+            .map(|f| f64::from(*f).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let max_n = f64::from(session.info().max_force_n);
+        let enabled = session.drive_state() == DriveState::Enabled;
+        let (mode, limit, sequence, age, expiry) = match session.local_model() {
+            Some((model, at_us)) => (
+                "local",
+                model.force_limit_n().min(max_n),
+                model.sequence,
+                now_us.saturating_sub(at_us),
+                model.expiry_us,
+            ),
+            None if enabled => ("set_force", max_n, 0, 0, 0),
+            None => ("off", max_n, 0, 0, 0),
+        };
+        let status = local.last_status().0;
+        let ramp = local.ramp_factor();
+        self.line(format_args!(
+            "{now_us},{mode},{magnitude:.9},{limit:.9},{sequence},{age},{expiry},{status},{ramp:.6}"
+        ))
+    }
+
+    fn flush(&mut self) -> Result<(), MockError> {
+        self.out.flush().map_err(|source| MockError::Log {
+            path: self.path.clone(),
+            source,
+        })
+    }
+}
+
 fn to_f32(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
 }
+
+/// The local-model capability of the mock (protocol/SPEC.md section 10): its loop rate and its log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LocalModelConfig {
+    /// Control (and local loop) rate, Hz: 100..=20000.
+    pub rate_hz: u32,
+    /// Where to write the device's log: one line per control cycle (see [`LOCAL_LOG_HEADER`]).
+    pub log: Option<PathBuf>,
+}
+
+impl Default for LocalModelConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 10_000,
+            log: None,
+        }
+    }
+}
+
+/// The columns of the mock's device log: device time (µs), mode (`local`: rendering a local model, `set_force`
+/// or `off`), the applied force's magnitude (N), the force limit in force (N: the model's limit capped by the
+/// device's maximum, or the maximum), the model's sequence and age (µs, 0 without a model), its expiry (µs), the
+/// local status bits and the ramp factor.
+pub const LOCAL_LOG_HEADER: &str =
+    "t_us,mode,force_n,limit_n,model_sequence,model_age_us,expiry_us,local_status,ramp";
 
 /// Runs the mock device until `shutdown` is set, `duration_us` has passed, or it disconnects for good.
 pub fn run_mock(
@@ -261,6 +367,29 @@ pub fn run_mock(
     faults: FaultConfig,
     serve: &ServeOn,
     duration_us: Option<u64>,
+    shutdown: &AtomicBool,
+    on_event: &mut dyn FnMut(MockEvent),
+) -> Result<MockStats, MockError> {
+    run_mock_with(
+        arm_config,
+        faults,
+        serve,
+        duration_us,
+        None,
+        shutdown,
+        on_event,
+    )
+}
+
+/// [`run_mock`] with the local-model capability when `local` is given: the device sets `LOCAL_MODEL`, takes
+/// LocalModel messages and renders them with `voxhap-local`'s loop at `local.rate_hz` (the arm steps at that
+/// rate too); SetForce works as before.
+pub fn run_mock_with(
+    arm_config: SimArmConfig,
+    faults: FaultConfig,
+    serve: &ServeOn,
+    duration_us: Option<u64>,
+    local: Option<&LocalModelConfig>,
     shutdown: &AtomicBool,
     on_event: &mut dyn FnMut(MockEvent),
 ) -> Result<MockStats, MockError> {
@@ -274,9 +403,29 @@ pub fn run_mock(
             )));
         }
     }
-    const TICK_US: u64 = 1_000;
+    if let Some(local) = local {
+        if !(100..=20_000).contains(&local.rate_hz) {
+            return Err(MockError::Config(format!(
+                "local loop rate {} Hz must be between 100 and 20000",
+                local.rate_hz
+            )));
+        }
+    }
+    let tick_us: u64 = local.map_or(1_000, |l| 1_000_000 / u64::from(l.rate_hz));
+    let new_session = || match local {
+        Some(_) => DeviceSession::with_local_model(mock_device_info()),
+        None => DeviceSession::new(mock_device_info()),
+    };
+    let mut log = match local.and_then(|l| l.log.as_ref()) {
+        Some(path) => Some(DeviceLog::create(path)?),
+        None => None,
+    };
+    let mut local_loop = LocalLoop::new(LoopConfig {
+        period_us: tick_us as u32,
+        ..LoopConfig::default()
+    });
     let mut arm = SimArm::new(arm_config, DVec3::ZERO)?;
-    let mut session = DeviceSession::new(mock_device_info());
+    let mut session = new_session();
     let mut decoder = FrameDecoder::<HostToDevice>::new();
     let mut rng = Faults { state: faults.seed };
     let mut stats = MockStats::default();
@@ -285,7 +434,7 @@ pub fn run_mock(
     on_event(MockEvent::Serving(shown));
     let start = Instant::now();
     let now_us = || u64::try_from(start.elapsed().as_micros()).unwrap_or(u64::MAX);
-    let mut next_tick_us = TICK_US;
+    let mut next_tick_us = tick_us;
     let mut stopped = false;
     let mut disconnected_at: Option<u64> = None;
     let mut buffer = [0u8; 1024];
@@ -315,11 +464,11 @@ pub fn run_mock(
                     }
                 };
                 pty = fresh;
-                session = DeviceSession::new(mock_device_info());
+                session = new_session();
                 decoder.reset();
                 delayed.clear();
                 on_event(MockEvent::Serving(shown));
-                next_tick_us = now_us() + TICK_US;
+                next_tick_us = now_us() + tick_us;
                 continue;
             }
         }
@@ -362,14 +511,42 @@ pub fn run_mock(
             };
             session.poll(now, &sample);
         }
-        if now >= next_tick_us {
+        if now >= next_tick_us && local.is_some() {
+            // The local loop: force from the current sample (the session's SetForce force when no model), then
+            // the arm moves under it for one period.
+            let sample = DeviceSample {
+                position_m: to_f32(arm.position_m()),
+                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
+                buttons: 0,
+            };
+            let trips = session.stats().watchdog_trips;
+            let force = local_loop.step(&mut session, now, &sample);
+            if session.stats().watchdog_trips > trips {
+                on_event(MockEvent::WatchdogTripped(now));
+            }
+            if let Some(log) = log.as_mut() {
+                log.cycle(now, &session, &local_loop, force)?;
+            }
+            let force_n = DVec3::new(
+                f64::from(force[0]),
+                f64::from(force[1]),
+                f64::from(force[2]),
+            );
+            arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
+            stats.ticks += 1;
+            next_tick_us = if now - next_tick_us >= tick_us {
+                now + tick_us
+            } else {
+                next_tick_us + tick_us
+            };
+        } else if now >= next_tick_us {
             let force = session.force_n();
             let force_n = DVec3::new(
                 f64::from(force[0]),
                 f64::from(force[1]),
                 f64::from(force[2]),
             );
-            arm.step(now as f64 * 1e-6, TICK_US as f64 * 1e-6, force_n)?;
+            arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
             let sample = DeviceSample {
                 position_m: to_f32(arm.position_m()),
                 velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
@@ -382,10 +559,10 @@ pub fn run_mock(
             }
             stats.ticks += 1;
             // Never a burst of catch-up ticks: skip ahead when behind.
-            next_tick_us = if now - next_tick_us >= TICK_US {
-                now + TICK_US
+            next_tick_us = if now - next_tick_us >= tick_us {
+                now + tick_us
             } else {
-                next_tick_us + TICK_US
+                next_tick_us + tick_us
             };
         }
         while let Some(reply) = session.poll_transmit() {
@@ -419,6 +596,9 @@ pub fn run_mock(
     stats.frames_ok = decoded.frames_ok;
     stats.frames_dropped = decoded.dropped();
     stats.watchdog_trips = session.stats().watchdog_trips;
+    if let Some(log) = log.as_mut() {
+        log.flush()?;
+    }
     if let ServeOn::Link(link) = serve {
         let _ = remove_link(link);
     }

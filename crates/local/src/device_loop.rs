@@ -72,6 +72,7 @@ pub struct LocalLoop {
     ramp: Ramp,
     force_n: [f64; 3],
     last_us: Option<u64>,
+    status: LocalStatus,
 }
 
 impl LocalLoop {
@@ -86,6 +87,7 @@ impl LocalLoop {
             ramp: Ramp::default(),
             force_n: [0.0; 3],
             last_us: None,
+            status: LocalStatus::EMPTY,
         }
     }
 
@@ -97,6 +99,11 @@ impl LocalLoop {
     /// The last applied local force, newtons.
     pub fn force_n(&self) -> [f64; 3] {
         self.force_n
+    }
+
+    /// What the last cycle did (empty when it rendered no local model).
+    pub fn last_status(&self) -> LocalStatus {
+        self.status
     }
 
     /// The ramp factor now (0 to 1).
@@ -114,8 +121,8 @@ impl LocalLoop {
         sample: &DeviceSample,
     ) -> [f32; 3] {
         let set_force = session.poll(now_us, sample);
-        let dt_us = match self.last_us {
-            Some(last) => now_us.saturating_sub(last).min(MAX_DT_US),
+        let elapsed_us = match self.last_us {
+            Some(last) => now_us.saturating_sub(last),
             None => u64::from(self.config.period_us),
         };
         self.last_us = Some(now_us);
@@ -124,6 +131,7 @@ impl LocalLoop {
             self.model = None;
             self.ramp.reset();
             self.force_n = [0.0; 3];
+            self.status = LocalStatus::EMPTY;
             return set_force;
         };
         let sample_ok = sample
@@ -144,10 +152,11 @@ impl LocalLoop {
         }
         let max_force_n = f64::from(session.info().max_force_n);
         let (force, tick) = match self.model {
-            Some(installed) => self.render(installed, now_us, dt_us, sample, max_force_n),
+            Some(installed) => self.render(installed, now_us, elapsed_us, sample, max_force_n),
             None => ([0.0; 3], LocalTick::default()),
         };
         session.record_local_tick(&tick);
+        self.status = tick.status;
         force
     }
 
@@ -155,7 +164,7 @@ impl LocalLoop {
         &mut self,
         mut m: Installed,
         now_us: u64,
-        dt_us: u64,
+        elapsed_us: u64,
         sample: &DeviceSample,
         max_force_n: f64,
     ) -> ([f32; 3], LocalTick) {
@@ -193,7 +202,12 @@ impl LocalLoop {
         let (clamped, was_clamped) = clamp(coupling.to_array(), limit);
         let age_us = now_us.saturating_sub(m.received_us);
         let live = age_us <= m.expiry_us && !m.no_solution;
-        let state = self.ramp.update(dt_us, live, norm(clamped));
+        // Rises (engage, slew) take at most MAX_DT_US from one cycle; the ramp-down takes all the time that
+        // passed, so a late cycle never leaves the force up longer than 5 ms past the expiry.
+        let dt_us = elapsed_us.min(MAX_DT_US);
+        let state = self
+            .ramp
+            .update(if live { dt_us } else { elapsed_us }, live, norm(clamped));
         let scaled = clamped.map(|f| f * self.ramp.factor());
         let (force, slewed) = slew_limit(scaled, norm(self.force_n), dt_us);
         self.force_n = force;

@@ -26,7 +26,7 @@ export VOXHAP_BIN=${VOXHAP_BIN:-target/release/voxhap}
 [ -x "$VOXHAP_BIN" ] || cargo build --release --quiet --bin voxhap || fail "cargo build --release failed"
 export VOXHAP_BIN=$(realpath "$VOXHAP_BIN")
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
-echo "$name: pip install ./python (maturin, release profile)"
+echo "$name: pip install ./python: maturin builds the native module voxhap._voxhap (PyO3, abi3) and the crates it calls (voxhap-core, -io, -record, -servo), cargo --release --locked into $CARGO_TARGET_DIR, reusing what cargo build --release compiled there (minutes on 2 busy cores)"
 tracked_before=$(git status --porcelain --untracked-files=no 2>/dev/null || true)
 started=$(date +%s)
 python3 -m pip install --quiet --disable-pip-version-check --no-build-isolation ./python \
@@ -55,7 +55,7 @@ make_work_dir voxhap-read-trace
   || fail "voxhap sim for the ten-minute trace failed"
 ratio_args=()
 [ -z "${VOXHAP_READ_TRACE_MAX_RATIO:-}" ] || ratio_args=(--max-ratio "$VOXHAP_READ_TRACE_MAX_RATIO")
-python3 python/bench/load_trace.py "$WORK/ten.parquet" --repeat 5 --read-trace "${ratio_args[@]}" \
+python3 python/bench/load_trace.py "$WORK/ten.parquet" --repeat 7 --read-trace "${ratio_args[@]}" \
   || fail "voxhap.read_trace against pd.read_parquet failed"
 rm -rf "$WORK"
 echo "$name: examples/figure7_force_penetration.ipynb"

@@ -109,7 +109,7 @@ pub fn encode_value(value: &str) -> String {
 }
 
 /// The value each override of a point gives, in `columns`' order.
-fn point_values<'a>(overrides: &'a [String]) -> Vec<&'a str> {
+fn point_values(overrides: &[String]) -> Vec<&str> {
     overrides
         .iter()
         .map(|o| split_override(o).map_or("", |(_, value)| value))

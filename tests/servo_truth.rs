@@ -208,6 +208,11 @@ fn serve_books_a_spring_pressed_a_known_depth_exactly() {
     assert_eq!(stats.energy.contacts, 1);
 }
 
+fn both(mut a: SafetyFlags, b: SafetyFlags) -> SafetyFlags {
+    a |= b;
+    a
+}
+
 /// The cause the trace names for each thing the safety pipeline reports, in its documented precedence
 /// (docs/safety.md): the device's faults with their bits, a stale state, the engage rule, the enable wait,
 /// a lost link.
@@ -253,7 +258,7 @@ fn the_force_off_cause_names_what_the_safety_pipeline_did() {
         ),
         (
             OutputState::Faulted,
-            SafetyFlags::DEVICE_NOT_ENABLED | SafetyFlags::DEVICE_FAULTED,
+            both(SafetyFlags::DEVICE_NOT_ENABLED, SafetyFlags::DEVICE_FAULTED),
             0b100,
             ForceOffCause::DeviceFault,
         ),

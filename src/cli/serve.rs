@@ -591,8 +591,8 @@ mod tests {
     /// statistics, as `sim` does, and say what they found; without the verdicts they find nothing.
     #[test]
     fn fail_on_active_and_oscillation_read_the_energy_ledger() {
-        use crate::api::{EnergyReport, StatsReport};
         use super::super::sim::FailOn;
+        use crate::api::{EnergyReport, StatsReport};
         let both = [FailOn::Active, FailOn::Oscillation];
         let quiet = StatsReport::default();
         assert!(serve_fail_on_findings(&both, &quiet, 1e-12).is_empty());
@@ -609,8 +609,14 @@ mod tests {
         };
         let found = serve_fail_on_findings(&both, &loud, 1e-12);
         assert_eq!(found.len(), 2, "{found:?}");
-        assert!(found[0].starts_with("active: ") && found[0].contains("2.500 mJ"), "{found:?}");
-        assert!(found[1].starts_with("oscillation: 40 undecaying"), "{found:?}");
+        assert!(
+            found[0].starts_with("active: ") && found[0].contains("2.500 mJ"),
+            "{found:?}"
+        );
+        assert!(
+            found[1].starts_with("oscillation: 40 undecaying"),
+            "{found:?}"
+        );
         assert!(serve_fail_on_findings(&[FailOn::Overrun], &loud, 1e-12).is_empty());
     }
 }

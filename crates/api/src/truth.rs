@@ -7,8 +7,8 @@
 //! The CRTK operating state ([`crtk_operating_state`]) lives here too, so the ROS 2 output and the
 //! Foxglove view compute it the same way: `FAULT` whenever the safety pipeline is faulted.
 
-use crate::OutputState;
 use serde::Serialize;
+use voxhap_core::status::OutputState;
 
 /// Why no force (or less than rendered) can reach the hand this tick, in order of precedence: the first
 /// that applies is reported. `None` means the safety pipeline passes the rendered force (ramping in

@@ -7,69 +7,13 @@
 //! `mcap_trace.rs`). Names are safe for pandas: no name collides with a `DataFrame` attribute (the flag bit
 //! set is `flag_bits`, not `flags`), and every flag also gets a boolean column `flag_<name>`.
 
+pub(crate) use crate::cell::{col, Cell, CellError};
+pub use crate::cell::{ColumnDoc, ColumnType};
 use crate::flags::FLAG_DOCS;
 use crate::sample::{SolverStatus, TraceSample};
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 use voxhap_core::haptics::modes::MAX_MODES;
-
-/// The value type of a column.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ColumnType {
-    /// Unsigned 64-bit integer.
-    U64,
-    /// Signed 64-bit integer.
-    I64,
-    /// 64-bit float (NaN and infinities allowed where the column says so).
-    F64,
-    /// `true` or `false`.
-    Bool,
-    /// Short text from a fixed set (the solver status).
-    Text,
-    /// Unsigned 64-bit integer that may be missing (empty in CSV, null in Parquet and MCAP).
-    OptionalU64,
-}
-
-/// One column of a trace (CSV and Parquet), as documented in the sidecar.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ColumnDoc {
-    /// Header name.
-    pub name: Cow<'static, str>,
-    /// Unit (`m`, `N`, `s`, `ns`, `us`, `m/s`, `count`, `bits`, `-`).
-    pub unit: Cow<'static, str>,
-    /// What it holds.
-    pub meaning: Cow<'static, str>,
-    /// Its value type.
-    #[serde(rename = "type")]
-    pub column_type: ColumnType,
-}
-
-/// One cell of a row.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Cell {
-    U64(u64),
-    I64(i64),
-    F64(f64),
-    Bool(bool),
-    Text(&'static str),
-    Missing,
-}
-
-pub(crate) fn col(
-    name: &'static str,
-    unit: &'static str,
-    meaning: &'static str,
-    t: ColumnType,
-) -> ColumnDoc {
-    ColumnDoc {
-        name: Cow::Borrowed(name),
-        unit: Cow::Borrowed(unit),
-        meaning: Cow::Borrowed(meaning),
-        column_type: t,
-    }
-}
 
 fn vector_columns(
     columns: &mut Vec<ColumnDoc>,
@@ -237,15 +181,6 @@ pub(crate) fn utc_cell(start_utc_ns: i64, t_s: f64) -> Cell {
     } else {
         Cell::Missing
     }
-}
-
-/// Why a row of cells is not a sample.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct CellError {
-    /// 0-based column.
-    pub index: usize,
-    /// What is wrong.
-    pub problem: &'static str,
 }
 
 /// Builds a sample from cells in column order (the reader's inverse of [`cells`]). The `utc_ns` cell and

@@ -13,6 +13,7 @@
 //! those. Floats are written in shortest round-trip form, so reading a CSV trace
 //! gives back the exact bits written.
 
+mod cell;
 mod columns;
 pub mod compare;
 mod csv;

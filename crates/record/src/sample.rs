@@ -240,7 +240,16 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
             return Err(TraceError::NonFinite { tick, field });
         }
     }
-    if !crate::truth_columns::energy_is_finite(&sample.truth) {
+    let e = &sample.truth.energy;
+    let energy = [
+        e.work_on_probe_j,
+        e.coupling_energy_j,
+        e.generated_j,
+        e.active_work_j,
+        e.device_dissipation_j,
+        e.net_generated_j,
+    ];
+    if !energy.iter().all(|j| j.is_finite()) {
         return Err(TraceError::NonFinite {
             tick,
             field: "energy",

@@ -5,7 +5,7 @@
 //!
 //! These columns come last (after `flag_<name>`), so the columns before them keep their places.
 
-use crate::columns::{col, Cell, CellError, ColumnDoc, ColumnType};
+use crate::cell::{col, Cell, CellError, ColumnDoc, ColumnType};
 use crate::sample::TraceSample;
 use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
 
@@ -129,14 +129,6 @@ pub(crate) fn static_text(text: &str) -> Option<&'static str> {
     crate::sample::SolverStatus::from_name(text)
         .map(|s| s.name())
         .or_else(|| ForceOffCause::from_name(text).map(|c| c.name()))
-}
-
-/// True when a sample's energy values are finite (the value rules).
-pub(crate) fn energy_is_finite(truth: &TickTruth) -> bool {
-    let mut energy = truth.energy;
-    ENERGY_COLUMNS
-        .iter()
-        .all(|(_, _, field)| field(&mut energy).is_finite())
 }
 
 /// The truth in an MCAP trace: the solver message's `truth` object (same names as the columns).

@@ -570,9 +570,22 @@ impl ServoLoop {
                     active_n += force;
                 }
             }
+            // The spring holds what the force actually sent can give back: while the safety pipeline sends
+            // less than the tick rendered (not engaged, ramping in, limited), the stored energy shrinks with the
+            // square of that share (|F_sent|^2 / 2k for a pure spring). Booking the whole virtual spring would
+            // count a probe pressed deeper before engaging as energy generated.
             let stretch_m = out.proxy_m - input.probe_m;
-            let coupling_j =
-                0.5 * self.bundle.scene.stiffness_n_per_m() * stretch_m.length_squared();
+            let rendered_n = out.force_n.length();
+            let share = if rendered_n > 0.0 {
+                (device_out.sent_force_n.length() / rendered_n).min(1.0)
+            } else {
+                1.0
+            };
+            let coupling_j = 0.5
+                * self.bundle.scene.stiffness_n_per_m()
+                * stretch_m.length_squared()
+                * share
+                * share;
             self.ledger.record(
                 input.t_s,
                 input.dt_s,

@@ -62,7 +62,8 @@ fn a_mount_another_program_left_is_replaced_by_the_sessions_preset() {
 
 #[test]
 fn a_configuration_the_service_keeps_is_reported_and_not_used() {
-    let cases: [(&str, fn(&InverseService)); 2] = [
+    type SetUp = fn(&InverseService);
+    let cases: [(&str, SetUp); 2] = [
         ("mount", |service| {
             service.set_mount(Transform {
                 position: DVec3::new(0.05, 0.0, 0.0),

@@ -12,12 +12,14 @@
 //! "state":{…}, "status":{…}}]}`); after that it sends exactly one state update (device `state` and `status`) for
 //! every message the client sends. A force is the per-tick, non-persistent command
 //! `{"inverse3":[{"device_id":ID,"commands":{"set_cursor_force":{"vector":{"x":…,"y":…,"z":…}}}}]}` in newtons;
-//! when commands stop the device returns to idle. The first message may carry
-//! `"session":{"configure":{"profile":{"name":…},"basis":{"permutation":"XYZ"}}}`: voxhap asks for the identity
-//! basis, so positions (m), velocities (m/s) and forces (N) are in Haply's own right-handed frame (+X right,
-//! +Y forward, +Z up, origin on the mounting plate) whatever an earlier application configured; the device
-//! profile maps that frame onto the scene. State fields that are absent keep their previous value (the
-//! service's partial-update semantics).
+//! when commands stop the device returns to idle. The first message ([`setup_message`]) sets the session's
+//! profile and basis, the device's preset `defaults` and basis `XYZ` (replacing any mount another program left)
+//! and asks for the full state; [`connect`] reads back preset, basis, mount and workspace transform from the
+//! answer ([`check_configuration`]) and fails on any difference, so positions (m), velocities (m/s) and forces
+//! (N) are in Haply's own right-handed frame (+X right, +Y forward, +Z up, origin on the mounting plate)
+//! whatever an earlier application configured; the device profile maps that frame onto the scene. State fields
+//! that are absent keep their previous value (the service's partial-update semantics). The events channel
+//! (port 10020) runs on its own thread ([`events`]); the I/O thread below is in `inverse_io.rs`.
 //!
 //! The thread sends a force as soon as one is queued (coalescing to the newest if several are: it never falls
 //! behind) and reads the reply. Its socket is non-blocking: it waits with poll(2), and before every send,

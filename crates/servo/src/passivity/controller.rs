@@ -153,7 +153,8 @@ impl PassivityController {
         }
         let need_j = self.totals.excess_j - self.pending_j;
         let speed2 = probe_velocity_m_per_s.length_squared();
-        if need_j <= self.threshold_j || !(speed2 > 0.0) || !(dt_s > 0.0) {
+        let moving = speed2 > 0.0 && dt_s > 0.0;
+        if need_j <= self.threshold_j || !moving {
             return DVec3::ZERO;
         }
         let alpha = (need_j / (speed2 * dt_s)).min(self.max_damping_n_s_per_m);

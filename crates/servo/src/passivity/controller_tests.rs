@@ -42,15 +42,18 @@ fn the_observer_pairs_each_step_with_the_force_that_acted_over_it() {
     );
 }
 
-/// In control the damper takes, each step, what the observer saw generated: the excess never builds
-/// beyond one step's generation and what was generated is dissipated, with or without latency.
+/// In control the damper takes what the observer saw generated: the excess never builds beyond the
+/// threshold plus what `d + 1` steps generate before the damper's work is observed (`(1 + 2d) k dx^2 / 2` a
+/// step with `d` ticks of latency, as above), and what was generated is dissipated.
 #[test]
 fn the_controller_dissipates_the_excess_as_it_comes() {
-    for latency in [0, 1, 3] {
+    for latency in [0usize, 1, 3] {
         let (totals, half_k_dx2) = press(PassivityMode::Control, latency, 400);
-        let per_step = if latency == 0 { 1.0 } else { 3.0 } * half_k_dx2;
+        let d = latency as f64;
+        let per_step = (1.0 + 2.0 * d) * half_k_dx2;
+        let threshold = PassivitySettings::default().threshold_j;
         assert!(
-            totals.excess_j <= 2.0 * per_step + 1e-6,
+            totals.excess_j <= threshold + (d + 1.0) * per_step + 1e-15,
             "latency {latency}: {totals:?}"
         );
         assert!(

@@ -65,7 +65,8 @@ impl CouplingTransition {
     ) {
         let old_j = 0.5 * old_k * (old_anchor_m - probe_m).length_squared();
         let new_j = 0.5 * new_k * (proxy_m - probe_m).length_squared();
-        if !(new_j > old_j) || !(new_k > 0.0) || !old_j.is_finite() || !probe_m.is_finite() {
+        let rises = new_j > old_j && new_k > 0.0;
+        if !rises || !old_j.is_finite() || !probe_m.is_finite() {
             // No rise (or nothing sane to keep): the change applies at once.
             self.active = false;
             return;

@@ -49,7 +49,8 @@ fn a_stiffer_spring_in_contact_gives_back_no_more_than_the_old_one_held() {
 }
 
 /// A plane that appears above a probe 3 mm below it: the force starts at zero and stays zero as the probe
-/// leaves straight out (the anchor follows it), so nothing is given back.
+/// leaves straight out (the anchor follows it), so nothing is given back but, on the step where the transition
+/// ends, at most the zero-order hold's excess of one step `k dz^2` (here `dz` = 5 mm / 20 000).
 #[test]
 fn a_plane_appearing_above_the_probe_pushes_nothing_out() {
     let (k, depth) = (1000.0, 0.003);
@@ -58,7 +59,8 @@ fn a_plane_appearing_above_the_probe_pushes_nothing_out() {
     transition.begin(probe, probe, k, DVec3::ZERO, k);
     assert!(transition.active());
     let given_back = leave(&mut transition, k, 0.0, -depth, 0.002);
-    assert!(given_back.abs() < 1e-12, "{given_back}");
+    let dz = 0.005 / 20_000.0;
+    assert!(given_back.abs() <= 2.0 * k * dz * dz, "{given_back}");
     assert!(!transition.active());
     let at_once = leave(&mut CouplingTransition::new(), k, 0.0, -depth, 0.002);
     assert!((at_once - 0.5 * k * depth * depth).abs() < 1e-3 * at_once);

@@ -85,7 +85,7 @@ pub fn run(
     // The directed-force modes, whose work on the hand is intended (crate::energy).
     let mut active = [false; voxhap_record::MAX_MODES];
     for (slot, mode) in active.iter_mut().zip(&settings.modes) {
-        *slot = mode.kind.is_active();
+        *slot = matches!(mode.kind, ModeKind::VectorForce | ModeKind::GradientForce);
     }
     for index in 0..ticks {
         let t_s = index as f64 * dt_s;

@@ -325,8 +325,10 @@ fn multimodal_exact_trace_is_certified_and_the_constraint_approach_loses_the_sur
         "proxy {gap_m} m outside the probe"
     );
     let probe_r = mean_probe_radius(&constraint);
+    // Within 0.5 mm: the viscous damper (b = 5 N s/m, the probe circling at 4 cm/s) holds the constraint
+    // approach's proxy about 0.36 mm behind the probe it sinks with.
     assert!(
-        (constraint_r - probe_r).abs() < 1e-4,
+        (constraint_r - probe_r).abs() < 5e-4,
         "the constraint proxy ({constraint_r} m) sinks with the probe ({probe_r} m)"
     );
 }

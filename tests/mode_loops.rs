@@ -190,7 +190,10 @@ fn every_mode_does_what_it_promises_over_a_closed_loop() {
                     runs[0].duration_s
                 ),
             ),
-            _ => (hold, format!("{} mJ (passive: hold share)", millijoules(hold))),
+            _ => (
+                hold,
+                format!("{} mJ (passive: hold share)", millijoules(hold)),
+            ),
         };
         for (run, way) in runs.iter().zip(["counter-clockwise", "clockwise"]) {
             let within = match case.kind {

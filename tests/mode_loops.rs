@@ -184,13 +184,16 @@ fn every_mode_does_what_it_promises_over_a_closed_loop() {
             kind if kind.is_active() => (
                 DEFAULT_POWER_BUDGET_W * runs[0].duration_s + hold,
                 format!(
-                    "{} (budget {} W x {:.2} s + hold)",
+                    "{} mJ (budget {} W x {:.2} s + hold)",
                     millijoules(DEFAULT_POWER_BUDGET_W * runs[0].duration_s + hold),
                     DEFAULT_POWER_BUDGET_W,
                     runs[0].duration_s
                 ),
             ),
-            _ => (hold, format!("{} (passive: hold share)", millijoules(hold))),
+            _ => (
+                hold,
+                format!("{} mJ (passive: hold share)", millijoules(hold)),
+            ),
         };
         for (run, way) in runs.iter().zip(["counter-clockwise", "clockwise"]) {
             let within = match case.kind {

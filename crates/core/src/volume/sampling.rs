@@ -220,18 +220,19 @@ fn bspline_axis(cell: &Cell, axis: usize) -> ([usize; 4], [f64; 4], [f64; 4]) {
     (index, w, dw)
 }
 
-/// Index-space derivatives `[∂/∂i, ∂/∂j, ∂/∂k]` of the cubic B-spline through the 4×4×4 voxels around the
-/// cell (module docs), zeroed along clamped axes. 64 fetches.
+/// The value and index-space derivatives `[∂/∂i, ∂/∂j, ∂/∂k]` of the cubic B-spline through the 4×4×4 voxels
+/// around the cell (module docs), derivatives zeroed along clamped axes. 64 fetches.
 #[inline]
 pub(crate) fn bspline_derivatives<T: Interpolate>(
     cell: &Cell,
     fetch: impl Fn(usize) -> T,
-) -> [T; 3] {
+) -> (T, [T; 3]) {
     let (ix, wx, dx) = bspline_axis(cell, 0);
     let (iy, wy, dy) = bspline_axis(cell, 1);
     let (iz, wz, dz) = bspline_axis(cell, 2);
     let zero = fetch(ix[1] + iy[1] + iz[1]) * 0.0;
     let mut out = [zero; 3];
+    let mut value = zero;
     for c in 0..4 {
         for b in 0..4 {
             let (yz_offset, wyz, dyz, wdz) =
@@ -241,13 +242,14 @@ pub(crate) fn bspline_derivatives<T: Interpolate>(
             }
             for a in 0..4 {
                 let v = fetch(ix[a] + yz_offset);
+                value = value + v * (wx[a] * wyz);
                 out[0] = out[0] + v * (dx[a] * wyz);
                 out[1] = out[1] + v * (wx[a] * dyz);
                 out[2] = out[2] + v * (wx[a] * wdz);
             }
         }
     }
-    out
+    (value, out)
 }
 
 /// Trilinear interpolation of `fetch(offset)` over the cell's 8 corners.

@@ -96,7 +96,7 @@ pub fn run(
     // The directed-force modes, whose work on the hand is intended (crate::energy).
     let mut active = [false; voxhap_record::MAX_MODES];
     for (slot, mode) in active.iter_mut().zip(&settings.modes) {
-        *slot = mode.kind.is_active();
+        *slot = matches!(mode.kind, ModeKind::VectorForce | ModeKind::GradientForce);
     }
     // The passivity observer and controller, and the passive introduction of changes (crate::passivity):
     // the simulated arm's force acts `latency_s` after it was sent, in whole ticks.

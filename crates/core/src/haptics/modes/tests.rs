@@ -60,7 +60,7 @@ fn surface_plane_faces_out_of_the_sphere_with_tf_strength() {
     );
     assert_eq!(plane.position_m(), proxy);
     let value = match &scene.volumes()[0].1 {
-        AnyVolume::Scalar(v) => v.sample(proxy),
+        AnyVolume::Scalar(v) => v.sample_with_gradient(proxy).0,
         _ => unreachable!(),
     };
     assert!((plane.strength_n() - tf.eval(value)).abs() < 1e-12);

@@ -724,16 +724,17 @@ fn switching_modes_off_renders_nothing_and_keeps_their_breakpoints() {
     let trace = dir.path().join("switched.csv");
     let session = session(Some(trace.clone()));
     let api = session.api();
-    // Hold the simulated hand at the density ball's centre, where every mode pushes.
+    // Hold the simulated hand 2 mm inside the density ball's surface (radius 3 cm), where the surface mode's
+    // plane holds the proxy (viscosity emits no primitive: it is a damper on the proxy's motion).
     api.control(ControlCommand::SetHandTarget {
-        position_m: Some([0.0, 0.0, 0.0]),
+        position_m: Some([0.028, 0.0, 0.0]),
     })
     .unwrap();
     let start = api.snapshot().map_or(0, |s| s.tick);
     let on = wait_for_tick(&*api, start + 500);
     assert!(
         strongest_primitive_n(&on) > 0.1,
-        "nothing pushes at the centre: {on:?}"
+        "nothing pushes inside the surface: {on:?}"
     );
     let scene_before = api.scene();
 

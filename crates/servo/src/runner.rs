@@ -132,6 +132,8 @@ pub struct ServoLoop {
     force_off: ForceOffTracker,
     /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
+    /// The share of last tick's rendered force that the safety pipeline sent (0 before engaging, 1 when all).
+    sent_share: f64,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
     transition: CouplingTransition,
     /// A command changed the coupling or the scene at the start of this tick.
@@ -181,6 +183,7 @@ impl ServoLoop {
             scene_frame_every_ticks: scene_frame_interval_ticks(timing.period_ns),
             ledger: EnergyLedger::new(caps.device_damping_n_s_per_m),
             force_off: ForceOffTracker::default(),
+            sent_share: 0.0,
             passivity: PassivityController::new(
                 PassivityMode::Off,
                 &PassivitySettings::default(),
@@ -374,12 +377,17 @@ impl ServoLoop {
         if self.last_state.is_none() || out.status == TickStatus::InputRejected {
             rendered_n = DVec3::ZERO;
         } else {
-            // The passivity controller, before the safety pipeline (docs/safety.md).
-            let reference_j = 0.5 * k * (anchor_m - probe_m).length_squared();
+            // The passivity controller, before the safety pipeline (docs/safety.md). Its reference is the
+            // share of the spring's energy that the force sent can give back (as in the energy ledger): while
+            // the pipeline sends nothing (before engaging) a spring stretched by a moving handle is no energy
+            // generated, and a controller damping then would keep the rendered force above the engage
+            // threshold on a handle that keeps moving.
+            let share = self.sent_share;
+            let reference_j = 0.5 * k * (anchor_m - probe_m).length_squared() * share * share;
             let control_n =
                 self.passivity
                     .observe_and_control(probe_m, probe_velocity, reference_j, dt_s);
-            if control_n != DVec3::ZERO {
+            if control_n != DVec3::ZERO && share > 0.0 {
                 rendered_n += control_n;
             }
         }
@@ -413,6 +421,12 @@ impl ServoLoop {
         });
         self.last_safe_force_n = device_out.sent_force_n;
         self.passivity.sent(rendered_n, device_out.sent_force_n);
+        let rendered_magnitude = rendered_n.length();
+        self.sent_share = if rendered_magnitude > 0.0 {
+            (device_out.sent_force_n.length() / rendered_magnitude).min(1.0)
+        } else {
+            1.0
+        };
         if device_out.state.is_some() {
             self.last_state = device_out.state;
         }

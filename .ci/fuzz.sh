@@ -46,3 +46,9 @@ for target in $(cargo +nightly fuzz list); do
   grep -E '^(Done|#[0-9]+ *DONE)' "corpus/$target.log" | tail -1 || true
 done
 echo "ci: fuzz: every target ran ${seconds} s without a finding ($(( $(date +%s) - ran )) s of fuzzing, $(( $(date +%s) - started )) s in all)"
+# In CI the fuzzers' build (about 2 GB in fuzz/target) is not needed again: the checks after this one write
+# traces of hundreds of megabytes, and a CI machine's disk may be small. Kept elsewhere, as a build cache.
+if [ "${CI:-}" = "true" ]; then
+  rm -rf target
+  echo "ci: fuzz: removed fuzz/target (the fuzzers' build) to free disk for the checks after it"
+fi

@@ -4,7 +4,7 @@ Usage: python parquet_encodings.py TRACE.parquet [--csv TRACE.csv] [--codecs non
        [--expect-best ENCODING/CODEC]
 
 Reads TRACE (a voxhap Parquet trace; use a moving one, where the values change every tick) with pyarrow and
-rewrites its rows with pyarrow into a temporary folder once per encoding and codec, with voxhap's row groups
+rewrites its rows with pyarrow into a temporary folder (TMPDIR) once per encoding and codec, with voxhap's row groups
 (1 048 576 rows), and prints a table: the file size, the size per hour of trace (from the rows and the
 sidecar's rate), the ratio to the CSV trace of the same run (--csv) and the ratio to TRACE itself. Encodings:
 
@@ -17,7 +17,7 @@ sidecar's rate), the ratio to the CSV trace of the same run (--csv) and the rati
 
 The last lines name the smallest overall and the smallest among the codecs voxhap's writer is built with
 (--writer-codecs, default none,snappy). With --expect-best it exits 1 when the latter is not that one (what
-the writer uses). Run by .ci/check-parquet-pandas.sh on a one-hour
+the writer uses). Run by .ci/check-parquet-pandas.sh on a ten-minute
 trace of sims/multimodal.toml (the hand circles the ball for the whole hour).
 """
 

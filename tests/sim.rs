@@ -9,6 +9,9 @@
 
 mod cli;
 mod limits;
+mod mid_contact;
 mod passivity;
 mod scenarios;
+mod shipped_passive;
 mod stability;
+mod sweep;

@@ -52,9 +52,10 @@ impl ArmPreset {
     /// The preset's figures and their sources.
     pub fn figures(self) -> PresetFigures {
         match self {
-            // Haply's public documentation (docs.haply.co, Inverse Service 3.5) describes the API, frames and
-            // filters; no mass, damping, resolution or latency figure was found in it or in a published
-            // measurement, so none is set.
+            // Haply's public documentation (docs.haply.co, Inverse Service 3.5; "Developing with Inverse3":
+            // frames, control modes, filters) describes the API; no mass, damping, resolution, latency, servo
+            // rate or force figure was found in it or in a published measurement, so none is set
+            // (docs/stability.md, "The presets' figures").
             ArmPreset::Inverse3 => PresetFigures {
                 mass_kg: None,
                 damping_n_s_per_m: None,
@@ -75,7 +76,8 @@ impl ArmPreset {
                          libnifalcon's 1 ms USB latency timer; mass and damping not sourced",
             },
             // 3D Systems Touch specification sheet: nominal position resolution > 450 dpi (about 0.055 mm),
-            // apparent mass at the tip about 45 g. Damping and latency: not published, not sourced.
+            // apparent mass at the tip about 45 g. Both as recorded when the preset was written: no copy of
+            // the sheet was found to re-check them against. Damping, latency and servo rate: not published.
             ArmPreset::Touch => PresetFigures {
                 mass_kg: Some(0.045),
                 damping_n_s_per_m: None,
@@ -86,7 +88,9 @@ impl ArmPreset {
             },
             // Forsslund, Yip and Sallnäs, "WoodenHaptics: a starting kit for crafting force-reflecting
             // spatial haptic devices", TEI 2015: the paper compares the device with a Phantom Desktop but no
-            // mass, damping, resolution or latency figure was found in what could be read; none is set.
+            // mass, damping, resolution or latency figure was found in what could be read; nor in the
+            // repository (forsslund/woodenhaptics 6b9ad8a: README, parts list, firmware), whose Teensy
+            // firmware README gives only the link's rate, about 1 kHz. None is set.
             ArmPreset::Woodenhaptics => PresetFigures {
                 mass_kg: None,
                 damping_n_s_per_m: None,

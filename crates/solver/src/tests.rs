@@ -531,9 +531,21 @@ fn problem(
 /// onto the plane.
 #[test]
 fn a_friction_point_a_fraction_of_a_nanometre_behind_a_sliding_proxy_is_certified() {
-    let p = DVec3::new(0.002012811098151069, -4.567445639693378e-21, 0.029908883854562397);
-    let n = DVec3::new(0.06619446930461781, 7.360677288119406e-17, 0.9978067409240529);
-    let probe = DVec3::new(0.00093205796350069, -4.679923233344546e-21, 0.028063871498975792);
+    let p = DVec3::new(
+        0.002012811098151069,
+        -4.567445639693378e-21,
+        0.029908883854562397,
+    );
+    let n = DVec3::new(
+        0.06619446930461781,
+        7.360677288119406e-17,
+        0.9978067409240529,
+    );
+    let probe = DVec3::new(
+        0.00093205796350069,
+        -4.679923233344546e-21,
+        0.028063871498975792,
+    );
     let s = 0.4781264114224911;
     let primitives = [
         Primitive::plane(p, n, 3.0).unwrap(),
@@ -542,7 +554,11 @@ fn a_friction_point_a_fraction_of_a_nanometre_behind_a_sliding_proxy_is_certifie
     let q = n.normalize();
     let on_plane = probe - q * q.dot(probe - p);
     let reach = (on_plane - p).length();
-    assert!(K * reach > s && K * reach < s * (1.0 + 1e-6), "the case: {}", K * reach / s);
+    assert!(
+        K * reach > s && K * reach < s * (1.0 + 1e-6),
+        "the case: {}",
+        K * reach / s
+    );
     let expected = p + (on_plane - p) * (1.0 - s / (K * reach));
     // Cold, warm from the point (as the servo tick does), and again with the previous dual.
     for previous in [None, Some(p)] {

@@ -647,7 +647,7 @@ pub(crate) fn certify_into(
             if let Some(balanced) = certificate_b(&again) {
                 if balanced.bound_m < best.bound_m {
                     best = balanced;
-                    if let Some(out) = b_dual.as_deref_mut() {
+                    if let Some(out) = b_dual {
                         out[j] = balancing;
                     }
                 }
@@ -679,7 +679,7 @@ pub(crate) fn certify_into(
     };
     // The kinks' sharpness, or a point's own (whichever bounds tighter; both are valid).
     let distance_a = sharp_distance_m(k, sharpness, residual_a, shares_a + slack).min(
-        point_sharpness_distance_m(items, dual, &kinks, x, scale, k, residual_a, shares_a),
+        point_sharpness_distance_m(items, dual, kinks, x, scale, k, residual_a, shares_a),
     );
     let bound_a = rounded_up(distance_a + linear_m);
     if bound_a < best.bound_m || best.bound_m.is_nan() {

@@ -23,6 +23,7 @@ mod formats;
 pub mod foxglove_scene;
 mod mcap_check;
 mod mcap_read;
+mod mcap_stream;
 mod mcap_trace;
 mod meta;
 mod output;

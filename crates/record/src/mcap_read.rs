@@ -103,15 +103,27 @@ pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
 }
 
 /// Reads an MCAP trace as [`read_mcap_trace`] does, but hands each sample to `sink` in file order instead of
-/// collecting them (`voxhap plot`): the file's bytes are held (MCAP's checks and the mcap crate read it from
-/// memory), its decoded samples and messages are not. Returns the trace without its samples, and how many
-/// were read.
+/// collecting them: the file's bytes are held (MCAP's checks and the mcap crate read it from memory), its
+/// decoded samples and messages are not (`voxhap plot` reads the file one record at a time instead,
+/// [`crate::mcap_stream`]). Returns the trace without its samples, and how many were read.
 pub(crate) fn for_each_mcap_sample(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),
 ) -> Result<(Trace, u64), TraceReadError> {
     let bytes = crate::trace::read_trace_file(path)?;
     let (mode_names, count, warnings) = parse_mcap_bytes(&bytes, path, sink)?;
+    drop(bytes);
+    trace_without_samples(path, mode_names, count, warnings)
+}
+
+/// The trace read from `path` without its samples: its mode names and warnings, its sidecar, and the warnings
+/// the sidecar gives for `count` samples read; with `count`.
+pub(crate) fn trace_without_samples(
+    path: &Path,
+    mode_names: Vec<String>,
+    count: u64,
+    warnings: Vec<String>,
+) -> Result<(Trace, u64), TraceReadError> {
     let sidecar = read_sidecar(&sidecar_path(path))?;
     let mut trace = Trace {
         mode_names,
@@ -206,12 +218,17 @@ fn parse_mcap_bytes(
     };
     let mut warnings = Vec::new();
     if let Some(reason) = cut {
-        warnings.push(format!(
-            "{}: the file was not finished (the recording was cut off); read {samples} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
-            path.display(),
-        ));
+        warnings.push(cut_warning(path, samples, &reason));
     }
     Ok((mode_names, samples, warnings))
+}
+
+/// The warning for a file the writer never finished, read up to its last complete chunk.
+pub(crate) fn cut_warning(path: &Path, samples: u64, reason: &str) -> String {
+    format!(
+        "{}: the file was not finished (the recording was cut off); read {samples} samples up to the last complete chunk ({reason}); `voxhap trace repair` rewrites it as a finished file",
+        path.display(),
+    )
 }
 
 /// The mode names and the trace format version from the metadata record.
@@ -225,28 +242,30 @@ fn read_mode_names(bytes: &[u8]) -> Result<(Vec<String>, u32), McapContentError>
         };
         if let mcap::records::Record::Metadata(metadata) = record {
             if metadata.name == METADATA_NAME {
-                let version: u32 = metadata
-                    .metadata
-                    .get("format_version")
-                    .and_then(|v| v.parse().ok())
-                    .ok_or(McapContentError::NoFormatVersion)?;
-                if version != TRACE_FORMAT_VERSION {
-                    return Ok((Vec::new(), version));
-                }
-                let text = metadata
-                    .metadata
-                    .get("mode_names")
-                    .ok_or(McapContentError::NoModeNames)?;
-                let names: Vec<String> =
-                    serde_json::from_str(text).map_err(McapContentError::BadModeNames)?;
-                if names.len() > MAX_MODES {
-                    return Err(McapContentError::TooManyModes { count: names.len() });
-                }
-                return Ok((names, version));
+                return mode_names_from(|key| metadata.metadata.get(key).map(String::as_str));
             }
         }
     }
     Err(McapContentError::NotVoxhap)
+}
+
+/// The mode names and the trace format version from the voxhap metadata record's entries (`get` looks one up);
+/// no names when the version is not this reader's.
+pub(crate) fn mode_names_from<'a>(
+    get: impl Fn(&str) -> Option<&'a str>,
+) -> Result<(Vec<String>, u32), McapContentError> {
+    let version: u32 = get("format_version")
+        .and_then(|v| v.parse().ok())
+        .ok_or(McapContentError::NoFormatVersion)?;
+    if version != TRACE_FORMAT_VERSION {
+        return Ok((Vec::new(), version));
+    }
+    let text = get("mode_names").ok_or(McapContentError::NoModeNames)?;
+    let names: Vec<String> = serde_json::from_str(text).map_err(McapContentError::BadModeNames)?;
+    if names.len() > MAX_MODES {
+        return Err(McapContentError::TooManyModes { count: names.len() });
+    }
+    Ok((names, version))
 }
 
 /// The samples of a finished file's bytes (an unfinished file is closed in memory first, [`parse_mcap_bytes`]),
@@ -261,49 +280,92 @@ fn read_samples(
     cut_off: bool,
     sink: &mut dyn FnMut(&TraceSample),
 ) -> Result<u64, McapContentError> {
-    let mut states: VecDeque<StateMessageOwned> = VecDeque::new();
-    let mut solvers: VecDeque<SolverMessageOwned> = VecDeque::new();
-    let (mut state_count, mut solver_count) = (0usize, 0usize);
-    let mut last_tick = None;
-    let mut count = 0u64;
+    let mut pairing = Pairing::new(mode_names);
     for message in mcap::MessageStream::new(bytes)? {
         let message = message?;
-        let topic = message.channel.topic.as_str();
+        pairing.message(
+            message.channel.topic.as_str(),
+            message.sequence,
+            &message.data,
+            sink,
+        )?;
+    }
+    pairing.finish(cut_off)
+}
+
+/// Pairs each tick's state and solver messages, in file order, into samples (see [`read_samples`]): messages
+/// wait in two queues only until their partner arrives.
+pub(crate) struct Pairing<'a> {
+    mode_names: &'a [String],
+    states: VecDeque<StateMessageOwned>,
+    solvers: VecDeque<SolverMessageOwned>,
+    state_count: usize,
+    solver_count: usize,
+    last_tick: Option<u64>,
+    count: u64,
+}
+
+impl<'a> Pairing<'a> {
+    pub(crate) fn new(mode_names: &'a [String]) -> Self {
+        Pairing {
+            mode_names,
+            states: VecDeque::new(),
+            solvers: VecDeque::new(),
+            state_count: 0,
+            solver_count: 0,
+            last_tick: None,
+            count: 0,
+        }
+    }
+
+    /// One message on `topic` (messages on other topics are ignored); hands every completed sample to `sink`.
+    pub(crate) fn message(
+        &mut self,
+        topic: &str,
+        sequence: u32,
+        data: &[u8],
+        sink: &mut dyn FnMut(&TraceSample),
+    ) -> Result<(), McapContentError> {
         let bad_message = |topic, source| McapContentError::BadMessage {
             topic,
-            sequence: message.sequence,
+            sequence,
             source,
         };
         if topic == STATE_TOPIC {
-            states.push_back(
-                serde_json::from_slice(&message.data).map_err(|e| bad_message(STATE_TOPIC, e))?,
-            );
-            state_count += 1;
+            self.states
+                .push_back(serde_json::from_slice(data).map_err(|e| bad_message(STATE_TOPIC, e))?);
+            self.state_count += 1;
         } else if topic == SOLVER_TOPIC {
-            solvers.push_back(
-                serde_json::from_slice(&message.data).map_err(|e| bad_message(SOLVER_TOPIC, e))?,
-            );
-            solver_count += 1;
+            self.solvers
+                .push_back(serde_json::from_slice(data).map_err(|e| bad_message(SOLVER_TOPIC, e))?);
+            self.solver_count += 1;
         }
-        while !states.is_empty() && !solvers.is_empty() {
-            let (Some(state), Some(solver)) = (states.pop_front(), solvers.pop_front()) else {
+        while !self.states.is_empty() && !self.solvers.is_empty() {
+            let (Some(state), Some(solver)) = (self.states.pop_front(), self.solvers.pop_front())
+            else {
                 break;
             };
-            let sample = join(state, solver, mode_names)?;
-            crate::sample::check_sample(&sample, mode_names.len(), last_tick)?;
-            last_tick = Some(sample.tick);
-            count += 1;
+            let sample = join(state, solver, self.mode_names)?;
+            crate::sample::check_sample(&sample, self.mode_names.len(), self.last_tick)?;
+            self.last_tick = Some(sample.tick);
+            self.count += 1;
             sink(&sample);
         }
+        Ok(())
     }
-    // Left unpaired: the pairing above already checked, tick by tick, that the kept messages belong together.
-    if state_count != solver_count && !cut_off {
-        return Err(McapContentError::Unpaired {
-            states: state_count,
-            solvers: solver_count,
-        });
+
+    /// How many samples were handed on. `cut_off`: the file was unfinished, so its last tick may have lost its
+    /// second message; otherwise every state message must have had its solver message.
+    pub(crate) fn finish(self, cut_off: bool) -> Result<u64, McapContentError> {
+        // Left unpaired: the pairing above already checked, tick by tick, that the kept messages belong together.
+        if self.state_count != self.solver_count && !cut_off {
+            return Err(McapContentError::Unpaired {
+                states: self.state_count,
+                solvers: self.solver_count,
+            });
+        }
+        Ok(self.count)
     }
-    Ok(count)
 }
 
 /// One tick's sample from its state and solver messages (which must be the same tick's).

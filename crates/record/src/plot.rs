@@ -125,7 +125,7 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
             crate::parquet_read::for_each_parquet_sample(path, &mut sink)?
         }
         voxhap_api::TraceFormat::Csv => crate::csv::for_each_csv_sample(path, &mut sink)?,
-        voxhap_api::TraceFormat::Mcap => crate::mcap_read::for_each_mcap_sample(path, &mut sink)?,
+        voxhap_api::TraceFormat::Mcap => crate::mcap_stream::stream_mcap_samples(path, &mut sink)?,
     };
     Ok((trace, data))
 }

@@ -20,7 +20,9 @@
 
 use super::control::{trace_meta, Control};
 pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
-use super::device::{open_device_with_profile, ConnectError, DeviceSpec, OpenError, ServoDevice};
+use super::device::{
+    open_device_with_profile, ConnectError, DeviceSpec, OpenError, OpenedDevice, ServoDevice,
+};
 use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::passivity::PassivityController;
@@ -149,6 +151,9 @@ pub struct Session {
     servo: Option<JoinHandle<()>>,
     recorder: Option<JoinHandle<Result<Option<TraceSummary>, TraceError>>>,
     monitor: Option<Monitor>,
+    /// The device's stop channel: fired by the session itself when the servo thread outlives
+    /// [`SERVO_STOP_BOUND`].
+    stop_slot: Arc<StopSlot>,
     /// What `serve` should tell the operator at start (coupling caps applied, ...).
     notices: Vec<String>,
 }
@@ -161,8 +166,7 @@ impl Session {
         if !(config.rate_hz.is_finite() && (min..=max).contains(&config.rate_hz)) {
             return Err(SessionError::Rate(config.rate_hz));
         }
-        let period_ns = (1e9 / config.rate_hz).round() as u64;
-        let period_s = period_ns as f64 * 1e-9;
+        let period_s = (1e9 / config.rate_hz).round() * 1e-9;
         let spec_label = config.device.to_string();
         let volume_bounds_m = config
             .setup
@@ -181,6 +185,17 @@ impl Session {
             spec: spec_label.clone(),
             cause,
         })?;
+        Self::start_opened(config, opened)
+    }
+
+    /// [`Session::start`] after the device is opened (tests give a device double here).
+    pub(crate) fn start_opened(
+        config: SessionConfig,
+        opened: OpenedDevice,
+    ) -> Result<Session, SessionError> {
+        let period_ns = (1e9 / config.rate_hz).round() as u64;
+        let period_s = period_ns as f64 * 1e-9;
+        let spec_label = config.device.to_string();
         let mut device: Box<dyn ServoDevice> = opened.device;
         let stop_slot = StopSlot::new();
         device.set_stop_slot(stop_slot.clone());
@@ -364,7 +379,7 @@ impl Session {
             },
             stats.clone(),
             servo_running.clone(),
-            stop_slot,
+            stop_slot.clone(),
             event_rx,
         )
         .map_err(SessionError::Thread)?;
@@ -402,6 +417,7 @@ impl Session {
             servo: Some(servo),
             recorder: Some(recorder),
             monitor: Some(monitor),
+            stop_slot,
             notices,
         })
     }
@@ -444,10 +460,23 @@ impl Session {
         }
         let mut recorder_error = None;
         if servo_stuck {
+            // Whatever the monitor did during the wait (its stall stop, once per stall), the device gets zero
+            // force and Disable through its stop channel now, from this thread, before the session lets go.
+            let stopped = match self.stop_slot.fire() {
+                Ok(true) => {
+                    "zero force and Disable were sent through the device's stop channel".to_owned()
+                }
+                Ok(false) => {
+                    "this device has no stop channel, so its own watchdog must stop it".to_owned()
+                }
+                Err(error) => {
+                    format!("sending zero force through the device's stop channel failed: {error}")
+                }
+            };
             self.recorder.take();
             recorder_error = Some(format!(
                 "the servo thread did not finish stopping the device within {} s; the session stopped without \
-                 it (the trace is not finished)",
+                 it (the trace is not finished); {stopped}",
                 SERVO_STOP_BOUND.as_secs()
             ));
         }
@@ -578,6 +607,10 @@ pub fn check_record_path(path: &Path) -> Result<(), MissingRecordDirectory> {
         _ => Ok(()),
     }
 }
+
+#[cfg(test)]
+#[path = "session_stop_tests.rs"]
+mod stop_tests;
 
 #[cfg(test)]
 mod tests {

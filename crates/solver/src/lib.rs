@@ -43,6 +43,7 @@ pub mod active_set;
 #[cfg(feature = "std")]
 pub mod bench_scenes;
 mod certificate;
+mod certificate_terms;
 pub mod clock;
 mod item;
 pub mod linalg;

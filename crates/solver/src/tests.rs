@@ -521,3 +521,57 @@ fn problem(
         primitives,
     }
 }
+
+/// A proxy resting on a tilted plane, held by a friction point at its own position (the previous proxy, as the
+/// friction mode places it) whose strength the tangential pull exceeds by 3.4e-7 of itself: the minimiser slides
+/// 3.3e-10 m along the plane. Analytically it is the probe projected onto the plane, pulled back towards the point
+/// until the tangential spring force equals `s`. Taken from a replay of `sims/friction_sliding.toml` whose probe
+/// stops while the proxy slides: every tick after the stop used to end `Stalled` with a bound of 3.3e-10 m, the
+/// certificate charging the point's subgradient turning (2 s / 3.3e-10 m per metre) for the rounding-sized move
+/// onto the plane.
+#[test]
+fn a_friction_point_a_fraction_of_a_nanometre_behind_a_sliding_proxy_is_certified() {
+    let p = DVec3::new(
+        0.002012811098151069,
+        -4.567445639693378e-21,
+        0.029908883854562397,
+    );
+    let n = DVec3::new(
+        0.06619446930461781,
+        7.360677288119406e-17,
+        0.9978067409240529,
+    );
+    let probe = DVec3::new(
+        0.00093205796350069,
+        -4.679923233344546e-21,
+        0.028063871498975792,
+    );
+    let s = 0.4781264114224911;
+    let primitives = [
+        Primitive::plane(p, n, 3.0).unwrap(),
+        Primitive::point(p, s).unwrap(),
+    ];
+    let q = n.normalize();
+    let on_plane = probe - q * q.dot(probe - p);
+    let reach = (on_plane - p).length();
+    assert!(
+        K * reach > s && K * reach < s * (1.0 + 1e-6),
+        "the case: {}",
+        K * reach / s
+    );
+    let expected = p + (on_plane - p) * (1.0 - s / (K * reach));
+    // Cold, warm from the point (as the servo tick does), and again with the previous dual.
+    for previous in [None, Some(p)] {
+        let mut solver = Solver::default();
+        let problem = Problem {
+            stiffness_n_per_m: K,
+            probe_m: probe,
+            previous_proxy_m: previous,
+            primitives: &primitives,
+        };
+        for _ in 0..2 {
+            let sol = solver.solve(&problem).unwrap();
+            assert_certified_near(&sol, expected);
+        }
+    }
+}

@@ -5,10 +5,11 @@
 
 use std::hint::black_box;
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::measurement::WallTime;
+use criterion::{criterion_group, criterion_main, BenchmarkGroup, Criterion};
 use voxhap_protocol::{
     decode_report, encode_frame, encode_report, hid, DeviceToHost, FaultFlags, ForceFlags,
-    FrameDecoder, HostToDevice, SetForce, State, StatusFlags, MAX_WIRE_FRAME_LEN,
+    FrameDecoder, HostToDevice, Message, SetForce, State, StatusFlags, MAX_WIRE_FRAME_LEN,
 };
 
 fn state() -> DeviceToHost {
@@ -32,49 +33,41 @@ fn set_force() -> HostToDevice {
     })
 }
 
+/// `message` encoded as a serial frame and fed to a streaming decoder, as the benchmark `name` of `group`.
+fn bench_frame<M: Message>(group: &mut BenchmarkGroup<'_, WallTime>, name: &str, message: &M) {
+    let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
+    let mut decoder = FrameDecoder::<M>::new();
+    group.bench_function(name, |b| {
+        b.iter(|| {
+            let len = encode_frame(black_box(message), &mut buf).expect("bench message encodes");
+            decoder.feed(black_box(&buf[..len])).next()
+        })
+    });
+    assert_eq!(decoder.stats().dropped(), 0, "bench frames must decode");
+}
+
+/// `message` encoded as a HID report and decoded, as the benchmark `name` of `group`.
+fn bench_report<M: Message>(group: &mut BenchmarkGroup<'_, WallTime>, name: &str, message: &M) {
+    let mut report = [0u8; hid::REPORT_LEN];
+    group.bench_function(name, |b| {
+        b.iter(|| {
+            encode_report(black_box(message), &mut report).expect("bench message encodes");
+            decode_report::<M>(black_box(&report))
+        })
+    });
+}
+
 fn bench_serial(c: &mut Criterion) {
     let mut group = c.benchmark_group("serial_encode_decode");
-    let mut buf = [0u8; MAX_WIRE_FRAME_LEN];
-
-    let message = state();
-    let mut decoder = FrameDecoder::<DeviceToHost>::new();
-    group.bench_function("state", |b| {
-        b.iter(|| {
-            let len = encode_frame(black_box(&message), &mut buf).expect("state encodes");
-            decoder.feed(black_box(&buf[..len])).next()
-        })
-    });
-    assert_eq!(decoder.stats().dropped(), 0, "bench frames must decode");
-
-    let message = set_force();
-    let mut decoder = FrameDecoder::<HostToDevice>::new();
-    group.bench_function("set_force", |b| {
-        b.iter(|| {
-            let len = encode_frame(black_box(&message), &mut buf).expect("set-force encodes");
-            decoder.feed(black_box(&buf[..len])).next()
-        })
-    });
-    assert_eq!(decoder.stats().dropped(), 0, "bench frames must decode");
+    bench_frame(&mut group, "state", &state());
+    bench_frame(&mut group, "set_force", &set_force());
     group.finish();
 }
 
 fn bench_hid(c: &mut Criterion) {
     let mut group = c.benchmark_group("hid_encode_decode");
-    let mut report = [0u8; hid::REPORT_LEN];
-    let message = state();
-    group.bench_function("state", |b| {
-        b.iter(|| {
-            encode_report(black_box(&message), &mut report).expect("state encodes");
-            decode_report::<DeviceToHost>(black_box(&report))
-        })
-    });
-    let message = set_force();
-    group.bench_function("set_force", |b| {
-        b.iter(|| {
-            encode_report(black_box(&message), &mut report).expect("set-force encodes");
-            decode_report::<HostToDevice>(black_box(&report))
-        })
-    });
+    bench_report(&mut group, "state", &state());
+    bench_report(&mut group, "set_force", &set_force());
     group.finish();
 }
 

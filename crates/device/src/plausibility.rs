@@ -23,6 +23,7 @@
 //!
 //! Nothing here allocates, locks, reads a clock or does I/O: times are passed in.
 
+use super::safety::SettingError;
 use super::{DeviceInfo, DeviceState};
 use glam::DVec3;
 
@@ -61,61 +62,30 @@ impl Default for InputConfig {
 
 /// An input setting that cannot be used.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("input check setting {name} = {value} must be {requirement}")]
-pub struct InputConfigError {
-    /// Setting name.
-    pub name: &'static str,
-    /// Offending value.
-    pub value: f64,
-    /// What it must be.
-    pub requirement: &'static str,
-}
+#[error("input check setting {0}")]
+pub struct InputConfigError(pub SettingError);
 
 impl InputConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), InputConfigError> {
-        let positive = |name, value: f64| {
-            if value.is_finite() && value > 0.0 {
-                Ok(())
-            } else {
-                Err(InputConfigError {
-                    name,
-                    value,
-                    requirement: "finite and > 0",
-                })
-            }
-        };
-        let non_negative = |name, value: f64| {
-            if value.is_finite() && value >= 0.0 {
-                Ok(())
-            } else {
-                Err(InputConfigError {
-                    name,
-                    value,
-                    requirement: "finite and >= 0",
-                })
-            }
-        };
-        positive("max_speed_m_per_s", self.max_speed_m_per_s)?;
-        positive("velocity_cutoff_hz", self.velocity_cutoff_hz)?;
-        non_negative("position_noise_m", self.position_noise_m)?;
-        non_negative("workspace_margin_m", self.workspace_margin_m)?;
-        non_negative(
+        self.check().map_err(InputConfigError)
+    }
+
+    fn check(&self) -> Result<(), SettingError> {
+        SettingError::positive("max_speed_m_per_s", self.max_speed_m_per_s)?;
+        SettingError::positive("velocity_cutoff_hz", self.velocity_cutoff_hz)?;
+        SettingError::non_negative("position_noise_m", self.position_noise_m)?;
+        SettingError::non_negative("workspace_margin_m", self.workspace_margin_m)?;
+        SettingError::non_negative(
             "velocity_tolerance_m_per_s",
             self.velocity_tolerance_m_per_s,
         )?;
-        non_negative(
+        SettingError::non_negative(
             "velocity_tolerance_relative",
             self.velocity_tolerance_relative,
         )?;
-        if self.max_rejected_run == 0 {
-            return Err(InputConfigError {
-                name: "max_rejected_run",
-                value: 0.0,
-                requirement: ">= 1",
-            });
-        }
-        Ok(())
+        let run = self.max_rejected_run;
+        SettingError::require(run != 0, "max_rejected_run", 0.0, ">= 1")
     }
 }
 
@@ -409,7 +379,7 @@ mod tests {
             ..InputConfig::default()
         };
         assert_eq!(
-            InputGuard::new(config).unwrap_err().name,
+            InputGuard::new(config).unwrap_err().0.name,
             "max_speed_m_per_s"
         );
     }

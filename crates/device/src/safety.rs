@@ -126,10 +126,11 @@ impl CouplingCaps {
     }
 }
 
-/// The configuration cannot be used.
+/// A setting that cannot be used: its name, its value and what it must be (the error of the configuration
+/// holding it says which configuration).
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("safety setting {name} = {value} must be {requirement}")]
-pub struct SafetyConfigError {
+#[error("{name} = {value} must be {requirement}")]
+pub struct SettingError {
     /// Setting name.
     pub name: &'static str,
     /// Offending value.
@@ -138,37 +139,63 @@ pub struct SafetyConfigError {
     pub requirement: &'static str,
 }
 
+impl SettingError {
+    /// `Ok` when `holds`, else the error for `name = value`.
+    pub fn require(
+        holds: bool,
+        name: &'static str,
+        value: f64,
+        requirement: &'static str,
+    ) -> Result<(), SettingError> {
+        if holds {
+            Ok(())
+        } else {
+            Err(SettingError {
+                name,
+                value,
+                requirement,
+            })
+        }
+    }
+
+    /// Checks that `value` is finite and > 0.
+    pub fn positive(name: &'static str, value: f64) -> Result<(), SettingError> {
+        Self::require(
+            value.is_finite() && value > 0.0,
+            name,
+            value,
+            "finite and > 0",
+        )
+    }
+
+    /// Checks that `value` is finite and >= 0.
+    pub fn non_negative(name: &'static str, value: f64) -> Result<(), SettingError> {
+        Self::require(
+            value.is_finite() && value >= 0.0,
+            name,
+            value,
+            "finite and >= 0",
+        )
+    }
+}
+
+/// The configuration cannot be used.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("safety setting {0}")]
+pub struct SafetyConfigError(pub SettingError);
+
 impl SafetyConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), SafetyConfigError> {
-        let non_negative = |name, value: f64| {
-            if value.is_finite() && value >= 0.0 {
-                Ok(())
-            } else {
-                Err(SafetyConfigError {
-                    name,
-                    value,
-                    requirement: "finite and >= 0",
-                })
-            }
-        };
-        non_negative("max_force_n", self.max_force_n)?;
-        non_negative("engage_threshold_n", self.engage_threshold_n)?;
-        if !(self.slew_n_per_ms.is_finite() && self.slew_n_per_ms > 0.0) {
-            return Err(SafetyConfigError {
-                name: "slew_n_per_ms",
-                value: self.slew_n_per_ms,
-                requirement: "finite and > 0",
-            });
-        }
-        if self.watchdog_timeout_us == 0 {
-            return Err(SafetyConfigError {
-                name: "watchdog_timeout_us",
-                value: 0.0,
-                requirement: "> 0",
-            });
-        }
-        Ok(())
+        self.check().map_err(SafetyConfigError)
+    }
+
+    fn check(&self) -> Result<(), SettingError> {
+        SettingError::non_negative("max_force_n", self.max_force_n)?;
+        SettingError::non_negative("engage_threshold_n", self.engage_threshold_n)?;
+        SettingError::positive("slew_n_per_ms", self.slew_n_per_ms)?;
+        let watchdog_us = self.watchdog_timeout_us;
+        SettingError::require(watchdog_us != 0, "watchdog_timeout_us", 0.0, "> 0")
     }
 }
 
@@ -554,7 +581,7 @@ mod tests {
             max_force_n: f64::NAN,
             ..config()
         };
-        assert_eq!(SafetyPipeline::new(bad).unwrap_err().name, "max_force_n");
+        assert_eq!(SafetyPipeline::new(bad).unwrap_err().0.name, "max_force_n");
     }
 
     #[test]

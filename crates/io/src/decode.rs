@@ -120,6 +120,18 @@ pub fn decode_samples(
         values: Vec::with_capacity(count),
         ..Decoded::default()
     };
+    // A 64-bit integer goes straight to f32 (through f64 it could round twice); it counts as rounded
+    // when the f32 does not hold it exactly.
+    macro_rules! wide_integer {
+        ($type:ty, $raw:expr) => {{
+            let v = <$type>::from_le_bytes($raw);
+            if v as f32 as $type != v {
+                decoded.rounded_values += 1;
+            }
+            push(&mut decoded, v as f32, scale, f64::from(v as f32));
+            continue;
+        }};
+    }
     for chunk in bytes.chunks_exact(size) {
         let mut raw = [0u8; 8];
         raw[..size].copy_from_slice(chunk);
@@ -135,22 +147,8 @@ pub fn decode_samples(
             ScalarType::U32 => f64::from(u32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
             ScalarType::I32 => f64::from(i32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
             ScalarType::F32 => f64::from(f32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]])),
-            ScalarType::U64 => {
-                let v = u64::from_le_bytes(raw);
-                if v as f32 as u64 != v {
-                    decoded.rounded_values += 1;
-                }
-                push(&mut decoded, v as f32, scale, f64::from(v as f32));
-                continue;
-            }
-            ScalarType::I64 => {
-                let v = i64::from_le_bytes(raw);
-                if v as f32 as i64 != v {
-                    decoded.rounded_values += 1;
-                }
-                push(&mut decoded, v as f32, scale, f64::from(v as f32));
-                continue;
-            }
+            ScalarType::U64 => wide_integer!(u64, raw),
+            ScalarType::I64 => wide_integer!(i64, raw),
             ScalarType::F64 => f64::from_le_bytes(raw),
         };
         let stored = value as f32;
@@ -234,57 +232,28 @@ mod tests {
 
     #[test]
     fn decodes_both_endians_of_every_type() {
+        // (type, the value's little-endian bytes, its big-endian bytes, the value as f32).
+        macro_rules! case {
+            ($type:ident, $value:expr, $expected:expr) => {
+                (
+                    ScalarType::$type,
+                    $value.to_le_bytes().to_vec(),
+                    $value.to_be_bytes().to_vec(),
+                    $expected,
+                )
+            };
+        }
         let cases: [(ScalarType, Vec<u8>, Vec<u8>, f32); 10] = [
-            (ScalarType::U8, vec![200], vec![200], 200.0),
-            (ScalarType::I8, vec![0xfe], vec![0xfe], -2.0),
-            (
-                ScalarType::U16,
-                60000u16.to_le_bytes().into(),
-                60000u16.to_be_bytes().into(),
-                60000.0,
-            ),
-            (
-                ScalarType::I16,
-                (-300i16).to_le_bytes().into(),
-                (-300i16).to_be_bytes().into(),
-                -300.0,
-            ),
-            (
-                ScalarType::U32,
-                70000u32.to_le_bytes().into(),
-                70000u32.to_be_bytes().into(),
-                70000.0,
-            ),
-            (
-                ScalarType::I32,
-                (-7i32).to_le_bytes().into(),
-                (-7i32).to_be_bytes().into(),
-                -7.0,
-            ),
-            (
-                ScalarType::U64,
-                1u64.to_le_bytes().into(),
-                1u64.to_be_bytes().into(),
-                1.0,
-            ),
-            (
-                ScalarType::I64,
-                (-9i64).to_le_bytes().into(),
-                (-9i64).to_be_bytes().into(),
-                -9.0,
-            ),
-            (
-                ScalarType::F32,
-                1.5f32.to_le_bytes().into(),
-                1.5f32.to_be_bytes().into(),
-                1.5,
-            ),
-            (
-                ScalarType::F64,
-                (-0.25f64).to_le_bytes().into(),
-                (-0.25f64).to_be_bytes().into(),
-                -0.25,
-            ),
+            case!(U8, 200u8, 200.0),
+            case!(I8, -2i8, -2.0),
+            case!(U16, 60000u16, 60000.0),
+            case!(I16, -300i16, -300.0),
+            case!(U32, 70000u32, 70000.0),
+            case!(I32, -7i32, -7.0),
+            case!(U64, 1u64, 1.0),
+            case!(I64, -9i64, -9.0),
+            case!(F32, 1.5f32, 1.5),
+            case!(F64, -0.25f64, -0.25),
         ];
         for (scalar_type, little, big, expected) in cases {
             for (bytes, endian) in [(little, Endian::Little), (big, Endian::Big)] {

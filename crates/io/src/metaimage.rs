@@ -16,9 +16,7 @@ use crate::decode::{decode_samples, inflate, Endian, ScalarType};
 use crate::error::LoadProblem;
 use crate::header_lines::HeaderLines;
 use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
-use crate::source::{
-    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
-};
+use crate::source::{check_budget, header_data, read_volume_file, DataRange, LoadOptions};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -106,35 +104,33 @@ pub fn parse_with(
     check_budget(expected_bytes, count as u64, options)?;
     let grid = grid(&header, dims)?;
 
-    let detached;
-    let data: &[u8] = match &header.data_file {
-        Some(name) => {
-            let data_path = data_file_path(path, name, options)?;
-            let range = match (header.compressed, header.header_size) {
-                (true, _) => DataRange::From {
-                    skip: 0,
-                    needed: options.max_volume_bytes,
-                },
-                (false, -1) => DataRange::Tail {
-                    needed: expected_bytes,
-                },
-                (false, skip) => DataRange::From {
-                    skip: u64::try_from(skip).unwrap_or(0),
-                    needed: expected_bytes,
-                },
-            };
-            detached = read_data_file(&data_path, range, options)?;
-            &detached
-        }
-        None => bytes.get(header.header_bytes..).unwrap_or_default(),
-    };
+    let data = header_data(
+        bytes,
+        header.header_bytes,
+        header.data_file.as_deref(),
+        path,
+        options,
+        || match (header.compressed, header.header_size) {
+            (true, _) => DataRange::From {
+                skip: 0,
+                needed: options.max_volume_bytes,
+            },
+            (false, -1) => DataRange::Tail {
+                needed: expected_bytes,
+            },
+            (false, skip) => DataRange::From {
+                skip: u64::try_from(skip).unwrap_or(0),
+                needed: expected_bytes,
+            },
+        },
+    )?;
     let inflated;
     let data = if header.compressed {
-        inflated = inflate(data, expected_bytes)?;
+        inflated = inflate(&data, expected_bytes)?;
         &inflated[..]
     } else {
         // A detached file was read from HeaderSize on (or its tail for -1); inline data starts here.
-        data
+        &data[..]
     };
     let endian = if header.big_endian {
         Endian::Big

@@ -17,9 +17,7 @@ use crate::header_lines::HeaderLines;
 use crate::loaded::{
     assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
 };
-use crate::source::{
-    check_budget, data_file_path, read_data_file, read_volume_file, DataRange, LoadOptions,
-};
+use crate::source::{check_budget, header_data, read_volume_file, DataRange, LoadOptions};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -119,36 +117,34 @@ pub fn parse_with(
         .ok_or_else(|| LoadProblem::header(format!("byte skip {byte_skip} is too large")))?;
     check_budget(needed_bytes, count as u64, options)?;
 
-    let detached;
     let mut applied_byte_skip = false;
-    let data: &[u8] = match &header.data_file {
-        Some(name) => {
-            let data_path = data_file_path(path, name, options)?;
-            // Lines to skip come first; the bounded read below covers raw data without line skips, the
-            // common case; other layouts read the file up to the limit and are checked after decoding.
-            let range = match (encoding, header.line_skip, header.byte_skip) {
-                (Encoding::Raw, 0, -1) => DataRange::Tail {
+    // Lines to skip come first; the bounded read below covers detached raw data without line skips, the
+    // common case; other layouts read the file up to the limit and are checked after decoding.
+    let data = header_data(
+        bytes,
+        header.header_bytes,
+        header.data_file.as_deref(),
+        path,
+        options,
+        || match (encoding, header.line_skip, header.byte_skip) {
+            (Encoding::Raw, 0, -1) => DataRange::Tail {
+                needed: expected_bytes,
+            },
+            // The byte skip is sought past, not read.
+            (Encoding::Raw, 0, _) => {
+                applied_byte_skip = true;
+                DataRange::From {
+                    skip: byte_skip,
                     needed: expected_bytes,
-                },
-                // The byte skip is sought past, not read.
-                (Encoding::Raw, 0, _) => {
-                    applied_byte_skip = true;
-                    DataRange::From {
-                        skip: byte_skip,
-                        needed: expected_bytes,
-                    }
                 }
-                _ => DataRange::From {
-                    skip: 0,
-                    needed: options.max_volume_bytes,
-                },
-            };
-            detached = read_data_file(&data_path, range, options)?;
-            &detached
-        }
-        None => bytes.get(header.header_bytes..).unwrap_or_default(),
-    };
-    let data = skip_lines(data, header.line_skip)?;
+            }
+            _ => DataRange::From {
+                skip: 0,
+                needed: options.max_volume_bytes,
+            },
+        },
+    )?;
+    let data = skip_lines(&data, header.line_skip)?;
     let byte_skip = if applied_byte_skip {
         0
     } else {

@@ -18,6 +18,7 @@
 
 pub use crate::error::FileError;
 use crate::error::LoadProblem;
+use std::borrow::Cow;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -266,6 +267,25 @@ pub(crate) fn data_file_path(
             source,
         }
     })
+}
+
+/// The data a volume header describes: what follows the header in `bytes` (from `header_bytes` on) when
+/// `data_file` is `None`, else the detached file it names (confined to the header's folder), read as `range`.
+pub(crate) fn header_data<'a>(
+    bytes: &'a [u8],
+    header_bytes: usize,
+    data_file: Option<&str>,
+    header_path: &Path,
+    options: &LoadOptions,
+    range: impl FnOnce() -> DataRange,
+) -> Result<Cow<'a, [u8]>, LoadProblem> {
+    match data_file {
+        Some(name) => {
+            let data_path = data_file_path(header_path, name, options)?;
+            Ok(Cow::Owned(read_data_file(&data_path, range(), options)?))
+        }
+        None => Ok(Cow::Borrowed(bytes.get(header_bytes..).unwrap_or_default())),
+    }
 }
 
 /// Checks the memory a load needs (`data_bytes` read or inflated plus 4 bytes per `f32` value) against

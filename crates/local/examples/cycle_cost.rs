@@ -6,11 +6,14 @@
 //! `cargo run --release -p voxhap-local --example cycle_cost -- FAMILY CYCLES`, FAMILY one of `corner`, `wedge`,
 //! `mixed`, `cold`, `budget`.
 
+#[path = "../tests/support/session.rs"]
+mod session;
+
+use session::{enabled_session, TestDevice};
 use voxhap_local::{LocalLoop, LoopConfig};
 use voxhap_protocol::{
-    build_local_model, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, Enable, Hello,
-    HostToDevice, Label, LocalKind, LocalModelParams, LocalStatus, RateSet, SetStateRate,
-    SiPrimitive, PROTOCOL_VERSION,
+    build_local_model, DeviceSample, DeviceSession, DeviceToHost, HostToDevice, LocalKind,
+    LocalModelParams, LocalStatus, SiPrimitive,
 };
 
 /// One control cycle; its own symbol so that callgrind can count it alone.
@@ -117,39 +120,14 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let family = args.get(1).map_or("corner", String::as_str).to_owned();
     let cycles: u64 = args.get(2).and_then(|c| c.parse().ok()).unwrap_or(1000);
-    let info = DeviceInfo {
-        version: PROTOCOL_VERSION,
-        model: Label::new("cost").unwrap_or_default(),
-        serial_number: Label::new("0").unwrap_or_default(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        supported_rates: RateSet::from_rates_hz(&[8000]).unwrap_or_default(),
-        workspace_min_m: [-0.1; 3],
-        workspace_max_m: [0.1; 3],
+    let device = TestDevice {
+        model: "cost",
+        rate_hz: 8000,
         max_force_n: 10.0,
         max_stiffness_n_per_m: 20_000.0,
     };
-    let mut session = DeviceSession::with_local_model(info);
-    session.on_message(
-        &HostToDevice::Hello(Hello {
-            version: PROTOCOL_VERSION,
-        }),
-        0,
-    );
-    session.on_message(
-        &HostToDevice::Enable(Enable {
-            watchdog_timeout_us: 1_000_000,
-        }),
-        0,
-    );
     // States (and so LocalStates, which carry each interval's worst bound) at 8 kHz.
-    session.on_message(
-        &HostToDevice::SetStateRate(SetStateRate {
-            state_rate_hz: 8000,
-        }),
-        0,
-    );
+    let mut session = enabled_session(&device, 1_000_000, 8000);
     let mut config = LoopConfig::default();
     if family == "budget" {
         // A tolerance no f64 solve reaches: every solve runs its whole pass budget (the worst case).

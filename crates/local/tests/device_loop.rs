@@ -2,31 +2,25 @@
 //! wall of stiffness k feels k x 1 mm; the force limit, the engage rule, the expiry ramp (zero at most 5 ms after
 //! the expiry), the watchdog behind it, a model without a solution, and the set-force path left untouched.
 
+#[path = "support/session.rs"]
+mod session;
+
+use session::{enabled_session, TestDevice};
 use voxhap_local::{LocalLoop, LoopConfig, DEVICE_SOLVER_CONFIG};
 use voxhap_protocol::{
-    build_local_model, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, Enable, ForceFlags,
-    Hello, HostToDevice, Label, LocalKind, LocalModelParams, LocalState, LocalStatus, RateSet,
-    SetForce, SiPrimitive, PROTOCOL_VERSION,
+    build_local_model, DeviceSample, DeviceSession, DeviceToHost, ForceFlags, HostToDevice,
+    LocalKind, LocalModelParams, LocalState, LocalStatus, SetForce, SiPrimitive,
 };
 
 const PERIOD_US: u64 = 100;
 const K: f64 = 2000.0;
 
-fn info() -> DeviceInfo {
-    DeviceInfo {
-        version: PROTOCOL_VERSION,
-        model: Label::new("local-test").unwrap(),
-        serial_number: Label::new("1").unwrap(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        supported_rates: RateSet::from_rates_hz(&[1000]).unwrap(),
-        workspace_min_m: [-0.1; 3],
-        workspace_max_m: [0.1; 3],
-        max_force_n: 8.0,
-        max_stiffness_n_per_m: 2000.0,
-    }
-}
+const DEVICE: TestDevice = TestDevice {
+    model: "local-test",
+    rate_hz: 1000,
+    max_force_n: 8.0,
+    max_stiffness_n_per_m: 2000.0,
+};
 
 /// A floor: the plane z = 0, normal +z, strong enough never to give way.
 fn floor_model(sequence: u32, force_limit_n: f64) -> HostToDevice {
@@ -56,25 +50,7 @@ struct Rig {
 
 impl Rig {
     fn new(config: LoopConfig) -> Self {
-        let mut session = DeviceSession::with_local_model(info());
-        session.on_message(
-            &HostToDevice::Hello(Hello {
-                version: PROTOCOL_VERSION,
-            }),
-            0,
-        );
-        session.on_message(
-            &HostToDevice::SetStateRate(voxhap_protocol::SetStateRate {
-                state_rate_hz: 1000,
-            }),
-            0,
-        );
-        session.on_message(
-            &HostToDevice::Enable(Enable {
-                watchdog_timeout_us: 50_000,
-            }),
-            0,
-        );
+        let session = enabled_session(&DEVICE, 50_000, 1000);
         Rig {
             session,
             local: LocalLoop::new(config),

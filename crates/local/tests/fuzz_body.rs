@@ -7,11 +7,14 @@
 //! every force is finite, within the model's limit and the device's maximum, and rises no faster than the slew
 //! limit.
 
+#[path = "support/session.rs"]
+mod session;
+
+use session::{enabled_session, TestDevice};
 use voxhap_local::{LocalLoop, LoopConfig, SLEW_N_PER_S};
 use voxhap_protocol::{
-    build_local_model, decode_report, encode_report, DeviceInfo, DeviceSample, DeviceSession,
-    Enable, Hello, HostToDevice, Label, LocalKind, LocalModel, LocalModelParams, RateSet,
-    SiPrimitive, PROTOCOL_VERSION,
+    build_local_model, decode_report, encode_report, DeviceSample, HostToDevice, LocalKind,
+    LocalModel, LocalModelParams, SiPrimitive,
 };
 
 const MAX_FORCE_N: f32 = 6.0;
@@ -104,32 +107,13 @@ fn build_from(data: &[u8]) -> Option<LocalModel> {
 }
 
 fn drive(model: &LocalModel, data: &[u8]) {
-    let info = DeviceInfo {
-        version: PROTOCOL_VERSION,
-        model: Label::new("fuzz").unwrap_or_default(),
-        serial_number: Label::new("0").unwrap_or_default(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
-        workspace_min_m: [-0.1; 3],
-        workspace_max_m: [0.1; 3],
+    let device = TestDevice {
+        model: "fuzz",
+        rate_hz: 1000,
         max_force_n: MAX_FORCE_N,
         max_stiffness_n_per_m: 2000.0,
     };
-    let mut session = DeviceSession::with_local_model(info);
-    session.on_message(
-        &HostToDevice::Hello(Hello {
-            version: PROTOCOL_VERSION,
-        }),
-        0,
-    );
-    session.on_message(
-        &HostToDevice::Enable(Enable {
-            watchdog_timeout_us: 0,
-        }),
-        0,
-    );
+    let mut session = enabled_session(&device, 0, 0);
     let mut local = LocalLoop::new(LoopConfig::default());
     let limit = (model.force_limit_n() as f32).min(MAX_FORCE_N) * (1.0 + 1e-6);
     let mut previous = 0.0f32;

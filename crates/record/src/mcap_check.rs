@@ -194,45 +194,50 @@ impl Fields<'_> {
     }
 }
 
+/// One field of a record's layout.
+#[derive(Debug, Clone, Copy)]
+enum Field {
+    /// Fixed-size fields, this many bytes together.
+    Bytes(usize),
+    /// A string or byte array with a length prefix this many bytes wide ([`Fields::prefixed`]).
+    Prefixed(usize),
+    /// A map of entries this many bytes each ([`Fields::fixed_map`]).
+    FixedMap(usize),
+    /// A map from string to string ([`Fields::string_map`]).
+    StringMap,
+}
+
+/// The fields of each record type in order, as far as the check reads them (MCAP specification, records 0x01
+/// to 0x0F).
+fn record_layout(opcode: u8) -> &'static [Field] {
+    use Field::*;
+    match opcode {
+        0x01 => &[Prefixed(4), Prefixed(4)],
+        0x02 => &[Bytes(20)],
+        0x03 => &[Bytes(2), Prefixed(4), Prefixed(4), Prefixed(4)],
+        0x04 => &[Bytes(4), Prefixed(4), Prefixed(4), StringMap],
+        0x05 => &[Bytes(22)],
+        0x07 => &[Bytes(2), Prefixed(4)],
+        0x08 => &[Bytes(32), FixedMap(10), Bytes(8), Prefixed(4), Bytes(16)],
+        0x09 => &[Bytes(16), Prefixed(4), Prefixed(4), Prefixed(8), Bytes(4)],
+        0x0A => &[Bytes(40), Prefixed(4), Prefixed(4)],
+        0x0B => &[Bytes(42), FixedMap(10)],
+        0x0C => &[Prefixed(4), StringMap],
+        0x0D => &[Bytes(16), Prefixed(4)],
+        0x0E => &[Bytes(17)],
+        0x0F => &[Bytes(4)],
+        _ => &[], // unknown records are skipped whole by the reader
+    }
+}
+
 fn check_record_fields(opcode: u8, content: &[u8]) -> Result<(), &'static str> {
     let mut fields = Fields { content, at: 0 };
-    let f = &mut fields;
-    match opcode {
-        0x01 => f.prefixed(4).and_then(|()| f.prefixed(4)),
-        0x02 => f.skip(20),
-        0x03 => f
-            .skip(2)
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(4)),
-        0x04 => f
-            .skip(4)
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.string_map()),
-        0x05 => f.skip(22),
-        0x07 => f.skip(2).and_then(|()| f.prefixed(4)),
-        0x08 => f
-            .skip(32)
-            .and_then(|()| f.fixed_map(10))
-            .and_then(|()| f.skip(8))
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.skip(16)),
-        0x09 => f
-            .skip(16)
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(8))
-            .and_then(|()| f.skip(4)),
-        0x0A => f
-            .skip(40)
-            .and_then(|()| f.prefixed(4))
-            .and_then(|()| f.prefixed(4)),
-        0x0B => f.skip(42).and_then(|()| f.fixed_map(10)),
-        0x0C => f.prefixed(4).and_then(|()| f.string_map()),
-        0x0D => f.skip(16).and_then(|()| f.prefixed(4)),
-        0x0E => f.skip(17),
-        0x0F => f.skip(4),
-        _ => Ok(()), // unknown records are skipped whole by the reader
-    }
+    record_layout(opcode)
+        .iter()
+        .try_for_each(|field| match *field {
+            Field::Bytes(count) => fields.skip(count),
+            Field::Prefixed(width) => fields.prefixed(width),
+            Field::FixedMap(entry) => fields.fixed_map(entry),
+            Field::StringMap => fields.string_map(),
+        })
 }

@@ -155,21 +155,23 @@ impl HttpArgs {
     }
 }
 
+/// Parses `args` (without the program name) as a command line holding only the flags `A`: the flag
+/// groups' tests.
+#[cfg(test)]
+pub(crate) fn parse_flags<A: clap::Args>(args: &[&str]) -> Result<A, clap::Error> {
+    let command = A::augment_args(clap::Command::new("voxhap"));
+    let matches =
+        command.try_get_matches_from(std::iter::once("voxhap").chain(args.iter().copied()))?;
+    A::from_arg_matches(&matches)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Debug, Parser)]
-    struct Flags {
-        #[command(flatten)]
-        http: HttpArgs,
-    }
 
     fn resolve(args: &[&str]) -> Result<Option<HttpSettings>, String> {
-        let flags = Flags::try_parse_from(std::iter::once("t").chain(args.iter().copied()))
-            .map_err(|e| e.to_string())?;
-        flags.http.resolve().map_err(|e| e.to_string())
+        let http: HttpArgs = parse_flags(args).map_err(|e| e.to_string())?;
+        http.resolve().map_err(|e| e.to_string())
     }
 
     #[test]

@@ -620,16 +620,9 @@ pub fn layout_topics(layout: &serde_json::Value) -> Option<Vec<String>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Debug, Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: FoxgloveArgs,
-    }
 
     fn parse(args: &[&str]) -> Result<FoxgloveArgs, clap::Error> {
-        Cli::try_parse_from(std::iter::once("voxhap").chain(args.iter().copied())).map(|c| c.args)
+        crate::config::parse_flags(args)
     }
 
     #[test]

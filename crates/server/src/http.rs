@@ -489,21 +489,16 @@ mod tests {
         assert_eq!(request.at_m, Some(DVec3::new(0.0, 0.01, -0.02)));
         let request = slice_request(&params(&[])).unwrap();
         assert_eq!((request.axis, request.size), (SliceAxis::Z, 128));
-        let err = slice_request(&params(&[("axis", "w")]))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("axis must be x, y or z"), "{err}");
-        let err = slice_request(&params(&[("at", "1,2")]))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("at must be three finite numbers"), "{err}");
-        let err = slice_request(&params(&[("at", "1,2,NaN")]))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("at must be"), "{err}");
-        let err = slice_request(&params(&[("sise", "1")]))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("unknown query parameter \"sise\""), "{err}");
+        for (key, value, expected) in [
+            ("axis", "w", "axis must be x, y or z"),
+            ("at", "1,2", "at must be three finite numbers"),
+            ("at", "1,2,NaN", "at must be"),
+            ("sise", "1", "unknown query parameter \"sise\""),
+        ] {
+            let err = slice_request(&params(&[(key, value)]))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(expected), "{key}={value}: {err}");
+        }
     }
 }

@@ -322,26 +322,18 @@ pub fn marker_entities(
     timestamp: Timestamp,
 ) -> Vec<SceneEntity> {
     let colours = palette();
+    let marker = |id: &str, at_m: DVec3, rgb: Rgb| {
+        let mut marker = entity(id.to_owned(), timestamp, Vec::new());
+        marker
+            .spheres
+            .push(sphere(at_m, MARKER_DIAMETER_M, color(rgb, 1.0)));
+        marker
+    };
     let mut entities = Vec::with_capacity(4);
-    let mut probe = entity("probe".to_owned(), timestamp, Vec::new());
-    probe.spheres.push(sphere(
-        probe_m,
-        MARKER_DIAMETER_M,
-        color(colours.probe, 1.0),
-    ));
-    entities.push(probe);
-    let mut proxy = entity("proxy".to_owned(), timestamp, Vec::new());
-    proxy.spheres.push(sphere(
-        proxy_m,
-        MARKER_DIAMETER_M,
-        color(colours.proxy, 1.0),
-    ));
-    entities.push(proxy);
+    entities.push(marker("probe", probe_m, colours.probe));
+    entities.push(marker("proxy", proxy_m, colours.proxy));
     if let Some(target) = hand_target_m {
-        let mut hand = entity("hand_target".to_owned(), timestamp, Vec::new());
-        hand.spheres
-            .push(sphere(target, MARKER_DIAMETER_M, color(colours.hand, 1.0)));
-        entities.push(hand);
+        entities.push(marker("hand_target", target, colours.hand));
     }
     let mut force = entity(
         "force".to_owned(),

@@ -140,73 +140,8 @@ impl ProfileFile {
         let kinematics = match self.kinematics {
             None => Kinematics::Default,
             Some(table) => {
-                fn numbers_only(table: &toml::Table, prefix: &str) -> Result<(), (String, String)> {
-                    for (key, value) in table {
-                        let numbers = match value {
-                            toml::Value::Float(_) | toml::Value::Integer(_) => true,
-                            toml::Value::Array(items) => items.iter().all(|v| {
-                                matches!(v, toml::Value::Float(_) | toml::Value::Integer(_))
-                            }),
-                            _ => false,
-                        };
-                        if !numbers {
-                            return Err((
-                                format!("{prefix}{key}"),
-                                "must be a number or an array of numbers".to_owned(),
-                            ));
-                        }
-                    }
-                    Ok(())
-                }
-                let parse = |table: toml::Table| -> Result<toml::Value, ProfileError> {
-                    numbers_only(&table, "kinematics.")
-                        .map_err(|(key, problem)| key_error(&key, problem))?;
-                    Ok(toml::Value::Table(table))
-                };
-                // One table per model: each holds numbers only.
-                let parse_per_model = |table: toml::Table| -> Result<toml::Value, ProfileError> {
-                    for (model, value) in &table {
-                        if let toml::Value::Table(inner) = value {
-                            numbers_only(inner, &format!("kinematics.{model}."))
-                                .map_err(|(key, problem)| key_error(&key, problem))?;
-                        }
-                    }
-                    Ok(toml::Value::Table(table))
-                };
-                let deserialize_error = |err: serde_path_to_error::Error<toml::de::Error>| {
-                    key_error(
-                        &format!("kinematics.{}", err.path()),
-                        err.into_inner().to_string().trim_end().to_owned(),
-                    )
-                };
-                let kinematics = match self.device.as_deref() {
-                    Some("haply2diy") => Kinematics::Haply2Diy(
-                        serde_path_to_error::deserialize(parse(table)?)
-                            .map_err(deserialize_error)?,
-                    ),
-                    Some("woodenhaptics-hid") => Kinematics::WoodenHapticsHid(
-                        serde_path_to_error::deserialize(parse(table)?)
-                            .map_err(deserialize_error)?,
-                    ),
-                    Some("falcon") => Kinematics::Falcon(
-                        serde_path_to_error::deserialize(parse(table)?)
-                            .map_err(deserialize_error)?,
-                    ),
-                    Some("woodenhaptics") => Kinematics::WoodenHaptics(
-                        serde_path_to_error::deserialize(parse_per_model(table)?)
-                            .map_err(deserialize_error)?,
-                    ),
-                    other => {
-                        return Err(key_error(
-                            "kinematics",
-                            format!(
-                                "device {} takes no kinematics constants from a profile (haply2diy, \
-                                 woodenhaptics, woodenhaptics-hid and falcon do; set device = \"...\")",
-                                other.map_or("(not set)".to_owned(), |d| format!("{d:?}"))
-                            ),
-                        ))
-                    }
-                };
+                let kinematics = kinematics_of(self.device.as_deref(), table)
+                    .map_err(|(key, problem)| key_error(&key, problem))?;
                 check_kinematics(&kinematics)
                     .map_err(|(key, problem)| key_error(&format!("kinematics.{key}"), problem))?;
                 kinematics
@@ -268,6 +203,67 @@ fn finite(key: &str, values: &[f64]) -> Result<(), (String, String)> {
 
 /// Lengths, diameters, constants and resolutions must be finite and > 0 (a link length that the published
 /// constants set to zero, >= 0); offsets finite. The error names the key (below `kinematics.`).
+/// The kinematics constants in `table` for the `device` family (haply2diy, woodenhaptics-hid, falcon: one table
+/// of numbers; woodenhaptics: one such table per model); errors name the key under `kinematics.`.
+fn kinematics_of(device: Option<&str>, table: toml::Table) -> Result<Kinematics, (String, String)> {
+    fn numbers_only(table: &toml::Table, prefix: &str) -> Result<(), (String, String)> {
+        for (key, value) in table {
+            let numbers = match value {
+                toml::Value::Float(_) | toml::Value::Integer(_) => true,
+                toml::Value::Array(items) => items
+                    .iter()
+                    .all(|v| matches!(v, toml::Value::Float(_) | toml::Value::Integer(_))),
+                _ => false,
+            };
+            if !numbers {
+                return Err((
+                    format!("{prefix}{key}"),
+                    "must be a number or an array of numbers".to_owned(),
+                ));
+            }
+        }
+        Ok(())
+    }
+    fn constants<T: serde::de::DeserializeOwned>(
+        table: toml::Table,
+    ) -> Result<T, (String, String)> {
+        serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(
+            |err: serde_path_to_error::Error<toml::de::Error>| {
+                (
+                    format!("kinematics.{}", err.path()),
+                    err.into_inner().to_string().trim_end().to_owned(),
+                )
+            },
+        )
+    }
+    let numbers = |table: toml::Table| numbers_only(&table, "kinematics.").map(|()| table);
+    // One table per model: each holds numbers only.
+    let per_model = |table: toml::Table| -> Result<toml::Table, (String, String)> {
+        for (model, value) in &table {
+            if let toml::Value::Table(inner) = value {
+                numbers_only(inner, &format!("kinematics.{model}."))?;
+            }
+        }
+        Ok(table)
+    };
+    Ok(match device {
+        Some("haply2diy") => Kinematics::Haply2Diy(constants(numbers(table)?)?),
+        Some("woodenhaptics-hid") => Kinematics::WoodenHapticsHid(constants(numbers(table)?)?),
+        Some("falcon") => Kinematics::Falcon(constants(numbers(table)?)?),
+        Some("woodenhaptics") => Kinematics::WoodenHaptics(constants(per_model(table)?)?),
+        other => {
+            return Err((
+                "kinematics".to_owned(),
+                format!(
+                    "device {} takes no kinematics constants from a profile (haply2diy, \
+                     woodenhaptics, woodenhaptics-hid and falcon do; set device = \"...\")",
+                    other.map_or("(not set)".to_owned(), |d| format!("{d:?}"))
+                ),
+            ))
+        }
+    })
+}
+
 fn check_kinematics(kinematics: &Kinematics) -> Result<(), (String, String)> {
     match kinematics {
         Kinematics::Default => Ok(()),

@@ -249,18 +249,8 @@ where
         shaded,
     );
     let area = legend_strip(area, "Force on the device", &entries)?;
-    let mut chart = ChartBuilder::on(&area)
-        .margin(8)
-        .x_label_area_size(32)
-        .y_label_area_size(64)
-        .build_cartesian_2d(data.time_range(), y_range.clone())?;
-    chart
-        .configure_mesh()
-        .x_desc("t (s)")
-        .y_desc("force (N)")
-        .label_style((FONT, 12))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()?;
+    let mut chart = chart_on(&area).build_cartesian_2d(data.time_range(), y_range.clone())?;
+    draw_mesh(&mut chart, "t (s)", "force (N)")?;
     shade_periods(&mut chart, shaded, &y_range)?;
     for (name, color, points) in series {
         if name == "|F|" {
@@ -316,20 +306,11 @@ where
         shaded,
     );
     let area = legend_strip(area, "Solver effort", &entries)?;
-    let mut chart = ChartBuilder::on(&area)
-        .margin(8)
-        .x_label_area_size(32)
-        .y_label_area_size(64)
+    let mut chart = chart_on(&area)
         .right_y_label_area_size(72)
         .build_cartesian_2d(data.time_range(), sweep_range.clone())?
         .set_secondary_coord(data.time_range(), log_low..log_high);
-    chart
-        .configure_mesh()
-        .x_desc("t (s)")
-        .y_desc(format!("{effort} per tick"))
-        .label_style((FONT, 12))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()?;
+    draw_mesh(&mut chart, "t (s)", &format!("{effort} per tick"))?;
     chart
         .configure_secondary_axes()
         .y_desc("certificate bound (m, log)")
@@ -399,20 +380,40 @@ where
     let (probe, mut outliers) = clamp(thin_path(probe, min_step_mm));
     let (proxy, more) = clamp(thin_path(proxy, min_step_mm));
     outliers.extend(more);
-    let mut chart = ChartBuilder::on(area)
-        .margin(8)
-        .x_label_area_size(32)
-        .y_label_area_size(64)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (mm)")
-        .y_desc(vertical_label)
-        .label_style((FONT, 12))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()?;
+    let mut chart = chart_on(area).build_cartesian_2d(x, y)?;
+    draw_mesh(&mut chart, "x (mm)", vertical_label)?;
     chart.draw_series(thick_segments(probe, PROBE_COLOR.stroke_width(3)))?;
     chart.draw_series(LineSeries::new(proxy, PROXY_COLOR.stroke_width(1)))?;
     chart.draw_series(outlier_markers(outliers))?;
     Ok(())
+}
+
+/// A chart builder on `area` with the panels' margin and room for the axis labels.
+fn chart_on<'a, 'b, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .margin(8)
+        .x_label_area_size(32)
+        .y_label_area_size(64);
+    builder
+}
+
+/// Draws `chart`'s axes, labelled `x_desc` and `y_desc`, in the panels' style (no light grid lines).
+fn draw_mesh<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    x_desc: &str,
+    y_desc: &str,
+) -> DrawResult<DB>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FONT, 12))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
 }

@@ -4,19 +4,12 @@ use super::codec::{Header, Transform, HEADER_BYTES};
 use super::config::{IgtlArgs, IgtlConfig, DEFAULT_ADDR};
 use super::state::{choose_victim, Candidate};
 use super::stream::encode_stream;
-use clap::Parser;
 use glam::DVec3;
 use std::time::Duration;
 use voxhap_api::Snapshot;
 
-#[derive(Debug, Parser)]
-struct Cli {
-    #[command(flatten)]
-    args: IgtlArgs,
-}
-
 fn parse(args: &[&str]) -> Result<IgtlArgs, clap::Error> {
-    Cli::try_parse_from(std::iter::once("voxhap").chain(args.iter().copied())).map(|c| c.args)
+    crate::config::parse_flags(args)
 }
 
 #[test]
@@ -63,32 +56,37 @@ fn the_connection_closed_for_a_newcomer_follows_the_documented_order() {
         stalled,
         silent_ms,
     };
-    assert_eq!(choose_victim(&[]), None);
-    // Equal: the oldest.
-    assert_eq!(
-        choose_victim(&[c(false, false, 5), c(false, false, 5)]),
-        Some(0)
-    );
-    // Silent longest.
-    assert_eq!(
-        choose_victim(&[c(false, false, 5), c(false, false, 9)]),
-        Some(1)
-    );
-    // A stalled one before one silent longer.
-    assert_eq!(
-        choose_victim(&[c(false, false, 90_000), c(false, true, 10)]),
-        Some(1)
-    );
-    // One without the token before a stalled, silent token holder.
-    assert_eq!(
-        choose_victim(&[c(true, true, 90_000), c(false, false, 0)]),
-        Some(1)
-    );
-    // All with the token: the same order among them.
-    assert_eq!(
-        choose_victim(&[c(true, false, 7), c(true, true, 1), c(true, false, 8)]),
-        Some(1)
-    );
+    let cases: [(&str, &[Candidate], Option<usize>); 6] = [
+        ("none", &[], None),
+        (
+            "equal: the oldest",
+            &[c(false, false, 5), c(false, false, 5)],
+            Some(0),
+        ),
+        (
+            "silent longest",
+            &[c(false, false, 5), c(false, false, 9)],
+            Some(1),
+        ),
+        (
+            "a stalled one before one silent longer",
+            &[c(false, false, 90_000), c(false, true, 10)],
+            Some(1),
+        ),
+        (
+            "one without the token before a stalled, silent token holder",
+            &[c(true, true, 90_000), c(false, false, 0)],
+            Some(1),
+        ),
+        (
+            "all with the token: the same order among them",
+            &[c(true, false, 7), c(true, true, 1), c(true, false, 8)],
+            Some(1),
+        ),
+    ];
+    for (case, candidates, victim) in cases {
+        assert_eq!(choose_victim(candidates), victim, "{case}");
+    }
 }
 
 #[test]

@@ -214,42 +214,35 @@ fn every_table_names_the_key_in_a_serde_error() {
     );
 }
 
+/// The error (with its sources) of loading the scenario `text` from the folder `dir`.
+fn load_error(text: &str, dir: &str) -> String {
+    let err = Scenario::parse(text, "t.toml")
+        .unwrap()
+        .load(Path::new(dir), "t.toml")
+        .unwrap_err();
+    chain(&err)
+}
+
 #[test]
 fn load_errors_name_the_volume_and_mode() {
     let wrong_kind = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"rankine\"");
-    let err = Scenario::parse(&wrong_kind, "t.toml")
-        .unwrap()
-        .load(Path::new("."), "t.toml")
-        .unwrap_err();
-    let err = chain(&err);
+    let err = load_error(&wrong_kind, ".");
     assert!(
         err.contains("modes[0].volume") && err.contains("vector volume"),
         "{err}"
     );
     let missing_file = MINIMAL.replace("builtin = \"sphere\"", "file = \"no-such.nii.gz\"");
-    let err = Scenario::parse(&missing_file, "t.toml")
-        .unwrap()
-        .load(Path::new("/nonexistent-dir"), "t.toml")
-        .unwrap_err();
-    let err = chain(&err);
+    let err = load_error(&missing_file, "/nonexistent-dir");
     assert!(
         err.contains("volumes[0] (density)") && err.contains("/nonexistent-dir/no-such.nii.gz"),
         "{err}"
     );
     let two_fields = MINIMAL.replace("builtin = \"sphere\"", "builtin = \"density-flow\"");
-    let err = Scenario::parse(&two_fields, "t.toml")
-        .unwrap()
-        .load(Path::new("."), "t.toml")
-        .unwrap_err()
-        .to_string();
+    let err = load_error(&two_fields, ".");
     assert!(err.contains("set part"), "{err}");
     let bad_arm = MINIMAL.replace("mass_kg = 0.1", "mass_kg = -0.1");
-    let err = Scenario::parse(&bad_arm, "t.toml")
-        .unwrap()
-        .load(Path::new("."), "t.toml")
-        .unwrap_err();
     assert_eq!(
-        chain(&err),
+        load_error(&bad_arm, "."),
         "t.toml: simulated arm parameter arm.mass_kg = -0.1 must be finite and > 0"
     );
 }

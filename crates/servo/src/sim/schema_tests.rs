@@ -48,6 +48,13 @@ fn load(text: &str, purpose: Purpose) -> Result<LoadedScenario, String> {
         .map_err(|e| chain(&e))
 }
 
+/// Every key of every section, with its section.
+fn every_key() -> impl Iterator<Item = (&'static SchemaSection, &'static SchemaKey)> {
+    SCENE_SCHEMA
+        .iter()
+        .flat_map(|section| section.keys.iter().map(move |key| (section, key)))
+}
+
 /// Every key is checked as `sim` reads it (`serve` reads the same keys; it only does not need `duration_s`).
 fn purpose_for(_section: &SchemaSection, _key: &SchemaKey) -> Purpose {
     Purpose::Sim
@@ -124,31 +131,29 @@ fn a_key_of_another_kind_is_refused_by_name() {
 #[test]
 fn a_default_written_out_is_the_same_as_leaving_the_key_out() {
     let mut checked = 0;
-    for section in SCENE_SCHEMA {
-        for key in section.keys {
-            let KeyDefault::Value(value) = key.default else {
-                continue;
-            };
-            let purpose = purpose_for(section, key);
-            let written = load(&document(section, &[(key.name, Some(value))]), purpose)
-                .unwrap_or_else(|e| panic!("{}.{} = {value}: {e}", section.title, key.name));
-            let left_out = load(&document(section, &[(key.name, None)]), purpose)
-                .unwrap_or_else(|e| panic!("{} without {}: {e}", section.title, key.name));
-            let same = written.scenario == left_out.scenario || {
-                // `Option` fields (a mode's `side`, `enabled`): compare the built modes.
-                let mut a = written.scenario.clone();
-                let mut b = left_out.scenario.clone();
-                a.modes.clear();
-                b.modes.clear();
-                a == b && written.scene.modes() == left_out.scene.modes()
-            };
-            assert!(
-                same,
-                "{}: {} = {value} is not the default",
-                section.title, key.name
-            );
-            checked += 1;
-        }
+    for (section, key) in every_key() {
+        let KeyDefault::Value(value) = key.default else {
+            continue;
+        };
+        let purpose = purpose_for(section, key);
+        let written = load(&document(section, &[(key.name, Some(value))]), purpose)
+            .unwrap_or_else(|e| panic!("{}.{} = {value}: {e}", section.title, key.name));
+        let left_out = load(&document(section, &[(key.name, None)]), purpose)
+            .unwrap_or_else(|e| panic!("{} without {}: {e}", section.title, key.name));
+        let same = written.scenario == left_out.scenario || {
+            // `Option` fields (a mode's `side`, `enabled`): compare the built modes.
+            let mut a = written.scenario.clone();
+            let mut b = left_out.scenario.clone();
+            a.modes.clear();
+            b.modes.clear();
+            a == b && written.scene.modes() == left_out.scene.modes()
+        };
+        assert!(
+            same,
+            "{}: {} = {value} is not the default",
+            section.title, key.name
+        );
+        checked += 1;
     }
     assert!(checked >= 9, "{checked} defaults checked");
 }
@@ -311,42 +316,40 @@ fn names_key(error: &str, path: &str) -> bool {
 fn every_range_holds_at_its_edges() {
     let mut checked = 0;
     let mut wrong = Vec::new();
-    for section in SCENE_SCHEMA {
-        for key in section.keys {
-            // A `kind` or `shape` changes which other keys the table needs: its values are checked
-            // by the sections of each kind loading.
-            if ["kind", "shape"].contains(&key.name) {
-                continue;
+    for (section, key) in every_key() {
+        // A `kind` or `shape` changes which other keys the table needs: its values are checked
+        // by the sections of each kind loading.
+        if ["kind", "shape"].contains(&key.name) {
+            continue;
+        }
+        let purpose = purpose_for(section, key);
+        let (accepted, refused) = edges(key.accepts, key.example);
+        for value in &accepted {
+            let text = document(section, &[(key.name, Some(value))]);
+            if let Err(e) = load(&text, purpose) {
+                wrong.push(format!(
+                    "{}: {} = {value} should be accepted: {e}",
+                    section.title, key.name
+                ));
             }
-            let purpose = purpose_for(section, key);
-            let (accepted, refused) = edges(key.accepts, key.example);
-            for value in &accepted {
-                let text = document(section, &[(key.name, Some(value))]);
-                if let Err(e) = load(&text, purpose) {
-                    wrong.push(format!(
-                        "{}: {} = {value} should be accepted: {e}",
-                        section.title, key.name
-                    ));
-                }
-                checked += 1;
+            checked += 1;
+        }
+        for value in &refused {
+            let text = document(section, &[(key.name, Some(value))]);
+            match load(&text, purpose) {
+                Ok(_) => wrong.push(format!(
+                    "{}: {} = {value} should be refused",
+                    section.title, key.name
+                )),
+                Err(e) if names_key(&e, &key_path(section, &text, key.name)) => {}
+                Err(e) => wrong.push(format!(
+                    "{}: {} = {value}: the error does not name the key {}: {e}",
+                    section.title,
+                    key.name,
+                    key_path(section, &text, key.name)
+                )),
             }
-            for value in &refused {
-                let text = document(section, &[(key.name, Some(value))]);
-                match load(&text, purpose) {
-                    Ok(_) => wrong.push(format!(
-                        "{}: {} = {value} should be refused",
-                        section.title, key.name
-                    )),
-                    Err(e) if names_key(&e, &key_path(section, &text, key.name)) => {}
-                    Err(e) => wrong.push(format!(
-                        "{}: {} = {value}: the error does not name the key {}: {e}",
-                        section.title,
-                        key.name,
-                        key_path(section, &text, key.name)
-                    )),
-                }
-                checked += 1;
-            }
+            checked += 1;
         }
     }
     assert!(wrong.is_empty(), "{}", wrong.join("\n"));
@@ -356,43 +359,39 @@ fn every_range_holds_at_its_edges() {
 #[test]
 fn the_choices_are_the_parsers() {
     let mut checked = 0;
-    for section in SCENE_SCHEMA {
-        for key in section.keys {
-            let OneOf(names) = key.accepts else {
-                continue;
-            };
-            let text = document(section, &[(key.name, Some("\"no-such-value\""))]);
-            let error = load(&text, purpose_for(section, key)).expect_err("refused");
-            let Some(list) = error.split("expected").nth(1) else {
-                continue; // checked by code, not by serde (a built-in volume's name)
-            };
-            let parsed: BTreeSet<&str> = list.split('`').skip(1).step_by(2).collect();
-            let documented: BTreeSet<&str> = names.iter().copied().collect();
-            assert_eq!(
-                documented, parsed,
-                "{}: {} ({error})",
-                section.title, key.name
-            );
-            checked += 1;
-        }
+    for (section, key) in every_key() {
+        let OneOf(names) = key.accepts else {
+            continue;
+        };
+        let text = document(section, &[(key.name, Some("\"no-such-value\""))]);
+        let error = load(&text, purpose_for(section, key)).expect_err("refused");
+        let Some(list) = error.split("expected").nth(1) else {
+            continue; // checked by code, not by serde (a built-in volume's name)
+        };
+        let parsed: BTreeSet<&str> = list.split('`').skip(1).step_by(2).collect();
+        let documented: BTreeSet<&str> = names.iter().copied().collect();
+        assert_eq!(
+            documented, parsed,
+            "{}: {} ({error})",
+            section.title, key.name
+        );
+        checked += 1;
     }
     assert!(checked >= 5, "{checked} lists checked");
 }
 
 #[test]
 fn examples_load_and_every_key_is_described() {
-    for section in SCENE_SCHEMA {
-        for key in section.keys {
-            assert!(!key.meaning.is_empty(), "{}.{}", section.title, key.name);
-            if !matches!(key.accepts, Table(_)) && !key.example.is_empty() {
-                let text = document(section, &[(key.name, Some(key.example))]);
-                load(&text, purpose_for(section, key)).unwrap_or_else(|e| {
-                    panic!(
-                        "{}: example {} = {}: {e}",
-                        section.title, key.name, key.example
-                    )
-                });
-            }
+    for (section, key) in every_key() {
+        assert!(!key.meaning.is_empty(), "{}.{}", section.title, key.name);
+        if !matches!(key.accepts, Table(_)) && !key.example.is_empty() {
+            let text = document(section, &[(key.name, Some(key.example))]);
+            load(&text, purpose_for(section, key)).unwrap_or_else(|e| {
+                panic!(
+                    "{}: example {} = {}: {e}",
+                    section.title, key.name, key.example
+                )
+            });
         }
     }
 }

@@ -92,25 +92,20 @@ fn the_inlined_and_the_called_pass_iterate_alike() {
             let run = |inline: bool| {
                 let mut workspace = Workspace::<crate::storage::Heap>::with_capacity(items.len());
                 let mut dual = vec![DVec3::splat(f64::NAN); items.len()];
-                let outcome = if inline {
-                    workspace.solve_with::<true>(
-                        &items,
-                        &frame,
-                        start,
-                        limits,
-                        &mut dual,
-                        &mut || false,
-                    )
+                let solve = if inline {
+                    Workspace::solve_with::<true>
                 } else {
-                    workspace.solve_with::<false>(
-                        &items,
-                        &frame,
-                        start,
-                        limits,
-                        &mut dual,
-                        &mut || false,
-                    )
+                    Workspace::solve_with::<false>
                 };
+                let outcome = solve(
+                    &mut workspace,
+                    &items,
+                    &frame,
+                    start,
+                    limits,
+                    &mut dual,
+                    &mut || false,
+                );
                 (outcome, dual)
             };
             let ((inlined, inlined_dual), (called, called_dual)) = (run(true), run(false));

@@ -18,6 +18,12 @@ fn uniform_scalar() -> AnyVolume {
     AnyVolume::Scalar(ScalarVolume::from_fn(grid, |_| 1.0).unwrap())
 }
 
+/// A scene of one `kind` mode over [`uniform_scalar`], its transfer the constant `value`.
+fn uniform_scalar_scene(kind: ModeKind, value: f64) -> RenderScene {
+    let mode = ModeConfig::sampled(kind, "v", TransferFunction::constant(value).unwrap());
+    RenderScene::new(K, vec![("v".into(), uniform_scalar())], &[mode]).unwrap()
+}
+
 /// A uniform flow of 1 m/s along +x over a 0.4 m cube.
 fn uniform_flow() -> AnyVolume {
     let grid = Grid::centred_cube([8; 3], 0.2).unwrap();
@@ -40,16 +46,7 @@ fn force_after(scene: &RenderScene, speed_m_per_s: f64, ticks: usize) -> DVec3 {
 #[test]
 fn viscous_drag_is_b_times_the_speed() {
     const B: f64 = 2.0; // N s/m
-    let scene = RenderScene::new(
-        K,
-        vec![("v".into(), uniform_scalar())],
-        &[ModeConfig::sampled(
-            ModeKind::Viscosity,
-            "v",
-            TransferFunction::constant(B).unwrap(),
-        )],
-    )
-    .unwrap();
+    let scene = uniform_scalar_scene(ModeKind::Viscosity, B);
     for speed in [0.001, 0.01, 0.2] {
         // Steady motion (the proxy's lag settles geometrically with ratio c / (k + c) = 0.8 per tick).
         let force = force_after(&scene, speed, 400);
@@ -64,16 +61,7 @@ fn viscous_drag_is_b_times_the_speed() {
 #[test]
 fn coulomb_drag_is_the_same_at_every_speed() {
     const S: f64 = 0.3; // N
-    let scene = RenderScene::new(
-        K,
-        vec![("v".into(), uniform_scalar())],
-        &[ModeConfig::sampled(
-            ModeKind::CoulombDrag,
-            "v",
-            TransferFunction::constant(S).unwrap(),
-        )],
-    )
-    .unwrap();
+    let scene = uniform_scalar_scene(ModeKind::CoulombDrag, S);
     for speed in [0.001, 0.01, 0.2] {
         // Stuck until the stretch k d reaches S (0.6 mm: 600 ticks at 1 mm/s), then slipping at S.
         let force = force_after(&scene, speed, 2000);

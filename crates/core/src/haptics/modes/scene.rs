@@ -2,6 +2,7 @@
 
 use super::config::{ModeConfig, ModeKind};
 use super::mode::{Mode, ModeError, SurfaceSide, MAX_MODES, MIN_DIRECTION_MAGNITUDE};
+use super::transfer::TransferFunction;
 use crate::haptics::Primitive;
 use crate::volume::{AnyVolume, ScalarVolume, VectorVolume};
 use glam::DVec3;
@@ -254,13 +255,9 @@ impl RenderScene {
                 volume,
                 transfer,
                 power_budget_w,
-            } => self.scalar(*volume).and_then(|v| {
-                let gradient = v.gradient(at.hand_m);
-                let direction = direction_of(gradient)?;
-                let strength = transfer.eval(gradient.length());
-                let strength = within_budget(strength, direction, at, *power_budget_w);
-                nonzero(strength).and_then(|s| Primitive::directed(direction, s).ok())
-            }),
+            } => self
+                .scalar(*volume)
+                .and_then(|v| active_push(v.gradient(at.hand_m), transfer, at, *power_budget_w)),
             Mode::VectorFollow { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let velocity = v.sample(proxy_m);
                 direction_of(velocity)
@@ -271,13 +268,9 @@ impl RenderScene {
                 volume,
                 transfer,
                 power_budget_w,
-            } => self.vector(*volume).and_then(|v| {
-                let velocity = v.sample(at.hand_m);
-                let direction = direction_of(velocity)?;
-                let strength = transfer.eval(velocity.length());
-                let strength = within_budget(strength, direction, at, *power_budget_w);
-                nonzero(strength).and_then(|s| Primitive::directed(direction, s).ok())
-            }),
+            } => self
+                .vector(*volume)
+                .and_then(|v| active_push(v.sample(at.hand_m), transfer, at, *power_budget_w)),
             Mode::Vortex { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let jacobian = v.jacobian(proxy_m);
                 let curl = crate::volume::vector::curl_of(&jacobian);
@@ -302,6 +295,19 @@ impl RenderScene {
 fn direction_of(v: DVec3) -> Option<DVec3> {
     let length = v.length();
     (length.is_finite() && length > MIN_DIRECTION_MAGNITUDE).then(|| v / length)
+}
+
+/// An active mode's push along `field` (sampled at the hand): the transfer of its length, held to the power
+/// budget; `None` where the field has no direction or the strength is 0.
+fn active_push(
+    field: DVec3,
+    transfer: &TransferFunction,
+    at: &ModeInput,
+    budget_w: f64,
+) -> Option<Primitive> {
+    let direction = direction_of(field)?;
+    let strength = within_budget(transfer.eval(field.length()), direction, at, budget_w);
+    nonzero(strength).and_then(|s| Primitive::directed(direction, s).ok())
 }
 
 /// An active mode's strength held to its power budget: a force `s q` on a hand moving at `v` delivers

@@ -48,8 +48,9 @@ done
 grep -q '^ros2: publishing' "$WORK/serve.out" && [ -n "$http" ] \
   || fail "voxhap serve did not print its http address and 'ros2: publishing' within 15 s"
 echo "$name: voxhap serve: $(grep '^ros2: publishing' "$WORK/serve.out"); HTTP on $http"
-grep -q '^ros2: subscribed to /voxhap/servo_cf' "$WORK/serve.out" \
-  || fail "voxhap serve --external-force did not print 'ros2: subscribed to /voxhap/servo_cf'"
+grep -q '^ros2: subscribed to /voxhap/servo_cf (geometry_msgs/msg/WrenchStamped, best effort)' "$WORK/serve.out" \
+  && grep -q '^external force: accepted (set_external_force, /voxhap/servo_cf), added before the safety pipeline, zero 0.1 s after the last one$' "$WORK/serve.out" \
+  || fail "voxhap serve --ros2 --external-force did not print its external force lines: $(cat "$WORK/serve.out")"
 
 if ! timeout 140 python3 .ci/ros2_subscriber.py "$domain" "$http" "$token"; then
   sed "s/^/$name: serve: /" "$WORK/serve.err" >&2

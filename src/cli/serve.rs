@@ -157,9 +157,8 @@ impl ServeArgs {
     }
 }
 
-fn parse_connect_timeout(text: &str) -> Result<f64, String> {
-    let (min_us, max_us) = crate::device::supervisor::CONNECT_TIMEOUT_RANGE_US;
-    let (min, max) = (min_us as f64 * 1e-6, max_us as f64 * 1e-6);
+/// A number of seconds from `min` to `max`.
+fn seconds_in(text: &str, (min, max): (f64, f64)) -> Result<f64, String> {
     let seconds: f64 = text
         .trim()
         .parse()
@@ -171,17 +170,13 @@ fn parse_connect_timeout(text: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_connect_timeout(text: &str) -> Result<f64, String> {
+    let (min_us, max_us) = crate::device::supervisor::CONNECT_TIMEOUT_RANGE_US;
+    seconds_in(text, (min_us as f64 * 1e-6, max_us as f64 * 1e-6))
+}
+
 fn parse_external_force_timeout(text: &str) -> Result<f64, String> {
-    let (min, max) = crate::servo::external_force::TIMEOUT_RANGE_S;
-    let seconds: f64 = text
-        .trim()
-        .parse()
-        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
-    if seconds.is_finite() && (min..=max).contains(&seconds) {
-        Ok(seconds)
-    } else {
-        Err(format!("{text} s is outside {min} ..= {max} s"))
-    }
+    seconds_in(text, crate::servo::external_force::TIMEOUT_RANGE_S)
 }
 
 /// Builds the session configuration from the flags (loads the scene and volumes).

@@ -47,7 +47,7 @@ struct ForceSender {
 
 impl ForceSender {
     fn start(port: u16) -> ForceSender {
-        let sender = ForceSender {
+        let mut sender = ForceSender {
             command: Arc::default(),
             acked_phase: Arc::default(),
             accepted: Arc::default(),
@@ -128,10 +128,8 @@ impl ForceSender {
                 }
             });
         });
-        ForceSender {
-            thread: Some(thread),
-            ..sender
-        }
+        sender.thread = Some(thread);
+        sender
     }
 
     /// Sends `force_n` from now on (`None`: stops sending); returns once no message of the previous command is in

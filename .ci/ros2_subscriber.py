@@ -16,7 +16,7 @@ from their .msg files, and checks the values against the same server's /api/stat
 - The publishing rate is printed (not asserted: it depends on the machine's load).
 - servo_cf (with `serve --external-force`): voxhap's reader of rt/voxhap/servo_cf is discovered with the ROS 2
   names and best-effort QoS; wrenches published from here as `ros2 topic pub` would (reliable writer, frame
-  "world") show in /api/state's external_force_n exactly, and in the force sent; a wrench in another frame and
+  "world") show in /api/state's external_force_n exactly; a wrench in another frame and
   one with a NaN force are refused (external_force_n stays zero); once publishing stops, external_force_n
   returns to zero (the staleness timeout).
 
@@ -302,7 +302,7 @@ def check_servo_cf(participant, http, token):
         time.sleep(0.05)
     check(reader is not None, "no reader of rt/voxhap/servo_cf discovered (serve --external-force)")
     check(reader.type_name == "geometry_msgs::msg::dds_::WrenchStamped_", f"servo_cf type {reader.type_name}")
-    check(isinstance(reader.qos[Policy.Reliability], Policy.Reliability.BestEffort),
+    check(reader.qos[Policy.Reliability] == Policy.Reliability.BestEffort,
           f"servo_cf reader {reader.qos[Policy.Reliability]}, expected best effort")
     print("ros2_subscriber: voxhap's servo_cf reader discovered (WrenchStamped, best effort)")
 
@@ -324,8 +324,6 @@ def check_servo_cf(participant, http, token):
     publish_for(writer, wrench(force), 2.0)
     state = http_json(f"{http}/api/state")
     check(state["external_force_n"] == force, f"external_force_n {state['external_force_n']}, published {force}")
-    check(close(state["force_n"], force, 0.05),
-          f"/api/state force_n {state['force_n']} N: not the external force {force} N in free space")
     print(f"ros2_subscriber: servo_cf {force} N -> /api/state external_force_n {state['external_force_n']}, "
           f"force_n {state['force_n']}")
 

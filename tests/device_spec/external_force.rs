@@ -34,12 +34,15 @@ struct Command {
     force_n: Option<[f64; 3]>,
 }
 
+/// When each accepted message was answered, and the force it carried.
+type Accepted = Arc<Mutex<Vec<(Instant, [f64; 3])>>>;
+
 /// A WebSocket client on its own thread that sends the current command every 10 ms (`set_external_force`, with
 /// the token) and keeps the time of every accepted reply.
 struct ForceSender {
     command: Arc<Mutex<Command>>,
     acked_phase: Arc<AtomicU64>,
-    accepted: Arc<Mutex<Vec<(Instant, [f64; 3])>>>,
+    accepted: Accepted,
     errors: Arc<Mutex<Vec<String>>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,

@@ -53,7 +53,8 @@ pub fn check_external_force(force_n: [f64; 3]) -> Result<DVec3, ExternalForceErr
     }
     let force = DVec3::from_array(force_n);
     let magnitude_n = force.length();
-    if !(magnitude_n <= MAX_EXTERNAL_FORCE_N) {
+    // Finite components: the magnitude is finite or (overflowing) +inf, never NaN.
+    if magnitude_n > MAX_EXTERNAL_FORCE_N {
         return Err(ExternalForceError::TooLarge {
             force_n,
             magnitude_n,

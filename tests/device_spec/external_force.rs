@@ -212,9 +212,10 @@ fn zero_after(at: Instant, n: usize) -> impl Fn(&SpecDeviceHandle) -> bool {
     }
 }
 
-/// After the last accepted message at `last`, the host sends the force for at most the timeout (counted in its
-/// ticks, one SetForce each, from the tick that first saw the message, which is after `last`... or just before:
-/// the frames already on their way), plus the ticks the safety pipeline takes to bring |F| down to zero.
+/// After the last accepted message (answered at `last`), the host sends the force for at most the timeout: counted
+/// in its ticks, one SetForce each, from the first tick that saw the message, which began before `last`. Frames
+/// arriving after `last` are at most those ticks, plus the frames already on their way and the ticks the safety
+/// pipeline may take to bring |F| down to zero.
 fn assert_zero_within_the_timeout(device: &SpecDeviceHandle, last: Instant, what: &str) {
     let after = forces_after(device, last);
     let nonzero = after.iter().filter(|f| !f.is_zero()).count();

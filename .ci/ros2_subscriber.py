@@ -14,6 +14,11 @@ from their .msg files, and checks the values against the same server's /api/stat
 - operating_state: ENABLED, homed, while /api/state says engaged; received at once by a late subscriber
   (transient local).
 - The publishing rate is printed (not asserted: it depends on the machine's load).
+- servo_cf (with `serve --external-force`): voxhap's reader of rt/voxhap/servo_cf is discovered with the ROS 2
+  names and best-effort QoS; wrenches published from here as `ros2 topic pub` would (reliable writer, frame
+  "world") show in /api/state's external_force_n exactly; a wrench in another frame and
+  one with a NaN force are refused (external_force_n stays zero); once publishing stops, external_force_n
+  returns to zero (the staleness timeout).
 
 Usage: ros2_subscriber.py DOMAIN_ID HTTP_URL TOKEN. CYCLONEDDS_URI must keep Cyclone on the loopback
 interface (check-ros2.sh sets it). Exit 0 when every check passes; otherwise 1 with the failed check.
@@ -26,11 +31,12 @@ import time
 import urllib.request
 from dataclasses import dataclass
 
-from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import float64, int32, uint32
+from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -264,8 +270,79 @@ def main():
     check(state.state == "ENABLED" and state.is_homed and not state.is_busy,
           f"operating_state {state.state} homed {state.is_homed} busy {state.is_busy} while engaged")
     print(f"ros2_subscriber: operating_state {state.state} (homed, not busy) while engaged")
+    check_servo_cf(participant, http, token)
     http_json(f"{http}/api/hand", {"position_m": None}, token)
     print("ros2_subscriber: OK")
+
+
+def wrench(force, frame="world"):
+    return WrenchStamped(
+        header=Header(stamp=Time(sec=int(time.time()), nanosec=0), frame_id=frame),
+        wrench=Wrench(force=Vector3(*force), torque=Vector3(0.0, 0.0, 0.0)),
+    )
+
+
+def publish_for(writer, message, seconds, rate_hz=50.0):
+    """Publishes `message` at `rate_hz` for `seconds` (as `ros2 topic pub -r 50` does)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        writer.write(message)
+        time.sleep(1.0 / rate_hz)
+
+
+def check_servo_cf(participant, http, token):
+    # voxhap's reader, found under its ROS 2 name and type, best effort.
+    subscriptions = BuiltinDataReader(participant, BuiltinTopicDcpsSubscription)
+    reader = None
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline and reader is None:
+        for sample in subscriptions.take(N=100):
+            if sample.topic_name == "rt/voxhap/servo_cf":
+                reader = sample
+        time.sleep(0.05)
+    check(reader is not None, "no reader of rt/voxhap/servo_cf discovered (serve --external-force)")
+    check(reader.type_name == "geometry_msgs::msg::dds_::WrenchStamped_", f"servo_cf type {reader.type_name}")
+    check(reader.qos[Policy.Reliability] == Policy.Reliability.BestEffort,
+          f"servo_cf reader {reader.qos[Policy.Reliability]}, expected best effort")
+    print("ros2_subscriber: voxhap's servo_cf reader discovered (WrenchStamped, best effort)")
+
+    # The hand in free space, 40 mm above the ball: the scene renders nothing there.
+    http_json(f"{http}/api/hand", {"position_m": [0.0, 0.0, 0.04]}, token)
+    time.sleep(2.0)
+    qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.Volatile,
+              Policy.History.KeepLast(10))
+    writer = DataWriter(participant, Topic(participant, "rt/voxhap/servo_cf", WrenchStamped), qos=qos)
+    force = [0.3, -0.2, 0.1]
+    # Until voxhap has the wrench (discovery takes a moment), then 2 s more.
+    deadline = time.monotonic() + 30.0
+    state = http_json(f"{http}/api/state")
+    while time.monotonic() < deadline and state["external_force_n"] != force:
+        publish_for(writer, wrench(force), 0.2)
+        state = http_json(f"{http}/api/state")
+    check(state["external_force_n"] == force,
+          f"/api/state external_force_n {state['external_force_n']} while publishing {force} on servo_cf")
+    publish_for(writer, wrench(force), 2.0)
+    state = http_json(f"{http}/api/state")
+    check(state["external_force_n"] == force, f"external_force_n {state['external_force_n']}, published {force}")
+    print(f"ros2_subscriber: servo_cf {force} N -> /api/state external_force_n {state['external_force_n']}, "
+          f"force_n {state['force_n']}")
+
+    # Stopped: zero after the staleness timeout (polled; no timing asserted beyond a generous guard).
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline and state["external_force_n"] != [0.0, 0.0, 0.0]:
+        time.sleep(0.05)
+        state = http_json(f"{http}/api/state")
+    check(state["external_force_n"] == [0.0, 0.0, 0.0],
+          f"external_force_n {state['external_force_n']} after publishing stopped")
+    print("ros2_subscriber: servo_cf stopped -> external_force_n back to zero")
+
+    # Refused: another frame, a NaN force. Neither reaches the session.
+    for bad, frame in [([0.5, 0.0, 0.0], "base_link"), ([math.nan, 0.0, 0.0], "world")]:
+        publish_for(writer, wrench(bad, frame), 1.0)
+        state = http_json(f"{http}/api/state")
+        check(state["external_force_n"] == [0.0, 0.0, 0.0],
+              f"a wrench {bad} in frame {frame!r} reached the session: external_force_n {state['external_force_n']}")
+    print("ros2_subscriber: servo_cf in frame 'base_link' and with a NaN force refused")
 
 
 if __name__ == "__main__":

@@ -7,10 +7,11 @@
 //! machine stays reasonable; every bound is count-based and generous.
 //!
 //! By topic: [`vectors`] checks the double itself; [`session`] a clean session, the handshake and stopping;
-//! [`faults`] faults and refusals; [`link`] link health; [`limits`] plausibility, limits and fewer degrees of
+//! [`faults`] faults and refusals; [`external_force`] the external force input over the WebSocket API; [`link`] link health; [`limits`] plausibility, limits and fewer degrees of
 //! freedom; [`misbehaviour`] random misbehaviour; [`stall`] the stall monitor. The harness (how `serve` is run,
 //! waited for and checked) is tests/util/spec_serve.rs.
 
+mod external_force;
 mod faults;
 mod limits;
 mod link;

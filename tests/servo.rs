@@ -431,11 +431,20 @@ fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
         &PassivitySettings::default(),
         1,
     ));
+    // The external force input on, fed from this (the control) side every 40 ticks with a 30-tick timeout:
+    // the servo thread reads it, ages it and drops it inside the count.
+    let (mut external, receiver) =
+        voxhap::servo::external_force::channel(Duration::from_millis(30), PERIOD_NS);
+    rig.servo.set_external_force(receiver);
+    let mut external_seen = 0u64;
     let mut samples_seen = 0u64;
     let mut generations_seen = 0u64;
     let mut last_generation = 0;
     let ((), allocations) = count_allocations(|| {
         for tick in 0..10_000u64 {
+            if tick % 40 == 0 {
+                let _ = external.send([0.0, 0.2 * (tick % 3) as f64, 0.1]);
+            }
             if tick % 500 == 250 {
                 if let Some(bundle) = bundles.pop() {
                     let _ = rig.commands.push(ServoCommand::SwapScene(bundle));
@@ -454,8 +463,9 @@ fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
                     graveyard.push(old);
                 }
             }
-            while rig.samples.pop().is_ok() {
+            while let Ok(sample) = rig.samples.pop() {
                 samples_seen += 1;
+                external_seen += u64::from(sample.truth.external_force_n != DVec3::ZERO);
             }
             if let Some(snapshot) = *rig.snapshot.read() {
                 if snapshot.scene_generation != last_generation {
@@ -472,6 +482,12 @@ fn ten_thousand_servo_ticks_with_mode_and_volume_changes_allocate_nothing() {
         "the observer ran: {passivity:?}"
     );
     assert_eq!(samples_seen, 10_000);
+    // 30 of every 40 ticks carry the force (the timeout), the others none.
+    assert_eq!(
+        external_seen,
+        10_000 / 40 * 30,
+        "the external force was applied"
+    );
     assert_eq!(rig.stats.commands_applied.load(Ordering::Relaxed), 30);
     assert_eq!(
         graveyard.len(),

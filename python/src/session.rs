@@ -89,20 +89,31 @@ impl NativeSession {
 impl NativeSession {
     /// Starts the session: loads `scene` (None: the built-in scene) with `overrides`, starts the servo at
     /// `rate_hz` (default the scene's) and, with `trace_csv`, records every tick to that CSV file (which must
-    /// not exist yet).
+    /// not exist yet). With `external_force_timeout_s` the external force input is on, with that staleness
+    /// timeout (`serve --external-force --external-force-timeout`).
     #[new]
-    #[pyo3(signature = (scene = None, overrides = Vec::new(), rate_hz = None, trace_csv = None))]
+    #[pyo3(signature = (scene = None, overrides = Vec::new(), rate_hz = None, trace_csv = None, external_force_timeout_s = None))]
     fn new(
         py: Python<'_>,
         scene: Option<PathBuf>,
         overrides: Vec<String>,
         rate_hz: Option<f64>,
         trace_csv: Option<PathBuf>,
+        external_force_timeout_s: Option<f64>,
     ) -> PyResult<Self> {
         let setup = load_setup(scene.as_deref(), &overrides)?;
         let mut config = SessionConfig::new(DeviceSpec::Sim, setup);
         if let Some(rate_hz) = rate_hz {
             config.rate_hz = rate_hz;
+        }
+        if let Some(timeout_s) = external_force_timeout_s {
+            let (min, max) = voxhap_servo::external_force::TIMEOUT_RANGE_S;
+            if !(timeout_s.is_finite() && (min..=max).contains(&timeout_s)) {
+                return Err(PyValueError::new_err(format!(
+                    "external_force_timeout_s {timeout_s} is outside {min} ..= {max} s"
+                )));
+            }
+            config.external_force_timeout = Some(Duration::from_secs_f64(timeout_s));
         }
         if let Some(path) = trace_csv {
             config.record_policy = voxhap_record::OutputPolicy {
@@ -138,6 +149,17 @@ impl NativeSession {
         self.check_open()?;
         let api = self.api.clone();
         py.detach(move || api.control(ControlCommand::SetHandTarget { position_m }))
+            .map(|reply| reply.message)
+            .map_err(control_error)
+    }
+
+    /// Sends an external force ([x, y, z] in N, scene frame), added to the rendered force before the safety
+    /// pipeline for the staleness timeout. Refused (`ValueError`) when not finite or above 1000 N,
+    /// `RuntimeError` when the session was started without the external force input.
+    fn set_external_force(&self, py: Python<'_>, force_n: [f64; 3]) -> PyResult<String> {
+        self.check_open()?;
+        let api = self.api.clone();
+        py.detach(move || api.control(ControlCommand::SetExternalForce { force_n }))
             .map(|reply| reply.message)
             .map_err(control_error)
     }

@@ -272,6 +272,9 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     row.cause(s.truth.force_off_cause);
     row.u64(u64::from(s.truth.device_fault_bits));
     row.u64(u64::from(s.truth.sample_age_ticks));
+    for value in s.truth.external_force_n.to_array() {
+        row.f64(value);
+    }
     if row.index != row.columns.len() && row.mismatch.is_none() {
         row.mismatch = Some(row.index);
     }

@@ -176,3 +176,50 @@ def test_the_example_in_docs_python_md_runs(monkeypatch):
     namespace = {}
     exec(compile(blocks[0], "docs/python.md (Session example)", "exec"), namespace)
     assert "df" in namespace and len(namespace["df"]) > 0
+
+
+def test_an_external_force_moves_the_arm_by_force_over_hand_stiffness_then_times_out():
+    # Free space 2 cm above the wall: the coupling renders nothing, so the arm feels only the external force.
+    # It settles where its hand spring (300 N/m) balances it: 0.6 N along x moves it 0.6 / 300 = 2 mm.
+    force = (0.6, 0.0, 0.0)
+    with voxhap.Session(WALL, external_force=True, external_force_timeout_s=1.0) as session:
+        wait_engaged(session)
+        assert np.all(session.state().external_force_n == 0.0)
+        for _ in range(50):  # 1 s of ticks, the force sent every 20 ticks (well inside its 1 s timeout)
+            reply = session.set_external_force(*force)
+            state = session.wait_ticks(20)
+        assert "external force" in reply
+        assert state.external_force_n == pytest.approx(np.array(force), abs=0.0)
+        # Below every limit of the arm (10 N): rendered and sent are the external force itself.
+        assert state.rendered_force_n == pytest.approx(np.array(force), abs=1e-9)
+        assert state.force_n == pytest.approx(np.array(force), abs=1e-9)
+        assert state.probe_m[0] == pytest.approx(force[0] / HAND_N_PER_M, rel=0.05), state.probe_m
+        # Nothing more sent: zero after the timeout (1 s), and the arm back on its hold point.
+        state = session.wait_ticks(2500)
+        assert np.all(state.external_force_n == 0.0) and np.all(state.force_n == 0.0), state
+        assert abs(state.probe_m[0]) < 2e-4, state.probe_m
+        df = session.trace()
+    # The trace holds the same force in its own columns, and zero once it timed out.
+    applied = df[df["external_force_x_n"] != 0.0]
+    assert len(applied) > 900
+    assert (applied["external_force_x_n"] == force[0]).all()
+    assert (applied[["external_force_y_n", "external_force_z_n"]] == 0.0).all().all()
+    assert (df["external_force_x_n"].iloc[-100:] == 0.0).all()
+
+
+def test_an_external_force_is_refused_when_bad_or_off():
+    with voxhap.Session(WALL, record=False, external_force=True) as session:
+        with pytest.raises(ValueError, match=r"external force x = nan is not finite"):
+            session.set_external_force(math.nan, 0.0, 0.0)
+        with pytest.raises(TypeError, match="must be a number"):
+            session.set_external_force("1", 0.0, 0.0)
+        with pytest.raises(ValueError, match=r"above the 1000 N accepted"):
+            session.set_external_force(0.0, 0.0, 1e6)
+        # Nothing refused reached the arm.
+        state = session.wait_ticks(50)
+        assert np.all(state.external_force_n == 0.0) and np.all(state.force_n == 0.0)
+    with voxhap.Session(WALL, record=False) as session:
+        with pytest.raises(RuntimeError, match="external force input is off"):
+            session.set_external_force(0.1, 0.0, 0.0)
+    with pytest.raises(ValueError, match="external_force_timeout_s"):
+        voxhap.Session(WALL, record=False, external_force=True, external_force_timeout_s=0.0)

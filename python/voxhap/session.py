@@ -67,6 +67,9 @@ class State:
     """Names of the flags set this tick (docs/reference/trace.md)."""
     hand_target_m: Optional[np.ndarray]
     """Where the virtual hand is pulled to, when `set_hand` set it."""
+    external_force_n: np.ndarray
+    """The external force added to the rendered force this tick (`set_external_force`); zero when none is
+    in effect (off, none sent, older than the staleness timeout)."""
 
     @property
     def certified(self):
@@ -99,15 +102,16 @@ class State:
             flag_bits=bits,
             flags=frozenset(name for bit, name in enumerate(_FLAG_NAMES) if bits >> bit & 1),
             hand_target_m=None if target is None else np.array(target, dtype=float),
+            external_force_n=np.array(raw["truth"]["external_force_n"], dtype=float),
         )
 
 
-def _coordinate(name, value):
+def _coordinate(name, value, what="hand position"):
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"hand position {name} must be a number, not {type(value).__name__}")
+        raise TypeError(f"{what} {name} must be a number, not {type(value).__name__}")
     value = float(value)
     if not math.isfinite(value):
-        raise ValueError(f"hand position {name} = {value} is not finite")
+        raise ValueError(f"{what} {name} = {value} is not finite")
     return value
 
 
@@ -118,9 +122,13 @@ class Session:
     `voxhap serve`. `overrides`: scene keys to change, as `voxhap sim --set` (`{"k_n_per_m": 250}`).
     `rate_hz`: servo rate, 100 to 10 000 (default the scene's `rate_hz`, else 1000). `record`: keep every
     tick for `trace()` (a CSV file in a temporary folder, 0.25 to 0.7 kB per tick depending on the modes; False for none).
+    `external_force`: accept `set_external_force` (off by default, as `voxhap serve` without
+    `--external-force`); `external_force_timeout_s`: how long a force is applied after it was sent (0.001 to
+    5 s, default 0.1 s, as `--external-force-timeout`).
     """
 
-    def __init__(self, scene=None, overrides=None, rate_hz=None, record=True):
+    def __init__(self, scene=None, overrides=None, rate_hz=None, record=True, external_force=False,
+                 external_force_timeout_s=0.1):
         from . import _toml_value
 
         sets = [f"{key}={_toml_value(value)}" for key, value in (overrides or {}).items()]
@@ -130,7 +138,8 @@ class Session:
         self._summary = None
         try:
             self._native = _voxhap.NativeSession(
-                None if scene is None else os.fspath(scene), sets, rate_hz, self._trace_csv
+                None if scene is None else os.fspath(scene), sets, rate_hz, self._trace_csv,
+                float(external_force_timeout_s) if external_force else None,
             )
         except BaseException:
             self._remove_work()
@@ -168,6 +177,15 @@ class Session:
     def release_hand(self):
         """Lets the virtual hand follow the scene's scripted path again."""
         return self._native.set_hand_target(None)
+
+    def set_external_force(self, fx, fy, fz):
+        """Sends an external force (N, scene frame), added to the rendered force before the safety pipeline
+        (force limit, slew limit, engage ramp, passivity) for the staleness timeout; send it again before the
+        timeout ends to keep it, or (0, 0, 0) to remove it at once. Raises ValueError for a component that is
+        not finite or a magnitude above 1000 N, TypeError for a non-number, RuntimeError when the session was
+        started without `external_force=True`. Returns voxhap's confirmation."""
+        force = [_coordinate(name, value, "external force") for name, value in zip("xyz", (fx, fy, fz))]
+        return self._native.set_external_force(force)
 
     def wait_ticks(self, ticks, timeout_s=None):
         """Waits until `ticks` more servo ticks have run (GIL released) and returns that tick's State.

@@ -40,11 +40,26 @@ pub fn resolve(args: &Ros2Args) -> anyhow::Result<Option<Settings>> {
     }
 }
 
-/// Starts the ROS 2 output when `--ros2` is given, fed by the session's snapshots.
+/// True when `--ros2` is given.
+pub fn enabled(args: &Ros2Args) -> bool {
+    #[cfg(feature = "ros2")]
+    {
+        args.ros2
+    }
+    #[cfg(not(feature = "ros2"))]
+    {
+        let Ros2Args {} = args;
+        false
+    }
+}
+
+/// Starts the ROS 2 output when `--ros2` is given, fed by the session's snapshots; with `external_force`
+/// (`--external-force`) it also takes `/voxhap/servo_cf` wrenches into the session's external force input.
 pub fn start(
     settings: Option<Settings>,
     rate_hz: f64,
     session: &Session,
+    external_force: bool,
 ) -> anyhow::Result<Option<Running>> {
     let Some(settings) = settings else {
         return Ok(None);
@@ -52,10 +67,22 @@ pub fn start(
     #[cfg(feature = "ros2")]
     {
         let api = session.api();
-        let output = voxhap_ros2::Ros2Output::start(
+        let sink: Option<voxhap_ros2::ExternalForceSink> = external_force.then(|| {
+            let api = session.api();
+            let sink: voxhap_ros2::ExternalForceSink = Box::new(move |force_n| {
+                crate::api::SessionApi::control(
+                    &*api,
+                    crate::api::ControlCommand::SetExternalForce { force_n },
+                )
+                .map(|_| ())
+            });
+            sink
+        });
+        let output = voxhap_ros2::Ros2Output::start_with_servo_cf(
             settings,
             rate_hz,
             Box::new(move || crate::api::SessionApi::snapshot(&*api)),
+            sink,
         )?;
         super::common::print_out(&format!(
             "ros2: publishing /voxhap/measured_cp, measured_cv, measured_cf, setpoint_cf, operating_state on domain {} at {:.1} Hz{}",
@@ -63,11 +90,16 @@ pub fn start(
             1.0 / output.period().as_secs_f64(),
             if settings.localhost_only { " (localhost only)" } else { "" }
         ))?;
+        if external_force {
+            super::common::print_out(
+                "ros2: subscribed to /voxhap/servo_cf (geometry_msgs/msg/WrenchStamped, best effort): its force is the external force",
+            )?;
+        }
         Ok(Some(output))
     }
     #[cfg(not(feature = "ros2"))]
     {
-        let _ = (rate_hz, session);
+        let _ = (rate_hz, session, external_force);
         match settings {}
     }
 }
@@ -81,6 +113,12 @@ pub fn stop(running: Running) -> anyhow::Result<()> {
             "ros2: {} ticks published, {} writes dropped",
             published.ticks_published, published.failed_writes
         ))?;
+        if let Some(servo_cf) = published.servo_cf {
+            super::common::print_out(&format!(
+                "ros2: /voxhap/servo_cf: {} wrenches taken, {} refused, {} with a torque ignored",
+                servo_cf.taken, servo_cf.refused, servo_cf.torque_ignored
+            ))?;
+        }
         Ok(())
     }
     #[cfg(not(feature = "ros2"))]

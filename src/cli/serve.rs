@@ -124,6 +124,15 @@ pub struct ServeArgs {
     /// contact limit cycle). beyond-bound applies to `sim` only. Comma-separated.
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fail_on: Vec<super::sim::FailOn>,
+    /// Accept an external force (the control API's set_external_force, the Python package, and with --ros2
+    /// the /voxhap/servo_cf topic) added to the rendered force before the safety pipeline (docs/safety.md).
+    #[arg(long)]
+    pub external_force: bool,
+    /// With --external-force: how long, in seconds (0.001 to 5), an external force is applied after it
+    /// arrives; then it is zero unless a newer one came.
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.1, requires = "external_force",
+          value_parser = parse_external_force_timeout)]
+    pub external_force_timeout: f64,
     #[command(flatten)]
     pub http: HttpArgs,
     #[command(flatten)]
@@ -148,9 +157,8 @@ impl ServeArgs {
     }
 }
 
-fn parse_connect_timeout(text: &str) -> Result<f64, String> {
-    let (min_us, max_us) = crate::device::supervisor::CONNECT_TIMEOUT_RANGE_US;
-    let (min, max) = (min_us as f64 * 1e-6, max_us as f64 * 1e-6);
+/// A number of seconds from `min` to `max`.
+fn seconds_in(text: &str, (min, max): (f64, f64)) -> Result<f64, String> {
     let seconds: f64 = text
         .trim()
         .parse()
@@ -160,6 +168,15 @@ fn parse_connect_timeout(text: &str) -> Result<f64, String> {
     } else {
         Err(format!("{text} s is outside {min} ..= {max} s"))
     }
+}
+
+fn parse_connect_timeout(text: &str) -> Result<f64, String> {
+    let (min_us, max_us) = crate::device::supervisor::CONNECT_TIMEOUT_RANGE_US;
+    seconds_in(text, (min_us as f64 * 1e-6, max_us as f64 * 1e-6))
+}
+
+fn parse_external_force_timeout(text: &str) -> Result<f64, String> {
+    seconds_in(text, crate::servo::external_force::TIMEOUT_RANGE_S)
 }
 
 /// Builds the session configuration from the flags (loads the scene and volumes).
@@ -176,6 +193,10 @@ pub fn session_config(args: &ServeArgs) -> anyhow::Result<SessionConfig> {
     config.spin_ns = args.spin_us.saturating_mul(1000);
     config.cpu = args.cpu;
     config.profile = device_profile(args)?;
+    if args.external_force {
+        // Range-checked when parsed (parse_external_force_timeout).
+        config.external_force_timeout = Some(Duration::from_secs_f64(args.external_force_timeout));
+    }
     if let Some(path) = &args.record {
         check_record_path(path).map_err(|e| anyhow::anyhow!("--record {}: {e}", path.display()))?;
         let format = args
@@ -405,6 +426,13 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     if let Some((path, format)) = &record {
         super::common::print_out(&format!("recording: {} ({format})", path.display()))?;
     }
+    if args.external_force {
+        super::common::print_out(&format!(
+            "external force: accepted (set_external_force{}), added before the safety pipeline, zero {} s after the last one",
+            if super::ros2_output::enabled(&args.ros2) { ", /voxhap/servo_cf" } else { "" },
+            args.external_force_timeout
+        ))?;
+    }
     if let Some((servo, others)) = &reserved {
         super::common::print_out(&format!(
             "cpus: servo thread alone on CPU {servo}, other threads on {others:?}"
@@ -453,7 +481,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         }
         _ => None,
     };
-    let ros2 = super::ros2_output::start(ros2, rate, &session)?;
+    let ros2 = super::ros2_output::start(ros2, rate, &session, args.external_force)?;
     let reason = runtime.block_on(signals.wait(duration));
     // Clients first (close 1001), then the servo: the page sees the server go, not a frozen stream. A second
     // Ctrl-C skips the wait for the clients; the servo still zeroes the force and disables the device.

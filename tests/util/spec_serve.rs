@@ -164,6 +164,11 @@ impl Serve {
         if let Some(duration_s) = duration_s {
             command.arg("--duration").arg(duration_s.to_string());
         }
+        Serve::spawn(command)
+    }
+
+    /// Runs `command` (a `voxhap serve` built by the caller), its output collected in the background.
+    pub(crate) fn spawn(mut command: std::process::Command) -> Serve {
         let mut child = command
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -391,6 +391,10 @@ pub enum ControlCommand {
     /// device, which is then enabled again (forces ramp in) once the link is healthy. voxhap never sends
     /// ClearFault by itself.
     ClearFault,
+    /// Only with `serve --external-force`: a force (N, scene frame) added to the rendered force before the
+    /// safety pipeline, for the staleness timeout from now (then zero unless sent again). Finite, magnitude
+    /// at most 1000 N; the device's own limits apply to the sum.
+    SetExternalForce { force_n: [f64; 3] },
 }
 
 /// What a successful command did.

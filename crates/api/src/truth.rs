@@ -7,6 +7,7 @@
 //! The CRTK operating state ([`crtk_operating_state`]) lives here too, so the ROS 2 output and the
 //! Foxglove view compute it the same way: `FAULT` whenever the safety pipeline is faulted.
 
+use glam::DVec3;
 use serde::Serialize;
 use voxhap_core::status::OutputState;
 
@@ -129,6 +130,10 @@ pub struct TickTruth {
     /// Age of the device state this tick rendered from (servo periods, counted from the force it
     /// answers): 0 for a state that answers the previous tick's force. Drivers that cannot tell report 0.
     pub sample_age_ticks: u32,
+    /// The external force added to the rendered force this tick (N, scene frame; `serve --external-force`):
+    /// zero when the input is off, nothing was sent, the last force is older than the staleness timeout, or
+    /// the tick had no device state to render from.
+    pub external_force_n: DVec3,
 }
 
 /// The energy ledger's totals and verdicts for a whole run (`/api/stats` → `energy`, the run summary).

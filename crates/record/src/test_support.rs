@@ -85,6 +85,11 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                         [(i % voxhap_api::ForceOffCause::ALL.len() as u64) as usize],
                     device_fault_bits: (i % 5) as u16,
                     sample_age_ticks: (i % 4) as u32,
+                    external_force_n: glam::DVec3::new(
+                        0.25 * (i % 3) as f64,
+                        -1.5,
+                        1e-3 * i as f64,
+                    ),
                 },
             }
         })

@@ -1,5 +1,6 @@
 //! The tick's truth in the tabular formats (CSV, Parquet; the sidecar's column list): the energy ledger's
-//! totals, the force-off cause, the device's latched faults and the age of the rendered sample. One place
+//! totals, the force-off cause, the device's latched faults, the age of the rendered sample and the external
+//! force added to the rendered force. One place
 //! for every column added after the flag columns, so a new one appears in every tabular format at once;
 //! MCAP carries the same values in the solver message's `truth` object (`mcap_trace.rs`).
 //!
@@ -30,7 +31,7 @@ const ENERGY_COLUMNS: [EnergyColumn; 6] = [
     ),
     (
         "active_work_j",
-        "work of the directed-force modes (vector_force, gradient_force) on the probe",
+        "work of the directed-force modes (vector_force, gradient_force) and of the external force on the probe",
         |e| &mut e.active_work_j,
     ),
     (
@@ -47,6 +48,18 @@ const ENERGY_COLUMNS: [EnergyColumn; 6] = [
 
 /// Name of the force-off cause column.
 pub(crate) const FORCE_OFF_CAUSE: &str = "force_off_cause";
+
+/// Names of the external force columns.
+pub(crate) const EXTERNAL_FORCE: [&str; 3] = [
+    "external_force_x_n",
+    "external_force_y_n",
+    "external_force_z_n",
+];
+
+/// What the external force columns hold.
+const EXTERNAL_FORCE_MEANING: &str =
+    "external force added to the rendered force before the safety pipeline (serve --external-force); 0 when \
+     off, none was sent, the last one is older than the staleness timeout, or the tick had no device state";
 
 /// Appends the truth columns.
 pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
@@ -77,6 +90,9 @@ pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
             U64,
         ),
     ]);
+    for name in EXTERNAL_FORCE {
+        c.push(col(name, "N", EXTERNAL_FORCE_MEANING, F64));
+    }
 }
 
 /// Appends the truth cells of `sample`.
@@ -88,6 +104,9 @@ pub(crate) fn truth_cells(sample: &TraceSample, out: &mut Vec<Cell>) {
     out.push(Cell::Text(sample.truth.force_off_cause.name()));
     out.push(Cell::U64(u64::from(sample.truth.device_fault_bits)));
     out.push(Cell::U64(u64::from(sample.truth.sample_age_ticks)));
+    for value in sample.truth.external_force_n.to_array() {
+        out.push(Cell::F64(value));
+    }
 }
 
 /// Reads the truth cells (the inverse of [`truth_cells`]); `next` hands out the row's cells in order.
@@ -120,6 +139,12 @@ pub(crate) fn truth_from_cells(
         }
         (i, _) => return Err(err(i, "not an unsigned 32-bit integer")),
     };
+    for axis in 0..3 {
+        truth.external_force_n[axis] = match next() {
+            (_, Cell::F64(v)) => v,
+            (i, _) => return Err(err(i, "not a number")),
+        };
+    }
     Ok(truth)
 }
 
@@ -143,6 +168,7 @@ pub(crate) struct TruthMessage {
     force_off_cause: &'static str,
     device_fault_bits: u16,
     sample_age_ticks: u32,
+    external_force_n: [f64; 3],
 }
 
 impl TruthMessage {
@@ -158,6 +184,7 @@ impl TruthMessage {
             force_off_cause: truth.force_off_cause.name(),
             device_fault_bits: truth.device_fault_bits,
             sample_age_ticks: truth.sample_age_ticks,
+            external_force_n: truth.external_force_n.to_array(),
         }
     }
 }
@@ -174,6 +201,7 @@ pub(crate) struct TruthMessageOwned {
     force_off_cause: String,
     device_fault_bits: u16,
     sample_age_ticks: u32,
+    external_force_n: [Option<f64>; 3],
 }
 
 impl TruthMessageOwned {
@@ -193,6 +221,7 @@ impl TruthMessageOwned {
                 .ok_or_else(|| self.force_off_cause.clone())?,
             device_fault_bits: self.device_fault_bits,
             sample_age_ticks: self.sample_age_ticks,
+            external_force_n: self.external_force_n.map(v).into(),
         })
     }
 }
@@ -219,10 +248,14 @@ pub(crate) fn truth_schema() -> serde_json::Value {
         "sample_age_ticks".to_owned(),
         serde_json::json!({"type": "integer", "minimum": 0, "description": "age of the rendered device state (servo periods)"}),
     );
+    properties.insert(
+        "external_force_n".to_owned(),
+        serde_json::json!({"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": format!("{EXTERNAL_FORCE_MEANING} (N, x y z)")}),
+    );
     let required: Vec<String> = properties.keys().cloned().collect();
     serde_json::json!({
         "type": "object",
-        "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age",
+        "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age, external force",
         "properties": properties,
         "required": required,
     })

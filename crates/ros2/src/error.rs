@@ -22,6 +22,9 @@ pub enum Ros2Error {
     /// The publishing thread could not be started.
     #[error("ros2: cannot start the publishing thread: {0}")]
     Thread(#[source] std::io::Error),
+    /// The `/voxhap/servo_cf` subscriber thread could not be started.
+    #[error("ros2: cannot start the /voxhap/servo_cf subscriber thread: {0}")]
+    SubscriberThread(#[source] std::io::Error),
     /// `ROS_DOMAIN_ID` holds no domain id.
     #[error("ros2: ROS_DOMAIN_ID={value:?} is not a ROS 2 domain id (0 to 232); set it or give --ros2-domain ID")]
     DomainEnv {

@@ -11,6 +11,7 @@
 //! - [`crtk`]: one snapshot to the CRTK messages, and the CRTK operating state of an output state.
 //! - [`topics`]: topic names, type names and QoS.
 //! - [`output`]: the publishing thread.
+//! - [`servo_cf`]: the force channel in (`/voxhap/servo_cf`, with `serve --external-force`).
 //! - [`args`]: the `serve` flags (`--ros2`, `--ros2-domain`, `--ros2-localhost-only`).
 
 pub mod args;
@@ -18,8 +19,10 @@ pub mod crtk;
 pub mod error;
 pub mod messages;
 pub mod output;
+pub mod servo_cf;
 pub mod topics;
 
 pub use args::{Ros2Args, Ros2Settings};
 pub use error::Ros2Error;
 pub use output::{publish_period, Ros2Output};
+pub use servo_cf::{ExternalForceSink, ServoCfStats};

@@ -10,9 +10,10 @@ use crate::args::Ros2Settings;
 use crate::crtk::{messages, operating_state_message};
 use crate::error::Ros2Error;
 use crate::messages::{OperatingState, PoseStamped, Time, TwistStamped, WrenchStamped};
+use crate::servo_cf::{ExternalForceSink, ServoCfInput, ServoCfStats};
 use crate::topics::{self, TopicSpec};
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
-use ros2_client::{Context, Name, Node, NodeName, NodeOptions, Publisher};
+use ros2_client::{Context, Name, Node, NodeName, NodeOptions, Publisher, Subscription};
 use serde::Serialize;
 use std::net::Ipv4Addr;
 use std::sync::mpsc::{self, RecvTimeoutError};
@@ -55,6 +56,8 @@ pub struct PublishStats {
     pub failed_writes: u64,
     /// Messages left out because a value was not finite.
     pub non_finite: u64,
+    /// What the `/voxhap/servo_cf` subscription took (`None`: no external force input).
+    pub servo_cf: Option<ServoCfStats>,
 }
 
 /// The running ROS 2 output. Stops on [`Ros2Output::stop`] or when dropped.
@@ -63,6 +66,8 @@ pub struct Ros2Output {
     thread: Option<JoinHandle<PublishStats>>,
     period: Duration,
     settings: Ros2Settings,
+    /// The `/voxhap/servo_cf` subscription, stopped before the publishing thread drops the node.
+    servo_cf: Option<ServoCfInput>,
 }
 
 struct Publishers {
@@ -91,6 +96,22 @@ fn publisher<M: Serialize>(node: &mut Node, spec: TopicSpec) -> Result<Publisher
         .map_err(create_error(format!("topic {}", spec.ros_name())))?;
     node.create_publisher(&topic, Some(spec.qos()))
         .map_err(create_error(format!("publisher {}", spec.ros_name())))
+}
+
+fn subscription<M: serde::de::DeserializeOwned + 'static>(
+    node: &mut Node,
+    spec: TopicSpec,
+) -> Result<Subscription<M>, Ros2Error> {
+    let name = Name::new(topics::NAMESPACE, spec.name).map_err(|cause| Ros2Error::Create {
+        what: format!("topic {}", spec.ros_name()),
+        cause: cause.to_string(),
+    })?;
+    let qos = topics::command_qos();
+    let topic = node
+        .create_topic(&name, spec.message_type(), &qos)
+        .map_err(create_error(format!("topic {}", spec.ros_name())))?;
+    node.create_subscription(&topic, Some(qos))
+        .map_err(create_error(format!("subscription {}", spec.ros_name())))
 }
 
 /// The DDS participant for `settings`, as a ros2-client context.
@@ -137,8 +158,26 @@ impl Ros2Output {
         servo_rate_hz: f64,
         source: SnapshotSource,
     ) -> Result<Ros2Output, Ros2Error> {
+        Self::start_with_servo_cf(settings, servo_rate_hz, source, None)
+    }
+
+    /// As [`Ros2Output::start`]; with `external_force`, also subscribes to `/voxhap/servo_cf` and hands each
+    /// wrench's force to it (crate::servo_cf).
+    pub fn start_with_servo_cf(
+        settings: Ros2Settings,
+        servo_rate_hz: f64,
+        source: SnapshotSource,
+        external_force: Option<ExternalForceSink>,
+    ) -> Result<Ros2Output, Ros2Error> {
         let period = publish_period(servo_rate_hz)?;
         let mut node = create_node(&create_context(settings)?)?;
+        let servo_cf = match external_force {
+            Some(sink) => Some(ServoCfInput::start(
+                subscription(&mut node, topics::SERVO_CF)?,
+                sink,
+            )?),
+            None => None,
+        };
         let publishers = Publishers {
             measured_cp: publisher(&mut node, topics::MEASURED_CP)?,
             measured_cv: publisher(&mut node, topics::MEASURED_CV)?,
@@ -162,6 +201,7 @@ impl Ros2Output {
             thread: Some(thread),
             period,
             settings,
+            servo_cf,
         })
     }
 
@@ -181,11 +221,15 @@ impl Ros2Output {
     }
 
     fn shutdown(&mut self) -> PublishStats {
+        let servo_cf = self.servo_cf.take().map(ServoCfInput::stop);
         drop(self.stop.take());
-        self.thread
+        let mut stats: PublishStats = self
+            .thread
             .take()
             .and_then(|thread| thread.join().ok())
-            .unwrap_or_default()
+            .unwrap_or_default();
+        stats.servo_cf = servo_cf.or(stats.servo_cf);
+        stats
     }
 }
 

@@ -72,6 +72,9 @@ pub const MEASURED_CV: TopicSpec = stream("measured_cv", "geometry_msgs", "Twist
 pub const MEASURED_CF: TopicSpec = stream("measured_cf", "geometry_msgs", "WrenchStamped");
 /// The force sent.
 pub const SETPOINT_CF: TopicSpec = stream("setpoint_cf", "geometry_msgs", "WrenchStamped");
+/// The external force in (`serve --external-force`): CRTK's Cartesian force setpoint, subscribed to with
+/// [`command_qos`].
+pub const SERVO_CF: TopicSpec = stream("servo_cf", "geometry_msgs", "WrenchStamped");
 /// The CRTK operating state (latched).
 pub const OPERATING_STATE: TopicSpec = TopicSpec {
     latched: true,
@@ -97,6 +100,17 @@ pub fn stream_qos() -> QosProfile {
         .reliability_reliable(WHEN_FULL)
         .durability(Durability::Volatile)
         .history(History::KeepLast { depth: 10 })
+}
+
+/// The `servo_cf` subscription's QoS: best effort, volatile, keep last 1. A best-effort reader matches both
+/// reliable publishers (`ros2 topic pub`'s default) and best-effort ones (`sensor_data`), where a reliable
+/// reader would refuse the latter (ROS 2 QoS compatibility); and a setpoint older than the newest is of no
+/// use, so nothing is kept or resent.
+pub fn command_qos() -> QosProfile {
+    QosProfile::subscription_default()
+        .reliability_best_effort()
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 1 })
 }
 
 /// The operating state's QoS: reliable, transient local, keep last 1.

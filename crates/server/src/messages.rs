@@ -137,7 +137,7 @@ pub struct State<'a> {
     /// State frames this client lost because it read too slowly (0 over REST).
     pub frames_dropped: u64,
     /// The tick's truth: `energy` (the ledger's totals, J), `force_off_cause`, `device_fault_bits`,
-    /// `sample_age_ticks`.
+    /// `sample_age_ticks`, `external_force_n`.
     #[serde(flatten)]
     pub truth: TickTruth,
 }
@@ -401,6 +401,9 @@ enum CommandWire {
         position_m: Option<[f64; 3]>,
     },
     ClearFault {},
+    SetExternalForce {
+        force_n: [f64; 3],
+    },
 }
 
 impl CommandWire {
@@ -425,6 +428,9 @@ impl CommandWire {
                 ControlCommand::SetHandTarget { position_m }
             }
             CommandWire::ClearFault {} => ControlCommand::ClearFault,
+            CommandWire::SetExternalForce { force_n } => {
+                ControlCommand::SetExternalForce { force_n }
+            }
         }
     }
 
@@ -450,6 +456,9 @@ impl CommandWire {
                 CommandWire::SetHandTarget { position_m }
             }
             ControlCommand::ClearFault => CommandWire::ClearFault {},
+            ControlCommand::SetExternalForce { force_n } => {
+                CommandWire::SetExternalForce { force_n }
+            }
         }
     }
 }
@@ -667,6 +676,9 @@ mod tests {
                 position_m: Some([0.01, 0.0, 0.02]),
             },
             ControlCommand::SetHandTarget { position_m: None },
+            ControlCommand::SetExternalForce {
+                force_n: [0.5, -1.0, 2.0],
+            },
         ];
         for command in commands {
             // The library's own (internally tagged) JSON decodes to the same command ...

@@ -5,6 +5,7 @@
 
 use super::commands;
 use super::device::HandTargetInput;
+use super::external_force::ExternalForceSender;
 use super::recorder::{RecorderError, RecorderRequest};
 use super::runner::{
     CommandEnvelope, ServoCommand, CLEAR_FAULT_NOTHING, CLEAR_FAULT_NO_DEVICE,
@@ -34,6 +35,9 @@ pub struct SessionShared {
     pub(super) snapshot: Mutex<triple_buffer::Output<Option<Snapshot>>>,
     pub(super) control: Mutex<Control>,
     pub(super) hand_target: Mutex<Option<DVec3>>,
+    /// The external force input's control end (`None`: off); its own lock, never the servo thread's.
+    pub(super) external_force: Mutex<Option<ExternalForceSender>>,
+    pub(super) external_force_timeout: Option<Duration>,
     pub(super) stop: Arc<AtomicBool>,
     pub(super) servo_running: Arc<AtomicBool>,
     pub(super) device_label: String,
@@ -98,6 +102,36 @@ pub(super) fn trace_meta(setup: &SceneSetup, rate_hz: f64, device: &str) -> Trac
 }
 
 impl SessionShared {
+    /// `set_external_force`: checks the force and hands it to the servo thread (crate::external_force).
+    pub(super) fn set_external_force(
+        &self,
+        force_n: [f64; 3],
+    ) -> Result<ControlReply, ControlError> {
+        let mut slot = match self.external_force.lock() {
+            Ok(slot) => slot,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        let (Some(sender), Some(timeout)) = (slot.as_mut(), self.external_force_timeout) else {
+            return Err(ControlError::Conflict(
+                "the external force input is off; start serve with --external-force".to_owned(),
+            ));
+        };
+        if !self.servo_running.load(Ordering::Acquire) {
+            return Err(ControlError::Unavailable(
+                "the servo loop is not running".to_owned(),
+            ));
+        }
+        let force = sender.send(force_n).map_err(|e| invalid(e.to_string()))?;
+        Ok(ControlReply {
+            message: format!(
+                "external force {:?} N for {} s",
+                force.to_array(),
+                timeout.as_secs_f64()
+            ),
+            scene_generation: 0,
+        })
+    }
+
     fn drain_retired(control: &mut Control) {
         while let Ok(old) = control.retired.pop() {
             drop(old);
@@ -414,6 +448,8 @@ impl SessionShared {
                     scene_generation: 0,
                 })
             }
+            // Taken before the control lock (SessionApi::control); here for other callers of `apply`.
+            ControlCommand::SetExternalForce { force_n } => self.set_external_force(force_n),
             ControlCommand::SetHandTarget { position_m } => {
                 let Some(hand) = control.hand.as_mut() else {
                     return Err(ControlError::Conflict(format!(

@@ -19,6 +19,7 @@ mod commands;
 mod control;
 pub mod device;
 pub mod energy;
+pub mod external_force;
 pub mod force_off;
 mod join;
 pub mod mapped;

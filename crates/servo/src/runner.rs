@@ -25,6 +25,7 @@
 
 use super::device::ServoDevice;
 use super::energy::EnergyLedger;
+use super::external_force::ExternalForceReceiver;
 use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
 use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
@@ -141,6 +142,8 @@ pub struct ServoLoop {
     /// The point the coupling spring pulled towards last tick, and its stiffness then.
     last_anchor_m: DVec3,
     last_k: f64,
+    /// The external force input (crate::external_force; off unless [`ServoLoop::set_external_force`]).
+    external_force: Option<ExternalForceReceiver>,
 }
 
 impl ServoLoop {
@@ -193,6 +196,7 @@ impl ServoLoop {
             changed: false,
             last_anchor_m: start_m,
             last_k: 0.0,
+            external_force: None,
         };
         servo.apply_caps();
         servo.last_k = servo.bundle.scene.stiffness_n_per_m();
@@ -204,6 +208,12 @@ impl ServoLoop {
     /// applied in contact are introduced passively.
     pub fn set_passivity(&mut self, controller: PassivityController) {
         self.passivity = controller;
+    }
+
+    /// Adds the force `receiver` hands over to the rendered force of every tick, before the passivity
+    /// controller and the safety pipeline (crate::external_force).
+    pub fn set_external_force(&mut self, receiver: ExternalForceReceiver) {
+        self.external_force = Some(receiver);
     }
 
     /// The passivity observer's and controller's totals (for tests and the summary).
@@ -374,9 +384,16 @@ impl ServoLoop {
         self.last_anchor_m = anchor_m;
         self.last_k = k;
         let mut rendered_n = spring_n + damping * (anchor_velocity - probe_velocity);
+        // Read every tick, so a force ages on the servo's clock whether or not it can be applied.
+        let mut external_n = self
+            .external_force
+            .as_mut()
+            .map_or(DVec3::ZERO, |e| e.force_at(tick_index));
         if self.last_state.is_none() || out.status == TickStatus::InputRejected {
             rendered_n = DVec3::ZERO;
+            external_n = DVec3::ZERO;
         } else {
+            rendered_n += external_n;
             // The passivity controller, before the safety pipeline (docs/safety.md). Its reference is the
             // share of the spring's energy that the force sent can give back (as in the energy ledger): while
             // the pipeline sends nothing (before engaging) a spring stretched by a moving handle is no energy
@@ -447,6 +464,7 @@ impl ServoLoop {
                 rendered_from_state,
                 sample_age_ticks,
                 force_replaced: flags & FLAG_NON_FINITE_REPLACED != 0,
+                external_force_n: external_n,
             },
         );
         let bundle = &mut *self.bundle;
@@ -578,7 +596,8 @@ impl ServoLoop {
     ) -> TickTruth {
         let totals = if input.rendered_from_state {
             // The directed-force modes' share of the force is intended work (crate::energy).
-            let mut active_n = DVec3::ZERO;
+            // The external force is meant to do work too.
+            let mut active_n = input.external_force_n;
             for (mode, force) in self.bundle.scene.modes().iter().zip(out.mode_force_n) {
                 if matches!(mode, Mode::VectorForce { .. } | Mode::GradientForce { .. }) {
                     active_n += force;
@@ -620,6 +639,7 @@ impl ServoLoop {
                 .cause(device_out, out.status, input.force_replaced),
             device_fault_bits: device_out.active_faults,
             sample_age_ticks: input.sample_age_ticks,
+            external_force_n: input.external_force_n,
         }
     }
 
@@ -710,6 +730,8 @@ struct TruthInput {
     rendered_from_state: bool,
     sample_age_ticks: u32,
     force_replaced: bool,
+    /// The external force added to the rendered force this tick.
+    external_force_n: DVec3,
 }
 
 /// The trace's flag bits for what the safety stages did this tick.

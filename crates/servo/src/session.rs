@@ -23,6 +23,7 @@ pub use super::control::{SessionShared, APPLY_TIMEOUT, MAX_HAND_TARGET_M};
 use super::device::{
     open_device_with_profile, ConnectError, DeviceSpec, OpenError, OpenedDevice, ServoDevice,
 };
+use super::external_force;
 use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
 use super::passivity::PassivityController;
@@ -88,6 +89,9 @@ pub struct SessionConfig {
     pub profile: voxhap_device::profile::DeviceProfile,
     /// Periods without a tick after which the monitor thread stops the device itself.
     pub stall_periods: u32,
+    /// The external force input's staleness timeout; `None` (the default) keeps the input off
+    /// (crate::external_force).
+    pub external_force_timeout: Option<Duration>,
 }
 
 impl SessionConfig {
@@ -110,6 +114,7 @@ impl SessionConfig {
             supervisor: SupervisorConfig::default(),
             profile: voxhap_device::profile::DeviceProfile::default(),
             stall_periods: 20,
+            external_force_timeout: None,
         }
     }
 }
@@ -269,6 +274,13 @@ impl Session {
         let (frame_tx, frame_rx) = rtrb::RingBuffer::new(SCENE_FRAME_RING);
         let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
         let stats = Arc::new(ServoStats::new(config.rate_hz));
+        let (external_sender, external_receiver) = match config.external_force_timeout {
+            Some(timeout) => {
+                let (sender, receiver) = external_force::channel(timeout, period_ns);
+                (Some(sender), Some(receiver))
+            }
+            None => (None, None),
+        };
 
         // Recorder.
         let (recorder_tx, recorder_rx) = mpsc::channel();
@@ -357,6 +369,9 @@ impl Session {
                     first_state,
                 );
                 servo.set_passivity(passivity);
+                if let Some(receiver) = external_receiver {
+                    servo.set_external_force(receiver);
+                }
                 servo.run(&mut waiter, &thread_stop);
                 running.store(false, Ordering::Release);
             })
@@ -401,6 +416,8 @@ impl Session {
                 hand_mapping,
             }),
             hand_target: Mutex::new(None),
+            external_force: Mutex::new(external_sender),
+            external_force_timeout: config.external_force_timeout,
             stop,
             servo_running,
             device_label: spec_label,
@@ -561,6 +578,10 @@ impl SessionApi for SessionShared {
     }
 
     fn control(&self, command: ControlCommand) -> Result<ControlReply, ControlError> {
+        // Not behind the control lock: a stream of forces never waits for a scene being built.
+        if let ControlCommand::SetExternalForce { force_n } = command {
+            return self.set_external_force(force_n);
+        }
         let mut control = match self.control.lock() {
             Ok(control) => control,
             Err(poisoned) => poisoned.into_inner(),

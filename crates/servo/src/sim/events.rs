@@ -186,6 +186,9 @@ pub fn plan(
             ControlCommand::ClearFault => {
                 return Err(unavailable("clear_fault", "the simulated arm of a sim has no faults"))
             }
+            ControlCommand::SetExternalForce { .. } => {
+                return Err(unavailable("set_external_force", "a sim has no external force input; it is voxhap serve --external-force's"))
+            }
         };
         let scene = RenderScene::new(stiffness_n_per_m, scene.volumes().to_vec(), &modes)
             .map_err(|source| EventError::Scene { index, source })?;

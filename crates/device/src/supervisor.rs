@@ -180,6 +180,13 @@ where
         self.device.as_ref()
     }
 
+    /// The connected device's link latency ([`crate::latency`]), `None` when none is connected or its driver
+    /// does not know it.
+    pub fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        self.device()
+            .and_then(|device| device.device().link_latency())
+    }
+
     /// True while a device is connected.
     pub fn is_connected(&self) -> bool {
         self.device.is_some()

@@ -489,6 +489,10 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.age.age()
     }
 
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::FALCON)
+    }
+
     fn take_event(&mut self) -> Option<DeviceEvent> {
         self.event.take()
     }

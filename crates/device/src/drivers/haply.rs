@@ -439,6 +439,10 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         self.age.age()
     }
 
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::HAPLY_2DIY)
+    }
+
     fn take_event(&mut self) -> Option<DeviceEvent> {
         self.event.take()
     }

@@ -280,6 +280,10 @@ impl HapticDevice for HaplyInverse {
         self.state_age_ticks
     }
 
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::HAPLY_INVERSE)
+    }
+
     fn take_event(&mut self) -> Option<DeviceEvent> {
         if let Some(event) = self.pending_event.take() {
             return Some(event);

@@ -521,6 +521,10 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         self.age.age()
     }
 
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::WOODENHAPTICS_SERIAL)
+    }
+
     fn take_event(&mut self) -> Option<DeviceEvent> {
         self.event.take()
     }

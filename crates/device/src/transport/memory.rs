@@ -162,6 +162,18 @@ impl ByteTransport for ScriptedStream {
     }
 }
 
+/// Copies a scripted report into the driver's buffer (a report that does not fit is a test bug: panic).
+fn copy_report(bytes: &[u8], buf: &mut [u8]) -> usize {
+    assert!(
+        bytes.len() <= buf.len(),
+        "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
+        bytes.len(),
+        buf.len()
+    );
+    buf[..bytes.len()].copy_from_slice(bytes);
+    bytes.len()
+}
+
 /// The time model of a timed [`ScriptedReports`]: a virtual clock, so a test can show what a driver does with a
 /// report that comes late or not at all, without sleeping and whatever the machine's load.
 ///
@@ -283,14 +295,7 @@ impl Timed {
                 if let Some(after) = self.disconnect_after.as_mut() {
                     *after = after.saturating_sub(1);
                 }
-                assert!(
-                    bytes.len() <= buf.len(),
-                    "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
-                    bytes.len(),
-                    buf.len()
-                );
-                buf[..bytes.len()].copy_from_slice(&bytes);
-                Ok(bytes.len())
+                Ok(copy_report(&bytes, buf))
             }
             _ => {
                 self.now += timeout;
@@ -321,14 +326,7 @@ impl ReportTransport for ScriptedReports {
         }
         match self.script.next("read_report") {
             Transaction::Read(bytes) => {
-                assert!(
-                    bytes.len() <= buf.len(),
-                    "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
-                    bytes.len(),
-                    buf.len()
-                );
-                buf[..bytes.len()].copy_from_slice(&bytes);
-                Ok(bytes.len())
+                Ok(copy_report(&bytes, buf))
             }
             Transaction::ReadTimeout | Transaction::Late(..) => Ok(0),
             Transaction::Disconnect => Err(disconnected("reading")),

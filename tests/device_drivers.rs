@@ -19,7 +19,9 @@ use voxhap::device::drivers::woodenhaptics::{
     MAX_CURRENT_MA as WOODENHAPTICS_HID_MAX_MA,
 };
 use voxhap::device::drivers::HidLink;
-use voxhap::device::transport::memory::{ScriptedReports, ScriptedStream, Transaction};
+use voxhap::device::transport::memory::{
+    ReportTiming, ScriptedReports, ScriptedStream, Transaction,
+};
 use voxhap::device::Error as _;
 use voxhap::device::{ErrorKind, HapticDevice, Lifecycle, LifecycleState};
 use voxhap_protocol::{
@@ -348,6 +350,62 @@ fn woodenhaptics_driver_reads_counts_and_writes_currents() {
     device.input_checked(true);
     device.write_force(DVec3::new(0.0, 0.0, 1.0)).unwrap();
     assert_eq!(device.read_state().unwrap_err().kind(), ErrorKind::Timeout);
+    device.transport().done();
+}
+
+/// The legacy HID driver on the timed report double: reports come one per millisecond (a full-speed HID
+/// interrupt endpoint is polled at most once per 1 ms frame, USB 2.0 section 5.7.4), each readable 0.3 ms after
+/// its slot; the driver waits 0.75 ms per tick (three quarters of the 1 ms period). A report 1.5 ms late misses
+/// two ticks' waits (two timeouts, each costing at most the wait, never a fixed 5-10 ms) and is then read on
+/// the third tick, two ticks after it was due; a report the device never sends costs one timeout. Worked by hand
+/// from the double's time model (virtual time, so the machine's load cannot change it).
+#[test]
+fn woodenhaptics_hid_sees_a_late_report_late_and_a_missing_one_as_a_timeout() {
+    let zero = encode_output([0, 0, 0], 0);
+    let report = |counter: u8| Transaction::read(&[0, 0, 0, 0, 0, 0, counter, 0]);
+    let mut script = Vec::new();
+    for _ in 0..5 {
+        script.push(Transaction::Write(zero.to_vec()));
+    }
+    script.extend([
+        report(1),
+        // Slot 1 (due at 1.3 ms) comes 1.5 ms late: readable at 2.8 ms.
+        Transaction::Late(Duration::from_micros(1_500), vec![0, 0, 0, 0, 0, 0, 2, 0]),
+        // Slot 2: the device sends nothing.
+        Transaction::ReadTimeout,
+        report(4),
+    ]);
+    let timing = ReportTiming {
+        servo_period: Duration::from_millis(1),
+        report_period: Duration::from_millis(1),
+        latency: Duration::from_micros(300),
+    };
+    let reports = ScriptedReports::timed(&script, timing);
+    let mut device = WoodenHaptics::new(reports, WOODENHAPTICS_HID)
+        .unwrap()
+        .with_reply_wait(Duration::from_micros(750));
+    let mut seen = Vec::new();
+    for _ in 0..5 {
+        // No pose accepted: zero currents every tick.
+        device.write_force(DVec3::ZERO).unwrap();
+        seen.push(match device.read_state() {
+            Ok(_) => Ok(device.last_counter().unwrap()),
+            Err(error) => Err(error.kind()),
+        });
+    }
+    assert_eq!(
+        seen,
+        vec![
+            Ok(1),
+            Err(ErrorKind::Timeout),
+            Err(ErrorKind::Timeout),
+            // Read at tick 3 (3.0 ms): the 2.8 ms report, two ticks after its slot; the next is not there yet.
+            Ok(2),
+            Ok(4),
+        ]
+    );
+    // Every wait ended at its bound: tick 4 read its report at 4.0 ms (it arrived at 3.3 ms).
+    assert_eq!(device.transport().now(), Duration::from_millis(4));
     device.transport().done();
 }
 

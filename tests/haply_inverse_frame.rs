@@ -10,7 +10,8 @@ use glam::{DQuat, DVec3};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 use voxhap::device::drivers::haply_inverse::{
-    HaplyInverse, HaplyInverseConfig, FAULT_EMERGENCY_STOP,
+    HaplyInverse, HaplyInverseConfig, FAULT_EMERGENCY_STOP, FAULT_MOTOR_STALL,
+    FAULT_STABILITY_CEILING,
 };
 use voxhap::device::safety::{SafetyConfig, SafetyFlags};
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
@@ -129,8 +130,16 @@ fn the_force_that_reached_the_arm_is_read_beside_the_commanded_one() {
     device.close().unwrap();
 }
 
-#[test]
-fn an_ebrake_event_zeroes_the_force_on_the_next_tick_as_an_emergency_stop() {
+/// Each documented safety event (docs.haply.co "Events & Monitoring": `device-safety-triggered` with
+/// `safety_type` `ebrake_triggered`, `stall_detected`, `stability_ceiling`) drives the force to zero from the
+/// tick after the one that read it, latches its own fault bit, and every such tick's force-off cause (the value
+/// the trace's `force_off_cause` column and /api/state carry, computed by the servo's tracker from the same
+/// tick output) is a device fault. The fault codes and their names are voxhap's fault table
+/// (docs/safety.md): 1 emergency stop, 8 motor stall, 9 stability ceiling reached.
+fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8, name: &str) {
+    use voxhap::api::ForceOffCause;
+    use voxhap::haptics::tick::TickStatus;
+    use voxhap::servo::force_off::ForceOffTracker;
     let service = InverseService::start();
     let url = (service.url(), service.events_url());
     let supervisor_config = SupervisorConfig {
@@ -151,20 +160,31 @@ fn an_ebrake_event_zeroes_the_force_on_the_next_tick_as_an_emergency_stop() {
     })
     .unwrap();
     supervisor.connect(0).unwrap();
+    let mut tracker = ForceOffTracker::default();
     let start = Instant::now();
-    let (mut tick, mut braked, mut faulted_at) = (0u64, false, None);
+    let (mut tick, mut sent, mut faulted_at) = (0u64, false, None);
+    let mut causes_before = Vec::new();
     let mut after_fault = Vec::new();
     while start.elapsed() < Duration::from_secs(30) {
         tick += 1;
         let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
+        let cause = tracker.cause(&out, TickStatus::Certified, false);
         if let Some(at) = faulted_at {
-            after_fault.push((tick - at, out.sent_force_n, out.flags));
+            after_fault.push((
+                tick - at,
+                out.sent_force_n,
+                out.flags,
+                out.active_faults,
+                cause,
+            ));
             if after_fault.len() >= 200 {
                 break;
             }
+        } else if sent {
+            causes_before.push(cause);
         }
-        // Brake once the force flows at full strength and the events channel is connected.
-        if !braked
+        // Send the event once the force flows at full strength and the events channel is connected.
+        if !sent
             && out.sent_force_n.z > 0.99
             && service
                 .shared
@@ -172,36 +192,82 @@ fn an_ebrake_event_zeroes_the_force_on_the_next_tick_as_an_emergency_stop() {
                 .load(Ordering::Acquire)
                 > 0
         {
-            service.ebrake();
-            braked = true;
+            assert_eq!(cause, ForceOffCause::None, "force flows before the event");
+            if safety_type == "ebrake_triggered" {
+                service.ebrake();
+            } else {
+                service.send_event(serde_json::json!({
+                    "name": "device-safety-triggered",
+                    "category": "device",
+                    "level": "warning",
+                    "data": {"device_family": "inverse", "device_id": crate::util::inverse_service::DEVICE_ID,
+                             "safety_type": safety_type},
+                    "message": "m"
+                }));
+            }
+            sent = true;
         }
         for event in out.events.iter() {
-            if let SupervisorEvent::Fault { code, .. } = event {
-                assert_eq!(code, FAULT_EMERGENCY_STOP);
+            if let SupervisorEvent::Fault { code: got, .. } = event {
+                assert_eq!(got, code, "{safety_type}");
                 faulted_at.get_or_insert(tick);
             }
         }
         std::thread::sleep(Duration::from_micros(500));
     }
     supervisor.stop();
-    assert!(braked, "the force never flowed");
+    assert!(sent, "{safety_type}: the force never flowed");
     assert!(
         faulted_at.is_some(),
-        "the e-brake never reached the fault path"
+        "{safety_type}: the event never reached the fault path"
     );
-    assert_eq!(
-        voxhap::device::info::fault_name(FAULT_EMERGENCY_STOP),
-        "emergency stop"
-    );
-    // From the tick after the one that read the event: zero force, flagged as a device fault.
+    assert_eq!(voxhap::device::info::fault_name(code), name);
+    // From the tick after the one that read the event: zero force, the fault's own bit, a device fault.
     assert_eq!(after_fault.len(), 200);
-    for (ticks_after, force, flags) in after_fault {
-        assert_eq!(force, DVec3::ZERO, "{ticks_after} ticks after the e-brake");
+    for (ticks_after, force, flags, faults, cause) in after_fault {
+        assert_eq!(
+            force,
+            DVec3::ZERO,
+            "{safety_type}: {ticks_after} ticks after"
+        );
         assert!(
             flags.contains(SafetyFlags::DEVICE_FAULTED),
-            "{ticks_after}: {flags:?}"
+            "{safety_type} {ticks_after}: {flags:?}"
+        );
+        assert_eq!(faults, 1 << code, "{safety_type} {ticks_after}");
+        assert_eq!(
+            cause,
+            ForceOffCause::DeviceFault,
+            "{safety_type} {ticks_after}"
         );
     }
+}
+
+#[test]
+fn an_ebrake_event_zeroes_the_force_on_the_next_tick_as_an_emergency_stop() {
+    a_safety_event_zeroes_the_force_as_a_device_fault(
+        "ebrake_triggered",
+        FAULT_EMERGENCY_STOP,
+        "emergency stop",
+    );
+}
+
+#[test]
+fn a_stall_event_zeroes_the_force_as_a_motor_stall_fault() {
+    a_safety_event_zeroes_the_force_as_a_device_fault(
+        "stall_detected",
+        FAULT_MOTOR_STALL,
+        "motor stall",
+    );
+}
+
+#[test]
+fn a_stability_ceiling_event_zeroes_the_force_as_its_own_fault() {
+    a_safety_event_zeroes_the_force_as_a_device_fault(
+        "stability_ceiling",
+        FAULT_STABILITY_CEILING,
+        "stability ceiling reached",
+    );
 }
 
 /// `voxhap serve` against the double while the handle sweeps the whole reachable box: no position is refused

@@ -38,7 +38,7 @@ use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT] | falcon[:SERIAL|:PATH][,firmware=FILE] | replay:TRACE[,seek=S][,speed=X][,loop]
+    /// sim | mock:PATH | serial:PATH | hid:VID:PID[:SERIAL] | woodenhaptics:PATH | woodenhaptics-hid | haply2diy:PATH | haply-inverse[:ws://HOST:PORT[,events=ws://HOST:PORT]] | falcon[:SERIAL|:PATH][,firmware=FILE] | replay:TRACE[,seek=S][,speed=X][,loop]
     #[arg(long, default_value = "sim")]
     pub device: DeviceSpec,
     /// A volume file (.nii, .nii.gz, .nrrd, .nhdr, .mha, .mhd, .toml) or builtin:NAME; with --scene it

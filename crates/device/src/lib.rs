@@ -15,6 +15,7 @@
 //! - [`supervisor`]: lifecycle, safety, link health, the device's drive state (faults, recovery) and
 //!   reconnection: the one object the servo loop talks to;
 //! - [`mock`]: the simulated arm behind the real protocol, with fault injection (`voxhap mock-device`);
+//! - [`latency`]: how late each real device's state is on its link, from its vendor's documents;
 //! - [`discovery`]: which serial ports and HID devices are present, and which ones voxhap recognises.
 //!
 //! [`sim`] is the in-process simulated arm used by scenarios, tests and demos.
@@ -24,6 +25,7 @@ pub mod dof;
 pub mod drivers;
 pub mod error;
 pub mod info;
+pub mod latency;
 pub mod lifecycle;
 pub mod mapping;
 pub mod mock;

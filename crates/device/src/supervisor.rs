@@ -106,6 +106,9 @@ pub struct Supervisor<D: HapticDevice, F> {
     ticks_since_fresh: u32,
     last_fresh_us: u64,
     last_status: Option<DeviceStatus>,
+    /// Fault bits of the device's fault events since the last clear: a driver whose device reports faults
+    /// only as events (the Haply Inverse Service's safety events) has no status word to carry them.
+    event_faults: u16,
     clear_requested: bool,
     next_reconnect_us: u64,
     counters: SupervisorCounters,
@@ -144,6 +147,7 @@ where
             ticks_since_fresh: 0,
             last_fresh_us: 0,
             last_status: None,
+            event_faults: 0,
             clear_requested: false,
             next_reconnect_us: 0,
             counters: SupervisorCounters::default(),
@@ -174,6 +178,13 @@ where
     /// The device, while connected.
     pub fn device(&self) -> Option<&Lifecycle<D>> {
         self.device.as_ref()
+    }
+
+    /// The connected device's link latency ([`crate::latency`]), `None` when none is connected or its driver
+    /// does not know it.
+    pub fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        self.device()
+            .and_then(|device| device.device().link_latency())
     }
 
     /// True while a device is connected.
@@ -263,6 +274,7 @@ where
         self.drive = Drive::Starting { steady_ticks: 0 };
         self.last_state = None;
         self.last_status = None;
+        self.event_faults = 0;
         self.consecutive_errors = 0;
         self.ticks_since_fresh = 0;
         self.last_fresh_us = now_us;
@@ -369,6 +381,7 @@ where
                         self.fall_back(self.recovering(now_us, 0));
                     }
                 } else {
+                    self.event_faults |= active_faults;
                     self.fall_back(Drive::Faulted);
                 }
             }
@@ -408,7 +421,7 @@ where
 
     fn observe_status(&mut self, status: DeviceStatus, now_us: u64, out: &mut TickOutput) {
         self.last_status = Some(status);
-        out.active_faults = status.active_faults;
+        out.active_faults = status.active_faults | self.event_faults;
         if status.faulted && !matches!(self.drive, Drive::Faulted) {
             // A latched fault (perhaps from before this session, or its Fault frame was lost).
             self.counters.faults += 1;
@@ -492,6 +505,7 @@ where
                     if let Some(device) = self.device.as_mut() {
                         match device.clear_fault() {
                             Ok(()) => {
+                                self.event_faults = 0;
                                 out.report(&mut self.counters, SupervisorEvent::FaultCleared);
                                 self.drive = self.recovering(input.now_us, 0);
                             }
@@ -579,7 +593,7 @@ where
         out.flags = safe.flags;
         out.sent_force_n = safe.force_n;
         out.connected = true;
-        out.active_faults = self.last_status.map_or(0, |s| s.active_faults);
+        out.active_faults = self.last_status.map_or(0, |s| s.active_faults) | self.event_faults;
 
         // The exchange.
         let Some(device) = self.device.as_mut() else {

@@ -82,6 +82,13 @@ pub trait HapticDevice {
         Ok(())
     }
 
+    /// How late this device's state is on its link ([`crate::latency`]), from its vendor's documents; `None`
+    /// when the driver does not know (simulations, replays, voxhap's own protocol, which reports its state
+    /// rates instead).
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        None
+    }
+
     /// A handle that brings the device to zero force from another thread, used by the stall monitor when
     /// the servo thread stops ticking (see `servo::monitor`). `None` when the driver has no such path; the
     /// device's own watchdog is then the only stop while the servo thread is stalled. Called off the servo

@@ -377,26 +377,13 @@ impl<P: FalconPort> Falcon<P> {
         self.port.write_all(&encode_command(motor, leds, true))
     }
 
-    /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`.
-    /// With a zero timeout the port is still polled once (without waiting).
+    /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`
+    /// (the shared runner, [`super::exchange::receive_within`], over the frame assembler). With a zero timeout
+    /// the port is still polled (without waiting).
     fn read_frame(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
-        let deadline = Instant::now() + timeout;
-        let mut polled = false;
-        loop {
-            if let Some(reply) = self.frames.next_frame() {
-                return Ok(Some(reply));
-            }
-            let remaining = deadline.saturating_duration_since(Instant::now());
-            if remaining.is_zero() && polled {
-                return Ok(None);
-            }
-            polled = true;
-            let n = self.port.read(self.frames.space(), remaining)?;
-            if n == 0 {
-                return Ok(None);
-            }
-            self.frames.filled(n);
-        }
+        super::exchange::receive_within(&mut self.port, &mut self.frames, timeout, |frames| {
+            Ok(frames.next_frame())
+        })
     }
 
     fn exchange_zero(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
@@ -500,6 +487,10 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     /// The oldest the frame may be ([`ReplyAge`]): more than 0 after missed frames or frames nobody asked for.
     fn state_age_ticks(&self) -> u32 {
         self.age.age()
+    }
+
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::FALCON)
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

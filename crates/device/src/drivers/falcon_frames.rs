@@ -142,6 +142,15 @@ impl FrameAssembler {
     }
 }
 
+impl super::assemble::Receive for FrameAssembler {
+    fn space(&mut self) -> &mut [u8] {
+        FrameAssembler::space(self)
+    }
+    fn filled(&mut self, n: usize) {
+        FrameAssembler::filled(self, n)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

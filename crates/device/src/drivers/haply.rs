@@ -32,11 +32,12 @@
 //! torques are zero. Velocity is not measured: `read_state` reports zero and the
 //! host's safety pipeline estimates it from positions.
 
+use super::assemble::FixedAssembler;
 use super::reply_age::ReplyAge;
 use crate::transport::ByteTransport;
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The firmware's limit per motor (N m). Haply's board firmware (`create_torque` in Haply_Arduino_Control.h,
 /// V0.1.0, S. Ding and C. Gallacher, and the same function in the M0 board firmware) takes |τ|, clamps it at
@@ -246,6 +247,8 @@ pub struct Haply2Diy<T> {
     event: Option<DeviceEvent>,
     /// How old the reply handed out may be.
     age: ReplyAge,
+    /// The receive core: bytes in, 9-byte replies out (no I/O).
+    replies: FixedAssembler<9>,
 }
 
 impl<T: ByteTransport> Haply2Diy<T> {
@@ -278,6 +281,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
             surplus: SurplusCount::default(),
             event: None,
             age: ReplyAge::default(),
+            replies: FixedAssembler::new(),
         }
     }
 
@@ -300,6 +304,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
             // The timed-out or shifted reply is thrown away with whatever came with it (or comes later, and is
             // then taken for the next: either way the next reply may be a tick old).
             self.transport.discard_input()?;
+            self.replies.clear();
             self.resync_needed = false;
             self.resyncs += 1;
             self.age.late_reply_dropped();
@@ -334,24 +339,23 @@ impl<T: ByteTransport> Haply2Diy<T> {
         &self.transport
     }
 
+    /// The next 9-byte reply within the reply wait (the shared runner, [`super::exchange::receive_within`], over
+    /// the receive core [`FixedAssembler`]).
     fn read_reply(&mut self) -> Result<[u8; 9], DeviceError> {
-        let mut reply = [0u8; 9];
-        let mut filled = 0;
-        let deadline = Instant::now() + self.reply_timeout;
-        while filled < reply.len() {
-            let remaining = deadline.saturating_duration_since(Instant::now());
-            let n = self.transport.read(&mut reply[filled..], remaining)?;
-            if n == 0 {
-                // The rest of this reply (or all of it) may still arrive: drop it before the next command.
-                self.resync_needed = true;
-                return Err(DeviceError::Timeout {
-                    waited_us: u64::try_from(self.reply_timeout.as_micros()).unwrap_or(u64::MAX),
-                    waiting_for: "the Haply board's angle reply",
-                });
+        let reply = super::exchange::receive_within(
+            &mut self.transport,
+            &mut self.replies,
+            self.reply_timeout,
+            |replies| Ok(replies.next_reply()),
+        )?;
+        reply.ok_or_else(|| {
+            // The rest of this reply (or all of it) may still arrive: drop it before the next command.
+            self.resync_needed = true;
+            DeviceError::Timeout {
+                waited_us: u64::try_from(self.reply_timeout.as_micros()).unwrap_or(u64::MAX),
+                waiting_for: "the Haply board's angle reply",
             }
-            filled += n;
-        }
-        Ok(reply)
+        })
     }
 }
 
@@ -365,6 +369,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     fn open(&mut self) -> Result<(), DeviceError> {
         // Stale angle replies from an earlier program would shift every reply of this session.
         self.transport.discard_input()?;
+        self.replies.clear();
         self.resync_needed = false;
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
@@ -432,6 +437,10 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or bytes nobody asked for.
     fn state_age_ticks(&self) -> u32 {
         self.age.age()
+    }
+
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::HAPLY_2DIY)
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

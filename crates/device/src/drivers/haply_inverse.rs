@@ -1,5 +1,5 @@
 //! Haply Inverse3 (and Inverse3x, Minverse) through the Haply Inverse Service (`--device
-//! haply-inverse[:ws://HOST:PORT]`, default ws://127.0.0.1:10001).
+//! haply-inverse[:ws://HOST:PORT[,events=ws://HOST:PORT]]`, default ws://127.0.0.1:10001).
 //!
 //! Where it sits: a [`HapticDevice`] whose `write_force` and `read_state` run on the servo thread and only push
 //! to and pop from lock-free buffers; the WebSocket exchange runs on the I/O thread of
@@ -278,6 +278,10 @@ impl HapticDevice for HaplyInverse {
 
     fn state_age_ticks(&self) -> u32 {
         self.state_age_ticks
+    }
+
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::HAPLY_INVERSE)
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

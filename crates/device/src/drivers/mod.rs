@@ -3,6 +3,8 @@
 //!
 //! - [`protocol`]: voxhap's own wire protocol (protocol/SPEC.md) over serial or USB HID, for microcontroller arms
 //!   and for `voxhap mock-device`;
+//! - [`assemble`]: receive cores with no I/O (bytes in, whole replies out) for the request/reply drivers;
+//! - [`exchange`]: the shared runner that reads a port into a receive core within a period-bounded wait;
 //! - [`protocol_link`]: the links that driver talks through (framed serial, HID reports);
 //! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
 //!   (text lines over USB serial; kinematics from hfabapi);
@@ -19,6 +21,8 @@
 //! - [`reply_age`]: how old a request/reply driver's state may be, for devices without sequence numbers;
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
+pub mod assemble;
+pub mod exchange;
 pub mod falcon;
 pub mod falcon_frames;
 pub mod falcon_kinematics;

@@ -234,6 +234,10 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
         Ok(DeviceState::at_rest(position_m))
     }
 
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::WOODENHAPTICS_HID)
+    }
+
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The wrapper has written a zero force; the firmware's own 0.5 s watchdog disables the amplifiers.
         Ok(())

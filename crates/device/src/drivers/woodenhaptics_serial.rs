@@ -52,13 +52,14 @@
 //! scales the three currents together so none exceeds [`MAX_CURRENT_MA`] (keeping the force's direction, as
 //! libnifalcon does for the Falcon), where the firmware would zero a single motor.
 
+use super::assemble::{Line, LineAssembler};
 use super::reply_age::ReplyAge;
 use super::woodenhaptics_constants::WoodenHapticsConstants;
 use crate::transport::ByteTransport;
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
 use std::io::Write as _;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 pub use super::woodenhaptics_kinematics::{Chain, WoodyKinematics, FIRMWARE_MAX_CURRENT_MA};
 /// The largest current this driver sends (mA); currents are scaled together to stay within it.
@@ -233,8 +234,8 @@ pub struct WoodenHapticsSerial<T> {
     theta: Option<[f64; 3]>,
     /// Joint angles of the newest report, until the host's verdict on it.
     candidate: Option<[f64; 3]>,
-    line: [u8; 256],
-    line_len: usize,
+    /// The receive core: bytes in, report lines out (no I/O).
+    lines: LineAssembler<256>,
     last_report: Option<WoodyReport>,
     awaiting_reply: bool,
     late_replies: u64,
@@ -257,8 +258,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             kinematics,
             theta: None,
             candidate: None,
-            line: [0; 256],
-            line_len: 0,
+            lines: LineAssembler::new(),
             last_report: None,
             awaiting_reply: false,
             late_replies: 0,
@@ -300,7 +300,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
         loop {
             if lines == MAX_LINES_DRAINED {
                 self.transport.discard_input()?;
-                self.line_len = 0;
+                self.lines.clear();
                 surplus += 1;
                 break;
             }
@@ -338,32 +338,19 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
         &self.kinematics
     }
 
-    /// Reads one line (up to `\n`) within `timeout`. `Ok(None)` on timeout (a partial line is kept for the next
-    /// call). A line longer than the buffer is dropped and reported.
+    /// Reads one line (up to `\n`) within `timeout` (the shared runner, [`super::exchange::receive_within`], over
+    /// the receive core [`LineAssembler`]). `Ok(None)` on timeout (a partial line is kept for the next call). A
+    /// line longer than the buffer is dropped and reported.
     fn read_line(&mut self, timeout: Duration) -> Result<Option<WoodyReport>, DeviceError> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(end) = self.line[..self.line_len].iter().position(|&b| b == b'\n') {
-                let parsed = parse_report(&self.line[..end]);
-                self.line.copy_within(end + 1..self.line_len, 0);
-                self.line_len -= end + 1;
-                return parsed.map(Some);
-            }
-            if self.line_len == self.line.len() {
-                self.line_len = 0;
-                return Err(DeviceError::Protocol {
+        super::exchange::receive_within(&mut self.transport, &mut self.lines, timeout, |lines| {
+            match lines.next_line() {
+                None => Ok(None),
+                Some(Line::Whole(line)) => parse_report(line).map(Some),
+                Some(Line::TooLong) => Err(DeviceError::Protocol {
                     what: "WoodenHaptics sent a line longer than 256 bytes",
-                });
+                }),
             }
-            let remaining = deadline.saturating_duration_since(Instant::now());
-            let n = self
-                .transport
-                .read(&mut self.line[self.line_len..], remaining)?;
-            if n == 0 {
-                return Ok(None);
-            }
-            self.line_len += n;
-        }
+        })
     }
 
     fn accept(&mut self, report: WoodyReport) -> Result<DeviceState, DeviceError> {
@@ -447,7 +434,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
     /// Discards stale input, then sends zero currents until a report arrives (the model is read from it).
     fn open(&mut self) -> Result<(), DeviceError> {
         self.transport.discard_input()?;
-        self.line_len = 0;
+        self.lines.clear();
         self.model = None;
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
@@ -532,6 +519,10 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
     /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or lines nobody asked for.
     fn state_age_ticks(&self) -> u32 {
         self.age.age()
+    }
+
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        Some(crate::latency::WOODENHAPTICS_SERIAL)
     }
 
     fn take_event(&mut self) -> Option<DeviceEvent> {

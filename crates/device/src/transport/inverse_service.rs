@@ -237,6 +237,28 @@ pub struct ServiceConfig {
     pub events_url: Option<String>,
 }
 
+impl ServiceConfig {
+    /// The connection a `--device haply-inverse` spec gives: `ws://HOST:PORT[/PATH][,events=ws://HOST:PORT]`,
+    /// the simulation channel's URL and, when given, the events channel's (otherwise the simulation host on
+    /// port [`DEFAULT_EVENTS_PORT`]). `None` when either part is not a `ws://` URL with something after it.
+    pub fn from_spec(spec: &str) -> Option<ServiceConfig> {
+        let is_url = |url: &str| url.starts_with("ws://") && url.len() > "ws://".len();
+        let (url, events_url) = match spec.split_once(",events=") {
+            Some((url, events)) => (url, Some(events)),
+            None => (spec, None),
+        };
+        if !is_url(url) || events_url.is_some_and(|events| !is_url(events) || events.contains(','))
+        {
+            return None;
+        }
+        Some(ServiceConfig {
+            url: url.to_owned(),
+            events_url: events_url.map(str::to_owned),
+            ..ServiceConfig::default()
+        })
+    }
+}
+
 impl Default for ServiceConfig {
     fn default() -> Self {
         ServiceConfig {

@@ -80,3 +80,23 @@ fn the_read_back_configuration_is_confirmed_only_as_asked_for() {
         assert!(wrong.contains(part), "{wrong}");
     }
 }
+
+/// The spec's two URLs: the simulation channel and, after `,events=`, the events channel (Haply's events
+/// channel is its own WebSocket, docs.haply.co "Events Channel", default port 10020 on the service's host).
+#[test]
+fn a_spec_gives_the_simulation_and_events_urls() {
+    let both = ServiceConfig::from_spec("ws://lab:9000,events=ws://lab:9020").unwrap();
+    assert_eq!(both.url, "ws://lab:9000");
+    assert_eq!(both.events_url.as_deref(), Some("ws://lab:9020"));
+    let one = ServiceConfig::from_spec("ws://lab:9000").unwrap();
+    assert_eq!((one.url.as_str(), one.events_url), ("ws://lab:9000", None));
+    for bad in [
+        "lab:9000",
+        "ws://",
+        "ws://lab:1,events=lab:2",
+        "ws://lab:1,events=",
+        "ws://a:1,events=ws://b:2,x",
+    ] {
+        assert!(ServiceConfig::from_spec(bad).is_none(), "{bad}");
+    }
+}

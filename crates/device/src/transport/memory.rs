@@ -19,8 +19,12 @@ pub enum Transaction {
     Write(Vec<u8>),
     /// The driver reads, and gets these bytes (a byte stream may take them over several reads).
     Read(Vec<u8>),
-    /// The driver reads, and nothing arrives in time.
+    /// The driver reads, and nothing arrives in time (a timed [`ScriptedReports`]: a report the device never
+    /// sent).
     ReadTimeout,
+    /// A timed [`ScriptedReports`] only: a report that arrives this much later than its slot (jitter, a late
+    /// reply). An untimed double treats it as a read that times out.
+    Late(Duration, Vec<u8>),
     /// The next call (read or write) fails with a disconnect.
     Disconnect,
 }
@@ -148,7 +152,7 @@ impl ByteTransport for ScriptedStream {
                 }
                 Ok(n)
             }
-            Transaction::ReadTimeout => Ok(0),
+            Transaction::ReadTimeout | Transaction::Late(..) => Ok(0),
             Transaction::Disconnect => Err(disconnected("reading")),
             Transaction::Write(expected) => panic!(
                 "scripted transport: step {} expects a write of {expected:02x?}, but the driver read",
@@ -158,10 +162,55 @@ impl ByteTransport for ScriptedStream {
     }
 }
 
-/// A scripted HID report transport.
+/// Copies a scripted report into the driver's buffer (a report that does not fit is a test bug: panic).
+fn copy_report(bytes: &[u8], buf: &mut [u8]) -> usize {
+    assert!(
+        bytes.len() <= buf.len(),
+        "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
+        bytes.len(),
+        buf.len()
+    );
+    buf[..bytes.len()].copy_from_slice(bytes);
+    bytes.len()
+}
+
+/// The time model of a timed [`ScriptedReports`]: a virtual clock, so a test can show what a driver does with a
+/// report that comes late or not at all, without sleeping and whatever the machine's load.
+///
+/// The device sends its `i`-th report (the `i`-th `Read` of the script; a `ReadTimeout` step is a report the
+/// device never sent) `latency + i * report_period` after the script starts, plus that report's own extra delay
+/// ([`Transaction::Late`], jitter). The driver's `k`-th write starts servo tick `k`, at `k * servo_period` (or
+/// later, if its reads already waited past that). A read at virtual time `now` with timeout `w` returns the
+/// oldest report not read yet if it has arrived by `now + w` (the clock moves on to its arrival), and otherwise
+/// nothing (the clock moves on by `w`): a report arriving after the read gave up is seen late, by a later read.
+/// Writes are checked in order against the script's `Write` steps, as in the untimed double.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReportTiming {
+    /// The driver's servo period: write `k` is at `k * servo_period`.
+    pub servo_period: Duration,
+    /// The device's report interval (its input rate).
+    pub report_period: Duration,
+    /// From the script's start (the device's report slot) to the report being readable by the host: the
+    /// device's documented latency.
+    pub latency: Duration,
+}
+
+#[derive(Debug)]
+struct Timed {
+    timing: ReportTiming,
+    now: Duration,
+    writes: u32,
+    /// Reports not read yet: arrival time, bytes.
+    in_flight: VecDeque<(Duration, Vec<u8>)>,
+    disconnect_after: Option<usize>,
+}
+
+/// A scripted HID report transport, untimed ([`ScriptedReports::new`]: a read gets the next scripted report at
+/// once) or timed ([`ScriptedReports::timed`], [`ReportTiming`]).
 #[derive(Debug)]
 pub struct ScriptedReports {
     script: Script,
+    timed: Option<Timed>,
 }
 
 impl ScriptedReports {
@@ -169,36 +218,117 @@ impl ScriptedReports {
     pub fn new(transactions: &[Transaction]) -> ScriptedReports {
         ScriptedReports {
             script: Script::new(transactions),
+            timed: None,
         }
     }
 
-    /// Panics unless every expected transaction happened.
+    /// A transport with a time model ([`ReportTiming`]): the `Write` steps are the writes expected, in order;
+    /// the `Read`, `Late` and `ReadTimeout` steps are the device's report slots, in order; a `Disconnect` step
+    /// makes every call fail once the reports before it were read.
+    pub fn timed(transactions: &[Transaction], timing: ReportTiming) -> ScriptedReports {
+        let mut writes = Vec::new();
+        let mut in_flight = VecDeque::new();
+        let mut slot = 0u32;
+        let mut disconnect_after = None;
+        for transaction in transactions {
+            let arrival = timing.latency + timing.report_period * slot;
+            match transaction {
+                Transaction::Write(_) => writes.push(transaction.clone()),
+                Transaction::Read(bytes) => {
+                    in_flight.push_back((arrival, bytes.clone()));
+                    slot += 1;
+                }
+                Transaction::Late(extra, bytes) => {
+                    in_flight.push_back((arrival + *extra, bytes.clone()));
+                    slot += 1;
+                }
+                Transaction::ReadTimeout => slot += 1,
+                Transaction::Disconnect => {
+                    disconnect_after.get_or_insert(in_flight.len());
+                }
+            }
+        }
+        ScriptedReports {
+            script: Script::new(&writes),
+            timed: Some(Timed {
+                timing,
+                now: Duration::ZERO,
+                writes: 0,
+                in_flight,
+                disconnect_after,
+            }),
+        }
+    }
+
+    /// The virtual time of a timed double (zero for an untimed one).
+    pub fn now(&self) -> Duration {
+        self.timed.as_ref().map_or(Duration::ZERO, |t| t.now)
+    }
+
+    /// Panics unless every expected transaction happened (for a timed double: every write, and every report
+    /// read).
     pub fn done(&self) {
         self.script.done();
+        if let Some(timed) = &self.timed {
+            assert!(
+                timed.in_flight.is_empty(),
+                "scripted reports: {} reports never read",
+                timed.in_flight.len()
+            );
+        }
+    }
+}
+
+impl Timed {
+    fn disconnected(&self) -> bool {
+        self.disconnect_after == Some(0)
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        if self.disconnected() {
+            return Err(disconnected("reading"));
+        }
+        match self.in_flight.front() {
+            Some((arrival, _)) if *arrival <= self.now + timeout => {
+                let (arrival, bytes) = self.in_flight.pop_front().unwrap_or_default();
+                self.now = self.now.max(arrival);
+                if let Some(after) = self.disconnect_after.as_mut() {
+                    *after = after.saturating_sub(1);
+                }
+                Ok(copy_report(&bytes, buf))
+            }
+            _ => {
+                self.now += timeout;
+                Ok(0)
+            }
+        }
     }
 }
 
 impl ReportTransport for ScriptedReports {
     fn write_report(&mut self, report: &[u8]) -> Result<(), DeviceError> {
+        if let Some(timed) = self.timed.as_mut() {
+            if timed.disconnected() {
+                return Err(disconnected("writing"));
+            }
+            timed.now = timed.now.max(timed.timing.servo_period * timed.writes);
+            timed.writes += 1;
+        }
         self.script.write(report)
     }
 
     fn read_report(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
+        if let Some(timed) = self.timed.as_mut() {
+            return timed.read(buf, timeout);
+        }
         if self.script.poll_finds_nothing(timeout) {
             return Ok(0);
         }
         match self.script.next("read_report") {
             Transaction::Read(bytes) => {
-                assert!(
-                    bytes.len() <= buf.len(),
-                    "scripted transport: report of {} bytes does not fit the driver's {}-byte buffer",
-                    bytes.len(),
-                    buf.len()
-                );
-                buf[..bytes.len()].copy_from_slice(&bytes);
-                Ok(bytes.len())
+                Ok(copy_report(&bytes, buf))
             }
-            Transaction::ReadTimeout => Ok(0),
+            Transaction::ReadTimeout | Transaction::Late(..) => Ok(0),
             Transaction::Disconnect => Err(disconnected("reading")),
             Transaction::Write(expected) => panic!(
                 "scripted transport: step {} expects a write of {expected:02x?}, but the driver read",

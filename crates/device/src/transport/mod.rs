@@ -21,6 +21,6 @@ mod traits;
 
 pub use hid::{HidTransport, MillisecondHid};
 #[cfg(any(test, feature = "test-support"))]
-pub use memory::{MemoryPipe, ScriptedReports, ScriptedStream};
+pub use memory::{MemoryPipe, ReportTiming, ScriptedReports, ScriptedStream};
 pub use serial::SerialTransport;
 pub use traits::{open_advice, open_message, ByteTransport, ReportTransport};

@@ -201,7 +201,12 @@ fn open_supervised(
         }
         DeviceSpec::HaplyInverse(url) => {
             let mut driver_config = HaplyInverseConfig::default();
-            driver_config.service.url = url.clone();
+            // `ws://HOST:PORT[,events=ws://HOST:PORT]`, checked when the spec was parsed.
+            if let Some(service) =
+                voxhap_device::transport::inverse_service::ServiceConfig::from_spec(url)
+            {
+                driver_config.service = service;
+            }
             // `serve --connect-timeout`: the whole connect (TCP, WebSocket upgrade, inventory, session) shares it.
             driver_config.service.connect_timeout =
                 Duration::from_micros(config.connect_timeout_us);

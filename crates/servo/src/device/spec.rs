@@ -34,7 +34,8 @@ pub enum DeviceSpec {
         /// Seek, speed and loop.
         options: super::replay::ReplayOptions,
     },
-    /// `haply-inverse[:ws://HOST:PORT]`: Haply Inverse3 through the Haply Inverse Service.
+    /// `haply-inverse[:ws://HOST:PORT[,events=ws://HOST:PORT]]`: Haply Inverse3 through the Haply Inverse Service
+    /// (the events channel defaults to the same host's port 10020).
     HaplyInverse(String),
     /// `falcon[:SERIAL|:PATH][,firmware=FILE]`: Novint Falcon on its FTDI serial port (`ftdi_sio`), chosen by
     /// USB serial number or port path (default: the first Falcon found); FILE is Novint's firmware, uploaded
@@ -47,7 +48,7 @@ pub enum DeviceSpec {
 
 /// Why `--device` was not understood.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE[,seek=S][,speed=X][,loop]")]
+#[error("--device {given:?}: {problem}; expected sim, mock:PATH, serial:PATH, hid:VID:PID[:SERIAL], woodenhaptics:PATH, woodenhaptics-hid, haply2diy:PATH, haply-inverse[:ws://HOST:PORT[,events=ws://HOST:PORT]], falcon[:SERIAL|:PATH][,firmware=FILE] or replay:TRACE[,seek=S][,speed=X][,loop]")]
 pub struct DeviceSpecError {
     /// The `--device` text as given.
     pub given: String,
@@ -70,8 +71,8 @@ pub enum DeviceSpecProblem {
     /// A replay spec that does not parse.
     #[error(transparent)]
     Replay(#[from] super::replay::ReplaySpecError),
-    /// `haply-inverse:` followed by something that is not `ws://HOST:PORT`.
-    #[error("the Inverse Service address must be ws://HOST:PORT (default ws://127.0.0.1:10001)")]
+    /// `haply-inverse:` followed by something that is not `ws://HOST:PORT[,events=ws://HOST:PORT]`.
+    #[error("the Inverse Service address must be ws://HOST:PORT, optionally followed by ,events=ws://HOST:PORT for its events channel (default ws://127.0.0.1:10001, events on the same host's port 10020)")]
     InverseUrl,
     /// `hid` without ids.
     #[error("hid needs VID:PID")]
@@ -135,7 +136,10 @@ impl FromStr for DeviceSpec {
                 None => Ok(DeviceSpec::HaplyInverse(
                     voxhap_device::transport::inverse_service::DEFAULT_URL.to_owned(),
                 )),
-                Some(url) if url.starts_with("ws://") && url.len() > "ws://".len() => {
+                Some(url)
+                    if voxhap_device::transport::inverse_service::ServiceConfig::from_spec(url)
+                        .is_some() =>
+                {
                     Ok(DeviceSpec::HaplyInverse(url.to_owned()))
                 }
                 Some(_) => Err(error(DeviceSpecProblem::InverseUrl)),
@@ -282,6 +286,7 @@ mod tests {
             "replay:trace.csv,speed=0.5",
             "haply-inverse:ws://127.0.0.1:10001",
             "haply-inverse:ws://lab-pc:9000",
+            "haply-inverse:ws://lab-pc:9000,events=ws://lab-pc:9020",
             "falcon",
             "falcon:A1B2C3",
             "falcon:/dev/ttyUSB0,firmware=/opt/novint/test_firmware.bin",
@@ -311,6 +316,8 @@ mod tests {
             ("hid:zz:0001", "vendor id \"zz\""),
             ("hid:1234", "product id \"\""),
             ("haply-inverse:localhost:10001", "must be ws://HOST:PORT"),
+            ("haply-inverse:ws://h:1,events=h:2", "events=ws://HOST:PORT"),
+            ("haply-inverse:ws://h:1,events=", "events=ws://HOST:PORT"),
             ("woodenhaptics", "woodenhaptics-hid"),
         ] {
             let err = text.parse::<DeviceSpec>().unwrap_err().to_string();

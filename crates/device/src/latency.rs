@@ -1,0 +1,99 @@
+//! How late a device's state is on its link: [`LinkLatency`], one figure per real driver from its vendor's
+//! documents or source, for the passivity controller (a transport delay of one tick halves the stable
+//! stiffness, Hulin et al. 2014). A driver reports it through [`crate::HapticDevice::link_latency`];
+//! [`crate::supervisor::Supervisor::link_latency`] reads the connected one.
+//!
+//! The figure is the time from the host writing a command to the state answering it being readable on the
+//! host, on the path the vendor documents; it is not measured here (no hardware), and each constant says where
+//! its numbers come from.
+
+use std::time::Duration;
+
+/// A device link's latency (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkLatency {
+    /// The usual delay from a command to the state answering it being readable.
+    pub typical: Duration,
+    /// The longest delay the documented path allows (after it, the reply counts as missed).
+    pub worst: Duration,
+    /// Where the figures come from.
+    pub source: &'static str,
+}
+
+impl LinkLatency {
+    /// The worst delay in whole servo ticks of `period` (rounded up; 0 for a zero period).
+    pub fn worst_ticks(&self, period: Duration) -> u32 {
+        if period.is_zero() {
+            return 0;
+        }
+        let ticks = self.worst.as_nanos().div_ceil(period.as_nanos());
+        u32::try_from(ticks).unwrap_or(u32::MAX)
+    }
+}
+
+/// Novint Falcon on `ftdi_sio`: the 16-byte reply is shorter than the FTDI chip's 62-byte packet payload, so
+/// the chip sends it when its latency timer runs out (FTDI AN232B-04 "Data Throughput, Latency and
+/// Handshaking", section 3), set to 1 ms in normal mode (libnifalcon src/comm/FalconCommLibUSB.cpp:560, voxhap
+/// sets and checks the same), and the host collects it at the next 1 ms full-speed USB frame: typically 1 ms,
+/// at worst 2 ms. libnifalcon does not wait for a reply with a deadline: it sends the next frame only once the
+/// reply has come (src/firmware/FalconFirmwareNovintSDK.cpp:113-154).
+pub const FALCON: LinkLatency = LinkLatency {
+    typical: Duration::from_millis(1),
+    worst: Duration::from_millis(2),
+    source: "FTDI latency timer 1 ms (libnifalcon FalconCommLibUSB.cpp:560) + one 1 ms full-speed USB frame",
+};
+
+/// Haply 2DIY: the board answers each torque command at once (hAPI Board.receive reads the reply right after
+/// the command) over native full-speed USB CDC, collected at the next 1 ms frame: typically 1 ms, at worst
+/// 2 ms (a command that just missed a frame).
+pub const HAPLY_2DIY: LinkLatency = LinkLatency {
+    typical: Duration::from_millis(1),
+    worst: Duration::from_millis(2),
+    source: "hAPI Board.receive (one reply per command) over full-speed USB CDC, 1 ms frames",
+};
+
+/// WoodenHaptics and Polhem on the Teensy firmware: each reply is pushed with `Serial.send_now()`
+/// (firmware/woody_teensy_mini/woody_teensy_mini.ino:552-553), so it leaves at the next USB frame (1 ms at full
+/// speed; a Teensy 4 at high speed is faster): typically 1 ms, at worst 2 ms.
+pub const WOODENHAPTICS_SERIAL: LinkLatency = LinkLatency {
+    typical: Duration::from_millis(1),
+    worst: Duration::from_millis(2),
+    source: "woody_teensy_mini.ino:552-553 (Serial.send_now per reply), full-speed USB 1 ms frames",
+};
+
+/// WoodenHaptics 1.5 over USB HID: input reports go out on an interrupt endpoint polled at most once per 1 ms
+/// full-speed frame (USB 2.0 section 5.7.4); the endpoint interval of the legacy firmware was not re-checked.
+pub const WOODENHAPTICS_HID: LinkLatency = LinkLatency {
+    typical: Duration::from_millis(1),
+    worst: Duration::from_millis(2),
+    source: "full-speed HID interrupt endpoint, 1 ms polling (USB 2.0 5.7.4); firmware interval not re-checked",
+};
+
+/// Haply Inverse3 through the Inverse Service: the service answers each force message with one state
+/// (docs.haply.co "WebSocket Protocol"); Haply publishes no figure for its own device loop, so these are the
+/// driver's bounds: a state answering this tick's force is waited for 0.4 ms, and one answering one of the last
+/// three commands is still used (three ticks at 1 kHz).
+pub const HAPLY_INVERSE: LinkLatency = LinkLatency {
+    typical: Duration::from_micros(400),
+    worst: Duration::from_millis(3),
+    source: "voxhap's reply wait and staleness bound; Haply publishes no device-loop latency",
+};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// By hand: 2 ms is 2 ticks at 1 kHz, 1 tick at 500 Hz, 8 at 4 kHz; 0.4 ms is one tick at 1 kHz.
+    #[test]
+    fn worst_ticks_round_up() {
+        assert_eq!(FALCON.worst_ticks(Duration::from_millis(1)), 2);
+        assert_eq!(FALCON.worst_ticks(Duration::from_millis(2)), 1);
+        assert_eq!(FALCON.worst_ticks(Duration::from_micros(250)), 8);
+        let short = LinkLatency {
+            worst: Duration::from_micros(400),
+            ..HAPLY_INVERSE
+        };
+        assert_eq!(short.worst_ticks(Duration::from_millis(1)), 1);
+        assert_eq!(FALCON.worst_ticks(Duration::ZERO), 0);
+    }
+}

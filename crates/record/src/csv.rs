@@ -404,6 +404,16 @@ fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError
             hint: "it has no energy ledger or force_off_cause columns",
         });
     }
+    if fields.contains(&crate::truth_columns::FORCE_OFF_CAUSE)
+        && !fields.contains(&crate::truth_columns::PASSIVITY_COLUMN.0)
+    {
+        return Err(TraceReadError::OldFormat {
+            path: path.to_path_buf(),
+            found: 3,
+            expected: TRACE_FORMAT_VERSION,
+            hint: "it has no passivity_dissipated_j or device_force columns",
+        });
+    }
     if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {
         return Err(TraceReadError::OldFormat {
             path: path.to_path_buf(),

@@ -280,6 +280,10 @@ impl HapticDevice for HaplyInverse {
         self.state_age_ticks
     }
 
+    fn reported_force_n(&self) -> Option<DVec3> {
+        self.arm_force_n
+    }
+
     fn take_event(&mut self) -> Option<DeviceEvent> {
         if let Some(event) = self.pending_event.take() {
             return Some(event);

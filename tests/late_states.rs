@@ -5,21 +5,12 @@
 //! from the force the state answers. Checked from the device's side: the double knows how old the newest
 //! state it handed out is, and logs every force with that age.
 
+use crate::util::late_device::{late_info, late_supervisor, Ages, Answer};
 use glam::DVec3;
 use std::cell::RefCell;
 use std::rc::Rc;
-use voxhap::device::safety::SafetyConfig;
-use voxhap::device::supervisor::{Supervisor, SupervisorConfig, TickInput};
+use voxhap::device::supervisor::TickInput;
 use voxhap::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
-
-/// What the double does on one tick's read.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Answer {
-    /// A state answering the force of this many ticks ago.
-    Aged(u32),
-    /// No state in time.
-    Late,
-}
 
 /// The double's log: per force received, the force and how old (ticks) the newest state the host had was.
 #[derive(Debug, Default)]
@@ -36,9 +27,7 @@ struct LateDevice {
     info: DeviceInfo,
     script: Box<dyn FnMut(u64) -> Answer>,
     tick: u64,
-    /// Age of the newest state handed out, as of the last read (ticks).
-    information_age: u32,
-    last_age: u32,
+    ages: Ages,
     log: Rc<RefCell<Log>>,
 }
 
@@ -59,77 +48,31 @@ impl HapticDevice for LateDevice {
     }
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         let mut log = self.log.borrow_mut();
-        log.forces.push((force_n, self.information_age));
+        log.forces.push((force_n, self.ages.information));
         let enabled = log.is_enabled;
         log.enabled.push(enabled);
         Ok(())
     }
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         self.tick += 1;
-        match (self.script)(self.tick) {
-            Answer::Aged(age) => {
-                self.information_age = age;
-                self.last_age = age;
-                Ok(DeviceState::at_rest(DVec3::ZERO))
-            }
-            Answer::Late => {
-                self.information_age = self.information_age.saturating_add(1);
-                Err(DeviceError::Timeout {
-                    waited_us: 400,
-                    waiting_for: "the scripted answer",
-                })
-            }
-        }
+        self.ages.read((self.script)(self.tick))?;
+        Ok(DeviceState::at_rest(DVec3::ZERO))
     }
     fn state_age_ticks(&self) -> u32 {
-        self.last_age
+        self.ages.last
     }
 }
 
 /// Runs `ticks` supervisor ticks asking for 0.5 N against a device following `script`; returns its log.
 fn run(ticks: u64, script: impl FnMut(u64) -> Answer + 'static) -> Log {
     let log = Rc::new(RefCell::new(Log::default()));
-    let info = DeviceInfo {
-        model: "late".into(),
-        serial_number: String::new(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        workspace_min_m: DVec3::splat(-0.1),
-        workspace_max_m: DVec3::splat(0.1),
-        max_force_n: 2.0,
-        max_stiffness_n_per_m: 1000.0,
-        max_speed_m_per_s: 5.0,
-        reports_velocity: false,
-        state_rates_hz: Vec::new(),
-    };
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 10_000,
-            ..SafetyConfig::default()
-        },
-        // Timeouts are part of the script; only the staleness rules are under test.
-        max_consecutive_errors: 1000,
-        link_timeout_us: 1_000_000,
-        ..SupervisorConfig::default()
-    };
-    let device = LateDevice {
-        info,
+    let mut supervisor = late_supervisor(LateDevice {
+        info: late_info(),
         script: Box::new(script),
         tick: 0,
-        information_age: u32::MAX,
-        last_age: 0,
+        ages: Ages::new(),
         log: log.clone(),
-    };
-    let mut device = Some(device);
-    let mut supervisor = Supervisor::new(config, move || {
-        device.take().ok_or(DeviceError::Open {
-            path: "late".into(),
-            message: "opened once".into(),
-        })
-    })
-    .unwrap();
-    supervisor.connect(0).unwrap();
+    });
     for tick in 1..=ticks {
         // Small at first (the engage rule), then a push.
         let force = if tick < 300 {

@@ -4,16 +4,17 @@
 //! late through the real supervisor (positions older than the staleness bound mean zero force,
 //! `stale_link`). The loop runs on a mock clock, so every number is deterministic.
 
+use crate::util::late_device::{late_info, late_supervisor, Ages, Answer};
 use glam::DVec3;
 use std::path::Path;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 use voxhap::clock::MockClock;
 use voxhap::device::plausibility::InputCounters;
-use voxhap::device::safety::{SafetyConfig, SafetyFlags};
+use voxhap::device::safety::SafetyFlags;
 use voxhap::device::supervisor::{
-    ClearFaultOutcome, EventList, OutputState, Supervisor, SupervisorConfig, SupervisorCounters,
-    TickInput, TickOutput,
+    ClearFaultOutcome, EventList, OutputState, SupervisorConfig, SupervisorCounters, TickInput,
+    TickOutput,
 };
 use voxhap::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use voxhap::record::{ForceOffCause, TraceSample};
@@ -89,10 +90,11 @@ fn run_loop(
 
 /// A device whose every tick's output follows a script: the probe position it reports, and what its
 /// safety pipeline says (output state, flags, latched faults); the force it sends is the force asked for
-/// whenever the script says the output is engaged, else zero.
+/// scaled by `share(tick)` (a ramp) whenever the script says the output is engaged, else zero.
 struct ScriptedDevice {
     tick: u64,
     script: Box<dyn FnMut(u64) -> (DVec3, OutputState, SafetyFlags, u16) + Send>,
+    share: fn(u64) -> f64,
 }
 
 impl ServoDevice for ScriptedDevice {
@@ -104,7 +106,7 @@ impl ServoDevice for ScriptedDevice {
             state: connected.then(|| DeviceState::at_rest(position_m)),
             stale: false,
             sent_force_n: if output_state == OutputState::Engaged {
-                input.force_n
+                input.force_n * (self.share)(self.tick)
             } else {
                 DVec3::ZERO
             },
@@ -155,6 +157,7 @@ fn serve_books_a_spring_pressed_a_known_depth_exactly() {
     let n: u64 = 100;
     let device = ScriptedDevice {
         tick: 0,
+        share: |_| 1.0,
         // Exchange i answers with the position of tick i: x_i = -i dx (below the wall's surface).
         script: Box::new(move |i| {
             let depth = dx * i.min(n) as f64;
@@ -206,6 +209,47 @@ fn serve_books_a_spring_pressed_a_known_depth_exactly() {
         "{stats:?}"
     );
     assert_eq!(stats.energy.contacts, 1);
+}
+
+/// While the safety pipeline ramps the force in, the spring holds only what the sent force can give back:
+/// a probe held a depth `d` into a wall of stiffness `k` renders `k d`; with a share `s` of it sent
+/// (`F_sent = s k d`) the coupling energy booked is `|F_sent|^2 / 2k = s^2 k d^2 / 2`, not the whole
+/// virtual spring's `k d^2 / 2`. The share ramps from 0 to 1 over 50 ticks as a linear ramp-in would.
+#[test]
+fn while_ramping_in_the_spring_holds_what_the_sent_force_can_give_back() {
+    let depth = 0.001;
+    let ramp = |tick: u64| (tick as f64 / 50.0).min(1.0);
+    let device = ScriptedDevice {
+        tick: 0,
+        share: ramp,
+        script: Box::new(move |_| {
+            (
+                DVec3::new(0.0, 0.0, -depth),
+                OutputState::Engaged,
+                SafetyFlags::default(),
+                0,
+            )
+        }),
+    };
+    let first = Some(DeviceState::at_rest(DVec3::new(0.0, 0.0, -depth)));
+    let (samples, _, _) = run_loop(Box::new(device), first, 80);
+    let k = K_N_PER_M;
+    for (i, sample) in samples.iter().enumerate() {
+        // Tick i's force goes out in exchange i + 1.
+        let s = ramp(i as u64 + 1);
+        let sent = s * k * depth;
+        assert!(
+            (sample.force_n.z - sent).abs() <= 1e-12,
+            "tick {i}: sent {:?}, expected {sent} N",
+            sample.force_n
+        );
+        let expected = sent * sent / (2.0 * k);
+        let booked = sample.truth.energy.coupling_energy_j;
+        assert!(
+            (booked - expected).abs() <= 1e-12 * expected.max(1e-12),
+            "tick {i}: share {s}, coupling {booked} J, expected {expected} J"
+        );
+    }
 }
 
 fn both(mut a: SafetyFlags, b: SafetyFlags) -> SafetyFlags {
@@ -278,6 +322,7 @@ fn the_force_off_cause_names_what_the_safety_pipeline_did() {
     let script_steps = steps.clone();
     let device = ScriptedDevice {
         tick: 0,
+        share: |_| 1.0,
         // Exchange i's output is step i - 1 (tick i - 1's sample).
         script: Box::new(move |i| {
             let (state, flags, faults, _) =
@@ -294,23 +339,13 @@ fn the_force_off_cause_names_what_the_safety_pipeline_did() {
     assert_eq!(snapshot.truth.force_off_cause, ForceOffCause::Disconnected);
 }
 
-/// How the late device answers the read of exchange `n` (1-based).
-#[derive(Debug, Clone, Copy)]
-enum Answer {
-    /// A state answering the force of this many ticks ago.
-    Aged(u32),
-    /// No state in time.
-    Late,
-}
-
 /// A device that answers late following a script (a loaded PC, a service behind a socket): it knows how old
 /// the newest state it handed out is, and logs every force it receives with that age.
 struct LateDevice {
     info: DeviceInfo,
     script: fn(u64) -> Answer,
     reads: u64,
-    information_age: u32,
-    last_age: u32,
+    ages: Ages,
     log: Arc<Mutex<Vec<(DVec3, u32)>>>,
 }
 
@@ -323,29 +358,17 @@ impl HapticDevice for LateDevice {
         self.log
             .lock()
             .unwrap()
-            .push((force_n, self.information_age));
+            .push((force_n, self.ages.information));
         Ok(())
     }
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         self.reads += 1;
-        match (self.script)(self.reads) {
-            Answer::Aged(age) => {
-                self.information_age = age;
-                self.last_age = age;
-                // Half a millimetre into the wall: 0.4 N rendered, small enough to engage.
-                Ok(DeviceState::at_rest(DVec3::new(0.0, 0.0, -0.0005)))
-            }
-            Answer::Late => {
-                self.information_age = self.information_age.saturating_add(1);
-                Err(DeviceError::Timeout {
-                    waited_us: 400,
-                    waiting_for: "the scripted answer",
-                })
-            }
-        }
+        self.ages.read((self.script)(self.reads))?;
+        // Half a millimetre into the wall: 0.4 N rendered, small enough to engage.
+        Ok(DeviceState::at_rest(DVec3::new(0.0, 0.0, -0.0005)))
     }
     fn state_age_ticks(&self) -> u32 {
-        self.last_age
+        self.ages.last
     }
 }
 
@@ -365,47 +388,15 @@ fn late_script(read: u64) -> Answer {
 #[test]
 fn a_device_that_answers_late_renders_nothing_from_old_positions() {
     let log = Arc::new(Mutex::new(Vec::new()));
-    let info = DeviceInfo {
-        model: "late".into(),
-        serial_number: String::new(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        workspace_min_m: DVec3::splat(-0.1),
-        workspace_max_m: DVec3::splat(0.1),
-        max_force_n: 2.0,
-        max_stiffness_n_per_m: 1000.0,
-        max_speed_m_per_s: 5.0,
-        reports_velocity: false,
-        state_rates_hz: Vec::new(),
-    };
-    let config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 10_000,
-            ..SafetyConfig::default()
-        },
-        max_consecutive_errors: 1000,
-        link_timeout_us: 1_000_000,
-        ..SupervisorConfig::default()
-    };
-    let bound = config.stale_state_ticks;
+    let bound = SupervisorConfig::default().stale_state_ticks;
     assert_eq!(bound, 3, "docs/safety.md documents 3 periods");
-    let mut device = Some(LateDevice {
-        info,
+    let mut supervisor = late_supervisor(LateDevice {
+        info: late_info(),
         script: late_script,
         reads: 0,
-        information_age: u32::MAX,
-        last_age: 0,
+        ages: Ages::new(),
         log: log.clone(),
     });
-    let mut supervisor = Supervisor::new(config, move || {
-        device.take().ok_or(DeviceError::Open {
-            path: "late".into(),
-            message: "opened once".into(),
-        })
-    })
-    .unwrap();
-    supervisor.connect(0).unwrap();
     let first = supervisor.tick(TickInput::at(DVec3::ZERO, 0)).state;
     let (samples, _, _) = run_loop(Box::new(supervisor), first, 600);
     let mut stale = 0;

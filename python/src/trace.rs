@@ -272,6 +272,8 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     row.cause(s.truth.force_off_cause);
     row.u64(u64::from(s.truth.device_fault_bits));
     row.u64(u64::from(s.truth.sample_age_ticks));
+    row.f64(energy.passivity_dissipated_j);
+    row.vector(s.truth.device_force_n.unwrap_or(glam::DVec3::NAN));
     for value in s.truth.external_force_n.to_array() {
         row.f64(value);
     }

@@ -395,3 +395,44 @@ async fn the_hand_target_moves_the_simulated_probe() {
         Value::Null
     );
 }
+
+/// `POST /api/stiffness` with both k and damping is checked whole before anything is applied. The simulated
+/// arm's default `[arm]` damping is b = 1 N s/m at T = 1 ms (docs/safety.md), so the passivity bound leaves
+/// `b - k T/2 = 1 - 1500 * 0.0005 = 0.25 N s/m` of coupling damping at k = 1500 N/m: 0.5 N s/m is refused
+/// there, and the stiffness must stay as it was; at k = 1000 N/m the bound is exactly 0.5 and both apply.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_damping_leaves_the_stiffness_of_the_same_request_unapplied() {
+    let server = TestServer::start(8).await;
+    let before = server.generation();
+    let (_, scene_before) = server.get("/api/scene").await;
+    let (status, answer) = server
+        .post("/api/stiffness", r#"{"k": 1500, "damping": 0.5}"#)
+        .await;
+    assert_eq!(status, 400, "{answer}");
+    let error = answer["error"].as_str().unwrap();
+    assert!(
+        error.contains("damping must be at most 0.25 N s/m") && error.contains("(1500 N/m)"),
+        "{error}"
+    );
+    assert_eq!(
+        server.generation(),
+        before,
+        "the refused request changed the scene"
+    );
+    assert_eq!(server.get("/api/scene").await.1, scene_before);
+
+    let mut ws = server.ws("rate=100").await;
+    let (status, reply) = server
+        .post("/api/stiffness", r#"{"k": 1000, "damping": 0.5}"#)
+        .await;
+    assert_eq!(status, 200, "{reply}");
+    let message = reply["message"].as_str().unwrap();
+    assert!(
+        message.contains("stiffness set to 1000 N/m")
+            && message.contains("damping set to 0.5 N s/m"),
+        "{message}"
+    );
+    let state = state_with_generation(&mut ws, reply["scene_generation"].as_u64().unwrap()).await;
+    assert_eq!(state["stiffness_n_per_m"], 1000.0);
+    assert_eq!(state["damping_n_s_per_m"], 0.5);
+}

@@ -157,6 +157,7 @@ async fn the_page_and_the_read_endpoints() {
         "active_work_j",
         "device_dissipation_j",
         "net_generated_j",
+        "passivity_dissipated_j",
         "largest_rise_j",
     ] {
         assert!(energy[key].as_f64().unwrap().is_finite(), "{key}: {energy}");

@@ -356,6 +356,10 @@ pub enum ControlCommand {
     SetStiffness { k: f64 },
     /// Coupling damping b (N s/m), finite, >= 0.
     SetDamping { damping: f64 },
+    /// Stiffness and damping together (`POST /api/stiffness` with both): both are checked, the damping against
+    /// the new stiffness, before either is applied; a refusal changes nothing. Not a wire command.
+    #[serde(skip)]
+    SetCoupling { k: f64, damping: f64 },
     /// Replace the transfer function of the mode named `mode`.
     SetTransfer {
         mode: String,

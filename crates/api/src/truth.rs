@@ -116,6 +116,9 @@ pub struct TickEnergy {
     pub device_dissipation_j: f64,
     /// Generated, less active work and device dissipation.
     pub net_generated_j: f64,
+    /// Work the passivity controller's damping took from the probe since the run started (0 with the
+    /// controller off or observing).
+    pub passivity_dissipated_j: f64,
 }
 
 /// One tick's truth (module docs). `Copy`, fixed size.
@@ -130,6 +133,10 @@ pub struct TickTruth {
     /// Age of the device state this tick rendered from (servo periods, counted from the force it
     /// answers): 0 for a state that answers the previous tick's force. Drivers that cannot tell report 0.
     pub sample_age_ticks: u32,
+    /// The force the device itself reports reached the arm, with this tick's state (N, scene frame): the
+    /// Haply Inverse3's `current_cursor_force`, after the Inverse Service's own filters. `None` for devices
+    /// that report none, and on ticks without a state.
+    pub device_force_n: Option<DVec3>,
     /// The external force added to the rendered force this tick (N, scene frame; `serve --external-force`):
     /// zero when the input is off, nothing was sent, the last force is older than the staleness timeout, or
     /// the tick had no device state to render from.
@@ -159,8 +166,8 @@ impl EnergyReport {
     pub fn summary(&self) -> String {
         format!(
             "energy: work on probe {:.6} J, coupling {:.6} J, generated {:.6} J, active work {:.6} J, \
-             device dissipation {:.6} J, net generated {:.6} J (largest rise {:.6} J{}), contacts {}, \
-             longest undecaying contact run {}{}\n",
+             device dissipation {:.6} J, net generated {:.6} J (largest rise {:.6} J{}), passivity \
+             controller dissipated {:.6} J, contacts {}, longest undecaying contact run {}{}\n",
             self.totals.work_on_probe_j,
             self.totals.coupling_energy_j,
             self.totals.generated_j,
@@ -169,6 +176,7 @@ impl EnergyReport {
             self.totals.net_generated_j,
             self.largest_rise_j,
             if self.active { ": active" } else { "" },
+            self.totals.passivity_dissipated_j,
             self.contacts,
             self.longest_cycle_run,
             if self.oscillating { ": oscillation" } else { "" },

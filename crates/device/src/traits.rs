@@ -53,6 +53,13 @@ pub trait HapticDevice {
         0
     }
 
+    /// The force the device itself reports reached the arm with the state the last `read_state` returned
+    /// (N, device frame): the Haply Inverse3's `current_cursor_force`. `None` (the default) for devices that
+    /// report none. Recorded beside the force voxhap sent; allocation-free.
+    fn reported_force_n(&self) -> Option<DVec3> {
+        None
+    }
+
     /// The host's verdict on the state the last `read_state` returned: `accepted` is false when the input checks
     /// (`plausibility`) rejected its position (held at the last accepted one, or unusable). The supervisor calls
     /// it every tick on which `read_state` returned a state, after checking it and before the next

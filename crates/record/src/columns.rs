@@ -311,10 +311,31 @@ mod tests {
         sample.truth.force_off_cause = voxhap_api::ForceOffCause::StaleLink;
         sample.truth.device_fault_bits = 0b100;
         sample.truth.sample_age_ticks = 4;
+        sample.truth.energy.passivity_dissipated_j = 0.125;
+        sample.truth.device_force_n = Some(DVec3::new(0.5, -1.25, 2.0));
         let mut row = Vec::new();
         cells(&sample, 2, 1_000, &mut row);
         assert_eq!(row.len(), columns(&["a".into(), "b".into()]).len());
         assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
         assert!(sample_from_cells(&row, 2, Some(5)).is_err());
+        // The last four columns: what the controller dissipated, then the device's own force.
+        let last: Vec<Cell> = row[row.len() - 4..].to_vec();
+        assert_eq!(
+            last,
+            [
+                Cell::F64(0.125),
+                Cell::F64(0.5),
+                Cell::F64(-1.25),
+                Cell::F64(2.0)
+            ]
+        );
+        // A device that reports no force: NaN in each column, and none again when read back.
+        sample.truth.device_force_n = None;
+        row.clear();
+        cells(&sample, 2, 1_000, &mut row);
+        assert!(row[row.len() - 3..]
+            .iter()
+            .all(|c| matches!(c, Cell::F64(v) if v.is_nan())));
+        assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
     }
 }

@@ -405,13 +405,13 @@ fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError
         });
     }
     if fields.contains(&crate::truth_columns::FORCE_OFF_CAUSE)
-        && !fields.contains(&crate::truth_columns::EXTERNAL_FORCE[0])
+        && !fields.contains(&crate::truth_columns::PASSIVITY_COLUMN.0)
     {
         return Err(TraceReadError::OldFormat {
             path: path.to_path_buf(),
             found: 3,
             expected: TRACE_FORMAT_VERSION,
-            hint: "it has no external force columns",
+            hint: "it has no passivity_dissipated_j, device_force or external_force columns",
         });
     }
     if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {

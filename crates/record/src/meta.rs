@@ -21,7 +21,9 @@ use voxhap_core::haptics::modes::MAX_MODES;
 /// Version 2 added the velocity, rendered force, per-mode force, solver status, device sequence and time,
 /// UTC and per-flag columns and renamed `flags` to `flag_bits`. Version 3 added the tick's truth after the
 /// flag columns: the energy ledger, the force-off cause, the device's fault bits and the age of the rendered
-/// sample. Version 4 (this one) added the external force columns after them.
+/// sample. Version 4 (this one) added, after those, what the passivity controller dissipated, the force
+/// the device itself reports (`device_force_<axis>_n`, NaN where none) and the external force added to the
+/// rendered force (`external_force_<axis>_n`).
 pub const TRACE_FORMAT_VERSION: u32 = 4;
 
 /// What a run was: written into the sidecar and the MCAP metadata record.

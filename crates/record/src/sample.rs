@@ -248,11 +248,19 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
         e.active_work_j,
         e.device_dissipation_j,
         e.net_generated_j,
+        e.passivity_dissipated_j,
     ];
     if !energy.iter().all(|j| j.is_finite()) {
         return Err(TraceError::NonFinite {
             tick,
             field: "energy",
+        });
+    }
+    // The device's own force is absent (NaN in the tabular formats) or finite.
+    if !sample.truth.device_force_n.is_none_or(|f| f.is_finite()) {
+        return Err(TraceError::NonFinite {
+            tick,
+            field: "device_force_n",
         });
     }
     if !sample.mode_forces().iter().all(|f| f.is_finite()) {

@@ -80,11 +80,14 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                         active_work_j: 0.0,
                         device_dissipation_j: 2.5e-6 * i as f64,
                         net_generated_j: -1e-7 * (i as f64).sqrt(),
+                        passivity_dissipated_j: 3e-6 * i as f64,
                     },
                     force_off_cause: voxhap_api::ForceOffCause::ALL
                         [(i % voxhap_api::ForceOffCause::ALL.len() as u64) as usize],
                     device_fault_bits: (i % 5) as u16,
                     sample_age_ticks: (i % 4) as u32,
+                    device_force_n: (i % 3 != 1)
+                        .then(|| glam::DVec3::new(0.1 * i as f64, -0.0, 1.5e-9)),
                     external_force_n: glam::DVec3::new(
                         0.25 * (i % 3) as f64,
                         -1.5,

@@ -1,13 +1,16 @@
 //! The tick's truth in the tabular formats (CSV, Parquet; the sidecar's column list): the energy ledger's
-//! totals, the force-off cause, the device's latched faults, the age of the rendered sample and the external
-//! force added to the rendered force. One place
-//! for every column added after the flag columns, so a new one appears in every tabular format at once;
-//! MCAP carries the same values in the solver message's `truth` object (`mcap_trace.rs`).
+//! totals, the force-off cause, the device's latched faults, the age of the rendered sample, what the
+//! passivity controller dissipated, the force the device itself reports and the external force added to the
+//! rendered force. One place for every column added after the flag columns, so a new one appears in every
+//! tabular format at once; MCAP carries the same values in the solver message's `truth` object
+//! (`mcap_trace.rs`).
 //!
-//! These columns come last (after `flag_<name>`), so the columns before them keep their places.
+//! These columns come last (after `flag_<name>`), so the columns before them keep their places; format 4's
+//! (`passivity_dissipated_j`, `device_force_<axis>_n`, `external_force_<axis>_n`) come after format 3's.
 
 use crate::cell::{col, Cell, CellError, ColumnDoc, ColumnType};
 use crate::sample::TraceSample;
+use glam::DVec3;
 use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
 
 /// The energy columns: name, meaning, and the field they hold.
@@ -21,7 +24,8 @@ const ENERGY_COLUMNS: [EnergyColumn; 6] = [
     ),
     (
         "coupling_energy_j",
-        "energy the coupling spring holds at this tick, k/2 |proxy - probe|^2",
+        "energy the coupling spring holds at this tick that the sent force can give back, \
+         s^2 k/2 |proxy - probe|^2 with s the share of the rendered force that was sent (1 in a sim)",
         |e| &mut e.coupling_energy_j,
     ),
     (
@@ -45,6 +49,34 @@ const ENERGY_COLUMNS: [EnergyColumn; 6] = [
         |e| &mut e.net_generated_j,
     ),
 ];
+
+/// The column of what the passivity controller dissipated (format 4).
+pub(crate) const PASSIVITY_COLUMN: EnergyColumn = (
+    "passivity_dissipated_j",
+    "work the passivity controller's damping took from the probe since the run started; 0 with the \
+     controller off or observing",
+    |e| &mut e.passivity_dissipated_j,
+);
+
+/// The columns of the force the device reports reached the arm (format 4), x, y, z.
+const DEVICE_FORCE_COLUMNS: [&str; 3] =
+    ["device_force_x_n", "device_force_y_n", "device_force_z_n"];
+
+/// What the device-force columns hold.
+const DEVICE_FORCE_MEANING: &str = "force the device itself reports reached the arm with this tick's state \
+     (the Haply Inverse3's current_cursor_force, after the Inverse Service's filters), scene frame; NaN where \
+     the device reports none";
+
+/// The cells of the device's reported force: its components, or NaN for none.
+fn device_force_cells(force: Option<DVec3>) -> [f64; 3] {
+    force.map_or([f64::NAN; 3], |f| f.to_array())
+}
+
+/// The device's reported force from its cells: none when a component is not a number.
+fn device_force_from_cells(cells: [f64; 3]) -> Option<DVec3> {
+    let force = DVec3::from_array(cells);
+    (!force.is_nan()).then_some(force)
+}
 
 /// Name of the force-off cause column.
 pub(crate) const FORCE_OFF_CAUSE: &str = "force_off_cause";
@@ -90,6 +122,11 @@ pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
             U64,
         ),
     ]);
+    let (name, meaning, _) = PASSIVITY_COLUMN;
+    c.push(col(name, "J", meaning, F64));
+    for name in DEVICE_FORCE_COLUMNS {
+        c.push(col(name, "N", DEVICE_FORCE_MEANING, F64));
+    }
     for name in EXTERNAL_FORCE {
         c.push(col(name, "N", EXTERNAL_FORCE_MEANING, F64));
     }
@@ -104,6 +141,8 @@ pub(crate) fn truth_cells(sample: &TraceSample, out: &mut Vec<Cell>) {
     out.push(Cell::Text(sample.truth.force_off_cause.name()));
     out.push(Cell::U64(u64::from(sample.truth.device_fault_bits)));
     out.push(Cell::U64(u64::from(sample.truth.sample_age_ticks)));
+    out.push(Cell::F64(*(PASSIVITY_COLUMN.2)(&mut energy)));
+    out.extend(device_force_cells(sample.truth.device_force_n).map(Cell::F64));
     for value in sample.truth.external_force_n.to_array() {
         out.push(Cell::F64(value));
     }
@@ -139,12 +178,13 @@ pub(crate) fn truth_from_cells(
         }
         (i, _) => return Err(err(i, "not an unsigned 32-bit integer")),
     };
-    for axis in 0..3 {
-        truth.external_force_n[axis] = match next() {
-            (_, Cell::F64(v)) => v,
-            (i, _) => return Err(err(i, "not a number")),
-        };
-    }
+    let mut number = || match next() {
+        (_, Cell::F64(v)) => Ok(v),
+        (i, _) => Err(err(i, "not a number")),
+    };
+    *(PASSIVITY_COLUMN.2)(&mut truth.energy) = number()?;
+    truth.device_force_n = device_force_from_cells([number()?, number()?, number()?]);
+    truth.external_force_n = DVec3::new(number()?, number()?, number()?);
     Ok(truth)
 }
 
@@ -168,6 +208,10 @@ pub(crate) struct TruthMessage {
     force_off_cause: &'static str,
     device_fault_bits: u16,
     sample_age_ticks: u32,
+    passivity_dissipated_j: f64,
+    /// Omitted where the device reports none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    device_force_n: Option<[f64; 3]>,
     external_force_n: [f64; 3],
 }
 
@@ -184,6 +228,8 @@ impl TruthMessage {
             force_off_cause: truth.force_off_cause.name(),
             device_fault_bits: truth.device_fault_bits,
             sample_age_ticks: truth.sample_age_ticks,
+            passivity_dissipated_j: e.passivity_dissipated_j,
+            device_force_n: truth.device_force_n.map(|f| f.to_array()),
             external_force_n: truth.external_force_n.to_array(),
         }
     }
@@ -201,6 +247,10 @@ pub(crate) struct TruthMessageOwned {
     force_off_cause: String,
     device_fault_bits: u16,
     sample_age_ticks: u32,
+    passivity_dissipated_j: Option<f64>,
+    /// Absent where the device reports none; a non-finite component is `null`.
+    #[serde(default)]
+    device_force_n: Option<[Option<f64>; 3]>,
     external_force_n: [Option<f64>; 3],
 }
 
@@ -216,11 +266,15 @@ impl TruthMessageOwned {
                 active_work_j: v(self.active_work_j),
                 device_dissipation_j: v(self.device_dissipation_j),
                 net_generated_j: v(self.net_generated_j),
+                passivity_dissipated_j: v(self.passivity_dissipated_j),
             },
             force_off_cause: ForceOffCause::from_name(&self.force_off_cause)
                 .ok_or_else(|| self.force_off_cause.clone())?,
             device_fault_bits: self.device_fault_bits,
             sample_age_ticks: self.sample_age_ticks,
+            device_force_n: self
+                .device_force_n
+                .and_then(|f| device_force_from_cells(f.map(v))),
             external_force_n: self.external_force_n.map(v).into(),
         })
     }
@@ -248,14 +302,28 @@ pub(crate) fn truth_schema() -> serde_json::Value {
         "sample_age_ticks".to_owned(),
         serde_json::json!({"type": "integer", "minimum": 0, "description": "age of the rendered device state (servo periods)"}),
     );
+    let (name, meaning, _) = PASSIVITY_COLUMN;
+    properties.insert(
+        name.to_owned(),
+        serde_json::json!({"type": "number", "description": format!("{meaning} (J)")}),
+    );
     properties.insert(
         "external_force_n".to_owned(),
         serde_json::json!({"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": format!("{EXTERNAL_FORCE_MEANING} (N, x y z)")}),
     );
     let required: Vec<String> = properties.keys().cloned().collect();
+    properties.insert(
+        "device_force_n".to_owned(),
+        serde_json::json!({
+            "type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
+            "description": "force the device itself reports reached the arm [x, y, z] (N, scene frame; the Haply \
+                            Inverse3's current_cursor_force); omitted = the device reports none"
+        }),
+    );
     serde_json::json!({
         "type": "object",
-        "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age, external force",
+        "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age, passivity \
+                        controller, the device's own force, the external force",
         "properties": properties,
         "required": required,
     })

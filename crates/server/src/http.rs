@@ -329,23 +329,19 @@ async fn stiffness(
 ) -> Response {
     let decode: Decode = Box::new(|value| {
         let body: StiffnessBody = decode_value(value)?;
-        if body.k.is_none() && body.damping.is_none() {
-            return Err(MessageError::NoStiffness);
-        }
-        // Checked before k is applied, so a bad damping does not leave a changed k behind.
         if let Some(damping) = body.damping {
             if !(damping.is_finite() && damping >= 0.0) {
                 return Err(MessageError::Damping(damping));
             }
         }
-        let mut commands = Vec::with_capacity(2);
-        if let Some(k) = body.k {
-            commands.push(ControlCommand::SetStiffness { k });
-        }
-        if let Some(damping) = body.damping {
-            commands.push(ControlCommand::SetDamping { damping });
-        }
-        Ok(commands)
+        // Both given: one command, checked whole before anything is applied (the damping's bound depends
+        // on the new stiffness), so a refused damping does not leave a changed k behind.
+        Ok(vec![match (body.k, body.damping) {
+            (Some(k), Some(damping)) => ControlCommand::SetCoupling { k, damping },
+            (Some(k), None) => ControlCommand::SetStiffness { k },
+            (None, Some(damping)) => ControlCommand::SetDamping { damping },
+            (None, None) => return Err(MessageError::NoStiffness),
+        }])
     });
     control_request(&shared, &headers, body, false, decode).await
 }

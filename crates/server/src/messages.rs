@@ -456,6 +456,9 @@ impl CommandWire {
                 CommandWire::SetHandTarget { position_m }
             }
             ControlCommand::ClearFault => CommandWire::ClearFault {},
+            ControlCommand::SetCoupling { .. } => {
+                unreachable!("set_coupling is not a wire command")
+            }
             ControlCommand::SetExternalForce { force_n } => {
                 CommandWire::SetExternalForce { force_n }
             }

@@ -262,6 +262,21 @@ impl SessionShared {
         })
     }
 
+    /// `damping` if it is valid and within the passivity bound at stiffness `k` (N/m).
+    fn check_damping_at(&self, damping: f64, k: f64) -> Result<f64, ControlError> {
+        let damping = commands::check_damping(damping)?;
+        let cap = self.coupling_caps.max_damping_n_s_per_m(k);
+        if damping > cap {
+            let caps = &self.coupling_caps;
+            return Err(invalid(format!(
+                "damping must be at most {cap} N s/m with the stiffness in use ({k} N/m): the \
+                 passivity bound b - k T/2 with the device's b = {} N s/m and T = {} s, got {damping}",
+                caps.device_damping_n_s_per_m, caps.period_s
+            )));
+        }
+        Ok(damping)
+    }
+
     fn refuse_while_recording(control: &Control, what: &str) -> Result<(), ControlError> {
         match &control.recording {
             Some(path) => Err(ControlError::Conflict(format!(
@@ -285,22 +300,25 @@ impl SessionShared {
                 self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
             }
             ControlCommand::SetDamping { damping } => {
-                let damping = commands::check_damping(damping)?;
                 let k = control.setup.stiffness_n_per_m;
-                let cap = self.coupling_caps.max_damping_n_s_per_m(k);
-                if damping > cap {
-                    let caps = &self.coupling_caps;
-                    return Err(invalid(format!(
-                        "damping must be at most {cap} N s/m with the stiffness in use ({k} N/m): the \
-                         passivity bound b - k T/2 with the device's b = {} N s/m and T = {} s, got {damping}",
-                        caps.device_damping_n_s_per_m, caps.period_s
-                    )));
-                }
+                let damping = self.check_damping_at(damping, k)?;
                 self.coupling(
                     control,
                     k,
                     damping,
                     format!("damping set to {damping} N s/m"),
+                )
+            }
+            ControlCommand::SetCoupling { k, damping } => {
+                // The whole request is checked before anything is applied: a refused damping leaves the
+                // stiffness as it was.
+                let k = commands::check_stiffness(k, self.max_stiffness_n_per_m, "the device's")?;
+                let damping = self.check_damping_at(damping, k)?;
+                self.coupling(
+                    control,
+                    k,
+                    damping,
+                    format!("stiffness set to {k} N/m; damping set to {damping} N s/m"),
                 )
             }
             ControlCommand::SetTransfer { mode, transfer } => {

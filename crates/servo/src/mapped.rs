@@ -132,6 +132,12 @@ impl ServoDevice for MappedDevice {
         self.inner.state_age_ticks()
     }
 
+    fn reported_force_n(&self) -> Option<DVec3> {
+        self.inner
+            .reported_force_n()
+            .map(|force| self.mapping.to_scene_force_n(force))
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.inner.request_clear_fault()
     }

@@ -24,7 +24,7 @@
 //! [`MockWaiter`]: super::schedule::MockWaiter
 
 use super::device::ServoDevice;
-use super::energy::EnergyLedger;
+use super::energy::{EnergyLedger, SentShare};
 use super::external_force::ExternalForceReceiver;
 use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
@@ -133,8 +133,8 @@ pub struct ServoLoop {
     force_off: ForceOffTracker,
     /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
-    /// The share of last tick's rendered force that the safety pipeline sent (0 before engaging, 1 when all).
-    sent_share: f64,
+    /// The share of last tick's rendered force that the safety pipeline sent (crate::energy).
+    sent_share: SentShare,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
     transition: CouplingTransition,
     /// A command changed the coupling or the scene at the start of this tick.
@@ -186,7 +186,7 @@ impl ServoLoop {
             scene_frame_every_ticks: scene_frame_interval_ticks(timing.period_ns),
             ledger: EnergyLedger::new(caps.device_damping_n_s_per_m),
             force_off: ForceOffTracker::default(),
-            sent_share: 0.0,
+            sent_share: SentShare::NOTHING,
             passivity: PassivityController::new(
                 PassivityMode::Off,
                 &PassivitySettings::default(),
@@ -395,16 +395,16 @@ impl ServoLoop {
         } else {
             rendered_n += external_n;
             // The passivity controller, before the safety pipeline (docs/safety.md). Its reference is the
-            // share of the spring's energy that the force sent can give back (as in the energy ledger): while
-            // the pipeline sends nothing (before engaging) a spring stretched by a moving handle is no energy
-            // generated, and a controller damping then would keep the rendered force above the engage
-            // threshold on a handle that keeps moving.
+            // energy the force sent can give back, as the energy ledger books it (at last tick's share, the
+            // latest known): while the pipeline sends nothing (before engaging) a spring stretched by a moving
+            // handle is no energy generated, and a controller damping then would keep the rendered force
+            // above the engage threshold on a handle that keeps moving.
             let share = self.sent_share;
-            let reference_j = 0.5 * k * (anchor_m - probe_m).length_squared() * share * share;
+            let reference_j = share.spring_energy_j(k, anchor_m - probe_m);
             let control_n =
                 self.passivity
                     .observe_and_control(probe_m, probe_velocity, reference_j, dt_s);
-            if control_n != DVec3::ZERO && share > 0.0 {
+            if control_n != DVec3::ZERO && share.fraction() > 0.0 {
                 rendered_n += control_n;
             }
         }
@@ -438,12 +438,7 @@ impl ServoLoop {
         });
         self.last_safe_force_n = device_out.sent_force_n;
         self.passivity.sent(rendered_n, device_out.sent_force_n);
-        let rendered_magnitude = rendered_n.length();
-        self.sent_share = if rendered_magnitude > 0.0 {
-            (device_out.sent_force_n.length() / rendered_magnitude).min(1.0)
-        } else {
-            1.0
-        };
+        self.sent_share = SentShare::of(device_out.sent_force_n, rendered_n);
         if device_out.state.is_some() {
             self.last_state = device_out.state;
         }
@@ -461,6 +456,8 @@ impl ServoLoop {
                 t_s,
                 dt_s,
                 probe_m,
+                stretch_m: anchor_m - probe_m,
+                k_n_per_m: k,
                 rendered_from_state,
                 sample_age_ticks,
                 force_replaced: flags & FLAG_NON_FINITE_REPLACED != 0,
@@ -594,6 +591,9 @@ impl ServoLoop {
         out: &voxhap_core::haptics::tick::TickOutput,
         input: TruthInput,
     ) -> TickTruth {
+        // What the passivity controller dissipated so far is part of the ledger (crate::energy).
+        self.ledger
+            .book_passivity(self.passivity.totals().dissipated_j);
         let totals = if input.rendered_from_state {
             // The directed-force modes' share of the force is intended work (crate::energy).
             // The external force is meant to do work too.
@@ -603,22 +603,10 @@ impl ServoLoop {
                     active_n += force;
                 }
             }
-            // The spring holds what the force actually sent can give back: while the safety pipeline sends
-            // less than the tick rendered (not engaged, ramping in, limited), the stored energy shrinks with the
-            // square of that share (|F_sent|^2 / 2k for a pure spring). Booking the whole virtual spring would
-            // count a probe pressed deeper before engaging as energy generated.
-            let stretch_m = out.proxy_m - input.probe_m;
-            let rendered_n = out.force_n.length();
-            let share = if rendered_n > 0.0 {
-                (device_out.sent_force_n.length() / rendered_n).min(1.0)
-            } else {
-                1.0
-            };
-            let coupling_j = 0.5
-                * self.bundle.scene.stiffness_n_per_m()
-                * stretch_m.length_squared()
-                * share
-                * share;
+            // The spring holds what the force actually sent can give back (crate::energy::SentShare).
+            let coupling_j = self
+                .sent_share
+                .spring_energy_j(input.k_n_per_m, input.stretch_m);
             self.ledger.record(
                 input.t_s,
                 input.dt_s,
@@ -639,6 +627,10 @@ impl ServoLoop {
                 .cause(device_out, out.status, input.force_replaced),
             device_fault_bits: device_out.active_faults,
             sample_age_ticks: input.sample_age_ticks,
+            // The device's own report comes with a state: none on ticks without one.
+            device_force_n: device_out
+                .state
+                .and_then(|_| self.device.reported_force_n()),
             external_force_n: input.external_force_n,
         }
     }
@@ -726,6 +718,9 @@ struct TruthInput {
     dt_s: f64,
     /// The probe position the tick rendered from.
     probe_m: DVec3,
+    /// The coupling spring's stretch this tick (anchor less probe) and its stiffness.
+    stretch_m: DVec3,
+    k_n_per_m: f64,
     /// The tick had a device state to render from (else the ledger books a gap).
     rendered_from_state: bool,
     sample_age_ticks: u32,

@@ -283,7 +283,8 @@ fn energy_schema() -> serde_json::Value {
             "generated_j": joules("energy the renderer generated"),
             "active_work_j": joules("work of the directed-force modes"),
             "device_dissipation_j": joules("the least the device's damping dissipated"),
-            "net_generated_j": joules("generated less active work and device dissipation")
+            "net_generated_j": joules("generated less active work and device dissipation"),
+            "passivity_dissipated_j": joules("work the passivity controller's damping took from the probe")
         }
     })
 }

@@ -280,6 +280,10 @@ impl HapticDevice for HaplyInverse {
         self.state_age_ticks
     }
 
+    fn reported_force_n(&self) -> Option<DVec3> {
+        self.arm_force_n
+    }
+
     fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
         Some(crate::latency::HAPLY_INVERSE)
     }

@@ -325,6 +325,12 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         self.supervisor.state_age_ticks()
     }
 
+    fn reported_force_n(&self) -> Option<glam::DVec3> {
+        self.supervisor
+            .device()
+            .and_then(|device| device.device().reported_force_n())
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.supervisor.request_clear_fault()
     }

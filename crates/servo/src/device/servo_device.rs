@@ -2,6 +2,7 @@
 
 use super::error::ConnectError;
 use crate::monitor::StopSlot;
+use glam::DVec3;
 use std::sync::Arc;
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_device::plausibility::InputCounters;
@@ -54,6 +55,11 @@ pub trait ServoDevice: Send {
     fn workspace_mapping(&self) -> WorkspaceMapping {
         WorkspaceMapping::IDENTITY
     }
+    /// The force the connected device reports reached the arm with its last state (N;
+    /// `HapticDevice::reported_force_n`), `None` when it reports none. Allocation-free.
+    fn reported_force_n(&self) -> Option<DVec3> {
+        None
+    }
 }
 
 impl<D, F> ServoDevice for Supervisor<D, F>
@@ -83,6 +89,11 @@ where
 
     fn state_age_ticks(&self) -> u32 {
         Supervisor::state_age_ticks(self)
+    }
+
+    fn reported_force_n(&self) -> Option<DVec3> {
+        self.device()
+            .and_then(|device| device.device().reported_force_n())
     }
 
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {

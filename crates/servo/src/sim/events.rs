@@ -162,6 +162,13 @@ pub fn plan(
                 damping_n_s_per_m = commands::check_damping(*damping).map_err(command)?;
                 format!("damping set to {damping_n_s_per_m} N s/m")
             }
+            ControlCommand::SetCoupling { k, damping } => {
+                let k = commands::check_stiffness(*k, STIFFNESS_RANGE_N_PER_M.1, "the scene file's")
+                    .map_err(command)?;
+                damping_n_s_per_m = commands::check_damping(*damping).map_err(command)?;
+                stiffness_n_per_m = k;
+                format!("stiffness set to {k} N/m; damping set to {damping_n_s_per_m} N s/m")
+            }
             ControlCommand::SetTransfer { mode, transfer } => {
                 commands::set_transfer(&mut modes, mode, transfer.clone()).map_err(command)?
             }

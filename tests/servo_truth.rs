@@ -113,6 +113,7 @@ impl ServoDevice for ScriptedDevice {
             output_state,
             active_faults,
             events: EventList::default(),
+            local: None,
         }
     }
     fn counters(&self) -> SupervisorCounters {

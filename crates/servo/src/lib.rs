@@ -21,6 +21,7 @@ pub mod device;
 pub mod energy;
 pub mod force_off;
 mod join;
+pub mod local_model;
 pub mod mapped;
 pub mod monitor;
 pub mod passivity;

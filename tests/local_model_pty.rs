@@ -6,11 +6,11 @@
 //! machine's load is asserted: the log's times are the device's own.
 
 use crate::util::mock_process::MockProcess as Mock;
+use glam::DVec3;
 use serialport::SerialPort;
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
-use glam::DVec3;
 use voxhap::device::supervisor::{SupervisorConfig, TickInput};
 use voxhap_protocol::{
     encode_frame, DeviceToHost, Enable, FrameDecoder, Heartbeat, HostSession, HostToDevice,

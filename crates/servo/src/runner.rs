@@ -414,12 +414,8 @@ impl ServoLoop {
         let sample_age_ticks = self.device.state_age_ticks();
         let exchange_start_ns = waiter.now_ns();
         // The tick's local model: a capable device renders it itself at its own rate (crate::local_model).
-        let local = crate::local_model::offer(
-            self.bundle.workspace.primitives(),
-            k,
-            damping,
-            out.proxy_m,
-        );
+        let local =
+            crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m);
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
             now_us,

@@ -420,7 +420,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
                         match candidate.take() {
                             Some(info) if ours && open => {
                                 this.info = convert_info(&info);
-                                this.local_capable = reply.status.contains(StatusFlags::LOCAL_MODEL);
+                                this.local_capable =
+                                    reply.status.contains(StatusFlags::LOCAL_MODEL);
                                 this.last_local = None;
                                 return Ok(Some(()));
                             }

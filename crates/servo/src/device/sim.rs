@@ -17,7 +17,7 @@
 use crate::mapped::SceneMappingSlot;
 use glam::DVec3;
 use voxhap_device::local_offer::{LocalOffer, LocalReport, OFFER_EXPIRY_US};
-use voxhap_device::sim::{SimArm, SimArmConfig, SimError};
+use voxhap_device::sim::{LocalModelSim, SimArm, SimArmConfig, SimError};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use voxhap_local::{LocalLoop, LoopConfig};
 use voxhap_protocol::{
@@ -40,8 +40,8 @@ struct SimLocal {
 /// Why a simulated local loop cannot run at the rate asked.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[error(
-    "local_model rate_hz: {rate_hz} Hz must be a whole multiple of the servo rate ({servo_hz} Hz) \
-     and at most 100 000 Hz"
+    "local_model.rate_hz: {rate_hz} Hz must be a whole multiple of the servo rate ({servo_hz} Hz), \
+     at most 100000 Hz, with a whole number of microseconds per cycle"
 )]
 pub struct LocalRateError {
     /// What was asked.
@@ -149,14 +149,10 @@ impl SimDevice {
     /// multiple of the servo rate, at most 100 kHz); see the module docs.
     pub fn with_local_model(mut self, rate_hz: f64) -> Result<SimDevice, LocalRateError> {
         let servo_hz = 1.0 / self.dt_s;
-        let cycles = (rate_hz / servo_hz).round();
-        let exact = ((cycles * servo_hz) - rate_hz).abs() <= 1e-6 * rate_hz;
-        let cycle_us = self.dt_s * 1e6 / cycles;
-        if !(rate_hz.is_finite() && (1.0..=1e5).contains(&cycles) && rate_hz <= 1e5 && exact)
-            || (cycle_us - cycle_us.round()).abs() > 1e-6
-        {
+        let Some(cycles) = (LocalModelSim { rate_hz }).cycles_per_period(servo_hz) else {
             return Err(LocalRateError { rate_hz, servo_hz });
-        }
+        };
+        let cycle_us = (1e6 / rate_hz).round();
         let info = voxhap_protocol::DeviceInfo {
             version: PROTOCOL_VERSION,
             model: Label::new("voxhap-sim").unwrap_or_default(),
@@ -177,7 +173,7 @@ impl SimDevice {
         while session.poll_transmit().is_some() {}
         let cycle_us = cycle_us.round() as u64;
         self.local = Some(Box::new(SimLocal {
-            cycles_per_period: cycles as u32,
+            cycles_per_period: cycles,
             cycle_us,
             now_us: 0,
             host,
@@ -449,7 +445,7 @@ mod tests {
         assert!(device().with_local_model(10_000.0).is_ok());
         for bad in [1500.0, 0.0, -1000.0, f64::NAN, 200_000.0, 3_000.0 * 1.0001] {
             let error = device().with_local_model(bad).err().unwrap();
-            assert!(error.to_string().contains("local_model rate_hz"), "{error}");
+            assert!(error.to_string().contains("local_model.rate_hz"), "{error}");
         }
     }
 

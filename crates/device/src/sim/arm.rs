@@ -315,9 +315,11 @@ impl LocalModelSim {
     /// microseconds (the device loop's clock).
     pub fn cycles_per_period(&self, servo_hz: f64) -> Option<u32> {
         let rate_hz = self.rate_hz;
-        if !(rate_hz.is_finite() && servo_hz.is_finite() && servo_hz > 0.0)
-            || !(servo_hz..=MAX_LOCAL_RATE_HZ).contains(&rate_hz)
-        {
+        let in_range = rate_hz.is_finite()
+            && servo_hz.is_finite()
+            && servo_hz > 0.0
+            && (servo_hz..=MAX_LOCAL_RATE_HZ).contains(&rate_hz);
+        if !in_range {
             return None;
         }
         let cycles = (rate_hz / servo_hz).round();

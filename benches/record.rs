@@ -28,6 +28,7 @@ fn arm(path: HandPath, substeps_per_tick: u32) -> SimArm {
             damping_n_s_per_m: 8.0,
         },
         path,
+        local_model: None,
     };
     SimArm::new(config, DVec3::ZERO).expect("valid benchmark arm")
 }

@@ -1,14 +1,17 @@
 //! `voxhap mock-device --local-model` over a real pseudo-terminal (protocol/SPEC.md section 10): a host that
 //! sends local models gets them rendered by the device's own loop, and from the device's own log the force never
-//! exceeds the limit and is zero once a silenced host's last model is 5 ms past its expiry; `voxhap serve`, which
-//! does not send local models, drives the capable device through SetForce as before. Only what holds whatever the
+//! exceeds the limit and is zero once a silenced host's last model is 5 ms past its expiry; `voxhap serve` sends
+//! local models to the capable device, which renders a wall with them and ramps out by itself when serve is
+//! killed. Only what holds whatever the
 //! machine's load is asserted: the log's times are the device's own.
 
 use crate::util::mock_process::MockProcess as Mock;
+use glam::DVec3;
 use serialport::SerialPort;
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
+use voxhap::device::supervisor::{SupervisorConfig, TickInput};
 use voxhap_protocol::{
     encode_frame, DeviceToHost, Enable, FrameDecoder, Heartbeat, HostSession, HostToDevice,
     LocalKind, LocalModelParams, SiPrimitive, StatusFlags, MAX_WIRE_FRAME_LEN,
@@ -19,6 +22,7 @@ use voxhap_protocol::{
 struct Cycle {
     t_us: u64,
     mode: String,
+    model_sequence: u32,
     force_n: f64,
     limit_n: f64,
     model_age_us: u64,
@@ -40,6 +44,7 @@ fn read_log(path: &Path) -> Vec<Cycle> {
             Cycle {
                 t_us: f[0].parse().unwrap(),
                 mode: f[1].to_string(),
+                model_sequence: f[4].parse().unwrap(),
                 force_n: f[2].parse().unwrap(),
                 limit_n: f[3].parse().unwrap(),
                 model_age_us: f[5].parse().unwrap(),
@@ -208,41 +213,154 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
     );
 }
 
+/// A wall at x = 10 mm facing -x for `voxhap serve` (the same wall as [`wall`]): the mock's hand presses into
+/// it once per turn of its circle and leaves it for the rest.
+const WALL_SCENE: &str = r#"
+name = "wall"
+k_n_per_m = 500.0
+damping_n_s_per_m = 0.0
+start_m = [0.0, 0.0, 0.0]
+volumes = []
+
+[[modes]]
+kind = "support_plane"
+point_m = [0.01, 0.0, 0.0]
+normal = [-1.0, 0.0, 0.0]
+strength_n = 30.0
+"#;
+
 #[test]
-fn serve_drives_a_capable_mock_through_set_force() {
+fn serve_sends_local_models_to_a_capable_mock_and_its_force_expires_when_serve_dies() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("device.csv");
+    let scene = dir.path().join("wall.toml");
+    std::fs::write(&scene, WALL_SCENE).unwrap();
     let mut mock = Mock::start(&[
         "--pty",
         "--local-model",
         "--duration",
-        "14",
+        "16",
         "--log",
         log.to_str().unwrap(),
     ]);
-    let output = crate::util::serve_headless(&format!("mock:{}", mock.path))
-        .args(["--duration", "10"])
-        .output()
+    // serve's own duration is far beyond the kill: it never stops cleanly (no zero force, no Disable).
+    let mut serve = crate::util::serve_headless(&format!("mock:{}", mock.path))
+        .args(["--scene", scene.to_str().unwrap(), "--duration", "60"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
         .expect("run voxhap serve");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    assert!(output.status.success(), "{text}");
+    std::thread::sleep(Duration::from_secs(9));
+    // SIGKILL: the host goes silent mid-stream, as a crashed host or a pulled cable would.
+    serve.kill().unwrap();
+    serve.wait().unwrap();
     let done = wait_for_done(&mut mock);
     assert!(done.starts_with("done:"), "{done}");
     let cycles = read_log(&log);
-    // A host that does not send local models: the capable device is driven through SetForce only.
+
+    // serve sent local models (SPEC 10.1: only to a device that reports LOCAL_MODEL), with serve's force
+    // limit (3 N by default, below the mock's 5 N).
+    let local: Vec<&Cycle> = cycles.iter().filter(|c| c.mode == "local").collect();
+    assert!(!local.is_empty(), "serve never sent a local model");
+    assert!(local.iter().all(|c| (c.limit_n - 3.0).abs() < 1e-9));
+    // Never above the limit in force, in any mode.
+    for c in &cycles {
+        assert!(c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9, "{c:?}");
+    }
+    // The device's own loop rendered the wall.
     assert!(
-        cycles.iter().all(|c| c.mode != "local"),
-        "a local cycle without a local model"
+        local.iter().any(|c| c.force_n > 0.1),
+        "the handle never felt the wall"
     );
-    assert!(
-        cycles.iter().any(|c| c.mode == "set_force"),
-        "serve never enabled the device: {text}"
-    );
-    assert!(cycles
+    // Once a model is 5 ms past its expiry the force is zero, whatever the timing (SPEC 10.5).
+    for c in &local {
+        if c.model_age_us >= c.expiry_us + 5000 {
+            assert_eq!(c.force_n, 0.0, "{c:?}");
+        }
+    }
+    // The killed host's last model did expire on the device (no SetForce or Disable came after it), and
+    // from then to the end of the log the force stayed zero.
+    let last_model = local.last().unwrap().model_sequence;
+    let expired_at = local
         .iter()
-        .all(|c| c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9));
+        .find(|c| c.model_sequence == last_model && c.model_age_us >= c.expiry_us + 5000)
+        .map(|c| c.t_us)
+        .expect("the last model never expired on the device: did the host stop cleanly?");
+    assert!(
+        cycles
+            .iter()
+            .filter(|c| c.t_us >= expired_at)
+            .all(|c| c.force_n == 0.0 && c.mode != "set_force"),
+        "force after the last model expired"
+    );
+}
+
+/// The reconnecting wrapper, supervisor and protocol driver the servo thread holds, with a capable mock on a
+/// pseudo-terminal: every exchange sends the tick's local model (built as the servo loop builds it) and reads
+/// the State and LocalState back, and none allocates once connected and enabled.
+#[test]
+fn exchanges_that_send_local_models_do_not_allocate() {
+    use voxhap::servo::device::{open_device, DeviceSpec};
+    use voxhap::servo::monitor::StopSlot;
+    use voxhap::servo::setup::SceneSetup;
+    use voxhap_solver::Primitive;
+    let mock = Mock::start(&["--pty", "--local-model"]);
+    let setup = SceneSetup::builtin().unwrap();
+    let mut device = open_device(
+        &DeviceSpec::Mock(mock.path.clone().into()),
+        SupervisorConfig::default(),
+        (setup.arm.clone(), setup.start_m),
+        1e-3,
+    )
+    .unwrap()
+    .device;
+    device.set_stop_slot(StopSlot::new());
+    device.connect(0).unwrap();
+    // The wall of the other tests, and a directed force and a point, as a tick's modes would emit them.
+    let primitives = [
+        Primitive::plane(DVec3::new(0.01, 0.0, 0.0), DVec3::NEG_X, 30.0).unwrap(),
+        Primitive::directed(DVec3::Z, 0.05).unwrap(),
+        Primitive::point(DVec3::new(0.0, 0.005, 0.0), 0.2).unwrap(),
+    ];
+    let start = Instant::now();
+    let mut tick = 0u64;
+    let mut exchange = |device: &mut Box<dyn voxhap::servo::device::ServoDevice>| {
+        tick += 1;
+        let deadline = start + Duration::from_micros(tick * 1_000);
+        if let Some(wait) = deadline.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let offer = voxhap::servo::local_model::offer(&primitives, 500.0, 0.5, DVec3::ZERO);
+        device.exchange(TickInput {
+            local: Some(offer),
+            ..TickInput::at(DVec3::ZERO, tick * 1_000)
+        })
+    };
+    for _ in 0..200 {
+        exchange(&mut device);
+    }
+    assert!(device.counters().enables >= 1, "{:?}", device.counters());
+    let mut connected = 0;
+    let mut reported = 0;
+    let mut exchanges = 0;
+    let allocations = crate::util::count_allocations(|| {
+        while connected < 2_000 && exchanges < 20_000 {
+            exchanges += 1;
+            let out = exchange(&mut device);
+            if out.connected {
+                connected += 1;
+            }
+            if out.local.is_some() {
+                reported += 1;
+            }
+        }
+    });
+    device.stop();
+    assert_eq!(allocations, 0);
+    assert!(
+        connected >= 2_000,
+        "{connected} of {exchanges} exchanges connected"
+    );
+    // The device rendered the models itself: its LocalStates came back.
+    assert!(reported > 0, "no LocalState in {exchanges} exchanges");
 }

@@ -115,6 +115,7 @@ impl ServoDevice for ScriptedDevice {
             output_state,
             active_faults,
             events: EventList::default(),
+            local: None,
         }
     }
     fn counters(&self) -> SupervisorCounters {

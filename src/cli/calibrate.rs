@@ -131,6 +131,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
             now_us: started.elapsed().as_micros() as u64,
             on_time: true,
             force_valid: false,
+            local: None,
         });
         if let (Some(state), false) = (out.state, out.stale) {
             extents.add(state.position_m);

@@ -43,6 +43,7 @@ fn scenario() -> SimArmConfig {
             normal: DVec3::Z,
             period_s: 1.25,
         },
+        local_model: None,
     }
 }
 

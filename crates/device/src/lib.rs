@@ -14,6 +14,7 @@
 //!   out;
 //! - [`supervisor`]: lifecycle, safety, link health, the device's drive state (faults, recovery) and
 //!   reconnection: the one object the servo loop talks to;
+//! - [`local_offer`]: the tick's local model for a device that renders contact itself (SPEC section 10);
 //! - [`mock`]: the simulated arm behind the real protocol, with fault injection (`voxhap mock-device`);
 //! - [`latency`]: how late each real device's state is on its link, from its vendor's documents;
 //! - [`discovery`]: which serial ports and HID devices are present, and which ones voxhap recognises.
@@ -27,6 +28,7 @@ pub mod error;
 pub mod info;
 pub mod latency;
 pub mod lifecycle;
+pub mod local_offer;
 pub mod mapping;
 pub mod mock;
 pub mod physics;

@@ -142,6 +142,19 @@ impl<D: HapticDevice> Lifecycle<D> {
             .map_err(LifecycleError::Device)
     }
 
+    /// Sends a local model instead of a force ([`HapticDevice::write_local_model`]); only while enabled.
+    pub fn write_local_model(
+        &mut self,
+        model: &crate::local_offer::LocalOffer,
+        force_limit_n: f64,
+        fallback_force_n: DVec3,
+    ) -> Result<(), LifecycleError<D::Error>> {
+        self.check("write a local model to", &[LifecycleState::Enabled])?;
+        self.device
+            .write_local_model(model, force_limit_n, fallback_force_n)
+            .map_err(LifecycleError::Device)
+    }
+
     /// Sends a zero force; while open or enabled (lockstep devices answer it with a state).
     pub fn write_zero(&mut self) -> Result<(), LifecycleError<D::Error>> {
         self.check(

@@ -599,12 +599,30 @@ where
         let Some(device) = self.device.as_mut() else {
             return out;
         };
-        let written = if accepting {
-            device.write_force(safe.force_n)
-        } else {
-            device.write_zero()
+        // A capable device renders the tick's local model itself (SPEC section 10), with its own clamp, ramps and
+        // slew limit and the host's force limit, whenever the host would send a force computed from a fresh,
+        // valid sample; otherwise the set-force (zero, or the pipeline's force) takes it back to that path.
+        let local = input.local.filter(|_| {
+            accepting
+                && input.force_valid
+                && !stale
+                && self.force_axes == UsedAxes::ALL
+                && device.device().local_model_capable()
+        });
+        let written = match (&local, accepting) {
+            (Some(model), _) => {
+                let limit_n = self.safety.config().max_force_n;
+                device.write_local_model(model, limit_n, safe.force_n)
+            }
+            (None, true) => device.write_force(safe.force_n),
+            (None, false) => device.write_zero(),
         };
         let result = written.and_then(|()| device.read_state());
+        if local.is_some() {
+            // What the device applied, as it last reported it (zero before its first report).
+            out.local = device.device().local_report();
+            out.sent_force_n = out.local.map_or(DVec3::ZERO, |r| r.force_n);
+        }
         let state_age_ticks = device.device().state_age_ticks();
         let mut fresh = false;
         match result {

@@ -2,6 +2,7 @@
 //! its [`SupervisorEvent`]s (a fixed-size [`EventList`], so a tick does not allocate), and the running
 //! [`SupervisorCounters`].
 
+use crate::local_offer::{LocalOffer, LocalReport};
 use crate::safety::SafetyFlags;
 use crate::{DeviceState, ErrorKind};
 use glam::DVec3;
@@ -18,6 +19,9 @@ pub struct TickInput {
     /// `force_n` was computed from a fresh, plausible device sample (a tick without one renders zero, which
     /// must not count as "small" for the engage rule).
     pub force_valid: bool,
+    /// The tick's local model, for a device with the local-model capability (SPEC section 10): a capable
+    /// driver sends it instead of `force_n` while the force would be valid and sent. `None`: set-force only.
+    pub local: Option<LocalOffer>,
 }
 
 impl TickInput {
@@ -28,6 +32,7 @@ impl TickInput {
             now_us,
             on_time: true,
             force_valid: true,
+            local: None,
         }
     }
 }
@@ -162,6 +167,9 @@ pub struct TickOutput {
     pub active_faults: u16,
     /// What happened.
     pub events: EventList,
+    /// The device rendered this tick's local model itself (SPEC section 10): `sent_force_n` is then the force it
+    /// last reported applying, and `local` its last report.
+    pub local: Option<LocalReport>,
 }
 
 impl TickOutput {
@@ -175,6 +183,7 @@ impl TickOutput {
             output_state: OutputState::Disconnected,
             active_faults: 0,
             events: EventList::default(),
+            local: None,
         }
     }
 

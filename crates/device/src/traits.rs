@@ -1,6 +1,7 @@
 //! The driver traits: [`HapticDevice`] (what every driver implements) and [`EmergencyStop`] (a stop any
 //! thread may trigger).
 
+use super::local_offer::{LocalOffer, LocalReport};
 use super::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, Error};
 use glam::DVec3;
 
@@ -42,6 +43,32 @@ pub trait HapticDevice {
 
     /// Reads the newest state of the handle.
     fn read_state(&mut self) -> Result<DeviceState, Self::Error>;
+
+    /// True when the open device renders local models itself (protocol/SPEC.md section 10: it set
+    /// `LOCAL_MODEL` in the handshake). The default: no driver but voxhap's protocol has the capability.
+    fn local_model_capable(&self) -> bool {
+        false
+    }
+
+    /// Sends the tick's local model (device frame) with the host's force limit instead of a set-force; only
+    /// called when [`HapticDevice::local_model_capable`]. A model the wire cannot carry goes out as the
+    /// set-force `fallback_force_n` (the safety pipeline's force). The default sends the fallback.
+    /// Allocation-free.
+    fn write_local_model(
+        &mut self,
+        model: &LocalOffer,
+        force_limit_n: f64,
+        fallback_force_n: DVec3,
+    ) -> Result<(), Self::Error> {
+        let _ = (model, force_limit_n);
+        self.write_force(fallback_force_n)
+    }
+
+    /// What the device last reported of its local loop (LocalState), if it sent one since the last local model
+    /// or set-force was written. Allocation-free.
+    fn local_report(&self) -> Option<LocalReport> {
+        None
+    }
 
     /// How many servo ticks old the state the last `read_state` returned may be: 0 when it answers this tick's
     /// force, `n` when it may answer the force of `n` ticks ago: the Haply Inverse3 labels each state with the

@@ -22,6 +22,7 @@ pub mod energy;
 pub mod external_force;
 pub mod force_off;
 mod join;
+pub mod local_model;
 pub mod mapped;
 pub mod monitor;
 pub mod passivity;

@@ -101,7 +101,19 @@ impl MappedDevice {
 impl ServoDevice for MappedDevice {
     fn exchange(&mut self, mut input: TickInput) -> TickOutput {
         input.force_n = self.mapping.to_device_force_n(input.force_n);
+        let mapping = self.mapping;
+        input.local = input.local.map(|offer| {
+            offer.mapped(
+                |p| mapping.to_device_position_m(p),
+                |q| mapping.to_device_force_n(q),
+                mapping.scale(),
+            )
+        });
         let mut out = self.inner.exchange(input);
+        if let Some(report) = out.local.as_mut() {
+            report.proxy_m = self.mapping.to_scene_position_m(report.proxy_m);
+            report.force_n = self.mapping.to_scene_force_n(report.force_n);
+        }
         if let Some(state) = out.state.as_mut() {
             state.position_m = self.mapping.to_scene_position_m(state.position_m);
             state.velocity_m_per_s = self
@@ -329,6 +341,7 @@ mod tests {
                 now_us: *now_us,
                 on_time: true,
                 force_valid: true,
+                local: None,
             }));
         }
         out.unwrap()

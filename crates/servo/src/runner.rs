@@ -430,11 +430,15 @@ impl ServoLoop {
         let rendered_from_state = self.last_state.is_some();
         let sample_age_ticks = self.device.state_age_ticks();
         let exchange_start_ns = waiter.now_ns();
+        // The tick's local model: a capable device renders it itself at its own rate (crate::local_model).
+        let local =
+            crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m);
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
             now_us,
             on_time,
             force_valid,
+            local: Some(local),
         });
         self.last_safe_force_n = device_out.sent_force_n;
         self.passivity.sent(rendered_n, device_out.sent_force_n);

@@ -243,6 +243,7 @@ impl Session {
                 now_us: 0,
                 on_time: false,
                 force_valid: false,
+                local: None,
             })
             .state;
 

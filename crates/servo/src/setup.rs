@@ -174,6 +174,7 @@ impl SceneSetup {
             arm: file.arm,
             hand: file.hand,
             path: file.path,
+            local_model: file.local_model,
         };
         let start_m = file
             .start_m

@@ -26,6 +26,10 @@
 //!   most `state_timeout` (half a servo period) for the one that echoes the last SetForce. Older or duplicate
 //!   States are skipped; when no State came but frames were dropped (CRC, COBS, length), the error is a
 //!   protocol error rather than a timeout, so the supervisor counts a corrupted link as such.
+//! - **write_local_model** (a device that set `LOCAL_MODEL` in the HeartbeatReply confirming the handshake,
+//!   SPEC section 10) sends the tick's primitives as one LocalModel in the set-force sequence, so the same
+//!   lockstep State answers it; the LocalStates that follow are kept for [`HapticDevice::local_report`]. A model
+//!   the wire cannot carry goes out as the set-force it replaces.
 //! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
 //! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
 //!   writes them on a second handle of the port, for the stall monitor.
@@ -34,6 +38,7 @@
 
 pub use super::protocol_link::{HidLink, MessageLink, SerialLink};
 use crate::info::DEFAULT_MAX_SPEED_M_PER_S;
+use crate::local_offer::{LocalOffer, LocalReport, OFFER_EXPIRY_US};
 use crate::{
     DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
 };
@@ -42,7 +47,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
     DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent, HostSession, HostToDevice,
-    StatusFlags, PROTOCOL_VERSION,
+    LocalModelParams, LocalState, StatusFlags, PROTOCOL_VERSION,
 };
 
 /// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
@@ -173,6 +178,10 @@ pub struct ProtocolDevice<L> {
     event_len: usize,
     /// The first handshake nonce, when a test fixes it (`None`: drawn per open, [`take_nonces`]).
     handshake_nonce: Option<u32>,
+    /// The device set `LOCAL_MODEL` in the HeartbeatReply that confirmed this open's handshake.
+    local_capable: bool,
+    /// The newest LocalState since the last open.
+    last_local: Option<LocalState>,
     /// While `open` runs: when it gives up, `connect_timeout` after it started (the handshake and the first
     /// State share it, however the device trickles its bytes).
     open_deadline: Option<Instant>,
@@ -254,6 +263,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
             event_head: 0,
             event_len: 0,
             handshake_nonce: None,
+            local_capable: false,
+            last_local: None,
             open_deadline: None,
         }
     }
@@ -363,6 +374,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 });
             }
             HostEvent::State { lost, .. } => self.counters.states_lost += u64::from(lost),
+            HostEvent::LocalState(local) => self.last_local = Some(local),
             _ => {}
         }
         Ok(event)
@@ -408,6 +420,9 @@ impl<L: MessageLink> ProtocolDevice<L> {
                         match candidate.take() {
                             Some(info) if ours && open => {
                                 this.info = convert_info(&info);
+                                this.local_capable =
+                                    reply.status.contains(StatusFlags::LOCAL_MODEL);
+                                this.last_local = None;
                                 return Ok(Some(()));
                             }
                             // A reply to another open's heartbeat, or one that says no session: the
@@ -577,6 +592,48 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
 
     fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
         self.link.emergency_stop()
+    }
+
+    fn local_model_capable(&self) -> bool {
+        self.local_capable
+    }
+
+    fn write_local_model(
+        &mut self,
+        model: &LocalOffer,
+        force_limit_n: f64,
+        fallback_force_n: DVec3,
+    ) -> Result<(), DeviceError> {
+        let params = LocalModelParams {
+            sequence: 0,
+            expiry_us: OFFER_EXPIRY_US,
+            stiffness_n_per_m: model.stiffness_n_per_m,
+            damping_n_s_per_m: model.damping_n_s_per_m,
+            // SPEC 10.3: the force limit is at most the device's own.
+            force_limit_n: force_limit_n.min(self.info.max_force_n),
+            anchor_m: model.anchor_m.to_array(),
+        };
+        match self.host.local_model(&params, model.primitives()) {
+            Ok(message) => {
+                if let HostToDevice::LocalModel(sent) = &message {
+                    self.last_sent_sequence = sent.sequence;
+                }
+                self.link.send(&message)
+            }
+            // A stiffness below 1 N/m, a non-finite value: the set-force path instead.
+            Err(_) => self.send_force(fallback_force_n),
+        }
+    }
+
+    fn local_report(&self) -> Option<LocalReport> {
+        self.last_local.map(|l| LocalReport {
+            proxy_m: to_dvec3(l.proxy_m),
+            force_n: to_dvec3(l.force_n),
+            peak_force_n: f64::from(l.peak_force_n),
+            model_sequence: l.model_sequence,
+            model_age_us: l.model_age_us,
+            status: l.status.0,
+        })
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {

@@ -291,6 +291,43 @@ pub struct SimArmConfig {
     pub hand: HandParams,
     /// What the hand does over time.
     pub path: HandPath,
+    /// `[local_model]`: the arm simulates a device with the local-model capability (protocol/SPEC.md section
+    /// 10) whose own control loop runs at this rate; `None`: a set-force device.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_model: Option<LocalModelSim>,
+}
+
+/// `[local_model]` of a scene file: the simulated arm renders the host's local models with the reference device
+/// loop at `rate_hz` (a whole multiple of the servo rate, at most 100 kHz).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocalModelSim {
+    /// The device's control rate, Hz.
+    pub rate_hz: f64,
+}
+
+/// The fastest simulated local loop, Hz.
+pub const MAX_LOCAL_RATE_HZ: f64 = 100_000.0;
+
+impl LocalModelSim {
+    /// How many control cycles of whole microseconds fit one servo period at `servo_hz`: `None` unless
+    /// `rate_hz` is a whole multiple of `servo_hz`, at most [`MAX_LOCAL_RATE_HZ`], with a cycle of whole
+    /// microseconds (the device loop's clock).
+    pub fn cycles_per_period(&self, servo_hz: f64) -> Option<u32> {
+        let rate_hz = self.rate_hz;
+        let in_range = rate_hz.is_finite()
+            && servo_hz.is_finite()
+            && servo_hz > 0.0
+            && (servo_hz..=MAX_LOCAL_RATE_HZ).contains(&rate_hz);
+        if !in_range {
+            return None;
+        }
+        let cycles = (rate_hz / servo_hz).round();
+        let cycle_us = 1e6 / rate_hz;
+        let whole = (cycles * servo_hz - rate_hz).abs() <= 1e-9 * rate_hz
+            && (cycle_us - cycle_us.round()).abs() <= 1e-9 * cycle_us;
+        whole.then_some(cycles as u32)
+    }
 }
 
 impl SimArmConfig {

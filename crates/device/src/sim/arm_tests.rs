@@ -21,6 +21,7 @@ fn config(path: HandPath, workspace: Workspace) -> SimArmConfig {
             damping_n_s_per_m: 8.0,
         },
         path,
+        local_model: None,
     }
 }
 

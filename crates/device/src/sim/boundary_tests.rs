@@ -101,6 +101,7 @@ pub(super) fn released_arm(
                 force_n: DVec3::ZERO,
             },
         },
+        local_model: None,
     };
     SimArm::new(config, start_m).unwrap()
 }

@@ -40,8 +40,8 @@ mod tagged;
 pub mod zoh;
 
 pub use arm::{
-    ArmParams, HandParams, MissingArmKey, SimArm, SimArmConfig, StepOutcome, Workspace,
-    WorkspaceShape,
+    ArmParams, HandParams, LocalModelSim, MissingArmKey, SimArm, SimArmConfig, StepOutcome,
+    Workspace, WorkspaceShape, MAX_LOCAL_RATE_HZ,
 };
 pub use effects::DeviceEffects;
 pub use error::{readable, SimError};

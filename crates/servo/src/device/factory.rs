@@ -132,7 +132,13 @@ fn open_supervised(
     let mut hand_target = None;
     let device = match spec {
         DeviceSpec::Sim => {
+            let local_model = sim_arm.0.local_model;
             let (mut device, input) = SimDevice::new(sim_arm.0, sim_arm.1, period_s)?;
+            if let Some(local) = local_model {
+                device = device
+                    .with_local_model(local.rate_hz)
+                    .map_err(|e| OpenError::Profile(e.to_string()))?;
+            }
             hand_target = Some(input);
             if let Some(slot) = sim_mapping {
                 device.follow_scene_mapping(slot);

@@ -6,11 +6,49 @@
 //! the mapping once it is known ([`SimDevice::follow_scene_mapping`]: `servo::mapped::MappedDevice` fills the
 //! slot when it connects, before the first exchange) and moves them into the device frame
 //! ([`SimArm::use_scene_frame`]). A hand target arrives already in the device frame (`servo::control` maps it).
+//!
+//! **Local model** ([`SimDevice::with_local_model`]): the arm simulates a device with the local-model capability
+//! (protocol/SPEC.md section 10) whose control loop runs at its own rate. Each servo period is then split into
+//! that many control cycles, each running the reference device loop (`voxhap-local`, behind the protocol's
+//! device session, as a firmware or `voxhap mock-device --local-model` runs it) and stepping the arm one cycle
+//! under its force. A LocalModel from the host is rendered by that loop; a set-force is held for the period, as
+//! without the capability, so the two paths differ only in who closes the contact loop and how fast.
 
 use crate::mapped::SceneMappingSlot;
 use glam::DVec3;
-use voxhap_device::sim::{SimArm, SimArmConfig, SimError};
+use voxhap_device::local_offer::{LocalOffer, LocalReport, OFFER_EXPIRY_US};
+use voxhap_device::sim::{LocalModelSim, SimArm, SimArmConfig, SimError};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use voxhap_local::{LocalLoop, LoopConfig};
+use voxhap_protocol::{
+    DeviceSample, DeviceSession, HostSession, HostToDevice, Label, LocalModelParams, RateSet,
+    PROTOCOL_VERSION,
+};
+
+/// The device side of a simulated local-model device: the protocol session, the reference loop, and the host
+/// session that numbers what the servo loop sends it.
+struct SimLocal {
+    cycles_per_period: u32,
+    cycle_us: u64,
+    now_us: u64,
+    host: HostSession,
+    session: DeviceSession,
+    local: LocalLoop,
+    report: Option<LocalReport>,
+}
+
+/// Why a simulated local loop cannot run at the rate asked.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error(
+    "local_model.rate_hz: {rate_hz} Hz must be a whole multiple of the servo rate ({servo_hz} Hz), \
+     at most 100000 Hz, with a whole number of microseconds per cycle"
+)]
+pub struct LocalRateError {
+    /// What was asked.
+    pub rate_hz: f64,
+    /// The servo rate.
+    pub servo_hz: f64,
+}
 
 /// The simulated arm as a [`HapticDevice`]: each `write_force` steps the arm one servo period under that
 /// force; `read_state` reports where it got to.
@@ -25,6 +63,8 @@ pub struct SimDevice {
     start_scene_m: DVec3,
     /// Where the workspace mapping will be, until the arm has taken it or has stepped.
     scene_mapping: Option<SceneMappingSlot>,
+    /// The simulated local loop, when the arm simulates a device with the capability.
+    local: Option<Box<SimLocal>>,
 }
 
 /// The handle that moves a [`SimDevice`]'s hand from another thread (wait-free for the servo thread).
@@ -72,6 +112,7 @@ impl SimDevice {
                 applied_target: None,
                 start_scene_m: start_m,
                 scene_mapping: None,
+                local: None,
             },
             input,
         ))
@@ -104,6 +145,87 @@ impl SimDevice {
         Ok(())
     }
 
+    /// The arm as a device with the local-model capability whose control loop runs at `rate_hz` (a whole
+    /// multiple of the servo rate, at most 100 kHz); see the module docs.
+    pub fn with_local_model(mut self, rate_hz: f64) -> Result<SimDevice, LocalRateError> {
+        let servo_hz = 1.0 / self.dt_s;
+        let Some(cycles) = (LocalModelSim { rate_hz }).cycles_per_period(servo_hz) else {
+            return Err(LocalRateError { rate_hz, servo_hz });
+        };
+        let cycle_us = (1e6 / rate_hz).round();
+        let info = voxhap_protocol::DeviceInfo {
+            version: PROTOCOL_VERSION,
+            model: Label::new("voxhap-sim").unwrap_or_default(),
+            serial_number: Label::new("in-process").unwrap_or_default(),
+            position_dof: 3,
+            force_dof: 3,
+            button_count: 0,
+            supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
+            workspace_min_m: [-1.0; 3],
+            workspace_max_m: [1.0; 3],
+            max_force_n: self.info.max_force_n as f32,
+            max_stiffness_n_per_m: self.info.max_stiffness_n_per_m as f32,
+        };
+        let mut host = HostSession::new();
+        let mut session = DeviceSession::with_local_model(info);
+        session.on_message(&host.hello(), 0);
+        session.on_message(&host.enable(50_000), 0);
+        while session.poll_transmit().is_some() {}
+        let cycle_us = cycle_us.round() as u64;
+        self.local = Some(Box::new(SimLocal {
+            cycles_per_period: cycles,
+            cycle_us,
+            now_us: 0,
+            host,
+            session,
+            local: LocalLoop::new(LoopConfig {
+                period_us: cycle_us as u32,
+                ..LoopConfig::default()
+            }),
+            report: None,
+        }));
+        Ok(self)
+    }
+
+    /// One servo period of the simulated local-model device after `message` arrived: its control cycles, each
+    /// sensing, running the device loop and stepping the arm.
+    fn run_local_period(&mut self, message: &HostToDevice) -> Result<(), DeviceError> {
+        let Some(local) = self.local.as_deref_mut() else {
+            return Ok(());
+        };
+        local.session.on_message(message, local.now_us);
+        let cycle_s = self.dt_s / f64::from(local.cycles_per_period);
+        for _ in 0..local.cycles_per_period {
+            let sample = DeviceSample {
+                position_m: self.arm.position_m().to_array().map(|c| c as f32),
+                velocity_m_per_s: self.arm.velocity_m_per_s().to_array().map(|c| c as f32),
+                buttons: 0,
+            };
+            let force = local.local.step(&mut local.session, local.now_us, &sample);
+            while local.session.poll_transmit().is_some() {}
+            self.arm
+                .step(self.t_s, cycle_s, DVec3::from_array(force.map(f64::from)))
+                .map_err(|_| DeviceError::Protocol {
+                    what: "simulated arm refused its step",
+                })?;
+            self.t_s += cycle_s;
+            local.now_us += local.cycle_us;
+        }
+        local.report = local
+            .session
+            .local_model()
+            .map(|(model, received_us)| LocalReport {
+                proxy_m: DVec3::from_array(local.local.proxy_m().unwrap_or([0.0; 3])),
+                force_n: DVec3::from_array(local.local.force_n()),
+                peak_force_n: DVec3::from_array(local.local.force_n()).length(),
+                model_sequence: model.sequence,
+                model_age_us: u32::try_from(local.now_us.saturating_sub(received_us))
+                    .unwrap_or(u32::MAX),
+                status: local.local.last_status().0,
+            });
+        Ok(())
+    }
+
     /// The hand target in force, if a client set one.
     pub fn hand_target_m(&self) -> Option<DVec3> {
         self.applied_target
@@ -123,6 +245,14 @@ impl HapticDevice for SimDevice {
         if target != self.applied_target && self.arm.set_hand_target_m(target) {
             self.applied_target = target;
         }
+        if let Some(local) = self.local.as_deref_mut() {
+            // The device's set-force path: the force is held for the period, the arm stepped per cycle.
+            let force = force_n.to_array().map(|c| c as f32);
+            let message = local
+                .host
+                .set_force(force, voxhap_protocol::ForceFlags::EMPTY);
+            return self.run_local_period(&message);
+        }
         self.arm
             .step(self.t_s, self.dt_s, force_n)
             .map_err(|_| DeviceError::Protocol {
@@ -130,6 +260,54 @@ impl HapticDevice for SimDevice {
             })?;
         self.t_s += self.dt_s;
         Ok(())
+    }
+
+    fn enable(&mut self) -> Result<(), DeviceError> {
+        if let Some(local) = self.local.as_deref_mut() {
+            // The simulated device's own drive: enabled again (after its watchdog, say) as a real one would be.
+            local
+                .session
+                .on_message(&local.host.enable(50_000), local.now_us);
+            while local.session.poll_transmit().is_some() {}
+        }
+        Ok(())
+    }
+
+    fn local_model_capable(&self) -> bool {
+        self.local.is_some()
+    }
+
+    fn write_local_model(
+        &mut self,
+        model: &LocalOffer,
+        force_limit_n: f64,
+        fallback_force_n: DVec3,
+    ) -> Result<(), DeviceError> {
+        self.take_scene_mapping(true)?;
+        let target = *self.hand_target.read();
+        if target != self.applied_target && self.arm.set_hand_target_m(target) {
+            self.applied_target = target;
+        }
+        let max_force_n = self.info.max_force_n;
+        let Some(local) = self.local.as_deref_mut() else {
+            return self.write_force(fallback_force_n);
+        };
+        let params = LocalModelParams {
+            sequence: 0,
+            expiry_us: OFFER_EXPIRY_US,
+            stiffness_n_per_m: model.stiffness_n_per_m,
+            damping_n_s_per_m: model.damping_n_s_per_m,
+            force_limit_n: force_limit_n.min(max_force_n),
+            anchor_m: model.anchor_m.to_array(),
+        };
+        match local.host.local_model(&params, model.primitives()) {
+            Ok(message) => self.run_local_period(&message),
+            Err(_) => self.write_force(fallback_force_n),
+        }
+    }
+
+    fn local_report(&self) -> Option<LocalReport> {
+        self.local.as_ref().and_then(|l| l.report)
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
@@ -179,6 +357,96 @@ mod tests {
         let mut device = arm_after_steps(true);
         let expected = DVec3::new(-0.04, 0.005, 0.0);
         assert!((device.read_state().unwrap().position_m - expected).length() < 1e-12);
+    }
+
+    /// Arm damping of the wall tests, N s/m; the hand adds none.
+    const ARM_DAMPING: f64 = 1.0;
+
+    /// An arm of 0.1 kg with [`ARM_DAMPING`] (the hand holds 3 mm inside a wall at x = 0 facing -x, with a
+    /// 50 N/m spring and no damping of its own), simulating a local-model device at 10 kHz; started 2 mm in
+    /// front of the wall.
+    fn wall_arm() -> SimDevice {
+        let config: SimArmConfig = toml::from_str(&format!(
+            r#"
+            [arm]
+            mass_kg = 0.1
+            damping_n_s_per_m = {ARM_DAMPING}
+            workspace = {{ shape = "unbounded" }}
+            [hand]
+            stiffness_n_per_m = 50.0
+            damping_n_s_per_m = 0.0
+            [path]
+            kind = "hold"
+            at_m = [0.003, 0.0, 0.0]
+            "#
+        ))
+        .unwrap();
+        SimDevice::new(config, DVec3::new(-0.002, 0.0, 0.0), 1e-3)
+            .unwrap()
+            .0
+            .with_local_model(10_000.0)
+            .unwrap()
+    }
+
+    /// Three seconds of a 1 kHz host rendering the wall at `k_n_per_m` (the proxy of a 50 N plane is the probe
+    /// pushed back onto the plane), through set-forces or (`local`) as local models; returns how often the
+    /// handle left the wall after first touching it, in the last two seconds.
+    fn exits_from_the_wall(k_n_per_m: f64, local: bool) -> usize {
+        let mut device = wall_arm();
+        let plane = voxhap_solver::Primitive::plane(DVec3::ZERO, DVec3::NEG_X, 50.0).unwrap();
+        let mut exits = 0;
+        let mut inside = false;
+        for tick in 0..3000 {
+            let state = device.read_state().unwrap();
+            let probe = state.position_m;
+            let proxy = DVec3::new(probe.x.min(0.0), probe.y, probe.z);
+            let force = k_n_per_m * (proxy - probe);
+            if local {
+                let offer = crate::local_model::offer(&[plane], k_n_per_m, 0.0, proxy);
+                device.write_local_model(&offer, 10.0, force).unwrap();
+            } else {
+                device.write_force(force).unwrap();
+            }
+            let now_inside = device.read_state().unwrap().position_m.x > 0.0;
+            if tick >= 1000 && inside && !now_inside {
+                exits += 1;
+            }
+            inside = now_inside;
+        }
+        exits
+    }
+
+    #[test]
+    fn a_wall_above_the_host_rate_bound_bounces_with_set_forces_and_holds_with_a_10_khz_local_model(
+    ) {
+        // Colgate and Schenkel: a sampled wall is passive while K < 2 b / T, here 2 000 N/m at the host's
+        // 1 kHz and 20 000 N/m at the device's 10 kHz (docs/stability.md).
+        let host_bound = 2.0 * ARM_DAMPING / 1e-3;
+        let local_bound = 2.0 * ARM_DAMPING / 1e-4;
+        assert_eq!((host_bound, local_bound), (2000.0, 20_000.0));
+        // Half the host's bound: both hold.
+        assert_eq!(exits_from_the_wall(0.5 * host_bound, false), 0);
+        assert_eq!(exits_from_the_wall(0.5 * host_bound, true), 0);
+        // 2.5 times the host's bound, an eighth of the device's: the host's loop bounces off the wall, the
+        // device's own loop holds it.
+        let k = 2.5 * host_bound;
+        let host_exits = exits_from_the_wall(k, false);
+        assert!(
+            host_exits > 10,
+            "the 1 kHz loop left the wall {host_exits} times"
+        );
+        assert_eq!(exits_from_the_wall(k, true), 0);
+    }
+
+    #[test]
+    fn a_local_rate_that_is_not_a_multiple_of_the_servo_rate_is_refused() {
+        let config = voxhap_device::mock::default_arm_config();
+        let device = || SimDevice::new(config.clone(), DVec3::ZERO, 1e-3).unwrap().0;
+        assert!(device().with_local_model(10_000.0).is_ok());
+        for bad in [1500.0, 0.0, -1000.0, f64::NAN, 200_000.0, 3_000.0 * 1.0001] {
+            let error = device().with_local_model(bad).err().unwrap();
+            assert!(error.to_string().contains("local_model.rate_hz"), "{error}");
+        }
     }
 
     #[test]

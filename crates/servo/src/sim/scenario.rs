@@ -25,7 +25,7 @@ use voxhap_core::haptics::SolverConfig;
 use voxhap_core::volume::{procedural, AnyVolume};
 pub use voxhap_device::sim::MAX_POSITION_M;
 use voxhap_device::sim::{
-    readable, ArmParams, HandParams, HandPath, SimArm, SimArmConfig, SimError,
+    readable, ArmParams, HandParams, HandPath, LocalModelSim, SimArm, SimArmConfig, SimError,
 };
 use voxhap_io as io;
 pub use voxhap_io::scene::STIFFNESS_RANGE_N_PER_M;
@@ -80,6 +80,10 @@ pub struct Scenario {
     /// `[device]`: a device profile for `serve` (device::profile; `--device-profile` replaces it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device: Option<toml::Table>,
+    /// `[local_model]`: the simulated arm renders local models with its own loop at `rate_hz`
+    /// (protocol/SPEC.md section 10; `device::sim`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_model: Option<LocalModelSim>,
     /// `[passivity]`: the passivity observer and controller (crate::passivity).
     #[serde(default)]
     pub passivity: PassivitySettings,
@@ -213,6 +217,9 @@ pub enum ScenarioValueError {
     /// `k_n_per_m` is outside [`STIFFNESS_RANGE_N_PER_M`].
     #[error("k_n_per_m: {k} N/m is out of range: give a number from {lo} to {hi} N/m", k = readable(*.0), lo = readable(STIFFNESS_RANGE_N_PER_M.0), hi = readable(STIFFNESS_RANGE_N_PER_M.1))]
     Stiffness(f64),
+    /// `local_model.rate_hz` is not a whole multiple of `rate_hz` up to 100 kHz.
+    #[error("local_model.rate_hz: {local_hz} Hz must be a whole multiple of rate_hz ({servo_hz} Hz), at most 100000 Hz, with a whole number of microseconds per cycle")]
+    LocalRate { local_hz: f64, servo_hz: f64 },
     /// The `[solver]` table.
     #[error(transparent)]
     Solver(#[from] SolverSettingsError),
@@ -492,6 +499,14 @@ impl Scenario {
         if !(k_min..=k_max).contains(&self.k_n_per_m) {
             return Err(E::Stiffness(self.k_n_per_m));
         }
+        if let Some(local) = self.local_model {
+            if local.cycles_per_period(self.rate_hz).is_none() {
+                return Err(E::LocalRate {
+                    local_hz: local.rate_hz,
+                    servo_hz: self.rate_hz,
+                });
+            }
+        }
         self.solver.validate()?;
         self.passivity.validate()?;
         if purpose == Purpose::Serve && !self.events.is_empty() {
@@ -565,6 +580,7 @@ impl Scenario {
             arm: self.arm,
             hand: self.hand,
             path: self.path.clone(),
+            local_model: self.local_model,
         };
         // Check the arm now, so that a bad [arm], [hand] or [path] is refused before any trace is created.
         SimArm::new(arm.clone(), start_m).map_err(|source| ScenarioError::Arm {

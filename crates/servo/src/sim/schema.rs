@@ -28,8 +28,8 @@ use voxhap_device::sim::effects::{
     MAX_FORCE_RESOLUTION_N, MAX_LATENCY_S, MAX_POSITION_RESOLUTION_M, MAX_VELOCITY_WINDOW_TICKS,
 };
 use voxhap_device::sim::{
-    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M,
-    MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
+    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_LOCAL_RATE_HZ, MAX_PATH_VERTICES,
+    MAX_POSITION_M, MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
 };
 
 /// What a key's value may be.
@@ -224,6 +224,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("path", "", SERVE_ARM, Table("`[path]`"), "", "what the virtual hand does over time (scene positions and forces)"),
             key("device", "", Otherwise("no profile"), Table("[device profiles](../workspace.md)"), "", "a device profile for `serve` (`--device-profile` replaces it)"),
             key("passivity", "", Otherwise("all of `[passivity]`'s defaults"), Table("`[passivity]`"), "", "the passivity observer and controller ([Stability](../stability.md))"),
+            key("local_model", "", Otherwise("a set-force arm"), Table("`[local_model]`"), "", "the simulated arm renders local models with its own loop ([Local models](../local-model.md))"),
             key("events", "", Otherwise("no events"), Table("[Scenario files](../scenarios.md)"), "", "`voxhap sim` only: control commands at given times, `t_s` beside the command as the control API spells it"),
         ],
     },
@@ -238,6 +239,17 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("mode", "", Otherwise("`control` for every real device, `observe` for the simulated arm (`voxhap sim`, and `serve` on the simulated arm)"), OneOf(&["off", "observe", "control"]), "\"control\"", "`off`: nothing, changes apply at once; `observe`: the observer books, changes in contact are introduced passively; `control`: the controller also dissipates what the coupling generates"),
             key("max_damping_n_s_per_m", "N s/m", Value("20.0"), PositiveAtMost(MAX_CONTROLLER_DAMPING_N_S_PER_M), "10.0", "the most damping the controller adds in a tick"),
             key("threshold_j", "J", Value("1e-6"), Between(0.0, MAX_THRESHOLD_J), "1e-5", "energy generated beyond the reference that the controller lets pass before it acts"),
+        ],
+    },
+    SchemaSection {
+        title: "`[local_model]`",
+        intro: "The simulated arm as a device with the local-model capability: `serve` and `sim` send it the tick's \
+                primitives and its own loop renders them at `rate_hz` ([Local models](../local-model.md)).",
+        header: "[local_model]",
+        base: "rate_hz = 10000.0",
+        group: "local_model",
+        keys: &[
+            key("rate_hz", "Hz", Required, PositiveAtMost(MAX_LOCAL_RATE_HZ), "10000.0", "the device's control rate: a whole multiple of `rate_hz` with a whole number of microseconds per cycle"),
         ],
     },
     SchemaSection {

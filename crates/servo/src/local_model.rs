@@ -1,0 +1,71 @@
+//! The tick's local model for a device that renders contact itself (protocol/SPEC.md section 10): the
+//! primitives the tick solved with, the coupling and the proxy, as a [`LocalOffer`] the supervisor hands to a
+//! capable driver (`voxhap_device::local_offer`).
+//!
+//! Where it sits: [`crate::runner`] calls [`offer`] every tick after the solve; the supervisor uses the offer
+//! only for a device that announced the capability, and only while the force it would send is valid. Fixed-size
+//! and allocation-free.
+
+use glam::DVec3;
+use voxhap_device::local_offer::LocalOffer;
+use voxhap_protocol::{LocalKind, SiPrimitive};
+use voxhap_solver::primitive::PrimitiveKind;
+use voxhap_solver::Primitive;
+
+/// The offer for a tick: coupling `k` and `b`, the host's proxy as the anchor, and the tick's primitives in
+/// the order the modes emitted them (the driver keeps the summed directed forces and the nearest three).
+pub fn offer(
+    primitives: &[Primitive],
+    stiffness_n_per_m: f64,
+    damping_n_s_per_m: f64,
+    proxy_m: DVec3,
+) -> LocalOffer {
+    let mut offer = LocalOffer::new(stiffness_n_per_m, damping_n_s_per_m, proxy_m);
+    for p in primitives {
+        offer.push(SiPrimitive {
+            kind: match p.kind() {
+                PrimitiveKind::Directed => LocalKind::Directed,
+                PrimitiveKind::Point => LocalKind::Point,
+                PrimitiveKind::Line => LocalKind::Line,
+                PrimitiveKind::Plane => LocalKind::Plane,
+            },
+            position_m: p.position_m().to_array(),
+            direction: p.direction().to_array(),
+            strength_n: p.strength_n(),
+        });
+    }
+    offer
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use voxhap_device::local_offer::MAX_OFFER_PRIMITIVES;
+
+    #[test]
+    fn every_kind_travels_with_its_fields_and_a_full_offer_says_so() {
+        let plane = Primitive::plane(DVec3::new(0.0, 0.0, 0.01), DVec3::Z, 3.0).unwrap();
+        let point = Primitive::point(DVec3::new(0.001, 0.0, 0.0), 0.5).unwrap();
+        let directed = Primitive::directed(DVec3::new(0.0, 2.0, 0.0), 0.25).unwrap();
+        let offer = offer(&[plane, point, directed], 800.0, 0.5, DVec3::ONE);
+        assert_eq!(offer.stiffness_n_per_m, 800.0);
+        assert_eq!(offer.damping_n_s_per_m, 0.5);
+        assert_eq!(offer.anchor_m, DVec3::ONE);
+        let got = offer.primitives();
+        assert_eq!(got.len(), 3);
+        assert_eq!(got[0].kind, LocalKind::Plane);
+        assert_eq!(got[0].position_m, [0.0, 0.0, 0.01]);
+        assert_eq!(got[0].direction, [0.0, 0.0, 1.0]);
+        assert_eq!(got[0].strength_n, 3.0);
+        assert_eq!(got[1].kind, LocalKind::Point);
+        assert_eq!(got[2].kind, LocalKind::Directed);
+        // The directed force's direction is normalised by the primitive (unit y).
+        assert_eq!(got[2].direction, [0.0, 1.0, 0.0]);
+        assert!(!offer.truncated());
+
+        let many = vec![point; MAX_OFFER_PRIMITIVES + 1];
+        let full = super::offer(&many, 800.0, 0.0, DVec3::ZERO);
+        assert_eq!(full.primitives().len(), MAX_OFFER_PRIMITIVES);
+        assert!(full.truncated());
+    }
+}

@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::Path;
 use std::process::Command;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use voxhap::servo::api::VolumeDirs;
+use voxhap::servo::api::folders::VolumeDirs;
 
 mod requests;
 use requests::REQUESTS;

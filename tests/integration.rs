@@ -43,6 +43,7 @@ mod safety_props;
 mod serve_e2e;
 mod server;
 mod servo;
+mod servo_session;
 mod servo_truth;
 mod sim;
 mod sim_path;

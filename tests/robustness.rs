@@ -10,7 +10,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use voxhap::record::{create_trace_writer, read_trace, TraceFormat, TraceMeta, TraceSample};
-use voxhap::servo::api::{ConfinedVolumes, ControlCommand, SessionApi, VolumeDirs};
+use voxhap::servo::api::folders::{ConfinedVolumes, VolumeDirs};
+use voxhap::servo::api::{ControlCommand, SessionApi};
 use voxhap::volume::io::{load_with, LoadOptions, LoadProblem};
 
 fn voxhap() -> Command {

@@ -20,7 +20,8 @@
 //! stops ticking and sends zero force, the device is disabled and closed, the recorder drains its ring and
 //! finishes the trace, the statistics are printed, exit 0.
 
-use crate::api::{ConfinedVolumes, RecordDir, SessionApi, VolumeDirs};
+use crate::api::folders::{ConfinedVolumes, RecordDir, VolumeDirs};
+use crate::api::SessionApi;
 use crate::device::profile::{DeviceProfile, MappingChoice};
 use crate::record::TraceFormat;
 use crate::server::{self, HttpArgs, HttpSettings, ServerConfig};

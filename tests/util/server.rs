@@ -11,7 +11,7 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 use voxhap::server::{self, ServerConfig};
-use voxhap::servo::api::{ConfinedVolumes, VolumeDirs};
+use voxhap::servo::api::folders::{ConfinedVolumes, VolumeDirs};
 use voxhap::servo::device::DeviceSpec;
 use voxhap::servo::rt::RtMode;
 use voxhap::servo::setup::SceneSetup;

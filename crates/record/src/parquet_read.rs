@@ -36,8 +36,9 @@ pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
 }
 
 /// Reads a Parquet trace as [`read_parquet_trace`] does, but hands each sample to `sink` in file order
-/// instead of collecting them: the file is read page by page, batch by batch ([`BATCH_ROWS`] rows), so
-/// memory does not grow with the trace's length, a file cut off before its final footer included. Returns the
+/// instead of collecting them: the file is read page by page, batch by batch ([`BATCH_ROWS`] rows), so the
+/// samples' memory does not grow with the trace's length, a file cut off before its final footer included;
+/// only the row groups' metadata (the footer, or what was recovered) is held whole. Returns the
 /// trace without its samples, and how many were read.
 pub(crate) fn for_each_parquet_sample(
     path: &Path,

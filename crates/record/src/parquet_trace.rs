@@ -231,7 +231,7 @@ impl ParquetTraceWriter {
 /// one-hour sims/multimodal.toml trace, docs/traces.md): float columns BYTE_STREAM_SPLIT (their bytes
 /// regrouped by significance, which Snappy then compresses; dictionaries of float time series overflow and
 /// fall back to PLAIN), integer columns DELTA_BINARY_PACKED (ticks, times and counts change by small
-/// steps), no dictionary but for the text column (`solver_status`, a handful of values).
+/// steps), no dictionary but for the text columns (`solver_status`, `force_off_cause`: a handful of values each).
 fn writer_properties(schema: &SchemaRef, max_rows: usize) -> WriterProperties {
     let mut builder = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)

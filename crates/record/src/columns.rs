@@ -313,27 +313,31 @@ mod tests {
         sample.truth.sample_age_ticks = 4;
         sample.truth.energy.passivity_dissipated_j = 0.125;
         sample.truth.device_force_n = Some(DVec3::new(0.5, -1.25, 2.0));
+        sample.truth.external_force_n = DVec3::new(-0.75, 0.0, 1.5);
         let mut row = Vec::new();
         cells(&sample, 2, 1_000, &mut row);
         assert_eq!(row.len(), columns(&["a".into(), "b".into()]).len());
         assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
         assert!(sample_from_cells(&row, 2, Some(5)).is_err());
-        // The last four columns: what the controller dissipated, then the device's own force.
-        let last: Vec<Cell> = row[row.len() - 4..].to_vec();
+        // The last seven columns: what the controller dissipated, the device's own force, the external force.
+        let last: Vec<Cell> = row[row.len() - 7..].to_vec();
         assert_eq!(
             last,
             [
                 Cell::F64(0.125),
                 Cell::F64(0.5),
                 Cell::F64(-1.25),
-                Cell::F64(2.0)
+                Cell::F64(2.0),
+                Cell::F64(-0.75),
+                Cell::F64(0.0),
+                Cell::F64(1.5)
             ]
         );
         // A device that reports no force: NaN in each column, and none again when read back.
         sample.truth.device_force_n = None;
         row.clear();
         cells(&sample, 2, 1_000, &mut row);
-        assert!(row[row.len() - 3..]
+        assert!(row[row.len() - 6..row.len() - 3]
             .iter()
             .all(|c| matches!(c, Cell::F64(v) if v.is_nan())));
         assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);

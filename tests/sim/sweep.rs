@@ -6,7 +6,7 @@
 //! - the passivity bound `b / (T/2 + tau)` (Colgate and Schenkel, J. Robotic Systems 14(1), 1997, `K < 2b/T`
 //!   without delay; the delay term as in Hulin, Albu-Schäffer and Hirzinger, IEEE TCST 2014), the cap voxhap
 //!   applies (crates/device/src/physics.rs);
-//! - the exact zero-order-hold stability boundary of the same loop, computed here from first principles: the
+//! - the exact zero-order-hold stability boundary of the same loop, computed from first principles (`voxhap_device::sim::zoh_exact`): the
 //!   plant `1 / (s (m s + b))` under a zero-order hold, `G(z) = (c1 z + c0) / (b (z - 1)(z - a))` with
 //!   `a = exp(-T b / m)`, `c1 = T - tau_m (1 - a)`, `c0 = tau_m (1 - a) - a T`, `tau_m = m / b` (Gillespie and
 //!   Cutkosky 1996), closed by `-K z^-d`, and a Schur-Cohn test of `z^d (z - 1)(z - a) + (K / b)(c1 z + c0)`
@@ -26,6 +26,7 @@
 //!
 //! `VOXHAP_BLESS=1 cargo test --release --test integration sim::sweep` rewrites the table in the docs.
 
+use voxhap::device::sim::zoh_exact::exact_boundary;
 use voxhap::haptics::tick::SolverKind;
 use voxhap::record::{TraceError, TraceSample, TraceSummary, TraceWriter};
 use voxhap::sim::{self, Scenario, SimSummary};
@@ -129,47 +130,6 @@ const PUSH_N: f64 = 1.0;
 const RUN_S: f64 = 1.5;
 /// The controller-on search stops at this multiple of the passivity bound.
 const CONTROL_CEILING: f64 = 10.0;
-
-/// The exact ZOH stability boundary with `d` ticks of latency (module docs).
-pub fn exact_boundary(m: f64, b: f64, t: f64, d: usize) -> f64 {
-    let a = (-t * b / m).exp();
-    let tau = m / b;
-    let c1 = t - tau * (1.0 - a);
-    let c0 = tau * (1.0 - a) - a * t;
-    let stable = |k: f64| {
-        let mut p = vec![0.0; d + 3];
-        p[0] = 1.0;
-        p[1] = -(1.0 + a);
-        p[2] = a;
-        p[d + 1] += k / b * c1;
-        p[d + 2] += k / b * c0;
-        schur_stable(&p)
-    };
-    let (mut lo, mut hi) = (1e-3f64, 1e9f64);
-    for _ in 0..200 {
-        let mid = (lo * hi).sqrt();
-        if stable(mid) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
-}
-
-/// Schur-Cohn: are all roots of `p` (highest degree first) strictly inside the unit circle?
-fn schur_stable(p: &[f64]) -> bool {
-    let mut p = p.to_vec();
-    while p.len() > 1 {
-        let n = p.len() - 1;
-        let (lead, last) = (p[0], p[n]);
-        if lead.abs() <= last.abs() {
-            return false;
-        }
-        p = (0..n).map(|i| lead * p[i] - last * p[n - i]).collect();
-    }
-    true
-}
 
 /// The scenario: a released hand pushing the arm onto a plane with `PUSH_N`, started at rest half the
 /// static force off the equilibrium (`z = -PUSH_N / K + 0.5 PUSH_N / K`), so that a passive contact stays in

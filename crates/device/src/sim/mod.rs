@@ -38,6 +38,8 @@ mod path;
 pub mod preset;
 mod tagged;
 pub mod zoh;
+#[cfg(any(test, feature = "test-support"))]
+pub mod zoh_exact;
 
 pub use arm::{
     ArmParams, HandParams, LocalModelSim, MissingArmKey, SimArm, SimArmConfig, StepOutcome,

@@ -8,7 +8,7 @@
 //! protocol driver turns it into a LocalModel message. Fixed-size and `Copy`: nothing here allocates.
 
 use glam::DVec3;
-use voxhap_protocol::{LocalKind, SiPrimitive};
+use voxhap_protocol::{LocalKind, LocalModelParams, SiPrimitive};
 
 /// The most primitives an offer carries. The wire carries three (the summed directed forces and the nearest
 /// others, SPEC 10.3); the offer keeps more so that the driver, not the loop, chooses them. A tick with more
@@ -72,6 +72,19 @@ impl LocalOffer {
     /// True when the tick had more primitives than an offer holds.
     pub fn truncated(&self) -> bool {
         self.truncated
+    }
+
+    /// The LocalModel parameters for this offer (sequence 0: the host session numbers it), expiring after
+    /// [`OFFER_EXPIRY_US`], with the force limit at most the device's own (SPEC 10.3).
+    pub fn params(&self, force_limit_n: f64, device_max_force_n: f64) -> LocalModelParams {
+        LocalModelParams {
+            sequence: 0,
+            expiry_us: OFFER_EXPIRY_US,
+            stiffness_n_per_m: self.stiffness_n_per_m,
+            damping_n_s_per_m: self.damping_n_s_per_m,
+            force_limit_n: force_limit_n.min(device_max_force_n),
+            anchor_m: self.anchor_m.to_array(),
+        }
     }
 
     /// The offer through a map from scene to device frame: `position` maps points, `direction` maps vectors

@@ -38,7 +38,7 @@
 
 pub use super::protocol_link::{HidLink, MessageLink, SerialLink};
 use crate::info::DEFAULT_MAX_SPEED_M_PER_S;
-use crate::local_offer::{LocalOffer, LocalReport, OFFER_EXPIRY_US};
+use crate::local_offer::{LocalOffer, LocalReport};
 use crate::{
     DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
 };
@@ -47,7 +47,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
     DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent, HostSession, HostToDevice,
-    LocalModelParams, LocalState, StatusFlags, PROTOCOL_VERSION,
+    LocalState, StatusFlags, PROTOCOL_VERSION,
 };
 
 /// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
@@ -604,15 +604,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         force_limit_n: f64,
         fallback_force_n: DVec3,
     ) -> Result<(), DeviceError> {
-        let params = LocalModelParams {
-            sequence: 0,
-            expiry_us: OFFER_EXPIRY_US,
-            stiffness_n_per_m: model.stiffness_n_per_m,
-            damping_n_s_per_m: model.damping_n_s_per_m,
-            // SPEC 10.3: the force limit is at most the device's own.
-            force_limit_n: force_limit_n.min(self.info.max_force_n),
-            anchor_m: model.anchor_m.to_array(),
-        };
+        let params = model.params(force_limit_n, self.info.max_force_n);
         match self.host.local_model(&params, model.primitives()) {
             Ok(message) => {
                 if let HostToDevice::LocalModel(sent) = &message {

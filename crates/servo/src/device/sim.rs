@@ -16,13 +16,12 @@
 
 use crate::mapped::SceneMappingSlot;
 use glam::DVec3;
-use voxhap_device::local_offer::{LocalOffer, LocalReport, OFFER_EXPIRY_US};
+use voxhap_device::local_offer::{LocalOffer, LocalReport};
 use voxhap_device::sim::{LocalModelSim, SimArm, SimArmConfig, SimError};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use voxhap_local::{LocalLoop, LoopConfig};
 use voxhap_protocol::{
-    DeviceSample, DeviceSession, HostSession, HostToDevice, Label, LocalModelParams, RateSet,
-    PROTOCOL_VERSION,
+    DeviceSample, DeviceSession, HostSession, HostToDevice, Label, RateSet, PROTOCOL_VERSION,
 };
 
 /// The device side of a simulated local-model device: the protocol session, the reference loop, and the host
@@ -292,14 +291,7 @@ impl HapticDevice for SimDevice {
         let Some(local) = self.local.as_deref_mut() else {
             return self.write_force(fallback_force_n);
         };
-        let params = LocalModelParams {
-            sequence: 0,
-            expiry_us: OFFER_EXPIRY_US,
-            stiffness_n_per_m: model.stiffness_n_per_m,
-            damping_n_s_per_m: model.damping_n_s_per_m,
-            force_limit_n: force_limit_n.min(max_force_n),
-            anchor_m: model.anchor_m.to_array(),
-        };
+        let params = model.params(force_limit_n, max_force_n);
         match local.host.local_model(&params, model.primitives()) {
             Ok(message) => self.run_local_period(&message),
             Err(_) => self.write_force(fallback_force_n),

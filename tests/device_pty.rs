@@ -486,21 +486,8 @@ fn a_device_answering_5_ms_late_connects_and_engages() {
 /// by `voxhap bench-loop`, not asserted here.)
 #[test]
 fn a_lossy_link_keeps_the_servo_exchanging() {
-    use voxhap::servo::device::{open_device, DeviceSpec};
-    use voxhap::servo::monitor::StopSlot;
-    use voxhap::servo::setup::SceneSetup;
     let mock = Mock::start(&["--pty", "--corrupt-rate", "0.01", "--seed", "7"]);
-    let setup = SceneSetup::builtin().unwrap();
-    let mut device = open_device(
-        &DeviceSpec::Mock(mock.path.clone().into()),
-        SupervisorConfig::default(),
-        (setup.arm.clone(), setup.start_m),
-        1e-3,
-    )
-    .unwrap()
-    .device;
-    device.set_stop_slot(StopSlot::new());
-    device.connect(0).unwrap();
+    let mut device = mock.open_connected();
     let start = Instant::now();
     let (mut with_state_after_failure, mut exchanges) = (0u64, 0u64);
     let mut failed = false;
@@ -532,21 +519,8 @@ fn a_lossy_link_keeps_the_servo_exchanging() {
 /// enabled.
 #[test]
 fn the_reconnecting_wrapper_exchange_does_not_allocate() {
-    use voxhap::servo::device::{open_device, DeviceSpec};
-    use voxhap::servo::monitor::StopSlot;
-    use voxhap::servo::setup::SceneSetup;
     let mock = Mock::start(&["--pty"]);
-    let setup = SceneSetup::builtin().unwrap();
-    let mut device = open_device(
-        &DeviceSpec::Mock(mock.path.clone().into()),
-        SupervisorConfig::default(),
-        (setup.arm.clone(), setup.start_m),
-        1e-3,
-    )
-    .unwrap()
-    .device;
-    device.set_stop_slot(StopSlot::new());
-    device.connect(0).unwrap();
+    let mut device = mock.open_connected();
     let start = Instant::now();
     let mut tick = 0u64;
     let mut exchange = |device: &mut Box<dyn voxhap::servo::device::ServoDevice>| {

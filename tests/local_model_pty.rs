@@ -11,7 +11,7 @@ use serialport::SerialPort;
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
-use voxhap::device::supervisor::{SupervisorConfig, TickInput};
+use voxhap::device::supervisor::TickInput;
 use voxhap_protocol::{
     encode_frame, DeviceToHost, Enable, FrameDecoder, Heartbeat, HostSession, HostToDevice,
     LocalKind, LocalModelParams, SiPrimitive, StatusFlags, MAX_WIRE_FRAME_LEN,
@@ -300,22 +300,9 @@ fn serve_sends_local_models_to_a_capable_mock_and_its_force_expires_when_serve_d
 /// the State and LocalState back, and none allocates once connected and enabled.
 #[test]
 fn exchanges_that_send_local_models_do_not_allocate() {
-    use voxhap::servo::device::{open_device, DeviceSpec};
-    use voxhap::servo::monitor::StopSlot;
-    use voxhap::servo::setup::SceneSetup;
     use voxhap_solver::Primitive;
     let mock = Mock::start(&["--pty", "--local-model"]);
-    let setup = SceneSetup::builtin().unwrap();
-    let mut device = open_device(
-        &DeviceSpec::Mock(mock.path.clone().into()),
-        SupervisorConfig::default(),
-        (setup.arm.clone(), setup.start_m),
-        1e-3,
-    )
-    .unwrap()
-    .device;
-    device.set_stop_slot(StopSlot::new());
-    device.connect(0).unwrap();
+    let mut device = mock.open_connected();
     // The wall of the other tests, and a directed force and a point, as a tick's modes would emit them.
     let primitives = [
         Primitive::plane(DVec3::new(0.01, 0.0, 0.0), DVec3::NEG_X, 30.0).unwrap(),

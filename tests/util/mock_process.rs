@@ -34,6 +34,23 @@ impl MockProcess {
         }
     }
 
+    /// The mock opened as `serve` opens it (the reconnecting supervisor with its default settings, the built-in
+    /// scene's arm, 1 kHz), with a stop slot, and connected.
+    pub fn open_connected(&self) -> Box<dyn voxhap::servo::device::ServoDevice> {
+        let setup = voxhap::servo::setup::SceneSetup::builtin().unwrap();
+        let mut device = voxhap::servo::device::open_device(
+            &voxhap::servo::device::DeviceSpec::Mock(self.path.clone().into()),
+            voxhap::device::supervisor::SupervisorConfig::default(),
+            (setup.arm.clone(), setup.start_m),
+            1e-3,
+        )
+        .unwrap()
+        .device;
+        device.set_stop_slot(voxhap::servo::monitor::StopSlot::new());
+        device.connect(0).unwrap();
+        device
+    }
+
     /// True once the process has exited (its stdout may still hold lines to read).
     pub fn has_exited(&mut self) -> bool {
         matches!(self.child.try_wait(), Ok(Some(_)))

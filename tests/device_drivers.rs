@@ -357,8 +357,9 @@ fn woodenhaptics_driver_reads_counts_and_writes_currents() {
 /// interrupt endpoint is polled at most once per 1 ms frame, USB 2.0 section 5.7.4), each readable 0.3 ms after
 /// its slot; the driver waits 0.75 ms per tick (three quarters of the 1 ms period). A report 1.5 ms late misses
 /// two ticks' waits (two timeouts, each costing at most the wait, never a fixed 5-10 ms) and is then read on
-/// the third tick, two ticks after it was due; a report the device never sends costs one timeout. Worked by hand
-/// from the double's time model (virtual time, so the machine's load cannot change it).
+/// the third tick, two ticks after it was due, and the driver says it may be two ticks old (it was sent in
+/// slot 1, at tick 1); a report the device never sends costs one timeout. Worked by hand from the double's time
+/// model (virtual time, so the machine's load cannot change it).
 #[test]
 fn woodenhaptics_hid_sees_a_late_report_late_and_a_missing_one_as_a_timeout() {
     let zero = encode_output([0, 0, 0], 0);
@@ -389,19 +390,21 @@ fn woodenhaptics_hid_sees_a_late_report_late_and_a_missing_one_as_a_timeout() {
         // No pose accepted: zero currents every tick.
         device.write_force(DVec3::ZERO).unwrap();
         seen.push(match device.read_state() {
-            Ok(_) => Ok(device.last_counter().unwrap()),
+            Ok(_) => Ok((device.last_counter().unwrap(), device.state_age_ticks())),
             Err(error) => Err(error.kind()),
         });
     }
     assert_eq!(
         seen,
         vec![
-            Ok(1),
+            Ok((1, 0)),
             Err(ErrorKind::Timeout),
             Err(ErrorKind::Timeout),
-            // Read at tick 3 (3.0 ms): the 2.8 ms report, two ticks after its slot; the next is not there yet.
-            Ok(2),
-            Ok(4),
+            // Read at tick 3 (3.0 ms): the 2.8 ms report, sent in slot 1 (tick 1), two ticks old; the next is
+            // not there yet.
+            Ok((2, 2)),
+            // Slot 3's report, readable at 3.3 ms, read in tick 4: the tick after the one before, 0.
+            Ok((4, 0)),
         ]
     );
     // Every wait ended at its bound: tick 4 read its report at 4.0 ms (it arrived at 3.3 ms).

@@ -10,7 +10,7 @@ use glam::{DMat3, DVec3};
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 use voxhap::device::drivers::falcon::{
-    upload_firmware, Falcon, FalconConfig, FalconPort, LED_GREEN, LED_RED,
+    upload_firmware, Falcon, FalconConfig, FalconPort, LED_GREEN, LED_RED, LOST_REPLY_AFTER,
 };
 use voxhap::device::supervisor::{Supervisor, TickInput};
 use voxhap::device::transport::{ByteTransport, SerialTransport};
@@ -451,4 +451,95 @@ fn patient_config() -> FalconConfig {
         reply_timeout: Duration::from_millis(5),
         ..FalconConfig::default()
     }
+}
+
+/// The state's age against the truth: the late double numbers each answer by the command it answers
+/// (`[n, -n, 2n]`), so a state read after command `sent` answers command `n` and is `sent - n` ticks old. The
+/// driver may say a state is older than it is (by one, after a frame it could not place), never younger.
+fn check_age(device: &Lifecycle<Falcon<SerialTransport>>, sent: i64, tick: i64) -> i64 {
+    let answered = i64::from(device.device().last_reply().unwrap().encoders[0]);
+    let truth = sent - answered;
+    let reported = i64::from(device.device().state_age_ticks());
+    assert!(
+        reported >= truth && reported <= truth + 1,
+        "tick {tick}: the state answers command {answered} of {sent} ({truth} ticks old), the driver says {reported}"
+    );
+    truth
+}
+
+/// A Falcon whose answers come as late as on libnifalcon's link (1-2 ms after the command: the FTDI latency
+/// timer, then a USB frame; `libnifalcon_arrival`), driven at 1 kHz with the servo's own wait (0.75 ms): before
+/// each command the answer to the previous one has arrived (the step waits for it, so this holds whatever the
+/// load), and this tick's answer cannot come within the wait. From the second tick on (open read the answer to
+/// its own command, so the first tick has no earlier one), every tick gives a state, the previous command's
+/// answer, and says it is one tick old: never a miss.
+#[test]
+fn a_reply_later_than_the_tick_is_a_one_tick_old_state_not_a_miss() {
+    let falcon = FalconDevice::start_late();
+    *falcon.shared.homing.lock().unwrap() = 0x7;
+    let transport = SerialTransport::open(falcon.path(), 1_500_000).unwrap();
+    let config = FalconConfig::for_period(Duration::from_millis(1));
+    let mut device = Lifecycle::new(Falcon::new(transport, config));
+    device.open().unwrap();
+    device.enable().unwrap();
+    // Every command open sent has reached the double (its answers may still be on their way).
+    std::thread::sleep(Duration::from_millis(20));
+    let first = falcon.commands().len() as i64;
+    for tick in 0..200i64 {
+        let sent = first + tick;
+        wait_for("the answer to the previous command", || {
+            falcon.shared.answered.load(Ordering::Acquire) >= sent as u64
+        });
+        device.write_force(DVec3::ZERO).unwrap();
+        match device.read_state() {
+            Ok(_) => {
+                let truth = check_age(&device, sent, tick);
+                if tick > 0 {
+                    assert!(truth <= 1, "tick {tick}: {truth} ticks old");
+                }
+            }
+            Err(e) if tick > 0 => {
+                panic!("tick {tick}: the previous command's answer had come, yet no state: {e}")
+            }
+            Err(_) => {}
+        }
+        device.input_checked(true);
+    }
+    assert_eq!(device.device().surplus_frames(), 0);
+}
+
+/// The same late Falcon paced in real time at 1 kHz: every state the driver hands out is honest about its age
+/// (never younger than the command it answers says), and the link's answers are all placed (none taken for a
+/// frame nobody asked for). The driver writes a reply off as lost 50 ms after its command
+/// (`LOST_REPLY_AFTER`); should the double's own thread fall that far behind its model on a busy machine, its
+/// answers stop being the Falcon's, and the ages are checked only up to then.
+#[test]
+fn late_replies_at_a_real_1_khz_pace_carry_honest_ages() {
+    let falcon = FalconDevice::start_late();
+    *falcon.shared.homing.lock().unwrap() = 0x7;
+    let transport = SerialTransport::open(falcon.path(), 1_500_000).unwrap();
+    let period = Duration::from_millis(1);
+    let mut device = Lifecycle::new(Falcon::new(transport, FalconConfig::for_period(period)));
+    device.open().unwrap();
+    device.enable().unwrap();
+    std::thread::sleep(Duration::from_millis(20));
+    let first = falcon.commands().len() as i64;
+    let start = std::time::Instant::now();
+    let mut states = 0;
+    for tick in 0..500i64 {
+        let due = start + period * u32::try_from(tick).unwrap();
+        if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        device.write_force(DVec3::ZERO).unwrap();
+        let double_on_time = falcon.shared.max_late_us.load(Ordering::Acquire)
+            < u64::try_from(LOST_REPLY_AFTER.as_micros()).unwrap() / 2;
+        if device.read_state().is_ok() && double_on_time {
+            check_age(&device, first + tick, tick);
+            states += 1;
+        }
+        device.input_checked(true);
+    }
+    assert!(states > 0, "no state checked in 500 ticks");
+    assert_eq!(device.device().surplus_frames(), 0);
 }

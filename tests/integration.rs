@@ -28,6 +28,7 @@ mod hand_target;
 mod haply_2diy_pty;
 mod haply_inverse;
 mod haply_inverse_frame;
+mod haply_inverse_trace;
 mod igtl;
 mod late_states;
 mod layers;

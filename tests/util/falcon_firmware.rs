@@ -14,13 +14,16 @@
 //!
 //! Misbehaviour a test can ask for: frames whose encoder counts are not the true ones (glitches, jumps) while
 //! every command is logged with the true counts ([`Applied`]), and more than one answer per frame.
+//!
+//! Timing a test can ask for ([`FalconDevice::start_late`]): each answer reaches the host as late as on a real
+//! Falcon ([`libnifalcon_arrival`]), and carries the number of the command it answers as its encoder counts.
 
 use super::pty::PtyDevice;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use voxhap::device::drivers::falcon::FalconPort;
 use voxhap::device::transport::{ByteTransport, MemoryPipe};
 use voxhap::device::DeviceError;
@@ -112,7 +115,27 @@ pub struct FalconShared {
     pub grip: Mutex<u8>,
     /// Firmware bytes received by the bootloader.
     pub firmware: Mutex<Vec<u8>>,
+    /// Each answer's encoder counts are `[n, -n, 2n]` for the n-th command answered (from 0), instead of the
+    /// true counts: the host can tell which command a state answers.
+    pub numbered: AtomicBool,
+    /// The latest a late answer reached the host after its planned arrival (µs): how far the double's own
+    /// thread fell behind its model on a busy machine.
+    pub max_late_us: AtomicU64,
     stop: AtomicBool,
+}
+
+/// When the answer to a frame the Falcon received at `received` reaches the host, on the link libnifalcon sets
+/// up: the 16-byte answer is shorter than an FTDI packet, so the chip sends it when its latency timer runs out
+/// (1 ms in normal mode, set by the vendor request 0x09 with value 1 in src/comm/FalconCommLibUSB.cpp:560),
+/// and the host collects it at the next 1 ms full-speed USB frame (the frames counted from `bus_start`): 1 to
+/// 2 ms after the command. libnifalcon's loop waits for that answer before it sends the next frame
+/// (src/firmware/FalconFirmwareNovintSDK.cpp:113-154: no write while `m_hasWritten` and no bytes available).
+pub fn libnifalcon_arrival(bus_start: Instant, received: Instant) -> Instant {
+    const USB_FRAME_US: u128 = 1_000;
+    let timer_out = received + Duration::from_millis(1);
+    let since_us = timer_out.saturating_duration_since(bus_start).as_micros();
+    let frame = since_us.div_ceil(USB_FRAME_US);
+    bus_start + Duration::from_micros(u64::try_from(frame * USB_FRAME_US).unwrap_or(u64::MAX))
 }
 
 /// Host frame → command: `<`, 3 × 4 nibbles + 0x41 (least significant first), control byte + 0x41, spare, `>`.
@@ -173,7 +196,12 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> Vec<u8> {
                 motor: command.motor,
                 true_encoders: truth,
             });
-            let reported = shared.glitches.lock().unwrap().pop_front().unwrap_or(truth);
+            let reported = if shared.numbered.load(Ordering::Acquire) {
+                let n = (shared.commands.lock().unwrap().len() - 1) as i16;
+                [n, -n, 2 * n]
+            } else {
+                shared.glitches.lock().unwrap().pop_front().unwrap_or(truth)
+            };
             let answer = device_frame(
                 reported,
                 *shared.homing.lock().unwrap(),
@@ -195,16 +223,44 @@ pub struct FalconDevice {
 }
 
 impl FalconDevice {
+    /// A Falcon whose answers reach the host at once.
     pub fn start() -> FalconDevice {
+        FalconDevice::start_with(false)
+    }
+
+    /// A Falcon whose answers reach the host as late as libnifalcon's link delivers them
+    /// ([`libnifalcon_arrival`]), numbered by the command they answer ([`FalconShared::numbered`]).
+    /// `answered` counts answers that have reached the host.
+    pub fn start_late() -> FalconDevice {
+        FalconDevice::start_with(true)
+    }
+
+    fn start_with(late: bool) -> FalconDevice {
         let mut pty = PtyDevice::new();
+        if late {
+            pty.set_read_timeout(Duration::from_micros(100));
+        }
         let path = pty.path().to_string();
         let shared = Arc::new(FalconShared::default());
+        shared.numbered.store(late, Ordering::Release);
         let thread = {
             let shared = shared.clone();
             std::thread::spawn(move || {
+                let bus_start = Instant::now();
                 let mut pending = Vec::new();
+                // Answers on their way: when each reaches the host, its bytes, how many commands it answers.
+                let mut on_the_way: VecDeque<(Instant, Vec<u8>, usize)> = VecDeque::new();
                 let mut chunk = [0u8; 256];
                 while !shared.stop.load(Ordering::Acquire) {
+                    while on_the_way.front().is_some_and(|(at, _, _)| *at <= Instant::now()) {
+                        let (at, out, served) = on_the_way.pop_front().unwrap();
+                        let _ = pty.write(&out);
+                        let late = Instant::now().saturating_duration_since(at).as_micros();
+                        shared
+                            .max_late_us
+                            .fetch_max(late as u64, Ordering::AcqRel);
+                        shared.answered.fetch_add(served as u64, Ordering::AcqRel);
+                    }
                     match pty.read(&mut chunk) {
                         Ok(n) => pending.extend_from_slice(&chunk[..n]),
                         Err(_) => {
@@ -212,12 +268,23 @@ impl FalconDevice {
                             continue;
                         }
                     }
+                    let received = Instant::now();
                     let before = shared.commands.lock().unwrap().len();
                     let out = serve_frames(&mut pending, &shared);
+                    let served = shared.commands.lock().unwrap().len() - before;
+                    if late {
+                        if served > 0 {
+                            on_the_way.push_back((
+                                libnifalcon_arrival(bus_start, received),
+                                out,
+                                served,
+                            ));
+                        }
+                        continue;
+                    }
                     if !out.is_empty() {
                         let _ = pty.write(&out);
                     }
-                    let served = shared.commands.lock().unwrap().len() - before;
                     shared.answered.fetch_add(served as u64, Ordering::AcqRel);
                 }
             })

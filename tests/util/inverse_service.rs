@@ -158,6 +158,8 @@ pub struct ServiceShared {
     pub ebrake: AtomicBool,
     /// The last force the arm received (N, default frame).
     arm_force: Mutex<DVec3>,
+    /// Every `current_cursor_force` sent in a state update, in order.
+    pub reported_forces: Mutex<Vec<[f64; 3]>>,
     pub malformed_replies: AtomicU32,
     pub delay_next_reply_ms: AtomicU64,
     pub replies_per_message: AtomicU32,
@@ -253,10 +255,12 @@ impl ServiceShared {
 
     fn state(&self, position: Value) -> Value {
         let c = self.configuration.lock().unwrap().clone();
+        let arm = *self.arm_force.lock().unwrap();
+        self.reported_forces.lock().unwrap().push(arm.to_array());
         json!({
             "cursor_position": position,
             "cursor_velocity": {"x": 0.0, "y": 0.0, "z": 0.0},
-            "current_cursor_force": vector(*self.arm_force.lock().unwrap()),
+            "current_cursor_force": vector(arm),
             "control_mode": "idle",
             "transform": c.workspace_transform.json()
         })
@@ -373,6 +377,7 @@ impl InverseService {
             keep_configuration: AtomicBool::new(false),
             ebrake: AtomicBool::new(false),
             arm_force: Mutex::new(DVec3::ZERO),
+            reported_forces: Mutex::new(Vec::new()),
             malformed_replies: AtomicU32::new(0),
             delay_next_reply_ms: AtomicU64::new(0),
             replies_per_message: AtomicU32::new(1),

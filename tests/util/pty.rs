@@ -33,7 +33,14 @@ impl PtyDevice {
         &self.path
     }
 
-    /// Reads what the host wrote (`Ok(0)` when nothing came within 2 ms).
+    /// How long [`PtyDevice::read`] waits for bytes (2 ms unless set).
+    pub fn set_read_timeout(&mut self, timeout: Duration) {
+        self.master
+            .set_timeout(timeout)
+            .expect("set the master's read timeout");
+    }
+
+    /// Reads what the host wrote (`Ok(0)` when nothing came within the read timeout, 2 ms unless set).
     pub fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         match self.master.read(buf) {
             Ok(n) => Ok(n),

@@ -1,5 +1,6 @@
-//! The shared runner of the request/reply drivers (Falcon, Haply 2DIY, WoodenHaptics serial): the one place
-//! that reads a port with a deadline. Each driver's protocol logic sits in a receive core with no I/O and no
+//! The shared runner of the request/reply drivers (Falcon, Haply 2DIY, WoodenHaptics serial) and of the
+//! report-streaming WoodenHaptics 1.5 HID driver ([`newest_report_within`]): the one place that reads a port
+//! with a deadline. Each driver's protocol logic sits in a receive core with no I/O and no
 //! clock ([`super::assemble`], [`super::falcon_frames::FrameAssembler`]); the runner moves bytes from the
 //! transport into the core until the core yields a whole reply or the wait is over.
 //!
@@ -9,7 +10,8 @@
 //! most [`LATE_POLLS`] of them, so a device that never stops sending cannot hold the tick.
 
 use super::assemble::Receive;
-use crate::transport::ByteTransport;
+use super::report_stream::{NewestReport, REPORT_CAPACITY};
+use crate::transport::{ByteTransport, ReportTransport};
 use crate::DeviceError;
 use std::time::{Duration, Instant};
 
@@ -53,6 +55,34 @@ where
         }
         core.filled(n);
     }
+}
+
+/// Reports read after the first one of a tick, while the queue still holds some (bounded, so a device flooding
+/// reports cannot hold the tick).
+pub const DRAIN_REPORTS: u32 = 128;
+
+/// Reads a tick's reports from `transport` into `core` ([`NewestReport`]): the first within `wait`, then what is
+/// already queued (at most [`DRAIN_REPORTS`] more, without waiting). True when a report came.
+pub fn newest_report_within<T: ReportTransport + ?Sized>(
+    transport: &mut T,
+    core: &mut NewestReport,
+    wait: Duration,
+) -> Result<bool, DeviceError> {
+    core.begin();
+    let mut scratch = [0u8; REPORT_CAPACITY];
+    let n = transport.read_report(&mut scratch, wait)?;
+    if n == 0 {
+        return Ok(false);
+    }
+    core.report(&scratch[..n]);
+    for _ in 0..DRAIN_REPORTS {
+        let m = transport.read_report(&mut scratch, Duration::ZERO)?;
+        if m == 0 {
+            break;
+        }
+        core.report(&scratch[..m]);
+    }
+    Ok(true)
 }
 
 #[cfg(test)]

@@ -42,10 +42,16 @@
 //! accepted position, and restarts its forward-kinematics guess there; before any position was accepted, and
 //! again after homing resets the coordinates, it sends zero torque.
 //!
-//! No backlog: the Falcon answers each frame with one frame. Before each command the driver drops every frame
-//! already waiting (a reply whose read timed out, or frames nobody asked for, which are counted and reported,
-//! [`DeviceEvent::Surplus`]), so the frame read after the command answers it (at most one tick old).
-//!
+//! Late replies (libnifalcon waits for each reply before it sends the next frame,
+//! src/firmware/FalconFirmwareNovintSDK.cpp:113-154; the reply comes 1-2 ms after its command,
+//! [`crate::latency::FALCON`], later than the wait of a 1 kHz tick): voxhap sends a command every tick
+//! anyway and counts the commands whose replies are still to come ([`super::in_flight::InFlight`]). The Falcon
+//! answers each frame with one frame, in order, so the frame read answers the oldest of them, and the state it
+//! gives is as many ticks old as commands went out after it. Before each command the driver takes every frame
+//! already waiting and holds the newest reply; if this tick's wait brings nothing newer, the held reply is the
+//! tick's state (one tick old at 1-2 ms latency and 1 kHz) rather than a miss. Frames no command asked for are
+//! dropped, counted and reported ([`DeviceEvent::Surplus`]), and the next state counts a tick older.
+
 //! The firmware file is Novint's (for example `test_firmware.bin` of their SDK); voxhap never ships it.
 
 pub use super::falcon_frames::{
@@ -56,7 +62,7 @@ pub use super::falcon_kinematics::{
     forward_kinematics, inverse_kinematics, jacobian_inverse, leg_angle_rad, motor_commands,
     FalconGeometry, LegAngles,
 };
-use super::reply_age::ReplyAge;
+use super::in_flight::InFlight;
 use crate::transport::{ftdi_latency, ByteTransport, SerialTransport};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
@@ -72,6 +78,12 @@ pub const NORMAL_BAUD: u32 = 1_500_000;
 pub const BOOTLOADER_CHECK_BAUD: u32 = 9_600;
 /// Baud rate of the firmware upload (FTDI divisor 0x15).
 pub const UPLOAD_BAUD: u32 = 142_857;
+/// How long after its command a reply that has not come is written off as lost: 25 times the link's worst
+/// latency ([`crate::latency::FALCON`], 2 ms), so only a reply that never comes is, not a late one (writing off
+/// a late reply would make the later ones look younger than they are). Meanwhile each missing reply makes the
+/// states look a tick older than they are (the safe direction).
+pub const LOST_REPLY_AFTER: Duration = Duration::from_millis(50);
+
 /// Bytes per firmware piece (FalconFirmware.cpp:115).
 pub const UPLOAD_CHUNK: usize = 62;
 
@@ -266,11 +278,17 @@ pub struct Falcon<P> {
     last_reply: Option<FalconReply>,
     /// The receive side's protocol state: bytes in, frames out (no I/O).
     frames: FrameAssembler,
-    awaiting_reply: bool,
+    /// The newest reply the drain before a command found (it answers an earlier command): the state handed
+    /// out when this tick's own reply has not come.
+    held: Option<FalconReply>,
     surplus: SurplusCount,
     event: Option<DeviceEvent>,
-    /// How old the reply handed out may be.
-    age: ReplyAge,
+    /// The commands whose replies are still to come (the replies' ages).
+    in_flight: InFlight,
+    /// The age (ticks) of the state handed out last.
+    state_age: u32,
+    /// Malformed frames the assembler had dropped when last looked at (each a reply that came garbled).
+    malformed_seen: u64,
 }
 
 impl<P: FalconPort> Falcon<P> {
@@ -300,10 +318,12 @@ impl<P: FalconPort> Falcon<P> {
             candidate_m: None,
             last_reply: None,
             frames: FrameAssembler::new(),
-            awaiting_reply: false,
+            held: None,
             surplus: SurplusCount::default(),
             event: None,
-            age: ReplyAge::default(),
+            in_flight: InFlight::new(LOST_REPLY_AFTER),
+            malformed_seen: 0,
+            state_age: 0,
         }
     }
 
@@ -317,29 +337,31 @@ impl<P: FalconPort> Falcon<P> {
         self.accepted_m
     }
 
-    /// Drops every frame already waiting before a command (bounded, so a flood cannot hold the tick).
+    /// Takes every frame already waiting before a command (bounded, so a flood cannot hold the tick): a
+    /// reply to an earlier command is held as the newest state (its age counted by [`InFlight`]); a frame no
+    /// command asked for is dropped, counted and reported.
     fn drain_waiting(&mut self) -> Result<(), DeviceError> {
         let mut surplus = 0;
+        let mut emptied = false;
         for _ in 0..64 {
-            if self.read_frame(Duration::ZERO)?.is_none() {
+            let polled_at = Instant::now();
+            let Some(frame) = self.read_frame(Duration::ZERO)? else {
+                self.in_flight.nothing_waiting(polled_at);
+                emptied = true;
                 break;
-            }
-            if std::mem::take(&mut self.awaiting_reply) {
-                self.age.late_reply_dropped();
+            };
+            if self.in_flight.reply_read() {
+                self.held = Some(frame);
             } else {
                 surplus += 1;
             }
         }
-        if self.read_frame(Duration::ZERO)?.is_some() {
+        if !emptied && self.read_frame(Duration::ZERO)?.is_some() {
             // Still more: a flood. Throw the rest away.
             self.port.discard_input()?;
             self.frames.clear();
             surplus += 1;
         }
-        if surplus > 0 {
-            self.age.surplus_dropped();
-        }
-        self.awaiting_reply = false;
         if let Some(event) = self.surplus.add(surplus) {
             self.event = Some(event);
         }
@@ -381,14 +403,33 @@ impl<P: FalconPort> Falcon<P> {
     /// (the shared runner, [`super::exchange::receive_within`], over the frame assembler). With a zero timeout
     /// the port is still polled (without waiting).
     fn read_frame(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
-        super::exchange::receive_within(&mut self.port, &mut self.frames, timeout, |frames| {
-            Ok(frames.next_frame())
-        })
+        let frame =
+            super::exchange::receive_within(&mut self.port, &mut self.frames, timeout, |frames| {
+                Ok(frames.next_frame())
+            })?;
+        // A frame dropped as malformed was a reply that came garbled: its command is answered.
+        let malformed = self.frames.malformed();
+        self.in_flight
+            .write_off(malformed.saturating_sub(self.malformed_seen));
+        self.malformed_seen = malformed;
+        Ok(frame)
     }
 
-    fn exchange_zero(&mut self, timeout: Duration) -> Result<Option<FalconReply>, DeviceError> {
-        self.send([0; 3])?;
-        self.read_frame(timeout)
+    /// Up to ten zero-torque exchanges, each waiting 20 ms for its frame: true once one is answered. The
+    /// replies' bookkeeping starts from there.
+    fn first_exchanges(&mut self) -> Result<bool, DeviceError> {
+        for _ in 0..10 {
+            self.send([0; 3])?;
+            if let Some(reply) = self.read_frame(Duration::from_millis(20))? {
+                self.last_reply = Some(reply);
+                self.in_flight.clear();
+                self.held = None;
+                self.state_age = 0;
+                self.malformed_seen = self.frames.malformed();
+                return Ok(true);
+            }
+        }
+        Ok(false)
     }
 }
 
@@ -410,16 +451,11 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.frames.clear();
         // Surplus counts from this open (the supervisor sums over links).
         self.surplus = SurplusCount::default();
-        self.age = ReplyAge::default();
         self.accepted_m = None;
         self.candidate_m = None;
-        self.awaiting_reply = false;
         // libnifalcon's isFirmwareLoaded tries many exchanges (FalconFirmware.cpp:169-190); a few suffice here.
-        for _ in 0..10 {
-            if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
-                self.last_reply = Some(reply);
-                return Ok(());
-            }
+        if self.first_exchanges()? {
+            return Ok(());
         }
         let Some(path) = self.config.firmware.clone() else {
             return Err(DeviceError::Open {
@@ -444,11 +480,8 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         }
         upload_firmware(&mut self.port, &firmware)?;
         self.frames.clear();
-        for _ in 0..10 {
-            if let Some(reply) = self.exchange_zero(Duration::from_millis(20))? {
-                self.last_reply = Some(reply);
-                return Ok(());
-            }
+        if self.first_exchanges()? {
+            return Ok(());
         }
         Err(DeviceError::Timeout {
             waited_us: 200_000,
@@ -467,8 +500,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             _ => [0; 3],
         };
         self.send(motor)?;
-        self.awaiting_reply = true;
-        self.age.command_sent();
+        self.in_flight.command_sent(Instant::now());
         Ok(())
     }
 
@@ -484,9 +516,10 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         }
     }
 
-    /// The oldest the frame may be ([`ReplyAge`]): more than 0 after missed frames or frames nobody asked for.
+    /// How old the frame is ([`InFlight`]): the commands sent after the one it answers, one more after a frame
+    /// nobody asked for.
     fn state_age_ticks(&self) -> u32 {
-        self.age.age()
+        self.state_age
     }
 
     fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
@@ -497,25 +530,54 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.event.take()
     }
 
-    /// The wrapper's zero torque went out: read the frame that answers it, so the Falcon has taken it before the
-    /// port closes.
+    /// The wrapper's zero torque went out: read the frames still to come, up to the one that answers it (at
+    /// most the link's worst latency), so the Falcon has taken it before the port closes.
     fn disable(&mut self) -> Result<(), DeviceError> {
-        if let Some(reply) = self.read_frame(self.config.reply_timeout)? {
-            self.last_reply = Some(reply);
+        let deadline =
+            Instant::now() + self.config.reply_timeout.max(crate::latency::FALCON.worst);
+        while self.in_flight.unanswered() > 0 {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            match self.read_frame(remaining)? {
+                Some(reply) => {
+                    self.in_flight.reply_read();
+                    self.last_reply = Some(reply);
+                }
+                None => break,
+            }
         }
         Ok(())
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         self.candidate_m = None;
-        let Some(reply) = self.read_frame(self.config.reply_timeout)? else {
-            return Err(DeviceError::Timeout {
-                waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
-                waiting_for: "a Falcon frame",
-            });
+        // With a reply held from before this tick's command, only what is already waiting is newer (this
+        // command's own reply comes a latency timer and a USB frame later, 1-2 ms); without one, the reply to
+        // the previous command may still come within the wait.
+        let wait = if self.held.is_some() {
+            Duration::ZERO
+        } else {
+            self.config.reply_timeout
         };
-        self.awaiting_reply = false;
-        self.age.reply_read();
+        let polled_at = Instant::now();
+        let reply = match self.read_frame(wait)? {
+            Some(reply) => {
+                self.in_flight.reply_read();
+                self.held = None;
+                reply
+            }
+            None => {
+                self.in_flight.nothing_waiting(polled_at);
+                let Some(reply) = self.held.take() else {
+                    return Err(DeviceError::Timeout {
+                        waited_us: u64::try_from(self.config.reply_timeout.as_micros())
+                            .unwrap_or(u64::MAX),
+                        waiting_for: "a Falcon frame",
+                    });
+                };
+                reply
+            }
+        };
+        self.state_age = self.in_flight.state_age();
         let was_homed = self.is_homed();
         self.last_reply = Some(reply);
         if !was_homed && self.is_homed() {

@@ -18,7 +18,9 @@
 //! - [`falcon_frames`]: the Falcon's frames and their assembly from bytes (a protocol core without I/O);
 //! - [`falcon_kinematics`]: the Falcon's kinematics (libnifalcon's delta-robot solution);
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
+//! - [`in_flight`]: the unanswered commands of a link whose replies may come ticks later (the Falcon's ages);
 //! - [`reply_age`]: how old a request/reply driver's state may be, for devices without sequence numbers;
+//! - [`report_stream`]: the receive core of a device that streams reports (the newest kept, with its age);
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
 pub mod assemble;
@@ -28,9 +30,11 @@ pub mod falcon_frames;
 pub mod falcon_kinematics;
 pub mod haply;
 pub mod haply_inverse;
+pub mod in_flight;
 pub mod protocol;
 pub mod protocol_link;
 pub mod reply_age;
+pub mod report_stream;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;
 pub mod woodenhaptics_gravity;

@@ -5,9 +5,11 @@
 //! Latency: the firmware streams reports faster than a host may read them, and the kernel queues them; reading
 //! one per tick would fall behind by up to the whole queue (~64 reports, ~64 ms). `read_state` therefore drains
 //! the queue and keeps the newest report, as chai3d's USB branch does on every read. Its age
-//! ([`HapticDevice::state_age_ticks`]) is 0: the report handed out is the newest the device has sent, read this
-//! tick (a stalled stream is a timeout, never an old report handed out again), and reports carry no command
-//! they answer, so there is no older command it could stand for.
+//! ([`HapticDevice::state_age_ticks`]) counts the ticks in a row before it that brought no report: a report
+//! read in the tick after a command is 0 ticks old, but one read after `k` ticks whose waits ended empty may
+//! have been sent just after the last report read, `k` ticks ago (the stream stalled, then its reports came
+//! late; reports carry only a counter, no time), so it is reported `k` ticks old. A stalled stream is a
+//! timeout, never an old report handed out again.
 //!
 //! Sources (public): the firmware `mbed-code/main.cpp` in WoodenHaptics/woody-experimental (8-byte reports both
 //! ways: `pc_to_hid_message` = three `short` motor currents in mA then a debug word; `hid_to_pc_message` = three
@@ -28,6 +30,7 @@
 //! Currents are scaled together so none exceeds 3 A (chai3d clamps each motor alone, which changes the force's
 //! direction) and sent as whole milliamperes, truncated toward zero as C's `short(...)` does.
 
+use super::report_stream::NewestReport;
 use super::woodenhaptics_kinematics::WoodyKinematics;
 use crate::transport::ReportTransport;
 use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
@@ -121,7 +124,8 @@ pub struct WoodenHaptics<T> {
     candidate: Option<[f64; 3]>,
     read_timeout: Duration,
     last_counter: Option<u16>,
-    drained_reports: u64,
+    /// The receive core: the newest report of each tick's read, and its age.
+    reports: NewestReport,
 }
 
 impl<T: ReportTransport> WoodenHaptics<T> {
@@ -152,7 +156,7 @@ impl<T: ReportTransport> WoodenHaptics<T> {
             candidate: None,
             read_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             last_counter: None,
-            drained_reports: 0,
+            reports: NewestReport::default(),
         })
     }
 
@@ -170,7 +174,7 @@ impl<T: ReportTransport> WoodenHaptics<T> {
 
     /// How many older queued reports `read_state` skipped to reach the newest one.
     pub fn drained_reports(&self) -> u64 {
-        self.drained_reports
+        self.reports.skipped()
     }
 
     /// The firmware's report counter from the last input report.
@@ -197,32 +201,26 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
                 .map(|ma| ma as i16),
             None => [0; 3],
         };
-        self.transport.write_report(&encode_output(currents, 0))
+        self.transport.write_report(&encode_output(currents, 0))?;
+        self.reports.command_sent();
+        Ok(())
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
         self.candidate = None;
-        let mut report = [0u8; 64];
-        let n = self.transport.read_report(&mut report, self.read_timeout)?;
-        if n == 0 {
+        // The queue drained, the newest report kept (the shared runner over the report core).
+        super::exchange::newest_report_within(
+            &mut self.transport,
+            &mut self.reports,
+            self.read_timeout,
+        )?;
+        let Some((report, _age)) = self.reports.take() else {
             return Err(DeviceError::Timeout {
                 waited_us: u64::try_from(self.read_timeout.as_micros()).unwrap_or(u64::MAX),
                 waiting_for: "a WoodenHaptics input report",
             });
-        }
-        // Drain the queue: keep the newest report (bounded, so a device flooding reports cannot hold the tick).
-        let mut newest = n;
-        let mut next = [0u8; 64];
-        for _ in 0..128 {
-            let m = self.transport.read_report(&mut next, Duration::ZERO)?;
-            if m == 0 {
-                break;
-            }
-            report = next;
-            newest = m;
-            self.drained_reports += 1;
-        }
-        let (counts, counter) = decode_input(&report[..newest])?;
+        };
+        let (counts, counter) = decode_input(report)?;
         self.last_counter = Some(counter);
         let theta = self.kinematics.joint_angles_rad(hfab_counts(counts));
         let Some(position_m) = self.kinematics.position_m(theta) else {
@@ -236,6 +234,11 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
 
     fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
         Some(crate::latency::WOODENHAPTICS_HID)
+    }
+
+    /// Ticks in a row before the report handed out that brought none (module docs).
+    fn state_age_ticks(&self) -> u32 {
+        self.reports.age()
     }
 
     fn disable(&mut self) -> Result<(), DeviceError> {

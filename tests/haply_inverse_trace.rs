@@ -125,7 +125,8 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
         let device_force = csv.vector(row, "device_force");
         if !device_force[0].is_nan() {
             assert!(
-                sent.iter().any(|f| (0..3).all(|k| (f[k] - device_force[k]).abs() <= 1e-12)),
+                sent.iter()
+                    .any(|f| (0..3).all(|k| (f[k] - device_force[k]).abs() <= 1e-12)),
                 "row {i}: device force {device_force:?} is none the service reported"
             );
             nonzero += usize::from(device_force.iter().any(|c| *c != 0.0));
@@ -134,7 +135,11 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
         // From the row after the one that read the event (that tick's force went out before it was read).
         if let Some(from) = faulted_from {
             let tick = csv.cell(row, "tick");
-            assert_ne!(faults & (1 << 1), 0, "tick {tick}: the fault bit was cleared");
+            assert_ne!(
+                faults & (1 << 1),
+                0,
+                "tick {tick}: the fault bit was cleared"
+            );
             assert_eq!(
                 csv.vector(row, "force"),
                 [0.0; 3],
@@ -142,7 +147,11 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
                 i - from
             );
             assert_eq!(csv.cell(row, "flag_device_faulted"), "true", "tick {tick}");
-            assert_eq!(csv.cell(row, "force_off_cause"), "device_fault", "tick {tick}");
+            assert_eq!(
+                csv.cell(row, "force_off_cause"),
+                "device_fault",
+                "tick {tick}"
+            );
         } else if faults & (1 << 1) != 0 {
             faulted_from = Some(i);
         }

@@ -252,13 +252,14 @@ impl FalconDevice {
                 let mut on_the_way: VecDeque<(Instant, Vec<u8>, usize)> = VecDeque::new();
                 let mut chunk = [0u8; 256];
                 while !shared.stop.load(Ordering::Acquire) {
-                    while on_the_way.front().is_some_and(|(at, _, _)| *at <= Instant::now()) {
+                    while on_the_way
+                        .front()
+                        .is_some_and(|(at, _, _)| *at <= Instant::now())
+                    {
                         let (at, out, served) = on_the_way.pop_front().unwrap();
                         let _ = pty.write(&out);
                         let late = Instant::now().saturating_duration_since(at).as_micros();
-                        shared
-                            .max_late_us
-                            .fetch_max(late as u64, Ordering::AcqRel);
+                        shared.max_late_us.fetch_max(late as u64, Ordering::AcqRel);
                         shared.answered.fetch_add(served as u64, Ordering::AcqRel);
                     }
                     match pty.read(&mut chunk) {

@@ -533,8 +533,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     /// The wrapper's zero torque went out: read the frames still to come, up to the one that answers it (at
     /// most the link's worst latency), so the Falcon has taken it before the port closes.
     fn disable(&mut self) -> Result<(), DeviceError> {
-        let deadline =
-            Instant::now() + self.config.reply_timeout.max(crate::latency::FALCON.worst);
+        let deadline = Instant::now() + self.config.reply_timeout.max(crate::latency::FALCON.worst);
         while self.in_flight.unanswered() > 0 {
             let remaining = deadline.saturating_duration_since(Instant::now());
             match self.read_frame(remaining)? {

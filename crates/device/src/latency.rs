@@ -21,6 +21,16 @@ pub struct LinkLatency {
 }
 
 impl LinkLatency {
+    /// A reply that leaves the device at once and is collected at the next 1 ms full-speed USB frame:
+    /// typically 1 ms, at worst 2 ms (a reply that just missed a frame).
+    pub const fn one_usb_frame(source: &'static str) -> LinkLatency {
+        LinkLatency {
+            typical: Duration::from_millis(1),
+            worst: Duration::from_millis(2),
+            source,
+        }
+    }
+
     /// The worst delay in whole servo ticks of `period` (rounded up; 0 for a zero period).
     pub fn worst_ticks(&self, period: Duration) -> u32 {
         if period.is_zero() {
@@ -37,37 +47,29 @@ impl LinkLatency {
 /// sets and checks the same), and the host collects it at the next 1 ms full-speed USB frame: typically 1 ms,
 /// at worst 2 ms. libnifalcon does not wait for a reply with a deadline: it sends the next frame only once the
 /// reply has come (src/firmware/FalconFirmwareNovintSDK.cpp:113-154).
-pub const FALCON: LinkLatency = LinkLatency {
-    typical: Duration::from_millis(1),
-    worst: Duration::from_millis(2),
-    source: "FTDI latency timer 1 ms (libnifalcon FalconCommLibUSB.cpp:560) + one 1 ms full-speed USB frame",
-};
+pub const FALCON: LinkLatency = LinkLatency::one_usb_frame(
+    "FTDI latency timer 1 ms (libnifalcon FalconCommLibUSB.cpp:560) + one 1 ms full-speed USB frame",
+);
 
 /// Haply 2DIY: the board answers each torque command at once (hAPI Board.receive reads the reply right after
 /// the command) over native full-speed USB CDC, collected at the next 1 ms frame: typically 1 ms, at worst
 /// 2 ms (a command that just missed a frame).
-pub const HAPLY_2DIY: LinkLatency = LinkLatency {
-    typical: Duration::from_millis(1),
-    worst: Duration::from_millis(2),
-    source: "hAPI Board.receive (one reply per command) over full-speed USB CDC, 1 ms frames",
-};
+pub const HAPLY_2DIY: LinkLatency = LinkLatency::one_usb_frame(
+    "hAPI Board.receive (one reply per command) over full-speed USB CDC, 1 ms frames",
+);
 
 /// WoodenHaptics and Polhem on the Teensy firmware: each reply is pushed with `Serial.send_now()`
 /// (firmware/woody_teensy_mini/woody_teensy_mini.ino:552-553), so it leaves at the next USB frame (1 ms at full
 /// speed; a Teensy 4 at high speed is faster): typically 1 ms, at worst 2 ms.
-pub const WOODENHAPTICS_SERIAL: LinkLatency = LinkLatency {
-    typical: Duration::from_millis(1),
-    worst: Duration::from_millis(2),
-    source: "woody_teensy_mini.ino:552-553 (Serial.send_now per reply), full-speed USB 1 ms frames",
-};
+pub const WOODENHAPTICS_SERIAL: LinkLatency = LinkLatency::one_usb_frame(
+    "woody_teensy_mini.ino:552-553 (Serial.send_now per reply), full-speed USB 1 ms frames",
+);
 
 /// WoodenHaptics 1.5 over USB HID: input reports go out on an interrupt endpoint polled at most once per 1 ms
 /// full-speed frame (USB 2.0 section 5.7.4); the endpoint interval of the legacy firmware was not re-checked.
-pub const WOODENHAPTICS_HID: LinkLatency = LinkLatency {
-    typical: Duration::from_millis(1),
-    worst: Duration::from_millis(2),
-    source: "full-speed HID interrupt endpoint, 1 ms polling (USB 2.0 5.7.4); firmware interval not re-checked",
-};
+pub const WOODENHAPTICS_HID: LinkLatency = LinkLatency::one_usb_frame(
+    "full-speed HID interrupt endpoint, 1 ms polling (USB 2.0 5.7.4); firmware interval not re-checked",
+);
 
 /// Haply Inverse3 through the Inverse Service: the service answers each force message with one state
 /// (docs.haply.co "WebSocket Protocol"); Haply publishes no figure for its own device loop, so these are the

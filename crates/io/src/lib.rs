@@ -45,6 +45,8 @@ pub mod raw;
 pub mod scene;
 pub mod scene_solve;
 pub mod source;
+#[cfg(test)]
+mod test_edits;
 
 pub use decode::{decode_samples, Decoded, Endian, ScalarType};
 pub use error::{FileError, LoadError, LoadProblem, MAX_VOXELS};

@@ -102,6 +102,24 @@ pub(crate) struct Layout {
     pub component_signs: [f32; 3],
 }
 
+impl Layout {
+    /// Interleaved data (component fastest), as NRRD, MetaImage and raw files store it.
+    pub(crate) fn interleaved(
+        source_type: ScalarType,
+        format: FileFormat,
+        components: usize,
+        component_signs: [f32; 3],
+    ) -> Layout {
+        Layout {
+            source_type,
+            format,
+            components,
+            planar: false,
+            component_signs,
+        }
+    }
+}
+
 /// Builds the volume from decoded values.
 pub(crate) fn assemble(
     grid: voxhap_core::volume::Grid,

@@ -16,7 +16,7 @@ use crate::decode::{decode_samples, inflate, Endian, ScalarType};
 use crate::error::LoadProblem;
 use crate::header_lines::HeaderLines;
 use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
-use crate::source::{check_budget, header_data, read_volume_file, DataRange, LoadOptions};
+use crate::source::{check_budget, header_format_entry_points, DataRange, HeaderFile};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -44,32 +44,14 @@ pub struct MetaImageHeader {
     pub header_bytes: usize,
 }
 
-/// Loads a `.mha` or `.mhd` file with the default limits.
-pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    load_with(path, &LoadOptions::default())
-}
+header_format_entry_points!(
+    files: "`.mha` or `.mhd`",
+    name: "MetaImage",
+    budget: "`HeaderSize` plus the data `DimSize` describes"
+);
 
-/// Loads a `.mha` or `.mhd` file within `options`' limits.
-pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
-    let bytes = read_volume_file(path, options)?;
-    parse_with(&bytes, path, options)
-}
-
-/// Parses a MetaImage file held in memory with the default limits; a detached data file is read relative
-/// to `path`'s folder.
-pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    parse_with(bytes, path, &LoadOptions::default())
-}
-
-/// [`parse`] within `options`' limits: `HeaderSize` plus the data `DimSize` describes are checked against
-/// `--max-volume-bytes` before anything is read or inflated, and a detached data file must lie in the
-/// header's folder.
-pub fn parse_with(
-    bytes: &[u8],
-    path: &Path,
-    options: &LoadOptions,
-) -> Result<LoadedVolume, LoadProblem> {
-    let header = parse_header(bytes)?;
+/// The volume `header` describes, its data read from `file`.
+fn from_header(header: MetaImageHeader, file: &HeaderFile) -> Result<LoadedVolume, LoadProblem> {
     if header.ndims.is_some_and(|n| n != 3) {
         return Err(LoadProblem::unsupported(format!(
             "NDims = {}: only 3-D images are read",
@@ -101,29 +83,23 @@ pub fn parse_with(
     let voxels = checked_voxel_count(dims, components as u64)?;
     let count = voxels * components;
     let expected_bytes = crate::loaded::data_bytes(count, scalar_type)?;
-    check_budget(expected_bytes, count as u64, options)?;
+    check_budget(expected_bytes, count as u64, file.options)?;
     let grid = grid(&header, dims)?;
 
-    let data = header_data(
-        bytes,
-        header.header_bytes,
-        header.data_file.as_deref(),
-        path,
-        options,
-        || match (header.compressed, header.header_size) {
-            (true, _) => DataRange::From {
-                skip: 0,
-                needed: options.max_volume_bytes,
-            },
-            (false, -1) => DataRange::Tail {
-                needed: expected_bytes,
-            },
-            (false, skip) => DataRange::From {
-                skip: u64::try_from(skip).unwrap_or(0),
-                needed: expected_bytes,
-            },
+    let range = || match (header.compressed, header.header_size) {
+        (true, _) => DataRange::From {
+            skip: 0,
+            needed: file.options.max_volume_bytes,
         },
-    )?;
+        (false, -1) => DataRange::Tail {
+            needed: expected_bytes,
+        },
+        (false, skip) => DataRange::From {
+            skip: u64::try_from(skip).unwrap_or(0),
+            needed: expected_bytes,
+        },
+    };
+    let data = file.data(header.header_bytes, header.data_file.as_deref(), range)?;
     let inflated;
     let data = if header.compressed {
         inflated = inflate(&data, expected_bytes)?;
@@ -138,14 +114,13 @@ pub fn parse_with(
         Endian::Little
     };
     let decoded = decode_samples(data, scalar_type, endian, count, None)?;
-    let layout = Layout {
-        source_type: scalar_type,
-        format: FileFormat::MetaImage,
+    let layout = Layout::interleaved(
+        scalar_type,
+        FileFormat::MetaImage,
         components,
-        planar: false,
-        component_signs: LPS_TO_RAS.as_vec3().to_array(),
-    };
-    assemble(grid, decoded, &layout, path)
+        LPS_TO_RAS.as_vec3().to_array(),
+    );
+    assemble(grid, decoded, &layout, file.path)
 }
 
 fn missing(field: &str) -> LoadProblem {
@@ -396,10 +371,7 @@ ElementByteOrderMSB = True\nElementDataFile = LOCAL\n\x00\x05\xff\xfe";
         fn mutated_headers_never_panic(
             edits in proptest::collection::vec((0usize..TINY.len(), any::<u8>()), 1..6),
         ) {
-            let mut bytes = TINY.to_vec();
-            for (at, value) in edits {
-                bytes[at] = value;
-            }
+            let bytes = crate::test_edits::with_bytes_edited(TINY, edits);
             if let Ok(loaded) = parse(&bytes, Path::new("/nonexistent/x.mha")) {
                 prop_assert!(loaded.volume.grid().spacing_m().is_finite());
             }
@@ -407,12 +379,8 @@ ElementByteOrderMSB = True\nElementDataFile = LOCAL\n\x00\x05\xff\xfe";
 
         #[test]
         fn mutated_field_values_never_panic(line in 0usize..9, value in "[ -~]{0,30}") {
-            let text = String::from_utf8_lossy(TINY);
-            let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
-            if let Some((key, _)) = lines[line].clone().split_once(" = ") {
-                lines[line] = format!("{key} = {value}");
-            }
-            let _ = parse(lines.join("\n").as_bytes(), Path::new("/nonexistent/x.mha"));
+            let text = crate::test_edits::with_field_value(TINY, line, " = ", &value);
+            let _ = parse(text.as_bytes(), Path::new("/nonexistent/x.mha"));
         }
     }
 }

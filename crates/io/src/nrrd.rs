@@ -17,7 +17,7 @@ use crate::header_lines::HeaderLines;
 use crate::loaded::{
     assemble, checked_voxel_count, metres_per_unit, FileFormat, Layout, LoadedVolume,
 };
-use crate::source::{check_budget, header_data, read_volume_file, DataRange, LoadOptions};
+use crate::source::{check_budget, header_format_entry_points, DataRange, HeaderFile};
 use glam::{DMat3, DVec3};
 use std::path::Path;
 use voxhap_core::volume::Grid;
@@ -52,32 +52,14 @@ pub struct NrrdHeader {
     pub header_bytes: usize,
 }
 
-/// Loads a `.nrrd` or `.nhdr` file with the default limits.
-pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    load_with(path, &LoadOptions::default())
-}
+header_format_entry_points!(
+    files: "`.nrrd` or `.nhdr`",
+    name: "NRRD",
+    budget: "the byte skip plus the data the sizes describe"
+);
 
-/// Loads a `.nrrd` or `.nhdr` file within `options`' limits.
-pub fn load_with(path: &Path, options: &LoadOptions) -> Result<LoadedVolume, LoadProblem> {
-    let bytes = read_volume_file(path, options)?;
-    parse_with(&bytes, path, options)
-}
-
-/// Parses a NRRD file held in memory with the default limits; a detached data file is read relative to
-/// `path`'s folder.
-pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
-    parse_with(bytes, path, &LoadOptions::default())
-}
-
-/// [`parse`] within `options`' limits: the byte skip plus the data the sizes describe are checked against
-/// `--max-volume-bytes` before anything is read or inflated, and a detached data file must lie in the
-/// header's folder.
-pub fn parse_with(
-    bytes: &[u8],
-    path: &Path,
-    options: &LoadOptions,
-) -> Result<LoadedVolume, LoadProblem> {
-    let header = parse_header(bytes)?;
+/// The volume `header` describes, its data read from `file`.
+fn from_header(header: NrrdHeader, file: &HeaderFile) -> Result<LoadedVolume, LoadProblem> {
     let scalar_type = header.scalar_type.ok_or_else(|| missing("type"))?;
     let dimension = header.dimension.ok_or_else(|| missing("dimension"))?;
     if header.sizes.len() != dimension {
@@ -115,35 +97,29 @@ pub fn parse_with(
     let needed_bytes = byte_skip
         .checked_add(expected_bytes)
         .ok_or_else(|| LoadProblem::header(format!("byte skip {byte_skip} is too large")))?;
-    check_budget(needed_bytes, count as u64, options)?;
+    check_budget(needed_bytes, count as u64, file.options)?;
 
     let mut applied_byte_skip = false;
     // Lines to skip come first; the bounded read below covers detached raw data without line skips, the
     // common case; other layouts read the file up to the limit and are checked after decoding.
-    let data = header_data(
-        bytes,
-        header.header_bytes,
-        header.data_file.as_deref(),
-        path,
-        options,
-        || match (encoding, header.line_skip, header.byte_skip) {
-            (Encoding::Raw, 0, -1) => DataRange::Tail {
-                needed: expected_bytes,
-            },
-            // The byte skip is sought past, not read.
-            (Encoding::Raw, 0, _) => {
-                applied_byte_skip = true;
-                DataRange::From {
-                    skip: byte_skip,
-                    needed: expected_bytes,
-                }
-            }
-            _ => DataRange::From {
-                skip: 0,
-                needed: options.max_volume_bytes,
-            },
+    let range = || match (encoding, header.line_skip, header.byte_skip) {
+        (Encoding::Raw, 0, -1) => DataRange::Tail {
+            needed: expected_bytes,
         },
-    )?;
+        // The byte skip is sought past, not read.
+        (Encoding::Raw, 0, _) => {
+            applied_byte_skip = true;
+            DataRange::From {
+                skip: byte_skip,
+                needed: expected_bytes,
+            }
+        }
+        _ => DataRange::From {
+            skip: 0,
+            needed: file.options.max_volume_bytes,
+        },
+    };
+    let data = file.data(header.header_bytes, header.data_file.as_deref(), range)?;
     let data = skip_lines(&data, header.line_skip)?;
     let byte_skip = if applied_byte_skip {
         0
@@ -151,14 +127,13 @@ pub fn parse_with(
         header.byte_skip
     };
     let decoded = decode(data, byte_skip, encoding, scalar_type, endian, count)?;
-    let layout = Layout {
-        source_type: scalar_type,
-        format: FileFormat::Nrrd,
+    let layout = Layout::interleaved(
+        scalar_type,
+        FileFormat::Nrrd,
         components,
-        planar: false,
-        component_signs: flip.map(|s| s as f32),
-    };
-    assemble(grid, decoded, &layout, path)
+        flip.map(|s| s as f32),
+    );
+    assemble(grid, decoded, &layout, file.path)
 }
 
 fn missing(field: &str) -> LoadProblem {
@@ -680,10 +655,7 @@ space origin: (10,20,30)\nkey:=value\n\n\x00\x05\xff\xfe";
         fn mutated_headers_never_panic(
             edits in proptest::collection::vec((0usize..TINY.len(), any::<u8>()), 1..6),
         ) {
-            let mut bytes = TINY.to_vec();
-            for (at, value) in edits {
-                bytes[at] = value;
-            }
+            let bytes = crate::test_edits::with_bytes_edited(TINY, edits);
             if let Ok(loaded) = parse(&bytes, Path::new("/nonexistent/x.nrrd")) {
                 prop_assert!(loaded.volume.grid().spacing_m().is_finite());
             }
@@ -691,12 +663,8 @@ space origin: (10,20,30)\nkey:=value\n\n\x00\x05\xff\xfe";
 
         #[test]
         fn mutated_field_values_never_panic(line in 2usize..11, value in "[ -~]{0,30}") {
-            let text = String::from_utf8_lossy(TINY);
-            let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
-            if let Some((key, _)) = lines[line].clone().split_once(": ") {
-                lines[line] = format!("{key}: {value}");
-            }
-            let _ = parse(lines.join("\n").as_bytes(), Path::new("/nonexistent/x.nrrd"));
+            let text = crate::test_edits::with_field_value(TINY, line, ": ", &value);
+            let _ = parse(text.as_bytes(), Path::new("/nonexistent/x.nrrd"));
         }
     }
 }

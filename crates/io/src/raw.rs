@@ -174,13 +174,12 @@ pub fn decode_with_header(
         }
     };
     let decoded = decode_samples(data, scalar_type, endian, count, None)?;
-    let layout = Layout {
-        source_type: scalar_type,
-        format: FileFormat::RawToml,
-        components: header.components,
-        planar: false,
-        component_signs: [1.0; 3],
-    };
+    let layout = Layout::interleaved(
+        scalar_type,
+        FileFormat::RawToml,
+        header.components,
+        [1.0; 3],
+    );
     assemble(grid, decoded, &layout, path)
 }
 

@@ -269,24 +269,86 @@ pub(crate) fn data_file_path(
     })
 }
 
-/// The data a volume header describes: what follows the header in `bytes` (from `header_bytes` on) when
-/// `data_file` is `None`, else the detached file it names (confined to the header's folder), read as `range`.
-pub(crate) fn header_data<'a>(
-    bytes: &'a [u8],
-    header_bytes: usize,
-    data_file: Option<&str>,
-    header_path: &Path,
-    options: &LoadOptions,
-    range: impl FnOnce() -> DataRange,
-) -> Result<Cow<'a, [u8]>, LoadProblem> {
-    match data_file {
-        Some(name) => {
-            let data_path = data_file_path(header_path, name, options)?;
-            Ok(Cow::Owned(read_data_file(&data_path, range(), options)?))
+/// A header-and-data volume file (NRRD, MetaImage) held in memory: its bytes, where it was read from (a
+/// detached data file is found beside it) and the limits of the load.
+pub(crate) struct HeaderFile<'a> {
+    pub bytes: &'a [u8],
+    pub path: &'a Path,
+    pub options: &'a LoadOptions,
+}
+
+impl<'a> HeaderFile<'a> {
+    /// The data the header describes: what follows it in the file's bytes (from `header_bytes` on) when
+    /// `data_file` is `None`, else the detached file it names (confined to the header's folder), read as
+    /// `range`.
+    pub(crate) fn data(
+        &self,
+        header_bytes: usize,
+        data_file: Option<&str>,
+        range: impl FnOnce() -> DataRange,
+    ) -> Result<Cow<'a, [u8]>, LoadProblem> {
+        match data_file {
+            Some(name) => {
+                let data_path = data_file_path(self.path, name, self.options)?;
+                Ok(Cow::Owned(read_data_file(
+                    &data_path,
+                    range(),
+                    self.options,
+                )?))
+            }
+            None => Ok(Cow::Borrowed(
+                self.bytes.get(header_bytes..).unwrap_or_default(),
+            )),
         }
-        None => Ok(Cow::Borrowed(bytes.get(header_bytes..).unwrap_or_default())),
     }
 }
+
+/// The four entry points of a header-and-data format's module (`load`, `load_with`, `parse`, `parse_with`),
+/// around its `parse_header` and `from_header(header, &HeaderFile)`; `$files` names its file endings,
+/// `$name` the format and `$budget` what is checked against the limit.
+macro_rules! header_format_entry_points {
+    (files: $files:literal, name: $name:literal, budget: $budget:literal) => {
+        #[doc = concat!("Loads a ", $files, " file with the default limits.")]
+        pub fn load(path: &Path) -> Result<LoadedVolume, LoadProblem> {
+            load_with(path, &$crate::source::LoadOptions::default())
+        }
+
+        #[doc = concat!("Loads a ", $files, " file within `options`' limits.")]
+        pub fn load_with(
+            path: &Path,
+            options: &$crate::source::LoadOptions,
+        ) -> Result<LoadedVolume, LoadProblem> {
+            let bytes = $crate::source::read_volume_file(path, options)?;
+            parse_with(&bytes, path, options)
+        }
+
+        #[doc = concat!(
+            "Parses a ", $name, " file held in memory with the default limits; a detached data file is ",
+            "read relative to `path`'s folder."
+        )]
+        pub fn parse(bytes: &[u8], path: &Path) -> Result<LoadedVolume, LoadProblem> {
+            parse_with(bytes, path, &$crate::source::LoadOptions::default())
+        }
+
+        #[doc = concat!(
+            "[`parse`] within `options`' limits: ", $budget, " are checked against `--max-volume-bytes` ",
+            "before anything is read or inflated, and a detached data file must lie in the header's folder."
+        )]
+        pub fn parse_with(
+            bytes: &[u8],
+            path: &Path,
+            options: &$crate::source::LoadOptions,
+        ) -> Result<LoadedVolume, LoadProblem> {
+            let file = $crate::source::HeaderFile {
+                bytes,
+                path,
+                options,
+            };
+            from_header(parse_header(bytes)?, &file)
+        }
+    };
+}
+pub(crate) use header_format_entry_points;
 
 /// Checks the memory a load needs (`data_bytes` read or inflated plus 4 bytes per `f32` value) against
 /// the limit.

@@ -170,33 +170,19 @@ struct StateMessage {
     force_n: [f64; 3],
 }
 
-/// Per-mode forces serialised as an object keyed by mode name, in mode order.
-struct ModeForces<'a> {
+/// Per-mode values (primitive counts, forces) serialised as an object keyed by mode name, in mode order, each
+/// value as `json` gives it.
+struct ByMode<'a, T, J> {
     names: &'a [String],
-    forces: &'a [DVec3],
+    values: &'a [T],
+    json: fn(&T) -> J,
 }
 
-impl Serialize for ModeForces<'_> {
+impl<T, J: Serialize> Serialize for ByMode<'_, T, J> {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         let mut map = serializer.serialize_map(Some(self.names.len()))?;
-        for (name, force) in self.names.iter().zip(self.forces) {
-            map.serialize_entry(name, &force.to_array())?;
-        }
-        map.end()
-    }
-}
-
-/// Primitive counts serialised as an object keyed by mode name, in mode order.
-struct Primitives<'a> {
-    names: &'a [String],
-    counts: &'a [u16],
-}
-
-impl Serialize for Primitives<'_> {
-    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        let mut map = serializer.serialize_map(Some(self.names.len()))?;
-        for (name, count) in self.names.iter().zip(self.counts) {
-            map.serialize_entry(name, count)?;
+        for (name, value) in self.names.iter().zip(self.values) {
+            map.serialize_entry(name, &(self.json)(value))?;
         }
         map.end()
     }
@@ -206,8 +192,8 @@ impl Serialize for Primitives<'_> {
 struct SolverMessage<'a> {
     tick: u64,
     t_s: f64,
-    primitives: Primitives<'a>,
-    mode_force_n: ModeForces<'a>,
+    primitives: ByMode<'a, u16, u16>,
+    mode_force_n: ByMode<'a, DVec3, [f64; 3]>,
     solver_status: &'static str,
     sweeps: u32,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -553,13 +539,15 @@ impl TraceWriter for McapTraceWriter {
         let solver = SolverMessage {
             tick: sample.tick,
             t_s: sample.t_s,
-            primitives: Primitives {
+            primitives: ByMode {
                 names: &self.mode_names,
-                counts: sample.primitives(),
+                values: sample.primitives(),
+                json: |count| *count,
             },
-            mode_force_n: ModeForces {
+            mode_force_n: ByMode {
                 names: &self.mode_names,
-                forces: sample.mode_forces(),
+                values: sample.mode_forces(),
+                json: DVec3::to_array,
             },
             solver_status: sample.solver_status.name(),
             sweeps: sample.sweeps,

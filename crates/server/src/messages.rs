@@ -406,64 +406,46 @@ enum CommandWire {
     },
 }
 
-impl CommandWire {
-    fn into_command(self) -> ControlCommand {
-        match self {
-            CommandWire::SetStiffness { k } => ControlCommand::SetStiffness { k },
-            CommandWire::SetDamping { damping } => ControlCommand::SetDamping { damping },
-            CommandWire::SetTransfer { mode, transfer } => {
-                ControlCommand::SetTransfer { mode, transfer }
+/// `CommandWire::into_command` and (for the round-trip test) `CommandWire::from_command`, from one list of
+/// the variants: those with fields, then those without (a unit variant of `ControlCommand`, an empty struct
+/// variant on the wire). `from_command`'s match is exhaustive, so a new `ControlCommand` must be listed.
+macro_rules! command_wire_conversions {
+    ($($variant:ident { $($field:ident),+ }),+ ; $($unit:ident),+) => {
+        impl CommandWire {
+            fn into_command(self) -> ControlCommand {
+                match self {
+                    $(CommandWire::$variant { $($field),+ } => ControlCommand::$variant { $($field),+ },)+
+                    $(CommandWire::$unit {} => ControlCommand::$unit,)+
+                }
             }
-            CommandWire::SetModeEnabled { mode, enabled } => {
-                ControlCommand::SetModeEnabled { mode, enabled }
-            }
-            CommandWire::AddMode { mode } => ControlCommand::AddMode { mode },
-            CommandWire::RemoveMode { name } => ControlCommand::RemoveMode { name },
-            CommandWire::LoadVolume { path, name } => ControlCommand::LoadVolume { path, name },
-            CommandWire::StartRecording { path, format } => {
-                ControlCommand::StartRecording { path, format }
-            }
-            CommandWire::StopRecording {} => ControlCommand::StopRecording,
-            CommandWire::SetHandTarget { position_m } => {
-                ControlCommand::SetHandTarget { position_m }
-            }
-            CommandWire::ClearFault {} => ControlCommand::ClearFault,
-            CommandWire::SetExternalForce { force_n } => {
-                ControlCommand::SetExternalForce { force_n }
-            }
-        }
-    }
 
-    #[cfg(test)]
-    fn from_command(command: ControlCommand) -> Self {
-        match command {
-            ControlCommand::SetStiffness { k } => CommandWire::SetStiffness { k },
-            ControlCommand::SetDamping { damping } => CommandWire::SetDamping { damping },
-            ControlCommand::SetTransfer { mode, transfer } => {
-                CommandWire::SetTransfer { mode, transfer }
-            }
-            ControlCommand::SetModeEnabled { mode, enabled } => {
-                CommandWire::SetModeEnabled { mode, enabled }
-            }
-            ControlCommand::AddMode { mode } => CommandWire::AddMode { mode },
-            ControlCommand::RemoveMode { name } => CommandWire::RemoveMode { name },
-            ControlCommand::LoadVolume { path, name } => CommandWire::LoadVolume { path, name },
-            ControlCommand::StartRecording { path, format } => {
-                CommandWire::StartRecording { path, format }
-            }
-            ControlCommand::StopRecording => CommandWire::StopRecording {},
-            ControlCommand::SetHandTarget { position_m } => {
-                CommandWire::SetHandTarget { position_m }
-            }
-            ControlCommand::ClearFault => CommandWire::ClearFault {},
-            ControlCommand::SetCoupling { .. } => {
-                unreachable!("set_coupling is not a wire command")
-            }
-            ControlCommand::SetExternalForce { force_n } => {
-                CommandWire::SetExternalForce { force_n }
+            #[cfg(test)]
+            fn from_command(command: ControlCommand) -> Self {
+                match command {
+                    $(ControlCommand::$variant { $($field),+ } => CommandWire::$variant { $($field),+ },)+
+                    $(ControlCommand::$unit => CommandWire::$unit {},)+
+                    ControlCommand::SetCoupling { .. } => {
+                        unreachable!("set_coupling is not a wire command")
+                    }
+                }
             }
         }
-    }
+    };
+}
+
+command_wire_conversions! {
+    SetStiffness { k },
+    SetDamping { damping },
+    SetTransfer { mode, transfer },
+    SetModeEnabled { mode, enabled },
+    AddMode { mode },
+    RemoveMode { name },
+    LoadVolume { path, name },
+    StartRecording { path, format },
+    SetHandTarget { position_m },
+    SetExternalForce { force_n };
+    StopRecording,
+    ClearFault
 }
 
 /// Parses JSON text; a syntax error is "malformed JSON: ...".

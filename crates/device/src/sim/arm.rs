@@ -9,7 +9,7 @@ use super::path::{
     check_positive, check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M,
 };
 use super::preset::{ArmPreset, PresetFigures};
-use super::tagged::{given_keys, KindKeys, TaggedTableError};
+use super::tagged::{given_keys, needed, KindKeys, TaggedTableError};
 use super::zoh::SubstepMapCache;
 use super::{HandDrive, HandPath, SimError};
 use crate::mapping::WorkspaceMapping;
@@ -99,14 +99,10 @@ impl TryFrom<WorkspaceTable> for Workspace {
         let keys = KindKeys::new("shape", table.shape.name(), &given);
         keys.only(table.shape.keys())?;
         Ok(match table.shape {
-            WorkspaceShape::Box => Workspace::Box {
-                min_m: keys.need("min_m", table.min_m)?,
-                max_m: keys.need("max_m", table.max_m)?,
-            },
-            WorkspaceShape::Sphere => Workspace::Sphere {
-                center_m: keys.need("center_m", table.center_m)?,
-                radius_m: keys.need("radius_m", table.radius_m)?,
-            },
+            WorkspaceShape::Box => needed!(keys, table => Workspace::Box { min_m, max_m }),
+            WorkspaceShape::Sphere => {
+                needed!(keys, table => Workspace::Sphere { center_m, radius_m })
+            }
             WorkspaceShape::Unbounded => Workspace::Unbounded,
         })
     }

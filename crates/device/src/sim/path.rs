@@ -19,7 +19,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
-use super::tagged::{given_keys, KindKeys, TaggedTableError};
+use super::tagged::{given_keys, needed, KindKeys, TaggedTableError};
 use super::SimError;
 
 /// What the virtual hand does at one instant.
@@ -206,34 +206,20 @@ impl TryFrom<HandPathTable> for HandPath {
         let keys = KindKeys::new("kind", table.kind.name(), &given);
         keys.only(table.kind.keys())?;
         Ok(match table.kind {
-            HandPathKind::Hold => HandPath::Hold {
-                at_m: keys.need("at_m", table.at_m)?,
-            },
-            HandPathKind::Line => HandPath::Line {
-                from_m: keys.need("from_m", table.from_m)?,
-                to_m: keys.need("to_m", table.to_m)?,
-                duration_s: keys.need("duration_s", table.duration_s)?,
-            },
-            HandPathKind::Waypoints => HandPath::Waypoints {
-                points_m: keys.need("points_m", table.points_m)?,
-                speed_m_per_s: keys.need("speed_m_per_s", table.speed_m_per_s)?,
-            },
-            HandPathKind::Circle => HandPath::Circle {
-                center_m: keys.need("center_m", table.center_m)?,
-                radius_m: keys.need("radius_m", table.radius_m)?,
-                normal: keys.need("normal", table.normal)?,
-                period_s: keys.need("period_s", table.period_s)?,
-            },
-            HandPathKind::Raster => HandPath::Raster {
-                origin_m: keys.need("origin_m", table.origin_m)?,
-                sweep_m: keys.need("sweep_m", table.sweep_m)?,
-                step_m: keys.need("step_m", table.step_m)?,
-                lines: keys.need("lines", table.lines)?,
-                speed_m_per_s: keys.need("speed_m_per_s", table.speed_m_per_s)?,
-            },
-            HandPathKind::Force => HandPath::Force {
-                profile: keys.need("profile", table.profile)?,
-            },
+            HandPathKind::Hold => needed!(keys, table => HandPath::Hold { at_m }),
+            HandPathKind::Line => {
+                needed!(keys, table => HandPath::Line { from_m, to_m, duration_s })
+            }
+            HandPathKind::Waypoints => {
+                needed!(keys, table => HandPath::Waypoints { points_m, speed_m_per_s })
+            }
+            HandPathKind::Circle => {
+                needed!(keys, table => HandPath::Circle { center_m, radius_m, normal, period_s })
+            }
+            HandPathKind::Raster => {
+                needed!(keys, table => HandPath::Raster { origin_m, sweep_m, step_m, lines, speed_m_per_s })
+            }
+            HandPathKind::Force => needed!(keys, table => HandPath::Force { profile }),
         })
     }
 }
@@ -292,19 +278,15 @@ impl TryFrom<ForceProfileTable> for ForceProfile {
         let keys = KindKeys::new("shape", table.shape.name(), &given);
         keys.only(table.shape.keys())?;
         Ok(match table.shape {
-            ForceProfileShape::Constant => ForceProfile::Constant {
-                force_n: keys.need("force_n", table.force_n)?,
-            },
-            ForceProfileShape::Ramp => ForceProfile::Ramp {
-                from_n: keys.need("from_n", table.from_n)?,
-                to_n: keys.need("to_n", table.to_n)?,
-                duration_s: keys.need("duration_s", table.duration_s)?,
-            },
-            ForceProfileShape::Sine => ForceProfile::Sine {
-                offset_n: keys.need("offset_n", table.offset_n)?,
-                amplitude_n: keys.need("amplitude_n", table.amplitude_n)?,
-                frequency_hz: keys.need("frequency_hz", table.frequency_hz)?,
-            },
+            ForceProfileShape::Constant => {
+                needed!(keys, table => ForceProfile::Constant { force_n })
+            }
+            ForceProfileShape::Ramp => {
+                needed!(keys, table => ForceProfile::Ramp { from_n, to_n, duration_s })
+            }
+            ForceProfileShape::Sine => {
+                needed!(keys, table => ForceProfile::Sine { offset_n, amplitude_n, frequency_hz })
+            }
         })
     }
 }

@@ -21,6 +21,14 @@ macro_rules! given_keys {
 }
 pub(super) use given_keys;
 
+/// `Variant { key: keys.need("key", table.key)?, ... }`: a kind's value from its table, each key named once.
+macro_rules! needed {
+    ($keys:ident, $table:ident => $enum:ident::$variant:ident { $($key:ident),+ $(,)? }) => {
+        $enum::$variant { $($key: $keys.need(stringify!($key), $table.$key)?),+ }
+    };
+}
+pub(super) use needed;
+
 /// The keys given in one tagged table, for the checks of its `TryFrom`.
 pub(super) struct KindKeys<'a> {
     /// The tag key: `kind` or `shape`.

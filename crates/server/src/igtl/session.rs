@@ -103,13 +103,11 @@ impl ClientSession {
         let body = match Body::split(header.version, &raw) {
             Ok(body) => body,
             Err(error) => {
-                let reply = Reply::new(
-                    &device,
-                    status_code::CONFIGURATION_ERROR,
-                    "Error",
-                    format!("{} {device:?}: {error}", header.type_name),
+                let message = format!("{} {device:?}: {error}", header.type_name);
+                return sent(
+                    self.reply(Reply::configuration_error(&device, message))
+                        .await,
                 );
-                return sent(self.reply(reply).await);
             }
         };
         if let Some(token) = body.metadata_value(TOKEN_METADATA_KEY) {
@@ -119,12 +117,7 @@ impl ClientSession {
             "STRING" => {
                 let reply = match codec::decode_string(body.content) {
                     Ok(text) => self.string(&device, &text),
-                    Err(error) => Reply::new(
-                        &device,
-                        status_code::CONFIGURATION_ERROR,
-                        "Error",
-                        error.to_string(),
-                    ),
+                    Err(error) => Reply::configuration_error(&device, error.to_string()),
                 };
                 sent(self.reply(reply).await)
             }
@@ -137,15 +130,10 @@ impl ClientSession {
                         let _ = self.targets.send(Some(transform.translation / MM_PER_M));
                         Ok(())
                     }
-                    Err(error) => {
-                        let reply = Reply::new(
-                            &device,
-                            status_code::CONFIGURATION_ERROR,
-                            "Error",
-                            error.to_string(),
-                        );
-                        sent(self.reply(reply).await)
-                    }
+                    Err(error) => sent(
+                        self.reply(Reply::configuration_error(&device, error.to_string()))
+                            .await,
+                    ),
                 }
             }
             "IMAGE" => {
@@ -346,6 +334,11 @@ pub(super) struct Reply {
 }
 
 impl Reply {
+    /// A `CONFIGURATION_ERROR` ("Error") reply: the request could not be read or used.
+    pub(super) fn configuration_error(device: &str, message: impl Into<String>) -> Self {
+        Reply::new(device, status_code::CONFIGURATION_ERROR, "Error", message)
+    }
+
     pub(super) fn new(
         device: &str,
         code: u16,

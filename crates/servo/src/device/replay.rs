@@ -357,6 +357,13 @@ mod tests {
     use super::*;
     use voxhap_record::TraceSample;
 
+    /// The x of the next `n` states `device` reads.
+    fn next_xs(device: &mut ReplayDevice, n: usize) -> Vec<f64> {
+        (0..n)
+            .map(|_| device.read_state().unwrap().position_m.x)
+            .collect()
+    }
+
     fn trace(points: &[(f64, f64)]) -> Trace {
         Trace {
             mode_names: Vec::new(),
@@ -394,9 +401,7 @@ mod tests {
     #[test]
     fn looping_starts_over() {
         let mut device = ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, 2.0)]), true).unwrap();
-        let xs: Vec<f64> = (0..4)
-            .map(|_| device.read_state().unwrap().position_m.x)
-            .collect();
+        let xs = next_xs(&mut device, 4);
         assert_eq!(xs, [1.0, 2.0, 1.0, 2.0]);
     }
 
@@ -407,9 +412,7 @@ mod tests {
         let mut device =
             ReplayDevice::new(&trace(&[(0.0, 1.0), (0.1, f64::NAN), (0.2, 3.0)]), false).unwrap();
         assert_eq!(device.skipped_samples(), 1);
-        let xs: Vec<f64> = (0..3)
-            .map(|_| device.read_state().unwrap().position_m.x)
-            .collect();
+        let xs = next_xs(&mut device, 3);
         assert_eq!(xs, [1.0, 3.0, 3.0]);
     }
 
@@ -456,9 +459,7 @@ mod tests {
             ..ReplayOptions::default()
         };
         let mut device = ReplayDevice::with_options(&trace(&points), slow).unwrap();
-        let xs: Vec<f64> = (0..4)
-            .map(|_| device.read_state().unwrap().position_m.x)
-            .collect();
+        let xs = next_xs(&mut device, 4);
         assert_eq!(xs, [0.0, 0.0, 1.0, 1.0]);
     }
 

@@ -435,10 +435,14 @@ fn stiffness_plot(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
         ),
         "stiffness (N/m)",
         "passivity bound b/(T/2+τ)",
+        1.0,
         &series,
         &groups,
     )
 }
+
+/// The force-error plot's axis starts at or above this, N: smaller errors (rounding) get no bar.
+const FORCE_PLOT_FLOOR_N: f64 = 1e-6;
 
 fn force_error_plot(results: &[StaleForce]) -> String {
     let series = [
@@ -477,7 +481,8 @@ fn force_error_plot(results: &[StaleForce]) -> String {
             group_digits(rate)
         ),
         "force error (N)",
-        "largest full-rate force",
+        "largest full-rate force (N)",
+        FORCE_PLOT_FLOOR_N,
         &series,
         &groups,
     )

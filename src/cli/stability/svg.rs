@@ -41,12 +41,13 @@ fn axis_label(value: f64) -> String {
     }
 }
 
-/// Grouped vertical bars on a log-10 axis from the decade below the smallest value to the decade above the
-/// largest; `note` is printed under the legend.
+/// Grouped vertical bars on a log-10 axis from the decade below the smallest value (at least `floor`) to the
+/// decade above the largest; a value below the axis gets no bar. `note` names the markers in the legend.
 pub fn grouped_bars(
     title: &str,
     axis: &str,
     note: &str,
+    floor: f64,
     series: &[Series],
     groups: &[Group],
 ) -> String {
@@ -55,7 +56,7 @@ pub fn grouped_bars(
         .flat_map(|g| g.values.iter().chain(&g.markers))
         .flatten()
         .copied()
-        .filter(|v| v.is_finite() && *v > 0.0);
+        .filter(|v| v.is_finite() && *v >= floor && *v > 0.0);
     let (lo, hi) = all.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
         (lo.min(v), hi.max(v))
     });
@@ -138,7 +139,8 @@ pub fn grouped_bars(
         let x0 = LEFT + slot * g as f64 + slot * 0.1;
         for (i, s) in series.iter().enumerate() {
             let bx = x0 + bar * i as f64;
-            if let Some(v) = group.values.get(i).copied().flatten().filter(|v| *v > 0.0) {
+            let visible = |v: &f64| *v > 0.0 && v.log10() >= f64::from(lo_exp);
+            if let Some(v) = group.values.get(i).copied().flatten().filter(visible) {
                 let top = y(v);
                 let _ = writeln!(
                     out,
@@ -150,7 +152,7 @@ pub fn grouped_bars(
                     axis_label(v)
                 );
             }
-            if let Some(m) = group.markers.get(i).copied().flatten().filter(|v| *v > 0.0) {
+            if let Some(m) = group.markers.get(i).copied().flatten().filter(visible) {
                 let my = y(m);
                 let _ = writeln!(
                     out,

@@ -16,15 +16,11 @@ use super::arms::ArmCase;
 use super::error::StabilityError;
 use super::local::run_local;
 use super::memory::MemoryTrace;
+use super::setup::{scenario_text, Sample, PUSH_N};
 use crate::sim::{self, Scenario};
 use glam::DVec3;
 use std::path::Path;
 use voxhap_core::haptics::tick::SolverKind;
-
-/// The hand's constant push onto the plane (N).
-pub const PUSH_N: f64 = 1.0;
-/// Length of one run (s), after the device loop's engage ramp for a local model.
-pub const RUN_S: f64 = 1.5;
 
 /// Who closes the contact loop, and how fast.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,28 +70,6 @@ impl LoopKind {
     }
 }
 
-/// The scenario of a run: the arm `arm` at `rate_hz` with `latency_s`, the passivity controller on or off, and
-/// coupling stiffness `k`.
-pub fn scenario_text(arm: &ArmCase, rate_hz: f64, latency_s: f64, control: bool, k: f64) -> String {
-    let preset = arm
-        .preset
-        .map(|p| format!("preset = \"{p}\"\n"))
-        .unwrap_or_default();
-    format!(
-        "name = \"stiffness-sweep\"\nduration_s = {RUN_S}\nrate_hz = {rate_hz}\nk_n_per_m = {k}\n\
-         start_m = [0.0, 0.0, {z0}]\nvolumes = []\n\n[passivity]\nmode = \"{mode}\"\n\n\
-         [[modes]]\nkind = \"support_plane\"\npoint_m = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\n\
-         strength_n = 50.0\n\n[arm]\n{preset}mass_kg = {m}\ndamping_n_s_per_m = {b}\nlatency_s = {latency_s}\n\
-         position_resolution_m = 0.0\nsubsteps_per_tick = 10\nworkspace = {{ shape = \"unbounded\" }}\n\n\
-         [hand]\nstiffness_n_per_m = 200.0\ndamping_n_s_per_m = 2.0\n\n[path]\nkind = \"force\"\n\
-         profile = {{ shape = \"constant\", force_n = [0.0, 0.0, -{PUSH_N}] }}\n",
-        z0 = -0.5 * PUSH_N / k,
-        mode = if control { "control" } else { "off" },
-        m = arm.mass_kg,
-        b = arm.damping_n_s_per_m,
-    )
-}
-
 /// The tolerance on the generated energy (J): the storage of a sampled spring is not exactly `½ K |d|²` at
 /// the sample instants; the held force lags the motion by `T/2 + tau`, so between what the samples book and
 /// what the loop stores lies at most the excess of one step of that lag, `(2 d + 1) K |Δx|² / 2`, taken at
@@ -122,17 +96,6 @@ impl Verdict {
     pub fn passive(&self) -> bool {
         self.decays && !self.oscillating && self.generated_j <= self.tolerance_j
     }
-}
-
-/// One sample of a run, at the loop's rate: what the loop sensed and the proxy it rendered against.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sample {
-    /// The arm's position, m.
-    pub probe_m: DVec3,
-    /// The arm's velocity, m/s.
-    pub velocity_m_per_s: DVec3,
-    /// The proxy the coupling pulled towards, m.
-    pub proxy_m: DVec3,
 }
 
 /// The verdict on `samples` (one per loop period) of a run at `k` on an arm of `mass_kg`; `latency_ticks`

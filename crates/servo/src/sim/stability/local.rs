@@ -9,7 +9,7 @@
 
 use super::arms::ArmCase;
 use super::error::StabilityError;
-use super::judge::{scenario_text, Sample};
+use super::setup::{scenario_text, Sample};
 use crate::energy::EnergyLedger;
 use crate::sim::Scenario;
 use glam::DVec3;
@@ -147,7 +147,7 @@ pub struct LocalRun {
 /// The run of [`super::judge`] with a local-model device: first the device loop engages (its 0.5 s ramp,
 /// which starts only below 0.1 N) with the arm held still, 10 mm above the plane for one host period and then
 /// where the set-force runs start it; then the arm is released there, at rest, and the measured run of
-/// [`super::judge::RUN_S`] follows. The link latency delays the
+/// [`super::setup::RUN_S`] follows. The link latency delays the
 /// models; the device's own loop has none.
 pub fn run_local(
     arm: &ArmCase,

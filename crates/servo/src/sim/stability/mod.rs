@@ -5,6 +5,7 @@
 //! - [`judge`]: one short run at a stiffness and its verdict (passive or not), for a host that closes the
 //!   contact loop with set-forces ([`LoopKind::Host`], through [`crate::sim::run`]) or a device that closes it
 //!   with a local model at its own rate ([`LoopKind::Local`], through [`local`]);
+//! - [`setup`]: the run every verdict is made on;
 //! - [`search`]: the bisection for the largest passive stiffness;
 //! - [`local`]: the headless host + device loop of a local-model device (the reference device loop of
 //!   `voxhap-local` behind the protocol's device session, as `voxhap mock-device --local-model` runs it);
@@ -19,11 +20,13 @@ pub mod judge;
 pub mod local;
 mod memory;
 pub mod search;
+pub mod setup;
 pub mod stale;
 
 pub use arms::{ArmCase, ARMS, DAMPING_ESTIMATE};
 pub use error::StabilityError;
-pub use judge::{judge, LoopKind, Verdict, PUSH_N, RUN_S};
+pub use judge::{judge, LoopKind, Verdict};
 pub use memory::MemoryTrace;
 pub use search::{bisect, largest_passive, Limit};
+pub use setup::{PUSH_N, RUN_S};
 pub use stale::{stale_force, StaleForce};

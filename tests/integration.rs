@@ -19,6 +19,7 @@ mod device_spec;
 mod docs_links;
 mod docs_outputs;
 mod docs_reference;
+mod docs_stability;
 mod drivers_alloc_free;
 mod falcon;
 mod foxglove;

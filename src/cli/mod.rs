@@ -18,6 +18,7 @@ pub mod serve;
 pub mod shell;
 pub mod sim;
 pub mod solve;
+pub mod stability;
 pub mod sweep;
 pub mod trace;
 
@@ -76,6 +77,9 @@ pub enum Command {
     Sweep(sweep::SweepArgs),
     /// Compare a trace with a reference within tolerances; exit 1 when they differ.
     Compare(compare::CompareArgs),
+    /// Measure the largest stable stiffness per arm (host alone, host + local model, full-rate host), the
+    /// force error of a local model along the shipped sims, and the link use of the models.
+    Stability(stability::StabilityArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell) generated from these flags.
     Completions(shell::CompletionsArgs),
     /// Print the voxhap(1) man page, or write one page per command with --dir.
@@ -120,6 +124,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Trace(args)) => trace::run(&args),
         Some(Command::Sweep(args)) => sweep::run(&args),
         Some(Command::Compare(args)) => compare::run(&args),
+        Some(Command::Stability(args)) => stability::run(&args),
         Some(Command::Completions(args)) => shell::run_completions(&args, Cli::command()),
         Some(Command::Man(args)) => shell::run_man(&args, Cli::command()),
         Some(Command::Calibrate(args)) => calibrate::run(&args),

@@ -10,6 +10,7 @@ pub mod overrides;
 pub mod runner;
 pub mod scenario;
 pub mod schema;
+pub mod stability;
 
 pub use runner::{run, SimRunError, SimSummary};
 pub use scenario::{

@@ -1,0 +1,74 @@
+//! The arms the stability measurements cover: the simulated arm's default and each `[arm] preset`, with the
+//! figures a preset lacks given here and where each comes from.
+
+/// One arm: a preset (or the default arm), its mass and damping, and where those figures come from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ArmCase {
+    /// The name in tables and on the command line (`default` or the preset's name).
+    pub name: &'static str,
+    /// The `[arm] preset`, `None` for the default arm.
+    pub preset: Option<&'static str>,
+    /// Moving mass, kg.
+    pub mass_kg: f64,
+    /// Where the mass comes from.
+    pub mass_source: &'static str,
+    /// The arm's own damping, N s/m.
+    pub damping_n_s_per_m: f64,
+    /// Where the damping comes from.
+    pub damping_source: &'static str,
+}
+
+/// No vendor publishes a damping figure for any of these arms (voxhap_device::sim::preset); the value used is
+/// the one voxhap's own drivers imply: the Falcon, Inverse3 and WoodenHaptics drivers declare 1 000 N/m at
+/// 1 kHz, passive by the bound when `b = K T / 2 = 0.5 N s/m`.
+pub const DAMPING_ESTIMATE: &str =
+    "estimate (none published; 1 000 N/m at 1 kHz, voxhap's driver cap, implies 0.5)";
+
+/// The arms, the default first.
+pub const ARMS: [ArmCase; 5] = [
+    ArmCase {
+        name: "default",
+        preset: None,
+        mass_kg: 0.1,
+        mass_source: "the simulated arm's default",
+        damping_n_s_per_m: 1.0,
+        damping_source: "the simulated arm's default",
+    },
+    ArmCase {
+        name: "touch",
+        preset: Some("touch"),
+        mass_kg: 0.045,
+        mass_source: "preset (3D Systems Touch specification)",
+        damping_n_s_per_m: 0.5,
+        damping_source: DAMPING_ESTIMATE,
+    },
+    ArmCase {
+        name: "falcon",
+        preset: Some("falcon"),
+        mass_kg: 0.1,
+        mass_source: "estimate (none published)",
+        damping_n_s_per_m: 0.5,
+        damping_source: DAMPING_ESTIMATE,
+    },
+    ArmCase {
+        name: "inverse3",
+        preset: Some("inverse3"),
+        mass_kg: 0.1,
+        mass_source: "estimate (none published)",
+        damping_n_s_per_m: 0.5,
+        damping_source: DAMPING_ESTIMATE,
+    },
+    ArmCase {
+        name: "woodenhaptics",
+        preset: Some("woodenhaptics"),
+        mass_kg: 0.1,
+        mass_source: "estimate (none published)",
+        damping_n_s_per_m: 0.5,
+        damping_source: DAMPING_ESTIMATE,
+    },
+];
+
+/// The arm called `name` (`default` or a preset's name).
+pub fn arm_named(name: &str) -> Option<&'static ArmCase> {
+    ARMS.iter().find(|arm| arm.name == name)
+}

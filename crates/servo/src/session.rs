@@ -254,18 +254,21 @@ impl Session {
         let bundle = setup
             .bundle(period_ns, config.solver_budget_fraction, 1)
             .map_err(|e| SessionError::Scene(e.to_string()))?;
-        // The passivity controller: `control` for a real device unless the scene says otherwise; the
-        // simulated arm's force acts its `[arm] latency_s` late (a real device's latency is not known here).
+        // The passivity controller: `control` for a real device unless the scene says otherwise. Its observer
+        // pairs each force with the motion it meets `d` ticks later: `[passivity] latency_s` when written, else
+        // the simulated arm's `[arm] latency_s`, else the driver's worst-case link latency (crate::passivity).
         let simulated_arm = opened.hand_target.is_some();
         let passivity_mode = setup.passivity.mode_for(simulated_arm);
-        let latency_ticks = if simulated_arm {
-            PassivityController::latency_ticks(
-                setup.arm.arm.effects.latency_s,
-                period_ns as f64 * 1e-9,
-            )
+        let declared_latency_s = if simulated_arm {
+            Some(setup.arm.arm.effects.latency_s)
         } else {
-            0
+            device
+                .link_latency()
+                .map(|latency| latency.worst.as_secs_f64())
         };
+        let latency_ticks = setup
+            .passivity
+            .latency_ticks(declared_latency_s, period_ns as f64 * 1e-9);
         let passivity = PassivityController::new(passivity_mode, &setup.passivity, latency_ticks);
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));

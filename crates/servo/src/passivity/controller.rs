@@ -66,8 +66,7 @@
 use super::settings::{PassivityMode, PassivitySettings};
 use glam::DVec3;
 
-/// The longest device latency the observer pairs exactly (ticks); longer latencies are booked as this.
-pub const MAX_LATENCY_TICKS: usize = 255;
+pub use super::settings::MAX_LATENCY_TICKS;
 const HISTORY: usize = MAX_LATENCY_TICKS + 1;
 
 /// The observer's and controller's totals (J).
@@ -129,16 +128,9 @@ impl PassivityController {
         self.mode
     }
 
-    /// Whole ticks from a latency in seconds at period `dt_s`: a fraction of a tick is rounded up (a part
-    /// per million of a tick is taken as rounding error, so 1 ms at 4 kHz is 4 ticks), at most
-    /// [`MAX_LATENCY_TICKS`]. Rounding up is the safe side (module docs, "Latency").
+    /// Whole ticks from a latency in seconds at period `dt_s`, rounded up ([`super::settings::ticks_of`]).
     pub fn latency_ticks(latency_s: f64, dt_s: f64) -> usize {
-        if latency_s.is_finite() && latency_s > 0.0 && dt_s > 0.0 {
-            let ticks = (latency_s / dt_s - 1e-6).ceil().max(0.0);
-            (ticks.min(MAX_LATENCY_TICKS as f64)) as usize
-        } else {
-            0
-        }
+        super::settings::ticks_of(latency_s, dt_s)
     }
 
     /// Books this tick's reported probe and the coupling's reference energy now (the spring's stored energy,

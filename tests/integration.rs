@@ -13,6 +13,7 @@ mod device_bringup;
 mod device_connect;
 mod device_drivers;
 mod device_hardware;
+mod device_passivity_pty;
 mod device_pty;
 mod device_safety;
 mod device_spec;

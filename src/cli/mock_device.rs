@@ -2,7 +2,7 @@
 //! injection (crates/device/src/mock.rs). Prints the path it serves on, then runs until killed or `--duration` ends.
 
 use crate::device::mock::{
-    default_arm_config, run_mock_with, FaultConfig, LocalModelConfig, MockEvent, ServeOn,
+    default_arm_config, run_mock_logged, FaultConfig, LocalModelConfig, MockEvent, ServeOn,
 };
 use crate::device::sim::SimArmConfig;
 use anyhow::Context;
@@ -62,6 +62,10 @@ pub struct MockDeviceArgs {
     /// limit, model sequence, age and expiry, local status, ramp).
     #[arg(long, value_name = "FILE", requires = "local_model")]
     pub log: Option<PathBuf>,
+    /// Write the handle's log here (a new file): one CSV line per control cycle with the handle's position
+    /// and the force held on it, from which the energy the device absorbed is summed.
+    #[arg(long, value_name = "FILE")]
+    pub handle_log: Option<PathBuf>,
 }
 
 fn seconds_to_us(name: &str, seconds: Option<f64>) -> anyhow::Result<Option<u64>> {
@@ -115,12 +119,13 @@ pub fn run(args: &MockDeviceArgs) -> anyhow::Result<()> {
         rate_hz: args.local_rate_hz,
         log: args.log.clone(),
     });
-    let stats = run_mock_with(
+    let stats = run_mock_logged(
         arm,
         faults,
         &serve,
         duration_us,
         local.as_ref(),
+        args.handle_log.as_deref(),
         &shutdown,
         &mut on_event,
     )?;

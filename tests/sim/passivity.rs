@@ -111,6 +111,67 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     );
 }
 
+/// The observer pairs each force with the motion it meets after the device's latency (crate
+/// `voxhap-servo`, `passivity::controller`, "Latency"). The default arm released on a plane with 2 ms of
+/// latency at 1 kHz (2 ticks): the delayed loop's exact zero-order-hold boundary, computed from first
+/// principles by `zoh_exact`, is about 402 N/m, and the scene renders three times it. With the declared
+/// latency the controller keeps the energy the trace's forces gave the arm (each paired with the step it
+/// met, 2 ticks after it was sent) below 0.1 mJ and the contact without a limit cycle. The old pairing
+/// (`[passivity] latency_s = 0`: each force booked against the step right after it was sent) books about
+/// a fifth of what the loop generates (`sin(w T/2)` against `sin(w 5T/2)`), and the same scene is a limit
+/// cycle: the energy it gave the arm exceeds 1 mJ.
+#[test]
+fn the_observer_uses_the_declared_latency_above_the_exact_delayed_boundary() {
+    use voxhap::device::sim::zoh_exact::exact_boundary;
+    let (m, b, period_s, latency_ticks) = (0.1, 1.0, 1e-3, 2usize);
+    let boundary = exact_boundary(m, b, period_s, latency_ticks);
+    assert!((boundary - 402.0).abs() < 2.0, "{boundary}");
+    let k = 3.0 * boundary;
+    let scene = |extra: &'static str| {
+        move |text: String| {
+            let text = text
+                .replace("k_n_per_m = 2000.0", &format!("k_n_per_m = {k:.1}"))
+                .replace("latency_s = 0.001", "latency_s = 0.002")
+                .replace("duration_s = 1.5", "duration_s = 3.0");
+            text.replace(
+                "mode = \"control\"\n",
+                &format!("mode = \"control\"\n{extra}"),
+            )
+        }
+    };
+    let (declared, samples, scenario) = run("passivity_latency.toml", scene(""));
+    assert_eq!(scenario.k_n_per_m, (k * 10.0).round() / 10.0);
+    let declared_j = generated_j(
+        &samples,
+        latency_ticks,
+        scenario.k_n_per_m,
+        scenario.k_n_per_m,
+    );
+    let (ignored, samples, _) = run("passivity_latency.toml", scene("latency_s = 0.0\n"));
+    let ignored_j = generated_j(
+        &samples,
+        latency_ticks,
+        scenario.k_n_per_m,
+        scenario.k_n_per_m,
+    );
+    eprintln!(
+        "k = {k:.1} N/m (3 x exact boundary {boundary:.1}): declared latency: generated {declared_j:e} J, \
+         dissipated {:e} J, oscillating {}; latency ignored: generated {ignored_j:e} J, dissipated {:e} J, \
+         oscillating {}",
+        declared.passivity.dissipated_j,
+        declared.energy.oscillating(),
+        ignored.passivity.dissipated_j,
+        ignored.energy.oscillating()
+    );
+    assert!(
+        declared_j < 1e-4,
+        "declared latency: generated {declared_j} J"
+    );
+    assert!(!declared.energy.oscillating(), "{:?}", declared.energy);
+    assert!(ignored_j > 1e-3, "latency ignored: generated {ignored_j} J");
+    assert!(ignored.energy.oscillating(), "{:?}", ignored.energy);
+}
+
 fn without_events(text: String) -> String {
     let start = text.find("[[events]]").unwrap();
     let end = start + text[start..].find("[[modes]]").unwrap();

@@ -267,7 +267,7 @@ struct DeviceLog {
 }
 
 impl DeviceLog {
-    fn create(path: &Path) -> Result<Self, MockError> {
+    fn create(path: &Path, header: &str) -> Result<Self, MockError> {
         // A new file only: an existing one is never replaced.
         let file = std::fs::File::options()
             .write(true)
@@ -281,7 +281,7 @@ impl DeviceLog {
             out: std::io::BufWriter::with_capacity(1 << 16, file),
             path: path.to_path_buf(),
         };
-        log.line(format_args!("{LOCAL_LOG_HEADER}"))?;
+        log.line(format_args!("{header}"))?;
         Ok(log)
     }
 
@@ -324,6 +324,15 @@ impl DeviceLog {
         ))
     }
 
+    /// One control cycle of the handle: its position as the cycle starts and the force held over it.
+    fn handle(&mut self, now_us: u64, position_m: DVec3, force_n: DVec3) -> Result<(), MockError> {
+        let (p, f) = (position_m, force_n);
+        self.line(format_args!(
+            "{now_us},{:.12},{:.12},{:.12},{:.9},{:.9},{:.9}",
+            p.x, p.y, p.z, f.x, f.y, f.z
+        ))
+    }
+
     fn flush(&mut self) -> Result<(), MockError> {
         self.out.flush().map_err(|source| MockError::Log {
             path: self.path.clone(),
@@ -361,6 +370,12 @@ impl Default for LocalModelConfig {
 pub const LOCAL_LOG_HEADER: &str =
     "t_us,mode,force_n,limit_n,model_sequence,model_age_us,expiry_us,local_status,ramp";
 
+/// The columns of the mock's handle log (`voxhap mock-device --handle-log`): device time (µs), the handle's
+/// position as the control cycle starts (m) and the force held on it over the cycle (N), one line per cycle.
+/// The arm integrates each cycle exactly under that force, so the work the host's force did on the handle
+/// over a cycle is the force times the step to the next line's position: the energy the device absorbed.
+pub const HANDLE_LOG_HEADER: &str = "t_us,x_m,y_m,z_m,fx_n,fy_n,fz_n";
+
 /// Runs the mock device until `shutdown` is set, `duration_us` has passed, or it disconnects for good.
 pub fn run_mock(
     arm_config: SimArmConfig,
@@ -393,6 +408,31 @@ pub fn run_mock_with(
     shutdown: &AtomicBool,
     on_event: &mut dyn FnMut(MockEvent),
 ) -> Result<MockStats, MockError> {
+    run_mock_logged(
+        arm_config,
+        faults,
+        serve,
+        duration_us,
+        local,
+        None,
+        shutdown,
+        on_event,
+    )
+}
+
+/// [`run_mock_with`], writing the handle log ([`HANDLE_LOG_HEADER`]) to `handle_log` when given (a new
+/// file only).
+#[allow(clippy::too_many_arguments)]
+pub fn run_mock_logged(
+    arm_config: SimArmConfig,
+    faults: FaultConfig,
+    serve: &ServeOn,
+    duration_us: Option<u64>,
+    local: Option<&LocalModelConfig>,
+    handle_log: Option<&Path>,
+    shutdown: &AtomicBool,
+    on_event: &mut dyn FnMut(MockEvent),
+) -> Result<MockStats, MockError> {
     for (name, rate) in [
         ("corrupt rate", faults.corrupt_rate),
         ("drop rate", faults.drop_rate),
@@ -417,7 +457,11 @@ pub fn run_mock_with(
         None => DeviceSession::new(mock_device_info()),
     };
     let mut log = match local.and_then(|l| l.log.as_ref()) {
-        Some(path) => Some(DeviceLog::create(path)?),
+        Some(path) => Some(DeviceLog::create(path, LOCAL_LOG_HEADER)?),
+        None => None,
+    };
+    let mut handle_log = match handle_log {
+        Some(path) => Some(DeviceLog::create(path, HANDLE_LOG_HEADER)?),
         None => None,
     };
     let mut local_loop = LocalLoop::new(LoopConfig {
@@ -532,6 +576,9 @@ pub fn run_mock_with(
                 f64::from(force[1]),
                 f64::from(force[2]),
             );
+            if let Some(log) = handle_log.as_mut() {
+                log.handle(now, arm.position_m(), force_n)?;
+            }
             arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
             stats.ticks += 1;
             next_tick_us = if now - next_tick_us >= tick_us {
@@ -546,6 +593,9 @@ pub fn run_mock_with(
                 f64::from(force[1]),
                 f64::from(force[2]),
             );
+            if let Some(log) = handle_log.as_mut() {
+                log.handle(now, arm.position_m(), force_n)?;
+            }
             arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
             let sample = DeviceSample {
                 position_m: to_f32(arm.position_m()),
@@ -597,6 +647,9 @@ pub fn run_mock_with(
     stats.frames_dropped = decoded.dropped();
     stats.watchdog_trips = session.stats().watchdog_trips;
     if let Some(log) = log.as_mut() {
+        log.flush()?;
+    }
+    if let Some(log) = handle_log.as_mut() {
         log.flush()?;
     }
     if let ServeOn::Link(link) = serve {

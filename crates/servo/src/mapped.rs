@@ -144,6 +144,10 @@ impl ServoDevice for MappedDevice {
         self.inner.state_age_ticks()
     }
 
+    fn link_latency(&self) -> Option<voxhap_device::latency::LinkLatency> {
+        self.inner.link_latency()
+    }
+
     fn reported_force_n(&self) -> Option<DVec3> {
         self.inner
             .reported_force_n()

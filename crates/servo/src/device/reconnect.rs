@@ -331,6 +331,10 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
             .and_then(|device| device.device().reported_force_n())
     }
 
+    fn link_latency(&self) -> Option<voxhap_device::latency::LinkLatency> {
+        self.supervisor.link_latency()
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.supervisor.request_clear_fault()
     }

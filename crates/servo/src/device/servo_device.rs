@@ -4,6 +4,7 @@ use super::error::ConnectError;
 use crate::monitor::StopSlot;
 use glam::DVec3;
 use std::sync::Arc;
+use voxhap_device::latency::LinkLatency;
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_device::plausibility::InputCounters;
 use voxhap_device::supervisor::{
@@ -55,6 +56,11 @@ pub trait ServoDevice: Send {
     fn workspace_mapping(&self) -> WorkspaceMapping {
         WorkspaceMapping::IDENTITY
     }
+    /// The connected device's link latency as its driver declares it (`HapticDevice::link_latency`), `None`
+    /// when none is connected or the driver does not know it: the passivity observer's pairing.
+    fn link_latency(&self) -> Option<LinkLatency> {
+        None
+    }
     /// The force the connected device reports reached the arm with its last state (N;
     /// `HapticDevice::reported_force_n`), `None` when it reports none. Allocation-free.
     fn reported_force_n(&self) -> Option<DVec3> {
@@ -94,6 +100,10 @@ where
     fn reported_force_n(&self) -> Option<DVec3> {
         self.device()
             .and_then(|device| device.device().reported_force_n())
+    }
+
+    fn link_latency(&self) -> Option<LinkLatency> {
+        Supervisor::link_latency(self)
     }
 
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {

@@ -38,13 +38,35 @@
 //! it dissipates the observed excess over the next step, never more damping than `max_damping` (a damper acting
 //! a latency late is itself active above roughly `m / (T/2 + tau)`).
 //!
+//! **Latency.** Over a delayed channel the time-domain passivity approach measures the energy at each end
+//! of the channel and books what one port sent against what reaches the other port after the delay (J.-H.
+//! Ryu, J. Artigas, C. Preusche, "A passive bilateral control scheme for a teleoperator with time-varying
+//! communication delay", Mechatronics 20(7):812-823, 2010; J. Artigas, J.-H. Ryu, C. Preusche, G. Hirzinger,
+//! "Network representation and passivity of delayed teleoperation systems", IEEE/RSJ IROS 2011, whose
+//! abstract states the approach is used to render the communication channel passive; the full texts were not
+//! re-checked here). Here the channel is the device link: the force sent at tick `j` meets the arm only `d`
+//! ticks later, so its work is booked against the step it meets, `F_{n-1-d} . (x_n - x_{n-1})`, and not
+//! against the step that follows it on the host. The same pairing holds when the state is what comes late
+//! (the position reported at tick `n` is the arm's at `n - d`): a delay in sensing and one in actuation
+//! shift the reported motion and the sent force against each other by the same `d`. Over a cycle of a slow
+//! oscillation `A sin(w t)` on a sampled spring `k`, the sum `-k sum x_{n-1-d} (x_n - x_{n-1})` is
+//! `k pi A^2 sin(w (d + 1/2) T)` (the held force lags the step's middle by `(d + 1/2) T`; the reference
+//! energy returns to its value). Paired without the delay the observer books `k pi A^2 sin(w T / 2)`, about
+//! `1 / (2d + 1)` of what the delayed loop generates, and the controller lets it oscillate.
+//!
+//! `d` is the device's declared latency in whole ticks ([`super::settings::PassivitySettings::latency_ticks`]:
+//! `[passivity] latency_s`, else the driver's worst-case link latency, else the simulated arm's
+//! `[arm] latency_s`, else 0). A fraction of a tick is rounded up: for oscillations slower than a quarter
+//! period per delay (`w (d + 1/2) T < pi/2`) the booked generation `sin(w (d + 1/2) T)` rises with `d`, so
+//! an observer that assumes the force acts later than it does books more than was generated, and dissipates
+//! more, never less.
+//!
 //! Real-time: fixed arrays, no allocation, a few multiplications per tick.
 
 use super::settings::{PassivityMode, PassivitySettings};
 use glam::DVec3;
 
-/// The longest device latency the observer pairs exactly (ticks); longer latencies are booked as this.
-pub const MAX_LATENCY_TICKS: usize = 255;
+pub use super::settings::MAX_LATENCY_TICKS;
 const HISTORY: usize = MAX_LATENCY_TICKS + 1;
 
 /// The observer's and controller's totals (J).
@@ -106,13 +128,9 @@ impl PassivityController {
         self.mode
     }
 
-    /// Whole ticks from a latency in seconds at period `dt_s` (rounded, at most [`MAX_LATENCY_TICKS`]).
+    /// Whole ticks from a latency in seconds at period `dt_s`, rounded up ([`super::settings::ticks_of`]).
     pub fn latency_ticks(latency_s: f64, dt_s: f64) -> usize {
-        if latency_s.is_finite() && latency_s > 0.0 && dt_s > 0.0 {
-            ((latency_s / dt_s).round() as usize).min(MAX_LATENCY_TICKS)
-        } else {
-            0
-        }
+        super::settings::ticks_of(latency_s, dt_s)
     }
 
     /// Books this tick's reported probe and the coupling's reference energy now (the spring's stored energy,

@@ -99,3 +99,37 @@ fn parameters_out_of_range_name_their_key() {
         .starts_with("passivity.threshold_j:"));
     assert!(PassivitySettings::default().validate().is_ok());
 }
+
+/// The observer's latency in whole ticks, by hand: `[passivity] latency_s` over the declared figure; a
+/// fraction of a tick rounds up (0.4 ms at 1 kHz is 1 tick, 2.5 ms is 3); whole figures stay whole
+/// (1 ms at 4 kHz is 4 ticks, not 5 from rounding error); nothing known is 0.
+#[test]
+fn the_observer_latency_is_the_written_or_declared_one_rounded_up() {
+    let none = PassivitySettings::default();
+    assert_eq!(none.latency_ticks(None, 1e-3), 0);
+    assert_eq!(none.latency_ticks(Some(0.002), 1e-3), 2);
+    assert_eq!(none.latency_ticks(Some(0.0004), 1e-3), 1);
+    assert_eq!(none.latency_ticks(Some(0.0025), 1e-3), 3);
+    assert_eq!(none.latency_ticks(Some(0.001), 2.5e-4), 4);
+    let written = PassivitySettings {
+        latency_s: Some(0.0),
+        ..PassivitySettings::default()
+    };
+    assert_eq!(written.latency_ticks(Some(0.002), 1e-3), 0);
+    let written = PassivitySettings {
+        latency_s: Some(0.003),
+        ..PassivitySettings::default()
+    };
+    assert_eq!(written.latency_ticks(None, 1e-3), 3);
+    for bad in [f64::NAN, -1e-3, 0.06] {
+        let settings = PassivitySettings {
+            latency_s: Some(bad),
+            ..PassivitySettings::default()
+        };
+        assert!(settings
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .starts_with("passivity.latency_s:"));
+    }
+}

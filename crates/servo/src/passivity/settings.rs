@@ -11,6 +11,23 @@ pub const MAX_THRESHOLD_J: f64 = 1e-3;
 pub const DEFAULT_MAX_DAMPING_N_S_PER_M: f64 = 20.0;
 /// Default `threshold_j` (J): 1 µJ.
 pub const DEFAULT_THRESHOLD_J: f64 = 1e-6;
+/// Largest `[passivity] latency_s` accepted (s): 50 ms, 200 ticks at 4 kHz (within
+/// [`MAX_LATENCY_TICKS`]).
+pub const MAX_OBSERVER_LATENCY_S: f64 = 0.05;
+/// The longest device latency the observer pairs exactly (ticks); longer latencies are booked as this.
+pub const MAX_LATENCY_TICKS: usize = 255;
+
+/// Whole ticks from a latency in seconds at period `dt_s`: a fraction of a tick is rounded up (a part per
+/// million of a tick is taken as rounding error, so 1 ms at 4 kHz is 4 ticks), at most
+/// [`MAX_LATENCY_TICKS`]. Rounding up is the safe side (`super::controller` module docs, "Latency").
+pub fn ticks_of(latency_s: f64, dt_s: f64) -> usize {
+    if latency_s.is_finite() && latency_s > 0.0 && dt_s > 0.0 {
+        let ticks = (latency_s / dt_s - 1e-6).ceil().max(0.0);
+        ticks.min(MAX_LATENCY_TICKS as f64) as usize
+    } else {
+        0
+    }
+}
 
 /// What the passivity observer and controller do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -49,6 +66,11 @@ pub struct PassivitySettings {
     /// Generated energy beyond the reference that the controller lets pass before it acts (J), >= 0.
     #[serde(default = "default_threshold")]
     pub threshold_j: f64,
+    /// The device's latency the observer pairs forces and motion with (s), 0 to [`MAX_OBSERVER_LATENCY_S`];
+    /// left out: the driver's declared link latency (its worst case), or the simulated arm's
+    /// `[arm] latency_s`, or none when neither is known ([`Self::latency_ticks`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub latency_s: Option<f64>,
 }
 
 fn default_max_damping() -> f64 {
@@ -65,6 +87,7 @@ impl Default for PassivitySettings {
             mode: None,
             max_damping_n_s_per_m: DEFAULT_MAX_DAMPING_N_S_PER_M,
             threshold_j: DEFAULT_THRESHOLD_J,
+            latency_s: None,
         }
     }
 }
@@ -76,6 +99,8 @@ pub enum PassivitySettingsError {
     MaxDamping(f64),
     #[error("passivity.threshold_j: must be a number from 0 to {MAX_THRESHOLD_J:e} J, got {0}")]
     Threshold(f64),
+    #[error("passivity.latency_s: must be a number from 0 to {MAX_OBSERVER_LATENCY_S} s, got {0}")]
+    Latency(f64),
 }
 
 impl PassivitySettings {
@@ -89,7 +114,22 @@ impl PassivitySettings {
         if !(e.is_finite() && (0.0..=MAX_THRESHOLD_J).contains(&e)) {
             return Err(PassivitySettingsError::Threshold(e));
         }
+        if let Some(latency) = self.latency_s {
+            if !(latency.is_finite() && (0.0..=MAX_OBSERVER_LATENCY_S).contains(&latency)) {
+                return Err(PassivitySettingsError::Latency(latency));
+            }
+        }
         Ok(())
+    }
+
+    /// The latency the observer pairs with, in whole ticks of `period_s`: `[passivity] latency_s` when
+    /// written, else `declared_s` (the driver's worst-case link latency, or the simulated arm's
+    /// `[arm] latency_s`), else 0. A fraction of a tick is rounded up (module docs of
+    /// `super::controller`: assuming the force acts later than it does books more generated energy, never
+    /// less), at most [`MAX_LATENCY_TICKS`].
+    pub fn latency_ticks(&self, declared_s: Option<f64>, period_s: f64) -> usize {
+        let latency_s = self.latency_s.or(declared_s).unwrap_or(0.0);
+        ticks_of(latency_s, period_s)
     }
 
     /// The mode in force: the one written, else `control` for a real device and `observe` for the

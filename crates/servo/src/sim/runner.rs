@@ -99,9 +99,12 @@ pub fn run(
         *slot = matches!(mode.kind, ModeKind::VectorForce | ModeKind::GradientForce);
     }
     // The passivity observer and controller, and the passive introduction of changes (crate::passivity):
-    // the simulated arm's force acts `latency_s` after it was sent, in whole ticks.
+    // the simulated arm's force acts `[arm] latency_s` after it was sent; the observer pairs with that in
+    // whole ticks, or with `[passivity] latency_s` when written.
     let passivity_mode = settings.passivity.mode_for(true);
-    let latency_ticks = PassivityController::latency_ticks(settings.arm.effects.latency_s, dt_s);
+    let latency_ticks = settings
+        .passivity
+        .latency_ticks(Some(settings.arm.effects.latency_s), dt_s);
     let mut passivity =
         PassivityController::new(passivity_mode, &settings.passivity, latency_ticks);
     let mut transition = CouplingTransition::new();

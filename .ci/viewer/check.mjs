@@ -125,14 +125,28 @@ async function panelFilled(page, id) {
   if ((await box.count()) !== 1) return { ok: false, what: "not on the page" };
   const text = await box.innerText();
   if (text.includes("This panel encountered an unexpected error")) return { ok: false, what: "the panel crashed" };
-  // The panel's drawing: its largest canvas (the 3D view, the chart), without the legend and labels around it.
+  // The panel's drawing: its largest canvas (the 3D view, the chart).
   const canvases = box.locator("canvas");
   let best;
   for (let k = 0; k < (await canvases.count()); k += 1) {
     const bb = await canvases.nth(k).boundingBox();
     if (bb && bb.width * bb.height > (best ? best.width * best.height : 0)) best = bb;
   }
+  // Everything else in the panel (a floating legend, labels, tooltips) is hidden while the picture is taken.
+  const hide = (on) => box.evaluate((root, on) => {
+    for (const el of root.querySelectorAll("*")) {
+      if (on && !(el instanceof HTMLCanvasElement) && !el.querySelector("canvas")) {
+        el.dataset.viewerCheckVisibility = el.style.visibility;
+        el.style.visibility = "hidden";
+      } else if (!on && "viewerCheckVisibility" in el.dataset) {
+        el.style.visibility = el.dataset.viewerCheckVisibility;
+        delete el.dataset.viewerCheckVisibility;
+      }
+    }
+  }, on);
+  await hide(true);
   const png = best ? await page.screenshot({ clip: best }) : await box.screenshot();
+  await hide(false);
   if (type === "3D") {
     const s = await pixelStats(page, png, []);
     return { ok: s.coloured >= 0.01, what: `${(100 * s.coloured).toFixed(1)}% coloured pixels (needs 1%)` };
@@ -172,15 +186,18 @@ async function playerProblems(page) {
   return [`the data source reports problems (${(await tab.innerText()).replace(/\s+/g, " ")}):\n${shown}`];
 }
 
-// The errors a panel's settings tree shows (an error icon on a node, e.g. a 3D topic that cannot be drawn).
+// The errors a panel's settings tree shows (e.g. a 3D topic or display frame that cannot be drawn).
 async function settingsErrors(page, id) {
   const box = panelBox(page, id);
   const gear = box.locator('button:has(svg[data-testid="SettingsIcon"])').first();
   if ((await gear.count()) === 0) return [];
   await gear.click();
   await page.waitForTimeout(500);
+  if (process.env.VIEWER_DEBUG) await page.screenshot({ path: path.join(outDir, `settings-${id.replace(/\W/g, "_")}.png`) });
   const errors = [];
-  const icons = page.locator('button.MuiIconButton-colorError:has(svg[data-testid="ErrorIcon"]):visible');
+  // A node's error (an error button in its header) or a field's (an error icon by its label).
+  const icons = page.locator('button.MuiIconButton-colorError:has(svg[data-testid="ErrorIcon"]):visible, ' +
+    'svg.MuiSvgIcon-colorError[data-testid="ErrorIcon"]:visible');
   for (let k = 0; k < (await icons.count()); k += 1) {
     await icons.nth(k).hover();
     const tip = page.locator('[role="tooltip"]').last();

@@ -49,10 +49,9 @@ use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 use voxhap_api::{SessionApi, Snapshot};
 use voxhap_view::topics::{
-    frame_transform, set_translation, timestamp_from_ns, vector3, volume_frames, volume_scene,
-    FORCE_TOPIC, MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME,
-    PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC,
-    VOLUME_TOPIC,
+    frame_transform, set_translation, timestamp_from_ns, vector3, FORCE_TOPIC, MEASURED_CP_TOPIC,
+    MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME, PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC,
+    SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC, VOLUME_TOPIC,
 };
 pub use voxhap_view::topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
 
@@ -486,15 +485,15 @@ impl Publisher {
     /// Publishes the volume picture (bounds, mesh, the `volume` and `volume_view` frames).
     fn volume(&self, picture: &VolumePicture) {
         let time_ns = unix_now_ns();
-        let update = volume_scene(
+        let (update, frames) = voxhap_record::foxglove_scene::volume_messages(
+            &picture.description,
             picture.min_m,
             picture.max_m,
             picture.surface.as_ref(),
-            &picture.description,
-            timestamp_from_ns(time_ns),
+            time_ns,
         );
         self.channels.volume.log_with_time(&update, time_ns);
-        for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
+        for frame in frames {
             self.channels.volume_frame.log_with_time(&frame, time_ns);
         }
     }

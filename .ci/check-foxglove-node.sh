@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Checks voxhap's Foxglove live view with an independent client: the npm packages @foxglove/ws-protocol, ws
 # and protobufjs (installed into a temporary directory, never the repository) subscribe on a running
-# `voxhap serve` and must receive at least N messages on /voxhap/servo_cf, the volume's mesh and bounding box
+# `voxhap serve` and must receive at least N messages on /voxhap/setpoint_cf, the volume's mesh and bounding box
 # on /voxhap/volume, the three slices, and the frames `volume` and `volume_view` (the camera framing the layout follows)
 # on /voxhap/volume_frame; the shipped layout contrib/foxglove/voxhap-layout.json must refer
 # only to topics the server advertises (.ci/foxglove-subscribe.mjs).

@@ -1,7 +1,7 @@
 // An independent Foxglove WebSocket client for .ci/check-foxglove-node.sh: the npm packages
 // @foxglove/ws-protocol (FoxgloveClient), ws and protobufjs connect to `voxhap serve`'s live view and check:
 //
-// - /voxhap/servo_cf: at least N messages within the time limit, each a foxglove.Vector3 with finite
+// - /voxhap/setpoint_cf: at least N messages within the time limit, each a foxglove.Vector3 with finite
 //   components (decoded by hand: fields 1..3 are doubles);
 // - /voxhap/volume: a foxglove.SceneUpdate with the volume's bounding box (12 edges) and an iso-surface mesh
 //   (indexed triangles), decoded with protobufjs from the schema the server advertises;
@@ -25,7 +25,7 @@ const url = process.argv[2];
 const layoutPath = process.argv[3];
 const wanted = Number(process.argv[4] ?? 60);
 const timeoutMs = Number(process.argv[5] ?? 15000);
-const FORCE = "/voxhap/servo_cf";
+const FORCE = "/voxhap/setpoint_cf";
 const VOLUME = "/voxhap/volume";
 const VOLUME_FRAME = "/voxhap/volume_frame";
 const SLICES = ["/voxhap/volume/slice_x", "/voxhap/volume/slice_y", "/voxhap/volume/slice_z"];

@@ -140,9 +140,9 @@ def main():
     missing = sorted(t for t in wanted if counts.get(t, 0) == 0)
     check(not missing, f"the layout shows {missing}, which the recording does not carry")
 
-    # Rates over the recording's span of ticks (servo_cf: one message per tick).
-    ticks = counts["/voxhap/servo_cf"]
-    span_s = (last["/voxhap/servo_cf"] - first["/voxhap/servo_cf"]) / 1e9
+    # Rates over the recording's span of ticks (setpoint_cf: one message per tick).
+    ticks = counts["/voxhap/setpoint_cf"]
+    span_s = (last["/voxhap/setpoint_cf"] - first["/voxhap/setpoint_cf"]) / 1e9
     check(span_s > 1.0, f"recording only {span_s:.3f} s long")
     for topic in ("/voxhap/measured_cp", "/voxhap/setpoint_cp", "/voxhap/state", "/voxhap/solver"):
         check(counts[topic] == ticks, f"{topic}: {counts[topic]} messages for {ticks} ticks")
@@ -176,7 +176,7 @@ def main():
 
     # Log times are wall-clock UTC.
     now_ns = time.time_ns()
-    check(0 < now_ns - first["/voxhap/servo_cf"] < 120e9, f"first log time {first['/voxhap/servo_cf']}, now {now_ns}")
+    check(0 < now_ns - first["/voxhap/setpoint_cf"] < 120e9, f"first log time {first['/voxhap/setpoint_cf']}, now {now_ns}")
     print(json.dumps({"chunks": chunks, "counts": counts, "rates_hz": rates, "span_s": span_s, "schemas": schemas,
                       "picture_log_times": picture_times,
                       "layout_topics": sorted(wanted)}))

@@ -156,7 +156,7 @@ async fn the_older_subprotocol_name_is_accepted_and_answered_by_name() {
         "foxglove.websocket.v1"
     );
     let channels = handshake(&mut client).await;
-    assert!(channels.contains_key("/voxhap/servo_cf"), "{channels:?}");
+    assert!(channels.contains_key("/voxhap/setpoint_cf"), "{channels:?}");
     // An unknown subprotocol is still refused.
     let mut request = format!("ws://{addr}/").into_client_request().unwrap();
     request.headers_mut().insert(
@@ -186,7 +186,7 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
         ("/voxhap/measured_cp", "foxglove.FrameTransform", "protobuf"),
         ("/voxhap/setpoint_cp", "foxglove.FrameTransform", "protobuf"),
         ("/voxhap/measured_cv", "foxglove.Vector3", "protobuf"),
-        ("/voxhap/servo_cf", "foxglove.Vector3", "protobuf"),
+        ("/voxhap/setpoint_cf", "foxglove.Vector3", "protobuf"),
         ("/voxhap/operating_state", "voxhap.OperatingState", "json"),
         ("/voxhap/primitives", "foxglove.SceneUpdate", "protobuf"),
         ("/voxhap/bound", "voxhap.Bound", "json"),
@@ -204,6 +204,7 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
         ("/voxhap/probe", "foxglove.FrameTransform", "protobuf"),
         ("/voxhap/proxy", "foxglove.FrameTransform", "protobuf"),
         ("/voxhap/force", "foxglove.Vector3", "protobuf"),
+        ("/voxhap/servo_cf", "foxglove.Vector3", "protobuf"),
     ];
     assert_eq!(channels.len(), expected.len(), "{:?}", channels.keys());
     for (topic, schema, encoding) in expected {
@@ -234,7 +235,7 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
         };
         let (id, log_time, payload) = message_data(&bytes);
         let topic = TOPICS[id as usize - 1];
-        if topic == "/voxhap/servo_cf" {
+        if topic == "/voxhap/setpoint_cf" {
             let force = Vector3::decode(payload).unwrap();
             force_seen |= force.x != 0.0 || force.y != 0.0 || force.z != 0.0;
         }
@@ -246,9 +247,10 @@ async fn live_view_advertises_the_topics_and_streams_the_force_at_the_asked_rate
 
     // The force: about RATE_HZ messages a second (a loaded machine may lose some, never burst), counted
     // by their log times (the sampled ticks' times) and by when they arrived.
-    let forces = &received["/voxhap/servo_cf"];
-    // The old name carries the same messages for one more release.
+    let forces = &received["/voxhap/setpoint_cf"];
+    // The old names carry the same messages for one more release.
     assert!(received["/voxhap/force"].len() >= forces.len() / 2);
+    assert!(received["/voxhap/servo_cf"].len() >= forces.len() / 2);
     let (first_arrival, first_log_time) = (forces[0].0, forces[0].1);
     let in_one_second = forces
         .iter()
@@ -598,7 +600,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
         (protobuf("foxglove.FrameTransform"), "protobuf".into(), n)
     );
     assert_eq!(
-        by_topic["/voxhap/servo_cf"],
+        by_topic["/voxhap/setpoint_cf"],
         (protobuf("foxglove.Vector3"), "protobuf".into(), n)
     );
     // The scene: the volume once; scene updates (markers and the tick's primitives), bound and operating
@@ -709,7 +711,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
 
     // The last force message is the last sample's force.
     let last_force = messages()
-        .filter(|m| m.channel.topic == "/voxhap/servo_cf")
+        .filter(|m| m.channel.topic == "/voxhap/setpoint_cf")
         .last()
         .unwrap();
     let force = Vector3::decode(&last_force.data[..]).unwrap();
@@ -717,7 +719,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
     assert_eq!([force.x, force.y, force.z], sample.force_n.to_array());
     // Log times are wall-clock UTC: the first sample at about the time the recording started.
     let first = messages()
-        .find(|m| m.channel.topic == "/voxhap/servo_cf")
+        .find(|m| m.channel.topic == "/voxhap/setpoint_cf")
         .unwrap();
     let since_first_ns = ((sample.t_s - read.samples[0].t_s) * 1e9).round() as u64;
     assert_eq!(last_force.log_time - first.log_time, since_first_ns);

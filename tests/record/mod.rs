@@ -214,7 +214,7 @@ print(json.dumps({"counts": counts, "metadata": metadata, "first": first, "log_t
     for (topic, schema) in [
         ("/voxhap/measured_cp", "foxglove.FrameTransform"),
         ("/voxhap/setpoint_cp", "foxglove.FrameTransform"),
-        ("/voxhap/servo_cf", "foxglove.Vector3"),
+        ("/voxhap/setpoint_cf", "foxglove.Vector3"),
     ] {
         assert_eq!(report["counts"][topic], TICKS, "{topic}");
         assert_eq!(

@@ -52,6 +52,26 @@ pub fn scene_frame_interval_ticks(period_ns: u64) -> u64 {
     interval_ns.div_ceil(period_ns.max(1)).max(1)
 }
 
+/// The volume picture's messages at `time_ns`, for the live view and recordings alike: the scene update on
+/// [`VOLUME_TOPIC`] (bounding box, iso-surface; [`volume_scene`]) and the `volume` and `volume_view` frames on
+/// [`VOLUME_FRAME_TOPIC`] ([`volume_frames`]).
+pub fn volume_messages(
+    description: &str,
+    min_m: DVec3,
+    max_m: DVec3,
+    surface: Option<&(Mesh, Rgb, f64)>,
+    time_ns: u64,
+) -> (SceneUpdate, [FrameTransform; 2]) {
+    let update = volume_scene(
+        min_m,
+        max_m,
+        surface,
+        description,
+        timestamp_from_ns(time_ns),
+    );
+    (update, volume_frames(min_m, max_m, time_ns))
+}
+
 /// The volume picture of a recording: bounds and the surface mode's iso-surface, built from the trace's
 /// metadata when the recording starts (the volumes are loaded again from their sources; the first one that
 /// loads as a scalar volume is drawn, meshed at the iso-value of the first surface mode:
@@ -466,17 +486,17 @@ impl RecordedScene {
         let Some(picture) = &self.picture else {
             return Ok(());
         };
-        let update = volume_scene(
+        let (update, frames) = volume_messages(
+            &picture.description,
             picture.min_m,
             picture.max_m,
             picture.surface.as_ref(),
-            &picture.description,
-            timestamp_from_ns(time_ns),
+            time_ns,
         );
         put(self.volume, &|m| {
             update.encode(m).map_err(SceneEncodeError::protobuf)
         })?;
-        for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
+        for frame in frames {
             put(self.volume_frame, &|m| {
                 frame.encode(m).map_err(SceneEncodeError::protobuf)
             })?;

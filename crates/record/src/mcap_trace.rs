@@ -15,7 +15,7 @@
 //! * three more channels with the Foxglove SDK's protobuf schemas, the same topics the live view publishes
 //!   (`voxhap_view::topics`, CRTK names), so Foxglove and Lichtblick show a recording like a live
 //!   session: `/voxhap/measured_cp` and `/voxhap/setpoint_cp` (`foxglove.FrameTransform`, frames `probe`
-//!   and `proxy` in `world`, translation in m) and `/voxhap/servo_cf` (`foxglove.Vector3`, the sent force
+//!   and `proxy` in `world`, translation in m) and `/voxhap/setpoint_cf` (`foxglove.Vector3`, the sent force
 //!   in N), one message per tick. The transforms' own timestamps equal the log time;
 //! * the scene topics ([`RecordedScene`]): `/voxhap/volume` and `/voxhap/volume_frame` at the start and
 //!   again when a scene change loads another volume ([`TraceWriter::scene_changed`]; the volume's bounds,
@@ -66,7 +66,7 @@ use crate::writer::TraceWriter;
 use voxhap_api::TraceFormat;
 use voxhap_view::topics::{
     frame_transform, set_translation, vector3, MEASURED_CP_TOPIC as PROBE_TOPIC, PROBE_FRAME,
-    PROXY_FRAME, SERVO_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
+    PROXY_FRAME, SETPOINT_CF_TOPIC as FORCE_TOPIC, SETPOINT_CP_TOPIC as PROXY_TOPIC,
 };
 
 /// Topic of the per-tick state messages (positions and force).

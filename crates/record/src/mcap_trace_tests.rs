@@ -474,3 +474,38 @@ fn a_trace_without_samples_has_no_chunk() {
     );
     assert_eq!(summary.stats.unwrap().metadata_count, 1);
 }
+
+/// A recording made before the force topic's rename (`/voxhap/servo_cf`, now `/voxhap/setpoint_cf`) reads as
+/// the same recording with the new name: the file below is the test's recording with only that channel's topic
+/// changed.
+#[test]
+fn a_recording_with_the_old_force_topic_name_reads_the_same() {
+    use voxhap_view::topics::{SERVO_CF_TOPIC, SETPOINT_CF_TOPIC};
+    let dir = tempfile::tempdir().unwrap();
+    let data = samples(50, 1);
+    let path = dir.path().join("new.mcap");
+    write_mcap(&path, &["surface"], &data);
+    let bytes = std::fs::read(&path).unwrap();
+    let old = dir.path().join("old.mcap");
+    let file = std::io::BufWriter::new(std::fs::File::create(&old).unwrap());
+    let mut writer = mcap::Writer::new(file).unwrap();
+    for record in mcap::read::LinearReader::new(&bytes).unwrap() {
+        if let mcap::records::Record::Metadata(metadata) = record.unwrap() {
+            writer.write_metadata(&metadata).unwrap();
+        }
+    }
+    let mut renamed = 0;
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let mut message = message.unwrap();
+        if message.channel.topic == SETPOINT_CF_TOPIC {
+            let mut channel = (*message.channel).clone();
+            channel.topic = SERVO_CF_TOPIC.to_owned();
+            message.channel = std::sync::Arc::new(channel);
+            renamed += 1;
+        }
+        writer.write(&message).unwrap();
+    }
+    writer.finish().unwrap();
+    assert_eq!(renamed, data.len());
+    assert_eq!(read_mcap_trace(&old).unwrap().samples, data);
+}

@@ -16,7 +16,7 @@
 //! |---|---|---|
 //! | `/voxhap/measured_cp`, `/voxhap/setpoint_cp` | `foxglove.FrameTransform` (frames `probe`, `proxy` in `world`) | sampled |
 //! | `/voxhap/measured_cv` | `foxglove.Vector3`: probe velocity (m/s) | sampled |
-//! | `/voxhap/servo_cf` | `foxglove.Vector3`: force sent to the device (N) | sampled |
+//! | `/voxhap/setpoint_cf` | `foxglove.Vector3`: force sent to the device (N) | sampled |
 //! | `/voxhap/operating_state` | `voxhap.OperatingState` (JSON, CRTK fields `state`, `is_homed`, `is_busy`; the tick's truth) | sampled |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate`: probe, proxy, force arrow, the tick's primitives ([`messages`]) | sampled |
 //! | [`BOUND_TOPIC`] | `voxhap.Bound` (JSON): `tick`, `t_s`, `error_bound_m`, `sweeps`, `status` | sampled |
@@ -24,7 +24,7 @@
 //! | `/voxhap/volume` | `foxglove.SceneUpdate`: the volume's bounding box and iso-surface ([`volume`]) | on each scene change and each new subscriber |
 //! | `/voxhap/volume_frame` | `foxglove.FrameTransform`: frame `volume` at the volume's centre and frame `volume_view`, which the shipped layout's camera follows (`voxhap_view::topics::CameraFraming`) | with `/voxhap/volume` |
 //! | [`SLICE_TOPICS`] | `foxglove.Grid`: slices normal to x, y, z through the proxy | [`SLICE_INTERVAL`] |
-//! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force` | the old names of measured_cp, setpoint_cp, servo_cf (deprecated, removed in the next release) | sampled |
+//! | `/voxhap/probe`, `/voxhap/proxy`, `/voxhap/force`, `/voxhap/servo_cf` | the old names of measured_cp, setpoint_cp, setpoint_cf (deprecated, removed in the next release) | sampled |
 //!
 //! Every topic but `measured_cv` and the deprecated names is also in MCAP traces
 //! (`voxhap_record::foxglove_scene::RecordedScene`), so a recording shows the shipped layout's picture.
@@ -49,10 +49,9 @@ use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 use voxhap_api::{SessionApi, Snapshot};
 use voxhap_view::topics::{
-    frame_transform, set_translation, timestamp_from_ns, vector3, volume_frames, volume_scene,
-    FORCE_TOPIC, MEASURED_CP_TOPIC, MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME,
-    PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC, SERVO_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC,
-    VOLUME_TOPIC,
+    frame_transform, set_translation, timestamp_from_ns, vector3, FORCE_TOPIC, MEASURED_CP_TOPIC,
+    MEASURED_CV_TOPIC, OPERATING_STATE_TOPIC, PROBE_FRAME, PROBE_TOPIC, PROXY_FRAME, PROXY_TOPIC,
+    SERVO_CF_TOPIC, SETPOINT_CF_TOPIC, SETPOINT_CP_TOPIC, VOLUME_FRAME_TOPIC, VOLUME_TOPIC,
 };
 pub use voxhap_view::topics::{BOUND_TOPIC, PRIMITIVES_TOPIC, STATS_TOPIC};
 
@@ -64,11 +63,11 @@ pub const DEFAULT_RATE_HZ: u32 = 60;
 pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 1..=1000;
 pub use voxhap_view::topics::SLICE_TOPICS;
 /// Every topic the live view advertises.
-pub const TOPICS: [&str; 16] = [
+pub const TOPICS: [&str; 17] = [
     MEASURED_CP_TOPIC,
     SETPOINT_CP_TOPIC,
     MEASURED_CV_TOPIC,
-    SERVO_CF_TOPIC,
+    SETPOINT_CF_TOPIC,
     OPERATING_STATE_TOPIC,
     PRIMITIVES_TOPIC,
     BOUND_TOPIC,
@@ -82,6 +81,7 @@ pub const TOPICS: [&str; 16] = [
     PROBE_TOPIC,
     PROXY_TOPIC,
     FORCE_TOPIC,
+    SERVO_CF_TOPIC,
 ];
 /// How often the slices through the proxy are sampled and sent (when subscribed).
 pub const SLICE_INTERVAL: Duration = Duration::from_millis(250);
@@ -342,7 +342,7 @@ struct Channels {
     measured_cp: Channel<FrameTransform>,
     setpoint_cp: Channel<FrameTransform>,
     measured_cv: Channel<Vector3>,
-    servo_cf: Channel<Vector3>,
+    setpoint_cf: Channel<Vector3>,
     operating_state: Channel<OperatingStateMessage>,
     primitives: Channel<SceneUpdate>,
     bound: Channel<BoundMessage>,
@@ -353,6 +353,7 @@ struct Channels {
     old_probe: Channel<FrameTransform>,
     old_proxy: Channel<FrameTransform>,
     old_force: Channel<Vector3>,
+    old_servo_cf: Channel<Vector3>,
 }
 
 impl Channels {
@@ -361,13 +362,14 @@ impl Channels {
         self.measured_cp.has_sinks()
             || self.setpoint_cp.has_sinks()
             || self.measured_cv.has_sinks()
-            || self.servo_cf.has_sinks()
+            || self.setpoint_cf.has_sinks()
             || self.operating_state.has_sinks()
             || self.primitives.has_sinks()
             || self.bound.has_sinks()
             || self.old_probe.has_sinks()
             || self.old_proxy.has_sinks()
             || self.old_force.has_sinks()
+            || self.old_servo_cf.has_sinks()
     }
 
     fn volume_subscribed(&self) -> bool {
@@ -383,7 +385,7 @@ impl Channels {
             measured_cp: context.channel_builder(MEASURED_CP_TOPIC).build(),
             setpoint_cp: context.channel_builder(SETPOINT_CP_TOPIC).build(),
             measured_cv: context.channel_builder(MEASURED_CV_TOPIC).build(),
-            servo_cf: context.channel_builder(SERVO_CF_TOPIC).build(),
+            setpoint_cf: context.channel_builder(SETPOINT_CF_TOPIC).build(),
             operating_state: context.channel_builder(OPERATING_STATE_TOPIC).build(),
             primitives: context.channel_builder(PRIMITIVES_TOPIC).build(),
             bound: context.channel_builder(BOUND_TOPIC).build(),
@@ -394,6 +396,7 @@ impl Channels {
             old_probe: context.channel_builder(PROBE_TOPIC).build(),
             old_proxy: context.channel_builder(PROXY_TOPIC).build(),
             old_force: context.channel_builder(FORCE_TOPIC).build(),
+            old_servo_cf: context.channel_builder(SERVO_CF_TOPIC).build(),
         }
     }
 }
@@ -453,7 +456,7 @@ impl Publisher {
                 channel.log_with_time(&self.proxy, time_ns);
             }
         }
-        for channel in [&c.servo_cf, &c.old_force] {
+        for channel in [&c.setpoint_cf, &c.old_force, &c.old_servo_cf] {
             if channel.has_sinks() {
                 channel.log_with_time(&vector3(snapshot.sent_force_n), time_ns);
             }
@@ -486,15 +489,15 @@ impl Publisher {
     /// Publishes the volume picture (bounds, mesh, the `volume` and `volume_view` frames).
     fn volume(&self, picture: &VolumePicture) {
         let time_ns = unix_now_ns();
-        let update = volume_scene(
+        let (update, frames) = voxhap_record::foxglove_scene::volume_messages(
+            &picture.description,
             picture.min_m,
             picture.max_m,
             picture.surface.as_ref(),
-            &picture.description,
-            timestamp_from_ns(time_ns),
+            time_ns,
         );
         self.channels.volume.log_with_time(&update, time_ns);
-        for frame in volume_frames(picture.min_m, picture.max_m, time_ns) {
+        for frame in frames {
             self.channels.volume_frame.log_with_time(&frame, time_ns);
         }
     }
@@ -660,7 +663,7 @@ mod tests {
         }
         let topics = layout_topics(&layout).unwrap();
         assert!(topics.len() >= 8, "{topics:?}");
-        let current = &TOPICS[..TOPICS.len() - 3];
+        let current = &TOPICS[..TOPICS.len() - 4];
         for topic in &topics {
             assert!(
                 current.contains(&topic.as_str()),

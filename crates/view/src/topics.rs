@@ -11,7 +11,7 @@
 //! | [`MEASURED_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROBE_FRAME`] in [`WORLD_FRAME`]: the device position (m) | [`PROBE_TOPIC`] |
 //! | [`SETPOINT_CP_TOPIC`] | `foxglove.FrameTransform` | frame [`PROXY_FRAME`] in [`WORLD_FRAME`]: the proxy, the coupling spring's set point (m) | [`PROXY_TOPIC`] |
 //! | [`MEASURED_CV_TOPIC`] | `foxglove.Vector3` | probe velocity (m/s); live view only | |
-//! | [`SERVO_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`FORCE_TOPIC`] |
+//! | [`SETPOINT_CF_TOPIC`] | `foxglove.Vector3` | force commanded to the device after safety (N) | [`SERVO_CF_TOPIC`], [`FORCE_TOPIC`] |
 //! | [`OPERATING_STATE_TOPIC`] | `voxhap.OperatingState` (JSON) | CRTK `state`, `is_homed`, `is_busy` | |
 //! | [`PRIMITIVES_TOPIC`] | `foxglove.SceneUpdate` | probe, proxy, force arrow, the tick's primitives (live: and the hand target) | |
 //! | [`VOLUME_TOPIC`] | `foxglove.SceneUpdate` | the volume's bounding box (with the [`CameraFraming`] in its metadata) and the surface mode's iso-surface mesh, once per scene | |
@@ -39,7 +39,11 @@ pub const MEASURED_CP_TOPIC: &str = "/voxhap/measured_cp";
 pub const SETPOINT_CP_TOPIC: &str = "/voxhap/setpoint_cp";
 /// CRTK `measured_cv`: the probe velocity (m/s), linear part, as a `foxglove.Vector3`.
 pub const MEASURED_CV_TOPIC: &str = "/voxhap/measured_cv";
-/// CRTK `servo_cf`: the force commanded to the device after the safety pipeline (N), as a `foxglove.Vector3`.
+/// CRTK `setpoint_cf`: the force the device is commanded with after the safety pipeline (N), as a
+/// `foxglove.Vector3`.
+pub const SETPOINT_CF_TOPIC: &str = "/voxhap/setpoint_cf";
+/// The old name of [`SETPOINT_CF_TOPIC`] (recordings made before the rename have it; the live view still
+/// publishes it in this release). On ROS 2, CRTK `servo_cf` is the external force voxhap takes in.
 pub const SERVO_CF_TOPIC: &str = "/voxhap/servo_cf";
 /// CRTK `operating_state` (JSON).
 pub const OPERATING_STATE_TOPIC: &str = "/voxhap/operating_state";

@@ -26,9 +26,10 @@
 //!   most `state_timeout` (half a servo period) for the one that echoes the last SetForce. Older or duplicate
 //!   States are skipped; when no State came but frames were dropped (CRC, COBS, length), the error is a
 //!   protocol error rather than a timeout, so the supervisor counts a corrupted link as such.
-//! - **write_local_model** (a device that set `LOCAL_MODEL` in the HeartbeatReply confirming the handshake,
-//!   SPEC section 10) sends the tick's primitives as one LocalModel in the set-force sequence, so the same
-//!   lockstep State answers it; the LocalStates that follow are kept for [`HapticDevice::local_report`]. A model
+//! - **write_local_model** (a device of version 1.1 or later that set `LOCAL_MODEL` in the HeartbeatReply
+//!   confirming the handshake, SPEC section 10.1; a 1.0 device, or a 1.1 one without the bit, gets SetForce)
+//!   sends the tick's primitives as one LocalModel in the set-force sequence, so the same lockstep State
+//!   answers it; the LocalStates that follow are kept for [`HapticDevice::local_report`]. A model
 //!   the wire cannot carry goes out as the set-force it replaces.
 //! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
 //! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
@@ -46,8 +47,8 @@ use glam::DVec3;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
-    DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent, HostSession, HostToDevice,
-    LocalState, StatusFlags, PROTOCOL_VERSION,
+    local_model_negotiated, DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent,
+    HostSession, HostToDevice, LocalState, StatusFlags, PROTOCOL_VERSION,
 };
 
 /// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
@@ -420,8 +421,10 @@ impl<L: MessageLink> ProtocolDevice<L> {
                         match candidate.take() {
                             Some(info) if ours && open => {
                                 this.info = convert_info(&info);
+                                // SPEC 10.1: version 1.1 or later and LOCAL_MODEL; a 1.0 device
+                                // (bit 6 reserved there) keeps SetForce whatever it sets.
                                 this.local_capable =
-                                    reply.status.contains(StatusFlags::LOCAL_MODEL);
+                                    local_model_negotiated(info.version, reply.status);
                                 this.last_local = None;
                                 return Ok(Some(()));
                             }
@@ -675,3 +678,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "protocol_tests.rs"]
+mod tests;

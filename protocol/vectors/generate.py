@@ -201,6 +201,15 @@ LOCAL_VECTORS = [
         "(0, 0, 0) m, no primitives (free space)",
     ),
     (
+        "local_model_wall",
+        HOST,
+        0x08,
+        local_model(1, 5000, 0, 2000, 0, 3000, (0.0, 0.0, 0.0), [(PLANE, (0, 0, 0), (0.0, 0.0, 1.0), 20000)]),
+        "LocalModel: sequence 1, expiry 5000 us, no flags, stiffness 2000 N/m, damping 0, force limit 3.0 N, anchor "
+        "(0, 0, 0) m; slot 0 plane at offset (0, 0, 0) um, normal (0, 0, 1), 20 N (a floor at z = 0: by SPEC 10.5 a "
+        "handle 0.5 mm below it feels 1.0 N up, one 2 mm below 4 N clamped to the 3 N limit)",
+    ),
+    (
         "local_state",
         DEVICE,
         0x86,

@@ -327,7 +327,10 @@ mod tests {
         assert_eq!(PROTOCOL_VERSION, v(1, 1));
         assert!(local_model_negotiated(v(1, 1), capable));
         assert!(local_model_negotiated(v(1, 9), capable));
-        assert!(!local_model_negotiated(v(1, 0), capable), "bit 6 is reserved in 1.0");
+        assert!(
+            !local_model_negotiated(v(1, 0), capable),
+            "bit 6 is reserved in 1.0"
+        );
         assert!(!local_model_negotiated(v(1, 1), StatusFlags::SESSION_OPEN));
         assert!(!local_model_negotiated(v(2, 1), capable));
         assert!(!local_model_negotiated(v(0, 5), capable));

@@ -107,11 +107,7 @@ fn device_info(info: &VoxhapLocalInfo) -> Option<DeviceInfo> {
         .all(|v| v.is_finite());
     let ordered = (0..3).all(|i| info.workspace_min_m[i] <= info.workspace_max_m[i]);
     let dof_ok = info.position_dof <= 6 && info.force_dof <= 6 && info.button_count <= 16;
-    if !finite
-        || !ordered
-        || !dof_ok
-        || info.max_force_n < 0.0
-        || info.max_stiffness_n_per_m < 0.0
+    if !finite || !ordered || !dof_ok || info.max_force_n < 0.0 || info.max_stiffness_n_per_m < 0.0
     {
         return None;
     }

@@ -129,7 +129,7 @@ fn device_info(info: &VoxhapLocalInfo) -> Option<DeviceInfo> {
 fn storage_ok(storage: *mut u8, len: usize) -> i32 {
     if storage.is_null() {
         VOXHAP_LOCAL_ENULL
-    } else if len < size_of::<Device>() || (storage as usize) % align_of::<Device>() != 0 {
+    } else if len < size_of::<Device>() || !storage.cast::<Device>().is_aligned() {
         VOXHAP_LOCAL_ESTORAGE
     } else {
         VOXHAP_LOCAL_OK

@@ -201,7 +201,7 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
             std::thread::sleep(Duration::from_millis(1));
         }
     };
-    models_for(&mut *port, 1.5);
+    models_for(&mut *port, 2.0);
     // Disabled in contact, models keep coming: the device must not apply them (SPEC 10.1: not applied outside
     // Enabled), so its log says `off` with zero force; then Enable again and the wall ramps in afresh.
     send(&mut *port, &HostToDevice::Disable);

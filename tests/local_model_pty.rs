@@ -447,7 +447,9 @@ fn stream_run(baud: u32) -> StreamRun {
         if let Some(wait) = deadline.checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
         }
-        device.write_local_model(&offer, 3.0, DVec3::ZERO).unwrap();
+        // On a loaded machine the mock may fall behind reading and a write time out: the checks below are on
+        // what the device sent, whatever the host managed to write.
+        let _ = device.write_local_model(&offer, 3.0, DVec3::ZERO);
         if let Ok(state) = device.read_state() {
             if device.state_age_ticks() == 0 {
                 run.states

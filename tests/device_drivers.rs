@@ -247,8 +247,8 @@ fn protocol_driver_over_hid_sends_one_64_byte_report_per_message() {
         encode_report(message, &mut out).unwrap();
         out.to_vec()
     };
-    // The vector's `hid:` line for hello: report id 1, type 1, version 1.0, zero padding.
-    let mut hello = vec![0x01, 0x01, 0x01, 0x00];
+    // The vector's `hid:` line for hello: report id 1, type 1, version 1.1, zero padding.
+    let mut hello = vec![0x01, 0x01, 0x01, 0x01];
     hello.resize(64, 0);
     let info = voxhap::device::mock::mock_device_info();
     let zero_force = voxhap_protocol::HostToDevice::SetForce(voxhap_protocol::SetForce {

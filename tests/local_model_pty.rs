@@ -1,6 +1,7 @@
 //! `voxhap mock-device --local-model` over a real pseudo-terminal (protocol/SPEC.md section 10): a host that
 //! sends local models gets them rendered by the device's own loop, and from the device's own log the force never
-//! exceeds the limit and is zero once a silenced host's last model is 5 ms past its expiry; `voxhap serve` sends
+//! exceeds the limit, is zero while the drive is not Enabled, never rises faster than 0.5 N/ms of device time on
+//! a local cycle, and is zero once a silenced host's last model is 5 ms past its expiry; `voxhap serve` sends
 //! local models to the capable device, which renders a wall with them and ramps out by itself when serve is
 //! killed. Only what holds whatever the
 //! machine's load is asserted: the log's times are the device's own.
@@ -99,6 +100,34 @@ fn wall() -> SiPrimitive {
 
 const LIMIT_N: f64 = 2.0;
 
+/// SPEC section 10.5 step 5: the applied force's magnitude may rise by at most 0.5 N per ms of the device's own
+/// time (and may fall at once).
+const SLEW_N_PER_US: f64 = 0.5e-3;
+
+/// The rules of SPEC sections 6 and 10.5 that every line of a device log must keep, whatever the timing:
+/// zero force while the drive is not Enabled (`off`); a local cycle's force at most 0.5 N/ms of device time
+/// above the cycle before it (the log has every cycle, so this is the device's own slew limit; the set-force
+/// path's rises are the host's, SPEC section 7.1, and are not checked here).
+fn check_zero_when_off_and_slew(cycles: &[Cycle]) {
+    for c in cycles.iter().filter(|c| c.mode == "off") {
+        assert_eq!(c.force_n, 0.0, "force while not enabled: {c:?}");
+    }
+    for pair in cycles.windows(2) {
+        let (before, after) = (&pair[0], &pair[1]);
+        if after.mode != "local" {
+            continue;
+        }
+        let allowed = SLEW_N_PER_US * after.t_us.saturating_sub(before.t_us) as f64;
+        // The log prints 9 decimals; the loop computes in f64 and applies f32.
+        assert!(
+            after.force_n - before.force_n <= allowed + 1e-6,
+            "the force rose {} N in {} us (at most {allowed} N): {before:?} -> {after:?}",
+            after.force_n - before.force_n,
+            after.t_us - before.t_us
+        );
+    }
+}
+
 #[test]
 fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent() {
     let dir = tempfile::tempdir().unwrap();
@@ -108,7 +137,7 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
         "--pty",
         "--local-model",
         "--duration",
-        "6",
+        "8",
         "--log",
         log_arg,
     ]);
@@ -155,21 +184,35 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
         anchor_m: [0.01, 0.0, 0.0],
     };
     let mut local_states = 0;
-    let until = Instant::now() + Duration::from_secs(2);
-    while Instant::now() < until {
-        let model = host.local_model(&params, &[wall()]).unwrap();
-        send(&mut *port, &model);
-        for message in receive(&mut *port, &mut decoder) {
-            if let DeviceToHost::LocalState(state) = message {
-                assert!(
-                    f64::from(state.peak_force_n) <= LIMIT_N * (1.0 + 1e-6),
-                    "{state:?}"
-                );
-                local_states += 1;
+    let mut models_for = |port: &mut dyn SerialPort, seconds: f64| {
+        let until = Instant::now() + Duration::from_secs_f64(seconds);
+        while Instant::now() < until {
+            let model = host.local_model(&params, &[wall()]).unwrap();
+            send(port, &model);
+            for message in receive(port, &mut decoder) {
+                if let DeviceToHost::LocalState(state) = message {
+                    assert!(
+                        f64::from(state.peak_force_n) <= LIMIT_N * (1.0 + 1e-6),
+                        "{state:?}"
+                    );
+                    local_states += 1;
+                }
             }
+            std::thread::sleep(Duration::from_millis(1));
         }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    };
+    models_for(&mut *port, 2.0);
+    // Disabled in contact, models keep coming: the device must not apply them (SPEC 10.1: not applied outside
+    // Enabled), so its log says `off` with zero force; then Enable again and the wall ramps in afresh.
+    send(&mut *port, &HostToDevice::Disable);
+    models_for(&mut *port, 0.4);
+    send(
+        &mut *port,
+        &HostToDevice::Enable(Enable {
+            watchdog_timeout_us: 50_000,
+        }),
+    );
+    models_for(&mut *port, 1.0);
     // Silence: the device must ramp out by itself. Keep draining until the mock exits.
     let done = loop {
         if mock.has_exited() {
@@ -183,6 +226,18 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
 
     let cycles = read_log(&log);
     assert!(!cycles.is_empty());
+    check_zero_when_off_and_slew(&cycles);
+    // The Disable was logged between two stretches of local rendering.
+    let first_local = cycles.iter().position(|c| c.mode == "local").unwrap();
+    let off_after = first_local
+        + cycles[first_local..]
+            .iter()
+            .position(|c| c.mode == "off")
+            .expect("no `off` cycle after the Disable");
+    assert!(
+        cycles[off_after..].iter().any(|c| c.mode == "local"),
+        "no local rendering after the second Enable"
+    );
     // Never above the limit in force (the model's, capped by the device's maximum), in any mode.
     for c in &cycles {
         assert!(c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9, "{c:?}");
@@ -257,6 +312,7 @@ fn serve_sends_local_models_to_a_capable_mock_and_its_force_expires_when_serve_d
     let done = wait_for_done(&mut mock);
     assert!(done.starts_with("done:"), "{done}");
     let cycles = read_log(&log);
+    check_zero_when_off_and_slew(&cycles);
 
     // serve sent local models (SPEC 10.1: only to a device that reports LOCAL_MODEL), with serve's force
     // limit (3 N by default, below the mock's 5 N).
@@ -350,4 +406,85 @@ fn exchanges_that_send_local_models_do_not_allocate() {
     );
     // The device rendered the models itself: its LocalStates came back.
     assert!(reported > 0, "no LocalState in {exchanges} exchanges");
+}
+
+/// What one run of the driver against a capable mock saw: the State rate it set, the sequence and device time
+/// of every fresh State, and whether LocalStates came back.
+struct StreamRun {
+    state_rate_hz: u16,
+    states: Vec<(u32, u64)>,
+    local_reports: usize,
+}
+
+/// The protocol driver opened on the capable mock's pseudo-terminal with a link of `baud` (a serial port counts
+/// as a UART at its rate, SPEC 10.4), enabled, then one local model of the wall per 1 ms tick for 1.5 s.
+fn stream_run(baud: u32) -> StreamRun {
+    use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
+    use voxhap::device::local_offer::LocalOffer;
+    use voxhap::device::transport::SerialTransport;
+    use voxhap::device::HapticDevice;
+    let mock = Mock::start(&["--pty", "--local-model"]);
+    let transport = SerialTransport::open(&mock.path, baud).unwrap();
+    let mut device = ProtocolDevice::new(
+        SerialLink::with_baud(transport, baud),
+        ProtocolConfig::default(),
+    );
+    device.open().unwrap();
+    assert!(device.local_model_capable());
+    device.enable().unwrap();
+    let mut offer = LocalOffer::new(2000.0, 1.0, DVec3::new(0.01, 0.0, 0.0));
+    offer.push(wall());
+    let mut run = StreamRun {
+        state_rate_hz: device.state_rate_hz(),
+        states: Vec::new(),
+        local_reports: 0,
+    };
+    let start = Instant::now();
+    let mut tick = 0u64;
+    while start.elapsed() < Duration::from_millis(1500) {
+        tick += 1;
+        let deadline = start + Duration::from_micros(tick * 1_000);
+        if let Some(wait) = deadline.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        // On a loaded machine the mock may fall behind reading and a write time out: the checks below are on
+        // what the device sent, whatever the host managed to write.
+        let _ = device.write_local_model(&offer, 3.0, DVec3::ZERO);
+        if let Ok(state) = device.read_state() {
+            if device.state_age_ticks() == 0 {
+                run.states
+                    .push((state.sequence.unwrap(), state.device_time_us.unwrap()));
+            }
+        }
+        if device.local_report().is_some() {
+            run.local_reports += 1;
+        }
+    }
+    let _ = device.disable();
+    run
+}
+
+/// SPEC section 10.4: a State and a LocalState (108 bytes a servo period, 1 080 000 baud at 1 kHz) do not fit a
+/// 1 000 000-baud UART, so the host in local mode streams State at 500 Hz or less: the driver sets 500 Hz (the
+/// mock offers 100 to 1000 Hz), and by the device's own clock and counter no more than one State per 2 ms
+/// left it (the session's schedule never bursts: n States span at least n - 1 periods). At 2 000 000 baud the
+/// link carries lockstep, and the driver keeps it.
+#[test]
+fn over_a_1_mbaud_link_a_local_model_session_streams_state_at_500_hz() {
+    let run = stream_run(1_000_000);
+    assert_eq!(run.state_rate_hz, 500);
+    assert!(run.local_reports > 0, "no LocalState came back");
+    assert!(run.states.len() >= 2, "{} states", run.states.len());
+    let (first_seq, first_us) = run.states[0];
+    let (last_seq, last_us) = *run.states.last().unwrap();
+    let sent = last_seq.wrapping_sub(first_seq);
+    let span_us = last_us - first_us;
+    assert!(
+        u64::from(sent) <= span_us / 2_000 + 1,
+        "{sent} States in {span_us} us of device time: faster than 500 Hz"
+    );
+
+    let run = stream_run(2_000_000);
+    assert_eq!(run.state_rate_hz, 0, "a 2 Mbaud link carries lockstep");
+    assert!(run.local_reports > 0, "no LocalState came back");
 }

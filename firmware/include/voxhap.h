@@ -1,5 +1,5 @@
 /*
- * voxhap device protocol 1.0, device side, in portable C99 (protocol/SPEC.md is normative).
+ * voxhap device protocol 1.1, device side, in portable C99 (protocol/SPEC.md is normative).
  *
  * Three layers, each usable alone:
  *   1. Codec: CRC-16/CCITT-FALSE, COBS, and encode/decode of every message (both directions).
@@ -26,7 +26,10 @@ extern "C" {
 /* ------------------------------------------------------------------------------------------------ constants */
 
 #define VOXHAP_VERSION_MAJOR 1u
-#define VOXHAP_VERSION_MINOR 0u
+/* 1.1: every mandatory rule of 1.1 is a 1.0 rule; this library does not implement the optional local-model
+ * capability (SPEC section 10), so it never sets status bit 6 and drops LocalModel (0x08) as an unknown type, and a
+ * 1.1 host drives it through SetForce (SPEC section 2, "Mixed minors"). */
+#define VOXHAP_VERSION_MINOR 1u
 
 /* Message types (SPEC section 3). Host to device 0x01..0x7F, device to host 0x81..0xFF. */
 #define VOXHAP_HELLO 0x01u

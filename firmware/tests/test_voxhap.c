@@ -199,13 +199,13 @@ static void check_device_vector(const char *name, const voxhap_device_msg *expec
     }
 }
 
-/* The device of device_info.hex: "v1.0, model voxhap-sim, serial SN0001, 3 position DOF, 3 force DOF, 2 buttons,
+/* The device of device_info.hex: "v1.1, model voxhap-sim, serial SN0001, 3 position DOF, 3 force DOF, 2 buttons,
  * rates {250, 500, 1000} Hz, workspace (-0.08, -0.06, -0.05)..(0.08, 0.06, 0.05) m, 8.5 N, 2000 N/m". */
 static voxhap_device_info vector_info(void) {
     voxhap_device_info i;
     memset(&i, 0, sizeof i);
     i.version.major = 1;
-    i.version.minor = 0;
+    i.version.minor = 1;
     memcpy(i.model, "voxhap-sim", 10);
     memcpy(i.serial_number, "SN0001", 6);
     i.position_dof = 3;
@@ -223,7 +223,7 @@ static voxhap_device_info vector_info(void) {
     return i;
 }
 
-static const char *const known_vectors[] = {"hello", "enable", "disable", "set_force", "heartbeat", "clear_fault",
+static const char *const known_vectors[] = {"hello", "hello_v1_0", "device_info_v1_0", "enable", "disable", "set_force", "heartbeat", "clear_fault",
                                             "set_state_rate", "device_info", "state", "heartbeat_reply",
                                             "fault_watchdog", "fault_over_current", "rejected"};
 
@@ -256,8 +256,10 @@ static void test_vectors(void) {
     memset(&h, 0, sizeof h);
     h.type = VOXHAP_HELLO;
     h.u.hello.major = 1;
-    h.u.hello.minor = 0;
+    h.u.hello.minor = 1;
     check_host_vector("hello", &h, 7);
+    h.u.hello.minor = 0; /* an older host's Hello stays valid (SPEC section 2) */
+    check_host_vector("hello_v1_0", &h, 7);
     memset(&h, 0, sizeof h);
     h.type = VOXHAP_ENABLE;
     h.u.enable_watchdog_timeout_us = 50000;
@@ -289,6 +291,8 @@ static void test_vectors(void) {
     d.type = VOXHAP_DEVICE_INFO;
     d.u.device_info = vector_info();
     check_device_vector("device_info", &d, 67);
+    d.u.device_info.version.minor = 0; /* an older device's DeviceInfo */
+    check_device_vector("device_info_v1_0", &d, 67);
     memset(&d, 0, sizeof d);
     d.type = VOXHAP_STATE;
     d.u.state.sequence = 1000;
@@ -334,10 +338,12 @@ static void test_vectors(void) {
 static void test_crc(void) {
     const uint8_t check[] = "123456789";
     const uint8_t hello[] = {0x01, 0x01, 0x00};
+    const uint8_t hello_1_1[] = {0x01, 0x01, 0x01};
     uint8_t b;
     CHECK_EQ(voxhap_crc16(check, 9), 0x29B1);   /* SPEC 4.2 check value */
     CHECK_EQ(voxhap_crc16(check, 0), 0xFFFF);   /* CRC of zero bytes */
     CHECK_EQ(voxhap_crc16(hello, 3), 0xC89D);   /* Hello(1.0) example */
+    CHECK_EQ(voxhap_crc16(hello_1_1, 3), 0xD8BC); /* Hello(1.1) example */
     /* From a zero register one byte b gives T[b]: SPEC lists T[0], T[1], T[2], T[255]. */
     b = 0;
     CHECK_EQ(voxhap_crc16_update(0, &b, 1), 0x0000);
@@ -420,6 +426,16 @@ static void test_decoder_errors(void) {
     wire hello = load_vector("hello");
     voxhap_decoder_init(&d);
 
+    { /* LocalModel (type 0x08, protocol/vectors/local): this firmware announces 1.1 without the optional
+       * local-model capability, so it drops the type as unknown (SPEC sections 2 and 10.1) */
+        wire local = load_vector("local/local_model");
+        voxhap_decoder fresh;
+        voxhap_decoder_init(&fresh);
+        CHECK_EQ(local.len, 67);
+        CHECK_EQ(push_all(&fresh, local.bytes, local.len, &last, &m), 1);
+        CHECK_EQ(last, VOXHAP_ERR_UNKNOWN_TYPE);
+        CHECK_EQ(fresh.stats.unknown_type, 1);
+    }
     { /* empty frames (idle filler) are ignored, not counted */
         const uint8_t zeros[] = {0, 0, 0};
         CHECK_EQ(push_all(&d, zeros, 3, &last, &m), 0);

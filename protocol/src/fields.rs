@@ -16,10 +16,26 @@ impl Version {
     pub const fn is_compatible_with(self, other: Version) -> bool {
         self.major == other.major
     }
+
+    /// True if `self` is `other` or a later minor version of the same major (it has everything `other` added).
+    pub const fn includes(self, other: Version) -> bool {
+        self.major == other.major && self.minor >= other.minor
+    }
 }
 
-/// The version this crate implements.
-pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 0 };
+/// The version this crate implements: 1.1 (1.0 plus the optional local-model capability, SPEC section 10).
+pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 1 };
+
+/// The first version with the local-model capability (SPEC section 10.1). A device of an earlier minor version
+/// never gets a LocalModel, whatever its status bits say (bit 6 is reserved there).
+pub const LOCAL_MODEL_VERSION: Version = Version { major: 1, minor: 1 };
+
+/// SPEC section 10.1: the host may send LocalModel to a device that announced `device_version` in DeviceInfo and
+/// `status` in the HeartbeatReply confirming that DeviceInfo only when the version is 1.1 or later (of the same
+/// major) and `LOCAL_MODEL` is set. Any other device (1.0, or 1.1 without the bit) keeps the SetForce path.
+pub const fn local_model_negotiated(device_version: Version, status: StatusFlags) -> bool {
+    device_version.includes(LOCAL_MODEL_VERSION) && status.contains(StatusFlags::LOCAL_MODEL)
+}
 
 macro_rules! bit_set {
     ($(#[$meta:meta])* $name:ident($int:ty) { $($(#[$bit_meta:meta])* $bit:ident = $value:expr;)* }) => {
@@ -299,6 +315,24 @@ mod tests {
     #[test]
     fn versions_agree_on_major_only() {
         assert!(PROTOCOL_VERSION.is_compatible_with(Version { major: 1, minor: 7 }));
+        assert!(PROTOCOL_VERSION.is_compatible_with(Version { major: 1, minor: 0 }));
         assert!(!PROTOCOL_VERSION.is_compatible_with(Version { major: 2, minor: 0 }));
+    }
+
+    #[test]
+    fn local_models_need_version_1_1_and_the_status_bit() {
+        // SPEC section 10.1, each case of the rule.
+        let v = |major, minor| Version { major, minor };
+        let capable = StatusFlags::SESSION_OPEN | StatusFlags::LOCAL_MODEL;
+        assert_eq!(PROTOCOL_VERSION, v(1, 1));
+        assert!(local_model_negotiated(v(1, 1), capable));
+        assert!(local_model_negotiated(v(1, 9), capable));
+        assert!(
+            !local_model_negotiated(v(1, 0), capable),
+            "bit 6 is reserved in 1.0"
+        );
+        assert!(!local_model_negotiated(v(1, 1), StatusFlags::SESSION_OPEN));
+        assert!(!local_model_negotiated(v(2, 1), capable));
+        assert!(!local_model_negotiated(v(0, 5), capable));
     }
 }

@@ -37,8 +37,8 @@ pub use device::{
 };
 pub use error::{EncodeError, FrameError, PayloadError, ReportError};
 pub use fields::{
-    FaultCode, FaultFlags, ForceFlags, Label, LabelError, RateSet, RejectReason, StatusFlags,
-    Version, PROTOCOL_VERSION,
+    local_model_negotiated, FaultCode, FaultFlags, ForceFlags, Label, LabelError, RateSet,
+    RejectReason, StatusFlags, Version, LOCAL_MODEL_VERSION, PROTOCOL_VERSION,
 };
 pub use hid::{decode_report, encode_report};
 pub use host::{HostEvent, HostPhase, HostSession, HostStats};

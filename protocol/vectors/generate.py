@@ -64,7 +64,10 @@ def label(text):
 HOST, DEVICE = 0x01, 0x02  # HID report ids by direction
 
 VECTORS = [
-    ("hello", HOST, 0x01, struct.pack("<BB", 1, 0), "Hello: protocol version 1.0"),
+    ("hello", HOST, 0x01, struct.pack("<BB", 1, 1), "Hello: protocol version 1.1"),
+    # SPEC section 2: a 1.1 device accepts a 1.0 host's Hello (same major) and a 1.1 host a 1.0 device's
+    # DeviceInfo, so both 1.0 forms stay valid vectors.
+    ("hello_v1_0", HOST, 0x01, struct.pack("<BB", 1, 0), "Hello: protocol version 1.0 (an older host)"),
     ("enable", HOST, 0x02, struct.pack("<I", 50_000), "Enable: watchdog timeout 50000 us"),
     ("disable", HOST, 0x03, b"", "Disable: no payload"),
     (
@@ -81,12 +84,24 @@ VECTORS = [
         "device_info",
         DEVICE,
         0x81,
+        struct.pack("<BB", 1, 1)
+        + label("voxhap-sim")
+        + label("SN0001")
+        + struct.pack("<BBBB", 3, 3, 2, 0b0001_1100)
+        + struct.pack("<3f3fff", -0.08, -0.06, -0.05, 0.08, 0.06, 0.05, 8.5, 2000.0),
+        "DeviceInfo: v1.1, model voxhap-sim, serial SN0001, 3 position DOF, 3 force DOF, 2 buttons, "
+        "rates {250, 500, 1000} Hz, workspace (-0.08, -0.06, -0.05)..(0.08, 0.06, 0.05) m, 8.5 N, 2000 N/m",
+    ),
+    (
+        "device_info_v1_0",
+        DEVICE,
+        0x81,
         struct.pack("<BB", 1, 0)
         + label("voxhap-sim")
         + label("SN0001")
         + struct.pack("<BBBB", 3, 3, 2, 0b0001_1100)
         + struct.pack("<3f3fff", -0.08, -0.06, -0.05, 0.08, 0.06, 0.05, 8.5, 2000.0),
-        "DeviceInfo: v1.0, model voxhap-sim, serial SN0001, 3 position DOF, 3 force DOF, 2 buttons, "
+        "DeviceInfo: v1.0 (an older device), model voxhap-sim, serial SN0001, 3 position DOF, 3 force DOF, 2 buttons, "
         "rates {250, 500, 1000} Hz, workspace (-0.08, -0.06, -0.05)..(0.08, 0.06, 0.05) m, 8.5 N, 2000 N/m",
     ),
     (
@@ -184,6 +199,15 @@ LOCAL_VECTORS = [
         local_model(7, 1000, 0, 1, 0, 0, (0.0, 0.0, 0.0), []),
         "LocalModel: sequence 7, expiry 1000 us, no flags, stiffness 1 N/m, damping 0, force limit 0 N, anchor "
         "(0, 0, 0) m, no primitives (free space)",
+    ),
+    (
+        "local_model_wall",
+        HOST,
+        0x08,
+        local_model(1, 5000, 0, 2000, 0, 3000, (0.0, 0.0, 0.0), [(PLANE, (0, 0, 0), (0.0, 0.0, 1.0), 20000)]),
+        "LocalModel: sequence 1, expiry 5000 us, no flags, stiffness 2000 N/m, damping 0, force limit 3.0 N, anchor "
+        "(0, 0, 0) m; slot 0 plane at offset (0, 0, 0) um, normal (0, 0, 1), 20 N (a floor at z = 0: by SPEC 10.5 a "
+        "handle 0.5 mm below it feels 1.0 N up, one 2 mm below 4 N clamped to the 3 N limit)",
     ),
     (
         "local_state",

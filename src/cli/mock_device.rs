@@ -131,13 +131,14 @@ pub fn run(args: &MockDeviceArgs) -> anyhow::Result<()> {
     )?;
     super::common::print_out(&format!(
         "done: {} ticks, {} frames received ({} dropped by the decoder), {} sent, {} dropped and {} bytes corrupted \
-         by fault injection, {} watchdog trips",
+         by fault injection, {} watchdog trips, {} not sent (nobody reading)",
         stats.ticks,
         stats.frames_ok,
         stats.frames_dropped,
         stats.frames_sent,
         stats.frames_dropped_injected,
         stats.bytes_corrupted,
-        stats.watchdog_trips
+        stats.watchdog_trips,
+        stats.frames_unsent
     ))
 }

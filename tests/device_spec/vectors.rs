@@ -230,7 +230,7 @@ fn spec_device_follows_section_6_as_the_reference_crate_reads_it() {
             HostMessage::Enable {
                 watchdog_timeout_us: 0
             },
-            HostMessage::Hello { major: 1, minor: 0 },
+            HostMessage::Hello { major: 1, minor: 1 },
             HostMessage::Heartbeat { counter: 7 },
             HostMessage::Enable {
                 watchdog_timeout_us: 0

@@ -67,6 +67,28 @@ pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
             })),
         ),
         (
+            "local/local_model_wall",
+            Expected::Host(HostToDevice::LocalModel(LocalModel {
+                sequence: 1,
+                expiry_us: 5000,
+                flags: ModelFlags::EMPTY,
+                stiffness_n_per_m: 2000,
+                damping_mn_s_per_m: 0,
+                force_limit_mn: 3000,
+                anchor_m: [0.0; 3],
+                primitives: [
+                    Some(LocalPrimitive {
+                        kind: LocalKind::Plane,
+                        offset_um: [0; 3],
+                        direction_oct: [0, 0],
+                        strength_mn: 20_000,
+                    }),
+                    None,
+                    None,
+                ],
+            })),
+        ),
+        (
             "local/local_state",
             Expected::Device(DeviceToHost::LocalState(LocalState {
                 state_sequence: 1000,

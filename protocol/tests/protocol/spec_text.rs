@@ -101,6 +101,7 @@ fn the_crc_recipe_and_its_examples_hold() {
     for (index, entry) in [(0u8, 0x0000u16), (1, 0x1021), (2, 0x2042), (255, 0x1EF0)] {
         assert_eq!(crc16_update(0, &[index]), entry, "T[{index}]");
     }
+    assert_eq!(crc16(&[0x01, 0x01, 0x01]), 0xD8BC, "Hello(1.1)");
     assert_eq!(crc16(&[0x01, 0x01, 0x00]), 0xC89D, "Hello(1.0)");
     assert_eq!(crc16(b"123456789"), 0x29B1);
     assert_eq!(crc16(&[]), 0xFFFF);

@@ -19,9 +19,31 @@ pub(crate) enum Expected {
 pub(crate) fn expected_vectors() -> Vec<(&'static str, Expected)> {
     use Expected::{Device, Host};
     let label = |text| Label::new(text).expect("valid label");
+    // SPEC section 2: this document is 1.1; the 1.0 forms of Hello and DeviceInfo stay valid (same major).
+    let device_info = |minor| {
+        Device(DeviceToHost::DeviceInfo(DeviceInfo {
+            version: Version { major: 1, minor },
+            model: label("voxhap-sim"),
+            serial_number: label("SN0001"),
+            position_dof: 3,
+            force_dof: 3,
+            button_count: 2,
+            supported_rates: RateSet::from_rates_hz(&[250, 500, 1000]).expect("standard rates"),
+            workspace_min_m: [-0.08, -0.06, -0.05],
+            workspace_max_m: [0.08, 0.06, 0.05],
+            max_force_n: 8.5,
+            max_stiffness_n_per_m: 2000.0,
+        }))
+    };
     vec![
         (
             "hello",
+            Host(HostToDevice::Hello(Hello {
+                version: Version { major: 1, minor: 1 },
+            })),
+        ),
+        (
+            "hello_v1_0",
             Host(HostToDevice::Hello(Hello {
                 version: Version { major: 1, minor: 0 },
             })),
@@ -52,22 +74,8 @@ pub(crate) fn expected_vectors() -> Vec<(&'static str, Expected)> {
                 state_rate_hz: 1000,
             })),
         ),
-        (
-            "device_info",
-            Device(DeviceToHost::DeviceInfo(DeviceInfo {
-                version: Version { major: 1, minor: 0 },
-                model: label("voxhap-sim"),
-                serial_number: label("SN0001"),
-                position_dof: 3,
-                force_dof: 3,
-                button_count: 2,
-                supported_rates: RateSet::from_rates_hz(&[250, 500, 1000]).expect("standard rates"),
-                workspace_min_m: [-0.08, -0.06, -0.05],
-                workspace_max_m: [0.08, 0.06, 0.05],
-                max_force_n: 8.5,
-                max_stiffness_n_per_m: 2000.0,
-            })),
-        ),
+        ("device_info", device_info(1)),
+        ("device_info_v1_0", device_info(0)),
         (
             "state",
             Device(DeviceToHost::State(State {

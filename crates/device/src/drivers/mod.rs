@@ -6,6 +6,7 @@
 //! - [`assemble`]: receive cores with no I/O (bytes in, whole replies out) for the request/reply drivers;
 //! - [`exchange`]: the shared runner that reads a port into a receive core within a period-bounded wait;
 //! - [`protocol_link`]: the links that driver talks through (framed serial, HID reports);
+//! - [`protocol_rate`]: the State rate a local-model session needs on a link (SPEC section 10.4);
 //! - [`woodenhaptics_serial`]: WoodenHaptics, Polhem and retrofitted PHANTOMs on the current Teensy firmware
 //!   (text lines over USB serial; kinematics from hfabapi);
 //! - [`woodenhaptics`]: WoodenHaptics 1.5 over USB HID (legacy mbed firmware);
@@ -33,6 +34,7 @@ pub mod haply_inverse;
 pub mod in_flight;
 pub mod protocol;
 pub mod protocol_link;
+pub mod protocol_rate;
 pub mod reply_age;
 pub mod report_stream;
 pub mod woodenhaptics;

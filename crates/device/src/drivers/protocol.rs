@@ -26,10 +26,16 @@
 //!   most `state_timeout` (half a servo period) for the one that echoes the last SetForce. Older or duplicate
 //!   States are skipped; when no State came but frames were dropped (CRC, COBS, length), the error is a
 //!   protocol error rather than a timeout, so the supervisor counts a corrupted link as such.
-//! - **write_local_model** (a device that set `LOCAL_MODEL` in the HeartbeatReply confirming the handshake,
-//!   SPEC section 10) sends the tick's primitives as one LocalModel in the set-force sequence, so the same
-//!   lockstep State answers it; the LocalStates that follow are kept for [`HapticDevice::local_report`]. A model
+//! - **write_local_model** (a device of version 1.1 or later that set `LOCAL_MODEL` in the HeartbeatReply
+//!   confirming the handshake, SPEC section 10.1; a 1.0 device, or a 1.1 one without the bit, gets SetForce)
+//!   sends the tick's primitives as one LocalModel in the set-force sequence, so the same lockstep State
+//!   answers it; the LocalStates that follow are kept for [`HapticDevice::local_report`]. A model
 //!   the wire cannot carry goes out as the set-force it replaces.
+//! - **State rate** (SPEC section 10.4): with a capable device on a link that cannot carry a State and a
+//!   LocalState every servo period (a serial port counts as a UART at its baud rate, 10 bits a byte; HID as one
+//!   report per 1 ms frame), open sends SetStateRate with the device's highest rate of 500 Hz or less that the
+//!   link carries ([`super::protocol_rate`]), or uses SetForce only when there is none. Then `read_state`
+//!   returns the newest streamed State, and the last one again (with its age in ticks) on ticks without one.
 //! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
 //! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
 //!   writes them on a second handle of the port, for the stall monitor.
@@ -37,6 +43,7 @@
 //! Per tick nothing allocates: frames are built on the stack and decoded by the crate's fixed-size decoder.
 
 pub use super::protocol_link::{HidLink, MessageLink, SerialLink};
+use super::protocol_rate::LocalStateRate;
 use crate::info::DEFAULT_MAX_SPEED_M_PER_S;
 use crate::local_offer::{LocalOffer, LocalReport};
 use crate::{
@@ -46,8 +53,8 @@ use glam::DVec3;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
-    DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent, HostSession, HostToDevice,
-    LocalState, StatusFlags, PROTOCOL_VERSION,
+    local_model_negotiated, DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent,
+    HostSession, HostToDevice, LocalState, StatusFlags, PROTOCOL_VERSION,
 };
 
 /// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
@@ -64,6 +71,9 @@ pub struct ProtocolConfig {
     pub state_timeout: Duration,
     /// The device's own force watchdog, sent with Enable (µs, 1 000 ..= 1 000 000).
     pub device_watchdog_us: u32,
+    /// The servo period: with what the link carries, it sets the State rate of a local-model session
+    /// ([`super::protocol_rate`]).
+    pub period: Duration,
 }
 
 /// The handshake's default patience for a device's answer (`serve --connect-timeout`).
@@ -79,6 +89,7 @@ impl Default for ProtocolConfig {
             connect_timeout: DEFAULT_CONNECT_TIMEOUT,
             state_timeout: Duration::from_micros(500),
             device_watchdog_us: 50_000,
+            period: Duration::from_millis(1),
         }
     }
 }
@@ -88,6 +99,7 @@ impl ProtocolConfig {
     pub fn for_period(period: Duration) -> ProtocolConfig {
         ProtocolConfig {
             state_timeout: (period / 2).max(Duration::from_micros(50)),
+            period,
             ..ProtocolConfig::default()
         }
     }
@@ -182,6 +194,10 @@ pub struct ProtocolDevice<L> {
     local_capable: bool,
     /// The newest LocalState since the last open.
     last_local: Option<LocalState>,
+    /// The State rate this open set (SetStateRate), Hz; 0: lockstep.
+    state_rate_hz: u16,
+    /// Servo ticks since the State `read_state` last returned arrived (streaming only; 0 in lockstep).
+    state_age_ticks: u32,
     /// While `open` runs: when it gives up, `connect_timeout` after it started (the handshake and the first
     /// State share it, however the device trickles its bytes).
     open_deadline: Option<Instant>,
@@ -265,6 +281,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
             handshake_nonce: None,
             local_capable: false,
             last_local: None,
+            state_rate_hz: 0,
+            state_age_ticks: 0,
             open_deadline: None,
         }
     }
@@ -420,8 +438,10 @@ impl<L: MessageLink> ProtocolDevice<L> {
                         match candidate.take() {
                             Some(info) if ours && open => {
                                 this.info = convert_info(&info);
+                                // SPEC 10.1: version 1.1 or later and LOCAL_MODEL; a 1.0 device
+                                // (bit 6 reserved there) keeps SetForce whatever it sets.
                                 this.local_capable =
-                                    reply.status.contains(StatusFlags::LOCAL_MODEL);
+                                    local_model_negotiated(info.version, reply.status);
                                 this.last_local = None;
                                 return Ok(Some(()));
                             }
@@ -510,10 +530,96 @@ impl<L: MessageLink> ProtocolDevice<L> {
     fn open_within_deadline(&mut self) -> Result<(), DeviceError> {
         self.link.discard_input()?;
         self.link.flush()?;
+        self.state_rate_hz = 0;
+        self.state_age_ticks = 0;
         self.handshake()?;
+        self.choose_state_rate()?;
         // One zero force in lockstep: the device answers with a State, so the host sees the handle before
         // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
         self.first_state()
+    }
+
+    /// SPEC section 10.4: a capable device on a link that cannot carry a State and a LocalState every servo
+    /// period streams State at the highest of its rates (500 Hz at most) that the link carries; when it has
+    /// none, or the link cannot carry a LocalModel a period, this open uses SetForce only.
+    fn choose_state_rate(&mut self) -> Result<(), DeviceError> {
+        if !self.local_capable {
+            return Ok(());
+        }
+        let rates = voxhap_protocol::RateSet(
+            self.host
+                .device_info()
+                .map_or(0, |info| info.supported_rates.0),
+        );
+        match self
+            .link
+            .budget()
+            .local_state_rate(self.config.period, rates)
+        {
+            LocalStateRate::Lockstep => Ok(()),
+            LocalStateRate::Stream(hz) => {
+                self.state_rate_hz = hz;
+                let message = self.host.set_state_rate(hz);
+                self.link.send(&message)
+            }
+            LocalStateRate::Unusable => {
+                self.local_capable = false;
+                Ok(())
+            }
+        }
+    }
+
+    /// The State rate this open set, Hz (0: lockstep, the default; SPEC section 10.4 for the rest).
+    pub fn state_rate_hz(&self) -> u16 {
+        self.state_rate_hz
+    }
+
+    /// `read_state` while the device streams State slower than the servo ticks: the newest State that came,
+    /// without waiting while the last one is younger than a stream period; else a wait of at most
+    /// `state_timeout` for the next. A tick without a new State gets the last one again, aged by the ticks since
+    /// it came ([`HapticDevice::state_age_ticks`]: the supervisor's staleness bound counts it), until it is a
+    /// whole stream period old.
+    fn read_streamed_state(&mut self) -> Result<DeviceState, DeviceError> {
+        // Servo ticks per stream period, rounded up (500 Hz at 1 kHz: 2), in whole microseconds.
+        let period_us = self.config.period.as_micros().max(1);
+        let stream_us = 1_000_000 / u128::from(self.state_rate_hz);
+        let ticks_per_state = u32::try_from(stream_us.div_ceil(period_us))
+            .unwrap_or(u32::MAX)
+            .max(1);
+        let next_age = self.state_age_ticks.saturating_add(1);
+        let mut wait = if self.last_state.is_some() && next_age < ticks_per_state {
+            Duration::ZERO
+        } else {
+            self.config.state_timeout
+        };
+        let deadline = Instant::now() + wait;
+        let mut newest: Option<DeviceState> = None;
+        while let Some(message) = self.link.receive(wait)? {
+            if let HostEvent::State { state, .. } = self.handle(&message)? {
+                newest = Some(convert_state(&state));
+                wait = Duration::ZERO;
+            } else if newest.is_none() {
+                wait = deadline.saturating_duration_since(Instant::now());
+            }
+        }
+        if let Some(sample) = newest {
+            self.last_state = Some(sample);
+            self.state_age_ticks = 0;
+            return Ok(sample);
+        }
+        match self.last_state {
+            Some(sample) if next_age <= ticks_per_state => {
+                self.state_age_ticks = next_age;
+                Ok(sample)
+            }
+            _ => {
+                self.counters.timeouts += 1;
+                Err(DeviceError::Timeout {
+                    waited_us: duration_us(self.config.state_timeout),
+                    waiting_for: "a streamed state",
+                })
+            }
+        }
     }
 
     /// True once `open`'s overall deadline has passed.
@@ -628,7 +734,14 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         })
     }
 
+    fn state_age_ticks(&self) -> u32 {
+        self.state_age_ticks
+    }
+
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        if self.state_rate_hz > 0 {
+            return self.read_streamed_state();
+        }
         let deadline = Instant::now() + self.config.state_timeout;
         let dropped_before = self.link.stats().dropped();
         let mut newest: Option<DeviceState> = None;
@@ -675,3 +788,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "protocol_tests.rs"]
+mod tests;

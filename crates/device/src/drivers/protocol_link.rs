@@ -3,6 +3,7 @@
 //! [`HidLink`]. A serial link also gives the stall monitor its emergency stop: a second handle of the port with
 //! a zero SetForce and a Disable encoded in advance.
 
+use super::protocol_rate::LinkBudget;
 use crate::transport::{ByteTransport, ReportTransport};
 use crate::{DeviceError, EmergencyStop};
 use std::time::{Duration, Instant};
@@ -35,6 +36,11 @@ pub trait MessageLink {
     /// A stop channel on a second handle of the link (see [`ProtocolDevice`]'s `emergency_stop`).
     fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
         None
+    }
+
+    /// What the link carries each second, for the State rate of a local-model session (SPEC section 10.4).
+    fn budget(&self) -> LinkBudget {
+        LinkBudget::Unlimited
     }
 }
 
@@ -75,10 +81,14 @@ fn encode_error(_: voxhap_protocol::EncodeError) -> DeviceError {
     }
 }
 
+/// The host's serial rate (SPEC section 4.1), bits per second.
+pub const DEFAULT_BAUD: u32 = 1_000_000;
+
 /// Serial framing (COBS, CRC-16, 0x00 delimiter) over a byte stream.
 #[derive(Debug)]
 pub struct SerialLink<T> {
     transport: T,
+    baud: u32,
     decoder: FrameDecoder<DeviceToHost>,
     buffer: [u8; 512],
     start: usize,
@@ -86,10 +96,16 @@ pub struct SerialLink<T> {
 }
 
 impl<T: ByteTransport> SerialLink<T> {
-    /// Frames messages over `transport`.
+    /// Frames messages over `transport`, a port opened at the host's default rate, [`DEFAULT_BAUD`].
     pub fn new(transport: T) -> Self {
+        Self::with_baud(transport, DEFAULT_BAUD)
+    }
+
+    /// Frames messages over `transport`, a port opened at `baud` (what the link carries: [`LinkBudget`]).
+    pub fn with_baud(transport: T, baud: u32) -> Self {
         SerialLink {
             transport,
+            baud,
             decoder: FrameDecoder::new(),
             buffer: [0; 512],
             start: 0,
@@ -149,6 +165,10 @@ impl<T: ByteTransport> MessageLink for SerialLink<T> {
     fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
         serial_stop(self.transport.try_clone_writer()?)
     }
+
+    fn budget(&self) -> LinkBudget {
+        LinkBudget::SerialBaud(self.baud)
+    }
 }
 
 /// One message per 64-byte HID report.
@@ -195,6 +215,10 @@ impl<T: ReportTransport> MessageLink for HidLink<T> {
                 return Ok(Some(message));
             }
         }
+    }
+
+    fn budget(&self) -> LinkBudget {
+        LinkBudget::HidFullSpeed
     }
 
     fn flush(&mut self) -> Result<(), DeviceError> {

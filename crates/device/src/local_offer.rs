@@ -8,7 +8,7 @@
 //! protocol driver turns it into a LocalModel message. Fixed-size and `Copy`: nothing here allocates.
 
 use glam::DVec3;
-use voxhap_protocol::{LocalKind, LocalModelParams, SiPrimitive};
+use voxhap_protocol::{LocalKind, LocalModelParams, LocalStatus, SiPrimitive};
 
 /// The most primitives an offer carries. The wire carries three (the summed directed forces and the nearest
 /// others, SPEC 10.3); the offer keeps more so that the driver, not the loop, chooses them. A tick with more
@@ -74,6 +74,21 @@ impl LocalOffer {
         self.truncated
     }
 
+    /// Scales the directed forces' strengths by `share` (clamped to [0, 1]; 0 leaves them out of the wire's
+    /// directed slot, as a zero sum).
+    pub fn scale_directed(&mut self, share: f64) {
+        let share = if share.is_nan() {
+            0.0
+        } else {
+            share.clamp(0.0, 1.0)
+        };
+        for p in &mut self.primitives[..self.len] {
+            if p.kind == LocalKind::Directed {
+                p.strength_n *= share;
+            }
+        }
+    }
+
     /// The LocalModel parameters for this offer (sequence 0: the host session numbers it), expiring after
     /// [`OFFER_EXPIRY_US`], with the force limit at most the device's own (SPEC 10.3).
     pub fn params(&self, force_limit_n: f64, device_max_force_n: f64) -> LocalModelParams {
@@ -109,6 +124,47 @@ impl LocalOffer {
     }
 }
 
+/// How much of the directed forces (flow following, gradient forces) a capable device is sent.
+///
+/// The device engages only once its coupling force is below 0.1 N (SPEC 10.5, step 6). A directed force pushes
+/// wherever the handle is, so a scene whose directed forces exceed 0.1 N (the built-in scene's flow line: up to
+/// 0.4 N) would keep the device waiting for ever. The host therefore sends the directed slot at zero until the
+/// device reports that it renders a model and its engage ramp has ended (`ACTIVE`, neither `ENGAGING` nor
+/// `EXPIRED`), then ramps it in linearly over the host's own engage ramp; a tick without a local model, or a
+/// report that the device is engaging again, starts over. The passive primitives (surfaces, points, lines)
+/// are always sent whole: the device's engage rule is meant for them (a handle held inside a wall).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DirectedFade {
+    /// When the device was first seen engaged in the current run of local ticks, host microseconds.
+    engaged_since_us: Option<u64>,
+}
+
+impl DirectedFade {
+    /// The share of the directed forces to send this tick, in [0, 1], from the device's last report.
+    pub fn share(&mut self, report: Option<&LocalReport>, now_us: u64, ramp_us: u64) -> f64 {
+        let engaged = report.is_some_and(|r| {
+            let status = LocalStatus(r.status);
+            status.contains(LocalStatus::ACTIVE)
+                && !status.contains(LocalStatus::ENGAGING)
+                && !status.contains(LocalStatus::EXPIRED)
+        });
+        if !engaged {
+            self.engaged_since_us = None;
+            return 0.0;
+        }
+        let since = *self.engaged_since_us.get_or_insert(now_us);
+        if ramp_us == 0 {
+            return 1.0;
+        }
+        (now_us.saturating_sub(since) as f64 / ramp_us as f64).min(1.0)
+    }
+
+    /// Starts over: the next local tick sends no directed force until the device reports it engaged.
+    pub fn reset(&mut self) {
+        self.engaged_since_us = None;
+    }
+}
+
 /// What a capable device last reported about its local loop (LocalState, SPEC 10.4), in the device frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LocalReport {
@@ -116,6 +172,8 @@ pub struct LocalReport {
     pub proxy_m: DVec3,
     /// The force it applied, newtons.
     pub force_n: DVec3,
+    /// The certified error bound of its last solve, metres.
+    pub bound_m: f64,
     /// The largest force magnitude it applied since the report before, newtons.
     pub peak_force_n: f64,
     /// Sequence of the model in use (0: none).
@@ -124,4 +182,68 @@ pub struct LocalReport {
     pub model_age_us: u32,
     /// The local status bits (SPEC 10.4).
     pub status: u16,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(status: LocalStatus) -> LocalReport {
+        LocalReport {
+            proxy_m: DVec3::ZERO,
+            force_n: DVec3::ZERO,
+            bound_m: 0.0,
+            peak_force_n: 0.0,
+            model_sequence: 1,
+            model_age_us: 0,
+            status: status.0,
+        }
+    }
+
+    /// None of the directed forces before the device reports it engaged (SPEC 10.4's ACTIVE without ENGAGING
+    /// or EXPIRED), then a linear ramp over the host's ramp time, and back to none when it engages again.
+    #[test]
+    fn directed_forces_wait_for_the_device_to_engage_then_ramp_in() {
+        let ramp_us = 500_000;
+        let mut fade = DirectedFade::default();
+        assert_eq!(fade.share(None, 0, ramp_us), 0.0);
+        let engaging = report(LocalStatus(LocalStatus::ACTIVE.0 | LocalStatus::ENGAGING.0));
+        assert_eq!(fade.share(Some(&engaging), 1_000, ramp_us), 0.0);
+        let expired = report(LocalStatus(LocalStatus::ACTIVE.0 | LocalStatus::EXPIRED.0));
+        assert_eq!(fade.share(Some(&expired), 2_000, ramp_us), 0.0);
+        let engaged = report(LocalStatus::ACTIVE);
+        assert_eq!(fade.share(Some(&engaged), 10_000, ramp_us), 0.0);
+        assert_eq!(fade.share(Some(&engaged), 135_000, ramp_us), 0.25);
+        assert_eq!(fade.share(Some(&engaged), 510_000, ramp_us), 1.0);
+        assert_eq!(fade.share(Some(&engaged), 900_000, ramp_us), 1.0);
+        assert_eq!(fade.share(Some(&engaging), 901_000, ramp_us), 0.0);
+        assert_eq!(fade.share(Some(&engaged), 902_000, ramp_us), 0.0);
+        fade.reset();
+        assert_eq!(fade.share(Some(&engaged), 903_000, ramp_us), 0.0);
+        assert_eq!(fade.share(Some(&engaged), 904_000, 0), 1.0);
+    }
+
+    /// Only the directed forces are scaled; the passive primitives are sent whole.
+    #[test]
+    fn scaling_the_directed_forces_leaves_the_rest_whole() {
+        let mut offer = LocalOffer::new(500.0, 0.0, DVec3::ZERO);
+        offer.push(SiPrimitive {
+            kind: LocalKind::Directed,
+            position_m: [0.0; 3],
+            direction: [1.0, 0.0, 0.0],
+            strength_n: 0.4,
+        });
+        offer.push(SiPrimitive {
+            kind: LocalKind::Plane,
+            position_m: [0.01, 0.0, 0.0],
+            direction: [-1.0, 0.0, 0.0],
+            strength_n: 30.0,
+        });
+        offer.scale_directed(0.5);
+        assert_eq!(offer.primitives()[0].strength_n, 0.2);
+        assert_eq!(offer.primitives()[1].strength_n, 30.0);
+        offer.scale_directed(f64::NAN);
+        assert_eq!(offer.primitives()[0].strength_n, 0.0);
+        assert_eq!(offer.primitives()[1].strength_n, 30.0);
+    }
 }

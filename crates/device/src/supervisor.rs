@@ -55,6 +55,7 @@ use super::plausibility::{InputCounters, InputGuard};
 use super::safety::{EngagementState, SafeForce, SafetyFlags, SafetyPipeline};
 use super::{DeviceError, DeviceEvent, DeviceState, DeviceStatus, Error, ErrorKind, HapticDevice};
 use crate::info::{FAULT_WATCHDOG_EXPIRED, MESSAGE_TYPE_ENABLE, REJECT_FAULTED, REJECT_NO_SESSION};
+use crate::local_offer::DirectedFade;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -125,6 +126,8 @@ pub struct Supervisor<D: HapticDevice, F> {
     force_axes: UsedAxes,
     /// The surplus total the current link's driver last reported.
     surplus_on_link: u64,
+    /// How much of the directed forces a capable device is sent while it engages (`local_offer`).
+    directed_fade: DirectedFade,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -157,6 +160,7 @@ where
             position_axes: UsedAxes::ALL,
             force_axes: UsedAxes::ALL,
             surplus_on_link: 0,
+            directed_fade: DirectedFade::default(),
         })
     }
 
@@ -609,6 +613,18 @@ where
                 && self.force_axes == UsedAxes::ALL
                 && device.device().local_model_capable()
         });
+        let local = match local {
+            Some(mut model) => {
+                let report = device.device().local_report();
+                let ramp_us = self.safety.config().ramp_time_us;
+                model.scale_directed(self.directed_fade.share(report.as_ref(), now_us, ramp_us));
+                Some(model)
+            }
+            None => {
+                self.directed_fade.reset();
+                None
+            }
+        };
         let written = match (&local, accepting) {
             (Some(model), _) => {
                 let limit_n = self.safety.config().max_force_n;

@@ -74,18 +74,16 @@ impl LocalOffer {
         self.truncated
     }
 
-    /// Scales the directed forces' strengths by `share` (clamped to [0, 1]; 0 leaves them out of the wire's
-    /// directed slot, as a zero sum).
-    pub fn scale_directed(&mut self, share: f64) {
+    /// Scales every primitive's strength by `share` (clamped to [0, 1]; NaN counts as 0): at 0 the model
+    /// holds the proxy nowhere and the device's coupling force is its damping alone.
+    pub fn scale_strengths(&mut self, share: f64) {
         let share = if share.is_nan() {
             0.0
         } else {
             share.clamp(0.0, 1.0)
         };
         for p in &mut self.primitives[..self.len] {
-            if p.kind == LocalKind::Directed {
-                p.strength_n *= share;
-            }
+            p.strength_n *= share;
         }
     }
 
@@ -124,23 +122,24 @@ impl LocalOffer {
     }
 }
 
-/// How much of the directed forces (flow following, gradient forces) a capable device is sent.
+/// How much of the model's strengths a capable device is sent while it engages.
 ///
 /// The device engages only once its coupling force is below 0.1 N (SPEC 10.5, step 6). A directed force pushes
-/// wherever the handle is, so a scene whose directed forces exceed 0.1 N (the built-in scene's flow line: up to
-/// 0.4 N) would keep the device waiting for ever. The host therefore sends the directed slot at zero until the
-/// device reports that it renders a model and its engage ramp has ended (`ACTIVE`, neither `ENGAGING` nor
-/// `EXPIRED`), then ramps it in linearly over the host's own engage ramp; a tick without a local model, or a
-/// report that the device is engaging again, starts over. The passive primitives (surfaces, points, lines)
-/// are always sent whole: the device's engage rule is meant for them (a handle held inside a wall).
+/// wherever the handle is, and a flow line holds the proxy to a line the moving handle keeps leaving, so a
+/// scene with either above 0.1 N (the built-in scene's flow line: up to 0.4 N) would keep the device waiting
+/// for ever. The host therefore sends the model's strengths at zero (the coupling alone, which holds the proxy
+/// on the handle) until the device reports that it renders a model and its engage ramp has ended (`ACTIVE`,
+/// neither `ENGAGING` nor `EXPIRED`), then ramps them in linearly over the host's own engage ramp, as the
+/// host's own engage rule ramps its force in; a tick without a local model, or a report that the device is
+/// engaging again, starts over.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DirectedFade {
+pub struct EngageFade {
     /// When the device was first seen engaged in the current run of local ticks, host microseconds.
     engaged_since_us: Option<u64>,
 }
 
-impl DirectedFade {
-    /// The share of the directed forces to send this tick, in [0, 1], from the device's last report.
+impl EngageFade {
+    /// The share of the strengths to send this tick, in [0, 1], from the device's last report.
     pub fn share(&mut self, report: Option<&LocalReport>, now_us: u64, ramp_us: u64) -> f64 {
         let engaged = report.is_some_and(|r| {
             let status = LocalStatus(r.status);
@@ -159,7 +158,7 @@ impl DirectedFade {
         (now_us.saturating_sub(since) as f64 / ramp_us as f64).min(1.0)
     }
 
-    /// Starts over: the next local tick sends no directed force until the device reports it engaged.
+    /// Starts over: the next local tick sends zero strengths until the device reports it engaged.
     pub fn reset(&mut self) {
         self.engaged_since_us = None;
     }
@@ -200,12 +199,12 @@ mod tests {
         }
     }
 
-    /// None of the directed forces before the device reports it engaged (SPEC 10.4's ACTIVE without ENGAGING
+    /// Zero strengths before the device reports it engaged (SPEC 10.4's ACTIVE without ENGAGING
     /// or EXPIRED), then a linear ramp over the host's ramp time, and back to none when it engages again.
     #[test]
     fn directed_forces_wait_for_the_device_to_engage_then_ramp_in() {
         let ramp_us = 500_000;
-        let mut fade = DirectedFade::default();
+        let mut fade = EngageFade::default();
         assert_eq!(fade.share(None, 0, ramp_us), 0.0);
         let engaging = report(LocalStatus(LocalStatus::ACTIVE.0 | LocalStatus::ENGAGING.0));
         assert_eq!(fade.share(Some(&engaging), 1_000, ramp_us), 0.0);
@@ -223,9 +222,9 @@ mod tests {
         assert_eq!(fade.share(Some(&engaged), 904_000, 0), 1.0);
     }
 
-    /// Only the directed forces are scaled; the passive primitives are sent whole.
+    /// Every strength is scaled, and nothing else.
     #[test]
-    fn scaling_the_directed_forces_leaves_the_rest_whole() {
+    fn scaling_the_strengths_scales_every_primitive() {
         let mut offer = LocalOffer::new(500.0, 0.0, DVec3::ZERO);
         offer.push(SiPrimitive {
             kind: LocalKind::Directed,
@@ -239,11 +238,12 @@ mod tests {
             direction: [-1.0, 0.0, 0.0],
             strength_n: 30.0,
         });
-        offer.scale_directed(0.5);
+        offer.scale_strengths(0.5);
         assert_eq!(offer.primitives()[0].strength_n, 0.2);
-        assert_eq!(offer.primitives()[1].strength_n, 30.0);
-        offer.scale_directed(f64::NAN);
+        assert_eq!(offer.primitives()[1].strength_n, 15.0);
+        assert_eq!(offer.primitives()[1].position_m, [0.01, 0.0, 0.0]);
+        offer.scale_strengths(f64::NAN);
         assert_eq!(offer.primitives()[0].strength_n, 0.0);
-        assert_eq!(offer.primitives()[1].strength_n, 30.0);
+        assert_eq!(offer.primitives()[1].strength_n, 0.0);
     }
 }

@@ -358,14 +358,15 @@ fn exchanges_that_send_local_models_do_not_allocate() {
     assert!(reported > 0, "no LocalState in {exchanges} exchanges");
 }
 
-/// `voxhap serve` on its built-in scene (a surface, a flow line of up to 0.4 N and viscosity) with the capable
-/// mock: the device engages and renders (the flow line alone would keep its force above the 0.1 N it waits for),
-/// and serve's trace carries the device's own proxy and model age as the device logged them.
+/// `voxhap serve` on the wall scene with the capable mock: the device engages and renders, and serve's trace
+/// carries the device's own proxy and model age as the device logged them.
 #[test]
-fn serve_on_its_built_in_scene_engages_a_capable_mock_and_traces_its_proxy() {
+fn serve_traces_a_capable_mocks_own_proxy_and_model_age() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("device.csv");
     let trace_path = dir.path().join("serve.csv");
+    let scene = dir.path().join("wall.toml");
+    std::fs::write(&scene, WALL_SCENE).unwrap();
     let mut mock = Mock::start(&[
         "--pty",
         "--local-model",
@@ -375,7 +376,8 @@ fn serve_on_its_built_in_scene_engages_a_capable_mock_and_traces_its_proxy() {
         log.to_str().unwrap(),
     ]);
     let mut serve = crate::util::serve_headless(&format!("mock:{}", mock.path))
-        .args(["--duration", "8", "--record", trace_path.to_str().unwrap()])
+        .args(["--scene", scene.to_str().unwrap(), "--duration", "8"])
+        .args(["--record", trace_path.to_str().unwrap()])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .spawn()

@@ -55,7 +55,6 @@ use super::plausibility::{InputCounters, InputGuard};
 use super::safety::{EngagementState, SafeForce, SafetyFlags, SafetyPipeline};
 use super::{DeviceError, DeviceEvent, DeviceState, DeviceStatus, Error, ErrorKind, HapticDevice};
 use crate::info::{FAULT_WATCHDOG_EXPIRED, MESSAGE_TYPE_ENABLE, REJECT_FAULTED, REJECT_NO_SESSION};
-use crate::local_offer::EngageFade;
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -126,8 +125,6 @@ pub struct Supervisor<D: HapticDevice, F> {
     force_axes: UsedAxes,
     /// The surplus total the current link's driver last reported.
     surplus_on_link: u64,
-    /// How much of the model's strengths a capable device is sent while it engages (`local_offer`).
-    engage_fade: EngageFade,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -160,7 +157,6 @@ where
             position_axes: UsedAxes::ALL,
             force_axes: UsedAxes::ALL,
             surplus_on_link: 0,
-            engage_fade: EngageFade::default(),
         })
     }
 
@@ -613,18 +609,6 @@ where
                 && self.force_axes == UsedAxes::ALL
                 && device.device().local_model_capable()
         });
-        let local = match local {
-            Some(mut model) => {
-                let report = device.device().local_report();
-                let ramp_us = self.safety.config().ramp_time_us;
-                model.scale_strengths(self.engage_fade.share(report.as_ref(), now_us, ramp_us));
-                Some(model)
-            }
-            None => {
-                self.engage_fade.reset();
-                None
-            }
-        };
         let written = match (&local, accepting) {
             (Some(model), _) => {
                 let limit_n = self.safety.config().max_force_n;

@@ -28,6 +28,9 @@ struct Cycle {
     limit_n: f64,
     model_age_us: u64,
     expiry_us: u64,
+    ramp: f64,
+    /// The local loop's proxy (device frame); none before its first solve.
+    proxy_m: Option<DVec3>,
 }
 
 fn read_log(path: &Path) -> Vec<Cycle> {
@@ -41,7 +44,8 @@ fn read_log(path: &Path) -> Vec<Cycle> {
     lines
         .map(|line| {
             let f: Vec<&str> = line.split(',').collect();
-            assert_eq!(f.len(), 9, "{line}");
+            assert_eq!(f.len(), 12, "{line}");
+            let proxy: Vec<f64> = f[9..12].iter().filter_map(|c| c.parse().ok()).collect();
             Cycle {
                 t_us: f[0].parse().unwrap(),
                 mode: f[1].to_string(),
@@ -50,6 +54,8 @@ fn read_log(path: &Path) -> Vec<Cycle> {
                 limit_n: f[3].parse().unwrap(),
                 model_age_us: f[5].parse().unwrap(),
                 expiry_us: f[6].parse().unwrap(),
+                ramp: f[8].parse().unwrap(),
+                proxy_m: (proxy.len() == 3).then(|| DVec3::new(proxy[0], proxy[1], proxy[2])),
             }
         })
         .collect()
@@ -487,4 +493,113 @@ fn over_a_1_mbaud_link_a_local_model_session_streams_state_at_500_hz() {
     let run = stream_run(2_000_000);
     assert_eq!(run.state_rate_hz, 0, "a 2 Mbaud link carries lockstep");
     assert!(run.local_reports > 0, "no LocalState came back");
+}
+
+/// `voxhap serve` on the wall scene with the capable mock: the device engages and renders, and serve's trace
+/// carries the device's own proxy and model age as the device logged them.
+#[test]
+fn serve_traces_a_capable_mocks_own_proxy_and_model_age() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("device.csv");
+    let trace_path = dir.path().join("serve.csv");
+    let scene = dir.path().join("wall.toml");
+    std::fs::write(&scene, WALL_SCENE).unwrap();
+    let mut mock = Mock::start(&[
+        "--pty",
+        "--local-model",
+        "--duration",
+        "20",
+        "--log",
+        log.to_str().unwrap(),
+    ]);
+    let mut serve = crate::util::serve_headless(&format!("mock:{}", mock.path))
+        .args(["--scene", scene.to_str().unwrap(), "--duration", "8"])
+        .args(["--record", trace_path.to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run voxhap serve");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = serve.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(90),
+            "serve did not stop"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut errors = String::new();
+    std::io::Read::read_to_string(&mut serve.stderr.take().unwrap(), &mut errors).unwrap();
+    assert!(status.success(), "{status:?}: {errors}");
+    let done = wait_for_done(&mut mock);
+    assert!(done.starts_with("done:"), "{done}");
+    let cycles = read_log(&log);
+
+    // Engaged (the ramp ran to its end) and rendered (more than the 0.1 N engage threshold), from the device's
+    // own log.
+    let local: Vec<&Cycle> = cycles.iter().filter(|c| c.mode == "local").collect();
+    assert!(!local.is_empty(), "serve never sent a local model");
+    assert!(
+        local.iter().any(|c| c.ramp == 1.0),
+        "the device never finished engaging: largest ramp {}",
+        local.iter().map(|c| c.ramp).fold(0.0, f64::max)
+    );
+    assert!(
+        local.iter().any(|c| c.ramp == 1.0 && c.force_n > 0.1),
+        "the engaged device never rendered a force above 0.1 N"
+    );
+    for c in &cycles {
+        assert!(c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9, "{c:?}");
+    }
+
+    // The trace's device columns are what the device logged: each traced proxy is one the device's loop
+    // computed (to the f32 the LocalState carries) for the traced model, at the traced age (to one 100 µs
+    // control cycle: the report is formed between cycles).
+    let trace = voxhap::record::read_trace(&trace_path).unwrap();
+    let traced: Vec<_> = trace
+        .samples
+        .iter()
+        .filter_map(|s| s.truth.device_local)
+        .collect();
+    assert!(
+        traced.len() > 1000,
+        "{} ticks with a device report",
+        traced.len()
+    );
+    let mut by_model: std::collections::HashMap<u32, Vec<&Cycle>> = Default::default();
+    for c in &local {
+        by_model.entry(c.model_sequence).or_default().push(c);
+    }
+    let f32_close = |a: DVec3, b: DVec3| {
+        (a - b)
+            .to_array()
+            .iter()
+            .zip(b.to_array())
+            .all(|(d, v)| d.abs() <= v.abs() * 1e-7 + 1e-12)
+    };
+    for report in &traced {
+        let logged = by_model.get(&report.model_sequence).unwrap_or_else(|| {
+            panic!("model {} is not in the device's log", report.model_sequence)
+        });
+        let age_us = report.model_age_s * 1e6;
+        assert!(
+            logged.iter().any(|c| {
+                (c.model_age_us as f64 - age_us).abs() <= 100.5
+                    && c.proxy_m.is_some_and(|p| f32_close(report.proxy_m, p))
+            }),
+            "traced {report:?} matches no logged cycle of its model: {:?}",
+            logged
+                .iter()
+                .map(|c| (c.model_age_us, c.proxy_m))
+                .collect::<Vec<_>>()
+        );
+        assert!(
+            report.proxy_bound_m >= 0.0 && report.proxy_bound_m <= 1e-5,
+            "{report:?}"
+        );
+    }
+    // Ticks without a local model (before the device was enabled) carry none.
+    assert!(trace.samples.iter().any(|s| s.truth.device_local.is_none()));
 }

@@ -923,6 +923,14 @@
         cause.replace(/_/g, ' ') + (s.device_fault_bits ? ' (fault bits 0x' + s.device_fault_bits.toString(16) + ')' : '')
     );
     setText($('st-age'), typeof s.sample_age_ticks === 'number' ? s.sample_age_ticks + ' ticks' : '–');
+    // A local-model device's own proxy, its certificate and the model's age (none: no local model this tick).
+    const dl = s.device_local;
+    setText(
+      $('st-device-proxy'),
+      dl && isVec3(dl.proxy_m)
+        ? at(dl.proxy_m) + ', ≤ ' + length(dl.proxy_bound_m) + ', model ' + dl.model_sequence + ' ' + num(dl.model_age_s * 1e3, 2) + ' ms old'
+        : 'none (no local model)'
+    );
     setText($('st-solve'), String(s.status || '–').replace(/_/g, ' ') + ', ' + (s.sweeps === undefined ? '–' : s.sweeps) + ' sweeps');
     setText($('st-bound'), typeof s.error_bound_m === 'number' ? '≤ ' + length(s.error_bound_m) : 'none (uncertified)');
     setText($('st-k'), num(s.stiffness_n_per_m, 0) + ' N/m');

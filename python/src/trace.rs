@@ -277,6 +277,12 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     for value in s.truth.external_force_n.to_array() {
         row.f64(value);
     }
+    // A local-model device's own loop: NaN (sequence 0) on ticks without one.
+    let local = s.truth.device_local;
+    row.vector(local.map_or(glam::DVec3::NAN, |l| l.proxy_m));
+    row.f64(local.map_or(f64::NAN, |l| l.proxy_bound_m));
+    row.u64(local.map_or(0, |l| u64::from(l.model_sequence)));
+    row.f64(local.map_or(f64::NAN, |l| l.model_age_s));
     if row.index != row.columns.len() && row.mismatch.is_none() {
         row.mismatch = Some(row.index);
     }

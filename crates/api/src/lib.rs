@@ -14,7 +14,9 @@ pub mod folders;
 pub mod slice;
 pub mod truth;
 
-pub use truth::{crtk_operating_state, EnergyReport, ForceOffCause, TickEnergy, TickTruth};
+pub use truth::{
+    crtk_operating_state, DeviceLocal, EnergyReport, ForceOffCause, TickEnergy, TickTruth,
+};
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};

@@ -141,6 +141,24 @@ pub struct TickTruth {
     /// zero when the input is off, nothing was sent, the last force is older than the staleness timeout, or
     /// the tick had no device state to render from.
     pub external_force_n: DVec3,
+    /// What a device with the local-model capability reported about its own loop with this tick's state
+    /// (protocol SPEC section 10.4, in the scene frame): the proxy it solved, its certificate and the age of the
+    /// model it rendered. `None` on ticks that sent no local model, and before the device's first report.
+    pub device_local: Option<DeviceLocal>,
+}
+
+/// A capable device's own proxy, certificate and model age (protocol SPEC section 10.4), scene frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DeviceLocal {
+    /// The proxy the device's loop solved (m).
+    pub proxy_m: DVec3,
+    /// The certified error bound of that solve (m): the device's proxy is within this of the exact one for
+    /// the model it rendered.
+    pub proxy_bound_m: f64,
+    /// Sequence number of the model the device rendered (0: none yet).
+    pub model_sequence: u32,
+    /// Device time since that model arrived (s).
+    pub model_age_s: f64,
 }
 
 /// The energy ledger's totals and verdicts for a whole run (`/api/stats` → `energy`, the run summary).

@@ -116,6 +116,8 @@ pub struct LocalReport {
     pub proxy_m: DVec3,
     /// The force it applied, newtons.
     pub force_n: DVec3,
+    /// The certified error bound of its last solve, metres.
+    pub bound_m: f64,
     /// The largest force magnitude it applied since the report before, newtons.
     pub peak_force_n: f64,
     /// Sequence of the model in use (0: none).

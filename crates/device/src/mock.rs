@@ -323,8 +323,14 @@ impl DeviceLog {
         };
         let status = local.last_status().0;
         let ramp = local.ramp_factor();
+        // Shortest round-trip form: a reader gets the loop's f64 proxy back exactly.
+        let [x, y, z] = local
+            .proxy_m()
+            .map_or([String::new(), String::new(), String::new()], |p| {
+                p.map(|c| format!("{c:e}"))
+            });
         self.line(format_args!(
-            "{now_us},{mode},{magnitude:.9},{limit:.9},{sequence},{age},{expiry},{status},{ramp:.6}"
+            "{now_us},{mode},{magnitude:.9},{limit:.9},{sequence},{age},{expiry},{status},{ramp:.6},{x},{y},{z}"
         ))
     }
 
@@ -370,9 +376,11 @@ impl Default for LocalModelConfig {
 /// The columns of the mock's device log: device time (µs), mode (`off`: the drive is not Enabled; else `local`:
 /// rendering a local model, or `set_force`), the applied force's magnitude (N), the force limit in force (N: the model's limit capped by the
 /// device's maximum, or the maximum), the model's sequence and age (µs, 0 without a model), its expiry (µs), the
-/// local status bits and the ramp factor.
+/// local status bits, the ramp factor, and the local loop's proxy (m, device frame; empty before its first
+/// solve).
 pub const LOCAL_LOG_HEADER: &str =
-    "t_us,mode,force_n,limit_n,model_sequence,model_age_us,expiry_us,local_status,ramp";
+    "t_us,mode,force_n,limit_n,model_sequence,model_age_us,expiry_us,\
+     local_status,ramp,proxy_x_m,proxy_y_m,proxy_z_m";
 
 /// The columns of the mock's handle log (`voxhap mock-device --handle-log`): device time (µs), the handle's
 /// position as the control cycle starts (m) and the force held on it over the cycle (N), one line per cycle.

@@ -314,13 +314,20 @@ mod tests {
         sample.truth.energy.passivity_dissipated_j = 0.125;
         sample.truth.device_force_n = Some(DVec3::new(0.5, -1.25, 2.0));
         sample.truth.external_force_n = DVec3::new(-0.75, 0.0, 1.5);
+        sample.truth.device_local = Some(voxhap_api::DeviceLocal {
+            proxy_m: DVec3::new(0.01, -0.02, 0.03),
+            proxy_bound_m: 1e-9,
+            model_sequence: 42,
+            model_age_s: 250e-6,
+        });
         let mut row = Vec::new();
         cells(&sample, 2, 1_000, &mut row);
         assert_eq!(row.len(), columns(&["a".into(), "b".into()]).len());
         assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
         assert!(sample_from_cells(&row, 2, Some(5)).is_err());
-        // The last seven columns: what the controller dissipated, the device's own force, the external force.
-        let last: Vec<Cell> = row[row.len() - 7..].to_vec();
+        // After format 3's: what the controller dissipated, the device's own force, the external force
+        // (format 4), then the local-model device's proxy, bound, model sequence and age (format 5).
+        let last: Vec<Cell> = row[row.len() - 13..row.len() - 6].to_vec();
         assert_eq!(
             last,
             [
@@ -333,13 +340,34 @@ mod tests {
                 Cell::F64(1.5)
             ]
         );
+        assert_eq!(
+            row[row.len() - 6..],
+            [
+                Cell::F64(0.01),
+                Cell::F64(-0.02),
+                Cell::F64(0.03),
+                Cell::F64(1e-9),
+                Cell::U64(42),
+                Cell::F64(250e-6)
+            ]
+        );
         // A device that reports no force: NaN in each column, and none again when read back.
         sample.truth.device_force_n = None;
         row.clear();
         cells(&sample, 2, 1_000, &mut row);
-        assert!(row[row.len() - 6..row.len() - 3]
+        assert!(row[row.len() - 12..row.len() - 9]
             .iter()
             .all(|c| matches!(c, Cell::F64(v) if v.is_nan())));
+        assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
+        // A tick that sent no local model: NaN proxy, bound and age, sequence 0, and none again when read back.
+        sample.truth.device_local = None;
+        row.clear();
+        cells(&sample, 2, 1_000, &mut row);
+        assert!(row[row.len() - 6..row.len() - 2]
+            .iter()
+            .chain(&row[row.len() - 1..])
+            .all(|c| matches!(c, Cell::F64(v) if v.is_nan())));
+        assert_eq!(row[row.len() - 2], Cell::U64(0));
         assert_eq!(sample_from_cells(&row, 2, Some(1_000)).unwrap(), sample);
     }
 }

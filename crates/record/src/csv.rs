@@ -414,6 +414,16 @@ fn parse_header(header: &str, path: &Path) -> Result<Vec<String>, TraceReadError
             hint: "it has no passivity_dissipated_j, device_force or external_force columns",
         });
     }
+    if fields.contains(&crate::truth_columns::PASSIVITY_COLUMN.0)
+        && !fields.contains(&crate::truth_columns::LOCAL_MODEL_SEQUENCE)
+    {
+        return Err(TraceReadError::OldFormat {
+            path: path.to_path_buf(),
+            found: 4,
+            expected: TRACE_FORMAT_VERSION,
+            hint: "it has no device_proxy or local_model columns",
+        });
+    }
     if fields.last() == Some(&"flags") && !fields.contains(&"flag_bits") {
         return Err(TraceReadError::OldFormat {
             path: path.to_path_buf(),

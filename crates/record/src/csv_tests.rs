@@ -231,6 +231,24 @@ fn an_old_format_trace_is_refused_with_a_clear_error() {
     );
 }
 
+/// A format-4 trace (today's columns without format 5's six) is refused, naming the format and what it lacks.
+#[test]
+fn a_format_4_trace_is_refused_naming_the_missing_columns() {
+    let names: Vec<String> = crate::columns::columns(&["surface".to_string()])
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect();
+    assert_eq!(names[names.len() - 6], "device_proxy_x_m");
+    let header = names[..names.len() - 6].join(",") + "\n";
+    let err = read_err(&header);
+    assert!(
+        err.contains("older voxhap")
+            && err.contains("format 4")
+            && err.contains("device_proxy or local_model"),
+        "{err}"
+    );
+}
+
 #[test]
 fn lines_reach_the_file_whole_on_flush() {
     let dir = tempfile::tempdir().unwrap();

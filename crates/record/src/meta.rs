@@ -21,10 +21,12 @@ use voxhap_core::haptics::modes::MAX_MODES;
 /// Version 2 added the velocity, rendered force, per-mode force, solver status, device sequence and time,
 /// UTC and per-flag columns and renamed `flags` to `flag_bits`. Version 3 added the tick's truth after the
 /// flag columns: the energy ledger, the force-off cause, the device's fault bits and the age of the rendered
-/// sample. Version 4 (this one) added, after those, what the passivity controller dissipated, the force
-/// the device itself reports (`device_force_<axis>_n`, NaN where none) and the external force added to the
-/// rendered force (`external_force_<axis>_n`).
-pub const TRACE_FORMAT_VERSION: u32 = 4;
+/// sample. Version 4 added, after those, what the passivity controller dissipated, the force the device
+/// itself reports (`device_force_<axis>_n`, NaN where none) and the external force added to the rendered
+/// force (`external_force_<axis>_n`). Version 5 (this one) added, after those, what a local-model device
+/// reported of its own loop (`device_proxy_<axis>_m`, `device_proxy_bound_m`, `local_model_age_s`: NaN
+/// where none; `local_model_sequence`: 0 where none).
+pub const TRACE_FORMAT_VERSION: u32 = 5;
 
 /// What a run was: written into the sidecar and the MCAP metadata record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -263,6 +263,15 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
             field: "device_force_n",
         });
     }
+    // A local-model device's report is absent (NaN in the tabular formats) or finite.
+    if !sample.truth.device_local.is_none_or(|l| {
+        l.proxy_m.is_finite() && l.proxy_bound_m.is_finite() && l.model_age_s.is_finite()
+    }) {
+        return Err(TraceError::NonFinite {
+            tick,
+            field: "device_local",
+        });
+    }
     if !sample.mode_forces().iter().all(|f| f.is_finite()) {
         return Err(TraceError::NonFinite {
             tick,

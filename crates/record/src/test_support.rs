@@ -93,6 +93,12 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                         -1.5,
                         1e-3 * i as f64,
                     ),
+                    device_local: (i % 4 != 2).then(|| voxhap_api::DeviceLocal {
+                        proxy_m: glam::DVec3::new(1e-3 * i as f64, -0.0, 2.5e-7),
+                        proxy_bound_m: 1e-9 * (i % 5) as f64,
+                        model_sequence: i as u32 * 3,
+                        model_age_s: 1e-6 * (i % 7) as f64,
+                    }),
                 },
             }
         })

@@ -6,12 +6,13 @@
 //! (`mcap_trace.rs`).
 //!
 //! These columns come last (after `flag_<name>`), so the columns before them keep their places; format 4's
-//! (`passivity_dissipated_j`, `device_force_<axis>_n`, `external_force_<axis>_n`) come after format 3's.
+//! (`passivity_dissipated_j`, `device_force_<axis>_n`, `external_force_<axis>_n`) come after format 3's, and
+//! format 5's (a local-model device's own proxy, its bound and the model's sequence and age) after those.
 
 use crate::cell::{col, Cell, CellError, ColumnDoc, ColumnType};
 use crate::sample::TraceSample;
 use glam::DVec3;
-use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
+use voxhap_api::{DeviceLocal, ForceOffCause, TickEnergy, TickTruth};
 
 /// The energy columns: name, meaning, and the field they hold.
 type EnergyColumn = (&'static str, &'static str, fn(&mut TickEnergy) -> &mut f64);
@@ -93,6 +94,44 @@ const EXTERNAL_FORCE_MEANING: &str =
     "external force added to the rendered force before the safety pipeline (serve --external-force); 0 when \
      off, none was sent, the last one is older than the staleness timeout, or the tick had no device state";
 
+/// The columns of a local-model device's own loop (format 5): its proxy x, y, z and the proxy's bound.
+const DEVICE_PROXY_COLUMNS: [&str; 4] = [
+    "device_proxy_x_m",
+    "device_proxy_y_m",
+    "device_proxy_z_m",
+    "device_proxy_bound_m",
+];
+
+/// The column of the model's sequence number (format 5).
+pub(crate) const LOCAL_MODEL_SEQUENCE: &str = "local_model_sequence";
+
+/// The column of the model's age (format 5).
+const LOCAL_MODEL_AGE: &str = "local_model_age_s";
+
+/// The cells of a local-model device's report: proxy x, y, z, bound, age (NaN for none), and the sequence
+/// (0 for none).
+fn device_local_cells(local: Option<DeviceLocal>) -> ([f64; 4], u64, f64) {
+    match local {
+        Some(l) => (
+            [l.proxy_m.x, l.proxy_m.y, l.proxy_m.z, l.proxy_bound_m],
+            u64::from(l.model_sequence),
+            l.model_age_s,
+        ),
+        None => ([f64::NAN; 4], 0, f64::NAN),
+    }
+}
+
+/// A local-model device's report from its cells: none when the proxy is not a number.
+fn device_local_from_cells(proxy: [f64; 4], sequence: u32, age_s: f64) -> Option<DeviceLocal> {
+    let proxy_m = DVec3::new(proxy[0], proxy[1], proxy[2]);
+    (!proxy_m.is_nan()).then_some(DeviceLocal {
+        proxy_m,
+        proxy_bound_m: proxy[3],
+        model_sequence: sequence,
+        model_age_s: age_s,
+    })
+}
+
 /// Appends the truth columns.
 pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
     use ColumnType::*;
@@ -130,6 +169,35 @@ pub(crate) fn truth_columns(c: &mut Vec<ColumnDoc>) {
     for name in EXTERNAL_FORCE {
         c.push(col(name, "N", EXTERNAL_FORCE_MEANING, F64));
     }
+    for name in &DEVICE_PROXY_COLUMNS[..3] {
+        c.push(col(
+            name,
+            "m",
+            "proxy a device with the local-model capability solved itself, as it reported it with this tick's \
+             state (protocol SPEC 10.4), scene frame; NaN on ticks that sent no local model",
+            F64,
+        ));
+    }
+    c.extend([
+        col(
+            DEVICE_PROXY_COLUMNS[3],
+            "m",
+            "certified error bound of that proxy, as the device reported it; NaN where no local model",
+            F64,
+        ),
+        col(
+            LOCAL_MODEL_SEQUENCE,
+            "count",
+            "sequence number of the local model the device rendered; 0 where no local model",
+            U64,
+        ),
+        col(
+            LOCAL_MODEL_AGE,
+            "s",
+            "device time since that model arrived, as the device reported it; NaN where no local model",
+            F64,
+        ),
+    ]);
 }
 
 /// Appends the truth cells of `sample`.
@@ -146,6 +214,10 @@ pub(crate) fn truth_cells(sample: &TraceSample, out: &mut Vec<Cell>) {
     for value in sample.truth.external_force_n.to_array() {
         out.push(Cell::F64(value));
     }
+    let (proxy, sequence, age_s) = device_local_cells(sample.truth.device_local);
+    out.extend(proxy.map(Cell::F64));
+    out.push(Cell::U64(sequence));
+    out.push(Cell::F64(age_s));
 }
 
 /// Reads the truth cells (the inverse of [`truth_cells`]); `next` hands out the row's cells in order.
@@ -185,6 +257,18 @@ pub(crate) fn truth_from_cells(
     *(PASSIVITY_COLUMN.2)(&mut truth.energy) = number()?;
     truth.device_force_n = device_force_from_cells([number()?, number()?, number()?]);
     truth.external_force_n = DVec3::new(number()?, number()?, number()?);
+    let proxy = [number()?, number()?, number()?, number()?];
+    let sequence = match next() {
+        (i, Cell::U64(v)) => {
+            u32::try_from(v).map_err(|_| err(i, "not an unsigned 32-bit integer"))?
+        }
+        (i, _) => return Err(err(i, "not an unsigned 32-bit integer")),
+    };
+    let age_s = match next() {
+        (_, Cell::F64(v)) => v,
+        (i, _) => return Err(err(i, "not a number")),
+    };
+    truth.device_local = device_local_from_cells(proxy, sequence, age_s);
     Ok(truth)
 }
 
@@ -213,6 +297,15 @@ pub(crate) struct TruthMessage {
     #[serde(skip_serializing_if = "Option::is_none")]
     device_force_n: Option<[f64; 3]>,
     external_force_n: [f64; 3],
+    /// A local-model device's own proxy, bound and model; omitted on ticks that sent no local model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    device_proxy_m: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    device_proxy_bound_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    local_model_sequence: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    local_model_age_s: Option<f64>,
 }
 
 impl TruthMessage {
@@ -231,6 +324,10 @@ impl TruthMessage {
             passivity_dissipated_j: e.passivity_dissipated_j,
             device_force_n: truth.device_force_n.map(|f| f.to_array()),
             external_force_n: truth.external_force_n.to_array(),
+            device_proxy_m: truth.device_local.map(|l| l.proxy_m.to_array()),
+            device_proxy_bound_m: truth.device_local.map(|l| l.proxy_bound_m),
+            local_model_sequence: truth.device_local.map(|l| l.model_sequence),
+            local_model_age_s: truth.device_local.map(|l| l.model_age_s),
         }
     }
 }
@@ -252,6 +349,15 @@ pub(crate) struct TruthMessageOwned {
     #[serde(default)]
     device_force_n: Option<[Option<f64>; 3]>,
     external_force_n: [Option<f64>; 3],
+    /// Absent on ticks that sent no local model.
+    #[serde(default)]
+    device_proxy_m: Option<[Option<f64>; 3]>,
+    #[serde(default)]
+    device_proxy_bound_m: Option<f64>,
+    #[serde(default)]
+    local_model_sequence: Option<u32>,
+    #[serde(default)]
+    local_model_age_s: Option<f64>,
 }
 
 impl TruthMessageOwned {
@@ -276,6 +382,14 @@ impl TruthMessageOwned {
                 .device_force_n
                 .and_then(|f| device_force_from_cells(f.map(v))),
             external_force_n: self.external_force_n.map(v).into(),
+            device_local: self.device_proxy_m.and_then(|p| {
+                let p = p.map(v);
+                device_local_from_cells(
+                    [p[0], p[1], p[2], v(self.device_proxy_bound_m)],
+                    self.local_model_sequence.unwrap_or(0),
+                    v(self.local_model_age_s),
+                )
+            }),
         })
     }
 }
@@ -320,10 +434,30 @@ pub(crate) fn truth_schema() -> serde_json::Value {
                             Inverse3's current_cursor_force); omitted = the device reports none"
         }),
     );
+    // A local-model device's own loop: omitted on ticks that sent no local model.
+    properties.insert(
+        "device_proxy_m".to_owned(),
+        serde_json::json!({
+            "type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
+            "description": "proxy a local-model device solved itself [x, y, z] (m, scene frame, as reported)"
+        }),
+    );
+    properties.insert(
+        DEVICE_PROXY_COLUMNS[3].to_owned(),
+        serde_json::json!({"type": "number", "description": "certified error bound of the device's proxy (m)"}),
+    );
+    properties.insert(
+        LOCAL_MODEL_SEQUENCE.to_owned(),
+        serde_json::json!({"type": "integer", "minimum": 0, "description": "sequence of the local model the device rendered"}),
+    );
+    properties.insert(
+        LOCAL_MODEL_AGE.to_owned(),
+        serde_json::json!({"type": "number", "description": "device time since that model arrived (s)"}),
+    );
     serde_json::json!({
         "type": "object",
         "description": "the tick's truth: energy ledger, force-off cause, device faults, sample age, passivity \
-                        controller, the device's own force, the external force",
+                        controller, the device's own force, the external force, a local-model device's own loop",
         "properties": properties,
         "required": required,
     })

@@ -113,6 +113,8 @@ impl ServoDevice for MappedDevice {
         if let Some(report) = out.local.as_mut() {
             report.proxy_m = self.mapping.to_scene_position_m(report.proxy_m);
             report.force_n = self.mapping.to_scene_force_n(report.force_n);
+            // A length: scene metres per device metre.
+            report.bound_m *= self.mapping.scale();
         }
         if let Some(state) = out.state.as_mut() {
             state.position_m = self.mapping.to_scene_position_m(state.position_m);

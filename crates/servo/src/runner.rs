@@ -636,6 +636,13 @@ impl ServoLoop {
                 .state
                 .and_then(|_| self.device.reported_force_n()),
             external_force_n: input.external_force_n,
+            // What a capable device reported of its own loop with this tick's state (SPEC 10.4).
+            device_local: device_out.local.map(|r| voxhap_api::DeviceLocal {
+                proxy_m: r.proxy_m,
+                proxy_bound_m: r.bound_m,
+                model_sequence: r.model_sequence,
+                model_age_s: f64::from(r.model_age_us) * 1e-6,
+            }),
         }
     }
 

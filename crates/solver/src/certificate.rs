@@ -10,7 +10,9 @@
 //! - every `u_i` is first projected onto its set `U_i` (`v_i`), so the dual behind the bound is feasible for this
 //!   tick's primitives; what rounding leaves of infeasibility (a few ulps of `s_i`) is charged as a linear
 //!   perturbation of the energy, `8 eps s_i / k` metres per primitive;
-//! - two certificates are formed, B first; A only when B misses the tolerance, and then the smaller is kept.
+//! - two certificates are formed, B first (a second time with a balancing dual when it misses the tolerance,
+//!   unless `SolverConfig::rebalance_certificate` is off); A only when B misses the tolerance, and then the
+//!   smaller is kept.
 //!   **B** certifies a nearby exact point `x^`, which lies exactly on the kinks that `x` is within rounding of
 //!   (the plane it rests on, the line it is held by): there those shares are exactly zero; primitives pulling
 //!   with full strength off their kink take their exact subgradient at `x^`, whose share is exactly zero too;
@@ -63,6 +65,9 @@ pub(crate) struct Frame {
     pub y_error_m: f64,
     /// `sum s_i / k` over the items (m).
     pub strength_over_k_m: f64,
+    /// Form certificate B a second time with a balancing dual when it misses the tolerance
+    /// ([`SolverConfig::rebalance_certificate`](crate::SolverConfig::rebalance_certificate)).
+    pub rebalance: bool,
 }
 
 /// What certificate B's first loop sees of one item at `x`: on its kink, pulling with full strength off it
@@ -500,7 +505,7 @@ pub(crate) fn certify_into(
     // plane costs B about 1e-11 m that way. Its share is second order in that turn, though, so B is formed
     // once more with that item's dual chosen to balance the coupling (projected onto its set) and its share
     // counted like any projected item's; the smaller bound is kept. Both are B's argument, for two duals.
-    if best.bound_m > enough_m {
+    if best.bound_m > enough_m && frame.rebalance {
         if let Some((j, g)) = pass.nearest_curved {
             let others = pass.total.value() - g;
             let balancing = project(&items[j], -(k * (x - y) + others));

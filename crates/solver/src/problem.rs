@@ -27,6 +27,12 @@ pub struct SolverConfig {
     pub primal_newton: bool,
     /// Screen out planes that provably keep their side at the answer (primal Newton only).
     pub screening: bool,
+    /// When certificate B misses the tolerance, form it a second time with the dual of the saturated point or
+    /// line nearest its kink balancing the coupling (a friction point a fraction of a nanometre behind a sliding
+    /// proxy is certified only this way at a tight tolerance). `false` skips that attempt: every bound stays
+    /// valid, some are larger, and a solve that never reaches its tolerance no longer pays it at every check
+    /// (the device loop's setting, whose 0.1 µm tolerance does not need it).
+    pub rebalance_certificate: bool,
 }
 
 impl Default for SolverConfig {
@@ -47,6 +53,7 @@ impl SolverConfig {
         relaxation: 1.0,
         primal_newton: true,
         screening: true,
+        rebalance_certificate: true,
     };
 }
 

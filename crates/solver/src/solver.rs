@@ -234,6 +234,7 @@ impl<S: Storage> Solver<S> {
                         + (1.0 + directed_count * f64::EPSILON) * directed_strength)
                         / k),
             strength_over_k_m: strength_sum / k,
+            rebalance: self.config.rebalance_certificate,
         };
         // A reused dual is not projected here, though the previous tick's values may lie outside this tick's sets
         // (a weakened or tilted primitive): every use projects it first. A sweep projects each value it writes,

@@ -196,7 +196,8 @@ pub fn bound_schema() -> serde_json::Value {
 /// output computes it ([`crtk_operating_state`]: `FAULT` whenever the safety pipeline is faulted,
 /// `ENABLED` while force reaches the hand or is about to, else `DISABLED`; `is_busy` while voxhap is bringing
 /// the device up or forces ramp in; `is_homed` while a device is connected), and the tick's truth:
-/// `force_off_cause`, `device_fault_bits`, `sample_age_ticks` and the energy ledger's totals (`energy`, J).
+/// `force_off_cause`, `device_fault_bits`, `sample_age_ticks`, the energy ledger's totals (`energy`, J), and
+/// what a local-model device reported of its own loop (`device_local`, left out on ticks without one).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct OperatingStateMessage {
     pub state: &'static str,
@@ -206,6 +207,8 @@ pub struct OperatingStateMessage {
     pub device_fault_bits: u16,
     pub sample_age_ticks: u32,
     pub energy: TickEnergy,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device_local: Option<voxhap_api::DeviceLocal>,
 }
 
 impl OperatingStateMessage {
@@ -242,6 +245,7 @@ impl OperatingStateMessage {
             device_fault_bits: truth.device_fault_bits,
             sample_age_ticks: truth.sample_age_ticks,
             energy: truth.energy,
+            device_local: truth.device_local,
         }
     }
 }
@@ -264,7 +268,17 @@ pub fn operating_state_schema() -> serde_json::Value {
             },
             "device_fault_bits": {"type": "integer", "minimum": 0, "maximum": 65535, "description": "the device's latched faults, bit n = fault code n"},
             "sample_age_ticks": {"type": "integer", "minimum": 0, "description": "age of the device state the tick rendered from (servo periods)"},
-            "energy": energy_schema()
+            "energy": energy_schema(),
+            "device_local": {
+                "type": "object",
+                "description": "what a device with the local-model capability reported of its own loop (scene frame); left out on ticks that sent no local model",
+                "properties": {
+                    "proxy_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "the proxy the device solved [x, y, z] (m)"},
+                    "proxy_bound_m": {"type": "number", "description": "certified error bound of that proxy (m)"},
+                    "model_sequence": {"type": "integer", "minimum": 0, "description": "sequence of the model it rendered"},
+                    "model_age_s": {"type": "number", "description": "device time since that model arrived (s)"}
+                }
+            }
         },
         "required": ["state", "is_homed", "is_busy", "force_off_cause", "device_fault_bits", "sample_age_ticks", "energy"]
     })
@@ -627,6 +641,47 @@ mod tests {
             ..snapshot()
         };
         assert_eq!(OperatingStateMessage::new(&engaged).state, "ENABLED");
+    }
+
+    /// A local-model device's own proxy, bound and model age reach the operating state under the schema's
+    /// names, and are left out on a tick without a local model.
+    #[test]
+    fn the_operating_state_carries_a_local_model_devices_proxy_when_there_is_one() {
+        let local = voxhap_api::DeviceLocal {
+            proxy_m: glam::DVec3::new(0.01, -0.02, 0.03),
+            proxy_bound_m: 2e-9,
+            model_sequence: 7,
+            model_age_s: 3e-4,
+        };
+        let snap = Snapshot {
+            truth: TickTruth {
+                device_local: Some(local),
+                ..TickTruth::default()
+            },
+            ..snapshot()
+        };
+        let mut bytes = Vec::new();
+        OperatingStateMessage::new(&snap)
+            .encode(&mut bytes)
+            .unwrap();
+        let value: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+        let schema = operating_state_schema();
+        let fields = schema["properties"]["device_local"]["properties"]
+            .as_object()
+            .unwrap();
+        assert_eq!(
+            value["device_local"],
+            serde_json::json!({"proxy_m": [0.01, -0.02, 0.03], "proxy_bound_m": 2e-9, "model_sequence": 7, "model_age_s": 3e-4})
+        );
+        for key in value["device_local"].as_object().unwrap().keys() {
+            assert!(fields.contains_key(key), "{key} is not in the schema");
+        }
+        let mut bytes = Vec::new();
+        OperatingStateMessage::new(&snapshot())
+            .encode(&mut bytes)
+            .unwrap();
+        let value: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+        assert!(value.get("device_local").is_none(), "{value}");
     }
 
     /// Every field of the live view's JSON schemas has one plain type: Foxglove Studio and Lichtblick

@@ -727,6 +727,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         self.last_local.map(|l| LocalReport {
             proxy_m: to_dvec3(l.proxy_m),
             force_n: to_dvec3(l.force_n),
+            bound_m: f64::from(l.bound_m),
             peak_force_n: f64::from(l.peak_force_n),
             model_sequence: l.model_sequence,
             model_age_us: l.model_age_us,

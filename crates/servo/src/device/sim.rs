@@ -21,7 +21,8 @@ use voxhap_device::sim::{LocalModelSim, SimArm, SimArmConfig, SimError};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use voxhap_local::{LocalLoop, LoopConfig};
 use voxhap_protocol::{
-    DeviceSample, DeviceSession, HostSession, HostToDevice, Label, RateSet, PROTOCOL_VERSION,
+    DeviceSample, DeviceSession, DeviceToHost, HostSession, HostToDevice, Label, RateSet,
+    PROTOCOL_VERSION,
 };
 
 /// The device side of a simulated local-model device: the protocol session, the reference loop, and the host
@@ -34,6 +35,8 @@ struct SimLocal {
     session: DeviceSession,
     local: LocalLoop,
     report: Option<LocalReport>,
+    /// The certified bound of the loop's last solve, from the last LocalState the session sent (m).
+    bound_m: f64,
 }
 
 /// Why a simulated local loop cannot run at the rate asked.
@@ -182,6 +185,7 @@ impl SimDevice {
                 ..LoopConfig::default()
             }),
             report: None,
+            bound_m: 0.0,
         }));
         Ok(self)
     }
@@ -201,7 +205,11 @@ impl SimDevice {
                 buttons: 0,
             };
             let force = local.local.step(&mut local.session, local.now_us, &sample);
-            while local.session.poll_transmit().is_some() {}
+            while let Some(sent) = local.session.poll_transmit() {
+                if let DeviceToHost::LocalState(state) = sent {
+                    local.bound_m = f64::from(state.bound_m);
+                }
+            }
             self.arm
                 .step(self.t_s, cycle_s, DVec3::from_array(force.map(f64::from)))
                 .map_err(|_| DeviceError::Protocol {
@@ -216,6 +224,7 @@ impl SimDevice {
             .map(|(model, received_us)| LocalReport {
                 proxy_m: DVec3::from_array(local.local.proxy_m().unwrap_or([0.0; 3])),
                 force_n: DVec3::from_array(local.local.force_n()),
+                bound_m: local.bound_m,
                 peak_force_n: DVec3::from_array(local.local.force_n()).length(),
                 model_sequence: model.sequence,
                 model_age_us: u32::try_from(local.now_us.saturating_sub(received_us))

@@ -82,6 +82,7 @@ fn the_inlined_and_the_called_pass_iterate_alike() {
             k,
             y_error_m: 0.0,
             strength_over_k_m: items.iter().map(|item| item.strength_n).sum::<f64>() / k,
+            rebalance: true,
         };
         let limits = Limits {
             tolerance_m: 1e-12,

@@ -202,6 +202,15 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         }
         eprintln!("warning: {warning}");
     }
+    if let Some(local) = loaded.scenario.local_model {
+        // The headless loop has no device session: say so rather than let the table pass unseen.
+        eprintln!(
+            "warning: [local_model] rate_hz = {} Hz is not simulated by `voxhap sim`: its loop drives the arm \
+             with set-forces at rate_hz; `voxhap serve` on the simulated arm and `voxhap stability` run the \
+             device's local loop",
+            local.rate_hz
+        );
+    }
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args
         .format

@@ -59,7 +59,7 @@ pub struct MockDeviceArgs {
     )]
     pub local_rate_hz: u32,
     /// With --local-model, write the device's own log here: one CSV line per control cycle (time, mode, force,
-    /// limit, model sequence, age and expiry, local status, ramp).
+    /// limit, model sequence, age and expiry, local status, ramp, the local proxy).
     #[arg(long, value_name = "FILE", requires = "local_model")]
     pub log: Option<PathBuf>,
     /// Write the handle's log here (a new file): one CSV line per control cycle with the handle's position

@@ -16,6 +16,8 @@ use std::sync::Mutex;
 
 pub mod svg;
 
+pub use svg::group_digits;
+
 /// The table format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum TableFormat {
@@ -94,19 +96,6 @@ struct StiffnessRow {
     arm: &'static ArmCase,
     latency_s: f64,
     loops: [(LoopKind, Limit); 3],
-}
-
-/// `1234.6` as `1 235`: whole numbers with thin-space thousands, as the docs write them.
-pub fn group_digits(value: f64) -> String {
-    let digits = (value.round() as i64).to_string();
-    let mut out = String::new();
-    for (i, c) in digits.chars().enumerate() {
-        if i > 0 && (digits.len() - i).is_multiple_of(3) {
-            out.push(' ');
-        }
-        out.push(c);
-    }
-    out
 }
 
 fn limit_text(limit: &Limit) -> String {

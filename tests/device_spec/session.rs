@@ -57,7 +57,8 @@ fn enable_comes_only_after_the_servo_runs() {
         .iter()
         .find(|m| matches!(m.message, HostMessage::Hello { .. }))
         .expect("a Hello");
-    assert_eq!(hello.message, HostMessage::Hello { major: 1, minor: 0 });
+    // SPEC sections 2 and 7: the host says its own version, 1.1 (Hello(1.1) in the handshake figure).
+    assert_eq!(hello.message, HostMessage::Hello { major: 1, minor: 1 });
     let enable = messages
         .iter()
         .find(|m| matches!(m.message, HostMessage::Enable { .. }))
@@ -184,7 +185,8 @@ fn a_version_mismatch_names_both_versions_and_sends_no_force() {
     device.stop();
     assert!(!status.success(), "serve accepted a 2.0 device: {output}");
     assert!(
-        output.contains("2.0") && output.contains("1.0"),
+        // SPEC section 7: "device speaks protocol 2.0, this host speaks 1.1".
+        output.contains("2.0") && output.contains("1.1"),
         "the error does not name both versions: {output}"
     );
     assert_eq!(device.max_force_n(), 0.0);

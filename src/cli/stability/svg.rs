@@ -34,7 +34,7 @@ fn escape(text: &str) -> String {
 /// A number for an axis label: whole numbers grouped by thin spaces, small ones in plain decimals.
 fn axis_label(value: f64) -> String {
     if value >= 1.0 {
-        super::group_digits(value)
+        group_digits(value)
     } else {
         let text = format!("{value:.6}");
         text.trim_end_matches('0').to_owned()
@@ -171,5 +171,18 @@ pub fn grouped_bars(
         );
     }
     out.push_str("</svg>\n");
+    out
+}
+
+/// `1234.6` as `1 235`: whole numbers with thin-space thousands, as the docs write them.
+pub fn group_digits(value: f64) -> String {
+    let digits = (value.round() as i64).to_string();
+    let mut out = String::new();
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(' ');
+        }
+        out.push(c);
+    }
     out
 }

@@ -19,7 +19,9 @@ use super::scenario::{
     MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
     SUBSTEPS_PER_TICK_RANGE, TOLERANCE_RANGE_M,
 };
-use crate::passivity::settings::{MAX_CONTROLLER_DAMPING_N_S_PER_M, MAX_THRESHOLD_J};
+use crate::passivity::settings::{
+    MAX_CONTROLLER_DAMPING_N_S_PER_M, MAX_OBSERVER_LATENCY_S, MAX_THRESHOLD_J,
+};
 use voxhap_core::haptics::modes::{
     MAX_COORDINATE_M, MAX_FRICTION_MU, MAX_POWER_BUDGET_W, MAX_STRENGTH_N, MAX_TRANSFER_VALUE,
 };
@@ -239,12 +241,13 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("mode", "", Otherwise("`control` for every real device, `observe` for the simulated arm (`voxhap sim`, and `serve` on the simulated arm)"), OneOf(&["off", "observe", "control"]), "\"control\"", "`off`: nothing, changes apply at once; `observe`: the observer books, changes in contact are introduced passively; `control`: the controller also dissipates what the coupling generates"),
             key("max_damping_n_s_per_m", "N s/m", Value("20.0"), PositiveAtMost(MAX_CONTROLLER_DAMPING_N_S_PER_M), "10.0", "the most damping the controller adds in a tick"),
             key("threshold_j", "J", Value("1e-6"), Between(0.0, MAX_THRESHOLD_J), "1e-5", "energy generated beyond the reference that the controller lets pass before it acts"),
+            key("latency_s", "s", Otherwise("the driver's declared worst-case link latency, or the simulated arm's `[arm] latency_s`, else 0"), Between(0.0, MAX_OBSERVER_LATENCY_S), "0.003", "the delay after which a sent force acts on the arm, as the observer pairs force with motion (a fraction of a tick counts as a whole tick)"),
         ],
     },
     SchemaSection {
         title: "`[local_model]`",
-        intro: "The simulated arm as a device with the local-model capability: `serve` and `sim` send it the tick's \
-                primitives and its own loop renders them at `rate_hz` ([Local models](../local-model.md)).",
+        intro: "The simulated arm as a device with the local-model capability: `serve` sends it the tick's \
+                primitives and its own loop renders them at `rate_hz` (`voxhap sim` warns and drives the arm with set-forces) ([Local models](../local-model.md)).",
         header: "[local_model]",
         base: "rate_hz = 10000.0",
         group: "local_model",

@@ -26,5 +26,6 @@ pub use factory::{open_device, open_device_with_profile, spec_family, OpenedDevi
 pub use reconnect::Reconnecting;
 pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions, ReplaySpecError};
 pub use servo_device::ServoDevice;
+pub(crate) use sim::enabled_local_session;
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError, DeviceSpecProblem};

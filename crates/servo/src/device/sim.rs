@@ -155,24 +155,11 @@ impl SimDevice {
             return Err(LocalRateError { rate_hz, servo_hz });
         };
         let cycle_us = (1e6 / rate_hz).round();
-        let info = voxhap_protocol::DeviceInfo {
-            version: PROTOCOL_VERSION,
-            model: Label::new("voxhap-sim").unwrap_or_default(),
-            serial_number: Label::new("in-process").unwrap_or_default(),
-            position_dof: 3,
-            force_dof: 3,
-            button_count: 0,
-            supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
-            workspace_min_m: [-1.0; 3],
-            workspace_max_m: [1.0; 3],
-            max_force_n: self.info.max_force_n as f32,
-            max_stiffness_n_per_m: self.info.max_stiffness_n_per_m as f32,
-        };
-        let mut host = HostSession::new();
-        let mut session = DeviceSession::with_local_model(info);
-        session.on_message(&host.hello(), 0);
-        session.on_message(&host.enable(50_000), 0);
-        while session.poll_transmit().is_some() {}
+        let (host, session) = enabled_local_session(
+            "voxhap-sim",
+            self.info.max_force_n as f32,
+            self.info.max_stiffness_n_per_m as f32,
+        );
         let cycle_us = cycle_us.round() as u64;
         self.local = Some(Box::new(SimLocal {
             cycles_per_period: cycles,
@@ -322,6 +309,34 @@ impl HapticDevice for SimDevice {
             status: None,
         })
     }
+}
+
+/// An in-process device with the local-model capability (3-DOF, ±1 m workspace, 1 kHz), through its Hello and
+/// an Enable with a 50 ms watchdog: the host and device sessions of the simulated arm and of `voxhap stability`.
+pub(crate) fn enabled_local_session(
+    model: &str,
+    max_force_n: f32,
+    max_stiffness_n_per_m: f32,
+) -> (HostSession, DeviceSession) {
+    let info = voxhap_protocol::DeviceInfo {
+        version: PROTOCOL_VERSION,
+        model: Label::new(model).unwrap_or_default(),
+        serial_number: Label::new("in-process").unwrap_or_default(),
+        position_dof: 3,
+        force_dof: 3,
+        button_count: 0,
+        supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
+        workspace_min_m: [-1.0; 3],
+        workspace_max_m: [1.0; 3],
+        max_force_n,
+        max_stiffness_n_per_m,
+    };
+    let mut host = HostSession::new();
+    let mut session = DeviceSession::with_local_model(info);
+    session.on_message(&host.hello(), 0);
+    session.on_message(&host.enable(50_000), 0);
+    while session.poll_transmit().is_some() {}
+    (host, session)
 }
 
 #[cfg(test)]

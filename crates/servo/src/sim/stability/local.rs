@@ -18,9 +18,7 @@ use std::path::Path;
 use voxhap_device::local_offer::LocalOffer;
 use voxhap_device::sim::{LocalModelSim, SimArm};
 use voxhap_local::{LocalLoop, LoopConfig, ENGAGE_US};
-use voxhap_protocol::{
-    DeviceSample, DeviceSession, HostSession, HostToDevice, Label, RateSet, PROTOCOL_VERSION,
-};
+use voxhap_protocol::{DeviceSample, DeviceSession, HostSession, HostToDevice};
 
 /// The simulated device's largest force, N (as `crate::device::SimDevice` declares).
 pub const DEVICE_MAX_FORCE_N: f64 = 10.0;
@@ -57,24 +55,11 @@ impl DeviceLoop {
             host_hz: host_rate_hz,
         })?;
         let cycle_us = (1e6 / device_rate_hz).round() as u64;
-        let info = voxhap_protocol::DeviceInfo {
-            version: PROTOCOL_VERSION,
-            model: Label::new("voxhap-bench").unwrap_or_default(),
-            serial_number: Label::new("in-process").unwrap_or_default(),
-            position_dof: 3,
-            force_dof: 3,
-            button_count: 0,
-            supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
-            workspace_min_m: [-1.0; 3],
-            workspace_max_m: [1.0; 3],
-            max_force_n: DEVICE_MAX_FORCE_N as f32,
-            max_stiffness_n_per_m: 65_535.0,
-        };
-        let mut host = HostSession::new();
-        let mut session = DeviceSession::with_local_model(info);
-        session.on_message(&host.hello(), 0);
-        session.on_message(&host.enable(50_000), 0);
-        while session.poll_transmit().is_some() {}
+        let (host, session) = crate::device::enabled_local_session(
+            "voxhap-bench",
+            DEVICE_MAX_FORCE_N as f32,
+            65_535.0,
+        );
         Ok(DeviceLoop {
             cycles_per_period: cycles,
             cycle_us,

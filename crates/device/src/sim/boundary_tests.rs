@@ -159,3 +159,22 @@ fn the_physics_cap_sits_just_inside_the_exact_boundary() {
         }
     }
 }
+
+/// A latency that is not a whole number of ticks (the force changes within a tick): the sim arm's boundary
+/// is within 5 % of the library's exact figure ([`super::zoh_boundary`], which splits the tick where the
+/// force changes), with 1 and 10 substeps.
+#[test]
+fn with_a_fraction_of_a_tick_of_latency_the_sim_arm_boundary_is_within_5_percent_of_the_exact_analysis(
+) {
+    let (m, b) = (0.1, 1.0);
+    for (rate_hz, latency_s) in [(1000.0, 0.0005), (1000.0, 0.0013), (4000.0, 0.0006)] {
+        let exact = super::zoh_boundary(m, b, 1.0 / rate_hz, latency_s).unwrap();
+        for substeps in [1, 10] {
+            let sim = arm_boundary(m, b, rate_hz, substeps, latency_s, exact);
+            assert!(
+                (sim / exact - 1.0).abs() < 0.05,
+                "{rate_hz} Hz, latency {latency_s} s, {substeps} substeps: sim {sim:.1} N/m, exact {exact:.1} N/m"
+            );
+        }
+    }
+}

@@ -38,6 +38,7 @@ mod path;
 pub mod preset;
 mod tagged;
 pub mod zoh;
+pub mod zoh_boundary;
 #[cfg(any(test, feature = "test-support"))]
 pub mod zoh_exact;
 
@@ -54,6 +55,7 @@ pub use path::{
 };
 pub use preset::{ArmPreset, PresetFigures};
 pub use tagged::TaggedTableError;
+pub use zoh_boundary::{zoh_boundary, ZohError, ZohLoop};
 
 #[cfg(test)]
 #[path = "boundary_tests.rs"]

@@ -17,6 +17,12 @@
 //! the Jury conditions give the boundary in closed form, `K* = b (1 - a) / c0` (the constant coefficient
 //! reaching 1); with latency the boundary is found by bisection on a Schur-Cohn stability test of the
 //! polynomial (Jury, "Theory and Application of the z-Transform Method", 1964).
+//!
+//! The library's [`super::zoh_boundary`] derives the same boundary another way (the arm integrated in the
+//! state space, any fraction of a period of latency); this transfer-function form, whole periods only, is
+//! kept as an independent check of it and as the expected value of the sweeps.
+
+use super::zoh_boundary::schur_stable;
 
 /// The exact ZOH boundary without latency (closed form).
 pub fn exact_boundary_no_delay(m: f64, b: f64, t: f64) -> f64 {
@@ -24,22 +30,6 @@ pub fn exact_boundary_no_delay(m: f64, b: f64, t: f64) -> f64 {
     let tau = m / b;
     let c0 = tau * (1.0 - a) - a * t;
     b * (1.0 - a) / c0
-}
-
-/// Schur-Cohn: are all roots of `p` (coefficients, highest degree first) strictly inside the unit circle?
-fn schur_stable(p: &[f64]) -> bool {
-    let mut p = p.to_vec();
-    while p.len() > 1 {
-        let n = p.len() - 1;
-        let (lead, last) = (p[0], p[n]);
-        if lead.abs() <= last.abs() {
-            return false;
-        }
-        // q(z) = (lead p(z) - last p*(z)) / z, p* the reversed polynomial; degree n - 1.
-        let q: Vec<f64> = (0..n).map(|i| lead * p[i] - last * p[n - i]).collect();
-        p = q;
-    }
-    true
 }
 
 /// The exact ZOH boundary with `d` ticks of latency: bisection on the characteristic polynomial.

@@ -91,11 +91,18 @@ pub struct StabilityArgs {
 /// The three loops of one row.
 const LOOPS: [&str; 3] = ["host alone", "host + local model", "full-rate host"];
 
-/// One row of the stiffness table: an arm at a latency, and each loop's kind and limit.
+/// One loop of a row: its kind, the limit measured, and the exact zero-order-hold boundary.
+struct LoopResult {
+    kind: LoopKind,
+    limit: Limit,
+    exact_n_per_m: f64,
+}
+
+/// One row of the stiffness table: an arm at a latency, and each loop's result.
 struct StiffnessRow {
     arm: &'static ArmCase,
     latency_s: f64,
-    loops: [(LoopKind, Limit); 3],
+    loops: [LoopResult; 3],
 }
 
 fn limit_text(limit: &Limit) -> String {
@@ -243,19 +250,30 @@ fn measure_stiffness(
         largest_passive(arm, kind, args.ceiling, args.tolerance)
             .with_context(|| format!("{} at {} ms latency, {kind:?}", arm.name, latency_s * 1e3))
     })?;
-    Ok(jobs
-        .chunks(3)
-        .zip(limits.chunks(3))
-        .map(|(job, limit)| StiffnessRow {
-            arm: job[0].0,
-            latency_s: job[0].1,
-            loops: [
-                (job[0].2, limit[0]),
-                (job[1].2, limit[1]),
-                (job[2].2, limit[2]),
-            ],
+    let result = |(arm, _, kind): (&'static ArmCase, f64, LoopKind), limit: Limit| {
+        let exact_n_per_m = kind
+            .exact_boundary_n_per_m(arm.mass_kg, arm.damping_n_s_per_m)
+            .with_context(|| format!("{}, {kind:?}", arm.name))?;
+        anyhow::Ok(LoopResult {
+            kind,
+            limit,
+            exact_n_per_m,
         })
-        .collect())
+    };
+    jobs.chunks(3)
+        .zip(limits.chunks(3))
+        .map(|(job, limit)| {
+            Ok(StiffnessRow {
+                arm: job[0].0,
+                latency_s: job[0].1,
+                loops: [
+                    result(job[0], limit[0])?,
+                    result(job[1], limit[1])?,
+                    result(job[2], limit[2])?,
+                ],
+            })
+        })
+        .collect()
 }
 
 fn stiffness_markdown(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
@@ -263,8 +281,9 @@ fn stiffness_markdown(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
     let local = group_digits(args.local_rate);
     let full = group_digits(args.full_rate);
     let mut out = format!(
-        "| arm | mass | damping `b` | latency | host {host} Hz alone | bound | host {host} Hz + local model {local} Hz \
-         | bound | host {full} Hz | bound |\n|---|---|---|---|---|---|---|---|---|---|\n"
+        "| arm | mass | damping `b` | latency | host {host} Hz alone | bound | exact | host {host} Hz + local model \
+         {local} Hz | bound | exact | host {full} Hz | bound | exact |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     );
     for row in rows {
         let b = row.arm.damping_n_s_per_m;
@@ -275,12 +294,13 @@ fn stiffness_markdown(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
             row.arm.mass_kg,
             row.latency_s * 1e3
         );
-        for (kind, limit) in &row.loops {
+        for r in &row.loops {
             let _ = write!(
                 out,
-                " {} | {} N/m |",
-                limit_text(limit),
-                group_digits(kind.bound_n_per_m(b))
+                " {} | {} N/m | {} N/m |",
+                limit_text(&r.limit),
+                group_digits(r.kind.bound_n_per_m(b)),
+                group_digits(r.exact_n_per_m)
             );
         }
         out.push('\n');
@@ -290,21 +310,23 @@ fn stiffness_markdown(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
 
 fn stiffness_csv(rows: &[StiffnessRow]) -> String {
     let mut out = String::from(
-        "arm,mass_kg,damping_n_s_per_m,latency_s,loop,loop_rate_hz,limit,stiffness_n_per_m,bound_n_per_m\n",
+        "arm,mass_kg,damping_n_s_per_m,latency_s,loop,loop_rate_hz,limit,stiffness_n_per_m,bound_n_per_m,\
+         exact_zoh_n_per_m\n",
     );
     for row in rows {
-        for ((kind, limit), name) in row.loops.iter().zip(LOOPS) {
+        for (r, name) in row.loops.iter().zip(LOOPS) {
             let _ = writeln!(
                 out,
-                "{},{},{},{},{name},{},{},{},{}",
+                "{},{},{},{},{name},{},{},{},{},{}",
                 row.arm.name,
                 row.arm.mass_kg,
                 row.arm.damping_n_s_per_m,
                 row.latency_s,
-                kind.loop_rate_hz(),
-                limit_kind(limit),
-                limit.n_per_m(),
-                kind.bound_n_per_m(row.arm.damping_n_s_per_m)
+                r.kind.loop_rate_hz(),
+                limit_kind(&r.limit),
+                r.limit.n_per_m(),
+                r.kind.bound_n_per_m(row.arm.damping_n_s_per_m),
+                r.exact_n_per_m
             );
         }
     }
@@ -407,12 +429,13 @@ fn stiffness_plot(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
         .iter()
         .map(|row| svg::Group {
             label: format!("{}, {} ms", row.arm.name, row.latency_s * 1e3),
-            values: row.loops.iter().map(|(_, l)| Some(l.n_per_m())).collect(),
+            values: row.loops.iter().map(|r| Some(r.limit.n_per_m())).collect(),
             markers: row
                 .loops
                 .iter()
-                .map(|(k, _)| Some(k.bound_n_per_m(row.arm.damping_n_s_per_m)))
+                .map(|r| Some(r.kind.bound_n_per_m(row.arm.damping_n_s_per_m)))
                 .collect(),
+            dots: row.loops.iter().map(|r| Some(r.exact_n_per_m)).collect(),
         })
         .collect();
     svg::grouped_bars(
@@ -423,7 +446,10 @@ fn stiffness_plot(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
             group_digits(args.full_rate)
         ),
         "stiffness (N/m)",
-        "passivity bound b/(T/2+τ)",
+        &svg::Notes {
+            markers: "passivity bound b/(T/2+τ)",
+            dots: Some("exact zero-order-hold boundary"),
+        },
         1.0,
         &series,
         &groups,
@@ -458,6 +484,7 @@ fn force_error_plot(results: &[StaleForce]) -> String {
                 Some(r.error_max_n),
             ],
             markers: vec![None, None, Some(r.reference_max_n)],
+            dots: Vec::new(),
         })
         .collect();
     let rate = results.first().map_or(0.0, |r| r.device_rate_hz);
@@ -470,7 +497,10 @@ fn force_error_plot(results: &[StaleForce]) -> String {
             group_digits(rate)
         ),
         "force error (N)",
-        "largest full-rate force (N)",
+        &svg::Notes {
+            markers: "largest full-rate force (N)",
+            dots: None,
+        },
         FORCE_PLOT_FLOOR_N,
         &series,
         &groups,

@@ -10,12 +10,20 @@ pub struct Series {
     pub colour: &'static str,
 }
 
-/// One group of bars: its label, one value per series (`None`: no bar), and a marker per series (a short
-/// black line across the bar, e.g. the analytic bound; `None`: no marker).
+/// One group of bars: its label, one value per series (`None`: no bar), a marker per series (a short
+/// black line across the bar, e.g. the analytic bound; `None`: no marker) and a dot per series (a small open
+/// circle on the bar's centre line, e.g. the exact boundary; `None` or missing: no dot).
 pub struct Group {
     pub label: String,
     pub values: Vec<Option<f64>>,
     pub markers: Vec<Option<f64>>,
+    pub dots: Vec<Option<f64>>,
+}
+
+/// What the markers and the dots stand for, in the legend (`dots: None`: no dots drawn, no legend entry).
+pub struct Notes {
+    pub markers: &'static str,
+    pub dots: Option<&'static str>,
 }
 
 const WIDTH: f64 = 960.0;
@@ -42,18 +50,19 @@ fn axis_label(value: f64) -> String {
 }
 
 /// Grouped vertical bars on a log-10 axis from the decade below the smallest value (at least `floor`) to the
-/// decade above the largest; a value below the axis gets no bar. `note` names the markers in the legend.
+/// decade above the largest; a value below the axis gets no bar. `notes` name the markers and dots in the
+/// legend.
 pub fn grouped_bars(
     title: &str,
     axis: &str,
-    note: &str,
+    notes: &Notes,
     floor: f64,
     series: &[Series],
     groups: &[Group],
 ) -> String {
     let all = groups
         .iter()
-        .flat_map(|g| g.values.iter().chain(&g.markers))
+        .flat_map(|g| g.values.iter().chain(&g.markers).chain(&g.dots))
         .flatten()
         .copied()
         .filter(|v| v.is_finite() && *v >= floor && *v > 0.0);
@@ -105,8 +114,18 @@ pub fn grouped_bars(
         "<line x1=\"{x:.1}\" y1=\"40\" x2=\"{:.1}\" y2=\"40\" stroke=\"black\" stroke-width=\"2\"/><text x=\"{:.1}\" y=\"45\">{}</text>",
         x + 14.0,
         x + 18.0,
-        escape(note)
+        escape(notes.markers)
     );
+    if let Some(dots) = notes.dots {
+        let x = x + 30.0 + 7.0 * notes.markers.chars().count() as f64;
+        let _ = writeln!(
+            out,
+            "<circle cx=\"{:.1}\" cy=\"40\" r=\"3.5\" fill=\"white\" stroke=\"black\" stroke-width=\"1.5\"/><text x=\"{:.1}\" y=\"45\">{}</text>",
+            x + 7.0,
+            x + 14.0,
+            escape(dots)
+        );
+    }
     // Axis and decade grid.
     let _ = writeln!(
         out,
@@ -159,6 +178,15 @@ pub fn grouped_bars(
                     "<line x1=\"{:.1}\" y1=\"{my:.1}\" x2=\"{:.1}\" y2=\"{my:.1}\" stroke=\"black\" stroke-width=\"2\"/>",
                     bx - 1.0,
                     bx + bar * 0.9 + 1.0
+                );
+            }
+            if let Some(d) = group.dots.get(i).copied().flatten().filter(visible) {
+                let _ = writeln!(
+                    out,
+                    "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"3.5\" fill=\"white\" stroke=\"black\" stroke-width=\"1.5\"><title>{}</title></circle>",
+                    bx + bar * 0.45,
+                    y(d),
+                    axis_label(d)
                 );
             }
         }

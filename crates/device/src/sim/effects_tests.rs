@@ -131,14 +131,18 @@ fn jittered_samples_stay_within_the_jitter_and_a_large_jitter_is_refused() {
 
 #[test]
 fn a_preset_fills_only_its_sourced_figures_and_names_what_it_lacks() {
-    let touch: ArmParams = toml::from_str(
-        "preset = \"touch\"\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }",
+    // WoodenHaptics' figures from its chai3d extension's parts (preset.rs shows the calculation): mB (0.051 /
+    // 0.205)^2 + mC = 0.1205 kg, and 0.205 m x 2 pi / (2000 x 12) = 0.0537 mm.
+    let wooden: ArmParams = toml::from_str(
+        "preset = \"woodenhaptics\"\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }",
     )
     .unwrap();
-    assert_eq!(touch.mass_kg, 0.045);
-    assert_eq!(touch.effects.position_resolution_m, 0.055e-3);
+    let mass = 0.170 * (0.051f64 / 0.205).powi(2) + 0.110;
+    assert!((wooden.mass_kg - mass).abs() < 5e-4, "{}", wooden.mass_kg);
+    let resolution = 0.205 * std::f64::consts::TAU / (2000.0 * 12.0);
+    assert!((wooden.effects.position_resolution_m - resolution).abs() < 1e-7);
     let written: ArmParams = toml::from_str(
-        "preset = \"touch\"\nmass_kg = 0.3\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }",
+        "preset = \"woodenhaptics\"\nmass_kg = 0.3\ndamping_n_s_per_m = 0.5\nworkspace = { shape = \"unbounded\" }",
     )
     .unwrap();
     assert_eq!(written.mass_kg, 0.3, "a written key wins");

@@ -5,7 +5,9 @@
 //! the preset's figure. A figure no document gives is left out, not guessed: the table must then give it
 //! (`arm: missing field mass_kg (preset "falcon" has no sourced figure for it; give it)`). That is the
 //! honest state of public data: vendors publish position resolution, force and workspace, rarely the moving
-//! mass, and practically never the damping or the transport latency.
+//! mass, and practically never the damping or the transport latency. A figure computed from published parts
+//! (encoder counts and capstan ratios, link masses) shows its calculation beside it. The stiffness sweeps
+//! (voxhap_servo::sim::stability::arms) fill what a preset lacks with stated estimates.
 
 use serde::{Deserialize, Serialize};
 
@@ -49,13 +51,14 @@ impl ArmPreset {
         }
     }
 
-    /// The preset's figures and their sources.
+    /// The preset's figures and their sources. Every figure set here comes from a document that was read
+    /// (listed in docs/stability.md, "The presets' figures"); no vendor or paper read gives a viscous
+    /// damping for any of the four, so `damping_n_s_per_m` is never set.
     pub fn figures(self) -> PresetFigures {
         match self {
-            // Haply's public documentation (docs.haply.co, Inverse Service 3.5; "Developing with Inverse3":
-            // frames, control modes, filters) describes the API; no mass, damping, resolution, latency, servo
-            // rate or force figure was found in it or in a published measurement, so none is set
-            // (docs/stability.md, "The presets' figures").
+            // Haply's public documentation (docs.haply.co, "Developing with Inverse3": frames, control modes,
+            // filters) describes the API; no mass, damping, resolution or latency figure was found in it nor
+            // in a published measurement, so none is set.
             ArmPreset::Inverse3 => PresetFigures {
                 mass_kg: None,
                 damping_n_s_per_m: None,
@@ -64,39 +67,55 @@ impl ArmPreset {
                 source: "no sourced figure (Haply's documentation gives none of mass, damping, \
                          resolution or latency)",
             },
-            // Position resolution: Novint's product specification, "> 400 dpi" (25.4 mm / 400 = 0.0635 mm).
-            // Latency: libnifalcon (FalconCommLibUSB.cpp) sets the FTDI USB latency timer to 1 ms after the
-            // firmware load, a lower bound on the transport delay. Mass and damping: not sourced.
+            // Position resolution: Novint's specification, "Position Resolution > 400 dpi" (as reproduced in
+            // the H3D API wiki's Novint Falcon page, SenseGraphics/h3dapi): 25.4 mm / 400 = 0.0635 mm.
+            // Latency: libnifalcon sets the FTDI chip's USB latency timer to 1 ms once the firmware is loaded
+            // (include/falcon/core/FalconComm.h; src/comm/FalconCommFTD2XX.cpp, FT_SetLatencyTimer(.., 1)),
+            // a lower bound on the transport delay. Mass and damping: no published figure was found (Forsslund
+            // et al., TEI 2015, Table 1, measured its back-drive friction, 1.2 / 3.6 / 1.3 N sideways /
+            // inwards / upwards, a Coulomb force, not a viscous damping).
             ArmPreset::Falcon => PresetFigures {
                 mass_kg: None,
                 damping_n_s_per_m: None,
                 position_resolution_m: Some(25.4e-3 / 400.0),
                 latency_s: Some(1e-3),
                 source: "position resolution: Novint Falcon specification (> 400 dpi); latency: \
-                         libnifalcon's 1 ms USB latency timer; mass and damping not sourced",
+                         libnifalcon's 1 ms USB latency timer; mass and damping not published",
             },
-            // 3D Systems Touch specification sheet: nominal position resolution > 450 dpi (about 0.055 mm),
-            // apparent mass at the tip about 45 g. Both as recorded when the preset was written: no copy of
-            // the sheet was found to re-check them against. Damping, latency and servo rate: not published.
+            // No copy of 3D Systems' Touch specification sheet could be read, so none of its figures is set
+            // (an earlier version set a 45 g apparent mass and a 0.055 mm resolution from it without a copy to
+            // check them against). Forsslund et al., TEI 2015, Table 1, measured the Phantom Omni's back-drive
+            // friction (0.2 / 0.4 / 1.1 N) and continuous force (0.88 N), neither of which is one of these keys.
             ArmPreset::Touch => PresetFigures {
-                mass_kg: Some(0.045),
-                damping_n_s_per_m: None,
-                position_resolution_m: Some(0.055e-3),
-                latency_s: None,
-                source: "3D Systems Touch specification sheet (> 450 dpi, apparent mass at tip ~45 g); \
-                         damping and latency not sourced",
-            },
-            // Forsslund, Yip and Sallnäs, "WoodenHaptics: a starting kit for crafting force-reflecting
-            // spatial haptic devices", TEI 2015: the paper compares the device with a Phantom Desktop but no
-            // mass, damping, resolution or latency figure was found in what could be read; nor in the
-            // repository (forsslund/woodenhaptics 6b9ad8a: README, parts list, firmware), whose Teensy
-            // firmware README gives only the link's rate, about 1 kHz. None is set.
-            ArmPreset::Woodenhaptics => PresetFigures {
                 mass_kg: None,
                 damping_n_s_per_m: None,
                 position_resolution_m: None,
                 latency_s: None,
-                source: "no sourced figure (Forsslund et al., TEI 2015, gives none that could be checked)",
+                source: "no sourced figure (no copy of 3D Systems' Touch specification could be read)",
+            },
+            // Computed from the parts of the published design: the chai3d 3.0 WoodenHaptics extension in
+            // forsslund/woodenhaptics (Software/chai3d-3.0.0-woodenhaptics-extension.zip, CWoodenDevice.cpp,
+            // default_woody()): capstans 10 mm, bodies A 160 mm and B, C 120 mm across (ratios 16, 12, 12),
+            // encoders 4096 (A) and 2000 (B, C) quadrature counts per motor turn, links Lb = 0.205 m and
+            // Lc = 0.200 m, link masses mB = 0.170 kg and mC = 0.110 kg with centres 0.051 m and 0.091 m from
+            // their joints (the figures its gravity compensation uses).
+            // - Resolution: one count of B's or C's encoder turns the link 2 pi / (2000 x 12) = 2.618e-4 rad,
+            //   at the home pose (B upright, C level) Lb x 2.618e-4 = 0.0537 mm in/out and Lc x 2.618e-4 =
+            //   0.0524 mm up/down (A: 0.200 x 2 pi / (4096 x 16) = 0.0192 mm sideways); the coarsest is set.
+            // - Mass: the links as point masses at their centres, at the home pose: in/out the tip moves with
+            //   B swinging and C carried, mB (0.051 / 0.205)^2 + mC = 0.0105 + 0.110 = 0.1205 kg; up/down with C
+            //   swinging, mC (0.091 / 0.200)^2 = 0.023 kg. The larger is set. It leaves out the Maxon RE40
+            //   rotors reflected through the capstans (x 12^2) and body A: no rotor figure was read, so it is
+            //   a lower bound on the true apparent mass.
+            // Damping and latency: not published (the paper, Forsslund, Yip and Sallnäs, TEI 2015, Table 1,
+            // gives its back-drive friction, 0.6 / 0.7 / 0.9 N, a Coulomb force).
+            ArmPreset::Woodenhaptics => PresetFigures {
+                mass_kg: Some(0.1205),
+                damping_n_s_per_m: None,
+                position_resolution_m: Some(0.0537e-3),
+                latency_s: None,
+                source: "mass and position resolution computed from the WoodenHaptics chai3d extension's \
+                         link masses, encoder counts and capstan ratios; damping and latency not published",
             },
         }
     }

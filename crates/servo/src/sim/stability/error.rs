@@ -1,7 +1,7 @@
 //! Why a stability measurement could not be made.
 
 use crate::sim::{ScenarioError, SimRunError};
-use voxhap_device::sim::SimError;
+use voxhap_device::sim::{SimError, ZohError};
 use voxhap_protocol::LocalBuildError;
 
 /// Why a stability run or a force-error run failed. Each names what was asked.
@@ -46,6 +46,9 @@ pub enum StabilityError {
         /// High end, N/m.
         high_n_per_m: f64,
     },
+    /// The exact zero-order-hold boundary of a loop could not be computed from its figures.
+    #[error(transparent)]
+    Boundary(#[from] ZohError),
     /// A bisection tolerance out of range.
     #[error(
         "tolerance {0}: must be from 0.0001 to 0.5 (a ratio above 1 between the bracket's ends)"

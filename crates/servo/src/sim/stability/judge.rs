@@ -21,6 +21,7 @@ use crate::sim::{self, Scenario};
 use glam::DVec3;
 use std::path::Path;
 use voxhap_core::haptics::tick::SolverKind;
+use voxhap_device::sim::zoh_boundary;
 
 /// Who closes the contact loop, and how fast.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,6 +60,29 @@ impl LoopKind {
             } => damping_n_s_per_m / (0.5 / rate_hz + latency_s),
             LoopKind::Local { device_rate_hz, .. } => damping_n_s_per_m * 2.0 * device_rate_hz,
         }
+    }
+
+    /// The exact zero-order-hold stability boundary of the loop that closes the contact, for an arm of
+    /// `mass_kg` and `damping_n_s_per_m` (`voxhap_device::sim::zoh_boundary`): the host's period and the link's
+    /// latency (any fraction of a period) for a host loop; the device's period and no latency for a local
+    /// model, as for [`Self::bound_n_per_m`].
+    pub fn exact_boundary_n_per_m(
+        &self,
+        mass_kg: f64,
+        damping_n_s_per_m: f64,
+    ) -> Result<f64, StabilityError> {
+        let (period_s, latency_s) = match *self {
+            LoopKind::Host {
+                rate_hz, latency_s, ..
+            } => (1.0 / rate_hz, latency_s),
+            LoopKind::Local { device_rate_hz, .. } => (1.0 / device_rate_hz, 0.0),
+        };
+        Ok(zoh_boundary(
+            mass_kg,
+            damping_n_s_per_m,
+            period_s,
+            latency_s,
+        )?)
     }
 
     /// The rate of the loop that closes the contact, Hz.

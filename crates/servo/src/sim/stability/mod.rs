@@ -23,7 +23,7 @@ pub mod search;
 pub mod setup;
 pub mod stale;
 
-pub use arms::{ArmCase, ARMS, DAMPING_ESTIMATE};
+pub use arms::{ArmCase, ARMS, DAMPING_ESTIMATE, MASS_ESTIMATE};
 pub use error::StabilityError;
 pub use judge::{judge, LoopKind, Verdict};
 pub use memory::MemoryTrace;

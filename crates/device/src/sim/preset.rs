@@ -82,9 +82,8 @@ impl ArmPreset {
                 source: "position resolution: Novint Falcon specification (> 400 dpi); latency: \
                          libnifalcon's 1 ms USB latency timer; mass and damping not published",
             },
-            // No copy of 3D Systems' Touch specification sheet could be read, so none of its figures is set
-            // (an earlier version set a 45 g apparent mass and a 0.055 mm resolution from it without a copy to
-            // check them against). Forsslund et al., TEI 2015, Table 1, measured the Phantom Omni's back-drive
+            // No copy of 3D Systems' Touch specification sheet could be read, so none of its figures is set.
+            // Forsslund et al., TEI 2015, Table 1, measured the Phantom Omni's back-drive
             // friction (0.2 / 0.4 / 1.1 N) and continuous force (0.88 N), neither of which is one of these keys.
             ArmPreset::Touch => PresetFigures {
                 mass_kg: None,

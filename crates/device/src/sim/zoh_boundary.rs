@@ -143,7 +143,7 @@ impl ZohLoop {
             "a finite number >= 0",
         )?;
         let periods = self.latency_s / self.period_s;
-        if !(periods <= MAX_LATENCY_PERIODS) {
+        if periods > MAX_LATENCY_PERIODS || !periods.is_finite() {
             return Err(ZohError::LatencyTooLong {
                 latency_s: self.latency_s,
                 period_s: self.period_s,
@@ -266,7 +266,8 @@ pub fn schur_stable(p: &[f64]) -> bool {
     while p.len() > 1 {
         let n = p.len() - 1;
         let (lead, last) = (p[0], p[n]);
-        if !(lead.abs() > last.abs()) {
+        // NaN coefficients compare as unordered: not stable.
+        if lead.abs().partial_cmp(&last.abs()) != Some(std::cmp::Ordering::Greater) {
             return false;
         }
         p = (0..n).map(|i| lead * p[i] - last * p[n - i]).collect();

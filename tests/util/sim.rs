@@ -4,9 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use voxhap::haptics::tick::SolverKind;
-use voxhap::record::{
-    create_trace_writer, read_trace, Trace, TraceFormat, TraceMeta, TraceSample,
-};
+use voxhap::record::{create_trace_writer, read_trace, Trace, TraceFormat, TraceMeta, TraceSample};
 use voxhap::sim::{self, LoadedScenario, Scenario, SimSummary};
 
 /// The repository's sims/ directory.

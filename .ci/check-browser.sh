@@ -24,30 +24,7 @@ name=check-browser
 . .ci/lib.sh
 say() { echo "$name: $*"; }
 
-# ---- Chromium
-find_chromium() {
-  local name
-  for name in chromium chromium-browser; do
-    if command -v "$name" >/dev/null 2>&1; then
-      command -v "$name"
-      return 0
-    fi
-  done
-  return 1
-}
-CHROMIUM=$(find_chromium || true)
-if [ -z "$CHROMIUM" ] && [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
-  say "chromium not found; trying apt-get install -y chromium"
-  export DEBIAN_FRONTEND=noninteractive
-  if ! timeout 300 apt-get install -y -qq chromium >/tmp/check-browser-apt.log 2>&1; then
-    timeout 120 apt-get update -qq >>/tmp/check-browser-apt.log 2>&1 || true
-    timeout 300 apt-get install -y -qq chromium >>/tmp/check-browser-apt.log 2>&1 || true
-  fi
-  CHROMIUM=$(find_chromium || true)
-fi
-if [ -z "$CHROMIUM" ]; then
-  missing "no chromium or chromium-browser found (and it could not be installed); the page was not checked"
-fi
+need_chromium "the page was not checked"
 command -v python3 >/dev/null 2>&1 || missing "python3 is needed to check the screenshots"
 say "using $CHROMIUM ($("$CHROMIUM" --version 2>/dev/null | head -1))"
 
@@ -55,14 +32,12 @@ say "using $CHROMIUM ($("$CHROMIUM" --version 2>/dev/null | head -1))"
 find_voxhap check-browser
 make_work_dir check-browser
 
-PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 TOKEN=TESTTOKEN
-BASE="http://127.0.0.1:$PORT"
-say "starting $VOXHAP serve on $BASE"
-"$VOXHAP" serve --http "127.0.0.1:$PORT" --token "$TOKEN" --duration 900 >"$WORK/server.log" 2>&1 &
-SERVER_PID=$!
+start_serve --http 127.0.0.1:0 --token "$TOKEN" --duration 900
+serve_listening http
+BASE=$LISTENING
 
-server_log() { echo "--- server output:" >&2; tail -n 30 "$WORK/server.log" >&2 || true; }
+server_log() { echo "--- server output:" >&2; serve_output | tail -n 30 >&2 || true; }
 
 # Wait (up to 30 s) for /api/state to answer with a state.
 if ! python3 - "$BASE" <<'EOF'
@@ -168,16 +143,11 @@ fi
 # ---- 3. Drag the virtual hand and use the controls (playwright-core).
 if [ "${SKIP_E2E:-}" = "1" ]; then
   say "SKIP: browser interaction test (SKIP_E2E=1)"
-elif ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
-  missing "browser interaction test: node or npm not found"
 else
-  mkdir -p "$WORK/npm"
-  if (cd "$WORK/npm" && timeout 120 npm install --silent --no-audit --no-fund --no-save playwright-core >"$WORK/npm.log" 2>&1); then
-    NODE_PATH="$WORK/npm/node_modules" timeout 600 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
-      || { server_log; fail "the browser interaction test failed"; }
-  else
-    missing "browser interaction test: npm could not install playwright-core: $(tail -n 1 "$WORK/npm.log")"
-  fi
+  need_node_npm "the browser interaction test was not run"
+  npm_into "$WORK/npm" "browser interaction test: npm install of playwright-core" install --no-save playwright-core
+  NODE_PATH="$WORK/npm/node_modules" timeout 600 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
+    || { server_log; fail "the browser interaction test failed"; }
 fi
 
 kill -0 "$SERVER_PID" 2>/dev/null || { server_log; fail "the server exited during the checks"; }

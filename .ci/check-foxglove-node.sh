@@ -18,42 +18,20 @@ cd "$(dirname "$0")/.."
 name=check-foxglove-node
 . .ci/lib.sh
 
-command -v node >/dev/null 2>&1 || missing "node is not installed"
-command -v npm >/dev/null 2>&1 || missing "npm is not installed"
+need_node_npm
 
 make_work_dir voxhap-foxglove-node
 trap 'exit 130' INT TERM
 
 echo "$name: installing @foxglove/ws-protocol, ws and protobufjs into $WORK (node $(node --version), npm $(npm --version 2>/dev/null))"
-if ! timeout 120 npm install --prefix "$WORK" --no-audit --no-fund --no-save --loglevel=error \
-  @foxglove/ws-protocol ws protobufjs >"$WORK/npm.log" 2>&1; then
-  tail -n 5 "$WORK/npm.log" | sed "s/^/$name: npm: /"
-  missing "npm install of @foxglove/ws-protocol, ws and protobufjs failed (offline or no registry access)"
-fi
-versions=$(cd "$WORK" && node -e 'for (const p of ["@foxglove/ws-protocol", "ws", "protobufjs"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')
-echo "$name: installed $versions"
+npm_into "$WORK" "npm install of @foxglove/ws-protocol, ws and protobufjs" install --no-save @foxglove/ws-protocol ws protobufjs
+echo "$name: installed $(npm_versions "$WORK" @foxglove/ws-protocol ws protobufjs)"
 
 find_voxhap "$name"
-# Long enough for a loaded CI machine; stopped below as soon as the client is done.
-serve_args=(serve --foxglove 127.0.0.1:0 --duration 600 --no-http)
-echo "$name: starting $VOXHAP ${serve_args[*]}"
-"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
-SERVER_PID=$!
-
-url=""
-for _ in $(seq 1 600); do
-  line=$(grep -m1 '^foxglove: listening on ws://' "$WORK/serve.out" || true)
-  if [ -n "$line" ]; then
-    url=${line#foxglove: listening on }
-    break
-  fi
-  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
-    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
-    fail "voxhap serve exited before its Foxglove server was listening"
-  fi
-  sleep 0.1
-done
-[ -n "$url" ] || fail "voxhap serve did not print 'foxglove: listening on ws://...' within 60 s"
+# Long enough for a loaded CI machine; the exit trap stops it as soon as the client is done.
+start_serve --foxglove 127.0.0.1:0 --duration 600 --no-http
+serve_listening foxglove
+url=$LISTENING
 echo "$name: voxhap serve is listening on $url"
 
 cp .ci/foxglove-subscribe.mjs "$WORK/"
@@ -63,7 +41,4 @@ if ! node "$WORK/foxglove-subscribe.mjs" "$url" contrib/foxglove/voxhap-layout.j
   fail "the Node client's checks failed (see above)"
 fi
 
-kill "$SERVER_PID" 2>/dev/null || true
-wait "$SERVER_PID" 2>/dev/null || true
-SERVER_PID=""
 echo "$name: passed"

@@ -24,24 +24,11 @@ find_voxhap "$name"
 
 token=igtl-check-token-0123
 rate=${VOXHAP_IGTL_RATE:-60}
-serve_args=(serve --igtl 127.0.0.1:0 --igtl-rate "$rate" --http 127.0.0.1:0 --token "$token" --no-foxglove
-  --duration 120)
-echo "$name: starting $VOXHAP ${serve_args[*]}"
-"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
-SERVER_PID=$!
-
-igtl="" http=""
-for _ in $(seq 1 150); do
-  igtl=$(sed -n 's/^igtl: listening on \([^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
-  http=$(sed -n 's/^http: listening on \(http:[^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
-  [ -n "$igtl" ] && [ -n "$http" ] && break
-  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
-    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
-    fail "voxhap serve exited before its OpenIGTLink server was listening"
-  fi
-  sleep 0.1
-done
-[ -n "$igtl" ] && [ -n "$http" ] || fail "voxhap serve did not print its igtl and http addresses within 15 s"
+start_serve --igtl 127.0.0.1:0 --igtl-rate "$rate" --http 127.0.0.1:0 --token "$token" --no-foxglove --duration 120
+serve_listening igtl
+igtl=$LISTENING
+serve_listening http
+http=$LISTENING
 grep -q "^igtl: control token $token\$" "$WORK/serve.out" || fail "voxhap serve did not print 'igtl: control token $token'"
 echo "$name: voxhap serve: OpenIGTLink on $igtl, HTTP on $http"
 

@@ -3,7 +3,8 @@
 # panic = "abort"), checks that include/voxhap_local.h (hand-written) declares exactly the functions the library
 # exports, then compiles local-ffi/tests/test_local_ffi.c with the host's gcc (-std=c99 -pedantic -Werror),
 # links it against the library and runs it on protocol/vectors: it drives the device as a C firmware would and
-# checks the force against SPEC section 10.5 for the vector local/local_model_wall.hex.
+# checks the force against SPEC section 10.5 for the vector local/local_model_wall.hex. Its checks and vector reader
+# are the firmware tests' (firmware/tests/check.h).
 #
 # In CI (CI=true) a missing gcc is installed with apt-get and a failed install fails the check; elsewhere a missing
 # gcc skips visibly.
@@ -41,7 +42,7 @@ fi
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/$name.XXXXXX")
 trap 'rm -rf "$work"' EXIT
-gcc -std=c99 -Wall -Wextra -Werror -pedantic -Ilocal-ffi/include \
+gcc -std=c99 -Wall -Wextra -Werror -pedantic -Ilocal-ffi/include -Ifirmware/tests \
   local-ffi/tests/test_local_ffi.c "$lib" -lm -o "$work/test_local_ffi" \
   || fail "the C test does not compile or link against the library"
 "$work/test_local_ffi" protocol/vectors || fail "the C test failed"

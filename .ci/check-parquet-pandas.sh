@@ -12,7 +12,8 @@
 #     key-value metadata) holding the point's swept values; polars and pyarrow read the same rows. DuckDB and
 #     polars are pip-installed; in CI a failed install fails the check, elsewhere this part skips visibly.
 #  4. Parquet column encodings and codecs (plain, dictionary, BYTE_STREAM_SPLIT; none, Snappy, zstd) measured on
-#     a moving ten-minute trace by python/bench/parquet_encodings.py, with its size per hour and ratio to CSV.
+#     a moving ten-minute trace by python/bench/parquet_encodings.py, with its size per hour and ratio to CSV;
+#     the figures docs/traces.md quotes must agree with it (3 %; 0.5 % for voxhap's own file and the CSV).
 # (The example notebook needs the voxhap Python package: .ci/check-python.sh runs it.)
 #
 # Installs pandas and pyarrow with pip (into the user's Python, like .ci/run does for mcap). In CI (CI set) a
@@ -20,7 +21,8 @@
 # built (writing the one-hour trace with the debug binary takes about 25 s).
 #
 # Environment: VOXHAP_BIN (a voxhap binary to use instead of building target/release/voxhap, e.g.
-# target/release/voxhap after cargo test --release), VOXHAP_PARQUET_LOAD_MAX_S (unset: no time limit).
+# target/release/voxhap after cargo test --release), VOXHAP_PARQUET_LOAD_MAX_S (unset: no time limit),
+# VOXHAP_BLESS=1 (write the measured Parquet figures into docs/traces.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -82,7 +84,9 @@ fi
 # row group as in an hour's file; the sizes grow in proportion to the rows). Ten minutes and not an hour: the
 # hour's CSV alone is 2.4 GB, and the rewrites need as much again, more disk than a CI machine may have.
 # Fails when the writer's choice (float columns BYTE_STREAM_SPLIT, integers DELTA_BINARY_PACKED, Snappy) is
-# not the smallest among the codecs it has.
+# not the smallest among the codecs it has, or when a figure docs/traces.md quotes from this measurement is more
+# than 3 % from it (voxhap's own file and the CSV: 0.5 %; rows and columns: at all); VOXHAP_BLESS=1 writes the
+# measured figures into docs/traces.md.
 moving_s=600
 echo "$name: Parquet encodings on a moving ${moving_s} s trace (sizes per hour scaled from it)"
 rm -f "$WORK/hour.parquet" "$WORK/hour.parquet.json"
@@ -92,7 +96,8 @@ rm -f "$WORK/hour.parquet" "$WORK/hour.parquet.json"
   || fail "voxhap sim sims/multimodal.toml --duration $moving_s --out moving.csv"
 # The rewrites go to $WORK, which the trap removes, one file at a time.
 TMPDIR="$WORK" python3 python/bench/parquet_encodings.py "$WORK/moving.parquet" --csv "$WORK/moving.csv" \
-  --expect-best bss+delta/snappy || fail "the Parquet encodings measurement"
+  --expect-best bss+delta/snappy --doc docs/traces.md $([ "${VOXHAP_BLESS:-}" = 1 ] && echo --bless) \
+  || fail "the Parquet encodings measurement (or the figures docs/traces.md quotes from it)"
 rm -f "$WORK/moving.parquet" "$WORK/moving.csv" "$WORK/moving.parquet.json" "$WORK/moving.csv.json"
 
 echo "$name: voxhap sweep --format parquet as one dataset (DuckDB, polars, pyarrow)"

@@ -29,24 +29,11 @@ find_voxhap "$name"
 token=ros2-check-token-0123
 domain=${VOXHAP_ROS2_DOMAIN:-$((150 + $$ % 50))}
 export CYCLONEDDS_URI='<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>'
-serve_args=(serve --ros2 --ros2-domain "$domain" --ros2-localhost-only --http 127.0.0.1:0 --token "$token"
-  --no-foxglove --duration 150 --external-force)
-echo "$name: starting $VOXHAP ${serve_args[*]}"
-"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
-SERVER_PID=$!
-
-http=""
-for _ in $(seq 1 150); do
-  http=$(sed -n 's/^http: listening on \(http:[^ ]*\).*/\1/p' "$WORK/serve.out" | head -1)
-  grep -q '^ros2: publishing' "$WORK/serve.out" && [ -n "$http" ] && break
-  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
-    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
-    fail "voxhap serve exited before its ROS 2 output started"
-  fi
-  sleep 0.1
-done
-grep -q '^ros2: publishing' "$WORK/serve.out" && [ -n "$http" ] \
-  || fail "voxhap serve did not print its http address and 'ros2: publishing' within 15 s"
+start_serve --ros2 --ros2-domain "$domain" --ros2-localhost-only --http 127.0.0.1:0 --token "$token" \
+  --no-foxglove --duration 150 --external-force
+serve_listening http
+http=$LISTENING
+serve_waits_for '^ros2: publishing' "'ros2: publishing ...'"
 echo "$name: voxhap serve: $(grep '^ros2: publishing' "$WORK/serve.out"); HTTP on $http"
 grep -q '^ros2: subscribed to /voxhap/servo_cf (geometry_msgs/msg/WrenchStamped, best effort)' "$WORK/serve.out" \
   && grep -q '^external force: accepted (set_external_force, /voxhap/servo_cf), added before the safety pipeline, zero 0.1 s after the last one$' "$WORK/serve.out" \

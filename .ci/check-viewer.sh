@@ -24,63 +24,24 @@ name=check-viewer
 say() { echo "$name: $*"; }
 started=$(date +%s)
 
-find_chromium() {
-  local n
-  for n in chromium chromium-browser; do
-    if command -v "$n" >/dev/null 2>&1; then
-      command -v "$n"
-      return 0
-    fi
-  done
-  return 1
-}
-CHROMIUM=$(find_chromium || true)
-if [ -z "$CHROMIUM" ] && in_ci && [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
-  say "chromium not found; apt-get install -y chromium"
-  export DEBIAN_FRONTEND=noninteractive
-  if ! timeout 300 apt-get install -y -qq chromium >/tmp/check-viewer-apt.log 2>&1; then
-    timeout 120 apt-get update -qq >>/tmp/check-viewer-apt.log 2>&1 || true
-    timeout 300 apt-get install -y -qq chromium >>/tmp/check-viewer-apt.log 2>&1 || true
-  fi
-  CHROMIUM=$(find_chromium || true)
-fi
-[ -n "$CHROMIUM" ] || missing "no chromium or chromium-browser found (and it could not be installed)"
-command -v node >/dev/null 2>&1 || missing "node is not installed"
-command -v npm >/dev/null 2>&1 || missing "npm is not installed"
+need_chromium
+need_node_npm
 
 make_work_dir voxhap-viewer
 trap 'exit 130' INT TERM
 
 say "npm ci of .ci/viewer/package-lock.json into $WORK (node $(node --version), $("$CHROMIUM" --version 2>/dev/null | head -1))"
 cp .ci/viewer/package.json .ci/viewer/package-lock.json "$WORK/"
-if ! (cd "$WORK" && timeout 300 npm ci --no-audit --no-fund --loglevel=error >"$WORK/npm.log" 2>&1); then
-  tail -n 5 "$WORK/npm.log" | sed "s/^/$name: npm: /"
-  missing "npm ci of .ci/viewer (@foxglove/studio-base, react, react-dom, playwright-core) failed (offline or no registry access)"
-fi
-say "installed $(cd "$WORK" && node -e 'for (const p of ["@foxglove/studio-base", "react", "react-dom", "playwright-core"]) process.stdout.write(`${p}@${require(`${p}/package.json`).version} `)')in $(($(date +%s) - started)) s"
+npm_into "$WORK" "npm ci of .ci/viewer (@foxglove/studio-base, react, react-dom, playwright-core)" ci
+say "installed $(npm_versions "$WORK" @foxglove/studio-base react react-dom playwright-core)in $(($(date +%s) - started)) s"
 
 find_voxhap "$name"
 "$VOXHAP" sim sims/sphere_surface.toml --out "$WORK/sim.mcap" --duration 2 >"$WORK/sim.out" 2>&1 \
   || { cat "$WORK/sim.out" >&2; fail "voxhap sim --out failed"; }
 
-serve_args=(serve --foxglove 127.0.0.1:0 --duration 900 --no-http)
-say "starting $VOXHAP ${serve_args[*]}"
-"$VOXHAP" "${serve_args[@]}" >"$WORK/serve.out" 2>"$WORK/serve.err" &
-SERVER_PID=$!
-url=""
-for _ in $(seq 1 600); do
-  line=$(grep -m1 '^foxglove: listening on ws://' "$WORK/serve.out" || true)
-  if [ -n "$line" ]; then
-    url=${line#foxglove: listening on }
-    break
-  fi
-  if ! kill -0 "$SERVER_PID" 2>/dev/null; then
-    cat "$WORK/serve.out" "$WORK/serve.err" | sed "s/^/$name: serve: /" >&2
-    fail "voxhap serve exited before its Foxglove server was listening"
-  fi
-  sleep 0.1
-done
-[ -n "$url" ] || fail "voxhap serve did not print 'foxglove: listening on ws://...' within 60 s"
+start_serve --foxglove 127.0.0.1:0 --duration 900 --no-http
+serve_listening foxglove
+url=$LISTENING
 
 mkdir -p "$WORK/shots"
 status=0

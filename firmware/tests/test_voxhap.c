@@ -2,6 +2,7 @@
  * (written by protocol/vectors/generate.py, an independent Python implementation), never from the code under test.
  * Run: make -C firmware test. Usage: test_voxhap VECTORS_DIR */
 #include "voxhap.h"
+#include "check.h"
 
 #include <dirent.h>
 #include <float.h>
@@ -9,69 +10,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-static int failures = 0, checks = 0;
-
-#define CHECK(cond)                                                                                                \
-    do {                                                                                                           \
-        checks++;                                                                                                  \
-        if (!(cond)) {                                                                                             \
-            failures++;                                                                                            \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);                             \
-        }                                                                                                          \
-    } while (0)
-#define CHECK_EQ(a, b)                                                                                             \
-    do {                                                                                                           \
-        unsigned long long va_ = (unsigned long long)(a), vb_ = (unsigned long long)(b);                           \
-        checks++;                                                                                                  \
-        if (va_ != vb_) {                                                                                          \
-            failures++;                                                                                            \
-            fprintf(stderr, "%s:%d: %s == %s failed: 0x%llx != 0x%llx\n", __FILE__, __LINE__, #a, #b, va_, vb_); \
-        }                                                                                                          \
-    } while (0)
-
-static const char *vectors_dir = "../protocol/vectors";
-
-/* ------------------------------------------------------------------------------------------------ vector files */
-
-typedef struct {
-    uint8_t bytes[128];
-    size_t len;
-} wire;
-
-/* Reads the `serial:` line of NAME.hex. */
-static wire load_vector(const char *name) {
-    char path[512], line[1024];
-    wire w;
-    FILE *f;
-    int found = 0;
-    memset(&w, 0, sizeof w);
-    snprintf(path, sizeof path, "%s/%s.hex", vectors_dir, name);
-    f = fopen(path, "r");
-    if (!f) {
-        fprintf(stderr, "cannot open %s\n", path);
-        failures++;
-        return w;
-    }
-    while (fgets(line, sizeof line, f)) {
-        if (strncmp(line, "serial:", 7) == 0) {
-            char *p = line + 7;
-            unsigned v;
-            int used;
-            while (sscanf(p, " %2x%n", &v, &used) == 1 && w.len < sizeof w.bytes) {
-                w.bytes[w.len++] = (uint8_t)v;
-                p += used;
-            }
-            found = 1;
-        }
-    }
-    fclose(f);
-    if (!found) {
-        fprintf(stderr, "%s has no serial: line\n", path);
-        failures++;
-    }
-    return w;
-}
 
 /* Decodes a whole host-to-device wire frame; returns the number of messages and the last one. */
 static int decode_host(const wire *w, voxhap_host_msg *out) {

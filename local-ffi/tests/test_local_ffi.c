@@ -8,56 +8,11 @@
  *
  * Usage: test_local_ffi VECTORS_DIR. Exit status 0 when every check passes. */
 #include "voxhap_local.h"
+#include "check.h" /* firmware/tests/check.h */
 
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-
-static int failures = 0, checks = 0;
-#define CHECK(cond)                                                                     \
-    do {                                                                                \
-        checks++;                                                                       \
-        if (!(cond)) {                                                                  \
-            failures++;                                                                 \
-            if (failures < 20) fprintf(stderr, "%s:%d: %s failed\n", __FILE__, __LINE__, #cond); \
-        }                                                                               \
-    } while (0)
-
-typedef struct {
-    uint8_t bytes[128];
-    size_t len;
-} wire;
-
-static const char *vectors = "../protocol/vectors";
-
-/* The `serial:` line of a vector file. */
-static wire load(const char *name) {
-    char path[512], line[1024];
-    wire w;
-    FILE *f;
-    memset(&w, 0, sizeof w);
-    snprintf(path, sizeof path, "%s/%s.hex", vectors, name);
-    f = fopen(path, "r");
-    if (!f) {
-        fprintf(stderr, "cannot open %s\n", path);
-        failures++;
-        return w;
-    }
-    while (fgets(line, sizeof line, f)) {
-        if (strncmp(line, "serial:", 7) == 0) {
-            char *p = line + 7;
-            unsigned v;
-            int used;
-            while (sscanf(p, " %2x%n", &v, &used) == 1 && w.len < sizeof w.bytes) {
-                w.bytes[w.len++] = (uint8_t)v;
-                p += used;
-            }
-        }
-    }
-    fclose(f);
-    CHECK(w.len > 0);
-    return w;
-}
 
 static uint64_t storage[VOXHAP_LOCAL_STORAGE_WORDS];
 static uint64_t now_us = 0;
@@ -91,10 +46,10 @@ int main(int argc, char **argv) {
     wire hello, enable, model;
     int i, status;
     float previous = 0.0f, largest_rise = 0.0f;
-    if (argc > 1) vectors = argv[1];
-    hello = load("hello");
-    enable = load("enable");
-    model = load("local/local_model_wall");
+    if (argc > 1) vectors_dir = argv[1];
+    hello = load_vector("hello");
+    enable = load_vector("enable");
+    model = load_vector("local/local_model_wall");
 
     /* The storage the header promises is enough, and the library agrees with the header. */
     CHECK(voxhap_local_storage_size() <= sizeof storage);

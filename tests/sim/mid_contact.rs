@@ -11,30 +11,9 @@
 //! continuously (the force rising by no more than the safety pipeline's default slew limit, 0.5 N per
 //! millisecond, docs/safety.md), where applied at once it jumps by more.
 
-use voxhap::haptics::tick::SolverKind;
-use voxhap::record::{create_trace_writer, read_trace, TraceFormat, TraceMeta, TraceSample};
-use voxhap::sim::{self, Scenario, SimSummary};
-
-/// Runs a scenario's text through the sim runner; returns the summary and the trace's samples.
-fn run_text(text: &str, origin: &str) -> (SimSummary, Vec<TraceSample>) {
-    let scenario = Scenario::parse(text, origin).unwrap_or_else(|e| panic!("{origin}: {e}"));
-    let loaded = scenario
-        .load(&crate::util::sim::sims_dir(), origin)
-        .unwrap_or_else(|e| panic!("{origin}: {e}"));
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("t.csv");
-    let meta = TraceMeta::new(
-        loaded.scene.mode_names().to_vec(),
-        loaded.scenario.rate_hz,
-        serde_json::to_value(&loaded.scenario).unwrap(),
-        loaded.volume_description.clone(),
-        "exact",
-    );
-    let mut writer = create_trace_writer(&out, TraceFormat::Csv, &meta).unwrap();
-    let summary = sim::run(&loaded, SolverKind::Exact, writer.as_mut(), |_| {}).unwrap();
-    writer.finish().unwrap();
-    (summary, read_trace(&out).unwrap().samples)
-}
+use crate::util::sim::run_text;
+use voxhap::record::TraceSample;
+use voxhap::sim::SimSummary;
 
 /// The safety pipeline's default slew limit (N per ms; crates/device/src/safety.rs `SafetyConfig`).
 const SLEW_N_PER_MS: f64 = 0.5;
@@ -67,7 +46,7 @@ struct Cycle {
 
 impl Cycle {
     fn run(text: &str) -> Cycle {
-        let (summary, samples) = run_text(text, "mid-contact");
+        let (summary, samples, _) = run_text(text, "mid-contact");
         Cycle { summary, samples }
     }
 

@@ -4,31 +4,15 @@
 //! with delay), and the energy the hand is given is summed here from the trace (the force that acted over each
 //! step, `latency` ticks after it was sent, times the step), plus the coupling spring's energy at the end.
 
-use crate::util::sim::{sims_dir, voxhap};
+use crate::util::sim::{run_text, sims_dir, voxhap};
 use std::ffi::OsStr;
-use voxhap::haptics::tick::SolverKind;
-use voxhap::record::{create_trace_writer, read_trace, TraceFormat, TraceMeta, TraceSample};
-use voxhap::sim::{self, Scenario, SimSummary};
+use voxhap::record::TraceSample;
+use voxhap::sim::{Scenario, SimSummary};
 
-/// Runs sims/`name` with its text edited by `edit`, returning the summary and the trace's samples.
+/// Runs sims/`name` with its text edited by `edit`, returning the summary, the trace's samples and the scenario.
 fn run(name: &str, edit: impl Fn(String) -> String) -> (SimSummary, Vec<TraceSample>, Scenario) {
-    let path = sims_dir().join(name);
-    let text = edit(std::fs::read_to_string(&path).unwrap());
-    let scenario = Scenario::parse(&text, name).unwrap();
-    let loaded = scenario.load(&sims_dir(), name).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("t.csv");
-    let meta = TraceMeta::new(
-        loaded.scene.mode_names().to_vec(),
-        loaded.scenario.rate_hz,
-        serde_json::to_value(&loaded.scenario).unwrap(),
-        loaded.volume_description.clone(),
-        "exact",
-    );
-    let mut writer = create_trace_writer(&out, TraceFormat::Csv, &meta).unwrap();
-    let summary = sim::run(&loaded, SolverKind::Exact, writer.as_mut(), |_| {}).unwrap();
-    writer.finish().unwrap();
-    (summary, read_trace(&out).unwrap().samples, loaded.scenario)
+    let text = edit(std::fs::read_to_string(sims_dir().join(name)).unwrap());
+    run_text(&text, name)
 }
 
 /// Energy the coupling gave the hand over the run (J): `sum F_{n-d} . (x_{n+1} - x_n)` with `d` the latency

@@ -531,33 +531,23 @@ pub struct Slice {
     pub volume_max_m: DVec3,
 }
 
-/// On-disk format of a trace. `--format csv|mcap` on the command line, `"csv"`/`"mcap"` in files.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TraceFormat {
-    /// Comma-separated text, one row per tick.
-    Csv,
-    /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
-    /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
-    Mcap,
-    /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
-    /// pandas, polars and DuckDB.
-    Parquet,
+voxhap_core::named_enum! {
+    /// On-disk format of a trace. `--format csv|mcap` on the command line, `"csv"`/`"mcap"` in files.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum TraceFormat {
+        /// Comma-separated text, one row per tick.
+        Csv => "csv",
+        /// MCAP: voxhap's JSON-encoded state and solver messages, plus the probe, proxy and force as Foxglove
+        /// protobuf messages; readable by the `mcap` Python package, Foxglove and Lichtblick.
+        Mcap => "mcap",
+        /// Apache Parquet: the CSV columns, typed and compressed, one row group per second; readable by
+        /// pandas, polars and DuckDB.
+        Parquet => "parquet",
+    }
 }
 
 impl TraceFormat {
-    /// Every format, in declaration order.
-    pub const ALL: [TraceFormat; 3] = [TraceFormat::Csv, TraceFormat::Mcap, TraceFormat::Parquet];
-
-    /// `csv`, `mcap` or `parquet`: the name on the command line and in files.
-    pub fn name(self) -> &'static str {
-        match self {
-            TraceFormat::Csv => "csv",
-            TraceFormat::Mcap => "mcap",
-            TraceFormat::Parquet => "parquet",
-        }
-    }
-
     /// Guesses the format from a file name: `.mcap` is MCAP, `.parquet` Parquet, anything else CSV.
     pub fn from_path(path: &std::path::Path) -> Self {
         match path.extension().and_then(|e| e.to_str()) {

@@ -11,81 +11,47 @@ use glam::DVec3;
 use serde::Serialize;
 use voxhap_core::status::OutputState;
 
-/// Why no force (or less than rendered) can reach the hand this tick, in order of precedence: the first
-/// that applies is reported. `None` means the safety pipeline passes the rendered force (ramping in
-/// included); a zero force in free space is `None` too.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize)]
-#[serde(rename_all = "snake_case")]
-#[repr(u8)]
-pub enum ForceOffCause {
-    /// Force passes the safety pipeline.
-    #[default]
-    None = 0,
-    /// No device connected (it went away, or failed exchanges in a row; reconnecting).
-    Disconnected = 1,
-    /// Connected, not enabled yet: the servo loop must run steadily first.
-    NotEnabled = 2,
-    /// Enabled, waiting for the rendered force to be small before engaging.
-    NotEngaged = 3,
-    /// The device reported a fault that needs a person (which: the `device_fault_bits`); `clear_fault`.
-    DeviceFault = 4,
-    /// The device refused Enable; `clear_fault` retries.
-    EnableRefused = 5,
-    /// The device's own watchdog tripped; re-enabling once the link is healthy.
-    DeviceWatchdog = 6,
-    /// The device's status said it was not enabled although the host had enabled it.
-    DeviceDroppedOut = 7,
-    /// The stall monitor stopped the device while the servo thread was stalled.
-    MonitorStop = 8,
-    /// The host watchdog: the servo loop did not tick within the watchdog timeout.
-    Watchdog = 9,
-    /// The state the force would be rendered from is older than the staleness bound, or no valid state
-    /// came within the link timeout.
-    StaleLink = 10,
-    /// The device's input was rejected: a non-finite probe, or a run of implausible positions dropped the
-    /// link.
-    ImplausibleInput = 11,
-    /// The rendered force was not finite (replaced by zero).
-    InvalidForce = 12,
+voxhap_core::named_enum! {
+    /// Why no force (or less than rendered) can reach the hand this tick, in order of precedence: the first
+    /// that applies is reported. `None` means the safety pipeline passes the rendered force (ramping in
+    /// included); a zero force in free space is `None` too.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize)]
+    #[serde(rename_all = "snake_case")]
+    #[repr(u8)]
+    pub enum ForceOffCause {
+        /// Force passes the safety pipeline.
+        #[default]
+        None = 0 => "none",
+        /// No device connected (it went away, or failed exchanges in a row; reconnecting).
+        Disconnected = 1 => "disconnected",
+        /// Connected, not enabled yet: the servo loop must run steadily first.
+        NotEnabled = 2 => "not_enabled",
+        /// Enabled, waiting for the rendered force to be small before engaging.
+        NotEngaged = 3 => "not_engaged",
+        /// The device reported a fault that needs a person (which: the `device_fault_bits`); `clear_fault`.
+        DeviceFault = 4 => "device_fault",
+        /// The device refused Enable; `clear_fault` retries.
+        EnableRefused = 5 => "enable_refused",
+        /// The device's own watchdog tripped; re-enabling once the link is healthy.
+        DeviceWatchdog = 6 => "device_watchdog",
+        /// The device's status said it was not enabled although the host had enabled it.
+        DeviceDroppedOut = 7 => "device_dropped_out",
+        /// The stall monitor stopped the device while the servo thread was stalled.
+        MonitorStop = 8 => "monitor_stop",
+        /// The host watchdog: the servo loop did not tick within the watchdog timeout.
+        Watchdog = 9 => "watchdog",
+        /// The state the force would be rendered from is older than the staleness bound, or no valid state
+        /// came within the link timeout.
+        StaleLink = 10 => "stale_link",
+        /// The device's input was rejected: a non-finite probe, or a run of implausible positions dropped the
+        /// link.
+        ImplausibleInput = 11 => "implausible_input",
+        /// The rendered force was not finite (replaced by zero).
+        InvalidForce = 12 => "invalid_force",
+    }
 }
 
 impl ForceOffCause {
-    /// Every cause, in code order.
-    pub const ALL: [ForceOffCause; 13] = [
-        ForceOffCause::None,
-        ForceOffCause::Disconnected,
-        ForceOffCause::NotEnabled,
-        ForceOffCause::NotEngaged,
-        ForceOffCause::DeviceFault,
-        ForceOffCause::EnableRefused,
-        ForceOffCause::DeviceWatchdog,
-        ForceOffCause::DeviceDroppedOut,
-        ForceOffCause::MonitorStop,
-        ForceOffCause::Watchdog,
-        ForceOffCause::StaleLink,
-        ForceOffCause::ImplausibleInput,
-        ForceOffCause::InvalidForce,
-    ];
-
-    /// The name written in traces and JSON.
-    pub fn name(self) -> &'static str {
-        match self {
-            ForceOffCause::None => "none",
-            ForceOffCause::Disconnected => "disconnected",
-            ForceOffCause::NotEnabled => "not_enabled",
-            ForceOffCause::NotEngaged => "not_engaged",
-            ForceOffCause::DeviceFault => "device_fault",
-            ForceOffCause::EnableRefused => "enable_refused",
-            ForceOffCause::DeviceWatchdog => "device_watchdog",
-            ForceOffCause::DeviceDroppedOut => "device_dropped_out",
-            ForceOffCause::MonitorStop => "monitor_stop",
-            ForceOffCause::Watchdog => "watchdog",
-            ForceOffCause::StaleLink => "stale_link",
-            ForceOffCause::ImplausibleInput => "implausible_input",
-            ForceOffCause::InvalidForce => "invalid_force",
-        }
-    }
-
     /// The cause with this name.
     pub fn from_name(name: &str) -> Option<ForceOffCause> {
         Self::ALL.into_iter().find(|c| c.name() == name)

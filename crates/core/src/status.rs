@@ -48,67 +48,41 @@ pub mod flags {
     pub const FLAG_DEVICE_FAULTED: u32 = 1 << 16;
 }
 
-/// Where the output stands, for people and traces: why force is or is not reaching the hand.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-#[repr(u8)]
-pub enum OutputState {
-    /// No device.
-    #[default]
-    Disconnected = 0,
-    /// Connected; waiting for the servo loop to run steadily before enabling.
-    Starting = 1,
-    /// Enabled; waiting for the rendered force to be small before engaging.
-    WaitingToEngage = 2,
-    /// Forces ramping in.
-    RampingIn = 3,
-    /// Forces at full strength.
-    Engaged = 4,
-    /// The device dropped out (its watchdog, a stall): enabling again once the link is healthy.
-    Recovering = 5,
-    /// A fault that needs a person: waiting for the operator's `clear_fault`.
-    Faulted = 6,
-    /// The device refused Enable: stays off (check the configuration; `clear_fault` retries).
-    EnableRefused = 7,
-    /// No fresh state for several periods: zero sent.
-    StaleState = 8,
+crate::named_enum! {
+    /// Where the output stands, for people and traces: why force is or is not reaching the hand.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+    #[serde(rename_all = "snake_case")]
+    #[repr(u8)]
+    pub enum OutputState {
+        /// No device.
+        #[default]
+        Disconnected = 0 => "disconnected",
+        /// Connected; waiting for the servo loop to run steadily before enabling.
+        Starting = 1 => "starting",
+        /// Enabled; waiting for the rendered force to be small before engaging.
+        WaitingToEngage = 2 => "waiting_to_engage",
+        /// Forces ramping in.
+        RampingIn = 3 => "ramping_in",
+        /// Forces at full strength.
+        Engaged = 4 => "engaged",
+        /// The device dropped out (its watchdog, a stall): enabling again once the link is healthy.
+        Recovering = 5 => "recovering",
+        /// A fault that needs a person: waiting for the operator's `clear_fault`.
+        Faulted = 6 => "faulted",
+        /// The device refused Enable: stays off (check the configuration; `clear_fault` retries).
+        EnableRefused = 7 => "enable_refused",
+        /// No fresh state for several periods: zero sent.
+        StaleState = 8 => "stale_state",
+    }
 }
 
 impl OutputState {
-    /// Every state, in code order.
-    pub const ALL: [OutputState; 9] = [
-        OutputState::Disconnected,
-        OutputState::Starting,
-        OutputState::WaitingToEngage,
-        OutputState::RampingIn,
-        OutputState::Engaged,
-        OutputState::Recovering,
-        OutputState::Faulted,
-        OutputState::EnableRefused,
-        OutputState::StaleState,
-    ];
-
     /// From its code (unknown codes read as `Disconnected`).
     pub fn from_code(code: u8) -> OutputState {
         OutputState::ALL
             .get(usize::from(code))
             .copied()
             .unwrap_or_default()
-    }
-
-    /// A short name (snake_case, for JSON and the page).
-    pub fn name(self) -> &'static str {
-        match self {
-            OutputState::Disconnected => "disconnected",
-            OutputState::Starting => "starting",
-            OutputState::WaitingToEngage => "waiting_to_engage",
-            OutputState::RampingIn => "ramping_in",
-            OutputState::Engaged => "engaged",
-            OutputState::Recovering => "recovering",
-            OutputState::Faulted => "faulted",
-            OutputState::EnableRefused => "enable_refused",
-            OutputState::StaleState => "stale_state",
-        }
     }
 
     /// What the operator should know.

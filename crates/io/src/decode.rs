@@ -4,36 +4,24 @@
 use crate::error::LoadProblem;
 use std::io::Read;
 
-/// The element type stored in a file.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ScalarType {
-    U8,
-    I8,
-    U16,
-    I16,
-    U32,
-    I32,
-    U64,
-    I64,
-    F32,
-    F64,
+voxhap_core::named_enum! {
+    /// The element type stored in a file.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+    pub enum ScalarType {
+        U8 => "u8",
+        I8 => "i8",
+        U16 => "u16",
+        I16 => "i16",
+        U32 => "u32",
+        I32 => "i32",
+        U64 => "u64",
+        I64 => "i64",
+        F32 => "f32",
+        F64 => "f64",
+    }
 }
 
 impl ScalarType {
-    /// Every type, smallest first.
-    pub const ALL: [ScalarType; 10] = [
-        ScalarType::U8,
-        ScalarType::I8,
-        ScalarType::U16,
-        ScalarType::I16,
-        ScalarType::U32,
-        ScalarType::I32,
-        ScalarType::U64,
-        ScalarType::I64,
-        ScalarType::F32,
-        ScalarType::F64,
-    ];
-
     /// Bytes per element.
     pub fn size_bytes(self) -> usize {
         match self {
@@ -41,22 +29,6 @@ impl ScalarType {
             ScalarType::U16 | ScalarType::I16 => 2,
             ScalarType::U32 | ScalarType::I32 | ScalarType::F32 => 4,
             ScalarType::U64 | ScalarType::I64 | ScalarType::F64 => 8,
-        }
-    }
-
-    /// The Rust-style name: `u8`, `i16`, `f32`, ...
-    pub fn name(self) -> &'static str {
-        match self {
-            ScalarType::U8 => "u8",
-            ScalarType::I8 => "i8",
-            ScalarType::U16 => "u16",
-            ScalarType::I16 => "i16",
-            ScalarType::U32 => "u32",
-            ScalarType::I32 => "i32",
-            ScalarType::U64 => "u64",
-            ScalarType::I64 => "i64",
-            ScalarType::F32 => "f32",
-            ScalarType::F64 => "f64",
         }
     }
 

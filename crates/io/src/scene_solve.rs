@@ -18,15 +18,17 @@ pub const TIMING_RUNS: usize = 101;
 /// ... or of those that fit in this many seconds (at least one).
 pub const TIMING_WALL_S: f64 = 2.0;
 
-/// Which solver solves the scene.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SceneSolver {
-    /// The certified exact solver (dual sweeps plus an active-set finish).
-    Exact,
-    /// The paper's adaptive-step Euler solver on f_res (section 4.3).
-    Euler,
-    /// The constraint approach (paper eq. 1-2): constraint movements added.
-    Constraint,
+voxhap_core::named_enum! {
+    /// Which solver solves the scene.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum SceneSolver {
+        /// The certified exact solver (dual sweeps plus an active-set finish).
+        Exact => "exact",
+        /// The paper's adaptive-step Euler solver on f_res (section 4.3).
+        Euler => "euler",
+        /// The constraint approach (paper eq. 1-2): constraint movements added.
+        Constraint => "constraint",
+    }
 }
 
 /// A solver name that is not one of [`SceneSolver`]'s.
@@ -37,21 +39,6 @@ pub struct UnknownSolver {
 }
 
 impl SceneSolver {
-    pub const ALL: [SceneSolver; 3] = [
-        SceneSolver::Exact,
-        SceneSolver::Euler,
-        SceneSolver::Constraint,
-    ];
-
-    /// The name the command line, the JSON answer and Python use.
-    pub fn name(self) -> &'static str {
-        match self {
-            SceneSolver::Exact => "exact",
-            SceneSolver::Euler => "euler",
-            SceneSolver::Constraint => "constraint",
-        }
-    }
-
     /// The solver of that name.
     pub fn from_name(name: &str) -> Result<SceneSolver, UnknownSolver> {
         Self::ALL

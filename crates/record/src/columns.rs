@@ -142,6 +142,18 @@ fn push_vector(out: &mut Vec<Cell>, v: DVec3) {
     out.extend([Cell::F64(v.x), Cell::F64(v.y), Cell::F64(v.z)]);
 }
 
+/// `row` emptied and filled with the cells of `sample` in column order ([`cells`]); returns them.
+pub(crate) fn refill<'a>(
+    row: &'a mut Vec<Cell>,
+    sample: &TraceSample,
+    mode_count: usize,
+    start_utc_ns: i64,
+) -> &'a [Cell] {
+    row.clear();
+    cells(sample, mode_count, start_utc_ns, row);
+    row
+}
+
 /// The cells of `sample` in column order (as [`columns`] for `mode_count` modes), appended to `out`.
 pub(crate) fn cells(
     sample: &TraceSample,

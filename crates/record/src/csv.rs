@@ -19,7 +19,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
-use crate::columns::{cells, columns, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
+use crate::columns::{columns, refill, sample_from_cells, Cell, ColumnType, PRIMITIVES_PREFIX};
 use crate::error::{TraceError, TraceReadError};
 use crate::meta::is_valid_mode_name;
 use crate::meta::{Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
@@ -64,8 +64,7 @@ impl CsvTraceWriter {
             .collect();
         file.write_all(format!("{}\n", header.join(",")).as_bytes())
             .map_err(io_error)?;
-        let sidecar = Sidecar::new(meta, TraceFormat::Csv, path);
-        sidecar.write_new(&sidecar_path(path))?;
+        let sidecar = Sidecar::create(meta, TraceFormat::Csv, path)?;
         Ok(CsvTraceWriter {
             path: path.to_path_buf(),
             file: Some(file),
@@ -145,8 +144,10 @@ fn write_cells(out: &mut Vec<u8>, row: &[Cell]) {
 #[cfg(test)]
 fn write_row(out: &mut Vec<u8>, s: &TraceSample, start_utc_ns: i64) {
     let mut row = Vec::new();
-    cells(s, usize::from(s.mode_count), start_utc_ns, &mut row);
-    write_cells(out, &row);
+    write_cells(
+        out,
+        refill(&mut row, s, usize::from(s.mode_count), start_utc_ns),
+    );
 }
 
 impl TraceWriter for CsvTraceWriter {
@@ -155,14 +156,13 @@ impl TraceWriter for CsvTraceWriter {
         let Some(sample) = self.checker.admit_to(open, sample)? else {
             return Ok(());
         };
-        self.row.clear();
-        cells(
+        let row = refill(
+            &mut self.row,
             &sample,
             self.checker.mode_count,
             self.start_utc_ns,
-            &mut self.row,
         );
-        write_cells(&mut self.buffer, &self.row);
+        write_cells(&mut self.buffer, row);
         self.buffered_rows += 1;
         if self.buffer.len() >= WRITE_CHUNK_BYTES {
             self.write_buffer()?;
@@ -474,20 +474,14 @@ fn parse_cell(text: &str, column_type: ColumnType) -> Result<Cell, &'static str>
             Ok(())
         }
     };
+    let unsigned = |problem| {
+        integer(problem)?;
+        text.parse().map(Cell::U64).map_err(|_| problem)
+    };
     match column_type {
-        ColumnType::U64 => {
-            integer("not an unsigned integer")?;
-            text.parse()
-                .map(Cell::U64)
-                .map_err(|_| "not an unsigned integer")
-        }
+        ColumnType::U64 => unsigned("not an unsigned integer"),
         ColumnType::OptionalU64 if text.is_empty() => Ok(Cell::Missing),
-        ColumnType::OptionalU64 => {
-            integer("not an unsigned integer or empty")?;
-            text.parse()
-                .map(Cell::U64)
-                .map_err(|_| "not an unsigned integer or empty")
-        }
+        ColumnType::OptionalU64 => unsigned("not an unsigned integer or empty"),
         ColumnType::I64 if text.is_empty() => Ok(Cell::Missing),
         ColumnType::I64 => {
             integer("not an integer")?;

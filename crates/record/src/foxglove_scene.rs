@@ -284,6 +284,28 @@ impl SceneEncodeError {
     }
 }
 
+/// Writes `message` on `channel` through `put`, encoded as protobuf.
+fn put_protobuf(
+    put: &mut ScenePut<'_>,
+    channel: u16,
+    message: &(impl ::foxglove::Encode<Error: Send + Sync + 'static> + ?Sized),
+) -> Result<(), crate::error::TraceError> {
+    put(channel, &|m| {
+        message.encode(m).map_err(SceneEncodeError::protobuf)
+    })
+}
+
+/// Writes `message` on `channel` through `put`, encoded as JSON.
+fn put_json(
+    put: &mut ScenePut<'_>,
+    channel: u16,
+    message: &(impl serde::Serialize + ?Sized),
+) -> Result<(), crate::error::TraceError> {
+    put(channel, &|m| {
+        serde_json::to_writer(m, message).map_err(SceneEncodeError::Json)
+    })
+}
+
 /// Encodes one message into the buffer it is given.
 pub type SceneEncode<'a> = dyn Fn(&mut Vec<u8>) -> Result<(), SceneEncodeError> + 'a;
 /// Writes one message: the channel and its encoder.
@@ -395,7 +417,6 @@ impl RecordedScene {
         time_ns: u64,
         put: &mut ScenePut<'_>,
     ) -> Result<(), crate::error::TraceError> {
-        use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let interval_ns = (1e9 / RECORDED_SCENE_HZ) as u64;
         let since_ns = self
@@ -437,17 +458,11 @@ impl RecordedScene {
         if let Some(frame) = from_frame {
             self.last_scene_ns = Some(time_ns);
             let update = scene_update(frame, timestamp);
-            put(self.primitives, &|m| {
-                update.encode(m).map_err(SceneEncodeError::protobuf)
-            })?;
+            put_protobuf(put, self.primitives, &update)?;
             let bound = BoundMessage::new(frame);
-            put(self.bound, &|m| {
-                serde_json::to_writer(m, &bound).map_err(SceneEncodeError::Json)
-            })?;
+            put_json(put, self.bound, &bound)?;
             let state = OperatingStateMessage::new(frame);
-            put(self.operating_state, &|m| {
-                serde_json::to_writer(m, &state).map_err(SceneEncodeError::Json)
-            })?;
+            put_json(put, self.operating_state, &state)?;
         } else if from_sample {
             self.last_scene_ns = Some(time_ns);
             self.totals.scene_frames_missing += u64::from(self.frames_seen);
@@ -458,9 +473,7 @@ impl RecordedScene {
         if sample.t_s >= *due {
             *due = sample.t_s + 1.0;
             let totals = &self.totals;
-            put(self.stats, &|m| {
-                serde_json::to_writer(m, totals).map_err(SceneEncodeError::Json)
-            })?;
+            put_json(put, self.stats, totals)?;
         }
         Ok(())
     }
@@ -482,7 +495,6 @@ impl RecordedScene {
         time_ns: u64,
         put: &mut ScenePut<'_>,
     ) -> Result<(), crate::error::TraceError> {
-        use ::foxglove::Encode;
         let Some(picture) = &self.picture else {
             return Ok(());
         };
@@ -493,13 +505,9 @@ impl RecordedScene {
             picture.surface.as_ref(),
             time_ns,
         );
-        put(self.volume, &|m| {
-            update.encode(m).map_err(SceneEncodeError::protobuf)
-        })?;
+        put_protobuf(put, self.volume, &update)?;
         for frame in frames {
-            put(self.volume_frame, &|m| {
-                frame.encode(m).map_err(SceneEncodeError::protobuf)
-            })?;
+            put_protobuf(put, self.volume_frame, &frame)?;
         }
         Ok(())
     }
@@ -528,7 +536,6 @@ impl RecordedScene {
         time_ns: u64,
         put: &mut ScenePut<'_>,
     ) -> Result<(), crate::error::TraceError> {
-        use ::foxglove::Encode;
         let timestamp = timestamp_from_ns(time_ns);
         let update = replace_all(
             marker_entities(
@@ -540,9 +547,7 @@ impl RecordedScene {
             ),
             timestamp,
         );
-        put(self.primitives, &|m| {
-            update.encode(m).map_err(SceneEncodeError::protobuf)
-        })?;
+        put_protobuf(put, self.primitives, &update)?;
         let bound = RecordedBound {
             tick: sample.tick,
             t_s: sample.t_s,
@@ -559,15 +564,11 @@ impl RecordedScene {
                 "uncertified"
             },
         };
-        put(self.bound, &|m| {
-            serde_json::to_writer(m, &bound).map_err(SceneEncodeError::Json)
-        })?;
+        put_json(put, self.bound, &bound)?;
         let disabled =
             crate::flags::FLAG_DEVICE_DISCONNECTED | crate::flags::FLAG_DEVICE_NOT_ENABLED;
         let state = OperatingStateMessage::from_truth(sample.flags & disabled == 0, &sample.truth);
-        put(self.operating_state, &|m| {
-            serde_json::to_writer(m, &state).map_err(SceneEncodeError::Json)
-        })
+        put_json(put, self.operating_state, &state)
     }
 
     /// The three slices through the proxy, every [`RECORDED_SLICE_INTERVAL_S`] of tick time, when the
@@ -578,7 +579,6 @@ impl RecordedScene {
         time_ns: u64,
         put: &mut ScenePut<'_>,
     ) -> Result<(), crate::error::TraceError> {
-        use ::foxglove::Encode;
         use voxhap_api::{SliceAxis, SliceRequest};
         let Some(volume) = &self.slice_volume else {
             return Ok(());
@@ -605,9 +605,7 @@ impl RecordedScene {
                 continue;
             };
             let grid = slice_grid(&slice, time_ns);
-            put(channel, &|m| {
-                grid.encode(m).map_err(SceneEncodeError::protobuf)
-            })?;
+            put_protobuf(put, channel, &grid)?;
         }
         Ok(())
     }

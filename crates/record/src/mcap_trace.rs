@@ -59,7 +59,6 @@ use crate::columns::{utc_cell, Cell};
 use crate::error::TraceError;
 use crate::foxglove_scene::RecordedScene;
 use crate::meta::{Sidecar, TraceMeta, TraceSummary};
-use crate::output::sidecar_path;
 use crate::output::{OutputFile, StopSwitch};
 use crate::sample::{SampleChecker, SolverStatus, TraceSample};
 use crate::writer::TraceWriter;
@@ -379,8 +378,7 @@ impl McapTraceWriter {
                 metadata: metadata_strings(meta)?,
             })
             .map_err(mcap_error)?;
-        let sidecar = Sidecar::new(meta, TraceFormat::Mcap, path);
-        sidecar.write_new(&sidecar_path(path))?;
+        let sidecar = Sidecar::create(meta, TraceFormat::Mcap, path)?;
         Ok(McapTraceWriter {
             path: path.to_path_buf(),
             writer: Some(writer),

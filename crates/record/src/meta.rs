@@ -210,6 +210,18 @@ impl Sidecar {
         self.write(&sidecar_path(trace_path))
     }
 
+    /// The sidecar of a trace about to be written at `trace_path`, its first (provisional) version written
+    /// into a new file beside it ([`Self::write_new`]).
+    pub(crate) fn create(
+        meta: &TraceMeta,
+        format: TraceFormat,
+        trace_path: &Path,
+    ) -> Result<Self, TraceError> {
+        let sidecar = Sidecar::new(meta, format, trace_path);
+        sidecar.write_new(&sidecar_path(trace_path))?;
+        Ok(sidecar)
+    }
+
     /// Writes the first (provisional) sidecar into a new file at `path` (never over an existing file, never
     /// through a symlink).
     pub(crate) fn write_new(&self, path: &Path) -> Result<(), TraceError> {

@@ -47,10 +47,9 @@ use parquet::file::metadata::{
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 
-use crate::columns::{cells, columns, Cell, ColumnType};
+use crate::columns::{columns, refill, Cell, ColumnType};
 use crate::error::TraceError;
 use crate::meta::{Sidecar, TraceMeta, TraceSummary};
-use crate::output::sidecar_path;
 use crate::output::{OutputFile, StopSwitch};
 use crate::parquet_schema::{arrow_schema, MAGIC, ROW_GROUP_FOOTER_MAGIC, SIDECAR_KEY};
 use crate::sample::{SampleChecker, TraceSample};
@@ -152,8 +151,7 @@ impl ParquetTraceWriter {
             path: path.to_path_buf(),
             source,
         })?;
-        let sidecar = Sidecar::new(meta, TraceFormat::Parquet, path);
-        sidecar.write_new(&sidecar_path(path))?;
+        let sidecar = Sidecar::create(meta, TraceFormat::Parquet, path)?;
         let builders = columns(&meta.mode_names)
             .iter()
             .map(|c| ColumnBuilder::new(c.column_type))
@@ -342,14 +340,13 @@ impl TraceWriter for ParquetTraceWriter {
             self.group_start_t_s = sample.t_s;
             self.group_opened = Instant::now();
         }
-        self.row.clear();
-        cells(
+        let row = refill(
+            &mut self.row,
             &sample,
             self.checker.mode_count,
             self.start_utc_ns,
-            &mut self.row,
         );
-        for (builder, cell) in self.builders.iter_mut().zip(self.row.iter()) {
+        for (builder, cell) in self.builders.iter_mut().zip(row) {
             builder.append(*cell);
         }
         self.group_rows += 1;

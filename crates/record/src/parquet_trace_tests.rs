@@ -1,6 +1,7 @@
 //! Tests of [`super`].
 
 use super::*;
+use crate::output::sidecar_path;
 use crate::parquet_read::read_parquet_trace;
 use crate::test_support::{meta, samples};
 use crate::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};

@@ -10,48 +10,28 @@ use glam::DVec3;
 use voxhap_api::TickTruth;
 use voxhap_core::haptics::modes::MAX_MODES;
 
-/// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
-/// `voxhap_core::haptics::tick::TickStatus`; `Unknown` for producers that do not say.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum SolverStatus {
-    /// Not reported.
-    #[default]
-    Unknown,
-    /// The exact solver certified its answer within tolerance.
-    Certified,
-    /// The exact solver ran out of budget; the bound is honest but above tolerance.
-    BudgetExhausted,
-    /// The exact solver's bound stopped improving (f64 limit).
-    Stalled,
-    /// A baseline solver ran: no certificate.
-    Uncertified,
-    /// The tick's input was not finite; the proxy was held and no force sent.
-    InputRejected,
+voxhap_core::named_enum! {
+    /// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
+    /// `voxhap_core::haptics::tick::TickStatus`; `Unknown` for producers that do not say.
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+    pub enum SolverStatus {
+        /// Not reported.
+        #[default]
+        Unknown => "unknown",
+        /// The exact solver certified its answer within tolerance.
+        Certified => "certified",
+        /// The exact solver ran out of budget; the bound is honest but above tolerance.
+        BudgetExhausted => "budget_exhausted",
+        /// The exact solver's bound stopped improving (f64 limit).
+        Stalled => "stalled",
+        /// A baseline solver ran: no certificate.
+        Uncertified => "uncertified",
+        /// The tick's input was not finite; the proxy was held and no force sent.
+        InputRejected => "input_rejected",
+    }
 }
 
 impl SolverStatus {
-    /// Every status, in code order.
-    pub const ALL: [SolverStatus; 6] = [
-        SolverStatus::Unknown,
-        SolverStatus::Certified,
-        SolverStatus::BudgetExhausted,
-        SolverStatus::Stalled,
-        SolverStatus::Uncertified,
-        SolverStatus::InputRejected,
-    ];
-
-    /// The name written in traces.
-    pub fn name(self) -> &'static str {
-        match self {
-            SolverStatus::Unknown => "unknown",
-            SolverStatus::Certified => "certified",
-            SolverStatus::BudgetExhausted => "budget_exhausted",
-            SolverStatus::Stalled => "stalled",
-            SolverStatus::Uncertified => "uncertified",
-            SolverStatus::InputRejected => "input_rejected",
-        }
-    }
-
     /// The status with this name.
     pub fn from_name(name: &str) -> Option<SolverStatus> {
         Self::ALL.into_iter().find(|s| s.name() == name)

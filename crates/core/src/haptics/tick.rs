@@ -46,29 +46,18 @@ use serde::{Deserialize, Serialize};
 /// or `dt_s` was not finite; the proxy was held and zero force sent).
 pub use crate::status::flags::{FLAG_NON_FINITE_REPLACED, FLAG_SOLVER_BUDGET_HIT};
 
-/// Which proxy solver a tick runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SolverKind {
-    /// The certified exact solver (docs/solver.md).
-    #[default]
-    Exact,
-    /// The paper's adaptive Euler solver (baseline, uncertified).
-    Euler,
-    /// The constraint approach (baseline, uncertified; shows the non-orthogonal artifact).
-    Constraint,
-}
-
-impl SolverKind {
-    /// Every kind, in declaration order.
-    pub const ALL: [SolverKind; 3] = [SolverKind::Exact, SolverKind::Euler, SolverKind::Constraint];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            SolverKind::Exact => "exact",
-            SolverKind::Euler => "euler",
-            SolverKind::Constraint => "constraint",
-        }
+crate::named_enum! {
+    /// Which proxy solver a tick runs.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum SolverKind {
+        /// The certified exact solver (docs/solver.md).
+        #[default]
+        Exact => "exact",
+        /// The paper's adaptive Euler solver (baseline, uncertified).
+        Euler => "euler",
+        /// The constraint approach (baseline, uncertified; shows the non-orthogonal artifact).
+        Constraint => "constraint",
     }
 }
 

@@ -46,25 +46,32 @@ fn cube(dims: [usize; 3], half_extent_m: f64) -> Result<Grid, VolumeError> {
 }
 
 fn positive(name: &'static str, value: f64) -> Result<(), VolumeError> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
-    } else {
-        Err(VolumeError::BadParameter {
-            name,
-            value,
-            reason: "must be finite and positive",
-        })
-    }
+    require(
+        name,
+        value,
+        value.is_finite() && value > 0.0,
+        "must be finite and positive",
+    )
 }
 
 fn finite(name: &'static str, value: f64) -> Result<(), VolumeError> {
-    if value.is_finite() {
+    require(name, value, value.is_finite(), "must be finite")
+}
+
+/// `Ok` when `holds`, else the parameter `name` = `value` refused for `reason`.
+fn require(
+    name: &'static str,
+    value: f64,
+    holds: bool,
+    reason: &'static str,
+) -> Result<(), VolumeError> {
+    if holds {
         Ok(())
     } else {
         Err(VolumeError::BadParameter {
             name,
             value,
-            reason: "must be finite",
+            reason,
         })
     }
 }

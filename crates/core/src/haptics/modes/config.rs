@@ -18,50 +18,24 @@ use crate::volume::AnyVolume;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-/// What a mode does; the `kind` key of a mode table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ModeKind {
-    Surface,
-    Friction,
-    Viscosity,
-    CoulombDrag,
-    VectorFollow,
-    Vortex,
-    VectorForce,
-    GradientForce,
-    SupportPlane,
+crate::named_enum! {
+    /// What a mode does; the `kind` key of a mode table.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    pub enum ModeKind {
+        Surface => "surface",
+        Friction => "friction",
+        Viscosity => "viscosity",
+        CoulombDrag => "coulomb_drag",
+        VectorFollow => "vector_follow",
+        Vortex => "vortex",
+        VectorForce => "vector_force",
+        GradientForce => "gradient_force",
+        SupportPlane => "support_plane",
+    }
 }
 
 impl ModeKind {
-    /// The name used in scenario files and as the default mode name.
-    pub fn name(self) -> &'static str {
-        match self {
-            ModeKind::Surface => "surface",
-            ModeKind::Friction => "friction",
-            ModeKind::Viscosity => "viscosity",
-            ModeKind::CoulombDrag => "coulomb_drag",
-            ModeKind::VectorFollow => "vector_follow",
-            ModeKind::Vortex => "vortex",
-            ModeKind::VectorForce => "vector_force",
-            ModeKind::GradientForce => "gradient_force",
-            ModeKind::SupportPlane => "support_plane",
-        }
-    }
-
-    /// Every kind, in declaration order.
-    pub const ALL: [ModeKind; 9] = [
-        ModeKind::Surface,
-        ModeKind::Friction,
-        ModeKind::Viscosity,
-        ModeKind::CoulombDrag,
-        ModeKind::VectorFollow,
-        ModeKind::Vortex,
-        ModeKind::VectorForce,
-        ModeKind::GradientForce,
-        ModeKind::SupportPlane,
-    ];
-
     /// True for the active (directed-force) modes, whose work on the hand is intended and bounded by their
     /// power budget: `vector_force` and `gradient_force`.
     pub fn is_active(self) -> bool {

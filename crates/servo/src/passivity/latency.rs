@@ -63,16 +63,17 @@ impl ObserverLatency {
     }
 
     /// What `serve` prints about it: the ticks, the seconds, and where they came from; `None` when the
-    /// observer is off.
+    /// observer is off, and for the simulated arm's own `[arm] latency_s` (the user wrote it there; the
+    /// simulated arm's defaults print nothing).
     pub fn notice(&self, mode: PassivityMode, device: &str, rate_hz: f64) -> Option<String> {
-        if mode == PassivityMode::Off {
+        if mode == PassivityMode::Off || self.origin == LatencyOrigin::SimulatedArm {
             return None;
         }
         let ticks = self.ticks;
         let plural = if ticks == 1 { "" } else { "s" };
         let from = match self.origin {
             LatencyOrigin::Scene => "the scene's [passivity] latency_s".to_owned(),
-            LatencyOrigin::SimulatedArm => "the simulated arm's [arm] latency_s".to_owned(),
+            LatencyOrigin::SimulatedArm => return None,
             LatencyOrigin::Driver(link) if link.round_trips > 0 => format!(
                 "the link latency device {device}'s driver measured at open: the 95th percentile of {} round \
                  trips from a zero force to the State echoing it, rounded up to 0.1 ms (median {:.3} ms)",

@@ -102,7 +102,13 @@ fn the_notice_names_where_the_latency_came_from() {
     let notice = falcon
         .notice(PassivityMode::Observe, "falcon", 1000.0)
         .unwrap();
-    assert!(notice.starts_with("passivity observe: the observer pairs each force with the motion 2 ticks later (2.000 ms at 1000 Hz), from the link latency device falcon's driver declares (FTDI latency timer 1 ms"), "{notice}");
+    assert!(
+        notice.starts_with(
+            "passivity observe: the observer pairs each force with the motion 2 ticks later (2.000 ms at \
+             1000 Hz), from the link latency device falcon's driver declares (FTDI latency timer 1 ms"
+        ),
+        "{notice}"
+    );
     let none = ObserverLatency::choose(&settings, None, None, 1e-3);
     let notice = none.notice(PassivityMode::Control, "x", 1000.0).unwrap();
     assert!(
@@ -110,6 +116,8 @@ fn the_notice_names_where_the_latency_came_from() {
         "{notice}"
     );
     assert_eq!(measured.notice(PassivityMode::Off, "x", 1000.0), None);
+    let arm = ObserverLatency::choose(&settings, Some(0.001), None, 1e-3);
+    assert_eq!(arm.notice(PassivityMode::Control, "sim", 1000.0), None);
 }
 
 /// 255 ticks are paired; a link measured at 300 ms is 300 ticks at 1 kHz, beyond them, and the notice says so;

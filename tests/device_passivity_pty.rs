@@ -125,7 +125,7 @@ fn bound_j(cycles: &[Cycle], d: usize) -> f64 {
     let largest = |f: &dyn Fn(&Cycle) -> [f64; 3]| {
         cycles
             .iter()
-            .flat_map(|c| f(c))
+            .flat_map(f)
             .fold(0.0, |m: f64, v| m.max(v.abs()))
     };
     let f32_step = |v: f64| v * f64::from(f32::EPSILON);

@@ -31,11 +31,11 @@
 //! larger of the log's 1e-12 m and an f32's step at the largest position on the wire, `delta_F` half the
 //! larger of 1e-9 N and an f32's step at the largest force). Both sides come from the device's log and `d`
 //! from serve's notice. It held with the controller on, `W` at most 0.7 µJ against a bound of 2.6 µJ with
-//! `d` = 3 (on a machine at load average 20: 67 µJ against 108 µJ with `d` = 3, and 93 µJ against 244 µJ where the
-//! round trips made `d` = 7); it fails, as it
-//! must, when the observer is told no latency (`latency_s = 0`, 14 mJ against 2.5 mJ) and with the
-//! controller off (320 mJ against 8 mJ). Only what holds whatever the machine's load is asserted: the
-//! times are the device's own, and a late host only adds delay, which the bound's window counts through `d`.
+//! `d` = 3 (on a machine at load average 20: 67 µJ against 108 µJ with `d` = 3, and 93 µJ against 244 µJ
+//! where the round trips made `d` = 7); it fails, as it must, when the observer is told no latency
+//! (`latency_s = 0`: 14 mJ against 2.5 mJ, 74 mJ against 2.6 mJ) and with the controller off (320 mJ against
+//! 8 mJ, 238 mJ against 7 mJ). Only what holds whatever the machine's load is asserted: the times are the
+//! device's own, and a late host only adds delay, which the bound's window counts through `d`.
 
 use crate::util::mock_process::MockProcess as Mock;
 use std::path::Path;

@@ -1,11 +1,14 @@
-//! How late a device's state is on its link: [`LinkLatency`], one figure per real driver from its vendor's
-//! documents or source, for the passivity controller (a transport delay of one tick halves the stable
-//! stiffness, Hulin et al. 2014). A driver reports it through [`crate::HapticDevice::link_latency`];
-//! [`crate::supervisor::Supervisor::link_latency`] reads the connected one.
+//! How late a device's state is on its link: [`LinkLatency`], for the passivity controller (a transport delay
+//! of one tick halves the stable stiffness, Hulin et al. 2014). A driver reports it through
+//! [`crate::HapticDevice::link_latency`]; [`crate::supervisor::Supervisor::link_latency`] reads the connected
+//! one.
 //!
 //! The figure is the time from the host writing a command to the state answering it being readable on the
-//! host, on the path the vendor documents; it is not measured here (no hardware), and each constant says where
-//! its numbers come from.
+//! host. The vendor drivers declare it from the path their vendor documents (the constants below, each saying
+//! where its numbers come from; not measured here, no hardware). voxhap's own protocol driver measures it on
+//! the link at open instead, from the round trips of its zero forces
+//! (`crate::drivers::protocol`, "Link latency"), and says how many it measured in
+//! [`LinkLatency::round_trips`].
 
 use std::time::Duration;
 
@@ -18,6 +21,8 @@ pub struct LinkLatency {
     pub worst: Duration,
     /// Where the figures come from.
     pub source: &'static str,
+    /// How many round trips the figures were measured from; 0 when they come from documents.
+    pub round_trips: u32,
 }
 
 impl LinkLatency {
@@ -28,6 +33,7 @@ impl LinkLatency {
             typical: Duration::from_millis(1),
             worst: Duration::from_millis(2),
             source,
+            round_trips: 0,
         }
     }
 
@@ -79,6 +85,7 @@ pub const HAPLY_INVERSE: LinkLatency = LinkLatency {
     typical: Duration::from_micros(400),
     worst: Duration::from_millis(3),
     source: "voxhap's reply wait and staleness bound; Haply publishes no device-loop latency",
+    round_trips: 0,
 };
 
 #[cfg(test)]

@@ -116,9 +116,9 @@ pub trait HapticDevice {
         Ok(())
     }
 
-    /// How late this device's state is on its link ([`crate::latency`]), from its vendor's documents; `None`
-    /// when the driver does not know (simulations, replays, voxhap's own protocol, which reports its state
-    /// rates instead).
+    /// How late this device's state is on its link ([`crate::latency`]), from its vendor's documents or, for
+    /// voxhap's own protocol, measured on the link at open; `None` when the driver does not know (simulations,
+    /// replays).
     fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
         None
     }

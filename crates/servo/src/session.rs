@@ -26,7 +26,7 @@ use super::device::{
 use super::external_force;
 use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
-use super::passivity::PassivityController;
+use super::passivity::{ObserverLatency, PassivityController};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
@@ -259,14 +259,14 @@ impl Session {
         // the simulated arm's `[arm] latency_s`, else the driver's worst-case link latency (crate::passivity).
         let simulated_arm = opened.hand_target.is_some();
         let passivity_mode = setup.passivity.mode_for(simulated_arm);
-        let declared_latency_s = declared_latency_s(
+        let latency = ObserverLatency::choose(
+            &setup.passivity,
             simulated_arm.then_some(setup.arm.arm.effects.latency_s),
-            device.as_ref(),
+            device.link_latency(),
+            period_s,
         );
-        let latency_ticks = setup
-            .passivity
-            .latency_ticks(declared_latency_s, period_ns as f64 * 1e-9);
-        let passivity = PassivityController::new(passivity_mode, &setup.passivity, latency_ticks);
+        notices.extend(latency.notice(passivity_mode, &spec_label, config.rate_hz));
+        let passivity = PassivityController::new(passivity_mode, &setup.passivity, latency.ticks);
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
@@ -630,85 +630,13 @@ pub fn check_record_path(path: &Path) -> Result<(), MissingRecordDirectory> {
     }
 }
 
-/// The latency (s) the passivity observer pairs with unless `[passivity] latency_s` is written: the simulated
-/// arm's `[arm] latency_s` (`simulated_arm_latency_s`), else the link latency the device's driver declares,
-/// its worst case (crate::passivity::controller, "Latency"); `None` when neither is known.
-fn declared_latency_s(
-    simulated_arm_latency_s: Option<f64>,
-    device: &dyn ServoDevice,
-) -> Option<f64> {
-    simulated_arm_latency_s.or_else(|| {
-        device
-            .link_latency()
-            .map(|latency| latency.worst.as_secs_f64())
-    })
-}
-
 #[cfg(test)]
 #[path = "session_stop_tests.rs"]
 mod stop_tests;
 
 #[cfg(test)]
 mod tests {
-    use super::{capped_busy_wait_ns, declared_latency_s};
-    use glam::DVec3;
-    use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
-    use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
-
-    /// A driver that declares the Falcon's link latency (crates/device/src/latency.rs: FTDI latency timer 1 ms
-    /// plus one 1 ms USB frame, at worst 2 ms), or none.
-    struct Declaring {
-        info: DeviceInfo,
-        falcon: bool,
-    }
-
-    impl HapticDevice for Declaring {
-        type Error = DeviceError;
-        fn info(&self) -> &DeviceInfo {
-            &self.info
-        }
-        fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
-            Ok(())
-        }
-        fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-            Ok(DeviceState::at_rest(DVec3::ZERO))
-        }
-        fn link_latency(&self) -> Option<voxhap_device::latency::LinkLatency> {
-            self.falcon.then_some(voxhap_device::latency::FALCON)
-        }
-    }
-
-    /// `serve`'s observer pairs with what the connected driver declares, through the supervisor: 2 ms for a
-    /// Falcon-like driver (2 ticks at 1 kHz, 8 at 4 kHz), nothing for one that declares none; the simulated
-    /// arm's own latency comes first.
-    #[test]
-    fn the_observer_takes_the_connected_drivers_declared_latency() {
-        for falcon in [true, false] {
-            let info = DeviceInfo::basic("declaring", DVec3::splat(-0.1), DVec3::splat(0.1));
-            let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
-                Ok(Declaring {
-                    info: info.clone(),
-                    falcon,
-                })
-            })
-            .unwrap();
-            let device: &mut dyn crate::device::ServoDevice = &mut supervisor;
-            assert_eq!(declared_latency_s(None, device), None, "not connected yet");
-            device.connect(0).unwrap();
-            let declared = declared_latency_s(None, device);
-            assert_eq!(declared, falcon.then_some(0.002));
-            let settings = crate::passivity::PassivitySettings::default();
-            assert_eq!(
-                settings.latency_ticks(declared, 1e-3),
-                if falcon { 2 } else { 0 }
-            );
-            assert_eq!(
-                settings.latency_ticks(declared, 2.5e-4),
-                if falcon { 8 } else { 0 }
-            );
-            assert_eq!(declared_latency_s(Some(0.001), device), Some(0.001));
-        }
-    }
+    use super::capped_busy_wait_ns;
 
     #[test]
     fn spin_and_warm_leads_are_capped_at_a_quarter_of_the_period() {

@@ -39,90 +39,39 @@
 //! - Fault and Rejected messages are queued as [`DeviceEvent`]s (8 at most, the oldest kept) for the supervisor.
 //! - **emergency_stop** (serial only) pre-encodes a delimiter, a zero SetForce (sequence 0) and a Disable and
 //!   writes them on a second handle of the port, for the stall monitor.
+//! - **Link latency.** The driver measures it rather than declaring a constant (protocol/SPEC.md section 7:
+//!   the State's echo of the last SetForce "gives the round-trip time"): open times the first State's round
+//!   trip and then `latency_probes` more zero forces in lockstep (64 for a servo loop,
+//!   [`ProtocolConfig::for_period`]), each waiting at most `hello_timeout` for the State echoing it, fewer
+//!   when open's deadline comes or three in a row go unanswered (a lost answer never fails open). It
+//!   declares the 95th percentile rounded up to 0.1 ms as the worst case ([`HapticDevice::link_latency`];
+//!   the method and why no wire time is added: `protocol_latency.rs`). Each open measures again.
 //!
 //! Per tick nothing allocates: frames are built on the stack and decoded by the crate's fixed-size decoder.
 
+#[path = "protocol_config.rs"]
+mod config;
+#[path = "protocol_convert.rs"]
+mod convert;
+#[path = "protocol_latency.rs"]
+pub mod latency;
+
 pub use super::protocol_link::{HidLink, MessageLink, SerialLink};
 use super::protocol_rate::LocalStateRate;
-use crate::info::DEFAULT_MAX_SPEED_M_PER_S;
 use crate::local_offer::{LocalOffer, LocalReport};
-use crate::{
-    DeviceError, DeviceEvent, DeviceInfo, DeviceState, DeviceStatus, EmergencyStop, HapticDevice,
+use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, EmergencyStop, HapticDevice};
+pub use config::{
+    ProtocolConfig, DEFAULT_CONNECT_TIMEOUT, DEFAULT_LATENCY_PROBES, MAX_LATENCY_PROBES,
 };
+use convert::{convert_info, convert_state, placeholder_info, to_dvec3};
 use glam::DVec3;
+use latency::RoundTrips;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
     local_model_negotiated, DecoderStats, DeviceToHost, ForceFlags, Heartbeat, HostEvent,
     HostSession, HostToDevice, LocalState, StatusFlags, PROTOCOL_VERSION,
 };
-
-/// Settings of the protocol driver (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ProtocolConfig {
-    /// How long open waits for DeviceInfo after the first Hello before sending another; each later wait is
-    /// twice the one before, up to 1 s (or this, if longer).
-    pub hello_timeout: Duration,
-    /// How long open waits in all for a DeviceInfo answering one of its Hellos, and then again for the State
-    /// answering its first zero force (`serve --connect-timeout`).
-    pub connect_timeout: Duration,
-    /// How long `read_state` waits for the State answering the last SetForce; at most a servo period, so
-    /// device I/O never holds up the servo thread for longer (`open_device` sets half a period).
-    pub state_timeout: Duration,
-    /// The device's own force watchdog, sent with Enable (µs, 1 000 ..= 1 000 000).
-    pub device_watchdog_us: u32,
-    /// The servo period: with what the link carries, it sets the State rate of a local-model session
-    /// ([`super::protocol_rate`]).
-    pub period: Duration,
-}
-
-/// The handshake's default patience for a device's answer (`serve --connect-timeout`).
-pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
-
-/// The longest wait between two Hellos (unless `hello_timeout` is longer).
-const MAX_HELLO_INTERVAL: Duration = Duration::from_secs(1);
-
-impl Default for ProtocolConfig {
-    fn default() -> Self {
-        ProtocolConfig {
-            hello_timeout: Duration::from_millis(100),
-            connect_timeout: DEFAULT_CONNECT_TIMEOUT,
-            state_timeout: Duration::from_micros(500),
-            device_watchdog_us: 50_000,
-            period: Duration::from_millis(1),
-        }
-    }
-}
-
-impl ProtocolConfig {
-    /// The defaults for a servo loop of `period`: States are waited for at most half a period.
-    pub fn for_period(period: Duration) -> ProtocolConfig {
-        ProtocolConfig {
-            state_timeout: (period / 2).max(Duration::from_micros(50)),
-            period,
-            ..ProtocolConfig::default()
-        }
-    }
-
-    /// How long open waits after each Hello: `hello_timeout`, then twice the last wait up to 1 s, until the
-    /// waits add up to `connect_timeout` (the last one cut short). At least one Hello is always sent.
-    pub fn hello_waits(&self) -> impl Iterator<Item = Duration> {
-        let first = self.hello_timeout.max(Duration::from_millis(1));
-        let cap = MAX_HELLO_INTERVAL.max(first);
-        let total = self.connect_timeout.max(first);
-        let mut spent = Duration::ZERO;
-        let mut next = first;
-        std::iter::from_fn(move || {
-            if spent >= total {
-                return None;
-            }
-            let wait = next.min(total - spent);
-            spent += wait;
-            next = (next * 2).min(cap);
-            Some(wait)
-        })
-    }
-}
 
 /// The next handshake nonce (a Heartbeat counter, SPEC section 3.1: "any value; echoed"). A process-wide
 /// counter, started from the clock and the process id the first time, so that a reply to another open's Hello
@@ -201,66 +150,10 @@ pub struct ProtocolDevice<L> {
     /// While `open` runs: when it gives up, `connect_timeout` after it started (the handshake and the first
     /// State share it, however the device trickles its bytes).
     open_deadline: Option<Instant>,
-}
-
-fn placeholder_info() -> DeviceInfo {
-    DeviceInfo {
-        model: String::from("voxhap protocol device (not open)"),
-        serial_number: String::new(),
-        position_dof: 0,
-        force_dof: 0,
-        button_count: 0,
-        workspace_min_m: DVec3::ZERO,
-        workspace_max_m: DVec3::ZERO,
-        max_force_n: 0.0,
-        max_stiffness_n_per_m: 0.0,
-        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
-        reports_velocity: true,
-        state_rates_hz: Vec::new(),
-    }
-}
-
-fn to_dvec3(v: [f32; 3]) -> DVec3 {
-    DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))
-}
-
-fn convert_info(info: &voxhap_protocol::DeviceInfo) -> DeviceInfo {
-    DeviceInfo {
-        model: info.model.as_str().to_string(),
-        serial_number: info.serial_number.as_str().to_string(),
-        position_dof: info.position_dof,
-        force_dof: info.force_dof,
-        button_count: info.button_count,
-        workspace_min_m: to_dvec3(info.workspace_min_m),
-        workspace_max_m: to_dvec3(info.workspace_max_m),
-        max_force_n: f64::from(info.max_force_n),
-        max_stiffness_n_per_m: f64::from(info.max_stiffness_n_per_m),
-        max_speed_m_per_s: DEFAULT_MAX_SPEED_M_PER_S,
-        reports_velocity: true,
-        state_rates_hz: info.supported_rates.iter_hz().collect(),
-    }
-}
-
-/// A protocol State as the device layer's sample (the first State of an open and every later one).
-fn convert_state(state: &voxhap_protocol::State) -> DeviceState {
-    DeviceState {
-        position_m: to_dvec3(state.position_m),
-        velocity_m_per_s: to_dvec3(state.velocity_m_per_s),
-        buttons: state.buttons,
-        device_time_us: Some(state.device_time_us),
-        sequence: Some(state.sequence),
-        status: Some(convert_status(state.status, state.faults.0)),
-    }
-}
-
-fn convert_status(status: StatusFlags, active_faults: u16) -> DeviceStatus {
-    DeviceStatus {
-        enabled: status.contains(StatusFlags::ENABLED),
-        faulted: status.contains(StatusFlags::FAULTED),
-        watchdog_tripped: status.contains(StatusFlags::WATCHDOG_TRIPPED),
-        force_clamped: status.contains(StatusFlags::FORCE_CLAMPED),
-        active_faults,
-    }
+    /// The round trips of zero forces timed while `open` runs (module docs, "Link latency").
+    round_trips: RoundTrips,
+    /// The link latency the last open measured.
+    measured_latency: Option<crate::latency::LinkLatency>,
 }
 
 impl<L: MessageLink> ProtocolDevice<L> {
@@ -284,6 +177,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
             state_rate_hz: 0,
             state_age_ticks: 0,
             open_deadline: None,
+            round_trips: RoundTrips::default(),
+            measured_latency: None,
         }
     }
 
@@ -391,7 +286,13 @@ impl<L: MessageLink> ProtocolDevice<L> {
                     reason: rejected.reason.0,
                 });
             }
-            HostEvent::State { lost, .. } => self.counters.states_lost += u64::from(lost),
+            HostEvent::State { state, lost } => {
+                self.counters.states_lost += u64::from(lost);
+                if self.open_deadline.is_some() {
+                    self.round_trips
+                        .answered(state.last_force_sequence, Instant::now());
+                }
+            }
             HostEvent::LocalState(local) => self.last_local = Some(local),
             _ => {}
         }
@@ -532,11 +433,47 @@ impl<L: MessageLink> ProtocolDevice<L> {
         self.link.flush()?;
         self.state_rate_hz = 0;
         self.state_age_ticks = 0;
+        self.round_trips.clear();
+        self.measured_latency = None;
         self.handshake()?;
         self.choose_state_rate()?;
         // One zero force in lockstep: the device answers with a State, so the host sees the handle before
         // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
-        self.first_state()
+        self.first_state()?;
+        self.measure_latency()?;
+        self.measured_latency = self.round_trips.latency();
+        Ok(())
+    }
+
+    /// `latency_probes` zero forces after the first State, each waiting at most `hello_timeout` for the State
+    /// echoing it (module docs, "Link latency"); fewer when open's deadline comes or three in a row go
+    /// unanswered. An unanswered probe is no error: only the link failing is.
+    fn measure_latency(&mut self) -> Result<(), DeviceError> {
+        let mut unanswered = 0;
+        for _ in 0..self.config.latency_probes.min(MAX_LATENCY_PROBES) {
+            if unanswered >= 3 || self.open_time_is_up() {
+                break;
+            }
+            self.send_force(DVec3::ZERO)?;
+            let answered = self.receive_for(self.config.hello_timeout, |this, message| {
+                let HostEvent::State { state, .. } = this.handle(&message)? else {
+                    return Ok(None);
+                };
+                this.last_state = Some(convert_state(&state));
+                Ok((state.last_force_sequence == this.last_sent_sequence).then_some(()))
+            })?;
+            unanswered = if answered.is_some() {
+                0
+            } else {
+                unanswered + 1
+            };
+        }
+        Ok(())
+    }
+
+    /// The round trips the last open timed (module docs, "Link latency"), in the order they came.
+    pub fn round_trips(&self) -> &[Duration] {
+        self.round_trips.samples()
     }
 
     /// SPEC section 10.4: a capable device on a link that cannot carry a State and a LocalState every servo
@@ -635,6 +572,9 @@ impl<L: MessageLink> ProtocolDevice<L> {
         let message = self.host.set_force(force, ForceFlags::EMPTY);
         if let HostToDevice::SetForce(set_force) = message {
             self.last_sent_sequence = set_force.sequence;
+            if self.open_deadline.is_some() {
+                self.round_trips.sent(set_force.sequence, Instant::now());
+            }
         }
         self.link.send(&message)
     }
@@ -698,6 +638,11 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
 
     fn emergency_stop(&self) -> Option<Box<dyn EmergencyStop>> {
         self.link.emergency_stop()
+    }
+
+    /// Measured at the last open (module docs, "Link latency"); `None` before the first.
+    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
+        self.measured_latency
     }
 
     fn local_model_capable(&self) -> bool {

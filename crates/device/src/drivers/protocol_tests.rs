@@ -3,6 +3,7 @@
 
 use super::*;
 use std::collections::VecDeque;
+use std::time::Instant;
 use voxhap_protocol::{DeviceSample, DeviceSession, Label, RateSet, Version};
 
 /// A device session behind a [`MessageLink`]: every message the driver sends reaches it at once; its replies
@@ -108,4 +109,136 @@ fn a_1_0_device_without_the_bit_opens_and_keeps_set_force() {
     let driver = opened(DeviceSession::new(info(0)));
     assert!(!driver.local_model_capable());
     assert_eq!(driver.info().model, "in-process");
+}
+
+/// A device session whose replies reach the host `delay` after it answered (a slow link), on the wall clock;
+/// with `drop_states_after`, every State after that many is lost.
+struct Delayed {
+    device: DeviceSession,
+    started: Instant,
+    delay: Duration,
+    replies: VecDeque<(Instant, DeviceToHost)>,
+    states: usize,
+    drop_states_after: Option<usize>,
+}
+
+impl Delayed {
+    fn new(device: DeviceSession, delay: Duration) -> Self {
+        Delayed {
+            device,
+            started: Instant::now(),
+            delay,
+            replies: VecDeque::new(),
+            states: 0,
+            drop_states_after: None,
+        }
+    }
+
+    fn now_us(&self) -> u64 {
+        self.started.elapsed().as_micros() as u64
+    }
+}
+
+impl MessageLink for Delayed {
+    fn send(&mut self, message: &HostToDevice) -> Result<(), DeviceError> {
+        let now_us = self.now_us();
+        self.device.on_message(message, now_us);
+        let sample = DeviceSample {
+            position_m: [0.0; 3],
+            velocity_m_per_s: [0.0; 3],
+            buttons: 0,
+        };
+        self.device.poll(now_us, &sample);
+        let release = Instant::now() + self.delay;
+        while let Some(reply) = self.device.poll_transmit() {
+            if matches!(reply, DeviceToHost::State(_)) {
+                self.states += 1;
+                if self
+                    .drop_states_after
+                    .is_some_and(|kept| self.states > kept)
+                {
+                    continue;
+                }
+            }
+            self.replies.push_back((release, reply));
+        }
+        Ok(())
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<DeviceToHost>, DeviceError> {
+        let deadline = Instant::now() + timeout;
+        let Some(&(release, _)) = self.replies.front() else {
+            std::thread::sleep(timeout);
+            return Ok(None);
+        };
+        if release > deadline {
+            std::thread::sleep(timeout);
+            return Ok(None);
+        }
+        std::thread::sleep(release.saturating_duration_since(Instant::now()));
+        Ok(self.replies.pop_front().map(|(_, reply)| reply))
+    }
+
+    fn flush(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    fn stats(&self) -> DecoderStats {
+        DecoderStats::default()
+    }
+}
+
+fn open_delayed(link: Delayed, probes: u32) -> ProtocolDevice<Delayed> {
+    let config = ProtocolConfig {
+        latency_probes: probes,
+        ..ProtocolConfig::default()
+    };
+    let mut driver = ProtocolDevice::new(link, config);
+    driver.open().expect("the delayed device answers");
+    driver
+}
+
+/// Replies 2 ms late: every round trip open times is at least the link's 2 ms (whatever the machine's load,
+/// a reply cannot come before it was released), one for the first State and one per probe, and the declared
+/// worst case is at least 2 ms, a multiple of 0.1 ms, and says it was measured. Before open nothing is
+/// declared.
+#[test]
+fn open_measures_the_links_round_trips_and_declares_their_95th_percentile() {
+    let delay = Duration::from_millis(2);
+    let link = Delayed::new(DeviceSession::new(info(1)), delay);
+    assert_eq!(
+        ProtocolDevice::new(link, ProtocolConfig::default()).link_latency(),
+        None
+    );
+    let driver = open_delayed(Delayed::new(DeviceSession::new(info(1)), delay), 16);
+    assert_eq!(driver.round_trips().len(), 17);
+    assert!(
+        driver.round_trips().iter().all(|trip| *trip >= delay),
+        "{:?}",
+        driver.round_trips()
+    );
+    let latency = driver.link_latency().expect("measured");
+    assert_eq!(latency.round_trips, 17);
+    assert_eq!(latency.source, latency::MEASURED);
+    assert!(
+        latency.worst >= delay && latency.typical >= delay,
+        "{latency:?}"
+    );
+    assert_eq!(latency.worst.as_micros() % 100, 0, "{latency:?}");
+    assert!(latency.worst >= latency.typical);
+}
+
+/// The bare driver's default measures the first State's round trip alone; a device that stops answering
+/// after it costs three unanswered probes and still opens, its latency from what did come.
+#[test]
+fn no_probes_by_default_and_lost_answers_do_not_fail_open() {
+    let delay = Duration::from_micros(500);
+    let driver = open_delayed(Delayed::new(DeviceSession::new(info(1)), delay), 0);
+    assert_eq!(driver.round_trips().len(), 1);
+    let mut link = Delayed::new(DeviceSession::new(info(1)), delay);
+    link.drop_states_after = Some(1);
+    let driver = open_delayed(link, 64);
+    assert_eq!(driver.round_trips().len(), 1);
+    assert_eq!(driver.link().states, 4, "the first State and three probes");
+    assert_eq!(driver.link_latency().unwrap().round_trips, 1);
 }

@@ -54,9 +54,9 @@
 //! energy returns to its value). Paired without the delay the observer books `k pi A^2 sin(w T / 2)`, about
 //! `1 / (2d + 1)` of what the delayed loop generates, and the controller lets it oscillate.
 //!
-//! `d` is the device's declared latency in whole ticks ([`super::settings::PassivitySettings::latency_ticks`]:
-//! `[passivity] latency_s`, else the driver's worst-case link latency, else the simulated arm's
-//! `[arm] latency_s`, else 0). A fraction of a tick is rounded up: for oscillations slower than a quarter
+//! `d` is the device's latency in whole ticks ([`super::latency::ObserverLatency`]: `[passivity] latency_s`,
+//! else the simulated arm's `[arm] latency_s`, else the driver's worst-case link latency, which voxhap's
+//! protocol driver measures on the link at open, else 0). A fraction of a tick is rounded up: for oscillations slower than a quarter
 //! period per delay (`w (d + 1/2) T < pi/2`) the booked generation `sin(w (d + 1/2) T)` rises with `d`, so
 //! an observer that assumes the force acts later than it does books more than was generated, and dissipates
 //! more, never less.

@@ -13,9 +13,11 @@
 //! and the pure tick in `voxhap-core` stays a function of the scene and the probe.
 
 pub mod controller;
+pub mod latency;
 pub mod settings;
 pub mod transition;
 
 pub use controller::{PassivityController, PassivityTotals, MAX_LATENCY_TICKS};
+pub use latency::{LatencyOrigin, ObserverLatency};
 pub use settings::{PassivityMode, PassivitySettings, PassivitySettingsError};
 pub use transition::CouplingTransition;

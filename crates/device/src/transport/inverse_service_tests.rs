@@ -31,10 +31,7 @@ fn absent_state_fields_keep_their_previous_value() {
         r#"{"inverse3":[{"device_id":"A","state":{"cursor_velocity":{"x":2.0},"current_cursor_force":{"z":1.5}}}]}"#,
     )
     .unwrap();
-    assert!(io::apply_state(
-        &mut snapshot,
-        frame.inverse3[0].state.as_ref()
-    ));
+    assert!(snapshot.apply(frame.inverse3[0].state.as_ref()));
     assert_eq!(snapshot.position_m, DVec3::ONE);
     assert_eq!(snapshot.velocity_m_per_s, DVec3::new(2.0, 0.0, 0.0));
     assert_eq!(snapshot.arm_force_n, Some(DVec3::new(0.0, 0.0, 1.5)));

@@ -12,8 +12,9 @@
 //!   names for it, with the code of voxhap's fault table (docs/safety.md: 1 emergency stop, 8 motor stall,
 //!   9 stability ceiling reached): from the row after the first one whose latched faults hold that bit to the
 //!   end, the force sent is zero, the latched faults are that bit alone, `flag_device_faulted` is true and the
-//!   force-off cause is `device_fault`; stderr names the fault as docs/safety.md shows it (`device FAULT
-//!   motor stall (code 8, ...`).
+//!   force-off cause is `device_fault` (or, on rows where a busy machine's link is down, a cause docs/traces.md
+//!   ranks before it; at least 100 rows name the fault); stderr names the fault as docs/safety.md shows it
+//!   (`device FAULT motor stall (code 8, ...`).
 //! - A control-rate report (Haply's client's `system-rate-report`, crate `haply` 1.3.1,
 //!   src/interfaces/events.rs) is a notice: stderr carries its four frequencies as the double sent them, and
 //!   nothing is faulted by it.
@@ -137,6 +138,8 @@ fn serve_through(before: impl Fn(&InverseService), event: impl Fn(&InverseServic
     let said = String::from_utf8_lossy(&output.stderr).into_owned()
         + &String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{said}");
+    // Shown when a test fails (or with --nocapture): what serve said, e.g. why a link dropped.
+    eprintln!("voxhap serve said:\n{said}");
     let csv = Csv::read(&trace);
     assert!(!csv.rows.is_empty(), "an empty trace");
     Run {
@@ -148,11 +151,14 @@ fn serve_through(before: impl Fn(&InverseService), event: impl Fn(&InverseServic
 
 /// The checks of the module docs for a device fault with `code`, named `name` in docs/safety.md's table: from
 /// the row after the first that holds the bit, to the end, zero force, that bit alone, flagged, the cause
-/// named; no row before it is faulted. Returns the rows before the fault.
+/// named; no row before it is faulted. Returns the rows before the fault. On a busy machine the link may
+/// drop and reconnect meanwhile: docs/traces.md lists `disconnected` and `stale_link` before `device_fault`
+/// ("the first that applies"), so those rows may carry them, but at least 100 rows must name the fault.
 fn assert_faulted_from_the_next_row(run: &Run, code: u32, name: &str) -> usize {
     let csv = &run.csv;
     let bit = 1u64 << code;
     let mut faulted_from = None;
+    let mut named = 0;
     for (i, row) in csv.rows.iter().enumerate() {
         let faults: u64 = csv.cell(row, "device_fault_bits").parse().unwrap();
         let tick = csv.cell(row, "tick");
@@ -166,21 +172,25 @@ fn assert_faulted_from_the_next_row(run: &Run, code: u32, name: &str) -> usize {
                 i - from
             );
             assert_eq!(csv.cell(row, "flag_device_faulted"), "true", "tick {tick}");
-            assert_eq!(
-                csv.cell(row, "force_off_cause"),
-                "device_fault",
-                "tick {tick}"
+            let cause = csv.cell(row, "force_off_cause");
+            assert!(
+                ["device_fault", "disconnected", "stale_link"].contains(&cause),
+                "tick {tick}: force-off cause {cause}"
             );
+            named += usize::from(cause == "device_fault");
         } else if faults & bit != 0 {
             faulted_from = Some(i);
         } else {
-            assert_eq!(faults, 0, "tick {tick}: a fault before the event");
+            assert_eq!(
+                faults, 0,
+                "tick {tick}: latched faults {faults:#x} before any row holds bit {code} ({name})"
+            );
         }
     }
     let from = faulted_from.unwrap_or_else(|| panic!("no row holds fault bit {code} ({name})"));
     assert!(
-        csv.rows.len() - from >= 100,
-        "only {} rows after the fault",
+        named >= 100,
+        "only {named} of the {} rows after the fault name it as the cause",
         csv.rows.len() - from
     );
     let told = format!("device FAULT {name} (code {code}, ");
@@ -224,7 +234,25 @@ fn serve_records_a_stall_as_a_motor_stall_fault_after_a_rate_notice() {
         |service| service.rate_report(310, 1020, 900, 950),
         |service| service.safety_event("stall_detected"),
     );
-    let from = assert_faulted_from_the_next_row(&run, 8, "motor stall");
+    // Every problem at once: the rate notice's, then the fault's (its own assertion message is printed above).
+    let missing: Vec<&str> = [
+        "min_frequency 310",
+        "max_frequency 1020",
+        "mean_frequency 900",
+        "median_frequency 950",
+    ]
+    .into_iter()
+    .filter(|frequency| !run.said.contains(frequency))
+    .collect();
+    let fault =
+        std::panic::catch_unwind(|| assert_faulted_from_the_next_row(&run, 8, "motor stall"));
+    assert!(
+        missing.is_empty() && fault.is_ok(),
+        "the rate report's {missing:?} not on stderr; the stall's fault checks {}: {}",
+        if fault.is_ok() { "passed" } else { "failed" },
+        run.said
+    );
+    let from = fault.unwrap();
     let pushed = run.csv.rows[..from]
         .iter()
         .filter(|row| run.csv.vector(row, "force").iter().any(|c| *c != 0.0))
@@ -233,18 +261,6 @@ fn serve_records_a_stall_as_a_motor_stall_fault_after_a_rate_notice() {
         pushed > 0,
         "no force before the stall: the zero after it proves nothing"
     );
-    for frequency in [
-        "min_frequency 310",
-        "max_frequency 1020",
-        "mean_frequency 900",
-        "median_frequency 950",
-    ] {
-        assert!(
-            run.said.contains(frequency),
-            "the rate report's {frequency} is not on stderr: {}",
-            run.said
-        );
-    }
 }
 
 /// Haply's stability ceiling (`stability_ceiling`) is its own fault (9), not a notice.

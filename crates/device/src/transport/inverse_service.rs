@@ -440,9 +440,17 @@ fn service_device(entry: &WireInverse3, session_id: Option<String>) -> ServiceDe
     }
 }
 
+/// What the service kept that voxhap did not ask for: every difference, in words, shown joined by "; ".
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}", .differences.join("; "))]
+pub struct ConfigurationMismatch {
+    /// Each difference, e.g. `mount position (0.1, 0, 0) (asked for none: the preset's own)`.
+    pub differences: Vec<String>,
+}
+
 /// Checks the configuration the service reports after the session set-up against what voxhap asked for
 /// ([`SESSION_PRESET`], [`SESSION_BASIS`], no mount, no workspace transform). `Err` lists every difference.
-pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, String> {
+pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, ConfigurationMismatch> {
     let mut wrong = Vec::new();
     let mut missing = Vec::new();
     match entry.config.as_ref() {
@@ -477,7 +485,7 @@ pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, String
         }
     }
     if !wrong.is_empty() {
-        return Err(wrong.join("; "));
+        return Err(ConfigurationMismatch { differences: wrong });
     }
     Ok(if missing.is_empty() {
         Configuration::Confirmed

@@ -219,6 +219,66 @@ fn haply_inverse_ticks_allocate_nothing() {
     );
 }
 
+/// The Inverse3 link's protocol core through every path the I/O thread drives (a send, its reply, an extra
+/// message, an unusable one, a lost reply, a keepalive, the servo thread's verdict and a safety event's fault
+/// code) allocates nothing: only the decoding before it does (messages are decoded once, outside the count).
+#[test]
+fn the_inverse_link_core_allocates_nothing() {
+    use voxhap::device::drivers::haply_inverse::link::{self, Incoming, LinkCore};
+    use voxhap::device::transport::inverse_service::events::SafetyEvent;
+    use voxhap::device::transport::inverse_service::{
+        parse_frame_text, ForceCommand, ServiceSnapshot,
+    };
+    let state = parse_frame_text(
+        r#"{"inverse3":[{"device_id":"049D","state":{"cursor_position":{"x":0.0,"y":-0.12,"z":0.15}}}]}"#,
+    )
+    .unwrap();
+    let drift =
+        parse_frame_text(r#"{"inverse3":[{"device_id":"049D","state":{"cursor_position":"x"}}]}"#)
+            .unwrap_err();
+    let t0 = std::time::Instant::now();
+    let mut core = LinkCore::new(
+        ServiceSnapshot {
+            answers_sequence: 0,
+            position_m: DVec3::ZERO,
+            velocity_m_per_s: DVec3::ZERO,
+            arm_force_n: None,
+        },
+        t0,
+    );
+    let mut used = 0u64;
+    let ((), allocations) = count_allocations(|| {
+        for n in 1..=1000u64 {
+            let at = t0 + Duration::from_millis(n);
+            core.socket_empty();
+            let command = ForceCommand {
+                sequence: n,
+                force_n: DVec3::new(0.0, 0.0, 1.0),
+            };
+            let out = core.next_command(Some(command), n % 2, at).unwrap();
+            core.command_sent(out.sequence, at);
+            if n % 7 != 0 {
+                // Every 7th reply is lost; the next one answers the oldest force.
+                core.socket_empty();
+                let _ = core.message(Incoming::Frame(&state), "049D");
+            }
+            if n % 5 == 0 {
+                let _ = core.message(Incoming::Frame(&state), "049D");
+                let _ = core.message(Incoming::Undecodable(&drift), "049D");
+                let _ = core.message(Incoming::Binary, "049D");
+            }
+            let _ = core.next_command(None, 0, at + Duration::from_millis(150));
+            let label = core.snapshot().answers_sequence;
+            if let link::Verdict::Use { .. } = link::judge(label, n, n % 3 == 0, 3) {
+                used += 1;
+            }
+            let _ = link::fault_code(SafetyEvent::StallDetected);
+        }
+    });
+    assert_eq!(allocations, 0);
+    assert!(used > 0 && core.counters().extra > 0 && core.counters().drifted > 0);
+}
+
 /// A HID source that always has the same two reports queued (so every read drains one stale report); it reads
 /// like hidapi (waits in whole milliseconds) and runs under the real HID transport.
 struct FixedReports {

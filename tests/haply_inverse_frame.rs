@@ -196,14 +196,7 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
             if safety_type == "ebrake_triggered" {
                 service.ebrake();
             } else {
-                service.send_event(serde_json::json!({
-                    "name": "device-safety-triggered",
-                    "category": "device",
-                    "level": "warning",
-                    "data": {"device_family": "inverse", "device_id": crate::util::inverse_service::DEVICE_ID,
-                             "safety_type": safety_type},
-                    "message": "m"
-                }));
+                service.safety_event(safety_type);
             }
             sent = true;
         }

@@ -6,10 +6,18 @@
 //!   "01. Print Inverse3": "State fields read ... current_cursor_force"): every value in the trace is one the
 //!   double reported (the `haply-inverse` profile's mapping is the identity rotation, and forces are only
 //!   rotated between frames: docs/workspace.md), and some are not zero, so the check cannot pass vacuously.
-//! - An e-brake on the events channel (docs.haply.co "Events & Monitoring": `device-safety-triggered`,
-//!   `safety_type` `ebrake_triggered`) is a device fault: from the first row whose latched faults hold the
-//!   emergency stop (bit 1, voxhap's fault table in docs/safety.md), from the next row to the end, the force
-//!   sent is zero, the bit stays set, `flag_device_faulted` is true and the force-off cause is `device_fault`.
+//! - Each documented safety event on the events channel (docs.haply.co "Events & Monitoring":
+//!   `device-safety-triggered`, table "device-safety-triggered sub-types": `ebrake_triggered` level error,
+//!   `stall_detected` and `stability_ceiling` level warning) is the device fault docs/devices/haply-inverse3.md
+//!   names for it, with the code of voxhap's fault table (docs/safety.md: 1 emergency stop, 8 motor stall,
+//!   9 stability ceiling reached): from the row after the first one whose latched faults hold that bit to the
+//!   end, the force sent is zero, the latched faults are that bit alone, `flag_device_faulted` is true and the
+//!   force-off cause is `device_fault` (or, on rows where a busy machine's link is down, a cause docs/traces.md
+//!   ranks before it; at least 100 rows name the fault); stderr names the fault as docs/safety.md shows it
+//!   (`device FAULT motor stall (code 8, ...`).
+//! - A control-rate report (Haply's client's `system-rate-report`, crate `haply` 1.3.1,
+//!   src/interfaces/events.rs) is a notice: stderr carries its four frequencies as the double sent them, and
+//!   nothing is faulted by it.
 
 use crate::util::inverse_service::InverseService;
 use std::collections::HashMap;
@@ -71,8 +79,18 @@ fn wait_until(child: &mut std::process::Child, what: &str, done: impl Fn() -> bo
     }
 }
 
-#[test]
-fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
+/// What one `serve --record` run against the double gave.
+struct Run {
+    /// Every `current_cursor_force` the double reported.
+    reported: Vec<[f64; 3]>,
+    csv: Csv,
+    /// stderr, then stdout.
+    said: String,
+}
+
+/// Runs `voxhap serve --record` against the double with the handle sweeping the reachable box; once force
+/// flows and the events channel is connected, `before` runs, then `event`; 300 states later serve is stopped.
+fn serve_through(before: impl Fn(&InverseService), event: impl Fn(&InverseService)) -> Run {
     use std::process::Stdio;
     let _turn = crate::util::spec_serve::take_turn();
     let service = InverseService::start();
@@ -101,10 +119,15 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
                 .load(Ordering::Acquire)
                 > 0
     });
-    service.ebrake();
-    let at_ebrake = reported().len();
-    wait_until(&mut child, "300 states after the e-brake", || {
-        reported().len() >= at_ebrake + 300
+    before(&service);
+    let at_before = reported().len();
+    wait_until(&mut child, "50 states after the first event", || {
+        reported().len() >= at_before + 50
+    });
+    event(&service);
+    let at_event = reported().len();
+    wait_until(&mut child, "300 states after the event", || {
+        reported().len() >= at_event + 300
     });
     // SAFETY: plain kill(2) on our own child's pid.
     assert_eq!(
@@ -115,31 +138,33 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
     let said = String::from_utf8_lossy(&output.stderr).into_owned()
         + &String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{said}");
-
-    let sent = reported();
+    // Shown when a test fails (or with --nocapture): what serve said, e.g. why a link dropped.
+    eprintln!("voxhap serve said:\n{said}");
     let csv = Csv::read(&trace);
     assert!(!csv.rows.is_empty(), "an empty trace");
-    let mut nonzero = 0;
+    Run {
+        reported: reported(),
+        csv,
+        said,
+    }
+}
+
+/// The checks of the module docs for a device fault with `code`, named `name` in docs/safety.md's table: from
+/// the row after the first that holds the bit, to the end, zero force, that bit alone, flagged, the cause
+/// named; no row before it is faulted. Returns the rows before the fault. On a busy machine the link may
+/// drop and reconnect meanwhile: docs/traces.md lists `disconnected` and `stale_link` before `device_fault`
+/// ("the first that applies"), so those rows may carry them, but at least 100 rows must name the fault.
+fn assert_faulted_from_the_next_row(run: &Run, code: u32, name: &str) -> usize {
+    let csv = &run.csv;
+    let bit = 1u64 << code;
     let mut faulted_from = None;
+    let mut named = 0;
     for (i, row) in csv.rows.iter().enumerate() {
-        let device_force = csv.vector(row, "device_force");
-        if !device_force[0].is_nan() {
-            assert!(
-                sent.iter()
-                    .any(|f| (0..3).all(|k| (f[k] - device_force[k]).abs() <= 1e-12)),
-                "row {i}: device force {device_force:?} is none the service reported"
-            );
-            nonzero += usize::from(device_force.iter().any(|c| *c != 0.0));
-        }
         let faults: u64 = csv.cell(row, "device_fault_bits").parse().unwrap();
+        let tick = csv.cell(row, "tick");
         // From the row after the one that read the event (that tick's force went out before it was read).
         if let Some(from) = faulted_from {
-            let tick = csv.cell(row, "tick");
-            assert_ne!(
-                faults & (1 << 1),
-                0,
-                "tick {tick}: the fault bit was cleared"
-            );
+            assert_eq!(faults, bit, "tick {tick}: latched faults {faults:#x}");
             assert_eq!(
                 csv.vector(row, "force"),
                 [0.0; 3],
@@ -147,23 +172,100 @@ fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
                 i - from
             );
             assert_eq!(csv.cell(row, "flag_device_faulted"), "true", "tick {tick}");
-            assert_eq!(
-                csv.cell(row, "force_off_cause"),
-                "device_fault",
-                "tick {tick}"
+            let cause = csv.cell(row, "force_off_cause");
+            assert!(
+                ["device_fault", "disconnected", "stale_link"].contains(&cause),
+                "tick {tick}: force-off cause {cause}"
             );
-        } else if faults & (1 << 1) != 0 {
+            named += usize::from(cause == "device_fault");
+        } else if faults & bit != 0 {
             faulted_from = Some(i);
+        } else {
+            assert_eq!(
+                faults, 0,
+                "tick {tick}: latched faults {faults:#x} before any row holds bit {code} ({name})"
+            );
+        }
+    }
+    let from = faulted_from.unwrap_or_else(|| panic!("no row holds fault bit {code} ({name})"));
+    assert!(
+        named >= 100,
+        "only {named} of the {} rows after the fault name it as the cause",
+        csv.rows.len() - from
+    );
+    let told = format!("device FAULT {name} (code {code}, ");
+    assert!(
+        run.said.contains(&told),
+        "stderr does not name the fault as {told:?}: {}",
+        run.said
+    );
+    from
+}
+
+#[test]
+fn serve_records_the_arms_force_and_an_ebrake_as_a_device_fault() {
+    let run = serve_through(|_| {}, InverseService::ebrake);
+    let csv = &run.csv;
+    let mut nonzero = 0;
+    for (i, row) in csv.rows.iter().enumerate() {
+        let device_force = csv.vector(row, "device_force");
+        if !device_force[0].is_nan() {
+            assert!(
+                run.reported
+                    .iter()
+                    .any(|f| (0..3).all(|k| (f[k] - device_force[k]).abs() <= 1e-12)),
+                "row {i}: device force {device_force:?} is none the service reported"
+            );
+            nonzero += usize::from(device_force.iter().any(|c| *c != 0.0));
         }
     }
     assert!(
         nonzero > 0,
         "no row carries a non-zero force from the arm: the check above proved nothing"
     );
-    let from = faulted_from.expect("no row holds the e-brake's fault bit");
-    assert!(
-        csv.rows.len() - from >= 100,
-        "only {} rows after the fault",
-        csv.rows.len() - from
+    assert_faulted_from_the_next_row(&run, 1, "emergency stop");
+}
+
+/// A stall (`stall_detected`) after a control-rate report: the report is a notice carrying Haply's
+/// frequencies, the stall the motor-stall fault; force flowed before it, so the zero after it is the fault's.
+#[test]
+fn serve_records_a_stall_as_a_motor_stall_fault_after_a_rate_notice() {
+    let run = serve_through(
+        |service| service.rate_report(310, 1020, 900, 950),
+        |service| service.safety_event("stall_detected"),
     );
+    // Every problem at once: the rate notice's, then the fault's (its own assertion message is printed above).
+    let missing: Vec<&str> = [
+        "min_frequency 310",
+        "max_frequency 1020",
+        "mean_frequency 900",
+        "median_frequency 950",
+    ]
+    .into_iter()
+    .filter(|frequency| !run.said.contains(frequency))
+    .collect();
+    let fault =
+        std::panic::catch_unwind(|| assert_faulted_from_the_next_row(&run, 8, "motor stall"));
+    assert!(
+        missing.is_empty() && fault.is_ok(),
+        "the rate report's {missing:?} not on stderr; the stall's fault checks {}: {}",
+        if fault.is_ok() { "passed" } else { "failed" },
+        run.said
+    );
+    let from = fault.unwrap();
+    let pushed = run.csv.rows[..from]
+        .iter()
+        .filter(|row| run.csv.vector(row, "force").iter().any(|c| *c != 0.0))
+        .count();
+    assert!(
+        pushed > 0,
+        "no force before the stall: the zero after it proves nothing"
+    );
+}
+
+/// Haply's stability ceiling (`stability_ceiling`) is its own fault (9), not a notice.
+#[test]
+fn serve_records_the_stability_ceiling_as_its_own_fault() {
+    let run = serve_through(|_| {}, |service| service.safety_event("stability_ceiling"));
+    assert_faulted_from_the_next_row(&run, 9, "stability ceiling reached");
 }

@@ -33,7 +33,9 @@
 //! - **Events channel** (docs.haply.co/inverseSDK/service/api/events "Events Channel": a read-only WebSocket,
 //!   one message per event; docs.haply.co "Events & Monitoring" for the shape and the `safety_type` values):
 //!   [`InverseService::events_url`]; [`InverseService::send_event`] sends one event to every client,
-//!   [`InverseService::ebrake`] the documented `device-safety-triggered` / `ebrake_triggered` one.
+//!   [`InverseService::ebrake`] the documented `device-safety-triggered` / `ebrake_triggered` one,
+//!   [`InverseService::safety_event`] any documented `safety_type` with its documented level, and
+//!   [`InverseService::rate_report`] Haply's client's `system-rate-report`.
 //!
 //! Misbehaviours outside Haply's documentation, for the driver's robustness: more than one reply per message
 //! (`replies_per_message`), an unsolicited state update every `unsolicited_every_ms`, malformed replies, a
@@ -504,12 +506,43 @@ impl InverseService {
     pub fn ebrake(&self) {
         self.shared.ebrake.store(true, Ordering::Release);
         *self.shared.arm_force.lock().unwrap() = DVec3::ZERO;
+        self.safety_event("ebrake_triggered");
+    }
+
+    /// One documented `device-safety-triggered` event of the driven device ("Events & Monitoring", table
+    /// "device-safety-triggered sub-types": the `safety_type`, its level and meaning, which is the message).
+    /// What the arm then does is not documented (except the e-brake's lock, [`InverseService::ebrake`]), so
+    /// the double changes nothing else. Panics on a `safety_type` that table does not list.
+    pub fn safety_event(&self, safety_type: &str) {
+        let (level, meaning) = match safety_type {
+            "ebrake_triggered" => ("error", "Emergency brake engaged — device locked"),
+            "ebrake_released" => ("notice", "Emergency brake released"),
+            "fod_stage_changed" => ("warning", "FOD stage changed: guard -> hard"),
+            "stall_detected" => ("warning", "Motor stall detected"),
+            "stability_ceiling" => ("warning", "Stability ceiling reached"),
+            other => panic!("Haply documents no safety_type {other:?}"),
+        };
         self.send_event(json!({
             "name": "device-safety-triggered",
             "category": "device",
-            "level": "error",
-            "data": {"device_family": "inverse", "device_id": DEVICE_ID, "safety_type": "ebrake_triggered"},
-            "message": "Emergency brake engaged"
+            "level": level,
+            "data": {"device_family": "inverse", "device_id": DEVICE_ID, "safety_type": safety_type},
+            "message": meaning
+        }));
+    }
+
+    /// A control-rate report as Haply's own client reads it (crate `haply` 1.3.1, src/interfaces/events.rs:
+    /// `EventData::SystemRateReport` with `min_frequency`, `max_frequency`, `mean_frequency`,
+    /// `median_frequency`, name `system-rate-report`, category `system`); "Events & Monitoring" lists control
+    /// rate anomalies among the events, level warning for something that "seems off".
+    pub fn rate_report(&self, min_hz: u32, max_hz: u32, mean_hz: u32, median_hz: u32) {
+        self.send_event(json!({
+            "name": "system-rate-report",
+            "category": "system",
+            "level": "warning",
+            "data": {"min_frequency": min_hz, "max_frequency": max_hz, "mean_frequency": mean_hz,
+                     "median_frequency": median_hz},
+            "message": "control rate below target"
         }));
     }
 }

@@ -1,7 +1,8 @@
 //! The shared runner of the request/reply drivers (Falcon, Haply 2DIY, WoodenHaptics serial) and of the
-//! report-streaming WoodenHaptics 1.5 HID driver ([`newest_report_within`]): the one place that reads a port
-//! with a deadline. Each driver's protocol logic sits in a receive core with no I/O and no
-//! clock ([`super::assemble`], [`super::falcon_frames::FrameAssembler`]); the runner moves bytes from the
+//! report-streaming WoodenHaptics 1.5 HID driver ([`newest_report_within`]), and of the Haply Inverse3's message
+//! link ([`messages_within`], run on its I/O thread): the one place that reads a port with a deadline. Each
+//! driver's protocol logic sits in a receive core with no I/O and no clock ([`super::assemble`],
+//! [`super::falcon_frames::FrameAssembler`], [`super::haply_inverse::link`]); the runner moves bytes from the
 //! transport into the core until the core yields a whole reply or the wait is over.
 //!
 //! The wait is the caller's, and on the servo thread it derives from the servo period
@@ -85,6 +86,63 @@ pub fn newest_report_within<T: ReportTransport + ?Sized>(
     Ok(true)
 }
 
+/// A transport of whole messages (the Haply Inverse Service's WebSocket), read by [`messages_within`].
+pub trait MessageTransport {
+    /// One message as the transport delivers it.
+    type Message;
+
+    /// The next whole message already received, without waiting; `Ok(None)`: none is waiting.
+    fn try_read_message(&mut self) -> Result<Option<Self::Message>, DeviceError>;
+
+    /// Waits until a message may have come, or `wait` has passed.
+    fn wait_readable(&mut self, wait: Duration) -> Result<(), DeviceError>;
+}
+
+/// The receive core of a message link, fed by [`messages_within`].
+pub trait MessageCore<M> {
+    /// One message; an error (a flood the core bounds) ends the read.
+    fn message(&mut self, message: M) -> Result<(), DeviceError>;
+
+    /// The transport was found with nothing more waiting.
+    fn emptied(&mut self);
+
+    /// A reply is still awaited: the runner waits for more until the wait is over.
+    fn awaiting(&self) -> bool;
+}
+
+/// The longest single wait of [`messages_within`], so a core that stops awaiting (a stop) is looked at again
+/// soon.
+pub const MESSAGE_WAIT_SLICE: Duration = Duration::from_millis(1);
+
+/// Reads every message already waiting into `core` until the transport is found empty; then, while the core
+/// awaits a reply and `wait` has not passed, waits (in slices of at most [`MESSAGE_WAIT_SLICE`]) and reads
+/// again. Returns once the transport was found empty and the core awaits nothing or the wait is over, so the
+/// core always holds the newest message and the transport never holds one unread. The core bounds a flood.
+pub fn messages_within<T, C>(
+    transport: &mut T,
+    core: &mut C,
+    wait: Duration,
+) -> Result<(), DeviceError>
+where
+    T: MessageTransport + ?Sized,
+    C: MessageCore<T::Message> + ?Sized,
+{
+    let deadline = Instant::now() + wait;
+    loop {
+        match transport.try_read_message()? {
+            Some(message) => core.message(message)?,
+            None => {
+                core.emptied();
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                if !core.awaiting() || remaining.is_zero() {
+                    return Ok(());
+                }
+                transport.wait_readable(remaining.min(MESSAGE_WAIT_SLICE))?;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -135,5 +193,80 @@ mod tests {
         });
         assert_eq!(got.unwrap(), None);
         empty.done();
+    }
+
+    /// A message link scripted step by step: `Some(m)` a message waiting, `None` nothing waiting at that read.
+    struct Script {
+        steps: std::collections::VecDeque<Option<u32>>,
+        waits: u32,
+    }
+
+    impl MessageTransport for Script {
+        type Message = u32;
+        fn try_read_message(&mut self) -> Result<Option<u32>, DeviceError> {
+            Ok(self.steps.pop_front().flatten())
+        }
+        fn wait_readable(&mut self, _: Duration) -> Result<(), DeviceError> {
+            self.waits += 1;
+            Ok(())
+        }
+    }
+
+    /// A core that awaits the message `until`.
+    struct Await {
+        got: Vec<u32>,
+        empties: u32,
+        until: u32,
+    }
+
+    impl MessageCore<u32> for Await {
+        fn message(&mut self, message: u32) -> Result<(), DeviceError> {
+            self.got.push(message);
+            Ok(())
+        }
+        fn emptied(&mut self) {
+            self.empties += 1;
+        }
+        fn awaiting(&self) -> bool {
+            !self.got.contains(&self.until)
+        }
+    }
+
+    /// Worked by hand: everything waiting is read, each time the link is found empty the core is told, and the
+    /// runner waits on only while the core awaits its reply; with a zero wait it reads what is there and no
+    /// more.
+    #[test]
+    fn messages_are_read_until_empty_and_awaited_only_while_a_reply_is_due() {
+        let script = |steps: &[Option<u32>]| Script {
+            steps: steps.iter().copied().collect(),
+            waits: 0,
+        };
+        let mut link = script(&[Some(1), Some(2), None, None, Some(3), None, Some(4)]);
+        let mut core = Await {
+            got: Vec::new(),
+            empties: 0,
+            until: 3,
+        };
+        messages_within(&mut link, &mut core, Duration::from_secs(10)).unwrap();
+        assert_eq!(
+            (core.got.as_slice(), core.empties, link.waits),
+            (&[1, 2, 3][..], 3, 2)
+        );
+        assert_eq!(
+            link.steps.len(),
+            1,
+            "message 4 came after the link was found empty"
+        );
+        let mut link = script(&[Some(1), None, Some(2)]);
+        let mut core = Await {
+            got: Vec::new(),
+            empties: 0,
+            until: 2,
+        };
+        messages_within(&mut link, &mut core, Duration::ZERO).unwrap();
+        assert_eq!(
+            (core.got.as_slice(), core.empties, link.waits),
+            (&[1][..], 1, 0)
+        );
     }
 }

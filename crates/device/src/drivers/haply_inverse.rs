@@ -2,8 +2,11 @@
 //! haply-inverse[:ws://HOST:PORT[,events=ws://HOST:PORT]]`, default ws://127.0.0.1:10001).
 //!
 //! Where it sits: a [`HapticDevice`] whose `write_force` and `read_state` run on the servo thread and only push
-//! to and pop from lock-free buffers; the WebSocket exchange runs on the I/O thread of
-//! [`crate::transport::inverse_service`] (protocol, coordinate basis and sources are described there).
+//! to and pop from lock-free buffers. The connection and session set-up are
+//! [`crate::transport::inverse_service`]'s (protocol, coordinate basis and sources are described there); the
+//! exchange runs on this driver's I/O thread ([`io`]), a thin shell around the link's sans-IO protocol core
+//! ([`link`]: what is sent, how replies are counted and labelled, floods, and the servo thread's verdict on
+//! how old a state is), fed by the shared runner (`exchange::messages_within`).
 //!
 //! Per tick: `write_force` queues one force command (sequence n) and wakes the I/O thread, which sends one
 //! `set_cursor_force` message and reads the state update the service sends back, and every other message
@@ -35,24 +38,24 @@
 //! [`FAULT_EMERGENCY_STOP`], [`FAULT_MOTOR_STALL`], [`FAULT_STABILITY_CEILING`]): the supervisor zeroes the force
 //! on the tick it reads them and stays faulted until the operator clears it.
 
+#[path = "haply_inverse_io.rs"]
+pub mod io;
 #[path = "haply_inverse_limits.rs"]
 pub mod limits;
+#[path = "haply_inverse_link.rs"]
+pub mod link;
 
-use crate::transport::inverse_service::events::SafetyEvent;
+pub use link::{FAULT_EMERGENCY_STOP, FAULT_MOTOR_STALL, FAULT_STABILITY_CEILING};
+
 use crate::transport::inverse_service::{self, ForceCommand, ServiceConfig, ServiceLink};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
+use link::Verdict;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 /// voxhap's default force cap for the Inverse3 (N); a profile may lower it.
 pub const DEFAULT_MAX_FORCE_N: f64 = limits::DEFAULT_MAX_FORCE_N;
-/// Fault code of a Haply e-brake (`ebrake_triggered`): voxhap's "emergency stop".
-pub const FAULT_EMERGENCY_STOP: u8 = 1;
-/// Fault code of a Haply motor stall (`stall_detected`).
-pub const FAULT_MOTOR_STALL: u8 = 8;
-/// Fault code of Haply's stability ceiling (`stability_ceiling`).
-pub const FAULT_STABILITY_CEILING: u8 = 9;
 /// How long `read_state` spins before it starts yielding the CPU while it waits for the answer.
 pub const REPLY_SPIN: Duration = Duration::from_micros(20);
 
@@ -161,7 +164,8 @@ impl HapticDevice for HaplyInverse {
     }
 
     fn open(&mut self) -> Result<(), DeviceError> {
-        let link = inverse_service::connect(&self.config.service)?;
+        let session = inverse_service::handshake(&self.config.service)?;
+        let link = io::start(session, &self.config.service)?;
         let device = &link.device;
         self.info.model = format!("Haply {} (Inverse Service)", device.device_type);
         self.info.serial_number = device.device_id.clone();
@@ -234,15 +238,15 @@ impl HapticDevice for HaplyInverse {
                 });
             }
             let snapshot = *link.states.read();
-            let answered = snapshot.answers_sequence >= wanted;
             let now = Instant::now();
-            if answered
-                || (now >= deadline
-                    && snapshot.answers_sequence > 0
-                    && wanted - snapshot.answers_sequence <= max_stale)
-            {
-                let age = wanted.saturating_sub(snapshot.answers_sequence);
-                self.state_age_ticks = u32::try_from(age).unwrap_or(u32::MAX);
+            let verdict = link::judge(
+                snapshot.answers_sequence,
+                wanted,
+                now >= deadline,
+                max_stale,
+            );
+            if let Verdict::Use { age_ticks } = verdict {
+                self.state_age_ticks = age_ticks;
                 self.arm_force_n = snapshot.arm_force_n;
                 return Ok(DeviceState {
                     position_m: snapshot.position_m,
@@ -253,7 +257,7 @@ impl HapticDevice for HaplyInverse {
                     status: None,
                 });
             }
-            if now >= deadline {
+            if verdict == Verdict::Late {
                 if link.shared.drifted.load(Ordering::Relaxed) > 0 {
                     // Not a slow service: its messages have a field in another type than Haply documents
                     // (the reconnect's open names the field).
@@ -293,11 +297,7 @@ impl HapticDevice for HaplyInverse {
             return Some(event);
         }
         let event = self.link.as_mut()?.events.pop()?;
-        let code = match event {
-            SafetyEvent::EbrakeTriggered => FAULT_EMERGENCY_STOP,
-            SafetyEvent::StallDetected => FAULT_MOTOR_STALL,
-            SafetyEvent::StabilityCeiling => FAULT_STABILITY_CEILING,
-        };
+        let code = link::fault_code(event);
         self.active_faults |= 1 << code;
         Some(DeviceEvent::Fault {
             code,

@@ -14,12 +14,14 @@
 //! `{"inverse3":[{"device_id":ID,"commands":{"set_cursor_force":{"vector":{"x":…,"y":…,"z":…}}}}]}` in newtons;
 //! when commands stop the device returns to idle. The first message ([`setup_message`]) sets the session's
 //! profile and basis, the device's preset `defaults` and basis `XYZ` (replacing any mount another program left)
-//! and asks for the full state; [`connect`] reads back preset, basis, mount and workspace transform from the
+//! and asks for the full state; [`handshake`] reads back preset, basis, mount and workspace transform from the
 //! answer ([`check_configuration`]) and fails on any difference, so positions (m), velocities (m/s) and forces
 //! (N) are in Haply's own right-handed frame (+X right, +Y forward, +Z up, origin on the mounting plate)
 //! whatever an earlier application configured; the device profile maps that frame onto the scene. State fields
 //! that are absent keep their previous value (the service's partial-update semantics). The events channel
-//! (port 10020) runs on its own thread ([`events`]); the I/O thread below is in `inverse_io.rs`.
+//! (port 10020) runs on its own thread ([`events`]). [`handshake`] leaves the set-up, non-blocking socket
+//! ([`io::ServicePort`]); the driver's I/O thread (`drivers/haply_inverse_io.rs`) drives it, and its protocol
+//! core (`drivers/haply_inverse_link.rs`) keeps the invariants below.
 //!
 //! The thread sends a force as soon as one is queued (coalescing to the newest if several are: it never falls
 //! behind) and reads the reply. Its socket is non-blocking: it waits with poll(2), and before every send,
@@ -68,7 +70,7 @@ use tungstenite::{Message, WebSocket};
 #[path = "inverse_events.rs"]
 pub mod events;
 #[path = "inverse_io.rs"]
-mod io;
+pub mod io;
 #[cfg(test)]
 #[path = "inverse_service_tests.rs"]
 mod tests;
@@ -143,6 +145,29 @@ pub struct ServiceSnapshot {
     pub arm_force_n: Option<DVec3>,
 }
 
+impl ServiceSnapshot {
+    /// Applies a state object (absent fields keep their value, the service's partial updates); false when
+    /// there is none or it holds a non-finite position.
+    pub fn apply(&mut self, state: Option<&WireState>) -> bool {
+        let Some(state) = state else {
+            return false;
+        };
+        if let Some(p) = state.cursor_position {
+            if !p.is_finite() {
+                return false;
+            }
+            self.position_m = p;
+        }
+        if let Some(v) = state.cursor_velocity.filter(|v| v.is_finite()) {
+            self.velocity_m_per_s = v;
+        }
+        if let Some(f) = state.current_cursor_force.filter(|f| f.is_finite()) {
+            self.arm_force_n = Some(f);
+        }
+        true
+    }
+}
+
 /// Counters and flags shared by both threads.
 #[derive(Debug, Default)]
 pub struct ServiceShared {
@@ -179,7 +204,7 @@ pub struct ServiceLink {
     pub states: triple_buffer::Output<ServiceSnapshot>,
     /// Flags and counters.
     pub shared: Arc<ServiceShared>,
-    /// The I/O thread (unparked when a force is queued; joined on close).
+    /// The I/O thread (unparked when a force is queued; joined on close; started by the driver).
     pub thread: Option<JoinHandle<()>>,
     /// The device this link drives.
     pub device: ServiceDevice,
@@ -322,6 +347,18 @@ impl Write for ServiceStream {
 
 type Socket = WebSocket<ServiceStream>;
 
+/// A connection whose session is set up and read back: the socket (non-blocking from here on), the device it
+/// drives and its state so far (label 0).
+#[derive(Debug)]
+pub struct Session {
+    /// The simulation channel.
+    pub port: io::ServicePort,
+    /// The driven device.
+    pub device: ServiceDevice,
+    /// The state the inventory and the set-up's answer left.
+    pub snapshot: ServiceSnapshot,
+}
+
 fn open_error(url: &str, reason: &str, kind: std::io::ErrorKind) -> DeviceError {
     let advice = match kind {
         std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::TimedOut => {
@@ -403,9 +440,17 @@ fn service_device(entry: &WireInverse3, session_id: Option<String>) -> ServiceDe
     }
 }
 
+/// What the service kept that voxhap did not ask for: every difference, in words, shown joined by "; ".
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}", .differences.join("; "))]
+pub struct ConfigurationMismatch {
+    /// Each difference, e.g. `mount position (0.1, 0, 0) (asked for none: the preset's own)`.
+    pub differences: Vec<String>,
+}
+
 /// Checks the configuration the service reports after the session set-up against what voxhap asked for
 /// ([`SESSION_PRESET`], [`SESSION_BASIS`], no mount, no workspace transform). `Err` lists every difference.
-pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, String> {
+pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, ConfigurationMismatch> {
     let mut wrong = Vec::new();
     let mut missing = Vec::new();
     match entry.config.as_ref() {
@@ -440,7 +485,7 @@ pub fn check_configuration(entry: &WireInverse3) -> Result<Configuration, String
         }
     }
     if !wrong.is_empty() {
-        return Err(wrong.join("; "));
+        return Err(ConfigurationMismatch { differences: wrong });
     }
     Ok(if missing.is_empty() {
         Configuration::Confirmed
@@ -537,11 +582,11 @@ fn connect_and_read_inventory(
     }
 }
 
-/// Connects, reads the inventory, picks the device, configures the session (identity basis) with a zero force,
-/// and starts the I/O thread. Everything before the I/O thread starts (TCP connect, WebSocket handshake,
-/// inventory, the answer to the configuration) shares one deadline, `connect_timeout` from the start, however
-/// slowly the service sends its bytes.
-pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
+/// Connects, reads the inventory, picks the device, configures the session (identity basis) and reads back
+/// what the service uses. Everything (TCP connect, WebSocket handshake, inventory, the answer to the
+/// configuration) shares one deadline, `connect_timeout` from the start, however slowly the service sends its
+/// bytes. The driver then starts its I/O thread on the session.
+pub fn handshake(config: &ServiceConfig) -> Result<Session, DeviceError> {
     let url = config.url.as_str();
     let io = |e: std::io::Error| open_error(url, &e.to_string(), e.kind());
     let deadline = Instant::now() + config.connect_timeout;
@@ -569,7 +614,7 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
         velocity_m_per_s: DVec3::ZERO,
         arm_force_n: None,
     };
-    io::apply_state(&mut snapshot, entry.state.as_ref());
+    snapshot.apply(entry.state.as_ref());
     // Configure the session (profile, basis, preset, full state) and read back what the service now uses.
     socket
         .send(Message::text(setup_message(
@@ -609,43 +654,13 @@ pub fn connect(config: &ServiceConfig) -> Result<ServiceLink, DeviceError> {
     if let Some(filters) = answer.config.as_ref().and_then(|c| c.filters.clone()) {
         device.filters = Some(filters);
     }
-    io::apply_state(&mut snapshot, answer.state.as_ref());
+    snapshot.apply(answer.state.as_ref());
     // From here on the I/O thread never blocks on the socket: it polls it (module docs).
     socket.get_mut().deadline = None;
     socket.get_ref().stream.set_nonblocking(true).map_err(io)?;
-
-    let (forces, force_rx) = rtrb::RingBuffer::new(FORCE_RING_CAPACITY);
-    let (mut state_tx, states) = triple_buffer::triple_buffer(&snapshot);
-    state_tx.write(snapshot);
-    let shared = Arc::new(ServiceShared::default());
-    let thread = {
-        let io_loop = io::IoLoop {
-            socket,
-            device_id: device.device_id.clone(),
-            states: state_tx,
-            snapshot,
-            shared: shared.clone(),
-            unanswered: std::collections::VecDeque::with_capacity(FORCE_RING_CAPACITY),
-            last_sent: 0,
-            floor: 0,
-        };
-        let reply_timeout = config.reply_timeout;
-        std::thread::Builder::new()
-            .name("voxhap-inverse-io".to_owned())
-            .spawn(move || io_loop.run(force_rx, reply_timeout))
-            .map_err(|e| open_error(url, &e.to_string(), e.kind()))?
-    };
-    let events_url = config
-        .events_url
-        .clone()
-        .unwrap_or_else(|| events::default_events_url(url));
-    let events = events::EventChannel::start(events_url, device.device_id.clone());
-    Ok(ServiceLink {
-        forces,
-        states,
-        shared,
-        thread: Some(thread),
+    Ok(Session {
+        port: io::ServicePort::new(socket),
         device,
-        events,
+        snapshot,
     })
 }

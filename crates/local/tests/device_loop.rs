@@ -79,6 +79,11 @@ impl Rig {
         force
     }
 
+    /// The local status of the last LocalState the device sent.
+    fn last_status(&self) -> LocalStatus {
+        self.states.last().expect("no LocalState yet").status
+    }
+
     /// Models every millisecond (a 1 kHz host) for `ms`, the handle at `z_m`; the largest |force| seen.
     fn run(&mut self, ms: u64, z_m: f32, force_limit_n: f64) -> f32 {
         let mut peak = 0.0f32;
@@ -139,12 +144,7 @@ fn the_force_never_exceeds_the_model_limit() {
 fn a_handle_inside_the_wall_at_engage_gets_no_force_until_it_leaves() {
     let mut rig = Rig::new(LoopConfig::default());
     assert_eq!(rig.run(100, -0.001, 5.0), 0.0);
-    assert!(rig
-        .states
-        .last()
-        .unwrap()
-        .status
-        .contains(LocalStatus::ENGAGING));
+    assert!(rig.last_status().contains(LocalStatus::ENGAGING));
     rig.run(10, 0.001, 5.0);
     assert!(rig.local.ramp_factor() > 0.0);
 }
@@ -214,12 +214,7 @@ fn after_a_disable_the_next_enable_engages_from_zero() {
     // 2 mm in (4 N): r = 0 waits (SPEC 10.5 step 6), the handle gets no force.
     assert_eq!(rig.run(20, -0.002, 5.0), 0.0);
     assert_eq!(rig.local.ramp_factor(), 0.0);
-    assert!(rig
-        .states
-        .last()
-        .unwrap()
-        .status
-        .contains(LocalStatus::ENGAGING));
+    assert!(rig.last_status().contains(LocalStatus::ENGAGING));
 }
 
 #[test]

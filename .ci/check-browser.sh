@@ -3,7 +3,8 @@
 #
 # Starts `voxhap serve` (simulated arm, built-in scene) on a free loopback port, then with headless Chromium:
 #   1. dumps the DOM and checks the page received states (the tick counter it writes is > 0), connected its
-#      WebSocket and built the mode controls from the scene;
+#      WebSocket and built the mode controls from the scene, and that its "Device proxy" line says there is no
+#      local model (.ci/device_proxy_check.py);
 #   2. takes two screenshots a couple of seconds apart and checks both are real 1280x900 pictures with a
 #      greyscale slice drawn in the views, and that the views changed between them (.ci/screenshot_check.py;
 #      each screenshot is taken again until it shows that, or 120 s pass);
@@ -11,7 +12,9 @@
 #      runs .ci/browser-e2e.js: drag the virtual hand in a view, set the stiffness, scale a mode; then at
 #      390x844 (a phone): no horizontal overflow, the mode on/off switch, peak strength 0 and back keeping the
 #      breakpoints, typed breakpoints, slices within 200 KiB/s, the status line and the measured stream rate;
-#      then a wrong token: the page says so and a drag sends no request.
+#      then a wrong token: the page says so and a drag sends no request; then, with a second serve on
+#      `voxhap mock-device --local-model`, that the "Device proxy" line shows the device's own proxy
+#      (.ci/device_proxy_check.py live, .ci/device-proxy-page.js).
 # Skips (exit 0) with a message when no Chromium, node or npm can be found or installed, except in CI (CI set),
 # where that fails. Exit 1 on a failed check.
 #
@@ -105,6 +108,8 @@ until chrome --virtual-time-budget=$dom_budget --dump-dom "$URL" >"$WORK/dom.htm
   sleep 1
 done
 
+python3 .ci/device_proxy_check.py none "$WORK/dom.html" || fail "the Device proxy line (see above)"
+
 # ---- 2. Two screenshots a couple of seconds apart, each taken again (with a longer virtual-time budget) until
 # it shows what is checked, or 120 s pass: on a loaded machine the first state and the slice can arrive after
 # a fixed budget ends, and a screenshot taken before the slice is drawn proves nothing about the page.
@@ -148,6 +153,8 @@ else
   npm_into "$WORK/npm" "browser interaction test: npm install of playwright-core" install --no-save playwright-core
   NODE_PATH="$WORK/npm/node_modules" timeout 600 node .ci/browser-e2e.js "$BASE" "$TOKEN" "$CHROMIUM" \
     || { server_log; fail "the browser interaction test failed"; }
+  NODE_PATH="$WORK/npm/node_modules" python3 .ci/device_proxy_check.py live "$VOXHAP" "$CHROMIUM" "$WORK" \
+    || fail "the Device proxy line with a local-model device (see above)"
 fi
 
 kill -0 "$SERVER_PID" 2>/dev/null || { server_log; fail "the server exited during the checks"; }

@@ -2,9 +2,9 @@
 //! sends local models gets them rendered by the device's own loop, and from the device's own log the force never
 //! exceeds the limit, is zero while the drive is not Enabled, never rises faster than 0.5 N/ms of device time on
 //! a local cycle, and is zero once a silenced host's last model is 5 ms past its expiry; `voxhap serve` sends
-//! local models to the capable device, which renders a wall with them and ramps out by itself when serve is
-//! killed. Only what holds whatever the
-//! machine's load is asserted: the log's times are the device's own.
+//! local models to the capable device, whose loop engages and renders the built-in scene (and ramps out by itself
+//! when serve is killed) and a wall (and serve's trace carries what the device reported). Only what holds
+//! whatever the machine's load is asserted: the log's times are the device's own.
 
 use crate::util::mock_process::MockProcess as Mock;
 use glam::DVec3;
@@ -179,11 +179,13 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
         }),
     );
 
-    // Two seconds of models at about 1 kHz (the pacing does not matter: each model expires 5 ms after it
-    // arrives), reading whatever comes back so that the terminal's buffer never fills.
+    // Two seconds of models at about 1 kHz, reading whatever comes back so that the terminal's buffer never
+    // fills. The pacing does not matter: each model expires 15 ms after it arrives, which rides out a loaded
+    // machine's late ticks (5 ms would not: a test host 8 ms late keeps knocking the engage ramp down) and, with
+    // the 50 ms watchdog, leaves 30 ms of silence in which the device renders an expired model.
     let params = LocalModelParams {
         sequence: 0,
-        expiry_us: 5000,
+        expiry_us: 15_000,
         stiffness_n_per_m: 2000.0,
         damping_n_s_per_m: 1.0,
         force_limit_n: LIMIT_N,
@@ -255,12 +257,17 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
         "the handle never felt the wall"
     );
     assert!(local.iter().all(|c| (c.limit_n - LIMIT_N).abs() < 1e-9));
-    // Expiry: once a model is 5 ms past its expiry the force is zero, whatever the cycle timing.
+    // Expiry: once a model is 5 ms past its expiry the force is zero, whatever the cycle timing; the silence at
+    // the end puts cycles there before the watchdog ends local mode.
     for c in &local {
         if c.model_age_us >= c.expiry_us + 5000 {
             assert_eq!(c.force_n, 0.0, "{c:?}");
         }
     }
+    assert!(
+        local.iter().any(|c| c.model_age_us >= c.expiry_us + 5000),
+        "no local cycle 5 ms past its model's expiry"
+    );
     // The silence was seen (the log runs on well past the last model), and it ended at zero force.
     let last_local = local.last().unwrap().t_us;
     let after: Vec<&Cycle> = cycles.iter().filter(|c| c.t_us > last_local).collect();
@@ -290,56 +297,118 @@ normal = [-1.0, 0.0, 0.0]
 strength_n = 30.0
 "#;
 
-#[test]
-fn serve_sends_local_models_to_a_capable_mock_and_its_force_expires_when_serve_dies() {
-    let dir = tempfile::tempdir().unwrap();
-    let log = dir.path().join("device.csv");
-    let scene = dir.path().join("wall.toml");
-    std::fs::write(&scene, WALL_SCENE).unwrap();
+/// How a `voxhap serve` run on the capable mock ends.
+enum ServeEnd {
+    /// SIGKILL after this many seconds: the host goes silent mid-stream, as a crashed host or a pulled cable
+    /// would. serve's own `--duration` is far beyond it, so it never stops cleanly (no zero force, no Disable).
+    KilledAfter(u64),
+    /// serve stops by itself after this many seconds (`--duration`) and must exit successfully.
+    Exits(u64),
+}
+
+/// `voxhap serve` (headless) with `serve_args` on a capable mock on a pseudo-terminal, until `end`; the mock runs
+/// on for a few seconds after that, so that its log shows what the device did once the host was gone. Returns
+/// the device's own log.
+fn serve_on_a_capable_mock(dir: &Path, serve_args: &[&str], end: ServeEnd) -> Vec<Cycle> {
+    let log = dir.join("device.csv");
+    let (serve_s, mock_s) = match end {
+        ServeEnd::KilledAfter(s) => (60, s + 7),
+        ServeEnd::Exits(s) => (s, s + 12),
+    };
     let mut mock = Mock::start(&[
         "--pty",
         "--local-model",
         "--duration",
-        "16",
+        &mock_s.to_string(),
         "--log",
         log.to_str().unwrap(),
     ]);
-    // serve's own duration is far beyond the kill: it never stops cleanly (no zero force, no Disable).
     let mut serve = crate::util::serve_headless(&format!("mock:{}", mock.path))
-        .args(["--scene", scene.to_str().unwrap(), "--duration", "60"])
+        .args(serve_args)
+        .args(["--duration", &serve_s.to_string()])
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
+        .stderr(match end {
+            ServeEnd::KilledAfter(_) => std::process::Stdio::null(),
+            ServeEnd::Exits(_) => std::process::Stdio::piped(),
+        })
         .spawn()
         .expect("run voxhap serve");
-    std::thread::sleep(Duration::from_secs(9));
-    // SIGKILL: the host goes silent mid-stream, as a crashed host or a pulled cable would.
-    serve.kill().unwrap();
-    serve.wait().unwrap();
+    match end {
+        ServeEnd::KilledAfter(s) => {
+            std::thread::sleep(Duration::from_secs(s));
+            serve.kill().unwrap();
+            serve.wait().unwrap();
+        }
+        ServeEnd::Exits(_) => {
+            let started = Instant::now();
+            let status = loop {
+                if let Some(status) = serve.try_wait().unwrap() {
+                    break status;
+                }
+                assert!(
+                    started.elapsed() < Duration::from_secs(90),
+                    "serve did not stop"
+                );
+                std::thread::sleep(Duration::from_millis(50));
+            };
+            let mut errors = String::new();
+            std::io::Read::read_to_string(&mut serve.stderr.take().unwrap(), &mut errors).unwrap();
+            assert!(status.success(), "{status:?}: {errors}");
+        }
+    }
     let done = wait_for_done(&mut mock);
     assert!(done.starts_with("done:"), "{done}");
-    let cycles = read_log(&log);
-    check_zero_when_off_and_slew(&cycles);
+    read_log(&log)
+}
 
-    // serve sent local models (SPEC 10.1: only to a device that reports LOCAL_MODEL), with serve's force
-    // limit (3 N by default, below the mock's 5 N).
+/// What every serve run on the capable mock must show in the device's log: the rules of
+/// [`check_zero_when_off_and_slew`], local models with serve's force limit (3 N by default, below the mock's
+/// 5 N; SPEC 10.1: sent only to a device that reports LOCAL_MODEL), never a force above the limit in force in
+/// any mode, and zero force once a model is 5 ms past its expiry (SPEC 10.5). Returns the local cycles.
+fn check_serve_run(cycles: &[Cycle]) -> Vec<&Cycle> {
+    check_zero_when_off_and_slew(cycles);
     let local: Vec<&Cycle> = cycles.iter().filter(|c| c.mode == "local").collect();
     assert!(!local.is_empty(), "serve never sent a local model");
     assert!(local.iter().all(|c| (c.limit_n - 3.0).abs() < 1e-9));
-    // Never above the limit in force, in any mode.
-    for c in &cycles {
+    for c in cycles {
         assert!(c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9, "{c:?}");
     }
-    // The device's own loop rendered the wall.
-    assert!(
-        local.iter().any(|c| c.force_n > 0.1),
-        "the handle never felt the wall"
-    );
-    // Once a model is 5 ms past its expiry the force is zero, whatever the timing (SPEC 10.5).
     for c in &local {
         if c.model_age_us >= c.expiry_us + 5000 {
             assert_eq!(c.force_n, 0.0, "{c:?}");
         }
     }
+    local
+}
+
+/// Engaged (the ramp ran to its end, SPEC 10.5 step 6) and rendered: an engaged cycle with more than `min_n`.
+fn check_engaged_and_rendered(local: &[&Cycle], min_n: f64) {
+    assert!(
+        local.iter().any(|c| c.ramp == 1.0),
+        "the device never finished engaging: largest ramp {}",
+        local.iter().map(|c| c.ramp).fold(0.0, f64::max)
+    );
+    assert!(
+        local.iter().any(|c| c.ramp == 1.0 && c.force_n > min_n),
+        "the engaged device never rendered a force above {min_n} N"
+    );
+}
+
+/// `voxhap serve` with no scene renders the built-in one (sims/scenes/explore.toml) on the capable mock, and is
+/// then killed: from the device's own log, its local loop engaged and rendered the scene, the force stayed
+/// within serve's limit, and after the killed host's last model expired the force stayed zero to the end.
+///
+/// The mock's hand circles at 20 mm around the z axis at 31 mm/s, inside the scene's density ball (3 cm) and
+/// its Burgers vortex (core 7.5 mm, circulation 2π × 7.5 mm × 0.16 m/s): the flow there is about 60 mm/s, which
+/// the `vector_follow` transfer (0.4 N at 0.1 m/s) turns into a flow line of about 0.24 N. The line holds the
+/// device's proxy up to that strength over k off the moving handle, so the engaged device renders more than
+/// 0.1 N for as long as the hand moves across the flow.
+#[test]
+fn serve_renders_the_built_in_scene_on_a_capable_mock_and_its_force_expires_when_serve_dies() {
+    let dir = tempfile::tempdir().unwrap();
+    let cycles = serve_on_a_capable_mock(dir.path(), &[], ServeEnd::KilledAfter(9));
+    let local = check_serve_run(&cycles);
+    check_engaged_and_rendered(&local, 0.1);
     // The killed host's last model did expire on the device (no SetForce or Disable came after it), and
     // from then to the end of the log the force stayed zero.
     let last_model = local.last().unwrap().model_sequence;
@@ -495,64 +564,28 @@ fn over_a_1_mbaud_link_a_local_model_session_streams_state_at_500_hz() {
     assert!(run.local_reports > 0, "no LocalState came back");
 }
 
-/// `voxhap serve` on the wall scene with the capable mock: the device engages and renders, and serve's trace
-/// carries the device's own proxy and model age as the device logged them.
+/// `voxhap serve` on the wall scene with the capable mock: the device engages and renders the wall, and serve's
+/// trace carries the device's own proxy and model age as the device logged them.
 #[test]
 fn serve_traces_a_capable_mocks_own_proxy_and_model_age() {
     let dir = tempfile::tempdir().unwrap();
-    let log = dir.path().join("device.csv");
     let trace_path = dir.path().join("serve.csv");
     let scene = dir.path().join("wall.toml");
     std::fs::write(&scene, WALL_SCENE).unwrap();
-    let mut mock = Mock::start(&[
-        "--pty",
-        "--local-model",
-        "--duration",
-        "20",
-        "--log",
-        log.to_str().unwrap(),
-    ]);
-    let mut serve = crate::util::serve_headless(&format!("mock:{}", mock.path))
-        .args(["--scene", scene.to_str().unwrap(), "--duration", "8"])
-        .args(["--record", trace_path.to_str().unwrap()])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("run voxhap serve");
-    let started = Instant::now();
-    let status = loop {
-        if let Some(status) = serve.try_wait().unwrap() {
-            break status;
-        }
-        assert!(
-            started.elapsed() < Duration::from_secs(90),
-            "serve did not stop"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let mut errors = String::new();
-    std::io::Read::read_to_string(&mut serve.stderr.take().unwrap(), &mut errors).unwrap();
-    assert!(status.success(), "{status:?}: {errors}");
-    let done = wait_for_done(&mut mock);
-    assert!(done.starts_with("done:"), "{done}");
-    let cycles = read_log(&log);
-
-    // Engaged (the ramp ran to its end) and rendered (more than the 0.1 N engage threshold), from the device's
-    // own log.
-    let local: Vec<&Cycle> = cycles.iter().filter(|c| c.mode == "local").collect();
-    assert!(!local.is_empty(), "serve never sent a local model");
-    assert!(
-        local.iter().any(|c| c.ramp == 1.0),
-        "the device never finished engaging: largest ramp {}",
-        local.iter().map(|c| c.ramp).fold(0.0, f64::max)
+    let cycles = serve_on_a_capable_mock(
+        dir.path(),
+        &[
+            "--scene",
+            scene.to_str().unwrap(),
+            "--record",
+            trace_path.to_str().unwrap(),
+        ],
+        ServeEnd::Exits(8),
     );
-    assert!(
-        local.iter().any(|c| c.ramp == 1.0 && c.force_n > 0.1),
-        "the engaged device never rendered a force above 0.1 N"
-    );
-    for c in &cycles {
-        assert!(c.force_n <= c.limit_n * (1.0 + 1e-6) + 1e-9, "{c:?}");
-    }
+    let local = check_serve_run(&cycles);
+    // The wall pushed back with more than 1 N once engaged: the hand's 200 N/m spring pulls the handle towards
+    // x = 20 mm, 10 mm past the wall, and the wall's 500 N/m balances it 2.9 mm in, at 1.4 N.
+    check_engaged_and_rendered(&local, 1.0);
 
     // The trace's device columns are what the device logged: each traced proxy is one the device's loop
     // computed (to the f32 the LocalState carries) for the traced model, at the traced age (to one 100 µs

@@ -170,7 +170,7 @@ crate::fields::bit_set! {
         CLAMPED = 1 << 3;
         /// A force since the previous report was held back by the slew limit.
         SLEW_LIMITED = 1 << 4;
-        /// The engage ramp is running (or waits for the rendered force to fall below 0.1 N).
+        /// The engage ramp is running (or waits for the rendered force to fall below 1 N).
         ENGAGING = 1 << 5;
         /// The model in use carries [`ModelFlags::TRUNCATED`].
         TRUNCATED = 1 << 6;

@@ -9,8 +9,8 @@ use crate::ramp::{clamp, norm, slew_limit, Ramp, RampState};
 use glam::DVec3;
 use voxhap_protocol::local::MAX_BOUND_M;
 use voxhap_protocol::{
-    DeviceSample, DeviceSession, LocalKind, LocalModel, LocalStatus, LocalTick, ModelFlags,
-    MAX_LOCAL_PRIMITIVES,
+    DeviceSample, DeviceSession, DriveState, LocalKind, LocalModel, LocalStatus, LocalTick,
+    ModelFlags, MAX_LOCAL_PRIMITIVES,
 };
 use voxhap_solver::storage::Fixed;
 use voxhap_solver::{Primitive, PrimitiveError, Problem, Solver, SolverConfig};
@@ -100,7 +100,7 @@ impl LocalLoop {
         self.proxy_m.map(|p| p.to_array())
     }
 
-    /// The last applied local force, newtons.
+    /// The force applied in the last cycle (the local force, or the set-force path's), newtons.
     pub fn force_n(&self) -> [f64; 3] {
         self.force_n
     }
@@ -131,10 +131,15 @@ impl LocalLoop {
         };
         self.last_us = Some(now_us);
         let Some((model, received_us)) = session.local_model() else {
-            // The set-force path (or zero): a later model engages from zero again.
             self.model = None;
-            self.ramp.reset();
-            self.force_n = [0.0; 3];
+            if session.drive_state() != DriveState::Enabled {
+                // Disable, a fault, the watchdog or a Hello: the next Enable engages from zero (SPEC 10.5 step 6).
+                self.ramp.reset();
+            }
+            // Otherwise a SetForce drives the device: the host's force, past the host's own engage rule and slew
+            // limit, is applied, and the ramp holds, so that a host falling back to SetForce for a tick does not
+            // restart the 0.5 s engage ramp. The next local cycle's slew limit runs from this applied force.
+            self.force_n = set_force.map(f64::from);
             self.status = LocalStatus::EMPTY;
             return set_force;
         };

@@ -1,6 +1,11 @@
 //! The ramps and the slew limit of the local loop (protocol/SPEC.md section 10.5, steps 5 and 6): the engage ramp
 //! after Enable, the ramp-down after a model's expiry, and the limit on how fast the force may grow.
 //!
+//! The engage threshold is the host's (its safety pipeline's default, docs/safety.md): a scene that engages on the
+//! set-force path engages on the device too. A lower one never engaged a scene whose resting force is a few
+//! tenths of a newton: a flow line (`vector_follow`) holds the proxy up to `s / k` off a moving handle, so a hand
+//! moving through the flow feels its strength `s` (0.25 N in the built-in scene) for as long as it moves.
+//!
 //! Where it sits: [`crate::device_loop`] calls [`Ramp::update`] and [`slew_limit`] once per cycle; nothing here
 //! knows about models or the solver.
 
@@ -8,8 +13,8 @@ use voxhap_protocol::local::RAMP_DOWN_US;
 
 /// The engage ramp's length: the factor rises from 0 to 1 over this long, microseconds.
 pub const ENGAGE_US: u32 = 500_000;
-/// The engage ramp starts only once the clamped force is below this, newtons.
-pub const ENGAGE_BELOW_N: f64 = 0.1;
+/// The engage ramp starts only once the clamped force is below this, newtons: the host's engage threshold.
+pub const ENGAGE_BELOW_N: f64 = 1.0;
 /// Fastest rise of the force magnitude, newtons per second (0.5 N per ms, the host's own limit).
 pub const SLEW_N_PER_S: f64 = 500.0;
 
@@ -39,7 +44,7 @@ impl Ramp {
         self.factor
     }
 
-    /// Back to zero (Enable, a SetForce, a fault).
+    /// Back to zero (the drive left Enabled: Disable, a fault, the watchdog, a Hello).
     pub fn reset(&mut self) {
         self.factor = 0.0;
     }
@@ -117,11 +122,13 @@ mod tests {
 
     #[test]
     fn engaging_waits_for_a_small_force_then_takes_half_a_second() {
+        // SPEC 10.5 step 6: at r = 0 a clamped force of 1 N or more holds r at 0; below it r rises over 0.5 s.
         let mut ramp = Ramp::default();
-        assert_eq!(ramp.update(100, true, 0.2), RampState::Engaging);
+        assert_eq!(ramp.update(100, true, 1.0), RampState::Engaging);
+        assert_eq!(ramp.update(100, true, 2.5), RampState::Engaging);
         assert_eq!(ramp.factor(), 0.0);
         let mut t = 0;
-        while ramp.update(100, true, 0.05) == RampState::Engaging {
+        while ramp.update(100, true, 0.95) == RampState::Engaging {
             t += 100;
         }
         assert_eq!(t + 100, 500_000);

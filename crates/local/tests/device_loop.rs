@@ -1,6 +1,7 @@
 //! The local loop against protocol/SPEC.md section 10.5, with expected values worked by hand: a probe 1 mm into a
-//! wall of stiffness k feels k x 1 mm; the force limit, the engage rule, the expiry ramp (zero at most 5 ms after
-//! the expiry), the watchdog behind it, a model without a solution, and the set-force path left untouched.
+//! wall of stiffness k feels k x 1 mm; the force limit, the engage rule (1 N; kept through a SetForce, restarted
+//! by an Enable), the expiry ramp (zero at most 5 ms after the expiry), the watchdog behind it, a model without a
+//! solution, and the set-force path left untouched.
 
 #[path = "support/session.rs"]
 mod session;
@@ -78,6 +79,11 @@ impl Rig {
         force
     }
 
+    /// The local status of the last LocalState the device sent.
+    fn last_status(&self) -> LocalStatus {
+        self.states.last().expect("no LocalState yet").status
+    }
+
     /// Models every millisecond (a 1 kHz host) for `ms`, the handle at `z_m`; the largest |force| seen.
     fn run(&mut self, ms: u64, z_m: f32, force_limit_n: f64) -> f32 {
         let mut peak = 0.0f32;
@@ -138,14 +144,77 @@ fn the_force_never_exceeds_the_model_limit() {
 fn a_handle_inside_the_wall_at_engage_gets_no_force_until_it_leaves() {
     let mut rig = Rig::new(LoopConfig::default());
     assert_eq!(rig.run(100, -0.001, 5.0), 0.0);
-    assert!(rig
-        .states
-        .last()
-        .unwrap()
-        .status
-        .contains(LocalStatus::ENGAGING));
+    assert!(rig.last_status().contains(LocalStatus::ENGAGING));
     rig.run(10, 0.001, 5.0);
     assert!(rig.local.ramp_factor() > 0.0);
+}
+
+#[test]
+fn the_engage_ramp_starts_below_1_n_and_not_at_or_above_it() {
+    // SPEC 10.5 step 6: at r = 0, a clamped force of 1 N or more holds r at 0. The floor at k = 2000 N/m:
+    // 0.55 mm in is 1.1 N (waits), 0.45 mm in is 0.9 N (the ramp starts).
+    let mut rig = Rig::new(LoopConfig::default());
+    assert_eq!(rig.run(50, -0.00055, 5.0), 0.0);
+    assert_eq!(rig.local.ramp_factor(), 0.0);
+    rig.run(10, -0.00045, 5.0);
+    assert!(rig.local.ramp_factor() > 0.0);
+}
+
+#[test]
+fn a_set_force_between_models_keeps_the_engage_ramp_and_the_slew_limit_runs_from_it() {
+    // Engaged, the handle 0.5 mm into the floor: k d = 1 N.
+    let mut rig = Rig::new(LoopConfig::default());
+    rig.run(510, 0.002, 5.0);
+    rig.run(10, -0.0005, 5.0);
+    assert_eq!(rig.local.ramp_factor(), 1.0);
+    // The host falls back to SetForce for one millisecond (a late State, say) and sends zero: the device applies
+    // it (SPEC 10.1)...
+    rig.send(HostToDevice::SetForce(SetForce {
+        sequence: 10_000,
+        force_n: [0.0; 3],
+        flags: ForceFlags::EMPTY,
+    }));
+    for _ in 0..10 {
+        assert_eq!(rig.step(-0.0005), [0.0; 3]);
+    }
+    // ...and when models resume the engage ramp is not restarted (SPEC 10.5 step 6: r changes only in local mode
+    // and is 0 only while the drive is not Enabled): the force climbs back from the applied zero at the slew
+    // limit, 0.5 N per ms (0.05 N per 100 us cycle), to 1 N within 2.5 ms.
+    let mut previous = 0.0f32;
+    let mut forces = Vec::new();
+    for _ in 0..3 {
+        let sequence = (rig.now_us / 1000) as u32 + 20_000;
+        rig.send(floor_model(sequence, 5.0));
+        for _ in 0..10 {
+            let force = norm(rig.step(-0.0005));
+            assert!(force - previous <= 0.05 + 1e-6, "{previous} -> {force}");
+            previous = force;
+            forces.push(force);
+        }
+    }
+    assert_eq!(rig.local.ramp_factor(), 1.0);
+    assert!(
+        forces[0] > 0.0,
+        "the first local cycle rose from zero: {forces:?}"
+    );
+    let tolerance = (K * 1.1e-6) as f32;
+    assert!((previous - 1.0).abs() <= tolerance, "{forces:?}");
+}
+
+#[test]
+fn after_a_disable_the_next_enable_engages_from_zero() {
+    let mut rig = Rig::new(LoopConfig::default());
+    rig.run(510, 0.002, 5.0);
+    assert_eq!(rig.local.ramp_factor(), 1.0);
+    rig.send(HostToDevice::Disable);
+    assert_eq!(rig.step(-0.002), [0.0; 3]);
+    rig.send(HostToDevice::Enable(voxhap_protocol::Enable {
+        watchdog_timeout_us: 50_000,
+    }));
+    // 2 mm in (4 N): r = 0 waits (SPEC 10.5 step 6), the handle gets no force.
+    assert_eq!(rig.run(20, -0.002, 5.0), 0.0);
+    assert_eq!(rig.local.ramp_factor(), 0.0);
+    assert!(rig.last_status().contains(LocalStatus::ENGAGING));
 }
 
 #[test]

@@ -130,7 +130,7 @@ pub struct LocalRun {
 }
 
 /// The run of [`super::judge`] with a local-model device: first the device loop engages (its 0.5 s ramp,
-/// which starts only below 0.1 N) with the arm held still, 10 mm above the plane for one host period and then
+/// which starts only below 1 N) with the arm held still, 10 mm above the plane for one host period and then
 /// where the set-force runs start it; then the arm is released there, at rest, and the measured run of
 /// [`super::setup::RUN_S`] follows. The link latency delays the
 /// models; the device's own loop has none.

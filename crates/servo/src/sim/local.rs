@@ -13,7 +13,6 @@
 //! Enable ([`crate::device::enabled_local_session`]), the same loop settings; here every cycle is visible to
 //! the caller, whose energy ledger books each one.
 
-use super::scenario::ScenarioValueError;
 use glam::DVec3;
 use voxhap_api::DeviceLocal;
 use voxhap_device::local_offer::LocalOffer;
@@ -58,20 +57,11 @@ pub struct LocalDevice {
 }
 
 impl LocalDevice {
-    /// An enabled device whose loop runs at `local.rate_hz`, a whole multiple of `servo_hz`; it declares the
-    /// stiffness cap `declared_n_per_m` (N/m) as the simulated arm does.
-    pub fn new(
-        servo_hz: f64,
-        local: LocalModelSim,
-        declared_n_per_m: f64,
-    ) -> Result<LocalDevice, ScenarioValueError> {
-        // The scenario's validation refused such a rate already; this names it again rather than panic.
-        let cycles = local
-            .cycles_per_period(servo_hz)
-            .ok_or(ScenarioValueError::LocalRate {
-                local_hz: local.rate_hz,
-                servo_hz,
-            })?;
+    /// An enabled device whose loop runs at `local.rate_hz`, a whole multiple of `servo_hz` (`None` otherwise: the
+    /// scenario's validation refuses such a rate first); it declares the stiffness cap `declared_n_per_m` (N/m) as
+    /// the simulated arm does.
+    pub fn new(servo_hz: f64, local: LocalModelSim, declared_n_per_m: f64) -> Option<LocalDevice> {
+        let cycles = local.cycles_per_period(servo_hz)?;
         // Whole microseconds (cycles_per_period checked it).
         let cycle_us = (1e6 / local.rate_hz).round() as u64;
         let (host, session) = crate::device::enabled_local_session(
@@ -79,7 +69,7 @@ impl LocalDevice {
             DEVICE_MAX_FORCE_N as f32,
             declared_n_per_m.max(f64::MIN_POSITIVE) as f32,
         );
-        Ok(LocalDevice {
+        Some(LocalDevice {
             cycles_per_period: cycles,
             cycle_us,
             now_us: 0,

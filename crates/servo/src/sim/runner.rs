@@ -84,11 +84,17 @@ pub fn run(
     let mut state = TickState::new(arm.position_m());
     // `[local_model]`: the arm is a device whose own loop renders the tick's local model (super::local).
     let mut device = match settings.local_model {
-        Some(local) => Some(LocalDevice::new(
-            settings.rate_hz,
-            local,
-            scenario.arm.physics().declared_at_1khz_n_per_m(dt_s),
-        )?),
+        Some(local) => Some(
+            LocalDevice::new(
+                settings.rate_hz,
+                local,
+                scenario.arm.physics().declared_at_1khz_n_per_m(dt_s),
+            )
+            .ok_or(ScenarioValueError::LocalRate {
+                local_hz: local.rate_hz,
+                servo_hz: settings.rate_hz,
+            })?,
+        ),
         None => None,
     };
     let mut summary = SimSummary {

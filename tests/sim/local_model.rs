@@ -14,8 +14,8 @@ use voxhap::haptics::tick::SolverKind;
 use voxhap::record::{create_trace_writer, read_trace, Trace, TraceFormat, TraceMeta};
 use voxhap::sim::{self, Scenario, SimSummary};
 
-/// The wall scene, without `[local_model]`: `{k}` is the coupling stiffness, `{depth}` how far inside the
-/// plane the hand ends (m).
+/// The wall scene, without `[local_model]`: `{k}` is the coupling stiffness; the hand's target goes from `{from}`
+/// above the plane to `{depth}` inside it (m) in `{path_s}` seconds.
 const WALL: &str = r#"
 name = "local-model-wall"
 duration_s = 3.0
@@ -39,9 +39,9 @@ damping_n_s_per_m = 0.0
 
 [path]
 kind = "line"
-from_m = [0.0, 0.0, 0.01]
+from_m = [0.0, 0.0, {from}]
 to_m = [0.0, 0.0, -{depth}]
-duration_s = 1.0
+duration_s = {path_s}
 "#;
 
 const LOCAL: &str = "\n[local_model]\nrate_hz = 10000.0\n";
@@ -49,10 +49,18 @@ const LOCAL: &str = "\n[local_model]\nrate_hz = 10000.0\n";
 /// 5 000 N/m: 2.5 times the 1 kHz boundary, a quarter of the 10 kHz one.
 const K: f64 = 5000.0;
 
-fn wall(k: f64, depth_m: f64, local: bool) -> String {
+/// The wall at `k` with the hand coming from 10 mm above over 1 s and holding 3 mm inside, with
+/// `[local_model]` when `local`.
+fn wall(k: f64, local: bool) -> String {
+    wall_path(k, 0.01, 0.003, 1.0, local)
+}
+
+fn wall_path(k: f64, from_m: f64, depth_m: f64, path_s: f64, local: bool) -> String {
     let mut text = WALL
         .replace("{k}", &format!("{k:?}"))
-        .replace("{depth}", &format!("{depth_m:?}"));
+        .replace("{from}", &format!("{from_m:?}"))
+        .replace("{depth}", &format!("{depth_m:?}"))
+        .replace("{path_s}", &format!("{path_s:?}"));
     if local {
         text.push_str(LOCAL);
     }
@@ -103,12 +111,12 @@ fn a_wall_beyond_the_1_khz_bound_bounces_with_the_host_alone_and_holds_with_a_10
     let dir = tempfile::tempdir().unwrap();
     let fail_on = ["--fail-on", "active,oscillation"];
 
-    let alone = run_cli(dir.path(), "alone", &wall(K, 0.003, false), &fail_on);
+    let alone = run_cli(dir.path(), "alone", &wall(K, false), &fail_on);
     let stderr = String::from_utf8_lossy(&alone.stderr);
     assert_eq!(alone.status.code(), Some(3), "{stderr}");
     assert!(stderr.contains("oscillation: "), "{stderr}");
 
-    let local = run_cli(dir.path(), "local", &wall(K, 0.003, true), &fail_on);
+    let local = run_cli(dir.path(), "local", &wall(K, true), &fail_on);
     let stderr = String::from_utf8_lossy(&local.stderr);
     let stdout = String::from_utf8_lossy(&local.stdout);
     assert!(local.status.success(), "{stderr}\n{stdout}");
@@ -123,7 +131,7 @@ fn a_wall_beyond_the_1_khz_bound_bounces_with_the_host_alone_and_holds_with_a_10
 #[test]
 fn two_runs_with_a_device_loop_write_identical_traces() {
     let dir = tempfile::tempdir().unwrap();
-    let text = wall(K, 0.003, true);
+    let text = wall(K, true);
     for format in [TraceFormat::Csv, TraceFormat::Mcap] {
         let a = dir.path().join(format!("a.{format}"));
         let b = dir.path().join(format!("b.{format}"));
@@ -136,8 +144,10 @@ fn two_runs_with_a_device_loop_write_identical_traces() {
     }
 }
 
-/// The hand ends 100 mm inside the plane: its 50 N/m grip pushes with up to 5 N, more than the model's 3 N
-/// limit, so the device's clamp holds the force at 3 N and the arm sinks until the grip pushes 3 N (40 mm in).
+/// The hand's target comes from 30 mm above (reaching the plane after the engage ramp, at 0.63 s) to 65 mm inside
+/// it: its 50 N/m grip pushes with 3.25 N at the plane, more than the model's 3 N limit, so the device's clamp
+/// holds the force at 3 N and the arm sinks until the grip pushes 3 N, 5 mm in (where the plane, 50 N strong,
+/// still holds the proxy: 5 000 N/m x 5 mm = 25 N).
 /// The trace carries what the device reported: its proxy on the plane while the probe is inside, the model of
 /// the tick before (the lockstep LocalState follows the state the tick's model asked for, and reports the
 /// loop's last cycle before it: 9 cycles of 100 us after the model arrived).
@@ -146,7 +156,7 @@ fn the_device_loop_never_exceeds_the_models_force_limit_and_its_report_fills_the
     const LIMIT_N: f64 = 3.0;
     let dir = tempfile::tempdir().unwrap();
     let (summary, trace) = run_library(
-        &wall(K, 0.1, true),
+        &wall_path(K, 0.03, 0.065, 2.0, true),
         &dir.path().join("t.csv"),
         TraceFormat::Csv,
     );
@@ -157,7 +167,7 @@ fn the_device_loop_never_exceeds_the_models_force_limit_and_its_report_fills_the
     );
     let last = trace.samples.last().unwrap();
     assert!(
-        (last.probe_m.z + 0.04).abs() < 1e-3,
+        (last.probe_m.z + 0.005).abs() < 2e-4,
         "the arm rests where the grip pushes 3 N: {:?}",
         last.probe_m
     );
@@ -202,7 +212,7 @@ fn the_stiffness_warning_uses_the_device_loops_rate() {
     let refused = run_cli(
         dir.path(),
         "stiff",
-        &wall(25_000.0, 0.003, true),
+        &wall(25_000.0, true),
         &["--fail-on", "beyond-bound"],
     );
     let stderr = String::from_utf8_lossy(&refused.stderr);
@@ -220,12 +230,12 @@ fn the_stiffness_warning_uses_the_device_loops_rate() {
 /// key, rather than sent saturated.
 #[test]
 fn a_stiffness_no_local_model_can_carry_is_refused() {
-    let error = Scenario::parse(&wall(70_000.0, 0.003, true), "w").unwrap_err();
+    let error = Scenario::parse(&wall(70_000.0, true), "w").unwrap_err();
     let message = error.to_string();
     assert!(
         message.contains("k_n_per_m: 70000 N/m is above the 65535 N/m a local model carries"),
         "{message}"
     );
     // Without the table the scene file's own range applies.
-    assert!(Scenario::parse(&wall(70_000.0, 0.003, false), "w").is_ok());
+    assert!(Scenario::parse(&wall(70_000.0, false), "w").is_ok());
 }

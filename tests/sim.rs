@@ -9,6 +9,7 @@
 
 mod cli;
 mod limits;
+mod local_model;
 mod mid_contact;
 mod passivity;
 mod scenarios;

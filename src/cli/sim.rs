@@ -61,7 +61,8 @@ pub struct SimArgs {
     /// or probe replaced by zero), disconnect, overrun (never in a sim: it has no device link and no
     /// clock), active (the coupling's net generated energy rose by more than 0.1 mJ), oscillation (a
     /// contact limit cycle); beyond-bound refuses to start (exit 3, nothing written) when k_n_per_m is
-    /// above the arm's passivity bound b / (T/2 + tau). Comma-separated.
+    /// above the arm's passivity bound b / (T/2 + tau) (T: the servo period, or with [local_model] the
+    /// device loop's). Comma-separated.
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fail_on: Vec<FailOn>,
     #[command(flatten)]
@@ -175,15 +176,22 @@ pub fn scenario_inputs(scenario_path: &std::path::Path, loaded: &LoadedScenario)
     inputs
 }
 
-/// The warning when the scenario's stiffness is above the arm's passivity bound (`None` when within).
+/// The warning when the scenario's stiffness is above the arm's passivity bound (`None` when within). The bound
+/// is that of the loop that closes the contact: the servo's at `rate_hz`, or with `[local_model]` the device's own
+/// loop at its `rate_hz`.
 pub fn stiffness_warning(loaded: &LoadedScenario) -> Option<String> {
-    let period_s = loaded.scenario.dt_s();
+    let local = loaded.scenario.local_model;
+    let period_s = local.map_or(loaded.scenario.dt_s(), |l| 1.0 / l.rate_hz);
     let physics = loaded.arm.physics();
     let bound = physics.max_stiffness_n_per_m(period_s);
     let k = loaded.scenario.k_n_per_m;
+    let whose = match local {
+        Some(l) => format!("passivity bound in the device's {} Hz loop", l.rate_hz),
+        None => "passivity bound".to_owned(),
+    };
     (k > bound).then(|| {
         format!(
-            "k_n_per_m = {k} N/m is above the arm's passivity bound: {}; contact may bounce",
+            "k_n_per_m = {k} N/m is above the arm's {whose}: {}; contact may bounce",
             physics.notice(period_s)
         )
     })
@@ -201,15 +209,6 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
             .into());
         }
         eprintln!("warning: {warning}");
-    }
-    if let Some(local) = loaded.scenario.local_model {
-        // The headless loop has no device session: say so rather than let the table pass unseen.
-        eprintln!(
-            "warning: [local_model] rate_hz = {} Hz is not simulated by `voxhap sim`: its loop drives the arm \
-             with set-forces at rate_hz; `voxhap serve` on the simulated arm and `voxhap stability` run the \
-             device's local loop",
-            local.rate_hz
-        );
     }
     let solver = args.solver.unwrap_or(loaded.scenario.solver.kind);
     let format = args
@@ -287,13 +286,17 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     };
     let findings = fail_on_findings(&args.fail_on, &summary);
     super::common::print_out(&format!(
-        "{}: {} ticks ({} s at {} Hz), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
+        "{}: {} ticks ({} s at {} Hz{}), solver {}, {} certified, largest bound {bound}, most sweeps {}, \
          largest force {:.3} N, generated {:.4} mJ (net of the arm's damping {:.4} mJ, active work {:.4} mJ), \
          {} contact{} -> {} (+ {})",
         args.scenario.display(),
         summary.ticks,
         loaded.scenario.duration_s,
         loaded.scenario.rate_hz,
+        loaded
+            .scenario
+            .local_model
+            .map_or(String::new(), |l| format!(", device loop at {} Hz", l.rate_hz)),
         solver.name(),
         summary.certified_ticks,
         summary.max_sweeps,

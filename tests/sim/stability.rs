@@ -86,31 +86,3 @@ fn latency_lowers_the_bound_and_the_arm_feels_it() {
     assert!(stderr.contains("stiffness cap 667 N/m"), "{stderr}");
     assert!(stderr.contains("oscillation: "), "{stderr}");
 }
-
-/// `voxhap sim` runs no device session, so a scene's `[local_model]` table is not simulated by it: it says so on
-/// stderr rather than letting the table pass unseen, and still runs.
-#[test]
-fn sim_says_it_does_not_simulate_a_local_model_table() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("local.toml");
-    let mut text = std::fs::read_to_string(sims_dir().join("contact_stability.toml")).unwrap();
-    text.push_str("\n[local_model]\nrate_hz = 10000.0\n");
-    std::fs::write(&scene, text).unwrap();
-    let trace = dir.path().join("t.csv");
-    let out = voxhap(&[
-        OsStr::new("sim"),
-        scene.as_os_str(),
-        OsStr::new("--out"),
-        trace.as_os_str(),
-        OsStr::new("--set"),
-        OsStr::new("k_n_per_m=1500"),
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    assert!(
-        stderr
-            .contains("warning: [local_model] rate_hz = 10000 Hz is not simulated by `voxhap sim`"),
-        "{stderr}"
-    );
-    assert!(trace.exists());
-}

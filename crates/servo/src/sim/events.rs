@@ -87,6 +87,8 @@ pub enum EventError {
         command: &'static str,
         why: &'static str,
     },
+    #[error("events[{index}]: damping must be at most a local model's {max} N s/m ([local_model]), got {damping}", max = super::local::MAX_LOCAL_DAMPING_N_S_PER_M)]
+    LocalDamping { index: usize, damping: f64 },
     #[error("events[{index}]: the scene after it does not build: {source}")]
     Scene { index: usize, source: ModeError },
 }
@@ -130,7 +132,8 @@ pub fn check_times(events: &[SimEvent], duration_s: f64) -> Result<(), EventErro
 
 /// Applies the events in order to the coupling (`stiffness_n_per_m`, `damping_n_s_per_m`) and `modes` over
 /// `scene`'s volumes, checking each as the control API does, and builds the scene after each (off the servo
-/// path). `rate_hz` places each on its tick.
+/// path). `rate_hz` places each on its tick. With `local_model` the coupling must also fit a local model
+/// (super::local: at most 65535 N/m and 65.535 N s/m).
 pub fn plan(
     events: &[SimEvent],
     scene: &RenderScene,
@@ -138,8 +141,22 @@ pub fn plan(
     mut stiffness_n_per_m: f64,
     mut damping_n_s_per_m: f64,
     rate_hz: f64,
+    local_model: bool,
 ) -> Result<Vec<PlannedEvent>, EventError> {
     let mut modes = modes.to_vec();
+    let (max_k, whose) = if local_model {
+        (super::local::MAX_LOCAL_STIFFNESS_N_PER_M, "a local model's")
+    } else {
+        (STIFFNESS_RANGE_N_PER_M.1, "the scene file's")
+    };
+    let check_damping = |index, damping| {
+        let damping = commands::check_damping(damping)
+            .map_err(|source| EventError::Command { index, source })?;
+        if local_model && damping > super::local::MAX_LOCAL_DAMPING_N_S_PER_M {
+            return Err(EventError::LocalDamping { index, damping });
+        }
+        Ok(damping)
+    };
     let mut planned = Vec::with_capacity(events.len());
     for (index, event) in events.iter().enumerate() {
         let command = |source| EventError::Command { index, source };
@@ -150,22 +167,16 @@ pub fn plan(
         };
         let message = match &event.command {
             ControlCommand::SetStiffness { k } => {
-                stiffness_n_per_m = commands::check_stiffness(
-                    *k,
-                    STIFFNESS_RANGE_N_PER_M.1,
-                    "the scene file's",
-                )
-                .map_err(command)?;
+                stiffness_n_per_m = commands::check_stiffness(*k, max_k, whose).map_err(command)?;
                 format!("stiffness set to {stiffness_n_per_m} N/m")
             }
             ControlCommand::SetDamping { damping } => {
-                damping_n_s_per_m = commands::check_damping(*damping).map_err(command)?;
+                damping_n_s_per_m = check_damping(index, *damping)?;
                 format!("damping set to {damping_n_s_per_m} N s/m")
             }
             ControlCommand::SetCoupling { k, damping } => {
-                let k = commands::check_stiffness(*k, STIFFNESS_RANGE_N_PER_M.1, "the scene file's")
-                    .map_err(command)?;
-                damping_n_s_per_m = commands::check_damping(*damping).map_err(command)?;
+                let k = commands::check_stiffness(*k, max_k, whose).map_err(command)?;
+                damping_n_s_per_m = check_damping(index, *damping)?;
                 stiffness_n_per_m = k;
                 format!("stiffness set to {k} N/m; damping set to {damping_n_s_per_m} N s/m")
             }

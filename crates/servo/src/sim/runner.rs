@@ -13,13 +13,14 @@
 //! with no safety pipeline in a sim the rendered force is the force sent. Every tick is booked in the energy
 //! ledger (crate::energy), whose totals end in the summary.
 
-use super::scenario::LoadedScenario;
+use super::local::LocalDevice;
+use super::scenario::{LoadedScenario, ScenarioValueError};
 use crate::energy::{EnergyLedger, EnergyTotals};
 use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
 use glam::DVec3;
 use voxhap_core::haptics::modes::{ModeKind, ModeMemory};
 use voxhap_core::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
-use voxhap_device::sim::{SimArm, SimError};
+use voxhap_device::sim::{SimArm, SimError, StepOutcome};
 use voxhap_record::{
     TraceError, TraceSample, TraceWriter, FLAG_NON_FINITE_REPLACED, FLAG_WORKSPACE_LIMIT,
 };
@@ -34,6 +35,9 @@ pub enum SimRunError {
     Arm(#[from] SimError),
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// The scenario's `[local_model]` cannot run (its validation refuses this first).
+    #[error(transparent)]
+    Scenario(#[from] ScenarioValueError),
 }
 
 /// What a run did, for the summary line and the tests.
@@ -78,6 +82,21 @@ pub fn run(
     let dt_s = settings.dt_s();
     let mut arm = SimArm::new(scenario.arm.clone(), scenario.start_m)?;
     let mut state = TickState::new(arm.position_m());
+    // `[local_model]`: the arm is a device whose own loop renders the tick's local model (super::local).
+    let mut device = match settings.local_model {
+        Some(local) => Some(
+            LocalDevice::new(
+                settings.rate_hz,
+                local,
+                scenario.arm.physics().declared_at_1khz_n_per_m(dt_s),
+            )
+            .ok_or(ScenarioValueError::LocalRate {
+                local_hz: local.rate_hz,
+                servo_hz: settings.rate_hz,
+            })?,
+        ),
+        None => None,
+    };
     let mut summary = SimSummary {
         ticks,
         certified_ticks: 0,
@@ -153,15 +172,6 @@ pub fn run(
         if control_n != DVec3::ZERO {
             rendered_n += control_n;
         }
-        let outcome = arm.step(t_s, dt_s, rendered_n)?;
-        let sent_n = if outcome.force_rejected {
-            DVec3::ZERO
-        } else {
-            rendered_n
-        };
-        passivity.sent(rendered_n, sent_n);
-        last_anchor_m = anchor_m;
-        last_k = k;
         let active_n: DVec3 = out
             .mode_force_n
             .iter()
@@ -170,7 +180,49 @@ pub fn run(
             .map(|(f, _)| *f)
             .sum();
         ledger.book_passivity(passivity.totals().dissipated_j);
-        summary.energy = ledger.record(t_s, dt_s, probe_m, rendered_n, active_n, coupling_j);
+        let period = match device.as_mut() {
+            None => {
+                // The set-force path: the rendered force is sent and held for the tick.
+                let outcome = arm.step(t_s, dt_s, rendered_n)?;
+                let sent_n = if outcome.force_rejected {
+                    DVec3::ZERO
+                } else {
+                    rendered_n
+                };
+                passivity.sent(rendered_n, sent_n);
+                summary.energy =
+                    ledger.record(t_s, dt_s, probe_m, rendered_n, active_n, coupling_j);
+                Period {
+                    outcome,
+                    force_n: rendered_n,
+                    peak_force_n: rendered_n.length(),
+                    local: None,
+                }
+            }
+            Some(device) => {
+                // The tick's local model, built as `serve` builds it, while its force is valid (as `serve`'s
+                // supervisor decides); the device's loop renders it for the period.
+                let valid = rendered_n.is_finite() && out.status != TickStatus::InputRejected;
+                let offer = crate::local_model::offer(
+                    workspaces[current].primitives(),
+                    k,
+                    damping_n_s_per_m,
+                    out.proxy_m,
+                );
+                if valid {
+                    device.send(Some(&offer), rendered_n);
+                } else {
+                    device.send(None, DVec3::ZERO);
+                }
+                let period = device_period(device, &mut arm, &mut ledger, t_s, active_n)?;
+                summary.energy = ledger.totals();
+                passivity.sent(rendered_n, period.force_n);
+                period
+            }
+        };
+        last_anchor_m = anchor_m;
+        last_k = k;
+        let outcome = period.outcome;
         let mut flags = out.flags;
         if outcome.workspace_limit_hit {
             flags |= FLAG_WORKSPACE_LIMIT;
@@ -189,7 +241,7 @@ pub fn run(
             probe_velocity_m_per_s,
             proxy_m: out.proxy_m,
             rendered_force_n: rendered_n,
-            force_n: rendered_n,
+            force_n: period.force_n,
             mode_force_n: out.mode_force_n,
             primitives_per_mode: out.primitives_per_mode,
             mode_count: out.mode_count,
@@ -201,6 +253,7 @@ pub fn run(
             flags,
             truth: voxhap_api::TickTruth {
                 energy: summary.energy.tick_energy(),
+                device_local: period.local,
                 ..voxhap_api::TickTruth::default()
             },
         })?;
@@ -210,7 +263,7 @@ pub fn run(
         summary.certified_ticks += u64::from(out.status == TickStatus::Certified);
         summary.max_error_bound_m = summary.max_error_bound_m.max(out.error_bound_m);
         summary.max_sweeps = summary.max_sweeps.max(out.sweeps);
-        summary.max_force_n = summary.max_force_n.max(rendered_n.length());
+        summary.max_force_n = summary.max_force_n.max(period.peak_force_n);
         if (index + 1) % 1000 == 0 {
             progress(index + 1);
         }
@@ -221,4 +274,52 @@ pub fn run(
     summary.changes_introduced = transition.introduced();
     summary.events_applied = current as u64;
     Ok(summary)
+}
+
+/// What the arm did over one tick, and the force the trace shows for it.
+struct Period {
+    /// The arm's steps, merged (any step at the workspace limit, any force replaced).
+    outcome: StepOutcome,
+    /// The force sent (set-force path) or the force the device reported applied (local model), N.
+    force_n: DVec3,
+    /// The largest force magnitude applied during the tick, N.
+    peak_force_n: f64,
+    /// What the device reported of its loop (local model).
+    local: Option<voxhap_api::DeviceLocal>,
+}
+
+/// One tick of a local-model device after its model was sent: each control cycle senses the arm, runs the
+/// device loop and steps the arm one cycle under the force it returned (held for the cycle), and is booked in
+/// `ledger` on its own, so the work stays exact under the device's zero-order hold. The directed-force modes'
+/// force of the tick (`active_n`) is booked as active on each of its cycles.
+fn device_period(
+    device: &mut LocalDevice,
+    arm: &mut SimArm,
+    ledger: &mut EnergyLedger,
+    t_s: f64,
+    active_n: DVec3,
+) -> Result<Period, SimRunError> {
+    let cycle_s = device.cycle_s();
+    let mut outcome = StepOutcome::default();
+    let mut peak_force_n: f64 = 0.0;
+    for cycle in 0..device.cycles_per_period() {
+        let t_cycle_s = t_s + f64::from(cycle) * cycle_s;
+        let position_m = arm.position_m();
+        let velocity_m_per_s = arm.velocity_m_per_s();
+        let force_n = device.cycle(position_m, velocity_m_per_s);
+        let coupling_j = device.coupling_energy_j(position_m, velocity_m_per_s, force_n);
+        ledger.record(
+            t_cycle_s, cycle_s, position_m, force_n, active_n, coupling_j,
+        );
+        let step = arm.step(t_cycle_s, cycle_s, force_n)?;
+        outcome.workspace_limit_hit |= step.workspace_limit_hit;
+        outcome.force_rejected |= step.force_rejected;
+        peak_force_n = peak_force_n.max(force_n.length());
+    }
+    Ok(Period {
+        outcome,
+        force_n: device.reported_force_n(),
+        peak_force_n,
+        local: device.report(),
+    })
 }

@@ -15,6 +15,7 @@
 //! scenario file (not the working directory), so a scenario runs the same from anywhere.
 
 use super::events::{self, EventError, PlannedEvent, SimEvent};
+use super::local::{MAX_LOCAL_DAMPING_N_S_PER_M, MAX_LOCAL_STIFFNESS_N_PER_M};
 use crate::passivity::{PassivitySettings, PassivitySettingsError};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -220,6 +221,12 @@ pub enum ScenarioValueError {
     /// `local_model.rate_hz` is not a whole multiple of `rate_hz` up to 100 kHz.
     #[error("local_model.rate_hz: {local_hz} Hz must be a whole multiple of rate_hz ({servo_hz} Hz), at most 100000 Hz, with a whole number of microseconds per cycle")]
     LocalRate { local_hz: f64, servo_hz: f64 },
+    /// With `[local_model]`, `k_n_per_m` is above what a local model carries.
+    #[error("k_n_per_m: {0} N/m is above the {max} N/m a local model carries ([local_model]: whole N/m in 16 bits)", max = MAX_LOCAL_STIFFNESS_N_PER_M)]
+    LocalStiffness(f64),
+    /// With `[local_model]`, `damping_n_s_per_m` is above what a local model carries.
+    #[error("damping_n_s_per_m: {0} N s/m is above the {max} N s/m a local model carries ([local_model]: mN s/m in 16 bits)", max = MAX_LOCAL_DAMPING_N_S_PER_M)]
+    LocalDamping(f64),
     /// The `[solver]` table.
     #[error(transparent)]
     Solver(#[from] SolverSettingsError),
@@ -506,6 +513,12 @@ impl Scenario {
                     servo_hz: self.rate_hz,
                 });
             }
+            if self.k_n_per_m > MAX_LOCAL_STIFFNESS_N_PER_M {
+                return Err(E::LocalStiffness(self.k_n_per_m));
+            }
+            if self.damping_n_s_per_m > MAX_LOCAL_DAMPING_N_S_PER_M {
+                return Err(E::LocalDamping(self.damping_n_s_per_m));
+            }
         }
         self.solver.validate()?;
         self.passivity.validate()?;
@@ -594,6 +607,7 @@ impl Scenario {
             self.k_n_per_m,
             self.damping_n_s_per_m,
             self.rate_hz,
+            self.local_model.is_some(),
         )
         .map_err(|problem| ScenarioError::Invalid {
             origin: origin.to_owned(),

@@ -246,8 +246,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
     },
     SchemaSection {
         title: "`[local_model]`",
-        intro: "The simulated arm as a device with the local-model capability: `serve` sends it the tick's \
-                primitives and its own loop renders them at `rate_hz` (`voxhap sim` warns and drives the arm with set-forces) ([Local models](../local-model.md)).",
+        intro: "The simulated arm as a device with the local-model capability: `serve` and `voxhap sim` send it \
+                the tick's primitives and its own loop renders them at `rate_hz`; with it `k_n_per_m` is at most \
+                65535 N/m and `damping_n_s_per_m` at most 65.535 N s/m ([Local models](../local-model.md)).",
         header: "[local_model]",
         base: "rate_hz = 10000.0",
         group: "local_model",

@@ -16,7 +16,8 @@
 //!   Falcon to stay homed; the user pulls the grip all the way out and pushes it in, until the three homing bits
 //!   are set; becoming homed resets the coordinate system, so no torque may be computed from positions before.
 //!   voxhap sets the bit in every frame, sends zero torque and lights the red LED until homed, then green, and
-//!   restarts its position estimate at the moment the Falcon becomes homed.
+//!   restarts its position estimate at the moment the Falcon becomes homed. States before homing have an
+//!   unknown age, so the supervisor sends zero and enables, with its ramp-in, only once the Falcon is homed.
 //! - Kinematics (R. E. Stamper's delta-robot analysis as libnifalcon implements it,
 //!   src/kinematic/FalconKinematicStamper.cpp): leg angle from encoder counts
 //!   θ = count · (π·0.01425 / (320·4)) / (π·0.110/360) + 35° (include/falcon/core/FalconKinematic.h:59-62,
@@ -479,7 +480,9 @@ impl<P: FalconPort> Falcon<P> {
                 ));
             }
             let seen = (self.frames.received(), self.frames.malformed());
-            if let Some(reply) = self.read_frame(LOST_REPLY_AFTER - quiet_for + Duration::from_millis(1))? {
+            if let Some(reply) =
+                self.read_frame(LOST_REPLY_AFTER - quiet_for + Duration::from_millis(1))?
+            {
                 self.last_reply = Some(reply);
             }
             if (self.frames.received(), self.frames.malformed()) != seen {
@@ -673,7 +676,6 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             ));
         }
         let age = self.in_flight.state_age(polled_at);
-        self.state_age = if unknown_age { UNKNOWN_AGE } else { age };
         let was_homed = self.is_homed();
         self.last_reply = Some(reply);
         if !was_homed && self.is_homed() {
@@ -682,6 +684,15 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             self.position_m = DVec3::new(0.0, 0.0, 0.08);
             self.accepted_m = None;
         }
+        // Until homed, a position is in coordinates homing will reset, and no force may come from it
+        // (FalconFirmware.h:52-55): its age is unknown, so the supervisor holds the force at zero, and enables
+        // (from zero, through its ramp-in and slew limit) only on homed states. Otherwise the driver's own
+        // zero would hide a force the supervisor had ramped up, sent as a step the moment the Falcon homes.
+        self.state_age = if unknown_age || !self.is_homed() {
+            UNKNOWN_AGE
+        } else {
+            age
+        };
         let geometry = self.config.geometry;
         let theta = reply.encoders.map(|count| geometry.leg_angle_rad(count));
         let (position, converged) = geometry.forward_kinematics(theta, self.position_m);

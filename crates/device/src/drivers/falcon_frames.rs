@@ -226,6 +226,9 @@ mod tests {
         // grip (0x0f) give 0x41 + 0x7f.
         let mut homed = frame;
         homed[13] = 0x41 + 0x7f;
-        assert_eq!(decode_reply(&homed).map(|r| (r.homing, r.grip)), Some((7, 0xf)));
+        assert_eq!(
+            decode_reply(&homed).map(|r| (r.homing, r.grip)),
+            Some((7, 0xf))
+        );
     }
 }

@@ -11,7 +11,7 @@
 //! health and safety pipeline), connected, enabled and engaged, one `ServoDevice::exchange` per tick.
 
 use crate::util::alloc::count_allocations;
-use crate::util::falcon_firmware::{Bootloader, FalconLine};
+use crate::util::falcon_firmware::{Bootloader, FalconLine, Junk};
 use crate::util::haply_board::{Fault, HaplyBoard};
 use crate::util::inverse_service::InverseService;
 use crate::util::woody_firmware::WoodyFirmware;
@@ -185,9 +185,21 @@ fn falcon() -> (Falcon<FalconLine>, Bootloader, tempfile::TempDir) {
 
 #[test]
 fn falcon_ticks_allocate_nothing() {
-    let (mut driver, _bootloader, _dir) = falcon();
+    let (mut driver, bootloader, _dir) = falcon();
     driver.open().unwrap();
     assert_eq!(ticks_allocate(&mut driver, 50, 1000), 0);
+    // The resynchronisation paths: junk before an answer, an answer garbled, one cut by inserted bytes (the
+    // count becomes unknown, the newest frame is handed out again), then a quiet line (counting starts again).
+    let next = bootloader.shared.commands.lock().unwrap().len() as i64;
+    bootloader.shared.junk.lock().unwrap().extend([
+        (next + 3, Junk::Before(vec![0x00, 0x13])),
+        (next + 10, Junk::Garbled),
+        (next + 20, Junk::Inside(vec![0x7f])),
+    ]);
+    assert_eq!(ticks_allocate(&mut driver, 5, 300), 0);
+    std::thread::sleep(std::time::Duration::from_millis(120));
+    assert_eq!(ticks_allocate(&mut driver, 0, 300), 0);
+    assert!(driver.resyncs() >= 1, "no resynchronisation was exercised");
     let (driver, _bootloader, _dir) = falcon();
     assert_eq!(
         supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),

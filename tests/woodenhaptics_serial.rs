@@ -11,9 +11,7 @@ use glam::{DMat3, DVec3};
 use std::f64::consts::PI;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
-use voxhap::device::drivers::woodenhaptics_serial::{
-    WoodenHapticsSerial, WoodyConfig, WoodyModel, MAX_CURRENT_MA,
-};
+use voxhap::device::drivers::woodenhaptics_serial::{WoodenHapticsSerial, WoodyConfig, WoodyModel};
 use voxhap::device::supervisor::{
     OutputState, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
 };
@@ -163,9 +161,8 @@ fn encoders_give_the_hfabapi_position_and_forces_the_jacobian_transpose_currents
     assert_eq!(currents[0], [0, 0, 0]);
     assert!(currents.contains(&[0, -659, 0]), "{currents:?}");
     assert_eq!(*currents.last().unwrap(), [0, 0, 0]);
-    assert!(currents
-        .iter()
-        .all(|c| c.iter().all(|m| m.abs() <= MAX_CURRENT_MA)));
+    // No current outside the firmware's ±6000 mA (ino:17, :510), which it would zero motor by motor.
+    assert_eq!(firmware.shared.zeroed_by_check.load(Ordering::Acquire), 0);
 }
 
 #[test]
@@ -278,6 +275,8 @@ fn rejected_readings_never_steer_the_force_the_arm_exerts() {
         }
     });
     let applied = firmware.shared.applied.lock().unwrap().clone();
+    // No current the firmware's range check (ino:17, :510) zeroed: that would change the force's direction.
+    assert_eq!(firmware.shared.zeroed_by_check.load(Ordering::Acquire), 0);
     // Currents are whole milliamperes: a few mN of rounding.
     let bounds = ExertedBounds {
         limit_n: 3.0,

@@ -15,12 +15,20 @@
 //! Misbehaviour a test can ask for: frames whose encoder counts are not the true ones (glitches, jumps) while
 //! every command is logged with the true counts ([`Applied`]), and more than one answer per frame.
 //!
-//! Timing a test can ask for ([`FalconDevice::start_late`]): each answer reaches the host as late as on a real
-//! Falcon ([`libnifalcon_arrival`]), and carries the number of the command it answers as its encoder counts.
+//! Timing a test can ask for ([`FalconDevice::start_late`], [`FalconDevice::start_late_at_pose`]): each answer
+//! reaches the host as late as on a real Falcon ([`libnifalcon_arrival`]), or later by a test's extra delay;
+//! numbered, each carries the number of the command it answers as its encoder counts.
+//!
+//! Damage on the line a test can ask for, per answer ([`Junk`]): junk bytes before it (no answer of their own),
+//! an answer garbled in transit, bytes inserted inside an answer, an answer lost. A frame is 16 bytes from `<`
+//! to `>` whose other bytes run from 0x41 to 0x50 except the status byte
+//! (include/falcon/firmware/FalconFirmwareNovintSDK.h:29-34, :63-80); the junk here never makes one. The double
+//! logs, for every command, the newest answer that had reached the host whole before the command arrived
+//! ([`Applied::newest_delivered`]): no state the host had could be newer.
 
 use super::pty::PtyDevice;
-use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -96,6 +104,26 @@ pub struct FalconCommand {
 pub struct Applied {
     pub motor: [i16; 3],
     pub true_encoders: [i16; 3],
+    /// This command's number (from 0, in the order the Falcon received commands).
+    pub number: i64,
+    /// The number of the newest command whose answer had reached the host whole when this one arrived (-1:
+    /// none yet).
+    pub newest_delivered: i64,
+    /// The homing bits the double reported when this command arrived.
+    pub homing: u8,
+}
+
+/// Damage to one answer on its way to the host.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Junk {
+    /// These bytes reach the host just before the answer, which arrives whole: they answer nothing.
+    Before(Vec<u8>),
+    /// The answer arrives with its end byte damaged: it answered, but cannot be read.
+    Garbled,
+    /// These bytes are inserted after the answer's seventh byte: the answer cannot be read.
+    Inside(Vec<u8>),
+    /// The answer never arrives.
+    Lost,
 }
 
 #[derive(Debug, Default)]
@@ -121,7 +149,22 @@ pub struct FalconShared {
     /// The latest a late answer reached the host after its planned arrival (µs): how far the double's own
     /// thread fell behind its model on a busy machine.
     pub max_late_us: AtomicU64,
+    /// Damage to the answer to command n (by number).
+    pub junk: Mutex<BTreeMap<i64, Junk>>,
+    /// Delay added to each late answer's arrival (µs), as from now.
+    pub extra_delay_us: AtomicU64,
+    /// The newest command whose answer reached the host whole (-1: none yet).
+    pub newest_delivered: AtomicI64,
     stop: AtomicBool,
+}
+
+impl FalconShared {
+    fn new() -> FalconShared {
+        FalconShared {
+            newest_delivered: AtomicI64::new(-1),
+            ..FalconShared::default()
+        }
+    }
 }
 
 /// When the answer to a frame the Falcon received at `received` reaches the host, on the link libnifalcon sets
@@ -176,9 +219,11 @@ fn device_frame(encoders: [i16; 3], homing: u8, grip: u8) -> [u8; 16] {
     out
 }
 
-/// Handles the host frames in `pending`, answering each; returns what to send.
-fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> Vec<u8> {
+/// Handles the host frames in `pending`, answering each (with the damage a test asked for); returns what to
+/// send and the number of the newest command it answers whole.
+fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> (Vec<u8>, Option<i64>) {
     let mut out = Vec::new();
+    let mut newest_whole = None;
     loop {
         let Some(start) = pending.iter().position(|&b| b == b'<') else {
             pending.clear();
@@ -190,29 +235,53 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> Vec<u8> {
         }
         let frame: Vec<u8> = pending.drain(..16).collect();
         if let Some(command) = decode_host_frame(&frame) {
-            shared.commands.lock().unwrap().push(command);
+            let number = {
+                let mut commands = shared.commands.lock().unwrap();
+                commands.push(command);
+                commands.len() as i64 - 1
+            };
             let truth = *shared.encoders.lock().unwrap();
+            let homing = *shared.homing.lock().unwrap();
             shared.applied.lock().unwrap().push(Applied {
                 motor: command.motor,
                 true_encoders: truth,
+                number,
+                newest_delivered: shared.newest_delivered.load(Ordering::Acquire),
+                homing,
             });
             let reported = if shared.numbered.load(Ordering::Acquire) {
-                let n = (shared.commands.lock().unwrap().len() - 1) as i16;
+                let n = number as i16;
                 [n, -n, 2 * n]
             } else {
                 shared.glitches.lock().unwrap().pop_front().unwrap_or(truth)
             };
-            let answer = device_frame(
-                reported,
-                *shared.homing.lock().unwrap(),
-                *shared.grip.lock().unwrap(),
-            );
+            let answer = device_frame(reported, homing, *shared.grip.lock().unwrap());
+            let junk = shared.junk.lock().unwrap().remove(&number);
             for _ in 0..=shared.extra_answers.load(Ordering::Acquire) {
-                out.extend_from_slice(&answer);
+                match &junk {
+                    None => out.extend_from_slice(&answer),
+                    Some(Junk::Before(bytes)) => {
+                        out.extend_from_slice(bytes);
+                        out.extend_from_slice(&answer);
+                    }
+                    Some(Junk::Garbled) => {
+                        out.extend_from_slice(&answer[..15]);
+                        out.push(0x00);
+                    }
+                    Some(Junk::Inside(bytes)) => {
+                        out.extend_from_slice(&answer[..7]);
+                        out.extend_from_slice(bytes);
+                        out.extend_from_slice(&answer[7..]);
+                    }
+                    Some(Junk::Lost) => {}
+                }
+            }
+            if matches!(junk, None | Some(Junk::Before(_))) {
+                newest_whole = Some(number);
             }
         }
     }
-    out
+    (out, newest_whole)
 }
 
 /// A Falcon with its firmware running, on a pseudo-terminal.
@@ -225,39 +294,49 @@ pub struct FalconDevice {
 impl FalconDevice {
     /// A Falcon whose answers reach the host at once.
     pub fn start() -> FalconDevice {
-        FalconDevice::start_with(false)
+        FalconDevice::start_with(false, false)
     }
 
     /// A Falcon whose answers reach the host as late as libnifalcon's link delivers them
     /// ([`libnifalcon_arrival`]), numbered by the command they answer ([`FalconShared::numbered`]).
     /// `answered` counts answers that have reached the host.
     pub fn start_late() -> FalconDevice {
-        FalconDevice::start_with(true)
+        FalconDevice::start_with(true, true)
     }
 
-    fn start_with(late: bool) -> FalconDevice {
+    /// The same late Falcon reporting its true encoder counts (a handle at a pose).
+    pub fn start_late_at_pose() -> FalconDevice {
+        FalconDevice::start_with(true, false)
+    }
+
+    fn start_with(late: bool, numbered: bool) -> FalconDevice {
         let mut pty = PtyDevice::new();
         if late {
             pty.set_read_timeout(Duration::from_micros(100));
         }
         let path = pty.path().to_string();
-        let shared = Arc::new(FalconShared::default());
-        shared.numbered.store(late, Ordering::Release);
+        let shared = Arc::new(FalconShared::new());
+        shared.numbered.store(numbered, Ordering::Release);
         let thread = {
             let shared = shared.clone();
             std::thread::spawn(move || {
                 let bus_start = Instant::now();
                 let mut pending = Vec::new();
-                // Answers on their way: when each reaches the host, its bytes, how many commands it answers.
-                let mut on_the_way: VecDeque<(Instant, Vec<u8>, usize)> = VecDeque::new();
+                // Answers on their way: when each reaches the host, its bytes, how many commands it answers, the
+                // newest it answers whole.
+                let mut on_the_way: VecDeque<(Instant, Vec<u8>, usize, Option<i64>)> =
+                    VecDeque::new();
                 let mut chunk = [0u8; 256];
                 while !shared.stop.load(Ordering::Acquire) {
                     while on_the_way
                         .front()
-                        .is_some_and(|(at, _, _)| *at <= Instant::now())
+                        .is_some_and(|(at, _, _, _)| *at <= Instant::now())
                     {
-                        let (at, out, served) = on_the_way.pop_front().unwrap();
+                        let (at, out, served, whole) = on_the_way.pop_front().unwrap();
                         let _ = pty.write(&out);
+                        if let Some(whole) = whole {
+                            shared.newest_delivered.fetch_max(whole, Ordering::AcqRel);
+                        }
                         let late = Instant::now().saturating_duration_since(at).as_micros();
                         shared.max_late_us.fetch_max(late as u64, Ordering::AcqRel);
                         shared.answered.fetch_add(served as u64, Ordering::AcqRel);
@@ -271,20 +350,24 @@ impl FalconDevice {
                     }
                     let received = Instant::now();
                     let before = shared.commands.lock().unwrap().len();
-                    let out = serve_frames(&mut pending, &shared);
+                    let (out, whole) = serve_frames(&mut pending, &shared);
                     let served = shared.commands.lock().unwrap().len() - before;
                     if late {
                         if served > 0 {
-                            on_the_way.push_back((
-                                libnifalcon_arrival(bus_start, received),
-                                out,
-                                served,
-                            ));
+                            let extra = shared.extra_delay_us.load(Ordering::Acquire);
+                            let at = libnifalcon_arrival(bus_start, received)
+                                .max(received + Duration::from_micros(extra));
+                            // The link delivers in order: never before the answer ahead.
+                            let at = on_the_way.back().map_or(at, |ahead| at.max(ahead.0));
+                            on_the_way.push_back((at, out, served, whole));
                         }
                         continue;
                     }
                     if !out.is_empty() {
                         let _ = pty.write(&out);
+                    }
+                    if let Some(whole) = whole {
+                        shared.newest_delivered.fetch_max(whole, Ordering::AcqRel);
                     }
                     shared.answered.fetch_add(served as u64, Ordering::AcqRel);
                 }
@@ -325,7 +408,7 @@ impl Bootloader {
     /// Starts the double; returns it and the host's end of the line.
     pub fn start(firmware_len: usize) -> (Bootloader, FalconLine) {
         let (host, mut device) = MemoryPipe::pair();
-        let shared = Arc::new(FalconShared::default());
+        let shared = Arc::new(FalconShared::new());
         let line = Arc::new(LineState::default());
         let host = FalconLine {
             pipe: host,
@@ -398,7 +481,7 @@ impl Bootloader {
                             }
                             echoed
                         }
-                        Stage::Running => serve_frames(&mut pending, &shared),
+                        Stage::Running => serve_frames(&mut pending, &shared).0,
                     };
                     if !reply.is_empty() && device.write_all(&reply).is_err() {
                         return;

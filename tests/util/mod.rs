@@ -48,5 +48,6 @@ pub mod igtl_client;
 pub mod inverse_service;
 pub mod late_device;
 pub mod mock_process;
+pub mod nifalcon;
 pub mod pty;
 pub mod woody_firmware;

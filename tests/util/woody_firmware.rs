@@ -58,6 +58,8 @@ pub struct FirmwareShared {
     pub glitches: Mutex<VecDeque<Glitch>>,
     /// Every accepted command with the true counts.
     pub applied: Mutex<Vec<Applied>>,
+    /// Motor currents the firmware's range check zeroed (outside ±6000 mA, ino:17, :510).
+    pub zeroed_by_check: AtomicU32,
     /// Replies per valid message (1 for the real firmware).
     pub answers: AtomicU32,
     /// Extra unsolicited lines sent after each reply (a flood).
@@ -95,6 +97,7 @@ impl WoodyFirmware {
         let shared = Arc::new(FirmwareShared {
             glitches: Mutex::new(VecDeque::new()),
             applied: Mutex::new(Vec::new()),
+            zeroed_by_check: AtomicU32::new(0),
             answers: AtomicU32::new(1),
             flood: AtomicU32::new(0),
             stamp: AtomicBool::new(false),
@@ -287,6 +290,7 @@ fn run(pty: &mut PtyDevice, model: i32, shared: &FirmwareShared) {
                 if (-ESCON_MAX_MILLIAMPS..=ESCON_MAX_MILLIAMPS).contains(&m) {
                     m
                 } else {
+                    shared.zeroed_by_check.fetch_add(1, Ordering::AcqRel);
                     0
                 }
             });

@@ -16,7 +16,8 @@
 //!   Falcon to stay homed; the user pulls the grip all the way out and pushes it in, until the three homing bits
 //!   are set; becoming homed resets the coordinate system, so no torque may be computed from positions before.
 //!   voxhap sets the bit in every frame, sends zero torque and lights the red LED until homed, then green, and
-//!   restarts its position estimate at the moment the Falcon becomes homed.
+//!   restarts its position estimate at the moment the Falcon becomes homed. States before homing have an
+//!   unknown age, so the supervisor sends zero and enables, with its ramp-in, only once the Falcon is homed.
 //! - Kinematics (R. E. Stamper's delta-robot analysis as libnifalcon implements it,
 //!   src/kinematic/FalconKinematicStamper.cpp): leg angle from encoder counts
 //!   θ = count · (π·0.01425 / (320·4)) / (π·0.110/360) + 35° (include/falcon/core/FalconKinematic.h:59-62,
@@ -46,11 +47,23 @@
 //! src/firmware/FalconFirmwareNovintSDK.cpp:113-154; the reply comes 1-2 ms after its command,
 //! [`crate::latency::FALCON`], later than the wait of a 1 kHz tick): voxhap sends a command every tick
 //! anyway and counts the commands whose replies are still to come ([`super::in_flight::InFlight`]). The Falcon
-//! answers each frame with one frame, in order, so the frame read answers the oldest of them, and the state it
-//! gives is as many ticks old as commands went out after it. Before each command the driver takes every frame
-//! already waiting and holds the newest reply; if this tick's wait brings nothing newer, the held reply is the
-//! tick's state (one tick old at 1-2 ms latency and 1 kHz) rather than a miss. Frames no command asked for are
-//! dropped, counted and reported ([`DeviceEvent::Surplus`]), and the next state counts a tick older.
+//! answers each frame with one frame, in order ("16 bytes sent to the Falcon causes 16 bytes to be returned",
+//! include/falcon/firmware/FalconFirmwareNovintSDK.h:29), so the frame read answers the oldest of them, and the
+//! state it gives is as many ticks old as commands went out after it. Before each command the driver takes
+//! every frame already waiting and holds the newest reply; if this tick's wait brings nothing newer, the held
+//! reply is the tick's state (one tick old at 1-2 ms latency and 1 kHz) rather than a miss. Frames no command
+//! asked for are dropped, counted and reported ([`DeviceEvent::Surplus`]), and the next state counts a tick
+//! older.
+//!
+//! When the count cannot be trusted, the driver resynchronises instead of guessing: bytes that are not a
+//! well-formed frame (a garbled reply and junk that answers nothing look alike), a reply still missing
+//! [`LOST_REPLY_AFTER`] after its command, or ages above [`RESYNC_AGE_TICKS`] for that long (lost replies
+//! inflate the count for as long as the stream runs). Then every state's age is unknown
+//! ([`super::in_flight::UNKNOWN_AGE`], older than any staleness bound, so the supervisor sends zero), the
+//! driver sends one zero-torque frame and then none, and hands out the newest frame it has (its age unknown)
+//! until no byte has come for [`LOST_REPLY_AFTER`]; then nothing is owed and counting starts from zero. A
+//! stream still corrupt after [`RESYNC_GIVE_UP`] is a protocol error every tick, so the supervisor drops the
+//! link and reopens it. Open, too, waits for a quiet link after its first exchange before it counts.
 
 //! The firmware file is Novint's (for example `test_firmware.bin` of their SDK); voxhap never ships it.
 
@@ -62,7 +75,7 @@ pub use super::falcon_kinematics::{
     forward_kinematics, inverse_kinematics, jacobian_inverse, leg_angle_rad, motor_commands,
     FalconGeometry, LegAngles,
 };
-use super::in_flight::InFlight;
+use super::in_flight::{InFlight, NextCommand, UNKNOWN_AGE};
 use crate::transport::{ftdi_latency, ByteTransport, SerialTransport};
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
@@ -78,11 +91,20 @@ pub const NORMAL_BAUD: u32 = 1_500_000;
 pub const BOOTLOADER_CHECK_BAUD: u32 = 9_600;
 /// Baud rate of the firmware upload (FTDI divisor 0x15).
 pub const UPLOAD_BAUD: u32 = 142_857;
-/// How long after its command a reply that has not come is written off as lost: 25 times the link's worst
-/// latency ([`crate::latency::FALCON`], 2 ms), so only a reply that never comes is, not a late one (writing off
-/// a late reply would make the later ones look younger than they are). Meanwhile each missing reply makes the
-/// states look a tick older than they are (the safe direction).
+/// How long after its command a reply that has not come may never come (25 times the link's worst latency,
+/// [`crate::latency::FALCON`], 2 ms): a reply missing this long starts a resynchronisation (it is never written
+/// off, which would make a late reply look younger than it is), and the link must be this long without a byte
+/// before counting starts again. Meanwhile each missing reply makes the states look a tick older than they are
+/// (the safe direction).
 pub const LOST_REPLY_AFTER: Duration = Duration::from_millis(50);
+
+/// States the count says are older than this many ticks for [`LOST_REPLY_AFTER`] start a resynchronisation:
+/// the supervisor's default staleness bound (3 periods, docs/safety.md), above which they drive no force anyway.
+pub const RESYNC_AGE_TICKS: u32 = 3;
+
+/// A resynchronisation not done after this long (bytes kept coming that are not frames) is a protocol error on
+/// every read, so the supervisor drops the link and reopens it.
+pub const RESYNC_GIVE_UP: Duration = Duration::from_millis(200);
 
 /// Bytes per firmware piece (FalconFirmware.cpp:115).
 pub const UPLOAD_CHUNK: usize = 62;
@@ -287,8 +309,10 @@ pub struct Falcon<P> {
     in_flight: InFlight,
     /// The age (ticks) of the state handed out last.
     state_age: u32,
-    /// Malformed frames the assembler had dropped when last looked at (each a reply that came garbled).
+    /// Malformed frames the assembler had dropped when last looked at.
     malformed_seen: u64,
+    /// Bytes the assembler had taken when last looked at.
+    received_seen: u64,
 }
 
 impl<P: FalconPort> Falcon<P> {
@@ -321,8 +345,9 @@ impl<P: FalconPort> Falcon<P> {
             held: None,
             surplus: SurplusCount::default(),
             event: None,
-            in_flight: InFlight::new(LOST_REPLY_AFTER),
+            in_flight: InFlight::new(LOST_REPLY_AFTER, RESYNC_AGE_TICKS),
             malformed_seen: 0,
+            received_seen: 0,
             state_age: 0,
         }
     }
@@ -346,7 +371,7 @@ impl<P: FalconPort> Falcon<P> {
         for _ in 0..64 {
             let polled_at = Instant::now();
             let Some(frame) = self.read_frame(Duration::ZERO)? else {
-                self.in_flight.nothing_waiting(polled_at);
+                self.nothing_waiting(polled_at);
                 emptied = true;
                 break;
             };
@@ -357,9 +382,10 @@ impl<P: FalconPort> Falcon<P> {
             }
         }
         if !emptied && self.read_frame(Duration::ZERO)?.is_some() {
-            // Still more: a flood. Throw the rest away.
+            // Still more: a flood. Throw the rest away; what was thrown away is not counted, so resynchronise.
             self.port.discard_input()?;
             self.frames.clear();
+            self.in_flight.malformed(Instant::now());
             surplus += 1;
         }
         if let Some(event) = self.surplus.add(surplus) {
@@ -407,12 +433,65 @@ impl<P: FalconPort> Falcon<P> {
             super::exchange::receive_within(&mut self.port, &mut self.frames, timeout, |frames| {
                 Ok(frames.next_frame())
             })?;
-        // A frame dropped as malformed was a reply that came garbled: its command is answered.
+        let now = Instant::now();
+        let received = self.frames.received();
+        if received != self.received_seen {
+            self.received_seen = received;
+            self.in_flight.bytes_came(now);
+        }
+        // Bytes that were not a frame: a garbled reply or junk, which cannot be told apart. The count of
+        // replies owed is lost (never written down, which could make a later state look younger than it is).
         let malformed = self.frames.malformed();
-        self.in_flight
-            .write_off(malformed.saturating_sub(self.malformed_seen));
-        self.malformed_seen = malformed;
+        if malformed != self.malformed_seen {
+            self.malformed_seen = malformed;
+            self.in_flight.malformed(now);
+        }
         Ok(frame)
+    }
+
+    /// The port held nothing when polled at `at`: an overdue reply starts a resynchronisation; a quiet link
+    /// ends one, and any partial frame held then is junk (no byte came for [`LOST_REPLY_AFTER`]).
+    fn nothing_waiting(&mut self, at: Instant) {
+        if self.in_flight.nothing_waiting(at) {
+            self.frames.clear();
+        }
+    }
+
+    /// Resynchronisations of the reply count since the last open (module docs).
+    pub fn resyncs(&self) -> u64 {
+        self.in_flight.resyncs()
+    }
+
+    /// Waits until no byte has come for [`LOST_REPLY_AFTER`] (every reply owed has come or never will), at
+    /// most [`RESYNC_GIVE_UP`] and a little more; then nothing is owed.
+    fn settle(&mut self) -> Result<(), DeviceError> {
+        let give_up = Instant::now() + RESYNC_GIVE_UP + LOST_REPLY_AFTER;
+        let mut quiet_since = Instant::now();
+        loop {
+            let now = Instant::now();
+            let quiet_for = now.saturating_duration_since(quiet_since);
+            if quiet_for > LOST_REPLY_AFTER {
+                break;
+            }
+            if now > give_up {
+                return Err(upload_error(
+                    "the Falcon kept sending after its first frame (a port that is not a Falcon, or a \
+                     Falcon running other firmware)",
+                ));
+            }
+            let seen = (self.frames.received(), self.frames.malformed());
+            if let Some(reply) =
+                self.read_frame(LOST_REPLY_AFTER - quiet_for + Duration::from_millis(1))?
+            {
+                self.last_reply = Some(reply);
+            }
+            if (self.frames.received(), self.frames.malformed()) != seen {
+                quiet_since = Instant::now();
+            }
+        }
+        self.frames.clear();
+        self.in_flight.clear();
+        Ok(())
     }
 
     /// Up to ten zero-torque exchanges, each waiting 20 ms for its frame: true once one is answered. The
@@ -422,10 +501,10 @@ impl<P: FalconPort> Falcon<P> {
             self.send([0; 3])?;
             if let Some(reply) = self.read_frame(Duration::from_millis(20))? {
                 self.last_reply = Some(reply);
-                self.in_flight.clear();
+                // An earlier exchange's reply may still come: count from a quiet link.
+                self.settle()?;
                 self.held = None;
                 self.state_age = 0;
-                self.malformed_seen = self.frames.malformed();
                 return Ok(true);
             }
         }
@@ -493,8 +572,10 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
-        let motor = match self.accepted_m {
-            Some(position) if self.is_homed() => {
+        let motor = match (self.in_flight.next_command(), self.accepted_m) {
+            // Resynchronising: one zero-torque frame, then a quiet link until the count is known again.
+            (NextCommand::Nothing, _) => return Ok(()),
+            (NextCommand::Force, Some(position)) if self.is_homed() => {
                 self.config.geometry.motor_commands(position, force_n)
             }
             _ => [0; 3],
@@ -551,32 +632,50 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.candidate_m = None;
         // With a reply held from before this tick's command, only what is already waiting is newer (this
         // command's own reply comes a latency timer and a USB frame later, 1-2 ms); without one, the reply to
-        // the previous command may still come within the wait.
-        let wait = if self.held.is_some() {
+        // the previous command may still come within the wait. Resynchronising, nothing was sent to wait for.
+        let wait = if self.held.is_some() || self.in_flight.resyncing() {
             Duration::ZERO
         } else {
             self.config.reply_timeout
         };
         let polled_at = Instant::now();
-        let reply = match self.read_frame(wait)? {
+        let read = self.read_frame(wait)?;
+        // A frame read, or held, while the count was in doubt has no known age, even if the doubt ends now.
+        let mut unknown_age = self.in_flight.resyncing();
+        let reply = match read {
             Some(reply) => {
                 self.in_flight.reply_read();
                 self.held = None;
                 reply
             }
             None => {
-                self.in_flight.nothing_waiting(polled_at);
-                let Some(reply) = self.held.take() else {
-                    return Err(DeviceError::Timeout {
-                        waited_us: u64::try_from(self.config.reply_timeout.as_micros())
-                            .unwrap_or(u64::MAX),
-                        waiting_for: "a Falcon frame",
-                    });
-                };
-                reply
+                self.nothing_waiting(polled_at);
+                unknown_age |= self.in_flight.resyncing();
+                match (self.held.take(), self.last_reply) {
+                    (Some(reply), _) => reply,
+                    // Resynchronising (or just done): the newest frame again, its age unknown, so the link
+                    // stays up while it is quiet.
+                    (None, Some(reply)) if unknown_age => reply,
+                    _ => {
+                        return Err(DeviceError::Timeout {
+                            waited_us: u64::try_from(self.config.reply_timeout.as_micros())
+                                .unwrap_or(u64::MAX),
+                            waiting_for: "a Falcon frame",
+                        })
+                    }
+                }
             }
         };
-        self.state_age = self.in_flight.state_age();
+        if self
+            .in_flight
+            .resync_began()
+            .is_some_and(|began| polled_at.saturating_duration_since(began) > RESYNC_GIVE_UP)
+        {
+            return Err(upload_error(
+                "the Falcon's frames stayed corrupt (bytes that are not 16-byte <...> frames kept coming)",
+            ));
+        }
+        let age = self.in_flight.state_age(polled_at);
         let was_homed = self.is_homed();
         self.last_reply = Some(reply);
         if !was_homed && self.is_homed() {
@@ -585,6 +684,15 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             self.position_m = DVec3::new(0.0, 0.0, 0.08);
             self.accepted_m = None;
         }
+        // Until homed, a position is in coordinates homing will reset, and no force may come from it
+        // (FalconFirmware.h:52-55): its age is unknown, so the supervisor holds the force at zero, and enables
+        // (from zero, through its ramp-in and slew limit) only on homed states. Otherwise the driver's own
+        // zero would hide a force the supervisor had ramped up, sent as a step the moment the Falcon homes.
+        self.state_age = if unknown_age || !self.is_homed() {
+            UNKNOWN_AGE
+        } else {
+            age
+        };
         let geometry = self.config.geometry;
         let theta = reply.encoders.map(|count| geometry.leg_angle_rad(count));
         let (position, converged) = geometry.forward_kinematics(theta, self.position_m);

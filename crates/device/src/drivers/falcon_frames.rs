@@ -4,7 +4,16 @@
 //!
 //! Source: libnifalcon src/firmware/FalconFirmwareNovintSDK.cpp:40-97 (frame layout: `<`, three 16-bit values
 //! as four nibbles each, least significant first, every nibble plus 0x41, a control/status byte plus 0x41, a
-//! spare 0x41, `>`), include/falcon/core/FalconFirmware.h:68-70 (LED bits).
+//! spare 0x41, `>`), include/falcon/core/FalconFirmware.h:68-70 (LED bits),
+//! include/falcon/firmware/FalconFirmwareNovintSDK.h:29-34 (16 bytes answer 16 bytes; frames start with `<`,
+//! end with `>`, and their bytes run from 0x41 to 0x50) and :63-70 (the device's frame).
+//!
+//! libnifalcon checks only the `<` and `>` of each 16 bytes and, on a malformed frame, steps 16 bytes on
+//! (FalconFirmwareNovintSDK.cpp:43, :67-70, :126-132): after one stray byte it never finds a frame again. Here a
+//! malformed run is skipped to the next `<`, and the twelve value bytes must also be nibbles plus 0x41 (0x41 to
+//! 0x50, as :87-96 encodes them and the header says), so junk that happens to hold a `<` and a `>` sixteen
+//! bytes apart is rarely taken for a frame. The status byte (homing bits in 0x10-0x40, FalconFirmwareNovintSDK.h
+//! :72-80) and the unknown byte 14 are not checked: the status byte runs past 0x50.
 
 /// Frame length both ways.
 pub const FRAME_LEN: usize = 16;
@@ -51,9 +60,13 @@ pub struct FalconReply {
     pub grip: u8,
 }
 
-/// Decodes a device frame; `None` unless it is `<`…`>` (libnifalcon drops such frames as malformed).
+/// Decodes a device frame; `None` unless it is `<`…`>` (libnifalcon drops such frames as malformed) with its
+/// twelve value bytes in 0x41..=0x50 (module docs).
 pub fn decode_reply(frame: &[u8; FRAME_LEN]) -> Option<FalconReply> {
     if frame[0] != b'<' || frame[15] != b'>' {
+        return None;
+    }
+    if frame[1..13].iter().any(|b| !(0x41..=0x50).contains(b)) {
         return None;
     }
     let mut encoders = [0i16; 3];
@@ -80,6 +93,7 @@ pub struct FrameAssembler {
     buf: [u8; 64],
     len: usize,
     malformed: u64,
+    received: u64,
 }
 
 impl Default for FrameAssembler {
@@ -95,6 +109,7 @@ impl FrameAssembler {
             buf: [0; 64],
             len: 0,
             malformed: 0,
+            received: 0,
         }
     }
 
@@ -107,6 +122,12 @@ impl FrameAssembler {
     /// `n` bytes were written at the start of [`space`](Self::space).
     pub fn filled(&mut self, n: usize) {
         self.len = (self.len + n).min(self.buf.len());
+        self.received = self.received.saturating_add(n as u64);
+    }
+
+    /// Bytes taken so far.
+    pub fn received(&self) -> u64 {
+        self.received
     }
 
     /// Drops every byte held (after the port's input was discarded).
@@ -197,5 +218,17 @@ mod tests {
         let mut bad = frame;
         bad[15] = b'x';
         assert!(decode_reply(&bad).is_none());
+        // A value byte outside the nibble range (FalconFirmwareNovintSDK.h:33-34: bytes run 0x41 to 0x50).
+        let mut bad = frame;
+        bad[5] = 0x51;
+        assert!(decode_reply(&bad).is_none());
+        // The status byte is not a nibble: homing bits 0x10-0x40 (FalconFirmwareNovintSDK.h:78-80) and the
+        // grip (0x0f) give 0x41 + 0x7f.
+        let mut homed = frame;
+        homed[13] = 0x41 + 0x7f;
+        assert_eq!(
+            decode_reply(&homed).map(|r| (r.homing, r.grip)),
+            Some((7, 0xf))
+        );
     }
 }

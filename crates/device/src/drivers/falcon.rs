@@ -313,6 +313,9 @@ pub struct Falcon<P> {
     malformed_seen: u64,
     /// Bytes the assembler had taken when last looked at.
     received_seen: u64,
+    /// The last frame written (or begun) carried a torque: [`HapticDevice::disable`] sends a zero one then,
+    /// whatever the reply count's state, so the Falcon never keeps a torque once voxhap lets go of it.
+    torque_on: bool,
 }
 
 impl<P: FalconPort> Falcon<P> {
@@ -349,6 +352,7 @@ impl<P: FalconPort> Falcon<P> {
             malformed_seen: 0,
             received_seen: 0,
             state_age: 0,
+            torque_on: false,
         }
     }
 
@@ -421,8 +425,15 @@ impl<P: FalconPort> Falcon<P> {
 
     fn send(&mut self, motor: [i16; 3]) -> Result<(), DeviceError> {
         let leds = if self.is_homed() { LED_GREEN } else { LED_RED };
+        // A torque counts as on from the moment its frame is begun; off only once a zero frame went out whole.
+        let zero = motor == [0; 3];
+        self.torque_on |= !zero;
         // Homing mode in every frame, or the Falcon does not stay homed (FalconFirmware.h:50).
-        self.port.write_all(&encode_command(motor, leds, true))
+        self.port.write_all(&encode_command(motor, leds, true))?;
+        if zero {
+            self.torque_on = false;
+        }
+        Ok(())
     }
 
     /// Reads the next well-formed frame within `timeout`, skipping bytes until a `<` whose frame ends in `>`
@@ -614,6 +625,12 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     /// The wrapper's zero torque went out: read the frames still to come, up to the one that answers it (at
     /// most the link's worst latency), so the Falcon has taken it before the port closes.
     fn disable(&mut self) -> Result<(), DeviceError> {
+        // The wrapper's zero is not sent while the count resynchronises (the link must stay quiet); a torque
+        // still on then is zeroed here all the same: letting go matters more than the quiet.
+        if self.torque_on {
+            self.send([0; 3])?;
+            self.in_flight.command_sent(Instant::now());
+        }
         let deadline = Instant::now() + self.config.reply_timeout.max(crate::latency::FALCON.worst);
         while self.in_flight.unanswered() > 0 {
             let remaining = deadline.saturating_duration_since(Instant::now());

@@ -83,6 +83,8 @@ fn wait_until(child: &mut std::process::Child, what: &str, done: impl Fn() -> bo
 struct Run {
     /// Every `current_cursor_force` the double reported.
     reported: Vec<[f64; 3]>,
+    /// Every force vector the double received, in order.
+    received: Vec<[f64; 3]>,
     csv: Csv,
     /// stderr, then stdout.
     said: String,
@@ -144,9 +146,29 @@ fn serve_through(before: impl Fn(&InverseService), event: impl Fn(&InverseServic
     assert!(!csv.rows.is_empty(), "an empty trace");
     Run {
         reported: reported(),
+        received: service.forces(),
         csv,
         said,
     }
+}
+
+/// What the arm was sent, from the double's own log: every force finite and within the host's 3 N force limit
+/// (docs/safety.md, the limits table: min(host limit 3 N, the device's `max_force_n`)), and the last one zero
+/// (serve's stop zeroes the arm before it exits).
+fn assert_what_the_arm_received_is_safe(run: &Run) {
+    assert!(!run.received.is_empty(), "the double received no force");
+    for f in &run.received {
+        let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        assert!(
+            norm.is_finite() && norm <= 3.0 + 1e-9,
+            "the arm was sent {f:?}"
+        );
+    }
+    assert_eq!(
+        *run.received.last().unwrap(),
+        [0.0; 3],
+        "the last force the arm received"
+    );
 }
 
 /// The checks of the module docs for a device fault with `code`, named `name` in docs/safety.md's table: from
@@ -155,6 +177,7 @@ fn serve_through(before: impl Fn(&InverseService), event: impl Fn(&InverseServic
 /// drop and reconnect meanwhile: docs/traces.md lists `disconnected` and `stale_link` before `device_fault`
 /// ("the first that applies"), so those rows may carry them, but at least 100 rows must name the fault.
 fn assert_faulted_from_the_next_row(run: &Run, code: u32, name: &str) -> usize {
+    assert_what_the_arm_received_is_safe(run);
     let csv = &run.csv;
     let bit = 1u64 << code;
     let mut faulted_from = None;

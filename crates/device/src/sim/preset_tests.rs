@@ -24,7 +24,12 @@ fn falcon_resolution_is_novints_400_dpi_and_latency_libnifalcons_1_ms_timer() {
     let falcon = ArmPreset::Falcon.figures();
     // Novint's specification (H3D API wiki, Novint Falcon page): "Position Resolution > 400 dpi", one inch
     // (25.4 mm) over 400 dots.
-    assert_near(falcon.position_resolution_m, 0.0254 / 400.0, 1e-12, "falcon resolution");
+    assert_near(
+        falcon.position_resolution_m,
+        0.0254 / 400.0,
+        1e-12,
+        "falcon resolution",
+    );
     // libnifalcon, src/comm/FalconCommFTD2XX.cpp: FT_SetLatencyTimer(m_falconDevice, 1) once the firmware is
     // loaded (the FTDI latency timer counts milliseconds).
     assert_near(falcon.latency_s, 1e-3, 1e-12, "falcon latency");
@@ -44,20 +49,34 @@ fn woodenhaptics_figures_follow_from_the_published_parts() {
     let link_rad_per_count = std::f64::consts::TAU / (counts_per_motor_turn * body_b_m / capstan_m);
     // The coarsest of in/out (Lb) and up/down (Lc) at the home pose; the preset rounds it to 0.0537 mm.
     let resolution_m = (lb_m * link_rad_per_count).max(lc_m * link_rad_per_count);
-    assert_near(wooden.position_resolution_m, resolution_m, 1e-3, "woodenhaptics resolution");
+    assert_near(
+        wooden.position_resolution_m,
+        resolution_m,
+        1e-3,
+        "woodenhaptics resolution",
+    );
     // In/out: B swings (its mass reflected to the tip by (centre / Lb)^2), C is carried whole; up/down only C
     // swings. The larger; the preset rounds it to 0.1205 kg.
     let in_out_kg = mb_kg * (mb_centre_m / lb_m).powi(2) + mc_kg;
     let up_down_kg = mc_kg * (mc_centre_m / lc_m).powi(2);
-    assert_near(wooden.mass_kg, in_out_kg.max(up_down_kg), 1e-3, "woodenhaptics mass");
+    assert_near(
+        wooden.mass_kg,
+        in_out_kg.max(up_down_kg),
+        1e-3,
+        "woodenhaptics mass",
+    );
     // What docs/stability.md adds: body A (160 mm across, 0.200 m reach) with the parts list's 2000-count
     // encoder is finer than B, so the coarsest stays B's; the HEDL 5540's code wheel (<= 0.6 g cm^2 by its
     // data sheet) reflected through B's capstan to the tip weighs at most 0.2 g.
-    let a_with_parts_list_m = 0.200 * std::f64::consts::TAU / (counts_per_motor_turn * 0.160 / capstan_m);
+    let a_with_parts_list_m =
+        0.200 * std::f64::consts::TAU / (counts_per_motor_turn * 0.160 / capstan_m);
     assert!((a_with_parts_list_m - 0.0393e-3).abs() < 0.5e-7 && a_with_parts_list_m < resolution_m);
     let code_wheel_kg = 0.6e-7 * (body_b_m / capstan_m).powi(2) / lb_m.powi(2);
     assert!((code_wheel_kg - 0.2e-3).abs() < 0.05e-3, "{code_wheel_kg}");
-    assert_eq!(wooden.latency_s, None, "the paper's < 1 ms is a requirement, not a measurement");
+    assert_eq!(
+        wooden.latency_s, None,
+        "the paper's < 1 ms is a requirement, not a measurement"
+    );
 }
 
 #[test]
@@ -65,7 +84,12 @@ fn no_preset_has_a_damping_and_touch_and_inverse3_have_no_figure() {
     // No vendor document or paper read gives a viscous damping for any of the four; the only related
     // measurement (Forsslund et al., TEI 2015, Table 1) is a back-drive friction, a Coulomb force.
     for preset in ALL {
-        assert_eq!(preset.figures().damping_n_s_per_m, None, "{}", preset.name());
+        assert_eq!(
+            preset.figures().damping_n_s_per_m,
+            None,
+            "{}",
+            preset.name()
+        );
     }
     for preset in [ArmPreset::Touch, ArmPreset::Inverse3] {
         let f = preset.figures();

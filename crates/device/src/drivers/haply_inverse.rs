@@ -83,6 +83,20 @@ impl Default for HaplyInverseConfig {
     }
 }
 
+impl HaplyInverseConfig {
+    /// These settings for a servo loop of `period`: no wait is longer than the period, so a late or lost state
+    /// never holds a tick. The servo thread's wait for its answer is at most 0.4 of it
+    /// ([`link::reply_wait_for`]); the I/O thread's wait for a reply and its sleep with nothing to send are at
+    /// most one period each (a reply later than that is read on the next round, labelled with its own older
+    /// sequence). At 1 kHz the servo thread's wait stays 0.4 ms.
+    pub fn for_period(mut self, period: Duration) -> Self {
+        self.reply_wait = link::reply_wait_for(self.reply_wait, period);
+        self.service.reply_timeout = self.service.reply_timeout.min(period);
+        self.service.idle_wait = self.service.idle_wait.min(period);
+        self
+    }
+}
+
 /// An Inverse3 behind the Inverse Service.
 #[derive(Debug)]
 pub struct HaplyInverse {
@@ -131,6 +145,19 @@ impl HaplyInverse {
             active_faults: 0,
             arm_force_n: None,
         }
+    }
+
+    /// A driver already running on `link` (the tests' doubles of the service's socket).
+    #[cfg(test)]
+    pub(crate) fn on_link(config: HaplyInverseConfig, link: ServiceLink) -> HaplyInverse {
+        let mut driver = HaplyInverse::new(config);
+        driver.link = Some(link);
+        driver
+    }
+
+    /// The settings in use.
+    pub fn config(&self) -> &HaplyInverseConfig {
+        &self.config
     }
 
     /// The force that reached the arm after the service's filters, as the service reported it with the last

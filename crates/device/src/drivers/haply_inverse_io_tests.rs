@@ -48,7 +48,7 @@ impl MessageTransport for RecordingChannel {
 impl ServiceChannel for RecordingChannel {
     fn send_text(&mut self, _text: String) -> Result<(), DeviceError> {
         self.received += 1;
-        if self.received % 3 != 0 {
+        if !self.received.is_multiple_of(3) {
             // Haply's example state (docs.haply.co tutorial "01. Print Inverse3").
             self.waiting.push_back(Message::text(format!(
                 r#"{{"inverse3":[{{"device_id":"{DEVICE_ID}","state":{{"cursor_position":{{"x":0.0,"y":-0.12,"z":0.15}}}}}}]}}"#

@@ -263,6 +263,116 @@ fn a_stability_ceiling_event_zeroes_the_force_as_its_own_fault() {
     );
 }
 
+/// A motor stall (`stall_detected`, docs.haply.co "Events & Monitoring") is a fault until the operator clears
+/// it, not until the link happens to drop: with the service restarted after the stall (the link drops and the
+/// supervisor reconnects through the same settings, as `serve` does), no force goes out between the stall and
+/// the operator's clear, and the reconnected link reports the stall's fault again; after the clear, force flows
+/// again (so the zero before it was the fault's). Counted in ticks and events, not timed. Fails when the driver
+/// forgets the latched fault on reconnect (force ramps in again a few ticks after the new link is up).
+#[test]
+fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears_it() {
+    let mut service = InverseService::start();
+    let mut config = HaplyInverseConfig::default();
+    config.service.url = service.url();
+    config.service.events_url = Some(service.events_url());
+    config.reply_wait = Duration::from_millis(20);
+    let supervisor_config = SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 2.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        reconnect_interval_us: 50_000,
+        ..SupervisorConfig::default()
+    };
+    let mut supervisor = Supervisor::new(supervisor_config, move || {
+        Ok(HaplyInverse::new(config.clone()))
+    })
+    .unwrap();
+    supervisor.connect(0).unwrap();
+    #[derive(PartialEq, Debug)]
+    enum Phase {
+        Pushing,
+        Stalled,
+        Restarted,
+        Reconnected(u32),
+        Cleared,
+    }
+    let mut phase = Phase::Pushing;
+    let (mut tick, mut forced_while_faulted) = (0u64, Vec::new());
+    let (mut faults_after_reconnect, mut stall_sent, mut clear) = (0u16, false, None);
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(60) {
+        tick += 1;
+        let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
+        let faulted = out
+            .events
+            .iter()
+            .any(|e| matches!(e, SupervisorEvent::Fault { code, .. } if code == FAULT_MOTOR_STALL));
+        let disconnected = out
+            .events
+            .iter()
+            .any(|e| matches!(e, SupervisorEvent::Disconnected { .. }));
+        if !matches!(phase, Phase::Pushing | Phase::Cleared) && out.sent_force_n != DVec3::ZERO {
+            forced_while_faulted.push((tick, format!("{phase:?}"), out.sent_force_n));
+        }
+        phase = match phase {
+            Phase::Pushing => {
+                if !stall_sent
+                    && out.sent_force_n.z > 0.99
+                    && service
+                        .shared
+                        .event_clients_accepted
+                        .load(Ordering::Acquire)
+                        > 0
+                {
+                    service.safety_event("stall_detected");
+                    stall_sent = true;
+                }
+                if faulted {
+                    service.start_again();
+                    Phase::Stalled
+                } else {
+                    Phase::Pushing
+                }
+            }
+            Phase::Stalled if disconnected => Phase::Restarted,
+            Phase::Restarted if out.connected => Phase::Reconnected(0),
+            Phase::Reconnected(ticks) if ticks >= 300 => {
+                faults_after_reconnect = out.active_faults;
+                clear = Some(supervisor.request_clear_fault());
+                Phase::Cleared
+            }
+            Phase::Reconnected(ticks) => Phase::Reconnected(ticks + 1),
+            Phase::Cleared if out.sent_force_n.z > 0.99 => break,
+            other => other,
+        };
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    supervisor.stop();
+    assert_eq!(
+        phase,
+        Phase::Cleared,
+        "the run did not get through its phases in 60 s"
+    );
+    assert!(
+        forced_while_faulted.is_empty(),
+        "force between the stall and the clear: {:?}",
+        &forced_while_faulted[..forced_while_faulted.len().min(5)]
+    );
+    assert_eq!(
+        faults_after_reconnect,
+        1 << FAULT_MOTOR_STALL,
+        "the reconnected link's latched faults"
+    );
+    assert_eq!(
+        clear,
+        Some(voxhap::device::supervisor::ClearFaultOutcome::Requested),
+        "the operator's clear"
+    );
+}
+
 /// `voxhap serve` against the double while the handle sweeps the whole reachable box: no position is refused
 /// as implausible and the link is never dropped (the capability box was ±0.10 m about the origin, which
 /// refused Haply's own documented pose and reconnected about every 10 ms). Count-based: it runs until every

@@ -19,6 +19,10 @@
 //! reaches the host as late as on a real Falcon ([`libnifalcon_arrival`]), or later by a test's extra delay;
 //! numbered, each carries the number of the command it answers as its encoder counts.
 //!
+//! What the double has been sent, settled ([`FalconDevice::commands_settled`]): the double writes a mark frame on
+//! the host's side of the line and waits until it reads it back; the line is one queue, so by then it has read
+//! every frame the host wrote before. No guess at how long a busy machine takes to deliver them.
+//!
 //! Damage on the line a test can ask for, per answer ([`Junk`]): junk bytes before it (no answer of their own),
 //! an answer garbled in transit, bytes inserted inside an answer, an answer lost. A frame is 16 bytes from `<`
 //! to `>` whose other bytes run from 0x41 to 0x50 except the status byte
@@ -155,6 +159,9 @@ pub struct FalconShared {
     pub extra_delay_us: AtomicU64,
     /// The newest command whose answer reached the host whole (-1: none yet).
     pub newest_delivered: AtomicI64,
+    /// Marks asked for ([`FalconDevice::commands_settled`]) and marks read back.
+    marks_asked: AtomicU64,
+    marks_read: AtomicU64,
     stop: AtomicBool,
 }
 
@@ -180,6 +187,12 @@ pub fn libnifalcon_arrival(bus_start: Instant, received: Instant) -> Instant {
     let frame = since_us.div_ceil(USB_FRAME_US);
     bus_start + Duration::from_micros(u64::try_from(frame * USB_FRAME_US).unwrap_or(u64::MAX))
 }
+
+/// The mark [`FalconDevice::commands_settled`] writes on the host's side: a well-formed frame whose spare byte
+/// is 0x50, which no host frame carries (libnifalcon's `formatInput`, src/firmware/FalconFirmwareNovintSDK.cpp,
+/// clears bytes 1-14, never sets byte 14 and adds 0x41 to each: the spare byte is always 0x41); it is neither
+/// logged nor answered.
+const MARK: [u8; 16] = *b"<AAAAAAAAAAAAAP>";
 
 /// Host frame → command: `<`, 3 × 4 nibbles + 0x41 (least significant first), control byte + 0x41, spare, `>`.
 fn decode_host_frame(frame: &[u8]) -> Option<FalconCommand> {
@@ -234,6 +247,10 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> (Vec<u8>, Optio
             break;
         }
         let frame: Vec<u8> = pending.drain(..16).collect();
+        if frame == MARK {
+            shared.marks_read.fetch_add(1, Ordering::AcqRel);
+            continue;
+        }
         if let Some(command) = decode_host_frame(&frame) {
             let number = {
                 let mut commands = shared.commands.lock().unwrap();
@@ -327,7 +344,14 @@ impl FalconDevice {
                 let mut on_the_way: VecDeque<(Instant, Vec<u8>, usize, Option<i64>)> =
                     VecDeque::new();
                 let mut chunk = [0u8; 256];
+                let mut marks_written = 0;
                 while !shared.stop.load(Ordering::Acquire) {
+                    let asked = shared.marks_asked.load(Ordering::Acquire);
+                    if asked > marks_written {
+                        marks_written = asked;
+                        pty.write_as_host(&MARK)
+                            .expect("write a mark on the host's side");
+                    }
                     while on_the_way
                         .front()
                         .is_some_and(|(at, _, _, _)| *at <= Instant::now())
@@ -386,6 +410,22 @@ impl FalconDevice {
 
     pub fn commands(&self) -> Vec<FalconCommand> {
         self.shared.commands.lock().unwrap().clone()
+    }
+
+    /// Every command, once the double has read every frame the host wrote before this call (module docs):
+    /// call it after the host has stopped writing. Panics if the mark is not back within 60 s.
+    pub fn commands_settled(&self) -> Vec<FalconCommand> {
+        let before = self.shared.marks_read.load(Ordering::Acquire);
+        self.shared.marks_asked.fetch_add(1, Ordering::AcqRel);
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while self.shared.marks_read.load(Ordering::Acquire) == before {
+            assert!(
+                Instant::now() < deadline,
+                "the double did not read back its mark within 60 s"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        self.commands()
     }
 }
 

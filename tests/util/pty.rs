@@ -9,7 +9,7 @@ use std::time::Duration;
 pub struct PtyDevice {
     master: TTYPort,
     // Held open so the master does not see a hang-up while the driver has not opened the path yet.
-    _slave: TTYPort,
+    slave: TTYPort,
     path: String,
 }
 
@@ -23,7 +23,7 @@ impl PtyDevice {
         let path = slave.name().expect("the slave end has a path");
         PtyDevice {
             master,
-            _slave: slave,
+            slave,
             path,
         }
     }
@@ -48,6 +48,14 @@ impl PtyDevice {
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => Ok(0),
             Err(e) => Err(e),
         }
+    }
+
+    /// Writes bytes on the host's side of the line, as the driver would: they reach [`PtyDevice::read`] after
+    /// every byte the driver wrote before this call (one queue, in order), so a double can mark the end of what
+    /// it has been sent.
+    pub fn write_as_host(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.slave.write_all(bytes)?;
+        self.slave.flush()
     }
 
     /// Sends bytes to the host.

@@ -728,3 +728,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "falcon_tests.rs"]
+mod tests;

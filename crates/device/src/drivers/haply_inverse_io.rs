@@ -7,8 +7,14 @@
 //!
 //! Per round: read what is waiting, take the newest queued force (or a keepalive the core asks for), send it,
 //! then read until its reply has come or `reply_timeout` has passed (the reply may still come and is then
-//! labelled with its own, older sequence). A flood, a send that cannot leave within the write timeout or a
-//! socket error ends the thread and raises `link_down`. On stop: a zero force, then a WebSocket close.
+//! labelled with its own, older sequence); with nothing to send, sleep until the servo thread queues a force
+//! or `idle_wait` has passed. Both waits derive from the servo period
+//! ([`super::HaplyInverseConfig::for_period`]: at most one period each), so the link never holds a force
+//! back longer than a tick. A flood, a send that cannot leave within the write timeout or a socket error
+//! ends the thread and raises `link_down`. On stop: a zero force, then a WebSocket close.
+//!
+//! The shell runs on any [`ServiceChannel`] (the service's socket, [`ServicePort`]; a recording double in
+//! the tests).
 
 use super::link::{Incoming, LinkCore, LinkFault, Took};
 use crate::drivers::exchange::{messages_within, MessageCore, MessageTransport};
@@ -24,6 +30,32 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tungstenite::Message;
+
+/// What the I/O shell needs of the simulation channel: whole messages in (the shared runner's
+/// [`MessageTransport`]), text out, a close, and the idle wait between rounds.
+pub trait ServiceChannel: MessageTransport<Message = Message> + Send + 'static {
+    /// Sends one text message (within the socket's bounded write wait).
+    fn send_text(&mut self, text: String) -> Result<(), DeviceError>;
+
+    /// Starts the WebSocket close and flushes it (errors ignored: the link ends).
+    fn close(&mut self);
+
+    /// Nothing to send: sleeps until the servo thread queues a force (it unparks this thread) or `wait`
+    /// has passed.
+    fn idle(&mut self, wait: Duration) {
+        std::thread::park_timeout(wait);
+    }
+}
+
+impl ServiceChannel for ServicePort {
+    fn send_text(&mut self, text: String) -> Result<(), DeviceError> {
+        ServicePort::send_text(self, text)
+    }
+
+    fn close(&mut self) {
+        ServicePort::close(self);
+    }
+}
 
 impl MessageTransport for ServicePort {
     type Message = Message;
@@ -117,6 +149,16 @@ pub fn start(session: Session, config: &ServiceConfig) -> Result<ServiceLink, De
         device,
         snapshot,
     } = session;
+    start_on(port, device, snapshot, config)
+}
+
+/// [`start`] on any channel: the I/O thread runs the shell on `port` for `device`, from `snapshot`.
+pub(crate) fn start_on<P: ServiceChannel>(
+    port: P,
+    device: crate::transport::inverse_service::ServiceDevice,
+    snapshot: ServiceSnapshot,
+    config: &ServiceConfig,
+) -> Result<ServiceLink, DeviceError> {
     let (forces, force_rx) = rtrb::RingBuffer::new(FORCE_RING_CAPACITY);
     let core = LinkCore::new(snapshot, Instant::now());
     let (mut state_tx, states) = triple_buffer::triple_buffer(&core.snapshot());
@@ -128,10 +170,13 @@ pub fn start(session: Session, config: &ServiceConfig) -> Result<ServiceLink, De
         states: state_tx,
         shared: shared.clone(),
     };
-    let reply_timeout = config.reply_timeout;
+    let waits = Waits {
+        reply: config.reply_timeout,
+        idle: config.idle_wait,
+    };
     let thread = std::thread::Builder::new()
         .name("voxhap-inverse-io".to_owned())
-        .spawn(move || run(port, feed, force_rx, reply_timeout))
+        .spawn(move || run(port, feed, force_rx, waits))
         .map_err(|e| DeviceError::Open {
             path: config.url.clone(),
             message: format!("cannot start the Inverse Service I/O thread: {e}"),
@@ -151,13 +196,22 @@ pub fn start(session: Session, config: &ServiceConfig) -> Result<ServiceLink, De
     })
 }
 
-fn run(
-    mut port: ServicePort,
+/// The I/O thread's two waits (module docs).
+#[derive(Debug, Clone, Copy)]
+struct Waits {
+    /// For the reply to the message just sent.
+    reply: Duration,
+    /// With nothing to send, for the servo thread's next force.
+    idle: Duration,
+}
+
+fn run<P: ServiceChannel>(
+    mut port: P,
     mut feed: Feed,
     mut forces: rtrb::Consumer<ForceCommand>,
-    reply_timeout: Duration,
+    waits: Waits,
 ) {
-    let result = exchange(&mut port, &mut feed, &mut forces, reply_timeout).and_then(|()| {
+    let result = exchange(&mut port, &mut feed, &mut forces, waits).and_then(|()| {
         // Stop: zero force, then close.
         port.send_text(force_message(&feed.device_id, DVec3::ZERO))?;
         port.close();
@@ -168,11 +222,11 @@ fn run(
     }
 }
 
-fn exchange(
-    port: &mut ServicePort,
+fn exchange<P: ServiceChannel>(
+    port: &mut P,
     feed: &mut Feed,
     forces: &mut rtrb::Consumer<ForceCommand>,
-    reply_timeout: Duration,
+    waits: Waits,
 ) -> Result<(), DeviceError> {
     while !feed.shared.stop.load(Ordering::Acquire) {
         // Whatever came since the last look is read now, so nothing queues up unread.
@@ -183,14 +237,18 @@ fn exchange(
             newest = Some(command);
         }
         let Some(out) = feed.core.next_command(newest, dropped, Instant::now()) else {
-            std::thread::park_timeout(Duration::from_micros(500));
+            port.idle(waits.idle);
             continue;
         };
         port.send_text(force_message(&feed.device_id, out.force_n))?;
         feed.core.command_sent(out.sequence, Instant::now());
         feed.publish_counters();
         // One reply per message, in order: read until this message's reply has come or the timeout passed.
-        messages_within(port, feed, reply_timeout)?;
+        messages_within(port, feed, waits.reply)?;
     }
     Ok(())
 }
+
+#[cfg(test)]
+#[path = "haply_inverse_io_tests.rs"]
+mod tests;

@@ -22,7 +22,7 @@
 //! the connect timeout, whatever the service does.
 
 use serde_json::Value;
-use std::net::{TcpStream, ToSocketAddrs};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -227,29 +227,109 @@ impl Drop for EventChannel {
 
 type EventSocket = tungstenite::WebSocket<TcpStream>;
 
-fn open(url: &str) -> Result<EventSocket, String> {
+/// Why the events channel could not be opened: each names the URL (or the address it gave) and what failed.
+#[derive(Debug, thiserror::Error)]
+pub enum EventsOpenError {
+    /// The URL does not start with `ws://` (the service listens on plain WebSocket on localhost).
+    #[error("{url:?} is not a ws:// URL")]
+    NotWebSocket {
+        /// The URL given.
+        url: String,
+    },
+    /// The URL's host and port could not be resolved.
+    #[error("the host and port {authority:?} of {url} cannot be resolved: {source}")]
+    Resolve {
+        /// The URL given.
+        url: String,
+        /// Its `HOST:PORT`.
+        authority: String,
+        /// What the resolver said.
+        source: std::io::Error,
+    },
+    /// The host resolved to no address.
+    #[error("the host and port {authority:?} of {url} resolve to no address")]
+    NoAddress {
+        /// The URL given.
+        url: String,
+        /// Its `HOST:PORT`.
+        authority: String,
+    },
+    /// The TCP connection (or setting its timeouts) failed.
+    #[error("{during} {address} (from {url}): {source}")]
+    Socket {
+        /// The URL given.
+        url: String,
+        /// The address it resolved to.
+        address: SocketAddr,
+        /// What was being done.
+        during: &'static str,
+        /// What the socket said.
+        source: std::io::Error,
+    },
+    /// The WebSocket upgrade failed.
+    #[error("the WebSocket handshake with {url} failed: {source}")]
+    Handshake {
+        /// The URL given.
+        url: String,
+        /// What tungstenite said.
+        source: Box<tungstenite::Error>,
+    },
+    /// The WebSocket upgrade did not finish within [`CONNECT_TIMEOUT`].
+    #[error("the WebSocket handshake with {url} did not finish within {} ms", CONNECT_TIMEOUT.as_millis())]
+    HandshakeTimeout {
+        /// The URL given.
+        url: String,
+    },
+}
+
+fn open(url: &str) -> Result<EventSocket, EventsOpenError> {
     let authority = url
         .strip_prefix("ws://")
-        .ok_or_else(|| format!("{url:?} is not a ws:// URL"))?
+        .ok_or_else(|| EventsOpenError::NotWebSocket {
+            url: url.to_owned(),
+        })?
         .split('/')
         .next()
         .unwrap_or_default();
     let address = authority
         .to_socket_addrs()
-        .map_err(|e| e.to_string())?
+        .map_err(|source| EventsOpenError::Resolve {
+            url: url.to_owned(),
+            authority: authority.to_owned(),
+            source,
+        })?
         .next()
-        .ok_or_else(|| "the host name has no address".to_owned())?;
-    let stream =
-        TcpStream::connect_timeout(&address, CONNECT_TIMEOUT).map_err(|e| e.to_string())?;
+        .ok_or_else(|| EventsOpenError::NoAddress {
+            url: url.to_owned(),
+            authority: authority.to_owned(),
+        })?;
+    let socket_error = |during: &'static str| {
+        move |source| EventsOpenError::Socket {
+            url: url.to_owned(),
+            address,
+            during,
+            source,
+        }
+    };
+    let stream = TcpStream::connect_timeout(&address, CONNECT_TIMEOUT)
+        .map_err(socket_error("cannot connect to"))?;
     stream
         .set_read_timeout(Some(CONNECT_TIMEOUT))
         .and_then(|()| stream.set_write_timeout(Some(CONNECT_TIMEOUT)))
-        .map_err(|e| e.to_string())?;
-    let (socket, _) = tungstenite::client(url, stream).map_err(|e| e.to_string())?;
+        .map_err(socket_error("cannot set the timeouts of the socket to"))?;
+    let (socket, _) = tungstenite::client(url, stream).map_err(|error| match error {
+        tungstenite::HandshakeError::Failure(source) => EventsOpenError::Handshake {
+            url: url.to_owned(),
+            source: Box::new(source),
+        },
+        tungstenite::HandshakeError::Interrupted(_) => EventsOpenError::HandshakeTimeout {
+            url: url.to_owned(),
+        },
+    })?;
     socket
         .get_ref()
         .set_read_timeout(Some(READ_TIMEOUT))
-        .map_err(|e| e.to_string())?;
+        .map_err(socket_error("cannot set the read timeout of the socket to"))?;
     Ok(socket)
 }
 
@@ -271,7 +351,7 @@ fn run(url: &str, device_id: &str, mut tx: rtrb::Producer<SafetyEvent>, shared: 
                 if !said_unreachable {
                     said_unreachable = true;
                     shared.notice(format!(
-                        "its events channel {url} cannot be reached ({reason}); e-brake, stall and stability \
+                        "its events channel cannot be reached ({reason}); e-brake, stall and stability \
                          events will not reach voxhap until it can (retrying every {} s)",
                         RETRY_INTERVAL.as_secs()
                     ));
@@ -325,6 +405,56 @@ fn run(url: &str, device_id: &str, mut tx: rtrb::Producer<SafetyEvent>, shared: 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each reason the channel cannot be opened names what was given and what failed: a URL of another scheme,
+    /// a port nobody listens on (a listener on 127.0.0.1 port 0, closed before the connect), a listener that is
+    /// not a WebSocket server (it answers the upgrade with plain text).
+    #[test]
+    fn an_unreachable_events_channel_says_what_was_given_and_what_failed() {
+        let error = open("http://127.0.0.1:10020").unwrap_err();
+        assert!(
+            matches!(error, EventsOpenError::NotWebSocket { .. }),
+            "{error:?}"
+        );
+        assert!(
+            error
+                .to_string()
+                .contains("\"http://127.0.0.1:10020\" is not a ws:// URL"),
+            "{error}"
+        );
+
+        let closed = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let address = closed.local_addr().unwrap();
+        drop(closed);
+        let url = format!("ws://{address}");
+        let error = open(&url).unwrap_err();
+        assert!(
+            matches!(&error, EventsOpenError::Socket { address: a, .. } if *a == address),
+            "{error:?}"
+        );
+        let said = error.to_string();
+        assert!(
+            said.contains(&address.to_string()) && said.contains("cannot connect"),
+            "{said}"
+        );
+
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let url = format!("ws://{}/", listener.local_addr().unwrap());
+        let server = std::thread::spawn(move || {
+            use std::io::{Read, Write};
+            let (mut stream, _) = listener.accept().unwrap();
+            let mut request = [0u8; 1024];
+            let _ = stream.read(&mut request);
+            let _ = stream.write_all(b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\n\r\nno");
+        });
+        let error = open(&url).unwrap_err();
+        server.join().unwrap();
+        assert!(
+            matches!(error, EventsOpenError::Handshake { .. }),
+            "{error:?}"
+        );
+        assert!(error.to_string().contains(&url), "{error}");
+    }
 
     #[test]
     fn the_events_url_is_the_simulation_host_on_port_10020() {

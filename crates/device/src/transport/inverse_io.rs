@@ -52,7 +52,8 @@ impl ServicePort {
         }
     }
 
-    /// Waits until the socket is readable or `timeout` passes (rounded up to 1 ms).
+    /// Waits until the socket is readable or `timeout` passes (to the microsecond: ppoll, so a wait below a
+    /// millisecond is not rounded up to one).
     pub fn wait_readable(&self, timeout: Duration) {
         self.poll(libc::POLLIN, timeout);
     }
@@ -63,10 +64,14 @@ impl ServicePort {
             events,
             revents: 0,
         };
-        let ms = i32::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(i32::MAX);
-        // SAFETY: one valid pollfd for the duration of the call; the descriptor stays open (we own the socket).
+        let limit = libc::timespec {
+            tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
+            tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32),
+        };
+        // SAFETY: one valid pollfd and timespec for the duration of the call, no signal mask; the descriptor
+        // stays open (we own the socket).
         unsafe {
-            libc::poll(&mut fd, 1, ms);
+            libc::ppoll(&mut fd, 1, &limit, std::ptr::null());
         }
     }
 

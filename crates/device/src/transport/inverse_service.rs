@@ -254,8 +254,12 @@ pub struct ServiceConfig {
     pub device_id: Option<String>,
     /// Time allowed for the TCP connect, the handshake and the inventory.
     pub connect_timeout: Duration,
-    /// How long the I/O thread waits for the reply to a command before it counts it as lost.
+    /// How long the I/O thread waits for the reply to a command before it goes on (the reply is still
+    /// counted when it comes).
     pub reply_timeout: Duration,
+    /// How long the I/O thread sleeps with nothing to send before it looks again (a queued force wakes it at
+    /// once).
+    pub idle_wait: Duration,
     /// Profile name shown in Haply Hub.
     pub profile_name: String,
     /// The events channel; `None`: the simulation channel's host on port [`DEFAULT_EVENTS_PORT`].
@@ -291,6 +295,7 @@ impl Default for ServiceConfig {
             device_id: None,
             connect_timeout: Duration::from_secs(1),
             reply_timeout: Duration::from_millis(20),
+            idle_wait: Duration::from_micros(500),
             profile_name: "voxhap".to_owned(),
             events_url: None,
         }

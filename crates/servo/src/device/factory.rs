@@ -216,10 +216,7 @@ fn open_supervised(
             // `serve --connect-timeout`: the whole connect (TCP, WebSocket upgrade, inventory, session) shares it.
             driver_config.service.connect_timeout =
                 Duration::from_micros(config.connect_timeout_us);
-            driver_config.reply_wait = voxhap_device::drivers::haply_inverse::link::reply_wait_for(
-                driver_config.reply_wait,
-                period,
-            );
+            let driver_config = driver_config.for_period(period);
             reconnecting(config, move || Ok(HaplyInverse::new(driver_config.clone())))?
         }
         DeviceSpec::Falcon { select, firmware } => {

@@ -190,6 +190,7 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
         damping_n_s_per_m: 1.0,
         force_limit_n: LIMIT_N,
         anchor_m: [0.01, 0.0, 0.0],
+        passivity: voxhap_protocol::LocalPassivity::OFF,
     };
     let mut local_states = 0;
     let mut models_for = |port: &mut dyn SerialPort, seconds: f64| {

@@ -8,7 +8,7 @@
 //! protocol driver turns it into a LocalModel message. Fixed-size and `Copy`: nothing here allocates.
 
 use glam::DVec3;
-use voxhap_protocol::{LocalKind, LocalModelParams, SiPrimitive};
+use voxhap_protocol::{LocalKind, LocalModelParams, LocalPassivity, SiPrimitive};
 
 /// The most primitives an offer carries. The wire carries three (the summed directed forces and the nearest
 /// others, SPEC 10.3); the offer keeps more so that the driver, not the loop, chooses them. A tick with more
@@ -35,6 +35,8 @@ pub struct LocalOffer {
     pub damping_n_s_per_m: f64,
     /// The host's proxy (the offsets' origin on the wire), metres.
     pub anchor_m: DVec3,
+    /// What the device's passivity observer and controller do (SPEC 10.5 step 4b); off unless set.
+    pub passivity: LocalPassivity,
     primitives: [SiPrimitive; MAX_OFFER_PRIMITIVES],
     len: usize,
     truncated: bool,
@@ -47,10 +49,17 @@ impl LocalOffer {
             stiffness_n_per_m,
             damping_n_s_per_m,
             anchor_m,
+            passivity: LocalPassivity::OFF,
             primitives: [EMPTY; MAX_OFFER_PRIMITIVES],
             len: 0,
             truncated: false,
         }
+    }
+
+    /// The offer with the device's passivity request (the scene's `[passivity]` mode and most damping).
+    pub fn with_passivity(mut self, passivity: LocalPassivity) -> LocalOffer {
+        self.passivity = passivity;
+        self
     }
 
     /// Adds a primitive; past [`MAX_OFFER_PRIMITIVES`] it is dropped and the offer is marked truncated.
@@ -84,6 +93,7 @@ impl LocalOffer {
             damping_n_s_per_m: self.damping_n_s_per_m,
             force_limit_n: force_limit_n.min(device_max_force_n),
             anchor_m: self.anchor_m.to_array(),
+            passivity: self.passivity,
         }
     }
 

@@ -150,6 +150,7 @@ fn main() {
                 damping_n_s_per_m: 0.0,
                 force_limit_n: 10.0,
                 anchor_m: probe,
+                passivity: voxhap_protocol::LocalPassivity::OFF,
             };
             if let Ok(model) = build_local_model(&params, &prims) {
                 session.on_message(&HostToDevice::LocalModel(model), now_us);

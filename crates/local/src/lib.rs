@@ -21,7 +21,9 @@
 extern crate std;
 
 mod device_loop;
+mod passivity;
 mod ramp;
 
 pub use device_loop::{LocalLoop, LoopConfig, DEVICE_SOLVER_CONFIG};
+pub use passivity::{DevicePassivity, PassivityTotals};
 pub use ramp::{Ramp, ENGAGE_BELOW_N, ENGAGE_US, SLEW_N_PER_S};

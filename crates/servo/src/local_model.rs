@@ -6,9 +6,10 @@
 //! only for a device that announced the capability, and only while the force it would send is valid. Fixed-size
 //! and allocation-free.
 
+use crate::passivity::{PassivityMode, PassivitySettings};
 use glam::DVec3;
 use voxhap_device::local_offer::LocalOffer;
-use voxhap_protocol::{LocalKind, SiPrimitive};
+use voxhap_protocol::{LocalKind, LocalPassivity, LocalPassivityMode, SiPrimitive};
 use voxhap_solver::primitive::PrimitiveKind;
 use voxhap_solver::Primitive;
 
@@ -35,6 +36,18 @@ pub fn offer(
         });
     }
     offer
+}
+
+/// What a capable device's own passivity observer and controller run (protocol/SPEC.md section 10.5 step 4b):
+/// the host's mode, and the scene's `[passivity] max_damping_n_s_per_m` as the largest of the wire's damping
+/// steps (1.25 × 2^c N s/m, c = 0..7) not above it (1.25 N s/m below that, 160 N s/m above).
+pub fn passivity_request(mode: PassivityMode, settings: &PassivitySettings) -> LocalPassivity {
+    let mode = match mode {
+        PassivityMode::Off => LocalPassivityMode::Off,
+        PassivityMode::Observe => LocalPassivityMode::Observe,
+        PassivityMode::Control => LocalPassivityMode::Control,
+    };
+    LocalPassivity::new(mode, settings.max_damping_n_s_per_m)
 }
 
 #[cfg(test)]
@@ -67,5 +80,25 @@ mod tests {
         let full = super::offer(&many, 800.0, 0.0, DVec3::ZERO);
         assert_eq!(full.primitives().len(), MAX_OFFER_PRIMITIVES);
         assert!(full.truncated());
+    }
+
+    /// The scene's mode travels as is; the default 20 N s/m is the step 1.25 × 2^4 exactly, 1000 N s/m (the
+    /// largest the scene accepts) becomes the top step 160, 3 N s/m the step below it, 2.5.
+    #[test]
+    fn the_scenes_passivity_becomes_the_devices_request() {
+        let settings = PassivitySettings::default();
+        let request = passivity_request(PassivityMode::Control, &settings);
+        assert_eq!(request.mode, LocalPassivityMode::Control);
+        assert_eq!(request.max_damping_n_s_per_m(), 20.0);
+        let off = passivity_request(PassivityMode::Off, &settings);
+        assert_eq!(off.mode, LocalPassivityMode::Off);
+        for (asked, got) in [(1000.0, 160.0), (3.0, 2.5), (0.5, 1.25)] {
+            let settings = PassivitySettings {
+                max_damping_n_s_per_m: asked,
+                ..settings
+            };
+            let request = passivity_request(PassivityMode::Observe, &settings);
+            assert_eq!(request.max_damping_n_s_per_m(), got, "{asked}");
+        }
     }
 }

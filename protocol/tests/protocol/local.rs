@@ -7,8 +7,8 @@ use voxhap_protocol::local::{oct_decode, oct_encode, LOCAL_MODEL_TYPE};
 use voxhap_protocol::{
     decode_report, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, Enable, ForceFlags,
     Hello, HostSession, HostToDevice, Label, LocalKind, LocalModel, LocalModelParams,
-    LocalPrimitive, LocalState, LocalStatus, LocalTick, ModelFlags, PayloadError, RateSet,
-    SetForce, SiPrimitive, StatusFlags, PROTOCOL_VERSION,
+    LocalPassivity, LocalPrimitive, LocalState, LocalStatus, LocalTick, ModelFlags, PayloadError,
+    RateSet, SetForce, SiPrimitive, StatusFlags, PROTOCOL_VERSION,
 };
 
 use crate::vectors::Expected;
@@ -23,6 +23,7 @@ fn vector_model() -> LocalModel {
         damping_mn_s_per_m: 2500,
         force_limit_mn: 4000,
         anchor_m: [0.01, -0.02, 0.03],
+        passivity: LocalPassivity::OFF,
         primitives: [
             Some(LocalPrimitive {
                 kind: LocalKind::Directed,
@@ -63,6 +64,7 @@ pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
                 damping_mn_s_per_m: 0,
                 force_limit_mn: 0,
                 anchor_m: [0.0; 3],
+                passivity: LocalPassivity::OFF,
                 primitives: [None; 3],
             })),
         ),
@@ -76,6 +78,7 @@ pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
                 damping_mn_s_per_m: 0,
                 force_limit_mn: 3000,
                 anchor_m: [0.0; 3],
+                passivity: LocalPassivity::OFF,
                 primitives: [
                     Some(LocalPrimitive {
                         kind: LocalKind::Plane,
@@ -266,6 +269,7 @@ fn params(anchor_m: [f64; 3]) -> LocalModelParams {
         damping_n_s_per_m: 1.0,
         force_limit_n: 5.0,
         anchor_m,
+        passivity: LocalPassivity::OFF,
     }
 }
 

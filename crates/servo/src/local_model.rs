@@ -82,6 +82,75 @@ mod tests {
         assert!(full.truncated());
     }
 
+    /// The device's observer and controller (voxhap-local, written apart for `no_std`) against the host's
+    /// (crate::passivity::controller) at latency 0 on one input sequence: a spring of 5 000 N/m on a probe
+    /// circling at 40 Hz, 0.1 by 0.3 mm, sampled at 10 kHz (about 0.1 uJ generated a cycle, so the 1 uJ
+    /// threshold matters), its force clamped to 1 N (so the share varies), the
+    /// reference `share^2 k/2 |stretch|^2` with last cycle's share, as the serve runner forms it. Every force
+    /// and total agree to rounding. Checked to fail with the device's threshold doubled (its controller then
+    /// acts in fewer cycles).
+    #[test]
+    fn the_device_controller_matches_the_hosts_on_one_sequence() {
+        use crate::energy::SentShare;
+        use crate::passivity::PassivityController;
+        use voxhap_local::DevicePassivity;
+        let (k, dt, limit) = (5000.0, 1e-4, 1.0);
+        let settings = PassivitySettings::default();
+        let request = passivity_request(PassivityMode::Control, &settings);
+        let mut host = PassivityController::new(PassivityMode::Control, &settings, 0);
+        let mut device = DevicePassivity::default();
+        let mut share = SentShare::NOTHING;
+        let proxy = DVec3::new(0.0, 0.0, 0.0);
+        let mut dissipating = 0;
+        for i in 0..4000 {
+            let t = i as f64 * dt;
+            let w = 2.0 * std::f64::consts::PI * 40.0;
+            // An ellipse around the proxy: the sampled spring generates `k dp^2 / 2` a cycle.
+            let probe = DVec3::new(0.0001 * (w * t).cos(), 0.0, -0.0003 * (w * t).sin());
+            let velocity = DVec3::new(
+                -0.0001 * w * (w * t).sin(),
+                0.0,
+                -0.0003 * w * (w * t).cos(),
+            );
+            let stretch = proxy - probe;
+            let reference = share.spring_energy_j(k, stretch);
+            let host_control = host.observe_and_control(probe, velocity, reference, dt);
+            let host_control = if share.fraction() > 0.0 {
+                host_control
+            } else {
+                DVec3::ZERO
+            };
+            let device_control =
+                device.observe_and_control(request, k, probe, velocity, stretch, dt);
+            assert!(
+                (host_control - device_control).length() <= 1e-12,
+                "cycle {i}: host {host_control}, device {device_control}"
+            );
+            let asked = k * stretch + host_control;
+            let sent = if asked.length() > limit {
+                asked * (limit / asked.length())
+            } else {
+                asked
+            };
+            host.sent(asked, sent);
+            device.applied(request, asked, sent, DVec3::ZERO);
+            share = SentShare::of(sent, asked);
+            dissipating += usize::from(device_control != DVec3::ZERO);
+            let (h, d) = (host.totals(), device.totals());
+            assert!(
+                (h.generated_j - d.generated_j).abs() <= 1e-12
+                    && (h.excess_j - d.excess_j).abs() <= 1e-12
+                    && (h.dissipated_j - d.dissipated_j).abs() <= 1e-12
+                    && h.active_ticks == d.active_cycles,
+                "cycle {i}: host {h:?}, device {d:?}"
+            );
+        }
+        assert!(
+            dissipating > 100,
+            "the controller acted in {dissipating} cycles"
+        );
+    }
+
     /// The scene's mode travels as is; the default 20 N s/m is the step 1.25 × 2^4 exactly, 1000 N s/m (the
     /// largest the scene accepts) becomes the top step 160, 3 N s/m the step below it, 2.5.
     #[test]

@@ -44,7 +44,7 @@ fn read_log(path: &Path) -> Vec<Cycle> {
     lines
         .map(|line| {
             let f: Vec<&str> = line.split(',').collect();
-            assert_eq!(f.len(), 12, "{line}");
+            assert_eq!(f.len(), 14, "{line}");
             let proxy: Vec<f64> = f[9..12].iter().filter_map(|c| c.parse().ok()).collect();
             Cycle {
                 t_us: f[0].parse().unwrap(),

@@ -48,6 +48,30 @@ fn vector_model() -> LocalModel {
     }
 }
 
+/// The model of vectors/local/local_model_wall.hex, from its comment line: a floor at z = 0.
+fn wall_vector_model() -> LocalModel {
+    LocalModel {
+        sequence: 1,
+        expiry_us: 5000,
+        flags: ModelFlags::EMPTY,
+        stiffness_n_per_m: 2000,
+        damping_mn_s_per_m: 0,
+        force_limit_mn: 3000,
+        anchor_m: [0.0; 3],
+        passivity: LocalPassivity::OFF,
+        primitives: [
+            Some(LocalPrimitive {
+                kind: LocalKind::Plane,
+                offset_um: [0; 3],
+                direction_oct: [0, 0],
+                strength_mn: 20_000,
+            }),
+            None,
+            None,
+        ],
+    }
+}
+
 pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
     vec![
         (
@@ -70,51 +94,18 @@ pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
         ),
         (
             "local/local_model_wall",
-            Expected::Host(HostToDevice::LocalModel(LocalModel {
-                sequence: 1,
-                expiry_us: 5000,
-                flags: ModelFlags::EMPTY,
-                stiffness_n_per_m: 2000,
-                damping_mn_s_per_m: 0,
-                force_limit_mn: 3000,
-                anchor_m: [0.0; 3],
-                passivity: LocalPassivity::OFF,
-                primitives: [
-                    Some(LocalPrimitive {
-                        kind: LocalKind::Plane,
-                        offset_um: [0; 3],
-                        direction_oct: [0, 0],
-                        strength_mn: 20_000,
-                    }),
-                    None,
-                    None,
-                ],
-            })),
+            Expected::Host(HostToDevice::LocalModel(wall_vector_model())),
         ),
         (
             "local/local_model_passivity",
             Expected::Host(HostToDevice::LocalModel(LocalModel {
                 sequence: 2,
-                expiry_us: 5000,
-                flags: ModelFlags::EMPTY,
                 stiffness_n_per_m: 40_000,
-                damping_mn_s_per_m: 0,
-                force_limit_mn: 3000,
-                anchor_m: [0.0; 3],
                 passivity: LocalPassivity {
                     mode: LocalPassivityMode::Control,
                     damping_code: 4,
                 },
-                primitives: [
-                    Some(LocalPrimitive {
-                        kind: LocalKind::Plane,
-                        offset_um: [0; 3],
-                        direction_oct: [0, 0],
-                        strength_mn: 20_000,
-                    }),
-                    None,
-                    None,
-                ],
+                ..wall_vector_model()
             })),
         ),
         (

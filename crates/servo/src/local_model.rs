@@ -8,8 +8,8 @@
 
 use crate::passivity::{PassivityMode, PassivitySettings};
 use glam::DVec3;
-use voxhap_device::local_offer::LocalOffer;
-use voxhap_protocol::{LocalKind, LocalPassivity, LocalPassivityMode, SiPrimitive};
+use voxhap_device::local_offer::{LocalOffer, PassivityOffer};
+use voxhap_protocol::{LocalKind, LocalPassivityMode, SiPrimitive};
 use voxhap_solver::primitive::PrimitiveKind;
 use voxhap_solver::Primitive;
 
@@ -39,15 +39,18 @@ pub fn offer(
 }
 
 /// What a capable device's own passivity observer and controller run (protocol/SPEC.md section 10.5 step 4b):
-/// the host's mode, and the scene's `[passivity] max_damping_n_s_per_m` as the largest of the wire's damping
-/// steps (1.25 × 2^c N s/m, c = 0..7) not above it (1.25 N s/m below that, 160 N s/m above).
-pub fn passivity_request(mode: PassivityMode, settings: &PassivitySettings) -> LocalPassivity {
+/// the host's mode and the scene's `[passivity] max_damping_n_s_per_m` (scaled into the device frame with the
+/// coupling, then sent as the largest of the wire's steps 1.25 × 2^c N s/m, c = 0..7, not above it).
+pub fn passivity_request(mode: PassivityMode, settings: &PassivitySettings) -> PassivityOffer {
     let mode = match mode {
         PassivityMode::Off => LocalPassivityMode::Off,
         PassivityMode::Observe => LocalPassivityMode::Observe,
         PassivityMode::Control => LocalPassivityMode::Control,
     };
-    LocalPassivity::new(mode, settings.max_damping_n_s_per_m)
+    PassivityOffer {
+        mode,
+        max_damping_n_s_per_m: settings.max_damping_n_s_per_m,
+    }
 }
 
 #[cfg(test)]
@@ -96,7 +99,7 @@ mod tests {
         use voxhap_local::DevicePassivity;
         let (k, dt, limit) = (5000.0, 1e-4, 1.0);
         let settings = PassivitySettings::default();
-        let request = passivity_request(PassivityMode::Control, &settings);
+        let request = voxhap_protocol::LocalPassivity::new(LocalPassivityMode::Control, 20.0);
         let mut host = PassivityController::new(PassivityMode::Control, &settings, 0);
         let mut device = DevicePassivity::default();
         let mut share = SentShare::NOTHING;
@@ -151,23 +154,39 @@ mod tests {
         );
     }
 
-    /// The scene's mode travels as is; the default 20 N s/m is the step 1.25 × 2^4 exactly, 1000 N s/m (the
-    /// largest the scene accepts) becomes the top step 160, 3 N s/m the step below it, 2.5.
+    /// The scene's mode travels as is; its most damping goes into the device frame with the coupling and onto
+    /// the wire as the largest step 1.25 x 2^c N s/m not above it (SPEC 10.2): the default 20 N s/m is step 4
+    /// exactly, 1000 N s/m (the largest a scene takes) the top step 160, 3 N s/m the step 2.5, 0.5 N s/m the
+    /// bottom step 1.25; 20 N s/m through a mapping of scale 0.5 is 10 N s/m, step 3.
     #[test]
     fn the_scenes_passivity_becomes_the_devices_request() {
         let settings = PassivitySettings::default();
-        let request = passivity_request(PassivityMode::Control, &settings);
-        assert_eq!(request.mode, LocalPassivityMode::Control);
-        assert_eq!(request.max_damping_n_s_per_m(), 20.0);
-        let off = passivity_request(PassivityMode::Off, &settings);
-        assert_eq!(off.mode, LocalPassivityMode::Off);
-        for (asked, got) in [(1000.0, 160.0), (3.0, 2.5), (0.5, 1.25)] {
+        let sent = |mode, max_damping, scale: f64| {
             let settings = PassivitySettings {
-                max_damping_n_s_per_m: asked,
+                max_damping_n_s_per_m: max_damping,
                 ..settings
             };
-            let request = passivity_request(PassivityMode::Observe, &settings);
-            assert_eq!(request.max_damping_n_s_per_m(), got, "{asked}");
+            let offer = super::offer(&[], 800.0, 0.5, DVec3::ZERO)
+                .with_passivity(passivity_request(mode, &settings))
+                .mapped(|p| p, |d| d, scale);
+            offer.params(3.0, 5.0).passivity
+        };
+        let control = sent(PassivityMode::Control, 20.0, 1.0);
+        assert_eq!(control.mode, LocalPassivityMode::Control);
+        assert_eq!(control.max_damping_n_s_per_m(), 20.0);
+        assert_eq!(
+            sent(PassivityMode::Off, 20.0, 1.0).mode,
+            LocalPassivityMode::Off
+        );
+        for (asked, scale, got) in [
+            (1000.0, 1.0, 160.0),
+            (3.0, 1.0, 2.5),
+            (0.5, 1.0, 1.25),
+            (20.0, 0.5, 10.0),
+        ] {
+            let request = sent(PassivityMode::Observe, asked, scale);
+            assert_eq!(request.mode, LocalPassivityMode::Observe);
+            assert_eq!(request.max_damping_n_s_per_m(), got, "{asked} x {scale}");
         }
     }
 }

@@ -134,7 +134,7 @@ pub struct ServoLoop {
     /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
     /// What a capable device's own passivity observer and controller run (crate::local_model).
-    local_passivity: voxhap_protocol::LocalPassivity,
+    local_passivity: voxhap_device::local_offer::PassivityOffer,
     /// The share of last tick's rendered force that the safety pipeline sent (crate::energy).
     sent_share: SentShare,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
@@ -194,7 +194,7 @@ impl ServoLoop {
                 &PassivitySettings::default(),
                 0,
             ),
-            local_passivity: voxhap_protocol::LocalPassivity::OFF,
+            local_passivity: voxhap_device::local_offer::PassivityOffer::default(),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,
@@ -215,7 +215,7 @@ impl ServoLoop {
 
     /// What a device rendering local models runs as its own passivity observer and controller (the scene's
     /// `[passivity]` mode and most damping; protocol/SPEC.md section 10.5 step 4b). Off unless set.
-    pub fn set_local_passivity(&mut self, request: voxhap_protocol::LocalPassivity) {
+    pub fn set_local_passivity(&mut self, request: voxhap_device::local_offer::PassivityOffer) {
         self.local_passivity = request;
     }
 

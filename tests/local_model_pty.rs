@@ -777,9 +777,10 @@ fn press_an_active_floor(passivity: voxhap_protocol::LocalPassivityMode) -> (f64
 
 /// SPEC section 10.5 step 4b on the capable mock, from the device's own logs: on a floor twice as stiff as the
 /// contact's bound at the device's 10 kHz, the device's force gives the handle energy with the passivity mode
-/// `off` (the contact bounces), and less with `control`, whose loop reports `DISSIPATING` and books dissipated
-/// energy. Only the comparison is asserted (the mock's cycles run on a shared machine's clock); the figures are
-/// printed.
+/// `off` (the contact bounces), and under a tenth of that with `control`, whose loop reports `DISSIPATING` and
+/// books dissipated energy. The tenth is chosen, not derived (the mock's cycles run on a shared machine's clock):
+/// one run gave 34 mJ with `off` and 0.98 uJ with `control`; with the controller's force left out of the applied
+/// force, 27 and 24 mJ (so a bare `control < off` would not catch it). The figures are printed.
 #[test]
 fn a_capable_mocks_own_controller_gives_an_active_floor_less_energy_than_none() {
     use voxhap_protocol::LocalPassivityMode;
@@ -792,5 +793,5 @@ fn a_capable_mocks_own_controller_gives_an_active_floor_less_energy_than_none() 
     assert_eq!(off_books, [0.0, 0.0], "mode off books nothing");
     assert!(!off_dissipating && on_dissipating);
     assert!(on_books[1] > 0.0, "{on_books:?}");
-    assert!(on < off, "control {on} J, off {off} J");
+    assert!(on < 0.1 * off, "control {on} J, off {off} J");
 }

@@ -1,5 +1,5 @@
-//! One cycle of the local loop (protocol/SPEC.md section 10.5): sense, solve, couple, clamp, ramp, slew, apply,
-//! report.
+//! One cycle of the local loop (protocol/SPEC.md section 10.5): sense, solve, couple, passivity (observe and
+//! control, [`crate::passivity`]), clamp, ramp, slew, apply, report.
 //!
 //! Where it sits: a firmware (or `voxhap mock-device`) calls [`LocalLoop::step`] once per control cycle instead of
 //! `DeviceSession::poll`; `step` polls the session itself (watchdog, State frames), renders the session's local

@@ -43,8 +43,8 @@ pub use fields::{
 pub use hid::{decode_report, encode_report};
 pub use host::{HostEvent, HostPhase, HostSession, HostStats};
 pub use local::{
-    LocalKind, LocalModel, LocalPrimitive, LocalState, LocalStatus, ModelFlags, SiPrimitive,
-    MAX_LOCAL_PRIMITIVES,
+    LocalKind, LocalModel, LocalPassivity, LocalPassivityMode, LocalPrimitive, LocalState,
+    LocalStatus, ModelFlags, SiPrimitive, MAX_LOCAL_PRIMITIVES,
 };
 pub use local_build::{build_local_model, LocalBuildError, LocalModelParams};
 pub use message::{

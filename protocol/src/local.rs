@@ -37,6 +37,93 @@ pub const MAX_EXPIRY_US: u16 = 50_000;
 pub const RAMP_DOWN_US: u32 = 5_000;
 /// A solve whose certified bound exceeds this (m) is not rendered: the device ramps down as on expiry.
 pub const MAX_BOUND_M: f64 = 1e-5;
+/// The device's passivity controller's most damping at code 0 (N·s/m); code `c` is `2^c` times this.
+pub const PASSIVITY_DAMPING_UNIT_N_S_PER_M: f64 = 1.25;
+/// Largest passivity damping code (3 bits): 160 N·s/m.
+pub const MAX_PASSIVITY_DAMPING_CODE: u8 = 7;
+/// Excess energy the device's passivity controller lets pass before it acts, J (SPEC 10.5 step 4b).
+pub const PASSIVITY_THRESHOLD_J: f64 = 1e-6;
+
+/// What the device's passivity observer and controller do (`kinds_flags` bits 9-10, SPEC 10.2 and 10.5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LocalPassivityMode {
+    /// Neither: the force is the coupling's (code 0).
+    #[default]
+    Off,
+    /// The observer books the coupling's energy; no force is added (code 1).
+    Observe,
+    /// The observer books it and the controller dissipates the excess (code 2).
+    Control,
+}
+
+/// The passivity request a model carries: the mode and the controller's most damping
+/// (`kinds_flags` bits 9-13, SPEC 10.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LocalPassivity {
+    /// What the device runs.
+    pub mode: LocalPassivityMode,
+    /// The controller's most damping as a code `c` (0..=7): `1.25 × 2^c` N·s/m.
+    pub damping_code: u8,
+}
+
+impl LocalPassivity {
+    /// Off (the device's observer and controller do nothing), damping code 0.
+    pub const OFF: LocalPassivity = LocalPassivity {
+        mode: LocalPassivityMode::Off,
+        damping_code: 0,
+    };
+
+    /// `mode` with the largest code whose damping does not exceed `max_damping_n_s_per_m` (code 0, 1.25 N·s/m,
+    /// for anything smaller or not a number; code 7, 160 N·s/m, for anything larger).
+    pub fn new(mode: LocalPassivityMode, max_damping_n_s_per_m: f64) -> Self {
+        let mut damping_code = 0;
+        while damping_code < MAX_PASSIVITY_DAMPING_CODE
+            && passivity_damping(damping_code + 1) <= max_damping_n_s_per_m
+        {
+            damping_code += 1;
+        }
+        LocalPassivity { mode, damping_code }
+    }
+
+    /// The controller's most damping, N·s/m.
+    pub fn max_damping_n_s_per_m(&self) -> f64 {
+        passivity_damping(self.damping_code.min(MAX_PASSIVITY_DAMPING_CODE))
+    }
+
+    /// Bits 9-13 of `kinds_flags`.
+    fn bits(self) -> u16 {
+        let mode = match self.mode {
+            LocalPassivityMode::Off => 0,
+            LocalPassivityMode::Observe => 1,
+            LocalPassivityMode::Control => 2,
+        };
+        (mode << PASSIVITY_MODE_SHIFT)
+            | (u16::from(self.damping_code.min(MAX_PASSIVITY_DAMPING_CODE))
+                << PASSIVITY_DAMPING_SHIFT)
+    }
+
+    /// From bits 9-13 of `kinds_flags`; `None` for mode code 3.
+    fn from_bits(packed: u16) -> Option<Self> {
+        let mode = match (packed >> PASSIVITY_MODE_SHIFT) & 0b11 {
+            0 => LocalPassivityMode::Off,
+            1 => LocalPassivityMode::Observe,
+            2 => LocalPassivityMode::Control,
+            _ => return None,
+        };
+        let damping_code = ((packed >> PASSIVITY_DAMPING_SHIFT) & 0b111) as u8;
+        Some(LocalPassivity { mode, damping_code })
+    }
+}
+
+/// `1.25 × 2^code` N·s/m.
+fn passivity_damping(code: u8) -> f64 {
+    PASSIVITY_DAMPING_UNIT_N_S_PER_M * f64::from(1u16 << code)
+}
+
+const PASSIVITY_MODE_SHIFT: u16 = 9;
+const PASSIVITY_DAMPING_SHIFT: u16 = 11;
+/// Bits 9-13 of `kinds_flags`: the passivity request.
+const PASSIVITY_FIELD: u16 = 0b11111 << PASSIVITY_MODE_SHIFT;
 
 /// What a primitive slot holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -118,8 +205,11 @@ pub struct LocalModel {
     pub sequence: u32,
     /// The model is rendered for this long after it is received, then ramped down, microseconds, 1000..=50000.
     pub expiry_us: u16,
-    /// [`ModelFlags::TRUNCATED`] and [`ModelFlags::SATURATED`]; the kinds live in `primitives`.
+    /// [`ModelFlags::TRUNCATED`] and [`ModelFlags::SATURATED`]; the kinds live in `primitives`, the
+    /// passivity request in `passivity`.
     pub flags: ModelFlags,
+    /// What the device's passivity observer and controller do (bits 9-13 of `kinds_flags`).
+    pub passivity: LocalPassivity,
     /// Coupling stiffness, N/m, >= 1.
     pub stiffness_n_per_m: u16,
     /// Coupling damping, units of 0.001 N·s/m.
@@ -174,6 +264,8 @@ crate::fields::bit_set! {
         ENGAGING = 1 << 5;
         /// The model in use carries [`ModelFlags::TRUNCATED`].
         TRUNCATED = 1 << 6;
+        /// The passivity controller added a force in a cycle since the previous report.
+        DISSIPATING = 1 << 7;
     }
 }
 
@@ -243,7 +335,7 @@ impl LocalModel {
             });
         w.u32(self.sequence);
         w.u16(self.expiry_us);
-        w.u16((self.flags.0 & !KIND_FIELD) | kinds);
+        w.u16((self.flags.0 & !(KIND_FIELD | PASSIVITY_FIELD)) | kinds | self.passivity.bits());
         w.u16(self.stiffness_n_per_m);
         w.u16(self.damping_mn_s_per_m);
         w.u16(self.force_limit_mn);
@@ -265,6 +357,8 @@ impl LocalModel {
         let damping_mn_s_per_m = r.u16();
         let force_limit_mn = r.u16();
         let anchor_m = r.vec3();
+        let passivity = LocalPassivity::from_bits(packed);
+        in_range(t, "passivity", passivity.is_some())?;
         let mut primitives = [None; MAX_LOCAL_PRIMITIVES];
         for (i, slot) in primitives.iter_mut().enumerate() {
             let offset_um = [r.u16() as i16, r.u16() as i16, r.u16() as i16];
@@ -289,7 +383,8 @@ impl LocalModel {
         Ok(LocalModel {
             sequence,
             expiry_us,
-            flags: ModelFlags(packed & !KIND_FIELD),
+            flags: ModelFlags(packed & !(KIND_FIELD | PASSIVITY_FIELD)),
+            passivity: passivity.unwrap_or(LocalPassivity::OFF),
             stiffness_n_per_m,
             damping_mn_s_per_m,
             force_limit_mn,

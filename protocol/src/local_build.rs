@@ -11,9 +11,9 @@
 //! above its field's range is sent as the largest one and the model carries [`ModelFlags::SATURATED`].
 
 use crate::local::{
-    oct_encode, round, LocalKind, LocalModel, LocalPrimitive, ModelFlags, SiPrimitive,
-    DAMPING_UNIT_N_S_PER_M, FORCE_UNIT_N, MAX_EXPIRY_US, MAX_LOCAL_PRIMITIVES, MIN_EXPIRY_US,
-    OFFSET_UNIT_M,
+    oct_encode, round, LocalKind, LocalModel, LocalPassivity, LocalPrimitive, ModelFlags,
+    SiPrimitive, DAMPING_UNIT_N_S_PER_M, FORCE_UNIT_N, MAX_EXPIRY_US, MAX_LOCAL_PRIMITIVES,
+    MIN_EXPIRY_US, OFFSET_UNIT_M,
 };
 use crate::num::sqrt;
 
@@ -32,6 +32,8 @@ pub struct LocalModelParams {
     pub force_limit_n: f64,
     /// The offsets' origin (usually the host's proxy), metres, device frame.
     pub anchor_m: [f64; 3],
+    /// What the device's passivity observer and controller do (SPEC 10.5 step 4b).
+    pub passivity: LocalPassivity,
 }
 
 /// Why a model could not be built: a value no model can carry.
@@ -219,6 +221,7 @@ pub fn build_local_model(
         sequence: params.sequence,
         expiry_us: params.expiry_us,
         flags,
+        passivity: params.passivity,
         stiffness_n_per_m,
         damping_mn_s_per_m,
         force_limit_mn,

@@ -172,6 +172,14 @@ def local_model(sequence, expiry_us, flags, stiffness, damping_mns, limit_mn, an
 
 DIRECTED, POINT, LINE, PLANE = 1, 2, 3, 4
 TRUNCATED = 0x8000
+# SPEC section 10.2, kinds_flags bits 9-10: the device's passivity mode; bits 11-13: its most damping as a code c,
+# 1.25 * 2**c N s/m.
+PASSIVITY_OFF, PASSIVITY_OBSERVE, PASSIVITY_CONTROL = 0, 1, 2
+
+
+def passivity(mode, damping_code):
+    return (mode << 9) | (damping_code << 11)
+
 
 # The optional local-model capability (SPEC section 10): in vectors/local/, so that a firmware without the
 # capability checks the top folder alone.
@@ -210,6 +218,19 @@ LOCAL_VECTORS = [
         "handle 0.5 mm below it feels 1.0 N up, one 2 mm below 4 N clamped to the 3 N limit)",
     ),
     (
+        "local_model_passivity",
+        HOST,
+        0x08,
+        local_model(
+            2, 5000, passivity(PASSIVITY_CONTROL, 4), 40000, 0, 3000, (0.0, 0.0, 0.0),
+            [(PLANE, (0, 0, 0), (0.0, 0.0, 1.0), 20000)],
+        ),
+        "LocalModel: sequence 2, expiry 5000 us, passivity control with damping code 4 (at most 1.25 * 2^4 = "
+        "20 N s/m), stiffness 40000 N/m, damping 0, force limit 3.0 N, anchor (0, 0, 0) m; slot 0 plane at offset "
+        "(0, 0, 0) um, normal (0, 0, 1), 20 N (a floor at z = 0 twice as stiff as the exact zero-order-hold "
+        "boundary of a 0.1 kg, 1 N s/m arm at 10 kHz, 20 003 N/m)",
+    ),
+    (
         "local_state",
         DEVICE,
         0x86,
@@ -218,6 +239,17 @@ LOCAL_VECTORS = [
         ),
         "LocalState: state sequence 1000, model sequence 1234, model age 700 us, proxy (0.01, -0.02, 0.0298) m, "
         "force (0, 0, 3.5) N, bound 1e-9 m, worst bound 2e-9 m, peak force 3.75 N, status ACTIVE|CLAMPED, 10 solves",
+    ),
+    (
+        "local_state_dissipating",
+        DEVICE,
+        0x86,
+        struct.pack(
+            "<III3f3ffffHH", 1001, 2, 300, 0.0, 0.0, 0.0, 0.0, 0.0, 0.75, 0.0, 5e-8, 1.25, 0x0081, 10
+        ),
+        "LocalState: state sequence 1001, model sequence 2, model age 300 us, proxy (0, 0, 0) m, force (0, 0, 0.75) N, "
+        "bound 0 m, worst bound 5e-8 m, peak force 1.25 N, status ACTIVE|DISSIPATING (the passivity controller "
+        "added a force in a cycle since the previous LocalState), 10 solves",
     ),
 ]
 

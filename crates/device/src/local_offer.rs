@@ -8,7 +8,9 @@
 //! protocol driver turns it into a LocalModel message. Fixed-size and `Copy`: nothing here allocates.
 
 use glam::DVec3;
-use voxhap_protocol::{LocalKind, LocalModelParams, SiPrimitive};
+use voxhap_protocol::{
+    LocalKind, LocalModelParams, LocalPassivity, LocalPassivityMode, SiPrimitive,
+};
 
 /// The most primitives an offer carries. The wire carries three (the summed directed forces and the nearest
 /// others, SPEC 10.3); the offer keeps more so that the driver, not the loop, chooses them. A tick with more
@@ -25,6 +27,16 @@ const EMPTY: SiPrimitive = SiPrimitive {
     strength_n: 0.0,
 };
 
+/// What a capable device's own passivity observer and controller run (SPEC 10.5 step 4b), before the most
+/// damping is coded for the wire (the largest step `1.25 × 2^c` N s/m not above it).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PassivityOffer {
+    /// Off, observe or control.
+    pub mode: LocalPassivityMode,
+    /// The controller's most damping, N s/m (the scene's `[passivity] max_damping_n_s_per_m`).
+    pub max_damping_n_s_per_m: f64,
+}
+
 /// One tick's local model before it is packed for the wire: coupling, anchor and primitives, device frame once
 /// the workspace mapping has applied [`LocalOffer::mapped`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,6 +47,8 @@ pub struct LocalOffer {
     pub damping_n_s_per_m: f64,
     /// The host's proxy (the offsets' origin on the wire), metres.
     pub anchor_m: DVec3,
+    /// What the device's passivity observer and controller do (SPEC 10.5 step 4b); off unless set.
+    pub passivity: PassivityOffer,
     primitives: [SiPrimitive; MAX_OFFER_PRIMITIVES],
     len: usize,
     truncated: bool,
@@ -47,10 +61,17 @@ impl LocalOffer {
             stiffness_n_per_m,
             damping_n_s_per_m,
             anchor_m,
+            passivity: PassivityOffer::default(),
             primitives: [EMPTY; MAX_OFFER_PRIMITIVES],
             len: 0,
             truncated: false,
         }
+    }
+
+    /// The offer with the device's passivity request (the scene's `[passivity]` mode and most damping).
+    pub fn with_passivity(mut self, passivity: PassivityOffer) -> LocalOffer {
+        self.passivity = passivity;
+        self
     }
 
     /// Adds a primitive; past [`MAX_OFFER_PRIMITIVES`] it is dropped and the offer is marked truncated.
@@ -84,6 +105,10 @@ impl LocalOffer {
             damping_n_s_per_m: self.damping_n_s_per_m,
             force_limit_n: force_limit_n.min(device_max_force_n),
             anchor_m: self.anchor_m.to_array(),
+            passivity: LocalPassivity::new(
+                self.passivity.mode,
+                self.passivity.max_damping_n_s_per_m,
+            ),
         }
     }
 
@@ -101,6 +126,7 @@ impl LocalOffer {
         out.anchor_m = position(self.anchor_m);
         out.stiffness_n_per_m = self.stiffness_n_per_m * scale;
         out.damping_n_s_per_m = self.damping_n_s_per_m * scale;
+        out.passivity.max_damping_n_s_per_m = self.passivity.max_damping_n_s_per_m * scale;
         for p in &mut out.primitives[..self.len] {
             p.position_m = position(DVec3::from_array(p.position_m)).to_array();
             p.direction = direction(DVec3::from_array(p.direction)).to_array();

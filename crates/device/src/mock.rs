@@ -329,8 +329,12 @@ impl DeviceLog {
             .map_or([String::new(), String::new(), String::new()], |p| {
                 p.map(|c| format!("{c:e}"))
             });
+        // The passivity observer's books since the loop started (SPEC 10.5 step 4b).
+        let passivity = local.passivity_totals();
+        let (generated, dissipated) = (passivity.generated_j, passivity.dissipated_j);
         self.line(format_args!(
-            "{now_us},{mode},{magnitude:.9},{limit:.9},{sequence},{age},{expiry},{status},{ramp:.6},{x},{y},{z}"
+            "{now_us},{mode},{magnitude:.9},{limit:.9},{sequence},{age},{expiry},{status},{ramp:.6},{x},{y},{z},\
+             {generated:e},{dissipated:e}"
         ))
     }
 
@@ -376,11 +380,12 @@ impl Default for LocalModelConfig {
 /// The columns of the mock's device log: device time (µs), mode (`off`: the drive is not Enabled; else `local`:
 /// rendering a local model, or `set_force`), the applied force's magnitude (N), the force limit in force (N: the model's limit capped by the
 /// device's maximum, or the maximum), the model's sequence and age (µs, 0 without a model), its expiry (µs), the
-/// local status bits, the ramp factor, and the local loop's proxy (m, device frame; empty before its first
-/// solve).
+/// local status bits, the ramp factor, the local loop's proxy (m, device frame; empty before its first
+/// solve), and its passivity observer's generated energy and its controller's dissipated energy since the loop
+/// started (J; both 0 while the models' passivity mode is `off`).
 pub const LOCAL_LOG_HEADER: &str =
     "t_us,mode,force_n,limit_n,model_sequence,model_age_us,expiry_us,\
-     local_status,ramp,proxy_x_m,proxy_y_m,proxy_z_m";
+     local_status,ramp,proxy_x_m,proxy_y_m,proxy_z_m,passivity_generated_j,passivity_dissipated_j";
 
 /// The columns of the mock's handle log (`voxhap mock-device --handle-log`): device time (µs), the handle's
 /// position as the control cycle starts (m) and the force held on it over the cycle (N), one line per cycle.

@@ -137,6 +137,7 @@ fn main() {
     let mut rng = Rng(7);
     let mut no_solution = 0;
     let mut max_bound = 0.0f32;
+    let mut last_probe = [0.0f64; 3];
     for i in 0..cycles {
         let now_us = 100 * (i + 1);
         // A new model every 10 cycles (1 kHz host, 10 kHz loop), or every cycle for the cold families.
@@ -150,13 +151,23 @@ fn main() {
                 damping_n_s_per_m: 0.0,
                 force_limit_n: 10.0,
                 anchor_m: probe,
+                // The passivity controller on (what serve sends a real device by default), so that its
+                // observer and controller are in every cycle's count.
+                passivity: voxhap_protocol::LocalPassivity::new(
+                    voxhap_protocol::LocalPassivityMode::Control,
+                    20.0,
+                ),
             };
             if let Ok(model) = build_local_model(&params, &prims) {
                 session.on_message(&HostToDevice::LocalModel(model), now_us);
             }
         }
+        // The velocity is the step from the last cycle's probe (the controller damps a moving handle).
+        let velocity = core::array::from_fn(|k| ((probe[k] - last_probe[k]) / 1e-4) as f32);
+        last_probe = probe;
         let sample = DeviceSample {
             position_m: probe.map(|c| c as f32),
+            velocity_m_per_s: velocity,
             ..Default::default()
         };
         let force = voxhap_local_measured_cycle(&mut local, &mut session, now_us, &sample);

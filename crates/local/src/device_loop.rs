@@ -1,16 +1,17 @@
-//! One cycle of the local loop (protocol/SPEC.md section 10.5): sense, solve, couple, clamp, ramp, slew, apply,
-//! report.
+//! One cycle of the local loop (protocol/SPEC.md section 10.5): sense, solve, couple, passivity (observe and
+//! control, [`crate::passivity`]), clamp, ramp, slew, apply, report.
 //!
 //! Where it sits: a firmware (or `voxhap mock-device`) calls [`LocalLoop::step`] once per control cycle instead of
 //! `DeviceSession::poll`; `step` polls the session itself (watchdog, State frames), renders the session's local
 //! model when there is one, and otherwise returns the session's set-force force unchanged.
 
+use crate::passivity::{DevicePassivity, PassivityTotals};
 use crate::ramp::{clamp, norm, slew_limit, Ramp, RampState};
 use glam::DVec3;
 use voxhap_protocol::local::MAX_BOUND_M;
 use voxhap_protocol::{
-    DeviceSample, DeviceSession, DriveState, LocalKind, LocalModel, LocalStatus, LocalTick,
-    ModelFlags, MAX_LOCAL_PRIMITIVES,
+    DeviceSample, DeviceSession, DriveState, LocalKind, LocalModel, LocalPassivity, LocalStatus,
+    LocalTick, ModelFlags, MAX_LOCAL_PRIMITIVES,
 };
 use voxhap_solver::storage::Fixed;
 use voxhap_solver::{Primitive, PrimitiveError, Problem, Solver, SolverConfig};
@@ -61,6 +62,9 @@ struct Installed {
     force_limit_n: f64,
     expiry_us: u64,
     truncated: bool,
+    /// The sum of the directed slots' forces, N (the part of the coupling force meant to do work).
+    directed_n: DVec3,
+    passivity: LocalPassivity,
     /// A solve exceeded [`MAX_BOUND_M`]: rendered as expired from then on.
     no_solution: bool,
 }
@@ -77,6 +81,7 @@ pub struct LocalLoop {
     force_n: [f64; 3],
     last_us: Option<u64>,
     status: LocalStatus,
+    passivity: DevicePassivity,
 }
 
 impl LocalLoop {
@@ -92,6 +97,7 @@ impl LocalLoop {
             force_n: [0.0; 3],
             last_us: None,
             status: LocalStatus::EMPTY,
+            passivity: DevicePassivity::default(),
         }
     }
 
@@ -108,6 +114,11 @@ impl LocalLoop {
     /// What the last cycle did (empty when it rendered no local model).
     pub fn last_status(&self) -> LocalStatus {
         self.status
+    }
+
+    /// The passivity observer's and controller's totals (SPEC 10.5 step 4b).
+    pub fn passivity_totals(&self) -> PassivityTotals {
+        self.passivity.totals()
     }
 
     /// The ramp factor now (0 to 1).
@@ -132,6 +143,7 @@ impl LocalLoop {
         self.last_us = Some(now_us);
         let Some((model, received_us)) = session.local_model() else {
             self.model = None;
+            self.passivity.gap();
             if session.drive_state() != DriveState::Enabled {
                 // Disable, a fault, the watchdog or a Hello: the next Enable engages from zero (SPEC 10.5 step 6).
                 self.ramp.reset();
@@ -151,6 +163,7 @@ impl LocalLoop {
         if !sample_ok {
             // The session has raised ENCODER (and left Enabled); nothing to solve against.
             self.force_n = [0.0; 3];
+            self.passivity.gap();
             return [0.0; 3];
         }
         let fresh = self
@@ -207,19 +220,38 @@ impl LocalLoop {
         }
         let proxy = self.proxy_m.unwrap_or(probe);
         let coupling = m.stiffness_n_per_m * (proxy - probe) - m.damping_n_s_per_m * velocity;
-        let limit = m.force_limit_n.min(max_force_n);
-        let (clamped, was_clamped) = clamp(coupling.to_array(), limit);
-        let age_us = now_us.saturating_sub(m.received_us);
-        let live = age_us <= m.expiry_us && !m.no_solution;
         // Rises (engage, slew) take at most MAX_DT_US from one cycle; the ramp-down takes all the time that
         // passed, so a late cycle never leaves the force up longer than 5 ms past the expiry.
         let dt_us = elapsed_us.min(MAX_DT_US);
+        // Step 4b: the passivity observer books the step just moved, the controller adds its damping.
+        let stretch = proxy - m.directed_n / m.stiffness_n_per_m - probe;
+        let control = self.passivity.observe_and_control(
+            m.passivity,
+            m.stiffness_n_per_m,
+            probe,
+            velocity,
+            stretch,
+            dt_us as f64 * 1e-6,
+        );
+        let asked = coupling + control;
+        let limit = m.force_limit_n.min(max_force_n);
+        let (clamped, was_clamped) = clamp(asked.to_array(), limit);
+        let age_us = now_us.saturating_sub(m.received_us);
+        let live = age_us <= m.expiry_us && !m.no_solution;
         let state = self
             .ramp
             .update(if live { dt_us } else { elapsed_us }, live, norm(clamped));
         let scaled = clamped.map(|f| f * self.ramp.factor());
         let (force, slewed) = slew_limit(scaled, norm(self.force_n), dt_us);
         self.force_n = force;
+        let force_f32 = force.map(|f| f as f32);
+        // The observer books the force the motors get (the f32 sent to them), held until the next cycle.
+        self.passivity.applied(
+            m.passivity,
+            asked,
+            DVec3::from_array(force_f32.map(f64::from)),
+            m.directed_n,
+        );
         if let Some(installed) = self.model.as_mut() {
             installed.no_solution = m.no_solution;
         }
@@ -232,8 +264,8 @@ impl LocalLoop {
             .with(LocalStatus::CLAMPED, was_clamped)
             .with(LocalStatus::SLEW_LIMITED, slewed)
             .with(LocalStatus::ENGAGING, state == RampState::Engaging)
-            .with(LocalStatus::TRUNCATED, m.truncated);
-        let force_f32 = force.map(|f| f as f32);
+            .with(LocalStatus::TRUNCATED, m.truncated)
+            .with(LocalStatus::DISSIPATING, control != DVec3::ZERO);
         let tick = LocalTick {
             model_sequence: m.sequence,
             model_age_us: u32::try_from(age_us).unwrap_or(u32::MAX),
@@ -264,11 +296,15 @@ fn with_slice<R>(
 fn install(model: &LocalModel, received_us: u64) -> Installed {
     let mut primitives = [None; MAX_LOCAL_PRIMITIVES];
     let mut refused = false;
+    let mut directed_n = DVec3::ZERO;
     for (slot, p) in primitives.iter_mut().zip(model.si_primitives()) {
         let position = DVec3::from_array(p.position_m);
         let direction = DVec3::from_array(p.direction);
         let built: Result<Primitive, PrimitiveError> = match p.kind {
-            LocalKind::Directed => Primitive::directed(direction, p.strength_n),
+            LocalKind::Directed => {
+                directed_n += direction * p.strength_n;
+                Primitive::directed(direction, p.strength_n)
+            }
             LocalKind::Point => Primitive::point(position, p.strength_n),
             LocalKind::Line => Primitive::line(position, direction, p.strength_n),
             LocalKind::Plane => Primitive::plane(position, direction, p.strength_n),
@@ -287,6 +323,8 @@ fn install(model: &LocalModel, received_us: u64) -> Installed {
         force_limit_n: model.force_limit_n(),
         expiry_us: u64::from(model.expiry_us),
         truncated: model.flags.contains(ModelFlags::TRUNCATED),
+        directed_n,
+        passivity: model.passivity,
         no_solution: refused,
     }
 }

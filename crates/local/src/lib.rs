@@ -1,7 +1,8 @@
 //! The device side of voxhap's local-model capability (protocol/SPEC.md section 10): a control loop a firmware
 //! links to render contact at its own rate. Each cycle it reads the handle, solves the proxy against the host's
-//! latest local model with voxhap's certified solver, and applies the coupling force, clamped, ramped and
-//! slew-limited; a model past its expiry ramps the force to zero by itself. docs/local-model.md has its use, its
+//! latest local model with voxhap's certified solver, and applies the coupling force with its passivity
+//! controller's damping (in the model's passivity mode), clamped, ramped and slew-limited; a model past its expiry
+//! ramps the force to zero by itself. docs/local-model.md has its use, its
 //! guarantees and its measured cost per solve.
 //!
 //! `#![no_std]` and allocation-free: the solver's workspace lives in fixed arrays sized for the protocol's
@@ -21,7 +22,9 @@
 extern crate std;
 
 mod device_loop;
+mod passivity;
 mod ramp;
 
 pub use device_loop::{LocalLoop, LoopConfig, DEVICE_SOLVER_CONFIG};
+pub use passivity::{DevicePassivity, PassivityTotals};
 pub use ramp::{Ramp, ENGAGE_BELOW_N, ENGAGE_US, SLEW_N_PER_S};

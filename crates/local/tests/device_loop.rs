@@ -32,6 +32,7 @@ fn floor_model(sequence: u32, force_limit_n: f64) -> HostToDevice {
         damping_n_s_per_m: 0.0,
         force_limit_n,
         anchor_m: [0.0, 0.0, 0.0],
+        passivity: voxhap_protocol::LocalPassivity::OFF,
     };
     let floor = SiPrimitive {
         kind: LocalKind::Plane,

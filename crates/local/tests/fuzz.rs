@@ -13,14 +13,16 @@ proptest! {
         fuzz_body::run(&data);
     }
 
-    /// Bytes that decode: a small valid model (expiry 5000 us, stiffness 2000 N/m, limit 4 N, one plane) with
-    /// random slot data, so the loop runs on many decoded models rather than on refused ones.
+    /// Bytes that decode: a small valid model (expiry 5000 us, stiffness 2000 N/m, limit 4 N, one plane, any
+    /// passivity mode and damping code) with random slot data, so the loop runs on many decoded models rather
+    /// than on refused ones.
     #[test]
-    fn fuzz_body_on_model_shaped_bytes(slot in proptest::collection::vec(any::<u8>(), 12), probe in proptest::collection::vec(any::<u8>(), 0..150)) {
+    fn fuzz_body_on_model_shaped_bytes(slot in proptest::collection::vec(any::<u8>(), 12), probe in proptest::collection::vec(any::<u8>(), 0..150), passivity in 0u16..3, damping_code in 0u16..8) {
         let mut data = Vec::new();
         data.extend_from_slice(&1u32.to_le_bytes());
         data.extend_from_slice(&5000u16.to_le_bytes());
-        data.extend_from_slice(&4u16.to_le_bytes()); // slot 0 a plane
+        // Slot 0 a plane; bits 9-10 the passivity mode, 11-13 its damping code.
+        data.extend_from_slice(&(4u16 | passivity << 9 | damping_code << 11).to_le_bytes());
         data.extend_from_slice(&2000u16.to_le_bytes());
         data.extend_from_slice(&1000u16.to_le_bytes());
         data.extend_from_slice(&4000u16.to_le_bytes());
@@ -49,6 +51,7 @@ fn an_anchor_beyond_f32_is_refused_by_the_builder() {
         damping_n_s_per_m: 0.0,
         force_limit_n: 4.0,
         anchor_m: [1e300, 0.0, 0.0],
+        passivity: voxhap_protocol::LocalPassivity::OFF,
     };
     let error = voxhap_protocol::build_local_model(&params, &[]).unwrap_err();
     assert!(error.to_string().contains("anchor_m.x"), "{error}");

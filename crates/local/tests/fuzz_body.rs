@@ -14,7 +14,7 @@ use session::{enabled_session, TestDevice};
 use voxhap_local::{LocalLoop, LoopConfig, SLEW_N_PER_S};
 use voxhap_protocol::{
     build_local_model, decode_report, encode_report, DeviceSample, HostToDevice, LocalKind,
-    LocalModel, LocalModelParams, SiPrimitive,
+    LocalModel, LocalModelParams, LocalPassivity, LocalPassivityMode, SiPrimitive,
 };
 
 const MAX_FORCE_N: f32 = 6.0;
@@ -69,6 +69,14 @@ fn build_from(data: &[u8]) -> Option<LocalModel> {
         damping_n_s_per_m: f64_at(data, 2),
         force_limit_n: f64_at(data, 3),
         anchor_m: [f64_at(data, 4), f64_at(data, 5), f64_at(data, 6)],
+        passivity: LocalPassivity::new(
+            [
+                LocalPassivityMode::Off,
+                LocalPassivityMode::Observe,
+                LocalPassivityMode::Control,
+            ][usize::from(data.get(2).copied().unwrap_or(0) % 3)],
+            f64_at(data, 7),
+        ),
     };
     let kinds = [
         LocalKind::Directed,

@@ -6,9 +6,10 @@
 //! only for a device that announced the capability, and only while the force it would send is valid. Fixed-size
 //! and allocation-free.
 
+use crate::passivity::{PassivityMode, PassivitySettings};
 use glam::DVec3;
-use voxhap_device::local_offer::LocalOffer;
-use voxhap_protocol::{LocalKind, SiPrimitive};
+use voxhap_device::local_offer::{LocalOffer, PassivityOffer};
+use voxhap_protocol::{LocalKind, LocalPassivityMode, SiPrimitive};
 use voxhap_solver::primitive::PrimitiveKind;
 use voxhap_solver::Primitive;
 
@@ -35,6 +36,21 @@ pub fn offer(
         });
     }
     offer
+}
+
+/// What a capable device's own passivity observer and controller run (protocol/SPEC.md section 10.5 step 4b):
+/// the host's mode and the scene's `[passivity] max_damping_n_s_per_m` (scaled into the device frame with the
+/// coupling, then sent as the largest of the wire's steps 1.25 × 2^c N s/m, c = 0..7, not above it).
+pub fn passivity_request(mode: PassivityMode, settings: &PassivitySettings) -> PassivityOffer {
+    let mode = match mode {
+        PassivityMode::Off => LocalPassivityMode::Off,
+        PassivityMode::Observe => LocalPassivityMode::Observe,
+        PassivityMode::Control => LocalPassivityMode::Control,
+    };
+    PassivityOffer {
+        mode,
+        max_damping_n_s_per_m: settings.max_damping_n_s_per_m,
+    }
 }
 
 #[cfg(test)]
@@ -67,5 +83,110 @@ mod tests {
         let full = super::offer(&many, 800.0, 0.0, DVec3::ZERO);
         assert_eq!(full.primitives().len(), MAX_OFFER_PRIMITIVES);
         assert!(full.truncated());
+    }
+
+    /// The device's observer and controller (voxhap-local, written apart for `no_std`) against the host's
+    /// (crate::passivity::controller) at latency 0 on one input sequence: a spring of 5 000 N/m on a probe
+    /// circling at 40 Hz, 0.1 by 0.3 mm, sampled at 10 kHz (about 0.1 uJ generated a cycle, so the 1 uJ
+    /// threshold matters), its force clamped to 1 N (so the share varies), the
+    /// reference `share^2 k/2 |stretch|^2` with last cycle's share, as the serve runner forms it. Every force
+    /// and total agree to rounding. Checked to fail with the device's threshold doubled (its controller then
+    /// acts in fewer cycles).
+    #[test]
+    fn the_device_controller_matches_the_hosts_on_one_sequence() {
+        use crate::energy::SentShare;
+        use crate::passivity::PassivityController;
+        use voxhap_local::DevicePassivity;
+        let (k, dt, limit) = (5000.0, 1e-4, 1.0);
+        let settings = PassivitySettings::default();
+        let request = voxhap_protocol::LocalPassivity::new(LocalPassivityMode::Control, 20.0);
+        let mut host = PassivityController::new(PassivityMode::Control, &settings, 0);
+        let mut device = DevicePassivity::default();
+        let mut share = SentShare::NOTHING;
+        let proxy = DVec3::new(0.0, 0.0, 0.0);
+        let mut dissipating = 0;
+        for i in 0..4000 {
+            let t = i as f64 * dt;
+            let w = 2.0 * std::f64::consts::PI * 40.0;
+            // An ellipse around the proxy: the sampled spring generates `k dp^2 / 2` a cycle.
+            let probe = DVec3::new(0.0001 * (w * t).cos(), 0.0, -0.0003 * (w * t).sin());
+            let velocity = DVec3::new(
+                -0.0001 * w * (w * t).sin(),
+                0.0,
+                -0.0003 * w * (w * t).cos(),
+            );
+            let stretch = proxy - probe;
+            let reference = share.spring_energy_j(k, stretch);
+            let host_control = host.observe_and_control(probe, velocity, reference, dt);
+            let host_control = if share.fraction() > 0.0 {
+                host_control
+            } else {
+                DVec3::ZERO
+            };
+            let device_control =
+                device.observe_and_control(request, k, probe, velocity, stretch, dt);
+            assert!(
+                (host_control - device_control).length() <= 1e-12,
+                "cycle {i}: host {host_control}, device {device_control}"
+            );
+            let asked = k * stretch + host_control;
+            let sent = if asked.length() > limit {
+                asked * (limit / asked.length())
+            } else {
+                asked
+            };
+            host.sent(asked, sent);
+            device.applied(request, asked, sent, DVec3::ZERO);
+            share = SentShare::of(sent, asked);
+            dissipating += usize::from(device_control != DVec3::ZERO);
+            let (h, d) = (host.totals(), device.totals());
+            assert!(
+                (h.generated_j - d.generated_j).abs() <= 1e-12
+                    && (h.excess_j - d.excess_j).abs() <= 1e-12
+                    && (h.dissipated_j - d.dissipated_j).abs() <= 1e-12
+                    && h.active_ticks == d.active_cycles,
+                "cycle {i}: host {h:?}, device {d:?}"
+            );
+        }
+        assert!(
+            dissipating > 100,
+            "the controller acted in {dissipating} cycles"
+        );
+    }
+
+    /// The scene's mode travels as is; its most damping goes into the device frame with the coupling and onto
+    /// the wire as the largest step 1.25 x 2^c N s/m not above it (SPEC 10.2): the default 20 N s/m is step 4
+    /// exactly, 1000 N s/m (the largest a scene takes) the top step 160, 3 N s/m the step 2.5, 0.5 N s/m the
+    /// bottom step 1.25; 20 N s/m through a mapping of scale 0.5 is 10 N s/m, step 3.
+    #[test]
+    fn the_scenes_passivity_becomes_the_devices_request() {
+        let settings = PassivitySettings::default();
+        let sent = |mode, max_damping, scale: f64| {
+            let settings = PassivitySettings {
+                max_damping_n_s_per_m: max_damping,
+                ..settings
+            };
+            let offer = super::offer(&[], 800.0, 0.5, DVec3::ZERO)
+                .with_passivity(passivity_request(mode, &settings))
+                .mapped(|p| p, |d| d, scale);
+            offer.params(3.0, 5.0).passivity
+        };
+        let control = sent(PassivityMode::Control, 20.0, 1.0);
+        assert_eq!(control.mode, LocalPassivityMode::Control);
+        assert_eq!(control.max_damping_n_s_per_m(), 20.0);
+        assert_eq!(
+            sent(PassivityMode::Off, 20.0, 1.0).mode,
+            LocalPassivityMode::Off
+        );
+        for (asked, scale, got) in [
+            (1000.0, 1.0, 160.0),
+            (3.0, 1.0, 2.5),
+            (0.5, 1.0, 1.25),
+            (20.0, 0.5, 10.0),
+        ] {
+            let request = sent(PassivityMode::Observe, asked, scale);
+            assert_eq!(request.mode, LocalPassivityMode::Observe);
+            assert_eq!(request.max_damping_n_s_per_m(), got, "{asked} x {scale}");
+        }
     }
 }

@@ -133,6 +133,8 @@ pub struct ServoLoop {
     force_off: ForceOffTracker,
     /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
+    /// What a capable device's own passivity observer and controller run (crate::local_model).
+    local_passivity: voxhap_device::local_offer::PassivityOffer,
     /// The share of last tick's rendered force that the safety pipeline sent (crate::energy).
     sent_share: SentShare,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
@@ -192,6 +194,7 @@ impl ServoLoop {
                 &PassivitySettings::default(),
                 0,
             ),
+            local_passivity: voxhap_device::local_offer::PassivityOffer::default(),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,
@@ -208,6 +211,12 @@ impl ServoLoop {
     /// applied in contact are introduced passively.
     pub fn set_passivity(&mut self, controller: PassivityController) {
         self.passivity = controller;
+    }
+
+    /// What a device rendering local models runs as its own passivity observer and controller (the scene's
+    /// `[passivity]` mode and most damping; protocol/SPEC.md section 10.5 step 4b). Off unless set.
+    pub fn set_local_passivity(&mut self, request: voxhap_device::local_offer::PassivityOffer) {
+        self.local_passivity = request;
     }
 
     /// Adds the force `receiver` hands over to the rendered force of every tick, before the passivity
@@ -432,7 +441,8 @@ impl ServoLoop {
         let exchange_start_ns = waiter.now_ns();
         // The tick's local model: a capable device renders it itself at its own rate (crate::local_model).
         let local =
-            crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m);
+            crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m)
+                .with_passivity(self.local_passivity);
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
             now_us,

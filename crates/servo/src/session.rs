@@ -267,6 +267,9 @@ impl Session {
         );
         notices.extend(latency.notice(passivity_mode, &spec_label, config.rate_hz));
         let passivity = PassivityController::new(passivity_mode, &setup.passivity, latency.ticks);
+        // A device rendering local models runs the same mode on its own loop (crate::local_model).
+        let local_passivity =
+            crate::local_model::passivity_request(passivity_mode, &setup.passivity);
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
@@ -370,6 +373,7 @@ impl Session {
                     first_state,
                 );
                 servo.set_passivity(passivity);
+                servo.set_local_passivity(local_passivity);
                 if let Some(receiver) = external_receiver {
                     servo.set_external_force(receiver);
                 }

@@ -7,8 +7,8 @@ use voxhap_protocol::local::{oct_decode, oct_encode, LOCAL_MODEL_TYPE};
 use voxhap_protocol::{
     decode_report, DeviceInfo, DeviceSample, DeviceSession, DeviceToHost, Enable, ForceFlags,
     Hello, HostSession, HostToDevice, Label, LocalKind, LocalModel, LocalModelParams,
-    LocalPrimitive, LocalState, LocalStatus, LocalTick, ModelFlags, PayloadError, RateSet,
-    SetForce, SiPrimitive, StatusFlags, PROTOCOL_VERSION,
+    LocalPassivity, LocalPassivityMode, LocalPrimitive, LocalState, LocalStatus, LocalTick,
+    ModelFlags, PayloadError, RateSet, SetForce, SiPrimitive, StatusFlags, PROTOCOL_VERSION,
 };
 
 use crate::vectors::Expected;
@@ -23,6 +23,7 @@ fn vector_model() -> LocalModel {
         damping_mn_s_per_m: 2500,
         force_limit_mn: 4000,
         anchor_m: [0.01, -0.02, 0.03],
+        passivity: LocalPassivity::OFF,
         primitives: [
             Some(LocalPrimitive {
                 kind: LocalKind::Directed,
@@ -47,6 +48,30 @@ fn vector_model() -> LocalModel {
     }
 }
 
+/// The model of vectors/local/local_model_wall.hex, from its comment line: a floor at z = 0.
+fn wall_vector_model() -> LocalModel {
+    LocalModel {
+        sequence: 1,
+        expiry_us: 5000,
+        flags: ModelFlags::EMPTY,
+        stiffness_n_per_m: 2000,
+        damping_mn_s_per_m: 0,
+        force_limit_mn: 3000,
+        anchor_m: [0.0; 3],
+        passivity: LocalPassivity::OFF,
+        primitives: [
+            Some(LocalPrimitive {
+                kind: LocalKind::Plane,
+                offset_um: [0; 3],
+                direction_oct: [0, 0],
+                strength_mn: 20_000,
+            }),
+            None,
+            None,
+        ],
+    }
+}
+
 pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
     vec![
         (
@@ -63,29 +88,39 @@ pub(crate) fn expected_local_vectors() -> Vec<(&'static str, Expected)> {
                 damping_mn_s_per_m: 0,
                 force_limit_mn: 0,
                 anchor_m: [0.0; 3],
+                passivity: LocalPassivity::OFF,
                 primitives: [None; 3],
             })),
         ),
         (
             "local/local_model_wall",
+            Expected::Host(HostToDevice::LocalModel(wall_vector_model())),
+        ),
+        (
+            "local/local_model_passivity",
             Expected::Host(HostToDevice::LocalModel(LocalModel {
-                sequence: 1,
-                expiry_us: 5000,
-                flags: ModelFlags::EMPTY,
-                stiffness_n_per_m: 2000,
-                damping_mn_s_per_m: 0,
-                force_limit_mn: 3000,
-                anchor_m: [0.0; 3],
-                primitives: [
-                    Some(LocalPrimitive {
-                        kind: LocalKind::Plane,
-                        offset_um: [0; 3],
-                        direction_oct: [0, 0],
-                        strength_mn: 20_000,
-                    }),
-                    None,
-                    None,
-                ],
+                sequence: 2,
+                stiffness_n_per_m: 40_000,
+                passivity: LocalPassivity {
+                    mode: LocalPassivityMode::Control,
+                    damping_code: 4,
+                },
+                ..wall_vector_model()
+            })),
+        ),
+        (
+            "local/local_state_dissipating",
+            Expected::Device(DeviceToHost::LocalState(LocalState {
+                state_sequence: 1001,
+                model_sequence: 2,
+                model_age_us: 300,
+                proxy_m: [0.0; 3],
+                force_n: [0.0, 0.0, 0.75],
+                bound_m: 0.0,
+                worst_bound_m: 5e-8,
+                peak_force_n: 1.25,
+                status: LocalStatus(LocalStatus::ACTIVE.0 | LocalStatus::DISSIPATING.0),
+                solves: 10,
             })),
         ),
         (
@@ -134,6 +169,55 @@ fn the_vectors_directions_decode_to_the_stated_ones() {
     assert_eq!(prims[2].strength_n, 1.5);
     assert_eq!(model.force_limit_n(), 4.0);
     assert_eq!(model.damping_n_s_per_m(), 2.5);
+}
+
+/// SPEC section 10.2: damping code c is at most 1.25 x 2^c N s/m; the builder picks the largest step not
+/// above the asked damping, and the request survives the builder, the encoder and the decoder.
+#[test]
+fn the_passivity_request_travels_in_bits_9_to_13() {
+    let steps = [1.25, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0];
+    for (code, step) in steps.iter().enumerate() {
+        let request = LocalPassivity {
+            mode: LocalPassivityMode::Observe,
+            damping_code: code as u8,
+        };
+        assert_eq!(request.max_damping_n_s_per_m(), *step);
+        assert_eq!(
+            LocalPassivity::new(LocalPassivityMode::Observe, *step),
+            request
+        );
+        // Just under the next step: still this one.
+        assert_eq!(
+            LocalPassivity::new(LocalPassivityMode::Observe, step * 1.99),
+            request
+        );
+    }
+    for (asked, code) in [(0.1, 0), (f64::NAN, 0), (1e9, 7)] {
+        assert_eq!(
+            LocalPassivity::new(LocalPassivityMode::Off, asked).damping_code,
+            code
+        );
+    }
+    for (mode, mode_code) in [
+        (LocalPassivityMode::Off, 0u8),
+        (LocalPassivityMode::Observe, 1),
+        (LocalPassivityMode::Control, 2),
+    ] {
+        let params = LocalModelParams {
+            passivity: LocalPassivity::new(mode, 20.0),
+            ..params([0.0; 3])
+        };
+        let model = voxhap_protocol::build_local_model(&params, &[]).unwrap();
+        let mut report = [0u8; 64];
+        voxhap_protocol::encode_report(&HostToDevice::LocalModel(model), &mut report).unwrap();
+        // Payload byte 7 (report byte 9) holds bits 8-15 of kinds_flags: the mode at its bits 1-2, the code
+        // (4: 20 N s/m) at 3-5.
+        assert_eq!(report[9], (mode_code << 1) | (4 << 3), "{mode:?}");
+        assert_eq!(
+            decode_report::<HostToDevice>(&report),
+            Ok(HostToDevice::LocalModel(model))
+        );
+    }
 }
 
 proptest::proptest! {
@@ -240,6 +324,11 @@ fn malformed_models_are_refused_with_the_field_named() {
             invalid("primitives"),
         ),
         (
+            "passivity mode 3 (bits 9-10)",
+            Box::new(|p| p[7] |= 0b11 << 1),
+            invalid("passivity"),
+        ),
+        (
             "direction -32768",
             Box::new(|p| p[32..34].copy_from_slice(&i16::MIN.to_le_bytes())),
             invalid("direction_oct"),
@@ -266,6 +355,7 @@ fn params(anchor_m: [f64; 3]) -> LocalModelParams {
         damping_n_s_per_m: 1.0,
         force_limit_n: 5.0,
         anchor_m,
+        passivity: LocalPassivity::OFF,
     }
 }
 

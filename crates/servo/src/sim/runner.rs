@@ -126,6 +126,9 @@ pub fn run(
         .latency_ticks(Some(settings.arm.effects.latency_s), dt_s);
     let mut passivity =
         PassivityController::new(passivity_mode, &settings.passivity, latency_ticks);
+    // The local-model device runs the same mode on its own loop (crate::local_model).
+    let local_passivity =
+        crate::local_model::passivity_request(passivity_mode, &settings.passivity);
     let mut transition = CouplingTransition::new();
     // The scenes of the run: the scenario's, then each event's, with their workspaces (built before it).
     let mut workspaces: Vec<TickWorkspace> = std::iter::once(scene)
@@ -208,7 +211,8 @@ pub fn run(
                     k,
                     damping_n_s_per_m,
                     out.proxy_m,
-                );
+                )
+                .with_passivity(local_passivity);
                 if valid {
                     device.send(Some(&offer), rendered_n);
                 } else {

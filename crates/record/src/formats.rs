@@ -109,6 +109,27 @@ pub fn estimate_trace_bytes(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::{samples, temp_trace, write_trace};
+
+    #[test]
+    fn two_identical_runs_give_identical_files() {
+        let data = samples(300, 2);
+        for format in [TraceFormat::Csv, TraceFormat::Mcap] {
+            let (a_name, b_name) = (format!("a.{format}"), format!("b.{format}"));
+            let (dir, a) = temp_trace(&a_name, &["surface", "viscosity"], &data);
+            let b = dir.path().join(&b_name);
+            write_trace(&b, &["surface", "viscosity"], &data);
+            assert_eq!(
+                std::fs::read(&a).unwrap(),
+                std::fs::read(&b).unwrap(),
+                "{format}"
+            );
+            // The sidecars differ only in the trace file name.
+            let sa = std::fs::read_to_string(output::sidecar_path(&a)).unwrap();
+            let sb = std::fs::read_to_string(output::sidecar_path(&b)).unwrap();
+            assert_eq!(sa.replace(&a_name, &b_name), sb, "{format}");
+        }
+    }
 
     #[test]
     fn estimates_grow_with_ticks_and_modes() {

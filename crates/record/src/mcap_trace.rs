@@ -180,14 +180,10 @@ fn tick_message_schema(
     if let serde_json::Value::Object(rest) = properties {
         all.extend(rest);
     }
+    let mut schema = voxhap_view::messages::message_schema(title, serde_json::Value::Object(all));
     let required: Vec<&str> = ["tick", "t_s"].iter().chain(required).copied().collect();
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "type": "object",
-        "properties": all,
-        "required": required
-    })
+    schema["required"] = serde_json::json!(required);
+    schema
 }
 
 #[derive(Serialize)]

@@ -534,11 +534,10 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     }
     let findings = serve_fail_on_findings(&args.fail_on, &summary.stats, tolerance_m);
     if !findings.is_empty() {
-        return Err(super::common::ExitWith {
-            code: super::sim::EXIT_FAIL_ON,
-            message: format!("--fail-on: {}", findings.join("; ")),
-        }
-        .into());
+        return Err(super::sim::fail_on_exit(format!(
+            "--fail-on: {}",
+            findings.join("; ")
+        )));
     }
     Ok(())
 }

@@ -91,6 +91,15 @@ pub enum FailOn {
 /// Exit code of a run that finished but met a `--fail-on` condition.
 pub const EXIT_FAIL_ON: u8 = 3;
 
+/// The outcome of a run that met a `--fail-on` condition: `message` on stderr, exit code [`EXIT_FAIL_ON`].
+pub fn fail_on_exit(message: String) -> anyhow::Error {
+    super::common::ExitWith {
+        code: EXIT_FAIL_ON,
+        message,
+    }
+    .into()
+}
+
 /// The scenario file with `--set`, `--duration` and `--rate` applied, validated and loaded.
 pub fn load_scenario(
     path: &std::path::Path,
@@ -202,11 +211,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     let loaded = load_scenario(&args.scenario, &args.set, args.duration, args.rate)?;
     if let Some(warning) = stiffness_warning(&loaded) {
         if args.fail_on.contains(&FailOn::BeyondBound) {
-            return Err(super::common::ExitWith {
-                code: EXIT_FAIL_ON,
-                message: format!("--fail-on: beyond-bound: {warning}"),
-            }
-            .into());
+            return Err(fail_on_exit(format!("--fail-on: beyond-bound: {warning}")));
         }
         eprintln!("warning: {warning}");
     }
@@ -323,11 +328,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
         );
     }
     if !findings.is_empty() {
-        return Err(super::common::ExitWith {
-            code: EXIT_FAIL_ON,
-            message: format!("--fail-on: {}", findings.join("; ")),
-        }
-        .into());
+        return Err(fail_on_exit(format!("--fail-on: {}", findings.join("; "))));
     }
     Ok(())
 }

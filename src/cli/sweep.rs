@@ -10,7 +10,7 @@
 //! points' ticks shows on a terminal. `--fail-on` applies to every point; the sweep exits with code 3 when
 //! any point met a condition (all traces are still written).
 
-use super::sim::{fail_on_findings, load_scenario, solver_label, FailOn, EXIT_FAIL_ON};
+use super::sim::{fail_on_exit, fail_on_findings, load_scenario, solver_label, FailOn};
 use crate::haptics::tick::SolverKind;
 use crate::record::{
     create_trace_writer_with, error_chain, estimate_trace_bytes, OutputPolicy, TraceFormat,
@@ -272,11 +272,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         anyhow::bail!("{}", errors.join("\n"));
     }
     if !failures.is_empty() {
-        return Err(super::common::ExitWith {
-            code: EXIT_FAIL_ON,
-            message: format!("--fail-on:\n{}", failures.join("\n")),
-        }
-        .into());
+        return Err(fail_on_exit(format!("--fail-on:\n{}", failures.join("\n"))));
     }
     Ok(())
 }

@@ -204,24 +204,10 @@ impl TraceWriter for CsvTraceWriter {
     }
 }
 
-/// Reads a CSV trace, and its sidecar `path.json` when that file exists.
+/// Reads a CSV trace, and its sidecar `path.json` when that file exists. A regular file only; reading stops
+/// at the size it had when opened.
 pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    // A regular file only; reading stops at the size it had when opened.
-    let (file, size_bytes) = crate::trace::open_trace_file(path)?;
-    let sidecar = read_sidecar(&sidecar_path(path))?;
-    let start_utc_ns = sidecar.as_ref().map(|s| s.meta.start_utc_ns);
-    let (mode_names, samples, warnings) = parse_csv_lines(
-        BufReader::new(std::io::Read::take(file, size_bytes)),
-        path,
-        start_utc_ns,
-    )?;
-    let trace = Trace {
-        mode_names,
-        samples,
-        sidecar,
-        warnings,
-    };
-    Ok(crate::trace::check_sidecar(trace, path, TraceFormat::Csv))
+    crate::trace::collect_samples(path, for_each_csv_sample)
 }
 
 /// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.

@@ -1,24 +1,15 @@
 //! Tests of [`super`].
 
 use super::*;
-use crate::test_support::{meta, samples};
-use crate::{create_trace_writer, TraceFormat, FLAG_INVALID_VALUES};
-
-fn write_csv(path: &Path, modes: &[&str], data: &[TraceSample]) {
-    let mut writer = create_trace_writer(path, TraceFormat::Csv, &meta(modes)).unwrap();
-    for sample in data {
-        writer.write_sample(sample).unwrap();
-    }
-    let summary = writer.finish().unwrap();
-    assert_eq!(summary.sample_count, data.len() as u64);
-}
+use crate::test_support::{meta, samples, write_trace};
+use crate::FLAG_INVALID_VALUES;
 
 #[test]
 fn write_then_read_round_trips_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("run.csv");
     let data = samples(500, 3);
-    write_csv(&path, &["surface", "friction", "vector-follow"], &data);
+    write_trace(&path, &["surface", "friction", "vector-follow"], &data);
     let trace = read_csv_trace(&path).unwrap();
     assert_eq!(trace.mode_names, ["surface", "friction", "vector-follow"]);
     assert_eq!(trace.samples.len(), data.len());
@@ -61,25 +52,10 @@ fn zero_modes_round_trip() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("none.csv");
     let data = samples(10, 0);
-    write_csv(&path, &[], &data);
+    write_trace(&path, &[], &data);
     let trace = read_csv_trace(&path).unwrap();
     assert!(trace.mode_names.is_empty());
     assert_eq!(trace.samples, data);
-}
-
-#[test]
-fn two_identical_runs_give_identical_files() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = samples(300, 2);
-    let a = dir.path().join("a.csv");
-    let b = dir.path().join("b.csv");
-    write_csv(&a, &["surface", "viscosity"], &data);
-    write_csv(&b, &["surface", "viscosity"], &data);
-    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
-    // The sidecars differ only in the trace file name.
-    let sa = std::fs::read_to_string(sidecar_path(&a)).unwrap();
-    let sb = std::fs::read_to_string(sidecar_path(&b)).unwrap();
-    assert_eq!(sa.replace("a.csv", "b.csv"), sb);
 }
 
 #[test]

@@ -45,35 +45,34 @@ pub fn create_trace_writer_with(
     })
 }
 
-/// Reads a CSV, MCAP or Parquet trace, choosing by the file's first bytes (the MCAP magic, `PAR1`)
-/// rather than its name.
+/// Reads a CSV, MCAP or Parquet trace, choosing by the file's first bytes ([`sniff_format`]) rather than its
+/// name.
 pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    let mut magic = [0u8; 8];
-    let is_mcap = {
-        use std::io::Read;
-        let (mut file, _) = open_trace_file(path)?;
-        let mut filled = 0;
-        while filled < magic.len() {
-            match file.read(&mut magic[filled..]) {
-                Ok(0) => break,
-                Ok(n) => filled += n,
-                Err(source) => {
-                    return Err(TraceReadError::Io {
-                        path: path.to_path_buf(),
-                        source,
-                    })
-                }
-            }
-        }
-        filled == magic.len() && magic[..] == *mcap::MAGIC
-    };
-    if is_mcap {
-        read_mcap_trace(path)
-    } else if magic.starts_with(b"PAR1") {
-        read_parquet_trace(path)
-    } else {
-        read_csv_trace(path)
+    match sniff_format(path)? {
+        TraceFormat::Mcap => read_mcap_trace(path),
+        TraceFormat::Parquet => read_parquet_trace(path),
+        TraceFormat::Csv => read_csv_trace(path),
     }
+}
+
+/// A trace's format from its first bytes: the MCAP magic, `PAR1` (Parquet), else CSV.
+pub(crate) fn sniff_format(path: &Path) -> Result<TraceFormat, TraceReadError> {
+    use std::io::Read;
+    let (file, _) = open_trace_file(path)?;
+    let mut magic = Vec::with_capacity(8);
+    file.take(8)
+        .read_to_end(&mut magic)
+        .map_err(|source| TraceReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    Ok(if magic[..] == *mcap::MAGIC {
+        TraceFormat::Mcap
+    } else if magic.starts_with(b"PAR1") {
+        TraceFormat::Parquet
+    } else {
+        TraceFormat::Csv
+    })
 }
 
 /// A generous estimate of the bytes a trace of `ticks` samples at `rate_hz` with `mode_count` modes takes
@@ -109,6 +108,27 @@ pub fn estimate_trace_bytes(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::{samples, temp_trace, write_trace};
+
+    #[test]
+    fn two_identical_runs_give_identical_files() {
+        let data = samples(300, 2);
+        for format in [TraceFormat::Csv, TraceFormat::Mcap] {
+            let (a_name, b_name) = (format!("a.{format}"), format!("b.{format}"));
+            let (dir, a) = temp_trace(&a_name, &["surface", "viscosity"], &data);
+            let b = dir.path().join(&b_name);
+            write_trace(&b, &["surface", "viscosity"], &data);
+            assert_eq!(
+                std::fs::read(&a).unwrap(),
+                std::fs::read(&b).unwrap(),
+                "{format}"
+            );
+            // The sidecars differ only in the trace file name.
+            let sa = std::fs::read_to_string(output::sidecar_path(&a)).unwrap();
+            let sb = std::fs::read_to_string(output::sidecar_path(&b)).unwrap();
+            assert_eq!(sa.replace(&a_name, &b_name), sb, "{format}");
+        }
+    }
 
     #[test]
     fn estimates_grow_with_ticks_and_modes() {

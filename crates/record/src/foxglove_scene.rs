@@ -247,13 +247,10 @@ struct RecordedStats {
 }
 
 fn trace_stats_schema() -> serde_json::Value {
-    let count =
-        |what: &str| serde_json::json!({"type": "integer", "minimum": 0, "description": what});
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "voxhap.TraceStats",
-        "type": "object",
-        "properties": {
+    let count = voxhap_view::messages::count_schema;
+    voxhap_view::messages::message_schema(
+        "voxhap.TraceStats",
+        serde_json::json!({
             "t_s": {"type": "number", "description": "tick time of the latest tick counted (s)"},
             "ticks": count("ticks recorded so far"),
             "max_sweeps": count("most solver sweeps in one tick"),
@@ -263,8 +260,8 @@ fn trace_stats_schema() -> serde_json::Value {
             "force_clamped": count("ticks flagged force_clamped"),
             "samples_dropped": count("ticks flagged samples_dropped"),
             "scene_frames_missing": count("scene updates drawn from the trace sample because the servo's snapshot did not arrive (markers without the tick's primitives)")
-        }
-    })
+        }),
+    )
 }
 
 /// Why a scene message could not be encoded.

@@ -4,7 +4,7 @@
 use super::*;
 use crate::mcap_read::{parse_mcap_trace, read_mcap_trace};
 use crate::mcap_trace::McapTraceWriter;
-use crate::test_support::{meta, samples};
+use crate::test_support::{meta, samples, temp_trace};
 use crate::TraceWriter;
 
 fn streamed(path: &Path) -> Result<(Trace, Vec<TraceSample>), TraceReadError> {
@@ -14,27 +14,21 @@ fn streamed(path: &Path) -> Result<(Trace, Vec<TraceSample>), TraceReadError> {
     Ok((trace, read))
 }
 
-/// Writes `data`; finished, or (`finish` false) left as a kill leaves it after a flush.
-fn write(path: &Path, modes: &[&str], data: &[TraceSample], finish: bool) {
+/// Writes `data` and leaves the file as a kill leaves it after a flush.
+fn write_and_kill(path: &Path, modes: &[&str], data: &[TraceSample]) {
     let mut writer = McapTraceWriter::create(path, &meta(modes)).unwrap();
     for sample in data {
         writer.write_sample(sample).unwrap();
     }
-    if finish {
-        writer.finish().unwrap();
-    } else {
-        writer.flush().unwrap();
-        std::mem::forget(writer);
-    }
+    writer.flush().unwrap();
+    std::mem::forget(writer);
 }
 
 #[test]
 fn a_finished_file_streams_the_samples_written() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.mcap");
     // Several chunks: the writer closes one every 1 000 ticks.
     let data = samples(3500, 2);
-    write(&path, &["surface", "friction"], &data, true);
+    let (_dir, path) = temp_trace("t.mcap", &["surface", "friction"], &data);
     let (trace, read) = streamed(&path).unwrap();
     assert_eq!(read, data);
     assert_eq!(trace.mode_names, ["surface", "friction"]);
@@ -49,7 +43,7 @@ fn an_unfinished_file_streams_what_the_in_memory_reader_recovers_with_its_warnin
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("killed.mcap");
     let data = samples(2500, 1);
-    write(&path, &["surface"], &data, false);
+    write_and_kill(&path, &["surface"], &data);
     let (trace, read) = streamed(&path).unwrap();
     let whole = read_mcap_trace(&path).unwrap();
     assert_eq!(read, whole.samples);
@@ -67,10 +61,8 @@ fn an_unfinished_file_streams_what_the_in_memory_reader_recovers_with_its_warnin
 /// reads, or fails where it fails.
 #[test]
 fn cut_anywhere_the_streamed_reader_agrees_with_the_in_memory_reader() {
-    let dir = tempfile::tempdir().unwrap();
-    let full = dir.path().join("full.mcap");
     let data = samples(1500, 2);
-    write(&full, &["surface", "friction"], &data, true);
+    let (dir, full) = temp_trace("full.mcap", &["surface", "friction"], &data);
     let bytes = std::fs::read(&full).unwrap();
     let cut_path = dir.path().join("cut.mcap");
     let mut compared = 0;
@@ -105,9 +97,7 @@ fn cut_anywhere_the_streamed_reader_agrees_with_the_in_memory_reader() {
 
 #[test]
 fn a_damaged_length_is_an_error_naming_it_not_an_allocation() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.mcap");
-    write(&path, &["surface"], &samples(50, 1), true);
+    let (_dir, path) = temp_trace("t.mcap", &["surface"], &samples(50, 1));
     let mut bytes = std::fs::read(&path).unwrap();
     // The first record's length (after the 8-byte magic and its opcode) claims far more than the file holds.
     bytes[9..17].copy_from_slice(&(u64::MAX / 2).to_le_bytes());

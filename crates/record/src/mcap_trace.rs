@@ -85,22 +85,24 @@ fn state_schema() -> serde_json::Value {
             "description": description
         })
     };
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": STATE_SCHEMA_NAME,
-        "type": "object",
-        "properties": {
-            "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
-            "t_s": {"type": "number", "description": "tick time since the run started (s)"},
+    tick_message_schema(
+        STATE_SCHEMA_NAME,
+        serde_json::json!({
             "utc_ns": {"type": "integer", "description": "wall-clock UTC of the tick (ns since 1970); omitted when the run has no start time"},
             "probe_m": vector("probe (device) position [x, y, z] (m)"),
             "probe_velocity_m_per_s": vector("probe velocity [x, y, z] (m/s), reported or estimated"),
             "proxy_m": vector("proxy position [x, y, z] (m)"),
             "rendered_force_n": vector("force rendered before the safety pipeline [x, y, z] (N)"),
             "force_n": vector("force sent to the device [x, y, z] (N)")
-        },
-        "required": ["tick", "t_s", "probe_m", "probe_velocity_m_per_s", "proxy_m", "rendered_force_n", "force_n"]
-    })
+        }),
+        &[
+            "probe_m",
+            "probe_velocity_m_per_s",
+            "proxy_m",
+            "rendered_force_n",
+            "force_n",
+        ],
+    )
 }
 
 fn solver_schema(mode_names: &[String]) -> serde_json::Value {
@@ -126,13 +128,9 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
         })
         .collect();
     let statuses: Vec<&str> = SolverStatus::ALL.iter().map(|s| s.name()).collect();
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": SOLVER_SCHEMA_NAME,
-        "type": "object",
-        "properties": {
-            "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
-            "t_s": {"type": "number", "description": "tick time since the run started (s)"},
+    tick_message_schema(
+        SOLVER_SCHEMA_NAME,
+        serde_json::json!({
             "primitives": {
                 "type": "object", "properties": modes, "additionalProperties": false,
                 "description": "primitives each haptic mode emitted this tick"
@@ -151,9 +149,41 @@ fn solver_schema(mode_names: &[String]) -> serde_json::Value {
             "device_time_us": {"type": "integer", "minimum": 0, "description": "the device's clock (us); omitted = none"},
             "flag_bits": {"type": "integer", "minimum": 0, "description": "bit set, see the sidecar's flag_bits"},
             "truth": crate::truth_columns::truth_schema()
-        },
-        "required": ["tick", "t_s", "primitives", "mode_force_n", "solver_status", "sweeps", "flag_bits", "truth"]
-    })
+        }),
+        &[
+            "primitives",
+            "mode_force_n",
+            "solver_status",
+            "sweeps",
+            "flag_bits",
+            "truth",
+        ],
+    )
+}
+
+/// The JSON schema of a per-tick message titled `title`: the properties `tick` and `t_s`, then those of the
+/// object `properties`; `tick`, `t_s` and the names in `required` are required.
+fn tick_message_schema(
+    title: &str,
+    properties: serde_json::Value,
+    required: &[&str],
+) -> serde_json::Value {
+    let mut all = serde_json::Map::new();
+    all.insert(
+        "tick".to_owned(),
+        serde_json::json!({"type": "integer", "minimum": 0, "description": "servo tick number"}),
+    );
+    all.insert(
+        "t_s".to_owned(),
+        serde_json::json!({"type": "number", "description": "tick time since the run started (s)"}),
+    );
+    if let serde_json::Value::Object(rest) = properties {
+        all.extend(rest);
+    }
+    let mut schema = voxhap_view::messages::message_schema(title, serde_json::Value::Object(all));
+    let required: Vec<&str> = ["tick", "t_s"].iter().chain(required).copied().collect();
+    schema["required"] = serde_json::json!(required);
+    schema
 }
 
 #[derive(Serialize)]

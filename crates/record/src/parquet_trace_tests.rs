@@ -3,18 +3,10 @@
 use super::*;
 use crate::output::sidecar_path;
 use crate::parquet_read::read_parquet_trace;
-use crate::test_support::{meta, samples};
+use crate::test_support::{meta, samples, temp_trace};
 use crate::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
 use bytes::Bytes;
 use parquet::file::metadata::ParquetMetaDataReader;
-
-fn write(path: &Path, modes: &[&str], samples: &[TraceSample]) -> TraceSummary {
-    let mut writer = create_trace_writer(path, TraceFormat::Parquet, &meta(modes)).unwrap();
-    for s in samples {
-        writer.write_sample(s).unwrap();
-    }
-    writer.finish().unwrap()
-}
 
 /// Writes `samples` and then crashes: nothing more is written (no final footer, the open row group lost).
 fn write_and_crash(path: &Path, samples: &[TraceSample]) {
@@ -27,12 +19,9 @@ fn write_and_crash(path: &Path, samples: &[TraceSample]) {
 
 #[test]
 fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.parquet");
-    // 2 500 samples 1 ms apart at even ticks: 2.5 s of trace time.
+    // 2 500 samples 1 ms apart at even ticks: 2.5 s of trace time (all of them written: temp_trace checks).
     let written = samples(2500, 2);
-    let summary = write(&path, &["surface", "friction"], &written);
-    assert_eq!(summary.sample_count, 2500);
+    let (dir, path) = temp_trace("t.parquet", &["surface", "friction"], &written);
     let trace = read_trace(&path).unwrap();
     assert!(trace.warnings.is_empty(), "{:?}", trace.warnings);
     assert_eq!(trace.mode_names, ["surface", "friction"]);
@@ -70,9 +59,7 @@ fn round_trip_is_exact_and_a_finished_trace_is_compacted() {
 #[test]
 fn columns_are_written_with_the_measured_encodings() {
     use parquet::basic::{Encoding, Type};
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.parquet");
-    write(&path, &["surface"], &samples(2500, 1));
+    let (_dir, path) = temp_trace("t.parquet", &["surface"], &samples(2500, 1));
     let metadata = ParquetMetaDataReader::new()
         .parse_and_finish(&Bytes::from(std::fs::read(&path).unwrap()))
         .unwrap();
@@ -101,12 +88,10 @@ fn columns_are_written_with_the_measured_encodings() {
 
 #[test]
 fn a_bad_sample_is_flagged_and_kept() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.parquet");
     let mut written = samples(5, 1);
     written[2].force_n.x = f64::NAN;
     written[3].t_s = f64::INFINITY;
-    write(&path, &["surface"], &written);
+    let (_dir, path) = temp_trace("t.parquet", &["surface"], &written);
     let trace = read_trace(&path).unwrap();
     assert_eq!(trace.samples.len(), 5);
     assert!(trace.samples[2].force_n.x.is_nan());
@@ -170,9 +155,7 @@ fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
 
 #[test]
 fn damaged_files_are_errors_not_panics() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.parquet");
-    write(&path, &["surface"], &samples(1200, 1));
+    let (dir, path) = temp_trace("t.parquet", &["surface"], &samples(1200, 1));
     let bytes = std::fs::read(&path).unwrap();
     let bad = dir.path().join("bad.parquet");
     std::fs::write(&bad, b"PAR1 this is not parquet").unwrap();
@@ -195,9 +178,7 @@ fn damaged_files_are_errors_not_panics() {
 /// offset in the file stays right.
 #[test]
 fn a_page_header_claiming_a_huge_page_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("t.parquet");
-    write(&path, &["surface"], &samples(1000, 1));
+    let (_dir, path) = temp_trace("t.parquet", &["surface"], &samples(1000, 1));
     let mut bytes = std::fs::read(&path).unwrap();
     let metadata = ParquetMetaDataReader::new()
         .parse_and_finish(&Bytes::from(bytes.clone()))

@@ -120,7 +120,7 @@ pub fn plot_trace(
 pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), TraceReadError> {
     let mut data = PlotData::new(width_px);
     let mut sink = |sample: &TraceSample| data.push(sample);
-    let (trace, _) = match sniff_format(path)? {
+    let (trace, _) = match crate::formats::sniff_format(path)? {
         voxhap_api::TraceFormat::Parquet => {
             crate::parquet_read::for_each_parquet_sample(path, &mut sink)?
         }
@@ -128,27 +128,6 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
         voxhap_api::TraceFormat::Mcap => crate::mcap_stream::stream_mcap_samples(path, &mut sink)?,
     };
     Ok((trace, data))
-}
-
-/// The trace's format from its first bytes (the MCAP magic, `PAR1`, else CSV), as [`crate::formats::read_trace`]
-/// chooses.
-fn sniff_format(path: &Path) -> Result<voxhap_api::TraceFormat, TraceReadError> {
-    use std::io::Read;
-    let (file, _) = crate::trace::open_trace_file(path)?;
-    let mut magic = Vec::with_capacity(8);
-    file.take(8)
-        .read_to_end(&mut magic)
-        .map_err(|source| TraceReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    Ok(if magic[..] == *mcap::MAGIC {
-        voxhap_api::TraceFormat::Mcap
-    } else if magic.starts_with(b"PAR1") {
-        voxhap_api::TraceFormat::Parquet
-    } else {
-        voxhap_api::TraceFormat::Csv
-    })
 }
 
 /// Draws a reduced trace into `out` (`.png` or `.svg`, chosen by the extension) at the given size; `trace`

@@ -7,8 +7,9 @@
 use crate::error::TraceError;
 use crate::flags::FLAG_INVALID_VALUES;
 use glam::DVec3;
-use voxhap_api::TickTruth;
+use voxhap_api::{Snapshot, TickTruth};
 use voxhap_core::haptics::modes::MAX_MODES;
+use voxhap_core::haptics::tick::TickOutput;
 
 voxhap_core::named_enum! {
     /// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
@@ -118,6 +119,30 @@ impl TraceSample {
             device_time_us: None,
             flags: 0,
             truth: TickTruth::default(),
+        }
+    }
+
+    /// The sample of a tick the servo loop published as `snapshot`, with the per-mode figures of the tick's
+    /// solve `out`; the snapshot's flags, and neither device sequence nor device clock.
+    pub fn published(snapshot: &Snapshot, out: &TickOutput) -> Self {
+        TraceSample {
+            tick: snapshot.tick,
+            t_s: snapshot.t_s,
+            probe_m: snapshot.probe_m,
+            probe_velocity_m_per_s: snapshot.probe_velocity_m_per_s,
+            proxy_m: snapshot.proxy_m,
+            rendered_force_n: snapshot.rendered_force_n,
+            force_n: snapshot.sent_force_n,
+            mode_force_n: out.mode_force_n,
+            primitives_per_mode: out.primitives_per_mode,
+            mode_count: out.mode_count,
+            solver_status: snapshot.status.into(),
+            sweeps: snapshot.sweeps,
+            error_bound_m: snapshot.error_bound_m,
+            device_sequence: None,
+            device_time_us: None,
+            flags: snapshot.flags,
+            truth: snapshot.truth,
         }
     }
 

@@ -1,9 +1,11 @@
 //! Deterministic synthetic traces for the writer and reader tests.
 
 use crate::flags::FLAG_DEVICE_NOT_ENABLED;
-use crate::meta::TraceMeta;
+use crate::meta::{TraceMeta, TraceSummary};
 use crate::sample::{SolverStatus, TraceSample};
 use glam::DVec3;
+use std::path::{Path, PathBuf};
+use voxhap_api::TraceFormat;
 use voxhap_core::haptics::modes::MAX_MODES;
 
 /// A `TraceMeta` with a fixed creation time, so files are comparable byte for byte.
@@ -18,6 +20,32 @@ pub fn meta(mode_names: &[&str]) -> TraceMeta {
     meta.created_utc = "2000-01-01T00:00:00Z".to_string();
     meta.start_utc_ns = 946_684_800_000_000_000;
     meta
+}
+
+/// Writes `data` for `modes` (with [`meta`]) to `path` in the format its ending names and finishes the file;
+/// every sample must be written.
+pub fn write_trace(path: &Path, modes: &[&str], data: &[TraceSample]) -> TraceSummary {
+    let format = TraceFormat::from_path(path);
+    let mut writer = crate::create_trace_writer(path, format, &meta(modes)).unwrap();
+    for sample in data {
+        writer.write_sample(sample).unwrap();
+    }
+    let summary = writer.finish().unwrap();
+    assert_eq!(summary.sample_count, data.len() as u64);
+    summary
+}
+
+/// A new temporary folder holding the trace `name`, written by [`write_trace`] (the folder goes when the
+/// returned guard is dropped).
+pub fn temp_trace(
+    name: &str,
+    modes: &[&str],
+    data: &[TraceSample],
+) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    write_trace(&path, modes, data);
+    (dir, path)
 }
 
 /// `count` samples of a probe circling a plane, with awkward floats (negative zero, tiny bounds,

@@ -93,19 +93,6 @@ pub(crate) fn collect_samples(
     Ok(trace)
 }
 
-/// Adds [`sidecar_warnings`] for a trace just read from `path` to its warnings.
-pub(crate) fn check_sidecar(mut trace: Trace, path: &Path, format: TraceFormat) -> Trace {
-    let found = sidecar_warnings(
-        trace.sidecar.as_ref(),
-        path,
-        format,
-        &trace.mode_names,
-        trace.samples.len() as u64,
-    );
-    trace.warnings.extend(found);
-    trace
-}
-
 /// Opens a trace (or sidecar) for reading: a regular file only, so a FIFO or a device (`replay:/dev/zero`)
 /// is refused at once instead of blocking or reading without end.
 pub(crate) fn open_trace_file(path: &Path) -> Result<(std::fs::File, u64), TraceReadError> {

@@ -559,23 +559,10 @@ impl ServoLoop {
             flags |= FLAG_DEVICE_DISCONNECTED;
         }
         let sample = TraceSample {
-            tick: tick_index,
-            t_s,
-            probe_m,
-            probe_velocity_m_per_s: probe_velocity,
-            proxy_m: out.proxy_m,
-            rendered_force_n: rendered_n,
-            force_n: device_out.sent_force_n,
-            mode_force_n: out.mode_force_n,
-            primitives_per_mode: out.primitives_per_mode,
-            mode_count: out.mode_count,
-            solver_status: out.status.into(),
-            sweeps: out.sweeps,
-            error_bound_m: out.error_bound_m,
             device_sequence: self.last_state.and_then(|s| s.sequence).map(u64::from),
             device_time_us: self.last_state.and_then(|s| s.device_time_us),
             flags,
-            truth,
+            ..TraceSample::published(&snapshot, &out)
         };
         if self.io.samples.push(sample).is_err() {
             stats.recorder_drops.fetch_add(1, Ordering::Relaxed);

@@ -168,13 +168,27 @@ impl BoundMessage {
     }
 }
 
-/// The JSON schema of [`BoundMessage`].
-pub fn bound_schema() -> serde_json::Value {
+/// The JSON schema (draft 2020-12) of a voxhap JSON message titled `title` (`voxhap.Stats`): an object with
+/// `properties`. Keywords such as `required` are the caller's to add.
+pub fn message_schema(title: &str, properties: serde_json::Value) -> serde_json::Value {
     serde_json::json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "voxhap.Bound",
+        "title": title,
         "type": "object",
-        "properties": {
+        "properties": properties
+    })
+}
+
+/// The JSON schema of a count: a whole number >= 0, described as `what`.
+pub fn count_schema(what: &str) -> serde_json::Value {
+    serde_json::json!({"type": "integer", "minimum": 0, "description": what})
+}
+
+/// The JSON schema of [`BoundMessage`].
+pub fn bound_schema() -> serde_json::Value {
+    let mut schema = message_schema(
+        "voxhap.Bound",
+        serde_json::json!({
             "tick": {"type": "integer", "minimum": 0, "description": "servo tick number"},
             "t_s": {"type": "number", "description": "tick time since the session started (s)"},
             "error_bound_m": {
@@ -187,9 +201,10 @@ pub fn bound_schema() -> serde_json::Value {
                 "enum": ["certified", "budget_exhausted", "stalled", "uncertified", "input_rejected"],
                 "description": "how the solve ended"
             }
-        },
-        "required": ["tick", "t_s", "sweeps", "status"]
-    })
+        }),
+    );
+    schema["required"] = serde_json::json!(["tick", "t_s", "sweeps", "status"]);
+    schema
 }
 
 /// `/voxhap/operating_state`: the CRTK operating state (JSON, schema `voxhap.OperatingState`) as the ROS 2
@@ -252,12 +267,9 @@ impl OperatingStateMessage {
 
 /// The JSON schema of [`OperatingStateMessage`].
 pub fn operating_state_schema() -> serde_json::Value {
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "voxhap.OperatingState",
-        "description": "CRTK operating_state",
-        "type": "object",
-        "properties": {
+    let mut schema = message_schema(
+        "voxhap.OperatingState",
+        serde_json::json!({
             "state": {"type": "string", "enum": ["ENABLED", "DISABLED", "PAUSED", "FAULT"]},
             "is_homed": {"type": "boolean", "description": "a device is connected"},
             "is_busy": {"type": "boolean", "description": "voxhap is bringing the device up, or forces ramp in"},
@@ -279,9 +291,19 @@ pub fn operating_state_schema() -> serde_json::Value {
                     "model_age_s": {"type": "number", "description": "device time since that model arrived (s)"}
                 }
             }
-        },
-        "required": ["state", "is_homed", "is_busy", "force_off_cause", "device_fault_bits", "sample_age_ticks", "energy"]
-    })
+        }),
+    );
+    schema["description"] = serde_json::json!("CRTK operating_state");
+    schema["required"] = serde_json::json!([
+        "state",
+        "is_homed",
+        "is_busy",
+        "force_off_cause",
+        "device_fault_bits",
+        "sample_age_ticks",
+        "energy"
+    ]);
+    schema
 }
 
 /// The JSON schema of the energy ledger's totals ([`TickEnergy`]; in [`EnergyReport`] with its verdicts).
@@ -338,13 +360,10 @@ pub fn stats_schema() -> serde_json::Value {
             }
         })
     };
-    let count =
-        |what: &str| serde_json::json!({"type": "integer", "minimum": 0, "description": what});
-    serde_json::json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "voxhap.Stats",
-        "type": "object",
-        "properties": {
+    let count = count_schema;
+    message_schema(
+        "voxhap.Stats",
+        serde_json::json!({
             "rate_hz": {"type": "number", "description": "servo loop rate (Hz)"},
             "ticks": count("ticks run"),
             "lateness": histogram("how late each tick started after its deadline (µs)"),
@@ -395,8 +414,8 @@ pub fn stats_schema() -> serde_json::Value {
                     "pinned_cpu": {"type": "integer", "description": "omitted = not pinned"}
                 }
             }
-        }
-    })
+        }),
+    )
 }
 
 /// A JSON message type with a JSON schema, published through the SDK's typed channels.

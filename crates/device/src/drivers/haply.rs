@@ -256,18 +256,14 @@ impl<T: ByteTransport> Haply2Diy<T> {
     pub fn new(transport: T, config: Haply2DiyConfig) -> Self {
         let reach = config.proximal_link_m + config.distal_link_m;
         let info = DeviceInfo {
-            model: String::from("Haply 2DIY"),
-            serial_number: String::new(),
             position_dof: 2,
             force_dof: 2,
-            button_count: 0,
-            workspace_min_m: DVec3::new(-reach, 0.0, 0.0),
-            workspace_max_m: DVec3::new(reach + config.base_distance_m, reach, 0.0),
             max_force_n: config.max_force_n,
-            max_stiffness_n_per_m: 1000.0,
-            max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
-            reports_velocity: false,
-            state_rates_hz: Vec::new(),
+            ..DeviceInfo::basic(
+                "Haply 2DIY",
+                DVec3::new(-reach, 0.0, 0.0),
+                DVec3::new(reach + config.base_distance_m, reach, 0.0),
+            )
         };
         Haply2Diy {
             transport,

@@ -135,18 +135,13 @@ impl<T: ReportTransport> WoodenHaptics<T> {
         kinematics.validate()?;
         let (workspace_min_m, workspace_max_m) = workspace_box_m(&kinematics);
         let info = DeviceInfo {
-            model: String::from("WoodenHaptics 1.5 (legacy HID firmware)"),
-            serial_number: String::new(),
-            position_dof: 3,
-            force_dof: 3,
-            button_count: 0,
-            workspace_min_m,
-            workspace_max_m,
             max_force_n: kinematics.max_force_n,
             max_stiffness_n_per_m: kinematics.max_stiffness_n_per_m,
-            max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
-            reports_velocity: false,
-            state_rates_hz: Vec::new(),
+            ..DeviceInfo::basic(
+                "WoodenHaptics 1.5 (legacy HID firmware)",
+                workspace_min_m,
+                workspace_max_m,
+            )
         };
         Ok(WoodenHaptics {
             transport,

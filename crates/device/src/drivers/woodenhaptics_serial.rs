@@ -404,23 +404,17 @@ fn info_for(model: Option<WoodyModel>, kinematics: &WoodyKinematics) -> DeviceIn
     // can be from the workspace origin.
     const REACH_M: f64 = 0.45;
     DeviceInfo {
-        model: model
-            .map(WoodyModel::name)
-            .unwrap_or("WoodenHaptics family (Teensy firmware)")
-            .to_owned(),
-        serial_number: String::new(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        // The box the handle can physically reach (the host rejects positions outside it): the links' full
-        // reach around the workspace origin, not the usable sphere of `radius`, which only sizes fitting.
-        workspace_min_m: DVec3::splat(-(radius + REACH_M)),
-        workspace_max_m: DVec3::splat(radius + REACH_M),
         max_force_n: kinematics.max_force_n,
         max_stiffness_n_per_m: kinematics.max_stiffness_n_per_m,
-        max_speed_m_per_s: crate::info::DEFAULT_MAX_SPEED_M_PER_S,
-        reports_velocity: false,
-        state_rates_hz: Vec::new(),
+        // The box the handle can physically reach (the host rejects positions outside it): the links' full
+        // reach around the workspace origin, not the usable sphere of `radius`, which only sizes fitting.
+        ..DeviceInfo::basic(
+            model
+                .map(WoodyModel::name)
+                .unwrap_or("WoodenHaptics family (Teensy firmware)"),
+            DVec3::splat(-(radius + REACH_M)),
+            DVec3::splat(radius + REACH_M),
+        )
     }
 }
 

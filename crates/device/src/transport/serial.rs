@@ -67,13 +67,20 @@ impl SerialTransport {
     /// Throws away both kernel queues (bytes not yet sent and bytes received), then drains what arrives
     /// meanwhile.
     pub fn purge_both(&mut self) -> Result<(), DeviceError> {
-        self.port
-            .clear(serialport::ClearBuffer::All)
-            .map_err(|_| DeviceError::Io {
-                during: "purging the serial queues",
-                kind: std::io::ErrorKind::Other,
-            })?;
+        self.clear(serialport::ClearBuffer::All, "purging the serial queues")?;
         self.discard_input()
+    }
+
+    /// Throws away the kernel's `queues`; `during` names the step in the error.
+    fn clear(
+        &mut self,
+        queues: serialport::ClearBuffer,
+        during: &'static str,
+    ) -> Result<(), DeviceError> {
+        self.port.clear(queues).map_err(|_| DeviceError::Io {
+            during,
+            kind: std::io::ErrorKind::Other,
+        })
     }
 
     /// The port's path, when it has one.
@@ -141,12 +148,10 @@ impl ByteTransport for SerialTransport {
 
     /// Clears the kernel's input queue, then drains what arrives meanwhile.
     fn discard_input(&mut self) -> Result<(), DeviceError> {
-        self.port
-            .clear(serialport::ClearBuffer::Input)
-            .map_err(|_| DeviceError::Io {
-                during: "discarding the serial input",
-                kind: std::io::ErrorKind::Other,
-            })?;
+        self.clear(
+            serialport::ClearBuffer::Input,
+            "discarding the serial input",
+        )?;
         let mut scratch = [0u8; 256];
         for _ in 0..256 {
             if self.read(&mut scratch, Duration::ZERO)? == 0 {

@@ -28,7 +28,9 @@ use super::energy::{EnergyLedger, SentShare};
 use super::external_force::ExternalForceReceiver;
 use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
-use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
+use super::passivity::{
+    CouplingTransition, LinkFollower, PassivityController, PassivityMode, PassivitySettings,
+};
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
 use super::stats::ServoStats;
@@ -133,6 +135,8 @@ pub struct ServoLoop {
     force_off: ForceOffTracker,
     /// The passivity observer and controller (crate::passivity; off unless [`ServoLoop::set_passivity`]).
     passivity: PassivityController,
+    /// The observer's pairing, following the link's delay (crate::passivity::link_delay).
+    link: LinkFollower,
     /// The share of last tick's rendered force that the safety pipeline sent (crate::energy).
     sent_share: SentShare,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
@@ -192,6 +196,7 @@ impl ServoLoop {
                 &PassivitySettings::default(),
                 0,
             ),
+            link: LinkFollower::fixed(0),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,
@@ -208,6 +213,11 @@ impl ServoLoop {
     /// applied in contact are introduced passively.
     pub fn set_passivity(&mut self, controller: PassivityController) {
         self.passivity = controller;
+    }
+
+    /// The observer's pairing follows the link's delay as `follower` says (crate::passivity::link_delay).
+    pub fn set_link_follower(&mut self, follower: LinkFollower) {
+        self.link = follower;
     }
 
     /// Adds the force `receiver` hands over to the rendered force of every tick, before the passivity
@@ -669,6 +679,13 @@ impl ServoLoop {
                     .fetch_add(1, Ordering::Relaxed);
             }
         }
+        self.link.follow(
+            &*self.device,
+            connected,
+            &mut self.passivity,
+            &self.stats.link_delay,
+            tick_index,
+        );
         if connected {
             self.caps =
                 CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)

@@ -169,7 +169,10 @@ fn link_delay(stdout: &str) -> LinkDelay {
         .to_owned();
     // The number after `before`, up to the next space or bracket.
     let after = |before: &str| -> f64 {
-        let rest = &line[line.find(before).unwrap_or_else(|| panic!("{before:?}: {line}")) + before.len()..];
+        let rest = &line[line
+            .find(before)
+            .unwrap_or_else(|| panic!("{before:?}: {line}"))
+            + before.len()..];
         rest.split([' ', ')', ','])
             .next()
             .unwrap()
@@ -285,12 +288,9 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
             .count()
     };
     // Each run's bound counts the link's depth that run: the longest round trip its driver timed, in ticks.
-    let [(on_j, on_bound), (zero_j, zero_bound), (off_j, off_bound)] = [
-        (&on, &on_link),
-        (&zero, &zero_link),
-        (&off, &off_link),
-    ]
-    .map(|(c, link)| (max_given_j(c), bound_j(c, link.worst_ticks)));
+    let [(on_j, on_bound), (zero_j, zero_bound), (off_j, off_bound)] =
+        [(&on, &on_link), (&zero, &zero_link), (&off, &off_link)]
+            .map(|(c, link)| (max_given_j(c), bound_j(c, link.worst_ticks)));
     eprintln!(
         "{notice}\ncontroller on: {}; {} cycles, {} pressing the plane, given at most {:.4} mJ, bound {:.4} mJ \
          (d = {}); told no latency: {} pressing, {:.4} mJ, bound {:.4} mJ (d = {}); off: {} pressing, {:.4} mJ, \
@@ -312,7 +312,10 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
     );
     // Every run pressed the handle into the plane with the force on (the setup did what it says; how long
     // depends on how fast the loaded machine ran the mock's cycles, so only that it did).
-    assert!(pressed(&on) > 100 && pressed(&zero) > 100 && pressed(&off) > 100);
+    assert!(
+        pressed(&on) > 100 && pressed(&zero) > 100 && pressed(&off) > 100,
+        "a run did not press the plane; serve's stderr of the controller-on run: {stderr}"
+    );
     // The derived bound (module docs), with the delay the driver actually saw during the run.
     assert!(
         on_j <= on_bound,

@@ -497,7 +497,10 @@ fn supervised_protocol_serial_exchanges_allocate_nothing() {
     // warm-up sent forces (a reconnect starts again from 0, so only that some were timed if one came).
     let timed = |device: &Reconnecting<_>| {
         let seen = device.link_delay_seen().expect("round trips timed");
-        assert!(seen.round_trips > 0 && seen.worst >= seen.typical, "{seen:?}");
+        assert!(
+            seen.round_trips > 0 && seen.worst >= seen.typical,
+            "{seen:?}"
+        );
         if device.counters().disconnects == 0 {
             assert!(seen.round_trips > SUPERVISED_WARM_UP, "{seen:?}");
         }

@@ -255,8 +255,8 @@ pub struct ServoStats {
     pub safety: SafetyStats,
     /// The energy ledger's totals, stored every tick by the servo thread (crate::energy).
     pub energy: crate::energy::EnergyStats,
-    /// The device link's delay and the passivity observer's pairing (crate::passivity::link_delay).
-    pub link_delay: crate::passivity::LinkDelayStats,
+    /// The device link's delay and the passivity observer's pairing (crate::passivity::link_stats).
+    pub link_delay: crate::passivity::link_stats::LinkDelayStats,
     realtime: Mutex<RealtimeReport>,
 }
 

@@ -298,7 +298,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
                     self.round_trips
                         .answered(state.last_force_sequence, Instant::now());
                 } else {
-                    self.live.answered(state.last_force_sequence, Instant::now());
+                    self.live
+                        .answered(state.last_force_sequence, Instant::now());
                 }
             }
             HostEvent::LocalState(local) => self.last_local = Some(local),

@@ -338,7 +338,9 @@ mod tests {
         let t0 = Instant::now();
         let mut live = LiveRoundTrips::default();
         assert_eq!(live.seen(MS), None);
-        let delays_us = [1_050, 1_100, 1_200, 1_100, 4_300, 1_100, 950, 2_000, 1_100, 1_150];
+        let delays_us = [
+            1_050, 1_100, 1_200, 1_100, 4_300, 1_100, 950, 2_000, 1_100, 1_150,
+        ];
         for (i, delay) in delays_us.iter().enumerate() {
             let sent = t0 + MS * i as u32;
             live.sent(i as u32 + 1, sent);
@@ -374,7 +376,10 @@ mod tests {
         live.answered(2, t0 + MS * 300);
         live.answered(3, t0 + MS * 300);
         let seen = live.seen(MS).unwrap();
-        assert_eq!(seen.round_trips, 2, "force 3 (255 sends back) is answered, force 2 is not");
+        assert_eq!(
+            seen.round_trips, 2,
+            "force 3 (255 sends back) is answered, force 2 is not"
+        );
         assert_eq!(seen.worst, MS * 297);
     }
 }

@@ -259,7 +259,11 @@ fn every_tick_times_the_round_trip_of_its_force() {
         let _ = driver.read_state();
     }
     // The last answers come after the ticks: drain them.
-    while driver.poll_event(Duration::from_millis(20)).unwrap().is_some() {}
+    while driver
+        .poll_event(Duration::from_millis(20))
+        .unwrap()
+        .is_some()
+    {}
     let seen = driver.link_delay_seen().expect("timed");
     assert_eq!(seen.round_trips, 10, "{seen:?}");
     assert!(

@@ -169,7 +169,8 @@ impl PassivityController {
             });
             if let Some(j) = acted {
                 // Taken once: a widened pairing meets this force again (set_latency_ticks).
-                self.pending_j = (self.pending_j - std::mem::take(&mut self.expected_j[j])).max(0.0);
+                self.pending_j =
+                    (self.pending_j - std::mem::take(&mut self.expected_j[j])).max(0.0);
             }
             let generated = work_j + reference_j - self.last_reference_j;
             let t = &mut self.totals;

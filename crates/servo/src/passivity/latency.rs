@@ -98,7 +98,10 @@ impl ObserverLatency {
             mode.name(),
             self.latency_s * 1e3
         );
-        if matches!(self.origin, LatencyOrigin::Driver(_) | LatencyOrigin::Unknown) {
+        if matches!(
+            self.origin,
+            LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
+        ) {
             notice.push_str(
                 "; while serve runs it widens to the longest round trip the driver times (the run summary's \
                  link delay line and /api/stats say when)",

@@ -1,5 +1,5 @@
 //! The observer's pairing while the servo runs ([`LinkFollower`]): it follows the link's delay as the
-//! device's driver times it on every tick, and the statistics that report it ([`LinkDelayStats`]).
+//! device's driver times it on every tick, into the statistics that report it ([`LinkDelayStats`]).
 //!
 //! **Why follow.** The pairing chosen at start ([`super::latency::ObserverLatency`]) is the driver's figure
 //! at open: for voxhap's protocol driver, a few dozen round trips timed before the servo ran. The delay a
@@ -25,11 +25,9 @@
 
 use super::controller::PassivityController;
 use super::latency::{LatencyOrigin, ObserverLatency};
+use super::link_stats::LinkDelayStats;
 use super::settings::{ticks_of, MAX_LATENCY_TICKS};
 use crate::device::ServoDevice;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
-use voxhap_api::LinkDelayReport;
 use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 
 /// What changed the observer's pairing.
@@ -128,96 +126,6 @@ impl LinkFollower {
             stats.changed(tick);
         }
         stats.tick(self.ticks, seen);
-    }
-}
-
-/// The link delay's statistics: atomics the servo thread stores each tick ([`LinkFollower::follow`]) and any
-/// thread reports ([`LinkDelayStats::report`]).
-#[derive(Debug)]
-pub struct LinkDelayStats {
-    observer_ticks: AtomicU64,
-    observer_changes: AtomicU64,
-    last_change_tick: AtomicU64,
-    declared_ns: AtomicU64,
-    round_trips: AtomicU64,
-    typical_ns: AtomicU64,
-    worst_ns: AtomicU64,
-    worst_ticks: AtomicU64,
-    period_ns: AtomicU64,
-}
-
-impl Default for LinkDelayStats {
-    fn default() -> Self {
-        LinkDelayStats {
-            observer_ticks: AtomicU64::new(0),
-            observer_changes: AtomicU64::new(0),
-            last_change_tick: AtomicU64::new(0),
-            declared_ns: AtomicU64::new(0),
-            round_trips: AtomicU64::new(0),
-            typical_ns: AtomicU64::new(0),
-            worst_ns: AtomicU64::new(0),
-            worst_ticks: AtomicU64::new(0),
-            period_ns: AtomicU64::new(0),
-        }
-    }
-}
-
-fn nanos(d: Duration) -> u64 {
-    u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
-}
-
-impl LinkDelayStats {
-    /// The session's start: the pairing chosen, the driver's figure at open and the servo period.
-    pub fn start(&self, ticks: usize, declared: Option<LinkLatency>, period_s: f64) {
-        self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
-        self.declared(declared);
-        self.period_ns
-            .store((period_s * 1e9).round() as u64, Ordering::Relaxed);
-    }
-
-    fn declared(&self, declared: Option<LinkLatency>) {
-        let ns = declared.map_or(0, |l| nanos(l.worst));
-        self.declared_ns.store(ns, Ordering::Relaxed);
-    }
-
-    fn changed(&self, tick: u64) {
-        self.observer_changes.fetch_add(1, Ordering::Relaxed);
-        self.last_change_tick.store(tick, Ordering::Relaxed);
-    }
-
-    fn tick(&self, ticks: usize, seen: Option<LinkDelaySeen>) {
-        self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
-        // Between connections the last one's figures stay (the next open's replace them).
-        let Some(seen) = seen else {
-            return;
-        };
-        self.round_trips.store(seen.round_trips, Ordering::Relaxed);
-        self.typical_ns
-            .store(nanos(seen.typical), Ordering::Relaxed);
-        self.worst_ns.fetch_max(nanos(seen.worst), Ordering::Relaxed);
-        self.worst_ticks
-            .fetch_max(u64::from(seen.worst_ticks()), Ordering::Relaxed);
-    }
-
-    /// What `/api/stats` and the run summary show.
-    pub fn report(&self) -> LinkDelayReport {
-        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
-        let ms = |ns: u64| ns as f64 * 1e-6;
-        let changes = load(&self.observer_changes);
-        LinkDelayReport {
-            observer_ticks: load(&self.observer_ticks),
-            observer_changes: changes,
-            last_change_t_s: if changes > 0 {
-                load(&self.last_change_tick) as f64 * load(&self.period_ns) as f64 * 1e-9
-            } else {
-                0.0
-            },
-            declared_ms: ms(load(&self.declared_ns)),
-            round_trips: load(&self.round_trips),
-            typical_ms: ms(load(&self.typical_ns)),
-            worst_ms: ms(load(&self.worst_ns)),
-            worst_ticks: load(&self.worst_ticks),
-        }
     }
 }
 

@@ -1,7 +1,8 @@
-use super::*;
 use super::super::settings::{PassivityMode, PassivitySettings};
+use super::*;
 use glam::DVec3;
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 use std::sync::Arc;
 use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};

@@ -15,11 +15,13 @@
 pub mod controller;
 pub mod latency;
 pub mod link_delay;
+pub mod link_stats;
 pub mod settings;
 pub mod transition;
 
 pub use controller::{PassivityController, PassivityTotals, MAX_LATENCY_TICKS};
 pub use latency::{LatencyOrigin, ObserverLatency};
-pub use link_delay::{LinkDelayStats, LinkFollower, PairingChange};
+pub use link_delay::{LinkFollower, PairingChange};
+pub use link_stats::LinkDelayStats;
 pub use settings::{PassivityMode, PassivitySettings, PassivitySettingsError};
 pub use transition::CouplingTransition;

@@ -1,39 +1,19 @@
+use super::super::test_link::LinkDouble;
 use super::*;
 use crate::device::ServoDevice;
 use glam::DVec3;
 use std::time::Duration;
 use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
-use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use voxhap_device::DeviceInfo;
 
-/// A driver that declares `latency`, or none.
-struct Declaring {
-    info: DeviceInfo,
-    latency: Option<LinkLatency>,
-}
-
-impl HapticDevice for Declaring {
-    type Error = DeviceError;
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-    fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
-        Ok(())
-    }
-    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        Ok(DeviceState::at_rest(DVec3::ZERO))
-    }
-    fn link_latency(&self) -> Option<LinkLatency> {
-        self.latency
-    }
-}
-
-/// What a supervisor over a `Declaring` driver hands `serve` once connected (`None` before).
+/// What a supervisor over a [`LinkDouble`] driver hands `serve` once connected (`None` before).
 fn through_the_supervisor(latency: Option<LinkLatency>) -> Option<LinkLatency> {
     let info = DeviceInfo::basic("declaring", DVec3::splat(-0.1), DVec3::splat(0.1));
     let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
-        Ok(Declaring {
+        Ok(LinkDouble {
             info: info.clone(),
             latency,
+            worst_us: Default::default(),
         })
     })
     .unwrap();

@@ -1,11 +1,12 @@
 use super::super::settings::{PassivityMode, PassivitySettings};
+use super::super::test_link::LinkDouble;
 use super::*;
 use glam::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
 use std::sync::Arc;
+use std::time::Duration;
 use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
-use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use voxhap_device::DeviceInfo;
 
 const US: Duration = Duration::from_micros(1);
 const MS: Duration = Duration::from_millis(1);
@@ -104,34 +105,6 @@ fn a_widened_controller_pairs_each_step_with_the_force_sent_that_much_earlier() 
     assert_eq!(controller.latency_ticks_now(), MAX_LATENCY_TICKS);
 }
 
-/// A driver whose round trips seen are what the test stores (the longest, µs; 0: none yet).
-struct Timed {
-    info: DeviceInfo,
-    worst_us: Arc<AtomicU64>,
-}
-
-impl HapticDevice for Timed {
-    type Error = DeviceError;
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-    fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
-        Ok(())
-    }
-    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        Ok(DeviceState::at_rest(DVec3::ZERO))
-    }
-    fn link_latency(&self) -> Option<LinkLatency> {
-        Some(at_open(US * 1_200))
-    }
-    fn link_delay_seen(&self) -> Option<LinkDelaySeen> {
-        match self.worst_us.load(Ordering::Relaxed) {
-            0 => None,
-            us => seen(US * us as u32),
-        }
-    }
-}
-
 /// Through the supervisor, as the servo loop calls it each tick: connected at tick 0 with the driver's
 /// 1.2 ms (2 ticks, no change from the start); a 4.3 ms round trip seen at tick 7 widens the controller's
 /// pairing to 5 ticks, and the statistics say so: one change, at 7 ms (tick 7 at 1 kHz), the worst round
@@ -142,8 +115,9 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
     let shared = worst_us.clone();
     let info = DeviceInfo::basic("timed", DVec3::splat(-0.1), DVec3::splat(0.1));
     let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
-        Ok(Timed {
+        Ok(LinkDouble {
             info: info.clone(),
+            latency: Some(at_open(US * 1_200)),
             worst_us: shared.clone(),
         })
     })

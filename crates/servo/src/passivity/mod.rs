@@ -17,6 +17,8 @@ pub mod latency;
 pub mod link_delay;
 pub mod link_stats;
 pub mod settings;
+#[cfg(test)]
+mod test_link;
 pub mod transition;
 
 pub use controller::{PassivityController, PassivityTotals, MAX_LATENCY_TICKS};

@@ -351,6 +351,16 @@ fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
     warm_up: u64,
     ticks: u64,
 ) -> u64 {
+    supervised_ticks_allocate_then(driver, warm_up, ticks, |_| {})
+}
+
+/// [`supervised_ticks_allocate`], handing the device to `then` after the counted exchanges (before it stops).
+fn supervised_ticks_allocate_then<D: HapticDevice + Send + 'static>(
+    driver: D,
+    warm_up: u64,
+    ticks: u64,
+    then: impl FnOnce(&Reconnecting<D>),
+) -> u64 {
     let mut slot = Some(driver);
     let mut device = Reconnecting::new(
         SupervisorConfig::default(),
@@ -399,6 +409,7 @@ fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
         connected, ticks,
         "only {connected} of {total} exchanges had a connected device"
     );
+    then(&device);
     device.stop();
     allocations
 }
@@ -482,8 +493,20 @@ fn supervised_protocol_serial_exchanges_allocate_nothing() {
         }
     });
     let driver = ProtocolDevice::new(SerialLink::new(host), ProtocolConfig::default());
+    // The per-tick round-trip timing ran in the counted exchanges: the driver timed more round trips than the
+    // warm-up sent forces (a reconnect starts again from 0, so only that some were timed if one came).
+    let timed = |device: &Reconnecting<_>| {
+        let seen = device.link_delay_seen().expect("round trips timed");
+        assert!(
+            seen.round_trips > 0 && seen.worst >= seen.typical,
+            "{seen:?}"
+        );
+        if device.counters().disconnects == 0 {
+            assert!(seen.round_trips > SUPERVISED_WARM_UP, "{seen:?}");
+        }
+    };
     assert_eq!(
-        supervised_ticks_allocate(driver, SUPERVISED_WARM_UP, 1000),
+        supervised_ticks_allocate_then(driver, SUPERVISED_WARM_UP, 1000, timed),
         0
     );
     stop.store(true, Ordering::Release);

@@ -11,9 +11,11 @@
 //! against the real session and knows nothing about threads or rings.
 
 pub mod folders;
+pub mod link_delay;
 pub mod slice;
 pub mod truth;
 
+pub use link_delay::LinkDelayReport;
 pub use truth::{
     crtk_operating_state, DeviceLocal, EnergyReport, ForceOffCause, TickEnergy, TickTruth,
 };
@@ -199,6 +201,8 @@ pub struct StatsReport {
     pub safety: SafetyReport,
     /// The energy ledger's totals and verdicts so far ([`truth`]).
     pub energy: EnergyReport,
+    /// The device link's delay: declared at open, timed every tick, and the observer's pairing ([`link_delay`]).
+    pub link_delay: LinkDelayReport,
 }
 
 /// The safety side of the statistics: where the output stands and what every safety rule did so far.
@@ -312,6 +316,7 @@ impl StatsReport {
             safety.device_surplus,
         );
         text += &self.energy.summary();
+        text += &self.link_delay.summary();
         text += &self.realtime.summary();
         text
     }

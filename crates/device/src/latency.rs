@@ -39,12 +39,43 @@ impl LinkLatency {
 
     /// The worst delay in whole servo ticks of `period` (rounded up; 0 for a zero period).
     pub fn worst_ticks(&self, period: Duration) -> u32 {
-        if period.is_zero() {
-            return 0;
-        }
-        let ticks = self.worst.as_nanos().div_ceil(period.as_nanos());
-        u32::try_from(ticks).unwrap_or(u32::MAX)
+        whole_ticks(self.worst, period)
     }
+}
+
+/// The round trips a driver timed on every servo tick since it was last opened (voxhap's protocol driver:
+/// `crate::drivers::protocol`, "Link latency"): what the link's delay really was during the run, where
+/// [`LinkLatency`] is what was declared at open.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkDelaySeen {
+    /// The median round trip, rounded up to 0.1 ms.
+    pub typical: Duration,
+    /// The longest round trip.
+    pub worst: Duration,
+    /// How many round trips were timed.
+    pub round_trips: u64,
+    /// The servo period the ticks below count.
+    pub period: Duration,
+}
+
+impl LinkDelaySeen {
+    /// The longest round trip in whole servo ticks, rounded up (0 for a zero period).
+    pub fn worst_ticks(&self) -> u32 {
+        whole_ticks(self.worst, self.period)
+    }
+
+    /// The median round trip in whole servo ticks, rounded up (0 for a zero period).
+    pub fn typical_ticks(&self) -> u32 {
+        whole_ticks(self.typical, self.period)
+    }
+}
+
+/// `delay` in whole ticks of `period`, rounded up; 0 for a zero period.
+fn whole_ticks(delay: Duration, period: Duration) -> u32 {
+    if period.is_zero() {
+        return 0;
+    }
+    u32::try_from(delay.as_nanos().div_ceil(period.as_nanos())).unwrap_or(u32::MAX)
 }
 
 /// Novint Falcon on `ftdi_sio`: the 16-byte reply is shorter than the FTDI chip's 62-byte packet payload, so

@@ -187,6 +187,13 @@ where
             .and_then(|device| device.device().link_latency())
     }
 
+    /// The round trips the connected device's driver timed on every tick since it opened
+    /// ([`crate::latency::LinkDelaySeen`]), `None` when none is connected or its driver times none.
+    pub fn link_delay_seen(&self) -> Option<crate::latency::LinkDelaySeen> {
+        self.device()
+            .and_then(|device| device.device().link_delay_seen())
+    }
+
     /// True while a device is connected.
     pub fn is_connected(&self) -> bool {
         self.device.is_some()

@@ -123,6 +123,13 @@ pub trait HapticDevice {
         None
     }
 
+    /// The round trips this driver timed on every tick since it was last opened ([`crate::latency`]): what
+    /// the link's delay was during the run. `None` when the driver times none (only voxhap's protocol driver
+    /// does) or before the first. Allocation-free.
+    fn link_delay_seen(&self) -> Option<crate::latency::LinkDelaySeen> {
+        None
+    }
+
     /// A handle that brings the device to zero force from another thread, used by the stall monitor when
     /// the servo thread stops ticking (see `servo::monitor`). `None` when the driver has no such path; the
     /// device's own watchdog is then the only stop while the servo thread is stalled. Called off the servo

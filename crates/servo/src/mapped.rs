@@ -150,6 +150,10 @@ impl ServoDevice for MappedDevice {
         self.inner.link_latency()
     }
 
+    fn link_delay_seen(&self) -> Option<voxhap_device::latency::LinkDelaySeen> {
+        self.inner.link_delay_seen()
+    }
+
     fn reported_force_n(&self) -> Option<DVec3> {
         self.inner
             .reported_force_n()

@@ -28,7 +28,9 @@ use super::energy::{EnergyLedger, SentShare};
 use super::external_force::ExternalForceReceiver;
 use super::force_off::ForceOffTracker;
 use super::monitor::DeviceReport;
-use super::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivitySettings};
+use super::passivity::{
+    CouplingTransition, LinkFollower, PassivityController, PassivityMode, PassivitySettings,
+};
 use super::schedule::{Schedule, Waiter};
 use super::setup::SceneBundle;
 use super::stats::ServoStats;
@@ -135,6 +137,8 @@ pub struct ServoLoop {
     passivity: PassivityController,
     /// What a capable device's own passivity observer and controller run (crate::local_model).
     local_passivity: voxhap_device::local_offer::PassivityOffer,
+    /// The observer's pairing, following the link's delay (crate::passivity::link_delay).
+    link: LinkFollower,
     /// The share of last tick's rendered force that the safety pipeline sent (crate::energy).
     sent_share: SentShare,
     /// The passive introduction of a change applied in contact (crate::passivity::transition).
@@ -195,6 +199,7 @@ impl ServoLoop {
                 0,
             ),
             local_passivity: voxhap_device::local_offer::PassivityOffer::default(),
+            link: LinkFollower::fixed(0),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,
@@ -217,6 +222,11 @@ impl ServoLoop {
     /// `[passivity]` mode and most damping; protocol/SPEC.md section 10.5 step 4b). Off unless set.
     pub fn set_local_passivity(&mut self, request: voxhap_device::local_offer::PassivityOffer) {
         self.local_passivity = request;
+    }
+
+    /// The observer's pairing follows the link's delay as `follower` says (crate::passivity::link_delay).
+    pub fn set_link_follower(&mut self, follower: LinkFollower) {
+        self.link = follower;
     }
 
     /// Adds the force `receiver` hands over to the rendered force of every tick, before the passivity
@@ -666,6 +676,13 @@ impl ServoLoop {
                     .fetch_add(1, Ordering::Relaxed);
             }
         }
+        self.link.follow(
+            &*self.device,
+            connected,
+            &mut self.passivity,
+            &self.stats.link_delay,
+            tick_index,
+        );
         if connected {
             self.caps =
                 CouplingCaps::new(self.device.max_stiffness_n_per_m().unwrap_or(0.0), period_s)

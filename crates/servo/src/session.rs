@@ -26,7 +26,7 @@ use super::device::{
 use super::external_force;
 use super::join::join_within;
 use super::monitor::{Monitor, MonitorConfig, StopSlot, EVENT_RING};
-use super::passivity::{ObserverLatency, PassivityController};
+use super::passivity::{LinkFollower, ObserverLatency, PassivityController};
 use super::recorder::{run_recorder, RecorderError, RecorderRequest, SCENE_FRAME_RING};
 use super::rt::{self, RtMode, RtRefused};
 use super::runner::{LoopIo, LoopTiming, ServoLoop};
@@ -270,6 +270,7 @@ impl Session {
         // A device rendering local models runs the same mode on its own loop (crate::local_model).
         let local_passivity =
             crate::local_model::passivity_request(passivity_mode, &setup.passivity);
+        let link_follower = LinkFollower::new(&latency, period_s);
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);
@@ -278,6 +279,9 @@ impl Session {
         let (frame_tx, frame_rx) = rtrb::RingBuffer::new(SCENE_FRAME_RING);
         let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
         let stats = Arc::new(ServoStats::new(config.rate_hz));
+        stats
+            .link_delay
+            .start(latency.ticks, device.link_latency(), period_s);
         let (external_sender, external_receiver) = match config.external_force_timeout {
             Some(timeout) => {
                 let (sender, receiver) = external_force::channel(timeout, period_ns);
@@ -374,6 +378,7 @@ impl Session {
                 );
                 servo.set_passivity(passivity);
                 servo.set_local_passivity(local_passivity);
+                servo.set_link_follower(link_follower);
                 if let Some(receiver) = external_receiver {
                     servo.set_external_force(receiver);
                 }

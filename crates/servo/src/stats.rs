@@ -255,6 +255,8 @@ pub struct ServoStats {
     pub safety: SafetyStats,
     /// The energy ledger's totals, stored every tick by the servo thread (crate::energy).
     pub energy: crate::energy::EnergyStats,
+    /// The device link's delay and the passivity observer's pairing (crate::passivity::link_stats).
+    pub link_delay: crate::passivity::link_stats::LinkDelayStats,
     realtime: Mutex<RealtimeReport>,
 }
 
@@ -324,6 +326,7 @@ impl ServoStats {
             realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
             safety: self.safety_report(),
             energy: self.energy.load().report(),
+            link_delay: self.link_delay.report(),
         }
     }
 

@@ -44,8 +44,11 @@
 //!   trip and then `latency_probes` more zero forces in lockstep (64 for a servo loop,
 //!   [`ProtocolConfig::for_period`]), each waiting at most `hello_timeout` for the State echoing it, fewer
 //!   when open's deadline comes or three in a row go unanswered (a lost answer never fails open). It
-//!   declares the 95th percentile rounded up to 0.1 ms as the worst case ([`HapticDevice::link_latency`];
-//!   the method and why no wire time is added: `protocol_latency.rs`). Each open measures again.
+//!   declares the 95th percentile, at most the median plus one servo period, rounded up to 0.1 ms, as the
+//!   worst case ([`HapticDevice::link_latency`]; the method, the cap and why no wire time is added:
+//!   `protocol_latency.rs`). Each open measures again. After open, every SetForce and LocalModel the servo
+//!   writes is timed to the first State echoing it, in a fixed histogram ([`HapticDevice::link_delay_seen`]:
+//!   the median and the longest round trip since the open, in seconds and servo ticks).
 //!
 //! Per tick nothing allocates: frames are built on the stack and decoded by the crate's fixed-size decoder.
 
@@ -65,7 +68,7 @@ pub use config::{
 };
 use convert::{convert_info, convert_state, placeholder_info, to_dvec3};
 use glam::DVec3;
-use latency::RoundTrips;
+use latency::{LiveRoundTrips, RoundTrips};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 use voxhap_protocol::{
@@ -154,6 +157,8 @@ pub struct ProtocolDevice<L> {
     round_trips: RoundTrips,
     /// The link latency the last open measured.
     measured_latency: Option<crate::latency::LinkLatency>,
+    /// The round trip of every force the servo sent since the last open (module docs, "Link latency").
+    live: LiveRoundTrips,
 }
 
 impl<L: MessageLink> ProtocolDevice<L> {
@@ -179,6 +184,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
             open_deadline: None,
             round_trips: RoundTrips::default(),
             measured_latency: None,
+            live: LiveRoundTrips::default(),
         }
     }
 
@@ -290,6 +296,9 @@ impl<L: MessageLink> ProtocolDevice<L> {
                 self.counters.states_lost += u64::from(lost);
                 if self.open_deadline.is_some() {
                     self.round_trips
+                        .answered(state.last_force_sequence, Instant::now());
+                } else {
+                    self.live
                         .answered(state.last_force_sequence, Instant::now());
                 }
             }
@@ -434,6 +443,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
         self.state_rate_hz = 0;
         self.state_age_ticks = 0;
         self.round_trips.clear();
+        self.live.clear();
         self.measured_latency = None;
         self.handshake()?;
         self.choose_state_rate()?;
@@ -441,7 +451,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
         // enabling. Open runs off the servo thread, so it waits with the handshake's patience, not a tick's.
         self.first_state()?;
         self.measure_latency()?;
-        self.measured_latency = self.round_trips.latency();
+        self.measured_latency = self.round_trips.latency(self.config.period);
         Ok(())
     }
 
@@ -574,6 +584,8 @@ impl<L: MessageLink> ProtocolDevice<L> {
             self.last_sent_sequence = set_force.sequence;
             if self.open_deadline.is_some() {
                 self.round_trips.sent(set_force.sequence, Instant::now());
+            } else {
+                self.live.sent(set_force.sequence, Instant::now());
             }
         }
         self.link.send(&message)
@@ -645,6 +657,11 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
         self.measured_latency
     }
 
+    /// Timed on every tick since the last open (module docs, "Link latency").
+    fn link_delay_seen(&self) -> Option<crate::latency::LinkDelaySeen> {
+        self.live.seen(self.config.period)
+    }
+
     fn local_model_capable(&self) -> bool {
         self.local_capable
     }
@@ -660,6 +677,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
             Ok(message) => {
                 if let HostToDevice::LocalModel(sent) = &message {
                     self.last_sent_sequence = sent.sequence;
+                    self.live.sent(sent.sequence, Instant::now());
                 }
                 self.link.send(&message)
             }

@@ -242,3 +242,35 @@ fn no_probes_by_default_and_lost_answers_do_not_fail_open() {
     assert_eq!(driver.link().states, 4, "the first State and three probes");
     assert_eq!(driver.link_latency().unwrap().round_trips, 1);
 }
+
+/// Every force the servo sends after open is timed to the State echoing it: ten ticks over a link that
+/// holds each reply 2 ms give ten round trips, none shorter than the 2 ms (a reply cannot come before the
+/// link released it, whatever the machine's load), the longest at least 2 ms, 2 ticks or more at 1 kHz. A
+/// new open forgets them (the next connection's delay is its own).
+#[test]
+fn every_tick_times_the_round_trip_of_its_force() {
+    let delay = Duration::from_millis(2);
+    let mut driver = open_delayed(Delayed::new(DeviceSession::new(info(1)), delay), 0);
+    assert_eq!(driver.link_delay_seen(), None, "open's probes are not live");
+    for tick in 0..10 {
+        driver
+            .write_force(glam::DVec3::new(0.0, 0.0, 0.1 * f64::from(tick)))
+            .unwrap();
+        let _ = driver.read_state();
+    }
+    // The last answers come after the ticks: drain them.
+    while driver
+        .poll_event(Duration::from_millis(20))
+        .unwrap()
+        .is_some()
+    {}
+    let seen = driver.link_delay_seen().expect("timed");
+    assert_eq!(seen.round_trips, 10, "{seen:?}");
+    assert!(
+        seen.typical >= delay && seen.worst >= seen.typical,
+        "{seen:?}"
+    );
+    assert!(seen.worst_ticks() >= 2 && seen.period == Duration::from_millis(1));
+    driver.open().unwrap();
+    assert_eq!(driver.link_delay_seen(), None);
+}

@@ -335,6 +335,10 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         self.supervisor.link_latency()
     }
 
+    fn link_delay_seen(&self) -> Option<voxhap_device::latency::LinkDelaySeen> {
+        self.supervisor.link_delay_seen()
+    }
+
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {
         self.supervisor.request_clear_fault()
     }

@@ -4,7 +4,7 @@ use super::error::ConnectError;
 use crate::monitor::StopSlot;
 use glam::DVec3;
 use std::sync::Arc;
-use voxhap_device::latency::LinkLatency;
+use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_device::plausibility::InputCounters;
 use voxhap_device::supervisor::{
@@ -61,6 +61,12 @@ pub trait ServoDevice: Send {
     fn link_latency(&self) -> Option<LinkLatency> {
         None
     }
+    /// The round trips the connected device's driver timed on every tick since it opened
+    /// (`HapticDevice::link_delay_seen`), `None` when none is connected or the driver times none: the delay the
+    /// link really had, which the passivity observer's pairing follows. Allocation-free.
+    fn link_delay_seen(&self) -> Option<LinkDelaySeen> {
+        None
+    }
     /// The force the connected device reports reached the arm with its last state (N;
     /// `HapticDevice::reported_force_n`), `None` when it reports none. Allocation-free.
     fn reported_force_n(&self) -> Option<DVec3> {
@@ -104,6 +110,10 @@ where
 
     fn link_latency(&self) -> Option<LinkLatency> {
         Supervisor::link_latency(self)
+    }
+
+    fn link_delay_seen(&self) -> Option<LinkDelaySeen> {
+        Supervisor::link_delay_seen(self)
     }
 
     fn request_clear_fault(&mut self) -> ClearFaultOutcome {

@@ -128,6 +128,20 @@ impl PassivityController {
         self.mode
     }
 
+    /// The latency it pairs with now (ticks).
+    pub fn latency_ticks_now(&self) -> usize {
+        self.latency_ticks
+    }
+
+    /// Pairs with `latency_ticks` from the next tick on (at most [`MAX_LATENCY_TICKS`]; the forces of the last
+    /// [`MAX_LATENCY_TICKS`] ticks are kept, so any pairing finds its force): the link's delay changed
+    /// ([`super::link_delay`]). Widened from `d` to `d'`, the steps of the next `d' - d` ticks are paired with
+    /// forces already paired once (the delay grew: those forces acted longer); narrowed, the forces of
+    /// `d - d'` ticks are paired with no step (a new connection: they acted on the old one).
+    pub fn set_latency_ticks(&mut self, latency_ticks: usize) {
+        self.latency_ticks = latency_ticks.min(MAX_LATENCY_TICKS);
+    }
+
     /// Whole ticks from a latency in seconds at period `dt_s`, rounded up ([`super::settings::ticks_of`]).
     pub fn latency_ticks(latency_s: f64, dt_s: f64) -> usize {
         super::settings::ticks_of(latency_s, dt_s)
@@ -154,7 +168,9 @@ impl PassivityController {
                 (self.sent_n[j].dot(dx), self.control_n[j].dot(dx))
             });
             if let Some(j) = acted {
-                self.pending_j = (self.pending_j - self.expected_j[j]).max(0.0);
+                // Taken once: a widened pairing meets this force again (set_latency_ticks).
+                self.pending_j =
+                    (self.pending_j - std::mem::take(&mut self.expected_j[j])).max(0.0);
             }
             let generated = work_j + reference_j - self.last_reference_j;
             let t = &mut self.totals;

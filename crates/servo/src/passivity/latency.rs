@@ -5,7 +5,9 @@
 //! the simulated arm, its `[arm] latency_s`; else the link latency the device's driver declares, its worst
 //! case (a vendor driver's documented figure, or what voxhap's protocol driver measured on the link at open);
 //! else 0. The observer pairs at most [`MAX_LATENCY_TICKS`]: a longer latency is booked as that many ticks,
-//! and the notice says the controller cannot then be relied on.
+//! and the notice says the controller cannot then be relied on. This is the pairing at start: while the
+//! servo runs, a pairing from the driver follows the round trips the driver times on every tick and a
+//! reconnect's new measurement ([`super::link_delay`]); the notice says so.
 
 use super::settings::{ticks_of, PassivityMode, PassivitySettings, MAX_LATENCY_TICKS};
 use voxhap_device::latency::LinkLatency;
@@ -76,7 +78,8 @@ impl ObserverLatency {
             LatencyOrigin::SimulatedArm => return None,
             LatencyOrigin::Driver(link) if link.round_trips > 0 => format!(
                 "the link latency device {device}'s driver measured at open: the 95th percentile of {} round \
-                 trips from a zero force to the State echoing it, rounded up to 0.1 ms (median {:.3} ms)",
+                 trips from a zero force to the State echoing it, at most their median plus one servo period, \
+                 rounded up to 0.1 ms (median {:.3} ms)",
                 link.round_trips,
                 link.typical.as_secs_f64() * 1e3
             ),
@@ -95,6 +98,15 @@ impl ObserverLatency {
             mode.name(),
             self.latency_s * 1e3
         );
+        if matches!(
+            self.origin,
+            LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
+        ) {
+            notice.push_str(
+                "; while serve runs it widens to the longest round trip the driver times (the run summary's \
+                 link delay line and /api/stats say when)",
+            );
+        }
         if self.beyond_observer {
             notice.push_str(&format!(
                 "; that is more than the {MAX_LATENCY_TICKS} ticks the observer pairs, so it books the energy \

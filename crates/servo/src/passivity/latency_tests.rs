@@ -1,39 +1,19 @@
+use super::super::test_link::LinkDouble;
 use super::*;
 use crate::device::ServoDevice;
 use glam::DVec3;
 use std::time::Duration;
 use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
-use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+use voxhap_device::DeviceInfo;
 
-/// A driver that declares `latency`, or none.
-struct Declaring {
-    info: DeviceInfo,
-    latency: Option<LinkLatency>,
-}
-
-impl HapticDevice for Declaring {
-    type Error = DeviceError;
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-    fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
-        Ok(())
-    }
-    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        Ok(DeviceState::at_rest(DVec3::ZERO))
-    }
-    fn link_latency(&self) -> Option<LinkLatency> {
-        self.latency
-    }
-}
-
-/// What a supervisor over a `Declaring` driver hands `serve` once connected (`None` before).
+/// What a supervisor over a [`LinkDouble`] driver hands `serve` once connected (`None` before).
 fn through_the_supervisor(latency: Option<LinkLatency>) -> Option<LinkLatency> {
     let info = DeviceInfo::basic("declaring", DVec3::splat(-0.1), DVec3::splat(0.1));
     let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
-        Ok(Declaring {
+        Ok(LinkDouble {
             info: info.clone(),
             latency,
+            worst_us: Default::default(),
         })
     })
     .unwrap();
@@ -95,7 +75,9 @@ fn the_notice_names_where_the_latency_came_from() {
         measured.notice(PassivityMode::Control, "mock:/dev/pts/9", 1000.0).unwrap(),
         "passivity control: the observer pairs each force with the motion 2 ticks later (1.200 ms at 1000 Hz), \
          from the link latency device mock:/dev/pts/9's driver measured at open: the 95th percentile of 65 \
-         round trips from a zero force to the State echoing it, rounded up to 0.1 ms (median 1.050 ms)"
+         round trips from a zero force to the State echoing it, at most their median plus one servo period, \
+         rounded up to 0.1 ms (median 1.050 ms); while serve runs it widens to the longest round trip the \
+         driver times (the run summary's link delay line and /api/stats say when)"
     );
     let falcon =
         ObserverLatency::choose(&settings, None, Some(voxhap_device::latency::FALCON), 1e-3);

@@ -14,10 +14,16 @@
 
 pub mod controller;
 pub mod latency;
+pub mod link_delay;
+pub mod link_stats;
 pub mod settings;
+#[cfg(test)]
+mod test_link;
 pub mod transition;
 
 pub use controller::{PassivityController, PassivityTotals, MAX_LATENCY_TICKS};
 pub use latency::{LatencyOrigin, ObserverLatency};
+pub use link_delay::{LinkFollower, PairingChange};
+pub use link_stats::LinkDelayStats;
 pub use settings::{PassivityMode, PassivitySettings, PassivitySettingsError};
 pub use transition::CouplingTransition;

@@ -1,0 +1,134 @@
+//! The observer's pairing while the servo runs ([`LinkFollower`]): it follows the link's delay as the
+//! device's driver times it on every tick, into the statistics that report it ([`LinkDelayStats`]).
+//!
+//! **Why follow.** The pairing chosen at start ([`super::latency::ObserverLatency`]) is the driver's figure
+//! at open: for voxhap's protocol driver, a few dozen round trips timed before the servo ran. The delay a
+//! loaded host really gives can exceed it, and an observer that pairs each step with a force sent `d` ticks
+//! before, while the force that acted was sent earlier, books less than the delayed loop generated
+//! ([`super::controller`], "Latency": `sin(w (d + 1/2) T)` falls as the pairing falls short of the delay).
+//! So while the observer's latency comes from the driver, each tick reads the round trips the driver timed
+//! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and, when the
+//! longest of them in whole ticks (rounded up) exceeds the pairing, widens the pairing to it, at most
+//! [`MAX_LATENCY_TICKS`]. It never narrows within a connection: the longest delay seen may come again. A
+//! reconnect opens a new driver, whose open measures the link again: that figure replaces the pairing (it may
+//! be shorter), and the new connection's round trips are followed from there.
+//!
+//! A scene that writes `[passivity] latency_s`, and the simulated arm's `[arm] latency_s`, fix the pairing:
+//! the user said what it is, and a test that tells the observer a wrong latency must get what it asked for.
+//!
+//! The longest round trip is a worst case in whole ticks, so the pairing errs long, the safe side for
+//! oscillations slower than a quarter period per delay ([`super::controller`], "Latency"). A single stall of
+//! the host (descheduled between a write and the read that decodes its answer) counts too: the force written
+//! before the stall did act on the arm over every device cycle of it.
+//!
+//! Real-time: a few comparisons and relaxed atomic stores per tick; no allocation, no lock.
+
+use super::controller::PassivityController;
+use super::latency::{LatencyOrigin, ObserverLatency};
+use super::link_stats::LinkDelayStats;
+use super::settings::{ticks_of, MAX_LATENCY_TICKS};
+use crate::device::ServoDevice;
+use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
+
+/// What changed the observer's pairing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PairingChange {
+    /// A round trip longer than the pairing was timed: widened to it.
+    Widened { from: usize, to: usize },
+    /// A device (re)connected: its driver's figure at open replaced the pairing.
+    Reconnected { from: usize, to: usize },
+}
+
+/// The observer's pairing in ticks, following the link (module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkFollower {
+    follows_driver: bool,
+    period_s: f64,
+    ticks: usize,
+}
+
+impl LinkFollower {
+    /// Follows the driver's figures when `latency` came from the driver (or nothing declared one); else
+    /// keeps `latency.ticks`. `period_s` is the servo period.
+    pub fn new(latency: &ObserverLatency, period_s: f64) -> Self {
+        LinkFollower {
+            follows_driver: matches!(
+                latency.origin,
+                LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
+            ),
+            period_s,
+            ticks: latency.ticks,
+        }
+    }
+
+    /// A pairing that never follows (the default loop: no passivity).
+    pub fn fixed(ticks: usize) -> Self {
+        LinkFollower {
+            follows_driver: false,
+            period_s: 0.0,
+            ticks: ticks.min(MAX_LATENCY_TICKS),
+        }
+    }
+
+    /// The pairing now (ticks).
+    pub fn ticks(&self) -> usize {
+        self.ticks
+    }
+
+    /// A device connected (again): its driver's figure at open (`link`, its worst case) replaces the pairing.
+    /// `None` when nothing changed.
+    pub fn connected(&mut self, link: Option<LinkLatency>) -> Option<PairingChange> {
+        if !self.follows_driver {
+            return None;
+        }
+        let to = ticks_of(link.map_or(0.0, |l| l.worst.as_secs_f64()), self.period_s);
+        let from = std::mem::replace(&mut self.ticks, to);
+        (from != to).then_some(PairingChange::Reconnected { from, to })
+    }
+
+    /// This tick's round trips timed since the connection opened: widens the pairing to the longest when it
+    /// is longer. `None` when nothing changed.
+    pub fn observe(&mut self, seen: Option<LinkDelaySeen>) -> Option<PairingChange> {
+        if !self.follows_driver {
+            return None;
+        }
+        let to = ticks_of(seen?.worst.as_secs_f64(), self.period_s);
+        if to <= self.ticks {
+            return None;
+        }
+        let from = std::mem::replace(&mut self.ticks, to);
+        Some(PairingChange::Widened { from, to })
+    }
+
+    /// One servo tick: a connection this tick (`connected`) replaces the pairing with the driver's figure at
+    /// open, then the round trips timed widen it; `controller` pairs with the result, and `stats` get it.
+    pub fn follow(
+        &mut self,
+        device: &dyn ServoDevice,
+        connected: bool,
+        controller: &mut PassivityController,
+        stats: &LinkDelayStats,
+        tick: u64,
+    ) {
+        let declared = connected.then(|| device.link_latency()).flatten();
+        if connected {
+            stats.declared(declared);
+        }
+        let seen = device.link_delay_seen();
+        let mut changed = if connected {
+            self.connected(declared)
+        } else {
+            None
+        };
+        changed = self.observe(seen).or(changed);
+        if changed.is_some() {
+            controller.set_latency_ticks(self.ticks);
+            stats.changed(tick);
+        }
+        stats.tick(self.ticks, seen);
+    }
+}
+
+#[cfg(test)]
+#[path = "link_delay_tests.rs"]
+mod tests;

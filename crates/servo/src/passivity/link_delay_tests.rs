@@ -1,0 +1,166 @@
+use super::super::settings::{PassivityMode, PassivitySettings};
+use super::super::test_link::LinkDouble;
+use super::*;
+use glam::DVec3;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
+use voxhap_device::DeviceInfo;
+
+const US: Duration = Duration::from_micros(1);
+const MS: Duration = Duration::from_millis(1);
+
+/// The protocol driver's figure at open: 1.2 ms at worst (2 ticks at 1 kHz, rounded up).
+fn at_open(worst: Duration) -> LinkLatency {
+    LinkLatency {
+        typical: US * 1_050,
+        worst,
+        source: "measured",
+        round_trips: 65,
+    }
+}
+
+fn seen(worst: Duration) -> Option<LinkDelaySeen> {
+    Some(LinkDelaySeen {
+        typical: US * 1_100,
+        worst,
+        round_trips: 100,
+        period: MS,
+    })
+}
+
+fn chosen(settings: &PassivitySettings, arm_s: Option<f64>) -> ObserverLatency {
+    ObserverLatency::choose(settings, arm_s, Some(at_open(US * 1_200)), 1e-3)
+}
+
+/// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. Round trips of at most 1.8 ms (2 ticks) change
+/// nothing; 4.3 ms (ceil 4.3 = 5 ticks) widens to 5; 3 ms afterwards does not narrow; 300 ms widens to the
+/// 255 the observer pairs at most. A reconnect measuring 1.2 ms again replaces the 255 with 2; the same
+/// figure again changes nothing.
+#[test]
+fn the_pairing_widens_to_the_longest_round_trip_and_a_reconnect_replaces_it() {
+    let mut follower = LinkFollower::new(&chosen(&PassivitySettings::default(), None), 1e-3);
+    assert_eq!(follower.ticks(), 2);
+    assert_eq!(follower.observe(None), None);
+    assert_eq!(follower.observe(seen(US * 1_800)), None);
+    assert_eq!(
+        follower.observe(seen(US * 4_300)),
+        Some(PairingChange::Widened { from: 2, to: 5 })
+    );
+    assert_eq!(follower.observe(seen(MS * 3)), None);
+    assert_eq!(follower.ticks(), 5);
+    assert_eq!(
+        follower.observe(seen(MS * 300)),
+        Some(PairingChange::Widened { from: 5, to: 255 })
+    );
+    assert_eq!(
+        follower.connected(Some(at_open(US * 1_200))),
+        Some(PairingChange::Reconnected { from: 255, to: 2 })
+    );
+    assert_eq!(follower.connected(Some(at_open(US * 1_200))), None);
+    assert_eq!(follower.ticks(), 2);
+}
+
+/// The scene's `latency_s` and the simulated arm's are what the user said: neither widens nor is replaced.
+#[test]
+fn a_latency_the_scene_or_the_arm_gives_is_kept() {
+    let written = PassivitySettings {
+        latency_s: Some(0.0),
+        ..PassivitySettings::default()
+    };
+    for latency in [
+        chosen(&written, None),
+        chosen(&PassivitySettings::default(), Some(0.001)),
+    ] {
+        let mut follower = LinkFollower::new(&latency, 1e-3);
+        let before = follower.ticks();
+        assert_eq!(follower.observe(seen(MS * 9)), None);
+        assert_eq!(follower.connected(Some(at_open(MS * 7))), None);
+        assert_eq!(follower.ticks(), before);
+    }
+}
+
+/// A hand-worked run: forces of 1, 2, 3, ... N along x sent at ticks 0, 1, 2, ..., the probe moving 1 mm a
+/// tick, no reference energy. Paired with no latency, ticks 1 to 4 book the forces of ticks 0 to 3: 1 + 2 +
+/// 3 + 4 = 10 mJ. Widened to 2 ticks from tick 5, ticks 5, 6 and 7 book the forces of ticks 2, 3 and 4:
+/// 3 + 4 + 5 = 12 mJ, 22 mJ in all (unwidened they would book 5 + 6 + 7, 28 mJ in all).
+#[test]
+fn a_widened_controller_pairs_each_step_with_the_force_sent_that_much_earlier() {
+    let settings = PassivitySettings::default();
+    let mut controller = PassivityController::new(PassivityMode::Observe, &settings, 0);
+    for n in 0..8u32 {
+        if n == 5 {
+            controller.set_latency_ticks(2);
+        }
+        let x = DVec3::new(f64::from(n) * 1e-3, 0.0, 0.0);
+        controller.observe_and_control(x, DVec3::ZERO, 0.0, 1e-3);
+        let force = DVec3::new(f64::from(n + 1), 0.0, 0.0);
+        controller.sent(force, force);
+    }
+    assert_eq!(controller.latency_ticks_now(), 2);
+    let generated = controller.totals().generated_j;
+    assert!((generated - 22e-3).abs() < 1e-12, "{generated}");
+    controller.set_latency_ticks(1_000);
+    assert_eq!(controller.latency_ticks_now(), MAX_LATENCY_TICKS);
+}
+
+/// Through the supervisor, as the servo loop calls it each tick: connected at tick 0 with the driver's
+/// 1.2 ms (2 ticks, no change from the start); a 4.3 ms round trip seen at tick 7 widens the controller's
+/// pairing to 5 ticks, and the statistics say so: one change, at 7 ms (tick 7 at 1 kHz), the worst round
+/// trip 4.3 ms and 5 ticks, the median 1.1 ms, 1.2 ms declared at open.
+#[test]
+fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
+    let worst_us = Arc::new(AtomicU64::new(0));
+    let shared = worst_us.clone();
+    let info = DeviceInfo::basic("timed", DVec3::splat(-0.1), DVec3::splat(0.1));
+    let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
+        Ok(LinkDouble {
+            info: info.clone(),
+            latency: Some(at_open(US * 1_200)),
+            worst_us: shared.clone(),
+        })
+    })
+    .unwrap();
+    let device: &mut dyn ServoDevice = &mut supervisor;
+    device.connect(0).unwrap();
+    let latency = chosen(&PassivitySettings::default(), None);
+    let settings = PassivitySettings::default();
+    let mut controller = PassivityController::new(PassivityMode::Control, &settings, latency.ticks);
+    let stats = LinkDelayStats::default();
+    stats.start(latency.ticks, device.link_latency(), 1e-3);
+    let mut follower = LinkFollower::new(&latency, 1e-3);
+    for tick in 0..10u64 {
+        if tick == 7 {
+            worst_us.store(4_300, Ordering::Relaxed);
+        }
+        follower.follow(&*device, tick == 0, &mut controller, &stats, tick);
+    }
+    assert_eq!(controller.latency_ticks_now(), 5);
+    let report = stats.report();
+    assert_eq!(
+        (
+            report.observer_ticks,
+            report.observer_changes,
+            report.worst_ticks,
+            report.round_trips
+        ),
+        (5, 1, 5, 100)
+    );
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    assert!(
+        close(report.last_change_t_s, 0.007)
+            && close(report.worst_ms, 4.3)
+            && close(report.typical_ms, 1.1)
+            && close(report.declared_ms, 1.2),
+        "{report:?}"
+    );
+    assert!(
+        report.summary().starts_with(
+            "link delay: worst round trip seen 4.300 ms (5 ticks), median 1.100 ms over 100 round trips, \
+             declared at open 1.200 ms; the passivity observer pairs 5 ticks (changed 1 time, last at 0.007 s)"
+        ),
+        "{}",
+        report.summary()
+    );
+}

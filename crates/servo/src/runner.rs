@@ -403,6 +403,7 @@ impl ServoLoop {
         self.last_anchor_m = anchor_m;
         self.last_k = k;
         let mut rendered_n = spring_n + damping * (anchor_velocity - probe_velocity);
+        let directed_n = self.directed_force_n(&out);
         // Read every tick, so a force ages on the servo's clock whether or not it can be applied.
         let mut external_n = self
             .external_force
@@ -418,8 +419,11 @@ impl ServoLoop {
             // latest known): while the pipeline sends nothing (before engaging) a spring stretched by a moving
             // handle is no energy generated, and a controller damping then would keep the rendered force
             // above the engage threshold on a handle that keeps moving.
+            // The directed-force modes displace the proxy by their force over k: that part of the stretch
+            // is intended work, not energy stored in the coupling (crate::passivity::controller).
             let share = self.sent_share;
-            let reference_j = share.spring_energy_j(k, anchor_m - probe_m);
+            let directed_stretch_m = if k > 0.0 { directed_n / k } else { DVec3::ZERO };
+            let reference_j = share.spring_energy_j(k, anchor_m - probe_m - directed_stretch_m);
             let control_n =
                 self.passivity
                     .observe_and_control(probe_m, probe_velocity, reference_j, dt_s);
@@ -461,7 +465,11 @@ impl ServoLoop {
             local: Some(local),
         });
         self.last_safe_force_n = device_out.sent_force_n;
-        self.passivity.sent(rendered_n, device_out.sent_force_n);
+        self.passivity.sent_with_active(
+            rendered_n,
+            device_out.sent_force_n,
+            directed_n + external_n,
+        );
         self.sent_share = SentShare::of(device_out.sent_force_n, rendered_n);
         if device_out.state.is_some() {
             self.last_state = device_out.state;
@@ -594,6 +602,17 @@ impl ServoLoop {
         tick_index
     }
 
+    /// The directed-force modes' share of the tick's force: intended work (crate::energy).
+    fn directed_force_n(&self, out: &voxhap_core::haptics::tick::TickOutput) -> DVec3 {
+        let modes = self.bundle.scene.modes().iter().zip(out.mode_force_n);
+        modes
+            .filter(|(mode, _)| {
+                matches!(mode, Mode::VectorForce { .. } | Mode::GradientForce { .. })
+            })
+            .map(|(_, force)| force)
+            .sum()
+    }
+
     /// Books the tick in the energy ledger (from the position the tick rendered from and the force the
     /// safety pipeline sent) and names why the force is off: the tick's truth.
     fn book_truth(
@@ -608,12 +627,7 @@ impl ServoLoop {
         let totals = if input.rendered_from_state {
             // The directed-force modes' share of the force is intended work (crate::energy).
             // The external force is meant to do work too.
-            let mut active_n = input.external_force_n;
-            for (mode, force) in self.bundle.scene.modes().iter().zip(out.mode_force_n) {
-                if matches!(mode, Mode::VectorForce { .. } | Mode::GradientForce { .. }) {
-                    active_n += force;
-                }
-            }
+            let active_n = input.external_force_n + self.directed_force_n(out);
             // The spring holds what the force actually sent can give back (crate::energy::SentShare).
             let coupling_j = self
                 .sent_share

@@ -208,6 +208,15 @@ impl PassivityController {
     /// asked for (`rendered_n`, the controller's force included): the controller's part is scaled as the
     /// pipeline scaled the whole. Ends the tick.
     pub fn sent(&mut self, rendered_n: DVec3, sent_n: DVec3) {
+        self.sent_with_active(rendered_n, sent_n, DVec3::ZERO);
+    }
+
+    /// As [`PassivityController::sent`], where `active_n` of the rendered force is intended work (the
+    /// directed-force modes and an external force): the observer books only the coupling's part of what was
+    /// sent, `sent - s active` with `s` the share of the rendered force the safety pipeline let through
+    /// (its stages scale the whole vector), so the controller never damps work the scene asks for; the
+    /// energy ledger splits the same work out as active (crate::energy).
+    pub fn sent_with_active(&mut self, rendered_n: DVec3, sent_n: DVec3, active_n: DVec3) {
         if self.mode == PassivityMode::Off {
             return;
         }
@@ -218,8 +227,9 @@ impl PassivityController {
         } else {
             0.0
         };
-        self.sent_n[slot] = if sent_n.is_finite() {
-            sent_n
+        let coupling_n = sent_n - scale * active_n;
+        self.sent_n[slot] = if coupling_n.is_finite() {
+            coupling_n
         } else {
             DVec3::ZERO
         };

@@ -133,3 +133,39 @@ fn the_observer_latency_is_the_written_or_declared_one_rounded_up() {
             .starts_with("passivity.latency_s:"));
     }
 }
+
+/// A directed force pushing a free hand along (`vector_force` in free space) does the work the scene asks
+/// for; the coupling stores and generates nothing (the proxy sits `d / k` ahead of the probe, so the spring
+/// without the directed part is unstretched). Booked as active, it leaves the observer at zero and the
+/// controller silent; booked as coupling work it would be `|d| dx` a tick, and the controller would damp it.
+#[test]
+fn a_directed_force_pushing_a_free_hand_is_not_damped() {
+    let (d, dx, dt) = (DVec3::new(1.0, 0.0, 0.0), 1e-4, 1e-3);
+    let settings = PassivitySettings::default();
+    let velocity = DVec3::new(dx / dt, 0.0, 0.0);
+    let run = |split: bool| {
+        let mut pc = PassivityController::new(PassivityMode::Control, &settings, 0);
+        let mut largest_control = 0.0f64;
+        for n in 0..=500 {
+            let x = DVec3::new(n as f64 * dx, 0.0, 0.0);
+            let control = pc.observe_and_control(x, velocity, 0.0, dt);
+            largest_control = largest_control.max(control.length());
+            let sent = d + control;
+            if split {
+                pc.sent_with_active(sent, sent, d);
+            } else {
+                pc.sent(sent, sent);
+            }
+        }
+        (pc.totals(), largest_control)
+    };
+    let (totals, largest) = run(true);
+    assert_eq!(largest, 0.0, "{totals:?}");
+    assert!(
+        totals.generated_j.abs() < 1e-15 && totals.dissipated_j == 0.0,
+        "{totals:?}"
+    );
+    // Without the split the same push reads as 0.1 mJ a tick generated, and the controller acts.
+    let (unsplit, largest) = run(false);
+    assert!(unsplit.dissipated_j > 0.0 && largest > 0.0, "{unsplit:?}");
+}

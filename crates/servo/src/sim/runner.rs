@@ -13,8 +13,8 @@
 //! with no safety pipeline in a sim the rendered force is the force sent. Every tick is booked in the energy
 //! ledger (crate::energy), whose totals end in the summary.
 
-use super::local::LocalDevice;
 use super::scenario::{LoadedScenario, ScenarioValueError};
+use crate::device::LocalDevice;
 use crate::energy::{EnergyLedger, EnergyTotals};
 use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
 use glam::DVec3;
@@ -85,7 +85,7 @@ pub fn run(
     // `[local_model]`: the arm is a device whose own loop renders the tick's local model (super::local).
     let mut device = match settings.local_model {
         Some(local) => Some(
-            LocalDevice::new(
+            super::local::new_device(
                 settings.rate_hz,
                 local,
                 scenario.arm.physics().declared_at_1khz_n_per_m(dt_s),
@@ -210,9 +210,9 @@ pub fn run(
                     out.proxy_m,
                 );
                 if valid {
-                    device.send(Some(&offer), rendered_n);
+                    super::local::send(device, Some(&offer), rendered_n);
                 } else {
-                    device.send(None, DVec3::ZERO);
+                    super::local::send(device, None, DVec3::ZERO);
                 }
                 let period = device_period(device, &mut arm, &mut ledger, t_s, active_n)?;
                 summary.energy = ledger.totals();
@@ -307,7 +307,9 @@ fn device_period(
         let position_m = arm.position_m();
         let velocity_m_per_s = arm.velocity_m_per_s();
         let force_n = device.cycle(position_m, velocity_m_per_s);
-        let coupling_j = device.coupling_energy_j(position_m, velocity_m_per_s, force_n);
+        let coupling_j = device
+            .cycle_books(position_m, velocity_m_per_s, force_n)
+            .map_or(0.0, |books| books.coupling_energy_j);
         ledger.record(
             t_cycle_s, cycle_s, position_m, force_n, active_n, coupling_j,
         );

@@ -16,6 +16,7 @@
 //! from the potential `k/2 |x − p − d/k|²` (plus the primitives' own terms), whose share `r² k/2 |x − p − d/k|²`
 //! is the coupling energy booked.
 
+use crate::energy::{EnergyLedger, EnergyTotals};
 use glam::DVec3;
 use voxhap_api::DeviceLocal;
 use voxhap_device::local_offer::{LocalOffer, LocalReport};
@@ -206,20 +207,56 @@ impl LocalDevice {
         let (model, _) = self.session.local_model()?;
         let proxy = DVec3::from_array(self.local.proxy_m()?);
         let k = f64::from(model.stiffness_n_per_m);
-        // The directed slots as the loop's solver takes them (direction normalised).
+        // The directed slots as the loop's solver takes them (the direction normalised).
         let directed_n: DVec3 = model
             .si_primitives()
             .filter(|p| p.kind == LocalKind::Directed)
             .filter_map(|p| Primitive::directed(DVec3::from_array(p.direction), p.strength_n).ok())
             .map(|p| p.direction() * p.strength_n())
             .sum();
-        let stretch_m = proxy - position_m;
-        let coupling_n = k * stretch_m - model.damping_n_s_per_m() * velocity_m_per_s;
+        // The share `r` of the loop's coupling force that went out: that force from what the loop sensed (f32).
+        let sensed = |v: DVec3| DVec3::from_array(v.to_array().map(|c| f64::from(c as f32)));
+        let coupling_n =
+            k * (proxy - sensed(position_m)) - model.damping_n_s_per_m() * sensed(velocity_m_per_s);
         let share = crate::energy::SentShare::of(applied_n, coupling_n);
+        let stretch_m = proxy - position_m;
+        // The reaction's stretch `x − p − d/k` (exactly the stretch without a directed slot).
+        let reaction_stretch_m = if directed_n == DVec3::ZERO {
+            stretch_m
+        } else {
+            stretch_m - directed_n / k
+        };
         Some(CycleBooks {
-            coupling_energy_j: share.spring_energy_j(k, stretch_m),
+            coupling_energy_j: share.spring_energy_j(k, reaction_stretch_m),
             directed_n: share.fraction() * directed_n,
         })
+    }
+
+    /// Books the cycle just run in `ledger` at `t_s` (see [`Self::cycle_books`]): the directed force the device
+    /// applied is the intended work; on the set-force path, `set_force_directed_n`, the directed part of the
+    /// force the host sent.
+    pub fn book_cycle(
+        &self,
+        ledger: &mut EnergyLedger,
+        t_s: f64,
+        position_m: DVec3,
+        velocity_m_per_s: DVec3,
+        applied_n: DVec3,
+        set_force_directed_n: DVec3,
+    ) -> EnergyTotals {
+        let (coupling_j, directed_n) = self
+            .cycle_books(position_m, velocity_m_per_s, applied_n)
+            .map_or((0.0, set_force_directed_n), |b| {
+                (b.coupling_energy_j, b.directed_n)
+            });
+        ledger.record(
+            t_s,
+            self.cycle_s(),
+            position_m,
+            applied_n,
+            directed_n,
+            coupling_j,
+        )
     }
 }
 
@@ -262,3 +299,7 @@ fn enabled_local_session(
     while session.poll_transmit().is_some() {}
     (host, session)
 }
+
+#[cfg(test)]
+#[path = "local_tests.rs"]
+mod tests;

@@ -167,8 +167,14 @@ pub fn run_local(
             let velocity_m_per_s = sim_arm.velocity_m_per_s();
             let force_n = device.cycle(probe_m, velocity_m_per_s);
             let proxy_m = device.proxy_m(probe_m);
-            let coupling_j = 0.5 * k * (proxy_m - probe_m).length_squared();
-            ledger.record(t_s, cycle_s, probe_m, force_n, DVec3::ZERO, coupling_j);
+            device.book_cycle(
+                &mut ledger,
+                t_s,
+                probe_m,
+                velocity_m_per_s,
+                force_n,
+                DVec3::ZERO,
+            );
             samples.push(Sample {
                 probe_m,
                 velocity_m_per_s,

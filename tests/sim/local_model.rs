@@ -239,3 +239,51 @@ fn a_stiffness_no_local_model_can_carry_is_refused() {
     // Without the table the scene file's own range applies.
     assert!(Scenario::parse(&wall(70_000.0, false), "w").is_ok());
 }
+
+/// 15 000 N/m with the 10 kHz device loop: below the loop's exact boundary (20 003 N/m), so the contact's bounce
+/// decays, slowly (the net damping `b − K T/2` is 0.25 N s/m), and repeats many times in quick succession
+/// before it settles. It is not a limit cycle: `--fail-on oscillation` is not met. The undecaying bounce of the
+/// 1 kHz host alone at 5 000 N/m is one (the first test of this file).
+#[test]
+fn a_slowly_decaying_bounce_below_the_device_loops_boundary_is_not_an_oscillation() {
+    const STIFF: f64 = 15_000.0;
+    assert!(STIFF < exact_boundary(0.1, 1.0, 1e-4, 0));
+    let dir = tempfile::tempdir().unwrap();
+    let (summary, trace) = run_library(
+        &wall(STIFF, true),
+        &dir.path().join("t.csv"),
+        TraceFormat::Csv,
+    );
+    // It bounced: enough contacts in quick succession for the rule to judge, and the penetration decays.
+    let energy = summary.energy;
+    assert!(
+        energy.contacts > 20 && energy.longest_cycle_run >= 9,
+        "{energy:?}"
+    );
+    let deepest = |from_s: f64, to_s: f64| {
+        trace
+            .samples
+            .iter()
+            .filter(|s| s.t_s >= from_s && s.t_s < to_s)
+            .map(|s| -s.probe_m.z)
+            .fold(f64::MIN, f64::max)
+    };
+    assert!(
+        deepest(2.5, 3.0) < 0.5 * deepest(1.0, 1.5),
+        "{} {}",
+        deepest(1.0, 1.5),
+        deepest(2.5, 3.0)
+    );
+    assert!(!energy.oscillating(), "{energy:?}");
+    let out = run_cli(
+        dir.path(),
+        "decaying",
+        &wall(STIFF, true),
+        &["--fail-on", "oscillation"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

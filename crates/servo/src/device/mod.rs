@@ -11,10 +11,13 @@
 //! - [`factory`]: building the supervised device for a spec ([`open_device`]).
 //! - [`reconnect`]: the reconnecting wrapper whose connector thread reopens a lost device ([`Reconnecting`]).
 //! - [`sim`]: the in-process simulated arm as a device ([`SimDevice`]), the default.
+//! - [`local`]: the in-process device with the local-model capability ([`LocalDevice`]) that the simulated
+//!   arm, `voxhap sim` and `voxhap stability` run.
 //! - [`replay`]: plays back the probe positions of a recorded force trace ([`ReplayDevice`], `replay:TRACE`).
 
 mod error;
 mod factory;
+pub mod local;
 mod reconnect;
 pub mod replay;
 mod servo_device;
@@ -23,9 +26,9 @@ mod spec;
 
 pub use error::{ConnectError, OpenError};
 pub use factory::{open_device, open_device_with_profile, spec_family, OpenedDevice};
+pub use local::{LocalDevice, LocalRateError};
 pub use reconnect::Reconnecting;
 pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions, ReplaySpecError};
 pub use servo_device::ServoDevice;
-pub(crate) use sim::enabled_local_session;
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError, DeviceSpecProblem};

@@ -14,43 +14,13 @@
 //! under its force. A LocalModel from the host is rendered by that loop; a set-force is held for the period, as
 //! without the capability, so the two paths differ only in who closes the contact loop and how fast.
 
+use super::local::{LocalDevice, LocalRateError};
 use crate::mapped::SceneMappingSlot;
 use glam::DVec3;
 use voxhap_device::local_offer::{LocalOffer, LocalReport};
-use voxhap_device::sim::{LocalModelSim, SimArm, SimArmConfig, SimError};
+use voxhap_device::sim::{SimArm, SimArmConfig, SimError};
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
-use voxhap_local::{LocalLoop, LoopConfig};
-use voxhap_protocol::{
-    DeviceSample, DeviceSession, DeviceToHost, HostSession, HostToDevice, Label, RateSet,
-    PROTOCOL_VERSION,
-};
-
-/// The device side of a simulated local-model device: the protocol session, the reference loop, and the host
-/// session that numbers what the servo loop sends it.
-struct SimLocal {
-    cycles_per_period: u32,
-    cycle_us: u64,
-    now_us: u64,
-    host: HostSession,
-    session: DeviceSession,
-    local: LocalLoop,
-    report: Option<LocalReport>,
-    /// The certified bound of the loop's last solve, from the last LocalState the session sent (m).
-    bound_m: f64,
-}
-
-/// Why a simulated local loop cannot run at the rate asked.
-#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error(
-    "local_model.rate_hz: {rate_hz} Hz must be a whole multiple of the servo rate ({servo_hz} Hz), \
-     at most 100000 Hz, with a whole number of microseconds per cycle"
-)]
-pub struct LocalRateError {
-    /// What was asked.
-    pub rate_hz: f64,
-    /// The servo rate.
-    pub servo_hz: f64,
-}
+use voxhap_protocol::HostToDevice;
 
 /// The simulated arm as a [`HapticDevice`]: each `write_force` steps the arm one servo period under that
 /// force; `read_state` reports where it got to.
@@ -66,7 +36,9 @@ pub struct SimDevice {
     /// Where the workspace mapping will be, until the arm has taken it or has stepped.
     scene_mapping: Option<SceneMappingSlot>,
     /// The simulated local loop, when the arm simulates a device with the capability.
-    local: Option<Box<SimLocal>>,
+    local: Option<Box<LocalDevice>>,
+    /// What the local loop reported at the end of the last period.
+    local_report: Option<LocalReport>,
 }
 
 /// The handle that moves a [`SimDevice`]'s hand from another thread (wait-free for the servo thread).
@@ -115,6 +87,7 @@ impl SimDevice {
                 start_scene_m: start_m,
                 scene_mapping: None,
                 local: None,
+                local_report: None,
             },
             input,
         ))
@@ -150,30 +123,13 @@ impl SimDevice {
     /// The arm as a device with the local-model capability whose control loop runs at `rate_hz` (a whole
     /// multiple of the servo rate, at most 100 kHz); see the module docs.
     pub fn with_local_model(mut self, rate_hz: f64) -> Result<SimDevice, LocalRateError> {
-        let servo_hz = 1.0 / self.dt_s;
-        let Some(cycles) = (LocalModelSim { rate_hz }).cycles_per_period(servo_hz) else {
-            return Err(LocalRateError { rate_hz, servo_hz });
-        };
-        let cycle_us = (1e6 / rate_hz).round();
-        let (host, session) = enabled_local_session(
+        self.local = Some(Box::new(LocalDevice::new(
+            1.0 / self.dt_s,
+            rate_hz,
             "voxhap-sim",
-            self.info.max_force_n as f32,
-            self.info.max_stiffness_n_per_m as f32,
-        );
-        let cycle_us = cycle_us.round() as u64;
-        self.local = Some(Box::new(SimLocal {
-            cycles_per_period: cycles,
-            cycle_us,
-            now_us: 0,
-            host,
-            session,
-            local: LocalLoop::new(LoopConfig {
-                period_us: cycle_us as u32,
-                ..LoopConfig::default()
-            }),
-            report: None,
-            bound_m: 0.0,
-        }));
+            self.info.max_force_n,
+            self.info.max_stiffness_n_per_m,
+        )?));
         Ok(self)
     }
 
@@ -183,41 +139,28 @@ impl SimDevice {
         let Some(local) = self.local.as_deref_mut() else {
             return Ok(());
         };
-        local.session.on_message(message, local.now_us);
-        let cycle_s = self.dt_s / f64::from(local.cycles_per_period);
-        for _ in 0..local.cycles_per_period {
-            let sample = DeviceSample {
-                position_m: self.arm.position_m().to_array().map(|c| c as f32),
-                velocity_m_per_s: self.arm.velocity_m_per_s().to_array().map(|c| c as f32),
-                buttons: 0,
-            };
-            let force = local.local.step(&mut local.session, local.now_us, &sample);
-            while let Some(sent) = local.session.poll_transmit() {
-                if let DeviceToHost::LocalState(state) = sent {
-                    local.bound_m = f64::from(state.bound_m);
-                }
-            }
+        local.receive(message);
+        let cycle_s = self.dt_s / f64::from(local.cycles_per_period());
+        for _ in 0..local.cycles_per_period() {
+            let force = local.cycle(self.arm.position_m(), self.arm.velocity_m_per_s());
             self.arm
-                .step(self.t_s, cycle_s, DVec3::from_array(force.map(f64::from)))
+                .step(self.t_s, cycle_s, force)
                 .map_err(|_| DeviceError::Protocol {
                     what: "simulated arm refused its step",
                 })?;
             self.t_s += cycle_s;
-            local.now_us += local.cycle_us;
         }
-        local.report = local
-            .session
-            .local_model()
-            .map(|(model, received_us)| LocalReport {
-                proxy_m: DVec3::from_array(local.local.proxy_m().unwrap_or([0.0; 3])),
-                force_n: DVec3::from_array(local.local.force_n()),
-                bound_m: local.bound_m,
-                peak_force_n: DVec3::from_array(local.local.force_n()).length(),
-                model_sequence: model.sequence,
-                model_age_us: u32::try_from(local.now_us.saturating_sub(received_us))
-                    .unwrap_or(u32::MAX),
-                status: local.local.last_status().0,
-            });
+        self.local_report = local.local_report();
+        Ok(())
+    }
+
+    /// Takes the mapping if it has arrived and moves the hand to the target a client set, before a step.
+    fn before_step(&mut self) -> Result<(), DeviceError> {
+        self.take_scene_mapping(true)?;
+        let target = *self.hand_target.read();
+        if target != self.applied_target && self.arm.set_hand_target_m(target) {
+            self.applied_target = target;
+        }
         Ok(())
     }
 
@@ -235,17 +178,10 @@ impl HapticDevice for SimDevice {
     }
 
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        self.take_scene_mapping(true)?;
-        let target = *self.hand_target.read();
-        if target != self.applied_target && self.arm.set_hand_target_m(target) {
-            self.applied_target = target;
-        }
+        self.before_step()?;
         if let Some(local) = self.local.as_deref_mut() {
             // The device's set-force path: the force is held for the period, the arm stepped per cycle.
-            let force = force_n.to_array().map(|c| c as f32);
-            let message = local
-                .host
-                .set_force(force, voxhap_protocol::ForceFlags::EMPTY);
+            let message = local.set_force_message(force_n);
             return self.run_local_period(&message);
         }
         self.arm
@@ -260,10 +196,7 @@ impl HapticDevice for SimDevice {
     fn enable(&mut self) -> Result<(), DeviceError> {
         if let Some(local) = self.local.as_deref_mut() {
             // The simulated device's own drive: enabled again (after its watchdog, say) as a real one would be.
-            local
-                .session
-                .on_message(&local.host.enable(50_000), local.now_us);
-            while local.session.poll_transmit().is_some() {}
+            local.enable();
         }
         Ok(())
     }
@@ -278,24 +211,18 @@ impl HapticDevice for SimDevice {
         force_limit_n: f64,
         fallback_force_n: DVec3,
     ) -> Result<(), DeviceError> {
-        self.take_scene_mapping(true)?;
-        let target = *self.hand_target.read();
-        if target != self.applied_target && self.arm.set_hand_target_m(target) {
-            self.applied_target = target;
-        }
-        let max_force_n = self.info.max_force_n;
+        self.before_step()?;
         let Some(local) = self.local.as_deref_mut() else {
             return self.write_force(fallback_force_n);
         };
-        let params = model.params(force_limit_n, max_force_n);
-        match local.host.local_model(&params, model.primitives()) {
+        match local.model_message(model, force_limit_n) {
             Ok(message) => self.run_local_period(&message),
             Err(_) => self.write_force(fallback_force_n),
         }
     }
 
     fn local_report(&self) -> Option<LocalReport> {
-        self.local.as_ref().and_then(|l| l.report)
+        self.local_report
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
@@ -309,34 +236,6 @@ impl HapticDevice for SimDevice {
             status: None,
         })
     }
-}
-
-/// An in-process device with the local-model capability (3-DOF, ±1 m workspace, 1 kHz), through its Hello and
-/// an Enable with a 50 ms watchdog: the host and device sessions of the simulated arm and of `voxhap stability`.
-pub(crate) fn enabled_local_session(
-    model: &str,
-    max_force_n: f32,
-    max_stiffness_n_per_m: f32,
-) -> (HostSession, DeviceSession) {
-    let info = voxhap_protocol::DeviceInfo {
-        version: PROTOCOL_VERSION,
-        model: Label::new(model).unwrap_or_default(),
-        serial_number: Label::new("in-process").unwrap_or_default(),
-        position_dof: 3,
-        force_dof: 3,
-        button_count: 0,
-        supported_rates: RateSet::from_rates_hz(&[1000]).unwrap_or_default(),
-        workspace_min_m: [-1.0; 3],
-        workspace_max_m: [1.0; 3],
-        max_force_n,
-        max_stiffness_n_per_m,
-    };
-    let mut host = HostSession::new();
-    let mut session = DeviceSession::with_local_model(info);
-    session.on_message(&host.hello(), 0);
-    session.on_message(&host.enable(50_000), 0);
-    while session.poll_transmit().is_some() {}
-    (host, session)
 }
 
 #[cfg(test)]

@@ -13,8 +13,8 @@
 //! with no safety pipeline in a sim the rendered force is the force sent. Every tick is booked in the energy
 //! ledger (crate::energy), whose totals end in the summary.
 
-use super::local::LocalDevice;
 use super::scenario::{LoadedScenario, ScenarioValueError};
+use crate::device::LocalDevice;
 use crate::energy::{EnergyLedger, EnergyTotals};
 use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
 use glam::DVec3;
@@ -85,7 +85,7 @@ pub fn run(
     // `[local_model]`: the arm is a device whose own loop renders the tick's local model (super::local).
     let mut device = match settings.local_model {
         Some(local) => Some(
-            LocalDevice::new(
+            super::local::new_device(
                 settings.rate_hz,
                 local,
                 scenario.arm.physics().declared_at_1khz_n_per_m(dt_s),
@@ -214,11 +214,13 @@ pub fn run(
                 )
                 .with_passivity(local_passivity);
                 if valid {
-                    device.send(Some(&offer), rendered_n);
+                    super::local::send(device, Some(&offer), rendered_n);
                 } else {
-                    device.send(None, DVec3::ZERO);
+                    super::local::send(device, None, DVec3::ZERO);
                 }
-                let period = device_period(device, &mut arm, &mut ledger, t_s, active_n)?;
+                // A set-force the device holds instead is the rendered force, directed modes included.
+                let set_force_active_n = if valid { active_n } else { DVec3::ZERO };
+                let period = device_period(device, &mut arm, &mut ledger, t_s, set_force_active_n)?;
                 summary.energy = ledger.totals();
                 passivity.sent(rendered_n, period.force_n);
                 period
@@ -294,14 +296,15 @@ struct Period {
 
 /// One tick of a local-model device after its model was sent: each control cycle senses the arm, runs the
 /// device loop and steps the arm one cycle under the force it returned (held for the cycle), and is booked in
-/// `ledger` on its own, so the work stays exact under the device's zero-order hold. The directed-force modes'
-/// force of the tick (`active_n`) is booked as active on each of its cycles.
+/// `ledger` on its own, so the work stays exact under the device's zero-order hold. The intended work of a
+/// cycle is the directed force the device applied in it (`crate::device::LocalDevice::cycle_books`), or on the
+/// set-force path the directed modes' part of the force the host sent (`set_force_active_n`).
 fn device_period(
     device: &mut LocalDevice,
     arm: &mut SimArm,
     ledger: &mut EnergyLedger,
     t_s: f64,
-    active_n: DVec3,
+    set_force_active_n: DVec3,
 ) -> Result<Period, SimRunError> {
     let cycle_s = device.cycle_s();
     let mut outcome = StepOutcome::default();
@@ -311,9 +314,13 @@ fn device_period(
         let position_m = arm.position_m();
         let velocity_m_per_s = arm.velocity_m_per_s();
         let force_n = device.cycle(position_m, velocity_m_per_s);
-        let coupling_j = device.coupling_energy_j(position_m, velocity_m_per_s, force_n);
-        ledger.record(
-            t_cycle_s, cycle_s, position_m, force_n, active_n, coupling_j,
+        device.book_cycle(
+            ledger,
+            t_cycle_s,
+            position_m,
+            velocity_m_per_s,
+            force_n,
+            set_force_active_n,
         );
         let step = arm.step(t_cycle_s, cycle_s, force_n)?;
         outcome.workspace_limit_hit |= step.workspace_limit_hit;

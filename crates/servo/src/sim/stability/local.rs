@@ -10,29 +10,23 @@
 use super::arms::ArmCase;
 use super::error::StabilityError;
 use super::setup::{scenario_text, Sample};
+use crate::device::LocalDevice;
 use crate::energy::EnergyLedger;
 use crate::sim::Scenario;
 use glam::DVec3;
 use std::collections::VecDeque;
 use std::path::Path;
 use voxhap_device::local_offer::LocalOffer;
-use voxhap_device::sim::{LocalModelSim, SimArm};
-use voxhap_local::{LocalLoop, LoopConfig, ENGAGE_US};
-use voxhap_protocol::{DeviceSample, DeviceSession, HostSession, HostToDevice};
+use voxhap_device::sim::SimArm;
+use voxhap_local::ENGAGE_US;
+use voxhap_protocol::HostToDevice;
 
 /// The simulated device's largest force, N (as `crate::device::SimDevice` declares).
 pub const DEVICE_MAX_FORCE_N: f64 = 10.0;
 
-/// A local-model device behind a link: the host session that numbers the models, the link's delay, and the
-/// device's session and loop.
+/// A local-model device ([`LocalDevice`]) behind a link that delays each model by whole host periods.
 pub struct DeviceLoop {
-    /// Control cycles per host period.
-    pub cycles_per_period: u32,
-    cycle_us: u64,
-    now_us: u64,
-    host: HostSession,
-    session: DeviceSession,
-    local: LocalLoop,
+    device: LocalDevice,
     /// Models on their way, oldest first.
     pipe: VecDeque<HostToDevice>,
     delay_periods: usize,
@@ -46,30 +40,19 @@ impl DeviceLoop {
         device_rate_hz: f64,
         latency_s: f64,
     ) -> Result<DeviceLoop, StabilityError> {
-        let cycles = LocalModelSim {
-            rate_hz: device_rate_hz,
-        }
-        .cycles_per_period(host_rate_hz)
-        .ok_or(StabilityError::LocalRate {
+        let device = LocalDevice::new(
+            host_rate_hz,
+            device_rate_hz,
+            "voxhap-bench",
+            DEVICE_MAX_FORCE_N,
+            65_535.0,
+        )
+        .map_err(|_| StabilityError::LocalRate {
             device_hz: device_rate_hz,
             host_hz: host_rate_hz,
         })?;
-        let cycle_us = (1e6 / device_rate_hz).round() as u64;
-        let (host, session) = crate::device::enabled_local_session(
-            "voxhap-bench",
-            DEVICE_MAX_FORCE_N as f32,
-            65_535.0,
-        );
         Ok(DeviceLoop {
-            cycles_per_period: cycles,
-            cycle_us,
-            now_us: 0,
-            host,
-            session,
-            local: LocalLoop::new(LoopConfig {
-                period_us: cycle_us as u32,
-                ..LoopConfig::default()
-            }),
+            device,
             pipe: VecDeque::new(),
             delay_periods: (latency_s * host_rate_hz).round().max(0.0) as usize,
         })
@@ -78,43 +61,19 @@ impl DeviceLoop {
     /// The host sends `offer` (limited to the device's largest force); the model built is returned, and the
     /// oldest model whose delay has passed reaches the device.
     pub fn send(&mut self, offer: &LocalOffer) -> Result<HostToDevice, StabilityError> {
-        let params = offer.params(DEVICE_MAX_FORCE_N, DEVICE_MAX_FORCE_N);
-        let message = self.host.local_model(&params, offer.primitives())?;
+        let message = self.device.model_message(offer, DEVICE_MAX_FORCE_N)?;
         self.pipe.push_back(message);
         if self.pipe.len() > self.delay_periods {
             if let Some(arrived) = self.pipe.pop_front() {
-                self.session.on_message(&arrived, self.now_us);
+                self.device.receive(&arrived);
             }
         }
         Ok(message)
     }
 
-    /// One control cycle with the arm at `position_m` moving at `velocity_m_per_s`: the force to apply, N.
-    pub fn cycle(&mut self, position_m: DVec3, velocity_m_per_s: DVec3) -> DVec3 {
-        let sample = DeviceSample {
-            position_m: position_m.to_array().map(|c| c as f32),
-            velocity_m_per_s: velocity_m_per_s.to_array().map(|c| c as f32),
-            buttons: 0,
-        };
-        let force = self.local.step(&mut self.session, self.now_us, &sample);
-        while self.session.poll_transmit().is_some() {}
-        self.now_us += self.cycle_us;
-        DVec3::from_array(force.map(f64::from))
-    }
-
-    /// The device loop's proxy (the position if it has none yet), m.
-    pub fn proxy_m(&self, position_m: DVec3) -> DVec3 {
-        self.local.proxy_m().map_or(position_m, DVec3::from_array)
-    }
-
-    /// The device loop's ramp factor (1: full force).
-    pub fn ramp_factor(&self) -> f64 {
-        self.local.ramp_factor()
-    }
-
-    /// One control cycle's length, s.
-    pub fn cycle_s(&self) -> f64 {
-        self.cycle_us as f64 * 1e-6
+    /// The device behind the link.
+    pub fn device(&mut self) -> &mut LocalDevice {
+        &mut self.device
     }
 }
 
@@ -155,7 +114,8 @@ pub fn run_local(
         settings.solver.solver_config(),
     );
     let mut device = DeviceLoop::new(host_rate_hz, device_rate_hz, latency_s)?;
-    let cycle_s = device.cycle_s();
+    let cycle_s = device.device().cycle_s();
+    let cycles = device.device().cycles_per_period();
     let mut host_tick = |state: &mut voxhap_core::haptics::tick::TickState,
                          probe_m: DVec3,
                          device: &mut DeviceLoop|
@@ -179,34 +139,42 @@ pub fn run_local(
     let engage_s = f64::from(ENGAGE_US) * 1e-6 + 0.02;
     let engage_ticks = (engage_s * host_rate_hz).ceil() as u64;
     for _ in 0..engage_ticks {
-        let started = device.ramp_factor() > 0.0;
+        let started = device.device().ramp_factor() > 0.0;
         let held_m = if started { loaded.start_m } else { clear_m };
         host_tick(&mut state, held_m, &mut device)?;
-        for _ in 0..device.cycles_per_period {
-            device.cycle(held_m, DVec3::ZERO);
+        for _ in 0..cycles {
+            device.device().cycle(held_m, DVec3::ZERO);
         }
     }
-    if device.ramp_factor() < 1.0 {
+    let factor = device.device().ramp_factor();
+    if factor < 1.0 {
         return Err(StabilityError::NoEngage {
             seconds: engage_s,
-            factor: device.ramp_factor(),
+            factor,
         });
     }
     // The measured run, from rest at the start.
     let mut sim_arm = SimArm::new(loaded.arm.clone(), loaded.start_m)?;
     let mut ledger = EnergyLedger::new(arm.damping_n_s_per_m);
     let ticks = settings.tick_count();
-    let mut samples = Vec::with_capacity((ticks * u64::from(device.cycles_per_period)) as usize);
+    let mut samples = Vec::with_capacity((ticks * u64::from(cycles)) as usize);
     let mut t_s = 0.0;
     for _ in 0..ticks {
         host_tick(&mut state, sim_arm.position_m(), &mut device)?;
-        for _ in 0..device.cycles_per_period {
+        let device = device.device();
+        for _ in 0..cycles {
             let probe_m = sim_arm.position_m();
             let velocity_m_per_s = sim_arm.velocity_m_per_s();
             let force_n = device.cycle(probe_m, velocity_m_per_s);
             let proxy_m = device.proxy_m(probe_m);
-            let coupling_j = 0.5 * k * (proxy_m - probe_m).length_squared();
-            ledger.record(t_s, cycle_s, probe_m, force_n, DVec3::ZERO, coupling_j);
+            device.book_cycle(
+                &mut ledger,
+                t_s,
+                probe_m,
+                velocity_m_per_s,
+                force_n,
+                DVec3::ZERO,
+            );
             samples.push(Sample {
                 probe_m,
                 velocity_m_per_s,

@@ -93,8 +93,9 @@ pub fn stale_force(path: &Path, device_rate_hz: f64) -> Result<StaleForce, Stabi
     arm_config.arm.effects.latency_s = 0.0;
     arm_config.local_model = None;
     let mut arm = SimArm::new(arm_config, loaded.start_m)?;
-    let mut device = DeviceLoop::new(host_rate_hz, device_rate_hz, latency_s)?;
-    let cycle_s = device.cycle_s();
+    let mut link = DeviceLoop::new(host_rate_hz, device_rate_hz, latency_s)?;
+    let cycle_s = link.device().cycle_s();
+    let cycles = link.device().cycles_per_period();
     let scenes: Vec<_> = std::iter::once(&loaded.scene)
         .chain(loaded.events.iter().map(|e| &e.scene))
         .collect();
@@ -136,7 +137,7 @@ pub fn stale_force(path: &Path, device_rate_hz: f64) -> Result<StaleForce, Stabi
             damping,
             out.proxy_m,
         );
-        let message = device.send(&offer)?;
+        let message = link.send(&offer)?;
         if let HostToDevice::LocalModel(model) = &message {
             models += 1;
             primitives += model.primitive_count();
@@ -144,7 +145,8 @@ pub fn stale_force(path: &Path, device_rate_hz: f64) -> Result<StaleForce, Stabi
             truncated += u64::from(model.flags.contains(voxhap_protocol::ModelFlags::TRUNCATED));
         }
         model_frame_bytes = model_frame_bytes.max(frame_len(&message));
-        for _ in 0..device.cycles_per_period {
+        let device = link.device();
+        for _ in 0..cycles {
             let probe_m = arm.position_m();
             let velocity = arm.velocity_m_per_s();
             let force_n = device.cycle(probe_m, velocity);

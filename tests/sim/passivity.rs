@@ -240,3 +240,51 @@ fn the_cli_runs_the_controller_and_fails_on_the_uncompensated_scene() {
     assert_eq!(out.status.code(), Some(3), "{stderr}");
     assert!(stderr.contains("oscillation: "), "{stderr}");
 }
+
+/// A released arm carried by the vortex's flow under `vector_force`, the controller on. The mode's push is
+/// work the scene asks for (bounded by its power budget), and in free space the coupling spring without the
+/// directed part is unstretched: it stores and generates nothing, so the controller has nothing to take.
+/// Expected from that: the push does its work (the ledger's active work, at most budget x duration) and the
+/// controller dissipates nothing. (Booked as coupling work, the push was nearly all damped away: 11.2 of
+/// 11.8 mJ in this scene.)
+#[test]
+fn the_controller_leaves_a_directed_force_push_alone() {
+    let text = r#"
+name = "vector-force-push"
+description = "a released arm carried by the vortex's flow under vector_force, the passivity controller on"
+duration_s = 1.0
+k_n_per_m = 500.0
+start_m = [0.01, 0.0, 0.0]
+
+[[volumes]]
+name = "flow"
+builtin = "density-flow"
+part = "vector"
+
+[passivity]
+mode = "control"
+
+[[modes]]
+kind = "vector_force"
+volume = "flow"
+transfer = [[0.0, 0.0], [0.05, 0.5]]
+power_budget_w = 0.2
+
+[arm]
+mass_kg = 0.1
+damping_n_s_per_m = 1.0
+workspace = { shape = "unbounded" }
+
+[path]
+kind = "force"
+profile = { shape = "constant", force_n = [0.0, 0.0, 0.0] }
+"#;
+    let (summary, _, scenario) = run_text(text, "vector_force_push.toml");
+    let active = summary.energy.active_work_j;
+    eprintln!(
+        "active work {active:e} J, dissipated {:e} J in {} ticks",
+        summary.passivity.dissipated_j, summary.passivity.active_ticks
+    );
+    assert!(active > 1e-3 && active <= 0.2 * scenario.duration_s, "{active}");
+    assert!(summary.passivity.dissipated_j < 1e-6, "{:?}", summary.passivity);
+}

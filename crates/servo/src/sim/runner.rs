@@ -170,11 +170,6 @@ pub fn run(
             spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
         let stretch_m = anchor_m - probe_m;
         let coupling_j = 0.5 * k * stretch_m.length_squared();
-        let control_n =
-            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, coupling_j, dt_s);
-        if control_n != DVec3::ZERO {
-            rendered_n += control_n;
-        }
         let active_n: DVec3 = out
             .mode_force_n
             .iter()
@@ -182,6 +177,14 @@ pub fn run(
             .filter(|(_, a)| **a)
             .map(|(f, _)| *f)
             .sum();
+        // The observer follows the spring without the directed part, as serve's does (crate::runner).
+        let directed_stretch_m = if k > 0.0 { active_n / k } else { DVec3::ZERO };
+        let reference_j = 0.5 * k * (stretch_m - directed_stretch_m).length_squared();
+        let control_n =
+            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, reference_j, dt_s);
+        if control_n != DVec3::ZERO {
+            rendered_n += control_n;
+        }
         ledger.book_passivity(passivity.totals().dissipated_j);
         let period = match device.as_mut() {
             None => {
@@ -192,7 +195,7 @@ pub fn run(
                 } else {
                     rendered_n
                 };
-                passivity.sent(rendered_n, sent_n);
+                passivity.sent_with_active(rendered_n, sent_n, active_n);
                 summary.energy =
                     ledger.record(t_s, dt_s, probe_m, rendered_n, active_n, coupling_j);
                 Period {
@@ -222,7 +225,7 @@ pub fn run(
                 let set_force_active_n = if valid { active_n } else { DVec3::ZERO };
                 let period = device_period(device, &mut arm, &mut ledger, t_s, set_force_active_n)?;
                 summary.energy = ledger.totals();
-                passivity.sent(rendered_n, period.force_n);
+                passivity.sent_with_active(rendered_n, period.force_n, set_force_active_n);
                 period
             }
         };

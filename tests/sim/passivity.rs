@@ -285,6 +285,13 @@ profile = { shape = "constant", force_n = [0.0, 0.0, 0.0] }
         "active work {active:e} J, dissipated {:e} J in {} ticks",
         summary.passivity.dissipated_j, summary.passivity.active_ticks
     );
-    assert!(active > 1e-3 && active <= 0.2 * scenario.duration_s, "{active}");
-    assert!(summary.passivity.dissipated_j < 1e-6, "{:?}", summary.passivity);
+    assert!(
+        active > 1e-3 && active <= 0.2 * scenario.duration_s,
+        "{active}"
+    );
+    assert!(
+        summary.passivity.dissipated_j < 1e-6,
+        "{:?}",
+        summary.passivity
+    );
 }

@@ -48,27 +48,8 @@
 //! before the bound: the controller-on run never pressed the plane (its driver had timed only half the
 //! run's round trips, so the link had most likely been lost and reopened).
 
-use crate::util::mock_process::MockProcess as Mock;
+use crate::util::mock_process::{pressing_handle, MockProcess as Mock};
 use std::path::Path;
-
-/// The handle: the simulated arm held by a hand that waits above the plane while serve connects and engages
-/// (up 10 mm over 2 s), then presses it 3 mm past the plane at z = -5 mm (the grip's 200 N/m: 0.6 N) and
-/// holds it there.
-const HANDLE: &str = r#"
-[arm]
-mass_kg = 0.1
-damping_n_s_per_m = 1.0
-workspace = { shape = "unbounded" }
-
-[hand]
-stiffness_n_per_m = 200.0
-damping_n_s_per_m = 0.5
-
-[path]
-kind = "waypoints"
-points_m = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.01], [0.0, 0.0, -0.008]]
-speed_m_per_s = 0.005
-"#;
 
 fn scene(passivity: &str) -> String {
     format!(
@@ -211,7 +192,9 @@ fn press(passivity: &str) -> (Vec<Cycle>, String, LinkDelay) {
         dir.path().join("handle.csv"),
         dir.path().join("scene.toml"),
     );
-    std::fs::write(&arm, HANDLE).unwrap();
+    // The hand waits above the plane while serve connects and engages (up 10 mm over 2 s), then presses the
+    // handle 3 mm past the plane and holds it there (util::mock_process).
+    std::fs::write(&arm, pressing_handle(0.01)).unwrap();
     std::fs::write(&scene_path, scene(passivity)).unwrap();
     let mut mock = Mock::start(&[
         "--pty",

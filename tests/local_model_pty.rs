@@ -6,7 +6,7 @@
 //! when serve is killed) and a wall (and serve's trace carries what the device reported). Only what holds
 //! whatever the machine's load is asserted: the log's times are the device's own.
 
-use crate::util::mock_process::MockProcess as Mock;
+use crate::util::mock_process::{pressing_handle, MockProcess as Mock};
 use glam::DVec3;
 use serialport::SerialPort;
 use std::io::Write;
@@ -134,27 +134,17 @@ fn check_zero_when_off_and_slew(cycles: &[Cycle]) {
     }
 }
 
-#[test]
-fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent() {
-    let dir = tempfile::tempdir().unwrap();
-    let log = dir.path().join("device.csv");
-    let log_arg = log.to_str().unwrap();
-    let mut mock = Mock::start(&[
-        "--pty",
-        "--local-model",
-        "--duration",
-        "8",
-        "--log",
-        log_arg,
-    ]);
+/// Opens the capable mock's terminal, shakes hands (the HeartbeatReply after DeviceInfo carries the
+/// capability bit, which must be set) and enables the drive with a 50 ms watchdog.
+fn connect_and_enable(
+    mock: &Mock,
+) -> (Box<dyn SerialPort>, FrameDecoder<DeviceToHost>, HostSession) {
     let mut port = serialport::new(&mock.path, 1_000_000)
         .timeout(Duration::from_millis(1))
         .open()
         .unwrap();
     let mut decoder = FrameDecoder::<DeviceToHost>::new();
     let mut host = HostSession::new();
-
-    // Handshake: the HeartbeatReply after DeviceInfo carries the capability bit.
     port.write_all(&[0]).unwrap();
     send(&mut *port, &host.hello());
     send(
@@ -178,6 +168,23 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
             watchdog_timeout_us: 50_000,
         }),
     );
+    (port, decoder, host)
+}
+
+#[test]
+fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("device.csv");
+    let log_arg = log.to_str().unwrap();
+    let mut mock = Mock::start(&[
+        "--pty",
+        "--local-model",
+        "--duration",
+        "8",
+        "--log",
+        log_arg,
+    ]);
+    let (mut port, mut decoder, mut host) = connect_and_enable(&mock);
 
     // Two seconds of models at about 1 kHz, reading whatever comes back so that the terminal's buffer never
     // fills. The pacing does not matter: each model expires 15 ms after it arrives, which rides out a loaded
@@ -638,25 +645,6 @@ fn serve_traces_a_capable_mocks_own_proxy_and_model_age() {
     assert!(trace.samples.iter().any(|s| s.truth.device_local.is_none()));
 }
 
-/// The handle for the passivity runs: the simulated arm (0.1 kg, 1 N s/m) held by a hand with a 200 N/m,
-/// 0.5 N s/m grip that, once the device has engaged, moves down at 5 mm/s and stops 3 mm past the floor at
-/// z = -5 mm (0.6 N of grip), so the handle presses into the floor and stays.
-const PRESSING_HANDLE: &str = r#"
-[arm]
-mass_kg = 0.1
-damping_n_s_per_m = 1.0
-workspace = { shape = "unbounded" }
-
-[hand]
-stiffness_n_per_m = 200.0
-damping_n_s_per_m = 0.5
-
-[path]
-kind = "waypoints"
-points_m = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0005], [0.0, 0.0, -0.008]]
-speed_m_per_s = 0.005
-"#;
-
 /// The floor's stiffness: twice the Colgate-Schenkel bound `2 b / T` of the contact at the mock's 10 kHz with
 /// all the damping the handle has (arm and grip, b = 1.5 N s/m): 30 000 N/m. Past it the sampled floor is
 /// active (the exact zero-order-hold boundary of such an arm sits within a fraction of a percent of `2 b / T`:
@@ -693,7 +681,8 @@ fn press_an_active_floor(passivity: voxhap_protocol::LocalPassivityMode) -> (f64
         dir.path().join("handle.csv"),
         dir.path().join("device.csv"),
     );
-    std::fs::write(&arm, PRESSING_HANDLE).unwrap();
+    // The handle presses into the floor once the device has engaged, and stays (util::mock_process).
+    std::fs::write(&arm, pressing_handle(0.0005)).unwrap();
     let mut mock = Mock::start(&[
         "--pty",
         "--local-model",
@@ -706,28 +695,7 @@ fn press_an_active_floor(passivity: voxhap_protocol::LocalPassivityMode) -> (f64
         "--log",
         log.to_str().unwrap(),
     ]);
-    let mut port = serialport::new(&mock.path, 1_000_000)
-        .timeout(Duration::from_millis(1))
-        .open()
-        .unwrap();
-    let mut decoder = FrameDecoder::<DeviceToHost>::new();
-    let mut host = HostSession::new();
-    port.write_all(&[0]).unwrap();
-    send(&mut *port, &host.hello());
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let mut connected = false;
-    while !connected {
-        assert!(Instant::now() < deadline, "no DeviceInfo from the mock");
-        connected = receive(&mut *port, &mut decoder)
-            .iter()
-            .any(|m| matches!(m, DeviceToHost::DeviceInfo(_)));
-    }
-    send(
-        &mut *port,
-        &HostToDevice::Enable(Enable {
-            watchdog_timeout_us: 50_000,
-        }),
-    );
+    let (mut port, mut decoder, mut host) = connect_and_enable(&mock);
     let params = LocalModelParams {
         sequence: 0,
         expiry_us: 15_000,

@@ -69,3 +69,16 @@ impl Drop for MockProcess {
         let _ = self.child.wait();
     }
 }
+
+/// A `--arm` file for the mock: the simulated arm (0.1 kg, 1 N s/m, unbounded) held by a hand with a
+/// 200 N/m, 0.5 N s/m grip that rises `rise_m` while the host connects and engages, then moves down at 5 mm/s
+/// to z = -8 mm and holds there: 3 mm past a floor at z = -5 mm, 0.6 N of grip pressing the handle into it.
+pub fn pressing_handle(rise_m: f64) -> String {
+    format!(
+        "[arm]\nmass_kg = 0.1\ndamping_n_s_per_m = 1.0\nworkspace = {{ shape = \"unbounded\" }}\n\n\
+         [hand]\nstiffness_n_per_m = 200.0\ndamping_n_s_per_m = 0.5\n\n\
+         [path]\nkind = \"waypoints\"\n\
+         points_m = [[0.0, 0.0, 0.0], [0.0, 0.0, {rise_m:?}], [0.0, 0.0, -0.008]]\n\
+         speed_m_per_s = 0.005\n"
+    )
+}

@@ -35,6 +35,20 @@ fn config(service: &InverseService) -> HaplyInverseConfig {
 /// Haply's documented example pose (docs.haply.co "WebSocket Protocol", step 1), where the double starts.
 const DOCUMENTED_POSE_M: [f64; 3] = [0.0, -0.12, 0.15];
 
+/// A supervisor for the service double's tests: a 2 N limit, a 20 ms engage ramp, and enabled after 5 steady
+/// ticks (the default 50 is for real sessions).
+fn quick_supervisor() -> SupervisorConfig {
+    SupervisorConfig {
+        safety: SafetyConfig {
+            ramp_time_us: 20_000,
+            max_force_n: 2.0,
+            ..SafetyConfig::default()
+        },
+        steady_ticks_before_enable: 5,
+        ..SupervisorConfig::default()
+    }
+}
+
 #[test]
 fn a_mount_another_program_left_is_replaced_by_the_sessions_preset() {
     let service = InverseService::start();
@@ -142,15 +156,7 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
     use voxhap::servo::force_off::ForceOffTracker;
     let service = InverseService::start();
     let url = (service.url(), service.events_url());
-    let supervisor_config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 2.0,
-            ..SafetyConfig::default()
-        },
-        steady_ticks_before_enable: 5,
-        ..SupervisorConfig::default()
-    };
+    let supervisor_config = quick_supervisor();
     let mut supervisor = Supervisor::new(supervisor_config, move || {
         let mut config = HaplyInverseConfig::default();
         config.service.url = url.0.clone();
@@ -277,14 +283,8 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
     config.service.events_url = Some(service.events_url());
     config.reply_wait = Duration::from_millis(20);
     let supervisor_config = SupervisorConfig {
-        safety: SafetyConfig {
-            ramp_time_us: 20_000,
-            max_force_n: 2.0,
-            ..SafetyConfig::default()
-        },
-        steady_ticks_before_enable: 5,
         reconnect_interval_us: 50_000,
-        ..SupervisorConfig::default()
+        ..quick_supervisor()
     };
     let mut supervisor = Supervisor::new(supervisor_config, move || {
         Ok(HaplyInverse::new(config.clone()))

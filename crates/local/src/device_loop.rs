@@ -147,6 +147,7 @@ impl LocalLoop {
             if session.drive_state() != DriveState::Enabled {
                 // Disable, a fault, the watchdog or a Hello: the next Enable engages from zero (SPEC 10.5 step 6).
                 self.ramp.reset();
+                self.passivity.reset();
             }
             // Otherwise a SetForce drives the device: the host's force, past the host's own engage rule and slew
             // limit, is applied, and the ramp holds, so that a host falling back to SetForce for a tick does not

@@ -81,6 +81,16 @@ impl DevicePassivity {
         self.last = None;
     }
 
+    /// The drive left Enabled (the engage ramp resets with it): the next Enable starts from an empty excess
+    /// and a zero share, as at power-up, so nothing the coupling generated before the Disable is dissipated
+    /// after the Enable, and the controller waits for the new engage ramp (SPEC 10.5 step 4b). The totals'
+    /// sums are kept.
+    pub fn reset(&mut self) {
+        self.last = None;
+        self.share = 0.0;
+        self.totals.excess_j = 0.0;
+    }
+
     /// Books the step to `probe_m` and this cycle's reference (`stretch_m` is `x - d/k - p`), then returns the
     /// controller's force (zero unless the mode is `control`).
     pub fn observe_and_control(

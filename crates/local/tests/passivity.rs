@@ -305,3 +305,48 @@ fn a_wall_past_the_zoh_boundary_gains_energy_without_the_controller_and_not_with
         "without it: {rise:?}, bound {bound}"
     );
 }
+
+/// What the coupling generated before a Disable is not dissipated after the next Enable (SPEC 10.5 step 4b:
+/// the excess starts again at 0, and the share at 0, when the drive leaves Enabled, as the engage ramp does).
+/// In mode `observe` the arm of the test above bounces on the wall past the boundary and the excess grows to
+/// millijoules; then Disable, Enable, and models in mode `control` with the handle held still inside the wall
+/// but reported moving: a still handle generates nothing, so no damping may act. Checked to fail without the
+/// reset: the stale excess is dissipated on the first cycles after the Enable (`DISSIPATING`).
+#[test]
+fn an_enable_starts_the_passivity_books_afresh() {
+    let (m, b, f_hand, k) = (0.1, 1.0, 0.5, 40_000.0);
+    let decay = (-b * T_S / m).exp();
+    let mut rig = Rig::new(k, LocalPassivityMode::Observe, &[FLOOR]);
+    let rest = -f_hand / k;
+    rig.engage([0.0, 0.0, rest]);
+    let (mut z, mut v) = (rest, -0.005);
+    for _ in 0..5_000 {
+        let f = rig.step([0.0, 0.0, z], [0.0, 0.0, v])[2] - f_hand;
+        let v_end = f / b + (v - f / b) * decay;
+        z += f / b * T_S + (v - f / b) * (m / b) * (1.0 - decay);
+        v = v_end;
+    }
+    let excess = rig.local.passivity_totals().excess_j;
+    assert!(excess > 100.0 * PASSIVITY_THRESHOLD_J, "excess {excess} J");
+    rig.session.on_message(&HostToDevice::Disable, rig.now_us);
+    rig.step([0.0, 0.0, rest], [0.0; 3]);
+    rig.session.on_message(
+        &HostToDevice::Enable(voxhap_protocol::Enable {
+            watchdog_timeout_us: 50_000,
+        }),
+        rig.now_us,
+    );
+    rig.mode = LocalPassivityMode::Control;
+    rig.statuses = LocalStatus::EMPTY;
+    // Held 2 mm inside the wall for 0.6 s: r waits at 0 (80 N asked), so the ramp never starts.
+    for _ in 0..6_000 {
+        rig.step([0.0, 0.0, -0.002], [0.0, 0.0, 0.01]);
+    }
+    assert!(
+        !rig.statuses.contains(LocalStatus::DISSIPATING),
+        "{:?}, totals {:?}",
+        rig.statuses,
+        rig.local.passivity_totals()
+    );
+    assert_eq!(rig.local.passivity_totals().excess_j, 0.0);
+}

@@ -35,6 +35,17 @@ fn config(service: &InverseService) -> HaplyInverseConfig {
 /// Haply's documented example pose (docs.haply.co "WebSocket Protocol", step 1), where the double starts.
 const DOCUMENTED_POSE_M: [f64; 3] = [0.0, -0.12, 0.15];
 
+/// The force flows at full strength (the pushes ask for 1 N along z) and the service double's events channel
+/// has a client: the moment to send a safety event.
+fn force_flows_and_events_connected(service: &InverseService, sent_force_n: DVec3) -> bool {
+    sent_force_n.z > 0.99
+        && service
+            .shared
+            .event_clients_accepted
+            .load(Ordering::Acquire)
+            > 0
+}
+
 /// A supervisor for the service double's tests: a 2 N limit, a 20 ms engage ramp, and enabled after 5 steady
 /// ticks (the default 50 is for real sessions).
 fn quick_supervisor() -> SupervisorConfig {
@@ -190,14 +201,7 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
             causes_before.push(cause);
         }
         // Send the event once the force flows at full strength and the events channel is connected.
-        if !sent
-            && out.sent_force_n.z > 0.99
-            && service
-                .shared
-                .event_clients_accepted
-                .load(Ordering::Acquire)
-                > 0
-        {
+        if !sent && force_flows_and_events_connected(&service, out.sent_force_n) {
             assert_eq!(cause, ForceOffCause::None, "force flows before the event");
             if safety_type == "ebrake_triggered" {
                 service.ebrake();
@@ -319,14 +323,7 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
         }
         phase = match phase {
             Phase::Pushing => {
-                if !stall_sent
-                    && out.sent_force_n.z > 0.99
-                    && service
-                        .shared
-                        .event_clients_accepted
-                        .load(Ordering::Acquire)
-                        > 0
-                {
+                if !stall_sent && force_flows_and_events_connected(&service, out.sent_force_n) {
                     service.safety_event("stall_detected");
                     stall_sent = true;
                 }

@@ -71,6 +71,19 @@ fn wait_for_done(mock: &mut Mock) -> String {
     }
 }
 
+/// Keeps draining the terminal (so its buffer never fills) until the mock exits, then [`wait_for_done`].
+fn drain_until_done(
+    mock: &mut Mock,
+    port: &mut dyn SerialPort,
+    decoder: &mut FrameDecoder<DeviceToHost>,
+) -> String {
+    while !mock.has_exited() {
+        receive(port, decoder);
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    wait_for_done(mock)
+}
+
 fn send(port: &mut dyn SerialPort, message: &HostToDevice) {
     let mut frame = [0u8; MAX_WIRE_FRAME_LEN];
     let len = encode_frame(message, &mut frame).unwrap();
@@ -230,13 +243,7 @@ fn a_capable_mock_renders_local_models_and_ramps_out_when_the_host_goes_silent()
     );
     models_for(&mut *port, 1.0);
     // Silence: the device must ramp out by itself. Keep draining until the mock exits.
-    let done = loop {
-        if mock.has_exited() {
-            break wait_for_done(&mut mock);
-        }
-        receive(&mut *port, &mut decoder);
-        std::thread::sleep(Duration::from_millis(1));
-    };
+    let done = drain_until_done(&mut mock, &mut *port, &mut decoder);
     assert!(done.starts_with("done:"), "{done}");
     assert!(local_states > 0, "no LocalState reached the host");
 
@@ -717,13 +724,7 @@ fn press_an_active_floor(passivity: voxhap_protocol::LocalPassivityMode) -> (f64
         receive(&mut *port, &mut decoder);
         std::thread::sleep(Duration::from_millis(1));
     }
-    let done = loop {
-        if mock.has_exited() {
-            break wait_for_done(&mut mock);
-        }
-        receive(&mut *port, &mut decoder);
-        std::thread::sleep(Duration::from_millis(1));
-    };
+    let done = drain_until_done(&mut mock, &mut *port, &mut decoder);
     assert!(done.starts_with("done:"), "{done}");
     let cycles = read_log(&log);
     check_zero_when_off_and_slew(&cycles);

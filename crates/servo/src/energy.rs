@@ -71,6 +71,8 @@ pub struct SentShare(f64);
 impl SentShare {
     /// Nothing sent (before the first exchange).
     pub const NOTHING: SentShare = SentShare(0.0);
+    /// All of it sent (the simulated arm's set-force path).
+    pub const ALL: SentShare = SentShare(1.0);
 
     /// The share of `rendered_n` that went out as `sent_n`.
     pub fn of(sent_n: DVec3, rendered_n: DVec3) -> Self {
@@ -94,6 +96,19 @@ impl SentShare {
     /// generated.
     pub fn spring_energy_j(self, k_n_per_m: f64, stretch_m: DVec3) -> f64 {
         0.5 * k_n_per_m * stretch_m.length_squared() * self.0 * self.0
+    }
+
+    /// [`SentShare::spring_energy_j`] of the coupling without the directed forces' part: the proxy solve
+    /// minimises `k/2 |x - p - d/k|^2 + ...`, so the spring that gives energy back is stretched by
+    /// `stretch - d/k`, while `d` (`directed_n`, the directed-force modes' force) does intended work, booked as
+    /// active. The ledger books this as the coupling energy and the passivity observer follows it.
+    pub fn reaction_energy_j(self, k_n_per_m: f64, stretch_m: DVec3, directed_n: DVec3) -> f64 {
+        let directed_stretch_m = if k_n_per_m > 0.0 {
+            directed_n / k_n_per_m
+        } else {
+            DVec3::ZERO
+        };
+        self.spring_energy_j(k_n_per_m, stretch_m - directed_stretch_m)
     }
 }
 
@@ -399,6 +414,22 @@ mod tests {
         let expected = 0.5 * k * dx * dx * n as f64;
         assert!((totals.generated_j - expected).abs() < 1e-15, "{totals:?}");
         assert!(!totals.active());
+    }
+
+    /// A directed force `d` on a free hand puts the proxy `d/k` ahead of the probe: the spring without the
+    /// directed part is unstretched and holds nothing; a contact reaction `R` on top of it holds `|R|^2/2k`.
+    #[test]
+    fn the_reaction_energy_leaves_the_directed_stretch_out() {
+        let (k, d, r) = (500.0, DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, 0.0, 2.0));
+        let all = SentShare::ALL;
+        assert_eq!(all.reaction_energy_j(k, d / k, d), 0.0);
+        let held = all.reaction_energy_j(k, (d + r) / k, d);
+        assert!((held - 4.0 / 1000.0).abs() < 1e-15, "{held}");
+        // Half sent: a quarter of it (the spring's force scales with the share).
+        let half = SentShare::of(DVec3::new(0.5, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0));
+        assert!((half.reaction_energy_j(k, (d + r) / k, d) - 1.0 / 1000.0).abs() < 1e-15);
+        // No stiffness: no directed stretch to take out (no division by zero).
+        assert_eq!(all.reaction_energy_j(0.0, r, d), 0.0);
     }
 
     /// A force pushing along the motion does work; booked as active it is split out of the net.

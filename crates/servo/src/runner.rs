@@ -422,8 +422,7 @@ impl ServoLoop {
             // The directed-force modes displace the proxy by their force over k: that part of the stretch
             // is intended work, not energy stored in the coupling (crate::passivity::controller).
             let share = self.sent_share;
-            let directed_stretch_m = if k > 0.0 { directed_n / k } else { DVec3::ZERO };
-            let reference_j = share.spring_energy_j(k, anchor_m - probe_m - directed_stretch_m);
+            let reference_j = share.reaction_energy_j(k, anchor_m - probe_m, directed_n);
             let control_n =
                 self.passivity
                     .observe_and_control(probe_m, probe_velocity, reference_j, dt_s);
@@ -489,6 +488,7 @@ impl ServoLoop {
                 dt_s,
                 probe_m,
                 stretch_m: anchor_m - probe_m,
+                directed_n,
                 k_n_per_m: k,
                 rendered_from_state,
                 sample_age_ticks,
@@ -627,11 +627,13 @@ impl ServoLoop {
         let totals = if input.rendered_from_state {
             // The directed-force modes' share of the force is intended work (crate::energy).
             // The external force is meant to do work too.
-            let active_n = input.external_force_n + self.directed_force_n(out);
+            let active_n = input.external_force_n + input.directed_n;
             // The spring holds what the force actually sent can give back (crate::energy::SentShare).
-            let coupling_j = self
-                .sent_share
-                .spring_energy_j(input.k_n_per_m, input.stretch_m);
+            let coupling_j = self.sent_share.reaction_energy_j(
+                input.k_n_per_m,
+                input.stretch_m,
+                input.directed_n,
+            );
             self.ledger.record(
                 input.t_s,
                 input.dt_s,
@@ -759,6 +761,8 @@ struct TruthInput {
     probe_m: DVec3,
     /// The coupling spring's stretch this tick (anchor less probe) and its stiffness.
     stretch_m: DVec3,
+    /// The directed-force modes' share of the tick's force (intended work, crate::energy).
+    directed_n: DVec3,
     k_n_per_m: f64,
     /// The tick had a device state to render from (else the ledger books a gap).
     rendered_from_state: bool,

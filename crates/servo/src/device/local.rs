@@ -219,15 +219,8 @@ impl LocalDevice {
         let coupling_n =
             k * (proxy - sensed(position_m)) - model.damping_n_s_per_m() * sensed(velocity_m_per_s);
         let share = crate::energy::SentShare::of(applied_n, coupling_n);
-        let stretch_m = proxy - position_m;
-        // The reaction's stretch `x − p − d/k` (exactly the stretch without a directed slot).
-        let reaction_stretch_m = if directed_n == DVec3::ZERO {
-            stretch_m
-        } else {
-            stretch_m - directed_n / k
-        };
         Some(CycleBooks {
-            coupling_energy_j: share.spring_energy_j(k, reaction_stretch_m),
+            coupling_energy_j: share.reaction_energy_j(k, proxy - position_m, directed_n),
             directed_n: share.fraction() * directed_n,
         })
     }

@@ -15,7 +15,7 @@
 
 use super::scenario::{LoadedScenario, ScenarioValueError};
 use crate::device::LocalDevice;
-use crate::energy::{EnergyLedger, EnergyTotals};
+use crate::energy::{EnergyLedger, EnergyTotals, SentShare};
 use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
 use glam::DVec3;
 use voxhap_core::haptics::modes::{ModeKind, ModeMemory};
@@ -168,8 +168,6 @@ pub fn run(
             };
         let mut rendered_n =
             spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
-        let stretch_m = anchor_m - probe_m;
-        let coupling_j = 0.5 * k * stretch_m.length_squared();
         let active_n: DVec3 = out
             .mode_force_n
             .iter()
@@ -177,11 +175,11 @@ pub fn run(
             .filter(|(_, a)| **a)
             .map(|(f, _)| *f)
             .sum();
-        // The observer follows the spring without the directed part, as serve's does (crate::runner).
-        let directed_stretch_m = if k > 0.0 { active_n / k } else { DVec3::ZERO };
-        let reference_j = 0.5 * k * (stretch_m - directed_stretch_m).length_squared();
+        // The ledger's coupling energy and the observer's reference: the spring without the directed part,
+        // as serve books it (crate::energy::SentShare::reaction_energy_j).
+        let coupling_j = SentShare::ALL.reaction_energy_j(k, anchor_m - probe_m, active_n);
         let control_n =
-            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, reference_j, dt_s);
+            passivity.observe_and_control(probe_m, probe_velocity_m_per_s, coupling_j, dt_s);
         if control_n != DVec3::ZERO {
             rendered_n += control_n;
         }

@@ -276,9 +276,10 @@ fn a_stability_ceiling_event_zeroes_the_force_as_its_own_fault() {
 /// A motor stall (`stall_detected`, docs.haply.co "Events & Monitoring") is a fault until the operator clears
 /// it, not until the link happens to drop: with the service restarted after the stall (the link drops and the
 /// supervisor reconnects through the same settings, as `serve` does), no force goes out between the stall and
-/// the operator's clear, and the reconnected link reports the stall's fault again; after the clear, force flows
-/// again (so the zero before it was the fault's). Counted in ticks and events, not timed. Fails when the driver
-/// forgets the latched fault on reconnect (force ramps in again a few ticks after the new link is up).
+/// the operator's clear, and the stall's fault is still reported on the reconnected link; after the clear, force
+/// flows again (so the zero before it was the fault's). Counted in ticks and events, not timed. Fails when the
+/// supervisor forgets a fault reported by event on reconnect (force ramps in again a few ticks after the new
+/// link is up).
 #[test]
 fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears_it() {
     let mut service = InverseService::start();

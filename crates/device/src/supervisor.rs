@@ -278,10 +278,15 @@ where
         self.position_axes = device.info().position_axes();
         self.force_axes = device.info().force_axes();
         self.device = Some(device);
-        self.drive = Drive::Starting { steady_ticks: 0 };
+        // A fault the device reported by event (an e-brake, a stall) outlives its link: a dropped link and its
+        // reconnect keep the drive faulted until the operator clears it, whichever device reports it.
+        self.drive = if self.event_faults != 0 {
+            Drive::Faulted
+        } else {
+            Drive::Starting { steady_ticks: 0 }
+        };
         self.last_state = None;
         self.last_status = None;
-        self.event_faults = 0;
         self.consecutive_errors = 0;
         self.ticks_since_fresh = 0;
         self.last_fresh_us = now_us;

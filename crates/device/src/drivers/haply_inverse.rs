@@ -36,9 +36,8 @@
 //! Safety events: the link's events channel ([`crate::transport::inverse_service::events`]) hands e-brake,
 //! stall and stability-ceiling events to `take_event` as [`DeviceEvent::Fault`] (codes
 //! [`FAULT_EMERGENCY_STOP`], [`FAULT_MOTOR_STALL`], [`FAULT_STABILITY_CEILING`]): the supervisor zeroes the force
-//! on the tick it reads them and stays faulted until the operator clears it. The faults are latched in the
-//! settings ([`LatchedFaults`], shared by every driver the same settings open), so a dropped link and its
-//! reconnect do not forget them: the new link reports them again on its first tick.
+//! on the tick it reads them and stays faulted until the operator clears it, through a dropped link and its
+//! reconnect too (the supervisor keeps faults reported by event across a reconnect).
 
 #[path = "haply_inverse_io.rs"]
 pub mod io;
@@ -53,41 +52,13 @@ use crate::transport::inverse_service::{self, ForceCommand, ServiceConfig, Servi
 use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
 use glam::DVec3;
 use link::Verdict;
-use std::sync::atomic::{AtomicU16, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 /// voxhap's default force cap for the Inverse3 (N); a profile may lower it.
 pub const DEFAULT_MAX_FORCE_N: f64 = limits::DEFAULT_MAX_FORCE_N;
 /// How long `read_state` spins before it starts yielding the CPU while it waits for the answer.
 pub const REPLY_SPIN: Duration = Duration::from_micros(20);
-
-/// The service's safety events latched as voxhap fault bits, shared by the clones of one
-/// [`HaplyInverseConfig`] (so by every driver a reconnecting supervisor opens from it) until the operator
-/// clears them. Equal only to its own clones.
-#[derive(Debug, Clone, Default)]
-pub struct LatchedFaults(Arc<AtomicU16>);
-
-impl LatchedFaults {
-    /// The latched fault bits (bit n: fault code n).
-    pub fn bits(&self) -> u16 {
-        self.0.load(Ordering::Acquire)
-    }
-
-    fn latch(&self, bits: u16) {
-        self.0.fetch_or(bits, Ordering::AcqRel);
-    }
-
-    fn clear(&self) {
-        self.0.store(0, Ordering::Release);
-    }
-}
-
-impl PartialEq for LatchedFaults {
-    fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.0, &other.0)
-    }
-}
 
 /// Settings of the driver.
 #[derive(Debug, Clone, PartialEq)]
@@ -100,8 +71,6 @@ pub struct HaplyInverseConfig {
     pub max_stale_ticks: u64,
     /// Force cap for the capability record (N).
     pub max_force_n: f64,
-    /// Safety events latched across reconnects (module docs).
-    pub latched_faults: LatchedFaults,
 }
 
 impl Default for HaplyInverseConfig {
@@ -111,7 +80,6 @@ impl Default for HaplyInverseConfig {
             reply_wait: Duration::from_micros(400),
             max_stale_ticks: 3,
             max_force_n: DEFAULT_MAX_FORCE_N,
-            latched_faults: LatchedFaults::default(),
         }
     }
 }
@@ -231,13 +199,9 @@ impl HapticDevice for HaplyInverse {
         self.info.serial_number = device.device_id.clone();
         self.sequence = 0;
         self.surplus = SurplusCount::default();
+        self.pending_event = None;
+        self.active_faults = 0;
         self.arm_force_n = None;
-        // Faults latched on an earlier link stay: reported again on this link's first tick.
-        self.active_faults = self.config.latched_faults.bits();
-        self.pending_event = (self.active_faults != 0).then(|| DeviceEvent::Fault {
-            code: self.active_faults.trailing_zeros() as u8,
-            active_faults: self.active_faults,
-        });
         if let inverse_service::Configuration::Unconfirmed(why) = &device.configuration {
             eprintln!(
                 "voxhap: Haply Inverse Service: the session's frame (preset {:?}, basis {:?}, no mount) is set but \
@@ -348,10 +312,9 @@ impl HapticDevice for HaplyInverse {
         self.state_age_ticks
     }
 
-    /// The operator's clear: the latched safety events are forgotten (Haply's own e-brake lock is released on
-    /// the arm or in Haply Hub, not here).
+    /// The operator's clear: the safety events are forgotten (Haply's own e-brake lock is released on the arm
+    /// or in Haply Hub, not here).
     fn clear_fault(&mut self) -> Result<(), DeviceError> {
-        self.config.latched_faults.clear();
         self.active_faults = 0;
         Ok(())
     }
@@ -371,7 +334,6 @@ impl HapticDevice for HaplyInverse {
         let event = self.link.as_mut()?.events.pop()?;
         let code = link::fault_code(event);
         self.active_faults |= 1 << code;
-        self.config.latched_faults.latch(self.active_faults);
         Some(DeviceEvent::Fault {
             code,
             active_faults: self.active_faults,

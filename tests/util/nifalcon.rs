@@ -20,28 +20,42 @@ const PHY: [f64; 3] = [
     -5.0 * PI / 6.0 + OFFSET_ANGLE,
 ];
 
-/// (θ1, θ2, θ3) of each leg at handle position `p`: FalconKinematicStamper.cpp:28-94 (`IK`).
+/// (θ1, θ2, θ3) of each leg at handle position `p`: FalconKinematicStamper.cpp:28-94 (`IK`), written term by
+/// term in the source's order: `P = R(phy) p + offset` with `offset = (-r, -s, 0)` (lines 32-51), `theta3`
+/// (line 56), `l0`, `l1`, `l2` (lines 64-66), the `-` root `T1b` (line 81), `theta1 = 2 atan(T1b)` (line 85),
+/// `theta2` (line 91).
 pub fn ik(p: DVec3) -> [[f64; 3]; 3] {
     let mut legs = [[0.0; 3]; 3];
     for (leg, phy) in PHY.iter().enumerate() {
-        let u = phy.cos() * p.x + phy.sin() * p.y - R;
-        let v = -phy.sin() * p.x + phy.cos() * p.y - S;
-        let w = p.z;
-        let t3 = ((v + F) / B).acos();
-        let s3 = t3.sin();
-        let shared = w * w + u * u + 2.0 * C * u + A * A + C * C
+        let rot = DMat3::from_cols(
+            DVec3::new(phy.cos(), -phy.sin(), 0.0),
+            DVec3::new(phy.sin(), phy.cos(), 0.0),
+            DVec3::Z,
+        );
+        let pp = rot * p + DVec3::new(-R, -S, 0.0);
+        let theta3 = ((pp.y + F) / B).acos();
+        let s3 = theta3.sin();
+        let l0 = pp.z * pp.z + pp.x * pp.x + 2.0 * C * pp.x - 2.0 * A * pp.x + A * A + C * C
             - D * D
             - E * E
             - B * B * s3 * s3
             - 2.0 * B * E * s3
             - 2.0 * B * D * s3
-            - 2.0 * D * E;
-        let l0 = shared - 2.0 * A * u - 2.0 * A * C;
-        let l1 = -4.0 * A * w;
-        let l2 = shared + 2.0 * A * u + 2.0 * A * C;
-        let t1 = ((-l1 - (l1 * l1 - 4.0 * l0 * l2).sqrt()) / (2.0 * l2)).atan() * 2.0;
-        let t2 = ((-u + A * t1.cos() - C) / (-D - E - B * s3)).acos();
-        legs[leg] = [t1, t2, t3];
+            - 2.0 * D * E
+            - 2.0 * A * C;
+        let l1 = -4.0 * A * pp.z;
+        let l2 = pp.z * pp.z + pp.x * pp.x + 2.0 * C * pp.x + 2.0 * A * pp.x + A * A + C * C
+            - D * D
+            - E * E
+            - B * B * s3 * s3
+            - 2.0 * B * E * s3
+            - 2.0 * B * D * s3
+            - 2.0 * D * E
+            + 2.0 * A * C;
+        let t1b = (-l1 - (l1 * l1 - 4.0 * l0 * l2).sqrt()) / (2.0 * l2);
+        let theta1 = t1b.atan() * 2.0;
+        let theta2 = ((-pp.x + A * theta1.cos() - C) / (-D - E - B * s3)).acos();
+        legs[leg] = [theta1, theta2, theta3];
     }
     legs
 }

@@ -10,9 +10,13 @@ use voxhap::record::{read_trace, TraceFormat};
 #[test]
 fn two_runs_write_identical_files() {
     let dir = tempfile::tempdir().unwrap();
-    for format in [TraceFormat::Csv, TraceFormat::Mcap] {
-        let a = dir.path().join(format!("a.{format}"));
-        let b = dir.path().join(format!("b.{format}"));
+    // The same file name in two folders: a Parquet trace embeds its sidecar, which names the trace file.
+    let (dir_a, dir_b) = (dir.path().join("a"), dir.path().join("b"));
+    std::fs::create_dir_all(&dir_a).unwrap();
+    std::fs::create_dir_all(&dir_b).unwrap();
+    for format in [TraceFormat::Csv, TraceFormat::Mcap, TraceFormat::Parquet] {
+        let a = dir_a.join(format!("run.{format}"));
+        let b = dir_b.join(format!("run.{format}"));
         run_to("friction_sliding.toml", SolverKind::Exact, &a, format);
         run_to("friction_sliding.toml", SolverKind::Exact, &b, format);
         assert!(
@@ -20,6 +24,21 @@ fn two_runs_write_identical_files() {
             "{format} traces differ"
         );
     }
+}
+
+/// Blanks the value of every `"created_utc":"YYYY-MM-DDThh:mm:ssZ"` in `bytes` (same length, so the rest of the
+/// file lines up) and counts them.
+fn mask_created_utc(mut bytes: Vec<u8>) -> (Vec<u8>, usize) {
+    let key = br#""created_utc":""#;
+    let (mut count, mut at) = (0, 0);
+    while let Some(found) = bytes[at..].windows(key.len()).position(|w| w == key) {
+        let start = at + found + key.len();
+        let end = (start + "2026-01-31T12:00:00Z".len()).min(bytes.len());
+        bytes[start..end].fill(b'#');
+        count += 1;
+        at = end;
+    }
+    (bytes, count)
 }
 
 #[test]
@@ -56,6 +75,24 @@ fn cli_runs_are_deterministic_apart_from_the_sidecar_timestamp() {
     );
     run(&b, "exact");
     assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
+    // A Parquet trace carries its sidecar (which names the trace file) in its footer metadata, so there the
+    // creation time is inside the file: apart from those bytes two runs to the same name are the same.
+    let (pa, pb) = (dir.path().join("1"), dir.path().join("2"));
+    std::fs::create_dir_all(&pa).unwrap();
+    std::fs::create_dir_all(&pb).unwrap();
+    let (pa, pb) = (pa.join("run.parquet"), pb.join("run.parquet"));
+    run(&pa, "exact");
+    run(&pb, "exact");
+    let (pa, stamps) = mask_created_utc(std::fs::read(&pa).unwrap());
+    let (pb, _) = mask_created_utc(std::fs::read(&pb).unwrap());
+    assert!(
+        stamps > 0,
+        "no embedded sidecar timestamp in the Parquet trace"
+    );
+    assert!(
+        pa == pb,
+        "Parquet traces differ beyond the sidecar's created_utc"
+    );
     let sidecar = |p: &Path| {
         let mut v: serde_json::Value =
             serde_json::from_slice(&std::fs::read(voxhap::record::sidecar_path(p)).unwrap())

@@ -9,7 +9,7 @@ use super::path::{
     check_positive, check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M,
 };
 use super::preset::{ArmPreset, PresetFigures};
-use super::tagged::{given_keys, needed, KindKeys, TaggedTableError};
+use super::tagged::tagged_table;
 use super::zoh::SubstepMapCache;
 use super::{HandDrive, HandPath, SimError};
 use crate::mapping::WorkspaceMapping;
@@ -50,61 +50,21 @@ pub enum Workspace {
     Unbounded,
 }
 
-/// The `shape` of a [`Workspace`] table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WorkspaceShape {
-    Box,
-    Sphere,
-    Unbounded,
-}
-
-impl WorkspaceShape {
-    /// The name written in a scene file.
-    pub fn name(self) -> &'static str {
-        match self {
-            WorkspaceShape::Box => "box",
-            WorkspaceShape::Sphere => "sphere",
-            WorkspaceShape::Unbounded => "unbounded",
-        }
+tagged_table! {
+    Workspace by shape,
+    /// The `shape` of a [`Workspace`] table.
+    kinds WorkspaceShape {
+        Box = "box" { min_m, max_m },
+        Sphere = "sphere" { center_m, radius_m },
+        Unbounded = "unbounded" {},
     }
-
-    /// The keys a workspace of this shape takes (besides `shape`); all of them are needed.
-    pub fn keys(self) -> &'static [&'static str] {
-        match self {
-            WorkspaceShape::Box => &["min_m", "max_m"],
-            WorkspaceShape::Sphere => &["center_m", "radius_m"],
-            WorkspaceShape::Unbounded => &[],
-        }
-    }
-}
-
-/// An `[arm.workspace]` table as written: every key of every shape, checked against its `shape` by
-/// `Workspace::try_from` (super::tagged says why).
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct WorkspaceTable {
-    shape: WorkspaceShape,
-    min_m: Option<DVec3>,
-    max_m: Option<DVec3>,
-    center_m: Option<DVec3>,
-    radius_m: Option<f64>,
-}
-
-impl TryFrom<WorkspaceTable> for Workspace {
-    type Error = TaggedTableError;
-
-    fn try_from(table: WorkspaceTable) -> Result<Self, TaggedTableError> {
-        let given = given_keys!(table: min_m, max_m, center_m, radius_m);
-        let keys = KindKeys::new("shape", table.shape.name(), &given);
-        keys.only(table.shape.keys())?;
-        Ok(match table.shape {
-            WorkspaceShape::Box => needed!(keys, table => Workspace::Box { min_m, max_m }),
-            WorkspaceShape::Sphere => {
-                needed!(keys, table => Workspace::Sphere { center_m, radius_m })
-            }
-            WorkspaceShape::Unbounded => Workspace::Unbounded,
-        })
+    /// An `[arm.workspace]` table as written: every key of every shape, checked against its `shape` by
+    /// `Workspace::try_from` (super::tagged says why).
+    table WorkspaceTable {
+        min_m: DVec3,
+        max_m: DVec3,
+        center_m: DVec3,
+        radius_m: f64,
     }
 }
 

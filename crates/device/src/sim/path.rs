@@ -19,7 +19,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
-use super::tagged::{given_keys, needed, KindKeys, TaggedTableError};
+use super::tagged::tagged_table;
 use super::SimError;
 
 /// What the virtual hand does at one instant.
@@ -134,160 +134,56 @@ pub enum ForceProfile {
     },
 }
 
-/// The `kind` of a [`HandPath`] table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum HandPathKind {
-    Hold,
-    Line,
-    Waypoints,
-    Circle,
-    Raster,
-    Force,
-}
-
-impl HandPathKind {
-    /// The name written in a scene file.
-    pub fn name(self) -> &'static str {
-        match self {
-            HandPathKind::Hold => "hold",
-            HandPathKind::Line => "line",
-            HandPathKind::Waypoints => "waypoints",
-            HandPathKind::Circle => "circle",
-            HandPathKind::Raster => "raster",
-            HandPathKind::Force => "force",
-        }
+tagged_table! {
+    HandPath by kind,
+    /// The `kind` of a [`HandPath`] table.
+    kinds HandPathKind {
+        Hold = "hold" { at_m },
+        Line = "line" { from_m, to_m, duration_s },
+        Waypoints = "waypoints" { points_m, speed_m_per_s },
+        Circle = "circle" { center_m, radius_m, normal, period_s },
+        Raster = "raster" { origin_m, sweep_m, step_m, lines, speed_m_per_s },
+        Force = "force" { profile },
     }
-
-    /// The keys a path of this kind takes (besides `kind`); all of them are needed.
-    pub fn keys(self) -> &'static [&'static str] {
-        match self {
-            HandPathKind::Hold => &["at_m"],
-            HandPathKind::Line => &["from_m", "to_m", "duration_s"],
-            HandPathKind::Waypoints => &["points_m", "speed_m_per_s"],
-            HandPathKind::Circle => &["center_m", "radius_m", "normal", "period_s"],
-            HandPathKind::Raster => &["origin_m", "sweep_m", "step_m", "lines", "speed_m_per_s"],
-            HandPathKind::Force => &["profile"],
-        }
+    /// A `[path]` table as written: every key of every kind, checked against its `kind` by
+    /// `HandPath::try_from` (super::tagged says why).
+    table HandPathTable {
+        at_m: DVec3,
+        from_m: DVec3,
+        to_m: DVec3,
+        duration_s: f64,
+        points_m: Vec<DVec3>,
+        speed_m_per_s: f64,
+        center_m: DVec3,
+        radius_m: f64,
+        normal: DVec3,
+        period_s: f64,
+        origin_m: DVec3,
+        sweep_m: DVec3,
+        step_m: DVec3,
+        lines: u32,
+        profile: ForceProfile,
     }
 }
 
-/// A `[path]` table as written: every key of every kind, checked against its `kind` by
-/// `HandPath::try_from` (super::tagged says why).
-#[derive(Clone, Debug, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct HandPathTable {
-    kind: HandPathKind,
-    at_m: Option<DVec3>,
-    from_m: Option<DVec3>,
-    to_m: Option<DVec3>,
-    duration_s: Option<f64>,
-    points_m: Option<Vec<DVec3>>,
-    speed_m_per_s: Option<f64>,
-    center_m: Option<DVec3>,
-    radius_m: Option<f64>,
-    normal: Option<DVec3>,
-    period_s: Option<f64>,
-    origin_m: Option<DVec3>,
-    sweep_m: Option<DVec3>,
-    step_m: Option<DVec3>,
-    lines: Option<u32>,
-    profile: Option<ForceProfile>,
-}
-
-impl TryFrom<HandPathTable> for HandPath {
-    type Error = TaggedTableError;
-
-    fn try_from(table: HandPathTable) -> Result<Self, TaggedTableError> {
-        let given = given_keys!(table:
-            at_m, from_m, to_m, duration_s, points_m, speed_m_per_s, center_m, radius_m, normal,
-            period_s, origin_m, sweep_m, step_m, lines, profile
-        );
-        let keys = KindKeys::new("kind", table.kind.name(), &given);
-        keys.only(table.kind.keys())?;
-        Ok(match table.kind {
-            HandPathKind::Hold => needed!(keys, table => HandPath::Hold { at_m }),
-            HandPathKind::Line => {
-                needed!(keys, table => HandPath::Line { from_m, to_m, duration_s })
-            }
-            HandPathKind::Waypoints => {
-                needed!(keys, table => HandPath::Waypoints { points_m, speed_m_per_s })
-            }
-            HandPathKind::Circle => {
-                needed!(keys, table => HandPath::Circle { center_m, radius_m, normal, period_s })
-            }
-            HandPathKind::Raster => {
-                needed!(keys, table => HandPath::Raster { origin_m, sweep_m, step_m, lines, speed_m_per_s })
-            }
-            HandPathKind::Force => needed!(keys, table => HandPath::Force { profile }),
-        })
+tagged_table! {
+    ForceProfile by shape,
+    /// The `shape` of a [`ForceProfile`] table.
+    kinds ForceProfileShape {
+        Constant = "constant" { force_n },
+        Ramp = "ramp" { from_n, to_n, duration_s },
+        Sine = "sine" { offset_n, amplitude_n, frequency_hz },
     }
-}
-
-/// The `shape` of a [`ForceProfile`] table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ForceProfileShape {
-    Constant,
-    Ramp,
-    Sine,
-}
-
-impl ForceProfileShape {
-    /// The name written in a scene file.
-    pub fn name(self) -> &'static str {
-        match self {
-            ForceProfileShape::Constant => "constant",
-            ForceProfileShape::Ramp => "ramp",
-            ForceProfileShape::Sine => "sine",
-        }
-    }
-
-    /// The keys a profile of this shape takes (besides `shape`); all of them are needed.
-    pub fn keys(self) -> &'static [&'static str] {
-        match self {
-            ForceProfileShape::Constant => &["force_n"],
-            ForceProfileShape::Ramp => &["from_n", "to_n", "duration_s"],
-            ForceProfileShape::Sine => &["offset_n", "amplitude_n", "frequency_hz"],
-        }
-    }
-}
-
-/// A `[path.profile]` table as written: every key of every shape, checked against its `shape` by
-/// `ForceProfile::try_from` (super::tagged says why).
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ForceProfileTable {
-    shape: ForceProfileShape,
-    force_n: Option<DVec3>,
-    from_n: Option<DVec3>,
-    to_n: Option<DVec3>,
-    duration_s: Option<f64>,
-    offset_n: Option<DVec3>,
-    amplitude_n: Option<DVec3>,
-    frequency_hz: Option<f64>,
-}
-
-impl TryFrom<ForceProfileTable> for ForceProfile {
-    type Error = TaggedTableError;
-
-    fn try_from(table: ForceProfileTable) -> Result<Self, TaggedTableError> {
-        let given = given_keys!(table:
-            force_n, from_n, to_n, duration_s, offset_n, amplitude_n, frequency_hz
-        );
-        let keys = KindKeys::new("shape", table.shape.name(), &given);
-        keys.only(table.shape.keys())?;
-        Ok(match table.shape {
-            ForceProfileShape::Constant => {
-                needed!(keys, table => ForceProfile::Constant { force_n })
-            }
-            ForceProfileShape::Ramp => {
-                needed!(keys, table => ForceProfile::Ramp { from_n, to_n, duration_s })
-            }
-            ForceProfileShape::Sine => {
-                needed!(keys, table => ForceProfile::Sine { offset_n, amplitude_n, frequency_hz })
-            }
-        })
+    /// A `[path.profile]` table as written: every key of every shape, checked against its `shape` by
+    /// `ForceProfile::try_from` (super::tagged says why).
+    table ForceProfileTable {
+        force_n: DVec3,
+        from_n: DVec3,
+        to_n: DVec3,
+        duration_s: f64,
+        offset_n: DVec3,
+        amplitude_n: DVec3,
+        frequency_hz: f64,
     }
 }
 
@@ -316,21 +212,11 @@ pub(super) fn check_positive_at_most(
     max: f64,
     unit: &'static str,
 ) -> Result<(), SimError> {
-    check_positive(name, value)?;
-    if value > max {
-        return Err(SimError::OutOfRange {
-            name,
-            value,
-            min: 0.0,
-            max,
-            min_excluded: true,
-            unit,
-        });
-    }
-    Ok(())
+    check_between(name, value, (0.0, max), unit)
 }
 
-/// Checks that `value` is finite and within `[min, max]`.
+/// Checks that `value` is finite, > 0 and within `[min, max]`; a `min` of 0 is reported as excluded (the
+/// range is then `(0, max]`).
 fn check_between(
     name: &'static str,
     value: f64,
@@ -344,7 +230,7 @@ fn check_between(
             value,
             min,
             max,
-            min_excluded: false,
+            min_excluded: min == 0.0,
             unit,
         });
     }

@@ -10,24 +10,79 @@
 //! with `TryFrom`, which [`KindKeys`] helps check: no key of another kind is given, and every key the kind
 //! needs is. Those messages name the key too: ``path: kind = "line" takes no key `radius_m` (...)``,
 //! ``path: missing field `duration_s` (kind = "line" needs it)``. Serialising is unchanged (the tagged
-//! enum).
+//! enum). `tagged_table!` declares the tag enum, the struct and the `TryFrom` of each such table.
 
-/// `[("key", table.key.is_some()), ...]` for the `Option` fields named: the keys given in a table, for
-/// [`KindKeys::new`] (each name is the field's own, so the two cannot drift apart).
-macro_rules! given_keys {
-    ($table:ident: $($key:ident),+ $(,)?) => {
-        [$((stringify!($key), $table.$key.is_some())),+]
+/// Declares the tag enum of a tagged table (its scene-file names and each kind's keys), the table struct
+/// holding every key of every kind as an `Option`, and the `TryFrom` from that struct to the target enum,
+/// which refuses a key of another kind ([`KindKeys::only`]) and a missing key ([`KindKeys::need`]). Each
+/// kind's keys are the target variant's fields, named once here, so the table, the checks and the variant
+/// cannot drift apart.
+///
+/// ```text
+/// tagged_table! {
+///     Target by tag_key,
+///     /// docs of the tag enum
+///     kinds TagEnum { Variant = "name" { key, ... }, ... }
+///     /// docs of the table struct
+///     table TableStruct { key: Type, ... }
+/// }
+/// ```
+macro_rules! tagged_table {
+    (
+        $target:ident by $tag:ident,
+        $(#[$kind_doc:meta])*
+        kinds $kind:ident { $($variant:ident = $name:literal { $($needs:ident),* }),+ $(,)? }
+        $(#[$table_doc:meta])*
+        table $table:ident { $($key:ident: $ty:ty),+ $(,)? }
+    ) => {
+        $(#[$kind_doc])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize)]
+        pub enum $kind {
+            $(#[serde(rename = $name)] $variant,)+
+        }
+
+        impl $kind {
+            /// The name written in a scene file.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $($kind::$variant => $name,)+
+                }
+            }
+
+            /// The keys a table of this kind takes (besides its tag); all of them are needed.
+            pub fn keys(self) -> &'static [&'static str] {
+                match self {
+                    $($kind::$variant => &[$(stringify!($needs)),*],)+
+                }
+            }
+        }
+
+        $(#[$table_doc])*
+        #[derive(serde::Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct $table {
+            $tag: $kind,
+            $($key: Option<$ty>,)+
+        }
+
+        impl TryFrom<$table> for $target {
+            type Error = $crate::sim::TaggedTableError;
+
+            fn try_from(table: $table) -> Result<Self, Self::Error> {
+                let given = [$((stringify!($key), table.$key.is_some())),+];
+                let keys =
+                    $crate::sim::tagged::KindKeys::new(stringify!($tag), table.$tag.name(), &given);
+                keys.only(table.$tag.keys())?;
+                Ok(match table.$tag {
+                    $($kind::$variant => $target::$variant {
+                        $($needs: keys.need(stringify!($needs), table.$needs)?,)*
+                    },)+
+                })
+            }
+        }
     };
 }
-pub(super) use given_keys;
-
-/// `Variant { key: keys.need("key", table.key)?, ... }`: a kind's value from its table, each key named once.
-macro_rules! needed {
-    ($keys:ident, $table:ident => $enum:ident::$variant:ident { $($key:ident),+ $(,)? }) => {
-        $enum::$variant { $($key: $keys.need(stringify!($key), $table.$key)?),+ }
-    };
-}
-pub(super) use needed;
+pub(super) use tagged_table;
 
 /// The keys given in one tagged table, for the checks of its `TryFrom`.
 pub(super) struct KindKeys<'a> {

@@ -15,43 +15,65 @@ pub trait Receive {
     fn filled(&mut self, n: usize);
 }
 
-/// Bytes in, replies of exactly `N` bytes out.
+/// A fixed buffer and how many bytes at its start are held: what each core reads into.
 #[derive(Debug, Clone)]
-pub struct FixedAssembler<const N: usize> {
-    buf: [u8; N],
+struct Buffer<const N: usize> {
+    bytes: [u8; N],
     len: usize,
 }
 
-impl<const N: usize> Default for FixedAssembler<N> {
+impl<const N: usize> Default for Buffer<N> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const N: usize> FixedAssembler<N> {
-    /// An empty assembler.
-    pub const fn new() -> Self {
-        FixedAssembler {
-            buf: [0; N],
+impl<const N: usize> Buffer<N> {
+    const fn new() -> Self {
+        Buffer {
+            bytes: [0; N],
             len: 0,
         }
     }
 
+    /// The part after the bytes held ([`Receive::space`]).
+    fn space(&mut self) -> &mut [u8] {
+        &mut self.bytes[self.len..]
+    }
+
+    /// `n` bytes were written at the start of [`space`](Self::space) ([`Receive::filled`]).
+    fn filled(&mut self, n: usize) {
+        self.len = (self.len + n).min(N);
+    }
+}
+
+/// Bytes in, replies of exactly `N` bytes out.
+#[derive(Debug, Clone, Default)]
+pub struct FixedAssembler<const N: usize> {
+    buf: Buffer<N>,
+}
+
+impl<const N: usize> FixedAssembler<N> {
+    /// An empty assembler.
+    pub const fn new() -> Self {
+        FixedAssembler { buf: Buffer::new() }
+    }
+
     /// Bytes held of a reply not complete yet.
     pub fn held(&self) -> usize {
-        self.len
+        self.buf.len
     }
 
     /// Drops every byte held (the port's input was discarded, or the driver resynchronises).
     pub fn clear(&mut self) {
-        self.len = 0;
+        self.buf.len = 0;
     }
 
     /// The next whole reply, or `None` until more bytes come.
     pub fn next_reply(&mut self) -> Option<[u8; N]> {
-        if self.len == N {
-            self.len = 0;
-            Some(self.buf)
+        if self.buf.len == N {
+            self.buf.len = 0;
+            Some(self.buf.bytes)
         } else {
             None
         }
@@ -61,11 +83,11 @@ impl<const N: usize> FixedAssembler<N> {
 impl<const N: usize> Receive for FixedAssembler<N> {
     /// Never more than the rest of one reply, so bytes of the next stay in the port.
     fn space(&mut self) -> &mut [u8] {
-        &mut self.buf[self.len..]
+        self.buf.space()
     }
 
     fn filled(&mut self, n: usize) {
-        self.len = (self.len + n).min(N);
+        self.buf.filled(n);
     }
 }
 
@@ -79,40 +101,32 @@ pub enum Line<'a> {
 }
 
 /// Bytes in, `\n`-ended lines out, at most `N` bytes each.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct LineAssembler<const N: usize> {
-    buf: [u8; N],
-    len: usize,
+    buf: Buffer<N>,
     /// Bytes of the line handed out last, removed on the next call.
     taken: usize,
-}
-
-impl<const N: usize> Default for LineAssembler<N> {
-    fn default() -> Self {
-        Self::new()
-    }
 }
 
 impl<const N: usize> LineAssembler<N> {
     /// An empty assembler.
     pub const fn new() -> Self {
         LineAssembler {
-            buf: [0; N],
-            len: 0,
+            buf: Buffer::new(),
             taken: 0,
         }
     }
 
     /// Drops every byte held.
     pub fn clear(&mut self) {
-        self.len = 0;
+        self.buf.len = 0;
         self.taken = 0;
     }
 
     fn forget_taken(&mut self) {
         if self.taken > 0 {
-            self.buf.copy_within(self.taken..self.len, 0);
-            self.len -= self.taken;
+            self.buf.bytes.copy_within(self.taken..self.buf.len, 0);
+            self.buf.len -= self.taken;
             self.taken = 0;
         }
     }
@@ -121,12 +135,13 @@ impl<const N: usize> LineAssembler<N> {
     /// more bytes come.
     pub fn next_line(&mut self) -> Option<Line<'_>> {
         self.forget_taken();
-        if let Some(end) = self.buf[..self.len].iter().position(|&b| b == b'\n') {
+        let held = &self.buf.bytes[..self.buf.len];
+        if let Some(end) = held.iter().position(|&b| b == b'\n') {
             self.taken = end + 1;
-            return Some(Line::Whole(&self.buf[..end]));
+            return Some(Line::Whole(&self.buf.bytes[..end]));
         }
-        if self.len == N {
-            self.len = 0;
+        if self.buf.len == N {
+            self.buf.len = 0;
             return Some(Line::TooLong);
         }
         None
@@ -136,11 +151,11 @@ impl<const N: usize> LineAssembler<N> {
 impl<const N: usize> Receive for LineAssembler<N> {
     fn space(&mut self) -> &mut [u8] {
         self.forget_taken();
-        &mut self.buf[self.len..]
+        self.buf.space()
     }
 
     fn filled(&mut self, n: usize) {
-        self.len = (self.len + n).min(N);
+        self.buf.filled(n);
     }
 }
 

@@ -337,9 +337,9 @@ mod tests {
         Duration::from_millis(n)
     }
 
-    /// 50 ms and 3 ticks: the Falcon driver's figures.
-    fn flight() -> InFlight {
-        InFlight::new(ms(50), 3)
+    /// 50 ms and 3 ticks (the Falcon driver's figures), and the instant the test's clock starts at.
+    fn flight() -> (Instant, InFlight) {
+        (Instant::now(), InFlight::new(ms(50), 3))
     }
 
     /// One reply per command, in order, each coming 1-2 ms after it at 1 kHz (libnifalcon's link: the FTDI
@@ -347,8 +347,7 @@ mod tests {
     /// read in tick n answers command n-1 and is one tick old; a reply that came two ticks late is two.
     #[test]
     fn a_reply_read_behind_k_unanswered_commands_is_k_ticks_old() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         flight.command_sent(t0);
         // Tick 1: nothing came in tick 0's wait; command 1 goes out, then reply 0 arrives.
         assert!(!flight.nothing_waiting(t0));
@@ -373,8 +372,7 @@ mod tests {
     /// command; then counting starts from zero, and the first reply after is exact.
     #[test]
     fn malformed_bytes_make_every_age_unknown_until_the_link_was_quiet() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         flight.command_sent(t0);
         flight.command_sent(t0 + ms(1));
         flight.malformed(t0 + ms(1));
@@ -402,8 +400,7 @@ mod tests {
     /// write it off (a late reply taken for the next command's would look a tick younger than it is).
     #[test]
     fn an_overdue_reply_resynchronises_rather_than_being_written_off() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         flight.command_sent(t0);
         assert!(!flight.nothing_waiting(t0 + ms(50)));
         assert!(!flight.resyncing());
@@ -419,8 +416,7 @@ mod tests {
     /// above the bound (3) for 50 ms the count resynchronises, so the force comes back after a quiet link.
     #[test]
     fn ages_above_the_bound_for_50_ms_resynchronise() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         for k in 0..4 {
             flight.command_sent(t0 + ms(k));
         }
@@ -441,8 +437,7 @@ mod tests {
     /// A reply when nothing is unanswered answers nothing: the next state is one tick older, once.
     #[test]
     fn a_reply_nobody_asked_for_ages_the_next_state_once() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         assert!(!flight.reply_read());
         flight.command_sent(t0);
         assert!(flight.reply_read());
@@ -455,8 +450,7 @@ mod tests {
     /// A full ring does not grow: the count resynchronises.
     #[test]
     fn a_full_ring_resynchronises() {
-        let t0 = Instant::now();
-        let mut flight = flight();
+        let (t0, mut flight) = flight();
         for _ in 0..=IN_FLIGHT_CAPACITY {
             flight.command_sent(t0);
         }

@@ -314,22 +314,19 @@ impl<L: MessageLink> ProtocolDevice<L> {
         let base = self
             .handshake_nonce
             .unwrap_or_else(|| take_nonces(MAX_HELLOS));
-        let started = Instant::now();
-        let mut sent: u32 = 0;
         // The last DeviceInfo since the last HeartbeatReply.
         let mut candidate: Option<voxhap_protocol::DeviceInfo> = None;
-        for wait in self.config.hello_waits().take(MAX_HELLOS as usize) {
-            if self.open_time_is_up() {
-                break;
-            }
-            let hello = self.host.hello();
-            self.counters.hellos += 1;
-            self.link.send(&hello)?;
-            self.link.send(&HostToDevice::Heartbeat(Heartbeat {
-                counter: base.wrapping_add(sent),
-            }))?;
-            sent += 1;
-            let answered = self.receive_for(wait, |this, message| {
+        self.ask_until_answered(
+            self.config.hello_waits().take(MAX_HELLOS as usize),
+            |this, before| {
+                let hello = this.host.hello();
+                this.counters.hellos += 1;
+                this.link.send(&hello)?;
+                this.link.send(&HostToDevice::Heartbeat(Heartbeat {
+                    counter: base.wrapping_add(before),
+                }))
+            },
+            |this, sent, message| {
                 match message {
                     DeviceToHost::DeviceInfo(info) => match this.host.on_message(&message) {
                         HostEvent::Incompatible(_) => {
@@ -364,15 +361,39 @@ impl<L: MessageLink> ProtocolDevice<L> {
                     _ => {}
                 }
                 Ok(None)
-            })?;
+            },
+            ("DeviceInfo answering Hello", "Hellos"),
+        )
+    }
+
+    /// Sends a request with `send` (told how many went before it), then hands each message that comes within
+    /// the next of `waits` to `take` (told how many went out) until it accepts one; again, until it does or
+    /// the waits or open's deadline run out: then [`DeviceError::NoAnswer`] naming `what` (what was waited
+    /// for, what the requests were).
+    fn ask_until_answered(
+        &mut self,
+        waits: impl Iterator<Item = Duration>,
+        mut send: impl FnMut(&mut Self, u32) -> Result<(), DeviceError>,
+        mut take: impl FnMut(&mut Self, u32, DeviceToHost) -> Result<Option<()>, DeviceError>,
+        what: (&'static str, &'static str),
+    ) -> Result<(), DeviceError> {
+        let started = Instant::now();
+        let mut sent: u32 = 0;
+        for wait in waits {
+            if self.open_time_is_up() {
+                break;
+            }
+            send(self, sent)?;
+            sent += 1;
+            let answered = self.receive_for(wait, |this, message| take(this, sent, message))?;
             if answered.is_some() {
                 return Ok(());
             }
         }
         Err(DeviceError::NoAnswer {
-            waiting_for: "DeviceInfo answering Hello",
+            waiting_for: what.0,
             attempts: sent,
-            sent: "Hellos",
+            sent: what.1,
             waited_us: duration_us(started.elapsed()),
         })
     }
@@ -406,35 +427,28 @@ impl<L: MessageLink> ProtocolDevice<L> {
     /// One zero force in lockstep, sent again every `hello_timeout`, until a State answers (every State after
     /// the handshake's confirming HeartbeatReply answers a force of this open), for at most `connect_timeout`.
     fn first_state(&mut self) -> Result<(), DeviceError> {
-        let started = Instant::now();
-        let mut sent: u32 = 0;
         let slots = (self.config.connect_timeout.as_micros()
             / self
                 .config
                 .hello_timeout
                 .max(Duration::from_millis(1))
                 .as_micros())
-        .clamp(1, u128::from(MAX_HELLOS)) as u32;
-        while sent < slots && !self.open_time_is_up() {
-            self.send_force(DVec3::ZERO)?;
-            sent += 1;
-            let answered = self.receive_for(self.config.hello_timeout, |this, message| {
+        .clamp(1, u128::from(MAX_HELLOS)) as usize;
+        self.ask_until_answered(
+            std::iter::repeat_n(self.config.hello_timeout, slots),
+            |this, _| this.send_force(DVec3::ZERO),
+            |this, _, message| {
                 let HostEvent::State { state, .. } = this.handle(&message)? else {
                     return Ok(None);
                 };
                 this.last_state = Some(convert_state(&state));
                 Ok(Some(()))
-            })?;
-            if answered.is_some() {
-                return Ok(());
-            }
-        }
-        Err(DeviceError::NoAnswer {
-            waiting_for: "State answering a zero force after DeviceInfo",
-            attempts: sent,
-            sent: "zero forces",
-            waited_us: duration_us(started.elapsed()),
-        })
+            },
+            (
+                "State answering a zero force after DeviceInfo",
+                "zero forces",
+            ),
+        )
     }
 
     fn open_within_deadline(&mut self) -> Result<(), DeviceError> {

@@ -99,32 +99,33 @@ mod tests {
         assert_eq!(reply_wait(Duration::from_micros(20)), MIN_REPLY_WAIT);
     }
 
-    /// The cases of the module docs, each worked out by hand from one reply per command, in order.
+    /// The cases of the module docs, each worked out by hand from one reply per command, in order: the steps
+    /// since the last reply read, then the age of the next reply read.
     #[test]
     fn ages_follow_the_commands_a_reply_may_answer() {
+        // One step between two replies read.
+        type Step = fn(&mut ReplyAge);
+        let sent: Step = ReplyAge::command_sent;
+        let surplus: Step = ReplyAge::surplus_dropped;
+        let late: Step = ReplyAge::late_reply_dropped;
+        let cases: [(&str, &[Step], u32); 5] = [
+            ("clean lockstep", &[sent], 0),
+            // The reply read after the third command may answer the first of them, two commands before it.
+            ("two replies missed", &[sent, sent, sent], 2),
+            ("back in step", &[sent], 0),
+            // A second answer dropped before the command: the reply read may be another one (one tick old).
+            ("a second answer dropped", &[sent, surplus], 1),
+            // A reply that missed its read came before the next command and was dropped: the next reply may
+            // be late too.
+            ("a late reply dropped", &[sent, late, sent], 1),
+        ];
         let mut age = ReplyAge::default();
-        // Clean lockstep.
-        age.command_sent();
-        assert_eq!(age.reply_read(), 0);
-        // Two replies missed; the reply read after the third command may answer the first of them, two
-        // commands before it.
-        age.command_sent();
-        age.command_sent();
-        age.command_sent();
-        assert_eq!(age.reply_read(), 2);
-        // Back in step.
-        age.command_sent();
-        assert_eq!(age.reply_read(), 0);
-        // A second answer dropped before the command: the reply read may be another one (one tick old).
-        age.command_sent();
-        age.surplus_dropped();
-        assert_eq!(age.reply_read(), 1);
-        // A reply that missed its read came before the next command and was dropped: the next reply may be
-        // late too.
-        age.command_sent();
-        age.late_reply_dropped();
-        age.command_sent();
-        assert_eq!(age.reply_read(), 1);
+        for (case, steps, expected) in cases {
+            for step in steps {
+                step(&mut age);
+            }
+            assert_eq!(age.reply_read(), expected, "{case}");
+        }
         assert_eq!(age.age(), 1);
     }
 }

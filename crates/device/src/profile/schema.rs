@@ -83,17 +83,6 @@ pub(super) struct MappingSection {
     pub(super) fit_volume: Option<bool>,
 }
 
-/// `[limits]` as written.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct LimitsSection {
-    pub(super) max_force_n: Option<f64>,
-    pub(super) max_stiffness_n_per_m: Option<f64>,
-    pub(super) max_damping_n_s_per_m: Option<f64>,
-    pub(super) slew_n_per_ms: Option<f64>,
-    pub(super) max_speed_m_per_s: Option<f64>,
-}
-
 /// `[workspace]` as written.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -121,7 +110,7 @@ pub(super) struct ProfileFile {
     #[serde(default)]
     pub(super) mapping: MappingSection,
     #[serde(default)]
-    pub(super) limits: LimitsSection,
+    pub(super) limits: ProfileLimits,
     #[serde(default)]
     pub(super) velocity_filter: VelocityFilterSection,
     #[serde(default)]
@@ -181,8 +170,10 @@ pub enum MappingChoice {
     FitWhenOutOfReach(WorkspaceMapping),
 }
 
-/// Limits that can only lower the device's own (`None`: the device's).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+/// Limits that can only lower the device's own (`None`: the device's); `[limits]` as written, each value then
+/// checked.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ProfileLimits {
     pub max_force_n: Option<f64>,
     /// As felt by the hand (device units).

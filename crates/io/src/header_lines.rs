@@ -1,7 +1,20 @@
 //! The text lines of a volume file's header held in memory (NRRD, MetaImage), one at a time without copying:
 //! each line's number and where the next begins are kept, and a line that is not UTF-8 is an error naming it.
+//! Also the number parse both formats' field values share ([`parse_value`]).
 
 use crate::error::LoadProblem;
+
+/// A field value, surrounding white space ignored, parsed as a `T`; one that does not parse goes, as written,
+/// to `not_a_number` for the format's error.
+pub(crate) fn parse_value<T: std::str::FromStr, E>(
+    value: &str,
+    not_a_number: impl FnOnce(String) -> E,
+) -> Result<T, E> {
+    value
+        .trim()
+        .parse()
+        .map_err(|_| not_a_number(value.to_owned()))
+}
 
 /// The lines of a byte buffer from its start, each without its `\n`.
 pub(crate) struct HeaderLines<'a> {

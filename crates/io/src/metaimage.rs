@@ -14,7 +14,7 @@
 
 use crate::decode::{decode_samples, inflate, Endian, ScalarType};
 use crate::error::LoadProblem;
-use crate::header_lines::HeaderLines;
+use crate::header_lines::{parse_value, HeaderLines};
 use crate::loaded::{assemble, checked_voxel_count, FileFormat, Layout, LoadedVolume};
 use crate::source::{check_budget, header_format_entry_points, DataRange, HeaderFile};
 use glam::{DMat3, DVec3};
@@ -269,12 +269,7 @@ fn parse_field(
 }
 
 fn number<T: std::str::FromStr>(value: &str) -> Result<T, MetaImageFieldError> {
-    value
-        .trim()
-        .parse()
-        .map_err(|_| MetaImageFieldError::NotANumber {
-            value: value.to_owned(),
-        })
+    parse_value(value, |value| MetaImageFieldError::NotANumber { value })
 }
 
 fn numbers<T: std::str::FromStr>(value: &str) -> Result<Vec<T>, MetaImageFieldError> {
@@ -327,7 +322,6 @@ fn element_type(value: &str) -> Result<ScalarType, MetaImageFieldError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
 
     const TINY: &[u8] =
         b"ObjectType = Image\nNDims = 3\nDimSize = 2 1 1\nElementType = MET_SHORT\n\
@@ -361,26 +355,12 @@ ElementByteOrderMSB = True\nElementDataFile = LOCAL\n\x00\x05\xff\xfe";
         assert!(message.contains("ElementDataFile"), "{message}");
     }
 
-    proptest! {
-        #[test]
-        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
-            let _ = parse(&bytes, Path::new("/nonexistent/x.mha"));
-        }
-
-        #[test]
-        fn mutated_headers_never_panic(
-            edits in proptest::collection::vec((0usize..TINY.len(), any::<u8>()), 1..6),
-        ) {
-            let bytes = crate::test_edits::with_bytes_edited(TINY, edits);
-            if let Ok(loaded) = parse(&bytes, Path::new("/nonexistent/x.mha")) {
-                prop_assert!(loaded.volume.grid().spacing_m().is_finite());
-            }
-        }
-
-        #[test]
-        fn mutated_field_values_never_panic(line in 0usize..9, value in "[ -~]{0,30}") {
-            let text = crate::test_edits::with_field_value(TINY, line, " = ", &value);
-            let _ = parse(text.as_bytes(), Path::new("/nonexistent/x.mha"));
-        }
+    crate::test_edits::header_property_tests! {
+        parse: parse,
+        tiny: TINY,
+        path: "/nonexistent/x.mha",
+        prefixes: [b""],
+        lines: 0usize..9,
+        separator: " = ",
     }
 }

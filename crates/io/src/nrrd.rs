@@ -494,12 +494,7 @@ fn parse_field(header: &mut NrrdHeader, key: &str, value: &str) -> Result<(), Nr
 }
 
 fn parse_number<T: std::str::FromStr>(value: &str) -> Result<T, NrrdFieldError> {
-    value
-        .trim()
-        .parse()
-        .map_err(|_| NrrdFieldError::NotANumber {
-            value: value.to_owned(),
-        })
+    crate::header_lines::parse_value(value, |value| NrrdFieldError::NotANumber { value })
 }
 
 fn parse_positive(value: &str) -> Result<f64, NrrdFieldError> {
@@ -601,7 +596,6 @@ fn parse_type(value: &str) -> Result<ScalarType, NrrdFieldError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
 
     const TINY: &[u8] =
         b"NRRD0004\n# comment\ntype: short\ndimension: 3\nspace: left-posterior-superior\n\
@@ -642,29 +636,12 @@ space origin: (10,20,30)\nkey:=value\n\n\x00\x05\xff\xfe";
         assert!(parse_vectors("(1,x,0)").is_err());
     }
 
-    proptest! {
-        #[test]
-        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
-            let _ = parse(&bytes, Path::new("/nonexistent/x.nrrd"));
-            let mut with_magic = b"NRRD0004\n".to_vec();
-            with_magic.extend_from_slice(&bytes);
-            let _ = parse(&with_magic, Path::new("/nonexistent/x.nrrd"));
-        }
-
-        #[test]
-        fn mutated_headers_never_panic(
-            edits in proptest::collection::vec((0usize..TINY.len(), any::<u8>()), 1..6),
-        ) {
-            let bytes = crate::test_edits::with_bytes_edited(TINY, edits);
-            if let Ok(loaded) = parse(&bytes, Path::new("/nonexistent/x.nrrd")) {
-                prop_assert!(loaded.volume.grid().spacing_m().is_finite());
-            }
-        }
-
-        #[test]
-        fn mutated_field_values_never_panic(line in 2usize..11, value in "[ -~]{0,30}") {
-            let text = crate::test_edits::with_field_value(TINY, line, ": ", &value);
-            let _ = parse(text.as_bytes(), Path::new("/nonexistent/x.nrrd"));
-        }
+    crate::test_edits::header_property_tests! {
+        parse: parse,
+        tiny: TINY,
+        path: "/nonexistent/x.nrrd",
+        prefixes: [b"", b"NRRD0004\n"],
+        lines: 2usize..11,
+        separator: ": ",
     }
 }

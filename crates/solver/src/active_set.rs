@@ -22,8 +22,9 @@
 //! them (the guess can be wrong; the verification is not optional). Everything is allocation-free once the
 //! workspace has grown to the scene size.
 
+use super::certificate::Frame;
 use super::linalg::{outer, psd_pseudo_inverse};
-use crate::item::{project, Item};
+use crate::item::{multiplier_excess, project, Item};
 use crate::primitive::PrimitiveKind;
 use crate::storage::{Buffer, Storage};
 use glam::{DMat3, DVec3};
@@ -70,16 +71,17 @@ impl<S: Storage> Workspace<S> {
         }
     }
 
-    /// One active-set attempt from `x_start`. On success writes a feasible dual into `dual` and returns the point.
+    /// One active-set attempt from `x_start` (of the coupling `frame.k` to `frame.y`). On success writes a
+    /// feasible dual into `dual` and returns the point.
     pub fn solve(
         &mut self,
         items: &[Item],
-        y: DVec3,
-        k: f64,
+        frame: &Frame,
         x_start: DVec3,
         max_flips: u32,
         dual: &mut [DVec3],
     ) -> Option<DVec3> {
+        let Frame { y, k, .. } = *frame;
         self.flips.clear();
         self.flips.resize(items.len(), 0);
         self.status.clear();
@@ -189,17 +191,8 @@ impl<S: Storage> Workspace<S> {
                 let u = kink_projector(item) * w;
                 dual[i] = u;
                 let s = item.strength_n;
-                let (violation, flip_to) = match item.kind {
-                    PrimitiveKind::Plane => {
-                        let t = -item.direction.dot(u);
-                        if t < 0.0 {
-                            (-t, Status::Off)
-                        } else {
-                            (t - s, Status::Full)
-                        }
-                    }
-                    _ => (u.length() - s, Status::Off),
-                };
+                let (violation, full) = multiplier_excess(item, u);
+                let flip_to = if full { Status::Full } else { Status::Off };
                 let relative = violation / s.max(f64::MIN_POSITIVE);
                 if violation > STATUS_SLACK * s && worst.is_none_or(|(_, v, _, _)| relative > v) {
                     worst = Some((i, relative, flip_to, u));

@@ -103,36 +103,16 @@ fn look(item: &Item, r: DVec3, u: DVec3, threshold_m: f64) -> Look {
         PrimitiveKind::Point => {
             let distance = r.length();
             let rounding = 4.0 * EPS * distance;
-            if distance <= threshold_m {
-                Look::Kink { distance, rounding }
-            } else if u.length_squared() < (1.0 - 2e-6) * s * s {
-                Look::Projected
-            } else {
-                Look::Saturated {
-                    g: r * (s / distance),
-                    margin: distance - rounding,
-                    rounding,
-                    curved: true,
-                }
-            }
+            look_curved(s, r, distance, rounding, threshold_m, || u)
         }
         PrimitiveKind::Line => {
             let q = item.direction;
             let perpendicular = r - q * q.dot(r);
             let distance = perpendicular.length();
             let rounding = 4.0 * EPS * r.abs().element_sum();
-            if distance <= threshold_m {
-                Look::Kink { distance, rounding }
-            } else if (u - q * q.dot(u)).length_squared() < (1.0 - 2e-6) * s * s {
-                Look::Projected
-            } else {
-                Look::Saturated {
-                    g: perpendicular * (s / distance),
-                    margin: distance - rounding,
-                    rounding,
-                    curved: true,
-                }
-            }
+            look_curved(s, perpendicular, distance, rounding, threshold_m, || {
+                u - q * q.dot(u)
+            })
         }
         PrimitiveKind::Plane => {
             let q = item.direction;
@@ -158,6 +138,32 @@ fn look(item: &Item, r: DVec3, u: DVec3, threshold_m: f64) -> Look {
         }
         // Not among the items (directed forces are folded into `y`); as a kinkless item, projected to zero.
         PrimitiveKind::Directed => Look::Projected,
+    }
+}
+
+/// [`look`] for a point or a line of strength `s`: `offset` is `r` across its kink set (for a point, `r`),
+/// `distance` its length and `rounding` that length's rounding bound; `u_across` the part of `u` in the span of
+/// its dual set (for a point, `u`), formed only off the kink.
+#[inline(always)]
+fn look_curved(
+    s: f64,
+    offset: DVec3,
+    distance: f64,
+    rounding: f64,
+    threshold_m: f64,
+    u_across: impl FnOnce() -> DVec3,
+) -> Look {
+    if distance <= threshold_m {
+        Look::Kink { distance, rounding }
+    } else if u_across().length_squared() < (1.0 - 2e-6) * s * s {
+        Look::Projected
+    } else {
+        Look::Saturated {
+            g: offset * (s / distance),
+            margin: distance - rounding,
+            rounding,
+            curved: true,
+        }
     }
 }
 

@@ -52,6 +52,26 @@ pub(crate) fn project(item: &Item, v: DVec3) -> DVec3 {
     }
 }
 
+/// How far a kink's multiplier `u` lies outside the item's dual set `U_i` (N, at most 0 inside it), and
+/// whether it lies past the set's full end, a plane's `-q.u` above `s`: the plane then leaves its kink pushing
+/// with all of `s`. Past the other end (a plane's `-q.u` below 0, a point's or line's `|u|` above `s`) the item
+/// leaves its kink to exert no more than `s` away from it.
+#[inline]
+pub(crate) fn multiplier_excess(item: &Item, u: DVec3) -> (f64, bool) {
+    let s = item.strength_n;
+    match item.kind {
+        PrimitiveKind::Plane => {
+            let t = -item.direction.dot(u);
+            if t < 0.0 {
+                (-t, false)
+            } else {
+                (t - s, true)
+            }
+        }
+        _ => (u.length() - s, false),
+    }
+}
+
 #[inline]
 fn clamp_length(v: DVec3, max: f64) -> DVec3 {
     let length = v.length();

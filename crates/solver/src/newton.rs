@@ -77,7 +77,7 @@
 use super::active_set::kink_projector;
 use super::certificate::{certify, certify_into, Certificate, Frame};
 use super::linalg::{psd_pseudo_inverse, SpdCofactors};
-use crate::item::{block_update, project, Item};
+use crate::item::{block_update, multiplier_excess, project, Item};
 use crate::math::sqrt;
 use crate::primitive::PrimitiveKind;
 use crate::storage::{Buffer, Storage};
@@ -741,16 +741,11 @@ fn start_state(item: &Item, x: DVec3) -> State {
 /// How far a multiplier lies outside its set (relative to the strength), and the label its item leaves W with.
 fn violation(item: &Item, u: DVec3) -> Option<(f64, State)> {
     let s = item.strength_n;
-    let (amount, label) = match item.kind {
-        PrimitiveKind::Plane => {
-            let t = -item.direction.dot(u);
-            if t < 0.0 {
-                (-t, State::Off)
-            } else {
-                (t - s, State::Full)
-            }
-        }
-        _ => (u.length() - s, State::Smooth),
+    let (amount, full) = multiplier_excess(item, u);
+    let label = match item.kind {
+        PrimitiveKind::Plane if full => State::Full,
+        PrimitiveKind::Plane => State::Off,
+        _ => State::Smooth,
     };
     (amount > MULTIPLIER_SLACK * s).then_some((amount / s, label))
 }

@@ -104,12 +104,7 @@ fn check_direction(direction: DVec3) -> Result<DVec3, PrimitiveError> {
 impl Primitive {
     /// A constant force `s q` (paper eq. 8). `direction` is normalised.
     pub fn directed(direction: DVec3, strength_n: f64) -> Result<Self, PrimitiveError> {
-        Ok(Self {
-            kind: PrimitiveKind::Directed,
-            position_m: DVec3::ZERO,
-            direction: check_direction(direction)?,
-            strength_n: check_strength(strength_n)?,
-        })
+        Self::oriented(PrimitiveKind::Directed, DVec3::ZERO, direction, strength_n)
     }
 
     /// A point that pulls the proxy towards `position_m` with at most `strength_n` (paper eq. 9-10).
@@ -128,12 +123,7 @@ impl Primitive {
         direction: DVec3,
         strength_n: f64,
     ) -> Result<Self, PrimitiveError> {
-        Ok(Self {
-            kind: PrimitiveKind::Line,
-            position_m: check_position(position_m)?,
-            direction: check_direction(direction)?,
-            strength_n: check_strength(strength_n)?,
-        })
+        Self::oriented(PrimitiveKind::Line, position_m, direction, strength_n)
     }
 
     /// A plane through `position_m` with normal `normal`; it pushes a proxy that is behind it
@@ -143,10 +133,21 @@ impl Primitive {
         normal: DVec3,
         strength_n: f64,
     ) -> Result<Self, PrimitiveError> {
+        Self::oriented(PrimitiveKind::Plane, position_m, normal, strength_n)
+    }
+
+    /// A primitive with a position and a direction (a directed force's position is zero), each checked in
+    /// that order, then its strength.
+    fn oriented(
+        kind: PrimitiveKind,
+        position_m: DVec3,
+        direction: DVec3,
+        strength_n: f64,
+    ) -> Result<Self, PrimitiveError> {
         Ok(Self {
-            kind: PrimitiveKind::Plane,
+            kind,
             position_m: check_position(position_m)?,
-            direction: check_direction(normal)?,
+            direction: check_direction(direction)?,
             strength_n: check_strength(strength_n)?,
         })
     }

@@ -426,8 +426,7 @@ impl<S: Storage> Solver<S> {
             };
             let attempt = self.active_set.solve(
                 &self.items,
-                y,
-                k,
+                &frame,
                 start,
                 config.max_flips_per_round,
                 &mut self.candidate_dual,

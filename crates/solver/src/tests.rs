@@ -14,13 +14,21 @@ fn solve(probe: DVec3, primitives: &[Primitive]) -> Solution {
 
 /// A cold solve with the given solver (whose duals the caller may then read).
 fn solve_with(solver: &mut Solver, probe: DVec3, primitives: &[Primitive]) -> Solution {
-    let problem = Problem {
+    solver.solve(&problem(probe, primitives, None)).unwrap()
+}
+
+/// The problem of coupling `K` with `probe_m`, `primitives` and (for a warm start) `previous_proxy_m`.
+fn problem(
+    probe_m: DVec3,
+    primitives: &[Primitive],
+    previous_proxy_m: Option<DVec3>,
+) -> Problem<'_> {
+    Problem {
         stiffness_n_per_m: K,
-        probe_m: probe,
-        previous_proxy_m: None,
+        probe_m,
+        previous_proxy_m,
         primitives,
-    };
-    solver.solve(&problem).unwrap()
+    }
 }
 
 fn assert_certified_near(sol: &Solution, expected: DVec3) {
@@ -212,12 +220,7 @@ fn thousand_primitives_are_certified() {
     let prims = random_primitives(&mut rng, 1000);
     let probe = rng.vec(0.02);
     let mut solver = Solver::with_capacity(SolverConfig::default(), 1000);
-    let problem = Problem {
-        stiffness_n_per_m: K,
-        probe_m: probe,
-        previous_proxy_m: None,
-        primitives: &prims,
-    };
+    let problem = problem(probe, &prims, None);
     let sol = solver.solve(&problem).unwrap();
     assert_eq!(sol.status, SolveStatus::Certified, "{sol:?}");
     assert!(sol.error_bound_m <= 1e-12);
@@ -269,12 +272,7 @@ fn warm_start_from_previous_tick_needs_few_sweeps() {
             -0.002 - 0.001 * (3.0 * t).cos(),
         );
         let prims = [plane, Primitive::point(proxy, 0.5).unwrap()];
-        let problem = Problem {
-            stiffness_n_per_m: K,
-            probe_m: probe,
-            previous_proxy_m: Some(proxy),
-            primitives: &prims,
-        };
+        let problem = problem(probe, &prims, Some(proxy));
         let sol = solver.solve(&problem).unwrap();
         assert_eq!(sol.status, SolveStatus::Certified);
         total_sweeps += sol.sweeps;
@@ -293,12 +291,7 @@ fn budget_exhaustion_reports_an_honest_bound() {
         sweeps_per_round: 1,
         ..SolverConfig::default()
     });
-    let problem = Problem {
-        stiffness_n_per_m: K,
-        probe_m: DVec3::new(-0.0002, 0.002, 0.00001),
-        previous_proxy_m: None,
-        primitives: &prims,
-    };
+    let problem = problem(DVec3::new(-0.0002, 0.002, 0.00001), &prims, None);
     let sol = solver.solve(&problem).unwrap();
     assert_eq!(sol.status, SolveStatus::BudgetExhausted);
     let err = (sol.proxy_m - expected).length();
@@ -319,12 +312,7 @@ fn time_budget_is_enforced_with_a_clock() {
         max_time_ns: 0,
         ..SolverConfig::default()
     });
-    let problem = Problem {
-        stiffness_n_per_m: K,
-        probe_m: DVec3::new(0.0005, 0.002, -0.003),
-        previous_proxy_m: None,
-        primitives: &prims,
-    };
+    let problem = problem(DVec3::new(0.0005, 0.002, -0.003), &prims, None);
     let sol = solver.solve_with_clock(&problem, &clock).unwrap();
     assert_eq!(sol.status, SolveStatus::BudgetExhausted);
     assert_eq!(sol.sweeps, 0);
@@ -362,12 +350,7 @@ fn primal_newton_certifies_random_scenes_alone() {
         for seed in 0..4u64 {
             let mut rng = SplitMix(n as u64 + 1000 * seed);
             let prims = random_primitives(&mut rng, n);
-            let problem = Problem {
-                stiffness_n_per_m: K,
-                probe_m: rng.vec(0.02),
-                previous_proxy_m: None,
-                primitives: &prims,
-            };
+            let problem = problem(rng.vec(0.02), &prims, None);
             let new = Solver::with_capacity(SolverConfig::default(), n)
                 .solve(&problem)
                 .unwrap();
@@ -509,19 +492,6 @@ fn a_fixed_storage_solver_refuses_a_scene_it_cannot_hold() {
     assert_eq!(sol.status, SolveStatus::Certified);
 }
 
-fn problem(
-    probe_m: DVec3,
-    primitives: &[Primitive],
-    previous_proxy_m: Option<DVec3>,
-) -> Problem<'_> {
-    Problem {
-        stiffness_n_per_m: K,
-        probe_m,
-        previous_proxy_m,
-        primitives,
-    }
-}
-
 /// A proxy resting on a tilted plane, held by a friction point at its own position (the previous proxy, as the
 /// friction mode places it) whose strength the tangential pull exceeds by 3.4e-7 of itself: the minimiser slides
 /// 3.3e-10 m along the plane. Analytically it is the probe projected onto the plane, pulled back towards the point
@@ -535,12 +505,7 @@ fn a_friction_point_a_fraction_of_a_nanometre_behind_a_sliding_proxy_is_certifie
     // Cold, warm from the point (as the servo tick does), and again with the previous dual.
     for previous in [None, Some(p)] {
         let mut solver = Solver::default();
-        let problem = Problem {
-            stiffness_n_per_m: K,
-            probe_m: probe,
-            previous_proxy_m: previous,
-            primitives: &primitives,
-        };
+        let problem = problem(probe, &primitives, previous);
         for _ in 0..2 {
             let sol = solver.solve(&problem).unwrap();
             assert_certified_near(&sol, expected);
@@ -561,12 +526,7 @@ fn without_the_balancing_attempt_the_sliding_proxy_keeps_a_valid_larger_bound() 
             rebalance_certificate: false,
             ..SolverConfig::DEFAULT
         });
-        let problem = Problem {
-            stiffness_n_per_m: K,
-            probe_m: probe,
-            previous_proxy_m: Some(p),
-            primitives: &primitives,
-        };
+        let problem = problem(probe, &primitives, Some(p));
         let sol = solver.solve(&problem).unwrap();
         let err = (sol.proxy_m - expected).length();
         assert!(err <= sol.error_bound_m, "error {err:e} > bound: {sol:?}");

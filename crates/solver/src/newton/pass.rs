@@ -3,6 +3,17 @@
 
 use super::*;
 
+/// Adds `w v v^T` to the symmetric matrix `b` (xx, xy, xz, yy, yz, zz).
+#[inline(always)]
+fn add_outer(b: &mut [f64; 6], w: f64, v: DVec3) {
+    b[0] += w * v.x * v.x;
+    b[1] += w * v.x * v.y;
+    b[2] += w * v.x * v.z;
+    b[3] += w * v.y * v.y;
+    b[4] += w * v.y * v.z;
+    b[5] += w * v.z * v.z;
+}
+
 impl<S: Storage> Workspace<S> {
     /// [`Self::pass`] as a call, for scenes of more than [`INLINE_PASS_MAX_ITEMS`] primitives. Out of line, the
     /// pass's `Model` comes back through memory, and the iteration read parts of it with loads that span two of
@@ -103,19 +114,9 @@ impl<S: Storage> Workspace<S> {
                     energy_scale += s * rho;
                     let w = s * inverse;
                     a += w;
-                    b[0] += w * normal.x * normal.x;
-                    b[1] += w * normal.x * normal.y;
-                    b[2] += w * normal.x * normal.z;
-                    b[3] += w * normal.y * normal.y;
-                    b[4] += w * normal.y * normal.z;
-                    b[5] += w * normal.z * normal.z;
+                    add_outer(&mut b, w, normal);
                     if line {
-                        b[0] += w * q.x * q.x;
-                        b[1] += w * q.x * q.y;
-                        b[2] += w * q.x * q.z;
-                        b[3] += w * q.y * q.y;
-                        b[4] += w * q.y * q.z;
-                        b[5] += w * q.z * q.z;
+                        add_outer(&mut b, w, q);
                     }
                     if rho < clearance {
                         clearance = rho;

@@ -183,6 +183,15 @@ impl RenderScene {
         }
     }
 
+    /// What an active mode pushes along at `p`: the gradient of a scalar volume (`gradient_force`), the value
+    /// of a vector volume (`vector_force`). The scene's build gives each mode the kind of volume it reads.
+    fn active_field(&self, index: usize, p: DVec3) -> DVec3 {
+        match &self.volumes[index].1 {
+            AnyVolume::Scalar(v) => v.gradient(p),
+            AnyVolume::Vector(v) => v.sample(p),
+        }
+    }
+
     /// Reads every volume around `proxy_m` (value, gradient or Jacobian) and returns a number made from the
     /// reads only so they cannot be optimised away. The servo thread calls this a few microseconds before a
     /// tick's deadline: after a millisecond asleep, the voxels the tick is about to sample have left the
@@ -251,26 +260,27 @@ impl RenderScene {
                 nonzero(transfer.eval(v.sample(proxy_m)))
                     .and_then(|s| Primitive::point(proxy_m, s).ok())
             }),
-            Mode::GradientForce {
-                volume,
-                transfer,
-                power_budget_w,
-            } => self
-                .scalar(*volume)
-                .and_then(|v| active_push(v.gradient(at.hand_m), transfer, at, *power_budget_w)),
             Mode::VectorFollow { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let velocity = v.sample(proxy_m);
                 direction_of(velocity)
                     .and_then(|_| nonzero(transfer.eval(velocity.length())))
                     .and_then(|s| Primitive::line(proxy_m, velocity, s).ok())
             }),
-            Mode::VectorForce {
+            Mode::GradientForce {
                 volume,
                 transfer,
                 power_budget_w,
-            } => self
-                .vector(*volume)
-                .and_then(|v| active_push(v.sample(at.hand_m), transfer, at, *power_budget_w)),
+            }
+            | Mode::VectorForce {
+                volume,
+                transfer,
+                power_budget_w,
+            } => active_push(
+                self.active_field(*volume, at.hand_m),
+                transfer,
+                at,
+                *power_budget_w,
+            ),
             Mode::Vortex { volume, transfer } => self.vector(*volume).and_then(|v| {
                 let jacobian = v.jacobian(proxy_m);
                 let curl = crate::volume::vector::curl_of(&jacobian);

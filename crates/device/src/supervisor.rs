@@ -138,8 +138,8 @@ where
         Ok(Supervisor {
             opener,
             device: None,
-            safety: SafetyPipeline::new(config.safety)?,
-            input: InputGuard::new(config.input)?,
+            safety: SafetyPipeline::new(config.safety).map_err(SupervisorConfigError::Safety)?,
+            input: InputGuard::new(config.input).map_err(SupervisorConfigError::Input)?,
             config,
             last_state: None,
             drive: Drive::Starting { steady_ticks: 0 },

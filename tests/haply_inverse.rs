@@ -14,7 +14,7 @@ use voxhap::device::drivers::haply_inverse::{HaplyInverse, HaplyInverseConfig};
 use voxhap::device::safety::SafetyConfig;
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
 use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
-use voxhap::device::{HapticDevice, Lifecycle};
+use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
 
 /// Waits (up to 20 s) until the service's log satisfies `done`: the service reads our last messages on its own
 /// thread, after `close` has returned.
@@ -402,9 +402,9 @@ fn extra_messages_from_the_service_never_make_force_from_stale_positions() {
     assert!(extra * 3 >= states, "{extra} extra of {states} states");
     assert!(extra_counted > 0 && extra_counted <= extra);
     assert!(
-        events
-            .iter()
-            .any(|e| matches!(e, SupervisorEvent::Surplus { total } if *total >= 1)),
+        events.iter().any(
+            |e| matches!(e, SupervisorEvent::Device(DeviceEvent::Surplus { total }) if *total >= 1)
+        ),
         "{events:?}"
     );
     assert!(!shared.flooded.load(Ordering::Relaxed));

@@ -16,7 +16,7 @@ use voxhap::device::drivers::haply_inverse::{
 use voxhap::device::safety::{SafetyConfig, SafetyFlags};
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
 use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
-use voxhap::device::{HapticDevice, Lifecycle};
+use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
 
 fn config(service: &InverseService) -> HaplyInverseConfig {
     HaplyInverseConfig {
@@ -211,7 +211,7 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
             sent = true;
         }
         for event in out.events.iter() {
-            if let SupervisorEvent::Fault { code: got, .. } = event {
+            if let SupervisorEvent::Device(DeviceEvent::Fault { code: got, .. }) = event {
                 assert_eq!(got, code, "{safety_type}");
                 faulted_at.get_or_insert(tick);
             }
@@ -311,10 +311,10 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
     while start.elapsed() < Duration::from_secs(60) {
         tick += 1;
         let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
-        let faulted = out
-            .events
-            .iter()
-            .any(|e| matches!(e, SupervisorEvent::Fault { code, .. } if code == FAULT_MOTOR_STALL));
+        let faulted = out.events.iter().any(|e| match e {
+            SupervisorEvent::Device(DeviceEvent::Fault { code, .. }) => code == FAULT_MOTOR_STALL,
+            _ => false,
+        });
         let disconnected = out
             .events
             .iter()

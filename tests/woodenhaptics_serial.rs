@@ -389,12 +389,14 @@ fn surplus_replies_reach_the_supervisors_events_and_counters() {
         supervisor.counters()
     );
     assert!(
-        events
-            .iter()
-            .any(|e| matches!(e, SupervisorEvent::Surplus { total } if *total >= 1)),
+        events.iter().any(
+            |e| matches!(e, SupervisorEvent::Device(DeviceEvent::Surplus { total }) if *total >= 1)
+        ),
         "{events:?}"
     );
-    let text = voxhap::servo::monitor::describe(SupervisorEvent::Surplus { total: 10 });
+    let text = voxhap::servo::monitor::describe(SupervisorEvent::Device(DeviceEvent::Surplus {
+        total: 10,
+    }));
     assert!(
         text.contains("10 message(s) more than the host asked for"),
         "{text}"

@@ -359,6 +359,32 @@ fn to_f32(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
 }
 
+/// The arm's current state as the session's sample (the mock has no buttons).
+fn arm_sample(arm: &SimArm) -> DeviceSample {
+    DeviceSample {
+        position_m: to_f32(arm.position_m()),
+        velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
+        buttons: 0,
+    }
+}
+
+/// One control cycle of the arm from `now_us` under `force` (N), held for `tick_us`; the handle log (when
+/// kept) gets the cycle's line first.
+fn step_arm(
+    arm: &mut SimArm,
+    handle_log: Option<&mut DeviceLog>,
+    now_us: u64,
+    tick_us: u64,
+    force: [f32; 3],
+) -> Result<(), MockError> {
+    let force_n = DVec3::from(force.map(f64::from));
+    if let Some(log) = handle_log {
+        log.handle(now_us, arm.position_m(), force_n)?;
+    }
+    arm.step(now_us as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
+    Ok(())
+}
+
 /// The local-model capability of the mock (protocol/SPEC.md section 10): its loop rate and its log.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LocalModelConfig {
@@ -402,11 +428,12 @@ pub fn run_mock(
     shutdown: &AtomicBool,
     on_event: &mut dyn FnMut(MockEvent),
 ) -> Result<MockStats, MockError> {
-    run_mock_with(
+    run_mock_logged(
         arm_config,
         faults,
         serve,
         duration_us,
+        None,
         None,
         shutdown,
         on_event,
@@ -415,30 +442,8 @@ pub fn run_mock(
 
 /// [`run_mock`] with the local-model capability when `local` is given: the device sets `LOCAL_MODEL`, takes
 /// LocalModel messages and renders them with `voxhap-local`'s loop at `local.rate_hz` (the arm steps at that
-/// rate too); SetForce works as before.
-pub fn run_mock_with(
-    arm_config: SimArmConfig,
-    faults: FaultConfig,
-    serve: &ServeOn,
-    duration_us: Option<u64>,
-    local: Option<&LocalModelConfig>,
-    shutdown: &AtomicBool,
-    on_event: &mut dyn FnMut(MockEvent),
-) -> Result<MockStats, MockError> {
-    run_mock_logged(
-        arm_config,
-        faults,
-        serve,
-        duration_us,
-        local,
-        None,
-        shutdown,
-        on_event,
-    )
-}
-
-/// [`run_mock_with`], writing the handle log ([`HANDLE_LOG_HEADER`]) to `handle_log` when given (a new
-/// file only).
+/// rate too); SetForce works as before. With `handle_log`, writes the handle log ([`HANDLE_LOG_HEADER`]) there
+/// (a new file only).
 #[allow(clippy::too_many_arguments)]
 pub fn run_mock_logged(
     arm_config: SimArmConfig,
@@ -565,62 +570,28 @@ pub fn run_mock_logged(
                 }
             }
             // Answer at once (lockstep): the control loop's sample is the arm's current state.
-            let sample = DeviceSample {
-                position_m: to_f32(arm.position_m()),
-                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
-                buttons: 0,
-            };
-            session.poll(now, &sample);
+            session.poll(now, &arm_sample(&arm));
         }
-        if now >= next_tick_us && local.is_some() {
-            // The local loop: force from the current sample (the session's SetForce force when no model), then
-            // the arm moves under it for one period.
-            let sample = DeviceSample {
-                position_m: to_f32(arm.position_m()),
-                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
-                buttons: 0,
-            };
+        if now >= next_tick_us {
             let trips = session.stats().watchdog_trips;
-            let force = local_loop.step(&mut session, now, &sample);
-            if session.stats().watchdog_trips > trips {
-                on_event(MockEvent::WatchdogTripped(now));
-            }
-            if let Some(log) = log.as_mut() {
-                log.cycle(now, &session, &local_loop, force)?;
-            }
-            let force_n = DVec3::new(
-                f64::from(force[0]),
-                f64::from(force[1]),
-                f64::from(force[2]),
-            );
-            if let Some(log) = handle_log.as_mut() {
-                log.handle(now, arm.position_m(), force_n)?;
-            }
-            arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
-            stats.ticks += 1;
-            next_tick_us = if now - next_tick_us >= tick_us {
-                now + tick_us
+            if local.is_some() {
+                // The local loop: force from the current sample (the session's SetForce force when no model),
+                // then the arm moves under it for one period.
+                let force = local_loop.step(&mut session, now, &arm_sample(&arm));
+                if let Some(log) = log.as_mut() {
+                    log.cycle(now, &session, &local_loop, force)?;
+                }
+                step_arm(&mut arm, handle_log.as_mut(), now, tick_us, force)?;
             } else {
-                next_tick_us + tick_us
-            };
-        } else if now >= next_tick_us {
-            let force = session.force_n();
-            let force_n = DVec3::new(
-                f64::from(force[0]),
-                f64::from(force[1]),
-                f64::from(force[2]),
-            );
-            if let Some(log) = handle_log.as_mut() {
-                log.handle(now, arm.position_m(), force_n)?;
+                step_arm(
+                    &mut arm,
+                    handle_log.as_mut(),
+                    now,
+                    tick_us,
+                    session.force_n(),
+                )?;
+                session.poll(now, &arm_sample(&arm));
             }
-            arm.step(now as f64 * 1e-6, tick_us as f64 * 1e-6, force_n)?;
-            let sample = DeviceSample {
-                position_m: to_f32(arm.position_m()),
-                velocity_m_per_s: to_f32(arm.velocity_m_per_s()),
-                buttons: 0,
-            };
-            let trips = session.stats().watchdog_trips;
-            session.poll(now, &sample);
             if session.stats().watchdog_trips > trips {
                 on_event(MockEvent::WatchdogTripped(now));
             }

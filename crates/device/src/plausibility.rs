@@ -60,18 +60,9 @@ impl Default for InputConfig {
     }
 }
 
-/// An input setting that cannot be used.
-#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("input check setting {0}")]
-pub struct InputConfigError(pub SettingError);
-
 impl InputConfig {
     /// Checks every setting.
-    pub fn validate(&self) -> Result<(), InputConfigError> {
-        self.check().map_err(InputConfigError)
-    }
-
-    fn check(&self) -> Result<(), SettingError> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         SettingError::positive("max_speed_m_per_s", self.max_speed_m_per_s)?;
         SettingError::positive("velocity_cutoff_hz", self.velocity_cutoff_hz)?;
         SettingError::non_negative("position_noise_m", self.position_noise_m)?;
@@ -139,7 +130,7 @@ pub struct InputGuard {
 
 impl InputGuard {
     /// Checks for no device yet (no workspace limit until [`InputGuard::attach`]).
-    pub fn new(config: InputConfig) -> Result<InputGuard, InputConfigError> {
+    pub fn new(config: InputConfig) -> Result<InputGuard, SettingError> {
         config.validate()?;
         Ok(InputGuard {
             config,
@@ -379,7 +370,7 @@ mod tests {
             ..InputConfig::default()
         };
         assert_eq!(
-            InputGuard::new(config).unwrap_err().0.name,
+            InputGuard::new(config).unwrap_err().name,
             "max_speed_m_per_s"
         );
     }

@@ -126,8 +126,8 @@ impl CouplingCaps {
     }
 }
 
-/// A setting that cannot be used: its name, its value and what it must be (the error of the configuration
-/// holding it says which configuration).
+/// A setting that cannot be used: its name, its value and what it must be (the supervisor's error says which
+/// stage's settings it belongs to).
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[error("{name} = {value} must be {requirement}")]
 pub struct SettingError {
@@ -179,18 +179,9 @@ impl SettingError {
     }
 }
 
-/// The configuration cannot be used.
-#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("safety setting {0}")]
-pub struct SafetyConfigError(pub SettingError);
-
 impl SafetyConfig {
     /// Checks every setting.
-    pub fn validate(&self) -> Result<(), SafetyConfigError> {
-        self.check().map_err(SafetyConfigError)
-    }
-
-    fn check(&self) -> Result<(), SettingError> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         SettingError::non_negative("max_force_n", self.max_force_n)?;
         SettingError::non_negative("engage_threshold_n", self.engage_threshold_n)?;
         SettingError::positive("slew_n_per_ms", self.slew_n_per_ms)?;
@@ -321,7 +312,7 @@ const DEFAULT_PERIOD_US: u64 = 1_000;
 
 impl SafetyPipeline {
     /// A pipeline with output off until enabled.
-    pub fn new(config: SafetyConfig) -> Result<SafetyPipeline, SafetyConfigError> {
+    pub fn new(config: SafetyConfig) -> Result<SafetyPipeline, SettingError> {
         config.validate()?;
         Ok(SafetyPipeline {
             config,
@@ -581,7 +572,7 @@ mod tests {
             max_force_n: f64::NAN,
             ..config()
         };
-        assert_eq!(SafetyPipeline::new(bad).unwrap_err().0.name, "max_force_n");
+        assert_eq!(SafetyPipeline::new(bad).unwrap_err().name, "max_force_n");
     }
 
     #[test]

@@ -32,7 +32,7 @@
 //! - **Pose verdict.** After checking each state, the supervisor tells the driver whether its position was
 //!   accepted ([`HapticDevice::input_checked`]), so a driver that converts force with a pose it read itself
 //!   never converts with a rejected one. A driver's report of messages nobody asked for
-//!   ([`DeviceEvent::Surplus`]) becomes a [`SupervisorEvent::Surplus`] and `device_surplus`.
+//!   ([`DeviceEvent::Surplus`]) is passed on as a [`SupervisorEvent::Device`] and counted in `device_surplus`.
 //! - **Steady before enabling.** `Starting` (and `Recovering`) count on-time ticks that end with a state
 //!   within that staleness bound; a reply that came a tick or two late keeps the count, a gap that would zero
 //!   the force or a late servo tick restarts it.
@@ -138,8 +138,8 @@ where
         Ok(Supervisor {
             opener,
             device: None,
-            safety: SafetyPipeline::new(config.safety)?,
-            input: InputGuard::new(config.input)?,
+            safety: SafetyPipeline::new(config.safety).map_err(SupervisorConfigError::Safety)?,
+            input: InputGuard::new(config.input).map_err(SupervisorConfigError::Input)?,
             config,
             last_state: None,
             drive: Drive::Starting { steady_ticks: 0 },
@@ -374,19 +374,13 @@ where
     }
 
     fn on_event(&mut self, event: DeviceEvent, now_us: u64, out: &mut TickOutput) {
+        out.report(&mut self.counters, SupervisorEvent::Device(event));
         match event {
             DeviceEvent::Fault {
                 code,
                 active_faults,
             } => {
                 self.counters.faults += 1;
-                out.report(
-                    &mut self.counters,
-                    SupervisorEvent::Fault {
-                        code,
-                        active_faults,
-                    },
-                );
                 if code == FAULT_WATCHDOG_EXPIRED {
                     self.counters.device_watchdog_trips += 1;
                     if !matches!(self.drive, Drive::Faulted | Drive::Refused) {
@@ -402,13 +396,6 @@ where
                 reason,
             } => {
                 self.counters.rejections += 1;
-                out.report(
-                    &mut self.counters,
-                    SupervisorEvent::Rejected {
-                        message_type,
-                        reason,
-                    },
-                );
                 if reason == REJECT_NO_SESSION {
                     self.lose(ErrorKind::Protocol, LossReason::SessionLost, now_us, out);
                 } else if message_type == MESSAGE_TYPE_ENABLE {
@@ -419,16 +406,13 @@ where
                     }
                 }
             }
-            DeviceEvent::Surplus { total } => self.observe_surplus(total, out),
+            DeviceEvent::Surplus { total } => {
+                // `total` counts from the driver's open; the counter sums over links.
+                let new = total.saturating_sub(self.surplus_on_link);
+                self.surplus_on_link = total;
+                self.counters.device_surplus = self.counters.device_surplus.saturating_add(new);
+            }
         }
-    }
-
-    fn observe_surplus(&mut self, total: u64, out: &mut TickOutput) {
-        // `total` counts from the driver's open; the counter sums over links.
-        let new = total.saturating_sub(self.surplus_on_link);
-        self.surplus_on_link = total;
-        self.counters.device_surplus = self.counters.device_surplus.saturating_add(new);
-        out.report(&mut self.counters, SupervisorEvent::Surplus { total });
     }
 
     fn observe_status(&mut self, status: DeviceStatus, now_us: u64, out: &mut TickOutput) {
@@ -439,10 +423,10 @@ where
             self.counters.faults += 1;
             out.report(
                 &mut self.counters,
-                SupervisorEvent::Fault {
+                SupervisorEvent::Device(DeviceEvent::Fault {
                     code: lowest_fault_code(status.active_faults),
                     active_faults: status.active_faults,
-                },
+                }),
             );
             self.fall_back(Drive::Faulted);
             return;

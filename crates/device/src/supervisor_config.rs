@@ -1,8 +1,8 @@
 //! The supervisor's settings ([`SupervisorConfig`]) and their check: every count non-zero, the connect timeout in
 //! range, and the safety and input settings checked by their own stages.
 
-use crate::plausibility::{InputConfig, InputConfigError};
-use crate::safety::{SafetyConfig, SafetyConfigError};
+use crate::plausibility::InputConfig;
+use crate::safety::{SafetyConfig, SettingError};
 
 /// Settings of the supervisor (defaults: protocol/SPEC.md, "Host behaviour a firmware can rely on").
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,11 +58,11 @@ impl Default for SupervisorConfig {
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum SupervisorConfigError {
     /// An output limit.
-    #[error(transparent)]
-    Safety(#[from] SafetyConfigError),
+    #[error("safety setting {0}")]
+    Safety(SettingError),
     /// An input check.
-    #[error(transparent)]
-    Input(#[from] InputConfigError),
+    #[error("input check setting {0}")]
+    Input(SettingError),
     /// A link-health setting.
     #[error("supervisor setting {name} must be >= 1")]
     Zero {
@@ -89,8 +89,12 @@ pub const CONNECT_TIMEOUT_RANGE_US: (u64, u64) = (100_000, 600_000_000);
 impl SupervisorConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), SupervisorConfigError> {
-        self.safety.validate()?;
-        self.input.validate()?;
+        self.safety
+            .validate()
+            .map_err(SupervisorConfigError::Safety)?;
+        self.input
+            .validate()
+            .map_err(SupervisorConfigError::Input)?;
         for (name, value) in [
             (
                 "max_consecutive_errors",

@@ -4,7 +4,7 @@
 
 use crate::local_offer::{LocalOffer, LocalReport};
 use crate::safety::SafetyFlags;
-use crate::{DeviceState, ErrorKind};
+use crate::{DeviceEvent, DeviceState, ErrorKind};
 use glam::DVec3;
 
 /// What the servo loop hands the supervisor each tick.
@@ -83,32 +83,16 @@ pub enum SupervisorEvent {
     ReconnectFailed(ErrorKind),
     /// A device error that did not lose the link.
     DeviceError(ErrorKind),
-    /// The device reported a fault (code 0: its watchdog, re-enabled automatically; others need a person).
-    Fault {
-        /// Fault code (voxhap protocol numbering).
-        code: u8,
-        /// All latched fault bits.
-        active_faults: u16,
-    },
-    /// The device refused a command.
-    Rejected {
-        /// Type byte of the refused message.
-        message_type: u8,
-        /// Reason code.
-        reason: u8,
-    },
+    /// What the device told the host, passed on as it came ([`DeviceEvent`]): a fault (code 0: its watchdog,
+    /// re-enabled automatically; others need a person; a latched fault its status showed is reported the same
+    /// way), a refused command, or messages it sent beyond what the host asked for.
+    Device(DeviceEvent),
     /// The device's status said it was not enabled although the host had enabled it.
     DroppedOut,
     /// The stall monitor stopped the device while the servo thread was stalled.
     StallStop,
     /// The operator cleared the faults (ClearFault sent); the device is enabled again once the link is healthy.
     FaultCleared,
-    /// The device sent more than the host asked for (it answers twice, or floods); the driver rendered from
-    /// the newest message and dropped the rest ([`DeviceEvent::Surplus`]).
-    Surplus {
-        /// Surplus messages since the driver was opened (this link).
-        total: u64,
-    },
 }
 
 pub use voxhap_core::status::OutputState;

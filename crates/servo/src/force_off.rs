@@ -13,6 +13,7 @@ use voxhap_api::ForceOffCause;
 use voxhap_core::haptics::tick::TickStatus;
 use voxhap_device::safety::SafetyFlags;
 use voxhap_device::supervisor::{LossReason, OutputState, SupervisorEvent, TickOutput};
+use voxhap_device::DeviceEvent;
 
 /// Remembers the reasons the supervisor reports once (module docs).
 #[derive(Debug, Clone, Copy, Default)]
@@ -41,7 +42,7 @@ impl ForceOffTracker {
                         _ => ForceOffCause::Disconnected,
                     };
                 }
-                SupervisorEvent::Fault { code: 0, .. } => {
+                SupervisorEvent::Device(DeviceEvent::Fault { code: 0, .. }) => {
                     self.recovery = ForceOffCause::DeviceWatchdog
                 }
                 SupervisorEvent::StallStop => self.recovery = ForceOffCause::MonitorStop,

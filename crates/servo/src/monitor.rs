@@ -25,7 +25,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use voxhap_device::info::{fault_name, reject_reason_name, MESSAGE_TYPE_ENABLE};
 use voxhap_device::supervisor::SupervisorEvent;
-use voxhap_device::EmergencyStop;
+use voxhap_device::{DeviceEvent, EmergencyStop};
 
 /// Where the monitor finds the current device's stop channel, and the flag it raises after using it.
 pub struct StopSlot {
@@ -112,19 +112,39 @@ pub fn describe(event: SupervisorEvent) -> String {
         SupervisorEvent::Connected => {
             "device connected; enabling once the servo loop runs steadily".to_owned()
         }
-        SupervisorEvent::Enabled => "device enabled; forces ramp in once the rendered force is small".to_owned(),
+        SupervisorEvent::Enabled => {
+            "device enabled; forces ramp in once the rendered force is small".to_owned()
+        }
         SupervisorEvent::Disconnected { kind, reason } => format!(
             "device link dropped ({}, last error {kind:?}): zero force sent; reconnecting",
             reason.describe()
         ),
         SupervisorEvent::ReconnectFailed(kind) => format!("reconnect failed ({kind:?}); retrying"),
         SupervisorEvent::DeviceError(kind) => format!("device error ({kind:?})"),
-        SupervisorEvent::Fault {
-            code: 0,
-            ..
-        } => "device watchdog expired: the device dropped the force; enabling again once the link is healthy"
-            .to_owned(),
-        SupervisorEvent::Fault {
+        SupervisorEvent::Device(event) => describe_device(event),
+        SupervisorEvent::DroppedOut => {
+            "device says it is not enabled although the host enabled it: force off; enabling again"
+                .to_owned()
+        }
+        SupervisorEvent::StallStop => {
+            "servo thread was stalled; the monitor had stopped the device: enabling again"
+                .to_owned()
+        }
+        SupervisorEvent::FaultCleared => {
+            "faults cleared on the operator's request; enabling again once the link is healthy"
+                .to_owned()
+        }
+    }
+}
+
+/// What the operator reads for something the device told the host.
+fn describe_device(event: DeviceEvent) -> String {
+    match event {
+        DeviceEvent::Fault { code: 0, .. } => {
+            "device watchdog expired: the device dropped the force; enabling again once the link is healthy"
+                .to_owned()
+        }
+        DeviceEvent::Fault {
             code,
             active_faults,
         } => format!(
@@ -132,7 +152,7 @@ pub fn describe(event: SupervisorEvent) -> String {
              person: check the arm, then send clear_fault (voxhap clear-fault, or the page's button)",
             fault_name(code)
         ),
-        SupervisorEvent::Rejected {
+        DeviceEvent::Rejected {
             message_type,
             reason,
         } => {
@@ -146,16 +166,7 @@ pub fn describe(event: SupervisorEvent) -> String {
                 reject_reason_name(reason)
             )
         }
-        SupervisorEvent::DroppedOut => {
-            "device says it is not enabled although the host enabled it: force off; enabling again".to_owned()
-        }
-        SupervisorEvent::StallStop => {
-            "servo thread was stalled; the monitor had stopped the device: enabling again".to_owned()
-        }
-        SupervisorEvent::FaultCleared => {
-            "faults cleared on the operator's request; enabling again once the link is healthy".to_owned()
-        }
-        SupervisorEvent::Surplus { total } => format!(
+        DeviceEvent::Surplus { total } => format!(
             "device sent {total} message(s) more than the host asked for (does it answer twice, or stream?): \
              force is rendered from the newest, the rest are dropped; check the device's firmware"
         ),

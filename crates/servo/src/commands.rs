@@ -42,6 +42,30 @@ pub fn check_damping(damping: f64) -> Result<f64, ControlError> {
     Ok(damping)
 }
 
+/// `set_stiffness` (`k`), `set_damping` (`damping`) and `set_coupling` (both): the coupling `(k, damping)`
+/// after the command, from the coupling in use `now`, and the reply's message. `check_k` checks a stiffness,
+/// `check_damping` a damping at the stiffness it will be used with; the whole request is checked before
+/// anything changes, so a refused damping leaves the stiffness as it was.
+pub fn set_coupling<E>(
+    k: Option<f64>,
+    damping: Option<f64>,
+    (k_now, damping_now): (f64, f64),
+    check_k: impl FnOnce(f64) -> Result<f64, E>,
+    check_damping: impl FnOnce(f64, f64) -> Result<f64, E>,
+) -> Result<(f64, f64, String), E> {
+    let new_k = k.map_or(Ok(k_now), check_k)?;
+    let new_damping = match damping {
+        Some(damping) => check_damping(damping, new_k)?,
+        None => damping_now,
+    };
+    let message = match (k, damping) {
+        (Some(_), None) => format!("stiffness set to {new_k} N/m"),
+        (None, Some(_)) => format!("damping set to {new_damping} N s/m"),
+        _ => format!("stiffness set to {new_k} N/m; damping set to {new_damping} N s/m"),
+    };
+    Ok((new_k, new_damping, message))
+}
+
 /// The index of the mode named `name`.
 pub fn mode_index(modes: &[ModeConfig], name: &str) -> Result<usize, ControlError> {
     modes
@@ -53,28 +77,35 @@ pub fn mode_index(modes: &[ModeConfig], name: &str) -> Result<usize, ControlErro
         })
 }
 
-/// `set_transfer`: replaces the transfer function of the mode named `mode`; returns the reply's message.
-pub fn set_transfer(
-    modes: &mut [ModeConfig],
-    mode: &str,
-    transfer: TransferFunction,
-) -> Result<String, ControlError> {
-    let index = mode_index(modes, mode)?;
-    if modes[index].transfer.is_none() {
-        return Err(invalid(format!("mode {mode:?} has no transfer function")));
-    }
-    modes[index].transfer = Some(transfer);
-    Ok(format!("transfer function of {mode:?} replaced"))
+/// `set_transfer` and `set_mode_enabled`: what they change in the mode they name.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ModeEdit {
+    /// `set_transfer`: a new transfer function (the mode must have one).
+    Transfer(TransferFunction),
+    /// `set_mode_enabled`: on or off.
+    Enabled(bool),
 }
 
-/// `set_mode_enabled`: switches the mode named `mode` on or off; returns the reply's message.
-pub fn set_mode_enabled(
+/// Applies `edit` to the mode named `mode`; returns the reply's message.
+pub fn edit_mode(
     modes: &mut [ModeConfig],
     mode: &str,
-    enabled: bool,
+    edit: ModeEdit,
 ) -> Result<String, ControlError> {
     let index = mode_index(modes, mode)?;
-    modes[index].enabled = (!enabled).then_some(false);
-    let state = if enabled { "on" } else { "off" };
-    Ok(format!("mode {mode:?} switched {state}"))
+    let config = &mut modes[index];
+    match edit {
+        ModeEdit::Transfer(transfer) => {
+            if config.transfer.is_none() {
+                return Err(invalid(format!("mode {mode:?} has no transfer function")));
+            }
+            config.transfer = Some(transfer);
+            Ok(format!("transfer function of {mode:?} replaced"))
+        }
+        ModeEdit::Enabled(enabled) => {
+            config.enabled = (!enabled).then_some(false);
+            let state = if enabled { "on" } else { "off" };
+            Ok(format!("mode {mode:?} switched {state}"))
+        }
+    }
 }

@@ -3,7 +3,7 @@
 //! through the command ring, and waits until the servo thread has applied it (or withdraws it, so a command
 //! the client was told failed is never applied later). Runs on the control side, never on the servo thread.
 
-use super::commands;
+use super::commands::{self, ModeEdit};
 use super::device::HandTargetInput;
 use super::external_force::ExternalForceSender;
 use super::recorder::{RecorderError, RecorderRequest};
@@ -236,13 +236,25 @@ impl SessionShared {
         })
     }
 
+    /// `set_stiffness` (`k`), `set_damping` (`damping`) or `set_coupling` (both), checked against the device's
+    /// stiffness and the passivity bound ([`commands::set_coupling`]).
     fn coupling(
         &self,
         control: &mut Control,
-        k: f64,
-        damping: f64,
-        message: String,
+        k: Option<f64>,
+        damping: Option<f64>,
     ) -> Result<ControlReply, ControlError> {
+        let now = (
+            control.setup.stiffness_n_per_m,
+            control.setup.damping_n_s_per_m,
+        );
+        let (k, damping, message) = commands::set_coupling(
+            k,
+            damping,
+            now,
+            |k| commands::check_stiffness(k, self.max_stiffness_n_per_m, "the device's"),
+            |damping, k| self.check_damping_at(damping, k),
+        )?;
         let generation = control.generation + 1;
         self.send(
             control,
@@ -294,41 +306,21 @@ impl SessionShared {
     ) -> Result<ControlReply, ControlError> {
         Self::drain_retired(control);
         match command {
-            ControlCommand::SetStiffness { k } => {
-                let k = commands::check_stiffness(k, self.max_stiffness_n_per_m, "the device's")?;
-                let damping = control.setup.damping_n_s_per_m;
-                self.coupling(control, k, damping, format!("stiffness set to {k} N/m"))
-            }
-            ControlCommand::SetDamping { damping } => {
-                let k = control.setup.stiffness_n_per_m;
-                let damping = self.check_damping_at(damping, k)?;
-                self.coupling(
-                    control,
-                    k,
-                    damping,
-                    format!("damping set to {damping} N s/m"),
-                )
-            }
+            ControlCommand::SetStiffness { k } => self.coupling(control, Some(k), None),
+            ControlCommand::SetDamping { damping } => self.coupling(control, None, Some(damping)),
             ControlCommand::SetCoupling { k, damping } => {
-                // The whole request is checked before anything is applied: a refused damping leaves the
-                // stiffness as it was.
-                let k = commands::check_stiffness(k, self.max_stiffness_n_per_m, "the device's")?;
-                let damping = self.check_damping_at(damping, k)?;
-                self.coupling(
-                    control,
-                    k,
-                    damping,
-                    format!("stiffness set to {k} N/m; damping set to {damping} N s/m"),
-                )
+                self.coupling(control, Some(k), Some(damping))
             }
             ControlCommand::SetTransfer { mode, transfer } => {
                 let mut setup = control.setup.clone();
-                let message = commands::set_transfer(&mut setup.modes, &mode, transfer)?;
+                let edit = ModeEdit::Transfer(transfer);
+                let message = commands::edit_mode(&mut setup.modes, &mode, edit)?;
                 self.swap(control, setup, message)
             }
             ControlCommand::SetModeEnabled { mode, enabled } => {
                 let mut setup = control.setup.clone();
-                let message = commands::set_mode_enabled(&mut setup.modes, &mode, enabled)?;
+                let edit = ModeEdit::Enabled(enabled);
+                let message = commands::edit_mode(&mut setup.modes, &mode, edit)?;
                 self.swap(control, setup, message)
             }
             ControlCommand::AddMode { mode } => {

@@ -18,17 +18,14 @@
 //!
 //! [`connect`]: ServoDevice::connect
 
-use super::device::{ConnectError, ServoDevice};
+use super::device::{forward_to_wrapped, ConnectError, ServoDevice};
 use super::monitor::StopSlot;
 use glam::DVec3;
 use std::sync::{Arc, OnceLock};
 use voxhap_device::mapping::WorkspaceMapping;
-use voxhap_device::plausibility::InputCounters;
 use voxhap_device::profile::{DeviceProfile, MappingChoice};
 use voxhap_device::safety::DEFAULT_MAX_STIFFNESS_N_PER_M;
-use voxhap_device::supervisor::{
-    ClearFaultOutcome, OutputState, SupervisorCounters, TickInput, TickOutput,
-};
+use voxhap_device::supervisor::{TickInput, TickOutput};
 use voxhap_device::{DeviceInfo, ErrorKind};
 
 /// Where [`MappedDevice::connect`] leaves the mapping it settled on, for a device that needs it itself (the
@@ -126,42 +123,12 @@ impl ServoDevice for MappedDevice {
         out
     }
 
-    fn counters(&self) -> SupervisorCounters {
-        self.inner.counters()
-    }
-
-    fn input_counters(&self) -> InputCounters {
-        self.inner.input_counters()
-    }
-
-    fn engaged(&self) -> bool {
-        self.inner.engaged()
-    }
-
-    fn output_state(&self) -> OutputState {
-        self.inner.output_state()
-    }
-
-    fn state_age_ticks(&self) -> u32 {
-        self.inner.state_age_ticks()
-    }
-
-    fn link_latency(&self) -> Option<voxhap_device::latency::LinkLatency> {
-        self.inner.link_latency()
-    }
-
-    fn link_delay_seen(&self) -> Option<voxhap_device::latency::LinkDelaySeen> {
-        self.inner.link_delay_seen()
-    }
+    forward_to_wrapped!(inner);
 
     fn reported_force_n(&self) -> Option<DVec3> {
         self.inner
             .reported_force_n()
             .map(|force| self.mapping.to_scene_force_n(force))
-    }
-
-    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
-        self.inner.request_clear_fault()
     }
 
     fn stop(&mut self) {
@@ -207,10 +174,6 @@ impl ServoDevice for MappedDevice {
             info.max_force_n = info.max_force_n.min(limit);
         }
         Some(info)
-    }
-
-    fn set_period_us(&mut self, period_us: u64) {
-        self.inner.set_period_us(period_us);
     }
 
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {

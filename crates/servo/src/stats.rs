@@ -260,23 +260,47 @@ pub struct ServoStats {
     realtime: Mutex<RealtimeReport>,
 }
 
-/// The safety counters and state, as atomics the servo thread stores each tick.
-#[derive(Debug, Default)]
-pub struct SafetyStats {
-    pub output_state: AtomicU8,
-    pub active_faults: AtomicU32,
-    pub device_faults: AtomicU64,
-    pub device_watchdog_trips: AtomicU64,
-    pub device_rejections: AtomicU64,
-    pub enables: AtomicU64,
-    pub not_enabled_ticks: AtomicU64,
-    pub stale_ticks: AtomicU64,
-    pub positions_rejected: AtomicU64,
-    pub velocities_replaced: AtomicU64,
-    pub slew_limited_ticks: AtomicU64,
-    pub forces_clamped: AtomicU64,
-    pub events_dropped: AtomicU64,
-    pub device_surplus: AtomicU64,
+/// Defines [`SafetyStats`] from the list of its counters, so that a counter is loaded into the
+/// [`SafetyReport`] field of the same name as soon as it is declared.
+macro_rules! safety_stats {
+    ($($counter:ident,)*) => {
+        /// The safety counters and state, as atomics the servo thread stores each tick.
+        #[derive(Debug, Default)]
+        pub struct SafetyStats {
+            pub output_state: AtomicU8,
+            pub active_faults: AtomicU32,
+            $(pub $counter: AtomicU64,)*
+        }
+
+        impl SafetyStats {
+            /// What was stored last, with the stall monitor's stops (which it counts itself).
+            fn report(&self, monitor_stops: u64) -> SafetyReport {
+                let output_state = OutputState::from_code(self.output_state.load(Ordering::Relaxed));
+                SafetyReport {
+                    output_state,
+                    output_state_explanation: output_state.explanation(),
+                    active_faults: self.active_faults.load(Ordering::Relaxed) as u16,
+                    monitor_stops,
+                    $($counter: self.$counter.load(Ordering::Relaxed),)*
+                }
+            }
+        }
+    };
+}
+
+safety_stats! {
+    device_faults,
+    device_watchdog_trips,
+    device_rejections,
+    enables,
+    not_enabled_ticks,
+    stale_ticks,
+    positions_rejected,
+    velocities_replaced,
+    slew_limited_ticks,
+    forces_clamped,
+    events_dropped,
+    device_surplus,
 }
 
 impl ServoStats {
@@ -324,33 +348,9 @@ impl ServoStats {
             recorder_errors: load(&self.recorder_errors),
             commands_applied: load(&self.commands_applied),
             realtime: self.realtime.lock().map(|r| *r).unwrap_or_default(),
-            safety: self.safety_report(),
+            safety: self.safety.report(load(&self.monitor_stops)),
             energy: self.energy.load().report(),
             link_delay: self.link_delay.report(),
-        }
-    }
-
-    fn safety_report(&self) -> SafetyReport {
-        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
-        let safety = &self.safety;
-        let output_state = OutputState::from_code(safety.output_state.load(Ordering::Relaxed));
-        SafetyReport {
-            output_state,
-            output_state_explanation: output_state.explanation(),
-            active_faults: safety.active_faults.load(Ordering::Relaxed) as u16,
-            device_faults: load(&safety.device_faults),
-            device_watchdog_trips: load(&safety.device_watchdog_trips),
-            device_rejections: load(&safety.device_rejections),
-            enables: load(&safety.enables),
-            not_enabled_ticks: load(&safety.not_enabled_ticks),
-            stale_ticks: load(&safety.stale_ticks),
-            positions_rejected: load(&safety.positions_rejected),
-            velocities_replaced: load(&safety.velocities_replaced),
-            slew_limited_ticks: load(&safety.slew_limited_ticks),
-            forces_clamped: load(&safety.forces_clamped),
-            monitor_stops: load(&self.monitor_stops),
-            events_dropped: load(&safety.events_dropped),
-            device_surplus: load(&safety.device_surplus),
         }
     }
 }

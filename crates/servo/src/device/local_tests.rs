@@ -3,28 +3,20 @@
 //! directed force closing a passive contact, which generates nothing beyond its intended work.
 
 use super::*;
-use voxhap_device::sim::{SimArm, SimArmConfig};
+use voxhap_device::sim::{ForceProfile, HandPath, SimArm};
 use voxhap_protocol::SiPrimitive;
 
 /// An arm of `mass_kg` with `damping_n_s_per_m`, no hand force (the hand a zero force source), unbounded, at
 /// rest at the origin.
 fn free_arm(mass_kg: f64, damping_n_s_per_m: f64) -> SimArm {
-    let config: SimArmConfig = toml::from_str(&format!(
-        r#"
-        [arm]
-        mass_kg = {mass_kg:?}
-        damping_n_s_per_m = {damping_n_s_per_m:?}
-        position_resolution_m = 0.0
-        workspace = {{ shape = "unbounded" }}
-        [hand]
-        stiffness_n_per_m = 50.0
-        damping_n_s_per_m = 0.0
-        [path]
-        kind = "force"
-        profile = {{ shape = "constant", force_n = [0.0, 0.0, 0.0] }}
-        "#
-    ))
-    .unwrap();
+    let mut config = voxhap_device::mock::default_arm_config();
+    config.arm.mass_kg = mass_kg;
+    config.arm.damping_n_s_per_m = damping_n_s_per_m;
+    config.path = HandPath::Force {
+        profile: ForceProfile::Constant {
+            force_n: DVec3::ZERO,
+        },
+    };
     SimArm::new(config, DVec3::ZERO).unwrap()
 }
 

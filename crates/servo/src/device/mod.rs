@@ -29,6 +29,7 @@ pub use factory::{open_device, open_device_with_profile, spec_family, OpenedDevi
 pub use local::{LocalDevice, LocalRateError};
 pub use reconnect::Reconnecting;
 pub use replay::{parse_replay_spec, ReplayDevice, ReplayOptions, ReplaySpecError};
+pub(crate) use servo_device::forward_to_wrapped;
 pub use servo_device::ServoDevice;
 pub use sim::{HandTargetInput, SimDevice};
 pub use spec::{DeviceSpec, DeviceSpecError, DeviceSpecProblem};

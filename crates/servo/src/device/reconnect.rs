@@ -14,17 +14,13 @@
 //!   stop is closed, never handed out).
 
 use super::error::{ConnectError, OpenError};
-use super::servo_device::ServoDevice;
+use super::servo_device::{forward_to_wrapped, ServoDevice};
 use crate::monitor::StopSlot;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use voxhap_device::plausibility::InputCounters;
-use voxhap_device::supervisor::{
-    ClearFaultOutcome, OutputState, Supervisor, SupervisorConfig, SupervisorCounters, TickInput,
-    TickOutput,
-};
+use voxhap_device::supervisor::{Supervisor, SupervisorConfig, TickInput, TickOutput};
 use voxhap_device::Lifecycle;
 use voxhap_device::{DeviceError, DeviceInfo, ErrorKind, HapticDevice};
 
@@ -305,42 +301,10 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
         output
     }
 
-    fn counters(&self) -> SupervisorCounters {
-        self.supervisor.counters()
-    }
-
-    fn input_counters(&self) -> InputCounters {
-        self.supervisor.input_counters()
-    }
-
-    fn engaged(&self) -> bool {
-        self.supervisor.safety().is_engaged()
-    }
-
-    fn output_state(&self) -> OutputState {
-        self.supervisor.output_state()
-    }
-
-    fn state_age_ticks(&self) -> u32 {
-        self.supervisor.state_age_ticks()
-    }
+    forward_to_wrapped!(supervisor);
 
     fn reported_force_n(&self) -> Option<glam::DVec3> {
-        self.supervisor
-            .device()
-            .and_then(|device| device.device().reported_force_n())
-    }
-
-    fn link_latency(&self) -> Option<voxhap_device::latency::LinkLatency> {
-        self.supervisor.link_latency()
-    }
-
-    fn link_delay_seen(&self) -> Option<voxhap_device::latency::LinkDelaySeen> {
-        self.supervisor.link_delay_seen()
-    }
-
-    fn request_clear_fault(&mut self) -> ClearFaultOutcome {
-        self.supervisor.request_clear_fault()
+        ServoDevice::reported_force_n(&self.supervisor)
     }
 
     fn stop(&mut self) {
@@ -356,11 +320,7 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
     }
 
     fn info(&self) -> Option<DeviceInfo> {
-        self.supervisor.device().map(|d| d.info().clone())
-    }
-
-    fn set_period_us(&mut self, period_us: u64) {
-        self.supervisor.set_period_us(period_us);
+        ServoDevice::info(&self.supervisor)
     }
 
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {
@@ -374,9 +334,7 @@ impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
     }
 
     fn max_stiffness_n_per_m(&self) -> Option<f64> {
-        self.supervisor
-            .device()
-            .map(|d| d.info().max_stiffness_n_per_m)
+        ServoDevice::max_stiffness_n_per_m(&self.supervisor)
     }
 }
 

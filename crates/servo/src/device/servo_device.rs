@@ -74,6 +74,51 @@ pub trait ServoDevice: Send {
     }
 }
 
+/// The [`ServoDevice`] methods a wrapper answers as the device it wraps, the field `$inner` (a [`ServoDevice`]):
+/// the supervisor's counters, state, latency and fault clearing, which neither a workspace mapping
+/// (`crate::mapped`) nor a reconnection (`super::reconnect`) changes. Written inside the wrapper's
+/// `impl ServoDevice`.
+macro_rules! forward_to_wrapped {
+    ($inner:ident) => {
+        fn counters(&self) -> ::voxhap_device::supervisor::SupervisorCounters {
+            self.$inner.counters()
+        }
+
+        fn input_counters(&self) -> ::voxhap_device::plausibility::InputCounters {
+            self.$inner.input_counters()
+        }
+
+        fn engaged(&self) -> bool {
+            self.$inner.engaged()
+        }
+
+        fn output_state(&self) -> ::voxhap_device::supervisor::OutputState {
+            self.$inner.output_state()
+        }
+
+        fn state_age_ticks(&self) -> u32 {
+            self.$inner.state_age_ticks()
+        }
+
+        fn link_latency(&self) -> Option<::voxhap_device::latency::LinkLatency> {
+            self.$inner.link_latency()
+        }
+
+        fn link_delay_seen(&self) -> Option<::voxhap_device::latency::LinkDelaySeen> {
+            self.$inner.link_delay_seen()
+        }
+
+        fn request_clear_fault(&mut self) -> ::voxhap_device::supervisor::ClearFaultOutcome {
+            self.$inner.request_clear_fault()
+        }
+
+        fn set_period_us(&mut self, period_us: u64) {
+            self.$inner.set_period_us(period_us);
+        }
+    };
+}
+pub(crate) use forward_to_wrapped;
+
 impl<D, F> ServoDevice for Supervisor<D, F>
 where
     D: HapticDevice + Send,

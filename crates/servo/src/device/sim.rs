@@ -243,7 +243,7 @@ mod tests {
     use super::*;
     use glam::DMat3;
     use voxhap_device::mapping::WorkspaceMapping;
-    use voxhap_device::sim::HandPath;
+    use voxhap_device::sim::{HandParams, HandPath};
 
     const START_M: DVec3 = DVec3::new(0.02, 0.01, 0.0);
 
@@ -281,21 +281,15 @@ mod tests {
     /// 50 N/m spring and no damping of its own), simulating a local-model device at 10 kHz; started 2 mm in
     /// front of the wall.
     fn wall_arm() -> SimDevice {
-        let config: SimArmConfig = toml::from_str(&format!(
-            r#"
-            [arm]
-            mass_kg = 0.1
-            damping_n_s_per_m = {ARM_DAMPING}
-            workspace = {{ shape = "unbounded" }}
-            [hand]
-            stiffness_n_per_m = 50.0
-            damping_n_s_per_m = 0.0
-            [path]
-            kind = "hold"
-            at_m = [0.003, 0.0, 0.0]
-            "#
-        ))
-        .unwrap();
+        let mut config = voxhap_device::mock::default_arm_config();
+        config.arm.damping_n_s_per_m = ARM_DAMPING;
+        config.hand = HandParams {
+            stiffness_n_per_m: 50.0,
+            damping_n_s_per_m: 0.0,
+        };
+        config.path = HandPath::Hold {
+            at_m: DVec3::new(0.003, 0.0, 0.0),
+        };
         SimDevice::new(config, DVec3::new(-0.002, 0.0, 0.0), 1e-3)
             .unwrap()
             .0

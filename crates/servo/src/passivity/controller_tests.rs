@@ -77,26 +77,23 @@ fn off_books_nothing_and_adds_no_force() {
     assert_eq!(totals, PassivityTotals::default());
 }
 
+/// The default settings changed by `edit`.
+fn settings_with(edit: impl FnOnce(&mut PassivitySettings)) -> PassivitySettings {
+    let mut settings = PassivitySettings::default();
+    edit(&mut settings);
+    settings
+}
+
+/// Why `validate` refuses the default settings changed by `edit`.
+fn refusal(edit: impl FnOnce(&mut PassivitySettings)) -> String {
+    settings_with(edit).validate().unwrap_err().to_string()
+}
+
 #[test]
 fn parameters_out_of_range_name_their_key() {
-    let bad = PassivitySettings {
-        max_damping_n_s_per_m: f64::NAN,
-        ..PassivitySettings::default()
-    };
-    assert!(bad
-        .validate()
-        .unwrap_err()
-        .to_string()
+    assert!(refusal(|s| s.max_damping_n_s_per_m = f64::NAN)
         .starts_with("passivity.max_damping_n_s_per_m:"));
-    let bad = PassivitySettings {
-        threshold_j: -1.0,
-        ..PassivitySettings::default()
-    };
-    assert!(bad
-        .validate()
-        .unwrap_err()
-        .to_string()
-        .starts_with("passivity.threshold_j:"));
+    assert!(refusal(|s| s.threshold_j = -1.0).starts_with("passivity.threshold_j:"));
     assert!(PassivitySettings::default().validate().is_ok());
 }
 
@@ -111,26 +108,11 @@ fn the_observer_latency_is_the_written_or_declared_one_rounded_up() {
     assert_eq!(none.latency_ticks(Some(0.0004), 1e-3), 1);
     assert_eq!(none.latency_ticks(Some(0.0025), 1e-3), 3);
     assert_eq!(none.latency_ticks(Some(0.001), 2.5e-4), 4);
-    let written = PassivitySettings {
-        latency_s: Some(0.0),
-        ..PassivitySettings::default()
-    };
-    assert_eq!(written.latency_ticks(Some(0.002), 1e-3), 0);
-    let written = PassivitySettings {
-        latency_s: Some(0.003),
-        ..PassivitySettings::default()
-    };
-    assert_eq!(written.latency_ticks(None, 1e-3), 3);
+    let written = |latency_s| settings_with(|s| s.latency_s = Some(latency_s));
+    assert_eq!(written(0.0).latency_ticks(Some(0.002), 1e-3), 0);
+    assert_eq!(written(0.003).latency_ticks(None, 1e-3), 3);
     for bad in [f64::NAN, -1e-3, 0.06] {
-        let settings = PassivitySettings {
-            latency_s: Some(bad),
-            ..PassivitySettings::default()
-        };
-        assert!(settings
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .starts_with("passivity.latency_s:"));
+        assert!(refusal(|s| s.latency_s = Some(bad)).starts_with("passivity.latency_s:"));
     }
 }
 

@@ -11,7 +11,7 @@
 //! (`add_mode` and `remove_mode`, which would change a trace's mode columns, recording, hand targets, volumes,
 //! `clear_fault`) are refused with a message naming the event.
 
-use crate::commands;
+use crate::commands::{self, ModeEdit};
 use serde::de::Error as _;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use voxhap_api::{ControlCommand, ControlError};
@@ -165,26 +165,28 @@ pub fn plan(
             command,
             why,
         };
+        let mut coupling = |k, damping| {
+            let now = (stiffness_n_per_m, damping_n_s_per_m);
+            let check_k = |k| commands::check_stiffness(k, max_k, whose).map_err(command);
+            let (k, damping, message) =
+                commands::set_coupling(k, damping, now, check_k, |damping, _| {
+                    check_damping(index, damping)
+                })?;
+            stiffness_n_per_m = k;
+            damping_n_s_per_m = damping;
+            Ok::<_, EventError>(message)
+        };
         let message = match &event.command {
-            ControlCommand::SetStiffness { k } => {
-                stiffness_n_per_m = commands::check_stiffness(*k, max_k, whose).map_err(command)?;
-                format!("stiffness set to {stiffness_n_per_m} N/m")
-            }
-            ControlCommand::SetDamping { damping } => {
-                damping_n_s_per_m = check_damping(index, *damping)?;
-                format!("damping set to {damping_n_s_per_m} N s/m")
-            }
-            ControlCommand::SetCoupling { k, damping } => {
-                let k = commands::check_stiffness(*k, max_k, whose).map_err(command)?;
-                damping_n_s_per_m = check_damping(index, *damping)?;
-                stiffness_n_per_m = k;
-                format!("stiffness set to {k} N/m; damping set to {damping_n_s_per_m} N s/m")
-            }
+            ControlCommand::SetStiffness { k } => coupling(Some(*k), None)?,
+            ControlCommand::SetDamping { damping } => coupling(None, Some(*damping))?,
+            ControlCommand::SetCoupling { k, damping } => coupling(Some(*k), Some(*damping))?,
             ControlCommand::SetTransfer { mode, transfer } => {
-                commands::set_transfer(&mut modes, mode, transfer.clone()).map_err(command)?
+                let edit = ModeEdit::Transfer(transfer.clone());
+                commands::edit_mode(&mut modes, mode, edit).map_err(command)?
             }
             ControlCommand::SetModeEnabled { mode, enabled } => {
-                commands::set_mode_enabled(&mut modes, mode, *enabled).map_err(command)?
+                let edit = ModeEdit::Enabled(*enabled);
+                commands::edit_mode(&mut modes, mode, edit).map_err(command)?
             }
             ControlCommand::AddMode { .. } => {
                 return Err(unavailable("add_mode", "a trace has a fixed set of mode columns: give the mode with enabled = false and switch it on with set_mode_enabled"))

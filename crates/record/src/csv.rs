@@ -204,12 +204,6 @@ impl TraceWriter for CsvTraceWriter {
     }
 }
 
-/// Reads a CSV trace, and its sidecar `path.json` when that file exists. A regular file only; reading stops
-/// at the size it had when opened.
-pub fn read_csv_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    crate::trace::collect_samples(path, for_each_csv_sample)
-}
-
 /// Reads a sidecar if it exists; a missing file is `None`, a malformed one an error.
 pub(crate) fn read_sidecar(path: &Path) -> Result<Option<Sidecar>, TraceReadError> {
     let read = voxhap_io::read_regular(
@@ -260,8 +254,9 @@ fn parse_csv_lines(
     Ok((mode_names, samples, warnings))
 }
 
-/// Reads a CSV trace as [`read_csv_trace`] does, but hands each sample to `sink` in file order instead of
-/// collecting them (memory does not grow with the trace's length). Returns the trace without its samples,
+/// Reads a CSV trace, and its sidecar `path.json` when that file exists, handing each sample to `sink` in file
+/// order (memory does not grow with the trace's length); a partial last line is skipped with a warning. A
+/// regular file only; reading stops at the size it had when opened. Returns the trace without its samples,
 /// and how many were read.
 pub(crate) fn for_each_csv_sample(
     path: &Path,

@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::test_support::{meta, samples, write_trace};
-use crate::FLAG_INVALID_VALUES;
+use crate::{read_trace_as, FLAG_INVALID_VALUES};
 
 #[test]
 fn write_then_read_round_trips_exactly() {
@@ -10,7 +10,7 @@ fn write_then_read_round_trips_exactly() {
     let path = dir.path().join("run.csv");
     let data = samples(500, 3);
     write_trace(&path, &["surface", "friction", "vector-follow"], &data);
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     assert_eq!(trace.mode_names, ["surface", "friction", "vector-follow"]);
     assert_eq!(trace.samples.len(), data.len());
     for (read, written) in trace.samples.iter().zip(&data) {
@@ -53,7 +53,7 @@ fn zero_modes_round_trip() {
     let path = dir.path().join("none.csv");
     let data = samples(10, 0);
     write_trace(&path, &[], &data);
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     assert!(trace.mode_names.is_empty());
     assert_eq!(trace.samples, data);
 }
@@ -89,7 +89,7 @@ fn bad_samples_are_recorded_flagged_and_never_end_the_trace() {
         writer.write_sample(&sample),
         Err(TraceError::Finished)
     ));
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     let flagged: Vec<u64> = trace
         .samples
         .iter()
@@ -183,7 +183,7 @@ fn a_partial_last_line_is_skipped_with_a_warning() {
     // Cut in the middle of the last line, as a crash leaves it.
     let cut = good.len() - 9;
     std::fs::write(&path, &good[..cut]).unwrap();
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     assert_eq!(trace.samples.len(), 3);
     assert_eq!(trace.warnings.len(), 1);
     assert!(
@@ -238,7 +238,7 @@ fn lines_reach_the_file_whole_on_flush() {
     assert!(text.ends_with('\n'));
     assert_eq!(text.lines().count(), 11);
     // Readable while the writer is still open (the sidecar says incomplete).
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     assert_eq!(trace.samples.len(), 10);
     assert!(!trace.sidecar.unwrap().complete);
 }
@@ -278,7 +278,7 @@ fn a_full_disk_is_an_error_with_the_os_reason_and_the_sidecar_counts_what_reache
     let text = crate::error_chain(&error);
     assert!(text.contains("No space left on device"), "{text}");
     writer.fail(&text).unwrap();
-    let trace = read_csv_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Csv).unwrap();
     assert_eq!(trace.samples.len(), 1000);
     let sidecar = trace.sidecar.unwrap();
     assert!(!sidecar.complete);

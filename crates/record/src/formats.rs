@@ -1,16 +1,16 @@
 //! What depends on the trace format: creating a writer ([`create_trace_writer`]), reading any trace back
-//! ([`read_trace`], chosen by the file's first bytes) and estimating a trace's size
-//! ([`estimate_trace_bytes`]).
+//! ([`read_trace`], chosen by the file's first bytes, or [`read_trace_as`] a given format) and estimating a
+//! trace's size ([`estimate_trace_bytes`]).
 
-use crate::csv::{read_csv_trace, CsvTraceWriter};
+use crate::csv::{for_each_csv_sample, CsvTraceWriter};
 use crate::error::{TraceError, TraceReadError};
-use crate::mcap_read::read_mcap_trace;
+use crate::mcap_read::for_each_mcap_sample;
 use crate::mcap_trace::McapTraceWriter;
 use crate::meta::TraceMeta;
 use crate::output::{self, check_output_path, OutputPolicy};
-use crate::parquet_read::read_parquet_trace;
+use crate::parquet_read::for_each_parquet_sample;
 use crate::parquet_trace::ParquetTraceWriter;
-use crate::trace::{open_trace_file, Trace};
+use crate::trace::{collect_samples, open_trace_file, ForEachSample, Trace};
 use crate::writer::TraceWriter;
 use std::path::Path;
 use voxhap_api::TraceFormat;
@@ -48,11 +48,19 @@ pub fn create_trace_writer_with(
 /// Reads a CSV, MCAP or Parquet trace, choosing by the file's first bytes ([`sniff_format`]) rather than its
 /// name.
 pub fn read_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    match sniff_format(path)? {
-        TraceFormat::Mcap => read_mcap_trace(path),
-        TraceFormat::Parquet => read_parquet_trace(path),
-        TraceFormat::Csv => read_csv_trace(path),
-    }
+    read_trace_as(path, sniff_format(path)?)
+}
+
+/// Reads the trace at `path` as `format`, whatever its first bytes say, and its sidecar `path.json` when that
+/// file exists. A regular file only; a file cut off by a crash is read up to its last complete part (CSV
+/// line, MCAP chunk, Parquet row group), with a warning.
+pub fn read_trace_as(path: &Path, format: TraceFormat) -> Result<Trace, TraceReadError> {
+    let for_each: ForEachSample = match format {
+        TraceFormat::Csv => for_each_csv_sample,
+        TraceFormat::Mcap => for_each_mcap_sample,
+        TraceFormat::Parquet => for_each_parquet_sample,
+    };
+    collect_samples(path, for_each)
 }
 
 /// A trace's format from its first bytes: the MCAP magic, `PAR1` (Parquet), else CSV.

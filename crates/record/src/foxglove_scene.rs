@@ -8,7 +8,7 @@
 //! snapshot every [`scene_frame_interval_ticks`] ticks through an SPSC ring; without one the markers are
 //! drawn from the trace sample and counted (`scene_frames_missing`).
 
-use ::foxglove::messages::{FrameTransform, Grid, SceneUpdate};
+use ::foxglove::messages::{FrameTransform, Grid, SceneUpdate, Timestamp};
 use glam::DVec3;
 use voxhap_api::slice::sample_slice;
 use voxhap_api::{NamedVolume, Snapshot};
@@ -463,7 +463,7 @@ impl RecordedScene {
         } else if from_sample {
             self.last_scene_ns = Some(time_ns);
             self.totals.scene_frames_missing += u64::from(self.frames_seen);
-            self.write_from_sample(sample, time_ns, put)?;
+            self.write_from_sample(sample, timestamp, put)?;
         }
         self.write_slices(sample, time_ns, put)?;
         let due = self.next_stats_t_s.get_or_insert(sample.t_s + 1.0);
@@ -528,12 +528,11 @@ impl RecordedScene {
     /// the tick's primitives, the bound's status from the flags, `DISABLED` when the device was
     /// disconnected or not enabled.
     fn write_from_sample(
-        &mut self,
+        &self,
         sample: &crate::sample::TraceSample,
-        time_ns: u64,
+        timestamp: Timestamp,
         put: &mut ScenePut<'_>,
     ) -> Result<(), crate::error::TraceError> {
-        let timestamp = timestamp_from_ns(time_ns);
         let update = replace_all(
             marker_entities(
                 sample.probe_m,

@@ -4,8 +4,8 @@
 //! struct with no heap data, so it can travel through an SPSC ring without allocating) and the recorder
 //! thread drains the ring into a [`TraceWriter`] made by [`create_trace_writer`]. A trace `TRACE` always
 //! comes with a sidecar `TRACE.json` ([`Sidecar`]: the run's metadata, column units and flag bits).
-//! `voxhap plot` and the tests read CSV traces back with [`read_csv_trace`] and MCAP traces with
-//! [`read_mcap_trace`].
+//! Replay, `voxhap compare`, `voxhap trace` and the tests read any trace back with [`read_trace`] (the format
+//! from the file's first bytes) or [`read_trace_as`]; `voxhap plot` reads it in batches ([`plot`]).
 //!
 //! Determinism: everything written is a function of the samples and the [`TraceMeta`], and only
 //! `TraceMeta::created_utc` and an MCAP trace's log times (wall-clock UTC, so recordings line up with other
@@ -42,19 +42,18 @@ mod truth_columns;
 mod writer;
 
 pub use self::columns::{columns, ColumnDoc, ColumnType};
-pub use self::csv::{parse_csv_trace, read_csv_trace, CsvTraceWriter};
+pub use self::csv::{parse_csv_trace, CsvTraceWriter};
 pub use self::error::{error_chain, ParquetProblem, TraceError, TraceReadError};
 pub use self::flags::{FlagDoc, FLAG_COUNT, FLAG_DOCS};
 pub use self::formats::{
-    create_trace_writer, create_trace_writer_with, estimate_trace_bytes, read_trace,
+    create_trace_writer, create_trace_writer_with, estimate_trace_bytes, read_trace, read_trace_as,
 };
-pub use self::mcap_read::{parse_mcap_trace, read_mcap_trace};
+pub use self::mcap_read::parse_mcap_trace;
 pub use self::mcap_trace::{McapTraceWriter, SOLVER_TOPIC, STATE_TOPIC};
 pub use self::meta::{utc_now_ns, Sidecar, TraceMeta, TraceSummary, TRACE_FORMAT_VERSION};
 pub use self::output::{
     check_output_path, create_new_file, create_or_replace_file, sidecar_path, OutputPolicy,
 };
-pub use self::parquet_read::read_parquet_trace;
 pub use self::parquet_schema::SIDECAR_KEY as PARQUET_SIDECAR_KEY;
 pub use self::parquet_trace::ParquetTraceWriter;
 pub use self::sample::{SolverStatus, TraceSample};

@@ -49,14 +49,21 @@ pub enum McapContentError {
         solver_tick: u64,
         solver_t_s: Option<f64>,
     },
-    #[error("tick {tick}: no valid primitive count for {mode}")]
-    NoPrimitiveCount { tick: u64, mode: String },
-    #[error("tick {tick}: no valid mode force for {mode}")]
-    NoModeForce { tick: u64, mode: String },
-    #[error("tick {tick}: unknown solver_status {status:?}")]
-    UnknownStatus { tick: u64, status: String },
-    #[error("tick {tick}: unknown force_off_cause {cause:?}")]
-    UnknownForceOffCause { tick: u64, cause: String },
+    /// A mode's entry in a per-mode map of the solver message (`what`: "primitive count", "mode force") is
+    /// missing or not valid.
+    #[error("tick {tick}: no valid {what} for {mode}")]
+    NoModeValue {
+        tick: u64,
+        what: &'static str,
+        mode: String,
+    },
+    /// A name field of the solver message (`field`: `solver_status`, `force_off_cause`) names nothing known.
+    #[error("tick {tick}: unknown {field} {name:?}")]
+    UnknownName {
+        tick: u64,
+        field: &'static str,
+        name: String,
+    },
     /// A sample that breaks a trace rule.
     #[error("{0}")]
     Sample(#[from] TraceError),
@@ -96,16 +103,11 @@ struct SolverMessageOwned {
 }
 
 /// Reads an MCAP trace written by [`McapTraceWriter`] (mode names from the metadata record, samples
-/// from the two channels joined by tick), and its sidecar when `path.json` exists. A file the writer never
-/// finished (no end magic: a crash) is read up to its last complete chunk, with a warning.
-pub fn read_mcap_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    crate::trace::collect_samples(path, for_each_mcap_sample)
-}
-
-/// Reads an MCAP trace as [`read_mcap_trace`] does, but hands each sample to `sink` in file order instead of
-/// collecting them: the file's bytes are held (MCAP's checks and the mcap crate read it from memory), its
-/// decoded samples and messages are not (`voxhap plot` reads the file one record at a time instead,
-/// [`crate::mcap_stream`]). Returns the trace without its samples, and how many were read.
+/// from the two channels joined by tick), and its sidecar when `path.json` exists, handing each sample to
+/// `sink` in file order. A file the writer never finished (no end magic: a crash) is read up to its last
+/// complete chunk, with a warning. The file's bytes are held (MCAP's checks and the mcap crate read it from
+/// memory), its decoded samples and messages are not (`voxhap plot` reads the file one record at a time
+/// instead, [`crate::mcap_stream`]). Returns the trace without its samples, and how many were read.
 pub(crate) fn for_each_mcap_sample(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),
@@ -390,16 +392,18 @@ fn join(
             .get(name)
             .and_then(|v| v.as_u64())
             .and_then(|v| u16::try_from(v).ok())
-            .ok_or_else(|| McapContentError::NoPrimitiveCount {
+            .ok_or_else(|| McapContentError::NoModeValue {
                 tick: state.tick,
+                what: "primitive count",
                 mode: name.clone(),
             })?;
         let force: ReadVector = solver
             .mode_force_n
             .get(name)
             .and_then(|v| serde_json::from_value(v.clone()).ok())
-            .ok_or_else(|| McapContentError::NoModeForce {
+            .ok_or_else(|| McapContentError::NoModeValue {
                 tick: state.tick,
+                what: "mode force",
                 mode: name.clone(),
             })?;
         sample.mode_force_n[mode] = read_vector(force);
@@ -412,9 +416,10 @@ fn join(
     sample.rendered_force_n = read_vector(state.rendered_force_n);
     sample.force_n = read_vector(state.force_n);
     sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
-        McapContentError::UnknownStatus {
+        McapContentError::UnknownName {
             tick: state.tick,
-            status: solver.solver_status.clone(),
+            field: "solver_status",
+            name: solver.solver_status.clone(),
         }
     })?;
     sample.sweeps = solver.sweeps;
@@ -422,13 +427,13 @@ fn join(
     sample.device_sequence = solver.device_sequence;
     sample.device_time_us = solver.device_time_us;
     sample.flags = solver.flag_bits;
-    sample.truth =
-        solver
-            .truth
-            .truth()
-            .map_err(|cause| McapContentError::UnknownForceOffCause {
-                tick: state.tick,
-                cause,
-            })?;
+    sample.truth = solver
+        .truth
+        .truth()
+        .map_err(|cause| McapContentError::UnknownName {
+            tick: state.tick,
+            field: "force_off_cause",
+            name: cause,
+        })?;
     Ok(sample)
 }

@@ -88,7 +88,7 @@ struct Channel {
 
 /// Reads the MCAP trace at `path` one record at a time, handing each sample to `sink` in file order; returns the
 /// trace without its samples (mode names, sidecar, warnings) and how many were read. Reads what
-/// [`crate::mcap_read::read_mcap_trace`] reads, with the same errors for what both check.
+/// [`crate::read_trace_as`] reads as MCAP, with the same errors for what both check.
 pub(crate) fn stream_mcap_samples(
     path: &Path,
     sink: &mut dyn FnMut(&TraceSample),

@@ -2,10 +2,10 @@
 //! (which the mcap crate parses) on the same files, whole and cut at many places.
 
 use super::*;
-use crate::mcap_read::{parse_mcap_trace, read_mcap_trace};
+use crate::mcap_read::parse_mcap_trace;
 use crate::mcap_trace::McapTraceWriter;
 use crate::test_support::{meta, samples, temp_trace};
-use crate::TraceWriter;
+use crate::{read_trace_as, TraceFormat, TraceWriter};
 
 fn streamed(path: &Path) -> Result<(Trace, Vec<TraceSample>), TraceReadError> {
     let mut read = Vec::new();
@@ -33,7 +33,7 @@ fn a_finished_file_streams_the_samples_written() {
     assert_eq!(read, data);
     assert_eq!(trace.mode_names, ["surface", "friction"]);
     assert!(trace.warnings.is_empty(), "{:?}", trace.warnings);
-    let whole = read_mcap_trace(&path).unwrap();
+    let whole = read_trace_as(&path, TraceFormat::Mcap).unwrap();
     assert_eq!(whole.samples, read);
     assert_eq!(whole.warnings, trace.warnings);
 }
@@ -45,7 +45,7 @@ fn an_unfinished_file_streams_what_the_in_memory_reader_recovers_with_its_warnin
     let data = samples(2500, 1);
     write_and_kill(&path, &["surface"], &data);
     let (trace, read) = streamed(&path).unwrap();
-    let whole = read_mcap_trace(&path).unwrap();
+    let whole = read_trace_as(&path, TraceFormat::Mcap).unwrap();
     assert_eq!(read, whole.samples);
     assert_eq!(read[..], data[..read.len()]);
     assert!(read.len() >= 2000, "{} samples", read.len());

@@ -1,4 +1,4 @@
-//! MCAP force traces: the writer ([`McapTraceWriter`]) and a reader ([`read_mcap_trace`](crate::mcap_read::read_mcap_trace)) for `voxhap plot`.
+//! MCAP force traces: the writer ([`McapTraceWriter`]) and a reader ([`for_each_mcap_sample`](crate::mcap_read::for_each_mcap_sample)).
 //!
 //! File layout (uncompressed chunks, message indexes and a summary, so any MCAP reader can seek):
 //!

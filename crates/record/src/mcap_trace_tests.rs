@@ -2,8 +2,8 @@
 
 use super::*;
 use crate::mcap_read::*;
-use crate::read_trace;
 use crate::test_support::{meta, samples};
+use crate::{read_trace, read_trace_as};
 
 /// Wall-clock time of the first sample in the tests' traces (2023-11-14T22:13:20Z).
 const WALL_START_NS: u64 = 1_700_000_000_000_000_000;
@@ -19,6 +19,20 @@ fn write_mcap(path: &Path, modes: &[&str], data: &[TraceSample]) {
     }
     assert_eq!(writer.finish().unwrap().sample_count, data.len() as u64);
     assert!(matches!(writer.finish(), Err(TraceError::Finished)));
+}
+
+/// A new temporary folder holding the MCAP trace `name` of `data`, written by [`write_mcap`], and the file's
+/// bytes (the folder goes when the returned guard is dropped).
+fn temp_mcap(
+    name: &str,
+    modes: &[&str],
+    data: &[TraceSample],
+) -> (tempfile::TempDir, PathBuf, Vec<u8>) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    write_mcap(&path, modes, data);
+    let bytes = std::fs::read(&path).unwrap();
+    (dir, path, bytes)
 }
 
 #[test]
@@ -64,11 +78,8 @@ fn write_then_read_round_trips_exactly() {
 
 #[test]
 fn log_times_are_wall_clock_from_the_first_tick_and_voxhap_schemas_are_json() {
-    let dir = tempfile::tempdir().unwrap();
     let data = samples(20, 1);
-    let path = dir.path().join("t.mcap");
-    write_mcap(&path, &["surface"], &data);
-    let bytes = std::fs::read(&path).unwrap();
+    let (_dir, _, bytes) = temp_mcap("t.mcap", &["surface"], &data);
     let mut count = 0;
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();
@@ -90,11 +101,8 @@ fn log_times_are_wall_clock_from_the_first_tick_and_voxhap_schemas_are_json() {
 #[test]
 fn foxglove_topics_carry_every_tick_with_sdk_schemas() {
     use ::foxglove::Decode;
-    let dir = tempfile::tempdir().unwrap();
     let data = samples(30, 2);
-    let path = dir.path().join("f.mcap");
-    write_mcap(&path, &["surface", "friction"], &data);
-    let bytes = std::fs::read(&path).unwrap();
+    let (_dir, path, bytes) = temp_mcap("f.mcap", &["surface", "friction"], &data);
     let (mut probes, mut proxies, mut forces) = (Vec::new(), Vec::new(), Vec::new());
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();
@@ -136,20 +144,20 @@ fn foxglove_topics_carry_every_tick_with_sdk_schemas() {
     assert_eq!(proxies, ticks);
     assert_eq!(forces, ticks);
     // voxhap's own reader ignores the extra topics.
-    assert_eq!(read_mcap_trace(&path).unwrap().samples, data);
+    assert_eq!(
+        read_trace_as(&path, TraceFormat::Mcap).unwrap().samples,
+        data
+    );
 }
 
 #[test]
 fn truncated_or_foreign_files_give_errors() {
-    let dir = tempfile::tempdir().unwrap();
     let data = samples(50, 1);
-    let path = dir.path().join("t.mcap");
-    write_mcap(&path, &["surface"], &data);
-    let bytes = std::fs::read(&path).unwrap();
+    let (dir, _, bytes) = temp_mcap("t.mcap", &["surface"], &data);
     // Cut in half (a crash): read up to the last complete chunk, with a warning.
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let partial = read_mcap_trace(&cut).unwrap();
+    let partial = read_trace_as(&cut, TraceFormat::Mcap).unwrap();
     assert_eq!(partial.warnings.len(), 1, "{:?}", partial.warnings);
     assert!(partial.warnings[0].contains("trace repair"));
     assert!(!partial.samples.is_empty() && partial.samples.len() < data.len());
@@ -157,7 +165,7 @@ fn truncated_or_foreign_files_give_errors() {
 
     let empty = dir.path().join("empty.mcap");
     std::fs::write(&empty, mcap::MAGIC).unwrap();
-    assert!(read_mcap_trace(&empty).is_err());
+    assert!(read_trace_as(&empty, TraceFormat::Mcap).is_err());
 }
 
 /// A writer that dies without finishing (SIGKILL) leaves every flushed chunk readable, by voxhap and
@@ -176,7 +184,7 @@ fn a_killed_writer_leaves_its_flushed_chunks_readable_and_repairable() {
     }
     // As a kill would: no finish, no destructor.
     std::mem::forget(writer);
-    let trace = read_mcap_trace(&path).unwrap();
+    let trace = read_trace_as(&path, TraceFormat::Mcap).unwrap();
     assert_eq!(trace.samples, data[..200]);
     assert_eq!(trace.warnings.len(), 1);
     let repaired = dir.path().join("repaired.mcap");
@@ -184,7 +192,7 @@ fn a_killed_writer_leaves_its_flushed_chunks_readable_and_repairable() {
         crate::repair::repair_trace(&path, &repaired, None, &crate::OutputPolicy::default())
             .unwrap();
     assert_eq!(report.sample_count, 200);
-    let fixed = read_mcap_trace(&repaired).unwrap();
+    let fixed = read_trace_as(&repaired, TraceFormat::Mcap).unwrap();
     assert!(fixed.warnings.is_empty());
     assert_eq!(fixed.samples, data[..200]);
     let sidecar = fixed.sidecar.unwrap();
@@ -256,23 +264,17 @@ fn an_unfinished_file_cut_after_any_chunk_reads_whole_ticks() {
 /// the mcap crate panic (subtract overflow); it must be an error.
 #[test]
 fn record_longer_than_its_chunk_is_an_error_not_a_panic() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("m.mcap");
-    write_mcap(&path, &["surface"], &samples(8, 1));
-    let mut bytes = std::fs::read(&path).unwrap();
+    let (_dir, path, mut bytes) = temp_mcap("m.mcap", &["surface"], &samples(8, 1));
     overlong_record_in_first_chunk(&mut bytes);
     std::fs::write(&path, &bytes).unwrap();
-    assert!(read_mcap_trace(&path).is_err());
+    assert!(read_trace_as(&path, TraceFormat::Mcap).is_err());
 }
 
 /// Regression (fuzz target mcap_trace): a string length inside a record claiming gigabytes made the mcap
 /// crate reserve them; every length-prefixed field is checked against its record first.
 #[test]
 fn a_string_longer_than_its_record_is_an_error_not_an_allocation() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("m.mcap");
-    write_mcap(&path, &["surface"], &samples(8, 1));
-    let mut bytes = std::fs::read(&path).unwrap();
+    let (_dir, _, mut bytes) = temp_mcap("m.mcap", &["surface"], &samples(8, 1));
     // The header record's first field, the profile string: its u32 length.
     let at = mcap::MAGIC.len() + 9;
     bytes[at..at + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
@@ -308,10 +310,7 @@ fn overlong_record_in_first_chunk(bytes: &mut [u8]) {
 /// The edit above still breaks the mcap crate's reader (so the regression test tests something).
 #[test]
 fn the_overlong_record_edit_makes_the_mcap_crate_fail() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("m.mcap");
-    write_mcap(&path, &["surface"], &samples(8, 1));
-    let mut bytes = std::fs::read(&path).unwrap();
+    let (_dir, _, mut bytes) = temp_mcap("m.mcap", &["surface"], &samples(8, 1));
     overlong_record_in_first_chunk(&mut bytes);
     let outcome = std::panic::catch_unwind(|| {
         mcap::MessageStream::new(&bytes).map(|stream| {
@@ -334,16 +333,13 @@ proptest::proptest! {
     fn mutated_mcap_never_panics(
         edits in proptest::collection::vec((0usize..100_000, proptest::prelude::any::<u8>()), 1..6)
     ) {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.mcap");
-        write_mcap(&path, &["surface"], &samples(8, 1));
-        let mut bytes = std::fs::read(&path).unwrap();
+        let (_dir, path, mut bytes) = temp_mcap("m.mcap", &["surface"], &samples(8, 1));
         for (position, byte) in edits {
             let at = position % bytes.len();
             bytes[at] = byte;
         }
         std::fs::write(&path, &bytes).unwrap();
-        let _ = read_mcap_trace(&path);
+        let _ = read_trace_as(&path, TraceFormat::Mcap);
     }
 }
 
@@ -409,11 +405,8 @@ fn the_viewer_rule_refuses_what_lichtblick_refuses() {
 /// schemas and channels, with start time 0.
 #[test]
 fn every_chunk_holds_indexed_messages_and_the_times_are_the_messages_times() {
-    let dir = tempfile::tempdir().unwrap();
     let data = samples(300, 2);
-    let path = dir.path().join("v.mcap");
-    write_mcap(&path, &["surface", "friction"], &data);
-    let bytes = std::fs::read(&path).unwrap();
+    let (_dir, _, bytes) = temp_mcap("v.mcap", &["surface", "friction"], &data);
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
     assert!(
         summary.chunk_indexes.len() >= 2,
@@ -470,11 +463,8 @@ fn a_trace_without_samples_has_no_chunk() {
 #[test]
 fn a_recording_with_the_old_force_topic_name_reads_the_same() {
     use voxhap_view::topics::{SERVO_CF_TOPIC, SETPOINT_CF_TOPIC};
-    let dir = tempfile::tempdir().unwrap();
     let data = samples(50, 1);
-    let path = dir.path().join("new.mcap");
-    write_mcap(&path, &["surface"], &data);
-    let bytes = std::fs::read(&path).unwrap();
+    let (dir, _, bytes) = temp_mcap("new.mcap", &["surface"], &data);
     let old = dir.path().join("old.mcap");
     let file = std::io::BufWriter::new(std::fs::File::create(&old).unwrap());
     let mut writer = mcap::Writer::new(file).unwrap();
@@ -496,5 +486,8 @@ fn a_recording_with_the_old_force_topic_name_reads_the_same() {
     }
     writer.finish().unwrap();
     assert_eq!(renamed, data.len());
-    assert_eq!(read_mcap_trace(&old).unwrap().samples, data);
+    assert_eq!(
+        read_trace_as(&old, TraceFormat::Mcap).unwrap().samples,
+        data
+    );
 }

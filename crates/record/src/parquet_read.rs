@@ -1,4 +1,4 @@
-//! Reading a Parquet trace back ([`read_parquet_trace`], and [`for_each_parquet_sample`] for `voxhap plot`),
+//! Reading a Parquet trace back ([`for_each_parquet_sample`], for [`crate::read_trace`] and `voxhap plot`),
 //! batch by batch from the file, after the sizes its footer and page headers claim are checked against the
 //! file's real size ([`crate::parquet_limits`]). A file cut off before its final footer is read up to its last
 //! complete row group ([`crate::parquet_recover`]), with a warning.
@@ -29,14 +29,9 @@ use voxhap_api::TraceFormat;
 /// Rows per batch.
 const BATCH_ROWS: usize = 8 * 1024;
 
-/// Reads a Parquet trace, and its sidecar `path.json` when that file exists. A file without its final
-/// footer (cut off by a crash) is read up to its last complete row group, with a warning.
-pub fn read_parquet_trace(path: &Path) -> Result<Trace, TraceReadError> {
-    crate::trace::collect_samples(path, for_each_parquet_sample)
-}
-
-/// Reads a Parquet trace as [`read_parquet_trace`] does, but hands each sample to `sink` in file order
-/// instead of collecting them: the file is read page by page, batch by batch ([`BATCH_ROWS`] rows), so the
+/// Reads a Parquet trace, and its sidecar `path.json` when that file exists, handing each sample to `sink` in
+/// file order. A file without its final footer (cut off by a crash) is read up to its last complete row
+/// group, with a warning. The file is read page by page, batch by batch ([`BATCH_ROWS`] rows), so the
 /// samples' memory does not grow with the trace's length, a file cut off before its final footer included;
 /// only the row groups' metadata (the footer, or what was recovered) is held whole. Returns the
 /// trace without its samples, and how many were read.

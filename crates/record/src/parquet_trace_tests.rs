@@ -2,9 +2,8 @@
 
 use super::*;
 use crate::output::sidecar_path;
-use crate::parquet_read::read_parquet_trace;
 use crate::test_support::{meta, samples, temp_trace};
-use crate::{create_trace_writer, read_trace, FLAG_INVALID_VALUES};
+use crate::{create_trace_writer, read_trace, read_trace_as, FLAG_INVALID_VALUES};
 use bytes::Bytes;
 use parquet::file::metadata::ParquetMetaDataReader;
 
@@ -119,7 +118,7 @@ fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
         0,
     ] {
         std::fs::write(&cut, &bytes[..length]).unwrap();
-        let result = read_parquet_trace(&cut);
+        let result = read_trace_as(&cut, TraceFormat::Parquet);
         if length < 4 {
             assert!(result.is_err());
             continue;
@@ -144,7 +143,7 @@ fn a_file_cut_anywhere_reads_back_its_complete_row_groups() {
             .unwrap();
     assert_eq!(report.sample_count, 3000);
     assert_eq!(report.warnings.len(), 1);
-    let trace = read_parquet_trace(&repaired).unwrap();
+    let trace = read_trace_as(&repaired, TraceFormat::Parquet).unwrap();
     assert!(trace.warnings.is_empty());
     assert_eq!(trace.samples[..], written[..3000]);
     let sidecar = trace.sidecar.unwrap();
@@ -160,14 +159,16 @@ fn damaged_files_are_errors_not_panics() {
     let bad = dir.path().join("bad.parquet");
     std::fs::write(&bad, b"PAR1 this is not parquet").unwrap();
     // No sidecar and nothing complete: an error naming the problem.
-    let error = read_parquet_trace(&bad).unwrap_err().to_string();
+    let error = read_trace_as(&bad, TraceFormat::Parquet)
+        .unwrap_err()
+        .to_string();
     assert!(error.contains("no complete row group"), "{error}");
     // Flipped bytes in the middle: an error or fewer samples, never a panic.
     for position in (4..bytes.len()).step_by(997) {
         let mut damaged = bytes.clone();
         damaged[position] ^= 0x5a;
         std::fs::write(&bad, &damaged).unwrap();
-        let _ = read_parquet_trace(&bad);
+        let _ = read_trace_as(&bad, TraceFormat::Parquet);
     }
 }
 
@@ -200,7 +201,9 @@ fn a_page_header_claiming_a_huge_page_is_refused() {
     }
     let (at, compressed) = patched.expect("a small page with a two-byte size in the test trace");
     std::fs::write(&path, &bytes).unwrap();
-    let error = read_parquet_trace(&path).unwrap_err().to_string();
+    let error = read_trace_as(&path, TraceFormat::Parquet)
+        .unwrap_err()
+        .to_string();
     assert!(
         error.contains(&format!(
             "page at offset {at}: its header claims 8191 uncompressed bytes from {compressed} compressed"

@@ -499,11 +499,12 @@ pub struct SliceRequest {
     pub volume: Option<String>,
 }
 
-impl SliceRequest {
-    /// A `SLICE_SIZE_DEFAULT` slice normal to `axis` through the proxy, of the first scalar volume.
-    pub fn new(axis: SliceAxis) -> Self {
+/// What a request leaves out: a `SLICE_SIZE_DEFAULT` slice normal to `z` through the proxy, of the first
+/// scalar volume (the protocol's defaults; every decoder starts from these).
+impl Default for SliceRequest {
+    fn default() -> Self {
         SliceRequest {
-            axis,
+            axis: SliceAxis::Z,
             size: SLICE_SIZE_DEFAULT,
             at_m: None,
             volume: None,

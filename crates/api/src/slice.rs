@@ -140,8 +140,11 @@ mod tests {
         let setup = builtin_scene();
         let named = pick_volume(&setup.volumes, None).unwrap();
         assert_eq!(named.name, "density");
-        let mut request = SliceRequest::new(SliceAxis::Y);
-        request.size = 16;
+        let request = SliceRequest {
+            axis: SliceAxis::Y,
+            size: 16,
+            ..SliceRequest::default()
+        };
         let slice = sample_slice(named, &request, DVec3::new(0.0, 0.001, 0.0)).unwrap();
         let (min_m, max_m) = named.volume.grid().bounds_world();
         assert_eq!(slice.values.len(), 256);
@@ -164,8 +167,10 @@ mod tests {
     #[test]
     fn bad_requests_name_the_problem() {
         let setup = builtin_scene();
-        let mut request = SliceRequest::new(SliceAxis::Z);
-        request.size = 8;
+        let mut request = SliceRequest {
+            size: 8,
+            ..SliceRequest::default()
+        };
         let err = check_request(&request).unwrap_err();
         assert!(err.to_string().contains("size must be 16 ..= 512"), "{err}");
         request.size = 16;
@@ -179,7 +184,7 @@ mod tests {
         assert!(err.to_string().contains("\"density\""), "{err}");
         // A vector volume by name gives its magnitude.
         let flow = pick_volume(&setup.volumes, Some("flow")).unwrap();
-        let slice = sample_slice(flow, &SliceRequest::new(SliceAxis::Z), DVec3::ZERO).unwrap();
+        let slice = sample_slice(flow, &SliceRequest::default(), DVec3::ZERO).unwrap();
         assert_eq!(slice.volume_kind, "vector");
         assert!(slice.values.iter().all(|v| *v >= 0.0));
     }

@@ -27,9 +27,7 @@ use glam::DVec3;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::sync::Arc;
-use voxhap_api::{
-    ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest, SLICE_SIZE_DEFAULT,
-};
+use voxhap_api::{ControlCommand, ControlError, ControlReply, SliceAxis, SliceRequest};
 
 type Shared_ = State<Arc<Shared>>;
 
@@ -187,26 +185,20 @@ fn slice_request(params: &HashMap<String, String>) -> Result<SliceRequest, Slice
     {
         return Err(SliceQueryError::Unknown(key.clone()));
     }
-    let axis = match params.get("axis") {
-        Some(text) => text.parse::<SliceAxis>().map_err(SliceQueryError::Axis)?,
-        None => SliceAxis::Z,
-    };
-    let size = match params.get("size") {
-        Some(text) => text
+    let mut request = SliceRequest::default();
+    if let Some(text) = params.get("axis") {
+        request.axis = text.parse::<SliceAxis>().map_err(SliceQueryError::Axis)?;
+    }
+    if let Some(text) = params.get("size") {
+        request.size = text
             .parse::<usize>()
-            .map_err(|_| SliceQueryError::Size(text.clone()))?,
-        None => SLICE_SIZE_DEFAULT,
-    };
-    let at_m = match params.get("at") {
-        Some(text) => Some(parse_point(text)?),
-        None => None,
-    };
-    Ok(SliceRequest {
-        axis,
-        size,
-        at_m,
-        volume: params.get("volume").cloned(),
-    })
+            .map_err(|_| SliceQueryError::Size(text.clone()))?;
+    }
+    if let Some(text) = params.get("at") {
+        request.at_m = Some(parse_point(text)?);
+    }
+    request.volume = params.get("volume").cloned();
+    Ok(request)
 }
 
 async fn slice(

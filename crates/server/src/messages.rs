@@ -16,7 +16,7 @@ use serde_json::Value;
 use std::path::PathBuf;
 use voxhap_api::{
     ControlCommand, ControlReply, SceneReport, Slice, SliceAxis, SliceRequest, Snapshot,
-    StatsReport, TickTruth, SLICE_SIZE_DEFAULT,
+    StatsReport, TickTruth,
 };
 use voxhap_core::haptics::modes::{ModeConfig, TransferFunction};
 use voxhap_core::haptics::tick::TickStatus;
@@ -549,15 +549,18 @@ pub fn decode_client_message(text: &str) -> Result<ClientMessage, DecodeError> {
             size,
             at,
             volume,
-        } => ClientMessage::Slice {
-            id,
-            request: SliceRequest {
-                axis: axis.unwrap_or(SliceAxis::Z),
-                size: size.unwrap_or(SLICE_SIZE_DEFAULT),
-                at_m: at.map(DVec3::from_array),
-                volume,
-            },
-        },
+        } => {
+            let default = SliceRequest::default();
+            ClientMessage::Slice {
+                id,
+                request: SliceRequest {
+                    axis: axis.unwrap_or(default.axis),
+                    size: size.unwrap_or(default.size),
+                    at_m: at.map(DVec3::from_array),
+                    volume,
+                },
+            }
+        }
     })
 }
 

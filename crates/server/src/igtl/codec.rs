@@ -546,6 +546,21 @@ pub struct Image {
     pub values: Vec<f32>,
 }
 
+#[cfg(test)]
+impl Image {
+    /// A test image: `dims` voxels `spacing_mm` apart along x, y, z (no rotation) from `origin_mm`, valued
+    /// 0, 1, 2, ... in storage order.
+    pub(crate) fn ramp(dims: [usize; 3], spacing_mm: [f64; 3], origin_mm: [f64; 3]) -> Image {
+        let voxels = dims.iter().product::<usize>();
+        Image {
+            dims,
+            axes_mm: DMat3::from_diagonal(DVec3::from_array(spacing_mm)),
+            origin_mm: DVec3::from_array(origin_mm),
+            values: (0..voxels).map(|v| v as f32).collect(),
+        }
+    }
+}
+
 /// Decodes a scalar IMAGE content: one component, a whole (not partial) volume of at most `max_voxels`
 /// voxels, finite geometry. The position `PX, PY, PZ` is the image centre (image.md), so the origin is
 /// `centre - axes (dims - 1) / 2`; an LPS image is turned into RAS by negating x and y.

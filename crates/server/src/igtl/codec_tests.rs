@@ -108,12 +108,7 @@ fn strings_and_metadata_decode_or_say_why() {
 
 #[test]
 fn an_image_round_trips_with_its_centre_and_lps_is_flipped() {
-    let image = Image {
-        dims: [3, 2, 2],
-        axes_mm: DMat3::from_diagonal(DVec3::new(0.5, 1.0, 2.0)),
-        origin_mm: DVec3::new(-10.0, 5.0, 1.0),
-        values: (0..12u8).map(f32::from).collect(),
-    };
+    let image = Image::ramp([3, 2, 2], [0.5, 1.0, 2.0], [-10.0, 5.0, 1.0]);
     let mut content = Vec::new();
     encode_image(&mut content, &image);
     let back = decode_image(&content, 1000).unwrap();

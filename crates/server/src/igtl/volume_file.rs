@@ -152,16 +152,11 @@ fn header_text(name: &str, image: &Image) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::{DMat3, DVec3};
+    use glam::DVec3;
 
     #[test]
     fn a_written_image_loads_back_in_ras_metres() {
-        let image = Image {
-            dims: [4, 3, 2],
-            axes_mm: DMat3::from_diagonal(DVec3::new(2.0, 1.0, 0.5)),
-            origin_mm: DVec3::new(-10.0, 20.0, 5.0),
-            values: (0..24u8).map(f32::from).collect(),
-        };
+        let image = Image::ramp([4, 3, 2], [2.0, 1.0, 0.5], [-10.0, 20.0, 5.0]);
         let mut folder = ImageFolder::create().unwrap();
         let path = folder.write("Volume 1!", &image).unwrap();
         assert!(path.ends_with("Volume1-1.toml"), "{}", path.display());

@@ -80,6 +80,26 @@ struct Listing {
     seen: usize,
 }
 
+impl Listing {
+    /// What `bus` listed, each counted as seen; a bus that could not be listed is recorded in `errors` and
+    /// lists nothing.
+    fn take_bus<T>(&mut self, bus: &'static str, listed: Result<Vec<T>, impl ToString>) -> Vec<T> {
+        match listed {
+            Ok(found) => {
+                self.seen += found.len();
+                found
+            }
+            Err(error) => {
+                self.errors.push(BusError {
+                    bus,
+                    message: error.to_string(),
+                });
+                Vec::new()
+            }
+        }
+    }
+}
+
 fn device_value(recognised: Recognised, path: &str, serial: Option<&str>) -> Option<String> {
     match recognised {
         Recognised::WoodenHaptics => Some("woodenhaptics-hid".to_owned()),
@@ -100,113 +120,85 @@ fn collect(args: &DevicesArgs) -> Listing {
         errors: Vec::new(),
         seen: 0,
     };
-    match serial_ports() {
-        Err(error) => listing.errors.push(BusError {
+    for port in listing.take_bus("serial", serial_ports()) {
+        let known = port.recognised != Recognised::Unknown;
+        if !known && !args.all {
+            continue;
+        }
+        let probe = if known && !args.no_probe {
+            match probe_serial(&port) {
+                Ok(report) => report.map(Probe::from),
+                Err(error) => Some(Probe {
+                    model: None,
+                    serial_number: None,
+                    firmware: None,
+                    sent: "",
+                    error: Some(error.to_string()),
+                }),
+            }
+        } else {
+            None
+        };
+        listing.devices.push(Listed {
             bus: "serial",
-            message: error,
-        }),
-        Ok(ports) => {
-            for port in ports {
-                listing.seen += 1;
-                let known = port.recognised != Recognised::Unknown;
-                if !known && !args.all {
-                    continue;
-                }
-                let probe = if known && !args.no_probe {
-                    match probe_serial(&port) {
-                        Ok(report) => report.map(Probe::from),
-                        Err(error) => Some(Probe {
-                            model: None,
-                            serial_number: None,
-                            firmware: None,
-                            sent: "",
-                            error: Some(error.to_string()),
-                        }),
-                    }
-                } else {
-                    None
-                };
-                listing.devices.push(Listed {
-                    bus: "serial",
-                    device: device_value(
-                        port.recognised,
-                        &port.path,
-                        port.serial_number.as_deref(),
-                    ),
-                    usb_id: port.usb_id.map(|(v, p)| format!("{v:04x}:{p:04x}")),
-                    recognised: known.then(|| port.recognised.describe()),
-                    path: port.path,
-                    product: port.product,
-                    manufacturer: port.manufacturer,
-                    serial_number: port.serial_number,
-                    probe,
-                });
-            }
-        }
+            device: device_value(port.recognised, &port.path, port.serial_number.as_deref()),
+            usb_id: port.usb_id.map(|(v, p)| format!("{v:04x}:{p:04x}")),
+            recognised: known.then(|| port.recognised.describe()),
+            path: port.path,
+            product: port.product,
+            manufacturer: port.manufacturer,
+            serial_number: port.serial_number,
+            probe,
+        });
     }
-    match hid_devices() {
-        Err(error) => listing.errors.push(BusError {
-            bus: "hid",
-            message: error,
-        }),
-        Ok(devices) => {
-            for device in devices {
-                listing.seen += 1;
-                let known = device.recognised != Recognised::Unknown;
-                if !known && !args.all {
-                    continue;
-                }
-                listing.devices.push(Listed {
-                    bus: "hid",
-                    device: match device.recognised {
-                        Recognised::VoxhapProtocol => Some(format!(
-                            "hid:{:04x}:{:04x}",
-                            device.vendor_id, device.product_id
-                        )),
-                        other => device_value(other, &device.path, None),
-                    },
-                    usb_id: Some(format!(
-                        "{:04x}:{:04x}",
-                        device.vendor_id, device.product_id
-                    )),
-                    recognised: known.then(|| device.recognised.describe()),
-                    path: device.path,
-                    product: device.product,
-                    manufacturer: device.manufacturer,
-                    serial_number: device.serial_number,
-                    probe: None,
-                });
-            }
+    for device in listing.take_bus("hid", hid_devices()) {
+        let known = device.recognised != Recognised::Unknown;
+        if !known && !args.all {
+            continue;
         }
+        listing.devices.push(Listed {
+            bus: "hid",
+            device: match device.recognised {
+                Recognised::VoxhapProtocol => Some(format!(
+                    "hid:{:04x}:{:04x}",
+                    device.vendor_id, device.product_id
+                )),
+                other => device_value(other, &device.path, None),
+            },
+            usb_id: Some(format!(
+                "{:04x}:{:04x}",
+                device.vendor_id, device.product_id
+            )),
+            recognised: known.then(|| device.recognised.describe()),
+            path: device.path,
+            product: device.product,
+            manufacturer: device.manufacturer,
+            serial_number: device.serial_number,
+            probe: None,
+        });
     }
     if !args.no_probe {
-        match probe_inverse_service(&args.inverse_service) {
-            Err(error) => listing.errors.push(BusError {
+        for arm in listing.take_bus(
+            "inverse-service",
+            probe_inverse_service(&args.inverse_service),
+        ) {
+            listing.devices.push(Listed {
                 bus: "inverse-service",
-                message: error.to_string(),
-            }),
-            Ok(arms) => {
-                for arm in arms {
-                    listing.seen += 1;
-                    listing.devices.push(Listed {
-                        bus: "inverse-service",
-                        path: format!("{} device {}", args.inverse_service, arm.device_id),
-                        usb_id: None,
-                        product: Some(arm.device_type.clone()),
-                        manufacturer: Some("Haply".to_owned()),
-                        serial_number: Some(arm.device_id.clone()),
-                        recognised: Some("Haply Inverse3 family, through the Inverse Service"),
-                        device: Some(format!("haply-inverse:{}", args.inverse_service)),
-                        probe: Some(Probe {
-                            model: Some(arm.device_type),
-                            serial_number: Some(arm.device_id),
-                            firmware: arm.firmware,
-                            sent: "nothing (read the service's inventory)",
-                            error: None,
-                        }),
-                    });
-                }
-            }
+                path: format!("{} device {}", args.inverse_service, arm.device_id),
+                usb_id: None,
+                product: Some(arm.device_type.clone()),
+                manufacturer: Some("Haply".to_owned()),
+                serial_number: Some(arm.device_id.clone()),
+                recognised: Some("Haply Inverse3 family, through the Inverse Service"),
+                device: Some(format!("haply-inverse:{}", args.inverse_service)),
+                probe: Some(Probe {
+                    model: Some(arm.device_type),
+                    serial_number: Some(arm.device_id),
+                    firmware: arm.firmware,
+                    sent: "nothing (read the service's inventory)",
+                    error: None,
+                }),
+            });
         }
     }
     listing

@@ -205,18 +205,16 @@ pub fn write_points_table(
         .iter()
         .map(|r| r.result.as_ref().ok().copied())
         .collect();
-    let mut ticks = UInt64Builder::new();
-    let mut certified = UInt64Builder::new();
-    let mut max_force = Float64Builder::new();
-    let mut max_sweeps = UInt64Builder::new();
-    let mut max_bound = Float64Builder::new();
-    for summary in &summaries {
-        ticks.append_option(summary.map(|s| s.ticks));
-        certified.append_option(summary.map(|s| s.certified_ticks));
-        max_force.append_option(summary.map(|s| s.max_force_n));
-        max_sweeps.append_option(summary.map(|s| u64::from(s.max_sweeps)));
-        max_bound.append_option(summary.map(|s| s.max_error_bound_m));
-    }
+    let u64_column = |value: fn(&SimSummary) -> u64| -> ArrayRef {
+        let mut b = UInt64Builder::new();
+        summaries.iter().for_each(|s| b.append_option(s.map(value)));
+        Arc::new(b.finish())
+    };
+    let f64_column = |value: fn(&SimSummary) -> f64| -> ArrayRef {
+        let mut b = Float64Builder::new();
+        summaries.iter().for_each(|s| b.append_option(s.map(value)));
+        Arc::new(b.finish())
+    };
     let mut trace = StringBuilder::new();
     let mut error = StringBuilder::new();
     for row in rows {
@@ -224,34 +222,14 @@ pub fn write_points_table(
         trace.append_value(relative.to_string_lossy());
         error.append_option(row.result.as_ref().err());
     }
-    for (name, data_type, array) in [
-        (
-            "ticks",
-            DataType::UInt64,
-            Arc::new(ticks.finish()) as ArrayRef,
-        ),
-        (
-            "certified_ticks",
-            DataType::UInt64,
-            Arc::new(certified.finish()),
-        ),
-        (
-            "max_force_n",
-            DataType::Float64,
-            Arc::new(max_force.finish()),
-        ),
-        (
-            "max_sweeps",
-            DataType::UInt64,
-            Arc::new(max_sweeps.finish()),
-        ),
-        (
-            "max_error_bound_m",
-            DataType::Float64,
-            Arc::new(max_bound.finish()),
-        ),
+    for (name, array) in [
+        ("ticks", u64_column(|s| s.ticks)),
+        ("certified_ticks", u64_column(|s| s.certified_ticks)),
+        ("max_force_n", f64_column(|s| s.max_force_n)),
+        ("max_sweeps", u64_column(|s| u64::from(s.max_sweeps))),
+        ("max_error_bound_m", f64_column(|s| s.max_error_bound_m)),
     ] {
-        fields.push(Field::new(name, data_type, true));
+        fields.push(Field::new(name, array.data_type().clone(), true));
         arrays.push(array);
     }
     fields.push(Field::new("trace", DataType::Utf8, false));

@@ -1,4 +1,5 @@
-//! CSV force traces: the writer ([`CsvTraceWriter`]) and the reader ([`read_csv_trace`]).
+//! CSV force traces: the writer ([`CsvTraceWriter`]) and the reader (`for_each_csv_sample`, behind
+//! [`crate::read_trace_as`]).
 //!
 //! Layout: a header line, then one line per tick, fields separated by `,` with no quoting (no field can
 //! contain a comma: mode names are restricted to `[A-Za-z0-9_-]`) and `\n` line ends. The columns are

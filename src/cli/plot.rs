@@ -44,7 +44,7 @@ pub fn run(args: PlotArgs) -> anyhow::Result<()> {
         .title
         .clone()
         .unwrap_or_else(|| default_title(&args, &trace, &data));
-    plot_data(&data, &trace, &title, &args.out, args.width, args.height)
+    plot_data(&data, &trace, &title, &args.out, args.height)
         .with_context(|| format!("cannot plot {}", args.trace.display()))?;
     eprintln!("wrote {} ({} samples)", args.out.display(), data.samples());
     if data.untimed_samples() > 0 {

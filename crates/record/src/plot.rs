@@ -110,7 +110,7 @@ pub fn plot_trace(
 ) -> Result<(), PlotError> {
     let mut data = PlotData::new(width_px);
     trace.samples.iter().for_each(|sample| data.push(sample));
-    plot_data(&data, trace, title, out, width_px, height_px)
+    plot_data(&data, trace, title, out, height_px)
 }
 
 /// Reads the trace at `path` in batches (Parquet pages, CSV lines, MCAP messages) into a [`PlotData`] for a
@@ -130,16 +130,17 @@ pub fn read_plot_data(path: &Path, width_px: u32) -> Result<(Trace, PlotData), T
     Ok((trace, data))
 }
 
-/// Draws a reduced trace into `out` (`.png` or `.svg`, chosen by the extension) at the given size; `trace`
-/// gives the sidecar (its samples are not used).
+/// Draws a reduced trace into `out` (`.png` or `.svg`, chosen by the extension), as wide as the plot `data`
+/// was reduced for ([`PlotData::width_px`]) and `height_px` high; `trace` gives the sidecar (its samples are
+/// not used).
 pub fn plot_data(
     data: &PlotData,
     trace: &Trace,
     title: &str,
     out: &Path,
-    width_px: u32,
     height_px: u32,
 ) -> Result<(), PlotError> {
+    let width_px = data.width_px();
     if !PLOT_WIDTH_PX.contains(&width_px) || !PLOT_HEIGHT_PX.contains(&height_px) {
         return Err(PlotError::TooSmall {
             width_px,

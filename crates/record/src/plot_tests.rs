@@ -66,6 +66,36 @@ fn svg_output_and_errors() {
     ));
 }
 
+/// `plot_data` draws as wide as its reduction was made for (it takes no second width that could disagree),
+/// and a reduction for a width outside [`PLOT_WIDTH_PX`] is refused when drawn.
+#[test]
+fn plot_data_draws_at_the_width_it_was_reduced_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("w.png");
+    let traced = trace(100);
+    let reduced = |width_px: u32| {
+        let mut data = PlotData::new(width_px);
+        traced.samples.iter().for_each(|sample| data.push(sample));
+        data
+    };
+    for width_px in [640, 1500] {
+        let data = reduced(width_px);
+        assert_eq!(data.width_px(), width_px);
+        plot_data(&data, &traced, "width", &out, 480).unwrap();
+        let decoder =
+            png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&out).unwrap()));
+        let info = decoder.read_info().expect("a valid PNG").info().clone();
+        assert_eq!((info.width, info.height), (width_px, 480));
+    }
+    assert!(matches!(
+        plot_data(&reduced(100), &traced, "", &out, 480),
+        Err(PlotError::TooSmall {
+            width_px: 100,
+            height_px: 480
+        })
+    ));
+}
+
 #[test]
 fn degenerate_traces_still_plot() {
     let dir = tempfile::tempdir().unwrap();
@@ -283,15 +313,7 @@ fn an_hour_of_a_3_s_circle_stays_round_and_keeps_its_extremes() {
         sidecar: None,
         warnings: Vec::new(),
     };
-    plot_data(
-        &data,
-        &trace,
-        "an hour",
-        &dir.path().join("hour.png"),
-        1200,
-        1000,
-    )
-    .unwrap();
+    plot_data(&data, &trace, "an hour", &dir.path().join("hour.png"), 1000).unwrap();
 }
 
 #[test]

@@ -224,6 +224,8 @@ pub struct PlotData {
     /// Smallest and largest positive finite certificate bound (m).
     pub(super) bound_low: f64,
     pub(super) bound_high: f64,
+    /// The width of the plot the series were reduced for (px), as asked; [`super::plot_data`] draws at it.
+    width_px: u32,
 }
 
 /// Narrowest bucket a trace starts with (s); the width doubles as the trace grows.
@@ -232,7 +234,7 @@ const FIRST_BUCKET_S: f64 = 1e-9;
 pub const PATH_BUCKETS: usize = 16 * 1024;
 
 impl PlotData {
-    /// An empty reduction for a plot `width_px` wide.
+    /// An empty reduction for a plot `width_px` wide ([`super::plot_data`] draws it at this width).
     pub fn new(width_px: u32) -> PlotData {
         let columns = usize::try_from(width_px.clamp(200, 8192)).unwrap_or(8192);
         PlotData {
@@ -245,7 +247,13 @@ impl PlotData {
             last_s: f64::NEG_INFINITY,
             bound_low: f64::INFINITY,
             bound_high: 0.0,
+            width_px,
         }
+    }
+
+    /// The width of the plot this reduction is for (px), as given to [`PlotData::new`].
+    pub fn width_px(&self) -> u32 {
+        self.width_px
     }
 
     /// Samples seen.

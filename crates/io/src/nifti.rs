@@ -472,10 +472,7 @@ mod tests {
         fn mutated_headers_never_panic(
             edits in proptest::collection::vec((0usize..368, any::<u8>()), 1..8),
         ) {
-            let mut bytes = tiny_nii();
-            for (at, value) in edits {
-                bytes[at] = value;
-            }
+            let bytes = crate::test_edits::with_bytes_edited(&tiny_nii(), edits);
             if let Ok(loaded) = parse(&bytes, false, Path::new("x.nii")) {
                 let (min, max) = loaded.volume.value_range();
                 prop_assert!(min.is_finite() && max.is_finite());

@@ -236,11 +236,8 @@ direction = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
             line in 1usize..8, value in "[ -~]{0,24}",
             data in proptest::collection::vec(any::<u8>(), 0..8),
         ) {
-            let mut lines: Vec<String> = HEADER.lines().map(str::to_owned).collect();
-            if let Some((key, _)) = lines[line].clone().split_once(" = ") {
-                lines[line] = format!("{key} = {value}");
-            }
-            if let Ok(header) = parse_header(lines.join("\n").as_bytes()) {
+            let text = crate::test_edits::with_field_value(HEADER.as_bytes(), line, " = ", &value);
+            if let Ok(header) = parse_header(text.as_bytes()) {
                 let _ = decode_with_header(&header, &data, Path::new("x.toml"));
             }
         }

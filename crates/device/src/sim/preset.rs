@@ -11,18 +11,36 @@
 
 use serde::{Deserialize, Serialize};
 
-/// A device whose published figures a simulated arm can take.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ArmPreset {
+/// Declares [`ArmPreset`] with each preset's scene-file name written once: serde reads and writes that name
+/// and [`ArmPreset::name`] returns it.
+macro_rules! arm_presets {
+    ($($(#[$doc:meta])* $variant:ident = $name:literal,)+) => {
+        /// A device whose published figures a simulated arm can take.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+        pub enum ArmPreset {
+            $($(#[$doc])* #[serde(rename = $name)] $variant,)+
+        }
+
+        impl ArmPreset {
+            /// The name written in a scene file.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(ArmPreset::$variant => $name,)+
+                }
+            }
+        }
+    };
+}
+
+arm_presets! {
     /// Haply Inverse3.
-    Inverse3,
+    Inverse3 = "inverse3",
     /// Novint Falcon.
-    Falcon,
+    Falcon = "falcon",
     /// 3D Systems Touch (formerly SensAble Phantom Omni).
-    Touch,
+    Touch = "touch",
     /// WoodenHaptics (Forsslund et al., TEI 2015).
-    Woodenhaptics,
+    Woodenhaptics = "woodenhaptics",
 }
 
 /// A preset's figures: `None` where no source was found.
@@ -41,16 +59,6 @@ pub struct PresetFigures {
 }
 
 impl ArmPreset {
-    /// The name written in a scene file.
-    pub fn name(self) -> &'static str {
-        match self {
-            ArmPreset::Inverse3 => "inverse3",
-            ArmPreset::Falcon => "falcon",
-            ArmPreset::Touch => "touch",
-            ArmPreset::Woodenhaptics => "woodenhaptics",
-        }
-    }
-
     /// The preset's figures and their sources. Every figure set here comes from a document that was read
     /// (listed in docs/stability.md, "The presets' figures"); no vendor or paper read gives a viscous
     /// damping for any of the four, so `damping_n_s_per_m` is never set.

@@ -134,5 +134,18 @@ fn the_names_are_the_ones_a_scene_file_uses() {
         assert_eq!(preset.name(), name);
         let parsed: ArmPreset = serde_json::from_str(&format!("\"{name}\"")).unwrap();
         assert_eq!(parsed, preset);
+        assert_eq!(
+            serde_json::to_string(&preset).unwrap(),
+            format!("\"{name}\"")
+        );
     }
+    let err = serde_json::from_str::<ArmPreset>("\"phantom\"")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.starts_with(
+            "unknown variant `phantom`, expected one of `inverse3`, `falcon`, `touch`, `woodenhaptics`"
+        ),
+        "{err}"
+    );
 }

@@ -305,6 +305,13 @@ mod tests {
         )
     }
 
+    /// [`mapped`], connected.
+    fn connected(profile_text: &str) -> (MappedDevice, Shared<DVec3>, Shared<Vec<DVec3>>) {
+        let (mut device, position, forces) = mapped(profile_text);
+        device.connect(0).unwrap();
+        (device, position, forces)
+    }
+
     fn run(device: &mut MappedDevice, now_us: &mut u64, force_n: DVec3, ticks: u64) -> TickOutput {
         let mut out = None;
         for _ in 0..ticks {
@@ -322,9 +329,9 @@ mod tests {
 
     #[test]
     fn positions_come_in_mapped_and_forces_go_out_rotated_back_unscaled() {
-        let (mut device, _position, forces) =
-            mapped("[mapping]\nscale = 4\ntranslation_m = [1, 2, 3]\nrotation_deg = [0, 0, 90]\n");
-        device.connect(0).unwrap();
+        let (mut device, _position, forces) = connected(
+            "[mapping]\nscale = 4\ntranslation_m = [1, 2, 3]\nrotation_deg = [0, 0, 90]\n",
+        );
         let out = run(&mut device, &mut 0, DVec3::new(0.0, 1.0, 0.0), 50);
         let state = out.state.unwrap();
         // R about z by 90°: (x, y, z) -> (-y, x, z); then × 4, + t.
@@ -344,14 +351,43 @@ mod tests {
         assert!((out.sent_force_n - DVec3::new(0.0, 1.0, 0.0)).length() < 1e-12);
     }
 
+    /// The scene's stiffness and damping limits are the profile's (or the device's) divided by the scale.
+    #[test]
+    fn the_scene_limits_are_the_device_limits_divided_by_the_scale() {
+        for (profile, stiffness_n_per_m, damping_n_s_per_m) in [
+            // The profile's 1500 N/m / 10; no damping limit in the profile: none.
+            (
+                "[mapping]\nscale = 10\n[limits]\nmax_stiffness_n_per_m = 1500\n",
+                150.0,
+                None,
+            ),
+            // The device's declared 2000 N/m / 4; the profile's 0.2 N s/m / 4.
+            (
+                "[mapping]\nscale = 4\n[limits]\nmax_damping_n_s_per_m = 0.2\n",
+                500.0,
+                Some(0.05),
+            ),
+        ] {
+            let (device, _, _) = connected(profile);
+            let cap = device.max_stiffness_n_per_m().unwrap();
+            assert!((cap - stiffness_n_per_m).abs() < 1e-9, "{profile}: {cap}");
+            let limit = device.max_damping_n_s_per_m();
+            match (limit, damping_n_s_per_m) {
+                (None, None) => {}
+                (Some(limit), Some(expected)) => {
+                    assert!((limit - expected).abs() < 1e-12, "{profile}: {limit}")
+                }
+                _ => panic!("{profile}: damping limit {limit:?}, expected {damping_n_s_per_m:?}"),
+            }
+        }
+    }
+
     #[test]
     fn the_stiffness_the_hand_feels_never_exceeds_the_device_or_the_profile() {
         let (mut device, position, forces) =
-            mapped("[mapping]\nscale = 10\n[limits]\nmax_stiffness_n_per_m = 1500\n");
-        device.connect(0).unwrap();
+            connected("[mapping]\nscale = 10\n[limits]\nmax_stiffness_n_per_m = 1500\n");
         // The scene may render at most 1500 / 10 N/m.
         let cap = device.max_stiffness_n_per_m().unwrap();
-        assert!((cap - 150.0).abs() < 1e-9, "{cap}");
         let caps = CouplingCaps::new(cap, 1e-3);
         let (k, _) = caps.cap(10_000.0, 0.0);
         // A spring at that stiffness, proxy at the mapped start, hand moved 2 mm: the device is asked for
@@ -371,8 +407,6 @@ mod tests {
         assert!(felt > 2.99, "felt {felt} N: the cap was not reached");
         let info = device.info().unwrap();
         assert!((info.max_stiffness_n_per_m - 150.0).abs() < 1e-9);
-        // No damping limit in this profile: the passivity bound alone.
-        assert_eq!(device.max_damping_n_s_per_m(), None);
         // 1500 N/m is below the declared 2000: nothing to say but the mapping.
         let notes = device.profile_notes();
         assert_eq!(notes.len(), 1, "{notes:?}");
@@ -382,13 +416,10 @@ mod tests {
 
     #[test]
     fn a_profile_damping_limit_is_felt_damping_divided_by_the_scale() {
-        let (mut device, _, _) =
-            mapped("[mapping]\nscale = 4\n[limits]\nmax_damping_n_s_per_m = 0.2\n");
-        device.connect(0).unwrap();
-        let limit = device.max_damping_n_s_per_m().unwrap();
-        assert!((limit - 0.05).abs() < 1e-12, "{limit}");
+        let (device, _, _) =
+            connected("[mapping]\nscale = 4\n[limits]\nmax_damping_n_s_per_m = 0.2\n");
         let caps = CouplingCaps::new(device.max_stiffness_n_per_m().unwrap(), 1e-3)
-            .with_damping_limit(Some(limit));
+            .with_damping_limit(device.max_damping_n_s_per_m());
         // 2000 N/m declared / 4 = 500 N/m in the scene; passivity would allow 0.25 - 0.05 = 0.2 N s/m at
         // k = 100: the profile's 0.05 wins.
         assert_eq!(caps.cap(100.0, 1.0), (100.0, 0.05));

@@ -80,6 +80,18 @@ fn edge_width_m(grid: &Grid) -> f64 {
     EDGE_WIDTH_VOXELS * grid.spacing_m().max_element()
 }
 
+/// A solid of density 1 on the cube grid: inside where `signed_distance_m(p)` < 0, with the smooth edge
+/// ([`smooth_inside`] over [`edge_width_m`]).
+fn solid(
+    dims: [usize; 3],
+    half_extent_m: f64,
+    signed_distance_m: impl Fn(DVec3) -> f64,
+) -> Result<ScalarVolume, VolumeError> {
+    let grid = cube(dims, half_extent_m)?;
+    let width = edge_width_m(&grid);
+    ScalarVolume::from_fn(grid, |p| smooth_inside(signed_distance_m(p), width))
+}
+
 /// A solid ball of density 1 and radius `radius_m`, centred at the origin.
 pub fn sphere(
     radius_m: f64,
@@ -87,9 +99,7 @@ pub fn sphere(
     half_extent_m: f64,
 ) -> Result<ScalarVolume, VolumeError> {
     positive("radius_m", radius_m)?;
-    let grid = cube(dims, half_extent_m)?;
-    let width = edge_width_m(&grid);
-    ScalarVolume::from_fn(grid, |p| smooth_inside(p.length() - radius_m, width))
+    solid(dims, half_extent_m, |p| p.length() - radius_m)
 }
 
 /// A solid torus of density 1 around the z axis: ring radius `major_radius_m`, tube radius
@@ -102,11 +112,9 @@ pub fn torus(
 ) -> Result<ScalarVolume, VolumeError> {
     positive("major_radius_m", major_radius_m)?;
     positive("minor_radius_m", minor_radius_m)?;
-    let grid = cube(dims, half_extent_m)?;
-    let width = edge_width_m(&grid);
-    ScalarVolume::from_fn(grid, |p| {
+    solid(dims, half_extent_m, |p| {
         let ring = (p.x.hypot(p.y) - major_radius_m).hypot(p.z);
-        smooth_inside(ring - minor_radius_m, width)
+        ring - minor_radius_m
     })
 }
 
@@ -122,14 +130,12 @@ pub fn shells(
     positive("outer_radius_m", outer_radius_m)?;
     positive("thickness_m", thickness_m)?;
     positive("shell_count", shell_count as f64)?;
-    let grid = cube(dims, half_extent_m)?;
-    let width = edge_width_m(&grid);
     let pitch = outer_radius_m / shell_count as f64;
-    ScalarVolume::from_fn(grid, |p| {
+    solid(dims, half_extent_m, |p| {
         let r = p.length();
         // Distance to the nearest shell's mid radius.
         let nearest = (r / pitch).round().clamp(1.0, shell_count as f64) * pitch;
-        smooth_inside((r - nearest).abs() - thickness_m / 2.0, width)
+        (r - nearest).abs() - thickness_m / 2.0
     })
 }
 

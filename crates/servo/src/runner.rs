@@ -199,7 +199,7 @@ impl ServoLoop {
                 0,
             ),
             local_passivity: voxhap_device::local_offer::PassivityOffer::default(),
-            link: LinkFollower::fixed(0),
+            link: LinkFollower::fixed(),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,

@@ -212,7 +212,9 @@ pub fn run(
             Some(device) => {
                 // The tick's local model, built as `serve` builds it, while its force is valid (as `serve`'s
                 // supervisor decides); the device's loop renders it for the period.
-                let valid = rendered_n.is_finite() && out.status != TickStatus::InputRejected;
+                // The arm's state is fresh every tick, and the sim has no compute budget.
+                let valid =
+                    crate::local_model::force_valid(true, out.status, rendered_n.is_finite(), true);
                 let offer = crate::local_model::offer(
                     workspaces[current].primitives(),
                     k,

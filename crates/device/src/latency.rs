@@ -65,17 +65,30 @@ impl LinkDelaySeen {
     }
 
     /// The median round trip in whole servo ticks, rounded up (0 for a zero period).
+    #[cfg(any(test, feature = "test-support"))]
     pub fn typical_ticks(&self) -> u32 {
         whole_ticks(self.typical, self.period)
     }
 }
 
-/// `delay` in whole ticks of `period`, rounded up; 0 for a zero period.
+/// `delay` in whole ticks of `period`, rounded up ([`ticks_rounded_up`]).
 fn whole_ticks(delay: Duration, period: Duration) -> u32 {
-    if period.is_zero() {
-        return 0;
+    ticks_rounded_up(delay.as_secs_f64(), period.as_secs_f64())
+}
+
+/// A delay of `delay_s` in whole ticks of `period_s` (both in seconds): the one rule for a delay in servo
+/// ticks, here (a link's figures) and in crate `voxhap-servo` (the passivity observer's pairing). A fraction
+/// of a tick is rounded up, the safe side for the observer; a part per million of a tick is taken as rounding
+/// error (of seconds in floating point, or of a period that is no whole number of nanoseconds), so 1 ms at
+/// 4 kHz is 4 ticks and 1 ms at 3 kHz is 3. 0 for a delay or period that is not a positive finite number; at
+/// most `u32::MAX`.
+pub fn ticks_rounded_up(delay_s: f64, period_s: f64) -> u32 {
+    if delay_s.is_finite() && delay_s > 0.0 && period_s > 0.0 {
+        // A float-to-integer cast saturates: a delay of more than u32::MAX ticks is u32::MAX.
+        (delay_s / period_s - 1e-6).ceil().max(0.0) as u32
+    } else {
+        0
     }
-    u32::try_from(delay.as_nanos().div_ceil(period.as_nanos())).unwrap_or(u32::MAX)
 }
 
 /// Novint Falcon on `ftdi_sio`: the 16-byte reply is shorter than the FTDI chip's 62-byte packet payload, so
@@ -135,5 +148,27 @@ mod tests {
         };
         assert_eq!(short.worst_ticks(Duration::from_millis(1)), 1);
         assert_eq!(FALCON.worst_ticks(Duration::ZERO), 0);
+    }
+
+    /// Where the exact rule on nanoseconds (`delay_ns.div_ceil(period_ns)`, this module's until the
+    /// passivity observer and the link's figures shared [`ticks_rounded_up`]) and the observer's rule
+    /// disagreed, worked by hand: a longest round trip of 2 ms + 1 ns at 500 Hz is 1.0000005 ticks, within
+    /// a part per million of one tick, so 1 tick (div_ceil said 2, while the observer, widening to the same
+    /// round trip, paired 1). 2 ms + 10 ns is 1.000005 ticks: 2. 1 ms at 3 kHz is exactly 3 periods of
+    /// 1/3 ms: 3 (in whole nanoseconds the period is 333 333 ns and div_ceil gives 4).
+    #[test]
+    fn a_part_per_million_of_a_tick_is_rounding_error() {
+        let seen = |worst_ns: u64| LinkDelaySeen {
+            typical: Duration::from_millis(1),
+            worst: Duration::from_nanos(worst_ns),
+            round_trips: 1,
+            period: Duration::from_millis(2),
+        };
+        assert_eq!(seen(2_000_001).worst_ticks(), 1);
+        assert_eq!(seen(2_000_010).worst_ticks(), 2);
+        assert_eq!(ticks_rounded_up(1e-3, 1.0 / 3000.0), 3);
+        assert_eq!(ticks_rounded_up(1e-3, 2.5e-4), 4);
+        assert_eq!(ticks_rounded_up(f64::NAN, 1e-3), 0);
+        assert_eq!(ticks_rounded_up(1e-3, 0.0), 0);
     }
 }

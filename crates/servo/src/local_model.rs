@@ -8,6 +8,7 @@
 
 use crate::passivity::{PassivityMode, PassivitySettings};
 use glam::DVec3;
+use voxhap_core::haptics::tick::TickStatus;
 use voxhap_device::local_offer::{LocalOffer, PassivityOffer};
 use voxhap_protocol::{LocalKind, LocalPassivityMode, SiPrimitive};
 use voxhap_solver::primitive::PrimitiveKind;
@@ -36,6 +37,20 @@ pub fn offer(
         });
     }
     offer
+}
+
+/// Whether the tick's force is valid, `serve`'s rule for sending a capable device the tick's local model
+/// rather than a set-force ([`crate::runner`], which hands it to the supervisor as `TickInput::force_valid`;
+/// `voxhap sim`'s [`crate::sim::runner`] decides with it too): the tick rendered from a fresh state
+/// (`state_fresh`), did not reject its input, its force was finite (`force_finite`: not replaced for being
+/// non-finite) and it was computed within its budget (`on_budget`).
+pub fn force_valid(
+    state_fresh: bool,
+    status: TickStatus,
+    force_finite: bool,
+    on_budget: bool,
+) -> bool {
+    state_fresh && status != TickStatus::InputRejected && force_finite && on_budget
 }
 
 /// What a capable device's own passivity observer and controller run (protocol/SPEC.md section 10.5 step 4b):

@@ -199,7 +199,7 @@ impl ServoLoop {
                 0,
             ),
             local_passivity: voxhap_device::local_offer::PassivityOffer::default(),
-            link: LinkFollower::fixed(0),
+            link: LinkFollower::fixed(),
             transition: CouplingTransition::new(),
             changed: false,
             last_anchor_m: start_m,
@@ -442,10 +442,12 @@ impl ServoLoop {
             self.stats.budget_overruns.fetch_add(1, Ordering::Relaxed);
         }
 
-        let force_valid = self.last_state.is_some()
-            && self.last_state_fresh
-            && out.status != TickStatus::InputRejected
-            && flags & (FLAG_NON_FINITE_REPLACED | FLAG_COMPUTE_OVER_BUDGET) == 0;
+        let force_valid = crate::local_model::force_valid(
+            self.last_state.is_some() && self.last_state_fresh,
+            out.status,
+            flags & FLAG_NON_FINITE_REPLACED == 0,
+            flags & FLAG_COMPUTE_OVER_BUDGET == 0,
+        );
 
         let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
         // The state this tick rendered from, and its age, before the exchange replaces it.

@@ -496,6 +496,7 @@ impl<L: MessageLink> ProtocolDevice<L> {
     }
 
     /// The round trips the last open timed (module docs, "Link latency"), in the order they came.
+    #[cfg(any(test, feature = "test-support"))]
     pub fn round_trips(&self) -> &[Duration] {
         self.round_trips.samples()
     }

@@ -142,11 +142,6 @@ impl PassivityController {
         self.latency_ticks = latency_ticks.min(MAX_LATENCY_TICKS);
     }
 
-    /// Whole ticks from a latency in seconds at period `dt_s`, rounded up ([`super::settings::ticks_of`]).
-    pub fn latency_ticks(latency_s: f64, dt_s: f64) -> usize {
-        super::settings::ticks_of(latency_s, dt_s)
-    }
-
     /// Books this tick's reported probe and the coupling's reference energy now (the spring's stored energy,
     /// J), then returns the controller's force for this tick (zero unless the mode is `control`).
     pub fn observe_and_control(
@@ -204,18 +199,19 @@ impl PassivityController {
         force
     }
 
-    /// Books the force the device was sent this tick (after the safety pipeline), given the force that was
-    /// asked for (`rendered_n`, the controller's force included): the controller's part is scaled as the
-    /// pipeline scaled the whole. Ends the tick.
+    /// [`PassivityController::sent_with_active`] with no intended work (the tests' coupling alone).
+    #[cfg(test)]
     pub fn sent(&mut self, rendered_n: DVec3, sent_n: DVec3) {
         self.sent_with_active(rendered_n, sent_n, DVec3::ZERO);
     }
 
-    /// As [`PassivityController::sent`], where `active_n` of the rendered force is intended work (the
-    /// directed-force modes and an external force): the observer books only the coupling's part of what was
-    /// sent, `sent - s active` with `s` the share of the rendered force the safety pipeline let through
-    /// (its stages scale the whole vector), so the controller never damps work the scene asks for; the
-    /// energy ledger splits the same work out as active (crate::energy).
+    /// Books the force the device was sent this tick (after the safety pipeline), given the force that was
+    /// asked for (`rendered_n`, the controller's force included): the controller's part is scaled as the
+    /// pipeline scaled the whole. Ends the tick. `active_n` of the rendered force is intended work (the
+    /// directed-force modes and an external force; zero when there is none): the observer books only the
+    /// coupling's part of what was sent, `sent - s active` with `s` the share of the rendered force the
+    /// safety pipeline let through (its stages scale the whole vector), so the controller never damps work
+    /// the scene asks for; the energy ledger splits the same work out as active (crate::energy).
     pub fn sent_with_active(&mut self, rendered_n: DVec3, sent_n: DVec3, active_n: DVec3) {
         if self.mode == PassivityMode::Off {
             return;

@@ -1,3 +1,4 @@
+use super::super::latency::ObserverLatency;
 use super::*;
 
 /// Presses a spring of stiffness `k` at constant speed (`dx` per tick of `dt`), the force the spring's
@@ -99,18 +100,23 @@ fn parameters_out_of_range_name_their_key() {
 
 /// The observer's latency in whole ticks, by hand: `[passivity] latency_s` over the declared figure; a
 /// fraction of a tick rounds up (0.4 ms at 1 kHz is 1 tick, 2.5 ms is 3); whole figures stay whole
-/// (1 ms at 4 kHz is 4 ticks, not 5 from rounding error); nothing known is 0.
+/// (1 ms at 4 kHz is 4 ticks, not 5 from rounding error; 1 ms at 3 kHz is 3, three periods of 1/3 ms exactly,
+/// where whole nanoseconds, 333 333 ns a period, would round 3.000003 up to 4); nothing known is 0.
 #[test]
 fn the_observer_latency_is_the_written_or_declared_one_rounded_up() {
+    let ticks = |settings: &PassivitySettings, declared_s: Option<f64>, period_s: f64| {
+        ObserverLatency::choose(settings, declared_s, None, period_s).ticks
+    };
     let none = PassivitySettings::default();
-    assert_eq!(none.latency_ticks(None, 1e-3), 0);
-    assert_eq!(none.latency_ticks(Some(0.002), 1e-3), 2);
-    assert_eq!(none.latency_ticks(Some(0.0004), 1e-3), 1);
-    assert_eq!(none.latency_ticks(Some(0.0025), 1e-3), 3);
-    assert_eq!(none.latency_ticks(Some(0.001), 2.5e-4), 4);
+    assert_eq!(ticks(&none, None, 1e-3), 0);
+    assert_eq!(ticks(&none, Some(0.002), 1e-3), 2);
+    assert_eq!(ticks(&none, Some(0.0004), 1e-3), 1);
+    assert_eq!(ticks(&none, Some(0.0025), 1e-3), 3);
+    assert_eq!(ticks(&none, Some(0.001), 2.5e-4), 4);
+    assert_eq!(ticks(&none, Some(0.001), 1.0 / 3000.0), 3);
     let written = |latency_s| settings_with(|s| s.latency_s = Some(latency_s));
-    assert_eq!(written(0.0).latency_ticks(Some(0.002), 1e-3), 0);
-    assert_eq!(written(0.003).latency_ticks(None, 1e-3), 3);
+    assert_eq!(ticks(&written(0.0), Some(0.002), 1e-3), 0);
+    assert_eq!(ticks(&written(0.003), None, 1e-3), 3);
     for bad in [f64::NAN, -1e-3, 0.06] {
         assert!(refusal(|s| s.latency_s = Some(bad)).starts_with("passivity.latency_s:"));
     }

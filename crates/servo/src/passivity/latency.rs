@@ -10,7 +10,7 @@
 //! reconnect's new measurement ([`super::link_delay`]); the notice says so.
 
 use super::settings::{ticks_of, PassivityMode, PassivitySettings, MAX_LATENCY_TICKS};
-use voxhap_device::latency::LinkLatency;
+use voxhap_device::latency::{ticks_rounded_up, LinkLatency};
 
 /// Where the observer's latency came from.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -54,8 +54,8 @@ impl ObserverLatency {
             (None, None, None) => (0.0, LatencyOrigin::Unknown),
         };
         let ticks = ticks_of(latency_s, period_s);
-        // ticks_of stops at MAX_LATENCY_TICKS: the whole ticks, rounded up, are more exactly when this holds.
-        let beyond_observer = latency_s / period_s - 1e-6 > MAX_LATENCY_TICKS as f64;
+        // ticks_of stops at MAX_LATENCY_TICKS; the same rule, unbounded, says when the latency is beyond it.
+        let beyond_observer = ticks_rounded_up(latency_s, period_s) as usize > MAX_LATENCY_TICKS;
         ObserverLatency {
             latency_s,
             ticks,

@@ -9,9 +9,13 @@
 //! So while the observer's latency comes from the driver, each tick reads the round trips the driver timed
 //! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and, when the
 //! longest of them in whole ticks (rounded up) exceeds the pairing, widens the pairing to it, at most
-//! [`MAX_LATENCY_TICKS`]. It never narrows within a connection: the longest delay seen may come again. A
-//! reconnect opens a new driver, whose open measures the link again: that figure replaces the pairing (it may
-//! be shorter), and the new connection's round trips are followed from there.
+//! [`super::settings::MAX_LATENCY_TICKS`]. It never narrows within a connection: the longest delay seen may
+//! come again. A reconnect opens a new driver, whose open measures the link again: that figure replaces the
+//! pairing (it may be shorter), and the new connection's round trips are followed from there.
+//!
+//! The pairing has one owner, the controller ([`PassivityController::latency_ticks_now`]): the follower
+//! reads it there and sets it there, and the statistics ([`LinkDelayStats`]) are told the pairing at start
+//! and at each change.
 //!
 //! A scene that writes `[passivity] latency_s`, and the simulated arm's `[arm] latency_s`, fix the pairing:
 //! the user said what it is, and a test that tells the observer a wrong latency must get what it asked for.
@@ -26,7 +30,7 @@
 use super::controller::PassivityController;
 use super::latency::{LatencyOrigin, ObserverLatency};
 use super::link_stats::LinkDelayStats;
-use super::settings::{ticks_of, MAX_LATENCY_TICKS};
+use super::settings::ticks_of;
 use crate::device::ServoDevice;
 use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 
@@ -39,17 +43,17 @@ pub enum PairingChange {
     Reconnected { from: usize, to: usize },
 }
 
-/// The observer's pairing in ticks, following the link (module docs).
+/// Follows the link for the observer's pairing (module docs). The pairing itself is the controller's
+/// ([`PassivityController::latency_ticks_now`]): this reads it there and sets it there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkFollower {
     follows_driver: bool,
     period_s: f64,
-    ticks: usize,
 }
 
 impl LinkFollower {
     /// Follows the driver's figures when `latency` came from the driver (or nothing declared one); else
-    /// keeps `latency.ticks`. `period_s` is the servo period.
+    /// leaves the pairing alone. `period_s` is the servo period.
     pub fn new(latency: &ObserverLatency, period_s: f64) -> Self {
         LinkFollower {
             follows_driver: matches!(
@@ -57,53 +61,56 @@ impl LinkFollower {
                 LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
             ),
             period_s,
-            ticks: latency.ticks,
         }
     }
 
-    /// A pairing that never follows (the default loop: no passivity).
-    pub fn fixed(ticks: usize) -> Self {
+    /// A follower that never changes the pairing (the default loop: no passivity).
+    pub fn fixed() -> Self {
         LinkFollower {
             follows_driver: false,
             period_s: 0.0,
-            ticks: ticks.min(MAX_LATENCY_TICKS),
         }
     }
 
-    /// The pairing now (ticks).
-    pub fn ticks(&self) -> usize {
-        self.ticks
-    }
-
-    /// A device connected (again): its driver's figure at open (`link`, its worst case) replaces the pairing.
-    /// `None` when nothing changed.
-    pub fn connected(&mut self, link: Option<LinkLatency>) -> Option<PairingChange> {
+    /// A device connected (again): its driver's figure at open (`link`, its worst case) replaces
+    /// `controller`'s pairing. `None` when nothing changed.
+    pub fn connected(
+        &self,
+        link: Option<LinkLatency>,
+        controller: &mut PassivityController,
+    ) -> Option<PairingChange> {
         if !self.follows_driver {
             return None;
         }
         let to = ticks_of(link.map_or(0.0, |l| l.worst.as_secs_f64()), self.period_s);
-        let from = std::mem::replace(&mut self.ticks, to);
+        let from = controller.latency_ticks_now();
+        controller.set_latency_ticks(to);
         (from != to).then_some(PairingChange::Reconnected { from, to })
     }
 
-    /// This tick's round trips timed since the connection opened: widens the pairing to the longest when it
-    /// is longer. `None` when nothing changed.
-    pub fn observe(&mut self, seen: Option<LinkDelaySeen>) -> Option<PairingChange> {
+    /// This tick's round trips timed since the connection opened: widens `controller`'s pairing to the
+    /// longest when it is longer. `None` when nothing changed.
+    pub fn observe(
+        &self,
+        seen: Option<LinkDelaySeen>,
+        controller: &mut PassivityController,
+    ) -> Option<PairingChange> {
         if !self.follows_driver {
             return None;
         }
         let to = ticks_of(seen?.worst.as_secs_f64(), self.period_s);
-        if to <= self.ticks {
+        let from = controller.latency_ticks_now();
+        if to <= from {
             return None;
         }
-        let from = std::mem::replace(&mut self.ticks, to);
+        controller.set_latency_ticks(to);
         Some(PairingChange::Widened { from, to })
     }
 
-    /// One servo tick: a connection this tick (`connected`) replaces the pairing with the driver's figure at
-    /// open, then the round trips timed widen it; `controller` pairs with the result, and `stats` get it.
+    /// One servo tick: a connection this tick (`connected`) replaces `controller`'s pairing with the driver's
+    /// figure at open, then the round trips timed widen it; `stats` are told what changed.
     pub fn follow(
-        &mut self,
+        &self,
         device: &dyn ServoDevice,
         connected: bool,
         controller: &mut PassivityController,
@@ -116,16 +123,15 @@ impl LinkFollower {
         }
         let seen = device.link_delay_seen();
         let mut changed = if connected {
-            self.connected(declared)
+            self.connected(declared, controller)
         } else {
             None
         };
-        changed = self.observe(seen).or(changed);
+        changed = self.observe(seen, controller).or(changed);
         if changed.is_some() {
-            controller.set_latency_ticks(self.ticks);
-            stats.changed(tick);
+            stats.changed(tick, controller.latency_ticks_now());
         }
-        stats.tick(self.ticks, seen);
+        stats.tick(seen);
     }
 }
 

@@ -1,4 +1,4 @@
-use super::super::settings::{PassivityMode, PassivitySettings};
+use super::super::settings::{PassivityMode, PassivitySettings, MAX_LATENCY_TICKS};
 use super::super::test_link::LinkDouble;
 use super::*;
 use glam::DVec3;
@@ -34,32 +34,42 @@ fn chosen(settings: &PassivitySettings, arm_s: Option<f64>) -> ObserverLatency {
     ObserverLatency::choose(settings, arm_s, Some(at_open(US * 1_200)), 1e-3)
 }
 
+/// An observing controller paired as `latency` says, and its follower at 1 kHz.
+fn follower_of(latency: &ObserverLatency) -> (LinkFollower, PassivityController) {
+    let controller = PassivityController::new(
+        PassivityMode::Observe,
+        &PassivitySettings::default(),
+        latency.ticks,
+    );
+    (LinkFollower::new(latency, 1e-3), controller)
+}
+
 /// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. Round trips of at most 1.8 ms (2 ticks) change
 /// nothing; 4.3 ms (ceil 4.3 = 5 ticks) widens to 5; 3 ms afterwards does not narrow; 300 ms widens to the
 /// 255 the observer pairs at most. A reconnect measuring 1.2 ms again replaces the 255 with 2; the same
 /// figure again changes nothing.
 #[test]
 fn the_pairing_widens_to_the_longest_round_trip_and_a_reconnect_replaces_it() {
-    let mut follower = LinkFollower::new(&chosen(&PassivitySettings::default(), None), 1e-3);
-    assert_eq!(follower.ticks(), 2);
-    assert_eq!(follower.observe(None), None);
-    assert_eq!(follower.observe(seen(US * 1_800)), None);
+    let (follower, mut c) = follower_of(&chosen(&PassivitySettings::default(), None));
+    assert_eq!(c.latency_ticks_now(), 2);
+    assert_eq!(follower.observe(None, &mut c), None);
+    assert_eq!(follower.observe(seen(US * 1_800), &mut c), None);
     assert_eq!(
-        follower.observe(seen(US * 4_300)),
+        follower.observe(seen(US * 4_300), &mut c),
         Some(PairingChange::Widened { from: 2, to: 5 })
     );
-    assert_eq!(follower.observe(seen(MS * 3)), None);
-    assert_eq!(follower.ticks(), 5);
+    assert_eq!(follower.observe(seen(MS * 3), &mut c), None);
+    assert_eq!(c.latency_ticks_now(), 5);
     assert_eq!(
-        follower.observe(seen(MS * 300)),
+        follower.observe(seen(MS * 300), &mut c),
         Some(PairingChange::Widened { from: 5, to: 255 })
     );
     assert_eq!(
-        follower.connected(Some(at_open(US * 1_200))),
+        follower.connected(Some(at_open(US * 1_200)), &mut c),
         Some(PairingChange::Reconnected { from: 255, to: 2 })
     );
-    assert_eq!(follower.connected(Some(at_open(US * 1_200))), None);
-    assert_eq!(follower.ticks(), 2);
+    assert_eq!(follower.connected(Some(at_open(US * 1_200)), &mut c), None);
+    assert_eq!(c.latency_ticks_now(), 2);
 }
 
 /// The scene's `latency_s` and the simulated arm's are what the user said: neither widens nor is replaced.
@@ -73,11 +83,11 @@ fn a_latency_the_scene_or_the_arm_gives_is_kept() {
         chosen(&written, None),
         chosen(&PassivitySettings::default(), Some(0.001)),
     ] {
-        let mut follower = LinkFollower::new(&latency, 1e-3);
-        let before = follower.ticks();
-        assert_eq!(follower.observe(seen(MS * 9)), None);
-        assert_eq!(follower.connected(Some(at_open(MS * 7))), None);
-        assert_eq!(follower.ticks(), before);
+        let (follower, mut c) = follower_of(&latency);
+        let before = c.latency_ticks_now();
+        assert_eq!(follower.observe(seen(MS * 9), &mut c), None);
+        assert_eq!(follower.connected(Some(at_open(MS * 7)), &mut c), None);
+        assert_eq!(c.latency_ticks_now(), before);
     }
 }
 
@@ -129,7 +139,7 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
     let mut controller = PassivityController::new(PassivityMode::Control, &settings, latency.ticks);
     let stats = LinkDelayStats::default();
     stats.start(latency.ticks, device.link_latency(), 1e-3);
-    let mut follower = LinkFollower::new(&latency, 1e-3);
+    let follower = LinkFollower::new(&latency, 1e-3);
     for tick in 0..10u64 {
         if tick == 7 {
             worst_us.store(4_300, Ordering::Relaxed);

@@ -56,13 +56,14 @@ impl LinkDelayStats {
         self.declared_ns.store(ns, Ordering::Relaxed);
     }
 
-    pub(super) fn changed(&self, tick: u64) {
+    /// The observer's pairing changed to `ticks` at `tick`.
+    pub(super) fn changed(&self, tick: u64, ticks: usize) {
+        self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
         self.observer_changes.fetch_add(1, Ordering::Relaxed);
         self.last_change_tick.store(tick, Ordering::Relaxed);
     }
 
-    pub(super) fn tick(&self, ticks: usize, seen: Option<LinkDelaySeen>) {
-        self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
+    pub(super) fn tick(&self, seen: Option<LinkDelaySeen>) {
         // Between connections the last one's figures stay (the next open's replace them).
         let Some(seen) = seen else {
             return;

@@ -2,6 +2,7 @@
 //! naming the key ([`super::controller`] for the method).
 
 use serde::{Deserialize, Serialize};
+use voxhap_device::latency::ticks_rounded_up;
 
 /// Largest `[passivity] max_damping_n_s_per_m` accepted (N s/m).
 pub const MAX_CONTROLLER_DAMPING_N_S_PER_M: f64 = 1000.0;
@@ -17,16 +18,12 @@ pub const MAX_OBSERVER_LATENCY_S: f64 = 0.05;
 /// The longest device latency the observer pairs exactly (ticks); longer latencies are booked as this.
 pub const MAX_LATENCY_TICKS: usize = 255;
 
-/// Whole ticks from a latency in seconds at period `dt_s`: a fraction of a tick is rounded up (a part per
-/// million of a tick is taken as rounding error, so 1 ms at 4 kHz is 4 ticks), at most
-/// [`MAX_LATENCY_TICKS`]. Rounding up is the safe side (`super::controller` module docs, "Latency").
+/// Whole ticks from a latency in seconds at period `dt_s`, rounded up by the one rule for a delay in ticks
+/// (`voxhap_device::latency::ticks_rounded_up`: a part per million of a tick is taken as rounding error, so
+/// 1 ms at 4 kHz is 4 ticks), at most [`MAX_LATENCY_TICKS`]. Rounding up is the safe side
+/// (`super::controller` module docs, "Latency").
 pub fn ticks_of(latency_s: f64, dt_s: f64) -> usize {
-    if latency_s.is_finite() && latency_s > 0.0 && dt_s > 0.0 {
-        let ticks = (latency_s / dt_s - 1e-6).ceil().max(0.0);
-        ticks.min(MAX_LATENCY_TICKS as f64) as usize
-    } else {
-        0
-    }
+    (ticks_rounded_up(latency_s, dt_s) as usize).min(MAX_LATENCY_TICKS)
 }
 
 /// What the passivity observer and controller do.
@@ -68,7 +65,7 @@ pub struct PassivitySettings {
     pub threshold_j: f64,
     /// The device's latency the observer pairs forces and motion with (s), 0 to [`MAX_OBSERVER_LATENCY_S`];
     /// left out: the driver's declared link latency (its worst case), or the simulated arm's
-    /// `[arm] latency_s`, or none when neither is known ([`Self::latency_ticks`]).
+    /// `[arm] latency_s`, or none when neither is known (`super::latency::ObserverLatency::choose`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub latency_s: Option<f64>,
 }
@@ -120,16 +117,6 @@ impl PassivitySettings {
             }
         }
         Ok(())
-    }
-
-    /// The latency the observer pairs with, in whole ticks of `period_s`: `[passivity] latency_s` when
-    /// written, else `declared_s` (the driver's worst-case link latency, or the simulated arm's
-    /// `[arm] latency_s`), else 0. A fraction of a tick is rounded up (module docs of
-    /// `super::controller`: assuming the force acts later than it does books more generated energy, never
-    /// less), at most [`MAX_LATENCY_TICKS`].
-    pub fn latency_ticks(&self, declared_s: Option<f64>, period_s: f64) -> usize {
-        let latency_s = self.latency_s.or(declared_s).unwrap_or(0.0);
-        ticks_of(latency_s, period_s)
     }
 
     /// The mode in force: the one written, else `control` for a real device and `observe` for the

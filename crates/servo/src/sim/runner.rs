@@ -16,7 +16,9 @@
 use super::scenario::{LoadedScenario, ScenarioValueError};
 use crate::device::LocalDevice;
 use crate::energy::{EnergyLedger, EnergyTotals, SentShare};
-use crate::passivity::{CouplingTransition, PassivityController, PassivityMode, PassivityTotals};
+use crate::passivity::{
+    CouplingTransition, ObserverLatency, PassivityController, PassivityMode, PassivityTotals,
+};
 use glam::DVec3;
 use voxhap_core::haptics::modes::{ModeKind, ModeMemory};
 use voxhap_core::haptics::tick::{tick, SolverKind, TickState, TickStatus, TickWorkspace};
@@ -121,9 +123,13 @@ pub fn run(
     // the simulated arm's force acts `[arm] latency_s` after it was sent; the observer pairs with that in
     // whole ticks, or with `[passivity] latency_s` when written.
     let passivity_mode = settings.passivity.mode_for(true);
-    let latency_ticks = settings
-        .passivity
-        .latency_ticks(Some(settings.arm.effects.latency_s), dt_s);
+    let latency_ticks = ObserverLatency::choose(
+        &settings.passivity,
+        Some(settings.arm.effects.latency_s),
+        None,
+        dt_s,
+    )
+    .ticks;
     let mut passivity =
         PassivityController::new(passivity_mode, &settings.passivity, latency_ticks);
     // The local-model device runs the same mode on its own loop (crate::local_model).
@@ -206,7 +212,9 @@ pub fn run(
             Some(device) => {
                 // The tick's local model, built as `serve` builds it, while its force is valid (as `serve`'s
                 // supervisor decides); the device's loop renders it for the period.
-                let valid = rendered_n.is_finite() && out.status != TickStatus::InputRejected;
+                // The arm's state is fresh every tick, and the sim has no compute budget.
+                let valid =
+                    crate::local_model::force_valid(true, out.status, rendered_n.is_finite(), true);
                 let offer = crate::local_model::offer(
                     workspaces[current].primitives(),
                     k,

@@ -42,6 +42,17 @@ fn last_command_settled(falcon: &FalconDevice) -> crate::util::falcon_firmware::
         .expect("the double logged no command")
 }
 
+/// The double decoded every frame the driver wrote (it counts the ones it could not,
+/// tests/util/falcon_firmware.rs, from libnifalcon's framing): checked once it has read them all.
+fn assert_every_frame_decoded(falcon: &FalconDevice) {
+    falcon.commands_settled();
+    assert_eq!(
+        falcon.undecodable_frames(),
+        0,
+        "the Falcon received frames it could not decode"
+    );
+}
+
 #[test]
 fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() {
     let falcon = FalconDevice::start();
@@ -74,6 +85,7 @@ fn until_homed_torques_are_zero_and_the_host_asks_for_homing_with_the_red_led() 
     assert!(last.motor.iter().all(|&m| m != 0), "{last:?}");
     device.disable().unwrap();
     assert_eq!(last_command_settled(&falcon).motor, [0, 0, 0]);
+    assert_every_frame_decoded(&falcon);
 }
 
 #[test]
@@ -99,6 +111,7 @@ fn encoder_counts_become_the_libnifalcon_position() {
         "{position} vs {expected}"
     );
     assert!(position.z > 0.05 && position.z < 0.2, "{position}");
+    assert_every_frame_decoded(&falcon);
 }
 
 /// 50 N asked (and infinity now and then) against a 2 N limit: the force the Falcon exerts for every command it
@@ -319,6 +332,7 @@ fn rejected_readings_never_steer_the_force_the_falcon_exerts() {
             )
         },
     );
+    assert_every_frame_decoded(&falcon);
 }
 
 /// A Falcon that answers every frame twice: each tick's state is the frame answering that tick's command
@@ -365,6 +379,7 @@ fn a_falcon_that_answers_twice_builds_no_backlog_and_is_reported() {
     );
     assert!(device.device().surplus_frames() >= 299);
     assert!(reported.len() >= 2 && reported.len() <= 10, "{reported:?}");
+    assert_every_frame_decoded(&falcon);
 }
 
 /// The driver's settings with the frame wait these tests were written for (5 ms, the old default): what they
@@ -508,6 +523,7 @@ fn a_reply_later_than_the_tick_is_a_one_tick_old_state_not_a_miss() {
     }
     assert_eq!(device.device().surplus_frames(), 0);
     assert_eq!(device.device().resyncs(), 0);
+    assert_every_frame_decoded(&falcon);
 }
 
 /// Ticks a late double's driver in real time at 1 kHz with zero force until it has sent `until_written`
@@ -562,6 +578,7 @@ fn late_replies_at_a_real_1_khz_pace_carry_honest_ages() {
     let (known, _, _) = run_paced(&falcon, &mut device, &written, until, 0);
     assert!(known > 0, "no state checked in 500 ticks");
     assert_eq!(device.device().surplus_frames(), 0);
+    assert_every_frame_decoded(&falcon);
 }
 
 /// Damage on the line (libnifalcon's frame: 16 bytes, `<` to `>`, value bytes 0x41-0x50,
@@ -609,6 +626,8 @@ fn junk_on_the_line_never_makes_a_state_look_younger() {
         known_after >= 10,
         "only {known_after} states of known age after the line was clean again"
     );
+    // Whatever the damage on the way back, every frame the driver sent the Falcon was whole.
+    assert_every_frame_decoded(&falcon);
 }
 
 /// What the Falcon receives, checked on the double's side against the settings and docs/safety.md (not the
@@ -733,4 +752,5 @@ fn the_force_the_falcon_receives_stays_safe_through_late_and_damaged_answers() {
         supervisor.counters()
     );
     assert!(strong >= 20, "only {strong} commands near the limit");
+    assert_every_frame_decoded(&falcon);
 }

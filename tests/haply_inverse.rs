@@ -6,7 +6,9 @@
 //! every connection (reconnects back off), and a slow-loris handshake while `voxhap serve` stops (the stop
 //! is bounded).
 
-use crate::util::inverse_service::{stamp_of, InverseService, ServiceEvent, DEVICE_ID};
+use crate::util::inverse_service::{
+    forced_tick, settle, stamp_of, tick_stamped_force, InverseService, ServiceEvent, DEVICE_ID,
+};
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -15,19 +17,6 @@ use voxhap::device::safety::SafetyConfig;
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
 use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
 use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
-
-/// Waits (up to 20 s) until the service's log satisfies `done`: the service reads our last messages on its own
-/// thread, after `close` has returned.
-fn settle(service: &InverseService, done: impl Fn(&[[f64; 3]]) -> bool) -> Vec<[f64; 3]> {
-    let start = Instant::now();
-    loop {
-        let forces = service.forces();
-        if done(&forces) || start.elapsed() > Duration::from_secs(20) {
-            return forces;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
 
 fn config(url: &str, events_url: &str) -> HaplyInverseConfig {
     HaplyInverseConfig {
@@ -219,10 +208,12 @@ fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are
         if tick == 200 {
             service.shared.malformed_replies.store(6, Ordering::Release);
         }
+        // 100 N, its tick written into it (the clamp scales it as a whole, so the service's log says which
+        // tick each force came from); every 40th with a NaN in y, to be rejected whole.
         let force = match tick {
             0..20 => DVec3::ZERO,
-            _ if tick % 40 == 3 => DVec3::new(f64::NAN, 0.0, 1.0),
-            _ => DVec3::new(0.0, 0.0, 100.0),
+            _ if tick % 40 == 3 => tick_stamped_force(tick, 100.0).with_y(f64::NAN),
+            _ => tick_stamped_force(tick, 100.0),
         };
         let out = supervisor.tick(TickInput::at(force, tick * 1000));
         events.extend(out.events.iter());
@@ -259,6 +250,21 @@ fn the_safety_pipeline_bounds_what_the_service_receives_and_malformed_frames_are
     }
     assert!(forces.iter().any(|f| f[2] > 1.9), "the clamp is reached");
     assert_eq!(*forces.last().unwrap(), [0.0; 3]);
+    // What the arm was sent for each rejected (NaN) request, from the service's log: nothing of it (no force
+    // carries that tick's stamp, which its finite x and z hold), and the service received force from a later
+    // tick, so the link carried messages past it.
+    for rejected in (20..400u64).filter(|tick| tick % 40 == 3) {
+        assert!(
+            !forces.iter().any(|f| forced_tick(f) == Some(rejected)),
+            "the arm received a force from tick {rejected}'s rejected request: {forces:?}"
+        );
+        assert!(
+            forces
+                .iter()
+                .any(|f| forced_tick(f).is_some_and(|tick| tick > rejected)),
+            "no force after tick {rejected}'s rejected request reached the service"
+        );
+    }
 }
 
 #[test]
@@ -283,11 +289,11 @@ fn a_service_restart_drops_the_link_and_the_driver_reconnects() {
             started_again = true;
         }
         let now_us = tick * 1000;
-        let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 0.3), now_us));
+        let out = supervisor.tick(TickInput::at(tick_stamped_force(tick, 0.3), now_us));
         for event in out.events.iter() {
             match event {
-                SupervisorEvent::Disconnected { .. } => lost_at = Some(now_us),
-                SupervisorEvent::Connected if lost_at.is_some() => back_at = Some(now_us),
+                SupervisorEvent::Disconnected { .. } => lost_at = Some(tick),
+                SupervisorEvent::Connected if lost_at.is_some() => back_at = Some(tick),
                 _ => {}
             }
         }
@@ -311,6 +317,33 @@ fn a_service_restart_drops_the_link_and_the_driver_reconnects() {
     assert_eq!(connects, 2);
     let forces = settle(&service, |f| f.last() == Some(&[0.0; 3]));
     assert_eq!(*forces.last().unwrap(), [0.0; 3]);
+    // What the arm was sent after the drop, from the service's log (forces after its second `Connected`): the
+    // new link begins with zero, and no non-zero force on it was requested before the link was back (the
+    // supervisor ramps in afresh, from the reconnect on).
+    let events = service.events();
+    let second = events
+        .iter()
+        .rposition(|e| *e == ServiceEvent::Connected)
+        .unwrap();
+    let new_link: Vec<[f64; 3]> = events[second..]
+        .iter()
+        .filter_map(|e| match e {
+            ServiceEvent::Force { vector, .. } => Some(*vector),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        new_link.first(),
+        Some(&[0.0; 3]),
+        "the reconnected link's first force"
+    );
+    let back_at = back_at.unwrap();
+    assert!(
+        new_link
+            .iter()
+            .all(|f| forced_tick(f).is_none_or(|tick| tick > back_at)),
+        "a force requested before the link was back (tick {back_at}) reached the arm: {new_link:?}"
+    );
 }
 
 #[test]

@@ -5,7 +5,10 @@
 //! read beside the commanded one; an e-brake on the events channel zeroes the force on the next tick, as a
 //! device fault that says it was an emergency stop.
 
-use crate::util::inverse_service::{InverseService, Transform, REACHABLE_MAX_M, REACHABLE_MIN_M};
+use crate::util::inverse_service::{
+    forced_tick, received_after_tick, settle, tick_stamped_force, InverseService, Transform,
+    REACHABLE_MAX_M, REACHABLE_MIN_M,
+};
 use glam::{DQuat, DVec3};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -35,7 +38,11 @@ fn config(service: &InverseService) -> HaplyInverseConfig {
 /// Haply's documented example pose (docs.haply.co "WebSocket Protocol", step 1), where the double starts.
 const DOCUMENTED_POSE_M: [f64; 3] = [0.0, -0.12, 0.15];
 
-/// The force flows at full strength (the pushes ask for 1 N along z) and the service double's events channel
+/// The pushes' force along z, tick-stamped ([`tick_stamped_force`]): under 1 N as a whole for a million ticks,
+/// so the limits take it as small enough to engage on (`engage_threshold_n`, 1 N by default).
+const PUSH_N: f64 = 0.995;
+
+/// The force flows at full strength (the pushes ask for [`PUSH_N`] along z) and the service double's events channel
 /// has a client: the moment to send a safety event.
 fn force_flows_and_events_connected(service: &InverseService, sent_force_n: DVec3) -> bool {
     sent_force_n.z > 0.99
@@ -184,7 +191,7 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
     let mut after_fault = Vec::new();
     while start.elapsed() < Duration::from_secs(30) {
         tick += 1;
-        let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
+        let out = supervisor.tick(TickInput::at(tick_stamped_force(tick, PUSH_N), tick * 1000));
         let cause = tracker.cause(&out, TickStatus::Certified, false);
         if let Some(at) = faulted_at {
             after_fault.push((
@@ -218,6 +225,14 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
         }
         std::thread::sleep(Duration::from_micros(500));
     }
+    // The service has received messages sent after the tick that read the event (before the stop's zero).
+    let received_before_stop = faulted_at.map_or(0, |at| {
+        received_after_tick(
+            &settle(&service, |f| !received_after_tick(f, at).is_empty()),
+            at,
+        )
+        .len()
+    });
     supervisor.stop();
     assert!(sent, "{safety_type}: the force never flowed");
     assert!(
@@ -244,6 +259,23 @@ fn a_safety_event_zeroes_the_force_as_a_device_fault(safety_type: &str, code: u8
             "{safety_type} {ticks_after}"
         );
     }
+    // What the arm was sent, from the service's own log (each force carries the tick it was requested at):
+    // full force before the event, and after the tick that read it, messages that are all zero.
+    let at = faulted_at.unwrap();
+    let forces = settle(&service, |f| f.last() == Some(&[0.0; 3]));
+    assert!(
+        forces.iter().any(|f| f[2] > 0.99),
+        "{safety_type}: the arm never received full force"
+    );
+    assert!(
+        received_before_stop > 0,
+        "{safety_type}: the arm received nothing after tick {at}, which read the event"
+    );
+    let after = received_after_tick(&forces, at);
+    assert!(
+        after.iter().all(|f| *f == [0.0; 3]),
+        "{safety_type}: after tick {at}, which read the event, the arm received {after:?}"
+    );
 }
 
 #[test]
@@ -307,10 +339,12 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
     let mut phase = Phase::Pushing;
     let (mut tick, mut forced_while_faulted) = (0u64, Vec::new());
     let (mut faults_after_reconnect, mut stall_sent, mut clear) = (0u16, false, None);
+    // The ticks that read the stall and that asked for the clear.
+    let (mut stalled_at, mut cleared_at) = (0u64, 0u64);
     let start = Instant::now();
     while start.elapsed() < Duration::from_secs(60) {
         tick += 1;
-        let out = supervisor.tick(TickInput::at(DVec3::new(0.0, 0.0, 1.0), tick * 1000));
+        let out = supervisor.tick(TickInput::at(tick_stamped_force(tick, PUSH_N), tick * 1000));
         let faulted = out.events.iter().any(|e| match e {
             SupervisorEvent::Device(DeviceEvent::Fault { code, .. }) => code == FAULT_MOTOR_STALL,
             _ => false,
@@ -329,6 +363,7 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
                     stall_sent = true;
                 }
                 if faulted {
+                    stalled_at = tick;
                     service.start_again();
                     Phase::Stalled
                 } else {
@@ -340,6 +375,7 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
             Phase::Reconnected(ticks) if ticks >= 300 => {
                 faults_after_reconnect = out.active_faults;
                 clear = Some(supervisor.request_clear_fault());
+                cleared_at = tick;
                 Phase::Cleared
             }
             Phase::Reconnected(ticks) => Phase::Reconnected(ticks + 1),
@@ -368,6 +404,24 @@ fn a_safety_event_stays_latched_through_a_dropped_link_until_the_operator_clears
         clear,
         Some(voxhap::device::supervisor::ClearFaultOutcome::Requested),
         "the operator's clear"
+    );
+    // What the arm was sent, from the service's own log (each force carries the tick it was requested at):
+    // between the last force requested up to the stall's tick and the first requested after the clear, the
+    // arm received messages (both links' zeros), and all of them zero.
+    let forces = settle(&service, |f| f.last() == Some(&[0.0; 3]));
+    let after_stall = received_after_tick(&forces, stalled_at);
+    let until_clear = after_stall
+        .iter()
+        .position(|f| forced_tick(f).is_some_and(|tick| tick > cleared_at))
+        .unwrap_or(after_stall.len());
+    let latched = &after_stall[..until_clear];
+    assert!(
+        !latched.is_empty(),
+        "the arm received nothing between the stall (tick {stalled_at}) and the clear (tick {cleared_at})"
+    );
+    assert!(
+        latched.iter().all(|f| *f == [0.0; 3]),
+        "between the stall (tick {stalled_at}) and the clear (tick {cleared_at}) the arm received {latched:?}"
     );
 }
 

@@ -29,6 +29,14 @@
 //! (include/falcon/firmware/FalconFirmwareNovintSDK.h:29-34, :63-80); the junk here never makes one. The double
 //! logs, for every command, the newest answer that had reached the host whole before the command arrived
 //! ([`Applied::newest_delivered`]): no state the host had could be newer.
+//!
+//! What the double could not decode, counted ([`FalconShared::undecodable`]): the host's frames are framed as
+//! libnifalcon frames them (`formatInput`, src/firmware/FalconFirmwareNovintSDK.cpp:88-112 at libnifalcon commit
+//! 28347c2: `<`, bytes 1-14 each a nibble plus 0x41, `>`), and parsed as libnifalcon parses the Falcon's
+//! (`formatOutput`, :39-86: bytes up to a `<` are skipped, the 16 bytes from it are a frame only if the 16th is
+//! `>`, else "Clearing malformed packet!", :79-83), with the byte range of
+//! include/falcon/firmware/FalconFirmwareNovintSDK.h:33-34 (0x41 to 0x50) checked too. Each run of bytes skipped
+//! before a `<` and each 16 bytes from a `<` that are not a frame count once. The driver must never send one.
 
 use super::pty::PtyDevice;
 use std::collections::{BTreeMap, VecDeque};
@@ -159,6 +167,9 @@ pub struct FalconShared {
     pub extra_delay_us: AtomicU64,
     /// The newest command whose answer reached the host whole (-1: none yet).
     pub newest_delivered: AtomicI64,
+    /// Host frames the double could not decode (module docs): runs of bytes outside any frame, and 16 bytes
+    /// from a `<` with no `>` at the end or a byte outside 0x41-0x50.
+    pub undecodable: AtomicU64,
     /// Marks asked for ([`FalconDevice::commands_settled`]) and marks read back.
     marks_asked: AtomicU64,
     marks_read: AtomicU64,
@@ -239,9 +250,15 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> (Vec<u8>, Optio
     let mut newest_whole = None;
     loop {
         let Some(start) = pending.iter().position(|&b| b == b'<') else {
+            if !pending.is_empty() {
+                shared.undecodable.fetch_add(1, Ordering::AcqRel);
+            }
             pending.clear();
             break;
         };
+        if start > 0 {
+            shared.undecodable.fetch_add(1, Ordering::AcqRel);
+        }
         pending.drain(..start);
         if pending.len() < 16 {
             break;
@@ -251,51 +268,53 @@ fn serve_frames(pending: &mut Vec<u8>, shared: &FalconShared) -> (Vec<u8>, Optio
             shared.marks_read.fetch_add(1, Ordering::AcqRel);
             continue;
         }
-        if let Some(command) = decode_host_frame(&frame) {
-            let number = {
-                let mut commands = shared.commands.lock().unwrap();
-                commands.push(command);
-                commands.len() as i64 - 1
-            };
-            let truth = *shared.encoders.lock().unwrap();
-            let homing = *shared.homing.lock().unwrap();
-            shared.applied.lock().unwrap().push(Applied {
-                motor: command.motor,
-                true_encoders: truth,
-                number,
-                newest_delivered: shared.newest_delivered.load(Ordering::Acquire),
-                homing,
-            });
-            let reported = if shared.numbered.load(Ordering::Acquire) {
-                let n = number as i16;
-                [n, -n, 2 * n]
-            } else {
-                shared.glitches.lock().unwrap().pop_front().unwrap_or(truth)
-            };
-            let answer = device_frame(reported, homing, *shared.grip.lock().unwrap());
-            let junk = shared.junk.lock().unwrap().remove(&number);
-            for _ in 0..=shared.extra_answers.load(Ordering::Acquire) {
-                match &junk {
-                    None => out.extend_from_slice(&answer),
-                    Some(Junk::Before(bytes)) => {
-                        out.extend_from_slice(bytes);
-                        out.extend_from_slice(&answer);
-                    }
-                    Some(Junk::Garbled) => {
-                        out.extend_from_slice(&answer[..15]);
-                        out.push(0x00);
-                    }
-                    Some(Junk::Inside(bytes)) => {
-                        out.extend_from_slice(&answer[..7]);
-                        out.extend_from_slice(bytes);
-                        out.extend_from_slice(&answer[7..]);
-                    }
-                    Some(Junk::Lost) => {}
+        let Some(command) = decode_host_frame(&frame) else {
+            shared.undecodable.fetch_add(1, Ordering::AcqRel);
+            continue;
+        };
+        let number = {
+            let mut commands = shared.commands.lock().unwrap();
+            commands.push(command);
+            commands.len() as i64 - 1
+        };
+        let truth = *shared.encoders.lock().unwrap();
+        let homing = *shared.homing.lock().unwrap();
+        shared.applied.lock().unwrap().push(Applied {
+            motor: command.motor,
+            true_encoders: truth,
+            number,
+            newest_delivered: shared.newest_delivered.load(Ordering::Acquire),
+            homing,
+        });
+        let reported = if shared.numbered.load(Ordering::Acquire) {
+            let n = number as i16;
+            [n, -n, 2 * n]
+        } else {
+            shared.glitches.lock().unwrap().pop_front().unwrap_or(truth)
+        };
+        let answer = device_frame(reported, homing, *shared.grip.lock().unwrap());
+        let junk = shared.junk.lock().unwrap().remove(&number);
+        for _ in 0..=shared.extra_answers.load(Ordering::Acquire) {
+            match &junk {
+                None => out.extend_from_slice(&answer),
+                Some(Junk::Before(bytes)) => {
+                    out.extend_from_slice(bytes);
+                    out.extend_from_slice(&answer);
                 }
+                Some(Junk::Garbled) => {
+                    out.extend_from_slice(&answer[..15]);
+                    out.push(0x00);
+                }
+                Some(Junk::Inside(bytes)) => {
+                    out.extend_from_slice(&answer[..7]);
+                    out.extend_from_slice(bytes);
+                    out.extend_from_slice(&answer[7..]);
+                }
+                Some(Junk::Lost) => {}
             }
-            if matches!(junk, None | Some(Junk::Before(_))) {
-                newest_whole = Some(number);
-            }
+        }
+        if matches!(junk, None | Some(Junk::Before(_))) {
+            newest_whole = Some(number);
         }
     }
     (out, newest_whole)
@@ -410,6 +429,12 @@ impl FalconDevice {
 
     pub fn commands(&self) -> Vec<FalconCommand> {
         self.shared.commands.lock().unwrap().clone()
+    }
+
+    /// Host frames the double could not decode so far ([`FalconShared::undecodable`]); read it after
+    /// [`FalconDevice::commands_settled`], when the double has read every frame the host wrote.
+    pub fn undecodable_frames(&self) -> u64 {
+        self.shared.undecodable.load(Ordering::Acquire)
     }
 
     /// Every command, once the double has read every frame the host wrote before this call (module docs):

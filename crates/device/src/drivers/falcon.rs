@@ -179,7 +179,8 @@ fn read_exact_within<T: ByteTransport + ?Sized>(
     Ok(filled)
 }
 
-fn upload_error(what: &'static str) -> DeviceError {
+/// A [`DeviceError::Protocol`]: the Falcon (or its bootloader) did not answer as its protocol says.
+fn protocol_error(what: &'static str) -> DeviceError {
     DeviceError::Protocol { what }
 }
 
@@ -214,7 +215,7 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
         }
     }
     if !answered {
-        return Err(upload_error(
+        return Err(protocol_error(
             "the Falcon's bootloader did not answer the check (0a 43 0d -> 0a 44 2c 0d); \
              unplug the Falcon's USB and power, plug them in again, and retry",
         ));
@@ -224,7 +225,7 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
     port.write_all(b"A")?;
     let mut echo = [0u8; 1];
     if read_exact_within(port, &mut echo, Duration::from_millis(1000))? != 1 || echo[0] != b'A' {
-        return Err(upload_error(
+        return Err(protocol_error(
             "the Falcon's bootloader did not echo 'A' at 142857 baud",
         ));
     }
@@ -233,12 +234,12 @@ pub fn upload_firmware<P: FalconPort + ?Sized>(
         port.write_all(chunk)?;
         let got = read_exact_within(port, &mut back[..chunk.len()], Duration::from_millis(1000))?;
         if got != chunk.len() {
-            return Err(upload_error(
+            return Err(protocol_error(
                 "the Falcon stopped echoing the firmware during the upload",
             ));
         }
         if back[..got] != *chunk {
-            return Err(upload_error(
+            return Err(protocol_error(
                 "the Falcon echoed different firmware bytes (checksum mismatch)",
             ));
         }
@@ -485,7 +486,7 @@ impl<P: FalconPort> Falcon<P> {
                 break;
             }
             if now > give_up {
-                return Err(upload_error(
+                return Err(protocol_error(
                     "the Falcon kept sending after its first frame (a port that is not a Falcon, or a \
                      Falcon running other firmware)",
                 ));
@@ -503,6 +504,35 @@ impl<P: FalconPort> Falcon<P> {
         self.frames.clear();
         self.in_flight.clear();
         Ok(())
+    }
+
+    /// The frame this tick's state comes from, and whether its age is unknown: the frame `read` this tick,
+    /// else the one held from before this tick's command, else (resynchronising, or just done) the newest frame
+    /// again, so the link stays up while it is quiet; else a timeout.
+    fn tick_reply(
+        &mut self,
+        read: Option<FalconReply>,
+        polled_at: Instant,
+    ) -> Result<(FalconReply, bool), DeviceError> {
+        // A frame read, or held, while the count was in doubt has no known age, even if the doubt ends now.
+        let unknown_age = self.in_flight.resyncing();
+        if let Some(reply) = read {
+            self.in_flight.reply_read();
+            self.held = None;
+            return Ok((reply, unknown_age));
+        }
+        self.nothing_waiting(polled_at);
+        let unknown_age = unknown_age || self.in_flight.resyncing();
+        if let Some(reply) = self.held.take() {
+            return Ok((reply, unknown_age));
+        }
+        match self.last_reply {
+            Some(reply) if unknown_age => Ok((reply, unknown_age)),
+            _ => Err(DeviceError::Timeout {
+                waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
+                waiting_for: "a Falcon frame",
+            }),
+        }
     }
 
     /// Up to ten zero-torque exchanges, each waiting 20 ms for its frame: true once one is answered. The
@@ -657,38 +687,13 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         };
         let polled_at = Instant::now();
         let read = self.read_frame(wait)?;
-        // A frame read, or held, while the count was in doubt has no known age, even if the doubt ends now.
-        let mut unknown_age = self.in_flight.resyncing();
-        let reply = match read {
-            Some(reply) => {
-                self.in_flight.reply_read();
-                self.held = None;
-                reply
-            }
-            None => {
-                self.nothing_waiting(polled_at);
-                unknown_age |= self.in_flight.resyncing();
-                match (self.held.take(), self.last_reply) {
-                    (Some(reply), _) => reply,
-                    // Resynchronising (or just done): the newest frame again, its age unknown, so the link
-                    // stays up while it is quiet.
-                    (None, Some(reply)) if unknown_age => reply,
-                    _ => {
-                        return Err(DeviceError::Timeout {
-                            waited_us: u64::try_from(self.config.reply_timeout.as_micros())
-                                .unwrap_or(u64::MAX),
-                            waiting_for: "a Falcon frame",
-                        })
-                    }
-                }
-            }
-        };
+        let (reply, unknown_age) = self.tick_reply(read, polled_at)?;
         if self
             .in_flight
             .resync_began()
             .is_some_and(|began| polled_at.saturating_duration_since(began) > RESYNC_GIVE_UP)
         {
-            return Err(upload_error(
+            return Err(protocol_error(
                 "the Falcon's frames stayed corrupt (bytes that are not 16-byte <...> frames kept coming)",
             ));
         }

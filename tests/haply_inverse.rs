@@ -6,9 +6,8 @@
 //! every connection (reconnects back off), and a slow-loris handshake while `voxhap serve` stops (the stop
 //! is bounded).
 
-use crate::util::inverse_service::{
-    forced_tick, settle, stamp_of, tick_stamped_force, InverseService, ServiceEvent, DEVICE_ID,
-};
+use crate::util::inverse_service::{stamp_of, InverseService, ServiceEvent, DEVICE_ID};
+use crate::util::inverse_ticks::{forced_tick, settle, tick_stamped_force};
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};

@@ -5,10 +5,8 @@
 //! read beside the commanded one; an e-brake on the events channel zeroes the force on the next tick, as a
 //! device fault that says it was an emergency stop.
 
-use crate::util::inverse_service::{
-    forced_tick, received_after_tick, settle, tick_stamped_force, InverseService, Transform,
-    REACHABLE_MAX_M, REACHABLE_MIN_M,
-};
+use crate::util::inverse_service::{InverseService, Transform, REACHABLE_MAX_M, REACHABLE_MIN_M};
+use crate::util::inverse_ticks::{forced_tick, received_after_tick, settle, tick_stamped_force};
 use glam::{DQuat, DVec3};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};

@@ -46,6 +46,7 @@ pub mod falcon_firmware;
 pub mod haply_board;
 pub mod igtl_client;
 pub mod inverse_service;
+pub mod inverse_ticks;
 pub mod late_device;
 pub mod mock_process;
 pub mod nifalcon;

@@ -549,9 +549,13 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
         let start = Instant::now();
         while !done() {
             if child.try_wait().unwrap().is_some() || start.elapsed() > Duration::from_secs(60) {
+                let exited = child.try_wait().unwrap();
                 let _ = child.kill();
                 let _ = child.wait();
-                panic!("serve exited or 60 s passed before {what}");
+                panic!(
+                    "serve exited ({exited:?}) or 60 s passed before {what}; its output:\n{}",
+                    output(child)
+                );
             }
             std::thread::sleep(Duration::from_millis(10));
         }

@@ -76,8 +76,9 @@ pub use super::falcon_kinematics::{
     FalconGeometry, LegAngles,
 };
 use super::in_flight::{InFlight, NextCommand, UNKNOWN_AGE};
+use super::reply_book::{reply_book_methods, ReplyBook};
 use crate::transport::{ftdi_latency, ByteTransport, SerialTransport};
-use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
+use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::DVec3;
 use std::time::{Duration, Instant};
 
@@ -294,22 +295,18 @@ pub struct Falcon<P> {
     info: DeviceInfo,
     /// The forward kinematics' newest estimate (its next guess).
     position_m: DVec3,
-    /// The newest position the host accepted: the only one force is converted at.
-    accepted_m: Option<DVec3>,
-    /// The newest frame's position, until the host's verdict on it.
-    candidate_m: Option<DVec3>,
+    /// The positions (the newest frame's until the host's verdict, the newest accepted: the only one force is
+    /// converted at), surplus frames, and the age (ticks) of the state handed out last ([`InFlight`]: the
+    /// commands sent after the one its frame answers, one more after a frame nobody asked for).
+    book: ReplyBook<DVec3, u32>,
     last_reply: Option<FalconReply>,
     /// The receive side's protocol state: bytes in, frames out (no I/O).
     frames: FrameAssembler,
     /// The newest reply the drain before a command found (it answers an earlier command): the state handed
     /// out when this tick's own reply has not come.
     held: Option<FalconReply>,
-    surplus: SurplusCount,
-    event: Option<DeviceEvent>,
     /// The commands whose replies are still to come (the replies' ages).
     in_flight: InFlight,
-    /// The age (ticks) of the state handed out last.
-    state_age: u32,
     /// Malformed frames the assembler had dropped when last looked at.
     malformed_seen: u64,
     /// Bytes the assembler had taken when last looked at.
@@ -342,29 +339,25 @@ impl<P: FalconPort> Falcon<P> {
             info,
             // libnifalcon's first guess (FalconKinematicStamper.cpp:20).
             position_m: DVec3::new(0.0, 0.0, 0.08),
-            accepted_m: None,
-            candidate_m: None,
+            book: ReplyBook::new(),
             last_reply: None,
             frames: FrameAssembler::new(),
             held: None,
-            surplus: SurplusCount::default(),
-            event: None,
             in_flight: InFlight::new(LOST_REPLY_AFTER, RESYNC_AGE_TICKS),
             malformed_seen: 0,
             received_seen: 0,
-            state_age: 0,
             torque_on: false,
         }
     }
 
     /// Frames the Falcon sent that no command asked for, dropped.
     pub fn surplus_frames(&self) -> u64 {
-        self.surplus.total()
+        self.book.surplus_total()
     }
 
     /// The position torques are computed at: the newest the host accepted (`None` before the first).
     pub fn conversion_position(&self) -> Option<DVec3> {
-        self.accepted_m
+        self.book.accepted()
     }
 
     /// Takes every frame already waiting before a command (bounded, so a flood cannot hold the tick): a
@@ -393,9 +386,7 @@ impl<P: FalconPort> Falcon<P> {
             self.in_flight.malformed(Instant::now());
             surplus += 1;
         }
-        if let Some(event) = self.surplus.add(surplus) {
-            self.event = Some(event);
-        }
+        self.book.count_surplus(surplus);
         Ok(())
     }
 
@@ -545,7 +536,7 @@ impl<P: FalconPort> Falcon<P> {
                 // An earlier exchange's reply may still come: count from a quiet link.
                 self.settle()?;
                 self.held = None;
-                self.state_age = 0;
+                self.book.age = 0;
                 return Ok(true);
             }
         }
@@ -569,10 +560,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         self.port.purge()?;
         self.port.check_latency_timer()?;
         self.frames.clear();
-        // Surplus counts from this open (the supervisor sums over links).
-        self.surplus = SurplusCount::default();
-        self.accepted_m = None;
-        self.candidate_m = None;
+        self.book.opened();
         // libnifalcon's isFirmwareLoaded tries many exchanges (FalconFirmware.cpp:169-190); a few suffice here.
         if self.first_exchanges()? {
             return Ok(());
@@ -613,7 +601,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
-        let motor = match (self.in_flight.next_command(), self.accepted_m) {
+        let motor = match (self.in_flight.next_command(), self.book.accepted()) {
             // Resynchronising: one zero-torque frame, then a quiet link until the count is known again.
             (NextCommand::Nothing, _) => return Ok(()),
             (NextCommand::Force, Some(position)) if self.is_homed() => {
@@ -627,30 +615,15 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     }
 
     fn input_checked(&mut self, accepted: bool) {
-        match self.candidate_m.take() {
-            Some(position) if accepted => self.accepted_m = Some(position),
+        if !self.book.input_checked(accepted) {
             // A rejected frame may have led the iteration astray: restart it from the accepted position.
-            _ => {
-                if let Some(position) = self.accepted_m {
-                    self.position_m = position;
-                }
+            if let Some(position) = self.book.accepted() {
+                self.position_m = position;
             }
         }
     }
 
-    /// How old the frame is ([`InFlight`]): the commands sent after the one it answers, one more after a frame
-    /// nobody asked for.
-    fn state_age_ticks(&self) -> u32 {
-        self.state_age
-    }
-
-    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
-        Some(crate::latency::FALCON)
-    }
-
-    fn take_event(&mut self) -> Option<DeviceEvent> {
-        self.event.take()
-    }
+    reply_book_methods!(crate::latency::FALCON, input_checked written by the driver);
 
     /// The wrapper's zero torque went out: read the frames still to come, up to the one that answers it (at
     /// most the link's worst latency), so the Falcon has taken it before the port closes.
@@ -676,7 +649,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        self.candidate_m = None;
+        self.book.reading_begins();
         // With a reply held from before this tick's command, only what is already waiting is newer (this
         // command's own reply comes a latency timer and a USB frame later, 1-2 ms); without one, the reply to
         // the previous command may still come within the wait. Resynchronising, nothing was sent to wait for.
@@ -704,13 +677,13 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
             // Homing resets the encoders' coordinate system: start the Newton iteration afresh, and convert no
             // force until a position in the new coordinates is accepted.
             self.position_m = DVec3::new(0.0, 0.0, 0.08);
-            self.accepted_m = None;
+            self.book.forget_accepted();
         }
         // Until homed, a position is in coordinates homing will reset, and no force may come from it
         // (FalconFirmware.h:52-55): its age is unknown, so the supervisor holds the force at zero, and enables
         // (from zero, through its ramp-in and slew limit) only on homed states. Otherwise the driver's own
         // zero would hide a force the supervisor had ramped up, sent as a step the moment the Falcon homes.
-        self.state_age = if unknown_age || !self.is_homed() {
+        self.book.age = if unknown_age || !self.is_homed() {
             UNKNOWN_AGE
         } else {
             age
@@ -720,7 +693,7 @@ impl<P: FalconPort> HapticDevice for Falcon<P> {
         let (position, converged) = geometry.forward_kinematics(theta, self.position_m);
         if converged {
             self.position_m = position;
-            self.candidate_m = Some(position);
+            self.book.propose(position);
         }
         Ok(DeviceState {
             position_m: self.position_m,

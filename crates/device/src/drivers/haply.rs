@@ -34,8 +34,9 @@
 
 use super::assemble::FixedAssembler;
 use super::reply_age::ReplyAge;
+use super::reply_book::{reply_book_methods, ReplyBook};
 use crate::transport::ByteTransport;
-use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
+use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::DVec3;
 use std::time::Duration;
 
@@ -235,18 +236,14 @@ pub struct Haply2Diy<T> {
     transport: T,
     config: Haply2DiyConfig,
     info: DeviceInfo,
-    /// Jacobian of the newest reply the host accepted: the only one force is converted with.
-    jacobian: Option<[[f64; 2]; 2]>,
-    /// Jacobian of the newest reply, until the host's verdict on it.
-    candidate: Option<[[f64; 2]; 2]>,
+    /// The Jacobians (the newest reply's until the host's verdict, the newest accepted: the only one force is
+    /// converted with), surplus replies, and how old the reply handed out may be ([`ReplyAge`]: more than 0
+    /// after missed replies or bytes nobody asked for).
+    book: ReplyBook<[[f64; 2]; 2], ReplyAge>,
     reply_timeout: Duration,
     /// Set after a timeout or a shifted reply: the input holds (or may soon hold) the rest of an old reply.
     resync_needed: bool,
     resyncs: u64,
-    surplus: SurplusCount,
-    event: Option<DeviceEvent>,
-    /// How old the reply handed out may be.
-    age: ReplyAge,
     /// The receive core: bytes in, 9-byte replies out (no I/O).
     replies: FixedAssembler<9>,
 }
@@ -269,14 +266,10 @@ impl<T: ByteTransport> Haply2Diy<T> {
             transport,
             config,
             info,
-            jacobian: None,
-            candidate: None,
+            book: ReplyBook::new(),
             reply_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             resync_needed: false,
             resyncs: 0,
-            surplus: SurplusCount::default(),
-            event: None,
-            age: ReplyAge::default(),
             replies: FixedAssembler::new(),
         }
     }
@@ -291,7 +284,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
 
     /// Replies the board sent that no command asked for (counted in whole replies), dropped.
     pub fn surplus_replies(&self) -> u64 {
-        self.surplus.total()
+        self.book.surplus_total()
     }
 
     /// Drops whatever is waiting before a command. Without an overdue reply, those bytes were not asked for.
@@ -303,7 +296,7 @@ impl<T: ByteTransport> Haply2Diy<T> {
             self.replies.clear();
             self.resync_needed = false;
             self.resyncs += 1;
-            self.age.late_reply_dropped();
+            self.book.age.late_reply_dropped();
             return Ok(());
         }
         let mut scratch = [0u8; 64];
@@ -317,10 +310,8 @@ impl<T: ByteTransport> Haply2Diy<T> {
             bytes += n as u64;
         }
         if bytes > 0 {
-            self.age.surplus_dropped();
-            if let Some(event) = self.surplus.add(bytes.div_ceil(9)) {
-                self.event = Some(event);
-            }
+            self.book.age.surplus_dropped();
+            self.book.count_surplus(bytes.div_ceil(9));
         }
         Ok(())
     }
@@ -367,11 +358,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         self.transport.discard_input()?;
         self.replies.clear();
         self.resync_needed = false;
-        // Surplus counts from this open (the supervisor sums over links).
-        self.surplus = SurplusCount::default();
-        self.age = ReplyAge::default();
-        self.jacobian = None;
-        self.candidate = None;
+        self.book.opened();
         self.transport
             .write_all(&Haply2DiyConfig::reset_command())?;
         self.transport.write_all(&self.config.setup_command())
@@ -382,8 +369,8 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         // Only a pose the host accepted converts force; none yet means zero torque.
-        self.age.command_sent();
-        let Some([[j11, j12], [j21, j22]]) = self.jacobian else {
+        self.book.age.command_sent();
+        let Some([[j11, j12], [j21, j22]]) = self.book.accepted() else {
             return self
                 .transport
                 .write_all(&self.config.torque_command([0.0, 0.0]));
@@ -403,9 +390,9 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        self.candidate = None;
+        self.book.reading_begins();
         let reply = self.read_reply()?;
-        self.age.reply_read();
+        self.book.age.reply_read();
         let angles = self.config.parse_reply(&reply).inspect_err(|_| {
             // A wrong id or a non-finite angle: most likely a reply shifted by lost or extra bytes.
             self.resync_needed = true;
@@ -415,7 +402,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
                 what: "Haply angles put the pantograph links out of reach",
             });
         };
-        self.candidate = Some(jacobian);
+        self.book.propose(jacobian);
         Ok(DeviceState::at_rest(DVec3::new(
             position[0],
             position[1],
@@ -423,25 +410,7 @@ impl<T: ByteTransport> HapticDevice for Haply2Diy<T> {
         )))
     }
 
-    fn input_checked(&mut self, accepted: bool) {
-        match self.candidate.take() {
-            Some(jacobian) if accepted => self.jacobian = Some(jacobian),
-            _ => {}
-        }
-    }
-
-    /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or bytes nobody asked for.
-    fn state_age_ticks(&self) -> u32 {
-        self.age.age()
-    }
-
-    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
-        Some(crate::latency::HAPLY_2DIY)
-    }
-
-    fn take_event(&mut self) -> Option<DeviceEvent> {
-        self.event.take()
-    }
+    reply_book_methods!(crate::latency::HAPLY_2DIY);
 
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The board keeps its last torque: the wrapper's zero force went out; drain its angle reply.

@@ -21,6 +21,8 @@
 //! - [`haply`]: Haply 2DIY over USB serial (pantograph, planar);
 //! - [`in_flight`]: the unanswered commands of a link whose replies may come ticks later (the Falcon's ages);
 //! - [`reply_age`]: how old a request/reply driver's state may be, for devices without sequence numbers;
+//! - [`reply_book`]: what the serial drivers keep for the host (the pose the host accepted, the state's age,
+//!   the surplus count and its events), with the trait methods it answers written once;
 //! - [`report_stream`]: the receive core of a device that streams reports (the newest kept, with its age);
 //! - [`haply_inverse`]: Haply Inverse3 through the Haply Inverse Service (JSON over WebSocket, I/O thread);
 
@@ -36,6 +38,7 @@ pub mod protocol;
 pub mod protocol_link;
 pub mod protocol_rate;
 pub mod reply_age;
+pub mod reply_book;
 pub mod report_stream;
 pub mod woodenhaptics;
 pub mod woodenhaptics_constants;

@@ -54,9 +54,10 @@
 
 use super::assemble::{Line, LineAssembler};
 use super::reply_age::ReplyAge;
+use super::reply_book::{reply_book_methods, ReplyBook};
 use super::woodenhaptics_constants::WoodenHapticsConstants;
 use crate::transport::ByteTransport;
-use crate::{DeviceError, DeviceEvent, DeviceInfo, DeviceState, HapticDevice, SurplusCount};
+use crate::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use glam::DVec3;
 use std::io::Write as _;
 use std::time::Duration;
@@ -230,18 +231,15 @@ pub struct WoodenHapticsSerial<T> {
     info: DeviceInfo,
     model: Option<WoodyModel>,
     kinematics: WoodyKinematics,
-    /// Joint angles of the newest report the host accepted: the only pose force is converted with.
-    theta: Option<[f64; 3]>,
-    /// Joint angles of the newest report, until the host's verdict on it.
-    candidate: Option<[f64; 3]>,
+    /// The joint angles (the newest report's until the host's verdict, the newest accepted: the only pose
+    /// force is converted with), surplus lines, and how old the reply handed out may be ([`ReplyAge`]: more
+    /// than 0 after missed replies or lines nobody asked for).
+    book: ReplyBook<[f64; 3], ReplyAge>,
     /// The receive core: bytes in, report lines out (no I/O).
     lines: LineAssembler<256>,
     last_report: Option<WoodyReport>,
     awaiting_reply: bool,
     late_replies: u64,
-    surplus: SurplusCount,
-    event: Option<DeviceEvent>,
-    age: ReplyAge,
 }
 
 impl<T: ByteTransport> WoodenHapticsSerial<T> {
@@ -256,21 +254,17 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             info: info_for(None, &kinematics),
             model: None,
             kinematics,
-            theta: None,
-            candidate: None,
+            book: ReplyBook::new(),
             lines: LineAssembler::new(),
             last_report: None,
             awaiting_reply: false,
             late_replies: 0,
-            surplus: SurplusCount::default(),
-            event: None,
-            age: ReplyAge::default(),
         }
     }
 
     /// Lines the device sent that no command asked for (second answers, floods), dropped.
     pub fn surplus_replies(&self) -> u64 {
-        self.surplus.total()
+        self.book.surplus_total()
     }
 
     /// Replies that came after their read had timed out, dropped before the next command.
@@ -280,16 +274,14 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
 
     /// Joint angles force is converted with: the newest report the host accepted (`None` before the first).
     pub fn conversion_angles(&self) -> Option<[f64; 3]> {
-        self.theta
+        self.book.accepted()
     }
 
     fn count_surplus(&mut self, n: u64) {
         if n > 0 {
-            self.age.surplus_dropped();
+            self.book.age.surplus_dropped();
         }
-        if let Some(event) = self.surplus.add(n) {
-            self.event = Some(event);
-        }
+        self.book.count_surplus(n);
     }
 
     /// Drops every complete line already waiting, without blocking: a reply whose read timed out (late), or
@@ -312,7 +304,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
             lines += 1;
             if std::mem::take(&mut self.awaiting_reply) {
                 self.late_replies += 1;
-                self.age.late_reply_dropped();
+                self.book.age.late_reply_dropped();
             } else {
                 surplus += 1;
             }
@@ -386,7 +378,7 @@ impl<T: ByteTransport> WoodenHapticsSerial<T> {
                 what: "WoodenHaptics encoders put the linkage where it cannot close",
             });
         };
-        self.candidate = Some(theta);
+        self.book.propose(theta);
         self.last_report = Some(report);
         Ok(DeviceState::at_rest(position_m))
     }
@@ -430,12 +422,8 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         self.transport.discard_input()?;
         self.lines.clear();
         self.model = None;
-        // Surplus counts from this open (the supervisor sums over links).
-        self.surplus = SurplusCount::default();
-        self.theta = None;
-        self.candidate = None;
+        self.book.opened();
         self.awaiting_reply = false;
-        self.age = ReplyAge::default();
         let mut last_error = None;
         for _ in 0..self.config.hello_attempts.max(1) {
             self.send_currents([0; 3])?;
@@ -459,7 +447,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         DeviceError::check_finite_force(force_n.to_array())?;
         self.drain_waiting()?;
         // Only a pose the host accepted converts force; none yet means zero.
-        let currents = match self.theta {
+        let currents = match self.book.accepted() {
             Some(theta) => self
                 .kinematics
                 .currents_ma(theta, force_n, self.config.max_current_ma),
@@ -467,14 +455,14 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         };
         self.send_currents(currents)?;
         self.awaiting_reply = true;
-        self.age.command_sent();
+        self.book.age.command_sent();
         Ok(())
     }
 
     /// The reply to the last command, or the newest good line already waiting behind it (those extra lines are
     /// counted as surplus).
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        self.candidate = None;
+        self.book.reading_begins();
         let Some(report) = self.read_line(self.config.reply_timeout)? else {
             return Err(DeviceError::Timeout {
                 waited_us: u64::try_from(self.config.reply_timeout.as_micros()).unwrap_or(u64::MAX),
@@ -482,7 +470,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
             });
         };
         self.awaiting_reply = false;
-        self.age.reply_read();
+        self.book.age.reply_read();
         let mut state = self.accept(report)?;
         // Lines already waiting behind the reply were not asked for; the newest good one is the freshest pose.
         let mut surplus = 0;
@@ -503,25 +491,7 @@ impl<T: ByteTransport> HapticDevice for WoodenHapticsSerial<T> {
         Ok(state)
     }
 
-    fn input_checked(&mut self, accepted: bool) {
-        match self.candidate.take() {
-            Some(theta) if accepted => self.theta = Some(theta),
-            _ => {}
-        }
-    }
-
-    /// The oldest the reply may be ([`ReplyAge`]): more than 0 after missed replies or lines nobody asked for.
-    fn state_age_ticks(&self) -> u32 {
-        self.age.age()
-    }
-
-    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
-        Some(crate::latency::WOODENHAPTICS_SERIAL)
-    }
-
-    fn take_event(&mut self) -> Option<DeviceEvent> {
-        self.event.take()
-    }
+    reply_book_methods!(crate::latency::WOODENHAPTICS_SERIAL);
 
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The wrapper's zero current went out; read its reply so the next session starts clean. The firmware's

@@ -9,7 +9,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use std::hint::black_box;
-use voxhap::volume::procedural;
+use voxhap::volume::{procedural, Grid};
 
 const DIMS: [usize; 3] = [256; 3];
 const HALF_EXTENT_M: f64 = 0.05;
@@ -48,7 +48,8 @@ fn bench(c: &mut Criterion) {
 }
 
 fn bench_pattern(c: &mut Criterion, pattern: &str, points: &[DVec3]) {
-    let scalar = procedural::sphere(0.03, DIMS, HALF_EXTENT_M).expect("sphere");
+    let grid = || Grid::centred_cube(DIMS, HALF_EXTENT_M).expect("grid");
+    let scalar = procedural::sphere(0.03, grid()).expect("sphere");
     let mut group = c.benchmark_group(format!("scalar_256_{pattern}"));
     let mut n = 0;
     let mut next = || {
@@ -65,7 +66,7 @@ fn bench_pattern(c: &mut Criterion, pattern: &str, points: &[DVec3]) {
     group.finish();
     drop(scalar);
 
-    let vector = procedural::rankine_vortex(0.01, 0.01, DIMS, HALF_EXTENT_M).expect("rankine");
+    let vector = procedural::rankine_vortex(0.01, 0.01, grid()).expect("rankine");
     let mut group = c.benchmark_group(format!("vector_256_{pattern}"));
     group.bench_function("sample", |b| b.iter(|| vector.sample(black_box(next()))));
     group.bench_function("jacobian", |b| {

@@ -67,9 +67,10 @@ fn solving_allocates_nothing_after_warm_up() {
 /// Volume sampling runs every tick on the servo thread: it must not allocate either.
 #[test]
 fn volume_sampling_allocates_nothing() {
-    use voxhap::volume::procedural;
-    let density = procedural::sphere(0.03, [48, 48, 48], 0.05).unwrap();
-    let flow = procedural::rankine_vortex(0.01, 0.05, [32, 32, 32], 0.05).unwrap();
+    use voxhap::volume::{procedural, Grid};
+    let density = procedural::sphere(0.03, Grid::centred_cube([48; 3], 0.05).unwrap()).unwrap();
+    let flow =
+        procedural::rankine_vortex(0.01, 0.05, Grid::centred_cube([32; 3], 0.05).unwrap()).unwrap();
     let mut acc = 0.0;
     let ((), events) = count_allocations(|| {
         for i in 0..2000 {

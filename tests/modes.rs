@@ -45,7 +45,9 @@ fn run(
 #[test]
 fn sphere_force_is_normal_grows_as_k_times_penetration_and_yields_at_s_over_k() {
     let strength_n = 2.0;
-    let volume = AnyVolume::Scalar(procedural::sphere(0.03, [64; 3], 0.05).unwrap());
+    let volume = AnyVolume::Scalar(
+        procedural::sphere(0.03, Grid::centred_cube([64; 3], 0.05).unwrap()).unwrap(),
+    );
     // The surface holds with s from the V = 0.5 isosurface in. The transfer function ramps in over
     // V in [0.499, 0.5], about 2 um of depth (10 um allowed), so the proxy sinks about that far before the plane is full.
     let sharp = ModeConfig::sampled(

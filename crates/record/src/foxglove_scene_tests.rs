@@ -115,7 +115,11 @@ fn a_scene_change_redraws_the_volume_with_the_first_snapshot_of_its_generation()
     let mut writer = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
     let mut scene = RecordedScene::add(&mut writer, &meta).unwrap();
     // A 10 cm ball in a 40 cm cube.
-    let big = voxhap_core::volume::procedural::sphere(0.1, [24; 3], 0.2).unwrap();
+    let big = voxhap_core::volume::procedural::sphere(
+        0.1,
+        voxhap_core::volume::Grid::centred_cube([24; 3], 0.2).unwrap(),
+    )
+    .unwrap();
     let (big_min_m, big_max_m) = big.grid().bounds_world();
     assert!((big_max_m - big_min_m - DVec3::splat(0.4)).length() < 0.05);
     let sphere = NamedVolume {

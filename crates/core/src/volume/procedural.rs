@@ -1,6 +1,7 @@
 //! Procedural volumes: analytic fields sampled onto a grid, for demos, sims and tests.
 //!
-//! All in SI units, on a cube grid centred at the world origin ([`Grid::centred_cube`]).
+//! All in SI units, centred at the world origin, sampled onto the grid the caller gives (the built-ins: a cube
+//! grid centred at the origin, [`Grid::centred_cube`]).
 //!
 //! Densities (1 inside, 0 outside) use a smooth edge two voxels wide so the gradient is defined and
 //! continuous at the surface: with `d` the signed distance to the surface (negative inside) and `w`
@@ -40,6 +41,7 @@ fn smooth_inside(signed_distance: f64, width: f64) -> f64 {
     s * s * (3.0 - 2.0 * s)
 }
 
+/// The cube grid of half extent `half_extent_m` centred at the origin, with a bad half extent refused by name.
 fn cube(dims: [usize; 3], half_extent_m: f64) -> Result<Grid, VolumeError> {
     positive("half_extent_m", half_extent_m)?;
     Grid::centred_cube(dims, half_extent_m)
@@ -80,26 +82,20 @@ fn edge_width_m(grid: &Grid) -> f64 {
     EDGE_WIDTH_VOXELS * grid.spacing_m().max_element()
 }
 
-/// A solid of density 1 on the cube grid: inside where `signed_distance_m(p)` < 0, with the smooth edge
+/// A solid of density 1 on `grid`: inside where `signed_distance_m(p)` < 0, with the smooth edge
 /// ([`smooth_inside`] over [`edge_width_m`]).
 fn solid(
-    dims: [usize; 3],
-    half_extent_m: f64,
+    grid: Grid,
     signed_distance_m: impl Fn(DVec3) -> f64,
 ) -> Result<ScalarVolume, VolumeError> {
-    let grid = cube(dims, half_extent_m)?;
     let width = edge_width_m(&grid);
     ScalarVolume::from_fn(grid, |p| smooth_inside(signed_distance_m(p), width))
 }
 
 /// A solid ball of density 1 and radius `radius_m`, centred at the origin.
-pub fn sphere(
-    radius_m: f64,
-    dims: [usize; 3],
-    half_extent_m: f64,
-) -> Result<ScalarVolume, VolumeError> {
+pub fn sphere(radius_m: f64, grid: Grid) -> Result<ScalarVolume, VolumeError> {
     positive("radius_m", radius_m)?;
-    solid(dims, half_extent_m, |p| p.length() - radius_m)
+    solid(grid, |p| p.length() - radius_m)
 }
 
 /// A solid torus of density 1 around the z axis: ring radius `major_radius_m`, tube radius
@@ -107,12 +103,11 @@ pub fn sphere(
 pub fn torus(
     major_radius_m: f64,
     minor_radius_m: f64,
-    dims: [usize; 3],
-    half_extent_m: f64,
+    grid: Grid,
 ) -> Result<ScalarVolume, VolumeError> {
     positive("major_radius_m", major_radius_m)?;
     positive("minor_radius_m", minor_radius_m)?;
-    solid(dims, half_extent_m, |p| {
+    solid(grid, |p| {
         let ring = (p.x.hypot(p.y) - major_radius_m).hypot(p.z);
         ring - minor_radius_m
     })
@@ -124,14 +119,13 @@ pub fn shells(
     outer_radius_m: f64,
     shell_count: usize,
     thickness_m: f64,
-    dims: [usize; 3],
-    half_extent_m: f64,
+    grid: Grid,
 ) -> Result<ScalarVolume, VolumeError> {
     positive("outer_radius_m", outer_radius_m)?;
     positive("thickness_m", thickness_m)?;
     positive("shell_count", shell_count as f64)?;
     let pitch = outer_radius_m / shell_count as f64;
-    solid(dims, half_extent_m, |p| {
+    solid(grid, |p| {
         let r = p.length();
         // Distance to the nearest shell's mid radius.
         let nearest = (r / pitch).round().clamp(1.0, shell_count as f64) * pitch;
@@ -155,12 +149,10 @@ fn rankine_velocity(p: DVec3, core_radius_m: f64, circulation_m2_per_s: f64) -> 
 pub fn rankine_vortex(
     core_radius_m: f64,
     circulation_m2_per_s: f64,
-    dims: [usize; 3],
-    half_extent_m: f64,
+    grid: Grid,
 ) -> Result<VectorVolume, VolumeError> {
     positive("core_radius_m", core_radius_m)?;
     finite("circulation_m2_per_s", circulation_m2_per_s)?;
-    let grid = cube(dims, half_extent_m)?;
     VectorVolume::from_fn(grid, |p| {
         rankine_velocity(p, core_radius_m, circulation_m2_per_s)
     })
@@ -191,13 +183,11 @@ pub fn burgers_vortex(
     core_radius_m: f64,
     circulation_m2_per_s: f64,
     strain_rate_per_s: f64,
-    dims: [usize; 3],
-    half_extent_m: f64,
+    grid: Grid,
 ) -> Result<VectorVolume, VolumeError> {
     positive("core_radius_m", core_radius_m)?;
     finite("circulation_m2_per_s", circulation_m2_per_s)?;
     finite("strain_rate_per_s", strain_rate_per_s)?;
-    let grid = cube(dims, half_extent_m)?;
     VectorVolume::from_fn(grid, |p| {
         burgers_velocity(p, core_radius_m, circulation_m2_per_s, strain_rate_per_s)
     })
@@ -205,22 +195,17 @@ pub fn burgers_vortex(
 
 /// A density ball (radius 0.6 of the half extent) with a Burgers vortex running through it along z
 /// (core radius 0.15, circulation and strain scaled to the half extent): multi-modal demo data on one
-/// grid.
+/// grid, the cube grid of `dims` voxels centred at the origin.
 pub fn density_and_flow(
     dims: [usize; 3],
     half_extent_m: f64,
 ) -> Result<(ScalarVolume, VectorVolume), VolumeError> {
-    let density = sphere(0.6 * half_extent_m, dims, half_extent_m)?;
+    let grid = cube(dims, half_extent_m)?;
+    let density = sphere(0.6 * half_extent_m, grid.clone())?;
     let core_radius_m = 0.15 * half_extent_m;
     // Peak swirl ~0.1 m/s at the core edge for a 5 cm half extent.
     let circulation_m2_per_s = 2.0 * PI * core_radius_m * 0.16;
-    let flow = burgers_vortex(
-        core_radius_m,
-        circulation_m2_per_s,
-        1.0,
-        dims,
-        half_extent_m,
-    )?;
+    let flow = burgers_vortex(core_radius_m, circulation_m2_per_s, 1.0, grid)?;
     Ok((density, flow))
 }
 
@@ -252,8 +237,7 @@ impl BuiltinVolumes {
 /// | `burgers` | Burgers vortex, core radius 1 cm, circulation 0.01 m²/s, strain 1/s |
 /// | `density-flow` | [`density_and_flow`]: ball of radius 3 cm plus a Burgers vortex |
 pub fn builtin(name: &str) -> Result<BuiltinVolumes, VolumeError> {
-    let dims = BUILTIN_DIMS;
-    let half = BUILTIN_HALF_EXTENT_M;
+    let grid = || cube(BUILTIN_DIMS, BUILTIN_HALF_EXTENT_M);
     let scalar = |volume| BuiltinVolumes {
         scalar: Some(volume),
         vector: None,
@@ -263,13 +247,13 @@ pub fn builtin(name: &str) -> Result<BuiltinVolumes, VolumeError> {
         vector: Some(volume),
     };
     Ok(match name {
-        "sphere" => scalar(sphere(0.03, dims, half)?),
-        "torus" => scalar(torus(0.025, 0.01, dims, half)?),
-        "shells" => scalar(shells(0.04, 3, 0.005, dims, half)?),
-        "rankine" => vector(rankine_vortex(0.01, 0.01, dims, half)?),
-        "burgers" => vector(burgers_vortex(0.01, 0.01, 1.0, dims, half)?),
+        "sphere" => scalar(sphere(0.03, grid()?)?),
+        "torus" => scalar(torus(0.025, 0.01, grid()?)?),
+        "shells" => scalar(shells(0.04, 3, 0.005, grid()?)?),
+        "rankine" => vector(rankine_vortex(0.01, 0.01, grid()?)?),
+        "burgers" => vector(burgers_vortex(0.01, 0.01, 1.0, grid()?)?),
         "density-flow" => {
-            let (density, flow) = density_and_flow(dims, half)?;
+            let (density, flow) = density_and_flow(BUILTIN_DIMS, BUILTIN_HALF_EXTENT_M)?;
             BuiltinVolumes {
                 scalar: Some(density),
                 vector: Some(flow),
@@ -290,12 +274,17 @@ mod tests {
     const DIMS: [usize; 3] = [48; 3];
     const HALF: f64 = 0.05;
 
+    /// The tests' grid: a 0.1 m cube of 48³ voxels.
+    fn grid() -> Grid {
+        Grid::centred_cube(DIMS, HALF).unwrap()
+    }
+
     /// The built-in ball's surface normal from the sampled gradient is within 1 degree of the analytic sphere
     /// normal everywhere on the surface (radius where the density is 1/2, and 0.1 mm either side): what
     /// friction needs (tan 1 degree = 0.017 is 3.5 % of mu = 0.5).
     #[test]
     fn the_ball_gradient_normal_is_within_a_degree_of_the_sphere_normal() {
-        let ball = sphere(0.03, BUILTIN_DIMS, BUILTIN_HALF_EXTENT_M).unwrap();
+        let ball = sphere(0.03, cube(BUILTIN_DIMS, BUILTIN_HALF_EXTENT_M).unwrap()).unwrap();
         let mut worst: f64 = 0.0;
         // A Fibonacci lattice of directions covers the sphere evenly.
         let count = 4000;
@@ -315,7 +304,7 @@ mod tests {
     #[test]
     fn sphere_is_dense_inside_empty_outside_with_inward_gradient() {
         let radius = 0.03;
-        let volume = sphere(radius, DIMS, HALF).unwrap();
+        let volume = sphere(radius, grid()).unwrap();
         assert!(volume.sample(DVec3::ZERO) > 0.99);
         assert!(volume.sample(DVec3::new(0.045, 0.0, 0.0)) < 0.01);
         let (min, max) = volume.value_range();
@@ -336,7 +325,7 @@ mod tests {
 
     #[test]
     fn torus_tube_is_dense_and_hole_is_empty() {
-        let volume = torus(0.025, 0.01, DIMS, HALF).unwrap();
+        let volume = torus(0.025, 0.01, grid()).unwrap();
         assert!(volume.sample(DVec3::new(0.025, 0.0, 0.0)) > 0.99);
         assert!(volume.sample(DVec3::new(0.0, -0.025, 0.0)) > 0.99);
         assert!(volume.sample(DVec3::ZERO) < 0.01);
@@ -345,7 +334,7 @@ mod tests {
 
     #[test]
     fn shells_alternate_along_a_ray() {
-        let volume = shells(0.04, 3, 0.006, DIMS, HALF).unwrap();
+        let volume = shells(0.04, 3, 0.006, grid()).unwrap();
         let along = |r: f64| volume.sample(DVec3::new(0.0, r, 0.0));
         let pitch = 0.04 / 3.0;
         for n in 1..=3 {
@@ -362,7 +351,7 @@ mod tests {
     fn rankine_curl_is_axial_in_the_core_and_vanishes_outside() {
         let core = 0.015;
         let circulation = 0.02;
-        let volume = rankine_vortex(core, circulation, DIMS, HALF).unwrap();
+        let volume = rankine_vortex(core, circulation, grid()).unwrap();
         let expected_core_curl = circulation / (PI * core * core);
         for p in [
             DVec3::new(0.003, -0.002, 0.01),
@@ -391,8 +380,8 @@ mod tests {
 
     #[test]
     fn solenoidal_fields_have_near_zero_divergence() {
-        let rankine = rankine_vortex(0.015, 0.02, DIMS, HALF).unwrap();
-        let burgers = burgers_vortex(0.01, 0.02, 2.0, DIMS, HALF).unwrap();
+        let rankine = rankine_vortex(0.015, 0.02, grid()).unwrap();
+        let burgers = burgers_vortex(0.01, 0.02, 2.0, grid()).unwrap();
         let curl_scale = 0.02 / (PI * 0.015 * 0.015);
         for p in [
             DVec3::new(0.004, 0.003, 0.0),
@@ -413,7 +402,7 @@ mod tests {
     fn burgers_vorticity_peaks_on_the_axis() {
         let core = 0.01;
         let circulation = 0.02;
-        let volume = burgers_vortex(core, circulation, 1.0, DIMS, HALF).unwrap();
+        let volume = burgers_vortex(core, circulation, 1.0, grid()).unwrap();
         let on_axis = volume.curl(DVec3::new(0.0, 0.0, 0.01)).z;
         let expected = circulation / (PI * core * core);
         assert!(
@@ -448,10 +437,19 @@ mod tests {
 
     #[test]
     fn bad_parameters_are_rejected() {
-        assert!(sphere(-1.0, DIMS, HALF).is_err());
-        assert!(sphere(0.01, DIMS, f64::NAN).is_err());
-        assert!(sphere(0.01, [1, 4, 4], HALF).is_err());
-        assert!(shells(0.04, 0, 0.005, DIMS, HALF).is_err());
-        assert!(rankine_vortex(0.01, f64::INFINITY, DIMS, HALF).is_err());
+        assert!(sphere(-1.0, grid()).is_err());
+        assert!(matches!(
+            density_and_flow(DIMS, f64::NAN),
+            Err(VolumeError::BadParameter {
+                name: "half_extent_m",
+                ..
+            })
+        ));
+        assert!(matches!(
+            density_and_flow([1, 4, 4], HALF),
+            Err(VolumeError::ZeroDimension { .. })
+        ));
+        assert!(shells(0.04, 0, 0.005, grid()).is_err());
+        assert!(rankine_vortex(0.01, f64::INFINITY, grid()).is_err());
     }
 }

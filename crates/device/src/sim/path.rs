@@ -276,6 +276,16 @@ fn check_force(name: &'static str, value: DVec3) -> Result<(), SimError> {
     check_vector_within(name, value, MAX_HAND_FORCE_N, "N")
 }
 
+/// Checks a time of a path or a force profile: within [`PATH_TIME_RANGE_S`].
+fn check_time(name: &'static str, value: f64) -> Result<(), SimError> {
+    check_between(name, value, PATH_TIME_RANGE_S, "s")
+}
+
+/// Checks a path's speed: > 0 and at most [`MAX_SPEED_M_PER_S`].
+fn check_speed(name: &'static str, value: f64) -> Result<(), SimError> {
+    check_positive_at_most(name, value, MAX_SPEED_M_PER_S, "m/s")
+}
+
 pub(super) fn check_positive(name: &'static str, value: f64) -> Result<(), SimError> {
     if value.is_finite() && value > 0.0 {
         Ok(())
@@ -344,7 +354,7 @@ impl HandPath {
             } => {
                 check_position("path.from_m", *from_m)?;
                 check_position("path.to_m", *to_m)?;
-                check_between("path.duration_s", *duration_s, PATH_TIME_RANGE_S, "s")
+                check_time("path.duration_s", *duration_s)
             }
             HandPath::Waypoints {
                 points_m,
@@ -363,12 +373,7 @@ impl HandPath {
                 for point in points_m {
                     check_position("path.points_m", *point)?;
                 }
-                check_positive_at_most(
-                    "path.speed_m_per_s",
-                    *speed_m_per_s,
-                    MAX_SPEED_M_PER_S,
-                    "m/s",
-                )
+                check_speed("path.speed_m_per_s", *speed_m_per_s)
             }
             HandPath::Circle {
                 center_m,
@@ -380,7 +385,7 @@ impl HandPath {
                 check_positive_at_most("path.radius_m", *radius_m, MAX_POSITION_M, "m")?;
                 check_vector("path.normal", *normal)?;
                 check_positive("path.normal (length)", normal.length())?;
-                check_between("path.period_s", *period_s, PATH_TIME_RANGE_S, "s")
+                check_time("path.period_s", *period_s)
             }
             HandPath::Raster {
                 origin_m,
@@ -403,12 +408,7 @@ impl HandPath {
                         unit: "lines",
                     });
                 }
-                check_positive_at_most(
-                    "path.speed_m_per_s",
-                    *speed_m_per_s,
-                    MAX_SPEED_M_PER_S,
-                    "m/s",
-                )
+                check_speed("path.speed_m_per_s", *speed_m_per_s)
             }
             HandPath::Force { profile } => profile.validate(),
         }
@@ -511,12 +511,7 @@ impl ForceProfile {
             } => {
                 check_force("path.profile.from_n", *from_n)?;
                 check_force("path.profile.to_n", *to_n)?;
-                check_between(
-                    "path.profile.duration_s",
-                    *duration_s,
-                    PATH_TIME_RANGE_S,
-                    "s",
-                )
+                check_time("path.profile.duration_s", *duration_s)
             }
             ForceProfile::Sine {
                 offset_n,

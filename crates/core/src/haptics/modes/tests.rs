@@ -6,7 +6,7 @@ use crate::volume::{procedural, AnyVolume, Grid, ScalarVolume, VectorVolume};
 use glam::DVec3;
 
 fn sphere_volume() -> AnyVolume {
-    AnyVolume::Scalar(procedural::sphere(0.03, [32; 3], 0.05).unwrap())
+    AnyVolume::Scalar(procedural::sphere(0.03, Grid::centred_cube([32; 3], 0.05).unwrap()).unwrap())
 }
 
 /// Solid-body rotation about the axis through `centre` along z, angular speed `omega` (curl 2 omega z).

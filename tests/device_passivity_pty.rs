@@ -47,6 +47,15 @@
 //! 0.016 mJ once (bound 0.011 mJ) and 29 to 81 mJ otherwise; off 225 to 372 mJ. One run of the 15 failed
 //! before the bound: the controller-on run never pressed the plane (its driver had timed only half the
 //! run's round trips, so the link had most likely been lost and reopened).
+//!
+//! **A run that did not press.** On a busy machine the force's engagement can start over while the hand
+//! holds the handle in the plane: after a dropped and reopened link, a servo thread stalled past the host
+//! watchdog or the stall monitor (20 ms), or a device watchdog trip. Force then ramps in only once the
+//! rendered force has been small (at most 1 N, docs/safety.md), which it never is while the handle stays
+//! 3 mm deep (6 N): that run has too little contact to show anything, and the host did the right thing.
+//! So [`press`] runs it again (at most three runs in all) when it pressed the plane in 100 cycles or fewer,
+//! and says why in the test's output; a setup that never presses still fails. Every assertion below is
+//! made on runs that pressed.
 
 use crate::util::mock_process::{pressing_handle, MockProcess as Mock};
 use std::path::Path;
@@ -183,9 +192,36 @@ fn link_delay(stdout: &str) -> LinkDelay {
     }
 }
 
+/// The control cycles in which the handle was in the plane with the host's force pushing it out.
+fn pressed(cycles: &[Cycle]) -> usize {
+    cycles
+        .iter()
+        .filter(|c| c.z_m < -0.005 && c.force_n[2] > 0.0)
+        .count()
+}
+
+/// [`press_once`] until the run pressed the plane in more than 100 cycles, at most three runs (module docs,
+/// "A run that did not press").
+fn press(passivity: &str) -> (Vec<Cycle>, String, LinkDelay) {
+    let mut stderr_of_last = String::new();
+    for run in 1..=3 {
+        let (cycles, stderr, link) = press_once(passivity);
+        let count = pressed(&cycles);
+        if count > 100 {
+            return (cycles, stderr, link);
+        }
+        eprintln!(
+            "{passivity:?}, run {run}: {count} cycles pressing the plane ({} disconnects; {}); run again",
+            link.disconnects, link.line
+        );
+        stderr_of_last = stderr;
+    }
+    panic!("{passivity:?}: three runs did not press the plane; serve's stderr of the last: {stderr_of_last}");
+}
+
 /// Runs the mock and `serve` for the handle's press; returns the device's log, serve's stderr and what its
 /// run summary says of the link's delay.
-fn press(passivity: &str) -> (Vec<Cycle>, String, LinkDelay) {
+fn press_once(passivity: &str) -> (Vec<Cycle>, String, LinkDelay) {
     let dir = tempfile::tempdir().unwrap();
     let (arm, log, scene_path) = (
         dir.path().join("handle.toml"),
@@ -285,11 +321,6 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
     let (off, _, off_link) = press("mode = \"off\"");
     // Told its latency, the observer keeps it: the scene's 0 is never widened.
     assert_eq!(zero_link.observer_ticks, 0, "{}", zero_link.line);
-    let pressed = |c: &[Cycle]| {
-        c.iter()
-            .filter(|c| c.z_m < -0.005 && c.force_n[2] > 0.0)
-            .count()
-    };
     // Each run's bound counts the link's depth that run: the longest round trip its driver timed, in ticks.
     let [(on_j, on_bound), (zero_j, zero_bound), (off_j, off_bound)] =
         [(&on, &on_link), (&zero, &zero_link), (&off, &off_link)]
@@ -313,12 +344,8 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
         off_bound * 1e3,
         off_link.worst_ticks
     );
-    // Every run pressed the handle into the plane with the force on (the setup did what it says; how long
-    // depends on how fast the loaded machine ran the mock's cycles, so only that it did).
-    assert!(
-        pressed(&on) > 100 && pressed(&zero) > 100 && pressed(&off) > 100,
-        "a run did not press the plane; serve's stderr of the controller-on run: {stderr}"
-    );
+    // Every run pressed the handle into the plane with the force on (`press` ran it again when it did not;
+    // how long depends on how fast the loaded machine ran the mock's cycles, so only that it did).
     // The derived bound (module docs), with the delay the driver actually saw during the run.
     assert!(
         on_j <= on_bound,

@@ -524,6 +524,11 @@ const STOP_MARGIN: Duration = Duration::from_secs(10);
 /// answers every new connection's handshake one byte per 100 ms, without end. SIGINT while the connector is
 /// inside that handshake: serve exits cleanly within the documented bound, and the last force the service
 /// received is zero. Serve must not wait for the handshake, which has no end.
+///
+/// The connect deadline (`--connect-timeout`) is 60 s, not the default 3 s: the first connect, to a double
+/// served by this test process's threads, must not miss it on a loaded machine (serve would exit before any
+/// force), and the handshake the signal interrupts then outlasts the stop bound and its margin (13 s), so a
+/// serve that waited for the connect to give up would fail here (with 3 s it would have passed).
 #[test]
 fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     use std::io::Read as _;
@@ -531,6 +536,7 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     let _turn = crate::util::spec_serve::take_turn();
     let service = InverseService::start();
     let mut child = crate::util::serve_headless(&format!("haply-inverse:{}", service.url()))
+        .args(["--connect-timeout", "60"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -574,7 +580,7 @@ fn serve_stops_in_bounded_time_while_a_handshake_comes_one_byte_at_a_time() {
     wait_until(&mut child, "the connector's next connection", &|| {
         service.shared.accepted.load(Ordering::Acquire) >= next
     });
-    // Inside the handshake (it never ends; its deadline is 1 s).
+    // Inside the handshake (it never ends; its deadline is the 60 s of --connect-timeout).
     std::thread::sleep(Duration::from_millis(300));
     // SAFETY: plain kill(2) on our own child's pid.
     assert_eq!(

@@ -54,20 +54,18 @@ pub struct LinkDelaySeen {
     pub worst: Duration,
     /// How many round trips were timed.
     pub round_trips: u64,
-    /// The servo period the ticks below count.
-    pub period: Duration,
 }
 
 impl LinkDelaySeen {
-    /// The longest round trip in whole servo ticks, rounded up (0 for a zero period).
-    pub fn worst_ticks(&self) -> u32 {
-        whole_ticks(self.worst, self.period)
+    /// The longest round trip in whole servo ticks of `period`, rounded up (0 for a zero period).
+    pub fn worst_ticks(&self, period: Duration) -> u32 {
+        whole_ticks(self.worst, period)
     }
 
-    /// The median round trip in whole servo ticks, rounded up (0 for a zero period).
+    /// The median round trip in whole servo ticks of `period`, rounded up (0 for a zero period).
     #[cfg(any(test, feature = "test-support"))]
-    pub fn typical_ticks(&self) -> u32 {
-        whole_ticks(self.typical, self.period)
+    pub fn typical_ticks(&self, period: Duration) -> u32 {
+        whole_ticks(self.typical, period)
     }
 }
 
@@ -162,10 +160,10 @@ mod tests {
             typical: Duration::from_millis(1),
             worst: Duration::from_nanos(worst_ns),
             round_trips: 1,
-            period: Duration::from_millis(2),
         };
-        assert_eq!(seen(2_000_001).worst_ticks(), 1);
-        assert_eq!(seen(2_000_010).worst_ticks(), 2);
+        let period = Duration::from_millis(2);
+        assert_eq!(seen(2_000_001).worst_ticks(period), 1);
+        assert_eq!(seen(2_000_010).worst_ticks(period), 2);
         assert_eq!(ticks_rounded_up(1e-3, 1.0 / 3000.0), 3);
         assert_eq!(ticks_rounded_up(1e-3, 2.5e-4), 4);
         assert_eq!(ticks_rounded_up(f64::NAN, 1e-3), 0);

@@ -39,18 +39,28 @@ pub fn offer(
     offer
 }
 
+/// What [`force_valid`] decides from, each by its name (so that a call cannot swap two of them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ForceChecks {
+    /// The tick rendered from a fresh state.
+    pub state_fresh: bool,
+    /// The tick's status: a tick that rejected its input has no valid force.
+    pub status: TickStatus,
+    /// The force was finite (not replaced for being non-finite).
+    pub force_finite: bool,
+    /// The force was computed within its budget.
+    pub on_budget: bool,
+}
+
 /// Whether the tick's force is valid, `serve`'s rule for sending a capable device the tick's local model
 /// rather than a set-force ([`crate::runner`], which hands it to the supervisor as `TickInput::force_valid`;
-/// `voxhap sim`'s [`crate::sim::runner`] decides with it too): the tick rendered from a fresh state
-/// (`state_fresh`), did not reject its input, its force was finite (`force_finite`: not replaced for being
-/// non-finite) and it was computed within its budget (`on_budget`).
-pub fn force_valid(
-    state_fresh: bool,
-    status: TickStatus,
-    force_finite: bool,
-    on_budget: bool,
-) -> bool {
-    state_fresh && status != TickStatus::InputRejected && force_finite && on_budget
+/// `voxhap sim`'s [`crate::sim::runner`] decides with it too): the tick rendered from a fresh state, did not
+/// reject its input, its force was finite and it was computed within its budget ([`ForceChecks`]).
+pub fn force_valid(checks: ForceChecks) -> bool {
+    checks.state_fresh
+        && checks.status != TickStatus::InputRejected
+        && checks.force_finite
+        && checks.on_budget
 }
 
 /// What a capable device's own passivity observer and controller run (protocol/SPEC.md section 10.5 step 4b):

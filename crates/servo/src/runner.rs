@@ -442,12 +442,12 @@ impl ServoLoop {
             self.stats.budget_overruns.fetch_add(1, Ordering::Relaxed);
         }
 
-        let force_valid = crate::local_model::force_valid(
-            self.last_state.is_some() && self.last_state_fresh,
-            out.status,
-            flags & FLAG_NON_FINITE_REPLACED == 0,
-            flags & FLAG_COMPUTE_OVER_BUDGET == 0,
-        );
+        let force_valid = crate::local_model::force_valid(crate::local_model::ForceChecks {
+            state_fresh: self.last_state.is_some() && self.last_state_fresh,
+            status: out.status,
+            force_finite: flags & FLAG_NON_FINITE_REPLACED == 0,
+            on_budget: flags & FLAG_COMPUTE_OVER_BUDGET == 0,
+        });
 
         let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
         // The state this tick rendered from, and its age, before the exchange replaces it.

@@ -279,9 +279,7 @@ impl Session {
         let (frame_tx, frame_rx) = rtrb::RingBuffer::new(SCENE_FRAME_RING);
         let (snapshot_in, snapshot_out) = triple_buffer::triple_buffer(&None);
         let stats = Arc::new(ServoStats::new(config.rate_hz));
-        stats
-            .link_delay
-            .start(latency.ticks, device.link_latency(), period_s);
+        stats.link_delay.start(latency.ticks, device.link_latency());
         let (external_sender, external_receiver) = match config.external_force_timeout {
             Some(timeout) => {
                 let (sender, receiver) = external_force::channel(timeout, period_ns);

@@ -674,7 +674,7 @@ impl<L: MessageLink> HapticDevice for ProtocolDevice<L> {
 
     /// Timed on every tick since the last open (module docs, "Link latency").
     fn link_delay_seen(&self) -> Option<crate::latency::LinkDelaySeen> {
-        self.live.seen(self.config.period)
+        self.live.seen()
     }
 
     fn local_model_capable(&self) -> bool {

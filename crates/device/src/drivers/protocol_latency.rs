@@ -35,9 +35,10 @@
 //! section 7; in streaming mode, section 10.4, the first streamed State that echoes it) gives its round trip.
 //! The round trips are counted in a fixed histogram of 0.1 ms bins ([`LIVE_BINS`] of them; longer ones in the
 //! last) and the longest is kept exactly: [`LinkDelaySeen`] gives the median (its bin's upper edge: rounded up
-//! to 0.1 ms) and the longest, in seconds and in ticks. A round trip here runs from just before the write to
-//! the decoding of its answer, so a host that was descheduled in between (a late tick, an overrun) lengthens
-//! it: that is the delay the observer's pairing must cover, whatever its cause.
+//! to 0.1 ms) and the longest, in seconds (the servo counts them in ticks of its own period). A round trip
+//! here runs from just before the write to the decoding of its answer, so a host that was descheduled in
+//! between (a late tick, an overrun) lengthens it: that is the delay the observer's pairing must cover,
+//! whatever its cause.
 //!
 //! Nothing here allocates and nothing locks: both trackers are fixed-size arrays, fed by the thread that owns
 //! the driver (open's probes, then the servo thread's ticks).
@@ -221,8 +222,8 @@ impl LiveRoundTrips {
     }
 
     /// The round trips counted so far: their median (rounded up to 0.1 ms, at most the longest) and the
-    /// longest, for servo period `period`; `None` before the first.
-    pub fn seen(&self, period: Duration) -> Option<LinkDelaySeen> {
+    /// longest; `None` before the first.
+    pub fn seen(&self) -> Option<LinkDelaySeen> {
         if self.count == 0 {
             return None;
         }
@@ -241,7 +242,6 @@ impl LiveRoundTrips {
             typical,
             worst: self.longest,
             round_trips: self.count,
-            period,
         })
     }
 }
@@ -337,7 +337,7 @@ mod tests {
     fn the_live_round_trips_give_the_median_and_the_longest() {
         let t0 = Instant::now();
         let mut live = LiveRoundTrips::default();
-        assert_eq!(live.seen(MS), None);
+        assert_eq!(live.seen(), None);
         let delays_us = [
             1_050, 1_100, 1_200, 1_100, 4_300, 1_100, 950, 2_000, 1_100, 1_150,
         ];
@@ -350,13 +350,13 @@ mod tests {
             }
         }
         live.answered(99, t0 + MS * 20);
-        let seen = live.seen(MS).unwrap();
+        let seen = live.seen().unwrap();
         assert_eq!(seen.round_trips, 10);
         assert_eq!((seen.typical, seen.worst), (US * 1_100, US * 4_300));
-        assert_eq!((seen.typical_ticks(), seen.worst_ticks()), (2, 5));
-        assert_eq!(live.seen(US * 250).unwrap().worst_ticks(), 18);
+        assert_eq!((seen.typical_ticks(MS), seen.worst_ticks(MS)), (2, 5));
+        assert_eq!(seen.worst_ticks(US * 250), 18);
         live.clear();
-        assert_eq!(live.seen(MS), None);
+        assert_eq!(live.seen(), None);
     }
 
     /// A force answered 200 ms late (longer than the histogram) is the longest exactly and counts in the
@@ -367,15 +367,15 @@ mod tests {
         let mut live = LiveRoundTrips::default();
         live.sent(1, t0);
         live.answered(1, t0 + MS * 200);
-        let seen = live.seen(MS).unwrap();
+        let seen = live.seen().unwrap();
         assert_eq!((seen.worst, seen.typical), (MS * 200, US * 102_400));
-        assert_eq!(seen.worst_ticks(), 200);
+        assert_eq!(seen.worst_ticks(MS), 200);
         for sequence in 2..=258 {
             live.sent(sequence, t0 + MS * sequence);
         }
         live.answered(2, t0 + MS * 300);
         live.answered(3, t0 + MS * 300);
-        let seen = live.seen(MS).unwrap();
+        let seen = live.seen().unwrap();
         assert_eq!(
             seen.round_trips, 2,
             "force 3 (255 sends back) is answered, force 2 is not"

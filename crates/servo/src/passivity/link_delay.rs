@@ -15,7 +15,10 @@
 //!
 //! The pairing has one owner, the controller ([`PassivityController::latency_ticks_now`]): the follower
 //! reads it there and sets it there, and the statistics ([`LinkDelayStats`]) are told the pairing at start
-//! and at each change.
+//! and at each change. The servo period the delays are counted in has one owner too, the follower: it hands
+//! it to the statistics each tick, so the run summary's longest round trip in ticks and the pairing the
+//! observer widens to are one rule ([`ticks_of`], the uncapped `voxhap_device::latency::ticks_rounded_up`)
+//! on one period.
 //!
 //! A scene that writes `[passivity] latency_s`, and the simulated arm's `[arm] latency_s`, fix the pairing:
 //! the user said what it is, and a test that tells the observer a wrong latency must get what it asked for.
@@ -32,6 +35,7 @@ use super::latency::{LatencyOrigin, ObserverLatency};
 use super::link_stats::LinkDelayStats;
 use super::settings::ticks_of;
 use crate::device::ServoDevice;
+use std::time::Duration;
 use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 
 /// What changed the observer's pairing.
@@ -48,6 +52,7 @@ pub enum PairingChange {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkFollower {
     follows_driver: bool,
+    /// The servo period (s): the pairing's ticks and the statistics' (module docs).
     period_s: f64,
 }
 
@@ -64,12 +69,24 @@ impl LinkFollower {
         }
     }
 
-    /// A follower that never changes the pairing (the default loop: no passivity).
+    /// A follower that never changes the pairing (the default loop: no passivity); with no period, the
+    /// statistics count the round trips in no ticks.
     pub fn fixed() -> Self {
         LinkFollower {
             follows_driver: false,
             period_s: 0.0,
         }
+    }
+
+    /// `controller`'s pairing now and the delay `worst` in whole ticks, `(from, to)`; `None` when the pairing
+    /// does not follow the driver.
+    fn pairing(&self, worst: Duration, controller: &PassivityController) -> Option<(usize, usize)> {
+        self.follows_driver.then(|| {
+            (
+                controller.latency_ticks_now(),
+                ticks_of(worst.as_secs_f64(), self.period_s),
+            )
+        })
     }
 
     /// A device connected (again): its driver's figure at open (`link`, its worst case) replaces
@@ -79,11 +96,7 @@ impl LinkFollower {
         link: Option<LinkLatency>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
-        if !self.follows_driver {
-            return None;
-        }
-        let to = ticks_of(link.map_or(0.0, |l| l.worst.as_secs_f64()), self.period_s);
-        let from = controller.latency_ticks_now();
+        let (from, to) = self.pairing(link.map_or(Duration::ZERO, |l| l.worst), controller)?;
         controller.set_latency_ticks(to);
         (from != to).then_some(PairingChange::Reconnected { from, to })
     }
@@ -95,11 +108,7 @@ impl LinkFollower {
         seen: Option<LinkDelaySeen>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
-        if !self.follows_driver {
-            return None;
-        }
-        let to = ticks_of(seen?.worst.as_secs_f64(), self.period_s);
-        let from = controller.latency_ticks_now();
+        let (from, to) = self.pairing(seen?.worst, controller)?;
         if to <= from {
             return None;
         }
@@ -107,8 +116,9 @@ impl LinkFollower {
         Some(PairingChange::Widened { from, to })
     }
 
-    /// One servo tick: a connection this tick (`connected`) replaces `controller`'s pairing with the driver's
-    /// figure at open, then the round trips timed widen it; `stats` are told what changed.
+    /// One servo tick (`tick`): a connection this tick (`connected`) replaces `controller`'s pairing with the
+    /// driver's figure at open, then the round trips timed widen it; `stats` are told what changed and the
+    /// round trips, in ticks of this follower's period.
     pub fn follow(
         &self,
         device: &dyn ServoDevice,
@@ -129,9 +139,9 @@ impl LinkFollower {
         };
         changed = self.observe(seen, controller).or(changed);
         if changed.is_some() {
-            stats.changed(tick, controller.latency_ticks_now());
+            stats.changed(tick as f64 * self.period_s, controller.latency_ticks_now());
         }
-        stats.tick(seen);
+        stats.tick(seen, self.period_s);
     }
 }
 

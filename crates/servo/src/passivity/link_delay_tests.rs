@@ -5,6 +5,7 @@ use glam::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
+use voxhap_api::LinkDelayReport;
 use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
 use voxhap_device::DeviceInfo;
 
@@ -26,7 +27,6 @@ fn seen(worst: Duration) -> Option<LinkDelaySeen> {
         typical: US * 1_100,
         worst,
         round_trips: 100,
-        period: MS,
     })
 }
 
@@ -115,14 +115,12 @@ fn a_widened_controller_pairs_each_step_with_the_force_sent_that_much_earlier() 
     assert_eq!(controller.latency_ticks_now(), MAX_LATENCY_TICKS);
 }
 
-/// Through the supervisor, as the servo loop calls it each tick: connected at tick 0 with the driver's
-/// 1.2 ms (2 ticks, no change from the start); a 4.3 ms round trip seen at tick 7 widens the controller's
-/// pairing to 5 ticks, and the statistics say so: one change, at 7 ms (tick 7 at 1 kHz), the worst round
-/// trip 4.3 ms and 5 ticks, the median 1.1 ms, 1.2 ms declared at open.
-#[test]
-fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
-    let worst_us = Arc::new(AtomicU64::new(0));
-    let shared = worst_us.clone();
+/// Ten ticks of a servo of period `period_s` through the supervisor, as the servo loop calls the follower
+/// each tick: connected at tick 0 with the driver's 1.2 ms at open, then from tick 7 on the driver reports a
+/// longest round trip of `worst_us`. The controller's pairing at the end, and what the statistics report.
+fn followed_through_the_supervisor(period_s: f64, worst_us: u64) -> (usize, LinkDelayReport) {
+    let worst = Arc::new(AtomicU64::new(0));
+    let shared = worst.clone();
     let info = DeviceInfo::basic("timed", DVec3::splat(-0.1), DVec3::splat(0.1));
     let mut supervisor = Supervisor::new(SupervisorConfig::default(), move || {
         Ok(LinkDouble {
@@ -134,20 +132,29 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
     .unwrap();
     let device: &mut dyn ServoDevice = &mut supervisor;
     device.connect(0).unwrap();
-    let latency = chosen(&PassivitySettings::default(), None);
     let settings = PassivitySettings::default();
+    let latency = ObserverLatency::choose(&settings, None, device.link_latency(), period_s);
     let mut controller = PassivityController::new(PassivityMode::Control, &settings, latency.ticks);
     let stats = LinkDelayStats::default();
-    stats.start(latency.ticks, device.link_latency(), 1e-3);
-    let follower = LinkFollower::new(&latency, 1e-3);
+    stats.start(latency.ticks, device.link_latency());
+    let follower = LinkFollower::new(&latency, period_s);
     for tick in 0..10u64 {
         if tick == 7 {
-            worst_us.store(4_300, Ordering::Relaxed);
+            worst.store(worst_us, Ordering::Relaxed);
         }
         follower.follow(&*device, tick == 0, &mut controller, &stats, tick);
     }
-    assert_eq!(controller.latency_ticks_now(), 5);
-    let report = stats.report();
+    (controller.latency_ticks_now(), stats.report())
+}
+
+/// Through the supervisor (`followed_through_the_supervisor`) at 1 kHz: connected at tick 0 with the driver's
+/// 1.2 ms (2 ticks, no change from the start); a 4.3 ms round trip seen at tick 7 widens the controller's
+/// pairing to 5 ticks, and the statistics say so: one change, at 7 ms (tick 7 at 1 kHz), the worst round
+/// trip 4.3 ms and 5 ticks, the median 1.1 ms, 1.2 ms declared at open.
+#[test]
+fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
+    let (pairing, report) = followed_through_the_supervisor(1e-3, 4_300);
+    assert_eq!(pairing, 5);
     assert_eq!(
         (
             report.observer_ticks,
@@ -172,5 +179,32 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
         ),
         "{}",
         report.summary()
+    );
+}
+
+/// The run summary's longest round trip in ticks and the observer's pairing count on one period: the servo's.
+/// At 3 kHz that is 333 333 ns (1e9 / 3000 rounded to whole nanoseconds, as `Session` sets it), by hand:
+/// the driver's 1.2 ms at open is 1 200 000 / 333 333 = 3.6 periods, 4 ticks; a longest round trip of
+/// 1.999 ms is 5.997 periods (5 x 333 333 = 1 666 665 < 1 999 000 <= 6 x 333 333 = 1 999 998 ns), 6 ticks.
+/// So at tick 7 (7 x 333 333 ns = 2.333331 ms) the pairing widens from 4 to 6, and the summary says 6 ticks
+/// too. Counted on a period of whole microseconds, 333 µs, that round trip is 7 ticks (6 x 333 000 =
+/// 1 998 000 < 1 999 000 ns): the figure the statistics gave when they took the period from the device side.
+#[test]
+fn at_3_khz_the_summary_and_the_pairing_count_the_same_ticks() {
+    let period_s = 333_333e-9;
+    let (pairing, report) = followed_through_the_supervisor(period_s, 1_999);
+    assert_eq!(pairing, 6);
+    assert_eq!(
+        (
+            report.observer_ticks,
+            report.observer_changes,
+            report.worst_ticks
+        ),
+        (6, 1, 6),
+        "{report:?}"
+    );
+    assert!(
+        (report.last_change_t_s - 2.333331e-3).abs() < 1e-12,
+        "{report:?}"
     );
 }

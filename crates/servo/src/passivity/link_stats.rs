@@ -5,37 +5,21 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use voxhap_api::LinkDelayReport;
-use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
+use voxhap_device::latency::{ticks_rounded_up, LinkDelaySeen, LinkLatency};
 
 /// The link delay's statistics: atomics the servo thread stores each tick (`super::link_delay::LinkFollower::follow`) and any
 /// thread reports ([`LinkDelayStats::report`]).
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct LinkDelayStats {
     observer_ticks: AtomicU64,
     observer_changes: AtomicU64,
-    last_change_tick: AtomicU64,
+    /// The time of the last change, seconds into the run (`f64` bits: 0 is 0.0 s).
+    last_change_s: AtomicU64,
     declared_ns: AtomicU64,
     round_trips: AtomicU64,
     typical_ns: AtomicU64,
     worst_ns: AtomicU64,
     worst_ticks: AtomicU64,
-    period_ns: AtomicU64,
-}
-
-impl Default for LinkDelayStats {
-    fn default() -> Self {
-        LinkDelayStats {
-            observer_ticks: AtomicU64::new(0),
-            observer_changes: AtomicU64::new(0),
-            last_change_tick: AtomicU64::new(0),
-            declared_ns: AtomicU64::new(0),
-            round_trips: AtomicU64::new(0),
-            typical_ns: AtomicU64::new(0),
-            worst_ns: AtomicU64::new(0),
-            worst_ticks: AtomicU64::new(0),
-            period_ns: AtomicU64::new(0),
-        }
-    }
 }
 
 fn nanos(d: Duration) -> u64 {
@@ -43,12 +27,10 @@ fn nanos(d: Duration) -> u64 {
 }
 
 impl LinkDelayStats {
-    /// The session's start: the pairing chosen, the driver's figure at open and the servo period.
-    pub fn start(&self, ticks: usize, declared: Option<LinkLatency>, period_s: f64) {
+    /// The session's start: the pairing chosen and the driver's figure at open.
+    pub fn start(&self, ticks: usize, declared: Option<LinkLatency>) {
         self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
         self.declared(declared);
-        self.period_ns
-            .store((period_s * 1e9).round() as u64, Ordering::Relaxed);
     }
 
     pub(super) fn declared(&self, declared: Option<LinkLatency>) {
@@ -56,14 +38,16 @@ impl LinkDelayStats {
         self.declared_ns.store(ns, Ordering::Relaxed);
     }
 
-    /// The observer's pairing changed to `ticks` at `tick`.
-    pub(super) fn changed(&self, tick: u64, ticks: usize) {
+    /// The observer's pairing changed to `ticks` at `t_s` seconds into the run.
+    pub(super) fn changed(&self, t_s: f64, ticks: usize) {
         self.observer_ticks.store(ticks as u64, Ordering::Relaxed);
         self.observer_changes.fetch_add(1, Ordering::Relaxed);
-        self.last_change_tick.store(tick, Ordering::Relaxed);
+        self.last_change_s.store(t_s.to_bits(), Ordering::Relaxed);
     }
 
-    pub(super) fn tick(&self, seen: Option<LinkDelaySeen>) {
+    /// This tick's round trips timed since the connection opened, counted in ticks of the servo period
+    /// `period_s` by the rule and on the period the observer's pairing uses (`super::link_delay`).
+    pub(super) fn tick(&self, seen: Option<LinkDelaySeen>, period_s: f64) {
         // Between connections the last one's figures stay (the next open's replace them).
         let Some(seen) = seen else {
             return;
@@ -73,23 +57,19 @@ impl LinkDelayStats {
             .store(nanos(seen.typical), Ordering::Relaxed);
         self.worst_ns
             .fetch_max(nanos(seen.worst), Ordering::Relaxed);
+        let worst_ticks = ticks_rounded_up(seen.worst.as_secs_f64(), period_s);
         self.worst_ticks
-            .fetch_max(u64::from(seen.worst_ticks()), Ordering::Relaxed);
+            .fetch_max(u64::from(worst_ticks), Ordering::Relaxed);
     }
 
     /// What `/api/stats` and the run summary show.
     pub fn report(&self) -> LinkDelayReport {
         let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
         let ms = |ns: u64| ns as f64 * 1e-6;
-        let changes = load(&self.observer_changes);
         LinkDelayReport {
             observer_ticks: load(&self.observer_ticks),
-            observer_changes: changes,
-            last_change_t_s: if changes > 0 {
-                load(&self.last_change_tick) as f64 * load(&self.period_ns) as f64 * 1e-9
-            } else {
-                0.0
-            },
+            observer_changes: load(&self.observer_changes),
+            last_change_t_s: f64::from_bits(load(&self.last_change_s)),
             declared_ms: ms(load(&self.declared_ns)),
             round_trips: load(&self.round_trips),
             typical_ms: ms(load(&self.typical_ns)),

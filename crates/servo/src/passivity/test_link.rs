@@ -1,6 +1,6 @@
 //! A driver double for the latency tests: it declares a link latency (or none) and reports, as the round
 //! trips it timed, the longest the test stores (µs; 0: none yet), with a median of 1.1 ms over 100 round
-//! trips at 1 kHz.
+//! trips.
 
 use glam::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -37,7 +37,6 @@ impl HapticDevice for LinkDouble {
                 typical: Duration::from_micros(1_100),
                 worst: Duration::from_micros(us),
                 round_trips: 100,
-                period: Duration::from_millis(1),
             }),
         }
     }

@@ -213,8 +213,12 @@ pub fn run(
                 // The tick's local model, built as `serve` builds it, while its force is valid (as `serve`'s
                 // supervisor decides); the device's loop renders it for the period.
                 // The arm's state is fresh every tick, and the sim has no compute budget.
-                let valid =
-                    crate::local_model::force_valid(true, out.status, rendered_n.is_finite(), true);
+                let valid = crate::local_model::force_valid(crate::local_model::ForceChecks {
+                    state_fresh: true,
+                    status: out.status,
+                    force_finite: rendered_n.is_finite(),
+                    on_budget: true,
+                });
                 let offer = crate::local_model::offer(
                     workspaces[current].primitives(),
                     k,

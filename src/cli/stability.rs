@@ -166,7 +166,7 @@ fn check_args(args: &StabilityArgs) -> anyhow::Result<Vec<&'static ArmCase>> {
     let mut arms = Vec::new();
     for name in &args.arms {
         let arm = arm_named(name).with_context(|| {
-            let names: Vec<&str> = ARMS.iter().map(|a| a.name).collect();
+            let names: Vec<&str> = ARMS.iter().map(ArmCase::name).collect();
             format!("--arms {name:?}: not an arm (one of {})", names.join(", "))
         })?;
         arms.push(arm);
@@ -248,12 +248,12 @@ fn measure_stiffness(
     let limits = run_parallel(jobs.len(), threads, |i| {
         let (arm, latency_s, kind) = jobs[i];
         largest_passive(arm, kind, args.ceiling, args.tolerance)
-            .with_context(|| format!("{} at {} ms latency, {kind:?}", arm.name, latency_s * 1e3))
+            .with_context(|| format!("{} at {} ms latency, {kind:?}", arm.name(), latency_s * 1e3))
     })?;
     let result = |(arm, _, kind): (&'static ArmCase, f64, LoopKind), limit: Limit| {
         let exact_n_per_m = kind
             .exact_boundary_n_per_m(arm.mass_kg, arm.damping_n_s_per_m)
-            .with_context(|| format!("{}, {kind:?}", arm.name))?;
+            .with_context(|| format!("{}, {kind:?}", arm.name()))?;
         anyhow::Ok(LoopResult {
             kind,
             limit,
@@ -290,7 +290,7 @@ fn stiffness_markdown(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
         let _ = write!(
             out,
             "| {} | {} kg | {b} N s/m | {} ms |",
-            row.arm.name,
+            row.arm.name(),
             row.arm.mass_kg,
             row.latency_s * 1e3
         );
@@ -318,7 +318,7 @@ fn stiffness_csv(rows: &[StiffnessRow]) -> String {
             let _ = writeln!(
                 out,
                 "{},{},{},{},{name},{},{},{},{},{}",
-                row.arm.name,
+                row.arm.name(),
                 row.arm.mass_kg,
                 row.arm.damping_n_s_per_m,
                 row.latency_s,
@@ -412,23 +412,14 @@ fn force_error_csv(results: &[StaleForce]) -> String {
 
 fn stiffness_plot(args: &StabilityArgs, rows: &[StiffnessRow]) -> String {
     let series = [
-        svg::Series {
-            name: "host alone",
-            colour: "#d62728",
-        },
-        svg::Series {
-            name: "host + local model",
-            colour: "#2ca02c",
-        },
-        svg::Series {
-            name: "full-rate host",
-            colour: "#1f77b4",
-        },
+        svg::Series::new("host alone", "#d62728"),
+        svg::Series::new("host + local model", "#2ca02c"),
+        svg::Series::new("full-rate host", "#1f77b4"),
     ];
     let groups: Vec<svg::Group> = rows
         .iter()
         .map(|row| svg::Group {
-            label: format!("{}, {} ms", row.arm.name, row.latency_s * 1e3),
+            label: format!("{}, {} ms", row.arm.name(), row.latency_s * 1e3),
             values: row.loops.iter().map(|r| Some(r.limit.n_per_m())).collect(),
             markers: row
                 .loops
@@ -461,18 +452,9 @@ const FORCE_PLOT_FLOOR_N: f64 = 1e-6;
 
 fn force_error_plot(results: &[StaleForce]) -> String {
     let series = [
-        svg::Series {
-            name: "median",
-            colour: "#2ca02c",
-        },
-        svg::Series {
-            name: "99th percentile",
-            colour: "#ff7f0e",
-        },
-        svg::Series {
-            name: "max",
-            colour: "#d62728",
-        },
+        svg::Series::new("median", "#2ca02c"),
+        svg::Series::new("99th percentile", "#ff7f0e"),
+        svg::Series::new("max", "#d62728"),
     ];
     let groups: Vec<svg::Group> = results
         .iter()

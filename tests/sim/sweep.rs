@@ -98,7 +98,7 @@ fn the_largest_passive_stiffness_per_preset_rate_and_latency_matches_the_zoh_ana
         "|---|---|---|---|---|---|---|---|---|".to_owned(),
     ];
     for arm in &ARMS {
-        let name = arm.name;
+        let name = arm.name();
         for rate_hz in RATES_HZ {
             let t = 1.0 / rate_hz;
             for latency_s in LATENCIES_S {
@@ -165,7 +165,9 @@ fn the_largest_passive_stiffness_per_preset_rate_and_latency_matches_the_zoh_ana
     for arm in &ARMS {
         sources.push(format!(
             "| {} | {} | {} |",
-            arm.name, arm.mass_source, arm.damping_source
+            arm.name(),
+            arm.mass_source,
+            arm.damping_source
         ));
     }
     table.extend(sources);

@@ -1,8 +1,8 @@
 //! The JSON of the visualiser protocol `voxhap.visualiser.v1` (protocol/VISUALISER.md): what the server sends
 //! over the WebSocket and REST API, what clients may send, and decoders that name the problem in a bad message.
 //!
-//! Outgoing messages borrow the session's data ([`State::new`] reads a [`Snapshot`] without copying its
-//! primitives into a `Vec`). Incoming messages are decoded in two steps: the text to a JSON value (a syntax
+//! Outgoing messages borrow the session's data ([`State::new`] reads a [`Snapshot`] in place, primitives
+//! included). Incoming messages are decoded in two steps: the text to a JSON value (a syntax
 //! error is "malformed JSON"), then the value to a typed message with the path of a bad field
 //! (`serde_path_to_error`), so `{"command":"set_stiffness","k":"NaN"}` is refused with
 //! `k: invalid type: string "NaN", expected f64`. Tagged messages (`"type"`, `"command"`) are re-tagged
@@ -11,6 +11,7 @@
 use base64::Engine as _;
 use glam::DVec3;
 use serde::de::DeserializeOwned;
+use serde::ser::SerializeMap as _;
 use serde::{Deserialize, Serialize, Serializer};
 use serde_json::Value;
 use std::path::PathBuf;
@@ -19,7 +20,6 @@ use voxhap_api::{
     StatsReport, TickTruth,
 };
 use voxhap_core::haptics::modes::{ModeConfig, TransferFunction};
-use voxhap_core::haptics::tick::TickStatus;
 use voxhap_record::TraceFormat;
 
 /// The protocol's name and version, sent in `hello`.
@@ -110,67 +110,69 @@ pub struct Hello<'a> {
     pub scene: &'a SceneReport,
 }
 
-/// The servo's newest state (WebSocket `state`, and `GET /api/state`).
+/// The servo's newest state (WebSocket `state`, and `GET /api/state`): the snapshot's fields as the protocol
+/// names them ([`snapshot_fields`]), then `frames_dropped`, then the tick's truth.
 #[derive(Debug, Serialize)]
 #[serde(tag = "type", rename = "state")]
 pub struct State<'a> {
-    pub tick: u64,
-    pub t_s: f64,
-    pub probe_m: DVec3,
-    pub proxy_m: DVec3,
-    /// Force sent to the device, after the safety pipeline (N).
-    pub force_n: DVec3,
-    /// Force the tick rendered, before safety (N).
-    pub rendered_force_n: DVec3,
-    #[serde(serialize_with = "primitives")]
-    pub primitives: &'a Snapshot,
-    /// `null` when the tick has no certificate.
-    pub error_bound_m: Option<f64>,
-    pub status: TickStatus,
-    pub sweeps: u32,
-    pub stiffness_n_per_m: f64,
-    pub damping_n_s_per_m: f64,
-    pub connected: bool,
-    pub engaged: bool,
-    pub scene_generation: u64,
-    pub hand_target_m: Option<DVec3>,
+    #[serde(flatten, serialize_with = "snapshot_fields")]
+    pub snapshot: &'a Snapshot,
     /// State frames this client lost because it read too slowly (0 over REST).
     pub frames_dropped: u64,
     /// The tick's truth: `energy` (the ledger's totals, J), `force_off_cause`, `device_fault_bits`,
-    /// `sample_age_ticks`, `external_force_n`.
+    /// `sample_age_ticks`, `device_force_n`, `external_force_n`, `device_local`.
     #[serde(flatten)]
-    pub truth: TickTruth,
-}
-
-fn primitives<S: Serializer>(snapshot: &&Snapshot, serializer: S) -> Result<S::Ok, S::Error> {
-    serializer.collect_seq(snapshot.primitives().copied())
+    pub truth: &'a TickTruth,
 }
 
 impl<'a> State<'a> {
     pub fn new(snapshot: &'a Snapshot, frames_dropped: u64) -> Self {
         State {
-            tick: snapshot.tick,
-            t_s: snapshot.t_s,
-            probe_m: snapshot.probe_m,
-            proxy_m: snapshot.proxy_m,
-            force_n: snapshot.sent_force_n,
-            rendered_force_n: snapshot.rendered_force_n,
-            primitives: snapshot,
-            error_bound_m: snapshot
-                .error_bound_m
-                .is_finite()
-                .then_some(snapshot.error_bound_m),
-            status: snapshot.status,
-            sweeps: snapshot.sweeps,
-            stiffness_n_per_m: snapshot.stiffness_n_per_m,
-            damping_n_s_per_m: snapshot.damping_n_s_per_m,
-            connected: snapshot.connected,
-            engaged: snapshot.engaged,
-            scene_generation: snapshot.scene_generation,
-            hand_target_m: snapshot.hand_target_m,
+            snapshot,
             frames_dropped,
-            truth: snapshot.truth,
+            truth: &snapshot.truth,
         }
+    }
+}
+
+/// The fields of a `state` message that come from the snapshot, each written once under its wire name:
+/// `force_n` is the force sent to the device (after the safety pipeline), `rendered_force_n` the force the
+/// tick rendered (before safety), `primitives` the valid ones, and `error_bound_m` is `null` when the tick
+/// has no certificate. The snapshot's other fields (velocity, output state, flags) are not sent.
+fn snapshot_fields<S: Serializer>(snapshot: &&Snapshot, serializer: S) -> Result<S::Ok, S::Error> {
+    let s = *snapshot;
+    let mut map = serializer.serialize_map(None)?;
+    // Fields sent under the snapshot's own names: each name written once, as key and as field.
+    macro_rules! as_named {
+        ($($field:ident),+) => {
+            $(map.serialize_entry(stringify!($field), &s.$field)?;)+
+        };
+    }
+    as_named!(tick, t_s, probe_m, proxy_m);
+    map.serialize_entry("force_n", &s.sent_force_n)?;
+    as_named!(rendered_force_n);
+    map.serialize_entry("primitives", &Primitives(s))?;
+    let error_bound_m = s.error_bound_m.is_finite().then_some(s.error_bound_m);
+    map.serialize_entry("error_bound_m", &error_bound_m)?;
+    as_named!(
+        status,
+        sweeps,
+        stiffness_n_per_m,
+        damping_n_s_per_m,
+        connected,
+        engaged,
+        scene_generation,
+        hand_target_m
+    );
+    map.end()
+}
+
+/// A snapshot's valid primitives as a sequence, read in place.
+struct Primitives<'a>(&'a Snapshot);
+
+impl Serialize for Primitives<'_> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_seq(self.0.primitives())
     }
 }
 

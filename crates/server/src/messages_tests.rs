@@ -2,7 +2,9 @@
 
 use super::*;
 use serde_json::json;
+use voxhap_api::PrimitiveView;
 use voxhap_core::haptics::modes::ModeKind;
+use voxhap_core::haptics::tick::TickStatus;
 
 #[test]
 fn every_command_round_trips_through_the_wire_form() {
@@ -155,4 +157,102 @@ fn state_serialises_the_contract_fields() {
     assert_eq!(value["force_off_cause"], "stale_link");
     assert_eq!(value["device_fault_bits"], 2);
     assert_eq!(value["sample_age_ticks"], 5);
+}
+
+/// The `state` message's exact text for a few snapshots: certified with primitives, no certificate (a `null`
+/// bound), a hand target and every truth field set. The literals are the output of the implementation
+/// before `State` stopped copying the snapshot's fields (checked key by key against protocol/VISUALISER.md,
+/// "`state`"), so the wire form, key order included, stays the same.
+#[test]
+fn state_text_is_the_wire_form_to_the_byte() {
+    let plane = PrimitiveView {
+        kind: voxhap_core::haptics::PrimitiveKind::Plane,
+        mode: 0,
+        position_m: DVec3::new(0.001, -0.02, 0.0219),
+        direction: DVec3::new(0.0, 0.6, 0.8),
+        strength_n: 2.0,
+    };
+    let point = PrimitiveView {
+        kind: voxhap_core::haptics::PrimitiveKind::Point,
+        mode: 2,
+        direction: DVec3::ZERO,
+        strength_n: 0.184,
+        ..plane
+    };
+    let mut slots = [None; voxhap_core::haptics::modes::MAX_MODES];
+    slots[0] = Some(plane);
+    slots[1] = Some(point);
+    let certified = Snapshot {
+        tick: 2390,
+        t_s: 2.39,
+        probe_m: DVec3::new(0.00161, -0.01999, 0.02119),
+        probe_velocity_m_per_s: DVec3::new(0.1, 0.2, 0.3),
+        proxy_m: DVec3::new(0.00106, -0.02008, 0.0219),
+        rendered_force_n: DVec3::new(-0.2768, -0.0456, 0.3562),
+        sent_force_n: DVec3::new(-0.1, 0.0, 0.25),
+        primitive_slots: slots,
+        primitive_count: 2,
+        error_bound_m: 2.14e-15,
+        sweeps: 6,
+        flags: 7,
+        active_faults: 3,
+        ..Snapshot::example()
+    };
+    let uncertified = Snapshot {
+        error_bound_m: f64::INFINITY,
+        status: TickStatus::Uncertified,
+        connected: false,
+        engaged: false,
+        ..Snapshot::example()
+    };
+    let with_truth = Snapshot {
+        hand_target_m: Some(DVec3::new(0.01, 0.0, -0.02)),
+        error_bound_m: 1e-6,
+        status: TickStatus::BudgetExhausted,
+        damping_n_s_per_m: 1.5,
+        scene_generation: 9,
+        truth: TickTruth {
+            energy: voxhap_api::TickEnergy {
+                work_on_probe_j: -0.00213,
+                coupling_energy_j: 0.000148,
+                generated_j: 4.12e-5,
+                active_work_j: 0.5,
+                device_dissipation_j: 0.00051,
+                net_generated_j: -0.000469,
+                passivity_dissipated_j: 0.25,
+            },
+            force_off_cause: voxhap_api::ForceOffCause::StaleLink,
+            device_fault_bits: 0b101,
+            sample_age_ticks: 4,
+            device_force_n: Some(DVec3::new(0.5, -0.5, 1.0)),
+            external_force_n: DVec3::new(0.0, 0.0, -1.25),
+            device_local: Some(voxhap_api::DeviceLocal {
+                proxy_m: DVec3::new(0.0, 0.001, 0.002),
+                proxy_bound_m: 1e-9,
+                model_sequence: 12,
+                model_age_s: 0.003,
+            }),
+        },
+        ..Snapshot::example()
+    };
+    for (snapshot, frames_dropped, expected) in [
+        (
+            &certified,
+            0,
+            r#"{"type":"state","tick":2390,"t_s":2.39,"probe_m":[0.00161,-0.01999,0.02119],"proxy_m":[0.00106,-0.02008,0.0219],"force_n":[-0.1,0.0,0.25],"rendered_force_n":[-0.2768,-0.0456,0.3562],"primitives":[{"kind":"plane","mode":0,"position_m":[0.001,-0.02,0.0219],"direction":[0.0,0.6,0.8],"strength_n":2.0},{"kind":"point","mode":2,"position_m":[0.001,-0.02,0.0219],"direction":[0.0,0.0,0.0],"strength_n":0.184}],"error_bound_m":2.14e-15,"status":"certified","sweeps":6,"stiffness_n_per_m":500.0,"damping_n_s_per_m":0.0,"connected":true,"engaged":true,"scene_generation":1,"hand_target_m":null,"frames_dropped":0,"energy":{"work_on_probe_j":0.0,"coupling_energy_j":0.0,"generated_j":0.0,"active_work_j":0.0,"device_dissipation_j":0.0,"net_generated_j":0.0,"passivity_dissipated_j":0.0},"force_off_cause":"none","device_fault_bits":0,"sample_age_ticks":0,"device_force_n":null,"external_force_n":[0.0,0.0,0.0],"device_local":null}"#,
+        ),
+        (
+            &uncertified,
+            3,
+            r#"{"type":"state","tick":5,"t_s":0.005,"probe_m":[1.0,0.0,0.0],"proxy_m":[0.0,1.0,0.0],"force_n":[0.0,0.0,1.0],"rendered_force_n":[0.0,0.0,1.0],"primitives":[],"error_bound_m":null,"status":"uncertified","sweeps":2,"stiffness_n_per_m":500.0,"damping_n_s_per_m":0.0,"connected":false,"engaged":false,"scene_generation":1,"hand_target_m":null,"frames_dropped":3,"energy":{"work_on_probe_j":0.0,"coupling_energy_j":0.0,"generated_j":0.0,"active_work_j":0.0,"device_dissipation_j":0.0,"net_generated_j":0.0,"passivity_dissipated_j":0.0},"force_off_cause":"none","device_fault_bits":0,"sample_age_ticks":0,"device_force_n":null,"external_force_n":[0.0,0.0,0.0],"device_local":null}"#,
+        ),
+        (
+            &with_truth,
+            17,
+            r#"{"type":"state","tick":5,"t_s":0.005,"probe_m":[1.0,0.0,0.0],"proxy_m":[0.0,1.0,0.0],"force_n":[0.0,0.0,1.0],"rendered_force_n":[0.0,0.0,1.0],"primitives":[],"error_bound_m":1e-6,"status":"budget_exhausted","sweeps":2,"stiffness_n_per_m":500.0,"damping_n_s_per_m":1.5,"connected":true,"engaged":true,"scene_generation":9,"hand_target_m":[0.01,0.0,-0.02],"frames_dropped":17,"energy":{"work_on_probe_j":-0.00213,"coupling_energy_j":0.000148,"generated_j":0.0000412,"active_work_j":0.5,"device_dissipation_j":0.00051,"net_generated_j":-0.000469,"passivity_dissipated_j":0.25},"force_off_cause":"stale_link","device_fault_bits":5,"sample_age_ticks":4,"device_force_n":[0.5,-0.5,1.0],"external_force_n":[0.0,0.0,-1.25],"device_local":{"proxy_m":[0.0,0.001,0.002],"proxy_bound_m":1e-9,"model_sequence":12,"model_age_s":0.003}}"#,
+        ),
+    ] {
+        let text = serde_json::to_string(&State::new(snapshot, frames_dropped)).unwrap();
+        assert_eq!(text, expected);
+    }
 }

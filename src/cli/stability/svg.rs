@@ -10,6 +10,13 @@ pub struct Series {
     pub colour: &'static str,
 }
 
+impl Series {
+    /// The series `name`, drawn in `colour` (`#rrggbb`).
+    pub const fn new(name: &'static str, colour: &'static str) -> Self {
+        Series { name, colour }
+    }
+}
+
 /// One group of bars: its label, one value per series (`None`: no bar), a marker per series (a short
 /// black line across the bar, e.g. the analytic bound; `None`: no marker) and a dot per series (a small open
 /// circle on the bar's centre line, e.g. the exact boundary; `None` or missing: no dot).

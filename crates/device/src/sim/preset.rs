@@ -11,8 +11,8 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Declares [`ArmPreset`] with each preset's scene-file name written once: serde reads and writes that name
-/// and [`ArmPreset::name`] returns it.
+/// Declares [`ArmPreset`] with each preset's scene-file name written once: serde reads and writes that name,
+/// [`ArmPreset::name`] returns it and [`ArmPreset::NAMES`] lists them all.
 macro_rules! arm_presets {
     ($($(#[$doc:meta])* $variant:ident = $name:literal,)+) => {
         /// A device whose published figures a simulated arm can take.
@@ -22,6 +22,9 @@ macro_rules! arm_presets {
         }
 
         impl ArmPreset {
+            /// Every preset's scene-file name, in declaration order.
+            pub const NAMES: [&'static str; [$($name),+].len()] = [$($name),+];
+
             /// The name written in a scene file.
             pub fn name(self) -> &'static str {
                 match self {

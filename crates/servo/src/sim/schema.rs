@@ -30,8 +30,8 @@ use voxhap_device::sim::effects::{
     MAX_FORCE_RESOLUTION_N, MAX_LATENCY_S, MAX_POSITION_RESOLUTION_M, MAX_VELOCITY_WINDOW_TICKS,
 };
 use voxhap_device::sim::{
-    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_LOCAL_RATE_HZ, MAX_PATH_VERTICES,
-    MAX_POSITION_M, MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
+    ArmPreset, MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_LOCAL_RATE_HZ,
+    MAX_PATH_VERTICES, MAX_POSITION_M, MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
 };
 
 /// What a key's value may be.
@@ -379,7 +379,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("substeps_per_tick", "", Value("10"), Count(*SUBSTEPS_PER_TICK_RANGE.start() as u64, *SUBSTEPS_PER_TICK_RANGE.end() as u64), "20", "physics steps per servo tick"),
             key("wall_stiffness_n_per_m", "N/m", Value("5000.0"), NonNegative, "2000.0", "stiffness of the workspace wall"),
             key("wall_damping_n_s_per_m", "N s/m", Value("10.0"), NonNegative, "5.0", "damping of the workspace wall, outside it"),
-            key("preset", "", Otherwise("none"), OneOf(&["inverse3", "falcon", "touch", "woodenhaptics"]), "\"touch\"", "a device's sourced figures for the keys left out ([The simulated arm](../sim-arm.md))"),
+            key("preset", "", Otherwise("none"), OneOf(&ArmPreset::NAMES), "\"touch\"", "a device's sourced figures for the keys left out ([The simulated arm](../sim-arm.md))"),
             key("latency_s", "s", Value("0.0"), NonNegativeAtMost(MAX_LATENCY_S), "0.002", "time from a force being sent to it acting"),
             key("position_resolution_m", "m", Value("0.0"), NonNegativeAtMost(MAX_POSITION_RESOLUTION_M), "1e-5", "reported positions are rounded to this"),
             key("force_resolution_n", "N", Value("0.0"), NonNegativeAtMost(MAX_FORCE_RESOLUTION_N), "0.01", "applied forces are rounded to this"),

@@ -1,13 +1,13 @@
 //! The arms the stability measurements cover: the simulated arm's default and each `[arm] preset`, with the
 //! figures a preset lacks given here and where each comes from.
 
+use voxhap_device::sim::ArmPreset;
+
 /// One arm: a preset (or the default arm), its mass and damping, and where those figures come from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ArmCase {
-    /// The name in tables and on the command line (`default` or the preset's name).
-    pub name: &'static str,
     /// The `[arm] preset`, `None` for the default arm.
-    pub preset: Option<&'static str>,
+    pub preset: Option<ArmPreset>,
     /// Moving mass, kg.
     pub mass_kg: f64,
     /// Where the mass comes from.
@@ -16,6 +16,13 @@ pub struct ArmCase {
     pub damping_n_s_per_m: f64,
     /// Where the damping comes from.
     pub damping_source: &'static str,
+}
+
+impl ArmCase {
+    /// The name in tables and on the command line: `default`, or the preset's name.
+    pub fn name(&self) -> &'static str {
+        self.preset.map_or("default", ArmPreset::name)
+    }
 }
 
 /// No vendor publishes a damping figure for any of these arms (voxhap_device::sim::preset); the value used is
@@ -33,7 +40,6 @@ pub const MASS_ESTIMATE: &str = "estimate (none published; the simulated arm's d
 /// The arms, the default first.
 pub const ARMS: [ArmCase; 5] = [
     ArmCase {
-        name: "default",
         preset: None,
         mass_kg: 0.1,
         mass_source: "the simulated arm's default",
@@ -41,32 +47,28 @@ pub const ARMS: [ArmCase; 5] = [
         damping_source: "the simulated arm's default",
     },
     ArmCase {
-        name: "touch",
-        preset: Some("touch"),
+        preset: Some(ArmPreset::Touch),
         mass_kg: 0.1,
         mass_source: MASS_ESTIMATE,
         damping_n_s_per_m: 0.5,
         damping_source: DAMPING_ESTIMATE,
     },
     ArmCase {
-        name: "falcon",
-        preset: Some("falcon"),
+        preset: Some(ArmPreset::Falcon),
         mass_kg: 0.1,
         mass_source: MASS_ESTIMATE,
         damping_n_s_per_m: 0.5,
         damping_source: DAMPING_ESTIMATE,
     },
     ArmCase {
-        name: "inverse3",
-        preset: Some("inverse3"),
+        preset: Some(ArmPreset::Inverse3),
         mass_kg: 0.1,
         mass_source: MASS_ESTIMATE,
         damping_n_s_per_m: 0.5,
         damping_source: DAMPING_ESTIMATE,
     },
     ArmCase {
-        name: "woodenhaptics",
-        preset: Some("woodenhaptics"),
+        preset: Some(ArmPreset::Woodenhaptics),
         mass_kg: 0.1205,
         mass_source: "preset (computed from the link masses of the WoodenHaptics chai3d extension)",
         damping_n_s_per_m: 0.5,
@@ -76,5 +78,25 @@ pub const ARMS: [ArmCase; 5] = [
 
 /// The arm called `name` (`default` or a preset's name).
 pub fn arm_named(name: &str) -> Option<&'static ArmCase> {
-    ARMS.iter().find(|arm| arm.name == name)
+    ARMS.iter().find(|arm| arm.name() == name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A preset added to `voxhap_device::sim::ArmPreset` must be given its figures here.
+    #[test]
+    fn every_preset_is_an_arm() {
+        for name in ArmPreset::NAMES {
+            let arm = arm_named(name).unwrap_or_else(|| panic!("no arm case for preset {name:?}"));
+            assert_eq!(arm.preset.map(ArmPreset::name), Some(name));
+        }
+        assert_eq!(
+            ARMS.len(),
+            ArmPreset::NAMES.len() + 1,
+            "one default arm, then the presets"
+        );
+        assert_eq!(ARMS[0].name(), "default");
+    }
 }

@@ -14,7 +14,7 @@ pub const RUN_S: f64 = 1.5;
 pub fn scenario_text(arm: &ArmCase, rate_hz: f64, latency_s: f64, control: bool, k: f64) -> String {
     let preset = arm
         .preset
-        .map(|p| format!("preset = \"{p}\"\n"))
+        .map(|p| format!("preset = \"{}\"\n", p.name()))
         .unwrap_or_default();
     format!(
         "name = \"stiffness-sweep\"\nduration_s = {RUN_S}\nrate_hz = {rate_hz}\nk_n_per_m = {k}\n\

@@ -2,7 +2,8 @@
 //! Cargo already refuses a cycle; inside one crate only this check does. It runs `.ci/module-cycles.py` (the
 //! import graph of a crate's modules, following `crate::`, `super::`, `self::` and re-exports to the module
 //! that defines an item) on every workspace crate and fails with the cycle's edges. Edges from unit tests
-//! (`mod tests`) are allowed: a test may reach for anything.
+//! (`mod tests`) are allowed: a test may reach for anything. It also checks, with `cargo tree` on the lock file,
+//! that no I/O or command-line crate is in the dependency tree of the pure core (voxhap-solver, voxhap-core).
 //!
 //! Needs python3: without it the test says SKIPPED, except under CI (`CI=true`), where it fails.
 
@@ -84,4 +85,70 @@ fn the_cycle_check_sees_a_cycle() {
     let text = String::from_utf8_lossy(&output.stdout);
     assert!(!output.status.success(), "no cycle reported:\n{text}");
     assert!(text.contains("a -> b") && text.contains("b -> a"), "{text}");
+}
+
+/// Crates that do I/O or parse command lines: none may be in the pure core's dependency tree (the solver and
+/// the core: volume sampling, primitives, modes, the tick).
+const IO_CRATES: &[&str] = &[
+    "tokio",
+    "mio",
+    "serialport",
+    "hidapi",
+    "axum",
+    "hyper",
+    "tungstenite",
+    "mcap",
+    "parquet",
+    "arrow",
+    "clap",
+];
+
+/// The names of the crates in `package`'s normal and build dependency tree, as `cargo tree` resolves it from
+/// the lock file (no network).
+fn dependency_names(package: &str) -> Vec<String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let output = Command::new(env!("CARGO"))
+        .args(["tree", "--frozen", "--prefix", "none", "-e", "normal,build"])
+        .args(["--format", "{lib}", "-p", package, "--manifest-path"])
+        .arg(root.join("Cargo.toml"))
+        .output()
+        .expect("cargo runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "cargo tree -p {package} failed:\n{text}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    text.lines()
+        .map(|line| line.split_whitespace().next().unwrap_or("").to_owned())
+        .filter(|name| !name.is_empty())
+        .collect()
+}
+
+#[test]
+fn the_pure_core_has_no_io_crate_in_its_dependency_tree() {
+    for package in ["voxhap-solver", "voxhap-core"] {
+        let names = dependency_names(package);
+        assert!(
+            names.iter().any(|name| name == "glam"),
+            "{package}: glam not seen in {names:?}"
+        );
+        let io: Vec<&String> = names
+            .iter()
+            .filter(|name| IO_CRATES.contains(&name.as_str()))
+            .collect();
+        assert!(io.is_empty(), "{package} depends on I/O crates {io:?}");
+    }
+}
+
+/// The same listing finds I/O crates where they belong: the servers run on tokio and axum.
+#[test]
+fn the_dependency_listing_sees_io_crates_where_they_are() {
+    let names = dependency_names("voxhap-server");
+    for wanted in ["tokio", "axum"] {
+        assert!(
+            names.iter().any(|name| name == wanted),
+            "voxhap-server: {wanted} not seen in {names:?}"
+        );
+    }
 }

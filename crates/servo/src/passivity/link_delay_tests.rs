@@ -187,8 +187,8 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
 /// the driver's 1.2 ms at open is 1 200 000 / 333 333 = 3.6 periods, 4 ticks; a longest round trip of
 /// 1.999 ms is 5.997 periods (5 x 333 333 = 1 666 665 < 1 999 000 <= 6 x 333 333 = 1 999 998 ns), 6 ticks.
 /// So at tick 7 (7 x 333 333 ns = 2.333331 ms) the pairing widens from 4 to 6, and the summary says 6 ticks
-/// too. Counted on a period of whole microseconds, 333 µs, that round trip is 7 ticks (6 x 333 000 =
-/// 1 998 000 < 1 999 000 ns): the figure the statistics gave when they took the period from the device side.
+/// too. Counted on another period, say whole microseconds (333 µs), that round trip would be 7 ticks
+/// (6 x 333 000 = 1 998 000 < 1 999 000 ns): the two figures agree because both count on the servo's period.
 #[test]
 fn at_3_khz_the_summary_and_the_pairing_count_the_same_ticks() {
     let period_s = 333_333e-9;

@@ -270,7 +270,7 @@ impl Session {
         // A device rendering local models runs the same mode on its own loop (crate::local_model).
         let local_passivity =
             crate::local_model::passivity_request(passivity_mode, &setup.passivity);
-        let link_follower = LinkFollower::new(&latency, period_s);
+        let link_follower = LinkFollower::new(&latency, Duration::from_nanos(period_ns));
         let (command_tx, command_rx) = rtrb::RingBuffer::new(COMMAND_RING);
         let command_claim = Arc::new(AtomicU64::new(0));
         let (event_tx, event_rx) = rtrb::RingBuffer::new(EVENT_RING);

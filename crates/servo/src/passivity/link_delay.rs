@@ -52,20 +52,20 @@ pub enum PairingChange {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkFollower {
     follows_driver: bool,
-    /// The servo period (s): the pairing's ticks and the statistics' (module docs).
-    period_s: f64,
+    /// The servo period: the pairing's ticks and the statistics' (module docs).
+    period: Duration,
 }
 
 impl LinkFollower {
     /// Follows the driver's figures when `latency` came from the driver (or nothing declared one); else
-    /// leaves the pairing alone. `period_s` is the servo period.
-    pub fn new(latency: &ObserverLatency, period_s: f64) -> Self {
+    /// leaves the pairing alone. `period` is the servo period.
+    pub fn new(latency: &ObserverLatency, period: Duration) -> Self {
         LinkFollower {
             follows_driver: matches!(
                 latency.origin,
                 LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
             ),
-            period_s,
+            period,
         }
     }
 
@@ -74,7 +74,7 @@ impl LinkFollower {
     pub fn fixed() -> Self {
         LinkFollower {
             follows_driver: false,
-            period_s: 0.0,
+            period: Duration::ZERO,
         }
     }
 
@@ -84,7 +84,7 @@ impl LinkFollower {
         self.follows_driver.then(|| {
             (
                 controller.latency_ticks_now(),
-                ticks_of(worst.as_secs_f64(), self.period_s),
+                ticks_of(worst.as_secs_f64(), self.period.as_secs_f64()),
             )
         })
     }
@@ -139,9 +139,10 @@ impl LinkFollower {
         };
         changed = self.observe(seen, controller).or(changed);
         if changed.is_some() {
-            stats.changed(tick as f64 * self.period_s, controller.latency_ticks_now());
+            let t_s = tick as f64 * self.period.as_secs_f64();
+            stats.changed(t_s, controller.latency_ticks_now());
         }
-        stats.tick(seen, self.period_s);
+        stats.tick(seen, self.period);
     }
 }
 

@@ -41,7 +41,7 @@ fn follower_of(latency: &ObserverLatency) -> (LinkFollower, PassivityController)
         &PassivitySettings::default(),
         latency.ticks,
     );
-    (LinkFollower::new(latency, 1e-3), controller)
+    (LinkFollower::new(latency, MS), controller)
 }
 
 /// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. Round trips of at most 1.8 ms (2 ticks) change
@@ -115,10 +115,10 @@ fn a_widened_controller_pairs_each_step_with_the_force_sent_that_much_earlier() 
     assert_eq!(controller.latency_ticks_now(), MAX_LATENCY_TICKS);
 }
 
-/// Ten ticks of a servo of period `period_s` through the supervisor, as the servo loop calls the follower
+/// Ten ticks of a servo of period `period` through the supervisor, as the servo loop calls the follower
 /// each tick: connected at tick 0 with the driver's 1.2 ms at open, then from tick 7 on the driver reports a
 /// longest round trip of `worst_us`. The controller's pairing at the end, and what the statistics report.
-fn followed_through_the_supervisor(period_s: f64, worst_us: u64) -> (usize, LinkDelayReport) {
+fn followed_through_the_supervisor(period: Duration, worst_us: u64) -> (usize, LinkDelayReport) {
     let worst = Arc::new(AtomicU64::new(0));
     let shared = worst.clone();
     let info = DeviceInfo::basic("timed", DVec3::splat(-0.1), DVec3::splat(0.1));
@@ -133,11 +133,12 @@ fn followed_through_the_supervisor(period_s: f64, worst_us: u64) -> (usize, Link
     let device: &mut dyn ServoDevice = &mut supervisor;
     device.connect(0).unwrap();
     let settings = PassivitySettings::default();
-    let latency = ObserverLatency::choose(&settings, None, device.link_latency(), period_s);
+    let latency =
+        ObserverLatency::choose(&settings, None, device.link_latency(), period.as_secs_f64());
     let mut controller = PassivityController::new(PassivityMode::Control, &settings, latency.ticks);
     let stats = LinkDelayStats::default();
     stats.start(latency.ticks, device.link_latency());
-    let follower = LinkFollower::new(&latency, period_s);
+    let follower = LinkFollower::new(&latency, period);
     for tick in 0..10u64 {
         if tick == 7 {
             worst.store(worst_us, Ordering::Relaxed);
@@ -153,7 +154,7 @@ fn followed_through_the_supervisor(period_s: f64, worst_us: u64) -> (usize, Link
 /// trip 4.3 ms and 5 ticks, the median 1.1 ms, 1.2 ms declared at open.
 #[test]
 fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
-    let (pairing, report) = followed_through_the_supervisor(1e-3, 4_300);
+    let (pairing, report) = followed_through_the_supervisor(MS, 4_300);
     assert_eq!(pairing, 5);
     assert_eq!(
         (
@@ -191,8 +192,7 @@ fn each_tick_hands_the_widened_pairing_to_the_controller_and_the_statistics() {
 /// (6 x 333 000 = 1 998 000 < 1 999 000 ns): the two figures agree because both count on the servo's period.
 #[test]
 fn at_3_khz_the_summary_and_the_pairing_count_the_same_ticks() {
-    let period_s = 333_333e-9;
-    let (pairing, report) = followed_through_the_supervisor(period_s, 1_999);
+    let (pairing, report) = followed_through_the_supervisor(Duration::from_nanos(333_333), 1_999);
     assert_eq!(pairing, 6);
     assert_eq!(
         (

@@ -5,7 +5,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use voxhap_api::LinkDelayReport;
-use voxhap_device::latency::{ticks_rounded_up, LinkDelaySeen, LinkLatency};
+use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 
 /// The link delay's statistics: atomics the servo thread stores each tick (`super::link_delay::LinkFollower::follow`) and any
 /// thread reports ([`LinkDelayStats::report`]).
@@ -46,8 +46,8 @@ impl LinkDelayStats {
     }
 
     /// This tick's round trips timed since the connection opened, counted in ticks of the servo period
-    /// `period_s` by the rule and on the period the observer's pairing uses (`super::link_delay`).
-    pub(super) fn tick(&self, seen: Option<LinkDelaySeen>, period_s: f64) {
+    /// `period` by the rule and on the period the observer's pairing uses (`super::link_delay`).
+    pub(super) fn tick(&self, seen: Option<LinkDelaySeen>, period: Duration) {
         // Between connections the last one's figures stay (the next open's replace them).
         let Some(seen) = seen else {
             return;
@@ -57,9 +57,8 @@ impl LinkDelayStats {
             .store(nanos(seen.typical), Ordering::Relaxed);
         self.worst_ns
             .fetch_max(nanos(seen.worst), Ordering::Relaxed);
-        let worst_ticks = ticks_rounded_up(seen.worst.as_secs_f64(), period_s);
         self.worst_ticks
-            .fetch_max(u64::from(worst_ticks), Ordering::Relaxed);
+            .fetch_max(u64::from(seen.worst_ticks(period)), Ordering::Relaxed);
     }
 
     /// What `/api/stats` and the run summary show.

@@ -15,7 +15,8 @@
 //!   force-off cause is `device_fault` (or, on rows where a busy machine's link is down or has just come back,
 //!   a cause docs/traces.md ranks before it and possibly no fault; at least 100 rows name the fault, and the
 //!   last row still holds it); stderr names the fault as docs/safety.md shows it (`device FAULT motor stall
-//!   (code 8, ...`).
+//!   (code 8, ...`). The arm's side, from the double's log of what it received: every non-zero force is, in
+//!   order, one the trace's rows sent, and none of them was sent after the fault's row.
 //! - A control-rate report (Haply's client's `system-rate-report`, crate `haply` 1.3.1,
 //!   src/interfaces/events.rs) is a notice: stderr carries its four frequencies as the double sent them, and
 //!   nothing is faulted by it.
@@ -172,6 +173,39 @@ fn assert_what_the_arm_received_is_safe(run: &Run) {
     );
 }
 
+/// The arm's log against the trace: every non-zero force the double received is, in order, one the trace's
+/// rows sent (its `force` column; the profile's mapping is the identity rotation, so the frames agree). The
+/// I/O thread may coalesce queued forces to the newest, so some rows' forces never go out, and zeros can come
+/// from no row (a dropped link, serve's stop), so zeros are not matched. Returns the row the last non-zero
+/// force the arm received was sent on: no non-zero force reached the arm from a later row.
+fn last_row_whose_force_reached_the_arm(run: &Run) -> usize {
+    let sent: Vec<[f64; 3]> = run
+        .csv
+        .rows
+        .iter()
+        .map(|row| run.csv.vector(row, "force"))
+        .collect();
+    let (mut next, mut last) = (0, None);
+    for (i, f) in run.received.iter().enumerate() {
+        if *f == [0.0; 3] {
+            continue;
+        }
+        let at = sent[next..]
+            .iter()
+            .position(|s| (0..3).all(|k| (s[k] - f[k]).abs() <= 1e-12))
+            .unwrap_or_else(|| {
+                panic!(
+                    "force {i} the arm received, {f:?}, is no force the trace sent after row {next} \
+                     (of {})",
+                    sent.len()
+                )
+            });
+        last = Some(next + at);
+        next += at + 1;
+    }
+    last.expect("the arm received no non-zero force: the check proved nothing")
+}
+
 /// The checks of the module docs for a device fault with `code`, named `name` in docs/safety.md's table: from
 /// the row after the first that holds the bit, to the end, zero force, that bit alone, flagged, the cause
 /// named; no row before it is faulted. Returns the rows before the fault. On a busy machine the link may
@@ -233,6 +267,12 @@ fn assert_faulted_from_the_next_row(run: &Run, code: u32, name: &str) -> usize {
         "the last row's latched faults: the fault must outlast any reconnect"
     );
     let from = faulted_from.unwrap_or_else(|| panic!("no row holds fault bit {code} ({name})"));
+    // The zero rows from the one after the fault on are zero at the arm too, from the double's own log.
+    let last_pushed = last_row_whose_force_reached_the_arm(run);
+    assert!(
+        last_pushed <= from,
+        "the arm received the non-zero force of row {last_pushed}, after the fault's row {from}"
+    );
     assert!(
         named >= 100,
         "only {named} of the {} rows after the fault name it as the cause",

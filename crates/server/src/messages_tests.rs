@@ -87,6 +87,46 @@ fn bad_commands_name_the_field() {
     assert!(err.contains("mode: unknown field `bogus`"), "{err}");
 }
 
+/// The refusals of the commands whose fields are a REST body's, word for word (the texts they had as
+/// struct variants of the wire form): the field's path and serde's message.
+#[test]
+fn bodied_commands_name_the_field_word_for_word() {
+    let cases = [
+        json!({"command": "load_volume"}),
+        json!({"command": "load_volume", "path": 3}),
+        json!({"command": "load_volume", "path": "a.nrrd", "nmae": "b"}),
+        json!({"command": "start_recording", "path": "t.csv", "format": "xls"}),
+        json!({"command": "start_recording", "format": "csv"}),
+        json!({"command": "set_hand_target", "position_m": [0.0, 0.1]}),
+        json!({"command": "set_hand_target", "where": null}),
+        json!({"command": "add_mode"}),
+        json!({"command": "add_mode", "mode": {"kind": "surface", "bogus": 1}}),
+        json!({"command": "add_mode", "mode": 7}),
+        json!({"command": "stop_recording", "path": "t.csv"}),
+    ];
+    let refusals: Vec<String> = cases
+        .into_iter()
+        .map(|value| decode_command(value).unwrap_err().to_string())
+        .collect();
+    assert_eq!(
+        refusals,
+        [
+            "command \"load_volume\": missing field `path`",
+            "command \"load_volume\": path: invalid type: integer `3`, expected path string",
+            "command \"load_volume\": unknown field `nmae`, expected `path` or `name`",
+            "command \"start_recording\": format: unknown variant `xls`, expected one of `csv`, `mcap`, `parquet`",
+            "command \"start_recording\": missing field `path`",
+            "command \"set_hand_target\": position_m: invalid length 2, expected an array of length 3",
+            "command \"set_hand_target\": unknown field `where`, expected `position_m`",
+            "command \"add_mode\": missing field `mode`",
+            "command \"add_mode\": mode: unknown field `bogus`, expected one of `kind`, `name`, `volume`, \
+             `transfer`, `side`, `surface`, `mu`, `power_budget_w`, `point_m`, `normal`, `strength_n`, `enabled`",
+            "command \"add_mode\": mode: invalid type: integer `7`, expected struct ModeConfig",
+            "command \"stop_recording\": unknown field `path`, there are no fields",
+        ]
+    );
+}
+
 #[test]
 fn client_messages_decode_or_say_why() {
     let m = decode_client_message(r#"{"type":"rate","rate_hz":200}"#).unwrap();

@@ -4,7 +4,8 @@
 //!
 //! Where it sits: documentation checks. Each test renders its page from the code and fails when the committed
 //! file differs, so the docs cannot drift from the flags or columns. `VOXHAP_BLESS=1 cargo test --test
-//! integration docs_reference` writes the pages instead (after adding a flag or a column).
+//! integration docs_reference` writes the pages instead (after adding a flag or a column). The hand-written
+//! protocol/VISUALISER.md is held to the keys the server sends by crates/server/src/messages_tests.rs.
 
 use clap::CommandFactory;
 use std::fmt::Write as _;

@@ -363,9 +363,11 @@ enum ClientWire {
     },
 }
 
-/// [`ControlCommand`] with an external tag, so a bad field's path survives decoding. Kept in step with
-/// `ControlCommand` by the exhaustive match in [`CommandWire::from_command`] (a test round-trips every variant).
-#[derive(Serialize, Deserialize)]
+/// [`ControlCommand`] with an external tag, so a bad field's path survives decoding. A command whose fields a
+/// REST endpoint's body has, spelt the same, takes that body ([`ModeBody`], [`VolumeBody`], [`RecordBody`],
+/// [`HandBody`]). Kept in step with `ControlCommand` by the exhaustive match in [`CommandWire::from_command`]
+/// (a test round-trips every variant).
+#[derive(Deserialize)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum CommandWire {
     SetStiffness {
@@ -382,26 +384,14 @@ enum CommandWire {
         mode: String,
         enabled: bool,
     },
-    AddMode {
-        mode: ModeConfig,
-    },
+    AddMode(ModeBody),
     RemoveMode {
         name: String,
     },
-    LoadVolume {
-        path: PathBuf,
-        #[serde(default)]
-        name: Option<String>,
-    },
-    StartRecording {
-        path: PathBuf,
-        #[serde(default)]
-        format: Option<TraceFormat>,
-    },
+    LoadVolume(VolumeBody),
+    StartRecording(RecordBody),
     StopRecording {},
-    SetHandTarget {
-        position_m: Option<[f64; 3]>,
-    },
+    SetHandTarget(HandBody),
     ClearFault {},
     SetExternalForce {
         force_n: [f64; 3],
@@ -409,14 +399,23 @@ enum CommandWire {
 }
 
 /// `CommandWire::into_command` and (for the round-trip test) `CommandWire::from_command`, from one list of
-/// the variants: those with fields, then those without (a unit variant of `ControlCommand`, an empty struct
-/// variant on the wire). `from_command`'s match is exhaustive, so a new `ControlCommand` must be listed.
+/// the variants: those with fields, then those that take a REST body (with the body's fields), then those
+/// without (a unit variant of `ControlCommand`, an empty struct variant on the wire). `from_command`'s match
+/// is exhaustive, so a new `ControlCommand` must be listed, and the body patterns name every field, so a
+/// body cannot gain one the command lacks.
 macro_rules! command_wire_conversions {
-    ($($variant:ident { $($field:ident),+ }),+ ; $($unit:ident),+) => {
+    (
+        $($variant:ident { $($field:ident),+ }),+ ;
+        $($bodied:ident($body:ident { $($body_field:ident),+ })),+ ;
+        $($unit:ident),+
+    ) => {
         impl CommandWire {
             fn into_command(self) -> ControlCommand {
                 match self {
                     $(CommandWire::$variant { $($field),+ } => ControlCommand::$variant { $($field),+ },)+
+                    $(CommandWire::$bodied($body { $($body_field),+ }) => {
+                        ControlCommand::$bodied { $($body_field),+ }
+                    })+
                     $(CommandWire::$unit {} => ControlCommand::$unit,)+
                 }
             }
@@ -425,6 +424,9 @@ macro_rules! command_wire_conversions {
             fn from_command(command: ControlCommand) -> Self {
                 match command {
                     $(ControlCommand::$variant { $($field),+ } => CommandWire::$variant { $($field),+ },)+
+                    $(ControlCommand::$bodied { $($body_field),+ } => {
+                        CommandWire::$bodied($body { $($body_field),+ })
+                    })+
                     $(ControlCommand::$unit => CommandWire::$unit {},)+
                     ControlCommand::SetCoupling { .. } => {
                         unreachable!("set_coupling is not a wire command")
@@ -440,12 +442,12 @@ command_wire_conversions! {
     SetDamping { damping },
     SetTransfer { mode, transfer },
     SetModeEnabled { mode, enabled },
-    AddMode { mode },
     RemoveMode { name },
-    LoadVolume { path, name },
-    StartRecording { path, format },
-    SetHandTarget { position_m },
     SetExternalForce { force_n };
+    AddMode(ModeBody { mode }),
+    LoadVolume(VolumeBody { path, name }),
+    StartRecording(RecordBody { path, format }),
+    SetHandTarget(HandBody { position_m });
     StopRecording,
     ClearFault
 }

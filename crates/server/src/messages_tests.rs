@@ -1,7 +1,9 @@
-//! Tests of the wire messages: each command and reply as JSON, both ways.
+//! Tests of the wire messages: each command and reply as JSON, both ways; and protocol/VISUALISER.md held to
+//! the keys the server's WebSocket messages carry.
 
 use super::*;
 use serde_json::json;
+use std::collections::{BTreeMap, BTreeSet};
 use voxhap_api::PrimitiveView;
 use voxhap_core::haptics::modes::ModeKind;
 use voxhap_core::haptics::tick::TickStatus;
@@ -85,6 +87,46 @@ fn bad_commands_name_the_field() {
     assert!(err.contains("mode: unknown field `bogus`"), "{err}");
 }
 
+/// The refusals of the commands whose fields are a REST body's, word for word (the texts they had as
+/// struct variants of the wire form): the field's path and serde's message.
+#[test]
+fn bodied_commands_name_the_field_word_for_word() {
+    let cases = [
+        json!({"command": "load_volume"}),
+        json!({"command": "load_volume", "path": 3}),
+        json!({"command": "load_volume", "path": "a.nrrd", "nmae": "b"}),
+        json!({"command": "start_recording", "path": "t.csv", "format": "xls"}),
+        json!({"command": "start_recording", "format": "csv"}),
+        json!({"command": "set_hand_target", "position_m": [0.0, 0.1]}),
+        json!({"command": "set_hand_target", "where": null}),
+        json!({"command": "add_mode"}),
+        json!({"command": "add_mode", "mode": {"kind": "surface", "bogus": 1}}),
+        json!({"command": "add_mode", "mode": 7}),
+        json!({"command": "stop_recording", "path": "t.csv"}),
+    ];
+    let refusals: Vec<String> = cases
+        .into_iter()
+        .map(|value| decode_command(value).unwrap_err().to_string())
+        .collect();
+    assert_eq!(
+        refusals,
+        [
+            "command \"load_volume\": missing field `path`",
+            "command \"load_volume\": path: invalid type: integer `3`, expected path string",
+            "command \"load_volume\": unknown field `nmae`, expected `path` or `name`",
+            "command \"start_recording\": format: unknown variant `xls`, expected one of `csv`, `mcap`, `parquet`",
+            "command \"start_recording\": missing field `path`",
+            "command \"set_hand_target\": position_m: invalid length 2, expected an array of length 3",
+            "command \"set_hand_target\": unknown field `where`, expected `position_m`",
+            "command \"add_mode\": missing field `mode`",
+            "command \"add_mode\": mode: unknown field `bogus`, expected one of `kind`, `name`, `volume`, \
+             `transfer`, `side`, `surface`, `mu`, `power_budget_w`, `point_m`, `normal`, `strength_n`, `enabled`",
+            "command \"add_mode\": mode: invalid type: integer `7`, expected struct ModeConfig",
+            "command \"stop_recording\": unknown field `path`, there are no fields",
+        ]
+    );
+}
+
 #[test]
 fn client_messages_decode_or_say_why() {
     let m = decode_client_message(r#"{"type":"rate","rate_hz":200}"#).unwrap();
@@ -159,12 +201,8 @@ fn state_serialises_the_contract_fields() {
     assert_eq!(value["sample_age_ticks"], 5);
 }
 
-/// The `state` message's exact text for a few snapshots: certified with primitives, no certificate (a `null`
-/// bound), a hand target and every truth field set. The literals are the output of the implementation
-/// before `State` stopped copying the snapshot's fields (checked key by key against protocol/VISUALISER.md,
-/// "`state`"), so the wire form, key order included, stays the same.
-#[test]
-fn state_text_is_the_wire_form_to_the_byte() {
+/// A certified tick with two primitives (a plane and a point).
+fn certified_with_primitives() -> Snapshot {
     let plane = PrimitiveView {
         kind: voxhap_core::haptics::PrimitiveKind::Plane,
         mode: 0,
@@ -182,7 +220,7 @@ fn state_text_is_the_wire_form_to_the_byte() {
     let mut slots = [None; voxhap_core::haptics::modes::MAX_MODES];
     slots[0] = Some(plane);
     slots[1] = Some(point);
-    let certified = Snapshot {
+    Snapshot {
         tick: 2390,
         t_s: 2.39,
         probe_m: DVec3::new(0.00161, -0.01999, 0.02119),
@@ -197,15 +235,12 @@ fn state_text_is_the_wire_form_to_the_byte() {
         flags: 7,
         active_faults: 3,
         ..Snapshot::example()
-    };
-    let uncertified = Snapshot {
-        error_bound_m: f64::INFINITY,
-        status: TickStatus::Uncertified,
-        connected: false,
-        engaged: false,
-        ..Snapshot::example()
-    };
-    let with_truth = Snapshot {
+    }
+}
+
+/// A tick with a hand target and every field of the tick's truth set (a device force, a local model).
+fn with_every_truth_field() -> Snapshot {
+    Snapshot {
         hand_target_m: Some(DVec3::new(0.01, 0.0, -0.02)),
         error_bound_m: 1e-6,
         status: TickStatus::BudgetExhausted,
@@ -234,7 +269,24 @@ fn state_text_is_the_wire_form_to_the_byte() {
             }),
         },
         ..Snapshot::example()
+    }
+}
+
+/// The `state` message's exact text for a few snapshots: certified with primitives, no certificate (a `null`
+/// bound), a hand target and every truth field set. The literals are the output of the implementation
+/// before `State` stopped copying the snapshot's fields (checked key by key against protocol/VISUALISER.md,
+/// "`state`"), so the wire form, key order included, stays the same.
+#[test]
+fn state_text_is_the_wire_form_to_the_byte() {
+    let certified = certified_with_primitives();
+    let uncertified = Snapshot {
+        error_bound_m: f64::INFINITY,
+        status: TickStatus::Uncertified,
+        connected: false,
+        engaged: false,
+        ..Snapshot::example()
     };
+    let with_truth = with_every_truth_field();
     for (snapshot, frames_dropped, expected) in [
         (
             &certified,
@@ -255,4 +307,247 @@ fn state_text_is_the_wire_form_to_the_byte() {
         let text = serde_json::to_string(&State::new(snapshot, frames_dropped)).unwrap();
         assert_eq!(text, expected);
     }
+}
+
+/// Every key path in `value` (`energy`, `energy.generated_j`); an array's elements are under the array's own
+/// path (`primitives.kind`).
+fn key_paths(value: &Value, prefix: &str, paths: &mut BTreeSet<String>) {
+    match value {
+        Value::Object(object) => {
+            for (key, child) in object {
+                let path = if prefix.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{prefix}.{key}")
+                };
+                key_paths(child, &path, paths);
+                paths.insert(path);
+            }
+        }
+        Value::Array(items) => {
+            for item in items {
+                key_paths(item, prefix, paths);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// The words in backticks in a piece of markdown.
+fn backticked(text: &str) -> impl Iterator<Item = &str> {
+    text.split('`').skip(1).step_by(2)
+}
+
+/// protocol/VISUALISER.md's "Server to client" messages: each paragraph that starts with `**`NAME`**`, up to
+/// the next one, by NAME.
+fn visualiser_server_messages() -> BTreeMap<String, String> {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()));
+    let section = text
+        .split_once("\n### Server to client\n")
+        .and_then(|(_, rest)| rest.split_once("\n### "))
+        .map(|(section, _)| section)
+        .expect("VISUALISER.md has a section \"### Server to client\" followed by another");
+    let mut messages = BTreeMap::new();
+    let mut name = None;
+    for line in section.lines() {
+        if let Some(rest) = line.strip_prefix("**`") {
+            let (message, _) = rest
+                .split_once("`**")
+                .unwrap_or_else(|| panic!("not a message heading: {line:?}"));
+            name = Some(message.to_owned());
+        }
+        if let Some(name) = &name {
+            let paragraph: &mut String = messages.entry(name.clone()).or_default();
+            paragraph.push_str(line);
+            paragraph.push('\n');
+        }
+    }
+    messages
+}
+
+/// What a message's paragraph documents: `keys`, the key paths of its ```json examples and the fields named
+/// in backticks in the first column of its table, which must all exist; and `mentioned`, each table field
+/// joined to the words in backticks in its meaning (`energy.generated_j`), where the keys of a value the
+/// example shows as `null` are documented. A meaning also names values (`none`, `certified`), so its words
+/// need not be keys.
+fn documented(paragraph: &str) -> (BTreeSet<String>, BTreeSet<String>) {
+    let mut keys = BTreeSet::new();
+    let mut mentioned = BTreeSet::new();
+    let mut lines = paragraph.lines();
+    while let Some(line) = lines.next() {
+        if line == "```json" {
+            let block: Vec<&str> = lines.by_ref().take_while(|l| *l != "```").collect();
+            let block = block.join("\n");
+            for value in serde_json::Deserializer::from_str(&block).into_iter::<Value>() {
+                let value = value.unwrap_or_else(|err| panic!("not JSON ({err}):\n{block}"));
+                key_paths(&value, "", &mut keys);
+            }
+        } else if line.starts_with("| `") {
+            let cells: Vec<&str> = line.trim_matches('|').split('|').map(str::trim).collect();
+            for field in backticked(cells[0]) {
+                keys.insert(field.to_owned());
+                for word in backticked(cells.get(1).copied().unwrap_or_default()) {
+                    mentioned.insert(format!("{field}.{word}"));
+                }
+            }
+        }
+    }
+    (keys, mentioned)
+}
+
+/// A message as the server writes it.
+fn wire(message: &impl Serialize) -> Value {
+    serde_json::to_value(message).expect("a server message serialises")
+}
+
+/// Each server-to-client WebSocket message with every optional part present: a `state` of a tick with
+/// primitives, a certificate, a hand target and every field of the tick's truth set (written out field by
+/// field, so a new one must be given a value); a `hello` whose scene is recording and has a recording error.
+fn every_server_message() -> BTreeMap<&'static str, Value> {
+    let certified = certified_with_primitives();
+    let snapshot = Snapshot {
+        primitive_slots: certified.primitive_slots,
+        primitive_count: certified.primitive_count,
+        ..with_every_truth_field()
+    };
+    let scene = SceneReport {
+        stiffness_n_per_m: 500.0,
+        damping_n_s_per_m: 0.5,
+        modes: vec![ModeConfig::new(ModeKind::Viscosity)],
+        volumes: vec![voxhap_api::VolumeReport {
+            name: "density".to_owned(),
+            source: "builtin:density-flow".to_owned(),
+            dims: [64, 64, 64],
+            kind: "scalar",
+            min_m: DVec3::splat(-0.05),
+            max_m: DVec3::splat(0.05),
+        }],
+        device: "sim".to_owned(),
+        simulated: true,
+        recording: Some("session.mcap".into()),
+        recording_error: Some("No space left on device".to_owned()),
+    };
+    let slice = Slice {
+        axis: SliceAxis::Z,
+        width: 2,
+        height: 1,
+        origin_m: DVec3::splat(-0.05),
+        u_m: DVec3::X * 0.1,
+        v_m: DVec3::Y * 0.1,
+        min: 0.0,
+        max: 1.0,
+        values: vec![0.0, 1.0],
+        volume: "density".to_owned(),
+        volume_kind: "scalar",
+        volume_min_m: DVec3::splat(-0.05),
+        volume_max_m: DVec3::splat(0.05),
+    };
+    let id = json!(4);
+    BTreeMap::from([
+        (
+            "hello",
+            wire(&Hello {
+                schema: SCHEMA,
+                rate_hz: 60.0,
+                servo_rate_hz: 1000.0,
+                scene: &scene,
+            }),
+        ),
+        ("state", wire(&State::new(&snapshot, 3))),
+        (
+            "reply",
+            wire(&Reply {
+                id: &id,
+                ok: true,
+                message: "stiffness set to 400 N/m",
+                scene_generation: 2,
+            }),
+        ),
+        (
+            "error",
+            wire(&ErrorMessage {
+                id: &id,
+                error: "unauthorized: wrong token",
+            }),
+        ),
+        (
+            "slice",
+            wire(&SliceMessage {
+                id: &id,
+                slice: &slice,
+            }),
+        ),
+    ])
+}
+
+/// What a message of the server's sends that its paragraph in VISUALISER.md does not document, and what the
+/// paragraph documents that the server does not send. The keys of `hello`'s `scene.modes` are the scene
+/// file's (docs/reference/scene.md, generated from the schema) and are not held here.
+fn visualiser_drift(documented_messages: &BTreeMap<String, String>) -> Vec<String> {
+    let sent = every_server_message();
+    let mut problems = Vec::new();
+    let names: BTreeSet<&str> = documented_messages.keys().map(String::as_str).collect();
+    if names != sent.keys().copied().collect() {
+        problems.push(format!(
+            "VISUALISER.md documents the messages {names:?}, the server sends {:?}",
+            sent.keys().collect::<Vec<_>>()
+        ));
+    }
+    let held = |path: &String| !path.starts_with("scene.modes.");
+    for (name, message) in &sent {
+        let mut wire_paths = BTreeSet::new();
+        key_paths(message, "", &mut wire_paths);
+        let (keys, mentioned) =
+            documented(documented_messages.get(*name).map_or("", String::as_str));
+        for path in wire_paths.iter().filter(|p| held(p)) {
+            if !keys.contains(path) && !mentioned.contains(path) {
+                problems.push(format!(
+                    "`{name}`: the server sends `{path}`, which is not documented"
+                ));
+            }
+        }
+        for path in keys.iter().filter(|p| held(p)) {
+            if !wire_paths.contains(path) {
+                problems.push(format!(
+                    "`{name}`: `{path}` is documented, but the server sends no such key"
+                ));
+            }
+        }
+    }
+    problems
+}
+
+/// Every key the server's WebSocket messages carry (every optional part present) is in protocol/VISUALISER.md:
+/// in the message's example or its table (a nested key like `device_local.proxy_m` in backticks in its
+/// parent's row), and every key the examples and tables show is one the server sends.
+#[test]
+fn visualiser_protocol_documents_every_key_the_server_sends() {
+    let problems = visualiser_drift(&visualiser_server_messages());
+    assert!(
+        problems.is_empty(),
+        "protocol/VISUALISER.md and the server's messages differ:\n{}",
+        problems.join("\n")
+    );
+}
+
+/// The check fails on a drifted page: a key the example renames (missing one way, unknown the other) and a
+/// table field that does not exist.
+#[test]
+fn visualiser_drift_names_missing_and_unknown_keys() {
+    let mut messages = visualiser_server_messages();
+    let reply = messages.get_mut("reply").expect("a `reply` paragraph");
+    *reply = reply.replace("\"scene_generation\": 2", "\"generation\": 2");
+    let state = messages.get_mut("state").expect("a `state` paragraph");
+    *state = state.replace("| `sweeps` |", "| `sweeps`, `sweep_count` |");
+    assert_eq!(
+        visualiser_drift(&messages),
+        [
+            "`reply`: the server sends `scene_generation`, which is not documented",
+            "`reply`: `generation` is documented, but the server sends no such key",
+            "`state`: `sweep_count` is documented, but the server sends no such key",
+        ]
+    );
 }

@@ -551,3 +551,36 @@ fn visualiser_drift_names_missing_and_unknown_keys() {
         ]
     );
 }
+
+/// The `GET /api/stats` example in protocol/VISUALISER.md has every key the server's answer has, and no
+/// other (every field of the statistics is a plain value or an object, so the default report has them all;
+/// `realtime.pinned_cpu` is `null` there, a leaf like a number).
+#[test]
+fn visualiser_stats_example_has_exactly_the_keys_of_the_answer() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()));
+    let example = text
+        .split_once("\n### `GET /api/stats`\n")
+        .and_then(|(_, rest)| rest.split_once("\n### "))
+        .and_then(|(section, _)| section.split_once("```json\n"))
+        .and_then(|(_, rest)| rest.split_once("\n```"))
+        .map(|(json, _)| json)
+        .expect("VISUALISER.md's GET /api/stats section has a JSON example");
+    let documented: Value = serde_json::from_str(example).expect("the example is JSON");
+    let sent = serde_json::to_value(StatsBody {
+        servo: voxhap_api::StatsReport::default(),
+        server: ServerStats::default(),
+    })
+    .unwrap();
+    let (mut documented_paths, mut sent_paths) = (BTreeSet::new(), BTreeSet::new());
+    key_paths(&documented, "", &mut documented_paths);
+    key_paths(&sent, "", &mut sent_paths);
+    let missing: Vec<_> = sent_paths.difference(&documented_paths).collect();
+    let unknown: Vec<_> = documented_paths.difference(&sent_paths).collect();
+    assert!(
+        missing.is_empty() && unknown.is_empty(),
+        "GET /api/stats: the example lacks {missing:?}; it shows keys the server does not send: {unknown:?}"
+    );
+}

@@ -343,10 +343,11 @@ fn woodenhaptics_hid_ticks_allocate_nothing_and_keep_the_newest_report() {
 // ---------------------------------------------------------------------------------------------------------------
 // The drivers inside the reconnecting wrapper, through the supervisor and the safety pipeline.
 
-/// Wraps `driver` (not yet opened) in the reconnecting wrapper, connects it, runs at least `warm_up` exchanges and
-/// on until it is engaged (enable after the steady ticks, engagement, ramp-in), and returns the allocation events
-/// of the next exchanges, until `ticks` of them found it engaged. Panics if it was never engaged within
-/// [`ENGAGE_WITHIN`] or the counted exchanges did not reach `ticks` engaged ones.
+/// Wraps `driver` (not yet opened) in the reconnecting wrapper with a link patient with timeouts, connects it,
+/// runs at least `warm_up` exchanges and on until it is engaged (enable after the steady ticks, engagement,
+/// ramp-in), and returns the allocation events of the next exchanges, until `ticks` of them found it engaged.
+/// Panics if it was never engaged within [`ENGAGE_WITHIN`] or the counted exchanges did not reach `ticks`
+/// engaged ones.
 fn supervised_ticks_allocate<D: HapticDevice + Send + 'static>(
     driver: D,
     warm_up: u64,
@@ -363,8 +364,16 @@ fn supervised_ticks_allocate_then<D: HapticDevice + Send + 'static>(
     then: impl FnOnce(&Reconnecting<D>),
 ) -> u64 {
     let mut slot = Some(driver);
+    // A patient link: a double's thread descheduled on a busy machine gives timeouts (which allocate nothing
+    // either), and they must not drop the link, which cannot come back here (the driver sits on its one
+    // in-memory line and is opened once).
+    let config = SupervisorConfig {
+        max_consecutive_errors: 1_000_000,
+        link_timeout_us: 3_600_000_000,
+        ..SupervisorConfig::default()
+    };
     let mut device = Reconnecting::new(
-        SupervisorConfig::default(),
+        config,
         Box::new(move || {
             slot.take().ok_or(DeviceError::Config {
                 what: "the in-memory device was already opened".to_owned(),
@@ -377,17 +386,11 @@ fn supervised_ticks_allocate_then<D: HapticDevice + Send + 'static>(
     // A small force (under the engage threshold) that varies, so every stage of the pipeline works.
     let exchange = |device: &mut Reconnecting<D>, tick: u64| {
         let force = DVec3::new(0.3 * (tick as f64 * 0.01).sin(), 0.1, 0.2);
-        let output = device.exchange(TickInput::at(force, tick * 1_000));
-        // While the link is down the exchanges do no I/O and would spin through the ticks: give the connector
-        // thread and the double the time a real 1 kHz loop would (a sleep allocates nothing).
-        if !output.connected {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        output
+        device.exchange(TickInput::at(force, tick * 1_000))
     };
-    // On a busy machine the double may stall and the link drop and come back during the warm-up, which then
-    // starts over (enable, engagement, ramp-in): it runs until the device is engaged, however long the load
-    // makes that, within ENGAGE_WITHIN.
+    // On a busy machine the double may stall, and stale states hold the engagement back or end it (zero force
+    // until fresh ones come, then the ramp-in again): the warm-up runs until the device is engaged, however long
+    // the load makes that, within ENGAGE_WITHIN.
     let mut warm_up_events = Vec::new();
     let started = Instant::now();
     let mut tick = 0;
@@ -411,7 +414,7 @@ fn supervised_ticks_allocate_then<D: HapticDevice + Send + 'static>(
     );
     // The steady state must not allocate, whatever happens in it: a fault and its recovery included (the device
     // doubles' threads may fall behind on a loaded machine). util::alloc prints where the first allocation was.
-    // Should the link drop and come back, the count runs until `ticks` exchanges found the device engaged
+    // Should stale states end the engagement, the count runs until `ticks` exchanges found the device engaged
     // (bounded at 20 times as many), so the engaged path is always what was measured, whatever the load.
     let (mut engaged, mut total) = (0u64, 0u64);
     let ((), allocations) = count_allocations(|| {

@@ -484,44 +484,126 @@ fn a_reply_later_than_the_tick_is_a_one_tick_old_state_not_a_miss() {
     assert_every_frame_decoded(&falcon);
 }
 
-/// Ticks a late double's driver in real time at 1 kHz with zero force until it has sent `until_written`
-/// commands, checking every state's age against the truth (`check_age`) while the double keeps up with its own
-/// model (should its thread fall half of `LOST_REPLY_AFTER` behind on a busy machine, its answers stop being
-/// the Falcon's); returns the ages known and unknown, and the known ones among states answering commands
-/// numbered above `after`.
+/// What [`run_paced`] counted.
+#[derive(Default)]
+struct Paced {
+    /// States whose age was checked against the truth ([`check_age`]), and states whose age the driver said
+    /// was unknown.
+    known: u32,
+    unknown: u32,
+    /// The known ones among states answering commands numbered above `clean_from`.
+    known_after: u32,
+    /// The newest damaged command: the line is clean after it.
+    clean_from: i64,
+    /// States not checked because the double had fallen behind since the driver last began a
+    /// resynchronisation.
+    unchecked: u32,
+    /// Ticks on which the double was found to have fallen behind, and the answers garbled after that to make
+    /// the driver start its count over.
+    double_behind: u32,
+    forced_resyncs: u32,
+    /// Ticks run (20 000 when the cap ended the run before `done`).
+    ticks: i64,
+}
+
+impl std::fmt::Display for Paced {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ticks: {} states of known age ({} after command {}), {} unknown, {} not checked; the double fell \
+             behind on {} ticks, {} answers garbled after that",
+            self.ticks,
+            self.known,
+            self.known_after,
+            self.clean_from,
+            self.unknown,
+            self.unchecked,
+            self.double_behind,
+            self.forced_resyncs
+        )
+    }
+}
+
+/// Ticks a late double's driver in real time at 1 kHz with zero force until `done` (given the counts so far and
+/// the commands sent) or 20 000 ticks, checking the age of every state against the truth ([`check_age`]).
+///
+/// Only while the double keeps up with its own model: should its thread fall `LOST_REPLY_AFTER / 2` behind on a
+/// busy machine (`max_late_us`, taken every tick), its answers can come later than the link's bound, and once
+/// the driver has counted from a quiet link in the meantime, an answer it reads may be one it was owed before:
+/// the count is off until it resynchronises, and nothing the driver can see tells it so. States are not checked
+/// from such a tick until the driver begins a resynchronisation after it. With `force_resync`, when that
+/// happens on a clean line (commands above `clean_from`), the answer to a command two ahead is garbled, so the
+/// driver starts its count over, and the clean line begins after it (`clean_from`, `known_after` counted
+/// again).
 fn run_paced(
     falcon: &FalconDevice,
     device: &mut Lifecycle<Falcon<CountingPort>>,
     written: &AtomicI64,
-    until_written: i64,
-    after: i64,
-) -> (u32, u32, u32) {
+    clean_from: i64,
+    force_resync: bool,
+    done: impl Fn(&Paced, i64) -> bool,
+) -> Paced {
     let period = Duration::from_millis(1);
+    let behind_us = u64::try_from(LOST_REPLY_AFTER.as_micros()).unwrap() / 2;
     let start = std::time::Instant::now();
-    let (mut known, mut unknown, mut known_after) = (0, 0, 0);
-    let mut tick = 0i64;
+    let mut paced = Paced {
+        clean_from,
+        ..Paced::default()
+    };
+    // The driver's resynchronisations when the double was last found behind (`None`: it has kept up since the
+    // driver last began one, or at all), and whether an answer was garbled for it.
+    let mut behind_at_resyncs: Option<u64> = None;
+    let mut forced = false;
+    falcon.shared.max_late_us.store(0, Ordering::Release);
     // At most 20 000 ticks, whatever the load (a resynchronisation sends no command for 50 ms or more).
-    while written.load(Ordering::Acquire) < until_written && tick < 20_000 {
+    while !done(&paced, written.load(Ordering::Acquire)) {
+        if paced.ticks == 20_000 {
+            break;
+        }
+        let tick = paced.ticks;
         let due = start + period * u32::try_from(tick).unwrap();
         if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
             std::thread::sleep(wait);
         }
         device.write_force(DVec3::ZERO).unwrap();
-        let double_on_time = falcon.shared.max_late_us.load(Ordering::Acquire)
-            < u64::try_from(LOST_REPLY_AFTER.as_micros()).unwrap() / 2;
-        if device.read_state().is_ok() && double_on_time {
+        let read = device.read_state().is_ok();
+        // Taken after the read: the double records how far behind it is before it writes an answer.
+        let resyncs = device.device().resyncs();
+        if falcon.shared.max_late_us.swap(0, Ordering::AcqRel) >= behind_us {
+            paced.double_behind += 1;
+            behind_at_resyncs = Some(resyncs);
+            forced = false;
+        } else if behind_at_resyncs.is_some_and(|then| resyncs > then) {
+            behind_at_resyncs = None;
+        }
+        if read && behind_at_resyncs.is_some() {
+            paced.unchecked += 1;
+        } else if read {
             if check_age(device, written, tick).1 {
-                known += 1;
+                paced.known += 1;
                 let answered = i64::from(device.device().last_reply().unwrap().encoders[0]);
-                known_after += u32::from(answered > after);
+                paced.known_after += u32::from(answered > paced.clean_from);
             } else {
-                unknown += 1;
+                paced.unknown += 1;
             }
         }
+        let sent = written.load(Ordering::Acquire);
+        if force_resync && behind_at_resyncs.is_some() && !forced && sent > paced.clean_from {
+            forced = true;
+            paced.forced_resyncs += 1;
+            paced.clean_from = sent + 2;
+            paced.known_after = 0;
+            falcon
+                .shared
+                .junk
+                .lock()
+                .unwrap()
+                .insert(sent + 2, Junk::Garbled);
+        }
         device.input_checked(true);
-        tick += 1;
+        paced.ticks += 1;
     }
-    (known, unknown, known_after)
+    paced
 }
 
 /// The same late Falcon paced in real time at 1 kHz: every state the driver hands out is honest about its age
@@ -533,8 +615,10 @@ fn late_replies_at_a_real_1_khz_pace_carry_honest_ages() {
     let (mut device, written) = open_late(&falcon);
     std::thread::sleep(Duration::from_millis(20));
     let until = written.load(Ordering::Acquire) + 500;
-    let (known, _, _) = run_paced(&falcon, &mut device, &written, until, 0);
-    assert!(known > 0, "no state checked in 500 ticks");
+    let paced = run_paced(&falcon, &mut device, &written, 0, false, |_, sent| {
+        sent >= until
+    });
+    assert!(paced.known > 0, "no state checked in 500 ticks: {paced}");
     assert_eq!(device.device().surplus_frames(), 0);
     assert_every_frame_decoded(&falcon);
 }
@@ -543,7 +627,9 @@ fn late_replies_at_a_real_1_khz_pace_carry_honest_ages() {
 /// FalconFirmwareNovintSDK.h:29-34): junk bytes that answer nothing before an answer, answers garbled or cut
 /// by inserted bytes, and a lost answer, at 1 kHz in real time. Junk and a garbled answer look alike to the
 /// host; whatever it takes them for, no state it hands out may say it is younger than it is (the double numbers
-/// its answers), and once the line is clean again the ages are known again.
+/// its answers), and once the line is clean again the ages are known again: the run goes on until 10 states
+/// answering commands after the last damage had their age known and checked, however late a busy machine
+/// makes the double (`run_paced`), and fails if that takes 20 000 ticks.
 #[test]
 fn junk_on_the_line_never_makes_a_state_look_younger() {
     let falcon = FalconDevice::start_late();
@@ -564,15 +650,16 @@ fn junk_on_the_line_never_makes_a_state_look_younger() {
             last_damaged = base + 80;
         }
     }
-    let (known, unknown, known_after) = run_paced(
+    let paced = run_paced(
         &falcon,
         &mut device,
         &written,
-        last_damaged + 300,
         last_damaged,
+        true,
+        |paced, _| paced.known_after >= 10,
     );
     eprintln!(
-        "{known} states of known age, {unknown} unknown, {} resyncs, {} malformed frames",
+        "{paced}; {} resyncs, {} malformed frames",
         device.device().resyncs(),
         device.device().malformed_frames()
     );
@@ -581,8 +668,9 @@ fn junk_on_the_line_never_makes_a_state_look_younger() {
         "the driver never doubted its count"
     );
     assert!(
-        known_after >= 10,
-        "only {known_after} states of known age after the line was clean again"
+        paced.known_after >= 10,
+        "only {} states of known age after the line was clean again: {paced}",
+        paced.known_after
     );
     // Whatever the damage on the way back, every frame the driver sent the Falcon was whole.
     assert_every_frame_decoded(&falcon);

@@ -158,8 +158,11 @@ pub struct FalconShared {
     /// Each answer's encoder counts are `[n, -n, 2n]` for the n-th command answered (from 0), instead of the
     /// true counts: the host can tell which command a state answers.
     pub numbered: AtomicBool,
-    /// The latest a late answer reached the host after its planned arrival (µs): how far the double's own
-    /// thread fell behind its model on a busy machine.
+    /// The latest a late answer reached the host after its planned arrival, or the longest the double's thread
+    /// was away from the line between two rounds of its loop (µs), since a test last took it (`swap(0)`): how far
+    /// the double's own thread fell behind its model on a busy machine. A command the thread reads late gets
+    /// its answer late too, which the planned arrival (counted from the read) does not show; the gap does.
+    /// Recorded before the round writes anything, so a host that has read a late answer sees its lateness.
     pub max_late_us: AtomicU64,
     /// Damage to the answer to command n (by number).
     pub junk: Mutex<BTreeMap<i64, Junk>>,
@@ -364,7 +367,11 @@ impl FalconDevice {
                     VecDeque::new();
                 let mut chunk = [0u8; 256];
                 let mut marks_written = 0;
+                let mut round = Instant::now();
                 while !shared.stop.load(Ordering::Acquire) {
+                    let away = round.elapsed().as_micros();
+                    shared.max_late_us.fetch_max(away as u64, Ordering::AcqRel);
+                    round = Instant::now();
                     let asked = shared.marks_asked.load(Ordering::Acquire);
                     if asked > marks_written {
                         marks_written = asked;
@@ -376,12 +383,12 @@ impl FalconDevice {
                         .is_some_and(|(at, _, _, _)| *at <= Instant::now())
                     {
                         let (at, out, served, whole) = on_the_way.pop_front().unwrap();
+                        let late = Instant::now().saturating_duration_since(at).as_micros();
+                        shared.max_late_us.fetch_max(late as u64, Ordering::AcqRel);
                         let _ = pty.write(&out);
                         if let Some(whole) = whole {
                             shared.newest_delivered.fetch_max(whole, Ordering::AcqRel);
                         }
-                        let late = Instant::now().saturating_duration_since(at).as_micros();
-                        shared.max_late_us.fetch_max(late as u64, Ordering::AcqRel);
                         shared.answered.fetch_add(served as u64, Ordering::AcqRel);
                     }
                     match pty.read(&mut chunk) {

@@ -1,5 +1,5 @@
 //! What a driver that converts force itself keeps for the host, one type for the serial drivers (Haply 2DIY,
-//! WoodenHaptics serial, Novint Falcon): the pose force is converted with and the host's verdict on the newest
+//! WoodenHaptics serial, Novint Falcon) and the WoodenHaptics HID driver: the pose force is converted with and the host's verdict on the newest
 //! reading ([`HapticDevice::input_checked`](crate::HapticDevice::input_checked)), the age of the state handed
 //! out ([`HapticDevice::state_age_ticks`](crate::HapticDevice::state_age_ticks)), and the messages nobody asked
 //! for, counted and reported ([`HapticDevice::take_event`](crate::HapticDevice::take_event)).
@@ -8,6 +8,7 @@
 //! book answers inside the driver's `impl HapticDevice`. Allocation-free and lock-free (called every tick).
 
 use super::reply_age::ReplyAge;
+use super::report_stream::NewestReport;
 use crate::{DeviceEvent, SurplusCount};
 
 /// Tells how many servo ticks old the state a driver handed out last may be.
@@ -18,6 +19,13 @@ pub trait StateAge: Default {
 
 /// Drivers whose replies carry no sequence number and answer one command each (Haply 2DIY, WoodenHaptics).
 impl StateAge for ReplyAge {
+    fn ticks(&self) -> u32 {
+        self.age()
+    }
+}
+
+/// A driver whose device streams reports (WoodenHaptics HID): its receive core keeps the newest report's age.
+impl StateAge for NewestReport {
     fn ticks(&self) -> u32 {
         self.age()
     }

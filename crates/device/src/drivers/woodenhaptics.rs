@@ -30,6 +30,7 @@
 //! Currents are scaled together so none exceeds 3 A (chai3d clamps each motor alone, which changes the force's
 //! direction) and sent as whole milliamperes, truncated toward zero as C's `short(...)` does.
 
+use super::reply_book::{reply_book_methods, ReplyBook};
 use super::report_stream::NewestReport;
 use super::woodenhaptics_kinematics::WoodyKinematics;
 use crate::transport::ReportTransport;
@@ -118,14 +119,11 @@ pub struct WoodenHaptics<T> {
     transport: T,
     kinematics: WoodyKinematics,
     info: DeviceInfo,
-    /// Joint angles of the newest report the host accepted: the only pose force is converted with.
-    theta: Option<[f64; 3]>,
-    /// Joint angles of the newest report, until the host's verdict on it.
-    candidate: Option<[f64; 3]>,
+    /// The joint angles force is converted with and the host's verdict on the newest report's; the age is kept
+    /// by the receive core (`book.age`): the newest report of each tick's read, and its age.
+    book: ReplyBook<[f64; 3], NewestReport>,
     read_timeout: Duration,
     last_counter: Option<u16>,
-    /// The receive core: the newest report of each tick's read, and its age.
-    reports: NewestReport,
 }
 
 impl<T: ReportTransport> WoodenHaptics<T> {
@@ -147,11 +145,9 @@ impl<T: ReportTransport> WoodenHaptics<T> {
             transport,
             kinematics,
             info,
-            theta: None,
-            candidate: None,
+            book: ReplyBook::new(),
             read_timeout: super::reply_age::DEFAULT_REPLY_WAIT,
             last_counter: None,
-            reports: NewestReport::default(),
         })
     }
 
@@ -169,7 +165,7 @@ impl<T: ReportTransport> WoodenHaptics<T> {
 
     /// How many older queued reports `read_state` skipped to reach the newest one.
     pub fn drained_reports(&self) -> u64 {
-        self.reports.skipped()
+        self.book.age.skipped()
     }
 
     /// The firmware's report counter from the last input report.
@@ -188,7 +184,7 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
     fn write_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         DeviceError::check_finite_force(force_n.to_array())?;
         // Only a pose the host accepted converts force; none yet means zero.
-        let currents = match self.theta {
+        let currents = match self.book.accepted() {
             // |current| <= MAX_CURRENT_MA, so it fits the firmware's `short`.
             Some(theta) => self
                 .kinematics
@@ -197,19 +193,19 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
             None => [0; 3],
         };
         self.transport.write_report(&encode_output(currents, 0))?;
-        self.reports.command_sent();
+        self.book.age.command_sent();
         Ok(())
     }
 
     fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
-        self.candidate = None;
+        self.book.reading_begins();
         // The queue drained, the newest report kept (the shared runner over the report core).
         super::exchange::newest_report_within(
             &mut self.transport,
-            &mut self.reports,
+            &mut self.book.age,
             self.read_timeout,
         )?;
-        let Some((report, _age)) = self.reports.take() else {
+        let Some((report, _age)) = self.book.age.take() else {
             return Err(DeviceError::Timeout {
                 waited_us: u64::try_from(self.read_timeout.as_micros()).unwrap_or(u64::MAX),
                 waiting_for: "a WoodenHaptics input report",
@@ -223,28 +219,16 @@ impl<T: ReportTransport> HapticDevice for WoodenHaptics<T> {
                 what: "WoodenHaptics encoder counts put the arm where its links cannot reach",
             });
         };
-        self.candidate = Some(theta);
+        self.book.propose(theta);
         Ok(DeviceState::at_rest(position_m))
     }
 
-    fn link_latency(&self) -> Option<crate::latency::LinkLatency> {
-        Some(crate::latency::WOODENHAPTICS_HID)
-    }
-
-    /// Ticks in a row before the report handed out that brought none (module docs).
-    fn state_age_ticks(&self) -> u32 {
-        self.reports.age()
-    }
+    // The age: ticks in a row before the report handed out that brought none (module docs). No surplus is
+    // counted (a streaming firmware sends more reports than commands), so there is never an event.
+    reply_book_methods!(crate::latency::WOODENHAPTICS_HID);
 
     fn disable(&mut self) -> Result<(), DeviceError> {
         // The wrapper has written a zero force; the firmware's own 0.5 s watchdog disables the amplifiers.
         Ok(())
-    }
-
-    fn input_checked(&mut self, accepted: bool) {
-        match self.candidate.take() {
-            Some(theta) if accepted => self.theta = Some(theta),
-            _ => {}
-        }
     }
 }

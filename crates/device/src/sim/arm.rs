@@ -5,9 +5,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::effects::{DeviceEffects, EffectsState};
-use super::path::{
-    check_positive, check_positive_at_most, check_vector_within, MAX_ARM_MASS_KG, MAX_POSITION_M,
-};
+use super::keys::{check_positive, KeyCheck, ARM_MASS, POSITION, RADIUS};
 use super::preset::{ArmPreset, PresetFigures};
 use super::tagged::tagged_table;
 use super::zoh::SubstepMapCache;
@@ -51,11 +49,11 @@ pub enum Workspace {
 }
 
 tagged_table! {
-    Workspace by shape,
+    Workspace by shape at "arm.workspace",
     /// The `shape` of a [`Workspace`] table.
     kinds WorkspaceShape {
-        Box = "box" { min_m, max_m },
-        Sphere = "sphere" { center_m, radius_m },
+        Box = "box" { min_m: POSITION, max_m: POSITION },
+        Sphere = "sphere" { center_m: POSITION, radius_m: RADIUS },
         Unbounded = "unbounded" {},
     }
     /// An `[arm.workspace]` table as written: every key of every shape, checked against its `shape` by
@@ -69,21 +67,15 @@ tagged_table! {
 }
 
 impl Workspace {
+    /// Checks every key ([`super::keys`], each key's in the `tagged_table!` above), then that a box's
+    /// corners are in order.
     fn validate(&self) -> Result<(), SimError> {
+        self.check_keys()?;
         match self {
-            Workspace::Box { min_m, max_m } => {
-                check_vector_within("arm.workspace.min_m", *min_m, MAX_POSITION_M, "m")?;
-                check_vector_within("arm.workspace.max_m", *max_m, MAX_POSITION_M, "m")?;
-                if min_m.cmpgt(*max_m).any() {
-                    return Err(SimError::InvertedBox);
-                }
-                Ok(())
+            Workspace::Box { min_m, max_m } if min_m.cmpgt(*max_m).any() => {
+                Err(SimError::InvertedBox)
             }
-            Workspace::Sphere { center_m, radius_m } => {
-                check_vector_within("arm.workspace.center_m", *center_m, MAX_POSITION_M, "m")?;
-                check_positive_at_most("arm.workspace.radius_m", *radius_m, MAX_POSITION_M, "m")
-            }
-            Workspace::Unbounded => Ok(()),
+            _ => Ok(()),
         }
     }
 
@@ -352,7 +344,7 @@ impl SimArm {
     /// Checks the configuration and places the arm at rest at `start_m`.
     pub fn new(config: SimArmConfig, start_m: DVec3) -> Result<Self, SimError> {
         let arm = &config.arm;
-        check_positive_at_most("arm.mass_kg", arm.mass_kg, MAX_ARM_MASS_KG, "kg")?;
+        ARM_MASS.check("arm.mass_kg", &arm.mass_kg)?;
         non_negative("arm.damping_n_s_per_m", arm.damping_n_s_per_m)?;
         check_positive("arm.substeps_per_tick", f64::from(arm.substeps_per_tick))?;
         non_negative("arm.wall_stiffness_n_per_m", arm.wall_stiffness_n_per_m)?;
@@ -362,7 +354,7 @@ impl SimArm {
         check_positive("hand.stiffness_n_per_m", config.hand.stiffness_n_per_m)?;
         non_negative("hand.damping_n_s_per_m", config.hand.damping_n_s_per_m)?;
         config.path.validate()?;
-        check_vector_within("start_m", start_m, MAX_POSITION_M, "m")?;
+        POSITION.check("start_m", &start_m)?;
 
         // The mass, its damping and the hand are integrated exactly (super::zoh); only the workspace wall,
         // a one-sided spring held over each substep, limits the substep.

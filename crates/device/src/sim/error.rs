@@ -43,8 +43,8 @@ pub enum SimError {
         name: &'static str,
     },
     /// A finite scalar parameter outside the range in which a run means something (the limits are in
-    /// [`path`]'s constants): it would overflow to infinity or NaN within the run, or ask for more than any
-    /// arm or hand can do.
+    /// [`keys`](super::keys)'s constants): it would overflow to infinity or NaN within the run, or ask for
+    /// more than any arm or hand can do.
     #[error(
         "simulated arm parameter {name} = {} is out of range: give {} {unit}",
         readable(*.value),

@@ -34,6 +34,7 @@
 mod arm;
 pub mod effects;
 mod error;
+pub mod keys;
 mod path;
 pub mod preset;
 mod tagged;
@@ -48,11 +49,11 @@ pub use arm::{
 };
 pub use effects::DeviceEffects;
 pub use error::{readable, SimError};
-pub use path::{
-    ForceProfile, ForceProfileShape, HandDrive, HandPath, HandPathKind, MAX_ARM_MASS_KG,
-    MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M, MAX_SPEED_M_PER_S,
-    PATH_TIME_RANGE_S,
+pub use keys::{
+    MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_PATH_VERTICES, MAX_POSITION_M,
+    MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
 };
+pub use path::{ForceProfile, ForceProfileShape, HandDrive, HandPath, HandPathKind};
 pub use preset::{ArmPreset, PresetFigures};
 pub use tagged::TaggedTableError;
 pub use zoh_boundary::{zoh_boundary, ZohError, ZohLoop};

@@ -7,9 +7,10 @@
 //! velocity error rather than fighting the motion.
 //!
 //! Limits: every parameter is finite, and within a range where a run means something (positions within a
-//! kilometre, speeds up to 100 m/s, times from a millisecond, forces up to 1 kN: the constants below); a value
-//! outside is refused with its key, its value and the range, since far outside it the path's arithmetic
-//! overflows (a speed of 1e300 m/s made every sample NaN) or asks for what no hand can do.
+//! kilometre, speeds up to 100 m/s, times from a millisecond, forces up to 1 kN: the constants of
+//! [`super::keys`], each key's named in the `tagged_table!` declarations below); a value outside is refused
+//! with its key, its value and the range, since far outside it the path's arithmetic overflows (a speed of
+//! 1e300 m/s made every sample NaN) or asks for what no hand can do.
 //!
 //! Conventions: time before 0 (or non-finite) is treated as 0; paths that end (line, waypoints, raster) hold
 //! their last point afterwards; the circle repeats forever. Polylines (waypoints, raster) are walked at a
@@ -19,6 +20,10 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
+use super::keys::{
+    KeyCheck, OwnTable, CIRCLE_NORMAL, FREQUENCY, HAND_FORCE, PATH_SPEED, PATH_TIME, POSITION,
+    RADIUS, RASTER_LINES, WAYPOINTS,
+};
 use super::tagged::tagged_table;
 use super::SimError;
 
@@ -135,15 +140,26 @@ pub enum ForceProfile {
 }
 
 tagged_table! {
-    HandPath by kind,
+    HandPath by kind at "path",
     /// The `kind` of a [`HandPath`] table.
     kinds HandPathKind {
-        Hold = "hold" { at_m },
-        Line = "line" { from_m, to_m, duration_s },
-        Waypoints = "waypoints" { points_m, speed_m_per_s },
-        Circle = "circle" { center_m, radius_m, normal, period_s },
-        Raster = "raster" { origin_m, sweep_m, step_m, lines, speed_m_per_s },
-        Force = "force" { profile },
+        Hold = "hold" { at_m: POSITION },
+        Line = "line" { from_m: POSITION, to_m: POSITION, duration_s: PATH_TIME },
+        Waypoints = "waypoints" { points_m: WAYPOINTS, speed_m_per_s: PATH_SPEED },
+        Circle = "circle" {
+            center_m: POSITION,
+            radius_m: RADIUS,
+            normal: CIRCLE_NORMAL,
+            period_s: PATH_TIME
+        },
+        Raster = "raster" {
+            origin_m: POSITION,
+            sweep_m: POSITION,
+            step_m: POSITION,
+            lines: RASTER_LINES,
+            speed_m_per_s: PATH_SPEED
+        },
+        Force = "force" { profile: OwnTable },
     }
     /// A `[path]` table as written: every key of every kind, checked against its `kind` by
     /// `HandPath::try_from` (super::tagged says why).
@@ -167,12 +183,12 @@ tagged_table! {
 }
 
 tagged_table! {
-    ForceProfile by shape,
+    ForceProfile by shape at "path.profile",
     /// The `shape` of a [`ForceProfile`] table.
     kinds ForceProfileShape {
-        Constant = "constant" { force_n },
-        Ramp = "ramp" { from_n, to_n, duration_s },
-        Sine = "sine" { offset_n, amplitude_n, frequency_hz },
+        Constant = "constant" { force_n: HAND_FORCE },
+        Ramp = "ramp" { from_n: HAND_FORCE, to_n: HAND_FORCE, duration_s: PATH_TIME },
+        Sine = "sine" { offset_n: HAND_FORCE, amplitude_n: HAND_FORCE, frequency_hz: FREQUENCY },
     }
     /// A `[path.profile]` table as written: every key of every shape, checked against its `shape` by
     /// `ForceProfile::try_from` (super::tagged says why).
@@ -184,125 +200,6 @@ tagged_table! {
         offset_n: DVec3,
         amplitude_n: DVec3,
         frequency_hz: f64,
-    }
-}
-
-/// Largest size of a coordinate of any position of a path, a workspace or a start point (m): a kilometre, far
-/// beyond any arm's reach, and small enough that squares and products of positions stay finite.
-pub const MAX_POSITION_M: f64 = 1e3;
-/// Fastest a path may move the hand (m/s): a human hand moves a few metres per second at most.
-pub const MAX_SPEED_M_PER_S: f64 = 100.0;
-/// Shortest and longest time of a path or force profile (a line's travel, a circle's period, a ramp) (s):
-/// below a millisecond the target's velocity (distance over time) leaves physical sense and, near zero,
-/// overflows; a circle's angle `2 pi t / period` loses all precision.
-pub const PATH_TIME_RANGE_S: (f64, f64) = (1e-3, 1e6);
-/// Largest size of a coordinate of a hand force (N): a hundred kilograms' weight, far beyond a hand's push.
-pub const MAX_HAND_FORCE_N: f64 = 1e3;
-/// Highest frequency of a sine force profile (Hz).
-pub const MAX_FREQUENCY_HZ: f64 = 1e4;
-/// Most waypoints, and most raster lines: every physics substep walks the path's vertices.
-pub const MAX_PATH_VERTICES: usize = 10_000;
-/// Heaviest simulated arm (kg): a tonne. Heavier, the arm does not move at any force a haptic loop renders.
-pub const MAX_ARM_MASS_KG: f64 = 1e3;
-
-/// Checks that `value` is finite, > 0 and at most `max`.
-pub(super) fn check_positive_at_most(
-    name: &'static str,
-    value: f64,
-    max: f64,
-    unit: &'static str,
-) -> Result<(), SimError> {
-    check_between(name, value, (0.0, max), unit)
-}
-
-/// Checks that `value` is finite, > 0 and within `[min, max]`; a `min` of 0 is reported as excluded (the
-/// range is then `(0, max]`).
-fn check_between(
-    name: &'static str,
-    value: f64,
-    (min, max): (f64, f64),
-    unit: &'static str,
-) -> Result<(), SimError> {
-    check_positive(name, value)?;
-    if !(min..=max).contains(&value) {
-        return Err(SimError::OutOfRange {
-            name,
-            value,
-            min,
-            max,
-            min_excluded: min == 0.0,
-            unit,
-        });
-    }
-    Ok(())
-}
-
-/// Checks that every component of `value` is finite and at most `limit` in size.
-pub(super) fn check_vector_within(
-    name: &'static str,
-    value: DVec3,
-    limit: f64,
-    unit: &'static str,
-) -> Result<(), SimError> {
-    check_vector(name, value)?;
-    let largest = value.abs().max_element();
-    if largest > limit {
-        let value =
-            value.to_array().into_iter().fold(
-                0.0,
-                |worst: f64, c| {
-                    if c.abs() > worst.abs() {
-                        c
-                    } else {
-                        worst
-                    }
-                },
-            );
-        return Err(SimError::VectorOutOfRange {
-            name,
-            value,
-            limit,
-            unit,
-        });
-    }
-    Ok(())
-}
-
-fn check_position(name: &'static str, value: DVec3) -> Result<(), SimError> {
-    check_vector_within(name, value, MAX_POSITION_M, "m")
-}
-
-fn check_force(name: &'static str, value: DVec3) -> Result<(), SimError> {
-    check_vector_within(name, value, MAX_HAND_FORCE_N, "N")
-}
-
-/// Checks a time of a path or a force profile: within [`PATH_TIME_RANGE_S`].
-fn check_time(name: &'static str, value: f64) -> Result<(), SimError> {
-    check_between(name, value, PATH_TIME_RANGE_S, "s")
-}
-
-/// Checks a path's speed: > 0 and at most [`MAX_SPEED_M_PER_S`].
-fn check_speed(name: &'static str, value: f64) -> Result<(), SimError> {
-    check_positive_at_most(name, value, MAX_SPEED_M_PER_S, "m/s")
-}
-
-pub(super) fn check_positive(name: &'static str, value: f64) -> Result<(), SimError> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
-    } else {
-        Err(SimError::InvalidParameter {
-            name,
-            value,
-            requirement: "finite and > 0",
-        })
-    }
-}
-
-fn check_vector(name: &'static str, value: DVec3) -> Result<(), SimError> {
-    if value.is_finite() {
-        Ok(())
-    } else {
-        Err(SimError::NonFiniteVector { name })
     }
 }
 
@@ -343,75 +240,10 @@ fn polyline_at(count: usize, vertex: impl Fn(usize) -> DVec3, speed: f64, t_s: f
 }
 
 impl HandPath {
-    /// Checks that every parameter is finite and in range. [`SimArm::new`](super::SimArm::new) calls this.
+    /// Checks that every parameter is finite and in range ([`super::keys`], each key's in the
+    /// `tagged_table!` above). [`SimArm::new`](super::SimArm::new) calls this.
     pub fn validate(&self) -> Result<(), SimError> {
-        match self {
-            HandPath::Hold { at_m } => check_position("path.at_m", *at_m),
-            HandPath::Line {
-                from_m,
-                to_m,
-                duration_s,
-            } => {
-                check_position("path.from_m", *from_m)?;
-                check_position("path.to_m", *to_m)?;
-                check_time("path.duration_s", *duration_s)
-            }
-            HandPath::Waypoints {
-                points_m,
-                speed_m_per_s,
-            } => {
-                if points_m.is_empty() {
-                    return Err(SimError::EmptyWaypoints);
-                }
-                if points_m.len() > MAX_PATH_VERTICES {
-                    return Err(SimError::TooMany {
-                        name: "path.points_m",
-                        count: points_m.len(),
-                        limit: MAX_PATH_VERTICES,
-                    });
-                }
-                for point in points_m {
-                    check_position("path.points_m", *point)?;
-                }
-                check_speed("path.speed_m_per_s", *speed_m_per_s)
-            }
-            HandPath::Circle {
-                center_m,
-                radius_m,
-                normal,
-                period_s,
-            } => {
-                check_position("path.center_m", *center_m)?;
-                check_positive_at_most("path.radius_m", *radius_m, MAX_POSITION_M, "m")?;
-                check_vector("path.normal", *normal)?;
-                check_positive("path.normal (length)", normal.length())?;
-                check_time("path.period_s", *period_s)
-            }
-            HandPath::Raster {
-                origin_m,
-                sweep_m,
-                step_m,
-                lines,
-                speed_m_per_s,
-            } => {
-                check_position("path.origin_m", *origin_m)?;
-                check_position("path.sweep_m", *sweep_m)?;
-                check_position("path.step_m", *step_m)?;
-                check_positive("path.lines", f64::from(*lines))?;
-                if *lines as usize > MAX_PATH_VERTICES {
-                    return Err(SimError::OutOfRange {
-                        name: "path.lines",
-                        value: f64::from(*lines),
-                        min: 1.0,
-                        max: MAX_PATH_VERTICES as f64,
-                        min_excluded: false,
-                        unit: "lines",
-                    });
-                }
-                check_speed("path.speed_m_per_s", *speed_m_per_s)
-            }
-            HandPath::Force { profile } => profile.validate(),
-        }
+        self.check_keys()
     }
 
     /// The hand's drive at time `t_s`: a target with its velocity, or a force. Pure and allocation-free.
@@ -500,34 +332,10 @@ impl HandPath {
 }
 
 impl ForceProfile {
-    /// Checks that every parameter is finite and in range.
+    /// Checks that every parameter is finite and in range ([`super::keys`], each key's in the
+    /// `tagged_table!` above).
     pub fn validate(&self) -> Result<(), SimError> {
-        match self {
-            ForceProfile::Constant { force_n } => check_force("path.profile.force_n", *force_n),
-            ForceProfile::Ramp {
-                from_n,
-                to_n,
-                duration_s,
-            } => {
-                check_force("path.profile.from_n", *from_n)?;
-                check_force("path.profile.to_n", *to_n)?;
-                check_time("path.profile.duration_s", *duration_s)
-            }
-            ForceProfile::Sine {
-                offset_n,
-                amplitude_n,
-                frequency_hz,
-            } => {
-                check_force("path.profile.offset_n", *offset_n)?;
-                check_force("path.profile.amplitude_n", *amplitude_n)?;
-                check_positive_at_most(
-                    "path.profile.frequency_hz",
-                    *frequency_hz,
-                    MAX_FREQUENCY_HZ,
-                    "Hz",
-                )
-            }
-        }
+        self.check_keys()
     }
 
     /// The force at `t_s` (N).
@@ -546,6 +354,13 @@ impl ForceProfile {
                 frequency_hz,
             } => *offset_n + *amplitude_n * (TAU * frequency_hz * t).sin(),
         }
+    }
+}
+
+/// A `[path.profile]` table checks its own keys.
+impl KeyCheck<ForceProfile> for OwnTable {
+    fn check(&self, _name: &'static str, value: &ForceProfile) -> Result<(), SimError> {
+        value.validate()
     }
 }
 

@@ -12,7 +12,7 @@
 use serde::{Deserialize, Serialize};
 
 /// Declares [`ArmPreset`] with each preset's scene-file name written once: serde reads and writes that name,
-/// [`ArmPreset::name`] returns it and [`ArmPreset::NAMES`] lists them all.
+/// [`ArmPreset::name`] returns it, [`ArmPreset::NAMES`] lists them all and [`ArmPreset::ALL`] lists the presets.
 macro_rules! arm_presets {
     ($($(#[$doc:meta])* $variant:ident = $name:literal,)+) => {
         /// A device whose published figures a simulated arm can take.
@@ -24,6 +24,9 @@ macro_rules! arm_presets {
         impl ArmPreset {
             /// Every preset's scene-file name, in declaration order.
             pub const NAMES: [&'static str; [$($name),+].len()] = [$($name),+];
+
+            /// Every preset, in declaration order.
+            pub const ALL: [ArmPreset; [$($name),+].len()] = [$(ArmPreset::$variant),+];
 
             /// The name written in a scene file.
             pub fn name(self) -> &'static str {

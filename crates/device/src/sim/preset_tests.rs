@@ -12,13 +12,6 @@ fn assert_near(got: Option<f64>, want: f64, rel: f64, what: &str) {
     );
 }
 
-const ALL: [ArmPreset; 4] = [
-    ArmPreset::Inverse3,
-    ArmPreset::Falcon,
-    ArmPreset::Touch,
-    ArmPreset::Woodenhaptics,
-];
-
 #[test]
 fn falcon_resolution_is_novints_400_dpi_and_latency_libnifalcons_1_ms_timer() {
     let falcon = ArmPreset::Falcon.figures();
@@ -83,7 +76,7 @@ fn woodenhaptics_figures_follow_from_the_published_parts() {
 fn no_preset_has_a_damping_and_touch_and_inverse3_have_no_figure() {
     // No vendor document or paper read gives a viscous damping for any of the four; the only related
     // measurement (Forsslund et al., TEI 2015, Table 1) is a back-drive friction, a Coulomb force.
-    for preset in ALL {
+    for preset in ArmPreset::ALL {
         assert_eq!(
             preset.figures().damping_n_s_per_m,
             None,
@@ -105,7 +98,7 @@ fn no_preset_has_a_damping_and_touch_and_inverse3_have_no_figure() {
 #[test]
 fn each_figure_left_out_is_named_in_the_source_text() {
     // The error for a key the preset lacks quotes `source`, so it must say which figures are not sourced.
-    for preset in ALL {
+    for preset in ArmPreset::ALL {
         let f = preset.figures();
         for (figure, word) in [
             (f.mass_kg, "mass"),
@@ -127,10 +120,10 @@ fn each_figure_left_out_is_named_in_the_source_text() {
 
 #[test]
 fn the_names_are_the_ones_a_scene_file_uses() {
-    for (preset, name) in ALL
-        .into_iter()
-        .zip(["inverse3", "falcon", "touch", "woodenhaptics"])
-    {
+    // Written out, not taken from the declaration: a scene file's names must not change with it.
+    let names = ["inverse3", "falcon", "touch", "woodenhaptics"];
+    assert_eq!(ArmPreset::NAMES, names);
+    for (preset, name) in ArmPreset::ALL.into_iter().zip(names) {
         assert_eq!(preset.name(), name);
         let parsed: ArmPreset = serde_json::from_str(&format!("\"{name}\"")).unwrap();
         assert_eq!(parsed, preset);

@@ -10,28 +10,32 @@
 //! with `TryFrom`, which [`KindKeys`] helps check: no key of another kind is given, and every key the kind
 //! needs is. Those messages name the key too: ``path: kind = "line" takes no key `radius_m` (...)``,
 //! ``path: missing field `duration_s` (kind = "line" needs it)``. Serialising is unchanged (the tagged
-//! enum). `tagged_table!` declares the tag enum, the struct and the `TryFrom` of each such table.
+//! enum). `tagged_table!` declares the tag enum, the struct and the `TryFrom` of each such table, and the check
+//! of every key with what it accepts.
 
 /// Declares the tag enum of a tagged table (its scene-file names and each kind's keys), the table struct
-/// holding every key of every kind as an `Option`, and the `TryFrom` from that struct to the target enum,
-/// which refuses a key of another kind ([`KindKeys::only`]) and a missing key ([`KindKeys::need`]). Each
-/// kind's keys are the target variant's fields, named once here, so the table, the checks and the variant
-/// cannot drift apart.
+/// holding every key of every kind as an `Option`, the `TryFrom` from that struct to the target enum,
+/// which refuses a key of another kind ([`KindKeys::only`]) and a missing key ([`KindKeys::need`]), and the
+/// target's `check_keys`, which checks each key with what it accepts ([`super::keys`]), in the order written,
+/// naming it `prefix.key`. Each kind's keys are the target variant's fields, named once here with what they
+/// accept, so the table, the checks and the variant cannot drift apart.
 ///
 /// ```text
 /// tagged_table! {
-///     Target by tag_key,
+///     Target by tag_key at "prefix",
 ///     /// docs of the tag enum
-///     kinds TagEnum { Variant = "name" { key, ... }, ... }
+///     kinds TagEnum { Variant = "name" { key: accepts, ... }, ... }
 ///     /// docs of the table struct
 ///     table TableStruct { key: Type, ... }
 /// }
 /// ```
 macro_rules! tagged_table {
     (
-        $target:ident by $tag:ident,
+        $target:ident by $tag:ident at $prefix:literal,
         $(#[$kind_doc:meta])*
-        kinds $kind:ident { $($variant:ident = $name:literal { $($needs:ident),* }),+ $(,)? }
+        kinds $kind:ident {
+            $($variant:ident = $name:literal { $($needs:ident: $accepts:expr),* }),+ $(,)?
+        }
         $(#[$table_doc:meta])*
         table $table:ident { $($key:ident: $ty:ty),+ $(,)? }
     ) => {
@@ -78,6 +82,22 @@ macro_rules! tagged_table {
                         $($needs: keys.need(stringify!($needs), table.$needs)?,)*
                     },)+
                 })
+            }
+        }
+
+        impl $target {
+            /// Checks every key with what it accepts, in the order declared (`tagged_table!`).
+            fn check_keys(&self) -> Result<(), $crate::sim::SimError> {
+                match self {
+                    $($target::$variant { $($needs),* } => {
+                        $($crate::sim::keys::KeyCheck::check(
+                            &$accepts,
+                            concat!($prefix, ".", stringify!($needs)),
+                            $needs,
+                        )?;)*
+                    })+
+                }
+                Ok(())
             }
         }
     };

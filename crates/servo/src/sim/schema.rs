@@ -12,8 +12,9 @@
 //!   refused with a message naming the key.
 //!
 //! The numeric limits are the validator's own constants ([`MAX_DURATION_S`], [`RATE_HZ_RANGE`],
-//! [`TOLERANCE_RANGE_M`], [`MAX_SWEEPS_LIMIT`], [`SUBSTEPS_PER_TICK_RANGE`]). The page is rendered by
-//! tests/docs_reference.rs.
+//! [`TOLERANCE_RANGE_M`], [`MAX_SWEEPS_LIMIT`], [`SUBSTEPS_PER_TICK_RANGE`]); the simulated arm's, path's and
+//! force profile's units and ranges are the ones the device crate checks them with
+//! (`voxhap_device::sim::keys`). The page is rendered by tests/docs_reference.rs.
 
 use super::scenario::{
     MAX_DURATION_S, MAX_SWEEPS_LIMIT, RATE_HZ_RANGE, STIFFNESS_RANGE_N_PER_M,
@@ -29,10 +30,11 @@ use voxhap_core::volume::procedural::BUILTIN_NAMES;
 use voxhap_device::sim::effects::{
     MAX_FORCE_RESOLUTION_N, MAX_LATENCY_S, MAX_POSITION_RESOLUTION_M, MAX_VELOCITY_WINDOW_TICKS,
 };
-use voxhap_device::sim::{
-    ArmPreset, MAX_ARM_MASS_KG, MAX_FREQUENCY_HZ, MAX_HAND_FORCE_N, MAX_LOCAL_RATE_HZ,
-    MAX_PATH_VERTICES, MAX_POSITION_M, MAX_SPEED_M_PER_S, PATH_TIME_RANGE_S,
+use voxhap_device::sim::keys::{
+    NumberRange, VectorRange, ARM_MASS, FREQUENCY, HAND_FORCE, PATH_SPEED, PATH_TIME, POSITION,
+    RADIUS, RASTER_LINES, WAYPOINTS,
 };
+use voxhap_device::sim::{ArmPreset, MAX_LOCAL_RATE_HZ};
 
 /// What a key's value may be.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -182,6 +184,43 @@ const fn key(
     }
 }
 
+/// A vector key whose unit and range are the device crate's (`voxhap_device::sim::keys`), the ones its
+/// validator checks with.
+const fn vector_key(
+    name: &'static str,
+    range: VectorRange,
+    default: KeyDefault,
+    example: &'static str,
+    meaning: &'static str,
+) -> SchemaKey {
+    key(
+        name,
+        range.unit,
+        default,
+        VectorWithin(range.bounds),
+        example,
+        meaning,
+    )
+}
+
+/// A number key whose unit and range are the device crate's (`voxhap_device::sim::keys`): a range from 0
+/// excludes 0.
+const fn number_key(
+    name: &'static str,
+    range: NumberRange,
+    default: KeyDefault,
+    example: &'static str,
+    meaning: &'static str,
+) -> SchemaKey {
+    let (min, max) = range.bounds;
+    let accepts = if min == 0.0 {
+        PositiveAtMost(max)
+    } else {
+        Between(min, max)
+    };
+    key(name, range.unit, default, accepts, example, meaning)
+}
+
 use Accepts::*;
 use KeyDefault::*;
 
@@ -217,7 +256,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
             key("rate_hz", "Hz", Value("1000.0"), Between(*RATE_HZ_RANGE.start(), *RATE_HZ_RANGE.end()), "500.0", "servo rate"),
             key("k_n_per_m", "N/m", Required, Between(STIFFNESS_RANGE_N_PER_M.0, STIFFNESS_RANGE_N_PER_M.1), "400.0", "coupling stiffness k between probe and proxy"),
             key("damping_n_s_per_m", "N s/m", Value("0.0"), NonNegative, "0.5", "coupling damping B (v_proxy - v_probe); rendered by `serve` and `sim`"),
-            key("start_m", "m", Otherwise("the hand path's target at t = 0 (needed for a force path)"), VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
+            vector_key("start_m", POSITION, Otherwise("the hand path's target at t = 0 (needed for a force path)"), "[0.0, 0.0, 0.04]", "where the simulated arm starts, at rest (a scene position)"),
             key("solver", "", Otherwise("all of `[solver]`'s defaults"), Table("`[solver]`"), "", "which solver, and the exact solver's budget"),
             key("volumes", "", Required, Table("`[[volumes]]`"), "", "the volumes, by name (may be empty: `volumes = []`)"),
             key("modes", "", Otherwise("no modes"), Table("`[[modes]]`"), "", "the haptic modes, at most 8, in trace column order"),
@@ -373,7 +412,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "mass_kg = 0.1\ndamping_n_s_per_m = 1.0\nworkspace = { shape = \"unbounded\" }",
         group: "arm",
         keys: &[
-            key("mass_kg", "kg", Required, PositiveAtMost(MAX_ARM_MASS_KG), "0.2", "moving mass at the end effector"),
+            number_key("mass_kg", ARM_MASS, Required, "0.2", "moving mass at the end effector"),
             key("damping_n_s_per_m", "N s/m", Required, NonNegative, "2.0", "viscous damping to ground"),
             key("workspace", "", Required, Table("`[arm.workspace]`"), "", "where the arm can go"),
             key("substeps_per_tick", "", Value("10"), Count(*SUBSTEPS_PER_TICK_RANGE.start() as u64, *SUBSTEPS_PER_TICK_RANGE.end() as u64), "20", "physics steps per servo tick"),
@@ -397,8 +436,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "workspace",
         keys: &[
             key("shape", "", Required, OneOf(&["box", "sphere", "unbounded"]), "\"box\"", "the workspace's shape"),
-            key("min_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
-            key("max_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.2, 0.1, 0.1]", "`box`: upper corner, >= `min_m` on every axis"),
+            vector_key("min_m", POSITION, Required, "[-0.2, -0.1, -0.1]", "`box`: lower corner"),
+            vector_key("max_m", POSITION, Required, "[0.2, 0.1, 0.1]", "`box`: upper corner, >= `min_m` on every axis"),
         ],
     },
     SchemaSection {
@@ -408,8 +447,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"sphere\"\ncenter_m = [0.0, 0.0, 0.0]\nradius_m = 0.1",
         group: "workspace",
         keys: &[
-            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
-            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.2", "radius"),
+            vector_key("center_m", POSITION, Required, "[0.0, 0.0, 0.01]", "centre"),
+            number_key("radius_m", RADIUS, Required, "0.2", "radius"),
         ],
     },
     SchemaSection {
@@ -431,7 +470,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "path",
         keys: &[
             key("kind", "", Required, OneOf(&["hold", "line", "waypoints", "circle", "raster", "force"]), "\"hold\"", "the kind of path"),
-            key("at_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "the point"),
+            vector_key("at_m", POSITION, Required, "[0.01, 0.0, 0.04]", "the point"),
         ],
     },
     SchemaSection {
@@ -441,9 +480,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"line\"\nfrom_m = [0.0, 0.0, 0.04]\nto_m = [0.0, 0.0, 0.0]\nduration_s = 2.0",
         group: "path",
         keys: &[
-            key("from_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.04]", "start point"),
-            key("to_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.01, 0.0, 0.0]", "end point"),
-            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "travel time"),
+            vector_key("from_m", POSITION, Required, "[0.01, 0.0, 0.04]", "start point"),
+            vector_key("to_m", POSITION, Required, "[0.01, 0.0, 0.0]", "end point"),
+            number_key("duration_s", PATH_TIME, Required, "1.0", "travel time"),
         ],
     },
     SchemaSection {
@@ -453,8 +492,8 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"waypoints\"\npoints_m = [[0.0, 0.0, 0.04], [0.0, 0.0, 0.0]]\nspeed_m_per_s = 0.02",
         group: "path",
         keys: &[
-            key("points_m", "m", Required, PointsWithin(MAX_POSITION_M, MAX_PATH_VERTICES as u64), "[[0.0, 0.0, 0.04]]", "the points"),
-            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.05", "speed along the polyline"),
+            key("points_m", WAYPOINTS.each.unit, Required, PointsWithin(WAYPOINTS.each.bounds, WAYPOINTS.most as u64), "[[0.0, 0.0, 0.04]]", "the points"),
+            number_key("speed_m_per_s", PATH_SPEED, Required, "0.05", "speed along the polyline"),
         ],
     },
     SchemaSection {
@@ -464,10 +503,10 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"circle\"\ncenter_m = [0.0, 0.0, 0.02]\nradius_m = 0.02\nnormal = [0.0, 0.0, 1.0]\nperiod_s = 3.0",
         group: "path",
         keys: &[
-            key("center_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.0, 0.01]", "centre"),
-            key("radius_m", "m", Required, PositiveAtMost(MAX_POSITION_M), "0.01", "radius"),
+            vector_key("center_m", POSITION, Required, "[0.0, 0.0, 0.01]", "centre"),
+            number_key("radius_m", RADIUS, Required, "0.01", "radius"),
             key("normal", "", Required, Direction, "[0.0, 1.0, 0.0]", "the circle's axis (any length)"),
-            key("period_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "4.0", "time for one turn"),
+            number_key("period_s", PATH_TIME, Required, "4.0", "time for one turn"),
         ],
     },
     SchemaSection {
@@ -478,11 +517,11 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "kind = \"raster\"\norigin_m = [-0.02, -0.02, 0.0]\nsweep_m = [0.04, 0.0, 0.0]\nstep_m = [0.0, 0.04, 0.0]\nlines = 5\nspeed_m_per_s = 0.05",
         group: "path",
         keys: &[
-            key("origin_m", "m", Required, VectorWithin(MAX_POSITION_M), "[-0.01, -0.02, 0.0]", "start corner"),
-            key("sweep_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.02, 0.0, 0.0]", "one pass: direction and length"),
-            key("step_m", "m", Required, VectorWithin(MAX_POSITION_M), "[0.0, 0.02, 0.0]", "offset from the first pass to the last"),
-            key("lines", "", Required, Count(1, MAX_PATH_VERTICES as u64), "3", "number of passes"),
-            key("speed_m_per_s", "m/s", Required, PositiveAtMost(MAX_SPEED_M_PER_S), "0.02", "speed along the path"),
+            vector_key("origin_m", POSITION, Required, "[-0.01, -0.02, 0.0]", "start corner"),
+            vector_key("sweep_m", POSITION, Required, "[0.02, 0.0, 0.0]", "one pass: direction and length"),
+            vector_key("step_m", POSITION, Required, "[0.0, 0.02, 0.0]", "offset from the first pass to the last"),
+            key("lines", "", Required, Count(1, RASTER_LINES.most as u64), "3", "number of passes"),
+            number_key("speed_m_per_s", PATH_SPEED, Required, "0.02", "speed along the path"),
         ],
     },
     SchemaSection {
@@ -501,7 +540,7 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         group: "profile",
         keys: &[
             key("shape", "", Required, OneOf(&["constant", "ramp", "sine"]), "\"constant\"", "the kind of profile"),
-            key("force_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.5, -1.0]", "the force"),
+            vector_key("force_n", HAND_FORCE, Required, "[0.0, 0.5, -1.0]", "the force"),
         ],
     },
     SchemaSection {
@@ -511,9 +550,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"ramp\"\nfrom_n = [0.0, 0.0, 0.0]\nto_n = [0.0, 0.0, -2.0]\nduration_s = 2.0",
         group: "profile",
         keys: &[
-            key("from_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "force at t = 0"),
-            key("to_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
-            key("duration_s", "s", Required, Between(PATH_TIME_RANGE_S.0, PATH_TIME_RANGE_S.1), "1.0", "ramp time"),
+            vector_key("from_n", HAND_FORCE, Required, "[0.0, 0.0, -0.5]", "force at t = 0"),
+            vector_key("to_n", HAND_FORCE, Required, "[0.0, 0.0, -1.0]", "force from `duration_s` on"),
+            number_key("duration_s", PATH_TIME, Required, "1.0", "ramp time"),
         ],
     },
     SchemaSection {
@@ -523,9 +562,9 @@ pub const SCENE_SCHEMA: &[SchemaSection] = &[
         base: "shape = \"sine\"\noffset_n = [0.0, 0.0, -1.0]\namplitude_n = [0.0, 0.0, 0.5]\nfrequency_hz = 2.0",
         group: "profile",
         keys: &[
-            key("offset_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.0, 0.0, -0.5]", "mean force"),
-            key("amplitude_n", "N", Required, VectorWithin(MAX_HAND_FORCE_N), "[0.1, 0.0, 0.5]", "amplitude"),
-            key("frequency_hz", "Hz", Required, PositiveAtMost(MAX_FREQUENCY_HZ), "1.0", "frequency"),
+            vector_key("offset_n", HAND_FORCE, Required, "[0.0, 0.0, -0.5]", "mean force"),
+            vector_key("amplitude_n", HAND_FORCE, Required, "[0.1, 0.0, 0.5]", "amplitude"),
+            number_key("frequency_hz", FREQUENCY, Required, "1.0", "frequency"),
         ],
     },
 ];

@@ -23,6 +23,7 @@ mod docs_reference;
 mod docs_stability;
 mod drivers_alloc_free;
 mod falcon;
+mod falcon_late;
 mod foxglove;
 mod foxglove_scene_change;
 mod fuzz_corpus;

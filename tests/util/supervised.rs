@@ -1,7 +1,7 @@
 //! Helpers shared by the serial-arm tests that run a real driver on a pseudo-terminal under the supervisor
-//! (tests/falcon.rs, tests/woodenhaptics_serial.rs, tests/haply_2diy_pty.rs): the supervisor's configuration for
-//! a test, the glitch drive that asks for a force far above the limit while the double's replies carry bad
-//! readings, the angle between two forces, and a bounded wait on the double.
+//! (tests/falcon.rs, tests/falcon_late.rs, tests/woodenhaptics_serial.rs, tests/haply_2diy_pty.rs): the
+//! supervisor's configuration for a test, the glitch drive that asks for a force far above the limit while the
+//! double's replies carry bad readings, the angle between two forces, and a bounded wait on the double.
 
 use glam::DVec3;
 use std::time::{Duration, Instant};

@@ -338,13 +338,18 @@ fn backticked(text: &str) -> impl Iterator<Item = &str> {
     text.split('`').skip(1).step_by(2)
 }
 
+/// The text of protocol/VISUALISER.md.
+fn visualiser_md() -> String {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
+    std::fs::read_to_string(&path)
+        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()))
+}
+
 /// protocol/VISUALISER.md's "Server to client" messages: each paragraph that starts with `**`NAME`**`, up to
 /// the next one, by NAME.
 fn visualiser_server_messages() -> BTreeMap<String, String> {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
-    let text = std::fs::read_to_string(&path)
-        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()));
+    let text = visualiser_md();
     let section = text
         .split_once("\n### Server to client\n")
         .and_then(|(_, rest)| rest.split_once("\n### "))
@@ -557,10 +562,7 @@ fn visualiser_drift_names_missing_and_unknown_keys() {
 /// `realtime.pinned_cpu` is `null` there, a leaf like a number).
 #[test]
 fn visualiser_stats_example_has_exactly_the_keys_of_the_answer() {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
-    let text = std::fs::read_to_string(&path)
-        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()));
+    let text = visualiser_md();
     let example = text
         .split_once("\n### `GET /api/stats`\n")
         .and_then(|(_, rest)| rest.split_once("\n### "))

@@ -130,6 +130,9 @@ for attempt in 1 2 3 4 5 6 7 8 9 10; do
   fi
 done
 [ "$tripped" = 1 ] || fail "the firmware's watchdog never tripped over 10 stalls of the host"
+# Force again after the trip itself (a force applied before the trip, during the stall, does not count): the host
+# has enabled the device again before the board reset below.
+mark=$(awk -v from="$mark" "NR > from && ($WATCHDOG_FAULT) { print NR; exit }" "$LOG")
 wait_log "$LOG" "$mark" "$NONZERO_FORCE" "force again after the watchdog trip"
 echo "$name: host port: stalled host caught by the firmware watchdog, then re-enabled"
 

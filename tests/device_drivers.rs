@@ -353,6 +353,30 @@ fn woodenhaptics_driver_reads_counts_and_writes_currents() {
     device.transport().done();
 }
 
+/// Force is converted only at a pose the host accepted (docs/safety.md: a rejected reading never steers the
+/// force): before any accepted report the driver writes zero currents, and a refused report after an accepted
+/// one leaves force converted at the accepted pose. Zero counts and 1 N along +z give [0, 0, -788] mA, worked by
+/// hand from CWoodenDevice.cpp in `woodenhaptics_kinematics_at_zero_counts`; at 500 counts on encoder B the
+/// z row of the Jacobian has `-Lb sin(thetaB)`, so converting there would drive motor B as well.
+#[test]
+fn woodenhaptics_hid_converts_force_only_at_a_pose_the_host_accepted() {
+    let reports = ScriptedReports::new(&[
+        Transaction::read(&[0, 0, 0, 0, 0, 0, 1, 0]),
+        Transaction::write(&encode_output([0, 0, 0], 0)),
+        Transaction::read(&[0, 0, 0, 0, 0, 0, 2, 0]),
+        Transaction::write(&encode_output([0, 0, -788], 0)),
+        Transaction::read(&[0, 0, 0xf4, 0x01, 0, 0, 3, 0]),
+        Transaction::write(&encode_output([0, 0, -788], 0)),
+    ]);
+    let mut device = WoodenHaptics::new(reports, WOODENHAPTICS_HID).unwrap();
+    for accepted in [false, true, false] {
+        device.read_state().unwrap();
+        device.input_checked(accepted);
+        device.write_force(DVec3::new(0.0, 0.0, 1.0)).unwrap();
+    }
+    device.transport().done();
+}
+
 /// The legacy HID driver on the timed report double: reports come one per millisecond (a full-speed HID
 /// interrupt endpoint is polled at most once per 1 ms frame, USB 2.0 section 5.7.4), each readable 0.3 ms after
 /// its slot; the driver waits 0.75 ms per tick (three quarters of the 1 ms period). A report 1.5 ms late misses

@@ -338,23 +338,24 @@ fn backticked(text: &str) -> impl Iterator<Item = &str> {
     text.split('`').skip(1).step_by(2)
 }
 
-/// The text of protocol/VISUALISER.md.
-fn visualiser_md() -> String {
+/// The section of protocol/VISUALISER.md under the heading `### TITLE`, up to the next `###` heading.
+fn visualiser_section(title: &str) -> String {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../protocol/VISUALISER.md");
-    std::fs::read_to_string(&path)
-        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()))
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|err| panic!("cannot read {}: {err}", path.display()));
+    text.split_once(&format!("\n### {title}\n"))
+        .and_then(|(_, rest)| rest.split_once("\n### "))
+        .map(|(section, _)| section.to_owned())
+        .unwrap_or_else(|| {
+            panic!("VISUALISER.md has a section \"### {title}\" followed by another")
+        })
 }
 
 /// protocol/VISUALISER.md's "Server to client" messages: each paragraph that starts with `**`NAME`**`, up to
 /// the next one, by NAME.
 fn visualiser_server_messages() -> BTreeMap<String, String> {
-    let text = visualiser_md();
-    let section = text
-        .split_once("\n### Server to client\n")
-        .and_then(|(_, rest)| rest.split_once("\n### "))
-        .map(|(section, _)| section)
-        .expect("VISUALISER.md has a section \"### Server to client\" followed by another");
+    let section = visualiser_section("Server to client");
     let mut messages = BTreeMap::new();
     let mut name = None;
     for line in section.lines() {
@@ -562,14 +563,9 @@ fn visualiser_drift_names_missing_and_unknown_keys() {
 /// `realtime.pinned_cpu` is `null` there, a leaf like a number).
 #[test]
 fn visualiser_stats_example_has_exactly_the_keys_of_the_answer() {
-    let text = visualiser_md();
-    let section = text
-        .split_once("\n### `GET /api/stats`\n")
-        .and_then(|(_, rest)| rest.split_once("\n### "))
-        .map(|(section, _)| section)
-        .expect("VISUALISER.md has a section \"### `GET /api/stats`\" followed by another");
+    let section = visualiser_section("`GET /api/stats`");
     // The section's JSON example (it has no field table): its key paths, read as a message's paragraph is.
-    let (documented_paths, _) = documented(section);
+    let (documented_paths, _) = documented(&section);
     assert!(
         !documented_paths.is_empty(),
         "no JSON example in:\n{section}"

@@ -24,6 +24,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{delete, get, post};
 use axum::{Json, Router};
 use glam::DVec3;
+use serde::de::DeserializeOwned;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -54,7 +55,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         )
         .route("/api/volume", post(body_command::<VolumeBody>))
         .route("/api/record/start", post(body_command::<RecordBody>))
-        .route("/api/record/stop", post(body_command::<EmptyBody>))
+        .route("/api/record/stop", post(stop_recording))
         .route("/api/hand", post(body_command::<HandBody>))
         .route("/api/control", post(control))
         .route("/ws", get(ws::upgrade))
@@ -338,66 +339,33 @@ async fn stiffness(
     control_request(&shared, &headers, body, false, decode).await
 }
 
-/// The body of a control endpoint that makes one command from its body alone.
-trait BodyCommand: serde::de::DeserializeOwned + 'static {
-    /// Whether an empty body stands for `{}`.
-    const EMPTY_OK: bool = false;
-    fn command(self) -> ControlCommand;
-}
-
-impl BodyCommand for ModeBody {
-    fn command(self) -> ControlCommand {
-        ControlCommand::AddMode { mode: self.mode }
-    }
-}
-
-impl BodyCommand for VolumeBody {
-    fn command(self) -> ControlCommand {
-        ControlCommand::LoadVolume {
-            path: self.path,
-            name: self.name,
-        }
-    }
-}
-
-impl BodyCommand for RecordBody {
-    fn command(self) -> ControlCommand {
-        ControlCommand::StartRecording {
-            path: self.path,
-            format: self.format,
-        }
-    }
-}
-
-impl BodyCommand for EmptyBody {
-    const EMPTY_OK: bool = true;
-    fn command(self) -> ControlCommand {
-        ControlCommand::StopRecording
-    }
-}
-
-impl BodyCommand for HandBody {
-    fn command(self) -> ControlCommand {
-        ControlCommand::SetHandTarget {
-            position_m: self.position_m,
-        }
-    }
-}
-
-/// `POST /api/modes`, `/api/volume`, `/api/record/start`, `/api/record/stop`, `/api/hand`: the body as `B`,
-/// one command.
-async fn body_command<B: BodyCommand>(
+/// `POST /api/modes`, `/api/volume`, `/api/record/start`, `/api/hand`: the body as `B`, and the one command
+/// it makes (`From<B> for ControlCommand`, beside the control API's wire decoding).
+async fn body_command<B: DeserializeOwned + Into<ControlCommand> + 'static>(
     State(shared): Shared_,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
-    let decode: Decode = Box::new(|value| one(decode_value::<B>(value)?.command()));
-    control_request(&shared, &headers, body, B::EMPTY_OK, decode).await
+    let decode: Decode = Box::new(|value| one(decode_value::<B>(value)?.into()));
+    control_request(&shared, &headers, body, false, decode).await
+}
+
+/// `POST /api/record/stop`: an empty body or `{}`.
+async fn stop_recording(
+    State(shared): Shared_,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Response {
+    let decode: Decode = Box::new(|value| {
+        decode_value::<EmptyBody>(value)?;
+        one(ControlCommand::StopRecording)
+    });
+    control_request(&shared, &headers, body, true, decode).await
 }
 
 /// The body of a control endpoint on one mode (`/api/modes/{name}...`): the command from the mode's name
 /// and the body.
-trait ModeCommand: serde::de::DeserializeOwned + 'static {
+trait ModeCommand: DeserializeOwned + 'static {
     /// Whether an empty body stands for `{}`.
     const EMPTY_OK: bool = false;
     fn command(self, mode: String) -> ControlCommand;

@@ -398,9 +398,10 @@ enum CommandWire {
     },
 }
 
-/// `CommandWire::into_command` and (for the round-trip test) `CommandWire::from_command`, from one list of
-/// the variants: those with fields, then those that take a REST body (with the body's fields), then those
-/// without (a unit variant of `ControlCommand`, an empty struct variant on the wire). `from_command`'s match
+/// `CommandWire::into_command`, (for the round-trip test) `CommandWire::from_command`, and each REST body's
+/// `From<body> for ControlCommand` (what its endpoint applies), from one list of the variants: those with
+/// fields, then those that take a REST body (with the body's fields), then those without (a unit variant of
+/// `ControlCommand`, an empty struct variant on the wire). `from_command`'s match
 /// is exhaustive, so a new `ControlCommand` must be listed, and the body patterns name every field, so a
 /// body cannot gain one the command lacks.
 macro_rules! command_wire_conversions {
@@ -413,9 +414,7 @@ macro_rules! command_wire_conversions {
             fn into_command(self) -> ControlCommand {
                 match self {
                     $(CommandWire::$variant { $($field),+ } => ControlCommand::$variant { $($field),+ },)+
-                    $(CommandWire::$bodied($body { $($body_field),+ }) => {
-                        ControlCommand::$bodied { $($body_field),+ }
-                    })+
+                    $(CommandWire::$bodied(body) => body.into(),)+
                     $(CommandWire::$unit {} => ControlCommand::$unit,)+
                 }
             }
@@ -434,6 +433,13 @@ macro_rules! command_wire_conversions {
                 }
             }
         }
+
+        // The one command a REST body makes: its endpoint's, and the wire's for the same body.
+        $(impl From<$body> for ControlCommand {
+            fn from($body { $($body_field),+ }: $body) -> Self {
+                ControlCommand::$bodied { $($body_field),+ }
+            }
+        })+
     };
 }
 

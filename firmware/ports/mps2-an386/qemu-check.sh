@@ -1,4 +1,4 @@
-# Part 3 of .ci/check-firmware.sh (sourced by it: uses its need_apt, wait_log, start_serve, stop_serve, WORK):
+# Part 3 of .ci/check-firmware.sh (sourced by it: uses its need_apt, wait_log, start_serve, stop_serve_linked, WORK):
 # the Cortex-M4 image in qemu-system-arm -M mps2-an386, its UART0 on a pseudo-terminal that `voxhap serve`
 # drives, its UART1 (the firmware's event log) in a file that firmware/tools/check_log.py checks.
 
@@ -54,12 +54,10 @@ engaged=$(date +%s)
 echo "$name: qemu: engaged at $rate Hz; rendering the built-in scene for 6 s"
 sleep 6
 # Stop while force is flowing (a loaded machine can make the host drop and rebuild the link at any moment; its
-# stop sends zero and Disable only on an open link).
-mark=$(lines "$QLOG")
-wait_log "$QLOG" "$mark" "$NONZERO_FORCE" "force on the QEMU board before the stop"
-mark=$(lines "$QLOG")
-stop_serve
-wait_log "$QLOG" "$mark" '$1 == "M" && $3 == "03"' "Disable on the QEMU board after serve's stop"
+# stop sends zero and Disable only on an open link: stop_serve_linked starts serve again when it had none).
+stop_serve_linked "$QLOG" "$NONZERO_FORCE" "force on the QEMU board before the stop" "$pty" --connect-timeout 10 \
+  --rate "$rate"
+wait_log "$QLOG" "$STOP_MARK" '$1 == "M" && $3 == "03"' "Disable on the QEMU board after serve's stop"
 sleep 0.2
 kill "$QEMU_PID"
 wait "$QEMU_PID" 2>/dev/null || true

@@ -6,15 +6,19 @@
 //!
 //! 1. **Position.** A position that is not finite, lies outside the device's workspace box widened by
 //!    `workspace_margin_m`, or is further from the last accepted one than the device's maximum speed allows in
-//!    the time since (`|p - p_last| > max_speed · Δt + position_noise_m`) is rejected: the last accepted
-//!    position is held, the sample is flagged and counted. Δt grows while samples are rejected, so a real fast
-//!    movement is accepted again as soon as it is plausible; a run of more than `max_rejected_run` rejections
-//!    means the link is broken ([`InputVerdict::link_broken`]) and the supervisor drops it.
+//!    the time between them (`|p - p_last| > max_speed · Δt + position_noise_m`) is rejected: the last accepted
+//!    position is held, the sample is flagged and counted. Δt is the longest the handle can have had
+//!    ([`SampleTime`]): from the earliest the last accepted sample can have been taken (when the force it
+//!    answers was sent) to the latest this one can have been (when the driver handed it over), so a sample that
+//!    came late in its tick, or an earlier one handed out again, is never refused for the host's own delay.
+//!    Δt grows while samples are rejected, so a real fast movement is accepted again as soon as it is
+//!    plausible; a run of more than `max_rejected_run` rejections means the link is broken
+//!    ([`InputVerdict::link_broken`]) and the supervisor drops it.
 //! 2. **Velocity estimate.** Every accepted position updates an estimate: the backward difference
 //!    `(p - p_last) / Δt`, smoothed by a first-order low-pass filter (an exponential moving average with
 //!    `α = 1 - exp(-2π f_c Δt)`, cutoff `f_c` = `velocity_cutoff_hz`, 50 Hz by default: time constant 3.2 ms,
 //!    lag about 3 ms, encoder quantisation noise cut by about 5 at 1 kHz). Δt is the device's own clock where it
-//!    reports one, else the host's.
+//!    reports one, else the host's (between the times the driver handed the two samples over).
 //! 3. **Reported velocity.** Drivers without a velocity measurement report zero; the estimate is used instead.
 //!    A reported velocity is used only while it is finite, at most the maximum speed, and within
 //!    `velocity_tolerance_m_per_s + velocity_tolerance_relative · |v_est|` of the estimate; otherwise the
@@ -107,11 +111,30 @@ pub struct InputVerdict {
     pub usable: bool,
 }
 
+/// When a sample was taken, as far as the host can tell (host clock, µs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SampleTime {
+    /// The earliest it can have been taken: when the force it answers was sent.
+    pub taken_after_us: u64,
+    /// The latest: when the driver handed it over.
+    pub received_by_us: u64,
+}
+
+impl SampleTime {
+    /// A sample taken and handed over at `us`.
+    pub fn at(us: u64) -> SampleTime {
+        SampleTime {
+            taken_after_us: us,
+            received_by_us: us,
+        }
+    }
+}
+
 /// The last accepted sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Accepted {
     position_m: DVec3,
-    host_us: u64,
+    time: SampleTime,
     device_us: Option<u64>,
 }
 
@@ -187,10 +210,10 @@ impl InputGuard {
         self.rejected_run = 0;
     }
 
-    /// Checks one raw sample that arrived at `now_us` (host clock). The speed check measures time on the host's
+    /// Checks one raw sample taken within `time` (host clock). The speed check measures time on the host's
     /// clock (robust to a device clock that restarts, as a replayed trace's does at its loop); the velocity
     /// estimate uses the device's clock while it advances.
-    pub fn check(&mut self, raw: DeviceState, now_us: u64) -> InputVerdict {
+    pub fn check(&mut self, raw: DeviceState, time: SampleTime) -> InputVerdict {
         let position = raw.position_m;
         let in_box = position.is_finite()
             && position.cmpge(self.workspace_min_m).all()
@@ -199,7 +222,8 @@ impl InputGuard {
             && match self.last {
                 None => true,
                 Some(last) => {
-                    let dt_s = now_us.saturating_sub(last.host_us) as f64 * 1e-6;
+                    let dt_us = time.received_by_us.saturating_sub(last.time.taken_after_us);
+                    let dt_s = dt_us as f64 * 1e-6;
                     let reach_m =
                         self.config.max_speed_m_per_s * dt_s + self.config.position_noise_m;
                     (position - last.position_m).length() <= reach_m
@@ -235,7 +259,7 @@ impl InputGuard {
             // The device's clock where it has one and it advanced; otherwise the host's.
             let dt_us = match (raw.device_time_us, last.device_us) {
                 (Some(now), Some(then)) if now > then => now - then,
-                _ => now_us.saturating_sub(last.host_us),
+                _ => time.received_by_us.saturating_sub(last.time.received_by_us),
             };
             if dt_us > 0 {
                 let dt_s = dt_us as f64 * 1e-6;
@@ -247,7 +271,7 @@ impl InputGuard {
         }
         self.last = Some(Accepted {
             position_m: position,
-            host_us: now_us,
+            time,
             device_us: raw.device_time_us,
         });
         let estimate = self.estimate_m_per_s;
@@ -297,24 +321,59 @@ mod tests {
     #[test]
     fn a_position_jump_beyond_the_speed_limit_is_held_and_counted() {
         let mut guard = guard(false);
-        guard.check(at(DVec3::ZERO, DVec3::ZERO), 0);
+        guard.check(at(DVec3::ZERO, DVec3::ZERO), SampleTime::at(0));
         // 5 cm in 1 ms is 50 m/s: rejected, the last position held.
-        let verdict = guard.check(at(DVec3::new(0.05, 0.0, 0.0), DVec3::ZERO), 1_000);
+        let verdict = guard.check(
+            at(DVec3::new(0.05, 0.0, 0.0), DVec3::ZERO),
+            SampleTime::at(1_000),
+        );
         assert!(verdict.position_rejected);
         assert_eq!(verdict.state.position_m, DVec3::ZERO);
         assert_eq!(guard.counters().positions_rejected, 1);
         // 2 mm in 1 ms (2 m/s) is plausible.
-        let verdict = guard.check(at(DVec3::new(0.002, 0.0, 0.0), DVec3::ZERO), 2_000);
+        let verdict = guard.check(
+            at(DVec3::new(0.002, 0.0, 0.0), DVec3::ZERO),
+            SampleTime::at(2_000),
+        );
         assert!(!verdict.position_rejected);
+    }
+
+    #[test]
+    fn the_speed_check_spans_from_the_earliest_the_last_sample_was_taken_to_the_latest_this_one_was(
+    ) {
+        let mut guard = guard(false);
+        // Taken after 1 ms (when its force went out), handed over by 1.3 ms.
+        let first = SampleTime {
+            taken_after_us: 1_000,
+            received_by_us: 1_300,
+        };
+        guard.check(at(DVec3::ZERO, DVec3::ZERO), first);
+        // 6 mm on: 5 m/s allows 5.5 mm in the 1 ms to a sample handed over at 2 ms, 6.5 mm in the 1.2 ms to one
+        // handed over at 2.2 ms.
+        let six_mm = at(DVec3::new(0.006, 0.0, 0.0), DVec3::ZERO);
+        let late = SampleTime {
+            taken_after_us: 2_000,
+            received_by_us: 2_200,
+        };
+        assert!(
+            guard
+                .clone()
+                .check(six_mm, SampleTime::at(2_000))
+                .position_rejected
+        );
+        assert!(!guard.check(six_mm, late).position_rejected);
     }
 
     #[test]
     fn a_long_run_of_rejections_breaks_the_link() {
         let mut guard = guard(false);
-        guard.check(at(DVec3::ZERO, DVec3::ZERO), 0);
+        guard.check(at(DVec3::ZERO, DVec3::ZERO), SampleTime::at(0));
         let mut broken_at = None;
         for tick in 1..=20u64 {
-            let verdict = guard.check(at(DVec3::splat(f64::NAN), DVec3::ZERO), tick * 1_000);
+            let verdict = guard.check(
+                at(DVec3::splat(f64::NAN), DVec3::ZERO),
+                SampleTime::at(tick * 1_000),
+            );
             assert!(verdict.position_rejected);
             assert!(verdict.state.position_m.is_finite());
             if verdict.link_broken && broken_at.is_none() {
@@ -327,7 +386,10 @@ mod tests {
     #[test]
     fn positions_outside_the_workspace_are_rejected() {
         let mut guard = guard(false);
-        let verdict = guard.check(at(DVec3::new(0.5, 0.0, 0.0), DVec3::ZERO), 0);
+        let verdict = guard.check(
+            at(DVec3::new(0.5, 0.0, 0.0), DVec3::ZERO),
+            SampleTime::at(0),
+        );
         assert!(verdict.position_rejected);
     }
 
@@ -339,7 +401,7 @@ mod tests {
         for tick in 0..200u64 {
             let p = DVec3::new(speed * tick as f64 * 1e-3 - 0.05, 0.0, 0.0);
             last = guard
-                .check(at(p, DVec3::ZERO), tick * 1_000)
+                .check(at(p, DVec3::ZERO), SampleTime::at(tick * 1_000))
                 .state
                 .velocity_m_per_s;
         }
@@ -350,14 +412,23 @@ mod tests {
     fn absurd_or_inconsistent_reported_velocities_are_replaced_by_the_estimate() {
         let mut guard = guard(true);
         for tick in 0..10u64 {
-            guard.check(at(DVec3::ZERO, DVec3::ZERO), tick * 1_000);
+            guard.check(at(DVec3::ZERO, DVec3::ZERO), SampleTime::at(tick * 1_000));
         }
-        let verdict = guard.check(at(DVec3::ZERO, DVec3::new(1e30, 0.0, 0.0)), 10_000);
+        let verdict = guard.check(
+            at(DVec3::ZERO, DVec3::new(1e30, 0.0, 0.0)),
+            SampleTime::at(10_000),
+        );
         assert!(verdict.velocity_replaced);
         assert_eq!(verdict.state.velocity_m_per_s, DVec3::ZERO);
-        let verdict = guard.check(at(DVec3::ZERO, DVec3::new(0.5, 0.0, 0.0)), 11_000);
+        let verdict = guard.check(
+            at(DVec3::ZERO, DVec3::new(0.5, 0.0, 0.0)),
+            SampleTime::at(11_000),
+        );
         assert!(verdict.velocity_replaced);
-        let verdict = guard.check(at(DVec3::ZERO, DVec3::new(0.01, 0.0, 0.0)), 12_000);
+        let verdict = guard.check(
+            at(DVec3::ZERO, DVec3::new(0.01, 0.0, 0.0)),
+            SampleTime::at(12_000),
+        );
         assert!(!verdict.velocity_replaced);
         assert_eq!(verdict.state.velocity_m_per_s.x, 0.01);
         assert_eq!(guard.counters().velocities_replaced, 2);

@@ -29,6 +29,12 @@
 //!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods (counted from
 //!   the force it answers: a driver that hands out an earlier answer says how old it is,
 //!   [`HapticDevice::state_age_ticks`]) is not used to compute force: zero is sent instead (`STALE_STATE`).
+//! - **When a state was taken.** The input checks time each state by the exchange that brought it
+//!   ([`SampleTime`]): taken no earlier than the tick that sent the force it answers (its age, counted back over
+//!   the forces written on this link) and no later than when `read_state` returned (the tick's clock plus the
+//!   time the tick had taken by then, on the host's monotonic clock). A state that came late in its tick (the
+//!   servo thread kept off the CPU during the exchange) or an earlier one handed out again is then not refused
+//!   as a jump for the host's own delay.
 //! - **Pose verdict.** After checking each state, the supervisor tells the driver whether its position was
 //!   accepted ([`HapticDevice::input_checked`]), so a driver that converts force with a pose it read itself
 //!   never converts with a rejected one. A driver's report of messages nobody asked for
@@ -51,13 +57,14 @@
 
 use super::dof::UsedAxes;
 use super::lifecycle::{Lifecycle, LifecycleError, LifecycleState};
-use super::plausibility::{InputCounters, InputGuard};
+use super::plausibility::{InputCounters, InputGuard, SampleTime};
 use super::safety::{EngagementState, SafeForce, SafetyFlags, SafetyPipeline};
 use super::{DeviceError, DeviceEvent, DeviceState, DeviceStatus, Error, ErrorKind, HapticDevice};
 use crate::info::{FAULT_WATCHDOG_EXPIRED, MESSAGE_TYPE_ENABLE, REJECT_FAULTED, REJECT_NO_SESSION};
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::Instant;
 
 pub use crate::supervisor_config::{
     SupervisorConfig, SupervisorConfigError, CONNECT_TIMEOUT_RANGE_US,
@@ -65,6 +72,48 @@ pub use crate::supervisor_config::{
 pub use crate::supervisor_tick::{
     EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, TickInput, TickOutput,
 };
+
+/// Forces written whose tick times are kept: a state answering an older one is timed from the link's start.
+const WRITE_TIMES: usize = 16;
+
+/// When the forces on this link went out (servo clock, µs): the earliest a state answering one can have been
+/// taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct WriteTimes {
+    /// The ticks of the last [`WRITE_TIMES`] forces written, the newest at `(writes - 1) % WRITE_TIMES`.
+    at_us: [u64; WRITE_TIMES],
+    /// Forces written on this link.
+    writes: u64,
+    /// When this link was attached.
+    attached_us: u64,
+}
+
+impl WriteTimes {
+    fn new(attached_us: u64) -> WriteTimes {
+        WriteTimes {
+            at_us: [0; WRITE_TIMES],
+            writes: 0,
+            attached_us,
+        }
+    }
+
+    /// A force went out on the tick at `now_us`.
+    fn wrote(&mut self, now_us: u64) {
+        self.at_us[(self.writes % WRITE_TIMES as u64) as usize] = now_us;
+        self.writes += 1;
+    }
+
+    /// The earliest a state `age_ticks` old can have been taken: the tick that wrote the force it answers, or
+    /// the link's start for one older than the forces kept.
+    fn taken_after_us(&self, age_ticks: u32) -> u64 {
+        let age = u64::from(age_ticks);
+        if age < self.writes && age < WRITE_TIMES as u64 {
+            self.at_us[((self.writes - 1 - age) % WRITE_TIMES as u64) as usize]
+        } else {
+            self.attached_us
+        }
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Drive {
@@ -125,6 +174,8 @@ pub struct Supervisor<D: HapticDevice, F> {
     force_axes: UsedAxes,
     /// The surplus total the current link's driver last reported.
     surplus_on_link: u64,
+    /// When this link's forces went out: the input checks time each state from the one it answers.
+    write_times: WriteTimes,
 }
 
 impl<D, F> Supervisor<D, F>
@@ -157,6 +208,7 @@ where
             position_axes: UsedAxes::ALL,
             force_axes: UsedAxes::ALL,
             surplus_on_link: 0,
+            write_times: WriteTimes::new(0),
         })
     }
 
@@ -292,6 +344,7 @@ where
         self.last_fresh_us = now_us;
         self.clear_requested = false;
         self.surplus_on_link = 0;
+        self.write_times = WriteTimes::new(now_us);
         self.counters.connects += 1;
     }
 
@@ -524,6 +577,8 @@ where
     /// events and status, move the drive state, and handle losses and reconnection.
     pub fn tick(&mut self, input: TickInput) -> TickOutput {
         let now_us = input.now_us;
+        // The states this tick reads are timed from here (module docs).
+        let entered = Instant::now();
         self.counters.ticks += 1;
         let mut out = TickOutput::idle(self.last_state);
         if let Some(flag) = &self.stall_flag {
@@ -613,7 +668,11 @@ where
             (None, true) => device.write_force(safe.force_n),
             (None, false) => device.write_zero(),
         };
+        if written.is_ok() {
+            self.write_times.wrote(now_us);
+        }
         let result = written.and_then(|()| device.read_state());
+        let elapsed_us = u64::try_from(entered.elapsed().as_micros()).unwrap_or(u64::MAX);
         if local.is_some() {
             // What the device applied, as it last reported it (zero before its first report).
             out.local = device.device().local_report();
@@ -627,7 +686,11 @@ where
                 // Components the device does not sense are ignored, whatever it reported there (SPEC 6.8).
                 raw.position_m = self.position_axes.keep(raw.position_m);
                 raw.velocity_m_per_s = self.position_axes.keep(raw.velocity_m_per_s);
-                let verdict = self.input.check(raw, now_us);
+                let time = SampleTime {
+                    taken_after_us: self.write_times.taken_after_us(state_age_ticks),
+                    received_by_us: now_us.saturating_add(elapsed_us),
+                };
+                let verdict = self.input.check(raw, time);
                 // The driver converts the next force with this pose only if the checks accepted it.
                 device.input_checked(verdict.usable && !verdict.position_rejected);
                 if verdict.position_rejected {
@@ -743,3 +806,7 @@ impl<D: HapticDevice, F> std::fmt::Debug for Supervisor<D, F> {
             .finish_non_exhaustive()
     }
 }
+
+#[cfg(test)]
+#[path = "supervisor_tests.rs"]
+mod tests;

@@ -1,0 +1,129 @@
+//! The supervisor's input checks time each reading from the exchange that brought it: a reading may have been
+//! taken from when the force it answers was sent (its age in ticks back) until the driver handed it over
+//! (after this tick's clock was read). The handle below moves at 0.5 m/s; the speed limit is 5 m/s with 0.5 mm
+//! of noise, so a step is refused when it is longer than 5 m/s × Δt + 0.5 mm.
+
+use super::*;
+use crate::DeviceInfo;
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// The handle's speed (m/s).
+const SPEED_M_PER_S: f64 = 0.5;
+
+/// One read of the script: where the handle is, the age the driver reports, and how long the read takes (the
+/// servo thread kept off the CPU inside the exchange).
+#[derive(Debug, Clone, Copy)]
+struct Read {
+    x_m: f64,
+    age_ticks: u32,
+    takes: Duration,
+}
+
+fn fresh(at_us: u64) -> Read {
+    Read {
+        x_m: SPEED_M_PER_S * at_us as f64 * 1e-6,
+        age_ticks: 0,
+        takes: Duration::ZERO,
+    }
+}
+
+struct Scripted {
+    info: DeviceInfo,
+    reads: VecDeque<Read>,
+    age_ticks: u32,
+}
+
+impl HapticDevice for Scripted {
+    type Error = DeviceError;
+
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        let read = self.reads.pop_front().expect("a scripted read");
+        std::thread::sleep(read.takes);
+        self.age_ticks = read.age_ticks;
+        Ok(DeviceState::at_rest(DVec3::new(read.x_m, 0.0, 0.0)))
+    }
+
+    fn state_age_ticks(&self) -> u32 {
+        self.age_ticks
+    }
+}
+
+/// Ticks the script at the servo clock's `times_us` (connected at the first): the ticks whose reading was
+/// refused, by index.
+fn refused(reads: Vec<Read>, times_us: &[u64]) -> Vec<usize> {
+    let mut device = Some(Scripted {
+        info: DeviceInfo::basic("scripted", DVec3::splat(-0.1), DVec3::splat(0.1)),
+        reads: reads.into(),
+        age_ticks: 0,
+    });
+    let opener = move || {
+        device
+            .take()
+            .ok_or(DeviceError::Protocol { what: "reopened" })
+    };
+    let mut supervisor = Supervisor::new(SupervisorConfig::default(), opener).unwrap();
+    supervisor.connect(times_us[0]).unwrap();
+    times_us
+        .iter()
+        .enumerate()
+        .filter(|&(_, &now_us)| {
+            let out = supervisor.tick(TickInput::at(DVec3::ZERO, now_us));
+            assert!(out.connected, "{out:?}");
+            out.flags.contains(SafetyFlags::POSITION_REJECTED)
+        })
+        .map(|(tick, _)| tick)
+        .collect()
+}
+
+#[test]
+fn a_reading_handed_over_late_in_its_tick_is_checked_against_when_it_came() {
+    // Ticks at 0 and 1 ms; the next, catching up, at 1.5 ms, but the servo thread is kept off the CPU for
+    // 15 ms inside its exchange: the reading it gets was taken at 16.5 ms, 8.25 mm along, 7.75 mm on from the
+    // reading at 1 ms. Against the tick's clock (0.5 ms) that is 15.5 m/s, over 3.0 mm; against when it came
+    // (15.5 ms or more after the 1 ms tick's force), 78 mm would be allowed.
+    let late = Read {
+        takes: Duration::from_millis(15),
+        ..fresh(16_500)
+    };
+    let reads = vec![fresh(0), fresh(1_000), late, fresh(17_000)];
+    assert_eq!(
+        refused(reads, &[0, 1_000, 1_500, 17_000]),
+        Vec::<usize>::new()
+    );
+}
+
+#[test]
+fn an_earlier_reading_handed_out_again_is_timed_from_the_force_it_answers() {
+    // Fresh readings at 0..=5 ms; the servo thread stalls 15 ms, and the tick at 20 ms gets no new reading in
+    // time: the driver hands out the 5 ms one again (age 1). The tick at 21 ms gets a fresh one, 8 mm on from
+    // it. Against the 20 ms tick that is 1 ms (5.5 mm allowed); from the force the held reading answers (5 ms),
+    // 16 ms (80.5 mm allowed).
+    let mut reads: Vec<Read> = (0..=5).map(|ms| fresh(ms * 1_000)).collect();
+    reads.push(Read {
+        age_ticks: 1,
+        ..fresh(5_000)
+    });
+    reads.push(fresh(21_000));
+    let times_us = [0, 1_000, 2_000, 3_000, 4_000, 5_000, 20_000, 21_000];
+    assert_eq!(refused(reads, &times_us), Vec::<usize>::new());
+}
+
+#[test]
+fn a_jump_beyond_the_speed_limit_is_still_refused() {
+    // 5 cm in 1 ms (50 m/s): over the 5.5 mm allowed, whichever way the time is counted.
+    let jump = Read {
+        x_m: fresh(2_000).x_m + 0.05,
+        ..fresh(2_000)
+    };
+    let reads = vec![fresh(0), fresh(1_000), jump, fresh(3_000)];
+    assert_eq!(refused(reads, &[0, 1_000, 2_000, 3_000]), vec![2]);
+}

@@ -284,7 +284,8 @@ fn ticks_allocate_nothing_for_every_solver() {
                 );
                 let out = tick(&mut state, &scene, probe, DT_S, &mut workspace);
                 emitted += out
-                    .primitives_per_mode
+                    .modes
+                    .primitives()
                     .iter()
                     .map(|&c| u64::from(c))
                     .sum::<u64>();

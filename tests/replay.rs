@@ -105,7 +105,7 @@ fn every_tick_of_a_replay_is_certified_through_its_end() {
             out.error_bound_m,
             out.sweeps
         );
-        if i >= samples && out.primitives_per_mode[1] > 0 {
+        if i >= samples && out.modes.primitives()[1] > 0 {
             held_still_in_contact += 1;
         }
     }

@@ -245,8 +245,9 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     row.vector(s.rendered_force_n);
     row.vector(s.force_n);
     for mode in 0..modes.min(MAX_MODES) {
-        row.u64(u64::from(s.primitives_per_mode[mode]));
-        row.vector(s.mode_force_n[mode]);
+        let (primitives, force_n) = s.modes.slot(mode);
+        row.u64(u64::from(primitives));
+        row.vector(force_n);
     }
     row.status(s.solver_status);
     row.u64(u64::from(s.sweeps));

@@ -10,8 +10,8 @@ use std::path::Path;
 use std::process::Command;
 use voxhap::device::sim::{ArmParams, HandParams, HandPath, SimArm, SimArmConfig, Workspace};
 use voxhap::record::{
-    create_trace_writer, read_trace, sidecar_path, SolverStatus, TraceFormat, TraceMeta,
-    TraceSample, FLAG_WORKSPACE_LIMIT, MAX_MODES,
+    create_trace_writer, read_trace, sidecar_path, ModeBreakdown, SolverStatus, TraceFormat,
+    TraceMeta, TraceSample, FLAG_WORKSPACE_LIMIT, MAX_MODES,
 };
 
 const RATE_HZ: f64 = 1000.0;
@@ -72,9 +72,7 @@ fn run_scenario() -> Vec<TraceSample> {
             proxy_m,
             rendered_force_n: force_n,
             force_n,
-            mode_force_n,
-            primitives_per_mode,
-            mode_count: 1,
+            modes: ModeBreakdown::new(1, primitives_per_mode, mode_force_n),
             solver_status: SolverStatus::Certified,
             sweeps: u32::from(in_contact),
             error_bound_m: if in_contact { 1e-12 * (1.0 + t_s) } else { 0.0 },
@@ -135,7 +133,7 @@ fn python_has(module: &str) -> bool {
 #[test]
 fn scenario_touches_the_floor_and_the_workspace_limit() {
     let samples = run_scenario();
-    assert!(samples.iter().any(|s| s.primitives_per_mode[0] == 1));
+    assert!(samples.iter().any(|s| s.modes.primitives()[0] == 1));
     assert!(samples.iter().any(|s| s.flags & FLAG_WORKSPACE_LIMIT != 0));
     // Resting on the floor the hand spring (pulling 5 mm down) and the coupling share the load:
     // the probe sinks to z = -k_h 5 mm / (k_h + k).
@@ -292,7 +290,7 @@ print(json.dumps({"rows": len(df), "columns": list(df.columns),
     );
     let contacts: u64 = samples
         .iter()
-        .map(|s| u64::from(s.primitives_per_mode[0]))
+        .map(|s| u64::from(s.modes.primitives()[0]))
         .sum();
     assert_eq!(report["contacts"], contacts);
 }

@@ -41,8 +41,8 @@ fn every_shipped_scenario_parses_and_the_procedural_ones_run_certified() {
             trace
                 .samples
                 .iter()
-                .any(|s| s.primitives().iter().any(|&c| c > 0)
-                    || s.mode_force_n.iter().any(|f| *f != glam::DVec3::ZERO)),
+                .any(|s| s.modes.primitives().iter().any(|&c| c > 0)
+                    || s.modes.forces_n().iter().any(|f| *f != glam::DVec3::ZERO)),
             "{name}"
         );
         assert!(summary.max_force_n > 0.1, "{name}: {}", summary.max_force_n);
@@ -235,8 +235,8 @@ fn viscosity_drags_in_each_shell_and_not_in_the_gaps() {
     let mut walls = 0;
     let mut inside = false;
     for s in &trace.samples {
-        assert_eq!(s.primitives()[0], 0, "tick {}", s.tick);
-        let drag = s.mode_force_n[0] != glam::DVec3::ZERO;
+        assert_eq!(s.modes.primitives()[0], 0, "tick {}", s.tick);
+        let drag = s.modes.forces_n()[0] != glam::DVec3::ZERO;
         if drag && !inside {
             walls += 1;
         }
@@ -246,7 +246,7 @@ fn viscosity_drags_in_each_shell_and_not_in_the_gaps() {
     let strongest = trace
         .samples
         .iter()
-        .map(|s| s.mode_force_n[0].length())
+        .map(|s| s.modes.forces_n()[0].length())
         .fold(0.0, f64::max);
     assert!(strongest > 0.3, "drag up to {strongest} N");
 }
@@ -272,7 +272,7 @@ fn multimodal_exact_trace_is_certified_and_the_constraint_approach_loses_the_sur
     let both = trace
         .samples
         .iter()
-        .filter(|s| s.primitives()[0] == 1 && s.primitives()[1] == 1)
+        .filter(|s| s.modes.primitives()[0] == 1 && s.modes.primitives()[1] == 1)
         .count();
     assert!(
         both > trace.samples.len() / 2,
@@ -367,7 +367,7 @@ fn brain_surface_exploration_on_the_mni_template() {
     let contact = trace
         .samples
         .iter()
-        .filter(|s| s.primitives()[0] == 1 && s.force_n.length() > 0.05)
+        .filter(|s| s.modes.primitives()[0] == 1 && s.force_n.length() > 0.05)
         .count();
     assert!(
         contact > trace.samples.len() / 4,

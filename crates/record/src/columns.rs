@@ -170,8 +170,9 @@ pub(crate) fn cells(
     push_vector(out, sample.rendered_force_n);
     push_vector(out, sample.force_n);
     for mode in 0..mode_count.min(MAX_MODES) {
-        out.push(Cell::U64(u64::from(sample.primitives_per_mode[mode])));
-        push_vector(out, sample.mode_force_n[mode]);
+        let (primitives, force_n) = sample.modes.slot(mode);
+        out.push(Cell::U64(u64::from(primitives)));
+        push_vector(out, force_n);
     }
     out.push(Cell::Text(sample.solver_status.name()));
     out.push(Cell::U64(u64::from(sample.sweeps)));
@@ -235,15 +236,15 @@ pub(crate) fn sample_from_cells(
     sample.proxy_m = vector(&mut next)?;
     sample.rendered_force_n = vector(&mut next)?;
     sample.force_n = vector(&mut next)?;
-    for mode in 0..mode_count.min(MAX_MODES) {
+    for (primitives, force_n) in sample.modes.slots_mut() {
         let (i, count) = next();
-        sample.primitives_per_mode[mode] = match count {
+        *primitives = match count {
             Cell::U64(v) => {
                 u16::try_from(v).map_err(|_| err(i, "not an integer from 0 to 65535"))?
             }
             _ => return Err(err(i, "not an integer from 0 to 65535")),
         };
-        sample.mode_force_n[mode] = vector(&mut next)?;
+        *force_n = vector(&mut next)?;
     }
     sample.solver_status = match next() {
         (i, Cell::Text(text)) => {
@@ -290,6 +291,7 @@ pub(crate) fn sample_from_cells(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use voxhap_core::haptics::tick::ModeBreakdown;
 
     #[test]
     fn names_are_unique_and_pandas_safe() {
@@ -314,8 +316,11 @@ mod tests {
         let mut sample = TraceSample::zeroed(2);
         sample.tick = 7;
         sample.t_s = 0.007;
-        sample.mode_force_n[1] = DVec3::new(1.0, -2.0, 3.5);
-        sample.primitives_per_mode[1] = 3;
+        let mut primitives = [0; MAX_MODES];
+        primitives[1] = 3;
+        let mut forces_n = [DVec3::ZERO; MAX_MODES];
+        forces_n[1] = DVec3::new(1.0, -2.0, 3.5);
+        sample.modes = ModeBreakdown::new(2, primitives, forces_n);
         sample.device_time_us = Some(99);
         sample.flags = 0b101;
         sample.solver_status = SolverStatus::Certified;

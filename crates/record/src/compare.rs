@@ -160,9 +160,10 @@ fn vector_difference(a: DVec3, b: DVec3) -> f64 {
 
 fn quantities(a: &TraceSample, b: &TraceSample) -> [f64; QUANTITIES.len()] {
     let mode_force = a
-        .mode_forces()
+        .modes
+        .forces_n()
         .iter()
-        .zip(b.mode_forces())
+        .zip(b.modes.forces_n())
         .map(|(x, y)| vector_difference(*x, *y))
         .fold(0.0, f64::max);
     [
@@ -207,7 +208,7 @@ pub fn compare_traces(a: &Trace, b: &Trace, tolerances: Tolerances) -> Compariso
         if sa.tick != sb.tick {
             note("tick", sa.tick);
         }
-        if sa.primitives() != sb.primitives() {
+        if sa.modes.primitives() != sb.modes.primitives() {
             note("primitive counts", sa.tick);
         }
         if sa.flags != sb.flags {

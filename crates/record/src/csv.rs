@@ -145,10 +145,7 @@ fn write_cells(out: &mut Vec<u8>, row: &[Cell]) {
 #[cfg(test)]
 fn write_row(out: &mut Vec<u8>, s: &TraceSample, start_utc_ns: i64) {
     let mut row = Vec::new();
-    write_cells(
-        out,
-        refill(&mut row, s, usize::from(s.mode_count), start_utc_ns),
-    );
+    write_cells(out, refill(&mut row, s, s.modes.count(), start_utc_ns));
 }
 
 impl TraceWriter for CsvTraceWriter {

@@ -18,7 +18,7 @@ fn write_then_read_round_trips_exactly() {
         assert_eq!(read.t_s.to_bits(), written.t_s.to_bits());
         for (a, b) in [
             (read.probe_m, written.probe_m),
-            (read.mode_force_n[2], written.mode_force_n[2]),
+            (read.modes.forces_n()[2], written.modes.forces_n()[2]),
             (read.proxy_m, written.proxy_m),
             (read.force_n, written.force_n),
         ] {
@@ -74,10 +74,10 @@ fn bad_samples_are_recorded_flagged_and_never_end_the_trace() {
     writer.write_sample(&sample).unwrap();
     sample.tick = 7;
     sample.proxy_m.y = 1e300;
-    sample.mode_count = 2;
+    sample.modes.set_count(2);
     writer.write_sample(&sample).unwrap();
     sample.tick = 8;
-    sample.mode_count = 1;
+    sample.modes.set_count(1);
     sample.error_bound_m = -1.0;
     writer.write_sample(&sample).unwrap();
     sample.tick = 9;

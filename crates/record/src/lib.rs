@@ -63,4 +63,5 @@ pub use voxhap_api::{ForceOffCause, TickEnergy, TickTruth};
 
 pub use voxhap_api::TraceFormat;
 pub use voxhap_core::haptics::modes::MAX_MODES;
+pub use voxhap_core::haptics::tick::ModeBreakdown;
 pub use voxhap_core::status::flags::*;

@@ -386,8 +386,8 @@ fn join(
         });
     }
     let mut sample = TraceSample::zeroed(mode_names.len() as u8);
-    for (mode, name) in mode_names.iter().enumerate() {
-        sample.primitives_per_mode[mode] = solver
+    for (name, (primitives, force_n)) in mode_names.iter().zip(sample.modes.slots_mut()) {
+        *primitives = solver
             .primitives
             .get(name)
             .and_then(|v| v.as_u64())
@@ -406,7 +406,7 @@ fn join(
                 what: "mode force",
                 mode: name.clone(),
             })?;
-        sample.mode_force_n[mode] = read_vector(force);
+        *force_n = read_vector(force);
     }
     sample.tick = state.tick;
     sample.t_s = t_s;

@@ -569,12 +569,12 @@ impl TraceWriter for McapTraceWriter {
             t_s: sample.t_s,
             primitives: ByMode {
                 names: &self.mode_names,
-                values: sample.primitives(),
+                values: sample.modes.primitives(),
                 json: |count| *count,
             },
             mode_force_n: ByMode {
                 names: &self.mode_names,
-                values: sample.mode_forces(),
+                values: sample.modes.forces_n(),
                 json: DVec3::to_array,
             },
             solver_status: sample.solver_status.name(),

@@ -42,7 +42,7 @@ pub struct TraceMeta {
     pub start_utc_ns: i64,
     /// Servo rate (Hz).
     pub rate_hz: f64,
-    /// The haptic modes, in the order of `TraceSample::primitives_per_mode`. At most [`MAX_MODES`];
+    /// The haptic modes, in the order of `TraceSample::modes`. At most [`MAX_MODES`];
     /// each name is non-empty ASCII letters, digits, `_` or `-`, and names are unique.
     pub mode_names: Vec<String>,
     /// The scenario that ran, as given (any JSON).

@@ -8,8 +8,7 @@ use crate::error::TraceError;
 use crate::flags::FLAG_INVALID_VALUES;
 use glam::DVec3;
 use voxhap_api::{Snapshot, TickTruth};
-use voxhap_core::haptics::modes::MAX_MODES;
-use voxhap_core::haptics::tick::TickOutput;
+use voxhap_core::haptics::tick::{ModeBreakdown, TickOutput};
 
 voxhap_core::named_enum! {
     /// How a tick's solve ended, as recorded (`solver_status` column). Mirrors
@@ -71,15 +70,11 @@ pub struct TraceSample {
     pub rendered_force_n: DVec3,
     /// Force sent to the device, after the safety pipeline (N).
     pub force_n: DVec3,
-    /// Force each mode's primitives exerted on the proxy at the solution (N); they sum to the coupling
-    /// force `k (proxy - probe)` (exactly for the baselines, within `k error_bound_m` for the exact
-    /// solver). Slots at and past `mode_count` are ignored and read back as 0.
-    pub mode_force_n: [DVec3; MAX_MODES],
-    /// Primitives each mode emitted this tick; slots at and past `mode_count` are ignored and read back
-    /// as 0.
-    pub primitives_per_mode: [u16; MAX_MODES],
-    /// How many modes the scene has; must equal the trace's `TraceMeta::mode_names` length.
-    pub mode_count: u8,
+    /// Primitives each mode emitted this tick and the force they exerted on the proxy at the solution (N),
+    /// which sum to the coupling force `k (proxy - probe)` (exactly for the baselines, within
+    /// `k error_bound_m` for the exact solver). Its count of modes must equal the trace's
+    /// `TraceMeta::mode_names` length.
+    pub modes: ModeBreakdown,
     /// How the solve ended.
     pub solver_status: SolverStatus,
     /// Solver sweeps this tick.
@@ -109,9 +104,7 @@ impl TraceSample {
             proxy_m: DVec3::ZERO,
             rendered_force_n: DVec3::ZERO,
             force_n: DVec3::ZERO,
-            mode_force_n: [DVec3::ZERO; MAX_MODES],
-            primitives_per_mode: [0; MAX_MODES],
-            mode_count,
+            modes: ModeBreakdown::zeroed(mode_count),
             solver_status: SolverStatus::Unknown,
             sweeps: 0,
             error_bound_m: 0.0,
@@ -133,9 +126,7 @@ impl TraceSample {
             proxy_m: snapshot.proxy_m,
             rendered_force_n: snapshot.rendered_force_n,
             force_n: snapshot.sent_force_n,
-            mode_force_n: out.mode_force_n,
-            primitives_per_mode: out.primitives_per_mode,
-            mode_count: out.mode_count,
+            modes: out.modes,
             solver_status: snapshot.status.into(),
             sweeps: snapshot.sweeps,
             error_bound_m: snapshot.error_bound_m,
@@ -144,16 +135,6 @@ impl TraceSample {
             flags: snapshot.flags,
             truth: snapshot.truth,
         }
-    }
-
-    /// The primitive counts of the modes in use.
-    pub fn primitives(&self) -> &[u16] {
-        &self.primitives_per_mode[..usize::from(self.mode_count).min(MAX_MODES)]
-    }
-
-    /// The per-mode forces of the modes in use.
-    pub fn mode_forces(&self) -> &[DVec3] {
-        &self.mode_force_n[..usize::from(self.mode_count).min(MAX_MODES)]
     }
 }
 
@@ -207,13 +188,9 @@ impl SampleChecker {
             }
         }
         let mut sample = *sample;
-        if usize::from(sample.mode_count) != self.mode_count {
+        if sample.modes.count() != self.mode_count {
             // Record the trace's modes; counts and forces past the sample's own are zero.
-            for slot in usize::from(sample.mode_count).min(MAX_MODES)..MAX_MODES {
-                sample.primitives_per_mode[slot] = 0;
-                sample.mode_force_n[slot] = DVec3::ZERO;
-            }
-            sample.mode_count = self.mode_count as u8;
+            sample.modes.set_count(self.mode_count as u8);
             sample.flags |= FLAG_INVALID_VALUES;
         }
         if check_values(&sample).is_err() {
@@ -277,7 +254,7 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
             field: "device_local",
         });
     }
-    if !sample.mode_forces().iter().all(|f| f.is_finite()) {
+    if !sample.modes.forces_n().iter().all(|f| f.is_finite()) {
         return Err(TraceError::NonFinite {
             tick,
             field: "mode_force_n",
@@ -306,11 +283,11 @@ pub(crate) fn check_sample(
     last_tick: Option<u64>,
 ) -> Result<(), TraceError> {
     let tick = sample.tick;
-    if usize::from(sample.mode_count) != mode_count {
+    if sample.modes.count() != mode_count {
         return Err(TraceError::ModeCountMismatch {
             tick,
             expected: mode_count,
-            found: usize::from(sample.mode_count),
+            found: sample.modes.count(),
         });
     }
     if let Some(previous) = last_tick {

@@ -6,7 +6,7 @@ use crate::sample::{SolverStatus, TraceSample};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use voxhap_api::TraceFormat;
-use voxhap_core::haptics::modes::MAX_MODES;
+use voxhap_core::haptics::tick::ModeBreakdown;
 
 /// A `TraceMeta` with a fixed creation time, so files are comparable byte for byte.
 pub fn meta(mode_names: &[&str]) -> TraceMeta {
@@ -57,22 +57,11 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
             let angle = t_s * 7.0;
             let probe_m = DVec3::new(0.02 * angle.cos(), 0.02 * angle.sin(), -0.001 * t_s);
             let proxy_m = DVec3::new(probe_m.x, probe_m.y, probe_m.z.max(0.0));
-            let mut primitives_per_mode = [0u16; MAX_MODES];
-            for (m, slot) in primitives_per_mode
-                .iter_mut()
-                .take(usize::from(mode_count))
-                .enumerate()
-            {
-                *slot = ((i as usize + m) % 3) as u16;
-            }
             let force_n = (proxy_m - probe_m) * 500.0 + DVec3::new(-0.0, 1e-300, 0.1);
-            let mut mode_force_n = [DVec3::ZERO; MAX_MODES];
-            for (m, slot) in mode_force_n
-                .iter_mut()
-                .take(usize::from(mode_count))
-                .enumerate()
-            {
-                *slot = force_n * (m as f64 + 1.0) / 3.0;
+            let mut modes = ModeBreakdown::zeroed(mode_count);
+            for (m, (primitives, mode_force_n)) in modes.slots_mut().enumerate() {
+                *primitives = ((i as usize + m) % 3) as u16;
+                *mode_force_n = force_n * (m as f64 + 1.0) / 3.0;
             }
             TraceSample {
                 tick: i * 2,
@@ -82,9 +71,7 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                 proxy_m,
                 rendered_force_n: force_n * 1.5,
                 force_n,
-                mode_force_n,
-                primitives_per_mode,
-                mode_count,
+                modes,
                 solver_status: SolverStatus::ALL[(i % 6) as usize],
                 sweeps: (i % 5) as u32,
                 error_bound_m: if i % 7 == 3 {

@@ -527,10 +527,7 @@ impl ServoLoop {
         let mut primitive_slots = [None; MAX_MODES];
         let mut slot = 0;
         let mut emitted = 0usize;
-        for (mode, &count) in out.primitives_per_mode[..usize::from(out.mode_count)]
-            .iter()
-            .enumerate()
-        {
+        for (mode, &count) in out.modes.primitives().iter().enumerate() {
             for primitive in workspace_primitives
                 .iter()
                 .skip(emitted)
@@ -606,7 +603,7 @@ impl ServoLoop {
 
     /// The directed-force modes' share of the tick's force: intended work (crate::energy).
     fn directed_force_n(&self, out: &voxhap_core::haptics::tick::TickOutput) -> DVec3 {
-        let modes = self.bundle.scene.modes().iter().zip(out.mode_force_n);
+        let modes = self.bundle.scene.modes().iter().zip(out.modes.forces_n());
         modes
             .filter(|(mode, _)| {
                 matches!(mode, Mode::VectorForce { .. } | Mode::GradientForce { .. })

@@ -128,6 +128,86 @@ impl TickWorkspace {
     }
 }
 
+/// A tick's per-mode breakdown: how many primitives each of the scene's modes emitted and the force they
+/// exert on the proxy (N), in the scene's mode order. `Copy`, heap-free (the servo thread passes it on
+/// in a [`TickOutput`] and records it in a trace sample).
+///
+/// Invariant: there are [`count`](Self::count) modes; the slots at and past the count are zero, so they
+/// read back as 0 ([`slot`](Self::slot)). A count above [`MAX_MODES`] (a malformed trace sample) is
+/// kept as given, with every slot in use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModeBreakdown {
+    primitives: [u16; MAX_MODES],
+    forces_n: [DVec3; MAX_MODES],
+    count: u8,
+}
+
+impl ModeBreakdown {
+    /// `count` modes, with no primitives and no force.
+    pub const fn zeroed(count: u8) -> Self {
+        Self {
+            primitives: [0; MAX_MODES],
+            forces_n: [DVec3::ZERO; MAX_MODES],
+            count,
+        }
+    }
+
+    /// `count` modes with these primitive counts and forces; the slots at and past `count` are zeroed.
+    pub fn new(count: u8, primitives: [u16; MAX_MODES], forces_n: [DVec3; MAX_MODES]) -> Self {
+        let mut modes = Self {
+            primitives,
+            forces_n,
+            count,
+        };
+        modes.set_count(count);
+        modes
+    }
+
+    /// How many modes.
+    pub fn count(&self) -> usize {
+        usize::from(self.count)
+    }
+
+    /// Makes it `count` modes: the slots at and past `count` are zeroed (those of new modes already are).
+    pub fn set_count(&mut self, count: u8) {
+        let live = usize::from(count).min(MAX_MODES);
+        self.primitives[live..].fill(0);
+        self.forces_n[live..].fill(DVec3::ZERO);
+        self.count = count;
+    }
+
+    /// The primitive counts of the modes.
+    pub fn primitives(&self) -> &[u16] {
+        &self.primitives[..self.live()]
+    }
+
+    /// The forces of the modes (N).
+    pub fn forces_n(&self) -> &[DVec3] {
+        &self.forces_n[..self.live()]
+    }
+
+    /// Mode `mode`'s primitive count and force; 0 and zero force for a slot at or past the count.
+    pub fn slot(&self, mode: usize) -> (u16, DVec3) {
+        if mode < self.live() {
+            (self.primitives[mode], self.forces_n[mode])
+        } else {
+            (0, DVec3::ZERO)
+        }
+    }
+
+    /// Each mode's primitive count and force, to fill in.
+    pub fn slots_mut(&mut self) -> impl Iterator<Item = (&mut u16, &mut DVec3)> {
+        let live = self.live();
+        self.primitives[..live]
+            .iter_mut()
+            .zip(&mut self.forces_n[..live])
+    }
+
+    fn live(&self) -> usize {
+        self.count().min(MAX_MODES)
+    }
+}
+
 /// What one tick produces. `Copy`, heap-free.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TickOutput {
@@ -137,13 +217,10 @@ pub struct TickOutput {
     pub force_n: DVec3,
     /// The proxy's velocity over the tick (m/s).
     pub proxy_velocity_m_per_s: DVec3,
-    /// Primitives each mode emitted (slots past `mode_count` are 0).
-    pub primitives_per_mode: [u16; MAX_MODES],
-    /// Force each mode's primitives exert on the proxy at the new position (N): from the exact solver's
-    /// dual (they sum to `force_n` within `k error_bound_m`), or the primitives' force functions for the
-    /// baselines. Slots past `mode_count` are zero.
-    pub mode_force_n: [DVec3; MAX_MODES],
-    pub mode_count: u8,
+    /// What each of the scene's modes contributed: its primitives, and the force they exert on the proxy at
+    /// the new position (N), from the exact solver's dual (they sum to `force_n` within `k error_bound_m`)
+    /// or the primitives' force functions for the baselines.
+    pub modes: ModeBreakdown,
     /// Exact solver: block sweeps; Euler: iterations; constraint: 1.
     pub sweeps: u32,
     /// Exact solver: active-set rounds; baselines: 0.
@@ -193,9 +270,7 @@ fn tick_inner(
         proxy_m: state.proxy_m,
         force_n: DVec3::ZERO,
         proxy_velocity_m_per_s: DVec3::ZERO,
-        primitives_per_mode: [0; MAX_MODES],
-        mode_force_n: [DVec3::ZERO; MAX_MODES],
-        mode_count: mode_count as u8,
+        modes: ModeBreakdown::zeroed(mode_count as u8),
         sweeps: 0,
         active_set_rounds: 0,
         error_bound_m: f64::INFINITY,
@@ -238,12 +313,8 @@ fn tick_inner(
         (k, probe_m)
     };
     let mut normals = [DVec3::ZERO; MAX_MODES];
-    for (index, (count_slot, normal_slot)) in output
-        .primitives_per_mode
-        .iter_mut()
-        .zip(normals.iter_mut())
-        .take(mode_count)
-        .enumerate()
+    for (index, ((count_slot, _), normal_slot)) in
+        output.modes.slots_mut().zip(normals.iter_mut()).enumerate()
     {
         let (count, normal) = scene.emit(index, &at, &state.memory, &mut workspace.primitives);
         *count_slot = count;
@@ -314,7 +385,7 @@ fn tick_inner(
         let exact = workspace.solver_kind == SolverKind::Exact;
         let mut dual_forces = workspace.solver.primitive_forces_n();
         let mut primitives = workspace.primitives.iter();
-        for (mode, &count) in output.primitives_per_mode[..mode_count].iter().enumerate() {
+        for ((&mut count, mode_force_n), damper) in output.modes.slots_mut().zip(damper_n_per_m) {
             for primitive in primitives.by_ref().take(usize::from(count)) {
                 let force = if exact && primitive.kind() != crate::haptics::PrimitiveKind::Directed
                 {
@@ -322,9 +393,9 @@ fn tick_inner(
                 } else {
                     primitive.force_n(proxy_m)
                 };
-                output.mode_force_n[mode] += force;
+                *mode_force_n += force;
             }
-            output.mode_force_n[mode] += damper_n_per_m[mode] * (previous_proxy_m - proxy_m);
+            *mode_force_n += damper * (previous_proxy_m - proxy_m);
         }
     }
     output.proxy_m = proxy_m;

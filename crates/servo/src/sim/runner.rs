@@ -175,7 +175,8 @@ pub fn run(
         let mut rendered_n =
             spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
         let active_n: DVec3 = out
-            .mode_force_n
+            .modes
+            .forces_n()
             .iter()
             .zip(&active)
             .filter(|(_, a)| **a)
@@ -261,9 +262,7 @@ pub fn run(
             proxy_m: out.proxy_m,
             rendered_force_n: rendered_n,
             force_n: period.force_n,
-            mode_force_n: out.mode_force_n,
-            primitives_per_mode: out.primitives_per_mode,
-            mode_count: out.mode_count,
+            modes: out.modes,
             solver_status: out.status.into(),
             sweeps: out.sweeps,
             error_bound_m: out.error_bound_m,

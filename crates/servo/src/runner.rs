@@ -449,15 +449,16 @@ impl ServoLoop {
             on_budget: flags & FLAG_COMPUTE_OVER_BUDGET == 0,
         });
 
-        let now_us = waiter.now_ns().saturating_sub(self.origin_ns) / 1000;
         // The state this tick rendered from, and its age, before the exchange replaces it.
         let rendered_from_state = self.last_state.is_some();
         let sample_age_ticks = self.device.state_age_ticks();
-        let exchange_start_ns = waiter.now_ns();
         // The tick's local model: a capable device renders it itself at its own rate (crate::local_model).
         let local =
             crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m)
                 .with_passivity(self.local_passivity);
+        // Read just before the exchange: the supervisor times the states it reads from here.
+        let exchange_start_ns = waiter.now_ns();
+        let now_us = exchange_start_ns.saturating_sub(self.origin_ns) / 1000;
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
             now_us,

@@ -8,12 +8,12 @@
 //! ([`super::controller`], "Latency": `sin(w (d + 1/2) T)` falls as the pairing falls short of the delay).
 //! So while the observer's latency comes from the driver, each tick reads the round trips the driver timed
 //! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and pairs with
-//! their median in whole ticks (rounded up), never less than the figure at open, at most
-//! [`super::settings::MAX_LATENCY_TICKS`]. A reconnect opens a new driver, whose open measures the link
+//! their median plus one servo period in whole ticks (rounded up), never less than the figure at open, at
+//! most [`super::settings::MAX_LATENCY_TICKS`]. A reconnect opens a new driver, whose open measures the link
 //! again: that figure replaces the pairing (it may be shorter), and the new connection's round trips are
 //! followed from there.
 //!
-//! **Why the median and not the longest.** The pairing is the delay of each step in servo ticks, the ticks
+//! **Why the median plus a period, and not the longest.** The pairing is the delay of each step in servo ticks, the ticks
 //! the loop ran: the force sent `d` ticks before is the one that acted over the step. A stall of the host
 //! (the servo thread descheduled between a write and the read that decodes its answer) or of the device
 //! lengthens the round trip of the force that was on the wire, by the stall, but neither side catches up
@@ -27,7 +27,11 @@
 //! 2 000 N/m plane and a 200 N/m grip (`w` about 148 rad/s, 24 Hz), would pair 31 ticks: `w (d + 1/2) T`
 //! about 4.7 rad, booked about `-k pi A^2` a cycle where the loop generates about `+0.36 k pi A^2`. The median is what most steps wait; a single long round trip (or any fewer than half of
 //! them) does not move it, and a link that became slower for good moves it once most of the round trips
-//! since open are slower. The longest round trip still bounds what the controller cannot have answered yet
+//! since open are slower. One period more is the figure at open's rule (its 95th percentile, at most the
+//! median plus one period; the live 95th percentile is not handed out): on a loaded host many answers come a
+//! tick later than the median, and a pairing a tick short of a step's delay books less than the loop
+//! generated (`sin(w (d + 1/2) T)` falls), while a tick long books more for any oscillation slower than a
+//! quarter period per delay. The longest round trip still bounds what the controller cannot have answered yet
 //! (a stall's steps reach the host only after it), which is a bound on the energy, not the pairing
 //! (`tests/device_passivity_pty.rs`).
 //!
@@ -57,8 +61,8 @@ use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 /// What changed the observer's pairing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairingChange {
-    /// The median round trip timed since open, in whole ticks, changed (never below the figure at open):
-    /// the pairing followed it.
+    /// The median round trip timed since open plus one period, in whole ticks, changed (never below the
+    /// figure at open): the pairing followed it.
     Followed { from: usize, to: usize },
     /// A device (re)connected: its driver's figure at open replaced the pairing.
     Reconnected { from: usize, to: usize },
@@ -123,14 +127,15 @@ impl LinkFollower {
         (from != to).then_some(PairingChange::Reconnected { from, to })
     }
 
-    /// This tick's round trips timed since the connection opened: `controller` pairs with their median, or
-    /// with the figure at open when that is longer (module docs). `None` when nothing changed.
+    /// This tick's round trips timed since the connection opened: `controller` pairs with their median plus
+    /// one servo period, or with the figure at open when that is longer (module docs). `None` when nothing
+    /// changed.
     pub fn observe(
         &self,
         seen: Option<LinkDelaySeen>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
-        let (from, median) = self.pairing(seen?.typical, controller)?;
+        let (from, median) = self.pairing(seen?.typical + self.period, controller)?;
         let to = median.max(self.at_open);
         if to == from {
             return None;

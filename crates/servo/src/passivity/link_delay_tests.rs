@@ -45,34 +45,37 @@ fn follower_of(latency: &ObserverLatency) -> (LinkFollower, PassivityController)
     (LinkFollower::new(latency, MS), controller)
 }
 
-/// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. A median of 1.1 ms (2 ticks) changes nothing,
-/// whatever the longest round trip: 30 ms (a stall) leaves the pairing at 2. A median of 4.3 ms (ceil 4.3 =
-/// 5 ticks) lengthens it to 5; 3 ms shortens it to 3; 0.4 ms takes it back to open's 2, not below; 300 ms
-/// lengthens it to the 255 the observer pairs at most. A reconnect measuring 1.2 ms again replaces the 255
-/// with 2; the same figure again changes nothing.
+/// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. A median of 1.1 ms plus the 1 ms period is
+/// 2.1 ms, 3 ticks: the pairing follows to 3, whatever the longest round trip: 30 ms (a stall) leaves it at
+/// 3. A median of 4.3 ms (5.3 ms, 6 ticks) lengthens it to 6; 3 ms (4 ticks) shortens it to 4; none (1 ms,
+/// 1 tick) takes it back to open's 2, not below; 300 ms lengthens it to the 255 the observer pairs at most.
+/// A reconnect measuring 1.2 ms again replaces the 255 with 2; the same figure again changes nothing.
 #[test]
 fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
     let (mut follower, mut c) = follower_of(&chosen(&PassivitySettings::default(), None));
     assert_eq!(c.latency_ticks_now(), 2);
     assert_eq!(follower.observe(None, &mut c), None);
     let typical = US * 1_100;
-    assert_eq!(follower.observe(seen(typical, US * 1_800), &mut c), None);
+    assert_eq!(
+        follower.observe(seen(typical, US * 1_800), &mut c),
+        Some(PairingChange::Followed { from: 2, to: 3 })
+    );
     assert_eq!(follower.observe(seen(typical, MS * 30), &mut c), None);
-    assert_eq!(c.latency_ticks_now(), 2);
+    assert_eq!(c.latency_ticks_now(), 3);
     let follows = |follower: &LinkFollower, c: &mut PassivityController, median| {
         follower.observe(seen(median, MS * 300), c)
     };
     assert_eq!(
         follows(&follower, &mut c, US * 4_300),
-        Some(PairingChange::Followed { from: 2, to: 5 })
+        Some(PairingChange::Followed { from: 3, to: 6 })
     );
     assert_eq!(
         follows(&follower, &mut c, MS * 3),
-        Some(PairingChange::Followed { from: 5, to: 3 })
+        Some(PairingChange::Followed { from: 6, to: 4 })
     );
     assert_eq!(
-        follows(&follower, &mut c, US * 400),
-        Some(PairingChange::Followed { from: 3, to: 2 })
+        follows(&follower, &mut c, Duration::ZERO),
+        Some(PairingChange::Followed { from: 4, to: 2 })
     );
     assert_eq!(
         follows(&follower, &mut c, MS * 300),
@@ -90,8 +93,8 @@ fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
 /// of damping (the arm's and the grip's), a 200 N/m grip pulling it towards z = -3 mm from rest at z = 0 on
 /// a one-sided 2 000 N/m plane at z = 0, each force acting over the step from 2 ticks after it was sent (the
 /// link's median round trip, 1.1 ms, in whole ticks), the controller in control, paired from the driver's
-/// 1.2 ms at open (2 ticks) and followed each tick. The driver times round trips of 1.1 ms (median), and one
-/// of 30 ms at 0.3 s (a stall: the loop ran on as before). Returns the most energy the force gave the handle,
+/// 1.2 ms at open (2 ticks) and followed each tick (the median plus a period, 3 ticks: a tick long). The driver times round trips of 1.1 ms (median), and one
+/// of 30 ms at 30 ms, while the press still rings (a stall: the loop ran on as before). Returns the most energy the force gave the handle,
 /// `max_t W(t)` with `W = sum F_acting . dx` (exact: the handle is integrated under the force held over each
 /// step), and the positive work of its worst window of `2 (d + 1)` steps, `d` = 2 (J). With `pairing`, the
 /// controller pairs that many ticks from the stall on instead of following (what following the longest
@@ -110,9 +113,9 @@ fn stalled_contact(pairing: Option<usize>) -> (f64, f64) {
     let (mut given, mut most) = (0.0f64, 0.0f64);
     let mut work = Vec::new();
     for n in 0..3_000usize {
-        let worst = if n < 300 { US * 1_200 } else { MS * 30 };
+        let worst = if n < 30 { US * 1_200 } else { MS * 30 };
         match pairing {
-            Some(ticks) if n >= 300 => c.set_latency_ticks(ticks),
+            Some(ticks) if n >= 30 => c.set_latency_ticks(ticks),
             _ => {
                 follower.observe(seen(US * 1_100, worst), &mut c);
             }
@@ -249,12 +252,12 @@ fn followed_through_the_supervisor(
 
 /// Through the supervisor (`followed_through_the_supervisor`) at 1 kHz: connected at tick 0 with the driver's
 /// 1.2 ms (2 ticks, no change from the start); round trips of median 4.3 ms and longest 30 ms seen at tick 7
-/// set the controller's pairing to the median's 5 ticks, and the statistics say so: one change, at 7 ms
+/// set the controller's pairing to the median plus a period, 5.3 ms, 6 ticks, and the statistics say so: one change, at 7 ms
 /// (tick 7 at 1 kHz), the worst round trip 30 ms and 30 ticks, the median 4.3 ms, 1.2 ms declared at open.
 #[test]
 fn each_tick_hands_the_followed_pairing_to_the_controller_and_the_statistics() {
     let (pairing, report) = followed_through_the_supervisor(MS, 4_300, 30_000);
-    assert_eq!(pairing, 5);
+    assert_eq!(pairing, 6);
     assert_eq!(
         (
             report.observer_ticks,
@@ -262,7 +265,7 @@ fn each_tick_hands_the_followed_pairing_to_the_controller_and_the_statistics() {
             report.worst_ticks,
             report.round_trips
         ),
-        (5, 1, 30, 100)
+        (6, 1, 30, 100)
     );
     let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
     assert!(
@@ -275,7 +278,7 @@ fn each_tick_hands_the_followed_pairing_to_the_controller_and_the_statistics() {
     assert!(
         report.summary().starts_with(
             "link delay: worst round trip seen 30.000 ms (30 ticks), median 4.300 ms over 100 round trips, \
-             declared at open 1.200 ms; the passivity observer pairs 5 ticks (changed 1 time, last at 0.007 s)"
+             declared at open 1.200 ms; the passivity observer pairs 6 ticks (changed 1 time, last at 0.007 s)"
         ),
         "{}",
         report.summary()
@@ -286,21 +289,22 @@ fn each_tick_hands_the_followed_pairing_to_the_controller_and_the_statistics() {
 /// At 3 kHz that is 333 333 ns (1e9 / 3000 rounded to whole nanoseconds, as `Session` sets it), by hand:
 /// the driver's 1.2 ms at open is 1 200 000 / 333 333 = 3.6 periods, 4 ticks; round trips of 1.999 ms
 /// (median and longest) are 5.997 periods (5 x 333 333 = 1 666 665 < 1 999 000 <= 6 x 333 333 = 1 999 998
-/// ns), 6 ticks. So at tick 7 (7 x 333 333 ns = 2.333331 ms) the pairing follows from 4 to 6, and the
-/// summary's longest round trip is 6 ticks too. Counted on another period, say whole microseconds (333 µs), that round trip would be 7 ticks
-/// (6 x 333 000 = 1 998 000 < 1 999 000 ns): the two figures agree because both count on the servo's period.
+/// ns), 6 ticks in the summary; the median plus a period, 2 332 333 ns, is 6.997 periods, 7 ticks. So at
+/// tick 7 (7 x 333 333 ns = 2.333331 ms) the pairing follows from 4 to 7. Counted on another period, say
+/// whole microseconds (333 µs), the longest round trip would be 7 ticks (6 x 333 000 = 1 998 000 < 1 999 000
+/// ns), not the summary's 6: both figures count on the servo's period.
 #[test]
 fn at_3_khz_the_summary_and_the_pairing_count_the_same_ticks() {
     let (pairing, report) =
         followed_through_the_supervisor(Duration::from_nanos(333_333), 1_999, 1_999);
-    assert_eq!(pairing, 6);
+    assert_eq!(pairing, 7);
     assert_eq!(
         (
             report.observer_ticks,
             report.observer_changes,
             report.worst_ticks
         ),
-        (6, 1, 6),
+        (7, 1, 6),
         "{report:?}"
     );
     assert!(

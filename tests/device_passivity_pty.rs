@@ -31,13 +31,32 @@
 //! larger of the log's 1e-12 m and an f32's step at the largest position on the wire, `delta_F` half the
 //! larger of 1e-9 N and an f32's step at the largest force). Both sides come from the device's log.
 //!
-//! **Which `d`.** The link's depth during the run, not at open: a host that is not real-time sometimes
-//! answers later than the round trips open measured (on the shared 2-core VM, otherwise idle, a run once gave
-//! 0.126 mJ against a bound of 0.085 mJ computed with open's `d` = 2). The protocol driver times the round
-//! trip of every force it sends, the observer widens its pairing to the longest one seen, and serve's run
-//! summary prints that longest one (`link delay: worst round trip seen ... ms (d ticks)`): the bound of each
-//! run takes the `d` of that run. A round trip runs from the write of a force to the decoding of the State
-//! that echoes it, so it covers both the motion's way to the host and the force's way to the device.
+//! **Which `d`.** The window's `d` is the link's depth during the run, not at open, and its longest, not
+//! its usual: a host that is not real-time sometimes answers later than the round trips open measured (on
+//! the shared 2-core VM, otherwise idle, a run once gave 0.126 mJ against a bound of 0.085 mJ computed with
+//! open's `d` = 2), and a stall (the servo thread or the device double not running for a while) holds one
+//! force on the handle over every cycle of it, cycles whose motion the host sees only after the stall and
+//! answers a round trip later. A round trip runs from the write of a force to the decoding of the State
+//! that echoes it, so it covers both the motion's way to the host and the force's way to the device, and
+//! any stall between them; at any time a force is on the wire (the servo writes before it reads), so every
+//! stall lies inside some round trip. The protocol driver times the round trip of every force it sends and
+//! serve's run summary prints the longest (`link delay: worst round trip seen ... ms (d ticks)`): the bound
+//! of each run takes the `d` of that run. A stall of `S` ticks makes the round trip it lies in at least `S`
+//! ticks long, so `d >= S` as well as `d >= u`, the usual round trip's ticks, and the window
+//! `2 (d + 1) >= S + u + 2` covers the stall's `S` cycles and the answer to the last of them (a round trip,
+//! both ways, held one more cycle).
+//!
+//! **Which pairing.** The observer's pairing is another figure: the delay of each step in ticks, which a
+//! stall does not change (the servo loop skips the ticks it missed, the mock skips the cycles it missed, and
+//! the step that spans a stall was moved under the last force sent before it). The observer pairs with the
+//! median round trip the driver timed plus one servo period (a tick long rather than short on a loaded
+//! host), never below open's figure (`voxhap_servo::passivity::link_delay`), and the test checks that from
+//! the run summary. Paired with the longest round trip instead, as it once
+//! was, a stall lengthened the pairing for the rest of the run: after a 30 ms round trip the observer paired
+//! 31 ticks, `w (d + 1/2) T` about 4.7 rad for this contact's 24 Hz (0.1 kg on 2 000 + 200 N/m), so it
+//! booked the delayed loop's generation as absorbed and let it through: the controller-on run once gave
+//! the device 4.27 mJ against a bound of 2.61 mJ (worst round trip 30 ms, 31 ticks), and the pairing forced
+//! to 31 ticks (`latency_s = 0.031`) gave 1.64 mJ against 1.38 mJ computed with that run's `d` = 18.
 //!
 //! The bound must fail with the controller off, and is asserted to (against that run's own bound: a late
 //! host only adds delay and so only more energy). Told no latency (`latency_s = 0`), the controller must let
@@ -153,11 +172,12 @@ fn bound_j(cycles: &[Cycle], d: usize) -> f64 {
 }
 
 /// What serve's run summary says of the link's delay (its `link delay:` line): the longest round trip the
-/// driver timed during the run, in ticks and ms, the ticks the observer paired with at the end, the times
-/// that pairing changed, and the line.
+/// driver timed during the run, in ticks and ms, their median (ms), the ticks the observer paired with at
+/// the end, the times that pairing changed, and the line.
 struct LinkDelay {
     worst_ticks: usize,
     worst_ms: f64,
+    median_ms: f64,
     observer_ticks: usize,
     changes: u64,
     /// Device disconnects in the run (the summary's `disconnects N`): each reconnect measures the link again.
@@ -193,6 +213,7 @@ fn link_delay(stdout: &str) -> LinkDelay {
         disconnects,
         worst_ms: after("worst round trip seen "),
         worst_ticks: after(" ms (") as usize,
+        median_ms: after("median "),
         observer_ticks: after("observer pairs ") as usize,
         changes: after("(changed ") as u64,
         line: line.clone(),
@@ -322,8 +343,9 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
     // The whole chain: the driver measured it (no scene value), and a round trip through a link that holds
     // every reply 1 ms cannot be shorter than 1 ms, so the observer pairs at least one tick, at open and
     // during the run. Without a reconnect (which measures the link again and replaces the figure) the
-    // pairing at the end is the longest round trip seen (the observer widened to it) or open's figure if
-    // that was longer.
+    // pairing at the end is the median round trip the driver timed plus one period, in whole ticks, or
+    // open's figure if that is longer (module docs, "Which pairing"); it changed during the run if it is
+    // not open's.
     assert!(
         notice.contains("driver measured at open") && latency_ms >= 1.0 && d_open >= 1,
         "{notice}"
@@ -334,16 +356,19 @@ fn the_measured_link_latency_keeps_a_delayed_stiff_contact_passive_on_the_device
         on_link.line
     );
     if on_link.disconnects == 0 {
+        let median_ticks =
+            voxhap::device::latency::ticks_rounded_up(on_link.median_ms * 1e-3 + 1e-3, 1e-3)
+                as usize;
         assert!(
-            on_link.observer_ticks == on_link.worst_ticks.max(d_open).min(255)
-                && (on_link.changes > 0) == (on_link.worst_ticks > d_open),
+            on_link.observer_ticks == median_ticks.max(d_open).min(255)
+                && (on_link.observer_ticks == d_open || on_link.changes > 0),
             "{notice}\n{}",
             on_link.line
         );
     }
     let (zero, _, zero_link) = press("mode = \"control\"\nlatency_s = 0.0");
     let (off, _, off_link) = press("mode = \"off\"");
-    // Told its latency, the observer keeps it: the scene's 0 is never widened.
+    // Told its latency, the observer keeps it: the scene's 0 never changes.
     assert_eq!(zero_link.observer_ticks, 0, "{}", zero_link.line);
     // Each run's bound counts the link's depth that run: the longest round trip its driver timed, in ticks.
     let [(on_j, on_bound), (zero_j, zero_bound), (off_j, off_bound)] =

@@ -14,6 +14,7 @@ fn through_the_supervisor(latency: Option<LinkLatency>) -> Option<LinkLatency> {
             info: info.clone(),
             latency,
             worst_us: Default::default(),
+            median_us: Default::default(),
         })
     })
     .unwrap();
@@ -76,8 +77,9 @@ fn the_notice_names_where_the_latency_came_from() {
         "passivity control: the observer pairs each force with the motion 2 ticks later (1.200 ms at 1000 Hz), \
          from the link latency device mock:/dev/pts/9's driver measured at open: the 95th percentile of 65 \
          round trips from a zero force to the State echoing it, at most their median plus one servo period, \
-         rounded up to 0.1 ms (median 1.050 ms); while serve runs it widens to the longest round trip the \
-         driver times (the run summary's link delay line and /api/stats say when)"
+         rounded up to 0.1 ms (median 1.050 ms); while serve runs it follows the median round trip the \
+         driver times plus one period, never below this figure (the run summary's link delay line and \
+         /api/stats say when)"
     );
     let falcon =
         ObserverLatency::choose(&settings, None, Some(voxhap_device::latency::FALCON), 1e-3);

@@ -7,26 +7,46 @@
 //! before, while the force that acted was sent earlier, books less than the delayed loop generated
 //! ([`super::controller`], "Latency": `sin(w (d + 1/2) T)` falls as the pairing falls short of the delay).
 //! So while the observer's latency comes from the driver, each tick reads the round trips the driver timed
-//! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and, when the
-//! longest of them in whole ticks (rounded up) exceeds the pairing, widens the pairing to it, at most
-//! [`super::settings::MAX_LATENCY_TICKS`]. It never narrows within a connection: the longest delay seen may
-//! come again. A reconnect opens a new driver, whose open measures the link again: that figure replaces the
-//! pairing (it may be shorter), and the new connection's round trips are followed from there.
+//! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and pairs with
+//! their median plus one servo period in whole ticks (rounded up), never less than the figure at open, at
+//! most [`super::settings::MAX_LATENCY_TICKS`]. A reconnect opens a new driver, whose open measures the link
+//! again: that figure replaces the pairing (it may be shorter), and the new connection's round trips are
+//! followed from there.
+//!
+//! **Why the median plus a period, and not the longest.** The pairing is the delay of each step in servo ticks, the ticks
+//! the loop ran: the force sent `d` ticks before is the one that acted over the step. A stall of the host
+//! (the servo thread descheduled between a write and the read that decodes its answer) or of the device
+//! lengthens the round trip of the force that was on the wire, by the stall, but neither side catches up
+//! the cycles it missed (the servo loop skips missed ticks, a device holds its force, the mock skips ahead),
+//! so the steps after the stall are as many ticks late as before it: the force held over the stall is the
+//! last one sent before it, and the step that spans the stall is booked with it at the usual pairing.
+//! Paired with the stall's length instead, every later step is booked with a force sent that much too
+//! early: for an oscillation whose half period is shorter than the pairing's `(d + 1/2) T`,
+//! `sin(w (d + 1/2) T)` turns negative, the observer books what the loop generates as absorbed and the
+//! controller stops dissipating it. A stall of 30 ms on a link of 2 ticks, with a 0.1 kg handle on a
+//! 2 000 N/m plane and a 200 N/m grip (`w` about 148 rad/s, 24 Hz), would pair 31 ticks: `w (d + 1/2) T`
+//! about 4.7 rad, booked about `-k pi A^2` a cycle where the loop generates about `+0.36 k pi A^2`. The median is what most steps wait; a single long round trip (or any fewer than half of
+//! them) does not move it, and a link that became slower for good moves it once most of the round trips
+//! since open are slower. One period more is the figure at open's rule (its 95th percentile, at most the
+//! median plus one period; the live 95th percentile is not handed out): on a loaded host many answers come a
+//! tick later than the median, and a pairing a tick short of a step's delay books less than the loop
+//! generated (`sin(w (d + 1/2) T)` falls), while a tick long books more for any oscillation slower than a
+//! quarter period per delay. The longest round trip still bounds what the controller cannot have answered yet
+//! (a stall's steps reach the host only after it), which is a bound on the energy, not the pairing
+//! (`tests/device_passivity_pty.rs`).
 //!
 //! The pairing has one owner, the controller ([`PassivityController::latency_ticks_now`]): the follower
 //! reads it there and sets it there, and the statistics ([`LinkDelayStats`]) are told the pairing at start
 //! and at each change. The servo period the delays are counted in has one owner too, the follower: it hands
-//! it to the statistics each tick, so the run summary's longest round trip in ticks and the pairing the
-//! observer widens to are one rule ([`ticks_of`], the uncapped `voxhap_device::latency::ticks_rounded_up`)
-//! on one period.
+//! it to the statistics each tick, so the run summary's round trips in ticks and the pairing the observer
+//! follows are one rule ([`ticks_of`], the uncapped `voxhap_device::latency::ticks_rounded_up`) on one period.
 //!
 //! A scene that writes `[passivity] latency_s`, and the simulated arm's `[arm] latency_s`, fix the pairing:
 //! the user said what it is, and a test that tells the observer a wrong latency must get what it asked for.
 //!
-//! The longest round trip is a worst case in whole ticks, so the pairing errs long, the safe side for
-//! oscillations slower than a quarter period per delay ([`super::controller`], "Latency"). A single stall of
-//! the host (descheduled between a write and the read that decodes its answer) counts too: the force written
-//! before the stall did act on the arm over every device cycle of it.
+//! The figure at open is a worst case of its round trips (at most their median plus one servo period) and
+//! both are rounded up to whole ticks, so the pairing errs long by at most about a tick, the safe side for
+//! oscillations slower than a quarter period per delay ([`super::controller`], "Latency").
 //!
 //! Real-time: a few comparisons and relaxed atomic stores per tick; no allocation, no lock.
 
@@ -41,8 +61,9 @@ use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 /// What changed the observer's pairing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairingChange {
-    /// A round trip longer than the pairing was timed: widened to it.
-    Widened { from: usize, to: usize },
+    /// The median round trip timed since open plus one period, in whole ticks, changed (never below the
+    /// figure at open): the pairing followed it.
+    Followed { from: usize, to: usize },
     /// A device (re)connected: its driver's figure at open replaced the pairing.
     Reconnected { from: usize, to: usize },
 }
@@ -54,6 +75,8 @@ pub struct LinkFollower {
     follows_driver: bool,
     /// The servo period: the pairing's ticks and the statistics' (module docs).
     period: Duration,
+    /// The driver's figure at the last open, in ticks: the least the pairing follows down to.
+    at_open: usize,
 }
 
 impl LinkFollower {
@@ -66,6 +89,7 @@ impl LinkFollower {
                 LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
             ),
             period,
+            at_open: latency.ticks,
         }
     }
 
@@ -75,16 +99,17 @@ impl LinkFollower {
         LinkFollower {
             follows_driver: false,
             period: Duration::ZERO,
+            at_open: 0,
         }
     }
 
-    /// `controller`'s pairing now and the delay `worst` in whole ticks, `(from, to)`; `None` when the pairing
+    /// `controller`'s pairing now and the delay `delay` in whole ticks, `(from, to)`; `None` when the pairing
     /// does not follow the driver.
-    fn pairing(&self, worst: Duration, controller: &PassivityController) -> Option<(usize, usize)> {
+    fn pairing(&self, delay: Duration, controller: &PassivityController) -> Option<(usize, usize)> {
         self.follows_driver.then(|| {
             (
                 controller.latency_ticks_now(),
-                ticks_of(worst.as_secs_f64(), self.period.as_secs_f64()),
+                ticks_of(delay.as_secs_f64(), self.period.as_secs_f64()),
             )
         })
     }
@@ -92,35 +117,38 @@ impl LinkFollower {
     /// A device connected (again): its driver's figure at open (`link`, its worst case) replaces
     /// `controller`'s pairing. `None` when nothing changed.
     pub fn connected(
-        &self,
+        &mut self,
         link: Option<LinkLatency>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
         let (from, to) = self.pairing(link.map_or(Duration::ZERO, |l| l.worst), controller)?;
+        self.at_open = to;
         controller.set_latency_ticks(to);
         (from != to).then_some(PairingChange::Reconnected { from, to })
     }
 
-    /// This tick's round trips timed since the connection opened: widens `controller`'s pairing to the
-    /// longest when it is longer. `None` when nothing changed.
+    /// This tick's round trips timed since the connection opened: `controller` pairs with their median plus
+    /// one servo period, or with the figure at open when that is longer (module docs). `None` when nothing
+    /// changed.
     pub fn observe(
         &self,
         seen: Option<LinkDelaySeen>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
-        let (from, to) = self.pairing(seen?.worst, controller)?;
-        if to <= from {
+        let (from, median) = self.pairing(seen?.typical + self.period, controller)?;
+        let to = median.max(self.at_open);
+        if to == from {
             return None;
         }
         controller.set_latency_ticks(to);
-        Some(PairingChange::Widened { from, to })
+        Some(PairingChange::Followed { from, to })
     }
 
     /// One servo tick (`tick`): a connection this tick (`connected`) replaces `controller`'s pairing with the
-    /// driver's figure at open, then the round trips timed widen it; `stats` are told what changed and the
-    /// round trips, in ticks of this follower's period.
+    /// driver's figure at open, then the pairing follows the round trips timed; `stats` are told what changed
+    /// and the round trips, in ticks of this follower's period.
     pub fn follow(
-        &self,
+        &mut self,
         device: &dyn ServoDevice,
         connected: bool,
         controller: &mut PassivityController,

@@ -410,7 +410,7 @@ pub fn stats_schema() -> serde_json::Value {
                 "description": "the device link's delay: declared at open, timed every tick, the passivity observer's pairing",
                 "properties": {
                     "observer_ticks": count("ticks the passivity observer pairs each force with the motion it meets"),
-                    "observer_changes": count("times that pairing changed (widened to a round trip seen, or a reconnect's measurement)"),
+                    "observer_changes": count("times that pairing changed (following the median round trip plus a period, or a reconnect's measurement)"),
                     "last_change_t_s": {"type": "number", "description": "when it last changed (s); 0 while it never did"},
                     "declared_ms": {"type": "number", "description": "worst case the driver declared at its last open (ms); 0 = none"},
                     "round_trips": count("round trips the driver timed on every tick since its last open"),

@@ -24,10 +24,10 @@
 //! 95th percentile's 5 %: P. J. Huber, E. M. Ronchetti, *Robust Statistics*, 2nd ed., Wiley 2009, section 1.4,
 //! on the breakdown point of quantiles). The figure at open is no longer the only one: from the first servo
 //! tick the driver times the round trip of every force it sends ([`LiveRoundTrips`], below), and the observer
-//! widens its pairing as soon as a longer round trip is seen (crate `voxhap-servo`, `passivity::latency`),
-//! while a figure declared too long at open would hold for the whole connection (the observer only widens).
+//! pairs with their median plus one period, never below the figure at open (crate `voxhap-servo`,
+//! `passivity::link_delay`), so a figure declared too long at open holds for the whole connection.
 //! So the declared figure is a robust starting point, a tick above the typical round trip, and the live
-//! figure supplies the tail the run really shows.
+//! figure follows the delay the run really shows.
 //!
 //! **The live figure** ([`LiveRoundTrips`]): after open, every SetForce or LocalModel the servo writes is
 //! remembered with its send time (the last [`LIVE_SENDS`], so a round trip of up to 255 ticks, the most the

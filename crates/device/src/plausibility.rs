@@ -9,8 +9,9 @@
 //!    the time between them (`|p - p_last| > max_speed · Δt + position_noise_m`) is rejected: the last accepted
 //!    position is held, the sample is flagged and counted. Δt is the longest the handle can have had
 //!    ([`SampleTime`]): from the earliest the last accepted sample can have been taken (when the force it
-//!    answers was sent) to the latest this one can have been (when the driver handed it over), so a sample that
-//!    came late in its tick, or an earlier one handed out again, is never refused for the host's own delay.
+//!    answers was sent; the supervisor keeps those times in [`WriteTimes`]) to the latest this one can have
+//!    been (when the driver handed it over), so a sample that came late in its tick, or an earlier one handed
+//!    out again, is never refused for the host's own delay.
 //!    Δt grows while samples are rejected, so a real fast movement is accepted again as soon as it is
 //!    plausible; a run of more than `max_rejected_run` rejections means the link is broken
 //!    ([`InputVerdict::link_broken`]) and the supervisor drops it.
@@ -126,6 +127,48 @@ impl SampleTime {
         SampleTime {
             taken_after_us: us,
             received_by_us: us,
+        }
+    }
+}
+
+/// Forces written whose tick times are kept: a state answering an older one is timed from the link's start.
+const WRITE_TIMES: usize = 16;
+
+/// When the forces on this link went out (servo clock, µs): the earliest a state answering one can have been
+/// taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct WriteTimes {
+    /// The ticks of the last [`WRITE_TIMES`] forces written, the newest at `(writes - 1) % WRITE_TIMES`.
+    at_us: [u64; WRITE_TIMES],
+    /// Forces written on this link.
+    writes: u64,
+    /// When this link was attached.
+    attached_us: u64,
+}
+
+impl WriteTimes {
+    pub(crate) fn new(attached_us: u64) -> WriteTimes {
+        WriteTimes {
+            at_us: [0; WRITE_TIMES],
+            writes: 0,
+            attached_us,
+        }
+    }
+
+    /// A force went out on the tick at `now_us`.
+    pub(crate) fn wrote(&mut self, now_us: u64) {
+        self.at_us[(self.writes % WRITE_TIMES as u64) as usize] = now_us;
+        self.writes += 1;
+    }
+
+    /// The earliest a state `age_ticks` old can have been taken: the tick that wrote the force it answers, or
+    /// the link's start for one older than the forces kept.
+    pub(crate) fn taken_after_us(&self, age_ticks: u32) -> u64 {
+        let age = u64::from(age_ticks);
+        if age < self.writes && age < WRITE_TIMES as u64 {
+            self.at_us[((self.writes - 1 - age) % WRITE_TIMES as u64) as usize]
+        } else {
+            self.attached_us
         }
     }
 }

@@ -57,7 +57,7 @@
 
 use super::dof::UsedAxes;
 use super::lifecycle::{Lifecycle, LifecycleError, LifecycleState};
-use super::plausibility::{InputCounters, InputGuard, SampleTime};
+use super::plausibility::{InputCounters, InputGuard, SampleTime, WriteTimes};
 use super::safety::{EngagementState, SafeForce, SafetyFlags, SafetyPipeline};
 use super::{DeviceError, DeviceEvent, DeviceState, DeviceStatus, Error, ErrorKind, HapticDevice};
 use crate::info::{FAULT_WATCHDOG_EXPIRED, MESSAGE_TYPE_ENABLE, REJECT_FAULTED, REJECT_NO_SESSION};
@@ -72,48 +72,6 @@ pub use crate::supervisor_config::{
 pub use crate::supervisor_tick::{
     EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, TickInput, TickOutput,
 };
-
-/// Forces written whose tick times are kept: a state answering an older one is timed from the link's start.
-const WRITE_TIMES: usize = 16;
-
-/// When the forces on this link went out (servo clock, µs): the earliest a state answering one can have been
-/// taken.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct WriteTimes {
-    /// The ticks of the last [`WRITE_TIMES`] forces written, the newest at `(writes - 1) % WRITE_TIMES`.
-    at_us: [u64; WRITE_TIMES],
-    /// Forces written on this link.
-    writes: u64,
-    /// When this link was attached.
-    attached_us: u64,
-}
-
-impl WriteTimes {
-    fn new(attached_us: u64) -> WriteTimes {
-        WriteTimes {
-            at_us: [0; WRITE_TIMES],
-            writes: 0,
-            attached_us,
-        }
-    }
-
-    /// A force went out on the tick at `now_us`.
-    fn wrote(&mut self, now_us: u64) {
-        self.at_us[(self.writes % WRITE_TIMES as u64) as usize] = now_us;
-        self.writes += 1;
-    }
-
-    /// The earliest a state `age_ticks` old can have been taken: the tick that wrote the force it answers, or
-    /// the link's start for one older than the forces kept.
-    fn taken_after_us(&self, age_ticks: u32) -> u64 {
-        let age = u64::from(age_ticks);
-        if age < self.writes && age < WRITE_TIMES as u64 {
-            self.at_us[((self.writes - 1 - age) % WRITE_TIMES as u64) as usize]
-        } else {
-            self.attached_us
-        }
-    }
-}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Drive {

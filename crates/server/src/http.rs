@@ -10,7 +10,7 @@ use super::auth::check_bearer;
 use super::messages::{
     decode_command, decode_value, parse_json, slice_json, ControlFailed, ControlOk, EmptyBody,
     EnabledBody, HandBody, MessageError, ModeBody, RecordBody, State as StateMessage, StatsBody,
-    StiffnessBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
+    StiffnessBody, StopRecordingBody, TransferBody, VolumeBody, MAX_MESSAGE_BYTES,
 };
 use super::origin::check_single;
 use super::response::error_response;
@@ -43,7 +43,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/scene", get(scene))
         .route("/api/slice", get(slice))
         .route("/api/stiffness", post(stiffness))
-        .route("/api/modes", post(body_command::<ModeBody>))
+        .route("/api/modes", post(body_command::<ModeBody, false>))
         .route("/api/modes/{name}", delete(mode_command::<EmptyBody>))
         .route(
             "/api/modes/{name}/transfer",
@@ -53,10 +53,13 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
             "/api/modes/{name}/enabled",
             post(mode_command::<EnabledBody>),
         )
-        .route("/api/volume", post(body_command::<VolumeBody>))
-        .route("/api/record/start", post(body_command::<RecordBody>))
-        .route("/api/record/stop", post(stop_recording))
-        .route("/api/hand", post(body_command::<HandBody>))
+        .route("/api/volume", post(body_command::<VolumeBody, false>))
+        .route("/api/record/start", post(body_command::<RecordBody, false>))
+        .route(
+            "/api/record/stop",
+            post(body_command::<StopRecordingBody, true>),
+        )
+        .route("/api/hand", post(body_command::<HandBody, false>))
         .route("/api/control", post(control))
         .route("/ws", get(ws::upgrade))
         .fallback(not_found)
@@ -339,28 +342,19 @@ async fn stiffness(
     control_request(&shared, &headers, body, false, decode).await
 }
 
-/// `POST /api/modes`, `/api/volume`, `/api/record/start`, `/api/hand`: the body as `B`, and the one command
-/// it makes (`From<B> for ControlCommand`, beside the control API's wire decoding).
-async fn body_command<B: DeserializeOwned + Into<ControlCommand> + 'static>(
+/// `POST /api/modes`, `/api/volume`, `/api/record/start`, `/api/record/stop`, `/api/hand`: the body as `B`
+/// (`EMPTY_OK`: an empty body stands for `{}`), and the one command it makes (`From<B> for ControlCommand`,
+/// beside the control API's wire decoding).
+async fn body_command<
+    B: DeserializeOwned + Into<ControlCommand> + 'static,
+    const EMPTY_OK: bool,
+>(
     State(shared): Shared_,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Response {
     let decode: Decode = Box::new(|value| one(decode_value::<B>(value)?.into()));
-    control_request(&shared, &headers, body, false, decode).await
-}
-
-/// `POST /api/record/stop`: an empty body or `{}`.
-async fn stop_recording(
-    State(shared): Shared_,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-) -> Response {
-    let decode: Decode = Box::new(|value| {
-        decode_value::<EmptyBody>(value)?;
-        one(ControlCommand::StopRecording)
-    });
-    control_request(&shared, &headers, body, true, decode).await
+    control_request(&shared, &headers, body, EMPTY_OK, decode).await
 }
 
 /// The body of a control endpoint on one mode (`/api/modes/{name}...`): the command from the mode's name

@@ -636,6 +636,17 @@ pub struct HandBody {
 /// `POST /api/record/stop` (an empty body or `{}`).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
+pub struct StopRecordingBody {}
+
+impl From<StopRecordingBody> for ControlCommand {
+    fn from(StopRecordingBody {}: StopRecordingBody) -> Self {
+        ControlCommand::StopRecording
+    }
+}
+
+/// `DELETE /api/modes/{name}` (an empty body or `{}`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct EmptyBody {}
 
 #[cfg(test)]

@@ -408,3 +408,47 @@ fn tick_inner(
     state.memory.previous_force_n = force_n;
     output
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The invariant, from its statement: only the first `count` slots are live, the rest read back as 0,
+    /// and a count that shrinks then grows again does not bring old values back.
+    #[test]
+    fn a_mode_breakdown_keeps_only_its_live_slots() {
+        let mut primitives = [7u16; MAX_MODES];
+        primitives[0] = 1;
+        primitives[1] = 2;
+        let forces_n = [DVec3::new(0.0, 0.0, -1.0); MAX_MODES];
+        let mut modes = ModeBreakdown::new(2, primitives, forces_n);
+        assert_eq!(modes.count(), 2);
+        assert_eq!(modes.primitives(), &[1, 2]);
+        assert_eq!(modes.forces_n(), &[DVec3::new(0.0, 0.0, -1.0); 2]);
+        assert_eq!(modes.slot(2), (0, DVec3::ZERO), "a slot past the count");
+
+        modes.set_count(1);
+        assert_eq!(modes.primitives(), &[1]);
+        modes.set_count(2);
+        assert_eq!(
+            modes.primitives(),
+            &[1, 0],
+            "the dropped slot came back zeroed"
+        );
+        assert_eq!(modes.slot(1), (0, DVec3::ZERO));
+
+        for (slot, (n, force_n)) in modes.slots_mut().enumerate() {
+            *n = 10 + slot as u16;
+            *force_n = DVec3::X;
+        }
+        assert_eq!(modes.primitives(), &[10, 11]);
+        let mut expected_primitives = [0u16; MAX_MODES];
+        expected_primitives[..2].copy_from_slice(&[10, 11]);
+        let mut expected_forces_n = [DVec3::ZERO; MAX_MODES];
+        expected_forces_n[..2].copy_from_slice(&[DVec3::X, DVec3::X]);
+        assert_eq!(
+            modes,
+            ModeBreakdown::new(2, expected_primitives, expected_forces_n)
+        );
+    }
+}

@@ -13,27 +13,12 @@
 //! again: that figure replaces the pairing (it may be shorter), and the new connection's round trips are
 //! followed from there.
 //!
-//! **Why the median plus a period, and not the longest.** The pairing is the delay of each step in servo ticks, the ticks
-//! the loop ran: the force sent `d` ticks before is the one that acted over the step. A stall of the host
-//! (the servo thread descheduled between a write and the read that decodes its answer) or of the device
-//! lengthens the round trip of the force that was on the wire, by the stall, but neither side catches up
-//! the cycles it missed (the servo loop skips missed ticks, a device holds its force, the mock skips ahead),
-//! so the steps after the stall are as many ticks late as before it: the force held over the stall is the
-//! last one sent before it, and the step that spans the stall is booked with it at the usual pairing.
-//! Paired with the stall's length instead, every later step is booked with a force sent that much too
-//! early: for an oscillation whose half period is shorter than the pairing's `(d + 1/2) T`,
-//! `sin(w (d + 1/2) T)` turns negative, the observer books what the loop generates as absorbed and the
-//! controller stops dissipating it. A stall of 30 ms on a link of 2 ticks, with a 0.1 kg handle on a
-//! 2 000 N/m plane and a 200 N/m grip (`w` about 148 rad/s, 24 Hz), would pair 31 ticks: `w (d + 1/2) T`
-//! about 4.7 rad, booked about `-k pi A^2` a cycle where the loop generates about `+0.36 k pi A^2`. The median is what most steps wait; a single long round trip (or any fewer than half of
-//! them) does not move it, and a link that became slower for good moves it once most of the round trips
-//! since open are slower. One period more is the figure at open's rule (its 95th percentile, at most the
-//! median plus one period; the live 95th percentile is not handed out): on a loaded host many answers come a
-//! tick later than the median, and a pairing a tick short of a step's delay books less than the loop
-//! generated (`sin(w (d + 1/2) T)` falls), while a tick long books more for any oscillation slower than a
-//! quarter period per delay. The longest round trip still bounds what the controller cannot have answered yet
-//! (a stall's steps reach the host only after it), which is a bound on the energy, not the pairing
-//! (`tests/device_passivity_pty.rs`).
+//! **Why the median plus a period, and not the longest** (docs/stability.md, "While the servo runs"): the
+//! pairing is how many ticks each step is late. A stall lengthens the round trip of the force on the wire,
+//! not the steps after it (neither side catches up missed ticks), and an observer paired that much too long
+//! books a stiff delayed contact's generation as absorbed. The period covers the answers a tick after the
+//! median, since a pairing a tick short books less than the loop generates. The longest round trip bounds
+//! the energy the controller cannot have answered yet, not the pairing (`tests/device_passivity_pty.rs`).
 //!
 //! The pairing has one owner, the controller ([`PassivityController::latency_ticks_now`]): the follower
 //! reads it there and sets it there, and the statistics ([`LinkDelayStats`]) are told the pairing at start

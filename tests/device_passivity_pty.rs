@@ -51,12 +51,9 @@
 //! the step that spans a stall was moved under the last force sent before it). The observer pairs with the
 //! median round trip the driver timed plus one servo period (a tick long rather than short on a loaded
 //! host), never below open's figure (`voxhap_servo::passivity::link_delay`), and the test checks that from
-//! the run summary. Paired with the longest round trip instead, as it once
-//! was, a stall lengthened the pairing for the rest of the run: after a 30 ms round trip the observer paired
-//! 31 ticks, `w (d + 1/2) T` about 4.7 rad for this contact's 24 Hz (0.1 kg on 2 000 + 200 N/m), so it
-//! booked the delayed loop's generation as absorbed and let it through: the controller-on run once gave
-//! the device 4.27 mJ against a bound of 2.61 mJ (worst round trip 30 ms, 31 ticks), and the pairing forced
-//! to 31 ticks (`latency_s = 0.031`) gave 1.64 mJ against 1.38 mJ computed with that run's `d` = 18.
+//! the run summary. Paired with a stall's length instead, the observer would book every later step with a
+//! force sent that much too early and, for this contact's 24 Hz, book the loop's generation as absorbed
+//! (docs/stability.md, "While the servo runs").
 //!
 //! The bound must fail with the controller off, and is asserted to (against that run's own bound: a late
 //! host only adds delay and so only more energy). Told no latency (`latency_s = 0`), the controller must let

@@ -93,9 +93,9 @@ fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
 /// of damping (the arm's and the grip's), a 200 N/m grip pulling it towards z = -3 mm from rest at z = 0 on
 /// a one-sided 2 000 N/m plane at z = 0, each force acting over the step from 2 ticks after it was sent (the
 /// link's median round trip, 1.1 ms, in whole ticks), the controller in control, paired from the driver's
-/// 1.2 ms at open (2 ticks) and followed each tick (the median plus a period, 3 ticks: a tick long). The driver times round trips of 1.1 ms (median), and one
-/// of 30 ms at 30 ms, while the press still rings (a stall: the loop ran on as before). Returns the most energy the force gave the handle,
-/// `max_t W(t)` with `W = sum F_acting . dx` (exact: the handle is integrated under the force held over each
+/// 1.2 ms at open (2 ticks) and followed each tick (the median plus a period, 3 ticks: a tick long). The
+/// driver times round trips of 1.1 ms (median), and one of 30 ms at 30 ms, while the press still rings (a
+/// stall: the loop ran on as before). Returns the most energy the force gave the handle, `max_t W(t)` with `W = sum F_acting . dx` (exact: the handle is integrated under the force held over each
 /// step), and the positive work of its worst window of `2 (d + 1)` steps, `d` = 2 (J). With `pairing`, the
 /// controller pairs that many ticks from the stall on instead of following (what following the longest
 /// round trip did).
@@ -147,7 +147,7 @@ fn stalled_contact(pairing: Option<usize>) -> (f64, f64) {
     (most, window)
 }
 
-/// A stall does not unpair the controller (module docs, "Why the median and not the longest"): through a
+/// A stall does not unpair the controller (module docs, "Why the median plus a period"): through a
 /// 30 ms round trip the contact of [`stalled_contact`] gives the handle at most the controller's threshold
 /// plus its worst window of `2 (d + 1)` steps (the bound `tests/device_passivity_pty.rs` derives). Paired
 /// with the stall's 31 ticks from then on, as following the longest round trip did, the observer books the

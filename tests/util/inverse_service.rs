@@ -43,6 +43,7 @@
 //! (`close_after_replies`) or at once (`refuse`), a slow-loris handshake (`slow_handshake_from`), and
 //! `drift_position_type` (the position sent as a string). With `stamp`, the x of every state message carries its
 //! index (1, 2, ...): x = [`STAMP_BASE_M`] + index · [`STAMP_STEP_M`]; `written` is the last index written.
+//! `stalls_us` records each time a connection's thread was kept off the CPU for a millisecond or more.
 
 use glam::{DQuat, DVec3};
 use serde_json::{json, Value};
@@ -177,6 +178,9 @@ pub struct ServiceShared {
     pub drift_position_type: AtomicBool,
     /// TCP connections accepted on the simulation channel.
     pub accepted: AtomicU32,
+    /// How long (µs) a connection's thread was kept off the CPU, each time it was for at least a millisecond:
+    /// the time between two turns of its loop beyond the longest a turn waits for a message ([`READ_WAIT`]).
+    pub stalls_us: Mutex<Vec<u64>>,
     event_clients: Mutex<Vec<WebSocket<TcpStream>>>,
     /// Clients that completed the events channel's handshake.
     pub event_clients_accepted: AtomicU32,
@@ -192,6 +196,9 @@ pub fn stamp_of(x_m: f64) -> u64 {
 }
 
 pub const DEVICE_ID: &str = "049D";
+
+/// The longest a connection's thread waits for a client message before it looks again.
+pub const READ_WAIT: Duration = Duration::from_millis(5);
 
 /// The running double.
 pub struct InverseService {
@@ -393,6 +400,7 @@ impl InverseService {
             slow_handshake_from: AtomicU32::new(0),
             drift_position_type: AtomicBool::new(false),
             accepted: AtomicU32::new(0),
+            stalls_us: Mutex::new(Vec::new()),
             event_clients: Mutex::new(Vec::new()),
             event_clients_accepted: AtomicU32::new(0),
             stop: AtomicBool::new(false),
@@ -685,9 +693,7 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
     }
     stream.set_nodelay(true).unwrap();
     stream.set_nonblocking(false).unwrap();
-    stream
-        .set_read_timeout(Some(Duration::from_millis(5)))
-        .unwrap();
+    stream.set_read_timeout(Some(READ_WAIT)).unwrap();
     let slow_from = shared.slow_handshake_from.load(Ordering::Acquire);
     if slow_from != 0 && number >= slow_from {
         slow_handshake(stream, shared);
@@ -705,7 +711,14 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
     let mut malformed_turn = 0u32;
     let mut replies = 0u32;
     let mut last_unsolicited = Instant::now();
+    let mut turn = Instant::now();
     while !shared.stop.load(Ordering::Acquire) {
+        let stall = turn.elapsed().saturating_sub(READ_WAIT);
+        turn = Instant::now();
+        if stall >= Duration::from_millis(1) {
+            let stall_us = u64::try_from(stall.as_micros()).unwrap_or(u64::MAX);
+            shared.stalls_us.lock().unwrap().push(stall_us);
+        }
         let every_ms = shared.unsolicited_every_ms.load(Ordering::Acquire);
         if every_ms > 0 && last_unsolicited.elapsed() >= Duration::from_millis(every_ms) {
             last_unsolicited = Instant::now();
@@ -756,6 +769,8 @@ fn serve(stream: TcpStream, shared: &ServiceShared) {
             };
             if delay_ms > 0 {
                 std::thread::sleep(Duration::from_millis(delay_ms));
+                // Held back on purpose: not a stall.
+                turn = Instant::now();
             }
             if socket.send(reply).is_err() {
                 return;

@@ -235,6 +235,17 @@ pub(crate) struct Limits {
     pub screening: bool,
 }
 
+/// What one attempt solves, and from where: the items, the frame they are solved in, the start point (`None`: a
+/// cold start, module header) and the budget. It stays the same for the whole attempt; the dual values the
+/// attempt writes and the deadline it polls go beside it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Attempt<'a> {
+    pub items: &'a [Item],
+    pub frame: &'a Frame,
+    pub start: Option<DVec3>,
+    pub limits: Limits,
+}
+
 impl<S: Storage> Workspace<S> {
     pub fn with_capacity(n: usize) -> Self {
         Self {
@@ -251,24 +262,21 @@ impl<S: Storage> Workspace<S> {
         }
     }
 
-    /// Runs the primal Newton iteration from `start` (`None`: a cold start, module header). `dual` (one entry
-    /// per item) receives the dual values of the last point; `over_time` is polled before each pass.
+    /// Runs the primal Newton iteration of `attempt` from its start point. `dual` (one entry per item) receives
+    /// the dual values of the last point; `over_time` is polled before each pass.
     ///
     /// The iteration is compiled twice: with the pass inlined for scenes of up to [`INLINE_PASS_MAX_ITEMS`]
     /// primitives, with the pass out of line for larger ones ([`Self::pass_out_of_line`] says why).
     pub fn solve(
         &mut self,
-        items: &[Item],
-        frame: &Frame,
-        start: Option<DVec3>,
-        limits: Limits,
+        attempt: &Attempt,
         dual: &mut [DVec3],
         over_time: &mut dyn FnMut() -> bool,
     ) -> Outcome {
-        if items.len() <= INLINE_PASS_MAX_ITEMS {
-            self.solve_with::<true>(items, frame, start, limits, dual, over_time)
+        if attempt.items.len() <= INLINE_PASS_MAX_ITEMS {
+            self.solve_with::<true>(attempt, dual, over_time)
         } else {
-            self.solve_with::<false>(items, frame, start, limits, dual, over_time)
+            self.solve_with::<false>(attempt, dual, over_time)
         }
     }
 
@@ -276,13 +284,16 @@ impl<S: Storage> Workspace<S> {
     #[inline(never)]
     fn solve_with<const INLINE_PASS: bool>(
         &mut self,
-        items: &[Item],
-        frame: &Frame,
-        start: Option<DVec3>,
-        limits: Limits,
+        attempt: &Attempt,
         dual: &mut [DVec3],
         over_time: &mut dyn FnMut() -> bool,
     ) -> Outcome {
+        let Attempt {
+            items,
+            frame,
+            start,
+            limits,
+        } = *attempt;
         let Frame { y, k, .. } = *frame;
         let n = items.len();
         // Length scale of the scene: thresholds for "on a kink" and rounding slack are relative to it.
@@ -404,10 +415,10 @@ impl<S: Storage> Workspace<S> {
                 return outcome;
             }
             let model = match (compensated, INLINE_PASS) {
-                (true, true) => self.pass::<CompensatedSum>(items, frame, x, dual),
-                (false, true) => self.pass::<PlainSum>(items, frame, x, dual),
-                (true, false) => self.pass_out_of_line::<CompensatedSum>(items, frame, x, dual),
-                (false, false) => self.pass_out_of_line::<PlainSum>(items, frame, x, dual),
+                (true, true) => self.pass::<CompensatedSum>(attempt, x, dual),
+                (false, true) => self.pass::<PlainSum>(attempt, x, dual),
+                (true, false) => self.pass_out_of_line::<CompensatedSum>(attempt, x, dual),
+                (false, false) => self.pass_out_of_line::<PlainSum>(attempt, x, dual),
             };
             outcome.passes += 1;
             outcome.x = x;
@@ -600,15 +611,13 @@ impl<S: Storage> Workspace<S> {
             }
             if let Some((predicted_gradient, step_to_next)) = ahead {
                 if let Some(certificate) = self.certify_ahead(
-                    items,
-                    frame,
+                    attempt,
                     &face,
                     predicted_gradient,
                     step_to_next,
                     x_next,
                     model.clearance_m,
                     scale,
-                    limits,
                     dual,
                 ) {
                     outcome.x = x_next;
@@ -644,17 +653,21 @@ impl<S: Storage> Workspace<S> {
     #[allow(clippy::too_many_arguments)]
     fn certify_ahead(
         &mut self,
-        items: &[Item],
-        frame: &Frame,
+        attempt: &Attempt,
         face: &Face,
         predicted_gradient: DVec3,
         d: DVec3,
         x_next: DVec3,
         clearance_m: f64,
         scale: f64,
-        limits: Limits,
         dual: &mut [DVec3],
     ) -> Option<Certificate> {
+        let Attempt {
+            items,
+            frame,
+            limits,
+            ..
+        } = *attempt;
         // No primitive outside W comes within the certificate's kink threshold of x_next, so the certificate
         // gives every point and line its exact subgradient there, the value the duals are brought to on success.
         if clearance_m <= d.length() + 64.0 * EPS * (scale + x_next.abs().max_element()) {

@@ -303,14 +303,13 @@ impl<S: Storage> Solver<S> {
         if primal_first && !self.items.is_empty() && !over_budget(sweeps) {
             let mut over_time =
                 || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
-            let outcome = self.newton.solve(
-                &self.items,
-                &frame,
-                problem.previous_proxy_m,
-                newton_limits(&config, sweeps),
-                &mut self.dual,
-                &mut over_time,
-            );
+            let attempt = newton::Attempt {
+                items: &self.items,
+                frame: &frame,
+                start: problem.previous_proxy_m,
+                limits: newton_limits(&config, sweeps),
+            };
+            let outcome = self.newton.solve(&attempt, &mut self.dual, &mut over_time);
             sweeps += outcome.passes;
             newton_passes = outcome.passes;
             if !outcome.certified {
@@ -465,14 +464,15 @@ impl<S: Storage> Solver<S> {
                     || timed && clock.now_ns().saturating_sub(start_ns) >= config.max_time_ns;
                 self.candidate_dual.clear();
                 self.candidate_dual.extend_from_slice(&self.dual);
-                let outcome = self.newton.solve(
-                    &self.items,
-                    &frame,
-                    Some(best.x),
-                    newton_limits(&config, sweeps),
-                    &mut self.candidate_dual,
-                    &mut over_time,
-                );
+                let attempt = newton::Attempt {
+                    items: &self.items,
+                    frame: &frame,
+                    start: Some(best.x),
+                    limits: newton_limits(&config, sweeps),
+                };
+                let outcome = self
+                    .newton
+                    .solve(&attempt, &mut self.candidate_dual, &mut over_time);
                 sweeps += outcome.passes;
                 newton_passes += outcome.passes;
                 if let Some(checked) = outcome.certificate {

@@ -24,12 +24,11 @@ impl<S: Storage> Workspace<S> {
     #[inline(never)]
     pub(super) fn pass_out_of_line<G: GradientSum>(
         &mut self,
-        items: &[Item],
-        frame: &Frame,
+        attempt: &Attempt,
         x: DVec3,
         dual: &mut [DVec3],
     ) -> Model {
-        self.pass::<G>(items, frame, x, dual)
+        self.pass::<G>(attempt, x, dual)
     }
 
     /// One O(N) pass: the smooth model at `x`, and every item's subgradient written to `dual` (W members are
@@ -41,12 +40,12 @@ impl<S: Storage> Workspace<S> {
     #[inline(always)]
     pub(super) fn pass<G: GradientSum>(
         &mut self,
-        items: &[Item],
-        frame: &Frame,
+        attempt: &Attempt,
         x: DVec3,
         dual: &mut [DVec3],
     ) -> Model {
-        let Frame { y, k, .. } = *frame;
+        let items = attempt.items;
+        let Frame { y, k, .. } = *attempt.frame;
         let offset = x - y;
         let mut gradient = G::default();
         gradient.add(k * offset);

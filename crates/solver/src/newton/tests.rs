@@ -90,6 +90,12 @@ fn the_inlined_and_the_called_pass_iterate_alike() {
             screening: true,
         };
         for start in [None, Some(probe + DVec3::new(1e-3, -2e-3, 5e-4))] {
+            let attempt = Attempt {
+                items: &items,
+                frame: &frame,
+                start,
+                limits,
+            };
             let run = |inline: bool| {
                 let mut workspace = Workspace::<crate::storage::Heap>::with_capacity(items.len());
                 let mut dual = vec![DVec3::splat(f64::NAN); items.len()];
@@ -98,15 +104,7 @@ fn the_inlined_and_the_called_pass_iterate_alike() {
                 } else {
                     Workspace::solve_with::<false>
                 };
-                let outcome = solve(
-                    &mut workspace,
-                    &items,
-                    &frame,
-                    start,
-                    limits,
-                    &mut dual,
-                    &mut || false,
-                );
+                let outcome = solve(&mut workspace, &attempt, &mut dual, &mut || false);
                 (outcome, dual)
             };
             let ((inlined, inlined_dual), (called, called_dual)) = (run(true), run(false));

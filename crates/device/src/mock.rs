@@ -13,7 +13,9 @@
 //! after `disconnect_after_us` the pseudo-terminal is closed (the host sees a hang-up), and after `down_for_us` a
 //! new one is opened and the link path re-pointed to it.
 
-use crate::sim::{SimArm, SimArmConfig, SimError};
+use crate::sim::{
+    ArmParams, DeviceEffects, HandParams, HandPath, SimArm, SimArmConfig, SimError, Workspace,
+};
 use glam::DVec3;
 use serialport::{SerialPort, TTYPort};
 use std::collections::VecDeque;
@@ -161,23 +163,29 @@ pub fn mock_device_info() -> DeviceInfo {
 
 /// The default arm: a hand moving the handle round a 2 cm circle every 4 s.
 pub fn default_arm_config() -> SimArmConfig {
-    let text = r#"
-        [arm]
-        mass_kg = 0.1
-        damping_n_s_per_m = 1.0
-        workspace = { shape = "unbounded" }
-        [hand]
-        stiffness_n_per_m = 200.0
-        damping_n_s_per_m = 2.0
-        [path]
-        kind = "circle"
-        center_m = [0.0, 0.0, 0.0]
-        radius_m = 0.02
-        normal = [0.0, 0.0, 1.0]
-        period_s = 4.0
-    "#;
-    // The literal above is part of the program; a parse failure would be a build-time bug caught by the tests.
-    toml::from_str(text).unwrap_or_else(|error| panic!("built-in arm configuration: {error}"))
+    SimArmConfig {
+        arm: ArmParams {
+            mass_kg: 0.1,
+            damping_n_s_per_m: 1.0,
+            workspace: Workspace::Unbounded,
+            // What an `[arm]` table that leaves these keys out gets (checked in the tests below).
+            substeps_per_tick: 10,
+            wall_stiffness_n_per_m: 5000.0,
+            wall_damping_n_s_per_m: 10.0,
+            effects: DeviceEffects::default(),
+        },
+        hand: HandParams {
+            stiffness_n_per_m: 200.0,
+            damping_n_s_per_m: 2.0,
+        },
+        path: HandPath::Circle {
+            center_m: DVec3::ZERO,
+            radius_m: 0.02,
+            normal: DVec3::Z,
+            period_s: 4.0,
+        },
+        local_model: None,
+    }
 }
 
 /// SplitMix64: a small, seedable generator for fault injection.
@@ -668,6 +676,23 @@ mod tests {
         let info = mock_device_info();
         assert_eq!(info.model.as_str(), "voxhap-mock");
         assert!(info.supported_rates.contains_hz(1000));
+    }
+
+    /// The built-in arm leaves every optional `[arm]` key as a scene table that omits it has it: written out,
+    /// its `[arm]` cut to the mass, damping and workspace, it reads back as the same arm.
+    #[test]
+    fn built_in_arm_has_the_arm_tables_defaults() {
+        let arm = default_arm_config();
+        let mut table: toml::Table = toml::from_str(&toml::to_string(&arm).unwrap()).unwrap();
+        let given = ["mass_kg", "damping_n_s_per_m", "workspace"];
+        let arm_table = table
+            .get_mut("arm")
+            .and_then(toml::Value::as_table_mut)
+            .unwrap();
+        arm_table.retain(|key, _| given.contains(&key));
+        assert_eq!(arm_table.len(), given.len());
+        let read: SimArmConfig = toml::from_str(&toml::to_string(&table).unwrap()).unwrap();
+        assert_eq!(read, arm);
     }
 
     #[test]

@@ -390,38 +390,46 @@ where
             DeviceEvent::Fault {
                 code,
                 active_faults,
-            } => {
-                self.counters.faults += 1;
-                if code == FAULT_WATCHDOG_EXPIRED {
-                    self.counters.device_watchdog_trips += 1;
-                    if !matches!(self.drive, Drive::Faulted | Drive::Refused) {
-                        self.fall_back(self.recovering(now_us, 0));
-                    }
-                } else {
-                    self.event_faults |= active_faults;
-                    self.fall_back(Drive::Faulted);
-                }
-            }
+            } => self.on_fault(code, active_faults, now_us),
             DeviceEvent::Rejected {
                 message_type,
                 reason,
-            } => {
-                self.counters.rejections += 1;
-                if reason == REJECT_NO_SESSION {
-                    self.lose(ErrorKind::Protocol, LossReason::SessionLost, now_us, out);
-                } else if message_type == MESSAGE_TYPE_ENABLE {
-                    if reason == REJECT_FAULTED {
-                        self.fall_back(Drive::Faulted);
-                    } else {
-                        self.fall_back(Drive::Refused);
-                    }
-                }
-            }
+            } => self.on_rejected(message_type, reason, now_us, out),
             DeviceEvent::Surplus { total } => {
                 // `total` counts from the driver's open; the counter sums over links.
                 let new = total.saturating_sub(self.surplus_on_link);
                 self.surplus_on_link = total;
                 self.counters.device_surplus = self.counters.device_surplus.saturating_add(new);
+            }
+        }
+    }
+
+    /// A Fault event: the device's watchdog expiring (which does not latch) falls back to Recovering with no
+    /// wait, unless the drive is Faulted or Refused; any other fault latches Faulted.
+    fn on_fault(&mut self, code: u8, active_faults: u16, now_us: u64) {
+        self.counters.faults += 1;
+        if code == FAULT_WATCHDOG_EXPIRED {
+            self.counters.device_watchdog_trips += 1;
+            if !matches!(self.drive, Drive::Faulted | Drive::Refused) {
+                self.fall_back(self.recovering(now_us, 0));
+            }
+        } else {
+            self.event_faults |= active_faults;
+            self.fall_back(Drive::Faulted);
+        }
+    }
+
+    /// A Rejected event: "no session" loses the link; an Enable refused as faulted falls back to Faulted, for
+    /// any other reason to Refused; any other rejected message is only counted.
+    fn on_rejected(&mut self, message_type: u8, reason: u8, now_us: u64, out: &mut TickOutput) {
+        self.counters.rejections += 1;
+        if reason == REJECT_NO_SESSION {
+            self.lose(ErrorKind::Protocol, LossReason::SessionLost, now_us, out);
+        } else if message_type == MESSAGE_TYPE_ENABLE {
+            if reason == REJECT_FAULTED {
+                self.fall_back(Drive::Faulted);
+            } else {
+                self.fall_back(Drive::Refused);
             }
         }
     }

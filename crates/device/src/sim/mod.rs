@@ -32,6 +32,8 @@
 //! loop's stability is the servo's business.
 
 mod arm;
+#[cfg(any(test, feature = "test-support"))]
+pub mod bisect;
 pub mod effects;
 mod error;
 pub mod keys;

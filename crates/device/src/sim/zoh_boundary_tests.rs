@@ -4,6 +4,7 @@
 //! squaring with it); Gillespie and Cutkosky's closed form; Colgate and Schenkel's asymptote `2 b / T`; and
 //! the transfer-function analysis of `super::super::zoh_exact` (whole periods only).
 
+use super::super::bisect::geometric_bisection;
 use super::*;
 
 /// `exp(A h)` of a small square matrix by scaling and squaring a Taylor series.
@@ -159,16 +160,7 @@ fn the_default_arm_at_1_khz_is_2003_n_per_m_by_eigenvalues_and_closed_form() {
         let (tr, det) = (m11 + m22, m11 * m22 - m12 * m21);
         det.abs() < 1.0 && tr.abs() < 1.0 + det
     };
-    let (mut lo, mut hi) = (100.0f64, 1e5f64);
-    for _ in 0..100 {
-        let mid = (lo * hi).sqrt();
-        if jury_stable(mid) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let by_eigenvalues = lo;
+    let by_eigenvalues = geometric_bisection(100.0, 1e5, 0.0, jury_stable);
     // Gillespie and Cutkosky: K* = b (1 - a) / (tau_m (1 - a) - a T), a = exp(-T b / m), tau_m = m / b.
     let a = (-t * b / m).exp();
     let closed = b * (1.0 - a) / (m / b * (1.0 - a) - a * t);

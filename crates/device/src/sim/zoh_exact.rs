@@ -22,6 +22,7 @@
 //! state space, any fraction of a period of latency); this transfer-function form, whole periods only, is
 //! kept as an independent check of it and as the expected value of the sweeps.
 
+use super::bisect::geometric_bisection;
 use super::zoh_boundary::schur_stable;
 
 /// The exact ZOH boundary without latency (closed form).
@@ -48,14 +49,5 @@ pub fn exact_boundary(m: f64, b: f64, t: f64, d: usize) -> f64 {
         p[d + 2] += k / b * c0;
         schur_stable(&p)
     };
-    let (mut lo, mut hi) = (1e-3f64, 1e9f64);
-    for _ in 0..200 {
-        let mid = (lo * hi).sqrt();
-        if stable(mid) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
+    geometric_bisection(1e-3, 1e9, 0.0, stable)
 }

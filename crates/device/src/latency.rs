@@ -48,7 +48,8 @@ impl LinkLatency {
 /// [`LinkLatency`] is what was declared at open.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LinkDelaySeen {
-    /// The median round trip, rounded up to 0.1 ms.
+    /// The median round trip, rounded up to 0.1 ms (at most the longest; the longest when the median is
+    /// beyond what the driver's histogram resolves).
     pub typical: Duration,
     /// The longest round trip.
     pub worst: Duration,

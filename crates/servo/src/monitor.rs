@@ -10,7 +10,9 @@
 //!   the servo thread's next tick sees it, keeps the output at zero and takes the device through
 //!   `Recovering` (enable again once the link is healthy, ramp in). One stop per stall; counted and reported.
 //!   Devices whose driver has no stop channel (HID devices, the in-process simulated arm, replay) rely on their
-//!   own watchdog, and the stall is still reported.
+//!   own watchdog, and the stall is still reported: at the stop, as "has not ticked for X ms so far" (X just
+//!   past the threshold: the stall is not over), and, once the servo thread ticks again, with how long it went
+//!   without a tick in all ([`StallWatch`]; as the monitor's polls saw it, to within a poll).
 //! - **reports device events.** The servo thread pushes every supervisor event (fault, refusal, enable,
 //!   disconnect, stall stop) into an SPSC ring; the monitor prints each once on stderr with its tick and time
 //!   and what the operator should do, so nothing on the servo thread formats or writes text.
@@ -104,6 +106,72 @@ impl MonitorConfig {
     pub fn stall_after(&self) -> Duration {
         self.period.saturating_mul(self.stall_periods.max(1))
     }
+}
+
+/// The monitor's view of the tick counter (module docs): when it last saw the counter move, and whether it
+/// stopped the device in the stall since. No thread and no clock of its own, so tests can feed it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StallWatch {
+    last_ticks: u64,
+    last_change: Instant,
+    stopped: bool,
+}
+
+/// What a look at the tick counter found ([`StallWatch::look`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StallNews {
+    /// No tick for longer than the threshold, first seen now: stop the device. The stall so far.
+    Stalled(Duration),
+    /// The servo thread ticked again after a stall the monitor stopped the device for. The time without a tick
+    /// in all, from the last tick seen before the stall to this look.
+    Ended(Duration),
+}
+
+impl StallWatch {
+    /// Watching a counter at `ticks`, seen at `now`.
+    pub fn new(ticks: u64, now: Instant) -> StallWatch {
+        StallWatch {
+            last_ticks: ticks,
+            last_change: now,
+            stopped: false,
+        }
+    }
+
+    /// The counter reads `ticks` at `now`. A stall is news once, when it passes `stall_after` while `watching`
+    /// (the session runs, and has ticked), and once more when it ends; `None` otherwise.
+    pub fn look(
+        &mut self,
+        ticks: u64,
+        now: Instant,
+        watching: bool,
+        stall_after: Duration,
+    ) -> Option<StallNews> {
+        let without = now.saturating_duration_since(self.last_change);
+        if ticks != self.last_ticks {
+            let ended = self.stopped.then_some(StallNews::Ended(without));
+            *self = StallWatch::new(ticks, now);
+            return ended;
+        }
+        if ticks > 0 && !self.stopped && watching && without > stall_after {
+            self.stopped = true;
+            return Some(StallNews::Stalled(without));
+        }
+        None
+    }
+
+    /// How long the stall the monitor stopped the device for has lasted at `now`; `None` when there is none.
+    pub fn open_stall(&self, now: Instant) -> Option<Duration> {
+        self.stopped
+            .then(|| now.saturating_duration_since(self.last_change))
+    }
+}
+
+/// The line the monitor prints when a stall it stopped the device for ends after `without` without a tick.
+pub fn stall_ended(without: Duration) -> String {
+    format!(
+        "monitor: the servo thread ticked again after {:.1} ms without a tick",
+        without.as_secs_f64() * 1e3
+    )
 }
 
 /// What the operator reads for an event.
@@ -200,9 +268,7 @@ impl Monitor {
         let thread = std::thread::Builder::new()
             .name("voxhap-monitor".to_owned())
             .spawn(move || {
-                let mut last_ticks = stats.ticks.load(Ordering::Acquire);
-                let mut last_change = Instant::now();
-                let mut stopped_this_stall = false;
+                let mut watch = StallWatch::new(stats.ticks.load(Ordering::Acquire), Instant::now());
                 loop {
                     while let Ok(report) = events.pop() {
                         eprintln!(
@@ -213,38 +279,42 @@ impl Monitor {
                         );
                     }
                     if thread_stop.load(Ordering::Acquire) {
+                        if let Some(without) = watch.open_stall(Instant::now()) {
+                            eprintln!(
+                                "monitor: stopped {:.1} ms after the servo thread's last tick",
+                                without.as_secs_f64() * 1e3
+                            );
+                        }
                         break;
                     }
                     let ticks = stats.ticks.load(Ordering::Acquire);
-                    if ticks != last_ticks {
-                        last_ticks = ticks;
-                        last_change = Instant::now();
-                        stopped_this_stall = false;
-                    } else if ticks > 0
-                        && !stopped_this_stall
-                        && running.load(Ordering::Acquire)
-                        && last_change.elapsed() > config.stall_after()
-                    {
-                        stopped_this_stall = true;
-                        stats.monitor_stops.fetch_add(1, Ordering::Relaxed);
-                        let stalled_ms = last_change.elapsed().as_secs_f64() * 1e3;
-                        let what = if thread_stopping.load(Ordering::Acquire) {
-                            "the session is stopping and the servo thread has not finished for"
-                        } else {
-                            "the servo thread has not ticked for"
-                        };
-                        match slot.fire() {
-                            Ok(true) => eprintln!(
-                                "monitor: {what} {stalled_ms:.1} ms: zero force and Disable sent to the device"
-                            ),
-                            Ok(false) => eprintln!(
-                                "monitor: {what} {stalled_ms:.1} ms; this device has no stop channel, so its \
-                                 own watchdog must stop it"
-                            ),
-                            Err(error) => eprintln!(
-                                "monitor: {what} {stalled_ms:.1} ms; stopping the device failed: {error}"
-                            ),
+                    let watching = running.load(Ordering::Acquire);
+                    match watch.look(ticks, Instant::now(), watching, config.stall_after()) {
+                        Some(StallNews::Stalled(so_far)) => {
+                            stats.monitor_stops.fetch_add(1, Ordering::Relaxed);
+                            let stalled_ms = so_far.as_secs_f64() * 1e3;
+                            let what = if thread_stopping.load(Ordering::Acquire) {
+                                "the session is stopping and the servo thread has not finished for"
+                            } else {
+                                "the servo thread has not ticked for"
+                            };
+                            match slot.fire() {
+                                Ok(true) => eprintln!(
+                                    "monitor: {what} {stalled_ms:.1} ms so far: zero force and Disable sent to \
+                                     the device"
+                                ),
+                                Ok(false) => eprintln!(
+                                    "monitor: {what} {stalled_ms:.1} ms so far; this device has no stop \
+                                     channel, so its own watchdog must stop it"
+                                ),
+                                Err(error) => eprintln!(
+                                    "monitor: {what} {stalled_ms:.1} ms so far; stopping the device failed: \
+                                     {error}"
+                                ),
+                            }
                         }
+                        Some(StallNews::Ended(without)) => eprintln!("{}", stall_ended(without)),
+                        None => {}
                     }
                     std::thread::sleep(poll);
                 }
@@ -289,6 +359,55 @@ mod tests {
             self.0.fetch_add(1, Ordering::Relaxed);
             Ok(())
         }
+    }
+
+    /// A stall of 0.9 s, polled every 0.5 ms as at 1 kHz, with the threshold of 20 ms: the last tick is seen
+    /// at t = 10 ms; the first look past 30 ms (t = 30.5 ms, 20.5 ms without a tick) says stalled so far; the
+    /// looks up to t = 910 ms say nothing more; the tick seen at t = 910.5 ms ends it after 900.5 ms in all,
+    /// and the line says so (not the threshold). Ticking again, nothing; a short pause (10 ms) is no stall;
+    /// a stall while the session is not running is not stopped, and its end is no news.
+    #[test]
+    fn a_stall_is_reported_when_it_passes_the_threshold_and_again_with_its_length_when_it_ends() {
+        let t0 = Instant::now();
+        let at = |us: u64| t0 + Duration::from_micros(us);
+        let after = Duration::from_millis(20);
+        let mut watch = StallWatch::new(0, t0);
+        let mut news = Vec::new();
+        let mut ticks = 0;
+        for step in 0..=2_000u64 {
+            let now_us = step * 500;
+            if now_us <= 10_000 || now_us >= 910_500 {
+                ticks += 1;
+            }
+            if let Some(n) = watch.look(ticks, at(now_us), true, after) {
+                news.push((now_us, n));
+            }
+        }
+        assert_eq!(
+            news,
+            [
+                (30_500, StallNews::Stalled(Duration::from_micros(20_500))),
+                (910_500, StallNews::Ended(Duration::from_micros(900_500))),
+            ]
+        );
+        assert_eq!(
+            stall_ended(Duration::from_micros(900_500)),
+            "monitor: the servo thread ticked again after 900.5 ms without a tick"
+        );
+        assert_eq!(watch.open_stall(at(1_000_000)), None);
+        let mut paused = StallWatch::new(5, t0);
+        assert_eq!(paused.look(5, at(10_000), true, after), None);
+        assert_eq!(paused.look(6, at(10_500), true, after), None);
+        let mut idle = StallWatch::new(5, t0);
+        assert_eq!(idle.look(5, at(50_000), false, after), None);
+        assert_eq!(idle.open_stall(at(50_000)), None);
+        assert_eq!(idle.look(6, at(60_000), true, after), None);
+        let mut open = StallWatch::new(5, t0);
+        assert_eq!(
+            open.look(5, at(25_000), true, after),
+            Some(StallNews::Stalled(Duration::from_millis(25)))
+        );
+        assert_eq!(open.open_stall(at(40_000)), Some(Duration::from_millis(40)));
     }
 
     #[test]

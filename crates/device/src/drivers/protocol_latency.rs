@@ -24,8 +24,9 @@
 //! 95th percentile's 5 %: P. J. Huber, E. M. Ronchetti, *Robust Statistics*, 2nd ed., Wiley 2009, section 1.4,
 //! on the breakdown point of quantiles). The figure at open is no longer the only one: from the first servo
 //! tick the driver times the round trip of every force it sends ([`LiveRoundTrips`], below), and the observer
-//! pairs with their median plus one period, never below the figure at open (crate `voxhap-servo`,
-//! `passivity::link_delay`), so a figure declared too long at open holds for the whole connection.
+//! pairs with their median plus one period, never below the figure at open until as many are timed as open
+//! measured (crate `voxhap-servo`, `passivity::link_delay`), so a figure declared too long at open holds only
+//! for the connection's first few dozen ticks.
 //! So the declared figure is a robust starting point, a tick above the typical round trip, and the live
 //! figure follows the delay the run really shows.
 //!
@@ -35,7 +36,9 @@
 //! section 7; in streaming mode, section 10.4, the first streamed State that echoes it) gives its round trip.
 //! The round trips are counted in a fixed histogram of 0.1 ms bins ([`LIVE_BINS`] of them; longer ones in the
 //! last) and the longest is kept exactly: [`LinkDelaySeen`] gives the median (its bin's upper edge: rounded up
-//! to 0.1 ms) and the longest, in seconds (the servo counts them in ticks of its own period). A round trip
+//! to 0.1 ms; in the last bin, which holds every longer round trip too, the longest, so a slow link's median
+//! is never said to be shorter than it is) and the longest, in seconds (the servo counts them in ticks of its
+//! own period). A round trip
 //! here runs from just before the write to the decoding of its answer, so a host that was descheduled in
 //! between (a late tick, an overrun) lengthens it: that is the delay the observer's pairing must cover,
 //! whatever its cause.
@@ -221,20 +224,23 @@ impl LiveRoundTrips {
         self.longest = self.longest.max(trip);
     }
 
-    /// The round trips counted so far: their median (rounded up to 0.1 ms, at most the longest) and the
-    /// longest; `None` before the first.
+    /// The round trips counted so far: their median (rounded up to 0.1 ms, at most the longest; the longest
+    /// when it is in the last bin) and the longest; `None` before the first.
     pub fn seen(&self) -> Option<LinkDelaySeen> {
         if self.count == 0 {
             return None;
         }
-        // Nearest rank: the ceil(N / 2)-th smallest, as the upper edge of its bin.
+        // Nearest rank: the ceil(N / 2)-th smallest, as the upper edge of its bin; the last bin's is the
+        // longest (it holds every longer round trip).
         let rank = self.count.div_ceil(2);
         let mut below = 0u64;
         let mut typical = self.longest;
         for (bin, &count) in self.bins.iter().enumerate() {
             below += u64::from(count);
             if below >= rank {
-                typical = (ROUNDING * (bin as u32 + 1)).min(self.longest);
+                if bin + 1 < LIVE_BINS {
+                    typical = (ROUNDING * (bin as u32 + 1)).min(self.longest);
+                }
                 break;
             }
         }
@@ -360,7 +366,11 @@ mod tests {
     }
 
     /// A force answered 200 ms late (longer than the histogram) is the longest exactly and counts in the
-    /// last bin; a send 256 sends back is forgotten (the 257th send took its slot), one 255 back is not.
+    /// last bin, whose upper edge is then the longest: the median is 200 ms, not the histogram's 102.4 ms (a
+    /// median said shorter than it is would pair the observer short). Three answered 120, 150 and 180 ms late
+    /// and two 1 ms late: the median by nearest rank is the 3rd smallest, 120 ms, in the last bin: said as
+    /// the longest, 180 ms (rounded up, the safe side). A send 256 sends back is forgotten (the 257th send
+    /// took its slot), one 255 back is not.
     #[test]
     fn the_live_figure_keeps_long_round_trips_and_forgets_what_it_cannot_hold() {
         let t0 = Instant::now();
@@ -368,8 +378,15 @@ mod tests {
         live.sent(1, t0);
         live.answered(1, t0 + MS * 200);
         let seen = live.seen().unwrap();
-        assert_eq!((seen.worst, seen.typical), (MS * 200, US * 102_400));
+        assert_eq!((seen.worst, seen.typical), (MS * 200, MS * 200));
         assert_eq!(seen.worst_ticks(MS), 200);
+        let mut mixed = LiveRoundTrips::default();
+        for (sequence, delay) in (1..).zip([MS * 120, MS * 150, MS * 180, MS, MS]) {
+            mixed.sent(sequence, t0);
+            mixed.answered(sequence, t0 + delay);
+        }
+        let seen = mixed.seen().unwrap();
+        assert_eq!((seen.typical, seen.worst), (MS * 180, MS * 180));
         for sequence in 2..=258 {
             live.sent(sequence, t0 + MS * sequence);
         }

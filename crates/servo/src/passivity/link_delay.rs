@@ -8,10 +8,14 @@
 //! ([`super::controller`], "Latency": `sin(w (d + 1/2) T)` falls as the pairing falls short of the delay).
 //! So while the observer's latency comes from the driver, each tick reads the round trips the driver timed
 //! since it opened (`ServoDevice::link_delay_seen`, crate `voxhap-device`'s `LinkDelaySeen`) and pairs with
-//! their median plus one servo period in whole ticks (rounded up), never less than the figure at open, at
-//! most [`super::settings::MAX_LATENCY_TICKS`]. A reconnect opens a new driver, whose open measures the link
-//! again: that figure replaces the pairing (it may be shorter), and the new connection's round trips are
-//! followed from there.
+//! their median plus one servo period in whole ticks (rounded up), at most
+//! [`super::settings::MAX_LATENCY_TICKS`], and never less than the figure at open until the round trips timed
+//! live are at least as many as the figure at open was measured from. From then on the live figure alone
+//! decides, below the figure at open too: a figure measured at open on a loaded host (once 555 ms) would
+//! otherwise keep the pairing that wide for the whole connection, the mispairing of a stall (below) for good.
+//! A documented figure (no round trips) stays the floor. A reconnect opens a new driver, whose open measures
+//! the link again: that figure replaces the pairing (it may be shorter), and the new connection's round trips
+//! are followed from there.
 //!
 //! **Why the median plus a period, and not the longest** (docs/stability.md, "While the servo runs"): the
 //! pairing is how many ticks each step is late. A stall lengthens the round trip of the force on the wire,
@@ -46,8 +50,8 @@ use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 /// What changed the observer's pairing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairingChange {
-    /// The median round trip timed since open plus one period, in whole ticks, changed (never below the
-    /// figure at open): the pairing followed it.
+    /// The median round trip timed since open plus one period, in whole ticks, changed (below the figure at
+    /// open only once as many round trips are timed as open's): the pairing followed it.
     Followed { from: usize, to: usize },
     /// A device (re)connected: its driver's figure at open replaced the pairing.
     Reconnected { from: usize, to: usize },
@@ -60,8 +64,21 @@ pub struct LinkFollower {
     follows_driver: bool,
     /// The servo period: the pairing's ticks and the statistics' (module docs).
     period: Duration,
-    /// The driver's figure at the last open, in ticks: the least the pairing follows down to.
+    /// The driver's figure at the last open, in ticks: the least the pairing follows down to while fewer than
+    /// `open_round_trips` round trips were timed live.
     at_open: usize,
+    /// How many round trips the figure at open was measured from (`u64::MAX` for a documented figure, or
+    /// none: the floor then holds for the connection).
+    open_round_trips: u64,
+}
+
+/// How many live round trips stand in for `link`'s figure at open (module docs): as many as it was measured
+/// from; never, for a documented figure or none.
+fn round_trips_behind(link: Option<LinkLatency>) -> u64 {
+    match link {
+        Some(link) if link.round_trips > 0 => u64::from(link.round_trips),
+        _ => u64::MAX,
+    }
 }
 
 impl LinkFollower {
@@ -75,6 +92,10 @@ impl LinkFollower {
             ),
             period,
             at_open: latency.ticks,
+            open_round_trips: round_trips_behind(match latency.origin {
+                LatencyOrigin::Driver(link) => Some(link),
+                _ => None,
+            }),
         }
     }
 
@@ -85,6 +106,7 @@ impl LinkFollower {
             follows_driver: false,
             period: Duration::ZERO,
             at_open: 0,
+            open_round_trips: u64::MAX,
         }
     }
 
@@ -108,20 +130,26 @@ impl LinkFollower {
     ) -> Option<PairingChange> {
         let (from, to) = self.pairing(link.map_or(Duration::ZERO, |l| l.worst), controller)?;
         self.at_open = to;
+        self.open_round_trips = round_trips_behind(link);
         controller.set_latency_ticks(to);
         (from != to).then_some(PairingChange::Reconnected { from, to })
     }
 
     /// This tick's round trips timed since the connection opened: `controller` pairs with their median plus
-    /// one servo period, or with the figure at open when that is longer (module docs). `None` when nothing
-    /// changed.
+    /// one servo period, or with the figure at open when that is longer and the round trips are fewer than
+    /// open's (module docs). `None` when nothing changed.
     pub fn observe(
         &self,
         seen: Option<LinkDelaySeen>,
         controller: &mut PassivityController,
     ) -> Option<PairingChange> {
-        let (from, median) = self.pairing(seen?.typical + self.period, controller)?;
-        let to = median.max(self.at_open);
+        let seen = seen?;
+        let (from, median) = self.pairing(seen.typical + self.period, controller)?;
+        let to = if seen.round_trips >= self.open_round_trips {
+            median
+        } else {
+            median.max(self.at_open)
+        };
         if to == from {
             return None;
         }

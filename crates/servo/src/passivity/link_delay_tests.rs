@@ -22,12 +22,18 @@ fn at_open(worst: Duration) -> LinkLatency {
     }
 }
 
-/// The driver's round trips since open: the median `median` and the longest `worst`, over 100.
+/// The driver's round trips since open: the median `median` and the longest `worst`, over 100 (more than
+/// the 65 of [`at_open`]).
 fn seen(median: Duration, worst: Duration) -> Option<LinkDelaySeen> {
+    seen_over(median, worst, 100)
+}
+
+/// The driver's round trips since open: the median `median` and the longest `worst`, over `round_trips`.
+fn seen_over(median: Duration, worst: Duration, round_trips: u64) -> Option<LinkDelaySeen> {
     Some(LinkDelaySeen {
         typical: median,
         worst,
-        round_trips: 100,
+        round_trips,
     })
 }
 
@@ -48,7 +54,8 @@ fn follower_of(latency: &ObserverLatency) -> (LinkFollower, PassivityController)
 /// By hand at 1 kHz: the driver's 1.2 ms at open is 2 ticks. A median of 1.1 ms plus the 1 ms period is
 /// 2.1 ms, 3 ticks: the pairing follows to 3, whatever the longest round trip: 30 ms (a stall) leaves it at
 /// 3. A median of 4.3 ms (5.3 ms, 6 ticks) lengthens it to 6; 3 ms (4 ticks) shortens it to 4; none (1 ms,
-/// 1 tick) takes it back to open's 2, not below; 300 ms lengthens it to the 255 the observer pairs at most.
+/// 1 tick) over 64 round trips, fewer than the 65 open measured, takes it back to open's 2, not below; over
+/// 100 round trips, to 1; 300 ms lengthens it to the 255 the observer pairs at most.
 /// A reconnect measuring 1.2 ms again replaces the 255 with 2; the same figure again changes nothing.
 #[test]
 fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
@@ -74,12 +81,16 @@ fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
         Some(PairingChange::Followed { from: 6, to: 4 })
     );
     assert_eq!(
-        follows(&follower, &mut c, Duration::ZERO),
+        follower.observe(seen_over(Duration::ZERO, MS * 300, 64), &mut c),
         Some(PairingChange::Followed { from: 4, to: 2 })
     );
     assert_eq!(
+        follows(&follower, &mut c, Duration::ZERO),
+        Some(PairingChange::Followed { from: 2, to: 1 })
+    );
+    assert_eq!(
         follows(&follower, &mut c, MS * 300),
-        Some(PairingChange::Followed { from: 2, to: 255 })
+        Some(PairingChange::Followed { from: 1, to: 255 })
     );
     assert_eq!(
         follower.connected(Some(at_open(US * 1_200)), &mut c),
@@ -93,31 +104,30 @@ fn the_pairing_follows_the_median_round_trip_and_a_reconnect_replaces_it() {
 /// of damping (the arm's and the grip's), a 200 N/m grip pulling it towards z = -3 mm from rest at z = 0 on
 /// a one-sided 2 000 N/m plane at z = 0, each force acting over the step from 2 ticks after it was sent (the
 /// link's median round trip, 1.1 ms, in whole ticks), the controller in control, paired from the driver's
-/// 1.2 ms at open (2 ticks) and followed each tick (the median plus a period, 3 ticks: a tick long). The
-/// driver times round trips of 1.1 ms (median), and one of 30 ms at 30 ms, while the press still rings (a
-/// stall: the loop ran on as before). Returns the most energy the force gave the handle, `max_t W(t)` with `W = sum F_acting . dx` (exact: the handle is integrated under the force held over each
-/// step), and the positive work of its worst window of `2 (d + 1)` steps, `d` = 2 (J). With `pairing`, the
-/// controller pairs that many ticks from the stall on instead of following (what following the longest
-/// round trip did).
-fn stalled_contact(pairing: Option<usize>) -> (f64, f64) {
+/// figure at open `open` (over 65 round trips) and followed each tick as the driver reports `live(n)` at
+/// tick `n`. Returns the most energy the force gave the handle, `max_t W(t)` with `W = sum F_acting . dx`
+/// (exact: the handle is integrated under the force held over each step), and the positive work of its worst
+/// window of `2 (d + 1)` steps, `d` = 2 (J). With `pinned = Some((n, ticks))`, the controller pairs `ticks`
+/// from tick `n` on instead of following.
+fn delayed_contact(
+    open: Duration,
+    live: impl Fn(usize) -> Option<LinkDelaySeen>,
+    pinned: Option<(usize, usize)>,
+) -> (f64, f64) {
     let (mass, damping, grip, hand_z, k, dt) = (0.1, 1.5, 200.0, -0.003, 2000.0, 1e-3);
-    let latency = chosen(&PassivitySettings::default(), None);
-    let mut c = PassivityController::new(
-        PassivityMode::Control,
-        &PassivitySettings::default(),
-        latency.ticks,
-    );
+    let settings = PassivitySettings::default();
+    let latency = ObserverLatency::choose(&settings, None, Some(at_open(open)), dt);
+    let mut c = PassivityController::new(PassivityMode::Control, &settings, latency.ticks);
     let follower = LinkFollower::new(&latency, MS);
     let (mut z, mut v) = (0.0f64, 0.0f64);
     let mut sent = [0.0f64; 3];
     let (mut given, mut most) = (0.0f64, 0.0f64);
     let mut work = Vec::new();
     for n in 0..3_000usize {
-        let worst = if n < 30 { US * 1_200 } else { MS * 30 };
-        match pairing {
-            Some(ticks) if n >= 30 => c.set_latency_ticks(ticks),
+        match pinned {
+            Some((from, ticks)) if n >= from => c.set_latency_ticks(ticks),
             _ => {
-                follower.observe(seen(US * 1_100, worst), &mut c);
+                follower.observe(live(n), &mut c);
             }
         }
         let probe = DVec3::new(0.0, 0.0, z);
@@ -147,6 +157,16 @@ fn stalled_contact(pairing: Option<usize>) -> (f64, f64) {
     (most, window)
 }
 
+/// [`delayed_contact`] from the driver's 1.2 ms at open (2 ticks), and the
+/// driver timing round trips of 1.1 ms (median), and one of 30 ms at 30 ms, while the press still rings (a
+/// stall: the loop ran on as before); followed, the pairing is the median plus a period, 3 ticks (a tick
+/// long). With `pairing`, the controller pairs that many ticks from the stall on instead of following (what
+/// following the longest round trip did).
+fn stalled_contact(pairing: Option<usize>) -> (f64, f64) {
+    let live = |n| seen(US * 1_100, if n < 30 { US * 1_200 } else { MS * 30 });
+    delayed_contact(US * 1_200, live, pairing.map(|ticks| (30, ticks)))
+}
+
 /// A stall does not unpair the controller (module docs, "Why the median plus a period"): through a
 /// 30 ms round trip the contact of [`stalled_contact`] gives the handle at most the controller's threshold
 /// plus its worst window of `2 (d + 1)` steps (the bound `tests/device_passivity_pty.rs` derives). Paired
@@ -164,6 +184,88 @@ fn a_stall_does_not_unpair_a_stiff_delayed_contact() {
     assert!(
         longest > threshold + window,
         "paired 31 ticks: given {longest} J, within {threshold} + {window} J"
+    );
+}
+
+/// The loaded open of docs/stability.md ("While the servo runs"): the driver measured 555 ms at open over 65
+/// round trips, 555 ticks at 1 kHz, so the observer pairs the 255 it pairs at most. The link then answers
+/// as it does unloaded, a median of 1.1 ms and the longest 1.2 ms: by hand 2.1 ms with the period, 3 ticks.
+/// Over 64 live round trips, fewer than open's 65, the figure at open still holds (255); over 65 the live
+/// figure has as many behind it and the pairing comes down to 3, and stays there as they grow to 10 000. A
+/// reconnect that measures 555 ms again is the floor again, until the new connection's own round trips
+/// number 65 (10 do not lower it).
+#[test]
+fn a_loaded_open_holds_the_pairing_only_until_as_many_live_round_trips_are_timed() {
+    let loaded = Some(at_open(MS * 555));
+    let latency = ObserverLatency::choose(&PassivitySettings::default(), None, loaded, 1e-3);
+    let (mut follower, mut c) = follower_of(&latency);
+    assert_eq!(c.latency_ticks_now(), 255);
+    let live = |round_trips| seen_over(US * 1_100, US * 1_200, round_trips);
+    assert_eq!(follower.observe(live(1), &mut c), None);
+    assert_eq!(follower.observe(live(64), &mut c), None);
+    assert_eq!(c.latency_ticks_now(), 255);
+    assert_eq!(
+        follower.observe(live(65), &mut c),
+        Some(PairingChange::Followed { from: 255, to: 3 })
+    );
+    assert_eq!(follower.observe(live(10_000), &mut c), None);
+    assert_eq!(c.latency_ticks_now(), 3);
+    assert_eq!(
+        follower.connected(loaded, &mut c),
+        Some(PairingChange::Reconnected { from: 3, to: 255 })
+    );
+    assert_eq!(follower.observe(live(10), &mut c), None);
+    assert_eq!(
+        follower.observe(live(65), &mut c),
+        Some(PairingChange::Followed { from: 255, to: 3 })
+    );
+}
+
+/// After the same loaded open, a link that stays slow keeps the pairing as wide as its live round trips say,
+/// by hand at 1 kHz: a median of 554 ms (555 ms with the period) is still beyond the 255 ticks the observer
+/// pairs, over 65 round trips and over 10 000: 255. A median of 199.2 ms over 1 000 round trips is 200.2 ms
+/// with the period, 201 ticks: the pairing narrows to 201, not below (and open's 255 no longer holds it).
+#[test]
+fn a_link_that_stays_slow_keeps_the_pairing_wide() {
+    let loaded = Some(at_open(MS * 555));
+    let latency = ObserverLatency::choose(&PassivitySettings::default(), None, loaded, 1e-3);
+    let (follower, mut c) = follower_of(&latency);
+    for round_trips in [65, 10_000] {
+        assert_eq!(
+            follower.observe(seen_over(MS * 554, MS * 600, round_trips), &mut c),
+            None
+        );
+        assert_eq!(c.latency_ticks_now(), 255);
+    }
+    assert_eq!(
+        follower.observe(seen_over(US * 199_200, MS * 600, 1_000), &mut c),
+        Some(PairingChange::Followed { from: 255, to: 201 })
+    );
+    assert_eq!(c.latency_ticks_now(), 201);
+}
+
+/// The loaded open does not unpair the contact of [`delayed_contact`] for good: the driver measured 555 ms at
+/// open (255 ticks), the link then answers in 1.1 ms (median; 1.2 ms at most), one round trip a tick, while
+/// the grip presses the handle in from the first tick. Followed, the pairing is 3 ticks from tick 65 (the
+/// median plus a period, once the live round trips are as many as open's), and the contact gives the handle at
+/// most the controller's threshold plus its worst window of `2 (d + 1)` steps, as through a stall (what the
+/// first 65 ticks left unanswered included). Paired 255 ticks throughout, as when the figure at open
+/// was the floor for the whole connection, the observer pairs each step with a force sent a quarter of a
+/// second before, not the one that acted: the 24 Hz contact's generation goes unanswered and it gives the
+/// handle more than that bound.
+#[test]
+fn a_loaded_open_does_not_unpair_a_stiff_delayed_contact_for_good() {
+    let threshold = PassivitySettings::default().threshold_j;
+    let live = |n: usize| seen_over(US * 1_100, US * 1_200, n as u64);
+    let (followed, window) = delayed_contact(MS * 555, live, None);
+    assert!(
+        followed <= threshold + window,
+        "followed: given {followed} J, bound {threshold} + {window} J"
+    );
+    let (floored, window) = delayed_contact(MS * 555, live, Some((0, 255)));
+    assert!(
+        floored > threshold + window,
+        "paired 255 ticks: given {floored} J, within {threshold} + {window} J"
     );
 }
 

@@ -83,7 +83,7 @@ fn bench_writers(c: &mut Criterion) {
                 sample.t_s = sample.tick as f64 * 1e-3;
                 sample.probe_m =
                     DVec3::new(0.01 * sample.t_s.cos(), 0.01 * sample.t_s.sin(), -1e-3);
-                sample.force_n = DVec3::new(0.1, -0.2, 0.51234567);
+                sample.sent_force_n = DVec3::new(0.1, -0.2, 0.51234567);
                 sample.error_bound_m = 1.234e-15;
                 writer.write_sample(black_box(&sample)).expect("write")
             })

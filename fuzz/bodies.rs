@@ -82,7 +82,7 @@ fn check_samples(mode_names: &[String], samples: &[voxhap::record::TraceSample])
         assert!(pair[0].tick < pair[1].tick, "ticks out of order");
     }
     for sample in samples {
-        assert!(sample.force_n.is_finite() && sample.t_s.is_finite());
+        assert!(sample.sent_force_n.is_finite() && sample.t_s.is_finite());
     }
 }
 

@@ -716,7 +716,7 @@ fn a_recorded_session_carries_the_foxglove_topics_in_its_mcap() {
         .unwrap();
     let force = Vector3::decode(&last_force.data[..]).unwrap();
     let sample = read.samples.last().unwrap();
-    assert_eq!([force.x, force.y, force.z], sample.force_n.to_array());
+    assert_eq!([force.x, force.y, force.z], sample.sent_force_n.to_array());
     // Log times are wall-clock UTC: the first sample at about the time the recording started.
     let first = messages()
         .find(|m| m.channel.topic == "/voxhap/setpoint_cf")

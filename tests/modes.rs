@@ -71,7 +71,7 @@ fn sphere_force_is_normal_grows_as_k_times_penetration_and_yields_at_s_over_k() 
         let out = tick(&mut state, &scene, probe, DT_S, &mut workspace);
         assert_eq!(out.status, TickStatus::Certified);
         let plane = workspace.primitives().first().copied();
-        let force = out.force_n.length();
+        let force = out.coupling_force_n.length();
         if force < 1e-9 {
             assert!(contact.is_none(), "contact lost while pushing in");
             continue;
@@ -81,9 +81,9 @@ fn sphere_force_is_normal_grows_as_k_times_penetration_and_yields_at_s_over_k() 
         let normal = plane.direction();
         // Normal to the surface: the force is along the plane normal, and the normal is radial.
         assert!(
-            out.force_n.normalize().dot(normal) > 1.0 - 1e-9,
+            out.coupling_force_n.normalize().dot(normal) > 1.0 - 1e-9,
             "force {} normal {normal}",
-            out.force_n
+            out.coupling_force_n
         );
         // The sampled normal of a 64^3 sphere with a 2-voxel edge is radial to within about 10 degrees.
         assert!(
@@ -148,12 +148,12 @@ fn friction_resists_tangential_motion_up_to_mu_times_the_normal_force() {
     let (mut sticking, mut sliding) = (0, 0);
     let mut max_tangential_n: f64 = 0.0;
     for (probe, out) in &trace[100..] {
-        let normal_n = out.force_n.z;
-        let tangential_n = out.force_n.truncate().length();
+        let normal_n = out.coupling_force_n.z;
+        let tangential_n = out.coupling_force_n.truncate().length();
         assert!(
             (normal_n - 2.0).abs() < 1e-9,
             "normal force changed: {}",
-            out.force_n
+            out.coupling_force_n
         );
         max_tangential_n = max_tangential_n.max(tangential_n / normal_n);
         // Never more than mu N (N from the previous tick, which differs by rounding here).
@@ -193,9 +193,9 @@ fn friction_resists_tangential_motion_up_to_mu_times_the_normal_force() {
         .last()
         .unwrap();
     assert!(
-        last.force_n.x.abs() < 1e-9,
+        last.coupling_force_n.x.abs() < 1e-9,
         "frictionless surface pulled sideways: {}",
-        last.force_n
+        last.coupling_force_n
     );
 }
 
@@ -325,7 +325,7 @@ fn a_non_finite_probe_holds_the_proxy_and_sends_no_force() {
         DT_S,
         &mut workspace,
     );
-    assert_eq!(out.force_n, DVec3::ZERO);
+    assert_eq!(out.coupling_force_n, DVec3::ZERO);
     assert_eq!(out.proxy_m, before.proxy_m);
     assert_eq!(out.status, TickStatus::InputRejected);
     assert_ne!(

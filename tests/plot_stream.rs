@@ -49,15 +49,16 @@ fn write_trace_ending(
             0.005 * (t / 600.0).sin(),
         );
         sample.proxy_m = sample.probe_m - DVec3::new(0.0, 0.0, 0.001);
-        sample.force_n = (sample.proxy_m - sample.probe_m) * 500.0 * (1.0 + 0.5 * (t * 0.37).sin())
-            + DVec3::new(0.3 * (t * 1.1).cos(), 0.0, 0.0);
+        sample.sent_force_n =
+            (sample.proxy_m - sample.probe_m) * 500.0 * (1.0 + 0.5 * (t * 0.37).sin())
+                + DVec3::new(0.3 * (t * 1.1).cos(), 0.0, 0.0);
         sample.sweeps = (i % 7) as u32;
         sample.error_bound_m = 1e-9 * (1.0 + (i % 13) as f64);
         let values = [
-            sample.force_n.length(),
-            sample.force_n.x,
-            sample.force_n.y,
-            sample.force_n.z,
+            sample.sent_force_n.length(),
+            sample.sent_force_n.x,
+            sample.sent_force_n.y,
+            sample.sent_force_n.z,
             sample.probe_m.x * 1e3,
             sample.probe_m.y * 1e3,
             sample.probe_m.z * 1e3,

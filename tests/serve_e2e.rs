@@ -94,16 +94,16 @@ fn serve_against_the_mock_device_records_a_clean_trace_and_stops_on_sigterm() {
     let mut max_force: f64 = 0.0;
     for sample in samples {
         assert!(
-            sample.force_n.is_finite() && sample.probe_m.is_finite(),
+            sample.sent_force_n.is_finite() && sample.probe_m.is_finite(),
             "tick {}",
             sample.tick
         );
         assert!(
-            sample.force_n.length() <= 5.0 + 1e-9,
+            sample.sent_force_n.length() <= 5.0 + 1e-9,
             "over the mock's 5 N limit at tick {}",
             sample.tick
         );
-        max_force = max_force.max(sample.force_n.length());
+        max_force = max_force.max(sample.sent_force_n.length());
     }
     // The mock's hand circles 2 cm from the centre, inside the built-in ball (3 cm): the surface pushes.
     assert!(
@@ -204,7 +204,7 @@ fn a_session_survives_a_device_disconnect_and_reconnects_off_the_servo_thread() 
     assert!(summary.stats.disconnects >= 1);
     let trace = read_trace(&trace_path).unwrap();
     let last = trace.samples.last().unwrap();
-    assert!(last.flags & FLAG_FORCE_LIMITED_BY_SAFETY == 0 || last.force_n.length() < 5.0);
+    assert!(last.flags & FLAG_FORCE_LIMITED_BY_SAFETY == 0 || last.sent_force_n.length() < 5.0);
     // The servo kept its schedule while the connector thread reopened the port: the ticks did not stop.
     let gap = trace
         .samples

@@ -141,8 +141,8 @@ fn on_time_ticks_are_consecutive_and_safe() {
     let mut max_force: f64 = 0.0;
     while let Ok(sample) = rig.samples.pop() {
         assert_eq!(sample.tick, count);
-        assert!(sample.force_n.is_finite() && sample.probe_m.is_finite());
-        max_force = max_force.max(sample.force_n.length());
+        assert!(sample.sent_force_n.is_finite() && sample.probe_m.is_finite());
+        max_force = max_force.max(sample.sent_force_n.length());
         count += 1;
     }
     assert_eq!(count, 2000);
@@ -217,8 +217,8 @@ fn cache_warming_wakes_before_each_deadline_and_changes_no_output() {
     let mut compared = 0;
     while let (Ok(a), Ok(b)) = (plain.samples.pop(), warmed.samples.pop()) {
         assert_eq!(
-            (a.tick, a.probe_m, a.proxy_m, a.force_n),
-            (b.tick, b.probe_m, b.proxy_m, b.force_n)
+            (a.tick, a.probe_m, a.proxy_m, a.sent_force_n),
+            (b.tick, b.probe_m, b.proxy_m, b.sent_force_n)
         );
         compared += 1;
     }
@@ -296,7 +296,7 @@ fn compute_over_budget_sends_the_last_safe_force() {
     }
     assert!(rig.snapshot.read().unwrap().engaged);
     let before: Vec<TraceSample> = std::iter::from_fn(|| rig.samples.pop().ok()).collect();
-    let last_safe = before.last().unwrap().force_n;
+    let last_safe = before.last().unwrap().sent_force_n;
     // Now every clock read costs 700 us: the compute check (budget 600 us) fails.
     let mut slow = SlowClockWaiter {
         now_ns: std::cell::Cell::new(1500 * PERIOD_NS),
@@ -308,9 +308,9 @@ fn compute_over_budget_sends_the_last_safe_force() {
     assert_eq!(rig.stats.report().budget_overruns, 1);
     // The safety pipeline passes the repeated force (it was already safe): same force as the last tick.
     assert!(
-        (sample.force_n - last_safe).length() < 1e-12,
+        (sample.sent_force_n - last_safe).length() < 1e-12,
         "sent {:?}, last safe {:?}",
-        sample.force_n,
+        sample.sent_force_n,
         last_safe
     );
 }

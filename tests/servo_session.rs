@@ -204,7 +204,7 @@ fn stopping_a_session_finishes_its_recording() {
     assert!(read
         .samples
         .iter()
-        .all(|s| s.force_n.is_finite() && s.force_n.length() <= 10.0));
+        .all(|s| s.sent_force_n.is_finite() && s.sent_force_n.length() <= 10.0));
 }
 
 #[test]

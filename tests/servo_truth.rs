@@ -240,9 +240,9 @@ fn while_ramping_in_the_spring_holds_what_the_sent_force_can_give_back() {
         let s = ramp(i as u64 + 1);
         let sent = s * k * depth;
         assert!(
-            (sample.force_n.z - sent).abs() <= 1e-12,
+            (sample.sent_force_n.z - sent).abs() <= 1e-12,
             "tick {i}: sent {:?}, expected {sent} N",
-            sample.force_n
+            sample.sent_force_n
         );
         let expected = sent * sent / (2.0 * k);
         let booked = sample.truth.energy.coupling_energy_j;
@@ -409,7 +409,7 @@ fn a_device_that_answers_late_renders_nothing_from_old_positions() {
         if age > bound {
             stale += 1;
             assert_eq!(
-                sample.force_n,
+                sample.sent_force_n,
                 DVec3::ZERO,
                 "tick {}: age {age}",
                 sample.tick
@@ -421,7 +421,7 @@ fn a_device_that_answers_late_renders_nothing_from_old_positions() {
                 sample.tick
             );
         } else if sample.truth.force_off_cause == ForceOffCause::None {
-            engaged_full += u32::from(sample.force_n != DVec3::ZERO);
+            engaged_full += u32::from(sample.sent_force_n != DVec3::ZERO);
         }
     }
     // 20 answers 5 ticks old, then 8 missing ones counting up from there.

@@ -243,7 +243,7 @@ fn write_row(row: &mut RowWriter<'_>, s: &TraceSample, modes: usize, start: Opti
     row.vector(s.probe_velocity_m_per_s);
     row.vector(s.proxy_m);
     row.vector(s.rendered_force_n);
-    row.vector(s.force_n);
+    row.vector(s.sent_force_n);
     for mode in 0..modes.min(MAX_MODES) {
         let (primitives, force_n) = s.modes.slot(mode);
         row.u64(u64::from(primitives));

@@ -71,7 +71,7 @@ fn run_scenario() -> Vec<TraceSample> {
             probe_velocity_m_per_s: arm.velocity_m_per_s(),
             proxy_m,
             rendered_force_n: force_n,
-            force_n,
+            sent_force_n: force_n,
             modes: ModeBreakdown::new(1, primitives_per_mode, mode_force_n),
             solver_status: SolverStatus::Certified,
             sweeps: u32::from(in_contact),

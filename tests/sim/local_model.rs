@@ -174,10 +174,10 @@ fn the_device_loop_never_exceeds_the_models_force_limit_and_its_report_fills_the
     let mut inside = 0;
     for sample in &trace.samples {
         assert!(
-            sample.force_n.length() <= LIMIT_N + 1e-6,
+            sample.sent_force_n.length() <= LIMIT_N + 1e-6,
             "tick {}: {}",
             sample.tick,
-            sample.force_n
+            sample.sent_force_n
         );
         if sample.tick == 0 {
             // No report names a model before the first one was rendered.

@@ -67,7 +67,7 @@ impl Cycle {
     fn largest_rise_n(&self) -> f64 {
         self.samples
             .windows(2)
-            .map(|p| p[1].force_n.length() - p[0].force_n.length())
+            .map(|p| p[1].sent_force_n.length() - p[0].sent_force_n.length())
             .fold(0.0, f64::max)
     }
 
@@ -76,7 +76,7 @@ impl Cycle {
         self.samples
             .iter()
             .find(|s| s.t_s >= t_s - 1e-9)
-            .is_some_and(|s| s.force_n.length() > 0.5)
+            .is_some_and(|s| s.sent_force_n.length() > 0.5)
     }
 }
 
@@ -167,7 +167,7 @@ fn a_damping_raise_in_contact_ends_an_active_contact_as_the_analysis_says() {
     let at = without
         .samples
         .iter()
-        .find(|s| s.t_s >= 0.5 && s.force_n.z > 0.5)
+        .find(|s| s.t_s >= 0.5 && s.sent_force_n.z > 0.5)
         .expect("the arm is in contact after 0.5 s")
         .t_s;
     let events =
@@ -175,11 +175,11 @@ fn a_damping_raise_in_contact_ends_an_active_contact_as_the_analysis_says() {
     let with = Cycle::run(&text(&events));
     assert_eq!(with.summary.events_applied, 1);
     let last = |c: &Cycle| c.samples[c.samples.len() - 300..].to_vec();
-    let lost = |c: &Cycle| last(c).iter().filter(|s| s.force_n.z < 1e-3).count();
+    let lost = |c: &Cycle| last(c).iter().filter(|s| s.sent_force_n.z < 1e-3).count();
     let worst = |c: &Cycle| {
         last(c)
             .iter()
-            .map(|s| (s.force_n.z - 1.0).abs())
+            .map(|s| (s.sent_force_n.z - 1.0).abs())
             .fold(0.0, f64::max)
     };
     eprintln!(
@@ -263,20 +263,20 @@ fn a_transfer_lowered_in_contact_gives_way_at_once_as_the_analysis_says() {
     };
     // Tick 549 is the last before the change (t = 0.549 s); 552 is 2 ms after it.
     let (before, after) = (549, 552);
-    let f0 = with.samples[before].force_n.length();
+    let f0 = with.samples[before].sent_force_n.length();
     // What the analysis says of the spring: before, it pulls with `f0` (above the new strength) and holds
     // `f0^2 / (2k)`; after, at most 1 N and `(1 N)^2 / (2k)`.
     let gave_way = |c: &Cycle| {
-        c.samples[after].force_n.length() <= 1.0 + 1e-9
+        c.samples[after].sent_force_n.length() <= 1.0 + 1e-9
             && stored(c, after) <= 1.0 / (2.0 * k) + 1e-12
     };
     eprintln!(
         "set_transfer: before {f0:.4} N {:.4} mJ; after: with {:.4} N {:.4} mJ, without {:.4} N {:.4} mJ; \
          {} introduced passively",
         stored(&with, before) * 1e3,
-        with.samples[after].force_n.length(),
+        with.samples[after].sent_force_n.length(),
         stored(&with, after) * 1e3,
-        without.samples[after].force_n.length(),
+        without.samples[after].sent_force_n.length(),
         stored(&without, after) * 1e3,
         with.summary.changes_introduced
     );
@@ -292,8 +292,8 @@ fn a_transfer_lowered_in_contact_gives_way_at_once_as_the_analysis_says() {
     assert_eq!(with.summary.changes_introduced, 0);
     for (a, b) in with.samples.iter().zip(&at_once.samples) {
         assert_eq!(
-            (a.force_n, a.probe_m),
-            (b.force_n, b.probe_m),
+            (a.sent_force_n, a.probe_m),
+            (b.sent_force_n, b.probe_m),
             "t = {}",
             a.t_s
         );

@@ -22,7 +22,7 @@ fn generated_j(samples: &[TraceSample], latency_ticks: usize, k_start: f64, k_en
     let mut work = 0.0;
     for n in latency_ticks..samples.len() - 1 {
         let dx = samples[n + 1].probe_m - samples[n].probe_m;
-        work += samples[n - latency_ticks].force_n.dot(dx);
+        work += samples[n - latency_ticks].sent_force_n.dot(dx);
     }
     let spring = |s: &TraceSample, k: f64| 0.5 * k * (s.proxy_m - s.probe_m).length_squared();
     work + spring(samples.last().unwrap(), k_end) - spring(&samples[0], k_start)
@@ -60,10 +60,10 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     let last = &samples[samples.len() - 200..];
     for s in last {
         assert!(
-            (s.force_n.z - 1.0).abs() < 0.01,
+            (s.sent_force_n.z - 1.0).abs() < 0.01,
             "t = {}: {}",
             s.t_s,
-            s.force_n
+            s.sent_force_n
         );
     }
     assert!(
@@ -81,7 +81,7 @@ fn at_three_times_the_delayed_bound_the_controller_keeps_contact_still() {
     assert!(off.energy.oscillating(), "{:?}", off.energy);
     let last = &samples[samples.len() - 500..];
     assert!(
-        last.iter().any(|s| s.force_n.z < 1e-3),
+        last.iter().any(|s| s.sent_force_n.z < 1e-3),
         "contact is lost in the last 0.5 s"
     );
     // Observe only: books the same bouncing, dissipates nothing.
@@ -177,7 +177,10 @@ fn a_stiffness_raised_in_contact_injects_no_energy_over_the_cycle() {
     let (changed, samples, _) = run("stiffen_in_contact.toml", |t| t);
     assert_eq!((changed.events_applied, changed.changes_introduced), (1, 1));
     // The probe is out of contact at both ends of the cycle.
-    assert!(samples[0].force_n.length() < 1e-9 && samples.last().unwrap().force_n.length() < 1e-9);
+    assert!(
+        samples[0].sent_force_n.length() < 1e-9
+            && samples.last().unwrap().sent_force_n.length() < 1e-9
+    );
     let with = generated_j(&samples, 0, 500.0, 4000.0);
     assert!(with <= without + 5e-5, "with {with} J, without {without} J");
     let (at_once, samples, _) = run("stiffen_in_contact.toml", passivity_off);

@@ -68,7 +68,7 @@ fn sphere_surface_force_is_normal_and_peaks_and_yields_at_s() {
     let (peak_index, peak_n) = trace
         .samples
         .iter()
-        .map(|s| s.force_n.length())
+        .map(|s| s.sent_force_n.length())
         .enumerate()
         .fold(
             (0, 0.0),
@@ -83,23 +83,23 @@ fn sphere_surface_force_is_normal_and_peaks_and_yields_at_s() {
     let peak_index = trace
         .samples
         .iter()
-        .position(|s| s.force_n.length() >= peak_n - 1e-9)
+        .position(|s| s.sent_force_n.length() >= peak_n - 1e-9)
         .unwrap_or(peak_index);
     // Before the peak, in contact: the force is normal to the ball (within 8 degrees), points out, and
     // is k times the probe's depth below the proxy on the surface.
     let mut in_contact = 0;
     for s in &trace.samples[..peak_index] {
-        let force = s.force_n.length();
+        let force = s.sent_force_n.length();
         if force < 0.2 {
             continue;
         }
         in_contact += 1;
         let outward = s.proxy_m.normalize();
         assert!(
-            s.force_n.dot(outward) / force > 0.99,
+            s.sent_force_n.dot(outward) / force > 0.99,
             "tick {}: force {:?} not normal",
             s.tick,
-            s.force_n
+            s.sent_force_n
         );
         let depth_m = s.proxy_m.length() - s.probe_m.length();
         assert!(
@@ -119,7 +119,7 @@ fn sphere_surface_force_is_normal_and_peaks_and_yields_at_s() {
     assert!(
         after
             .iter()
-            .any(|s| s.proxy_m.length() < RADIUS_M - 0.005 && s.force_n.length() < 0.5 * S_N),
+            .any(|s| s.proxy_m.length() < RADIUS_M - 0.005 && s.sent_force_n.length() < 0.5 * S_N),
         "no yield after the peak"
     );
 }
@@ -144,8 +144,8 @@ fn friction_slips_at_mu_times_the_normal_force() {
     for pair in trace.samples.windows(2) {
         let (before, s) = (&pair[0], &pair[1]);
         let normal = s.proxy_m.normalize();
-        let normal_n = s.force_n.dot(normal);
-        let tangential_n = (s.force_n - normal_n * normal).length();
+        let normal_n = s.sent_force_n.dot(normal);
+        let tangential_n = (s.sent_force_n - normal_n * normal).length();
         if normal_n < 0.2 {
             continue;
         }
@@ -367,7 +367,7 @@ fn brain_surface_exploration_on_the_mni_template() {
     let contact = trace
         .samples
         .iter()
-        .filter(|s| s.modes.primitives()[0] == 1 && s.force_n.length() > 0.05)
+        .filter(|s| s.modes.primitives()[0] == 1 && s.sent_force_n.length() > 0.05)
         .count();
     assert!(
         contact > trace.samples.len() / 4,

@@ -168,7 +168,7 @@ pub(crate) fn cells(
     push_vector(out, sample.probe_velocity_m_per_s);
     push_vector(out, sample.proxy_m);
     push_vector(out, sample.rendered_force_n);
-    push_vector(out, sample.force_n);
+    push_vector(out, sample.sent_force_n);
     for mode in 0..mode_count.min(MAX_MODES) {
         let (primitives, force_n) = sample.modes.slot(mode);
         out.push(Cell::U64(u64::from(primitives)));
@@ -235,7 +235,7 @@ pub(crate) fn sample_from_cells(
     sample.probe_velocity_m_per_s = vector(&mut next)?;
     sample.proxy_m = vector(&mut next)?;
     sample.rendered_force_n = vector(&mut next)?;
-    sample.force_n = vector(&mut next)?;
+    sample.sent_force_n = vector(&mut next)?;
     for (primitives, force_n) in sample.modes.slots_mut() {
         let (i, count) = next();
         *primitives = match count {

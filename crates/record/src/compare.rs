@@ -172,7 +172,7 @@ fn quantities(a: &TraceSample, b: &TraceSample) -> [f64; QUANTITIES.len()] {
         vector_difference(a.probe_velocity_m_per_s, b.probe_velocity_m_per_s),
         vector_difference(a.proxy_m, b.proxy_m),
         vector_difference(a.rendered_force_n, b.rendered_force_n),
-        vector_difference(a.force_n, b.force_n),
+        vector_difference(a.sent_force_n, b.sent_force_n),
         mode_force,
         float_difference(a.error_bound_m, b.error_bound_m),
     ]
@@ -253,7 +253,7 @@ mod tests {
         let a = trace(samples(100, 2));
         assert!(compare_traces(&a, &a.clone(), Tolerances::default()).passed());
         let mut b = a.clone();
-        b.samples[40].force_n.y += 2e-6;
+        b.samples[40].sent_force_n.y += 2e-6;
         let strict = compare_traces(&a, &b, Tolerances::parse("force=1e-6").unwrap());
         assert!(!strict.passed());
         let force = strict.differences[5];

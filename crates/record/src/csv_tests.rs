@@ -20,7 +20,7 @@ fn write_then_read_round_trips_exactly() {
             (read.probe_m, written.probe_m),
             (read.modes.forces_n()[2], written.modes.forces_n()[2]),
             (read.proxy_m, written.proxy_m),
-            (read.force_n, written.force_n),
+            (read.sent_force_n, written.sent_force_n),
         ] {
             assert_eq!(
                 a.to_array().map(f64::to_bits),

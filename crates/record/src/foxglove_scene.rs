@@ -538,7 +538,7 @@ impl RecordedScene {
                 sample.probe_m,
                 sample.proxy_m,
                 None,
-                sample.force_n,
+                sample.sent_force_n,
                 timestamp,
             ),
             timestamp,

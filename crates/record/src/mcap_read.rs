@@ -414,7 +414,7 @@ fn join(
     sample.probe_velocity_m_per_s = read_vector(state.probe_velocity_m_per_s);
     sample.proxy_m = read_vector(state.proxy_m);
     sample.rendered_force_n = read_vector(state.rendered_force_n);
-    sample.force_n = read_vector(state.force_n);
+    sample.sent_force_n = read_vector(state.force_n);
     sample.solver_status = SolverStatus::from_name(&solver.solver_status).ok_or_else(|| {
         McapContentError::UnknownName {
             tick: state.tick,

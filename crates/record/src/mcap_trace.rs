@@ -562,7 +562,7 @@ impl TraceWriter for McapTraceWriter {
             probe_velocity_m_per_s: sample.probe_velocity_m_per_s.to_array(),
             proxy_m: sample.proxy_m.to_array(),
             rendered_force_n: sample.rendered_force_n.to_array(),
-            force_n: sample.force_n.to_array(),
+            force_n: sample.sent_force_n.to_array(),
         };
         let solver = SolverMessage {
             tick: sample.tick,
@@ -622,7 +622,7 @@ impl TraceWriter for McapTraceWriter {
             self.proxy_transform.encode(m).map_err(encode_error)
         })?;
         put(channels.force, &|m| {
-            vector3(sample.force_n).encode(m).map_err(encode_error)
+            vector3(sample.sent_force_n).encode(m).map_err(encode_error)
         })?;
         let frame = self.frame.take_if(|frame| frame.tick <= sample.tick);
         channels

@@ -133,7 +133,7 @@ fn foxglove_topics_carry_every_tick_with_sdk_schemas() {
             FORCE_TOPIC => {
                 assert_eq!(schema, Some("foxglove.Vector3"));
                 let force = Vector3::decode(&message.data[..]).unwrap();
-                assert_eq!(force, vector3(sample.force_n));
+                assert_eq!(force, vector3(sample.sent_force_n));
                 forces.push(sample.tick);
             }
             _ => {}

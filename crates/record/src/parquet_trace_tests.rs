@@ -88,12 +88,12 @@ fn columns_are_written_with_the_measured_encodings() {
 #[test]
 fn a_bad_sample_is_flagged_and_kept() {
     let mut written = samples(5, 1);
-    written[2].force_n.x = f64::NAN;
+    written[2].sent_force_n.x = f64::NAN;
     written[3].t_s = f64::INFINITY;
     let (_dir, path) = temp_trace("t.parquet", &["surface"], &written);
     let trace = read_trace(&path).unwrap();
     assert_eq!(trace.samples.len(), 5);
-    assert!(trace.samples[2].force_n.x.is_nan());
+    assert!(trace.samples[2].sent_force_n.x.is_nan());
     assert_ne!(trace.samples[2].flags & FLAG_INVALID_VALUES, 0);
     assert_eq!(trace.samples[3].t_s, f64::INFINITY);
 }

@@ -118,7 +118,7 @@ fn degenerate_traces_still_plot() {
     plot_trace(&no_bounds, "inf", &out, 640, 480).unwrap();
     let mut jump = trace(20);
     jump.samples[10].probe_m.x = 1e6;
-    jump.samples[11].force_n.z = -1e9;
+    jump.samples[11].sent_force_n.z = -1e9;
     plot_trace(&jump, "jump", &out, 640, 480).unwrap();
 }
 
@@ -228,7 +228,7 @@ fn svg_names_the_effort_shades_flags_and_counts_outliers() {
             0
         };
     }
-    spiky.samples[1500].force_n.z = 1e4;
+    spiky.samples[1500].sent_force_n.z = 1e4;
     plot_trace(&spiky, "flags", &out, 1200, 900).unwrap();
     let text = std::fs::read_to_string(&out).unwrap();
     for expected in [
@@ -247,7 +247,7 @@ fn svg_names_the_effort_shades_flags_and_counts_outliers() {
 #[test]
 fn envelope_keeps_spikes_and_time_order() {
     let mut data = samples(100_000, 1);
-    data[55_555].force_n.x = 99.0;
+    data[55_555].sent_force_n.x = 99.0;
     let reduced = reduce(&data);
     let points = reduced.series_points(1, |v| v);
     assert!(points.len() <= 2 * 2 * 1000);
@@ -278,11 +278,14 @@ fn an_hour_of_a_3_s_circle_stays_round_and_keeps_its_extremes() {
         let angle = std::f64::consts::TAU * sample.t_s / 3.0;
         sample.probe_m = glam::DVec3::new(angle.cos(), angle.sin(), 0.0) * radius_mm * 1e-3;
         sample.proxy_m = sample.probe_m;
-        sample.force_n = glam::DVec3::new(angle.sin(), 0.0, 0.0);
+        sample.sent_force_n = glam::DVec3::new(angle.sin(), 0.0, 0.0);
         let mm = sample.probe_m * 1e3;
         (x_low, x_high) = (x_low.min(mm.x), x_high.max(mm.x));
         (y_low, y_high) = (y_low.min(mm.y), y_high.max(mm.y));
-        (f_low, f_high) = (f_low.min(sample.force_n.x), f_high.max(sample.force_n.x));
+        (f_low, f_high) = (
+            f_low.min(sample.sent_force_n.x),
+            f_high.max(sample.sent_force_n.x),
+        );
         data.push(&sample);
     }
     let (probe, _) = data.path_points(VIEW_TOP);

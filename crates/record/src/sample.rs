@@ -69,7 +69,7 @@ pub struct TraceSample {
     /// Force the renderer asked for, before the safety pipeline (N): coupling plus damping.
     pub rendered_force_n: DVec3,
     /// Force sent to the device, after the safety pipeline (N).
-    pub force_n: DVec3,
+    pub sent_force_n: DVec3,
     /// Primitives each mode emitted this tick and the force they exerted on the proxy at the solution (N),
     /// which sum to the coupling force `k (proxy - probe)` (exactly for the baselines, within
     /// `k error_bound_m` for the exact solver). Its count of modes must equal the trace's
@@ -103,7 +103,7 @@ impl TraceSample {
             probe_velocity_m_per_s: DVec3::ZERO,
             proxy_m: DVec3::ZERO,
             rendered_force_n: DVec3::ZERO,
-            force_n: DVec3::ZERO,
+            sent_force_n: DVec3::ZERO,
             modes: ModeBreakdown::zeroed(mode_count),
             solver_status: SolverStatus::Unknown,
             sweeps: 0,
@@ -125,7 +125,7 @@ impl TraceSample {
             probe_velocity_m_per_s: snapshot.probe_velocity_m_per_s,
             proxy_m: snapshot.proxy_m,
             rendered_force_n: snapshot.rendered_force_n,
-            force_n: snapshot.sent_force_n,
+            sent_force_n: snapshot.sent_force_n,
             modes: out.modes,
             solver_status: snapshot.status.into(),
             sweeps: snapshot.sweeps,
@@ -215,7 +215,7 @@ fn check_values(sample: &TraceSample) -> Result<(), TraceError> {
         ),
         ("proxy_m", sample.proxy_m.is_finite()),
         ("rendered_force_n", sample.rendered_force_n.is_finite()),
-        ("force_n", sample.force_n.is_finite()),
+        ("force_n", sample.sent_force_n.is_finite()),
     ];
     for (field, finite) in finite_fields {
         if !finite {

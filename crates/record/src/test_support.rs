@@ -70,7 +70,7 @@ pub fn samples(count: u64, mode_count: u8) -> Vec<TraceSample> {
                 probe_velocity_m_per_s: DVec3::new(-0.14 * angle.sin(), 0.14 * angle.cos(), -0.001),
                 proxy_m,
                 rendered_force_n: force_n * 1.5,
-                force_n,
+                sent_force_n: force_n,
                 modes,
                 solver_status: SolverStatus::ALL[(i % 6) as usize],
                 sweeps: (i % 5) as u32,

@@ -398,7 +398,11 @@ impl ServoLoop {
         let (anchor_m, spring_n, anchor_velocity) =
             match self.transition.anchor(probe_m, out.proxy_m, dt_s) {
                 Some((anchor_m, velocity)) => (anchor_m, k * (anchor_m - probe_m), velocity),
-                None => (out.proxy_m, out.force_n, out.proxy_velocity_m_per_s),
+                None => (
+                    out.proxy_m,
+                    out.coupling_force_n,
+                    out.proxy_velocity_m_per_s,
+                ),
             };
         self.last_anchor_m = anchor_m;
         self.last_k = k;

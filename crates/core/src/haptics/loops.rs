@@ -117,9 +117,9 @@ impl ClosedLoop {
             let out = tick(&mut state, scene, probe_m, dt_s, &mut workspace);
             if n >= steps {
                 let step_m = at(n + 1) - probe_m;
-                work_j += out.force_n.dot(step_m);
+                work_j += out.coupling_force_n.dot(step_m);
                 squared_steps_m2 += step_m.length_squared();
-                max_force_n = max_force_n.max(out.force_n.length());
+                max_force_n = max_force_n.max(out.coupling_force_n.length());
             }
         }
         Ok(LoopEnergy {

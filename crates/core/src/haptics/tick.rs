@@ -213,13 +213,14 @@ impl ModeBreakdown {
 pub struct TickOutput {
     /// The new proxy position (m).
     pub proxy_m: DVec3,
-    /// The force to send to the device, `k (proxy - probe)` (N).
-    pub force_n: DVec3,
+    /// The coupling spring's force, `k (proxy - probe)` (N): what the renderer sends before damping and the
+    /// safety pipeline.
+    pub coupling_force_n: DVec3,
     /// The proxy's velocity over the tick (m/s).
     pub proxy_velocity_m_per_s: DVec3,
     /// What each of the scene's modes contributed: its primitives, and the force they exert on the proxy at
-    /// the new position (N), from the exact solver's dual (they sum to `force_n` within `k error_bound_m`)
-    /// or the primitives' force functions for the baselines.
+    /// the new position (N), from the exact solver's dual (they sum to `coupling_force_n` within
+    /// `k error_bound_m`) or the primitives' force functions for the baselines.
     pub modes: ModeBreakdown,
     /// Exact solver: block sweeps; Euler: iterations; constraint: 1.
     pub sweeps: u32,
@@ -268,7 +269,7 @@ fn tick_inner(
     let mode_count = scene.modes().len().min(MAX_MODES);
     let mut output = TickOutput {
         proxy_m: state.proxy_m,
-        force_n: DVec3::ZERO,
+        coupling_force_n: DVec3::ZERO,
         proxy_velocity_m_per_s: DVec3::ZERO,
         modes: ModeBreakdown::zeroed(mode_count as u8),
         sweeps: 0,
@@ -399,7 +400,7 @@ fn tick_inner(
         }
     }
     output.proxy_m = proxy_m;
-    output.force_n = force_n;
+    output.coupling_force_n = force_n;
     output.proxy_velocity_m_per_s = (proxy_m - previous_proxy_m) / dt_s;
     output.status = status;
 

@@ -288,10 +288,10 @@ impl PlotData {
         self.last_s = self.last_s.max(t);
         let bucket = self.series.at(offset, Bucket::EMPTY, Bucket::merge);
         let values = [
-            sample.force_n.length(),
-            sample.force_n.x,
-            sample.force_n.y,
-            sample.force_n.z,
+            sample.sent_force_n.length(),
+            sample.sent_force_n.x,
+            sample.sent_force_n.y,
+            sample.sent_force_n.z,
             f64::from(sample.sweeps),
         ];
         for (series, value) in bucket.series.iter_mut().zip(values) {

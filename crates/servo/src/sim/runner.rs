@@ -170,7 +170,11 @@ pub fn run(
         let (anchor_m, spring_n, anchor_velocity) =
             match transition.anchor(probe_m, out.proxy_m, dt_s) {
                 Some((anchor_m, velocity)) => (anchor_m, k * (anchor_m - probe_m), velocity),
-                None => (out.proxy_m, out.force_n, out.proxy_velocity_m_per_s),
+                None => (
+                    out.proxy_m,
+                    out.coupling_force_n,
+                    out.proxy_velocity_m_per_s,
+                ),
             };
         let mut rendered_n =
             spring_n + damping_n_s_per_m * (anchor_velocity - probe_velocity_m_per_s);
@@ -261,7 +265,7 @@ pub fn run(
             probe_velocity_m_per_s,
             proxy_m: out.proxy_m,
             rendered_force_n: rendered_n,
-            force_n: period.force_n,
+            sent_force_n: period.force_n,
             modes: out.modes,
             solver_status: out.status.into(),
             sweeps: out.sweeps,

@@ -38,7 +38,7 @@ fn force_after(scene: &RenderScene, speed_m_per_s: f64, ticks: usize) -> DVec3 {
     let mut force = DVec3::ZERO;
     for n in 0..ticks {
         let probe = DVec3::X * speed_m_per_s * n as f64 * dt;
-        force = tick(&mut state, scene, probe, dt, &mut workspace).force_n;
+        force = tick(&mut state, scene, probe, dt, &mut workspace).coupling_force_n;
     }
     force
 }
@@ -189,7 +189,7 @@ fn a_released_handle_in_a_flow_gets_at_most_the_budget_and_nothing_outside_the_g
     let mut work_j = 0.0;
     let seconds = 3.0;
     for _ in 0..(seconds * RATE_HZ) as usize {
-        let force = tick(&mut state, &scene, x, dt, &mut workspace).force_n;
+        let force = tick(&mut state, &scene, x, dt, &mut workspace).coupling_force_n;
         let terminal = force / damping;
         let x_next = x + terminal * dt + (v - terminal) * (mass / damping) * (1.0 - decay);
         v = terminal + (v - terminal) * decay;

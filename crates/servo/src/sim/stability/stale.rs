@@ -151,8 +151,8 @@ pub fn stale_force(path: &Path, device_rate_hz: f64) -> Result<StaleForce, Stabi
             let velocity = arm.velocity_m_per_s();
             let force_n = device.cycle(probe_m, velocity);
             let reference = tick(&mut full, scene, probe_m, cycle_s, &mut full_ws[current]);
-            let reference_n =
-                reference.force_n + damping * (reference.proxy_velocity_m_per_s - velocity);
+            let reference_n = reference.coupling_force_n
+                + damping * (reference.proxy_velocity_m_per_s - velocity);
             if device.ramp_factor() >= 1.0 {
                 errors.push((force_n - reference_n).length());
                 speeds.push(velocity.length());

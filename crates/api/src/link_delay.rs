@@ -10,7 +10,8 @@ pub struct LinkDelayReport {
     /// Ticks the passivity observer pairs each force and the motion it meets with, now.
     pub observer_ticks: u64,
     /// Times that pairing changed while the session ran: following the median round trip the driver timed
-    /// (plus one servo period, never below the figure at open), or replaced by a reconnect's new measurement.
+    /// (plus one servo period, below the figure at open only once as many round trips were timed as it came
+    /// from), or replaced by a reconnect's new measurement.
     pub observer_changes: u64,
     /// When it last changed (s after the session started); 0 while `observer_changes` is 0.
     pub last_change_t_s: f64,

@@ -103,8 +103,9 @@ impl ObserverLatency {
             LatencyOrigin::Driver(_) | LatencyOrigin::Unknown
         ) {
             notice.push_str(
-                "; while serve runs it follows the median round trip the driver times plus one period, never below \
-                 this figure (the run summary's link delay line and /api/stats say when)",
+                "; while serve runs it follows the median round trip the driver times plus one period, below this \
+                 figure only once it has timed as many round trips as this figure came from (the run summary's link \
+                 delay line and /api/stats say when)",
             );
         }
         if self.beyond_observer {

@@ -78,8 +78,8 @@ fn the_notice_names_where_the_latency_came_from() {
          from the link latency device mock:/dev/pts/9's driver measured at open: the 95th percentile of 65 \
          round trips from a zero force to the State echoing it, at most their median plus one servo period, \
          rounded up to 0.1 ms (median 1.050 ms); while serve runs it follows the median round trip the \
-         driver times plus one period, never below this figure (the run summary's link delay line and \
-         /api/stats say when)"
+         driver times plus one period, below this figure only once it has timed as many round trips as this \
+         figure came from (the run summary's link delay line and /api/stats say when)"
     );
     let falcon =
         ObserverLatency::choose(&settings, None, Some(voxhap_device::latency::FALCON), 1e-3);

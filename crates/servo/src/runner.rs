@@ -419,12 +419,10 @@ impl ServoLoop {
         } else {
             rendered_n += external_n;
             // The passivity controller, before the safety pipeline (docs/safety.md). Its reference is the
-            // energy the force sent can give back, as the energy ledger books it (at last tick's share, the
-            // latest known): while the pipeline sends nothing (before engaging) a spring stretched by a moving
-            // handle is no energy generated, and a controller damping then would keep the rendered force
-            // above the engage threshold on a handle that keeps moving.
-            // The directed-force modes displace the proxy by their force over k: that part of the stretch
-            // is intended work, not energy stored in the coupling (crate::passivity::controller).
+            // energy the force sent can give back, as the energy ledger books it (at last tick's share): before
+            // engaging, a spring stretched by a moving handle generates nothing, and damping it would hold the
+            // rendered force above the engage threshold. The directed-force modes' part of the stretch (their
+            // force over k) is intended work, not coupling energy (crate::passivity::controller).
             let share = self.sent_share;
             let reference_j = share.reaction_energy_j(k, anchor_m - probe_m, directed_n);
             let control_n =

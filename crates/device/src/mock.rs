@@ -15,6 +15,7 @@
 
 use crate::sim::{
     ArmParams, DeviceEffects, HandParams, HandPath, SimArm, SimArmConfig, SimError, Workspace,
+    DEFAULT_SUBSTEPS_PER_TICK, DEFAULT_WALL_DAMPING_N_S_PER_M, DEFAULT_WALL_STIFFNESS_N_PER_M,
 };
 use glam::DVec3;
 use serialport::{SerialPort, TTYPort};
@@ -169,9 +170,9 @@ pub fn default_arm_config() -> SimArmConfig {
             damping_n_s_per_m: 1.0,
             workspace: Workspace::Unbounded,
             // What an `[arm]` table that leaves these keys out gets (checked in the tests below).
-            substeps_per_tick: 10,
-            wall_stiffness_n_per_m: 5000.0,
-            wall_damping_n_s_per_m: 10.0,
+            substeps_per_tick: DEFAULT_SUBSTEPS_PER_TICK,
+            wall_stiffness_n_per_m: DEFAULT_WALL_STIFFNESS_N_PER_M,
+            wall_damping_n_s_per_m: DEFAULT_WALL_DAMPING_N_S_PER_M,
             effects: DeviceEffects::default(),
         },
         hand: HandParams {

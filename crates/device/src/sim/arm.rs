@@ -12,16 +12,23 @@ use super::zoh::SubstepMapCache;
 use super::{HandDrive, HandPath, SimError};
 use crate::mapping::WorkspaceMapping;
 
+/// What an `[arm]` table that leaves `substeps_per_tick` out gets.
+pub(crate) const DEFAULT_SUBSTEPS_PER_TICK: u32 = 10;
+/// What an `[arm]` table that leaves `wall_stiffness_n_per_m` out gets (N/m).
+pub(crate) const DEFAULT_WALL_STIFFNESS_N_PER_M: f64 = 5000.0;
+/// What an `[arm]` table that leaves `wall_damping_n_s_per_m` out gets (N s/m).
+pub(crate) const DEFAULT_WALL_DAMPING_N_S_PER_M: f64 = 10.0;
+
 fn default_substeps_per_tick() -> u32 {
-    10
+    DEFAULT_SUBSTEPS_PER_TICK
 }
 
 fn default_wall_stiffness_n_per_m() -> f64 {
-    5000.0
+    DEFAULT_WALL_STIFFNESS_N_PER_M
 }
 
 fn default_wall_damping_n_s_per_m() -> f64 {
-    10.0
+    DEFAULT_WALL_DAMPING_N_S_PER_M
 }
 
 /// Where the arm can go. A table with a `shape` key, e.g. `{ shape = "sphere", center_m = [0, 0, 0],

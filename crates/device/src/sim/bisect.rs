@@ -1,6 +1,6 @@
 //! Bisection on a log scale: the boundary between a range where a test holds and one where it fails, when the
-//! range spans decades (a stability boundary in stiffness). Test support: [`super::zoh_exact`] and the tests of
-//! [`super::zoh_boundary`] search with it, each with its own stability test.
+//! range spans decades (a stability boundary in stiffness). [`super::zoh_boundary`], `zoh_exact` and the tests
+//! of `zoh_boundary` search with it, each with its own stability test.
 
 /// The boundary between `lo` (> 0), where `holds` is true, and `hi` (> `lo`), where it is false, by bisection at
 /// the geometric mean until `hi / lo` is at most `1 + rel_tol`, or until `lo` and `hi` are as close as floats get

@@ -32,7 +32,6 @@
 //! loop's stability is the servo's business.
 
 mod arm;
-#[cfg(any(test, feature = "test-support"))]
 pub mod bisect;
 pub mod effects;
 mod error;
@@ -48,6 +47,9 @@ pub mod zoh_exact;
 pub use arm::{
     ArmParams, HandParams, LocalModelSim, MissingArmKey, SimArm, SimArmConfig, StepOutcome,
     Workspace, WorkspaceShape, MAX_LOCAL_RATE_HZ,
+};
+pub(crate) use arm::{
+    DEFAULT_SUBSTEPS_PER_TICK, DEFAULT_WALL_DAMPING_N_S_PER_M, DEFAULT_WALL_STIFFNESS_N_PER_M,
 };
 pub use effects::DeviceEffects;
 pub use error::{readable, SimError};

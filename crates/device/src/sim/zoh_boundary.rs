@@ -36,6 +36,8 @@
 //! coefficients keep their precision for a lightly damped arm and a short period, and `b = 0` is allowed (the
 //! undamped arm: no positive stiffness is stable, the boundary is 0).
 
+use super::bisect::geometric_bisection;
+
 /// The most whole periods of latency [`zoh_boundary`] accepts (the polynomial has this degree plus 3).
 pub const MAX_LATENCY_PERIODS: f64 = 1000.0;
 
@@ -228,15 +230,7 @@ impl ZohLoop {
             lo = hi;
             hi *= 2.0;
         }
-        while hi / lo > 1.0 + 1e-12 {
-            let mid = (lo * hi).sqrt();
-            if self.is_stable(mid) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        Ok(lo)
+        Ok(geometric_bisection(lo, hi, 1e-12, |k| self.is_stable(k)))
     }
 }
 

@@ -5,7 +5,9 @@
 //! read beside the commanded one; an e-brake on the events channel zeroes the force on the next tick, as a
 //! device fault that says it was an emergency stop.
 
-use crate::util::inverse_service::{InverseService, Transform, REACHABLE_MAX_M, REACHABLE_MIN_M};
+use crate::util::inverse_service::{
+    stamp_of, InverseService, Transform, REACHABLE_MAX_M, REACHABLE_MIN_M,
+};
 use crate::util::inverse_ticks::{forced_tick, received_after_tick, settle, tick_stamped_force};
 use glam::{DQuat, DVec3};
 use std::sync::atomic::Ordering;
@@ -16,8 +18,10 @@ use voxhap::device::drivers::haply_inverse::{
 };
 use voxhap::device::safety::{SafetyConfig, SafetyFlags};
 use voxhap::device::supervisor::{Supervisor, SupervisorConfig, SupervisorEvent, TickInput};
-use voxhap::device::transport::inverse_service::{Configuration, ServiceConfig};
-use voxhap::device::{DeviceEvent, HapticDevice, Lifecycle};
+use voxhap::device::transport::inverse_service::{
+    Configuration, ServiceConfig, KEEPALIVE_INTERVAL,
+};
+use voxhap::device::{DeviceError, DeviceEvent, HapticDevice, Lifecycle, LifecycleError};
 
 fn config(service: &InverseService) -> HaplyInverseConfig {
     HaplyInverseConfig {
@@ -140,22 +144,78 @@ fn a_type_drift_is_named_not_reported_as_a_timeout() {
     assert!(!message.contains("µs"), "{message}");
 }
 
+/// Ticks `force` as a servo loop does (a write, then a read) until the state the driver hands out is the service
+/// double's reply to one of these forces, one the double logged after the first `since`; returns that reply's
+/// index (the double stamps it into x: `stamp`). Message 1 is the inventory; message k ≥ 2 answers the (k-1)-th
+/// force logged, the set-up's being the first (one reply per message, one connection). The only other messages
+/// are the driver's zero keepalives, so a reply to a message with a force other than zero is one to these
+/// (`force` is not zero; what the driver put in the message is not compared here: that is what is checked).
+///
+/// One write and one read are not enough whatever the timing. The driver labels a reply it reads before it has
+/// found the socket empty behind the send as answering the force before (the reply may predate the send:
+/// "Labels never younger than the state", crates/device/src/drivers/haply_inverse_link.rs), so when its I/O
+/// thread is kept off the CPU between the send and its first read, the prompt reply to a lone force goes
+/// unrecognised, and a read that waits on gets, 100 ms later, the reply to the I/O thread's zero keepalive
+/// (which has zeroed the double's arm too). So each read here waits less than the keepalive interval, and the
+/// ticks go on until the state read is the reply to one of these forces (a keepalive's reply, after a stall that
+/// long, is passed over).
+fn read_the_reply_to(
+    device: &mut Lifecycle<HaplyInverse>,
+    service: &InverseService,
+    force: DVec3,
+    since: usize,
+) -> usize {
+    assert_ne!(force, DVec3::ZERO, "a zero force is a keepalive's");
+    let start = Instant::now();
+    let mut ticks = 0u32;
+    loop {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "{ticks} ticks of {force:?} and no state read answered one; the double received {:?}",
+            service.forces()
+        );
+        ticks += 1;
+        device.write_force(force).unwrap();
+        let state = match device.read_state() {
+            Ok(state) => state,
+            // No state answering a force within the wait (the first force's reply not recognised): tick again.
+            Err(LifecycleError::Device(DeviceError::Timeout { .. })) => continue,
+            Err(error) => panic!("{error}"),
+        };
+        let index = stamp_of(state.position_m.x) as usize;
+        let answered = index
+            .checked_sub(2)
+            .filter(|&at| at >= since)
+            .and_then(|at| service.forces().get(at).copied());
+        if answered.is_some_and(|sent| sent != [0.0; 3]) {
+            return index;
+        }
+    }
+}
+
 #[test]
 fn the_force_that_reached_the_arm_is_read_beside_the_commanded_one() {
     let service = InverseService::start();
-    let mut device = Lifecycle::new(HaplyInverse::new(config(&service)));
+    service.shared.stamp.store(true, Ordering::Release);
+    // A read waits less than the keepalive interval ([`read_the_reply_to`]).
+    let config = HaplyInverseConfig {
+        reply_wait: KEEPALIVE_INTERVAL / 5,
+        ..config(&service)
+    };
+    let mut device = Lifecycle::new(HaplyInverse::new(config));
     device.open().unwrap();
     device.enable().unwrap();
     let commanded = DVec3::new(0.2, -0.1, 0.7);
-    device.write_force(commanded).unwrap();
-    device.read_state().unwrap();
-    // The double's arm got what was commanded (identity frame) and reported it as current_cursor_force.
-    assert_eq!(service.arm_force(), commanded);
+    let index = read_the_reply_to(&mut device, &service, commanded, service.forces().len());
+    // The double's arm got what was commanded (identity frame) and reported it as current_cursor_force in the
+    // reply the driver read, and the driver gives it beside the commanded one.
+    let reported = service.shared.reported_forces.lock().unwrap()[index - 1];
+    assert_eq!(DVec3::from_array(reported), commanded);
     assert_eq!(device.device().arm_force_n(), Some(commanded));
-    // After an e-brake the arm is locked and takes nothing, whatever is commanded.
+    // After an e-brake the arm is locked and takes nothing, whatever is commanded. (Past one more force: a
+    // message the double was taking while the brake engaged may still have reached the arm.)
     service.ebrake();
-    device.write_force(commanded).unwrap();
-    device.read_state().unwrap();
+    read_the_reply_to(&mut device, &service, commanded, service.forces().len() + 1);
     assert_eq!(device.device().arm_force_n(), Some(DVec3::ZERO));
     device.close().unwrap();
 }

@@ -497,11 +497,6 @@ impl InverseService {
         self.shared.configuration.lock().unwrap().clone()
     }
 
-    /// The force the arm received last (N, default frame).
-    pub fn arm_force(&self) -> DVec3 {
-        *self.shared.arm_force.lock().unwrap()
-    }
-
     /// Sends one event to every client of the events channel.
     pub fn send_event(&self, event: Value) {
         let text = event.to_string();

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use voxhap::device::drivers::protocol::{ProtocolConfig, ProtocolDevice, SerialLink};
 use voxhap::device::safety::SafetyConfig;
 use voxhap::device::supervisor::{
-    LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickInput,
+    LossReason, Supervisor, SupervisorConfig, SupervisorEvent, TickClock, TickInput,
 };
 use voxhap::device::transport::SerialTransport;
 use voxhap::device::{HapticDevice, Lifecycle};
@@ -314,7 +314,10 @@ fn host_reports_a_disconnect_outputs_zero_and_reconnects() {
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
-        let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
+        let out = supervisor.tick(TickInput {
+            clock: TickClock::Monotonic,
+            ..TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us)
+        });
         // The tick that notices a loss sent its force before noticing; from the next one on, nothing.
         if link_down {
             assert_eq!(
@@ -406,7 +409,10 @@ fn a_mute_device_is_declared_lost_after_repeated_timeouts() {
         tick += 1;
         wait_until(start + Duration::from_micros(tick * 1_000));
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
-        let out = supervisor.tick(TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us));
+        let out = supervisor.tick(TickInput {
+            clock: TickClock::Monotonic,
+            ..TickInput::at(DVec3::new(0.2, 0.0, 0.0), now_us)
+        });
         if link_down {
             assert_eq!(
                 out.sent_force_n,

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use voxhap::device::drivers::falcon::{Falcon, FalconConfig, FalconPort, LOST_REPLY_AFTER};
 use voxhap::device::drivers::in_flight::UNKNOWN_AGE;
-use voxhap::device::supervisor::{Supervisor, TickInput};
+use voxhap::device::supervisor::{Supervisor, TickClock, TickInput};
 use voxhap::device::transport::{ByteTransport, SerialTransport};
 use voxhap::device::{HapticDevice, Lifecycle};
 
@@ -428,7 +428,12 @@ fn the_force_the_falcon_receives_stays_safe_through_late_and_damaged_answers() {
             (true, _) => asked,
         };
         let now_us = u64::try_from(start.elapsed().as_micros()).unwrap();
-        output = supervisor.tick(TickInput::at(force, now_us)).output_state;
+        output = supervisor
+            .tick(TickInput {
+                clock: TickClock::Monotonic,
+                ..TickInput::at(force, now_us)
+            })
+            .output_state;
     }
     let non_finite = supervisor.safety().counters().non_finite;
     supervisor.stop();

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use voxhap::clock::{Clock, MockClock};
 use voxhap::device::supervisor::SupervisorConfig;
-use voxhap::device::supervisor::TickInput;
+use voxhap::device::supervisor::{TickClock, TickInput};
 use voxhap::haptics::modes::{ModeConfig, ModeKind, TransferFunction};
 use voxhap::record::{TraceSample, FLAG_COMPUTE_OVER_BUDGET, FLAG_OVERRUN, FLAG_SAMPLES_DROPPED};
 use voxhap::servo::device::{open_device, DeviceSpec};
@@ -187,6 +187,9 @@ impl Waiter for RecordingWaiter {
     fn clock(&self) -> &dyn Clock {
         self.inner.clock()
     }
+    fn tick_clock(&self) -> TickClock {
+        self.inner.tick_clock()
+    }
 }
 
 #[test]
@@ -283,6 +286,10 @@ impl Waiter for SlowClockWaiter {
     }
     fn clock(&self) -> &dyn Clock {
         self
+    }
+    fn tick_clock(&self) -> TickClock {
+        // Simulated: its time passes only where the loop reads it, never inside the exchange.
+        TickClock::Virtual
     }
 }
 

@@ -137,6 +137,7 @@ impl ServoDevice for ScriptedDevice {
     fn connect(&mut self, _now_us: u64) -> Result<(), ConnectError> {
         Ok(())
     }
+    fn restart_clock(&mut self, _now_us: u64) {}
     fn info(&self) -> Option<DeviceInfo> {
         None
     }

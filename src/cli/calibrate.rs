@@ -9,7 +9,7 @@
 //! An existing file is never replaced without `--force`.
 
 use crate::device::profile::{builtin_text, DeviceProfile};
-use crate::device::supervisor::{SupervisorConfig, TickInput};
+use crate::device::supervisor::{SupervisorConfig, TickClock, TickInput};
 use crate::servo::device::{open_device, spec_family, DeviceSpec};
 use anyhow::Context;
 use glam::DVec3;
@@ -129,6 +129,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         let out = device.exchange(TickInput {
             force_n: DVec3::ZERO,
             now_us: started.elapsed().as_micros() as u64,
+            clock: TickClock::Monotonic,
             on_time: true,
             force_valid: false,
             local: None,

@@ -31,10 +31,14 @@
 //!   [`HapticDevice::state_age_ticks`]) is not used to compute force: zero is sent instead (`STALE_STATE`).
 //! - **When a state was taken.** The input checks time each state by the exchange that brought it
 //!   ([`SampleTime`]): taken no earlier than the tick that sent the force it answers (its age, counted back over
-//!   the forces written on this link) and no later than when `read_state` returned (the tick's clock plus the
-//!   time the tick had taken by then, on the host's monotonic clock). A state that came late in its tick (the
-//!   servo thread kept off the CPU during the exchange) or an earlier one handed out again is then not refused
-//!   as a jump for the host's own delay.
+//!   the forces written on this link) and no later than when `read_state` returned, on the caller's clock
+//!   ([`TickClock`]): on the host's monotonic clock, the tick's clock plus the time the tick had taken by then;
+//!   on a virtual clock, which stands still during a tick, the tick's clock. A state that came late in its tick
+//!   (the servo thread kept off the CPU during the exchange) or an earlier one handed out again is then not
+//!   refused as a jump for the host's own delay, and a virtual clock's window is not widened by real time.
+//! - **A clock that starts over** ([`Supervisor::restart_clock`]): the servo loop starts its clock after a
+//!   set-up the clock did not see; the input checks then forget the last reading, so a handle moved meanwhile is
+//!   not refused as a jump.
 //! - **Pose verdict.** After checking each state, the supervisor tells the driver whether its position was
 //!   accepted ([`HapticDevice::input_checked`]), so a driver that converts force with a pose it read itself
 //!   never converts with a rejected one. A driver's report of messages nobody asked for
@@ -70,7 +74,8 @@ pub use crate::supervisor_config::{
     SupervisorConfig, SupervisorConfigError, CONNECT_TIMEOUT_RANGE_US,
 };
 pub use crate::supervisor_tick::{
-    EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, TickInput, TickOutput,
+    EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, TickClock, TickInput,
+    TickOutput,
 };
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -304,6 +309,16 @@ where
         self.surplus_on_link = 0;
         self.write_times = WriteTimes::new(now_us);
         self.counters.connects += 1;
+    }
+
+    /// The caller's clock starts over at `now_us` (the servo loop starts its clock after a set-up of unknown
+    /// length): the input checks forget the last reading and the link's times restart here, so the first
+    /// reading on the new clock is neither refused as a jump nor counted late for time that passed unseen.
+    /// The checks apply again from the next reading on. Allocation-free.
+    pub fn restart_clock(&mut self, now_us: u64) {
+        self.input.reset();
+        self.write_times = WriteTimes::new(now_us);
+        self.last_fresh_us = now_us;
     }
 
     /// With `false`, a tick without a device no longer calls the opener: another thread reopens the device and
@@ -638,7 +653,12 @@ where
             self.write_times.wrote(now_us);
         }
         let result = written.and_then(|()| device.read_state());
-        let elapsed_us = u64::try_from(entered.elapsed().as_micros()).unwrap_or(u64::MAX);
+        let elapsed_us = match input.clock {
+            TickClock::Monotonic => {
+                u64::try_from(entered.elapsed().as_micros()).unwrap_or(u64::MAX)
+            }
+            TickClock::Virtual => 0,
+        };
         if local.is_some() {
             // What the device applied, as it last reported it (zero before its first report).
             out.local = device.device().local_report();

@@ -57,9 +57,19 @@ impl HapticDevice for Scripted {
     }
 }
 
-/// Ticks the script at the servo clock's `times_us` (connected at the first): the ticks whose reading was
-/// refused, by index.
+/// Ticks the script at the host's monotonic servo clock's `times_us` (connected at the first): the ticks whose
+/// reading was refused, by index.
 fn refused(reads: Vec<Read>, times_us: &[u64]) -> Vec<usize> {
+    refused_on(reads, times_us, TickClock::Monotonic, None)
+}
+
+/// [`refused`] on `clock`, the clock restarting before tick `restart` ([`Supervisor::restart_clock`]) when given.
+fn refused_on(
+    reads: Vec<Read>,
+    times_us: &[u64],
+    clock: TickClock,
+    restart: Option<usize>,
+) -> Vec<usize> {
     let mut device = Some(Scripted {
         info: DeviceInfo::basic("scripted", DVec3::splat(-0.1), DVec3::splat(0.1)),
         reads: reads.into(),
@@ -75,8 +85,14 @@ fn refused(reads: Vec<Read>, times_us: &[u64]) -> Vec<usize> {
     times_us
         .iter()
         .enumerate()
-        .filter(|&(_, &now_us)| {
-            let out = supervisor.tick(TickInput::at(DVec3::ZERO, now_us));
+        .filter(|&(tick, &now_us)| {
+            if restart == Some(tick) {
+                supervisor.restart_clock(now_us);
+            }
+            let out = supervisor.tick(TickInput {
+                clock,
+                ..TickInput::at(DVec3::ZERO, now_us)
+            });
             assert!(out.connected, "{out:?}");
             out.flags.contains(SafetyFlags::POSITION_REJECTED)
         })
@@ -126,4 +142,65 @@ fn a_jump_beyond_the_speed_limit_is_still_refused() {
     };
     let reads = vec![fresh(0), fresh(1_000), jump, fresh(3_000)];
     assert_eq!(refused(reads, &[0, 1_000, 2_000, 3_000]), vec![2]);
+}
+
+#[test]
+fn on_a_virtual_clock_real_time_inside_the_exchange_does_not_widen_the_window() {
+    // The reads of the late-reading test above, on a clock that stands still during a tick (a test's
+    // `tick × period`): the 15 ms the read takes in real time are not time on that clock. The reading at the
+    // 1.5 ms tick is 7.75 mm on from the one at 1 ms, and only 0.5 ms passed on this clock: 3.0 mm allowed.
+    let late = Read {
+        takes: Duration::from_millis(15),
+        ..fresh(16_500)
+    };
+    let reads = vec![fresh(0), fresh(1_000), late, fresh(17_000)];
+    let times_us = [0, 1_000, 1_500, 17_000];
+    assert_eq!(
+        refused_on(reads, &times_us, TickClock::Virtual, None),
+        vec![2]
+    );
+}
+
+/// The handle at 0.5 m/s, read once at connect (0 ms); the servo clock then restarts at 0 after a set-up of
+/// 50 ms it did not see, so the reading at its first tick is 25 mm on. Ticks 1 ms apart follow (0.5 mm each,
+/// 5.5 mm allowed), one of them 5 cm off the path.
+fn reads_across_a_restart() -> Vec<Read> {
+    vec![
+        fresh(0),
+        fresh(50_000),
+        fresh(51_000),
+        Read {
+            // 5 cm beyond the handle's path in 1 ms: a jump whichever way time is counted.
+            x_m: fresh(52_000).x_m + 0.05,
+            ..fresh(52_000)
+        },
+        fresh(53_000),
+    ]
+}
+
+#[test]
+fn a_clock_that_starts_over_after_a_set_up_does_not_refuse_a_handle_moved_meanwhile() {
+    // Without the restart every reading after the connect's is judged against it as if the set-up took no time:
+    // 25 mm in 0 ms (0.5 mm allowed), 25.5 mm in 1 ms (5.5 mm), the jump, 26.5 mm in 3 ms (15.5 mm): all refused.
+    // After the restart the first reading starts the history afresh and the checks hold again from the next
+    // one: only the 5 cm jump is refused (the last reading is 1 mm on from tick 2's in 2 ms: 10.5 mm allowed).
+    let times_us = [0, 0, 1_000, 2_000, 3_000];
+    assert_eq!(
+        refused_on(
+            reads_across_a_restart(),
+            &times_us,
+            TickClock::Virtual,
+            None
+        ),
+        vec![1, 2, 3, 4]
+    );
+    assert_eq!(
+        refused_on(
+            reads_across_a_restart(),
+            &times_us,
+            TickClock::Virtual,
+            Some(1)
+        ),
+        vec![3]
+    );
 }

@@ -7,6 +7,18 @@ use crate::safety::SafetyFlags;
 use crate::{DeviceEvent, DeviceState, ErrorKind};
 use glam::DVec3;
 
+/// What kind of clock a tick's `now_us` is read from, which decides when the supervisor says a reading was
+/// handed over (the late end of its [`SampleTime`](crate::plausibility::SampleTime)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TickClock {
+    /// The host's monotonic clock (a servo loop in real time): time passes during the exchange, and a reading
+    /// was handed over at `now_us` plus the time the tick had taken when `read_state` returned.
+    Monotonic,
+    /// A clock that stands still during a tick (a simulated clock, or a test's `tick × period`): a reading was
+    /// handed over at `now_us`, however long the exchange took in real time.
+    Virtual,
+}
+
 /// What the servo loop hands the supervisor each tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TickInput {
@@ -14,6 +26,8 @@ pub struct TickInput {
     pub force_n: DVec3,
     /// The servo clock (µs).
     pub now_us: u64,
+    /// What `now_us` is read from.
+    pub clock: TickClock,
     /// This tick started on time (the servo loop runs steadily): required before enabling.
     pub on_time: bool,
     /// `force_n` was computed from a fresh, plausible device sample (a tick without one renders zero, which
@@ -25,11 +39,13 @@ pub struct TickInput {
 }
 
 impl TickInput {
-    /// An on-time tick whose force came from a valid sample (tests and simple callers).
+    /// An on-time tick whose force came from a valid sample, on a [`TickClock::Virtual`] clock (tests and
+    /// simple callers; a caller on the host's clock sets `clock: TickClock::Monotonic`).
     pub fn at(force_n: DVec3, now_us: u64) -> TickInput {
         TickInput {
             force_n,
             now_us,
+            clock: TickClock::Virtual,
             on_time: true,
             force_valid: true,
             local: None,

@@ -458,12 +458,13 @@ impl ServoLoop {
         let local =
             crate::local_model::offer(self.bundle.workspace.primitives(), k, damping, out.proxy_m)
                 .with_passivity(self.local_passivity);
-        // Read just before the exchange: the supervisor times the states it reads from here.
+        // Read just before the exchange: the supervisor times the states it reads from here, on this clock.
         let exchange_start_ns = waiter.now_ns();
         let now_us = exchange_start_ns.saturating_sub(self.origin_ns) / 1000;
         let device_out = self.device.exchange(TickInput {
             force_n: rendered_n,
             now_us,
+            clock: waiter.tick_clock(),
             on_time,
             force_valid,
             local: Some(local),
@@ -627,8 +628,7 @@ impl ServoLoop {
         self.ledger
             .book_passivity(self.passivity.totals().dissipated_j);
         let totals = if input.rendered_from_state {
-            // The directed-force modes' share of the force is intended work (crate::energy).
-            // The external force is meant to do work too.
+            // The directed-force modes' share of the force and the external force are intended work (crate::energy).
             let active_n = input.external_force_n + input.directed_n;
             // The spring holds what the force actually sent can give back (crate::energy::SentShare).
             let coupling_j = self.sent_share.reaction_energy_j(

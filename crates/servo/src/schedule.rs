@@ -15,6 +15,7 @@
 //! deterministically.
 
 use std::sync::Arc;
+use voxhap_device::supervisor::TickClock;
 use voxhap_solver::clock::{Clock, MockClock};
 
 /// Waits for absolute deadlines on some clock.
@@ -25,6 +26,8 @@ pub trait Waiter: Send {
     fn wait_until(&mut self, deadline_ns: u64);
     /// The clock behind the waiter, for the solver's time budget.
     fn clock(&self) -> &dyn Clock;
+    /// What kind of clock it is, for the supervisor's timing of the readings a tick brings.
+    fn tick_clock(&self) -> TickClock;
 }
 
 /// `CLOCK_MONOTONIC` in nanoseconds (the clock `clock_nanosleep` sleeps on).
@@ -94,6 +97,10 @@ impl Waiter for SpinSleepWaiter {
     fn clock(&self) -> &dyn Clock {
         &self.clock
     }
+
+    fn tick_clock(&self) -> TickClock {
+        TickClock::Monotonic
+    }
 }
 
 /// A waiter on a [`MockClock`]: `wait_until` sets the clock to the deadline plus the next scripted lateness
@@ -134,6 +141,11 @@ impl Waiter for MockWaiter {
 
     fn clock(&self) -> &dyn Clock {
         &*self.clock
+    }
+
+    fn tick_clock(&self) -> TickClock {
+        // Advanced only by the waits: it stands still during a tick.
+        TickClock::Virtual
     }
 }
 

@@ -45,7 +45,7 @@ use voxhap_api::{
     Snapshot, StatsReport,
 };
 use voxhap_device::safety::CouplingCaps;
-use voxhap_device::supervisor::{SupervisorConfig, TickInput};
+use voxhap_device::supervisor::{SupervisorConfig, TickClock, TickInput};
 use voxhap_record::{TraceError, TraceFormat, TraceSummary};
 
 /// Slowest and fastest servo rates accepted (Hz).
@@ -241,6 +241,7 @@ impl Session {
             .exchange(TickInput {
                 force_n: DVec3::ZERO,
                 now_us: 0,
+                clock: TickClock::Monotonic,
                 on_time: false,
                 force_valid: false,
                 local: None,
@@ -365,6 +366,9 @@ impl Session {
                 thread_stats.set_realtime(report);
                 let mut waiter = SpinSleepWaiter::new(spin_ns);
                 let origin_ns = waiter.now_ns() + period_ns;
+                // The loop's clock starts at 0 again after the set-up since the first exchange above.
+                let mut device = device;
+                device.restart_clock(0);
                 let mut servo = ServoLoop::new(
                     Box::new(bundle),
                     device,
@@ -636,6 +640,10 @@ pub fn check_record_path(path: &Path) -> Result<(), MissingRecordDirectory> {
         _ => Ok(()),
     }
 }
+
+#[cfg(test)]
+#[path = "session_start_tests.rs"]
+mod start_tests;
 
 #[cfg(test)]
 #[path = "session_stop_tests.rs"]

@@ -34,6 +34,8 @@ pub trait ServoDevice: Send {
     fn stop(&mut self);
     /// Opens the device now (before the loop starts), so a missing device fails `serve` at once.
     fn connect(&mut self, now_us: u64) -> Result<(), ConnectError>;
+    /// The servo clock starts over at `now_us` after a set-up it did not see ([`Supervisor::restart_clock`]).
+    fn restart_clock(&mut self, now_us: u64);
     /// The device's capabilities, while connected.
     fn info(&self) -> Option<DeviceInfo>;
     /// The servo period (µs), for the slew limit.
@@ -115,6 +117,10 @@ macro_rules! forward_to_wrapped {
         fn set_period_us(&mut self, period_us: u64) {
             self.$inner.set_period_us(period_us);
         }
+
+        fn restart_clock(&mut self, now_us: u64) {
+            self.$inner.restart_clock(now_us);
+        }
     };
 }
 pub(crate) use forward_to_wrapped;
@@ -182,6 +188,10 @@ where
 
     fn set_period_us(&mut self, period_us: u64) {
         Supervisor::set_period_us(self, period_us);
+    }
+
+    fn restart_clock(&mut self, now_us: u64) {
+        Supervisor::restart_clock(self, now_us);
     }
 
     fn set_stop_slot(&mut self, slot: Arc<StopSlot>) {

@@ -1,0 +1,92 @@
+//! The session's start: it connects and reads the first state before the servo loop starts its clock, and the
+//! set-up in between is time that clock does not see. A device double whose first answer comes 60 ms after it
+//! was taken (a slow first reply) while the handle moves at 0.1 m/s: by the loop's first tick the handle is
+//! 6 mm on, far past the 0.5 mm the input checks allow for no time at all. The session must not refuse the
+//! readings of a handle that moved while it set up.
+
+use super::*;
+use crate::device::{OpenedDevice, Reconnecting};
+use std::time::Instant;
+use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
+
+/// The handle's speed along x (m/s), from `START_X_M`, stopping at `END_X_M` (inside the ±0.1 m workspace).
+const SPEED_M_PER_S: f64 = 0.1;
+const START_X_M: f64 = -0.09;
+const END_X_M: f64 = 0.09;
+/// How long the first answer takes after the state it carries was taken.
+const FIRST_REPLY: Duration = Duration::from_millis(60);
+
+/// What the double saw, shared with the test.
+#[derive(Debug, Default)]
+struct Seen {
+    forces: usize,
+}
+
+struct MovingHandle {
+    info: DeviceInfo,
+    started: Option<Instant>,
+    seen: Arc<Mutex<Seen>>,
+}
+
+impl HapticDevice for MovingHandle {
+    type Error = DeviceError;
+
+    fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
+        self.seen.lock().unwrap().forces += 1;
+        Ok(())
+    }
+
+    fn read_state(&mut self) -> Result<DeviceState, DeviceError> {
+        let first = self.started.is_none();
+        let started = *self.started.get_or_insert_with(Instant::now);
+        let x_m = (START_X_M + SPEED_M_PER_S * started.elapsed().as_secs_f64()).min(END_X_M);
+        if first {
+            std::thread::sleep(FIRST_REPLY);
+        }
+        Ok(DeviceState::at_rest(DVec3::new(x_m, 0.0, 0.0)))
+    }
+}
+
+#[test]
+fn a_handle_moved_while_the_session_set_up_is_not_refused() {
+    let seen = Arc::new(Mutex::new(Seen::default()));
+    let opener_seen = seen.clone();
+    let mut opened = false;
+    let opener = move || {
+        // One device: a reconnect (after a link dropped for refused readings) would start the handle over.
+        if std::mem::replace(&mut opened, true) {
+            return Err(DeviceError::Protocol { what: "reopened" });
+        }
+        Ok(MovingHandle {
+            info: DeviceInfo::basic("moving handle", DVec3::splat(-0.1), DVec3::splat(0.1)),
+            started: None,
+            seen: opener_seen.clone(),
+        })
+    };
+    let device = Reconnecting::new(SupervisorConfig::default(), Box::new(opener)).unwrap();
+    let opened = OpenedDevice {
+        device: Box::new(device),
+        hand_target: None,
+    };
+    let config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
+    let session = Session::start_opened(config, opened).unwrap();
+    let limit = Instant::now() + Duration::from_secs(60);
+    while seen.lock().unwrap().forces < 200 && Instant::now() < limit {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let summary = session.stop();
+    assert!(
+        seen.lock().unwrap().forces >= 200,
+        "the loop wrote only {} forces in a minute",
+        seen.lock().unwrap().forces
+    );
+    let safety = &summary.stats.safety;
+    assert_eq!(
+        safety.positions_rejected, 0,
+        "readings of the moving handle were refused: {safety:?}"
+    );
+}

@@ -95,8 +95,12 @@ fn hfab_exerted_force(raw: [i32; 3], currents_ma: [i32; 3]) -> DVec3 {
 }
 
 fn open(path: &str) -> Lifecycle<WoodenHapticsSerial<SerialTransport>> {
+    open_with(path, patient_config())
+}
+
+fn open_with(path: &str, config: WoodyConfig) -> Lifecycle<WoodenHapticsSerial<SerialTransport>> {
     let transport = SerialTransport::open(path, 115_200).unwrap();
-    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, patient_config()));
+    let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, config));
     device.open().unwrap();
     device
 }
@@ -129,7 +133,13 @@ fn an_unknown_model_is_refused_at_open() {
 #[test]
 fn encoders_give_the_hfabapi_position_and_forces_the_jacobian_transpose_currents() {
     let firmware = WoodyFirmware::start(3);
-    let mut device = open(firmware.path());
+    // Each read waits for the answer to its own command, however slow a busy machine makes it: this test checks
+    // the kinematics, not the link's timing (5 ms was once too short for the double's first answer).
+    let waiting = WoodyConfig {
+        reply_timeout: Duration::from_secs(20),
+        ..patient_config()
+    };
+    let mut device = open_with(firmware.path(), waiting);
     device.enable().unwrap();
     // Home pose: hfab_api.cpp:106 adds (0, 0, -6000), so raw zeros are the right-angle pose; hfab_kinematics.cpp
     // 229-231 put the handle at (Lc - ox, 0, Ln + Lb - oz) = (0.025, 0, 0.205).

@@ -13,8 +13,8 @@ use voxhap::clock::MockClock;
 use voxhap::device::plausibility::InputCounters;
 use voxhap::device::safety::SafetyFlags;
 use voxhap::device::supervisor::{
-    ClearFaultOutcome, EventList, OutputState, SupervisorConfig, SupervisorCounters, TickInput,
-    TickOutput,
+    ClearFaultOutcome, EventList, OutputState, SupervisorConfig, SupervisorCounters,
+    SupervisorOutput, TickInput,
 };
 use voxhap::device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 use voxhap::record::{ForceOffCause, TraceSample};
@@ -98,11 +98,11 @@ struct ScriptedDevice {
 }
 
 impl ServoDevice for ScriptedDevice {
-    fn exchange(&mut self, input: TickInput) -> TickOutput {
+    fn exchange(&mut self, input: TickInput) -> SupervisorOutput {
         self.tick += 1;
         let (position_m, output_state, flags, active_faults) = (self.script)(self.tick);
         let connected = output_state != OutputState::Disconnected;
-        TickOutput {
+        SupervisorOutput {
             state: connected.then(|| DeviceState::at_rest(position_m)),
             stale: false,
             sent_force_n: if output_state == OutputState::Engaged {

@@ -74,8 +74,8 @@ pub use crate::supervisor_config::{
     SupervisorConfig, SupervisorConfigError, CONNECT_TIMEOUT_RANGE_US,
 };
 pub use crate::supervisor_tick::{
-    EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, TickClock, TickInput,
-    TickOutput,
+    EventList, LossReason, OutputState, SupervisorCounters, SupervisorEvent, SupervisorOutput,
+    TickClock, TickInput,
 };
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -354,7 +354,13 @@ where
         }
     }
 
-    fn lose(&mut self, kind: ErrorKind, reason: LossReason, now_us: u64, out: &mut TickOutput) {
+    fn lose(
+        &mut self,
+        kind: ErrorKind,
+        reason: LossReason,
+        now_us: u64,
+        out: &mut SupervisorOutput,
+    ) {
         if let Some(mut device) = self.device.take() {
             // Zero and Disable while the port may still take them; the close happens off this thread.
             match device.state() {
@@ -399,7 +405,7 @@ where
         }
     }
 
-    fn on_event(&mut self, event: DeviceEvent, now_us: u64, out: &mut TickOutput) {
+    fn on_event(&mut self, event: DeviceEvent, now_us: u64, out: &mut SupervisorOutput) {
         out.report(&mut self.counters, SupervisorEvent::Device(event));
         match event {
             DeviceEvent::Fault {
@@ -436,7 +442,13 @@ where
 
     /// A Rejected event: "no session" loses the link; an Enable refused as faulted falls back to Faulted, for
     /// any other reason to Refused; any other rejected message is only counted.
-    fn on_rejected(&mut self, message_type: u8, reason: u8, now_us: u64, out: &mut TickOutput) {
+    fn on_rejected(
+        &mut self,
+        message_type: u8,
+        reason: u8,
+        now_us: u64,
+        out: &mut SupervisorOutput,
+    ) {
         self.counters.rejections += 1;
         if reason == REJECT_NO_SESSION {
             self.lose(ErrorKind::Protocol, LossReason::SessionLost, now_us, out);
@@ -449,7 +461,7 @@ where
         }
     }
 
-    fn observe_status(&mut self, status: DeviceStatus, now_us: u64, out: &mut TickOutput) {
+    fn observe_status(&mut self, status: DeviceStatus, now_us: u64, out: &mut SupervisorOutput) {
         self.last_status = Some(status);
         out.active_faults = status.active_faults | self.event_faults;
         if status.faulted && !matches!(self.drive, Drive::Faulted) {
@@ -480,7 +492,7 @@ where
         }
     }
 
-    fn enable_now(&mut self, now_us: u64, out: &mut TickOutput) {
+    fn enable_now(&mut self, now_us: u64, out: &mut SupervisorOutput) {
         let Some(device) = self.device.as_mut() else {
             return;
         };
@@ -505,7 +517,7 @@ where
     }
 
     /// `usable`: this tick ended with a state within the staleness bound (force may be computed from it).
-    fn advance_drive(&mut self, input: &TickInput, usable: bool, out: &mut TickOutput) {
+    fn advance_drive(&mut self, input: &TickInput, usable: bool, out: &mut SupervisorOutput) {
         let steady = usable && input.on_time;
         match self.drive {
             Drive::Starting { steady_ticks } => {
@@ -556,12 +568,12 @@ where
 
     /// One servo tick: decide what may be sent, send it, read and check the answer, handle the device's
     /// events and status, move the drive state, and handle losses and reconnection.
-    pub fn tick(&mut self, input: TickInput) -> TickOutput {
+    pub fn tick(&mut self, input: TickInput) -> SupervisorOutput {
         let now_us = input.now_us;
         // The states this tick reads are timed from here (module docs).
         let entered = Instant::now();
         self.counters.ticks += 1;
-        let mut out = TickOutput::idle(self.last_state);
+        let mut out = SupervisorOutput::idle(self.last_state);
         if let Some(flag) = &self.stall_flag {
             if flag.swap(false, Ordering::AcqRel) && self.device.is_some() {
                 self.counters.stall_stops += 1;

@@ -1,4 +1,4 @@
-//! What passes between the servo loop and the supervisor each tick: [`TickInput`] in, [`TickOutput`] out with
+//! What passes between the servo loop and the supervisor each tick: [`TickInput`] in, [`SupervisorOutput`] out with
 //! its [`SupervisorEvent`]s (a fixed-size [`EventList`], so a tick does not allocate), and the running
 //! [`SupervisorCounters`].
 
@@ -150,7 +150,7 @@ impl EventList {
 
 /// The result of one tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TickOutput {
+pub struct SupervisorOutput {
     /// The newest plausible state known (`None` before the first one, and after a reconnect until the first).
     pub state: Option<DeviceState>,
     /// True if `state` did not come from this tick's exchange (or its position was held).
@@ -172,9 +172,9 @@ pub struct TickOutput {
     pub local: Option<LocalReport>,
 }
 
-impl TickOutput {
-    pub(crate) fn idle(state: Option<DeviceState>) -> TickOutput {
-        TickOutput {
+impl SupervisorOutput {
+    pub(crate) fn idle(state: Option<DeviceState>) -> SupervisorOutput {
+        SupervisorOutput {
             state,
             stale: true,
             sent_force_n: DVec3::ZERO,

@@ -12,7 +12,7 @@
 use voxhap_api::ForceOffCause;
 use voxhap_core::haptics::tick::TickStatus;
 use voxhap_device::safety::SafetyFlags;
-use voxhap_device::supervisor::{LossReason, OutputState, SupervisorEvent, TickOutput};
+use voxhap_device::supervisor::{LossReason, OutputState, SupervisorEvent, SupervisorOutput};
 use voxhap_device::DeviceEvent;
 
 /// Remembers the reasons the supervisor reports once (module docs).
@@ -29,7 +29,7 @@ impl ForceOffTracker {
     /// force was replaced for not being finite when `force_replaced`.
     pub fn cause(
         &mut self,
-        out: &TickOutput,
+        out: &SupervisorOutput,
         status: TickStatus,
         force_replaced: bool,
     ) -> ForceOffCause {

@@ -25,7 +25,7 @@ use std::sync::{Arc, OnceLock};
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_device::profile::{DeviceProfile, MappingChoice};
 use voxhap_device::safety::DEFAULT_MAX_STIFFNESS_N_PER_M;
-use voxhap_device::supervisor::{TickInput, TickOutput};
+use voxhap_device::supervisor::{SupervisorOutput, TickInput};
 use voxhap_device::{DeviceInfo, ErrorKind};
 
 /// Where [`MappedDevice::connect`] leaves the mapping it settled on, for a device that needs it itself (the
@@ -96,7 +96,7 @@ impl MappedDevice {
 }
 
 impl ServoDevice for MappedDevice {
-    fn exchange(&mut self, mut input: TickInput) -> TickOutput {
+    fn exchange(&mut self, mut input: TickInput) -> SupervisorOutput {
         input.force_n = self.mapping.to_device_force_n(input.force_n);
         let mapping = self.mapping;
         input.local = input.local.map(|offer| {
@@ -312,7 +312,12 @@ mod tests {
         (device, position, forces)
     }
 
-    fn run(device: &mut MappedDevice, now_us: &mut u64, force_n: DVec3, ticks: u64) -> TickOutput {
+    fn run(
+        device: &mut MappedDevice,
+        now_us: &mut u64,
+        force_n: DVec3,
+        ticks: u64,
+    ) -> SupervisorOutput {
         let mut out = None;
         for _ in 0..ticks {
             *now_us += 1000;

@@ -620,7 +620,7 @@ impl ServoLoop {
     /// safety pipeline sent) and names why the force is off: the tick's truth.
     fn book_truth(
         &mut self,
-        device_out: &voxhap_device::supervisor::TickOutput,
+        device_out: &voxhap_device::supervisor::SupervisorOutput,
         out: &voxhap_core::haptics::tick::TickOutput,
         input: TruthInput,
     ) -> TickTruth {
@@ -675,7 +675,7 @@ impl ServoLoop {
     /// when a (new) device connected.
     fn publish_safety(
         &mut self,
-        device_out: &voxhap_device::supervisor::TickOutput,
+        device_out: &voxhap_device::supervisor::SupervisorOutput,
         tick_index: u64,
         period_s: f64,
     ) {

@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use voxhap_device::supervisor::{Supervisor, SupervisorConfig, TickInput, TickOutput};
+use voxhap_device::supervisor::{Supervisor, SupervisorConfig, SupervisorOutput, TickInput};
 use voxhap_device::Lifecycle;
 use voxhap_device::{DeviceError, DeviceInfo, ErrorKind, HapticDevice};
 
@@ -275,7 +275,7 @@ impl<D: HapticDevice + Send> Connector<D> {
 }
 
 impl<D: HapticDevice + Send + 'static> ServoDevice for Reconnecting<D> {
-    fn exchange(&mut self, input: TickInput) -> TickOutput {
+    fn exchange(&mut self, input: TickInput) -> SupervisorOutput {
         let mut attached = false;
         if !self.supervisor.is_connected() {
             if let Ok(device) = self.opened.pop() {

@@ -8,14 +8,14 @@ use voxhap_device::latency::{LinkDelaySeen, LinkLatency};
 use voxhap_device::mapping::WorkspaceMapping;
 use voxhap_device::plausibility::InputCounters;
 use voxhap_device::supervisor::{
-    ClearFaultOutcome, OutputState, Supervisor, SupervisorCounters, TickInput, TickOutput,
+    ClearFaultOutcome, OutputState, Supervisor, SupervisorCounters, SupervisorOutput, TickInput,
 };
 use voxhap_device::{DeviceError, DeviceInfo, HapticDevice};
 
 /// The device as the servo thread sees it: one exchange per tick, plus a few queries.
 pub trait ServoDevice: Send {
     /// Makes the tick's force safe, sends it and reads the answering state (see [`Supervisor::tick`]).
-    fn exchange(&mut self, input: TickInput) -> TickOutput;
+    fn exchange(&mut self, input: TickInput) -> SupervisorOutput;
     /// The supervisor's counters.
     fn counters(&self) -> SupervisorCounters;
     /// The input checks' counters.
@@ -130,7 +130,7 @@ where
     D: HapticDevice + Send,
     F: FnMut() -> Result<D, DeviceError> + Send,
 {
-    fn exchange(&mut self, input: TickInput) -> TickOutput {
+    fn exchange(&mut self, input: TickInput) -> SupervisorOutput {
         self.tick(input)
     }
 

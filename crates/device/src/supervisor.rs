@@ -19,30 +19,22 @@
 //!
 //! - Force leaves the host only in `Enabled`, and only while the device's own status (where it reports one)
 //!   says enabled; otherwise every write is an explicit zero and the tick is flagged `DEVICE_NOT_ENABLED`.
-//! - Every fault and refusal is reported once, as a [`SupervisorEvent`] (the session prints it, counts it and
-//!   shows it on the page). A fault that needs a person is never cleared here: only
-//!   [`Supervisor::request_clear_fault`], which the operator's `clear_fault` command calls, sends ClearFault.
+//! - Every fault and refusal is reported once, as a [`SupervisorEvent`]. A fault that needs a person is never
+//!   cleared here: only [`Supervisor::request_clear_fault`] (the operator's `clear_fault`) sends ClearFault.
 //! - **Link health.** The link is dropped after `max_consecutive_errors` failed exchanges in a row (timeouts,
 //!   corrupted frames, anything but a hang-up, which drops it at once), after `link_timeout_us` without a
 //!   valid state, or after a run of implausible positions. Before it is dropped the host writes zero and
 //!   Disable if the port still takes writes; the dead device is handed out ([`Supervisor::take_lost`]) to be
-//!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods (counted from
-//!   the force it answers: a driver that hands out an earlier answer says how old it is,
-//!   [`HapticDevice::state_age_ticks`]) is not used to compute force: zero is sent instead (`STALE_STATE`).
-//! - **When a state was taken.** The input checks time each state by the exchange that brought it
-//!   ([`SampleTime`]): taken no earlier than the tick that sent the force it answers (its age, counted back over
-//!   the forces written on this link) and no later than when `read_state` returned, on the caller's clock
-//!   ([`TickClock`]): on the host's monotonic clock, the tick's clock plus the time the tick had taken by then;
-//!   on a virtual clock, which stands still during a tick, the tick's clock. A state that came late in its tick
-//!   (the servo thread kept off the CPU during the exchange) or an earlier one handed out again is then not
-//!   refused as a jump for the host's own delay, and a virtual clock's window is not widened by real time.
-//! - **A clock that starts over** ([`Supervisor::restart_clock`]): the servo loop starts its clock after a
-//!   set-up the clock did not see; the input checks then forget the last reading, so a handle moved meanwhile is
-//!   not refused as a jump.
+//!   closed and reopened off the servo thread. A state older than `stale_state_ticks` periods, counted from
+//!   the force it answers ([`HapticDevice::state_age_ticks`]), gives no force: zero is sent (`STALE_STATE`).
+//! - **When a state was taken** ([`SampleTime`]): no earlier than the tick that sent the force it answers (its
+//!   age, counted back over the forces written on this link), no later than when `read_state` returned on the
+//!   caller's clock ([`TickClock`]: monotonic, the tick's clock plus the tick's real time so far; virtual, the
+//!   tick's clock). A state late in its tick or handed out again is then not refused as a jump for the host's
+//!   own delay. [`Supervisor::restart_clock`] forgets the history when the servo loop's clock starts over.
 //! - **Pose verdict.** After checking each state, the supervisor tells the driver whether its position was
 //!   accepted ([`HapticDevice::input_checked`]), so a driver that converts force with a pose it read itself
-//!   never converts with a rejected one. A driver's report of messages nobody asked for
-//!   ([`DeviceEvent::Surplus`]) is passed on as a [`SupervisorEvent::Device`] and counted in `device_surplus`.
+//!   never converts with a rejected one.
 //! - **Steady before enabling.** `Starting` (and `Recovering`) count on-time ticks that end with a state
 //!   within that staleness bound; a reply that came a tick or two late keeps the count, a gap that would zero
 //!   the force or a late servo tick restarts it.
@@ -311,10 +303,8 @@ where
         self.counters.connects += 1;
     }
 
-    /// The caller's clock starts over at `now_us` (the servo loop starts its clock after a set-up of unknown
-    /// length): the input checks forget the last reading and the link's times restart here, so the first
-    /// reading on the new clock is neither refused as a jump nor counted late for time that passed unseen.
-    /// The checks apply again from the next reading on. Allocation-free.
+    /// The caller's clock starts over at `now_us` after a set-up it did not see (the servo loop's start): the input
+    /// checks forget the last reading and the link's times restart, so a handle moved meanwhile is not refused.
     pub fn restart_clock(&mut self, now_us: u64) {
         self.input.reset();
         self.write_times = WriteTimes::new(now_us);

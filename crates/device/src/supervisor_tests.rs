@@ -100,19 +100,26 @@ fn refused_on(
         .collect()
 }
 
+/// The ticks of [`late_in_its_tick`]: at 0 and 1 ms, then at 1.5 ms (catching up) and 17 ms.
+const LATE_TICKS_US: [u64; 4] = [0, 1_000, 1_500, 17_000];
+
+/// Fresh readings, but the one at the 1.5 ms tick takes 15 ms of real time to read: it was taken at 16.5 ms.
+fn late_in_its_tick() -> Vec<Read> {
+    let late = Read {
+        takes: Duration::from_millis(15),
+        ..fresh(16_500)
+    };
+    vec![fresh(0), fresh(1_000), late, fresh(17_000)]
+}
+
 #[test]
 fn a_reading_handed_over_late_in_its_tick_is_checked_against_when_it_came() {
     // Ticks at 0 and 1 ms; the next, catching up, at 1.5 ms, but the servo thread is kept off the CPU for
     // 15 ms inside its exchange: the reading it gets was taken at 16.5 ms, 8.25 mm along, 7.75 mm on from the
     // reading at 1 ms. Against the tick's clock (0.5 ms) that is 15.5 m/s, over 3.0 mm; against when it came
     // (15.5 ms or more after the 1 ms tick's force), 78 mm would be allowed.
-    let late = Read {
-        takes: Duration::from_millis(15),
-        ..fresh(16_500)
-    };
-    let reads = vec![fresh(0), fresh(1_000), late, fresh(17_000)];
     assert_eq!(
-        refused(reads, &[0, 1_000, 1_500, 17_000]),
+        refused(late_in_its_tick(), &LATE_TICKS_US),
         Vec::<usize>::new()
     );
 }
@@ -149,14 +156,8 @@ fn on_a_virtual_clock_real_time_inside_the_exchange_does_not_widen_the_window() 
     // The reads of the late-reading test above, on a clock that stands still during a tick (a test's
     // `tick × period`): the 15 ms the read takes in real time are not time on that clock. The reading at the
     // 1.5 ms tick is 7.75 mm on from the one at 1 ms, and only 0.5 ms passed on this clock: 3.0 mm allowed.
-    let late = Read {
-        takes: Duration::from_millis(15),
-        ..fresh(16_500)
-    };
-    let reads = vec![fresh(0), fresh(1_000), late, fresh(17_000)];
-    let times_us = [0, 1_000, 1_500, 17_000];
     assert_eq!(
-        refused_on(reads, &times_us, TickClock::Virtual, None),
+        refused_on(late_in_its_tick(), &LATE_TICKS_US, TickClock::Virtual, None),
         vec![2]
     );
 }

@@ -641,6 +641,21 @@ pub fn check_record_path(path: &Path) -> Result<(), MissingRecordDirectory> {
     }
 }
 
+/// A session on the built-in scene with a device double opened by `opener`, through the same reconnecting
+/// supervisor serial devices use (the session's tests).
+#[cfg(test)]
+fn start_on_double<D: voxhap_device::HapticDevice + Send + 'static>(
+    opener: impl FnMut() -> Result<D, voxhap_device::DeviceError> + Send + 'static,
+) -> Session {
+    let device = crate::device::Reconnecting::new(SupervisorConfig::default(), Box::new(opener));
+    let opened = OpenedDevice {
+        device: Box::new(device.unwrap()),
+        hand_target: None,
+    };
+    let config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
+    Session::start_opened(config, opened).unwrap()
+}
+
 #[cfg(test)]
 #[path = "session_start_tests.rs"]
 mod start_tests;

@@ -5,7 +5,6 @@
 //! readings of a handle that moved while it set up.
 
 use super::*;
-use crate::device::{OpenedDevice, Reconnecting};
 use std::time::Instant;
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 
@@ -67,13 +66,7 @@ fn a_handle_moved_while_the_session_set_up_is_not_refused() {
             seen: opener_seen.clone(),
         })
     };
-    let device = Reconnecting::new(SupervisorConfig::default(), Box::new(opener)).unwrap();
-    let opened = OpenedDevice {
-        device: Box::new(device),
-        hand_target: None,
-    };
-    let config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
-    let session = Session::start_opened(config, opened).unwrap();
+    let session = start_on_double(opener);
     let limit = Instant::now() + Duration::from_secs(60);
     while seen.lock().unwrap().forces < 200 && Instant::now() < limit {
         std::thread::sleep(Duration::from_millis(5));

@@ -5,7 +5,6 @@
 //! only after `stop` has returned (or after a minute, so that a broken stop fails instead of hanging forever).
 
 use super::*;
-use crate::device::{OpenedDevice, Reconnecting};
 use std::sync::Condvar;
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, EmergencyStop, HapticDevice};
 
@@ -128,13 +127,7 @@ fn stop_a_hanging_session(hang: Hang) -> (SessionSummary, Seen) {
             shared: opener_shared.clone(),
         })
     };
-    let device = Reconnecting::new(SupervisorConfig::default(), Box::new(opener)).unwrap();
-    let opened = OpenedDevice {
-        device: Box::new(device),
-        hand_target: None,
-    };
-    let config = SessionConfig::new(DeviceSpec::Sim, SceneSetup::builtin().unwrap());
-    let session = Session::start_opened(config, opened).unwrap();
+    let session = start_on_double(opener);
     // Ticking: some forces have gone out.
     drop(shared.wait_for(Duration::from_secs(60), |seen| seen.forces.len() >= 10));
     if hang == Hang::InWrite {

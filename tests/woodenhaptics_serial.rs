@@ -335,9 +335,7 @@ fn a_firmware_that_answers_twice_or_floods_builds_no_backlog_and_is_reported() {
             reply_timeout: Duration::from_secs(20),
             ..patient_config()
         };
-        let transport = SerialTransport::open(firmware.path(), 115_200).unwrap();
-        let mut device = Lifecycle::new(WoodenHapticsSerial::new(transport, config));
-        device.open().unwrap();
+        let mut device = open_with(firmware.path(), config);
         device.enable().unwrap();
         let mut reported = Vec::new();
         let mut aged_ticks = 0u32;

@@ -244,7 +244,7 @@ mod tests {
     use std::sync::Mutex;
     use voxhap_device::profile::DeviceProfile;
     use voxhap_device::safety::CouplingCaps;
-    use voxhap_device::supervisor::{Supervisor, SupervisorConfig, TickClock};
+    use voxhap_device::supervisor::{Supervisor, SupervisorConfig};
     use voxhap_device::{DeviceError, DeviceState, HapticDevice};
 
     /// A device that logs every force it receives, sits where it is told, and declares 2000 N/m.
@@ -321,14 +321,7 @@ mod tests {
         let mut out = None;
         for _ in 0..ticks {
             *now_us += 1000;
-            out = Some(device.exchange(TickInput {
-                force_n,
-                now_us: *now_us,
-                clock: TickClock::Virtual,
-                on_time: true,
-                force_valid: true,
-                local: None,
-            }));
+            out = Some(device.exchange(TickInput::at(force_n, *now_us)));
         }
         out.unwrap()
     }

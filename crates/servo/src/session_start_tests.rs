@@ -5,6 +5,7 @@
 //! readings of a handle that moved while it set up.
 
 use super::*;
+use std::sync::atomic::AtomicUsize;
 use std::time::Instant;
 use voxhap_device::{DeviceError, DeviceInfo, DeviceState, HapticDevice};
 
@@ -15,16 +16,11 @@ const END_X_M: f64 = 0.09;
 /// How long the first answer takes after the state it carries was taken.
 const FIRST_REPLY: Duration = Duration::from_millis(60);
 
-/// What the double saw, shared with the test.
-#[derive(Debug, Default)]
-struct Seen {
-    forces: usize,
-}
-
 struct MovingHandle {
     info: DeviceInfo,
     started: Option<Instant>,
-    seen: Arc<Mutex<Seen>>,
+    /// Forces written so far, shared with the test.
+    forces: Arc<AtomicUsize>,
 }
 
 impl HapticDevice for MovingHandle {
@@ -35,7 +31,7 @@ impl HapticDevice for MovingHandle {
     }
 
     fn write_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
-        self.seen.lock().unwrap().forces += 1;
+        self.forces.fetch_add(1, Ordering::AcqRel);
         Ok(())
     }
 
@@ -52,8 +48,8 @@ impl HapticDevice for MovingHandle {
 
 #[test]
 fn a_handle_moved_while_the_session_set_up_is_not_refused() {
-    let seen = Arc::new(Mutex::new(Seen::default()));
-    let opener_seen = seen.clone();
+    let forces = Arc::new(AtomicUsize::new(0));
+    let written = forces.clone();
     let mut opened = false;
     let opener = move || {
         // One device: a reconnect (after a link dropped for refused readings) would start the handle over.
@@ -63,19 +59,19 @@ fn a_handle_moved_while_the_session_set_up_is_not_refused() {
         Ok(MovingHandle {
             info: DeviceInfo::basic("moving handle", DVec3::splat(-0.1), DVec3::splat(0.1)),
             started: None,
-            seen: opener_seen.clone(),
+            forces: written.clone(),
         })
     };
     let session = start_on_double(opener);
     let limit = Instant::now() + Duration::from_secs(60);
-    while seen.lock().unwrap().forces < 200 && Instant::now() < limit {
+    while forces.load(Ordering::Acquire) < 200 && Instant::now() < limit {
         std::thread::sleep(Duration::from_millis(5));
     }
     let summary = session.stop();
+    let written = forces.load(Ordering::Acquire);
     assert!(
-        seen.lock().unwrap().forces >= 200,
-        "the loop wrote only {} forces in a minute",
-        seen.lock().unwrap().forces
+        written >= 200,
+        "the loop wrote only {written} forces in a minute"
     );
     let safety = &summary.stats.safety;
     assert_eq!(
